@@ -1,0 +1,154 @@
+# terrad: user-facing entry points. CMake does the real build work.
+#
+#   make deps           install missing Debian packages (scripts/deps)
+#   make build          configure (once) and build into build/ (CC=clang -> build-clang/)
+#   make run            build, then run the daemon: ./build/terrad serve $(ARGS)
+#   make test           everything CI runs; ends with "N passed, N failed"
+#   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
+#                       terrad bench)
+#   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 20 s each)
+#   make soak           tests/soak/*.sh
+#   make format         clang-format -i the C sources (format-check: only check)
+#   make web-deps       npm ci (when package-lock.json exists)
+#   make clean          remove build trees and test artifacts
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := build
+# Parallelism lives inside cmake/ctest; keep the top-level steps in order.
+.NOTPARALLEL:
+MAKEFLAGS += --no-print-directory
+
+ARGS ?=
+JOBS ?= 2
+PYTHON := /usr/bin/python3
+ARTIFACTS := test-artifacts
+
+# One build tree per compiler: the default compiler uses build/, CC=clang uses build-clang/.
+ifeq ($(filter cc gcc,$(notdir $(CC))),)
+BUILD := build-$(notdir $(CC))
+ASAN_BUILD := build-$(notdir $(CC))-asan
+else
+BUILD := build
+ASAN_BUILD := build-asan
+endif
+FUZZ_BUILD := build-fuzz
+FUZZ_CC ?= clang
+
+TERRAD := ./$(BUILD)/terrad
+TEST_ENV := TERRAD_SOURCE_DIR=$(CURDIR) TERRAD_BIN=$(CURDIR)/$(BUILD)/terrad
+
+# Configure a build tree when it has no cache yet; `cmake --build` re-runs cmake by itself
+# afterwards whenever CMakeLists.txt or a globbed directory changes.
+# $(call configure,DIR,CC,EXTRA CMAKE ARGS)
+define configure
+	@if [ ! -f $(1)/CMakeCache.txt ]; then \
+	    echo "configure: $(1) (CC=$(2))"; \
+	    CC=$(2) cmake -S . -B $(1) $(3); \
+	fi
+endef
+
+FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
+
+.PHONY: deps build build-asan run test bench fuzz fuzz-smoke fuzz-build soak format \
+        format-check web-deps clean
+
+deps:
+	@scripts/deps
+
+build: deps
+	$(call configure,$(BUILD),$(CC),)
+	cmake --build $(BUILD) -j $(JOBS)
+
+build-asan: deps
+	$(call configure,$(ASAN_BUILD),$(CC),-DCMAKE_BUILD_TYPE=Debug -DCMAKE_C_FLAGS_DEBUG="-O1 -g" -DTERRAD_SANITIZE=ON)
+	cmake --build $(ASAN_BUILD) -j $(JOBS)
+
+run: build
+	exec $(TERRAD) serve $(ARGS)
+
+# make test: every step runs even when an earlier one fails, so CI sees all failures.
+# The last line is "N passed, N failed": the sum over both ctest runs, plus one failure
+# for each step that broke before tests could run (a build, web-deps, or the fuzz smoke).
+test: deps
+	@mkdir -p $(ARTIFACTS); rm -f $(ARTIFACTS)/ctest-*.log; broken=0; \
+	if [ -f package-lock.json ]; then $(MAKE) --no-print-directory web-deps || broken=$$((broken+1)); fi; \
+	if $(MAKE) --no-print-directory build; then \
+	    ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 | tee $(ARTIFACTS)/ctest-build.log || true; \
+	else broken=$$((broken+1)); fi; \
+	if $(MAKE) --no-print-directory build-asan; then \
+	    ctest --test-dir $(ASAN_BUILD) --output-on-failure -L unit -j $(JOBS) 2>&1 | tee $(ARTIFACTS)/ctest-asan.log || true; \
+	else broken=$$((broken+1)); fi; \
+	$(MAKE) --no-print-directory fuzz-smoke || broken=$$((broken+1)); \
+	cat $(ARTIFACTS)/ctest-*.log 2>/dev/null | awk -v broken=$$broken ' \
+	    /tests passed, [0-9]+ tests? failed out of [0-9]+/ { failed += $$4; total += $$NF; runs++ } \
+	    END { passed = total - failed; failed += broken; \
+	          printf "%d passed, %d failed\n", passed, failed; exit (failed > 0) }' \
+	    || { echo "make test: FAILED (logs in $(ARTIFACTS)/)" >&2; exit 1; }
+
+bench: build
+	@shopt -s nullglob; ran=0; \
+	for b in $(BUILD)/bench_*; do \
+	    [ -x "$$b" ] && [ -f "$$b" ] || continue; \
+	    echo "== $$b"; $(TEST_ENV) "$$b"; ran=1; \
+	done; \
+	for b in tests/bench/bench_*.py; do \
+	    echo "== $$b"; $(TEST_ENV) $(PYTHON) "$$b"; ran=1; \
+	done; \
+	if { $(TERRAD) --help 2>&1 || true; } | grep -qw bench; then \
+	    echo "== $(TERRAD) bench"; $(TERRAD) bench; ran=1; \
+	else echo "bench: '$(TERRAD) bench' not available yet, skipped"; fi; \
+	[ $$ran = 1 ] || echo "bench: no benchmarks found"
+
+# Fuzz targets: tests/fuzz/fuzz_*.c, built with clang + libFuzzer + ASan/UBSan in build-fuzz/.
+# Seeds are read from tests/fuzz/corpus/<target>/ when it exists; new inputs and crashes go
+# to test-artifacts/fuzz/.
+FUZZ_TARGETS = $(patsubst tests/fuzz/%.c,%,$(wildcard tests/fuzz/fuzz_*.c))
+
+fuzz-build: deps
+	$(call configure,$(FUZZ_BUILD),$(FUZZ_CC),-DTERRAD_FUZZ=ON)
+	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target fuzz
+
+# $(call fuzz_run,SECONDS)
+define fuzz_run
+	@if [ -z "$(FUZZ_TARGETS)" ]; then echo "fuzz: no tests/fuzz/fuzz_*.c targets, nothing to run"; exit 0; fi; \
+	$(MAKE) --no-print-directory fuzz-build; \
+	failed=0; \
+	for t in $(FUZZ_TARGETS); do \
+	    corpus=$(ARTIFACTS)/fuzz/$$t/corpus; mkdir -p $$corpus; \
+	    seeds=; [ -d tests/fuzz/corpus/$$t ] && seeds=tests/fuzz/corpus/$$t; \
+	    echo "== $$t for $(1) s"; \
+	    if ./$(FUZZ_BUILD)/$$t -max_total_time=$(1) -print_final_stats=1 \
+	        -artifact_prefix=$(ARTIFACTS)/fuzz/$$t/ $$corpus $$seeds \
+	        > $(ARTIFACTS)/fuzz/$$t/log 2>&1; then \
+	        tail -n 3 $(ARTIFACTS)/fuzz/$$t/log; \
+	    else \
+	        tail -n 40 $(ARTIFACTS)/fuzz/$$t/log; echo "fuzz: $$t FAILED"; failed=1; \
+	    fi; \
+	done; \
+	exit $$failed
+endef
+
+fuzz-smoke:
+	$(call fuzz_run,20)
+
+fuzz:
+	$(call fuzz_run,300)
+
+soak: build
+	@shopt -s nullglob; scripts=(tests/soak/*.sh); \
+	if [ $${#scripts[@]} = 0 ]; then echo "soak: no tests/soak/*.sh"; exit 0; fi; \
+	for s in "$${scripts[@]}"; do echo "== $$s"; $(TEST_ENV) bash "$$s"; done
+
+format:
+	@[ -z "$(FORMAT_FILES)" ] || clang-format -i $(FORMAT_FILES)
+
+format-check:
+	@[ -z "$(FORMAT_FILES)" ] || clang-format --dry-run --Werror $(FORMAT_FILES)
+
+web-deps:
+	@if [ -f package-lock.json ]; then npm ci --no-audit --no-fund; \
+	else echo "web-deps: no package-lock.json, nothing to install"; fi
+
+clean:
+	rm -rf build build-* $(ARTIFACTS)

@@ -1,0 +1,890 @@
+/*
+ * terrad_proto.c: encoders and decoders of the binary frames, the rectangle
+ * payload codec (zigzag, little-endian packing, zstd) and the client-side
+ * mirror. PROTOCOL.md is the specification; this file follows it field by
+ * field.
+ *
+ * Reading and writing go through a cursor (buf, len, pos) whose getters
+ * check the remaining length before touching a byte, so no decoder can read
+ * past its buffer whatever the counts in the frame say. Counts are checked
+ * against the remaining length before any element is read, so a frame that
+ * claims 65535 poses in 20 bytes costs one comparison.
+ */
+#include "terrad_proto.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <zstd.h>
+#include <zstd_errors.h>
+
+/* ---- names --------------------------------------------------------------- */
+
+static const char *const err_names[] = {
+    "ok",
+    "bad_frame",
+    "unknown_type",
+    "bad_version",
+    "too_large",
+    "bad_value",
+    "unknown_collider",
+    "not_owner",
+    "limit_colliders",
+    "limit_subscriptions",
+    "rate_limited",
+    "outside_world",
+    "bad_json",
+    "unauthorized",
+    "refused_height_limit",
+    "store_unavailable",
+    "bad_compression",
+    "stale_base",
+    "unsupported_collider",
+    "unknown_subscription",
+    "shutting_down",
+    "internal",
+};
+
+const char *terrad_err_name(int code)
+{
+    if (code >= 0 && code <= TERRAD_ERR_LAST)
+        return err_names[code];
+    if (code == TERRAD_E_BUFFER_TOO_SMALL)
+        return "buffer_too_small";
+    if (code == TERRAD_E_NO_MEMORY)
+        return "no_memory";
+    return NULL;
+}
+
+int terrad_err_from_name(const char *name)
+{
+    if (!name)
+        return 0;
+    for (int i = TERRAD_ERR_FIRST; i <= TERRAD_ERR_LAST; i++)
+        if (strcmp(err_names[i], name) == 0)
+            return i;
+    if (strcmp(name, "buffer_too_small") == 0)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    if (strcmp(name, "no_memory") == 0)
+        return TERRAD_E_NO_MEMORY;
+    return 0;
+}
+
+const char *terrad_msg_type_name(int type)
+{
+    switch (type) {
+    case TERRAD_MSG_POSE_BATCH:
+        return "POSE_BATCH";
+    case TERRAD_MSG_PING:
+        return "PING";
+    case TERRAD_MSG_PONG:
+        return "PONG";
+    case TERRAD_MSG_DELTA:
+        return "DELTA";
+    case TERRAD_MSG_CONTACT:
+        return "CONTACT";
+    case TERRAD_MSG_ACK:
+        return "ACK";
+    default:
+        return NULL;
+    }
+}
+
+/* ---- little-endian cursor ------------------------------------------------ */
+
+typedef struct rd {
+    const uint8_t *p;
+    size_t len, pos;
+} rd;
+
+static size_t rd_left(const rd *r)
+{
+    return r->len - r->pos;
+}
+
+static uint8_t rd_u8(rd *r)
+{
+    return r->p[r->pos++];
+}
+
+static uint16_t rd_u16(rd *r)
+{
+    const uint8_t *p = r->p + r->pos;
+    r->pos += 2;
+    return (uint16_t)(p[0] | (p[1] << 8));
+}
+
+static uint32_t rd_u32(rd *r)
+{
+    const uint8_t *p = r->p + r->pos;
+    r->pos += 4;
+    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+}
+
+static uint64_t rd_u64(rd *r)
+{
+    uint64_t lo = rd_u32(r);
+    uint64_t hi = rd_u32(r);
+    return lo | (hi << 32);
+}
+
+static float rd_f32(rd *r)
+{
+    uint32_t u = rd_u32(r);
+    float f;
+    memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+static uint8_t *wr_u8(uint8_t *p, uint8_t v)
+{
+    *p = v;
+    return p + 1;
+}
+
+static uint8_t *wr_u16(uint8_t *p, uint16_t v)
+{
+    p[0] = (uint8_t)v;
+    p[1] = (uint8_t)(v >> 8);
+    return p + 2;
+}
+
+static uint8_t *wr_u32(uint8_t *p, uint32_t v)
+{
+    p[0] = (uint8_t)v;
+    p[1] = (uint8_t)(v >> 8);
+    p[2] = (uint8_t)(v >> 16);
+    p[3] = (uint8_t)(v >> 24);
+    return p + 4;
+}
+
+static uint8_t *wr_u64(uint8_t *p, uint64_t v)
+{
+    p = wr_u32(p, (uint32_t)v);
+    return wr_u32(p, (uint32_t)(v >> 32));
+}
+
+static uint8_t *wr_f32(uint8_t *p, float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return wr_u32(p, u);
+}
+
+static uint8_t *wr_header(uint8_t *p, uint8_t type)
+{
+    p = wr_u8(p, TERRAD_PROTO_MAGIC);
+    p = wr_u8(p, TERRAD_PROTO_VERSION);
+    p = wr_u8(p, type);
+    return wr_u8(p, 0);
+}
+
+static int finite_all(const float *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
+/* ---- header -------------------------------------------------------------- */
+
+int terrad_header_decode(const uint8_t *buf, size_t len, terrad_header *out)
+{
+    if (!buf || len < TERRAD_HEADER_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (buf[0] != TERRAD_PROTO_MAGIC)
+        return TERRAD_E_BAD_FRAME;
+    if (buf[1] != TERRAD_PROTO_VERSION)
+        return TERRAD_E_BAD_VERSION;
+    if (!terrad_msg_type_name(buf[2]))
+        return TERRAD_E_UNKNOWN_TYPE;
+    if (buf[3] != 0)
+        return TERRAD_E_BAD_FRAME;
+    if (out) {
+        out->magic = buf[0];
+        out->version = buf[1];
+        out->type = buf[2];
+        out->flags = buf[3];
+    }
+    return TERRAD_OK;
+}
+
+/* Header of the one type a decoder reads; another known type is
+ * unknown_type (the receiver does not take it here). */
+static int expect_header(const uint8_t *buf, size_t len, uint8_t type, rd *r)
+{
+    terrad_header h;
+    int rc = terrad_header_decode(buf, len, &h);
+    if (rc)
+        return rc;
+    if (h.type != type)
+        return TERRAD_E_UNKNOWN_TYPE;
+    r->p = buf;
+    r->len = len;
+    r->pos = TERRAD_HEADER_SIZE;
+    return TERRAD_OK;
+}
+
+/* ---- POSE_BATCH ---------------------------------------------------------- */
+
+static int pose_check(const terrad_pose *p)
+{
+    const float v[7] = {p->x, p->y, p->z, p->qw, p->qx, p->qy, p->qz};
+    if (!finite_all(v, 7))
+        return TERRAD_E_BAD_VALUE;
+    double n2 = (double)p->qw * p->qw + (double)p->qx * p->qx + (double)p->qy * p->qy +
+                (double)p->qz * p->qz;
+    if (n2 < 0.81 || n2 > 1.21) /* |q| within [0.9, 1.1]; the server normalises */
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+size_t terrad_pose_batch_size(size_t count)
+{
+    return TERRAD_POSE_BATCH_FIXED + count * TERRAD_POSE_SIZE;
+}
+
+int terrad_pose_batch_encode(uint8_t *buf, size_t cap, size_t *len_out, uint32_t seq,
+                             const terrad_pose *poses, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (pose_check(&poses[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_pose_batch_size(count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_POSE_BATCH);
+    p = wr_u32(p, seq);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        const terrad_pose *q = &poses[i];
+        p = wr_u32(p, q->id);
+        p = wr_f32(p, q->x);
+        p = wr_f32(p, q->y);
+        p = wr_f32(p, q->z);
+        p = wr_f32(p, q->qw);
+        p = wr_f32(p, q->qx);
+        p = wr_f32(p, q->qy);
+        p = wr_f32(p, q->qz);
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_pose_batch_decode(const uint8_t *buf, size_t len, uint32_t *seq_out, terrad_pose *poses,
+                             size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_POSE_BATCH, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 6)
+        return TERRAD_E_BAD_FRAME;
+    uint32_t seq = rd_u32(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * TERRAD_POSE_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_pose q;
+        q.id = rd_u32(&r);
+        q.x = rd_f32(&r);
+        q.y = rd_f32(&r);
+        q.z = rd_f32(&r);
+        q.qw = rd_f32(&r);
+        q.qx = rd_f32(&r);
+        q.qy = rd_f32(&r);
+        q.qz = rd_f32(&r);
+        if (pose_check(&q))
+            return TERRAD_E_BAD_VALUE;
+        poses[i] = q;
+    }
+    if (seq_out)
+        *seq_out = seq;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+/* ---- DELTA --------------------------------------------------------------- */
+
+int terrad_rect_check(const terrad_rect *r)
+{
+    if (r->w == 0 || r->h == 0)
+        return TERRAD_E_BAD_VALUE;
+    if ((int64_t)r->x + r->w - 1 > INT32_MAX || (int64_t)r->y + r->h - 1 > INT32_MAX)
+        return TERRAD_E_BAD_VALUE;
+    if (r->new_version == 0)
+        return TERRAD_E_BAD_VALUE;
+    if (r->encoding == TERRAD_ENC_DELTA) {
+        if (r->base_version == 0 || r->base_version == r->new_version)
+            return TERRAD_E_BAD_VALUE;
+    } else if (r->encoding == TERRAD_ENC_SNAPSHOT) {
+        if (r->base_version != 0)
+            return TERRAD_E_BAD_VALUE;
+    } else {
+        return TERRAD_E_BAD_VALUE;
+    }
+    if (r->data_len == 0)
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+size_t terrad_delta_size(const terrad_rect *rects, size_t count)
+{
+    size_t n = TERRAD_DELTA_FIXED;
+    for (size_t i = 0; i < count; i++)
+        n += TERRAD_RECT_FIXED + rects[i].data_len;
+    return n;
+}
+
+int terrad_delta_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                        const terrad_rect *rects, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (terrad_rect_check(&rects[i]) || !rects[i].data)
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_delta_size(rects, count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_DELTA);
+    p = wr_u64(p, tick);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        const terrad_rect *q = &rects[i];
+        p = wr_u32(p, (uint32_t)q->x);
+        p = wr_u32(p, (uint32_t)q->y);
+        p = wr_u16(p, q->w);
+        p = wr_u16(p, q->h);
+        p = wr_u32(p, q->base_version);
+        p = wr_u32(p, q->new_version);
+        p = wr_u8(p, q->encoding);
+        p = wr_u32(p, q->data_len);
+        memcpy(p, q->data, q->data_len);
+        p += q->data_len;
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_delta_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_rect *rects,
+                        size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_DELTA, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 10)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) / TERRAD_RECT_FIXED < count)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_rect q;
+        if (rd_left(&r) < TERRAD_RECT_FIXED)
+            return TERRAD_E_BAD_FRAME;
+        q.x = (int32_t)rd_u32(&r);
+        q.y = (int32_t)rd_u32(&r);
+        q.w = rd_u16(&r);
+        q.h = rd_u16(&r);
+        q.base_version = rd_u32(&r);
+        q.new_version = rd_u32(&r);
+        q.encoding = rd_u8(&r);
+        q.data_len = rd_u32(&r);
+        if (rd_left(&r) < q.data_len)
+            return TERRAD_E_BAD_FRAME;
+        q.data = r.p + r.pos;
+        r.pos += q.data_len;
+        if (terrad_rect_check(&q))
+            return TERRAD_E_BAD_VALUE;
+        rects[i] = q;
+    }
+    if (rd_left(&r) != 0)
+        return TERRAD_E_BAD_FRAME;
+    if (tick_out)
+        *tick_out = tick;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+/* ---- CONTACT ------------------------------------------------------------- */
+
+static int contact_check(const terrad_contact *c)
+{
+    const float v[9] = {c->area_m2,    c->deepest[0],       c->deepest[1],
+                        c->deepest[2], c->normal[0],        c->normal[1],
+                        c->normal[2],  c->support_height_m, 0.0f};
+    if (!finite_all(v, 8))
+        return TERRAD_E_BAD_VALUE;
+    if (c->volume < 0 || c->area_m2 < 0.0f)
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+size_t terrad_contact_size(size_t count)
+{
+    return TERRAD_CONTACT_FIXED + count * TERRAD_CONTACT_SIZE;
+}
+
+int terrad_contact_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                          const terrad_contact *contacts, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (contact_check(&contacts[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_contact_size(count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_CONTACT);
+    p = wr_u64(p, tick);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        const terrad_contact *c = &contacts[i];
+        p = wr_u32(p, c->id);
+        p = wr_u64(p, (uint64_t)c->volume);
+        p = wr_u32(p, c->cells);
+        p = wr_f32(p, c->area_m2);
+        for (int k = 0; k < 3; k++)
+            p = wr_f32(p, c->deepest[k]);
+        for (int k = 0; k < 3; k++)
+            p = wr_f32(p, c->normal[k]);
+        p = wr_f32(p, c->support_height_m);
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_contact_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                          terrad_contact *contacts, size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_CONTACT, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 10)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * TERRAD_CONTACT_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_contact c;
+        c.id = rd_u32(&r);
+        c.volume = (int64_t)rd_u64(&r);
+        c.cells = rd_u32(&r);
+        c.area_m2 = rd_f32(&r);
+        for (int k = 0; k < 3; k++)
+            c.deepest[k] = rd_f32(&r);
+        for (int k = 0; k < 3; k++)
+            c.normal[k] = rd_f32(&r);
+        c.support_height_m = rd_f32(&r);
+        if (contact_check(&c))
+            return TERRAD_E_BAD_VALUE;
+        contacts[i] = c;
+    }
+    if (tick_out)
+        *tick_out = tick;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+/* ---- ACK, PING, PONG ----------------------------------------------------- */
+
+int terrad_ack_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick, uint32_t seq)
+{
+    if (!buf || cap < TERRAD_ACK_SIZE)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_ACK);
+    p = wr_u64(p, tick);
+    wr_u32(p, seq);
+    if (len_out)
+        *len_out = TERRAD_ACK_SIZE;
+    return TERRAD_OK;
+}
+
+int terrad_ack_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, uint32_t *seq_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_ACK, &r);
+    if (rc)
+        return rc;
+    if (len != TERRAD_ACK_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    uint32_t seq = rd_u32(&r);
+    if (tick_out)
+        *tick_out = tick;
+    if (seq_out)
+        *seq_out = seq;
+    return TERRAD_OK;
+}
+
+int terrad_ping_encode(uint8_t *buf, size_t cap, size_t *len_out, uint8_t type, uint64_t nonce)
+{
+    if (type != TERRAD_MSG_PING && type != TERRAD_MSG_PONG)
+        return TERRAD_E_UNKNOWN_TYPE;
+    if (!buf || cap < TERRAD_PING_SIZE)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, type);
+    wr_u64(p, nonce);
+    if (len_out)
+        *len_out = TERRAD_PING_SIZE;
+    return TERRAD_OK;
+}
+
+int terrad_ping_decode(const uint8_t *buf, size_t len, uint8_t *type_out, uint64_t *nonce_out)
+{
+    terrad_header h;
+    int rc = terrad_header_decode(buf, len, &h);
+    if (rc)
+        return rc;
+    if (h.type != TERRAD_MSG_PING && h.type != TERRAD_MSG_PONG)
+        return TERRAD_E_UNKNOWN_TYPE;
+    if (len != TERRAD_PING_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    rd r = {buf, len, TERRAD_HEADER_SIZE};
+    uint64_t nonce = rd_u64(&r);
+    if (type_out)
+        *type_out = h.type;
+    if (nonce_out)
+        *nonce_out = nonce;
+    return TERRAD_OK;
+}
+
+/* ---- rectangle payloads -------------------------------------------------- */
+
+uint32_t terrad_zigzag32(int32_t v)
+{
+    uint32_t u = (uint32_t)v;
+    return (u << 1) ^ (0u - (u >> 31));
+}
+
+int32_t terrad_unzigzag32(uint32_t u)
+{
+    uint32_t v = (u >> 1) ^ (0u - (u & 1u));
+    int32_t s;
+    memcpy(&s, &v, sizeof s); /* two's complement reinterpretation, no UB */
+    return s;
+}
+
+static int32_t wrap_i32(uint32_t u)
+{
+    int32_t s;
+    memcpy(&s, &u, sizeof s);
+    return s;
+}
+
+void terrad_rect_diff(const int32_t *old_h, const int32_t *new_h, size_t cells, int32_t *out)
+{
+    for (size_t i = 0; i < cells; i++)
+        out[i] = wrap_i32((uint32_t)new_h[i] - (uint32_t)old_h[i]);
+}
+
+void terrad_rect_pack(const int32_t *values, size_t cells, uint8_t *out)
+{
+    for (size_t i = 0; i < cells; i++)
+        wr_u32(out + 4 * i, terrad_zigzag32(values[i]));
+}
+
+void terrad_rect_unpack(const uint8_t *in, size_t cells, int32_t *out)
+{
+    /* in may alias out: each 4-byte group is read before it is written. */
+    for (size_t i = 0; i < cells; i++) {
+        const uint8_t *p = in + 4 * i;
+        uint32_t u = (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) |
+                     ((uint32_t)p[3] << 24);
+        out[i] = terrad_unzigzag32(u);
+    }
+}
+
+struct terrad_codec {
+    int level;
+    ZSTD_CCtx *cctx;
+    ZSTD_DCtx *dctx;
+    uint8_t *scratch; /* packing buffer for compression */
+    size_t scratch_cap;
+};
+
+terrad_codec *terrad_codec_new(int level)
+{
+    terrad_codec *c = calloc(1, sizeof *c);
+    if (!c)
+        return NULL;
+    c->level = level > 0 ? level : 3;
+    c->cctx = ZSTD_createCCtx();
+    c->dctx = ZSTD_createDCtx();
+    if (!c->cctx || !c->dctx) {
+        terrad_codec_free(c);
+        return NULL;
+    }
+    return c;
+}
+
+void terrad_codec_free(terrad_codec *c)
+{
+    if (!c)
+        return;
+    ZSTD_freeCCtx(c->cctx);
+    ZSTD_freeDCtx(c->dctx);
+    free(c->scratch);
+    free(c);
+}
+
+size_t terrad_rect_compress_bound(size_t cells)
+{
+    if (cells > SIZE_MAX / 8)
+        return 0;
+    return ZSTD_compressBound(cells * 4);
+}
+
+int terrad_rect_compress(terrad_codec *c, const int32_t *values, size_t cells, uint8_t *out,
+                         size_t cap, size_t *len_out)
+{
+    if (cells == 0 || cells > SIZE_MAX / 8)
+        return TERRAD_E_TOO_LARGE;
+    terrad_codec *own = NULL;
+    if (!c) {
+        own = c = terrad_codec_new(3);
+        if (!c)
+            return TERRAD_E_NO_MEMORY;
+    }
+    int rc = TERRAD_OK;
+    size_t raw = cells * 4;
+    if (c->scratch_cap < raw) {
+        uint8_t *p = realloc(c->scratch, raw);
+        if (!p) {
+            rc = TERRAD_E_NO_MEMORY;
+            goto done;
+        }
+        c->scratch = p;
+        c->scratch_cap = raw;
+    }
+    terrad_rect_pack(values, cells, c->scratch);
+    /* ZSTD_compressCCtx writes the content size into the frame header. */
+    size_t n = ZSTD_compressCCtx(c->cctx, out, cap, c->scratch, raw, c->level);
+    if (ZSTD_isError(n)) {
+        rc = ZSTD_getErrorCode(n) == ZSTD_error_dstSize_tooSmall ? TERRAD_E_BUFFER_TOO_SMALL
+                                                                 : TERRAD_E_INTERNAL;
+        goto done;
+    }
+    if (len_out)
+        *len_out = n;
+done:
+    terrad_codec_free(own);
+    return rc;
+}
+
+int terrad_rect_decompress(terrad_codec *c, const uint8_t *data, size_t len, size_t cells,
+                           int32_t *out, size_t out_cap)
+{
+    if (cells == 0 || cells > out_cap || cells > SIZE_MAX / 8)
+        return TERRAD_E_TOO_LARGE;
+    size_t raw = cells * 4;
+    if (!data || len == 0)
+        return TERRAD_E_BAD_COMPRESSION;
+    /* Exactly one frame, nothing after it. */
+    size_t frame = ZSTD_findFrameCompressedSize(data, len);
+    if (ZSTD_isError(frame) || frame != len)
+        return TERRAD_E_BAD_COMPRESSION;
+    unsigned long long declared = ZSTD_getFrameContentSize(data, len);
+    if (declared == ZSTD_CONTENTSIZE_UNKNOWN || declared == ZSTD_CONTENTSIZE_ERROR ||
+        declared != (unsigned long long)raw)
+        return TERRAD_E_BAD_COMPRESSION;
+    terrad_codec *own = NULL;
+    if (!c) {
+        own = c = terrad_codec_new(3);
+        if (!c)
+            return TERRAD_E_NO_MEMORY;
+    }
+    int rc = TERRAD_OK;
+    size_t n = ZSTD_decompressDCtx(c->dctx, out, raw, data, len);
+    if (ZSTD_isError(n) || n != raw)
+        rc = TERRAD_E_BAD_COMPRESSION;
+    else
+        terrad_rect_unpack((const uint8_t *)out, cells, out);
+    terrad_codec_free(own);
+    return rc;
+}
+
+/* Intersection of two rectangles in int64; 0 when empty. */
+typedef struct box {
+    int64_t x0, y0, x1, y1; /* half-open */
+} box;
+
+static int box_meet(box a, box b, box *out)
+{
+    out->x0 = a.x0 > b.x0 ? a.x0 : b.x0;
+    out->y0 = a.y0 > b.y0 ? a.y0 : b.y0;
+    out->x1 = a.x1 < b.x1 ? a.x1 : b.x1;
+    out->y1 = a.y1 < b.y1 ? a.y1 : b.y1;
+    return out->x0 < out->x1 && out->y0 < out->y1;
+}
+
+static box rect_box(const terrad_rect *r)
+{
+    box b = {r->x, r->y, (int64_t)r->x + r->w, (int64_t)r->y + r->h};
+    return b;
+}
+
+size_t terrad_rect_apply_values(const terrad_rect *r, const int32_t *values, int32_t *heights,
+                                int32_t hx, int32_t hy, uint32_t hw, uint32_t hh)
+{
+    box region = {hx, hy, (int64_t)hx + hw, (int64_t)hy + hh}, m;
+    if (!box_meet(rect_box(r), region, &m))
+        return 0;
+    size_t touched = 0;
+    for (int64_t y = m.y0; y < m.y1; y++) {
+        const int32_t *src = values + (size_t)(y - r->y) * r->w + (size_t)(m.x0 - r->x);
+        int32_t *dst = heights + (size_t)(y - hy) * hw + (size_t)(m.x0 - hx);
+        size_t n = (size_t)(m.x1 - m.x0);
+        if (r->encoding == TERRAD_ENC_SNAPSHOT) {
+            memcpy(dst, src, n * sizeof *dst);
+        } else {
+            for (size_t i = 0; i < n; i++)
+                dst[i] = wrap_i32((uint32_t)dst[i] + (uint32_t)src[i]);
+        }
+        touched += n;
+    }
+    return touched;
+}
+
+/* ---- client-side mirror -------------------------------------------------- */
+
+static int64_t floor_div(int64_t a, int64_t b)
+{
+    int64_t q = a / b;
+    if ((a % b != 0) && ((a < 0) != (b < 0)))
+        q--;
+    return q;
+}
+
+size_t terrad_mirror_tile_count(int32_t x, int32_t y, uint32_t w, uint32_t h, uint32_t tile_size)
+{
+    if (w == 0 || h == 0 || tile_size == 0)
+        return 0;
+    int64_t tx = floor_div((int64_t)x + w - 1, tile_size) - floor_div(x, tile_size) + 1;
+    int64_t ty = floor_div((int64_t)y + h - 1, tile_size) - floor_div(y, tile_size) + 1;
+    return (size_t)tx * (size_t)ty;
+}
+
+int terrad_mirror_init(terrad_mirror *m, int32_t x, int32_t y, uint32_t w, uint32_t h,
+                       uint32_t tile_size, int32_t *heights, uint32_t *versions)
+{
+    size_t tiles = terrad_mirror_tile_count(x, y, w, h, tile_size);
+    if (tiles == 0 || !heights || !versions || (int64_t)x + w - 1 > INT32_MAX ||
+        (int64_t)y + h - 1 > INT32_MAX)
+        return TERRAD_E_BAD_VALUE;
+    memset(m, 0, sizeof *m);
+    m->x = x;
+    m->y = y;
+    m->w = w;
+    m->h = h;
+    m->tile_size = tile_size;
+    m->heights = heights;
+    m->versions = versions;
+    m->tx0 = floor_div(x, tile_size);
+    m->ty0 = floor_div(y, tile_size);
+    m->tiles_x = (uint32_t)(floor_div((int64_t)x + w - 1, tile_size) - m->tx0 + 1);
+    m->tiles_y = (uint32_t)(floor_div((int64_t)y + h - 1, tile_size) - m->ty0 + 1);
+    memset(versions, 0, tiles * sizeof *versions);
+    return TERRAD_OK;
+}
+
+/* What one rectangle means for the mirror: skip it, or apply it to tile t. */
+enum { RECT_SKIP, RECT_APPLY };
+
+static int mirror_classify(const terrad_mirror *m, const terrad_rect *r, size_t *tile_out)
+{
+    int64_t T = m->tile_size;
+    int64_t tx = floor_div(r->x, T), ty = floor_div(r->y, T);
+    if (floor_div((int64_t)r->x + r->w - 1, T) != tx ||
+        floor_div((int64_t)r->y + r->h - 1, T) != ty)
+        return -TERRAD_E_BAD_VALUE; /* spans tiles */
+    /* Rectangles of a tile the region does not touch are not ours. */
+    if (tx < m->tx0 || ty < m->ty0 || tx >= m->tx0 + m->tiles_x || ty >= m->ty0 + m->tiles_y)
+        return RECT_SKIP;
+    size_t t = (size_t)(tx - m->tx0) + (size_t)(ty - m->ty0) * m->tiles_x;
+    *tile_out = t;
+    if (r->encoding == TERRAD_ENC_SNAPSHOT) {
+        box region = {m->x, m->y, (int64_t)m->x + m->w, (int64_t)m->y + m->h};
+        box tile = {tx * T, ty * T, tx * T + T, ty * T + T}, part, tpart;
+        box_meet(tile, region, &tpart);
+        if (!box_meet(rect_box(r), region, &part) || part.x0 != tpart.x0 || part.y0 != tpart.y0 ||
+            part.x1 != tpart.x1 || part.y1 != tpart.y1)
+            return RECT_SKIP; /* covers only some of what the mirror holds of the tile */
+        return RECT_APPLY;
+    }
+    /* A delta rectangle of a held tile advances its version even when none
+     * of its cells lie in the region. */
+    uint32_t held = m->versions[t];
+    if (held == 0)
+        return RECT_SKIP; /* no snapshot yet */
+    if (held != r->base_version)
+        return -TERRAD_E_STALE_BASE;
+    return RECT_APPLY;
+}
+
+int terrad_mirror_apply(terrad_mirror *m, terrad_codec *c, const terrad_rect *rects, size_t count,
+                        int32_t *scratch, size_t scratch_cells)
+{
+    size_t t;
+    for (size_t i = 0; i < count; i++) {
+        int k = mirror_classify(m, &rects[i], &t);
+        if (k < 0)
+            return -k;
+        if (k == RECT_APPLY && (size_t)rects[i].w * rects[i].h > scratch_cells)
+            return TERRAD_E_TOO_LARGE;
+    }
+    terrad_codec *own = NULL;
+    if (!c) {
+        own = c = terrad_codec_new(3);
+        if (!c)
+            return TERRAD_E_NO_MEMORY;
+    }
+    int rc = TERRAD_OK;
+    for (size_t i = 0; i < count; i++) {
+        const terrad_rect *r = &rects[i];
+        /* Classified against the versions before this frame: a tile's
+         * rectangles in one frame share base and new version. */
+        if (r->encoding == TERRAD_ENC_DELTA) {
+            int k = mirror_classify(m, r, &t);
+            if (k == RECT_SKIP)
+                continue;
+            if (k < 0 && m->versions[t] != r->new_version) {
+                rc = -k;
+                break;
+            }
+        } else if (mirror_classify(m, r, &t) != RECT_APPLY) {
+            continue;
+        }
+        rc = terrad_rect_decompress(c, r->data, r->data_len, (size_t)r->w * r->h, scratch,
+                                    scratch_cells);
+        if (rc)
+            break;
+        terrad_rect_apply_values(r, scratch, m->heights, m->x, m->y, m->w, m->h);
+        m->versions[t] = r->new_version;
+    }
+    if (rc)
+        memset(m->versions, 0, (size_t)m->tiles_x * m->tiles_y * sizeof *m->versions);
+    terrad_codec_free(own);
+    return rc;
+}

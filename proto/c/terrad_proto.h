@@ -1,0 +1,251 @@
+/*
+ * terrad_proto: the binary half of the terrad wire protocol (proto/PROTOCOL.md)
+ * as plain C11 codecs, shared by the server and by C clients.
+ *
+ * Every frame starts with a 4-byte header (magic 'T', protocol version,
+ * message type, flags) followed by little-endian fields. Encoders write into
+ * a caller buffer of known capacity and refuse values the protocol forbids
+ * (NaN/Inf floats, counts past 65535); decoders read a buffer of known length
+ * and never read past it: a truncated frame, trailing bytes, a count larger
+ * than the payload or lengths that do not add up are each refused with one of
+ * the protocol's error codes (terrad_proto_err), never a crash or a guess.
+ *
+ * Heights travel as rectangles of int32: a delta rectangle carries new - old
+ * (two's complement, wrapping), a snapshot rectangle the absolute heights;
+ * either is zigzag-mapped to u32, packed little-endian row-major and
+ * zstd-compressed as one frame with its content size in the header.
+ * terrad_rect_compress / terrad_rect_decompress do that; terrad_mirror keeps
+ * a client-side copy of a region and applies DELTA frames to it with the
+ * version checks of the protocol.
+ *
+ * Depends on libc and libzstd only. Nothing here allocates except a
+ * terrad_codec (and the one-off codec a NULL codec argument stands for).
+ */
+#ifndef TERRAD_PROTO_H
+#define TERRAD_PROTO_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define TERRAD_PROTO_VERSION 1
+#define TERRAD_PROTO_MAGIC 0x54 /* 'T' */
+#define TERRAD_PROTO_SUBPROTOCOL "terrad.v1"
+
+/* Fixed sizes in bytes (PROTOCOL.md, "Binary frames"). */
+#define TERRAD_HEADER_SIZE 4
+#define TERRAD_POSE_BATCH_FIXED 10 /* header, u32 seq, u16 count */
+#define TERRAD_POSE_SIZE 32        /* u32 id, 7 x f32 */
+#define TERRAD_DELTA_FIXED 14      /* header, u64 tick, u16 count */
+#define TERRAD_RECT_FIXED 25       /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
+#define TERRAD_CONTACT_FIXED 14    /* header, u64 tick, u16 count */
+#define TERRAD_CONTACT_SIZE 48     /* u32 id, i64 volume, u32 cells, 8 x f32 */
+#define TERRAD_ACK_SIZE 16         /* header, u64 tick, u32 seq */
+#define TERRAD_PING_SIZE 12        /* header, u64 nonce */
+#define TERRAD_MAX_COUNT 65535     /* every count on the wire is a u16 */
+
+typedef enum terrad_msg_type {
+    TERRAD_MSG_POSE_BATCH = 0x01, /* client -> server */
+    TERRAD_MSG_PING = 0x02,       /* either way */
+    TERRAD_MSG_PONG = 0x03,       /* either way */
+    TERRAD_MSG_DELTA = 0x10,      /* server -> client */
+    TERRAD_MSG_CONTACT = 0x11,    /* server -> client */
+    TERRAD_MSG_ACK = 0x12,        /* server -> client */
+} terrad_msg_type;
+
+/* Error codes: positive values are the protocol's (PROTOCOL.md, "Errors"),
+ * sent in error messages; negative values are local to this library. */
+typedef enum terrad_proto_err {
+    TERRAD_OK = 0,
+    TERRAD_E_BAD_FRAME = 1,
+    TERRAD_E_UNKNOWN_TYPE = 2,
+    TERRAD_E_BAD_VERSION = 3,
+    TERRAD_E_TOO_LARGE = 4,
+    TERRAD_E_BAD_VALUE = 5,
+    TERRAD_E_UNKNOWN_COLLIDER = 6,
+    TERRAD_E_NOT_OWNER = 7,
+    TERRAD_E_LIMIT_COLLIDERS = 8,
+    TERRAD_E_LIMIT_SUBSCRIPTIONS = 9,
+    TERRAD_E_RATE_LIMITED = 10,
+    TERRAD_E_OUTSIDE_WORLD = 11,
+    TERRAD_E_BAD_JSON = 12,
+    TERRAD_E_UNAUTHORIZED = 13,
+    TERRAD_E_REFUSED_HEIGHT_LIMIT = 14,
+    TERRAD_E_STORE_UNAVAILABLE = 15,
+    TERRAD_E_BAD_COMPRESSION = 16,
+    TERRAD_E_STALE_BASE = 17,
+    TERRAD_E_UNSUPPORTED_COLLIDER = 18,
+    TERRAD_E_UNKNOWN_SUBSCRIPTION = 19,
+    TERRAD_E_SHUTTING_DOWN = 20,
+    TERRAD_E_INTERNAL = 21,
+    TERRAD_E_BUFFER_TOO_SMALL = -1, /* local: the caller's output buffer is too small */
+    TERRAD_E_NO_MEMORY = -2,        /* local: an allocation failed */
+} terrad_proto_err;
+
+#define TERRAD_ERR_FIRST 1
+#define TERRAD_ERR_LAST 21
+
+/* "bad_frame" etc.; "ok" for 0; NULL for an unknown code. */
+const char *terrad_err_name(int code);
+/* The code for a name, or 0 when the name is unknown. */
+int terrad_err_from_name(const char *name);
+/* "POSE_BATCH" etc.; NULL for an unknown type byte. */
+const char *terrad_msg_type_name(int type);
+
+/* ---- header -------------------------------------------------------------- */
+
+typedef struct terrad_header {
+    uint8_t magic, version, type, flags;
+} terrad_header;
+
+/* Checks, in this order: length >= 4 (bad_frame), magic (bad_frame), version
+ * (bad_version), type known (unknown_type), flags zero (bad_frame). */
+int terrad_header_decode(const uint8_t *buf, size_t len, terrad_header *out);
+
+/* ---- POSE_BATCH ---------------------------------------------------------- */
+
+typedef struct terrad_pose {
+    uint32_t id;
+    float x, y, z;        /* metres, world frame */
+    float qw, qx, qy, qz; /* orientation, body to world; |q| in [0.9, 1.1] */
+} terrad_pose;
+
+/* Size of a batch of count poses. */
+size_t terrad_pose_batch_size(size_t count);
+int terrad_pose_batch_encode(uint8_t *buf, size_t cap, size_t *len_out, uint32_t seq,
+                             const terrad_pose *poses, size_t count);
+/* A batch holding more than cap poses is refused with too_large. */
+int terrad_pose_batch_decode(const uint8_t *buf, size_t len, uint32_t *seq_out, terrad_pose *poses,
+                             size_t cap, size_t *count_out);
+
+/* ---- DELTA --------------------------------------------------------------- */
+
+typedef enum terrad_encoding {
+    TERRAD_ENC_DELTA = 0,    /* new - old, zigzag, packed, zstd */
+    TERRAD_ENC_SNAPSHOT = 1, /* absolute heights, zigzag, packed, zstd */
+} terrad_encoding;
+
+typedef struct terrad_rect {
+    int32_t x, y;          /* first cell, world cell coordinates */
+    uint16_t w, h;         /* cells, >= 1 */
+    uint32_t base_version; /* delta: the tile version it applies to (>= 1); snapshot: 0 */
+    uint32_t new_version;  /* the tile version after it (>= 1) */
+    uint8_t encoding;      /* terrad_encoding */
+    uint32_t data_len;     /* compressed bytes */
+    const uint8_t *data;   /* encode: caller's bytes; decode: points into the frame */
+} terrad_rect;
+
+/* Checks one rectangle's fields (sizes, versions, encoding, extent within
+ * int32): 0 or bad_value. */
+int terrad_rect_check(const terrad_rect *r);
+size_t terrad_delta_size(const terrad_rect *rects, size_t count);
+int terrad_delta_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                        const terrad_rect *rects, size_t count);
+/* Validates the whole frame (every rectangle, lengths adding up to exactly
+ * len) before returning; rects[i].data point into buf. */
+int terrad_delta_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_rect *rects,
+                        size_t cap, size_t *count_out);
+
+/* ---- CONTACT ------------------------------------------------------------- */
+
+typedef struct terrad_contact {
+    uint32_t id;            /* collider id */
+    int64_t volume;         /* penetrating volume, height units x cells, >= 0 */
+    uint32_t cells;         /* cells in contact */
+    float area_m2;          /* contact area, m^2, >= 0 */
+    float deepest[3];       /* deepest point, metres, world frame */
+    float normal[3];        /* mean contact normal, unit (0,0,1 when no contact) */
+    float support_height_m; /* terrain height under the collider's centre, metres */
+} terrad_contact;
+
+size_t terrad_contact_size(size_t count);
+int terrad_contact_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                          const terrad_contact *contacts, size_t count);
+int terrad_contact_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                          terrad_contact *contacts, size_t cap, size_t *count_out);
+
+/* ---- ACK, PING, PONG ----------------------------------------------------- */
+
+int terrad_ack_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick, uint32_t seq);
+int terrad_ack_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, uint32_t *seq_out);
+/* type is TERRAD_MSG_PING or TERRAD_MSG_PONG. */
+int terrad_ping_encode(uint8_t *buf, size_t cap, size_t *len_out, uint8_t type, uint64_t nonce);
+/* Accepts either PING or PONG; *type_out says which. */
+int terrad_ping_decode(const uint8_t *buf, size_t len, uint8_t *type_out, uint64_t *nonce_out);
+
+/* ---- rectangle payloads -------------------------------------------------- */
+
+uint32_t terrad_zigzag32(int32_t v);
+int32_t terrad_unzigzag32(uint32_t u);
+/* out[i] = new[i] - old[i], wrapping modulo 2^32 (exact for any int32 pair). */
+void terrad_rect_diff(const int32_t *old_h, const int32_t *new_h, size_t cells, int32_t *out);
+/* Zigzag and pack as little-endian u32: out holds 4 * cells bytes. */
+void terrad_rect_pack(const int32_t *values, size_t cells, uint8_t *out);
+void terrad_rect_unpack(const uint8_t *in, size_t cells, int32_t *out);
+
+/* Reusable zstd contexts and packing scratch; every function taking one
+ * accepts NULL and then makes a one-off context. Not thread-safe: one per
+ * thread. */
+typedef struct terrad_codec terrad_codec;
+terrad_codec *terrad_codec_new(int level); /* level <= 0: 3 */
+void terrad_codec_free(terrad_codec *c);
+
+/* Largest compressed size of a rectangle of cells. */
+size_t terrad_rect_compress_bound(size_t cells);
+/* Pack and compress cells values (zstd level of the codec, 3 for NULL) as
+ * one zstd frame with its content size. */
+int terrad_rect_compress(terrad_codec *c, const int32_t *values, size_t cells, uint8_t *out,
+                         size_t cap, size_t *len_out);
+/* Decompress a rectangle of cells values into out (out_cap values). Refuses
+ * cells > out_cap (too_large) and, with bad_compression, anything but exactly
+ * one zstd frame whose declared and actual content size are 4 * cells. */
+int terrad_rect_decompress(terrad_codec *c, const uint8_t *data, size_t len, size_t cells,
+                           int32_t *out, size_t out_cap);
+
+/* Apply decoded rectangle values to a heights array covering the region
+ * (hx, hy, hw, hh), clipped to it: snapshot values replace heights, delta
+ * values are added (wrapping). Returns the number of cells touched. */
+size_t terrad_rect_apply_values(const terrad_rect *r, const int32_t *values, int32_t *heights,
+                                int32_t hx, int32_t hy, uint32_t hw, uint32_t hh);
+
+/* ---- client-side mirror -------------------------------------------------- */
+
+/* A client's copy of one region with a version per tile (PROTOCOL.md,
+ * "Versions"). Version 0 means "not held yet": deltas for that tile are
+ * skipped until a snapshot of the tile's whole part of the region arrives. */
+typedef struct terrad_mirror {
+    int32_t x, y; /* region, world cells */
+    uint32_t w, h;
+    uint32_t tile_size; /* from the world message */
+    int32_t *heights;   /* w * h, row-major, caller's memory */
+    uint32_t *versions; /* terrad_mirror_tile_count(), caller's memory */
+    int64_t tx0, ty0;   /* first tile column and row (computed) */
+    uint32_t tiles_x, tiles_y;
+} terrad_mirror;
+
+/* Tiles touching the region, or 0 for an empty region or tile_size 0. */
+size_t terrad_mirror_tile_count(int32_t x, int32_t y, uint32_t w, uint32_t h, uint32_t tile_size);
+/* Set up m over caller arrays; versions are zeroed, heights left alone. */
+int terrad_mirror_init(terrad_mirror *m, int32_t x, int32_t y, uint32_t w, uint32_t h,
+                       uint32_t tile_size, int32_t *heights, uint32_t *versions);
+/* Apply the rectangles of one DELTA frame (as terrad_delta_decode gives
+ * them). First every rectangle is checked: each must lie within one tile
+ * (bad_value); a delta rectangle for a held tile whose base_version differs
+ * from the held version fails the whole frame with stale_base and changes
+ * nothing (the client should resync). Then the rectangles are applied:
+ * snapshot rectangles covering the tile's whole part of the region set the
+ * tile's version (partial ones are ignored), delta rectangles for held tiles
+ * are added. scratch holds scratch_cells int32 (at least the largest
+ * rectangle). If decompression fails part way, every version is reset to 0
+ * and the error returned: resync. */
+int terrad_mirror_apply(terrad_mirror *m, terrad_codec *c, const terrad_rect *rects, size_t count,
+                        int32_t *scratch, size_t scratch_cells);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* TERRAD_PROTO_H */

@@ -1,0 +1,729 @@
+"""terrad wire protocol for Python: codecs and a small asyncio client.
+
+The specification is proto/PROTOCOL.md; this module follows it field by field
+and is checked against proto/vectors/vectors.json, like the C codec.
+
+Needs Python 3.11 (Debian's /usr/bin/python3) with the Debian packages
+python3-zstandard (zstd) and, for TerradClient only, python3-websockets.
+
+Codec part (no network):
+    encode_pose_batch / decode_pose_batch, encode_delta / decode_delta,
+    encode_contact / decode_contact, encode_ack / decode_ack,
+    encode_ping / decode_ping, decode_header, decode (any binary frame),
+    rect_diff, rect_pack, rect_unpack, rect_compress, rect_decompress,
+    apply_values, Mirror (a client-side copy of one region with tile versions),
+    and builders of the JSON control messages.
+Every decoder raises ProtoError(code) with the protocol's error name; none
+reads past its buffer or trusts a count before checking it against the length.
+
+Client part:
+    async with TerradClient("ws://127.0.0.1:8081/", token="") as c:
+        wheel = await c.create_collider("wheel", radius=0.35, width=0.25)
+        sub = await c.subscribe(0, 0, 256, 256)
+        await c.send_poses([Pose(wheel, 10.0, 10.0, 0.3, 1, 0, 0, 0)])
+        heights = c.mirrors[sub].heights    # row-major int32, exact
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import struct
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+try:
+    import zstandard as _zstd
+except ImportError as _e:  # pragma: no cover - the package is a declared dependency
+    raise ImportError("terrad_proto needs zstd for Python: apt-get install python3-zstandard") from _e
+
+PROTOCOL_VERSION = 1
+MAGIC = 0x54
+SUBPROTOCOL = "terrad.v1"
+HEADER_SIZE = 4
+POSE_SIZE = 32
+RECT_FIXED = 25
+CONTACT_SIZE = 48
+ACK_SIZE = 16
+PING_SIZE = 12
+MAX_COUNT = 65535
+ZSTD_LEVEL = 3
+
+
+class MsgType(IntEnum):
+    POSE_BATCH = 0x01
+    PING = 0x02
+    PONG = 0x03
+    DELTA = 0x10
+    CONTACT = 0x11
+    ACK = 0x12
+
+
+class Encoding(IntEnum):
+    DELTA = 0
+    SNAPSHOT = 1
+
+
+ERRORS = {
+    1: "bad_frame",
+    2: "unknown_type",
+    3: "bad_version",
+    4: "too_large",
+    5: "bad_value",
+    6: "unknown_collider",
+    7: "not_owner",
+    8: "limit_colliders",
+    9: "limit_subscriptions",
+    10: "rate_limited",
+    11: "outside_world",
+    12: "bad_json",
+    13: "unauthorized",
+    14: "refused_height_limit",
+    15: "store_unavailable",
+    16: "bad_compression",
+    17: "stale_base",
+    18: "unsupported_collider",
+    19: "unknown_subscription",
+    20: "shutting_down",
+    21: "internal",
+}
+ERROR_CODES = {name: code for code, name in ERRORS.items()}
+
+
+class ProtoError(Exception):
+    """A protocol error: .code (int) and .name (e.g. "bad_frame")."""
+
+    def __init__(self, code: int | str, message: str = ""):
+        if isinstance(code, str):
+            code = ERROR_CODES[code]
+        self.code = code
+        self.name = ERRORS.get(code, "unknown")
+        self.message = message
+        super().__init__(f"{self.name}: {message}" if message else self.name)
+
+
+class ServerError(ProtoError):
+    """An error message the server sent: also .ref, the request it answers."""
+
+    def __init__(self, msg: dict):
+        super().__init__(int(msg.get("code", 21)), str(msg.get("message", "")))
+        self.ref = msg.get("ref")
+        self.msg = msg
+
+
+@dataclass
+class Pose:
+    id: int
+    x: float
+    y: float
+    z: float
+    qw: float = 1.0
+    qx: float = 0.0
+    qy: float = 0.0
+    qz: float = 0.0
+
+
+@dataclass
+class Rect:
+    x: int
+    y: int
+    w: int
+    h: int
+    base_version: int
+    new_version: int
+    encoding: int
+    data: bytes
+
+
+@dataclass
+class Contact:
+    id: int
+    volume: int
+    cells: int
+    area_m2: float
+    deepest: tuple
+    normal: tuple
+    support_height_m: float
+
+
+# ---- helpers -----------------------------------------------------------------
+
+_U32 = 0xFFFFFFFF
+
+
+def _f32(v) -> float:
+    """Round to float32; NaN/Inf or out of float32 range is bad_value."""
+    try:
+        r = struct.unpack("<f", struct.pack("<f", v))[0]
+    except (OverflowError, struct.error, TypeError) as e:
+        raise ProtoError("bad_value", f"not a float32: {v!r}") from e
+    if not math.isfinite(r):
+        raise ProtoError("bad_value", f"not finite: {v!r}")
+    return r
+
+
+def _header(t: int) -> bytes:
+    return bytes((MAGIC, PROTOCOL_VERSION, t, 0))
+
+
+def decode_header(buf: bytes) -> MsgType:
+    """Checks length, magic, version, type and flags, in that order."""
+    if len(buf) < HEADER_SIZE:
+        raise ProtoError("bad_frame", "shorter than the header")
+    if buf[0] != MAGIC:
+        raise ProtoError("bad_frame", f"magic 0x{buf[0]:02x}")
+    if buf[1] != PROTOCOL_VERSION:
+        raise ProtoError("bad_version", f"protocol version {buf[1]}, this codec speaks {PROTOCOL_VERSION}")
+    try:
+        t = MsgType(buf[2])
+    except ValueError:
+        raise ProtoError("unknown_type", f"type 0x{buf[2]:02x}") from None
+    if buf[3] != 0:
+        raise ProtoError("bad_frame", "reserved flags set")
+    return t
+
+
+def _expect(buf: bytes, t: MsgType) -> None:
+    got = decode_header(buf)
+    if got != t:
+        raise ProtoError("unknown_type", f"{got.name} where {t.name} was expected")
+
+
+def _check_quaternion(qw, qx, qy, qz) -> None:
+    n2 = qw * qw + qx * qx + qy * qy + qz * qz
+    if n2 < 0.81 or n2 > 1.21:
+        raise ProtoError("bad_value", f"|q|^2 = {n2} outside [0.81, 1.21]")
+
+
+# ---- POSE_BATCH ----------------------------------------------------------------
+
+_POSE = struct.Struct("<I7f")
+
+
+def encode_pose_batch(seq: int, poses: list[Pose]) -> bytes:
+    if len(poses) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(poses)} poses")
+    out = [_header(MsgType.POSE_BATCH), struct.pack("<IH", seq & _U32, len(poses))]
+    for p in poses:
+        v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
+        _check_quaternion(*v[3:])
+        out.append(_POSE.pack(p.id, *v))
+    return b"".join(out)
+
+
+def decode_pose_batch(buf: bytes, max_poses: int = MAX_COUNT) -> tuple[int, list[Pose]]:
+    _expect(buf, MsgType.POSE_BATCH)
+    if len(buf) < 10:
+        raise ProtoError("bad_frame", "truncated")
+    seq, count = struct.unpack_from("<IH", buf, 4)
+    if len(buf) - 10 != count * POSE_SIZE:
+        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 10} bytes of poses")
+    if count > max_poses:
+        raise ProtoError("too_large", f"{count} poses, at most {max_poses}")
+    poses = []
+    for i in range(count):
+        pid, *v = _POSE.unpack_from(buf, 10 + i * POSE_SIZE)
+        if not all(math.isfinite(a) for a in v):
+            raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
+        _check_quaternion(*v[3:])
+        poses.append(Pose(pid, *v))
+    return seq, poses
+
+
+# ---- DELTA -----------------------------------------------------------------------
+
+_RECT = struct.Struct("<iiHHIIBI")
+
+
+def check_rect(r: Rect) -> None:
+    """Field checks of one rectangle; raises bad_value."""
+    if not (1 <= r.w <= 0xFFFF and 1 <= r.h <= 0xFFFF):
+        raise ProtoError("bad_value", f"size {r.w} x {r.h}")
+    if not (-(2**31) <= r.x and r.x + r.w - 1 <= 2**31 - 1 and -(2**31) <= r.y and r.y + r.h - 1 <= 2**31 - 1):
+        raise ProtoError("bad_value", "rectangle past the int32 range")
+    if not (0 < r.new_version <= _U32 and 0 <= r.base_version <= _U32):
+        raise ProtoError("bad_value", "version out of range")
+    if r.encoding == Encoding.DELTA:
+        if r.base_version == 0 or r.base_version == r.new_version:
+            raise ProtoError("bad_value", "a delta needs base_version >= 1 and != new_version")
+    elif r.encoding == Encoding.SNAPSHOT:
+        if r.base_version != 0:
+            raise ProtoError("bad_value", "a snapshot has base_version 0")
+    else:
+        raise ProtoError("bad_value", f"encoding {r.encoding}")
+    if len(r.data) == 0:
+        raise ProtoError("bad_value", "empty payload")
+
+
+def encode_delta(tick: int, rects: list[Rect]) -> bytes:
+    if len(rects) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(rects)} rectangles")
+    out = [_header(MsgType.DELTA), struct.pack("<QH", tick, len(rects))]
+    for r in rects:
+        check_rect(r)
+        out.append(_RECT.pack(r.x, r.y, r.w, r.h, r.base_version, r.new_version, r.encoding, len(r.data)))
+        out.append(bytes(r.data))
+    return b"".join(out)
+
+
+def decode_delta(buf: bytes, max_rects: int = MAX_COUNT) -> tuple[int, list[Rect]]:
+    """Validates the whole frame; rectangle payloads stay compressed."""
+    _expect(buf, MsgType.DELTA)
+    if len(buf) < 14:
+        raise ProtoError("bad_frame", "truncated")
+    tick, count = struct.unpack_from("<QH", buf, 4)
+    if (len(buf) - 14) // RECT_FIXED < count:
+        raise ProtoError("bad_frame", f"count {count} larger than the frame")
+    if count > max_rects:
+        raise ProtoError("too_large", f"{count} rectangles, at most {max_rects}")
+    pos = 14
+    rects = []
+    mv = memoryview(buf)
+    for _ in range(count):
+        if len(buf) - pos < RECT_FIXED:
+            raise ProtoError("bad_frame", "rectangle header truncated")
+        x, y, w, h, base, new, enc, n = _RECT.unpack_from(buf, pos)
+        pos += RECT_FIXED
+        if len(buf) - pos < n:
+            raise ProtoError("bad_frame", "payload past the end of the frame")
+        r = Rect(x, y, w, h, base, new, enc, bytes(mv[pos:pos + n]))
+        pos += n
+        check_rect(r)
+        rects.append(r)
+    if pos != len(buf):
+        raise ProtoError("bad_frame", f"{len(buf) - pos} bytes after the last rectangle")
+    return tick, rects
+
+
+# ---- CONTACT, ACK, PING, PONG ----------------------------------------------------------
+
+_CONTACT = struct.Struct("<IqI8f")
+
+
+def encode_contact(tick: int, contacts: list[Contact]) -> bytes:
+    if len(contacts) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(contacts)} contacts")
+    out = [_header(MsgType.CONTACT), struct.pack("<QH", tick, len(contacts))]
+    for c in contacts:
+        f = [_f32(a) for a in (c.area_m2, *c.deepest, *c.normal, c.support_height_m)]
+        if c.volume < 0 or f[0] < 0:
+            raise ProtoError("bad_value", "negative volume or area")
+        out.append(_CONTACT.pack(c.id, c.volume, c.cells, *f))
+    return b"".join(out)
+
+
+def decode_contact(buf: bytes, max_contacts: int = MAX_COUNT) -> tuple[int, list[Contact]]:
+    _expect(buf, MsgType.CONTACT)
+    if len(buf) < 14:
+        raise ProtoError("bad_frame", "truncated")
+    tick, count = struct.unpack_from("<QH", buf, 4)
+    if len(buf) - 14 != count * CONTACT_SIZE:
+        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
+    if count > max_contacts:
+        raise ProtoError("too_large", f"{count} contacts")
+    out = []
+    for i in range(count):
+        cid, vol, cells, *f = _CONTACT.unpack_from(buf, 14 + i * CONTACT_SIZE)
+        if not all(math.isfinite(a) for a in f):
+            raise ProtoError("bad_value", f"contact of collider {cid} is not finite")
+        if vol < 0 or f[0] < 0:
+            raise ProtoError("bad_value", "negative volume or area")
+        out.append(Contact(cid, vol, cells, f[0], tuple(f[1:4]), tuple(f[4:7]), f[7]))
+    return tick, out
+
+
+def encode_ack(tick: int, seq: int) -> bytes:
+    return _header(MsgType.ACK) + struct.pack("<QI", tick, seq)
+
+
+def decode_ack(buf: bytes) -> tuple[int, int]:
+    _expect(buf, MsgType.ACK)
+    if len(buf) != ACK_SIZE:
+        raise ProtoError("bad_frame", f"ACK of {len(buf)} bytes")
+    return struct.unpack_from("<QI", buf, 4)
+
+
+def encode_ping(nonce: int, pong: bool = False) -> bytes:
+    return _header(MsgType.PONG if pong else MsgType.PING) + struct.pack("<Q", nonce)
+
+
+def decode_ping(buf: bytes) -> tuple[MsgType, int]:
+    t = decode_header(buf)
+    if t not in (MsgType.PING, MsgType.PONG):
+        raise ProtoError("unknown_type", f"{t.name} where PING or PONG was expected")
+    if len(buf) != PING_SIZE:
+        raise ProtoError("bad_frame", f"{t.name} of {len(buf)} bytes")
+    return t, struct.unpack_from("<Q", buf, 4)[0]
+
+
+def decode(buf: bytes):
+    """Any binary frame: (MsgType, decoded tuple)."""
+    t = decode_header(buf)
+    if t == MsgType.POSE_BATCH:
+        return t, decode_pose_batch(buf)
+    if t == MsgType.DELTA:
+        return t, decode_delta(buf)
+    if t == MsgType.CONTACT:
+        return t, decode_contact(buf)
+    if t == MsgType.ACK:
+        return t, decode_ack(buf)
+    return t, decode_ping(buf)[1]
+
+
+# ---- rectangle payloads ------------------------------------------------------------------
+
+
+def _wrap(v: int) -> int:
+    return ((v + 2**31) & _U32) - 2**31
+
+
+def zigzag32(v: int) -> int:
+    return ((v << 1) ^ (v >> 31)) & _U32
+
+
+def unzigzag32(u: int) -> int:
+    return (u >> 1) ^ -(u & 1)
+
+
+def rect_diff(old: list[int], new: list[int]) -> list[int]:
+    """new - old per cell, wrapping modulo 2^32 (exact for any int32 pair)."""
+    return [_wrap(n - o) for o, n in zip(old, new)]
+
+
+def rect_pack(values: list[int]) -> bytes:
+    return struct.pack(f"<{len(values)}I", *[((v << 1) ^ (v >> 31)) & _U32 for v in values])
+
+
+def rect_unpack(data: bytes) -> list[int]:
+    n = len(data) // 4
+    return [(u >> 1) ^ -(u & 1) for u in struct.unpack(f"<{n}I", data[:4 * n])]
+
+
+def rect_compress(values: list[int], level: int = ZSTD_LEVEL) -> bytes:
+    """Pack and compress as one zstd frame with its content size."""
+    return _zstd.ZstdCompressor(level=level, write_content_size=True).compress(rect_pack(values))
+
+
+def rect_decompress(data: bytes, cells: int, max_cells: int | None = None) -> list[int]:
+    """Exactly one zstd frame declaring and holding 4 * cells bytes, else
+    bad_compression; more than max_cells cells is too_large."""
+    if cells <= 0 or (max_cells is not None and cells > max_cells):
+        raise ProtoError("too_large", f"{cells} cells")
+    raw = cells * 4
+    try:
+        declared = _zstd.frame_content_size(data)
+    except _zstd.ZstdError as e:
+        raise ProtoError("bad_compression", str(e)) from None
+    if declared != raw:
+        raise ProtoError("bad_compression", f"frame declares {declared} bytes, the rectangle needs {raw}")
+    d = _zstd.ZstdDecompressor().decompressobj()
+    try:
+        out = d.decompress(data)
+    except _zstd.ZstdError as e:
+        raise ProtoError("bad_compression", str(e)) from None
+    if not d.eof or d.unused_data or len(out) != raw:
+        raise ProtoError("bad_compression", "not exactly one complete zstd frame of the declared size")
+    return rect_unpack(out)
+
+
+def apply_values(r: Rect, values: list[int], heights: list[int], hx: int, hy: int, hw: int, hh: int) -> int:
+    """Apply decoded values to a heights array covering (hx, hy, hw, hh),
+    clipped: snapshots replace, deltas add (wrapping). Cells touched."""
+    x0, y0 = max(r.x, hx), max(r.y, hy)
+    x1, y1 = min(r.x + r.w, hx + hw), min(r.y + r.h, hy + hh)
+    if x0 >= x1 or y0 >= y1:
+        return 0
+    n = x1 - x0
+    for y in range(y0, y1):
+        s = (y - r.y) * r.w + (x0 - r.x)
+        d = (y - hy) * hw + (x0 - hx)
+        if r.encoding == Encoding.SNAPSHOT:
+            heights[d:d + n] = values[s:s + n]
+        else:
+            heights[d:d + n] = [_wrap(a + b) for a, b in zip(heights[d:d + n], values[s:s + n])]
+    return n * (y1 - y0)
+
+
+class Mirror:
+    """A client's copy of one region with a version per tile (PROTOCOL.md,
+    "Versions"). Version 0: not held yet. Same rules as terrad_mirror_apply."""
+
+    def __init__(self, x: int, y: int, w: int, h: int, tile_size: int):
+        if w <= 0 or h <= 0 or tile_size <= 0:
+            raise ProtoError("bad_value", "empty region or tile size")
+        self.x, self.y, self.w, self.h, self.tile_size = x, y, w, h, tile_size
+        self.tx0, self.ty0 = x // tile_size, y // tile_size
+        self.tiles_x = (x + w - 1) // tile_size - self.tx0 + 1
+        self.tiles_y = (y + h - 1) // tile_size - self.ty0 + 1
+        self.heights = [0] * (w * h)
+        self.versions = [0] * (self.tiles_x * self.tiles_y)
+
+    @property
+    def complete(self) -> bool:
+        return all(self.versions)
+
+    def _classify(self, r: Rect):
+        """(tile index or None, apply?); raises bad_value / stale_base."""
+        T = self.tile_size
+        tx, ty = r.x // T, r.y // T
+        if (r.x + r.w - 1) // T != tx or (r.y + r.h - 1) // T != ty:
+            raise ProtoError("bad_value", "rectangle spans tiles")
+        if not (self.tx0 <= tx < self.tx0 + self.tiles_x and self.ty0 <= ty < self.ty0 + self.tiles_y):
+            return None, False
+        t = (tx - self.tx0) + (ty - self.ty0) * self.tiles_x
+        if r.encoding == Encoding.SNAPSHOT:
+            part = (max(r.x, self.x), max(r.y, self.y), min(r.x + r.w, self.x + self.w), min(r.y + r.h, self.y + self.h))
+            tpart = (max(tx * T, self.x), max(ty * T, self.y), min(tx * T + T, self.x + self.w), min(ty * T + T, self.y + self.h))
+            return t, part == tpart
+        held = self.versions[t]
+        if held == 0:
+            return t, False
+        if held != r.base_version:
+            raise ProtoError("stale_base", f"tile held at {held}, delta from {r.base_version}")
+        return t, True
+
+    def apply(self, rects: list[Rect], max_cells: int = 1 << 22) -> None:
+        """Apply one DELTA frame's rectangles; all or nothing for stale_base."""
+        for r in rects:
+            _, ok = self._classify(r)
+            if ok and r.w * r.h > max_cells:
+                raise ProtoError("too_large", f"{r.w} x {r.h} rectangle")
+        try:
+            for r in rects:
+                try:
+                    t, ok = self._classify(r)
+                except ProtoError as e:
+                    # A second rectangle of a tile this frame already advanced.
+                    if e.name != "stale_base":
+                        raise
+                    T = self.tile_size
+                    t = (r.x // T - self.tx0) + (r.y // T - self.ty0) * self.tiles_x
+                    if self.versions[t] != r.new_version:
+                        raise
+                    ok = True
+                if not ok:
+                    continue
+                values = rect_decompress(r.data, r.w * r.h, max_cells)
+                apply_values(r, values, self.heights, self.x, self.y, self.w, self.h)
+                self.versions[t] = r.new_version
+        except ProtoError:
+            self.versions = [0] * len(self.versions)
+            raise
+
+
+# ---- JSON control messages ---------------------------------------------------------------
+
+
+def hello(token: str = "", client: str = "terrad-python") -> dict:
+    return {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
+
+
+def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True, **dims) -> dict:
+    """shape: sphere (radius), box (half_extents), capsule (radius,
+    half_length), cylinder (radius, half_length), wheel (radius, width), mesh
+    (vertices, indices). Optional pose=Pose-like dict {"p":[x,y,z],"q":[w,x,y,z]}."""
+    msg = {"type": "collider_create", "shape": shape, "material": material, "feedback": feedback}
+    msg.update(dims)
+    if ref is not None:
+        msg["ref"] = ref
+    return msg
+
+
+def collider_delete(cid: int, ref=None) -> dict:
+    return _with_ref({"type": "collider_delete", "id": cid}, ref)
+
+
+def subscribe(x: int, y: int, w: int, h: int, ref=None) -> dict:
+    return _with_ref({"type": "subscribe", "x": x, "y": y, "w": w, "h": h}, ref)
+
+
+def unsubscribe(sid: int, ref=None) -> dict:
+    return _with_ref({"type": "unsubscribe", "id": sid}, ref)
+
+
+def resync(sid: int | None = None, ref=None) -> dict:
+    msg = {"type": "resync"}
+    if sid is not None:
+        msg["id"] = sid
+    return _with_ref(msg, ref)
+
+
+def error(code: int | str, message: str = "", ref=None) -> dict:
+    if isinstance(code, str):
+        code = ERROR_CODES[code]
+    return {"type": "error", "code": code, "name": ERRORS[code], "message": message, "ref": ref}
+
+
+def _with_ref(msg: dict, ref) -> dict:
+    if ref is not None:
+        msg["ref"] = ref
+    return msg
+
+
+def parse_control(text: str | bytes) -> dict:
+    """A JSON text frame: an object with a string "type", else bad_json."""
+    try:
+        msg = json.loads(text)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ProtoError("bad_json", str(e)) from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise ProtoError("bad_json", 'not an object with a string "type"')
+    return msg
+
+
+# ---- client --------------------------------------------------------------------------------
+
+
+class TerradClient:
+    """A terrad client over websockets (asyncio): hello, colliders, poses,
+    subscriptions with exact local mirrors, contact feedback.
+
+    Server errors answering a request raise ServerError from that request;
+    others are kept in .errors. A mirror that falls out of step (stale_base,
+    a bad payload) asks the server for a resync by itself."""
+
+    def __init__(self, uri: str, token: str = "", name: str = "terrad-python", max_size: int = 1 << 24):
+        self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
+        self.ws = None
+        self.world: dict = {}
+        self.mirrors: dict[int, Mirror] = {}
+        self.contacts: dict[int, Contact] = {}
+        self.contact_tick = 0
+        self.acked_tick = 0
+        self.acked_seq = 0
+        self.tick = 0  # last DELTA tick seen
+        self.errors: list[dict] = []
+        self._seq = 0
+        self._ref = 0
+        self._pending: dict[str, asyncio.Future] = {}
+        self._reader: asyncio.Task | None = None
+        self._changed = asyncio.Event()
+
+    async def __aenter__(self):
+        await self.connect()
+        return self
+
+    async def __aexit__(self, *exc):
+        await self.close()
+
+    async def connect(self) -> dict:
+        import websockets  # Debian: python3-websockets
+
+        self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL], max_size=self.max_size)
+        await self.ws.send(json.dumps(hello(self.token, self.name)))
+        msg = parse_control(await self.ws.recv())
+        if msg["type"] == "error":
+            raise ServerError(msg)
+        if msg["type"] != "world":
+            raise ProtoError("bad_json", f"expected world, got {msg['type']}")
+        self.world = msg
+        self._reader = asyncio.get_running_loop().create_task(self._read())
+        return msg
+
+    async def close(self) -> None:
+        if self.ws is not None:
+            await self.ws.close()
+        if self._reader is not None:
+            try:
+                await self._reader
+            except Exception:
+                pass
+
+    async def request(self, msg: dict, reply: str, timeout: float = 10.0) -> dict:
+        """Send a control message with a fresh ref and wait for its reply."""
+        self._ref += 1
+        ref = f"r{self._ref}"
+        msg["ref"] = ref
+        fut = asyncio.get_running_loop().create_future()
+        self._pending[ref] = fut
+        await self.ws.send(json.dumps(msg))
+        try:
+            got = await asyncio.wait_for(fut, timeout)
+        finally:
+            self._pending.pop(ref, None)
+        if got["type"] != reply:
+            raise ProtoError("bad_json", f"expected {reply}, got {got['type']}")
+        return got
+
+    async def create_collider(self, shape: str, material: str = "default", **dims) -> int:
+        return (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
+
+    async def delete_collider(self, cid: int) -> None:
+        await self.request(collider_delete(cid), "collider_deleted")
+
+    async def send_poses(self, poses: list[Pose]) -> int:
+        """Send one batch; returns its sequence number (see wait_ack)."""
+        self._seq = (self._seq + 1) & _U32
+        await self.ws.send(encode_pose_batch(self._seq, poses))
+        return self._seq
+
+    async def subscribe(self, x: int, y: int, w: int, h: int) -> int:
+        got = await self.request(subscribe(x, y, w, h), "subscribed")
+        return got["id"]
+
+    async def unsubscribe(self, sid: int) -> None:
+        await self.request(unsubscribe(sid), "unsubscribed")
+        self.mirrors.pop(sid, None)
+
+    async def resync(self, sid: int | None = None) -> None:
+        await self.ws.send(json.dumps(resync(sid)))
+
+    async def wait_for(self, predicate, timeout: float = 10.0) -> None:
+        """Wait until predicate() holds, re-checked after every message."""
+        async def loop():
+            while not predicate():
+                self._changed.clear()
+                await self._changed.wait()
+        await asyncio.wait_for(loop(), timeout)
+
+    async def wait_ack(self, seq: int, timeout: float = 10.0) -> None:
+        await self.wait_for(lambda: self.acked_seq >= seq, timeout)
+
+    async def _read(self) -> None:
+        try:
+            async for data in self.ws:
+                if isinstance(data, str):
+                    await self._on_json(data)
+                else:
+                    await self._on_binary(data)
+                self._changed.set()
+        finally:
+            for fut in self._pending.values():
+                if not fut.done():
+                    fut.set_exception(ConnectionError("connection closed"))
+            self._changed.set()
+
+    async def _on_json(self, text: str) -> None:
+        msg = parse_control(text)
+        t = msg["type"]
+        if t == "subscribed":
+            self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
+        fut = self._pending.get(msg.get("ref")) if isinstance(msg.get("ref"), str) else None
+        if t == "error":
+            if fut and not fut.done():
+                fut.set_exception(ServerError(msg))
+            else:
+                self.errors.append(msg)
+                del self.errors[:-100]
+        elif fut and not fut.done():
+            fut.set_result(msg)
+
+    async def _on_binary(self, data: bytes) -> None:
+        t = decode_header(data)
+        if t == MsgType.DELTA:
+            tick, rects = decode_delta(data)
+            self.tick = tick
+            for sid, m in self.mirrors.items():
+                try:
+                    m.apply(rects)
+                except ProtoError as e:
+                    self.errors.append(error(e.code, f"subscription {sid}: {e.message}"))
+                    await self.resync(sid)
+        elif t == MsgType.CONTACT:
+            self.contact_tick, cs = decode_contact(data)
+            self.contacts = {c.id: c for c in cs}
+        elif t == MsgType.ACK:
+            self.acked_tick, self.acked_seq = decode_ack(data)
+        elif t == MsgType.PING:
+            await self.ws.send(encode_ping(decode_ping(data)[1], pong=True))

@@ -1,0 +1,706 @@
+/*
+ * gen_vectors.c: writes proto/vectors/vectors.json, the test vectors every
+ * terrad codec (C, Python, JavaScript) is checked against.
+ *
+ * Valid vectors are built with the C encoders; compressed rectangle payloads
+ * are the bytes the C encoder produced at zstd level 3 with the libzstd
+ * named in the file (other zstd versions may compress differently, so
+ * encoders are checked on the packed bytes and by round trip, decoders on
+ * these exact bytes). Invalid vectors are valid frames with bytes patched by
+ * hand, each with the error a decoder must return. The mirror scenarios are
+ * replayed through the C mirror and record what a client must hold after
+ * each frame.
+ *
+ * Regenerate (from the repository root):  sh proto/vectors/regenerate.sh
+ */
+#include <inttypes.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+#include <zstd.h>
+
+#include "terrad_proto.h"
+
+static void die(const char *what)
+{
+    fprintf(stderr, "gen_vectors: %s\n", what);
+    exit(1);
+}
+
+static void ok(int rc, const char *what)
+{
+    if (rc != TERRAD_OK) {
+        fprintf(stderr, "gen_vectors: %s: %s\n", what, terrad_err_name(rc));
+        exit(1);
+    }
+}
+
+static char *hex(const uint8_t *p, size_t n)
+{
+    char *s = malloc(2 * n + 1);
+    if (!s)
+        die("out of memory");
+    for (size_t i = 0; i < n; i++)
+        sprintf(s + 2 * i, "%02x", p[i]);
+    s[2 * n] = 0;
+    return s;
+}
+
+static void add_hex(cJSON *o, const char *key, const uint8_t *p, size_t n)
+{
+    char *s = hex(p, n);
+    cJSON_AddStringToObject(o, key, s);
+    free(s);
+}
+
+static void add_u64(cJSON *o, const char *key, uint64_t v)
+{
+    char s[32];
+    snprintf(s, sizeof s, "%" PRIu64, v);
+    cJSON_AddStringToObject(o, key, s);
+}
+
+static void add_i64(cJSON *o, const char *key, int64_t v)
+{
+    char s[32];
+    snprintf(s, sizeof s, "%" PRId64, v);
+    cJSON_AddStringToObject(o, key, s);
+}
+
+static cJSON *int_array(const int32_t *v, size_t n)
+{
+    cJSON *a = cJSON_CreateArray();
+    for (size_t i = 0; i < n; i++)
+        cJSON_AddItemToArray(a, cJSON_CreateNumber(v[i]));
+    return a;
+}
+
+static cJSON *float_array(const float *v, size_t n)
+{
+    cJSON *a = cJSON_CreateArray();
+    for (size_t i = 0; i < n; i++)
+        cJSON_AddItemToArray(a, cJSON_CreateNumber(v[i]));
+    return a;
+}
+
+static cJSON *vectors, *scenarios;
+static uint8_t buf[1 << 20];
+
+static cJSON *vector(const char *name, const char *type, const char *about)
+{
+    cJSON *v = cJSON_CreateObject();
+    cJSON_AddStringToObject(v, "name", name);
+    cJSON_AddStringToObject(v, "type", type);
+    cJSON_AddStringToObject(v, "about", about);
+    cJSON_AddItemToArray(vectors, v);
+    return v;
+}
+
+static void valid(cJSON *v, cJSON *fields, const uint8_t *p, size_t n)
+{
+    cJSON_AddBoolToObject(v, "valid", 1);
+    cJSON_AddItemToObject(v, "fields", fields);
+    add_hex(v, "hex", p, n);
+}
+
+static void invalid(const char *name, const char *type, const char *about, const uint8_t *p,
+                    size_t n, int err)
+{
+    cJSON *v = vector(name, type, about);
+    cJSON_AddBoolToObject(v, "valid", 0);
+    cJSON_AddStringToObject(v, "error", terrad_err_name(err));
+    add_hex(v, "hex", p, n);
+}
+
+/* ---- POSE_BATCH ---- */
+
+static cJSON *pose_fields(uint32_t seq, const terrad_pose *poses, size_t n)
+{
+    cJSON *f = cJSON_CreateObject();
+    cJSON_AddNumberToObject(f, "seq", seq);
+    cJSON *a = cJSON_AddArrayToObject(f, "poses");
+    for (size_t i = 0; i < n; i++) {
+        cJSON *p = cJSON_CreateObject();
+        cJSON_AddNumberToObject(p, "id", poses[i].id);
+        cJSON_AddNumberToObject(p, "x", poses[i].x);
+        cJSON_AddNumberToObject(p, "y", poses[i].y);
+        cJSON_AddNumberToObject(p, "z", poses[i].z);
+        cJSON_AddNumberToObject(p, "qw", poses[i].qw);
+        cJSON_AddNumberToObject(p, "qx", poses[i].qx);
+        cJSON_AddNumberToObject(p, "qy", poses[i].qy);
+        cJSON_AddNumberToObject(p, "qz", poses[i].qz);
+        cJSON_AddItemToArray(a, p);
+    }
+    return f;
+}
+
+static size_t pose_vector(const char *name, const char *about, uint32_t seq,
+                          const terrad_pose *poses, size_t n)
+{
+    size_t len;
+    ok(terrad_pose_batch_encode(buf, sizeof buf, &len, seq, poses, n), name);
+    valid(vector(name, "POSE_BATCH", about), pose_fields(seq, poses, n), buf, len);
+    return len;
+}
+
+static void set_f32(uint8_t *p, float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, 4);
+    p[0] = (uint8_t)u;
+    p[1] = (uint8_t)(u >> 8);
+    p[2] = (uint8_t)(u >> 16);
+    p[3] = (uint8_t)(u >> 24);
+}
+
+static void set_u32(uint8_t *p, uint32_t u)
+{
+    p[0] = (uint8_t)u;
+    p[1] = (uint8_t)(u >> 8);
+    p[2] = (uint8_t)(u >> 16);
+    p[3] = (uint8_t)(u >> 24);
+}
+
+static void set_u16(uint8_t *p, uint16_t u)
+{
+    p[0] = (uint8_t)u;
+    p[1] = (uint8_t)(u >> 8);
+}
+
+static void pose_vectors(void)
+{
+    terrad_pose one = {7, 1.5f, -2.25f, 0.125f, 1, 0, 0, 0};
+    pose_vector("pose_batch_empty", "no poses: a keep-alive that still gets an ACK", 0, NULL, 0);
+    pose_vector("pose_batch_one", "one pose, identity orientation", 1, &one, 1);
+    terrad_pose three[3] = {
+        {1, 0, 0, 0, 0.70710677f, 0, 0, 0.70710677f},
+        {4294967295u, -1000.5f, 2047.96875f, -0.0078125f, 0.5f, -0.5f, 0.5f, -0.5f},
+        {42, 3.4028235e38f, -3.4028235e38f, 1.17549435e-38f, 0.92f, 0, 0, 0},
+    };
+    pose_vector("pose_batch_extremes",
+                "max sequence and id, float extremes, quaternion norms 0.92 and 1", 4294967295u,
+                three, 3);
+
+    size_t len;
+    uint8_t p[256];
+    ok(terrad_pose_batch_encode(p, sizeof p, &len, 1, &one, 1), "pose");
+    invalid("empty_frame", "POSE_BATCH", "zero bytes", p, 0, TERRAD_E_BAD_FRAME);
+    invalid("truncated_header", "POSE_BATCH", "three bytes of header", p, 3, TERRAD_E_BAD_FRAME);
+    invalid("header_only", "POSE_BATCH", "a header and nothing else", p, 4, TERRAD_E_BAD_FRAME);
+    uint8_t q[256];
+    memcpy(q, p, len);
+    q[0] = 0x55;
+    invalid("bad_magic", "POSE_BATCH", "magic 0x55", q, len, TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    q[1] = 2;
+    invalid("bad_version", "POSE_BATCH", "protocol version 2", q, len, TERRAD_E_BAD_VERSION);
+    q[1] = 0;
+    invalid("bad_version_zero", "POSE_BATCH", "protocol version 0", q, len, TERRAD_E_BAD_VERSION);
+    memcpy(q, p, len);
+    q[2] = 0x7f;
+    invalid("unknown_type", "POSE_BATCH", "type byte 0x7f", q, len, TERRAD_E_UNKNOWN_TYPE);
+    memcpy(q, p, len);
+    q[2] = TERRAD_MSG_DELTA;
+    invalid("wrong_type_for_decoder", "POSE_BATCH",
+            "a DELTA type byte where a POSE_BATCH is expected", q, len, TERRAD_E_UNKNOWN_TYPE);
+    memcpy(q, p, len);
+    q[3] = 1;
+    invalid("flags_nonzero", "POSE_BATCH", "reserved flags set", q, len, TERRAD_E_BAD_FRAME);
+    invalid("pose_truncated", "POSE_BATCH", "last byte of the pose missing", p, len - 1,
+            TERRAD_E_BAD_FRAME);
+    invalid("pose_no_count", "POSE_BATCH", "sequence but no count", p, 9, TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    set_u16(q + 8, 3);
+    invalid("pose_count_too_large", "POSE_BATCH", "count 3, one pose of payload", q, len,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    set_u16(q + 8, 65535);
+    invalid("pose_count_max_no_payload", "POSE_BATCH", "count 65535, one pose of payload", q, len,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    q[len] = 0;
+    invalid("pose_trailing_byte", "POSE_BATCH", "one byte after the last pose", q, len + 1,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    set_f32(q + 14, NAN);
+    invalid("pose_nan_x", "POSE_BATCH", "x is NaN", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_f32(q + 22, -INFINITY);
+    invalid("pose_inf_z", "POSE_BATCH", "z is -Inf", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_f32(q + 26, INFINITY);
+    invalid("pose_inf_qw", "POSE_BATCH", "qw is +Inf", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_f32(q + 26, 0.0f);
+    invalid("pose_zero_quaternion", "POSE_BATCH", "all quaternion components zero", q, len,
+            TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_f32(q + 26, 2.0f);
+    invalid("pose_long_quaternion", "POSE_BATCH", "|q| = 2", q, len, TERRAD_E_BAD_VALUE);
+}
+
+/* ---- DELTA ---- */
+
+typedef struct rect_spec {
+    terrad_rect r;
+    const int32_t *values;        /* what travels: differences or absolute heights */
+    const int32_t *old_h, *new_h; /* delta vectors: before and after, optional */
+    uint8_t *data;
+} rect_spec;
+
+static void compress_spec(rect_spec *s)
+{
+    size_t cells = (size_t)s->r.w * s->r.h;
+    size_t cap = terrad_rect_compress_bound(cells);
+    s->data = malloc(cap);
+    size_t n;
+    ok(terrad_rect_compress(NULL, s->values, cells, s->data, cap, &n), "compress");
+    s->r.data = s->data;
+    s->r.data_len = (uint32_t)n;
+}
+
+static cJSON *rect_json(const rect_spec *s)
+{
+    size_t cells = (size_t)s->r.w * s->r.h;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "x", s->r.x);
+    cJSON_AddNumberToObject(o, "y", s->r.y);
+    cJSON_AddNumberToObject(o, "w", s->r.w);
+    cJSON_AddNumberToObject(o, "h", s->r.h);
+    cJSON_AddNumberToObject(o, "base_version", s->r.base_version);
+    cJSON_AddNumberToObject(o, "new_version", s->r.new_version);
+    cJSON_AddNumberToObject(o, "encoding", s->r.encoding);
+    cJSON_AddItemToObject(o, "values", int_array(s->values, cells));
+    if (s->old_h) {
+        cJSON_AddItemToObject(o, "old", int_array(s->old_h, cells));
+        cJSON_AddItemToObject(o, "new", int_array(s->new_h, cells));
+    }
+    uint8_t *packed = malloc(cells * 4);
+    terrad_rect_pack(s->values, cells, packed);
+    add_hex(o, "packed_hex", packed, cells * 4);
+    free(packed);
+    add_hex(o, "data_hex", s->r.data, s->r.data_len);
+    return o;
+}
+
+static size_t delta_vector(const char *name, const char *about, uint64_t tick, rect_spec *specs,
+                           size_t n)
+{
+    terrad_rect rects[8];
+    cJSON *f = cJSON_CreateObject();
+    add_u64(f, "tick", tick);
+    cJSON *a = cJSON_AddArrayToObject(f, "rects");
+    for (size_t i = 0; i < n; i++) {
+        if (!specs[i].r.data)
+            compress_spec(&specs[i]);
+        rects[i] = specs[i].r;
+        cJSON_AddItemToArray(a, rect_json(&specs[i]));
+    }
+    size_t len;
+    ok(terrad_delta_encode(buf, sizeof buf, &len, tick, rects, n), name);
+    valid(vector(name, "DELTA", about), f, buf, len);
+    return len;
+}
+
+static void delta_vectors(void)
+{
+    delta_vector("delta_empty", "no rectangles", 0, NULL, 0);
+
+    static const int32_t old1[1] = {100}, new1[1] = {105}, d1[1] = {5};
+    rect_spec s1 = {{0, 0, 1, 1, 1, 2, TERRAD_ENC_DELTA, 0, NULL}, d1, old1, new1, NULL};
+    delta_vector("delta_1x1", "one cell raised by 5 units", 1, &s1, 1);
+
+    /* Differences at the int32 extremes: new - old wraps modulo 2^32. */
+    static const int32_t oldx[6] = {INT32_MIN, INT32_MAX, 0, 0, -1, 5};
+    static const int32_t newx[6] = {INT32_MAX, INT32_MIN, INT32_MIN, INT32_MAX, INT32_MAX, 5};
+    int32_t dx[6];
+    terrad_rect_diff(oldx, newx, 6, dx);
+    rect_spec sx = {{10, 20, 3, 2, 7, 8, TERRAD_ENC_DELTA, 0, NULL}, dx, oldx, newx, NULL};
+    delta_vector("delta_int32_extremes",
+                 "differences -1, 1, INT32_MIN, INT32_MAX, INT32_MIN (wrapped), 0", 2, &sx, 1);
+
+    static const int32_t snap[12] = {0,         1,     -1,     2,         -2,         INT32_MAX,
+                                     INT32_MIN, 10000, -10000, 536870912, -536870912, 7};
+    rect_spec ss = {{-3, 7, 4, 3, 0, 9, TERRAD_ENC_SNAPSHOT, 0, NULL}, snap, NULL, NULL, NULL};
+    delta_vector("delta_snapshot", "absolute heights, negative x, extremes", 42, &ss, 1);
+
+    /* A trail: a smooth dip 8 x 4, and a 16 x 16 snapshot of a slope. */
+    static int32_t trail[32], slope[256];
+    for (int i = 0; i < 32; i++) {
+        int x = i % 8, y = i / 8;
+        trail[i] = -(int32_t)(250 * (4 - abs(2 * y - 3)) + 13 * x);
+    }
+    for (int i = 0; i < 256; i++)
+        slope[i] = 150000 + 37 * (i % 16) - 11 * (i / 16);
+    rect_spec sm[2] = {
+        {{64, 128, 8, 4, 3, 4, TERRAD_ENC_DELTA, 0, NULL}, trail, NULL, NULL, NULL},
+        {{80, 128, 16, 16, 0, 12, TERRAD_ENC_SNAPSHOT, 0, NULL}, slope, NULL, NULL, NULL},
+    };
+    delta_vector("delta_two_rects", "a delta and a snapshot, tick 2^64 - 1", UINT64_MAX, sm, 2);
+
+    static const int32_t one[1] = {-7};
+    rect_spec se = {
+        {INT32_MAX, INT32_MIN, 1, 1, 4294967294u, 4294967295u, TERRAD_ENC_DELTA, 0, NULL},
+        one,
+        NULL,
+        NULL,
+        NULL};
+    delta_vector("delta_max_coordinates", "x = INT32_MAX, y = INT32_MIN, versions at the top", 3,
+                 &se, 1);
+
+    /* ---- invalid DELTA frames ---- */
+    size_t len;
+    uint8_t p[4096], q[4096];
+    terrad_rect r1 = s1.r;
+    ok(terrad_delta_encode(p, sizeof p, &len, 1, &r1, 1), "delta");
+    /* offsets: header 4, tick 8, count 2 -> rect at 14: x 14, y 18, w 22, h 24,
+     * base 26, new 30, enc 34, len 35, data 39 */
+    memcpy(q, p, len);
+    set_u16(q + 12, 65535);
+    invalid("delta_count_too_large", "DELTA", "count 65535, one rectangle of payload", q, len,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    set_u16(q + 12, 2);
+    invalid("delta_count_two_one_rect", "DELTA", "count 2, one rectangle of payload", q, len,
+            TERRAD_E_BAD_FRAME);
+    invalid("delta_truncated_data", "DELTA", "the compressed bytes cut short", p, len - 1,
+            TERRAD_E_BAD_FRAME);
+    invalid("delta_truncated_rect", "DELTA", "a rectangle header cut short", p, 30,
+            TERRAD_E_BAD_FRAME);
+    invalid("delta_truncated_tick", "DELTA", "the tick cut short", p, 9, TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    set_u32(q + 35, r1.data_len + 1000);
+    invalid("delta_length_past_end", "DELTA", "compressed length past the end of the frame", q, len,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    q[len] = 0;
+    invalid("delta_trailing_byte", "DELTA", "one byte after the last rectangle", q, len + 1,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, p, len);
+    set_u16(q + 22, 0);
+    invalid("delta_zero_width", "DELTA", "w = 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    q[34] = 2;
+    invalid("delta_bad_encoding", "DELTA", "encoding 2", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_u32(q + 26, 0);
+    invalid("delta_base_zero", "DELTA", "a delta rectangle with base_version 0", q, len,
+            TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_u32(q + 30, 1);
+    invalid("delta_base_equals_new", "DELTA", "base_version = new_version", q, len,
+            TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    q[34] = 1;
+    invalid("snapshot_with_base", "DELTA", "a snapshot rectangle with base_version 1", q, len,
+            TERRAD_E_BAD_VALUE);
+    memcpy(q, p, len);
+    set_u32(q + 14, (uint32_t)INT32_MAX);
+    set_u16(q + 22, 2);
+    invalid("delta_x_overflow", "DELTA", "x = INT32_MAX, w = 2: past the int32 range", q, len,
+            TERRAD_E_BAD_VALUE);
+
+    /* Payloads that decode as a frame but not as a rectangle: bad_compression
+     * comes from decompressing each rectangle (w * h cells). */
+    static const int32_t three[3] = {1, 2, 3};
+    uint8_t z[256];
+    size_t zn;
+    ok(terrad_rect_compress(NULL, three, 3, z, sizeof z, &zn), "compress");
+    terrad_rect r4 = {0, 0, 2, 2, 1, 2, TERRAD_ENC_DELTA, (uint32_t)zn, z};
+    ok(terrad_delta_encode(q, sizeof q, &len, 5, &r4, 1), "delta");
+    invalid("delta_zstd_size_mismatch", "DELTA", "2 x 2 rectangle whose zstd frame holds 3 cells",
+            q, len, TERRAD_E_BAD_COMPRESSION);
+    static const int32_t five[5] = {1, 2, 3, 4, 5};
+    ok(terrad_rect_compress(NULL, five, 5, z, sizeof z, &zn), "compress");
+    r4.data_len = (uint32_t)zn;
+    ok(terrad_delta_encode(q, sizeof q, &len, 5, &r4, 1), "delta");
+    invalid("delta_zstd_too_big", "DELTA", "2 x 2 rectangle whose zstd frame holds 5 cells", q, len,
+            TERRAD_E_BAD_COMPRESSION);
+    static const int32_t four[4] = {1, 2, 3, 4};
+    ok(terrad_rect_compress(NULL, four, 4, z, sizeof z, &zn), "compress");
+    z[zn] = 0;
+    r4.data_len = (uint32_t)zn + 1;
+    ok(terrad_delta_encode(q, sizeof q, &len, 5, &r4, 1), "delta");
+    invalid("delta_zstd_trailing", "DELTA", "a byte after the zstd frame", q, len,
+            TERRAD_E_BAD_COMPRESSION);
+    r4.data_len = (uint32_t)zn - 1;
+    ok(terrad_delta_encode(q, sizeof q, &len, 5, &r4, 1), "delta");
+    invalid("delta_zstd_truncated", "DELTA", "the zstd frame missing its last byte", q, len,
+            TERRAD_E_BAD_COMPRESSION);
+    static const uint8_t junk[8] = {'n', 'o', 't', ' ', 'z', 's', 't', 'd'};
+    memcpy(z, junk, 8);
+    r4.data_len = 8;
+    ok(terrad_delta_encode(q, sizeof q, &len, 5, &r4, 1), "delta");
+    invalid("delta_zstd_garbage", "DELTA", "eight bytes that are not zstd", q, len,
+            TERRAD_E_BAD_COMPRESSION);
+    /* A valid zstd frame without a content size in its header. */
+    {
+        uint8_t packed[16];
+        terrad_rect_pack(four, 4, packed);
+        ZSTD_CCtx *cc = ZSTD_createCCtx();
+        ZSTD_CCtx_setParameter(cc, ZSTD_c_compressionLevel, 3);
+        ZSTD_CCtx_setParameter(cc, ZSTD_c_contentSizeFlag, 0);
+        size_t n = ZSTD_compress2(cc, z, sizeof z, packed, sizeof packed);
+        ZSTD_freeCCtx(cc);
+        if (ZSTD_isError(n))
+            die("zstd");
+        r4.data_len = (uint32_t)n;
+        ok(terrad_delta_encode(q, sizeof q, &len, 5, &r4, 1), "delta");
+        invalid("delta_zstd_no_content_size", "DELTA",
+                "a zstd frame without its content size in the header", q, len,
+                TERRAD_E_BAD_COMPRESSION);
+    }
+}
+
+/* ---- CONTACT, ACK, PING, PONG ---- */
+
+static cJSON *contact_fields(uint64_t tick, const terrad_contact *c, size_t n)
+{
+    cJSON *f = cJSON_CreateObject();
+    add_u64(f, "tick", tick);
+    cJSON *a = cJSON_AddArrayToObject(f, "contacts");
+    for (size_t i = 0; i < n; i++) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddNumberToObject(o, "id", c[i].id);
+        add_i64(o, "volume", c[i].volume);
+        cJSON_AddNumberToObject(o, "cells", c[i].cells);
+        cJSON_AddNumberToObject(o, "area_m2", c[i].area_m2);
+        cJSON_AddItemToObject(o, "deepest", float_array(c[i].deepest, 3));
+        cJSON_AddItemToObject(o, "normal", float_array(c[i].normal, 3));
+        cJSON_AddNumberToObject(o, "support_height_m", c[i].support_height_m);
+        cJSON_AddItemToArray(a, o);
+    }
+    return f;
+}
+
+static void small_vectors(void)
+{
+    size_t len;
+    ok(terrad_contact_encode(buf, sizeof buf, &len, 0, NULL, 0), "contact");
+    valid(vector("contact_empty", "CONTACT", "no colliders"), contact_fields(0, NULL, 0), buf, len);
+    terrad_contact c[2] = {
+        {3, 1234567, 42, 0.105f, {1.25f, 2.5f, -0.0625f}, {0.0f, 0.6f, 0.8f}, -0.03125f},
+        {4294967295u,
+         INT64_MAX,
+         4294967295u,
+         0.0f,
+         {-5.0f, 6.0f, 7.0f},
+         {0.0f, 0.0f, 1.0f},
+         3.4028235e38f},
+    };
+    ok(terrad_contact_encode(buf, sizeof buf, &len, 987654321012345ull, c, 2), "contact");
+    valid(vector("contact_two", "CONTACT", "a wheel in contact, then maximum values"),
+          contact_fields(987654321012345ull, c, 2), buf, len);
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 32, NAN); /* first contact's normal y */
+    invalid("contact_nan_normal", "CONTACT", "normal y is NaN", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_u32(q + 14 + 8, 0x80000000u); /* first contact's volume high word: negative */
+    invalid("contact_negative_volume", "CONTACT", "volume < 0", q, len, TERRAD_E_BAD_VALUE);
+    invalid("contact_truncated", "CONTACT", "the last contact cut short", buf, len - 4,
+            TERRAD_E_BAD_FRAME);
+
+    ok(terrad_ack_encode(buf, sizeof buf, &len, 12345, 678), "ack");
+    cJSON *f = cJSON_CreateObject();
+    add_u64(f, "tick", 12345);
+    cJSON_AddNumberToObject(f, "seq", 678);
+    valid(vector("ack_basic", "ACK", "tick 12345 applied batch 678"), f, buf, len);
+    invalid("ack_short", "ACK", "15 bytes", buf, len - 1, TERRAD_E_BAD_FRAME);
+    buf[len] = 0;
+    invalid("ack_long", "ACK", "17 bytes", buf, len + 1, TERRAD_E_BAD_FRAME);
+    ok(terrad_ack_encode(buf, sizeof buf, &len, UINT64_MAX, UINT32_MAX), "ack");
+    f = cJSON_CreateObject();
+    add_u64(f, "tick", UINT64_MAX);
+    cJSON_AddNumberToObject(f, "seq", UINT32_MAX);
+    valid(vector("ack_max", "ACK", "maximum tick and sequence"), f, buf, len);
+
+    ok(terrad_ping_encode(buf, sizeof buf, &len, TERRAD_MSG_PING, 0x0123456789abcdefull), "ping");
+    f = cJSON_CreateObject();
+    add_u64(f, "nonce", 0x0123456789abcdefull);
+    valid(vector("ping", "PING", "a nonce showing the byte order"), f, buf, len);
+    invalid("ping_truncated", "PING", "11 bytes", buf, len - 1, TERRAD_E_BAD_FRAME);
+    ok(terrad_ping_encode(buf, sizeof buf, &len, TERRAD_MSG_PONG, UINT64_MAX), "pong");
+    f = cJSON_CreateObject();
+    add_u64(f, "nonce", UINT64_MAX);
+    valid(vector("pong_max", "PONG", "maximum nonce"), f, buf, len);
+}
+
+/* ---- mirror scenarios ---- */
+
+/* World heights of a tiny made-up world, used for snapshots. */
+static int32_t world_at(int x, int y)
+{
+    return 1000 * y + x;
+}
+
+typedef struct scenario {
+    cJSON *json, *steps;
+    terrad_mirror m;
+    int32_t heights[64];
+    uint32_t versions[16];
+} scenario;
+
+static void scenario_begin(scenario *s, const char *name, int32_t x, int32_t y, uint32_t w,
+                           uint32_t h, uint32_t tile)
+{
+    s->json = cJSON_CreateObject();
+    cJSON_AddStringToObject(s->json, "name", name);
+    cJSON *reg = cJSON_AddObjectToObject(s->json, "region");
+    cJSON_AddNumberToObject(reg, "x", x);
+    cJSON_AddNumberToObject(reg, "y", y);
+    cJSON_AddNumberToObject(reg, "w", w);
+    cJSON_AddNumberToObject(reg, "h", h);
+    cJSON_AddNumberToObject(s->json, "tile_size", tile);
+    s->steps = cJSON_AddArrayToObject(s->json, "steps");
+    memset(s->heights, 0, sizeof s->heights);
+    ok(terrad_mirror_init(&s->m, x, y, w, h, tile, s->heights, s->versions), "mirror");
+    cJSON_AddItemToArray(scenarios, s->json);
+}
+
+/* Apply one frame, record it with the error and the state after. */
+static void scenario_frame(scenario *s, const char *about, uint64_t tick, rect_spec *specs,
+                           size_t n)
+{
+    terrad_rect rects[16];
+    for (size_t i = 0; i < n; i++) {
+        if (!specs[i].r.data)
+            compress_spec(&specs[i]);
+        rects[i] = specs[i].r;
+    }
+    size_t len;
+    ok(terrad_delta_encode(buf, sizeof buf, &len, tick, rects, n), about);
+    int32_t scratch[256];
+    int rc = terrad_mirror_apply(&s->m, NULL, rects, n, scratch, 256);
+    cJSON *st = cJSON_CreateObject();
+    cJSON_AddStringToObject(st, "about", about);
+    add_hex(st, "frame_hex", buf, len);
+    cJSON_AddStringToObject(st, "error", rc ? terrad_err_name(rc) : "");
+    cJSON_AddItemToObject(st, "heights", int_array(s->heights, (size_t)s->m.w * s->m.h));
+    size_t tiles = (size_t)s->m.tiles_x * s->m.tiles_y;
+    cJSON *v = cJSON_CreateArray();
+    for (size_t i = 0; i < tiles; i++)
+        cJSON_AddItemToArray(v, cJSON_CreateNumber(s->versions[i]));
+    cJSON_AddItemToObject(st, "versions", v);
+    cJSON_AddItemToArray(s->steps, st);
+}
+
+static rect_spec snapshot_spec(int x, int y, int w, int h, uint32_t version, int32_t *store)
+{
+    for (int j = 0; j < h; j++)
+        for (int i = 0; i < w; i++)
+            store[j * w + i] = world_at(x + i, y + j);
+    rect_spec s = {{x, y, (uint16_t)w, (uint16_t)h, 0, version, TERRAD_ENC_SNAPSHOT, 0, NULL},
+                   store,
+                   NULL,
+                   NULL,
+                   NULL};
+    return s;
+}
+
+static void mirror_scenarios(void)
+{
+    /* Region (2, 2) 6 x 5 over tiles of 4: tiles (0..1) x (0..1), 4 tiles. */
+    scenario s;
+    scenario_begin(&s, "subscribe_then_deltas", 2, 2, 6, 5, 4);
+    static int32_t st[4][64];
+    rect_spec snaps[4] = {
+        snapshot_spec(2, 2, 2, 2, 5, st[0]), /* tile (0,0) part */
+        snapshot_spec(4, 2, 4, 2, 3, st[1]), /* tile (1,0) part */
+        snapshot_spec(2, 4, 2, 3, 1, st[2]), /* tile (0,1) part */
+        snapshot_spec(4, 4, 4, 3, 8, st[3]), /* tile (1,1) part */
+    };
+    static const int32_t dA[2] = {-3, 4}, dB[1] = {-1};
+    rect_spec d1[3] = {
+        {{4, 2, 2, 1, 3, 4, TERRAD_ENC_DELTA, 0, NULL}, dA, NULL, NULL, NULL},
+        {{7, 3, 1, 1, 3, 4, TERRAD_ENC_DELTA, 0, NULL}, dB, NULL, NULL, NULL},
+        {{0, 0, 1, 1, 5, 6, TERRAD_ENC_DELTA, 0, NULL}, dB, NULL, NULL, NULL},
+    };
+    static const int32_t dE[1] = {100};
+    rect_spec far = {{40, 40, 1, 1, 1, 2, TERRAD_ENC_DELTA, 0, NULL}, dE, NULL, NULL, NULL};
+    scenario_frame(&s, "a delta before any snapshot is skipped", 10, &d1[0], 1);
+    scenario_frame(&s, "the snapshot of the subscription, one rectangle per tile", 11, snaps, 4);
+    scenario_frame(&s,
+                   "two rectangles of one tile (3 -> 4), and one of tile (0,0) whose cell "
+                   "(0,0) lies outside the region: no cell changes, the tile still goes 5 -> 6",
+                   12, d1, 3);
+    static const int32_t dC[4] = {7, 7, 7, 7};
+    rect_spec d2 = {{4, 4, 2, 2, 7, 9, TERRAD_ENC_DELTA, 0, NULL}, dC, NULL, NULL, NULL};
+    scenario_frame(&s, "a rectangle of a tile the region does not touch is skipped", 13, &far, 1);
+    static const int32_t dF[1] = {-50};
+    rect_spec mixed[2] = {
+        {{2, 5, 1, 1, 1, 2, TERRAD_ENC_DELTA, 0, NULL}, dF, NULL, NULL, NULL},
+        d2,
+    };
+    scenario_frame(&s,
+                   "a good delta for tile (0,1) and one from base 7 while tile (1,1) is held "
+                   "at 8: stale_base, nothing changes",
+                   13, mixed, 2);
+    d2.r.base_version = 8;
+    scenario_frame(&s, "the same delta from base 8 applies (a coalesced 8 -> 9)", 14, &d2, 1);
+    static int32_t pst[64];
+    rect_spec partial = snapshot_spec(4, 4, 1, 1, 20, pst);
+    scenario_frame(&s, "a snapshot covering part of what the region holds of a tile is ignored", 15,
+                   &partial, 1);
+    static const int32_t dD[2] = {1, 1};
+    rect_spec span = {{3, 2, 2, 1, 5, 6, TERRAD_ENC_DELTA, 0, NULL}, dD, NULL, NULL, NULL};
+    scenario_frame(&s, "a rectangle spanning two tiles is refused with bad_value", 16, &span, 1);
+    rect_spec resync = snapshot_spec(4, 4, 4, 3, 30, st[3]);
+    scenario_frame(&s, "a resync snapshot replaces a held tile", 17, &resync, 1);
+
+    scenario n;
+    scenario_begin(&n, "negative_coordinates", -5, -3, 4, 4, 4);
+    static int32_t nst[4][64];
+    rect_spec nsnaps[4] = {
+        snapshot_spec(-5, -3, 1, 3, 2, nst[0]), /* tile (-2,-1) */
+        snapshot_spec(-4, -3, 3, 3, 2, nst[1]), /* tile (-1,-1) */
+        snapshot_spec(-5, 0, 1, 1, 2, nst[2]),  /* tile (-2, 0) */
+        snapshot_spec(-4, 0, 3, 1, 2, nst[3]),  /* tile (-1, 0) */
+    };
+    scenario_frame(&n, "snapshot of a region straddling the origin", 1, nsnaps, 4);
+    static const int32_t dn[9] = {INT32_MAX, 1, -1, INT32_MIN, 0, 2, -2, 3, -3};
+    rect_spec ndelta = {{-4, -3, 3, 3, 2, 3, TERRAD_ENC_DELTA, 0, NULL}, dn, NULL, NULL, NULL};
+    scenario_frame(&n, "a delta with wrapping differences", 2, &ndelta, 1);
+}
+
+int main(void)
+{
+    cJSON *root = cJSON_CreateObject();
+    cJSON_AddNumberToObject(root, "protocol", TERRAD_PROTO_VERSION);
+    cJSON_AddStringToObject(root, "generator", "proto/vectors/gen_vectors.c");
+    cJSON_AddStringToObject(root, "zstd_version", ZSTD_versionString());
+    cJSON_AddNumberToObject(root, "zstd_level", 3);
+    cJSON *errs = cJSON_AddArrayToObject(root, "errors");
+    for (int i = TERRAD_ERR_FIRST; i <= TERRAD_ERR_LAST; i++) {
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddNumberToObject(e, "code", i);
+        cJSON_AddStringToObject(e, "name", terrad_err_name(i));
+        cJSON_AddItemToArray(errs, e);
+    }
+    cJSON *types = cJSON_AddArrayToObject(root, "types");
+    for (int t = 0; t < 256; t++) {
+        if (!terrad_msg_type_name(t))
+            continue;
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddNumberToObject(e, "code", t);
+        cJSON_AddStringToObject(e, "name", terrad_msg_type_name(t));
+        cJSON_AddItemToArray(types, e);
+    }
+    vectors = cJSON_AddArrayToObject(root, "vectors");
+    scenarios = cJSON_AddArrayToObject(root, "mirror_scenarios");
+    pose_vectors();
+    delta_vectors();
+    small_vectors();
+    mirror_scenarios();
+    char *text = cJSON_Print(root);
+    if (!text)
+        die("print");
+    fputs(text, stdout);
+    fputc('\n', stdout);
+    free(text);
+    cJSON_Delete(root);
+    return 0;
+}

@@ -1,0 +1,19 @@
+/*
+ * app: terrad's commands — `simulate` (an offline run of a scene that prints
+ * one JSON report) and `serve` (the daemon: tick loop, demo actors, HTTP).
+ * main.c only dispatches to these.
+ */
+#ifndef TERRAD_APP_H
+#define TERRAD_APP_H
+
+#include "base/base.h"
+#include "sim/sim.h"
+
+int app_simulate(int argc, char **argv);
+int app_serve(int argc, char **argv);
+void app_print_help(void);
+
+/* "gl" or "cpu". */
+sim_backend *app_backend_create(const char *name, error_text *err);
+
+#endif

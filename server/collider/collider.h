@@ -1,0 +1,129 @@
+/*
+ * collider: the shapes that press into the terrain — sphere, box, capsule,
+ * cylinder (a wheel) and triangle meshes from OBJ files — with their poses,
+ * bounds, scripted motion and the CPU twin's depth stage.
+ *
+ * Depth "from below" (thesis Fig. 4.1) is, for every cell of a window, the
+ * lowest point of any collider on the vertical line through the cell centre,
+ * in height units. The GL backend rasterises the shapes' triangles with an
+ * orthographic camera under the window; the CPU twin intersects the vertical
+ * line with each primitive analytically and rasterises mesh triangles. Both
+ * write the same int32 "bottom" array that the integer stages consume, so a
+ * test can feed one backend's depth to the other.
+ *
+ * Local frames: a cylinder's and a capsule's axis is the local Y axis (so a
+ * wheel with the identity orientation rolls along X); a box is centred on its
+ * position. Orientation is a unit quaternion (w, x, y, z).
+ */
+#ifndef TERRAD_COLLIDER_H
+#define TERRAD_COLLIDER_H
+
+#include <stdint.h>
+
+#include "base/base.h"
+#include "world/world.h"
+
+/* "No collider above this cell" in a bottom array. */
+#define COLLIDER_BOTTOM_NONE INT32_MAX
+
+typedef struct vec3d {
+    double x, y, z;
+} vec3d;
+
+typedef struct quatd {
+    double w, x, y, z;
+} quatd;
+
+typedef struct collider_pose {
+    vec3d position; /* metres, world frame: x east, y north, z up */
+    quatd orientation;
+} collider_pose;
+
+typedef enum collider_shape {
+    COLLIDER_SPHERE,
+    COLLIDER_BOX,
+    COLLIDER_CAPSULE,
+    COLLIDER_CYLINDER,
+    COLLIDER_MESH,
+} collider_shape;
+
+typedef struct collider_mesh {
+    int vertex_count;
+    int triangle_count;
+    float *vertices;   /* xyz, local frame, metres */
+    uint32_t *indices; /* 3 per triangle */
+    double bounding_radius; /* max |v| over vertices */
+} collider_mesh;
+
+typedef struct collider_geometry {
+    collider_shape shape;
+    double radius;       /* sphere, capsule, cylinder */
+    double half_length;  /* capsule, cylinder: half the length of the axis segment */
+    vec3d half_extents;  /* box */
+    const collider_mesh *mesh; /* mesh: not owned */
+} collider_geometry;
+
+/* Refuse NaN, Inf, non-positive or absurd sizes; the message names the field. */
+int collider_geometry_validate(const collider_geometry *g, error_text *err);
+int collider_pose_validate(const collider_pose *p, error_text *err);
+
+quatd quat_normalize(quatd q);
+quatd quat_multiply(quatd a, quatd b);
+quatd quat_from_axis_angle(vec3d axis, double radians);
+quatd quat_slerp(quatd a, quatd b, double t);
+vec3d quat_rotate(quatd q, vec3d v);
+
+/* World-space axis-aligned bounds of the collider at a pose. */
+void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi);
+
+/*
+ * CPU twin depth stage: for each cell of `window` (world cell coordinates),
+ * bottom[i] = min(bottom[i], floor(z * units_per_m)) where z is the lowest
+ * point of the collider on the vertical line through the cell centre
+ * ((x + 0.5) * cell_size, (y + 0.5) * cell_size). The value is clamped to
+ * [WORLD_HEIGHT_MIN - 1, WORLD_HEIGHT_MAX + 1]. Cells the collider does not
+ * cover are left alone. The caller fills bottom with COLLIDER_BOTTOM_NONE first.
+ */
+void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_rect window,
+                        double cell_size_m, int32_t units_per_m, int32_t *bottom);
+
+/*
+ * Triangles in the local frame for the GL depth raster: primitives are
+ * tessellated finely enough that the raster stays within a few millimetres of
+ * the analytic surface for wheel-sized shapes; meshes are copied. The caller
+ * frees both arrays.
+ */
+int collider_tessellate(const collider_geometry *g, float **vertices, int *vertex_count,
+                        uint32_t **indices, int *index_count);
+
+/* OBJ loading: v and f lines (polygons fanned into triangles, negative and
+ * v/vt/vn indices accepted); everything else ignored. */
+int collider_mesh_load_obj(const char *path, collider_mesh *mesh, error_text *err);
+void collider_mesh_free(collider_mesh *mesh);
+
+/* Scripted motion for offline runs and the demo actors. */
+typedef struct collider_keyframe {
+    double time_s;
+    collider_pose pose;
+} collider_keyframe;
+
+typedef enum collider_motion_kind {
+    COLLIDER_MOTION_STATIC,
+    COLLIDER_MOTION_VELOCITY,  /* constant linear velocity and spin */
+    COLLIDER_MOTION_KEYFRAMES, /* linear position, slerp orientation, held at the ends */
+} collider_motion_kind;
+
+typedef struct collider_motion {
+    collider_motion_kind kind;
+    collider_pose start;
+    vec3d velocity;      /* m/s */
+    vec3d spin_axis;     /* world frame */
+    double spin_rad_per_s;
+    collider_keyframe *keyframes; /* owned */
+    int keyframe_count;
+} collider_motion;
+
+collider_pose collider_motion_pose(const collider_motion *m, double time_s);
+void collider_motion_free(collider_motion *m);
+
+#endif

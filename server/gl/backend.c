@@ -1,0 +1,1001 @@
+/*
+ * backend.c: the GL backend of the deformation pipeline (sim.h). It runs all
+ * windows of a tick as one batch, with one draw per collider and one compute
+ * dispatch per stage for the whole batch:
+ *
+ *   upload     heights (and uploaded bottoms) into flat per-cell buffers
+ *   depth      colliders rasterised into a depth atlas, then depth → bottom
+ *   classify   classify.comp (also heights -= raw, jump-flood init)
+ *   jump_flood jump_flood.comp, once per step size, ping-pong
+ *   displace   displace_ssbo/multi.comp + displace_land.comp, or
+ *              displace_iterative_init/pass.../finish.comp
+ *   even_slopes even_slopes.comp per iteration, ping-pong
+ *   readback   window status flags, then the heights of accepted windows
+ *
+ * Layout: window i of the batch owns cells [offset_i, offset_i + w_i*h_i)
+ * of every per-cell buffer, row-major; a small window table (offset, corner,
+ * size, atlas slot, depth range) lets each invocation find its window by
+ * binary search. Buffers grow by doubling to the largest batch seen, so
+ * scratch memory follows active cells, never the world's size. A batch
+ * larger than one shader storage block allows is run in several chunks.
+ *
+ * The depth atlas is one GL_DEPTH_COMPONENT32F texture; windows are packed
+ * into it by shelves (tallest first). If a batch does not fit the largest
+ * texture, it is rasterised in several rounds, each converted to bottoms
+ * before the next clears the atlas.
+ *
+ * Everything after depth is integer-only and mirrors sim_stages.c exactly
+ * (tests/unit/test_gl.c checks bit-equality with the CPU twin).
+ */
+#include "gl/gl_internal.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Per-cell buffers. The stage scratch S0..S3 is reused across stages:
+ * single/multi: S0 = received low words, S1 = high words;
+ * iterative: S0 = mask, S1/S2 = transit ping-pong, S3 = deposit;
+ * slope evening: S0 is the other half of the heights ping-pong. */
+enum {
+    BUF_HEIGHTS,
+    BUF_BOTTOM,
+    BUF_MOVED,
+    BUF_CLS,
+    BUF_SEED_A,
+    BUF_SEED_B,
+    BUF_S0,
+    BUF_S1,
+    BUF_S2,
+    BUF_S3,
+    BUF_COUNT
+};
+
+enum {
+    PROG_CLASSIFY,
+    PROG_JUMP_FLOOD,
+    PROG_DISPLACE_SSBO,
+    PROG_DISPLACE_MULTI,
+    PROG_DISPLACE_LAND,
+    PROG_ITER_INIT,
+    PROG_ITER_PASS,
+    PROG_ITER_FINISH,
+    PROG_EVEN_SLOPES,
+    PROG_DEPTH_TO_BOTTOM,
+    PROG_COMPUTE_COUNT,
+    PROG_RASTER = PROG_COMPUTE_COUNT,
+    PROG_COUNT
+};
+
+static const char *const compute_names[PROG_COMPUTE_COUNT] = {
+    "shaders/classify.comp",
+    "shaders/jump_flood.comp",
+    "shaders/displace_ssbo.comp",
+    "shaders/displace_multi.comp",
+    "shaders/displace_land.comp",
+    "shaders/displace_iterative_init.comp",
+    "shaders/displace_iterative_pass.comp",
+    "shaders/displace_iterative_finish.comp",
+    "shaders/even_slopes.comp",
+    "shaders/depth_to_bottom.comp",
+};
+
+/* Uniforms, looked up once per program (-1 where a program has none). */
+enum {
+    U_TILE_COUNT,
+    U_WINDOW_COUNT,
+    U_METRIC,
+    U_COMPRESSION,
+    U_ROUGHNESS,
+    U_THRESHOLD_AXIAL,
+    U_THRESHOLD_DIAGONAL,
+    U_OBSTACLE_GAP,
+    U_MULTI_STEP,
+    U_MULTI_MAX,
+    U_FLOOR,
+    U_STEP,
+    U_ROUND,
+    U_MVP,
+    U_COUNT
+};
+
+static const char *const uniform_names[U_COUNT] = {
+    "u_tile_count",
+    "u_window_count",
+    "u_metric",
+    "u_compression_q16",
+    "u_roughness_q16",
+    "u_slope_threshold_axial",
+    "u_slope_threshold_diagonal",
+    "u_obstacle_gap",
+    "u_multi_target_step",
+    "u_multi_target_max",
+    "u_floor",
+    "u_step",
+    "u_round",
+    "u_mvp",
+};
+
+/* One window of the batch table (WINDOW_INTS ints in common.glsl); the
+ * table continues with TILE_INTS ints per 8x8 tile: window index, corner
+ * x | y << 16, the window's offset, w | h << 16. */
+#define TILE_INTS 4
+typedef struct window_entry {
+    int32_t offset;
+    int32_t x, y;
+    int32_t w, h;
+    int32_t slot_x, slot_y;
+    int32_t raster_round; /* atlas round + 1, or 0: bottom uploaded */
+    int32_t depth_low, depth_high;
+    int32_t pad0, pad1;
+} window_entry;
+
+/* A collider geometry's triangles, uploaded once and cached by pointer. */
+typedef struct geometry_entry {
+    const collider_geometry *geometry;
+    GLuint vao, vbo, ebo;
+    GLsizei index_count;
+} geometry_entry;
+
+typedef struct gl_backend {
+    sim_backend base;
+    gl_context *context;
+    GLuint programs[PROG_COUNT];
+    GLint uniforms[PROG_COUNT][U_COUNT];
+    int stage_timing;
+
+    /* limits of this driver */
+    GLint max_texture_size;
+    GLint max_groups_x;
+    int64_t max_chunk_cells;
+
+    /* per-cell buffers, capacity in cells, and a buffer texture on each */
+    GLuint buffers[BUF_COUNT];
+    GLuint textures[BUF_COUNT];
+    int64_t cell_capacity;
+    /* batch table (windows, then tiles; capacity in bytes) and status flags
+     * (capacity in windows) */
+    GLuint table_buffer, table_texture, status_buffer;
+    int64_t table_capacity;
+    int window_capacity;
+    window_entry *entries;
+    uint32_t *status_host;
+    int *order;
+    int host_capacity;
+    int32_t *tiles;
+    int64_t tile_capacity;
+    /* the chunk being run */
+    int64_t tile_count;
+    int window_count;
+
+    /* depth atlas */
+    GLuint atlas, fbo;
+    int atlas_w, atlas_h;
+
+    geometry_entry *geometries;
+    int geometry_count, geometry_capacity;
+} gl_backend;
+
+/* ---- small helpers ---- */
+
+static void barrier(void)
+{
+    /* Every pass reads what the previous one wrote through SSBOs, and buffer
+     * clears and readbacks follow shader writes: the GL requires an explicit
+     * barrier for both (the original implementation omitted it). */
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT |
+                    GL_TEXTURE_FETCH_BARRIER_BIT);
+}
+
+static int check_gl(const char *what, error_text *err)
+{
+    GLenum e = glGetError();
+    if (e == GL_NO_ERROR)
+        return 0;
+    if (e == GL_OUT_OF_MEMORY)
+        error_set(err, "gl backend: out of GPU memory (%s)", what);
+    else
+        error_set(err, "gl backend: GL error 0x%04x (%s)", (unsigned)e, what);
+    return -1;
+}
+
+/* A per-cell buffer as a shader storage block (what a pass writes). */
+static void bind(gl_backend *b, int binding, int buffer)
+{
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, (GLuint)binding, b->buffers[buffer]);
+}
+
+/* A per-cell buffer as a buffer texture on a sampler unit (what a pass only
+ * reads: see common.glsl for why reads and writes take different paths). */
+static void sample(gl_backend *b, int unit, int buffer)
+{
+    glActiveTexture(GL_TEXTURE0 + (GLenum)unit);
+    glBindTexture(GL_TEXTURE_BUFFER, b->textures[buffer]);
+}
+
+/* One 8x8 workgroup per tile of the chunk, in a 2D grid so that more than
+ * 65535 tiles fit; the shader maps its group to a tile (common.glsl). */
+static void dispatch(gl_backend *b, int prog)
+{
+    glUseProgram(b->programs[prog]);
+    glUniform1i(b->uniforms[prog][U_TILE_COUNT], (GLint)b->tile_count);
+    glUniform1i(b->uniforms[prog][U_WINDOW_COUNT], b->window_count);
+    int64_t groups = b->tile_count;
+    int64_t gx = groups < b->max_groups_x ? groups : b->max_groups_x;
+    int64_t gy = (groups + gx - 1) / gx;
+    glDispatchCompute((GLuint)gx, (GLuint)gy, 1);
+    barrier();
+}
+
+/* Ends a stage: with stage timing on, waits for the GPU so the time is real. */
+static double stage_end(gl_backend *b, double *acc, double since)
+{
+    if (b->stage_timing)
+        glFinish();
+    double now = time_now_ms();
+    *acc += now - since;
+    return now;
+}
+
+/* ---- buffers ---- */
+
+static uint64_t texture_bytes(const gl_backend *b)
+{
+    return (uint64_t)b->atlas_w * (uint64_t)b->atlas_h * 4u;
+}
+
+static uint64_t gl_scratch_bytes(const sim_backend *base)
+{
+    const gl_backend *b = (const gl_backend *)base;
+    uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
+    bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
+    return bytes + texture_bytes(b);
+}
+
+static int ensure_cells(gl_backend *b, int64_t cells, error_text *err)
+{
+    if (cells <= b->cell_capacity)
+        return 0;
+    int64_t cap = b->cell_capacity ? b->cell_capacity : 4096;
+    while (cap < cells)
+        cap *= 2;
+    if (cap > b->max_chunk_cells)
+        cap = b->max_chunk_cells;
+    /* Contents never live from one batch to the next: replace, don't copy. */
+    for (int i = 0; i < BUF_COUNT; i++) {
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[i]);
+        glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(cap * 4), NULL, GL_DYNAMIC_COPY);
+        glBindTexture(GL_TEXTURE_BUFFER, b->textures[i]);
+        glTexBuffer(GL_TEXTURE_BUFFER, GL_R32I, b->buffers[i]);
+    }
+    glBindTexture(GL_TEXTURE_BUFFER, 0);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    if (check_gl("growing the cell buffers", err) != 0) {
+        b->cell_capacity = 0;
+        return -1;
+    }
+    b->cell_capacity = cap;
+    return 0;
+}
+
+static int ensure_windows(gl_backend *b, int count, error_text *err)
+{
+    if (count > b->host_capacity) {
+        int cap = b->host_capacity ? b->host_capacity : 16;
+        while (cap < count)
+            cap *= 2;
+        window_entry *e = realloc(b->entries, (size_t)cap * sizeof *e);
+        if (e)
+            b->entries = e;
+        uint32_t *s = realloc(b->status_host, (size_t)cap * sizeof *s);
+        if (s)
+            b->status_host = s;
+        int *o = realloc(b->order, (size_t)cap * sizeof *o);
+        if (o)
+            b->order = o;
+        if (!e || !s || !o) {
+            error_set(err, "gl backend: out of memory for %d windows", count);
+            return -1;
+        }
+        b->host_capacity = cap;
+    }
+    if (count <= b->window_capacity)
+        return 0;
+    int cap = b->window_capacity ? b->window_capacity : 16;
+    while (cap < count)
+        cap *= 2;
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)((size_t)cap * sizeof(uint32_t)), NULL,
+                 GL_DYNAMIC_READ);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    if (check_gl("growing the window status buffer", err) != 0)
+        return -1;
+    b->window_capacity = cap;
+    return 0;
+}
+
+/* The batch table: windows then tiles, host copy and GPU buffer. */
+static int ensure_table(gl_backend *b, int window_count, int64_t tiles, error_text *err)
+{
+    int64_t ints = (int64_t)window_count * (int64_t)(sizeof(window_entry) / 4) + TILE_INTS * tiles;
+    if (TILE_INTS * tiles > b->tile_capacity) {
+        int64_t cap = b->tile_capacity ? b->tile_capacity : 1024;
+        while (cap < TILE_INTS * tiles)
+            cap *= 2;
+        int32_t *t = realloc(b->tiles, (size_t)cap * sizeof *t);
+        if (!t) {
+            error_set(err, "gl backend: out of memory for %lld tiles", (long long)tiles);
+            return -1;
+        }
+        b->tiles = t;
+        b->tile_capacity = cap;
+    }
+    if (ints * 4 <= b->table_capacity)
+        return 0;
+    int64_t cap = b->table_capacity ? b->table_capacity : 16384;
+    while (cap < ints * 4)
+        cap *= 2;
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->table_buffer);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)cap, NULL, GL_DYNAMIC_DRAW);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    glBindTexture(GL_TEXTURE_BUFFER, b->table_texture);
+    glTexBuffer(GL_TEXTURE_BUFFER, GL_RGBA32I, b->table_buffer);
+    glBindTexture(GL_TEXTURE_BUFFER, 0);
+    if (check_gl("growing the batch table", err) != 0)
+        return -1;
+    b->table_capacity = cap;
+    return 0;
+}
+
+static int ensure_atlas(gl_backend *b, int w, int h, error_text *err)
+{
+    if (w <= b->atlas_w && h <= b->atlas_h)
+        return 0;
+    int nw = b->atlas_w ? b->atlas_w : 256, nh = b->atlas_h ? b->atlas_h : 256;
+    while (nw < w)
+        nw *= 2;
+    while (nh < h)
+        nh *= 2;
+    if (nw > b->max_texture_size)
+        nw = b->max_texture_size;
+    if (nh > b->max_texture_size)
+        nh = b->max_texture_size;
+    if (b->atlas)
+        glDeleteTextures(1, &b->atlas);
+    glGenTextures(1, &b->atlas);
+    glBindTexture(GL_TEXTURE_2D, b->atlas);
+    glTexStorage2D(GL_TEXTURE_2D, 1, GL_DEPTH_COMPONENT32F, nw, nh);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_COMPARE_MODE, GL_NONE);
+    glBindFramebuffer(GL_FRAMEBUFFER, b->fbo);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, b->atlas, 0);
+    glDrawBuffer(GL_NONE);
+    glReadBuffer(GL_NONE);
+    GLenum fb = glCheckFramebufferStatus(GL_FRAMEBUFFER);
+    b->atlas_w = nw;
+    b->atlas_h = nh;
+    if (fb != GL_FRAMEBUFFER_COMPLETE) {
+        error_set(err, "gl backend: depth atlas %dx%d is not a complete framebuffer (0x%04x)",
+                  nw, nh, (unsigned)fb);
+        return -1;
+    }
+    return check_gl("allocating the depth atlas", err);
+}
+
+/* ---- geometry cache ---- */
+
+static geometry_entry *geometry_find(gl_backend *b, const collider_geometry *g, error_text *err)
+{
+    for (int i = 0; i < b->geometry_count; i++)
+        if (b->geometries[i].geometry == g)
+            return &b->geometries[i];
+    float *vertices = NULL;
+    uint32_t *indices = NULL;
+    int vertex_count = 0, index_count = 0;
+    if (collider_tessellate(g, &vertices, &vertex_count, &indices, &index_count) != 0) {
+        error_set(err, "gl backend: cannot tessellate a collider (shape %d)", (int)g->shape);
+        return NULL;
+    }
+    if (b->geometry_count == b->geometry_capacity) {
+        int cap = b->geometry_capacity ? b->geometry_capacity * 2 : 16;
+        geometry_entry *grown = realloc(b->geometries, (size_t)cap * sizeof *grown);
+        if (!grown) {
+            free(vertices);
+            free(indices);
+            error_set(err, "gl backend: out of memory caching colliders");
+            return NULL;
+        }
+        b->geometries = grown;
+        b->geometry_capacity = cap;
+    }
+    geometry_entry *e = &b->geometries[b->geometry_count];
+    memset(e, 0, sizeof *e);
+    e->geometry = g;
+    e->index_count = index_count;
+    glGenVertexArrays(1, &e->vao);
+    glGenBuffers(1, &e->vbo);
+    glGenBuffers(1, &e->ebo);
+    glBindVertexArray(e->vao);
+    glBindBuffer(GL_ARRAY_BUFFER, e->vbo);
+    glBufferData(GL_ARRAY_BUFFER, (GLsizeiptr)((size_t)vertex_count * 3 * sizeof(float)),
+                 vertices, GL_STATIC_DRAW);
+    glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, e->ebo);
+    glBufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)((size_t)index_count * sizeof(uint32_t)),
+                 indices, GL_STATIC_DRAW);
+    glEnableVertexAttribArray(0);
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), NULL);
+    glBindVertexArray(0);
+    glBindBuffer(GL_ARRAY_BUFFER, 0);
+    free(vertices);
+    free(indices);
+    if (check_gl("uploading collider triangles", err) != 0) {
+        glDeleteVertexArrays(1, &e->vao);
+        glDeleteBuffers(1, &e->vbo);
+        glDeleteBuffers(1, &e->ebo);
+        return NULL;
+    }
+    b->geometry_count++;
+    return e;
+}
+
+static void gl_forget_geometry(sim_backend *base, const collider_geometry *g)
+{
+    gl_backend *b = (gl_backend *)base;
+    for (int i = 0; i < b->geometry_count; i++) {
+        if (b->geometries[i].geometry != g)
+            continue;
+        if (gl_context_make_current(b->context, NULL) == 0) {
+            glDeleteVertexArrays(1, &b->geometries[i].vao);
+            glDeleteBuffers(1, &b->geometries[i].vbo);
+            glDeleteBuffers(1, &b->geometries[i].ebo);
+        }
+        b->geometries[i] = b->geometries[--b->geometry_count];
+        return;
+    }
+}
+
+/* ---- depth stage ---- */
+
+/*
+ * The collider's pose followed by the window's orthographic projection, in
+ * double precision, as a column-major float matrix. NDC x, y span the
+ * window's world rectangle, so pixel centres fall on cell centres; NDC z
+ * spans [depth_low, depth_high] (units → metres), lower is nearer.
+ */
+static void window_mvp(const sim_window_job *job, collider_pose pose, float out[16])
+{
+    quatd q = quat_normalize(pose.orientation);
+    double r[3][3] = {
+        {1 - 2 * (q.y * q.y + q.z * q.z), 2 * (q.x * q.y - q.w * q.z), 2 * (q.x * q.z + q.w * q.y)},
+        {2 * (q.x * q.y + q.w * q.z), 1 - 2 * (q.x * q.x + q.z * q.z), 2 * (q.y * q.z - q.w * q.x)},
+        {2 * (q.x * q.z - q.w * q.y), 2 * (q.y * q.z + q.w * q.x), 1 - 2 * (q.x * q.x + q.y * q.y)},
+    };
+    double cs = job->cell_size_m, upm = job->units_per_m > 0 ? job->units_per_m : 1;
+    double x0 = job->rect.x * cs, y0 = job->rect.y * cs;
+    double sx = 2.0 / (job->rect.w * cs), sy = 2.0 / (job->rect.h * cs);
+    double zl = job->depth_low / upm;
+    double zh = job->depth_high > job->depth_low ? job->depth_high / upm : (job->depth_low + 1) / upm;
+    double sz = 2.0 / (zh - zl);
+    double scale[3] = {sx, sy, sz};
+    double shift[3] = {sx * (pose.position.x - x0) - 1.0, sy * (pose.position.y - y0) - 1.0,
+                       sz * (pose.position.z - zl) - 1.0};
+    memset(out, 0, 16 * sizeof *out);
+    for (int row = 0; row < 3; row++) {
+        for (int col = 0; col < 3; col++)
+            out[col * 4 + row] = (float)(scale[row] * r[row][col]);
+        out[12 + row] = (float)shift[row];
+    }
+    out[15] = 1.0f;
+}
+
+/* Tallest first, then batch order: insertion sort (a tick has few windows,
+ * and this keeps the order stable without qsort_r). */
+static void sort_taller_first(int *order, int n, const window_entry *e)
+{
+    for (int i = 1; i < n; i++) {
+        int v = order[i], j = i;
+        while (j > 0 && e[order[j - 1]].h < e[v].h) {
+            order[j] = order[j - 1];
+            j--;
+        }
+        order[j] = v;
+    }
+}
+
+/*
+ * Shelf packing of the windows to rasterise, tallest first; a window that
+ * does not fit under the atlas's largest size starts a new round. Returns
+ * the number of rounds; slot and round go into the entries.
+ */
+static int pack_atlas(gl_backend *b, const sim_window_job *jobs, int count, int *atlas_w,
+                      int *atlas_h)
+{
+    int n = 0, max_w = 1;
+    int64_t area = 0;
+    for (int i = 0; i < count; i++) {
+        if (jobs[i].bottom_override)
+            continue;
+        b->order[n++] = i;
+        if (b->entries[i].w > max_w)
+            max_w = b->entries[i].w;
+        area += (int64_t)b->entries[i].w * b->entries[i].h;
+    }
+    if (n == 0)
+        return 0;
+    sort_taller_first(b->order, n, b->entries);
+    /* Width: the widest window, or the side of a square of the batch's area,
+     * and never narrower than the texture we already hold. */
+    int width = max_w;
+    int side = (int)ceil(sqrt((double)area));
+    if (side > width)
+        width = side;
+    if (b->atlas_w > width)
+        width = b->atlas_w;
+    if (width > b->max_texture_size)
+        width = b->max_texture_size;
+    int limit_h = b->max_texture_size;
+    int rounds = 1, x = 0, y = 0, shelf_h = 0, used_h = 0;
+    for (int k = 0; k < n; k++) {
+        window_entry *e = &b->entries[b->order[k]];
+        if (x + e->w > width) {
+            y += shelf_h;
+            x = 0;
+            shelf_h = 0;
+        }
+        if (y + e->h > limit_h) {
+            rounds++;
+            x = y = shelf_h = 0;
+        }
+        e->slot_x = x;
+        e->slot_y = y;
+        e->raster_round = rounds;
+        x += e->w;
+        if (e->h > shelf_h)
+            shelf_h = e->h;
+        if (y + shelf_h > used_h)
+            used_h = y + shelf_h;
+    }
+    *atlas_w = width;
+    *atlas_h = used_h;
+    return rounds;
+}
+
+static int run_depth(gl_backend *b, sim_window_job *jobs, int count, int rounds,
+                     error_text *err)
+{
+    glBindFramebuffer(GL_FRAMEBUFFER, b->fbo);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDepthMask(GL_TRUE);
+    /* Geometry below depth_low must clamp to depth 0 (the collider is below
+     * the whole range), not be clipped away by the near plane. */
+    glEnable(GL_DEPTH_CLAMP);
+    glDisable(GL_CULL_FACE);
+    glDisable(GL_BLEND);
+    glEnable(GL_SCISSOR_TEST);
+    glUseProgram(b->programs[PROG_RASTER]);
+    for (int round = 0; round < rounds; round++) {
+        glDisable(GL_SCISSOR_TEST);
+        glClearDepth(1.0);
+        glClear(GL_DEPTH_BUFFER_BIT);
+        glEnable(GL_SCISSOR_TEST);
+        glUseProgram(b->programs[PROG_RASTER]);
+        for (int i = 0; i < count; i++) {
+            const window_entry *e = &b->entries[i];
+            if (e->raster_round != round + 1)
+                continue;
+            glViewport(e->slot_x, e->slot_y, e->w, e->h);
+            glScissor(e->slot_x, e->slot_y, e->w, e->h);
+            for (int c = 0; c < jobs[i].collider_count; c++) {
+                const sim_collider *col = &jobs[i].colliders[c];
+                geometry_entry *g = geometry_find(b, col->geometry, err);
+                if (!g)
+                    return -1;
+                float mvp[16];
+                window_mvp(&jobs[i], col->pose, mvp);
+                glUniformMatrix4fv(b->uniforms[PROG_RASTER][U_MVP], 1, GL_FALSE, mvp);
+                glBindVertexArray(g->vao);
+                glDrawElements(GL_TRIANGLES, g->index_count, GL_UNSIGNED_INT, NULL);
+            }
+        }
+        glBindVertexArray(0);
+        glMemoryBarrier(GL_FRAMEBUFFER_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT);
+        glActiveTexture(GL_TEXTURE1);
+        glBindTexture(GL_TEXTURE_2D, b->atlas);
+        glUseProgram(b->programs[PROG_DEPTH_TO_BOTTOM]);
+        glUniform1i(b->uniforms[PROG_DEPTH_TO_BOTTOM][U_ROUND], round);
+        bind(b, 2, BUF_BOTTOM);
+        dispatch(b, PROG_DEPTH_TO_BOTTOM);
+        glActiveTexture(GL_TEXTURE1);
+        glBindTexture(GL_TEXTURE_2D, 0);
+    }
+    glDisable(GL_SCISSOR_TEST);
+    glDisable(GL_DEPTH_CLAMP);
+    glDisable(GL_DEPTH_TEST);
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    return check_gl("depth stage", err);
+}
+
+/* ---- the integer stages ---- */
+
+static void set_params(gl_backend *b, const sim_params *p)
+{
+    for (int prog = 0; prog < PROG_COMPUTE_COUNT; prog++) {
+        GLuint pr = b->programs[prog];
+        const GLint *u = b->uniforms[prog];
+        glProgramUniform1i(pr, u[U_METRIC], (GLint)p->metric);
+        glProgramUniform1i(pr, u[U_COMPRESSION], p->compression_q16);
+        glProgramUniform1i(pr, u[U_ROUGHNESS], p->roughness_q16);
+        glProgramUniform1i(pr, u[U_THRESHOLD_AXIAL], p->slope_threshold_axial);
+        glProgramUniform1i(pr, u[U_THRESHOLD_DIAGONAL], p->slope_threshold_diagonal);
+        glProgramUniform1i(pr, u[U_OBSTACLE_GAP], p->obstacle_gap);
+        glProgramUniform1i(pr, u[U_MULTI_STEP], p->multi_target_step);
+        glProgramUniform1i(pr, u[U_MULTI_MAX], p->multi_target_max);
+        glProgramUniform1i(pr, u[U_FLOOR], p->floor);
+    }
+}
+
+/* jump_flood_first_step of sim_stages.c, for the largest side of the batch:
+ * steps at or beyond a smaller window's side only look outside it. */
+static int first_step(int side)
+{
+    int k = 1;
+    while (k * 2 < side)
+        k *= 2;
+    return k;
+}
+
+/* Returns the buffer (BUF_*) that holds the final seeds. */
+static int run_jump_flood(gl_backend *b, int max_side)
+{
+    int in = BUF_SEED_A, out = BUF_SEED_B;
+    for (int k = first_step(max_side); k >= 1; k /= 2) {
+        glProgramUniform1i(b->programs[PROG_JUMP_FLOOD], b->uniforms[PROG_JUMP_FLOOD][U_STEP], k);
+        sample(b, 1, in);
+        bind(b, 2, out);
+        dispatch(b, PROG_JUMP_FLOOD);
+        int t = in;
+        in = out;
+        out = t;
+    }
+    return in;
+}
+
+static void run_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed)
+{
+    if (p->method == SIM_METHOD_ITERATIVE) {
+        int mask = BUF_S0, transit = BUF_S1, next = BUF_S2, deposit = BUF_S3;
+        sample(b, 1, BUF_CLS);
+        sample(b, 2, seed);
+        sample(b, 3, BUF_MOVED);
+        bind(b, 2, mask);
+        bind(b, 3, transit);
+        bind(b, 4, deposit);
+        dispatch(b, PROG_ITER_INIT);
+        for (int32_t pass = 0; pass < p->displace_iterations; pass++) {
+            sample(b, 1, BUF_CLS);
+            sample(b, 2, mask);
+            sample(b, 3, transit);
+            bind(b, 2, next);
+            bind(b, 3, deposit);
+            dispatch(b, PROG_ITER_PASS);
+            int t = transit;
+            transit = next;
+            next = t;
+        }
+        sample(b, 1, transit);
+        sample(b, 2, deposit);
+        bind(b, 2, BUF_HEIGHTS);
+        dispatch(b, PROG_ITER_FINISH);
+        return;
+    }
+    /* Exact 64-bit received sums start at zero. */
+    const GLuint zero = 0;
+    for (int i = BUF_S0; i <= BUF_S1; i++) {
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[i]);
+        glClearBufferSubData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, 0, (GLsizeiptr)(cells * 4),
+                             GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+    }
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    barrier();
+    sample(b, 1, BUF_CLS);
+    sample(b, 2, seed);
+    sample(b, 3, BUF_MOVED);
+    bind(b, 2, BUF_S0);
+    bind(b, 3, BUF_S1);
+    dispatch(b, p->method == SIM_METHOD_MULTI ? PROG_DISPLACE_MULTI : PROG_DISPLACE_SSBO);
+    sample(b, 1, BUF_S0);
+    sample(b, 2, BUF_S1);
+    bind(b, 2, BUF_HEIGHTS);
+    dispatch(b, PROG_DISPLACE_LAND);
+}
+
+/* Returns the buffer (BUF_*) that holds the final heights. */
+static int run_even_slopes(gl_backend *b, const sim_params *p)
+{
+    int in = BUF_HEIGHTS, out = BUF_S0;
+    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        sample(b, 1, BUF_CLS);
+        sample(b, 2, in);
+        bind(b, 2, out);
+        dispatch(b, PROG_EVEN_SLOPES);
+        int t = in;
+        in = out;
+        out = t;
+    }
+    return in;
+}
+
+/* ---- a batch ---- */
+
+static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, int count,
+                     int *status, sim_stage_times *times, error_text *err)
+{
+    int64_t cells = 0, tiles = 0;
+    int max_side = 1;
+    if (ensure_windows(b, count, err) != 0)
+        return -1;
+    for (int i = 0; i < count; i++) {
+        const sim_window_job *job = &jobs[i];
+        window_entry *e = &b->entries[i];
+        memset(e, 0, sizeof *e);
+        e->offset = (int32_t)cells;
+        e->x = job->rect.x;
+        e->y = job->rect.y;
+        e->w = job->rect.w;
+        e->h = job->rect.h;
+        e->depth_low = job->depth_low;
+        e->depth_high = job->depth_high;
+        if (e->w > max_side)
+            max_side = e->w;
+        if (e->h > max_side)
+            max_side = e->h;
+        cells += (int64_t)job->rect.w * job->rect.h;
+        tiles += (int64_t)((job->rect.w + 7) / 8) * ((job->rect.h + 7) / 8);
+    }
+    if (ensure_cells(b, cells, err) != 0 || ensure_table(b, count, tiles, err) != 0)
+        return -1;
+    int64_t t_index = 0;
+    for (int i = 0; i < count; i++)
+        for (int ty = 0; ty < b->entries[i].h; ty += 8)
+            for (int tx = 0; tx < b->entries[i].w; tx += 8) {
+                b->tiles[t_index++] = i;
+                b->tiles[t_index++] = tx | ty << 16;
+                b->tiles[t_index++] = b->entries[i].offset;
+                b->tiles[t_index++] = b->entries[i].w | b->entries[i].h << 16;
+            }
+    b->tile_count = tiles;
+    b->window_count = count;
+    int atlas_w = 0, atlas_h = 0;
+    int rounds = pack_atlas(b, jobs, count, &atlas_w, &atlas_h);
+    if (rounds > 0 && ensure_atlas(b, atlas_w, atlas_h, err) != 0)
+        return -1;
+
+    /* upload */
+    double t = time_now_ms();
+    GLsizeiptr entry_bytes = (GLsizeiptr)((size_t)count * sizeof(window_entry));
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->table_buffer);
+    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, entry_bytes, b->entries);
+    glBufferSubData(GL_SHADER_STORAGE_BUFFER, entry_bytes, (GLsizeiptr)(tiles * TILE_INTS * 4),
+                    b->tiles);
+    memset(b->status_host, 0, (size_t)count * sizeof *b->status_host);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
+    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)),
+                    b->status_host);
+    for (int i = 0; i < count; i++) {
+        GLintptr off = (GLintptr)b->entries[i].offset * 4;
+        GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_HEIGHTS]);
+        glBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].heights);
+        if (jobs[i].bottom_override) {
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_BOTTOM]);
+            glBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].bottom_override);
+        }
+    }
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    glActiveTexture(GL_TEXTURE0);
+    glBindTexture(GL_TEXTURE_BUFFER, b->table_texture);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, b->status_buffer);
+    set_params(b, p);
+    if (check_gl("upload", err) != 0)
+        return -1;
+    t = stage_end(b, &times->transfer, t);
+
+    /* depth */
+    if (rounds > 0 && run_depth(b, jobs, count, rounds, err) != 0)
+        return -1;
+    t = stage_end(b, &times->depth, t);
+
+    /* classify (+ heights -= raw, + jump-flood seeds) */
+    sample(b, 1, BUF_BOTTOM);
+    bind(b, 2, BUF_HEIGHTS);
+    bind(b, 3, BUF_MOVED);
+    bind(b, 4, BUF_CLS);
+    bind(b, 5, BUF_SEED_A);
+    dispatch(b, PROG_CLASSIFY);
+    t = stage_end(b, &times->classify, t);
+
+    int seed = run_jump_flood(b, max_side);
+    t = stage_end(b, &times->jump_flood, t);
+
+    run_displace(b, p, cells, seed);
+    t = stage_end(b, &times->displace, t);
+
+    int heights = run_even_slopes(b, p);
+    t = stage_end(b, &times->even_slopes, t);
+
+    /* readback: status first, then only the windows that were accepted (a
+     * refused window keeps the heights it came with) */
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
+    glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)),
+                       b->status_host);
+    for (int i = 0; i < count; i++) {
+        GLintptr off = (GLintptr)b->entries[i].offset * 4;
+        GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        status[i] = (b->status_host[i] & 1u) ? SIM_WINDOW_HEIGHT_LIMIT : SIM_WINDOW_OK;
+        if (status[i] == SIM_WINDOW_OK) {
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
+            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].heights);
+        }
+        if (jobs[i].bottom_out) {
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_BOTTOM]);
+            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].bottom_out);
+        }
+    }
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    if (check_gl("readback", err) != 0)
+        return -1;
+    stage_end(b, &times->transfer, t);
+    return 0;
+}
+
+static int gl_run_windows(sim_backend *base, const sim_params *p, sim_window_job *jobs,
+                          int job_count, int *status, sim_stage_times *times, error_text *err)
+{
+    gl_backend *b = (gl_backend *)base;
+    if (job_count <= 0)
+        return 0;
+    if (gl_context_make_current(b->context, err) != 0)
+        return -1;
+    for (int i = 0; i < job_count; i++) {
+        const world_rect r = jobs[i].rect;
+        if (r.w < 1 || r.h < 1 || r.w > SIM_WINDOW_SIDE_MAX || r.h > SIM_WINDOW_SIDE_MAX) {
+            error_set(err, "gl backend: window %d is %dx%d cells (sides must be 1..%d)", i, r.w,
+                      r.h, SIM_WINDOW_SIDE_MAX);
+            return -1;
+        }
+        if (!jobs[i].bottom_override && (r.w > b->max_texture_size || r.h > b->max_texture_size)) {
+            error_set(err, "gl backend: window %d (%dx%d) exceeds the largest depth texture (%d)",
+                      i, r.w, r.h, b->max_texture_size);
+            return -1;
+        }
+        if ((int64_t)r.w * r.h > b->max_chunk_cells) {
+            error_set(err, "gl backend: window %d has %lld cells, more than one storage block "
+                      "holds here (%lld)", i, (long long)r.w * r.h,
+                      (long long)b->max_chunk_cells);
+            return -1;
+        }
+    }
+    /* Normally the whole tick is one chunk; chunks only split batches that a
+     * single shader storage block cannot address. */
+    for (int start = 0; start < job_count;) {
+        int end = start;
+        int64_t cells = 0;
+        while (end < job_count) {
+            int64_t n = (int64_t)jobs[end].rect.w * jobs[end].rect.h;
+            if (end > start && cells + n > b->max_chunk_cells)
+                break;
+            cells += n;
+            end++;
+        }
+        if (run_chunk(b, p, jobs + start, end - start, status + start, times, err) != 0)
+            return -1;
+        start = end;
+    }
+    return 0;
+}
+
+void sim_backend_gl_set_stage_timing(sim_backend *base, int on)
+{
+    if (base && base->name && strcmp(base->name, "gl") == 0)
+        ((gl_backend *)base)->stage_timing = on != 0;
+}
+
+static void gl_destroy(sim_backend *base)
+{
+    gl_backend *b = (gl_backend *)base;
+    if (!b)
+        return;
+    if (b->context && gl_context_make_current(b->context, NULL) == 0) {
+        for (int i = 0; i < b->geometry_count; i++) {
+            glDeleteVertexArrays(1, &b->geometries[i].vao);
+            glDeleteBuffers(1, &b->geometries[i].vbo);
+            glDeleteBuffers(1, &b->geometries[i].ebo);
+        }
+        for (int i = 0; i < PROG_COUNT; i++)
+            if (b->programs[i])
+                glDeleteProgram(b->programs[i]);
+        glDeleteTextures(BUF_COUNT, b->textures);
+        glDeleteTextures(1, &b->table_texture);
+        glDeleteBuffers(BUF_COUNT, b->buffers);
+        glDeleteBuffers(1, &b->table_buffer);
+        glDeleteBuffers(1, &b->status_buffer);
+        if (b->atlas)
+            glDeleteTextures(1, &b->atlas);
+        if (b->fbo)
+            glDeleteFramebuffers(1, &b->fbo);
+    }
+    gl_context_destroy(b->context);
+    free(b->geometries);
+    free(b->entries);
+    free(b->status_host);
+    free(b->order);
+    free(b->tiles);
+    free(b);
+}
+
+sim_backend *sim_backend_gl_create(error_text *err)
+{
+    gl_backend *b = calloc(1, sizeof *b);
+    if (!b) {
+        error_set(err, "gl backend: out of memory");
+        return NULL;
+    }
+    b->base.name = "gl";
+    b->base.run_windows = gl_run_windows;
+    b->base.forget_geometry = gl_forget_geometry;
+    b->base.scratch_bytes = gl_scratch_bytes;
+    b->base.destroy = gl_destroy;
+    b->base.impl = b;
+    b->context = gl_context_create(err);
+    if (!b->context) {
+        free(b);
+        return NULL;
+    }
+    snprintf(b->base.renderer, sizeof b->base.renderer, "%s", gl_context_renderer(b->context));
+    snprintf(b->base.version, sizeof b->base.version, "%s", gl_context_version(b->context));
+
+    for (int i = 0; i < PROG_COMPUTE_COUNT; i++) {
+        b->programs[i] = gl_program_compute(compute_names[i], err);
+        if (!b->programs[i])
+            goto fail;
+    }
+    b->programs[PROG_RASTER] = gl_program_raster("shaders/depth.vert", "shaders/depth.frag", err);
+    if (!b->programs[PROG_RASTER])
+        goto fail;
+    for (int i = 0; i < PROG_COUNT; i++)
+        for (int u = 0; u < U_COUNT; u++)
+            b->uniforms[i][u] = glGetUniformLocation(b->programs[i], uniform_names[u]);
+
+    GLint64 block = 0;
+    GLint groups_x = 0, texture_buffer = 0;
+    glGetIntegerv(GL_MAX_TEXTURE_BUFFER_SIZE, &texture_buffer);
+    glGetIntegerv(GL_MAX_TEXTURE_SIZE, &b->max_texture_size);
+    glGetInteger64v(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &block);
+    glGetIntegeri_v(GL_MAX_COMPUTE_WORK_GROUP_COUNT, 0, &groups_x);
+    if (b->max_texture_size > 16384)
+        b->max_texture_size = 16384;
+    b->max_groups_x = groups_x > 0 ? groups_x : 65535;
+    /* int32 indices everywhere; a block bounds one buffer binding. */
+    b->max_chunk_cells = block > 0 ? (int64_t)block / 4 : (int64_t)1 << 22;
+    /* the batch table holds at most 4 texels per cell (1x1 windows) */
+    if (texture_buffer > 0 && (int64_t)texture_buffer / 4 < b->max_chunk_cells)
+        b->max_chunk_cells = (int64_t)texture_buffer / 4;
+    if (b->max_chunk_cells > ((int64_t)1 << 30))
+        b->max_chunk_cells = (int64_t)1 << 30;
+
+    glGenBuffers(BUF_COUNT, b->buffers);
+    glGenTextures(BUF_COUNT, b->textures);
+    glGenTextures(1, &b->table_texture);
+    glGenBuffers(1, &b->table_buffer);
+    glGenBuffers(1, &b->status_buffer);
+    glGenFramebuffers(1, &b->fbo);
+    if (check_gl("creating the backend", err) != 0)
+        goto fail;
+    return &b->base;
+fail:
+    gl_destroy(&b->base);
+    return NULL;
+}

@@ -1,0 +1,36 @@
+/*
+ * gl: the headless OpenGL side of terrad — an EGL context with no window and
+ * no X server (Mesa's surfaceless platform where there is no GPU,
+ * EGL_EXT_platform_device on NVIDIA), shaders embedded from shaders/, and the
+ * GL backend of the deformation pipeline (sim.h), whose compute shaders
+ * mirror the CPU twin's integer stages exactly.
+ *
+ * Only the sim thread may call into this subsystem: it owns the context.
+ */
+#ifndef TERRAD_GL_H
+#define TERRAD_GL_H
+
+#include "base/base.h"
+#include "sim/sim.h"
+
+typedef struct gl_context gl_context;
+
+/*
+ * Make an OpenGL >= 4.3 core context current on this thread. On failure,
+ * err names what is missing in one line (no EGL display, no surfaceless
+ * platform, GL too old, no compute shaders ...). Logs GL_RENDERER and
+ * GL_VERSION on success.
+ */
+gl_context *gl_context_create(error_text *err);
+const char *gl_context_renderer(const gl_context *c);
+const char *gl_context_version(const gl_context *c);
+void gl_context_destroy(gl_context *c);
+
+/* The GL backend: creates its own context. */
+sim_backend *sim_backend_gl_create(error_text *err);
+
+/* With timing on, the backend waits for the GPU after every stage (glFinish)
+ * so per-stage times are real; off, it waits once per batch. */
+void sim_backend_gl_set_stage_timing(sim_backend *b, int on);
+
+#endif

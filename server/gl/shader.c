@@ -1,0 +1,172 @@
+/*
+ * shader.c: compiles and links the GL backend's programs from the shaders/
+ * files embedded in the binary (base/embedded.h), so the daemon needs no
+ * files at run time. Compute shaders share shaders/common.glsl through a
+ * one-level `#include "common.glsl"` line that is spliced in here, with
+ * #line directives so the driver's messages still point at the right file
+ * and line (source string 0 is the shader, 1 the included file).
+ */
+#include "gl/gl_internal.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "base/embedded.h"
+
+#define INCLUDE_DIRECTIVE "#include \""
+
+static void log_info_log(const char *what, const char *name, const char *text)
+{
+    log_error("gl: %s %s failed:", name, what);
+    /* one log line per line of the driver's message */
+    const char *p = text;
+    while (p && *p) {
+        size_t len = strcspn(p, "\n");
+        if (len > 0)
+            log_error("gl:   %.*s", (int)len, p);
+        p += len;
+        if (*p == '\n')
+            p++;
+    }
+}
+
+/* The first line of a driver message, for the one-line error text. */
+static void first_line(const char *text, char *out, size_t size)
+{
+    size_t len = text ? strcspn(text, "\n") : 0;
+    if (len >= size)
+        len = size - 1;
+    if (len)
+        memcpy(out, text, len);
+    out[len] = '\0';
+}
+
+static GLuint compile_stage(GLenum type, const char *name, error_text *err)
+{
+    size_t size = 0;
+    const char *src = embedded_file_find(name, &size);
+    if (!src) {
+        error_set(err, "gl: shader %s is not embedded in this binary", name);
+        log_error("gl: shader %s is not embedded in this binary", name);
+        return 0;
+    }
+    /* Split around an include line, if any: before, included file, after. */
+    const char *strings[5];
+    GLint lengths[5];
+    int count = 0;
+    char line_inc[32], line_back[48];
+    const char *inc = NULL;
+    for (const char *p = src; p < src + size;) {
+        const char *eol = memchr(p, '\n', (size_t)(src + size - p));
+        size_t len = eol ? (size_t)(eol - p) : (size_t)(src + size - p);
+        if (len > strlen(INCLUDE_DIRECTIVE) &&
+            memcmp(p, INCLUDE_DIRECTIVE, strlen(INCLUDE_DIRECTIVE)) == 0) {
+            inc = p;
+            break;
+        }
+        p += len + 1;
+    }
+    if (!inc) {
+        strings[count] = src;
+        lengths[count++] = (GLint)size;
+    } else {
+        const char *name_start = inc + strlen(INCLUDE_DIRECTIVE);
+        const char *name_end = memchr(name_start, '"', (size_t)(src + size - name_start));
+        const char *eol = memchr(inc, '\n', (size_t)(src + size - inc));
+        if (!name_end || (eol && name_end > eol) || name_end - name_start > 200) {
+            error_set(err, "gl: %s: malformed #include line", name);
+            log_error("gl: %s: malformed #include line", name);
+            return 0;
+        }
+        char inc_name[256];
+        snprintf(inc_name, sizeof inc_name, "shaders/%.*s", (int)(name_end - name_start),
+                 name_start);
+        size_t inc_size = 0;
+        const char *inc_src = embedded_file_find(inc_name, &inc_size);
+        if (!inc_src) {
+            error_set(err, "gl: %s includes %s, which is not embedded", name, inc_name);
+            log_error("gl: %s includes %s, which is not embedded", name, inc_name);
+            return 0;
+        }
+        int inc_line = 1;
+        for (const char *p = src; p < inc; p++)
+            inc_line += *p == '\n';
+        snprintf(line_inc, sizeof line_inc, "#line 1 1\n");
+        snprintf(line_back, sizeof line_back, "\n#line %d 0\n", inc_line + 1);
+        strings[count] = src;
+        lengths[count++] = (GLint)(inc - src);
+        strings[count] = line_inc;
+        lengths[count++] = (GLint)strlen(line_inc);
+        strings[count] = inc_src;
+        lengths[count++] = (GLint)inc_size;
+        strings[count] = line_back;
+        lengths[count++] = (GLint)strlen(line_back);
+        const char *after = eol ? eol + 1 : src + size;
+        strings[count] = after;
+        lengths[count++] = (GLint)(src + size - after);
+    }
+    GLuint shader = glCreateShader(type);
+    glShaderSource(shader, count, strings, lengths);
+    glCompileShader(shader);
+    GLint ok = 0;
+    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = "";
+        glGetShaderInfoLog(shader, sizeof log, NULL, log);
+        log_info_log("compile", name, log);
+        char line[160];
+        first_line(log, line, sizeof line);
+        error_set(err, "gl: %s does not compile: %s", name, line);
+        glDeleteShader(shader);
+        return 0;
+    }
+    return shader;
+}
+
+static GLuint link_program(const GLuint *shaders, int count, const char *name, error_text *err)
+{
+    GLuint program = glCreateProgram();
+    for (int i = 0; i < count; i++)
+        glAttachShader(program, shaders[i]);
+    glLinkProgram(program);
+    for (int i = 0; i < count; i++) {
+        glDetachShader(program, shaders[i]);
+        glDeleteShader(shaders[i]);
+    }
+    GLint ok = 0;
+    glGetProgramiv(program, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = "";
+        glGetProgramInfoLog(program, sizeof log, NULL, log);
+        log_info_log("link", name, log);
+        char line[160];
+        first_line(log, line, sizeof line);
+        error_set(err, "gl: %s does not link: %s", name, line);
+        glDeleteProgram(program);
+        return 0;
+    }
+    return program;
+}
+
+GLuint gl_program_compute(const char *name, error_text *err)
+{
+    GLuint cs = compile_stage(GL_COMPUTE_SHADER, name, err);
+    if (!cs)
+        return 0;
+    return link_program(&cs, 1, name, err);
+}
+
+GLuint gl_program_raster(const char *vertex_name, const char *fragment_name, error_text *err)
+{
+    GLuint shaders[2];
+    shaders[0] = compile_stage(GL_VERTEX_SHADER, vertex_name, err);
+    if (!shaders[0])
+        return 0;
+    shaders[1] = compile_stage(GL_FRAGMENT_SHADER, fragment_name, err);
+    if (!shaders[1]) {
+        glDeleteShader(shaders[0]);
+        return 0;
+    }
+    return link_program(shaders, 2, vertex_name, err);
+}

@@ -1,0 +1,63 @@
+/*
+ * main.c: terrad's entry point — dispatches to a command (see app/).
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "app/app.h"
+
+void app_print_help(void)
+{
+    printf(
+        "terrad: a terrain deformation service (volume-preserving, headless OpenGL)\n"
+        "\n"
+        "usage:\n"
+        "  terrad serve [options]        run the daemon (the default command)\n"
+        "  terrad simulate [options]     run a scene offline and print a JSON report\n"
+        "  terrad --help | --version\n"
+        "\n"
+        "serve options:\n"
+        "  --scene FILE        scene JSON (default: the embedded default scene)\n"
+        "  --backend gl|cpu    deformation backend (default gl: EGL, no window)\n"
+        "  --http-port N       HTTP port for /healthz, /readyz, /v1/world, /v1/stats\n"
+        "                      (default 8080; 0 picks a free port)\n"
+        "  --bind-any          listen on all interfaces (default: 127.0.0.1 only)\n"
+        "  --demo-actors N     built-in spheres sliding over the terrain (default 6)\n"
+        "  --no-demo           no demo actors\n"
+        "  --ticks N           stop after N ticks (default: run until SIGINT/SIGTERM)\n"
+        "\n"
+        "simulate options:\n"
+        "  --scene FILE        scene JSON with scripted colliders (default: embedded scene)\n"
+        "  --ticks N           number of ticks to run (required)\n"
+        "  --backend gl|cpu    default gl\n"
+        "  --method M          iterative | ssbo | multi (overrides the scene's material)\n"
+        "  --metric K          euclidean | manhattan | chebyshev (overrides the scene's)\n"
+        "  --out FILE          write the final heights: little-endian int32, row-major\n"
+        "  --depth-from-cpu    feed the CPU twin's analytic depth to the backend, so the\n"
+        "                      gl and cpu backends can be compared bit for bit\n"
+        "\n"
+        "environment:\n"
+        "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n");
+}
+
+int main(int argc, char **argv)
+{
+    const char *command = argc > 1 ? argv[1] : "serve";
+    if (strcmp(command, "--help") == 0 || strcmp(command, "-h") == 0 ||
+        strcmp(command, "help") == 0) {
+        app_print_help();
+        return 0;
+    }
+    if (strcmp(command, "--version") == 0) {
+        printf("terrad 0.1.0\n");
+        return 0;
+    }
+    if (strcmp(command, "simulate") == 0)
+        return app_simulate(argc - 2, argv + 2);
+    if (strcmp(command, "serve") == 0)
+        return app_serve(argc - 2, argv + 2);
+    if (command[0] == '-') /* options without a command: serve */
+        return app_serve(argc - 1, argv + 1);
+    fprintf(stderr, "terrad: unknown command \"%s\" (see terrad --help)\n", command);
+    return 2;
+}

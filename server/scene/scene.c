@@ -1,0 +1,973 @@
+/*
+ * scene.c: scene files (JSON, read with cJSON) — the world's extent, its base
+ * terrain, the material and scripted colliders. A scene is read once, before
+ * the first tick: scene_create_world builds the world from it, the material
+ * becomes the sim's integer parameters, and each tick asks every scene
+ * collider for its pose with collider_motion_pose.
+ *
+ * Strictness is the point: every key is checked against the keys its object
+ * may have (a typo such as "rougness" is refused, never silently replaced by
+ * a default), every number must be finite and in range, and every message
+ * names the JSON path of the offending value, e.g.
+ * "colliders[2].motion.velocity[0]: must be a finite number".
+ *
+ * The format (docs/scene-format.md has a complete example):
+ *
+ *   {
+ *     "name": "thesis-car",                       optional, < 128 bytes
+ *     "description": "...",                       optional, ignored
+ *     "world": {"width": 1024, "height": 1024,    cells, required
+ *               "cell_size_m": 0.048828125,       required
+ *               "units_per_m": 10000,             optional, default 10000
+ *               "floor_m": 0},                    optional, default 0
+ *     "terrain": {"kind": "flat", "height_m": 0.4}
+ *              | {"kind": "dunes", "min_height_m": 0.3, "max_height_m": 0.8,
+ *                 "wavelength_m": 12, "octaves": 4, "seed": 7}
+ *              | {"kind": "png16" | "raw_int16" | "raw_int32", "path": "file",
+ *                 "scale_units": 1, "offset_units": 0},
+ *                                                 optional, default flat 0 m
+ *     "material": {"compression", "roughness", "repose_deg", "obstacle_gap_m",
+ *                  "multi_target_m", "multi_target_max", "displace_iterations",
+ *                  "slope_iterations", "metric", "method"},
+ *                                                 every key optional (sim_material_default)
+ *     "tick_hz": 60, "active_margin_cells": 4,    optional
+ *     "colliders": [{"name": "...", "shape": "sphere|box|capsule|cylinder|wheel|mesh",
+ *                    "radius", "half_length", "half_extents": [x,y,z],
+ *                    "obj": "file.obj", "scale": 1,
+ *                    "position": [x,y,z], "orientation": [w,x,y,z],
+ *                    "motion": {"velocity": [..], "spin_axis": [..], "spin_deg_per_s": ..}
+ *                            | {"keyframes": [{"time_s", "position", "orientation"}, ...]}}]
+ *   }
+ *
+ * Relative file paths resolve against the scene file's directory.
+ */
+#include "scene/scene.h"
+
+#include <cjson/cJSON.h>
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "base/embedded.h"
+
+#define SCENE_COLLIDERS_MAX 4096
+#define SCENE_KEYFRAMES_MAX 100000
+#define SCENE_FILE_BYTES_MAX ((long)64 << 20)
+#define SCENE_SPEED_MAX 1e4    /* m/s */
+#define SCENE_SPIN_MAX_DEG 1e6 /* deg/s */
+#define SCENE_TIME_MAX_S 1e9
+
+typedef struct scene_parser {
+    const char *base_dir;
+    error_text *err;
+} scene_parser;
+
+/* JSON paths are short in practice; a pathological one is cut, never overrun. */
+static void path_format(char *out, size_t size, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+static void path_format(char *out, size_t size, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(out, size, fmt, ap);
+    va_end(ap);
+}
+
+/* "world" + "width" → "world.width"; "" + "name" → "name". */
+static void path_join(char *out, size_t size, const char *parent, const char *key)
+{
+    if (parent[0])
+        path_format(out, size, "%s.%s", parent, key);
+    else
+        path_format(out, size, "%s", key);
+}
+
+static void path_index(char *out, size_t size, const char *parent, int i)
+{
+    path_format(out, size, "%s[%d]", parent, i);
+}
+
+/* Prepend "prefix." to the message a lower layer wrote. */
+static void error_prefix(error_text *err, const char *prefix, const char *sep)
+{
+    if (!err)
+        return;
+    char inner[sizeof err->message];
+    snprintf(inner, sizeof inner, "%s", err->message);
+    error_set(err, "%s%s%s", prefix, sep, inner);
+}
+
+static const char *json_type_name(const cJSON *v)
+{
+    if (cJSON_IsNumber(v))
+        return "a number";
+    if (cJSON_IsString(v))
+        return "a string";
+    if (cJSON_IsBool(v))
+        return "a boolean";
+    if (cJSON_IsNull(v))
+        return "null";
+    if (cJSON_IsArray(v))
+        return "an array";
+    if (cJSON_IsObject(v))
+        return "an object";
+    return "an unknown value";
+}
+
+static int expect_object(const cJSON *v, const char *path, error_text *err)
+{
+    if (!cJSON_IsObject(v)) {
+        error_set(err, "%s: must be an object (got %s)", path[0] ? path : "scene",
+                  json_type_name(v));
+        return -1;
+    }
+    return 0;
+}
+
+/* Every key of obj must be in allowed (NULL-terminated), once. */
+static int check_keys(const cJSON *obj, const char *path, const char *const *allowed,
+                      const char *context, error_text *err)
+{
+    for (const cJSON *c = obj->child; c; c = c->next) {
+        char p[256];
+        path_join(p, sizeof p, path, c->string ? c->string : "");
+        int known = 0;
+        for (const char *const *a = allowed; *a; a++)
+            if (c->string && strcmp(c->string, *a) == 0)
+                known = 1;
+        if (!known) {
+            if (context)
+                error_set(err, "%s: unknown key for %s", p, context);
+            else
+                error_set(err, "%s: unknown key", p);
+            return -1;
+        }
+        for (const cJSON *d = obj->child; d != c; d = d->next)
+            if (d->string && strcmp(d->string, c->string) == 0) {
+                error_set(err, "%s: duplicate key", p);
+                return -1;
+            }
+    }
+    return 0;
+}
+
+/* A finite number in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
+static int get_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                      double *out, error_text *err)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!v)
+        return 0;
+    char p[256];
+    path_join(p, sizeof p, path, key);
+    if (!cJSON_IsNumber(v)) {
+        error_set(err, "%s: must be a number (got %s)", p, json_type_name(v));
+        return -1;
+    }
+    double d = v->valuedouble;
+    if (!isfinite(d)) {
+        error_set(err, "%s: must be a finite number (got %g)", p, d);
+        return -1;
+    }
+    if (d < lo || d > hi) {
+        error_set(err, "%s: must be in [%g, %g] (got %g)", p, lo, hi, d);
+        return -1;
+    }
+    *out = d;
+    return 1;
+}
+
+static int require_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                          double *out, error_text *err)
+{
+    int r = get_number(obj, path, key, lo, hi, out, err);
+    if (r == 0) {
+        char p[256];
+        path_join(p, sizeof p, path, key);
+        error_set(err, "%s: missing (a number in [%g, %g])", p, lo, hi);
+        return -1;
+    }
+    return r < 0 ? -1 : 0;
+}
+
+/* Present and positive: (0, hi]. */
+static int get_positive(const cJSON *obj, const char *path, const char *key, double hi,
+                        int required, double *out, error_text *err)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[256];
+    path_join(p, sizeof p, path, key);
+    if (!v) {
+        if (!required)
+            return 0;
+        error_set(err, "%s: missing (a finite number > 0 and <= %g)", p, hi);
+        return -1;
+    }
+    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) || v->valuedouble <= 0.0 ||
+        v->valuedouble > hi) {
+        if (cJSON_IsNumber(v))
+            error_set(err, "%s: must be a finite number > 0 and <= %g (got %g)", p, hi,
+                      v->valuedouble);
+        else
+            error_set(err, "%s: must be a finite number > 0 and <= %g (got %s)", p, hi,
+                      json_type_name(v));
+        return -1;
+    }
+    *out = v->valuedouble;
+    return 1;
+}
+
+/* An integer in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
+static int get_integer(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                       int required, double *out, error_text *err)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[256];
+    path_join(p, sizeof p, path, key);
+    if (!v) {
+        if (!required)
+            return 0;
+        error_set(err, "%s: missing (an integer in [%.0f, %.0f])", p, lo, hi);
+        return -1;
+    }
+    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) ||
+        v->valuedouble != floor(v->valuedouble) || v->valuedouble < lo || v->valuedouble > hi) {
+        if (cJSON_IsNumber(v))
+            error_set(err, "%s: must be an integer in [%.0f, %.0f] (got %g)", p, lo, hi,
+                      v->valuedouble);
+        else
+            error_set(err, "%s: must be an integer in [%.0f, %.0f] (got %s)", p, lo, hi,
+                      json_type_name(v));
+        return -1;
+    }
+    *out = v->valuedouble;
+    return 1;
+}
+
+/* A string shorter than size. Returns 1 when present, 0 when absent, -1 on error. */
+static int get_string(const cJSON *obj, const char *path, const char *key, char *out, size_t size,
+                      error_text *err)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!v)
+        return 0;
+    char p[256];
+    path_join(p, sizeof p, path, key);
+    if (!cJSON_IsString(v) || !v->valuestring) {
+        error_set(err, "%s: must be a string (got %s)", p, json_type_name(v));
+        return -1;
+    }
+    if (strlen(v->valuestring) >= size) {
+        error_set(err, "%s: must be shorter than %zu bytes", p, size);
+        return -1;
+    }
+    snprintf(out, size, "%s", v->valuestring);
+    return 1;
+}
+
+/* An array of n finite numbers, each with |x| <= limit. */
+static int get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
+                      double *out, error_text *err)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!v)
+        return 0;
+    char p[256];
+    path_join(p, sizeof p, path, key);
+    if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) != n) {
+        error_set(err, "%s: must be an array of %d numbers", p, n);
+        return -1;
+    }
+    int i = 0;
+    for (const cJSON *e = v->child; e; e = e->next, i++) {
+        char q[280];
+        path_format(q, sizeof q, "%s[%d]", p, i);
+        if (!cJSON_IsNumber(e) || !isfinite(e->valuedouble)) {
+            if (cJSON_IsNumber(e))
+                error_set(err, "%s: must be a finite number (got %g)", q, e->valuedouble);
+            else
+                error_set(err, "%s: must be a finite number (got %s)", q, json_type_name(e));
+            return -1;
+        }
+        if (fabs(e->valuedouble) > limit) {
+            error_set(err, "%s: must be within [-%g, %g] (got %g)", q, limit, limit,
+                      e->valuedouble);
+            return -1;
+        }
+        out[i] = e->valuedouble;
+    }
+    return 1;
+}
+
+/* ---- world, terrain, material ---- */
+
+static const char *const world_keys[] = {"width",       "height",  "cell_size_m",
+                                         "units_per_m", "floor_m", NULL};
+
+static int parse_world(const cJSON *root, scene *s, error_text *err)
+{
+    const cJSON *w = cJSON_GetObjectItemCaseSensitive(root, "world");
+    if (!w) {
+        error_set(err, "world: missing (an object with width, height and cell_size_m)");
+        return -1;
+    }
+    if (expect_object(w, "world", err) || check_keys(w, "world", world_keys, NULL, err))
+        return -1;
+    double width, height, cell, upm = 10000, floor_m = 0;
+    if (get_integer(w, "world", "width", 1, WORLD_SIDE_MAX, 1, &width, err) < 0 ||
+        get_integer(w, "world", "height", 1, WORLD_SIDE_MAX, 1, &height, err) < 0 ||
+        get_positive(w, "world", "cell_size_m", 1000, 1, &cell, err) < 0 ||
+        get_integer(w, "world", "units_per_m", 1, 1000000, 0, &upm, err) < 0 ||
+        get_number(w, "world", "floor_m", -1e9, 1e9, &floor_m, err) < 0)
+        return -1;
+    if (width * height > (double)(1 << 30)) {
+        error_set(err, "world: %.0f x %.0f cells is more than the %d an in-memory world may hold",
+                  width, height, 1 << 30);
+        return -1;
+    }
+    double floor_units = floor_m * upm;
+    if (floor_units < WORLD_HEIGHT_MIN - 0.5 || floor_units >= WORLD_HEIGHT_MAX + 0.5) {
+        error_set(err, "world.floor_m: %g m is %.0f units, outside [%d, %d]", floor_m, floor_units,
+                  WORLD_HEIGHT_MIN, WORLD_HEIGHT_MAX);
+        return -1;
+    }
+    s->width = (int)width;
+    s->height = (int)height;
+    s->cell_size_m = cell;
+    s->units_per_m = (int32_t)upm;
+    s->floor_units = (int32_t)llround(floor_units);
+    return 0;
+}
+
+/* A height in metres that must land in [floor, WORLD_HEIGHT_MAX] units. */
+static int check_height_m(const scene *s, const char *path, double metres, error_text *err)
+{
+    double units = metres * s->units_per_m;
+    double lo = s->floor_units > WORLD_HEIGHT_MIN ? s->floor_units : WORLD_HEIGHT_MIN;
+    if (units < lo - 0.5 || units >= WORLD_HEIGHT_MAX + 0.5) {
+        error_set(err, "%s: %g m is %.0f units, outside [%.0f, %d] (floor to WORLD_HEIGHT_MAX)",
+                  path, metres, units, lo, WORLD_HEIGHT_MAX);
+        return -1;
+    }
+    return 0;
+}
+
+static int resolve_path(const char *base_dir, const char *rel, char *out, size_t size,
+                        const char *field, error_text *err)
+{
+    int n;
+    if (rel[0] == '/' || !base_dir || !base_dir[0])
+        n = snprintf(out, size, "%s", rel);
+    else
+        n = snprintf(out, size, "%s/%s", base_dir, rel);
+    if (n < 0 || (size_t)n >= size) {
+        error_set(err, "%s: path too long", field);
+        return -1;
+    }
+    return 0;
+}
+
+static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, error_text *err)
+{
+    world_base_spec *b = &s->base;
+    memset(b, 0, sizeof *b);
+    b->kind = WORLD_BASE_FLAT;
+    const cJSON *t = cJSON_GetObjectItemCaseSensitive(root, "terrain");
+    if (!t)
+        return 0; /* flat at 0 m */
+    if (expect_object(t, "terrain", err))
+        return -1;
+    char kind[32];
+    int r = get_string(t, "terrain", "kind", kind, sizeof kind, err);
+    if (r < 0)
+        return -1;
+    if (r == 0) {
+        error_set(err, "terrain.kind: missing (flat, dunes, png16, raw_int16 or raw_int32)");
+        return -1;
+    }
+    if (strcmp(kind, "flat") == 0) {
+        static const char *const keys[] = {"kind", "height_m", NULL};
+        if (check_keys(t, "terrain", keys, "terrain kind flat", err) ||
+            require_number(t, "terrain", "height_m", -1e9, 1e9, &b->height_m, err) ||
+            check_height_m(s, "terrain.height_m", b->height_m, err))
+            return -1;
+        return 0;
+    }
+    if (strcmp(kind, "dunes") == 0) {
+        static const char *const keys[] = {
+            "kind", "min_height_m", "max_height_m", "wavelength_m", "octaves", "seed", NULL};
+        double octaves = 4, seed = 0;
+        b->kind = WORLD_BASE_DUNES;
+        b->wavelength_m = 10.0;
+        if (check_keys(t, "terrain", keys, "terrain kind dunes", err) ||
+            require_number(t, "terrain", "min_height_m", -1e9, 1e9, &b->min_height_m, err) ||
+            require_number(t, "terrain", "max_height_m", -1e9, 1e9, &b->max_height_m, err) ||
+            get_positive(t, "terrain", "wavelength_m", 1e6, 0, &b->wavelength_m, err) < 0 ||
+            get_integer(t, "terrain", "octaves", 1, 8, 0, &octaves, err) < 0 ||
+            get_integer(t, "terrain", "seed", 0, 4294967295.0, 0, &seed, err) < 0 ||
+            check_height_m(s, "terrain.min_height_m", b->min_height_m, err) ||
+            check_height_m(s, "terrain.max_height_m", b->max_height_m, err))
+            return -1;
+        if (b->max_height_m < b->min_height_m) {
+            error_set(err, "terrain.max_height_m: must be >= min_height_m (got %g < %g)",
+                      b->max_height_m, b->min_height_m);
+            return -1;
+        }
+        b->octaves = (int)octaves;
+        b->seed = (uint32_t)seed;
+        return 0;
+    }
+    if (strcmp(kind, "png16") == 0)
+        b->kind = WORLD_BASE_PNG16;
+    else if (strcmp(kind, "raw_int16") == 0)
+        b->kind = WORLD_BASE_RAW_INT16;
+    else if (strcmp(kind, "raw_int32") == 0)
+        b->kind = WORLD_BASE_RAW_INT32;
+    else {
+        error_set(err,
+                  "terrain.kind: must be flat, dunes, png16, raw_int16 or raw_int32 (got \"%s\")",
+                  kind);
+        return -1;
+    }
+    static const char *const keys[] = {"kind", "path", "scale_units", "offset_units", NULL};
+    char rel[1024];
+    b->value_scale_units = 1.0;
+    b->value_offset_units = 0.0;
+    if (check_keys(t, "terrain", keys, "a heightmap terrain", err) ||
+        (r = get_string(t, "terrain", "path", rel, sizeof rel, err)) < 0)
+        return -1;
+    if (r == 0 || !rel[0]) {
+        error_set(err, "terrain.path: missing (the heightmap file)");
+        return -1;
+    }
+    if (get_number(t, "terrain", "scale_units", -1e9, 1e9, &b->value_scale_units, err) < 0 ||
+        get_number(t, "terrain", "offset_units", -1e10, 1e10, &b->value_offset_units, err) < 0 ||
+        resolve_path(ps->base_dir, rel, b->path, sizeof b->path, "terrain.path", err))
+        return -1;
+    return 0;
+}
+
+static int parse_material(const cJSON *root, scene *s, error_text *err)
+{
+    sim_material *m = &s->material;
+    *m = sim_material_default();
+    const cJSON *o = cJSON_GetObjectItemCaseSensitive(root, "material");
+    if (!o)
+        return 0;
+    static const char *const keys[] = {"compression",
+                                       "roughness",
+                                       "repose_deg",
+                                       "obstacle_gap_m",
+                                       "multi_target_m",
+                                       "multi_target_max",
+                                       "displace_iterations",
+                                       "slope_iterations",
+                                       "metric",
+                                       "method",
+                                       NULL};
+    const char *P = "material";
+    if (expect_object(o, P, err) || check_keys(o, P, keys, NULL, err))
+        return -1;
+    double v;
+    int r;
+    if (get_number(o, P, "compression", 0, 1, &m->compression, err) < 0 ||
+        get_number(o, P, "roughness", 0, 1, &m->roughness, err) < 0 ||
+        get_number(o, P, "obstacle_gap_m", 0, 1000, &m->obstacle_gap_m, err) < 0 ||
+        get_positive(o, P, "multi_target_m", 1000, 0, &m->multi_target_m, err) < 0)
+        return -1;
+    if ((r = get_number(o, P, "repose_deg", 0, 90, &v, err)) < 0)
+        return -1;
+    if (r) {
+        if (v >= 90.0) {
+            error_set(err, "material.repose_deg: must be in [0, 90) (got %g)", v);
+            return -1;
+        }
+        m->repose_deg = v;
+    }
+    if ((r = get_integer(o, P, "multi_target_max", 1, 1024, 0, &v, err)) < 0)
+        return -1;
+    if (r)
+        m->multi_target_max = (int)v;
+    if ((r = get_integer(o, P, "displace_iterations", 0, 1000, 0, &v, err)) < 0)
+        return -1;
+    if (r)
+        m->displace_iterations = (int)v;
+    if ((r = get_integer(o, P, "slope_iterations", 0, 1000, 0, &v, err)) < 0)
+        return -1;
+    if (r)
+        m->slope_iterations = (int)v;
+    char name[32];
+    if ((r = get_string(o, P, "metric", name, sizeof name, err)) < 0)
+        return -1;
+    if (r && sim_metric_parse(name, &m->metric) != 0) {
+        error_set(err, "material.metric: must be euclidean, manhattan or chebyshev (got \"%s\")",
+                  name);
+        return -1;
+    }
+    if ((r = get_string(o, P, "method", name, sizeof name, err)) < 0)
+        return -1;
+    if (r && sim_method_parse(name, &m->method) != 0) {
+        error_set(err, "material.method: must be iterative, ssbo or multi (got \"%s\")", name);
+        return -1;
+    }
+    /* the sim's own conversion has the last word on what it can run */
+    sim_params p;
+    if (sim_params_from_material(m, s->cell_size_m, s->units_per_m, s->floor_units, &p, err) != 0)
+        return -1;
+    return 0;
+}
+
+/* ---- colliders ---- */
+
+static int parse_quat(const cJSON *obj, const char *path, quatd *q, error_text *err)
+{
+    double v[4];
+    int r = get_vector(obj, path, "orientation", 4, 1e6, v, err);
+    if (r <= 0) {
+        *q = (quatd){1, 0, 0, 0};
+        return r;
+    }
+    double n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3];
+    if (!(n2 > 1e-12)) {
+        char p[256];
+        path_join(p, sizeof p, path, "orientation");
+        error_set(err, "%s: must be a non-zero quaternion [w, x, y, z]", p);
+        return -1;
+    }
+    *q = quat_normalize((quatd){v[0], v[1], v[2], v[3]});
+    return 1;
+}
+
+static int parse_position(const cJSON *obj, const char *path, vec3d *p, error_text *err)
+{
+    double v[3];
+    int r = get_vector(obj, path, "position", 3, 1e6, v, err);
+    if (r > 0)
+        *p = (vec3d){v[0], v[1], v[2]};
+    return r;
+}
+
+static int parse_keyframes(const cJSON *arr, const char *path, collider_motion *m, error_text *err)
+{
+    int n = cJSON_IsArray(arr) ? cJSON_GetArraySize(arr) : 0;
+    if (n < 1 || n > SCENE_KEYFRAMES_MAX) {
+        error_set(err, "%s: must be an array of 1 to %d keyframes", path, SCENE_KEYFRAMES_MAX);
+        return -1;
+    }
+    m->keyframes = calloc((size_t)n, sizeof *m->keyframes);
+    if (!m->keyframes) {
+        error_set(err, "%s: out of memory", path);
+        return -1;
+    }
+    m->keyframe_count = n;
+    static const char *const keys[] = {"time_s", "position", "orientation", NULL};
+    int i = 0;
+    for (const cJSON *k = arr->child; k; k = k->next, i++) {
+        char p[256];
+        path_index(p, sizeof p, path, i);
+        collider_keyframe *f = &m->keyframes[i];
+        if (expect_object(k, p, err) || check_keys(k, p, keys, NULL, err) ||
+            require_number(k, p, "time_s", -SCENE_TIME_MAX_S, SCENE_TIME_MAX_S, &f->time_s, err))
+            return -1;
+        if (i > 0 && !(f->time_s > m->keyframes[i - 1].time_s)) {
+            error_set(err, "%s.time_s: must be greater than the previous keyframe's (%g <= %g)", p,
+                      f->time_s, m->keyframes[i - 1].time_s);
+            return -1;
+        }
+        int r = parse_position(k, p, &f->pose.position, err);
+        if (r < 0)
+            return -1;
+        if (r == 0) {
+            error_set(err, "%s.position: missing ([x, y, z] in metres)", p);
+            return -1;
+        }
+        if (parse_quat(k, p, &f->pose.orientation, err) < 0)
+            return -1;
+    }
+    return 0;
+}
+
+static int parse_motion(const cJSON *c, const char *path, collider_motion *m, int has_position,
+                        error_text *err)
+{
+    const cJSON *o = cJSON_GetObjectItemCaseSensitive(c, "motion");
+    char p[256];
+    path_join(p, sizeof p, path, "motion");
+    m->kind = COLLIDER_MOTION_STATIC;
+    if (!o) {
+        if (!has_position) {
+            error_set(err, "%s.position: missing ([x, y, z] in metres)", path);
+            return -1;
+        }
+        return 0;
+    }
+    if (expect_object(o, p, err))
+        return -1;
+    const cJSON *kf = cJSON_GetObjectItemCaseSensitive(o, "keyframes");
+    if (kf) {
+        static const char *const keys[] = {"keyframes", NULL};
+        if (check_keys(o, p, keys, "keyframe motion (velocity and keyframes do not mix)", err))
+            return -1;
+        if (has_position) {
+            error_set(err,
+                      "%s.position: not allowed with motion.keyframes (the keyframes give "
+                      "the pose)",
+                      path);
+            return -1;
+        }
+        char q[280];
+        path_format(q, sizeof q, "%s.keyframes", p);
+        if (parse_keyframes(kf, q, m, err) != 0)
+            return -1;
+        m->kind = COLLIDER_MOTION_KEYFRAMES;
+        m->start = m->keyframes[0].pose;
+        return 0;
+    }
+    static const char *const keys[] = {"velocity", "spin_axis", "spin_deg_per_s", NULL};
+    if (check_keys(o, p, keys, NULL, err))
+        return -1;
+    if (!has_position) {
+        error_set(err, "%s.position: missing ([x, y, z] in metres)", path);
+        return -1;
+    }
+    double v[3] = {0, 0, 0}, axis[3] = {0, 0, 1}, spin = 0;
+    if (get_vector(o, p, "velocity", 3, SCENE_SPEED_MAX, v, err) < 0 ||
+        get_vector(o, p, "spin_axis", 3, 1e6, axis, err) < 0 ||
+        get_number(o, p, "spin_deg_per_s", -SCENE_SPIN_MAX_DEG, SCENE_SPIN_MAX_DEG, &spin, err) < 0)
+        return -1;
+    if (spin != 0.0 && !(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2] > 1e-12)) {
+        error_set(err, "%s.spin_axis: must be a non-zero vector when spin_deg_per_s is not 0", p);
+        return -1;
+    }
+    m->kind = COLLIDER_MOTION_VELOCITY;
+    m->velocity = (vec3d){v[0], v[1], v[2]};
+    m->spin_axis = (vec3d){axis[0], axis[1], axis[2]};
+    m->spin_rad_per_s = spin * (M_PI / 180.0);
+    return 0;
+}
+
+static int load_mesh(const scene_parser *ps, const cJSON *c, const char *path, scene *s,
+                     collider_geometry *g, error_text *err)
+{
+    char rel[1024], full[1024];
+    int r = get_string(c, path, "obj", rel, sizeof rel, err);
+    if (r < 0)
+        return -1;
+    if (r == 0 || !rel[0]) {
+        error_set(err, "%s.obj: missing (the OBJ file of a mesh collider)", path);
+        return -1;
+    }
+    double scale = 1.0;
+    if (get_positive(c, path, "scale", 1e6, 0, &scale, err) < 0)
+        return -1;
+    char field[280];
+    path_format(field, sizeof field, "%s.obj", path);
+    if (resolve_path(ps->base_dir, rel, full, sizeof full, field, err))
+        return -1;
+    collider_mesh *m = &s->meshes[s->mesh_count];
+    if (collider_mesh_load_obj(full, m, err) != 0) {
+        error_prefix(err, field, ": ");
+        return -1;
+    }
+    s->mesh_count++;
+    if (scale != 1.0) {
+        for (int i = 0; i < 3 * m->vertex_count; i++)
+            m->vertices[i] = (float)(m->vertices[i] * scale);
+        m->bounding_radius *= scale;
+    }
+    g->mesh = m;
+    return 0;
+}
+
+static int parse_collider(const scene_parser *ps, const cJSON *c, const char *path, int index,
+                          scene *s, scene_collider *sc, error_text *err)
+{
+    if (expect_object(c, path, err))
+        return -1;
+    char shape[32];
+    int r = get_string(c, path, "shape", shape, sizeof shape, err);
+    if (r < 0)
+        return -1;
+    if (r == 0) {
+        error_set(err, "%s.shape: missing (sphere, box, capsule, cylinder, wheel or mesh)", path);
+        return -1;
+    }
+    collider_geometry *g = &sc->geometry;
+    const char *context;
+    static const char *const sphere_keys[] = {"name",   "shape",  "position", "orientation",
+                                              "motion", "radius", NULL};
+    static const char *const axial_keys[] = {"name",   "shape",  "position",    "orientation",
+                                             "motion", "radius", "half_length", NULL};
+    static const char *const box_keys[] = {"name",   "shape",        "position", "orientation",
+                                           "motion", "half_extents", NULL};
+    static const char *const mesh_keys[] = {"name",   "shape", "position", "orientation",
+                                            "motion", "obj",   "scale",    NULL};
+    const char *const *keys;
+    if (strcmp(shape, "sphere") == 0) {
+        g->shape = COLLIDER_SPHERE;
+        keys = sphere_keys;
+        context = "a sphere";
+    } else if (strcmp(shape, "box") == 0) {
+        g->shape = COLLIDER_BOX;
+        keys = box_keys;
+        context = "a box";
+    } else if (strcmp(shape, "capsule") == 0) {
+        g->shape = COLLIDER_CAPSULE;
+        keys = axial_keys;
+        context = "a capsule";
+    } else if (strcmp(shape, "cylinder") == 0 || strcmp(shape, "wheel") == 0) {
+        g->shape = COLLIDER_CYLINDER;
+        keys = axial_keys;
+        context = "a cylinder";
+    } else if (strcmp(shape, "mesh") == 0) {
+        g->shape = COLLIDER_MESH;
+        keys = mesh_keys;
+        context = "a mesh";
+    } else {
+        error_set(err,
+                  "%s.shape: must be sphere, box, capsule, cylinder, wheel or mesh (got \"%s\")",
+                  path, shape);
+        return -1;
+    }
+    if (check_keys(c, path, keys, context, err))
+        return -1;
+    r = get_string(c, path, "name", sc->name, sizeof sc->name, err);
+    if (r < 0)
+        return -1;
+    if (r == 0)
+        snprintf(sc->name, sizeof sc->name, "collider-%d", index);
+
+    switch (g->shape) {
+    case COLLIDER_SPHERE:
+        if (get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
+            return -1;
+        break;
+    case COLLIDER_CAPSULE:
+    case COLLIDER_CYLINDER:
+        if (get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
+            return -1;
+        if (g->shape == COLLIDER_CAPSULE) {
+            if (require_number(c, path, "half_length", 0, 1000, &g->half_length, err))
+                return -1;
+        } else if (get_positive(c, path, "half_length", 1000, 1, &g->half_length, err) < 0) {
+            return -1;
+        }
+        break;
+    case COLLIDER_BOX: {
+        double e[3];
+        r = get_vector(c, path, "half_extents", 3, 1000, e, err);
+        if (r < 0)
+            return -1;
+        if (r == 0) {
+            error_set(err, "%s.half_extents: missing ([x, y, z] half sizes in metres)", path);
+            return -1;
+        }
+        g->half_extents = (vec3d){e[0], e[1], e[2]};
+        break;
+    }
+    case COLLIDER_MESH:
+        if (load_mesh(ps, c, path, s, g, err) != 0)
+            return -1;
+        break;
+    }
+    /* the collider module's own checks (sizes > 0, mesh extent) have the last word */
+    if (collider_geometry_validate(g, err) != 0) {
+        error_prefix(err, path, ".");
+        return -1;
+    }
+
+    collider_motion *m = &sc->motion;
+    int has_position = parse_position(c, path, &m->start.position, err);
+    if (has_position < 0 || parse_quat(c, path, &m->start.orientation, err) < 0)
+        return -1;
+    if (parse_motion(c, path, m, has_position, err) != 0)
+        return -1;
+    if (cJSON_GetObjectItemCaseSensitive(c, "orientation") &&
+        m->kind == COLLIDER_MOTION_KEYFRAMES) {
+        error_set(err,
+                  "%s.orientation: not allowed with motion.keyframes (the keyframes give "
+                  "the pose)",
+                  path);
+        return -1;
+    }
+    if (collider_pose_validate(&m->start, err) != 0) {
+        error_prefix(err, path, ".");
+        return -1;
+    }
+    return 0;
+}
+
+static int parse_colliders(const cJSON *root, const scene_parser *ps, scene *s, error_text *err)
+{
+    const cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "colliders");
+    if (!arr)
+        return 0;
+    if (!cJSON_IsArray(arr)) {
+        error_set(err, "colliders: must be an array (got %s)", json_type_name(arr));
+        return -1;
+    }
+    int n = cJSON_GetArraySize(arr);
+    if (n > SCENE_COLLIDERS_MAX) {
+        error_set(err, "colliders: at most %d colliders (got %d)", SCENE_COLLIDERS_MAX, n);
+        return -1;
+    }
+    if (n == 0)
+        return 0;
+    int meshes = 0;
+    for (const cJSON *c = arr->child; c; c = c->next) {
+        const cJSON *sh = cJSON_GetObjectItemCaseSensitive(c, "shape");
+        if (cJSON_IsString(sh) && sh->valuestring && strcmp(sh->valuestring, "mesh") == 0)
+            meshes++;
+    }
+    s->colliders = calloc((size_t)n, sizeof *s->colliders);
+    /* sized up front: geometry.mesh points into this array, so it never moves */
+    s->meshes = meshes ? calloc((size_t)meshes, sizeof *s->meshes) : NULL;
+    if (!s->colliders || (meshes && !s->meshes)) {
+        error_set(err, "colliders: out of memory");
+        return -1;
+    }
+    int i = 0;
+    for (const cJSON *c = arr->child; c; c = c->next, i++) {
+        char p[64];
+        path_index(p, sizeof p, "colliders", i);
+        s->collider_count = i + 1; /* so scene_free releases a half-parsed one */
+        if (parse_collider(ps, c, p, i, s, &s->colliders[i], err) != 0)
+            return -1;
+    }
+    return 0;
+}
+
+/* ---- entry points ---- */
+
+static const char *const top_keys[] = {
+    "name",    "description",         "world",     "terrain", "material",
+    "tick_hz", "active_margin_cells", "colliders", NULL};
+
+int scene_load_json(const char *text, const char *base_dir, scene *s, error_text *err)
+{
+    memset(s, 0, sizeof *s);
+    const char *end = NULL;
+    cJSON *root = cJSON_ParseWithOpts(text, &end, 1);
+    if (!root) {
+        size_t at = end && end >= text ? (size_t)(end - text) : 0;
+        error_set(err, "scene: JSON syntax error near byte %zu", at);
+        return -1;
+    }
+    scene_parser ps = {base_dir ? base_dir : ".", err};
+    int rc = -1;
+    char description[4096];
+    double tick_hz = 60, margin = 4;
+    if (expect_object(root, "", err) || check_keys(root, "", top_keys, NULL, err))
+        goto done;
+    snprintf(s->name, sizeof s->name, "unnamed");
+    if (get_string(root, "", "name", s->name, sizeof s->name, err) < 0 ||
+        get_string(root, "", "description", description, sizeof description, err) < 0 ||
+        parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||
+        parse_material(root, s, err) ||
+        get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0 ||
+        get_integer(root, "", "active_margin_cells", 0, 4096, 0, &margin, err) < 0 ||
+        parse_colliders(root, &ps, s, err))
+        goto done;
+    s->tick_hz = tick_hz;
+    s->active_margin_cells = (int)margin;
+    rc = 0;
+done:
+    cJSON_Delete(root);
+    if (rc != 0)
+        scene_free(s);
+    return rc;
+}
+
+int scene_load_file(const char *path, scene *s, error_text *err)
+{
+    memset(s, 0, sizeof *s);
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        error_set(err, "%s: cannot open: %s", path, strerror(errno));
+        return -1;
+    }
+    long size = -1;
+    if (fseek(f, 0, SEEK_END) == 0)
+        size = ftell(f);
+    if (size < 0 || size > SCENE_FILE_BYTES_MAX) {
+        error_set(err, "%s: %s", path,
+                  size < 0 ? "cannot determine the file size" : "scene file larger than 64 MiB");
+        fclose(f);
+        return -1;
+    }
+    rewind(f);
+    char *text = malloc((size_t)size + 1);
+    if (!text || fread(text, 1, (size_t)size, f) != (size_t)size) {
+        error_set(err, "%s: cannot read", path);
+        free(text);
+        fclose(f);
+        return -1;
+    }
+    fclose(f);
+    text[size] = '\0';
+    char dir[1024];
+    const char *slash = strrchr(path, '/');
+    if (!slash)
+        snprintf(dir, sizeof dir, ".");
+    else if (slash == path)
+        snprintf(dir, sizeof dir, "/");
+    else
+        snprintf(dir, sizeof dir, "%.*s", (int)(slash - path), path);
+    int rc = scene_load_json(text, dir, s, err);
+    free(text);
+    if (rc != 0)
+        error_prefix(err, path, ": ");
+    return rc;
+}
+
+int scene_load_default(scene *s, error_text *err)
+{
+    memset(s, 0, sizeof *s);
+    size_t size = 0;
+    const char *data = embedded_file_find("server/scene/default.json", &size);
+    if (!data) {
+        error_set(err, "scene: the embedded default scene is missing from this build");
+        return -1;
+    }
+    char *text = malloc(size + 1); /* embedded data need not be NUL-terminated */
+    if (!text) {
+        error_set(err, "scene: out of memory");
+        return -1;
+    }
+    memcpy(text, data, size);
+    text[size] = '\0';
+    int rc = scene_load_json(text, ".", s, err);
+    free(text);
+    if (rc != 0)
+        error_prefix(err, "default scene", ": ");
+    return rc;
+}
+
+void scene_free(scene *s)
+{
+    if (!s)
+        return;
+    for (int i = 0; i < s->collider_count; i++)
+        collider_motion_free(&s->colliders[i].motion);
+    free(s->colliders);
+    for (int i = 0; i < s->mesh_count; i++)
+        collider_mesh_free(&s->meshes[i]);
+    free(s->meshes);
+    memset(s, 0, sizeof *s);
+}
+
+int scene_create_world(const scene *s, world *w, error_text *err)
+{
+    if (world_init(w, s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units, err) !=
+        0)
+        return -1;
+    if (world_generate_base(w, &s->base, err) != 0) {
+        world_free(w);
+        return -1;
+    }
+    return 0;
+}

@@ -1,0 +1,47 @@
+/*
+ * scene: a JSON scene file (cJSON) — the world, its base terrain, the material
+ * and, for offline runs and the demo, colliders with scripted motion. The
+ * daemon starts from the embedded default scene (server/scene/default.json)
+ * unless told otherwise. Every refused value gets a message naming its field,
+ * e.g. "colliders[2].motion.velocity[0]: must be a finite number".
+ */
+#ifndef TERRAD_SCENE_H
+#define TERRAD_SCENE_H
+
+#include "base/base.h"
+#include "collider/collider.h"
+#include "sim/sim.h"
+#include "world/world.h"
+
+typedef struct scene_collider {
+    char name[64];
+    collider_geometry geometry;
+    collider_motion motion;
+} scene_collider;
+
+typedef struct scene {
+    char name[128];
+    int width, height;      /* cells */
+    double cell_size_m;
+    int32_t units_per_m;
+    int32_t floor_units;
+    world_base_spec base;
+    sim_material material;
+    double tick_hz;          /* default 60 */
+    int active_margin_cells; /* default 4 */
+    scene_collider *colliders;
+    int collider_count;
+    collider_mesh *meshes; /* owned; geometry.mesh points in here */
+    int mesh_count;
+} scene;
+
+/* base_dir resolves relative file paths (heightmaps, OBJ meshes). */
+int scene_load_json(const char *text, const char *base_dir, scene *s, error_text *err);
+int scene_load_file(const char *path, scene *s, error_text *err);
+int scene_load_default(scene *s, error_text *err);
+void scene_free(scene *s);
+
+/* Make the world the scene describes (allocation + base terrain). */
+int scene_create_world(const scene *s, world *w, error_text *err);
+
+#endif

@@ -1,0 +1,148 @@
+/*
+ * backend_cpu.c: the CPU twin as a backend. It runs a tick's windows one
+ * after another through the same stages as the GL backend — depth (analytic,
+ * collider/depth_cpu.c), classify, jump flooding, displacement, slope
+ * evening — and is both the test oracle and the backend for machines without
+ * OpenGL 4.3. Scratch memory grows to the largest window seen, never to the
+ * world.
+ */
+#include "sim/sim.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Per-cell int32 arrays: bottom, raw, moved, cls, seed, and 5 of stage scratch. */
+#define CPU_ARRAYS_PER_CELL 10
+
+typedef struct cpu_backend {
+    sim_backend base;
+    int32_t *arena;
+    int64_t capacity_cells;
+} cpu_backend;
+
+static int ensure_capacity(cpu_backend *b, int64_t cells, error_text *err)
+{
+    if (cells <= b->capacity_cells)
+        return 0;
+    int64_t cap = b->capacity_cells ? b->capacity_cells : 1024;
+    while (cap < cells)
+        cap *= 2;
+    int32_t *grown = realloc(b->arena, (size_t)cap * CPU_ARRAYS_PER_CELL * sizeof *grown);
+    if (!grown) {
+        error_set(err, "cpu backend: out of memory for %lld window cells", (long long)cap);
+        return -1;
+    }
+    b->arena = grown;
+    b->capacity_cells = cap;
+    return 0;
+}
+
+static void cpu_depth(const sim_window_job *job, int32_t *bottom)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    for (int64_t i = 0; i < n; i++)
+        bottom[i] = COLLIDER_BOTTOM_NONE;
+    for (int c = 0; c < job->collider_count; c++)
+        collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, job->rect,
+                           job->cell_size_m, job->units_per_m, bottom);
+}
+
+static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_job *jobs,
+                           int job_count, int *status, sim_stage_times *times, error_text *err)
+{
+    cpu_backend *b = (cpu_backend *)base;
+    for (int j = 0; j < job_count; j++) {
+        sim_window_job *job = &jobs[j];
+        int w = job->rect.w, h = job->rect.h;
+        int64_t n = (int64_t)w * h;
+        if (ensure_capacity(b, n, err) != 0)
+            return -1;
+        int32_t *bottom = b->arena, *raw = bottom + n, *moved = raw + n, *cls = moved + n;
+        int32_t *seed = cls + n, *scratch = seed + n;
+
+        double t0 = time_now_ms();
+        if (job->bottom_override)
+            memcpy(bottom, job->bottom_override, (size_t)n * sizeof *bottom);
+        else
+            cpu_depth(job, bottom);
+        if (job->bottom_out)
+            memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
+        double t1 = time_now_ms();
+        sim_classify(p, (int)n, job->heights, bottom, raw, moved, cls);
+        double t2 = time_now_ms();
+        sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
+        double t3 = time_now_ms();
+        status[j] = sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch);
+        double t4 = time_now_ms();
+        if (status[j] == SIM_WINDOW_OK)
+            sim_even_slopes(p, w, h, cls, job->heights, scratch);
+        double t5 = time_now_ms();
+        times->depth += t1 - t0;
+        times->classify += t2 - t1;
+        times->jump_flood += t3 - t2;
+        times->displace += t4 - t3;
+        times->even_slopes += t5 - t4;
+    }
+    return 0;
+}
+
+static void cpu_forget_geometry(sim_backend *b, const collider_geometry *g)
+{
+    (void)b; /* the CPU twin caches nothing per geometry */
+    (void)g;
+}
+
+static uint64_t cpu_scratch_bytes(const sim_backend *base)
+{
+    const cpu_backend *b = (const cpu_backend *)base;
+    return (uint64_t)b->capacity_cells * CPU_ARRAYS_PER_CELL * sizeof(int32_t);
+}
+
+static void cpu_destroy(sim_backend *base)
+{
+    cpu_backend *b = (cpu_backend *)base;
+    free(b->arena);
+    free(b);
+}
+
+static void cpu_describe(char *out, size_t size)
+{
+    snprintf(out, size, "CPU twin");
+    FILE *f = fopen("/proc/cpuinfo", "r");
+    if (!f)
+        return;
+    char line[512];
+    while (fgets(line, sizeof line, f)) {
+        if (strncmp(line, "model name", 10) == 0) {
+            char *colon = strchr(line, ':');
+            if (colon) {
+                colon++;
+                while (*colon == ' ')
+                    colon++;
+                colon[strcspn(colon, "\n")] = 0;
+                snprintf(out, size, "CPU twin on %s", colon);
+            }
+            break;
+        }
+    }
+    fclose(f);
+}
+
+sim_backend *sim_backend_cpu_create(error_text *err)
+{
+    cpu_backend *b = calloc(1, sizeof *b);
+    if (!b) {
+        error_set(err, "cpu backend: out of memory");
+        return NULL;
+    }
+    b->base.name = "cpu";
+    cpu_describe(b->base.renderer, sizeof b->base.renderer);
+    snprintf(b->base.version, sizeof b->base.version, "C11 integer twin");
+    b->base.run_windows = cpu_run_windows;
+    b->base.forget_geometry = cpu_forget_geometry;
+    b->base.scratch_bytes = cpu_scratch_bytes;
+    b->base.destroy = cpu_destroy;
+    b->base.impl = b;
+    return &b->base;
+}

@@ -1,0 +1,394 @@
+/*
+ * sim_stages.c: the CPU twin of the integer stages (thesis ch. 4.1.3-4.1.5).
+ *
+ * This file is the specification of everything after the depth stage. The
+ * compute shaders in shaders/ mirror it line for line; tests check that both
+ * give identical heights for identical depth. Rules that keep it exact:
+ *
+ *  - Heights stay in [WORLD_HEIGHT_MIN, WORLD_HEIGHT_MAX] = ±2^29, so a
+ *    difference of two heights fits in int32 and products with a Q16 ratio
+ *    fit in 64 bits (GLSL: umulExtended).
+ *  - Material is only ever moved by integer amounts, and every division keeps
+ *    its remainder somewhere explicit: Σh changes only by compression.
+ *  - Sums that can grow without bound (material converging on one column)
+ *    are checked; a window that would leave the height range is refused as a
+ *    whole (SIM_WINDOW_HEIGHT_LIMIT) and the caller keeps the old heights.
+ *    The GPU detects the same condition with carries on 32-bit sums.
+ *  - Slope evening is Jacobi style (read old heights, write new ones), not
+ *    the original's read-modify-write of one buffer, so the result does not
+ *    depend on thread order.
+ */
+#include "sim/sim.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* 8-neighbourhood; the first four are axial, the last four diagonal. */
+static const int neighbour_dx[8] = {1, -1, 0, 0, 1, -1, 1, -1};
+static const int neighbour_dy[8] = {0, 0, 1, -1, 1, 1, -1, -1};
+
+uint32_t sim_cell_hash(int32_t world_x, int32_t world_y)
+{
+    uint32_t h = (uint32_t)world_x * 0x8da6b343u ^ (uint32_t)world_y * 0xd8163841u;
+    h ^= h >> 16;
+    h *= 0x7feb352du;
+    h ^= h >> 15;
+    h *= 0x846ca68bu;
+    h ^= h >> 16;
+    return h;
+}
+
+int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy)
+{
+    int32_t ax = dx < 0 ? -dx : dx;
+    int32_t ay = dy < 0 ? -dy : dy;
+    switch (m) {
+    case SIM_METRIC_MANHATTAN:
+        return ax + ay;
+    case SIM_METRIC_CHEBYSHEV:
+        return ax > ay ? ax : ay;
+    case SIM_METRIC_EUCLIDEAN:
+    default:
+        return ax * ax + ay * ay;
+    }
+}
+
+/* (a * q16) >> shift for a >= 0, q16 in [0, 65536]: exact in 64 bits. */
+static int32_t mul_q16_shift(int32_t a, int32_t q16, int shift)
+{
+    return (int32_t)(((uint64_t)(uint32_t)a * (uint32_t)q16) >> shift);
+}
+
+void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
+                  const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls)
+{
+    for (int i = 0; i < cell_count; i++) {
+        int32_t h = heights[i], b = bottom[i];
+        int32_t pen = 0, c = SIM_CELL_SEED;
+        if (b != COLLIDER_BOTTOM_NONE) {
+            /* A collider below the floor pushes the column to the floor only. */
+            int32_t effective = b > p->floor ? b : p->floor;
+            if (h > effective) {
+                c = SIM_CELL_PENETRATING;
+                pen = h - effective;
+            } else if (b - h <= p->obstacle_gap) {
+                c = SIM_CELL_OBSTACLE;
+            }
+        }
+        raw[i] = pen;
+        moved[i] = pen - mul_q16_shift(pen, p->compression_q16, 16);
+        cls[i] = c;
+    }
+}
+
+/* Is seed candidate a (index, distance) better than b for this cell? */
+static int seed_better(int32_t da, uint32_t ha, int32_t a, int32_t db, uint32_t hb, int32_t b)
+{
+    if (da != db)
+        return da < db;
+    if (ha != hb)
+        return ha < hb;
+    return a < b;
+}
+
+/*
+ * Step sizes: K = the largest power of two below max(w, h) (1 for a 1-cell
+ * side), then K/2, ..., 1. A batch may run the largest window's sequence for
+ * every window: steps >= max(w, h) only look outside the window and change
+ * nothing.
+ */
+static int jump_flood_first_step(int w, int h)
+{
+    int side = w > h ? w : h;
+    int k = 1;
+    while (k * 2 < side)
+        k *= 2;
+    return k;
+}
+
+void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
+                    const int32_t *cls, int32_t *seed, int32_t *scratch)
+{
+    int n = w * h;
+    for (int i = 0; i < n; i++)
+        seed[i] = cls[i] == SIM_CELL_SEED ? i : -1;
+    int32_t *in = seed, *out = scratch;
+    for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int32_t best = in[y * w + x];
+                int32_t best_d = 0;
+                uint32_t best_h = 0;
+                if (best >= 0) {
+                    int bx = best % w, by = best / w;
+                    best_d = sim_metric_distance(p->metric, bx - x, by - y);
+                    best_h = sim_cell_hash(origin_x + bx, origin_y + by);
+                }
+                for (int j = 0; j < 8; j++) {
+                    int qx = x + neighbour_dx[j] * k, qy = y + neighbour_dy[j] * k;
+                    if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                        continue;
+                    int32_t s = in[qy * w + qx];
+                    if (s < 0)
+                        continue;
+                    int sx = s % w, sy = s / w;
+                    int32_t d = sim_metric_distance(p->metric, sx - x, sy - y);
+                    uint32_t hs = sim_cell_hash(origin_x + sx, origin_y + sy);
+                    if (best < 0 || seed_better(d, hs, s, best_d, best_h, best)) {
+                        best = s;
+                        best_d = d;
+                        best_h = hs;
+                    }
+                }
+                out[y * w + x] = best;
+            }
+        }
+        int32_t *t = in;
+        in = out;
+        out = t;
+    }
+    if (in != seed)
+        memcpy(seed, in, (size_t)n * sizeof *seed);
+}
+
+/* Add the received material to each column; refuse the window if any column
+ * would rise above the height limit. `received` is exact (int64). */
+static sim_window_status land_received(int n, int32_t *heights, const int64_t *received)
+{
+    for (int i = 0; i < n; i++)
+        if (received[i] > (int64_t)WORLD_HEIGHT_MAX - heights[i])
+            return SIM_WINDOW_HEIGHT_LIMIT;
+    for (int i = 0; i < n; i++)
+        heights[i] += (int32_t)received[i];
+    return SIM_WINDOW_OK;
+}
+
+/* Single target (thesis method 2): all of a column's material to its seed. */
+static void displace_single(int n, const int32_t *cls, const int32_t *seed, const int32_t *moved,
+                            int64_t *received)
+{
+    for (int i = 0; i < n; i++) {
+        if (cls[i] != SIM_CELL_PENETRATING || moved[i] == 0)
+            continue;
+        /* No seed in the window: nowhere to go, the material stays home. */
+        int32_t target = seed[i] >= 0 ? seed[i] : i;
+        received[target] += moved[i];
+    }
+}
+
+/*
+ * Multiple targets (thesis method 3): march from the seed away from the
+ * column, one target per multi_target_step units (at most multi_target_max),
+ * stopping at the window edge or at the first column that is not a seed.
+ * Each placed target gets moved / n; what the missing targets and the
+ * division leave over goes to the last valid target.
+ */
+static void displace_multi(const sim_params *p, int w, int h, const int32_t *cls,
+                           const int32_t *seed, const int32_t *moved, int64_t *received)
+{
+    int n = w * h;
+    for (int i = 0; i < n; i++) {
+        if (cls[i] != SIM_CELL_PENETRATING || moved[i] == 0)
+            continue;
+        int32_t s = seed[i];
+        if (s < 0) {
+            received[i] += moved[i];
+            continue;
+        }
+        int32_t amount = moved[i];
+        int32_t targets = (amount - 1) / p->multi_target_step + 1;
+        if (targets > p->multi_target_max)
+            targets = p->multi_target_max;
+        int32_t share = amount / targets;
+        int px = i % w, py = i / w, sx = s % w, sy = s / w;
+        int32_t dx = sx - px, dy = sy - py;
+        int32_t adx = dx < 0 ? -dx : dx, ady = dy < 0 ? -dy : dy;
+        int32_t len = adx > ady ? adx : ady; /* >= 1: a seed is never penetrating */
+        int32_t sgx = dx < 0 ? -1 : 1, sgy = dy < 0 ? -1 : 1;
+        int32_t last = s, placed = 0;
+        for (int32_t t = 0; t < targets; t++) {
+            int32_t tx = sx + sgx * (adx * t / len);
+            int32_t ty = sy + sgy * (ady * t / len);
+            if (tx < 0 || ty < 0 || tx >= w || ty >= h)
+                break;
+            int32_t ti = ty * w + tx;
+            if (cls[ti] != SIM_CELL_SEED)
+                break;
+            received[ti] += share;
+            placed += share;
+            last = ti;
+        }
+        received[last] += amount - placed;
+    }
+}
+
+/*
+ * Iterative (thesis method 1, Listing 4.2): material flows one cell per pass
+ * from each column to its neighbours closer to a seed (obstacles excluded),
+ * split evenly; the remainder of the split stays. Seeds deposit what they
+ * receive. After the last pass, material still in transit stays in the
+ * column it reached (the next tick moves it on).
+ */
+static sim_window_status displace_iterative(const sim_params *p, int w, int h, const int32_t *cls,
+                                            const int32_t *seed, const int32_t *moved,
+                                            int32_t *heights, int32_t *scratch)
+{
+    int n = w * h;
+    int32_t *dist = scratch;
+    int32_t *mask = scratch + n; /* bit j: neighbour j receives; bits 8..11: count */
+    int32_t *transit = scratch + 2 * n;
+    int32_t *next = scratch + 3 * n;
+    int32_t *deposit = scratch + 4 * n;
+    for (int i = 0; i < n; i++) {
+        int32_t s = seed[i];
+        dist[i] = s >= 0 ? sim_metric_distance(p->metric, s % w - i % w, s / w - i / w)
+                         : INT32_MAX;
+        transit[i] = cls[i] == SIM_CELL_PENETRATING ? moved[i] : 0;
+        deposit[i] = 0;
+    }
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int i = y * w + x, bits = 0, count = 0;
+            for (int j = 0; j < 8; j++) {
+                int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                    continue;
+                int q = qy * w + qx;
+                if (dist[q] < dist[i] && cls[q] != SIM_CELL_OBSTACLE) {
+                    bits |= 1 << j;
+                    count++;
+                }
+            }
+            mask[i] = bits | count << 8;
+        }
+    }
+    for (int32_t pass = 0; pass < p->displace_iterations; pass++) {
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int i = y * w + x;
+                int32_t count = mask[i] >> 8;
+                int64_t total = count > 0 ? transit[i] % count : transit[i];
+                int64_t inflow = 0;
+                for (int j = 0; j < 8; j++) {
+                    int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                    if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                        continue;
+                    int q = qy * w + qx;
+                    /* does q send to i? i is q's neighbour in the opposite direction */
+                    int back = j ^ 1; /* pairs (0,1) (2,3) (4,5) (6,7) are opposite */
+                    if (j >= 4)
+                        back = 11 - j; /* (4,7) (5,6): diagonals are opposite across */
+                    if (mask[q] & (1 << back))
+                        inflow += transit[q] / (mask[q] >> 8);
+                }
+                if (cls[i] == SIM_CELL_SEED) {
+                    int64_t d = (int64_t)deposit[i] + inflow;
+                    if (d > INT32_MAX)
+                        return SIM_WINDOW_HEIGHT_LIMIT;
+                    deposit[i] = (int32_t)d;
+                    next[i] = 0;
+                } else {
+                    total += inflow;
+                    if (total > INT32_MAX)
+                        return SIM_WINDOW_HEIGHT_LIMIT;
+                    next[i] = (int32_t)total;
+                }
+            }
+        }
+        memcpy(transit, next, (size_t)n * sizeof *transit);
+    }
+    for (int i = 0; i < n; i++) {
+        int64_t add = (int64_t)deposit[i] + transit[i];
+        if (add > (int64_t)WORLD_HEIGHT_MAX - heights[i])
+            return SIM_WINDOW_HEIGHT_LIMIT;
+    }
+    for (int i = 0; i < n; i++)
+        heights[i] += deposit[i] + transit[i];
+    return SIM_WINDOW_OK;
+}
+
+sim_window_status sim_displace(const sim_params *p, int w, int h, const int32_t *cls,
+                               const int32_t *seed, const int32_t *raw, const int32_t *moved,
+                               int32_t *heights, int32_t *scratch)
+{
+    int n = w * h;
+    for (int i = 0; i < n; i++)
+        heights[i] -= raw[i];
+    if (p->method == SIM_METHOD_ITERATIVE)
+        return displace_iterative(p, w, h, cls, seed, moved, heights, scratch);
+    int64_t *received = (int64_t *)(void *)scratch; /* 2*n int32 of scratch */
+    memset(received, 0, (size_t)n * sizeof *received);
+    if (p->method == SIM_METHOD_MULTI)
+        displace_multi(p, w, h, cls, seed, moved, received);
+    else
+        displace_single(n, cls, seed, moved, received);
+    return land_received(n, heights, received);
+}
+
+/*
+ * The flux from column c to neighbour k in one slope iteration: roughness/8
+ * of the height difference above the repose threshold, rounded down, and only
+ * towards free columns (seeds): material never flows under a collider. With
+ * at most 1/8 of each excess per neighbour, no column can fall below its
+ * lowest or rise above its highest neighbour in one iteration, so the scheme
+ * neither oscillates nor overflows.
+ */
+static int32_t slope_flux(const sim_params *p, int32_t hc, int32_t hk, int diagonal)
+{
+    int32_t threshold = diagonal ? p->slope_threshold_diagonal : p->slope_threshold_axial;
+    int32_t excess = hc - hk - threshold;
+    if (excess <= 0)
+        return 0;
+    return mul_q16_shift(excess, p->roughness_q16, 19);
+}
+
+void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int32_t *heights,
+                     int32_t *scratch)
+{
+    int n = w * h;
+    int32_t *next = scratch;
+    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int i = y * w + x;
+                int32_t hi = heights[i];
+                int32_t out = 0, in = 0;
+                for (int j = 0; j < 8; j++) {
+                    int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                    if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                        continue;
+                    int q = qy * w + qx;
+                    if (cls[q] == SIM_CELL_SEED)
+                        out += slope_flux(p, hi, heights[q], j >= 4);
+                    if (cls[i] == SIM_CELL_SEED)
+                        in += slope_flux(p, heights[q], hi, j >= 4);
+                }
+                next[i] = hi - out + in;
+            }
+        }
+        memcpy(heights, next, (size_t)n * sizeof *heights);
+    }
+}
+
+int64_t sim_max_slope_excess(const sim_params *p, int w, int h, const int32_t *heights)
+{
+    int64_t worst = 0;
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            /* half the neighbourhood: each pair is seen from both ends via the sign */
+            for (int j = 0; j < 8; j += 2) {
+                int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                    continue;
+                int64_t d = (int64_t)heights[y * w + x] - heights[qy * w + qx];
+                if (d < 0)
+                    d = -d;
+                int64_t t = j >= 4 ? p->slope_threshold_diagonal : p->slope_threshold_axial;
+                if (d - t > worst)
+                    worst = d - t;
+            }
+        }
+    }
+    return worst;
+}

@@ -1,0 +1,185 @@
+/*
+ * png16.c: 16-bit greyscale PNG in and out (libpng). Heightmap base terrain
+ * comes in this way before the first tick, and exports go out this way. Only
+ * 16-bit greyscale is accepted: an 8-bit or colour image would silently lose
+ * resolution or mix channels into heights, so it is refused with a reason.
+ * Samples are converted from PNG's big-endian order by hand, so the code does
+ * not depend on the host's byte order.
+ */
+#include "world/world.h"
+
+#include <errno.h>
+#include <png.h>
+#include <setjmp.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct png_error_context {
+    char message[200];
+} png_error_context;
+
+static void png_error_cb(png_structp png, png_const_charp msg)
+{
+    png_error_context *ctx = png_get_error_ptr(png);
+    snprintf(ctx->message, sizeof ctx->message, "%s", msg);
+    png_longjmp(png, 1);
+}
+
+static void png_warning_cb(png_structp png, png_const_charp msg)
+{
+    (void)png;
+    (void)msg; /* warnings (odd chunks, gamma) do not change the samples */
+}
+
+int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err)
+{
+    *pixels = NULL;
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        error_set(err, "%s: cannot open: %s", path, strerror(errno));
+        return -1;
+    }
+    unsigned char sig[8];
+    if (fread(sig, 1, 8, f) != 8 || png_sig_cmp(sig, 0, 8) != 0) {
+        error_set(err, "%s: not a PNG file", path);
+        fclose(f);
+        return -1;
+    }
+    png_error_context ctx = {""};
+    png_structp png =
+        png_create_read_struct(PNG_LIBPNG_VER_STRING, &ctx, png_error_cb, png_warning_cb);
+    png_infop info = png ? png_create_info_struct(png) : NULL;
+    if (!info) {
+        error_set(err, "%s: out of memory", path);
+        png_destroy_read_struct(&png, NULL, NULL);
+        fclose(f);
+        return -1;
+    }
+    /* volatile: these change after setjmp and are freed on the error path */
+    unsigned char *volatile bytes = NULL;
+    png_bytep *volatile rows = NULL;
+    if (setjmp(png_jmpbuf(png))) {
+        error_set(err, "%s: invalid PNG: %s", path, ctx.message);
+        free(bytes);
+        free(rows);
+        png_destroy_read_struct(&png, &info, NULL);
+        fclose(f);
+        return -1;
+    }
+    png_init_io(png, f);
+    png_set_sig_bytes(png, 8);
+    png_read_info(png, info);
+    png_uint_32 w = png_get_image_width(png, info);
+    png_uint_32 h = png_get_image_height(png, info);
+    int depth = png_get_bit_depth(png, info);
+    int colour = png_get_color_type(png, info);
+    const char *problem = NULL;
+    if (colour != PNG_COLOR_TYPE_GRAY)
+        problem = colour == PNG_COLOR_TYPE_GRAY_ALPHA
+                      ? "has an alpha channel; a heightmap must be 16-bit greyscale"
+                      : "is a colour image; a heightmap must be 16-bit greyscale";
+    else if (depth != 16)
+        problem = "is not 16-bit; a heightmap must be 16-bit greyscale";
+    if (problem) {
+        error_set(err, "%s: image %s (bit depth %d)", path, problem, depth);
+        png_destroy_read_struct(&png, &info, NULL);
+        fclose(f);
+        return -1;
+    }
+    if (w < 1 || h < 1 || w > WORLD_SIDE_MAX || h > WORLD_SIDE_MAX) {
+        error_set(err, "%s: image is %u x %u; each side must be in [1, %d]", path, (unsigned)w,
+                  (unsigned)h, WORLD_SIDE_MAX);
+        png_destroy_read_struct(&png, &info, NULL);
+        fclose(f);
+        return -1;
+    }
+    png_set_interlace_handling(png);
+    png_read_update_info(png, info);
+    size_t stride = (size_t)w * 2;
+    bytes = malloc(stride * h);
+    rows = malloc(sizeof(png_bytep) * h);
+    if (!bytes || !rows) {
+        error_set(err, "%s: out of memory for a %u x %u image", path, (unsigned)w, (unsigned)h);
+        free(bytes);
+        free(rows);
+        png_destroy_read_struct(&png, &info, NULL);
+        fclose(f);
+        return -1;
+    }
+    for (png_uint_32 y = 0; y < h; y++)
+        rows[y] = bytes + stride * y;
+    png_read_image(png, rows);
+    png_read_end(png, NULL);
+    png_destroy_read_struct(&png, &info, NULL);
+    fclose(f);
+    free(rows);
+
+    /* big-endian samples → host order, in place (2 bytes in, 2 bytes out) */
+    unsigned char *b = bytes;
+    uint16_t *out = (uint16_t *)(void *)b;
+    size_t n = (size_t)w * h;
+    for (size_t i = 0; i < n; i++)
+        out[i] = (uint16_t)((b[2 * i] << 8) | b[2 * i + 1]);
+    *width = (int)w;
+    *height = (int)h;
+    *pixels = out;
+    return 0;
+}
+
+int png16_write(const char *path, int width, int height, const uint16_t *pixels, error_text *err)
+{
+    if (width < 1 || height < 1 || width > WORLD_SIDE_MAX || height > WORLD_SIDE_MAX) {
+        error_set(err, "%s: cannot write a %d x %d image", path, width, height);
+        return -1;
+    }
+    FILE *f = fopen(path, "wb");
+    if (!f) {
+        error_set(err, "%s: cannot create: %s", path, strerror(errno));
+        return -1;
+    }
+    png_error_context ctx = {""};
+    png_structp png =
+        png_create_write_struct(PNG_LIBPNG_VER_STRING, &ctx, png_error_cb, png_warning_cb);
+    png_infop info = png ? png_create_info_struct(png) : NULL;
+    if (!info) {
+        error_set(err, "%s: out of memory", path);
+        png_destroy_write_struct(&png, NULL);
+        fclose(f);
+        return -1;
+    }
+    unsigned char *volatile row = malloc((size_t)width * 2);
+    if (!row) {
+        error_set(err, "%s: out of memory", path);
+        png_destroy_write_struct(&png, &info);
+        fclose(f);
+        return -1;
+    }
+    if (setjmp(png_jmpbuf(png))) {
+        error_set(err, "%s: cannot write PNG: %s", path, ctx.message);
+        free(row);
+        png_destroy_write_struct(&png, &info);
+        fclose(f);
+        return -1;
+    }
+    png_init_io(png, f);
+    png_set_IHDR(png, info, (png_uint_32)width, (png_uint_32)height, 16, PNG_COLOR_TYPE_GRAY,
+                 PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+    png_write_info(png, info);
+    for (int y = 0; y < height; y++) {
+        const uint16_t *src = pixels + (size_t)y * width;
+        for (int x = 0; x < width; x++) {
+            row[2 * x] = (unsigned char)(src[x] >> 8);
+            row[2 * x + 1] = (unsigned char)(src[x] & 0xff);
+        }
+        png_write_row(png, row);
+    }
+    png_write_end(png, NULL);
+    png_destroy_write_struct(&png, &info);
+    free(row);
+    if (fclose(f) != 0) {
+        error_set(err, "%s: cannot write: %s", path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}

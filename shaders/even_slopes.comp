@@ -1,0 +1,53 @@
+#version 430 core
+/*
+ * even_slopes.comp: one Jacobi iteration of slope evening (sim_even_slopes
+ * in sim_stages.c), the last stage of a tick; the host runs
+ * slope_iterations of them, ping-ponging two height buffers. Every method
+ * uses this one scheme: the original's read-modify-write of a single buffer
+ * depended on thread order and could not match a CPU twin.
+ *
+ * The flux from column c to neighbour k is roughness/8 of the height
+ * difference above the repose threshold (integer thresholds computed once on
+ * the CPU), rounded down, and only towards free columns (seeds).
+ */
+#include "common.glsl"
+
+layout(local_size_x = 8, local_size_y = 8) in;
+
+layout(binding = 1) uniform isamplerBuffer u_cls;
+layout(binding = 2) uniform isamplerBuffer u_heights_in;
+layout(std430, binding = 2) writeonly buffer heights_out_buf { int heights_out[]; };
+
+int slope_flux(int hc, int hk, bool diagonal)
+{
+    int threshold = diagonal ? u_slope_threshold_diagonal : u_slope_threshold_axial;
+    int excess = hc - hk - threshold;
+    if (excess <= 0)
+        return 0;
+    return mul_q16_shift(excess, u_roughness_q16, 19);
+}
+
+void main()
+{
+    int x, y, c;
+    cell_window win;
+    if (!locate_cell(win, x, y, c))
+        return;
+    if (window_refused(win.index))
+        return; /* refused windows skip slope evening, as in the C */
+    int hi = fetch(u_heights_in, c);
+    int outflow = 0, inflow = 0;
+    bool self_seed = fetch(u_cls, c) == CELL_SEED;
+    for (int j = 0; j < 8; j++) {
+        int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+        if (qx < 0 || qy < 0 || qx >= win.w || qy >= win.h)
+            continue;
+        int q = win.offset + qy * win.w + qx;
+        int hq = fetch(u_heights_in, q);
+        if (fetch(u_cls, q) == CELL_SEED)
+            outflow += slope_flux(hi, hq, j >= 4);
+        if (self_seed)
+            inflow += slope_flux(hq, hi, j >= 4);
+    }
+    heights_out[c] = hi - outflow + inflow;
+}

@@ -1,0 +1,578 @@
+/*
+ * test_gl.c: the GL backend against the CPU twin. It checks the headless
+ * context (EGL, no window, GL >= 4.3), the depth raster of tessellated
+ * colliders against the analytic CPU depth, and then the promise that makes
+ * the twin an oracle: for identical depth input, the GL compute stages give
+ * bit-identical heights and identical window status (including refusals at
+ * the height limit) for every method and metric, on random batches of
+ * windows of awkward shapes (1x1, 1xN, non-powers of two, several per batch).
+ *
+ * Exits 77 (skipped) when no GL 4.3 context can be made on this machine.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "gl/gl.h"
+#include "sim/sim.h"
+
+static int passed, failed;
+
+#define CHECK(cond, ...)                                                                           \
+    do {                                                                                           \
+        if (cond) {                                                                                \
+            passed++;                                                                              \
+            printf("ok   ");                                                                       \
+        } else {                                                                                   \
+            failed++;                                                                              \
+            printf("FAIL %s:%d: ", __FILE__, __LINE__);                                            \
+        }                                                                                          \
+        printf(__VA_ARGS__);                                                                       \
+        printf("\n");                                                                              \
+    } while (0)
+
+/* A small deterministic generator (xorshift64*), so failures reproduce. */
+static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
+
+static uint32_t rnd(void)
+{
+    rng_state ^= rng_state >> 12;
+    rng_state ^= rng_state << 25;
+    rng_state ^= rng_state >> 27;
+    return (uint32_t)((rng_state * 0x2545f4914f6cdd1dull) >> 32);
+}
+
+/* Uniform in [lo, hi]. */
+static int32_t rnd_range(int32_t lo, int32_t hi)
+{
+    return lo + (int32_t)(rnd() % (uint32_t)((int64_t)hi - lo + 1));
+}
+
+/* ---- context ---- */
+
+static int test_context(void)
+{
+    error_text err = {{0}};
+    gl_context *c = gl_context_create(&err);
+    if (!c) {
+        printf("skip: no OpenGL 4.3 context on this machine: %s\n", err.message);
+        return -1;
+    }
+    int major = 0, minor = 0;
+    const char *v = gl_context_version(c);
+    /* "4.5 (Core Profile) Mesa 22.3.6" */
+    int parsed = sscanf(v, "%d.%d", &major, &minor) == 2;
+    CHECK(parsed && (major > 4 || (major == 4 && minor >= 3)), "context: GL %s on %s (>= 4.3)", v,
+          gl_context_renderer(c));
+    gl_context_destroy(c);
+    return 0;
+}
+
+/* ---- depth raster vs analytic depth ---- */
+
+typedef struct depth_case {
+    const char *name;
+    collider_geometry geometry;
+    collider_pose pose;
+    double tolerance_units; /* largest allowed raster-above-analytic error inside the rim */
+} depth_case;
+
+static quatd axis_angle(double x, double y, double z, double degrees)
+{
+    return quat_from_axis_angle((vec3d){x, y, z}, degrees * M_PI / 180.0);
+}
+
+static void test_depth_raster(sim_backend *gl)
+{
+    const double cell = 0.02;
+    const int32_t upm = 10000;
+    /* Sagitta of a chord across one tessellation step, in units: the raster
+     * of an inscribed polygon lies above the surface by at most this much
+     * (per direction of tessellation), more where the surface is steep. */
+    double sag_sphere = 0.3 * (1 - cos(M_PI / 24)) * upm + 0.3 * (1 - cos(M_PI / 48)) * upm;
+    double sag_wheel = 0.33 * (1 - cos(M_PI / 48)) * upm;
+    depth_case cases[] = {
+        {"sphere r=0.3",
+         {.shape = COLLIDER_SPHERE, .radius = 0.3},
+         {{1.01, 1.03, 0.45}, {1, 0, 0, 0}},
+         sag_sphere},
+        {"wheel r=0.33 yawed 30 deg",
+         {.shape = COLLIDER_CYLINDER, .radius = 0.33, .half_length = 0.12},
+         {{3.0, 1.0, 0.40}, axis_angle(0, 0, 1, 30)},
+         sag_wheel},
+        {"box tilted",
+         {.shape = COLLIDER_BOX, .half_extents = {0.25, 0.15, 0.1}},
+         {{5.0, 1.0, 0.5}, quat_multiply(axis_angle(0, 0, 1, 35), axis_angle(1, 0, 0, 20))},
+         2.0},
+        {"capsule lying",
+         {.shape = COLLIDER_CAPSULE, .radius = 0.2, .half_length = 0.2},
+         {{7.0, 1.0, 0.42}, axis_angle(0, 0, 1, -60)},
+         0.2 * (1 - cos(M_PI / 24)) * upm + 0.2 * (1 - cos(M_PI / 48)) * upm},
+    };
+    enum { CASES = sizeof cases / sizeof cases[0] };
+    sim_window_job jobs[CASES];
+    sim_collider colliders[CASES];
+    int32_t *heights[CASES], *bottom_gl[CASES], *bottom_cpu[CASES];
+    int status[CASES];
+    for (int k = 0; k < CASES; k++) {
+        /* windows of different odd sizes, so the atlas packs several shelves */
+        int side = 41 + 6 * k;
+        world_rect r = {(int)(cases[k].pose.position.x / cell) - side / 2,
+                        (int)(cases[k].pose.position.y / cell) - side / 2 + k, side, side - 3};
+        int n = r.w * r.h;
+        heights[k] = calloc((size_t)n, sizeof(int32_t));
+        bottom_gl[k] = calloc((size_t)n, sizeof(int32_t));
+        bottom_cpu[k] = calloc((size_t)n, sizeof(int32_t));
+        for (int i = 0; i < n; i++) {
+            heights[k][i] = -20000; /* far below: nothing moves, only depth matters */
+            bottom_cpu[k][i] = COLLIDER_BOTTOM_NONE;
+        }
+        colliders[k] = (sim_collider){.id = k, .geometry = &cases[k].geometry,
+                                      .pose = cases[k].pose};
+        collider_depth_cpu(&cases[k].geometry, cases[k].pose, r, cell, upm, bottom_cpu[k]);
+        vec3d lo, hi;
+        collider_bounds(&cases[k].geometry, cases[k].pose, &lo, &hi);
+        jobs[k] = (sim_window_job){
+            .rect = r,
+            .cell_size_m = cell,
+            .units_per_m = upm,
+            .heights = heights[k],
+            .colliders = &colliders[k],
+            .collider_count = 1,
+            .depth_low = (int32_t)floor(lo.z * upm) - 1,
+            .depth_high = (int32_t)ceil(hi.z * upm) + 1,
+            .bottom_out = bottom_gl[k],
+        };
+    }
+    sim_material m = sim_material_default();
+    sim_params p;
+    error_text err = {{0}};
+    sim_params_from_material(&m, cell, upm, -100000, &p, &err);
+    int rc = gl->run_windows(gl, &p, jobs, CASES, status, &(sim_stage_times){0}, &err);
+    CHECK(rc == 0, "depth batch of %d windows runs (%s)", CASES, rc ? err.message : "ok");
+    for (int k = 0; k < CASES; k++) {
+        int w = jobs[k].rect.w, h = jobs[k].rect.h;
+        int covered_cpu = 0, covered_gl = 0, coverage_mismatch = 0, below = 0;
+        double worst = 0;
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int i = y * w + x;
+                int32_t c = bottom_cpu[k][i], g = bottom_gl[k][i];
+                int cc = c != COLLIDER_BOTTOM_NONE, gc = g != COLLIDER_BOTTOM_NONE;
+                covered_cpu += cc;
+                covered_gl += gc;
+                /* rim: the CPU coverage of the 3x3 neighbourhood is mixed */
+                int any_in = 0, any_out = 0;
+                for (int dy = -1; dy <= 1; dy++)
+                    for (int dx = -1; dx <= 1; dx++) {
+                        int qx = x + dx, qy = y + dy;
+                        int in = qx >= 0 && qy >= 0 && qx < w && qy < h &&
+                                 bottom_cpu[k][qy * w + qx] != COLLIDER_BOTTOM_NONE;
+                        any_in |= in;
+                        any_out |= !in;
+                    }
+                int rim = any_in && any_out;
+                if (cc != gc) {
+                    coverage_mismatch += !rim;
+                    continue;
+                }
+                if (!cc || rim)
+                    continue;
+                double d = (double)g - (double)c;
+                if (d < -1)
+                    below++;
+                if (d > worst)
+                    worst = d;
+            }
+        }
+        /* steep parts of the lower surface magnify the chord error; allow 3x
+         * the flat-surface sagitta there, which a wrong pose would exceed */
+        CHECK(covered_cpu > 100 && coverage_mismatch == 0,
+              "depth %s: coverage %d cells (GL %d), %d mismatches away from the rim",
+              cases[k].name, covered_cpu, covered_gl, coverage_mismatch);
+        CHECK(below == 0, "depth %s: raster never below the analytic surface (%d cells below)",
+              cases[k].name, below);
+        CHECK(worst <= 3 * cases[k].tolerance_units + 2,
+              "depth %s: raster within %.1f units above analytic (worst %.1f)", cases[k].name,
+              3 * cases[k].tolerance_units + 2, worst);
+        free(heights[k]);
+        free(bottom_gl[k]);
+        free(bottom_cpu[k]);
+    }
+}
+
+/* ---- bit-exact integer stages ---- */
+
+typedef struct batch {
+    int count;
+    sim_window_job jobs[8];
+    int32_t *heights[8], *heights_cpu[8], *bottom[8];
+} batch;
+
+static void batch_free(batch *b)
+{
+    for (int i = 0; i < b->count; i++) {
+        free(b->heights[i]);
+        free(b->heights_cpu[i]);
+        free(b->bottom[i]);
+    }
+    b->count = 0;
+}
+
+static const int awkward_sizes[][2] = {
+    {1, 1}, {1, 7}, {9, 1}, {2, 2}, {3, 5}, {13, 11}, {16, 16}, {17, 9}, {31, 33}, {64, 5},
+    {6, 40}, {47, 29},
+};
+
+/*
+ * A random window: terrain with slopes and noise around `base`, and a bottom
+ * made of colliders (discs pressing in), obstacles (tiny gaps above the
+ * surface), uncovered cells, colliders deep below the floor, and per-cell
+ * noise in the "mixed" style.
+ */
+static void random_window(batch *b, int k, int w, int h, int32_t base, int32_t amplitude,
+                          int style)
+{
+    int n = w * h;
+    b->heights[k] = malloc((size_t)n * sizeof(int32_t));
+    b->heights_cpu[k] = malloc((size_t)n * sizeof(int32_t));
+    b->bottom[k] = malloc((size_t)n * sizeof(int32_t));
+    int32_t sx = rnd_range(-amplitude / 8, amplitude / 8), sy = rnd_range(-amplitude / 8,
+                                                                           amplitude / 8);
+    int discs = 1 + (int)(rnd() % 3);
+    int cx[3], cy[3], rad[3];
+    int32_t press[3];
+    for (int d = 0; d < discs; d++) {
+        cx[d] = rnd_range(0, w - 1);
+        cy[d] = rnd_range(0, h - 1);
+        rad[d] = rnd_range(0, (w > h ? w : h) / 2 + 1);
+        press[d] = rnd_range(0, amplitude);
+    }
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int i = y * w + x;
+            int64_t hv = (int64_t)base + (int64_t)sx * x / (w > 1 ? w : 1) +
+                         (int64_t)sy * y / (h > 1 ? h : 1) + rnd_range(0, amplitude / 16 + 1);
+            if (hv > WORLD_HEIGHT_MAX)
+                hv = WORLD_HEIGHT_MAX;
+            if (hv < WORLD_HEIGHT_MIN)
+                hv = WORLD_HEIGHT_MIN;
+            int32_t hh = (int32_t)hv;
+            int32_t bt = COLLIDER_BOTTOM_NONE;
+            if (style == 0) {
+                for (int d = 0; d < discs; d++) {
+                    int dx = x - cx[d], dy = y - cy[d];
+                    if (dx * dx + dy * dy <= rad[d] * rad[d]) {
+                        int64_t v = (int64_t)base - press[d] + (dx * dx + dy * dy) * 7;
+                        if (v < bt)
+                            bt = (int32_t)(v < WORLD_HEIGHT_MIN - 1 ? WORLD_HEIGHT_MIN - 1 : v);
+                    }
+                }
+            } else {
+                switch (rnd() % 6) {
+                case 0:
+                case 1:
+                    break; /* uncovered */
+                case 2: /* obstacle: a tiny gap above */
+                    bt = (int32_t)((int64_t)hh + rnd_range(0, 1200) > WORLD_HEIGHT_MAX + 1
+                                       ? WORLD_HEIGHT_MAX + 1
+                                       : hh + rnd_range(0, 1200));
+                    break;
+                case 3: /* deep below the floor */
+                    bt = WORLD_HEIGHT_MIN - 1 + rnd_range(0, 1000);
+                    break;
+                default: /* pressing in */
+                    bt = (int32_t)((int64_t)hh - rnd_range(0, amplitude) < WORLD_HEIGHT_MIN - 1
+                                       ? WORLD_HEIGHT_MIN - 1
+                                       : hh - rnd_range(0, amplitude));
+                    break;
+                }
+            }
+            b->heights[k][i] = hh;
+            b->heights_cpu[k][i] = hh;
+            b->bottom[k][i] = bt;
+        }
+    }
+    b->jobs[k] = (sim_window_job){
+        .rect = {rnd_range(-5000, 5000), rnd_range(-5000, 5000), w, h},
+        .cell_size_m = 0.05,
+        .units_per_m = 10000,
+        .heights = b->heights[k],
+        .bottom_override = b->bottom[k],
+    };
+}
+
+/* Run a batch on both backends; compare status and (accepted) heights. */
+static int compare_batch(sim_backend *gl, sim_backend *cpu, const sim_params *p, batch *b,
+                         const char *label, int *limit_windows)
+{
+    sim_window_job cpu_jobs[8];
+    int st_gl[8], st_cpu[8];
+    for (int k = 0; k < b->count; k++) {
+        cpu_jobs[k] = b->jobs[k];
+        cpu_jobs[k].heights = b->heights_cpu[k];
+    }
+    error_text err = {{0}};
+    sim_stage_times t = {0};
+    if (gl->run_windows(gl, p, b->jobs, b->count, st_gl, &t, &err) != 0) {
+        printf("FAIL %s: gl run_windows: %s\n", label, err.message);
+        return -1;
+    }
+    if (cpu->run_windows(cpu, p, cpu_jobs, b->count, st_cpu, &t, &err) != 0) {
+        printf("FAIL %s: cpu run_windows: %s\n", label, err.message);
+        return -1;
+    }
+    for (int k = 0; k < b->count; k++) {
+        if (st_gl[k] != st_cpu[k]) {
+            printf("FAIL %s: window %d (%dx%d) status gl %d cpu %d\n", label, k,
+                   b->jobs[k].rect.w, b->jobs[k].rect.h, st_gl[k], st_cpu[k]);
+            return -1;
+        }
+        if (st_cpu[k] != SIM_WINDOW_OK) {
+            (*limit_windows)++;
+            continue;
+        }
+        int n = b->jobs[k].rect.w * b->jobs[k].rect.h;
+        for (int i = 0; i < n; i++) {
+            if (b->heights[k][i] != b->heights_cpu[k][i]) {
+                printf("FAIL %s: window %d (%dx%d) cell (%d,%d): gl %d cpu %d\n", label, k,
+                       b->jobs[k].rect.w, b->jobs[k].rect.h, i % b->jobs[k].rect.w,
+                       i / b->jobs[k].rect.w, b->heights[k][i], b->heights_cpu[k][i]);
+                return -1;
+            }
+        }
+    }
+    return 0;
+}
+
+static sim_params random_params(sim_method method, sim_metric metric, int32_t floor_units)
+{
+    sim_material m = sim_material_default();
+    m.method = method;
+    m.metric = metric;
+    m.compression = (rnd() % 3 == 0) ? (rnd() % 1000) / 1000.0 : 0.0;
+    m.roughness = (rnd() % 1001) / 1000.0;
+    m.repose_deg = (rnd() % 8900) / 100.0;
+    m.obstacle_gap_m = (rnd() % 1000) / 10000.0;
+    m.multi_target_m = 0.001 + (rnd() % 500) / 1000.0;
+    m.multi_target_max = 1 + (int)(rnd() % 24);
+    m.displace_iterations = (int)(rnd() % 14);
+    m.slope_iterations = (int)(rnd() % 14);
+    sim_params p;
+    error_text err;
+    if (sim_params_from_material(&m, 0.05, 10000, floor_units, &p, &err) != 0) {
+        printf("params: %s\n", err.message);
+        abort();
+    }
+    return p;
+}
+
+static void test_bit_exact(sim_backend *gl, sim_backend *cpu)
+{
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO,
+                                          SIM_METHOD_MULTI};
+    static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
+                                          SIM_METRIC_CHEBYSHEV};
+    for (int mi = 0; mi < 3; mi++) {
+        for (int di = 0; di < 3; di++) {
+            int batches = 0, windows = 0, limits = 0, ok = 1;
+            for (int round = 0; round < 12 && ok; round++) {
+                batch b = {0};
+                b.count = 1 + (int)(rnd() % 6);
+                int extreme = round % 4 == 3;
+                int32_t floor_units = extreme ? WORLD_HEIGHT_MIN : rnd_range(-2000, 40000);
+                for (int k = 0; k < b.count; k++) {
+                    const int *sz = awkward_sizes[rnd() % (sizeof awkward_sizes /
+                                                           sizeof awkward_sizes[0])];
+                    int32_t base = extreme ? WORLD_HEIGHT_MAX - rnd_range(0, 5000) : 50000;
+                    int32_t amp = extreme ? (1 << 30) : rnd_range(10, 20000);
+                    random_window(&b, k, sz[0], sz[1], base, amp, (int)(rnd() % 2));
+                }
+                sim_params p = random_params(methods[mi], metrics[di], floor_units);
+                char label[96];
+                snprintf(label, sizeof label, "%s/%s batch %d", sim_method_name(methods[mi]),
+                         sim_metric_name(metrics[di]), round);
+                if (compare_batch(gl, cpu, &p, &b, label, &limits) != 0)
+                    ok = 0;
+                batches++;
+                windows += b.count;
+                batch_free(&b);
+            }
+            CHECK(ok, "bit-exact %s/%s: %d batches, %d windows, %d refused at the height limit",
+                  sim_method_name(methods[mi]), sim_metric_name(metrics[di]), batches, windows,
+                  limits);
+        }
+    }
+}
+
+/* Hand-made refusals: each method's overflow rule, next to a normal window
+ * in the same batch (a refusal must not touch its neighbours). */
+static void test_height_limit(sim_backend *gl, sim_backend *cpu)
+{
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO,
+                                          SIM_METHOD_MULTI};
+    for (int mi = 0; mi < 3; mi++) {
+        for (int variant = 0; variant < 2; variant++) {
+            batch b = {0};
+            b.count = 2;
+            for (int k = 0; k < 2; k++) {
+                int w = 9, h = 7, n = w * h;
+                b.heights[k] = malloc((size_t)n * sizeof(int32_t));
+                b.heights_cpu[k] = malloc((size_t)n * sizeof(int32_t));
+                b.bottom[k] = malloc((size_t)n * sizeof(int32_t));
+                for (int i = 0; i < n; i++) {
+                    int32_t hh, bt;
+                    if (k == 1) { /* an ordinary window */
+                        hh = 50000;
+                        bt = (i % w >= 3 && i % w <= 5) ? 49000 : COLLIDER_BOTTOM_NONE;
+                    } else if (variant == 0) {
+                        /* near the top: everything but one column is pressed
+                         * down 1000 units, and it all lands on that column */
+                        hh = WORLD_HEIGHT_MAX - 10;
+                        bt = i == n - 1 ? COLLIDER_BOTTOM_NONE : WORLD_HEIGHT_MAX - 1010;
+                    } else {
+                        /* full range: columns at the top pushed to a floor at
+                         * the bottom; sums pass INT32_MAX on the way */
+                        hh = WORLD_HEIGHT_MAX;
+                        bt = i == 0 ? COLLIDER_BOTTOM_NONE : WORLD_HEIGHT_MIN - 1;
+                    }
+                    b.heights[k][i] = b.heights_cpu[k][i] = hh;
+                    b.bottom[k][i] = bt;
+                }
+                b.jobs[k] = (sim_window_job){
+                    .rect = {k * 100, 0, w, h},
+                    .cell_size_m = 0.05,
+                    .units_per_m = 10000,
+                    .heights = b.heights[k],
+                    .bottom_override = b.bottom[k],
+                };
+            }
+            sim_material m = sim_material_default();
+            m.method = methods[mi];
+            m.displace_iterations = 20;
+            sim_params p;
+            error_text err;
+            sim_params_from_material(&m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, &err);
+            int limits = 0;
+            char label[64];
+            snprintf(label, sizeof label, "height limit %s variant %d", sim_method_name(m.method),
+                     variant);
+            int rc = compare_batch(gl, cpu, &p, &b, label, &limits);
+            CHECK(rc == 0 && limits == 1, "%s: same status and heights, %d window refused",
+                  label, limits);
+            batch_free(&b);
+        }
+    }
+}
+
+/* The same batch twice gives the same heights (atomics commute, ties hash). */
+static void test_repeatable(sim_backend *gl)
+{
+    batch b = {0}, c = {0};
+    uint64_t saved = rng_state;
+    b.count = c.count = 4;
+    for (int k = 0; k < 4; k++)
+        random_window(&b, k, 37, 23, 50000, 8000, 0);
+    rng_state = saved;
+    for (int k = 0; k < 4; k++)
+        random_window(&c, k, 37, 23, 50000, 8000, 0);
+    sim_material m = sim_material_default();
+    m.method = SIM_METHOD_MULTI;
+    sim_params p;
+    error_text err;
+    sim_params_from_material(&m, 0.05, 10000, 0, &p, &err);
+    int st[4];
+    sim_stage_times t = {0};
+    gl->run_windows(gl, &p, b.jobs, 4, st, &t, &err);
+    gl->run_windows(gl, &p, c.jobs, 4, st, &t, &err);
+    int same = 1;
+    for (int k = 0; k < 4; k++)
+        same &= memcmp(b.heights[k], c.heights[k], 37 * 23 * sizeof(int32_t)) == 0;
+    CHECK(same, "repeatable: the same batch twice gives the same heights");
+    batch_free(&b);
+    batch_free(&c);
+}
+
+/* Scratch memory follows the batch, and the timing of a 4-window batch. */
+static void test_scratch_and_timing(sim_backend *gl)
+{
+    uint64_t before = gl->scratch_bytes(gl);
+    enum { N = 4, W = 128, H = 96 };
+    static collider_geometry sphere = {.shape = COLLIDER_SPHERE, .radius = 0.4};
+    sim_collider colliders[N];
+    sim_window_job jobs[N];
+    int32_t *heights[N];
+    int status[N];
+    for (int k = 0; k < N; k++) {
+        heights[k] = malloc(W * H * sizeof(int32_t));
+        for (int i = 0; i < W * H; i++)
+            heights[k][i] = 50000;
+        world_rect r = {k * 200, 0, W, H};
+        colliders[k] = (sim_collider){
+            .id = k, .geometry = &sphere,
+            .pose = {{(r.x + W / 2) * 0.05, (H / 2) * 0.05, 4.6 + 0.05 * k}, {1, 0, 0, 0}}};
+        jobs[k] = (sim_window_job){.rect = r, .cell_size_m = 0.05, .units_per_m = 10000,
+                                   .heights = heights[k], .colliders = &colliders[k],
+                                   .collider_count = 1, .depth_low = 41000,
+                                   .depth_high = 50000 + 1000 + 1};
+    }
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO,
+                                          SIM_METHOD_MULTI};
+    sim_backend_gl_set_stage_timing(gl, 1);
+    for (int mi = 0; mi < 3; mi++) {
+        sim_material m = sim_material_default();
+        m.method = methods[mi];
+        sim_params p;
+        error_text err;
+        sim_params_from_material(&m, 0.05, 10000, 0, &p, &err);
+        sim_stage_times t = {0};
+        const int reps = 5;
+        for (int rep = 0; rep <= reps; rep++) {
+            for (int k = 0; k < N; k++)
+                for (int i = 0; i < W * H; i++)
+                    heights[k][i] = 50000;
+            if (rep == 0) /* warm-up: first use compiles and allocates */
+                gl->run_windows(gl, &p, jobs, N, status, &(sim_stage_times){0}, &err);
+            else
+                gl->run_windows(gl, &p, jobs, N, status, &t, &err);
+        }
+        printf("info timing %s, %d windows of %dx%d on %s (ms per batch): depth %.3f classify "
+               "%.3f jump_flood %.3f displace %.3f even_slopes %.3f transfer %.3f\n",
+               sim_method_name(m.method), N, W, H, gl->renderer, t.depth / reps,
+               t.classify / reps, t.jump_flood / reps, t.displace / reps, t.even_slopes / reps,
+               t.transfer / reps);
+    }
+    sim_backend_gl_set_stage_timing(gl, 0);
+    uint64_t after = gl->scratch_bytes(gl);
+    CHECK(after >= (uint64_t)N * W * H * 10 * sizeof(int32_t) && after < (uint64_t)64 << 20,
+          "scratch: %llu bytes before, %llu after a %d-cell batch (grows with the batch)",
+          (unsigned long long)before, (unsigned long long)after, N * W * H);
+    gl->forget_geometry(gl, &sphere);
+    for (int k = 0; k < N; k++)
+        free(heights[k]);
+}
+
+int main(void)
+{
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    if (test_context() != 0)
+        return 77;
+    error_text err = {{0}};
+    sim_backend *gl = sim_backend_gl_create(&err);
+    CHECK(gl != NULL, "gl backend: created (%s)", gl ? gl->renderer : err.message);
+    sim_backend *cpu = sim_backend_cpu_create(&err);
+    if (!gl || !cpu) {
+        printf("%d passed, %d failed\n", passed, failed + 1);
+        return 1;
+    }
+    test_depth_raster(gl);
+    test_bit_exact(gl, cpu);
+    test_height_limit(gl, cpu);
+    test_repeatable(gl);
+    test_scratch_and_timing(gl);
+    gl->destroy(gl);
+    cpu->destroy(cpu);
+    printf("%d passed, %d failed\n", passed, failed);
+    return failed ? 1 : 0;
+}

@@ -1,0 +1,696 @@
+/*
+ * test_proto.c: the C codec of proto/ against the shared test vectors
+ * (proto/vectors/vectors.json, read from $TERRAD_SOURCE_DIR), plus what the
+ * vectors cannot hold: every prefix of every valid frame is refused, encoders
+ * refuse NaN and small buffers, and a randomized round trip of the rectangle
+ * codec and the mirror.
+ */
+#include <inttypes.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+
+#include "terrad_proto.h"
+
+static int passed, failed;
+
+#define CHECK(cond, ...)                                                                           \
+    do {                                                                                           \
+        if (cond) {                                                                                \
+            passed++;                                                                              \
+        } else {                                                                                   \
+            failed++;                                                                              \
+            printf("FAIL %s:%d: ", __FILE__, __LINE__);                                            \
+            printf(__VA_ARGS__);                                                                   \
+            printf("\n");                                                                          \
+        }                                                                                          \
+    } while (0)
+
+/* ---- JSON helpers ---- */
+
+static char *read_file(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    fseek(f, 0, SEEK_END);
+    long n = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *s = malloc((size_t)n + 1);
+    if (s && fread(s, 1, (size_t)n, f) != (size_t)n) {
+        free(s);
+        s = NULL;
+    }
+    if (s)
+        s[n] = 0;
+    fclose(f);
+    return s;
+}
+
+static size_t unhex(const char *s, uint8_t **out)
+{
+    size_t n = strlen(s) / 2;
+    uint8_t *p = malloc(n + 1);
+    for (size_t i = 0; i < n; i++) {
+        unsigned v;
+        sscanf(s + 2 * i, "%2x", &v);
+        p[i] = (uint8_t)v;
+    }
+    *out = p;
+    return n;
+}
+
+static const cJSON *get(const cJSON *o, const char *key)
+{
+    return cJSON_GetObjectItemCaseSensitive(o, key);
+}
+static double num(const cJSON *o, const char *key)
+{
+    return get(o, key)->valuedouble;
+}
+static const char *str(const cJSON *o, const char *key)
+{
+    return get(o, key)->valuestring;
+}
+static uint64_t u64(const cJSON *o, const char *key)
+{
+    return strtoull(str(o, key), NULL, 10);
+}
+static int64_t i64(const cJSON *o, const char *key)
+{
+    return strtoll(str(o, key), NULL, 10);
+}
+
+static int32_t *int_list(const cJSON *a, size_t *n)
+{
+    size_t k = (size_t)cJSON_GetArraySize(a);
+    int32_t *v = malloc((k + 1) * sizeof *v);
+    size_t i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, a) v[i++] = (int32_t)e->valuedouble;
+    *n = k;
+    return v;
+}
+
+static int same_float(float a, double b)
+{
+    return a == (float)b;
+}
+
+/* ---- per-type checks of valid vectors ---- */
+
+static void check_pose(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_pose poses[16];
+    uint32_t seq;
+    size_t count;
+    int rc = terrad_pose_batch_decode(b, n, &seq, poses, 16, &count);
+    CHECK(rc == 0, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    const cJSON *a = get(f, "poses");
+    CHECK(seq == (uint32_t)num(f, "seq"), "%s: seq", name);
+    CHECK(count == (size_t)cJSON_GetArraySize(a), "%s: count", name);
+    terrad_pose want[16];
+    size_t i = 0;
+    const cJSON *p;
+    cJSON_ArrayForEach(p, a)
+    {
+        terrad_pose w = {(uint32_t)num(p, "id"), (float)num(p, "x"),  (float)num(p, "y"),
+                         (float)num(p, "z"),     (float)num(p, "qw"), (float)num(p, "qx"),
+                         (float)num(p, "qy"),    (float)num(p, "qz")};
+        want[i] = w;
+        if (i < count)
+            CHECK(poses[i].id == w.id && same_float(poses[i].x, w.x) &&
+                      same_float(poses[i].y, w.y) && same_float(poses[i].z, w.z) &&
+                      same_float(poses[i].qw, w.qw) && same_float(poses[i].qx, w.qx) &&
+                      same_float(poses[i].qy, w.qy) && same_float(poses[i].qz, w.qz),
+                  "%s: pose %zu", name, i);
+        i++;
+    }
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_pose_batch_encode(out, sizeof out, &len, seq, want, i);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
+static void check_delta(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_rect rects[16];
+    uint64_t tick;
+    size_t count;
+    int rc = terrad_delta_decode(b, n, &tick, rects, 16, &count);
+    CHECK(rc == 0, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    const cJSON *a = get(f, "rects");
+    CHECK(tick == u64(f, "tick"), "%s: tick", name);
+    CHECK(count == (size_t)cJSON_GetArraySize(a), "%s: count", name);
+    terrad_rect want[16];
+    uint8_t *datas[16];
+    size_t i = 0;
+    const cJSON *r;
+    cJSON_ArrayForEach(r, a)
+    {
+        terrad_rect w = {(int32_t)num(r, "x"),
+                         (int32_t)num(r, "y"),
+                         (uint16_t)num(r, "w"),
+                         (uint16_t)num(r, "h"),
+                         (uint32_t)num(r, "base_version"),
+                         (uint32_t)num(r, "new_version"),
+                         (uint8_t)num(r, "encoding"),
+                         0,
+                         NULL};
+        w.data_len = (uint32_t)unhex(str(r, "data_hex"), &datas[i]);
+        w.data = datas[i];
+        want[i] = w;
+        if (i >= count) {
+            i++;
+            continue;
+        }
+        const terrad_rect *g = &rects[i];
+        CHECK(g->x == w.x && g->y == w.y && g->w == w.w && g->h == w.h &&
+                  g->base_version == w.base_version && g->new_version == w.new_version &&
+                  g->encoding == w.encoding && g->data_len == w.data_len &&
+                  memcmp(g->data, w.data, w.data_len) == 0,
+              "%s: rect %zu fields", name, i);
+        size_t cells = (size_t)w.w * w.h, nv;
+        int32_t *values = int_list(get(r, "values"), &nv);
+        CHECK(nv == cells, "%s: rect %zu value count", name, i);
+        int32_t *got = malloc(cells * sizeof *got);
+        rc = terrad_rect_decompress(NULL, g->data, g->data_len, cells, got, cells);
+        CHECK(rc == 0 && memcmp(got, values, cells * 4) == 0, "%s: rect %zu decompress: %s", name,
+              i, terrad_err_name(rc));
+        rc = terrad_rect_decompress(NULL, g->data, g->data_len, cells, got, cells - 1);
+        CHECK(rc == TERRAD_E_TOO_LARGE, "%s: rect %zu: output smaller than w*h", name, i);
+        /* The packing is exact; the compression is checked by round trip. */
+        uint8_t *packed, *mine = malloc(cells * 4);
+        size_t pn = unhex(str(r, "packed_hex"), &packed);
+        terrad_rect_pack(values, cells, mine);
+        CHECK(pn == cells * 4 && memcmp(packed, mine, pn) == 0, "%s: rect %zu packing", name, i);
+        terrad_rect_unpack(packed, cells, got);
+        CHECK(memcmp(got, values, cells * 4) == 0, "%s: rect %zu unpack", name, i);
+        size_t cap = terrad_rect_compress_bound(cells), zn;
+        uint8_t *z = malloc(cap);
+        rc = terrad_rect_compress(NULL, values, cells, z, cap, &zn);
+        memset(got, 0x55, cells * 4);
+        CHECK(rc == 0 && terrad_rect_decompress(NULL, z, zn, cells, got, cells) == 0 &&
+                  memcmp(got, values, cells * 4) == 0,
+              "%s: rect %zu compress round trip", name, i);
+        if (get(r, "old")) {
+            size_t k;
+            int32_t *oldh = int_list(get(r, "old"), &k), *newh = int_list(get(r, "new"), &k);
+            int32_t *d = malloc(cells * sizeof *d);
+            terrad_rect_diff(oldh, newh, cells, d);
+            CHECK(memcmp(d, values, cells * 4) == 0, "%s: rect %zu diff", name, i);
+            size_t touched = terrad_rect_apply_values(g, values, oldh, w.x, w.y, w.w, w.h);
+            CHECK(touched == cells && memcmp(oldh, newh, cells * 4) == 0, "%s: rect %zu apply",
+                  name, i);
+            free(oldh);
+            free(newh);
+            free(d);
+        }
+        free(values);
+        free(got);
+        free(packed);
+        free(mine);
+        free(z);
+        i++;
+    }
+    uint8_t *out = malloc(n + 1);
+    size_t len;
+    rc = terrad_delta_encode(out, n, &len, tick, want, i);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+    if (n > 0)
+        CHECK(terrad_delta_encode(out, n - 1, &len, tick, want, i) == TERRAD_E_BUFFER_TOO_SMALL,
+              "%s: encode into a buffer one byte short", name);
+    free(out);
+    for (size_t k = 0; k < i; k++)
+        free(datas[k]);
+}
+
+static void check_contact(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_contact cs[16];
+    uint64_t tick;
+    size_t count;
+    int rc = terrad_contact_decode(b, n, &tick, cs, 16, &count);
+    CHECK(rc == 0, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    const cJSON *a = get(f, "contacts");
+    CHECK(tick == u64(f, "tick"), "%s: tick", name);
+    CHECK(count == (size_t)cJSON_GetArraySize(a), "%s: count", name);
+    terrad_contact want[16];
+    size_t i = 0;
+    const cJSON *c;
+    cJSON_ArrayForEach(c, a)
+    {
+        terrad_contact w;
+        memset(&w, 0, sizeof w);
+        w.id = (uint32_t)num(c, "id");
+        w.volume = i64(c, "volume");
+        w.cells = (uint32_t)num(c, "cells");
+        w.area_m2 = (float)num(c, "area_m2");
+        for (int k = 0; k < 3; k++) {
+            w.deepest[k] = (float)cJSON_GetArrayItem(get(c, "deepest"), k)->valuedouble;
+            w.normal[k] = (float)cJSON_GetArrayItem(get(c, "normal"), k)->valuedouble;
+        }
+        w.support_height_m = (float)num(c, "support_height_m");
+        want[i] = w;
+        if (i < count) {
+            const terrad_contact *g = &cs[i];
+            int same = g->id == w.id && g->volume == w.volume && g->cells == w.cells &&
+                       g->area_m2 == w.area_m2 && g->support_height_m == w.support_height_m;
+            for (int k = 0; k < 3; k++)
+                same = same && g->deepest[k] == w.deepest[k] && g->normal[k] == w.normal[k];
+            CHECK(same, "%s: contact %zu", name, i);
+        }
+        i++;
+    }
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_contact_encode(out, sizeof out, &len, tick, want, i);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
+static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
+                        size_t n)
+{
+    uint8_t out[64];
+    size_t len;
+    if (strcmp(type, "ACK") == 0) {
+        uint64_t tick;
+        uint32_t seq;
+        int rc = terrad_ack_decode(b, n, &tick, &seq);
+        CHECK(rc == 0 && tick == u64(f, "tick") && seq == (uint32_t)num(f, "seq"), "%s: decode",
+              name);
+        rc = terrad_ack_encode(out, sizeof out, &len, u64(f, "tick"), (uint32_t)num(f, "seq"));
+        CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+    } else {
+        uint8_t t = strcmp(type, "PING") == 0 ? TERRAD_MSG_PING : TERRAD_MSG_PONG, got;
+        uint64_t nonce;
+        int rc = terrad_ping_decode(b, n, &got, &nonce);
+        CHECK(rc == 0 && got == t && nonce == u64(f, "nonce"), "%s: decode", name);
+        rc = terrad_ping_encode(out, sizeof out, &len, t, u64(f, "nonce"));
+        CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+    }
+}
+
+/* Decode with the decoder for type; a DELTA that decodes then has each
+ * rectangle decompressed. The first error. */
+static int decode_any(const char *type, const uint8_t *b, size_t n)
+{
+    if (strcmp(type, "POSE_BATCH") == 0) {
+        terrad_pose poses[16];
+        uint32_t seq;
+        size_t count;
+        return terrad_pose_batch_decode(b, n, &seq, poses, 16, &count);
+    }
+    if (strcmp(type, "DELTA") == 0) {
+        terrad_rect rects[16];
+        uint64_t tick;
+        size_t count;
+        int rc = terrad_delta_decode(b, n, &tick, rects, 16, &count);
+        for (size_t i = 0; rc == 0 && i < count; i++) {
+            size_t cells = (size_t)rects[i].w * rects[i].h;
+            int32_t *out = malloc(cells * sizeof *out);
+            rc = terrad_rect_decompress(NULL, rects[i].data, rects[i].data_len, cells, out, cells);
+            free(out);
+        }
+        return rc;
+    }
+    if (strcmp(type, "CONTACT") == 0) {
+        terrad_contact cs[16];
+        uint64_t tick;
+        size_t count;
+        return terrad_contact_decode(b, n, &tick, cs, 16, &count);
+    }
+    if (strcmp(type, "ACK") == 0) {
+        uint64_t tick;
+        uint32_t seq;
+        return terrad_ack_decode(b, n, &tick, &seq);
+    }
+    uint8_t t;
+    uint64_t nonce;
+    return terrad_ping_decode(b, n, &t, &nonce);
+}
+
+static void check_vectors(const cJSON *root)
+{
+    const cJSON *e;
+    int k = 0;
+    cJSON_ArrayForEach(e, get(root, "errors"))
+    {
+        int code = (int)num(e, "code");
+        CHECK(terrad_err_name(code) && strcmp(terrad_err_name(code), str(e, "name")) == 0 &&
+                  terrad_err_from_name(str(e, "name")) == code,
+              "error table: %d %s", code, str(e, "name"));
+        k++;
+    }
+    CHECK(k == TERRAD_ERR_LAST, "error table has %d entries", k);
+    cJSON_ArrayForEach(e, get(root, "types"))
+    {
+        const char *nm = terrad_msg_type_name((int)num(e, "code"));
+        CHECK(nm && strcmp(nm, str(e, "name")) == 0, "type table: %s", str(e, "name"));
+    }
+
+    const cJSON *v;
+    cJSON_ArrayForEach(v, get(root, "vectors"))
+    {
+        const char *name = str(v, "name"), *type = str(v, "type");
+        uint8_t *b;
+        size_t n = unhex(str(v, "hex"), &b);
+        if (cJSON_IsTrue(get(v, "valid"))) {
+            const cJSON *f = get(v, "fields");
+            if (strcmp(type, "POSE_BATCH") == 0)
+                check_pose(name, f, b, n);
+            else if (strcmp(type, "DELTA") == 0)
+                check_delta(name, f, b, n);
+            else if (strcmp(type, "CONTACT") == 0)
+                check_contact(name, f, b, n);
+            else
+                check_small(name, type, f, b, n);
+            /* Every proper prefix of a valid frame is refused. */
+            int prefixes_refused = 1;
+            for (size_t cut = 0; cut < n; cut++)
+                if (decode_any(type, b, cut) == 0)
+                    prefixes_refused = 0;
+            CHECK(prefixes_refused, "%s: a prefix decoded", name);
+        } else {
+            int want = terrad_err_from_name(str(v, "error"));
+            int rc = decode_any(type, b, n);
+            CHECK(rc == want, "%s: got %s, want %s", name, terrad_err_name(rc), str(v, "error"));
+        }
+        free(b);
+    }
+}
+
+static void check_scenarios(const cJSON *root)
+{
+    const cJSON *s;
+    cJSON_ArrayForEach(s, get(root, "mirror_scenarios"))
+    {
+        const char *name = str(s, "name");
+        const cJSON *reg = get(s, "region");
+        uint32_t w = (uint32_t)num(reg, "w"), h = (uint32_t)num(reg, "h");
+        int32_t x = (int32_t)num(reg, "x"), y = (int32_t)num(reg, "y");
+        uint32_t tile = (uint32_t)num(s, "tile_size");
+        size_t tiles = terrad_mirror_tile_count(x, y, w, h, tile);
+        int32_t *heights = calloc((size_t)w * h, sizeof *heights);
+        uint32_t *versions = calloc(tiles, sizeof *versions);
+        terrad_mirror m;
+        CHECK(terrad_mirror_init(&m, x, y, w, h, tile, heights, versions) == 0, "%s: init", name);
+        const cJSON *st;
+        int step = 0;
+        cJSON_ArrayForEach(st, get(s, "steps"))
+        {
+            uint8_t *b;
+            size_t n = unhex(str(st, "frame_hex"), &b);
+            terrad_rect rects[16];
+            uint64_t tick;
+            size_t count;
+            int rc = terrad_delta_decode(b, n, &tick, rects, 16, &count);
+            CHECK(rc == 0, "%s step %d: decode", name, step);
+            int32_t scratch[4096];
+            if (rc == 0)
+                rc = terrad_mirror_apply(&m, NULL, rects, count, scratch, 4096);
+            const char *want = str(st, "error");
+            CHECK(strcmp(rc ? terrad_err_name(rc) : "", want) == 0,
+                  "%s step %d: got '%s', want '%s'", name, step, rc ? terrad_err_name(rc) : "",
+                  want);
+            size_t nh, nv;
+            int32_t *wh = int_list(get(st, "heights"), &nh);
+            int32_t *wv = int_list(get(st, "versions"), &nv);
+            CHECK(nh == (size_t)w * h && memcmp(wh, heights, nh * 4) == 0, "%s step %d: heights",
+                  name, step);
+            int same = nv == tiles;
+            for (size_t i = 0; same && i < nv; i++)
+                same = (uint32_t)wv[i] == versions[i];
+            CHECK(same, "%s step %d: versions", name, step);
+            free(wh);
+            free(wv);
+            free(b);
+            step++;
+        }
+        free(heights);
+        free(versions);
+    }
+}
+
+/* ---- what the vectors cannot hold ---- */
+
+static uint64_t rng = 0x9e3779b97f4a7c15ull;
+static uint32_t next(void)
+{
+    rng ^= rng << 13;
+    rng ^= rng >> 7;
+    rng ^= rng << 17;
+    return (uint32_t)(rng >> 16);
+}
+
+static void test_encoder_refusals(void)
+{
+    uint8_t buf[256];
+    size_t len;
+    terrad_pose p = {1, 0, 0, 0, 1, 0, 0, 0};
+    p.y = NAN;
+    CHECK(terrad_pose_batch_encode(buf, sizeof buf, &len, 0, &p, 1) == TERRAD_E_BAD_VALUE,
+          "encode NaN pose");
+    p.y = 0;
+    p.qw = INFINITY;
+    CHECK(terrad_pose_batch_encode(buf, sizeof buf, &len, 0, &p, 1) == TERRAD_E_BAD_VALUE,
+          "encode Inf quaternion");
+    p.qw = 1;
+    CHECK(terrad_pose_batch_encode(buf, 41, &len, 0, &p, 1) == TERRAD_E_BUFFER_TOO_SMALL,
+          "encode pose into 41 bytes");
+    CHECK(terrad_pose_batch_encode(buf, 42, &len, 0, &p, 1) == 0 && len == 42,
+          "encode pose into 42 bytes");
+    terrad_pose two[2] = {p, p};
+    size_t count;
+    uint32_t seq;
+    terrad_pose out[1];
+    CHECK(terrad_pose_batch_encode(buf, sizeof buf, &len, 0, two, 2) == 0 &&
+              terrad_pose_batch_decode(buf, len, &seq, out, 1, &count) == TERRAD_E_TOO_LARGE,
+          "decode two poses into room for one");
+    terrad_contact c;
+    memset(&c, 0, sizeof c);
+    c.normal[2] = 1;
+    c.area_m2 = -1;
+    CHECK(terrad_contact_encode(buf, sizeof buf, &len, 0, &c, 1) == TERRAD_E_BAD_VALUE,
+          "encode negative area");
+    c.area_m2 = 0;
+    c.support_height_m = NAN;
+    CHECK(terrad_contact_encode(buf, sizeof buf, &len, 0, &c, 1) == TERRAD_E_BAD_VALUE,
+          "encode NaN support height");
+    CHECK(terrad_ping_encode(buf, sizeof buf, &len, TERRAD_MSG_ACK, 1) == TERRAD_E_UNKNOWN_TYPE,
+          "ping encode with type ACK");
+    CHECK(terrad_ack_encode(buf, 15, &len, 1, 1) == TERRAD_E_BUFFER_TOO_SMALL, "ack in 15 bytes");
+    uint8_t z[8] = {1};
+    terrad_rect r = {0, 0, 0, 1, 1, 2, TERRAD_ENC_DELTA, 1, z};
+    CHECK(terrad_delta_encode(buf, sizeof buf, &len, 0, &r, 1) == TERRAD_E_BAD_VALUE,
+          "encode a 0 x 1 rectangle");
+    CHECK(terrad_err_name(999) == NULL && terrad_err_from_name("nope") == 0, "unknown names");
+    CHECK(terrad_zigzag32(0) == 0 && terrad_zigzag32(-1) == 1 && terrad_zigzag32(1) == 2 &&
+              terrad_zigzag32(INT32_MAX) == 0xfffffffeu &&
+              terrad_zigzag32(INT32_MIN) == 0xffffffffu,
+          "zigzag values");
+    CHECK(terrad_unzigzag32(0xffffffffu) == INT32_MIN &&
+              terrad_unzigzag32(0xfffffffeu) == INT32_MAX,
+          "unzigzag extremes");
+}
+
+/* Random rectangles: differences of random heights (small, large and
+ * extreme), compressed and decompressed, applied to the old heights. */
+static void test_random_round_trip(void)
+{
+    terrad_codec *c = terrad_codec_new(3);
+    CHECK(c != NULL, "codec");
+    int bad = 0;
+    for (int iter = 0; iter < 200; iter++) {
+        uint16_t w = (uint16_t)(1 + next() % (iter < 150 ? 64 : 256));
+        uint16_t h = (uint16_t)(1 + next() % (iter < 150 ? 64 : 256));
+        size_t cells = (size_t)w * h;
+        int32_t *oldh = malloc(cells * 4), *newh = malloc(cells * 4), *d = malloc(cells * 4),
+                *back = malloc(cells * 4);
+        int mode = iter % 4;
+        for (size_t i = 0; i < cells; i++) {
+            oldh[i] = (int32_t)next();
+            switch (mode) {
+            case 0:
+                newh[i] = oldh[i];
+                break;
+            case 1:
+                newh[i] = (int32_t)((uint32_t)oldh[i] + (next() % 201) - 100);
+                break;
+            case 2:
+                newh[i] = (int32_t)next();
+                break;
+            default:
+                newh[i] = (next() & 1) ? INT32_MIN : INT32_MAX;
+                break;
+            }
+        }
+        terrad_rect_diff(oldh, newh, cells, d);
+        size_t cap = terrad_rect_compress_bound(cells), zn;
+        uint8_t *z = malloc(cap);
+        int rc = terrad_rect_compress(c, d, cells, z, cap, &zn);
+        if (rc == 0)
+            rc = terrad_rect_decompress(c, z, zn, cells, back, cells);
+        if (rc != 0 || memcmp(back, d, cells * 4) != 0)
+            bad++;
+        terrad_rect r = {-17, 5, w, h, 1, 2, TERRAD_ENC_DELTA, (uint32_t)zn, z};
+        terrad_rect_apply_values(&r, back, oldh, -17, 5, w, h);
+        if (memcmp(oldh, newh, cells * 4) != 0)
+            bad++;
+        /* Asking for one cell fewer or more than the frame holds is refused. */
+        if (cells > 1 &&
+            terrad_rect_decompress(c, z, zn, cells - 1, back, cells) != TERRAD_E_BAD_COMPRESSION)
+            bad++;
+        free(oldh);
+        free(newh);
+        free(d);
+        free(back);
+        free(z);
+    }
+    CHECK(bad == 0, "random rectangle round trips: %d bad", bad);
+    terrad_codec_free(c);
+}
+
+/* A server-side world and a client mirror over random ticks of random deltas
+ * and snapshots: the mirror equals the world after every frame. */
+static void test_random_mirror(void)
+{
+    enum { W = 40, H = 30, T = 8, TX = 5, TY = 4 };
+    static int32_t world[W * H], prev[W * H];
+    static uint32_t tver[TX * TY];
+    for (int i = 0; i < W * H; i++)
+        world[i] = (int32_t)(next() % 100000);
+    for (int i = 0; i < TX * TY; i++)
+        tver[i] = 1;
+    /* The client holds the region (3, 2) 31 x 25. */
+    const int32_t rx = 3, ry = 2;
+    const uint32_t rw = 31, rh = 25;
+    int32_t *mh = calloc(rw * rh, 4);
+    uint32_t mv[64];
+    terrad_mirror m;
+    terrad_mirror_init(&m, rx, ry, rw, rh, T, mh, mv);
+    terrad_codec *c = terrad_codec_new(3);
+    int bad = 0;
+    int32_t scratch[T * T];
+    for (int tick = 0; tick < 300; tick++) {
+        terrad_rect rects[64];
+        uint8_t *payloads[64];
+        size_t n = 0;
+        memcpy(prev, world, sizeof world);
+        if (tick == 0 || tick % 97 == 0) {
+            /* Snapshot: tile ∩ region, one rectangle per tile. */
+            for (int ty = 0; ty < TY; ty++)
+                for (int tx = 0; tx < TX; tx++) {
+                    int x0 = tx * T > rx ? tx * T : rx, y0 = ty * T > ry ? ty * T : ry;
+                    int x1 = (tx + 1) * T < (int)(rx + rw) ? (tx + 1) * T : (int)(rx + rw);
+                    int y1 = (ty + 1) * T < (int)(ry + rh) ? (ty + 1) * T : (int)(ry + rh);
+                    if (x0 >= x1 || y0 >= y1)
+                        continue;
+                    int32_t vals[T * T];
+                    int k = 0;
+                    for (int y = y0; y < y1; y++)
+                        for (int x = x0; x < x1; x++)
+                            vals[k++] = world[y * W + x];
+                    payloads[n] = malloc(terrad_rect_compress_bound((size_t)k));
+                    size_t zn;
+                    terrad_rect_compress(c, vals, (size_t)k, payloads[n],
+                                         terrad_rect_compress_bound((size_t)k), &zn);
+                    terrad_rect r = {x0,
+                                     y0,
+                                     (uint16_t)(x1 - x0),
+                                     (uint16_t)(y1 - y0),
+                                     0,
+                                     tver[ty * TX + tx],
+                                     TERRAD_ENC_SNAPSHOT,
+                                     (uint32_t)zn,
+                                     payloads[n]};
+                    rects[n++] = r;
+                }
+        } else {
+            /* Random edits inside random tiles, one dirty rectangle per tile. */
+            int edits = 1 + (int)(next() % 4);
+            int done[TX * TY] = {0};
+            for (int e = 0; e < edits; e++) {
+                int tx = (int)(next() % TX), ty = (int)(next() % TY);
+                if (done[ty * TX + tx])
+                    continue;
+                done[ty * TX + tx] = 1;
+                int x0 = tx * T + (int)(next() % T), y0 = ty * T + (int)(next() % T);
+                int w = 1 + (int)(next() % (uint32_t)(T - x0 % T));
+                int h = 1 + (int)(next() % (uint32_t)(T - y0 % T));
+                if (x0 + w > W || y0 + h > H)
+                    continue;
+                int32_t vals[T * T];
+                int k = 0;
+                for (int y = y0; y < y0 + h; y++)
+                    for (int x = x0; x < x0 + w; x++) {
+                        world[y * W + x] += (int32_t)(next() % 2001) - 1000;
+                        vals[k++] = world[y * W + x] - prev[y * W + x];
+                    }
+                payloads[n] = malloc(terrad_rect_compress_bound((size_t)k));
+                size_t zn;
+                terrad_rect_compress(c, vals, (size_t)k, payloads[n],
+                                     terrad_rect_compress_bound((size_t)k), &zn);
+                uint32_t base = tver[ty * TX + tx]++;
+                terrad_rect r = {x0,         y0,       (uint16_t)w,      (uint16_t)h,
+                                 base,       base + 1, TERRAD_ENC_DELTA, (uint32_t)zn,
+                                 payloads[n]};
+                rects[n++] = r;
+            }
+        }
+        /* Through the wire and into the mirror. */
+        static uint8_t frame[1 << 16];
+        size_t len, count;
+        uint64_t t;
+        terrad_rect got[64];
+        int rc = terrad_delta_encode(frame, sizeof frame, &len, (uint64_t)tick, rects, n);
+        if (rc == 0)
+            rc = terrad_delta_decode(frame, len, &t, got, 64, &count);
+        if (rc == 0)
+            rc = terrad_mirror_apply(&m, c, got, count, scratch, T * T);
+        if (rc)
+            bad++;
+        for (uint32_t y = 0; y < rh; y++)
+            if (memcmp(mh + y * rw, world + (ry + (int32_t)y) * W + rx, rw * 4) != 0) {
+                bad++;
+                break;
+            }
+        for (size_t i = 0; i < n; i++)
+            free(payloads[i]);
+    }
+    CHECK(bad == 0, "random mirror: %d bad ticks", bad);
+    free(mh);
+    terrad_codec_free(c);
+}
+
+int main(void)
+{
+    const char *src = getenv("TERRAD_SOURCE_DIR");
+    char path[4096];
+    snprintf(path, sizeof path, "%s/proto/vectors/vectors.json", src ? src : ".");
+    char *text = read_file(path);
+    CHECK(text != NULL, "read %s", path);
+    cJSON *root = text ? cJSON_Parse(text) : NULL;
+    CHECK(root != NULL, "parse %s", path);
+    if (root) {
+        CHECK((int)num(root, "protocol") == TERRAD_PROTO_VERSION, "protocol version");
+        check_vectors(root);
+        check_scenarios(root);
+    }
+    test_encoder_refusals();
+    test_random_round_trip();
+    test_random_mirror();
+    cJSON_Delete(root);
+    free(text);
+    printf("%d passed, %d failed\n", passed, failed);
+    return failed ? 1 : 0;
+}
