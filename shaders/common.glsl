@@ -177,20 +177,13 @@ int metric_distance(int dx, int dy)
     return ax * ax + ay * ay;
 }
 
-/*
- * mul_q16_shift: (uint64(a) * q16) >> shift, truncated to 32 bits, for
- * q16 in [0, 65536] and 16 <= shift < 32, without 64-bit arithmetic: with
- * a = ah * 2^16 + al, floor((ah*q16*2^16 + al*q16) / 2^16) = ah*q16 +
- * (al*q16 >> 16), and neither term nor their sum can pass 2^32 - 1 (ah and
- * al < 2^16, q16 <= 2^16). The remaining shift by (shift - 16) gives the
- * C's result exactly, for every a. (umulExtended gives the same numbers but
- * is several times slower on llvmpipe.)
- */
+/* mul_q16_shift: (uint64(a) * q16) >> shift, truncated to 32 bits, for
+ * 0 < shift < 32: the 64-bit product comes from umulExtended. */
 int mul_q16_shift(int a, int q16, int shift)
 {
-    uint ua = uint(a), uq = uint(q16);
-    uint scaled = (ua >> 16) * uq + (((ua & 0xffffu) * uq) >> 16);
-    return int(scaled >> uint(shift - 16));
+    uint hi, lo;
+    umulExtended(uint(a), uint(q16), hi, lo);
+    return int((hi << uint(32 - shift)) | (lo >> uint(shift)));
 }
 
 /* ---- int64 as uvec2(low, high), two's complement ---- */

@@ -52,7 +52,9 @@ void main()
         if (qx < 0 || qy < 0 || qx >= win.w || qy >= win.h)
             continue;
         int s = fetch(u_seed_in, win.offset + qy * win.w + qx);
-        if (s < 0)
+        /* no seed known there, or the one we hold already (never better
+         * than itself): the common case, skipped before any arithmetic */
+        if (s < 0 || s == best)
             continue;
         int sx = seed_x(s), sy = seed_y(s);
         int d = metric_distance(sx - x, sy - y);

@@ -17,10 +17,16 @@
 #include <string.h>
 #include <time.h>
 
+#include <cjson/cJSON.h>
+
 #include "app/app.h"
 #include "gl/gl.h"
 #include "http/http.h"
+#include "hub/hub.h"
+#include "metrics/metrics.h"
+#include "net/net.h"
 #include "scene/scene.h"
+#include "service/service.h"
 
 static volatile sig_atomic_t stop_requested;
 
@@ -34,9 +40,14 @@ typedef struct serve_options {
     const char *scene_path;
     const char *backend;
     int http_port;
+    int ws_port;
     int bind_any;
     int demo_actors;
-    long max_ticks; /* < 0: run until signalled */
+    double tick_hz;     /* 0: the scene's */
+    const char *token;  /* NULL: no token required */
+    long max_ticks;     /* < 0: run until signalled */
+    net_limits limits;
+    cJSON *config;      /* the --config document, kept for its strings */
 } serve_options;
 
 static int parse_int(const char *flag, const char *v, long lo, long hi, long *out)
@@ -52,13 +63,108 @@ static int parse_int(const char *flag, const char *v, long lo, long hi, long *ou
     return 0;
 }
 
+/* --config FILE: a JSON object whose keys are the long options without the
+ * dashes (dashes as underscores) plus "limits" with PROTOCOL.md's names.
+ * Flags given on the command line after --config override it. */
+static int load_config(const char *path, serve_options *o)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        fprintf(stderr, "terrad serve: --config %s: cannot open\n", path);
+        return -1;
+    }
+    char *text = malloc(1 << 20);
+    size_t n = text ? fread(text, 1, (1 << 20) - 1, f) : 0;
+    fclose(f);
+    if (!text)
+        return -1;
+    text[n] = 0;
+    cJSON *doc = cJSON_Parse(text);
+    free(text);
+    if (!cJSON_IsObject(doc)) {
+        fprintf(stderr, "terrad serve: --config %s: not a JSON object (syntax error?)\n", path);
+        cJSON_Delete(doc);
+        return -1;
+    }
+    o->config = doc;
+    const cJSON *item;
+    cJSON_ArrayForEach(item, doc)
+    {
+        const char *k = item->string;
+        int ok = 1;
+        if (strcmp(k, "scene") == 0 && cJSON_IsString(item))
+            o->scene_path = item->valuestring;
+        else if (strcmp(k, "backend") == 0 && cJSON_IsString(item))
+            o->backend = item->valuestring;
+        else if (strcmp(k, "token") == 0 && cJSON_IsString(item))
+            o->token = item->valuestring;
+        else if (strcmp(k, "http_port") == 0 && cJSON_IsNumber(item) && item->valueint >= 0 &&
+                 item->valueint <= 65535 && item->valuedouble == item->valueint)
+            o->http_port = item->valueint;
+        else if (strcmp(k, "ws_port") == 0 && cJSON_IsNumber(item) && item->valueint >= 0 &&
+                 item->valueint <= 65535 && item->valuedouble == item->valueint)
+            o->ws_port = item->valueint;
+        else if (strcmp(k, "bind_any") == 0 && cJSON_IsBool(item))
+            o->bind_any = cJSON_IsTrue(item);
+        else if (strcmp(k, "demo_actors") == 0 && cJSON_IsNumber(item) && item->valueint >= 0 &&
+                 item->valueint <= 256)
+            o->demo_actors = item->valueint;
+        else if (strcmp(k, "tick_hz") == 0 && cJSON_IsNumber(item) && item->valuedouble >= 1 &&
+                 item->valuedouble <= 1000)
+            o->tick_hz = item->valuedouble;
+        else if (strcmp(k, "limits") == 0 && cJSON_IsObject(item)) {
+            const cJSON *l;
+            cJSON_ArrayForEach(l, item)
+            {
+                net_limits *m = &o->limits;
+                double v = l->valuedouble;
+                int good = cJSON_IsNumber(l) && v > 0 && v <= 1e12;
+                const char *lk = l->string;
+                if (good && strcmp(lk, "max_message_bytes") == 0)
+                    m->max_message_bytes = (size_t)v;
+                else if (good && strcmp(lk, "max_colliders") == 0)
+                    m->max_colliders = (int)v;
+                else if (good && strcmp(lk, "max_poses_per_batch") == 0)
+                    m->max_poses_per_batch = (int)v;
+                else if (good && strcmp(lk, "max_subscriptions") == 0)
+                    m->max_subscriptions = (int)v;
+                else if (good && strcmp(lk, "max_subscribed_cells") == 0)
+                    m->max_subscribed_cells = (int64_t)v;
+                else if (good && strcmp(lk, "max_messages_per_s") == 0)
+                    m->max_messages_per_s = v;
+                else if (good && strcmp(lk, "messages_burst") == 0)
+                    m->messages_burst = v;
+                else if (good && strcmp(lk, "max_pending_bytes") == 0)
+                    m->max_pending_bytes = (size_t)v;
+                else if (good && strcmp(lk, "hello_timeout_s") == 0)
+                    m->hello_timeout_s = v;
+                else {
+                    fprintf(stderr,
+                            "terrad serve: --config %s: limits.%s: unknown or not a positive "
+                            "number\n",
+                            path, lk);
+                    return -1;
+                }
+            }
+        } else
+            ok = 0;
+        if (!ok) {
+            fprintf(stderr, "terrad serve: --config %s: %s: unknown key or bad value\n", path, k);
+            return -1;
+        }
+    }
+    return 0;
+}
+
 static int parse_options(int argc, char **argv, serve_options *o)
 {
     memset(o, 0, sizeof *o);
     o->backend = "gl";
     o->http_port = 8080;
+    o->ws_port = 8081;
     o->demo_actors = 6;
     o->max_ticks = -1;
+    o->limits = net_limits_default();
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
         if (strcmp(a, "--no-demo") == 0) {
@@ -76,14 +182,31 @@ static int parse_options(int argc, char **argv, serve_options *o)
         }
         i++;
         long x;
-        if (strcmp(a, "--scene") == 0) {
+        if (strcmp(a, "--config") == 0) {
+            if (o->config) {
+                fprintf(stderr, "terrad serve: --config given twice\n");
+                return -1;
+            }
+            if (load_config(v, o) != 0)
+                return -1;
+        } else if (strcmp(a, "--scene") == 0) {
             o->scene_path = v;
         } else if (strcmp(a, "--backend") == 0) {
             o->backend = v;
+        } else if (strcmp(a, "--token") == 0) {
+            o->token = v;
         } else if (strcmp(a, "--http-port") == 0) {
             if (parse_int(a, v, 0, 65535, &x) != 0)
                 return -1;
             o->http_port = (int)x;
+        } else if (strcmp(a, "--ws-port") == 0) {
+            if (parse_int(a, v, 0, 65535, &x) != 0)
+                return -1;
+            o->ws_port = (int)x;
+        } else if (strcmp(a, "--tick-hz") == 0) {
+            if (parse_int(a, v, 1, 1000, &x) != 0)
+                return -1;
+            o->tick_hz = (double)x;
         } else if (strcmp(a, "--demo-actors") == 0) {
             if (parse_int(a, v, 0, 256, &x) != 0)
                 return -1;
@@ -172,22 +295,63 @@ static void sleep_until_ms(double deadline_ms)
     nanosleep(&ts, NULL);
 }
 
+static void publish_status(http_status *status, const service *svc, double tick_ms,
+                           uint64_t overruns, int clients, int colliders)
+{
+    pthread_mutex_lock(&status->lock);
+    status->tick = service_current_tick(svc);
+    status->volume = service_volume(svc);
+    status->last_tick_ms = tick_ms;
+    status->overruns = overruns;
+    status->clients = clients;
+    status->colliders = colliders;
+    pthread_mutex_unlock(&status->lock);
+}
+
+static void publish_metrics(const service_tick_stats *st, const sim_engine *engine,
+                            const service *svc, const world *w)
+{
+    const sim_stage_times *t = &st->report.times;
+    metrics_observe_tick_ms(st->tick_ms);
+    metrics_observe_stage_ms("depth", t->depth);
+    metrics_observe_stage_ms("classify", t->classify);
+    metrics_observe_stage_ms("jump_flood", t->jump_flood);
+    metrics_observe_stage_ms("displace", t->displace);
+    metrics_observe_stage_ms("even_slopes", t->even_slopes);
+    metrics_observe_stage_ms("transfer", t->transfer);
+    metrics_observe_stage_ms("gather_scatter", st->report.gather_scatter_ms);
+    metrics_set_tick(service_current_tick(svc));
+    metrics_set_volume(service_volume(svc));
+    metrics_set_active_cells(st->report.active_cells);
+    metrics_set_colliders(st->colliders);
+    if (st->report.refused_windows)
+        metrics_count_refused_windows((uint64_t)st->report.refused_windows);
+    metrics_set_memory_bytes("world_heights", (uint64_t)w->width * w->height * 4u);
+    metrics_set_memory_bytes("sim_scratch", engine->peak_scratch_bytes);
+}
+
 int app_serve(int argc, char **argv)
 {
     serve_options o;
-    if (parse_options(argc, argv, &o) != 0)
+    if (parse_options(argc, argv, &o) != 0) {
+        cJSON_Delete(o.config);
         return 2;
+    }
     error_text err = {{0}};
     scene sc;
     if ((o.scene_path ? scene_load_file(o.scene_path, &sc, &err) : scene_load_default(&sc, &err)) !=
         0) {
         log_error("%s", err.message);
+        cJSON_Delete(o.config);
         return 1;
     }
+    if (o.tick_hz > 0)
+        sc.tick_hz = o.tick_hz;
     world w;
     if (scene_create_world(&sc, &w, &err) != 0) {
         log_error("%s", err.message);
         scene_free(&sc);
+        cJSON_Delete(o.config);
         return 1;
     }
     http_status status;
@@ -197,6 +361,8 @@ int app_serve(int argc, char **argv)
     status.world_height = w.height;
     status.cell_size_m = w.cell_size_m;
     status.units_per_m = w.units_per_m;
+    status.tile_size = SERVICE_TILE_SIZE;
+    status.tick_hz = sc.tick_hz;
     status.volume = world_volume(&w);
 
     int rc = 1;
@@ -205,8 +371,17 @@ int app_serve(int argc, char **argv)
     sim_engine engine;
     memset(&engine, 0, sizeof engine);
     demo_actor *actors = NULL;
-    sim_collider *colliders = NULL;
-    http_server *http = http_server_start(o.http_port, o.bind_any, &status, &err);
+    sim_collider *extra = NULL;
+    service *svc = NULL;
+    net_server *net = NULL;
+    http_server *http = NULL;
+    char models[64];
+    hub *h = hub_create();
+    if (!h) {
+        log_error("serve: out of memory");
+        goto done;
+    }
+    http = http_server_start(o.http_port, o.bind_any, &status, h, &err);
     if (!http) {
         log_error("%s", err.message);
         goto done;
@@ -214,14 +389,34 @@ int app_serve(int argc, char **argv)
     if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
                                  &err) != 0 ||
         !(backend = app_backend_create(o.backend, &err)) ||
-        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0) {
+        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0 ||
+        !(svc = service_create(&engine, h, &err))) {
         log_error("%s", err.message);
         goto done;
     }
-    int count = sc.collider_count + o.demo_actors;
+    snprintf(models, sizeof models, "[\"persson-%s\"]", sim_method_name(params.method));
+    net_config nc = {.port = o.ws_port,
+                     .bind_any = o.bind_any,
+                     .token = o.token,
+                     .limits = o.limits,
+                     .world = {.width = w.width,
+                               .height = w.height,
+                               .cell_size_m = w.cell_size_m,
+                               .units_per_m = w.units_per_m,
+                               .tick_hz = sc.tick_hz,
+                               .tile_size = SERVICE_TILE_SIZE,
+                               .height_min = WORLD_HEIGHT_MIN,
+                               .height_max = WORLD_HEIGHT_MAX,
+                               .models_json = models,
+                               .materials_json = "[\"default\"]"}};
+    net = net_server_start(&nc, h, &err);
+    if (!net) {
+        log_error("%s", err.message);
+        goto done;
+    }
     actors = calloc((size_t)o.demo_actors + 1, sizeof *actors);
-    colliders = calloc((size_t)count + 1, sizeof *colliders);
-    if (!actors || !colliders) {
+    extra = calloc((size_t)o.demo_actors + 1, sizeof *extra);
+    if (!actors || !extra) {
         log_error("serve: out of memory");
         goto done;
     }
@@ -240,62 +435,60 @@ int app_serve(int argc, char **argv)
     sa.sa_handler = on_signal;
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
 
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
-             "http://127.0.0.1:%d/",
-             sc.name, w.width, w.height, backend->name, o.demo_actors, http_server_port(http));
+             "http://127.0.0.1:%d/ and ws://127.0.0.1:%d/",
+             sc.name, w.width, w.height, backend->name, o.demo_actors, http_server_port(http),
+             net_server_port(net));
     double period_ms = 1000.0 / sc.tick_hz;
     double next_ms = time_now_ms();
     uint64_t overruns = 0;
     for (long tick = 0; !stop_requested && (o.max_ticks < 0 || tick < o.max_ticks); tick++) {
         double t = (double)tick / sc.tick_hz;
-        for (int c = 0; c < sc.collider_count; c++) {
-            colliders[c].id = c;
-            colliders[c].geometry = &sc.colliders[c].geometry;
-            colliders[c].previous_pose = colliders[c].pose;
-            colliders[c].pose = collider_motion_pose(&sc.colliders[c].motion, t);
-            colliders[c].has_previous = tick > 0;
-        }
         for (int a = 0; a < o.demo_actors; a++) {
-            sim_collider *c = &colliders[sc.collider_count + a];
-            c->id = sc.collider_count + a;
+            sim_collider *c = &extra[a];
+            c->id = (int)(0x80000000u + (unsigned)a);
             c->geometry = &actors[a].geometry;
             c->previous_pose = c->pose;
             c->pose = demo_actor_step(&actors[a], &w, 1.0 / sc.tick_hz, t);
             c->has_previous = tick > 0;
         }
-        double t0 = time_now_ms();
-        sim_tick_report report;
-        if (sim_engine_tick(&engine, colliders, count, &report, &err) != 0) {
+        service_tick_stats st;
+        if (service_tick(svc, extra, o.demo_actors, &st, &err) != 0) {
             log_error("tick %ld: %s", tick, err.message);
             goto done;
         }
-        double elapsed = time_now_ms() - t0;
-        if (elapsed > period_ms)
+        if (st.tick_ms > period_ms) {
             overruns++;
-        pthread_mutex_lock(&status.lock);
-        status.tick = (uint64_t)tick + 1;
-        status.volume = world_volume(&w);
-        status.last_tick_ms = elapsed;
-        status.overruns = overruns;
-        pthread_mutex_unlock(&status.lock);
+            metrics_count_tick_overrun();
+        }
+        publish_status(&status, svc, st.tick_ms, overruns, net_server_client_count(net),
+                       st.colliders);
+        publish_metrics(&st, &engine, svc, &w);
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
         sleep_until_ms(next_ms);
     }
-    log_info("stopping after tick %llu (%llu overruns)", (unsigned long long)status.tick,
-             (unsigned long long)overruns);
+    log_info("stopping after tick %llu (%llu overruns)",
+             (unsigned long long)service_current_tick(svc), (unsigned long long)overruns);
     rc = 0;
 done:
+    if (h)
+        hub_close_reads(h);
+    net_server_stop(net);
     http_server_stop(http);
-    free(colliders);
+    service_destroy(svc);
+    free(extra);
     free(actors);
     sim_engine_free(&engine);
     if (backend)
         backend->destroy(backend);
+    hub_destroy(h);
     world_free(&w);
     scene_free(&sc);
     pthread_mutex_destroy(&status.lock);
+    cJSON_Delete(o.config);
     return rc;
 }

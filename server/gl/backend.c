@@ -1,28 +1,35 @@
 /*
  * backend.c: the GL backend of the deformation pipeline (sim.h). It runs all
  * windows of a tick as one batch, with one draw per collider and one compute
- * dispatch per stage for the whole batch:
+ * dispatch per stage (per step or iteration) for the whole batch:
  *
- *   upload     heights (and uploaded bottoms) into flat per-cell buffers
- *   depth      colliders rasterised into a depth atlas, then depth → bottom
- *   classify   classify.comp (also heights -= raw, jump-flood init)
- *   jump_flood jump_flood.comp, once per step size, ping-pong
- *   displace   displace_ssbo/multi.comp + displace_land.comp, or
- *              displace_iterative_init/pass.../finish.comp
+ *   upload      heights (and uploaded bottoms) into flat per-cell buffers
+ *   depth       colliders rasterised into a depth atlas, then depth → bottom
+ *   classify    classify.comp (also heights -= raw, jump-flood init)
+ *   jump_flood  jump_flood.comp, once per step size, ping-pong
+ *   displace    displace_ssbo/multi.comp + displace_land.comp, or
+ *               displace_iterative_init/pass.../finish.comp
  *   even_slopes even_slopes.comp per iteration, ping-pong
- *   readback   window status flags, then the heights of accepted windows
+ *   readback    window status flags, then the heights of accepted windows
  *
  * Layout: window i of the batch owns cells [offset_i, offset_i + w_i*h_i)
- * of every per-cell buffer, row-major; a small window table (offset, corner,
- * size, atlas slot, depth range) lets each invocation find its window by
- * binary search. Buffers grow by doubling to the largest batch seen, so
- * scratch memory follows active cells, never the world's size. A batch
- * larger than one shader storage block allows is run in several chunks.
+ * of every per-cell buffer, row-major. A batch table lists the windows
+ * (offset, corner, size, atlas slot, depth range) and then every 8x8 tile of
+ * every window; a dispatch runs one workgroup per tile, so an invocation
+ * finds its window and cell from one fetch (common.glsl). Passes read
+ * through buffer textures and write through storage buffers, with a
+ * glMemoryBarrier after every pass. Buffers grow by doubling to the largest
+ * batch seen, so scratch memory follows active cells, never the world's
+ * size; a batch larger than one storage block allows runs in chunks.
  *
  * The depth atlas is one GL_DEPTH_COMPONENT32F texture; windows are packed
  * into it by shelves (tallest first). If a batch does not fit the largest
  * texture, it is rasterised in several rounds, each converted to bottoms
  * before the next clears the atlas.
+ *
+ * Stage times: with stage timing on, glFinish ends every stage, so each
+ * time is the GPU's. Off, a stage's time is only what it took to submit,
+ * and the wait for the GPU lands in "transfer" with the readback.
  *
  * Everything after depth is integer-only and mirrors sim_stages.c exactly
  * (tests/unit/test_gl.c checks bit-equality with the CPU twin).
@@ -36,7 +43,7 @@
 
 /* Per-cell buffers. The stage scratch S0..S3 is reused across stages:
  * single/multi: S0 = received low words, S1 = high words;
- * iterative: S0 = mask, S1/S2 = transit ping-pong, S3 = deposit;
+ * iterative: S0/S2 = mask words, S1/S3 = shares (ping-pong pairs);
  * slope evening: S0 is the other half of the heights ping-pong. */
 enum {
     BUF_HEIGHTS,
@@ -377,8 +384,8 @@ static int ensure_atlas(gl_backend *b, int w, int h, error_text *err)
     b->atlas_w = nw;
     b->atlas_h = nh;
     if (fb != GL_FRAMEBUFFER_COMPLETE) {
-        error_set(err, "gl backend: depth atlas %dx%d is not a complete framebuffer (0x%04x)",
-                  nw, nh, (unsigned)fb);
+        error_set(err, "gl backend: depth atlas %dx%d is not a complete framebuffer (0x%04x)", nw,
+                  nh, (unsigned)fb);
         return -1;
     }
     return check_gl("allocating the depth atlas", err);
@@ -419,8 +426,8 @@ static geometry_entry *geometry_find(gl_backend *b, const collider_geometry *g, 
     glGenBuffers(1, &e->ebo);
     glBindVertexArray(e->vao);
     glBindBuffer(GL_ARRAY_BUFFER, e->vbo);
-    glBufferData(GL_ARRAY_BUFFER, (GLsizeiptr)((size_t)vertex_count * 3 * sizeof(float)),
-                 vertices, GL_STATIC_DRAW);
+    glBufferData(GL_ARRAY_BUFFER, (GLsizeiptr)((size_t)vertex_count * 3 * sizeof(float)), vertices,
+                 GL_STATIC_DRAW);
     glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, e->ebo);
     glBufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)((size_t)index_count * sizeof(uint32_t)),
                  indices, GL_STATIC_DRAW);
@@ -476,7 +483,8 @@ static void window_mvp(const sim_window_job *job, collider_pose pose, float out[
     double x0 = job->rect.x * cs, y0 = job->rect.y * cs;
     double sx = 2.0 / (job->rect.w * cs), sy = 2.0 / (job->rect.h * cs);
     double zl = job->depth_low / upm;
-    double zh = job->depth_high > job->depth_low ? job->depth_high / upm : (job->depth_low + 1) / upm;
+    double zh =
+        job->depth_high > job->depth_low ? job->depth_high / upm : (job->depth_low + 1) / upm;
     double sz = 2.0 / (zh - zl);
     double scale[3] = {sx, sy, sz};
     double shift[3] = {sx * (pose.position.x - x0) - 1.0, sy * (pose.position.y - y0) - 1.0,
@@ -562,8 +570,7 @@ static int pack_atlas(gl_backend *b, const sim_window_job *jobs, int count, int 
     return rounds;
 }
 
-static int run_depth(gl_backend *b, sim_window_job *jobs, int count, int rounds,
-                     error_text *err)
+static int run_depth(gl_backend *b, sim_window_job *jobs, int count, int rounds, error_text *err)
 {
     glBindFramebuffer(GL_FRAMEBUFFER, b->fbo);
     glEnable(GL_DEPTH_TEST);
@@ -666,27 +673,31 @@ static int run_jump_flood(gl_backend *b, int max_side)
 static void run_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed)
 {
     if (p->method == SIM_METHOD_ITERATIVE) {
-        int mask = BUF_S0, transit = BUF_S1, next = BUF_S2, deposit = BUF_S3;
+        /* mask words (with the split's remainder) and shares, ping-pong;
+         * see displace_iterative_init.comp */
+        int mask = BUF_S0, share = BUF_S1, mask_next = BUF_S2, share_next = BUF_S3;
         sample(b, 1, BUF_CLS);
         sample(b, 2, seed);
         sample(b, 3, BUF_MOVED);
         bind(b, 2, mask);
-        bind(b, 3, transit);
-        bind(b, 4, deposit);
+        bind(b, 3, share);
         dispatch(b, PROG_ITER_INIT);
         for (int32_t pass = 0; pass < p->displace_iterations; pass++) {
             sample(b, 1, BUF_CLS);
             sample(b, 2, mask);
-            sample(b, 3, transit);
-            bind(b, 2, next);
-            bind(b, 3, deposit);
+            sample(b, 3, share);
+            bind(b, 2, mask_next);
+            bind(b, 3, share_next);
             dispatch(b, PROG_ITER_PASS);
-            int t = transit;
-            transit = next;
-            next = t;
+            int t = mask;
+            mask = mask_next;
+            mask_next = t;
+            t = share;
+            share = share_next;
+            share_next = t;
         }
-        sample(b, 1, transit);
-        sample(b, 2, deposit);
+        sample(b, 1, mask);
+        sample(b, 2, share);
         bind(b, 2, BUF_HEIGHTS);
         dispatch(b, PROG_ITER_FINISH);
         return;
@@ -872,9 +883,10 @@ static int gl_run_windows(sim_backend *base, const sim_params *p, sim_window_job
             return -1;
         }
         if ((int64_t)r.w * r.h > b->max_chunk_cells) {
-            error_set(err, "gl backend: window %d has %lld cells, more than one storage block "
-                      "holds here (%lld)", i, (long long)r.w * r.h,
-                      (long long)b->max_chunk_cells);
+            error_set(err,
+                      "gl backend: window %d has %lld cells, more than one storage block "
+                      "holds here (%lld)",
+                      i, (long long)r.w * r.h, (long long)b->max_chunk_cells);
             return -1;
         }
     }
@@ -901,6 +913,17 @@ void sim_backend_gl_set_stage_timing(sim_backend *base, int on)
 {
     if (base && base->name && strcmp(base->name, "gl") == 0)
         ((gl_backend *)base)->stage_timing = on != 0;
+}
+
+void sim_backend_gl_set_limits(sim_backend *base, int atlas_side, int64_t chunk_cells)
+{
+    if (!base || !base->name || strcmp(base->name, "gl") != 0)
+        return;
+    gl_backend *b = (gl_backend *)base;
+    if (atlas_side > 0 && atlas_side < b->max_texture_size)
+        b->max_texture_size = atlas_side;
+    if (chunk_cells > 0 && chunk_cells < b->max_chunk_cells)
+        b->max_chunk_cells = chunk_cells;
 }
 
 static void gl_destroy(sim_backend *base)
@@ -994,6 +1017,10 @@ sim_backend *sim_backend_gl_create(error_text *err)
     glGenFramebuffers(1, &b->fbo);
     if (check_gl("creating the backend", err) != 0)
         goto fail;
+    /* Whichever thread runs the first batch makes the context current there
+     * (a context can be current on one thread only): the backend may be
+     * created on one thread and driven by the sim thread. */
+    gl_context_release(b->context);
     return &b->base;
 fail:
     gl_destroy(&b->base);

@@ -47,17 +47,28 @@ static int has_word(const char *list, const char *word)
 static const char *egl_error_name(EGLint e)
 {
     switch (e) {
-    case EGL_SUCCESS: return "EGL_SUCCESS";
-    case EGL_NOT_INITIALIZED: return "EGL_NOT_INITIALIZED";
-    case EGL_BAD_ACCESS: return "EGL_BAD_ACCESS";
-    case EGL_BAD_ALLOC: return "EGL_BAD_ALLOC";
-    case EGL_BAD_ATTRIBUTE: return "EGL_BAD_ATTRIBUTE";
-    case EGL_BAD_CONFIG: return "EGL_BAD_CONFIG";
-    case EGL_BAD_CONTEXT: return "EGL_BAD_CONTEXT";
-    case EGL_BAD_DISPLAY: return "EGL_BAD_DISPLAY";
-    case EGL_BAD_MATCH: return "EGL_BAD_MATCH";
-    case EGL_BAD_PARAMETER: return "EGL_BAD_PARAMETER";
-    default: return "EGL error";
+    case EGL_SUCCESS:
+        return "EGL_SUCCESS";
+    case EGL_NOT_INITIALIZED:
+        return "EGL_NOT_INITIALIZED";
+    case EGL_BAD_ACCESS:
+        return "EGL_BAD_ACCESS";
+    case EGL_BAD_ALLOC:
+        return "EGL_BAD_ALLOC";
+    case EGL_BAD_ATTRIBUTE:
+        return "EGL_BAD_ATTRIBUTE";
+    case EGL_BAD_CONFIG:
+        return "EGL_BAD_CONFIG";
+    case EGL_BAD_CONTEXT:
+        return "EGL_BAD_CONTEXT";
+    case EGL_BAD_DISPLAY:
+        return "EGL_BAD_DISPLAY";
+    case EGL_BAD_MATCH:
+        return "EGL_BAD_MATCH";
+    case EGL_BAD_PARAMETER:
+        return "EGL_BAD_PARAMETER";
+    default:
+        return "EGL error";
     }
 }
 
@@ -74,7 +85,10 @@ static gl_context *try_display(EGLDisplay dpy, const char *label, error_text *wh
         return NULL;
     }
     if (!eglInitialize(dpy, &major, &minor)) {
-        error_set(why, "gl: %s: eglInitialize failed (%s)", label, egl_error_name(eglGetError()));
+        error_set(why,
+                  "gl: %s: eglInitialize failed (%s): no usable driver (install "
+                  "libgl1-mesa-dri, or the GPU's driver)",
+                  label, egl_error_name(eglGetError()));
         return NULL;
     }
     EGLContext ctx = EGL_NO_CONTEXT;
@@ -88,11 +102,13 @@ static gl_context *try_display(EGLDisplay dpy, const char *label, error_text *wh
     }
     /* EGL_SURFACE_TYPE 0: no surface of any kind is needed (the default
      * would be EGL_WINDOW_BIT, which a surfaceless display never offers). */
+    /* clang-format off */
     const EGLint config_attribs[] = {
         EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT,
         EGL_SURFACE_TYPE, 0,
         EGL_NONE,
     };
+    /* clang-format on */
     EGLConfig config = NULL;
     EGLint config_count = 0;
     if (!eglChooseConfig(dpy, config_attribs, &config, 1, &config_count) || config_count < 1) {
@@ -105,17 +121,21 @@ static gl_context *try_display(EGLDisplay dpy, const char *label, error_text *wh
     }
     /* The newest core version first; compute shaders need 4.3. */
     for (int v = 6; v >= 3 && ctx == EGL_NO_CONTEXT; v--) {
+        /* clang-format off */
         const EGLint ctx_attribs[] = {
             EGL_CONTEXT_MAJOR_VERSION, 4,
             EGL_CONTEXT_MINOR_VERSION, v,
             EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
             EGL_NONE,
         };
+        /* clang-format on */
         ctx = eglCreateContext(dpy, config, EGL_NO_CONTEXT, ctx_attribs);
     }
     if (ctx == EGL_NO_CONTEXT) {
-        error_set(why, "gl: %s: no OpenGL 4.3+ core context (the driver offers less; "
-                  "compute shaders need 4.3)", label);
+        error_set(why,
+                  "gl: %s: no OpenGL 4.3+ core context (the driver offers less; "
+                  "compute shaders need 4.3)",
+                  label);
         goto fail;
     }
     if (!eglMakeCurrent(dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, ctx)) {
@@ -202,24 +222,24 @@ gl_context *gl_context_create(error_text *err)
     }
     if (!client) {
         error_set(err, "gl: no EGL client extensions: libEGL is missing or too old "
-                  "(install libegl1 and libegl-mesa0)");
+                       "(install libegl1 and libegl-mesa0)");
         return NULL;
     }
     int has_base = has_word(client, "EGL_EXT_platform_base");
-    int has_enum = has_word(client, "EGL_EXT_device_enumeration") ||
-                   has_word(client, "EGL_EXT_device_base");
+    int has_enum =
+        has_word(client, "EGL_EXT_device_enumeration") || has_word(client, "EGL_EXT_device_base");
     int has_device = has_base && has_enum && has_word(client, "EGL_EXT_platform_device");
     int has_surfaceless = has_base && has_word(client, "EGL_MESA_platform_surfaceless");
     if ((!want_device || !has_device) && (!want_surfaceless || !has_surfaceless)) {
         if (!want_surfaceless)
             error_set(err, "gl: no EGL display: EGL_EXT_platform_device is not available "
-                      "(TERRAD_EGL_PLATFORM=device; install the GPU's EGL driver)");
+                           "(TERRAD_EGL_PLATFORM=device; install the GPU's EGL driver)");
         else if (!want_device)
             error_set(err, "gl: no EGL display: EGL_MESA_platform_surfaceless is not available "
-                      "(TERRAD_EGL_PLATFORM=surfaceless; install libegl-mesa0)");
+                           "(TERRAD_EGL_PLATFORM=surfaceless; install libegl-mesa0)");
         else
             error_set(err, "gl: no EGL display: neither EGL_EXT_platform_device nor "
-                      "EGL_MESA_platform_surfaceless is available (install libegl-mesa0)");
+                           "EGL_MESA_platform_surfaceless is available (install libegl-mesa0)");
         return NULL;
     }
 
@@ -243,7 +263,7 @@ gl_context *gl_context_create(error_text *err)
             *err = first;
         else
             error_set(err, "gl: no EGL device offers OpenGL (install libegl-mesa0 and "
-                      "libgl1-mesa-dri, or the GPU's EGL driver)");
+                           "libgl1-mesa-dri, or the GPU's EGL driver)");
         return NULL;
     }
     log_info("gl: renderer %s, version %s", c->renderer, c->version);
@@ -260,13 +280,20 @@ const char *gl_context_version(const gl_context *c)
     return c->version;
 }
 
+/*
+ * The display stays initialised: an EGL display is one per process and
+ * platform, shared by every context on it, so eglTerminate here would pull
+ * it from under any other context (a test's probe context and a backend's,
+ * say). It also makes Mesa unload its driver with a few allocations never
+ * freed, which leak checkers then report against us.
+ */
 void gl_context_destroy(gl_context *c)
 {
     if (!c)
         return;
-    eglMakeCurrent(c->display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+    if (eglGetCurrentContext() == c->context)
+        eglMakeCurrent(c->display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
     eglDestroyContext(c->display, c->context);
-    eglTerminate(c->display);
     eglReleaseThread();
     free(c);
 }
@@ -280,4 +307,10 @@ int gl_context_make_current(gl_context *c, error_text *err)
         return -1;
     }
     return 0;
+}
+
+void gl_context_release(gl_context *c)
+{
+    if (eglGetCurrentContext() == c->context)
+        eglMakeCurrent(c->display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
 }

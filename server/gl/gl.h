@@ -5,7 +5,9 @@
  * GL backend of the deformation pipeline (sim.h), whose compute shaders
  * mirror the CPU twin's integer stages exactly.
  *
- * Only the sim thread may call into this subsystem: it owns the context.
+ * Only the sim thread may call into this subsystem: it owns the context. (A
+ * backend may be created on another thread; the first batch makes the
+ * context current on the thread that runs it, which keeps it.)
  */
 #ifndef TERRAD_GL_H
 #define TERRAD_GL_H
@@ -30,7 +32,16 @@ void gl_context_destroy(gl_context *c);
 sim_backend *sim_backend_gl_create(error_text *err);
 
 /* With timing on, the backend waits for the GPU after every stage (glFinish)
- * so per-stage times are real; off, it waits once per batch. */
+ * so per-stage times are real; off (the default), it waits once per batch,
+ * stage times are submission times and the wait is counted as transfer. */
 void sim_backend_gl_set_stage_timing(sim_backend *b, int on);
+
+/*
+ * Tests only: pretend the driver's limits are smaller, so that small batches
+ * take the paths big ones need — a depth atlas of at most atlas_side texels
+ * a side (several raster rounds) and at most chunk_cells cells per chunk
+ * (several chunks per batch). 0 keeps the driver's value.
+ */
+void sim_backend_gl_set_limits(sim_backend *b, int atlas_side, int64_t chunk_cells);
 
 #endif

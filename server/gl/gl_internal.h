@@ -12,6 +12,8 @@
 
 /* Make c current on the calling thread if it is not already. */
 int gl_context_make_current(gl_context *c, error_text *err);
+/* Let go of c on this thread, so that another thread can make it current. */
+void gl_context_release(gl_context *c);
 
 /*
  * Programs from the embedded shaders/ files ("shaders/classify.comp"). A

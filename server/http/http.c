@@ -1,36 +1,501 @@
 /*
- * http.c: GET /healthz, /readyz, /v1/world and /v1/stats on libmicrohttpd.
- * Handlers answer from the published http_status only, so a slow or hostile
- * HTTP client can never stall a tick. Connection limits and timeouts keep a
- * flood of idle sockets from holding the server.
+ * http.c: the HTTP endpoints (see http.h) on libmicrohttpd.
+ *
+ * How it fits the tick: nothing here runs on the sim thread or touches the
+ * GL context. Probes, /v1/world and /v1/stats answer from the http_status
+ * block the sim thread publishes after each tick; /metrics renders the
+ * process-wide atomics; /v1/heights queues a read in the hub, which the sim
+ * thread serves between two ticks, so the answer is the heights as of the
+ * end of one named tick (X-Terrad-Tick) and a tick never waits on HTTP.
+ *
+ * libmicrohttpd runs a pool of four polling threads: a heights read blocks
+ * its thread for up to one tick (or the timeout), and the other three keep
+ * answering probes meanwhile. Connection, per-IP, memory and idle-time limits
+ * keep a flood of slow sockets from holding the server; bodies, long query
+ * strings and methods other than GET/HEAD are refused before any work.
+ *
+ * Every request takes two calls of the access handler: the first only marks
+ * the request, the second answers. Answering on the first call makes
+ * libmicrohttpd 0.9.75 send "Connection: close" (shared notes), which would
+ * break keep-alive for probes and the viewer.
  */
 #include "http/http.h"
 
 #include <arpa/inet.h>
+#include <limits.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
+#include <png.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
+
+#include "base/embedded.h"
+#include "metrics/metrics.h"
+
+#define ALLOWED_METHODS "GET, HEAD"
 
 struct http_server {
     struct MHD_Daemon *daemon;
     http_status *status;
+    hub *heights;
+    http_limits limits;
     int port;
 };
+
+/* Per-request state, created by the URI log callback (which sees the raw
+ * request target before libmicrohttpd splits and unescapes it) and freed
+ * when the request completes. */
+typedef struct request {
+    int seen;         /* the first handler call has happened */
+    int body;         /* body bytes arrived: refused with 413 */
+    size_t query_len; /* bytes after '?' in the raw target */
+    int raw_nul;      /* "%00" in the raw target */
+} request;
+
+/* ---- responses ---- */
+
+static enum MHD_Result queue(struct MHD_Connection *c, unsigned code, struct MHD_Response *r)
+{
+    if (!r)
+        return MHD_NO;
+    MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
+    enum MHD_Result ok = MHD_queue_response(c, code, r);
+    MHD_destroy_response(r);
+    return ok;
+}
+
+static struct MHD_Response *text_response(const char *type, const char *body)
+{
+    struct MHD_Response *r =
+        MHD_create_response_from_buffer(strlen(body), (void *)body, MHD_RESPMEM_MUST_COPY);
+    if (r) {
+        MHD_add_response_header(r, "Content-Type", type);
+        MHD_add_response_header(r, "Cache-Control", "no-store");
+    }
+    return r;
+}
 
 static enum MHD_Result respond(struct MHD_Connection *c, unsigned code, const char *type,
                                const char *body)
 {
+    return queue(c, code, text_response(type, body));
+}
+
+/* Copy s into out as the inside of a JSON string (quotes and control
+ * characters escaped; bounded, long input is cut). */
+static void json_escape(const char *s, char *out, size_t cap)
+{
+    size_t o = 0;
+    for (; *s && o + 7 < cap; s++) {
+        unsigned char ch = (unsigned char)*s;
+        if (ch == '"' || ch == '\\') {
+            out[o++] = '\\';
+            out[o++] = (char)ch;
+        } else if (ch < 0x20) {
+            o += (size_t)snprintf(out + o, cap - o, "\\u%04x", ch);
+        } else {
+            out[o++] = (char)ch;
+        }
+    }
+    out[o] = '\0';
+}
+
+static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned code, const char *fmt, ...)
+{
+    char message[512], escaped[1100], body[1200];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(message, sizeof message, fmt, ap);
+    va_end(ap);
+    json_escape(message, escaped, sizeof escaped);
+    snprintf(body, sizeof body, "{\"error\":\"%s\"}\n", escaped);
+    return respond(c, code, "application/json", body);
+}
+
+static enum MHD_Result respond_not_allowed(struct MHD_Connection *c, const char *method)
+{
+    char m[32];
+    json_escape(method, m, sizeof m);
+    char body[128];
+    snprintf(body, sizeof body, "{\"error\":\"method %s not allowed; use GET or HEAD\"}\n", m);
+    struct MHD_Response *r = text_response("application/json", body);
+    if (r)
+        MHD_add_response_header(r, "Allow", ALLOWED_METHODS);
+    return queue(c, MHD_HTTP_METHOD_NOT_ALLOWED, r);
+}
+
+/* ---- status views ---- */
+
+static void status_copy(http_server *s, http_status *snap)
+{
+    pthread_mutex_lock(&s->status->lock);
+    *snap = *s->status; /* the copied lock is never used */
+    pthread_mutex_unlock(&s->status->lock);
+}
+
+static enum MHD_Result serve_stats(struct MHD_Connection *c, const http_status *st)
+{
+    char body[512];
+    snprintf(body, sizeof body,
+             "{\"tick\":%llu,\"volume\":%lld,\"clients\":%d,\"colliders\":%d,"
+             "\"last_tick_ms\":%.3f,\"overruns\":%llu,\"ready\":%s}\n",
+             (unsigned long long)st->tick, (long long)st->volume, st->clients, st->colliders,
+             st->last_tick_ms, (unsigned long long)st->overruns, st->ready ? "true" : "false");
+    return respond(c, MHD_HTTP_OK, "application/json", body);
+}
+
+/* The shortest decimal that reads back as the same double ("0.05", not
+ * "0.050000000000000003"), so JSON readers see what the scene said. */
+static const char *json_double(double v, char *out, size_t cap)
+{
+    for (int digits = 15; digits <= 17; digits++) {
+        snprintf(out, cap, "%.*g", digits, v);
+        if (strtod(out, NULL) == v)
+            break;
+    }
+    return out;
+}
+
+static enum MHD_Result serve_world(struct MHD_Connection *c, const http_status *st)
+{
+    char renderer[600], backend[40], method[40], metric[40], body[1400];
+    char width_m[32], height_m[32], cell[32], hz[32];
+    json_escape(st->renderer, renderer, sizeof renderer);
+    json_escape(st->backend, backend, sizeof backend);
+    json_escape(st->method, method, sizeof method);
+    json_escape(st->metric, metric, sizeof metric);
+    /* width/height stay at the top level for existing clients; extent
+     * repeats them with the size in metres. */
+    snprintf(body, sizeof body,
+             "{\"width\":%d,\"height\":%d,"
+             "\"extent\":{\"width_cells\":%d,\"height_cells\":%d,\"width_m\":%s,"
+             "\"height_m\":%s},"
+             "\"cell_size_m\":%s,\"units_per_m\":%d,\"tick\":%llu,\"tick_hz\":%s,"
+             "\"tile_size\":%d,\"models\":[%s%s%s],\"metric\":\"%s\","
+             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s}\n",
+             st->world_width, st->world_height, st->world_width, st->world_height,
+             json_double(st->world_width * st->cell_size_m, width_m, sizeof width_m),
+             json_double(st->world_height * st->cell_size_m, height_m, sizeof height_m),
+             json_double(st->cell_size_m, cell, sizeof cell), st->units_per_m,
+             (unsigned long long)st->tick, json_double(st->tick_hz, hz, sizeof hz), st->tile_size,
+             method[0] ? "\"" : "", method, method[0] ? "\"" : "", metric, renderer, backend,
+             st->ready ? "true" : "false");
+    return respond(c, MHD_HTTP_OK, "application/json", body);
+}
+
+static enum MHD_Result serve_metrics(struct MHD_Connection *c)
+{
+    size_t len = 0;
+    char *text = metrics_render(&len);
+    if (!text)
+        return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "out of memory rendering metrics");
+    struct MHD_Response *r = MHD_create_response_from_buffer(len, text, MHD_RESPMEM_MUST_FREE);
+    if (!r) {
+        free(text);
+        return MHD_NO;
+    }
+    MHD_add_response_header(r, "Content-Type", "text/plain; version=0.0.4; charset=utf-8");
+    MHD_add_response_header(r, "Cache-Control", "no-store");
+    return queue(c, MHD_HTTP_OK, r);
+}
+
+/* ---- /v1/heights ---- */
+
+/* A query parameter as an int: 0, or -1 (missing) / -2 (not an integer). */
+static int param_int(struct MHD_Connection *c, const char *name, int *out)
+{
+    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, name);
+    if (!v || !*v)
+        return -1;
+    const char *p = v;
+    int negative = 0;
+    if (*p == '-') {
+        negative = 1;
+        p++;
+    }
+    if (!*p)
+        return -2;
+    long long x = 0;
+    for (; *p; p++) {
+        if (*p < '0' || *p > '9')
+            return -2;
+        x = x * 10 + (*p - '0');
+        if (x > INT_MAX)
+            return -2;
+    }
+    *out = (int)(negative ? -x : x);
+    return 0;
+}
+
+typedef struct png_memory {
+    unsigned char *data;
+    size_t len, cap;
+} png_memory;
+
+static void png_memory_write(png_structp png, png_bytep bytes, png_size_t n)
+{
+    png_memory *m = png_get_io_ptr(png);
+    if (m->len + n > m->cap) {
+        size_t cap = m->cap ? m->cap : 65536;
+        while (cap < m->len + n)
+            cap *= 2;
+        unsigned char *d = realloc(m->data, cap);
+        if (!d)
+            png_error(png, "out of memory");
+        m->data = d;
+        m->cap = cap;
+    }
+    memcpy(m->data + m->len, bytes, n);
+    m->len += n;
+}
+
+static void png_memory_flush(png_structp png)
+{
+    (void)png;
+}
+
+/* Heights → 16-bit greyscale PNG, value = clamp(h - offset, 0, 65535) with
+ * offset = the rectangle's minimum, so the image inverts exactly whenever the
+ * rectangle's range fits 16 bits (*clipped says whether it did). Returns 0,
+ * or -1 with out->data freed. */
+static int encode_png16(const int32_t *heights, int w, int h, int32_t *offset, int *clipped,
+                        png_memory *out)
+{
+    /* The offset and the clipped flag live behind the caller's pointers, not
+     * in locals, so nothing the rows loop changes is lost to a longjmp. */
+    size_t n = (size_t)w * (size_t)h;
+    int32_t min = INT32_MAX;
+    for (size_t i = 0; i < n; i++)
+        if (heights[i] < min)
+            min = heights[i];
+    *offset = min;
+    *clipped = 0;
+    out->data = NULL;
+    out->len = out->cap = 0;
+    unsigned char *row = malloc((size_t)w * 2);
+    if (!row)
+        return -1;
+    png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
+    png_infop info = png ? png_create_info_struct(png) : NULL;
+    if (!png || !info) {
+        png_destroy_write_struct(&png, NULL);
+        free(row);
+        return -1;
+    }
+    if (setjmp(png_jmpbuf(png))) {
+        png_destroy_write_struct(&png, &info);
+        free(row);
+        free(out->data);
+        out->data = NULL;
+        return -1;
+    }
+    png_set_write_fn(png, out, png_memory_write, png_memory_flush);
+    /* Speed over size: a 4-Mcell read should cost milliseconds, and height
+     * fields are smooth enough that the fastest level still compresses. */
+    png_set_compression_level(png, 1);
+    png_set_IHDR(png, info, (png_uint_32)w, (png_uint_32)h, 16, PNG_COLOR_TYPE_GRAY,
+                 PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+    png_write_info(png, info);
+    const int32_t lo = *offset;
+    for (int y = 0; y < h; y++) {
+        const int32_t *src = heights + (size_t)y * (size_t)w;
+        for (int x = 0; x < w; x++) {
+            int64_t v = (int64_t)src[x] - lo; /* ≥ 0 by the choice of lo */
+            if (v > 65535) {
+                v = 65535;
+                *clipped = 1;
+            }
+            row[2 * x] = (unsigned char)(v >> 8); /* PNG samples are big-endian */
+            row[2 * x + 1] = (unsigned char)(v & 0xff);
+        }
+        png_write_row(png, row);
+    }
+    png_write_end(png, NULL);
+    png_destroy_write_struct(&png, &info);
+    free(row);
+    return 0;
+}
+
+static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
+                                     const http_status *st)
+{
+    static const char *const names[4] = {"x", "y", "w", "h"};
+    int v[4];
+    for (int i = 0; i < 4; i++) {
+        int rc = param_int(c, names[i], &v[i]);
+        if (rc == -1)
+            return respond_error(c, MHD_HTTP_BAD_REQUEST,
+                                 "parameter %s is required (integer cells; "
+                                 "/v1/heights?x=&y=&w=&h=)",
+                                 names[i]);
+        if (rc == -2)
+            return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter %s must be a decimal integer",
+                                 names[i]);
+    }
+    world_rect r = {v[0], v[1], v[2], v[3]};
+    const char *format = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "format");
+    int png = 0;
+    if (format && strcmp(format, "png16") == 0)
+        png = 1;
+    else if (format && strcmp(format, "int32") != 0)
+        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter format must be int32 or png16");
+    if (r.w < 1)
+        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter w must be at least 1");
+    if (r.h < 1)
+        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter h must be at least 1");
+    int64_t cells = (int64_t)r.w * r.h;
+    if (cells > s->limits.heights_max_cells)
+        return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE,
+                             "rectangle of %d x %d = %lld cells exceeds the limit of %lld cells "
+                             "per request (heights_max_cells); read it in pieces",
+                             r.w, r.h, (long long)cells, (long long)s->limits.heights_max_cells);
+    if (!s->heights || st->world_width <= 0 || st->world_height <= 0)
+        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "heights are not available yet");
+    if (r.x < 0 || (int64_t)r.x + r.w > st->world_width)
+        return respond_error(c, MHD_HTTP_BAD_REQUEST,
+                             "parameters x and w: columns %d..%lld are outside the world "
+                             "(columns 0..%d)",
+                             r.x, (long long)r.x + r.w - 1, st->world_width - 1);
+    if (r.y < 0 || (int64_t)r.y + r.h > st->world_height)
+        return respond_error(c, MHD_HTTP_BAD_REQUEST,
+                             "parameters y and h: rows %d..%lld are outside the world "
+                             "(rows 0..%d)",
+                             r.y, (long long)r.y + r.h - 1, st->world_height - 1);
+
+    int32_t *heights = malloc((size_t)cells * sizeof *heights);
+    if (!heights)
+        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
+                             "out of memory for %lld cells; try a smaller rectangle",
+                             (long long)cells);
+    uint64_t tick = 0;
+    if (hub_read_heights(s->heights, r, heights, &tick, s->limits.heights_timeout_ms) != 0) {
+        free(heights);
+        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
+                             "the simulation did not serve the height read within %d ms "
+                             "(busy or shutting down); retry",
+                             s->limits.heights_timeout_ms);
+    }
+    char tick_text[32], rect_text[64], upm_text[32];
+    snprintf(tick_text, sizeof tick_text, "%llu", (unsigned long long)tick);
+    snprintf(rect_text, sizeof rect_text, "%d,%d,%d,%d", r.x, r.y, r.w, r.h);
+    snprintf(upm_text, sizeof upm_text, "%d", st->units_per_m);
+
+    struct MHD_Response *resp;
+    if (png) {
+        int32_t offset;
+        int clipped;
+        png_memory m;
+        int rc = encode_png16(heights, r.w, r.h, &offset, &clipped, &m);
+        free(heights);
+        if (rc != 0)
+            return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR,
+                                 "PNG encoding failed (out of memory?)");
+        resp = MHD_create_response_from_buffer(m.len, m.data, MHD_RESPMEM_MUST_FREE);
+        if (!resp) {
+            free(m.data);
+            return MHD_NO;
+        }
+        char offset_text[32];
+        snprintf(offset_text, sizeof offset_text, "%d", offset);
+        MHD_add_response_header(resp, "Content-Type", "image/png");
+        MHD_add_response_header(resp, "X-Terrad-Offset", offset_text);
+        MHD_add_response_header(resp, "X-Terrad-Clipped", clipped ? "1" : "0");
+    } else {
+        /* Little-endian on the wire whatever the host: rewrite in place
+         * (a no-op the compiler removes on x86 and arm64). */
+        unsigned char *b = (unsigned char *)heights;
+        for (int64_t i = 0; i < cells; i++) {
+            uint32_t u = (uint32_t)heights[i];
+            b[4 * i] = (unsigned char)u;
+            b[4 * i + 1] = (unsigned char)(u >> 8);
+            b[4 * i + 2] = (unsigned char)(u >> 16);
+            b[4 * i + 3] = (unsigned char)(u >> 24);
+        }
+        resp = MHD_create_response_from_buffer((size_t)cells * 4, heights, MHD_RESPMEM_MUST_FREE);
+        if (!resp) {
+            free(heights);
+            return MHD_NO;
+        }
+        MHD_add_response_header(resp, "Content-Type", "application/octet-stream");
+    }
+    MHD_add_response_header(resp, "Cache-Control", "no-store");
+    MHD_add_response_header(resp, "X-Terrad-Tick", tick_text);
+    MHD_add_response_header(resp, "X-Terrad-Rect", rect_text);
+    MHD_add_response_header(resp, "X-Terrad-Units-Per-Metre", upm_text);
+    return queue(c, MHD_HTTP_OK, resp);
+}
+
+/* ---- static files ---- */
+
+static const char *content_type(const char *name)
+{
+    static const struct {
+        const char *ext, *type;
+    } types[] = {
+        {".html", "text/html; charset=utf-8"},
+        {".js", "text/javascript; charset=utf-8"},
+        {".mjs", "text/javascript; charset=utf-8"},
+        {".css", "text/css; charset=utf-8"},
+        {".svg", "image/svg+xml"},
+        {".png", "image/png"},
+        {".json", "application/json"},
+    };
+    const char *dot = strrchr(name, '.');
+    if (dot)
+        for (size_t i = 0; i < sizeof types / sizeof types[0]; i++)
+            if (strcasecmp(dot, types[i].ext) == 0)
+                return types[i].type;
+    return "application/octet-stream";
+}
+
+static enum MHD_Result serve_static(struct MHD_Connection *c, const char *url)
+{
+    char name[512];
+    if (strcmp(url, "/") == 0)
+        snprintf(name, sizeof name, "web/index.html");
+    else if (snprintf(name, sizeof name, "web/%s", url + 1) >= (int)sizeof name)
+        return respond_error(c, MHD_HTTP_NOT_FOUND, "not found");
+    size_t size = 0;
+    const char *data = embedded_file_find(name, &size);
+    if (!data)
+        return respond_error(c, MHD_HTTP_NOT_FOUND, "not found");
+    /* The table is static: no copy. */
     struct MHD_Response *r =
-        MHD_create_response_from_buffer(strlen(body), (void *)body, MHD_RESPMEM_MUST_COPY);
+        MHD_create_response_from_buffer(size, (void *)data, MHD_RESPMEM_PERSISTENT);
     if (!r)
         return MHD_NO;
-    MHD_add_response_header(r, "Content-Type", type);
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    enum MHD_Result ok = MHD_queue_response(c, code, r);
-    MHD_destroy_response(r);
-    return ok;
+    MHD_add_response_header(r, "Content-Type", content_type(name));
+    /* The viewer changes with the binary: always revalidate. */
+    MHD_add_response_header(r, "Cache-Control", "no-cache");
+    return queue(c, MHD_HTTP_OK, r);
+}
+
+/* ---- dispatch ---- */
+
+/* 1 if the request announces a body (any body is refused). */
+static int announces_body(struct MHD_Connection *c)
+{
+    if (MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING))
+        return 1;
+    const char *len =
+        MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
+    if (!len)
+        return 0;
+    for (const char *p = len; *p; p++)
+        if (*p != '0' && *p != ' ' && *p != '\t')
+            return 1;
+    return 0;
+}
+
+static int method_allowed(const char *method)
+{
+    return strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
 }
 
 static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *url,
@@ -40,48 +505,75 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     (void)version;
     (void)upload;
     http_server *s = cls;
-    /* First call of a request: only mark it (queueing now would force
-     * "Connection: close" in libmicrohttpd 0.9.75, see shared notes). */
-    if (*state == NULL) {
-        *state = (void *)1;
+    request *rq = *state;
+    if (!rq) { /* the URI callback's allocation failed */
+        rq = calloc(1, sizeof *rq);
+        if (!rq)
+            return MHD_NO;
+        *state = rq;
+    }
+    if (!rq->seen) {
+        rq->seen = 1;
+        /* A body we will not read: answer now, which also closes the
+         * connection, rather than drain the body first. */
+        if (announces_body(c)) {
+            if (!method_allowed(method))
+                return respond_not_allowed(c, method);
+            return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE, "request bodies are not accepted");
+        }
         return MHD_YES;
     }
     if (*upload_size != 0) {
-        *upload_size = 0; /* no endpoint takes a body: drop it */
+        rq->body = 1;
+        *upload_size = 0; /* drop it; answered once the upload ends */
         return MHD_YES;
     }
-    if (strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0)
-        return respond(c, MHD_HTTP_METHOD_NOT_ALLOWED, "application/json",
-                       "{\"error\":\"method not allowed\"}\n");
-    char body[2048];
-    http_status *st = s->status;
-    pthread_mutex_lock(&st->lock);
-    http_status snap = *st;
-    pthread_mutex_unlock(&st->lock);
+    if (!method_allowed(method))
+        return respond_not_allowed(c, method);
+    if (rq->body)
+        return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE, "request bodies are not accepted");
+    if (rq->query_len > HTTP_MAX_QUERY_BYTES)
+        return respond_error(c, MHD_HTTP_URI_TOO_LONG,
+                             "query string of %zu bytes exceeds the limit of %d bytes",
+                             rq->query_len, HTTP_MAX_QUERY_BYTES);
+    if (rq->raw_nul || strstr(url, ".."))
+        return respond_error(c, MHD_HTTP_BAD_REQUEST, "path must not contain \"..\" or NUL");
+
     if (strcmp(url, "/healthz") == 0)
         return respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ok\n");
+    if (strcmp(url, "/metrics") == 0)
+        return serve_metrics(c);
+    http_status snap;
+    status_copy(s, &snap);
     if (strcmp(url, "/readyz") == 0)
         return snap.ready ? respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ready\n")
-                          : respond(c, MHD_HTTP_SERVICE_UNAVAILABLE, "text/plain; charset=utf-8",
-                                    "not ready\n");
-    if (strcmp(url, "/v1/stats") == 0) {
-        snprintf(body, sizeof body,
-                 "{\"tick\":%llu,\"volume\":%lld,\"last_tick_ms\":%.3f,\"overruns\":%llu}\n",
-                 (unsigned long long)snap.tick, (long long)snap.volume, snap.last_tick_ms,
-                 (unsigned long long)snap.overruns);
-        return respond(c, MHD_HTTP_OK, "application/json", body);
-    }
-    if (strcmp(url, "/v1/world") == 0) {
-        snprintf(body, sizeof body,
-                 "{\"width\":%d,\"height\":%d,\"cell_size_m\":%.17g,\"units_per_m\":%d,"
-                 "\"tick\":%llu,\"backend\":\"%s\",\"renderer\":\"%s\",\"models\":[\"%s\"],"
-                 "\"metric\":\"%s\"}\n",
-                 snap.world_width, snap.world_height, snap.cell_size_m, snap.units_per_m,
-                 (unsigned long long)snap.tick, snap.backend, snap.renderer, snap.method,
-                 snap.metric);
-        return respond(c, MHD_HTTP_OK, "application/json", body);
-    }
-    return respond(c, MHD_HTTP_NOT_FOUND, "application/json", "{\"error\":\"not found\"}\n");
+                          : respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
+                                          "not ready: the GL context or the world is not up");
+    if (strcmp(url, "/v1/stats") == 0)
+        return serve_stats(c, &snap);
+    if (strcmp(url, "/v1/world") == 0)
+        return serve_world(c, &snap);
+    if (strcmp(url, "/v1/heights") == 0)
+        return serve_heights(s, c, &snap);
+    return serve_static(c, url);
+}
+
+static void *request_begin(void *cls, const char *uri, struct MHD_Connection *c)
+{
+    (void)cls;
+    (void)c;
+    request *rq = calloc(1, sizeof *rq);
+    if (!rq)
+        return NULL;
+    const char *q = strchr(uri, '?');
+    size_t path_len = q ? (size_t)(q - uri) : strlen(uri);
+    rq->query_len = q ? strlen(q + 1) : 0;
+    /* An escaped NUL would cut the unescaped path short; look at the raw
+     * path for it before libmicrohttpd decodes it. */
+    for (size_t i = 0; i + 2 < path_len; i++)
+        if (uri[i] == '%' && uri[i + 1] == '0' && uri[i + 2] == '0')
+            rq->raw_nul = 1;
+    return rq;
 }
 
 static void request_done(void *cls, struct MHD_Connection *c, void **state,
@@ -90,10 +582,17 @@ static void request_done(void *cls, struct MHD_Connection *c, void **state,
     (void)cls;
     (void)c;
     (void)code;
+    free(*state);
     *state = NULL;
 }
 
-http_server *http_server_start(int port, int bind_any, http_status *status, error_text *err)
+static unsigned or_default(unsigned v, unsigned d)
+{
+    return v ? v : d;
+}
+
+http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
+                                       const http_limits *limits, error_text *err)
 {
     if (port < 0 || port > 65535) {
         error_set(err, "http: port %d out of range", port);
@@ -105,17 +604,31 @@ http_server *http_server_start(int port, int bind_any, http_status *status, erro
         return NULL;
     }
     s->status = status;
+    s->heights = heights;
+    http_limits l = limits ? *limits : (http_limits){0};
+    l.connections = or_default(l.connections, HTTP_DEFAULT_CONNECTIONS);
+    l.connections_per_ip = or_default(l.connections_per_ip, HTTP_DEFAULT_CONNECTIONS_PER_IP);
+    l.timeout_s = or_default(l.timeout_s, HTTP_DEFAULT_TIMEOUT_S);
+    if (!l.memory_per_connection)
+        l.memory_per_connection = HTTP_DEFAULT_MEMORY_PER_CONNECTION;
+    if (l.heights_timeout_ms <= 0)
+        l.heights_timeout_ms = HTTP_DEFAULT_HEIGHTS_TIMEOUT_MS;
+    if (l.heights_max_cells <= 0)
+        l.heights_max_cells = HTTP_DEFAULT_HEIGHTS_MAX_CELLS;
+    s->limits = l;
+
     struct sockaddr_in addr;
     memset(&addr, 0, sizeof addr);
     addr.sin_family = AF_INET;
     addr.sin_port = htons((uint16_t)port);
     addr.sin_addr.s_addr = htonl(bind_any ? INADDR_ANY : INADDR_LOOPBACK);
     s->daemon = MHD_start_daemon(
-        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO, (uint16_t)port, NULL, NULL,
-        handle, s, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr, MHD_OPTION_CONNECTION_LIMIT,
-        (unsigned)256, MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)64,
-        MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)10, MHD_OPTION_CONNECTION_MEMORY_LIMIT,
-        (size_t)65536, MHD_OPTION_NOTIFY_COMPLETED, request_done, s, MHD_OPTION_END);
+        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO, (uint16_t)port, NULL, NULL, handle, s,
+        MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr, MHD_OPTION_THREAD_POOL_SIZE, (unsigned)4,
+        MHD_OPTION_CONNECTION_LIMIT, l.connections, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
+        l.connections_per_ip, MHD_OPTION_CONNECTION_TIMEOUT, l.timeout_s,
+        MHD_OPTION_CONNECTION_MEMORY_LIMIT, l.memory_per_connection, MHD_OPTION_URI_LOG_CALLBACK,
+        request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s, MHD_OPTION_END);
     if (!s->daemon) {
         error_set(err, "http: cannot listen on port %d (in use or not permitted)", port);
         free(s);
@@ -124,6 +637,12 @@ http_server *http_server_start(int port, int bind_any, http_status *status, erro
     const union MHD_DaemonInfo *info = MHD_get_daemon_info(s->daemon, MHD_DAEMON_INFO_BIND_PORT);
     s->port = info ? info->port : port;
     return s;
+}
+
+http_server *http_server_start(int port, int bind_any, http_status *status, hub *heights,
+                               error_text *err)
+{
+    return http_server_start_limited(port, bind_any, status, heights, NULL, err);
 }
 
 int http_server_port(const http_server *s)

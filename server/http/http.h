@@ -1,39 +1,88 @@
 /*
  * http: the daemon's HTTP side on libmicrohttpd — liveness and readiness
- * probes and a few JSON views of the world. It runs on libmicrohttpd's own
- * thread and never touches the GL context: it reads a status block the sim
- * thread publishes under a mutex once per tick.
+ * probes, Prometheus metrics, JSON views of the world, height reads and the
+ * viewer's static files. It runs on libmicrohttpd's own threads and never
+ * touches the GL context: it reads a status block the sim thread publishes
+ * under a mutex once per tick, and asks the sim thread for heights through
+ * the hub (served between ticks, so a read never sees half a tick).
+ *
+ * Endpoints (GET and HEAD only; anything else is 405 with an Allow header):
+ *   /healthz          200 "ok" while the process serves at all
+ *   /readyz           200 "ready" once status.ready, else 503
+ *   /metrics          Prometheus text 0.0.4 (metrics_render)
+ *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
+ *                     models, renderer, backend
+ *   /v1/stats         JSON: tick, volume (exact integer), clients, colliders,
+ *                     last tick ms, overruns
+ *   /v1/heights?x=&y=&w=&h=[&format=int32|png16]
+ *                     int32 little-endian row-major (default) or a 16-bit
+ *                     greyscale PNG; headers X-Terrad-Tick, X-Terrad-Rect,
+ *                     and for png16 X-Terrad-Offset, X-Terrad-Units-Per-Metre,
+ *                     X-Terrad-Clipped
+ *   /, /<file>        the embedded web/ files ("/" is web/index.html)
+ * Every error is JSON {"error": "..."}.
  */
 #ifndef TERRAD_HTTP_H
 #define TERRAD_HTTP_H
 
 #include <pthread.h>
+#include <stddef.h>
 #include <stdint.h>
 
 #include "base/base.h"
+#include "hub/hub.h"
 
-/* What the sim thread publishes each tick for the probes. */
+/* What the sim thread publishes each tick. Fill the world fields before
+ * http_server_start; the rest under `lock` as they change. */
 typedef struct http_status {
     pthread_mutex_t lock;
-    int ready;          /* GL context (or CPU backend) up and the world loaded */
-    uint64_t tick;
-    int64_t volume;     /* Σh */
-    int world_width, world_height;
+    int ready;                     /* GL context (or CPU backend) up and the world loaded */
+    uint64_t tick;                 /* last completed tick */
+    int64_t volume;                /* Σh, exact */
+    int world_width, world_height; /* cells; /v1/heights validates against them */
     double cell_size_m;
     int32_t units_per_m;
+    int tile_size;  /* cells per tile side (deltas and fan-out) */
+    double tick_hz; /* configured tick rate; 0 = not reported */
+    int clients;    /* connected websocket clients */
+    int colliders;  /* live colliders (client and demo) */
     char renderer[256];
     char backend[16];
-    char method[16];
+    char method[16]; /* the model, e.g. "persson-single"; /v1/world "models" */
     char metric[16];
     double last_tick_ms;
     uint64_t overruns;
 } http_status;
 
+/* Limits against slow or hostile clients; a zero field takes the default. */
+typedef struct http_limits {
+    unsigned connections;         /* open connections in all (default 256) */
+    unsigned connections_per_ip;  /* default 64 */
+    unsigned timeout_s;           /* idle connection timeout (default 10) */
+    size_t memory_per_connection; /* request headers and state (default 64 KiB) */
+    int heights_timeout_ms;       /* wait for the sim thread, then 503 (default 2000) */
+    int64_t heights_max_cells;    /* w*h per /v1/heights, else 413 (default 4,194,304) */
+} http_limits;
+
+#define HTTP_DEFAULT_CONNECTIONS 256
+#define HTTP_DEFAULT_CONNECTIONS_PER_IP 64
+#define HTTP_DEFAULT_TIMEOUT_S 10
+#define HTTP_DEFAULT_MEMORY_PER_CONNECTION (64 * 1024)
+#define HTTP_DEFAULT_HEIGHTS_TIMEOUT_MS 2000
+#define HTTP_DEFAULT_HEIGHTS_MAX_CELLS (4 * 1024 * 1024)
+#define HTTP_MAX_QUERY_BYTES 1024
+
 typedef struct http_server http_server;
 
-/* Listen on 127.0.0.1 unless bind_any; port 0 picks a free one. */
-http_server *http_server_start(int port, int bind_any, http_status *status, error_text *err);
+/* Listen on 127.0.0.1 unless bind_any; port 0 picks a free one. status and
+ * heights must outlive the server; heights may be NULL (then /v1/heights is
+ * 503). Uses the default limits. */
+http_server *http_server_start(int port, int bind_any, http_status *status, hub *heights,
+                               error_text *err);
+/* The same with explicit limits (NULL = defaults). */
+http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
+                                       const http_limits *limits, error_text *err);
 int http_server_port(const http_server *s);
-void http_server_stop(http_server *s);
+void http_server_stop(http_server *s); /* NULL is fine */
 
 #endif

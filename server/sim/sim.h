@@ -196,6 +196,7 @@ typedef struct sim_tick_report {
     sim_stage_times times;
     double gather_scatter_ms;
     world_rect *dirty; /* tight rectangles of changed cells, one per changed window */
+    int *dirty_window; /* the window each dirty rectangle came from */
     int dirty_count;
 } sim_tick_report;
 
@@ -210,6 +211,8 @@ typedef struct sim_engine {
     sim_window_job *jobs;
     int *status;
     world_rect *dirty;
+    int *dirty_window;
+    int64_t *window_offsets; /* where each window starts in the packed arrays */
     int window_capacity;
     world_rect *footprints; /* per collider */
     int footprint_capacity;
@@ -227,6 +230,9 @@ int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *b
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);
 void sim_engine_free(sim_engine *e);
+/* After a tick: window i of the last tick, its heights before and after. */
+world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
+                             const int32_t **after);
 
 /*
  * Footprints → disjoint windows (exposed for tests). footprints[i] receives

@@ -165,12 +165,22 @@ void sim_engine_free(sim_engine *e)
     free(e->jobs);
     free(e->status);
     free(e->dirty);
+    free(e->dirty_window);
+    free(e->window_offsets);
     free(e->footprints);
     free(e->window_colliders);
     free(e->heights);
     free(e->before);
     free(e->bottom);
     memset(e, 0, sizeof *e);
+}
+
+world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
+                             const int32_t **after)
+{
+    *before = e->before + e->window_offsets[i];
+    *after = e->heights + e->window_offsets[i];
+    return e->windows[i];
 }
 
 /* Tight bounding box of the cells that differ; w == 0 when none does. */
@@ -224,8 +234,10 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
                          e->footprints, &windows, &count) != 0)
         goto oom;
     cap = e->window_capacity;
-    int64_t cap2 = cap, cap3 = cap, cap4 = cap;
+    int64_t cap2 = cap, cap3 = cap, cap4 = cap, cap5 = cap, cap6 = cap;
     if (grow((void **)&e->jobs, &cap, count + 1, sizeof *e->jobs) != 0 ||
+        grow((void **)&e->dirty_window, &cap5, count + 1, sizeof *e->dirty_window) != 0 ||
+        grow((void **)&e->window_offsets, &cap6, count + 1, sizeof *e->window_offsets) != 0 ||
         grow((void **)&e->status, &cap2, count + 1, sizeof *e->status) != 0 ||
         grow((void **)&e->dirty, &cap3, count + 1, sizeof *e->dirty) != 0 ||
         grow((void **)&e->windows, &cap4, count + 1, sizeof *e->windows) != 0) {
@@ -260,6 +272,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
         world_rect r = e->windows[i];
         sim_window_job *job = &e->jobs[i];
         memset(job, 0, sizeof *job);
+        e->window_offsets[i] = offset;
         job->rect = r;
         job->cell_size_m = w->cell_size_m;
         job->units_per_m = w->units_per_m;
@@ -303,6 +316,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
     double t_scatter = time_now_ms();
     offset = 0;
     report->dirty = e->dirty;
+    report->dirty_window = e->dirty_window;
     for (int i = 0; i < count; i++) {
         world_rect r = e->windows[i];
         int64_t n = (int64_t)r.w * r.h;
@@ -310,6 +324,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
             world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
             if (d.w > 0) {
                 world_scatter_window(w, r, e->heights + offset);
+                e->dirty_window[report->dirty_count] = i;
                 e->dirty[report->dirty_count++] = d;
             }
         } else {

@@ -21,6 +21,7 @@
 #include "sim/sim.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -317,7 +318,8 @@ sim_window_status sim_displace(const sim_params *p, int w, int h, const int32_t 
         heights[i] -= raw[i];
     if (p->method == SIM_METHOD_ITERATIVE)
         return displace_iterative(p, w, h, cls, seed, moved, heights, scratch);
-    int64_t *received = (int64_t *)(void *)scratch; /* 2*n int32 of scratch */
+    /* 2*n+1 int32 of scratch, rounded up to int64 alignment */
+    int64_t *received = (int64_t *)(void *)(((uintptr_t)scratch + 7) & ~(uintptr_t)7);
     memset(received, 0, (size_t)n * sizeof *received);
     if (p->method == SIM_METHOD_MULTI)
         displace_multi(p, w, h, cls, seed, moved, received);

@@ -1,4 +1,5 @@
 #!/usr/bin/python3
+# ctest-timeout: 1200
 """Offline runs of the real `terrad simulate` binary.
 
 - Σh is unchanged over 5,000 ticks of tests/scenes/thesis-car.json for every

@@ -83,7 +83,12 @@ static quatd axis_angle(double x, double y, double z, double degrees)
     return quat_from_axis_angle((vec3d){x, y, z}, degrees * M_PI / 180.0);
 }
 
-static void test_depth_raster(sim_backend *gl)
+/* The first run's GL bottoms, to compare the small-atlas run against. */
+static int32_t *depth_first_run[8];
+
+/* again == 0: raster vs analytic. again == 1: the same batch once more (after
+ * sim_backend_gl_set_limits has shrunk the atlas) gives the same bottoms. */
+static void test_depth_raster(sim_backend *gl, int again)
 {
     const double cell = 0.02;
     const int32_t upm = 10000;
@@ -128,8 +133,8 @@ static void test_depth_raster(sim_backend *gl)
             heights[k][i] = -20000; /* far below: nothing moves, only depth matters */
             bottom_cpu[k][i] = COLLIDER_BOTTOM_NONE;
         }
-        colliders[k] = (sim_collider){.id = k, .geometry = &cases[k].geometry,
-                                      .pose = cases[k].pose};
+        colliders[k] =
+            (sim_collider){.id = k, .geometry = &cases[k].geometry, .pose = cases[k].pose};
         collider_depth_cpu(&cases[k].geometry, cases[k].pose, r, cell, upm, bottom_cpu[k]);
         vec3d lo, hi;
         collider_bounds(&cases[k].geometry, cases[k].pose, &lo, &hi);
@@ -150,7 +155,25 @@ static void test_depth_raster(sim_backend *gl)
     error_text err = {{0}};
     sim_params_from_material(&m, cell, upm, -100000, &p, &err);
     int rc = gl->run_windows(gl, &p, jobs, CASES, status, &(sim_stage_times){0}, &err);
-    CHECK(rc == 0, "depth batch of %d windows runs (%s)", CASES, rc ? err.message : "ok");
+    /* the geometries live on this stack frame: the cache must not outlive it */
+    for (int k = 0; k < CASES; k++)
+        gl->forget_geometry(gl, &cases[k].geometry);
+    CHECK(rc == 0, "depth batch of %d windows runs%s (%s)", CASES, again ? " in a small atlas" : "",
+          rc ? err.message : "ok");
+    if (again) {
+        int same = 1;
+        for (int k = 0; k < CASES; k++) {
+            size_t bytes = (size_t)jobs[k].rect.w * jobs[k].rect.h * sizeof(int32_t);
+            same &= depth_first_run[k] && memcmp(depth_first_run[k], bottom_gl[k], bytes) == 0;
+            free(depth_first_run[k]);
+            depth_first_run[k] = NULL;
+            free(heights[k]);
+            free(bottom_gl[k]);
+            free(bottom_cpu[k]);
+        }
+        CHECK(same, "depth: several atlas rounds give the same bottoms as one");
+        return;
+    }
     for (int k = 0; k < CASES; k++) {
         int w = jobs[k].rect.w, h = jobs[k].rect.h;
         int covered_cpu = 0, covered_gl = 0, coverage_mismatch = 0, below = 0;
@@ -189,15 +212,15 @@ static void test_depth_raster(sim_backend *gl)
         /* steep parts of the lower surface magnify the chord error; allow 3x
          * the flat-surface sagitta there, which a wrong pose would exceed */
         CHECK(covered_cpu > 100 && coverage_mismatch == 0,
-              "depth %s: coverage %d cells (GL %d), %d mismatches away from the rim",
-              cases[k].name, covered_cpu, covered_gl, coverage_mismatch);
+              "depth %s: coverage %d cells (GL %d), %d mismatches away from the rim", cases[k].name,
+              covered_cpu, covered_gl, coverage_mismatch);
         CHECK(below == 0, "depth %s: raster never below the analytic surface (%d cells below)",
               cases[k].name, below);
         CHECK(worst <= 3 * cases[k].tolerance_units + 2,
               "depth %s: raster within %.1f units above analytic (worst %.1f)", cases[k].name,
               3 * cases[k].tolerance_units + 2, worst);
+        depth_first_run[k] = bottom_gl[k];
         free(heights[k]);
-        free(bottom_gl[k]);
         free(bottom_cpu[k]);
     }
 }
@@ -221,8 +244,8 @@ static void batch_free(batch *b)
 }
 
 static const int awkward_sizes[][2] = {
-    {1, 1}, {1, 7}, {9, 1}, {2, 2}, {3, 5}, {13, 11}, {16, 16}, {17, 9}, {31, 33}, {64, 5},
-    {6, 40}, {47, 29},
+    {1, 1},   {1, 7},  {9, 1},   {2, 2},  {3, 5},  {13, 11},
+    {16, 16}, {17, 9}, {31, 33}, {64, 5}, {6, 40}, {47, 29},
 };
 
 /*
@@ -231,15 +254,14 @@ static const int awkward_sizes[][2] = {
  * surface), uncovered cells, colliders deep below the floor, and per-cell
  * noise in the "mixed" style.
  */
-static void random_window(batch *b, int k, int w, int h, int32_t base, int32_t amplitude,
-                          int style)
+static void random_window(batch *b, int k, int w, int h, int32_t base, int32_t amplitude, int style)
 {
     int n = w * h;
     b->heights[k] = malloc((size_t)n * sizeof(int32_t));
     b->heights_cpu[k] = malloc((size_t)n * sizeof(int32_t));
     b->bottom[k] = malloc((size_t)n * sizeof(int32_t));
-    int32_t sx = rnd_range(-amplitude / 8, amplitude / 8), sy = rnd_range(-amplitude / 8,
-                                                                           amplitude / 8);
+    int32_t sx = rnd_range(-amplitude / 8, amplitude / 8),
+            sy = rnd_range(-amplitude / 8, amplitude / 8);
     int discs = 1 + (int)(rnd() % 3);
     int cx[3], cy[3], rad[3];
     int32_t press[3];
@@ -274,7 +296,7 @@ static void random_window(batch *b, int k, int w, int h, int32_t base, int32_t a
                 case 0:
                 case 1:
                     break; /* uncovered */
-                case 2: /* obstacle: a tiny gap above */
+                case 2:    /* obstacle: a tiny gap above */
                     bt = (int32_t)((int64_t)hh + rnd_range(0, 1200) > WORLD_HEIGHT_MAX + 1
                                        ? WORLD_HEIGHT_MAX + 1
                                        : hh + rnd_range(0, 1200));
@@ -325,8 +347,8 @@ static int compare_batch(sim_backend *gl, sim_backend *cpu, const sim_params *p,
     }
     for (int k = 0; k < b->count; k++) {
         if (st_gl[k] != st_cpu[k]) {
-            printf("FAIL %s: window %d (%dx%d) status gl %d cpu %d\n", label, k,
-                   b->jobs[k].rect.w, b->jobs[k].rect.h, st_gl[k], st_cpu[k]);
+            printf("FAIL %s: window %d (%dx%d) status gl %d cpu %d\n", label, k, b->jobs[k].rect.w,
+                   b->jobs[k].rect.h, st_gl[k], st_cpu[k]);
             return -1;
         }
         if (st_cpu[k] != SIM_WINDOW_OK) {
@@ -368,23 +390,25 @@ static sim_params random_params(sim_method method, sim_metric metric, int32_t fl
     return p;
 }
 
-static void test_bit_exact(sim_backend *gl, sim_backend *cpu)
+static void test_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds, int big_first)
 {
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO,
-                                          SIM_METHOD_MULTI};
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
     static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
                                           SIM_METRIC_CHEBYSHEV};
     for (int mi = 0; mi < 3; mi++) {
         for (int di = 0; di < 3; di++) {
             int batches = 0, windows = 0, limits = 0, ok = 1;
-            for (int round = 0; round < 12 && ok; round++) {
+            for (int round = 0; round < rounds && ok; round++) {
                 batch b = {0};
                 b.count = 1 + (int)(rnd() % 6);
                 int extreme = round % 4 == 3;
                 int32_t floor_units = extreme ? WORLD_HEIGHT_MIN : rnd_range(-2000, 40000);
                 for (int k = 0; k < b.count; k++) {
-                    const int *sz = awkward_sizes[rnd() % (sizeof awkward_sizes /
-                                                           sizeof awkward_sizes[0])];
+                    static const int big[2] = {150, 97}; /* long jump-flood steps */
+                    const int *sz = big_first && round == 0 && k == 0
+                                        ? big
+                                        : awkward_sizes[rnd() % (sizeof awkward_sizes /
+                                                                 sizeof awkward_sizes[0])];
                     int32_t base = extreme ? WORLD_HEIGHT_MAX - rnd_range(0, 5000) : 50000;
                     int32_t amp = extreme ? (1 << 30) : rnd_range(10, 20000);
                     random_window(&b, k, sz[0], sz[1], base, amp, (int)(rnd() % 2));
@@ -410,8 +434,7 @@ static void test_bit_exact(sim_backend *gl, sim_backend *cpu)
  * in the same batch (a refusal must not touch its neighbours). */
 static void test_height_limit(sim_backend *gl, sim_backend *cpu)
 {
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO,
-                                          SIM_METHOD_MULTI};
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
     for (int mi = 0; mi < 3; mi++) {
         for (int variant = 0; variant < 2; variant++) {
             batch b = {0};
@@ -459,8 +482,8 @@ static void test_height_limit(sim_backend *gl, sim_backend *cpu)
             snprintf(label, sizeof label, "height limit %s variant %d", sim_method_name(m.method),
                      variant);
             int rc = compare_batch(gl, cpu, &p, &b, label, &limits);
-            CHECK(rc == 0 && limits == 1, "%s: same status and heights, %d window refused",
-                  label, limits);
+            CHECK(rc == 0 && limits == 1, "%s: same status and heights, %d window refused", label,
+                  limits);
             batch_free(&b);
         }
     }
@@ -510,15 +533,19 @@ static void test_scratch_and_timing(sim_backend *gl)
             heights[k][i] = 50000;
         world_rect r = {k * 200, 0, W, H};
         colliders[k] = (sim_collider){
-            .id = k, .geometry = &sphere,
+            .id = k,
+            .geometry = &sphere,
             .pose = {{(r.x + W / 2) * 0.05, (H / 2) * 0.05, 4.6 + 0.05 * k}, {1, 0, 0, 0}}};
-        jobs[k] = (sim_window_job){.rect = r, .cell_size_m = 0.05, .units_per_m = 10000,
-                                   .heights = heights[k], .colliders = &colliders[k],
-                                   .collider_count = 1, .depth_low = 41000,
+        jobs[k] = (sim_window_job){.rect = r,
+                                   .cell_size_m = 0.05,
+                                   .units_per_m = 10000,
+                                   .heights = heights[k],
+                                   .colliders = &colliders[k],
+                                   .collider_count = 1,
+                                   .depth_low = 41000,
                                    .depth_high = 50000 + 1000 + 1};
     }
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO,
-                                          SIM_METHOD_MULTI};
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
     sim_backend_gl_set_stage_timing(gl, 1);
     for (int mi = 0; mi < 3; mi++) {
         sim_material m = sim_material_default();
@@ -539,9 +566,8 @@ static void test_scratch_and_timing(sim_backend *gl)
         }
         printf("info timing %s, %d windows of %dx%d on %s (ms per batch): depth %.3f classify "
                "%.3f jump_flood %.3f displace %.3f even_slopes %.3f transfer %.3f\n",
-               sim_method_name(m.method), N, W, H, gl->renderer, t.depth / reps,
-               t.classify / reps, t.jump_flood / reps, t.displace / reps, t.even_slopes / reps,
-               t.transfer / reps);
+               sim_method_name(m.method), N, W, H, gl->renderer, t.depth / reps, t.classify / reps,
+               t.jump_flood / reps, t.displace / reps, t.even_slopes / reps, t.transfer / reps);
     }
     sim_backend_gl_set_stage_timing(gl, 0);
     uint64_t after = gl->scratch_bytes(gl);
@@ -566,11 +592,17 @@ int main(void)
         printf("%d passed, %d failed\n", passed, failed + 1);
         return 1;
     }
-    test_depth_raster(gl);
-    test_bit_exact(gl, cpu);
+    test_depth_raster(gl, 0);
+    test_bit_exact(gl, cpu, 12, 1);
     test_height_limit(gl, cpu);
     test_repeatable(gl);
     test_scratch_and_timing(gl);
+    /* last: the paths of batches too big for one atlas or one storage block,
+     * forced with small limits (which stay for the rest of the backend's life) */
+    sim_backend_gl_set_limits(gl, 64, 3400);
+    test_depth_raster(gl, 1);
+    printf("info with a 64-texel atlas and 3400-cell chunks:\n");
+    test_bit_exact(gl, cpu, 4, 0);
     gl->destroy(gl);
     cpu->destroy(cpu);
     printf("%d passed, %d failed\n", passed, failed);

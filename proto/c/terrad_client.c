@@ -1,0 +1,892 @@
+/*
+ * terrad_client.c: the synchronous C client of terrad_client.h.
+ *
+ * One libwebsockets context per client, with a single protocol callback and
+ * the client as the context's user pointer. Outgoing messages wait in a
+ * small FIFO and go out one per CLIENT_WRITEABLE callback (libwebsockets'
+ * rule); incoming fragments are reassembled into one buffer and handled
+ * whole: JSON replies complete the request being waited for, DELTA frames
+ * go through terrad_mirror_apply for every subscription, CONTACT and ACK
+ * frames replace the latest ones.
+ *
+ * Blocking waits are lws_service() calls bounded by a wsi timer
+ * (LWS_CALLBACK_TIMER wakes the service loop at the deadline): since
+ * libwebsockets 3.2 the service call's own timeout argument is ignored.
+ */
+#ifndef _POSIX_C_SOURCE
+#define _POSIX_C_SOURCE 200809L
+#endif
+
+#include "terrad_client.h"
+
+#include <cjson/cJSON.h>
+#include <libwebsockets.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define CLIENT_MAX_MESSAGE (64u << 20) /* largest frame we reassemble */
+#define CLIENT_RX_CHUNK 65536
+
+typedef struct out_msg {
+    struct out_msg *next;
+    size_t len;
+    int binary;
+    unsigned char buf[]; /* LWS_PRE bytes of headroom, then len bytes */
+} out_msg;
+
+typedef struct client_sub {
+    uint32_t id;
+    terrad_mirror m;
+    int32_t *heights;
+    uint32_t *versions;
+} client_sub;
+
+struct terrad_client {
+    struct lws_context *ctx;
+    struct lws *wsi;
+    int established, closed, closing, got_world;
+    int timeout_ms;
+    char err[512];
+    terrad_world_info world;
+    terrad_client_stats stats;
+    terrad_client_hook hook;
+    void *user;
+
+    out_msg *out_head, *out_tail;
+
+    uint8_t *rx;
+    size_t rx_len, rx_cap;
+    int rx_binary, rx_in_msg, rx_overflow;
+
+    /* the request being waited for */
+    char wait_ref[32];
+    int wait_done, wait_code;
+    int64_t wait_id;
+    unsigned ref_counter;
+    uint64_t poll_mark;
+    uint32_t seq;
+
+    client_sub *subs;
+    size_t nsubs, subs_cap;
+    terrad_contact *contacts;
+    size_t ncontacts, contacts_cap;
+    uint64_t contact_tick;
+    terrad_rect *rects;
+    size_t rects_cap;
+    int32_t *scratch;
+    size_t scratch_cells;
+    terrad_codec *codec;
+};
+
+/* ---- small helpers ------------------------------------------------------- */
+
+static int64_t now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+static void set_err(terrad_client *c, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(c->err, sizeof c->err, fmt, ap);
+    va_end(ap);
+}
+
+static int grow(void **p, size_t *cap, size_t need, size_t elem)
+{
+    if (need <= *cap)
+        return 0;
+    size_t n = *cap ? *cap : 16;
+    while (n < need)
+        n *= 2;
+    void *q = realloc(*p, n * elem);
+    if (!q)
+        return -1;
+    *p = q;
+    *cap = n;
+    return 0;
+}
+
+static client_sub *find_sub(const terrad_client *c, uint32_t sid)
+{
+    for (size_t i = 0; i < c->nsubs; i++)
+        if (c->subs[i].id == sid)
+            return &c->subs[i];
+    return NULL;
+}
+
+/* ---- outgoing ------------------------------------------------------------ */
+
+static int enqueue(terrad_client *c, const void *data, size_t len, int binary)
+{
+    if (c->closed || !c->wsi)
+        return TERRAD_CLIENT_E_CLOSED;
+    out_msg *m = malloc(sizeof *m + LWS_PRE + len);
+    if (!m)
+        return TERRAD_E_NO_MEMORY;
+    m->next = NULL;
+    m->len = len;
+    m->binary = binary;
+    memcpy(m->buf + LWS_PRE, data, len);
+    if (c->out_tail)
+        c->out_tail->next = m;
+    else
+        c->out_head = m;
+    c->out_tail = m;
+    if (c->established)
+        lws_callback_on_writable(c->wsi);
+    return 0;
+}
+
+/* Push queued messages out without blocking for long. */
+static void flush(terrad_client *c)
+{
+    for (int i = 0; i < 8 && c->out_head && !c->closed && c->established; i++)
+        lws_service(c->ctx, -1);
+}
+
+static void free_queue(terrad_client *c)
+{
+    while (c->out_head) {
+        out_msg *n = c->out_head->next;
+        free(c->out_head);
+        c->out_head = n;
+    }
+    c->out_tail = NULL;
+}
+
+/* ---- incoming ------------------------------------------------------------ */
+
+static int64_t json_int(const cJSON *o, const char *k, int64_t dflt)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsNumber(v) ? (int64_t)v->valuedouble : dflt;
+}
+
+static double json_num(const cJSON *o, const char *k, double dflt)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsNumber(v) ? v->valuedouble : dflt;
+}
+
+static void on_world(terrad_client *c, const cJSON *m)
+{
+    terrad_world_info *w = &c->world;
+    w->width = (int)json_int(m, "width", 0);
+    w->height = (int)json_int(m, "height", 0);
+    w->tile_size = (int)json_int(m, "tile_size", 64);
+    w->cell_size_m = json_num(m, "cell_size_m", 0);
+    w->tick_hz = json_num(m, "tick_hz", 60);
+    w->units_per_m = (int32_t)json_int(m, "units_per_m", 10000);
+    w->tick = (uint64_t)json_int(m, "tick", 0);
+    const cJSON *r = cJSON_GetObjectItemCaseSensitive(m, "height_range");
+    if (cJSON_IsArray(r) && cJSON_GetArraySize(r) == 2) {
+        w->height_min = (int64_t)cJSON_GetArrayItem(r, 0)->valuedouble;
+        w->height_max = (int64_t)cJSON_GetArrayItem(r, 1)->valuedouble;
+    }
+    const cJSON *l = cJSON_GetObjectItemCaseSensitive(m, "limits");
+    w->max_message_bytes = json_int(l, "max_message_bytes", 1048576);
+    w->max_poses_per_batch = json_int(l, "max_poses_per_batch", 64);
+    w->max_colliders = json_int(l, "max_colliders", 64);
+    w->max_subscriptions = json_int(l, "max_subscriptions", 16);
+    c->got_world = 1;
+}
+
+static int add_sub(terrad_client *c, uint32_t sid, int64_t x, int64_t y, int64_t w, int64_t h)
+{
+    if (w <= 0 || h <= 0 || w > 65536 || h > 65536 || c->world.tile_size <= 0)
+        return TERRAD_CLIENT_E_PROTOCOL;
+    if (find_sub(c, sid))
+        return TERRAD_CLIENT_E_PROTOCOL;
+    if (grow((void **)&c->subs, &c->subs_cap, c->nsubs + 1, sizeof *c->subs))
+        return TERRAD_E_NO_MEMORY;
+    client_sub *s = &c->subs[c->nsubs];
+    memset(s, 0, sizeof *s);
+    size_t tiles = terrad_mirror_tile_count((int32_t)x, (int32_t)y, (uint32_t)w, (uint32_t)h,
+                                            (uint32_t)c->world.tile_size);
+    s->heights = calloc((size_t)w * (size_t)h, sizeof *s->heights);
+    s->versions = calloc(tiles ? tiles : 1, sizeof *s->versions);
+    if (!s->heights || !s->versions ||
+        terrad_mirror_init(&s->m, (int32_t)x, (int32_t)y, (uint32_t)w, (uint32_t)h,
+                           (uint32_t)c->world.tile_size, s->heights, s->versions) != 0) {
+        free(s->heights);
+        free(s->versions);
+        return TERRAD_E_NO_MEMORY;
+    }
+    s->id = sid;
+    c->nsubs++;
+    return 0;
+}
+
+static void on_text(terrad_client *c, const char *text, size_t len)
+{
+    cJSON *m = cJSON_ParseWithLength(text, len);
+    const cJSON *type = cJSON_GetObjectItemCaseSensitive(m, "type");
+    if (!cJSON_IsString(type)) {
+        set_err(c, "the server sent a text frame that is not a JSON message");
+        c->stats.errors++;
+        c->stats.last_error_code = TERRAD_CLIENT_E_PROTOCOL;
+        cJSON_Delete(m);
+        return;
+    }
+    const char *t = type->valuestring;
+    const cJSON *ref = cJSON_GetObjectItemCaseSensitive(m, "ref");
+    int mine = c->wait_ref[0] && cJSON_IsString(ref) && strcmp(ref->valuestring, c->wait_ref) == 0;
+    if (strcmp(t, "world") == 0) {
+        on_world(c, m);
+    } else if (strcmp(t, "error") == 0) {
+        int code = (int)json_int(m, "code", TERRAD_E_INTERNAL);
+        const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "name");
+        const cJSON *msg = cJSON_GetObjectItemCaseSensitive(m, "message");
+        set_err(c, "server error %d %s: %s", code, cJSON_IsString(name) ? name->valuestring : "?",
+                cJSON_IsString(msg) ? msg->valuestring : "");
+        c->stats.last_error_code = code;
+        if (mine) {
+            c->wait_done = 1;
+            c->wait_code = code > 0 ? code : TERRAD_E_INTERNAL;
+        } else {
+            c->stats.errors++;
+            if (!c->got_world) { /* the handshake failed */
+                c->wait_done = 1;
+                c->wait_code = code > 0 ? code : TERRAD_E_INTERNAL;
+            }
+        }
+    } else {
+        if (strcmp(t, "subscribed") == 0) {
+            int rc = add_sub(c, (uint32_t)json_int(m, "id", 0), json_int(m, "x", -1),
+                             json_int(m, "y", -1), json_int(m, "w", 0), json_int(m, "h", 0));
+            if (rc && mine) {
+                set_err(c, "cannot make a mirror for the subscription (%d)", rc);
+                c->wait_done = 1;
+                c->wait_code = rc;
+                mine = 0;
+            }
+        }
+        if (mine) {
+            c->wait_done = 1;
+            c->wait_code = 0;
+            c->wait_id = json_int(m, "id", 0);
+        }
+    }
+    cJSON_Delete(m);
+}
+
+static void bad_frame(terrad_client *c, const char *what, int code)
+{
+    set_err(c, "the server sent a bad %s frame: %s", what, terrad_err_name(code));
+    c->stats.errors++;
+    c->stats.last_error_code = code;
+}
+
+static int send_resync(terrad_client *c, uint32_t sid);
+
+static void on_delta(terrad_client *c, const uint8_t *buf, size_t len, uint64_t *tick)
+{
+    size_t cap = len >= TERRAD_DELTA_FIXED ? (len - TERRAD_DELTA_FIXED) / TERRAD_RECT_FIXED + 1 : 1;
+    if (grow((void **)&c->rects, &c->rects_cap, cap, sizeof *c->rects))
+        return bad_frame(c, "DELTA (no memory)", TERRAD_E_NO_MEMORY);
+    size_t n = 0;
+    int rc = terrad_delta_decode(buf, len, tick, c->rects, c->rects_cap, &n);
+    if (rc)
+        return bad_frame(c, "DELTA", rc);
+    c->stats.delta_frames++;
+    c->stats.delta_bytes += len;
+    c->stats.delta_tick = *tick;
+    size_t most = 1;
+    for (size_t i = 0; i < n; i++)
+        if ((size_t)c->rects[i].w * c->rects[i].h > most)
+            most = (size_t)c->rects[i].w * c->rects[i].h;
+    if (most > c->scratch_cells) {
+        int32_t *s = realloc(c->scratch, most * sizeof *s);
+        if (!s)
+            return bad_frame(c, "DELTA (no memory)", TERRAD_E_NO_MEMORY);
+        c->scratch = s;
+        c->scratch_cells = most;
+    }
+    for (size_t i = 0; i < c->nsubs; i++) {
+        client_sub *s = &c->subs[i];
+        rc = terrad_mirror_apply(&s->m, c->codec, c->rects, n, c->scratch, c->scratch_cells);
+        if (rc) {
+            set_err(c, "subscription %u: %s, asking for a resync", s->id, terrad_err_name(rc));
+            c->stats.last_error_code = rc;
+            c->stats.resyncs++;
+            send_resync(c, s->id);
+        }
+    }
+}
+
+static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
+{
+    terrad_header hd;
+    int rc = terrad_header_decode(buf, len, &hd);
+    if (rc)
+        return bad_frame(c, "binary", rc);
+    uint64_t tick = 0;
+    switch (hd.type) {
+    case TERRAD_MSG_DELTA:
+        on_delta(c, buf, len, &tick);
+        break;
+    case TERRAD_MSG_CONTACT: {
+        size_t cap = len >= TERRAD_CONTACT_FIXED ? (len - TERRAD_CONTACT_FIXED) / TERRAD_CONTACT_SIZE : 0;
+        if (grow((void **)&c->contacts, &c->contacts_cap, cap + 1, sizeof *c->contacts))
+            return bad_frame(c, "CONTACT (no memory)", TERRAD_E_NO_MEMORY);
+        size_t n = 0;
+        rc = terrad_contact_decode(buf, len, &tick, c->contacts, c->contacts_cap, &n);
+        if (rc) {
+            c->ncontacts = 0;
+            return bad_frame(c, "CONTACT", rc);
+        }
+        c->ncontacts = n;
+        c->contact_tick = tick;
+        c->stats.contact_frames++;
+        c->stats.contact_tick = tick;
+        break;
+    }
+    case TERRAD_MSG_ACK: {
+        uint32_t seq;
+        rc = terrad_ack_decode(buf, len, &tick, &seq);
+        if (rc)
+            return bad_frame(c, "ACK", rc);
+        c->stats.acks++;
+        c->stats.ack_tick = tick;
+        c->stats.ack_seq = seq;
+        break;
+    }
+    case TERRAD_MSG_PING:
+    case TERRAD_MSG_PONG: {
+        uint8_t type;
+        uint64_t nonce;
+        rc = terrad_ping_decode(buf, len, &type, &nonce);
+        if (rc)
+            return bad_frame(c, "PING", rc);
+        if (type == TERRAD_MSG_PING) {
+            uint8_t out[TERRAD_PING_SIZE];
+            size_t n;
+            if (terrad_ping_encode(out, sizeof out, &n, TERRAD_MSG_PONG, nonce) == 0)
+                enqueue(c, out, n, 1);
+        }
+        break;
+    }
+    default:
+        return bad_frame(c, "binary (a type clients do not accept)", TERRAD_E_UNKNOWN_TYPE);
+    }
+    if (c->hook)
+        c->hook(c->user, c, hd.type, tick);
+}
+
+static void on_receive(terrad_client *c, struct lws *wsi, const void *in, size_t len)
+{
+    if (!c->rx_in_msg) {
+        c->rx_in_msg = 1;
+        c->rx_len = 0;
+        c->rx_overflow = 0;
+        c->rx_binary = lws_frame_is_binary(wsi);
+    }
+    if (!c->rx_overflow) {
+        if (c->rx_len + len > CLIENT_MAX_MESSAGE ||
+            grow((void **)&c->rx, &c->rx_cap, c->rx_len + len + 1, 1))
+            c->rx_overflow = 1;
+        else {
+            memcpy(c->rx + c->rx_len, in, len);
+            c->rx_len += len;
+        }
+    }
+    if (!lws_is_final_fragment(wsi))
+        return;
+    c->rx_in_msg = 0;
+    c->stats.messages++;
+    if (c->rx_overflow) {
+        bad_frame(c, "oversized", TERRAD_E_TOO_LARGE);
+        return;
+    }
+    if (c->rx_binary)
+        on_binary(c, c->rx, c->rx_len);
+    else
+        on_text(c, (const char *)c->rx, c->rx_len);
+}
+
+static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in,
+                    size_t len)
+{
+    (void)user;
+    struct lws_context *ctx = lws_get_context(wsi);
+    terrad_client *c = ctx ? lws_context_user(ctx) : NULL;
+    if (!c)
+        return 0;
+    switch (reason) {
+    case LWS_CALLBACK_CLIENT_CONNECTION_ERROR:
+        set_err(c, "cannot connect: %s", in ? (const char *)in : "connection error");
+        c->closed = 1;
+        c->wsi = NULL;
+        break;
+    case LWS_CALLBACK_CLIENT_ESTABLISHED:
+        c->established = 1;
+        if (c->out_head)
+            lws_callback_on_writable(wsi);
+        break;
+    case LWS_CALLBACK_CLIENT_RECEIVE:
+        on_receive(c, wsi, in, len);
+        break;
+    case LWS_CALLBACK_CLIENT_WRITEABLE: {
+        if (c->closing) {
+            lws_close_reason(wsi, LWS_CLOSE_STATUS_NORMAL, NULL, 0);
+            return -1;
+        }
+        out_msg *m = c->out_head;
+        if (!m)
+            break;
+        int n = lws_write(wsi, m->buf + LWS_PRE, m->len, m->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
+        if (n < (int)m->len) {
+            set_err(c, "write failed");
+            return -1;
+        }
+        c->out_head = m->next;
+        if (!c->out_head)
+            c->out_tail = NULL;
+        free(m);
+        if (c->out_head)
+            lws_callback_on_writable(wsi);
+        break;
+    }
+    case LWS_CALLBACK_WS_PEER_INITIATED_CLOSE:
+        if (in && len >= 2) {
+            const unsigned char *p = in;
+            c->stats.close_code = (p[0] << 8) | p[1];
+            if (len > 2)
+                set_err(c, "closed by the server (%d): %.*s", c->stats.close_code, (int)(len - 2),
+                        (const char *)p + 2);
+        }
+        break;
+    case LWS_CALLBACK_CLIENT_CLOSED:
+        c->closed = 1;
+        c->wsi = NULL;
+        break;
+    case LWS_CALLBACK_WSI_DESTROY:
+        if (wsi == c->wsi) {
+            c->closed = 1;
+            c->wsi = NULL;
+        }
+        break;
+    case LWS_CALLBACK_TIMER:
+        break; /* only wakes lws_service */
+    default:
+        break;
+    }
+    return 0;
+}
+
+static const struct lws_protocols protocols[] = {
+    {TERRAD_PROTO_SUBPROTOCOL, callback, 0, CLIENT_RX_CHUNK, 0, NULL, 0},
+    {NULL, NULL, 0, 0, 0, NULL, 0},
+};
+
+/* Service until done(c), the connection closes or the deadline passes. */
+static void service_until(terrad_client *c, int64_t deadline, int (*done)(const terrad_client *))
+{
+    while (!done(c) && !c->closed) {
+        int64_t left = deadline - now_us();
+        if (left <= 0)
+            break;
+        if (c->wsi)
+            lws_set_timer_usecs(c->wsi, left);
+        lws_service(c->ctx, 0);
+    }
+    if (c->wsi)
+        lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
+}
+
+static int waited(const terrad_client *c)
+{
+    return c->wait_done;
+}
+
+static int world_or_error(const terrad_client *c)
+{
+    return c->got_world || c->wait_done;
+}
+
+static int never(const terrad_client *c)
+{
+    (void)c;
+    return 0;
+}
+
+/* ---- public -------------------------------------------------------------- */
+
+terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap)
+{
+    if (err && err_cap)
+        err[0] = 0;
+    terrad_client *c = calloc(1, sizeof *c);
+    if (!c) {
+        if (err && err_cap)
+            snprintf(err, err_cap, "out of memory");
+        return NULL;
+    }
+    c->timeout_ms = d.timeout_ms > 0 ? d.timeout_ms : 5000;
+    c->hook = d.hook;
+    c->user = d.user;
+    c->codec = terrad_codec_new(0);
+
+    struct lws_context_creation_info info;
+    memset(&info, 0, sizeof info);
+    info.port = CONTEXT_PORT_NO_LISTEN;
+    info.protocols = protocols;
+    info.gid = -1;
+    info.uid = -1;
+    info.user = c;
+    c->ctx = lws_create_context(&info);
+    if (!c->ctx || !c->codec) {
+        set_err(c, "cannot create the libwebsockets context");
+        goto fail;
+    }
+
+    const char *host = d.host ? d.host : "127.0.0.1";
+    struct lws_client_connect_info ci;
+    memset(&ci, 0, sizeof ci);
+    ci.context = c->ctx;
+    ci.address = host;
+    ci.port = d.port > 0 ? d.port : 8081;
+    ci.path = "/";
+    ci.host = host;
+    ci.origin = host;
+    ci.protocol = TERRAD_PROTO_SUBPROTOCOL;
+    ci.local_protocol_name = TERRAD_PROTO_SUBPROTOCOL;
+    ci.pwsi = &c->wsi;
+    if (!lws_client_connect_via_info(&ci)) {
+        if (!c->err[0])
+            set_err(c, "cannot connect to %s:%d", host, ci.port);
+        goto fail;
+    }
+
+    /* hello, queued until the upgrade completes */
+    cJSON *h = cJSON_CreateObject();
+    cJSON_AddStringToObject(h, "type", "hello");
+    cJSON_AddNumberToObject(h, "protocol", TERRAD_PROTO_VERSION);
+    cJSON_AddStringToObject(h, "token", d.token ? d.token : "");
+    cJSON_AddStringToObject(h, "client", d.name ? d.name : "terrad-c");
+    char *text = cJSON_PrintUnformatted(h);
+    cJSON_Delete(h);
+    int rc = text ? enqueue(c, text, strlen(text), 0) : TERRAD_E_NO_MEMORY;
+    free(text);
+    if (rc) {
+        if (!c->err[0])
+            set_err(c, "cannot send hello (%d)", rc);
+        goto fail;
+    }
+    service_until(c, now_us() + (int64_t)c->timeout_ms * 1000, world_or_error);
+    if (!c->got_world) {
+        if (!c->err[0])
+            set_err(c, c->closed ? "the server closed the connection during the handshake"
+                                 : "no world message within %d ms", c->timeout_ms);
+        goto fail;
+    }
+    c->wait_done = 0;
+    return c;
+
+fail:
+    if (err && err_cap)
+        snprintf(err, err_cap, "%s", c->err[0] ? c->err : "cannot connect");
+    c->closed = 1;
+    terrad_client_close(c);
+    return NULL;
+}
+
+void terrad_client_close(terrad_client *c)
+{
+    if (!c)
+        return;
+    if (c->ctx && c->wsi && !c->closed && c->established) {
+        c->closing = 1;
+        lws_callback_on_writable(c->wsi);
+        service_until(c, now_us() + 1000000, never); /* until closed, 1 s at most */
+    }
+    if (c->ctx)
+        lws_context_destroy(c->ctx);
+    free_queue(c);
+    for (size_t i = 0; i < c->nsubs; i++) {
+        free(c->subs[i].heights);
+        free(c->subs[i].versions);
+    }
+    free(c->subs);
+    free(c->contacts);
+    free(c->rects);
+    free(c->scratch);
+    free(c->rx);
+    terrad_codec_free(c->codec);
+    free(c);
+}
+
+const terrad_world_info *terrad_client_world(const terrad_client *c)
+{
+    return &c->world;
+}
+
+const terrad_client_stats *terrad_client_get_stats(const terrad_client *c)
+{
+    return &c->stats;
+}
+
+const char *terrad_client_last_error(const terrad_client *c)
+{
+    return c->err;
+}
+
+int terrad_client_is_open(const terrad_client *c)
+{
+    return c && !c->closed && c->wsi != NULL;
+}
+
+/* Send a JSON request with a fresh ref; wait for its reply or error. */
+static int request(terrad_client *c, cJSON *msg, int64_t *id_out)
+{
+    snprintf(c->wait_ref, sizeof c->wait_ref, "c%u", ++c->ref_counter);
+    cJSON_AddStringToObject(msg, "ref", c->wait_ref);
+    char *text = cJSON_PrintUnformatted(msg);
+    cJSON_Delete(msg);
+    if (!text)
+        return TERRAD_E_NO_MEMORY;
+    c->wait_done = 0;
+    c->wait_code = 0;
+    c->wait_id = 0;
+    int rc = enqueue(c, text, strlen(text), 0);
+    free(text);
+    if (rc) {
+        c->wait_ref[0] = 0;
+        return rc;
+    }
+    service_until(c, now_us() + (int64_t)c->timeout_ms * 1000, waited);
+    c->wait_ref[0] = 0;
+    if (!c->wait_done) {
+        if (c->closed)
+            return TERRAD_CLIENT_E_CLOSED;
+        set_err(c, "no reply within %d ms", c->timeout_ms);
+        return TERRAD_CLIENT_E_TIMEOUT;
+    }
+    c->wait_done = 0;
+    if (c->wait_code == 0 && id_out)
+        *id_out = c->wait_id;
+    return c->wait_code;
+}
+
+static int finite_positive(double v)
+{
+    return isfinite(v) && v > 0;
+}
+
+int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out)
+{
+    cJSON *m = cJSON_CreateObject();
+    if (!m)
+        return TERRAD_E_NO_MEMORY;
+    cJSON_AddStringToObject(m, "type", "collider_create");
+    int ok = 1;
+    switch (d.shape) {
+    case TERRAD_SHAPE_SPHERE:
+        cJSON_AddStringToObject(m, "shape", "sphere");
+        cJSON_AddNumberToObject(m, "radius", d.radius);
+        ok = finite_positive(d.radius);
+        break;
+    case TERRAD_SHAPE_BOX: {
+        cJSON_AddStringToObject(m, "shape", "box");
+        cJSON *a = cJSON_AddArrayToObject(m, "half_extents");
+        for (int i = 0; i < 3; i++) {
+            cJSON_AddItemToArray(a, cJSON_CreateNumber(d.half_extents[i]));
+            ok = ok && finite_positive(d.half_extents[i]);
+        }
+        break;
+    }
+    case TERRAD_SHAPE_CAPSULE:
+    case TERRAD_SHAPE_CYLINDER:
+        cJSON_AddStringToObject(m, "shape", d.shape == TERRAD_SHAPE_CAPSULE ? "capsule" : "cylinder");
+        cJSON_AddNumberToObject(m, "radius", d.radius);
+        cJSON_AddNumberToObject(m, "half_length", d.half_length);
+        ok = finite_positive(d.radius) && finite_positive(d.half_length);
+        break;
+    case TERRAD_SHAPE_WHEEL:
+        cJSON_AddStringToObject(m, "shape", "wheel");
+        cJSON_AddNumberToObject(m, "radius", d.radius);
+        cJSON_AddNumberToObject(m, "width", d.width);
+        ok = finite_positive(d.radius) && finite_positive(d.width);
+        break;
+    default:
+        ok = 0;
+    }
+    if (!ok) {
+        cJSON_Delete(m);
+        set_err(c, "collider_create: unknown shape or a size that is not finite and > 0");
+        return TERRAD_E_BAD_VALUE;
+    }
+    cJSON_AddStringToObject(m, "material", d.material ? d.material : "default");
+    cJSON_AddBoolToObject(m, "feedback", !d.no_feedback);
+    int64_t id = 0;
+    int rc = request(c, m, &id);
+    if (rc == 0) {
+        if (id < 1 || id > UINT32_MAX)
+            return TERRAD_CLIENT_E_PROTOCOL;
+        if (id_out)
+            *id_out = (uint32_t)id;
+    }
+    return rc;
+}
+
+int terrad_client_delete_collider(terrad_client *c, uint32_t id)
+{
+    cJSON *m = cJSON_CreateObject();
+    if (!m)
+        return TERRAD_E_NO_MEMORY;
+    cJSON_AddStringToObject(m, "type", "collider_delete");
+    cJSON_AddNumberToObject(m, "id", id);
+    return request(c, m, NULL);
+}
+
+int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t count,
+                             uint32_t *seq_out)
+{
+    size_t cap = terrad_pose_batch_size(count);
+    uint8_t stackbuf[TERRAD_POSE_BATCH_FIXED + 16 * TERRAD_POSE_SIZE];
+    uint8_t *buf = cap <= sizeof stackbuf ? stackbuf : malloc(cap);
+    if (!buf)
+        return TERRAD_E_NO_MEMORY;
+    size_t len = 0;
+    uint32_t seq = c->seq + 1;
+    int rc = terrad_pose_batch_encode(buf, cap, &len, seq, poses, count);
+    if (rc == 0)
+        rc = enqueue(c, buf, len, 1);
+    if (buf != stackbuf)
+        free(buf);
+    if (rc) {
+        if (rc > 0)
+            set_err(c, "pose batch refused locally: %s", terrad_err_name(rc));
+        return rc;
+    }
+    c->seq = seq;
+    if (seq_out)
+        *seq_out = seq;
+    flush(c);
+    return 0;
+}
+
+int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
+                            uint32_t *sid_out)
+{
+    cJSON *m = cJSON_CreateObject();
+    if (!m)
+        return TERRAD_E_NO_MEMORY;
+    cJSON_AddStringToObject(m, "type", "subscribe");
+    cJSON_AddNumberToObject(m, "x", x);
+    cJSON_AddNumberToObject(m, "y", y);
+    cJSON_AddNumberToObject(m, "w", w);
+    cJSON_AddNumberToObject(m, "h", h);
+    int64_t id = 0;
+    int rc = request(c, m, &id);
+    if (rc == 0 && sid_out)
+        *sid_out = (uint32_t)id;
+    return rc;
+}
+
+int terrad_client_unsubscribe(terrad_client *c, uint32_t sid)
+{
+    cJSON *m = cJSON_CreateObject();
+    if (!m)
+        return TERRAD_E_NO_MEMORY;
+    cJSON_AddStringToObject(m, "type", "unsubscribe");
+    cJSON_AddNumberToObject(m, "id", sid);
+    int rc = request(c, m, NULL);
+    if (rc == 0) {
+        client_sub *s = find_sub(c, sid);
+        if (s) {
+            free(s->heights);
+            free(s->versions);
+            *s = c->subs[--c->nsubs];
+        }
+    }
+    return rc;
+}
+
+static int send_resync(terrad_client *c, uint32_t sid)
+{
+    char text[64];
+    int n = sid ? snprintf(text, sizeof text, "{\"type\":\"resync\",\"id\":%u}", sid)
+                : snprintf(text, sizeof text, "{\"type\":\"resync\"}");
+    return enqueue(c, text, (size_t)n, 0);
+}
+
+int terrad_client_resync(terrad_client *c, uint32_t sid)
+{
+    int rc = send_resync(c, sid);
+    flush(c);
+    return rc;
+}
+
+int terrad_client_ping(terrad_client *c, uint64_t nonce)
+{
+    uint8_t out[TERRAD_PING_SIZE];
+    size_t n;
+    int rc = terrad_ping_encode(out, sizeof out, &n, TERRAD_MSG_PING, nonce);
+    if (rc == 0)
+        rc = enqueue(c, out, n, 1);
+    flush(c);
+    return rc;
+}
+
+const terrad_mirror *terrad_client_mirror(const terrad_client *c, uint32_t sid)
+{
+    client_sub *s = find_sub(c, sid);
+    return s ? &s->m : NULL;
+}
+
+int terrad_client_mirror_complete(const terrad_client *c, uint32_t sid)
+{
+    client_sub *s = find_sub(c, sid);
+    if (!s)
+        return 0;
+    size_t n = (size_t)s->m.tiles_x * s->m.tiles_y;
+    for (size_t i = 0; i < n; i++)
+        if (s->versions[i] == 0)
+            return 0;
+    return 1;
+}
+
+int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_contact *out,
+                          uint64_t *tick_out)
+{
+    for (size_t i = 0; i < c->ncontacts; i++)
+        if (c->contacts[i].id == collider) {
+            if (out)
+                *out = c->contacts[i];
+            if (tick_out)
+                *tick_out = c->contact_tick;
+            return 1;
+        }
+    return 0;
+}
+
+static int got_message(const terrad_client *c)
+{
+    return c->stats.messages != c->poll_mark;
+}
+
+int terrad_client_poll(terrad_client *c, int timeout_ms)
+{
+    if (c->closed || !c->wsi)
+        return TERRAD_CLIENT_E_CLOSED;
+    uint64_t before = c->stats.messages;
+    if (timeout_ms <= 0) {
+        lws_service(c->ctx, -1);
+    } else {
+        c->poll_mark = before;
+        service_until(c, now_us() + (int64_t)timeout_ms * 1000, got_message);
+    }
+    uint64_t n = c->stats.messages - before;
+    if (n == 0 && c->closed)
+        return TERRAD_CLIENT_E_CLOSED;
+    return n > 1000000 ? 1000000 : (int)n;
+}

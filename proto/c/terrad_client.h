@@ -1,0 +1,154 @@
+/*
+ * terrad_client: a small synchronous C client for terrad (proto/PROTOCOL.md)
+ * over libwebsockets' client API, for game backends and simulators written
+ * in C or C++.
+ *
+ *     terrad_client *c = terrad_client_connect((terrad_client_desc){.port = 8081}, err, sizeof err);
+ *     uint32_t wheel, sub, seq;
+ *     terrad_client_create_collider(c, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL,
+ *                                       .radius = 0.3, .width = 0.2}, &wheel);
+ *     terrad_client_subscribe(c, 0, 0, 128, 128, &sub);
+ *     terrad_pose p = {wheel, 1.0f, 1.0f, 0.5f, 1, 0, 0, 0};
+ *     terrad_client_send_poses(c, &p, 1, &seq);
+ *     while (terrad_client_poll(c, 20) >= 0) { ... terrad_client_mirror(c, sub)->heights ... }
+ *     terrad_client_close(c);
+ *
+ * One connection, one thread, no callbacks needed: requests (collider
+ * create/delete, subscribe, unsubscribe) block until the server's reply or
+ * error; terrad_client_poll services the socket for up to a timeout and
+ * handles whatever arrived: DELTA frames update a terrad_mirror per
+ * subscription (a mirror that falls out of step asks for a resync by
+ * itself), CONTACT frames replace the latest contact feedback, ACKs the
+ * latest acknowledged tick and sequence, and unsolicited errors are counted
+ * and kept as the last error. An optional hook sees every binary frame after
+ * it has been handled (for example to copy a mirror at each ACK).
+ *
+ * Return values: 0 for success; a positive protocol error code
+ * (terrad_proto_err) when the server refused a request or a value is not
+ * allowed; a negative TERRAD_CLIENT_E_* (or TERRAD_E_NO_MEMORY) for local
+ * failures. terrad_client_last_error() has a sentence for people.
+ * Not thread-safe: use one client from one thread.
+ */
+#ifndef TERRAD_CLIENT_H
+#define TERRAD_CLIENT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "terrad_proto.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Local failures (never travel on the wire). */
+#define TERRAD_CLIENT_E_TIMEOUT (-10)  /* no reply within the timeout */
+#define TERRAD_CLIENT_E_CLOSED (-11)   /* the connection is closed */
+#define TERRAD_CLIENT_E_CONNECT (-12)  /* could not connect or upgrade */
+#define TERRAD_CLIENT_E_PROTOCOL (-13) /* the server sent something the protocol does not allow */
+
+typedef struct terrad_client terrad_client;
+
+/* Called after each binary frame has been handled; msg_type is a
+ * terrad_msg_type, tick the frame's tick (0 for PING/PONG). */
+typedef void (*terrad_client_hook)(void *user, terrad_client *c, int msg_type, uint64_t tick);
+
+typedef struct terrad_client_desc {
+    const char *host;  /* NULL: "127.0.0.1" */
+    int port;          /* 0: 8081 */
+    const char *token; /* NULL: "" */
+    const char *name;  /* hello.client; NULL: "terrad-c" */
+    int timeout_ms;    /* connect + hello, and each request; 0: 5000 */
+    terrad_client_hook hook; /* optional */
+    void *user;              /* passed to hook */
+} terrad_client_desc;
+
+/* The world message (PROTOCOL.md "world"); limits not listed keep their defaults. */
+typedef struct terrad_world_info {
+    int width, height; /* cells */
+    int tile_size;
+    double cell_size_m;
+    double tick_hz;
+    int32_t units_per_m;
+    int64_t height_min, height_max;
+    uint64_t tick; /* at hello */
+    int64_t max_message_bytes, max_poses_per_batch, max_colliders, max_subscriptions;
+} terrad_world_info;
+
+/* Counters and the latest of each kind of frame. */
+typedef struct terrad_client_stats {
+    uint64_t delta_frames, delta_bytes, delta_tick; /* tick of the last DELTA */
+    uint64_t contact_frames, contact_tick;
+    uint64_t acks, ack_tick;
+    uint32_t ack_seq;   /* the last POSE_BATCH the server used */
+    uint64_t errors;    /* error messages not answering a request */
+    uint64_t resyncs;   /* resyncs this client asked for (mirror out of step) */
+    uint64_t messages;  /* everything received */
+    int last_error_code;
+    int close_code; /* the server's close code, once closed (0: none given) */
+} terrad_client_stats;
+
+typedef enum terrad_shape {
+    TERRAD_SHAPE_SPHERE = 1, /* radius */
+    TERRAD_SHAPE_BOX,        /* half_extents */
+    TERRAD_SHAPE_CAPSULE,    /* radius, half_length; axis z */
+    TERRAD_SHAPE_CYLINDER,   /* radius, half_length; axis z */
+    TERRAD_SHAPE_WHEEL,      /* radius, width; axle along y */
+} terrad_shape;
+
+typedef struct terrad_collider_desc {
+    terrad_shape shape;
+    double radius, half_length, width; /* metres, as the shape needs */
+    double half_extents[3];
+    const char *material; /* NULL: "default" */
+    int no_feedback;      /* 1: no CONTACT entries for it (zero: feedback on) */
+} terrad_collider_desc;
+
+/* Connects, sends hello and waits for the world message. NULL on failure,
+ * with a sentence in err (when err_cap > 0). */
+terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap);
+/* Closes with code 1000 (waiting briefly for the close handshake) and frees c. */
+void terrad_client_close(terrad_client *c);
+
+const terrad_world_info *terrad_client_world(const terrad_client *c);
+const terrad_client_stats *terrad_client_get_stats(const terrad_client *c);
+const char *terrad_client_last_error(const terrad_client *c);
+int terrad_client_is_open(const terrad_client *c);
+
+int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out);
+int terrad_client_delete_collider(terrad_client *c, uint32_t id);
+/* Sends one POSE_BATCH (the next sequence number, returned in *seq_out)
+ * and pushes it to the socket without waiting for anything. count 0 asks
+ * for an ACK. */
+int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t count,
+                             uint32_t *seq_out);
+/* Subscribes and makes a mirror of the region; the snapshot arrives with
+ * later polls (terrad_client_mirror_complete says when). */
+int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
+                            uint32_t *sid_out);
+int terrad_client_unsubscribe(terrad_client *c, uint32_t sid);
+/* Asks for fresh snapshots of one subscription (sid 0: all); no reply. */
+int terrad_client_resync(terrad_client *c, uint32_t sid);
+/* Sends a PING frame with the given nonce (the PONG shows in the hook). */
+int terrad_client_ping(terrad_client *c, uint64_t nonce);
+
+/* The mirror of a subscription, or NULL. Its heights are exact for every
+ * tile whose version is not 0. */
+const terrad_mirror *terrad_client_mirror(const terrad_client *c, uint32_t sid);
+/* 1 when every tile of the subscription is held. */
+int terrad_client_mirror_complete(const terrad_client *c, uint32_t sid);
+/* The latest contact feedback for a collider (1), or 0 when none came yet. */
+int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_contact *out,
+                          uint64_t *tick_out);
+
+/* Services the connection for up to timeout_ms (0: only what is ready),
+ * returning as soon as at least one message was handled: the number of
+ * messages handled (0 on timeout), or TERRAD_CLIENT_E_CLOSED once the
+ * connection is closed. */
+int terrad_client_poll(terrad_client *c, int timeout_ms);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* TERRAD_CLIENT_H */

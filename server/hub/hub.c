@@ -1,0 +1,368 @@
+/*
+ * hub.c: bounded queues and tables between the network, HTTP and sim
+ * threads (see hub.h). Each structure has its own mutex, held only for
+ * copies, so the three threads never wait on each other's work.
+ */
+#include "hub/hub.h"
+
+#include <errno.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define HUB_COMMAND_CAPACITY 4096
+#define HUB_POSE_CAPACITY 65536
+#define HUB_POSE_SLOTS (HUB_POSE_CAPACITY * 2)
+#define HUB_OUT_CAPACITY 65536
+#define HUB_MAX_READS 32
+
+typedef struct hub_read {
+    world_rect rect;
+    int32_t *out;
+    uint64_t tick;
+    int active, done;
+} hub_read;
+
+struct hub {
+    pthread_mutex_t command_lock;
+    hub_command *commands;
+    int command_head, command_count;
+
+    pthread_mutex_t pose_lock;
+    hub_pose *poses;  /* pending, in arrival order of first set */
+    int pose_count;
+    int32_t *slots;   /* open addressing: collider -> index + 1 into poses */
+
+    pthread_mutex_t out_lock;
+    hub_out *out;
+    int out_head, out_count;
+    int overflow;
+    void (*wake)(void *);
+    void *wake_arg;
+
+    pthread_mutex_t read_lock;
+    pthread_cond_t read_done;
+    hub_read reads[HUB_MAX_READS];
+    int reads_closed;
+};
+
+hub *hub_create(void)
+{
+    hub *h = calloc(1, sizeof *h);
+    if (!h)
+        return NULL;
+    h->commands = calloc(HUB_COMMAND_CAPACITY, sizeof *h->commands);
+    h->poses = calloc(HUB_POSE_CAPACITY, sizeof *h->poses);
+    h->slots = calloc(HUB_POSE_SLOTS, sizeof *h->slots);
+    h->out = calloc(HUB_OUT_CAPACITY, sizeof *h->out);
+    if (!h->commands || !h->poses || !h->slots || !h->out) {
+        free(h->commands);
+        free(h->poses);
+        free(h->slots);
+        free(h->out);
+        free(h);
+        return NULL;
+    }
+    pthread_mutex_init(&h->command_lock, NULL);
+    pthread_mutex_init(&h->pose_lock, NULL);
+    pthread_mutex_init(&h->out_lock, NULL);
+    pthread_mutex_init(&h->read_lock, NULL);
+    pthread_condattr_t attr;
+    pthread_condattr_init(&attr);
+    pthread_condattr_setclock(&attr, CLOCK_MONOTONIC);
+    pthread_cond_init(&h->read_done, &attr);
+    pthread_condattr_destroy(&attr);
+    return h;
+}
+
+void hub_destroy(hub *h)
+{
+    if (!h)
+        return;
+    for (int i = 0; i < h->command_count; i++) {
+        hub_command *c = &h->commands[(h->command_head + i) % HUB_COMMAND_CAPACITY];
+        if (c->mesh) {
+            collider_mesh_free(c->mesh);
+            free(c->mesh);
+        }
+    }
+    for (int i = 0; i < h->out_count; i++) {
+        hub_out *o = &h->out[(h->out_head + i) % HUB_OUT_CAPACITY];
+        if (o->frame)
+            hub_frame_unref(o->frame);
+    }
+    pthread_mutex_destroy(&h->command_lock);
+    pthread_mutex_destroy(&h->pose_lock);
+    pthread_mutex_destroy(&h->out_lock);
+    pthread_mutex_destroy(&h->read_lock);
+    pthread_cond_destroy(&h->read_done);
+    free(h->commands);
+    free(h->poses);
+    free(h->slots);
+    free(h->out);
+    free(h);
+}
+
+/* ---- commands ---- */
+
+int hub_push_command(hub *h, const hub_command *cmd)
+{
+    pthread_mutex_lock(&h->command_lock);
+    if (h->command_count == HUB_COMMAND_CAPACITY) {
+        pthread_mutex_unlock(&h->command_lock);
+        return -1;
+    }
+    h->commands[(h->command_head + h->command_count) % HUB_COMMAND_CAPACITY] = *cmd;
+    h->command_count++;
+    pthread_mutex_unlock(&h->command_lock);
+    return 0;
+}
+
+int hub_take_commands(hub *h, hub_command *out, int max)
+{
+    pthread_mutex_lock(&h->command_lock);
+    int n = h->command_count < max ? h->command_count : max;
+    for (int i = 0; i < n; i++)
+        out[i] = h->commands[(h->command_head + i) % HUB_COMMAND_CAPACITY];
+    h->command_head = (h->command_head + n) % HUB_COMMAND_CAPACITY;
+    h->command_count -= n;
+    pthread_mutex_unlock(&h->command_lock);
+    return n;
+}
+
+/* ---- poses ---- */
+
+static uint32_t slot_of(uint32_t collider)
+{
+    uint32_t x = collider * 0x9e3779b1u;
+    return (x ^ (x >> 15)) & (HUB_POSE_SLOTS - 1);
+}
+
+/* Index + 1 of the collider's pending pose, 0 if none; *slot receives where
+ * it is or where it would go. */
+static int32_t pose_find(const hub *h, uint32_t collider, uint32_t *slot)
+{
+    uint32_t s = slot_of(collider);
+    while (h->slots[s] != 0) {
+        if (h->poses[h->slots[s] - 1].collider == collider) {
+            *slot = s;
+            return h->slots[s];
+        }
+        s = (s + 1) & (HUB_POSE_SLOTS - 1);
+    }
+    *slot = s;
+    return 0;
+}
+
+int hub_set_pose(hub *h, const hub_pose *pose)
+{
+    pthread_mutex_lock(&h->pose_lock);
+    uint32_t slot;
+    int32_t at = pose_find(h, pose->collider, &slot);
+    int rc = 0;
+    if (at) {
+        h->poses[at - 1] = *pose;
+    } else if (h->pose_count < HUB_POSE_CAPACITY) {
+        h->poses[h->pose_count] = *pose;
+        h->slots[slot] = ++h->pose_count;
+    } else {
+        rc = -1;
+    }
+    pthread_mutex_unlock(&h->pose_lock);
+    return rc;
+}
+
+/* Rebuild the slot table after removing entries (cheap: only pending poses). */
+static void pose_reindex(hub *h)
+{
+    memset(h->slots, 0, HUB_POSE_SLOTS * sizeof *h->slots);
+    for (int i = 0; i < h->pose_count; i++) {
+        uint32_t slot;
+        pose_find(h, h->poses[i].collider, &slot);
+        h->slots[slot] = i + 1;
+    }
+}
+
+void hub_forget_pose(hub *h, uint32_t collider)
+{
+    pthread_mutex_lock(&h->pose_lock);
+    uint32_t slot;
+    int32_t at = pose_find(h, collider, &slot);
+    if (at) {
+        h->poses[at - 1] = h->poses[--h->pose_count];
+        pose_reindex(h);
+    }
+    pthread_mutex_unlock(&h->pose_lock);
+}
+
+int hub_take_poses(hub *h, hub_pose *out, int max)
+{
+    pthread_mutex_lock(&h->pose_lock);
+    int n = h->pose_count < max ? h->pose_count : max;
+    memcpy(out, h->poses, (size_t)n * sizeof *out);
+    memmove(h->poses, h->poses + n, (size_t)(h->pose_count - n) * sizeof *h->poses);
+    h->pose_count -= n;
+    pose_reindex(h);
+    pthread_mutex_unlock(&h->pose_lock);
+    return n;
+}
+
+/* ---- frames ---- */
+
+hub_frame *hub_frame_new(int binary, size_t len)
+{
+    hub_frame *f = malloc(sizeof *f + HUB_FRAME_HEADROOM + len + 1);
+    if (!f)
+        return NULL;
+    atomic_init(&f->refs, 1);
+    f->binary = binary;
+    f->len = len;
+    f->data = f->storage + HUB_FRAME_HEADROOM;
+    f->data[len] = 0;
+    return f;
+}
+
+hub_frame *hub_frame_from_text(const char *text)
+{
+    size_t len = strlen(text);
+    hub_frame *f = hub_frame_new(0, len);
+    if (f)
+        memcpy(f->data, text, len);
+    return f;
+}
+
+void hub_frame_ref(hub_frame *f)
+{
+    atomic_fetch_add_explicit(&f->refs, 1, memory_order_relaxed);
+}
+
+void hub_frame_unref(hub_frame *f)
+{
+    if (f && atomic_fetch_sub_explicit(&f->refs, 1, memory_order_acq_rel) == 1)
+        free(f);
+}
+
+/* ---- outbound ---- */
+
+int hub_publish(hub *h, hub_out *items, int count)
+{
+    int dropped = 0;
+    pthread_mutex_lock(&h->out_lock);
+    for (int i = 0; i < count; i++) {
+        if (h->out_count == HUB_OUT_CAPACITY) {
+            /* Nothing may block the tick: drop, and have every client resync. */
+            if (items[i].frame)
+                hub_frame_unref(items[i].frame);
+            h->overflow = 1;
+            dropped++;
+            continue;
+        }
+        h->out[(h->out_head + h->out_count) % HUB_OUT_CAPACITY] = items[i];
+        h->out_count++;
+    }
+    void (*wake)(void *) = h->wake;
+    void *arg = h->wake_arg;
+    pthread_mutex_unlock(&h->out_lock);
+    if (wake)
+        wake(arg);
+    return dropped;
+}
+
+int hub_take_outbound(hub *h, hub_out *out, int max)
+{
+    pthread_mutex_lock(&h->out_lock);
+    int n = h->out_count < max ? h->out_count : max;
+    for (int i = 0; i < n; i++)
+        out[i] = h->out[(h->out_head + i) % HUB_OUT_CAPACITY];
+    h->out_head = (h->out_head + n) % HUB_OUT_CAPACITY;
+    h->out_count -= n;
+    pthread_mutex_unlock(&h->out_lock);
+    return n;
+}
+
+int hub_take_overflow(hub *h)
+{
+    pthread_mutex_lock(&h->out_lock);
+    int o = h->overflow;
+    h->overflow = 0;
+    pthread_mutex_unlock(&h->out_lock);
+    return o;
+}
+
+void hub_set_waker(hub *h, void (*wake)(void *arg), void *arg)
+{
+    pthread_mutex_lock(&h->out_lock);
+    h->wake = wake;
+    h->wake_arg = arg;
+    pthread_mutex_unlock(&h->out_lock);
+}
+
+/* ---- height reads ---- */
+
+int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int timeout_ms)
+{
+    struct timespec deadline;
+    clock_gettime(CLOCK_MONOTONIC, &deadline);
+    deadline.tv_sec += timeout_ms / 1000;
+    deadline.tv_nsec += (long)(timeout_ms % 1000) * 1000000L;
+    if (deadline.tv_nsec >= 1000000000L) {
+        deadline.tv_sec++;
+        deadline.tv_nsec -= 1000000000L;
+    }
+    pthread_mutex_lock(&h->read_lock);
+    hub_read *slot = NULL;
+    for (int i = 0; i < HUB_MAX_READS && !slot; i++)
+        if (!h->reads[i].active)
+            slot = &h->reads[i];
+    if (!slot || h->reads_closed) {
+        pthread_mutex_unlock(&h->read_lock);
+        return -1;
+    }
+    *slot = (hub_read){.rect = r, .out = out, .active = 1};
+    int rc = 0;
+    while (!slot->done && !h->reads_closed) {
+        if (pthread_cond_timedwait(&h->read_done, &h->read_lock, &deadline) == ETIMEDOUT) {
+            rc = slot->done ? 0 : -1;
+            break;
+        }
+    }
+    if (!slot->done)
+        rc = -1;
+    else
+        *tick = slot->tick;
+    slot->active = 0; /* the sim thread will not touch `out` after this */
+    pthread_mutex_unlock(&h->read_lock);
+    return rc;
+}
+
+void hub_serve_reads(hub *h, const world *w, uint64_t tick)
+{
+    pthread_mutex_lock(&h->read_lock);
+    int served = 0;
+    for (int i = 0; i < HUB_MAX_READS; i++) {
+        hub_read *r = &h->reads[i];
+        if (!r->active || r->done)
+            continue;
+        world_rect clipped = r->rect;
+        if (world_clip_rect(w, &clipped) && clipped.x == r->rect.x && clipped.y == r->rect.y &&
+            clipped.w == r->rect.w && clipped.h == r->rect.h)
+            world_gather_window(w, r->rect, r->out);
+        else
+            memset(r->out, 0, (size_t)r->rect.w * r->rect.h * sizeof *r->out);
+        r->tick = tick;
+        r->done = 1;
+        served++;
+    }
+    if (served)
+        pthread_cond_broadcast(&h->read_done);
+    pthread_mutex_unlock(&h->read_lock);
+}
+
+void hub_close_reads(hub *h)
+{
+    pthread_mutex_lock(&h->read_lock);
+    h->reads_closed = 1;
+    pthread_cond_broadcast(&h->read_done);
+    pthread_mutex_unlock(&h->read_lock);
+}

@@ -1,0 +1,141 @@
+/*
+ * hub: the one meeting point of the websocket thread, the HTTP thread and
+ * the sim thread (DESIGN.md "One tick", steps 1-2 and 8).
+ *
+ *   net → sim   commands (client joined/left, collider create/delete,
+ *               subscribe/unsubscribe, resync) in a bounded queue, and a
+ *               latest-pose table (latest wins per collider);
+ *   sim → net   the tick's outbound frames in order: each encoded once,
+ *               reference counted, and either addressed to one client or
+ *               tagged with the tile it belongs to for fan-out;
+ *   http → sim  height reads, served by the sim thread between ticks.
+ *
+ * Every call takes one mutex for a short copy; none waits on another thread
+ * except hub_read_heights, which is only called from the HTTP thread. The
+ * sim thread never blocks on the network, and the network never blocks a
+ * tick. Queues are bounded: a full command queue refuses the command (the
+ * net thread answers the client), a full outbound queue drops tile deltas
+ * and marks every client for a resync (counted).
+ */
+#ifndef TERRAD_HUB_H
+#define TERRAD_HUB_H
+
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "collider/collider.h"
+#include "world/world.h"
+
+typedef struct hub hub;
+
+hub *hub_create(void);
+void hub_destroy(hub *h);
+
+/* ---- net → sim: commands ---- */
+
+typedef enum hub_command_kind {
+    HUB_CLIENT_JOINED,
+    HUB_CLIENT_LEFT,       /* sim deletes the client's colliders */
+    HUB_COLLIDER_CREATE,   /* id assigned by the net thread, unique for the daemon's life */
+    HUB_COLLIDER_DELETE,
+    HUB_SUBSCRIBE,         /* sim answers with snapshot frames for the client */
+    HUB_UNSUBSCRIBE,
+    HUB_RESYNC,            /* fresh snapshots of one (subscription != 0) or all subscriptions */
+} hub_command_kind;
+
+typedef struct hub_command {
+    hub_command_kind kind;
+    uint32_t client;
+    uint32_t collider;     /* create / delete */
+    uint32_t subscription; /* subscribe / unsubscribe / resync (0 = all) */
+    world_rect rect;       /* subscribe: inside the world (checked by the net thread) */
+    collider_geometry geometry; /* create; for a mesh, geometry.mesh == mesh */
+    collider_mesh *mesh;        /* create, mesh shapes: owned by the command, then by the sim */
+    collider_pose pose;         /* create: initial pose */
+    char material[32];          /* create */
+    int feedback;               /* create: send CONTACT entries for this collider */
+    char ref[64];               /* the client's request reference, echoed in replies */
+} hub_command;
+
+/* Returns 0, or -1 when the queue is full (the command is not taken: the
+ * caller still owns cmd->mesh). */
+int hub_push_command(hub *h, const hub_command *cmd);
+/* sim thread: move up to max queued commands into out, in arrival order. */
+int hub_take_commands(hub *h, hub_command *out, int max);
+
+/* ---- net → sim: poses ---- */
+
+typedef struct hub_pose {
+    uint32_t collider;
+    uint32_t client;
+    uint32_t sequence; /* the client's POSE_BATCH sequence it came in */
+    collider_pose pose;
+} hub_pose;
+
+/* Latest wins per collider. The net thread has already checked ownership
+ * and values. Returns -1 if the table is full (it holds every live collider,
+ * so only when far more than the limits allow exist). */
+int hub_set_pose(hub *h, const hub_pose *pose);
+/* Drop a collider's pending pose (collider deleted). */
+void hub_forget_pose(hub *h, uint32_t collider);
+/* sim thread: take every pose set since the last call (max entries). */
+int hub_take_poses(hub *h, hub_pose *out, int max);
+
+/* ---- sim → net: frames ---- */
+
+/* Bytes of headroom before a frame's payload: libwebsockets writes its frame
+ * header there (the net thread asserts HUB_FRAME_HEADROOM >= LWS_PRE). */
+#define HUB_FRAME_HEADROOM 32
+
+typedef struct hub_frame {
+    atomic_int refs;
+    int binary; /* 1: binary frame, 0: text (JSON) */
+    size_t len;
+    unsigned char *data; /* = storage + HUB_FRAME_HEADROOM */
+    unsigned char storage[];
+} hub_frame;
+
+hub_frame *hub_frame_new(int binary, size_t len); /* refs = 1 */
+hub_frame *hub_frame_from_text(const char *text); /* a JSON text frame */
+void hub_frame_ref(hub_frame *f);
+void hub_frame_unref(hub_frame *f);
+
+typedef enum hub_out_kind {
+    HUB_OUT_CLIENT,     /* for one client (replies, snapshots, contacts, acks) */
+    HUB_OUT_TILE_DELTA, /* for every client whose subscriptions meet the tile */
+    HUB_OUT_TICK_DONE,  /* the tick's frames are all out (frame is NULL) */
+} hub_out_kind;
+
+typedef struct hub_out {
+    hub_out_kind kind;
+    uint32_t client;    /* HUB_OUT_CLIENT */
+    int tile_x, tile_y; /* HUB_OUT_TILE_DELTA: tile coordinates (cells / tile_size) */
+    int snapshot_done;  /* HUB_OUT_CLIENT: the last snapshot frame of a subscribe/resync */
+    uint64_t tick;
+    hub_frame *frame;   /* the queue holds one reference */
+} hub_out;
+
+/* sim thread: append in order (takes over the frames' references) and wake
+ * the net thread. Returns the number dropped because the queue was full. */
+int hub_publish(hub *h, hub_out *items, int count);
+/* net thread: take up to max items in order; the caller owns their references. */
+int hub_take_outbound(hub *h, hub_out *out, int max);
+/* 1 once if the outbound queue overflowed since the last call (every client
+ * must then be resynchronised). */
+int hub_take_overflow(hub *h);
+/* How the sim thread wakes the net thread (lws_cancel_service). */
+void hub_set_waker(hub *h, void (*wake)(void *arg), void *arg);
+
+/* ---- http → sim: height reads ---- */
+
+/* Any thread but the sim thread: copy a rectangle (inside the world) of
+ * heights as of the end of a tick. Waits up to timeout_ms; returns 0, or -1
+ * on timeout or when the sim thread is gone. */
+int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int timeout_ms);
+/* sim thread, between ticks: serve the pending reads. */
+void hub_serve_reads(hub *h, const world *w, uint64_t tick);
+/* sim thread, at exit: fail every pending and future read. */
+void hub_close_reads(hub *h);
+
+#endif

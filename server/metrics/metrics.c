@@ -1,0 +1,476 @@
+/*
+ * metrics.c: the process-wide counters, gauges and histograms behind
+ * GET /metrics.
+ *
+ * Every thread counts here: the websocket thread (bytes, messages, refusals),
+ * the sim thread once per tick (tick and stage durations, Σh, active cells)
+ * and the fan-out (frames, delta bytes). Counters and gauges are relaxed
+ * atomics: a scrape needs each value to be a value that was true at some
+ * moment, not a consistent cut across all of them, and relaxed updates cost
+ * the tick nothing. Histograms hold several words that must agree (buckets,
+ * sum, count), so each has a small mutex, held only for an increment.
+ *
+ * Durations arrive in milliseconds (what the tick measures) and leave in
+ * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
+ * would round it above 2^53, and volume conservation is checked bit for bit.
+ */
+#include "metrics/metrics.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "terrad_proto.h"
+
+/* ---- histograms ---- */
+
+#define HIST_MAX_BUCKETS 12
+
+typedef struct histogram {
+    pthread_mutex_t lock;
+    int nbounds;                           /* finite upper bounds; +Inf is implicit */
+    const double *bounds_ms;               /* ascending */
+    const char *const *labels;             /* the same bounds in seconds, as printed */
+    uint64_t counts[HIST_MAX_BUCKETS + 1]; /* per bucket, not cumulative; last is +Inf */
+    double sum_ms;
+    uint64_t count;
+} histogram;
+
+/* Tick durations: 60 Hz is 16.7 ms, so the buckets straddle one, two, four
+ * and eight periods. */
+static const double tick_bounds_ms[] = {0.5, 1, 2, 4, 8, 16, 33, 66, 133};
+static const char *const tick_labels[] = {"0.0005", "0.001", "0.002", "0.004", "0.008",
+                                          "0.016",  "0.033", "0.066", "0.133"};
+
+/* Stages are fractions of a tick: finer buckets at the low end. */
+static const double stage_bounds_ms[] = {0.05, 0.1, 0.25, 0.5, 1, 2, 4, 8, 16, 33};
+static const char *const stage_labels[] = {"0.00005", "0.0001", "0.00025", "0.0005", "0.001",
+                                           "0.002",   "0.004",  "0.008",   "0.016",  "0.033"};
+
+/* Pose-to-delta latency spans network and one or two ticks. */
+static const double latency_bounds_ms[] = {1, 2, 5, 10, 17, 33, 50, 100, 250, 500, 1000};
+static const char *const latency_labels[] = {"0.001", "0.002", "0.005", "0.01", "0.017", "0.033",
+                                             "0.05",  "0.1",   "0.25",  "0.5",  "1"};
+
+#define COUNT_OF(a) ((int)(sizeof(a) / sizeof((a)[0])))
+
+static const char *const stage_names[] = {METRICS_STAGES};
+#define STAGE_COUNT COUNT_OF(stage_names)
+
+static histogram tick_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
+                              .nbounds = COUNT_OF(tick_bounds_ms),
+                              .bounds_ms = tick_bounds_ms,
+                              .labels = tick_labels};
+static histogram latency_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
+                                 .nbounds = COUNT_OF(latency_bounds_ms),
+                                 .bounds_ms = latency_bounds_ms,
+                                 .labels = latency_labels};
+static histogram stage_hist[STAGE_COUNT];
+static pthread_once_t stage_once = PTHREAD_ONCE_INIT;
+
+static void stage_hist_init(void)
+{
+    for (int i = 0; i < STAGE_COUNT; i++) {
+        pthread_mutex_init(&stage_hist[i].lock, NULL);
+        stage_hist[i].nbounds = COUNT_OF(stage_bounds_ms);
+        stage_hist[i].bounds_ms = stage_bounds_ms;
+        stage_hist[i].labels = stage_labels;
+    }
+}
+
+static void histogram_observe(histogram *hg, double ms)
+{
+    /* A NaN would poison the sum for the life of the process; a negative
+     * duration is a clock hiccup. Neither is worth a sample. */
+    if (!(ms >= 0) || isinf(ms))
+        return;
+    int b = 0;
+    while (b < hg->nbounds && ms > hg->bounds_ms[b])
+        b++;
+    pthread_mutex_lock(&hg->lock);
+    hg->counts[b]++;
+    hg->sum_ms += ms;
+    hg->count++;
+    pthread_mutex_unlock(&hg->lock);
+}
+
+static void histogram_reset(histogram *hg)
+{
+    pthread_mutex_lock(&hg->lock);
+    memset(hg->counts, 0, sizeof hg->counts);
+    hg->sum_ms = 0;
+    hg->count = 0;
+    pthread_mutex_unlock(&hg->lock);
+}
+
+/* ---- counters and gauges ---- */
+
+static atomic_uint_fast64_t bytes_in, bytes_out, messages_in, frames_out;
+static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, refused_windows;
+static atomic_uint_fast64_t delta_raw, delta_compressed;
+static atomic_uint_fast64_t refused[TERRAD_ERR_LAST + 1]; /* by wire error code; [0] unused */
+static atomic_uint_fast64_t tick_now;
+static atomic_int_fast64_t volume, active_cells, colliders, clients;
+
+#define ADD(v, n) atomic_fetch_add_explicit(&(v), (n), memory_order_relaxed)
+#define SET(v, n) atomic_store_explicit(&(v), (n), memory_order_relaxed)
+#define GET(v) atomic_load_explicit(&(v), memory_order_relaxed)
+
+/* Memory parts: a short table of names, written rarely (once per tick with
+ * the same names), so one mutex is simpler than anything lock-free. */
+#define MEMORY_PARTS_MAX 32
+#define MEMORY_PART_NAME 48
+
+static pthread_mutex_t memory_lock = PTHREAD_MUTEX_INITIALIZER;
+static struct {
+    char name[MEMORY_PART_NAME];
+    uint64_t bytes;
+} memory_parts[MEMORY_PARTS_MAX];
+static int memory_part_count;
+
+void metrics_reset(void)
+{
+    pthread_once(&stage_once, stage_hist_init);
+    SET(bytes_in, 0);
+    SET(bytes_out, 0);
+    SET(messages_in, 0);
+    SET(frames_out, 0);
+    SET(frames_coalesced, 0);
+    SET(frames_dropped, 0);
+    SET(tick_overruns, 0);
+    SET(refused_windows, 0);
+    SET(delta_raw, 0);
+    SET(delta_compressed, 0);
+    for (int i = 0; i <= TERRAD_ERR_LAST; i++)
+        SET(refused[i], 0);
+    SET(tick_now, 0);
+    SET(volume, 0);
+    SET(active_cells, 0);
+    SET(colliders, 0);
+    SET(clients, 0);
+    histogram_reset(&tick_hist);
+    histogram_reset(&latency_hist);
+    for (int i = 0; i < STAGE_COUNT; i++)
+        histogram_reset(&stage_hist[i]);
+    pthread_mutex_lock(&memory_lock);
+    memory_part_count = 0;
+    pthread_mutex_unlock(&memory_lock);
+}
+
+void metrics_count_bytes_in(uint64_t n)
+{
+    ADD(bytes_in, n);
+}
+
+void metrics_count_bytes_out(uint64_t n)
+{
+    ADD(bytes_out, n);
+}
+
+void metrics_count_messages_in(uint64_t n)
+{
+    ADD(messages_in, n);
+}
+
+void metrics_count_frames_out(uint64_t n)
+{
+    ADD(frames_out, n);
+}
+
+void metrics_count_refused(int error_code)
+{
+    /* One series per wire error name keeps the label set bounded; a code
+     * outside the table is our bug, not the client's, hence "internal". */
+    if (error_code < TERRAD_ERR_FIRST || error_code > TERRAD_ERR_LAST)
+        error_code = TERRAD_E_INTERNAL;
+    ADD(refused[error_code], 1);
+}
+
+void metrics_count_frames_coalesced(uint64_t n)
+{
+    ADD(frames_coalesced, n);
+}
+
+void metrics_count_frames_dropped(uint64_t n)
+{
+    ADD(frames_dropped, n);
+}
+
+void metrics_count_tick_overrun(void)
+{
+    ADD(tick_overruns, 1);
+}
+
+void metrics_count_refused_windows(uint64_t n)
+{
+    ADD(refused_windows, n);
+}
+
+void metrics_count_delta_bytes(uint64_t raw_bytes, uint64_t compressed_bytes)
+{
+    ADD(delta_raw, raw_bytes);
+    ADD(delta_compressed, compressed_bytes);
+}
+
+void metrics_observe_tick_ms(double ms)
+{
+    histogram_observe(&tick_hist, ms);
+}
+
+void metrics_observe_stage_ms(const char *stage, double ms)
+{
+    pthread_once(&stage_once, stage_hist_init);
+    if (!stage)
+        return;
+    /* Unknown stage names are dropped rather than added: a label value made
+     * up at run time would grow the series without bound. */
+    for (int i = 0; i < STAGE_COUNT; i++) {
+        if (strcmp(stage, stage_names[i]) == 0) {
+            histogram_observe(&stage_hist[i], ms);
+            return;
+        }
+    }
+}
+
+void metrics_observe_pose_to_delta_ms(double ms)
+{
+    histogram_observe(&latency_hist, ms);
+}
+
+void metrics_set_tick(uint64_t tick)
+{
+    SET(tick_now, tick);
+}
+
+void metrics_set_volume(int64_t v)
+{
+    SET(volume, v);
+}
+
+void metrics_set_active_cells(int64_t cells)
+{
+    SET(active_cells, cells);
+}
+
+void metrics_set_colliders(int64_t n)
+{
+    SET(colliders, n);
+}
+
+void metrics_set_clients(int64_t n)
+{
+    SET(clients, n);
+}
+
+void metrics_set_memory_bytes(const char *part, uint64_t bytes)
+{
+    if (!part || !*part)
+        return;
+    pthread_mutex_lock(&memory_lock);
+    int i = 0;
+    while (i < memory_part_count && strncmp(memory_parts[i].name, part, MEMORY_PART_NAME - 1) != 0)
+        i++;
+    if (i == memory_part_count) {
+        if (memory_part_count == MEMORY_PARTS_MAX) { /* full: further parts are not shown */
+            pthread_mutex_unlock(&memory_lock);
+            return;
+        }
+        snprintf(memory_parts[i].name, sizeof memory_parts[i].name, "%s", part);
+        memory_part_count++;
+    }
+    memory_parts[i].bytes = bytes;
+    pthread_mutex_unlock(&memory_lock);
+}
+
+/* ---- exposition ---- */
+
+typedef struct text {
+    char *data;
+    size_t len, cap;
+    int failed;
+} text;
+
+static void text_printf(text *t, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+static void text_printf(text *t, const char *fmt, ...)
+{
+    if (t->failed)
+        return;
+    for (;;) {
+        va_list ap;
+        va_start(ap, fmt);
+        int n = vsnprintf(t->data + t->len, t->cap - t->len, fmt, ap);
+        va_end(ap);
+        if (n < 0) {
+            t->failed = 1;
+            return;
+        }
+        if ((size_t)n < t->cap - t->len) {
+            t->len += (size_t)n;
+            return;
+        }
+        size_t cap = t->cap * 2 + (size_t)n + 1;
+        char *d = realloc(t->data, cap);
+        if (!d) {
+            t->failed = 1;
+            return;
+        }
+        t->data = d;
+        t->cap = cap;
+    }
+}
+
+/* A label value as the text format wants it: backslash, double quote and
+ * newline escaped. Written into out (bounded; long values are cut). */
+static void escape_label(const char *in, char *out, size_t cap)
+{
+    size_t o = 0;
+    for (; *in && o + 3 < cap; in++) {
+        char c = *in;
+        if (c == '\\' || c == '"') {
+            out[o++] = '\\';
+            out[o++] = c;
+        } else if (c == '\n') {
+            out[o++] = '\\';
+            out[o++] = 'n';
+        } else {
+            out[o++] = c;
+        }
+    }
+    out[o] = '\0';
+}
+
+static void header(text *t, const char *name, const char *type, const char *help)
+{
+    text_printf(t, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
+}
+
+static void counter(text *t, const char *name, const char *help, uint64_t v)
+{
+    header(t, name, "counter", help);
+    text_printf(t, "%s %llu\n", name, (unsigned long long)v);
+}
+
+static void gauge_int(text *t, const char *name, const char *help, int64_t v)
+{
+    header(t, name, "gauge", help);
+    text_printf(t, "%s %lld\n", name, (long long)v);
+}
+
+/* The samples of one histogram (no HELP/TYPE); labels is "" or `k="v",`. */
+static void histogram_samples(text *t, const char *name, const char *labels, histogram *hg)
+{
+    uint64_t counts[HIST_MAX_BUCKETS + 1];
+    pthread_mutex_lock(&hg->lock);
+    memcpy(counts, hg->counts, sizeof counts);
+    double sum_ms = hg->sum_ms;
+    uint64_t count = hg->count;
+    pthread_mutex_unlock(&hg->lock);
+    uint64_t cumulative = 0;
+    for (int b = 0; b < hg->nbounds; b++) {
+        cumulative += counts[b];
+        text_printf(t, "%s_bucket{%sle=\"%s\"} %llu\n", name, labels, hg->labels[b],
+                    (unsigned long long)cumulative);
+    }
+    text_printf(t, "%s_bucket{%sle=\"+Inf\"} %llu\n", name, labels, (unsigned long long)count);
+    /* Labels without the trailing comma for _sum and _count. */
+    size_t n = strlen(labels);
+    if (n) {
+        text_printf(t, "%s_sum{%.*s} %.9g\n", name, (int)(n - 1), labels, sum_ms / 1000.0);
+        text_printf(t, "%s_count{%.*s} %llu\n", name, (int)(n - 1), labels,
+                    (unsigned long long)count);
+    } else {
+        text_printf(t, "%s_sum %.9g\n", name, sum_ms / 1000.0);
+        text_printf(t, "%s_count %llu\n", name, (unsigned long long)count);
+    }
+}
+
+char *metrics_render(size_t *len)
+{
+    pthread_once(&stage_once, stage_hist_init);
+    text t = {malloc(8192), 0, 8192, 0};
+    if (!t.data)
+        return NULL;
+
+    header(&t, "terrad_tick_duration_seconds", "histogram",
+           "Wall time of one simulation tick, all stages included.");
+    histogram_samples(&t, "terrad_tick_duration_seconds", "", &tick_hist);
+
+    header(&t, "terrad_stage_duration_seconds", "histogram",
+           "Wall time of one stage of a tick, by stage.");
+    for (int i = 0; i < STAGE_COUNT; i++) {
+        char labels[64];
+        snprintf(labels, sizeof labels, "stage=\"%s\",", stage_names[i]);
+        histogram_samples(&t, "terrad_stage_duration_seconds", labels, &stage_hist[i]);
+    }
+
+    header(&t, "terrad_pose_to_delta_latency_seconds", "histogram",
+           "Time from a pose batch's arrival to the delta frames of the tick that used it.");
+    histogram_samples(&t, "terrad_pose_to_delta_latency_seconds", "", &latency_hist);
+
+    gauge_int(&t, "terrad_tick", "The last completed tick.", (int64_t)GET(tick_now));
+    /* %lld of an int64: exact, unlike any double formatting above 2^53. */
+    gauge_int(&t, "terrad_volume_units", "Sum of all heights in height units (exact integer).",
+              (int64_t)GET(volume));
+    gauge_int(&t, "terrad_active_cells", "Cells inside the last tick's active windows.",
+              (int64_t)GET(active_cells));
+    gauge_int(&t, "terrad_colliders", "Live colliders.", (int64_t)GET(colliders));
+    gauge_int(&t, "terrad_clients", "Connected websocket clients.", (int64_t)GET(clients));
+
+    counter(&t, "terrad_bytes_in_total", "Websocket payload bytes received.", GET(bytes_in));
+    counter(&t, "terrad_bytes_out_total", "Websocket payload bytes sent.", GET(bytes_out));
+    counter(&t, "terrad_messages_in_total", "Websocket messages received.", GET(messages_in));
+    counter(&t, "terrad_frames_out_total", "Websocket frames sent.", GET(frames_out));
+
+    uint64_t raw = GET(delta_raw), comp = GET(delta_compressed);
+    counter(&t, "terrad_delta_raw_bytes_total", "Delta payload bytes before compression.", raw);
+    counter(&t, "terrad_delta_compressed_bytes_total", "Delta payload bytes after compression.",
+            comp);
+    header(&t, "terrad_delta_compression_ratio", "gauge",
+           "Raw over compressed delta bytes over the process's life (0 before any delta).");
+    text_printf(&t, "terrad_delta_compression_ratio %.6g\n",
+                comp ? (double)raw / (double)comp : 0.0);
+
+    counter(&t, "terrad_frames_coalesced_total",
+            "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
+    counter(&t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
+            GET(frames_dropped));
+
+    header(&t, "terrad_refused_messages_total", "counter",
+           "Client messages refused, by wire error name (proto/PROTOCOL.md).");
+    for (int code = TERRAD_ERR_FIRST; code <= TERRAD_ERR_LAST; code++) {
+        const char *name = terrad_err_name(code);
+        char esc[64];
+        escape_label(name ? name : "internal", esc, sizeof esc);
+        text_printf(&t, "terrad_refused_messages_total{reason=\"%s\"} %llu\n", esc,
+                    (unsigned long long)GET(refused[code]));
+    }
+
+    counter(&t, "terrad_tick_overruns_total", "Ticks that took longer than the tick period.",
+            GET(tick_overruns));
+    counter(&t, "terrad_refused_windows_total",
+            "Active windows refused because their heights would leave the height limits.",
+            GET(refused_windows));
+
+    header(&t, "terrad_memory_bytes", "gauge", "Memory held by a part of the daemon, by part.");
+    pthread_mutex_lock(&memory_lock);
+    for (int i = 0; i < memory_part_count; i++) {
+        char esc[2 * MEMORY_PART_NAME + 4];
+        escape_label(memory_parts[i].name, esc, sizeof esc);
+        text_printf(&t, "terrad_memory_bytes{part=\"%s\"} %llu\n", esc,
+                    (unsigned long long)memory_parts[i].bytes);
+    }
+    pthread_mutex_unlock(&memory_lock);
+
+    if (t.failed) {
+        free(t.data);
+        return NULL;
+    }
+    if (len)
+        *len = t.len;
+    return t.data;
+}

@@ -1,0 +1,46 @@
+/*
+ * metrics: the daemon's process-wide counters, gauges and histograms, and
+ * their Prometheus text exposition for GET /metrics. Any thread may count;
+ * every update is a relaxed atomic (or a short lock for histograms), so
+ * counting never stalls a tick or the network.
+ */
+#ifndef TERRAD_METRICS_H
+#define TERRAD_METRICS_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+/* Stage names for metrics_observe_stage_ms (the simulate report's names). */
+#define METRICS_STAGES                                                                             \
+    "depth", "classify", "jump_flood", "displace", "even_slopes", "transfer", "gather_scatter"
+
+void metrics_reset(void); /* zero everything (tests) */
+
+void metrics_count_bytes_in(uint64_t bytes);
+void metrics_count_bytes_out(uint64_t bytes);
+void metrics_count_messages_in(uint64_t n);
+void metrics_count_frames_out(uint64_t n);
+/* A refused client message, by its wire error code (proto/PROTOCOL.md). */
+void metrics_count_refused(int error_code);
+void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a slow client */
+void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
+void metrics_count_tick_overrun(void);
+void metrics_count_refused_windows(uint64_t n);  /* windows refused at the height limit */
+void metrics_count_delta_bytes(uint64_t raw_bytes, uint64_t compressed_bytes);
+
+void metrics_observe_tick_ms(double ms);
+void metrics_observe_stage_ms(const char *stage, double ms);
+void metrics_observe_pose_to_delta_ms(double ms);
+
+void metrics_set_tick(uint64_t tick);
+void metrics_set_volume(int64_t volume); /* Σh, exact integer */
+void metrics_set_active_cells(int64_t cells);
+void metrics_set_colliders(int64_t n);
+void metrics_set_clients(int64_t n);
+/* Memory held by a part of the daemon ("world", "sim_scratch", ...). */
+void metrics_set_memory_bytes(const char *part, uint64_t bytes);
+
+/* The text exposition (text/plain; version=0.0.4); caller frees. */
+char *metrics_render(size_t *len);
+
+#endif

@@ -1,0 +1,930 @@
+/*
+ * net.c: the websocket service thread, its connections and their queues.
+ *
+ * One libwebsockets context, one protocol callback ("terrad.v1"), one
+ * thread. Everything a connection owns (its reassembly buffer, its token
+ * bucket, its colliders and subscriptions, its outgoing queue) lives in a
+ * net_client that only this thread touches, so there are no locks here
+ * beyond the hub's own.
+ *
+ * Outgoing data never comes from anywhere but a client's queue of hub_frame
+ * references: the sim thread's frames (taken from the hub when its waker
+ * cancels our poll wait), and our own replies. A queue is written one frame
+ * per SERVER_WRITEABLE callback. Its size is bounded three ways:
+ *
+ *   - tile deltas stop for a client whose pending bytes would pass
+ *     max_pending_bytes ("slow"): its queued deltas are dropped, and once
+ *     the queue has drained to half the limit it is sent fresh snapshots
+ *     (a HUB_RESYNC); deltas resume after the last snapshot frame;
+ *   - CONTACT and ACK frames of a slow client replace their older copies
+ *     (each one says everything the older said, for a later tick);
+ *   - anything beyond hard_pending_bytes (room for max_pending_bytes, a
+ *     whole snapshot of the largest allowed subscription area and a few
+ *     messages) closes the connection: such a client has stopped reading
+ *     and keeps asking for more.
+ *
+ * Incoming messages are reassembled up to max_message_bytes, rate limited by
+ * a token bucket, and handed to net_requests.c.
+ */
+#include "net/net_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "metrics/metrics.h"
+#include "terrad_proto.h"
+
+_Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of headroom");
+
+#define NET_QUEUE_MAX_ITEMS 65536   /* frames queued for one client, at most */
+#define NET_DRAIN_BATCH 256         /* hub items taken per call */
+#define NET_DRAIN_ROUNDS 64         /* batches per wake before serving sockets again */
+#define NET_HEARTBEAT_US 100000     /* backlog retries, shutdown checks */
+#define NET_CLOSE_GRACE_S 3         /* a closing client gets this long to take its last frames */
+#define NET_FLOOD_FATAL_MS 10000.0  /* sustained rate limiting closes with 4010 */
+#define NET_STOP_GRACE_MS 800.0
+
+typedef struct net_session {
+    net_client *c;
+} net_session;
+
+net_limits net_limits_default(void)
+{
+    return (net_limits){
+        .max_message_bytes = 1048576,
+        .max_colliders = 64,
+        .max_poses_per_batch = 64,
+        .max_subscriptions = 16,
+        .max_subscribed_cells = 4194304,
+        .max_messages_per_s = 240,
+        .messages_burst = 480,
+        .max_mesh_vertices = 16384,
+        .max_mesh_triangles = 32768,
+        .max_collider_extent_m = 50,
+        .max_pending_bytes = 8388608,
+        .hello_timeout_s = 5,
+    };
+}
+
+/* ---- clients ---- */
+
+net_client *net_find_client(net_server *s, uint32_t id)
+{
+    int lo = 0, hi = s->nclients - 1;
+    while (lo <= hi) {
+        int mid = lo + (hi - lo) / 2;
+        uint32_t at = s->clients[mid]->id;
+        if (at == id)
+            return s->clients[mid];
+        if (at < id)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return NULL;
+}
+
+static int client_add(net_server *s, net_client *c)
+{
+    if (s->nclients == s->clients_cap) {
+        int cap = s->clients_cap ? s->clients_cap * 2 : 16;
+        net_client **grown = realloc(s->clients, (size_t)cap * sizeof *grown);
+        if (!grown)
+            return -1;
+        s->clients = grown;
+        s->clients_cap = cap;
+    }
+    s->clients[s->nclients++] = c; /* ids only grow: the array stays sorted */
+    return 0;
+}
+
+static void client_remove(net_server *s, net_client *c)
+{
+    for (int i = 0; i < s->nclients; i++)
+        if (s->clients[i] == c) {
+            memmove(&s->clients[i], &s->clients[i + 1],
+                    (size_t)(s->nclients - i - 1) * sizeof *s->clients);
+            s->nclients--;
+            return;
+        }
+}
+
+static void queue_release(net_client *c)
+{
+    for (size_t i = 0; i < c->q_count; i++)
+        hub_frame_unref(c->q[(c->q_head + i) % c->q_cap].frame);
+    c->q_head = c->q_count = 0;
+    c->pending_bytes = 0;
+}
+
+/* Drop every queued item for which drop(item) says so; returns how many. */
+static int queue_filter(net_client *c, int (*drop)(const net_item *, int), int arg)
+{
+    size_t kept = 0;
+    int dropped = 0;
+    for (size_t i = 0; i < c->q_count; i++) {
+        net_item it = c->q[(c->q_head + i) % c->q_cap];
+        if (drop(&it, arg)) {
+            c->pending_bytes -= it.frame->len;
+            hub_frame_unref(it.frame);
+            dropped++;
+        } else {
+            c->q[(c->q_head + kept) % c->q_cap] = it;
+            kept++;
+        }
+    }
+    c->q_count = kept;
+    return dropped;
+}
+
+static int is_tile(const net_item *it, int arg)
+{
+    (void)arg;
+    return it->kind == NET_ITEM_TILE;
+}
+
+static int is_status_of(const net_item *it, int type)
+{
+    return it->kind == NET_ITEM_STATUS && it->type == type;
+}
+
+int net_drop_tile_deltas(net_client *c)
+{
+    return queue_filter(c, is_tile, 0);
+}
+
+/* The client stopped reading and asked for more: let it go. */
+static void client_kill(net_client *c, const char *why)
+{
+    if (c->killed)
+        return;
+    c->killed = 1;
+    uint64_t frames = c->q_count;
+    queue_release(c);
+    metrics_count_frames_dropped(frames);
+    log_warn("net: client %u (%s) closed: %s", c->id, c->peer, why);
+    lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+}
+
+void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
+{
+    net_server *s = c->srv;
+    if (c->killed) {
+        hub_frame_unref(f);
+        return;
+    }
+    net_item it = {.frame = f, .kind = (unsigned char)kind};
+    if (kind == NET_ITEM_STATUS) {
+        it.type = f->len > 2 ? f->data[2] : 0;
+        if (c->pending_bytes + f->len > s->cfg.limits.max_pending_bytes) {
+            int n = queue_filter(c, is_status_of, it.type);
+            if (n)
+                metrics_count_frames_coalesced((uint64_t)n);
+        }
+    }
+    if (c->pending_bytes + f->len > s->hard_pending_bytes || c->q_count >= NET_QUEUE_MAX_ITEMS) {
+        hub_frame_unref(f);
+        metrics_count_frames_dropped(1);
+        client_kill(c, "outgoing queue over its bound (the client stopped reading)");
+        return;
+    }
+    if (c->q_count == c->q_cap) {
+        size_t cap = c->q_cap ? c->q_cap * 2 : 64;
+        net_item *grown = malloc(cap * sizeof *grown);
+        if (!grown) {
+            hub_frame_unref(f);
+            client_kill(c, "out of memory for its outgoing queue");
+            return;
+        }
+        for (size_t i = 0; i < c->q_count; i++)
+            grown[i] = c->q[(c->q_head + i) % c->q_cap];
+        free(c->q);
+        c->q = grown;
+        c->q_cap = cap;
+        c->q_head = 0;
+    }
+    c->q[(c->q_head + c->q_count) % c->q_cap] = it;
+    c->q_count++;
+    c->pending_bytes += f->len;
+    lws_callback_on_writable(c->wsi);
+}
+
+void net_send_json(net_client *c, cJSON *msg)
+{
+    char *text = cJSON_PrintUnformatted(msg);
+    cJSON_Delete(msg);
+    hub_frame *f = text ? hub_frame_from_text(text) : NULL;
+    free(text);
+    if (!f) {
+        log_error("net: out of memory for a reply to client %u", c->id);
+        return;
+    }
+    net_enqueue(c, f, NET_ITEM_REPLY);
+}
+
+void net_close_after_flush(net_client *c, int code, const char *reason)
+{
+    if (c->closing)
+        return;
+    c->closing = 1;
+    c->close_code = code;
+    snprintf(c->close_reason, sizeof c->close_reason, "%s", reason);
+    lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
+    lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, NET_CLOSE_GRACE_S);
+    lws_callback_on_writable(c->wsi);
+}
+
+/* ---- commands for the sim ---- */
+
+static void backlog_flush(net_server *s)
+{
+    int sent = 0;
+    while (sent < s->backlog_count && hub_push_command(s->hub, &s->backlog[sent]) == 0)
+        sent++;
+    if (sent) {
+        memmove(s->backlog, s->backlog + sent,
+                (size_t)(s->backlog_count - sent) * sizeof *s->backlog);
+        s->backlog_count -= sent;
+    }
+}
+
+void net_push_must(net_server *s, const hub_command *cmd)
+{
+    backlog_flush(s);
+    if (s->backlog_count == 0 && hub_push_command(s->hub, cmd) == 0)
+        return;
+    if (s->backlog_count == s->backlog_cap) {
+        int cap = s->backlog_cap ? s->backlog_cap * 2 : 64;
+        hub_command *grown = realloc(s->backlog, (size_t)cap * sizeof *grown);
+        if (!grown) {
+            log_error("net: out of memory: a command for client %u is lost", cmd->client);
+            return;
+        }
+        s->backlog = grown;
+        s->backlog_cap = cap;
+    }
+    s->backlog[s->backlog_count++] = *cmd;
+}
+
+int net_push_refusable(net_server *s, const hub_command *cmd)
+{
+    backlog_flush(s);
+    if (s->backlog_count)
+        return -1; /* keep the order: what must go waits in front */
+    return hub_push_command(s->hub, cmd);
+}
+
+void net_warn_refusal(net_server *s, const net_client *c, int code, const char *message)
+{
+    double now = time_now_ms();
+    if (s->last_warn_ms > 0 && now - s->last_warn_ms < 1000.0) {
+        s->warns_suppressed++;
+        return;
+    }
+    if (s->warns_suppressed)
+        log_warn("net: client %u (%s): refused %s: %s (and %llu more refusals in the last "
+                 "second, not logged)",
+                 c->id, c->peer, terrad_err_name(code), message,
+                 (unsigned long long)s->warns_suppressed);
+    else
+        log_warn("net: client %u (%s): refused %s: %s", c->id, c->peer, terrad_err_name(code),
+                 message);
+    s->warns_suppressed = 0;
+    s->last_warn_ms = now;
+}
+
+/* ---- frames from the sim ---- */
+
+static int dropping_deltas(const net_client *c)
+{
+    return c->slow || c->snapshots_done < c->resync_until;
+}
+
+static void go_slow(net_client *c)
+{
+    int n = net_drop_tile_deltas(c);
+    metrics_count_frames_coalesced((uint64_t)n + 1);
+    if (!c->slow)
+        log_info("net: client %u (%s) is slow (%zu bytes pending): deltas replaced by a "
+                 "snapshot once it catches up",
+                 c->id, c->peer, c->pending_bytes);
+    c->slow = 1;
+    lws_callback_on_writable(c->wsi);
+}
+
+static int sub_meets(const net_client *c, world_rect tile)
+{
+    for (int i = 0; i < c->sub_count; i++)
+        if (world_rects_overlap(c->subs[i].rect, tile))
+            return 1;
+    return 0;
+}
+
+static void fan_out(net_server *s, const hub_out *o)
+{
+    int ts = s->cfg.world.tile_size;
+    world_rect tile = {o->tile_x * ts, o->tile_y * ts, ts, ts};
+    if (tile.x + tile.w > s->cfg.world.width)
+        tile.w = s->cfg.world.width - tile.x;
+    if (tile.y + tile.h > s->cfg.world.height)
+        tile.h = s->cfg.world.height - tile.y;
+    if (tile.w <= 0 || tile.h <= 0 || tile.x < 0 || tile.y < 0)
+        return;
+    for (int i = 0; i < s->nclients; i++) {
+        net_client *c = s->clients[i];
+        if (!c->ready || c->closing || c->killed || !sub_meets(c, tile))
+            continue;
+        if (dropping_deltas(c)) {
+            metrics_count_frames_coalesced(1);
+            continue;
+        }
+        if (c->pending_bytes + o->frame->len > s->cfg.limits.max_pending_bytes) {
+            go_slow(c);
+            continue;
+        }
+        hub_frame_ref(o->frame);
+        net_enqueue(c, o->frame, NET_ITEM_TILE);
+    }
+}
+
+static void dispatch(net_server *s, hub_out *o)
+{
+    if (o->tick > s->tick)
+        s->tick = o->tick;
+    switch (o->kind) {
+    case HUB_OUT_CLIENT: {
+        net_client *c = net_find_client(s, o->client);
+        if (c && o->frame) {
+            int status = o->frame->binary && o->frame->len > 2 &&
+                         (o->frame->data[2] == TERRAD_MSG_CONTACT ||
+                          o->frame->data[2] == TERRAD_MSG_ACK);
+            net_enqueue(c, o->frame, status ? NET_ITEM_STATUS : NET_ITEM_REPLY);
+            o->frame = NULL;
+        }
+        if (c && o->snapshot_done && c->snapshots_done < c->snapshots_requested)
+            c->snapshots_done++;
+        break;
+    }
+    case HUB_OUT_TILE_DELTA:
+        if (o->frame)
+            fan_out(s, o);
+        break;
+    case HUB_OUT_TICK_DONE:
+        break;
+    }
+    if (o->frame)
+        hub_frame_unref(o->frame);
+}
+
+/* Every client must start over from snapshots: the hub dropped frames. */
+static void resync_everyone(net_server *s)
+{
+    log_warn("net: the outbound queue overflowed: every client gets fresh snapshots");
+    for (int i = 0; i < s->nclients; i++) {
+        net_client *c = s->clients[i];
+        if (!c->ready || c->sub_count == 0)
+            continue;
+        /* markers may have been lost with the dropped frames: forget them */
+        c->snapshots_done = c->snapshots_requested;
+        c->resync_until = c->snapshots_done;
+        go_slow(c);
+    }
+}
+
+static void drain_hub(net_server *s)
+{
+    if (hub_take_overflow(s->hub))
+        resync_everyone(s);
+    hub_out items[NET_DRAIN_BATCH];
+    for (int round = 0; round < NET_DRAIN_ROUNDS; round++) {
+        int n = hub_take_outbound(s->hub, items, NET_DRAIN_BATCH);
+        for (int i = 0; i < n; i++)
+            dispatch(s, &items[i]);
+        if (n < NET_DRAIN_BATCH)
+            return;
+    }
+    lws_cancel_service(s->ctx); /* more to come: serve the sockets, then carry on */
+}
+
+static void net_wake(void *arg)
+{
+    net_server *s = arg;
+    pthread_mutex_lock(&s->wake_lock);
+    if (s->ctx_live)
+        lws_cancel_service(s->ctx);
+    pthread_mutex_unlock(&s->wake_lock);
+}
+
+/* ---- shutdown ---- */
+
+static void begin_shutdown(net_server *s)
+{
+    s->stopping = 1;
+    for (int i = 0; i < s->nclients; i++) {
+        net_client *c = s->clients[i];
+        if (c->killed || c->closing)
+            continue;
+        net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1, "server shutting down");
+        net_close_after_flush(c, LWS_CLOSE_STATUS_GOINGAWAY, "server shutting down");
+    }
+}
+
+static void heartbeat(lws_sorted_usec_list_t *sul)
+{
+    net_server *s = lws_container_of(sul, net_server, heartbeat);
+    backlog_flush(s);
+    if (atomic_load(&s->stop_requested) && !s->stopping) {
+        drain_hub(s);
+        begin_shutdown(s);
+    }
+    lws_sul_schedule(s->ctx, 0, &s->heartbeat, heartbeat, NET_HEARTBEAT_US);
+}
+
+/* ---- the protocol callback ---- */
+
+/* 1 if the comma-separated header value offers the protocol name. */
+static int offers_subprotocol(const char *value, const char *name)
+{
+    size_t n = strlen(name);
+    const char *p = value;
+    while (*p) {
+        while (*p == ' ' || *p == '\t' || *p == ',')
+            p++;
+        const char *end = p;
+        while (*end && *end != ',')
+            end++;
+        const char *last = end;
+        while (last > p && (last[-1] == ' ' || last[-1] == '\t'))
+            last--;
+        if ((size_t)(last - p) == n && memcmp(p, name, n) == 0)
+            return 1;
+        p = end;
+    }
+    return 0;
+}
+
+static void client_established(net_server *s, struct lws *wsi, net_session *pss)
+{
+    net_client *c = calloc(1, sizeof *c);
+    if (!c || client_add(s, c) != 0) {
+        free(c);
+        log_error("net: out of memory for a new client");
+        lws_set_timeout(wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        return;
+    }
+    c->id = s->next_client_id++;
+    c->wsi = wsi;
+    c->srv = s;
+    c->next_sub_id = 1;
+    c->tokens = s->cfg.limits.messages_burst;
+    c->refill_ms = time_now_ms();
+    lws_get_peer_simple(wsi, c->peer, sizeof c->peer);
+    snprintf(c->name, sizeof c->name, "?");
+    pss->c = c;
+    atomic_fetch_add(&s->client_count, 1);
+    metrics_set_clients(s->nclients);
+    log_info("net: client %u connected from %s", c->id, c->peer);
+    lws_set_timer_usecs(wsi, (lws_usec_t)(s->cfg.limits.hello_timeout_s * 1e6));
+}
+
+static void client_closed(net_server *s, net_session *pss)
+{
+    net_client *c = pss->c;
+    if (!c)
+        return;
+    pss->c = NULL;
+    log_info("net: client %u (%s%s%s) disconnected", c->id, c->peer, c->ready ? ", " : "",
+             c->ready ? c->name : "");
+    for (int i = 0; i < c->collider_count; i++) {
+        hub_forget_pose(s->hub, c->colliders[i]);
+        net_collider_remove(s, c->colliders[i]);
+    }
+    if (c->ready) {
+        hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
+        net_push_must(s, &cmd); /* the sim deletes its colliders */
+    }
+    queue_release(c);
+    client_remove(s, c);
+    free(c->q);
+    free(c->rx);
+    free(c->colliders);
+    free(c->subs);
+    free(c);
+    atomic_fetch_sub(&s->client_count, 1);
+    metrics_set_clients(s->nclients);
+}
+
+/* Token bucket; returns 1 if the message may pass. A refusal is answered at
+ * most once a second; refusals sustained for 10 s close the connection. */
+static int rate_allow(net_server *s, net_client *c)
+{
+    const net_limits *l = &s->cfg.limits;
+    double now = time_now_ms();
+    c->tokens += (now - c->refill_ms) / 1000.0 * l->max_messages_per_s;
+    if (c->tokens > l->messages_burst)
+        c->tokens = l->messages_burst;
+    c->refill_ms = now;
+    if (c->tokens >= 1.0) {
+        c->tokens -= 1.0;
+        return 1;
+    }
+    if (c->last_refusal_ms == 0 || now - c->last_refusal_ms > 1000.0)
+        c->flood_since_ms = now; /* a new flood: the last one paused for a second */
+    c->last_refusal_ms = now;
+    if (now - c->flood_since_ms >= NET_FLOOD_FATAL_MS) {
+        net_error(c, TERRAD_E_RATE_LIMITED, NULL, -1, 1,
+                  "over %g messages per second for 10 s: closing", l->max_messages_per_s);
+        net_close_after_flush(c, 4000 + TERRAD_E_RATE_LIMITED, "rate limited");
+    } else if (c->last_rate_error_ms == 0 || now - c->last_rate_error_ms >= 1000.0) {
+        c->last_rate_error_ms = now;
+        net_error(c, TERRAD_E_RATE_LIMITED, NULL, -1, 0,
+                  "over %g messages per second (burst %g): message dropped",
+                  l->max_messages_per_s, l->messages_burst);
+    } else {
+        metrics_count_refused(TERRAD_E_RATE_LIMITED);
+    }
+    return 0;
+}
+
+static int client_receive(net_server *s, struct lws *wsi, net_client *c, const void *in,
+                          size_t len)
+{
+    const net_limits *l = &s->cfg.limits;
+    if (!c->rx_active) {
+        c->rx_active = 1;
+        c->rx_len = c->rx_total = 0;
+        c->rx_oversize = 0;
+        c->rx_binary = lws_frame_is_binary(wsi);
+    }
+    c->rx_total += len;
+    if (c->rx_total > 4 * l->max_message_bytes) {
+        metrics_count_bytes_in(c->rx_total);
+        metrics_count_refused(TERRAD_E_TOO_LARGE);
+        log_warn("net: client %u (%s) sent a message over 4 x max_message_bytes: closing", c->id,
+                 c->peer);
+        static const char reason[] = "message too big";
+        lws_close_reason(wsi, LWS_CLOSE_STATUS_MESSAGE_TOO_LARGE, (unsigned char *)reason,
+                         sizeof reason - 1);
+        return -1;
+    }
+    if (!c->rx_oversize) {
+        if (c->rx_len + len > l->max_message_bytes) {
+            c->rx_oversize = 1;
+            c->rx_len = 0;
+            if (c->rx_cap > 65536) { /* do not keep a big buffer for nothing */
+                free(c->rx);
+                c->rx = NULL;
+                c->rx_cap = 0;
+            }
+        } else {
+            if (c->rx_len + len + 1 > c->rx_cap) {
+                size_t cap = c->rx_cap ? c->rx_cap : 4096;
+                while (cap < c->rx_len + len + 1)
+                    cap *= 2;
+                unsigned char *grown = realloc(c->rx, cap);
+                if (!grown) {
+                    log_error("net: out of memory reassembling a message of client %u", c->id);
+                    return -1;
+                }
+                c->rx = grown;
+                c->rx_cap = cap;
+            }
+            if (len)
+                memcpy(c->rx + c->rx_len, in, len);
+            c->rx_len += len;
+        }
+    }
+    if (!lws_is_final_fragment(wsi) || lws_remaining_packet_payload(wsi) > 0)
+        return 0;
+
+    /* one whole message */
+    c->rx_active = 0;
+    metrics_count_bytes_in(c->rx_total);
+    metrics_count_messages_in(1);
+    if (c->closing || c->killed)
+        return 0;
+    if (!rate_allow(s, c))
+        return 0;
+    if (c->rx_oversize) {
+        net_error(c, TERRAD_E_TOO_LARGE, NULL, -1, 0,
+                  "message of %zu bytes is over max_message_bytes (%zu): dropped", c->rx_total,
+                  l->max_message_bytes);
+    } else if (c->rx_binary) {
+        net_handle_binary(c, c->rx, c->rx_len);
+    } else {
+        c->rx[c->rx_len] = 0;
+        net_handle_text(c, (const char *)c->rx, c->rx_len);
+    }
+    if (c->rx_cap > 65536) {
+        free(c->rx);
+        c->rx = NULL;
+        c->rx_cap = 0;
+    }
+    return 0;
+}
+
+static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
+{
+    if (c->killed)
+        return -1;
+    if (c->slow && c->pending_bytes <= s->cfg.limits.max_pending_bytes / 2 && !c->closing) {
+        c->slow = 0;
+        net_request_resync(c, 0); /* caught up: fresh snapshots, then deltas again */
+    }
+    if (c->q_count) {
+        net_item it = c->q[c->q_head];
+        c->q_head = (c->q_head + 1) % c->q_cap;
+        c->q_count--;
+        c->pending_bytes -= it.frame->len;
+        int n = lws_write(wsi, it.frame->data, it.frame->len,
+                          it.frame->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
+        if (n >= 0) {
+            metrics_count_bytes_out(it.frame->len);
+            metrics_count_frames_out(1);
+        }
+        hub_frame_unref(it.frame);
+        if (n < 0)
+            return -1;
+        if (c->q_count) {
+            lws_callback_on_writable(wsi);
+            return 0;
+        }
+    }
+    if (c->closing) {
+        size_t n = strlen(c->close_reason);
+        lws_close_reason(wsi, (enum lws_close_status)c->close_code,
+                         (unsigned char *)c->close_reason, n);
+        return -1;
+    }
+    return 0;
+}
+
+static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in,
+                        size_t len)
+{
+    net_session *pss = user;
+    struct lws_context *ctx = lws_get_context(wsi);
+    net_server *s = ctx ? lws_context_user(ctx) : NULL;
+    if (!s)
+        return 0;
+
+    switch (reason) {
+    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
+        if (s->stopping)
+            return 1;
+        char offered[256] = "";
+        if (lws_hdr_total_length(wsi, WSI_TOKEN_PROTOCOL) <= 0 ||
+            lws_hdr_copy(wsi, offered, sizeof offered, WSI_TOKEN_PROTOCOL) <= 0 ||
+            !offers_subprotocol(offered, TERRAD_PROTO_SUBPROTOCOL)) {
+            char peer[64] = "";
+            lws_get_peer_simple(wsi, peer, sizeof peer);
+            log_info("net: refused a handshake from %s without subprotocol %s", peer,
+                     TERRAD_PROTO_SUBPROTOCOL);
+            lws_return_http_status(wsi, HTTP_STATUS_BAD_REQUEST,
+                                   "the websocket subprotocol terrad.v1 is required");
+            return 1;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_ESTABLISHED:
+        pss->c = NULL;
+        client_established(s, wsi, pss);
+        return 0;
+    case LWS_CALLBACK_CLOSED:
+        client_closed(s, pss);
+        return 0;
+    case LWS_CALLBACK_TIMER:
+        if (pss->c && !pss->c->ready && !pss->c->closing) {
+            net_error(pss->c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "no hello within %g s",
+                      s->cfg.limits.hello_timeout_s);
+            net_close_after_flush(pss->c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");
+        }
+        return 0;
+    case LWS_CALLBACK_RECEIVE:
+        if (!pss->c)
+            return -1;
+        return client_receive(s, wsi, pss->c, in, len);
+    case LWS_CALLBACK_SERVER_WRITEABLE:
+        if (!pss->c)
+            return 0;
+        return client_writeable(s, wsi, pss->c);
+    case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
+        backlog_flush(s);
+        drain_hub(s); /* the last tick's frames go out before the goodbye */
+        if (atomic_load(&s->stop_requested) && !s->stopping)
+            begin_shutdown(s);
+        return 0;
+    default:
+        return 0;
+    }
+}
+
+static const struct lws_protocols net_protocols[] = {
+    {TERRAD_PROTO_SUBPROTOCOL, net_callback, sizeof(net_session), 65536, 0, NULL, 0},
+    {NULL, NULL, 0, 0, 0, NULL, 0},
+};
+
+/* ---- the service thread ---- */
+
+static void *service_main(void *arg)
+{
+    net_server *s = arg;
+    lws_sul_schedule(s->ctx, 0, &s->heartbeat, heartbeat, NET_HEARTBEAT_US);
+    for (;;) {
+        if (lws_service(s->ctx, 0) < 0)
+            break;
+        if (s->stopping && (s->nclients == 0 || atomic_load(&s->force_stop)))
+            break;
+    }
+    lws_sul_cancel(&s->heartbeat);
+    atomic_store(&s->thread_done, 1);
+    return NULL;
+}
+
+static void lws_log_line(int level, const char *line)
+{
+    size_t n = strlen(line);
+    while (n && (line[n - 1] == '\n' || line[n - 1] == '\r'))
+        n--;
+    if (level & LLL_ERR)
+        log_error("libwebsockets: %.*s", (int)n, line);
+    else
+        log_warn("libwebsockets: %.*s", (int)n, line);
+}
+
+static char *dup_or_null(const char *text)
+{
+    return text ? strdup(text) : NULL;
+}
+
+/* A JSON array of strings, or a default when text is NULL. */
+static cJSON *parse_names(const char *text, const char *fallback, const char *what,
+                          error_text *err)
+{
+    cJSON *a = cJSON_Parse(text ? text : fallback);
+    int ok = a && cJSON_IsArray(a);
+    const cJSON *it;
+    cJSON_ArrayForEach(it, a) if (!cJSON_IsString(it)) ok = 0;
+    if (!ok) {
+        error_set(err, "net: %s must be a JSON array of strings", what);
+        cJSON_Delete(a);
+        return NULL;
+    }
+    return a;
+}
+
+static void server_free(net_server *s)
+{
+    if (!s)
+        return;
+    for (int i = 0; i < s->backlog_count; i++)
+        if (s->backlog[i].mesh) {
+            collider_mesh_free(s->backlog[i].mesh);
+            free(s->backlog[i].mesh);
+        }
+    free(s->backlog);
+    free(s->clients);
+    free(s->colliders);
+    free(s->poses);
+    cJSON_Delete(s->models);
+    cJSON_Delete(s->materials);
+    free(s->token);
+    free(s->models_json);
+    free(s->materials_json);
+    free(s->server_name);
+    pthread_mutex_destroy(&s->wake_lock);
+    free(s);
+}
+
+static int limits_check(const net_limits *l, error_text *err)
+{
+    if (l->max_message_bytes < 1024 || l->max_colliders < 1 || l->max_poses_per_batch < 1 ||
+        l->max_poses_per_batch > TERRAD_MAX_COUNT || l->max_subscriptions < 1 ||
+        l->max_subscribed_cells < 1 || !(l->max_messages_per_s > 0) ||
+        !(l->messages_burst >= 1) || l->max_mesh_vertices < 3 || l->max_mesh_triangles < 1 ||
+        !(l->max_collider_extent_m > 0) || l->max_pending_bytes < 1024 ||
+        !(l->hello_timeout_s > 0) || !isfinite(l->max_messages_per_s) ||
+        !isfinite(l->messages_burst) || !isfinite(l->max_collider_extent_m) ||
+        !isfinite(l->hello_timeout_s)) {
+        error_set(err, "net: a limit is out of range (each must be positive; "
+                       "max_message_bytes and max_pending_bytes >= 1024)");
+        return -1;
+    }
+    return 0;
+}
+
+net_server *net_server_start(const net_config *c, hub *h, error_text *err)
+{
+    if (limits_check(&c->limits, err))
+        return NULL;
+    if (c->world.width < 1 || c->world.height < 1 || c->world.tile_size < 1 ||
+        !(c->world.cell_size_m > 0)) {
+        error_set(err, "net: the world info is incomplete (extent, cell size, tile size)");
+        return NULL;
+    }
+    net_server *s = calloc(1, sizeof *s);
+    if (!s) {
+        error_set(err, "net: out of memory");
+        return NULL;
+    }
+    pthread_mutex_init(&s->wake_lock, NULL);
+    s->cfg = *c;
+    s->hub = h;
+    s->token = dup_or_null(c->token && c->token[0] ? c->token : NULL);
+    s->models_json = dup_or_null(c->world.models_json);
+    s->materials_json = dup_or_null(c->world.materials_json);
+    s->server_name = strdup(c->server_name ? c->server_name : "terrad/0.1.0");
+    s->cfg.token = s->token;
+    s->cfg.world.models_json = s->models_json;
+    s->cfg.world.materials_json = s->materials_json;
+    s->cfg.server_name = s->server_name;
+    s->next_client_id = 1;
+    s->next_collider_id = 1;
+    s->poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->poses);
+    s->models = parse_names(s->models_json, "[]", "world.models_json", err);
+    s->materials = s->models ? parse_names(s->materials_json, "[\"default\"]",
+                                           "world.materials_json", err)
+                             : NULL;
+    if (!s->models || !s->materials || !s->poses || !s->server_name) {
+        if (!s->poses || !s->server_name)
+            error_set(err, "net: out of memory");
+        server_free(s);
+        return NULL;
+    }
+    const net_limits *l = &c->limits;
+    s->hard_pending_bytes = 2 * l->max_pending_bytes + 4 * (size_t)l->max_subscribed_cells +
+                            2 * l->max_message_bytes + 65536;
+
+    lws_set_log_level(LLL_ERR, lws_log_line);
+    struct lws_context_creation_info info;
+    memset(&info, 0, sizeof info);
+    info.port = c->port;
+    info.iface = c->bind_any ? NULL : "127.0.0.1";
+    info.protocols = net_protocols;
+    info.gid = -1;
+    info.uid = -1;
+    info.user = s;
+    info.options = c->bind_any ? 0 : LWS_SERVER_OPTION_DISABLE_IPV6;
+    info.pt_serv_buf_size = 65536;
+    s->ctx = lws_create_context(&info);
+    if (!s->ctx) {
+        error_set(err, "net: cannot listen on %s port %d (in use, or not allowed)",
+                  c->bind_any ? "every address," : "127.0.0.1", c->port);
+        server_free(s);
+        return NULL;
+    }
+    struct lws_vhost *vh = lws_get_vhost_by_name(s->ctx, "default");
+    s->port = vh ? lws_get_vhost_listen_port(vh) : c->port;
+    s->ctx_live = 1;
+    hub_set_waker(h, net_wake, s);
+    if (pthread_create(&s->thread, NULL, service_main, s) != 0) {
+        error_set(err, "net: cannot start the service thread");
+        hub_set_waker(h, NULL, NULL);
+        lws_context_destroy(s->ctx);
+        server_free(s);
+        return NULL;
+    }
+    s->thread_started = 1;
+    log_info("net: websocket server listening on %s:%d (subprotocol %s)",
+             c->bind_any ? "*" : "127.0.0.1", s->port, TERRAD_PROTO_SUBPROTOCOL);
+    return s;
+}
+
+int net_server_port(const net_server *s)
+{
+    return s->port;
+}
+
+int net_server_client_count(const net_server *s)
+{
+    return atomic_load(&((net_server *)s)->client_count);
+}
+
+void net_server_stop(net_server *s)
+{
+    if (!s)
+        return;
+    atomic_store(&s->stop_requested, 1);
+    double start = time_now_ms();
+    while (!atomic_load(&s->thread_done)) {
+        net_wake(s);
+        if (time_now_ms() - start > NET_STOP_GRACE_MS)
+            atomic_store(&s->force_stop, 1);
+        struct timespec ts = {0, 5 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+    }
+    pthread_join(s->thread, NULL);
+    hub_set_waker(s->hub, NULL, NULL);
+    pthread_mutex_lock(&s->wake_lock);
+    s->ctx_live = 0;
+    pthread_mutex_unlock(&s->wake_lock);
+    lws_context_destroy(s->ctx); /* closes what is left: CLOSED for each */
+    backlog_flush(s);
+    if (s->backlog_count)
+        log_warn("net: %d commands for the sim were still waiting at shutdown",
+                 s->backlog_count);
+    log_info("net: websocket server stopped");
+    server_free(s);
+}

@@ -1,0 +1,68 @@
+/*
+ * net: the websocket side of terrad (proto/PROTOCOL.md). One service thread
+ * runs libwebsockets with a single protocol callback ("terrad.v1"): it
+ * checks every client message, answers control requests at once, turns the
+ * accepted ones into hub commands and poses for the sim thread, and fans the
+ * sim thread's frames out to the clients that need them.
+ *
+ * Nothing a client sends can reach the sim unchecked, and no client can make
+ * the server hold unbounded memory: each client has a rate limit, a message
+ * size limit and a bounded outgoing queue; a client that stops reading loses
+ * its queued tile deltas and is given fresh snapshots when it catches up.
+ */
+#ifndef TERRAD_NET_H
+#define TERRAD_NET_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "base/base.h"
+#include "hub/hub.h"
+
+/* Per-client limits; names and defaults are PROTOCOL.md's Limits table. */
+typedef struct net_limits {
+    size_t max_message_bytes;
+    int max_colliders, max_poses_per_batch, max_subscriptions;
+    int64_t max_subscribed_cells;
+    double max_messages_per_s, messages_burst;
+    int max_mesh_vertices, max_mesh_triangles;
+    double max_collider_extent_m;
+    size_t max_pending_bytes;
+    double hello_timeout_s;
+} net_limits;
+
+net_limits net_limits_default(void);
+
+/* What the world message tells a client (PROTOCOL.md "world"). */
+typedef struct net_world_info {
+    int width, height;
+    double cell_size_m;
+    int32_t units_per_m;
+    double tick_hz;
+    int tile_size;
+    int32_t height_min, height_max;
+    const char *models_json;    /* a JSON array of strings, e.g. ["persson-ssbo"]; NULL = [] */
+    const char *materials_json; /* a JSON array of strings; NULL = ["default"] */
+} net_world_info;
+
+typedef struct net_config {
+    int port;          /* 0: pick a free port (see net_server_port) */
+    int bind_any;      /* 0: loopback only */
+    const char *token; /* NULL or "": no token needed */
+    net_limits limits;
+    net_world_info world;
+    const char *server_name; /* world.server; NULL = "terrad/0.1.0" */
+} net_config;
+
+typedef struct net_server net_server;
+
+/* Binds and starts the service thread. The strings of c are copied. */
+net_server *net_server_start(const net_config *c, hub *h, error_text *err);
+int net_server_port(const net_server *s);
+int net_server_client_count(const net_server *s); /* connected clients; any thread */
+/* Closes every client with close code 1001 ("server shutting down", after an
+ * error shutting_down), joins the thread and frees s. Call it after the sim
+ * thread has stopped publishing (the hub's waker points into s). */
+void net_server_stop(net_server *s);
+
+#endif

@@ -1,0 +1,52 @@
+/*
+ * service: the sim thread's side of the daemon — clients, their colliders
+ * and subscriptions as the sim sees them, tile versions, and one tick of the
+ * service (DESIGN.md "One tick", all of it):
+ *
+ *   take commands and the latest poses from the hub → contact feedback
+ *   against the terrain before the tick → deformation (sim engine) → split
+ *   the dirty rectangles by tile, advance tile versions, encode each
+ *   (rectangle, version) once → publish deltas, contacts, acks, then
+ *   snapshots for new subscriptions and resyncs → serve height reads.
+ *
+ * Only the sim thread calls into it.
+ */
+#ifndef TERRAD_SERVICE_H
+#define TERRAD_SERVICE_H
+
+#include <stdint.h>
+
+#include "base/base.h"
+#include "hub/hub.h"
+#include "sim/sim.h"
+#include "world/world.h"
+
+#define SERVICE_TILE_SIZE 64
+
+typedef struct service service;
+
+/* The engine and the world stay the caller's; the service reads and ticks them. */
+service *service_create(sim_engine *engine, hub *h, error_text *err);
+void service_destroy(service *s);
+
+typedef struct service_tick_stats {
+    sim_tick_report report;
+    int clients, colliders;
+    int delta_frames;
+    uint64_t delta_raw_bytes, delta_compressed_bytes;
+    double tick_ms;
+} service_tick_stats;
+
+/*
+ * One tick. `extra` are colliders the daemon drives itself (demo actors);
+ * their ids must not collide with client colliders (use ids >= 0x80000000).
+ * Returns 0, or -1 with err set when the backend failed.
+ */
+int service_tick(service *s, const sim_collider *extra, int extra_count,
+                 service_tick_stats *stats, error_text *err);
+
+uint64_t service_current_tick(const service *s);
+int64_t service_volume(const service *s); /* Σh, kept exactly, tick by tick */
+uint32_t service_tile_version(const service *s, int tile_x, int tile_y);
+
+#endif

@@ -1,0 +1,643 @@
+#!/usr/bin/python3
+# ctest-timeout: 180
+"""
+The websocket server (server/net) against a hand-driven hub: a small C
+harness (below) links net, hub and the rest of terrad_core, plays a fake sim
+thread (snapshots for subscribe/resync, tile deltas on request) and is driven
+over stdin; Python clients check the protocol's refusals, fan-out, rate
+limits, slow clients and shutdown (proto/PROTOCOL.md).
+"""
+import asyncio, json, os, shutil, struct, subprocess, sys, tempfile, time
+
+import websockets
+
+HARNESS_C = r"""
+/* throwaway harness: a fake sim driving net_server through the hub, controlled over stdin */
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include "hub/hub.h"
+#include "net/net.h"
+
+static hub *H;
+static atomic_int quit;
+static pthread_mutex_t lk = PTHREAD_MUTEX_INITIALIZER;
+static uint64_t tick = 1;
+static size_t snapshot_bytes = 1000;
+static int flood_tx = -1, flood_ty, flood_bytes, flood_per_tick;
+
+static hub_frame *fake_delta(size_t bytes, int tag)
+{
+    if (bytes < 8) bytes = 8;
+    hub_frame *f = hub_frame_new(1, bytes);
+    memset(f->data, tag & 0xff, bytes);
+    f->data[0] = 0x54; f->data[1] = 1; f->data[2] = 0x10; f->data[3] = 0;
+    f->data[4] = (unsigned char)tag; f->data[5] = (unsigned char)(tag >> 8);
+    return f;
+}
+
+static void *sim(void *arg)
+{
+    (void)arg;
+    while (!quit) {
+        hub_command cmds[64];
+        int n = hub_take_commands(H, cmds, 64);
+        pthread_mutex_lock(&lk);
+        for (int i = 0; i < n; i++) {
+            hub_command *c = &cmds[i];
+            printf("CMD kind=%d client=%u collider=%u sub=%u rect=%d,%d,%d,%d shape=%d r=%g hl=%g mesh=%d pose=%g,%g,%g/%g,%g,%g,%g mat=%s fb=%d ref=%s\n",
+                   c->kind, c->client, c->collider, c->subscription, c->rect.x, c->rect.y, c->rect.w, c->rect.h,
+                   c->geometry.shape, c->geometry.radius, c->geometry.half_length, c->mesh ? c->mesh->triangle_count : -1,
+                   c->pose.position.x, c->pose.position.y, c->pose.position.z, c->pose.orientation.w, c->pose.orientation.x,
+                   c->pose.orientation.y, c->pose.orientation.z, c->material, c->feedback, c->ref);
+            if (c->mesh) { collider_mesh_free(c->mesh); free(c->mesh); }
+            if (c->kind == HUB_SUBSCRIBE || c->kind == HUB_RESYNC) {
+                hub_out o = {.kind = HUB_OUT_CLIENT, .client = c->client, .snapshot_done = 1, .tick = tick,
+                             .frame = fake_delta(snapshot_bytes, 0xEEEE)};
+                hub_publish(H, &o, 1);
+            }
+        }
+        hub_pose poses[256];
+        int np = hub_take_poses(H, poses, 256);
+        for (int i = 0; i < np; i++)
+            printf("POSE collider=%u client=%u seq=%u p=%g,%g,%g q=%g,%g,%g,%g\n", poses[i].collider, poses[i].client,
+                   poses[i].sequence, poses[i].pose.position.x, poses[i].pose.position.y, poses[i].pose.position.z,
+                   poses[i].pose.orientation.w, poses[i].pose.orientation.x, poses[i].pose.orientation.y, poses[i].pose.orientation.z);
+        if (flood_tx >= 0) {
+            for (int k = 0; k < flood_per_tick; k++) {
+                hub_out o = {.kind = HUB_OUT_TILE_DELTA, .tile_x = flood_tx, .tile_y = flood_ty, .tick = tick,
+                             .frame = fake_delta((size_t)flood_bytes, flood_tx * 256 + flood_ty)};
+                hub_publish(H, &o, 1);
+            }
+        }
+        tick++;
+        fflush(stdout);
+        pthread_mutex_unlock(&lk);
+        usleep(16000);
+    }
+    return NULL;
+}
+
+int main(int argc, char **argv)
+{
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    H = hub_create();
+    net_config c = {0};
+    c.port = 0;
+    c.token = argc > 1 ? argv[1] : "secret";
+    c.limits = net_limits_default();
+    if (getenv("MAX_PENDING")) c.limits.max_pending_bytes = (size_t)atol(getenv("MAX_PENDING"));
+    if (getenv("RATE")) { c.limits.max_messages_per_s = atof(getenv("RATE")); c.limits.messages_burst = 2 * c.limits.max_messages_per_s; }
+    if (getenv("HELLO_TIMEOUT")) c.limits.hello_timeout_s = atof(getenv("HELLO_TIMEOUT"));
+    c.world = (net_world_info){.width = 300, .height = 200, .cell_size_m = 0.05, .units_per_m = 10000, .tick_hz = 60,
+                               .tile_size = 64, .height_min = -(1 << 29), .height_max = 1 << 29,
+                               .models_json = "[\"persson-ssbo\"]", .materials_json = "[\"default\",\"sand\"]"};
+    error_text err;
+    net_server *s = net_server_start(&c, H, &err);
+    if (!s) { fprintf(stderr, "start: %s\n", err.message); return 1; }
+    printf("PORT %d\n", net_server_port(s));
+    pthread_t t;
+    pthread_create(&t, NULL, sim, NULL);
+    char line[256];
+    while (fgets(line, sizeof line, stdin)) {
+        int a, b, d, e;
+        pthread_mutex_lock(&lk);
+        if (sscanf(line, "delta %d %d %d", &a, &b, &d) == 3) {
+            hub_out o = {.kind = HUB_OUT_TILE_DELTA, .tile_x = a, .tile_y = b, .tick = tick, .frame = fake_delta((size_t)d, a * 256 + b)};
+            hub_publish(H, &o, 1);
+            printf("OK delta\n");
+        } else if (sscanf(line, "flood %d %d %d %d", &a, &b, &d, &e) == 4) {
+            flood_tx = a; flood_ty = b; flood_bytes = d; flood_per_tick = e;
+            printf("OK flood\n");
+        } else if (sscanf(line, "burst %d %d %d %d", &a, &b, &d, &e) == 4) {
+            hub_out *items = calloc((size_t)e, sizeof *items);
+            for (int k = 0; k < e; k++)
+                items[k] = (hub_out){.kind = HUB_OUT_TILE_DELTA, .tile_x = a, .tile_y = b, .tick = tick, .frame = fake_delta((size_t)d, a * 256 + b)};
+            int dropped = hub_publish(H, items, e);
+            free(items);
+            printf("OK burst dropped=%d\n", dropped);
+        } else if (strncmp(line, "noflood", 7) == 0) {
+            flood_tx = -1; printf("OK noflood\n");
+        } else if (sscanf(line, "snapbytes %d", &a) == 1) {
+            snapshot_bytes = (size_t)a; printf("OK snapbytes\n");
+        } else if (sscanf(line, "client %d %d", &a, &b) == 2) {
+            hub_out o = {.kind = HUB_OUT_CLIENT, .client = (uint32_t)a, .tick = tick, .frame = fake_delta((size_t)b, 0x1111)};
+            hub_publish(H, &o, 1);
+            printf("OK client\n");
+        } else if (strncmp(line, "stats", 5) == 0) {
+            FILE *f = fopen("/proc/self/status", "r"); char l2[256]; long rss = 0;
+            while (f && fgets(l2, sizeof l2, f)) if (!strncmp(l2, "VmRSS:", 6)) rss = atol(l2 + 6);
+            if (f) fclose(f);
+            printf("STATS clients=%d rss_kb=%ld\n", net_server_client_count(s), rss);
+        } else if (strncmp(line, "quit", 4) == 0) {
+            pthread_mutex_unlock(&lk);
+            break;
+        }
+        fflush(stdout);
+        pthread_mutex_unlock(&lk);
+    }
+    double t0 = time_now_ms();
+    net_server_stop(s);
+    printf("STOPPED in %.0f ms\n", time_now_ms() - t0);
+    quit = 1;
+    pthread_join(t, NULL);
+    hub_destroy(H);
+    return 0;
+}
+"""
+
+
+def build_harness(tmp):
+    src = os.environ.get("TERRAD_SOURCE_DIR", os.getcwd())
+    bin_ = os.environ.get("TERRAD_BIN", os.path.join(src, "build", "terrad"))
+    core = os.path.join(os.path.dirname(bin_), "libterrad_core.a")
+    if not os.path.exists(core):
+        print("no", core, "(build first)")
+        sys.exit(1)
+    with open(os.path.join(tmp, "harness.c"), "w") as f:
+        f.write(HARNESS_C)
+    pkgs = "epoxy egl libcjson libzstd libmicrohttpd libwebsockets libpng"
+    flags = subprocess.run(["pkg-config", "--cflags", "--libs"] + pkgs.split(), check=True,
+                           capture_output=True, text=True).stdout.split()
+    out = os.path.join(tmp, "harness")
+    subprocess.run([os.environ.get("CC", "cc"), "-std=c11", "-O1", "-g", "-D_GNU_SOURCE",
+                    "-I" + os.path.join(src, "server"), "-I" + os.path.join(src, "proto", "c"),
+                    os.path.join(tmp, "harness.c"), core] + flags + ["-lm", "-lpthread", "-o", out],
+                   check=True)
+    return out
+
+
+SUB = "terrad.v1"
+
+
+class Harness:
+    async def start(self, env=None):
+        e = dict(os.environ)
+        e.update(env or {})
+        self.p = await asyncio.create_subprocess_exec(HARNESS, "secret", stdin=asyncio.subprocess.PIPE,
+                                                      stdout=asyncio.subprocess.PIPE, env=e)
+        self.lines = []
+        self.event = asyncio.Event()
+        line = (await self.p.stdout.readline()).decode()
+        assert line.startswith("PORT "), line
+        self.port = int(line.split()[1])
+        self.reader = asyncio.create_task(self._read())
+        self.uri = f"ws://127.0.0.1:{self.port}/"
+
+    async def _read(self):
+        while True:
+            l = await self.p.stdout.readline()
+            if not l:
+                break
+            self.lines.append(l.decode().strip())
+            self.event.set()
+
+    async def cmd(self, text):
+        self.p.stdin.write((text + "\n").encode())
+        await self.p.stdin.drain()
+
+    async def wait_line(self, pred, timeout=5.0, start=0):
+        t0 = time.time()
+        while time.time() - t0 < timeout:
+            for l in self.lines[start:]:
+                if pred(l):
+                    return l
+            self.event.clear()
+            try:
+                await asyncio.wait_for(self.event.wait(), 0.2)
+            except asyncio.TimeoutError:
+                pass
+        raise AssertionError("no line matching; last: %r" % self.lines[-5:])
+
+    async def stats(self):
+        n = len(self.lines)
+        await self.cmd("stats")
+        return await self.wait_line(lambda l: l.startswith("STATS"), start=n)
+
+    async def stop(self):
+        await self.cmd("quit")
+        l = await self.wait_line(lambda l: l.startswith("STOPPED"), timeout=10)
+        await self.p.wait()
+        return l
+
+
+async def connect(h, token="secret", hello=True, name="t"):
+    ws = await websockets.connect(h.uri, subprotocols=[SUB], max_size=1 << 26)
+    if hello:
+        await ws.send(json.dumps({"type": "hello", "protocol": 1, "token": token, "client": name}))
+        w = json.loads(await ws.recv())
+        assert w["type"] == "world", w
+        return ws, w
+    return ws, None
+
+
+async def recv_json(ws, timeout=3.0):
+    while True:
+        m = await asyncio.wait_for(ws.recv(), timeout)
+        if isinstance(m, str):
+            return json.loads(m)
+
+
+async def expect_error(ws, name, timeout=3.0):
+    m = await recv_json(ws, timeout)
+    assert m["type"] == "error" and m["name"] == name, m
+    return m
+
+
+async def expect_close(ws, code, timeout=3.0):
+    try:
+        while True:
+            await asyncio.wait_for(ws.recv(), timeout)
+    except websockets.ConnectionClosed as e:
+        assert e.code == code, (e.code, e.reason)
+        return e.reason
+
+
+def pose_batch(seq, poses, version=1):
+    b = struct.pack("<BBBBIH", 0x54, version, 1, 0, seq, len(poses))
+    for (cid, x, y, z, qw, qx, qy, qz) in poses:
+        b += struct.pack("<I7f", cid, x, y, z, qw, qx, qy, qz)
+    return b
+
+
+async def ping_ok(ws, nonce=7):
+    await ws.send(struct.pack("<BBBBQ", 0x54, 1, 2, 0, nonce))
+    while True:
+        m = await asyncio.wait_for(ws.recv(), 3)
+        if isinstance(m, bytes) and m[2] == 3:
+            assert struct.unpack("<Q", m[4:12])[0] == nonce
+            return True
+
+
+
+async def scenario_main():
+    h = Harness()
+    await h.start()
+    t_all = time.time()
+
+    # handshake + world
+    ws, w = await connect(h)
+    for k in ["protocol", "server", "width", "height", "cell_size_m", "units_per_m", "height_range", "tick_hz",
+              "tick", "tile_size", "models", "materials", "shapes", "limits"]:
+        assert k in w, k
+    assert w["limits"]["max_message_bytes"] == 1048576 and w["width"] == 300 and w["models"] == ["persson-ssbo"]
+    await h.wait_line(lambda l: l.startswith("CMD kind=0"))
+    print("handshake ok", w["server"], "client_id", w.get("client_id"))
+
+    # no subprotocol
+    try:
+        x = await websockets.connect(h.uri)
+        print("!! no-subprotocol connect accepted, subprotocol =", x.subprotocol)
+        await x.close()
+    except Exception as e:
+        print("no subprotocol refused:", type(e).__name__, e)
+
+    # wrong token
+    x, _ = await connect(h, hello=False)
+    await x.send(json.dumps({"type": "hello", "protocol": 1, "token": "nope"}))
+    e = await expect_error(x, "unauthorized")
+    assert e["fatal"] is True
+    await expect_close(x, 4013)
+    print("wrong token ok")
+
+    # wrong version
+    x, _ = await connect(h, hello=False)
+    await x.send(json.dumps({"type": "hello", "protocol": 2, "token": "secret"}))
+    await expect_error(x, "bad_version")
+    await expect_close(x, 4003)
+    print("wrong version ok")
+
+    # first message not hello (binary), and bad json first
+    x, _ = await connect(h, hello=False)
+    await x.send(b"\x54\x01\x02\x00" + b"\0" * 8)
+    await expect_error(x, "unauthorized")
+    await expect_close(x, 4013)
+    x, _ = await connect(h, hello=False)
+    await x.send("{nope")
+    await expect_error(x, "unauthorized")
+    await expect_close(x, 4013)
+    print("not-hello-first ok")
+
+    # bad json, unknown type, ref echo; connection stays
+    await ws.send("{not json")
+    await expect_error(ws, "bad_json")
+    await ws.send("[1,2]")
+    await expect_error(ws, "bad_json")
+    await ws.send(json.dumps({"type": "frobnicate", "ref": "abc"}))
+    e = await expect_error(ws, "unknown_type")
+    assert e["ref"] == "abc"
+    await ws.send(json.dumps({"type": "subscribe", "ref": "x" * 65}))
+    await expect_error(ws, "bad_value")
+    assert await ping_ok(ws)
+    print("bad json ok")
+
+    # oversize (keeps connection), 4x oversize (1009)
+    await ws.send("x" * (1048576 + 10))
+    await expect_error(ws, "too_large")
+    assert await ping_ok(ws)
+    big, _ = await connect(h)
+    try:
+        await big.send(b"\x54" * (4 * 1048576 + 100))
+    except websockets.ConnectionClosed:
+        pass
+    await expect_close(big, 1009, timeout=5)
+    print("oversize ok")
+
+    # binary header errors
+    await ws.send(b"\x54\x01")
+    await expect_error(ws, "bad_frame")
+    await ws.send(b"\x55\x01\x01\x00")
+    await expect_error(ws, "bad_frame")
+    await ws.send(b"\x54\x02\x01\x00")
+    await expect_error(ws, "bad_version")
+    await ws.send(b"\x54\x01\x7f\x00")
+    await expect_error(ws, "unknown_type")
+    await ws.send(b"\x54\x01\x10\x00" + b"\0" * 10)
+    await expect_error(ws, "unknown_type")
+    await ws.send(pose_batch(1, [])[:-1])
+    await expect_error(ws, "bad_frame")
+    print("binary header errors ok")
+
+    # colliders
+    async def create(sock, **kw):
+        msg = {"type": "collider_create"}
+        msg.update(kw)
+        await sock.send(json.dumps(msg))
+        return await recv_json(sock)
+
+    r = await create(ws, shape="sphere", radius=0.5, ref=11)
+    assert r["type"] == "collider_created" and r["ref"] == 11, r
+    sphere = r["id"]
+    r = await create(ws, shape="capsule", radius=0.3, half_length=1.0, pose={"p": [1, 2, 3], "q": [1, 0, 0, 0]})
+    assert r["type"] == "collider_created", r
+    capsule = r["id"]
+    l = await h.wait_line(lambda l: l.startswith("CMD kind=2") and f"collider={capsule} " in l)
+    assert "pose=1,2,3/0.707107,0.707107,0,0" in l, l
+    r = await create(ws, shape="wheel", radius=0.4, width=0.3, material="sand", feedback=False)
+    assert r["type"] == "collider_created", r
+    l = await h.wait_line(lambda l: l.startswith("CMD kind=2") and f"collider={r['id']} " in l)
+    assert "hl=0.15" in l and "mat=sand" in l and "fb=0" in l and "pose=0,0,0/0,0,0,0" in l, l
+    r = await create(ws, shape="mesh", vertices=[0, 0, 0, 1, 0, 0, 0, 1, 0], indices=[0, 1, 2])
+    assert r["type"] == "collider_created", r
+    await h.wait_line(lambda l: l.startswith("CMD kind=2") and f"collider={r['id']} " in l and "mesh=1" in l)
+    r = await create(ws, shape="mesh", vertices=[0, 0, 0, 1, 0, 0, 0, 1, 0], indices=[0, 1, 3])
+    assert r["name"] == "bad_value", r
+    r = await create(ws, shape="mesh", vertices=[0.001] * (3 * 16385), indices=[0, 1, 2])
+    assert r["name"] == "too_large", r
+    r = await create(ws, shape="torus", radius=1)
+    assert r["name"] == "unsupported_collider", r
+    r = await create(ws, shape="sphere", radius=1, material="lava")
+    assert r["name"] == "unsupported_collider", r
+    r = await create(ws, shape="sphere", radius=51)
+    assert r["name"] == "bad_value", r
+    r = await create(ws, shape="sphere", radius="1")
+    assert r["name"] == "bad_value", r
+    r = await create(ws, shape="box", half_extents=[1, 1, 0])
+    assert r["name"] == "bad_value", r
+    r = await create(ws, shape="sphere", radius=1, pose={"p": [0, 0, 0], "q": [2, 0, 0, 0]})
+    assert r["name"] == "bad_value", r
+    print("collider create ok:", r["message"])
+
+    # poses: ok, NaN, foreign, unknown
+    await ws.send(pose_batch(77, [(sphere, 1.5, 2.5, 0.25, 1, 0, 0, 0)]))
+    await h.wait_line(lambda l: l.startswith(f"POSE collider={sphere} ") and "seq=77" in l)
+    await ws.send(pose_batch(78, [(sphere, 1, 1, 1, 1, 0, 0, 0), (capsule, float("nan"), 0, 0, 1, 0, 0, 0)]))
+    e = await expect_error(ws, "bad_value")
+    assert e["ref"] == 78 and e["collider"] == capsule, e
+    ws2, _ = await connect(h, name="other")
+    await ws2.send(pose_batch(5, [(sphere, 1, 1, 1, 1, 0, 0, 0)]))
+    e = await expect_error(ws2, "not_owner")
+    assert e["collider"] == sphere and e["ref"] == 5
+    await ws2.send(pose_batch(6, [(99999, 1, 1, 1, 1, 0, 0, 0)]))
+    await expect_error(ws2, "unknown_collider")
+    await ws2.send(json.dumps({"type": "collider_delete", "id": sphere}))
+    await expect_error(ws2, "not_owner")
+    await ws2.send(pose_batch(7, [(1, 0, 0, 0, 1, 0, 0, 0)] * 65))
+    await expect_error(ws2, "too_large")
+    await ws.send(json.dumps({"type": "collider_delete", "id": sphere, "ref": "d"}))
+    r = await recv_json(ws)
+    assert r["type"] == "collider_deleted" and r["id"] == sphere and r["ref"] == "d", r
+    await ws.send(pose_batch(79, [(sphere, 1, 1, 1, 1, 0, 0, 0)]))
+    await expect_error(ws, "unknown_collider")
+    print("poses ok")
+
+    # subscriptions
+    await ws.send(json.dumps({"type": "subscribe", "x": 250, "y": 0, "w": 60, "h": 10}))
+    await expect_error(ws, "outside_world")
+    await ws.send(json.dumps({"type": "subscribe", "x": -1, "y": 0, "w": 6, "h": 10}))
+    await expect_error(ws, "outside_world")
+    await ws.send(json.dumps({"type": "subscribe", "x": 0, "y": 0, "w": 0, "h": 10}))
+    await expect_error(ws, "bad_value")
+    await ws.send(json.dumps({"type": "unsubscribe", "id": 42}))
+    await expect_error(ws, "unknown_subscription")
+    print("subscription refusals ok")
+
+    # fan-out: A (0,0)-tile, B spans tiles (0,0),(1,0); C elsewhere
+    async def sub(sock, x, y, w_, h_):
+        await sock.send(json.dumps({"type": "subscribe", "x": x, "y": y, "w": w_, "h": h_}))
+        r = await recv_json(sock)
+        assert r["type"] == "subscribed", r
+        # snapshot marker frame
+        while True:
+            m = await asyncio.wait_for(sock.recv(), 3)
+            if isinstance(m, bytes) and m[4:6] == b"\xee\xee":
+                return r["id"]
+
+    A, _ = await connect(h, name="A")
+    B, _ = await connect(h, name="B")
+    C, _ = await connect(h, name="C")
+    await sub(A, 0, 0, 64, 64)
+    await sub(B, 60, 0, 10, 10)
+    await sub(C, 128, 128, 10, 10)
+    await h.cmd("delta 0 0 100")
+    await h.cmd("delta 1 0 100")
+    await h.cmd("delta 4 3 100")  # tile (256..300, 192..200): clipped edge tile, nobody
+    got = {}
+    for name, sock in (("A", A), ("B", B), ("C", C)):
+        got[name] = []
+        try:
+            while True:
+                m = await asyncio.wait_for(sock.recv(), 0.5)
+                if isinstance(m, bytes):
+                    got[name].append((m[5], m[4]))
+        except asyncio.TimeoutError:
+            pass
+    print("fan-out:", got)
+    assert got["A"] == [(0, 0)] and got["B"] == [(0, 0), (1, 0)] and got["C"] == [], got
+
+    # rate limit (not one error per message)
+    t0 = time.time()
+    for i in range(1500):
+        await ws2.send(b"\x54\x01\x02\x00" + struct.pack("<Q", i))
+    errs = pongs = 0
+    try:
+        while True:
+            m = await asyncio.wait_for(ws2.recv(), 0.5)
+            if isinstance(m, str):
+                assert json.loads(m)["name"] == "rate_limited", m
+                errs += 1
+            else:
+                pongs += 1
+    except asyncio.TimeoutError:
+        pass
+    print(f"rate flood: {pongs} pongs, {errs} rate_limited errors")
+    assert 400 <= pongs <= 700 and 1 <= errs <= 3
+
+    # slow client: D subscribes then stops reading while tiles flood
+    D, _ = await connect(h, name="D")
+    await sub(D, 0, 0, 128, 64)
+    print(await h.stats())
+    await h.cmd("snapbytes 200000")
+    await h.cmd("flood 0 0 65536 20")  # ~1.3 MB per tick, 78 MB/s
+    rss = []
+    for i in range(8):
+        await asyncio.sleep(1)
+        s = await h.stats()
+        rss.append(int(s.split("rss_kb=")[1].split()[0]))
+        # keep A, B, C reading (they subscribe tile 0,0 too)
+        for sock in (A, B, C, ws):
+            try:
+                while True:
+                    await asyncio.wait_for(sock.recv(), 0.01)
+            except asyncio.TimeoutError:
+                pass
+    print("slow: rss kB per second:", rss)
+    print(await h.stats())
+    await h.cmd("noflood")
+    await asyncio.sleep(0.3)
+    # D reads again: a snapshot (eeee), then deltas again
+    seen_snap = False
+    total = 0
+    t0 = time.time()
+    while not seen_snap and time.time() - t0 < 10:
+        m = await asyncio.wait_for(D.recv(), 5)
+        total += 1
+        seen_snap = isinstance(m, bytes) and m[4:6] == b"\xee\xee"
+    await asyncio.sleep(0.2)
+    await h.cmd("delta 0 0 100")
+    await h.cmd("delta 0 0 100")
+    after = []
+    try:
+        while True:
+            m = await asyncio.wait_for(D.recv(), 1)
+            if isinstance(m, bytes):
+                after.append(m[4:6])
+    except asyncio.TimeoutError:
+        pass
+    print(f"slow client after reading again: frames before snapshot={total} snapshot={seen_snap} after={after}")
+    assert seen_snap and after.count(b"\x00\x00") == 2, after
+    assert max(rss) < 80000, rss  # kB: a few clients with 8 MB pending each at most
+
+    # shutdown
+    t0 = time.time()
+    await h.cmd("quit")
+    e = await expect_error(ws, "shutting_down")
+    await expect_close(ws, 1001)
+    print(await h.wait_line(lambda l: l.startswith("STOPPED"), timeout=10))
+    await h.p.wait()
+    print("all ok in %.1f s" % (time.time() - t_all))
+
+
+
+async def scenario_limits():
+    h = Harness()
+    await h.start({"HELLO_TIMEOUT": "0.5", "RATE": "20"})
+    # hello timeout
+    x, _ = await connect(h, hello=False)
+    t0 = time.time()
+    e = await expect_error(x, "unauthorized")
+    await expect_close(x, 4013)
+    print("hello timeout after %.2f s: %s" % (time.time() - t0, e["message"]))
+
+    # overflow of the hub's outbound queue: subscribers get fresh snapshots
+    A, _ = await connect(h, name="A")
+    await A.send(json.dumps({"type": "subscribe", "x": 0, "y": 0, "w": 10, "h": 10}))
+    assert (await recv_json(A))["type"] == "subscribed"
+    n = len(h.lines)
+    await h.cmd("burst 0 0 16 70000")
+    print(await h.wait_line(lambda l: l.startswith("OK burst"), start=n))
+    deltas = snaps = 0
+    try:
+        while True:
+            m = await asyncio.wait_for(A.recv(), 1.0)
+            if isinstance(m, bytes):
+                if m[4:6] == b"\xee\xee":
+                    snaps += 1
+                else:
+                    deltas += 1
+    except asyncio.TimeoutError:
+        pass
+    print(f"overflow: deltas={deltas} snapshots={snaps}")
+    assert snaps == 2  # the subscribe's and the resync's
+
+    await h.cmd("snapbytes 1000000")
+    # a raw client that never reads, asking for 1 MB snapshots: closed at the hard bound
+    import socket, os, base64
+    def frame(text):
+        data = text.encode()
+        mask = os.urandom(4)
+        hdr = bytes([0x81])
+        n = len(data)
+        hdr += bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n)
+        return hdr + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(data))
+    sk = socket.socket()
+    sk.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sk.connect(("127.0.0.1", h.port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    sk.sendall((f"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: terrad.v1\r\n\r\n").encode())
+    time.sleep(0.2)
+    sk.sendall(frame(json.dumps({"type": "hello", "protocol": 1, "token": "secret"})))
+    sk.sendall(frame(json.dumps({"type": "subscribe", "x": 0, "y": 0, "w": 10, "h": 10})))
+    for i in range(38):
+        sk.sendall(frame(json.dumps({"type": "resync"})))
+    await asyncio.sleep(2)
+    s = await h.stats()
+    print(s)
+    assert "clients=1" in s, s  # only A: the raw client was closed
+    sk.close()
+
+    # sustained flood: 4010 after 10 s
+    F, _ = await connect(h, name="F")
+    t0 = time.time()
+    errs = 0
+    closed = None
+    async def reader():
+        nonlocal errs, closed
+        try:
+            while True:
+                m = await F.recv()
+                if isinstance(m, str):
+                    errs += 1
+                    last = json.loads(m)
+        except websockets.ConnectionClosed as ex:
+            closed = (ex.code, time.time() - t0)
+    r = asyncio.create_task(reader())
+    try:
+        while closed is None and time.time() - t0 < 15:
+            await F.send(b"\x54\x01\x02\x00" + b"\0" * 8)
+            await asyncio.sleep(0.01)
+    except websockets.ConnectionClosed:
+        pass
+    await asyncio.sleep(0.5)
+    print(f"flood: closed={closed} errors={errs}")
+    assert closed and closed[0] == 4010 and 9.5 < closed[1] < 12
+    print(await h.stop())
+
+
+
+async def main():
+    await scenario_main()
+    await scenario_limits()
+
+
+if __name__ == "__main__":
+    tmp = tempfile.mkdtemp(prefix="terrad-net-")
+    try:
+        HARNESS = build_harness(tmp)
+        asyncio.run(main())
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

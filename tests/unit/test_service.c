@@ -1,0 +1,270 @@
+/*
+ * test_service.c: the sim side of the daemon without the network. Commands
+ * and poses go into a hub as the websocket thread would put them; ticks run
+ * on the CPU backend; the frames that come out are decoded and applied to
+ * client mirrors, which must then hold exactly the world's heights. Also:
+ * tile versions step by one, Σh is tracked exactly, contacts and acks come
+ * in order, deletes and departures remove colliders, height reads work.
+ */
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hub/hub.h"
+#include "service/service.h"
+#include "terrad_proto.h"
+
+static int passed, failed;
+
+#define CHECK(cond, ...)                                                                           \
+    do {                                                                                           \
+        if (cond) {                                                                                \
+            passed++;                                                                              \
+        } else {                                                                                   \
+            failed++;                                                                              \
+            printf("FAIL %s:%d: ", __FILE__, __LINE__);                                            \
+            printf(__VA_ARGS__);                                                                   \
+            printf("\n");                                                                          \
+        }                                                                                          \
+    } while (0)
+
+typedef struct client_view {
+    terrad_mirror mirror;
+    int32_t *heights;
+    uint32_t *versions;
+    int acks, contacts, snapshot_marks, stale;
+    int64_t last_contact_volume;
+    uint64_t last_tick;
+} client_view;
+
+static terrad_codec *codec;
+static int32_t scratch[SERVICE_TILE_SIZE * SERVICE_TILE_SIZE];
+
+static void view_init(client_view *v, world_rect r)
+{
+    memset(v, 0, sizeof *v);
+    v->heights = calloc((size_t)r.w * r.h, sizeof *v->heights);
+    size_t tiles = terrad_mirror_tile_count(r.x, r.y, (uint32_t)r.w, (uint32_t)r.h,
+                                            SERVICE_TILE_SIZE);
+    v->versions = calloc(tiles, sizeof *v->versions);
+    terrad_mirror_init(&v->mirror, r.x, r.y, (uint32_t)r.w, (uint32_t)r.h, SERVICE_TILE_SIZE,
+                       v->heights, v->versions);
+}
+
+static void view_apply(client_view *v, const hub_frame *f)
+{
+    terrad_header hd;
+    if (terrad_header_decode(f->data, f->len, &hd) != 0)
+        return;
+    if (hd.type == TERRAD_MSG_DELTA) {
+        terrad_rect rects[256];
+        size_t n = 0;
+        uint64_t tick;
+        int rc = terrad_delta_decode(f->data, f->len, &tick, rects, 256, &n);
+        CHECK(rc == 0, "delta decodes (%d)", rc);
+        CHECK(tick >= v->last_tick, "ticks in order");
+        v->last_tick = tick;
+        rc = terrad_mirror_apply(&v->mirror, codec, rects, n, scratch,
+                                 SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
+        if (rc != 0)
+            v->stale++;
+    } else if (hd.type == TERRAD_MSG_ACK) {
+        uint64_t tick;
+        uint32_t seq;
+        CHECK(terrad_ack_decode(f->data, f->len, &tick, &seq) == 0, "ack decodes");
+        v->acks++;
+    } else if (hd.type == TERRAD_MSG_CONTACT) {
+        terrad_contact c[8];
+        size_t n = 0;
+        uint64_t tick;
+        CHECK(terrad_contact_decode(f->data, f->len, &tick, c, 8, &n) == 0, "contact decodes");
+        if (n > 0)
+            v->last_contact_volume = c[0].volume;
+        v->contacts++;
+    }
+}
+
+/* Deliver the published frames: client frames to their client, tile deltas
+ * to every view whose region meets the tile. */
+static void deliver(hub *h, client_view *views, const world_rect *regions, int count)
+{
+    hub_out out[4096];
+    int n;
+    while ((n = hub_take_outbound(h, out, 4096)) > 0) {
+        for (int i = 0; i < n; i++) {
+            if (out[i].kind == HUB_OUT_CLIENT) {
+                int c = (int)out[i].client - 1;
+                if (c >= 0 && c < count) {
+                    view_apply(&views[c], out[i].frame);
+                    views[c].snapshot_marks += out[i].snapshot_done;
+                }
+            } else if (out[i].kind == HUB_OUT_TILE_DELTA) {
+                world_rect tile = {out[i].tile_x * SERVICE_TILE_SIZE,
+                                   out[i].tile_y * SERVICE_TILE_SIZE, SERVICE_TILE_SIZE,
+                                   SERVICE_TILE_SIZE};
+                for (int c = 0; c < count; c++)
+                    if (world_rects_overlap(tile, regions[c]))
+                        view_apply(&views[c], out[i].frame);
+            }
+            if (out[i].frame)
+                hub_frame_unref(out[i].frame);
+        }
+    }
+}
+
+static int view_matches(const client_view *v, const world *w, world_rect r)
+{
+    int32_t *expect = malloc((size_t)r.w * r.h * sizeof *expect);
+    world_gather_window(w, r, expect);
+    int same = memcmp(expect, v->heights, (size_t)r.w * r.h * sizeof *expect) == 0;
+    free(expect);
+    return same;
+}
+
+typedef struct reader_args {
+    hub *h;
+    world_rect r;
+    int32_t *out;
+    uint64_t tick;
+    int rc;
+} reader_args;
+
+static void *reader(void *p)
+{
+    reader_args *a = p;
+    a->rc = hub_read_heights(a->h, a->r, a->out, &a->tick, 5000);
+    return NULL;
+}
+
+int main(void)
+{
+    error_text err;
+    world w;
+    world_base_spec base = {.kind = WORLD_BASE_FLAT, .height_m = 0.5};
+    CHECK(world_init(&w, 300, 200, 0.05, 10000, 0, &err) == 0, "world");
+    CHECK(world_generate_base(&w, &base, &err) == 0, "base");
+    sim_material m = sim_material_default();
+    sim_params p;
+    sim_params_from_material(&m, w.cell_size_m, w.units_per_m, w.floor, &p, &err);
+    sim_backend *cpu = sim_backend_cpu_create(&err);
+    sim_engine engine;
+    sim_engine_init(&engine, &w, &p, cpu, 4, &err);
+    hub *h = hub_create();
+    service *svc = service_create(&engine, h, &err);
+    codec = terrad_codec_new(3);
+    CHECK(svc != NULL, "service");
+    int64_t start_volume = world_volume(&w);
+
+    /* two clients, overlapping regions, one wheel each */
+    world_rect regions[2] = {{0, 40, 200, 100}, {100, 60, 200, 100}};
+    client_view views[2];
+    for (int c = 0; c < 2; c++) {
+        view_init(&views[c], regions[c]);
+        hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = (uint32_t)c + 1};
+        hub_push_command(h, &cmd);
+        cmd = (hub_command){.kind = HUB_COLLIDER_CREATE,
+                            .client = (uint32_t)c + 1,
+                            .collider = (uint32_t)c + 1,
+                            .feedback = 1,
+                            .geometry = {.shape = COLLIDER_CYLINDER,
+                                         .radius = 0.3,
+                                         .half_length = 0.1}};
+        cmd.pose = (collider_pose){{2.0 + 5.0 * c, 5.0, 0.75}, {1, 0, 0, 0}};
+        hub_push_command(h, &cmd);
+        cmd = (hub_command){.kind = HUB_SUBSCRIBE,
+                            .client = (uint32_t)c + 1,
+                            .subscription = 1,
+                            .rect = regions[c]};
+        hub_push_command(h, &cmd);
+    }
+    service_tick_stats st;
+    for (int t = 0; t < 240; t++) {
+        for (int c = 0; c < 2; c++) {
+            /* the wheels sink 5 cm and drive along x; client 2 crosses client 1's path */
+            double x = 2.0 + 5.0 * c + 0.02 * t, y = 5.0 + (c ? 0.01 * t : 0.0);
+            hub_pose pose = {.collider = (uint32_t)c + 1,
+                             .client = (uint32_t)c + 1,
+                             .sequence = (uint32_t)t,
+                             .pose = {{x, y, 0.75}, {1, 0, 0, 0}}};
+            CHECK(hub_set_pose(h, &pose) == 0, "pose accepted");
+        }
+        CHECK(service_tick(svc, NULL, 0, &st, &err) == 0, "tick %d: %s", t, err.message);
+        deliver(h, views, regions, 2);
+        CHECK(service_volume(svc) == world_volume(&w), "tracked volume exact at tick %d", t);
+    }
+    CHECK(world_volume(&w) == start_volume, "volume preserved: %lld -> %lld",
+          (long long)start_volume, (long long)world_volume(&w));
+    for (int c = 0; c < 2; c++) {
+        CHECK(views[c].snapshot_marks == 1, "client %d got one snapshot mark", c + 1);
+        CHECK(views[c].stale == 0, "client %d never went stale", c + 1);
+        CHECK(view_matches(&views[c], &w, regions[c]), "client %d mirror == world", c + 1);
+        CHECK(views[c].acks == 240, "client %d: an ack per tick with poses (%d)", c + 1,
+              views[c].acks);
+        CHECK(views[c].contacts == 240, "client %d: contact per tick (%d)", c + 1,
+              views[c].contacts);
+    }
+    int changed = 0;
+    for (int ty = 0; ty < 4; ty++)
+        for (int tx = 0; tx < 5; tx++)
+            changed |= service_tile_version(svc, tx, ty) > 1;
+    CHECK(changed, "tile versions advanced");
+
+    /* a wheel held still, pressing in: contact feedback shows its volume */
+    hub_pose deep = {.collider = 1, .client = 1, .sequence = 999,
+                     .pose = {{12.0, 7.5, 0.70}, {1, 0, 0, 0}}};
+    hub_set_pose(h, &deep);
+    service_tick(svc, NULL, 0, &st, &err);
+    deliver(h, views, regions, 2);
+    CHECK(views[0].last_contact_volume > 0, "penetrating volume reported (%lld)",
+          (long long)views[0].last_contact_volume);
+
+    /* resync of client 2 gives a fresh snapshot that still matches */
+    hub_command resync = {.kind = HUB_RESYNC, .client = 2, .subscription = 0};
+    hub_push_command(h, &resync);
+    service_tick(svc, NULL, 0, &st, &err);
+    deliver(h, views, regions, 2);
+    CHECK(views[1].snapshot_marks == 2, "resync marked done");
+    CHECK(view_matches(&views[1], &w, regions[1]), "after resync mirror == world");
+
+    /* client 1 leaves: its collider goes */
+    hub_command left = {.kind = HUB_CLIENT_LEFT, .client = 1};
+    hub_push_command(h, &left);
+    service_tick(svc, NULL, 0, &st, &err);
+    deliver(h, views, regions, 2);
+    CHECK(st.colliders == 1 && st.clients == 1, "departure removed the client's collider (%d, %d)",
+          st.colliders, st.clients);
+
+    /* a height read from another thread is served between ticks */
+    reader_args ra = {.h = h, .r = {100, 60, 50, 40}};
+    ra.out = malloc(50 * 40 * sizeof *ra.out);
+    pthread_t th;
+    pthread_create(&th, NULL, reader, &ra);
+    for (int t = 0; t < 50; t++) {
+        service_tick(svc, NULL, 0, &st, &err);
+        deliver(h, views, regions, 2);
+        struct timespec ts = {0, 2000000};
+        nanosleep(&ts, NULL);
+    }
+    pthread_join(th, NULL);
+    int32_t *expect = malloc(50 * 40 * sizeof *expect);
+    world_gather_window(&w, ra.r, expect);
+    CHECK(ra.rc == 0 && memcmp(expect, ra.out, 50 * 40 * sizeof *expect) == 0,
+          "height read equals the world (rc %d)", ra.rc);
+    free(expect);
+    free(ra.out);
+
+    service_destroy(svc);
+    hub_destroy(h);
+    sim_engine_free(&engine);
+    cpu->destroy(cpu);
+    world_free(&w);
+    terrad_codec_free(codec);
+    for (int c = 0; c < 2; c++) {
+        free(views[c].heights);
+        free(views[c].versions);
+    }
+    printf("%d passed, %d failed\n", passed, failed);
+    return failed ? 1 : 0;
+}
