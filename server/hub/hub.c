@@ -155,8 +155,11 @@ static int32_t pose_find(const hub *h, uint32_t collider, uint32_t *slot)
     return 0;
 }
 
-int hub_set_pose(hub *h, const hub_pose *pose)
+int hub_set_pose(hub *h, const hub_pose *pose_in)
 {
+    hub_pose stamped = *pose_in;
+    stamped.received_ms = time_now_ms();
+    const hub_pose *pose = &stamped;
     pthread_mutex_lock(&h->pose_lock);
     uint32_t slot;
     int32_t at = pose_find(h, pose->collider, &slot);

@@ -71,6 +71,7 @@ typedef struct hub_pose {
     uint32_t client;
     uint32_t sequence; /* the client's POSE_BATCH sequence it came in */
     collider_pose pose;
+    double received_ms; /* set by hub_set_pose: for the pose-to-delta latency */
 } hub_pose;
 
 /* Latest wins per collider. The net thread has already checked ownership

@@ -95,6 +95,7 @@ struct service {
     int32_t *values;   /* one tile of values */
     uint8_t *packed;   /* compressed tile */
     size_t packed_cap;
+    double oldest_pose_ms; /* earliest arrival among this tick's poses, 0 if none */
     int32_t *bottom;   /* contact scratch */
     int64_t bottom_cap;
 };
@@ -340,6 +341,7 @@ static void apply_command(service *s, hub_command *c)
 
 static void apply_poses(service *s, int n)
 {
+    s->oldest_pose_ms = 0;
     for (int i = 0; i < n; i++) {
         const hub_pose *p = &s->poses[i];
         int k = find_collider(s, p->collider);
@@ -350,6 +352,8 @@ static void apply_poses(service *s, int n)
             s->colliders[k].has_previous = 0; /* no sweep from a pose it never had */
         }
         s->colliders[k].pose = p->pose;
+        if (s->oldest_pose_ms == 0 || p->received_ms < s->oldest_pose_ms)
+            s->oldest_pose_ms = p->received_ms;
         svc_client *cl = find_client(s, p->client);
         if (cl) {
             cl->last_sequence = p->sequence;
@@ -754,6 +758,9 @@ int service_tick(service *s, const sim_collider *extra, int extra_count,
     s->snapshot_count = 0;
     queue_out(s, (hub_out){.kind = HUB_OUT_TICK_DONE, .tick = s->tick});
     int dropped = hub_publish(s->hub, s->out, s->out_count);
+    /* from the oldest pose this tick used to its deltas being handed to the network */
+    if (s->oldest_pose_ms > 0)
+        metrics_observe_pose_to_delta_ms(time_now_ms() - s->oldest_pose_ms);
     if (dropped)
         metrics_count_frames_dropped((uint64_t)dropped);
     s->out_count = 0;

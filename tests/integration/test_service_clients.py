@@ -144,7 +144,13 @@ async def four_clients(d):
         check(n["DELTA"] > 10, f"client {i}: DELTA frames {n['DELTA']}")
         check(n["CONTACT"] >= steps // 2, f"client {i}: CONTACT frames {n['CONTACT']}")
         check(not c.errors, f"client {i}: no error messages: {c.errors[:3]}")
-        mine = [ct for _, ct in c.contact_log if ct.id == wheels[i]]
+        first_used = min((t for t, _ in c.acks), default=None)
+        early = [(t, ct) for t, ct in c.contact_log if ct.id == wheels[i] and
+                 (first_used is None or t < first_used)]
+        check(not early, f"client {i}: no CONTACT entry before the wheel's first pose was used "
+                         f"(tick {first_used}); {len(early)} came, first {early[:1]}")
+        mine = [ct for t, ct in c.contact_log if ct.id == wheels[i] and first_used is not None
+                and t >= first_used]
         pen = [ct for ct in mine if ct.volume > 0]
         check(len(pen) >= len(mine) // 3 and pen,
               f"client {i}: penetrating volume > 0 in the snow ({len(pen)} of {len(mine)} entries)")
