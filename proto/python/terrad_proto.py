@@ -583,8 +583,12 @@ class TerradClient:
     others are kept in .errors. A mirror that falls out of step (stale_base,
     a bad payload) asks the server for a resync by itself."""
 
-    def __init__(self, uri: str, token: str = "", name: str = "terrad-python", max_size: int = 1 << 24):
+    def __init__(self, uri: str, token: str = "", name: str = "terrad-python", max_size: int = 1 << 24,
+                 **connect_kwargs):
+        """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
+        ping_interval=None for a client that may stop reading for a while)."""
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
+        self.connect_kwargs = connect_kwargs
         self.ws = None
         self.world: dict = {}
         self.mirrors: dict[int, Mirror] = {}
@@ -610,7 +614,8 @@ class TerradClient:
     async def connect(self) -> dict:
         import websockets  # Debian: python3-websockets
 
-        self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL], max_size=self.max_size)
+        self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL], max_size=self.max_size,
+                                           **self.connect_kwargs)
         await self.ws.send(json.dumps(hello(self.token, self.name)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":

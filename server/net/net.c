@@ -38,12 +38,12 @@
 
 _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of headroom");
 
-#define NET_QUEUE_MAX_ITEMS 65536   /* frames queued for one client, at most */
-#define NET_DRAIN_BATCH 256         /* hub items taken per call */
-#define NET_DRAIN_ROUNDS 64         /* batches per wake before serving sockets again */
-#define NET_HEARTBEAT_US 100000     /* backlog retries, shutdown checks */
-#define NET_CLOSE_GRACE_S 3         /* a closing client gets this long to take its last frames */
-#define NET_FLOOD_FATAL_MS 10000.0  /* sustained rate limiting closes with 4010 */
+#define NET_QUEUE_MAX_ITEMS 65536  /* frames queued for one client, at most */
+#define NET_DRAIN_BATCH 256        /* hub items taken per call */
+#define NET_DRAIN_ROUNDS 64        /* batches per wake before serving sockets again */
+#define NET_HEARTBEAT_US 100000    /* backlog retries, shutdown checks */
+#define NET_CLOSE_GRACE_S 3        /* a closing client gets this long to take its last frames */
+#define NET_FLOOD_FATAL_MS 10000.0 /* sustained rate limiting closes with 4010 */
 #define NET_STOP_GRACE_MS 800.0
 
 typedef struct net_session {
@@ -357,9 +357,9 @@ static void dispatch(net_server *s, hub_out *o)
     case HUB_OUT_CLIENT: {
         net_client *c = net_find_client(s, o->client);
         if (c && o->frame) {
-            int status = o->frame->binary && o->frame->len > 2 &&
-                         (o->frame->data[2] == TERRAD_MSG_CONTACT ||
-                          o->frame->data[2] == TERRAD_MSG_ACK);
+            int status =
+                o->frame->binary && o->frame->len > 2 &&
+                (o->frame->data[2] == TERRAD_MSG_CONTACT || o->frame->data[2] == TERRAD_MSG_ACK);
             net_enqueue(c, o->frame, status ? NET_ITEM_STATUS : NET_ITEM_REPLY);
             o->frame = NULL;
         }
@@ -540,16 +540,15 @@ static int rate_allow(net_server *s, net_client *c)
     } else if (c->last_rate_error_ms == 0 || now - c->last_rate_error_ms >= 1000.0) {
         c->last_rate_error_ms = now;
         net_error(c, TERRAD_E_RATE_LIMITED, NULL, -1, 0,
-                  "over %g messages per second (burst %g): message dropped",
-                  l->max_messages_per_s, l->messages_burst);
+                  "over %g messages per second (burst %g): message dropped", l->max_messages_per_s,
+                  l->messages_burst);
     } else {
         metrics_count_refused(TERRAD_E_RATE_LIMITED);
     }
     return 0;
 }
 
-static int client_receive(net_server *s, struct lws *wsi, net_client *c, const void *in,
-                          size_t len)
+static int client_receive(net_server *s, struct lws *wsi, net_client *c, const void *in, size_t len)
 {
     const net_limits *l = &s->cfg.limits;
     if (!c->rx_active) {
@@ -760,8 +759,7 @@ static char *dup_or_null(const char *text)
 }
 
 /* A JSON array of strings, or a default when text is NULL. */
-static cJSON *parse_names(const char *text, const char *fallback, const char *what,
-                          error_text *err)
+static cJSON *parse_names(const char *text, const char *fallback, const char *what, error_text *err)
 {
     cJSON *a = cJSON_Parse(text ? text : fallback);
     int ok = a && cJSON_IsArray(a);
@@ -802,12 +800,11 @@ static int limits_check(const net_limits *l, error_text *err)
 {
     if (l->max_message_bytes < 1024 || l->max_colliders < 1 || l->max_poses_per_batch < 1 ||
         l->max_poses_per_batch > TERRAD_MAX_COUNT || l->max_subscriptions < 1 ||
-        l->max_subscribed_cells < 1 || !(l->max_messages_per_s > 0) ||
-        !(l->messages_burst >= 1) || l->max_mesh_vertices < 3 || l->max_mesh_triangles < 1 ||
-        !(l->max_collider_extent_m > 0) || l->max_pending_bytes < 1024 ||
-        !(l->hello_timeout_s > 0) || !isfinite(l->max_messages_per_s) ||
-        !isfinite(l->messages_burst) || !isfinite(l->max_collider_extent_m) ||
-        !isfinite(l->hello_timeout_s)) {
+        l->max_subscribed_cells < 1 || !(l->max_messages_per_s > 0) || !(l->messages_burst >= 1) ||
+        l->max_mesh_vertices < 3 || l->max_mesh_triangles < 1 || !(l->max_collider_extent_m > 0) ||
+        l->max_pending_bytes < 1024 || !(l->hello_timeout_s > 0) ||
+        !isfinite(l->max_messages_per_s) || !isfinite(l->messages_burst) ||
+        !isfinite(l->max_collider_extent_m) || !isfinite(l->hello_timeout_s)) {
         error_set(err, "net: a limit is out of range (each must be positive; "
                        "max_message_bytes and max_pending_bytes >= 1024)");
         return -1;
@@ -844,9 +841,9 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->next_collider_id = 1;
     s->poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->poses);
     s->models = parse_names(s->models_json, "[]", "world.models_json", err);
-    s->materials = s->models ? parse_names(s->materials_json, "[\"default\"]",
-                                           "world.materials_json", err)
-                             : NULL;
+    s->materials =
+        s->models ? parse_names(s->materials_json, "[\"default\"]", "world.materials_json", err)
+                  : NULL;
     if (!s->models || !s->materials || !s->poses || !s->server_name) {
         if (!s->poses || !s->server_name)
             error_set(err, "net: out of memory");
@@ -923,8 +920,7 @@ void net_server_stop(net_server *s)
     lws_context_destroy(s->ctx); /* closes what is left: CLOSED for each */
     backlog_flush(s);
     if (s->backlog_count)
-        log_warn("net: %d commands for the sim were still waiting at shutdown",
-                 s->backlog_count);
+        log_warn("net: %d commands for the sim were still waiting at shutdown", s->backlog_count);
     log_info("net: websocket server stopped");
     server_free(s);
 }

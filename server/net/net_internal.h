@@ -70,10 +70,10 @@ typedef struct net_client {
     uint64_t snapshots_requested, snapshots_done, resync_until;
     int slow; /* dropped deltas for want of room: resync once the queue drains */
 
-    int closing;  /* close after the queue drains */
+    int closing; /* close after the queue drains */
     int close_code;
     char close_reason[64];
-    int killed;   /* dropped without waiting for the queue */
+    int killed; /* dropped without waiting for the queue */
 } net_client;
 
 typedef struct net_collider_slot {

@@ -161,8 +161,8 @@ typedef struct req {
 
 static int is_integer(const cJSON *v)
 {
-    return cJSON_IsNumber(v) && isfinite(v->valuedouble) && floor(v->valuedouble) == v->valuedouble &&
-           fabs(v->valuedouble) <= 9007199254740992.0;
+    return cJSON_IsNumber(v) && isfinite(v->valuedouble) &&
+           floor(v->valuedouble) == v->valuedouble && fabs(v->valuedouble) <= 9007199254740992.0;
 }
 
 /* 1 found, 0 absent (optional), -1 refused. */
@@ -173,9 +173,8 @@ static int get_int(const req *r, const char *name, int required, int64_t lo, int
     if (!v && !required)
         return 0;
     if (!v || !is_integer(v) || v->valuedouble < (double)lo || v->valuedouble > (double)hi) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "%s: %s an integer in [%lld, %lld]", name, v ? "must be" : "missing,",
-                  (long long)lo, (long long)hi);
+        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "%s: %s an integer in [%lld, %lld]",
+                  name, v ? "must be" : "missing,", (long long)lo, (long long)hi);
         return -1;
     }
     *out = (int64_t)v->valuedouble;
@@ -434,8 +433,7 @@ static collider_mesh *parse_mesh(const req *r)
         }
         mesh->indices[i++] = (uint32_t)it->valuedouble;
     }
-    if (!(mesh->bounding_radius > 0) ||
-        mesh->bounding_radius > l->max_collider_extent_m) {
+    if (!(mesh->bounding_radius > 0) || mesh->bounding_radius > l->max_collider_extent_m) {
         net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
                   "vertices: must reach a distance > 0 and <= %g m from the origin (got %g)",
                   l->max_collider_extent_m, mesh->bounding_radius);
@@ -552,8 +550,7 @@ static void handle_collider_create(const req *r)
         g.mesh = mesh;
     } else {
         net_error(c, TERRAD_E_UNSUPPORTED_COLLIDER, r->ref, -1, 0,
-                  "shape: \"%.64s\" is not one of sphere, box, capsule, cylinder, wheel, mesh",
-                  sh);
+                  "shape: \"%.64s\" is not one of sphere, box, capsule, cylinder, wheel, mesh", sh);
         return;
     }
     error_text err;
@@ -684,8 +681,7 @@ static void handle_subscribe(const req *r)
     if (c->sub_cells + w * h > l->max_subscribed_cells) {
         net_error(c, TERRAD_E_LIMIT_SUBSCRIPTIONS, r->ref, -1, 0,
                   "%lld more cells would pass max_subscribed_cells (%lld; %lld subscribed)",
-                  (long long)(w * h), (long long)l->max_subscribed_cells,
-                  (long long)c->sub_cells);
+                  (long long)(w * h), (long long)l->max_subscribed_cells, (long long)c->sub_cells);
         return;
     }
     net_sub *grown = realloc(c->subs, (size_t)(c->sub_count + 1) * sizeof *grown);
@@ -728,7 +724,9 @@ static void handle_unsubscribe(const req *r)
                   "subscription %lld does not exist", (long long)id);
         return;
     }
-    hub_command cmd = {.kind = HUB_UNSUBSCRIBE, .client = c->id, .subscription = (uint32_t)id,
+    hub_command cmd = {.kind = HUB_UNSUBSCRIBE,
+                       .client = c->id,
+                       .subscription = (uint32_t)id,
                        .rect = c->subs[i].rect};
     ref_text(r->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(c->srv, &cmd) != 0) {
@@ -939,8 +937,8 @@ void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
         return;
     }
     default:
-        net_error(c, TERRAD_E_UNKNOWN_TYPE, NULL, -1, 0,
-                  "a %s frame is not accepted by the server", terrad_msg_type_name(h.type));
+        net_error(c, TERRAD_E_UNKNOWN_TYPE, NULL, -1, 0, "a %s frame is not accepted by the server",
+                  terrad_msg_type_name(h.type));
         return;
     }
 }

@@ -307,14 +307,18 @@ static void apply_command(service *s, hub_command *c)
             remove_collider(s, i);
         break;
     }
-    case HUB_SUBSCRIBE:
+    case HUB_SUBSCRIBE: {
+        /* the net thread pauses nothing for a subscribe, but it counts one
+         * snapshot mark per request: send it even when there is nothing */
+        svc_subscription sub = {c->subscription, c->rect};
         if (cl && grow_array((void **)&cl->subs, &cl->sub_capacity, cl->sub_count + 1,
-                             sizeof *cl->subs) == 0) {
-            svc_subscription sub = {c->subscription, c->rect};
+                             sizeof *cl->subs) == 0)
             cl->subs[cl->sub_count++] = sub;
-            queue_snapshots(s, cl->id, &sub, 1);
-        }
+        else
+            sub.rect = (world_rect){0, 0, 0, 0};
+        queue_snapshots(s, c->client, &sub, 1);
         break;
+    }
     case HUB_UNSUBSCRIBE:
         for (int i = 0; cl && i < cl->sub_count; i++)
             if (cl->subs[i].id == c->subscription) {
@@ -331,9 +335,11 @@ static void apply_command(service *s, hub_command *c)
                 queue_snapshots(s, cl->id,
                                 &(svc_subscription){0, {0, 0, 0, 0}}, 1);
         } else {
+            svc_subscription sub = {c->subscription, {0, 0, 0, 0}};
             for (int i = 0; i < cl->sub_count; i++)
                 if (cl->subs[i].id == c->subscription)
-                    queue_snapshots(s, cl->id, &cl->subs[i], 1);
+                    sub = cl->subs[i];
+            queue_snapshots(s, cl->id, &sub, 1); /* one mark, even for a gone subscription */
         }
         break;
     }
@@ -507,7 +513,8 @@ static int cut_into_tiles(service *s, const sim_tick_report *report)
             }
         }
     }
-    qsort(s->pieces, (size_t)s->piece_count, sizeof *s->pieces, compare_pieces);
+    if (s->piece_count > 1)
+        qsort(s->pieces, (size_t)s->piece_count, sizeof *s->pieces, compare_pieces);
     return 0;
 }
 
