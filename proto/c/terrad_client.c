@@ -334,7 +334,8 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         on_delta(c, buf, len, &tick);
         break;
     case TERRAD_MSG_CONTACT: {
-        size_t cap = len >= TERRAD_CONTACT_FIXED ? (len - TERRAD_CONTACT_FIXED) / TERRAD_CONTACT_SIZE : 0;
+        size_t cap =
+            len >= TERRAD_CONTACT_FIXED ? (len - TERRAD_CONTACT_FIXED) / TERRAD_CONTACT_SIZE : 0;
         if (grow((void **)&c->contacts, &c->contacts_cap, cap + 1, sizeof *c->contacts))
             return bad_frame(c, "CONTACT (no memory)", TERRAD_E_NO_MEMORY);
         size_t n = 0;
@@ -442,7 +443,8 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         out_msg *m = c->out_head;
         if (!m)
             break;
-        int n = lws_write(wsi, m->buf + LWS_PRE, m->len, m->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
+        int n =
+            lws_write(wsi, m->buf + LWS_PRE, m->len, m->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
         if (n < (int)m->len) {
             set_err(c, "write failed");
             return -1;
@@ -584,8 +586,10 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     service_until(c, now_us() + (int64_t)c->timeout_ms * 1000, world_or_error);
     if (!c->got_world) {
         if (!c->err[0])
-            set_err(c, c->closed ? "the server closed the connection during the handshake"
-                                 : "no world message within %d ms", c->timeout_ms);
+            set_err(c,
+                    c->closed ? "the server closed the connection during the handshake"
+                              : "no world message within %d ms",
+                    c->timeout_ms);
         goto fail;
     }
     c->wait_done = 0;
@@ -705,7 +709,8 @@ int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint
     }
     case TERRAD_SHAPE_CAPSULE:
     case TERRAD_SHAPE_CYLINDER:
-        cJSON_AddStringToObject(m, "shape", d.shape == TERRAD_SHAPE_CAPSULE ? "capsule" : "cylinder");
+        cJSON_AddStringToObject(m, "shape",
+                                d.shape == TERRAD_SHAPE_CAPSULE ? "capsule" : "cylinder");
         cJSON_AddNumberToObject(m, "radius", d.radius);
         cJSON_AddNumberToObject(m, "half_length", d.half_length);
         ok = finite_positive(d.radius) && finite_positive(d.half_length);

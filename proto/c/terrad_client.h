@@ -3,15 +3,12 @@
  * over libwebsockets' client API, for game backends and simulators written
  * in C or C++.
  *
- *     terrad_client *c = terrad_client_connect((terrad_client_desc){.port = 8081}, err, sizeof err);
- *     uint32_t wheel, sub, seq;
- *     terrad_client_create_collider(c, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL,
- *                                       .radius = 0.3, .width = 0.2}, &wheel);
- *     terrad_client_subscribe(c, 0, 0, 128, 128, &sub);
- *     terrad_pose p = {wheel, 1.0f, 1.0f, 0.5f, 1, 0, 0, 0};
- *     terrad_client_send_poses(c, &p, 1, &seq);
- *     while (terrad_client_poll(c, 20) >= 0) { ... terrad_client_mirror(c, sub)->heights ... }
- *     terrad_client_close(c);
+ *     terrad_client *c = terrad_client_connect((terrad_client_desc){.port = 8081}, err, sizeof
+ * err); uint32_t wheel, sub, seq; terrad_client_create_collider(c, (terrad_collider_desc){.shape =
+ * TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2}, &wheel); terrad_client_subscribe(c, 0, 0, 128,
+ * 128, &sub); terrad_pose p = {wheel, 1.0f, 1.0f, 0.5f, 1, 0, 0, 0}; terrad_client_send_poses(c,
+ * &p, 1, &seq); while (terrad_client_poll(c, 20) >= 0) { ... terrad_client_mirror(c, sub)->heights
+ * ... } terrad_client_close(c);
  *
  * One connection, one thread, no callbacks needed: requests (collider
  * create/delete, subscribe, unsubscribe) block until the server's reply or
@@ -54,11 +51,11 @@ typedef struct terrad_client terrad_client;
 typedef void (*terrad_client_hook)(void *user, terrad_client *c, int msg_type, uint64_t tick);
 
 typedef struct terrad_client_desc {
-    const char *host;  /* NULL: "127.0.0.1" */
-    int port;          /* 0: 8081 */
-    const char *token; /* NULL: "" */
-    const char *name;  /* hello.client; NULL: "terrad-c" */
-    int timeout_ms;    /* connect + hello, and each request; 0: 5000 */
+    const char *host;        /* NULL: "127.0.0.1" */
+    int port;                /* 0: 8081 */
+    const char *token;       /* NULL: "" */
+    const char *name;        /* hello.client; NULL: "terrad-c" */
+    int timeout_ms;          /* connect + hello, and each request; 0: 5000 */
     terrad_client_hook hook; /* optional */
     void *user;              /* passed to hook */
 } terrad_client_desc;
@@ -80,10 +77,10 @@ typedef struct terrad_client_stats {
     uint64_t delta_frames, delta_bytes, delta_tick; /* tick of the last DELTA */
     uint64_t contact_frames, contact_tick;
     uint64_t acks, ack_tick;
-    uint32_t ack_seq;   /* the last POSE_BATCH the server used */
-    uint64_t errors;    /* error messages not answering a request */
-    uint64_t resyncs;   /* resyncs this client asked for (mirror out of step) */
-    uint64_t messages;  /* everything received */
+    uint32_t ack_seq;  /* the last POSE_BATCH the server used */
+    uint64_t errors;   /* error messages not answering a request */
+    uint64_t resyncs;  /* resyncs this client asked for (mirror out of step) */
+    uint64_t messages; /* everything received */
     int last_error_code;
     int close_code; /* the server's close code, once closed (0: none given) */
 } terrad_client_stats;

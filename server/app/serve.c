@@ -43,11 +43,11 @@ typedef struct serve_options {
     int ws_port;
     int bind_any;
     int demo_actors;
-    double tick_hz;     /* 0: the scene's */
-    const char *token;  /* NULL: no token required */
-    long max_ticks;     /* < 0: run until signalled */
+    double tick_hz;    /* 0: the scene's */
+    const char *token; /* NULL: no token required */
+    long max_ticks;    /* < 0: run until signalled */
     net_limits limits;
-    cJSON *config;      /* the --config document, kept for its strings */
+    cJSON *config; /* the --config document, kept for its strings */
 } serve_options;
 
 static int parse_int(const char *flag, const char *v, long lo, long hi, long *out)
@@ -241,8 +241,7 @@ static void demo_actors_init(demo_actor *a, int count, const world *w)
             state = state * 1664525u + 1013904223u;
             r[k] = (state >> 8) / 16777216.0;
         }
-        a[i].geometry = (collider_geometry){.shape = COLLIDER_SPHERE,
-                                            .radius = 0.25 + 0.35 * r[0]};
+        a[i].geometry = (collider_geometry){.shape = COLLIDER_SPHERE, .radius = 0.25 + 0.35 * r[0]};
         a[i].x = size_x * (0.1 + 0.8 * r[1]);
         a[i].y = size_y * (0.1 + 0.8 * r[2]);
         double speed = 0.6 + 1.4 * r[3], heading = 2.0 * M_PI * r[4];

@@ -97,8 +97,8 @@ int app_simulate(int argc, char **argv)
     log_set_quiet(1);
     error_text err = {{0}};
     scene sc;
-    int loaded = o.scene_path ? scene_load_file(o.scene_path, &sc, &err)
-                              : scene_load_default(&sc, &err);
+    int loaded =
+        o.scene_path ? scene_load_file(o.scene_path, &sc, &err) : scene_load_default(&sc, &err);
     if (loaded != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         return 1;
@@ -134,8 +134,8 @@ int app_simulate(int argc, char **argv)
         sim_backend_gl_set_stage_timing(backend, 1);
     engine.depth_from_cpu = o.depth_from_cpu;
 
-    stage_series stages[] = {{"depth", {0}},       {"classify", {0}},    {"jump_flood", {0}},
-                             {"displace", {0}},    {"even_slopes", {0}}, {"transfer", {0}},
+    stage_series stages[] = {{"depth", {0}},          {"classify", {0}},    {"jump_flood", {0}},
+                             {"displace", {0}},       {"even_slopes", {0}}, {"transfer", {0}},
                              {"gather_scatter", {0}}, {"tick", {0}}};
     const int stage_count = (int)(sizeof stages / sizeof stages[0]);
     sim_collider *colliders = calloc((size_t)sc.collider_count + 1, sizeof *colliders);
@@ -163,8 +163,8 @@ int app_simulate(int argc, char **argv)
             goto done_colliders;
         }
         double elapsed = time_now_ms() - t0;
-        double values[] = {report.times.depth,      report.times.classify,
-                           report.times.jump_flood, report.times.displace,
+        double values[] = {report.times.depth,       report.times.classify,
+                           report.times.jump_flood,  report.times.displace,
                            report.times.even_slopes, report.times.transfer,
                            report.gather_scatter_ms, elapsed};
         for (int s = 0; s < stage_count; s++)
@@ -211,14 +211,15 @@ int app_simulate(int argc, char **argv)
              (long long)sim_max_slope_excess(&params, w.width, w.height, w.heights));
     cJSON_AddItemToObject(root, "max_slope_excess", cJSON_CreateRaw(num));
     cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine.peak_scratch_bytes);
-    cJSON_AddNumberToObject(root, "bytes_per_world_cell",
-                            round((world_bytes + (double)engine.peak_scratch_bytes) /
-                                  world_cells * 1e4) / 1e4);
-    cJSON_AddNumberToObject(root, "bytes_per_active_cell",
-                            engine.peak_active_cells
-                                ? round((double)engine.peak_scratch_bytes /
-                                        (double)engine.peak_active_cells * 1e2) / 1e2
-                                : 0.0);
+    cJSON_AddNumberToObject(
+        root, "bytes_per_world_cell",
+        round((world_bytes + (double)engine.peak_scratch_bytes) / world_cells * 1e4) / 1e4);
+    cJSON_AddNumberToObject(
+        root, "bytes_per_active_cell",
+        engine.peak_active_cells
+            ? round((double)engine.peak_scratch_bytes / (double)engine.peak_active_cells * 1e2) /
+                  1e2
+            : 0.0);
     cJSON_AddNumberToObject(root, "peak_rss_bytes", (double)proc_peak_rss_bytes());
     char *text = cJSON_Print(root);
     if (text) {

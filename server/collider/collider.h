@@ -50,16 +50,16 @@ typedef enum collider_shape {
 typedef struct collider_mesh {
     int vertex_count;
     int triangle_count;
-    float *vertices;   /* xyz, local frame, metres */
-    uint32_t *indices; /* 3 per triangle */
+    float *vertices;        /* xyz, local frame, metres */
+    uint32_t *indices;      /* 3 per triangle */
     double bounding_radius; /* max |v| over vertices */
 } collider_mesh;
 
 typedef struct collider_geometry {
     collider_shape shape;
-    double radius;       /* sphere, capsule, cylinder */
-    double half_length;  /* capsule, cylinder: half the length of the axis segment */
-    vec3d half_extents;  /* box */
+    double radius;             /* sphere, capsule, cylinder */
+    double half_length;        /* capsule, cylinder: half the length of the axis segment */
+    vec3d half_extents;        /* box */
     const collider_mesh *mesh; /* mesh: not owned */
 } collider_geometry;
 
@@ -116,8 +116,8 @@ typedef enum collider_motion_kind {
 typedef struct collider_motion {
     collider_motion_kind kind;
     collider_pose start;
-    vec3d velocity;      /* m/s */
-    vec3d spin_axis;     /* world frame */
+    vec3d velocity;  /* m/s */
+    vec3d spin_axis; /* world frame */
     double spin_rad_per_s;
     collider_keyframe *keyframes; /* owned */
     int keyframe_count;

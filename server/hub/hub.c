@@ -30,9 +30,9 @@ struct hub {
     int command_head, command_count;
 
     pthread_mutex_t pose_lock;
-    hub_pose *poses;  /* pending, in arrival order of first set */
+    hub_pose *poses; /* pending, in arrival order of first set */
     int pose_count;
-    int32_t *slots;   /* open addressing: collider -> index + 1 into poses */
+    int32_t *slots; /* open addressing: collider -> index + 1 into poses */
 
     pthread_mutex_t out_lock;
     hub_out *out;

@@ -36,20 +36,20 @@ void hub_destroy(hub *h);
 
 typedef enum hub_command_kind {
     HUB_CLIENT_JOINED,
-    HUB_CLIENT_LEFT,       /* sim deletes the client's colliders */
-    HUB_COLLIDER_CREATE,   /* id assigned by the net thread, unique for the daemon's life */
+    HUB_CLIENT_LEFT,     /* sim deletes the client's colliders */
+    HUB_COLLIDER_CREATE, /* id assigned by the net thread, unique for the daemon's life */
     HUB_COLLIDER_DELETE,
-    HUB_SUBSCRIBE,         /* sim answers with snapshot frames for the client */
+    HUB_SUBSCRIBE, /* sim answers with snapshot frames for the client */
     HUB_UNSUBSCRIBE,
-    HUB_RESYNC,            /* fresh snapshots of one (subscription != 0) or all subscriptions */
+    HUB_RESYNC, /* fresh snapshots of one (subscription != 0) or all subscriptions */
 } hub_command_kind;
 
 typedef struct hub_command {
     hub_command_kind kind;
     uint32_t client;
-    uint32_t collider;     /* create / delete */
-    uint32_t subscription; /* subscribe / unsubscribe / resync (0 = all) */
-    world_rect rect;       /* subscribe: inside the world (checked by the net thread) */
+    uint32_t collider;          /* create / delete */
+    uint32_t subscription;      /* subscribe / unsubscribe / resync (0 = all) */
+    world_rect rect;            /* subscribe: inside the world (checked by the net thread) */
     collider_geometry geometry; /* create; for a mesh, geometry.mesh == mesh */
     collider_mesh *mesh;        /* create, mesh shapes: owned by the command, then by the sim */
     collider_pose pose;         /* create: initial pose */
@@ -114,7 +114,7 @@ typedef struct hub_out {
     int tile_x, tile_y; /* HUB_OUT_TILE_DELTA: tile coordinates (cells / tile_size) */
     int snapshot_done;  /* HUB_OUT_CLIENT: the last snapshot frame of a subscribe/resync */
     uint64_t tick;
-    hub_frame *frame;   /* the queue holds one reference */
+    hub_frame *frame; /* the queue holds one reference */
 } hub_out;
 
 /* sim thread: append in order (takes over the frames' references) and wake

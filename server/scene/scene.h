@@ -21,7 +21,7 @@ typedef struct scene_collider {
 
 typedef struct scene {
     char name[128];
-    int width, height;      /* cells */
+    int width, height; /* cells */
     double cell_size_m;
     int32_t units_per_m;
     int32_t floor_units;

@@ -39,7 +39,7 @@ typedef struct svc_client {
 typedef struct svc_collider {
     uint32_t id, client;
     collider_geometry *geometry; /* on the heap: backends cache by its address */
-    collider_mesh *mesh; /* owned, for mesh shapes */
+    collider_mesh *mesh;         /* owned, for mesh shapes */
     collider_pose pose, previous_pose;
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
@@ -92,11 +92,11 @@ struct service {
     svc_contact *contacts;
     int contact_count, contact_capacity;
 
-    int32_t *values;   /* one tile of values */
-    uint8_t *packed;   /* compressed tile */
+    int32_t *values; /* one tile of values */
+    uint8_t *packed; /* compressed tile */
     size_t packed_cap;
     double oldest_pose_ms; /* earliest arrival among this tick's poses, 0 if none */
-    int32_t *bottom;   /* contact scratch */
+    int32_t *bottom;       /* contact scratch */
     int64_t bottom_cap;
 };
 
@@ -332,8 +332,7 @@ static void apply_command(service *s, hub_command *c)
         if (c->subscription == 0) {
             queue_snapshots(s, cl->id, cl->subs, cl->sub_count);
             if (cl->sub_count == 0) /* nothing to send, but the client waits for the mark */
-                queue_snapshots(s, cl->id,
-                                &(svc_subscription){0, {0, 0, 0, 0}}, 1);
+                queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}}, 1);
         } else {
             svc_subscription sub = {c->subscription, {0, 0, 0, 0}};
             for (int i = 0; i < cl->sub_count; i++)
@@ -628,10 +627,10 @@ static void publish_snapshot(service *s, const snapshot_job *job)
         for (int tx = r.x / SERVICE_TILE_SIZE; tx <= (r.x + r.w - 1) / SERVICE_TILE_SIZE; tx++) {
             int x0 = r.x > tx * SERVICE_TILE_SIZE ? r.x : tx * SERVICE_TILE_SIZE;
             int y0 = r.y > ty * SERVICE_TILE_SIZE ? r.y : ty * SERVICE_TILE_SIZE;
-            int x1 = r.x + r.w < (tx + 1) * SERVICE_TILE_SIZE ? r.x + r.w
-                                                             : (tx + 1) * SERVICE_TILE_SIZE;
-            int y1 = r.y + r.h < (ty + 1) * SERVICE_TILE_SIZE ? r.y + r.h
-                                                             : (ty + 1) * SERVICE_TILE_SIZE;
+            int x1 =
+                r.x + r.w < (tx + 1) * SERVICE_TILE_SIZE ? r.x + r.w : (tx + 1) * SERVICE_TILE_SIZE;
+            int y1 =
+                r.y + r.h < (ty + 1) * SERVICE_TILE_SIZE ? r.y + r.h : (ty + 1) * SERVICE_TILE_SIZE;
             world_rect piece = {x0, y0, x1 - x0, y1 - y0};
             world_gather_window(s->world, piece, s->values);
             size_t len = 0;
@@ -688,8 +687,8 @@ static void publish_feedback(service *s)
                         mine[k++] = s->contacts[i].contact;
                 size_t size = terrad_contact_size((size_t)n);
                 hub_frame *f = hub_frame_new(1, size);
-                if (f && terrad_contact_encode(f->data, size, &f->len, s->tick, mine,
-                                               (size_t)n) == 0)
+                if (f &&
+                    terrad_contact_encode(f->data, size, &f->len, s->tick, mine, (size_t)n) == 0)
                     queue_out(s, (hub_out){.kind = HUB_OUT_CLIENT,
                                            .client = cl->id,
                                            .tick = s->tick,
@@ -703,10 +702,9 @@ static void publish_feedback(service *s)
             hub_frame *f = hub_frame_new(1, TERRAD_ACK_SIZE);
             if (f && terrad_ack_encode(f->data, TERRAD_ACK_SIZE, &f->len, s->tick,
                                        cl->last_sequence) == 0)
-                queue_out(s, (hub_out){.kind = HUB_OUT_CLIENT,
-                                       .client = cl->id,
-                                       .tick = s->tick,
-                                       .frame = f});
+                queue_out(
+                    s, (hub_out){
+                           .kind = HUB_OUT_CLIENT, .client = cl->id, .tick = s->tick, .frame = f});
             else if (f)
                 hub_frame_unref(f);
             cl->sequence_pending = 0;
@@ -714,8 +712,8 @@ static void publish_feedback(service *s)
     }
 }
 
-int service_tick(service *s, const sim_collider *extra, int extra_count,
-                 service_tick_stats *stats, error_text *err)
+int service_tick(service *s, const sim_collider *extra, int extra_count, service_tick_stats *stats,
+                 error_text *err)
 {
     double t0 = time_now_ms();
     memset(stats, 0, sizeof *stats);

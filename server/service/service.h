@@ -42,8 +42,8 @@ typedef struct service_tick_stats {
  * their ids must not collide with client colliders (use ids >= 0x80000000).
  * Returns 0, or -1 with err set when the backend failed.
  */
-int service_tick(service *s, const sim_collider *extra, int extra_count,
-                 service_tick_stats *stats, error_text *err);
+int service_tick(service *s, const sim_collider *extra, int extra_count, service_tick_stats *stats,
+                 error_text *err);
 
 uint64_t service_current_tick(const service *s);
 int64_t service_volume(const service *s); /* Σh, kept exactly, tick by tick */

@@ -53,12 +53,12 @@ typedef enum sim_cell_class {
 
 /* The material as a person writes it (scene files, the wire). */
 typedef struct sim_material {
-    double compression;     /* [0,1]: share of the penetration that is compacted away */
-    double roughness;       /* [0,1]: share of the excess slope moved per slope iteration */
-    double repose_deg;      /* [0,90): angle of repose */
-    double obstacle_gap_m;  /* a collider this close above a column makes it an obstacle */
-    double multi_target_m;  /* multi: material per target column */
-    int multi_target_max;   /* multi: at most this many targets per column */
+    double compression;      /* [0,1]: share of the penetration that is compacted away */
+    double roughness;        /* [0,1]: share of the excess slope moved per slope iteration */
+    double repose_deg;       /* [0,90): angle of repose */
+    double obstacle_gap_m;   /* a collider this close above a column makes it an obstacle */
+    double multi_target_m;   /* multi: material per target column */
+    int multi_target_max;    /* multi: at most this many targets per column */
     int displace_iterations; /* iterative displacement passes per tick */
     int slope_iterations;    /* slope-evening iterations per tick */
     sim_metric metric;
@@ -72,13 +72,13 @@ sim_material sim_material_default(void);
 typedef struct sim_params {
     sim_metric metric;
     sim_method method;
-    int32_t compression_q16; /* 0..65536 */
-    int32_t roughness_q16;   /* 0..65536 */
+    int32_t compression_q16;          /* 0..65536 */
+    int32_t roughness_q16;            /* 0..65536 */
     int32_t slope_threshold_axial;    /* units of height difference */
     int32_t slope_threshold_diagonal; /* units of height difference */
-    int32_t obstacle_gap;    /* units */
-    int32_t multi_target_step; /* units per target, >= 1 */
-    int32_t multi_target_max;  /* >= 1 */
+    int32_t obstacle_gap;             /* units */
+    int32_t multi_target_step;        /* units per target, >= 1 */
+    int32_t multi_target_max;         /* >= 1 */
     int32_t displace_iterations;
     int32_t slope_iterations;
     int32_t floor; /* units */
@@ -154,13 +154,13 @@ typedef struct sim_collider {
 } sim_collider;
 
 typedef struct sim_window_job {
-    world_rect rect;  /* world cells */
-    double cell_size_m;   /* for the depth stage */
-    int32_t units_per_m;  /* for the depth stage */
-    int32_t *heights; /* in: gathered heights; out: new heights (w*h) */
+    world_rect rect;               /* world cells */
+    double cell_size_m;            /* for the depth stage */
+    int32_t units_per_m;           /* for the depth stage */
+    int32_t *heights;              /* in: gathered heights; out: new heights (w*h) */
     const sim_collider *colliders; /* those whose footprint meets the window */
     int collider_count;
-    int32_t depth_low, depth_high; /* height range the depth stage must resolve (units) */
+    int32_t depth_low, depth_high;  /* height range the depth stage must resolve (units) */
     const int32_t *bottom_override; /* non-NULL: use this depth, skip the depth stage */
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
 } sim_window_job;
@@ -240,7 +240,7 @@ world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
  * are sorted by (y, x). Caller frees *out.
  */
 int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
-                     int collider_count, int margin_cells, world_rect *footprints,
-                     world_rect **out, int *out_count);
+                     int collider_count, int margin_cells, world_rect *footprints, world_rect **out,
+                     int *out_count);
 
 #endif

@@ -88,8 +88,8 @@ static int compare_rects(const void *a, const void *b)
 }
 
 int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
-                     int collider_count, int margin_cells, world_rect *footprints,
-                     world_rect **out, int *out_count)
+                     int collider_count, int margin_cells, world_rect *footprints, world_rect **out,
+                     int *out_count)
 {
     world_rect *rects = malloc(((size_t)collider_count + 1) * sizeof *rects);
     if (!rects)
@@ -230,8 +230,8 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
 
     world_rect *windows = NULL;
     int count = 0;
-    if (sim_plan_windows(w, &e->params, colliders, collider_count, e->margin_cells,
-                         e->footprints, &windows, &count) != 0)
+    if (sim_plan_windows(w, &e->params, colliders, collider_count, e->margin_cells, e->footprints,
+                         &windows, &count) != 0)
         goto oom;
     cap = e->window_capacity;
     int64_t cap2 = cap, cap3 = cap, cap4 = cap, cap5 = cap, cap6 = cap;

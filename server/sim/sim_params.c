@@ -80,8 +80,7 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
                              int32_t floor_units, sim_params *p, error_text *err)
 {
     if (!in_range(m->compression, 0.0, 1.0)) {
-        error_set(err, "material.compression: must be a number in [0, 1] (got %g)",
-                  m->compression);
+        error_set(err, "material.compression: must be a number in [0, 1] (got %g)", m->compression);
         return -1;
     }
     if (!in_range(m->roughness, 0.0, 1.0)) {
@@ -89,8 +88,7 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         return -1;
     }
     if (!isfinite(m->repose_deg) || m->repose_deg < 0.0 || m->repose_deg >= 90.0) {
-        error_set(err, "material.repose_deg: must be a number in [0, 90) (got %g)",
-                  m->repose_deg);
+        error_set(err, "material.repose_deg: must be a number in [0, 90) (got %g)", m->repose_deg);
         return -1;
     }
     if (!in_range(m->obstacle_gap_m, 0.0, 1000.0)) {

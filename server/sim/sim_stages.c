@@ -243,8 +243,7 @@ static sim_window_status displace_iterative(const sim_params *p, int w, int h, c
     int32_t *deposit = scratch + 4 * n;
     for (int i = 0; i < n; i++) {
         int32_t s = seed[i];
-        dist[i] = s >= 0 ? sim_metric_distance(p->metric, s % w - i % w, s / w - i / w)
-                         : INT32_MAX;
+        dist[i] = s >= 0 ? sim_metric_distance(p->metric, s % w - i % w, s / w - i / w) : INT32_MAX;
         transit[i] = cls[i] == SIM_CELL_PENETRATING ? moved[i] : 0;
         deposit[i] = 0;
     }

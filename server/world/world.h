@@ -83,7 +83,6 @@ world_rect world_rect_union(world_rect a, world_rect b);
 
 /* Write / read a 16-bit greyscale PNG (used by base terrain and exports). */
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err);
-int png16_write(const char *path, int width, int height, const uint16_t *pixels,
-                error_text *err);
+int png16_write(const char *path, int width, int height, const uint16_t *pixels, error_text *err);
 
 #endif

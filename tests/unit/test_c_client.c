@@ -1,3 +1,4 @@
+// ctest-timeout: 120
 /*
  * test_c_client: the C client library (proto/c/terrad_client.h) against the
  * real daemon on loopback.
@@ -197,8 +198,8 @@ static int http_get(int port, const char *path, http_reply *r)
         return -1;
     }
     char req[512];
-    int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
-                     path);
+    int n = snprintf(req, sizeof req,
+                     "GET %s HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n", path);
     if (write(s, req, (size_t)n) != n) {
         close(s);
         return -1;
@@ -316,8 +317,8 @@ static void drive(int http_port, int ws_port)
     memset(&hist, 0, sizeof hist);
     char err[512];
     terrad_client *c = terrad_client_connect(
-        (terrad_client_desc){.port = ws_port, .name = "test_c_client", .hook = on_frame,
-                             .user = &hist},
+        (terrad_client_desc){
+            .port = ws_port, .name = "test_c_client", .hook = on_frame, .user = &hist},
         err, sizeof err);
     CHECK(c != NULL, "connect + hello -> world: %s\n", err);
     if (!c)
@@ -341,9 +342,8 @@ static void drive(int http_port, int ws_port)
     rc = terrad_client_delete_collider(c, 0x7fffff00u);
     CHECK(rc == TERRAD_E_UNKNOWN_COLLIDER, "delete an unknown collider: %d (%s)\n", rc,
           terrad_client_last_error(c));
-    rc = terrad_client_create_collider(c, (terrad_collider_desc){.shape = TERRAD_SHAPE_SPHERE,
-                                                                 .radius = NAN},
-                                       NULL);
+    rc = terrad_client_create_collider(
+        c, (terrad_collider_desc){.shape = TERRAD_SHAPE_SPHERE, .radius = NAN}, NULL);
     CHECK(rc == TERRAD_E_BAD_VALUE, "a NaN radius is refused locally: %d\n", rc);
 
     /* the strip */
@@ -361,9 +361,10 @@ static void drive(int http_port, int ws_port)
 
     uint32_t wheel = 0;
     const double radius = 0.3;
-    rc = terrad_client_create_collider(c, (terrad_collider_desc){.shape = TERRAD_SHAPE_CYLINDER,
-                                                                 .radius = radius,
-                                                                 .half_length = 0.1},
+    rc = terrad_client_create_collider(c,
+                                       (terrad_collider_desc){.shape = TERRAD_SHAPE_CYLINDER,
+                                                              .radius = radius,
+                                                              .half_length = 0.1},
                                        &wheel);
     CHECK(rc == 0 && wheel > 0, "collider_create cylinder: %d (%s)\n", rc,
           terrad_client_last_error(c));
@@ -403,8 +404,8 @@ static void drive(int http_port, int ws_port)
     CHECK(send_errors == 0, "every pose batch was sent\n");
     CHECK(st->acks > (uint64_t)ticks / 2, "ACKs came: %llu for %d batches\n",
           (unsigned long long)st->acks, ticks);
-    CHECK(st->contact_frames - contact_frames0 > (uint64_t)ticks / 2,
-          "CONTACT frames came: %llu\n", (unsigned long long)(st->contact_frames - contact_frames0));
+    CHECK(st->contact_frames - contact_frames0 > (uint64_t)ticks / 2, "CONTACT frames came: %llu\n",
+          (unsigned long long)(st->contact_frames - contact_frames0));
     CHECK(max_volume > 0, "penetrating volume > 0 in the snow (max %lld)\n", (long long)max_volume);
     CHECK(st->delta_frames > 2, "DELTA frames came: %llu\n", (unsigned long long)st->delta_frames);
     CHECK(st->errors == 0, "no unsolicited errors (%llu; last: %s)\n",
@@ -452,8 +453,8 @@ static void drive(int http_port, int ws_port)
     free(now_row);
 
     long long vol1 = 0, tick1 = 0;
-    CHECK(get_stats(http_port, &vol1, &tick1) == 0 && vol1 == vol0,
-          "Σh unchanged: %lld -> %lld\n", vol0, vol1);
+    CHECK(get_stats(http_port, &vol1, &tick1) == 0 && vol1 == vol0, "Σh unchanged: %lld -> %lld\n",
+          vol0, vol1);
 
     rc = terrad_client_delete_collider(c, wheel);
     CHECK(rc == 0, "collider_delete: %d (%s)\n", rc, terrad_client_last_error(c));

@@ -46,8 +46,8 @@ static void view_init(client_view *v, world_rect r)
 {
     memset(v, 0, sizeof *v);
     v->heights = calloc((size_t)r.w * r.h, sizeof *v->heights);
-    size_t tiles = terrad_mirror_tile_count(r.x, r.y, (uint32_t)r.w, (uint32_t)r.h,
-                                            SERVICE_TILE_SIZE);
+    size_t tiles =
+        terrad_mirror_tile_count(r.x, r.y, (uint32_t)r.w, (uint32_t)r.h, SERVICE_TILE_SIZE);
     v->versions = calloc(tiles, sizeof *v->versions);
     terrad_mirror_init(&v->mirror, r.x, r.y, (uint32_t)r.w, (uint32_t)r.h, SERVICE_TILE_SIZE,
                        v->heights, v->versions);
@@ -164,13 +164,12 @@ int main(void)
         view_init(&views[c], regions[c]);
         hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = (uint32_t)c + 1};
         hub_push_command(h, &cmd);
-        cmd = (hub_command){.kind = HUB_COLLIDER_CREATE,
-                            .client = (uint32_t)c + 1,
-                            .collider = (uint32_t)c + 1,
-                            .feedback = 1,
-                            .geometry = {.shape = COLLIDER_CYLINDER,
-                                         .radius = 0.3,
-                                         .half_length = 0.1}};
+        cmd = (hub_command){
+            .kind = HUB_COLLIDER_CREATE,
+            .client = (uint32_t)c + 1,
+            .collider = (uint32_t)c + 1,
+            .feedback = 1,
+            .geometry = {.shape = COLLIDER_CYLINDER, .radius = 0.3, .half_length = 0.1}};
         cmd.pose = (collider_pose){{2.0 + 5.0 * c, 5.0, 0.75}, {1, 0, 0, 0}};
         hub_push_command(h, &cmd);
         cmd = (hub_command){.kind = HUB_SUBSCRIBE,
@@ -212,8 +211,8 @@ int main(void)
     CHECK(changed, "tile versions advanced");
 
     /* a wheel held still, pressing in: contact feedback shows its volume */
-    hub_pose deep = {.collider = 1, .client = 1, .sequence = 999,
-                     .pose = {{12.0, 7.5, 0.70}, {1, 0, 0, 0}}};
+    hub_pose deep = {
+        .collider = 1, .client = 1, .sequence = 999, .pose = {{12.0, 7.5, 0.70}, {1, 0, 0, 0}}};
     hub_set_pose(h, &deep);
     service_tick(svc, NULL, 0, &st, &err);
     deliver(h, views, regions, 2);

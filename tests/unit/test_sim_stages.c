@@ -62,8 +62,7 @@ static void test_fig_4_3_manhattan(void)
     for (int i = 0; i < W * H; i++) {
         int x = i % W, y = i / W;
         int inside = x >= 2 && x <= 7 && y >= 2 && y <= 7;
-        CHECK(cls[i] == (inside ? SIM_CELL_PENETRATING : SIM_CELL_SEED), "class of (%d,%d)", x,
-              y);
+        CHECK(cls[i] == (inside ? SIM_CELL_PENETRATING : SIM_CELL_SEED), "class of (%d,%d)", x, y);
         CHECK(raw[i] == (inside ? 5 : 0), "penetration of (%d,%d) is %d", x, y, raw[i]);
     }
     sim_jump_flood(&p, W, H, 0, 0, cls, seed, scratch);
@@ -161,8 +160,8 @@ static void test_displacement_small(void)
         CHECK(st == SIM_WINDOW_OK, "displacement ok");
         CHECK(sum(h, 5) == 5300, "%s keeps volume (%lld)", sim_method_name(p.method),
               (long long)sum(h, 5));
-        CHECK(h[2] == 1000, "%s leaves the column at the collider (%d)",
-              sim_method_name(p.method), h[2]);
+        CHECK(h[2] == 1000, "%s leaves the column at the collider (%d)", sim_method_name(p.method),
+              h[2]);
         if (p.method == SIM_METHOD_SSBO)
             CHECK(h[seed[2]] == 1300, "single target: all 300 on the seed");
         if (p.method == SIM_METHOD_ITERATIVE)
@@ -196,8 +195,8 @@ static void test_no_seed(void)
             CHECK(seed[i] == -1, "no seed anywhere");
         CHECK(sim_displace(&p, 3, 3, cls, seed, raw, moved, h, scratch) == SIM_WINDOW_OK, "ok");
         for (int i = 0; i < 9; i++)
-            CHECK(h[i] == 4000 + 100 * i, "%s: column %d unchanged (%d)",
-                  sim_method_name(p.method), i, h[i]);
+            CHECK(h[i] == 4000 + 100 * i, "%s: column %d unchanged (%d)", sim_method_name(p.method),
+                  i, h[i]);
     }
 }
 
@@ -222,8 +221,7 @@ static void test_height_limit(void)
             h[i] = WORLD_HEIGHT_MAX - 10;
         sim_classify(&p, W * H, h, b, raw, moved, cls);
         sim_jump_flood(&p, W, H, 0, 0, cls, seed, scratch);
-        CHECK(sim_displace(&p, W, H, cls, seed, raw, moved, h, scratch) ==
-                  SIM_WINDOW_HEIGHT_LIMIT,
+        CHECK(sim_displace(&p, W, H, cls, seed, raw, moved, h, scratch) == SIM_WINDOW_HEIGHT_LIMIT,
               "%s refuses at the limit", sim_method_name(p.method));
     }
 }
@@ -313,8 +311,7 @@ static void test_random_volume(void)
                     sim_even_slopes(&p, w, h, cls, heights, scratch);
                     CHECK(st == SIM_WINDOW_OK && sum(heights, n) == before,
                           "%dx%d %s/%s: volume %lld -> %lld", w, h, sim_method_name(p.method),
-                          sim_metric_name(p.metric), (long long)before,
-                          (long long)sum(heights, n));
+                          sim_metric_name(p.metric), (long long)before, (long long)sum(heights, n));
                     if (rep == 0)
                         memcpy(first, heights, sizeof(int32_t) * n);
                     else
@@ -356,8 +353,9 @@ static void test_plan_windows(void)
     world_rect fp[4], *win = NULL;
     int count = 0;
     CHECK(sim_plan_windows(&w, &p, c, 4, 2, fp, &win, &count) == 0, "plan");
-    CHECK(count == 2, "two overlapping footprints merge, one far away stays, one flying is "
-                      "skipped: %d windows",
+    CHECK(count == 2,
+          "two overlapping footprints merge, one far away stays, one flying is "
+          "skipped: %d windows",
           count);
     CHECK(fp[3].w == 0, "flying collider has no footprint");
     if (count == 2) {
@@ -367,8 +365,7 @@ static void test_plan_windows(void)
     free(win);
     /* a collider crossing the world edge is clipped */
     c[0].pose.position.x = 0.1;
-    CHECK(sim_plan_windows(&w, &p, c, 1, 2, fp, &win, &count) == 0 && count == 1 &&
-              win[0].x == 0,
+    CHECK(sim_plan_windows(&w, &p, c, 1, 2, fp, &win, &count) == 0 && count == 1 && win[0].x == 0,
           "clipped at the edge");
     free(win);
     world_free(&w);
