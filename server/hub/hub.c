@@ -16,6 +16,7 @@
 #define HUB_POSE_SLOTS (HUB_POSE_CAPACITY * 2)
 #define HUB_OUT_CAPACITY 65536
 #define HUB_MAX_READS 32
+#define HUB_BATCH_CAPACITY 4096 /* clients with a pending batch sequence */
 
 typedef struct hub_read {
     world_rect rect;
@@ -33,6 +34,9 @@ struct hub {
     hub_pose *poses; /* pending, in arrival order of first set */
     int pose_count;
     int32_t *slots; /* open addressing: collider -> index + 1 into poses */
+
+    hub_batch *batches; /* one per client with a batch since the last take */
+    int batch_count;
 
     pthread_mutex_t out_lock;
     hub_out *out;
@@ -56,7 +60,9 @@ hub *hub_create(void)
     h->poses = calloc(HUB_POSE_CAPACITY, sizeof *h->poses);
     h->slots = calloc(HUB_POSE_SLOTS, sizeof *h->slots);
     h->out = calloc(HUB_OUT_CAPACITY, sizeof *h->out);
-    if (!h->commands || !h->poses || !h->slots || !h->out) {
+    h->batches = calloc(HUB_BATCH_CAPACITY, sizeof *h->batches);
+    if (!h->commands || !h->poses || !h->slots || !h->out || !h->batches) {
+        free(h->batches);
         free(h->commands);
         free(h->poses);
         free(h->slots);
@@ -101,6 +107,7 @@ void hub_destroy(hub *h)
     free(h->poses);
     free(h->slots);
     free(h->out);
+    free(h->batches);
     free(h);
 }
 
@@ -207,6 +214,30 @@ int hub_take_poses(hub *h, hub_pose *out, int max)
     memmove(h->poses, h->poses + n, (size_t)(h->pose_count - n) * sizeof *h->poses);
     h->pose_count -= n;
     pose_reindex(h);
+    pthread_mutex_unlock(&h->pose_lock);
+    return n;
+}
+
+void hub_note_batch(hub *h, uint32_t client, uint32_t sequence)
+{
+    pthread_mutex_lock(&h->pose_lock);
+    int i = 0;
+    while (i < h->batch_count && h->batches[i].client != client)
+        i++;
+    if (i < h->batch_count)
+        h->batches[i].sequence = sequence;
+    else if (h->batch_count < HUB_BATCH_CAPACITY)
+        h->batches[h->batch_count++] = (hub_batch){client, sequence};
+    pthread_mutex_unlock(&h->pose_lock);
+}
+
+int hub_take_batches(hub *h, hub_batch *out, int max)
+{
+    pthread_mutex_lock(&h->pose_lock);
+    int n = h->batch_count < max ? h->batch_count : max;
+    memcpy(out, h->batches, (size_t)n * sizeof *out);
+    memmove(h->batches, h->batches + n, (size_t)(h->batch_count - n) * sizeof *h->batches);
+    h->batch_count -= n;
     pthread_mutex_unlock(&h->pose_lock);
     return n;
 }

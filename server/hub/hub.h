@@ -83,6 +83,17 @@ void hub_forget_pose(hub *h, uint32_t collider);
 /* sim thread: take every pose set since the last call (max entries). */
 int hub_take_poses(hub *h, hub_pose *out, int max);
 
+/* Every accepted POSE_BATCH, empty or not: the next tick ACKs the client's
+ * latest sequence. Latest wins per client. */
+typedef struct hub_batch {
+    uint32_t client;
+    uint32_t sequence;
+} hub_batch;
+
+void hub_note_batch(hub *h, uint32_t client, uint32_t sequence);
+/* sim thread: take the clients' latest batch sequences since the last call. */
+int hub_take_batches(hub *h, hub_batch *out, int max);
+
 /* ---- sim → net: frames ---- */
 
 /* Bytes of headroom before a frame's payload: libwebsockets writes its frame

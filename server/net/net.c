@@ -360,8 +360,14 @@ static void dispatch(net_server *s, hub_out *o)
             int status =
                 o->frame->binary && o->frame->len > 2 &&
                 (o->frame->data[2] == TERRAD_MSG_CONTACT || o->frame->data[2] == TERRAD_MSG_ACK);
-            net_enqueue(c, o->frame, status ? NET_ITEM_STATUS : NET_ITEM_REPLY);
-            o->frame = NULL;
+            if (status && dropping_deltas(c)) {
+                /* An ACK of tick t promises that tick t's deltas came first: while
+                 * deltas are dropped for a resync, the tick's ACK and CONTACT go too. */
+                metrics_count_frames_coalesced(1);
+            } else {
+                net_enqueue(c, o->frame, status ? NET_ITEM_STATUS : NET_ITEM_REPLY);
+                o->frame = NULL;
+            }
         }
         if (c && o->snapshot_done && c->snapshots_done < c->snapshots_requested)
             c->snapshots_done++;

@@ -893,6 +893,8 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
                 break;
             }
         }
+        /* every accepted batch, empty ones too, is acknowledged by the next tick */
+        hub_note_batch(s->hub, c->id, seq);
     }
 done:
     cJSON_Delete(ref);

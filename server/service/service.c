@@ -359,10 +359,21 @@ static void apply_poses(service *s, int n)
         s->colliders[k].pose = p->pose;
         if (s->oldest_pose_ms == 0 || p->received_ms < s->oldest_pose_ms)
             s->oldest_pose_ms = p->received_ms;
-        svc_client *cl = find_client(s, p->client);
-        if (cl) {
-            cl->last_sequence = p->sequence;
-            cl->sequence_pending = 1;
+    }
+}
+
+/* The batches (empty ones too) this tick answers with an ACK. */
+static void apply_batches(service *s)
+{
+    hub_batch batches[256];
+    int n;
+    while ((n = hub_take_batches(s->hub, batches, 256)) > 0) {
+        for (int i = 0; i < n; i++) {
+            svc_client *cl = find_client(s, batches[i].client);
+            if (cl) {
+                cl->last_sequence = batches[i].sequence;
+                cl->sequence_pending = 1;
+            }
         }
     }
 }
@@ -724,6 +735,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     if (grow_array((void **)&s->poses, &s->pose_capacity, s->collider_count + 64,
                    sizeof *s->poses) == 0)
         apply_poses(s, hub_take_poses(s->hub, s->poses, s->pose_capacity));
+    apply_batches(s);
 
     contacts_before_tick(s);
 

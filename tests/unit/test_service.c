@@ -175,6 +175,7 @@ int main(void)
                              .sequence = (uint32_t)t,
                              .pose = {{x, y, 0.75}, {1, 0, 0, 0}}};
             CHECK(hub_set_pose(h, &pose) == 0, "pose accepted");
+            hub_note_batch(h, (uint32_t)c + 1, (uint32_t)t);
         }
         CHECK(service_tick(svc, NULL, 0, &st, &err) == 0, "tick %d: %s", t, err.message);
         deliver(h, views, regions, 2);

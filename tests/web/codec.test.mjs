@@ -1,0 +1,127 @@
+// The viewer's JavaScript codec (web/terrad_codec.mjs) against every test vector in
+// proto/vectors/vectors.json (PROTOCOL.md, "Test vectors"), and the pinning of the
+// vendored fzstd (web/vendor/fzstd.js must equal node_modules' copy: scripts/vendor-web).
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { readFileSync, existsSync } from 'node:fs';
+import { fileURLToPath } from 'node:url';
+import path from 'node:path';
+import * as C from '../../web/terrad_codec.mjs';
+
+const root = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
+const V = JSON.parse(readFileSync(path.join(root, 'proto/vectors/vectors.json'), 'utf8'));
+const unhex = (h) => Uint8Array.from(h.match(/../g) || [], (x) => parseInt(x, 16));
+const hex = (b) => Buffer.from(b).toString('hex');
+
+const decoders = {
+  POSE_BATCH: (b) => C.decodePoseBatch(b),
+  DELTA: (b) => {
+    const d = C.decodeDelta(b);
+    d.values = d.rects.map((r) => C.rectDecompress(r.data, r.w * r.h, r.w * r.h));
+    return d;
+  },
+  CONTACT: C.decodeContact,
+  ACK: C.decodeAck,
+  PING: C.decodePing,
+  PONG: C.decodePing,
+};
+
+function errorName(fn) {
+  try {
+    fn();
+  } catch (e) {
+    assert.ok(e instanceof C.ProtoError, `not a ProtoError: ${e && e.stack}`);
+    return e.error;
+  }
+  return '';
+}
+
+test('error table matches the vectors', () => {
+  for (const e of V.errors) assert.equal(C.ERRORS[e.name], e.code, e.name);
+  for (const t of V.types) assert.equal(C.MsgType[t.name], t.code, t.name);
+});
+
+for (const v of V.vectors) {
+  test(`vector ${v.name} (${v.type}, ${v.valid ? 'valid' : v.error})`, () => {
+    const buf = unhex(v.hex);
+    if (!v.valid) {
+      assert.equal(errorName(() => decoders[v.type](buf)), v.error);
+      return;
+    }
+    const d = decoders[v.type](buf);
+    const f = v.fields;
+    switch (v.type) {
+      case 'POSE_BATCH':
+        assert.equal(d.seq, f.seq);
+        assert.deepEqual(d.poses, f.poses);
+        assert.equal(hex(C.encodePoseBatch(f.seq, f.poses)), v.hex);
+        break;
+      case 'DELTA':
+        assert.equal(String(d.tick), f.tick);
+        assert.equal(d.rects.length, f.rects.length);
+        f.rects.forEach((fr, i) => {
+          const r = d.rects[i];
+          for (const k of ['x', 'y', 'w', 'h', 'base_version', 'new_version', 'encoding']) assert.equal(r[k], fr[k], k);
+          assert.equal(hex(r.data), fr.data_hex);
+          assert.deepEqual(Array.from(d.values[i]), fr.values);
+          assert.equal(hex(C.rectPack(fr.values)), fr.packed_hex);
+          assert.deepEqual(Array.from(C.rectUnpack(unhex(fr.packed_hex))), fr.values);
+          if (fr.old) fr.old.forEach((o, k) => assert.equal((o + fr.values[k]) | 0, fr.new[k]));
+        });
+        break;
+      case 'CONTACT':
+        assert.equal(String(d.tick), f.tick);
+        // Floats in the vectors are f32 values printed in short form: compare as f32.
+        assert.deepEqual(d.contacts.map((c) => ({ ...c, volume: String(c.volume) })), f.contacts.map((c) => ({
+          ...c, area_m2: Math.fround(c.area_m2), deepest: c.deepest.map(Math.fround), normal: c.normal.map(Math.fround),
+          support_height_m: Math.fround(c.support_height_m) })));
+        break;
+      case 'ACK':
+        assert.equal(String(d.tick), f.tick);
+        assert.equal(d.seq, f.seq);
+        break;
+      default:
+        assert.equal(String(d.nonce), f.nonce);
+        assert.equal(d.type, C.MsgType[v.type]);
+        assert.equal(hex(C.encodePing(BigInt(f.nonce), v.type === 'PONG')), v.hex);
+    }
+    for (let n = 0; n < buf.length; n++) assert.notEqual(errorName(() => decoders[v.type](buf.subarray(0, n))), '', `prefix ${n}`);
+  });
+}
+
+test('zigzag edge values', () => {
+  const cases = [[0, 0], [-1, 1], [1, 2], [2147483647, 0xfffffffe], [-2147483648, 0xffffffff]];
+  for (const [d, u] of cases) {
+    assert.equal(C.zigzag32(d), u);
+    assert.equal(C.unzigzag32(u), d);
+  }
+});
+
+for (const s of V.mirror_scenarios) {
+  test(`mirror scenario ${s.name}`, () => {
+    const m = new C.Mirror(s.region.x, s.region.y, s.region.w, s.region.h, s.tile_size);
+    s.steps.forEach((st, i) => {
+      const err = errorName(() => m.apply(C.decodeDelta(unhex(st.frame_hex)).rects));
+      assert.equal(err, st.error, `step ${i}: ${st.about}`);
+      assert.deepEqual(Array.from(m.heights), st.heights, `step ${i} heights: ${st.about}`);
+      assert.deepEqual(Array.from(m.versions), st.versions, `step ${i} versions: ${st.about}`);
+    });
+  });
+}
+
+test('control messages', () => {
+  assert.deepEqual(C.hello('', 'x'), { type: 'hello', protocol: 1, token: '', client: 'x' });
+  assert.deepEqual(C.subscribe(1, 2, 3, 4), { type: 'subscribe', x: 1, y: 2, w: 3, h: 4 });
+  assert.deepEqual(C.colliderCreate('sphere', { radius: 0.3 }, { ref: 'a' }),
+    { type: 'collider_create', shape: 'sphere', material: 'default', feedback: true, radius: 0.3, ref: 'a' });
+  assert.equal(errorName(() => C.parseControl('[1]')), 'bad_json');
+  assert.equal(C.parseControl('{"type":"world","x":1}').x, 1);
+});
+
+test('vendored fzstd equals the pinned npm copy', { skip: !existsSync(path.join(root, 'node_modules/fzstd')) && 'node_modules missing (npm ci)' }, () => {
+  const lock = JSON.parse(readFileSync(path.join(root, 'package-lock.json'), 'utf8'));
+  const pkg = JSON.parse(readFileSync(path.join(root, 'node_modules/fzstd/package.json'), 'utf8'));
+  assert.equal(pkg.version, lock.packages['node_modules/fzstd'].version);
+  assert.ok(readFileSync(path.join(root, 'web/vendor/fzstd.js')).equals(readFileSync(path.join(root, 'node_modules/fzstd/esm/index.mjs'))),
+    'web/vendor/fzstd.js differs from node_modules/fzstd/esm/index.mjs: run scripts/vendor-web');
+});
