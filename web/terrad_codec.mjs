@@ -1,0 +1,381 @@
+// The terrad wire protocol, version 1, in JavaScript (proto/PROTOCOL.md).
+// Binary frames, the rectangle codec (zigzag + one zstd frame, decoded with fzstd),
+// the client mirror with its tile-version rules, and the JSON control builders.
+// Checked against proto/vectors/vectors.json by tests/web/codec.test.mjs.
+// 64-bit fields (tick, nonce, volume) decode as BigInt.
+import { Decompress } from './vendor/fzstd.js';
+
+export const PROTOCOL_VERSION = 1;
+export const MAGIC = 0x54;
+export const SUBPROTOCOL = 'terrad.v1';
+export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12 };
+const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK' };
+export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
+export const ERRORS = {
+  bad_frame: 1, unknown_type: 2, bad_version: 3, too_large: 4, bad_value: 5, unknown_collider: 6,
+  not_owner: 7, limit_colliders: 8, limit_subscriptions: 9, rate_limited: 10, outside_world: 11,
+  bad_json: 12, unauthorized: 13, refused_height_limit: 14, store_unavailable: 15,
+  bad_compression: 16, stale_base: 17, unsupported_collider: 18, unknown_subscription: 19,
+  shutting_down: 20, internal: 21,
+};
+const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12;
+const MAX_COUNT = 0xffff;
+
+export class ProtoError extends Error {
+  constructor(error, message = '') {
+    super(`${error}: ${message}`);
+    this.name = 'ProtoError';
+    this.error = error; // the name from the error table
+    this.code = ERRORS[error];
+  }
+}
+
+const bytes = (buf) => (buf instanceof Uint8Array ? buf : new Uint8Array(buf));
+const view = (b) => new DataView(b.buffer, b.byteOffset, b.byteLength);
+
+// ---- header ----
+
+export function decodeHeader(buf) {
+  const b = bytes(buf);
+  if (b.length < 4) throw new ProtoError('bad_frame', 'shorter than the header');
+  if (b[0] !== MAGIC) throw new ProtoError('bad_frame', `magic 0x${b[0].toString(16)}`);
+  if (b[1] !== PROTOCOL_VERSION) throw new ProtoError('bad_version', `protocol version ${b[1]}`);
+  if (!(b[2] in TYPE_NAMES)) throw new ProtoError('unknown_type', `type 0x${b[2].toString(16)}`);
+  if (b[3] !== 0) throw new ProtoError('bad_frame', 'reserved flags set');
+  return b[2];
+}
+
+function expect(b, t) {
+  const got = decodeHeader(b);
+  if (got !== t) throw new ProtoError('unknown_type', `${TYPE_NAMES[got]} where ${TYPE_NAMES[t]} was expected`);
+}
+
+function checkQuaternion(qw, qx, qy, qz) {
+  const n2 = qw * qw + qx * qx + qy * qy + qz * qz;
+  if (!(n2 >= 0.81 && n2 <= 1.21)) throw new ProtoError('bad_value', `|q|^2 = ${n2} outside [0.81, 1.21]`);
+}
+
+// ---- POSE_BATCH ----
+
+/** poses: [{id, x, y, z, qw, qx, qy, qz}] -> Uint8Array */
+export function encodePoseBatch(seq, poses) {
+  if (poses.length > MAX_COUNT) throw new ProtoError('too_large', `${poses.length} poses`);
+  const b = new Uint8Array(10 + POSE_SIZE * poses.length);
+  const v = view(b);
+  b.set([MAGIC, PROTOCOL_VERSION, MsgType.POSE_BATCH, 0]);
+  v.setUint32(4, seq >>> 0, true);
+  v.setUint16(8, poses.length, true);
+  poses.forEach((p, i) => {
+    const o = 10 + i * POSE_SIZE;
+    const f = [p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz].map(Math.fround);
+    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `pose of collider ${p.id} is not finite`);
+    checkQuaternion(f[3], f[4], f[5], f[6]);
+    v.setUint32(o, p.id >>> 0, true);
+    f.forEach((a, k) => v.setFloat32(o + 4 + 4 * k, a, true));
+  });
+  return b;
+}
+
+export function decodePoseBatch(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.POSE_BATCH);
+  if (b.length < 10) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const seq = v.getUint32(4, true), count = v.getUint16(8, true);
+  if (b.length - 10 !== count * POSE_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const poses = [];
+  for (let i = 0; i < count; i++) {
+    const o = 10 + i * POSE_SIZE;
+    const id = v.getUint32(o, true);
+    const f = [];
+    for (let k = 0; k < 7; k++) f.push(v.getFloat32(o + 4 + 4 * k, true));
+    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `pose of collider ${id} is not finite`);
+    checkQuaternion(f[3], f[4], f[5], f[6]);
+    poses.push({ id, x: f[0], y: f[1], z: f[2], qw: f[3], qx: f[4], qy: f[5], qz: f[6] });
+  }
+  return { seq, poses };
+}
+
+// ---- DELTA ----
+
+export function checkRect(r) {
+  if (!(r.w >= 1 && r.w <= 0xffff && r.h >= 1 && r.h <= 0xffff)) throw new ProtoError('bad_value', `size ${r.w} x ${r.h}`);
+  if (r.x + r.w - 1 > 2147483647 || r.y + r.h - 1 > 2147483647) throw new ProtoError('bad_value', 'rectangle past the int32 range');
+  if (!(r.new_version > 0)) throw new ProtoError('bad_value', 'version out of range');
+  if (r.encoding === Encoding.DELTA) {
+    if (r.base_version === 0 || r.base_version === r.new_version)
+      throw new ProtoError('bad_value', 'a delta needs base_version >= 1 and != new_version');
+  } else if (r.encoding === Encoding.SNAPSHOT) {
+    if (r.base_version !== 0) throw new ProtoError('bad_value', 'a snapshot has base_version 0');
+  } else throw new ProtoError('bad_value', `encoding ${r.encoding}`);
+  if (r.data.length === 0) throw new ProtoError('bad_value', 'empty payload');
+}
+
+/** Validates the whole frame; payloads stay compressed (rect.data, a view into buf). */
+export function decodeDelta(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.DELTA);
+  if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
+  if (Math.floor((b.length - 14) / RECT_FIXED) < count) throw new ProtoError('bad_frame', `count ${count} larger than the frame`);
+  let pos = 14;
+  const rects = [];
+  for (let i = 0; i < count; i++) {
+    if (b.length - pos < RECT_FIXED) throw new ProtoError('bad_frame', 'rectangle header truncated');
+    const r = {
+      x: v.getInt32(pos, true), y: v.getInt32(pos + 4, true), w: v.getUint16(pos + 8, true), h: v.getUint16(pos + 10, true),
+      base_version: v.getUint32(pos + 12, true), new_version: v.getUint32(pos + 16, true), encoding: b[pos + 20],
+    };
+    const n = v.getUint32(pos + 21, true);
+    pos += RECT_FIXED;
+    if (b.length - pos < n) throw new ProtoError('bad_frame', 'payload past the end of the frame');
+    r.data = b.subarray(pos, pos + n);
+    pos += n;
+    checkRect(r);
+    rects.push(r);
+  }
+  if (pos !== b.length) throw new ProtoError('bad_frame', `${b.length - pos} bytes after the last rectangle`);
+  return { tick, rects };
+}
+
+// ---- CONTACT, ACK, PING, PONG ----
+
+export function decodeContact(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.CONTACT);
+  if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
+  if (b.length - 14 !== count * CONTACT_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const contacts = [];
+  for (let i = 0; i < count; i++) {
+    const o = 14 + i * CONTACT_SIZE;
+    const id = v.getUint32(o, true), volume = v.getBigInt64(o + 4, true), cells = v.getUint32(o + 12, true);
+    const f = [];
+    for (let k = 0; k < 8; k++) f.push(v.getFloat32(o + 16 + 4 * k, true));
+    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `contact of collider ${id} is not finite`);
+    if (volume < 0n || f[0] < 0) throw new ProtoError('bad_value', 'negative volume or area');
+    contacts.push({ id, volume, cells, area_m2: f[0], deepest: f.slice(1, 4), normal: f.slice(4, 7), support_height_m: f[7] });
+  }
+  return { tick, contacts };
+}
+
+export function decodeAck(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.ACK);
+  if (b.length !== ACK_SIZE) throw new ProtoError('bad_frame', `ACK of ${b.length} bytes`);
+  const v = view(b);
+  return { tick: v.getBigUint64(4, true), seq: v.getUint32(12, true) };
+}
+
+export function decodePing(buf) {
+  const b = bytes(buf);
+  const t = decodeHeader(b);
+  if (t !== MsgType.PING && t !== MsgType.PONG) throw new ProtoError('unknown_type', `${TYPE_NAMES[t]} where PING or PONG was expected`);
+  if (b.length !== PING_SIZE) throw new ProtoError('bad_frame', `${TYPE_NAMES[t]} of ${b.length} bytes`);
+  return { type: t, nonce: view(b).getBigUint64(4, true) };
+}
+
+export function encodePing(nonce, pong = false) {
+  const b = new Uint8Array(PING_SIZE);
+  b.set([MAGIC, PROTOCOL_VERSION, pong ? MsgType.PONG : MsgType.PING, 0]);
+  view(b).setBigUint64(4, BigInt.asUintN(64, BigInt(nonce)), true);
+  return b;
+}
+
+// ---- rectangle payloads ----
+
+export const zigzag32 = (d) => ((d << 1) ^ (d >> 31)) >>> 0;
+export const unzigzag32 = (u) => (u >>> 1) ^ -(u & 1);
+
+/** values (int32s) -> the zigzag little-endian packing, 4 bytes each */
+export function rectPack(values) {
+  const b = new Uint8Array(4 * values.length);
+  const v = view(b);
+  for (let i = 0; i < values.length; i++) v.setUint32(4 * i, zigzag32(values[i] | 0), true);
+  return b;
+}
+
+export function rectUnpack(b) {
+  const v = view(b), n = b.length >> 2, out = new Int32Array(n);
+  for (let i = 0; i < n; i++) out[i] = unzigzag32(v.getUint32(4 * i, true));
+  return out;
+}
+
+/** Parses one zstd frame's header and walks its blocks: {contentSize, window, end}. */
+function zstdFrameInfo(d) {
+  const bad = (m) => new ProtoError('bad_compression', m);
+  if (d.length < 6 || d[0] !== 0x28 || d[1] !== 0xb5 || d[2] !== 0x2f || d[3] !== 0xfd) throw bad('not a zstd frame');
+  const fhd = d[4];
+  const fcf = fhd >> 6, ss = (fhd >> 5) & 1, cc = (fhd >> 2) & 1, did = fhd & 3;
+  if (fhd & 8) throw bad('reserved bit set');
+  let p = 5, window = 0;
+  if (!ss) {
+    const wd = d[p++], wb = 2 ** (10 + (wd >> 3));
+    window = wb + (wb / 8) * (wd & 7);
+  }
+  const dictBytes = [0, 1, 2, 4][did];
+  let dict = 0;
+  for (let i = 0; i < dictBytes; i++) dict += d[p + i] * 2 ** (8 * i);
+  p += dictBytes;
+  if (dict !== 0) throw bad('dictionary frames are not used');
+  const fcsBytes = fcf === 0 ? ss : [0, 2, 4, 8][fcf];
+  if (fcsBytes === 0) throw bad('frame without a declared content size');
+  if (p + fcsBytes > d.length) throw bad('truncated frame header');
+  let size = 0;
+  for (let i = 0; i < fcsBytes; i++) size += d[p + i] * 2 ** (8 * i);
+  if (fcsBytes === 2) size += 256;
+  p += fcsBytes;
+  if (ss) window = size;
+  for (;;) {
+    if (p + 3 > d.length) throw bad('truncated frame');
+    const bh = d[p] | (d[p + 1] << 8) | (d[p + 2] << 16);
+    const last = bh & 1, type = (bh >> 1) & 3, bsize = bh >>> 3;
+    p += 3;
+    if (type === 3) throw bad('reserved block type');
+    p += type === 1 ? 1 : bsize;
+    if (p > d.length) throw bad('truncated frame');
+    if (last) break;
+  }
+  if (cc) p += 4;
+  if (p > d.length) throw bad('truncated frame');
+  return { contentSize: size, window, end: p };
+}
+
+/** One zstd frame declaring and holding exactly 4*cells bytes -> Int32Array of cells values. */
+export function rectDecompress(data, cells, maxCells = Infinity) {
+  const d = bytes(data);
+  if (!(cells > 0) || cells > maxCells) throw new ProtoError('too_large', `${cells} cells`);
+  const raw = cells * 4;
+  const info = zstdFrameInfo(d);
+  if (info.contentSize !== raw) throw new ProtoError('bad_compression', `frame declares ${info.contentSize} bytes, the rectangle needs ${raw}`);
+  if (info.end !== d.length) throw new ProtoError('bad_compression', 'bytes after the zstd frame');
+  if (info.window > Math.max(raw, 1 << 17) * 2 + (1 << 20)) throw new ProtoError('bad_compression', 'window larger than needed');
+  const out = new Uint8Array(raw);
+  let n = 0;
+  try {
+    const z = new Decompress((chunk) => {
+      if (n + chunk.length > raw) throw new ProtoError('bad_compression', 'more bytes than declared');
+      out.set(chunk, n);
+      n += chunk.length;
+    });
+    z.push(d, true);
+  } catch (e) {
+    if (e instanceof ProtoError) throw e;
+    throw new ProtoError('bad_compression', String(e && e.message ? e.message : e));
+  }
+  if (n !== raw) throw new ProtoError('bad_compression', `${n} bytes where ${raw} were declared`);
+  return rectUnpack(out);
+}
+
+/** Applies decoded values to heights covering (hx, hy, hw, hh), clipped. Cells touched. */
+export function applyValues(r, values, heights, hx, hy, hw, hh) {
+  const x0 = Math.max(r.x, hx), y0 = Math.max(r.y, hy);
+  const x1 = Math.min(r.x + r.w, hx + hw), y1 = Math.min(r.y + r.h, hy + hh);
+  if (x0 >= x1 || y0 >= y1) return 0;
+  const n = x1 - x0;
+  for (let y = y0; y < y1; y++) {
+    const s = (y - r.y) * r.w + (x0 - r.x), d = (y - hy) * hw + (x0 - hx);
+    if (r.encoding === Encoding.SNAPSHOT) heights.set(values.subarray(s, s + n), d);
+    else for (let i = 0; i < n; i++) heights[d + i] = (heights[d + i] + values[s + i]) | 0;
+  }
+  return n * (y1 - y0);
+}
+
+const fdiv = (a, b) => Math.floor(a / b);
+
+/** A client's copy of one region with a version per tile (PROTOCOL.md, "Versions"). */
+export class Mirror {
+  constructor(x, y, w, h, tileSize) {
+    if (!(w > 0 && h > 0 && tileSize > 0)) throw new ProtoError('bad_value', 'empty region or tile size');
+    Object.assign(this, { x, y, w, h, tileSize });
+    this.tx0 = fdiv(x, tileSize);
+    this.ty0 = fdiv(y, tileSize);
+    this.tilesX = fdiv(x + w - 1, tileSize) - this.tx0 + 1;
+    this.tilesY = fdiv(y + h - 1, tileSize) - this.ty0 + 1;
+    this.heights = new Int32Array(w * h);
+    this.versions = new Uint32Array(this.tilesX * this.tilesY);
+  }
+
+  get complete() {
+    return this.versions.every((v) => v !== 0);
+  }
+
+  /** [tile index or -1, apply?]; throws bad_value / stale_base */
+  classify(r) {
+    const T = this.tileSize, tx = fdiv(r.x, T), ty = fdiv(r.y, T);
+    if (fdiv(r.x + r.w - 1, T) !== tx || fdiv(r.y + r.h - 1, T) !== ty) throw new ProtoError('bad_value', 'rectangle spans tiles');
+    if (!(tx >= this.tx0 && tx < this.tx0 + this.tilesX && ty >= this.ty0 && ty < this.ty0 + this.tilesY)) return [-1, false];
+    const t = tx - this.tx0 + (ty - this.ty0) * this.tilesX;
+    if (r.encoding === Encoding.SNAPSHOT) {
+      const part = [Math.max(r.x, this.x), Math.max(r.y, this.y), Math.min(r.x + r.w, this.x + this.w), Math.min(r.y + r.h, this.y + this.h)];
+      const tpart = [Math.max(tx * T, this.x), Math.max(ty * T, this.y), Math.min(tx * T + T, this.x + this.w), Math.min(ty * T + T, this.y + this.h)];
+      return [t, part.every((a, i) => a === tpart[i])];
+    }
+    const held = this.versions[t];
+    if (held === 0) return [t, false];
+    if (held !== r.base_version) throw new ProtoError('stale_base', `tile held at ${held}, delta from ${r.base_version}`);
+    return [t, true];
+  }
+
+  /** Applies one DELTA frame's rectangles; all or nothing for stale_base. Returns cells changed. */
+  apply(rects, maxCells = 1 << 22) {
+    for (const r of rects) {
+      const [, ok] = this.classify(r);
+      if (ok && r.w * r.h > maxCells) throw new ProtoError('too_large', `${r.w} x ${r.h} rectangle`);
+    }
+    let touched = 0;
+    try {
+      for (const r of rects) {
+        let t, ok;
+        try {
+          [t, ok] = this.classify(r);
+        } catch (e) {
+          // A second rectangle of a tile this frame already advanced.
+          if (!(e instanceof ProtoError) || e.error !== 'stale_base') throw e;
+          const T = this.tileSize;
+          t = fdiv(r.x, T) - this.tx0 + (fdiv(r.y, T) - this.ty0) * this.tilesX;
+          if (this.versions[t] !== r.new_version) throw e;
+          ok = true;
+        }
+        if (!ok) continue;
+        const values = rectDecompress(r.data, r.w * r.h, maxCells);
+        touched += applyValues(r, values, this.heights, this.x, this.y, this.w, this.h);
+        this.versions[t] = r.new_version;
+      }
+    } catch (e) {
+      this.versions.fill(0);
+      throw e;
+    }
+    return touched;
+  }
+}
+
+// ---- JSON control messages ----
+
+export const hello = (token = '', client = 'terrad-web') => ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client });
+export const subscribe = (x, y, w, h, ref) => withRef({ type: 'subscribe', x, y, w, h }, ref);
+export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
+export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
+export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
+export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref } = {}) {
+  const m = { type: 'collider_create', shape, material, feedback, ...dims };
+  if (pose) m.pose = pose;
+  return withRef(m, ref);
+}
+function withRef(m, ref) {
+  if (ref !== undefined && ref !== null) m.ref = ref;
+  return m;
+}
+
+export function parseControl(text) {
+  let m;
+  try {
+    m = JSON.parse(text);
+  } catch (e) {
+    throw new ProtoError('bad_json', String(e.message));
+  }
+  if (typeof m !== 'object' || m === null || Array.isArray(m) || typeof m.type !== 'string') throw new ProtoError('bad_json', 'not an object with a string type');
+  return m;
+}
