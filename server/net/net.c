@@ -139,10 +139,12 @@ static int queue_filter(net_client *c, int (*drop)(const net_item *, int), int a
     return dropped;
 }
 
-static int is_tile(const net_item *it, int arg)
+/* Tile deltas, and the ACK and CONTACT frames queued behind them: an ACK of
+ * tick t promises t's deltas came first, so it cannot outlive them. */
+static int is_tile_or_status(const net_item *it, int arg)
 {
     (void)arg;
-    return it->kind == NET_ITEM_TILE;
+    return it->kind == NET_ITEM_TILE || it->kind == NET_ITEM_STATUS;
 }
 
 static int is_status_of(const net_item *it, int type)
@@ -152,7 +154,7 @@ static int is_status_of(const net_item *it, int type)
 
 int net_drop_tile_deltas(net_client *c)
 {
-    return queue_filter(c, is_tile, 0);
+    return queue_filter(c, is_tile_or_status, 0);
 }
 
 /* The client stopped reading and asked for more: let it go. */

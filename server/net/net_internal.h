@@ -130,6 +130,7 @@ void net_send_json(net_client *c, cJSON *msg); /* frees msg */
 /* Close the client once its queue drains (at most a few seconds). */
 void net_close_after_flush(net_client *c, int code, const char *reason);
 /* Drop the client's queued tile deltas; returns how many. */
+/* Drop the queued tile deltas and the ACK/CONTACT frames that would vouch for them. */
 int net_drop_tile_deltas(net_client *c);
 /* Push a command the sim must get (client left, resync): queued locally
  * when the hub is full, retried in order. */
