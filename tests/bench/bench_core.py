@@ -18,6 +18,9 @@ import subprocess
 import sys
 import tempfile
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "integration"))
+from service_harness import machine  # noqa: E402
+
 SOURCE = os.environ.get("TERRAD_SOURCE_DIR", ".")
 BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
 
@@ -50,19 +53,6 @@ STAGE_NAMES = {
     "gather_scatter": "(terrad) plan, gather, scatter",
     "tick": "(terrad) whole tick",
 }
-
-
-def machine():
-    model = "unknown CPU"
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
 
 
 def car_scene(size):
@@ -110,7 +100,7 @@ def main():
     ap.add_argument("--backends", default="gl,cpu")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
-    print(f"# terrad core benchmark — machine: {machine()}")
+    print(f"# terrad core benchmark — machine: {machine()}, {platform.system()} {platform.release()}")
     print(f"# {args.ticks} ticks per run; thesis figures: GTX 660 (Persson 2019, Tables 5.4/5.5)")
     results = {}
     renderers = {}

@@ -8,6 +8,7 @@ Not a test itself (ctest registers only test_*.py). Debian's /usr/bin/python3
 with python3-websockets and python3-zstandard.
 """
 import asyncio
+import contextlib
 import json
 import math
 import os
@@ -19,6 +20,7 @@ import sys
 import tempfile
 import threading
 import time
+import traceback
 import urllib.error
 import urllib.request
 
@@ -47,6 +49,19 @@ class Checks:
             self.failed += 1
             print("FAIL:", what, flush=True)
         return cond
+
+    @contextlib.contextmanager
+    def running(self, daemon):
+        """Run a test body against daemon: an exception is a failed check,
+        and the daemon must then stop with status 0 on SIGTERM."""
+        self.daemons.append(daemon)
+        try:
+            yield daemon
+        except Exception:  # noqa: BLE001
+            self(False, "the test raised:\n" + traceback.format_exc())
+        finally:
+            st = daemon.stop()
+        self(st == 0, f"SIGTERM stops the daemon with status 0 ({st})")
 
     def finish(self):
         if self.failed:

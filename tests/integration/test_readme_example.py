@@ -21,15 +21,12 @@ def run(backend, required):
         if not required:
             print(f"{backend}: no daemon (no GL context?), skipped")
         return
-    check.daemons.append(d)
-    try:
+    with check.running(d):
         r = subprocess.run(["/usr/bin/python3", EXAMPLE, d.ws, d.http + "/"],
                            capture_output=True, text=True, timeout=120)
         print(r.stdout.strip())
         check(r.returncode == 0 and "mirror == GET /v1/heights" in r.stdout,
               f"{backend}: example's mirror equals the server: {r.stdout} {r.stderr[-2000:]}")
-    finally:
-        check(d.stop() == 0, f"{backend}: daemon stopped cleanly on SIGTERM")
 
 
 run("cpu", True)

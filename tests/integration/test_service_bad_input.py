@@ -392,8 +392,7 @@ async def main():
         skip(f"no daemon binary at {BIN}")
     d = Daemon(backend="cpu", token=TOKEN, config={"limits": {"hello_timeout_s": 2}},
                name="terrad-bad-input")
-    check.daemons.append(d)
-    try:
+    with check.running(d):
         world = d.world()
         W, H = world["width"], world["height"]
         # the limits in force, from a world message
@@ -457,11 +456,6 @@ async def main():
             check(b is not None and b - a >= min(n, 1) and b - a <= most,
                   f"/metrics terrad_refused_messages_total{{reason=\"{name}\"}} grew by "
                   f"{None if b is None else b - a} for {n} refusals")
-    except Exception:  # noqa: BLE001
-        check(False, "the test raised:\n" + traceback.format_exc())
-    finally:
-        st = d.stop()
-    check(st == 0, f"SIGTERM stops the daemon with status 0 ({st})")
     check.finish()
 
 
