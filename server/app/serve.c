@@ -262,7 +262,7 @@ static double terrain_height_m(const world *w, double x, double y)
         cx = w->width - 1;
     if (cy >= w->height)
         cy = w->height - 1;
-    return (double)w->heights[(size_t)cy * w->width + cx] / w->units_per_m;
+    return (double)world_height_at(w, cx, cy) / w->units_per_m;
 }
 
 static collider_pose demo_actor_step(demo_actor *a, const world *w, double dt, double time_s)
@@ -325,7 +325,7 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
     metrics_set_colliders(st->colliders);
     if (st->report.refused_windows)
         metrics_count_refused_windows((uint64_t)st->report.refused_windows);
-    metrics_set_memory_bytes("world_heights", (uint64_t)w->width * w->height * 4u);
+    metrics_set_memory_bytes("world_heights", world_resident_bytes(w));
     metrics_set_memory_bytes("sim_scratch", engine->peak_scratch_bytes);
 }
 

@@ -17,6 +17,7 @@
  *     "name": "thesis-car",                       optional, < 128 bytes
  *     "description": "...",                       optional, ignored
  *     "world": {"width": 1024, "height": 1024,    cells, required
+ *               "tile_cells": 256,                 optional, a power of two
  *               "cell_size_m": 0.048828125,       required
  *               "units_per_m": 10000,             optional, default 10000
  *               "floor_m": 0},                    optional, default 0
@@ -305,8 +306,8 @@ static int get_vector(const cJSON *obj, const char *path, const char *key, int n
 
 /* ---- world, terrain, material ---- */
 
-static const char *const world_keys[] = {"width",       "height",  "cell_size_m",
-                                         "units_per_m", "floor_m", NULL};
+static const char *const world_keys[] = {"width",   "height",     "cell_size_m", "units_per_m",
+                                         "floor_m", "tile_cells", NULL};
 
 static int parse_world(const cJSON *root, scene *s, error_text *err)
 {
@@ -317,16 +318,20 @@ static int parse_world(const cJSON *root, scene *s, error_text *err)
     }
     if (expect_object(w, "world", err) || check_keys(w, "world", world_keys, NULL, err))
         return -1;
-    double width, height, cell, upm = 10000, floor_m = 0;
+    double width, height, cell, upm = 10000, floor_m = 0, tile_cells = 0;
     if (get_integer(w, "world", "width", 1, WORLD_SIDE_MAX, 1, &width, err) < 0 ||
         get_integer(w, "world", "height", 1, WORLD_SIDE_MAX, 1, &height, err) < 0 ||
         get_positive(w, "world", "cell_size_m", 1000, 1, &cell, err) < 0 ||
         get_integer(w, "world", "units_per_m", 1, 1000000, 0, &upm, err) < 0 ||
-        get_number(w, "world", "floor_m", -1e9, 1e9, &floor_m, err) < 0)
+        get_number(w, "world", "floor_m", -1e9, 1e9, &floor_m, err) < 0 ||
+        get_integer(w, "world", "tile_cells", 0, WORLD_SIDE_MAX, 0, &tile_cells, err) < 0)
         return -1;
-    if (width * height > (double)(1 << 30)) {
-        error_set(err, "world: %.0f x %.0f cells is more than the %d an in-memory world may hold",
-                  width, height, 1 << 30);
+    int tc = (int)tile_cells;
+    if (tc != 0 && (tc < WORLD_TILE_CELLS_MIN || (tc & (tc - 1)) != 0)) {
+        error_set(err,
+                  "world.tile_cells: must be 0 (default %d) or a power of two in [%d, %d] "
+                  "(got %d)",
+                  WORLD_TILE_CELLS_DEFAULT, WORLD_TILE_CELLS_MIN, WORLD_SIDE_MAX, tc);
         return -1;
     }
     double floor_units = floor_m * upm;
@@ -340,6 +345,7 @@ static int parse_world(const cJSON *root, scene *s, error_text *err)
     s->cell_size_m = cell;
     s->units_per_m = (int32_t)upm;
     s->floor_units = (int32_t)llround(floor_units);
+    s->tile_cells = tc;
     return 0;
 }
 
@@ -962,8 +968,8 @@ void scene_free(scene *s)
 
 int scene_create_world(const scene *s, world *w, error_text *err)
 {
-    if (world_init(w, s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units, err) !=
-        0)
+    if (world_init_tiled(w, s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units,
+                         s->tile_cells, err) != 0)
         return -1;
     if (world_generate_base(w, &s->base, err) != 0) {
         world_free(w);

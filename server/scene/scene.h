@@ -25,6 +25,7 @@ typedef struct scene {
     double cell_size_m;
     int32_t units_per_m;
     int32_t floor_units;
+    int tile_cells; /* 0 = WORLD_TILE_CELLS_DEFAULT */
     world_base_spec base;
     sim_material material;
     double tick_hz;          /* default 60 */

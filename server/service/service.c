@@ -384,7 +384,7 @@ static double height_m(const world *w, int x, int y)
 {
     x = x < 0 ? 0 : x >= w->width ? w->width - 1 : x;
     y = y < 0 ? 0 : y >= w->height ? w->height - 1 : y;
-    return (double)w->heights[(int64_t)y * w->width + x] / w->units_per_m;
+    return (double)world_height_at(w, x, y) / w->units_per_m;
 }
 
 static void contact_measure(service *s, const svc_collider *c, terrad_contact *out)
@@ -420,7 +420,7 @@ static void contact_measure(service *s, const svc_collider *c, terrad_contact *o
                 if (b == COLLIDER_BOTTOM_NONE)
                     continue;
                 int wx = r.x + x, wy = r.y + y;
-                int32_t h = w->heights[(int64_t)wy * w->width + wx];
+                int32_t h = world_height_at(w, wx, wy);
                 if (b >= h)
                     continue;
                 int64_t pen = (int64_t)h - b;

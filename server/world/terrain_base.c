@@ -1,16 +1,18 @@
 /*
  * terrain_base.c: the base terrain a world starts from — flat, seeded dunes,
- * or a heightmap file (16-bit PNG, raw little-endian int16/int32). It runs
- * once, before the first tick, and again whenever an unmodified tile has to
- * be regenerated, so the result must depend only on the spec and the cell's
- * coordinates: never on the world's extent, the machine or the run.
+ * or a heightmap file (16-bit PNG, raw little-endian int16/int32). The spec
+ * is checked once, before the first tick (world_base_build); after that
+ * world.c asks for the base heights of any rectangle whenever it reads a tile
+ * that has never been written (world_base_fill), so the result must depend
+ * only on the spec and the cell's coordinates: never on the world's extent,
+ * the rectangle asked for, the machine or the run.
  *
  * Every height is formed in double, rounded once (llround) and range-checked
  * against [max(floor, WORLD_HEIGHT_MIN), WORLD_HEIGHT_MAX]; a value outside is
  * refused with the value and the limit in the message, never wrapped or
  * clamped, because a silently changed terrain is worse than none.
  */
-#include "world/world.h"
+#include "world/world_internal.h"
 
 #include <errno.h>
 #include <math.h>
@@ -154,7 +156,7 @@ static double dune_value(double px, double py, int octaves, uint32_t seed)
     return v * 0.5 + 0.5;
 }
 
-static int generate_dunes(world *w, const world_base_spec *s, error_text *err)
+static int check_dunes(const world *w, const world_base_spec *s, error_text *err)
 {
     if (!isfinite(s->min_height_m) || !isfinite(s->max_height_m)) {
         error_set(err, "terrain.min_height_m/max_height_m: must be finite numbers");
@@ -178,26 +180,32 @@ static int generate_dunes(world *w, const world_base_spec *s, error_text *err)
     double lo_units = s->min_height_m * w->units_per_m;
     double hi_units = s->max_height_m * w->units_per_m;
     int32_t probe;
-    /* endpoints first, so the message names the field rather than a cell */
+    /* The noise value t lies in [0, 1], so every cell's height lies between
+     * these two endpoints: checking them here is what lets world_base_fill
+     * compute any rectangle later without a way to fail. */
     if (height_from_units(&c, lo_units, -1, 0, &probe, err) != 0)
         return -1;
     c.what = "terrain.max_height_m";
     if (height_from_units(&c, hi_units, -1, 0, &probe, err) != 0)
         return -1;
-    c.what = "terrain (dunes)";
+    return 0;
+}
+
+static void fill_dunes(const world *w, const world_base_spec *s, world_rect r, int32_t *dst,
+                       size_t dst_stride)
+{
     double inv_wavelength = 1.0 / s->wavelength_m;
-    for (int y = 0; y < w->height; y++) {
+    for (int y = r.y; y < r.y + r.h; y++) {
         double py = ((double)y + 0.5) * w->cell_size_m * inv_wavelength;
-        for (int x = 0; x < w->width; x++) {
+        int32_t *row = dst + (size_t)(y - r.y) * dst_stride;
+        for (int x = r.x; x < r.x + r.w; x++) {
             double px = ((double)x + 0.5) * w->cell_size_m * inv_wavelength;
             double t = dune_value(px, py, s->octaves, s->seed);
             double metres = s->min_height_m + (s->max_height_m - s->min_height_m) * t;
-            if (height_from_units(&c, metres * w->units_per_m, x, y,
-                                  &w->heights[(size_t)y * w->width + x], err) != 0)
-                return -1;
+            /* the same llround height_from_units does; the range is checked */
+            row[x - r.x] = (int32_t)llround(metres * w->units_per_m);
         }
     }
-    return 0;
 }
 
 /* ---- Heightmap files ---- */
@@ -217,7 +225,7 @@ static int check_scale(const world_base_spec *s, error_text *err)
     return 0;
 }
 
-static int generate_png16(world *w, const world_base_spec *s, error_text *err)
+static int load_png16(const world *w, const world_base_spec *s, int32_t *cells, error_text *err)
 {
     int pw, ph;
     uint16_t *pixels = NULL;
@@ -234,7 +242,7 @@ static int generate_png16(world *w, const world_base_spec *s, error_text *err)
         for (int x = 0; x < pw; x++) {
             size_t i = (size_t)y * pw + x;
             double units = (double)pixels[i] * s->value_scale_units + s->value_offset_units;
-            if (height_from_units(&c, units, x, y, &w->heights[i], err) != 0) {
+            if (height_from_units(&c, units, x, y, &cells[i], err) != 0) {
                 free(pixels);
                 return -1;
             }
@@ -243,7 +251,8 @@ static int generate_png16(world *w, const world_base_spec *s, error_text *err)
     return 0;
 }
 
-static int generate_raw(world *w, const world_base_spec *s, int bytes, error_text *err)
+static int load_raw(const world *w, const world_base_spec *s, int bytes, int32_t *cells,
+                    error_text *err)
 {
     FILE *f = fopen(s->path, "rb");
     if (!f) {
@@ -287,8 +296,7 @@ static int generate_raw(world *w, const world_base_spec *s, int bytes, error_tex
                 value = (double)(int32_t)((uint32_t)p[0] | ((uint32_t)p[1] << 8) |
                                           ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24));
             double units = value * s->value_scale_units + s->value_offset_units;
-            if (height_from_units(&c, units, x, y, &w->heights[(size_t)y * w->width + x], err) !=
-                0) {
+            if (height_from_units(&c, units, x, y, &cells[(size_t)y * w->width + x], err) != 0) {
                 rc = -1;
                 break;
             }
@@ -299,9 +307,12 @@ static int generate_raw(world *w, const world_base_spec *s, int bytes, error_tex
     return rc;
 }
 
-int world_generate_base(world *w, const world_base_spec *spec, error_text *err)
+int world_base_build(const world *w, const world_base_spec *spec, world_base *b, error_text *err)
 {
-    size_t n = (size_t)w->width * (size_t)w->height;
+    memset(b, 0, sizeof *b);
+    b->kind = spec->kind;
+    b->spec = *spec;
+    int64_t cells_n = (int64_t)w->width * w->height;
     switch (spec->kind) {
     case WORLD_BASE_FLAT: {
         if (!isfinite(spec->height_m)) {
@@ -309,25 +320,66 @@ int world_generate_base(world *w, const world_base_spec *spec, error_text *err)
             return -1;
         }
         height_check c = height_check_make(w, "terrain.height_m");
-        int32_t h;
-        if (height_from_units(&c, spec->height_m * w->units_per_m, -1, 0, &h, err) != 0)
+        if (height_from_units(&c, spec->height_m * w->units_per_m, -1, 0, &b->flat_units, err) != 0)
             return -1;
-        for (size_t i = 0; i < n; i++)
-            w->heights[i] = h;
+        b->volume = (int64_t)b->flat_units * cells_n; /* |h| < 2^29, cells <= 2^32 */
+        b->volume_known = 1;
         return 0;
     }
     case WORLD_BASE_DUNES:
-        return generate_dunes(w, spec, err);
+        return check_dunes(w, spec, err);
     case WORLD_BASE_PNG16:
-        if (check_scale(spec, err) != 0)
-            return -1;
-        return generate_png16(w, spec, err);
     case WORLD_BASE_RAW_INT16:
-    case WORLD_BASE_RAW_INT32:
+    case WORLD_BASE_RAW_INT32: {
         if (check_scale(spec, err) != 0)
             return -1;
-        return generate_raw(w, spec, spec->kind == WORLD_BASE_RAW_INT16 ? 2 : 4, err);
+        /* a file is bounded by memory anyway: keep it as one dense array */
+        b->cells = malloc((size_t)cells_n * sizeof *b->cells);
+        if (!b->cells) {
+            error_set(err, "%s: out of memory for a %d x %d base", spec->path, w->width, w->height);
+            return -1;
+        }
+        int rc = spec->kind == WORLD_BASE_PNG16
+                     ? load_png16(w, spec, b->cells, err)
+                     : load_raw(w, spec, spec->kind == WORLD_BASE_RAW_INT16 ? 2 : 4, b->cells, err);
+        if (rc != 0) {
+            world_base_free(b);
+            return -1;
+        }
+        for (int64_t i = 0; i < cells_n; i++)
+            b->volume += b->cells[i];
+        b->volume_known = 1;
+        return 0;
+    }
     }
     error_set(err, "terrain.kind: unknown kind %d", (int)spec->kind);
     return -1;
+}
+
+void world_base_free(world_base *b)
+{
+    free(b->cells);
+    memset(b, 0, sizeof *b);
+}
+
+void world_base_fill(const world *w, const world_base *b, world_rect r, int32_t *dst,
+                     size_t dst_stride)
+{
+    switch (b->kind) {
+    case WORLD_BASE_DUNES:
+        fill_dunes(w, &b->spec, r, dst, dst_stride);
+        return;
+    case WORLD_BASE_PNG16:
+    case WORLD_BASE_RAW_INT16:
+    case WORLD_BASE_RAW_INT32:
+        for (int y = 0; y < r.h; y++)
+            memcpy(dst + (size_t)y * dst_stride, b->cells + (size_t)(r.y + y) * w->width + r.x,
+                   (size_t)r.w * sizeof *dst);
+        return;
+    case WORLD_BASE_FLAT:
+        break;
+    }
+    for (int y = 0; y < r.h; y++)
+        for (int x = 0; x < r.w; x++)
+            dst[(size_t)y * dst_stride + x] = b->flat_units;
 }

@@ -5,6 +5,13 @@
  * deformation backends and scatters the results back (steps 4 and 7 of the
  * tick in DESIGN.md); nothing outside a window is touched.
  *
+ * The heights are held in square tiles (WORLD_TILE_CELLS_DEFAULT cells a side,
+ * a power of two) and the world is sparse: a tile nobody has written is not
+ * stored at all, its heights are produced from the base terrain whenever they
+ * are read (see terrain_base.c), so a 65,536² world costs only its tile table
+ * until something presses into it. Only the functions below see tiles; every
+ * caller reads and writes rectangles and cells in world coordinates.
+ *
  * Heights are kept inside [WORLD_HEIGHT_MIN, WORLD_HEIGHT_MAX] (about ±53 km at
  * the default scale) so that every difference of two heights, and every sum
  * the integer stages form, fits in 32 bits. Base terrain outside that range is
@@ -21,17 +28,21 @@
 #define WORLD_HEIGHT_MAX (1 << 29)
 #define WORLD_HEIGHT_MIN (-(1 << 29))
 #define WORLD_SIDE_MAX 65536 /* cells per side */
+#define WORLD_TILE_CELLS_DEFAULT 256
+#define WORLD_TILE_CELLS_MIN 16
 
 typedef struct world_rect {
     int x, y, w, h; /* cells; w and h > 0 for a non-empty rectangle */
 } world_rect;
 
 typedef struct world {
-    int width, height;   /* cells */
-    double cell_size_m;  /* metres per cell, both axes */
-    int32_t units_per_m; /* height units per metre */
-    int32_t floor;       /* material is never pushed below this height (units) */
-    int32_t *heights;    /* row-major, width * height */
+    int width, height;         /* cells */
+    double cell_size_m;        /* metres per cell, both axes */
+    int32_t units_per_m;       /* height units per metre */
+    int32_t floor;             /* material is never pushed below this height (units) */
+    int tile_cells;            /* side of a tile in cells, a power of two */
+    int tiles_x, tiles_y;      /* tiles per row / column (the last ones may be partial) */
+    struct world_store *store; /* tiles, base terrain, caches: world.c only */
 } world;
 
 /* How the base terrain is made. */
@@ -56,15 +67,28 @@ typedef struct world_base_spec {
     double value_offset_units; /* png16 / raw: added after scaling */
 } world_base_spec;
 
-/* Allocate a world; heights start at 0. Refuses absurd sizes with a reason. */
+/* Set up a world; heights start at 0 (a flat base). Nothing proportional to
+ * the world's area is allocated, only a table of tile slots. Refuses absurd
+ * sizes with a reason. world_init uses WORLD_TILE_CELLS_DEFAULT;
+ * world_init_tiled takes tile_cells (0 = default, else a power of two in
+ * [WORLD_TILE_CELLS_MIN, WORLD_SIDE_MAX]; a tile as large as the world makes
+ * it one dense array, which tests compare tilings against). */
 int world_init(world *w, int width, int height, double cell_size_m, int32_t units_per_m,
                int32_t floor, error_text *err);
+int world_init_tiled(world *w, int width, int height, double cell_size_m, int32_t units_per_m,
+                     int32_t floor, int tile_cells, error_text *err);
 void world_free(world *w);
 
-/* Fill the heights from a base spec. Errors name the file or the field. */
+/* Set the base terrain from a spec, dropping every stored tile (the world is
+ * then the base everywhere). Flat and dunes are functions of (x, y) and are
+ * computed on demand; png16 / raw files are read once into a dense base
+ * array. Errors name the file or the field. */
 int world_generate_base(world *w, const world_base_spec *spec, error_text *err);
 
-/* Σh over the whole world, exactly. */
+/* Σh over the whole world, exactly: the base's Σh (closed form for flat, the
+ * sum of the file for png16 / raw, one pass over the noise for dunes, done the
+ * first time it is asked for and kept) plus the exact sum of every change
+ * written since. */
 int64_t world_volume(const world *w);
 /* Σh over a rectangle, exactly. */
 int64_t world_rect_volume(const world *w, world_rect r);
@@ -76,6 +100,25 @@ void world_gather_window(const world *w, world_rect r, int32_t *dst);
 void world_scatter_window(world *w, world_rect r, const int32_t *src);
 /* Highest and lowest height inside a clipped rectangle. */
 void world_rect_height_range(const world *w, world_rect r, int32_t *lo, int32_t *hi);
+
+/* One cell's height; (x, y) must lie inside the world. */
+int32_t world_height_at(const world *w, int x, int y);
+/* Write one cell (a 1 x 1 scatter). */
+void world_set_height(world *w, int x, int y, int32_t h);
+
+/* Tiles. A tile's generation is 0 while it has never been written and goes up
+ * by one with every scatter that writes into it, so a cache (the GL tile
+ * cache, the storage engine) can tell whether its copy is current. */
+uint64_t world_tile_generation(const world *w, int tx, int ty);
+/* The cells tile (tx, ty) covers (clipped to the world). */
+world_rect world_tile_rect(const world *w, int tx, int ty);
+/* Calls fn for every stored (written) tile, in row-major tile order. */
+typedef void (*world_tile_fn)(void *ctx, int tx, int ty, world_rect cells, uint64_t generation);
+void world_for_each_stored_tile(const world *w, world_tile_fn fn, void *ctx);
+/* Tiles stored now, and bytes held for the world: tile table, stored tiles,
+ * the cache of generated base tiles and a file base's dense array. */
+size_t world_stored_tiles(const world *w);
+uint64_t world_resident_bytes(const world *w);
 
 /* 1 if two rectangles share at least one cell. */
 int world_rects_overlap(world_rect a, world_rect b);

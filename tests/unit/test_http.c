@@ -377,7 +377,7 @@ static void check_heights_int32(int port, int x, int y, int w, int h)
             const unsigned char *b = r.body + 4 * ((size_t)j * w + i);
             int32_t got = (int32_t)((uint32_t)b[0] | (uint32_t)b[1] << 8 | (uint32_t)b[2] << 16 |
                                     (uint32_t)b[3] << 24);
-            same = got == test_world.heights[(size_t)(y + j) * test_world.width + x + i];
+            same = got == world_height_at(&test_world, x + i, y + j);
         }
     CHECK(same, "%s: body equals the world's heights", target);
     response_free(&r);
@@ -403,7 +403,7 @@ static void check_heights_png(int port, int x, int y, int w, int h, int expect_c
     int32_t min = INT32_MAX;
     for (int j = 0; j < h; j++)
         for (int i = 0; i < w; i++) {
-            int32_t hv = test_world.heights[(size_t)(y + j) * test_world.width + x + i];
+            int32_t hv = world_height_at(&test_world, x + i, y + j);
             if (hv < min)
                 min = hv;
         }
@@ -419,8 +419,7 @@ static void check_heights_png(int port, int x, int y, int w, int h, int expect_c
     int exact = ok;
     for (int j = 0; exact && j < h; j++)
         for (int i = 0; exact && i < w; i++) {
-            int64_t want =
-                (int64_t)test_world.heights[(size_t)(y + j) * test_world.width + x + i] - min;
+            int64_t want = (int64_t)world_height_at(&test_world, x + i, y + j) - min;
             if (want > 65535)
                 want = 65535;
             exact = values[(size_t)j * w + i] == want;
@@ -602,9 +601,9 @@ static void fill_world(void)
             int32_t v = (int32_t)(x * 37 + y * 1000) - 5000; /* negatives too */
             if (x >= 40 && y >= 40)
                 v += 300000 * ((x + y) & 1); /* a range beyond 16 bits */
-            test_world.heights[(size_t)y * test_world.width + x] = v;
+            world_set_height(&test_world, x, y, v);
         }
-    test_world.heights[0] = WORLD_HEIGHT_MIN;
+    world_set_height(&test_world, 0, 0, WORLD_HEIGHT_MIN);
 }
 
 int main(void)

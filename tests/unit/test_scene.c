@@ -145,7 +145,8 @@ static void test_default_scene(void)
               s.material.repose_deg == 35,
           "default material");
     world w;
-    CHECK(scene_create_world(&s, &w, &e) == 0 && w.heights[0] >= 3000 && w.heights[0] <= 7000,
+    CHECK(scene_create_world(&s, &w, &e) == 0 && world_height_at(&w, 0, 0) >= 3000 &&
+              world_height_at(&w, 0, 0) <= 7000,
           "default world builds");
     world_free(&w);
     scene_free(&s);
@@ -192,7 +193,10 @@ static void test_errors(void)
     refused("{\"world\": {\"width\": 16, \"height\": 16, \"cell_size_m\": -0.05}}",
             "world.cell_size_m");
     refused("{\"world\": {\"width\": 16, \"height\": 16}}", "world.cell_size_m: missing");
-    refused("{\"world\": {\"width\": 65536, \"height\": 65536, \"cell_size_m\": 1}}", "cells");
+    refused("{\"world\": {\"width\": 64, \"height\": 64, \"cell_size_m\": 1, \"tile_cells\": 100}}",
+            "world.tile_cells");
+    refused("{\"world\": {\"width\": 64, \"height\": 64, \"cell_size_m\": 1, \"tile_cells\": 8}}",
+            "world.tile_cells");
     refused("{\"world\": {\"width\": 16, \"height\": 16, \"cell_size_m\": 1, \"units_per_m\": 0}}",
             "world.units_per_m");
     refused("{\"world\": {\"width\": 16, \"height\": 16, \"cell_size_m\": 1, \"floor_m\": 1e6}}",
@@ -379,7 +383,8 @@ static void test_details(void)
     CHECK(ok, "scene with relative paths loads%s%s", ok ? "" : ": ", ok ? "" : e.message);
     if (ok) {
         world w;
-        CHECK(scene_create_world(&s, &w, &e) == 0 && w.heights[0] == 5 && w.heights[5] == 105,
+        CHECK(scene_create_world(&s, &w, &e) == 0 && world_height_at(&w, 0, 0) == 5 &&
+                  world_height_at(&w, 5 % w.width, 5 / w.width) == 105,
               "raw heightmap found beside the scene, scaled and offset");
         world_free(&w);
         const collider_mesh *m = s.colliders[0].geometry.mesh;

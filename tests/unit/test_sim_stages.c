@@ -323,8 +323,8 @@ static void test_plan_windows(void)
     world w;
     error_text err;
     CHECK(world_init(&w, 200, 100, 0.1, 10000, 0, &err) == 0, "world");
-    for (int i = 0; i < 200 * 100; i++)
-        w.heights[i] = 5000;
+    world_base_spec flat = {.kind = WORLD_BASE_FLAT, .height_m = 0.5};
+    CHECK(world_generate_base(&w, &flat, &err) == 0, "flat base at 5000 units");
     sim_params p = params_for(SIM_METHOD_SSBO, SIM_METRIC_EUCLIDEAN);
     collider_geometry ball = {.shape = COLLIDER_SPHERE, .radius = 0.5};
     sim_collider c[4];
