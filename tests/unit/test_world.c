@@ -416,6 +416,186 @@ static void test_raw(void)
     world_free(&w);
 }
 
+/* A small deterministic generator for the tiling tests. */
+static uint32_t next_random(uint32_t *state)
+{
+    *state = *state * 1664525u + 1013904223u;
+    return *state >> 8;
+}
+
+typedef struct stored_list {
+    int count, last_tx, last_ty;
+    uint64_t generation_sum;
+} stored_list;
+
+static void note_stored(void *ctx, int tx, int ty, world_rect cells, uint64_t generation)
+{
+    (void)cells;
+    stored_list *l = ctx;
+    l->count++;
+    l->last_tx = tx;
+    l->last_ty = ty;
+    l->generation_sum += generation;
+}
+
+/* Tiled and one-tile worlds agree on every read after the same writes:
+ * random rectangles (many straddling tile edges and corners) are scattered
+ * into both and everything observable is compared. */
+static void test_tiled_equals_dense(world_base_kind kind)
+{
+    error_text e = {{0}};
+    world tiled, whole;
+    int W = 300, H = 200;
+    CHECK(world_init_tiled(&tiled, W, H, 0.05, 10000, 0, 16, &e) == 0, "tiled world: %s",
+          e.message);
+    CHECK(world_init_tiled(&whole, W, H, 0.05, 10000, 0, 512, &e) == 0, "one-tile world: %s",
+          e.message);
+    CHECK(tiled.tiles_x == 19 && tiled.tiles_y == 13 && whole.tiles_x == 1 && whole.tiles_y == 1,
+          "tile counts %dx%d and %dx%d", tiled.tiles_x, tiled.tiles_y, whole.tiles_x,
+          whole.tiles_y);
+    world_base_spec s = {.kind = kind, .height_m = 0.4};
+    if (kind == WORLD_BASE_DUNES)
+        s = (world_base_spec){.kind = WORLD_BASE_DUNES,
+                              .min_height_m = 0.3,
+                              .max_height_m = 0.7,
+                              .wavelength_m = 1.5,
+                              .octaves = 4,
+                              .seed = 11};
+    CHECK(world_generate_base(&tiled, &s, &e) == 0 && world_generate_base(&whole, &s, &e) == 0,
+          "base: %s", e.message);
+    CHECK(world_stored_tiles(&tiled) == 0, "a fresh tiled world stores no tile");
+    int32_t *a = dense(&tiled), *b = dense(&whole);
+    CHECK(memcmp(a, b, (size_t)W * H * 4) == 0,
+          "kind %d: the base of every tile equals the dense base", (int)kind);
+    CHECK(world_stored_tiles(&tiled) == 0, "reading does not store tiles");
+    CHECK(world_volume(&tiled) == world_volume(&whole), "same base volume");
+    free(a);
+    free(b);
+
+    uint32_t rng = 12345;
+    int32_t *buf = malloc((size_t)W * H * sizeof *buf), *buf2 = malloc((size_t)W * H * 4);
+    int same = 1, same_volume = 1, same_range = 1, same_rect_volume = 1;
+    for (int round = 0; round < 200; round++) {
+        world_rect r = {(int)(next_random(&rng) % W), (int)(next_random(&rng) % H),
+                        1 + (int)(next_random(&rng) % 40), 1 + (int)(next_random(&rng) % 40)};
+        world_clip_rect(&tiled, &r);
+        world_gather_window(&tiled, r, buf);
+        world_gather_window(&whole, r, buf2);
+        same &= memcmp(buf, buf2, (size_t)r.w * r.h * 4) == 0;
+        for (int i = 0; i < r.w * r.h; i++)
+            buf[i] += (int32_t)(next_random(&rng) % 2001) - 1000;
+        world_scatter_window(&tiled, r, buf);
+        world_scatter_window(&whole, r, buf);
+        same_volume &= world_volume(&tiled) == world_volume(&whole);
+        world_rect q = {(int)(next_random(&rng) % W) - 10, (int)(next_random(&rng) % H) - 10, 60,
+                        50};
+        int32_t lo1, hi1, lo2, hi2;
+        world_rect qc = q;
+        world_clip_rect(&tiled, &qc);
+        world_rect_height_range(&tiled, qc, &lo1, &hi1);
+        world_rect_height_range(&whole, qc, &lo2, &hi2);
+        same_range &= lo1 == lo2 && hi1 == hi2;
+        same_rect_volume &= world_rect_volume(&tiled, q) == world_rect_volume(&whole, q);
+    }
+    a = dense(&tiled);
+    b = dense(&whole);
+    CHECK(same && memcmp(a, b, (size_t)W * H * 4) == 0,
+          "kind %d: 200 random scatters across tile edges: tiled == one tile, bit for bit",
+          (int)kind);
+    CHECK(same_volume && same_range && same_rect_volume,
+          "volume, rect volume and height range agree after every scatter");
+    int64_t sum = 0;
+    for (int i = 0; i < W * H; i++)
+        sum += a[i];
+    CHECK(world_volume(&tiled) == sum, "tracked volume == Σh of the cells (%lld vs %lld)",
+          (long long)world_volume(&tiled), (long long)sum);
+    free(a);
+    free(b);
+    free(buf);
+    free(buf2);
+    world_free(&tiled);
+    world_free(&whole);
+}
+
+/* A window straddling a tile corner stores exactly the four tiles it
+ * touches, bumps their generations, and leaves the rest of a big world
+ * unallocated. */
+static void test_sparse(void)
+{
+    error_text e = {{0}};
+    world w;
+    CHECK(world_init_tiled(&w, 16384, 16384, 0.05, 10000, 0, 64, &e) == 0, "16384^2 world: %s",
+          e.message);
+    world_base_spec s = {.kind = WORLD_BASE_DUNES,
+                         .min_height_m = 0.3,
+                         .max_height_m = 0.7,
+                         .wavelength_m = 1.5,
+                         .octaves = 4,
+                         .seed = 7};
+    CHECK(world_generate_base(&w, &s, &e) == 0, "dunes base on a 16384^2 world");
+    uint64_t empty = world_resident_bytes(&w);
+    CHECK(empty < (16u << 20), "untouched 16384^2 world holds %llu bytes, not 1 GiB",
+          (unsigned long long)empty);
+    world_rect r = {64 * 100 - 5, 64 * 200 - 7, 12, 14}; /* around the corner of tile (100, 200) */
+    int32_t buf[12 * 14], back[12 * 14];
+    world_gather_window(&w, r, buf);
+    CHECK(world_stored_tiles(&w) == 0, "gather stores nothing");
+    /* (world_volume of a 16384^2 dune world would walk all its noise once,
+     * about a minute here: the rectangle's volume says the same) */
+    int64_t before = world_rect_volume(&w, r);
+    for (int i = 0; i < 12 * 14; i++)
+        buf[i] += (i & 1) ? 50 : -50; /* volume-neutral */
+    world_scatter_window(&w, r, buf);
+    CHECK(world_stored_tiles(&w) == 4, "a window over a tile corner stores 4 tiles (%zu)",
+          world_stored_tiles(&w));
+    uint64_t after = world_resident_bytes(&w);
+    CHECK(after - empty <= 4u * 64 * 64 * 4 + 64u * 64 * 64 * 4,
+          "resident bytes grow by the stored tiles (plus the clean-tile cache): %llu",
+          (unsigned long long)(after - empty));
+    world_gather_window(&w, r, back);
+    CHECK(memcmp(buf, back, sizeof buf) == 0, "scatter then gather across the corner round-trips");
+    CHECK(world_rect_volume(&w, r) == before, "volume exact after a neutral edit over 4 tiles");
+    CHECK(world_tile_generation(&w, 99, 199) == 1 && world_tile_generation(&w, 100, 200) == 1 &&
+              world_tile_generation(&w, 101, 200) == 0 && world_tile_generation(&w, -1, 0) == 0,
+          "generations: written tiles 1, others 0");
+    world_set_height(&w, 64 * 100, 64 * 200, 4242);
+    CHECK(world_height_at(&w, 64 * 100, 64 * 200) == 4242 &&
+              world_tile_generation(&w, 100, 200) == 2,
+          "world_set_height writes and bumps the generation");
+    stored_list l = {0, -1, -1, 0};
+    world_for_each_stored_tile(&w, note_stored, &l);
+    CHECK(l.count == 4 && l.last_tx == 100 && l.last_ty == 200 && l.generation_sum == 5,
+          "iteration visits the 4 stored tiles in row-major order (%d, last %d,%d, gens %llu)",
+          l.count, l.last_tx, l.last_ty, (unsigned long long)l.generation_sum);
+    world_rect t = world_tile_rect(&w, 255, 255);
+    CHECK(t.x == 16320 && t.w == 64 && t.h == 64, "tile rect");
+    CHECK(world_generate_base(&w, &s, &e) == 0 && world_stored_tiles(&w) == 0 &&
+              world_tile_generation(&w, 100, 200) == 0,
+          "a new base drops every stored tile");
+    world_free(&w);
+
+    /* a flat 65536^2 world: closed-form volume, tracked exactly through edits */
+    CHECK(world_init(&w, 65536, 65536, 0.05, 10000, 0, &e) == 0, "65536^2 world");
+    world_base_spec flat = {.kind = WORLD_BASE_FLAT, .height_m = 0.4};
+    world_generate_base(&w, &flat, &e);
+    CHECK(world_volume(&w) == 4000LL * 65536 * 65536, "flat volume in closed form");
+    world_rect edge = {65536 - 3, 65536 - 2, 3, 2};
+    int32_t six[6] = {1, 2, 3, 4, 5, 6};
+    world_scatter_window(&w, edge, six);
+    CHECK(world_volume(&w) == 4000LL * 65536 * 65536 + 21 - 6 * 4000 &&
+              world_stored_tiles(&w) == 1 && world_height_at(&w, 65535, 65535) == 6,
+          "an edit in the far corner: exact volume, one tile stored");
+    world_free(&w);
+
+    /* partial edge tiles: 100 x 70 in tiles of 64 */
+    CHECK(world_init_tiled(&w, 100, 70, 0.05, 10000, 0, 64, &e) == 0, "100x70 world");
+    t = world_tile_rect(&w, 1, 1);
+    CHECK(t.x == 64 && t.y == 64 && t.w == 36 && t.h == 6, "edge tile clipped to 36x6");
+    world_set_height(&w, 99, 69, -7);
+    CHECK(world_height_at(&w, 99, 69) == -7 && world_volume(&w) == -7, "last cell of an edge tile");
+    world_free(&w);
+}
+
 int main(void)
 {
     test_init();
@@ -424,6 +604,9 @@ int main(void)
     test_rects();
     test_png16();
     test_raw();
+    test_tiled_equals_dense(WORLD_BASE_FLAT);
+    test_tiled_equals_dense(WORLD_BASE_DUNES);
+    test_sparse();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }
