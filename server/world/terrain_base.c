@@ -154,6 +154,18 @@ static double dune_value(double px, double py, int octaves, uint32_t seed)
     return v * 0.5 + 0.5;
 }
 
+/* One dune cell in units, before rounding: world_base_fill_rect makes the
+ * same value again from the same expression. */
+static double dune_units(const world *w, const world_base_spec *s, int x, int y)
+{
+    double inv_wavelength = 1.0 / s->wavelength_m;
+    double py = ((double)y + 0.5) * w->cell_size_m * inv_wavelength;
+    double px = ((double)x + 0.5) * w->cell_size_m * inv_wavelength;
+    double t = dune_value(px, py, s->octaves, s->seed);
+    double metres = s->min_height_m + (s->max_height_m - s->min_height_m) * t;
+    return metres * w->units_per_m;
+}
+
 static int generate_dunes(world *w, const world_base_spec *s, error_text *err)
 {
     if (!isfinite(s->min_height_m) || !isfinite(s->max_height_m)) {
@@ -185,14 +197,9 @@ static int generate_dunes(world *w, const world_base_spec *s, error_text *err)
     if (height_from_units(&c, hi_units, -1, 0, &probe, err) != 0)
         return -1;
     c.what = "terrain (dunes)";
-    double inv_wavelength = 1.0 / s->wavelength_m;
     for (int y = 0; y < w->height; y++) {
-        double py = ((double)y + 0.5) * w->cell_size_m * inv_wavelength;
         for (int x = 0; x < w->width; x++) {
-            double px = ((double)x + 0.5) * w->cell_size_m * inv_wavelength;
-            double t = dune_value(px, py, s->octaves, s->seed);
-            double metres = s->min_height_m + (s->max_height_m - s->min_height_m) * t;
-            if (height_from_units(&c, metres * w->units_per_m, x, y,
+            if (height_from_units(&c, dune_units(w, s, x, y), x, y,
                                   &w->heights[(size_t)y * w->width + x], err) != 0)
                 return -1;
         }
@@ -299,7 +306,7 @@ static int generate_raw(world *w, const world_base_spec *s, int bytes, error_tex
     return rc;
 }
 
-int world_generate_base(world *w, const world_base_spec *spec, error_text *err)
+static int generate_base(world *w, const world_base_spec *spec, error_text *err)
 {
     size_t n = (size_t)w->width * (size_t)w->height;
     switch (spec->kind) {
@@ -330,4 +337,51 @@ int world_generate_base(world *w, const world_base_spec *spec, error_text *err)
     }
     error_set(err, "terrain.kind: unknown kind %d", (int)spec->kind);
     return -1;
+}
+
+int world_generate_base(world *w, const world_base_spec *spec, error_text *err)
+{
+    w->has_base = 0;
+    free(w->base_copy);
+    w->base_copy = NULL;
+    if (generate_base(w, spec, err) != 0)
+        return -1;
+    w->base = *spec;
+    if (spec->kind != WORLD_BASE_FLAT && spec->kind != WORLD_BASE_DUNES) {
+        /* a file cannot be read again per tick: keep what it gave */
+        size_t n = (size_t)w->width * (size_t)w->height;
+        w->base_copy = malloc(n * sizeof *w->base_copy);
+        if (!w->base_copy) {
+            error_set(err, "terrain: out of memory keeping the base heights");
+            return -1;
+        }
+        memcpy(w->base_copy, w->heights, n * sizeof *w->base_copy);
+    }
+    w->has_base = 1;
+    return 0;
+}
+
+int world_base_fill_rect(const world *w, world_rect r, int32_t *dst)
+{
+    if (!w->has_base)
+        return -1;
+    const world_base_spec *s = &w->base;
+    if (s->kind == WORLD_BASE_FLAT) {
+        /* validated when the world was made */
+        int32_t h = (int32_t)llround(s->height_m * w->units_per_m);
+        for (int64_t i = 0; i < (int64_t)r.w * r.h; i++)
+            dst[i] = h;
+        return 0;
+    }
+    for (int y = 0; y < r.h; y++) {
+        int32_t *row = dst + (int64_t)y * r.w;
+        if (s->kind == WORLD_BASE_DUNES) {
+            for (int x = 0; x < r.w; x++)
+                row[x] = (int32_t)llround(dune_units(w, s, r.x + x, r.y + y));
+        } else {
+            memcpy(row, w->base_copy + (int64_t)(r.y + y) * w->width + r.x,
+                   (size_t)r.w * sizeof *row);
+        }
+    }
+    return 0;
 }

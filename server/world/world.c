@@ -70,6 +70,7 @@ void world_free(world *w)
     if (!w)
         return;
     free(w->heights);
+    free(w->base_copy);
     memset(w, 0, sizeof *w);
 }
 

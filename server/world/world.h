@@ -26,13 +26,6 @@ typedef struct world_rect {
     int x, y, w, h; /* cells; w and h > 0 for a non-empty rectangle */
 } world_rect;
 
-typedef struct world {
-    int width, height;   /* cells */
-    double cell_size_m;  /* metres per cell, both axes */
-    int32_t units_per_m; /* height units per metre */
-    int32_t floor;       /* material is never pushed below this height (units) */
-    int32_t *heights;    /* row-major, width * height */
-} world;
 
 /* How the base terrain is made. */
 typedef enum world_base_kind {
@@ -56,6 +49,19 @@ typedef struct world_base_spec {
     double value_offset_units; /* png16 / raw: added after scaling */
 } world_base_spec;
 
+typedef struct world {
+    int width, height;   /* cells */
+    double cell_size_m;  /* metres per cell, both axes */
+    int32_t units_per_m; /* height units per metre */
+    int32_t floor;       /* material is never pushed below this height (units) */
+    int32_t *heights;    /* row-major, width * height */
+    /* The base the heights were generated from (world_generate_base), so a
+     * rectangle of it can be made again (world_base_fill_rect). */
+    int has_base;
+    world_base_spec base;
+    int32_t *base_copy; /* heightmap-file bases only: the file's heights, kept */
+} world;
+
 /* Allocate a world; heights start at 0. Refuses absurd sizes with a reason. */
 int world_init(world *w, int width, int height, double cell_size_m, int32_t units_per_m,
                int32_t floor, error_text *err);
@@ -63,6 +69,15 @@ void world_free(world *w);
 
 /* Fill the heights from a base spec. Errors name the file or the field. */
 int world_generate_base(world *w, const world_base_spec *spec, error_text *err);
+
+/*
+ * Base heights of a clipped rectangle into dst (r.w * r.h, row-major): what
+ * world_generate_base put there, whatever happened since. Flat and dunes are
+ * computed again (they depend only on the spec and the cell); heightmap files
+ * come from the copy world_generate_base kept. Returns -1 if the world has
+ * no base (heights set by hand).
+ */
+int world_base_fill_rect(const world *w, world_rect r, int32_t *dst);
 
 /* Σh over the whole world, exactly. */
 int64_t world_volume(const world *w);
