@@ -30,7 +30,7 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
 
 int sim_model_needs_depth(sim_model m)
 {
-    return m == SIM_MODEL_SUBTRACT || m == SIM_MODEL_DIFFUSION;
+    return m == SIM_MODEL_DIFFUSION; /* subtract casts into the heights themselves */
 }
 
 int sim_model_needs_base(const sim_params *p)

@@ -13,7 +13,13 @@
  * collider resting on a cell keeps it down. The engine keeps windows with
  * cells still below base in its tick until they are full again.
  *
- * One pass, no scratch: the engine's depth is the only input.
+ * No scratch and no depth buffer: the depth stage's "min into the array" is
+ * the model, so each collider's depth is cast straight into the heights
+ * (collider_depth_cpu lowers a cell to the collider's lowest point), then
+ * the cut is clamped at the floor. Heights are never below the floor (the
+ * world refuses such a base and no model puts one there), so the clamp only
+ * undoes what the cut took under it. With a depth given (bottom_override:
+ * the tests, --depth-from-cpu) the same rule runs from that array.
  */
 #include "sim/sim.h"
 
@@ -31,7 +37,7 @@ sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, 
             int64_t up = (int64_t)h + refill;
             h = up > base[i] ? base[i] : (int32_t)up;
         }
-        if (bottom[i] < h) {
+        if (bottom && bottom[i] < h) {
             /* cut to the collider, but a column above the floor stays above it */
             int32_t cut = bottom[i] > p->floor ? bottom[i] : p->floor;
             if (cut < h)
@@ -39,5 +45,13 @@ sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, 
         }
         job->heights[i] = h;
     }
+    if (bottom)
+        return SIM_WINDOW_OK;
+    for (int c = 0; c < job->collider_count; c++)
+        collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, job->rect,
+                           job->cell_size_m, job->units_per_m, job->heights);
+    for (int64_t i = 0; i < n; i++)
+        if (job->heights[i] < p->floor)
+            job->heights[i] = p->floor;
     return SIM_WINDOW_OK;
 }
