@@ -4,7 +4,10 @@
  * and after (Σh, int64), per-stage mean and p99 milliseconds, mean active
  * cells, the largest slope excess left over the angle of repose, memory per
  * world cell and per active cell, and peak RSS. The tests and `make bench`
- * are built on it.
+ * are built on it. `--model M` runs the scene's colliders through another
+ * deformation model (docs/models.md); the output then says which model ran,
+ * whether it ran on the CPU for want of a GL version, the scratch memory
+ * held per stage, and for decals the number of footprint events.
  */
 #include <cjson/cJSON.h>
 #include <math.h>
@@ -21,6 +24,7 @@ typedef struct simulate_options {
     long ticks;
     const char *backend;
     const char *method;
+    const char *model;
     const char *metric;
     const char *out_path;
     int depth_from_cpu;
@@ -56,6 +60,8 @@ static int parse_options(int argc, char **argv, simulate_options *o)
             o->backend = v;
         } else if (strcmp(a, "--method") == 0) {
             o->method = v;
+        } else if (strcmp(a, "--model") == 0) {
+            o->model = v;
         } else if (strcmp(a, "--metric") == 0) {
             o->metric = v;
         } else if (strcmp(a, "--out") == 0) {
@@ -163,6 +169,22 @@ int app_simulate(int argc, char **argv)
         scene_free(&sc);
         return 2;
     }
+    if (o.method) /* the persson model of that method */
+        sc.material.model = sim_model_from_method(sc.material.method);
+    if (o.model) {
+        if (sim_model_parse(o.model, &sc.material.model) != 0) {
+            fprintf(stderr, "terrad simulate: --model must be persson-iterative, persson-ssbo, "
+                            "persson-multi, subtract, deferred, diffusion or decals\n");
+            scene_free(&sc);
+            return 2;
+        }
+        if (sc.material.model == SIM_MODEL_PERSSON_ITERATIVE)
+            sc.material.method = SIM_METHOD_ITERATIVE;
+        else if (sc.material.model == SIM_MODEL_PERSSON_MULTI)
+            sc.material.method = SIM_METHOD_MULTI;
+        else if (sc.material.model == SIM_MODEL_PERSSON_SSBO)
+            sc.material.method = SIM_METHOD_SSBO;
+    }
     if (o.metric && sim_metric_parse(o.metric, &sc.material.metric) != 0) {
         fprintf(stderr, "terrad simulate: --metric must be euclidean, manhattan or chebyshev\n");
         scene_free(&sc);
@@ -191,7 +213,8 @@ int app_simulate(int argc, char **argv)
 
     stage_series stages[] = {{"depth", {0}},          {"classify", {0}},    {"jump_flood", {0}},
                              {"displace", {0}},       {"even_slopes", {0}}, {"transfer", {0}},
-                             {"gather_scatter", {0}}, {"tick", {0}}};
+                             {"model", {0}},          {"gather_scatter", {0}},
+                             {"tick", {0}}};
     const int stage_count = (int)(sizeof stages / sizeof stages[0]);
     sim_collider *colliders = calloc((size_t)sc.collider_count + 1, sizeof *colliders);
     if (!colliders) {
@@ -200,7 +223,7 @@ int app_simulate(int argc, char **argv)
     }
     int64_t volume_before = world_volume(&w);
     double active_sum = 0.0;
-    long refused = 0;
+    long refused = 0, footprint_events = 0;
     double dt = 1.0 / sc.tick_hz;
     for (long t = 0; t < o.ticks; t++) {
         for (int c = 0; c < sc.collider_count; c++) {
@@ -221,11 +244,13 @@ int app_simulate(int argc, char **argv)
         double values[] = {report.times.depth,       report.times.classify,
                            report.times.jump_flood,  report.times.displace,
                            report.times.even_slopes, report.times.transfer,
-                           report.gather_scatter_ms, elapsed};
+                           report.model_ms,          report.gather_scatter_ms,
+                           elapsed};
         for (int s = 0; s < stage_count; s++)
             stat_series_add(&stages[s].series, values[s]);
         active_sum += (double)report.active_cells;
         refused += report.refused_windows;
+        footprint_events += report.footprint_count;
     }
     int64_t volume_after = world_volume(&w);
     if (o.out_path && write_heights(o.out_path, &w) != 0) {
@@ -240,6 +265,10 @@ int app_simulate(int argc, char **argv)
     cJSON_AddStringToObject(root, "backend", backend->name);
     cJSON_AddStringToObject(root, "renderer", backend->renderer);
     cJSON_AddStringToObject(root, "version", backend->version);
+    cJSON_AddStringToObject(root, "model", sim_model_name(params.model));
+    /* a model without a GL version ran on the CPU: say so */
+    cJSON_AddBoolToObject(root, "model_on_cpu",
+                          !sim_model_is_persson(params.model) || strcmp(backend->name, "cpu") == 0);
     cJSON_AddStringToObject(root, "method", sim_method_name(params.method));
     cJSON_AddStringToObject(root, "metric", sim_metric_name(params.metric));
     cJSON_AddNumberToObject(root, "ticks", (double)o.ticks);
@@ -270,6 +299,23 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(&w));
     cJSON_AddNumberToObject(root, "world_tile_cells", w.tile_cells);
     cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine.peak_scratch_bytes);
+    const sim_stage_memory *mem = &engine.peak_memory;
+    cJSON *by_stage = cJSON_AddObjectToObject(root, "scratch_bytes_by_stage");
+    const struct {
+        const char *name;
+        uint64_t bytes;
+    } stage_bytes[] = {{"depth", mem->depth},
+                       {"classify", mem->classify},
+                       {"jump_flood", mem->jump_flood},
+                       {"displace", mem->displace},
+                       {"even_slopes", mem->even_slopes},
+                       {"backend_other", mem->backend_other},
+                       {"model", mem->model},
+                       {"gather_scatter", mem->gather_scatter}};
+    for (size_t k = 0; k < sizeof stage_bytes / sizeof stage_bytes[0]; k++)
+        cJSON_AddNumberToObject(by_stage, stage_bytes[k].name, (double)stage_bytes[k].bytes);
+    if (params.model == SIM_MODEL_DECALS)
+        cJSON_AddNumberToObject(root, "footprint_events", (double)footprint_events);
     cJSON_AddNumberToObject(
         root, "bytes_per_world_cell",
         round((world_bytes + (double)engine.peak_scratch_bytes) / world_cells * 1e4) / 1e4);

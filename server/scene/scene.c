@@ -27,9 +27,17 @@
  *              | {"kind": "png16" | "raw_int16" | "raw_int32", "path": "file",
  *                 "scale_units": 1, "offset_units": 0},
  *                                                 optional, default flat 0 m
- *     "material": {"compression", "roughness", "repose_deg", "obstacle_gap_m",
+ *     "material": {"model": "persson-ssbo" | "persson-iterative" | "persson-multi" |
+ *                           "subtract" | "deferred" | "diffusion" | "decals",
+ *                  "compression", "roughness", "repose_deg", "obstacle_gap_m",
  *                  "multi_target_m", "multi_target_max", "displace_iterations",
- *                  "slope_iterations", "metric", "method"},
+ *                  "slope_iterations", "metric",
+ *                  "method" (iterative|ssbo|multi: alias of the persson-* models),
+ *                  subtract: "refill_m_per_s"; deferred: "trail_scale_per_m",
+ *                  "trail_range_m", "edge_height", "edge_width"; diffusion: "preset"
+ *                  (mud|pebbles|sand), "D", "zeta_inv", "force_scale", "dt",
+ *                  "substeps" ("auto" | N), "conservative" (bool); decals:
+ *                  "decal_min_strength_m"},
  *                                                 every key optional (sim_material_default)
  *     "tick_hz": 60, "active_margin_cells": 4,    optional
  *     "colliders": [{"name": "...", "shape": "sphere|box|capsule|cylinder|wheel|mesh",
@@ -461,6 +469,7 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
 {
     sim_material *m = &s->material;
     *m = sim_material_default();
+    m->tick_s = 1.0 / s->tick_hz;
     const cJSON *o = cJSON_GetObjectItemCaseSensitive(root, "material");
     if (!o)
         return 0;
@@ -474,6 +483,20 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
                                        "slope_iterations",
                                        "metric",
                                        "method",
+                                       "model",
+                                       "refill_m_per_s",
+                                       "trail_scale_per_m",
+                                       "trail_range_m",
+                                       "edge_height",
+                                       "edge_width",
+                                       "preset",
+                                       "D",
+                                       "zeta_inv",
+                                       "force_scale",
+                                       "dt",
+                                       "substeps",
+                                       "conservative",
+                                       "decal_min_strength_m",
                                        NULL};
     const char *P = "material";
     if (expect_object(o, P, err) || check_keys(o, P, keys, NULL, err))
@@ -519,6 +542,74 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
     if (r && sim_method_parse(name, &m->method) != 0) {
         error_set(err, "material.method: must be iterative, ssbo or multi (got \"%s\")", name);
         return -1;
+    }
+    int has_method = r;
+    m->model = sim_model_from_method(m->method);
+    if ((r = get_string(o, P, "model", name, sizeof name, err)) < 0)
+        return -1;
+    if (r && sim_model_parse(name, &m->model) != 0) {
+        error_set(err,
+                  "material.model: must be persson-iterative, persson-ssbo, persson-multi, "
+                  "subtract, deferred, diffusion or decals (got \"%s\")",
+                  name);
+        return -1;
+    }
+    if (r && sim_model_is_persson(m->model)) {
+        sim_method implied = m->model == SIM_MODEL_PERSSON_ITERATIVE ? SIM_METHOD_ITERATIVE
+                             : m->model == SIM_MODEL_PERSSON_MULTI   ? SIM_METHOD_MULTI
+                                                                     : SIM_METHOD_SSBO;
+        if (has_method && implied != m->method) {
+            error_set(err, "material.method: \"%s\" contradicts material.model \"%s\"",
+                      sim_method_name(m->method), name);
+            return -1;
+        }
+        m->method = implied;
+    }
+    /* a preset first, so explicit D / zeta_inv / repose_deg override it */
+    char preset[32];
+    if ((r = get_string(o, P, "preset", preset, sizeof preset, err)) < 0)
+        return -1;
+    if (r) {
+        double repose = m->repose_deg;
+        const cJSON *rd = cJSON_GetObjectItemCaseSensitive(o, "repose_deg");
+        if (sim_material_diffusion_preset(m, preset) != 0) {
+            error_set(err, "material.preset: must be mud, pebbles or sand (got \"%s\")", preset);
+            return -1;
+        }
+        if (rd)
+            m->repose_deg = repose;
+    }
+    if (get_number(o, P, "refill_m_per_s", 0, 1000, &m->refill_m_per_s, err) < 0 ||
+        get_number(o, P, "trail_scale_per_m", 0, 1e6, &m->trail_scale_per_m, err) < 0 ||
+        get_number(o, P, "trail_range_m", 0, 1000, &m->trail_range_m, err) < 0 ||
+        get_number(o, P, "edge_height", 0, 100, &m->edge_height, err) < 0 ||
+        get_positive(o, P, "edge_width", 100, 0, &m->edge_width, err) < 0 ||
+        get_number(o, P, "D", 0, 1e12, &m->diffusion_d, err) < 0 ||
+        get_number(o, P, "zeta_inv", 0, 1e12, &m->diffusion_zeta_inv, err) < 0 ||
+        get_number(o, P, "force_scale", 0, 1e12, &m->diffusion_force_scale, err) < 0 ||
+        get_number(o, P, "dt", 0, 1e12, &m->diffusion_dt, err) < 0 ||
+        get_number(o, P, "decal_min_strength_m", 0, 1000, &m->decal_min_strength_m, err) < 0)
+        return -1;
+    const cJSON *sub = cJSON_GetObjectItemCaseSensitive(o, "substeps");
+    if (sub && cJSON_IsString(sub)) {
+        if (strcmp(sub->valuestring, "auto") != 0) {
+            error_set(err, "material.substeps: must be \"auto\" or an integer in [1, 100000]");
+            return -1;
+        }
+        m->diffusion_substeps = SIM_DIFFUSION_SUBSTEPS_AUTO;
+    } else {
+        if ((r = get_integer(o, P, "substeps", 1, 100000, 0, &v, err)) < 0)
+            return -1;
+        if (r)
+            m->diffusion_substeps = (int)v;
+    }
+    const cJSON *cons = cJSON_GetObjectItemCaseSensitive(o, "conservative");
+    if (cons) {
+        if (!cJSON_IsBool(cons)) {
+            error_set(err, "material.conservative: must be true or false");
+            return -1;
+        }
+        m->diffusion_conservative = cJSON_IsTrue(cons) ? 1 : 0;
     }
     /* the sim's own conversion has the last word on what it can run */
     sim_params p;
@@ -872,9 +963,11 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
     snprintf(s->name, sizeof s->name, "unnamed");
     if (get_string(root, "", "name", s->name, sizeof s->name, err) < 0 ||
         get_string(root, "", "description", description, sizeof description, err) < 0 ||
-        parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||
+        get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0)
+        goto done;
+    s->tick_hz = tick_hz; /* the material's rates are per second */
+    if (parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||
         parse_material(root, s, err) ||
-        get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0 ||
         get_integer(root, "", "active_margin_cells", 0, 4096, 0, &margin, err) < 0 ||
         parse_colliders(root, &ps, s, err))
         goto done;

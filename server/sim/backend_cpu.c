@@ -99,6 +99,19 @@ static uint64_t cpu_scratch_bytes(const sim_backend *base)
     return (uint64_t)b->capacity_cells * CPU_ARRAYS_PER_CELL * sizeof(int32_t);
 }
 
+/* bottom → depth; raw, moved, cls → classify; seed → jump_flood; the five
+ * arrays of stage scratch are displacement's (jump flooding and slope
+ * evening borrow fewer of them). */
+static void cpu_stage_bytes(const sim_backend *base, sim_stage_memory *out)
+{
+    const cpu_backend *b = (const cpu_backend *)base;
+    uint64_t array = (uint64_t)b->capacity_cells * sizeof(int32_t);
+    out->depth += array;
+    out->classify += 3 * array;
+    out->jump_flood += array;
+    out->displace += 5 * array;
+}
+
 static void cpu_destroy(sim_backend *base)
 {
     cpu_backend *b = (cpu_backend *)base;
@@ -142,6 +155,7 @@ sim_backend *sim_backend_cpu_create(error_text *err)
     b->base.run_windows = cpu_run_windows;
     b->base.forget_geometry = cpu_forget_geometry;
     b->base.scratch_bytes = cpu_scratch_bytes;
+    b->base.stage_bytes = cpu_stage_bytes;
     b->base.destroy = cpu_destroy;
     b->base.impl = b;
     return &b->base;

@@ -45,6 +45,34 @@ typedef enum sim_method {
     SIM_METHOD_MULTI,     /* multiple-target SSBO displacement + SSBO slopes */
 } sim_method;
 
+/*
+ * The deformation model of a material (docs/models.md). The three persson-*
+ * models run on the backends (GL or CPU twin) through the stages above; the
+ * others are CPU window functions in server/sim/model_<name>.c that the
+ * engine calls per window, taking the model from the window's params, so a
+ * per-cell material layer can route each window (or cell) by its material.
+ * Sumner (model_sumner.c, sim_sumner_window) is merged separately: until
+ * then it is declared but not parsed, so no scene can select it.
+ */
+typedef enum sim_model {
+    SIM_MODEL_PERSSON_ITERATIVE,
+    SIM_MODEL_PERSSON_SSBO,
+    SIM_MODEL_PERSSON_MULTI,
+    SIM_MODEL_SUBTRACT,  /* depth-buffer subtraction, optional refill (loses volume) */
+    SIM_MODEL_DEFERRED,  /* quadratic trail with raised edges, point-based (loses volume) */
+    SIM_MODEL_DIFFUSION, /* Gilardi's drift-diffusion: integer flux form or their float scheme */
+    SIM_MODEL_SUMNER,    /* reserved: sim_sumner_window, merged from another branch */
+    SIM_MODEL_DECALS,    /* no deformation: footprint events only */
+} sim_model;
+
+#define SIM_MODEL_COUNT 8
+
+/* Diffusion's sub-stepping: automatic (stable for any dt) or a fixed count. */
+#define SIM_DIFFUSION_SUBSTEPS_AUTO 0
+/* Automatic sub-stepping never runs more than this many per tick; beyond it
+ * each substep is at the stability bound and the tick is saturated. */
+#define SIM_DIFFUSION_SUBSTEPS_MAX 256
+
 typedef enum sim_cell_class {
     SIM_CELL_SEED = 0,        /* free: can receive material */
     SIM_CELL_OBSTACLE = 1,    /* a collider rests just above: receives nothing */
@@ -62,8 +90,30 @@ typedef struct sim_material {
     int displace_iterations; /* iterative displacement passes per tick */
     int slope_iterations;    /* slope-evening iterations per tick */
     sim_metric metric;
-    sim_method method;
+    sim_method method; /* the persson variant; kept in step with model */
+    sim_model model;
+    double tick_s; /* seconds per tick (the scene's 1/tick_hz): refill is per second */
+    /* subtract */
+    double refill_m_per_s; /* >= 0: cells below the base terrain rise back at this rate */
+    /* deferred (Wasmut ch. 4.2.2) */
+    double trail_scale_per_m; /* artist's scale: trail height rises by d^2 * scale (d in m) */
+    double trail_range_m;     /* half side of the square each contact point writes */
+    double edge_height;       /* rim height as a share of the trail's depth, >= 0 */
+    double edge_width;        /* rim width as a share of the trail's radius, > 0 */
+    /* diffusion (Gilardi eq. 1-8) */
+    double diffusion_d;       /* D, cells^2 per unit of Gilardi time */
+    double diffusion_zeta_inv; /* ζ⁻¹, the inverse friction */
+    double diffusion_force_scale; /* force per cell of penetration (F = scale * p) */
+    double diffusion_dt;          /* Δt per tick in Gilardi's time */
+    int diffusion_substeps;       /* SIM_DIFFUSION_SUBSTEPS_AUTO or a fixed count >= 1 */
+    int diffusion_conservative;   /* 1: integer flux form (Σh exact); 0: their float scheme */
+    /* decals */
+    double decal_min_strength_m; /* a footprint shallower than this sends no event */
 } sim_material;
+
+/* Gilardi's material presets (their Fig. 4): "mud", "pebbles", "sand". Sets D,
+ * ζ⁻¹ and the angle of repose; returns -1 for an unknown name. */
+int sim_material_diffusion_preset(sim_material *m, const char *name);
 
 /* The defaults: the thesis's Table 5.3 (10 and 10 iterations), compression 0. */
 sim_material sim_material_default(void);
@@ -82,10 +132,31 @@ typedef struct sim_params {
     int32_t displace_iterations;
     int32_t slope_iterations;
     int32_t floor; /* units */
+    sim_model model;
+    int64_t refill_q16_per_tick; /* subtract: units per tick, Q16 */
+    int32_t trail_scale_q16;     /* deferred: units per cell^2, Q16 */
+    int32_t trail_range_cells;   /* deferred */
+    int32_t edge_height_q16;     /* deferred: share of depth, Q16 */
+    int32_t edge_width_q16;      /* deferred: share of radius, Q16 */
+    double diffusion_d, diffusion_zeta_inv, diffusion_force_scale, diffusion_dt;
+    int32_t diffusion_substeps;
+    int32_t diffusion_conservative;
+    double repose_rad;         /* diffusion's float scheme: α of eq. 4 */
+    double cell_size_m;        /* the float scheme measures heights in cells */
+    int32_t units_per_m;       /* ditto */
+    int32_t decal_min_strength; /* units */
 } sim_params;
 
 int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t units_per_m,
                              int32_t floor, sim_params *p, error_text *err);
+
+const char *sim_model_name(sim_model m);
+/* Every model a scene may name; sumner is not parsed until it is merged. */
+int sim_model_parse(const char *name, sim_model *out);
+/* 1 for the persson-* models (the backends' stages), 0 otherwise. */
+int sim_model_is_persson(sim_model m);
+/* The persson model of a method, and back. */
+sim_model sim_model_from_method(sim_method m);
 
 const char *sim_metric_name(sim_metric m);
 const char *sim_method_name(sim_method m);
@@ -140,6 +211,16 @@ int64_t sim_max_slope_excess(const sim_params *p, int w, int h, const int32_t *h
 
 /* ---- Backends ---- */
 
+/* Scratch bytes held per stage (what an allocation is for, not when it runs). */
+typedef struct sim_stage_memory {
+    uint64_t depth, classify, jump_flood, displace, even_slopes; /* persson backends */
+    uint64_t backend_other; /* a backend's scratch it does not split by stage (GL) */
+    uint64_t model;         /* the non-persson models' scratch (and base heights) */
+    uint64_t gather_scatter; /* the engine's packed windows and bookkeeping */
+} sim_stage_memory;
+
+uint64_t sim_stage_memory_total(const sim_stage_memory *m);
+
 typedef struct sim_stage_times {
     double depth, classify, jump_flood, displace, even_slopes, transfer; /* ms */
 } sim_stage_times;
@@ -163,7 +244,49 @@ typedef struct sim_window_job {
     int32_t depth_low, depth_high;  /* height range the depth stage must resolve (units) */
     const int32_t *bottom_override; /* non-NULL: use this depth, skip the depth stage */
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
+    /* For the models that need them (NULL otherwise): */
+    const int32_t *base_heights; /* the base terrain over rect (subtract refill, deferred) */
+    int32_t refill_units;        /* subtract: how far a cell below base rises this tick */
 } sim_window_job;
+
+/* ---- The non-persson models: CPU window functions (model_<name>.c) ----
+ *
+ * Each takes the window's params (their model field picks the function in
+ * sim_model_window), the job — with bottom_override holding the depth the
+ * engine computed — and scratch of sim_model_scratch_cells(model, w*h) int32.
+ * They change job->heights in place and return SIM_WINDOW_HEIGHT_LIMIT (the
+ * engine then keeps the world's heights) when a column would leave the range.
+ */
+int64_t sim_model_scratch_cells(sim_model m, int64_t cells);
+/* 1 when the model needs job->base_heights / the depth in bottom_override. */
+int sim_model_needs_base(const sim_params *p);
+int sim_model_needs_depth(sim_model m);
+sim_window_status sim_model_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+
+/* heights = max(min(heights, bottom), floor) after rising toward base by refill_units. */
+sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Contact points → quadratic trail and rim in an integer image (min), then applied. */
+sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Drift-diffusion, conservative integer flux form or Gilardi's float scheme. */
+sim_window_status sim_diffusion_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Sumner, Oh and Hodgins (1999): defined in model_sumner.c on its own branch. */
+sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Substeps the diffusion model runs for one tick (1 <= n <= SIM_DIFFUSION_SUBSTEPS_MAX
+ * under auto), and the coefficients per substep (the bound is explained there). */
+int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift);
+
+/* A footprint event of the decals model: where a collider touches the ground. */
+typedef struct sim_footprint {
+    int collider_id;
+    double x_m, y_m;    /* centre of the touched cells, metres */
+    double yaw_rad;     /* heading of the collider about z */
+    double size_m;      /* side of a square with the touched area */
+    double strength_m;  /* deepest penetration */
+} sim_footprint;
+
+/* decals: one window's events (at most out_capacity); returns how many. */
+int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *scratch,
+                      sim_footprint *out, int out_capacity);
 
 typedef struct sim_backend sim_backend;
 struct sim_backend {
@@ -181,6 +304,8 @@ struct sim_backend {
     /* Drop anything cached for a geometry that is about to be freed. */
     void (*forget_geometry)(sim_backend *b, const collider_geometry *g);
     uint64_t (*scratch_bytes)(const sim_backend *b); /* scratch memory held now */
+    /* Optional (NULL: all of scratch_bytes counts as backend_other). */
+    void (*stage_bytes)(const sim_backend *b, sim_stage_memory *out);
     void (*destroy)(sim_backend *b);
     void *impl;
 };
@@ -198,6 +323,9 @@ typedef struct sim_tick_report {
     world_rect *dirty; /* tight rectangles of changed cells, one per changed window */
     int *dirty_window; /* the window each dirty rectangle came from */
     int dirty_count;
+    double model_ms;              /* the non-persson models' window functions */
+    const sim_footprint *footprints; /* decals: this tick's events (engine-owned) */
+    int footprint_count;
 } sim_tick_report;
 
 typedef struct sim_engine {
@@ -220,8 +348,22 @@ typedef struct sim_engine {
     int window_collider_capacity;
     int32_t *heights, *before, *bottom; /* all windows of a tick, packed */
     int64_t cell_capacity;
+    int64_t bottom_capacity; /* bottom is allocated only when the engine casts depth */
     uint64_t peak_scratch_bytes; /* engine's own plus the backend's, high-water mark */
     int64_t peak_active_cells;
+    /* the non-persson models */
+    int32_t *model_scratch;
+    int64_t model_scratch_capacity; /* int32 */
+    int32_t *base; /* base heights of the packed windows (models that need them) */
+    int64_t base_capacity;
+    int64_t refill_q16_accumulated; /* subtract: refill's fraction carried over */
+    world_rect *refilling; /* subtract: windows with cells still below base */
+    int refilling_count, refilling_capacity;
+    sim_footprint *footprints_out; /* decals: the last tick's events */
+    int footprint_out_capacity;
+    sim_stage_memory memory;      /* held after the last tick */
+    sim_stage_memory peak_memory; /* per stage high-water mark */
+    int warned_cpu_model;         /* "runs on the CPU" said once */
 } sim_engine;
 
 int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *backend,

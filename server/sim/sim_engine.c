@@ -10,6 +10,14 @@
  * batch; a window the backend refuses (height limit) leaves the world as it
  * was. The diff of each window against its gathered copy gives a tight dirty
  * rectangle for the wire and the log.
+ *
+ * Models (docs/models.md): the persson-* models go to the backend; the others
+ * run their CPU window functions here (model_<name>.c, chosen per window by
+ * the params' model), with only the inputs they need prepared — depth for
+ * subtract and diffusion, base heights for refill and deferred — and only
+ * their scratch allocated, so a subtract scene holds no jump-flooding or
+ * displacement buffers at all. Subtract's refill keeps the windows that are
+ * still below base in the next tick's plan until they are full again.
  */
 #include "sim/sim.h"
 
@@ -87,19 +95,25 @@ static int compare_rects(const void *a, const void *b)
     return (r->x > s->x) - (r->x < s->x);
 }
 
-int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
-                     int collider_count, int margin_cells, world_rect *footprints, world_rect **out,
-                     int *out_count)
+/* Footprints plus extra rectangles (subtract's refilling windows) → windows. */
+static int plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
+                        int collider_count, int margin_cells, const world_rect *extra,
+                        int extra_count, world_rect *footprints, world_rect **out, int *out_count)
 {
-    world_rect *rects = malloc(((size_t)collider_count + 1) * sizeof *rects);
+    world_rect *rects = malloc(((size_t)collider_count + extra_count + 1) * sizeof *rects);
     if (!rects)
         return -1;
     int n = 0;
+    /* deferred writes its trail up to trail_range cells around a point */
+    if (p->model == SIM_MODEL_DEFERRED && p->trail_range_cells + 1 > margin_cells)
+        margin_cells = p->trail_range_cells + 1;
     for (int i = 0; i < collider_count; i++) {
         footprints[i] = collider_footprint(w, p, &colliders[i], margin_cells);
         if (footprints[i].w > 0)
             rects[n++] = footprints[i];
     }
+    for (int i = 0; i < extra_count; i++)
+        rects[n++] = extra[i];
     for (int changed = 1; changed;) {
         changed = 0;
         for (int i = 0; i < n; i++) {
@@ -144,6 +158,14 @@ int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *co
     return 0;
 }
 
+int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
+                     int collider_count, int margin_cells, world_rect *footprints, world_rect **out,
+                     int *out_count)
+{
+    return plan_windows(w, p, colliders, collider_count, margin_cells, NULL, 0, footprints, out,
+                        out_count);
+}
+
 int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *backend,
                     int margin_cells, error_text *err)
 {
@@ -172,6 +194,10 @@ void sim_engine_free(sim_engine *e)
     free(e->heights);
     free(e->before);
     free(e->bottom);
+    free(e->model_scratch);
+    free(e->base);
+    free(e->refilling);
+    free(e->footprints_out);
     memset(e, 0, sizeof *e);
 }
 
@@ -208,13 +234,124 @@ static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *
     return (world_rect){r.x + x0, r.y + y0, x1 - x0 + 1, y1 - y0 + 1};
 }
 
-static uint64_t engine_scratch_bytes(const sim_engine *e)
+/* Scratch held now, by stage; the engine's packed windows are gather_scatter,
+ * the depth it casts for a model is depth, the models' own is model. */
+static void engine_memory(const sim_engine *e, sim_stage_memory *m)
 {
-    return (uint64_t)e->cell_capacity * 3 * sizeof(int32_t) +
-           (uint64_t)e->window_capacity *
-               (sizeof(world_rect) * 2 + sizeof(sim_window_job) + sizeof(int)) +
-           (uint64_t)e->footprint_capacity * sizeof(world_rect) +
-           (uint64_t)e->window_collider_capacity * sizeof(sim_collider);
+    memset(m, 0, sizeof *m);
+    if (e->backend->stage_bytes)
+        e->backend->stage_bytes(e->backend, m);
+    else
+        m->backend_other = e->backend->scratch_bytes(e->backend);
+    m->gather_scatter = (uint64_t)e->cell_capacity * 2 * sizeof(int32_t) +
+                        (uint64_t)e->window_capacity *
+                            (sizeof(world_rect) * 2 + sizeof(sim_window_job) + sizeof(int) +
+                             sizeof(int64_t) + sizeof(int)) +
+                        (uint64_t)e->footprint_capacity * sizeof(world_rect) +
+                        (uint64_t)e->window_collider_capacity * sizeof(sim_collider);
+    m->depth += (uint64_t)e->bottom_capacity * sizeof(int32_t);
+    m->model = (uint64_t)e->model_scratch_capacity * sizeof(int32_t) +
+               (uint64_t)e->base_capacity * sizeof(int32_t) +
+               (uint64_t)e->refilling_capacity * sizeof(world_rect) +
+               (uint64_t)e->footprint_out_capacity * sizeof(sim_footprint);
+}
+
+uint64_t sim_stage_memory_total(const sim_stage_memory *m)
+{
+    return m->depth + m->classify + m->jump_flood + m->displace + m->even_slopes +
+           m->backend_other + m->model + m->gather_scatter;
+}
+
+static void memory_peak(sim_stage_memory *peak, const sim_stage_memory *now)
+{
+    uint64_t *p = &peak->depth;
+    const uint64_t *n = &now->depth;
+    for (size_t i = 0; i < sizeof *peak / sizeof(uint64_t); i++)
+        if (n[i] > p[i])
+            p[i] = n[i];
+}
+
+/* Run the tick's windows through a non-persson model on the CPU. */
+static int run_model_windows(sim_engine *e, int count, sim_tick_report *report, error_text *err)
+{
+    const sim_params *p = &e->params;
+    int64_t largest = 0;
+    int refs = 0;
+    for (int i = 0; i < count; i++) {
+        int64_t n = (int64_t)e->windows[i].w * e->windows[i].h;
+        if (n > largest)
+            largest = n;
+        refs += e->jobs[i].collider_count;
+    }
+    int64_t need = sim_model_scratch_cells(p->model, largest);
+    if (grow((void **)&e->model_scratch, &e->model_scratch_capacity, need + 1, sizeof(int32_t)) !=
+        0)
+        goto oom;
+    if (p->model == SIM_MODEL_DECALS) {
+        int64_t cap = e->footprint_out_capacity;
+        if (grow((void **)&e->footprints_out, &cap, refs + 1, sizeof(sim_footprint)) != 0)
+            goto oom;
+        e->footprint_out_capacity = (int)cap;
+    }
+    int needs_depth = sim_model_needs_depth(p->model);
+    int64_t offset = 0;
+    for (int i = 0; i < count; i++) {
+        sim_window_job *job = &e->jobs[i];
+        int64_t n = (int64_t)job->rect.w * job->rect.h;
+        double t0 = time_now_ms();
+        if (needs_depth && !job->bottom_override) {
+            int32_t *bottom = e->bottom + offset;
+            for (int64_t k = 0; k < n; k++)
+                bottom[k] = COLLIDER_BOTTOM_NONE;
+            for (int c = 0; c < job->collider_count; c++)
+                collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, job->rect,
+                                   job->cell_size_m, job->units_per_m, bottom);
+            job->bottom_override = bottom;
+        }
+        double t1 = time_now_ms();
+        if (p->model == SIM_MODEL_DECALS) {
+            e->status[i] = SIM_WINDOW_OK;
+            report->footprint_count += sim_decals_window(
+                p, job, e->model_scratch, e->footprints_out + report->footprint_count,
+                e->footprint_out_capacity - report->footprint_count);
+        } else {
+            e->status[i] = sim_model_window(p, job, e->model_scratch);
+        }
+        report->times.depth += t1 - t0;
+        report->model_ms += time_now_ms() - t1;
+        offset += n;
+    }
+    report->footprints = e->footprints_out;
+    return 0;
+oom:
+    error_set(err, "sim: out of memory for the %s model's scratch", sim_model_name(p->model));
+    return -1;
+}
+
+/* subtract: the windows that still hold cells below base refill next tick. */
+static int keep_refilling(sim_engine *e, int count)
+{
+    e->refilling_count = 0;
+    int64_t offset = 0;
+    for (int i = 0; i < count; i++) {
+        world_rect r = e->windows[i];
+        int64_t n = (int64_t)r.w * r.h;
+        const int32_t *now = e->status[i] == SIM_WINDOW_OK ? e->heights + offset
+                                                            : e->before + offset;
+        int below = 0;
+        for (int64_t k = 0; k < n && !below; k++)
+            below = now[k] < e->base[offset + k];
+        if (below) {
+            int64_t cap = e->refilling_capacity;
+            if (grow((void **)&e->refilling, &cap, e->refilling_count + 1, sizeof(world_rect)) !=
+                0)
+                return -1;
+            e->refilling_capacity = (int)cap;
+            e->refilling[e->refilling_count++] = r;
+        }
+        offset += n;
+    }
+    return 0;
 }
 
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
@@ -230,8 +367,9 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
 
     world_rect *windows = NULL;
     int count = 0;
-    if (sim_plan_windows(w, &e->params, colliders, collider_count, e->margin_cells, e->footprints,
-                         &windows, &count) != 0)
+    int refilling = e->params.model == SIM_MODEL_SUBTRACT && e->params.refill_q16_per_tick > 0;
+    if (plan_windows(w, &e->params, colliders, collider_count, e->margin_cells, e->refilling,
+                     refilling ? e->refilling_count : 0, e->footprints, &windows, &count) != 0)
         goto oom;
     cap = e->window_capacity;
     int64_t cap2 = cap, cap3 = cap, cap4 = cap, cap5 = cap, cap6 = cap;
@@ -255,12 +393,27 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
         for (int c = 0; c < collider_count; c++)
             refs += e->footprints[c].w > 0 && world_rects_overlap(e->footprints[c], e->windows[i]);
     }
-    int64_t ccap = e->cell_capacity, ccap2 = ccap, ccap3 = ccap;
+    int persson = sim_model_is_persson(e->params.model);
+    int needs_base = !persson && sim_model_needs_base(&e->params);
+    int64_t ccap = e->cell_capacity, ccap2 = ccap;
     if (grow((void **)&e->heights, &ccap, cells + 1, sizeof(int32_t)) != 0 ||
-        grow((void **)&e->before, &ccap2, cells + 1, sizeof(int32_t)) != 0 ||
-        grow((void **)&e->bottom, &ccap3, cells + 1, sizeof(int32_t)) != 0)
+        grow((void **)&e->before, &ccap2, cells + 1, sizeof(int32_t)) != 0)
         goto oom;
     e->cell_capacity = ccap;
+    /* depth on the engine's side only where something reads it */
+    if ((e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model))) &&
+        grow((void **)&e->bottom, &e->bottom_capacity, cells + 1, sizeof(int32_t)) != 0)
+        goto oom;
+    if (needs_base && grow((void **)&e->base, &e->base_capacity, cells + 1, sizeof(int32_t)) != 0)
+        goto oom;
+    int32_t refill_units = 0;
+    if (refilling) {
+        /* whole units this tick, the fraction carried to the next */
+        e->refill_q16_accumulated += e->params.refill_q16_per_tick;
+        int64_t units = e->refill_q16_accumulated >> 16;
+        e->refill_q16_accumulated &= 0xffff;
+        refill_units = units > WORLD_HEIGHT_MAX ? WORLD_HEIGHT_MAX : (int32_t)units;
+    }
     int64_t rcap = e->window_collider_capacity;
     if (grow((void **)&e->window_colliders, &rcap, refs + 1, sizeof(sim_collider)) != 0)
         goto oom;
@@ -294,6 +447,9 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
             if (z < zmin)
                 zmin = z;
         }
+        if (needs_base && world_base_fill_rect(w, r, e->base + offset) == 0)
+            job->base_heights = e->base + offset;
+        job->refill_units = refill_units;
         job->depth_low = zmin - 1 > e->params.floor ? zmin - 1 : e->params.floor;
         job->depth_high = hmax + e->params.obstacle_gap + 1;
         if (e->depth_from_cpu) {
@@ -309,9 +465,19 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
     }
     report->gather_scatter_ms += time_now_ms() - t_start;
 
-    if (count > 0 && e->backend->run_windows(e->backend, &e->params, e->jobs, count, e->status,
-                                             &report->times, err) != 0)
+    if (count > 0 && persson &&
+        e->backend->run_windows(e->backend, &e->params, e->jobs, count, e->status, &report->times,
+                                err) != 0)
         return -1;
+    if (count > 0 && !persson) {
+        if (!e->warned_cpu_model && strcmp(e->backend->name, "cpu") != 0) {
+            log_info("sim: model %s has no %s version; it runs on the CPU",
+                     sim_model_name(e->params.model), e->backend->name);
+            e->warned_cpu_model = 1;
+        }
+        if (run_model_windows(e, count, report, err) != 0)
+            return -1;
+    }
 
     double t_scatter = time_now_ms();
     offset = 0;
@@ -337,7 +503,11 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
     report->gather_scatter_ms += time_now_ms() - t_scatter;
     if (cells > e->peak_active_cells)
         e->peak_active_cells = cells;
-    uint64_t scratch = engine_scratch_bytes(e) + e->backend->scratch_bytes(e->backend);
+    if (refilling && keep_refilling(e, count) != 0)
+        goto oom;
+    engine_memory(e, &e->memory);
+    memory_peak(&e->peak_memory, &e->memory);
+    uint64_t scratch = sim_stage_memory_total(&e->memory);
     if (scratch > e->peak_scratch_bytes)
         e->peak_scratch_bytes = scratch;
     return 0;

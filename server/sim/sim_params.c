@@ -23,8 +23,79 @@ sim_material sim_material_default(void)
         .slope_iterations = 10,
         .metric = SIM_METRIC_EUCLIDEAN,
         .method = SIM_METHOD_SSBO,
+        .model = SIM_MODEL_PERSSON_SSBO,
+        .tick_s = 1.0 / 60.0,
+        .refill_m_per_s = 0.0,
+        .trail_scale_per_m = 4.0,
+        .trail_range_m = 1.0,
+        .edge_height = 0.25,
+        .edge_width = 0.5,
+        .diffusion_d = 0.25, /* Gilardi's mud */
+        .diffusion_zeta_inv = 6e-4,
+        .diffusion_force_scale = 1000.0,
+        .diffusion_dt = 0.2,
+        .diffusion_substeps = SIM_DIFFUSION_SUBSTEPS_AUTO,
+        .diffusion_conservative = 1,
+        .decal_min_strength_m = 0.0,
     };
     return m;
+}
+
+int sim_material_diffusion_preset(sim_material *m, const char *name)
+{
+    /* Gilardi, Watten, Newbury, Fig. 4 */
+    if (strcmp(name, "mud") == 0) {
+        m->diffusion_zeta_inv = 6e-4;
+        m->repose_deg = 72.0; /* 2π/5 */
+        m->diffusion_d = 0.25;
+    } else if (strcmp(name, "pebbles") == 0) {
+        m->diffusion_zeta_inv = 3e-4;
+        m->repose_deg = 60.0; /* π/3 */
+        m->diffusion_d = 0.9;
+    } else if (strcmp(name, "sand") == 0) {
+        m->diffusion_zeta_inv = 4e-4;
+        m->repose_deg = 45.0; /* π/4 */
+        m->diffusion_d = 1.0;
+    } else {
+        return -1;
+    }
+    return 0;
+}
+
+/* Sumner's name is added here when model_sumner.c is merged (SIM_MODEL_SUMNER). */
+static const char *const model_names[SIM_MODEL_COUNT] = {
+    "persson-iterative", "persson-ssbo", "persson-multi", "subtract",
+    "deferred",          "diffusion",    "sumner",        "decals"};
+
+const char *sim_model_name(sim_model m)
+{
+    return (unsigned)m < SIM_MODEL_COUNT ? model_names[m] : "unknown";
+}
+
+int sim_model_parse(const char *name, sim_model *out)
+{
+    for (int i = 0; i < SIM_MODEL_COUNT; i++) {
+        if (i == SIM_MODEL_SUMNER)
+            continue; /* not in this build */
+        if (name && strcmp(name, model_names[i]) == 0) {
+            *out = (sim_model)i;
+            return 0;
+        }
+    }
+    return -1;
+}
+
+int sim_model_is_persson(sim_model m)
+{
+    return m == SIM_MODEL_PERSSON_ITERATIVE || m == SIM_MODEL_PERSSON_SSBO ||
+           m == SIM_MODEL_PERSSON_MULTI;
+}
+
+sim_model sim_model_from_method(sim_method m)
+{
+    return m == SIM_METHOD_ITERATIVE ? SIM_MODEL_PERSSON_ITERATIVE
+           : m == SIM_METHOD_MULTI   ? SIM_MODEL_PERSSON_MULTI
+                                     : SIM_MODEL_PERSSON_SSBO;
 }
 
 static const char *const metric_names[] = {"euclidean", "manhattan", "chebyshev"};
@@ -124,6 +195,72 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         error_set(err, "material.method: unknown method");
         return -1;
     }
+    if ((unsigned)m->model >= SIM_MODEL_COUNT || m->model == SIM_MODEL_SUMNER) {
+        error_set(err, "material.model: unknown or unavailable model");
+        return -1;
+    }
+    if (sim_model_is_persson(m->model) && sim_model_from_method(m->method) != m->model) {
+        error_set(err, "material.method: %s does not match material.model %s",
+                  sim_method_name(m->method), sim_model_name(m->model));
+        return -1;
+    }
+    if (!isfinite(m->tick_s) || m->tick_s <= 0.0 || m->tick_s > 3600.0) {
+        error_set(err, "tick_hz: the tick must last (0, 3600] s (got %g s)", m->tick_s);
+        return -1;
+    }
+    if (!in_range(m->refill_m_per_s, 0.0, 1000.0)) {
+        error_set(err, "material.refill_m_per_s: must be a number in [0, 1000] (got %g)",
+                  m->refill_m_per_s);
+        return -1;
+    }
+    if (!in_range(m->trail_scale_per_m, 0.0, 1e6)) {
+        error_set(err, "material.trail_scale_per_m: must be a number in [0, 1e6] (got %g)",
+                  m->trail_scale_per_m);
+        return -1;
+    }
+    if (!in_range(m->trail_range_m, 0.0, 1000.0)) {
+        error_set(err, "material.trail_range_m: must be a number in [0, 1000] (got %g)",
+                  m->trail_range_m);
+        return -1;
+    }
+    if (!in_range(m->edge_height, 0.0, 100.0)) {
+        error_set(err, "material.edge_height: must be a number in [0, 100] (got %g)",
+                  m->edge_height);
+        return -1;
+    }
+    if (!isfinite(m->edge_width) || m->edge_width <= 0.0 || m->edge_width > 100.0) {
+        error_set(err, "material.edge_width: must be a number in (0, 100] (got %g)",
+                  m->edge_width);
+        return -1;
+    }
+    if (!in_range(m->diffusion_d, 0.0, 1e12)) {
+        error_set(err, "material.D: must be a number in [0, 1e12] (got %g)", m->diffusion_d);
+        return -1;
+    }
+    if (!in_range(m->diffusion_zeta_inv, 0.0, 1e12)) {
+        error_set(err, "material.zeta_inv: must be a number in [0, 1e12] (got %g)",
+                  m->diffusion_zeta_inv);
+        return -1;
+    }
+    if (!in_range(m->diffusion_force_scale, 0.0, 1e12)) {
+        error_set(err, "material.force_scale: must be a number in [0, 1e12] (got %g)",
+                  m->diffusion_force_scale);
+        return -1;
+    }
+    if (!in_range(m->diffusion_dt, 0.0, 1e12)) {
+        error_set(err, "material.dt: must be a number in [0, 1e12] (got %g)", m->diffusion_dt);
+        return -1;
+    }
+    if (m->diffusion_substeps < 0 || m->diffusion_substeps > 100000) {
+        error_set(err, "material.substeps: must be \"auto\" or an integer in [1, 100000] (got %d)",
+                  m->diffusion_substeps);
+        return -1;
+    }
+    if (!in_range(m->decal_min_strength_m, 0.0, 1000.0)) {
+        error_set(err, "material.decal_min_strength_m: must be a number in [0, 1000] (got %g)",
+                  m->decal_min_strength_m);
+        return -1;
+    }
     if (!isfinite(cell_size_m) || cell_size_m <= 0.0 || units_per_m < 1) {
         error_set(err, "world: cell size and units per metre must be positive");
         return -1;
@@ -144,5 +281,26 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
     p->displace_iterations = m->displace_iterations;
     p->slope_iterations = m->slope_iterations;
     p->floor = floor_units;
+    p->model = m->model;
+    p->refill_q16_per_tick =
+        (int64_t)llround(m->refill_m_per_s * units_per_m * m->tick_s * 65536.0);
+    /* d is measured in cells: scale per m -> units per cell^2 */
+    double scale_units = m->trail_scale_per_m * cell_size_m * cell_size_m * units_per_m;
+    double scale_q16 = scale_units * 65536.0;
+    p->trail_scale_q16 = scale_q16 >= 2147483647.0 ? 2147483647 : (int32_t)llround(scale_q16);
+    double range = floor(m->trail_range_m / cell_size_m);
+    p->trail_range_cells = range > 1024.0 ? 1024 : (int32_t)range;
+    p->edge_height_q16 = (int32_t)lround(m->edge_height * 65536.0);
+    p->edge_width_q16 = (int32_t)lround(m->edge_width * 65536.0);
+    p->diffusion_d = m->diffusion_d;
+    p->diffusion_zeta_inv = m->diffusion_zeta_inv;
+    p->diffusion_force_scale = m->diffusion_force_scale;
+    p->diffusion_dt = m->diffusion_dt;
+    p->diffusion_substeps = m->diffusion_substeps;
+    p->diffusion_conservative = m->diffusion_conservative ? 1 : 0;
+    p->repose_rad = m->repose_deg * M_PI / 180.0;
+    p->cell_size_m = cell_size_m;
+    p->units_per_m = units_per_m;
+    p->decal_min_strength = units_saturated(m->decal_min_strength_m * units_per_m);
     return 0;
 }

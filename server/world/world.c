@@ -552,3 +552,9 @@ world_rect world_rect_union(world_rect a, world_rect b)
     int64_t y1 = (int64_t)a.y + a.h > (int64_t)b.y + b.h ? (int64_t)a.y + a.h : (int64_t)b.y + b.h;
     return (world_rect){(int)x0, (int)y0, (int)(x1 - x0), (int)(y1 - y0)};
 }
+
+int world_base_fill_rect(const world *w, world_rect r, int32_t *dst)
+{
+    world_base_fill(w, &w->store->base, r, dst, (size_t)r.w);
+    return 0;
+}

@@ -85,6 +85,14 @@ void world_free(world *w);
  * array. Errors name the file or the field. */
 int world_generate_base(world *w, const world_base_spec *spec, error_text *err);
 
+/*
+ * Fill dst (r.w * r.h, row-major) with the base terrain's heights over r (already
+ * clipped): what the world was before anything pressed into it, whatever happened
+ * since. Models that relax towards the untouched ground (subtract's refill) read it.
+ * Returns 0 (every world has a base: flat 0 until world_generate_base).
+ */
+int world_base_fill_rect(const world *w, world_rect r, int32_t *dst);
+
 /* Σh over the whole world, exactly: the base's Σh (closed form for flat, the
  * sum of the file for png16 / raw, one pass over the noise for dunes, done the
  * first time it is asked for and kept) plus the exact sum of every change

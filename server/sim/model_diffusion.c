@@ -1,0 +1,317 @@
+/*
+ * model_diffusion.c: Gilardi, Watten and Newbury's drift-diffusion terrain
+ * (eq. 1-8), in two forms, chosen by material.conservative:
+ *
+ *   conservative (default): an integer flux form. Every edge between two
+ *     neighbouring cells of the window carries one flux per substep,
+ *     computed once and applied + to one cell and - to the other, so Σh over
+ *     the window is exact whatever happens. Two fluxes share the edge:
+ *       diffusion  c_d * (|Δh| - T)+ downhill, T the angle of repose as a
+ *                  height threshold (the role of Gilardi's weights w, eq. 4);
+ *       drift      c_z * ((p_i - p_j) + (p_i + p_j)/2 * u·e), the collider's
+ *                  push (eq. 2's -∇·(F ζ⁻¹) with F = force_scale * p (u + radial)):
+ *                  p is the penetration of the column, u the travel direction
+ *                  of the nearest collider, e the edge's direction.
+ *     A cell never gives more than it has above the floor (its outgoing
+ *     fluxes are scaled down together), so no column crosses the floor.
+ *
+ *   Gilardi's scheme: eq. 6-8 as published, explicit and centred, in double,
+ *     heights measured in cells (Δx = 1); the result is rounded back to
+ *     integer units each tick. It drifts in volume (they saw it; the rounding
+ *     adds to it) and, with a fixed substep count and Δt past its limit, it
+ *     oscillates and grows: the window is then refused at the height limit
+ *     rather than let a NaN or a wrapped value into the world.
+ *
+ * Stability, and why any Δt works under automatic sub-stepping: with
+ * c_d + c_z <= 1/8 per substep, a cell's new height is a convex combination
+ * of its own and its neighbours' (4 edges, each weight <= 1/8, own weight
+ * >= 1/2): no new maximum or minimum from diffusion (a maximum principle),
+ * and the checkerboard mode's factor 1 - 8c stays >= 0, so nothing
+ * oscillates. Auto picks n = ceil(8 (D + ζ⁻¹ force_scale) Δt) substeps of
+ * Δt/n; past SIM_DIFFUSION_SUBSTEPS_MAX it runs that many at the bound (the
+ * tick is "saturated": the material relaxes as fast as it can be resolved,
+ * which for such Δt is to its rest state anyway). Integer fluxes round
+ * toward zero, which only lowers the weights.
+ */
+#include "sim/sim.h"
+
+#include <math.h>
+#include <string.h>
+
+#define STABLE_SUM (1.0 / 8.0)
+
+int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift)
+{
+    double cd = p->diffusion_d * p->diffusion_dt;
+    double cz = p->diffusion_zeta_inv * p->diffusion_force_scale * p->diffusion_dt;
+    if (!isfinite(cd))
+        cd = 1e300;
+    if (!isfinite(cz))
+        cz = 1e300;
+    double total = cd + cz;
+    int n;
+    if (p->diffusion_substeps != SIM_DIFFUSION_SUBSTEPS_AUTO) {
+        n = p->diffusion_substeps;
+    } else {
+        double need = ceil(total / STABLE_SUM);
+        n = need < 1.0 ? 1 : need > SIM_DIFFUSION_SUBSTEPS_MAX ? SIM_DIFFUSION_SUBSTEPS_MAX
+                                                                : (int)need;
+    }
+    cd /= n;
+    cz /= n;
+    /* the integer form always keeps the bound; Gilardi's scheme only under auto */
+    if ((p->diffusion_conservative || p->diffusion_substeps == SIM_DIFFUSION_SUBSTEPS_AUTO) &&
+        cd + cz > STABLE_SUM) {
+        double k = STABLE_SUM / (cd + cz);
+        cd *= k;
+        cz *= k;
+    }
+    *c_diffusion = cd;
+    *c_drift = cz;
+    return n;
+}
+
+/* Travel direction (unit, or 0) of collider c in the window. */
+static void travel(const sim_collider *c, double *ux, double *uy)
+{
+    *ux = *uy = 0.0;
+    if (!c->has_previous)
+        return;
+    double dx = c->pose.position.x - c->previous_pose.position.x;
+    double dy = c->pose.position.y - c->previous_pose.position.y;
+    double len = hypot(dx, dy);
+    if (!(len > 1e-12) || !isfinite(len))
+        return;
+    *ux = dx / len;
+    *uy = dy / len;
+}
+
+/* The collider nearest (in xy) to each cell: whose travel pushes it. */
+static void nearest_collider(const sim_window_job *job, int32_t *owner)
+{
+    int w = job->rect.w, h = job->rect.h;
+    for (int y = 0; y < h; y++) {
+        double cy = (job->rect.y + y + 0.5) * job->cell_size_m;
+        for (int x = 0; x < w; x++) {
+            double cx = (job->rect.x + x + 0.5) * job->cell_size_m;
+            int best = -1;
+            double best_d = 0.0;
+            for (int c = 0; c < job->collider_count; c++) {
+                vec3d q = job->colliders[c].pose.position;
+                double d = (q.x - cx) * (q.x - cx) + (q.y - cy) * (q.y - cy);
+                if (best < 0 || d < best_d) {
+                    best = c;
+                    best_d = d;
+                }
+            }
+            owner[(int64_t)y * w + x] = best;
+        }
+    }
+}
+
+static int32_t penetration(const sim_params *p, int32_t h, int32_t bottom)
+{
+    int32_t under = bottom > p->floor ? bottom : p->floor;
+    return h > under ? h - under : 0;
+}
+
+/* floor(c * v) toward zero, c in [0, 1/8] as Q32, |v| < 2^31. */
+static int64_t scaled(int64_t c_q32, int64_t v)
+{
+    int64_t m = v < 0 ? -v : v;
+    int64_t r = (int64_t)(((uint64_t)c_q32 * (uint64_t)m) >> 32);
+    return v < 0 ? -r : r;
+}
+
+/* Flux from a to b (negative: b to a) across one edge; u·e in Q16. */
+static int64_t edge_flux(const sim_params *p, int64_t cd_q32, int64_t cz_q32, int32_t ha,
+                         int32_t hb, int32_t pa, int32_t pb, int64_t ue_q16)
+{
+    int64_t dh = (int64_t)ha - hb, flux = 0;
+    int64_t t = p->slope_threshold_axial;
+    if (dh > t)
+        flux += scaled(cd_q32, dh - t);
+    else if (dh < -t)
+        flux += scaled(cd_q32, dh + t);
+    if (pa || pb) {
+        int64_t push = (int64_t)pa - pb + ((((int64_t)pa + pb) * ue_q16) >> 17);
+        flux += scaled(cz_q32, push);
+    }
+    return flux;
+}
+
+static sim_window_status conservative_window(const sim_params *p, sim_window_job *job,
+                                             int32_t *scratch)
+{
+    int w = job->rect.w, h = job->rect.h;
+    int64_t n = (int64_t)w * h;
+    int32_t *pen = scratch, *fx = pen + n, *fy = fx + n, *owner = fy + n;
+    int64_t *out = (int64_t *)(void *)(owner + n); /* 4n int32 in: 8-byte aligned */
+    int32_t *heights = job->heights;
+    const int32_t *bottom = job->bottom_override;
+    double cd, cz;
+    int steps = sim_diffusion_substeps(p, &cd, &cz);
+    int64_t cd_q32 = (int64_t)floor(cd * 4294967296.0);
+    int64_t cz_q32 = (int64_t)floor(cz * 4294967296.0);
+    if (cd_q32 == 0 && cz_q32 == 0)
+        return SIM_WINDOW_OK; /* D = 0 and no drift: nothing moves */
+    nearest_collider(job, owner);
+    for (int s = 0; s < steps; s++) {
+        for (int64_t i = 0; i < n; i++) {
+            pen[i] = penetration(p, heights[i], bottom[i]);
+            out[i] = 0;
+        }
+        /* fluxes, once per edge: fx[i] from i to i+1, fy[i] from i to i+w */
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int64_t i = (int64_t)y * w + x;
+                double ux = 0.0, uy = 0.0;
+                int o = owner[i];
+                if (o >= 0 && (pen[i] || (x + 1 < w && pen[i + 1]) || (y + 1 < h && pen[i + w])))
+                    travel(&job->colliders[o], &ux, &uy);
+                fx[i] = fy[i] = 0;
+                if (x + 1 < w) {
+                    int64_t f = edge_flux(p, cd_q32, cz_q32, heights[i], heights[i + 1], pen[i],
+                                          pen[i + 1], (int64_t)lround(ux * 65536.0));
+                    fx[i] = (int32_t)f;
+                    out[f > 0 ? i : i + 1] += f > 0 ? f : -f;
+                }
+                if (y + 1 < h) {
+                    int64_t f = edge_flux(p, cd_q32, cz_q32, heights[i], heights[i + w], pen[i],
+                                          pen[i + w], (int64_t)lround(uy * 65536.0));
+                    fy[i] = (int32_t)f;
+                    out[f > 0 ? i : i + w] += f > 0 ? f : -f;
+                }
+            }
+        }
+        /* a cell gives at most what it has above the floor: scale its outflows
+         * together (each edge has one giver, so the sum stays exact) */
+        for (int64_t i = 0; i < n; i++) {
+            int64_t avail = (int64_t)heights[i] - p->floor;
+            if (avail < 0)
+                avail = 0;
+            out[i] = out[i] > avail ? (avail << 20) / out[i] : -1; /* Q20 factor, -1 = 1 */
+        }
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int64_t i = (int64_t)y * w + x;
+                if (x + 1 < w && fx[i]) {
+                    int64_t giver = fx[i] > 0 ? i : i + 1;
+                    if (out[giver] >= 0)
+                        fx[i] = (int32_t)(fx[i] > 0 ? (fx[i] * out[giver]) >> 20
+                                                    : -((-(int64_t)fx[i] * out[giver]) >> 20));
+                }
+                if (y + 1 < h && fy[i]) {
+                    int64_t giver = fy[i] > 0 ? i : i + w;
+                    if (out[giver] >= 0)
+                        fy[i] = (int32_t)(fy[i] > 0 ? (fy[i] * out[giver]) >> 20
+                                                    : -((-(int64_t)fy[i] * out[giver]) >> 20));
+                }
+            }
+        }
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int64_t i = (int64_t)y * w + x;
+                int64_t v = heights[i];
+                if (x + 1 < w)
+                    v -= fx[i];
+                if (x > 0)
+                    v += fx[i - 1];
+                if (y + 1 < h)
+                    v -= fy[i];
+                if (y > 0)
+                    v += fy[i - w];
+                if (v > WORLD_HEIGHT_MAX || v < WORLD_HEIGHT_MIN)
+                    return SIM_WINDOW_HEIGHT_LIMIT;
+                /* fluxes were read from pen/fx/fy only: in place is safe */
+                out[i] = v;
+            }
+        }
+        for (int64_t i = 0; i < n; i++)
+            heights[i] = (int32_t)out[i];
+    }
+    return SIM_WINDOW_OK;
+}
+
+/* Gilardi eq. 4 / 8: the weight of one direction. */
+static double repose_weight(double d, double alpha)
+{
+    double span = M_PI / 2.0 - alpha;
+    if (!(span > 1e-12))
+        return 0.0;
+    double w = (fabs(d) - alpha) / span;
+    return w < 0.0 ? 0.0 : w > 1.0 ? 1.0 : w;
+}
+
+static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job,
+                                        int32_t *scratch)
+{
+    int w = job->rect.w, h = job->rect.h;
+    int64_t n = (int64_t)w * h;
+    double *H = (double *)(void *)scratch, *next = H + n, *Fx = next + n, *Fy = Fx + n;
+    int32_t *owner = (int32_t *)(void *)(Fy + n);
+    double cell_units = (double)p->units_per_m * p->cell_size_m; /* units per cell of height */
+    const int32_t *bottom = job->bottom_override;
+    double cd, cz;
+    int steps = sim_diffusion_substeps(p, &cd, &cz);
+    double dt = p->diffusion_dt / steps;
+    nearest_collider(job, owner);
+    for (int64_t i = 0; i < n; i++)
+        H[i] = job->heights[i] / cell_units;
+    for (int s = 0; s < steps; s++) {
+        /* F = force_scale * (p u - ∇p), p in cells, spread over the contact */
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int64_t i = (int64_t)y * w + x;
+                int32_t hi = (int32_t)fmax(fmin(H[i] * cell_units, WORLD_HEIGHT_MAX),
+                                           WORLD_HEIGHT_MIN);
+                double pc = penetration(p, hi, bottom[i]) / cell_units;
+                double ux = 0.0, uy = 0.0;
+                if (owner[i] >= 0 && pc > 0.0)
+                    travel(&job->colliders[owner[i]], &ux, &uy);
+                Fx[i] = p->diffusion_force_scale * pc * ux;
+                Fy[i] = p->diffusion_force_scale * pc * uy;
+            }
+        }
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++) {
+                int64_t i = (int64_t)y * w + x;
+                int64_t l = x > 0 ? i - 1 : i, r = x + 1 < w ? i + 1 : i;
+                int64_t d = y > 0 ? i - w : i, u = y + 1 < h ? i + w : i;
+                /* eq. 6 and its z twin (Δx = 1) */
+                double dx = p->diffusion_d * (H[l] + H[r] - 2.0 * H[i]) -
+                            0.5 * p->diffusion_zeta_inv * (Fx[r] - Fx[l]);
+                double dy = p->diffusion_d * (H[d] + H[u] - 2.0 * H[i]) -
+                            0.5 * p->diffusion_zeta_inv * (Fy[u] - Fy[d]);
+                /* eq. 7 with the weights of eq. 4 / 8 */
+                next[i] = H[i] + dt * (repose_weight(dx, p->repose_rad) * dx +
+                                       repose_weight(dy, p->repose_rad) * dy);
+            }
+        }
+        double *t = H;
+        H = next;
+        next = t;
+    }
+    /* back to integer units; a non-finite or out-of-range column refuses the window */
+    int32_t *heights = job->heights;
+    for (int64_t i = 0; i < n; i++) {
+        double u = H[i] * cell_units;
+        if (!isfinite(u) || u > WORLD_HEIGHT_MAX || u < WORLD_HEIGHT_MIN)
+            return SIM_WINDOW_HEIGHT_LIMIT;
+    }
+    for (int64_t i = 0; i < n; i++) {
+        int32_t v = (int32_t)llround(H[i] * cell_units);
+        /* material never goes below the floor; a column already under it stays */
+        if (v < p->floor)
+            v = heights[i] < p->floor ? heights[i] : p->floor;
+        heights[i] = v;
+    }
+    return SIM_WINDOW_OK;
+}
+
+sim_window_status sim_diffusion_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
+{
+    if (p->diffusion_conservative)
+        return conservative_window(p, job, scratch);
+    return gilardi_window(p, job, scratch);
+}
