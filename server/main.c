@@ -48,6 +48,7 @@ void app_print_help(void)
            "  --format F          raw32 (little-endian int32, row-major; default) or png16\n"
            "                      (height = value * scale + offset, written to FILE.json)\n"
            "  --region x,y,w,h    a region in cells (default: the whole world)\n"
+           "  --tick T            the world as of tick T (default: the last logged tick)\n"
            "\n"
            "simulate options:\n"
            "  --scene FILE        scene JSON with scripted colliders (default: embedded scene)\n"

@@ -39,6 +39,7 @@ int app_export(int argc, char **argv)
 {
     const char *data = "./data", *scene_path = NULL, *out = NULL, *format = "raw32";
     world_rect region = {0, 0, 0, 0};
+    long long upto_tick = 0;
     int have_region = 0;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -55,7 +56,14 @@ int app_export(int argc, char **argv)
             out = v;
         else if (strcmp(a, "--format") == 0)
             format = v;
-        else if (strcmp(a, "--region") == 0) {
+        else if (strcmp(a, "--tick") == 0) {
+            char *end;
+            upto_tick = strtoll(v, &end, 10);
+            if (!*v || *end || upto_tick < 1) {
+                fprintf(stderr, "terrad export: --tick must be a tick number >= 1 (got %s)\n", v);
+                return 2;
+            }
+        } else if (strcmp(a, "--region") == 0) {
             char tail;
             if (sscanf(v, "%d,%d,%d,%d%c", &region.x, &region.y, &region.w, &region.h, &tail) !=
                     4 ||
@@ -95,7 +103,7 @@ int app_export(int argc, char **argv)
         return 1;
     }
     store_recovery rec;
-    if (store_load_readonly(data, &w, &rec, &err) != 0) {
+    if (store_load_readonly(data, &w, (uint64_t)upto_tick, &rec, &err) != 0) {
         log_error("%s", err.message);
         goto done;
     }

@@ -341,7 +341,7 @@ static world_rect tile_rect(int width, int height, int tx, int ty)
 }
 
 /* Read one tile snapshot into w; errors name the file. */
-static int tile_load(const char *path, world *w, error_text *err)
+static int tile_load(const char *path, world *w, uint64_t upto_tick, error_text *err)
 {
     uint8_t *data = NULL;
     size_t len = 0;
@@ -371,6 +371,13 @@ static int tile_load(const char *path, world *w, error_text *err)
         ty >= (uint32_t)((w->height + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE)) {
         error_set(err, "store: tile snapshot %s names tile (%u, %u) outside the world", path, tx,
                   ty);
+        goto out;
+    }
+    if (upto_tick && get64(data + 36) > upto_tick) {
+        error_set(err,
+                  "store: tile snapshot %s is of tick %llu, after tick %llu: the log before it "
+                  "was compacted away",
+                  path, (unsigned long long)get64(data + 36), (unsigned long long)upto_tick);
         goto out;
     }
     world_rect r = tile_rect(w->width, w->height, (int)tx, (int)ty);
@@ -447,7 +454,7 @@ typedef struct replay_result {
 /* Apply every good record of one segment to w (and mark changed tiles). Stops
  * at the first record that is torn or fails its checksum. */
 static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
-                          replay_result *res)
+                          uint64_t upto_tick, replay_result *res)
 {
     memset(res, 0, sizeof *res);
     res->last_tick = after_tick;
@@ -489,6 +496,8 @@ static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t
             break;
         }
         const uint8_t *p = h + REC_HEADER;
+        if (upto_tick && tick > upto_tick)
+            break; /* a rebuild as of an earlier tick: the rest is not wanted */
         if (store_crc32c(0, p, plen) != get32(h + 16)) {
             snprintf(res->problem, sizeof res->problem,
                      "record of tick %llu at offset %zu fails its payload checksum",
@@ -585,8 +594,8 @@ static void segment_path(const char *dir, uint64_t seq, char *out, size_t cap)
 
 /* Load tile snapshots, then replay every segment. With `repair`, a torn tail
  * of the last segment is cut off the file; without, it is only skipped. */
-static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint64_t *last_seq,
-                   store_recovery *rec, error_text *err)
+static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint64_t upto_tick,
+                   uint64_t *last_seq, store_recovery *rec, error_text *err)
 {
     double t0 = time_now_ms();
     memset(rec, 0, sizeof *rec);
@@ -600,7 +609,7 @@ static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint
             if (n > 5 && strcmp(e->d_name + n - 5, ".snap") == 0) {
                 char path[1400];
                 snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
-                if (tile_load(path, w, err) != 0) {
+                if (tile_load(path, w, upto_tick, err) != 0) {
                     closedir(d);
                     return -1;
                 }
@@ -620,7 +629,7 @@ static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint
         char path[1100];
         segment_path(dir, seqs[i], path, sizeof path);
         replay_result res;
-        if (segment_replay(path, w, changed, tick, &res) != 0) {
+        if (segment_replay(path, w, changed, tick, upto_tick, &res) != 0) {
             error_set(err, "store: cannot read log segment %s: %s", path, strerror(errno));
             free(seqs);
             return -1;
@@ -877,7 +886,7 @@ store *store_open(const store_config *c, world *w, store_recovery *rec, error_te
             goto fail;
     }
     uint64_t last_seq = 0;
-    if (recover(st->dir, w, st->changed, 1, &last_seq, rec, err) != 0)
+    if (recover(st->dir, w, st->changed, 1, 0, &last_seq, rec, err) != 0)
         goto fail;
     st->appended_tick = st->durable_tick = rec->tick;
     /* a fresh segment: nothing is ever appended after a possibly cut tail */
@@ -1075,7 +1084,8 @@ int store_settle(store *st)
     return sync_now(st) == 0;
 }
 
-int store_load_readonly(const char *dir, world *w, store_recovery *rec, error_text *err)
+int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
+                        error_text *err)
 {
     char path[1100];
     snprintf(path, sizeof path, "%s/MANIFEST", dir);
@@ -1083,5 +1093,5 @@ int store_load_readonly(const char *dir, world *w, store_recovery *rec, error_te
     if (manifest_check(path, w, base_crc, err) != 0)
         return -1;
     uint64_t last_seq;
-    return recover(dir, w, NULL, 0, &last_seq, rec, err);
+    return recover(dir, w, NULL, 0, upto_tick, &last_seq, rec, err);
 }

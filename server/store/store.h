@@ -88,8 +88,12 @@ uint64_t store_durable_tick(const store *st);
 /* ---- offline use (terrad export, tests) ---- */
 
 /* Read-only recovery into w (base terrain already in it): nothing is cut or
- * written, no lock taken; a torn tail is skipped and reported in rec. */
-int store_load_readonly(const char *dir, world *w, store_recovery *rec, error_text *err);
+ * written, no lock taken; a torn tail is skipped and reported in rec. With
+ * upto_tick > 0 the world is rebuilt as of that tick (log records after it
+ * are not applied); refused when a tile snapshot is newer than it (the log
+ * before the snapshot was compacted away). */
+int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
+                        error_text *err);
 
 /* CRC32C (Castagnoli), as every record, snapshot and the manifest use it. */
 uint32_t store_crc32c(uint32_t crc, const void *data, size_t len);

@@ -160,7 +160,7 @@ static void test_round_trip(void)
     /* read-only recovery sees the same and writes nothing */
     world ro;
     make_base(&ro);
-    CHECK(store_load_readonly(dir, &ro, &rec, &err) == 0 && same_heights(&live, &ro),
+    CHECK(store_load_readonly(dir, &ro, 0, &rec, &err) == 0 && same_heights(&live, &ro),
           "read-only load: %s", err.message);
     world_free(&ro);
     world_free(&live);
@@ -204,6 +204,12 @@ static void test_compaction(void)
     st = open_dir(&again, &rec, 20000, &err);
     CHECK(st && rec.tick == 150 && same_heights(&back, &again), "second recovery: %s", err.message);
     store_close(st);
+
+    world ro;
+    make_base(&ro);
+    CHECK(store_load_readonly(dir, &ro, 2, &rec, &err) != 0 && strstr(err.message, "compacted"),
+          "a rebuild as of a compacted tick is refused: %s", err.message);
+    world_free(&ro);
 
     /* a truncated, then a bit-flipped tile snapshot: refused, naming the file */
     char snap[400];
@@ -279,6 +285,12 @@ static void test_torn_tail(void)
     error_text err = {{0}};
     store_recovery rec;
     store_close(ten_ticks(&live, &at9, &err));
+    world ro;
+    make_base(&ro);
+    CHECK(store_load_readonly(dir, &ro, 9, &rec, &err) == 0 && rec.tick == 9 &&
+              same_heights(&ro, &at9),
+          "rebuilt as of tick 9: %s", err.message);
+    world_free(&ro);
     char seg[700];
     segment_name(0, seg, sizeof seg);
     long size = file_size(seg);
