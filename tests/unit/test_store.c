@@ -224,7 +224,6 @@ static void test_compaction(void)
     store_close(st);
     CHECK(truncate(snap, size) == 0, "restore length");
     flip_byte(snap, size - 7); /* the zero bytes truncate put back are wrong anyway */
-    make_base(&bad);
     world_free(&bad);
     make_base(&bad);
     st = open_dir(&bad, &rec, 0, &err);
@@ -324,6 +323,9 @@ static void test_flipped_record(void)
     store_close(st);
 
     /* the same damage in a segment that is not the last: refused, naming it */
+    world_free(&live);
+    world_free(&at9);
+    world_free(&back);
     store_close(ten_ticks(&live, &at9, &err));
     make_base(&back);
     st = open_dir(&back, &rec, 0, &err); /* starts a second segment */
