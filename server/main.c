@@ -13,6 +13,7 @@ void app_print_help(void)
            "usage:\n"
            "  terrad serve [options]        run the daemon (the default command)\n"
            "  terrad simulate [options]     run a scene offline and print a JSON report\n"
+           "  terrad export [options]       write a data directory's world (or a region)\n"
            "  terrad --help | --version\n"
            "\n"
            "serve options:\n"
@@ -30,6 +31,24 @@ void app_print_help(void)
            "  --demo-actors N     built-in spheres sliding over the terrain (default 6)\n"
            "  --no-demo           no demo actors\n"
            "  --ticks N           stop after N ticks (default: run until SIGINT/SIGTERM)\n"
+           "  --data DIR          data directory: tile snapshots + write-ahead log, recovered\n"
+           "                      at start (default ./data; docs/storage.md)\n"
+           "  --no-data           keep the terrain in memory only\n"
+           "  --durability P      every-tick (default: fdatasync before a tick is published),\n"
+           "                      group:MS (one fdatasync per MS ms; ticks held until it) or\n"
+           "                      none (written before publish, never synced)\n"
+           "  --wal-segment-bytes N  compact the log into tile snapshots past N bytes (16 MiB)\n"
+           "  --store-fault FILE  test hook: storage writes fail ENOSPC while FILE exists\n"
+           "                      (also TERRAD_STORE_FAULT)\n"
+           "\n"
+           "export options:\n"
+           "  --data DIR          data directory (default ./data); read only, never repaired\n"
+           "  --scene FILE        the scene the daemon ran (default: the embedded scene)\n"
+           "  --out FILE          output file (required)\n"
+           "  --format F          raw32 (little-endian int32, row-major; default) or png16\n"
+           "                      (height = value * scale + offset, written to FILE.json)\n"
+           "  --region x,y,w,h    a region in cells (default: the whole world)\n"
+           "  --tick T            the world as of tick T (default: the last logged tick)\n"
            "\n"
            "simulate options:\n"
            "  --scene FILE        scene JSON with scripted colliders (default: embedded scene)\n"
@@ -61,6 +80,8 @@ int main(int argc, char **argv)
         return app_simulate(argc - 2, argv + 2);
     if (strcmp(command, "serve") == 0)
         return app_serve(argc - 2, argv + 2);
+    if (strcmp(command, "export") == 0)
+        return app_export(argc - 2, argv + 2);
     if (command[0] == '-') /* options without a command: serve */
         return app_serve(argc - 1, argv + 1);
     fprintf(stderr, "terrad: unknown command \"%s\" (see terrad --help)\n", command);

@@ -11,6 +11,7 @@
 
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
+int app_export(int argc, char **argv); /* a data directory's world to raw32 / png16 */
 void app_print_help(void);
 
 /* "gl" or "cpu". */

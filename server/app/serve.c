@@ -27,6 +27,7 @@
 #include "net/net.h"
 #include "scene/scene.h"
 #include "service/service.h"
+#include "store/store.h"
 
 static volatile sig_atomic_t stop_requested;
 
@@ -47,7 +48,11 @@ typedef struct serve_options {
     const char *token; /* NULL: no token required */
     long max_ticks;    /* < 0: run until signalled */
     net_limits limits;
-    cJSON *config; /* the --config document, kept for its strings */
+    const char *data_dir;    /* NULL: memory only (--no-data) */
+    const char *durability;  /* every-tick | group:MS | none */
+    long wal_segment_bytes;  /* compaction threshold */
+    const char *store_fault; /* test hook: writes fail ENOSPC while this file exists */
+    cJSON *config;           /* the --config document, kept for its strings */
 } serve_options;
 
 static int parse_int(const char *flag, const char *v, long lo, long hi, long *out)
@@ -98,6 +103,17 @@ static int load_config(const char *path, serve_options *o)
             o->backend = item->valuestring;
         else if (strcmp(k, "token") == 0 && cJSON_IsString(item))
             o->token = item->valuestring;
+        else if (strcmp(k, "data") == 0 && cJSON_IsString(item))
+            o->data_dir = item->valuestring;
+        else if (strcmp(k, "no_data") == 0 && cJSON_IsBool(item))
+            o->data_dir = cJSON_IsTrue(item) ? NULL : o->data_dir;
+        else if (strcmp(k, "durability") == 0 && cJSON_IsString(item))
+            o->durability = item->valuestring;
+        else if (strcmp(k, "store_fault") == 0 && cJSON_IsString(item))
+            o->store_fault = item->valuestring;
+        else if (strcmp(k, "wal_segment_bytes") == 0 && cJSON_IsNumber(item) &&
+                 item->valuedouble >= 4096 && item->valuedouble <= 1e12)
+            o->wal_segment_bytes = (long)item->valuedouble;
         else if (strcmp(k, "http_port") == 0 && cJSON_IsNumber(item) && item->valueint >= 0 &&
                  item->valueint <= 65535 && item->valuedouble == item->valueint)
             o->http_port = item->valueint;
@@ -165,10 +181,17 @@ static int parse_options(int argc, char **argv, serve_options *o)
     o->demo_actors = 6;
     o->max_ticks = -1;
     o->limits = net_limits_default();
+    o->data_dir = "./data";
+    o->durability = "every-tick";
+    o->store_fault = getenv("TERRAD_STORE_FAULT");
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
         if (strcmp(a, "--no-demo") == 0) {
             o->demo_actors = 0;
+            continue;
+        }
+        if (strcmp(a, "--no-data") == 0) {
+            o->data_dir = NULL;
             continue;
         }
         if (strcmp(a, "--bind-any") == 0) {
@@ -195,6 +218,16 @@ static int parse_options(int argc, char **argv, serve_options *o)
             o->backend = v;
         } else if (strcmp(a, "--token") == 0) {
             o->token = v;
+        } else if (strcmp(a, "--data") == 0) {
+            o->data_dir = v;
+        } else if (strcmp(a, "--durability") == 0) {
+            o->durability = v;
+        } else if (strcmp(a, "--store-fault") == 0) {
+            o->store_fault = v;
+        } else if (strcmp(a, "--wal-segment-bytes") == 0) {
+            if (parse_int(a, v, 4096, 1L << 40, &x) != 0)
+                return -1;
+            o->wal_segment_bytes = x;
         } else if (strcmp(a, "--http-port") == 0) {
             if (parse_int(a, v, 0, 65535, &x) != 0)
                 return -1;
@@ -294,10 +327,16 @@ static void sleep_until_ms(double deadline_ms)
     nanosleep(&ts, NULL);
 }
 
-static void publish_status(http_status *status, const service *svc, double tick_ms,
+static void publish_status(http_status *status, const service *svc, const store *st, double tick_ms,
                            uint64_t overruns, int clients, int colliders)
 {
     pthread_mutex_lock(&status->lock);
+    if (st) { /* not ready while deformation is refused; reads go on */
+        const char *why = store_failure(st);
+        status->ready = why[0] == 0;
+        snprintf(status->not_ready, sizeof status->not_ready, "%s%s",
+                 why[0] ? "storage unavailable, deformation refused: " : "", why);
+    }
     status->tick = service_current_tick(svc);
     status->volume = service_volume(svc);
     status->last_tick_ms = tick_ms;
@@ -353,6 +392,30 @@ int app_serve(int argc, char **argv)
         cJSON_Delete(o.config);
         return 1;
     }
+    /* the base terrain is in w: recover the data directory over it */
+    store *st = NULL;
+    store_recovery recovery = {0};
+    if (o.data_dir) {
+        store_config stc = {
+            .dir = o.data_dir, .segment_bytes = o.wal_segment_bytes, .fault_path = o.store_fault};
+        if (store_parse_durability(o.durability, &stc, &err) != 0 ||
+            !(st = store_open(&stc, &w, &recovery, &err))) {
+            log_error("%s", err.message);
+            world_free(&w);
+            scene_free(&sc);
+            cJSON_Delete(o.config);
+            return 1;
+        }
+        char dname[32];
+        log_info("store: %s (durability %s): recovered tick %llu from %d tile snapshots and %lld "
+                 "log records in %.1f ms%s",
+                 o.data_dir, store_durability_name(&stc, dname, sizeof dname),
+                 (unsigned long long)recovery.tick, recovery.tiles_loaded,
+                 (long long)recovery.records_replayed, recovery.ms,
+                 recovery.bytes_cut ? " (a torn tail was cut)" : "");
+    } else {
+        log_info("store: none (--no-data): the terrain lives in memory only");
+    }
     http_status status;
     memset(&status, 0, sizeof status);
     pthread_mutex_init(&status.lock, NULL);
@@ -393,6 +456,10 @@ int app_serve(int argc, char **argv)
         log_error("%s", err.message);
         goto done;
     }
+    if (st)
+        service_attach_store(svc, st, recovery.tick);
+    status.volume = service_volume(svc);
+    status.tick = service_current_tick(svc);
     snprintf(models, sizeof models, "[\"persson-%s\"]", sim_method_name(params.method));
     net_config nc = {.port = o.ws_port,
                      .bind_any = o.bind_any,
@@ -453,18 +520,18 @@ int app_serve(int argc, char **argv)
             c->pose = demo_actor_step(&actors[a], &w, 1.0 / sc.tick_hz, t);
             c->has_previous = tick > 0;
         }
-        service_tick_stats st;
-        if (service_tick(svc, extra, o.demo_actors, &st, &err) != 0) {
+        service_tick_stats stats;
+        if (service_tick(svc, extra, o.demo_actors, &stats, &err) != 0) {
             log_error("tick %ld: %s", tick, err.message);
             goto done;
         }
-        if (st.tick_ms > period_ms) {
+        if (stats.tick_ms > period_ms) {
             overruns++;
             metrics_count_tick_overrun();
         }
-        publish_status(&status, svc, st.tick_ms, overruns, net_server_client_count(net),
-                       st.colliders);
-        publish_metrics(&st, &engine, svc, &w);
+        publish_status(&status, svc, st, stats.tick_ms, overruns, net_server_client_count(net),
+                       stats.colliders);
+        publish_metrics(&stats, &engine, svc, &w);
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
@@ -479,6 +546,7 @@ done:
     net_server_stop(net);
     http_server_stop(http);
     service_destroy(svc);
+    store_close(st);
     free(extra);
     free(actors);
     sim_engine_free(&engine);

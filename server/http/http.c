@@ -545,10 +545,13 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return serve_metrics(c);
     http_status snap;
     status_copy(s, &snap);
-    if (strcmp(url, "/readyz") == 0)
+    if (strcmp(url, "/readyz") == 0) {
+        char why[320];
+        snprintf(why, sizeof why, "not ready: %s",
+                 snap.not_ready[0] ? snap.not_ready : "the GL context or the world is not up");
         return snap.ready ? respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ready\n")
-                          : respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
-                                          "not ready: the GL context or the world is not up");
+                          : respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "%s", why);
+    }
     if (strcmp(url, "/v1/stats") == 0)
         return serve_stats(c, &snap);
     if (strcmp(url, "/v1/world") == 0)

@@ -37,6 +37,7 @@
 typedef struct http_status {
     pthread_mutex_t lock;
     int ready;                     /* GL context (or CPU backend) up and the world loaded */
+    char not_ready[256];           /* with ready == 0: why ("" = still starting) */
     uint64_t tick;                 /* last completed tick */
     int64_t volume;                /* Σh, exact */
     int world_width, world_height; /* cells; /v1/heights validates against them */

@@ -7,6 +7,7 @@
 
 #include <errno.h>
 #include <pthread.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -49,6 +50,8 @@ struct hub {
     pthread_cond_t read_done;
     hub_read reads[HUB_MAX_READS];
     int reads_closed;
+
+    char store_unavailable[256]; /* "" while the store is writable; under out_lock */
 };
 
 hub *hub_create(void)
@@ -399,4 +402,21 @@ void hub_close_reads(hub *h)
     h->reads_closed = 1;
     pthread_cond_broadcast(&h->read_done);
     pthread_mutex_unlock(&h->read_lock);
+}
+
+void hub_set_store_unavailable(hub *h, const char *reason)
+{
+    pthread_mutex_lock(&h->out_lock);
+    snprintf(h->store_unavailable, sizeof h->store_unavailable, "%s", reason ? reason : "");
+    pthread_mutex_unlock(&h->out_lock);
+}
+
+int hub_store_unavailable(hub *h, char *reason, size_t cap)
+{
+    pthread_mutex_lock(&h->out_lock);
+    int down = h->store_unavailable[0] != 0;
+    if (down && reason && cap)
+        snprintf(reason, cap, "%s", h->store_unavailable);
+    pthread_mutex_unlock(&h->out_lock);
+    return down;
 }

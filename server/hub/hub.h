@@ -139,6 +139,14 @@ int hub_take_overflow(hub *h);
 /* How the sim thread wakes the net thread (lws_cancel_service). */
 void hub_set_waker(hub *h, void (*wake)(void *arg), void *arg);
 
+/* ---- sim → net: storage state ---- */
+
+/* sim thread: whether the store can make ticks durable, and why not. While it
+ * cannot, the net thread refuses pose batches with store_unavailable. */
+void hub_set_store_unavailable(hub *h, const char *reason); /* NULL or "": available */
+/* net thread: 1 and the reason while unavailable, else 0. */
+int hub_store_unavailable(hub *h, char *reason, size_t cap);
+
 /* ---- http → sim: height reads ---- */
 
 /* Any thread but the sim thread: copy a rectangle (inside the world) of

@@ -56,6 +56,12 @@ static const double latency_bounds_ms[] = {1, 2, 5, 10, 17, 33, 50, 100, 250, 50
 static const char *const latency_labels[] = {"0.001", "0.002", "0.005", "0.01", "0.017", "0.033",
                                              "0.05",  "0.1",   "0.25",  "0.5",  "1"};
 
+/* Log fsyncs: from a page-cache flush on tmpfs to a slow disk. */
+static const double fsync_bounds_ms[] = {0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 25, 50, 100, 250};
+static const char *const fsync_labels[] = {"0.00005", "0.0001", "0.00025", "0.0005",
+                                           "0.001",   "0.002",  "0.005",   "0.01",
+                                           "0.025",   "0.05",   "0.1",     "0.25"};
+
 #define COUNT_OF(a) ((int)(sizeof(a) / sizeof((a)[0])))
 
 static const char *const stage_names[] = {METRICS_STAGES};
@@ -69,7 +75,13 @@ static histogram latency_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
                                  .nbounds = COUNT_OF(latency_bounds_ms),
                                  .bounds_ms = latency_bounds_ms,
                                  .labels = latency_labels};
+static histogram fsync_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
+                               .nbounds = COUNT_OF(fsync_bounds_ms),
+                               .bounds_ms = fsync_bounds_ms,
+                               .labels = fsync_labels};
 static histogram stage_hist[STAGE_COUNT];
+static const char *const store_error_kinds[] = {METRICS_STORE_ERROR_KINDS};
+#define STORE_ERROR_KINDS COUNT_OF(store_error_kinds)
 static pthread_once_t stage_once = PTHREAD_ONCE_INIT;
 
 static void stage_hist_init(void)
@@ -115,6 +127,10 @@ static atomic_uint_fast64_t delta_raw, delta_compressed;
 static atomic_uint_fast64_t refused[TERRAD_ERR_LAST + 1]; /* by wire error code; [0] unused */
 static atomic_uint_fast64_t tick_now;
 static atomic_int_fast64_t volume, active_cells, colliders, clients;
+static atomic_uint_fast64_t store_wal_bytes, store_durable_tick, store_compactions;
+static atomic_uint_fast64_t store_errors[STORE_ERROR_KINDS];
+static atomic_int_fast64_t store_available, store_records_replayed, store_bytes_cut;
+static atomic_int_fast64_t store_recovery_us, store_compaction_us;
 
 #define ADD(v, n) atomic_fetch_add_explicit(&(v), (n), memory_order_relaxed)
 #define SET(v, n) atomic_store_explicit(&(v), (n), memory_order_relaxed)
@@ -152,6 +168,17 @@ void metrics_reset(void)
     SET(active_cells, 0);
     SET(colliders, 0);
     SET(clients, 0);
+    SET(store_wal_bytes, 0);
+    SET(store_durable_tick, 0);
+    SET(store_compactions, 0);
+    for (int i = 0; i < STORE_ERROR_KINDS; i++)
+        SET(store_errors[i], 0);
+    SET(store_available, 0);
+    SET(store_records_replayed, 0);
+    SET(store_bytes_cut, 0);
+    SET(store_recovery_us, 0);
+    SET(store_compaction_us, 0);
+    histogram_reset(&fsync_hist);
     histogram_reset(&tick_hist);
     histogram_reset(&latency_hist);
     for (int i = 0; i < STAGE_COUNT; i++)
@@ -159,6 +186,46 @@ void metrics_reset(void)
     pthread_mutex_lock(&memory_lock);
     memory_part_count = 0;
     pthread_mutex_unlock(&memory_lock);
+}
+
+void metrics_count_store_wal_bytes(uint64_t bytes)
+{
+    ADD(store_wal_bytes, bytes);
+}
+
+void metrics_observe_store_fsync_ms(double ms)
+{
+    histogram_observe(&fsync_hist, ms);
+}
+
+void metrics_set_store_durable_tick(uint64_t tick)
+{
+    SET(store_durable_tick, tick);
+}
+
+void metrics_count_store_compaction(double ms)
+{
+    ADD(store_compactions, 1);
+    SET(store_compaction_us, (int64_t)(ms * 1000.0));
+}
+
+void metrics_count_store_error(const char *kind)
+{
+    for (int i = 0; i < STORE_ERROR_KINDS; i++)
+        if (strcmp(kind, store_error_kinds[i]) == 0)
+            ADD(store_errors[i], 1);
+}
+
+void metrics_set_store_available(int available)
+{
+    SET(store_available, available ? 1 : 0);
+}
+
+void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut)
+{
+    SET(store_recovery_us, (int64_t)(ms * 1000.0));
+    SET(store_records_replayed, records_replayed);
+    SET(store_bytes_cut, bytes_cut);
 }
 
 void metrics_count_bytes_in(uint64_t n)
@@ -455,6 +522,36 @@ char *metrics_render(size_t *len)
     counter(&t, "terrad_refused_windows_total",
             "Active windows refused because their heights would leave the height limits.",
             GET(refused_windows));
+
+    counter(&t, "terrad_store_wal_bytes_total", "Bytes appended to the write-ahead log.",
+            GET(store_wal_bytes));
+    header(&t, "terrad_store_fsync_duration_seconds", "histogram",
+           "Wall time of one fdatasync of the write-ahead log.");
+    histogram_samples(&t, "terrad_store_fsync_duration_seconds", "", &fsync_hist);
+    gauge_int(&t, "terrad_store_durable_tick",
+              "The last tick as durable as the durability policy promises.",
+              (int64_t)GET(store_durable_tick));
+    gauge_int(&t, "terrad_store_available",
+              "1 while ticks can be made durable; 0 while deformation is refused.",
+              (int64_t)GET(store_available));
+    counter(&t, "terrad_store_compactions_total", "Log compactions into tile snapshots.",
+            GET(store_compactions));
+    header(&t, "terrad_store_last_compaction_seconds", "gauge",
+           "Wall time of the last compaction (its own thread).");
+    text_printf(&t, "terrad_store_last_compaction_seconds %.6f\n",
+                (double)GET(store_compaction_us) / 1e6);
+    header(&t, "terrad_store_errors_total", "counter", "Storage errors, by kind.");
+    for (int i = 0; i < STORE_ERROR_KINDS; i++)
+        text_printf(&t, "terrad_store_errors_total{kind=\"%s\"} %llu\n", store_error_kinds[i],
+                    (unsigned long long)GET(store_errors[i]));
+    header(&t, "terrad_store_recovery_seconds", "gauge",
+           "Wall time of the recovery at start (snapshots and log replay).");
+    text_printf(&t, "terrad_store_recovery_seconds %.6f\n", (double)GET(store_recovery_us) / 1e6);
+    gauge_int(&t, "terrad_store_recovery_records", "Log records replayed at start.",
+              (int64_t)GET(store_records_replayed));
+    gauge_int(&t, "terrad_store_cut_tail_bytes",
+              "Bytes of a torn or corrupt log tail cut at start (0: none).",
+              (int64_t)GET(store_bytes_cut));
 
     header(&t, "terrad_memory_bytes", "gauge", "Memory held by a part of the daemon, by part.");
     pthread_mutex_lock(&memory_lock);

@@ -40,6 +40,17 @@ void metrics_set_clients(int64_t n);
 /* Memory held by a part of the daemon ("world", "sim_scratch", ...). */
 void metrics_set_memory_bytes(const char *part, uint64_t bytes);
 
+/* ---- storage (server/store) ---- */
+/* Error kinds: "enospc", "write", "fsync", "compress", "memory", "compaction". */
+#define METRICS_STORE_ERROR_KINDS "enospc", "write", "fsync", "compress", "memory", "compaction"
+void metrics_count_store_wal_bytes(uint64_t bytes);
+void metrics_observe_store_fsync_ms(double ms);
+void metrics_set_store_durable_tick(uint64_t tick);
+void metrics_count_store_compaction(double ms);
+void metrics_count_store_error(const char *kind);
+void metrics_set_store_available(int available);
+void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut);
+
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);
 

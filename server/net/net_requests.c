@@ -852,6 +852,7 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
     net_server *s = c->srv;
     uint32_t seq = 0;
     size_t count = 0;
+    char store_reason[256];
     cJSON *ref = len >= 8 ? cJSON_CreateNumber(rd_u32le(data + 4)) : NULL;
     int rc = terrad_pose_batch_decode(data, len, &seq, s->poses,
                                       (size_t)s->cfg.limits.max_poses_per_batch, &count);
@@ -864,6 +865,10 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
                   "(|q| within 0.9..1.1): batch dropped");
     } else if (rc) {
         net_error(c, rc, ref, -1, 0, "POSE_BATCH: %s (%zu bytes)", terrad_err_name(rc), len);
+    } else if (hub_store_unavailable(s->hub, store_reason, sizeof store_reason)) {
+        net_error(c, TERRAD_E_STORE_UNAVAILABLE, ref, -1, 0,
+                  "POSE_BATCH refused: storage cannot make ticks durable (%s); retry later",
+                  store_reason);
     } else {
         for (size_t i = 0; i < count; i++) {
             const terrad_pose *p = &s->poses[i];

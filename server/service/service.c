@@ -67,6 +67,8 @@ struct service {
     sim_engine *engine;
     world *world;
     hub *hub;
+    store *store;   /* NULL: memory only */
+    int store_down; /* last state told to the hub */
     uint64_t tick;
     int64_t volume;
     int tiles_x, tiles_y;
@@ -182,6 +184,34 @@ void service_destroy(service *s)
     free(s->packed);
     free(s->bottom);
     free(s);
+}
+
+void service_attach_store(service *s, store *st, uint64_t recovered_tick)
+{
+    s->store = st;
+    s->tick = recovered_tick;
+    s->volume = world_volume(s->world);
+}
+
+/* The store could not log this tick: put every window back as it was, so
+ * nothing that is not durable is ever seen. */
+static void undo_tick(service *s, sim_tick_report *report)
+{
+    for (int i = 0; i < report->window_count; i++) {
+        const int32_t *before, *after;
+        world_rect win = sim_engine_window(s->engine, i, &before, &after);
+        world_scatter_window(s->world, win, before);
+    }
+    report->dirty_count = 0;
+}
+
+static void tell_store_state(service *s)
+{
+    const char *why = store_failure(s->store);
+    int down = why[0] != 0;
+    if (down != s->store_down)
+        hub_set_store_unavailable(s->hub, down ? why : NULL);
+    s->store_down = down;
 }
 
 uint64_t service_current_tick(const service *s)
@@ -758,14 +788,21 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     if (extra_count > 0)
         memcpy(s->sim_colliders + count, extra, (size_t)extra_count * sizeof *extra);
     count += extra_count;
-    if (sim_engine_tick(s->engine, s->sim_colliders, count, &stats->report, err) != 0)
-        return -1;
+    if (s->store && !store_writable(s->store)) {
+        memset(&stats->report, 0, sizeof stats->report); /* no deformation that cannot be kept */
+    } else {
+        if (sim_engine_tick(s->engine, s->sim_colliders, count, &stats->report, err) != 0)
+            return -1;
+        if (s->store && store_commit_tick(s->store, s->world, s->tick, stats->report.dirty,
+                                          stats->report.dirty_count) != 0)
+            undo_tick(s, &stats->report);
+    }
     for (int i = 0; i < s->collider_count; i++) {
         s->colliders[i].previous_pose = s->colliders[i].pose;
         s->colliders[i].has_previous = s->colliders[i].has_pose;
     }
 
-    s->out_count = 0;
+    /* s->out may still hold earlier ticks' frames waiting for a group commit */
     if (cut_into_tiles(s, &stats->report) == 0)
         publish_deltas(s, stats);
     contacts_after_tick(s);
@@ -774,13 +811,18 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
         publish_snapshot(s, &s->snapshots[i]);
     s->snapshot_count = 0;
     queue_out(s, (hub_out){.kind = HUB_OUT_TICK_DONE, .tick = s->tick});
-    int dropped = hub_publish(s->hub, s->out, s->out_count);
-    /* from the oldest pose this tick used to its deltas being handed to the network */
-    if (s->oldest_pose_ms > 0)
-        metrics_observe_pose_to_delta_ms(time_now_ms() - s->oldest_pose_ms);
-    if (dropped)
-        metrics_count_frames_dropped((uint64_t)dropped);
-    s->out_count = 0;
+    /* nothing of a tick reaches a client before the store has made it durable */
+    if (!s->store || store_settle(s->store)) {
+        int dropped = hub_publish(s->hub, s->out, s->out_count);
+        /* from the oldest pose this tick used to its deltas being handed to the network */
+        if (s->oldest_pose_ms > 0)
+            metrics_observe_pose_to_delta_ms(time_now_ms() - s->oldest_pose_ms);
+        if (dropped)
+            metrics_count_frames_dropped((uint64_t)dropped);
+        s->out_count = 0;
+    }
+    if (s->store)
+        tell_store_state(s);
     hub_serve_reads(s->hub, s->world, s->tick);
 
     stats->clients = s->client_count;

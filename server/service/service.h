@@ -19,6 +19,7 @@
 #include "base/base.h"
 #include "hub/hub.h"
 #include "sim/sim.h"
+#include "store/store.h"
 #include "world/world.h"
 
 #define SERVICE_TILE_SIZE 64
@@ -44,6 +45,16 @@ typedef struct service_tick_stats {
  */
 int service_tick(service *s, const sim_collider *extra, int extra_count, service_tick_stats *stats,
                  error_text *err);
+
+/*
+ * Make every tick durable in st before it is published (store.h): a tick's
+ * changes are appended after the deformation and its frames held until the
+ * store says they are as durable as its policy promises; while the store
+ * cannot write, no deformation runs and clients' pose batches are refused.
+ * The tick counter continues from recovered_tick and Σh is recomputed from
+ * the recovered world. st stays the caller's.
+ */
+void service_attach_store(service *s, store *st, uint64_t recovered_tick);
 
 uint64_t service_current_tick(const service *s);
 int64_t service_volume(const service *s); /* Σh, kept exactly, tick by tick */

@@ -13,6 +13,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import struct
 import subprocess
@@ -79,16 +80,27 @@ def skip(why):
 # ---- the daemon ----------------------------------------------------------------
 
 class Daemon:
-    """terrad serve on ports 0 (both), stderr collected by a thread."""
+    """terrad serve on ports 0 (both), stderr collected by a thread.
+
+    data_dir: the daemon's --data directory, kept (tests that restart a daemon
+    on the same directory). Without it each daemon gets a fresh temporary
+    directory, removed by stop(), so no test ever shares ./data; "--no-data"
+    in extra runs it memory-only."""
 
     def __init__(self, backend="cpu", demo=False, token=None, tick_hz=None, config=None,
-                 extra=(), name="terrad"):
+                 extra=(), name="terrad", data_dir=None, env=None):
         if not os.access(BIN, os.X_OK):
             raise FileNotFoundError(BIN)
         self.name = name
         self.lines = []
         self.config_path = None
+        self.temp_data = None
         args = [BIN, "serve", "--http-port", "0", "--ws-port", "0", "--backend", backend]
+        if "--no-data" not in extra and "--data" not in extra:
+            if data_dir is None:
+                data_dir = self.temp_data = tempfile.mkdtemp(prefix="terrad-data-")
+            args += ["--data", data_dir]
+        self.data_dir = data_dir
         if not demo:
             args.append("--no-demo")
         if token is not None:
@@ -103,7 +115,8 @@ class Daemon:
         args += list(extra)
         self.args = args
         self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, errors="replace")
+                                     stderr=subprocess.PIPE, text=True, errors="replace",
+                                     env=None if env is None else {**os.environ, **env})
         self.pid = self.proc.pid
         self.http_port = self.ws_port = None
         got = threading.Event()
@@ -156,6 +169,17 @@ class Daemon:
             except OSError:
                 pass
             self.config_path = None
+        if self.temp_data:
+            shutil.rmtree(self.temp_data, ignore_errors=True)
+            self.temp_data = None
+        return self.proc.returncode
+
+    def kill9(self):
+        """SIGKILL: a crash, for the storage tests; returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+        self.thread.join(5)
         return self.proc.returncode
 
     def rss_kb(self):

@@ -39,7 +39,7 @@ def get(port, path, method="GET"):
 
 
 def start(backend):
-    p = subprocess.Popen([BIN, "serve", "--http-port", "0", "--backend", backend],
+    p = subprocess.Popen([BIN, "serve", "--http-port", "0", "--backend", backend, "--no-data"],
                          stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
     lines = []
@@ -102,7 +102,7 @@ def main():
     # a port that is taken: a clear error, non-zero exit
     p, port, _ = start("cpu")
     if p:
-        q = subprocess.run([BIN, "serve", "--http-port", str(port), "--backend", "cpu"],
+        q = subprocess.run([BIN, "serve", "--http-port", str(port), "--backend", "cpu", "--no-data"],
                            capture_output=True, text=True, timeout=60)
         check(q.returncode != 0 and "port" in q.stderr, f"port in use refused: {q.stderr}")
         p.kill()

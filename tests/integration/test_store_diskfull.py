@@ -1,0 +1,198 @@
+#!/usr/bin/python3
+"""A full disk, through the store's fault hook (--store-fault FILE: while FILE
+exists every storage write fails with ENOSPC), on a daemon with demo actors
+and a client driving a collider:
+
+  - the daemon logs a clear error, /readyz answers 503 naming the storage,
+    terrad_store_available is 0 and terrad_store_errors_total{kind="enospc"}
+    counts;
+  - it keeps serving reads (GET /v1/heights, new subscriptions' snapshots)
+    and the world does not change (no deformation that could not be kept);
+  - the client's pose batches are refused with store_unavailable;
+  - when FILE goes, deformation resumes by itself;
+  - after a restart nothing on disk is damaged (no tail cut) and the world is
+    the one the daemon had, which `terrad export` also reads back (raw32, and
+    a region as PNG16 through the mapping in its sidecar .json).
+"""
+# ctest-timeout: 180
+import asyncio
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import zlib
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from service_harness import BIN, Checks, Daemon, metric_value, skip, tp  # noqa: E402
+
+check = Checks()
+
+
+def read_png16(path):
+    """(width, height, values) of a 16-bit greyscale, non-interlaced PNG."""
+    with open(path, "rb") as f:
+        data = f.read()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    at, idat, width = 8, b"", 0
+    while at < len(data):
+        n, kind = struct.unpack(">I4s", data[at:at + 8])
+        body = data[at + 8:at + 8 + n]
+        if kind == b"IHDR":
+            width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", body)
+            assert depth == 16 and colour == 0 and interlace == 0
+        elif kind == b"IDAT":
+            idat += body
+        at += 12 + n
+    raw, stride, bpp = zlib.decompress(idat), width * 2, 2
+    rows, prev = [], bytearray(stride)
+    for y in range(height):
+        ft, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
+        for i in range(stride):
+            a = line[i - bpp] if i >= bpp else 0
+            b, c = prev[i], prev[i - bpp] if i >= bpp else 0
+            if ft == 1:
+                line[i] = (line[i] + a) & 255
+            elif ft == 2:
+                line[i] = (line[i] + b) & 255
+            elif ft == 3:
+                line[i] = (line[i] + (a + b) // 2) & 255
+            elif ft == 4:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
+        rows.append(bytes(line))
+        prev = line
+    return width, height, list(struct.unpack(f">{width * height}H", b"".join(rows)))
+
+
+def wait_until(pred, timeout=10.0):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if pred():
+            return True
+        time.sleep(0.05)
+    return pred()
+
+
+async def scenario(d, fault):
+    loop = asyncio.get_running_loop()
+    w = d.world()
+    region = (0, 0, w["width"], w["height"])
+    client = tp.TerradClient(d.ws, name="diskfull")
+    await client.connect()
+    await client.subscribe(0, 0, 128, 128)
+    cid = await client.create_collider("sphere", radius=0.4)
+
+    async def pose():
+        return await client.send_poses([tp.Pose(cid, 5.0, 5.0, 100.0, 1, 0, 0, 0)])
+
+    await client.wait_ack(await pose())
+    ready = await loop.run_in_executor(None, d.get, "/readyz")
+    check(ready[0] == 200, f"ready before the fault: {ready[0]}")
+
+    open(fault, "w").close()  # the disk is full
+    ok = await loop.run_in_executor(None, wait_until, lambda: d.get("/readyz")[0] == 503)
+    status, body, _ = d.get("/readyz")
+    check(ok and b"storage unavailable" in body and b"No space left" in body,
+          f"/readyz 503 names the storage: {status} {body!r}")
+    metrics = d.metrics()[1]
+    check(metric_value(metrics, "terrad_store_available") == 0, "terrad_store_available 0")
+    check((metric_value(metrics, "terrad_store_errors_total", {"kind": "enospc"}) or 0) >= 1,
+          "terrad_store_errors_total{kind=enospc} counts")
+    check(any("No space left on device" in line and "refused" in line for line in d.lines),
+          "a clear log line")
+
+    # reads go on; the world stands still although the demo actors move
+    t1, h1 = await loop.run_in_executor(None, d.heights, *region)
+    await asyncio.sleep(0.5)
+    t2, h2 = await loop.run_in_executor(None, d.heights, *region)
+    check(t2 > t1 and h1 == h2, f"reads served, ticks go on ({t1} -> {t2}), heights unchanged")
+    volume_frozen = d.stats()["volume"]
+    check(volume_frozen == sum(h2), "Σh equals the heights")
+    sid2 = await client.subscribe(200, 200, 64, 64)
+    await client.wait_for(lambda: client.mirrors[sid2].complete, 10)
+    _, part = await loop.run_in_executor(None, d.heights, 200, 200, 64, 64)
+    check(client.mirrors[sid2].heights == part, "a new subscription gets its snapshot")
+
+    client.errors.clear()
+    await pose()
+    await client.wait_for(lambda: any(e.get("name") == "store_unavailable"
+                                      for e in client.errors), 5)
+    err = [e for e in client.errors if e.get("name") == "store_unavailable"]
+    check(err and err[0]["code"] == 15 and "storage" in err[0]["message"],
+          f"pose batch refused with store_unavailable: {err[:1]}")
+
+    os.unlink(fault)  # space returns
+    ok = await loop.run_in_executor(None, wait_until, lambda: d.get("/readyz")[0] == 200)
+    check(ok, "/readyz 200 again once space returns")
+    seq = await pose()
+    await client.wait_ack(seq)
+    check(True, "pose batches acknowledged again")
+    ok = await loop.run_in_executor(
+        None, wait_until, lambda: d.heights(*region)[1] != h2, 10)
+    check(ok, "deformation resumes")
+    check(metric_value(d.metrics()[1], "terrad_store_available") == 1, "terrad_store_available 1")
+    await client.close()
+
+
+def main():
+    if not os.access(BIN, os.X_OK):
+        skip(f"no daemon binary at {BIN}")
+    tmp = tempfile.mkdtemp(prefix="terrad-diskfull-")
+    data, fault = os.path.join(tmp, "data"), os.path.join(tmp, "disk-full")
+    try:
+        d = Daemon(backend="cpu", demo=True, data_dir=data, extra=["--store-fault", fault],
+                   name="terrad-diskfull")
+        with check.running(d):
+            asyncio.run(scenario(d, fault))
+            w = d.world()
+        # stopped with SIGTERM: its last world must come back whole
+        before = None
+        d2 = Daemon(backend="cpu", demo=False, data_dir=data, name="terrad-diskfull-restart")
+        with check.running(d2):
+            metrics = d2.metrics()[1]
+            check(metric_value(metrics, "terrad_store_cut_tail_bytes") == 0,
+                  "restart: no torn or corrupt tail")
+            _, before = d2.heights(0, 0, w["width"], w["height"])
+        out = os.path.join(tmp, "export.raw")
+        r = subprocess.run([BIN, "export", "--data", data, "--out", out], capture_output=True,
+                           text=True, timeout=60)
+        check(r.returncode == 0, f"export: {r.stderr}")
+        if r.returncode == 0:
+            with open(out, "rb") as f:
+                body = f.read()
+            check(list(struct.unpack(f"<{len(body) // 4}i", body)) == before,
+                  "terrad export reads back the world GET /v1/heights served")
+        # a region as PNG16 with its mapping in the sidecar
+        png = os.path.join(tmp, "region.png")
+        r = subprocess.run([BIN, "export", "--data", data, "--out", png, "--format", "png16",
+                            "--region", "100,50,200,120"], capture_output=True, text=True,
+                           timeout=60)
+        check(r.returncode == 0 and "png16 height = value *" in r.stderr, f"png16 export: {r.stderr}")
+        if r.returncode == 0:
+            with open(png + ".json") as f:
+                side = json.load(f)
+            pw, ph, values = read_png16(png)
+            want = [before[(50 + y) * w["width"] + 100 + x] for y in range(120) for x in range(200)]
+            got = [v * side["scale_units"] + side["offset_units"] for v in values]
+            worst = max(abs(a - b) for a, b in zip(got, want))
+            check((pw, ph) == (200, 120) and (side["x"], side["y"]) == (100, 50) and
+                  worst < side["scale_units"],
+                  f"png16 region read back within one step ({worst} < {side['scale_units']})")
+        r = subprocess.run([BIN, "export", "--data", data, "--out", png, "--region", "500,0,64,8"],
+                           capture_output=True, text=True, timeout=60)
+        check(r.returncode != 0 and "not inside" in r.stderr, f"region outside refused: {r.stderr}")
+        r = subprocess.run([BIN, "export", "--data", os.path.join(tmp, "nothing"), "--out", png],
+                           capture_output=True, text=True, timeout=60)
+        check(r.returncode != 0 and "MANIFEST" in r.stderr, f"missing data dir named: {r.stderr}")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    check.finish()
+
+
+if __name__ == "__main__":
+    main()

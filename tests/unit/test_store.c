@@ -1,0 +1,479 @@
+/*
+ * test_store.c: the data directory (server/store) on real files under /tmp —
+ * round trips through the log and through compaction into tile snapshots,
+ * a torn tail cut, a bit flip in a log record detected, a corrupt segment
+ * that is not the last refused, truncated and bit-flipped tile snapshots
+ * refused naming the file, a manifest of another world refused, the
+ * directory lock, the ENOSPC fault hook (nothing appended, recovery when it
+ * goes), group commit's promise, and no temporary files left behind.
+ */
+#include <dirent.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "store/store.h"
+#include "world/world.h"
+#include "check.h"
+
+#define W 600 /* 3 x 2 tiles, the last column and row partial */
+#define H 300
+
+static char dir[256];
+static uint32_t rng = 12345u;
+
+static uint32_t next_random(void)
+{
+    rng = rng * 1664525u + 1013904223u;
+    return rng >> 8;
+}
+
+static void make_base(world *w)
+{
+    error_text err;
+    if (world_init(w, W, H, 0.1, 10000, WORLD_HEIGHT_MIN, &err) != 0)
+        exit(2);
+    for (int i = 0; i < W * H; i++)
+        w->heights[i] = (i * 37) % 5000 - 1000;
+}
+
+static void fresh_dir(void)
+{
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+    if (system(cmd) != 0)
+        exit(2);
+}
+
+static store *open_dir(world *w, store_recovery *rec, int64_t segment_bytes, error_text *err)
+{
+    store_config c = {.dir = dir, .durability = STORE_EVERY_TICK, .segment_bytes = segment_bytes};
+    char fault[300];
+    snprintf(fault, sizeof fault, "%s.fault", dir);
+    c.fault_path = fault;
+    return store_open(&c, w, rec, err);
+}
+
+/* Change a random rectangle of w (as a tick would) and log it. */
+static int random_tick(store *st, world *w, uint64_t tick)
+{
+    world_rect r[2];
+    for (int k = 0; k < 2; k++) {
+        r[k].w = 1 + (int)(next_random() % 80);
+        r[k].h = 1 + (int)(next_random() % 80);
+        r[k].x = (int)(next_random() % (uint32_t)(W - r[k].w));
+        /* one rectangle in the top half, one on the bottom edge (the partial tiles) */
+        r[k].y = k == 0 ? (int)(next_random() % (uint32_t)(H / 2 - r[k].h)) : H - r[k].h;
+        for (int y = r[k].y; y < r[k].y + r[k].h; y++)
+            for (int x = r[k].x; x < r[k].x + r[k].w; x++)
+                w->heights[y * W + x] += (int32_t)(next_random() % 200) - 100;
+    }
+    return store_commit_tick(st, w, tick, r, 2);
+}
+
+static int same_heights(const world *a, const world *b)
+{
+    return memcmp(a->heights, b->heights, (size_t)W * H * 4) == 0;
+}
+
+static int count_files(const char *path, const char *suffix)
+{
+    DIR *d = opendir(path);
+    int n = 0;
+    struct dirent *e;
+    while (d && (e = readdir(d))) {
+        size_t l = strlen(e->d_name), s = strlen(suffix);
+        n += l >= s && strcmp(e->d_name + l - s, suffix) == 0;
+    }
+    if (d)
+        closedir(d);
+    return n;
+}
+
+/* The path of the n-th (0-based) log segment in name order. */
+static void segment_name(int n, char *out, size_t cap)
+{
+    struct dirent **list;
+    int count = scandir(dir, &list, NULL, alphasort), k = 0;
+    out[0] = 0;
+    for (int i = 0; i < count; i++) {
+        if (strncmp(list[i]->d_name, "wal-", 4) == 0 && k++ == n)
+            snprintf(out, cap, "%s/%s", dir, list[i]->d_name);
+        free(list[i]);
+    }
+    free(list);
+}
+
+static long file_size(const char *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0 ? (long)sb.st_size : -1;
+}
+
+static void flip_byte(const char *path, long offset)
+{
+    FILE *f = fopen(path, "r+b");
+    if (!f)
+        return;
+    fseek(f, offset, SEEK_SET);
+    int c = fgetc(f);
+    fseek(f, offset, SEEK_SET);
+    fputc(c ^ 0x10, f);
+    fclose(f);
+}
+
+static void test_crc(void)
+{
+    CHECK(store_crc32c(0, "123456789", 9) == 0xE3069283u, "CRC32C check value: %08x",
+          store_crc32c(0, "123456789", 9));
+    uint32_t part = store_crc32c(0, "1234", 4);
+    CHECK(store_crc32c(part, "56789", 5) == 0xE3069283u, "CRC32C continues across calls");
+}
+
+static void test_round_trip(void)
+{
+    fresh_dir();
+    world live, back;
+    make_base(&live);
+    make_base(&back);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&live, &rec, 0, &err);
+    CHECK(st && rec.tick == 0 && rec.records_replayed == 0, "new directory: %s", err.message);
+    if (!st)
+        return;
+    for (uint64_t t = 1; t <= 40; t++)
+        CHECK(random_tick(st, &live, t * 2) == 0, "tick %llu logged", (unsigned long long)t);
+    CHECK(store_settle(st) == 1 && store_durable_tick(st) == 80, "every-tick: durable at once");
+    CHECK(store_commit_tick(st, &live, 81, NULL, 0) == 0, "a tick without changes logs nothing");
+    store_close(st);
+    st = open_dir(&back, &rec, 0, &err);
+    CHECK(st && rec.tick == 80 && rec.records_replayed == 40 && rec.bytes_cut == 0,
+          "recovered tick %llu, %lld records: %s", (unsigned long long)rec.tick,
+          (long long)rec.records_replayed, err.message);
+    CHECK(same_heights(&live, &back), "heights after a log replay equal the live world");
+    store_close(st);
+
+    /* read-only recovery sees the same and writes nothing */
+    world ro;
+    make_base(&ro);
+    CHECK(store_load_readonly(dir, &ro, 0, &rec, &err) == 0 && same_heights(&live, &ro),
+          "read-only load: %s", err.message);
+    world_free(&ro);
+    world_free(&live);
+    world_free(&back);
+}
+
+static void test_compaction(void)
+{
+    fresh_dir();
+    world live, back;
+    make_base(&live);
+    make_base(&back);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&live, &rec, 20000, &err); /* a small segment: compact often */
+    if (!st) {
+        CHECK(0, "open: %s", err.message);
+        return;
+    }
+    for (uint64_t t = 1; t <= 120; t++)
+        random_tick(st, &live, t);
+    store_close(st); /* waits for the running compaction */
+    char tiles[300];
+    snprintf(tiles, sizeof tiles, "%s/tiles", dir);
+    CHECK(count_files(tiles, ".snap") == 6, "every changed tile has a snapshot (%d)",
+          count_files(tiles, ".snap"));
+    CHECK(count_files(dir, ".log") < 10, "old log segments were deleted (%d left)",
+          count_files(dir, ".log"));
+    CHECK(count_files(tiles, ".tmp") == 0 && count_files(dir, ".tmp") == 0,
+          "atomic writes leave no temporary files");
+    st = open_dir(&back, &rec, 20000, &err);
+    CHECK(st && rec.tick == 120 && rec.tiles_loaded == 6, "recovered tick %llu from %d tiles: %s",
+          (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
+    CHECK(same_heights(&live, &back), "snapshots + log replay equal the live world");
+    /* go on after recovery, then recover again */
+    for (uint64_t t = 121; t <= 150; t++)
+        random_tick(st, &back, t);
+    store_close(st);
+    world again;
+    make_base(&again);
+    st = open_dir(&again, &rec, 20000, &err);
+    CHECK(st && rec.tick == 150 && same_heights(&back, &again), "second recovery: %s", err.message);
+    store_close(st);
+
+    world ro;
+    make_base(&ro);
+    CHECK(store_load_readonly(dir, &ro, 2, &rec, &err) != 0 && strstr(err.message, "compacted"),
+          "a rebuild as of a compacted tick is refused: %s", err.message);
+    world_free(&ro);
+
+    /* a truncated, then a bit-flipped tile snapshot: refused, naming the file */
+    char snap[400];
+    snprintf(snap, sizeof snap, "%s/t-00001-00000.snap", tiles);
+    long size = file_size(snap);
+    CHECK(size > 100 && truncate(snap, size - 7) == 0, "truncate %s", snap);
+    world bad;
+    make_base(&bad);
+    st = open_dir(&bad, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, "t-00001-00000.snap") && strstr(err.message, "corrupt"),
+          "truncated snapshot refused: %s", err.message);
+    store_close(st);
+    CHECK(truncate(snap, size) == 0, "restore length");
+    flip_byte(snap, size - 7); /* the zero bytes truncate put back are wrong anyway */
+    world_free(&bad);
+    make_base(&bad);
+    st = open_dir(&bad, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, "t-00001-00000.snap"), "damaged snapshot refused: %s",
+          err.message);
+    store_close(st);
+    /* a flipped header byte */
+    fresh_dir();
+    world_free(&bad);
+    world_free(&live);
+    world_free(&back);
+    world_free(&again);
+}
+
+static void test_flipped_snapshot_header(void)
+{
+    fresh_dir();
+    world live;
+    make_base(&live);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&live, &rec, 4096, &err);
+    for (uint64_t t = 1; t <= 20 && st; t++)
+        random_tick(st, &live, t);
+    store_close(st);
+    char snap[400];
+    snprintf(snap, sizeof snap, "%s/tiles/t-00000-00000.snap", dir);
+    flip_byte(snap, 21); /* inside the tile coordinates */
+    world bad;
+    make_base(&bad);
+    st = open_dir(&bad, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, "t-00000-00000.snap") && strstr(err.message, "checksum"),
+          "bit flip in a snapshot header refused: %s", err.message);
+    store_close(st);
+    world_free(&bad);
+    world_free(&live);
+}
+
+/* Log 10 ticks, keeping a copy of the world after tick 9. */
+static store *ten_ticks(world *live, world *at9, error_text *err)
+{
+    fresh_dir();
+    make_base(live);
+    make_base(at9);
+    store_recovery rec;
+    store *st = open_dir(live, &rec, 0, err);
+    for (uint64_t t = 1; t <= 10 && st; t++) {
+        random_tick(st, live, t);
+        if (t == 9)
+            memcpy(at9->heights, live->heights, (size_t)W * H * 4);
+    }
+    return st;
+}
+
+static void test_torn_tail(void)
+{
+    world live, at9, back;
+    error_text err = {{0}};
+    store_recovery rec;
+    store_close(ten_ticks(&live, &at9, &err));
+    world ro;
+    make_base(&ro);
+    CHECK(store_load_readonly(dir, &ro, 9, &rec, &err) == 0 && rec.tick == 9 &&
+              same_heights(&ro, &at9),
+          "rebuilt as of tick 9: %s", err.message);
+    world_free(&ro);
+    char seg[700];
+    segment_name(0, seg, sizeof seg);
+    long size = file_size(seg);
+    CHECK(size > 100 && truncate(seg, size - 5) == 0, "tear the last record of %s", seg);
+    make_base(&back);
+    store *st = open_dir(&back, &rec, 0, &err);
+    CHECK(st && rec.tick == 9 && rec.bytes_cut > 0, "torn tail cut: tick %llu, %lld bytes: %s",
+          (unsigned long long)rec.tick, (long long)rec.bytes_cut, err.message);
+    CHECK(same_heights(&back, &at9), "heights are tick 9's: the torn record is never loaded");
+    CHECK(file_size(seg) < size - 5, "the torn tail was cut off the file (%ld)", file_size(seg));
+    store_close(st);
+    world_free(&live);
+    world_free(&at9);
+    world_free(&back);
+}
+
+static void test_flipped_record(void)
+{
+    world live, at9, back;
+    error_text err = {{0}};
+    store_recovery rec;
+    store_close(ten_ticks(&live, &at9, &err));
+    char seg[700];
+    segment_name(0, seg, sizeof seg);
+    flip_byte(seg, file_size(seg) - 20); /* inside tick 10's compressed values */
+    make_base(&back);
+    store *st = open_dir(&back, &rec, 0, &err);
+    CHECK(st && rec.tick == 9 && rec.bytes_cut > 0 && same_heights(&back, &at9),
+          "a bit flip in the last record is detected and cut: tick %llu: %s",
+          (unsigned long long)rec.tick, err.message);
+    store_close(st);
+
+    /* the same damage in a segment that is not the last: refused, naming it */
+    world_free(&live);
+    world_free(&at9);
+    world_free(&back);
+    store_close(ten_ticks(&live, &at9, &err));
+    make_base(&back);
+    st = open_dir(&back, &rec, 0, &err); /* starts a second segment */
+    store_close(st);
+    segment_name(0, seg, sizeof seg);
+    flip_byte(seg, file_size(seg) - 20);
+    world_free(&back);
+    make_base(&back);
+    st = open_dir(&back, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, seg) && strstr(err.message, "not the last"),
+          "corrupt earlier segment refused: %s", err.message);
+    store_close(st);
+    world_free(&live);
+    world_free(&at9);
+    world_free(&back);
+}
+
+static void test_manifest_and_lock(void)
+{
+    fresh_dir();
+    world a, other;
+    make_base(&a);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&a, &rec, 0, &err);
+    store *second = open_dir(&a, &rec, 0, &err);
+    CHECK(st && !second && strstr(err.message, "in use"), "a second daemon is refused: %s",
+          err.message);
+    store_close(st);
+    make_base(&other);
+    other.heights[5] += 1; /* another scene's base terrain */
+    st = open_dir(&other, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, "MANIFEST") && strstr(err.message, "base_crc32c"),
+          "another scene's directory refused: %s", err.message);
+    store_close(st);
+    world small;
+    world_init(&small, 100, 100, 0.1, 10000, WORLD_HEIGHT_MIN, &err);
+    st = open_dir(&small, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, "width"), "another world size refused: %s", err.message);
+    store_close(st);
+    char manifest[300];
+    snprintf(manifest, sizeof manifest, "%s/MANIFEST", dir);
+    flip_byte(manifest, 12);
+    st = open_dir(&a, &rec, 0, &err);
+    CHECK(!st && strstr(err.message, "MANIFEST is corrupt"), "damaged manifest refused: %s",
+          err.message);
+    store_close(st);
+    world_free(&a);
+    world_free(&other);
+    world_free(&small);
+}
+
+static void sleep_ms(int ms)
+{
+    struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
+    nanosleep(&ts, NULL);
+}
+
+static void test_fault_hook(void)
+{
+    fresh_dir();
+    world live, back;
+    make_base(&live);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&live, &rec, 0, &err);
+    if (!st) {
+        CHECK(0, "open: %s", err.message);
+        return;
+    }
+    for (uint64_t t = 1; t <= 5; t++)
+        random_tick(st, &live, t);
+    char seg[700], fault[300];
+    segment_name(0, seg, sizeof seg);
+    long size = file_size(seg);
+    snprintf(fault, sizeof fault, "%s.fault", dir);
+    FILE *f = fopen(fault, "w");
+    if (f)
+        fclose(f);
+    world before;
+    make_base(&before);
+    memcpy(before.heights, live.heights, (size_t)W * H * 4);
+    CHECK(random_tick(st, &live, 6) == -1, "a write under the fault hook fails");
+    CHECK(strstr(store_failure(st), "No space left"), "the reason says ENOSPC: %s",
+          store_failure(st));
+    CHECK(store_writable(st) == 0 && file_size(seg) == size, "unwritable; the log is unchanged");
+    memcpy(live.heights, before.heights, (size_t)W * H * 4); /* the service undoes the tick */
+    sleep_ms(600);
+    CHECK(store_writable(st) == 0, "still unwritable while the fault file exists");
+    unlink(fault);
+    sleep_ms(600);
+    CHECK(store_writable(st) == 1 && store_failure(st)[0] == 0, "writable again once it is gone");
+    CHECK(random_tick(st, &live, 7) == 0, "ticks are logged again");
+    store_close(st);
+    make_base(&back);
+    st = open_dir(&back, &rec, 0, &err);
+    CHECK(st && rec.tick == 7 && rec.bytes_cut == 0 && same_heights(&live, &back),
+          "nothing on disk was damaged: tick %llu: %s", (unsigned long long)rec.tick, err.message);
+    store_close(st);
+    world_free(&live);
+    world_free(&back);
+    world_free(&before);
+}
+
+static void test_group_commit(void)
+{
+    fresh_dir();
+    world live;
+    make_base(&live);
+    error_text err = {{0}};
+    store_config c = {.dir = dir};
+    CHECK(store_parse_durability("group:150", &c, &err) == 0 && c.durability == STORE_GROUP &&
+              c.group_ms == 150,
+          "group:150 parses");
+    CHECK(store_parse_durability("group:0", &c, &err) != 0 && strstr(err.message, "group:MS"),
+          "group:0 refused: %s", err.message);
+    CHECK(store_parse_durability("sometimes", &c, &err) != 0, "unknown policy refused");
+    store_parse_durability("group:150", &c, &err);
+    store_recovery rec;
+    store *st = store_open(&c, &live, &rec, &err);
+    if (!st) {
+        CHECK(0, "open: %s", err.message);
+        return;
+    }
+    sleep_ms(200);
+    random_tick(st, &live, 1);
+    CHECK(store_settle(st) == 1 && store_durable_tick(st) == 1, "first tick after a pause: synced");
+    random_tick(st, &live, 2);
+    CHECK(store_settle(st) == 0 && store_durable_tick(st) == 1,
+          "within the group interval: held, not durable yet");
+    sleep_ms(200);
+    CHECK(store_settle(st) == 1 && store_durable_tick(st) == 2, "after the interval: synced");
+    store_close(st);
+    world_free(&live);
+}
+
+int main(void)
+{
+    snprintf(dir, sizeof dir, "/tmp/terrad_test_store_%d", (int)getpid());
+    test_crc();
+    test_round_trip();
+    test_compaction();
+    test_flipped_snapshot_header();
+    test_torn_tail();
+    test_flipped_record();
+    test_manifest_and_lock();
+    test_fault_hook();
+    test_group_commit();
+    fresh_dir();
+    return check_report();
+}
