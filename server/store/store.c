@@ -267,6 +267,33 @@ const char *store_durability_name(const store_config *c, char *buf, size_t cap)
 
 /* ---- manifest ---- */
 
+/*
+ * The manifest names the world by its base terrain. The world is sparse and may
+ * be 65,536² cells, so the base is not summed whole: a lattice of up to 257²
+ * cells spread evenly over it, corners included, is read from the base
+ * (world_base_fill_rect, never the live heights) and checksummed. Another scene's
+ * dunes seed, height or heightmap changes these samples.
+ */
+static uint32_t base_identity(const world *w)
+{
+    enum { SAMPLES = 257 };
+    uint32_t crc = 0;
+    int nx = w->width < SAMPLES ? w->width : SAMPLES;
+    int ny = w->height < SAMPLES ? w->height : SAMPLES;
+    for (int j = 0; j < ny; j++) {
+        int y = ny > 1 ? (int)((int64_t)j * (w->height - 1) / (ny - 1)) : 0;
+        for (int i = 0; i < nx; i++) {
+            int x = nx > 1 ? (int)((int64_t)i * (w->width - 1) / (nx - 1)) : 0;
+            int32_t h;
+            world_base_fill_rect(w, (world_rect){x, y, 1, 1}, &h);
+            uint8_t le[4] = {(uint8_t)h, (uint8_t)(h >> 8), (uint8_t)(h >> 16),
+                             (uint8_t)((uint32_t)h >> 24)};
+            crc = store_crc32c(crc, le, sizeof le);
+        }
+    }
+    return crc;
+}
+
 static char *manifest_text(const world *w, uint32_t base_crc)
 {
     char body[512];
@@ -872,7 +899,7 @@ store *store_open(const store_config *c, world *w, store_recovery *rec, error_te
         goto fail;
     }
     /* the manifest names the world by its base terrain, before anything is applied */
-    uint32_t base_crc = store_crc32c(0, w->heights, (size_t)w->width * w->height * 4);
+    uint32_t base_crc = base_identity(w);
     snprintf(path, sizeof path, "%s/MANIFEST", st->dir);
     if (access(path, F_OK) == 0) {
         if (manifest_check(path, w, base_crc, err) != 0)
@@ -1089,7 +1116,7 @@ int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_rec
 {
     char path[1100];
     snprintf(path, sizeof path, "%s/MANIFEST", dir);
-    uint32_t base_crc = store_crc32c(0, w->heights, (size_t)w->width * w->height * 4);
+    uint32_t base_crc = base_identity(w);
     if (manifest_check(path, w, base_crc, err) != 0)
         return -1;
     uint64_t last_seq;

@@ -31,13 +31,35 @@ static uint32_t next_random(void)
     return rng >> 8;
 }
 
-static void make_base(world *w)
+/* A dunes base; another seed is another scene's terrain. */
+static void make_base_seeded(world *w, uint32_t seed)
 {
     error_text err;
     if (world_init(w, W, H, 0.1, 10000, WORLD_HEIGHT_MIN, &err) != 0)
         exit(2);
-    for (int i = 0; i < W * H; i++)
-        w->heights[i] = (i * 37) % 5000 - 1000;
+    world_base_spec b = {.kind = WORLD_BASE_DUNES,
+                         .min_height_m = -0.1,
+                         .max_height_m = 0.4,
+                         .wavelength_m = 3.0,
+                         .octaves = 3,
+                         .seed = seed};
+    if (world_generate_base(w, &b, &err) != 0)
+        exit(2);
+}
+
+static void make_base(world *w)
+{
+    make_base_seeded(w, 7);
+}
+
+/* The whole world, dense (W * H is small here). */
+static int32_t *dense_copy(const world *w)
+{
+    int32_t *all = malloc((size_t)W * H * sizeof *all);
+    if (!all)
+        exit(2);
+    world_gather_window(w, (world_rect){0, 0, W, H}, all);
+    return all;
 }
 
 static void fresh_dir(void)
@@ -67,16 +89,25 @@ static int random_tick(store *st, world *w, uint64_t tick)
         r[k].x = (int)(next_random() % (uint32_t)(W - r[k].w));
         /* one rectangle in the top half, one on the bottom edge (the partial tiles) */
         r[k].y = k == 0 ? (int)(next_random() % (uint32_t)(H / 2 - r[k].h)) : H - r[k].h;
-        for (int y = r[k].y; y < r[k].y + r[k].h; y++)
-            for (int x = r[k].x; x < r[k].x + r[k].w; x++)
-                w->heights[y * W + x] += (int32_t)(next_random() % 200) - 100;
+        int32_t *cells = malloc((size_t)r[k].w * r[k].h * sizeof *cells);
+        if (!cells)
+            exit(2);
+        world_gather_window(w, r[k], cells);
+        for (int i = 0; i < r[k].w * r[k].h; i++)
+            cells[i] += (int32_t)(next_random() % 200) - 100;
+        world_scatter_window(w, r[k], cells);
+        free(cells);
     }
     return store_commit_tick(st, w, tick, r, 2);
 }
 
 static int same_heights(const world *a, const world *b)
 {
-    return memcmp(a->heights, b->heights, (size_t)W * H * 4) == 0;
+    int32_t *da = dense_copy(a), *db = dense_copy(b);
+    int same = memcmp(da, db, (size_t)W * H * 4) == 0;
+    free(da);
+    free(db);
+    return same;
 }
 
 static int count_files(const char *path, const char *suffix)
@@ -272,8 +303,11 @@ static store *ten_ticks(world *live, world *at9, error_text *err)
     store *st = open_dir(live, &rec, 0, err);
     for (uint64_t t = 1; t <= 10 && st; t++) {
         random_tick(st, live, t);
-        if (t == 9)
-            memcpy(at9->heights, live->heights, (size_t)W * H * 4);
+        if (t == 9) {
+            int32_t *all = dense_copy(live);
+            world_scatter_window(at9, (world_rect){0, 0, W, H}, all);
+            free(all);
+        }
     }
     return st;
 }
@@ -355,8 +389,7 @@ static void test_manifest_and_lock(void)
     CHECK(st && !second && strstr(err.message, "in use"), "a second daemon is refused: %s",
           err.message);
     store_close(st);
-    make_base(&other);
-    other.heights[5] += 1; /* another scene's base terrain */
+    make_base_seeded(&other, 8); /* another scene's base terrain */
     st = open_dir(&other, &rec, 0, &err);
     CHECK(!st && strstr(err.message, "MANIFEST") && strstr(err.message, "base_crc32c"),
           "another scene's directory refused: %s", err.message);
@@ -405,14 +438,13 @@ static void test_fault_hook(void)
     FILE *f = fopen(fault, "w");
     if (f)
         fclose(f);
-    world before;
-    make_base(&before);
-    memcpy(before.heights, live.heights, (size_t)W * H * 4);
+    int32_t *before = dense_copy(&live);
     CHECK(random_tick(st, &live, 6) == -1, "a write under the fault hook fails");
     CHECK(strstr(store_failure(st), "No space left"), "the reason says ENOSPC: %s",
           store_failure(st));
     CHECK(store_writable(st) == 0 && file_size(seg) == size, "unwritable; the log is unchanged");
-    memcpy(live.heights, before.heights, (size_t)W * H * 4); /* the service undoes the tick */
+    world_scatter_window(&live, (world_rect){0, 0, W, H}, before); /* the service undoes the tick */
+    free(before);
     sleep_ms(600);
     CHECK(store_writable(st) == 0, "still unwritable while the fault file exists");
     unlink(fault);
@@ -427,7 +459,6 @@ static void test_fault_hook(void)
     store_close(st);
     world_free(&live);
     world_free(&back);
-    world_free(&before);
 }
 
 static void test_group_commit(void)
