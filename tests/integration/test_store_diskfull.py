@@ -147,9 +147,12 @@ def main():
     try:
         d = Daemon(backend="cpu", demo=True, data_dir=data, extra=["--store-fault", fault],
                    name="terrad-diskfull")
+        w = None
         with check.running(d):
-            asyncio.run(scenario(d, fault))
             w = d.world()
+            asyncio.run(scenario(d, fault))
+        if w is None:
+            check.finish()
         # stopped with SIGTERM: its last world must come back whole
         before = None
         d2 = Daemon(backend="cpu", demo=False, data_dir=data, name="terrad-diskfull-restart")
