@@ -229,8 +229,7 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         return -1;
     }
     if (!isfinite(m->edge_width) || m->edge_width <= 0.0 || m->edge_width > 100.0) {
-        error_set(err, "material.edge_width: must be a number in (0, 100] (got %g)",
-                  m->edge_width);
+        error_set(err, "material.edge_width: must be a number in (0, 100] (got %g)", m->edge_width);
         return -1;
     }
     if (!in_range(m->diffusion_d, 0.0, 1e12)) {

@@ -26,7 +26,6 @@ typedef struct world_rect {
     int x, y, w, h; /* cells; w and h > 0 for a non-empty rectangle */
 } world_rect;
 
-
 /* How the base terrain is made. */
 typedef enum world_base_kind {
     WORLD_BASE_FLAT,
