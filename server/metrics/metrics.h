@@ -12,7 +12,8 @@
 
 /* Stage names for metrics_observe_stage_ms (the simulate report's names). */
 #define METRICS_STAGES                                                                             \
-    "depth", "classify", "jump_flood", "displace", "even_slopes", "transfer", "gather_scatter"
+    "depth", "classify", "jump_flood", "displace", "even_slopes", "transfer", "gather_scatter",    \
+        "model"
 
 void metrics_reset(void); /* zero everything (tests) */
 
@@ -39,6 +40,13 @@ void metrics_set_colliders(int64_t n);
 void metrics_set_clients(int64_t n);
 /* Memory held by a part of the daemon ("world", "sim_scratch", ...). */
 void metrics_set_memory_bytes(const char *part, uint64_t bytes);
+
+/* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
+ * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
+#define METRICS_MEMORY_STAGES                                                                      \
+    "depth", "classify", "jump_flood", "displace", "even_slopes", "backend_other", "model",        \
+        "gather_scatter"
+void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes);
 
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);

@@ -199,11 +199,6 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         error_set(err, "material.model: unknown or unavailable model");
         return -1;
     }
-    if (sim_model_is_persson(m->model) && sim_model_from_method(m->method) != m->model) {
-        error_set(err, "material.method: %s does not match material.model %s",
-                  sim_method_name(m->method), sim_model_name(m->model));
-        return -1;
-    }
     if (!isfinite(m->tick_s) || m->tick_s <= 0.0 || m->tick_s > 3600.0) {
         error_set(err, "tick_hz: the tick must last (0, 3600] s (got %g s)", m->tick_s);
         return -1;
@@ -280,7 +275,9 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
     p->displace_iterations = m->displace_iterations;
     p->slope_iterations = m->slope_iterations;
     p->floor = floor_units;
-    p->model = m->model;
+    /* for Persson the method says which variant (code that sets only the
+     * method, as before models existed, keeps working) */
+    p->model = sim_model_is_persson(m->model) ? sim_model_from_method(m->method) : m->model;
     p->refill_q16_per_tick =
         (int64_t)llround(m->refill_m_per_s * units_per_m * m->tick_s * 65536.0);
     /* d is measured in cells: scale per m -> units per cell^2 */

@@ -124,9 +124,10 @@ static void test_model_names(void)
               strstr(err.message, "refill_m_per_s"),
           "negative refill refused: %s", err.message);
     mat = sim_material_default();
-    mat.model = SIM_MODEL_PERSSON_MULTI; /* method still ssbo */
-    CHECK(sim_params_from_material(&mat, CELL, UPM, 0, &p, &err) != 0,
-          "a persson model contradicting the method is refused");
+    mat.method = SIM_METHOD_MULTI; /* model still persson-ssbo: the method picks the variant */
+    CHECK(sim_params_from_material(&mat, CELL, UPM, 0, &p, &err) == 0 &&
+              p.model == SIM_MODEL_PERSSON_MULTI,
+          "the method picks the persson variant");
     mat = sim_material_default();
     CHECK(sim_material_diffusion_preset(&mat, "sand") == 0 && mat.diffusion_d == 1.0 &&
               mat.diffusion_zeta_inv == 4e-4 && mat.repose_deg == 45.0,
