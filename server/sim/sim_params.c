@@ -32,7 +32,7 @@ sim_material sim_material_default(void)
         .edge_width = 0.5,
         .diffusion_d = 0.25, /* Gilardi's mud */
         .diffusion_zeta_inv = 6e-4,
-        .diffusion_force_scale = 1000.0,
+        .diffusion_force_scale = 10000.0,
         .diffusion_dt = 0.2,
         .diffusion_substeps = SIM_DIFFUSION_SUBSTEPS_AUTO,
         .diffusion_conservative = 1,
