@@ -564,6 +564,55 @@ static void test_height_limits(void)
     }
 }
 
+/* ---- one-cell and world-sized colliders ---- */
+
+static void test_collider_sizes(void)
+{
+    const sim_model models[] = {SIM_MODEL_PERSSON_SSBO, SIM_MODEL_SUBTRACT, SIM_MODEL_DEFERRED,
+                                SIM_MODEL_DIFFUSION, SIM_MODEL_DECALS};
+    collider_geometry speck = {.shape = COLLIDER_SPHERE, .radius = 0.01};
+    collider_geometry slab = {.shape = COLLIDER_BOX, .half_extents = {5, 5, 0.2}};
+    for (size_t k = 0; k < sizeof models / sizeof models[0]; k++) {
+        for (int big = 0; big < 2; big++) {
+            tune_d = 1.0;
+            tune_z = 4e-4;
+            tune_dt = 0.2;
+            sim_params p = models[k] == SIM_MODEL_DIFFUSION
+                               ? params_for(SIM_MODEL_DIFFUSION, diffusion_tune)
+                               : params_for(models[k], NULL);
+            rig r;
+            rig_init(&r, 40, 0.5, &p);
+            int64_t before = world_volume(&r.w);
+            /* the speck sits on one cell's centre; the slab covers the world */
+            sim_collider c =
+                big ? collider_at(&slab, 1.0, 1.0, 0.5 + 0.2 - 0.05, 1.0, 1.0, 0.9, 1)
+                    : collider_at(&speck, 0.525, 0.525, 0.5 + 0.01 - 0.005, 0.525, 0.525, 0.6, 1);
+            int changed = 0;
+            for (int t = 0; t < 3; t++) {
+                sim_tick_report report;
+                rig_tick(&r, &c, 1, &report);
+                changed |= report.dirty_count > 0;
+            }
+            int64_t after = world_volume(&r.w);
+            const char *name = sim_model_name(models[k]);
+            if (models[k] == SIM_MODEL_SUBTRACT)
+                CHECK(after < before, "%s %s: cut something", name,
+                      big ? "world-sized" : "one-cell");
+            else if (models[k] != SIM_MODEL_DEFERRED)
+                CHECK(after == before, "%s %s: volume exact", name,
+                      big ? "world-sized" : "one-cell");
+            /* a slab over the whole world leaves Persson and diffusion nowhere to push
+             * (no free cell, no difference of penetration): the heights stay */
+            int nowhere =
+                big && (models[k] == SIM_MODEL_PERSSON_SSBO || models[k] == SIM_MODEL_DIFFUSION);
+            if (models[k] != SIM_MODEL_DECALS)
+                CHECK(changed == !nowhere, "%s %s: %s", name, big ? "world-sized" : "one-cell",
+                      nowhere ? "nowhere to push, unchanged" : "deformed");
+            rig_free(&r);
+        }
+    }
+}
+
 /* ---- decals ---- */
 
 static void test_decals(void)
@@ -641,6 +690,7 @@ int main(void)
     timed("test_diffusion_extremes", test_diffusion_extremes);
     timed("test_thin_fast_collider", test_thin_fast_collider);
     timed("test_height_limits", test_height_limits);
+    timed("test_collider_sizes", test_collider_sizes);
     timed("test_decals", test_decals);
     timed("test_memory_by_model", test_memory_by_model);
     return check_report();
