@@ -357,6 +357,7 @@ int app_serve(int argc, char **argv)
     }
     if (o.tick_hz > 0)
         sc.tick_hz = o.tick_hz;
+    sc.material.tick_s = 1.0 / sc.tick_hz; /* per-second rates (refill) follow the tick */
     world w;
     if (scene_create_world(&sc, &w, &err) != 0) {
         log_error("%s", err.message);

@@ -332,6 +332,8 @@ oom:
 static int keep_refilling(sim_engine *e, int count)
 {
     e->refilling_count = 0;
+    if (!e->world->has_base)
+        return 0; /* heights set by hand: no base to refill toward */
     int64_t offset = 0;
     for (int i = 0; i < count; i++) {
         world_rect r = e->windows[i];
