@@ -55,6 +55,8 @@ void app_print_help(void)
            "  --ticks N           number of ticks to run (required)\n"
            "  --backend gl|cpu    default gl\n"
            "  --method M          iterative | ssbo | multi (overrides the scene's material)\n"
+           "  --model M           persson-iterative | persson-ssbo | persson-multi | subtract |\n"
+           "                      deferred | diffusion | decals (overrides the scene's model)\n"
            "  --metric K          euclidean | manhattan | chebyshev (overrides the scene's)\n"
            "  --out FILE          write the final heights: little-endian int32, row-major\n"
            "  --depth-from-cpu    feed the CPU twin's analytic depth to the backend, so the\n"

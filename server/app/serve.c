@@ -358,6 +358,7 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
     metrics_observe_stage_ms("even_slopes", t->even_slopes);
     metrics_observe_stage_ms("transfer", t->transfer);
     metrics_observe_stage_ms("gather_scatter", st->report.gather_scatter_ms);
+    metrics_observe_stage_ms("model", st->report.model_ms);
     metrics_set_tick(service_current_tick(svc));
     metrics_set_volume(service_volume(svc));
     metrics_set_active_cells(st->report.active_cells);
@@ -366,6 +367,16 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
         metrics_count_refused_windows((uint64_t)st->report.refused_windows);
     metrics_set_memory_bytes("world_heights", world_resident_bytes(w));
     metrics_set_memory_bytes("sim_scratch", engine->peak_scratch_bytes);
+    /* what the scene's models hold, by stage (docs/models.md) */
+    const sim_stage_memory *m = &engine->memory;
+    metrics_set_stage_memory_bytes("depth", m->depth);
+    metrics_set_stage_memory_bytes("classify", m->classify);
+    metrics_set_stage_memory_bytes("jump_flood", m->jump_flood);
+    metrics_set_stage_memory_bytes("displace", m->displace);
+    metrics_set_stage_memory_bytes("even_slopes", m->even_slopes);
+    metrics_set_stage_memory_bytes("backend_other", m->backend_other);
+    metrics_set_stage_memory_bytes("model", m->model);
+    metrics_set_stage_memory_bytes("gather_scatter", m->gather_scatter);
 }
 
 int app_serve(int argc, char **argv)
@@ -385,6 +396,7 @@ int app_serve(int argc, char **argv)
     }
     if (o.tick_hz > 0)
         sc.tick_hz = o.tick_hz;
+    sc.material.tick_s = 1.0 / sc.tick_hz; /* per-second rates (refill) follow the tick */
     world w;
     if (scene_create_world(&sc, &w, &err) != 0) {
         log_error("%s", err.message);
@@ -460,7 +472,7 @@ int app_serve(int argc, char **argv)
         service_attach_store(svc, st, recovery.tick);
     status.volume = service_volume(svc);
     status.tick = service_current_tick(svc);
-    snprintf(models, sizeof models, "[\"persson-%s\"]", sim_method_name(params.method));
+    snprintf(models, sizeof models, "[\"%s\"]", sim_model_name(params.model));
     net_config nc = {.port = o.ws_port,
                      .bind_any = o.bind_any,
                      .token = o.token,
@@ -492,7 +504,7 @@ int app_serve(int argc, char **argv)
     status.ready = 1;
     snprintf(status.renderer, sizeof status.renderer, "%s", backend->renderer);
     snprintf(status.backend, sizeof status.backend, "%s", backend->name);
-    snprintf(status.method, sizeof status.method, "persson-%s", sim_method_name(params.method));
+    snprintf(status.method, sizeof status.method, "%s", sim_model_name(params.model));
     snprintf(status.metric, sizeof status.metric, "%s", sim_metric_name(params.metric));
     pthread_mutex_unlock(&status.lock);
 

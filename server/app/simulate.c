@@ -211,10 +211,9 @@ int app_simulate(int argc, char **argv)
         sim_backend_gl_set_stage_timing(backend, 1);
     engine.depth_from_cpu = o.depth_from_cpu;
 
-    stage_series stages[] = {{"depth", {0}},          {"classify", {0}},    {"jump_flood", {0}},
-                             {"displace", {0}},       {"even_slopes", {0}}, {"transfer", {0}},
-                             {"model", {0}},          {"gather_scatter", {0}},
-                             {"tick", {0}}};
+    stage_series stages[] = {{"depth", {0}},    {"classify", {0}},       {"jump_flood", {0}},
+                             {"displace", {0}}, {"even_slopes", {0}},    {"transfer", {0}},
+                             {"model", {0}},    {"gather_scatter", {0}}, {"tick", {0}}};
     const int stage_count = (int)(sizeof stages / sizeof stages[0]);
     sim_collider *colliders = calloc((size_t)sc.collider_count + 1, sizeof *colliders);
     if (!colliders) {
@@ -241,11 +240,9 @@ int app_simulate(int argc, char **argv)
             goto done_colliders;
         }
         double elapsed = time_now_ms() - t0;
-        double values[] = {report.times.depth,       report.times.classify,
-                           report.times.jump_flood,  report.times.displace,
-                           report.times.even_slopes, report.times.transfer,
-                           report.model_ms,          report.gather_scatter_ms,
-                           elapsed};
+        double values[] = {report.times.depth,    report.times.classify,    report.times.jump_flood,
+                           report.times.displace, report.times.even_slopes, report.times.transfer,
+                           report.model_ms,       report.gather_scatter_ms, elapsed};
         for (int s = 0; s < stage_count; s++)
             stat_series_add(&stages[s].series, values[s]);
         active_sum += (double)report.active_cells;

@@ -66,6 +66,9 @@ static const char *const fsync_labels[] = {"0.00005", "0.0001", "0.00025", "0.00
 
 static const char *const stage_names[] = {METRICS_STAGES};
 #define STAGE_COUNT COUNT_OF(stage_names)
+static const char *const memory_stage_names[] = {METRICS_MEMORY_STAGES};
+#define MEMORY_STAGE_COUNT COUNT_OF(memory_stage_names)
+static _Atomic uint64_t stage_memory[MEMORY_STAGE_COUNT];
 
 static histogram tick_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
                               .nbounds = COUNT_OF(tick_bounds_ms),
@@ -186,6 +189,18 @@ void metrics_reset(void)
     pthread_mutex_lock(&memory_lock);
     memory_part_count = 0;
     pthread_mutex_unlock(&memory_lock);
+    for (int i = 0; i < MEMORY_STAGE_COUNT; i++)
+        SET(stage_memory[i], 0);
+}
+
+void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes)
+{
+    for (int i = 0; stage && i < MEMORY_STAGE_COUNT; i++) {
+        if (strcmp(stage, memory_stage_names[i]) == 0) {
+            SET(stage_memory[i], bytes);
+            return;
+        }
+    }
 }
 
 void metrics_count_store_wal_bytes(uint64_t bytes)
@@ -562,6 +577,12 @@ char *metrics_render(size_t *len)
                     (unsigned long long)memory_parts[i].bytes);
     }
     pthread_mutex_unlock(&memory_lock);
+
+    header(&t, "terrad_sim_scratch_bytes", "gauge",
+           "Scratch memory the deformation models hold, by stage.");
+    for (int i = 0; i < MEMORY_STAGE_COUNT; i++)
+        text_printf(&t, "terrad_sim_scratch_bytes{stage=\"%s\"} %llu\n", memory_stage_names[i],
+                    (unsigned long long)GET(stage_memory[i]));
 
     if (t.failed) {
         free(t.data);

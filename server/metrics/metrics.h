@@ -12,7 +12,8 @@
 
 /* Stage names for metrics_observe_stage_ms (the simulate report's names). */
 #define METRICS_STAGES                                                                             \
-    "depth", "classify", "jump_flood", "displace", "even_slopes", "transfer", "gather_scatter"
+    "depth", "classify", "jump_flood", "displace", "even_slopes", "transfer", "gather_scatter",    \
+        "model"
 
 void metrics_reset(void); /* zero everything (tests) */
 
@@ -50,6 +51,13 @@ void metrics_count_store_compaction(double ms);
 void metrics_count_store_error(const char *kind);
 void metrics_set_store_available(int available);
 void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut);
+
+/* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
+ * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
+#define METRICS_MEMORY_STAGES                                                                      \
+    "depth", "classify", "jump_flood", "displace", "even_slopes", "backend_other", "model",        \
+        "gather_scatter"
+void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes);
 
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);

@@ -19,7 +19,8 @@
  *
  * The rim is measured from the base terrain (job->base_heights), not from
  * the current heights, so standing still does not pile rims on rims: both
- * the cut (min) and the rim (max against base + bump) are idempotent.
+ * the cut (min where the profile is under the base) and the rim (max against
+ * base + bump where it is above) are idempotent.
  * Volume is not preserved — material is cut away and rims appear from
  * nothing; docs/models.md gives the drift measured here.
  *
@@ -129,9 +130,11 @@ sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, 
         int32_t now = job->heights[i];
         int32_t snow = job->base_heights ? job->base_heights[i] : now;
         int32_t foot = foot_image[i];
-        if (deform[i] < now) {
-            /* depression */
-            job->heights[i] = deform[i] > p->floor ? deform[i] : (now < p->floor ? now : p->floor);
+        if (deform[i] < snow) {
+            /* depression: down to the profile (never up, never under the floor) */
+            int32_t cut = deform[i] > p->floor ? deform[i] : p->floor;
+            if (cut < now)
+                job->heights[i] = cut;
             continue;
         }
         if (foot >= snow || p->edge_height_q16 == 0 || p->trail_scale_q16 == 0)
@@ -145,7 +148,7 @@ sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, 
         if (width <= 0 || e <= 0 || e >= width)
             continue;
         int64_t t = (2 * e * 65536) / width - 65536; /* -1..1 in Q16 */
-        int64_t q = 65536 - ((t * t) >> 16);          /* 1 - t^2 in Q16 */
+        int64_t q = 65536 - ((t * t) >> 16);         /* 1 - t^2 in Q16 */
         int64_t rim_height = (depth * p->edge_height_q16) >> 16;
         if (rim_height > WORLD_HEIGHT_MAX)
             rim_height = WORLD_HEIGHT_MAX;

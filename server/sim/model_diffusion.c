@@ -54,8 +54,9 @@ int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_d
         n = p->diffusion_substeps;
     } else {
         double need = ceil(total / STABLE_SUM);
-        n = need < 1.0 ? 1 : need > SIM_DIFFUSION_SUBSTEPS_MAX ? SIM_DIFFUSION_SUBSTEPS_MAX
-                                                                : (int)need;
+        n = need < 1.0                          ? 1
+            : need > SIM_DIFFUSION_SUBSTEPS_MAX ? SIM_DIFFUSION_SUBSTEPS_MAX
+                                                : (int)need;
     }
     cd /= n;
     cz /= n;
@@ -243,8 +244,7 @@ static double repose_weight(double d, double alpha)
     return w < 0.0 ? 0.0 : w > 1.0 ? 1.0 : w;
 }
 
-static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job,
-                                        int32_t *scratch)
+static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
 {
     int w = job->rect.w, h = job->rect.h;
     int64_t n = (int64_t)w * h;
@@ -255,6 +255,12 @@ static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job
     double cd, cz;
     int steps = sim_diffusion_substeps(p, &cd, &cz);
     double dt = p->diffusion_dt / steps;
+    /* under auto the substep keeps (D + ζ⁻¹ force_scale) Δt at the bound too */
+    double rate = p->diffusion_d + p->diffusion_zeta_inv * p->diffusion_force_scale;
+    if (p->diffusion_substeps == SIM_DIFFUSION_SUBSTEPS_AUTO && rate * dt > STABLE_SUM)
+        dt = STABLE_SUM / rate;
+    (void)cd;
+    (void)cz;
     nearest_collider(job, owner);
     for (int64_t i = 0; i < n; i++)
         H[i] = job->heights[i] / cell_units;
@@ -263,8 +269,8 @@ static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job
         for (int y = 0; y < h; y++) {
             for (int x = 0; x < w; x++) {
                 int64_t i = (int64_t)y * w + x;
-                int32_t hi = (int32_t)fmax(fmin(H[i] * cell_units, WORLD_HEIGHT_MAX),
-                                           WORLD_HEIGHT_MIN);
+                int32_t hi =
+                    (int32_t)fmax(fmin(H[i] * cell_units, WORLD_HEIGHT_MAX), WORLD_HEIGHT_MIN);
                 double pc = penetration(p, hi, bottom[i]) / cell_units;
                 double ux = 0.0, uy = 0.0;
                 if (owner[i] >= 0 && pc > 0.0)

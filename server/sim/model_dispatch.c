@@ -18,7 +18,7 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
     case SIM_MODEL_DIFFUSION:
         return 9 * cells + 2; /* the larger of the two forms: Gilardi's doubles */
     case SIM_MODEL_DECALS:
-        return cells; /* one collider's depth */
+        return cells;      /* one collider's depth */
     case SIM_MODEL_SUMNER: /* set when model_sumner.c is merged */
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:

@@ -71,7 +71,7 @@ typedef enum sim_model {
 #define SIM_DIFFUSION_SUBSTEPS_AUTO 0
 /* Automatic sub-stepping never runs more than this many per tick; beyond it
  * each substep is at the stability bound and the tick is saturated. */
-#define SIM_DIFFUSION_SUBSTEPS_MAX 256
+#define SIM_DIFFUSION_SUBSTEPS_MAX 64
 
 typedef enum sim_cell_class {
     SIM_CELL_SEED = 0,        /* free: can receive material */
@@ -101,8 +101,8 @@ typedef struct sim_material {
     double edge_height;       /* rim height as a share of the trail's depth, >= 0 */
     double edge_width;        /* rim width as a share of the trail's radius, > 0 */
     /* diffusion (Gilardi eq. 1-8) */
-    double diffusion_d;       /* D, cells^2 per unit of Gilardi time */
-    double diffusion_zeta_inv; /* ζ⁻¹, the inverse friction */
+    double diffusion_d;           /* D, cells^2 per unit of Gilardi time */
+    double diffusion_zeta_inv;    /* ζ⁻¹, the inverse friction */
     double diffusion_force_scale; /* force per cell of penetration (F = scale * p) */
     double diffusion_dt;          /* Δt per tick in Gilardi's time */
     int diffusion_substeps;       /* SIM_DIFFUSION_SUBSTEPS_AUTO or a fixed count >= 1 */
@@ -141,9 +141,9 @@ typedef struct sim_params {
     double diffusion_d, diffusion_zeta_inv, diffusion_force_scale, diffusion_dt;
     int32_t diffusion_substeps;
     int32_t diffusion_conservative;
-    double repose_rad;         /* diffusion's float scheme: α of eq. 4 */
-    double cell_size_m;        /* the float scheme measures heights in cells */
-    int32_t units_per_m;       /* ditto */
+    double repose_rad;          /* diffusion's float scheme: α of eq. 4 */
+    double cell_size_m;         /* the float scheme measures heights in cells */
+    int32_t units_per_m;        /* ditto */
     int32_t decal_min_strength; /* units */
 } sim_params;
 
@@ -214,8 +214,8 @@ int64_t sim_max_slope_excess(const sim_params *p, int w, int h, const int32_t *h
 /* Scratch bytes held per stage (what an allocation is for, not when it runs). */
 typedef struct sim_stage_memory {
     uint64_t depth, classify, jump_flood, displace, even_slopes; /* persson backends */
-    uint64_t backend_other; /* a backend's scratch it does not split by stage (GL) */
-    uint64_t model;         /* the non-persson models' scratch (and base heights) */
+    uint64_t backend_other;  /* a backend's scratch it does not split by stage (GL) */
+    uint64_t model;          /* the non-persson models' scratch (and base heights) */
     uint64_t gather_scatter; /* the engine's packed windows and bookkeeping */
 } sim_stage_memory;
 
@@ -278,10 +278,10 @@ int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_d
 /* A footprint event of the decals model: where a collider touches the ground. */
 typedef struct sim_footprint {
     int collider_id;
-    double x_m, y_m;    /* centre of the touched cells, metres */
-    double yaw_rad;     /* heading of the collider about z */
-    double size_m;      /* side of a square with the touched area */
-    double strength_m;  /* deepest penetration */
+    double x_m, y_m;   /* centre of the touched cells, metres */
+    double yaw_rad;    /* heading of the collider about z */
+    double size_m;     /* side of a square with the touched area */
+    double strength_m; /* deepest penetration */
 } sim_footprint;
 
 /* decals: one window's events (at most out_capacity); returns how many. */
@@ -323,7 +323,7 @@ typedef struct sim_tick_report {
     world_rect *dirty; /* tight rectangles of changed cells, one per changed window */
     int *dirty_window; /* the window each dirty rectangle came from */
     int dirty_count;
-    double model_ms;              /* the non-persson models' window functions */
+    double model_ms;                 /* the non-persson models' window functions */
     const sim_footprint *footprints; /* decals: this tick's events (engine-owned) */
     int footprint_count;
 } sim_tick_report;
@@ -348,16 +348,16 @@ typedef struct sim_engine {
     int window_collider_capacity;
     int32_t *heights, *before, *bottom; /* all windows of a tick, packed */
     int64_t cell_capacity;
-    int64_t bottom_capacity; /* bottom is allocated only when the engine casts depth */
+    int64_t bottom_capacity;     /* bottom is allocated only when the engine casts depth */
     uint64_t peak_scratch_bytes; /* engine's own plus the backend's, high-water mark */
     int64_t peak_active_cells;
     /* the non-persson models */
     int32_t *model_scratch;
     int64_t model_scratch_capacity; /* int32 */
-    int32_t *base; /* base heights of the packed windows (models that need them) */
+    int32_t *base;                  /* base heights of the packed windows (models that need them) */
     int64_t base_capacity;
     int64_t refill_q16_accumulated; /* subtract: refill's fraction carried over */
-    world_rect *refilling; /* subtract: windows with cells still below base */
+    world_rect *refilling;          /* subtract: windows with cells still below base */
     int refilling_count, refilling_capacity;
     sim_footprint *footprints_out; /* decals: the last tick's events */
     int footprint_out_capacity;

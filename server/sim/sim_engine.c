@@ -243,12 +243,12 @@ static void engine_memory(const sim_engine *e, sim_stage_memory *m)
         e->backend->stage_bytes(e->backend, m);
     else
         m->backend_other = e->backend->scratch_bytes(e->backend);
-    m->gather_scatter = (uint64_t)e->cell_capacity * 2 * sizeof(int32_t) +
-                        (uint64_t)e->window_capacity *
-                            (sizeof(world_rect) * 2 + sizeof(sim_window_job) + sizeof(int) +
-                             sizeof(int64_t) + sizeof(int)) +
-                        (uint64_t)e->footprint_capacity * sizeof(world_rect) +
-                        (uint64_t)e->window_collider_capacity * sizeof(sim_collider);
+    m->gather_scatter =
+        (uint64_t)e->cell_capacity * 2 * sizeof(int32_t) +
+        (uint64_t)e->window_capacity * (sizeof(world_rect) * 2 + sizeof(sim_window_job) +
+                                        sizeof(int) + sizeof(int64_t) + sizeof(int)) +
+        (uint64_t)e->footprint_capacity * sizeof(world_rect) +
+        (uint64_t)e->window_collider_capacity * sizeof(sim_collider);
     m->depth += (uint64_t)e->bottom_capacity * sizeof(int32_t);
     m->model = (uint64_t)e->model_scratch_capacity * sizeof(int32_t) +
                (uint64_t)e->base_capacity * sizeof(int32_t) +
@@ -336,15 +336,14 @@ static int keep_refilling(sim_engine *e, int count)
     for (int i = 0; i < count; i++) {
         world_rect r = e->windows[i];
         int64_t n = (int64_t)r.w * r.h;
-        const int32_t *now = e->status[i] == SIM_WINDOW_OK ? e->heights + offset
-                                                            : e->before + offset;
+        const int32_t *now =
+            e->status[i] == SIM_WINDOW_OK ? e->heights + offset : e->before + offset;
         int below = 0;
         for (int64_t k = 0; k < n && !below; k++)
             below = now[k] < e->base[offset + k];
         if (below) {
             int64_t cap = e->refilling_capacity;
-            if (grow((void **)&e->refilling, &cap, e->refilling_count + 1, sizeof(world_rect)) !=
-                0)
+            if (grow((void **)&e->refilling, &cap, e->refilling_count + 1, sizeof(world_rect)) != 0)
                 return -1;
             e->refilling_capacity = (int)cap;
             e->refilling[e->refilling_count++] = r;

@@ -32,7 +32,7 @@ sim_material sim_material_default(void)
         .edge_width = 0.5,
         .diffusion_d = 0.25, /* Gilardi's mud */
         .diffusion_zeta_inv = 6e-4,
-        .diffusion_force_scale = 1000.0,
+        .diffusion_force_scale = 10000.0,
         .diffusion_dt = 0.2,
         .diffusion_substeps = SIM_DIFFUSION_SUBSTEPS_AUTO,
         .diffusion_conservative = 1,
@@ -199,11 +199,6 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         error_set(err, "material.model: unknown or unavailable model");
         return -1;
     }
-    if (sim_model_is_persson(m->model) && sim_model_from_method(m->method) != m->model) {
-        error_set(err, "material.method: %s does not match material.model %s",
-                  sim_method_name(m->method), sim_model_name(m->model));
-        return -1;
-    }
     if (!isfinite(m->tick_s) || m->tick_s <= 0.0 || m->tick_s > 3600.0) {
         error_set(err, "tick_hz: the tick must last (0, 3600] s (got %g s)", m->tick_s);
         return -1;
@@ -229,8 +224,7 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         return -1;
     }
     if (!isfinite(m->edge_width) || m->edge_width <= 0.0 || m->edge_width > 100.0) {
-        error_set(err, "material.edge_width: must be a number in (0, 100] (got %g)",
-                  m->edge_width);
+        error_set(err, "material.edge_width: must be a number in (0, 100] (got %g)", m->edge_width);
         return -1;
     }
     if (!in_range(m->diffusion_d, 0.0, 1e12)) {
@@ -281,7 +275,9 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
     p->displace_iterations = m->displace_iterations;
     p->slope_iterations = m->slope_iterations;
     p->floor = floor_units;
-    p->model = m->model;
+    /* for Persson the method says which variant (code that sets only the
+     * method, as before models existed, keeps working) */
+    p->model = sim_model_is_persson(m->model) ? sim_model_from_method(m->method) : m->model;
     p->refill_q16_per_tick =
         (int64_t)llround(m->refill_m_per_s * units_per_m * m->tick_s * 65536.0);
     /* d is measured in cells: scale per m -> units per cell^2 */

@@ -136,6 +136,9 @@ int main(void)
     metrics_observe_stage_ms("gather_scatter", 40);
     metrics_observe_stage_ms("no_such_stage", 1); /* dropped */
     metrics_observe_pose_to_delta_ms(20);
+    metrics_set_stage_memory_bytes("jump_flood", 4096);
+    metrics_set_stage_memory_bytes("model", 77);
+    metrics_set_stage_memory_bytes("no_such_stage_bytes", 5); /* dropped */
 
     metrics_set_tick(123456);
     /* 2^53 + 1: a double would print 9007199254740992. */
@@ -196,6 +199,10 @@ int main(void)
                 "terrad_stage_duration_seconds_bucket{stage=\"gather_scatter\",le=\"0.033\"} 0");
     expect_line(text, "terrad_stage_duration_seconds_count{stage=\"jump_flood\"} 0");
     CHECK(!strstr(text, "no_such_stage"), "unknown stage names are not rendered");
+    expect_line(text, "# TYPE terrad_sim_scratch_bytes gauge");
+    expect_line(text, "terrad_sim_scratch_bytes{stage=\"jump_flood\"} 4096");
+    expect_line(text, "terrad_sim_scratch_bytes{stage=\"model\"} 77");
+    expect_line(text, "terrad_sim_scratch_bytes{stage=\"displace\"} 0");
     expect_line(text, "terrad_pose_to_delta_latency_seconds_bucket{le=\"0.033\"} 1");
     expect_line(text, "terrad_pose_to_delta_latency_seconds_bucket{le=\"0.017\"} 0");
 

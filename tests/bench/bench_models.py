@@ -1,0 +1,56 @@
+#!/usr/bin/python3
+"""Every deformation model (docs/models.md) on the same scripted colliders:
+mean and p99 tick, the model's own stage, the volume drift it documents, and
+the scratch memory it holds, in all and by stage. A benchmark, not a test:
+it prints figures (CPU backend; the non-persson models have no GL version).
+
+Usage: bench_models.py [--ticks N] [--scenes thesis-car,box45]
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "integration"))
+from service_harness import machine  # noqa: E402
+
+SOURCE = os.environ.get("TERRAD_SOURCE_DIR", ".")
+BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
+          "diffusion", "decals"]
+STAGES = ["depth", "classify", "jump_flood", "displace", "even_slopes", "backend_other", "model",
+          "gather_scatter"]
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--ticks", type=int, default=1000)
+    ap.add_argument("--scenes", default="thesis-car,box45")
+    args = ap.parse_args()
+    print(f"bench_models on {machine()}, {args.ticks} ticks, CPU backend (timings noisy on a "
+          f"shared machine)")
+    for name in args.scenes.split(","):
+        scene = os.path.join(SOURCE, "tests", "scenes", name + ".json")
+        print(f"\n{name}")
+        print(f"{'model':<18} {'tick ms':>8} {'p99':>8} {'model ms':>9} {'Σh drift':>12} "
+              f"{'scratch B':>10}  by stage")
+        for model in MODELS:
+            p = subprocess.run([BIN, "simulate", "--scene", scene, "--ticks", str(args.ticks),
+                                "--backend", "cpu", "--model", model],
+                               capture_output=True, text=True, timeout=1800)
+            if p.returncode != 0:
+                print(f"{model:<18} failed: {p.stderr.strip()[-200:]}")
+                continue
+            r = json.loads(p.stdout)
+            st = r["stages"]
+            by = ", ".join(f"{s} {r['scratch_bytes_by_stage'][s]}" for s in STAGES
+                           if r["scratch_bytes_by_stage"][s])
+            extra = f"; {r['footprint_events']} footprint events" if "footprint_events" in r else ""
+            print(f"{model:<18} {st['tick']['mean_ms']:>8.3f} {st['tick']['p99_ms']:>8.3f} "
+                  f"{st['model']['mean_ms']:>9.3f} {r['volume_after'] - r['volume_before']:>+12d} "
+                  f"{r['scratch_bytes_peak']:>10d}  {by}{extra}")
+
+
+if __name__ == "__main__":
+    main()
