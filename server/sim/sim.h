@@ -165,6 +165,14 @@ typedef struct sim_window_job {
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
 } sim_window_job;
 
+/* ---- Sumner, O'Brien and Hodgins 1999 on the CPU (model_sumner.c) ----
+ * The accuracy reference: ray-cast columns, first-ring displacement, erosion
+ * by the slope-evening iterations. Σh exact with compression 0. Returns
+ * SIM_WINDOW_HEIGHT_LIMIT with job->heights unchanged if a column would leave
+ * the height range. `scratch` holds sim_sumner_scratch_cells(w, h) int32. */
+int64_t sim_sumner_scratch_cells(int w, int h);
+sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+
 typedef struct sim_backend sim_backend;
 struct sim_backend {
     const char *name;   /* "gl" or "cpu" */
