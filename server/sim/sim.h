@@ -115,6 +115,52 @@ void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
 void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
                     const int32_t *cls, int32_t *seed, int32_t *scratch);
 
+/* ---- Per-cell materials and compaction memory (sim_stages_materials.c) ----
+ * The same stages with a material id per cell (an index into a small table of
+ * integer rows) and, where some material remembers compaction, a uint16
+ * compaction memory per cell. With ids == NULL every cell is row 0; with one
+ * row equal to the params and max_compaction 0 the results are those of
+ * sim_classify / sim_even_slopes, bit for bit. */
+#define SIM_MATERIALS_MAX 16
+
+typedef struct sim_material_row {
+    int32_t compression_q16;          /* 0..65536 */
+    int32_t roughness_q16;            /* 0..65536 */
+    int32_t slope_threshold_axial;    /* units */
+    int32_t slope_threshold_diagonal; /* units */
+    int32_t max_compaction;           /* units, 0..65535; 0: no compaction memory */
+} sim_material_row;
+
+typedef struct sim_material_table {
+    int count; /* 1..SIM_MATERIALS_MAX */
+    sim_material_row rows[SIM_MATERIALS_MAX];
+} sim_material_table;
+
+/* A row from a material's integer params and its max compaction (units). */
+sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction);
+
+/*
+ * classify with per-cell materials. A penetrated column with compaction
+ * memory m of its material's max M yields only pen - pen*m/M (compacted
+ * ground resists; the collider rests in it), of which the material's
+ * compression share (at most M - m) is compacted and the rest displaced:
+ * raw[i] = yield, moved[i] = yield - compacted. memory may be NULL (m = 0).
+ */
+void sim_classify_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
+                            const uint16_t *memory, int cell_count, const int32_t *heights,
+                            const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
+/* After a window is accepted: memory[i] += raw[i] - moved[i] where the
+ * cell's material remembers compaction. */
+void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int cell_count,
+                           const int32_t *raw, const int32_t *moved, uint16_t *memory);
+/* even_slopes where each flux uses the material of the column it leaves. */
+void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t,
+                               const uint8_t *ids, int w, int h, const int32_t *cls,
+                               int32_t *heights, int32_t *scratch);
+/* Largest excess above the threshold of the higher column's material. */
+int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_t *ids, int w,
+                                       int h, const int32_t *heights);
+
 /* Outcome of a window. */
 typedef enum sim_window_status {
     SIM_WINDOW_OK = 0,
