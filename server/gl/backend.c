@@ -872,6 +872,13 @@ static int gl_run_windows(sim_backend *base, const sim_params *p, sim_window_job
         return -1;
     for (int i = 0; i < job_count; i++) {
         const world_rect r = jobs[i].rect;
+        /* The shaders have no per-cell material table or compaction memory
+         * yet: refuse rather than compute something the CPU twin would not. */
+        if (jobs[i].materials) {
+            error_set(err, "gl backend: per-cell materials and compaction memory run only on the "
+                           "cpu backend (use --backend cpu)");
+            return -1;
+        }
         if (r.w < 1 || r.h < 1 || r.w > SIM_WINDOW_SIDE_MAX || r.h > SIM_WINDOW_SIDE_MAX) {
             error_set(err, "gl backend: window %d is %dx%d cells (sides must be 1..%d)", i, r.w,
                       r.h, SIM_WINDOW_SIDE_MAX);

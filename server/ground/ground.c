@@ -85,15 +85,21 @@ static int material_row(const ground *g, const sim_material *base, const ground_
     return 0;
 }
 
-static void ground_base(ground *g, const world *w)
+ground_extent ground_extent_of_world(const world *w)
+{
+    ground_extent x = {w->width, w->height, w->cell_size_m, w->units_per_m, w->floor};
+    return x;
+}
+
+static void ground_base(ground *g, ground_extent w)
 {
     memset(g, 0, sizeof *g);
-    g->width = w->width;
-    g->height = w->height;
-    g->cell_size_m = w->cell_size_m;
-    g->units_per_m = w->units_per_m;
-    g->tiles_x = (w->width + GROUND_TILE_SIDE - 1) / GROUND_TILE_SIDE;
-    g->tiles_y = (w->height + GROUND_TILE_SIDE - 1) / GROUND_TILE_SIDE;
+    g->width = w.width;
+    g->height = w.height;
+    g->cell_size_m = w.cell_size_m;
+    g->units_per_m = w.units_per_m;
+    g->tiles_x = (w.width + GROUND_TILE_SIDE - 1) / GROUND_TILE_SIDE;
+    g->tiles_y = (w.height + GROUND_TILE_SIDE - 1) / GROUND_TILE_SIDE;
 }
 
 /* Finish: uniform flag, compaction flag and its tile directory. */
@@ -115,7 +121,7 @@ static int ground_finish(ground *g, error_text *err)
     return 0;
 }
 
-int ground_init_uniform(ground *g, const world *w, const sim_material *base, error_text *err)
+int ground_init_uniform(ground *g, ground_extent w, const sim_material *base, error_text *err)
 {
     ground_base(g, w);
     ground_material *m = &g->materials[0];
@@ -124,7 +130,7 @@ int ground_init_uniform(ground *g, const world *w, const sim_material *base, err
     m->roughness = base->roughness;
     m->repose_deg = base->repose_deg;
     g->material_count = 1;
-    if (material_row(g, base, m, w->floor, "material", &g->table.rows[0], err) != 0)
+    if (material_row(g, base, m, w.floor, "material", &g->table.rows[0], err) != 0)
         return -1;
     return ground_finish(g, err);
 }
@@ -146,7 +152,7 @@ static int read_number(const cJSON *o, const char *path, const char *key, double
     return 0;
 }
 
-static int parse_material_entry(ground *g, const world *w, const sim_material *base,
+static int parse_material_entry(ground *g, ground_extent w, const sim_material *base,
                                 const cJSON *entry, int index, error_text *err)
 {
     char path[GROUND_NAME_MAX + 16];
@@ -190,7 +196,7 @@ static int parse_material_entry(ground *g, const world *w, const sim_material *b
                     &m->max_compaction_m, err) ||
         read_number(entry, path, "density_kg_m3", 0, 1e5, 0, &m->density_kg_m3, err))
         return -1;
-    return material_row(g, base, m, w->floor, path, &g->table.rows[index], err);
+    return material_row(g, base, m, w.floor, path, &g->table.rows[index], err);
 }
 
 static int paint_material(const ground *g, const cJSON *o, const char *path, uint8_t *out,
@@ -305,7 +311,7 @@ static int parse_map(ground *g, const cJSON *map, error_text *err)
     return 0;
 }
 
-int ground_init_json(ground *g, const world *w, const sim_material *base, const void *materials_v,
+int ground_init_json(ground *g, ground_extent w, const sim_material *base, const void *materials_v,
                      const void *map_v, error_text *err)
 {
     const cJSON *materials = materials_v, *map = map_v;

@@ -59,6 +59,17 @@ typedef struct ground_paint {
     double a, b, c, d; /* rect: x0 y0 x1 y1; circle: cx cy r (d unused) */
 } ground_paint;
 
+/* The world's shape and scale, all the ground needs of it (a scene has these
+ * before any world exists). */
+typedef struct ground_extent {
+    int width, height; /* cells */
+    double cell_size_m;
+    int32_t units_per_m;
+    int32_t floor; /* units */
+} ground_extent;
+
+ground_extent ground_extent_of_world(const world *w);
+
 typedef struct ground {
     int width, height; /* world cells */
     double cell_size_m;
@@ -80,7 +91,7 @@ typedef struct ground {
  * One material everywhere: `base` (the scene's "material"), no compaction
  * memory. The world's dimensions and scale give the integer rows.
  */
-int ground_init_uniform(ground *g, const world *w, const sim_material *base, error_text *err);
+int ground_init_uniform(ground *g, ground_extent x, const sim_material *base, error_text *err);
 
 /*
  * From the scene: `materials` is the JSON object {"name": {"preset": ...,
@@ -93,7 +104,7 @@ int ground_init_uniform(ground *g, const world *w, const sim_material *base, err
  * The JSON values are cJSON pointers, passed as void to keep cJSON out of
  * this header.
  */
-int ground_init_json(ground *g, const world *w, const sim_material *base, const void *materials,
+int ground_init_json(ground *g, ground_extent x, const sim_material *base, const void *materials,
                      const void *map, error_text *err);
 void ground_free(ground *g);
 

@@ -111,7 +111,14 @@ sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, in
 
     /* 1-2: ray-cast columns, penetration and class (raw into next, moved into given). */
     sumner_depth(job, bottom);
-    sim_classify(p, n, heights, bottom, next, given, cls);
+    if (job->materials)
+        sim_classify_materials(p, job->materials, job->material_ids, job->compaction, n, heights,
+                               bottom, next, given, cls);
+    else
+        sim_classify(p, n, heights, bottom, next, given, cls);
+    /* The engine keeps this only if the window is accepted. */
+    if (job->materials && job->compaction)
+        sim_compaction_commit(job->materials, job->material_ids, n, next, given, job->compaction);
 
     /* 3: components of the footprint and their first rings. */
     int32_t components = label_footprint(w, h, cls, label, queue);
@@ -168,6 +175,10 @@ sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, in
     memcpy(heights, next, (size_t)n * sizeof *heights);
 
     /* 5: erosion towards the angle of repose, never into the footprint. */
-    sim_even_slopes(p, w, h, cls, heights, erosion_scratch);
+    if (job->materials)
+        sim_even_slopes_materials(p, job->materials, job->material_ids, w, h, cls, heights,
+                                  erosion_scratch);
+    else
+        sim_even_slopes(p, w, h, cls, heights, erosion_scratch);
     return SIM_WINDOW_OK;
 }

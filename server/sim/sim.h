@@ -154,9 +154,9 @@ void sim_classify_materials(const sim_params *p, const sim_material_table *t, co
 void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int cell_count,
                            const int32_t *raw, const int32_t *moved, uint16_t *memory);
 /* even_slopes where each flux uses the material of the column it leaves. */
-void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t,
-                               const uint8_t *ids, int w, int h, const int32_t *cls,
-                               int32_t *heights, int32_t *scratch);
+void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
+                               int w, int h, const int32_t *cls, int32_t *heights,
+                               int32_t *scratch);
 /* Largest excess above the threshold of the higher column's material. */
 int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_t *ids, int w,
                                        int h, const int32_t *heights);
@@ -209,6 +209,12 @@ typedef struct sim_window_job {
     int32_t depth_low, depth_high;  /* height range the depth stage must resolve (units) */
     const int32_t *bottom_override; /* non-NULL: use this depth, skip the depth stage */
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
+    /* Per-cell materials (ground/): NULL for the uniform path (params only).
+     * material_ids NULL: every cell is row 0. compaction (in/out) NULL when no
+     * material remembers compaction; written only for accepted windows. */
+    const sim_material_table *materials;
+    const uint8_t *material_ids;
+    uint16_t *compaction;
 } sim_window_job;
 
 /* ---- Sumner, O'Brien and Hodgins 1999 on the CPU (model_sumner.c) ----
@@ -276,6 +282,11 @@ typedef struct sim_engine {
     int64_t cell_capacity;
     uint64_t peak_scratch_bytes; /* engine's own plus the backend's, high-water mark */
     int64_t peak_active_cells;
+    /* Per-cell materials and compaction memory (sim_engine_set_ground). */
+    struct ground *ground; /* not owned; NULL: one material, the params */
+    uint8_t *material_ids; /* all windows of a tick, packed; only if not uniform */
+    uint16_t *compaction;  /* likewise; only if some material compacts */
+    int64_t ground_capacity;
 } sim_engine;
 
 int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *backend,
@@ -284,6 +295,10 @@ int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *b
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);
 void sim_engine_free(sim_engine *e);
+/* Give the engine the ground's per-cell layers (not owned; NULL: none). A
+ * ground with one material and no compaction memory changes nothing: the
+ * uniform path runs. */
+void sim_engine_set_ground(sim_engine *e, struct ground *g);
 /* After a tick: window i of the last tick, its heights before and after. */
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
                              const int32_t **after);

@@ -57,7 +57,8 @@ static int ground_from_text(ground *g, const world *w, const char *text, error_t
         abort();
     sim_material base;
     base_params(&base);
-    int r = ground_init_json(g, w, &base, cJSON_GetObjectItemCaseSensitive(root, "materials"),
+    int r = ground_init_json(g, ground_extent_of_world(w), &base,
+                             cJSON_GetObjectItemCaseSensitive(root, "materials"),
                              cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
     cJSON_Delete(root);
     return r;
@@ -167,7 +168,8 @@ static void test_no_layer_without_compaction(void)
     ground_free(&g);
     sim_material base;
     base_params(&base);
-    CHECK(ground_init_uniform(&g, &w, &base, &err) == 0 && g.uniform && !g.uses_compaction,
+    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &base, &err) == 0 && g.uniform &&
+              !g.uses_compaction,
           "the old single material: uniform, no layer");
     ground_free(&g);
     world_free(&w);
