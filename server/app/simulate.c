@@ -117,6 +117,8 @@ int app_simulate(int argc, char **argv)
     sim_params params;
     sim_backend *backend = NULL;
     sim_engine engine;
+    ground grd;
+    memset(&grd, 0, sizeof grd);
     int rc = 1;
     if (scene_create_world(&sc, &w, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
@@ -128,6 +130,11 @@ int app_simulate(int argc, char **argv)
         !(backend = app_backend_create(o.backend, &err)) ||
         sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
+        goto done_world;
+    }
+    if (app_ground_attach(&sc, &w, backend, &engine, &grd, &err) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        sim_engine_free(&engine);
         goto done_world;
     }
     if (strcmp(backend->name, "gl") == 0)
@@ -196,6 +203,10 @@ int app_simulate(int argc, char **argv)
     cJSON_AddItemToObject(root, "volume_before", cJSON_CreateRaw(num));
     snprintf(num, sizeof num, "%lld", (long long)volume_after);
     cJSON_AddItemToObject(root, "volume_after", cJSON_CreateRaw(num));
+    if (grd.uses_compaction) { /* volume_after + compacted == volume_before */
+        snprintf(num, sizeof num, "%lld", (long long)ground_compaction_total(&grd));
+        cJSON_AddItemToObject(root, "compacted", cJSON_CreateRaw(num));
+    }
     cJSON *st = cJSON_AddObjectToObject(root, "stages");
     for (int s = 0; s < stage_count; s++) {
         cJSON *one = cJSON_AddObjectToObject(st, stages[s].name);
@@ -235,6 +246,7 @@ done_colliders:
 done_engine:
     sim_engine_free(&engine);
 done_world:
+    ground_free(&grd);
     if (backend)
         backend->destroy(backend);
     world_free(&w);

@@ -437,6 +437,18 @@ int ground_scatter_compaction(ground *g, world_rect r, const uint16_t *src, erro
     return 0;
 }
 
+int64_t ground_compaction_total(const ground *g)
+{
+    int64_t total = 0;
+    if (!g->compaction_tiles)
+        return 0;
+    for (int t = 0; t < g->tiles_x * g->tiles_y; t++)
+        if (g->compaction_tiles[t])
+            for (int i = 0; i < GROUND_TILE_SIDE * GROUND_TILE_SIDE; i++)
+                total += g->compaction_tiles[t][i];
+    return total;
+}
+
 uint64_t ground_compaction_bytes(const ground *g)
 {
     if (!g->compaction_tiles)

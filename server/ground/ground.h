@@ -119,6 +119,8 @@ void ground_gather_compaction(const ground *g, world_rect r, uint16_t *dst);
  * Returns 0, or -1 with err set when out of memory (then some tiles may be
  * unchanged). */
 int ground_scatter_compaction(ground *g, world_rect r, const uint16_t *src, error_text *err);
+/* Σ compaction memory over the world: what compression has taken from Σh. */
+int64_t ground_compaction_total(const ground *g);
 /* Bytes held by the compaction layer now. */
 uint64_t ground_compaction_bytes(const ground *g);
 
