@@ -18,9 +18,8 @@ void app_print_help(void);
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);
 
-/* The scene's ground into the engine; refuses per-cell materials on a
- * backend other than cpu. On failure nothing is held. */
-int app_ground_attach(const scene *sc, const world *w, sim_backend *backend, sim_engine *engine,
-                      ground *g, error_text *err);
+/* The scene's ground into the engine. On failure nothing is held. */
+int app_ground_attach(const scene *sc, const world *w, sim_engine *engine, ground *g,
+                      error_text *err);
 
 #endif

@@ -391,7 +391,7 @@ int app_serve(int argc, char **argv)
                                  &err) != 0 ||
         !(backend = app_backend_create(o.backend, &err)) ||
         sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0 ||
-        app_ground_attach(&sc, &w, backend, &engine, &grd, &err) != 0 ||
+        app_ground_attach(&sc, &w, &engine, &grd, &err) != 0 ||
         !(svc = service_create(&engine, h, &err))) {
         log_error("%s", err.message);
         goto done;

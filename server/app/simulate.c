@@ -132,7 +132,7 @@ int app_simulate(int argc, char **argv)
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         goto done_world;
     }
-    if (app_ground_attach(&sc, &w, backend, &engine, &grd, &err) != 0) {
+    if (app_ground_attach(&sc, &w, &engine, &grd, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         sim_engine_free(&engine);
         goto done_world;

@@ -8,7 +8,8 @@
  *
  * Compaction memory, in integers per penetrated column with penetration pen,
  * memory m and its material's max M > 0:
- *     resisted  = pen * m / M          (compacted ground carries the collider)
+ *     hardness  = (m << 16) / M        (Q16, integer division)
+ *     resisted  = pen * hardness >> 16 (compacted ground carries the collider)
  *     yield     = pen - resisted       (the column is lowered by this)
  *     compacted = min(yield * c, M - m) (c the material's compression, Q16)
  *     moved     = yield - compacted    (displaced like any other material)
@@ -71,7 +72,9 @@ void sim_classify_materials(const sim_params *p, const sim_material_table *t, co
             int32_t m = memory ? memory[i] : 0;
             if (m > row->max_compaction)
                 m = row->max_compaction;
-            yield = pen - (int32_t)((int64_t)pen * m / row->max_compaction);
+            /* hardness m/M in Q16 (<= 65536), so the GPU needs no 64-bit division */
+            int32_t hardness_q16 = (int32_t)(((uint32_t)m << 16) / (uint32_t)row->max_compaction);
+            yield = pen - mul_q16_shift(pen, hardness_q16, 16);
             compacted = mul_q16_shift(yield, row->compression_q16, 16);
             if (compacted > row->max_compaction - m)
                 compacted = row->max_compaction - m;
