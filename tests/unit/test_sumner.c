@@ -340,6 +340,63 @@ static void test_height_limits(void)
     free(scratch);
 }
 
+/* With per-cell materials and compaction memory (job->materials): a block
+ * pressed into a compacting row and a plain row keeps Σh + Σmemory exact,
+ * the compacting cells remember, and a second press yields less. */
+static void test_materials_and_compaction(void)
+{
+    enum { W = 12, H = 8, N = W * H };
+    int32_t heights[N], bottom[N];
+    uint8_t ids[N];
+    uint16_t memory[N];
+    sim_params p = params_with(30.0, 0.5, 0.0, 5);
+    sim_material_table t = {.count = 2};
+    t.rows[0] = sim_material_row_from_params(&p, 0);
+    t.rows[1] = t.rows[0];
+    t.rows[1].compression_q16 = 49152; /* 0.75 */
+    t.rows[1].max_compaction = 400;
+    for (int i = 0; i < N; i++) {
+        heights[i] = 3000;
+        ids[i] = (uint8_t)(i / W >= 4);
+        memory[i] = 0;
+    }
+    int32_t *scratch = scratch_for(W, H);
+    int32_t yield_first = 0, yield_second = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        int32_t before_cell = heights[5 * W + 5];
+        for (int i = 0; i < N; i++) {
+            int x = i % W, y = i / W;
+            bottom[i] =
+                (x >= 4 && x <= 6 && y >= 2 && y <= 5) ? before_cell - 300 : COLLIDER_BOTTOM_NONE;
+        }
+        int64_t h_before = sum(heights, N), m_before = 0, m_after = 0;
+        for (int i = 0; i < N; i++)
+            m_before += memory[i];
+        sim_window_job job = job_with_bottom(W, H, heights, bottom);
+        job.materials = &t;
+        job.material_ids = ids;
+        job.compaction = memory;
+        CHECK(sim_sumner_window(&p, &job, scratch) == SIM_WINDOW_OK, "pass %d accepted", pass);
+        for (int i = 0; i < N; i++)
+            m_after += memory[i];
+        CHECK(sum(heights, N) + m_after == h_before + m_before,
+              "pass %d: Σh + Σmemory exact (%lld + %lld vs %lld + %lld)", pass,
+              (long long)sum(heights, N), (long long)m_after, (long long)h_before,
+              (long long)m_before);
+        int32_t yielded = before_cell - heights[5 * W + 5];
+        if (pass == 0)
+            yield_first = yielded;
+        else
+            yield_second = yielded;
+        CHECK(memory[2 * W + 5] == 0, "the plain row remembers nothing");
+    }
+    CHECK(memory[5 * W + 5] > 0 && memory[5 * W + 5] <= 400, "compacting cell remembers %u",
+          memory[5 * W + 5]);
+    CHECK(yield_first == 300 && yield_second < yield_first,
+          "a second press yields less (%d then %d)", yield_first, yield_second);
+    free(scratch);
+}
+
 int main(void)
 {
     test_volume_exact_moving_sphere();
@@ -350,5 +407,6 @@ int main(void)
     test_one_cell_collider();
     test_window_sized_collider();
     test_height_limits();
+    test_materials_and_compaction();
     return check_report();
 }
