@@ -458,12 +458,52 @@ static void test_engine_compaction(void)
     world_free(&w);
 }
 
+/* Heights at ±2^29, penetration of 2^30, memory at and past the maximum,
+ * compression 0 and 1: every quantity stays in range (UBSan runs this too). */
+static void test_classify_extremes(void)
+{
+    enum { N = 8 };
+    sim_material m;
+    sim_params p = base_params(&m);
+    sim_material_table t = {.count = 2};
+    t.rows[0] = sim_material_row_from_params(&p, 65535);
+    t.rows[0].compression_q16 = 65536;
+    t.rows[1] = sim_material_row_from_params(&p, 1);
+    t.rows[1].compression_q16 = 1;
+    int32_t heights[N], bottom[N], raw[N], moved[N], cls[N];
+    uint8_t ids[N];
+    uint16_t memory[N] = {0, 65535, 40000, 1, 0, 1, 65535, 7};
+    for (int i = 0; i < N; i++) {
+        heights[i] = i % 2 ? WORLD_HEIGHT_MAX : WORLD_HEIGHT_MIN + 1;
+        bottom[i] = WORLD_HEIGHT_MIN - 1;
+        ids[i] = (uint8_t)(i >= 4);
+    }
+    sim_classify_materials(&p, &t, ids, memory, N, heights, bottom, raw, moved, cls);
+    int ok = 1;
+    for (int i = 0; i < N; i++) {
+        int64_t pen = (int64_t)heights[i] - WORLD_HEIGHT_MIN;
+        ok &= raw[i] >= 0 && raw[i] <= pen && moved[i] >= 0 && moved[i] <= raw[i];
+    }
+    CHECK(ok, "yield and displaced part within [0, penetration]");
+    CHECK(raw[1] == 0, "full memory: the column does not yield (%d)", raw[1]);
+    CHECK(raw[3] == (1 << 30) - 16384, "memory 1 of 65535: hardness 1/65536 resists 2^14 (%d)",
+          raw[3]);
+    sim_compaction_commit(&t, ids, N, raw, moved, memory);
+    CHECK(memory[0] == 1 && memory[1] == 65535,
+          "compression 1 compacts a 1-unit press whole; full memory stays full (%u, %u)", memory[0],
+          memory[1]);
+    CHECK(memory[4] == 0 && memory[5] == 1 && memory[6] == 1,
+          "compression 1/65536 rounds a 1-unit press to 0; memory clamped to max 1 (%u, %u, %u)",
+          memory[4], memory[5], memory[6]);
+}
+
 int main(void)
 {
     test_presets();
     test_table_and_map();
     test_no_layer_without_compaction();
     test_uniform_equals_plain();
+    test_classify_extremes();
     test_repeated_passes_sink_less();
     test_mixed_window_repose();
     test_engine_compaction();
