@@ -218,8 +218,14 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "active_cells_mean", o.ticks ? active_sum / o.ticks : 0.0);
     cJSON_AddNumberToObject(root, "peak_active_cells", (double)engine.peak_active_cells);
     cJSON_AddNumberToObject(root, "refused_windows", (double)refused);
-    snprintf(num, sizeof num, "%lld",
-             (long long)sim_max_slope_excess(&params, w.width, w.height, w.heights));
+    int64_t excess = sim_max_slope_excess(&params, w.width, w.height, w.heights);
+    uint8_t *ids = grd.uniform ? NULL : malloc((size_t)w.width * (size_t)w.height);
+    if (ids) { /* per-cell materials: each column against its own material's repose */
+        ground_gather_ids(&grd, (world_rect){0, 0, w.width, w.height}, ids);
+        excess = sim_max_slope_excess_materials(&grd.table, ids, w.width, w.height, w.heights);
+        free(ids);
+    }
+    snprintf(num, sizeof num, "%lld", (long long)excess);
     cJSON_AddItemToObject(root, "max_slope_excess", cJSON_CreateRaw(num));
     cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine.peak_scratch_bytes);
     cJSON_AddNumberToObject(
