@@ -295,9 +295,9 @@ int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *b
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);
 void sim_engine_free(sim_engine *e);
-/* Give the engine the ground's per-cell layers (not owned; NULL: none). A
- * ground with one material and no compaction memory changes nothing: the
- * uniform path runs. */
+/* After sim_engine_init: the ground's per-cell layers (not owned; NULL: none). A
+ * ground with one material equal to the params and no compaction memory
+ * changes nothing: the uniform path runs. */
 void sim_engine_set_ground(sim_engine *e, struct ground *g);
 /* After a tick: window i of the last tick, its heights before and after. */
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,

@@ -163,7 +163,12 @@ int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *b
 
 void sim_engine_set_ground(sim_engine *e, struct ground *g)
 {
-    e->ground = g && (!g->uniform || g->uses_compaction) ? g : NULL;
+    /* The uniform path only when it computes the same: one material whose
+     * row is the params' own and no compaction memory. */
+    sim_material_row own = sim_material_row_from_params(&e->params, 0);
+    int same =
+        g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
+    e->ground = g && !same ? g : NULL;
 }
 
 /* Per-cell layers of the tick's windows, packed like the heights; only those

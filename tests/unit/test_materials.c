@@ -497,6 +497,34 @@ static void test_classify_extremes(void)
           memory[4], memory[5], memory[6]);
 }
 
+/* One material from a table (a preset) is not the scene's base material: the
+ * engine must use it; a ground equal to the params leaves the uniform path. */
+static void test_engine_single_material(void)
+{
+    world w;
+    make_world(&w, 32, 32, 0);
+    sim_material m;
+    sim_params p = base_params(&m);
+    error_text err;
+    sim_backend *cpu = sim_backend_cpu_create(&err);
+    sim_engine e;
+    sim_engine_init(&e, &w, &p, cpu, 4, &err);
+    ground g;
+    CHECK(ground_from_text(&g, &w, "{\"materials\": {\"sand\": {\"preset\": \"sand\"}}}", &err) ==
+              0,
+          "sand only parses");
+    sim_engine_set_ground(&e, &g);
+    CHECK(e.ground == &g, "a single sand preset runs on its own row (45 deg, roughness 1)");
+    ground_free(&g);
+    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &m, &err) == 0, "uniform ground");
+    sim_engine_set_ground(&e, &g);
+    CHECK(e.ground == NULL, "a ground equal to the params: the uniform path");
+    ground_free(&g);
+    sim_engine_free(&e);
+    cpu->destroy(cpu);
+    world_free(&w);
+}
+
 int main(void)
 {
     test_presets();
@@ -507,5 +535,6 @@ int main(void)
     test_repeated_passes_sink_less();
     test_mixed_window_repose();
     test_engine_compaction();
+    test_engine_single_material();
     return check_report();
 }
