@@ -219,10 +219,12 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "peak_active_cells", (double)engine.peak_active_cells);
     cJSON_AddNumberToObject(root, "refused_windows", (double)refused);
     int64_t excess = sim_max_slope_excess(&params, w.width, w.height, w.heights);
-    uint8_t *ids = grd.uniform ? NULL : malloc((size_t)w.width * (size_t)w.height);
-    if (ids) { /* per-cell materials: each column against its own material's repose */
-        ground_gather_ids(&grd, (world_rect){0, 0, w.width, w.height}, ids);
-        excess = sim_max_slope_excess_materials(&grd.table, ids, w.width, w.height, w.heights);
+    if (engine.ground) { /* per-cell materials: each column against its own material's repose */
+        uint8_t *ids = grd.uniform ? NULL : malloc((size_t)w.width * (size_t)w.height);
+        if (ids)
+            ground_gather_ids(&grd, (world_rect){0, 0, w.width, w.height}, ids);
+        if (ids || grd.uniform)
+            excess = sim_max_slope_excess_materials(&grd.table, ids, w.width, w.height, w.heights);
         free(ids);
     }
     snprintf(num, sizeof num, "%lld", (long long)excess);
