@@ -77,6 +77,20 @@ uniform int u_multi_target_step;
 uniform int u_multi_target_max;
 uniform int u_floor;
 
+/* Per-cell materials (sim_stages_materials.c). u_materials_on 0: the uniform
+ * path above. Otherwise each cell's material word is id | memory << 8 and
+ * row id holds (compression_q16, roughness_q16, threshold axial, diagonal). */
+uniform int u_materials_on;
+uniform int u_material_count;
+uniform ivec4 u_material_rows[16];
+uniform int u_material_max_compaction[16];
+
+int material_id(int word)
+{
+    int id = word & 255;
+    return id < u_material_count ? id : 0;
+}
+
 /* 8-neighbourhood; the first four are axial, the last four diagonal. */
 const int neighbour_dx[8] = int[8](1, -1, 0, 0, 1, -1, 1, -1);
 const int neighbour_dy[8] = int[8](0, 0, 1, -1, 1, 1, -1, -1);

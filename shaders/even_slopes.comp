@@ -8,7 +8,8 @@
  *
  * The flux from column c to neighbour k is roughness/8 of the height
  * difference above the repose threshold (integer thresholds computed once on
- * the CPU), rounded down, and only towards free columns (seeds).
+ * the CPU), rounded down, and only towards free columns (seeds). With
+ * per-cell materials each flux uses the row of the column it leaves.
  */
 #include "common.glsl"
 
@@ -16,15 +17,31 @@ layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(binding = 1) uniform isamplerBuffer u_cls;
 layout(binding = 2) uniform isamplerBuffer u_heights_in;
+layout(binding = 3) uniform isamplerBuffer u_material; /* only read when u_materials_on */
 layout(std430, binding = 2) writeonly buffer heights_out_buf { int heights_out[]; };
 
-int slope_flux(int hc, int hk, bool diagonal)
+/* The flux out of a column of material `id` (-1: the uniform params), as
+ * sim_even_slopes_materials: the leaving column's threshold and roughness. */
+int slope_flux(int id, int hc, int hk, bool diagonal)
 {
-    int threshold = diagonal ? u_slope_threshold_diagonal : u_slope_threshold_axial;
+    int axial = u_slope_threshold_axial, diag = u_slope_threshold_diagonal;
+    int roughness = u_roughness_q16;
+    if (id >= 0) {
+        ivec4 row = u_material_rows[id];
+        roughness = row.y;
+        axial = row.z;
+        diag = row.w;
+    }
+    int threshold = diagonal ? diag : axial;
     int excess = hc - hk - threshold;
     if (excess <= 0)
         return 0;
-    return mul_q16_shift(excess, u_roughness_q16, 19);
+    return mul_q16_shift(excess, roughness, 19);
+}
+
+int cell_material(int c)
+{
+    return u_materials_on != 0 ? material_id(fetch(u_material, c)) : -1;
 }
 
 void main()
@@ -38,6 +55,7 @@ void main()
     int hi = fetch(u_heights_in, c);
     int outflow = 0, inflow = 0;
     bool self_seed = fetch(u_cls, c) == CELL_SEED;
+    int id_self = cell_material(c);
     for (int j = 0; j < 8; j++) {
         int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
         if (qx < 0 || qy < 0 || qx >= win.w || qy >= win.h)
@@ -45,9 +63,9 @@ void main()
         int q = win.offset + qy * win.w + qx;
         int hq = fetch(u_heights_in, q);
         if (fetch(u_cls, q) == CELL_SEED)
-            outflow += slope_flux(hi, hq, j >= 4);
+            outflow += slope_flux(id_self, hi, hq, j >= 4);
         if (self_seed)
-            inflow += slope_flux(hq, hi, j >= 4);
+            inflow += slope_flux(cell_material(q), hq, hi, j >= 4);
     }
     heights_out[c] = hi - outflow + inflow;
 }

@@ -7,6 +7,8 @@
 #define TERRAD_APP_H
 
 #include "base/base.h"
+#include "ground/ground.h"
+#include "scene/scene.h"
 #include "sim/sim.h"
 
 int app_simulate(int argc, char **argv);
@@ -16,5 +18,9 @@ void app_print_help(void);
 
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);
+
+/* The scene's ground into the engine. On failure nothing is held. */
+int app_ground_attach(const scene *sc, const world *w, sim_engine *engine, ground *g,
+                      error_text *err);
 
 #endif

@@ -444,6 +444,8 @@ int app_serve(int argc, char **argv)
     sim_backend *backend = NULL;
     sim_engine engine;
     memset(&engine, 0, sizeof engine);
+    ground grd;
+    memset(&grd, 0, sizeof grd);
     demo_actor *actors = NULL;
     sim_collider *extra = NULL;
     service *svc = NULL;
@@ -464,6 +466,7 @@ int app_serve(int argc, char **argv)
                                  &err) != 0 ||
         !(backend = app_backend_create(o.backend, &err)) ||
         sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0 ||
+        app_ground_attach(&sc, &w, &engine, &grd, &err) != 0 ||
         !(svc = service_create(&engine, h, &err))) {
         log_error("%s", err.message);
         goto done;
@@ -562,6 +565,7 @@ done:
     free(extra);
     free(actors);
     sim_engine_free(&engine);
+    ground_free(&grd);
     if (backend)
         backend->destroy(backend);
     hub_destroy(h);

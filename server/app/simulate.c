@@ -116,7 +116,9 @@ static void add_touched(void *ctx, int tx, int ty, world_rect cells, uint64_t ge
     b->r = world_rect_union(b->r, cells);
 }
 
-static int64_t max_slope_excess(const sim_params *p, const world *w, const char **scope)
+/* With per-cell materials (g non-NULL) each column is held to its own material's repose. */
+static int64_t max_slope_excess(const sim_params *p, const world *w, const ground *g,
+                                const char **scope)
 {
     world_rect r = {0, 0, w->width, w->height};
     *scope = "world";
@@ -131,17 +133,30 @@ static int64_t max_slope_excess(const sim_params *p, const world *w, const char 
     }
     int band = 64;
     int32_t *rows = malloc((size_t)r.w * (band + 1) * sizeof *rows);
-    if (!rows)
+    uint8_t *ids = g && !g->uniform ? malloc((size_t)r.w * (band + 1)) : NULL;
+    if (!rows || (g && !g->uniform && !ids)) {
+        free(rows);
+        free(ids);
         return -1;
+    }
     int64_t worst = 0;
     for (int y = r.y; y < r.y + r.h; y += band) {
         int h = y + band + 1 <= r.y + r.h ? band + 1 : r.y + r.h - y;
-        world_gather_window(w, (world_rect){r.x, y, r.w, h}, rows);
-        int64_t e = sim_max_slope_excess(p, r.w, h, rows);
+        world_rect band_rect = {r.x, y, r.w, h};
+        world_gather_window(w, band_rect, rows);
+        int64_t e;
+        if (g) {
+            if (ids)
+                ground_gather_ids(g, band_rect, ids);
+            e = sim_max_slope_excess_materials(&g->table, ids, r.w, h, rows);
+        } else {
+            e = sim_max_slope_excess(p, r.w, h, rows);
+        }
         if (e > worst)
             worst = e;
     }
     free(rows);
+    free(ids);
     return worst;
 }
 
@@ -194,6 +209,8 @@ int app_simulate(int argc, char **argv)
     sim_params params;
     sim_backend *backend = NULL;
     sim_engine engine;
+    ground grd;
+    memset(&grd, 0, sizeof grd);
     int rc = 1;
     if (scene_create_world(&sc, &w, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
@@ -205,6 +222,11 @@ int app_simulate(int argc, char **argv)
         !(backend = app_backend_create(o.backend, &err)) ||
         sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
+        goto done_world;
+    }
+    if (app_ground_attach(&sc, &w, &engine, &grd, &err) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        sim_engine_free(&engine);
         goto done_world;
     }
     if (strcmp(backend->name, "gl") == 0)
@@ -277,6 +299,10 @@ int app_simulate(int argc, char **argv)
     cJSON_AddItemToObject(root, "volume_before", cJSON_CreateRaw(num));
     snprintf(num, sizeof num, "%lld", (long long)volume_after);
     cJSON_AddItemToObject(root, "volume_after", cJSON_CreateRaw(num));
+    if (grd.uses_compaction) { /* volume_after + compacted == volume_before */
+        snprintf(num, sizeof num, "%lld", (long long)ground_compaction_total(&grd));
+        cJSON_AddItemToObject(root, "compacted", cJSON_CreateRaw(num));
+    }
     cJSON *st = cJSON_AddObjectToObject(root, "stages");
     for (int s = 0; s < stage_count; s++) {
         cJSON *one = cJSON_AddObjectToObject(st, stages[s].name);
@@ -289,7 +315,8 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "peak_active_cells", (double)engine.peak_active_cells);
     cJSON_AddNumberToObject(root, "refused_windows", (double)refused);
     const char *slope_scope;
-    snprintf(num, sizeof num, "%lld", (long long)max_slope_excess(&params, &w, &slope_scope));
+    snprintf(num, sizeof num, "%lld",
+             (long long)max_slope_excess(&params, &w, engine.ground ? &grd : NULL, &slope_scope));
     cJSON_AddItemToObject(root, "max_slope_excess", cJSON_CreateRaw(num));
     cJSON_AddStringToObject(root, "max_slope_excess_scope", slope_scope);
     cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(&w));
@@ -337,6 +364,7 @@ done_colliders:
 done_engine:
     sim_engine_free(&engine);
 done_world:
+    ground_free(&grd);
     if (backend)
         backend->destroy(backend);
     world_free(&w);

@@ -104,6 +104,10 @@ enum {
     U_STEP,
     U_ROUND,
     U_MVP,
+    U_MATERIALS_ON,
+    U_MATERIAL_COUNT,
+    U_MATERIAL_ROWS,
+    U_MATERIAL_MAX,
     U_COUNT
 };
 
@@ -122,6 +126,10 @@ static const char *const uniform_names[U_COUNT] = {
     "u_step",
     "u_round",
     "u_mvp",
+    "u_materials_on",
+    "u_material_count",
+    "u_material_rows",
+    "u_material_max_compaction",
 };
 
 /* One window of the batch table (WINDOW_INTS ints in common.glsl); the
@@ -182,6 +190,12 @@ typedef struct gl_backend {
 
     geometry_entry *geometries;
     int geometry_count, geometry_capacity;
+
+    /* Per-cell material words (id | compaction << 8), only created and grown
+     * when a batch carries materials: uniform scenes never allocate them. */
+    GLuint material_buffer, material_texture;
+    int64_t material_capacity;
+    int32_t *material_host;
 } gl_backend;
 
 /* ---- small helpers ---- */
@@ -256,6 +270,7 @@ static uint64_t gl_scratch_bytes(const sim_backend *base)
 {
     const gl_backend *b = (const gl_backend *)base;
     uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
+    bytes += (uint64_t)b->material_capacity * 2 * sizeof(int32_t); /* GPU and host copies */
     bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
     return bytes + texture_bytes(b);
 }
@@ -283,6 +298,37 @@ static int ensure_cells(gl_backend *b, int64_t cells, error_text *err)
         return -1;
     }
     b->cell_capacity = cap;
+    return 0;
+}
+
+static int ensure_materials(gl_backend *b, int64_t cells, error_text *err)
+{
+    if (cells <= b->material_capacity)
+        return 0;
+    int64_t cap = b->material_capacity ? b->material_capacity : 4096;
+    while (cap < cells)
+        cap *= 2;
+    int32_t *host = realloc(b->material_host, (size_t)cap * sizeof *host);
+    if (!host) {
+        error_set(err, "gl backend: out of memory for %lld material words", (long long)cap);
+        return -1;
+    }
+    b->material_host = host;
+    if (!b->material_buffer) {
+        glGenBuffers(1, &b->material_buffer);
+        glGenTextures(1, &b->material_texture);
+    }
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->material_buffer);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(cap * 4), NULL, GL_DYNAMIC_COPY);
+    glBindTexture(GL_TEXTURE_BUFFER, b->material_texture);
+    glTexBuffer(GL_TEXTURE_BUFFER, GL_R32I, b->material_buffer);
+    glBindTexture(GL_TEXTURE_BUFFER, 0);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    if (check_gl("growing the material buffer", err) != 0) {
+        b->material_capacity = 0;
+        return -1;
+    }
+    b->material_capacity = cap;
     return 0;
 }
 
@@ -627,8 +673,18 @@ static int run_depth(gl_backend *b, sim_window_job *jobs, int count, int rounds,
 
 /* ---- the integer stages ---- */
 
-static void set_params(gl_backend *b, const sim_params *p)
+static void set_params(gl_backend *b, const sim_params *p, const sim_material_table *t)
 {
+    GLint rows[SIM_MATERIALS_MAX * 4], max_compaction[SIM_MATERIALS_MAX];
+    memset(rows, 0, sizeof rows);
+    memset(max_compaction, 0, sizeof max_compaction);
+    for (int i = 0; t && i < t->count; i++) {
+        rows[4 * i] = t->rows[i].compression_q16;
+        rows[4 * i + 1] = t->rows[i].roughness_q16;
+        rows[4 * i + 2] = t->rows[i].slope_threshold_axial;
+        rows[4 * i + 3] = t->rows[i].slope_threshold_diagonal;
+        max_compaction[i] = t->rows[i].max_compaction;
+    }
     for (int prog = 0; prog < PROG_COMPUTE_COUNT; prog++) {
         GLuint pr = b->programs[prog];
         const GLint *u = b->uniforms[prog];
@@ -641,6 +697,10 @@ static void set_params(gl_backend *b, const sim_params *p)
         glProgramUniform1i(pr, u[U_MULTI_STEP], p->multi_target_step);
         glProgramUniform1i(pr, u[U_MULTI_MAX], p->multi_target_max);
         glProgramUniform1i(pr, u[U_FLOOR], p->floor);
+        glProgramUniform1i(pr, u[U_MATERIALS_ON], t != NULL);
+        glProgramUniform1i(pr, u[U_MATERIAL_COUNT], t ? t->count : 1);
+        glProgramUniform4iv(pr, u[U_MATERIAL_ROWS], SIM_MATERIALS_MAX, rows);
+        glProgramUniform1iv(pr, u[U_MATERIAL_MAX], SIM_MATERIALS_MAX, max_compaction);
     }
 }
 
@@ -724,10 +784,14 @@ static void run_displace(gl_backend *b, const sim_params *p, int64_t cells, int 
 }
 
 /* Returns the buffer (BUF_*) that holds the final heights. */
-static int run_even_slopes(gl_backend *b, const sim_params *p)
+static int run_even_slopes(gl_backend *b, const sim_params *p, int materials)
 {
     int in = BUF_HEIGHTS, out = BUF_S0;
     for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        if (materials) {
+            glActiveTexture(GL_TEXTURE3);
+            glBindTexture(GL_TEXTURE_BUFFER, b->material_texture);
+        }
         sample(b, 1, BUF_CLS);
         sample(b, 2, in);
         bind(b, 2, out);
@@ -766,7 +830,9 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
         cells += (int64_t)job->rect.w * job->rect.h;
         tiles += (int64_t)((job->rect.w + 7) / 8) * ((job->rect.h + 7) / 8);
     }
-    if (ensure_cells(b, cells, err) != 0 || ensure_table(b, count, tiles, err) != 0)
+    const sim_material_table *materials = jobs[0].materials;
+    if (ensure_cells(b, cells, err) != 0 || ensure_table(b, count, tiles, err) != 0 ||
+        (materials && ensure_materials(b, cells, err) != 0))
         return -1;
     int64_t t_index = 0;
     for (int i = 0; i < count; i++)
@@ -804,12 +870,21 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_BOTTOM]);
             glBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].bottom_override);
         }
+        if (materials) {
+            int32_t *words = b->material_host + b->entries[i].offset;
+            int64_t n = (int64_t)jobs[i].rect.w * jobs[i].rect.h;
+            for (int64_t k = 0; k < n; k++)
+                words[k] = (jobs[i].material_ids ? jobs[i].material_ids[k] : 0) |
+                           (jobs[i].compaction ? (int32_t)jobs[i].compaction[k] << 8 : 0);
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->material_buffer);
+            glBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, words);
+        }
     }
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
     glActiveTexture(GL_TEXTURE0);
     glBindTexture(GL_TEXTURE_BUFFER, b->table_texture);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, b->status_buffer);
-    set_params(b, p);
+    set_params(b, p, materials);
     if (check_gl("upload", err) != 0)
         return -1;
     t = stage_end(b, &times->transfer, t);
@@ -825,6 +900,8 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
     bind(b, 3, BUF_MOVED);
     bind(b, 4, BUF_CLS);
     bind(b, 5, BUF_SEED_A);
+    if (materials)
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 6, b->material_buffer);
     dispatch(b, PROG_CLASSIFY);
     t = stage_end(b, &times->classify, t);
 
@@ -834,7 +911,7 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
     run_displace(b, p, cells, seed);
     t = stage_end(b, &times->displace, t);
 
-    int heights = run_even_slopes(b, p);
+    int heights = run_even_slopes(b, p, materials != NULL);
     t = stage_end(b, &times->even_slopes, t);
 
     /* readback: status first, then only the windows that were accepted (a
@@ -849,6 +926,14 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
         if (status[i] == SIM_WINDOW_OK) {
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
             glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].heights);
+        }
+        if (status[i] == SIM_WINDOW_OK && materials && jobs[i].compaction) {
+            int32_t *words = b->material_host + b->entries[i].offset;
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->material_buffer);
+            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, words);
+            int64_t n = (int64_t)jobs[i].rect.w * jobs[i].rect.h;
+            for (int64_t k = 0; k < n; k++)
+                jobs[i].compaction[k] = (uint16_t)((uint32_t)words[k] >> 8);
         }
         if (jobs[i].bottom_out) {
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_BOTTOM]);
@@ -872,6 +957,12 @@ static int gl_run_windows(sim_backend *base, const sim_params *p, sim_window_job
         return -1;
     for (int i = 0; i < job_count; i++) {
         const world_rect r = jobs[i].rect;
+        /* One batch is one set of uniforms: all its windows share the
+         * engine's material table or none has one. */
+        if (jobs[i].materials != jobs[0].materials) {
+            error_set(err, "gl backend: window %d has a different material table from window 0", i);
+            return -1;
+        }
         if (r.w < 1 || r.h < 1 || r.w > SIM_WINDOW_SIDE_MAX || r.h > SIM_WINDOW_SIDE_MAX) {
             error_set(err, "gl backend: window %d is %dx%d cells (sides must be 1..%d)", i, r.w,
                       r.h, SIM_WINDOW_SIDE_MAX);
@@ -949,6 +1040,10 @@ static void gl_destroy(sim_backend *base)
             glDeleteTextures(1, &b->atlas);
         if (b->fbo)
             glDeleteFramebuffers(1, &b->fbo);
+        if (b->material_buffer) {
+            glDeleteBuffers(1, &b->material_buffer);
+            glDeleteTextures(1, &b->material_texture);
+        }
     }
     gl_context_destroy(b->context);
     free(b->geometries);
@@ -956,6 +1051,7 @@ static void gl_destroy(sim_backend *base)
     free(b->status_host);
     free(b->order);
     free(b->tiles);
+    free(b->material_host);
     free(b);
 }
 

@@ -941,8 +941,57 @@ static int parse_colliders(const cJSON *root, const scene_parser *ps, scene *s, 
 /* ---- entry points ---- */
 
 static const char *const top_keys[] = {
-    "name",    "description",         "world",     "terrain", "material",
-    "tick_hz", "active_margin_cells", "colliders", NULL};
+    "name",    "description",         "world",     "terrain",   "material",
+    "tick_hz", "active_margin_cells", "colliders", "materials", "material_map",
+    NULL};
+
+/* Build the ground from JSON text {"materials", "material_map"}. */
+static int ground_from_json_text(const scene *s, const char *text, ground *g, error_text *err)
+{
+    cJSON *root = cJSON_Parse(text);
+    if (!root) {
+        error_set(err, "materials: out of memory");
+        return -1;
+    }
+    ground_extent x = {s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units};
+    int rc =
+        ground_init_json(g, x, &s->material, cJSON_GetObjectItemCaseSensitive(root, "materials"),
+                         cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
+    cJSON_Delete(root);
+    return rc;
+}
+
+/* "materials" and "material_map": validated now (errors name the field),
+ * kept as text for scene_create_ground. */
+static int parse_ground(const cJSON *root, scene *s, error_text *err)
+{
+    const cJSON *materials = cJSON_GetObjectItemCaseSensitive(root, "materials");
+    const cJSON *map = cJSON_GetObjectItemCaseSensitive(root, "material_map");
+    if (!materials && !map)
+        return 0;
+    cJSON *both = cJSON_CreateObject();
+    if (!both ||
+        (materials && !cJSON_AddItemToObject(both, "materials", cJSON_Duplicate(materials, 1))) ||
+        (map && !cJSON_AddItemToObject(both, "material_map", cJSON_Duplicate(map, 1))) ||
+        !(s->ground_json = cJSON_PrintUnformatted(both))) {
+        cJSON_Delete(both);
+        error_set(err, "materials: out of memory");
+        return -1;
+    }
+    cJSON_Delete(both);
+    ground g;
+    if (ground_from_json_text(s, s->ground_json, &g, err) != 0)
+        return -1;
+    ground_free(&g);
+    return 0;
+}
+
+int scene_create_ground(const scene *s, const world *w, ground *g, error_text *err)
+{
+    if (!s->ground_json)
+        return ground_init_uniform(g, ground_extent_of_world(w), &s->material, err);
+    return ground_from_json_text(s, s->ground_json, g, err);
+}
 
 int scene_load_json(const char *text, const char *base_dir, scene *s, error_text *err)
 {
@@ -967,7 +1016,7 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
         goto done;
     s->tick_hz = tick_hz; /* the material's rates are per second */
     if (parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||
-        parse_material(root, s, err) ||
+        parse_material(root, s, err) || parse_ground(root, s, err) ||
         get_integer(root, "", "active_margin_cells", 0, 4096, 0, &margin, err) < 0 ||
         parse_colliders(root, &ps, s, err))
         goto done;
@@ -1056,6 +1105,7 @@ void scene_free(scene *s)
     for (int i = 0; i < s->mesh_count; i++)
         collider_mesh_free(&s->meshes[i]);
     free(s->meshes);
+    free(s->ground_json);
     memset(s, 0, sizeof *s);
 }
 

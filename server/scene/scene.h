@@ -10,6 +10,7 @@
 
 #include "base/base.h"
 #include "collider/collider.h"
+#include "ground/ground.h"
 #include "sim/sim.h"
 #include "world/world.h"
 
@@ -34,6 +35,9 @@ typedef struct scene {
     int collider_count;
     collider_mesh *meshes; /* owned; geometry.mesh points in here */
     int mesh_count;
+    /* "materials" and "material_map" as validated JSON text, or NULL: one
+     * material everywhere (the "material" key). Owned. */
+    char *ground_json;
 } scene;
 
 /* base_dir resolves relative file paths (heightmaps, OBJ meshes). */
@@ -41,6 +45,9 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
 int scene_load_file(const char *path, scene *s, error_text *err);
 int scene_load_default(scene *s, error_text *err);
 void scene_free(scene *s);
+
+/* The per-cell ground layers the scene describes (scene_create_world's world). */
+int scene_create_ground(const scene *s, const world *w, ground *g, error_text *err);
 
 /* Make the world the scene describes (allocation + base terrain). */
 int scene_create_world(const scene *s, world *w, error_text *err);

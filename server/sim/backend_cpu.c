@@ -69,14 +69,25 @@ static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_jo
         if (job->bottom_out)
             memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
         double t1 = time_now_ms();
-        sim_classify(p, (int)n, job->heights, bottom, raw, moved, cls);
+        if (job->materials)
+            sim_classify_materials(p, job->materials, job->material_ids, job->compaction, (int)n,
+                                   job->heights, bottom, raw, moved, cls);
+        else
+            sim_classify(p, (int)n, job->heights, bottom, raw, moved, cls);
         double t2 = time_now_ms();
         sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
         double t3 = time_now_ms();
         status[j] = sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch);
         double t4 = time_now_ms();
-        if (status[j] == SIM_WINDOW_OK)
+        if (status[j] == SIM_WINDOW_OK && job->materials) {
+            sim_even_slopes_materials(p, job->materials, job->material_ids, w, h, cls, job->heights,
+                                      scratch);
+            if (job->compaction)
+                sim_compaction_commit(job->materials, job->material_ids, (int)n, raw, moved,
+                                      job->compaction);
+        } else if (status[j] == SIM_WINDOW_OK) {
             sim_even_slopes(p, w, h, cls, job->heights, scratch);
+        }
         double t5 = time_now_ms();
         times->depth += t1 - t0;
         times->classify += t2 - t1;

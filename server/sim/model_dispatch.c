@@ -4,7 +4,7 @@
  * prepare — so the engine allocates only what the scene's models use. The
  * model comes from the params of the window, not from the engine, so a
  * per-cell material layer can route windows by material. Adding a model
- * (sumner) is one case in each switch.
+ * is one case in each switch.
  */
 #include "sim/sim.h"
 
@@ -18,8 +18,9 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
     case SIM_MODEL_DIFFUSION:
         return 9 * cells + 2; /* the larger of the two forms: Gilardi's doubles */
     case SIM_MODEL_DECALS:
-        return cells;      /* one collider's depth */
-    case SIM_MODEL_SUMNER: /* set when model_sumner.c is merged */
+        return cells; /* one collider's depth */
+    case SIM_MODEL_SUMNER:
+        return 12 * cells + 2; /* as sim_sumner_scratch_cells */
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:
@@ -49,7 +50,8 @@ sim_window_status sim_model_window(const sim_params *p, sim_window_job *job, int
     case SIM_MODEL_DIFFUSION:
         return sim_diffusion_window(p, job, scratch);
     case SIM_MODEL_DECALS: /* the engine collects its events; heights stay */
-    case SIM_MODEL_SUMNER: /* case: return sim_sumner_window(p, job, scratch); */
+    case SIM_MODEL_SUMNER:
+        return sim_sumner_window(p, job, scratch);
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:

@@ -51,8 +51,6 @@ typedef enum sim_method {
  * others are CPU window functions in server/sim/model_<name>.c that the
  * engine calls per window, taking the model from the window's params, so a
  * per-cell material layer can route each window (or cell) by its material.
- * Sumner (model_sumner.c, sim_sumner_window) is merged separately: until
- * then it is declared but not parsed, so no scene can select it.
  */
 typedef enum sim_model {
     SIM_MODEL_PERSSON_ITERATIVE,
@@ -61,7 +59,7 @@ typedef enum sim_model {
     SIM_MODEL_SUBTRACT,  /* depth-buffer subtraction, optional refill (loses volume) */
     SIM_MODEL_DEFERRED,  /* quadratic trail with raised edges, point-based (loses volume) */
     SIM_MODEL_DIFFUSION, /* Gilardi's drift-diffusion: integer flux form or their float scheme */
-    SIM_MODEL_SUMNER,    /* reserved: sim_sumner_window, merged from another branch */
+    SIM_MODEL_SUMNER,    /* Sumner, O'Brien and Hodgins 1999 on the CPU: the accuracy reference */
     SIM_MODEL_DECALS,    /* no deformation: footprint events only */
 } sim_model;
 
@@ -151,7 +149,7 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
                              int32_t floor, sim_params *p, error_text *err);
 
 const char *sim_model_name(sim_model m);
-/* Every model a scene may name; sumner is not parsed until it is merged. */
+/* Every model a scene may name. */
 int sim_model_parse(const char *name, sim_model *out);
 /* 1 for the persson-* models (the backends' stages), 0 otherwise. */
 int sim_model_is_persson(sim_model m);
@@ -185,6 +183,52 @@ void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
  */
 void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
                     const int32_t *cls, int32_t *seed, int32_t *scratch);
+
+/* ---- Per-cell materials and compaction memory (sim_stages_materials.c) ----
+ * The same stages with a material id per cell (an index into a small table of
+ * integer rows) and, where some material remembers compaction, a uint16
+ * compaction memory per cell. With ids == NULL every cell is row 0; with one
+ * row equal to the params and max_compaction 0 the results are those of
+ * sim_classify / sim_even_slopes, bit for bit. */
+#define SIM_MATERIALS_MAX 16
+
+typedef struct sim_material_row {
+    int32_t compression_q16;          /* 0..65536 */
+    int32_t roughness_q16;            /* 0..65536 */
+    int32_t slope_threshold_axial;    /* units */
+    int32_t slope_threshold_diagonal; /* units */
+    int32_t max_compaction;           /* units, 0..65535; 0: no compaction memory */
+} sim_material_row;
+
+typedef struct sim_material_table {
+    int count; /* 1..SIM_MATERIALS_MAX */
+    sim_material_row rows[SIM_MATERIALS_MAX];
+} sim_material_table;
+
+/* A row from a material's integer params and its max compaction (units). */
+sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction);
+
+/*
+ * classify with per-cell materials. A penetrated column with compaction
+ * memory m of its material's max M yields only pen - pen*m/M (compacted
+ * ground resists; the collider rests in it), of which the material's
+ * compression share (at most M - m) is compacted and the rest displaced:
+ * raw[i] = yield, moved[i] = yield - compacted. memory may be NULL (m = 0).
+ */
+void sim_classify_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
+                            const uint16_t *memory, int cell_count, const int32_t *heights,
+                            const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
+/* After a window is accepted: memory[i] += raw[i] - moved[i] where the
+ * cell's material remembers compaction. */
+void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int cell_count,
+                           const int32_t *raw, const int32_t *moved, uint16_t *memory);
+/* even_slopes where each flux uses the material of the column it leaves. */
+void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
+                               int w, int h, const int32_t *cls, int32_t *heights,
+                               int32_t *scratch);
+/* Largest excess above the threshold of the higher column's material. */
+int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_t *ids, int w,
+                                       int h, const int32_t *heights);
 
 /* Outcome of a window. */
 typedef enum sim_window_status {
@@ -247,7 +291,22 @@ typedef struct sim_window_job {
     /* For the models that need them (NULL otherwise): */
     const int32_t *base_heights; /* the base terrain over rect (subtract refill, deferred) */
     int32_t refill_units;        /* subtract: how far a cell below base rises this tick */
+
+    /* Per-cell materials (ground/): NULL for the uniform path (params only).
+     * material_ids NULL: every cell is row 0. compaction (in/out) NULL when no
+     * material remembers compaction; written only for accepted windows. */
+    const sim_material_table *materials;
+    const uint8_t *material_ids;
+    uint16_t *compaction;
 } sim_window_job;
+
+/* ---- Sumner, O'Brien and Hodgins 1999 on the CPU (model_sumner.c) ----
+ * The accuracy reference: ray-cast columns, first-ring displacement, erosion
+ * by the slope-evening iterations. Σh exact with compression 0. Returns
+ * SIM_WINDOW_HEIGHT_LIMIT with job->heights unchanged if a column would leave
+ * the height range. `scratch` holds sim_sumner_scratch_cells(w, h) int32. */
+int64_t sim_sumner_scratch_cells(int w, int h);
+sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
 
 /* ---- The non-persson models: CPU window functions (model_<name>.c) ----
  *
@@ -269,8 +328,6 @@ sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, 
 sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
 /* Drift-diffusion, conservative integer flux form or Gilardi's float scheme. */
 sim_window_status sim_diffusion_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
-/* Sumner, Oh and Hodgins (1999): defined in model_sumner.c on its own branch. */
-sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
 /* Substeps the diffusion model runs for one tick (1 <= n <= SIM_DIFFUSION_SUBSTEPS_MAX
  * under auto), and the coefficients per substep (the bound is explained there). */
 int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift);
@@ -364,6 +421,11 @@ typedef struct sim_engine {
     sim_stage_memory memory;      /* held after the last tick */
     sim_stage_memory peak_memory; /* per stage high-water mark */
     int warned_cpu_model;         /* "runs on the CPU" said once */
+    /* Per-cell materials and compaction memory (sim_engine_set_ground). */
+    struct ground *ground; /* not owned; NULL: one material, the params */
+    uint8_t *material_ids; /* all windows of a tick, packed; only if not uniform */
+    uint16_t *compaction;  /* likewise; only if some material compacts */
+    int64_t ground_capacity;
 } sim_engine;
 
 int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *backend,
@@ -372,6 +434,10 @@ int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *b
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);
 void sim_engine_free(sim_engine *e);
+/* After sim_engine_init: the ground's per-cell layers (not owned; NULL: none). A
+ * ground with one material equal to the params and no compaction memory
+ * changes nothing: the uniform path runs. */
+void sim_engine_set_ground(sim_engine *e, struct ground *g);
 /* After a tick: window i of the last tick, its heights before and after. */
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
                              const int32_t **after);

@@ -21,6 +21,8 @@
  */
 #include "sim/sim.h"
 
+#include "ground/ground.h"
+
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -181,8 +183,60 @@ int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *b
     return 0;
 }
 
+void sim_engine_set_ground(sim_engine *e, struct ground *g)
+{
+    /* The uniform path only when it computes the same: one material whose
+     * row is the params' own and no compaction memory. */
+    sim_material_row own = sim_material_row_from_params(&e->params, 0);
+    int same =
+        g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
+    e->ground = g && !same ? g : NULL;
+}
+
+/* Per-cell layers of the tick's windows, packed like the heights; only those
+ * the scene needs. */
+static int ground_grow(sim_engine *e, int64_t cells)
+{
+    if (!e->ground || cells <= e->ground_capacity)
+        return 0;
+    int64_t cap = e->ground_capacity ? e->ground_capacity : 1024;
+    while (cap < cells)
+        cap *= 2;
+    if (!e->ground->uniform) {
+        uint8_t *ids = realloc(e->material_ids, (size_t)cap);
+        if (!ids)
+            return -1;
+        e->material_ids = ids;
+    }
+    if (e->ground->uses_compaction) {
+        uint16_t *m = realloc(e->compaction, (size_t)cap * sizeof *m);
+        if (!m)
+            return -1;
+        e->compaction = m;
+    }
+    e->ground_capacity = cap;
+    return 0;
+}
+
+static void ground_gather_job(sim_engine *e, sim_window_job *job, int64_t offset)
+{
+    if (!e->ground)
+        return;
+    job->materials = &e->ground->table;
+    if (!e->ground->uniform) {
+        job->material_ids = e->material_ids + offset;
+        ground_gather_ids(e->ground, job->rect, e->material_ids + offset);
+    }
+    if (e->ground->uses_compaction) {
+        job->compaction = e->compaction + offset;
+        ground_gather_compaction(e->ground, job->rect, job->compaction);
+    }
+}
+
 void sim_engine_free(sim_engine *e)
 {
+    free(e->material_ids);
+    free(e->compaction);
     free(e->windows);
     free(e->jobs);
     free(e->status);
@@ -396,7 +450,8 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
     int needs_base = !persson && sim_model_needs_base(&e->params);
     int64_t ccap = e->cell_capacity, ccap2 = ccap;
     if (grow((void **)&e->heights, &ccap, cells + 1, sizeof(int32_t)) != 0 ||
-        grow((void **)&e->before, &ccap2, cells + 1, sizeof(int32_t)) != 0)
+        grow((void **)&e->before, &ccap2, cells + 1, sizeof(int32_t)) != 0 ||
+        ground_grow(e, cells + 1) != 0)
         goto oom;
     e->cell_capacity = ccap;
     /* depth on the engine's side only where something reads it */
@@ -430,6 +485,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
         job->units_per_m = w->units_per_m;
         job->heights = e->heights + offset;
         world_gather_window(w, r, job->heights);
+        ground_gather_job(e, job, offset);
         memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
         int32_t hmin, hmax;
         world_rect_height_range(w, r, &hmin, &hmax);
@@ -486,6 +542,9 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
         world_rect r = e->windows[i];
         int64_t n = (int64_t)r.w * r.h;
         if (e->status[i] == SIM_WINDOW_OK) {
+            if (e->jobs[i].compaction &&
+                ground_scatter_compaction(e->ground, r, e->jobs[i].compaction, err) != 0)
+                return -1;
             world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
             if (d.w > 0) {
                 world_scatter_window(w, r, e->heights + offset);

@@ -62,7 +62,6 @@ int sim_material_diffusion_preset(sim_material *m, const char *name)
     return 0;
 }
 
-/* Sumner's name is added here when model_sumner.c is merged (SIM_MODEL_SUMNER). */
 static const char *const model_names[SIM_MODEL_COUNT] = {
     "persson-iterative", "persson-ssbo", "persson-multi", "subtract",
     "deferred",          "diffusion",    "sumner",        "decals"};
@@ -75,8 +74,6 @@ const char *sim_model_name(sim_model m)
 int sim_model_parse(const char *name, sim_model *out)
 {
     for (int i = 0; i < SIM_MODEL_COUNT; i++) {
-        if (i == SIM_MODEL_SUMNER)
-            continue; /* not in this build */
         if (name && strcmp(name, model_names[i]) == 0) {
             *out = (sim_model)i;
             return 0;
@@ -195,8 +192,8 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         error_set(err, "material.method: unknown method");
         return -1;
     }
-    if ((unsigned)m->model >= SIM_MODEL_COUNT || m->model == SIM_MODEL_SUMNER) {
-        error_set(err, "material.model: unknown or unavailable model");
+    if ((unsigned)m->model >= SIM_MODEL_COUNT) {
+        error_set(err, "material.model: unknown model");
         return -1;
     }
     if (!isfinite(m->tick_s) || m->tick_s <= 0.0 || m->tick_s > 3600.0) {

@@ -26,8 +26,8 @@ from service_harness import BIN, SOURCE, Checks, Daemon, metric_value
 SCENES = os.path.join(SOURCE, "tests", "scenes")
 EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
-          "diffusion", "decals"]
-EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "decals"}
+          "diffusion", "sumner", "decals"]
+EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner", "decals"}
 check = Checks()
 
 
@@ -107,8 +107,8 @@ else:
     check(r["backend"] == "gl" and r["model_on_cpu"] is True, "gl: subtract says it ran on the CPU")
 
 # bad input names the field
-rc, _, err = simulate(car, 1, "--model", "sumner")
-check(rc == 2 and "--model" in err, f"--model sumner refused until it is merged: {err}")
+rc, _, err = simulate(car, 1, "--model", "sumnr")
+check(rc == 2 and "--model" in err, f"--model with an unknown name refused: {err}")
 for material, field in [({"model": "nope"}, "material.model"),
                         ({"model": "diffusion", "D": -1}, "material.D"),
                         ({"model": "diffusion", "substeps": "sometimes"}, "material.substeps"),

@@ -565,6 +565,95 @@ static void test_scratch_and_timing(sim_backend *gl)
         free(heights[k]);
 }
 
+/* ---- per-cell materials and compaction memory (sim_stages_materials.c) ---- */
+
+/* Random material tables, ids and compaction memory on random windows: heights,
+ * statuses and the compaction written back agree bit for bit. */
+static void test_materials_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds)
+{
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
+    int ok = 1, windows = 0, compacting = 0;
+    for (int round = 0; round < rounds && ok; round++) {
+        batch b = {0};
+        b.count = 1 + (int)(rnd() % 5);
+        sim_params p = random_params(methods[round % 3], (sim_metric)(rnd() % 3), 0);
+        sim_material_table t = {.count = 1 + (int)(rnd() % SIM_MATERIALS_MAX)};
+        for (int r = 0; r < t.count; r++) {
+            sim_params q = random_params(methods[round % 3], SIM_METRIC_EUCLIDEAN, 0);
+            int32_t max_c = rnd() % 2 ? (int32_t)(rnd() % 65536) : 0;
+            t.rows[r] = sim_material_row_from_params(&q, max_c);
+            if (rnd() % 4 == 0)
+                t.rows[r].compression_q16 = (int32_t)(rnd() % 65537);
+        }
+        uint8_t *ids[8];
+        uint16_t *mem_gl[8], *mem_cpu[8];
+        int with_ids = round % 4 != 3; /* every fourth: one material, ids NULL */
+        for (int k = 0; k < b.count; k++) {
+            const int *sz = awkward_sizes[rnd() % (sizeof awkward_sizes / sizeof awkward_sizes[0])];
+            random_window(&b, k, sz[0], sz[1], 50000, rnd_range(10, 20000), (int)(rnd() % 2));
+            int n = sz[0] * sz[1];
+            ids[k] = malloc((size_t)n);
+            mem_gl[k] = malloc((size_t)n * 2);
+            mem_cpu[k] = malloc((size_t)n * 2);
+            for (int i = 0; i < n; i++) {
+                ids[k][i] = (uint8_t)(rnd() % (uint32_t)t.count);
+                int32_t max_c = t.rows[with_ids ? ids[k][i] : 0].max_compaction;
+                mem_gl[k][i] = mem_cpu[k][i] =
+                    (uint16_t)(max_c > 0 ? rnd() % (uint32_t)(max_c + 2) : rnd() % 65536);
+            }
+            b.jobs[k].materials = &t;
+            b.jobs[k].material_ids = with_ids ? ids[k] : NULL;
+            b.jobs[k].compaction = mem_gl[k];
+        }
+        /* compare_batch copies the jobs for the CPU: give its copy its own memory */
+        sim_window_job cpu_jobs[8];
+        int st_gl[8], st_cpu[8];
+        for (int k = 0; k < b.count; k++) {
+            cpu_jobs[k] = b.jobs[k];
+            cpu_jobs[k].heights = b.heights_cpu[k];
+            cpu_jobs[k].compaction = mem_cpu[k];
+        }
+        error_text err = {{0}};
+        sim_stage_times tm = {0};
+        if (gl->run_windows(gl, &p, b.jobs, b.count, st_gl, &tm, &err) != 0 ||
+            cpu->run_windows(cpu, &p, cpu_jobs, b.count, st_cpu, &tm, &err) != 0) {
+            printf("FAIL materials round %d: run_windows: %s\n", round, err.message);
+            ok = 0;
+        }
+        for (int k = 0; ok && k < b.count; k++) {
+            int n = b.jobs[k].rect.w * b.jobs[k].rect.h;
+            if (st_gl[k] != st_cpu[k]) {
+                printf("FAIL materials round %d window %d: status gl %d cpu %d\n", round, k,
+                       st_gl[k], st_cpu[k]);
+                ok = 0;
+                break;
+            }
+            if (st_cpu[k] != SIM_WINDOW_OK)
+                continue;
+            for (int i = 0; i < n && ok; i++) {
+                if (b.heights[k][i] != b.heights_cpu[k][i] || mem_gl[k][i] != mem_cpu[k][i]) {
+                    printf("FAIL materials round %d window %d (%dx%d) cell %d: heights gl %d cpu "
+                           "%d, compaction gl %u cpu %u\n",
+                           round, k, b.jobs[k].rect.w, b.jobs[k].rect.h, i, b.heights[k][i],
+                           b.heights_cpu[k][i], mem_gl[k][i], mem_cpu[k][i]);
+                    ok = 0;
+                }
+                if (mem_cpu[k][i] != 0)
+                    compacting++;
+            }
+            windows++;
+        }
+        for (int k = 0; k < b.count; k++) {
+            free(ids[k]);
+            free(mem_gl[k]);
+            free(mem_cpu[k]);
+        }
+        batch_free(&b);
+    }
+    CHECK(ok, "materials bit-exact: %d rounds, %d accepted windows, %d cells with memory", rounds,
+          windows, compacting);
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -580,6 +669,7 @@ int main(void)
     }
     test_depth_raster(gl, 0);
     test_bit_exact(gl, cpu, 12, 1);
+    test_materials_bit_exact(gl, cpu, 24);
     test_height_limit(gl, cpu);
     test_repeatable(gl);
     test_scratch_and_timing(gl);

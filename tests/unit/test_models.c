@@ -102,14 +102,15 @@ static sim_collider collider_at(const collider_geometry *g, double x, double y, 
 static void test_model_names(void)
 {
     const char *names[] = {"persson-iterative", "persson-ssbo", "persson-multi", "subtract",
-                           "deferred",          "diffusion",    "decals"};
+                           "deferred",          "diffusion",    "sumner",        "decals"};
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         sim_model m;
         CHECK(sim_model_parse(names[i], &m) == 0 && strcmp(sim_model_name(m), names[i]) == 0,
               "model %s round trip", names[i]);
     }
     sim_model m;
-    CHECK(sim_model_parse("sumner", &m) != 0, "sumner is not parsed until it is merged");
+    CHECK(sim_model_scratch_cells(SIM_MODEL_SUMNER, 64 * 48) == sim_sumner_scratch_cells(64, 48),
+          "the dispatch gives sumner the scratch it asks for");
     CHECK(sim_model_parse("persson", &m) != 0, "unknown model refused");
     CHECK(sim_model_parse(NULL, &m) != 0, "NULL refused");
 
@@ -527,7 +528,7 @@ static void test_thin_fast_collider(void)
 static void test_height_limits(void)
 {
     const sim_model models[] = {SIM_MODEL_SUBTRACT, SIM_MODEL_DEFERRED, SIM_MODEL_DIFFUSION,
-                                SIM_MODEL_DECALS, SIM_MODEL_PERSSON_SSBO};
+                                SIM_MODEL_DECALS,   SIM_MODEL_SUMNER,   SIM_MODEL_PERSSON_SSBO};
     const double heights_m[] = {(WORLD_HEIGHT_MAX - 50) / (double)UPM,
                                 (WORLD_HEIGHT_MIN + 50) / (double)UPM};
     for (size_t k = 0; k < sizeof models / sizeof models[0]; k++) {
@@ -576,7 +577,7 @@ static void test_height_limits(void)
 static void test_collider_sizes(void)
 {
     const sim_model models[] = {SIM_MODEL_PERSSON_SSBO, SIM_MODEL_SUBTRACT, SIM_MODEL_DEFERRED,
-                                SIM_MODEL_DIFFUSION, SIM_MODEL_DECALS};
+                                SIM_MODEL_DIFFUSION,    SIM_MODEL_SUMNER,   SIM_MODEL_DECALS};
     collider_geometry speck = {.shape = COLLIDER_SPHERE, .radius = 0.01};
     collider_geometry slab = {.shape = COLLIDER_BOX, .half_extents = {5, 5, 0.2}};
     for (size_t k = 0; k < sizeof models / sizeof models[0]; k++) {
@@ -608,10 +609,11 @@ static void test_collider_sizes(void)
             else if (models[k] != SIM_MODEL_DEFERRED)
                 CHECK(after == before, "%s %s: volume exact", name,
                       big ? "world-sized" : "one-cell");
-            /* a slab over the whole world leaves Persson and diffusion nowhere to push
-             * (no free cell, no difference of penetration): the heights stay */
+            /* a slab over the whole world leaves Persson, Sumner and diffusion nowhere to
+             * push (no free cell, no difference of penetration): the heights stay */
             int nowhere =
-                big && (models[k] == SIM_MODEL_PERSSON_SSBO || models[k] == SIM_MODEL_DIFFUSION);
+                big && (models[k] == SIM_MODEL_PERSSON_SSBO || models[k] == SIM_MODEL_DIFFUSION ||
+                        models[k] == SIM_MODEL_SUMNER);
             if (models[k] != SIM_MODEL_DECALS)
                 CHECK(changed == !nowhere, "%s %s: %s", name, big ? "world-sized" : "one-cell",
                       nowhere ? "nowhere to push, unchanged" : "deformed");

@@ -1,0 +1,127 @@
+/*
+ * ground: what the terrain is made of, cell by cell, and what it remembers.
+ *
+ * Two per-cell layers beside the world's heights, kept out of world/ so the
+ * height storage can change without them:
+ *
+ *   material ids  uint8 per cell, an index into the scene's material table
+ *                 (at most SIM_MATERIALS_MAX). They come from the scene's
+ *                 material map — a default material and painted rectangles
+ *                 and circles, later paints on top — evaluated on demand
+ *                 when a window is gathered; nothing is stored per cell.
+ *   compaction    uint16 per cell: height units this column has been
+ *                 compacted by so far (Persson ch. 6.2, future work). Only
+ *                 allocated when some material has max_compaction_m > 0 and
+ *                 compression > 0, and then only in 64x64 tiles that have
+ *                 been compacted at least once.
+ *
+ * The tick gathers both for each window (ground_gather_*), the stages read
+ * them (sim_classify_materials, sim_even_slopes_materials) and the compaction
+ * the window caused is scattered back (ground_scatter_compaction).
+ */
+#ifndef TERRAD_GROUND_H
+#define TERRAD_GROUND_H
+
+#include <stdint.h>
+
+#include "base/base.h"
+#include "sim/sim.h"
+#include "world/world.h"
+
+#define GROUND_TILE_SIDE 64
+#define GROUND_NAME_MAX 32
+#define GROUND_PAINTS_MAX 256
+/* Compaction memory is uint16 height units; a material's max_compaction_m
+ * must fit (6.5 m at the default 10,000 units per metre). */
+#define GROUND_COMPACTION_MAX 65535
+
+typedef struct ground_material {
+    char name[GROUND_NAME_MAX];
+    double compression;      /* [0, 1] share of the yielded depth compacted away */
+    double roughness;        /* [0, 1] share of excess slope moved per iteration */
+    double repose_deg;       /* [0, 90) */
+    double max_compaction_m; /* [0, ...] how far a column can be compacted in all; 0: no memory */
+    double density_kg_m3;    /* informative (docs, clients); not used by the stages */
+} ground_material;
+
+/* Presets: "snow", "sand", "mud", "pebbles" (numbers and sources in
+ * docs/materials.md). Returns 0, or -1 for an unknown name. */
+int ground_material_preset(const char *name, ground_material *out);
+
+typedef enum ground_paint_kind {
+    GROUND_PAINT_RECT,   /* cells whose centre is in [x0, x1) x [y0, y1) (metres) */
+    GROUND_PAINT_CIRCLE, /* cells whose centre is within r of (cx, cy) (metres) */
+} ground_paint_kind;
+
+typedef struct ground_paint {
+    ground_paint_kind kind;
+    uint8_t material;
+    double a, b, c, d; /* rect: x0 y0 x1 y1; circle: cx cy r (d unused) */
+} ground_paint;
+
+/* The world's shape and scale, all the ground needs of it (a scene has these
+ * before any world exists). */
+typedef struct ground_extent {
+    int width, height; /* cells */
+    double cell_size_m;
+    int32_t units_per_m;
+    int32_t floor; /* units */
+} ground_extent;
+
+ground_extent ground_extent_of_world(const world *w);
+
+typedef struct ground {
+    int width, height; /* world cells */
+    double cell_size_m;
+    int32_t units_per_m;
+    int material_count;
+    ground_material materials[SIM_MATERIALS_MAX];
+    sim_material_table table; /* the integer rows the stages use */
+    uint8_t default_material;
+    ground_paint *paints;
+    int paint_count;
+    int uniform;                 /* every cell is material 0: no id buffer is needed */
+    int uses_compaction;         /* some material remembers compaction */
+    int tiles_x, tiles_y;        /* compaction tiles */
+    uint16_t **compaction_tiles; /* NULL unless uses_compaction; NULL entries: never compacted */
+    int64_t compaction_tiles_allocated;
+} ground;
+
+/*
+ * One material everywhere: `base` (the scene's "material"), no compaction
+ * memory. The world's dimensions and scale give the integer rows.
+ */
+int ground_init_uniform(ground *g, ground_extent x, const sim_material *base, error_text *err);
+
+/*
+ * From the scene: `materials` is the JSON object {"name": {"preset": ...,
+ * overrides...}, ...} and `map` the object {"default": "name", "paint": [
+ * {"material": "name", "rect": [x0, y0, x1, y1]} | {"material": "name",
+ * "circle": [cx, cy, r]}, ...]} (metres), either may be NULL (then one
+ * material, `base`). `base` supplies what is not per cell (method, metric,
+ * iterations, obstacle gap). Errors name the field, e.g.
+ * "materials.snow.roughness: must be a number in [0, 1] (got 2)".
+ * The JSON values are cJSON pointers, passed as void to keep cJSON out of
+ * this header.
+ */
+int ground_init_json(ground *g, ground_extent x, const sim_material *base, const void *materials,
+                     const void *map, error_text *err);
+void ground_free(ground *g);
+
+/* Index of a material by name, or -1. */
+int ground_material_index(const ground *g, const char *name);
+
+/* Material ids of a rectangle of world cells, row-major (r must be inside). */
+void ground_gather_ids(const ground *g, world_rect r, uint8_t *dst);
+/* Compaction memory of a rectangle; zeros where nothing is stored. */
+void ground_gather_compaction(const ground *g, world_rect r, uint16_t *dst);
+/* Store a rectangle's compaction; allocates a tile only for non-zero values.
+ * Returns 0, or -1 with err set when out of memory (then some tiles may be
+ * unchanged). */
+int ground_scatter_compaction(ground *g, world_rect r, const uint16_t *src, error_text *err);
+/* Σ compaction memory over the world: what compression has taken from Σh. */
+int64_t ground_compaction_total(const ground *g);
+/* Bytes held by the compaction layer now. */
+uint64_t ground_compaction_bytes(const ground *g);
+
+#endif
