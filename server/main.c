@@ -13,6 +13,7 @@ void app_print_help(void)
            "usage:\n"
            "  terrad serve [options]        run the daemon (the default command)\n"
            "  terrad simulate [options]     run a scene offline and print a JSON report\n"
+           "  terrad bench --trade [...]    the speed/accuracy sweep (terrad bench --help)\n"
            "  terrad --help | --version\n"
            "\n"
            "serve options:\n"
@@ -59,6 +60,8 @@ int main(int argc, char **argv)
     }
     if (strcmp(command, "simulate") == 0)
         return app_simulate(argc - 2, argv + 2);
+    if (strcmp(command, "bench") == 0)
+        return app_bench(argc - 2, argv + 2);
     if (strcmp(command, "serve") == 0)
         return app_serve(argc - 2, argv + 2);
     if (command[0] == '-') /* options without a command: serve */

@@ -1,19 +1,35 @@
 /*
  * app: terrad's commands — `simulate` (an offline run of a scene that prints
- * one JSON report) and `serve` (the daemon: tick loop, demo actors, HTTP).
+ * one JSON report), `serve` (the daemon: tick loop, demo actors, HTTP) and
+ * `bench --trade` (the speed/accuracy sweep over models).
  * main.c only dispatches to these.
  */
 #ifndef TERRAD_APP_H
 #define TERRAD_APP_H
 
 #include "base/base.h"
+#include "scene/scene.h"
 #include "sim/sim.h"
 
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
+int app_bench(int argc, char **argv); /* `terrad bench --trade` (bench_trade.c) */
 void app_print_help(void);
 
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);
+
+/* Called after each tick of app_run_scene_ticks with that tick's report and wall time. */
+typedef void (*app_tick_observer)(void *ctx, long tick, const sim_tick_report *report,
+                                  double tick_ms);
+
+/*
+ * The offline tick loop shared by `simulate` and `bench --trade`: ticks
+ * 0..ticks-1 of the scene's scripted colliders (poses at t / tick_hz, swept
+ * from the previous tick's pose) through the engine. Returns 0, or -1 with
+ * err naming the tick on a backend failure.
+ */
+int app_run_scene_ticks(const scene *sc, sim_engine *engine, long ticks, app_tick_observer observe,
+                        void *ctx, error_text *err);
 
 #endif
