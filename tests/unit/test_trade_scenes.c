@@ -1,5 +1,5 @@
 /*
- * test_trade.c: the pieces `terrad bench --trade` measures with — the
+ * test_trade_scenes.c: the pieces `terrad bench --trade` measures with — the
  * standard scenes at several cell sizes and headings (same physical world,
  * colliders turned about its centre), the cross-section sampler (bilinear at
  * physical positions), its trail rectangle, and the model list.
