@@ -175,8 +175,10 @@ static int parse_options(int argc, char **argv, trade_options *o)
 static int make_dirs(const char *path)
 {
     char buf[1024];
-    if (strlen(path) >= sizeof buf)
+    if (strlen(path) >= sizeof buf) {
+        errno = ENAMETOOLONG;
         return -1;
+    }
     strcpy(buf, path);
     for (char *p = buf + 1; *p; p++) {
         if (*p != '/')
