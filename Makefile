@@ -5,7 +5,7 @@
 #   make run            build, then run the daemon: ./build/terrad serve $(ARGS)
 #   make test           everything CI runs; ends with "N passed, N failed"
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
-#                       terrad bench)
+#                       terrad bench --trade: the speed/accuracy sweep into docs/trade/)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 20 s each)
 #   make soak           tests/soak/*.sh
 #   make format         clang-format -i the C sources (format-check: only check)
@@ -96,7 +96,7 @@ bench: build
 	    echo "== $$b"; $(TEST_ENV) $(PYTHON) "$$b"; ran=1; \
 	done; \
 	if { $(TERRAD) --help 2>&1 || true; } | grep -qw bench; then \
-	    echo "== $(TERRAD) bench"; $(TERRAD) bench; ran=1; \
+	    echo "== $(TERRAD) bench --trade (docs/trade/)"; $(TERRAD) bench --trade; ran=1; \
 	else echo "bench: '$(TERRAD) bench' not available yet, skipped"; fi; \
 	[ $$ran = 1 ] || echo "bench: no benchmarks found"
 

@@ -14,6 +14,7 @@ void app_print_help(void)
            "  terrad serve [options]        run the daemon (the default command)\n"
            "  terrad simulate [options]     run a scene offline and print a JSON report\n"
            "  terrad export [options]       write a data directory's world (or a region)\n"
+           "  terrad bench --trade [...]    the speed/accuracy sweep (terrad bench --help)\n"
            "  terrad --help | --version\n"
            "\n"
            "serve options:\n"
@@ -80,6 +81,8 @@ int main(int argc, char **argv)
     }
     if (strcmp(command, "simulate") == 0)
         return app_simulate(argc - 2, argv + 2);
+    if (strcmp(command, "bench") == 0)
+        return app_bench(argc - 2, argv + 2);
     if (strcmp(command, "serve") == 0)
         return app_serve(argc - 2, argv + 2);
     if (strcmp(command, "export") == 0)

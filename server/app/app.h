@@ -1,6 +1,7 @@
 /*
  * app: terrad's commands — `simulate` (an offline run of a scene that prints
- * one JSON report) and `serve` (the daemon: tick loop, demo actors, HTTP).
+ * one JSON report), `serve` (the daemon: tick loop, demo actors, HTTP) and
+ * `bench --trade` (the speed/accuracy sweep over models).
  * main.c only dispatches to these.
  */
 #ifndef TERRAD_APP_H
@@ -14,6 +15,7 @@
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
 int app_export(int argc, char **argv); /* a data directory's world to raw32 / png16 */
+int app_bench(int argc, char **argv);  /* `terrad bench --trade` (bench_trade.c) */
 void app_print_help(void);
 
 /* "gl" or "cpu". */
@@ -22,5 +24,17 @@ sim_backend *app_backend_create(const char *name, error_text *err);
 /* The scene's ground into the engine. On failure nothing is held. */
 int app_ground_attach(const scene *sc, const world *w, sim_engine *engine, ground *g,
                       error_text *err);
+/* Called after each tick of app_run_scene_ticks with that tick's report and wall time. */
+typedef void (*app_tick_observer)(void *ctx, long tick, const sim_tick_report *report,
+                                  double tick_ms);
+
+/*
+ * The offline tick loop shared by `simulate` and `bench --trade`: ticks
+ * 0..ticks-1 of the scene's scripted colliders (poses at t / tick_hz, swept
+ * from the previous tick's pose) through the engine. Returns 0, or -1 with
+ * err naming the tick on a backend failure.
+ */
+int app_run_scene_ticks(const scene *sc, sim_engine *engine, long ticks, app_tick_observer observe,
+                        void *ctx, error_text *err);
 
 #endif

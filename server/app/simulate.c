@@ -165,6 +165,63 @@ typedef struct stage_series {
     stat_series series;
 } stage_series;
 
+typedef struct simulate_totals {
+    stage_series *stages;
+    int stage_count;
+    double active_sum;
+    long refused;
+    long footprint_events; /* decals */
+} simulate_totals;
+
+static void record_tick(void *ctx, long tick, const sim_tick_report *report, double tick_ms)
+{
+    (void)tick;
+    simulate_totals *t = ctx;
+    double values[] = {report->times.depth,    report->times.classify,    report->times.jump_flood,
+                       report->times.displace, report->times.even_slopes, report->times.transfer,
+                       report->model_ms,       report->gather_scatter_ms, tick_ms};
+    for (int s = 0; s < t->stage_count; s++)
+        stat_series_add(&t->stages[s].series, values[s]);
+    t->active_sum += (double)report->active_cells;
+    t->refused += report->refused_windows;
+    t->footprint_events += report->footprint_count;
+}
+
+int app_run_scene_ticks(const scene *sc, sim_engine *engine, long ticks, app_tick_observer observe,
+                        void *ctx, error_text *err)
+{
+    sim_collider *colliders = calloc((size_t)sc->collider_count + 1, sizeof *colliders);
+    if (!colliders) {
+        error_set(err, "out of memory");
+        return -1;
+    }
+    double dt = 1.0 / sc->tick_hz;
+    int rc = 0;
+    for (long t = 0; t < ticks; t++) {
+        for (int c = 0; c < sc->collider_count; c++) {
+            colliders[c].id = c;
+            colliders[c].geometry = &sc->colliders[c].geometry;
+            colliders[c].pose = collider_motion_pose(&sc->colliders[c].motion, (double)t * dt);
+            colliders[c].previous_pose =
+                collider_motion_pose(&sc->colliders[c].motion, (double)(t - 1) * dt);
+            colliders[c].has_previous = t > 0;
+        }
+        sim_tick_report report;
+        error_text tick_err = {{0}};
+        double t0 = time_now_ms();
+        if (sim_engine_tick(engine, colliders, sc->collider_count, &report, &tick_err) != 0) {
+            error_set(err, "tick %ld: %s", t, tick_err.message);
+            rc = -1;
+            break;
+        }
+        double elapsed = time_now_ms() - t0;
+        if (observe)
+            observe(ctx, t, &report, elapsed);
+    }
+    free(colliders);
+    return rc;
+}
+
 int app_simulate(int argc, char **argv)
 {
     simulate_options o;
@@ -237,40 +294,14 @@ int app_simulate(int argc, char **argv)
                              {"displace", {0}}, {"even_slopes", {0}},    {"transfer", {0}},
                              {"model", {0}},    {"gather_scatter", {0}}, {"tick", {0}}};
     const int stage_count = (int)(sizeof stages / sizeof stages[0]);
-    sim_collider *colliders = calloc((size_t)sc.collider_count + 1, sizeof *colliders);
-    if (!colliders) {
-        fprintf(stderr, "terrad simulate: out of memory\n");
-        goto done_engine;
-    }
     int64_t volume_before = world_volume(&w);
-    double active_sum = 0.0;
-    long refused = 0, footprint_events = 0;
-    double dt = 1.0 / sc.tick_hz;
-    for (long t = 0; t < o.ticks; t++) {
-        for (int c = 0; c < sc.collider_count; c++) {
-            colliders[c].id = c;
-            colliders[c].geometry = &sc.colliders[c].geometry;
-            colliders[c].pose = collider_motion_pose(&sc.colliders[c].motion, (double)t * dt);
-            colliders[c].previous_pose =
-                collider_motion_pose(&sc.colliders[c].motion, (double)(t - 1) * dt);
-            colliders[c].has_previous = t > 0;
-        }
-        sim_tick_report report;
-        double t0 = time_now_ms();
-        if (sim_engine_tick(&engine, colliders, sc.collider_count, &report, &err) != 0) {
-            fprintf(stderr, "terrad simulate: tick %ld: %s\n", t, err.message);
-            goto done_colliders;
-        }
-        double elapsed = time_now_ms() - t0;
-        double values[] = {report.times.depth,    report.times.classify,    report.times.jump_flood,
-                           report.times.displace, report.times.even_slopes, report.times.transfer,
-                           report.model_ms,       report.gather_scatter_ms, elapsed};
-        for (int s = 0; s < stage_count; s++)
-            stat_series_add(&stages[s].series, values[s]);
-        active_sum += (double)report.active_cells;
-        refused += report.refused_windows;
-        footprint_events += report.footprint_count;
+    simulate_totals totals = {stages, stage_count, 0.0, 0, 0};
+    if (app_run_scene_ticks(&sc, &engine, o.ticks, record_tick, &totals, &err) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        goto done_colliders;
     }
+    double active_sum = totals.active_sum;
+    long refused = totals.refused, footprint_events = totals.footprint_events;
     int64_t volume_after = world_volume(&w);
     if (o.out_path && write_heights(o.out_path, &w) != 0) {
         fprintf(stderr, "terrad simulate: cannot write %s\n", o.out_path);
@@ -358,10 +389,8 @@ int app_simulate(int argc, char **argv)
     }
     cJSON_Delete(root);
 done_colliders:
-    free(colliders);
     for (int s = 0; s < stage_count; s++)
         stat_series_free(&stages[s].series);
-done_engine:
     sim_engine_free(&engine);
 done_world:
     ground_free(&grd);

@@ -1,0 +1,611 @@
+/*
+ * bench_trade.c: `terrad bench --trade` — the measured speed/accuracy trade.
+ *
+ * For every standard scene (trade_scenes.c) it first runs the reference:
+ * persson-iterative at the finest cell size with 50 displacement and 50
+ * slope iterations (20/20 with --quick), and shows that it is converged by
+ * running twice as many and printing how far the trail moved. Then every model × backend × cell
+ * size × iteration count of the sweep runs the same scene at headings 0°, 30° and 45° through the
+ * offline tick loop `simulate` uses (app_run_scene_ticks). The 0° run gives the cost (ms per tick,
+ * peak scratch, bytes per world cell) and the errors (volume drift, trail cross-section RMS against
+ * the reference, largest slope excess over the angle of repose on the finished trail); the three
+ * headings give the anisotropy (largest RMS difference between their
+ * cross-sections, sampled along the turned trail).
+ *
+ * Out: DIR/trade.csv (one row per run configuration), DIR/trade.svg (cost
+ * against error), DIR/trade.txt (the table and the summary also printed).
+ */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "app/app.h"
+#include "app/trade_internal.h"
+#include "gl/gl.h"
+
+#define HEADING_COUNT 3
+static const double headings_deg[HEADING_COUNT] = {0.0, 30.0, 45.0};
+
+static const double full_cells_m[] = {0.1, 0.05, 0.025};
+static const int full_iterations[] = {1, 5, 10, 20};
+/* The reference: persson-iterative at the finest cell size, this many
+ * displacement and slope iterations; "converged" is checked against twice as
+ * many. --quick (a smoke test in seconds) uses coarser cells and 20/40. */
+static const int full_reference_iterations = 50;
+static const double quick_cells_m[] = {0.2, 0.1};
+static const int quick_iterations[] = {1, 10};
+static const int quick_reference_iterations = 20;
+
+typedef struct trade_options {
+    const char *out_dir;
+    int quick;
+    int cpu_all, gl_all, gl_one; /* which backends run which cell sizes */
+    int models[16];
+    int model_count;
+    int scenes[16];
+    int scene_count;
+} trade_options;
+
+static void print_usage(FILE *f)
+{
+    fprintf(f,
+            "usage: terrad bench --trade [--out DIR] [--quick] [--backend cpu|gl|both]\n"
+            "                            [--models a,b,c] [--scenes a,b,c]\n"
+            "  --out DIR        where trade.csv, trade.svg and trade.txt go (default docs/trade)\n"
+            "  --quick          a reduced sweep in seconds: cells 0.2 and 0.1 m, 1 and 10\n"
+            "                   iterations, reference 20/20 (full: 0.1, 0.05, 0.025 m; 1, 5,\n"
+            "                   10, 20; reference 50/50 checked against 100/100)\n"
+            "  --backend B      cpu: every run on the CPU twin; gl: every run on GL; both: both;\n"
+            "                   default: the CPU twin for the sweep plus GL at one cell size\n"
+            "  --models LIST    default: all of");
+    for (int i = 0; i < trade_model_count; i++)
+        fprintf(f, " %s", trade_model_names[i]);
+    fprintf(f, "\n  --scenes LIST    default: all of");
+    for (int i = 0; i < trade_scene_count; i++)
+        fprintf(f, " %s", trade_scene_names[i]);
+    fprintf(f, "\n");
+    for (int i = 0; i < trade_scene_count; i++)
+        fprintf(f, "    %-10s %s\n", trade_scene_names[i], trade_scene_about(i));
+}
+
+/* Split a comma list into indices by `lookup`; names the unknown entry. */
+static int parse_list(const char *option, const char *list, int (*lookup)(const char *),
+                      const char *const *known, int known_count, int *out, int *count)
+{
+    *count = 0;
+    char buf[512];
+    if (strlen(list) >= sizeof buf || list[0] == '\0') {
+        fprintf(stderr, "terrad bench: %s: expected a comma-separated list\n", option);
+        return -1;
+    }
+    strcpy(buf, list);
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        int index = lookup(tok);
+        if (index < 0) {
+            fprintf(stderr, "terrad bench: %s: unknown name \"%s\" (known:", option, tok);
+            for (int i = 0; i < known_count; i++)
+                fprintf(stderr, " %s", known[i]);
+            fprintf(stderr, ")\n");
+            return -1;
+        }
+        int seen = 0;
+        for (int i = 0; i < *count; i++)
+            seen |= out[i] == index;
+        if (!seen && *count < 16)
+            out[(*count)++] = index;
+    }
+    return 0;
+}
+
+static int parse_options(int argc, char **argv, trade_options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->out_dir = "docs/trade";
+    o->cpu_all = o->gl_one = 1;
+    int trade = 0;
+    const char *models = NULL, *scenes = NULL;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--trade") == 0) {
+            trade = 1;
+            continue;
+        }
+        if (strcmp(a, "--quick") == 0) {
+            o->quick = 1;
+            continue;
+        }
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            print_usage(stdout);
+            exit(0);
+        }
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (!v) {
+            fprintf(stderr, "terrad bench: %s needs a value (see terrad bench --help)\n", a);
+            return -1;
+        }
+        i++;
+        if (strcmp(a, "--out") == 0) {
+            o->out_dir = v;
+        } else if (strcmp(a, "--backend") == 0) {
+            o->cpu_all = strcmp(v, "cpu") == 0 || strcmp(v, "both") == 0;
+            o->gl_all = strcmp(v, "gl") == 0 || strcmp(v, "both") == 0;
+            o->gl_one = 0;
+            if (!o->cpu_all && !o->gl_all) {
+                fprintf(stderr, "terrad bench: --backend must be cpu, gl or both (got \"%s\")\n",
+                        v);
+                return -1;
+            }
+        } else if (strcmp(a, "--models") == 0) {
+            models = v;
+        } else if (strcmp(a, "--scenes") == 0) {
+            scenes = v;
+        } else {
+            fprintf(stderr, "terrad bench: unknown option %s (see terrad bench --help)\n", a);
+            return -1;
+        }
+    }
+    if (!trade) {
+        fprintf(stderr, "terrad bench: say which bench: --trade (see terrad bench --help)\n");
+        return -1;
+    }
+    if (models) {
+        if (parse_list("--models", models, trade_model_index, trade_model_names, trade_model_count,
+                       o->models, &o->model_count) != 0)
+            return -1;
+    } else {
+        for (int i = 0; i < trade_model_count && i < 16; i++)
+            o->models[o->model_count++] = i;
+    }
+    if (scenes) {
+        if (parse_list("--scenes", scenes, trade_scene_index, trade_scene_names, trade_scene_count,
+                       o->scenes, &o->scene_count) != 0)
+            return -1;
+    } else {
+        for (int i = 0; i < trade_scene_count; i++)
+            o->scenes[o->scene_count++] = i;
+    }
+    return 0;
+}
+
+/* mkdir -p */
+static int make_dirs(const char *path)
+{
+    char buf[1024];
+    if (strlen(path) >= sizeof buf) {
+        errno = ENAMETOOLONG;
+        return -1;
+    }
+    strcpy(buf, path);
+    for (char *p = buf + 1; *p; p++) {
+        if (*p != '/')
+            continue;
+        *p = '\0';
+        if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+            return -1;
+        *p = '/';
+    }
+    return mkdir(buf, 0777) != 0 && errno != EEXIST ? -1 : 0;
+}
+
+/* ---- One run ---- */
+
+typedef struct run_result {
+    long ticks;
+    int64_t world_cells;
+    double tick_ms_mean, tick_ms_p95;
+    uint64_t scratch_bytes_peak;
+    double bytes_per_world_cell;
+    double volume_drift;
+    double max_slope_excess_m;
+    long refused_windows;
+    double *profile;
+    int profile_length;
+} run_result;
+
+typedef struct tick_log {
+    stat_series tick_ms;
+    long refused;
+} tick_log;
+
+static void log_tick(void *ctx, long tick, const sim_tick_report *report, double tick_ms)
+{
+    (void)tick;
+    tick_log *log = ctx;
+    stat_series_add(&log->tick_ms, tick_ms);
+    log->refused += report->refused_windows;
+}
+
+/* The renderer strings of the backends used, for the CSV and the plot. */
+static char cpu_renderer[256] = "", gl_renderer[256] = "";
+
+static int run_scene(int scene_index, const char *model, const char *backend_name, double cell_m,
+                     int iterations, double heading_deg, run_result *r, error_text *err)
+{
+    memset(r, 0, sizeof *r);
+    sim_material material = sim_material_default();
+    if (trade_model_configure(model, &material, err) != 0)
+        return -1;
+    material.displace_iterations = iterations;
+    material.slope_iterations = iterations;
+    scene sc;
+    trade_profile_spec spec;
+    if (trade_scene_build(scene_index, cell_m, heading_deg, &material, &sc, &r->ticks, &spec,
+                          err) != 0)
+        return -1;
+    world w;
+    if (scene_create_world(&sc, &w, err) != 0) {
+        scene_free(&sc);
+        return -1;
+    }
+    int rc = -1;
+    size_t cells = (size_t)w.width * w.height;
+    int32_t *before = malloc(cells * sizeof *before);
+    int32_t *after = malloc(cells * sizeof *after);
+    sim_params params;
+    sim_backend *backend = NULL;
+    sim_engine engine;
+    int engine_ready = 0;
+    tick_log log = {{0}, 0};
+    if (!before || !after) {
+        error_set(err, "out of memory");
+        goto done;
+    }
+    world_rect whole = {0, 0, w.width, w.height};
+    world_gather_window(&w, whole, before);
+    if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
+                                 err) != 0 ||
+        !(backend = app_backend_create(backend_name, err)) ||
+        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, err) != 0)
+        goto done;
+    engine_ready = 1;
+    char *renderer = strcmp(backend->name, "gl") == 0 ? gl_renderer : cpu_renderer;
+    snprintf(renderer, sizeof cpu_renderer, "%s", backend->renderer);
+    if (app_run_scene_ticks(&sc, &engine, r->ticks, log_tick, &log, err) != 0)
+        goto done;
+
+    world_gather_window(&w, whole, after);
+    int64_t volume_before = 0, volume_after = 0, displaced = 0;
+    for (size_t i = 0; i < cells; i++) {
+        volume_before += before[i];
+        volume_after += after[i];
+        if (after[i] < before[i])
+            displaced += before[i] - after[i];
+    }
+    int64_t drift = volume_after - volume_before;
+    r->volume_drift = displaced ? (double)llabs(drift) / (double)displaced : 0.0;
+    /* Slopes over the finished trail only: where a collider still rests at
+     * the end, the rut's wall is held up by it, not left over by the model. */
+    world_rect trail = trade_profile_rect(&spec, &w);
+    if (trail.w > 0) {
+        int32_t *patch = malloc((size_t)trail.w * trail.h * sizeof *patch);
+        if (!patch) {
+            error_set(err, "out of memory");
+            goto done;
+        }
+        world_gather_window(&w, trail, patch);
+        r->max_slope_excess_m =
+            (double)sim_max_slope_excess(&params, trail.w, trail.h, patch) / (double)w.units_per_m;
+        free(patch);
+    }
+    r->world_cells = (int64_t)cells;
+    r->tick_ms_mean = stat_series_mean(&log.tick_ms);
+    r->tick_ms_p95 = stat_series_percentile(&log.tick_ms, 95);
+    r->scratch_bytes_peak = engine.peak_scratch_bytes;
+    r->bytes_per_world_cell =
+        ((double)cells * sizeof(int32_t) + (double)engine.peak_scratch_bytes) / (double)cells;
+    r->refused_windows = log.refused;
+    r->profile_length = trade_profile_length(&spec);
+    r->profile = malloc((size_t)r->profile_length * sizeof *r->profile);
+    if (!r->profile) {
+        error_set(err, "out of memory");
+        goto done;
+    }
+    trade_profile_sample(&spec, &w, r->profile);
+    rc = 0;
+done:
+    stat_series_free(&log.tick_ms);
+    if (engine_ready)
+        sim_engine_free(&engine);
+    if (backend)
+        backend->destroy(backend);
+    free(before);
+    free(after);
+    world_free(&w);
+    scene_free(&sc);
+    return rc;
+}
+
+/*
+ * One row: the configuration at every heading. Cost, drift and slope come
+ * from the 0° run; the cross-section error compares the 0° trail with the
+ * reference; the anisotropy is the largest difference between headings.
+ */
+static int measure_row(int scene_index, const char *model, const char *backend, double cell_m,
+                       int iterations, const double *reference, int reference_length,
+                       trade_row *row, error_text *err)
+{
+    run_result runs[HEADING_COUNT];
+    int done = 0, rc = -1;
+    for (; done < HEADING_COUNT; done++) {
+        error_text run_err = {{0}};
+        if (run_scene(scene_index, model, backend, cell_m, iterations, headings_deg[done],
+                      &runs[done], &run_err) != 0) {
+            error_set(err, "%s %s %s cell %g m, %d iterations, %g deg: %s",
+                      trade_scene_names[scene_index], model, backend, cell_m, iterations,
+                      headings_deg[done], run_err.message);
+            goto out;
+        }
+    }
+    if (runs[0].profile_length != reference_length) {
+        error_set(err, "%s: profile has %d samples, reference %d", trade_scene_names[scene_index],
+                  runs[0].profile_length, reference_length);
+        goto out;
+    }
+    memset(row, 0, sizeof *row);
+    row->model = model;
+    row->scene = trade_scene_names[scene_index];
+    row->backend = backend;
+    row->renderer = strcmp(backend, "gl") == 0 ? gl_renderer : cpu_renderer;
+    row->role = "sweep";
+    row->cell_m = cell_m;
+    row->iterations = iterations;
+    row->world_cells = runs[0].world_cells;
+    row->ticks = runs[0].ticks;
+    row->tick_ms_mean = runs[0].tick_ms_mean;
+    row->tick_ms_p95 = runs[0].tick_ms_p95;
+    row->scratch_bytes_peak = runs[0].scratch_bytes_peak;
+    row->bytes_per_world_cell = runs[0].bytes_per_world_cell;
+    row->volume_drift = runs[0].volume_drift;
+    row->max_slope_excess_m = runs[0].max_slope_excess_m;
+    row->cross_section_rms_m = trade_rms_difference(runs[0].profile, reference, reference_length);
+    for (int a = 0; a < HEADING_COUNT; a++) {
+        row->refused_windows += runs[a].refused_windows;
+        for (int b = a + 1; b < HEADING_COUNT; b++) {
+            double d = trade_rms_difference(runs[a].profile, runs[b].profile, reference_length);
+            row->anisotropy_rms_m = fmax(row->anisotropy_rms_m, d);
+        }
+    }
+    rc = 0;
+out:
+    for (int i = 0; i < done; i++)
+        free(runs[i].profile);
+    return rc;
+}
+
+/* ---- Output ---- */
+
+static void csv_text(FILE *f, const char *s)
+{
+    fputc('"', f);
+    for (; *s; s++) {
+        if (*s == '"')
+            fputc('"', f);
+        fputc(*s, f);
+    }
+    fputc('"', f);
+}
+
+static int write_csv(const char *path, const trade_row *rows, int count)
+{
+    FILE *f = fopen(path, "w");
+    if (!f)
+        return -1;
+    fprintf(f, "model,scene,backend,role,cell_m,iterations,world_cells,ticks,tick_ms_mean,"
+               "tick_ms_p95,scratch_bytes_peak,bytes_per_world_cell,volume_drift,"
+               "cross_section_rms_m,max_slope_excess_m,anisotropy_rms_m,refused_windows,"
+               "renderer\n");
+    for (int i = 0; i < count; i++) {
+        const trade_row *r = &rows[i];
+        fprintf(f, "%s,%s,%s,%s,%g,%d,%lld,%ld,%.4f,%.4f,%llu,%.3f,%.6g,%.6g,%.6g,%.6g,%ld,",
+                r->model, r->scene, r->backend, r->role, r->cell_m, r->iterations,
+                (long long)r->world_cells, r->ticks, r->tick_ms_mean, r->tick_ms_p95,
+                (unsigned long long)r->scratch_bytes_peak, r->bytes_per_world_cell, r->volume_drift,
+                r->cross_section_rms_m, r->max_slope_excess_m, r->anisotropy_rms_m,
+                r->refused_windows);
+        csv_text(f, r->renderer);
+        fputc('\n', f);
+    }
+    return fclose(f) != 0 ? -1 : 0;
+}
+
+static void print_row_line(FILE *f, const trade_row *r)
+{
+    fprintf(f, "%-10s %-18s %-4s %-11s %6.4f %4d %9.3f %9.3f %8.1f %8.2g %9.3f %9.2f %9.3f\n",
+            r->scene, r->model, r->backend, r->role, r->cell_m, r->iterations, r->tick_ms_mean,
+            r->tick_ms_p95, r->bytes_per_world_cell, r->volume_drift, r->cross_section_rms_m * 1e3,
+            r->max_slope_excess_m * 1e3, r->anisotropy_rms_m * 1e3);
+}
+
+static void print_header(FILE *f)
+{
+    fprintf(f, "%-10s %-18s %-4s %-11s %6s %4s %9s %9s %8s %8s %9s %9s %9s\n", "scene", "model",
+            "back", "role", "cell_m", "iter", "ms_mean", "ms_p95", "B/cell", "drift", "xsect_mm",
+            "slope_mm", "aniso_mm");
+}
+
+/*
+ * The compact table (the reference rows and every run at the thesis's 10
+ * iterations, or the nearest count of the sweep) and the summary: per scene,
+ * the reference beside each model's fastest configuration.
+ */
+static void print_report(FILE *f, const trade_row *rows, int count, int table_iterations,
+                         int reference_iterations, const double *convergence_m,
+                         const trade_options *o)
+{
+    fprintf(f, "runs at %d iterations, and the reference (cross-section error against it):\n",
+            table_iterations);
+    print_header(f);
+    for (int i = 0; i < count; i++)
+        if (strcmp(rows[i].role, "sweep") != 0 || rows[i].iterations == table_iterations)
+            print_row_line(f, &rows[i]);
+    fprintf(f, "\nsummary: the reference against each model's fastest run (cpu and gl)\n");
+    print_header(f);
+    for (int s = 0; s < o->scene_count; s++) {
+        const char *scene_name = trade_scene_names[o->scenes[s]];
+        for (int i = 0; i < count; i++)
+            if (strcmp(rows[i].scene, scene_name) == 0 && strcmp(rows[i].role, "reference") == 0)
+                print_row_line(f, &rows[i]);
+        const char *backends[2] = {"cpu", "gl"};
+        for (int m = 0; m < o->model_count; m++)
+            for (int b = 0; b < 2; b++) {
+                const trade_row *best = NULL;
+                for (int i = 0; i < count; i++) {
+                    const trade_row *r = &rows[i];
+                    if (strcmp(r->scene, scene_name) == 0 && strcmp(r->role, "sweep") == 0 &&
+                        strcmp(r->model, trade_model_names[o->models[m]]) == 0 &&
+                        strcmp(r->backend, backends[b]) == 0 &&
+                        (!best || r->tick_ms_mean < best->tick_ms_mean))
+                        best = r;
+                }
+                if (best)
+                    print_row_line(f, best);
+            }
+        fprintf(f, "  %s reference converged: %d/%d vs %d/%d iterations differ by %.4f mm RMS\n",
+                scene_name, reference_iterations, reference_iterations, 2 * reference_iterations,
+                2 * reference_iterations, convergence_m[s] * 1e3);
+    }
+}
+
+int app_bench(int argc, char **argv)
+{
+    trade_options o;
+    if (parse_options(argc, argv, &o) != 0)
+        return 2;
+    log_set_quiet(1);
+    char csv_path[1200], svg_path[1200], txt_path[1200];
+    snprintf(csv_path, sizeof csv_path, "%s/trade.csv", o.out_dir);
+    snprintf(svg_path, sizeof svg_path, "%s/trade.svg", o.out_dir);
+    snprintf(txt_path, sizeof txt_path, "%s/trade.txt", o.out_dir);
+    /* Refuse an unusable --out before spending minutes on the sweep. */
+    FILE *probe = NULL;
+    if (make_dirs(o.out_dir) != 0 || !(probe = fopen(csv_path, "w"))) {
+        fprintf(stderr, "terrad bench: --out %s: cannot write %s: %s\n", o.out_dir, csv_path,
+                strerror(errno));
+        return 1;
+    }
+    fclose(probe);
+
+    const double *cells_m = o.quick ? quick_cells_m : full_cells_m;
+    int cell_count = o.quick ? 2 : 3;
+    const int *iterations = o.quick ? quick_iterations : full_iterations;
+    int iteration_count = o.quick ? 2 : 4;
+    double finest_m = cells_m[cell_count - 1];
+    double gl_one_m = cells_m[cell_count - 2]; /* GL's single cell size by default */
+    const char *reference_model = "persson-iterative";
+    int reference_iterations = o.quick ? quick_reference_iterations : full_reference_iterations;
+
+    int row_capacity = o.scene_count * (2 + o.model_count * 2 * cell_count * iteration_count);
+    trade_row *rows = calloc((size_t)row_capacity, sizeof *rows);
+    double convergence_m[16] = {0};
+    int row_count = 0, rc = 1;
+    error_text err = {{0}};
+    if (!rows) {
+        fprintf(stderr, "terrad bench: out of memory\n");
+        return 1;
+    }
+    if (o.gl_one) {
+        /* GL is only asked for by default here: without a context, say so and go on. */
+        error_text gl_err = {{0}};
+        sim_backend *gl = app_backend_create("gl", &gl_err);
+        if (gl) {
+            gl->destroy(gl);
+        } else {
+            fprintf(stderr, "trade: GL backend unavailable, GL rows skipped: %s\n", gl_err.message);
+            o.gl_one = 0;
+        }
+    }
+    double started = time_now_ms();
+    for (int s = 0; s < o.scene_count; s++) {
+        int scene_index = o.scenes[s];
+        const char *scene_name = trade_scene_names[scene_index];
+        run_result ref;
+        if (run_scene(scene_index, reference_model, "cpu", finest_m, reference_iterations, 0.0,
+                      &ref, &err) != 0) {
+            fprintf(stderr, "terrad bench: %s reference: %s\n", scene_name, err.message);
+            goto done;
+        }
+        /* the reference and its convergence check, measured like any row */
+        const int ref_iterations[2] = {reference_iterations, 2 * reference_iterations};
+        const char *roles[2] = {"reference", "convergence"};
+        for (int k = 0; k < 2; k++) {
+            trade_row *row = &rows[row_count];
+            if (measure_row(scene_index, reference_model, "cpu", finest_m, ref_iterations[k],
+                            ref.profile, ref.profile_length, row, &err) != 0) {
+                fprintf(stderr, "terrad bench: %s\n", err.message);
+                free(ref.profile);
+                goto done;
+            }
+            row->role = roles[k];
+            row_count++;
+        }
+        convergence_m[s] = rows[row_count - 1].cross_section_rms_m;
+        fprintf(stderr,
+                "trade: %s: reference %s %g m %d/%d; %d/%d differs by %.4f mm RMS (%.0f s)\n",
+                scene_name, reference_model, finest_m, reference_iterations, reference_iterations,
+                2 * reference_iterations, 2 * reference_iterations, convergence_m[s] * 1e3,
+                (time_now_ms() - started) / 1e3);
+        for (int m = 0; m < o.model_count; m++) {
+            const char *model = trade_model_names[o.models[m]];
+            for (int b = 0; b < 2; b++) {
+                const char *backend = b == 0 ? "cpu" : "gl";
+                for (int c = 0; c < cell_count; c++) {
+                    int wanted =
+                        b == 0 ? o.cpu_all : o.gl_all || (o.gl_one && cells_m[c] == gl_one_m);
+                    if (!wanted)
+                        continue;
+                    for (int it = 0; it < iteration_count; it++) {
+                        if (measure_row(scene_index, model, backend, cells_m[c], iterations[it],
+                                        ref.profile, ref.profile_length, &rows[row_count],
+                                        &err) != 0) {
+                            fprintf(stderr, "terrad bench: %s\n", err.message);
+                            free(ref.profile);
+                            goto done;
+                        }
+                        row_count++;
+                    }
+                }
+            }
+            fprintf(stderr, "trade: %s %s done (%.0f s)\n", scene_name, model,
+                    (time_now_ms() - started) / 1e3);
+        }
+        free(ref.profile);
+    }
+
+    if (write_csv(csv_path, rows, row_count) != 0) {
+        fprintf(stderr, "terrad bench: cannot write %s: %s\n", csv_path, strerror(errno));
+        goto done;
+    }
+    char subtitle[700];
+    snprintf(subtitle, sizeof subtitle, "%s%s%s; %s sweep, %d rows", cpu_renderer,
+             gl_renderer[0] ? " / gl: " : "", gl_renderer, o.quick ? "quick" : "full", row_count);
+    if (trade_plot_write(svg_path, rows, row_count, subtitle, &err) != 0) {
+        fprintf(stderr, "terrad bench: %s\n", err.message);
+        goto done;
+    }
+    int table_iterations = iterations[iteration_count - 1] >= 10 ? 10 : iterations[0];
+    FILE *txt = fopen(txt_path, "w");
+    if (!txt) {
+        fprintf(stderr, "terrad bench: cannot write %s: %s\n", txt_path, strerror(errno));
+        goto done;
+    }
+    fprintf(txt, "terrad bench --trade (%s sweep): %s\n", o.quick ? "quick" : "full", subtitle);
+    fprintf(txt, "lengths in mm; drift = |dSum h| / material displaced; %.0f s\n\n",
+            (time_now_ms() - started) / 1e3);
+    print_report(txt, rows, row_count, table_iterations, reference_iterations, convergence_m, &o);
+    if (fclose(txt) != 0) {
+        fprintf(stderr, "terrad bench: cannot write %s\n", txt_path);
+        goto done;
+    }
+    print_report(stdout, rows, row_count, table_iterations, reference_iterations, convergence_m,
+                 &o);
+    printf("\nwrote %s, %s, %s (%d rows, %.0f s)\n", csv_path, svg_path, txt_path, row_count,
+           (time_now_ms() - started) / 1e3);
+    rc = 0;
+done:
+    free(rows);
+    return rc;
+}

@@ -1,0 +1,186 @@
+#!/usr/bin/python3
+# ctest-timeout: 600
+"""`terrad bench --trade --quick`, the real binary, into a temporary directory.
+
+- trade.csv parses, holds every requested model × scene (and only those, plus
+  the persson-iterative reference and its convergence check), one row per
+  model × scene × cell size × iterations × backend, every value finite;
+- the reference measured again against itself has error 0, every Persson run
+  conserves volume exactly (drift 0), coarse runs have a non-zero error and
+  anisotropy (the measure is not blind);
+- trade.svg parses as XML and has one marker per CSV row in each panel and a
+  legend entry per model; trade.txt carries the summary;
+- a subset (--models/--scenes) gives just that subset; GL rows when a GL
+  context can be made (skipped otherwise);
+- bad arguments (unknown model or scene, --out unwritable, bad --backend,
+  no --trade) give a clear message and a nonzero exit.
+"""
+import csv
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from service_harness import BIN, SOURCE, Checks  # noqa: E402
+
+MODELS = ["persson-iterative", "persson-ssbo", "persson-multi"]
+SCENES = ["car", "spheres", "footsteps"]
+QUICK_CELLS = {0.2, 0.1}
+QUICK_ITERATIONS = {1, 10}
+NUMERIC = ["cell_m", "iterations", "world_cells", "ticks", "tick_ms_mean", "tick_ms_p95",
+           "scratch_bytes_peak", "bytes_per_world_cell", "volume_drift", "cross_section_rms_m",
+           "max_slope_excess_m", "anisotropy_rms_m", "refused_windows"]
+SVG = "{http://www.w3.org/2000/svg}"
+
+check = Checks()
+
+
+def bench(*args, timeout=300):
+    return subprocess.run([BIN, "bench", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def read_rows(out):
+    with open(os.path.join(out, "trade.csv"), newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def check_rows(rows, models, scenes, backends, label):
+    check(len(rows) > 0, f"{label}: rows")
+    for r in rows:
+        for k in NUMERIC:
+            try:
+                ok = math.isfinite(float(r[k])) and float(r[k]) >= 0
+            except ValueError:
+                ok = False
+            check(ok, f"{label}: {k} = {r[k]!r} finite and >= 0 ({r['model']} {r['scene']})")
+        check(r["renderer"] != "", f"{label}: renderer named")
+        check(r["volume_drift"] == "0", f"{label}: {r['model']} {r['scene']} {r['backend']} "
+              f"cell {r['cell_m']} it {r['iterations']}: Persson drift exactly 0 ({r['volume_drift']})")
+    sweep = [r for r in rows if r["role"] == "sweep"]
+    want = {(m, s, b, c, i) for m in models for s in scenes for b, cells in backends.items()
+            for c in cells for i in QUICK_ITERATIONS}
+    got = [(r["model"], r["scene"], r["backend"], float(r["cell_m"]), int(r["iterations"]))
+           for r in sweep]
+    check(len(got) == len(set(got)), f"{label}: one row per configuration")
+    check(set(got) == want, f"{label}: rows are exactly model x scene x backend x cell x "
+          f"iterations (missing {sorted(want - set(got))[:4]}, extra {sorted(set(got) - want)[:4]})")
+    for s in scenes:
+        ref = [r for r in rows if r["scene"] == s and r["role"] == "reference"]
+        conv = [r for r in rows if r["scene"] == s and r["role"] == "convergence"]
+        check(len(ref) == 1 and len(conv) == 1, f"{label}: {s}: one reference, one convergence row")
+        if ref:
+            check(ref[0]["model"] == "persson-iterative" and float(ref[0]["cell_m"]) == 0.1,
+                  f"{label}: {s}: reference is persson-iterative at the finest cell")
+            check(float(ref[0]["cross_section_rms_m"]) < 1e-9,
+                  f"{label}: {s}: the reference's own error is 0 ({ref[0]['cross_section_rms_m']})")
+        if conv:
+            check(float(conv[0]["cross_section_rms_m"]) < 0.005,
+                  f"{label}: {s}: 20/20 vs 40/40 differ by < 5 mm ({conv[0]['cross_section_rms_m']})")
+        coarse = [r for r in sweep if r["scene"] == s and float(r["cell_m"]) == 0.2]
+        check(any(float(r["cross_section_rms_m"]) > 1e-4 for r in coarse),
+              f"{label}: {s}: 0.2 m cells differ from the reference")
+        check(any(float(r["anisotropy_rms_m"]) > 1e-4 for r in coarse),
+              f"{label}: {s}: 0.2 m cells show some anisotropy")
+
+
+def check_svg(out, rows, models, label):
+    try:
+        root = ET.parse(os.path.join(out, "trade.svg")).getroot()
+    except ET.ParseError as e:
+        check(False, f"{label}: trade.svg parses as XML ({e})")
+        return
+    check(root.tag == SVG + "svg", f"{label}: an <svg> root")
+    groups = {g.get("id"): g for g in root.iter(SVG + "g") if g.get("id")}
+    for panel in ("panel-ms", "panel-memory"):
+        g = groups.get(panel)
+        markers = [] if g is None else [m for m in g.iter(SVG + "g") if m.get("class") == "marker"]
+        check(len(markers) == len(rows),
+              f"{label}: {panel}: one marker per CSV row ({len(markers)} vs {len(rows)})")
+        check(all(m.find(SVG + "title") is not None for m in markers),
+              f"{label}: {panel}: every marker has its row as a title")
+    legend = groups.get("legend")
+    texts = [] if legend is None else ["".join(t.itertext()) for t in legend.iter(SVG + "text")]
+    for m in set(models) | {"persson-iterative"}:
+        check(m in texts, f"{label}: legend names {m}")
+    text = "".join(root.itertext())
+    check("ms per tick" in text and "cross-section" in text, f"{label}: axis labels")
+
+
+with tempfile.TemporaryDirectory() as tmp:
+    # the whole quick sweep on the CPU twin
+    out = os.path.join(tmp, "all", "nested")
+    p = bench("--trade", "--quick", "--backend", "cpu", "--out", out)
+    check(p.returncode == 0, f"quick sweep exits 0 ({p.returncode}): {p.stderr[-600:]}")
+    if p.returncode == 0:
+        rows = read_rows(out)
+        check_rows(rows, MODELS, SCENES, {"cpu": QUICK_CELLS}, "all")
+        check_svg(out, rows, MODELS, "all")
+        with open(os.path.join(out, "trade.txt")) as f:
+            txt = f.read()
+        check("summary" in txt and "converged" in txt, "trade.txt has the summary")
+        check("summary" in p.stdout and "wrote" in p.stdout, "the table is printed")
+
+    # a subset, and GL where it exists
+    out = os.path.join(tmp, "subset")
+    p = bench("--trade", "--quick", "--backend", "cpu", "--models", "persson-ssbo",
+              "--scenes", "footsteps,car", "--out", out)
+    check(p.returncode == 0, f"subset exits 0: {p.stderr[-600:]}")
+    if p.returncode == 0:
+        rows = read_rows(out)
+        check_rows(rows, ["persson-ssbo"], ["footsteps", "car"], {"cpu": QUICK_CELLS}, "subset")
+        check({r["model"] for r in rows if r["role"] == "sweep"} == {"persson-ssbo"},
+              "subset: only the model asked for")
+        check_svg(out, rows, ["persson-ssbo"], "subset")
+
+    # GL where a context can be made (the same probe as test_simulate)
+    probe = subprocess.run([BIN, "simulate", "--scene", os.path.join(SOURCE, "tests", "scenes",
+                            "tiny.json"), "--ticks", "1", "--backend", "gl"],
+                           capture_output=True, text=True, timeout=120)
+    if probe.returncode != 0:
+        print("GL backend unavailable, GL case skipped:", probe.stderr.strip().splitlines()[-1:])
+    else:
+        out = os.path.join(tmp, "gl")
+        p = bench("--trade", "--quick", "--backend", "gl", "--models", "persson-multi",
+                  "--scenes", "footsteps", "--out", out)
+        check(p.returncode == 0, f"gl exits 0: {p.stderr[-600:]}")
+        if p.returncode == 0:
+            rows = read_rows(out)
+            check_rows(rows, ["persson-multi"], ["footsteps"], {"gl": QUICK_CELLS}, "gl")
+            gl_rows = [r for r in rows if r["backend"] == "gl"]
+            check(gl_rows and all(r["renderer"] for r in gl_rows), "gl: renderer recorded")
+
+    # bad arguments
+    def refused(args, needle, what, code=None):
+        p = bench(*args)
+        check(p.returncode != 0 and (code is None or p.returncode == code),
+              f"{what}: nonzero exit ({p.returncode})")
+        check(needle in p.stderr, f"{what}: message names {needle!r}: {p.stderr.strip()!r}")
+        check(p.stdout.strip() == "", f"{what}: nothing on stdout")
+
+    refused(["--trade", "--quick", "--models", "persson-ssbo,warp-drive", "--out", tmp],
+            "warp-drive", "unknown model", 2)
+    refused(["--trade", "--quick", "--scenes", "moon", "--out", tmp], "moon", "unknown scene", 2)
+    refused(["--trade", "--backend", "vulkan"], "--backend", "bad backend", 2)
+    refused(["--quick"], "--trade", "no --trade", 2)
+    refused(["--trade", "--frobnicate", "1"], "--frobnicate", "unknown option", 2)
+    refused(["--trade", "--out"], "--out", "--out without a value", 2)
+    blocker = os.path.join(tmp, "a-file")
+    with open(blocker, "w") as f:
+        f.write("not a directory\n")
+    refused(["--trade", "--quick", "--out", os.path.join(blocker, "sub")], blocker,
+            "--out under a file")
+    if os.geteuid() != 0:
+        ro = os.path.join(tmp, "read-only")
+        os.mkdir(ro, 0o555)
+        refused(["--trade", "--quick", "--out", ro], ro, "--out read-only")
+
+    h = subprocess.run([BIN, "--help"], capture_output=True, text=True)
+    check("bench --trade" in h.stdout, "terrad --help lists bench --trade")
+    h = bench("--help")
+    check(h.returncode == 0 and all(m in h.stdout for m in MODELS + SCENES),
+          "terrad bench --help lists the models and scenes")
+
+check.finish()
