@@ -26,7 +26,10 @@ import xml.etree.ElementTree as ET
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from service_harness import BIN, SOURCE, Checks  # noqa: E402
 
-MODELS = ["persson-iterative", "persson-ssbo", "persson-multi"]
+MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
+          "diffusion", "sumner", "decals"]
+# the models whose documented promise is Σh exact (docs/models.md; compression 0 here)
+EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner", "decals"}
 SCENES = ["car", "spheres", "footsteps"]
 QUICK_CELLS = {0.2, 0.1}
 QUICK_ITERATIONS = {1, 10}
@@ -57,8 +60,13 @@ def check_rows(rows, models, scenes, backends, label):
                 ok = False
             check(ok, f"{label}: {k} = {r[k]!r} finite and >= 0 ({r['model']} {r['scene']})")
         check(r["renderer"] != "", f"{label}: renderer named")
-        check(r["volume_drift"] == "0", f"{label}: {r['model']} {r['scene']} {r['backend']} "
-              f"cell {r['cell_m']} it {r['iterations']}: Persson drift exactly 0 ({r['volume_drift']})")
+        where = f"{label}: {r['model']} {r['scene']} {r['backend']} cell {r['cell_m']} " \
+                f"it {r['iterations']}"
+        if r["model"] in EXACT:
+            check(r["volume_drift"] == "0", f"{where}: drift exactly 0 ({r['volume_drift']})")
+        elif r["model"] == "subtract" and r["scene"] != "footsteps":
+            # (at the quick sweep's 0.2 m cells the foot's 2-cell print may miss every centre)
+            check(float(r["volume_drift"]) > 0, f"{where}: subtract loses volume ({r['volume_drift']})")
     sweep = [r for r in rows if r["role"] == "sweep"]
     want = {(m, s, b, c, i) for m in models for s in scenes for b, cells in backends.items()
             for c in cells for i in QUICK_ITERATIONS}
