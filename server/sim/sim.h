@@ -163,6 +163,7 @@ typedef struct sim_window_job {
     int32_t depth_low, depth_high;  /* height range the depth stage must resolve (units) */
     const int32_t *bottom_override; /* non-NULL: use this depth, skip the depth stage */
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
+    const world *world; /* where the window was gathered from (a backend's tile cache) */
 } sim_window_job;
 
 typedef struct sim_backend sim_backend;
@@ -181,6 +182,10 @@ struct sim_backend {
     /* Drop anything cached for a geometry that is about to be freed. */
     void (*forget_geometry)(sim_backend *b, const collider_geometry *g);
     uint64_t (*scratch_bytes)(const sim_backend *b); /* scratch memory held now */
+    /* Optional (NULL if none): the engine has scattered window `window` of the
+     * batch just run into w, so a backend that caches tiles can tell its
+     * copy of them is current (or not). */
+    void (*window_scattered)(sim_backend *b, int window, const world *w, world_rect r);
     void (*destroy)(sim_backend *b);
     void *impl;
 };
