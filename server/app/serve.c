@@ -327,6 +327,11 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
         metrics_count_refused_windows((uint64_t)st->report.refused_windows);
     metrics_set_memory_bytes("world_heights", world_resident_bytes(w));
     metrics_set_memory_bytes("sim_scratch", engine->peak_scratch_bytes);
+    gl_tile_cache_stats cache;
+    sim_backend_gl_tile_cache_stats(engine->backend, &cache);
+    metrics_set_memory_bytes("gpu_tile_cache", cache.texture_bytes);
+    metrics_set_gpu_tile_cache(cache.uploads, cache.upload_bytes, cache.evictions,
+                               cache.resident_tiles);
 }
 
 int app_serve(int argc, char **argv)
