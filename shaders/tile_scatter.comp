@@ -5,7 +5,8 @@
  * written back into the resident tiles, so next tick the window can be
  * gathered again without an upload (the engine scatters the same ints into
  * the CPU world, which stays authoritative). Same layout and uniforms as
- * tile_gather.comp.
+ * tile_gather.comp; a window uploaded from the CPU copy is written into
+ * those of its tiles that were current (layer >= 0) and skips the others.
  */
 layout(local_size_x = 8, local_size_y = 8) in;
 
@@ -31,5 +32,7 @@ void main()
     ivec2 local = g - (t << u_shift);
     t -= u_first_tile;
     int layer = layers[u_layer_base + t.y * u_tiles_x + t.x];
+    if (layer < 0)
+        return;
     imageStore(u_tile_image, ivec3(local, layer), ivec4(heights[u_offset + p.y * u_size.x + p.x]));
 }

@@ -40,8 +40,9 @@
  * coordinates and the world's tile generation, LRU-evicted. At upload a
  * window whose tiles are all resident and current (uploading stale or
  * missing ones while the tick's byte budget lasts) is copied out of them by
- * tile_gather.comp through a per-window table of layers; after readback an
- * accepted window is written back by tile_scatter.comp, and when the engine
+ * tile_gather.comp through a per-window table of layers; after readback every
+ * accepted window is written by tile_scatter.comp into those of its tiles
+ * that were current when the tick began, and when the engine
  * scatters the same ints into the CPU world (window_scattered) the tiles'
  * generations are brought up to date. Everything else is uploaded from the
  * CPU copy as before, so a full, tiny or missing cache changes speed only.
@@ -223,12 +224,13 @@ typedef struct tile_cache {
     cache_layer *layer;
     uint64_t tick;
     int64_t budget_left;
-    unsigned char *from_cache; /* per window of the tick */
+    unsigned char *from_cache; /* per window of the tick: gathered from the cache */
     int from_cache_capacity;
-    int32_t *table; /* layers per tile of each window of the chunk */
+    int64_t table_used; /* entries of table filled this tick */
+    int32_t *table;     /* layers per tile of each window of the chunk */
     int64_t table_capacity;
-    int64_t *table_base; /* per window of the chunk, -1 if not from the cache */
-    int table_base_capacity;
+    int64_t *table_base; /* per window of the tick: its layers in table, or -1 */
+    int64_t table_base_capacity;
     GLuint table_buffer;
     int64_t table_buffer_capacity;
     int32_t *staging; /* one tile */
@@ -857,6 +859,14 @@ static int cache_begin_tick(gl_backend *b, const sim_window_job *jobs, int count
         c->from_cache_capacity = count;
     }
     memset(c->from_cache, 0, (size_t)count);
+    if (grow_bytes((void **)&c->table_base, &c->table_base_capacity, count,
+                   sizeof *c->table_base) != 0) {
+        error_set(err, "gl backend: out of memory for the tile cache");
+        return -1;
+    }
+    for (int i = 0; i < count; i++)
+        c->table_base[i] = -1;
+    c->table_used = 0;
     const world *w = count > 0 ? jobs[0].world : NULL;
     if (c->layers_max <= 0 || !w || w->tile_cells > TILE_CACHE_SIDE_MAX ||
         w->tile_cells > b->max_texture_size)
@@ -957,55 +967,68 @@ static int cache_acquire(tile_cache *c, const world *w, int tx, int ty)
     return slot;
 }
 
-/* Plan the chunk: which windows come from the cache, and their layer tables. */
+/* The layer holding tile (tx, ty) as it is in w now, without uploading; -1
+ * if there is none. Pins it for this tick. */
+static int cache_current(tile_cache *c, const world *w, int tx, int ty)
+{
+    uint64_t generation = world_tile_generation(w, tx, ty);
+    for (int i = 0; i < c->layers; i++) {
+        cache_layer *l = &c->layer[i];
+        if (l->used && l->tx == tx && l->ty == ty) {
+            if (l->generation != generation)
+                return -1;
+            l->last_use = c->tick;
+            return i;
+        }
+    }
+    return -1;
+}
+
+/* Plan the chunk (windows first .. first + count - 1 of the tick): each
+ * window's table of layers, one per tile it covers. A window whose tiles
+ * are all there (after uploads within the budget) is gathered from the
+ * cache; any other keeps -1 for the tiles that are missing or stale, and
+ * its result still goes into the ones that are current. */
 static int cache_plan_chunk(gl_backend *b, const sim_window_job *jobs, int count, int first,
                             error_text *err)
 {
     tile_cache *c = b->cache;
-    int64_t tcap = c->table_base_capacity;
-    if (grow_bytes((void **)&c->table_base, &tcap, count, sizeof *c->table_base) != 0) {
-        error_set(err, "gl backend: out of memory for the tile cache");
-        return -1;
-    }
-    c->table_base_capacity = (int)tcap;
-    int64_t used = 0;
+    if (!c->active)
+        return 0;
     for (int i = 0; i < count; i++) {
-        c->table_base[i] = -1;
-        if (!c->active)
-            continue;
         const world_rect r = jobs[i].rect;
         int tx0 = r.x >> c->shift, ty0 = r.y >> c->shift;
         int tx1 = (r.x + r.w - 1) >> c->shift, ty1 = (r.y + r.h - 1) >> c->shift;
         int64_t n = (int64_t)(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
-        if (n > c->layers ||
-            grow_bytes((void **)&c->table, &c->table_capacity, used + n, sizeof *c->table) != 0)
+        if (n > c->layers || grow_bytes((void **)&c->table, &c->table_capacity, c->table_used + n,
+                                        sizeof *c->table) != 0)
             continue; /* too many tiles for the cache: uploaded directly */
         int ok = 1;
-        for (int ty = ty0; ok && ty <= ty1; ty++)
-            for (int tx = tx0; ok && tx <= tx1; tx++) {
-                int layer = cache_acquire(c, jobs[i].world, tx, ty);
-                ok = layer >= 0;
-                c->table[used + (int64_t)(ty - ty0) * (tx1 - tx0 + 1) + (tx - tx0)] = layer;
+        for (int ty = ty0; ty <= ty1; ty++)
+            for (int tx = tx0; tx <= tx1; tx++) {
+                int layer = ok ? cache_acquire(c, jobs[i].world, tx, ty)
+                               : cache_current(c, jobs[i].world, tx, ty);
+                ok &= layer >= 0;
+                c->table[c->table_used + (int64_t)(ty - ty0) * (tx1 - tx0 + 1) + (tx - tx0)] =
+                    layer;
             }
-        if (!ok)
-            continue;
-        c->table_base[i] = used;
-        c->from_cache[first + i] = 1;
-        used += n;
+        c->table_base[first + i] = c->table_used;
+        c->from_cache[first + i] = (unsigned char)ok;
+        c->table_used += n;
     }
-    if (used == 0)
+    if (c->table_used == 0)
         return 0;
     if (!c->table_buffer)
         glGenBuffers(1, &c->table_buffer);
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, c->table_buffer);
-    if (used > c->table_buffer_capacity) {
+    if (c->table_used > c->table_buffer_capacity) {
         int64_t cap = c->table_buffer_capacity ? c->table_buffer_capacity : 256;
-        while (cap < used)
+        while (cap < c->table_used)
             cap *= 2;
         glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(cap * 4), NULL, GL_DYNAMIC_DRAW);
         c->table_buffer_capacity = cap;
     }
-    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(used * 4), c->table);
+    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(c->table_used * 4), c->table);
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
     return check_gl("planning the tile cache", err);
 }
@@ -1049,8 +1072,9 @@ static void cache_scatter(gl_backend *b, const sim_window_job *job, int32_t offs
     cache_window_uniforms(c, c->scatter_u, job, offset, table_base);
 }
 
-/* The engine wrote window `window` into w: tiles the GPU wrote the same ints
- * into are current again; any other cached tile the window covers is stale
+/* The engine wrote window `window` into w: a tile the GPU wrote the same
+ * ints into (it is in the window's table: it was current when the tick
+ * began) is current again; any other cached tile the window covers is stale
  * for the rest of the tick, whatever a later window does. */
 static void gl_window_scattered(sim_backend *base, int window, const world *w, world_rect r)
 {
@@ -1059,14 +1083,17 @@ static void gl_window_scattered(sim_backend *base, int window, const world *w, w
     if (!c || !c->active || c->serial != world_base_serial(w) || w->tile_cells != c->side ||
         window < 0 || window >= c->from_cache_capacity)
         return;
-    int gpu = c->from_cache[window];
+    int64_t table = c->table_base[window];
     int tx0 = r.x >> c->shift, ty0 = r.y >> c->shift;
     int tx1 = (r.x + r.w - 1) >> c->shift, ty1 = (r.y + r.h - 1) >> c->shift;
     for (int i = 0; i < c->layers; i++) {
         cache_layer *l = &c->layer[i];
         if (!l->used || l->tx < tx0 || l->tx > tx1 || l->ty < ty0 || l->ty > ty1)
             continue;
-        if (gpu && l->stale_tick != c->tick) {
+        int written =
+            table >= 0 &&
+            c->table[table + (int64_t)(l->ty - ty0) * (tx1 - tx0 + 1) + (l->tx - tx0)] == i;
+        if (written && l->stale_tick != c->tick) {
             l->generation = world_tile_generation(w, l->tx, l->ty);
         } else {
             l->generation = UINT64_MAX; /* never a real generation */
@@ -1151,8 +1178,8 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
     for (int i = 0; i < count; i++) {
         GLintptr off = (GLintptr)b->entries[i].offset * 4;
         GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
-        if (b->cache->table_base[i] >= 0) {
-            cache_gather(b, &jobs[i], b->entries[i].offset, b->cache->table_base[i]);
+        if (b->cache->from_cache[first + i]) {
+            cache_gather(b, &jobs[i], b->entries[i].offset, b->cache->table_base[first + i]);
             b->cache->stats.windows_cached++;
         } else {
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_HEIGHTS]);
@@ -1216,17 +1243,19 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
         }
     }
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
-    /* accepted windows from the cache go back into their tiles; a refused
-     * one leaves them as they were (and is not scattered by the engine) */
+    /* accepted windows go back into those of their tiles that were current
+     * (all of them for a window gathered from the cache); a refused one
+     * leaves them as they were (and is not scattered by the engine) */
     int scattered = 0;
     for (int i = 0; i < count; i++) {
-        if (b->cache->table_base[i] < 0)
+        if (b->cache->table_base[first + i] < 0)
             continue;
         if (status[i] != SIM_WINDOW_OK) {
             b->cache->from_cache[first + i] = 0;
+            b->cache->table_base[first + i] = -1;
             continue;
         }
-        cache_scatter(b, &jobs[i], b->entries[i].offset, b->cache->table_base[i], heights);
+        cache_scatter(b, &jobs[i], b->entries[i].offset, b->cache->table_base[first + i], heights);
         scattered = 1;
     }
     if (scattered)

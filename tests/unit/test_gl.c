@@ -600,9 +600,13 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
     eg.depth_from_cpu = ec.depth_from_cpu = 1;
     collider_geometry ball = {.shape = COLLIDER_SPHERE, .radius = 0.35};
     collider_geometry small = {.shape = COLLIDER_SPHERE, .radius = 0.15};
+    /* pressed in only for ticks 20..39: its window covers more tiles than
+     * the cache has layers, so it goes direct and the cached copies of those
+     * tiles go stale; the first ball drives over them afterwards */
+    collider_geometry big = {.shape = COLLIDER_SPHERE, .radius = 1.3};
     int same = 1, tick_ok = 1;
     for (int t = 0; t < 90 && tick_ok; t++) {
-        sim_collider c[3];
+        sim_collider c[4];
         memset(c, 0, sizeof c);
         /* across the corners of 16-cell (0.8 m) tiles, one slow, one fast */
         double xs[3] = {0.8 + 0.02 * t, 3.2 + 0.05 * t, 6.4};
@@ -615,6 +619,11 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
             c[i].previous_pose = c[i].pose;
             c[i].has_previous = 0;
         }
+        c[3] = c[0];
+        c[3].id = 3;
+        c[3].geometry = &big;
+        c[3].pose.position = (vec3d){2.2, 1.9, t >= 20 && t < 40 ? 1.55 : 5.0};
+        c[3].previous_pose = c[3].pose;
         if (t == 45) {
             /* a write between ticks into a tile the GL cache holds */
             world_set_height(&wg, 30, 25, 9000);
@@ -623,8 +632,8 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
         sim_tick_report rg, rc;
         memset(&rg, 0, sizeof rg);
         memset(&rc, 0, sizeof rc);
-        tick_ok = sim_engine_tick(&eg, c, 3, &rg, &err) == 0 &&
-                  sim_engine_tick(&ec, c, 3, &rc, &err) == 0;
+        tick_ok = sim_engine_tick(&eg, c, 4, &rg, &err) == 0 &&
+                  sim_engine_tick(&ec, c, 4, &rc, &err) == 0;
         int32_t *a = malloc(200 * 150 * 4), *b = malloc(200 * 150 * 4);
         world_gather_window(&wg, (world_rect){0, 0, 200, 150}, a);
         world_gather_window(&wc, (world_rect){0, 0, 200, 150}, b);
