@@ -377,6 +377,11 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
     metrics_set_stage_memory_bytes("backend_other", m->backend_other);
     metrics_set_stage_memory_bytes("model", m->model);
     metrics_set_stage_memory_bytes("gather_scatter", m->gather_scatter);
+    gl_tile_cache_stats cache;
+    sim_backend_gl_tile_cache_stats(engine->backend, &cache);
+    metrics_set_memory_bytes("gpu_tile_cache", cache.texture_bytes);
+    metrics_set_gpu_tile_cache(cache.uploads, cache.upload_bytes, cache.evictions,
+                               cache.resident_tiles);
 }
 
 int app_serve(int argc, char **argv)

@@ -353,6 +353,15 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(&w));
     cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(&w));
     cJSON_AddNumberToObject(root, "world_tile_cells", w.tile_cells);
+    gl_tile_cache_stats cache;
+    sim_backend_gl_tile_cache_stats(backend, &cache);
+    cJSON_AddNumberToObject(root, "gpu_tile_cache_bytes", (double)cache.texture_bytes);
+    cJSON_AddNumberToObject(root, "gpu_tiles_resident", cache.resident_tiles);
+    cJSON_AddNumberToObject(root, "gpu_tile_uploads", (double)cache.uploads);
+    cJSON_AddNumberToObject(root, "gpu_tile_upload_bytes", (double)cache.upload_bytes);
+    cJSON_AddNumberToObject(root, "gpu_tile_evictions", (double)cache.evictions);
+    cJSON_AddNumberToObject(root, "gpu_windows_cached", (double)cache.windows_cached);
+    cJSON_AddNumberToObject(root, "gpu_windows_direct", (double)cache.windows_direct);
     cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine.peak_scratch_bytes);
     const sim_stage_memory *mem = &engine.peak_memory;
     cJSON *by_stage = cJSON_AddObjectToObject(root, "scratch_bytes_by_stage");

@@ -44,4 +44,29 @@ void sim_backend_gl_set_stage_timing(sim_backend *b, int on);
  */
 void sim_backend_gl_set_limits(sim_backend *b, int atlas_side, int64_t chunk_cells);
 
+/*
+ * The GPU tile cache: world tiles resident in one GL_TEXTURE_2D_ARRAY (R32I,
+ * a layer per tile), LRU-evicted, at most budget_bytes uploaded per tick. A
+ * window whose tiles are all resident and current is gathered on the GPU
+ * from them and its result written back into them; any other window is
+ * uploaded from the CPU copy as before, so correctness never depends on the
+ * cache. layers 0 turns it off. Defaults: 64 layers, 4 MiB per tick; the
+ * environment variable TERRAD_GL_TILE_CACHE="LAYERS,BUDGET_BYTES" overrides
+ * them when the backend is created (tests use a tiny cache).
+ */
+typedef struct gl_tile_cache_stats {
+    uint64_t texture_bytes; /* the array texture (its capacity) */
+    int resident_tiles;     /* layers holding a tile */
+    int tile_cells;         /* side of the tiles held, 0 while off */
+    uint64_t uploads;       /* tiles uploaded, since creation */
+    uint64_t upload_bytes;
+    uint64_t evictions;      /* resident tiles replaced by others */
+    uint64_t windows_cached; /* windows gathered from the cache */
+    uint64_t windows_direct; /* windows uploaded from the CPU copy */
+} gl_tile_cache_stats;
+
+void sim_backend_gl_set_tile_cache(sim_backend *b, int layers, int64_t budget_bytes);
+/* Zeroes *out for a backend that is not the GL one. */
+void sim_backend_gl_tile_cache_stats(const sim_backend *b, gl_tile_cache_stats *out);
+
 #endif

@@ -126,6 +126,9 @@ static void histogram_reset(histogram *hg)
 
 static atomic_uint_fast64_t bytes_in, bytes_out, messages_in, frames_out;
 static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, refused_windows;
+/* the GL backend's tile cache, copied from its own totals each tick */
+static atomic_uint_fast64_t gpu_tile_uploads, gpu_tile_upload_bytes, gpu_tile_evictions;
+static atomic_int_fast64_t gpu_tiles_resident;
 static atomic_uint_fast64_t delta_raw, delta_compressed;
 static atomic_uint_fast64_t refused[TERRAD_ERR_LAST + 1]; /* by wire error code; [0] unused */
 static atomic_uint_fast64_t tick_now;
@@ -162,6 +165,10 @@ void metrics_reset(void)
     SET(frames_dropped, 0);
     SET(tick_overruns, 0);
     SET(refused_windows, 0);
+    SET(gpu_tile_uploads, 0);
+    SET(gpu_tile_upload_bytes, 0);
+    SET(gpu_tile_evictions, 0);
+    SET(gpu_tiles_resident, 0);
     SET(delta_raw, 0);
     SET(delta_compressed, 0);
     for (int i = 0; i <= TERRAD_ERR_LAST; i++)
@@ -285,6 +292,15 @@ void metrics_count_frames_dropped(uint64_t n)
 void metrics_count_tick_overrun(void)
 {
     ADD(tick_overruns, 1);
+}
+
+void metrics_set_gpu_tile_cache(uint64_t uploads, uint64_t upload_bytes, uint64_t evictions,
+                                int64_t resident_tiles)
+{
+    SET(gpu_tile_uploads, uploads);
+    SET(gpu_tile_upload_bytes, upload_bytes);
+    SET(gpu_tile_evictions, evictions);
+    SET(gpu_tiles_resident, resident_tiles);
 }
 
 void metrics_count_refused_windows(uint64_t n)
@@ -537,6 +553,14 @@ char *metrics_render(size_t *len)
     counter(&t, "terrad_refused_windows_total",
             "Active windows refused because their heights would leave the height limits.",
             GET(refused_windows));
+    counter(&t, "terrad_gpu_tile_uploads_total",
+            "World tiles uploaded into the GL backend's tile cache.", GET(gpu_tile_uploads));
+    counter(&t, "terrad_gpu_tile_upload_bytes_total", "Bytes of those uploads.",
+            GET(gpu_tile_upload_bytes));
+    counter(&t, "terrad_gpu_tile_evictions_total",
+            "Resident tiles the GL tile cache replaced by others (LRU).", GET(gpu_tile_evictions));
+    gauge_int(&t, "terrad_gpu_tiles_resident", "World tiles resident in the GL tile cache.",
+              GET(gpu_tiles_resident));
 
     counter(&t, "terrad_store_wal_bytes_total", "Bytes appended to the write-ahead log.",
             GET(store_wal_bytes));

@@ -26,7 +26,10 @@ void metrics_count_refused(int error_code);
 void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a slow client */
 void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
 void metrics_count_tick_overrun(void);
-void metrics_count_refused_windows(uint64_t n); /* windows refused at the height limit */
+void metrics_count_refused_windows(uint64_t n);
+/* The GL tile cache's totals since the backend started (0 on the CPU backend). */
+void metrics_set_gpu_tile_cache(uint64_t uploads, uint64_t upload_bytes, uint64_t evictions,
+                                int64_t resident_tiles); /* windows refused at the height limit */
 void metrics_count_delta_bytes(uint64_t raw_bytes, uint64_t compressed_bytes);
 
 void metrics_observe_tick_ms(double ms);

@@ -298,6 +298,7 @@ typedef struct sim_window_job {
     const sim_material_table *materials;
     const uint8_t *material_ids;
     uint16_t *compaction;
+    const world *world; /* where the window was gathered from (a backend's tile cache) */
 } sim_window_job;
 
 /* ---- Sumner, O'Brien and Hodgins 1999 on the CPU (model_sumner.c) ----
@@ -363,6 +364,10 @@ struct sim_backend {
     uint64_t (*scratch_bytes)(const sim_backend *b); /* scratch memory held now */
     /* Optional (NULL: all of scratch_bytes counts as backend_other). */
     void (*stage_bytes)(const sim_backend *b, sim_stage_memory *out);
+    /* Optional (NULL if none): the engine has scattered window `window` of the
+     * batch just run into w, so a backend that caches tiles can tell its
+     * copy of them is current (or not). */
+    void (*window_scattered)(sim_backend *b, int window, const world *w, world_rect r);
     void (*destroy)(sim_backend *b);
     void *impl;
 };

@@ -484,6 +484,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
         job->cell_size_m = w->cell_size_m;
         job->units_per_m = w->units_per_m;
         job->heights = e->heights + offset;
+        job->world = w;
         world_gather_window(w, r, job->heights);
         ground_gather_job(e, job, offset);
         memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
@@ -548,6 +549,8 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
             world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
             if (d.w > 0) {
                 world_scatter_window(w, r, e->heights + offset);
+                if (e->backend->window_scattered)
+                    e->backend->window_scattered(e->backend, i, w, r);
                 e->dirty_window[report->dirty_count] = i;
                 e->dirty[report->dirty_count++] = d;
             }

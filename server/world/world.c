@@ -47,7 +47,11 @@ struct world_store {
     clean_slot clean[WORLD_CLEAN_SLOTS];
     int clean_slots; /* slots in use for this tile size */
     uint64_t clean_clock;
+    uint64_t base_serial; /* world_base_serial */
 };
+
+/* Process-wide source of base serials (worlds live on several threads). */
+static _Atomic uint64_t next_base_serial = 1;
 
 static int is_power_of_two(int v)
 {
@@ -132,6 +136,7 @@ int world_init_tiled(world *w, int width, int height, double cell_size_m, int32_
     /* heights start at 0: a flat base at 0 units (volume 0) */
     st->base.kind = WORLD_BASE_FLAT;
     st->base.volume_known = 1;
+    st->base_serial = next_base_serial++;
     size_t tile_max = (size_t)(width < tile_cells ? width : tile_cells) *
                       (size_t)(height < tile_cells ? height : tile_cells);
     size_t slots = WORLD_CLEAN_CACHE_BYTES / (tile_max * sizeof(int32_t));
@@ -188,6 +193,7 @@ int world_generate_base(world *w, const world_base_spec *spec, error_text *err)
     drop_tiles(st, (size_t)w->tiles_x * w->tiles_y);
     world_base_free(&st->base);
     st->base = b;
+    st->base_serial = next_base_serial++;
     for (int i = 0; i < w->tile_cells; i++)
         st->flat_row[i] = b.flat_units;
     return 0;
@@ -507,6 +513,11 @@ void world_for_each_stored_tile(const world *w, world_tile_fn fn, void *ctx)
             if (st->tiles[t])
                 fn(ctx, tx, ty, world_tile_rect(w, tx, ty), st->generations[t]);
         }
+}
+
+uint64_t world_base_serial(const world *w)
+{
+    return w->store ? w->store->base_serial : 0;
 }
 
 size_t world_stored_tiles(const world *w)

@@ -120,6 +120,10 @@ void world_set_height(world *w, int x, int y, int32_t h);
 uint64_t world_tile_generation(const world *w, int tx, int ty);
 /* The cells tile (tx, ty) covers (clipped to the world). */
 world_rect world_tile_rect(const world *w, int tx, int ty);
+/* A number no other base of any world in this process had: it changes with
+ * every world_init and world_generate_base, so a cache keyed by it and the
+ * tile generations never mistakes an old base's tile for the current one. */
+uint64_t world_base_serial(const world *w);
 /* Calls fn for every stored (written) tile, in row-major tile order. */
 typedef void (*world_tile_fn)(void *ctx, int tx, int ty, world_rect cells, uint64_t generation);
 void world_for_each_stored_tile(const world *w, world_tile_fn fn, void *ctx);

@@ -74,7 +74,8 @@ def main():
     print(f"# {args.ticks} ticks per run, 4 wheels + 3 spheres, flat base, tiles of "
           f"{args.tile_cells}² cells; memory in MiB")
     header = (f"{'world':>13} {'backend':>7} {'tick ms':>8} {'p99 ms':>7} {'peak RSS':>9} "
-              f"{'world MiB':>9} {'tiles':>6} {'GPU cache':>9} {'dense would be':>14}")
+              f"{'world MiB':>9} {'tiles':>6} {'GPU cache':>9} {'GPU tiles':>9} {'uploads':>7} "
+              f"{'cached/direct':>13} {'dense would be':>14}")
     print(header)
     print("-" * len(header))
     bad = 0
@@ -92,13 +93,16 @@ def main():
                     bad += 1
                     print(f"# VOLUME CHANGED: {rep['volume_before']} -> {rep['volume_after']}")
                 mib = 1 << 20
-                gpu = rep.get("gpu_tile_cache_bytes")
-                gpu_text = f"{gpu / mib:.1f}" if gpu is not None else "-"
+                gpu = rep.get("gpu_tile_cache_bytes", 0)
+                gpu_text = f"{gpu / mib:.1f}" if gpu else "-"
+                windows = f"{rep.get('gpu_windows_cached', 0)}/{rep.get('gpu_windows_direct', 0)}"
                 print(f"{size:>6}x{size:<6} {backend:>7} {rep['stages']['tick']['mean_ms']:>8.2f} "
                       f"{rep['stages']['tick']['p99_ms']:>7.2f} "
                       f"{rep['peak_rss_bytes'] / mib:>9.1f} "
                       f"{rep['world_resident_bytes'] / mib:>9.2f} "
                       f"{rep['world_stored_tiles']:>6} {gpu_text:>9} "
+                      f"{rep.get('gpu_tiles_resident', 0):>9} {rep.get('gpu_tile_uploads', 0):>7} "
+                      f"{windows if backend == 'gl' else '-':>13} "
                       f"{size * size * 4 / mib:>10.0f} MiB")
     return 1 if bad else 0
 

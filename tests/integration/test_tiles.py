@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 300
+# ctest-timeout: 600
 """Tiled ≡ untiled, bit for bit, through the real `terrad simulate`.
 
 Every core scene (tests/scenes/*.json) is run twice per backend: once in
@@ -8,8 +8,14 @@ dense layout the tiles replace). The final heights (--out), Σh before and
 after, and the slope excess must be identical. Two generated scenes put
 colliders exactly over tile corners — a sphere pressed onto the corner of
 four 64-cell tiles and a box driven diagonally through several corners — so
-the gather/scatter seams are crossed every tick. The GL backend needs an
-OpenGL 4.3 context; where none can be made its cases are skipped.
+the gather/scatter seams are crossed every tick.
+
+On GL the tiled runs go through the GPU tile cache (windows gathered from
+and scattered into an array texture of resident tiles); a third tiling runs
+it with a tiny cache (12 layers, 4 KiB of uploads a tick) so tiles are
+evicted, windows fall back to the CPU upload and stale tiles are re-uploaded
+— still bit for bit. The GL backend needs an OpenGL 4.3 context; where none
+can be made its cases are skipped.
 """
 import json
 import os
@@ -36,10 +42,16 @@ def check(cond, what):
         print("FAIL:", what, flush=True)
 
 
-def simulate(scene, ticks, backend, out):
+TINY_CACHE = "tiny"  # tiles of 16 with a GPU tile cache of 12 layers, 4 KiB a tick
+
+
+def simulate(scene, ticks, backend, out, env_cache=None, extra=()):
     args = [BIN, "simulate", "--scene", scene, "--ticks", str(ticks), "--backend", backend,
-            "--out", out]
-    p = subprocess.run(args, capture_output=True, text=True, timeout=240)
+            "--out", out] + list(extra)
+    env = dict(os.environ)
+    if env_cache:
+        env["TERRAD_GL_TILE_CACHE"] = env_cache
+    p = subprocess.run(args, capture_output=True, text=True, timeout=240, env=env)
     return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
 
 
@@ -114,15 +126,20 @@ def main():
                     json.dump(with_tiles(doc, tc, scene_dir), f)
                 for b in backends:
                     jobs.append((name, tc, b, path, os.path.join(tmp, f"{name}-{tc}-{b}.i32")))
+                    if b == "gl" and tc == 16:
+                        jobs.append((name, TINY_CACHE, b, path,
+                                     os.path.join(tmp, f"{name}-tiny-{b}.i32")))
 
         def run(job):
             name, tc, b, path, out = job
-            return job, simulate(path, ticks.get(name, 300), b, out)
+            env_cache = "12,4096" if tc == TINY_CACHE else None
+            return job, simulate(path, ticks.get(name, 300), b, out, env_cache)
 
         with ThreadPoolExecutor(max_workers=2) as pool:
             results = {(j[0], j[1], j[2]): (j, r) for j, r in pool.map(run, jobs)}
 
-        for (name, tc, b), (job, (rc, rep, err)) in sorted(results.items()):
+        evictions = tiny_cached = tiny_direct = 0
+        for (name, tc, b), (job, (rc, rep, err)) in sorted(results.items(), key=str):
             check(rc == 0, f"{name} tiles {tc} {b}: exit {rc} {err.strip()[-300:]}")
             if tc == WHOLE or rc != 0:
                 continue
@@ -139,12 +156,39 @@ def main():
                         "refused_windows"):
                 check(rep[key] == wrep[key],
                       f"{name} {b} tiles {tc}: {key} {rep[key]} == {wrep[key]}")
-            check(rep["world_tile_cells"] == tc, f"{name}: tile_cells {tc} reported")
+            check(rep["world_tile_cells"] == (16 if tc == TINY_CACHE else tc),
+                  f"{name}: tile_cells {tc} reported")
+            if b == "gl" and rep["active_cells_mean"] > 0 and tc != TINY_CACHE:
+                check(rep["gpu_windows_cached"] > 0,
+                      f"{name} gl tiles {tc}: windows gathered from the GPU tile cache "
+                      f"({rep['gpu_windows_cached']} cached, {rep['gpu_windows_direct']} direct)")
+            if tc == TINY_CACHE:
+                evictions += rep["gpu_tile_evictions"]
+                tiny_cached += rep["gpu_windows_cached"]
+                tiny_direct += rep["gpu_windows_direct"]
+                check(rep["gpu_tile_cache_bytes"] == 12 * 16 * 16 * 4,
+                      f"{name}: the tiny cache is 6 layers ({rep['gpu_tile_cache_bytes']} bytes)")
             if name.startswith("tile-corner"):
                 check(rep["world_stored_tiles"] >= 4,
                       f"{name} {b} tiles {tc}: the corner's tiles were written "
                       f"({rep['world_stored_tiles']})")
 
+        # GL through the tiny cache ≡ the CPU twin, given the same depth
+        if gl_ok:
+            for name in ("thesis-car", "tile-corner-drive"):
+                path = os.path.join(tmp, f"{name}-16.json")
+                outs = []
+                for b, cache in (("gl", "12,4096"), ("cpu", None)):
+                    out = os.path.join(tmp, f"{name}-depth-{b}.i32")
+                    rc, rep, err = simulate(path, ticks[name], b, out, cache, ["--depth-from-cpu"])
+                    check(rc == 0, f"{name} {b} --depth-from-cpu: {err.strip()[-300:]}")
+                    with open(out, "rb") as f:
+                        outs.append(f.read())
+                check(len(outs[0]) > 0 and outs[0] == outs[1],
+                      f"{name}: GL through a tiny tile cache == CPU twin, bit for bit")
+            check(evictions > 0 and tiny_cached > 0 and tiny_direct > 0,
+                  f"the tiny GPU tile cache evicted tiles ({evictions}), served windows "
+                  f"({tiny_cached}) and sent others the direct way ({tiny_direct})")
     print(f"{passed} passed, {failed} failed")
     return 1 if failed else 0
 

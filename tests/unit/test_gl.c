@@ -654,6 +654,102 @@ static void test_materials_bit_exact(sim_backend *gl, sim_backend *cpu, int roun
           windows, compacting);
 }
 
+/* The GPU tile cache through the engine: a tiled dune world ticked on GL
+ * with a tiny cache (evictions, fallbacks, re-uploads) and on the CPU twin
+ * with the same depth stays identical, including after a write into a
+ * cached tile that does not go through a tick (the cache must notice it by
+ * the tile's generation). */
+static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
+{
+    error_text err = {{0}};
+    world wg, wc;
+    world_base_spec dunes = {.kind = WORLD_BASE_DUNES,
+                             .min_height_m = 0.3,
+                             .max_height_m = 0.6,
+                             .wavelength_m = 2.0,
+                             .octaves = 3,
+                             .seed = 9};
+    int ok = world_init_tiled(&wg, 200, 150, 0.05, 10000, 0, 16, &err) == 0 &&
+             world_init_tiled(&wc, 200, 150, 0.05, 10000, 0, 16, &err) == 0 &&
+             world_generate_base(&wg, &dunes, &err) == 0 &&
+             world_generate_base(&wc, &dunes, &err) == 0;
+    CHECK(ok, "tile cache: worlds (%s)", err.message);
+    if (!ok)
+        return;
+    sim_material m = sim_material_default();
+    sim_params p;
+    CHECK(sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) == 0, "params");
+    sim_backend_gl_set_tile_cache(gl, 10, 8 * 16 * 16 * 4);
+    gl_tile_cache_stats before;
+    sim_backend_gl_tile_cache_stats(gl, &before);
+    sim_engine eg, ec;
+    CHECK(sim_engine_init(&eg, &wg, &p, gl, 2, &err) == 0 &&
+              sim_engine_init(&ec, &wc, &p, cpu, 2, &err) == 0,
+          "engines");
+    eg.depth_from_cpu = ec.depth_from_cpu = 1;
+    collider_geometry ball = {.shape = COLLIDER_SPHERE, .radius = 0.35};
+    collider_geometry small = {.shape = COLLIDER_SPHERE, .radius = 0.15};
+    /* pressed in only for ticks 20..39: its window covers more tiles than
+     * the cache has layers, so it goes direct and the cached copies of those
+     * tiles go stale; the first ball drives over them afterwards */
+    collider_geometry big = {.shape = COLLIDER_SPHERE, .radius = 1.3};
+    int same = 1, tick_ok = 1;
+    for (int t = 0; t < 90 && tick_ok; t++) {
+        sim_collider c[4];
+        memset(c, 0, sizeof c);
+        /* across the corners of 16-cell (0.8 m) tiles, one slow, one fast */
+        double xs[3] = {0.8 + 0.02 * t, 3.2 + 0.05 * t, 6.4};
+        double ys[3] = {0.8 + 0.015 * t, 2.4, 1.6 + 0.04 * t};
+        for (int i = 0; i < 3; i++) {
+            c[i].id = i;
+            c[i].geometry = i == 1 ? &small : &ball;
+            c[i].pose.orientation.w = 1.0;
+            c[i].pose.position = (vec3d){xs[i], ys[i], 0.5 + (i == 1 ? 0.0 : 0.2)};
+            c[i].previous_pose = c[i].pose;
+            c[i].has_previous = 0;
+        }
+        c[3] = c[0];
+        c[3].id = 3;
+        c[3].geometry = &big;
+        c[3].pose.position = (vec3d){2.2, 1.9, t >= 20 && t < 40 ? 1.55 : 5.0};
+        c[3].previous_pose = c[3].pose;
+        if (t == 45) {
+            /* a write between ticks into a tile the GL cache holds */
+            world_set_height(&wg, 30, 25, 9000);
+            world_set_height(&wc, 30, 25, 9000);
+        }
+        sim_tick_report rg, rc;
+        memset(&rg, 0, sizeof rg);
+        memset(&rc, 0, sizeof rc);
+        tick_ok = sim_engine_tick(&eg, c, 4, &rg, &err) == 0 &&
+                  sim_engine_tick(&ec, c, 4, &rc, &err) == 0;
+        int32_t *a = malloc(200 * 150 * 4), *b = malloc(200 * 150 * 4);
+        world_gather_window(&wg, (world_rect){0, 0, 200, 150}, a);
+        world_gather_window(&wc, (world_rect){0, 0, 200, 150}, b);
+        same &= memcmp(a, b, 200 * 150 * 4) == 0;
+        free(a);
+        free(b);
+    }
+    CHECK(tick_ok, "tile cache: 90 ticks run (%s)", err.message);
+    CHECK(same, "tile cache: GL through a 10-layer cache == CPU twin after every tick");
+    CHECK(world_volume(&wg) == world_volume(&wc), "tile cache: same volume");
+    gl_tile_cache_stats after;
+    sim_backend_gl_tile_cache_stats(gl, &after);
+    CHECK(after.windows_cached > before.windows_cached &&
+              after.windows_direct > before.windows_direct && after.evictions > before.evictions,
+          "tile cache: windows from the cache (%llu), direct (%llu), evictions (%llu)",
+          (unsigned long long)(after.windows_cached - before.windows_cached),
+          (unsigned long long)(after.windows_direct - before.windows_direct),
+          (unsigned long long)(after.evictions - before.evictions));
+    CHECK(after.texture_bytes == 10 * 16 * 16 * 4 && after.resident_tiles <= 10,
+          "tile cache: texture of 10 layers, %d resident", after.resident_tiles);
+    sim_engine_free(&eg);
+    sim_engine_free(&ec);
+    world_free(&wg);
+    world_free(&wc);
+    sim_backend_gl_set_tile_cache(gl, 64, (int64_t)4 << 20);
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -673,6 +769,7 @@ int main(void)
     test_height_limit(gl, cpu);
     test_repeatable(gl);
     test_scratch_and_timing(gl);
+    test_tile_cache(gl, cpu);
     /* last: the paths of batches too big for one atlas or one storage block,
      * forced with small limits (which stay for the rest of the backend's life) */
     sim_backend_gl_set_limits(gl, 64, 3400);
