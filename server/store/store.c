@@ -884,10 +884,10 @@ store *store_open(const store_config *c, world *w, store_recovery *rec, error_te
     }
     char tiles_dir[1100], path[1100];
     snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", st->dir);
+    const char *made = st->dir;
     if ((mkdir(st->dir, 0755) != 0 && errno != EEXIST) ||
-        (mkdir(tiles_dir, 0755) != 0 && errno != EEXIST)) {
-        error_set(err, "store: cannot create the data directory %s: %s", tiles_dir,
-                  strerror(errno));
+        (made = tiles_dir, mkdir(tiles_dir, 0755) != 0 && errno != EEXIST)) {
+        error_set(err, "store: --data: cannot create %s: %s", made, strerror(errno));
         goto fail;
     }
     snprintf(path, sizeof path, "%s/LOCK", st->dir);

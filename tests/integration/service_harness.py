@@ -85,10 +85,15 @@ class Daemon:
     data_dir: the daemon's --data directory, kept (tests that restart a daemon
     on the same directory). Without it each daemon gets a fresh temporary
     directory, removed by stop(), so no test ever shares ./data; "--no-data"
-    in extra runs it memory-only."""
+    in extra runs it memory-only.
+
+    durability: "none" unless a test asks for a policy: every tick is still
+    logged before it is published, but the tests of the service's timing
+    (one pose per tick, ACK counts) do not wait for this machine's disk;
+    the storage tests (test_store_*) choose their policies."""
 
     def __init__(self, backend="cpu", demo=False, token=None, tick_hz=None, config=None,
-                 extra=(), name="terrad", data_dir=None, env=None):
+                 extra=(), name="terrad", data_dir=None, env=None, durability="none"):
         if not os.access(BIN, os.X_OK):
             raise FileNotFoundError(BIN)
         self.name = name
@@ -100,6 +105,8 @@ class Daemon:
             if data_dir is None:
                 data_dir = self.temp_data = tempfile.mkdtemp(prefix="terrad-data-")
             args += ["--data", data_dir]
+            if "--durability" not in extra:
+                args += ["--durability", durability]
         self.data_dir = data_dir
         if not demo:
             args.append("--no-demo")

@@ -120,7 +120,8 @@ def verify(data, k, seen, volumes, width, height, exported_last):
     world stays as recovered) and compare it with what the clients saw."""
     global exact_checks
     max_seen = max((t for t, _, _ in seen), default=0)
-    d = Daemon(backend="cpu", demo=False, data_dir=data, name=f"terrad-crash-verify-{k}")
+    d = Daemon(backend="cpu", demo=False, data_dir=data, durability="every-tick",
+               name=f"terrad-crash-verify-{k}")
     check.daemons = [d]
     with check.running(d):
         st = d.stats()

@@ -146,7 +146,7 @@ def main():
     data, fault = os.path.join(tmp, "data"), os.path.join(tmp, "disk-full")
     try:
         d = Daemon(backend="cpu", demo=True, data_dir=data, extra=["--store-fault", fault],
-                   name="terrad-diskfull")
+                   durability="every-tick", name="terrad-diskfull")
         w = None
         with check.running(d):
             w = d.world()
@@ -155,7 +155,8 @@ def main():
             check.finish()
         # stopped with SIGTERM: its last world must come back whole
         before = None
-        d2 = Daemon(backend="cpu", demo=False, data_dir=data, name="terrad-diskfull-restart")
+        d2 = Daemon(backend="cpu", demo=False, data_dir=data, durability="every-tick",
+                    name="terrad-diskfull-restart")
         with check.running(d2):
             metrics = d2.metrics()[1]
             check(metric_value(metrics, "terrad_store_cut_tail_bytes") == 0,
