@@ -135,8 +135,9 @@ static void test_fault_and_recovery(void)
           "durable up to tick %llu", (unsigned long long)store_durable_tick(r.st));
 
     size_t bytes = (size_t)r.w.width * r.w.height * 4;
-    int32_t *before = malloc(bytes);
-    memcpy(before, r.w.heights, bytes);
+    int32_t *before = malloc(bytes), *now = malloc(bytes);
+    world_rect whole = {0, 0, r.w.width, r.w.height};
+    world_gather_window(&r.w, whole, before);
     int64_t volume = service_volume(r.svc);
     FILE *f = fopen(fault, "w");
     if (f)
@@ -145,7 +146,8 @@ static void test_fault_and_recovery(void)
     for (int k = 0; k < 10; k++, t++)
         drive(&r, t, &during);
     char reason[256] = "";
-    CHECK(memcmp(before, r.w.heights, bytes) == 0, "the failed tick was undone, nothing deformed");
+    CHECK((world_gather_window(&r.w, whole, now), memcmp(before, now, bytes)) == 0,
+          "the failed tick was undone, nothing deformed");
     CHECK(during.deltas == 0, "no delta published while the store cannot write (%d)",
           during.deltas);
     CHECK(hub_store_unavailable(r.h, reason, sizeof reason) && strstr(reason, "No space left"),
@@ -158,9 +160,11 @@ static void test_fault_and_recovery(void)
     for (int k = 0; k < 10; k++, t++)
         drive(&r, t, &after);
     CHECK(!hub_store_unavailable(r.h, NULL, 0), "available again");
-    CHECK(after.deltas > 0 && memcmp(before, r.w.heights, bytes) != 0, "deformation resumes");
+    CHECK(after.deltas > 0 &&
+              (world_gather_window(&r.w, whole, now), memcmp(before, now, bytes)) != 0,
+          "deformation resumes");
     CHECK(service_volume(r.svc) == world_volume(&r.w), "Σh tracked exactly");
-    memcpy(before, r.w.heights, bytes);
+    world_gather_window(&r.w, whole, before);
     uint64_t tick = store_durable_tick(r.st);
     rig_close(&r);
 
@@ -168,15 +172,18 @@ static void test_fault_and_recovery(void)
     if (rig_open(&r, "every-tick") != 0) {
         CHECK(0, "rig reopened");
         free(before);
+        free(now);
         return;
     }
-    CHECK(r.rec.tick == tick && memcmp(before, r.w.heights, bytes) == 0,
+    CHECK(r.rec.tick == tick &&
+              (world_gather_window(&r.w, whole, now), memcmp(before, now, bytes)) == 0,
           "recovered tick %llu (durable %llu), same heights", (unsigned long long)r.rec.tick,
           (unsigned long long)tick);
     CHECK(service_current_tick(r.svc) == tick && service_volume(r.svc) == world_volume(&r.w),
           "the service continues from the recovered tick and Σh");
     rig_close(&r);
     free(before);
+    free(now);
 }
 
 static void test_group_commit_holds_frames(void)
