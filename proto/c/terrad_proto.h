@@ -37,17 +37,17 @@ extern "C" {
 
 /* Fixed sizes in bytes (PROTOCOL.md, "Binary frames"). */
 #define TERRAD_HEADER_SIZE 4
-#define TERRAD_POSE_BATCH_FIXED 10 /* header, u32 seq, u16 count */
-#define TERRAD_POSE_SIZE 32        /* u32 id, 7 x f32 */
-#define TERRAD_DELTA_FIXED 14      /* header, u64 tick, u16 count */
-#define TERRAD_RECT_FIXED 25       /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
-#define TERRAD_CONTACT_FIXED 14    /* header, u64 tick, u16 count */
-#define TERRAD_CONTACT_SIZE 48     /* u32 id, i64 volume, u32 cells, 8 x f32 */
-#define TERRAD_ACK_SIZE 16         /* header, u64 tick, u32 seq */
-#define TERRAD_PING_SIZE 12        /* header, u64 nonce */
-#define TERRAD_COLLIDERS_FIXED 14  /* header, u64 tick, u16 count */
+#define TERRAD_POSE_BATCH_FIXED 10    /* header, u32 seq, u16 count */
+#define TERRAD_POSE_SIZE 32           /* u32 id, 7 x f32 */
+#define TERRAD_DELTA_FIXED 14         /* header, u64 tick, u16 count */
+#define TERRAD_RECT_FIXED 25          /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
+#define TERRAD_CONTACT_FIXED 14       /* header, u64 tick, u16 count */
+#define TERRAD_CONTACT_SIZE 48        /* u32 id, i64 volume, u32 cells, 8 x f32 */
+#define TERRAD_ACK_SIZE 16            /* header, u64 tick, u32 seq */
+#define TERRAD_PING_SIZE 12           /* header, u64 nonce */
+#define TERRAD_COLLIDERS_FIXED 14     /* header, u64 tick, u16 count */
 #define TERRAD_COLLIDER_STATE_SIZE 48 /* u32 id, u8 owner, u8 shape, u16 0, 10 x f32 */
-#define TERRAD_MAX_COUNT 65535     /* every count on the wire is a u16 */
+#define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
     TERRAD_MSG_POSE_BATCH = 0x01, /* client -> server */
@@ -191,11 +191,11 @@ typedef enum terrad_collider_kind {
 
 typedef struct terrad_collider_state {
     uint32_t id;
-    uint8_t owner;        /* terrad_collider_owner */
-    uint8_t kind;         /* terrad_collider_kind */
-    float dims[3];        /* metres, >= 0, finite; see terrad_collider_kind */
-    float p[3];           /* position, metres, world frame */
-    float q[4];           /* qw, qx, qy, qz: entry axes to world axes, |q| in [0.9, 1.1] */
+    uint8_t owner; /* terrad_collider_owner */
+    uint8_t kind;  /* terrad_collider_kind */
+    float dims[3]; /* metres, >= 0, finite; see terrad_collider_kind */
+    float p[3];    /* position, metres, world frame */
+    float q[4];    /* qw, qx, qy, qz: entry axes to world axes, |q| in [0.9, 1.1] */
 } terrad_collider_state;
 
 size_t terrad_colliders_size(size_t count);

@@ -837,10 +837,10 @@ static void publish_colliders(service *s, const sim_collider *extra, int extra_c
         for (int i = 0; i < s->collider_count; i++) {
             const svc_collider *k = &s->colliders[i];
             if (k->has_pose && collider_in_view(s, cl, k->geometry, k->pose))
-                push_state(s, &n,
-                           collider_state(k->geometry, k->pose, k->id,
-                                          k->client == cl->id ? TERRAD_OWNER_OWN
-                                                              : TERRAD_OWNER_OTHER));
+                push_state(
+                    s, &n,
+                    collider_state(k->geometry, k->pose, k->id,
+                                   k->client == cl->id ? TERRAD_OWNER_OWN : TERRAD_OWNER_OTHER));
         }
         for (int i = 0; i < extra_count; i++)
             if (collider_in_view(s, cl, extra[i].geometry, extra[i].pose))
