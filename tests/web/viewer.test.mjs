@@ -158,7 +158,7 @@ function terrainStats(img) {
   return { fraction: n / (img.px.length / 4), std: Math.sqrt(Math.max(0, sum2 / Math.max(n, 1) - mean * mean)), levels: levels.size };
 }
 
-test('the page loads, gets its first snapshot and draws the terrain', { skip, timeout: 60000 }, async () => {
+test('the page loads, gets its first snapshot and draws the terrain', { skip, timeout: 120000 }, async () => {
   await until('first snapshot', () => page.evaluate(() => window.terrad && window.terrad.state === 'live' && window.terrad.framesDrawn > 3), 30000);
   const world = await page.evaluate(() => window.terrad.world);
   const region = await page.evaluate(() => window.terrad.region);
