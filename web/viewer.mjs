@@ -145,8 +145,11 @@ function onBinary(b) {
       const c = P.decodeColliders(b);
       if (c.tick >= app.collidersTick) {
         app.collidersTick = c.tick;
+        // the server repeats an unchanged list once a second: redraw only for a change
+        const key = JSON.stringify(c.colliders);
+        if (key !== app.collidersKey) app.collidersChanged = true;
+        app.collidersKey = key;
         app.colliders = c.colliders;
-        app.collidersChanged = true;
       }
     } else if (t === P.MsgType.PING) {
       send(P.encodePing(P.decodePing(b).nonce, true));

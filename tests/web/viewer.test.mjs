@@ -116,7 +116,7 @@ async function pageHeights(pg = page) {
 }
 
 // Polls until the page's heights equal GET /v1/heights of its region, at a tick the page has reached.
-async function assertMirrorsServer(port, ms = 10000, pg = page) {
+async function assertMirrorsServer(port, ms = 30000, pg = page) {
   const end = Date.now() + ms;
   let detail = '';
   for (;;) {
@@ -126,7 +126,7 @@ async function assertMirrorsServer(port, ms = 10000, pg = page) {
       const tick = Number(r.headers.get('x-terrad-tick'));
       const server = Buffer.from(await r.arrayBuffer());
       try {
-        await until('page tick', async () => (await pg.evaluate(() => window.terrad.tick)) >= tick, 3000, 20);
+        await until('page tick', async () => (await pg.evaluate(() => window.terrad.tick)) >= tick, 10000, 20);
         const p = await pageHeights(pg);
         const mine = Buffer.from(p.b64, 'base64');
         if (mine.equals(server) && p.region.w === region.w) return;
@@ -238,7 +238,7 @@ asyncio.run(main())
   return proc;
 }
 
-test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the own one is marked own', { skip, timeout: 60000 }, async () => {
+test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the own one is marked own', { skip, timeout: 120000 }, async () => {
   const world = await page.evaluate(() => window.terrad.world);
   const own = await page.evaluate(() => window.terrad.collider);
   const x = world.width * world.cell_size_m * 0.6, y = world.height * world.cell_size_m * 0.45, z = 3, radius = 1.2;
@@ -246,7 +246,7 @@ test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the ow
   try {
     const id = await other.id;
     const got = await until('the other sphere in a COLLIDERS frame',
-      () => page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), id), 10000);
+      () => page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), id), 30000);
     assert.equal(got.owner, 1, 'owner: other');
     assert.equal(got.kind, 0, 'kind: sphere');
     assert.ok(Math.abs(got.dims[0] - radius) < 1e-6 && Math.abs(got.p[0] - x) < 1e-3 && Math.abs(got.p[1] - y) < 1e-3 &&
@@ -262,7 +262,7 @@ test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the ow
     assert.ok(b > r + 40 && b > 60, `the sphere is drawn in blue at ${px.toFixed(0)},${py.toFixed(0)}: rgb ${r},${g},${b}`);
     other.kill();
     await until('the other sphere gone after its client left',
-      async () => !(await page.evaluate((id) => window.terrad.colliders.some((c) => c.id === id), id)), 10000);
+      async () => !(await page.evaluate((id) => window.terrad.colliders.some((c) => c.id === id), id)), 30000);
   } finally {
     other.kill();
   }
