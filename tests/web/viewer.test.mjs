@@ -175,7 +175,7 @@ test('the page loads, gets its first snapshot and draws the terrain', { skip, ti
 test('a collider driven through the page leaves a trail, and the heights match bit for bit', { skip, timeout: 150000 }, async () => {
   const beforeImg = await grab();
   await page.evaluate(() => window.terrad.createCollider());
-  await until('collider created', () => page.evaluate(() => window.terrad.collider && window.terrad.collider.id > 0), 5000);
+  await until('collider created', () => page.evaluate(() => window.terrad.collider && window.terrad.collider.id > 0), 20000);
   const start = await page.evaluate(() => window.terrad.collider);
   const steps = 120, dx = 0.02; // 2.4 m in about 2 s
   // 10 cm steps (the sphere's footprint is ~33 cm wide: a continuous trail), each held for
