@@ -8,8 +8,10 @@ import { Decompress } from './vendor/fzstd.js';
 export const PROTOCOL_VERSION = 1;
 export const MAGIC = 0x54;
 export const SUBPROTOCOL = 'terrad.v1';
-export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12 };
-const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK' };
+export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13 };
+const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS' };
+export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
+export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
 export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
 export const ERRORS = {
   bad_frame: 1, unknown_type: 2, bad_version: 3, too_large: 4, bad_value: 5, unknown_collider: 6,
@@ -18,7 +20,7 @@ export const ERRORS = {
   bad_compression: 16, stale_base: 17, unsupported_collider: 18, unknown_subscription: 19,
   shutting_down: 20, internal: 21,
 };
-const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12;
+const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12, COLLIDER_STATE_SIZE = 48;
 const MAX_COUNT = 0xffff;
 
 export class ProtoError extends Error {
@@ -159,6 +161,31 @@ export function decodeContact(buf) {
     contacts.push({ id, volume, cells, area_m2: f[0], deepest: f.slice(1, 4), normal: f.slice(4, 7), support_height_m: f[7] });
   }
   return { tick, contacts };
+}
+
+// COLLIDERS: every collider meeting the subscriber's regions, [{id, owner, kind, dims, p, q}]
+export function decodeColliders(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.COLLIDERS);
+  if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
+  if (b.length - 14 !== count * COLLIDER_STATE_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const colliders = [];
+  for (let i = 0; i < count; i++) {
+    const o = 14 + i * COLLIDER_STATE_SIZE;
+    const id = v.getUint32(o, true), owner = b[o + 4], kind = b[o + 5];
+    if (v.getUint16(o + 6, true) !== 0) throw new ProtoError('bad_value', `collider ${id}: reserved bytes set`);
+    if (owner > Owner.DEMO) throw new ProtoError('bad_value', `collider ${id}: owner ${owner}`);
+    if (kind > ColliderKind.MESH) throw new ProtoError('bad_value', `collider ${id}: kind ${kind}`);
+    const f = [];
+    for (let k = 0; k < 10; k++) f.push(v.getFloat32(o + 8 + 4 * k, true));
+    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `collider ${id} is not finite`);
+    if (f[0] < 0 || f[1] < 0 || f[2] < 0) throw new ProtoError('bad_value', `collider ${id}: negative dimension`);
+    checkQuaternion(f[6], f[7], f[8], f[9]);
+    colliders.push({ id, owner, kind, dims: f.slice(0, 3), p: f.slice(3, 6), q: f.slice(6, 10) });
+  }
+  return { tick, colliders };
 }
 
 export function decodeAck(buf) {
@@ -355,7 +382,8 @@ export class Mirror {
 // ---- JSON control messages ----
 
 export const hello = (token = '', client = 'terrad-web') => ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client });
-export const subscribe = (x, y, w, h, ref) => withRef({ type: 'subscribe', x, y, w, h }, ref);
+export const subscribe = (x, y, w, h, ref, colliders = false) =>
+  withRef(colliders ? { type: 'subscribe', x, y, w, h, colliders: true } : { type: 'subscribe', x, y, w, h }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);

@@ -9,14 +9,21 @@ const params = new URLSearchParams(location.search);
 const httpPort = Number(location.port || (location.protocol === 'https:' ? 443 : 80));
 const wsPort = Number(params.get('ws')) || httpPort + 1;
 const wsUrl = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.hostname}:${wsPort}/`;
-const MAX_FULL = 512 * 512; // whole world when it is at most this many cells
-const WINDOW = 512; // else a WINDOW x WINDOW subscription around the camera target
+const MAX_FULL = 512 * 512; // whole world when it is at most this many cells: every chunk at full detail
+const WINDOW = 1024; // else a WINDOW x WINDOW subscription around the camera target, chunked LoD
+const CHUNK = 64; // cells per chunk side (one tile); LoD level l draws every 2^l-th cell
+const LOD_LEVELS = 5; // steps 1, 2, 4, 8, 16
+const LOD_DIST = 1.5; // a chunk drops one level each time its distance doubles past LOD_DIST chunk sizes
+const DRIVE_SPEED = 3; // m/s towards the point dragged to
 const SINK_M = 0.05;
 
 const app = {
   state: 'connecting', connected: false, tick: 0, framesDrawn: 0, world: null,
   mirror: null, baseline: null, subs: new Map(), activeSub: 0, wantRegion: null,
   own: null, lastError: '', bytes: 0, rate: 0, seq: 0, lastBatch: 0,
+  colliders: [], collidersTick: 0, // the latest COLLIDERS frame: every collider in view
+  dirtyBox: null, // window cells changed since the last texture upload: {x0, y0, x1, y1}
+  chunks: [], skirts: true, background: [0.114, 0.129, 0.161], dragTarget: null,
 };
 let ws = null, retries = 0, refN = 0;
 
@@ -120,7 +127,7 @@ function onBinary(b) {
       const { tick, rects } = P.decodeDelta(b);
       for (const [id, mir] of app.subs) {
         try {
-          if (mir.apply(rects) > 0 && mir === app.mirror) app.dirty = true;
+          if (mir.apply(rects) > 0 && mir === app.mirror) markDirty(mir, rects);
         } catch (e) {
           console.warn('mirror', e.message, '-> resync');
           send(P.resync(id));
@@ -134,11 +141,33 @@ function onBinary(b) {
       const c = P.decodeContact(b);
       app.tick = Math.max(app.tick, Number(c.tick));
       app.contacts = c.contacts;
+    } else if (t === P.MsgType.COLLIDERS) {
+      const c = P.decodeColliders(b);
+      if (c.tick >= app.collidersTick) {
+        app.collidersTick = c.tick;
+        app.colliders = c.colliders;
+        app.collidersChanged = true;
+      }
     } else if (t === P.MsgType.PING) {
       send(P.encodePing(P.decodePing(b).nonce, true));
     }
   } catch (e) {
     console.warn('frame refused', e.message);
+  }
+}
+
+// The part of the rendered window the rectangles touched: only it is uploaded again.
+function markDirty(m, rects) {
+  let b = app.dirtyBox;
+  for (const r of rects) {
+    const x0 = Math.max(r.x, m.x) - m.x, y0 = Math.max(r.y, m.y) - m.y;
+    const x1 = Math.min(r.x + r.w, m.x + m.w) - m.x, y1 = Math.min(r.y + r.h, m.y + m.h) - m.y;
+    if (x0 >= x1 || y0 >= y1) continue;
+    b = b ? { x0: Math.min(b.x0, x0), y0: Math.min(b.y0, y0), x1: Math.max(b.x1, x1), y1: Math.max(b.y1, y1) } : { x0, y0, x1, y1 };
+  }
+  if (b) {
+    app.dirtyBox = b;
+    app.dirty = true;
   }
 }
 
@@ -156,6 +185,7 @@ function promoteSubscription() {
     }
     app.dirty = true;
     app.meshDirty = true;
+    app.dirtyBox = { x0: 0, y0: 0, x1: mir.w, y1: mir.h };
     setState('live');
   }
   for (const id of [...app.subs.keys()]) {
@@ -184,7 +214,7 @@ function followCamera(force) {
   if (!force && cur && Math.abs(cur.x - r.x) < WINDOW / 4 && Math.abs(cur.y - r.y) < WINDOW / 4) return;
   if (!force && cur && cur.x === r.x && cur.y === r.y) return;
   app.wantRegion = r;
-  send(P.subscribe(r.x, r.y, r.w, r.h, `sub-${++refN}`));
+  send(P.subscribe(r.x, r.y, r.w, r.h, `sub-${++refN}`, true)); // with COLLIDERS frames
 }
 
 // ---- driving ----
@@ -250,6 +280,16 @@ $('drive').addEventListener('click', () => {
   $('drive').blur();
 });
 
+// Move the collider towards the dragged-to point at DRIVE_SPEED.
+function dragDrive(dt) {
+  const o = app.own, t = app.dragTarget;
+  if (!o || !t || !driving()) return;
+  const dx = t[0] - o.x, dy = t[1] - o.y, d = Math.hypot(dx, dy), v = DRIVE_SPEED * dt;
+  if (d < 1e-3) return;
+  const k = Math.min(1, v / d);
+  drive(dx * k, dy * k);
+}
+
 function keyDrive(dt) {
   if (!app.own || !keys.size) return;
   let f = 0, s = 0;
@@ -268,15 +308,30 @@ function keyDrive(dt) {
 const cam = { yaw: -Math.PI / 2 - 0.5, pitch: 0.75, dist: 0 };
 const pointers = new Map();
 const canvas = $('view');
+// Drive mode: the page's collider is on the ground (the drive button is lit). Then a
+// one-pointer drag (mouse or touch) without shift steers it: the collider heads for the
+// terrain point under the pointer. Two fingers still zoom and pan; shift/right drag pans.
+const driving = () => !!app.own && !!app.own.id && !app.own.lifted;
+function steerTo(e) {
+  const r = canvas.getBoundingClientRect();
+  const p = pick(e.clientX - r.left, e.clientY - r.top);
+  if (p) app.dragTarget = p;
+}
 canvas.addEventListener('pointerdown', (e) => {
   canvas.setPointerCapture(e.pointerId);
-  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, steer: driving() && !e.shiftKey && e.button === 0 && pointers.size === 0 });
+  if (pointers.size > 1) {
+    for (const q of pointers.values()) q.steer = false;
+    app.dragTarget = null;
+  }
+  if (pointers.get(e.pointerId).steer) steerTo(e);
 });
 canvas.addEventListener('pointermove', (e) => {
   const p = pointers.get(e.pointerId);
   if (!p) return;
   const dx = e.clientX - p.x, dy = e.clientY - p.y;
-  if (pointers.size === 1) {
+  if (p.steer) steerTo(e);
+  else if (pointers.size === 1) {
     if (e.shiftKey || e.buttons === 4 || e.buttons === 2) pan(dx, dy);
     else {
       cam.yaw -= dx * 0.006;
@@ -294,7 +349,11 @@ canvas.addEventListener('pointermove', (e) => {
   p.x = e.clientX;
   p.y = e.clientY;
 });
-const up = (e) => pointers.delete(e.pointerId);
+const up = (e) => {
+  const p = pointers.get(e.pointerId);
+  pointers.delete(e.pointerId);
+  if (p && p.steer) app.dragTarget = null; // let go: the collider stops where it is
+};
 canvas.addEventListener('pointerup', up);
 canvas.addEventListener('pointercancel', up);
 canvas.addEventListener('contextmenu', (e) => e.preventDefault());
@@ -324,23 +383,41 @@ function pan(dx, dy) {
 const gl = canvas.getContext('webgl2', { antialias: true, preserveDrawingBuffer: true });
 if (!gl) $('o-error').textContent = 'WebGL2 is not available in this browser';
 
+// The terrain is drawn chunk by chunk (CHUNK² cells each) straight from the heights
+// texture: a vertex is (gl_VertexID → grid cell) at the chunk's LoD step, so one index
+// buffer per level serves every chunk. Cracks between chunks of different levels are
+// hidden by skirts: every chunk's border is repeated uSkirt metres lower and joined to
+// it by a vertical strip. Skirts, not stitched edges, because a chunk then never
+// depends on its neighbours' levels (one index buffer per level instead of 16 edge
+// variants, levels change per frame without touching neighbours), as in Ulrich's
+// chunked LoD that the large-terrain paper builds on.
 const TERRAIN_VS = `#version 300 es
 precision highp float; precision highp int;
 uniform highp sampler2D uH; uniform highp sampler2D uB;
 uniform ivec2 uSize; uniform vec2 uOrigin; uniform float uCell; uniform mat4 uMVP;
+uniform ivec2 uChunk; uniform int uStep; uniform int uN; uniform float uSkirt;
 out vec3 vN; out float vD; out float vH;
 float h(int i, int j) { return texelFetch(uH, ivec2(clamp(i, 0, uSize.x - 1), clamp(j, 0, uSize.y - 1)), 0).r; }
 void main() {
-  int i = gl_VertexID % uSize.x, j = gl_VertexID / uSize.x;
+  int v = gl_VertexID, gi, gj;
+  float drop = 0.0;
+  if (v < uN * uN) { gi = v % uN; gj = v / uN; }
+  else { // skirt vertex: border vertex t of edge e (bottom, right, top, left), lowered
+    int k = v - uN * uN, e = k / uN, t = k % uN;
+    gi = e == 0 || e == 2 ? t : (e == 1 ? uN - 1 : 0);
+    gj = e == 1 || e == 3 ? t : (e == 2 ? uN - 1 : 0);
+    drop = uSkirt;
+  }
+  int i = min(uChunk.x + gi * uStep, uSize.x - 1), j = min(uChunk.y + gj * uStep, uSize.y - 1);
   float z = h(i, j);
-  // normal from central differences (one-sided at the region's border)
+  // normal from central differences at full resolution (one-sided at the window's border)
   int il = max(i - 1, 0), ir = min(i + 1, uSize.x - 1), jd = max(j - 1, 0), ju = min(j + 1, uSize.y - 1);
   float dzx = (h(ir, j) - h(il, j)) / (float(max(ir - il, 1)) * uCell);
   float dzy = (h(i, ju) - h(i, jd)) / (float(max(ju - jd, 1)) * uCell);
   vN = normalize(vec3(-dzx, -dzy, 1.0));
   vD = z - texelFetch(uB, ivec2(i, j), 0).r;
   vH = z;
-  gl_Position = uMVP * vec4(uOrigin + (vec2(i, j) + 0.5) * uCell, z, 1.0);
+  gl_Position = uMVP * vec4(uOrigin + (vec2(i, j) + 0.5) * uCell, z - drop, 1.0);
 }`;
 const TERRAIN_FS = `#version 300 es
 precision highp float;
@@ -357,11 +434,17 @@ void main() {
   vec3 c = base * (0.28 + 0.72 * diff) + vec3(0.02, 0.03, 0.05);
   o = vec4(pow(c, vec3(1.0 / 1.1)), 1.0);
 }`;
+// Colliders: a unit shape (sphere, box, cylinder along y) scaled, rotated and placed.
 const SHAPE_VS = `#version 300 es
 precision highp float;
-in vec3 aP; uniform mat4 uMVP; uniform vec3 uC; uniform float uR;
+in vec3 aP; in vec3 aN;
+uniform mat4 uMVP; uniform vec3 uPos; uniform vec3 uScale; uniform vec4 uQ;
 out vec3 vN;
-void main() { vN = aP; gl_Position = uMVP * vec4(uC + aP * uR, 1.0); }`;
+vec3 rot(vec4 q, vec3 v) { vec3 u = q.yzw; return v + 2.0 * cross(u, cross(u, v) + q.x * v); }
+void main() {
+  vN = rot(uQ, aN / uScale);
+  gl_Position = uMVP * vec4(uPos + rot(uQ, aP * uScale), 1.0);
+}`;
 const SHAPE_FS = `#version 300 es
 precision highp float;
 in vec3 vN; uniform vec3 uLight; uniform vec3 uColor; out vec4 o;
@@ -387,68 +470,151 @@ function program(vs, fs) {
   return { p, u };
 }
 
+// One chunk's triangles at LoD step `step`: the (n-1)² grid quads, then the skirt strips.
+function chunkIndices(step) {
+  const n = CHUNK / step + 1, idx = [];
+  for (let j = 0; j + 1 < n; j++)
+    for (let i = 0; i + 1 < n; i++) {
+      const a = j * n + i;
+      idx.push(a, a + 1, a + n, a + 1, a + n + 1, a + n);
+    }
+  const border = (e, t) => (e === 0 ? t : e === 1 ? t * n + n - 1 : e === 2 ? (n - 1) * n + t : t * n);
+  for (let e = 0; e < 4; e++)
+    for (let t = 0; t + 1 < n; t++) {
+      const a = border(e, t), b = border(e, t + 1), sa = n * n + e * n + t, sb = sa + 1;
+      idx.push(a, b, sa, b, sb, sa);
+    }
+  return new Uint32Array(idx);
+}
+
+function shapeMesh(kind) {
+  const p = [], nrm = [], idx = [];
+  if (kind === 'box') {
+    for (const [ax, s] of [[0, 1], [0, -1], [1, 1], [1, -1], [2, 1], [2, -1]]) {
+      const u = (ax + 1) % 3, v = (ax + 2) % 3, base = p.length / 3;
+      for (const [a, b] of [[-1, -1], [1, -1], [1, 1], [-1, 1]]) {
+        const q = [0, 0, 0], n = [0, 0, 0];
+        q[ax] = s; q[u] = a; q[v] = b; n[ax] = s;
+        p.push(...q); nrm.push(...n);
+      }
+      idx.push(base, base + 1, base + 2, base, base + 2, base + 3);
+    }
+  } else if (kind === 'cylinder') { // axis y, radius 1, y in [-1, 1]
+    const S = 24;
+    for (let k = 0; k <= S; k++) {
+      const a = (k / S) * 2 * Math.PI, x = Math.cos(a), z = Math.sin(a);
+      p.push(x, -1, z, x, 1, z); nrm.push(x, 0, z, x, 0, z);
+    }
+    for (let k = 0; k < S; k++) idx.push(2 * k, 2 * k + 1, 2 * k + 2, 2 * k + 1, 2 * k + 3, 2 * k + 2);
+    for (const y of [-1, 1]) {
+      const c = p.length / 3;
+      p.push(0, y, 0); nrm.push(0, y, 0);
+      for (let k = 0; k <= S; k++) {
+        const a = (k / S) * 2 * Math.PI;
+        p.push(Math.cos(a), y, Math.sin(a)); nrm.push(0, y, 0);
+      }
+      for (let k = 0; k < S; k++) idx.push(c, c + 1 + k, c + 2 + k);
+    }
+  } else { // sphere
+    const S = 16, R = 10;
+    for (let a = 0; a <= R; a++)
+      for (let b = 0; b <= S; b++) {
+        const th = (a / R) * Math.PI, ph = (b / S) * 2 * Math.PI;
+        const v = [Math.sin(th) * Math.cos(ph), Math.sin(th) * Math.sin(ph), Math.cos(th)];
+        p.push(...v); nrm.push(...v);
+      }
+    for (let a = 0; a < R; a++)
+      for (let b = 0; b < S; b++) {
+        const i = a * (S + 1) + b;
+        idx.push(i, i + S + 1, i + 1, i + 1, i + S + 1, i + S + 2);
+      }
+  }
+  const vao = gl.createVertexArray();
+  gl.bindVertexArray(vao);
+  for (const [name, data] of [['aP', p], ['aN', nrm]]) {
+    const vb = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, vb);
+    gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(data), gl.STATIC_DRAW);
+    const loc = gl.getAttribLocation(shape.p, name);
+    gl.enableVertexAttribArray(loc);
+    gl.vertexAttribPointer(loc, 3, gl.FLOAT, false, 0, 0);
+  }
+  const ib = gl.createBuffer();
+  gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ib);
+  gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint16Array(idx), gl.STATIC_DRAW);
+  gl.bindVertexArray(null);
+  return { vao, count: idx.length };
+}
+
 let terrain, shape, gpu = {};
 function initGL() {
   terrain = program(TERRAIN_VS, TERRAIN_FS);
   shape = program(SHAPE_VS, SHAPE_FS);
-  gpu.vao = gl.createVertexArray();
-  gpu.ibo = gl.createBuffer();
+  gpu.vao = gl.createVertexArray(); // no attributes: vertices come from gl_VertexID
+  gpu.levels = [];
+  gl.bindVertexArray(gpu.vao);
+  for (let l = 0; l < LOD_LEVELS; l++) {
+    const ibo = gl.createBuffer(), idx = chunkIndices(1 << l);
+    gpu.levels.push({ ibo, count: idx.length, gridCount: (CHUNK >> l) ** 2 * 6 });
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ibo);
+    gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, idx, gl.STATIC_DRAW);
+  }
+  gl.bindVertexArray(null);
   gpu.texH = gl.createTexture();
   gpu.texB = gl.createTexture();
-  // a UV sphere for colliders
-  const pts = [], idx = [], S = 16, R = 10;
-  for (let a = 0; a <= R; a++)
-    for (let b = 0; b <= S; b++) {
-      const th = (a / R) * Math.PI, ph = (b / S) * 2 * Math.PI;
-      pts.push(Math.sin(th) * Math.cos(ph), Math.sin(th) * Math.sin(ph), Math.cos(th));
-    }
-  for (let a = 0; a < R; a++)
-    for (let b = 0; b < S; b++) {
-      const i = a * (S + 1) + b;
-      idx.push(i, i + S + 1, i + 1, i + 1, i + S + 1, i + S + 2);
-    }
-  gpu.sphere = gl.createVertexArray();
-  gl.bindVertexArray(gpu.sphere);
-  const vb = gl.createBuffer();
-  gl.bindBuffer(gl.ARRAY_BUFFER, vb);
-  gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(pts), gl.STATIC_DRAW);
-  const loc = gl.getAttribLocation(shape.p, 'aP');
-  gl.enableVertexAttribArray(loc);
-  gl.vertexAttribPointer(loc, 3, gl.FLOAT, false, 0, 0);
-  const ib = gl.createBuffer();
-  gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ib);
-  gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint16Array(idx), gl.STATIC_DRAW);
-  gpu.sphereCount = idx.length;
-  gl.bindVertexArray(null);
+  gpu.shapes = { sphere: shapeMesh('sphere'), box: shapeMesh('box'), cylinder: shapeMesh('cylinder') };
 }
 
-function uploadTexture(tex, ints, w, h, upm) {
-  const f = new Float32Array(ints.length);
-  for (let i = 0; i < ints.length; i++) f[i] = ints[i] / upm;
+function toMetres(ints, upm, out) {
+  for (let i = 0; i < ints.length; i++) out[i] = ints[i] / upm;
+  return out;
+}
+
+function allocTexture(tex, w, h, data) {
   gl.bindTexture(gl.TEXTURE_2D, tex);
   gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
-  gl.texImage2D(gl.TEXTURE_2D, 0, gl.R32F, w, h, 0, gl.RED, gl.FLOAT, f);
+  gl.pixelStorei(gl.UNPACK_ROW_LENGTH, 0);
+  gl.pixelStorei(gl.UNPACK_SKIP_PIXELS, 0);
+  gl.pixelStorei(gl.UNPACK_SKIP_ROWS, 0);
+  gl.texImage2D(gl.TEXTURE_2D, 0, gl.R32F, w, h, 0, gl.RED, gl.FLOAT, data);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
 }
 
+// A new window: both textures anew, and the skirt depth from its height range.
 function rebuildMesh(m) {
-  const idx = new Uint32Array((m.w - 1) * (m.h - 1) * 6);
-  let k = 0;
-  for (let j = 0; j + 1 < m.h; j++)
-    for (let i = 0; i + 1 < m.w; i++) {
-      const a = j * m.w + i;
-      idx[k++] = a; idx[k++] = a + 1; idx[k++] = a + m.w;
-      idx[k++] = a + 1; idx[k++] = a + m.w + 1; idx[k++] = a + m.w;
-    }
-  gl.bindVertexArray(gpu.vao);
-  gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gpu.ibo);
-  gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, idx, gl.STATIC_DRAW);
-  gl.bindVertexArray(null);
-  gpu.count = idx.length;
-  uploadTexture(gpu.texB, app.baseline, m.w, m.h, app.world.units_per_m);
+  const upm = app.world.units_per_m;
+  gpu.metres = new Float32Array(m.w * m.h);
+  allocTexture(gpu.texB, m.w, m.h, toMetres(app.baseline, upm, new Float32Array(m.w * m.h)));
+  allocTexture(gpu.texH, m.w, m.h, toMetres(m.heights, upm, gpu.metres));
+  let lo = Infinity, hi = -Infinity;
+  for (const v of m.heights) {
+    if (v < lo) lo = v;
+    if (v > hi) hi = v;
+  }
+  // deeper than any gap can be: the window's relief plus what deformation may add
+  gpu.skirt = (hi - lo) / upm + 0.5;
+  app.dirtyBox = null;
+}
+
+// Upload only the rows and columns the last deltas touched.
+function uploadDirty(m) {
+  const b = app.dirtyBox;
+  app.dirtyBox = null;
+  if (!b) return;
+  const upm = app.world.units_per_m, f = gpu.metres;
+  for (let j = b.y0; j < b.y1; j++)
+    for (let i = b.x0, k = j * m.w + b.x0; i < b.x1; i++, k++) f[k] = m.heights[k] / upm;
+  gl.bindTexture(gl.TEXTURE_2D, gpu.texH);
+  gl.pixelStorei(gl.UNPACK_ROW_LENGTH, m.w);
+  gl.pixelStorei(gl.UNPACK_SKIP_PIXELS, b.x0);
+  gl.pixelStorei(gl.UNPACK_SKIP_ROWS, b.y0);
+  gl.texSubImage2D(gl.TEXTURE_2D, 0, b.x0, b.y0, b.x1 - b.x0, b.y1 - b.y0, gl.RED, gl.FLOAT, f);
+  gl.pixelStorei(gl.UNPACK_ROW_LENGTH, 0);
+  gl.pixelStorei(gl.UNPACK_SKIP_PIXELS, 0);
+  gl.pixelStorei(gl.UNPACK_SKIP_ROWS, 0);
 }
 
 // column-major 4x4 helpers
@@ -469,6 +635,65 @@ function mul(a, b) {
   for (let c = 0; c < 4; c++) for (let r = 0; r < 4; r++) for (let k = 0; k < 4; k++) o[c * 4 + r] += a[k * 4 + r] * b[c * 4 + k];
   return o;
 }
+// General 4x4 inverse (column-major), for un-projecting the pointer.
+function invert(m) {
+  const a = m, inv = new Array(16);
+  inv[0] = a[5] * a[10] * a[15] - a[5] * a[11] * a[14] - a[9] * a[6] * a[15] + a[9] * a[7] * a[14] + a[13] * a[6] * a[11] - a[13] * a[7] * a[10];
+  inv[4] = -a[4] * a[10] * a[15] + a[4] * a[11] * a[14] + a[8] * a[6] * a[15] - a[8] * a[7] * a[14] - a[12] * a[6] * a[11] + a[12] * a[7] * a[10];
+  inv[8] = a[4] * a[9] * a[15] - a[4] * a[11] * a[13] - a[8] * a[5] * a[15] + a[8] * a[7] * a[13] + a[12] * a[5] * a[11] - a[12] * a[7] * a[9];
+  inv[12] = -a[4] * a[9] * a[14] + a[4] * a[10] * a[13] + a[8] * a[5] * a[14] - a[8] * a[6] * a[13] - a[12] * a[5] * a[10] + a[12] * a[6] * a[9];
+  inv[1] = -a[1] * a[10] * a[15] + a[1] * a[11] * a[14] + a[9] * a[2] * a[15] - a[9] * a[3] * a[14] - a[13] * a[2] * a[11] + a[13] * a[3] * a[10];
+  inv[5] = a[0] * a[10] * a[15] - a[0] * a[11] * a[14] - a[8] * a[2] * a[15] + a[8] * a[3] * a[14] + a[12] * a[2] * a[11] - a[12] * a[3] * a[10];
+  inv[9] = -a[0] * a[9] * a[15] + a[0] * a[11] * a[13] + a[8] * a[1] * a[15] - a[8] * a[3] * a[13] - a[12] * a[1] * a[11] + a[12] * a[3] * a[9];
+  inv[13] = a[0] * a[9] * a[14] - a[0] * a[10] * a[13] - a[8] * a[1] * a[14] + a[8] * a[2] * a[13] + a[12] * a[1] * a[10] - a[12] * a[2] * a[9];
+  inv[2] = a[1] * a[6] * a[15] - a[1] * a[7] * a[14] - a[5] * a[2] * a[15] + a[5] * a[3] * a[14] + a[13] * a[2] * a[7] - a[13] * a[3] * a[6];
+  inv[6] = -a[0] * a[6] * a[15] + a[0] * a[7] * a[14] + a[4] * a[2] * a[15] - a[4] * a[3] * a[14] - a[12] * a[2] * a[7] + a[12] * a[3] * a[6];
+  inv[10] = a[0] * a[5] * a[15] - a[0] * a[7] * a[13] - a[4] * a[1] * a[15] + a[4] * a[3] * a[13] + a[12] * a[1] * a[7] - a[12] * a[3] * a[5];
+  inv[14] = -a[0] * a[5] * a[14] + a[0] * a[6] * a[13] + a[4] * a[1] * a[14] - a[4] * a[2] * a[13] - a[12] * a[1] * a[6] + a[12] * a[2] * a[5];
+  inv[3] = -a[1] * a[6] * a[11] + a[1] * a[7] * a[10] + a[5] * a[2] * a[11] - a[5] * a[3] * a[10] - a[9] * a[2] * a[7] + a[9] * a[3] * a[6];
+  inv[7] = a[0] * a[6] * a[11] - a[0] * a[7] * a[10] - a[4] * a[2] * a[11] + a[4] * a[3] * a[10] + a[8] * a[2] * a[7] - a[8] * a[3] * a[6];
+  inv[11] = -a[0] * a[5] * a[11] + a[0] * a[7] * a[9] + a[4] * a[1] * a[11] - a[4] * a[3] * a[9] - a[8] * a[1] * a[7] + a[8] * a[3] * a[5];
+  inv[15] = a[0] * a[5] * a[10] - a[0] * a[6] * a[9] - a[4] * a[1] * a[10] + a[4] * a[2] * a[9] + a[8] * a[1] * a[6] - a[8] * a[2] * a[5];
+  const det = a[0] * inv[0] + a[1] * inv[4] + a[2] * inv[8] + a[3] * inv[12];
+  return det ? inv.map((v) => v / det) : null;
+}
+
+// The terrain point under a CSS pixel: the pointer's ray marched through the height
+// field (coarse steps, then bisection), or null when it misses the window.
+function pick(cx, cy) {
+  const m = app.mvp, mir = app.mirror, w = app.world;
+  if (!m || !mir || !w) return null;
+  const inv = invert(m);
+  if (!inv) return null;
+  const ndc = [(cx / canvas.clientWidth) * 2 - 1, 1 - (cy / canvas.clientHeight) * 2];
+  const un = (z) => {
+    const c = [0, 1, 2, 3].map((r) => inv[r] * ndc[0] + inv[4 + r] * ndc[1] + inv[8 + r] * z + inv[12 + r]);
+    return [c[0] / c[3], c[1] / c[3], c[2] / c[3]];
+  };
+  const a = un(-1), b = un(1);
+  const at = (t) => [a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, a[2] + (b[2] - a[2]) * t];
+  const inside = (p) => p[0] >= mir.x * w.cell_size_m && p[1] >= mir.y * w.cell_size_m &&
+    p[0] < (mir.x + mir.w) * w.cell_size_m && p[1] < (mir.y + mir.h) * w.cell_size_m;
+  const below = (p) => inside(p) && p[2] <= heightAt(p[0], p[1]);
+  const len = Math.hypot(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
+  const steps = Math.min(20000, Math.ceil(len / (w.cell_size_m * 2)));
+  let prev = 0;
+  for (let k = 1; k <= steps; k++) {
+    const t = k / steps;
+    if (below(at(t))) {
+      let lo = prev, hi = t;
+      for (let r = 0; r < 30; r++) {
+        const mid = (lo + hi) / 2;
+        if (below(at(mid))) hi = mid;
+        else lo = mid;
+      }
+      const p = at(hi);
+      return [p[0], p[1], heightAt(p[0], p[1])];
+    }
+    prev = t;
+  }
+  return null;
+}
 
 function resize() {
   const dpr = window.devicePixelRatio || 1;
@@ -481,29 +706,82 @@ function resize() {
 
 const LIGHT = (() => { const l = [0.45, -0.35, 0.82], n = Math.hypot(...l); return l.map((v) => v / n); })();
 
+// LoD level per chunk from its distance to the eye; windows up to MAX_FULL cells stay at
+// full detail everywhere.
+function chooseLevels(m, w, eye) {
+  const out = [], cell = w.cell_size_m, lod = m.w * m.h > MAX_FULL;
+  for (let cy = 0; cy < m.h; cy += CHUNK)
+    for (let cx = 0; cx < m.w; cx += CHUNK) {
+      let level = 0;
+      if (lod) {
+        const x = (m.x + cx + Math.min(CHUNK, m.w - cx) / 2) * cell, y = (m.y + cy + Math.min(CHUNK, m.h - cy) / 2) * cell;
+        const d = Math.hypot(x - eye[0], y - eye[1], heightAt(x, y) - eye[2]);
+        level = Math.max(0, Math.min(LOD_LEVELS - 1, Math.floor(Math.log2(d / (LOD_DIST * CHUNK * cell)))));
+      }
+      out.push({ x: cx, y: cy, level });
+    }
+  return out;
+}
+
+// [colour, drawable] per collider: the page's own (local pose, highlighted), then the
+// COLLIDERS frame's others and demo actors.
+const COLOURS = { own: [0.9, 0.2, 0.25], other: [0.25, 0.55, 0.95], demo: [0.55, 0.62, 0.5] };
+function drawables() {
+  const list = [], o = app.own;
+  if (o && o.id) list.push({ colour: COLOURS.own, kind: P.ColliderKind.SPHERE, dims: [o.radius, 0, 0], p: [o.x, o.y, o.z], q: [1, 0, 0, 0] });
+  for (const c of app.colliders) {
+    if (o && c.id === o.id) continue;
+    list.push({ ...c, colour: c.owner === P.Owner.OWN ? COLOURS.own : c.owner === P.Owner.OTHER ? COLOURS.other : COLOURS.demo });
+  }
+  return list;
+}
+
+function drawShape(mesh, pos, scale, q, colour) {
+  gl.uniform3fv(shape.u.uPos, pos);
+  gl.uniform3fv(shape.u.uScale, scale);
+  gl.uniform4fv(shape.u.uQ, q);
+  gl.uniform3fv(shape.u.uColor, colour);
+  gl.bindVertexArray(mesh.vao);
+  gl.drawElements(gl.TRIANGLES, mesh.count, gl.UNSIGNED_SHORT, 0);
+}
+
+function drawCollider(c) {
+  const K = P.ColliderKind, S = gpu.shapes, [a, b, d] = c.dims;
+  const qn = Math.hypot(...c.q) || 1, q = c.q.map((v) => v / qn);
+  if (c.kind === K.SPHERE) drawShape(S.sphere, c.p, [a, a, a], q, c.colour);
+  else if (c.kind === K.BOX || c.kind === K.MESH) drawShape(S.box, c.p, [a, b, d], q, c.colour);
+  else {
+    drawShape(S.cylinder, c.p, [a, b, a], q, c.colour);
+    if (c.kind === K.CAPSULE) // hemispheres at both ends of the axis (the entry's y)
+      for (const s of [-1, 1]) {
+        const [qw, qx, qy, qz] = q, y = s * b; // rotate (0, y, 0) by q
+        const off = [2 * (qx * qy - qw * qz) * y, (1 - 2 * (qx * qx + qz * qz)) * y, 2 * (qy * qz + qw * qx) * y];
+        drawShape(S.sphere, [c.p[0] + off[0], c.p[1] + off[1], c.p[2] + off[2]], [a, a, a], q, c.colour);
+      }
+  }
+}
+
 function draw() {
   resize();
   gl.viewport(0, 0, canvas.width, canvas.height);
-  gl.clearColor(0.114, 0.129, 0.161, 1);
+  gl.clearColor(...app.background, 1);
   gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
   const m = app.mirror, w = app.world;
   if (!m || !w) return;
   if (app.meshDirty) {
     rebuildMesh(m);
     app.meshDirty = false;
-  }
-  if (app.dirty) {
-    uploadTexture(gpu.texH, m.heights, m.w, m.h, w.units_per_m);
-    app.dirty = false;
-  }
+  } else if (app.dirty) uploadDirty(m);
+  app.dirty = false;
   const extent = Math.max(m.w, m.h) * w.cell_size_m;
-  if (!cam.dist) cam.dist = extent * 1.25;
+  if (!cam.dist) cam.dist = Math.min(extent, 512 * w.cell_size_m) * 1.25;
   cam.maxDist = extent * 4;
   const tz = heightAt(app.target[0], app.target[1]);
   const t = [app.target[0], app.target[1], tz];
   const e = [t[0] + cam.dist * Math.cos(cam.pitch) * Math.cos(cam.yaw), t[1] + cam.dist * Math.cos(cam.pitch) * Math.sin(cam.yaw), t[2] + cam.dist * Math.sin(cam.pitch)];
-  const mvp = mul(perspective(0.8, canvas.width / canvas.height, cam.dist * 0.01, cam.dist * 10), lookAt(e, t, [0, 0, 1]));
+  const mvp = mul(perspective(0.8, canvas.width / canvas.height, cam.dist * 0.01, cam.dist * 10 + extent), lookAt(e, t, [0, 0, 1]));
   app.mvp = mvp;
+  app.eye = e;
   gl.enable(gl.DEPTH_TEST);
   gl.useProgram(terrain.p);
   gl.uniformMatrix4fv(terrain.u.uMVP, false, mvp);
@@ -512,6 +790,7 @@ function draw() {
   gl.uniform1f(terrain.u.uCell, w.cell_size_m);
   gl.uniform3fv(terrain.u.uLight, LIGHT);
   gl.uniform1f(terrain.u.uScale, 0.04);
+  gl.uniform1f(terrain.u.uSkirt, gpu.skirt);
   gl.activeTexture(gl.TEXTURE0);
   gl.bindTexture(gl.TEXTURE_2D, gpu.texH);
   gl.uniform1i(terrain.u.uH, 0);
@@ -519,18 +798,19 @@ function draw() {
   gl.bindTexture(gl.TEXTURE_2D, gpu.texB);
   gl.uniform1i(terrain.u.uB, 1);
   gl.bindVertexArray(gpu.vao);
-  gl.drawElements(gl.TRIANGLES, gpu.count, gl.UNSIGNED_INT, 0);
-  const o = app.own;
-  if (o && o.id) {
-    gl.useProgram(shape.p);
-    gl.uniformMatrix4fv(shape.u.uMVP, false, mvp);
-    gl.uniform3f(shape.u.uC, o.x, o.y, o.z);
-    gl.uniform1f(shape.u.uR, o.radius);
-    gl.uniform3fv(shape.u.uLight, LIGHT);
-    gl.uniform3f(shape.u.uColor, 0.85, 0.2, 0.25);
-    gl.bindVertexArray(gpu.sphere);
-    gl.drawElements(gl.TRIANGLES, gpu.sphereCount, gl.UNSIGNED_SHORT, 0);
+  app.chunks = chooseLevels(m, w, e);
+  for (const c of app.chunks) {
+    const lv = gpu.levels[c.level];
+    gl.uniform2i(terrain.u.uChunk, c.x, c.y);
+    gl.uniform1i(terrain.u.uStep, 1 << c.level);
+    gl.uniform1i(terrain.u.uN, (CHUNK >> c.level) + 1);
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, lv.ibo);
+    gl.drawElements(gl.TRIANGLES, app.skirts ? lv.count : lv.gridCount, gl.UNSIGNED_INT, 0);
   }
+  gl.useProgram(shape.p);
+  gl.uniformMatrix4fv(shape.u.uMVP, false, mvp);
+  gl.uniform3fv(shape.u.uLight, LIGHT);
+  for (const c of drawables()) drawCollider(c);
   gl.bindVertexArray(null);
   app.framesDrawn++;
 }
@@ -540,14 +820,16 @@ function frame(now) {
   const dt = Math.min(0.1, (now - last) / 1000);
   last = now;
   keyDrive(dt);
+  dragDrive(dt);
   sendPoses(now);
   // Draw only when something changed: software GL is slow, keep the main thread free.
   const o = app.own, sig = [canvas.clientWidth, canvas.clientHeight, devicePixelRatio, cam.yaw, cam.pitch, cam.dist,
-    ...(app.target || []), o ? o.x + o.y + o.z + o.id : 0, app.mirror ? app.mirror.x + app.mirror.w : -1].join();
-  const need = app.dirty || app.meshDirty || sig !== app.lastSig || now - (app.lastDraw || 0) > 1000;
+    ...(app.target || []), o ? o.x + o.y + o.z + o.id : 0, app.mirror ? app.mirror.x + app.mirror.w : -1, app.skirts, ...app.background].join();
+  const need = app.dirty || app.meshDirty || app.collidersChanged || sig !== app.lastSig || now - (app.lastDraw || 0) > 1000;
   if (gl && need) {
     app.lastSig = sig;
     app.lastDraw = now;
+    app.collidersChanged = false;
     try {
       draw();
     } catch (e) {
@@ -603,9 +885,29 @@ window.terrad = {
   get collider() { return app.own ? { ...app.own } : null; },
   get world() { return app.world; },
   get wsUrl() { return wsUrl; },
+  // the latest COLLIDERS frame: [{id, owner (0 own, 1 other, 2 demo), kind, dims, p, q}]
+  get colliders() { return app.colliders.map((c) => ({ ...c })); },
+  // the chunks drawn last frame: [{x, y (window cells), level (LoD, step 2^level)}]
+  get chunks() { return app.chunks.map((c) => ({ ...c })); },
+  get camera() { return { ...cam, target: app.target ? [...app.target] : null, eye: app.eye ? [...app.eye] : null }; },
+  get dragTarget() { return app.dragTarget ? [...app.dragTarget] : null; },
+  // test hooks: camera, background colour, skirts on/off (off shows the cracks they hide)
+  setCamera({ yaw, pitch, dist, target } = {}) {
+    if (yaw !== undefined) cam.yaw = yaw;
+    if (pitch !== undefined) cam.pitch = pitch;
+    if (dist !== undefined) cam.dist = dist;
+    if (target) {
+      app.target = [target[0], target[1], 0];
+      followCamera(false);
+    }
+  },
+  setBackground(rgb) { app.background = rgb.slice(0, 3); },
+  setSkirts(on) { app.skirts = !!on; },
+  pick,
   createCollider,
   drive,
   lift() { if (app.own) app.own.lifted = true; },
+  lower() { if (app.own) app.own.lifted = false; },
   // CSS pixel position of a world point (z defaults to the terrain there)
   project(x, y, z) {
     const m = app.mvp;

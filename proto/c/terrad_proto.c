@@ -86,6 +86,8 @@ const char *terrad_msg_type_name(int type)
         return "CONTACT";
     case TERRAD_MSG_ACK:
         return "ACK";
+    case TERRAD_MSG_COLLIDERS:
+        return "COLLIDERS";
     default:
         return NULL;
     }
@@ -499,6 +501,102 @@ int terrad_contact_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
         if (contact_check(&c))
             return TERRAD_E_BAD_VALUE;
         contacts[i] = c;
+    }
+    if (tick_out)
+        *tick_out = tick;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+/* ---- COLLIDERS ----------------------------------------------------------- */
+
+static int collider_state_check(const terrad_collider_state *c)
+{
+    const float v[10] = {c->dims[0], c->dims[1], c->dims[2], c->p[0], c->p[1],
+                         c->p[2],    c->q[0],    c->q[1],    c->q[2], c->q[3]};
+    if (!finite_all(v, 10))
+        return TERRAD_E_BAD_VALUE;
+    if (c->owner > TERRAD_OWNER_DEMO || c->kind > TERRAD_KIND_LAST)
+        return TERRAD_E_BAD_VALUE;
+    if (c->dims[0] < 0.0f || c->dims[1] < 0.0f || c->dims[2] < 0.0f)
+        return TERRAD_E_BAD_VALUE;
+    double n = 0;
+    for (int k = 0; k < 4; k++)
+        n += (double)c->q[k] * (double)c->q[k];
+    if (n < 0.81 || n > 1.21)
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+size_t terrad_colliders_size(size_t count)
+{
+    return TERRAD_COLLIDERS_FIXED + count * TERRAD_COLLIDER_STATE_SIZE;
+}
+
+int terrad_colliders_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                            const terrad_collider_state *states, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (collider_state_check(&states[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_colliders_size(count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_COLLIDERS);
+    p = wr_u64(p, tick);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        const terrad_collider_state *c = &states[i];
+        p = wr_u32(p, c->id);
+        p = wr_u8(p, c->owner);
+        p = wr_u8(p, c->kind);
+        p = wr_u16(p, 0);
+        for (int k = 0; k < 3; k++)
+            p = wr_f32(p, c->dims[k]);
+        for (int k = 0; k < 3; k++)
+            p = wr_f32(p, c->p[k]);
+        for (int k = 0; k < 4; k++)
+            p = wr_f32(p, c->q[k]);
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                            terrad_collider_state *states, size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_COLLIDERS, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 10)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * TERRAD_COLLIDER_STATE_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_collider_state c;
+        c.id = rd_u32(&r);
+        c.owner = rd_u8(&r);
+        c.kind = rd_u8(&r);
+        if (rd_u16(&r) != 0) /* reserved */
+            return TERRAD_E_BAD_VALUE;
+        for (int k = 0; k < 3; k++)
+            c.dims[k] = rd_f32(&r);
+        for (int k = 0; k < 3; k++)
+            c.p[k] = rd_f32(&r);
+        for (int k = 0; k < 4; k++)
+            c.q[k] = rd_f32(&r);
+        if (collider_state_check(&c))
+            return TERRAD_E_BAD_VALUE;
+        states[i] = c;
     }
     if (tick_out)
         *tick_out = tick;

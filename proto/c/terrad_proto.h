@@ -37,15 +37,17 @@ extern "C" {
 
 /* Fixed sizes in bytes (PROTOCOL.md, "Binary frames"). */
 #define TERRAD_HEADER_SIZE 4
-#define TERRAD_POSE_BATCH_FIXED 10 /* header, u32 seq, u16 count */
-#define TERRAD_POSE_SIZE 32        /* u32 id, 7 x f32 */
-#define TERRAD_DELTA_FIXED 14      /* header, u64 tick, u16 count */
-#define TERRAD_RECT_FIXED 25       /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
-#define TERRAD_CONTACT_FIXED 14    /* header, u64 tick, u16 count */
-#define TERRAD_CONTACT_SIZE 48     /* u32 id, i64 volume, u32 cells, 8 x f32 */
-#define TERRAD_ACK_SIZE 16         /* header, u64 tick, u32 seq */
-#define TERRAD_PING_SIZE 12        /* header, u64 nonce */
-#define TERRAD_MAX_COUNT 65535     /* every count on the wire is a u16 */
+#define TERRAD_POSE_BATCH_FIXED 10    /* header, u32 seq, u16 count */
+#define TERRAD_POSE_SIZE 32           /* u32 id, 7 x f32 */
+#define TERRAD_DELTA_FIXED 14         /* header, u64 tick, u16 count */
+#define TERRAD_RECT_FIXED 25          /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
+#define TERRAD_CONTACT_FIXED 14       /* header, u64 tick, u16 count */
+#define TERRAD_CONTACT_SIZE 48        /* u32 id, i64 volume, u32 cells, 8 x f32 */
+#define TERRAD_ACK_SIZE 16            /* header, u64 tick, u32 seq */
+#define TERRAD_PING_SIZE 12           /* header, u64 nonce */
+#define TERRAD_COLLIDERS_FIXED 14     /* header, u64 tick, u16 count */
+#define TERRAD_COLLIDER_STATE_SIZE 48 /* u32 id, u8 owner, u8 shape, u16 0, 10 x f32 */
+#define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
     TERRAD_MSG_POSE_BATCH = 0x01, /* client -> server */
@@ -54,6 +56,7 @@ typedef enum terrad_msg_type {
     TERRAD_MSG_DELTA = 0x10,      /* server -> client */
     TERRAD_MSG_CONTACT = 0x11,    /* server -> client */
     TERRAD_MSG_ACK = 0x12,        /* server -> client */
+    TERRAD_MSG_COLLIDERS = 0x13,  /* server -> client */
 } terrad_msg_type;
 
 /* Error codes: positive values are the protocol's (PROTOCOL.md, "Errors"),
@@ -166,6 +169,40 @@ int terrad_contact_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t ti
                           const terrad_contact *contacts, size_t count);
 int terrad_contact_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                           terrad_contact *contacts, size_t cap, size_t *count_out);
+
+/* ---- COLLIDERS ----------------------------------------------------------- */
+
+/* Whose collider an entry is, seen from the receiving client. */
+typedef enum terrad_collider_owner {
+    TERRAD_OWNER_OWN = 0,   /* created by the receiving client */
+    TERRAD_OWNER_OTHER = 1, /* another client's */
+    TERRAD_OWNER_DEMO = 2,  /* driven by the daemon itself (demo actors) */
+} terrad_collider_owner;
+
+/* Shape kinds as drawn; capsule and cylinder axes lie along the entry's y axis. */
+typedef enum terrad_collider_kind {
+    TERRAD_KIND_SPHERE = 0,   /* dims: radius, 0, 0 */
+    TERRAD_KIND_BOX = 1,      /* dims: half extents x, y, z */
+    TERRAD_KIND_CAPSULE = 2,  /* dims: radius, half_length, 0 */
+    TERRAD_KIND_CYLINDER = 3, /* dims: radius, half_length, 0 (wheels too) */
+    TERRAD_KIND_MESH = 4,     /* dims: half extents of the mesh's origin-centred bounding box */
+} terrad_collider_kind;
+#define TERRAD_KIND_LAST 4
+
+typedef struct terrad_collider_state {
+    uint32_t id;
+    uint8_t owner; /* terrad_collider_owner */
+    uint8_t kind;  /* terrad_collider_kind */
+    float dims[3]; /* metres, >= 0, finite; see terrad_collider_kind */
+    float p[3];    /* position, metres, world frame */
+    float q[4];    /* qw, qx, qy, qz: entry axes to world axes, |q| in [0.9, 1.1] */
+} terrad_collider_state;
+
+size_t terrad_colliders_size(size_t count);
+int terrad_colliders_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                            const terrad_collider_state *states, size_t count);
+int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                            terrad_collider_state *states, size_t cap, size_t *count_out);
 
 /* ---- ACK, PING, PONG ----------------------------------------------------- */
 

@@ -47,6 +47,7 @@ RECT_FIXED = 25
 CONTACT_SIZE = 48
 ACK_SIZE = 16
 PING_SIZE = 12
+COLLIDER_STATE_SIZE = 48
 MAX_COUNT = 65535
 ZSTD_LEVEL = 3
 
@@ -58,6 +59,7 @@ class MsgType(IntEnum):
     DELTA = 0x10
     CONTACT = 0x11
     ACK = 0x12
+    COLLIDERS = 0x13
 
 
 class Encoding(IntEnum):
@@ -145,6 +147,18 @@ class Contact:
     deepest: tuple
     normal: tuple
     support_height_m: float
+
+
+@dataclass
+class ColliderState:
+    """One COLLIDERS entry: owner 0 own / 1 other / 2 demo; kind 0 sphere, 1 box,
+    2 capsule, 3 cylinder, 4 mesh bounds; dims, p (x, y, z), q (qw, qx, qy, qz)."""
+    id: int
+    owner: int
+    kind: int
+    dims: tuple
+    p: tuple
+    q: tuple
 
 
 # ---- helpers -----------------------------------------------------------------
@@ -333,6 +347,53 @@ def decode_contact(buf: bytes, max_contacts: int = MAX_COUNT) -> tuple[int, list
     return tick, out
 
 
+# ---- COLLIDERS -------------------------------------------------------------------------
+
+_COLLIDER_STATE = struct.Struct("<IBBH10f")
+
+
+def _check_collider_state(cid, owner, kind, f) -> None:
+    if owner > 2:
+        raise ProtoError("bad_value", f"collider {cid}: owner {owner}")
+    if kind > 4:
+        raise ProtoError("bad_value", f"collider {cid}: kind {kind}")
+    if not all(math.isfinite(a) for a in f):
+        raise ProtoError("bad_value", f"collider {cid} is not finite")
+    if min(f[0:3]) < 0:
+        raise ProtoError("bad_value", f"collider {cid}: negative dimension")
+    _check_quaternion(*f[6:10])
+
+
+def encode_colliders(tick: int, states: list[ColliderState]) -> bytes:
+    if len(states) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(states)} colliders")
+    out = [_header(MsgType.COLLIDERS), struct.pack("<QH", tick, len(states))]
+    for c in states:
+        f = [_f32(a) for a in (*c.dims, *c.p, *c.q)]
+        _check_collider_state(c.id, c.owner, c.kind, f)
+        out.append(_COLLIDER_STATE.pack(c.id, c.owner, c.kind, 0, *f))
+    return b"".join(out)
+
+
+def decode_colliders(buf: bytes, max_colliders: int = MAX_COUNT) -> tuple[int, list[ColliderState]]:
+    _expect(buf, MsgType.COLLIDERS)
+    if len(buf) < 14:
+        raise ProtoError("bad_frame", "truncated")
+    tick, count = struct.unpack_from("<QH", buf, 4)
+    if len(buf) - 14 != count * COLLIDER_STATE_SIZE:
+        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
+    if count > max_colliders:
+        raise ProtoError("too_large", f"{count} colliders")
+    out = []
+    for i in range(count):
+        cid, owner, kind, reserved, *f = _COLLIDER_STATE.unpack_from(buf, 14 + i * COLLIDER_STATE_SIZE)
+        if reserved != 0:
+            raise ProtoError("bad_value", f"collider {cid}: reserved bytes set")
+        _check_collider_state(cid, owner, kind, f)
+        out.append(ColliderState(cid, owner, kind, tuple(f[0:3]), tuple(f[3:6]), tuple(f[6:10])))
+    return tick, out
+
+
 def encode_ack(tick: int, seq: int) -> bytes:
     return _header(MsgType.ACK) + struct.pack("<QI", tick, seq)
 
@@ -368,6 +429,8 @@ def decode(buf: bytes):
         return t, decode_contact(buf)
     if t == MsgType.ACK:
         return t, decode_ack(buf)
+    if t == MsgType.COLLIDERS:
+        return t, decode_colliders(buf)
     return t, decode_ping(buf)[1]
 
 
@@ -534,8 +597,11 @@ def collider_delete(cid: int, ref=None) -> dict:
     return _with_ref({"type": "collider_delete", "id": cid}, ref)
 
 
-def subscribe(x: int, y: int, w: int, h: int, ref=None) -> dict:
-    return _with_ref({"type": "subscribe", "x": x, "y": y, "w": w, "h": h}, ref)
+def subscribe(x: int, y: int, w: int, h: int, ref=None, colliders: bool = False) -> dict:
+    m = {"type": "subscribe", "x": x, "y": y, "w": w, "h": h}
+    if colliders:
+        m["colliders"] = True
+    return _with_ref(m, ref)
 
 
 def unsubscribe(sid: int, ref=None) -> dict:
@@ -593,6 +659,8 @@ class TerradClient:
         self.world: dict = {}
         self.mirrors: dict[int, Mirror] = {}
         self.contacts: dict[int, Contact] = {}
+        self.colliders: dict[int, ColliderState] = {}  # the latest COLLIDERS frame, by id
+        self.colliders_tick = 0
         self.contact_tick = 0
         self.acked_tick = 0
         self.acked_seq = 0
@@ -663,8 +731,8 @@ class TerradClient:
         await self.ws.send(encode_pose_batch(self._seq, poses))
         return self._seq
 
-    async def subscribe(self, x: int, y: int, w: int, h: int) -> int:
-        got = await self.request(subscribe(x, y, w, h), "subscribed")
+    async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False) -> int:
+        got = await self.request(subscribe(x, y, w, h, colliders=colliders), "subscribed")
         return got["id"]
 
     async def unsubscribe(self, sid: int) -> None:
@@ -728,6 +796,9 @@ class TerradClient:
         elif t == MsgType.CONTACT:
             self.contact_tick, cs = decode_contact(data)
             self.contacts = {c.id: c for c in cs}
+        elif t == MsgType.COLLIDERS:
+            self.colliders_tick, states = decode_colliders(data)
+            self.colliders = {c.id: c for c in states}
         elif t == MsgType.ACK:
             self.acked_tick, self.acked_seq = decode_ack(data)
         elif t == MsgType.PING:

@@ -529,6 +529,76 @@ static void small_vectors(void)
     valid(vector("pong_max", "PONG", "maximum nonce"), f, buf, len);
 }
 
+/* ---- COLLIDERS ---- */
+
+static cJSON *colliders_fields(uint64_t tick, const terrad_collider_state *c, size_t n)
+{
+    cJSON *f = cJSON_CreateObject();
+    add_u64(f, "tick", tick);
+    cJSON *a = cJSON_AddArrayToObject(f, "colliders");
+    for (size_t i = 0; i < n; i++) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddNumberToObject(o, "id", c[i].id);
+        cJSON_AddNumberToObject(o, "owner", c[i].owner);
+        cJSON_AddNumberToObject(o, "kind", c[i].kind);
+        cJSON_AddItemToObject(o, "dims", float_array(c[i].dims, 3));
+        cJSON_AddItemToObject(o, "p", float_array(c[i].p, 3));
+        cJSON_AddItemToObject(o, "q", float_array(c[i].q, 4));
+        cJSON_AddItemToArray(a, o);
+    }
+    return f;
+}
+
+static void colliders_vectors(void)
+{
+    size_t len;
+    ok(terrad_colliders_encode(buf, sizeof buf, &len, 7, NULL, 0), "colliders");
+    valid(vector("colliders_empty", "COLLIDERS", "no collider in view"),
+          colliders_fields(7, NULL, 0), buf, len);
+    terrad_collider_state c[3] = {
+        {5, TERRAD_OWNER_OWN, TERRAD_KIND_SPHERE, {0.3f, 0, 0}, {1.5f, 2.25f, 0.25f}, {1, 0, 0, 0}},
+        {9,
+         TERRAD_OWNER_OTHER,
+         TERRAD_KIND_CYLINDER,
+         {0.35f, 0.125f, 0},
+         {-3.0f, 40.5f, 1.0f},
+         {0.5f, 0.5f, -0.5f, 0.5f}},
+        {0x80000001u,
+         TERRAD_OWNER_DEMO,
+         TERRAD_KIND_BOX,
+         {1.0f, 0.5f, 0.25f},
+         {100.0f, 200.0f, -0.5f},
+         {0.0f, 0.0f, 0.0f, 1.0f}},
+    };
+    ok(terrad_colliders_encode(buf, sizeof buf, &len, 123456789012ull, c, 3), "colliders");
+    valid(vector("colliders_three", "COLLIDERS", "own sphere, another client's wheel, a demo box"),
+          colliders_fields(123456789012ull, c, 3), buf, len);
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    q[14 + 4] = 3; /* first entry's owner */
+    invalid("colliders_bad_owner", "COLLIDERS", "owner 3", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    q[14 + 5] = 5; /* first entry's kind */
+    invalid("colliders_bad_kind", "COLLIDERS", "kind 5", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    q[14 + 6] = 1; /* reserved u16 */
+    invalid("colliders_reserved", "COLLIDERS", "reserved bytes set", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 8 + 4 * 4, NAN); /* first entry's y */
+    invalid("colliders_nan", "COLLIDERS", "position y is NaN", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 8, -0.3f); /* first entry's radius */
+    invalid("colliders_negative_dim", "COLLIDERS", "radius < 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 8 + 24, 2.0f); /* first entry's qw: |q|^2 = 4 */
+    invalid("colliders_quaternion", "COLLIDERS", "|q| = 2", q, len, TERRAD_E_BAD_VALUE);
+    invalid("colliders_truncated", "COLLIDERS", "the last entry cut short", buf, len - 4,
+            TERRAD_E_BAD_FRAME);
+    buf[len] = 0;
+    invalid("colliders_trailing", "COLLIDERS", "a byte after the last entry", buf, len + 1,
+            TERRAD_E_BAD_FRAME);
+}
+
 /* ---- mirror scenarios ---- */
 
 /* World heights of a tiny made-up world, used for snapshots. */
@@ -694,6 +764,7 @@ int main(void)
     pose_vectors();
     delta_vectors();
     small_vectors();
+    colliders_vectors();
     mirror_scenarios();
     char *text = cJSON_Print(root);
     if (!text)

@@ -55,6 +55,7 @@ typedef struct hub_command {
     collider_pose pose;         /* create: initial pose */
     char material[32];          /* create */
     int feedback;               /* create: send CONTACT entries for this collider */
+    int colliders;              /* subscribe: send COLLIDERS frames for this region */
     char ref[64];               /* the client's request reference, echoed in replies */
 } hub_command;
 

@@ -16,7 +16,7 @@
  *     max_pending_bytes ("slow"): its queued deltas are dropped, and once
  *     the queue has drained to half the limit it is sent fresh snapshots
  *     (a HUB_RESYNC); deltas resume after the last snapshot frame;
- *   - CONTACT and ACK frames of a slow client replace their older copies
+ *   - CONTACT, ACK and COLLIDERS frames of a slow client replace their older copies
  *     (each one says everything the older said, for a later tick);
  *   - anything beyond hard_pending_bytes (room for max_pending_bytes, a
  *     whole snapshot of the largest allowed subscription area and a few
@@ -361,7 +361,8 @@ static void dispatch(net_server *s, hub_out *o)
         if (c && o->frame) {
             int status =
                 o->frame->binary && o->frame->len > 2 &&
-                (o->frame->data[2] == TERRAD_MSG_CONTACT || o->frame->data[2] == TERRAD_MSG_ACK);
+                (o->frame->data[2] == TERRAD_MSG_CONTACT || o->frame->data[2] == TERRAD_MSG_ACK ||
+                 o->frame->data[2] == TERRAD_MSG_COLLIDERS);
             if (status && dropping_deltas(c)) {
                 /* An ACK of tick t promises that tick t's deltas came first: while
                  * deltas are dropped for a resync, the tick's ACK and CONTACT go too. */

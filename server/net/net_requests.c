@@ -665,6 +665,11 @@ static void handle_subscribe(const req *r)
         get_int(r, "y", 1, INT32_MIN, INT32_MAX, &y) < 0 ||
         get_int(r, "w", 1, 1, INT32_MAX, &w) < 0 || get_int(r, "h", 1, 1, INT32_MAX, &h) < 0)
         return;
+    const cJSON *colliders = cJSON_GetObjectItemCaseSensitive(r->msg, "colliders");
+    if (colliders && !cJSON_IsBool(colliders)) {
+        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "colliders: must be true or false");
+        return;
+    }
     if (x < 0 || y < 0 || x + w > s->cfg.world.width || y + h > s->cfg.world.height) {
         net_error(c, TERRAD_E_OUTSIDE_WORLD, r->ref, -1, 0,
                   "rectangle x=%lld y=%lld w=%lld h=%lld is not inside the world (%d x %d cells)",
@@ -691,8 +696,11 @@ static void handle_subscribe(const req *r)
     }
     c->subs = grown;
     world_rect rect = {(int)x, (int)y, (int)w, (int)h};
-    hub_command cmd = {
-        .kind = HUB_SUBSCRIBE, .client = c->id, .subscription = c->next_sub_id, .rect = rect};
+    hub_command cmd = {.kind = HUB_SUBSCRIBE,
+                       .client = c->id,
+                       .subscription = c->next_sub_id,
+                       .rect = rect,
+                       .colliders = colliders ? cJSON_IsTrue(colliders) : 0};
     ref_text(r->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(s, &cmd) != 0) {
         net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,

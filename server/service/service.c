@@ -22,10 +22,16 @@
 /* A frame never grows past the protocol's max_message_bytes. */
 #define SERVICE_FRAME_MAX (1024 * 1024)
 #define SERVICE_COMMANDS_PER_TICK 1024
+/* COLLIDERS frames: at most one every this many ticks (20 Hz at 60 Hz), and
+ * an unchanged list again after COLLIDERS_REFRESH_TICKS, which heals a frame
+ * the network dropped for a slow client. */
+#define COLLIDERS_EVERY_TICKS 3
+#define COLLIDERS_REFRESH_TICKS 60
 
 typedef struct svc_subscription {
     uint32_t id;
     world_rect rect;
+    int colliders; /* asked for COLLIDERS frames */
 } svc_subscription;
 
 typedef struct svc_client {
@@ -34,6 +40,8 @@ typedef struct svc_client {
     int sequence_pending; /* a batch was used since the last ACK */
     svc_subscription *subs;
     int sub_count, sub_capacity;
+    uint64_t colliders_hash;      /* of the last COLLIDERS frame sent, 0: none yet */
+    uint64_t colliders_sent_tick; /* when it was sent */
 } svc_client;
 
 typedef struct svc_collider {
@@ -100,6 +108,8 @@ struct service {
     double oldest_pose_ms; /* earliest arrival among this tick's poses, 0 if none */
     int32_t *bottom;       /* contact scratch */
     int64_t bottom_cap;
+    terrad_collider_state *states; /* COLLIDERS scratch */
+    int state_capacity;
 };
 
 static int grow_array(void **p, int *capacity, int needed, size_t elem)
@@ -183,6 +193,7 @@ void service_destroy(service *s)
     free(s->values);
     free(s->packed);
     free(s->bottom);
+    free(s->states);
     free(s);
 }
 
@@ -340,7 +351,9 @@ static void apply_command(service *s, hub_command *c)
     case HUB_SUBSCRIBE: {
         /* the net thread pauses nothing for a subscribe, but it counts one
          * snapshot mark per request: send it even when there is nothing */
-        svc_subscription sub = {c->subscription, c->rect};
+        svc_subscription sub = {c->subscription, c->rect, c->colliders};
+        if (cl && c->colliders)
+            cl->colliders_hash = 0; /* a new region: send the list at the next chance */
         if (cl && grow_array((void **)&cl->subs, &cl->sub_capacity, cl->sub_count + 1,
                              sizeof *cl->subs) == 0)
             cl->subs[cl->sub_count++] = sub;
@@ -362,9 +375,9 @@ static void apply_command(service *s, hub_command *c)
         if (c->subscription == 0) {
             queue_snapshots(s, cl->id, cl->subs, cl->sub_count);
             if (cl->sub_count == 0) /* nothing to send, but the client waits for the mark */
-                queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}}, 1);
+                queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}, 0}, 1);
         } else {
-            svc_subscription sub = {c->subscription, {0, 0, 0, 0}};
+            svc_subscription sub = {c->subscription, {0, 0, 0, 0}, 0};
             for (int i = 0; i < cl->sub_count; i++)
                 if (cl->subs[i].id == c->subscription)
                     sub = cl->subs[i];
@@ -753,6 +766,137 @@ static void publish_feedback(service *s)
     }
 }
 
+/* ---- COLLIDERS: where every collider is, for the viewer ---- */
+
+/* The drawable description of a collider, in the sim's frame (capsule and
+ * cylinder axes along y, as PROTOCOL.md's COLLIDERS says). */
+static terrad_collider_state collider_state(const collider_geometry *g, collider_pose pose,
+                                            uint32_t id, uint8_t owner)
+{
+    terrad_collider_state st = {.id = id, .owner = owner};
+    switch (g->shape) {
+    case COLLIDER_SPHERE:
+        st.kind = TERRAD_KIND_SPHERE;
+        st.dims[0] = (float)g->radius;
+        break;
+    case COLLIDER_BOX:
+        st.kind = TERRAD_KIND_BOX;
+        st.dims[0] = (float)g->half_extents.x;
+        st.dims[1] = (float)g->half_extents.y;
+        st.dims[2] = (float)g->half_extents.z;
+        break;
+    case COLLIDER_CAPSULE:
+    case COLLIDER_CYLINDER:
+        st.kind = g->shape == COLLIDER_CAPSULE ? TERRAD_KIND_CAPSULE : TERRAD_KIND_CYLINDER;
+        st.dims[0] = (float)g->radius;
+        st.dims[1] = (float)g->half_length;
+        break;
+    case COLLIDER_MESH:
+        st.kind = TERRAD_KIND_MESH;
+        for (int v = 0; g->mesh && v < g->mesh->vertex_count; v++)
+            for (int k = 0; k < 3; k++) {
+                float a = fabsf(g->mesh->vertices[3 * v + k]);
+                if (a > st.dims[k])
+                    st.dims[k] = a;
+            }
+        break;
+    }
+    st.p[0] = (float)pose.position.x;
+    st.p[1] = (float)pose.position.y;
+    st.p[2] = (float)pose.position.z;
+    quatd q = quat_normalize(pose.orientation);
+    st.q[0] = (float)q.w;
+    st.q[1] = (float)q.x;
+    st.q[2] = (float)q.y;
+    st.q[3] = (float)q.z;
+    return st;
+}
+
+/* Does the collider's footprint meet one of the client's collider-subscriptions? */
+static int collider_in_view(const service *s, const svc_client *cl, const collider_geometry *g,
+                            collider_pose pose)
+{
+    vec3d lo, hi;
+    collider_bounds(g, pose, &lo, &hi);
+    double cs = s->world->cell_size_m;
+    double x0 = floor(lo.x / cs), y0 = floor(lo.y / cs), x1 = floor(hi.x / cs),
+           y1 = floor(hi.y / cs);
+    for (int i = 0; i < cl->sub_count; i++) {
+        const world_rect r = cl->subs[i].rect;
+        if (cl->subs[i].colliders && x1 >= r.x && x0 < (double)r.x + r.w && y1 >= r.y &&
+            y0 < (double)r.y + r.h)
+            return 1;
+    }
+    return 0;
+}
+
+static int push_state(service *s, int *n, terrad_collider_state st)
+{
+    if (*n >= TERRAD_MAX_COUNT ||
+        grow_array((void **)&s->states, &s->state_capacity, *n + 1, sizeof *s->states) != 0)
+        return -1;
+    s->states[(*n)++] = st;
+    return 0;
+}
+
+/* FNV-1a over the encoded entries: "did anything change since the last frame". */
+static uint64_t states_hash(const uint8_t *p, size_t len)
+{
+    uint64_t h = 1469598103934665603ull;
+    for (size_t i = 0; i < len; i++)
+        h = (h ^ p[i]) * 1099511628211ull;
+    return h | 1; /* never 0: 0 means "nothing sent yet" */
+}
+
+/* Per client that asked for it: the colliders meeting its regions, when the
+ * list changed (at most every COLLIDERS_EVERY_TICKS ticks) or has not been
+ * sent for COLLIDERS_REFRESH_TICKS. */
+static void publish_colliders(service *s, const sim_collider *extra, int extra_count)
+{
+    for (int c = 0; c < s->client_count; c++) {
+        svc_client *cl = &s->clients[c];
+        int wants = 0;
+        for (int i = 0; i < cl->sub_count; i++)
+            wants |= cl->subs[i].colliders;
+        if (!wants)
+            continue;
+        uint64_t since = s->tick - cl->colliders_sent_tick;
+        if (cl->colliders_hash != 0 && since < COLLIDERS_EVERY_TICKS)
+            continue;
+        int n = 0;
+        for (int i = 0; i < s->collider_count; i++) {
+            const svc_collider *k = &s->colliders[i];
+            if (k->has_pose && collider_in_view(s, cl, k->geometry, k->pose))
+                push_state(
+                    s, &n,
+                    collider_state(k->geometry, k->pose, k->id,
+                                   k->client == cl->id ? TERRAD_OWNER_OWN : TERRAD_OWNER_OTHER));
+        }
+        for (int i = 0; i < extra_count; i++)
+            if (collider_in_view(s, cl, extra[i].geometry, extra[i].pose))
+                push_state(s, &n,
+                           collider_state(extra[i].geometry, extra[i].pose, (uint32_t)extra[i].id,
+                                          TERRAD_OWNER_DEMO));
+        size_t size = terrad_colliders_size((size_t)n);
+        hub_frame *f = hub_frame_new(1, size);
+        if (!f)
+            continue;
+        if (terrad_colliders_encode(f->data, size, &f->len, s->tick, s->states, (size_t)n) != 0) {
+            hub_frame_unref(f);
+            continue;
+        }
+        uint64_t h = states_hash(f->data + TERRAD_COLLIDERS_FIXED, f->len - TERRAD_COLLIDERS_FIXED);
+        if (h == cl->colliders_hash && since < COLLIDERS_REFRESH_TICKS) {
+            hub_frame_unref(f);
+            continue;
+        }
+        cl->colliders_hash = h;
+        cl->colliders_sent_tick = s->tick;
+        queue_out(s,
+                  (hub_out){.kind = HUB_OUT_CLIENT, .client = cl->id, .tick = s->tick, .frame = f});
+    }
+}
+
 int service_tick(service *s, const sim_collider *extra, int extra_count, service_tick_stats *stats,
                  error_text *err)
 {
@@ -807,6 +951,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
         publish_deltas(s, stats);
     contacts_after_tick(s);
     publish_feedback(s);
+    publish_colliders(s, extra, extra_count);
     for (int i = 0; i < s->snapshot_count; i++)
         publish_snapshot(s, &s->snapshots[i]);
     s->snapshot_count = 0;

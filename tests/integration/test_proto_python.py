@@ -72,6 +72,8 @@ def decode_any(t, b):
         return tp.decode_contact(b)
     if t == "ACK":
         return tp.decode_ack(b)
+    if t == "COLLIDERS":
+        return tp.decode_colliders(b)
     return tp.decode_ping(b)
 
 
@@ -118,6 +120,13 @@ def check_valid(v):
                                 tuple(map(f32, c.normal)), f32(c.support_height_m)) for c in want],
               f"{name}: contacts")
         check(tp.encode_contact(int(f["tick"]), want) == b, f"{name}: encode")
+    elif t == "COLLIDERS":
+        tick, cs = tp.decode_colliders(b)
+        want = [tp.ColliderState(c["id"], c["owner"], c["kind"], tuple(map(f32, c["dims"])), tuple(map(f32, c["p"])),
+                                 tuple(map(f32, c["q"]))) for c in f["colliders"]]
+        check(tick == int(f["tick"]), f"{name}: tick")
+        check(cs == want, f"{name}: colliders")
+        check(tp.encode_colliders(int(f["tick"]), want) == b, f"{name}: encode")
     elif t == "ACK":
         check(tp.decode_ack(b) == (int(f["tick"]), f["seq"]), f"{name}: decode")
         check(tp.encode_ack(int(f["tick"]), f["seq"]) == b, f"{name}: encode")

@@ -264,6 +264,54 @@ static void check_contact(const char *name, const cJSON *f, const uint8_t *b, si
     CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
 }
 
+static void check_colliders(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_collider_state cs[16];
+    uint64_t tick;
+    size_t count;
+    int rc = terrad_colliders_decode(b, n, &tick, cs, 16, &count);
+    CHECK(rc == 0, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    const cJSON *a = get(f, "colliders");
+    CHECK(tick == u64(f, "tick"), "%s: tick", name);
+    CHECK(count == (size_t)cJSON_GetArraySize(a), "%s: count", name);
+    terrad_collider_state want[16];
+    size_t i = 0;
+    const cJSON *c;
+    cJSON_ArrayForEach(c, a)
+    {
+        if (i >= 16)
+            break;
+        terrad_collider_state w;
+        memset(&w, 0, sizeof w);
+        w.id = (uint32_t)num(c, "id");
+        w.owner = (uint8_t)num(c, "owner");
+        w.kind = (uint8_t)num(c, "kind");
+        for (int k = 0; k < 3; k++) {
+            w.dims[k] = (float)cJSON_GetArrayItem(get(c, "dims"), k)->valuedouble;
+            w.p[k] = (float)cJSON_GetArrayItem(get(c, "p"), k)->valuedouble;
+        }
+        for (int k = 0; k < 4; k++)
+            w.q[k] = (float)cJSON_GetArrayItem(get(c, "q"), k)->valuedouble;
+        want[i] = w;
+        if (i < count) {
+            const terrad_collider_state *g = &cs[i];
+            int same = g->id == w.id && g->owner == w.owner && g->kind == w.kind;
+            for (int k = 0; k < 3; k++)
+                same = same && g->dims[k] == w.dims[k] && g->p[k] == w.p[k];
+            for (int k = 0; k < 4; k++)
+                same = same && g->q[k] == w.q[k];
+            CHECK(same, "%s: collider %zu", name, i);
+        }
+        i++;
+    }
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_colliders_encode(out, sizeof out, &len, tick, want, i);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
                         size_t n)
 {
@@ -321,6 +369,12 @@ static int decode_any(const char *type, const uint8_t *b, size_t n)
         uint32_t seq;
         return terrad_ack_decode(b, n, &tick, &seq);
     }
+    if (strcmp(type, "COLLIDERS") == 0) {
+        terrad_collider_state cs[16];
+        uint64_t tick;
+        size_t count;
+        return terrad_colliders_decode(b, n, &tick, cs, 16, &count);
+    }
     uint8_t t;
     uint64_t nonce;
     return terrad_ping_decode(b, n, &t, &nonce);
@@ -359,6 +413,8 @@ static void check_vectors(const cJSON *root)
                 check_delta(name, f, b, n);
             else if (strcmp(type, "CONTACT") == 0)
                 check_contact(name, f, b, n);
+            else if (strcmp(type, "COLLIDERS") == 0)
+                check_colliders(name, f, b, n);
             else
                 check_small(name, type, f, b, n);
             /* Every proper prefix of a valid frame is refused. */

@@ -21,6 +21,7 @@ const decoders = {
     return d;
   },
   CONTACT: C.decodeContact,
+  COLLIDERS: C.decodeColliders,
   ACK: C.decodeAck,
   PING: C.decodePing,
   PONG: C.decodePing,
@@ -75,6 +76,11 @@ for (const v of V.vectors) {
         assert.deepEqual(d.contacts.map((c) => ({ ...c, volume: String(c.volume) })), f.contacts.map((c) => ({
           ...c, area_m2: Math.fround(c.area_m2), deepest: c.deepest.map(Math.fround), normal: c.normal.map(Math.fround),
           support_height_m: Math.fround(c.support_height_m) })));
+        break;
+      case 'COLLIDERS':
+        assert.equal(String(d.tick), f.tick);
+        assert.deepEqual(d.colliders, f.colliders.map((c) => ({
+          id: c.id, owner: c.owner, kind: c.kind, dims: c.dims.map(Math.fround), p: c.p.map(Math.fround), q: c.q.map(Math.fround) })));
         break;
       case 'ACK':
         assert.equal(String(d.tick), f.tick);

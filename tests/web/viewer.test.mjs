@@ -1,8 +1,12 @@
 // The viewer in real headless Chromium (playwright-core, /usr/bin/chromium, a fresh
 // profile) against the real daemon on loopback (issue 4): it draws the terrain, a
 // collider driven through the page leaves a trail that the canvas shows and the page's
-// heights equal GET /v1/heights bit for bit, and a daemon restarted under the page is
-// shown, reconnected to and resynchronised from. Writes test-artifacts/viewer.png.
+// heights equal GET /v1/heights bit for bit; another client's collider arrives in
+// COLLIDERS frames and is drawn; dragging in drive mode steers the page's collider to
+// the terrain point under the pointer; a 2048² world is rendered as a 1024² window of
+// chunks whose level of detail falls with distance, without cracks (a pixel test), and
+// the window follows the camera; a daemon restarted under the page is shown,
+// reconnected to and resynchronised from. Writes test-artifacts/viewer.png.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
@@ -32,13 +36,13 @@ async function until(what, fn, ms = 15000, step = 100) {
   }
 }
 
-function startDaemon(httpPort = 0, wsPort = 0) {
+function startDaemon(httpPort = 0, wsPort = 0, extra = []) {
   const dataDir = mkdtempSync(path.join(tmpdir(), 'terrad-viewer-data-'));
-  const args = ['serve', '--http-port', String(httpPort), '--ws-port', String(wsPort), '--backend', 'cpu', '--no-demo'];
+  const args = ['serve', '--http-port', String(httpPort), '--ws-port', String(wsPort), '--backend', 'cpu', '--no-demo', ...extra];
   const proc = spawn(BIN, args, { stdio: ['ignore', 'ignore', 'pipe'], cwd: dataDir });
   let err = '';
   return new Promise((resolve, reject) => {
-    const t = setTimeout(() => reject(new Error(`daemon did not start: ${err}`)), 15000);
+    const t = setTimeout(() => reject(new Error(`daemon did not start: ${err}`)), 60000);
     proc.stderr.on('data', (d) => {
       err += d;
       const m = /http:\/\/127\.0\.0\.1:(\d+)\/ and ws:\/\/127\.0\.0\.1:(\d+)\//.exec(err);
@@ -85,8 +89,8 @@ after(async () => {
 });
 
 // The canvas as RGBA pixels (read back from a 2D copy of the WebGL canvas).
-async function grab() {
-  const r = await page.evaluate(() => {
+async function grab(pg = page) {
+  const r = await pg.evaluate(() => {
     const c = document.getElementById('view');
     const t = document.createElement('canvas');
     t.width = c.clientWidth;
@@ -101,8 +105,8 @@ async function grab() {
   return { w: r.w, h: r.h, px: Buffer.from(r.b64, 'base64') };
 }
 
-async function pageHeights() {
-  return page.evaluate(() => {
+async function pageHeights(pg = page) {
+  return pg.evaluate(() => {
     const h = window.terrad.heights;
     const b = new Uint8Array(h.buffer, h.byteOffset, h.byteLength);
     let s = '';
@@ -112,18 +116,18 @@ async function pageHeights() {
 }
 
 // Polls until the page's heights equal GET /v1/heights of its region, at a tick the page has reached.
-async function assertMirrorsServer(port, ms = 10000) {
+async function assertMirrorsServer(port, ms = 10000, pg = page) {
   const end = Date.now() + ms;
   let detail = '';
   for (;;) {
-    const { region } = await page.evaluate(() => ({ region: window.terrad.region }));
+    const { region } = await pg.evaluate(() => ({ region: window.terrad.region }));
     if (region) {
       const r = await fetch(`http://127.0.0.1:${port}/v1/heights?x=${region.x}&y=${region.y}&w=${region.w}&h=${region.h}`);
       const tick = Number(r.headers.get('x-terrad-tick'));
       const server = Buffer.from(await r.arrayBuffer());
       try {
-        await until('page tick', async () => (await page.evaluate(() => window.terrad.tick)) >= tick, 3000, 20);
-        const p = await pageHeights();
+        await until('page tick', async () => (await pg.evaluate(() => window.terrad.tick)) >= tick, 3000, 20);
+        const p = await pageHeights(pg);
         const mine = Buffer.from(p.b64, 'base64');
         if (mine.equals(server) && p.region.w === region.w) return;
         let diff = 0;
@@ -210,6 +214,155 @@ test('a collider driven through the page leaves a trail, and the heights match b
   }
   assert.ok(hit >= 7, `the canvas changed at only ${hit} of ${pts.length} points of the trail`);
   await assertMirrorsServer(daemon.ports.http);
+});
+
+// Another client (Python, proto/python) holds a sphere in the air over the terrain.
+function otherClient(wsPort, x, y, z, radius) {
+  const code = `
+import asyncio, sys
+sys.path.insert(0, ${JSON.stringify(path.join(root, 'proto/python'))})
+import terrad_proto as tp
+async def main():
+    async with tp.TerradClient("ws://127.0.0.1:${wsPort}/", name="viewer-test-other") as c:
+        cid = await c.create_collider("sphere", radius=${radius})
+        await c.send_poses([tp.Pose(cid, ${x}, ${y}, ${z}, 1, 0, 0, 0)])
+        print(cid, flush=True)
+        await asyncio.sleep(60)
+asyncio.run(main())
+`;
+  const proc = spawn('/usr/bin/python3', ['-c', code], { stdio: ['ignore', 'pipe', 'inherit'] });
+  proc.id = new Promise((resolve, reject) => {
+    proc.stdout.once('data', (d) => resolve(Number(String(d).trim())));
+    proc.once('exit', (c) => reject(new Error(`the other client exited (${c})`)));
+  });
+  return proc;
+}
+
+test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the own one is marked own', { skip, timeout: 60000 }, async () => {
+  const world = await page.evaluate(() => window.terrad.world);
+  const own = await page.evaluate(() => window.terrad.collider);
+  const x = world.width * world.cell_size_m * 0.6, y = world.height * world.cell_size_m * 0.45, z = 3, radius = 1.2;
+  const other = otherClient(daemon.ports.ws, x, y, z, radius);
+  try {
+    const id = await other.id;
+    const got = await until('the other sphere in a COLLIDERS frame',
+      () => page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), id), 10000);
+    assert.equal(got.owner, 1, 'owner: other');
+    assert.equal(got.kind, 0, 'kind: sphere');
+    assert.ok(Math.abs(got.dims[0] - radius) < 1e-6 && Math.abs(got.p[0] - x) < 1e-3 && Math.abs(got.p[1] - y) < 1e-3 &&
+      Math.abs(got.p[2] - z) < 1e-3, `its size and pose: ${JSON.stringify(got)}`);
+    const mine = await page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), own.id);
+    assert.ok(mine && mine.owner === 0, `the page's own collider is marked own: ${JSON.stringify(mine)}`);
+    // drawn: the pixel at its centre is the "other" blue, not snow
+    await sleep(300);
+    const [px, py] = await page.evaluate(([x, y, z]) => window.terrad.project(x, y, z), [x, y, z]);
+    const img = await grab();
+    const i = 4 * (Math.round(py) * img.w + Math.round(px));
+    const [r, g, b] = [img.px[i], img.px[i + 1], img.px[i + 2]];
+    assert.ok(b > r + 40 && b > 60, `the sphere is drawn in blue at ${px.toFixed(0)},${py.toFixed(0)}: rgb ${r},${g},${b}`);
+    other.kill();
+    await until('the other sphere gone after its client left',
+      async () => !(await page.evaluate((id) => window.terrad.colliders.some((c) => c.id === id), id)), 10000);
+  } finally {
+    other.kill();
+  }
+});
+
+test('drive mode: dragging steers the collider to the terrain point under the pointer', { skip, timeout: 120000 }, async () => {
+  await page.evaluate(() => window.terrad.lower());
+  const o = await page.evaluate(() => window.terrad.collider);
+  assert.ok(o && o.id > 0, 'the page has its collider');
+  const goal = [o.x + 1.0, o.y - 1.5]; // towards the viewer's lower right, away from the overlay
+  // the ray cast finds the terrain point a pixel shows
+  const box = await page.evaluate(() => { const r = document.getElementById('view').getBoundingClientRect(); return { x: r.left, y: r.top }; });
+  const from = await page.evaluate(([x, y]) => window.terrad.project(x, y), [o.x, o.y]);
+  const to = await page.evaluate(([x, y]) => window.terrad.project(x, y), goal);
+  const picked = await page.evaluate(([cx, cy]) => window.terrad.pick(cx, cy), to);
+  assert.ok(picked && Math.hypot(picked[0] - goal[0], picked[1] - goal[1]) < 0.15, `pick() of the goal's pixel: ${picked}`);
+  const { yaw: yaw0, pitch: pitch0 } = await page.evaluate(() => window.terrad.camera);
+  await page.mouse.move(box.x + from[0], box.y + from[1]);
+  await page.mouse.down();
+  await page.mouse.move(box.x + to[0], box.y + to[1], { steps: 2 });
+  const dragTarget = await page.evaluate(() => window.terrad.dragTarget);
+  assert.ok(dragTarget && Math.hypot(dragTarget[0] - goal[0], dragTarget[1] - goal[1]) < 0.15, `steering to ${dragTarget}`);
+  await until('the collider at the goal', async () => {
+    const c = await page.evaluate(() => window.terrad.collider);
+    return Math.hypot(c.x - goal[0], c.y - goal[1]) < 0.1;
+  }, 40000);
+  const cam = await page.evaluate(() => window.terrad.camera);
+  assert.ok(cam.yaw === yaw0 && cam.pitch === pitch0, 'a steering drag does not orbit the camera');
+  await page.mouse.up();
+  assert.equal(await page.evaluate(() => window.terrad.dragTarget), null, 'letting go stops the steering');
+  await page.evaluate(() => window.terrad.lift());
+});
+
+// Pixels of (near) the background colour strictly between the first and the last
+// terrain pixel of each column: holes in the terrain.
+function holes(img, bg) {
+  let n = 0;
+  const isBg = (i) => Math.abs(img.px[i] - bg[0]) + Math.abs(img.px[i + 1] - bg[1]) + Math.abs(img.px[i + 2] - bg[2]) < 90;
+  for (let x = 0; x < img.w; x++) {
+    let first = -1, last = -1;
+    for (let y = 0; y < img.h; y++)
+      if (!isBg(4 * (y * img.w + x))) {
+        if (first < 0) first = y;
+        last = y;
+      }
+    for (let y = first + 1; y < last; y++) if (isBg(4 * (y * img.w + x))) n++;
+  }
+  return n;
+}
+
+test('a 2048² world: a chunked window, LoD falling with distance, no cracks, the window follows the camera', { skip, timeout: 150000 }, async () => {
+  const big = await startDaemon(0, 0, ['--scene', path.join(root, 'tests/scenes/large-dunes.json')]);
+  const pg = await context.newPage();
+  pg.on('pageerror', (e) => console.error('page error:', e.message));
+  try {
+    await pg.goto(`http://127.0.0.1:${big.ports.http}/?ws=${big.ports.ws}`);
+    await until('the first window', () => pg.evaluate(() => window.terrad && window.terrad.state === 'live' && window.terrad.framesDrawn > 2), 60000);
+    const world = await pg.evaluate(() => window.terrad.world);
+    const region = await pg.evaluate(() => window.terrad.region);
+    assert.equal(world.width, 2048);
+    assert.ok(region.w * region.h > 512 * 512 && region.w < world.width, `a window, not the world: ${JSON.stringify(region)}`);
+    await pg.evaluate(() => window.terrad.setCamera({ pitch: 0.3, yaw: -2.2 }));
+    await sleep(500);
+    const { chunks, eye } = await pg.evaluate(() => ({ chunks: window.terrad.chunks, eye: window.terrad.camera.eye }));
+    assert.equal(chunks.length, Math.ceil(region.w / 64) * Math.ceil(region.h / 64), 'chunks cover the window');
+    const cell = world.cell_size_m;
+    const dist = (c) => Math.hypot((region.x + c.x + 32) * cell - eye[0], (region.y + c.y + 32) * cell - eye[1]);
+    const byDist = [...chunks].sort((a, b) => dist(a) - dist(b));
+    const levels = new Set(chunks.map((c) => c.level));
+    assert.ok(levels.size >= 3, `several levels of detail: ${[...levels]}`);
+    assert.ok(byDist[0].level < byDist[byDist.length - 1].level, 'the nearest chunk is finer than the farthest');
+    for (let i = 1; i < byDist.length; i++)
+      assert.ok(byDist[i].level >= byDist[i - 1].level - 1, 'detail falls with distance (within one level for equal distances)');
+    // no cracks: against a magenta background, no magenta inside the terrain
+    const bg = [255, 0, 255];
+    await pg.evaluate(() => window.terrad.setBackground([1, 0, 1]));
+    await sleep(500);
+    const img = await grab(pg);
+    const withSkirts = holes(img, bg);
+    mkdirSync(ARTIFACTS, { recursive: true });
+    await pg.screenshot({ path: path.join(ARTIFACTS, 'viewer-lod.png') });
+    await pg.evaluate(() => window.terrad.setSkirts(false));
+    await sleep(500);
+    const withoutSkirts = holes(await grab(pg), bg);
+    await pg.evaluate(() => window.terrad.setSkirts(true));
+    console.error(`background pixels inside the terrain: ${withSkirts} with skirts, ${withoutSkirts} without`);
+    assert.equal(withSkirts, 0, `${withSkirts} background pixels show through the terrain`);
+    assert.ok(withoutSkirts > 0, 'without skirts the same view shows cracks (the check can see them)');
+    // the window follows the camera
+    const target = [(region.x + region.w / 2) * cell + 40, (region.y + region.h / 2) * cell];
+    await pg.evaluate((t) => window.terrad.setCamera({ target: t }), target);
+    await until('the window moved with the camera', async () => {
+      const r = await pg.evaluate(() => window.terrad.state === 'live' && window.terrad.region);
+      return r && r.x > region.x && Math.abs((r.x + r.w / 2) * cell - target[0]) < 2;
+    }, 60000);
+    await assertMirrorsServer(big.ports.http, 20000, pg);
+  } finally {
+    await pg.close();
+    await stopDaemon(big);
+  }
 });
 
 test('a daemon restarted under the page: outage shown, reconnect, resync', { skip, timeout: 90000 }, async () => {
