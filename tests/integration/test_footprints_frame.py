@@ -92,7 +92,8 @@ async def scenario(d):
         e = mine[-1]
         check(abs(e.x - (x + 0.19)) < 2 * CELL and abs(e.y - y) < 2 * CELL,
               f"the event is at the collider ({e.x:.3f}, {e.y:.3f}) vs ({x + 0.19:.3f}, {y:.3f})")
-        check(abs(e.strength_m - PRESS) < 2e-3, f"strength {e.strength_m:.4f} m ~ the press {PRESS} m")
+        # depth is sampled at cell centres, so a little under the press
+        check(abs(e.strength_m - PRESS) < 5e-3, f"strength {e.strength_m:.4f} m ~ the press {PRESS} m")
         # the pressed disc has radius sqrt(r^2 - (r - press)^2), size is its area's square side
         disc = (RADIUS ** 2 - (RADIUS - PRESS) ** 2) ** 0.5
         want = (3.14159265 * disc * disc) ** 0.5
