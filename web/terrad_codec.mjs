@@ -8,8 +8,8 @@ import { Decompress } from './vendor/fzstd.js';
 export const PROTOCOL_VERSION = 1;
 export const MAGIC = 0x54;
 export const SUBPROTOCOL = 'terrad.v1';
-export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13 };
-const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS' };
+export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14 };
+const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS' };
 export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
 export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
 export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
@@ -21,6 +21,8 @@ export const ERRORS = {
   shutting_down: 20, internal: 21,
 };
 const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12, COLLIDER_STATE_SIZE = 48;
+const FOOTPRINT_SIZE = 24;
+const FOOTPRINT_YAW_MAX = Math.fround(3.1416); // pi rounded up to float32
 const MAX_COUNT = 0xffff;
 
 export class ProtoError extends Error {
@@ -186,6 +188,29 @@ export function decodeColliders(buf) {
     colliders.push({ id, owner, kind, dims: f.slice(0, 3), p: f.slice(3, 6), q: f.slice(6, 10) });
   }
   return { tick, colliders };
+}
+
+// FOOTPRINTS: the decals model's events inside the subscriber's regions,
+// [{collider, x, y, yaw, size_m, strength_m}]: draw a decal of side size_m at (x, y), turned by yaw.
+export function decodeFootprints(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.FOOTPRINTS);
+  if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
+  if (b.length - 14 !== count * FOOTPRINT_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const footprints = [];
+  for (let i = 0; i < count; i++) {
+    const o = 14 + i * FOOTPRINT_SIZE;
+    const collider = v.getUint32(o, true);
+    const f = [];
+    for (let k = 0; k < 5; k++) f.push(v.getFloat32(o + 4 + 4 * k, true));
+    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `footprint of collider ${collider} is not finite`);
+    if (Math.abs(f[2]) > FOOTPRINT_YAW_MAX) throw new ProtoError('bad_value', `footprint of collider ${collider}: yaw ${f[2]}`);
+    if (!(f[3] > 0 && f[4] > 0)) throw new ProtoError('bad_value', `footprint of collider ${collider}: size and strength must be > 0`);
+    footprints.push({ collider, x: f[0], y: f[1], yaw: f[2], size_m: f[3], strength_m: f[4] });
+  }
+  return { tick, footprints };
 }
 
 export function decodeAck(buf) {
@@ -382,8 +407,8 @@ export class Mirror {
 // ---- JSON control messages ----
 
 export const hello = (token = '', client = 'terrad-web') => ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client });
-export const subscribe = (x, y, w, h, ref, colliders = false) =>
-  withRef(colliders ? { type: 'subscribe', x, y, w, h, colliders: true } : { type: 'subscribe', x, y, w, h }, ref);
+export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>
+  withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}) }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);

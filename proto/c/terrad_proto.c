@@ -88,6 +88,8 @@ const char *terrad_msg_type_name(int type)
         return "ACK";
     case TERRAD_MSG_COLLIDERS:
         return "COLLIDERS";
+    case TERRAD_MSG_FOOTPRINTS:
+        return "FOOTPRINTS";
     default:
         return NULL;
     }
@@ -597,6 +599,88 @@ int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
         if (collider_state_check(&c))
             return TERRAD_E_BAD_VALUE;
         states[i] = c;
+    }
+    if (tick_out)
+        *tick_out = tick;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+/* ---- FOOTPRINTS ---------------------------------------------------------- */
+
+static int footprint_check(const terrad_footprint *f)
+{
+    const float v[5] = {f->x, f->y, f->yaw, f->size_m, f->strength_m};
+    if (!finite_all(v, 5))
+        return TERRAD_E_BAD_VALUE;
+    if (f->yaw < -TERRAD_FOOTPRINT_YAW_MAX || f->yaw > TERRAD_FOOTPRINT_YAW_MAX)
+        return TERRAD_E_BAD_VALUE;
+    /* an event is a press into the ground: no area or no depth is no event */
+    if (!(f->size_m > 0.0f) || !(f->strength_m > 0.0f))
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+size_t terrad_footprints_size(size_t count)
+{
+    return TERRAD_FOOTPRINTS_FIXED + count * TERRAD_FOOTPRINT_SIZE;
+}
+
+int terrad_footprints_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                             const terrad_footprint *events, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (footprint_check(&events[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_footprints_size(count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_FOOTPRINTS);
+    p = wr_u64(p, tick);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        const terrad_footprint *f = &events[i];
+        p = wr_u32(p, f->collider);
+        p = wr_f32(p, f->x);
+        p = wr_f32(p, f->y);
+        p = wr_f32(p, f->yaw);
+        p = wr_f32(p, f->size_m);
+        p = wr_f32(p, f->strength_m);
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_footprints_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                             terrad_footprint *events, size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_FOOTPRINTS, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 10)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * TERRAD_FOOTPRINT_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_footprint f;
+        f.collider = rd_u32(&r);
+        f.x = rd_f32(&r);
+        f.y = rd_f32(&r);
+        f.yaw = rd_f32(&r);
+        f.size_m = rd_f32(&r);
+        f.strength_m = rd_f32(&r);
+        if (footprint_check(&f))
+            return TERRAD_E_BAD_VALUE;
+        events[i] = f;
     }
     if (tick_out)
         *tick_out = tick;

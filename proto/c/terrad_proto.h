@@ -47,6 +47,8 @@ extern "C" {
 #define TERRAD_PING_SIZE 12           /* header, u64 nonce */
 #define TERRAD_COLLIDERS_FIXED 14     /* header, u64 tick, u16 count */
 #define TERRAD_COLLIDER_STATE_SIZE 48 /* u32 id, u8 owner, u8 shape, u16 0, 10 x f32 */
+#define TERRAD_FOOTPRINTS_FIXED 14    /* header, u64 tick, u16 count */
+#define TERRAD_FOOTPRINT_SIZE 24      /* u32 collider id, 5 x f32 */
 #define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
@@ -57,6 +59,7 @@ typedef enum terrad_msg_type {
     TERRAD_MSG_CONTACT = 0x11,    /* server -> client */
     TERRAD_MSG_ACK = 0x12,        /* server -> client */
     TERRAD_MSG_COLLIDERS = 0x13,  /* server -> client */
+    TERRAD_MSG_FOOTPRINTS = 0x14, /* server -> client */
 } terrad_msg_type;
 
 /* Error codes: positive values are the protocol's (PROTOCOL.md, "Errors"),
@@ -203,6 +206,26 @@ int terrad_colliders_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t 
                             const terrad_collider_state *states, size_t count);
 int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                             terrad_collider_state *states, size_t cap, size_t *count_out);
+
+/* ---- FOOTPRINTS ---------------------------------------------------------- */
+
+/* One footprint event of the decals model: where a collider pressed into the
+ * ground this tick (the heights do not change). */
+typedef struct terrad_footprint {
+    uint32_t collider; /* collider id, as in COLLIDERS (demo actors >= 2^31) */
+    float x, y;        /* centre of the pressed cells, metres, world frame */
+    float yaw;         /* heading about z, radians, in [-TERRAD_FOOTPRINT_YAW_MAX, +] */
+    float size_m;      /* side of a square with the pressed area, metres, > 0 */
+    float strength_m;  /* deepest penetration, metres, > 0 */
+} terrad_footprint;
+/* pi rounded up to f32, so that every atan2 result in double survives the cast */
+#define TERRAD_FOOTPRINT_YAW_MAX 3.1416f
+
+size_t terrad_footprints_size(size_t count);
+int terrad_footprints_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                             const terrad_footprint *events, size_t count);
+int terrad_footprints_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                             terrad_footprint *events, size_t cap, size_t *count_out);
 
 /* ---- ACK, PING, PONG ----------------------------------------------------- */
 

@@ -48,6 +48,8 @@ CONTACT_SIZE = 48
 ACK_SIZE = 16
 PING_SIZE = 12
 COLLIDER_STATE_SIZE = 48
+FOOTPRINT_SIZE = 24
+FOOTPRINT_YAW_MAX = 3.1415998935699463  # pi rounded up to float32
 MAX_COUNT = 65535
 ZSTD_LEVEL = 3
 
@@ -60,6 +62,7 @@ class MsgType(IntEnum):
     CONTACT = 0x11
     ACK = 0x12
     COLLIDERS = 0x13
+    FOOTPRINTS = 0x14
 
 
 class Encoding(IntEnum):
@@ -159,6 +162,18 @@ class ColliderState:
     dims: tuple
     p: tuple
     q: tuple
+
+
+@dataclass
+class Footprint:
+    """One FOOTPRINTS event of the decals model: collider id, centre x, y (m),
+    yaw (rad, within +-FOOTPRINT_YAW_MAX), size (m, > 0), strength (m, > 0)."""
+    collider: int
+    x: float
+    y: float
+    yaw: float
+    size_m: float
+    strength_m: float
 
 
 # ---- helpers -----------------------------------------------------------------
@@ -394,6 +409,48 @@ def decode_colliders(buf: bytes, max_colliders: int = MAX_COUNT) -> tuple[int, l
     return tick, out
 
 
+# ---- FOOTPRINTS ------------------------------------------------------------------------
+
+_FOOTPRINT = struct.Struct("<I5f")
+
+
+def _check_footprint(cid, f) -> None:
+    if not all(math.isfinite(a) for a in f):
+        raise ProtoError("bad_value", f"footprint of collider {cid} is not finite")
+    if abs(f[2]) > FOOTPRINT_YAW_MAX:
+        raise ProtoError("bad_value", f"footprint of collider {cid}: yaw {f[2]} outside [-pi, pi]")
+    if not (f[3] > 0 and f[4] > 0):
+        raise ProtoError("bad_value", f"footprint of collider {cid}: size and strength must be > 0")
+
+
+def encode_footprints(tick: int, events: list[Footprint]) -> bytes:
+    if len(events) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(events)} footprints")
+    out = [_header(MsgType.FOOTPRINTS), struct.pack("<QH", tick, len(events))]
+    for e in events:
+        f = [_f32(a) for a in (e.x, e.y, e.yaw, e.size_m, e.strength_m)]
+        _check_footprint(e.collider, f)
+        out.append(_FOOTPRINT.pack(e.collider, *f))
+    return b"".join(out)
+
+
+def decode_footprints(buf: bytes, max_events: int = MAX_COUNT) -> tuple[int, list[Footprint]]:
+    _expect(buf, MsgType.FOOTPRINTS)
+    if len(buf) < 14:
+        raise ProtoError("bad_frame", "truncated")
+    tick, count = struct.unpack_from("<QH", buf, 4)
+    if len(buf) - 14 != count * FOOTPRINT_SIZE:
+        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
+    if count > max_events:
+        raise ProtoError("too_large", f"{count} footprints")
+    out = []
+    for i in range(count):
+        cid, *f = _FOOTPRINT.unpack_from(buf, 14 + i * FOOTPRINT_SIZE)
+        _check_footprint(cid, f)
+        out.append(Footprint(cid, *f))
+    return tick, out
+
+
 def encode_ack(tick: int, seq: int) -> bytes:
     return _header(MsgType.ACK) + struct.pack("<QI", tick, seq)
 
@@ -431,6 +488,8 @@ def decode(buf: bytes):
         return t, decode_ack(buf)
     if t == MsgType.COLLIDERS:
         return t, decode_colliders(buf)
+    if t == MsgType.FOOTPRINTS:
+        return t, decode_footprints(buf)
     return t, decode_ping(buf)[1]
 
 
@@ -597,10 +656,13 @@ def collider_delete(cid: int, ref=None) -> dict:
     return _with_ref({"type": "collider_delete", "id": cid}, ref)
 
 
-def subscribe(x: int, y: int, w: int, h: int, ref=None, colliders: bool = False) -> dict:
+def subscribe(x: int, y: int, w: int, h: int, ref=None, colliders: bool = False,
+              footprints: bool = False) -> dict:
     m = {"type": "subscribe", "x": x, "y": y, "w": w, "h": h}
     if colliders:
         m["colliders"] = True
+    if footprints:
+        m["footprints"] = True
     return _with_ref(m, ref)
 
 
@@ -661,6 +723,8 @@ class TerradClient:
         self.contacts: dict[int, Contact] = {}
         self.colliders: dict[int, ColliderState] = {}  # the latest COLLIDERS frame, by id
         self.colliders_tick = 0
+        self.footprints: list[Footprint] = []  # every FOOTPRINTS event received, in order
+        self.footprints_tick = 0
         self.contact_tick = 0
         self.acked_tick = 0
         self.acked_seq = 0
@@ -731,8 +795,10 @@ class TerradClient:
         await self.ws.send(encode_pose_batch(self._seq, poses))
         return self._seq
 
-    async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False) -> int:
-        got = await self.request(subscribe(x, y, w, h, colliders=colliders), "subscribed")
+    async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
+                        footprints: bool = False) -> int:
+        got = await self.request(subscribe(x, y, w, h, colliders=colliders,
+                                           footprints=footprints), "subscribed")
         return got["id"]
 
     async def unsubscribe(self, sid: int) -> None:
@@ -799,6 +865,9 @@ class TerradClient:
         elif t == MsgType.COLLIDERS:
             self.colliders_tick, states = decode_colliders(data)
             self.colliders = {c.id: c for c in states}
+        elif t == MsgType.FOOTPRINTS:
+            self.footprints_tick, events = decode_footprints(data)
+            self.footprints.extend(events)
         elif t == MsgType.ACK:
             self.acked_tick, self.acked_seq = decode_ack(data)
         elif t == MsgType.PING:

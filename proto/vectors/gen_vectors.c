@@ -599,6 +599,69 @@ static void colliders_vectors(void)
             TERRAD_E_BAD_FRAME);
 }
 
+/* ---- FOOTPRINTS ---- */
+
+static cJSON *footprints_fields(uint64_t tick, const terrad_footprint *e, size_t n)
+{
+    cJSON *f = cJSON_CreateObject();
+    add_u64(f, "tick", tick);
+    cJSON *a = cJSON_AddArrayToObject(f, "footprints");
+    for (size_t i = 0; i < n; i++) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddNumberToObject(o, "collider", e[i].collider);
+        cJSON_AddNumberToObject(o, "x", e[i].x);
+        cJSON_AddNumberToObject(o, "y", e[i].y);
+        cJSON_AddNumberToObject(o, "yaw", e[i].yaw);
+        cJSON_AddNumberToObject(o, "size_m", e[i].size_m);
+        cJSON_AddNumberToObject(o, "strength_m", e[i].strength_m);
+        cJSON_AddItemToArray(a, o);
+    }
+    return f;
+}
+
+static void footprints_vectors(void)
+{
+    size_t len;
+    ok(terrad_footprints_encode(buf, sizeof buf, &len, 11, NULL, 0), "footprints");
+    valid(vector("footprints_empty", "FOOTPRINTS", "no event in view"),
+          footprints_fields(11, NULL, 0), buf, len);
+    terrad_footprint e[3] = {
+        {5, 1.5f, 2.25f, 0.0f, 0.5f, 0.0625f},
+        {9, -3.0f, 40.5f, -1.5f, 1.25f, 0.001f},
+        {0x80000001u, 100.0f, 200.0f, TERRAD_FOOTPRINT_YAW_MAX, 4.0f, 0.75f},
+    };
+    ok(terrad_footprints_encode(buf, sizeof buf, &len, 123456789012ull, e, 3), "footprints");
+    valid(vector("footprints_three", "FOOTPRINTS",
+                 "a sphere, another client's wheel turned, a demo box at yaw pi"),
+          footprints_fields(123456789012ull, e, 3), buf, len);
+    uint8_t q[128];
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 4, NAN); /* first event's x */
+    invalid("footprints_nan", "FOOTPRINTS", "x is NaN", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 8, INFINITY); /* first event's y */
+    invalid("footprints_inf", "FOOTPRINTS", "y is +Inf", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 12, 4.0f); /* first event's yaw */
+    invalid("footprints_yaw", "FOOTPRINTS", "yaw 4 > pi", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 16, 0.0f); /* first event's size */
+    invalid("footprints_zero_size", "FOOTPRINTS", "size 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 20, -0.25f); /* first event's strength */
+    invalid("footprints_negative_strength", "FOOTPRINTS", "strength < 0", q, len,
+            TERRAD_E_BAD_VALUE);
+    invalid("footprints_truncated", "FOOTPRINTS", "the last event cut short", buf, len - 4,
+            TERRAD_E_BAD_FRAME);
+    buf[len] = 0;
+    invalid("footprints_trailing", "FOOTPRINTS", "a byte after the last event", buf, len + 1,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, buf, len);
+    q[12] = 4; /* count 4, three events follow */
+    invalid("footprints_count", "FOOTPRINTS", "count 4 with three events", q, len,
+            TERRAD_E_BAD_FRAME);
+}
+
 /* ---- mirror scenarios ---- */
 
 /* World heights of a tiny made-up world, used for snapshots. */
@@ -765,6 +828,7 @@ int main(void)
     delta_vectors();
     small_vectors();
     colliders_vectors();
+    footprints_vectors();
     mirror_scenarios();
     char *text = cJSON_Print(root);
     if (!text)

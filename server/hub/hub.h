@@ -56,6 +56,7 @@ typedef struct hub_command {
     char material[32];          /* create */
     int feedback;               /* create: send CONTACT entries for this collider */
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
+    int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     char ref[64];               /* the client's request reference, echoed in replies */
 } hub_command;
 

@@ -130,6 +130,7 @@ static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, ref
 static atomic_uint_fast64_t gpu_tile_uploads, gpu_tile_upload_bytes, gpu_tile_evictions;
 static atomic_int_fast64_t gpu_tiles_resident;
 static atomic_uint_fast64_t delta_raw, delta_compressed;
+static atomic_uint_fast64_t footprint_frames, footprint_events, footprint_frames_dropped;
 static atomic_uint_fast64_t refused[TERRAD_ERR_LAST + 1]; /* by wire error code; [0] unused */
 static atomic_uint_fast64_t tick_now;
 static atomic_int_fast64_t volume, active_cells, colliders, clients;
@@ -164,6 +165,9 @@ void metrics_reset(void)
     SET(frames_coalesced, 0);
     SET(frames_dropped, 0);
     SET(tick_overruns, 0);
+    SET(footprint_frames, 0);
+    SET(footprint_events, 0);
+    SET(footprint_frames_dropped, 0);
     SET(refused_windows, 0);
     SET(gpu_tile_uploads, 0);
     SET(gpu_tile_upload_bytes, 0);
@@ -287,6 +291,17 @@ void metrics_count_frames_coalesced(uint64_t n)
 void metrics_count_frames_dropped(uint64_t n)
 {
     ADD(frames_dropped, n);
+}
+
+void metrics_count_footprints_sent(uint64_t frames, uint64_t events)
+{
+    ADD(footprint_frames, frames);
+    ADD(footprint_events, events);
+}
+
+void metrics_count_footprints_dropped(uint64_t frames)
+{
+    ADD(footprint_frames_dropped, frames);
 }
 
 void metrics_count_tick_overrun(void)
@@ -537,6 +552,13 @@ char *metrics_render(size_t *len)
             "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
     counter(&t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
             GET(frames_dropped));
+
+    counter(&t, "terrad_footprint_frames_total",
+            "FOOTPRINTS frames queued to clients (decals model).", GET(footprint_frames));
+    counter(&t, "terrad_footprint_events_total", "Footprint events in those frames.",
+            GET(footprint_events));
+    counter(&t, "terrad_footprint_frames_dropped_total",
+            "FOOTPRINTS frames not sent to a slow client.", GET(footprint_frames_dropped));
 
     header(&t, "terrad_refused_messages_total", "counter",
            "Client messages refused, by wire error name (proto/PROTOCOL.md).");

@@ -25,6 +25,9 @@ void metrics_count_frames_out(uint64_t n);
 void metrics_count_refused(int error_code);
 void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a slow client */
 void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
+/* FOOTPRINTS frames (and their events) queued to clients; frames not sent to a slow client. */
+void metrics_count_footprints_sent(uint64_t frames, uint64_t events);
+void metrics_count_footprints_dropped(uint64_t frames);
 void metrics_count_tick_overrun(void);
 void metrics_count_refused_windows(uint64_t n);
 /* The GL tile cache's totals since the backend started (0 on the CPU backend). */

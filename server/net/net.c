@@ -18,6 +18,8 @@
  *     (a HUB_RESYNC); deltas resume after the last snapshot frame;
  *   - CONTACT, ACK and COLLIDERS frames of a slow client replace their older copies
  *     (each one says everything the older said, for a later tick);
+ *   - FOOTPRINTS frames are dropped like tile deltas (and not sent at all to
+ *     a slow client): events for visuals, nothing to resync;
  *   - anything beyond hard_pending_bytes (room for max_pending_bytes, a
  *     whole snapshot of the largest allowed subscription area and a few
  *     messages) closes the connection: such a client has stopped reading
@@ -351,6 +353,28 @@ static void fan_out(net_server *s, const hub_out *o)
     }
 }
 
+static int is_footprints(const hub_frame *f)
+{
+    return f->binary && f->len > 2 && f->data[2] == TERRAD_MSG_FOOTPRINTS;
+}
+
+/* FOOTPRINTS are events for visuals, droppable like tile deltas: not sent to a
+ * client whose deltas are being dropped or whose queue would pass
+ * max_pending_bytes (no resync follows: a missed event is simply not drawn),
+ * and queued as NET_ITEM_TILE so that going slow drops those still queued. */
+static void send_footprints(net_server *s, net_client *c, hub_frame *f)
+{
+    if (dropping_deltas(c) || c->pending_bytes + f->len > s->cfg.limits.max_pending_bytes) {
+        metrics_count_footprints_dropped(1);
+        hub_frame_unref(f);
+        return;
+    }
+    uint64_t events =
+        f->len >= TERRAD_FOOTPRINTS_FIXED ? (uint64_t)f->data[12] | (uint64_t)f->data[13] << 8 : 0;
+    metrics_count_footprints_sent(1, events);
+    net_enqueue(c, f, NET_ITEM_TILE);
+}
+
 static void dispatch(net_server *s, hub_out *o)
 {
     if (o->tick > s->tick)
@@ -358,7 +382,10 @@ static void dispatch(net_server *s, hub_out *o)
     switch (o->kind) {
     case HUB_OUT_CLIENT: {
         net_client *c = net_find_client(s, o->client);
-        if (c && o->frame) {
+        if (c && o->frame && is_footprints(o->frame)) {
+            send_footprints(s, c, o->frame);
+            o->frame = NULL;
+        } else if (c && o->frame) {
             int status =
                 o->frame->binary && o->frame->len > 2 &&
                 (o->frame->data[2] == TERRAD_MSG_CONTACT || o->frame->data[2] == TERRAD_MSG_ACK ||

@@ -670,6 +670,11 @@ static void handle_subscribe(const req *r)
         net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "colliders: must be true or false");
         return;
     }
+    const cJSON *footprints = cJSON_GetObjectItemCaseSensitive(r->msg, "footprints");
+    if (footprints && !cJSON_IsBool(footprints)) {
+        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "footprints: must be true or false");
+        return;
+    }
     if (x < 0 || y < 0 || x + w > s->cfg.world.width || y + h > s->cfg.world.height) {
         net_error(c, TERRAD_E_OUTSIDE_WORLD, r->ref, -1, 0,
                   "rectangle x=%lld y=%lld w=%lld h=%lld is not inside the world (%d x %d cells)",
@@ -700,7 +705,8 @@ static void handle_subscribe(const req *r)
                        .client = c->id,
                        .subscription = c->next_sub_id,
                        .rect = rect,
-                       .colliders = colliders ? cJSON_IsTrue(colliders) : 0};
+                       .colliders = colliders ? cJSON_IsTrue(colliders) : 0,
+                       .footprints = footprints ? cJSON_IsTrue(footprints) : 0};
     ref_text(r->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(s, &cmd) != 0) {
         net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,

@@ -27,11 +27,18 @@
  * the network dropped for a slow client. */
 #define COLLIDERS_EVERY_TICKS 3
 #define COLLIDERS_REFRESH_TICKS 60
+/* FOOTPRINTS: events per frame so that a frame stays within SERVICE_FRAME_MAX
+ * (a tick with more is sent as several frames of the same tick). */
+#define FOOTPRINTS_PER_FRAME ((SERVICE_FRAME_MAX - TERRAD_FOOTPRINTS_FIXED) / TERRAD_FOOTPRINT_SIZE)
+/* Frames already built this tick that a client's frame is compared with, to
+ * share one copy among clients with the same events (whole-world viewers). */
+#define FOOTPRINTS_SHARED_MAX 8
 
 typedef struct svc_subscription {
     uint32_t id;
     world_rect rect;
-    int colliders; /* asked for COLLIDERS frames */
+    int colliders;  /* asked for COLLIDERS frames */
+    int footprints; /* asked for FOOTPRINTS frames */
 } svc_subscription;
 
 typedef struct svc_client {
@@ -110,6 +117,8 @@ struct service {
     int64_t bottom_cap;
     terrad_collider_state *states; /* COLLIDERS scratch */
     int state_capacity;
+    terrad_footprint *events; /* FOOTPRINTS scratch: one client's events */
+    int event_capacity;
 };
 
 static int grow_array(void **p, int *capacity, int needed, size_t elem)
@@ -194,6 +203,7 @@ void service_destroy(service *s)
     free(s->packed);
     free(s->bottom);
     free(s->states);
+    free(s->events);
     free(s);
 }
 
@@ -351,7 +361,7 @@ static void apply_command(service *s, hub_command *c)
     case HUB_SUBSCRIBE: {
         /* the net thread pauses nothing for a subscribe, but it counts one
          * snapshot mark per request: send it even when there is nothing */
-        svc_subscription sub = {c->subscription, c->rect, c->colliders};
+        svc_subscription sub = {c->subscription, c->rect, c->colliders, c->footprints};
         if (cl && c->colliders)
             cl->colliders_hash = 0; /* a new region: send the list at the next chance */
         if (cl && grow_array((void **)&cl->subs, &cl->sub_capacity, cl->sub_count + 1,
@@ -375,9 +385,9 @@ static void apply_command(service *s, hub_command *c)
         if (c->subscription == 0) {
             queue_snapshots(s, cl->id, cl->subs, cl->sub_count);
             if (cl->sub_count == 0) /* nothing to send, but the client waits for the mark */
-                queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}, 0}, 1);
+                queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}, 0, 0}, 1);
         } else {
-            svc_subscription sub = {c->subscription, {0, 0, 0, 0}, 0};
+            svc_subscription sub = {c->subscription, {0, 0, 0, 0}, 0, 0};
             for (int i = 0; i < cl->sub_count; i++)
                 if (cl->subs[i].id == c->subscription)
                     sub = cl->subs[i];
@@ -897,6 +907,107 @@ static void publish_colliders(service *s, const sim_collider *extra, int extra_c
     }
 }
 
+/* ---- FOOTPRINTS: the decals model's events, for cheap visuals ---- */
+
+/* Is the event's centre inside one of the client's footprint-subscriptions? */
+static int footprint_in_view(const service *s, const svc_client *cl, const sim_footprint *e)
+{
+    double cs = s->world->cell_size_m;
+    double cx = floor(e->x_m / cs), cy = floor(e->y_m / cs);
+    for (int i = 0; i < cl->sub_count; i++) {
+        const world_rect r = cl->subs[i].rect;
+        if (cl->subs[i].footprints && cx >= r.x && cx < (double)r.x + r.w && cy >= r.y &&
+            cy < (double)r.y + r.h)
+            return 1;
+    }
+    return 0;
+}
+
+static terrad_footprint footprint_wire(const sim_footprint *e)
+{
+    terrad_footprint f = {.collider = (uint32_t)e->collider_id,
+                          .x = (float)e->x_m,
+                          .y = (float)e->y_m,
+                          .yaw = (float)e->yaw_rad,
+                          .size_m = (float)e->size_m,
+                          .strength_m = (float)e->strength_m};
+    /* atan2 is within [-pi, pi] in double; keep the f32 inside the wire's bound */
+    if (f.yaw > TERRAD_FOOTPRINT_YAW_MAX)
+        f.yaw = TERRAD_FOOTPRINT_YAW_MAX;
+    if (f.yaw < -TERRAD_FOOTPRINT_YAW_MAX)
+        f.yaw = -TERRAD_FOOTPRINT_YAW_MAX;
+    return f;
+}
+
+/* One frame of n events; a frame built earlier this tick with the same bytes
+ * is shared (one more reference) rather than built again. */
+static hub_frame *footprints_frame(service *s, int n, hub_frame **shared, int *shared_count)
+{
+    size_t size = terrad_footprints_size((size_t)n);
+    hub_frame *f = hub_frame_new(1, size);
+    if (!f)
+        return NULL;
+    if (terrad_footprints_encode(f->data, size, &f->len, s->tick, s->events, (size_t)n) != 0) {
+        /* the sim's events are finite with size and strength > 0: never here */
+        log_error("service: tick %llu: a footprint event failed its wire checks",
+                  (unsigned long long)s->tick);
+        hub_frame_unref(f);
+        return NULL;
+    }
+    for (int i = 0; i < *shared_count; i++)
+        if (shared[i]->len == f->len && memcmp(shared[i]->data, f->data, f->len) == 0) {
+            hub_frame_unref(f);
+            hub_frame_ref(shared[i]);
+            return shared[i];
+        }
+    if (*shared_count < FOOTPRINTS_SHARED_MAX)
+        shared[(*shared_count)++] = f; /* borrowed: the queue holds the reference */
+    return f;
+}
+
+/* Per client that asked for them: this tick's events whose centre lies in one
+ * of its footprint-subscriptions; no frame when there are none. */
+static void publish_footprints(service *s, const sim_tick_report *report)
+{
+    if (report->footprint_count <= 0)
+        return;
+    hub_frame *shared[FOOTPRINTS_SHARED_MAX];
+    int shared_count = 0;
+    for (int c = 0; c < s->client_count; c++) {
+        const svc_client *cl = &s->clients[c];
+        int wants = 0;
+        for (int i = 0; i < cl->sub_count; i++)
+            wants |= cl->subs[i].footprints;
+        if (!wants)
+            continue;
+        int n = 0;
+        for (int i = 0; i < report->footprint_count; i++) {
+            const sim_footprint *e = &report->footprints[i];
+            if (!footprint_in_view(s, cl, e))
+                continue;
+            if (grow_array((void **)&s->events, &s->event_capacity, n + 1, sizeof *s->events) != 0)
+                break;
+            s->events[n++] = footprint_wire(e);
+            if (n == FOOTPRINTS_PER_FRAME) {
+                hub_frame *f = footprints_frame(s, n, shared, &shared_count);
+                if (f)
+                    queue_out(s, (hub_out){.kind = HUB_OUT_CLIENT,
+                                           .client = cl->id,
+                                           .tick = s->tick,
+                                           .frame = f});
+                n = 0;
+            }
+        }
+        if (n > 0) {
+            hub_frame *f = footprints_frame(s, n, shared, &shared_count);
+            if (f)
+                queue_out(
+                    s, (hub_out){
+                           .kind = HUB_OUT_CLIENT, .client = cl->id, .tick = s->tick, .frame = f});
+        }
+    }
+}
+
 int service_tick(service *s, const sim_collider *extra, int extra_count, service_tick_stats *stats,
                  error_text *err)
 {
@@ -952,6 +1063,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     contacts_after_tick(s);
     publish_feedback(s);
     publish_colliders(s, extra, extra_count);
+    publish_footprints(s, &stats->report);
     for (int i = 0; i < s->snapshot_count; i++)
         publish_snapshot(s, &s->snapshots[i]);
     s->snapshot_count = 0;

@@ -5,7 +5,7 @@ frames of proto/vectors/vectors.json (valid and invalid alike).
     /usr/bin/python3 tests/fuzz/make_corpus.py
 
 fuzz_pose_batch gets the POSE_BATCH, ACK, PING and PONG vectors as they are;
-fuzz_contact the CONTACT vectors; fuzz_colliders the COLLIDERS vectors; fuzz_delta (whose input is a region byte
+fuzz_contact the CONTACT vectors; fuzz_colliders the COLLIDERS vectors; fuzz_footprints the FOOTPRINTS vectors; fuzz_delta (whose input is a region byte
 then length-prefixed frames, see fuzz_delta.c) each DELTA vector alone, and
 each mirror scenario's frames in order with its own region. File names are
 the vectors' names, so re-running after the vectors change rewrites the
@@ -27,6 +27,7 @@ TARGETS = {
     "PONG": "fuzz_pose_batch",
     "CONTACT": "fuzz_contact",
     "COLLIDERS": "fuzz_colliders",
+    "FOOTPRINTS": "fuzz_footprints",
     "DELTA": "fuzz_delta",
 }
 # fuzz_delta.c's region table: (x, y, w, h, tile) -> selector byte

@@ -74,6 +74,8 @@ def decode_any(t, b):
         return tp.decode_ack(b)
     if t == "COLLIDERS":
         return tp.decode_colliders(b)
+    if t == "FOOTPRINTS":
+        return tp.decode_footprints(b)
     return tp.decode_ping(b)
 
 
@@ -127,6 +129,13 @@ def check_valid(v):
         check(tick == int(f["tick"]), f"{name}: tick")
         check(cs == want, f"{name}: colliders")
         check(tp.encode_colliders(int(f["tick"]), want) == b, f"{name}: encode")
+    elif t == "FOOTPRINTS":
+        tick, es = tp.decode_footprints(b)
+        want = [tp.Footprint(e["collider"], f32(e["x"]), f32(e["y"]), f32(e["yaw"]), f32(e["size_m"]),
+                             f32(e["strength_m"])) for e in f["footprints"]]
+        check(tick == int(f["tick"]), f"{name}: tick")
+        check(es == want, f"{name}: footprints")
+        check(tp.encode_footprints(int(f["tick"]), want) == b, f"{name}: encode")
     elif t == "ACK":
         check(tp.decode_ack(b) == (int(f["tick"]), f["seq"]), f"{name}: decode")
         check(tp.encode_ack(int(f["tick"]), f["seq"]) == b, f"{name}: encode")

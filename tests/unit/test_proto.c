@@ -312,6 +312,43 @@ static void check_colliders(const char *name, const cJSON *f, const uint8_t *b, 
     CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
 }
 
+static void check_footprints(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_footprint es[16];
+    uint64_t tick;
+    size_t count;
+    int rc = terrad_footprints_decode(b, n, &tick, es, 16, &count);
+    CHECK(rc == 0, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    const cJSON *a = get(f, "footprints");
+    CHECK(tick == u64(f, "tick"), "%s: tick", name);
+    CHECK(count == (size_t)cJSON_GetArraySize(a), "%s: count", name);
+    terrad_footprint want[16];
+    size_t i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, a)
+    {
+        if (i >= 16)
+            break;
+        terrad_footprint w = {(uint32_t)num(e, "collider"), (float)num(e, "x"),
+                              (float)num(e, "y"),           (float)num(e, "yaw"),
+                              (float)num(e, "size_m"),      (float)num(e, "strength_m")};
+        want[i] = w;
+        if (i < count) {
+            const terrad_footprint *g = &es[i];
+            CHECK(g->collider == w.collider && g->x == w.x && g->y == w.y && g->yaw == w.yaw &&
+                      g->size_m == w.size_m && g->strength_m == w.strength_m,
+                  "%s: event %zu", name, i);
+        }
+        i++;
+    }
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_footprints_encode(out, sizeof out, &len, tick, want, i);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
                         size_t n)
 {
@@ -375,6 +412,12 @@ static int decode_any(const char *type, const uint8_t *b, size_t n)
         size_t count;
         return terrad_colliders_decode(b, n, &tick, cs, 16, &count);
     }
+    if (strcmp(type, "FOOTPRINTS") == 0) {
+        terrad_footprint es[16];
+        uint64_t tick;
+        size_t count;
+        return terrad_footprints_decode(b, n, &tick, es, 16, &count);
+    }
     uint8_t t;
     uint64_t nonce;
     return terrad_ping_decode(b, n, &t, &nonce);
@@ -415,6 +458,8 @@ static void check_vectors(const cJSON *root)
                 check_contact(name, f, b, n);
             else if (strcmp(type, "COLLIDERS") == 0)
                 check_colliders(name, f, b, n);
+            else if (strcmp(type, "FOOTPRINTS") == 0)
+                check_footprints(name, f, b, n);
             else
                 check_small(name, type, f, b, n);
             /* Every proper prefix of a valid frame is refused. */
@@ -529,6 +574,25 @@ static void test_encoder_refusals(void)
     c.support_height_m = NAN;
     CHECK(terrad_contact_encode(buf, sizeof buf, &len, 0, &c, 1) == TERRAD_E_BAD_VALUE,
           "encode NaN support height");
+    terrad_footprint fp = {1, 2.0f, 3.0f, 0.5f, 0.25f, 0.01f};
+    CHECK(terrad_footprints_encode(buf, 37, &len, 0, &fp, 1) == TERRAD_E_BUFFER_TOO_SMALL &&
+              terrad_footprints_encode(buf, 38, &len, 0, &fp, 1) == 0 && len == 38,
+          "footprints: one event is 38 bytes");
+    terrad_footprint two_fp[2] = {fp, fp}, one_fp[1];
+    CHECK(terrad_footprints_encode(buf, sizeof buf, &len, 0, two_fp, 2) == 0 &&
+              terrad_footprints_decode(buf, len, NULL, one_fp, 1, &count) == TERRAD_E_TOO_LARGE,
+          "decode two footprints into room for one");
+    fp.strength_m = 0;
+    CHECK(terrad_footprints_encode(buf, sizeof buf, &len, 0, &fp, 1) == TERRAD_E_BAD_VALUE,
+          "encode a footprint of strength 0");
+    fp.strength_m = 0.01f;
+    fp.yaw = -3.2f;
+    CHECK(terrad_footprints_encode(buf, sizeof buf, &len, 0, &fp, 1) == TERRAD_E_BAD_VALUE,
+          "encode a footprint of yaw < -pi");
+    fp.yaw = 0;
+    fp.x = NAN;
+    CHECK(terrad_footprints_encode(buf, sizeof buf, &len, 0, &fp, 1) == TERRAD_E_BAD_VALUE,
+          "encode a footprint at x NaN");
     CHECK(terrad_ping_encode(buf, sizeof buf, &len, TERRAD_MSG_ACK, 1) == TERRAD_E_UNKNOWN_TYPE,
           "ping encode with type ACK");
     CHECK(terrad_ack_encode(buf, 15, &len, 1, 1) == TERRAD_E_BUFFER_TOO_SMALL, "ack in 15 bytes");

@@ -5,6 +5,8 @@
  * client mirrors, which must then hold exactly the world's heights. Also:
  * tile versions step by one, Σh is tracked exactly, contacts and acks come
  * in order, deletes and departures remove colliders, height reads work.
+ * On a decals world: FOOTPRINTS frames go only to clients that asked, with
+ * the events inside their regions, one shared frame for the same events.
  */
 #include <math.h>
 #include <pthread.h>
@@ -123,6 +125,130 @@ static void *reader(void *p)
     reader_args *a = p;
     a->rc = hub_read_heights(a->h, a->r, a->out, &a->tick, 5000);
     return NULL;
+}
+
+/* The FOOTPRINTS frames of one tick, by client (1..4), checked and counted. */
+typedef struct footprint_view {
+    int frames, events;
+    terrad_footprint last;
+    const hub_frame *frame; /* this tick's frame */
+} footprint_view;
+
+static void take_footprints(hub *h, footprint_view *v, int count)
+{
+    hub_out out[4096];
+    int n;
+    while ((n = hub_take_outbound(h, out, 4096)) > 0) {
+        for (int i = 0; i < n; i++) {
+            const hub_frame *f = out[i].frame;
+            int c = (int)out[i].client;
+            if (out[i].kind == HUB_OUT_CLIENT && f && f->len > 2 &&
+                f->data[2] == TERRAD_MSG_FOOTPRINTS && c >= 1 && c <= count) {
+                terrad_footprint e[8];
+                size_t k = 0;
+                uint64_t tick;
+                CHECK(terrad_footprints_decode(f->data, f->len, &tick, e, 8, &k) == 0 && k > 0,
+                      "client %d: a FOOTPRINTS frame with events decodes", c);
+                v[c - 1].frames++;
+                v[c - 1].events += (int)k;
+                v[c - 1].last = e[k - 1];
+                v[c - 1].frame = f;
+            }
+            if (out[i].frame)
+                hub_frame_unref(out[i].frame);
+        }
+    }
+}
+
+static void test_footprints(void)
+{
+    error_text err;
+    world w;
+    world_base_spec base = {.kind = WORLD_BASE_FLAT, .height_m = 0.5};
+    CHECK(world_init(&w, 300, 200, 0.05, 10000, 0, &err) == 0, "decals world");
+    CHECK(world_generate_base(&w, &base, &err) == 0, "decals base");
+    sim_material m = sim_material_default();
+    m.model = SIM_MODEL_DECALS;
+    sim_params p;
+    CHECK(sim_params_from_material(&m, w.cell_size_m, w.units_per_m, w.floor, &p, &err) == 0,
+          "decals params: %s", err.message);
+    sim_backend *cpu = sim_backend_cpu_create(&err);
+    sim_engine engine;
+    sim_engine_init(&engine, &w, &p, cpu, 4, &err);
+    hub *h = hub_create();
+    service *svc = service_create(&engine, h, &err);
+    int64_t start_volume = world_volume(&w);
+
+    /* 1: left half with footprints; 2: the same without; 3: right half with;
+     * 4: the left half with, like 1 (gets the very same frame) */
+    world_rect left = {0, 0, 150, 200}, right = {150, 0, 150, 200};
+    const world_rect rects[4] = {left, left, right, left};
+    const int wants[4] = {1, 0, 1, 1};
+    for (int c = 0; c < 4; c++) {
+        hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = (uint32_t)c + 1};
+        hub_push_command(h, &cmd);
+        cmd = (hub_command){.kind = HUB_SUBSCRIBE,
+                            .client = (uint32_t)c + 1,
+                            .subscription = 1,
+                            .rect = rects[c],
+                            .footprints = wants[c]};
+        hub_push_command(h, &cmd);
+    }
+    /* client 1's sphere pressed 5 cm in at (2, 5) m, cell (40, 100): the left half */
+    hub_command cmd = {.kind = HUB_COLLIDER_CREATE,
+                       .client = 1,
+                       .collider = 7,
+                       .geometry = {.shape = COLLIDER_SPHERE, .radius = 0.3}};
+    cmd.pose = (collider_pose){{2.0, 5.0, 0.75}, {1, 0, 0, 0}};
+    hub_push_command(h, &cmd);
+    footprint_view v[4];
+    memset(v, 0, sizeof v);
+    service_tick_stats st;
+    for (int t = 0; t < 5; t++) {
+        CHECK(service_tick(svc, NULL, 0, &st, &err) == 0, "decals tick %d: %s", t, err.message);
+        take_footprints(h, v, 4);
+    }
+    CHECK(v[0].frames == 5 && v[0].events == 5, "client 1: one event a tick (%d frames, %d)",
+          v[0].frames, v[0].events);
+    CHECK(v[0].last.collider == 7 && fabsf(v[0].last.x - 2.0f) < 0.1f &&
+              fabsf(v[0].last.y - 5.0f) < 0.1f && fabsf(v[0].last.strength_m - 0.05f) < 0.005f &&
+              v[0].last.size_m > 0.1f,
+          "client 1: the event is the sphere's (%u at %.3f, %.3f, strength %.4f, size %.3f)",
+          v[0].last.collider, v[0].last.x, v[0].last.y, v[0].last.strength_m, v[0].last.size_m);
+    CHECK(v[1].frames == 0, "client 2 did not ask: no frame (%d)", v[1].frames);
+    CHECK(v[2].frames == 0, "client 3's region is elsewhere: no frame (%d)", v[2].frames);
+    CHECK(v[3].frames == 5 && v[3].frame == v[0].frame, "client 4 shares client 1's frame");
+
+    /* a demo actor in the right half: client 3 gets it, clients 1 and 4 do not */
+    collider_geometry box = {.shape = COLLIDER_BOX, .half_extents = {0.4, 0.3, 0.2}};
+    sim_collider demo = {
+        .id = (int)0x40000001, .geometry = &box, .pose = {{11.0, 5.0, 0.68}, {1, 0, 0, 0}}};
+    demo.previous_pose = demo.pose;
+    memset(v, 0, sizeof v);
+    CHECK(service_tick(svc, &demo, 1, &st, &err) == 0, "decals tick with a demo actor");
+    take_footprints(h, v, 4);
+    CHECK(v[2].frames == 1 && v[2].events == 1 && v[2].last.collider == 0x40000001u &&
+              fabsf(v[2].last.x - 11.0f) < 0.1f,
+          "client 3: the demo box's event (%d events, %u at %.3f)", v[2].events, v[2].last.collider,
+          v[2].last.x);
+    CHECK(v[0].events == 1 && v[3].events == 1, "clients 1 and 4: only the sphere's (%d, %d)",
+          v[0].events, v[3].events);
+
+    /* lifted: no event, no frame */
+    hub_pose up = {
+        .collider = 7, .client = 1, .sequence = 1, .pose = {{2.0, 5.0, 2.0}, {1, 0, 0, 0}}};
+    hub_set_pose(h, &up);
+    memset(v, 0, sizeof v);
+    CHECK(service_tick(svc, NULL, 0, &st, &err) == 0, "decals tick, lifted");
+    take_footprints(h, v, 4);
+    CHECK(v[0].frames == 0 && v[3].frames == 0, "lifted: no FOOTPRINTS (%d)", v[0].frames);
+    CHECK(world_volume(&w) == start_volume, "decals: the heights never change");
+
+    service_destroy(svc);
+    hub_destroy(h);
+    sim_engine_free(&engine);
+    cpu->destroy(cpu);
+    world_free(&w);
 }
 
 int main(void)
@@ -248,6 +374,7 @@ int main(void)
     cpu->destroy(cpu);
     world_free(&w);
     terrad_codec_free(codec);
+    test_footprints();
     for (int c = 0; c < 2; c++) {
         free(views[c].heights);
         free(views[c].versions);

@@ -22,6 +22,7 @@ const decoders = {
   },
   CONTACT: C.decodeContact,
   COLLIDERS: C.decodeColliders,
+  FOOTPRINTS: C.decodeFootprints,
   ACK: C.decodeAck,
   PING: C.decodePing,
   PONG: C.decodePing,
@@ -81,6 +82,12 @@ for (const v of V.vectors) {
         assert.equal(String(d.tick), f.tick);
         assert.deepEqual(d.colliders, f.colliders.map((c) => ({
           id: c.id, owner: c.owner, kind: c.kind, dims: c.dims.map(Math.fround), p: c.p.map(Math.fround), q: c.q.map(Math.fround) })));
+        break;
+      case 'FOOTPRINTS':
+        assert.equal(String(d.tick), f.tick);
+        assert.deepEqual(d.footprints, f.footprints.map((e) => ({
+          collider: e.collider, x: Math.fround(e.x), y: Math.fround(e.y), yaw: Math.fround(e.yaw),
+          size_m: Math.fround(e.size_m), strength_m: Math.fround(e.strength_m) })));
         break;
       case 'ACK':
         assert.equal(String(d.tick), f.tick);
