@@ -18,6 +18,11 @@
 #define MARGIN_L 70.0
 #define MARGIN_T 70.0
 #define GAP 90.0
+/* The legend wraps at this many models a row: eight models in one row would
+ * run past the right edge of the two panels. */
+#define LEGEND_PER_ROW 4
+#define LEGEND_COLUMN_W 250.0
+#define LEGEND_ROW_H 22.0
 
 static const char *const colours[] = {"#1f77b4", "#d62728", "#2ca02c", "#ff7f0e",
                                       "#9467bd", "#8c564b", "#e377c2", "#17becf"};
@@ -183,7 +188,17 @@ int trade_plot_write(const char *path, const trade_row *rows, int row_count, con
         error_set(err, "cannot write %s", path);
         goto out;
     }
-    double width = MARGIN_L + 2 * PANEL_W + GAP + 40, height = MARGIN_T + PANEL_H + 110;
+    int models_present = 0;
+    for (int m = 0; m < trade_model_count; m++)
+        for (int i = 0; i < row_count; i++)
+            if (trade_model_index(rows[i].model) == m) {
+                models_present++;
+                break;
+            }
+    int legend_rows =
+        models_present > 0 ? (models_present + LEGEND_PER_ROW - 1) / LEGEND_PER_ROW : 1;
+    double width = MARGIN_L + 2 * PANEL_W + GAP + 40,
+           height = MARGIN_T + PANEL_H + 110 + (legend_rows - 1) * LEGEND_ROW_H;
     fprintf(f,
             "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
             "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" "
@@ -204,7 +219,8 @@ int trade_plot_write(const char *path, const trade_row *rows, int row_count, con
           "bytes per world cell: heights + peak scratch (log)", bytes, errors, rows, row_count,
           axis_for(bytes, row_count), ay);
     /* legend: one entry per model that appears, then the fill convention */
-    double lx = MARGIN_L, ly = MARGIN_T + PANEL_H + 62;
+    double ly = MARGIN_T + PANEL_H + 62;
+    int entry = 0;
     fprintf(f, "<g id=\"legend\">\n");
     for (int m = 0; m < trade_model_count; m++) {
         int present = 0;
@@ -212,16 +228,18 @@ int trade_plot_write(const char *path, const trade_row *rows, int row_count, con
             present |= trade_model_index(rows[i].model) == m;
         if (!present)
             continue;
-        marker(f, m, 0, lx + 6, ly - 4, "legend");
-        fprintf(f, "</g><text x=\"%.1f\" y=\"%.1f\">", lx + 16, ly);
+        double lx = MARGIN_L + LEGEND_COLUMN_W * (entry % LEGEND_PER_ROW),
+               ey = ly + LEGEND_ROW_H * (entry / LEGEND_PER_ROW);
+        entry++;
+        marker(f, m, 0, lx + 6, ey - 4, "legend");
+        fprintf(f, "</g><text x=\"%.1f\" y=\"%.1f\">", lx + 16, ey);
         xml_text(f, trade_model_names[m]);
         fprintf(f, "</text>\n");
-        lx += 170;
     }
     fprintf(f,
             "<text x=\"%.1f\" y=\"%.1f\">filled: CPU twin; hollow: GL. Error 0 (the reference "
             "itself) sits on the bottom edge. Hover a marker for its row.</text>\n",
-            MARGIN_L, ly + 24);
+            MARGIN_L, ly + LEGEND_ROW_H * (legend_rows - 1) + 24);
     fprintf(f, "</g>\n</svg>\n");
     if (fclose(f) != 0) {
         f = NULL;
