@@ -166,8 +166,10 @@ def main():
                 evictions += rep["gpu_tile_evictions"]
                 tiny_cached += rep["gpu_windows_cached"]
                 tiny_direct += rep["gpu_windows_direct"]
-                check(rep["gpu_tile_cache_bytes"] == 12 * 16 * 16 * 4,
-                      f"{name}: the tiny cache is 6 layers ({rep['gpu_tile_cache_bytes']} bytes)")
+                # (a scene with nothing touching the ground never makes the cache's texture)
+                check(rep["gpu_tile_cache_bytes"] == 12 * 16 * 16 * 4 or
+                      rep["active_cells_mean"] == 0,
+                      f"{name}: the tiny cache is 12 layers ({rep['gpu_tile_cache_bytes']} bytes)")
             if name.startswith("tile-corner"):
                 check(rep["world_stored_tiles"] >= 4,
                       f"{name} {b} tiles {tc}: the corner's tiles were written "

@@ -38,7 +38,7 @@ async function until(what, fn, ms = 15000, step = 100) {
 
 function startDaemon(httpPort = 0, wsPort = 0, extra = []) {
   const dataDir = mkdtempSync(path.join(tmpdir(), 'terrad-viewer-data-'));
-  const args = ['serve', '--http-port', String(httpPort), '--ws-port', String(wsPort), '--backend', 'cpu', '--no-demo', ...extra];
+  const args = ['serve', '--http-port', String(httpPort), '--ws-port', String(wsPort), '--backend', 'cpu', '--no-demo', '--durability', 'none', ...extra];
   const proc = spawn(BIN, args, { stdio: ['ignore', 'ignore', 'pipe'], cwd: dataDir });
   let err = '';
   return new Promise((resolve, reject) => {
@@ -365,7 +365,7 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
   }
 });
 
-test('a daemon restarted under the page: outage shown, reconnect, resync', { skip, timeout: 90000 }, async () => {
+test('a daemon restarted under the page: outage shown, reconnect, resync', { skip, timeout: 150000 }, async () => {
   const { http, ws } = daemon.ports;
   await stopDaemon(daemon);
   await until('the outage shown', async () => {
@@ -380,6 +380,6 @@ test('a daemon restarted under the page: outage shown, reconnect, resync', { ski
       return null;
     }
   }, 20000, 500);
-  await until('reconnected', () => page.evaluate(() => window.terrad.connected && window.terrad.state === 'live'), 20000);
+  await until('reconnected', () => page.evaluate(() => window.terrad.connected && window.terrad.state === 'live'), 45000);
   await assertMirrorsServer(daemon.ports.http);
 });
