@@ -6,7 +6,7 @@
 #   make test           everything CI runs; ends with "N passed, N failed"
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
 #                       terrad bench --trade: the speed/accuracy sweep into docs/trade/)
-#   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 20 s each)
+#   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
 #   make format         clang-format -i the C sources (format-check: only check)
 #   make web-deps       npm ci (when package-lock.json exists)
@@ -130,7 +130,7 @@ define fuzz_run
 endef
 
 fuzz-smoke:
-	$(call fuzz_run,20)
+	$(call fuzz_run,10)
 
 fuzz:
 	$(call fuzz_run,300)
