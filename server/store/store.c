@@ -368,7 +368,8 @@ static world_rect tile_rect(int width, int height, int tx, int ty)
 }
 
 /* Read one tile snapshot into w; errors name the file. */
-static int tile_load(const char *path, world *w, uint64_t upto_tick, error_text *err)
+static int tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *tick_out,
+                     error_text *err)
 {
     uint8_t *data = NULL;
     size_t len = 0;
@@ -407,6 +408,7 @@ static int tile_load(const char *path, world *w, uint64_t upto_tick, error_text 
                   path, (unsigned long long)get64(data + 36), (unsigned long long)upto_tick);
         goto out;
     }
+    *tick_out = get64(data + 36);
     world_rect r = tile_rect(w->width, w->height, (int)tx, (int)ty);
     size_t raw = (size_t)r.w * r.h * 4;
     values = malloc(raw);
@@ -628,6 +630,10 @@ static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint
     memset(rec, 0, sizeof *rec);
     char tiles_dir[1100];
     snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", dir);
+    /* A compaction may have folded every record into the snapshots and left an
+     * empty log: the world is then as of the newest snapshot, and the tick
+     * counter must go on from there, never back to 0. */
+    uint64_t snapshot_tick = 0;
     DIR *d = opendir(tiles_dir);
     if (d) {
         struct dirent *e;
@@ -636,10 +642,13 @@ static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint
             if (n > 5 && strcmp(e->d_name + n - 5, ".snap") == 0) {
                 char path[1400];
                 snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
-                if (tile_load(path, w, upto_tick, err) != 0) {
+                uint64_t tile_tick = 0;
+                if (tile_load(path, w, upto_tick, &tile_tick, err) != 0) {
                     closedir(d);
                     return -1;
                 }
+                if (tile_tick > snapshot_tick)
+                    snapshot_tick = tile_tick;
                 rec->tiles_loaded++;
             }
         }
@@ -699,7 +708,7 @@ static int recover(const char *dir, world *w, uint8_t *changed, int repair, uint
     }
     *last_seq = count ? seqs[count - 1] : 0;
     free(seqs);
-    rec->tick = tick;
+    rec->tick = tick > snapshot_tick ? tick : snapshot_tick;
     rec->ms = time_now_ms() - t0;
     return 0;
 }
