@@ -324,8 +324,11 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
     const region = await pg.evaluate(() => window.terrad.region);
     assert.equal(world.width, 2048);
     assert.ok(region.w * region.h > 512 * 512 && region.w < world.width, `a window, not the world: ${JSON.stringify(region)}`);
+    const drawnBefore = await pg.evaluate(() => window.terrad.framesDrawn);
     await pg.evaluate(() => window.terrad.setCamera({ pitch: 0.3, yaw: -2.2 }));
-    await sleep(500);
+    // the chunks' levels are chosen when a frame is drawn: wait for two frames after the move
+    // (a frame takes seconds on a loaded machine's SwiftShader)
+    await until('frames drawn from the new camera', async () => (await pg.evaluate(() => window.terrad.framesDrawn)) >= drawnBefore + 2, 30000);
     const { chunks, eye } = await pg.evaluate(() => ({ chunks: window.terrad.chunks, eye: window.terrad.camera.eye }));
     assert.equal(chunks.length, Math.ceil(region.w / 64) * Math.ceil(region.h / 64), 'chunks cover the window');
     const cell = world.cell_size_m;
