@@ -72,6 +72,13 @@ class Checks:
         sys.exit(1 if self.failed else 0)
 
 
+def simulate(scene, ticks, *extra, backend="cpu"):
+    """`terrad simulate` on a scene file: (exit status, its JSON report or None, stderr)."""
+    args = [BIN, "simulate", "--scene", scene, "--ticks", str(ticks), "--backend", backend]
+    p = subprocess.run(args + list(extra), capture_output=True, text=True, timeout=240)
+    return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
+
+
 def skip(why):
     print(f"skip: {why}", flush=True)
     sys.exit(77)

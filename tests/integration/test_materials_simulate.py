@@ -18,27 +18,11 @@ import sys
 import tempfile
 import time
 
-SOURCE = os.environ.get("TERRAD_SOURCE_DIR", ".")
-BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from service_harness import BIN, SOURCE, Checks, Daemon, simulate  # noqa: E402
+
 SCENE = os.path.join(SOURCE, "tests", "scenes", "materials-mixed.json")
-
-passed = 0
-failed = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what, flush=True)
-
-
-def simulate(scene_path, ticks, backend):
-    p = subprocess.run([BIN, "simulate", "--scene", scene_path, "--ticks", str(ticks),
-                        "--backend", backend], capture_output=True, text=True, timeout=240)
-    return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
+check = Checks()
 
 
 def with_scene(doc, fn):
@@ -51,7 +35,7 @@ def with_scene(doc, fn):
         os.unlink(path)
 
 
-rc, rep, err = simulate(SCENE, 400, "cpu")
+rc, rep, err = simulate(SCENE, 400)
 check(rc == 0, "mixed scene runs on cpu: " + err)
 if rep:
     compacted = rep.get("compacted", 0)
@@ -64,7 +48,7 @@ if rep:
 with open(SCENE) as f:
     doc = json.load(f)
 doc["materials"]["snow"] = {"preset": "sand", "repose_deg": 20}
-rc, rep, err = with_scene(doc, lambda p: simulate(p, 400, "cpu"))
+rc, rep, err = with_scene(doc, lambda p: simulate(p, 400))
 check(rc == 0, "no-compaction scene runs: " + err)
 if rep:
     check(rep["volume_after"] == rep["volume_before"], "Σh exact without compaction")
@@ -97,20 +81,17 @@ else:
 bad = dict(doc)
 bad["materials"] = {"sand": {"preset": "sand", "roughness": -1}}
 bad["material_map"] = {"default": "sand"}
-rc, rep, err = with_scene(bad, lambda p: simulate(p, 1, "cpu"))
+rc, rep, err = with_scene(bad, lambda p: simulate(p, 1))
 check(rc != 0 and "materials.sand.roughness" in err, "bad roughness named: " + err.strip())
 bad["materials"] = {"sand": {"preset": "sand"}}
 bad["material_map"] = {"default": "sand", "paint": [{"material": "clay", "rect": [0, 0, 1, 1]}]}
-rc, rep, err = with_scene(bad, lambda p: simulate(p, 1, "cpu"))
+rc, rep, err = with_scene(bad, lambda p: simulate(p, 1))
 check(rc != 0 and "material_map.paint[0].material" in err, "unknown paint material named: " + err.strip())
 
 # The daemon on the mixed scene: the demo actors deform sand, mud and snow;
 # the snow compacts, so Σh may only fall, and the daemon keeps ticking.
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from service_harness import Daemon  # noqa: E402
-
 d = Daemon(backend="cpu", demo=True, extra=["--scene", SCENE])
-try:
+with check.running(d):
     first = d.stats()
     time.sleep(2.0)
     later = d.stats()
@@ -118,11 +99,4 @@ try:
     check(later["tick"] > first["tick"], "daemon ticks (%d -> %d)" % (first["tick"], later["tick"]))
     check(later["volume"] <= first["volume"],
           "Σh only falls (snow compacts): %d -> %d" % (first["volume"], later["volume"]))
-finally:
-    st = d.stop()
-check(st == 0, "daemon stops with status 0 (%s)" % st)
-if failed:
-    d.print_log()
-
-print("%d passed, %d failed" % (passed, failed))
-raise SystemExit(1 if failed else 0)
+check.finish()

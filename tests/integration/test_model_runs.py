@@ -21,7 +21,7 @@ import os
 import subprocess
 import tempfile
 
-from service_harness import BIN, SOURCE, Checks, Daemon, metric_value
+from service_harness import SOURCE, Checks, Daemon, metric_value, simulate
 
 SCENES = os.path.join(SOURCE, "tests", "scenes")
 EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")
@@ -29,12 +29,6 @@ MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "def
           "diffusion", "sumner", "decals"]
 EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner", "decals"}
 check = Checks()
-
-
-def simulate(scene, ticks, *extra, backend="cpu"):
-    args = [BIN, "simulate", "--scene", scene, "--ticks", str(ticks), "--backend", backend]
-    p = subprocess.run(args + list(extra), capture_output=True, text=True, timeout=240)
-    return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
 
 
 def scene_file(material, name="models"):
