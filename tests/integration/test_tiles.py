@@ -24,22 +24,13 @@ import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
-SOURCE = os.environ.get("TERRAD_SOURCE_DIR", ".")
-BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from service_harness import BIN, SOURCE, Checks  # noqa: E402
+
 SCENES = os.path.abspath(os.path.join(SOURCE, "tests", "scenes"))
 WHOLE = 65536  # one tile covers any world
 
-passed = 0
-failed = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what, flush=True)
+check = Checks()
 
 
 TINY_CACHE = "tiny"  # tiles of 16 with a GPU tile cache of 12 layers, 4 KiB a tick
@@ -191,9 +182,8 @@ def main():
             check(evictions > 0 and tiny_cached > 0 and tiny_direct > 0,
                   f"the tiny GPU tile cache evicted tiles ({evictions}), served windows "
                   f"({tiny_cached}) and sent others the direct way ({tiny_direct})")
-    print(f"{passed} passed, {failed} failed")
-    return 1 if failed else 0
+    check.finish()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main())  # check.finish() exits on its own; main returns 1 without a binary
