@@ -151,3 +151,12 @@ void error_set(error_text *err, const char *fmt, ...)
     vsnprintf(err->message, sizeof err->message, fmt, ap);
     va_end(ap);
 }
+
+void error_prefix(error_text *err, const char *prefix, const char *sep)
+{
+    if (!err)
+        return;
+    char inner[sizeof err->message];
+    snprintf(inner, sizeof inner, "%s", err->message);
+    error_set(err, "%s%s%s", prefix, sep, inner);
+}

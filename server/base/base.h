@@ -1,14 +1,18 @@
 /*
  * base: the small pieces every subsystem uses — logging, monotonic time,
- * per-stage timing series (mean and p99) and the process's peak memory.
- * Nothing here knows about terrain; it exists so that each subsystem does not
- * grow its own copy of these helpers.
+ * per-stage timing series (mean and p99), the process's memory, one growable
+ * array, one whole-file reader, one set of JSON field readers whose errors
+ * name the field, one command-line parser (getopt_long) and thread-ownership
+ * checks. Nothing here knows about terrain; it exists so that each subsystem
+ * does not grow its own copy of these helpers. It is the bottom layer: it
+ * includes no other subsystem.
  */
 #ifndef TERRAD_BASE_H
 #define TERRAD_BASE_H
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 /* Log lines go to stderr, one line each, prefixed with the level. */
 void log_info(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -42,5 +46,115 @@ typedef struct error_text {
 } error_text;
 
 void error_set(error_text *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* Prepend "prefix" + sep to the message a lower layer wrote. */
+void error_prefix(error_text *err, const char *prefix, const char *sep);
+
+/* ---- One growable array (array.c) ----
+ * *items holds *capacity elements of elem_size bytes. Makes room for at least
+ * `needed` (capacity at least doubles, so appends are amortised O(1)); the new
+ * tail is not initialised. Returns 0, or -1 with *items and *capacity
+ * unchanged when memory runs out or the size would overflow. */
+int array_grow(void **items, int64_t *capacity, int64_t needed, size_t elem_size);
+
+/* ---- Whole files (file.c) ---- */
+/* Reads all of path into a malloc'd buffer with a NUL byte after the last
+ * (so text parsers can use it; *len excludes it). Refuses files larger than
+ * max_bytes (0: no limit but memory). Returns 0, or -1 with err naming the
+ * path and the cause. */
+int file_read_all(const char *path, size_t max_bytes, uint8_t **data, size_t *len, error_text *err);
+
+/* ---- JSON field readers (json_fields.c) ----
+ * For strict configuration and scene parsing with cJSON: every message names
+ * the JSON path of the offending value, e.g.
+ * "colliders[2].motion.velocity[0]: must be a finite number". `path` is the
+ * path of obj ("" at the root). The getters return 1 when the key is present
+ * and valid, 0 when absent, -1 (err set) when present but wrong. */
+typedef struct cJSON cJSON;
+
+/* "world" + "width" -> "world.width"; "" + "name" -> "name". Cut, never overrun. */
+void json_path_join(char *out, size_t size, const char *parent, const char *key);
+void json_path_index(char *out, size_t size, const char *parent, int i);
+/* "a number", "a string", "an object", ... for messages. */
+const char *json_type_name(const cJSON *v);
+/* root_name names obj in the message when path is "" (e.g. "scene"). */
+int json_expect_object(const cJSON *v, const char *path, const char *root_name, error_text *err);
+/* Every key of obj must be in allowed (NULL-terminated), once. context, if
+ * not NULL, ends the message: "p: unknown key for <context>". */
+int json_check_keys(const cJSON *obj, const char *path, const char *const *allowed,
+                    const char *context, error_text *err);
+/* A finite number in [lo, hi]. */
+int json_get_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                    double *out, error_text *err);
+/* Like json_get_number, but absence is an error (returns 0 or -1). */
+int json_require_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                        double *out, error_text *err);
+/* A finite number in (0, hi]; required: absence is an error. */
+int json_get_positive(const cJSON *obj, const char *path, const char *key, double hi, int required,
+                      double *out, error_text *err);
+/* An integer in [lo, hi]; required: absence is an error. */
+int json_get_integer(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                     int required, double *out, error_text *err);
+/* A string shorter than size. */
+int json_get_string(const cJSON *obj, const char *path, const char *key, char *out, size_t size,
+                    error_text *err);
+/* A boolean. */
+int json_get_bool(const cJSON *obj, const char *path, const char *key, int *out, error_text *err);
+/* An array of exactly n finite numbers, each with |x| <= limit. */
+int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
+                    double *out, error_text *err);
+
+/* ---- Command lines (cli.c): one parser, on getopt_long, for every command ----
+ * A command describes its options in a table (ended by {0}); cli_parse
+ * accepts "--opt value" and "--opt=value", answers "--help" by printing the
+ * command's options to stdout, and refuses an unknown option ("unknown option
+ * '--x'"), a missing value ("'--x' needs a value") and a value given to a
+ * flag, each on stderr prefixed with "terrad CMD: ". */
+typedef struct cli_option {
+    const char *name;       /* without the dashes */
+    const char *value_name; /* NULL: a flag; else the value's name in --help ("N", "FILE") */
+    const char *help;       /* one or more lines; '\n' starts a new indented line */
+} cli_option;
+
+typedef enum cli_result {
+    CLI_OK = 0,    /* every option was handled; *first_operand indexes the rest */
+    CLI_HELP = 1,  /* --help was printed: exit 0 */
+    CLI_ERROR = 2, /* a message was printed: exit 2 */
+} cli_result;
+
+/* on_option is called once per option, in order, with its index in options
+ * and its value (NULL for a flag); it returns 0, or -1 after filling err (the
+ * message is printed as "terrad CMD: --name: <err>"). argv[0] is skipped, as
+ * getopt does: pass the command's own argv (argv[0] = the command's name).
+ * Operands (arguments that are not options) are left in place after
+ * *first_operand when first_operand is not NULL, and refused otherwise. */
+cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
+                     char **argv,
+                     int (*on_option)(void *ctx, int index, const char *value, error_text *err),
+                     void *ctx, int *first_operand);
+/* The help text cli_parse prints for --help: usage, then one line per option. */
+void cli_print_help(FILE *out, const char *command, const char *usage, const cli_option *options);
+/* An integer in [lo, hi] from an option's value; err says why not. */
+int cli_parse_long(const char *value, long lo, long hi, long *out, error_text *err);
+int cli_parse_double(const char *value, double lo, double hi, double *out, error_text *err);
+
+/* ---- Thread ownership (thread_owner.c) ----
+ * A function documented as "sim thread only" asserts it: the owner records
+ * itself once when its thread starts, and each thread-owned entry point
+ * checks. The checks compile to nothing unless TERRAD_THREAD_CHECKS is set
+ * (debug and sanitizer builds set it); a failed check names the owner and
+ * the function and aborts. */
+typedef struct thread_owner {
+    const char *name;  /* "sim", "net", "http", "compaction" */
+    unsigned long tid; /* pthread_self() of the owner; 0: not yet claimed */
+} thread_owner;
+
+void thread_owner_claim(thread_owner *o, const char *name);
+void thread_owner_release(thread_owner *o);
+void thread_owner_check(const thread_owner *o, const char *function);
+#ifdef TERRAD_THREAD_CHECKS
+#define THREAD_OWNED(owner) thread_owner_check((owner), __func__)
+#else
+#define THREAD_OWNED(owner) ((void)(owner))
+#endif
 
 #endif

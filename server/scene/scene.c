@@ -74,244 +74,6 @@ typedef struct scene_parser {
     error_text *err;
 } scene_parser;
 
-/* JSON paths are short in practice; a pathological one is cut, never overrun. */
-static void path_format(char *out, size_t size, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-
-static void path_format(char *out, size_t size, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(out, size, fmt, ap);
-    va_end(ap);
-}
-
-/* "world" + "width" → "world.width"; "" + "name" → "name". */
-static void path_join(char *out, size_t size, const char *parent, const char *key)
-{
-    if (parent[0])
-        path_format(out, size, "%s.%s", parent, key);
-    else
-        path_format(out, size, "%s", key);
-}
-
-static void path_index(char *out, size_t size, const char *parent, int i)
-{
-    path_format(out, size, "%s[%d]", parent, i);
-}
-
-/* Prepend "prefix." to the message a lower layer wrote. */
-static void error_prefix(error_text *err, const char *prefix, const char *sep)
-{
-    if (!err)
-        return;
-    char inner[sizeof err->message];
-    snprintf(inner, sizeof inner, "%s", err->message);
-    error_set(err, "%s%s%s", prefix, sep, inner);
-}
-
-static const char *json_type_name(const cJSON *v)
-{
-    if (cJSON_IsNumber(v))
-        return "a number";
-    if (cJSON_IsString(v))
-        return "a string";
-    if (cJSON_IsBool(v))
-        return "a boolean";
-    if (cJSON_IsNull(v))
-        return "null";
-    if (cJSON_IsArray(v))
-        return "an array";
-    if (cJSON_IsObject(v))
-        return "an object";
-    return "an unknown value";
-}
-
-static int expect_object(const cJSON *v, const char *path, error_text *err)
-{
-    if (!cJSON_IsObject(v)) {
-        error_set(err, "%s: must be an object (got %s)", path[0] ? path : "scene",
-                  json_type_name(v));
-        return -1;
-    }
-    return 0;
-}
-
-/* Every key of obj must be in allowed (NULL-terminated), once. */
-static int check_keys(const cJSON *obj, const char *path, const char *const *allowed,
-                      const char *context, error_text *err)
-{
-    for (const cJSON *c = obj->child; c; c = c->next) {
-        char p[256];
-        path_join(p, sizeof p, path, c->string ? c->string : "");
-        int known = 0;
-        for (const char *const *a = allowed; *a; a++)
-            if (c->string && strcmp(c->string, *a) == 0)
-                known = 1;
-        if (!known) {
-            if (context)
-                error_set(err, "%s: unknown key for %s", p, context);
-            else
-                error_set(err, "%s: unknown key", p);
-            return -1;
-        }
-        for (const cJSON *d = obj->child; d != c; d = d->next)
-            if (d->string && strcmp(d->string, c->string) == 0) {
-                error_set(err, "%s: duplicate key", p);
-                return -1;
-            }
-    }
-    return 0;
-}
-
-/* A finite number in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
-static int get_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
-                      double *out, error_text *err)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    if (!v)
-        return 0;
-    char p[256];
-    path_join(p, sizeof p, path, key);
-    if (!cJSON_IsNumber(v)) {
-        error_set(err, "%s: must be a number (got %s)", p, json_type_name(v));
-        return -1;
-    }
-    double d = v->valuedouble;
-    if (!isfinite(d)) {
-        error_set(err, "%s: must be a finite number (got %g)", p, d);
-        return -1;
-    }
-    if (d < lo || d > hi) {
-        error_set(err, "%s: must be in [%g, %g] (got %g)", p, lo, hi, d);
-        return -1;
-    }
-    *out = d;
-    return 1;
-}
-
-static int require_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
-                          double *out, error_text *err)
-{
-    int r = get_number(obj, path, key, lo, hi, out, err);
-    if (r == 0) {
-        char p[256];
-        path_join(p, sizeof p, path, key);
-        error_set(err, "%s: missing (a number in [%g, %g])", p, lo, hi);
-        return -1;
-    }
-    return r < 0 ? -1 : 0;
-}
-
-/* Present and positive: (0, hi]. */
-static int get_positive(const cJSON *obj, const char *path, const char *key, double hi,
-                        int required, double *out, error_text *err)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    char p[256];
-    path_join(p, sizeof p, path, key);
-    if (!v) {
-        if (!required)
-            return 0;
-        error_set(err, "%s: missing (a finite number > 0 and <= %g)", p, hi);
-        return -1;
-    }
-    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) || v->valuedouble <= 0.0 ||
-        v->valuedouble > hi) {
-        if (cJSON_IsNumber(v))
-            error_set(err, "%s: must be a finite number > 0 and <= %g (got %g)", p, hi,
-                      v->valuedouble);
-        else
-            error_set(err, "%s: must be a finite number > 0 and <= %g (got %s)", p, hi,
-                      json_type_name(v));
-        return -1;
-    }
-    *out = v->valuedouble;
-    return 1;
-}
-
-/* An integer in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
-static int get_integer(const cJSON *obj, const char *path, const char *key, double lo, double hi,
-                       int required, double *out, error_text *err)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    char p[256];
-    path_join(p, sizeof p, path, key);
-    if (!v) {
-        if (!required)
-            return 0;
-        error_set(err, "%s: missing (an integer in [%.0f, %.0f])", p, lo, hi);
-        return -1;
-    }
-    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) ||
-        v->valuedouble != floor(v->valuedouble) || v->valuedouble < lo || v->valuedouble > hi) {
-        if (cJSON_IsNumber(v))
-            error_set(err, "%s: must be an integer in [%.0f, %.0f] (got %g)", p, lo, hi,
-                      v->valuedouble);
-        else
-            error_set(err, "%s: must be an integer in [%.0f, %.0f] (got %s)", p, lo, hi,
-                      json_type_name(v));
-        return -1;
-    }
-    *out = v->valuedouble;
-    return 1;
-}
-
-/* A string shorter than size. Returns 1 when present, 0 when absent, -1 on error. */
-static int get_string(const cJSON *obj, const char *path, const char *key, char *out, size_t size,
-                      error_text *err)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    if (!v)
-        return 0;
-    char p[256];
-    path_join(p, sizeof p, path, key);
-    if (!cJSON_IsString(v) || !v->valuestring) {
-        error_set(err, "%s: must be a string (got %s)", p, json_type_name(v));
-        return -1;
-    }
-    if (strlen(v->valuestring) >= size) {
-        error_set(err, "%s: must be shorter than %zu bytes", p, size);
-        return -1;
-    }
-    snprintf(out, size, "%s", v->valuestring);
-    return 1;
-}
-
-/* An array of n finite numbers, each with |x| <= limit. */
-static int get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
-                      double *out, error_text *err)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    if (!v)
-        return 0;
-    char p[256];
-    path_join(p, sizeof p, path, key);
-    if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) != n) {
-        error_set(err, "%s: must be an array of %d numbers", p, n);
-        return -1;
-    }
-    int i = 0;
-    for (const cJSON *e = v->child; e; e = e->next, i++) {
-        char q[280];
-        path_format(q, sizeof q, "%s[%d]", p, i);
-        if (!cJSON_IsNumber(e) || !isfinite(e->valuedouble)) {
-            if (cJSON_IsNumber(e))
-                error_set(err, "%s: must be a finite number (got %g)", q, e->valuedouble);
-            else
-                error_set(err, "%s: must be a finite number (got %s)", q, json_type_name(e));
-            return -1;
-        }
-        if (fabs(e->valuedouble) > limit) {
-            error_set(err, "%s: must be within [-%g, %g] (got %g)", q, limit, limit,
-                      e->valuedouble);
-            return -1;
-        }
-        out[i] = e->valuedouble;
-    }
-    return 1;
-}
-
 /* ---- world, terrain, material ---- */
 
 static const char *const world_keys[] = {"width",   "height",     "cell_size_m", "units_per_m",
@@ -324,15 +86,16 @@ static int parse_world(const cJSON *root, scene *s, error_text *err)
         error_set(err, "world: missing (an object with width, height and cell_size_m)");
         return -1;
     }
-    if (expect_object(w, "world", err) || check_keys(w, "world", world_keys, NULL, err))
+    if (json_expect_object(w, "world", "scene", err) ||
+        json_check_keys(w, "world", world_keys, NULL, err))
         return -1;
     double width, height, cell, upm = 10000, floor_m = 0, tile_cells = 0;
-    if (get_integer(w, "world", "width", 1, WORLD_SIDE_MAX, 1, &width, err) < 0 ||
-        get_integer(w, "world", "height", 1, WORLD_SIDE_MAX, 1, &height, err) < 0 ||
-        get_positive(w, "world", "cell_size_m", 1000, 1, &cell, err) < 0 ||
-        get_integer(w, "world", "units_per_m", 1, 1000000, 0, &upm, err) < 0 ||
-        get_number(w, "world", "floor_m", -1e9, 1e9, &floor_m, err) < 0 ||
-        get_integer(w, "world", "tile_cells", 0, WORLD_SIDE_MAX, 0, &tile_cells, err) < 0)
+    if (json_get_integer(w, "world", "width", 1, WORLD_SIDE_MAX, 1, &width, err) < 0 ||
+        json_get_integer(w, "world", "height", 1, WORLD_SIDE_MAX, 1, &height, err) < 0 ||
+        json_get_positive(w, "world", "cell_size_m", 1000, 1, &cell, err) < 0 ||
+        json_get_integer(w, "world", "units_per_m", 1, 1000000, 0, &upm, err) < 0 ||
+        json_get_number(w, "world", "floor_m", -1e9, 1e9, &floor_m, err) < 0 ||
+        json_get_integer(w, "world", "tile_cells", 0, WORLD_SIDE_MAX, 0, &tile_cells, err) < 0)
         return -1;
     int tc = (int)tile_cells;
     if (tc != 0 && (tc < WORLD_TILE_CELLS_MIN || (tc & (tc - 1)) != 0)) {
@@ -393,10 +156,10 @@ static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, er
     const cJSON *t = cJSON_GetObjectItemCaseSensitive(root, "terrain");
     if (!t)
         return 0; /* flat at 0 m */
-    if (expect_object(t, "terrain", err))
+    if (json_expect_object(t, "terrain", "scene", err))
         return -1;
     char kind[32];
-    int r = get_string(t, "terrain", "kind", kind, sizeof kind, err);
+    int r = json_get_string(t, "terrain", "kind", kind, sizeof kind, err);
     if (r < 0)
         return -1;
     if (r == 0) {
@@ -405,8 +168,8 @@ static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, er
     }
     if (strcmp(kind, "flat") == 0) {
         static const char *const keys[] = {"kind", "height_m", NULL};
-        if (check_keys(t, "terrain", keys, "terrain kind flat", err) ||
-            require_number(t, "terrain", "height_m", -1e9, 1e9, &b->height_m, err) ||
+        if (json_check_keys(t, "terrain", keys, "terrain kind flat", err) ||
+            json_require_number(t, "terrain", "height_m", -1e9, 1e9, &b->height_m, err) ||
             check_height_m(s, "terrain.height_m", b->height_m, err))
             return -1;
         return 0;
@@ -417,12 +180,12 @@ static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, er
         double octaves = 4, seed = 0;
         b->kind = WORLD_BASE_DUNES;
         b->wavelength_m = 10.0;
-        if (check_keys(t, "terrain", keys, "terrain kind dunes", err) ||
-            require_number(t, "terrain", "min_height_m", -1e9, 1e9, &b->min_height_m, err) ||
-            require_number(t, "terrain", "max_height_m", -1e9, 1e9, &b->max_height_m, err) ||
-            get_positive(t, "terrain", "wavelength_m", 1e6, 0, &b->wavelength_m, err) < 0 ||
-            get_integer(t, "terrain", "octaves", 1, 8, 0, &octaves, err) < 0 ||
-            get_integer(t, "terrain", "seed", 0, 4294967295.0, 0, &seed, err) < 0 ||
+        if (json_check_keys(t, "terrain", keys, "terrain kind dunes", err) ||
+            json_require_number(t, "terrain", "min_height_m", -1e9, 1e9, &b->min_height_m, err) ||
+            json_require_number(t, "terrain", "max_height_m", -1e9, 1e9, &b->max_height_m, err) ||
+            json_get_positive(t, "terrain", "wavelength_m", 1e6, 0, &b->wavelength_m, err) < 0 ||
+            json_get_integer(t, "terrain", "octaves", 1, 8, 0, &octaves, err) < 0 ||
+            json_get_integer(t, "terrain", "seed", 0, 4294967295.0, 0, &seed, err) < 0 ||
             check_height_m(s, "terrain.min_height_m", b->min_height_m, err) ||
             check_height_m(s, "terrain.max_height_m", b->max_height_m, err))
             return -1;
@@ -451,15 +214,16 @@ static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, er
     char rel[1024];
     b->value_scale_units = 1.0;
     b->value_offset_units = 0.0;
-    if (check_keys(t, "terrain", keys, "a heightmap terrain", err) ||
-        (r = get_string(t, "terrain", "path", rel, sizeof rel, err)) < 0)
+    if (json_check_keys(t, "terrain", keys, "a heightmap terrain", err) ||
+        (r = json_get_string(t, "terrain", "path", rel, sizeof rel, err)) < 0)
         return -1;
     if (r == 0 || !rel[0]) {
         error_set(err, "terrain.path: missing (the heightmap file)");
         return -1;
     }
-    if (get_number(t, "terrain", "scale_units", -1e9, 1e9, &b->value_scale_units, err) < 0 ||
-        get_number(t, "terrain", "offset_units", -1e10, 1e10, &b->value_offset_units, err) < 0 ||
+    if (json_get_number(t, "terrain", "scale_units", -1e9, 1e9, &b->value_scale_units, err) < 0 ||
+        json_get_number(t, "terrain", "offset_units", -1e10, 1e10, &b->value_offset_units, err) <
+            0 ||
         resolve_path(ps->base_dir, rel, b->path, sizeof b->path, "terrain.path", err))
         return -1;
     return 0;
@@ -499,16 +263,16 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
                                        "decal_min_strength_m",
                                        NULL};
     const char *P = "material";
-    if (expect_object(o, P, err) || check_keys(o, P, keys, NULL, err))
+    if (json_expect_object(o, P, "scene", err) || json_check_keys(o, P, keys, NULL, err))
         return -1;
     double v;
     int r;
-    if (get_number(o, P, "compression", 0, 1, &m->compression, err) < 0 ||
-        get_number(o, P, "roughness", 0, 1, &m->roughness, err) < 0 ||
-        get_number(o, P, "obstacle_gap_m", 0, 1000, &m->obstacle_gap_m, err) < 0 ||
-        get_positive(o, P, "multi_target_m", 1000, 0, &m->multi_target_m, err) < 0)
+    if (json_get_number(o, P, "compression", 0, 1, &m->compression, err) < 0 ||
+        json_get_number(o, P, "roughness", 0, 1, &m->roughness, err) < 0 ||
+        json_get_number(o, P, "obstacle_gap_m", 0, 1000, &m->obstacle_gap_m, err) < 0 ||
+        json_get_positive(o, P, "multi_target_m", 1000, 0, &m->multi_target_m, err) < 0)
         return -1;
-    if ((r = get_number(o, P, "repose_deg", 0, 90, &v, err)) < 0)
+    if ((r = json_get_number(o, P, "repose_deg", 0, 90, &v, err)) < 0)
         return -1;
     if (r) {
         if (v >= 90.0) {
@@ -517,27 +281,27 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
         }
         m->repose_deg = v;
     }
-    if ((r = get_integer(o, P, "multi_target_max", 1, 1024, 0, &v, err)) < 0)
+    if ((r = json_get_integer(o, P, "multi_target_max", 1, 1024, 0, &v, err)) < 0)
         return -1;
     if (r)
         m->multi_target_max = (int)v;
-    if ((r = get_integer(o, P, "displace_iterations", 0, 1000, 0, &v, err)) < 0)
+    if ((r = json_get_integer(o, P, "displace_iterations", 0, 1000, 0, &v, err)) < 0)
         return -1;
     if (r)
         m->displace_iterations = (int)v;
-    if ((r = get_integer(o, P, "slope_iterations", 0, 1000, 0, &v, err)) < 0)
+    if ((r = json_get_integer(o, P, "slope_iterations", 0, 1000, 0, &v, err)) < 0)
         return -1;
     if (r)
         m->slope_iterations = (int)v;
     char name[32];
-    if ((r = get_string(o, P, "metric", name, sizeof name, err)) < 0)
+    if ((r = json_get_string(o, P, "metric", name, sizeof name, err)) < 0)
         return -1;
     if (r && sim_metric_parse(name, &m->metric) != 0) {
         error_set(err, "material.metric: must be euclidean, manhattan or chebyshev (got \"%s\")",
                   name);
         return -1;
     }
-    if ((r = get_string(o, P, "method", name, sizeof name, err)) < 0)
+    if ((r = json_get_string(o, P, "method", name, sizeof name, err)) < 0)
         return -1;
     if (r && sim_method_parse(name, &m->method) != 0) {
         error_set(err, "material.method: must be iterative, ssbo or multi (got \"%s\")", name);
@@ -545,7 +309,7 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
     }
     int has_method = r;
     m->model = sim_model_from_method(m->method);
-    if ((r = get_string(o, P, "model", name, sizeof name, err)) < 0)
+    if ((r = json_get_string(o, P, "model", name, sizeof name, err)) < 0)
         return -1;
     if (r && sim_model_parse(name, &m->model) != 0) {
         error_set(err,
@@ -567,7 +331,7 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
     }
     /* a preset first, so explicit D / zeta_inv / repose_deg override it */
     char preset[32];
-    if ((r = get_string(o, P, "preset", preset, sizeof preset, err)) < 0)
+    if ((r = json_get_string(o, P, "preset", preset, sizeof preset, err)) < 0)
         return -1;
     if (r) {
         double repose = m->repose_deg;
@@ -579,16 +343,16 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
         if (rd)
             m->repose_deg = repose;
     }
-    if (get_number(o, P, "refill_m_per_s", 0, 1000, &m->refill_m_per_s, err) < 0 ||
-        get_number(o, P, "trail_scale_per_m", 0, 1e6, &m->trail_scale_per_m, err) < 0 ||
-        get_number(o, P, "trail_range_m", 0, 1000, &m->trail_range_m, err) < 0 ||
-        get_number(o, P, "edge_height", 0, 100, &m->edge_height, err) < 0 ||
-        get_positive(o, P, "edge_width", 100, 0, &m->edge_width, err) < 0 ||
-        get_number(o, P, "D", 0, 1e12, &m->diffusion_d, err) < 0 ||
-        get_number(o, P, "zeta_inv", 0, 1e12, &m->diffusion_zeta_inv, err) < 0 ||
-        get_number(o, P, "force_scale", 0, 1e12, &m->diffusion_force_scale, err) < 0 ||
-        get_number(o, P, "dt", 0, 1e12, &m->diffusion_dt, err) < 0 ||
-        get_number(o, P, "decal_min_strength_m", 0, 1000, &m->decal_min_strength_m, err) < 0)
+    if (json_get_number(o, P, "refill_m_per_s", 0, 1000, &m->refill_m_per_s, err) < 0 ||
+        json_get_number(o, P, "trail_scale_per_m", 0, 1e6, &m->trail_scale_per_m, err) < 0 ||
+        json_get_number(o, P, "trail_range_m", 0, 1000, &m->trail_range_m, err) < 0 ||
+        json_get_number(o, P, "edge_height", 0, 100, &m->edge_height, err) < 0 ||
+        json_get_positive(o, P, "edge_width", 100, 0, &m->edge_width, err) < 0 ||
+        json_get_number(o, P, "D", 0, 1e12, &m->diffusion_d, err) < 0 ||
+        json_get_number(o, P, "zeta_inv", 0, 1e12, &m->diffusion_zeta_inv, err) < 0 ||
+        json_get_number(o, P, "force_scale", 0, 1e12, &m->diffusion_force_scale, err) < 0 ||
+        json_get_number(o, P, "dt", 0, 1e12, &m->diffusion_dt, err) < 0 ||
+        json_get_number(o, P, "decal_min_strength_m", 0, 1000, &m->decal_min_strength_m, err) < 0)
         return -1;
     const cJSON *sub = cJSON_GetObjectItemCaseSensitive(o, "substeps");
     if (sub && cJSON_IsString(sub)) {
@@ -598,7 +362,7 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
         }
         m->diffusion_substeps = SIM_DIFFUSION_SUBSTEPS_AUTO;
     } else {
-        if ((r = get_integer(o, P, "substeps", 1, 100000, 0, &v, err)) < 0)
+        if ((r = json_get_integer(o, P, "substeps", 1, 100000, 0, &v, err)) < 0)
             return -1;
         if (r)
             m->diffusion_substeps = (int)v;
@@ -623,7 +387,7 @@ static int parse_material(const cJSON *root, scene *s, error_text *err)
 static int parse_quat(const cJSON *obj, const char *path, quatd *q, error_text *err)
 {
     double v[4];
-    int r = get_vector(obj, path, "orientation", 4, 1e6, v, err);
+    int r = json_get_vector(obj, path, "orientation", 4, 1e6, v, err);
     if (r <= 0) {
         *q = (quatd){1, 0, 0, 0};
         return r;
@@ -631,7 +395,7 @@ static int parse_quat(const cJSON *obj, const char *path, quatd *q, error_text *
     double n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3];
     if (!(n2 > 1e-12)) {
         char p[256];
-        path_join(p, sizeof p, path, "orientation");
+        json_path_join(p, sizeof p, path, "orientation");
         error_set(err, "%s: must be a non-zero quaternion [w, x, y, z]", p);
         return -1;
     }
@@ -642,7 +406,7 @@ static int parse_quat(const cJSON *obj, const char *path, quatd *q, error_text *
 static int parse_position(const cJSON *obj, const char *path, vec3d *p, error_text *err)
 {
     double v[3];
-    int r = get_vector(obj, path, "position", 3, 1e6, v, err);
+    int r = json_get_vector(obj, path, "position", 3, 1e6, v, err);
     if (r > 0)
         *p = (vec3d){v[0], v[1], v[2]};
     return r;
@@ -665,10 +429,11 @@ static int parse_keyframes(const cJSON *arr, const char *path, collider_motion *
     int i = 0;
     for (const cJSON *k = arr->child; k; k = k->next, i++) {
         char p[256];
-        path_index(p, sizeof p, path, i);
+        json_path_index(p, sizeof p, path, i);
         collider_keyframe *f = &m->keyframes[i];
-        if (expect_object(k, p, err) || check_keys(k, p, keys, NULL, err) ||
-            require_number(k, p, "time_s", -SCENE_TIME_MAX_S, SCENE_TIME_MAX_S, &f->time_s, err))
+        if (json_expect_object(k, p, "scene", err) || json_check_keys(k, p, keys, NULL, err) ||
+            json_require_number(k, p, "time_s", -SCENE_TIME_MAX_S, SCENE_TIME_MAX_S, &f->time_s,
+                                err))
             return -1;
         if (i > 0 && !(f->time_s > m->keyframes[i - 1].time_s)) {
             error_set(err, "%s.time_s: must be greater than the previous keyframe's (%g <= %g)", p,
@@ -693,7 +458,7 @@ static int parse_motion(const cJSON *c, const char *path, collider_motion *m, in
 {
     const cJSON *o = cJSON_GetObjectItemCaseSensitive(c, "motion");
     char p[256];
-    path_join(p, sizeof p, path, "motion");
+    json_path_join(p, sizeof p, path, "motion");
     m->kind = COLLIDER_MOTION_STATIC;
     if (!o) {
         if (!has_position) {
@@ -702,12 +467,12 @@ static int parse_motion(const cJSON *c, const char *path, collider_motion *m, in
         }
         return 0;
     }
-    if (expect_object(o, p, err))
+    if (json_expect_object(o, p, "scene", err))
         return -1;
     const cJSON *kf = cJSON_GetObjectItemCaseSensitive(o, "keyframes");
     if (kf) {
         static const char *const keys[] = {"keyframes", NULL};
-        if (check_keys(o, p, keys, "keyframe motion (velocity and keyframes do not mix)", err))
+        if (json_check_keys(o, p, keys, "keyframe motion (velocity and keyframes do not mix)", err))
             return -1;
         if (has_position) {
             error_set(err,
@@ -717,7 +482,7 @@ static int parse_motion(const cJSON *c, const char *path, collider_motion *m, in
             return -1;
         }
         char q[280];
-        path_format(q, sizeof q, "%s.keyframes", p);
+        json_path_join(q, sizeof q, p, "keyframes");
         if (parse_keyframes(kf, q, m, err) != 0)
             return -1;
         m->kind = COLLIDER_MOTION_KEYFRAMES;
@@ -725,16 +490,17 @@ static int parse_motion(const cJSON *c, const char *path, collider_motion *m, in
         return 0;
     }
     static const char *const keys[] = {"velocity", "spin_axis", "spin_deg_per_s", NULL};
-    if (check_keys(o, p, keys, NULL, err))
+    if (json_check_keys(o, p, keys, NULL, err))
         return -1;
     if (!has_position) {
         error_set(err, "%s.position: missing ([x, y, z] in metres)", path);
         return -1;
     }
     double v[3] = {0, 0, 0}, axis[3] = {0, 0, 1}, spin = 0;
-    if (get_vector(o, p, "velocity", 3, SCENE_SPEED_MAX, v, err) < 0 ||
-        get_vector(o, p, "spin_axis", 3, 1e6, axis, err) < 0 ||
-        get_number(o, p, "spin_deg_per_s", -SCENE_SPIN_MAX_DEG, SCENE_SPIN_MAX_DEG, &spin, err) < 0)
+    if (json_get_vector(o, p, "velocity", 3, SCENE_SPEED_MAX, v, err) < 0 ||
+        json_get_vector(o, p, "spin_axis", 3, 1e6, axis, err) < 0 ||
+        json_get_number(o, p, "spin_deg_per_s", -SCENE_SPIN_MAX_DEG, SCENE_SPIN_MAX_DEG, &spin,
+                        err) < 0)
         return -1;
     if (spin != 0.0 && !(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2] > 1e-12)) {
         error_set(err, "%s.spin_axis: must be a non-zero vector when spin_deg_per_s is not 0", p);
@@ -751,7 +517,7 @@ static int load_mesh(const scene_parser *ps, const cJSON *c, const char *path, s
                      collider_geometry *g, error_text *err)
 {
     char rel[1024], full[1024];
-    int r = get_string(c, path, "obj", rel, sizeof rel, err);
+    int r = json_get_string(c, path, "obj", rel, sizeof rel, err);
     if (r < 0)
         return -1;
     if (r == 0 || !rel[0]) {
@@ -759,10 +525,10 @@ static int load_mesh(const scene_parser *ps, const cJSON *c, const char *path, s
         return -1;
     }
     double scale = 1.0;
-    if (get_positive(c, path, "scale", 1e6, 0, &scale, err) < 0)
+    if (json_get_positive(c, path, "scale", 1e6, 0, &scale, err) < 0)
         return -1;
     char field[280];
-    path_format(field, sizeof field, "%s.obj", path);
+    json_path_join(field, sizeof field, path, "obj");
     if (resolve_path(ps->base_dir, rel, full, sizeof full, field, err))
         return -1;
     collider_mesh *m = &s->meshes[s->mesh_count];
@@ -783,10 +549,10 @@ static int load_mesh(const scene_parser *ps, const cJSON *c, const char *path, s
 static int parse_collider(const scene_parser *ps, const cJSON *c, const char *path, int index,
                           scene *s, scene_collider *sc, error_text *err)
 {
-    if (expect_object(c, path, err))
+    if (json_expect_object(c, path, "scene", err))
         return -1;
     char shape[32];
-    int r = get_string(c, path, "shape", shape, sizeof shape, err);
+    int r = json_get_string(c, path, "shape", shape, sizeof shape, err);
     if (r < 0)
         return -1;
     if (r == 0) {
@@ -830,9 +596,9 @@ static int parse_collider(const scene_parser *ps, const cJSON *c, const char *pa
                   path, shape);
         return -1;
     }
-    if (check_keys(c, path, keys, context, err))
+    if (json_check_keys(c, path, keys, context, err))
         return -1;
-    r = get_string(c, path, "name", sc->name, sizeof sc->name, err);
+    r = json_get_string(c, path, "name", sc->name, sizeof sc->name, err);
     if (r < 0)
         return -1;
     if (r == 0)
@@ -840,23 +606,23 @@ static int parse_collider(const scene_parser *ps, const cJSON *c, const char *pa
 
     switch (g->shape) {
     case COLLIDER_SPHERE:
-        if (get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
+        if (json_get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
             return -1;
         break;
     case COLLIDER_CAPSULE:
     case COLLIDER_CYLINDER:
-        if (get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
+        if (json_get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
             return -1;
         if (g->shape == COLLIDER_CAPSULE) {
-            if (require_number(c, path, "half_length", 0, 1000, &g->half_length, err))
+            if (json_require_number(c, path, "half_length", 0, 1000, &g->half_length, err))
                 return -1;
-        } else if (get_positive(c, path, "half_length", 1000, 1, &g->half_length, err) < 0) {
+        } else if (json_get_positive(c, path, "half_length", 1000, 1, &g->half_length, err) < 0) {
             return -1;
         }
         break;
     case COLLIDER_BOX: {
         double e[3];
-        r = get_vector(c, path, "half_extents", 3, 1000, e, err);
+        r = json_get_vector(c, path, "half_extents", 3, 1000, e, err);
         if (r < 0)
             return -1;
         if (r == 0) {
@@ -930,7 +696,7 @@ static int parse_colliders(const cJSON *root, const scene_parser *ps, scene *s, 
     int i = 0;
     for (const cJSON *c = arr->child; c; c = c->next, i++) {
         char p[64];
-        path_index(p, sizeof p, "colliders", i);
+        json_path_index(p, sizeof p, "colliders", i);
         s->collider_count = i + 1; /* so scene_free releases a half-parsed one */
         if (parse_collider(ps, c, p, i, s, &s->colliders[i], err) != 0)
             return -1;
@@ -1007,17 +773,18 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
     int rc = -1;
     char description[4096];
     double tick_hz = 60, margin = 4;
-    if (expect_object(root, "", err) || check_keys(root, "", top_keys, NULL, err))
+    if (json_expect_object(root, "", "scene", err) ||
+        json_check_keys(root, "", top_keys, NULL, err))
         goto done;
     snprintf(s->name, sizeof s->name, "unnamed");
-    if (get_string(root, "", "name", s->name, sizeof s->name, err) < 0 ||
-        get_string(root, "", "description", description, sizeof description, err) < 0 ||
-        get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0)
+    if (json_get_string(root, "", "name", s->name, sizeof s->name, err) < 0 ||
+        json_get_string(root, "", "description", description, sizeof description, err) < 0 ||
+        json_get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0)
         goto done;
     s->tick_hz = tick_hz; /* the material's rates are per second */
     if (parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||
         parse_material(root, s, err) || parse_ground(root, s, err) ||
-        get_integer(root, "", "active_margin_cells", 0, 4096, 0, &margin, err) < 0 ||
+        json_get_integer(root, "", "active_margin_cells", 0, 4096, 0, &margin, err) < 0 ||
         parse_colliders(root, &ps, s, err))
         goto done;
     s->tick_hz = tick_hz;

@@ -1,0 +1,135 @@
+/*
+ * cli.c: the one command-line parser (base.h), on getopt_long. Every command
+ * (serve, simulate, export, bench, ...) describes its options in a table, so
+ * "--opt value" and "--opt=value" both work, "terrad CMD --help" prints that
+ * command's options, and a mistake is named the same way everywhere.
+ */
+#include "base/base.h"
+
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define CLI_OPTIONS_MAX 64
+
+void cli_print_help(FILE *out, const char *command, const char *usage, const cli_option *options)
+{
+    fprintf(out, "usage: terrad %s %s\n\noptions:\n", command, usage ? usage : "[options]");
+    for (const cli_option *o = options; o->name; o++) {
+        char left[64];
+        snprintf(left, sizeof left, "--%s%s%s", o->name, o->value_name ? " " : "",
+                 o->value_name ? o->value_name : "");
+        fprintf(out, "  %-22s", left);
+        if (strlen(left) > 22)
+            fprintf(out, "\n  %-22s", "");
+        for (const char *h = o->help ? o->help : ""; *h; h++) {
+            fputc(*h, out);
+            if (*h == '\n')
+                fprintf(out, "  %-22s", "");
+        }
+        fputc('\n', out);
+    }
+    fprintf(out, "  %-22s%s\n", "--help", "this text");
+}
+
+cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
+                     char **argv,
+                     int (*on_option)(void *ctx, int index, const char *value, error_text *err),
+                     void *ctx, int *first_operand)
+{
+    struct option longs[CLI_OPTIONS_MAX + 2];
+    int n = 0;
+    for (; options[n].name; n++) {
+        if (n >= CLI_OPTIONS_MAX) {
+            fprintf(stderr, "terrad %s: too many options in the table\n", command);
+            return CLI_ERROR;
+        }
+        longs[n] = (struct option){
+            options[n].name, options[n].value_name ? required_argument : no_argument, NULL, n};
+    }
+    const int help_index = n;
+    longs[n] = (struct option){"help", no_argument, NULL, help_index};
+    longs[n + 1] = (struct option){0};
+
+    /* getopt keeps global state: start over for each command's argv, and
+     * report errors ourselves (opterr = 0) so every message has one shape. */
+    optind = 0;
+    opterr = 0;
+    /* "+": stop at the first operand, as POSIX does; ":" reports a missing value as ':'. */
+    for (;;) {
+        int at = optind ? optind : 1;
+        int c = getopt_long(argc, argv, "+:", longs, NULL);
+        if (c == -1)
+            break;
+        const char *arg = at < argc ? argv[at] : "";
+        if (c == '?') {
+            /* an unknown long option, or a value given to a flag (--flag=x) */
+            const char *eq = strchr(arg, '=');
+            int known_flag = 0;
+            if (eq && arg[0] == '-' && arg[1] == '-')
+                for (int i = 0; i < n; i++)
+                    if (!options[i].value_name &&
+                        strlen(options[i].name) == (size_t)(eq - arg - 2) &&
+                        strncmp(options[i].name, arg + 2, (size_t)(eq - arg - 2)) == 0)
+                        known_flag = 1;
+            if (known_flag)
+                fprintf(stderr, "terrad %s: '%.*s' takes no value (see terrad %s --help)\n",
+                        command, (int)(eq - arg), arg, command);
+            else
+                fprintf(stderr, "terrad %s: unknown option '%s' (see terrad %s --help)\n", command,
+                        arg, command);
+            return CLI_ERROR;
+        }
+        if (c == ':') {
+            fprintf(stderr, "terrad %s: '%s' needs a value (see terrad %s --help)\n", command, arg,
+                    command);
+            return CLI_ERROR;
+        }
+        if (c == help_index) {
+            cli_print_help(stdout, command, usage, options);
+            return CLI_HELP;
+        }
+        error_text err = {{0}};
+        if (on_option(ctx, c, optarg, &err) != 0) {
+            fprintf(stderr, "terrad %s: --%s: %s\n", command, options[c].name,
+                    err.message[0] ? err.message : "invalid");
+            return CLI_ERROR;
+        }
+    }
+    if (optind < argc && !first_operand) {
+        fprintf(stderr, "terrad %s: unexpected argument '%s' (see terrad %s --help)\n", command,
+                argv[optind], command);
+        return CLI_ERROR;
+    }
+    if (first_operand)
+        *first_operand = optind;
+    return CLI_OK;
+}
+
+int cli_parse_long(const char *value, long lo, long hi, long *out, error_text *err)
+{
+    char *end = NULL;
+    errno = 0;
+    long x = strtol(value, &end, 10);
+    if (errno || end == value || *end || x < lo || x > hi) {
+        error_set(err, "must be an integer in [%ld, %ld] (got '%s')", lo, hi, value);
+        return -1;
+    }
+    *out = x;
+    return 0;
+}
+
+int cli_parse_double(const char *value, double lo, double hi, double *out, error_text *err)
+{
+    char *end = NULL;
+    errno = 0;
+    double x = strtod(value, &end);
+    if (errno || end == value || *end || !isfinite(x) || x < lo || x > hi) {
+        error_set(err, "must be a number in [%g, %g] (got '%s')", lo, hi, value);
+        return -1;
+    }
+    *out = x;
+    return 0;
+}
