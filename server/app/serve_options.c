@@ -175,8 +175,8 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
 
 /* --config FILE: a JSON object whose keys are the long options without the
  * dashes (dashes as underscores) plus "limits" with PROTOCOL.md's names.
- * Flags given on the command line after --config override it. Keys are
- * applied in the order the options table lists them. */
+ * Flags given on the command line after --config override it; within the
+ * file, "no_data": true wins over "data". */
 static int config_load(const char *path, serve_options *o, error_text *err)
 {
     static const char *const keys[] = {
