@@ -1,0 +1,369 @@
+"""The one Python harness of the tests (tests/integration/test_*.py,
+tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
+real daemon on loopback ports, `terrad simulate` runs, HTTP helpers
+(/v1/stats, /v1/heights, /metrics), a TerradClient that keeps a copy of its
+mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
+wheel poses. A test puts tests/support on sys.path and imports what it needs.
+
+Not a test itself (ctest registers only tests/integration/test_*.py). Debian's /usr/bin/python3
+with python3-websockets and python3-zstandard.
+"""
+import asyncio
+import contextlib
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import traceback
+import urllib.error
+import urllib.request
+
+SOURCE = os.environ.get("TERRAD_SOURCE_DIR",
+                        os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")))
+BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
+
+import terrad_proto as tp  # noqa: E402
+
+PORTS_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*ws://127\.0\.0\.1:(\d+)/")
+
+
+# ---- pass/fail ---------------------------------------------------------------
+
+class Checks:
+    """check(cond, what) counts a pass or prints "FAIL: what"; finish() prints
+    the closing "N passed, N failed" line (", N skipped" when a test counted
+    parts it could not run here) and exits 1 on any failure."""
+
+    def __init__(self):
+        self.passed = 0
+        self.failed = 0
+        self.skipped = 0
+        self.daemons = []  # whose logs to print on failure
+
+    def __call__(self, cond, what):
+        if cond:
+            self.passed += 1
+        else:
+            self.failed += 1
+            print("FAIL:", what, flush=True)
+        return cond
+
+    @contextlib.contextmanager
+    def running(self, daemon):
+        """Run a test body against daemon: an exception is a failed check,
+        and the daemon must then stop with status 0 on SIGTERM."""
+        self.daemons.append(daemon)
+        try:
+            yield daemon
+        except Exception:  # noqa: BLE001
+            self(False, "the test raised:\n" + traceback.format_exc())
+        finally:
+            st = daemon.stop()
+        self(st == 0, f"SIGTERM stops the daemon with status 0 ({st})")
+
+    def finish(self):
+        if self.failed:
+            for d in self.daemons:
+                d.print_log()
+        skipped = f", {self.skipped} skipped" if self.skipped else ""
+        print(f"{self.passed} passed, {self.failed} failed{skipped}", flush=True)
+        sys.exit(1 if self.failed else 0)
+
+
+def simulate(scene, ticks, *extra, backend="cpu"):
+    """`terrad simulate` on a scene file: (exit status, its JSON report or None, stderr)."""
+    args = [BIN, "simulate", "--scene", scene, "--ticks", str(ticks), "--backend", backend]
+    p = subprocess.run(args + list(extra), capture_output=True, text=True, timeout=240)
+    return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
+
+
+def skip(why):
+    print(f"skip: {why}", flush=True)
+    sys.exit(77)
+
+
+# ---- the daemon ----------------------------------------------------------------
+
+class Daemon:
+    """terrad serve on ports 0 (both), stderr collected by a thread.
+
+    data_dir: the daemon's --data directory, kept (tests that restart a daemon
+    on the same directory). Without it each daemon gets a fresh temporary
+    directory, removed by stop(), so no test ever shares ./data; "--no-data"
+    in extra runs it memory-only.
+
+    durability: "none" unless a test asks for a policy: every tick is still
+    logged before it is published, but the tests of the service's timing
+    (one pose per tick, ACK counts) do not wait for this machine's disk;
+    the storage tests (test_store_*) choose their policies."""
+
+    def __init__(self, backend="cpu", demo=False, token=None, tick_hz=None, config=None,
+                 extra=(), name="terrad", data_dir=None, env=None, durability="none"):
+        if not os.access(BIN, os.X_OK):
+            raise FileNotFoundError(BIN)
+        self.name = name
+        self.lines = []
+        self.config_path = None
+        self.temp_data = None
+        args = [BIN, "serve", "--http-port", "0", "--ws-port", "0", "--backend", backend]
+        if "--no-data" not in extra and "--data" not in extra:
+            if data_dir is None:
+                data_dir = self.temp_data = tempfile.mkdtemp(prefix="terrad-data-")
+            args += ["--data", data_dir]
+            if "--durability" not in extra:
+                args += ["--durability", durability]
+        self.data_dir = data_dir
+        if not demo:
+            args.append("--no-demo")
+        if token is not None:
+            args += ["--token", token]
+        if tick_hz is not None:
+            args += ["--tick-hz", str(tick_hz)]
+        if config is not None:
+            fd, self.config_path = tempfile.mkstemp(prefix="terrad-test-", suffix=".json")
+            with os.fdopen(fd, "w") as f:
+                json.dump(config, f)
+            args += ["--config", self.config_path]
+        args += list(extra)
+        self.args = args
+        self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE, text=True, errors="replace",
+                                     env=None if env is None else {**os.environ, **env})
+        self.pid = self.proc.pid
+        self.http_port = self.ws_port = None
+        got = threading.Event()
+
+        def reader():
+            for line in self.proc.stderr:
+                self.lines.append(line)
+                if self.http_port is None:
+                    m = PORTS_RE.search(line)
+                    if m:
+                        self.http_port, self.ws_port = int(m.group(1)), int(m.group(2))
+                        got.set()
+            got.set()
+
+        self.thread = threading.Thread(target=reader, daemon=True)
+        self.thread.start()
+        got.wait(60)
+        if self.http_port is None:
+            self.stop()
+            raise RuntimeError(f"{name}: the daemon did not print its ports:\n" + self.log())
+        self.http = f"http://127.0.0.1:{self.http_port}"
+        self.ws = f"ws://127.0.0.1:{self.ws_port}/"
+
+    def log(self, tail=80):
+        return "".join(self.lines[-tail:])
+
+    def print_log(self, tail=60):
+        print(f"---- {self.name} stderr ({' '.join(self.args[1:])}), last {tail} lines ----")
+        print(self.log(tail), end="")
+        print("---- end ----", flush=True)
+
+    def alive(self):
+        return self.proc.poll() is None
+
+    def stop(self, timeout=15):
+        """SIGTERM; returns the exit status (None if it had to be killed)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                self.thread.join(2)
+                return None
+        self.thread.join(5)
+        if self.config_path:
+            try:
+                os.unlink(self.config_path)
+            except OSError:
+                pass
+            self.config_path = None
+        if self.temp_data:
+            shutil.rmtree(self.temp_data, ignore_errors=True)
+            self.temp_data = None
+        return self.proc.returncode
+
+    def kill9(self):
+        """SIGKILL: a crash, for the storage tests; returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+        self.thread.join(5)
+        return self.proc.returncode
+
+    def rss_kb(self):
+        try:
+            with open(f"/proc/{self.pid}/status") as f:
+                for line in f:
+                    if line.startswith("VmRSS:"):
+                        return int(line.split()[1])
+        except OSError:
+            pass
+        return None
+
+    # HTTP ------------------------------------------------------------------
+    def get(self, path, timeout=10):
+        try:
+            with urllib.request.urlopen(self.http + path, timeout=timeout) as r:
+                return r.status, r.read(), r.headers
+        except urllib.error.HTTPError as e:
+            return e.code, e.read(), e.headers
+
+    def stats(self):
+        status, body, _ = self.get("/v1/stats")
+        if status != 200:
+            raise RuntimeError(f"/v1/stats: {status} {body!r}")
+        return json.loads(body)
+
+    def world(self):
+        return json.loads(self.get("/v1/world")[1])
+
+    def heights(self, x, y, w, h):
+        """(tick, list of w*h int32) from GET /v1/heights."""
+        status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")
+        if status != 200 or len(body) != 4 * w * h:
+            raise RuntimeError(f"/v1/heights {x},{y},{w},{h}: {status}, {len(body)} bytes: {body[:200]!r}")
+        tick = headers.get("X-Terrad-Tick")
+        return (int(tick) if tick is not None else None), list(struct.unpack(f"<{w * h}i", body))
+
+    def metrics(self):
+        status, body, _ = self.get("/metrics")
+        return status, body.decode("utf-8", "replace")
+
+
+def metric_value(text, name, labels=None):
+    """Sum of the samples of a metric (optionally those whose labels include
+    the given ones); None when there is none."""
+    total = None
+    for line in text.splitlines():
+        if not line or line.startswith("#"):
+            continue
+        m = re.match(r"([a-zA-Z_:][a-zA-Z0-9_:]*)(\{([^}]*)\})?\s+(\S+)", line)
+        if not m or m.group(1) != name:
+            continue
+        got = dict(re.findall(r'([a-zA-Z_][a-zA-Z0-9_]*)="((?:[^"\\]|\\.)*)"', m.group(3) or ""))
+        if labels and any(got.get(k) != v for k, v in labels.items()):
+            continue
+        try:
+            v = float(m.group(4))
+        except ValueError:
+            continue
+        total = v if total is None else total + v
+    return total
+
+
+def machine():
+    """'CPU model, N cores' of this machine."""
+    model = "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
+
+
+# ---- clients -------------------------------------------------------------------
+
+class RecordingClient(tp.TerradClient):
+    """Keeps a copy of its mirrors at each ACK (every DELTA of tick t arrives
+    before the ACK of tick t), counts frames, and remembers the contact
+    feedback of its colliders."""
+
+    def __init__(self, *args, keep=240, record=True, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.history = {}
+        self.keep = keep
+        self.record = record
+        self.counts = {"DELTA": 0, "CONTACT": 0, "ACK": 0, "delta_bytes": 0}
+        self.acks = []         # (tick, seq)
+        self.contact_log = []  # (tick, Contact) for our colliders
+        self.on_ack = None     # optional callable(tick, seq)
+        self.on_delta = None   # optional callable(tick, nbytes)
+
+    async def _on_binary(self, data):
+        await super()._on_binary(data)
+        t = tp.decode_header(data)
+        if t == tp.MsgType.DELTA:
+            self.counts["DELTA"] += 1
+            self.counts["delta_bytes"] += len(data)
+            if self.on_delta:
+                self.on_delta(self.tick, len(data))
+        elif t == tp.MsgType.CONTACT:
+            self.counts["CONTACT"] += 1
+            for c in self.contacts.values():
+                self.contact_log.append((self.contact_tick, c))
+            del self.contact_log[:-4000]
+        elif t == tp.MsgType.ACK:
+            self.counts["ACK"] += 1
+            self.acks.append((self.acked_tick, self.acked_seq))
+            del self.acks[:-4000]
+            if self.record:
+                self.history[self.acked_tick] = {
+                    s: (list(m.heights), m.complete) for s, m in self.mirrors.items()}
+                for old in [k for k in self.history if k < self.acked_tick - self.keep]:
+                    del self.history[old]
+            if self.on_ack:
+                self.on_ack(self.acked_tick, self.acked_seq)
+
+
+async def compare_with_server(client, daemon, sid, region, keep_acking, attempts=6):
+    """GET /v1/heights of region, wait for the client's ACK of that tick, and
+    compare the mirror copy at that tick. keep_acking is an async callable
+    that sends one (parked) pose batch, so that every tick gets an ACK.
+    Returns (same, tick, detail)."""
+    loop = asyncio.get_running_loop()
+    detail = "no attempt"
+    tick = None
+    for _ in range(attempts):
+        await keep_acking()
+        tick, server = await loop.run_in_executor(None, daemon.heights, *region)
+        if tick is None:
+            return False, None, "GET /v1/heights has no X-Terrad-Tick header"
+        deadline = loop.time() + 10
+        while client.acked_tick < tick and loop.time() < deadline:
+            await keep_acking()
+            await asyncio.sleep(0.008)
+        mine = client.history.get(tick, {}).get(sid)
+        if mine is None:
+            detail = f"no mirror copy at tick {tick} (acked up to {client.acked_tick})"
+            continue
+        heights, complete = mine
+        if not complete:
+            detail = f"mirror incomplete at tick {tick}"
+            continue
+        if heights == server:
+            return True, tick, ""
+        diff = [i for i in range(len(server)) if heights[i] != server[i]]
+        x, y, w, h = region
+        i = diff[0]
+        return False, tick, (f"{len(diff)} of {len(server)} cells differ at tick {tick}; first at "
+                             f"({x + i % w},{y + i // w}): mirror {heights[i]}, server {server[i]}")
+    return False, tick, detail
+
+
+WHEEL_Q = (math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0)  # cylinder axis z -> world -y
+
+
+def wheel_pose(cid, x, y, z):
+    """A cylinder (axis z in its frame) turned so that it rolls along x."""
+    return tp.Pose(cid, x, y, z, *WHEEL_Q)
+
+
+def run(coro):
+    return asyncio.run(coro)
