@@ -17,6 +17,7 @@
 #include "gl/gl.h"
 #include "sim/sim.h"
 #include "check.h"
+#include "test_params.h"
 
 /* A small deterministic generator (xorshift64*), so failures reproduce. */
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
@@ -367,13 +368,7 @@ static sim_params random_params(sim_method method, sim_metric metric, int32_t fl
     m.multi_target_max = 1 + (int)(rnd() % 24);
     m.displace_iterations = (int)(rnd() % 14);
     m.slope_iterations = (int)(rnd() % 14);
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(&m, 0.05, 10000, floor_units, &p, &err) != 0) {
-        printf("params: %s\n", err.message);
-        abort();
-    }
-    return p;
+    return test_params_from_material(&m, floor_units);
 }
 
 static void test_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds, int big_first)

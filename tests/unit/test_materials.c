@@ -16,15 +16,12 @@
 #include "ground/ground.h"
 #include "sim/sim.h"
 #include "check.h"
+#include "test_params.h"
 
 static sim_params base_params(sim_material *m)
 {
     *m = sim_material_default();
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, &err) != 0)
-        abort();
-    return p;
+    return test_params_from_material(m, WORLD_HEIGHT_MIN);
 }
 
 static void make_world(world *w, int width, int height, int32_t level)

@@ -15,6 +15,7 @@
 #include <string.h>
 
 #include "check.h"
+#include "test_params.h"
 #include "sim/sim.h"
 
 /* One cell of a world by its row-major index (the world is tiled: no dense array). */
@@ -33,21 +34,7 @@ static sim_params params_for(sim_model model, void (*tune)(sim_material *))
         m.method = SIM_METHOD_MULTI;
     if (tune)
         tune(&m);
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(&m, CELL, UPM, 0, &p, &err) != 0) {
-        printf("params: %s\n", err.message);
-        abort();
-    }
-    return p;
-}
-
-static int64_t sum(const int32_t *a, int64_t n)
-{
-    int64_t s = 0;
-    for (int64_t i = 0; i < n; i++)
-        s += a[i];
-    return s;
+    return test_params_from_material(&m, 0);
 }
 
 /* A flat world with a base, a CPU backend and an engine for one model. */
@@ -212,7 +199,7 @@ static void test_subtract_exact_min(void)
     sim_subtract_window(&p, &in_place, NULL);
     sim_subtract_window(&p, &given, NULL);
     CHECK(memcmp(a, b, sizeof a) == 0, "in-place cast == cast through a depth buffer");
-    CHECK(sum(a, N) < 5000LL * N + 7LL * N * (N - 1) / 2, "the ball cut something");
+    CHECK(test_sum(a, N) < 5000LL * N + 7LL * N * (N - 1) / 2, "the ball cut something");
 }
 
 static void refill_tune(sim_material *m)
@@ -401,7 +388,7 @@ static void run_bump(double d, double dt, int conservative, int substeps, int ti
             bottom[y * W + x] = COLLIDER_BOTTOM_NONE;
         }
     int32_t lo = 5000, hi = 9300;
-    int64_t before = sum(h, N);
+    int64_t before = test_sum(h, N);
     int32_t *scratch = malloc(sizeof(int32_t) * (size_t)sim_model_scratch_cells(p.model, N));
     sim_window_job job = {.rect = {0, 0, W, H},
                           .cell_size_m = CELL,
@@ -419,7 +406,7 @@ static void run_bump(double d, double dt, int conservative, int substeps, int ti
             if (h[i] < lo || h[i] > hi)
                 *max_principle = 0;
     }
-    *drift = sum(h, N) - before;
+    *drift = test_sum(h, N) - before;
     free(scratch);
 }
 
