@@ -731,9 +731,9 @@ static int run_depth(gl_backend *b, sim_window_job *jobs, int count, int rounds,
 
 /* ---- the integer stages ---- */
 
-static void set_params(gl_backend *b, const sim_params *p, const sim_material_table *t)
+static void set_params(gl_backend *b, const sim_params *p, const ground_material_table *t)
 {
-    GLint rows[SIM_MATERIALS_MAX * 4], max_compaction[SIM_MATERIALS_MAX];
+    GLint rows[GROUND_MATERIALS_MAX * 4], max_compaction[GROUND_MATERIALS_MAX];
     memset(rows, 0, sizeof rows);
     memset(max_compaction, 0, sizeof max_compaction);
     for (int i = 0; t && i < t->count; i++) {
@@ -757,8 +757,8 @@ static void set_params(gl_backend *b, const sim_params *p, const sim_material_ta
         glProgramUniform1i(pr, u[U_FLOOR], p->floor);
         glProgramUniform1i(pr, u[U_MATERIALS_ON], t != NULL);
         glProgramUniform1i(pr, u[U_MATERIAL_COUNT], t ? t->count : 1);
-        glProgramUniform4iv(pr, u[U_MATERIAL_ROWS], SIM_MATERIALS_MAX, rows);
-        glProgramUniform1iv(pr, u[U_MATERIAL_MAX], SIM_MATERIALS_MAX, max_compaction);
+        glProgramUniform4iv(pr, u[U_MATERIAL_ROWS], GROUND_MATERIALS_MAX, rows);
+        glProgramUniform1iv(pr, u[U_MATERIAL_MAX], GROUND_MATERIALS_MAX, max_compaction);
     }
 }
 
@@ -1207,7 +1207,7 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
         cells += (int64_t)job->rect.w * job->rect.h;
         tiles += (int64_t)((job->rect.w + 7) / 8) * ((job->rect.h + 7) / 8);
     }
-    const sim_material_table *materials = jobs[0].materials;
+    const ground_material_table *materials = jobs[0].materials;
     if (ensure_cells(b, cells, err) != 0 || ensure_table(b, count, tiles, err) != 0 ||
         (materials && ensure_materials(b, cells, err) != 0))
         return -1;

@@ -26,6 +26,7 @@
 
 #include "base/base.h"
 #include "collider/collider.h"
+#include "ground/ground.h"
 #include "world/world.h"
 
 /* Windows are at most this many cells on a side, so squared Euclidean
@@ -187,26 +188,14 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
 /* ---- Per-cell materials and compaction memory (sim_stages_materials.c) ----
  * The same stages with a material id per cell (an index into a small table of
  * integer rows) and, where some material remembers compaction, a uint16
- * compaction memory per cell. With ids == NULL every cell is row 0; with one
- * row equal to the params and max_compaction 0 the results are those of
- * sim_classify / sim_even_slopes, bit for bit. */
-#define SIM_MATERIALS_MAX 16
-
-typedef struct sim_material_row {
-    int32_t compression_q16;          /* 0..65536 */
-    int32_t roughness_q16;            /* 0..65536 */
-    int32_t slope_threshold_axial;    /* units */
-    int32_t slope_threshold_diagonal; /* units */
-    int32_t max_compaction;           /* units, 0..65535; 0: no compaction memory */
-} sim_material_row;
-
-typedef struct sim_material_table {
-    int count; /* 1..SIM_MATERIALS_MAX */
-    sim_material_row rows[SIM_MATERIALS_MAX];
-} sim_material_table;
-
+ * compaction memory per cell (the table is ground/'s). With ids == NULL every
+ * cell is row 0; with one row equal to the params and max_compaction 0 the
+ * results are those of sim_classify / sim_even_slopes, bit for bit. */
 /* A row from a material's integer params and its max compaction (units). */
-sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction);
+ground_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction);
+/* The per-cell part of a material (compression, roughness, repose) as the
+ * ground's base material, named "default", with no compaction memory. */
+ground_material sim_material_ground(const sim_material *m);
 
 /*
  * classify with per-cell materials. A penetrated column with compaction
@@ -215,19 +204,19 @@ sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_c
  * compression share (at most M - m) is compacted and the rest displaced:
  * raw[i] = yield, moved[i] = yield - compacted. memory may be NULL (m = 0).
  */
-void sim_classify_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
+void sim_classify_materials(const sim_params *p, const ground_material_table *t, const uint8_t *ids,
                             const uint16_t *memory, int cell_count, const int32_t *heights,
                             const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
 /* After a window is accepted: memory[i] += raw[i] - moved[i] where the
  * cell's material remembers compaction. */
-void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int cell_count,
+void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, int cell_count,
                            const int32_t *raw, const int32_t *moved, uint16_t *memory);
 /* even_slopes where each flux uses the material of the column it leaves. */
-void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
-                               int w, int h, const int32_t *cls, int32_t *heights,
-                               int32_t *scratch);
+void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
+                               const uint8_t *ids, int w, int h, const int32_t *cls,
+                               int32_t *heights, int32_t *scratch);
 /* Largest excess above the threshold of the higher column's material. */
-int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_t *ids, int w,
+int64_t sim_max_slope_excess_materials(const ground_material_table *t, const uint8_t *ids, int w,
                                        int h, const int32_t *heights);
 
 /* Outcome of a window. */
@@ -295,7 +284,7 @@ typedef struct sim_window_job {
     /* Per-cell materials (ground/): NULL for the uniform path (params only).
      * material_ids NULL: every cell is row 0. compaction (in/out) NULL when no
      * material remembers compaction; written only for accepted windows. */
-    const sim_material_table *materials;
+    const ground_material_table *materials;
     const uint8_t *material_ids;
     uint16_t *compaction;
     const world *world; /* where the window was gathered from (a backend's tile cache) */

@@ -187,7 +187,7 @@ void sim_engine_set_ground(sim_engine *e, struct ground *g)
 {
     /* The uniform path only when it computes the same: one material whose
      * row is the params' own and no compaction memory. */
-    sim_material_row own = sim_material_row_from_params(&e->params, 0);
+    ground_material_row own = sim_material_row_from_params(&e->params, 0);
     int same =
         g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
     e->ground = g && !same ? g : NULL;

@@ -30,9 +30,9 @@ static int32_t mul_q16_shift(int32_t a, int32_t q16, int shift)
     return (int32_t)(((uint64_t)(uint32_t)a * (uint32_t)q16) >> shift);
 }
 
-sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction)
+ground_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction)
 {
-    sim_material_row r = {
+    ground_material_row r = {
         .compression_q16 = p->compression_q16,
         .roughness_q16 = p->roughness_q16,
         .slope_threshold_axial = p->slope_threshold_axial,
@@ -44,13 +44,13 @@ sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_c
     return r;
 }
 
-static const sim_material_row *row_of(const sim_material_table *t, const uint8_t *ids, int i)
+static const ground_material_row *row_of(const ground_material_table *t, const uint8_t *ids, int i)
 {
     int id = ids ? ids[i] : 0;
     return &t->rows[id < t->count ? id : 0];
 }
 
-void sim_classify_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
+void sim_classify_materials(const sim_params *p, const ground_material_table *t, const uint8_t *ids,
                             const uint16_t *memory, int cell_count, const int32_t *heights,
                             const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls)
 {
@@ -66,7 +66,7 @@ void sim_classify_materials(const sim_params *p, const sim_material_table *t, co
                 c = SIM_CELL_OBSTACLE;
             }
         }
-        const sim_material_row *row = row_of(t, ids, i);
+        const ground_material_row *row = row_of(t, ids, i);
         int32_t yield = pen, compacted;
         if (row->max_compaction > 0) {
             int32_t m = memory ? memory[i] : 0;
@@ -87,11 +87,11 @@ void sim_classify_materials(const sim_params *p, const sim_material_table *t, co
     }
 }
 
-void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int cell_count,
+void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, int cell_count,
                            const int32_t *raw, const int32_t *moved, uint16_t *memory)
 {
     for (int i = 0; i < cell_count; i++) {
-        const sim_material_row *row = row_of(t, ids, i);
+        const ground_material_row *row = row_of(t, ids, i);
         if (row->max_compaction <= 0)
             continue;
         int32_t m = memory[i] + (raw[i] - moved[i]);
@@ -100,7 +100,7 @@ void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int 
 }
 
 /* Flux out of a column of material `row` towards a lower neighbour. */
-static int32_t slope_flux_row(const sim_material_row *row, int32_t hc, int32_t hk, int diagonal)
+static int32_t slope_flux_row(const ground_material_row *row, int32_t hc, int32_t hk, int diagonal)
 {
     int32_t threshold = diagonal ? row->slope_threshold_diagonal : row->slope_threshold_axial;
     int32_t excess = hc - hk - threshold;
@@ -109,8 +109,9 @@ static int32_t slope_flux_row(const sim_material_row *row, int32_t hc, int32_t h
     return mul_q16_shift(excess, row->roughness_q16, 19);
 }
 
-void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
-                               int w, int h, const int32_t *cls, int32_t *heights, int32_t *scratch)
+void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
+                               const uint8_t *ids, int w, int h, const int32_t *cls,
+                               int32_t *heights, int32_t *scratch)
 {
     int n = w * h;
     int32_t *next = scratch;
@@ -119,7 +120,7 @@ void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t,
             for (int x = 0; x < w; x++) {
                 int i = y * w + x;
                 int32_t hi = heights[i];
-                const sim_material_row *ri = row_of(t, ids, i);
+                const ground_material_row *ri = row_of(t, ids, i);
                 int32_t out = 0, in = 0;
                 for (int j = 0; j < 8; j++) {
                     int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
@@ -138,7 +139,7 @@ void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t,
     }
 }
 
-int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_t *ids, int w,
+int64_t sim_max_slope_excess_materials(const ground_material_table *t, const uint8_t *ids, int w,
                                        int h, const int32_t *heights)
 {
     int64_t worst = 0;
@@ -150,7 +151,7 @@ int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_
                 if (qx < 0 || qy < 0 || qx >= w || qy >= h)
                     continue;
                 int64_t d = (int64_t)heights[i] - heights[qy * w + qx];
-                const sim_material_row *r = row_of(t, ids, i);
+                const ground_material_row *r = row_of(t, ids, i);
                 int64_t th = j >= 4 ? r->slope_threshold_diagonal : r->slope_threshold_axial;
                 if (d - th > worst)
                     worst = d - th;

@@ -577,7 +577,7 @@ static void test_materials_bit_exact(sim_backend *gl, sim_backend *cpu, int roun
         batch b = {0};
         b.count = 1 + (int)(rnd() % 5);
         sim_params p = random_params(methods[round % 3], (sim_metric)(rnd() % 3), 0);
-        sim_material_table t = {.count = 1 + (int)(rnd() % SIM_MATERIALS_MAX)};
+        ground_material_table t = {.count = 1 + (int)(rnd() % GROUND_MATERIALS_MAX)};
         for (int r = 0; r < t.count; r++) {
             sim_params q = random_params(methods[round % 3], SIM_METRIC_EUCLIDEAN, 0);
             int32_t max_c = rnd() % 2 ? (int32_t)(rnd() % 65536) : 0;

@@ -57,7 +57,8 @@ static int ground_from_text(ground *g, const world *w, const char *text, error_t
         abort();
     sim_material base;
     base_params(&base);
-    int r = ground_init_json(g, ground_extent_of_world(w), &base,
+    ground_material per_cell = sim_material_ground(&base);
+    int r = ground_init_json(g, ground_extent_of_world(w), &per_cell,
                              cJSON_GetObjectItemCaseSensitive(root, "materials"),
                              cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
     cJSON_Delete(root);
@@ -168,7 +169,8 @@ static void test_no_layer_without_compaction(void)
     ground_free(&g);
     sim_material base;
     base_params(&base);
-    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &base, &err) == 0 && g.uniform &&
+    ground_material per_cell = sim_material_ground(&base);
+    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &per_cell, &err) == 0 && g.uniform &&
               !g.uses_compaction,
           "the old single material: uniform, no layer");
     ground_free(&g);
@@ -185,7 +187,7 @@ static void test_uniform_equals_plain(void)
     sim_params p = base_params(&m);
     m.compression = 0.37;
     sim_params_from_material(&m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, NULL);
-    sim_material_table t = {.count = 1};
+    ground_material_table t = {.count = 1};
     t.rows[0] = sim_material_row_from_params(&p, 0);
     for (int i = 0; i < N; i++) {
         heights[i] = (int32_t)((i * 7919) % 3001) - 1500;
@@ -370,7 +372,7 @@ static void test_mixed_window_repose(void)
     for (int k = 0; k < 2; k++) {
         /* excess measured per material: the higher column's own threshold */
         static uint8_t only[N];
-        sim_material_table t = g.table;
+        ground_material_table t = g.table;
         int64_t worst = 0;
         for (int y = 0; y < H; y++)
             for (int x = 0; x < W; x++)
@@ -465,7 +467,7 @@ static void test_classify_extremes(void)
     enum { N = 8 };
     sim_material m;
     sim_params p = base_params(&m);
-    sim_material_table t = {.count = 2};
+    ground_material_table t = {.count = 2};
     t.rows[0] = sim_material_row_from_params(&p, 65535);
     t.rows[0].compression_q16 = 65536;
     t.rows[1] = sim_material_row_from_params(&p, 1);
@@ -516,7 +518,9 @@ static void test_engine_single_material(void)
     sim_engine_set_ground(&e, &g);
     CHECK(e.ground == &g, "a single sand preset runs on its own row (45 deg, roughness 1)");
     ground_free(&g);
-    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &m, &err) == 0, "uniform ground");
+    ground_material per_cell = sim_material_ground(&m);
+    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &per_cell, &err) == 0,
+          "uniform ground");
     sim_engine_set_ground(&e, &g);
     CHECK(e.ground == NULL, "a ground equal to the params: the uniform path");
     ground_free(&g);
