@@ -351,12 +351,9 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
 {
     const sim_stage_times *t = &st->report.times;
     metrics_observe_tick_ms(st->tick_ms);
-    metrics_observe_stage_ms("depth", t->depth);
-    metrics_observe_stage_ms("classify", t->classify);
-    metrics_observe_stage_ms("jump_flood", t->jump_flood);
-    metrics_observe_stage_ms("displace", t->displace);
-    metrics_observe_stage_ms("even_slopes", t->even_slopes);
-    metrics_observe_stage_ms("transfer", t->transfer);
+#define OBSERVE_STAGE(name) metrics_observe_stage_ms(#name, t->name);
+    SIM_STAGE_LIST(OBSERVE_STAGE)
+#undef OBSERVE_STAGE
     metrics_observe_stage_ms("gather_scatter", st->report.gather_scatter_ms);
     metrics_observe_stage_ms("model", st->report.model_ms);
     metrics_set_tick(service_current_tick(svc));
@@ -365,20 +362,16 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
     metrics_set_colliders(st->colliders);
     if (st->report.refused_windows)
         metrics_count_refused_windows((uint64_t)st->report.refused_windows);
+    sim_engine_stats es;
+    sim_engine_get_stats(engine, &es);
     metrics_set_memory_bytes("world_heights", world_resident_bytes(w));
-    metrics_set_memory_bytes("sim_scratch", engine->peak_scratch_bytes);
+    metrics_set_memory_bytes("sim_scratch", es.peak_scratch_bytes);
     /* what the scene's models hold, by stage (docs/models.md) */
-    const sim_stage_memory *m = &engine->memory;
-    metrics_set_stage_memory_bytes("depth", m->depth);
-    metrics_set_stage_memory_bytes("classify", m->classify);
-    metrics_set_stage_memory_bytes("jump_flood", m->jump_flood);
-    metrics_set_stage_memory_bytes("displace", m->displace);
-    metrics_set_stage_memory_bytes("even_slopes", m->even_slopes);
-    metrics_set_stage_memory_bytes("backend_other", m->backend_other);
-    metrics_set_stage_memory_bytes("model", m->model);
-    metrics_set_stage_memory_bytes("gather_scatter", m->gather_scatter);
-    gl_tile_cache_stats cache;
-    sim_backend_gl_tile_cache_stats(engine->backend, &cache);
+#define SET_STAGE_MEMORY(name) metrics_set_stage_memory_bytes(#name, es.memory.name);
+    SIM_MEMORY_STAGE_LIST(SET_STAGE_MEMORY)
+#undef SET_STAGE_MEMORY
+    sim_tile_cache_stats cache;
+    sim_backend_tile_cache_stats(sim_engine_backend(engine), &cache);
     metrics_set_memory_bytes("gpu_tile_cache", cache.texture_bytes);
     metrics_set_gpu_tile_cache(cache.uploads, cache.upload_bytes, cache.evictions,
                                cache.resident_tiles);
@@ -447,8 +440,7 @@ int app_serve(int argc, char **argv)
     int rc = 1;
     sim_params params;
     sim_backend *backend = NULL;
-    sim_engine engine;
-    memset(&engine, 0, sizeof engine);
+    sim_engine *engine = NULL;
     ground grd;
     memset(&grd, 0, sizeof grd);
     demo_actor *actors = NULL;
@@ -470,9 +462,9 @@ int app_serve(int argc, char **argv)
     if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
                                  &err) != 0 ||
         !(backend = app_backend_create(o.backend, &err)) ||
-        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0 ||
-        app_ground_attach(&sc, &w, &engine, &grd, &err) != 0 ||
-        !(svc = service_create(&engine, h, &err))) {
+        !(engine = sim_engine_create(&w, &params, backend, sc.active_margin_cells, &err)) ||
+        app_ground_attach(&sc, &w, engine, &grd, &err) != 0 ||
+        !(svc = service_create(engine, h, &err))) {
         log_error("%s", err.message);
         goto done;
     }
@@ -551,7 +543,7 @@ int app_serve(int argc, char **argv)
         }
         publish_status(&status, svc, st, stats.tick_ms, overruns, net_server_client_count(net),
                        stats.colliders);
-        publish_metrics(&stats, &engine, svc, &w);
+        publish_metrics(&stats, engine, svc, &w);
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
@@ -569,7 +561,7 @@ done:
     store_close(st);
     free(extra);
     free(actors);
-    sim_engine_free(&engine);
+    sim_engine_destroy(engine);
     ground_free(&grd);
     if (backend)
         backend->destroy(backend);

@@ -177,9 +177,10 @@ static void record_tick(void *ctx, long tick, const sim_tick_report *report, dou
 {
     (void)tick;
     simulate_totals *t = ctx;
-    double values[] = {report->times.depth,    report->times.classify,    report->times.jump_flood,
-                       report->times.displace, report->times.even_slopes, report->times.transfer,
-                       report->model_ms,       report->gather_scatter_ms, tick_ms};
+#define STAGE_VALUE(name) report->times.name,
+    double values[] = {SIM_STAGE_LIST(STAGE_VALUE) report->model_ms, report->gather_scatter_ms,
+                       tick_ms};
+#undef STAGE_VALUE
     for (int s = 0; s < t->stage_count; s++)
         stat_series_add(&t->stages[s].series, values[s]);
     t->active_sum += (double)report->active_cells;
@@ -265,7 +266,7 @@ int app_simulate(int argc, char **argv)
     world w;
     sim_params params;
     sim_backend *backend = NULL;
-    sim_engine engine;
+    sim_engine *engine = NULL;
     ground grd;
     memset(&grd, 0, sizeof grd);
     int rc = 1;
@@ -277,26 +278,26 @@ int app_simulate(int argc, char **argv)
     if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
                                  &err) != 0 ||
         !(backend = app_backend_create(o.backend, &err)) ||
-        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0) {
+        !(engine = sim_engine_create(&w, &params, backend, sc.active_margin_cells, &err))) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         goto done_world;
     }
-    if (app_ground_attach(&sc, &w, &engine, &grd, &err) != 0) {
+    if (app_ground_attach(&sc, &w, engine, &grd, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
-        sim_engine_free(&engine);
+        sim_engine_destroy(engine);
         goto done_world;
     }
-    if (strcmp(backend->name, "gl") == 0)
-        sim_backend_gl_set_stage_timing(backend, 1);
-    engine.depth_from_cpu = o.depth_from_cpu;
+    sim_backend_set_stage_timing(backend, 1);
+    sim_engine_set_depth_from_cpu(engine, o.depth_from_cpu);
 
-    stage_series stages[] = {{"depth", {0}},    {"classify", {0}},       {"jump_flood", {0}},
-                             {"displace", {0}}, {"even_slopes", {0}},    {"transfer", {0}},
-                             {"model", {0}},    {"gather_scatter", {0}}, {"tick", {0}}};
+#define STAGE_SERIES(name) {#name, {0}},
+    stage_series stages[] = {
+        SIM_STAGE_LIST(STAGE_SERIES){"model", {0}}, {"gather_scatter", {0}}, {"tick", {0}}};
+#undef STAGE_SERIES
     const int stage_count = (int)(sizeof stages / sizeof stages[0]);
     int64_t volume_before = world_volume(&w);
     simulate_totals totals = {stages, stage_count, 0.0, 0, 0};
-    if (app_run_scene_ticks(&sc, &engine, o.ticks, record_tick, &totals, &err) != 0) {
+    if (app_run_scene_ticks(&sc, engine, o.ticks, record_tick, &totals, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         goto done_colliders;
     }
@@ -343,18 +344,21 @@ int app_simulate(int argc, char **argv)
                                 round(stat_series_percentile(&stages[s].series, 99) * 1e4) / 1e4);
     }
     cJSON_AddNumberToObject(root, "active_cells_mean", o.ticks ? active_sum / o.ticks : 0.0);
-    cJSON_AddNumberToObject(root, "peak_active_cells", (double)engine.peak_active_cells);
+    sim_engine_stats es;
+    sim_engine_get_stats(engine, &es);
+    cJSON_AddNumberToObject(root, "peak_active_cells", (double)es.peak_active_cells);
     cJSON_AddNumberToObject(root, "refused_windows", (double)refused);
     const char *slope_scope;
     snprintf(num, sizeof num, "%lld",
-             (long long)max_slope_excess(&params, &w, engine.ground ? &grd : NULL, &slope_scope));
+             (long long)max_slope_excess(&params, &w, es.per_cell_materials ? &grd : NULL,
+                                         &slope_scope));
     cJSON_AddItemToObject(root, "max_slope_excess", cJSON_CreateRaw(num));
     cJSON_AddStringToObject(root, "max_slope_excess_scope", slope_scope);
     cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(&w));
     cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(&w));
     cJSON_AddNumberToObject(root, "world_tile_cells", w.tile_cells);
-    gl_tile_cache_stats cache;
-    sim_backend_gl_tile_cache_stats(backend, &cache);
+    sim_tile_cache_stats cache;
+    sim_backend_tile_cache_stats(backend, &cache);
     cJSON_AddNumberToObject(root, "gpu_tile_cache_bytes", (double)cache.texture_bytes);
     cJSON_AddNumberToObject(root, "gpu_tiles_resident", cache.resident_tiles);
     cJSON_AddNumberToObject(root, "gpu_tile_uploads", (double)cache.uploads);
@@ -362,32 +366,20 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "gpu_tile_evictions", (double)cache.evictions);
     cJSON_AddNumberToObject(root, "gpu_windows_cached", (double)cache.windows_cached);
     cJSON_AddNumberToObject(root, "gpu_windows_direct", (double)cache.windows_direct);
-    cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine.peak_scratch_bytes);
-    const sim_stage_memory *mem = &engine.peak_memory;
+    cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)es.peak_scratch_bytes);
     cJSON *by_stage = cJSON_AddObjectToObject(root, "scratch_bytes_by_stage");
-    const struct {
-        const char *name;
-        uint64_t bytes;
-    } stage_bytes[] = {{"depth", mem->depth},
-                       {"classify", mem->classify},
-                       {"jump_flood", mem->jump_flood},
-                       {"displace", mem->displace},
-                       {"even_slopes", mem->even_slopes},
-                       {"backend_other", mem->backend_other},
-                       {"model", mem->model},
-                       {"gather_scatter", mem->gather_scatter}};
-    for (size_t k = 0; k < sizeof stage_bytes / sizeof stage_bytes[0]; k++)
-        cJSON_AddNumberToObject(by_stage, stage_bytes[k].name, (double)stage_bytes[k].bytes);
+#define ADD_STAGE_BYTES(name) cJSON_AddNumberToObject(by_stage, #name, (double)es.peak_memory.name);
+    SIM_MEMORY_STAGE_LIST(ADD_STAGE_BYTES)
+#undef ADD_STAGE_BYTES
     if (params.model == SIM_MODEL_DECALS)
         cJSON_AddNumberToObject(root, "footprint_events", (double)footprint_events);
     cJSON_AddNumberToObject(
         root, "bytes_per_world_cell",
-        round((world_bytes + (double)engine.peak_scratch_bytes) / world_cells * 1e4) / 1e4);
+        round((world_bytes + (double)es.peak_scratch_bytes) / world_cells * 1e4) / 1e4);
     cJSON_AddNumberToObject(
         root, "bytes_per_active_cell",
-        engine.peak_active_cells
-            ? round((double)engine.peak_scratch_bytes / (double)engine.peak_active_cells * 1e2) /
-                  1e2
+        es.peak_active_cells
+            ? round((double)es.peak_scratch_bytes / (double)es.peak_active_cells * 1e2) / 1e2
             : 0.0);
     cJSON_AddNumberToObject(root, "peak_rss_bytes", (double)proc_peak_rss_bytes());
     char *text = cJSON_Print(root);
@@ -400,7 +392,7 @@ int app_simulate(int argc, char **argv)
 done_colliders:
     for (int s = 0; s < stage_count; s++)
         stat_series_free(&stages[s].series);
-    sim_engine_free(&engine);
+    sim_engine_destroy(engine);
 done_world:
     ground_free(&grd);
     if (backend)

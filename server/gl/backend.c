@@ -249,7 +249,7 @@ typedef struct tile_cache {
     int32_t *staging; /* one tile */
     GLuint gather, scatter;
     GLint gather_u[7], scatter_u[7];
-    gl_tile_cache_stats stats;
+    sim_tile_cache_stats stats;
 } tile_cache;
 
 static const char *const cache_uniform_names[7] = {
@@ -1174,11 +1174,9 @@ void sim_backend_gl_set_tile_cache(sim_backend *base, int layers, int64_t budget
     c->budget_bytes = budget_bytes > 0 ? budget_bytes : 0;
 }
 
-void sim_backend_gl_tile_cache_stats(const sim_backend *base, gl_tile_cache_stats *out)
+/* The backend table's optional tile_cache_stats entry. */
+static void gl_tile_cache_stats(const sim_backend *base, sim_tile_cache_stats *out)
 {
-    memset(out, 0, sizeof *out);
-    if (!base || !base->name || strcmp(base->name, "gl") != 0)
-        return;
     *out = ((const gl_backend *)base)->cache->stats;
 }
 
@@ -1406,10 +1404,10 @@ static int gl_run_windows(sim_backend *base, const sim_params *p, sim_window_job
     return 0;
 }
 
-void sim_backend_gl_set_stage_timing(sim_backend *base, int on)
+/* The backend table's optional set_stage_timing entry. */
+static void gl_set_stage_timing(sim_backend *base, int on)
 {
-    if (base && base->name && strcmp(base->name, "gl") == 0)
-        ((gl_backend *)base)->stage_timing = on != 0;
+    ((gl_backend *)base)->stage_timing = on != 0;
 }
 
 void sim_backend_gl_set_limits(sim_backend *base, int atlas_side, int64_t chunk_cells)
@@ -1476,6 +1474,8 @@ sim_backend *sim_backend_gl_create(error_text *err)
     b->base.forget_geometry = gl_forget_geometry;
     b->base.scratch_bytes = gl_scratch_bytes;
     b->base.window_scattered = gl_window_scattered;
+    b->base.tile_cache_stats = gl_tile_cache_stats;
+    b->base.set_stage_timing = gl_set_stage_timing;
     b->base.destroy = gl_destroy;
     b->base.impl = b;
     b->cache = calloc(1, sizeof *b->cache);

@@ -18,7 +18,7 @@
  *    the original's read-modify-write of one buffer, so the result does not
  *    depend on thread order.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <math.h>
 #include <stdint.h>

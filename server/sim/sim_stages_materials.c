@@ -16,7 +16,7 @@
  * so repeated passes over one track lower it less each time, the memory
  * never passes M, and Σh falls by exactly the compacted units.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <stdint.h>
 #include <string.h>

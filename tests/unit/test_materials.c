@@ -14,7 +14,7 @@
 #include <string.h>
 
 #include "ground/ground.h"
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 #include "check.h"
 
 static sim_params base_params(sim_material *m)
@@ -419,9 +419,9 @@ static void test_engine_compaction(void)
     sim_material m;
     sim_params p = base_params(&m);
     sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine e;
-    CHECK(sim_engine_init(&e, &w, &p, cpu, 4, &err) == 0, "engine");
-    sim_engine_set_ground(&e, &g);
+    sim_engine *e = sim_engine_create(&w, &p, cpu, 4, &err);
+    CHECK(e != NULL, "engine");
+    sim_engine_set_ground(e, &g);
     collider_geometry sphere = {.shape = COLLIDER_SPHERE, .radius = 0.3};
     sim_collider col = {.id = 1, .geometry = &sphere};
     col.pose.orientation = (quatd){1, 0, 0, 0};
@@ -437,7 +437,7 @@ static void test_engine_compaction(void)
         col.has_previous = pass > 1;
         int32_t before = height_at(&w, 32, 32);
         sim_tick_report rep;
-        CHECK(sim_engine_tick(&e, &col, 1, &rep, &err) == 0, "tick %d", pass);
+        CHECK(sim_engine_tick(e, &col, 1, &rep, &err) == 0, "tick %d", pass);
         drop = before - height_at(&w, 32, 32);
         int32_t bottom = (int32_t)floor((z - 0.3) * 10000);
         contact = height_at(&w, 32, 32) - bottom;
@@ -454,7 +454,7 @@ static void test_engine_compaction(void)
     CHECK(contact_monotone && contact > 0,
           "the compacted snow carries the collider: contact depth grows (last %d)", contact);
     CHECK(exact, "Σh + Σmemory exact through the engine");
-    sim_engine_free(&e);
+    sim_engine_destroy(e);
     cpu->destroy(cpu);
     ground_free(&g);
     world_free(&w);
@@ -509,22 +509,24 @@ static void test_engine_single_material(void)
     sim_params p = base_params(&m);
     error_text err;
     sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine e;
-    sim_engine_init(&e, &w, &p, cpu, 4, &err);
+    sim_engine *e = sim_engine_create(&w, &p, cpu, 4, &err);
+    sim_engine_stats es;
     ground g;
     CHECK(ground_from_text(&g, &w, "{\"materials\": {\"sand\": {\"preset\": \"sand\"}}}", &err) ==
               0,
           "sand only parses");
-    sim_engine_set_ground(&e, &g);
-    CHECK(e.ground == &g, "a single sand preset runs on its own row (45 deg, roughness 1)");
+    sim_engine_set_ground(e, &g);
+    sim_engine_get_stats(e, &es);
+    CHECK(es.per_cell_materials, "a single sand preset runs on its own row (45 deg, roughness 1)");
     ground_free(&g);
     ground_material per_cell = sim_material_ground(&m);
     CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &per_cell, &err) == 0,
           "uniform ground");
-    sim_engine_set_ground(&e, &g);
-    CHECK(e.ground == NULL, "a ground equal to the params: the uniform path");
+    sim_engine_set_ground(e, &g);
+    sim_engine_get_stats(e, &es);
+    CHECK(!es.per_cell_materials, "a ground equal to the params: the uniform path");
     ground_free(&g);
-    sim_engine_free(&e);
+    sim_engine_destroy(e);
     cpu->destroy(cpu);
     world_free(&w);
 }
