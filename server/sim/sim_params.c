@@ -139,14 +139,9 @@ ground_material sim_material_ground(const sim_material *m)
     return g;
 }
 
-int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t units_per_m,
-                             int32_t floor_units, sim_params *p, error_text *err)
+/* The persson stages' fields, in the order their errors are reported. */
+static int validate_persson(const sim_material *m, error_text *err)
 {
-    /* the per-cell part (compression, roughness, repose) is the ground's row */
-    ground_material_row row;
-    ground_material per_cell = sim_material_ground(m);
-    if (ground_material_row_from(&per_cell, cell_size_m, units_per_m, "material", &row, err) != 0)
-        return -1;
     if (!in_range(m->obstacle_gap_m, 0.0, 1000.0)) {
         error_set(err, "material.obstacle_gap_m: must be a number in [0, 1000] (got %g)",
                   m->obstacle_gap_m);
@@ -184,6 +179,12 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         error_set(err, "material.model: unknown model");
         return -1;
     }
+    return 0;
+}
+
+/* The tick and the other models' fields. */
+static int validate_models(const sim_material *m, error_text *err)
+{
     if (!isfinite(m->tick_s) || m->tick_s <= 0.0 || m->tick_s > 3600.0) {
         error_set(err, "tick_hz: the tick must last (0, 3600] s (got %g s)", m->tick_s);
         return -1;
@@ -240,6 +241,19 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
                   m->decal_min_strength_m);
         return -1;
     }
+    return 0;
+}
+
+int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t units_per_m,
+                             int32_t floor_units, sim_params *p, error_text *err)
+{
+    /* the per-cell part (compression, roughness, repose) is the ground's row */
+    ground_material_row row;
+    ground_material per_cell = sim_material_ground(m);
+    if (ground_material_row_from(&per_cell, cell_size_m, units_per_m, "material", &row, err) != 0)
+        return -1;
+    if (validate_persson(m, err) != 0 || validate_models(m, err) != 0)
+        return -1;
     if (!isfinite(cell_size_m) || cell_size_m <= 0.0 || units_per_m < 1) {
         error_set(err, "world: cell size and units per metre must be positive");
         return -1;
