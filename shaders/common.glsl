@@ -77,7 +77,7 @@ uniform int u_multi_target_step;
 uniform int u_multi_target_max;
 uniform int u_floor;
 
-/* Per-cell materials (sim_stages_materials.c). u_materials_on 0: the uniform
+/* Per-cell materials (sim_stages.c). u_materials_on 0: the uniform
  * path above. Otherwise each cell's material word is id | memory << 8 and
  * row id holds (compression_q16, roughness_q16, threshold axial, diagonal). */
 uniform int u_materials_on;

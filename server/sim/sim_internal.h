@@ -39,12 +39,12 @@ void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
 void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
                     const int32_t *cls, int32_t *seed, int32_t *scratch);
 
-/* ---- Per-cell materials and compaction memory (sim_stages_materials.c) ----
- * The same stages with a material id per cell (an index into a small table of
- * integer rows) and, where some material remembers compaction, a uint16
- * compaction memory per cell (the table is ground/'s). With ids == NULL every
- * cell is row 0; with one row equal to the params and max_compaction 0 the
- * results are those of sim_classify / sim_even_slopes, bit for bit. */
+/* ---- Per-cell materials and compaction memory (sim_stages.c) ----
+ * Classify and slope evening with a material id per cell (an index into a
+ * small table of integer rows, ground/'s) and, where some material remembers
+ * compaction, a uint16 compaction memory per cell. With ids == NULL every
+ * cell is row 0. These are the one implementation: sim_classify and
+ * sim_even_slopes run them with a one-row table of the params. */
 
 /*
  * classify with per-cell materials. A penetrated column with compaction
@@ -64,7 +64,6 @@ void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, i
 void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
                                const uint8_t *ids, int w, int h, const int32_t *cls,
                                int32_t *heights, int32_t *scratch);
-/* Largest excess above the threshold of the higher column's material. */
 /*
  * displace: heights[i] -= raw[i], and the moved material lands by the
  * params' method. `scratch` holds 5*w*h int32. Returns SIM_WINDOW_HEIGHT_LIMIT

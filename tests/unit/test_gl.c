@@ -565,7 +565,7 @@ static void test_scratch_and_timing(sim_backend *gl)
         free(heights[k]);
 }
 
-/* ---- per-cell materials and compaction memory (sim_stages_materials.c) ---- */
+/* ---- per-cell materials and compaction memory (sim_stages.c) ---- */
 
 /* Random material tables, ids and compaction memory on random windows: heights,
  * statuses and the compaction written back agree bit for bit. */

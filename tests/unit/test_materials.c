@@ -1,6 +1,6 @@
 /*
  * test_materials.c: per-cell materials and compaction memory (server/ground/,
- * server/sim/sim_stages_materials.c): presets, the scene's material table and
+ * server/sim/sim_stages.c): presets, the scene's material table and
  * map with their errors, the uniform path equal to the plain stages bit for
  * bit, no compaction layer where no material compacts, repeated passes over
  * one track sinking less each time with exact volume accounting, and a
