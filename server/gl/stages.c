@@ -13,10 +13,16 @@
 
 void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_material_table *t)
 {
+    /* the uniform path is a one-row table of the params, as in sim_stages.c */
+    ground_material_table uniform = {.count = 1};
+    uniform.rows[0] = sim_material_row_from_params(p, 0);
+    int per_cell = t != NULL;
+    if (!t)
+        t = &uniform;
     GLint rows[GROUND_MATERIALS_MAX * 4], max_compaction[GROUND_MATERIALS_MAX];
     memset(rows, 0, sizeof rows);
     memset(max_compaction, 0, sizeof max_compaction);
-    for (int i = 0; t && i < t->count; i++) {
+    for (int i = 0; i < t->count; i++) {
         rows[4 * i] = t->rows[i].compression_q16;
         rows[4 * i + 1] = t->rows[i].roughness_q16;
         rows[4 * i + 2] = t->rows[i].slope_threshold_axial;
@@ -27,16 +33,12 @@ void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_mater
         GLuint pr = b->programs[prog];
         const GLint *u = b->uniforms[prog];
         glProgramUniform1i(pr, u[U_METRIC], (GLint)p->metric);
-        glProgramUniform1i(pr, u[U_COMPRESSION], p->compression_q16);
-        glProgramUniform1i(pr, u[U_ROUGHNESS], p->roughness_q16);
-        glProgramUniform1i(pr, u[U_THRESHOLD_AXIAL], p->slope_threshold_axial);
-        glProgramUniform1i(pr, u[U_THRESHOLD_DIAGONAL], p->slope_threshold_diagonal);
         glProgramUniform1i(pr, u[U_OBSTACLE_GAP], p->obstacle_gap);
         glProgramUniform1i(pr, u[U_MULTI_STEP], p->multi_target_step);
         glProgramUniform1i(pr, u[U_MULTI_MAX], p->multi_target_max);
         glProgramUniform1i(pr, u[U_FLOOR], p->floor);
-        glProgramUniform1i(pr, u[U_MATERIALS_ON], t != NULL);
-        glProgramUniform1i(pr, u[U_MATERIAL_COUNT], t ? t->count : 1);
+        glProgramUniform1i(pr, u[U_MATERIALS_ON], per_cell);
+        glProgramUniform1i(pr, u[U_MATERIAL_COUNT], t->count);
         glProgramUniform4iv(pr, u[U_MATERIAL_ROWS], GROUND_MATERIALS_MAX, rows);
         glProgramUniform1iv(pr, u[U_MATERIAL_MAX], GROUND_MATERIALS_MAX, max_compaction);
     }
