@@ -58,8 +58,7 @@ void error_prefix(error_text *err, const char *prefix, const char *sep);
 #define SIM_STAGE_LIST(X) X(depth) X(classify) X(jump_flood) X(displace) X(even_slopes) X(transfer)
 #define SIM_MEMORY_STAGE_LIST(X)                                                                   \
     X(depth)                                                                                       \
-    X(classify) X(jump_flood) X(displace) X(even_slopes) X(backend_other) X(model)                 \
-        X(gather_scatter)
+    X(classify) X(jump_flood) X(displace) X(even_slopes) X(backend_other) X(model) X(gather_scatter)
 /* A list entry as a string and a comma: {SIM_STAGE_LIST(SIM_STAGE_NAME)}. */
 #define SIM_STAGE_NAME(name) #name,
 

@@ -52,10 +52,11 @@ typedef enum sim_method {
 
 /*
  * The deformation model of a material (docs/models.md). The three persson-*
- * models run on the backends (GL or CPU twin) through the stages above; the
- * others are CPU window functions in server/sim/model_<name>.c that the
- * engine calls per window, taking the model from the window's params, so a
- * per-cell material layer can route each window (or cell) by its material.
+ * models run on the backends (GL or CPU twin) through the stages of
+ * SIM_STAGE_LIST; the others are CPU window functions in
+ * server/sim/model_<name>.c that the engine calls per window, taking the
+ * model from the window's params, so a per-cell material layer can route
+ * each window (or cell) by its material.
  */
 typedef enum sim_model {
     SIM_MODEL_PERSSON_ITERATIVE,
