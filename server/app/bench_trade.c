@@ -24,7 +24,6 @@
 
 #include "app/app.h"
 #include "app/trade_internal.h"
-#include "gl/gl.h"
 
 #define HEADING_COUNT 3
 static const double headings_deg[HEADING_COUNT] = {0.0, 30.0, 45.0};

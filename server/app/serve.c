@@ -20,7 +20,6 @@
 #include <cjson/cJSON.h>
 
 #include "app/app.h"
-#include "gl/gl.h"
 #include "http/http.h"
 #include "hub/hub.h"
 #include "metrics/metrics.h"

@@ -16,7 +16,6 @@
 #include <string.h>
 
 #include "app/app.h"
-#include "gl/gl.h"
 #include "scene/scene.h"
 
 typedef struct simulate_options {
