@@ -24,7 +24,6 @@
 
 #include "app/app.h"
 #include "app/trade_internal.h"
-#include "gl/gl.h"
 
 #define HEADING_COUNT 3
 static const double headings_deg[HEADING_COUNT] = {0.0, 30.0, 45.0};
@@ -265,8 +264,7 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     int32_t *after = malloc(cells * sizeof *after);
     sim_params params;
     sim_backend *backend = NULL;
-    sim_engine engine;
-    int engine_ready = 0;
+    sim_engine *engine = NULL;
     tick_log log = {{0}, 0};
     if (!before || !after) {
         error_set(err, "out of memory");
@@ -277,12 +275,11 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
                                  err) != 0 ||
         !(backend = app_backend_create(backend_name, err)) ||
-        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, err) != 0)
+        !(engine = sim_engine_create(&w, &params, backend, sc.active_margin_cells, err)))
         goto done;
-    engine_ready = 1;
     char *renderer = strcmp(backend->name, "gl") == 0 ? gl_renderer : cpu_renderer;
     snprintf(renderer, sizeof cpu_renderer, "%s", backend->renderer);
-    if (app_run_scene_ticks(&sc, &engine, r->ticks, log_tick, &log, err) != 0)
+    if (app_run_scene_ticks(&sc, engine, r->ticks, log_tick, &log, err) != 0)
         goto done;
 
     world_gather_window(&w, whole, after);
@@ -312,9 +309,11 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     r->world_cells = (int64_t)cells;
     r->tick_ms_mean = stat_series_mean(&log.tick_ms);
     r->tick_ms_p95 = stat_series_percentile(&log.tick_ms, 95);
-    r->scratch_bytes_peak = engine.peak_scratch_bytes;
+    sim_engine_stats es;
+    sim_engine_get_stats(engine, &es);
+    r->scratch_bytes_peak = es.peak_scratch_bytes;
     r->bytes_per_world_cell =
-        ((double)cells * sizeof(int32_t) + (double)engine.peak_scratch_bytes) / (double)cells;
+        ((double)cells * sizeof(int32_t) + (double)es.peak_scratch_bytes) / (double)cells;
     r->refused_windows = log.refused;
     r->profile_length = trade_profile_length(&spec);
     r->profile = malloc((size_t)r->profile_length * sizeof *r->profile);
@@ -326,8 +325,7 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     rc = 0;
 done:
     stat_series_free(&log.tick_ms);
-    if (engine_ready)
-        sim_engine_free(&engine);
+    sim_engine_destroy(engine);
     if (backend)
         backend->destroy(backend);
     free(before);

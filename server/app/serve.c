@@ -20,7 +20,6 @@
 
 #include "app/app.h"
 #include "app/serve_internal.h"
-#include "gl/gl.h"
 #include "http/http.h"
 #include "hub/hub.h"
 #include "metrics/metrics.h"
@@ -48,7 +47,7 @@ typedef struct serve_daemon {
     http_status status;
     sim_params params;
     sim_backend *backend;
-    sim_engine engine;
+    sim_engine *engine;
     ground grd;
     demo_actor *actors;
     sim_collider *extra;
@@ -93,12 +92,9 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
 {
     const sim_stage_times *t = &st->report.times;
     metrics_observe_tick_ms(st->tick_ms);
-    metrics_observe_stage_ms("depth", t->depth);
-    metrics_observe_stage_ms("classify", t->classify);
-    metrics_observe_stage_ms("jump_flood", t->jump_flood);
-    metrics_observe_stage_ms("displace", t->displace);
-    metrics_observe_stage_ms("even_slopes", t->even_slopes);
-    metrics_observe_stage_ms("transfer", t->transfer);
+#define OBSERVE_STAGE(name) metrics_observe_stage_ms(#name, t->name);
+    SIM_STAGE_LIST(OBSERVE_STAGE)
+#undef OBSERVE_STAGE
     metrics_observe_stage_ms("gather_scatter", st->report.gather_scatter_ms);
     metrics_observe_stage_ms("model", st->report.model_ms);
     metrics_set_tick(service_current_tick(svc));
@@ -107,20 +103,16 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
     metrics_set_colliders(st->colliders);
     if (st->report.refused_windows)
         metrics_count_refused_windows((uint64_t)st->report.refused_windows);
+    sim_engine_stats es;
+    sim_engine_get_stats(engine, &es);
     metrics_set_memory_bytes("world_heights", world_resident_bytes(w));
-    metrics_set_memory_bytes("sim_scratch", engine->peak_scratch_bytes);
+    metrics_set_memory_bytes("sim_scratch", es.peak_scratch_bytes);
     /* what the scene's models hold, by stage (docs/models.md) */
-    const sim_stage_memory *m = &engine->memory;
-    metrics_set_stage_memory_bytes("depth", m->depth);
-    metrics_set_stage_memory_bytes("classify", m->classify);
-    metrics_set_stage_memory_bytes("jump_flood", m->jump_flood);
-    metrics_set_stage_memory_bytes("displace", m->displace);
-    metrics_set_stage_memory_bytes("even_slopes", m->even_slopes);
-    metrics_set_stage_memory_bytes("backend_other", m->backend_other);
-    metrics_set_stage_memory_bytes("model", m->model);
-    metrics_set_stage_memory_bytes("gather_scatter", m->gather_scatter);
-    gl_tile_cache_stats cache;
-    sim_backend_gl_tile_cache_stats(engine->backend, &cache);
+#define SET_STAGE_MEMORY(name) metrics_set_stage_memory_bytes(#name, es.memory.name);
+    SIM_MEMORY_STAGE_LIST(SET_STAGE_MEMORY)
+#undef SET_STAGE_MEMORY
+    sim_tile_cache_stats cache;
+    sim_backend_tile_cache_stats(sim_engine_backend(engine), &cache);
     metrics_set_memory_bytes("gpu_tile_cache", cache.texture_bytes);
     metrics_set_gpu_tile_cache(cache.uploads, cache.upload_bytes, cache.evictions,
                                cache.resident_tiles);
@@ -177,10 +169,10 @@ static int serve_start_engine(serve_daemon *d, error_text *err)
     if (sim_params_from_material(&d->sc.material, w->cell_size_m, w->units_per_m, w->floor,
                                  &d->params, err) != 0 ||
         !(d->backend = app_backend_create(d->o.backend, err)) ||
-        sim_engine_init(&d->engine, w, &d->params, d->backend, d->sc.active_margin_cells, err) !=
-            0 ||
-        app_ground_attach(&d->sc, w, &d->engine, &d->grd, err) != 0 ||
-        !(d->svc = service_create(&d->engine, d->h, err)))
+        !(d->engine =
+              sim_engine_create(w, &d->params, d->backend, d->sc.active_margin_cells, err)) ||
+        app_ground_attach(&d->sc, w, d->engine, &d->grd, err) != 0 ||
+        !(d->svc = service_create(d->engine, d->h, err)))
         return -1;
     if (d->st)
         service_attach_store(d->svc, d->st, d->recovery.tick);
@@ -285,7 +277,7 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
         }
         publish_status(&d->status, d->svc, d->st, stats.tick_ms, overruns,
                        net_server_client_count(d->net), stats.colliders);
-        publish_metrics(&stats, &d->engine, d->svc, &d->w);
+        publish_metrics(&stats, d->engine, d->svc, &d->w);
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
@@ -307,7 +299,7 @@ static void serve_stop(serve_daemon *d)
     store_close(d->st);
     free(d->extra);
     free(d->actors);
-    sim_engine_free(&d->engine);
+    sim_engine_destroy(d->engine);
     ground_free(&d->grd);
     if (d->backend)
         d->backend->destroy(d->backend);

@@ -16,7 +16,6 @@
 #include <string.h>
 
 #include "app/app.h"
-#include "gl/gl.h"
 #include "scene/scene.h"
 
 typedef struct simulate_options {
@@ -208,9 +207,10 @@ static void record_tick(void *ctx, long tick, const sim_tick_report *report, dou
 {
     (void)tick;
     simulate_totals *t = ctx;
-    double values[] = {report->times.depth,    report->times.classify,    report->times.jump_flood,
-                       report->times.displace, report->times.even_slopes, report->times.transfer,
-                       report->model_ms,       report->gather_scatter_ms, tick_ms};
+#define STAGE_VALUE(name) report->times.name,
+    double values[] = {SIM_STAGE_LIST(STAGE_VALUE) report->model_ms, report->gather_scatter_ms,
+                       tick_ms};
+#undef STAGE_VALUE
     for (int s = 0; s < t->stage_count; s++)
         stat_series_add(&t->stages[s].series, values[s]);
     t->active_sum += (double)report->active_cells;
@@ -289,7 +289,7 @@ typedef struct simulate_run {
     world w;
     sim_params params;
     sim_backend *backend;
-    sim_engine engine;
+    sim_engine *engine;
     ground grd;
     simulate_totals totals;
     int64_t volume_before, volume_after;
@@ -340,21 +340,23 @@ static void report_add_run(cJSON *root, simulate_run *r)
 /* Active cells, slopes, the world's and the GPU cache's memory. */
 static void report_add_cells(cJSON *root, simulate_run *r)
 {
-    const sim_engine *engine = &r->engine;
+    sim_engine_stats es;
+    sim_engine_get_stats(r->engine, &es);
     world *w = &r->w;
     cJSON_AddNumberToObject(root, "active_cells_mean",
                             r->o.ticks ? r->totals.active_sum / r->o.ticks : 0.0);
-    cJSON_AddNumberToObject(root, "peak_active_cells", (double)engine->peak_active_cells);
+    cJSON_AddNumberToObject(root, "peak_active_cells", (double)es.peak_active_cells);
     cJSON_AddNumberToObject(root, "refused_windows", (double)r->totals.refused);
     const char *slope_scope;
-    add_int64(root, "max_slope_excess",
-              max_slope_excess(&r->params, w, engine->ground ? &r->grd : NULL, &slope_scope));
+    add_int64(
+        root, "max_slope_excess",
+        max_slope_excess(&r->params, w, es.per_cell_materials ? &r->grd : NULL, &slope_scope));
     cJSON_AddStringToObject(root, "max_slope_excess_scope", slope_scope);
     cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(w));
     cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(w));
     cJSON_AddNumberToObject(root, "world_tile_cells", w->tile_cells);
-    gl_tile_cache_stats cache;
-    sim_backend_gl_tile_cache_stats(r->backend, &cache);
+    sim_tile_cache_stats cache;
+    sim_backend_tile_cache_stats(r->backend, &cache);
     cJSON_AddNumberToObject(root, "gpu_tile_cache_bytes", (double)cache.texture_bytes);
     cJSON_AddNumberToObject(root, "gpu_tiles_resident", cache.resident_tiles);
     cJSON_AddNumberToObject(root, "gpu_tile_uploads", (double)cache.uploads);
@@ -367,35 +369,24 @@ static void report_add_cells(cJSON *root, simulate_run *r)
 /* Scratch memory by stage and per cell, and the process's peak. */
 static void report_add_memory(cJSON *root, simulate_run *r)
 {
-    const sim_engine *engine = &r->engine;
+    sim_engine_stats es;
+    sim_engine_get_stats(r->engine, &es);
     double world_cells = (double)r->w.width * r->w.height;
     double world_bytes = (double)world_resident_bytes(&r->w);
-    cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine->peak_scratch_bytes);
-    const sim_stage_memory *mem = &engine->peak_memory;
+    cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)es.peak_scratch_bytes);
     cJSON *by_stage = cJSON_AddObjectToObject(root, "scratch_bytes_by_stage");
-    const struct {
-        const char *name;
-        uint64_t bytes;
-    } stage_bytes[] = {{"depth", mem->depth},
-                       {"classify", mem->classify},
-                       {"jump_flood", mem->jump_flood},
-                       {"displace", mem->displace},
-                       {"even_slopes", mem->even_slopes},
-                       {"backend_other", mem->backend_other},
-                       {"model", mem->model},
-                       {"gather_scatter", mem->gather_scatter}};
-    for (size_t k = 0; k < sizeof stage_bytes / sizeof stage_bytes[0]; k++)
-        cJSON_AddNumberToObject(by_stage, stage_bytes[k].name, (double)stage_bytes[k].bytes);
+#define ADD_STAGE_BYTES(name) cJSON_AddNumberToObject(by_stage, #name, (double)es.peak_memory.name);
+    SIM_MEMORY_STAGE_LIST(ADD_STAGE_BYTES)
+#undef ADD_STAGE_BYTES
     if (r->params.model == SIM_MODEL_DECALS)
         cJSON_AddNumberToObject(root, "footprint_events", (double)r->totals.footprint_events);
     cJSON_AddNumberToObject(
         root, "bytes_per_world_cell",
-        round((world_bytes + (double)engine->peak_scratch_bytes) / world_cells * 1e4) / 1e4);
+        round((world_bytes + (double)es.peak_scratch_bytes) / world_cells * 1e4) / 1e4);
     cJSON_AddNumberToObject(
         root, "bytes_per_active_cell",
-        engine->peak_active_cells
-            ? round((double)engine->peak_scratch_bytes / (double)engine->peak_active_cells * 1e2) /
-                  1e2
+        es.peak_active_cells
+            ? round((double)es.peak_scratch_bytes / (double)es.peak_active_cells * 1e2) / 1e2
             : 0.0);
     cJSON_AddNumberToObject(root, "peak_rss_bytes", (double)proc_peak_rss_bytes());
 }
@@ -425,28 +416,28 @@ static int simulate_engine_run(simulate_run *r)
     if (sim_params_from_material(&r->sc.material, w->cell_size_m, w->units_per_m, w->floor,
                                  &r->params, &err) != 0 ||
         !(r->backend = app_backend_create(r->o.backend, &err)) ||
-        sim_engine_init(&r->engine, w, &r->params, r->backend, r->sc.active_margin_cells, &err) !=
-            0) {
+        !(r->engine =
+              sim_engine_create(w, &r->params, r->backend, r->sc.active_margin_cells, &err))) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         return 1;
     }
-    if (app_ground_attach(&r->sc, w, &r->engine, &r->grd, &err) != 0) {
+    if (app_ground_attach(&r->sc, w, r->engine, &r->grd, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
-        sim_engine_free(&r->engine);
+        sim_engine_destroy(r->engine);
         return 1;
     }
-    if (strcmp(r->backend->name, "gl") == 0)
-        sim_backend_gl_set_stage_timing(r->backend, 1);
-    r->engine.depth_from_cpu = r->o.depth_from_cpu;
+    sim_backend_set_stage_timing(r->backend, 1);
+    sim_engine_set_depth_from_cpu(r->engine, r->o.depth_from_cpu);
 
-    stage_series stages[] = {{"depth", {0}},    {"classify", {0}},       {"jump_flood", {0}},
-                             {"displace", {0}}, {"even_slopes", {0}},    {"transfer", {0}},
-                             {"model", {0}},    {"gather_scatter", {0}}, {"tick", {0}}};
+#define STAGE_SERIES(name) {#name, {0}},
+    stage_series stages[] = {
+        SIM_STAGE_LIST(STAGE_SERIES){"model", {0}}, {"gather_scatter", {0}}, {"tick", {0}}};
+#undef STAGE_SERIES
     const int stage_count = (int)(sizeof stages / sizeof stages[0]);
     r->volume_before = world_volume(w);
     r->totals = (simulate_totals){stages, stage_count, 0.0, 0, 0};
     int rc = 1;
-    if (app_run_scene_ticks(&r->sc, &r->engine, r->o.ticks, record_tick, &r->totals, &err) != 0) {
+    if (app_run_scene_ticks(&r->sc, r->engine, r->o.ticks, record_tick, &r->totals, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
     } else {
         r->volume_after = world_volume(w);
@@ -457,7 +448,7 @@ static int simulate_engine_run(simulate_run *r)
     }
     for (int s = 0; s < stage_count; s++)
         stat_series_free(&stages[s].series);
-    sim_engine_free(&r->engine);
+    sim_engine_destroy(r->engine);
     return rc;
 }
 

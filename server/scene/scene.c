@@ -234,9 +234,9 @@ static int ground_from_json_text(const scene *s, const char *text, ground *g, er
         return -1;
     }
     ground_extent x = {s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units};
-    int rc =
-        ground_init_json(g, x, &s->material, cJSON_GetObjectItemCaseSensitive(root, "materials"),
-                         cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
+    ground_material base = sim_material_ground(&s->material);
+    int rc = ground_init_json(g, x, &base, cJSON_GetObjectItemCaseSensitive(root, "materials"),
+                              cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
     cJSON_Delete(root);
     return rc;
 }
@@ -268,8 +268,10 @@ static int parse_ground(const cJSON *root, scene *s, error_text *err)
 
 int scene_create_ground(const scene *s, const world *w, ground *g, error_text *err)
 {
-    if (!s->ground_json)
-        return ground_init_uniform(g, ground_extent_of_world(w), &s->material, err);
+    if (!s->ground_json) {
+        ground_material base = sim_material_ground(&s->material);
+        return ground_init_uniform(g, ground_extent_of_world(w), &base, err);
+    }
     return ground_from_json_text(s, s->ground_json, g, err);
 }
 

@@ -9,7 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 #include "check.h"
 #include "test_params.h"
 
@@ -329,7 +329,7 @@ static void test_plan_windows(void)
     c[3].pose.position.z = 50.0;
     world_rect fp[4], *win = NULL;
     int count = 0;
-    CHECK(sim_plan_windows(&w, &p, c, 4, 2, fp, &win, &count) == 0, "plan");
+    CHECK(sim_plan_windows(&w, &p, c, 4, 2, NULL, 0, fp, &win, &count) == 0, "plan");
     CHECK(count == 2,
           "two overlapping footprints merge, one far away stays, one flying is "
           "skipped: %d windows",
@@ -342,7 +342,8 @@ static void test_plan_windows(void)
     free(win);
     /* a collider crossing the world edge is clipped */
     c[0].pose.position.x = 0.1;
-    CHECK(sim_plan_windows(&w, &p, c, 1, 2, fp, &win, &count) == 0 && count == 1 && win[0].x == 0,
+    CHECK(sim_plan_windows(&w, &p, c, 1, 2, NULL, 0, fp, &win, &count) == 0 && count == 1 &&
+              win[0].x == 0,
           "clipped at the edge");
     free(win);
     world_free(&w);

@@ -11,7 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 #include "check.h"
 #include "test_params.h"
 
@@ -337,7 +337,7 @@ static void test_materials_and_compaction(void)
     uint8_t ids[N];
     uint16_t memory[N];
     sim_params p = params_with(30.0, 0.5, 0.0, 5);
-    sim_material_table t = {.count = 2};
+    ground_material_table t = {.count = 2};
     t.rows[0] = sim_material_row_from_params(&p, 0);
     t.rows[1] = t.rows[0];
     t.rows[1].compression_q16 = 49152; /* 0.75 */
