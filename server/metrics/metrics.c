@@ -85,6 +85,8 @@ static histogram fsync_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
 static histogram stage_hist[STAGE_COUNT];
 static const char *const store_error_kinds[] = {METRICS_STORE_ERROR_KINDS};
 #define STORE_ERROR_KINDS COUNT_OF(store_error_kinds)
+static const char *const service_drop_reasons[] = {METRICS_SERVICE_DROP_REASONS};
+#define SERVICE_DROP_REASONS COUNT_OF(service_drop_reasons)
 static pthread_once_t stage_once = PTHREAD_ONCE_INIT;
 
 static void stage_hist_init(void)
@@ -136,6 +138,7 @@ static atomic_uint_fast64_t tick_now;
 static atomic_int_fast64_t volume, active_cells, colliders, clients;
 static atomic_uint_fast64_t store_wal_bytes, store_durable_tick, store_compactions;
 static atomic_uint_fast64_t store_errors[STORE_ERROR_KINDS];
+static atomic_uint_fast64_t service_dropped[SERVICE_DROP_REASONS];
 static atomic_int_fast64_t store_available, store_records_replayed, store_bytes_cut;
 static atomic_int_fast64_t store_recovery_us, store_compaction_us;
 
@@ -187,6 +190,8 @@ void metrics_reset(void)
     SET(store_compactions, 0);
     for (int i = 0; i < STORE_ERROR_KINDS; i++)
         SET(store_errors[i], 0);
+    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
+        SET(service_dropped[i], 0);
     SET(store_available, 0);
     SET(store_records_replayed, 0);
     SET(store_bytes_cut, 0);
@@ -240,6 +245,13 @@ void metrics_count_store_error(const char *kind)
     for (int i = 0; i < STORE_ERROR_KINDS; i++)
         if (strcmp(kind, store_error_kinds[i]) == 0)
             ADD(store_errors[i], 1);
+}
+
+void metrics_count_service_dropped(const char *reason)
+{
+    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
+        if (strcmp(reason, service_drop_reasons[i]) == 0)
+            ADD(service_dropped[i], 1);
 }
 
 void metrics_set_store_available(int available)
@@ -605,6 +617,11 @@ char *metrics_render(size_t *len)
     for (int i = 0; i < STORE_ERROR_KINDS; i++)
         text_printf(&t, "terrad_store_errors_total{kind=\"%s\"} %llu\n", store_error_kinds[i],
                     (unsigned long long)GET(store_errors[i]));
+    header(&t, "terrad_service_dropped_total", "counter",
+           "Work a tick could not do (a frame, snapshot, poses or command dropped), by reason.");
+    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
+        text_printf(&t, "terrad_service_dropped_total{reason=\"%s\"} %llu\n",
+                    service_drop_reasons[i], (unsigned long long)GET(service_dropped[i]));
     header(&t, "terrad_store_recovery_seconds", "gauge",
            "Wall time of the recovery at start (snapshots and log replay).");
     text_printf(&t, "terrad_store_recovery_seconds %.6f\n", (double)GET(store_recovery_us) / 1e6);
