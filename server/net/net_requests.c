@@ -12,10 +12,9 @@
  * colliders carry a fixed quarter turn about x, applied to every pose here,
  * so the sim sees collider-module poses only.
  */
-#include "net/net_internal.h"
+#include "net/net_requests.h"
 
 #include <math.h>
-#include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -26,117 +25,13 @@
 #define NET_TOKEN_MAX_BYTES 256
 #define NET_CLIENT_NAME_MAX_BYTES 64
 
-/* ---- collider table: id -> owner, open addressing, backward-shift deletion ---- */
-
-static size_t slot_of(uint32_t id, size_t cap)
-{
-    uint32_t x = id * 0x9e3779b1u;
-    return (x ^ (x >> 16)) & (cap - 1);
-}
-
-net_collider_slot *net_collider_find(net_server *s, uint32_t id)
-{
-    if (!s->colliders_cap || id == 0)
-        return NULL;
-    for (size_t i = slot_of(id, s->colliders_cap);; i = (i + 1) & (s->colliders_cap - 1)) {
-        if (s->colliders[i].id == id)
-            return &s->colliders[i];
-        if (s->colliders[i].id == 0)
-            return NULL;
-    }
-}
-
-static void table_put(net_collider_slot *t, size_t cap, net_collider_slot v)
-{
-    size_t i = slot_of(v.id, cap);
-    while (t[i].id != 0)
-        i = (i + 1) & (cap - 1);
-    t[i] = v;
-}
-
-int net_collider_insert(net_server *s, uint32_t id, uint32_t owner, int axis_z)
-{
-    if ((s->colliders_used + 1) * 2 > s->colliders_cap) {
-        size_t cap = s->colliders_cap ? s->colliders_cap * 2 : 256;
-        net_collider_slot *t = calloc(cap, sizeof *t);
-        if (!t)
-            return -1;
-        for (size_t i = 0; i < s->colliders_cap; i++)
-            if (s->colliders[i].id)
-                table_put(t, cap, s->colliders[i]);
-        free(s->colliders);
-        s->colliders = t;
-        s->colliders_cap = cap;
-    }
-    table_put(s->colliders, s->colliders_cap,
-              (net_collider_slot){.id = id, .owner = owner, .axis_z = axis_z});
-    s->colliders_used++;
-    return 0;
-}
-
-void net_collider_remove(net_server *s, uint32_t id)
-{
-    net_collider_slot *at = net_collider_find(s, id);
-    if (!at)
-        return;
-    size_t mask = s->colliders_cap - 1;
-    size_t i = (size_t)(at - s->colliders);
-    s->colliders[i].id = 0;
-    s->colliders_used--;
-    /* shift later members of the probe run back into the hole */
-    for (size_t j = (i + 1) & mask; s->colliders[j].id != 0; j = (j + 1) & mask) {
-        size_t home = slot_of(s->colliders[j].id, s->colliders_cap);
-        /* j's entry may move to i if home is not cyclically in (i, j] */
-        int between = (i <= j) ? (home > i && home <= j) : (home > i || home <= j);
-        if (!between) {
-            s->colliders[i] = s->colliders[j];
-            s->colliders[j].id = 0;
-            i = j;
-        }
-    }
-}
-
 /* ---- replies ---- */
-
-static cJSON *ref_copy(const cJSON *ref)
-{
-    return ref ? cJSON_Duplicate(ref, 1) : cJSON_CreateNull();
-}
-
-void net_error(net_client *c, int code, const cJSON *ref, int64_t collider, int fatal,
-               const char *fmt, ...)
-{
-    char message[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(message, sizeof message, fmt, ap);
-    va_end(ap);
-    if (code != TERRAD_E_SHUTTING_DOWN && code != TERRAD_E_INTERNAL) {
-        metrics_count_refused(code);
-        net_warn_refusal(c->srv, c, code, message);
-    }
-    if (!fatal && c->pending_bytes > c->srv->cfg.limits.max_pending_bytes) {
-        metrics_count_frames_dropped(1); /* it is not reading its errors anyway */
-        return;
-    }
-    cJSON *e = cJSON_CreateObject();
-    cJSON_AddStringToObject(e, "type", "error");
-    cJSON_AddNumberToObject(e, "code", code);
-    cJSON_AddStringToObject(e, "name", terrad_err_name(code));
-    cJSON_AddStringToObject(e, "message", message);
-    cJSON_AddItemToObject(e, "ref", ref_copy(ref));
-    if (collider >= 0)
-        cJSON_AddNumberToObject(e, "collider", (double)collider);
-    if (fatal)
-        cJSON_AddBoolToObject(e, "fatal", 1);
-    net_send_json(c, e);
-}
 
 static cJSON *reply(const char *type, const cJSON *ref)
 {
     cJSON *r = cJSON_CreateObject();
     cJSON_AddStringToObject(r, "type", type);
-    cJSON_AddItemToObject(r, "ref", ref_copy(ref));
+    cJSON_AddItemToObject(r, "ref", net_ref_copy(ref));
     return r;
 }
 
@@ -249,7 +144,7 @@ static int token_equal(const char *a, const char *b)
     return diff == 0;
 }
 
-static cJSON *world_message(net_server *s, const net_client *c)
+static cJSON *world_message(net_state *s, const net_client *c)
 {
     const net_world_info *w = &s->cfg.world;
     const net_limits *l = &s->cfg.limits;
@@ -291,7 +186,7 @@ static cJSON *world_message(net_server *s, const net_client *c)
 static void handle_hello(const req *r)
 {
     net_client *c = r->c;
-    net_server *s = c->srv;
+    net_state *s = c->srv;
     if (c->ready) {
         net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "hello: already received");
         return;
@@ -330,7 +225,7 @@ static void handle_hello(const req *r)
         if ((unsigned char)*p < 0x20 || *p == 0x7f)
             *p = '?';
     cJSON *w = world_message(s, c);
-    cJSON_AddItemToObject(w, "ref", ref_copy(r->ref));
+    cJSON_AddItemToObject(w, "ref", net_ref_copy(r->ref));
     net_send_json(c, w);
     hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = c->id};
     ref_text(r->ref, cmd.ref, sizeof cmd.ref);
@@ -340,7 +235,7 @@ static void handle_hello(const req *r)
 
 /* ---- collider_create ---- */
 
-static int material_known(net_server *s, const char *name)
+static int material_known(net_state *s, const char *name)
 {
     const cJSON *it;
     cJSON_ArrayForEach(it, s->materials) if (strcmp(it->valuestring, name) == 0) return 1;
@@ -477,7 +372,7 @@ static int parse_pose(const req *r, int axis_z, collider_pose *out)
 static void handle_collider_create(const req *r)
 {
     net_client *c = r->c;
-    net_server *s = c->srv;
+    net_state *s = c->srv;
     if (c->collider_count >= s->cfg.limits.max_colliders) {
         net_error(c, TERRAD_E_LIMIT_COLLIDERS, r->ref, -1, 0,
                   "this client already has max_colliders (%d) colliders",
@@ -584,10 +479,9 @@ static void handle_collider_create(const req *r)
     snprintf(cmd.material, sizeof cmd.material, "%s", mat);
     cmd.feedback = feedback ? cJSON_IsTrue(feedback) : 1;
     ref_text(r->ref, cmd.ref, sizeof cmd.ref);
-    uint32_t *grown = realloc(c->colliders, (size_t)(c->collider_count + 1) * sizeof *grown);
+    int grown = array_grow((void **)&c->colliders, &c->collider_capacity,
+                           (int64_t)c->collider_count + 1, sizeof *c->colliders) == 0;
     if (!grown || net_push_refusable(s, &cmd) != 0) {
-        if (grown)
-            c->colliders = grown;
         net_collider_remove(s, id);
         mesh_free(mesh);
         net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,
@@ -595,7 +489,6 @@ static void handle_collider_create(const req *r)
                         : "out of memory");
         return;
     }
-    c->colliders = grown;
     c->colliders[c->collider_count++] = id;
     s->next_collider_id = id + 1;
     cJSON *rep = reply("collider_created", r->ref);
@@ -658,7 +551,7 @@ static int sub_index(const net_client *c, uint32_t id)
 static void handle_subscribe(const req *r)
 {
     net_client *c = r->c;
-    net_server *s = c->srv;
+    net_state *s = c->srv;
     const net_limits *l = &s->cfg.limits;
     int64_t x, y, w, h;
     if (get_int(r, "x", 1, INT32_MIN, INT32_MAX, &x) < 0 ||
@@ -694,12 +587,11 @@ static void handle_subscribe(const req *r)
                   (long long)(w * h), (long long)l->max_subscribed_cells, (long long)c->sub_cells);
         return;
     }
-    net_sub *grown = realloc(c->subs, (size_t)(c->sub_count + 1) * sizeof *grown);
-    if (!grown) {
+    if (array_grow((void **)&c->subs, &c->sub_capacity, (int64_t)c->sub_count + 1,
+                   sizeof *c->subs) != 0) {
         net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0, "out of memory");
         return;
     }
-    c->subs = grown;
     world_rect rect = {(int)x, (int)y, (int)w, (int)h};
     hub_command cmd = {.kind = HUB_SUBSCRIBE,
                        .client = c->id,
@@ -755,25 +647,6 @@ static void handle_unsubscribe(const req *r)
     net_send_json(c, rep);
 }
 
-/* Fresh snapshots of every subscription of c: tile deltas stop at once (the
- * queued ones are dropped) and resume after the sim's last snapshot frame.
- * A resync of one subscription resyncs them all, because deltas are held
- * back per client, not per subscription. */
-void net_request_resync(net_client *c, uint32_t subscription)
-{
-    (void)subscription;
-    int n = net_drop_tile_deltas(c);
-    if (n)
-        metrics_count_frames_coalesced((uint64_t)n);
-    c->slow = 0;
-    if (c->sub_count == 0)
-        return;
-    hub_command cmd = {.kind = HUB_RESYNC, .client = c->id, .subscription = 0};
-    c->snapshots_requested++;
-    c->resync_until = c->snapshots_requested;
-    net_push_must(c->srv, &cmd);
-}
-
 static void handle_resync(const req *r)
 {
     int64_t id = 0;
@@ -792,6 +665,7 @@ static void handle_resync(const req *r)
 
 void net_handle_text(net_client *c, const char *text, size_t len)
 {
+    THREAD_OWNED(&c->srv->owner);
     cJSON *msg = cJSON_ParseWithLengthOpts(text, len, NULL, 0);
     const cJSON *type = cJSON_IsObject(msg) ? cJSON_GetObjectItemCaseSensitive(msg, "type") : NULL;
     if (!c->ready && !(cJSON_IsString(type) && strcmp(type->valuestring, "hello") == 0)) {
@@ -863,7 +737,7 @@ static int64_t first_bad_pose(const unsigned char *data, size_t len)
 
 static void handle_pose_batch(net_client *c, const unsigned char *data, size_t len)
 {
-    net_server *s = c->srv;
+    net_state *s = c->srv;
     uint32_t seq = 0;
     size_t count = 0;
     char store_reason[256];
@@ -921,6 +795,7 @@ done:
 
 void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
 {
+    THREAD_OWNED(&c->srv->owner);
     if (!c->ready) {
         net_error(c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "the first message must be hello");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");
