@@ -515,6 +515,7 @@ static void *service_main(void *arg)
 {
     net_server *s = arg;
     thread_owner_claim(&s->st.owner, "net");
+    hub_claim_net_end(s->st.hub);
     lws_sul_schedule(s->ctx, 0, &s->heartbeat, heartbeat, NET_HEARTBEAT_US);
     for (;;) {
         if (lws_service(s->ctx, 0) < 0)
@@ -526,6 +527,7 @@ static void *service_main(void *arg)
     /* net_server_stop finishes on the caller's thread (lws_context_destroy
      * still calls back for every client left) */
     thread_owner_release(&s->st.owner);
+    hub_release_net_end(s->st.hub);
     atomic_store(&s->thread_done, 1);
     return NULL;
 }

@@ -33,6 +33,7 @@ service *service_create(sim_engine *engine, hub *h, error_text *err)
     }
     /* the sim thread creates the service and ticks it */
     thread_owner_claim(&s->owner, "sim");
+    hub_claim_sim_end(h);
     s->engine = engine;
     s->world = engine->world;
     s->hub = h;
