@@ -1,5 +1,9 @@
 /*
- * net.c: the websocket service thread, its connections and their queues.
+ * net.c: the websocket thread (the top layer of net/, see net_client.h): the
+ * libwebsockets context, the protocol callback, writes, and the fan-out of
+ * the sim thread's frames. In a tick's terms: it feeds the hub what the
+ * next tick takes (commands, poses, batch sequences) and, when the sim
+ * thread publishes a tick, wakes to send its frames to the clients.
  *
  * One libwebsockets context, one protocol callback ("terrad.v1"), one
  * thread. Everything a connection owns (its reassembly buffer, its token
@@ -26,7 +30,7 @@
  *     and keeps asking for more.
  *
  * Incoming messages are reassembled up to max_message_bytes, rate limited by
- * a token bucket, and handed to net_requests.c.
+ * a token bucket (net_client.c), and handed to net_requests.c.
  */
 #include "net/net_requests.h"
 
