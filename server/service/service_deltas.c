@@ -163,8 +163,11 @@ static void publish_snapshot(service *s, const snapshot_job *job)
     if (!rects || !datas) {
         service_note_drop(s, "snapshot", "no memory for a snapshot of %d tiles for client %u",
                           tiles, job->client);
-        if (job->last) /* the client still gets its mark */
-            service_queue_client(s, job->client, NULL, 1);
+        if (job->last) /* the client still gets its mark, without a frame */
+            service_queue_out(s, (hub_out){.kind = HUB_OUT_CLIENT,
+                                           .client = job->client,
+                                           .snapshot_done = 1,
+                                           .tick = s->tick});
         goto done;
     }
     for (int ty = r.y / SERVICE_TILE_SIZE; tiles && ty <= (r.y + r.h - 1) / SERVICE_TILE_SIZE;

@@ -68,8 +68,11 @@ static hub_frame *footprints_frame(service *s, int n, hub_frame **shared, int *s
             hub_frame_ref(shared[i]);
             return shared[i];
         }
-    if (*shared_count < FOOTPRINTS_SHARED_MAX)
-        shared[(*shared_count)++] = f; /* borrowed: the queue holds the reference */
+    if (*shared_count < FOOTPRINTS_SHARED_MAX) {
+        /* its own reference: a frame the out queue refuses is freed there */
+        hub_frame_ref(f);
+        shared[(*shared_count)++] = f;
+    }
     return f;
 }
 
@@ -108,4 +111,6 @@ void service_publish_footprints(service *s, const sim_tick_report *report)
         if (n > 0)
             service_queue_client(s, cl->id, footprints_frame(s, n, shared, &shared_count), 0);
     }
+    for (int i = 0; i < shared_count; i++)
+        hub_frame_unref(shared[i]);
 }
