@@ -53,7 +53,7 @@ _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of 
 
 /* The net thread's state (net_client.h) and libwebsockets' context. */
 struct net_server {
-    net_state st; /* first: the protocol callback finds both from lws's user pointer */
+    net_state st; /* everything net_requests.c and net_client.c may see */
     struct lws_context *ctx;
     lws_sorted_usec_list_t heartbeat;
     atomic_int thread_done;
