@@ -1,5 +1,5 @@
 /*
- * net.c: the websocket thread (the top layer of net/, see net_client.h): the
+ * net.c: the websocket thread (the top layer of net/, see net_client_internal.h): the
  * libwebsockets context, the protocol callback, writes, and the fan-out of
  * the sim thread's frames. In a tick's terms: it feeds the hub what the
  * next tick takes (commands, poses, batch sequences) and, when the sim
@@ -32,7 +32,7 @@
  * Incoming messages are reassembled up to max_message_bytes, rate limited by
  * a token bucket (net_client.c), and handed to net_requests.c.
  */
-#include "net/net_requests.h"
+#include "net/net_requests_internal.h"
 
 #include <pthread.h>
 #include <stdatomic.h>
@@ -51,7 +51,7 @@ _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of 
 #define NET_HEARTBEAT_US 100000 /* backlog retries, shutdown checks */
 #define NET_STOP_GRACE_MS 800.0
 
-/* The net thread's state (net_client.h) and libwebsockets' context. */
+/* The net thread's state (net_client_internal.h) and libwebsockets' context. */
 struct net_server {
     net_state st; /* everything net_requests.c and net_client.c may see */
     struct lws_context *ctx;

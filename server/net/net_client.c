@@ -1,6 +1,6 @@
 /*
  * net_client.c: the net thread's state (the bottom layer of net/, see
- * net_client.h): the client list, each client's outgoing queue and token
+ * net_client_internal.h): the client list, each client's outgoing queue and token
  * bucket, the collider table (id -> owner), and the commands that must
  * reach the sim waiting for room in the hub. It calls neither net.c nor
  * net_requests.c: both build on it.
@@ -10,7 +10,7 @@
  * is bounded (see net.c's top comment for the policy); a client whose queue
  * passes hard_pending_bytes has stopped reading and is dropped.
  */
-#include "net/net_client.h"
+#include "net/net_client_internal.h"
 
 #include <stdarg.h>
 #include <stdlib.h>

@@ -1,5 +1,5 @@
 /*
- * net_control.c: the JSON control-message parser (see net_control.h), a pure
+ * net_control.c: the JSON control-message parser (see net_control_internal.h), a pure
  * function of the text and the server's configuration. Every refusal names
  * the field and says what it must be (PROTOCOL.md "Control messages"); the
  * first problem found is the one reported, in the order the protocol lists
@@ -14,7 +14,7 @@
  * ("x: missing, an integer in [...]") are the protocol's, which clients and
  * tests read, and name fields without a JSON path.
  */
-#include "net/net_control.h"
+#include "net/net_control_internal.h"
 
 #include <math.h>
 #include <stdarg.h>

@@ -1,6 +1,6 @@
 /*
  * net_requests.c: what a client may ask for (PROTOCOL.md "Control messages",
- * "POSE_BATCH"), the middle layer of the net thread (see net_client.h).
+ * "POSE_BATCH"), the middle layer of the net thread (see net_client_internal.h).
  *
  * Every request is either refused with one error to its sender (and a
  * metric), or turned into a hub command / hub pose and answered at once.
@@ -8,14 +8,14 @@
  * meshes, poses and rectangles; this file settles what depends on the
  * client — hello once, its limits, ownership — and applies the request.
  */
-#include "net/net_requests.h"
+#include "net/net_requests_internal.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "metrics/metrics.h"
-#include "net/net_control.h"
+#include "net/net_control_internal.h"
 #include "terrad_proto.h"
 
 /* ---- replies ---- */

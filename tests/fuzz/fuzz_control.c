@@ -1,6 +1,6 @@
 /*
  * fuzz_control: libFuzzer target for the JSON control-message parser
- * (server/net/net_control.h), the one piece of the net thread that reads
+ * (server/net/net_control_internal.h), the one piece of the net thread that reads
  * what clients write as text. Seeds: tests/fuzz/corpus/fuzz_control/ (one
  * message of each kind, written by hand: the wire vectors hold no JSON).
  *
@@ -16,7 +16,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "net/net_control.h"
+#include "net/net_control_internal.h"
 #include "terrad_proto.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);

@@ -1,6 +1,6 @@
 /*
  * test_net_control.c: the JSON control-message parser (server/net/
- * net_control.h) on its own, as a pure function — which error a message
+ * net_control_internal.h) on its own, as a pure function — which error a message
  * gets (code, wording, whether it is the message or a field that is
  * refused, whether it is fatal), in the protocol's order of fields, and what
  * an accepted request carries (the frame turn of z-axis shapes included).
@@ -10,7 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "net/net_control.h"
+#include "net/net_control_internal.h"
 #include "terrad_proto.h"
 #include "check.h"
 

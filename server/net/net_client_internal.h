@@ -1,5 +1,5 @@
 /*
- * net_client.h: the bottom layer of the net thread — its state. Not part of
+ * net_client_internal.h: the bottom layer of the net thread — its state. Not part of
  * the face of net/ (that is net.h); included only by the files of net/.
  *
  *   net.c           the lws thread: context, protocol callback, writes, fan-out
@@ -14,8 +14,8 @@
  * Each layer calls only the ones below it. Everything here runs on the net
  * thread only (net_state.owner), except where net.c notes otherwise.
  */
-#ifndef TERRAD_NET_CLIENT_H
-#define TERRAD_NET_CLIENT_H
+#ifndef TERRAD_NET_CLIENT_INTERNAL_H
+#define TERRAD_NET_CLIENT_INTERNAL_H
 
 #include <stddef.h>
 #include <stdint.h>

@@ -1,14 +1,16 @@
 /*
- * net_control.h: the JSON control-message parser (PROTOCOL.md "Control
+ * net_control_internal.h: the JSON control-message parser (PROTOCOL.md "Control
  * messages") as a pure function: text in, a parsed request or an error code
  * and message out. No libwebsockets, no client state: what it checks
  * depends only on the text and the server's configuration (limits, the
  * world's extent and materials), so it can be fuzzed on its own
  * (tests/fuzz/fuzz_control.c). net_requests.c applies what depends on the
  * client (hello twice, limits on colliders and subscriptions, ownership).
+ * Internal to net/: outside server/net only its unit test
+ * (tests/unit/test_net_control.c) and fuzz target include it.
  */
-#ifndef TERRAD_NET_CONTROL_H
-#define TERRAD_NET_CONTROL_H
+#ifndef TERRAD_NET_CONTROL_INTERNAL_H
+#define TERRAD_NET_CONTROL_INTERNAL_H
 
 #include <stddef.h>
 #include <stdint.h>
