@@ -6,11 +6,12 @@
 // the terrain point under the pointer; a 2048² world is rendered as a 1024² window of
 // chunks whose level of detail falls with distance, without cracks (a pixel test), and
 // the window follows the camera; a daemon restarted under the page is shown,
-// reconnected to and resynchronised from. Writes test-artifacts/viewer.png.
+// reconnected to and resynchronised from. Writes test-artifacts/viewer.png (only `make
+// docs-images` copies it to docs/viewer.png: make test leaves the tree clean).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
-import { mkdtempSync, mkdirSync, rmSync, copyFileSync, existsSync } from 'node:fs';
+import { mkdtempSync, mkdirSync, rmSync, existsSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
 import { fileURLToPath } from 'node:url';
@@ -190,8 +191,6 @@ test('a collider driven through the page leaves a trail, and the heights match b
   const afterImg = await grab();
   mkdirSync(ARTIFACTS, { recursive: true });
   await page.screenshot({ path: path.join(ARTIFACTS, 'viewer.png') });
-  mkdirSync(path.join(root, 'docs'), { recursive: true });
-  copyFileSync(path.join(ARTIFACTS, 'viewer.png'), path.join(root, 'docs/viewer.png'));
 
   // The canvas changed along the trail: project points of the path to the screen.
   const pts = await page.evaluate(([x0, y0, len]) => {
