@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "app/app.h"
+#include "terrad_version.h"
 
 void app_print_help(void)
 {
@@ -76,7 +77,7 @@ int main(int argc, char **argv)
         return 0;
     }
     if (strcmp(command, "--version") == 0) {
-        printf("terrad 0.1.0\n");
+        printf("terrad %s\n", TERRAD_VERSION);
         return 0;
     }
     if (strcmp(command, "simulate") == 0)
