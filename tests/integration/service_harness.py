@@ -30,7 +30,7 @@ SOURCE = os.environ.get("TERRAD_SOURCE_DIR",
 BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
 sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
 
-import terrad_proto as tp  # noqa: E402
+import terrad as tp  # noqa: E402
 
 PORTS_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*ws://127\.0\.0\.1:(\d+)/")
 

@@ -22,7 +22,7 @@ import sys
 SOURCE = os.environ.get("TERRAD_SOURCE_DIR", os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
 
-import terrad_proto as tp  # noqa: E402
+from terrad import proto as tp  # noqa: E402
 
 passed = 0
 failed = 0

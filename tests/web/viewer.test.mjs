@@ -220,7 +220,7 @@ function otherClient(wsPort, x, y, z, radius) {
   const code = `
 import asyncio, sys
 sys.path.insert(0, ${JSON.stringify(path.join(root, 'proto/python'))})
-import terrad_proto as tp
+import terrad as tp
 async def main():
     async with tp.TerradClient("ws://127.0.0.1:${wsPort}/", name="viewer-test-other") as c:
         cid = await c.create_collider("sphere", radius=${radius})
