@@ -39,10 +39,10 @@ def run(backend, required):
             print(f"{backend}: no daemon (no GL context?), skipped")
         return
     with check.running(d):
-        # The package from the source tree (test_python_package.py runs it installed).
-        env = {**os.environ, "PYTHONPATH": os.path.join(SOURCE, "proto", "python")}
+        # The package from the source tree, through the harness's PYTHONPATH
+        # (test_python_package.py runs it installed).
         r = subprocess.run(["/usr/bin/python3", EXAMPLE, d.ws, d.http + "/"],
-                           capture_output=True, text=True, timeout=120, env=env)
+                           capture_output=True, text=True, timeout=120)
         print(r.stdout.strip())
         check(r.returncode == 0 and "mirror == GET /v1/heights" in r.stdout,
               f"{backend}: example's mirror equals the server: {r.stdout} {r.stderr[-2000:]}")
