@@ -69,6 +69,7 @@ async function stopDaemon(proc) {
 }
 
 let daemon, context, page, profile;
+const failedResponses = []; // every HTTP answer of 400 or more the page got (a missing favicon)
 
 before(async () => {
   if (skip) return;
@@ -80,6 +81,7 @@ before(async () => {
   });
   page = context.pages()[0] || (await context.newPage());
   page.on('pageerror', (e) => console.error('page error:', e.message));
+  page.on('response', (r) => { if (r.status() >= 400) failedResponses.push(`${r.status()} ${r.url()}`); });
   await page.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
 });
 
@@ -171,6 +173,9 @@ test('the page loads, gets its first snapshot and draws the terrain', { skip, ti
   assert.match(overlay, /live/);
   await until('Σh in the overlay', async () => /^-?\d+$/.test((await page.textContent('#o-volume')).trim()), 5000);
   await assertMirrorsServer(daemon.ports.http);
+  const icon = await page.evaluate(() => fetch('favicon.svg').then((r) => [r.status, r.headers.get('content-type')]));
+  assert.deepEqual(icon, [200, 'image/svg+xml'], 'the favicon is served');
+  assert.deepEqual(failedResponses, [], 'no request of the page failed (no /favicon.ico 404)');
 });
 
 test('a collider driven through the page leaves a trail, and the heights match bit for bit', { skip, timeout: 150000 }, async () => {
@@ -295,6 +300,22 @@ test('drive mode: dragging steers the collider to the terrain point under the po
   await page.evaluate(() => window.terrad.lift());
 });
 
+test('the keys drive the page\'s collider at real-time speed whatever the frame rate', { skip, timeout: 60000 }, async () => {
+  await page.evaluate(() => window.terrad.lower());
+  const a = await page.evaluate(() => window.terrad.collider);
+  const t0 = Date.now();
+  await page.keyboard.down('KeyW');
+  await sleep(1500);
+  await page.keyboard.up('KeyW');
+  const held = (Date.now() - t0) / 1000;
+  const b = await page.evaluate(() => window.terrad.collider);
+  await page.evaluate(() => window.terrad.lift());
+  // 1.5 m/s (keyDrive); software GL draws a few frames a second here, which the old 0.1 s
+  // cap per frame turned into a crawl.
+  const moved = Math.hypot(b.x - a.x, b.y - a.y), want = 1.5 * held;
+  assert.ok(moved > 0.6 * want && moved < 1.3 * want, `moved ${moved.toFixed(2)} m in ${held.toFixed(2)} s (want ~${want.toFixed(2)})`);
+});
+
 // Pixels of (near) the background colour strictly between the first and the last
 // terrain pixel of each column: holes in the terrain.
 function holes(img, bg) {
@@ -384,4 +405,10 @@ test('a daemon restarted under the page: outage shown, reconnect, resync', { ski
   }, 20000, 500);
   await until('reconnected', () => page.evaluate(() => window.terrad.connected && window.terrad.state === 'live'), 45000);
   await assertMirrorsServer(daemon.ports.http);
+  // The page's collider is a server collider again (this daemon has no demo actors).
+  await until('the page\'s collider re-created', async () => {
+    const c = await page.evaluate(() => window.terrad.collider);
+    const stats = await (await fetch(`http://127.0.0.1:${daemon.ports.http}/v1/stats`)).json();
+    return c && c.id > 0 && stats.colliders >= 1;
+  }, 15000);
 });
