@@ -14,6 +14,7 @@ environment that sees Debian's websockets, zstandard and numpy:
 - SyncClient drives a wheel without asyncio; every kind of frame reaches its public callback;
   heights are a NumPy int32 array (h, w) equal to GET /v1/heights, and lists of rows when NumPy
   cannot be imported;
+- mypy type-checks the example against the installed package (its py.typed and hints);
 - without zstandard, `import terrad` fails with an ImportError that names the module and says
   how to get it beyond Debian (pip install zstandard).
 Skips (77) without python3-venv or python3-setuptools.
@@ -112,6 +113,16 @@ try:
     check(r.returncode == 0 and r.stdout.startswith(venv), f"import terrad from the venv: {r.stdout} {r.stderr}")
     r = venv_python(venv, "-m", "pip", "show", "terrad", env=env, cwd=work)
     check(f"Version: {version}" in r.stdout, f"pip show terrad: version {version}: {r.stdout}")
+
+    # The installed package is typed (py.typed): mypy type-checks the example against it.
+    if shutil.which("mypy"):
+        r = subprocess.run(["mypy", "--python-executable", os.path.join(venv, "bin", "python"),
+                            "--no-incremental", "--cache-dir", os.path.join(tmp, "mypy-cache"),
+                            os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")],
+                           capture_output=True, text=True, timeout=240, env=env, cwd=work)
+        check(r.returncode == 0 and "Success" in r.stdout, f"mypy on the example with the installed package: {r.stdout} {r.stderr}")
+    else:
+        print("mypy missing: type check skipped (scripts/deps --test installs it)")
 
     r = venv_python(venv, "-c", "import sys; sys.modules['zstandard'] = None; import terrad", env=env, cwd=work)
     msg = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else ""

@@ -30,7 +30,7 @@ from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Mirror
 try:
     import numpy as _np
 except ImportError:  # NumPy is optional: heights come as lists of rows without it
-    _np = None
+    _np = None  # type: ignore[assignment]
 
 HAVE_NUMPY = _np is not None
 
@@ -255,7 +255,8 @@ class Client:
         t = msg["type"]
         if t == "subscribed":
             self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
-        fut = self._pending.get(msg.get("ref")) if isinstance(msg.get("ref"), str) else None
+        ref = msg.get("ref")
+        fut = self._pending.get(ref) if isinstance(ref, str) else None
         if t == "error":
             if fut and not fut.done():
                 fut.set_exception(ServerError(msg))

@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import math
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 
 try:
@@ -469,7 +469,8 @@ def decode_ack(buf: bytes) -> tuple[int, int]:
     _expect(buf, MsgType.ACK)
     if len(buf) != ACK_SIZE:
         raise ProtoError("bad_frame", f"ACK of {len(buf)} bytes")
-    return struct.unpack_from("<QI", buf, 4)
+    tick, seq = struct.unpack_from("<QI", buf, 4)
+    return tick, seq
 
 
 def encode_ping(nonce: int, pong: bool = False) -> bytes:
@@ -685,7 +686,7 @@ def unsubscribe(sid: int, ref=None) -> dict:
 
 
 def resync(sid: int | None = None, ref=None) -> dict:
-    msg = {"type": "resync"}
+    msg: dict = {"type": "resync"}
     if sid is not None:
         msg["id"] = sid
     return _with_ref(msg, ref)
