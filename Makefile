@@ -10,8 +10,8 @@
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
 #                       terrad bench --trade: the speed/accuracy sweep into
 #                       $(TRADE_OUT), default test-artifacts/trade/, and its plot)
-#   make docs-images    refresh the pictures the docs show, on purpose: docs/viewer.png (from the
-#                       viewer test's screenshot) and docs/trade/ (the full sweep and its plot)
+#   make docs-images    refresh the pictures the docs show, on purpose: docs/viewer.png (the
+#                       viewer test's picture of its trail) and docs/trade/ (the sweep and its plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
 #   make format         clang-format -i the C sources (format-check: only check)
@@ -133,7 +133,7 @@ bench: build
 docs-images: build web-deps
 	@mkdir -p $(ARTIFACTS)
 	ctest --test-dir $(BUILD) --output-on-failure -R '^test_viewer$$'
-	cp $(ARTIFACTS)/viewer.png docs/viewer.png
+	cp $(ARTIFACTS)/viewer-trail.png docs/viewer.png
 	$(TERRAD) bench --trade --out docs/trade
 	$(PYTHON) scripts/trade-plot docs/trade/trade.csv docs/trade/trade.svg
 

@@ -6,8 +6,9 @@
 // the terrain point under the pointer; a 2048² world is rendered as a 1024² window of
 // chunks whose level of detail falls with distance, without cracks (a pixel test), and
 // the window follows the camera; a daemon restarted under the page is shown,
-// reconnected to and resynchronised from. Writes test-artifacts/viewer.png (only `make
-// docs-images` copies it to docs/viewer.png: make test leaves the tree clean).
+// reconnected to and resynchronised from. Writes test-artifacts/viewer.png and, close on the
+// trail, viewer-trail.png (only `make docs-images` copies that one to docs/viewer.png: make test
+// leaves the tree clean).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
@@ -218,6 +219,16 @@ test('a collider driven through the page leaves a trail, and the heights match b
   }
   assert.ok(hit >= 7, `the canvas changed at only ${hit} of ${pts.length} points of the trail`);
   await assertMirrorsServer(daemon.ports.http);
+
+  // The README's picture (make docs-images copies it to docs/viewer.png): close on the trail,
+  // from the side, so that the trail is the subject. Then the camera goes back.
+  const cam0 = await page.evaluate(() => window.terrad.camera);
+  const frames0 = await page.evaluate(() => window.terrad.framesDrawn);
+  await page.evaluate(([x, y]) => window.terrad.setCamera({ target: [x, y], yaw: -Math.PI / 2 - 0.35, pitch: 0.62, dist: 3.9 }),
+    [start.x + (steps * dx) / 2 - 0.5, start.y + 0.45]); // the trail right of the overlay
+  await until('drawn from the new camera', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, frames0), 20000);
+  await page.screenshot({ path: path.join(ARTIFACTS, 'viewer-trail.png') });
+  await page.evaluate((c) => window.terrad.setCamera(c), cam0);
 });
 
 // Another client (Python, proto/python) holds a sphere in the air over the terrain.
