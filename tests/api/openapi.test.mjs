@@ -10,7 +10,7 @@
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
-import { mkdtempSync, rmSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import http from 'node:http';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
@@ -138,6 +138,8 @@ async function fetchChecked(what, urlPath, wantStatus, { method = 'GET', ...opts
 
 test('the document is valid OpenAPI 3 and describes every endpoint', () => {
   assert.match(api.openapi, /^3\./);
+  const version = /project\(terrad VERSION (\d+\.\d+\.\d+)/.exec(readFileSync(path.join(root, 'CMakeLists.txt'), 'utf8'))[1];
+  assert.equal(api.info.version, version, 'info.version is the version of CMakeLists.txt\'s project()');
   for (const p of ['/healthz', '/readyz', '/metrics', '/v1/world', '/v1/stats', '/v1/heights', '/']) {
     assert.ok(api.paths[p] && api.paths[p].get, `GET ${p} is described`);
   }
