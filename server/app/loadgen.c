@@ -307,6 +307,9 @@ static void drive(lg_client *cl, const lg_options *o, const lg_http *http, int32
     r->ticks = s1.tick - s0.tick;
     r->ticks_per_s = r->ticks / r->drive_s;
     r->overruns = s1.overruns - s0.overruns;
+    if (s1.tick_count > s0.tick_count)
+        r->tick_mean_ms =
+            (s1.tick_seconds - s0.tick_seconds) / (s1.tick_count - s0.tick_count) * 1e3;
     r->frames_dropped = s1.frames_dropped - s0.frames_dropped;
     r->poses_sent = (uint64_t)steps * (uint64_t)o->clients * (uint64_t)o->wheels;
     r->delta_bytes = sum_stat(cl, o->clients, 0) - bytes0;

@@ -101,6 +101,10 @@ int lg_http_stats(const lg_http *h, lg_stats *out)
     if (http_get(h, "/metrics", &body, &len) == 200) {
         const char *p = strstr(body, "\nterrad_frames_dropped_total ");
         out->frames_dropped = p ? strtoull(p + 29, NULL, 10) : 0;
+        p = strstr(body, "\nterrad_tick_duration_seconds_sum ");
+        out->tick_seconds = p ? strtod(p + 35, NULL) : 0;
+        p = strstr(body, "\nterrad_tick_duration_seconds_count ");
+        out->tick_count = p ? strtod(p + 37, NULL) : 0;
     }
     free(body);
     return 0;
@@ -134,7 +138,8 @@ void lg_print_report(FILE *f, const lg_report *r, int json)
     if (json) {
         fprintf(f,
                 "{\"clients\":%ld,\"wheels_per_client\":%ld,\"wheels\":%ld,\"tick_hz\":%g,"
-                "\"seconds\":%.3f,\"ticks\":%llu,\"ticks_per_s\":%.2f,\"overruns\":%llu,"
+                "\"seconds\":%.3f,\"ticks\":%llu,\"ticks_per_s\":%.2f,\"overruns\":%llu,\"tick_"
+                "mean_ms\":%.3f,"
                 "\"poses_sent\":%llu,\"latency_ms\":{\"n\":%lld,\"p50\":%.3f,\"p99\":%.3f,"
                 "\"max\":%.3f},\"delta_frames\":%llu,\"delta_bytes\":%llu,"
                 "\"delta_bytes_per_tick\":%.1f,\"changed_cells\":%llu,"
@@ -143,7 +148,7 @@ void lg_print_report(FILE *f, const lg_report *r, int json)
                 "\"mirrors_equal\":%s}\n",
                 r->clients, r->wheels_per_client, r->clients * r->wheels_per_client, r->hz,
                 r->drive_s, (unsigned long long)r->ticks, r->ticks_per_s,
-                (unsigned long long)r->overruns, (unsigned long long)r->poses_sent,
+                (unsigned long long)r->overruns, r->tick_mean_ms, (unsigned long long)r->poses_sent,
                 (long long)r->lat_n, r->p50_ms, r->p99_ms, r->max_ms,
                 (unsigned long long)r->delta_frames, (unsigned long long)r->delta_bytes, per_tick,
                 (unsigned long long)r->changed_cells, per_cell,
@@ -153,9 +158,10 @@ void lg_print_report(FILE *f, const lg_report *r, int json)
     }
     fprintf(f, "terrad loadgen: %ld clients x %ld wheels, %.1f s driving at %g Hz\n", r->clients,
             r->wheels_per_client, r->drive_s, r->hz);
-    fprintf(f, "  ticks/s reached        %10.2f  (%llu ticks, %llu overruns)\n", r->ticks_per_s,
-            (unsigned long long)r->ticks, (unsigned long long)r->overruns);
-    fprintf(f, "  pose->ACK latency ms   p50 %.2f  p99 %.2f  max %.2f  (%lld poses)\n", r->p50_ms,
+    fprintf(f, "  ticks/s reached        %10.2f  (%llu ticks, %llu overruns, mean tick %.2f ms)\n",
+            r->ticks_per_s, (unsigned long long)r->ticks, (unsigned long long)r->overruns,
+            r->tick_mean_ms);
+    fprintf(f, "  pose->ACK latency ms   p50 %.2f  p99 %.2f  max %.2f  (%lld batches)\n", r->p50_ms,
             r->p99_ms, r->max_ms, (long long)r->lat_n);
     fprintf(f, "  delta bytes            %.0f per tick, %.2f per changed cell (%llu frames)\n",
             per_tick, per_cell, (unsigned long long)r->delta_frames);

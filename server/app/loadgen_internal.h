@@ -16,6 +16,7 @@ typedef struct lg_http {
 /* The server's counters at one moment. */
 typedef struct lg_stats {
     uint64_t tick, overruns, frames_dropped;
+    double tick_seconds, tick_count; /* terrad_tick_duration_seconds_sum and _count */
 } lg_stats;
 
 /* What `terrad loadgen` measured. */
@@ -26,6 +27,7 @@ typedef struct lg_report {
     uint64_t delta_bytes, delta_frames, changed_cells;
     int64_t lat_n;
     double p50_ms, p99_ms, max_ms;
+    double tick_mean_ms; /* the server's mean tick time while driving */
     long mirrors_checked, mirrors_equal, failed_clients;
 } lg_report;
 

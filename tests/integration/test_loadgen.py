@@ -18,7 +18,7 @@ from service_harness import BIN, Checks, Daemon  # noqa: E402
 check = Checks()
 
 KEYS = ["clients", "wheels_per_client", "wheels", "tick_hz", "seconds", "ticks", "ticks_per_s",
-        "overruns", "poses_sent", "latency_ms", "delta_frames", "delta_bytes",
+        "overruns", "tick_mean_ms", "poses_sent", "latency_ms", "delta_frames", "delta_bytes",
         "delta_bytes_per_tick", "changed_cells", "delta_bytes_per_changed_cell",
         "frames_dropped", "resyncs", "failed_clients", "mirrors_checked", "mirrors_equal_count",
         "mirrors_equal"]
