@@ -86,6 +86,16 @@ static uint64_t json_u64(const char *body, const char *key)
     return p ? strtoull(p + strlen(key), NULL, 10) : 0;
 }
 
+/* The value of an unlabelled sample "\nNAME VALUE" in a /metrics text, or 0. */
+static double metric(const char *body, const char *name)
+{
+    size_t n = strlen(name);
+    for (const char *p = body; (p = strstr(p, name)) != NULL; p += n)
+        if ((p == body || p[-1] == '\n') && p[n] == ' ')
+            return strtod(p + n + 1, NULL);
+    return 0;
+}
+
 int lg_http_stats(const lg_http *h, lg_stats *out)
 {
     char *body = NULL;
@@ -99,12 +109,9 @@ int lg_http_stats(const lg_http *h, lg_stats *out)
     free(body);
     body = NULL;
     if (http_get(h, "/metrics", &body, &len) == 200) {
-        const char *p = strstr(body, "\nterrad_frames_dropped_total ");
-        out->frames_dropped = p ? strtoull(p + 29, NULL, 10) : 0;
-        p = strstr(body, "\nterrad_tick_duration_seconds_sum ");
-        out->tick_seconds = p ? strtod(p + 35, NULL) : 0;
-        p = strstr(body, "\nterrad_tick_duration_seconds_count ");
-        out->tick_count = p ? strtod(p + 37, NULL) : 0;
+        out->frames_dropped = (uint64_t)metric(body, "terrad_frames_dropped_total");
+        out->tick_seconds = metric(body, "terrad_tick_duration_seconds_sum");
+        out->tick_count = metric(body, "terrad_tick_duration_seconds_count");
     }
     free(body);
     return 0;

@@ -43,6 +43,9 @@ with check.running(Daemon(name="loadgen", durability="every-tick")) as d:
     check(r.get("failed_clients") == 0, "no client failed")
     check(r.get("ticks", 0) > 0 and lat.get("n", 0) > 0, "ticks passed and ACKs were timed")
     check(lat.get("p50", -1) <= lat.get("p99", -1) <= lat.get("max", -1), "p50 <= p99 <= max")
+    # the server's mean tick while driving: a duration, read from /metrics before and after
+    check(0 < r.get("tick_mean_ms", -1) < 1000 * r.get("seconds", 0),
+          f"tick_mean_ms is a plausible mean tick: {r.get('tick_mean_ms')}")
     check(r.get("changed_cells", 0) > 0 and r.get("delta_bytes", 0) > 0,
           "the wheels deformed the blocks and deltas arrived")
 
