@@ -203,6 +203,46 @@ static void read_back(GLintptr off, GLsizeiptr size, void *out)
     gl_sync.readback_bytes += (uint64_t)size;
 }
 
+/* The heights of every accepted window in one GPU→CPU transfer: the
+ * windows lie one after another in the buffer, so one mapping of the span
+ * from the first accepted window to the end of the last is one
+ * synchronisation point instead of one per window; each window is copied
+ * out of it as it was read before (the same ints). Falls back to a read per
+ * window where the mapping fails. */
+static void read_heights(gl_backend *b, sim_window_job *jobs, int count, int heights,
+                         const int *status)
+{
+    GLintptr lo = -1, hi = 0;
+    for (int i = 0; i < count; i++) {
+        if (status[i] != SIM_WINDOW_OK)
+            continue;
+        GLintptr off = (GLintptr)b->entries[i].offset * 4;
+        GLintptr end = off + (GLintptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        lo = lo < 0 || off < lo ? off : lo;
+        hi = end > hi ? end : hi;
+    }
+    if (lo < 0)
+        return;
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
+    const uint8_t *span = glMapBufferRange(GL_SHADER_STORAGE_BUFFER, lo, hi - lo, GL_MAP_READ_BIT);
+    if (span) {
+        gl_sync.readbacks++;
+        gl_sync.readback_bytes += (uint64_t)(hi - lo);
+    }
+    for (int i = 0; i < count; i++) {
+        if (status[i] != SIM_WINDOW_OK)
+            continue;
+        GLintptr off = (GLintptr)b->entries[i].offset * 4;
+        GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        if (span)
+            memcpy(jobs[i].heights, span + (off - lo), (size_t)size);
+        else
+            read_back(off, size, jobs[i].heights);
+    }
+    if (span)
+        glUnmapBuffer(GL_SHADER_STORAGE_BUFFER);
+}
+
 /* readback: status first, then only the windows that were accepted (a
  * refused window keeps the heights it came with), their compaction and any
  * bottoms asked for. */
@@ -211,14 +251,12 @@ static void chunk_readback(gl_backend *b, sim_window_job *jobs, int count, int h
     int materials = jobs[0].materials != NULL;
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
     read_back(0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)), b->status_host);
+    for (int i = 0; i < count; i++)
+        status[i] = (b->status_host[i] & 1u) ? SIM_WINDOW_HEIGHT_LIMIT : SIM_WINDOW_OK;
+    read_heights(b, jobs, count, heights, status);
     for (int i = 0; i < count; i++) {
         GLintptr off = (GLintptr)b->entries[i].offset * 4;
         GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
-        status[i] = (b->status_host[i] & 1u) ? SIM_WINDOW_HEIGHT_LIMIT : SIM_WINDOW_OK;
-        if (status[i] == SIM_WINDOW_OK) {
-            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
-            read_back(off, size, jobs[i].heights);
-        }
         if (status[i] == SIM_WINDOW_OK && materials && jobs[i].compaction) {
             int32_t *words = b->material_host + b->entries[i].offset;
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->material_buffer);
