@@ -2,7 +2,14 @@
 """The real daemon on a loopback port: probes answer, the demo actors deform
 the terrain while Σh stays exactly the same, unknown paths and methods get
 clear errors, and SIGTERM stops it cleanly. Runs on the CPU backend so it
-needs no GL; the GL backend is exercised when a context can be made."""
+needs no GL; the GL backend is exercised when a context can be made.
+
+The log: every line starts with an ISO-8601 UTC timestamp with milliseconds
+and the level; a disconnect names who closed, with the code and reason (a
+client closing with 4000 "bye", the server's 4003 "bad protocol version"),
+or "connection lost, no close frame"."""
+import asyncio
+import contextlib
 import json
 import os
 import re
@@ -14,7 +21,9 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, Checks  # noqa: E402
+from service_harness import BIN, Checks, Daemon  # noqa: E402
+
+import websockets  # noqa: E402  (Debian's python3-websockets)
 
 check = Checks()
 
@@ -83,7 +92,50 @@ def run_daemon(backend):
     return None
 
 
+STAMP_RE = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z terrad (info|warn|error): ")
+
+
+def wait_log(d, needle, timeout=30):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        for line in list(d.lines):
+            if needle in line:
+                return line
+        time.sleep(0.1)
+    return None
+
+
+async def closing_clients(d):
+    """Three clients: one closes with 4000 "bye", one says hello with a
+    protocol the server refuses (it closes 4003), one just drops the socket."""
+    async with websockets.connect(d.ws, subprotocols=["terrad.v1"]) as ws:
+        await ws.close(4000, "bye")
+    async with websockets.connect(d.ws, subprotocols=["terrad.v1"]) as ws:
+        await ws.send(json.dumps({"type": "hello", "protocol": 99, "name": "old"}))
+        with contextlib.suppress(websockets.ConnectionClosed):
+            while True:
+                await asyncio.wait_for(ws.recv(), 30)
+    ws = await websockets.connect(d.ws, subprotocols=["terrad.v1"])
+    ws.transport.abort()
+
+
+def check_log_lines():
+    d = Daemon(backend="cpu", extra=["--no-data"], name="terrad-log")
+    with check.running(d):
+        asyncio.run(closing_clients(d))
+        line = wait_log(d, 'the client closed with code 4000 ("bye")')
+        check(line is not None, "a client closing with 4000 \"bye\" is logged with code and reason")
+        line = wait_log(d, 'the server closed with code 4003 ("bad protocol version")')
+        check(line is not None, "the server's own close is logged with code and reason")
+        line = wait_log(d, "disconnected: connection lost, no close frame")
+        check(line is not None, "a dropped socket is logged as lost without a close frame")
+        lines = [x for x in d.lines if x.strip()]
+        bad = [x for x in lines if not STAMP_RE.match(x)]
+        check(len(lines) > 3 and not bad, f"every log line has a timestamp and level: {bad[:3]}")
+
+
 def main():
+    check_log_lines()
     err = run_daemon("cpu")
     check(err is None, f"cpu daemon started: {err}")
     err = run_daemon("gl")
