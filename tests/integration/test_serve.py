@@ -7,15 +7,22 @@ needs no GL; the GL backend is exercised when a context can be made.
 The log: every line starts with an ISO-8601 UTC timestamp with milliseconds
 and the level; a disconnect names who closed, with the code and reason (a
 client closing with 4000 "bye", the server's 4003 "bad protocol version"),
-or "connection lost, no close frame"."""
+or "connection lost, no close frame".
+
+The demo stays beautiful and a world can be reset: `serve --ticks N` with demo
+actors and no --data keeps the world in memory and leaves no ./data; with
+--data it is kept, and `--fresh` starts it over (tick 0, the base terrain);
+--fresh refuses a directory holding a file that is not the store's."""
 import asyncio
 import contextlib
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.error
 import urllib.request
@@ -134,7 +141,55 @@ def check_log_lines():
         check(len(lines) > 3 and not bad, f"every log line has a timestamp and level: {bad[:3]}")
 
 
+def serve_ticks(cwd, *extra):
+    return subprocess.run([BIN, "serve", "--ticks", "90", "--http-port", "0", "--ws-port", "0",
+                           "--backend", "cpu", "--durability", "none", *extra], cwd=cwd,
+                          capture_output=True, text=True, timeout=240)
+
+
+def whole(d):
+    w = d.world()
+    return d.heights(0, 0, w["width"], w["height"])[1]
+
+
+def check_demo_and_fresh():
+    tmp = tempfile.mkdtemp(prefix="terrad-fresh-")
+    try:
+        r = serve_ticks(tmp)
+        check(r.returncode == 0 and "demo: world in memory (give --data DIR to keep it)" in r.stderr,
+              f"a demo without --data says its world is in memory: {r.stderr[-400:]}")
+        check(not os.path.exists(os.path.join(tmp, "data")), "a demo without --data leaves no ./data")
+        data = os.path.join(tmp, "kept")
+        r = serve_ticks(tmp, "--data", data)
+        check(r.returncode == 0 and os.path.exists(os.path.join(data, "MANIFEST")),
+              f"a demo with --data keeps its world: {r.stderr[-400:]}")
+        base = Daemon(backend="cpu", extra=["--no-data"], name="terrad-base")
+        with check.running(base):
+            want = whole(base)
+        used = Daemon(backend="cpu", data_dir=data, name="terrad-used")
+        with check.running(used):
+            check(re.search(r"recovered tick 9\d", used.log()) is not None and whole(used) != want,
+                  "without --fresh the used directory comes back dug")
+        fresh = Daemon(backend="cpu", data_dir=data, extra=["--fresh"], name="terrad-fresh")
+        with check.running(fresh):
+            log = fresh.log()
+            check("started over" in log and "recovered tick 0 " in log,
+                  f"--fresh recovers tick 0: {log[-600:]}")
+            got = whole(fresh)
+            check(got == want and sum(got) == sum(want), "--fresh gives the base terrain back")
+        with open(os.path.join(data, "notes.txt"), "w") as f:
+            f.write("mine\n")
+        r = serve_ticks(tmp, "--data", data, "--fresh", "--no-demo")
+        check(r.returncode != 0 and "notes.txt" in r.stderr and "nothing removed" in r.stderr,
+              f"--fresh refuses a directory with a foreign file: {r.stderr[-400:]}")
+        check(os.path.exists(os.path.join(data, "MANIFEST")) and
+              os.path.exists(os.path.join(data, "notes.txt")), "... and removes nothing")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main():
+    check_demo_and_fresh()
     check_log_lines()
     err = run_daemon("cpu")
     check(err is None, f"cpu daemon started: {err}")
