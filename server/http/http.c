@@ -34,6 +34,7 @@
 
 #include "base/embedded.h"
 #include "metrics/metrics.h"
+#include "terrad_version.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
 
@@ -178,14 +179,14 @@ static enum MHD_Result serve_world(struct MHD_Connection *c, const http_status *
              "\"height_m\":%s},"
              "\"cell_size_m\":%s,\"units_per_m\":%d,\"tick\":%llu,\"tick_hz\":%s,"
              "\"tile_size\":%d,\"models\":[%s%s%s],\"metric\":\"%s\","
-             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s}\n",
+             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s,\"version\":\"%s\"}\n",
              st->world_width, st->world_height, st->world_width, st->world_height,
              json_double(st->world_width * st->cell_size_m, width_m, sizeof width_m),
              json_double(st->world_height * st->cell_size_m, height_m, sizeof height_m),
              json_double(st->cell_size_m, cell, sizeof cell), st->units_per_m,
              (unsigned long long)st->tick, json_double(st->tick_hz, hz, sizeof hz), st->tile_size,
              method[0] ? "\"" : "", method, method[0] ? "\"" : "", metric, renderer, backend,
-             st->ready ? "true" : "false");
+             st->ready ? "true" : "false", TERRAD_VERSION);
     return respond(c, MHD_HTTP_OK, "application/json", body);
 }
 
