@@ -218,8 +218,10 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "serve: out of memory");
         return -1;
     }
-    if (!(d->http = http_server_start(d->o.http_port, d->o.bind_any, &d->status, d->h, err)) ||
-        serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
+    if (!(d->http = http_server_start(d->o.http_port, d->o.bind_any, &d->status, d->h, err)))
+        return -1;
+    http_server_set_base(d->http, &d->w); /* the base never changes once the world is made */
+    if (serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
         return -1;
     d->actors = calloc((size_t)d->o.demo_actors + 1, sizeof *d->actors);
     d->extra = calloc((size_t)d->o.demo_actors + 1, sizeof *d->extra);

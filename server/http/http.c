@@ -22,6 +22,7 @@
 #include "http/http.h"
 
 #include <arpa/inet.h>
+#include <stdatomic.h>
 #include <limits.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
@@ -35,6 +36,7 @@
 #include "base/embedded.h"
 #include "metrics/metrics.h"
 #include "terrad_version.h"
+#include "world/world.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
 
@@ -42,6 +44,7 @@ struct http_server {
     struct MHD_Daemon *daemon;
     http_status *status;
     hub *heights;
+    _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
     http_limits limits;
     int port;
 };
@@ -316,6 +319,15 @@ static int encode_png16(const int32_t *heights, int w, int h, int32_t *offset, i
     return 0;
 }
 
+/* Query parameter `name`: 0 when absent or "0", 1 when "1", -1 otherwise. */
+static int param_is_one(struct MHD_Connection *c, const char *name)
+{
+    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, name);
+    if (!v || strcmp(v, "0") == 0)
+        return 0;
+    return strcmp(v, "1") == 0 ? 1 : -1;
+}
+
 static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                                      const http_status *st)
 {
@@ -368,7 +380,20 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                              "out of memory for %lld cells; try a smaller rectangle",
                              (long long)cells);
     uint64_t tick = 0;
-    if (hub_read_heights(s->heights, r, heights, &tick, s->limits.heights_timeout_ms) != 0) {
+    int base = param_is_one(c, "base");
+    if (base < 0) {
+        free(heights);
+        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter base must be 0 or 1");
+    }
+    if (base) { /* the scene's base terrain: immutable, read here without the sim thread */
+        const world *w = atomic_load(&s->base);
+        if (!w) {
+            free(heights);
+            return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
+                                 "the base terrain is not available");
+        }
+        world_base_fill_rect(w, r, heights);
+    } else if (hub_read_heights(s->heights, r, heights, &tick, s->limits.heights_timeout_ms) != 0) {
         free(heights);
         return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
                              "the simulation did not serve the height read within %d ms "
@@ -439,6 +464,7 @@ static const char *content_type(const char *name)
         {".svg", "image/svg+xml"},
         {".png", "image/png"},
         {".json", "application/json"},
+        {".yaml", "application/yaml"},
     };
     const char *dot = strrchr(name, '.');
     if (dot)
@@ -448,13 +474,23 @@ static const char *content_type(const char *name)
     return "application/octet-stream";
 }
 
+static enum MHD_Result serve_embedded(struct MHD_Connection *c, const char *name);
+
 static enum MHD_Result serve_static(struct MHD_Connection *c, const char *url)
 {
     char name[512];
-    if (strcmp(url, "/") == 0)
+    if (strcmp(url, "/v1/openapi.yaml") == 0) /* this API's description, as in the repository */
+        snprintf(name, sizeof name, "docs/openapi.yaml");
+    else if (strcmp(url, "/") == 0)
         snprintf(name, sizeof name, "web/index.html");
     else if (snprintf(name, sizeof name, "web/%s", url + 1) >= (int)sizeof name)
         return respond_error(c, MHD_HTTP_NOT_FOUND, "not found");
+    return serve_embedded(c, name);
+}
+
+/* An embedded file by its repository path, or 404. */
+static enum MHD_Result serve_embedded(struct MHD_Connection *c, const char *name)
+{
     size_t size = 0;
     const char *data = embedded_file_find(name, &size);
     if (!data)
@@ -640,6 +676,11 @@ http_server *http_server_start(int port, int bind_any, http_status *status, hub 
                                error_text *err)
 {
     return http_server_start_limited(port, bind_any, status, heights, NULL, err);
+}
+
+void http_server_set_base(http_server *s, const world *w)
+{
+    atomic_store(&s->base, w);
 }
 
 int http_server_port(const http_server *s)

@@ -20,6 +20,7 @@ import os
 import re
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -147,9 +148,13 @@ def serve_ticks(cwd, *extra):
                           capture_output=True, text=True, timeout=240)
 
 
-def whole(d):
+def whole(d, base=False):
     w = d.world()
-    return d.heights(0, 0, w["width"], w["height"])[1]
+    if not base:
+        return d.heights(0, 0, w["width"], w["height"])[1]
+    status, body, headers = d.get(f"/v1/heights?x=0&y=0&w={w['width']}&h={w['height']}&base=1")
+    check(status == 200 and headers.get("X-Terrad-Tick") == "0", f"base=1 answers ({status})")
+    return list(struct.unpack(f"<{len(body) // 4}i", body))
 
 
 def check_demo_and_fresh():
@@ -166,10 +171,12 @@ def check_demo_and_fresh():
         base = Daemon(backend="cpu", extra=["--no-data"], name="terrad-base")
         with check.running(base):
             want = whole(base)
+            check(whole(base, base=True) == want, "/v1/heights?base=1 is the untouched world")
         used = Daemon(backend="cpu", data_dir=data, name="terrad-used")
         with check.running(used):
             check(re.search(r"recovered tick 9\d", used.log()) is not None and whole(used) != want,
                   "without --fresh the used directory comes back dug")
+            check(whole(used, base=True) == want, "... while base=1 is still the scene's base")
         fresh = Daemon(backend="cpu", data_dir=data, extra=["--fresh"], name="terrad-fresh")
         with check.running(fresh):
             log = fresh.log()
