@@ -328,6 +328,37 @@ static int param_is_one(struct MHD_Connection *c, const char *name)
     return strcmp(v, "1") == 0 ? 1 : -1;
 }
 
+/* The rectangle's heights into dst: the live world through the hub (at the
+ * end of *tick), or with base=1 the scene's base terrain (tick 0). 0, or the
+ * HTTP status to answer with and why. */
+static unsigned read_rect(http_server *s, struct MHD_Connection *c, world_rect r, int32_t *dst,
+                          uint64_t *tick, char *why, size_t cap)
+{
+    int base = param_is_one(c, "base");
+    if (base < 0) {
+        snprintf(why, cap, "parameter base must be 0 or 1");
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    if (base) { /* immutable once the world is made: read here without the sim thread */
+        const world *w = atomic_load(&s->base);
+        if (!w) {
+            snprintf(why, cap, "the base terrain is not available");
+            return MHD_HTTP_SERVICE_UNAVAILABLE;
+        }
+        world_base_fill_rect(w, r, dst);
+        *tick = 0;
+        return 0;
+    }
+    if (hub_read_heights(s->heights, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
+        snprintf(why, cap,
+                 "the simulation did not serve the height read within %d ms (busy or shutting "
+                 "down); retry",
+                 s->limits.heights_timeout_ms);
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
+    return 0;
+}
+
 static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                                      const http_status *st)
 {
@@ -380,25 +411,11 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                              "out of memory for %lld cells; try a smaller rectangle",
                              (long long)cells);
     uint64_t tick = 0;
-    int base = param_is_one(c, "base");
-    if (base < 0) {
+    char why[160];
+    unsigned status = read_rect(s, c, r, heights, &tick, why, sizeof why);
+    if (status) {
         free(heights);
-        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter base must be 0 or 1");
-    }
-    if (base) { /* the scene's base terrain: immutable, read here without the sim thread */
-        const world *w = atomic_load(&s->base);
-        if (!w) {
-            free(heights);
-            return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
-                                 "the base terrain is not available");
-        }
-        world_base_fill_rect(w, r, heights);
-    } else if (hub_read_heights(s->heights, r, heights, &tick, s->limits.heights_timeout_ms) != 0) {
-        free(heights);
-        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
-                             "the simulation did not serve the height read within %d ms "
-                             "(busy or shutting down); retry",
-                             s->limits.heights_timeout_ms);
+        return respond_error(c, status, "%s", why);
     }
     char tick_text[32], rect_text[64], upm_text[32];
     snprintf(tick_text, sizeof tick_text, "%llu", (unsigned long long)tick);
