@@ -174,6 +174,26 @@ function markDirty(m, rects) {
   }
 }
 
+// The scene's base terrain under a window (GET /v1/heights?...&base=1): the terrain is coloured
+// by h - base, so every trail shows, also those dug before the page loaded. Until it arrives
+// (or if it cannot) the window's first snapshot stands in.
+async function fetchBase(r) {
+  try {
+    const res = await fetch(`/v1/heights?x=${r.x}&y=${r.y}&w=${r.w}&h=${r.h}&base=1`, { cache: 'no-store' });
+    if (!res.ok) return;
+    const buf = await res.arrayBuffer();
+    const v = new DataView(buf), n = r.w * r.h;
+    if (buf.byteLength !== 4 * n || app.baselineRegion !== r) return; // a newer window since
+    const base = new Int32Array(n);
+    for (let i = 0; i < n; i++) base[i] = v.getInt32(4 * i, true);
+    app.baseline = base;
+    app.baseFromServer = true;
+    app.meshDirty = true;
+  } catch (e) {
+    console.warn('base terrain not available:', e.message);
+  }
+}
+
 // The newest complete subscription becomes the rendered one; older ones are dropped.
 function promoteSubscription() {
   const mir = app.subs.get(app.activeSub);
@@ -183,8 +203,10 @@ function promoteSubscription() {
       ['x', 'y', 'w', 'h'].every((k) => app.baselineRegion[k] === mir[k]);
     app.mirror = mir;
     if (!same) {
-      app.baseline = mir.heights.slice();
+      app.baseline = mir.heights.slice(); // until the base terrain arrives
       app.baselineRegion = { x: mir.x, y: mir.y, w: mir.w, h: mir.h };
+      app.baseFromServer = false;
+      fetchBase(app.baselineRegion);
     }
     app.dirty = true;
     app.meshDirty = true;
@@ -233,7 +255,7 @@ function createCollider() {
   return true;
 }
 
-// Height in metres of the mirror under (x, y): the start (baseline) surface, so a
+// Height in metres of the mirror under (x, y): the base terrain (baseline) surface, so a
 // stopped collider stops digging and the terrain settles.
 function heightAt(x, y, buf) {
   const m = app.mirror, w = app.world;
@@ -890,6 +912,8 @@ window.terrad = {
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },
   get connected() { return app.connected; },
   get framesDrawn() { return app.framesDrawn; },
+  // 1 once the colours are against the scene's base terrain (not the first snapshot)
+  get baseFromServer() { return !!app.baseFromServer; },
   get collider() { return app.own ? { ...app.own } : null; },
   get world() { return app.world; },
   get wsUrl() { return wsUrl; },

@@ -19,7 +19,7 @@
  * failure) or 2 (a usage error); "CMD --help" prints the command's options. */
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
-int app_export(int argc, char **argv);  /* a data directory's world to raw32 / png16 */
+int app_export(int argc, char **argv);  /* a data directory's world to int32 / png16 */
 int app_bench(int argc, char **argv);   /* `terrad bench --trade` (bench_trade.c) */
 int app_loadgen(int argc, char **argv); /* load generator for a running daemon (loadgen.c) */
 

@@ -12,8 +12,10 @@
  * headings give the anisotropy (largest RMS difference between their
  * cross-sections, sampled along the turned trail).
  *
- * Out: DIR/trade.csv (one row per run configuration), DIR/trade.svg (cost
- * against error), DIR/trade.txt (the table and the summary also printed).
+ * Out: DIR/trade.csv (one row per run configuration) and DIR/trade.txt (the
+ * table and the summary also printed). The plot (cost against error with each
+ * scene's Pareto front) is drawn from the CSV by scripts/trade-plot
+ * (matplotlib); `make bench` runs it.
  */
 #include <errno.h>
 #include <math.h>
@@ -56,7 +58,7 @@ static const cli_option bench_table[] = {
                    "a reduced sweep in seconds: cells 0.2 and 0.1 m, 1 and 10\n"
                    "iterations, reference 20/20 (full: 0.1, 0.05, 0.025 m; 1, 5,\n"
                    "10, 20; reference 50/50 checked against 100/100)"},
-    [OPT_OUT] = {"out", "DIR", "where trade.csv, trade.svg and trade.txt go (default docs/trade)"},
+    [OPT_OUT] = {"out", "DIR", "where trade.csv and trade.txt go (default docs/trade)"},
     [OPT_BACKEND] = {"backend", "cpu|gl|both",
                      "cpu: every run on the CPU twin; gl: every run on GL; both: both;\n"
                      "default: the CPU twin for the sweep plus GL at one cell size"},
@@ -579,11 +581,9 @@ out:
     return rc;
 }
 
-/* trade.csv, trade.svg and trade.txt, and the report on stdout. */
-static int bench_write(bench_sweep *b, const char *csv_path, const char *svg_path,
-                       const char *txt_path)
+/* trade.csv and trade.txt, and the report on stdout. */
+static int bench_write(bench_sweep *b, const char *csv_path, const char *txt_path)
 {
-    error_text err = {{0}};
     if (write_csv(csv_path, b->rows, b->row_count) != 0) {
         fprintf(stderr, "terrad bench: cannot write %s: %s\n", csv_path, strerror(errno));
         return -1;
@@ -592,10 +592,6 @@ static int bench_write(bench_sweep *b, const char *csv_path, const char *svg_pat
     snprintf(subtitle, sizeof subtitle, "%s%s%s; %s sweep, %d rows", cpu_renderer,
              gl_renderer[0] ? " / gl: " : "", gl_renderer, b->o.quick ? "quick" : "full",
              b->row_count);
-    if (trade_plot_write(svg_path, b->rows, b->row_count, subtitle, &err) != 0) {
-        fprintf(stderr, "terrad bench: %s\n", err.message);
-        return -1;
-    }
     int table_iterations = b->iterations[b->iteration_count - 1] >= 10 ? 10 : b->iterations[0];
     FILE *txt = fopen(txt_path, "w");
     if (!txt) {
@@ -613,8 +609,8 @@ static int bench_write(bench_sweep *b, const char *csv_path, const char *svg_pat
     }
     print_report(stdout, b->rows, b->row_count, table_iterations, b->reference_iterations,
                  b->convergence_m, &b->o);
-    printf("\nwrote %s, %s, %s (%d rows, %.0f s)\n", csv_path, svg_path, txt_path, b->row_count,
-           (time_now_ms() - b->started) / 1e3);
+    printf("\nwrote %s, %s (%d rows, %.0f s); plot it with scripts/trade-plot %s OUT.svg\n",
+           csv_path, txt_path, b->row_count, (time_now_ms() - b->started) / 1e3, csv_path);
     return 0;
 }
 
@@ -626,9 +622,8 @@ int app_bench(int argc, char **argv)
         return parsed == CLI_HELP ? 0 : 2;
     trade_options *o = &b.o;
     log_set_quiet(1);
-    char csv_path[1200], svg_path[1200], txt_path[1200];
+    char csv_path[1200], txt_path[1200];
     snprintf(csv_path, sizeof csv_path, "%s/trade.csv", o->out_dir);
-    snprintf(svg_path, sizeof svg_path, "%s/trade.svg", o->out_dir);
     snprintf(txt_path, sizeof txt_path, "%s/trade.txt", o->out_dir);
     /* Refuse an unusable --out before spending minutes on the sweep. */
     FILE *probe = NULL;
@@ -664,7 +659,7 @@ int app_bench(int argc, char **argv)
             fprintf(stderr, "terrad bench: %s\n", err.message);
             goto done;
         }
-    if (bench_write(&b, csv_path, svg_path, txt_path) == 0)
+    if (bench_write(&b, csv_path, txt_path) == 0)
         rc = 0;
 done:
     free(b.rows);

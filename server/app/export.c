@@ -1,16 +1,19 @@
 /*
  * export.c: `terrad export` — the world as a data directory holds it (scene
  * base terrain, then tile snapshots, then the log: store_load_readonly), or a
- * region of it, written as little-endian int32 (raw32) or a 16-bit greyscale
- * PNG (png16). Offline: it reads the directory without locking or repairing
+ * region of it, written as little-endian int32 (int32, the name GET
+ * /v1/heights uses; raw32 is accepted as an alias) or a 16-bit greyscale PNG
+ * (png16). Offline: it reads the directory without locking or repairing
  * it, so it can run beside a live daemon and sees every tick the daemon has
  * written so far.
  *
- * PNG16 maps heights to 16 bits as height = value * scale + offset (units);
- * offset is the region's lowest height and scale the smallest integer that
- * fits the region's range in 65535 steps, so a range under 65536 units is
- * exact. Both are logged and written to FILE.json beside the PNG.
+ * PNG16 maps the region's actual range [lo, hi] onto the full 16 bits, so the
+ * picture opens with full contrast: height = value * scale + offset (units),
+ * offset = lo, scale = (hi - lo) / 65535 (a fraction; 1 for a flat region),
+ * value = lround((height - lo) / scale). Reading back with the sidecar gives
+ * every height within half a step. Both are logged and written to FILE.json.
  */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -20,7 +23,7 @@
 #include "store/store.h"
 #include "world/world.h"
 
-static int write_raw32(const char *path, const int32_t *v, size_t n)
+static int write_int32(const char *path, const int32_t *v, size_t n)
 {
     FILE *f = fopen(path, "wb");
     if (!f)
@@ -49,8 +52,9 @@ static const cli_option export_table[] = {
     [OPT_SCENE] = {"scene", "FILE", "the scene the daemon ran (default: the embedded scene)"},
     [OPT_OUT] = {"out", "FILE", "output file (required)"},
     [OPT_FORMAT] = {"format", "F",
-                    "raw32 (little-endian int32, row-major; default) or png16\n"
-                    "(height = value * scale + offset, written to FILE.json)"},
+                    "int32 (little-endian, row-major, as GET /v1/heights; default;\n"
+                    "raw32 is an alias) or png16 (the region's range stretched over\n"
+                    "0..65535: height = value * scale + offset, written to FILE.json)"},
     [OPT_REGION] = {"region", "x,y,w,h", "a region in cells (default: the whole world)"},
     [OPT_TICK] = {"tick", "T", "the world as of tick T (default: the last logged tick)"},
     {0},
@@ -108,15 +112,17 @@ static int export_png16(const export_options *o, const world *w, world_rect regi
     size_t n = (size_t)region.w * region.h;
     int32_t lo, hi;
     world_rect_height_range(w, region, &lo, &hi);
-    int64_t range = (int64_t)hi - lo;
-    int64_t scale = range <= 65535 ? 1 : (range + 65534) / 65535;
+    /* the range over the full 16 bits; a flat region keeps scale 1 (all 0) */
+    double scale = hi > lo ? ((double)hi - lo) / 65535.0 : 1.0;
     uint16_t *pixels = malloc(n * sizeof *pixels);
     if (!pixels) {
         log_error("terrad export: out of memory for %zu pixels", n);
         return -1;
     }
-    for (size_t i = 0; i < n; i++)
-        pixels[i] = (uint16_t)(((int64_t)values[i] - lo) / scale);
+    for (size_t i = 0; i < n; i++) {
+        long p = lround(((double)values[i] - lo) / scale);
+        pixels[i] = (uint16_t)(p < 0 ? 0 : p > 65535 ? 65535 : p);
+    }
     int rc = png16_write(o->out, region.w, region.h, pixels, &err);
     free(pixels);
     if (rc != 0) {
@@ -129,16 +135,16 @@ static int export_png16(const export_options *o, const world *w, world_rect regi
     if (!f ||
         fprintf(f,
                 "{\"x\":%d,\"y\":%d,\"width\":%d,\"height\":%d,\"tick\":%llu,"
-                "\"offset_units\":%d,\"scale_units\":%lld,\"units_per_m\":%d,"
+                "\"offset_units\":%d,\"scale_units\":%.17g,\"units_per_m\":%d,"
                 "\"height_units\":\"value * scale_units + offset_units\"}\n",
-                region.x, region.y, region.w, region.h, (unsigned long long)tick, lo,
-                (long long)scale, (int)w->units_per_m) < 0 ||
+                region.x, region.y, region.w, region.h, (unsigned long long)tick, lo, scale,
+                (int)w->units_per_m) < 0 ||
         fclose(f) != 0) {
         log_error("terrad export: cannot write %s", side);
         return -1;
     }
-    log_info("export: png16 height = value * %lld + %d units (%s)%s", (long long)scale, lo, side,
-             scale > 1 ? "; the range is over 65535 units, so it is quantised" : "");
+    log_info("export: png16 height = value * %.9g + %d units (%s; heights %d..%d over 0..65535)",
+             scale, lo, side, lo, hi);
     return 0;
 }
 
@@ -161,8 +167,8 @@ static int export_region(const export_options *o, const world *w, const store_re
     }
     world_gather_window(w, region, values);
     int rc = 0;
-    if (strcmp(o->format, "raw32") == 0) {
-        if (write_raw32(o->out, values, n) != 0) {
+    if (strcmp(o->format, "int32") == 0) {
+        if (write_int32(o->out, values, n) != 0) {
             log_error("terrad export: cannot write %s", o->out);
             rc = -1;
         }
@@ -179,7 +185,7 @@ static int export_region(const export_options *o, const world *w, const store_re
 
 int app_export(int argc, char **argv)
 {
-    export_options o = {.data = "./data", .format = "raw32"};
+    export_options o = {.data = "./data", .format = "int32"};
     cli_result parsed =
         cli_parse("export", export_usage, export_table, argc, argv, export_on_option, &o, NULL);
     if (parsed != CLI_OK)
@@ -188,8 +194,10 @@ int app_export(int argc, char **argv)
         fprintf(stderr, "terrad export: --out FILE is required\n");
         return 2;
     }
-    if (strcmp(o.format, "raw32") != 0 && strcmp(o.format, "png16") != 0) {
-        fprintf(stderr, "terrad export: --format must be png16 or raw32 (got %s)\n", o.format);
+    if (strcmp(o.format, "raw32") == 0)
+        o.format = "int32"; /* the old name */
+    if (strcmp(o.format, "int32") != 0 && strcmp(o.format, "png16") != 0) {
+        fprintf(stderr, "terrad export: --format must be int32 or png16 (got %s)\n", o.format);
         return 2;
     }
     error_text err = {{0}};

@@ -132,9 +132,17 @@ static int serve_open_world(serve_daemon *d, error_text *err)
         return -1;
     /* the base terrain is in w: recover the data directory over it */
     if (!o->data_dir) {
-        log_info("store: none (--no-data): the terrain lives in memory only");
+        if (o->demo_in_memory)
+            log_info("demo: world in memory (give --data DIR to keep it)");
+        else
+            log_info("store: none (--no-data): the terrain lives in memory only");
         return 0;
     }
+    int removed = 0;
+    if (o->fresh && store_remove(o->data_dir, &removed, err) != 0)
+        return -1;
+    if (o->fresh)
+        log_info("store: --fresh: %s started over (%d files removed)", o->data_dir, removed);
     store_config stc = {
         .dir = o->data_dir, .segment_bytes = o->wal_segment_bytes, .fault_path = o->store_fault};
     if (store_parse_durability(o->durability, &stc, err) != 0 ||
@@ -210,8 +218,10 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "serve: out of memory");
         return -1;
     }
-    if (!(d->http = http_server_start(d->o.http_port, d->o.bind_any, &d->status, d->h, err)) ||
-        serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
+    if (!(d->http = http_server_start(d->o.http_port, d->o.bind_any, &d->status, d->h, err)))
+        return -1;
+    http_server_set_base(d->http, &d->w); /* the base never changes once the world is made */
+    if (serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
         return -1;
     d->actors = calloc((size_t)d->o.demo_actors + 1, sizeof *d->actors);
     d->extra = calloc((size_t)d->o.demo_actors + 1, sizeof *d->extra);

@@ -27,7 +27,10 @@ typedef struct serve_options {
     const char *token; /* NULL: no token required */
     long max_ticks;    /* < 0: run until signalled */
     net_limits limits;
-    const char *data_dir;    /* NULL: memory only (--no-data) */
+    const char *data_dir;    /* NULL: memory only (--no-data, or a demo without --data) */
+    int data_given;          /* --data, or "data" in --config */
+    int demo_in_memory;      /* demo actors and no --data: no store */
+    int fresh;               /* --fresh: store_remove before store_open */
     const char *durability;  /* every-tick | group:MS | none */
     long wal_segment_bytes;  /* compaction threshold */
     const char *store_fault; /* test hook: writes fail ENOSPC while this file exists */

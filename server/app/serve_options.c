@@ -29,6 +29,7 @@ enum {
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
     OPT_STORE_FAULT,
+    OPT_FRESH,
 };
 
 static const cli_option serve_table[] = {
@@ -52,7 +53,8 @@ static const cli_option serve_table[] = {
     [OPT_TICKS] = {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)"},
     [OPT_DATA] = {"data", "DIR",
                   "data directory: tile snapshots + write-ahead log, recovered\n"
-                  "at start (default ./data; docs/storage.md)"},
+                  "at start (default ./data; with demo actors and no --data the\n"
+                  "world is in memory only, so the demo never wears out a world)"},
     [OPT_NO_DATA] = {"no-data", NULL, "keep the terrain in memory only"},
     [OPT_DURABILITY] = {"durability", "P",
                         "every-tick (default: fdatasync before a tick is published),\n"
@@ -63,6 +65,9 @@ static const cli_option serve_table[] = {
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
+    [OPT_FRESH] = {"fresh", NULL,
+                   "start the data directory over: delete its terrain files (and\n"
+                   "refuse a directory holding anything else) before starting"},
     {0},
 };
 
@@ -238,6 +243,10 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_DATA:
         o->data_dir = value;
+        o->data_given = 1;
+        return 0;
+    case OPT_FRESH:
+        o->fresh = 1;
         return 0;
     case OPT_NO_DATA:
         o->data_dir = NULL;
@@ -296,5 +305,15 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     o->data_dir = "./data";
     o->durability = "every-tick";
     o->store_fault = getenv("TERRAD_STORE_FAULT");
-    return cli_parse("serve", serve_usage, serve_table, argc, argv, serve_on_option, o, NULL);
+    cli_result r =
+        cli_parse("serve", serve_usage, serve_table, argc, argv, serve_on_option, o, NULL);
+    if (o->data_dir && o->data_dir == o->config_data)
+        o->data_given = 1; /* "data" in --config */
+    /* the demo's pits would pile up in ./data run after run: a demo world is
+     * kept only where asked for */
+    if (r == CLI_OK && o->demo_actors > 0 && o->data_dir && !o->data_given) {
+        o->data_dir = NULL;
+        o->demo_in_memory = 1;
+    }
+    return r;
 }

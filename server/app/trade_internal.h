@@ -2,7 +2,8 @@
  * trade_internal.h: the pieces of `terrad bench --trade` (bench_trade.c)
  * shared by its files — the standard scenes built in code at any cell size
  * and heading (trade_scenes.c), the trail cross-section sampler, the model
- * list, and the SVG plot writer (trade_plot.c). Nothing outside server/app/
+ * list. The plot is drawn from trade.csv by scripts/trade-plot
+ * (matplotlib). Nothing outside server/app/
  * uses these.
  */
 #ifndef TERRAD_TRADE_INTERNAL_H
@@ -99,14 +100,5 @@ typedef struct trade_row {
     double anisotropy_rms_m;    /* max over heading pairs */
     long refused_windows;
 } trade_row;
-
-/*
- * Writes the SVG scatter plot: two panels (ms per tick, bytes per world
- * cell) against cross-section error, log axes, colour and marker per model,
- * filled for cpu and hollow for gl, one <g class="marker"> per row in each
- * panel. `subtitle` names the machine. Returns 0 or -1 with err set.
- */
-int trade_plot_write(const char *path, const trade_row *rows, int row_count, const char *subtitle,
-                     error_text *err);
 
 #endif

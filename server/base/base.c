@@ -18,11 +18,18 @@ void log_set_quiet(int quiet)
     log_quiet = quiet;
 }
 
+/* One line: an ISO-8601 UTC timestamp with milliseconds (so lines from
+ * several threads and files can be put in order), the level, the message. */
 static void log_line(const char *level, const char *fmt, va_list ap)
 {
-    char line[1024];
+    char line[1024], stamp[32] = "";
     vsnprintf(line, sizeof line, fmt, ap);
-    fprintf(stderr, "terrad %s: %s\n", level, line);
+    struct timespec ts;
+    struct tm tm;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    if (gmtime_r(&ts.tv_sec, &tm))
+        strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%S", &tm);
+    fprintf(stderr, "%s.%03dZ terrad %s: %s\n", stamp, (int)(ts.tv_nsec / 1000000), level, line);
 }
 
 void log_info(const char *fmt, ...)

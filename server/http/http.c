@@ -22,6 +22,7 @@
 #include "http/http.h"
 
 #include <arpa/inet.h>
+#include <stdatomic.h>
 #include <limits.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
@@ -34,6 +35,8 @@
 
 #include "base/embedded.h"
 #include "metrics/metrics.h"
+#include "terrad_version.h"
+#include "world/world.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
 
@@ -41,6 +44,7 @@ struct http_server {
     struct MHD_Daemon *daemon;
     http_status *status;
     hub *heights;
+    _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
     http_limits limits;
     int port;
 };
@@ -178,14 +182,14 @@ static enum MHD_Result serve_world(struct MHD_Connection *c, const http_status *
              "\"height_m\":%s},"
              "\"cell_size_m\":%s,\"units_per_m\":%d,\"tick\":%llu,\"tick_hz\":%s,"
              "\"tile_size\":%d,\"models\":[%s%s%s],\"metric\":\"%s\","
-             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s}\n",
+             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s,\"version\":\"%s\"}\n",
              st->world_width, st->world_height, st->world_width, st->world_height,
              json_double(st->world_width * st->cell_size_m, width_m, sizeof width_m),
              json_double(st->world_height * st->cell_size_m, height_m, sizeof height_m),
              json_double(st->cell_size_m, cell, sizeof cell), st->units_per_m,
              (unsigned long long)st->tick, json_double(st->tick_hz, hz, sizeof hz), st->tile_size,
              method[0] ? "\"" : "", method, method[0] ? "\"" : "", metric, renderer, backend,
-             st->ready ? "true" : "false");
+             st->ready ? "true" : "false", TERRAD_VERSION);
     return respond(c, MHD_HTTP_OK, "application/json", body);
 }
 
@@ -315,6 +319,46 @@ static int encode_png16(const int32_t *heights, int w, int h, int32_t *offset, i
     return 0;
 }
 
+/* Query parameter `name`: 0 when absent or "0", 1 when "1", -1 otherwise. */
+static int param_is_one(struct MHD_Connection *c, const char *name)
+{
+    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, name);
+    if (!v || strcmp(v, "0") == 0)
+        return 0;
+    return strcmp(v, "1") == 0 ? 1 : -1;
+}
+
+/* The rectangle's heights into dst: the live world through the hub (at the
+ * end of *tick), or with base=1 the scene's base terrain (tick 0). 0, or the
+ * HTTP status to answer with and why. */
+static unsigned read_rect(http_server *s, struct MHD_Connection *c, world_rect r, int32_t *dst,
+                          uint64_t *tick, char *why, size_t cap)
+{
+    int base = param_is_one(c, "base");
+    if (base < 0) {
+        snprintf(why, cap, "parameter base must be 0 or 1");
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    if (base) { /* immutable once the world is made: read here without the sim thread */
+        const world *w = atomic_load(&s->base);
+        if (!w) {
+            snprintf(why, cap, "the base terrain is not available");
+            return MHD_HTTP_SERVICE_UNAVAILABLE;
+        }
+        world_base_fill_rect(w, r, dst);
+        *tick = 0;
+        return 0;
+    }
+    if (hub_read_heights(s->heights, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
+        snprintf(why, cap,
+                 "the simulation did not serve the height read within %d ms (busy or shutting "
+                 "down); retry",
+                 s->limits.heights_timeout_ms);
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
+    return 0;
+}
+
 static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                                      const http_status *st)
 {
@@ -367,12 +411,11 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                              "out of memory for %lld cells; try a smaller rectangle",
                              (long long)cells);
     uint64_t tick = 0;
-    if (hub_read_heights(s->heights, r, heights, &tick, s->limits.heights_timeout_ms) != 0) {
+    char why[160];
+    unsigned status = read_rect(s, c, r, heights, &tick, why, sizeof why);
+    if (status) {
         free(heights);
-        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
-                             "the simulation did not serve the height read within %d ms "
-                             "(busy or shutting down); retry",
-                             s->limits.heights_timeout_ms);
+        return respond_error(c, status, "%s", why);
     }
     char tick_text[32], rect_text[64], upm_text[32];
     snprintf(tick_text, sizeof tick_text, "%llu", (unsigned long long)tick);
@@ -438,6 +481,7 @@ static const char *content_type(const char *name)
         {".svg", "image/svg+xml"},
         {".png", "image/png"},
         {".json", "application/json"},
+        {".yaml", "application/yaml"},
     };
     const char *dot = strrchr(name, '.');
     if (dot)
@@ -447,13 +491,23 @@ static const char *content_type(const char *name)
     return "application/octet-stream";
 }
 
+static enum MHD_Result serve_embedded(struct MHD_Connection *c, const char *name);
+
 static enum MHD_Result serve_static(struct MHD_Connection *c, const char *url)
 {
     char name[512];
-    if (strcmp(url, "/") == 0)
+    if (strcmp(url, "/v1/openapi.yaml") == 0) /* this API's description, as in the repository */
+        snprintf(name, sizeof name, "docs/openapi.yaml");
+    else if (strcmp(url, "/") == 0)
         snprintf(name, sizeof name, "web/index.html");
     else if (snprintf(name, sizeof name, "web/%s", url + 1) >= (int)sizeof name)
         return respond_error(c, MHD_HTTP_NOT_FOUND, "not found");
+    return serve_embedded(c, name);
+}
+
+/* An embedded file by its repository path, or 404. */
+static enum MHD_Result serve_embedded(struct MHD_Connection *c, const char *name)
+{
     size_t size = 0;
     const char *data = embedded_file_find(name, &size);
     if (!data)
@@ -639,6 +693,11 @@ http_server *http_server_start(int port, int bind_any, http_status *status, hub 
                                error_text *err)
 {
     return http_server_start_limited(port, bind_any, status, heights, NULL, err);
+}
+
+void http_server_set_base(http_server *s, const world *w)
+{
+    atomic_store(&s->base, w);
 }
 
 int http_server_port(const http_server *s)

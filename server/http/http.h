@@ -14,11 +14,13 @@
  *                     models, renderer, backend
  *   /v1/stats         JSON: tick, volume (exact integer), clients, colliders,
  *                     last tick ms, overruns
- *   /v1/heights?x=&y=&w=&h=[&format=int32|png16]
+ *   /v1/heights?x=&y=&w=&h=[&format=int32|png16][&base=1]
  *                     int32 little-endian row-major (default) or a 16-bit
  *                     greyscale PNG; headers X-Terrad-Tick, X-Terrad-Rect,
  *                     and for png16 X-Terrad-Offset, X-Terrad-Units-Per-Metre,
- *                     X-Terrad-Clipped
+ *                     X-Terrad-Clipped; base=1: the scene's base terrain
+ *                     (tick 0), read without the sim thread
+ *   /v1/openapi.yaml  this API in OpenAPI 3 (docs/openapi.yaml, embedded)
  *   /, /<file>        the embedded web/ files ("/" is web/index.html)
  * Every error is JSON {"error": "..."}.
  */
@@ -83,6 +85,9 @@ http_server *http_server_start(int port, int bind_any, http_status *status, hub 
 /* The same with explicit limits (NULL = defaults). */
 http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
                                        const http_limits *limits, error_text *err);
+/* The world whose base terrain (world_base_fill_rect: immutable once the
+ * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
+void http_server_set_base(http_server *s, const world *w);
 int http_server_port(const http_server *s);
 void http_server_stop(http_server *s); /* NULL is fine */
 

@@ -675,6 +675,9 @@ char *metrics_render(size_t *len)
     render_store(&t);
     render_service(&t);
     render_memory(&t);
+    char process[2048];
+    if (metrics_process_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
     if (t.failed) {
         free(t.data);
         return NULL;

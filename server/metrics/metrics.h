@@ -18,6 +18,11 @@
 
 void metrics_reset(void); /* zero everything (tests) */
 
+/* terrad_build_info and the standard process_* metrics (CPU, start time,
+ * memory, file descriptors, from /proc/self) as exposition text into out.
+ * Its length, or -1 when it does not fit. metrics_render includes it. */
+int metrics_process_text(char *out, size_t cap);
+
 void metrics_count_bytes_in(uint64_t bytes);
 void metrics_count_bytes_out(uint64_t bytes);
 void metrics_count_messages_in(uint64_t n);

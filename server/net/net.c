@@ -99,12 +99,12 @@ static int dropping_deltas(const net_client *c)
 
 static void go_slow(net_client *c)
 {
+    if (!c->slow) /* before the drop, so the figure is what made it slow */
+        log_info("net: client %u (%s) is slow (%zu bytes pending, limit %zu): deltas replaced "
+                 "by a snapshot once it catches up",
+                 c->id, c->peer, c->pending_bytes, c->srv->cfg.limits.max_pending_bytes);
     int n = net_drop_tile_deltas(c);
     metrics_count_frames_coalesced((uint64_t)n + 1);
-    if (!c->slow)
-        log_info("net: client %u (%s) is slow (%zu bytes pending): deltas replaced by a "
-                 "snapshot once it catches up",
-                 c->id, c->peer, c->pending_bytes);
     c->slow = 1;
     lws_callback_on_writable(c->wsi);
 }
@@ -316,14 +316,42 @@ static void client_established(net_server *s, struct lws *wsi, net_session *pss)
     lws_set_timer_usecs(wsi, (lws_usec_t)(s->st.cfg.limits.hello_timeout_s * 1e6));
 }
 
+/* Who closed, with which code and reason: the client's close frame, else
+ * the one net_close_after_flush sent, else none at all. */
+static void log_disconnect(const net_client *c)
+{
+    const char *sep = c->ready ? ", " : "", *name = c->ready ? c->name : "";
+    if (c->peer_close_code)
+        log_info("net: client %u (%s%s%s) disconnected: the client closed with code %d (\"%s\")",
+                 c->id, c->peer, sep, name, c->peer_close_code, c->peer_close_reason);
+    else if (c->closing)
+        log_info("net: client %u (%s%s%s) disconnected: the server closed with code %d (\"%s\")",
+                 c->id, c->peer, sep, name, c->close_code, c->close_reason);
+    else
+        log_info("net: client %u (%s%s%s) disconnected: connection lost, no close frame", c->id,
+                 c->peer, sep, name);
+}
+
+/* The client's close frame (2-byte code, then a reason): kept for the log,
+ * any byte outside printable ASCII written as '?'. */
+static void client_peer_close(net_client *c, const unsigned char *in, size_t len)
+{
+    c->peer_close_code = len >= 2 ? (in[0] << 8 | in[1]) : LWS_CLOSE_STATUS_NO_STATUS;
+    size_t n = len > 2 ? len - 2 : 0;
+    if (n > sizeof c->peer_close_reason - 1)
+        n = sizeof c->peer_close_reason - 1;
+    for (size_t i = 0; i < n; i++)
+        c->peer_close_reason[i] = in[2 + i] >= 0x20 && in[2 + i] < 0x7f ? (char)in[2 + i] : '?';
+    c->peer_close_reason[n] = 0;
+}
+
 static void client_closed(net_server *s, net_session *pss)
 {
     net_client *c = pss->c;
     if (!c)
         return;
     pss->c = NULL;
-    log_info("net: client %u (%s%s%s) disconnected", c->id, c->peer, c->ready ? ", " : "",
-             c->ready ? c->name : "");
+    log_disconnect(c);
     for (int i = 0; i < c->collider_count; i++) {
         hub_forget_pose(s->st.hub, c->colliders[i]);
         net_collider_remove(&s->st, c->colliders[i]);
@@ -359,6 +387,9 @@ static int client_receive(net_server *s, struct lws *wsi, net_client *c, const v
         log_warn("net: client %u (%s) sent a message over 4 x max_message_bytes: closing", c->id,
                  c->peer);
         static const char reason[] = "message too big";
+        c->closing = 1; /* for the disconnect log line */
+        c->close_code = LWS_CLOSE_STATUS_MESSAGE_TOO_LARGE;
+        snprintf(c->close_reason, sizeof c->close_reason, "%s", reason);
         lws_close_reason(wsi, LWS_CLOSE_STATUS_MESSAGE_TOO_LARGE, (unsigned char *)reason,
                          sizeof reason - 1);
         return -1;
@@ -479,6 +510,10 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
         pss->c = NULL;
         client_established(s, wsi, pss);
         return 0;
+    case LWS_CALLBACK_WS_PEER_INITIATED_CLOSE:
+        if (pss->c)
+            client_peer_close(pss->c, in, len);
+        return 0; /* lws echoes the close */
     case LWS_CALLBACK_CLOSED:
         client_closed(s, pss);
         return 0;

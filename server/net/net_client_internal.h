@@ -88,6 +88,10 @@ typedef struct net_client {
     int close_code;
     char close_reason[64];
     int killed; /* dropped without waiting for the queue */
+    /* the client's close frame, for the disconnect log line: code (0 = none
+     * came) and reason, made printable, at most 123 bytes as RFC 6455 allows */
+    int peer_close_code;
+    char peer_close_reason[124];
 } net_client;
 
 typedef struct net_collider_slot {

@@ -102,6 +102,13 @@ uint64_t store_durable_tick(const store *st);
 int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
                         error_text *err);
 
+/* Start data directory `dir` over (terrad serve --fresh): deletes the files
+ * a data directory holds and nothing else. A directory holding any other
+ * file is refused with an error naming it, and nothing is deleted; so is one
+ * a running daemon holds. A missing directory is fine. *removed counts the
+ * files deleted. 0, or -1 with err set. */
+int store_remove(const char *dir, int *removed, error_text *err);
+
 /* CRC32C (Castagnoli), as every record, snapshot and the manifest use it. */
 uint32_t store_crc32c(uint32_t crc, const void *data, size_t len);
 

@@ -140,7 +140,8 @@ test('the document is valid OpenAPI 3 and describes every endpoint', () => {
   assert.match(api.openapi, /^3\./);
   const version = /project\(terrad VERSION (\d+\.\d+\.\d+)/.exec(readFileSync(path.join(root, 'CMakeLists.txt'), 'utf8'))[1];
   assert.equal(api.info.version, version, 'info.version is the version of CMakeLists.txt\'s project()');
-  for (const p of ['/healthz', '/readyz', '/metrics', '/v1/world', '/v1/stats', '/v1/heights', '/']) {
+  for (const p of ['/healthz', '/readyz', '/metrics', '/v1/world', '/v1/stats', '/v1/heights',
+    '/v1/openapi.yaml', '/']) {
     assert.ok(api.paths[p] && api.paths[p].get, `GET ${p} is described`);
   }
 });
@@ -169,6 +170,19 @@ test('heights in both formats, with their headers, match the document', async ()
   assert.deepEqual([...png.body.subarray(1, 4)], [0x50, 0x4e, 0x47]); // "PNG"
   assert.ok(png.headers['x-terrad-offset'] !== undefined && png.headers['x-terrad-clipped'] !== undefined);
   await fetchChecked('heights format=int32', '/v1/heights?x=0&y=0&w=1&h=1&format=int32', 200);
+  // the base terrain: tick 0, read without the sim; the demo actors dig below it over time
+  const { res: base } = await fetchChecked('base heights', '/v1/heights?x=0&y=0&w=64&h=64&base=1', 200);
+  assert.equal(base.headers['x-terrad-tick'], '0');
+  assert.equal(base.body.length, 64 * 64 * 4);
+  const b = new Int32Array(base.body.buffer, base.body.byteOffset, 64 * 64);
+  assert.ok(Math.max(...b) > Math.min(...b), 'the default scene\'s base is not flat');
+  await fetchChecked('base=2', '/v1/heights?x=0&y=0&w=1&h=1&base=2', 400);
+});
+
+test('the document is served at /v1/openapi.yaml, byte for byte', async () => {
+  const { res } = await fetchChecked('openapi', '/v1/openapi.yaml', 200);
+  assert.equal(res.headers['content-type'], 'application/yaml');
+  assert.ok(res.body.equals(readFileSync(SPEC)), '/v1/openapi.yaml is docs/openapi.yaml');
 });
 
 test('every documented error answers as the document says', async () => {

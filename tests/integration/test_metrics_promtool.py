@@ -5,14 +5,18 @@ drives a wheel and sends one bad frame) passes `promtool check metrics`
 (Debian's prometheus package), is served as the Prometheus text format, and
 has the families issue 3 asks for: tick and stage durations, active cells,
 colliders, clients, bytes in and out, delta compression, coalesced and
-dropped frames, refused messages by reason, Σh. Exits 77 (skip) without
-promtool.
+dropped frames, refused messages by reason, Σh; terrad_build_info with the
+version of CMakeLists.txt's project() (also in --version and /v1/world) and
+the standard process_* metrics, checked against /proc/<pid>. Exits 77 (skip)
+without promtool.
 """
 import asyncio
 import os
+import re
 import shutil
 import subprocess
 import sys
+import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, Checks, Daemon, metric_value, skip  # noqa: E402
@@ -25,8 +29,17 @@ FAMILIES = [
     "terrad_colliders", "terrad_clients", "terrad_bytes_in_total", "terrad_bytes_out_total",
     "terrad_delta_raw_bytes_total", "terrad_delta_compressed_bytes_total",
     "terrad_frames_coalesced_total", "terrad_frames_dropped_total",
-    "terrad_refused_messages_total", "terrad_volume_units", "terrad_tick",
+    "terrad_refused_messages_total", "terrad_volume_units", "terrad_tick", "terrad_build_info",
+    "process_cpu_seconds_total", "process_start_time_seconds", "process_resident_memory_bytes",
+    "process_virtual_memory_bytes", "process_open_fds", "process_max_fds",
 ]
+
+
+def cmake_version():
+    """The version set once, in CMakeLists.txt's project() line."""
+    root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+    with open(os.path.join(root, "CMakeLists.txt")) as f:
+        return re.search(r"project\(terrad VERSION (\d+\.\d+\.\d+)", f.read()).group(1)
 
 
 async def traffic(d):
@@ -70,6 +83,31 @@ async def main():
               f"terrad_volume_units is Σh ({metric_value(text, 'terrad_volume_units')} vs {vol})")
         check((metric_value(text, "terrad_tick_duration_seconds_count") or 0) > 10,
               "the tick histogram counts ticks")
+        version = cmake_version()
+        check(metric_value(text, "terrad_build_info", {"version": version}) == 1,
+              f"terrad_build_info{{version=\"{version}\"}} 1")
+        check(d.world().get("version") == version, f"/v1/world says version {version}")
+        r = subprocess.run([BIN, "--version"], capture_output=True, text=True, timeout=30)
+        check(r.stdout.strip() == f"terrad {version}", f"terrad --version: {r.stdout!r}")
+        # the process_* figures are this daemon's own, from /proc/<pid>
+        with open(f"/proc/{d.pid}/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/stat") as f:
+            btime = next(int(x.split()[1]) for x in f if x.startswith("btime "))
+        started = btime + start_ticks / os.sysconf("SC_CLK_TCK")
+        check(abs(metric_value(text, "process_start_time_seconds") - started) < 1,
+              f"process_start_time_seconds is the daemon's start ({started})")
+        check(abs(time.time() - started) < 3600, "... which is recent")
+        fds = len(os.listdir(f"/proc/{d.pid}/fd"))
+        check(0 < metric_value(text, "process_open_fds") <= fds + 8,
+              f"process_open_fds counts the daemon's descriptors (~{fds})")
+        rss = d.rss_kb() * 1024
+        check(rss / 4 < metric_value(text, "process_resident_memory_bytes") < rss * 4,
+              f"process_resident_memory_bytes is the daemon's RSS (~{rss})")
+        check(metric_value(text, "process_virtual_memory_bytes") >=
+              metric_value(text, "process_resident_memory_bytes"), "virtual >= resident")
+        check(metric_value(text, "process_cpu_seconds_total") > 0, "process_cpu_seconds_total > 0")
+        check(metric_value(text, "process_max_fds") >= 64, "process_max_fds is the fd limit")
     check.finish()
 
 

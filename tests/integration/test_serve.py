@@ -2,19 +2,36 @@
 """The real daemon on a loopback port: probes answer, the demo actors deform
 the terrain while Σh stays exactly the same, unknown paths and methods get
 clear errors, and SIGTERM stops it cleanly. Runs on the CPU backend so it
-needs no GL; the GL backend is exercised when a context can be made."""
+needs no GL; the GL backend is exercised when a context can be made.
+
+The log: every line starts with an ISO-8601 UTC timestamp with milliseconds
+and the level; a disconnect names who closed, with the code and reason (a
+client closing with 4000 "bye", the server's 4003 "bad protocol version"),
+or "connection lost, no close frame".
+
+The demo stays beautiful and a world can be reset: `serve --ticks N` with demo
+actors and no --data keeps the world in memory and leaves no ./data; with
+--data it is kept, and `--fresh` starts it over (tick 0, the base terrain);
+--fresh refuses a directory holding a file that is not the store's."""
+import asyncio
+import contextlib
 import json
 import os
 import re
+import shutil
 import signal
+import struct
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, Checks  # noqa: E402
+from service_harness import BIN, Checks, Daemon  # noqa: E402
+
+import websockets  # noqa: E402  (Debian's python3-websockets)
 
 check = Checks()
 
@@ -59,8 +76,12 @@ def run_daemon(backend):
         check(status == 200 and world["width"] > 0 and world["units_per_m"] == 10000,
               f"{backend}: /v1/world {body}")
         first = json.loads(get(port, "/v1/stats")[1])
-        time.sleep(2.0)
-        later = json.loads(get(port, "/v1/stats")[1])
+        deadline = time.time() + 60  # a condition, not a speed: a loaded machine ticks slowly
+        while True:
+            time.sleep(0.5)
+            later = json.loads(get(port, "/v1/stats")[1])
+            if later["tick"] > first["tick"] + 30 or time.time() > deadline:
+                break
         check(later["tick"] > first["tick"] + 30,
               f"{backend}: ticks advance ({first['tick']} -> {later['tick']})")
         check(isinstance(later["volume"], int) and later["volume"] == first["volume"],
@@ -83,7 +104,104 @@ def run_daemon(backend):
     return None
 
 
+STAMP_RE = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z terrad (info|warn|error): ")
+
+
+def wait_log(d, needle, timeout=30):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        for line in list(d.lines):
+            if needle in line:
+                return line
+        time.sleep(0.1)
+    return None
+
+
+async def closing_clients(d):
+    """Three clients: one closes with 4000 "bye", one says hello with a
+    protocol the server refuses (it closes 4003), one just drops the socket."""
+    async with websockets.connect(d.ws, subprotocols=["terrad.v1"]) as ws:
+        await ws.close(4000, "bye")
+    async with websockets.connect(d.ws, subprotocols=["terrad.v1"]) as ws:
+        await ws.send(json.dumps({"type": "hello", "protocol": 99, "name": "old"}))
+        with contextlib.suppress(websockets.ConnectionClosed):
+            while True:
+                await asyncio.wait_for(ws.recv(), 30)
+    ws = await websockets.connect(d.ws, subprotocols=["terrad.v1"])
+    ws.transport.abort()
+
+
+def check_log_lines():
+    d = Daemon(backend="cpu", extra=["--no-data"], name="terrad-log")
+    with check.running(d):
+        asyncio.run(closing_clients(d))
+        line = wait_log(d, 'the client closed with code 4000 ("bye")')
+        check(line is not None, "a client closing with 4000 \"bye\" is logged with code and reason")
+        line = wait_log(d, 'the server closed with code 4003 ("bad protocol version")')
+        check(line is not None, "the server's own close is logged with code and reason")
+        line = wait_log(d, "disconnected: connection lost, no close frame")
+        check(line is not None, "a dropped socket is logged as lost without a close frame")
+        lines = [x for x in d.lines if x.strip()]
+        bad = [x for x in lines if not STAMP_RE.match(x)]
+        check(len(lines) > 3 and not bad, f"every log line has a timestamp and level: {bad[:3]}")
+
+
+def serve_ticks(cwd, *extra):
+    return subprocess.run([BIN, "serve", "--ticks", "90", "--http-port", "0", "--ws-port", "0",
+                           "--backend", "cpu", "--durability", "none", *extra], cwd=cwd,
+                          capture_output=True, text=True, timeout=240)
+
+
+def whole(d, base=False):
+    w = d.world()
+    if not base:
+        return d.heights(0, 0, w["width"], w["height"])[1]
+    status, body, headers = d.get(f"/v1/heights?x=0&y=0&w={w['width']}&h={w['height']}&base=1")
+    check(status == 200 and headers.get("X-Terrad-Tick") == "0", f"base=1 answers ({status})")
+    return list(struct.unpack(f"<{len(body) // 4}i", body))
+
+
+def check_demo_and_fresh():
+    tmp = tempfile.mkdtemp(prefix="terrad-fresh-")
+    try:
+        r = serve_ticks(tmp)
+        check(r.returncode == 0 and "demo: world in memory (give --data DIR to keep it)" in r.stderr,
+              f"a demo without --data says its world is in memory: {r.stderr[-400:]}")
+        check(not os.path.exists(os.path.join(tmp, "data")), "a demo without --data leaves no ./data")
+        data = os.path.join(tmp, "kept")
+        r = serve_ticks(tmp, "--data", data)
+        check(r.returncode == 0 and os.path.exists(os.path.join(data, "MANIFEST")),
+              f"a demo with --data keeps its world: {r.stderr[-400:]}")
+        base = Daemon(backend="cpu", extra=["--no-data"], name="terrad-base")
+        with check.running(base):
+            want = whole(base)
+            check(whole(base, base=True) == want, "/v1/heights?base=1 is the untouched world")
+        used = Daemon(backend="cpu", data_dir=data, name="terrad-used")
+        with check.running(used):
+            check(re.search(r"recovered tick 9\d", used.log()) is not None and whole(used) != want,
+                  "without --fresh the used directory comes back dug")
+            check(whole(used, base=True) == want, "... while base=1 is still the scene's base")
+        fresh = Daemon(backend="cpu", data_dir=data, extra=["--fresh"], name="terrad-fresh")
+        with check.running(fresh):
+            log = fresh.log()
+            check("started over" in log and "recovered tick 0 " in log,
+                  f"--fresh recovers tick 0: {log[-600:]}")
+            got = whole(fresh)
+            check(got == want and sum(got) == sum(want), "--fresh gives the base terrain back")
+        with open(os.path.join(data, "notes.txt"), "w") as f:
+            f.write("mine\n")
+        r = serve_ticks(tmp, "--data", data, "--fresh", "--no-demo")
+        check(r.returncode != 0 and "notes.txt" in r.stderr and "nothing removed" in r.stderr,
+              f"--fresh refuses a directory with a foreign file: {r.stderr[-400:]}")
+        check(os.path.exists(os.path.join(data, "MANIFEST")) and
+              os.path.exists(os.path.join(data, "notes.txt")), "... and removes nothing")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main():
+    check_demo_and_fresh()
+    check_log_lines()
     err = run_daemon("cpu")
     check(err is None, f"cpu daemon started: {err}")
     err = run_daemon("gl")

@@ -20,6 +20,7 @@ slow path starts within a second):
 import asyncio
 import json
 import os
+import re
 import socket
 import sys
 import time
@@ -174,6 +175,11 @@ async def slow_reader(d):
     check(engaged is not None, f"the slow path engaged within {MAX_STALL_S} s: frames dropped "
                                f"+{dropped}, coalesced +{coalesced}")
     out_delta = slow.counts["DELTA"]
+    # the log names what made it slow: the bytes pending before the drop, and the limit
+    slow_lines = [x for x in d.lines if " is slow (" in x]
+    m = re.search(r"is slow \((\d+) bytes pending, limit (\d+)\)", slow_lines[0]) if slow_lines else None
+    check(m is not None and int(m.group(1)) > 0 and int(m.group(2)) == PENDING,
+          f"the 'is slow' line gives the pending bytes and the limit: {slow_lines[:1]}")
 
     # read again
     snaps0 = slow.snapshot_rects

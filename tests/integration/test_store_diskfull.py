@@ -11,8 +11,9 @@ and a client driving a collider:
   - the client's pose batches are refused with store_unavailable;
   - when FILE goes, deformation resumes by itself;
   - after a restart nothing on disk is damaged (no tail cut) and the world is
-    the one the daemon had, which `terrad export` also reads back (raw32, and
-    a region as PNG16 through the mapping in its sidecar .json).
+    the one the daemon had, which `terrad export` also reads back (int32, its
+    old name raw32, and a region as PNG16 whose values span 0..65535, read
+    back through the mapping in its sidecar .json within one step).
 """
 # ctest-timeout: 180
 import asyncio
@@ -163,14 +164,17 @@ def main():
                   "restart: no torn or corrupt tail")
             _, before = d2.heights(0, 0, w["width"], w["height"])
         out = os.path.join(tmp, "export.raw")
-        r = subprocess.run([BIN, "export", "--data", data, "--out", out], capture_output=True,
-                           text=True, timeout=60)
-        check(r.returncode == 0, f"export: {r.stderr}")
-        if r.returncode == 0:
-            with open(out, "rb") as f:
-                body = f.read()
-            check(list(struct.unpack(f"<{len(body) // 4}i", body)) == before,
-                  "terrad export reads back the world GET /v1/heights served")
+        for fmt in (None, "int32", "raw32"):
+            r = subprocess.run([BIN, "export", "--data", data, "--out", out] +
+                               (["--format", fmt] if fmt else []), capture_output=True,
+                               text=True, timeout=60)
+            check(r.returncode == 0, f"export ({fmt or 'default'}): {r.stderr}")
+            if r.returncode == 0:
+                with open(out, "rb") as f:
+                    body = f.read()
+                check(list(struct.unpack(f"<{len(body) // 4}i", body)) == before,
+                      f"terrad export ({fmt or 'default'}) reads back the world GET /v1/heights "
+                      "served")
         # a region as PNG16 with its mapping in the sidecar
         png = os.path.join(tmp, "region.png")
         r = subprocess.run([BIN, "export", "--data", data, "--out", png, "--format", "png16",
@@ -184,9 +188,18 @@ def main():
             want = [before[(50 + y) * w["width"] + 100 + x] for y in range(120) for x in range(200)]
             got = [v * side["scale_units"] + side["offset_units"] for v in values]
             worst = max(abs(a - b) for a, b in zip(got, want))
+            check(min(want) < max(want), "the png16 region is not flat")
+            check((min(values), max(values)) == (0, 65535) and side["offset_units"] == min(want),
+                  f"png16 spans the full 16 bits ({min(values)}..{max(values)}, offset "
+                  f"{side['offset_units']}, heights {min(want)}..{max(want)})")
+            check(abs(side["scale_units"] * 65535 - (max(want) - min(want))) < 1e-6,
+                  f"scale is the range over 65535 steps ({side['scale_units']})")
             check((pw, ph) == (200, 120) and (side["x"], side["y"]) == (100, 50) and
-                  worst < side["scale_units"],
-                  f"png16 region read back within one step ({worst} < {side['scale_units']})")
+                  worst <= side["scale_units"],
+                  f"png16 region read back within one step ({worst} <= {side['scale_units']})")
+        r = subprocess.run([BIN, "export", "--data", data, "--out", png, "--format", "raw16"],
+                           capture_output=True, text=True, timeout=60)
+        check(r.returncode == 2 and "int32 or png16" in r.stderr, f"unknown format: {r.stderr}")
         r = subprocess.run([BIN, "export", "--data", data, "--out", png, "--region", "500,0,64,8"],
                            capture_output=True, text=True, timeout=60)
         check(r.returncode != 0 and "not inside" in r.stderr, f"region outside refused: {r.stderr}")

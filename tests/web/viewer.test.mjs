@@ -70,6 +70,7 @@ async function stopDaemon(proc) {
 }
 
 let daemon, context, page, profile;
+let trail; // {x, y, len}: the trail the page dug (metres), for the page loaded after it
 const failedResponses = []; // every HTTP answer of 400 or more the page got (a missing favicon)
 
 before(async () => {
@@ -229,6 +230,49 @@ test('a collider driven through the page leaves a trail, and the heights match b
   await until('drawn from the new camera', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, frames0), 20000);
   await page.screenshot({ path: path.join(ARTIFACTS, 'viewer-trail.png') });
   await page.evaluate((c) => window.terrad.setCamera(c), cam0);
+  trail = { x: start.x, y: start.y, len: steps * dx };
+});
+
+// Pixels around (px, py) whose colour is clearly dug blue or piled orange, not grey-white snow.
+function colouredNear(img, px, py, r = 5) {
+  let n = 0;
+  for (let y = Math.round(py) - r; y <= Math.round(py) + r; y++)
+    for (let x = Math.round(px) - r; x <= Math.round(px) + r; x++) {
+      if (x < 0 || y < 0 || x >= img.w || y >= img.h) continue;
+      const i = 4 * (y * img.w + x);
+      const [R, G, B] = [img.px[i], img.px[i + 1], img.px[i + 2]];
+      if (Math.max(R, G, B) - Math.min(R, G, B) > 45) n++;
+    }
+  return n;
+}
+
+test('a trail dug before the page loaded is coloured: the page compares with the base terrain', { skip, timeout: 120000 }, async () => {
+  assert.ok(trail, 'the trail of the previous test');
+  const late = await context.newPage();
+  try {
+    await late.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
+    await until('the late page live, with the base terrain', () => late.evaluate(() => window.terrad &&
+      window.terrad.state === 'live' && window.terrad.baseFromServer && window.terrad.framesDrawn > 3), 30000);
+    const frames = await late.evaluate(() => window.terrad.framesDrawn);
+    await late.evaluate(([x, y]) => window.terrad.setCamera({ target: [x, y], yaw: -Math.PI / 2, pitch: 1.1, dist: 4.5 }),
+      [trail.x + trail.len / 2 - 0.9, trail.y + 0.5]); // the trail right of and below the overlay
+    await until('drawn from above the trail', () => late.evaluate((f) => window.terrad.framesDrawn > f + 2, frames), 20000);
+    await sleep(300);
+    const img = await grab(late);
+    mkdirSync(ARTIFACTS, { recursive: true });
+    await late.screenshot({ path: path.join(ARTIFACTS, 'viewer-late-page.png') });
+    // points along the trail (not its end, where the first page's lifted sphere hangs)
+    const pts = await late.evaluate(([x0, y0, len]) => [1, 2, 3, 4, 5, 6, 7, 8].map((k) =>
+      window.terrad.project(x0 + (len * k) / 10, y0)), [trail.x, trail.y, trail.len]);
+    const hits = pts.filter(([px, py]) => colouredNear(img, px, py) > 8).length;
+    // and away from it, the untouched terrain is snow
+    const [qx, qy] = await late.evaluate(([x, y]) => window.terrad.project(x, y), [trail.x + trail.len / 2, trail.y + 1.2]);
+    const away = colouredNear(img, qx, qy);
+    assert.ok(hits >= 6, `the trail is coloured at only ${hits} of ${pts.length} points`);
+    assert.ok(away <= 8, `untouched terrain 1.2 m from the trail is coloured (${away} pixels)`);
+  } finally {
+    await late.close();
+  }
 });
 
 // Another client (Python, proto/python) holds a sphere in the air over the terrain.
