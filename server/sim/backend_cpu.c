@@ -72,9 +72,17 @@ static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_jo
         else
             sim_classify(p, (int)n, job->heights, bottom, raw, moved, cls);
         double t2 = time_now_ms();
-        sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
+        /* A window no collider penetrates has raw = moved = 0 everywhere:
+         * displacement (and the seeds it reads) would change nothing. */
+        int penetrated = 0;
+        for (int64_t i = 0; i < n && !penetrated; i++)
+            penetrated = cls[i] == SIM_CELL_PENETRATING;
+        if (penetrated)
+            sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
         double t3 = time_now_ms();
-        status[j] = sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch);
+        status[j] = penetrated
+                        ? sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch)
+                        : SIM_WINDOW_OK;
         double t4 = time_now_ms();
         if (status[j] == SIM_WINDOW_OK && job->materials) {
             sim_even_slopes_materials(p, job->materials, job->material_ids, w, h, cls, job->heights,
