@@ -80,9 +80,8 @@ static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_jo
         if (penetrated)
             sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
         double t3 = time_now_ms();
-        status[j] = penetrated
-                        ? sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch)
-                        : SIM_WINDOW_OK;
+        status[j] = penetrated ? sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch)
+                               : SIM_WINDOW_OK;
         double t4 = time_now_ms();
         if (status[j] == SIM_WINDOW_OK && job->materials) {
             sim_even_slopes_materials(p, job->materials, job->material_ids, w, h, cls, job->heights,
