@@ -10,6 +10,21 @@
 
 #include "sim/sim.h"
 
+/* An OpenMP pragma where the build has OpenMP, nothing where it has not
+ * (sim_threads.c says why the results do not depend on it). */
+#ifdef _OPENMP
+#define SIM_OMP(x) _Pragma(#x)
+#else
+#define SIM_OMP(x)
+#endif
+
+/* The calling thread's index in a parallel region (0 outside one), and how
+ * many threads a loop of `items` independent items should use: 1 inside
+ * another parallel region or for a small loop. */
+#define SIM_BAND_MIN_ITEMS 4096
+int sim_thread_index(void);
+int sim_band_threads(int64_t items);
+
 typedef enum sim_cell_class {
     SIM_CELL_SEED = 0,        /* free: can receive material */
     SIM_CELL_OBSTACLE = 1,    /* a collider rests just above: receives nothing */

@@ -301,7 +301,10 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
     if (count > 0) {
         memcpy(other, seed, (size_t)n * sizeof *seed);
         int32_t *in = seed, *out = other;
+        int bands = sim_band_threads(count);
         for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
+            /* each listed cell reads `in`, writes its own `out`: bands are exact */
+            SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
             for (int c = 0; c < count; c++) {
                 int i = list[c], y = i / w, x = i - y * w;
                 out[i] = jfa_pick(p->metric, origin_x, origin_y, x, y, k, w, h, in);
@@ -644,6 +647,9 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
     for (int i = 0; i < n; i++)
         mark[i] = -1;
     for (int32_t iter = 0; iter < p->slope_iterations && count > 0; iter++) {
+        int bands = sim_band_threads(count);
+        /* Jacobi: every listed cell reads the old heights; bands are exact */
+        SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
         for (int c = 0; c < count; c++) {
             int i = list[c], y = i / w;
             value[c] = slope_next(t, ids, w, h, cls, heights, i - y * w, y);
