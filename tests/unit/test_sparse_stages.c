@@ -141,8 +141,63 @@ static void test_random_windows(void)
     }
 }
 
+/* Windows large enough that the work lists split into bands (more than
+ * SIM_BAND_MIN_ITEMS cells move): 1, 2 and 7 threads equal the dense form. */
+static void test_bands(void)
+{
+    enum { W = 300, H = 260, N = W * H };
+    uint32_t s = 777;
+    int32_t *start = malloc(sizeof(int32_t) * N), *bottom = malloc(sizeof(int32_t) * N);
+    int32_t *cls = malloc(sizeof(int32_t) * N), *raw = malloc(sizeof(int32_t) * N);
+    int32_t *moved = malloc(sizeof(int32_t) * N), *scratch = malloc(sizeof(int32_t) * N * 5);
+    int32_t *seed_dense = malloc(sizeof(int32_t) * N), *seed = malloc(sizeof(int32_t) * N);
+    int32_t *h_dense = malloc(sizeof(int32_t) * N), *h = malloc(sizeof(int32_t) * N);
+    for (int i = 0; i < N; i++) {
+        int x = i % W, y = i / W;
+        start[i] = 20000 + (int32_t)(next_random(&s) % 4000) + (x > W / 2 ? 9000 : 0);
+        int dx = x - W / 3, dy = y - H / 2;
+        bottom[i] = dx * dx + dy * dy < 80 * 80 ? start[i] - 500 : COLLIDER_BOTTOM_NONE;
+    }
+    for (int metric = 0; metric < 3; metric++) {
+        sim_material m = sim_material_default();
+        m.metric = (sim_metric)metric;
+        sim_params p = test_params_from_material(&m, 0);
+        ground_material_table t = {.count = 1};
+        t.rows[0] = sim_material_row_from_params(&p, 0);
+        sim_classify(&p, N, start, bottom, raw, moved, cls);
+        sim_jump_flood_dense(&p, W, H, 5, 9, cls, seed_dense, scratch);
+        memcpy(h_dense, start, sizeof(int32_t) * N);
+        sim_even_slopes_materials_dense(&p, &t, NULL, W, H, cls, h_dense, scratch);
+        static const int threads[] = {1, 2, 7};
+        for (int k = 0; k < 3; k++) {
+            sim_set_threads(threads[k]);
+            sim_jump_flood(&p, W, H, 5, 9, cls, seed, scratch);
+            CHECK(memcmp(seed, seed_dense, sizeof(int32_t) * N) == 0,
+                  "%s, %d threads: banded seeds equal dense", sim_metric_name(p.metric),
+                  threads[k]);
+            memcpy(h, start, sizeof(int32_t) * N);
+            sim_even_slopes(&p, W, H, cls, h, scratch);
+            CHECK(memcmp(h, h_dense, sizeof(int32_t) * N) == 0,
+                  "%s, %d threads: banded slopes equal dense", sim_metric_name(p.metric),
+                  threads[k]);
+        }
+        sim_set_threads(0);
+    }
+    free(start);
+    free(bottom);
+    free(cls);
+    free(raw);
+    free(moved);
+    free(scratch);
+    free(seed_dense);
+    free(seed);
+    free(h_dense);
+    free(h);
+}
+
 int main(void)
 {
     test_random_windows();
+    test_bands();
     return check_report();
 }
