@@ -29,6 +29,7 @@ enum {
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
     OPT_STORE_FAULT,
+    OPT_THREADS,
 };
 
 static const cli_option serve_table[] = {
@@ -63,6 +64,8 @@ static const cli_option serve_table[] = {
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
+    [OPT_THREADS] = {"threads", "N",
+                     "threads of the CPU twin, 1..64 (default: the machine's cores)"},
     {0},
 };
 
@@ -279,6 +282,11 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         if (cli_parse_long(value, 0, 1000000000, &x, err) != 0)
             return -1;
         o->max_ticks = x;
+        return 0;
+    case OPT_THREADS:
+        if (cli_parse_long(value, 1, SIM_THREADS_MAX, &x, err) != 0)
+            return -1;
+        sim_set_threads((int)x); /* process-wide: the sim reads it each tick */
         return 0;
     }
     return -1;

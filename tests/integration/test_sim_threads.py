@@ -4,6 +4,7 @@
 for N = 1, 2 and 7 writes identical heights (--out, byte for byte) on every
 scene of tests/scenes × method × metric on the CPU twin, and reports the
 count it ran with as "threads". Bad counts are refused with the option named.
+`terrad serve --threads N` reports N in the gauge terrad_sim_threads.
 
 The windows of a tick run in parallel and large work lists split into bands
 (server/sim/sim_threads.c); the banding itself on windows large enough to
@@ -16,13 +17,14 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, SOURCE, Checks, simulate  # noqa: E402
+from service_harness import BIN, SOURCE, Checks, Daemon, metric_value, simulate  # noqa: E402
+import time  # noqa: E402
 
 SCENES = os.path.join(SOURCE, "tests", "scenes")
 METHODS = ["iterative", "ssbo", "multi"]
 METRICS = ["euclidean", "manhattan", "chebyshev"]
 THREADS = [1, 2, 7]
-TICKS = 40
+TICKS = 30
 
 
 def run_one(scene, method, metric, threads, out):
@@ -69,6 +71,15 @@ def main():
                            capture_output=True, text=True, timeout=60)
         check(p.returncode != 0 and "threads" in p.stderr,
               f"--threads {bad} refused with the option named ({p.returncode}: {p.stderr!r})")
+    # serve --threads N: the gauge terrad_sim_threads says N once ticks run
+    for n in (1, 3):
+        with check.running(Daemon(backend="cpu", demo=True, extra=["--threads", str(n)])) as d:
+            seen, deadline = None, time.time() + 60
+            while time.time() < deadline and seen != n:
+                status, text = d.metrics()
+                seen = metric_value(text, "terrad_sim_threads") if status == 200 else None
+                time.sleep(0.2)
+            check(seen == n, f"serve --threads {n}: terrad_sim_threads {seen}")
     check.finish()
 
 
