@@ -99,8 +99,9 @@ static void cpu_run_window(const sim_params *p, sim_window_job *job, int32_t *ar
 
 /*
  * The windows of a tick are disjoint and independent: with several, they
- * run in parallel (each thread in its own arena); a window alone or holding
- * more than half of the tick's cells runs with the others one after another
+ * run in parallel (each thread in its own arena) when they hold at least
+ * 2 * SIM_BAND_MIN_ITEMS cells; a window alone or holding more than half of
+ * the tick's cells runs with the others one after another
  * and spreads its work lists over the threads inside the stages instead
  * (sim_band_threads; a region nested in the windows' runs on one thread).
  * Stage times are summed over windows, so with threads they are CPU time.
@@ -118,7 +119,8 @@ static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_jo
         largest = n > largest ? n : largest;
         total += n;
     }
-    if (largest * 2 > total)
+    /* a tick too small to pay for waking threads runs on this one */
+    if (largest * 2 > total || total < 2 * SIM_BAND_MIN_ITEMS)
         threads = 1;
     for (int t = 0; t < (threads > 1 ? threads : 1); t++)
         if (ensure_capacity(b, t, largest, err) != 0)
