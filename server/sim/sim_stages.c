@@ -302,6 +302,7 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
         memcpy(other, seed, (size_t)n * sizeof *seed);
         int32_t *in = seed, *out = other;
         int bands = sim_band_threads(count);
+        (void)bands; /* read only by the OpenMP pragma */
         for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
             /* each listed cell reads `in`, writes its own `out`: bands are exact */
             SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
@@ -648,6 +649,7 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
         mark[i] = -1;
     for (int32_t iter = 0; iter < p->slope_iterations && count > 0; iter++) {
         int bands = sim_band_threads(count);
+        (void)bands; /* read only by the OpenMP pragma */
         /* Jacobi: every listed cell reads the old heights; bands are exact */
         SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
         for (int c = 0; c < count; c++) {
