@@ -98,6 +98,7 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
     metrics_observe_stage_ms("gather_scatter", st->report.gather_scatter_ms);
     metrics_observe_stage_ms("model", st->report.model_ms);
     metrics_set_tick(service_current_tick(svc));
+    metrics_set_sim_threads(sim_threads());
     metrics_set_volume(service_volume(svc));
     metrics_set_active_cells(st->report.active_cells);
     metrics_set_colliders(st->colliders);

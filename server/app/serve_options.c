@@ -30,6 +30,7 @@ enum {
     OPT_WAL_SEGMENT_BYTES,
     OPT_STORE_FAULT,
     OPT_FRESH,
+    OPT_THREADS,
 };
 
 static const cli_option serve_table[] = {
@@ -68,6 +69,8 @@ static const cli_option serve_table[] = {
     [OPT_FRESH] = {"fresh", NULL,
                    "start the data directory over: delete its terrain files (and\n"
                    "refuse a directory holding anything else) before starting"},
+    [OPT_THREADS] = {"threads", "N",
+                     "threads of the CPU twin, 1..64 (default: the machine's cores)"},
     {0},
 };
 
@@ -288,6 +291,11 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         if (cli_parse_long(value, 0, 1000000000, &x, err) != 0)
             return -1;
         o->max_ticks = x;
+        return 0;
+    case OPT_THREADS:
+        if (cli_parse_long(value, 1, SIM_THREADS_MAX, &x, err) != 0)
+            return -1;
+        sim_set_threads((int)x); /* process-wide: the sim reads it each tick */
         return 0;
     }
     return -1;

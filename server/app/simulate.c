@@ -27,6 +27,7 @@ typedef struct simulate_options {
     const char *metric;
     const char *out_path;
     int depth_from_cpu;
+    long threads;
 } simulate_options;
 
 enum {
@@ -38,6 +39,7 @@ enum {
     OPT_METRIC,
     OPT_OUT,
     OPT_DEPTH_FROM_CPU,
+    OPT_THREADS,
 };
 
 static const cli_option simulate_table[] = {
@@ -53,6 +55,9 @@ static const cli_option simulate_table[] = {
     [OPT_DEPTH_FROM_CPU] = {"depth-from-cpu", NULL,
                             "feed the CPU twin's analytic depth to the backend, so the\n"
                             "gl and cpu backends can be compared bit for bit"},
+    [OPT_THREADS] = {"threads", "N",
+                     "threads of the CPU twin, 1..64 (default: the machine's cores);\n"
+                     "heights do not depend on it"},
     {0},
 };
 
@@ -90,6 +95,8 @@ static int simulate_on_option(void *ctx, int index, const char *value, error_tex
     case OPT_DEPTH_FROM_CPU:
         o->depth_from_cpu = 1;
         return 0;
+    case OPT_THREADS:
+        return cli_parse_long(value, 1, SIM_THREADS_MAX, &o->threads, err);
     }
     return -1;
 }
@@ -105,6 +112,8 @@ static cli_result parse_options(int argc, char **argv, simulate_options *o)
         fprintf(stderr, "terrad simulate: --ticks N is required\n");
         return CLI_ERROR;
     }
+    if (r == CLI_OK)
+        sim_set_threads((int)o->threads); /* 0 (not given): the machine's cores */
     return r;
 }
 
@@ -319,6 +328,7 @@ static void report_add_run(cJSON *root, simulate_run *r)
                               strcmp(backend->name, "cpu") == 0);
     cJSON_AddStringToObject(root, "method", sim_method_name(r->params.method));
     cJSON_AddStringToObject(root, "metric", sim_metric_name(r->params.metric));
+    cJSON_AddNumberToObject(root, "threads", sim_threads());
     cJSON_AddNumberToObject(root, "ticks", (double)r->o.ticks);
     cJSON_AddNumberToObject(root, "world_width", w->width);
     cJSON_AddNumberToObject(root, "world_height", w->height);

@@ -136,6 +136,7 @@ static atomic_uint_fast64_t delta_raw, delta_compressed;
 static atomic_uint_fast64_t footprint_frames, footprint_events, footprint_frames_dropped;
 static atomic_uint_fast64_t refused[TERRAD_ERR_LAST + 1]; /* by wire error code; [0] unused */
 static atomic_uint_fast64_t tick_now;
+static atomic_int_fast64_t sim_threads_in_use;
 static atomic_int_fast64_t volume, active_cells, colliders, clients;
 static atomic_uint_fast64_t store_wal_bytes, store_durable_tick, store_compactions;
 static atomic_uint_fast64_t store_errors[STORE_ERROR_KINDS];
@@ -582,8 +583,17 @@ static void render_clients(text *t)
 }
 
 /* Overruns, refused windows and the GL tile cache. */
+void metrics_set_sim_threads(int n)
+{
+    atomic_store(&sim_threads_in_use, n);
+}
+
 static void render_backend(text *t)
 {
+    gauge_int(
+        t, "terrad_sim_threads",
+        "Threads the CPU twin's stages run on (serve --threads; heights do not depend on it).",
+        (int64_t)atomic_load(&sim_threads_in_use));
     counter(t, "terrad_tick_overruns_total", "Ticks that took longer than the tick period.",
             GET(tick_overruns));
     counter(t, "terrad_refused_windows_total",

@@ -46,6 +46,8 @@ void metrics_observe_stage_ms(const char *stage, double ms);
 void metrics_observe_pose_to_delta_ms(double ms);
 
 void metrics_set_tick(uint64_t tick);
+/* gauge terrad_sim_threads: threads of the CPU twin's stages */
+void metrics_set_sim_threads(int n);
 void metrics_set_volume(int64_t volume); /* Σh, exact integer */
 void metrics_set_active_cells(int64_t cells);
 void metrics_set_colliders(int64_t n);

@@ -20,15 +20,16 @@
 
 typedef struct cpu_backend {
     sim_backend base;
-    int32_t *arena;
-    int64_t capacity_cells;
+    /* one arena per thread: the windows of a tick run in parallel */
+    int32_t *arena[SIM_THREADS_MAX];
+    int64_t capacity_cells[SIM_THREADS_MAX];
 } cpu_backend;
 
-static int ensure_capacity(cpu_backend *b, int64_t cells, error_text *err)
+static int ensure_capacity(cpu_backend *b, int thread, int64_t cells, error_text *err)
 {
     /* at least 1024 cells, so small windows do not regrow the arena */
-    if (array_grow((void **)&b->arena, &b->capacity_cells, cells < 1024 ? 1024 : cells,
-                   CPU_ARRAYS_PER_CELL * sizeof *b->arena) != 0) {
+    if (array_grow((void **)&b->arena[thread], &b->capacity_cells[thread],
+                   cells < 1024 ? 1024 : cells, CPU_ARRAYS_PER_CELL * sizeof(int32_t)) != 0) {
         error_set(err, "cpu backend: out of memory for %lld window cells", (long long)cells);
         return -1;
     }
@@ -45,52 +46,103 @@ void sim_window_depth(const sim_window_job *job, int32_t *bottom)
                            job->cell_size_m, job->units_per_m, bottom);
 }
 
+/* One window through the stages, in the arena of the thread that runs it. */
+static void cpu_run_window(const sim_params *p, sim_window_job *job, int32_t *arena, int *status,
+                           sim_stage_times *times)
+{
+    int w = job->rect.w, h = job->rect.h;
+    int64_t n = (int64_t)w * h;
+    int32_t *bottom = arena, *raw = bottom + n, *moved = raw + n, *cls = moved + n;
+    int32_t *seed = cls + n, *scratch = seed + n;
+
+    double t0 = time_now_ms();
+    if (job->bottom_override)
+        memcpy(bottom, job->bottom_override, (size_t)n * sizeof *bottom);
+    else
+        sim_window_depth(job, bottom);
+    if (job->bottom_out)
+        memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
+    double t1 = time_now_ms();
+    if (job->materials)
+        sim_classify_materials(p, job->materials, job->material_ids, job->compaction, (int)n,
+                               job->heights, bottom, raw, moved, cls);
+    else
+        sim_classify(p, (int)n, job->heights, bottom, raw, moved, cls);
+    double t2 = time_now_ms();
+    /* A window no collider penetrates has raw = moved = 0 everywhere:
+     * displacement (and the seeds it reads) would change nothing. */
+    int penetrated = 0;
+    for (int64_t i = 0; i < n && !penetrated; i++)
+        penetrated = cls[i] == SIM_CELL_PENETRATING;
+    if (penetrated)
+        sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
+    double t3 = time_now_ms();
+    *status = penetrated ? sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch)
+                         : SIM_WINDOW_OK;
+    double t4 = time_now_ms();
+    if (*status == SIM_WINDOW_OK && job->materials) {
+        sim_even_slopes_materials(p, job->materials, job->material_ids, w, h, cls, job->heights,
+                                  scratch);
+        if (job->compaction)
+            sim_compaction_commit(job->materials, job->material_ids, (int)n, raw, moved,
+                                  job->compaction);
+    } else if (*status == SIM_WINDOW_OK) {
+        sim_even_slopes(p, w, h, cls, job->heights, scratch);
+    }
+    double t5 = time_now_ms();
+    times->depth += t1 - t0;
+    times->classify += t2 - t1;
+    times->jump_flood += t3 - t2;
+    times->displace += t4 - t3;
+    times->even_slopes += t5 - t4;
+}
+
+/*
+ * The windows of a tick are disjoint and independent: with several, they
+ * run in parallel (each thread in its own arena) when they hold at least
+ * 2 * SIM_BAND_MIN_ITEMS cells; a window alone or holding more than half of
+ * the tick's cells runs with the others one after another
+ * and spreads its work lists over the threads inside the stages instead
+ * (sim_band_threads; a region nested in the windows' runs on one thread).
+ * Stage times are summed over windows, so with threads they are CPU time.
+ */
 static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_job *jobs,
                            int job_count, int *status, sim_stage_times *times, error_text *err)
 {
     cpu_backend *b = (cpu_backend *)base;
+    int threads = sim_threads();
+    if (threads > job_count)
+        threads = job_count;
+    int64_t largest = 0, total = 0;
     for (int j = 0; j < job_count; j++) {
-        sim_window_job *job = &jobs[j];
-        int w = job->rect.w, h = job->rect.h;
-        int64_t n = (int64_t)w * h;
-        if (ensure_capacity(b, n, err) != 0)
+        int64_t n = (int64_t)jobs[j].rect.w * jobs[j].rect.h;
+        largest = n > largest ? n : largest;
+        total += n;
+    }
+    /* a tick too small to pay for waking threads runs on this one */
+    if (largest * 2 > total || total < 2 * SIM_BAND_MIN_ITEMS)
+        threads = 1;
+    for (int t = 0; t < (threads > 1 ? threads : 1); t++)
+        if (ensure_capacity(b, t, largest, err) != 0)
             return -1;
-        int32_t *bottom = b->arena, *raw = bottom + n, *moved = raw + n, *cls = moved + n;
-        int32_t *seed = cls + n, *scratch = seed + n;
-
-        double t0 = time_now_ms();
-        if (job->bottom_override)
-            memcpy(bottom, job->bottom_override, (size_t)n * sizeof *bottom);
-        else
-            sim_window_depth(job, bottom);
-        if (job->bottom_out)
-            memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
-        double t1 = time_now_ms();
-        if (job->materials)
-            sim_classify_materials(p, job->materials, job->material_ids, job->compaction, (int)n,
-                                   job->heights, bottom, raw, moved, cls);
-        else
-            sim_classify(p, (int)n, job->heights, bottom, raw, moved, cls);
-        double t2 = time_now_ms();
-        sim_jump_flood(p, w, h, job->rect.x, job->rect.y, cls, seed, scratch);
-        double t3 = time_now_ms();
-        status[j] = sim_displace(p, w, h, cls, seed, raw, moved, job->heights, scratch);
-        double t4 = time_now_ms();
-        if (status[j] == SIM_WINDOW_OK && job->materials) {
-            sim_even_slopes_materials(p, job->materials, job->material_ids, w, h, cls, job->heights,
-                                      scratch);
-            if (job->compaction)
-                sim_compaction_commit(job->materials, job->material_ids, (int)n, raw, moved,
-                                      job->compaction);
-        } else if (status[j] == SIM_WINDOW_OK) {
-            sim_even_slopes(p, w, h, cls, job->heights, scratch);
-        }
-        double t5 = time_now_ms();
-        times->depth += t1 - t0;
-        times->classify += t2 - t1;
-        times->jump_flood += t3 - t2;
-        times->displace += t4 - t3;
-        times->even_slopes += t5 - t4;
+    if (threads <= 1) {
+        for (int j = 0; j < job_count; j++)
+            cpu_run_window(p, &jobs[j], b->arena[0], &status[j], times);
+        return 0;
+    }
+    sim_stage_times per_thread[SIM_THREADS_MAX];
+    memset(per_thread, 0, sizeof per_thread);
+    SIM_OMP(omp parallel for schedule(dynamic, 1) num_threads(threads))
+    for (int j = 0; j < job_count; j++) {
+        int t = sim_thread_index();
+        cpu_run_window(p, &jobs[j], b->arena[t], &status[j], &per_thread[t]);
+    }
+    for (int t = 0; t < threads; t++) {
+        times->depth += per_thread[t].depth;
+        times->classify += per_thread[t].classify;
+        times->jump_flood += per_thread[t].jump_flood;
+        times->displace += per_thread[t].displace;
+        times->even_slopes += per_thread[t].even_slopes;
     }
     return 0;
 }
@@ -104,7 +156,10 @@ static void cpu_forget_geometry(sim_backend *b, const collider_geometry *g)
 static uint64_t cpu_scratch_bytes(const sim_backend *base)
 {
     const cpu_backend *b = (const cpu_backend *)base;
-    return (uint64_t)b->capacity_cells * CPU_ARRAYS_PER_CELL * sizeof(int32_t);
+    uint64_t cells = 0;
+    for (int t = 0; t < SIM_THREADS_MAX; t++)
+        cells += (uint64_t)b->capacity_cells[t];
+    return cells * CPU_ARRAYS_PER_CELL * sizeof(int32_t);
 }
 
 /* bottom → depth; raw, moved, cls → classify; seed → jump_flood; the five
@@ -113,7 +168,10 @@ static uint64_t cpu_scratch_bytes(const sim_backend *base)
 static void cpu_stage_bytes(const sim_backend *base, sim_stage_memory *out)
 {
     const cpu_backend *b = (const cpu_backend *)base;
-    uint64_t array = (uint64_t)b->capacity_cells * sizeof(int32_t);
+    uint64_t cells = 0;
+    for (int t = 0; t < SIM_THREADS_MAX; t++)
+        cells += (uint64_t)b->capacity_cells[t];
+    uint64_t array = cells * sizeof(int32_t);
     out->depth += array;
     out->classify += 3 * array;
     out->jump_flood += array;
@@ -123,7 +181,8 @@ static void cpu_stage_bytes(const sim_backend *base, sim_stage_memory *out)
 static void cpu_destroy(sim_backend *base)
 {
     cpu_backend *b = (cpu_backend *)base;
-    free(b->arena);
+    for (int t = 0; t < SIM_THREADS_MAX; t++)
+        free(b->arena[t]);
     free(b);
 }
 

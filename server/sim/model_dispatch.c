@@ -20,7 +20,7 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
     case SIM_MODEL_DECALS:
         return cells; /* one collider's depth */
     case SIM_MODEL_SUMNER:
-        return 12 * cells + 2; /* as sim_sumner_scratch_cells */
+        return 14 * cells + 2; /* as sim_sumner_scratch_cells */
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:

@@ -37,11 +37,11 @@ static const int ring_dy[8] = {0, 0, 1, -1, 1, 1, -1, -1};
 
 /* Scratch, in int32 cells: bottom, cls, label, queue, owner, ring count,
  * given, new heights (8n), component totals as int64 (2n + 1 for
- * alignment), and the erosion's 2n. */
+ * alignment), and the erosion's 4n. */
 int64_t sim_sumner_scratch_cells(int w, int h)
 {
     int64_t n = (int64_t)w * h;
-    return 12 * n + 2;
+    return 14 * n + 2;
 }
 
 /* Label the 8-connected components of the footprint (cls != SEED) in

@@ -304,6 +304,13 @@ struct sim_backend {
 };
 
 sim_backend *sim_backend_cpu_create(error_text *err);
+/* Threads of the CPU twin's stages (sim_threads.c): n < 1 means the
+ * machine's cores (the default), at most SIM_THREADS_MAX. Heights do not
+ * depend on it. sim_threads() is the count in use (1 without OpenMP). */
+#define SIM_THREADS_MAX 64
+void sim_set_threads(int n);
+int sim_threads(void);
+int sim_default_threads(void);
 
 /* Through the optional entries: zeros / nothing where a backend has none. */
 void sim_backend_tile_cache_stats(const sim_backend *b, sim_tile_cache_stats *out);

@@ -10,6 +10,21 @@
 
 #include "sim/sim.h"
 
+/* An OpenMP pragma where the build has OpenMP, nothing where it has not
+ * (sim_threads.c says why the results do not depend on it). */
+#ifdef _OPENMP
+#define SIM_OMP(x) _Pragma(#x)
+#else
+#define SIM_OMP(x)
+#endif
+
+/* The calling thread's index in a parallel region (0 outside one), and how
+ * many threads a loop of `items` independent items should use: 1 inside
+ * another parallel region or for a small loop. */
+#define SIM_BAND_MIN_ITEMS 4096
+int sim_thread_index(void);
+int sim_band_threads(int64_t items);
+
 typedef enum sim_cell_class {
     SIM_CELL_SEED = 0,        /* free: can receive material */
     SIM_CELL_OBSTACLE = 1,    /* a collider rests just above: receives nothing */
@@ -32,12 +47,16 @@ void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
 
 /*
  * jump_flood: seed[i] = window-local index of the nearest seed cell, or -1 if
- * the window has none. scratch holds w*h int32. Ties go to the lower
+ * the window has none. scratch holds 2*w*h int32. Ties go to the lower
  * (sim_cell_hash, index) of the candidate seed, so the answer does not
- * depend on evaluation order.
+ * depend on evaluation order. It visits only the cells that are not free;
+ * sim_jump_flood_dense (scratch w*h) visits every cell and is its reference:
+ * both give identical seeds (test_sim_stages).
  */
 void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
                     const int32_t *cls, int32_t *seed, int32_t *scratch);
+void sim_jump_flood_dense(const sim_params *p, int w, int h, int origin_x, int origin_y,
+                          const int32_t *cls, int32_t *seed, int32_t *scratch);
 
 /* ---- Per-cell materials and compaction memory (sim_stages.c) ----
  * Classify and slope evening with a material id per cell (an index into a
@@ -60,10 +79,16 @@ void sim_classify_materials(const sim_params *p, const ground_material_table *t,
  * cell's material remembers compaction. */
 void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, int cell_count,
                            const int32_t *raw, const int32_t *moved, uint16_t *memory);
-/* even_slopes where each flux uses the material of the column it leaves. */
+/* even_slopes where each flux uses the material of the column it leaves.
+ * Sparse (a work list of the cells that can move); scratch holds 4*w*h int32.
+ * The _dense form visits every cell (scratch 2*w*h) and is the reference the
+ * sparse one is tested against: identical heights. */
 void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
                                const uint8_t *ids, int w, int h, const int32_t *cls,
                                int32_t *heights, int32_t *scratch);
+void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
+                                     const uint8_t *ids, int w, int h, const int32_t *cls,
+                                     int32_t *heights, int32_t *scratch);
 /*
  * displace: heights[i] -= raw[i], and the moved material lands by the
  * params' method. `scratch` holds 5*w*h int32. Returns SIM_WINDOW_HEIGHT_LIMIT
@@ -74,7 +99,7 @@ sim_window_status sim_displace(const sim_params *p, int w, int h, const int32_t 
                                const int32_t *seed, const int32_t *raw, const int32_t *moved,
                                int32_t *heights, int32_t *scratch);
 
-/* even_slopes: params.slope_iterations Jacobi iterations; scratch holds 2*w*h int32. */
+/* even_slopes: params.slope_iterations Jacobi iterations; scratch holds 4*w*h int32. */
 void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int32_t *heights,
                      int32_t *scratch);
 

@@ -186,8 +186,8 @@ static int jump_flood_first_step(int w, int h)
     return k;
 }
 
-void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
-                    const int32_t *cls, int32_t *seed, int32_t *scratch)
+void sim_jump_flood_dense(const sim_params *p, int w, int h, int origin_x, int origin_y,
+                          const int32_t *cls, int32_t *seed, int32_t *scratch)
 {
     int n = w * h;
     for (int i = 0; i < n; i++)
@@ -229,6 +229,99 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
     }
     if (in != seed)
         memcpy(seed, in, (size_t)n * sizeof *seed);
+}
+
+/*
+ * The sparse jump flooding the engine runs; sim_jump_flood_dense is its
+ * reference (test_sim_stages compares them on random windows). A free cell
+ * is its own nearest seed at distance 0, which no candidate can beat, so
+ * only the cells that are not free are visited: the work is 8 candidates
+ * per step per penetrated or obstacle cell, not per window cell. Seeds are
+ * carried packed as (y << 16 | x) — packed order is index order — so a
+ * candidate costs no division, and the hash that breaks ties is computed
+ * only on a tie of distances (the comparison is seed_better's, unchanged).
+ */
+#define JFA_PACK_MAX 32768
+
+static int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x, int y, int k, int w,
+                        int h, const int32_t *restrict in)
+{
+    int32_t best = in[y * w + x];
+    int32_t best_d = 0;
+    uint32_t best_h = 0;
+    int have_h = 0;
+    if (best >= 0)
+        best_d = sim_metric_distance(metric, (best & 0xffff) - x, (best >> 16) - y);
+    for (int j = 0; j < 8; j++) {
+        int qx = x + neighbour_dx[j] * k, qy = y + neighbour_dy[j] * k;
+        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+            continue;
+        int32_t s = in[qy * w + qx];
+        if (s < 0 || s == best)
+            continue;
+        int sx = s & 0xffff, sy = s >> 16;
+        int32_t d = sim_metric_distance(metric, sx - x, sy - y);
+        if (best >= 0 && d > best_d)
+            continue;
+        if (best >= 0 && d == best_d) {
+            if (!have_h)
+                best_h = sim_cell_hash(origin_x + (best & 0xffff), origin_y + (best >> 16));
+            have_h = 1;
+            uint32_t hs = sim_cell_hash(origin_x + sx, origin_y + sy);
+            if (hs > best_h || (hs == best_h && s > best))
+                continue;
+            best_h = hs;
+        } else {
+            have_h = 0;
+        }
+        best = s;
+        best_d = d;
+    }
+    return best;
+}
+
+void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
+                    const int32_t *cls, int32_t *seed, int32_t *scratch)
+{
+    if (w > JFA_PACK_MAX || h > JFA_PACK_MAX) {
+        sim_jump_flood_dense(p, w, h, origin_x, origin_y, cls, seed, scratch);
+        return;
+    }
+    int n = w * h;
+    int32_t *restrict other = scratch, *restrict list = scratch + n;
+    int count = 0;
+    for (int y = 0, i = 0; y < h; y++) {
+        for (int x = 0; x < w; x++, i++) {
+            int free_cell = cls[i] == SIM_CELL_SEED;
+            seed[i] = free_cell ? (y << 16 | x) : -1;
+            if (!free_cell)
+                list[count++] = i;
+        }
+    }
+    if (count > 0) {
+        memcpy(other, seed, (size_t)n * sizeof *seed);
+        int32_t *in = seed, *out = other;
+        int bands = sim_band_threads(count);
+        (void)bands; /* read only by the OpenMP pragma */
+        for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
+            /* each listed cell reads `in`, writes its own `out`: bands are exact */
+            SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
+            for (int c = 0; c < count; c++) {
+                int i = list[c], y = i / w, x = i - y * w;
+                out[i] = jfa_pick(p->metric, origin_x, origin_y, x, y, k, w, h, in);
+            }
+            int32_t *t = in;
+            in = out;
+            out = t;
+        }
+        if (in != seed)
+            for (int c = 0; c < count; c++)
+                seed[list[c]] = in[list[c]];
+    }
+    /* packed → window-local index; free cells are their own seed */
+    for (int y = 0, i = 0; y < h; y++)
+        for (int x = 0; x < w; x++, i++)
+            seed[i] = seed[i] < 0 ? -1 : (seed[i] >> 16) * w + (seed[i] & 0xffff);
 }
 
 /* Add the received material to each column; refuse the window if any column
@@ -415,9 +508,9 @@ static int32_t slope_flux_row(const ground_material_row *row, int32_t hc, int32_
     return mul_q16_shift(excess, row->roughness_q16, 19);
 }
 
-void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
-                               const uint8_t *ids, int w, int h, const int32_t *cls,
-                               int32_t *heights, int32_t *scratch)
+void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
+                                     const uint8_t *ids, int w, int h, const int32_t *cls,
+                                     int32_t *heights, int32_t *scratch)
 {
     int n = w * h;
     int32_t *next = scratch;
@@ -442,6 +535,150 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
             }
         }
         memcpy(heights, next, (size_t)n * sizeof *heights);
+    }
+}
+
+/* One cell's Jacobi update of slope evening: its height after one iteration
+ * given the heights before it (the formula of sim_even_slopes_materials_dense). */
+static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                          const int32_t *restrict cls, const int32_t *restrict heights, int x,
+                          int y)
+{
+    int i = y * w + x;
+    int32_t hi = heights[i];
+    const ground_material_row *ri = row_of(t, ids, i);
+    int32_t out = 0, in = 0;
+    for (int j = 0; j < 8; j++) {
+        int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+            continue;
+        int q = qy * w + qx;
+        if (cls[q] == SIM_CELL_SEED)
+            out += slope_flux_row(ri, hi, heights[q], j >= 4);
+        if (cls[i] == SIM_CELL_SEED)
+            in += slope_flux_row(row_of(t, ids, q), heights[q], hi, j >= 4);
+    }
+    return hi - out + in;
+}
+
+/* Can slope_next change cell (x, y)? Only if some flux of its formula has a
+ * positive excess: out of it towards a free neighbour, or into it (when it
+ * is free) from a neighbour. Cells where this is 0 keep their height. */
+static int slope_may_move(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                          const int32_t *restrict cls, const int32_t *restrict heights, int x,
+                          int y)
+{
+    int i = y * w + x;
+    int32_t hi = heights[i];
+    const ground_material_row *ri = row_of(t, ids, i);
+    for (int j = 0; j < 8; j++) {
+        int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+            continue;
+        int q = qy * w + qx;
+        int32_t hq = heights[q];
+        int diagonal = j >= 4;
+        if (cls[q] == SIM_CELL_SEED &&
+            hi - hq > (diagonal ? ri->slope_threshold_diagonal : ri->slope_threshold_axial))
+            return 1;
+        if (cls[i] == SIM_CELL_SEED) {
+            const ground_material_row *rq = row_of(t, ids, q);
+            if (hq - hi > (diagonal ? rq->slope_threshold_diagonal : rq->slope_threshold_axial))
+                return 1;
+        }
+    }
+    return 0;
+}
+
+/* The first work list: every cell of the window that slope_may_move. The
+ * interior of a uniform window skips the per-cell material rows and the
+ * bounds checks: a cell moves only if some neighbour differs from it by more
+ * than the smaller threshold, which is a cheap, vectorisable filter. */
+static int slope_first_list(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                            const int32_t *restrict cls, const int32_t *restrict heights,
+                            int32_t *restrict list)
+{
+    int count = 0;
+    int32_t th = t->rows[0].slope_threshold_axial < t->rows[0].slope_threshold_diagonal
+                     ? t->rows[0].slope_threshold_axial
+                     : t->rows[0].slope_threshold_diagonal;
+    for (int y = 0; y < h; y++) {
+        int interior_row = ids == NULL && y > 0 && y < h - 1;
+        for (int x = 0; x < w; x++) {
+            if (interior_row && x > 0 && x < w - 1) {
+                const int32_t *r = heights + y * w + x;
+                int32_t hi = r[0], lo = r[0], hj = r[0];
+                const int32_t *nb[3] = {r - w, r, r + w};
+                for (int a = 0; a < 3; a++)
+                    for (int b = -1; b <= 1; b++) {
+                        hj = nb[a][b];
+                        hi = hj > hi ? hj : hi;
+                        lo = hj < lo ? hj : lo;
+                    }
+                if (hi - r[0] <= th && r[0] - lo <= th)
+                    continue;
+            }
+            if (slope_may_move(t, ids, w, h, cls, heights, x, y))
+                list[count++] = y * w + x;
+        }
+    }
+    return count;
+}
+
+/*
+ * The sparse slope evening the engine runs; sim_even_slopes_materials_dense
+ * is its reference. Iteration 1 visits the cells that slope_may_move; a
+ * cell's next height depends only on itself and its 8 neighbours, so a cell
+ * none of which changed in an iteration keeps its height in the next, and
+ * the work list after an iteration is the changed cells and their
+ * neighbours. It grows along a spreading slope and shrinks to nothing when
+ * the window is at rest. scratch holds 4*w*h int32: two lists, the new
+ * heights of the listed cells and a mark per cell.
+ */
+void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
+                               const uint8_t *ids, int w, int h, const int32_t *cls,
+                               int32_t *heights, int32_t *scratch)
+{
+    int n = w * h;
+    int32_t *restrict list = scratch, *restrict next_list = scratch + n;
+    int32_t *restrict value = scratch + 2 * n, *restrict mark = scratch + 3 * n;
+    int count = slope_first_list(t, ids, w, h, cls, heights, list);
+    if (count == 0)
+        return;
+    for (int i = 0; i < n; i++)
+        mark[i] = -1;
+    for (int32_t iter = 0; iter < p->slope_iterations && count > 0; iter++) {
+        int bands = sim_band_threads(count);
+        (void)bands; /* read only by the OpenMP pragma */
+        /* Jacobi: every listed cell reads the old heights; bands are exact */
+        SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
+        for (int c = 0; c < count; c++) {
+            int i = list[c], y = i / w;
+            value[c] = slope_next(t, ids, w, h, cls, heights, i - y * w, y);
+        }
+        int next_count = 0;
+        for (int c = 0; c < count; c++) {
+            int i = list[c];
+            if (value[c] == heights[i])
+                continue;
+            heights[i] = value[c];
+            int y = i / w, x = i - y * w;
+            for (int qy = y - 1; qy <= y + 1; qy++) {
+                if (qy < 0 || qy >= h)
+                    continue;
+                for (int qx = x - 1; qx <= x + 1; qx++) {
+                    int q = qy * w + qx;
+                    if (qx < 0 || qx >= w || mark[q] == iter)
+                        continue;
+                    mark[q] = iter;
+                    next_list[next_count++] = q;
+                }
+            }
+        }
+        int32_t *tmp = list;
+        list = next_list;
+        next_list = tmp;
+        count = next_count;
     }
 }
 

@@ -8,6 +8,13 @@ sizes 512 to 4096, a car driving over snow, one active area around the car
 sized like the thesis's (3,774 / 15,100 / 60,398 / 241,591 pixels), and
 Table 5.3's parameters (10 displacement and 10 slope iterations).
 
+Then issue 10's anchors for the CPU twin (printed beside them, never
+failed on): the Table 5.5 configuration at 1024^2 <= 2.0 ms per tick and at
+4096^2 <= 25 ms, tests/scenes/thesis-car.json <= 0.35 ms per tick,
+nanoseconds per active cell per tick for each stage beside this machine's
+memory bandwidth (build/bench_stream, a STREAM copy), and thread scaling on
+a 64-wheel scene (2 threads >= 1.7x one thread).
+
 Usage: bench_core.py [--ticks N] [--sizes 512,1024,...] [--backends gl,cpu]
 """
 import argparse
@@ -84,9 +91,101 @@ def car_scene(size):
     }
 
 
-def run(scene_path, ticks, backend, method):
+def wheels_scene(count=64):
+    """count wheels in a square grid on a 1024^2 world of 5 cm cells, each
+    rolling east in its own active window: the windows of one tick."""
+    side = int(count ** 0.5 + 0.999)
+    wheel_r, sink = 0.33, 0.08
+    wheels = []
+    for k in range(count):
+        gx, gy = k % side, k // side
+        wheels.append({
+            "shape": "cylinder", "radius": wheel_r, "half_length": 0.1,
+            "position": [3.0 + gx * 45.0 / side, 3.0 + gy * 45.0 / side, 0.4 - sink + wheel_r],
+            "motion": {"velocity": [0.5, 0.0, 0.0], "spin_axis": [0.0, 1.0, 0.0],
+                       "spin_deg_per_s": 0.5 / wheel_r * 57.29577951308232},
+        })
+    return {
+        "name": f"bench-wheels-{count}",
+        "world": {"width": 1024, "height": 1024, "cell_size_m": 0.05, "units_per_m": 10000,
+                  "floor_m": 0.0},
+        "terrain": {"kind": "flat", "height_m": 0.4},
+        "material": {"compression": 0, "roughness": 0.3, "repose_deg": 35,
+                     "displace_iterations": 10, "slope_iterations": 10, "method": "ssbo"},
+        "tick_hz": 60,
+        "colliders": wheels,
+    }
+
+
+def stream_bandwidth():
+    """GB/s of a STREAM copy (build/bench_stream), or None."""
+    exe = os.path.join(os.path.dirname(BIN), "bench_stream")
+    try:
+        p = subprocess.run([exe], capture_output=True, text=True, timeout=120)
+        return json.loads(p.stdout.strip().splitlines()[-1])
+    except (OSError, ValueError, IndexError, subprocess.TimeoutExpired):
+        return None
+
+
+def anchors(results, ticks):
+    """Issue 10's CPU-twin figures beside their anchors."""
+    print()
+    print("## issue 10 anchors, CPU twin (figures beside anchors; never a failure)")
+    print(f"# load average now: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    for size, anchor in ((1024, 2.0), (4096, 25.0)):
+        rep = results.get(("cpu", "ssbo", size))
+        if rep:
+            v = rep["stages"]["tick"]["mean_ms"]
+            print(f"Table 5.5 config {size}^2, SSBO 10+10: {v:.3f} ms per tick "
+                  f"(anchor <= {anchor} ms: {'met' if v <= anchor else 'NOT met'})")
+    car = os.path.join(SOURCE, "tests", "scenes", "thesis-car.json")
+    rep, err = run(car, max(ticks, 300), "cpu", "ssbo")
+    if rep:
+        v = rep["stages"]["tick"]["mean_ms"]
+        print(f"tests/scenes/thesis-car.json: {v:.3f} ms per tick "
+              f"(anchor <= 0.35 ms, Chrono SCM: {'met' if v <= 0.35 else 'NOT met'})")
+    else:
+        print(f"thesis-car: not run: {err}")
+    bw = stream_bandwidth()
+    if bw:
+        print(f"memory bandwidth (STREAM copy, one thread): {bw['gb_per_s']:.2f} GB/s = "
+              f"{bw['ns_per_int32_read_write']:.3f} ns to read and write one int32")
+    print(f"{'ns per active cell per tick':34}" + "".join(
+        f" | {size:>7}" for size in (1024, 4096)))
+    for stage in ("depth", "classify", "jump_flood", "displace", "even_slopes", "tick"):
+        line = f"{STAGE_NAMES[stage]:34}"
+        for size in (1024, 4096):
+            rep = results.get(("cpu", "ssbo", size))
+            if rep and rep["active_cells_mean"] > 0:
+                ns = rep["stages"][stage]["mean_ms"] * 1e6 / rep["active_cells_mean"]
+                line += f" | {ns:7.1f}"
+            else:
+                line += f" | {'-':>7}"
+        print(line)
+    if bw:
+        print(f"{'(memory: one int32 read + write)':34} | "
+              f"{bw['ns_per_int32_read_write']:7.3f} | {bw['ns_per_int32_read_write']:7.3f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "wheels-64.json")
+        with open(path, "w") as f:
+            json.dump(wheels_scene(64), f)
+        ms = {}
+        for threads in (1, 2):
+            rep, err = run(path, max(ticks, 120), "cpu", "ssbo", threads=threads)
+            ms[threads] = rep["stages"]["tick"]["mean_ms"] if rep else None
+            if rep:
+                print(f"64 wheels, {threads} thread(s): {ms[threads]:.3f} ms per tick, "
+                      f"{int(rep['active_cells_mean'])} active cells")
+        if ms.get(1) and ms.get(2):
+            x = ms[1] / ms[2]
+            print(f"thread scaling 2 vs 1 on 64 wheels: {x:.2f}x "
+                  f"(anchor >= 1.7x: {'met' if x >= 1.7 else 'NOT met'})")
+
+
+def run(scene_path, ticks, backend, method, threads=None):
+    extra = ["--threads", str(threads)] if threads else []
     p = subprocess.run([BIN, "simulate", "--scene", scene_path, "--ticks", str(ticks),
-                        "--backend", backend, "--method", method],
+                        "--backend", backend, "--method", method] + extra,
                        capture_output=True, text=True)
     if p.returncode != 0:
         return None, p.stderr.strip().splitlines()[-1] if p.stderr.strip() else "failed"
@@ -164,6 +263,8 @@ def main():
                 rep = results.get((backend, method, size))
                 line += f" {rep['bytes_per_active_cell'] if rep else '-':>7}"
         print(line)
+    if "cpu" in args.backends.split(","):
+        anchors(results, args.ticks)
     return 0
 
 

@@ -179,7 +179,7 @@ static void test_uniform_equals_plain(void)
 {
     enum { W = 24, H = 20, N = W * H };
     static int32_t heights[N], bottom[N], raw1[N], moved1[N], cls1[N], raw2[N], moved2[N], cls2[N],
-        h1[N], h2[N], scratch[2 * N];
+        h1[N], h2[N], scratch[4 * N];
     sim_material m;
     sim_params p = base_params(&m);
     m.compression = 0.37;
@@ -351,7 +351,7 @@ static void test_mixed_window_repose(void)
     sim_material m;
     sim_params p = base_params(&m);
     p.slope_iterations = 200;
-    static int32_t heights[N], cls[N], scratch[2 * N];
+    static int32_t heights[N], cls[N], scratch[4 * N];
     static uint8_t ids[N];
     ground_gather_ids(&g, (world_rect){0, 0, W, H}, ids);
     for (int i = 0; i < N; i++) {

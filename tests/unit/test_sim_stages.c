@@ -27,7 +27,7 @@ static void test_fig_4_3_manhattan(void)
 {
     enum { W = 10, H = 10 };
     int32_t heights[W * H], bottom[W * H], raw[W * H], moved[W * H], cls[W * H];
-    int32_t seed[W * H], scratch[W * H];
+    int32_t seed[W * H], scratch[W * H * 2];
     sim_params p = params_for(SIM_METHOD_SSBO, SIM_METRIC_MANHATTAN);
     for (int i = 0; i < W * H; i++) {
         int x = i % W, y = i / W;
@@ -206,7 +206,7 @@ static void test_slopes(void)
 {
     enum { W = 9, H = 9 };
     sim_params p = params_for(SIM_METHOD_SSBO, SIM_METRIC_EUCLIDEAN);
-    int32_t h[W * H], cls[W * H], scratch[W * H * 2];
+    int32_t h[W * H], cls[W * H], scratch[W * H * 4];
     for (int i = 0; i < W * H; i++) {
         h[i] = 1000;
         cls[i] = SIM_CELL_SEED;
