@@ -363,6 +363,8 @@ static sim_params random_params(sim_method method, sim_metric metric, int32_t fl
     m.compression = (rnd() % 3 == 0) ? (rnd() % 1000) / 1000.0 : 0.0;
     m.roughness = (rnd() % 1001) / 1000.0;
     m.repose_deg = (rnd() % 8900) / 100.0;
+    if (m.repose_deg < 0.2)
+        m.repose_deg = 0.0; /* under one unit per cell: refused (ground.c) */
     m.obstacle_gap_m = (rnd() % 1000) / 10000.0;
     m.multi_target_m = 0.001 + (rnd() % 500) / 1000.0;
     m.multi_target_max = 1 + (int)(rnd() % 24);
