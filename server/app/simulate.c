@@ -49,7 +49,7 @@ static const cli_option simulate_table[] = {
     [OPT_METHOD] = {"method", "M", "iterative | ssbo | multi (overrides the scene's material)"},
     [OPT_MODEL] = {"model", "M",
                    "persson-iterative | persson-ssbo | persson-multi | subtract |\n"
-                   "deferred | diffusion | decals (overrides the scene's model)"},
+                   "deferred | diffusion | sumner | decals (overrides the scene's model)"},
     [OPT_METRIC] = {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)"},
     [OPT_OUT] = {"out", "FILE", "write the final heights: little-endian int32, row-major"},
     [OPT_DEPTH_FROM_CPU] = {"depth-from-cpu", NULL,
@@ -140,63 +140,88 @@ static int write_heights(const char *path, const world *w)
 
 /* The steepest slope's excess over the repose threshold, in bands of rows
  * that overlap by one row so every neighbour pair is seen. A world above
- * SLOPE_SCAN_CELLS_MAX cells is scanned only over the stored (written) tiles
- * and one cell around them: the base beyond was never touched by a tick. */
+ * SLOPE_SCAN_CELLS_MAX cells is scanned tile by tile over the stored
+ * (written) tiles only, each with a ring of one cell so the pairs across its
+ * edges are seen: the base beyond was never touched by a tick. (Their
+ * bounding box is not enough: two colliders at opposite corners of a 65,536²
+ * world made it 2.7e9 cells, issue 12.) */
 #define SLOPE_SCAN_CELLS_MAX ((int64_t)1 << 26)
 
-typedef struct touched_bounds {
-    world_rect r;
-} touched_bounds;
+typedef struct slope_scan {
+    const sim_params *p;
+    const world *w;
+    const ground *g;
+    int32_t *rows;
+    uint8_t *ids;
+    size_t capacity; /* cells in rows (and ids) */
+    int64_t worst;
+    int64_t cells; /* scanned, reported: the tiles' cells, not their box */
+    int failed;
+} slope_scan;
 
-static void add_touched(void *ctx, int tx, int ty, world_rect cells, uint64_t generation)
+/* The excess over rect r, in bands of 64 rows (+1 overlapping). */
+static void scan_rect(slope_scan *sc, world_rect r)
+{
+    int band = 64;
+    size_t need = (size_t)r.w * (size_t)(band + 1);
+    if (need > sc->capacity) {
+        int32_t *rows = realloc(sc->rows, need * sizeof *rows);
+        if (rows)
+            sc->rows = rows;
+        uint8_t *ids = sc->g && !sc->g->uniform ? realloc(sc->ids, need) : sc->ids;
+        if (ids)
+            sc->ids = ids;
+        if (!rows || (sc->g && !sc->g->uniform && !ids)) {
+            sc->failed = 1;
+            return;
+        }
+        sc->capacity = need;
+    }
+    sc->cells += (int64_t)r.w * r.h;
+    for (int y = r.y; y < r.y + r.h; y += band) {
+        int h = y + band + 1 <= r.y + r.h ? band + 1 : r.y + r.h - y;
+        world_rect band_rect = {r.x, y, r.w, h};
+        world_gather_window(sc->w, band_rect, sc->rows);
+        int64_t e;
+        if (sc->g) {
+            if (!sc->g->uniform)
+                ground_gather_ids(sc->g, band_rect, sc->ids);
+            e = sim_max_slope_excess_materials(&sc->g->table, sc->g->uniform ? NULL : sc->ids, r.w,
+                                               h, sc->rows);
+        } else {
+            e = sim_max_slope_excess(sc->p, r.w, h, sc->rows);
+        }
+        if (e > sc->worst)
+            sc->worst = e;
+    }
+}
+
+static void scan_tile(void *ctx, int tx, int ty, world_rect cells, uint64_t generation)
 {
     (void)tx, (void)ty, (void)generation;
-    touched_bounds *b = ctx;
-    b->r = world_rect_union(b->r, cells);
+    slope_scan *sc = ctx;
+    world_rect r = {cells.x - 1, cells.y - 1, cells.w + 2, cells.h + 2};
+    world_clip_rect(sc->w, &r);
+    if (!sc->failed && r.w > 0 && r.h > 0)
+        scan_rect(sc, r);
 }
 
 /* With per-cell materials (g non-NULL) each column is held to its own material's repose. */
 static int64_t max_slope_excess(const sim_params *p, const world *w, const ground *g,
-                                const char **scope)
+                                const char **scope, int64_t *cells)
 {
-    world_rect r = {0, 0, w->width, w->height};
-    *scope = "world";
+    slope_scan sc = {.p = p, .w = w, .g = g};
     if ((int64_t)w->width * w->height > SLOPE_SCAN_CELLS_MAX) {
-        touched_bounds b = {{0, 0, 0, 0}};
-        world_for_each_stored_tile(w, add_touched, &b);
         *scope = "stored_tiles";
-        if (b.r.w <= 0)
-            return 0;
-        r = (world_rect){b.r.x - 1, b.r.y - 1, b.r.w + 2, b.r.h + 2};
-        world_clip_rect(w, &r);
+        world_for_each_stored_tile(w, scan_tile, &sc);
+    } else {
+        *scope = "world";
+        scan_rect(&sc, (world_rect){0, 0, w->width, w->height});
     }
-    int band = 64;
-    int32_t *rows = malloc((size_t)r.w * (band + 1) * sizeof *rows);
-    uint8_t *ids = g && !g->uniform ? malloc((size_t)r.w * (band + 1)) : NULL;
-    if (!rows || (g && !g->uniform && !ids)) {
-        free(rows);
-        free(ids);
-        return -1;
-    }
-    int64_t worst = 0;
-    for (int y = r.y; y < r.y + r.h; y += band) {
-        int h = y + band + 1 <= r.y + r.h ? band + 1 : r.y + r.h - y;
-        world_rect band_rect = {r.x, y, r.w, h};
-        world_gather_window(w, band_rect, rows);
-        int64_t e;
-        if (g) {
-            if (ids)
-                ground_gather_ids(g, band_rect, ids);
-            e = sim_max_slope_excess_materials(&g->table, ids, r.w, h, rows);
-        } else {
-            e = sim_max_slope_excess(p, r.w, h, rows);
-        }
-        if (e > worst)
-            worst = e;
-    }
-    free(rows);
-    free(ids);
-    return worst;
+    free(sc.rows);
+    free(sc.ids);
+    *cells = sc.cells;
+    return sc.failed ? -1 : sc.worst;
 }
 
 typedef struct stage_series {
@@ -273,8 +298,9 @@ static int apply_overrides(const simulate_options *o, scene *sc)
         sc->material.model = sim_model_from_method(sc->material.method);
     if (o->model) {
         if (sim_model_parse(o->model, &sc->material.model) != 0) {
-            fprintf(stderr, "terrad simulate: --model must be persson-iterative, persson-ssbo, "
-                            "persson-multi, subtract, deferred, diffusion or decals\n");
+            fprintf(stderr,
+                    "terrad simulate: --model must be one of " SIM_MODEL_LIST " (got \"%s\")\n",
+                    o->model);
             return -1;
         }
         if (sc->material.model == SIM_MODEL_PERSSON_ITERATIVE)
@@ -358,10 +384,12 @@ static void report_add_cells(cJSON *root, simulate_run *r)
     cJSON_AddNumberToObject(root, "peak_active_cells", (double)es.peak_active_cells);
     cJSON_AddNumberToObject(root, "refused_windows", (double)r->totals.refused);
     const char *slope_scope;
-    add_int64(
-        root, "max_slope_excess",
-        max_slope_excess(&r->params, w, es.per_cell_materials ? &r->grd : NULL, &slope_scope));
+    int64_t slope_cells = 0;
+    add_int64(root, "max_slope_excess",
+              max_slope_excess(&r->params, w, es.per_cell_materials ? &r->grd : NULL, &slope_scope,
+                               &slope_cells));
     cJSON_AddStringToObject(root, "max_slope_excess_scope", slope_scope);
+    cJSON_AddNumberToObject(root, "max_slope_excess_cells", (double)slope_cells);
     cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(w));
     cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(w));
     cJSON_AddNumberToObject(root, "world_tile_cells", w->tile_cells);

@@ -10,7 +10,7 @@
  *   classify    classify.comp (also heights -= raw, jump-flood init)
  *   jump_flood  jump_flood.comp, once per step size, ping-pong
  *   displace    displace_ssbo/multi.comp + displace_land.comp, or
- *               displace_iterative_init/pass.../finish.comp
+ *               displace_iterative_init/pass.../dead_end/finish.comp
  *   even_slopes even_slopes.comp per iteration, ping-pong
  *   readback    window status flags, then the heights of accepted windows
  *
@@ -63,6 +63,7 @@ static const char *const compute_names[PROG_COMPUTE_COUNT] = {
     "shaders/displace_land.comp",
     "shaders/displace_iterative_init.comp",
     "shaders/displace_iterative_pass.comp",
+    "shaders/displace_iterative_dead_end.comp",
     "shaders/displace_iterative_finish.comp",
     "shaders/even_slopes.comp",
     "shaders/depth_to_bottom.comp",

@@ -96,6 +96,12 @@ void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int se
             share = share_next;
             share_next = t;
         }
+        /* dead ends hand their transit to their seed (sim_stages.c) */
+        gl_sample(b, 1, BUF_CLS);
+        gl_sample(b, 2, seed);
+        gl_sample(b, 3, mask);
+        gl_bind(b, 2, share);
+        gl_dispatch(b, PROG_ITER_DEAD_END);
         gl_sample(b, 1, mask);
         gl_sample(b, 2, share);
         gl_bind(b, 2, BUF_HEIGHTS);

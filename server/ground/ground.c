@@ -57,6 +57,53 @@ int32_t ground_units_saturated(double units)
     return (int32_t)floor(units);
 }
 
+/*
+ * Repose thresholds: the rise of the angle of repose over one cell, in whole
+ * units, rounded down so that a slope at the threshold is at rest and one
+ * unit steeper flows; except that a value within a relative 1e-9 below a
+ * whole number is that number. tan() and the products carry a relative error
+ * of a few 1e-16, so a rise that is exactly whole (tan 45 deg = 1 at 5 cm and
+ * 10,000 units per metre: 500) may come out as 499.99999999999994, which a
+ * plain floor turns into 499 and leaves a 45 deg slope flowing. 1e-9 is far
+ * above that error and far below any angle a scene can tell apart (1e-9 of
+ * the rise is a millionth of a unit at any threshold the world can hold).
+ */
+int32_t ground_repose_units(double units)
+{
+    if (!(units > 0.0))
+        return 0;
+    double slack = 1e-9 * (units > 1.0 ? units : 1.0);
+    return ground_units_saturated(floor(units + slack));
+}
+
+/* An angle the scale cannot hold is refused, naming the field: above 0 deg
+ * it must rise at least one unit per cell (else it would act as 0 deg), and
+ * its diagonal rise must stay below 2^30 units (else it saturates: "never"). */
+static int repose_representable(double deg, double axial, double cell_size_m, int32_t units_per_m,
+                                const char *path, error_text *err)
+{
+    double scale = cell_size_m * units_per_m; /* units of rise per cell at 45 deg */
+    if (deg > 0.0 && ground_repose_units(axial) < 1) {
+        error_set(err,
+                  "%s.repose_deg: %g deg rises %.3g units per cell at cell_size_m %g and "
+                  "units_per_m %d, under one unit, so it would act as 0 deg; at this scale "
+                  "the smallest angle above 0 is %.3g deg (or raise units_per_m)",
+                  path, deg, axial, cell_size_m, (int)units_per_m,
+                  atan(1.0 / scale) * 180.0 / M_PI);
+        return -1;
+    }
+    if (axial * M_SQRT2 >= (double)(1 << 30)) {
+        error_set(err,
+                  "%s.repose_deg: %g deg rises %.3g units per cell at cell_size_m %g and "
+                  "units_per_m %d, past the 2^30 units a threshold can hold; at this scale "
+                  "the largest angle is %.6g deg",
+                  path, deg, axial, cell_size_m, (int)units_per_m,
+                  atan((double)(1 << 30) / M_SQRT2 / scale) * 180.0 / M_PI);
+        return -1;
+    }
+    return 0;
+}
+
 static int in_unit_range(double v)
 {
     return isfinite(v) && v >= 0.0 && v <= 1.0;
@@ -80,10 +127,11 @@ int ground_material_row_from(const ground_material *m, double cell_size_m, int32
     memset(row, 0, sizeof *row);
     row->compression_q16 = (int32_t)lround(m->compression * 65536.0);
     row->roughness_q16 = (int32_t)lround(m->roughness * 65536.0);
-    double rise_per_m = tan(m->repose_deg * M_PI / 180.0);
-    double axial = rise_per_m * cell_size_m * units_per_m;
-    row->slope_threshold_axial = ground_units_saturated(axial);
-    row->slope_threshold_diagonal = ground_units_saturated(axial * M_SQRT2);
+    double axial = tan(m->repose_deg * M_PI / 180.0) * cell_size_m * units_per_m;
+    if (repose_representable(m->repose_deg, axial, cell_size_m, units_per_m, path, err) != 0)
+        return -1;
+    row->slope_threshold_axial = ground_repose_units(axial);
+    row->slope_threshold_diagonal = ground_repose_units(axial * M_SQRT2);
     return 0;
 }
 

@@ -72,6 +72,11 @@ typedef struct ground_material_table {
  * already means "never"). */
 int32_t ground_units_saturated(double units);
 
+/* A repose threshold in whole units: floor, except that a value within a
+ * relative 1e-9 below a whole number is that number (ground.c says why), so
+ * a slope exactly at the angle of repose is at rest. */
+int32_t ground_repose_units(double units);
+
 /*
  * compression, roughness and repose_deg of m into a row (max_compaction 0):
  * Q16 shares and the angle of repose as height-difference thresholds for

@@ -86,6 +86,23 @@ static int parse_world(const cJSON *root, scene *s, error_text *err)
         json_get_number(w, "world", "floor_m", -1e9, 1e9, &floor_m, err) < 0 ||
         json_get_integer(w, "world", "tile_cells", 0, WORLD_SIDE_MAX, 0, &tile_cells, err) < 0)
         return -1;
+    /* 0.1 mm .. 1 km per cell, and at least one height unit per cell: below
+     * that the repose thresholds (rise per cell, in units) and the depth of
+     * a cell under a collider lose all resolution, and at 1e-300 m a world
+     * of 65,536 cells spans 1e-295 m */
+    if (cell < SCENE_CELL_SIZE_MIN_M) {
+        error_set(err, "world.cell_size_m: must be in [%g, 1000] m (got %g)", SCENE_CELL_SIZE_MIN_M,
+                  cell);
+        return -1;
+    }
+    if (cell * upm < 1.0) {
+        error_set(err,
+                  "world.cell_size_m: %g m at units_per_m %.0f is %.3g height units per cell, "
+                  "under one: slope thresholds would be meaningless (use larger cells or more "
+                  "units_per_m)",
+                  cell, upm, cell * upm);
+        return -1;
+    }
     int tc = (int)tile_cells;
     if (tc != 0 && (tc < WORLD_TILE_CELLS_MIN || (tc & (tc - 1)) != 0)) {
         error_set(err,
@@ -275,6 +292,50 @@ int scene_create_ground(const scene *s, const world *w, ground *g, error_text *e
     return ground_from_json_text(s, s->ground_json, g, err);
 }
 
+/*
+ * NaN and Infinity are not JSON (RFC 8259 has no such literals; cJSON
+ * refuses them as a syntax error), but other JSON writers (Python's json,
+ * JavaScript's number printing) produce them. After a failed parse, look for
+ * one outside strings, so the error says what it is, at which byte, and after
+ * which key. Returns 1 when found (err set).
+ */
+static int non_finite_literal(const char *text, error_text *err)
+{
+    static const char *const literals[] = {"-Infinity", "+Infinity", "Infinity",
+                                           "-NaN",      "+NaN",      "NaN"};
+    char key[64] = "";
+    const char *str = NULL; /* start of the last string outside strings */
+    size_t str_len = 0;
+    for (const char *c = text; *c; c++) {
+        if (*c == '"') {
+            const char *start = ++c;
+            while (*c && *c != '"')
+                c += (*c == '\\' && c[1]) ? 2 : 1;
+            if (!*c)
+                return 0;
+            str = start;
+            str_len = (size_t)(c - start);
+            continue;
+        }
+        if (*c == ':' && str) {
+            snprintf(key, sizeof key, "%.*s", (int)(str_len < 63 ? str_len : 63), str);
+            continue;
+        }
+        for (size_t i = 0; i < sizeof literals / sizeof literals[0]; i++) {
+            size_t n = strlen(literals[i]);
+            if (strncmp(c, literals[i], n) == 0) {
+                error_set(err,
+                          "scene: %s at byte %zu%s%s%s is not JSON (JSON has no NaN or Infinity; "
+                          "write a finite number)",
+                          literals[i], (size_t)(c - text), key[0] ? " (after key \"" : "", key,
+                          key[0] ? "\")" : "");
+                return 1;
+            }
+        }
+    }
+    return 0;
+}
+
 int scene_load_json(const char *text, const char *base_dir, scene *s, error_text *err)
 {
     memset(s, 0, sizeof *s);
@@ -282,7 +343,8 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
     cJSON *root = cJSON_ParseWithOpts(text, &end, 1);
     if (!root) {
         size_t at = end && end >= text ? (size_t)(end - text) : 0;
-        error_set(err, "scene: JSON syntax error near byte %zu", at);
+        if (!non_finite_literal(text, err))
+            error_set(err, "scene: JSON syntax error near byte %zu", at);
         return -1;
     }
     scene_parser ps = {base_dir ? base_dir : ".", err};

@@ -14,6 +14,10 @@
 #include "sim/sim.h"
 #include "world/world.h"
 
+/* The smallest cell a scene may ask for (0.1 mm); the largest is 1000 m, and a
+ * cell must hold at least one height unit (cell_size_m * units_per_m >= 1). */
+#define SCENE_CELL_SIZE_MIN_M 1e-4
+
 typedef struct scene_collider {
     char name[64];
     collider_geometry geometry;

@@ -47,10 +47,12 @@ static int material_numbers(const cJSON *o, sim_material *m, error_text *err)
         json_get_number(o, P, "obstacle_gap_m", 0, 1000, &m->obstacle_gap_m, err) < 0 ||
         json_get_positive(o, P, "multi_target_m", 1000, 0, &m->multi_target_m, err) < 0)
         return -1;
-    if ((r = json_get_number(o, P, "repose_deg", 0, 90, &v, err)) < 0)
+    /* [0, 90): read over any finite number so the one message states the
+     * range actually enforced (90 itself is refused: tan 90 is infinite) */
+    if ((r = json_get_number(o, P, "repose_deg", -1e308, 1e308, &v, err)) < 0)
         return -1;
     if (r) {
-        if (v >= 90.0) {
+        if (v < 0.0 || v >= 90.0) {
             error_set(err, "material.repose_deg: must be in [0, 90) (got %g)", v);
             return -1;
         }
@@ -95,10 +97,7 @@ static int material_names(const cJSON *o, sim_material *m, error_text *err)
     if ((r = json_get_string(o, P, "model", name, sizeof name, err)) < 0)
         return -1;
     if (r && sim_model_parse(name, &m->model) != 0) {
-        error_set(err,
-                  "material.model: must be persson-iterative, persson-ssbo, persson-multi, "
-                  "subtract, deferred, diffusion or decals (got \"%s\")",
-                  name);
+        error_set(err, "material.model: must be one of " SIM_MODEL_LIST " (got \"%s\")", name);
         return -1;
     }
     if (r && sim_model_is_persson(m->model)) {

@@ -151,6 +151,11 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
 const char *sim_model_name(sim_model m);
 /* Every model a scene may name. */
 int sim_model_parse(const char *name, sim_model *out);
+/* Every model's name, for --help and errors, in sim_model order
+ * (test_models checks it against sim_model_name). */
+#define SIM_MODEL_LIST                                                                             \
+    "persson-iterative | persson-ssbo | persson-multi | subtract | deferred | diffusion | "        \
+    "sumner | decals"
 /* 1 for the persson-* models (the backends' stages), 0 otherwise. */
 int sim_model_is_persson(sim_model m);
 /* The persson model of a method, and back. */

@@ -399,8 +399,9 @@ static void displace_multi(const sim_params *p, int w, int h, const int32_t *cls
  * Iterative (thesis method 1, Listing 4.2): material flows one cell per pass
  * from each column to its neighbours closer to a seed (obstacles excluded),
  * split evenly; the remainder of the split stays. Seeds deposit what they
- * receive. After the last pass, material still in transit stays in the
- * column it reached (the next tick moves it on).
+ * receive. After the last pass, a dead end (no receiving neighbour) hands its
+ * transit to its nearest seed; any other material still in transit stays in
+ * the column it reached (the next tick moves it on).
  */
 static sim_window_status displace_iterative(const sim_params *p, int w, int h, const int32_t *cls,
                                             const int32_t *seed, const int32_t *moved,
@@ -468,6 +469,21 @@ static sim_window_status displace_iterative(const sim_params *p, int w, int h, c
             }
         }
         memcpy(transit, next, (size_t)n * sizeof *transit);
+    }
+    /* Dead ends: a column whose every neighbour closer to a seed is an
+     * obstacle (count 0) can pass nothing on, yet its neighbours keep sending
+     * to it; left in place, the whole displaced volume of a collider piles
+     * into it tick after tick (issue 12: a 4.96 m spike on a flank). It hands
+     * its transit to its nearest seed, as single-target displacement does. */
+    for (int i = 0; i < n; i++) {
+        int32_t s = seed[i];
+        if (cls[i] == SIM_CELL_SEED || s < 0 || (mask[i] >> 8) != 0 || transit[i] == 0)
+            continue;
+        int64_t d = (int64_t)deposit[s] + transit[i];
+        if (d > INT32_MAX)
+            return SIM_WINDOW_HEIGHT_LIMIT;
+        deposit[s] = (int32_t)d;
+        transit[i] = 0;
     }
     for (int i = 0; i < n; i++) {
         int64_t add = (int64_t)deposit[i] + transit[i];

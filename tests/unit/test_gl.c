@@ -363,6 +363,8 @@ static sim_params random_params(sim_method method, sim_metric metric, int32_t fl
     m.compression = (rnd() % 3 == 0) ? (rnd() % 1000) / 1000.0 : 0.0;
     m.roughness = (rnd() % 1001) / 1000.0;
     m.repose_deg = (rnd() % 8900) / 100.0;
+    if (m.repose_deg < 0.2)
+        m.repose_deg = 0.0; /* under one unit per cell: refused (ground.c) */
     m.obstacle_gap_m = (rnd() % 1000) / 10000.0;
     m.multi_target_m = 0.001 + (rnd() % 500) / 1000.0;
     m.multi_target_max = 1 + (int)(rnd() % 24);
@@ -465,6 +467,87 @@ static void test_height_limit(sim_backend *gl, sim_backend *cpu)
             int rc = compare_batch(gl, cpu, &p, &b, label, &limits);
             CHECK(rc == 0 && limits == 1, "%s: same status and heights, %d window refused", label,
                   limits);
+            batch_free(&b);
+        }
+    }
+}
+
+/*
+ * Dead ends of iterative displacement (issue 12): column x = 0 uncovered
+ * (seeds), x = 1 obstacles, x >= 2 pressed in. Every column at x = 2 has
+ * only obstacles closer to a seed, so it can pass nothing on while the
+ * columns behind it keep sending: it must hand what it holds to its seed,
+ * or the whole displaced volume would pile on it. Checked on both backends
+ * (same heights) and on the CPU's numbers: after enough passes nothing but
+ * the remainders of the even split (< 8 units) is left beyond the
+ * obstacles, and Σh is kept. Variant 1 starts at the top of
+ * the range, so the seeds' deposits pass INT32_MAX only through the dead
+ * ends' hand-over: both backends must refuse the window there.
+ */
+static void test_dead_ends(sim_backend *gl, sim_backend *cpu)
+{
+    static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
+                                          SIM_METRIC_CHEBYSHEV};
+    for (int mi = 0; mi < 3; mi++) {
+        for (int variant = 0; variant < 2; variant++) {
+            batch b = {0};
+            b.count = 2;
+            int w = 12, h = 7, n = w * h;
+            int64_t before = 0;
+            for (int k = 0; k < 2; k++) {
+                b.heights[k] = malloc((size_t)n * sizeof(int32_t));
+                b.heights_cpu[k] = malloc((size_t)n * sizeof(int32_t));
+                b.bottom[k] = malloc((size_t)n * sizeof(int32_t));
+                for (int i = 0; i < n; i++) {
+                    int x = i % w;
+                    int32_t hh = variant == 1 && k == 0 ? WORLD_HEIGHT_MAX : 50000;
+                    int32_t press = variant == 1 && k == 0 ? 1 << 27 : 3000;
+                    int32_t bt = x == 0 ? COLLIDER_BOTTOM_NONE : x == 1 ? hh + 50 : hh - press;
+                    if (k == 1 && x > 6)
+                        bt = COLLIDER_BOTTOM_NONE; /* an ordinary window beside it */
+                    b.heights[k][i] = b.heights_cpu[k][i] = hh;
+                    b.bottom[k][i] = bt;
+                    if (k == 0)
+                        before += hh;
+                }
+                b.jobs[k] = (sim_window_job){
+                    .rect = {k * 100, 0, w, h},
+                    .cell_size_m = 0.05,
+                    .units_per_m = 10000,
+                    .heights = b.heights[k],
+                    .bottom_override = b.bottom[k],
+                };
+            }
+            sim_material m = sim_material_default();
+            m.method = SIM_METHOD_ITERATIVE;
+            m.metric = metrics[mi];
+            m.compression = 0.0;
+            m.obstacle_gap_m = 0.01;
+            m.displace_iterations = 2 * w;
+            m.slope_iterations = 0;
+            sim_params p;
+            error_text err;
+            sim_params_from_material(&m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, &err);
+            int limits = 0;
+            char label[64];
+            snprintf(label, sizeof label, "dead ends %s variant %d", sim_metric_name(m.metric),
+                     variant);
+            int rc = compare_batch(gl, cpu, &p, &b, label, &limits);
+            CHECK(rc == 0 && limits == variant, "%s: same status and heights, %d window refused",
+                  label, limits);
+            if (variant == 0) {
+                int64_t after = 0;
+                int piled = 0;
+                for (int i = 0; i < n; i++) {
+                    after += b.heights_cpu[0][i];
+                    if (i % w >= 2 && b.heights_cpu[0][i] > 50000 - 3000 + 7)
+                        piled++;
+                }
+                CHECK(after == before && piled == 0,
+                      "%s: no column past the obstacles keeps more than a remainder (%d do), sum "
+                      "%lld -> %lld",
+                      label, piled, (long long)before, (long long)after);
+            }
             batch_free(&b);
         }
     }
@@ -762,6 +845,7 @@ int main(void)
     test_bit_exact(gl, cpu, 12, 1);
     test_materials_bit_exact(gl, cpu, 24);
     test_height_limit(gl, cpu);
+    test_dead_ends(gl, cpu);
     test_repeatable(gl);
     test_scratch_and_timing(gl);
     test_tile_cache(gl, cpu);

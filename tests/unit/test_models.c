@@ -95,6 +95,10 @@ static void test_model_names(void)
         CHECK(sim_model_parse(names[i], &m) == 0 && strcmp(sim_model_name(m), names[i]) == 0,
               "model %s round trip", names[i]);
     }
+    /* the list that --help and the errors print names every model (issue 12) */
+    for (int i = 0; i < SIM_MODEL_COUNT; i++)
+        CHECK(strstr(SIM_MODEL_LIST, sim_model_name((sim_model)i)) != NULL,
+              "SIM_MODEL_LIST names %s", sim_model_name((sim_model)i));
     sim_model m;
     CHECK(sim_model_scratch_cells(SIM_MODEL_SUMNER, 64 * 48) == sim_sumner_scratch_cells(64, 48),
           "the dispatch gives sumner the scratch it asks for");

@@ -180,6 +180,29 @@ static void test_errors(void)
     refused("{" WORLD ", \"material\": {\"roughness\": 1.5}}",
             "material.roughness: must be in [0, 1]");
     refused("{" WORLD ", \"material\": {\"repose_deg\": 90}}", "material.repose_deg");
+    /* issue 12: refusals that name the field and state what is enforced */
+    refused("{" WORLD ", \"material\": {\"repose_deg\": 95}}",
+            "material.repose_deg: must be in [0, 90) (got 95)");
+    refused("{" WORLD ", \"material\": {\"repose_deg\": 90}}",
+            "material.repose_deg: must be in [0, 90) (got 90)");
+    refused("{" WORLD ", \"material\": {\"roughness\": NaN}}",
+            "scene: NaN at byte 86 (after key \"roughness\") is not JSON");
+    refused("{" WORLD ", \"material\": {\"compression\": -Infinity}}",
+            "scene: -Infinity at byte 88 (after key \"compression\") is not JSON");
+    refused("{\"name\": \"Infinity: NaN\", " WORLD ", \"tick_hz\": Infinity}",
+            "scene: Infinity at byte 96 (after key \"tick_hz\") is not JSON");
+    refused("{\"world\": {\"width\": 16, \"height\": 16, \"cell_size_m\": 1e-300}}",
+            "world.cell_size_m: must be in [0.0001, 1000] m (got 1e-300)");
+    refused("{\"world\": {\"width\": 16, \"height\": 16, \"cell_size_m\": 0.001, \"units_per_m\": "
+            "100}}",
+            "world.cell_size_m: 0.001 m at units_per_m 100 is 0.1 height units per cell");
+    refused("{" WORLD ", \"colliders\": [{\"name\": \"m\", \"shape\": \"mesh\", \"obj\": \".\", "
+            "\"position\": [0, 0, 0]}]}",
+            "colliders[0].obj: /tmp/.: not a regular file");
+    refused("{\"world\": {\"width\": 16, \"height\": 16, \"cell_size_m\": 1, \"units_per_m\": 1}, "
+            "\"material\": {\"repose_deg\": 30}}",
+            "material.repose_deg: 30 deg rises 0.577 units per cell at cell_size_m 1 and "
+            "units_per_m 1");
     refused("{" WORLD ", \"material\": {\"metric\": \"euclidian\"}}", "material.metric");
     refused("{" WORLD ", \"material\": {\"method\": 3}}", "material.method: must be a string");
     refused("{" WORLD ", \"material\": {\"slope_iterations\": 2.5}}",

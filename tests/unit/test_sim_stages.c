@@ -83,6 +83,73 @@ static void test_classify_extremes(void)
     CHECK(moved[2] == 0 && raw[2] == 999, "compression 1 compacts everything");
 }
 
+/*
+ * Repose thresholds (issue 12, item 3): floor of tan(angle) * cell * units,
+ * except that a rise within a relative 1e-9 below a whole number is that
+ * number, so a slope exactly at the angle of repose is at rest. 30, 45 and
+ * 60 deg at coarse and fine scales; an angle the scale cannot hold is
+ * refused naming the field and the scale.
+ */
+static void test_repose_thresholds(void)
+{
+    static const struct {
+        double cell_m;
+        int32_t upm;
+        double deg;
+        int32_t axial, diagonal; /* -1: refused */
+    } cases[] = {
+        {0.05, 10000, 30, 288, 408},
+        {0.05, 10000, 45, 500, 707},
+        {0.05, 10000, 60, 866, 1224},
+        {1.0, 1000, 30, 577, 816},
+        {1.0, 1000, 45, 1000, 1414},
+        {1.0, 1000, 60, 1732, 2449},
+        {1.0, 1, 45, 1, 1},
+        {1.0, 1, 60, 1, 2},
+        {1.0, 1, 30, -1, -1},
+        {0.001, 1000000, 45, 1000, 1414},
+        {0.001, 1000000, 30, 577, 816},
+        {0.001, 1000000, 60, 1732, 2449},
+        {0.05, 10000, 0.1, -1, -1},
+        {1000.0, 1000000, 60, -1, -1},
+        {0.7, 3000, 45, 2100, 2969},
+        {0.3, 10000, 45, 3000, 4242},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        sim_material m = sim_material_default();
+        m.repose_deg = cases[i].deg;
+        sim_params p;
+        error_text err = {{0}};
+        int rc = sim_params_from_material(&m, cases[i].cell_m, cases[i].upm, 0, &p, &err);
+        if (cases[i].axial < 0) {
+            CHECK(rc != 0 && strstr(err.message, "material.repose_deg") &&
+                      strstr(err.message, "units_per_m"),
+                  "repose %g deg at %g m, %d units/m refused naming field and scale: %s",
+                  cases[i].deg, cases[i].cell_m, (int)cases[i].upm, err.message);
+        } else {
+            CHECK(rc == 0 && p.slope_threshold_axial == cases[i].axial &&
+                      p.slope_threshold_diagonal == cases[i].diagonal,
+                  "repose %g deg at %g m, %d units/m: thresholds %d/%d (want %d/%d)", cases[i].deg,
+                  cases[i].cell_m, (int)cases[i].upm, p.slope_threshold_axial,
+                  p.slope_threshold_diagonal, cases[i].axial, cases[i].diagonal);
+        }
+    }
+    /* at rest exactly at the threshold, flowing one unit past it */
+    sim_material m = sim_material_default();
+    m.repose_deg = 45;
+    m.roughness = 1.0;
+    sim_params p;
+    error_text err = {{0}};
+    sim_params_from_material(&m, 0.05, 10000, 0, &p, &err);
+    int32_t rest[3] = {1000, 500, 0}, steep[3] = {1001, 500, 0};
+    int64_t e_rest = sim_max_slope_excess(&p, 3, 1, rest);
+    int64_t e_steep = sim_max_slope_excess(&p, 3, 1, steep);
+    CHECK(e_rest == 0 && e_steep == 1,
+          "a 45 deg slope is at rest (excess %lld), one unit more "
+          "flows (excess %lld)",
+          (long long)e_rest, (long long)e_steep);
+}
+
 static void test_params(void)
 {
     sim_material m = sim_material_default();
@@ -94,8 +161,9 @@ static void test_params(void)
           "repose 0: zero thresholds");
     m.repose_deg = 45;
     sim_params_from_material(&m, 0.05, 10000, 0, &p, &err);
-    CHECK(p.slope_threshold_axial == 499 || p.slope_threshold_axial == 500,
-          "repose 45 on 5 cm cells: axial threshold %d ~ 500", p.slope_threshold_axial);
+    CHECK(p.slope_threshold_axial == 500,
+          "repose 45 on 5 cm cells: axial threshold %d = 500 (a 45 deg slope is at rest)",
+          p.slope_threshold_axial);
     CHECK(p.slope_threshold_diagonal == 707, "diagonal threshold %d = 707",
           p.slope_threshold_diagonal);
     m.repose_deg = 89;
@@ -354,6 +422,7 @@ int main(void)
     test_fig_4_3_manhattan();
     test_classify_extremes();
     test_params();
+    test_repose_thresholds();
     test_displacement_small();
     test_no_seed();
     test_height_limit();
