@@ -306,7 +306,7 @@ static int parse_shape(parser *r, const char *sh, net_control *out)
     }
     if (strcmp(sh, "wheel") == 0) {
         g->shape = COLLIDER_CYLINDER; /* the module's cylinder axis is y: the axle */
-        double width;
+        double width = 0.0;
         if (get_length(r, "radius", &g->radius) || get_length(r, "width", &width))
             return -1;
         g->half_length = width / 2;
