@@ -88,6 +88,26 @@ void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_re
                         double cell_size_m, int32_t units_per_m, int32_t *bottom);
 
 /*
+ * The swept collider of a tick (sweep.c): the depth a tick sees is the
+ * minimum over the sub-step poses k = 1..steps of collider_sweep_pose(from,
+ * to, k, steps) — position lerped, orientation slerped, the last one `to`
+ * exactly. steps = ceil(travel / (cell / 2)), where travel = |Δposition| +
+ * reach × rotation angle bounds how far any point of the collider moves, so
+ * no point moves more than half a cell between sub-steps and no cell is
+ * skipped; at least 1 (a collider at rest or moving at most half a cell costs
+ * one pose), at most COLLIDER_SWEEP_STEPS_MAX: beyond that (512 cells per
+ * tick) the sub-steps are spaced travel / COLLIDER_SWEEP_STEPS_MAX apart and
+ * a small collider may leave gaps. Both backends use these poses.
+ */
+#define COLLIDER_SWEEP_STEPS_MAX 1024
+int collider_sweep_steps(const collider_geometry *g, collider_pose from, collider_pose to,
+                         double cell_size_m);
+collider_pose collider_sweep_pose(collider_pose from, collider_pose to, int k, int steps);
+/* World bounds of every pose k = 0..steps (the previous pose included). */
+void collider_sweep_bounds(const collider_geometry *g, collider_pose from, collider_pose to,
+                           int steps, vec3d *lo, vec3d *hi);
+
+/*
  * Triangles in the local frame for the GL depth raster: primitives are
  * tessellated finely enough that the raster stays within a few millimetres of
  * the analytic surface for wheel-sized shapes; meshes are copied. The caller

@@ -254,11 +254,15 @@ int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, int rounds, err
                 geometry_entry *g = geometry_find(b, col->geometry, err);
                 if (!g)
                     return -1;
-                float mvp[16];
-                window_mvp(&jobs[i], col->pose, mvp);
-                glUniformMatrix4fv(b->uniforms[PROG_RASTER][U_MVP], 1, GL_FALSE, mvp);
                 glBindVertexArray(g->vao);
-                glDrawElements(GL_TRIANGLES, g->index_count, GL_UNSIGNED_INT, NULL);
+                /* the swept collider: the CPU's sub-step poses, drawn one by one */
+                int steps = sim_collider_sweep_steps(col, jobs[i].cell_size_m);
+                for (int k = 1; k <= steps; k++) {
+                    float mvp[16];
+                    window_mvp(&jobs[i], sim_collider_sweep_pose(col, k, steps), mvp);
+                    glUniformMatrix4fv(b->uniforms[PROG_RASTER][U_MVP], 1, GL_FALSE, mvp);
+                    glDrawElements(GL_TRIANGLES, g->index_count, GL_UNSIGNED_INT, NULL);
+                }
             }
         }
         glBindVertexArray(0);
