@@ -108,6 +108,42 @@ void collider_sweep_bounds(const collider_geometry *g, collider_pose from, colli
                            int steps, vec3d *lo, vec3d *hi);
 
 /*
+ * The depth stage's fixed-point specification (depth_fixed.c, GLSL twin
+ * shaders/depth_exact.comp): a shape at one pose over one window becomes an
+ * instance of int64 words, prepared once on the CPU; both backends evaluate
+ * the same integer rule on it, so their bottoms are identical. Shapes for
+ * which collider_fixed_supported is 0 are not prepared (return 0).
+ * collider_depth_cpu uses it for the supported shapes.
+ */
+#define COLLIDER_FIXED_WORDS 24
+enum {
+    CF_SHAPE,  /* collider_shape */
+    CF_WINDOW, /* the GL batch's window index (set by the GL backend) */
+    CF_X0,     /* first cell, window-local */
+    CF_Y0,
+    CF_W, /* cells */
+    CF_H,
+    CF_SHIFT, /* S: fixed unit = 1/2^S height unit */
+    CF_CX0,   /* centre of cell (x0, y0) minus the shape's position, fixed units */
+    CF_CY0,
+    CF_STEP, /* cell pitch, fixed units */
+    CF_CZ,   /* the shape's position z, fixed units */
+    CF_R,    /* radius, fixed units */
+};
+typedef struct collider_fixed {
+    int64_t v[COLLIDER_FIXED_WORDS];
+} collider_fixed;
+int collider_fixed_supported(const collider_geometry *g);
+/* 1: out holds the instance; 0: the shape misses the window or is not supported */
+int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
+                           double cell_size_m, int32_t units_per_m, collider_fixed *out);
+/* The rule at cell (x0 + lx, y0 + ly): 1 and *bottom set where the shape covers it. */
+int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom);
+/* bottom (window_w wide) lowered to the rule over the instance's cells. */
+void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w);
+uint64_t collider_isqrt64(uint64_t v);
+
+/*
  * Triangles in the local frame for the GL depth raster: primitives are
  * tessellated finely enough that the raster stays within a few millimetres of
  * the analytic surface for wheel-sized shapes; meshes are copied. The caller

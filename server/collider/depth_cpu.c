@@ -163,6 +163,12 @@ void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_re
 {
     if (window.w <= 0 || window.h <= 0 || !(cell_size_m > 0.0))
         return;
+    collider_fixed f;
+    if (collider_fixed_supported(g)) { /* the fixed-point specification, as GL computes it */
+        if (collider_fixed_prepare(g, pose, window, cell_size_m, units_per_m, &f))
+            collider_fixed_apply(&f, bottom, window.w);
+        return;
+    }
     quatd q = quat_normalize(pose.orientation);
     if (g->shape == COLLIDER_MESH) {
         if (g->mesh)
