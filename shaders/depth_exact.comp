@@ -19,7 +19,11 @@ layout(std430, binding = 3) readonly buffer instance_buf { int64_t inst[]; };
 
 uniform int u_step; /* first instance of this dispatch */
 
-#define WORDS 24
+#define WORDS 28
+#define SHAPE_SPHERE 0
+#define SHAPE_BOX 1
+#define SHAPE_CAPSULE 2
+#define SHAPE_CYLINDER 3
 #define CF_SHAPE 0
 #define CF_WINDOW 1
 #define CF_X0 2
@@ -32,6 +36,12 @@ uniform int u_step; /* first instance of this dispatch */
 #define CF_STEP 9
 #define CF_CZ 10
 #define CF_R 11
+#define CF_H0 12
+#define CF_H1 13
+#define CF_H2 14
+#define CF_ROT 15
+#define CF_END 24
+#define TAU_LIMIT (1L << 60)
 
 uint64_t isqrt64(uint64_t v)
 {
@@ -57,21 +67,119 @@ int64_t floor_shift(int64_t v, int s)
     return -int64_t((uint64_t(-v) + ((1UL << s) - 1UL)) >> s);
 }
 
-/* collider_fixed_cell: the sphere */
-bool fixed_cell(int base, int64_t lx, int64_t ly, out int value)
+int64_t floor_div(int64_t a, int64_t b)
 {
-    int64_t r = inst[base + CF_R];
-    int64_t dx = inst[base + CF_CX0] + lx * inst[base + CF_STEP];
-    int64_t dy = inst[base + CF_CY0] + ly * inst[base + CF_STEP];
-    value = 0;
+    bool neg = (a < 0L) != (b < 0L);
+    uint64_t ua = a < 0L ? 0UL - uint64_t(a) : uint64_t(a);
+    uint64_t ub = b < 0L ? 0UL - uint64_t(b) : uint64_t(b);
+    uint64_t q = ua / ub, r = ua % ub;
+    if (neg)
+        return -int64_t(q + (r != 0UL ? 1UL : 0UL));
+    return int64_t(q);
+}
+
+int64_t ceil_div(int64_t a, int64_t b)
+{
+    return -floor_div(-a, b);
+}
+
+bool slab_fixed(int64_t u, int64_t c, int64_t h, inout int64_t lo, inout int64_t hi)
+{
+    if (c == 0L)
+        return u >= -h && u <= h;
+    int64_t a = (-h - u) * (1L << 30), b = (h - u) * (1L << 30);
+    int64_t t0 = c > 0L ? ceil_div(a, c) : ceil_div(b, c);
+    int64_t t1 = c > 0L ? floor_div(b, c) : floor_div(a, c);
+    if (t0 > lo)
+        lo = t0;
+    if (t1 < hi)
+        hi = t1;
+    return lo <= hi;
+}
+
+bool sphere_fixed(int64_t dx, int64_t dy, int64_t r, out int64_t tau)
+{
+    tau = 0L;
     if (dx < -r || dx > r || dy < -r || dy > r)
         return false;
     int64_t s = r * r - dx * dx;
     if (s < dy * dy)
         return false;
     s -= dy * dy;
-    int64_t z = inst[base + CF_CZ] - int64_t(isqrt64(uint64_t(s)));
-    int64_t u = floor_shift(z, int(inst[base + CF_SHIFT]));
+    tau = -int64_t(isqrt64(uint64_t(s)));
+    return true;
+}
+
+bool disc_fixed(int64_t u0, int64_t u2, int64_t c0, int64_t c2, int64_t r, inout int64_t lo,
+                inout int64_t hi)
+{
+    int64_t a = (c0 * c0 + c2 * c2) >> 30;
+    if (a == 0L)
+        return u0 * u0 + u2 * u2 <= r * r;
+    int64_t cn = int64_t(isqrt64(uint64_t(a) << 30));
+    int64_t dot = u0 * c0 + u2 * c2, cross = u0 * c2 - u2 * c0;
+    int64_t t0 = floor_div(-dot, a);
+    int64_t dperp = floor_div(cross < 0L ? -cross : cross, cn);
+    if (dperp > r)
+        return false;
+    int64_t chord = int64_t(isqrt64(uint64_t(r * r - dperp * dperp)));
+    int64_t half_tau = floor_div(chord * (1L << 30), cn);
+    if (t0 - half_tau > lo)
+        lo = t0 - half_tau;
+    if (t0 + half_tau < hi)
+        hi = t0 + half_tau;
+    return lo <= hi;
+}
+
+/* collider_fixed_cell */
+bool fixed_cell(int base, int64_t lx, int64_t ly, out int value)
+{
+    value = 0;
+    int shape = int(inst[base + CF_SHAPE]);
+    int64_t r = inst[base + CF_R];
+    int64_t dx = inst[base + CF_CX0] + lx * inst[base + CF_STEP];
+    int64_t dy = inst[base + CF_CY0] + ly * inst[base + CF_STEP];
+    int64_t tau = 0L;
+    bool hit = false;
+    if (shape == SHAPE_SPHERE) {
+        hit = sphere_fixed(dx, dy, r, tau);
+    } else {
+        int64_t u[3], cz[3];
+        for (int j = 0; j < 3; j++) {
+            int m = base + CF_ROT + 3 * j;
+            u[j] = floor_div(inst[m] * dx + inst[m + 1] * dy, 1L << 30);
+            cz[j] = inst[m + 2];
+        }
+        int64_t lo = -TAU_LIMIT, hi = TAU_LIMIT;
+        if (shape == SHAPE_BOX) {
+            hit = slab_fixed(u[0], cz[0], inst[base + CF_H0], lo, hi) &&
+                  slab_fixed(u[1], cz[1], inst[base + CF_H1], lo, hi) &&
+                  slab_fixed(u[2], cz[2], inst[base + CF_H2], lo, hi);
+        } else {
+            hit = slab_fixed(u[1], cz[1], inst[base + CF_H1], lo, hi) &&
+                  disc_fixed(u[0], u[2], cz[0], cz[2], r, lo, hi);
+        }
+        tau = lo;
+        if (shape == SHAPE_CAPSULE) {
+            for (int e = -1; e <= 1; e += 2) {
+                int64_t t;
+                int64_t ee = int64_t(e);
+                if (sphere_fixed(dx - ee * inst[base + CF_END], dy - ee * inst[base + CF_END + 1],
+                                 r, t)) {
+                    t += ee * inst[base + CF_END + 2];
+                    if (!hit || t < tau)
+                        tau = t;
+                    hit = true;
+                }
+            }
+        }
+    }
+    if (!hit)
+        return false;
+    if (tau < -TAU_LIMIT)
+        tau = -TAU_LIMIT;
+    int64_t u = floor_shift(inst[base + CF_CZ] + tau, int(inst[base + CF_SHIFT]));
+    /* no clamp() on int64: it crashed llvmpipe (Mesa 22.3) */
     if (u < int64_t(HEIGHT_MIN - 1))
         u = int64_t(HEIGHT_MIN - 1);
     if (u > int64_t(HEIGHT_MAX + 1))

@@ -115,7 +115,7 @@ void collider_sweep_bounds(const collider_geometry *g, collider_pose from, colli
  * which collider_fixed_supported is 0 are not prepared (return 0).
  * collider_depth_cpu uses it for the supported shapes.
  */
-#define COLLIDER_FIXED_WORDS 24
+#define COLLIDER_FIXED_WORDS 28 /* CF_END + 3, rounded up */
 enum {
     CF_SHAPE,  /* collider_shape */
     CF_WINDOW, /* the GL batch's window index (set by the GL backend) */
@@ -129,6 +129,11 @@ enum {
     CF_STEP, /* cell pitch, fixed units */
     CF_CZ,   /* the shape's position z, fixed units */
     CF_R,    /* radius, fixed units */
+    CF_H0,   /* box half extents; CF_H1: a cylinder's or capsule's half length */
+    CF_H1,
+    CF_H2,
+    CF_ROT,              /* 9 words: local axis j in world coordinates, Q30, at CF_ROT + 3j */
+    CF_END = CF_ROT + 9, /* 3 words: a capsule's end centre offset (+ half_length along y) */
 };
 typedef struct collider_fixed {
     int64_t v[COLLIDER_FIXED_WORDS];

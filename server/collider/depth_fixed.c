@@ -20,10 +20,18 @@
  * WORLD_HEIGHT_MAX + 1]; no such z: the cell is left alone.
  *
  *   sphere: (dx² + dy² + (z - cz)² <= r²) → z = cz - isqrt(r² - dx² - dy²)
+ *   box, cylinder, capsule: the line in the local frame is u + c τ / 2^30
+ *     (τ = z - cz; u = the cell's offset rotated by Rᵀ rounded to Q30 on the
+ *     CPU, floored to fixed units; c = Rᵀ's third column in Q30); each slab
+ *     |u_j + c_j τ / 2^30| <= h_j gives an integer τ interval (ceil of the
+ *     lower bound, floor of the upper); a cylinder's disc gives
+ *     τ0 ± half_τ from the closest approach (floor divisions, isqrt), a
+ *     capsule adds two spheres whose centres the CPU rotated and rounded;
+ *     the lowest τ in the intersection is the entry.
  *
- * Shapes not listed here (boxes, cylinders, capsules, meshes) still take
- * the analytic double path on the CPU and the raster on GL: see
- * docs/core.md for what is exact.
+ * The divisions round on magnitudes (floor_div, ceil_div), never on the
+ * sign rules of a language. Meshes still take the double path on the CPU
+ * and the raster on GL: see docs/core.md for what is exact.
  */
 #include "collider/collider.h"
 
@@ -67,9 +75,95 @@ static int64_t to_fixed(double metres, int32_t units_per_m, int s)
     return (int64_t)v;
 }
 
+/* floor(a / b) and ceil(a / b), b != 0, on magnitudes (depth_exact.comp: the same) */
+static int64_t floor_div(int64_t a, int64_t b)
+{
+    int neg = (a < 0) != (b < 0);
+    uint64_t ua = a < 0 ? (uint64_t)0 - (uint64_t)a : (uint64_t)a;
+    uint64_t ub = b < 0 ? (uint64_t)0 - (uint64_t)b : (uint64_t)b;
+    uint64_t q = ua / ub, r = ua % ub;
+    if (neg)
+        return -(int64_t)(q + (r != 0));
+    return (int64_t)q;
+}
+
+static int64_t ceil_div(int64_t a, int64_t b)
+{
+    return -floor_div(-a, b);
+}
+
+#define TAU_LIMIT ((int64_t)1 << 60)
+
+/* Narrow [lo, hi] to the τ with |u + c τ / 2^30| <= h; 0 when empty. */
+static int slab_fixed(int64_t u, int64_t c, int64_t h, int64_t *lo, int64_t *hi)
+{
+    if (c == 0)
+        return u >= -h && u <= h;
+    int64_t a = (-h - u) * ((int64_t)1 << 30), b = (h - u) * ((int64_t)1 << 30);
+    int64_t t0 = c > 0 ? ceil_div(a, c) : ceil_div(b, c);
+    int64_t t1 = c > 0 ? floor_div(b, c) : floor_div(a, c);
+    if (t0 > *lo)
+        *lo = t0;
+    if (t1 < *hi)
+        *hi = t1;
+    return *lo <= *hi;
+}
+
+/* The lowest τ of the sphere of radius r at horizontal offset (dx, dy). */
+static int sphere_fixed(int64_t dx, int64_t dy, int64_t r, int64_t *tau)
+{
+    if (dx < -r || dx > r || dy < -r || dy > r)
+        return 0;
+    int64_t s = r * r - dx * dx; /* >= 0, < 2^62 */
+    if (s < dy * dy)
+        return 0;
+    s -= dy * dy;
+    *tau = -(int64_t)collider_isqrt64((uint64_t)s);
+    return 1;
+}
+
+/* The disc x² + z² <= r² of the local xz plane, crossed by u + c τ / 2^30. */
+static int disc_fixed(int64_t u0, int64_t u2, int64_t c0, int64_t c2, int64_t r, int64_t *lo,
+                      int64_t *hi)
+{
+    int64_t a = (c0 * c0 + c2 * c2) >> 30; /* |c_xz|², Q30 */
+    if (a == 0)                            /* along the axis: inside the disc or not */
+        return u0 * u0 + u2 * u2 <= r * r;
+    int64_t cn = (int64_t)collider_isqrt64((uint64_t)a << 30); /* |c_xz|, Q30 */
+    int64_t dot = u0 * c0 + u2 * c2, cross = u0 * c2 - u2 * c0;
+    int64_t t0 = floor_div(-dot, a); /* closest approach */
+    int64_t dperp = floor_div(cross < 0 ? -cross : cross, cn);
+    if (dperp > r)
+        return 0;
+    int64_t chord = (int64_t)collider_isqrt64((uint64_t)(r * r - dperp * dperp));
+    int64_t half_tau = floor_div(chord * ((int64_t)1 << 30), cn);
+    if (t0 - half_tau > *lo)
+        *lo = t0 - half_tau;
+    if (t0 + half_tau < *hi)
+        *hi = t0 + half_tau;
+    return *lo <= *hi;
+}
+
 int collider_fixed_supported(const collider_geometry *g)
 {
-    return g->shape == COLLIDER_SPHERE;
+    return g->shape != COLLIDER_MESH;
+}
+
+static double fixed_reach(const collider_geometry *g)
+{
+    switch (g->shape) {
+    case COLLIDER_SPHERE:
+        return g->radius;
+    case COLLIDER_CAPSULE:
+        return g->half_length + g->radius;
+    case COLLIDER_CYLINDER:
+        return sqrt(g->half_length * g->half_length + g->radius * g->radius);
+    case COLLIDER_BOX:
+        return sqrt(g->half_extents.x * g->half_extents.x + g->half_extents.y * g->half_extents.y +
+                    g->half_extents.z * g->half_extents.z);
+    default:
+        return 0.0;
+    }
 }
 
 int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
@@ -80,7 +174,7 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
     vec3d lo, hi;
     collider_bounds(g, pose, &lo, &hi);
     /* the cells whose centres may be inside, one cell wider each way: the
-     * integer test below decides, the span only has to hold it */
+     * integer test decides, the span only has to hold it */
     double a = ceil(lo.x / cell_size_m - 0.5) - 1, b = floor(hi.x / cell_size_m - 0.5) + 1;
     double c = ceil(lo.y / cell_size_m - 0.5) - 1, d = floor(hi.y / cell_size_m - 0.5) + 1;
     double wx0 = window.x, wx1 = (double)window.x + window.w - 1;
@@ -89,10 +183,12 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
         return 0;
     int x0 = (int)(a < wx0 ? wx0 : a), x1 = (int)(b > wx1 ? wx1 : b);
     int y0 = (int)(c < wy0 ? wy0 : c), y1 = (int)(d > wy1 ? wy1 : d);
-    /* S: as fine as 1/65536 unit while r stays under 2^31 fixed units */
-    double r_units = g->radius * (double)units_per_m;
+    /* S: as fine as 1/65536 unit while every offset the rule meets (the
+     * shape's reach and two cells) stays under 2^29 fixed units, so every
+     * product and square below fits in int64 */
+    double extent = (fixed_reach(g) + 2.0 * cell_size_m) * (double)units_per_m;
     int s = 16;
-    while (s > 0 && r_units * ldexp(1.0, s) >= ldexp(1.0, 31))
+    while (s > 0 && extent * ldexp(1.0, s) >= ldexp(1.0, 29))
         s--;
     for (int i = 0; i < COLLIDER_FIXED_WORDS; i++)
         out->v[i] = 0;
@@ -107,6 +203,23 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
     out->v[CF_STEP] = to_fixed(cell_size_m, units_per_m, s);
     out->v[CF_CZ] = to_fixed(pose.position.z, units_per_m, s);
     out->v[CF_R] = to_fixed(g->radius, units_per_m, s);
+    out->v[CF_H0] = to_fixed(g->shape == COLLIDER_BOX ? g->half_extents.x : 0.0, units_per_m, s);
+    out->v[CF_H1] =
+        to_fixed(g->shape == COLLIDER_BOX ? g->half_extents.y : g->half_length, units_per_m, s);
+    out->v[CF_H2] = to_fixed(g->shape == COLLIDER_BOX ? g->half_extents.z : 0.0, units_per_m, s);
+    /* Rᵀ in Q30, row j = local axis j in world coordinates */
+    quatd q = quat_normalize(pose.orientation);
+    vec3d axes[3] = {quat_rotate(q, (vec3d){1, 0, 0}), quat_rotate(q, (vec3d){0, 1, 0}),
+                     quat_rotate(q, (vec3d){0, 0, 1})};
+    for (int j = 0; j < 3; j++) {
+        out->v[CF_ROT + 3 * j + 0] = (int64_t)nearbyint(axes[j].x * 1073741824.0);
+        out->v[CF_ROT + 3 * j + 1] = (int64_t)nearbyint(axes[j].y * 1073741824.0);
+        out->v[CF_ROT + 3 * j + 2] = (int64_t)nearbyint(axes[j].z * 1073741824.0);
+    }
+    /* a capsule's end centres, ± half_length along local y, rotated here */
+    out->v[CF_END + 0] = to_fixed(axes[1].x * g->half_length, units_per_m, s);
+    out->v[CF_END + 1] = to_fixed(axes[1].y * g->half_length, units_per_m, s);
+    out->v[CF_END + 2] = to_fixed(axes[1].z * g->half_length, units_per_m, s);
     return 1;
 }
 
@@ -115,14 +228,44 @@ int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t
     const int64_t *v = f->v;
     int64_t r = v[CF_R];
     int64_t dx = v[CF_CX0] + lx * v[CF_STEP], dy = v[CF_CY0] + ly * v[CF_STEP];
-    if (dx < -r || dx > r || dy < -r || dy > r)
+    int64_t tau = 0;
+    int hit = 0;
+    if (v[CF_SHAPE] == COLLIDER_SPHERE) {
+        hit = sphere_fixed(dx, dy, r, &tau);
+    } else {
+        int64_t u[3], cz[3];
+        for (int j = 0; j < 3; j++) {
+            const int64_t *m = v + CF_ROT + 3 * j;
+            u[j] = floor_div(m[0] * dx + m[1] * dy, (int64_t)1 << 30);
+            cz[j] = m[2];
+        }
+        int64_t lo = -TAU_LIMIT, hi = TAU_LIMIT;
+        if (v[CF_SHAPE] == COLLIDER_BOX) {
+            hit = slab_fixed(u[0], cz[0], v[CF_H0], &lo, &hi) &&
+                  slab_fixed(u[1], cz[1], v[CF_H1], &lo, &hi) &&
+                  slab_fixed(u[2], cz[2], v[CF_H2], &lo, &hi);
+        } else { /* cylinder, and the capsule's middle */
+            hit = slab_fixed(u[1], cz[1], v[CF_H1], &lo, &hi) &&
+                  disc_fixed(u[0], u[2], cz[0], cz[2], r, &lo, &hi);
+        }
+        tau = lo;
+        if (v[CF_SHAPE] == COLLIDER_CAPSULE) {
+            for (int e = -1; e <= 1; e += 2) {
+                int64_t t;
+                if (sphere_fixed(dx - e * v[CF_END + 0], dy - e * v[CF_END + 1], r, &t)) {
+                    t += e * v[CF_END + 2];
+                    if (!hit || t < tau)
+                        tau = t;
+                    hit = 1;
+                }
+            }
+        }
+    }
+    if (!hit)
         return 0;
-    int64_t s = r * r - dx * dx; /* >= 0, < 2^62 */
-    if (s < dy * dy)
-        return 0;
-    s -= dy * dy;
-    int64_t z = v[CF_CZ] - (int64_t)collider_isqrt64((uint64_t)s);
-    int64_t u = floor_shift(z, v[CF_SHIFT]);
+    if (tau < -TAU_LIMIT)
+        tau = -TAU_LIMIT;
+    int64_t u = floor_shift(v[CF_CZ] + tau, v[CF_SHIFT]);
     if (u < (int64_t)WORLD_HEIGHT_MIN - 1)
         u = (int64_t)WORLD_HEIGHT_MIN - 1;
     if (u > (int64_t)WORLD_HEIGHT_MAX + 1)
