@@ -24,6 +24,7 @@ uniform int u_step; /* first instance of this dispatch */
 #define SHAPE_BOX 1
 #define SHAPE_CAPSULE 2
 #define SHAPE_CYLINDER 3
+#define SHAPE_MESH 4
 #define CF_SHAPE 0
 #define CF_WINDOW 1
 #define CF_X0 2
@@ -131,6 +132,30 @@ bool disc_fixed(int64_t u0, int64_t u2, int64_t c0, int64_t c2, int64_t r, inout
     return lo <= hi;
 }
 
+bool triangle_fixed(int t, int64_t px, int64_t py, out int64_t z)
+{
+    z = 0L;
+    int64_t x0 = inst[t], y0 = inst[t + 1], z0 = inst[t + 2];
+    int64_t x1 = inst[t + 3], y1 = inst[t + 4], z1 = inst[t + 5];
+    int64_t x2 = inst[t + 6], y2 = inst[t + 7], z2 = inst[t + 8];
+    int64_t e0 = (x2 - x1) * (py - y1) - (y2 - y1) * (px - x1);
+    int64_t e1 = (x0 - x2) * (py - y2) - (y0 - y2) * (px - x2);
+    int64_t e2 = (x1 - x0) * (py - y0) - (y1 - y0) * (px - x0);
+    int64_t area = e0 + e1 + e2;
+    if (area == 0L)
+        return false;
+    if (area < 0L) {
+        e0 = -e0;
+        e1 = -e1;
+        e2 = -e2;
+        area = -area;
+    }
+    if (e0 < 0L || e1 < 0L || e2 < 0L)
+        return false;
+    z = z0 + floor_div(e1 * (z1 - z0) + e2 * (z2 - z0), area);
+    return true;
+}
+
 /* collider_fixed_cell */
 bool fixed_cell(int base, int64_t lx, int64_t ly, out int value)
 {
@@ -143,6 +168,8 @@ bool fixed_cell(int base, int64_t lx, int64_t ly, out int value)
     bool hit = false;
     if (shape == SHAPE_SPHERE) {
         hit = sphere_fixed(dx, dy, r, tau);
+    } else if (shape == SHAPE_MESH) {
+        hit = triangle_fixed(base + CF_ROT, dx, dy, tau);
     } else {
         int64_t u[3], cz[3];
         for (int j = 0; j < 3; j++) {

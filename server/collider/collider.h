@@ -144,6 +144,13 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
                            double cell_size_m, int32_t units_per_m, collider_fixed *out);
 /* The rule at cell (x0 + lx, y0 + ly): 1 and *bottom set where the shape covers it. */
 int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom);
+/* A mesh at a pose: one instance per triangle that meets the window,
+ * appended to *out (grown with array_grow). Returns how many, or -1. The
+ * triangle's vertices sit at CF_ROT (x, y relative to the first cell
+ * centre, z absolute). */
+int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
+                                double cell_size_m, int32_t units_per_m, collider_fixed **out,
+                                int64_t *count, int64_t *capacity);
 /* bottom (window_w wide) lowered to the rule over the instance's cells. */
 void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w);
 uint64_t collider_isqrt64(uint64_t v);

@@ -30,12 +30,17 @@
  *     the lowest τ in the intersection is the entry.
  *
  * The divisions round on magnitudes (floor_div, ceil_div), never on the
- * sign rules of a language. Meshes still take the double path on the CPU
- * and the raster on GL: see docs/core.md for what is exact.
+ * sign rules of a language.
+ *
+ *   mesh: an instance per triangle; vertices rotated in double and rounded
+ *     once per vertex (so shared edges agree), cell centres on the exact
+ *     grid X step + step / 2; integer edge functions, inclusive; the plane's
+ *     height floor(z0 + (E1 (z1 - z0) + E2 (z2 - z0)) / A).
  */
 #include "collider/collider.h"
 
 #include <math.h>
+#include <stdlib.h>
 
 uint64_t collider_isqrt64(uint64_t v)
 {
@@ -144,9 +149,135 @@ static int disc_fixed(int64_t u0, int64_t u2, int64_t c0, int64_t c2, int64_t r,
     return *lo <= *hi;
 }
 
+/*
+ * A triangle (x, y relative to the instance's first cell centre, z
+ * absolute; 9 words) at the cell offset (px, py): integer edge functions,
+ * inclusive on every edge (a minimum does not mind a cell counted by two
+ * triangles), and the plane's height floor(z0 + (E1 dz1 + E2 dz2) / A).
+ * A vertical triangle (A = 0) covers nothing: its neighbours give the bottom.
+ */
+static int triangle_fixed(const int64_t *t, int64_t px, int64_t py, int64_t *z)
+{
+    int64_t x0 = t[0], y0 = t[1], z0 = t[2], x1 = t[3], y1 = t[4], z1 = t[5];
+    int64_t x2 = t[6], y2 = t[7], z2 = t[8];
+    int64_t e0 = (x2 - x1) * (py - y1) - (y2 - y1) * (px - x1);
+    int64_t e1 = (x0 - x2) * (py - y2) - (y0 - y2) * (px - x2);
+    int64_t e2 = (x1 - x0) * (py - y0) - (y1 - y0) * (px - x0);
+    int64_t area = e0 + e1 + e2;
+    if (area == 0)
+        return 0;
+    if (area < 0) {
+        e0 = -e0;
+        e1 = -e1;
+        e2 = -e2;
+        area = -area;
+    }
+    if (e0 < 0 || e1 < 0 || e2 < 0)
+        return 0;
+    *z = z0 + floor_div(e1 * (z1 - z0) + e2 * (z2 - z0), area);
+    return 1;
+}
+
 int collider_fixed_supported(const collider_geometry *g)
 {
-    return g->shape != COLLIDER_MESH;
+    return g->shape != COLLIDER_MESH || g->mesh != NULL;
+}
+
+/* The cells whose centres may lie in [lo, hi] (metres), one cell wider each
+ * way, clipped to the window; 0 when none. */
+static int fixed_span(double lo_x, double hi_x, double lo_y, double hi_y, double cell,
+                      world_rect window, int *x0, int *x1, int *y0, int *y1)
+{
+    double a = ceil(lo_x / cell - 0.5) - 1, b = floor(hi_x / cell - 0.5) + 1;
+    double c = ceil(lo_y / cell - 0.5) - 1, d = floor(hi_y / cell - 0.5) + 1;
+    double wx0 = window.x, wx1 = (double)window.x + window.w - 1;
+    double wy0 = window.y, wy1 = (double)window.y + window.h - 1;
+    if (!(a <= b && c <= d) || b < wx0 || a > wx1 || d < wy0 || c > wy1)
+        return 0;
+    *x0 = (int)(a < wx0 ? wx0 : a);
+    *x1 = (int)(b > wx1 ? wx1 : b);
+    *y0 = (int)(c < wy0 ? wy0 : c);
+    *y1 = (int)(d > wy1 ? wy1 : d);
+    return 1;
+}
+
+int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
+                                double cell_size_m, int32_t units_per_m, collider_fixed **out,
+                                int64_t *count, int64_t *capacity)
+{
+    const collider_mesh *m = g->mesh;
+    if (g->shape != COLLIDER_MESH || !m || window.w <= 0 || window.h <= 0 || !(cell_size_m > 0.0) ||
+        m->vertex_count <= 0)
+        return 0;
+    vec3d *wv = malloc((size_t)m->vertex_count * sizeof *wv);
+    int64_t *fv = malloc((size_t)m->vertex_count * 3 * sizeof *fv);
+    if (!wv || !fv) {
+        free(wv);
+        free(fv);
+        return -1;
+    }
+    quatd q = quat_normalize(pose.orientation);
+    for (int i = 0; i < m->vertex_count; i++) {
+        const float *s = m->vertices + 3 * (size_t)i;
+        vec3d r = quat_rotate(q, (vec3d){s[0], s[1], s[2]});
+        wv[i] = (vec3d){r.x + pose.position.x, r.y + pose.position.y, r.z + pose.position.z};
+    }
+    /* S from the largest triangle (plus two cells): every edge-function
+     * product and plane term then fits in int64 */
+    double ext = 0.0;
+    for (int k = 0; k < m->triangle_count; k++) {
+        const uint32_t *ix = m->indices + 3 * (size_t)k;
+        for (int j = 0; j < 3; j++) {
+            vec3d a = wv[ix[j]], b = wv[ix[(j + 1) % 3]];
+            ext = fmax(ext, fmax(fabs(a.x - b.x), fmax(fabs(a.y - b.y), fabs(a.z - b.z))));
+        }
+    }
+    ext = (ext + 2.0 * cell_size_m) * (double)units_per_m;
+    int s = 16;
+    while (s > 0 && ext * ldexp(1.0, s) >= ldexp(1.0, 19))
+        s--;
+    for (int i = 0; i < m->vertex_count; i++) { /* once per vertex: shared edges agree */
+        fv[3 * i + 0] = to_fixed(wv[i].x, units_per_m, s);
+        fv[3 * i + 1] = to_fixed(wv[i].y, units_per_m, s);
+        fv[3 * i + 2] = to_fixed(wv[i].z, units_per_m, s);
+    }
+    int64_t step = to_fixed(cell_size_m, units_per_m, s);
+    int added = 0;
+    for (int k = 0; k < m->triangle_count; k++) {
+        const uint32_t *ix = m->indices + 3 * (size_t)k;
+        vec3d a = wv[ix[0]], b = wv[ix[1]], c = wv[ix[2]];
+        int x0, x1, y0, y1;
+        if (!fixed_span(fmin(a.x, fmin(b.x, c.x)), fmax(a.x, fmax(b.x, c.x)),
+                        fmin(a.y, fmin(b.y, c.y)), fmax(a.y, fmax(b.y, c.y)), cell_size_m, window,
+                        &x0, &x1, &y0, &y1))
+            continue;
+        if (array_grow((void **)out, capacity, *count + 1, sizeof **out) != 0) {
+            free(wv);
+            free(fv);
+            return -1;
+        }
+        collider_fixed *f = &(*out)[(*count)++];
+        for (int i = 0; i < COLLIDER_FIXED_WORDS; i++)
+            f->v[i] = 0;
+        f->v[CF_SHAPE] = COLLIDER_MESH;
+        f->v[CF_X0] = x0 - window.x;
+        f->v[CF_Y0] = y0 - window.y;
+        f->v[CF_W] = x1 - x0 + 1;
+        f->v[CF_H] = y1 - y0 + 1;
+        f->v[CF_SHIFT] = s;
+        f->v[CF_STEP] = step;
+        /* cell X's centre is X step + step / 2 on this grid, exactly */
+        int64_t ox = (int64_t)x0 * step + step / 2, oy = (int64_t)y0 * step + step / 2;
+        for (int j = 0; j < 3; j++) {
+            f->v[CF_ROT + 3 * j + 0] = fv[3 * (size_t)ix[j] + 0] - ox;
+            f->v[CF_ROT + 3 * j + 1] = fv[3 * (size_t)ix[j] + 1] - oy;
+            f->v[CF_ROT + 3 * j + 2] = fv[3 * (size_t)ix[j] + 2];
+        }
+        added++;
+    }
+    free(wv);
+    free(fv);
+    return added;
 }
 
 static double fixed_reach(const collider_geometry *g)
@@ -169,8 +300,8 @@ static double fixed_reach(const collider_geometry *g)
 int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
                            double cell_size_m, int32_t units_per_m, collider_fixed *out)
 {
-    if (!collider_fixed_supported(g) || window.w <= 0 || window.h <= 0 || !(cell_size_m > 0.0))
-        return 0;
+    if (g->shape == COLLIDER_MESH || window.w <= 0 || window.h <= 0 || !(cell_size_m > 0.0))
+        return 0; /* meshes: collider_fixed_mesh_prepare, an instance per triangle */
     vec3d lo, hi;
     collider_bounds(g, pose, &lo, &hi);
     /* the cells whose centres may be inside, one cell wider each way: the
@@ -232,6 +363,8 @@ int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t
     int hit = 0;
     if (v[CF_SHAPE] == COLLIDER_SPHERE) {
         hit = sphere_fixed(dx, dy, r, &tau);
+    } else if (v[CF_SHAPE] == COLLIDER_MESH) {
+        hit = triangle_fixed(v + CF_ROT, dx, dy, &tau);
     } else {
         int64_t u[3], cz[3];
         for (int j = 0; j < 3; j++) {

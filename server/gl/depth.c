@@ -243,6 +243,22 @@ static int depth_exact(gl_backend *b, const sim_window_job *jobs, int count, err
                 continue;
             int steps = sim_collider_sweep_steps(col, jobs[i].cell_size_m);
             for (int k = 1; k <= steps; k++) {
+                if (col->geometry->shape == COLLIDER_MESH) {
+                    int64_t first = n;
+                    if (collider_fixed_mesh_prepare(
+                            col->geometry, sim_collider_sweep_pose(col, k, steps), jobs[i].rect,
+                            jobs[i].cell_size_m, jobs[i].units_per_m, &b->exact_host, &n,
+                            &b->exact_host_capacity) < 0) {
+                        error_set(err, "gl backend: out of memory for depth instances");
+                        return -1;
+                    }
+                    for (int64_t t = first; t < n; t++) {
+                        b->exact_host[t].v[CF_WINDOW] = i;
+                        if (b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H] > max_cells)
+                            max_cells = b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H];
+                    }
+                    continue;
+                }
                 if (array_grow((void **)&b->exact_host, &b->exact_host_capacity, n + 1,
                                sizeof *b->exact_host) != 0) {
                     error_set(err, "gl backend: out of memory for depth instances");
