@@ -5,11 +5,10 @@
  *
  * Depth "from below" (thesis Fig. 4.1) is, for every cell of a window, the
  * lowest point of any collider on the vertical line through the cell centre,
- * in height units. The GL backend rasterises the shapes' triangles with an
- * orthographic camera under the window; the CPU twin intersects the vertical
- * line with each primitive analytically and rasterises mesh triangles. Both
- * write the same int32 "bottom" array that the integer stages consume, so a
- * test can feed one backend's depth to the other.
+ * in height units. Both backends compute it by one fixed-point specification
+ * (depth_fixed.c, GLSL twin shaders/depth_exact.comp) on integers prepared
+ * once on the CPU, so their int32 "bottom" arrays are identical; a test can
+ * still feed one backend's depth to the other.
  *
  * Local frames: a cylinder's and a capsule's axis is the local Y axis (so a
  * wheel with the identity orientation rolls along X); a box is centred on its

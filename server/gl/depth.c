@@ -5,8 +5,10 @@
  * GL_DEPTH_COMPONENT32F atlas by shelves (tallest first); each collider is
  * drawn once per window it meets with an orthographic camera under the
  * window, and depth_to_bottom.comp turns the atlas into the int32 bottoms
- * the integer stages read — the same bottoms the CPU twin's
- * sim_window_depth computes analytically. A batch too large for the largest
+ * the integer stages read. Every shape is now computed exactly instead
+ * (depth_exact, collider/depth_fixed.c's GLSL twin), after the raster: the
+ * same bottoms as the CPU twin's sim_window_depth, bit for bit. The raster
+ * path remains for shapes collider_fixed_supported refuses (none today). A batch too large for the largest
  * texture is rasterised in rounds, each converted before the next clears
  * the atlas.
  */
