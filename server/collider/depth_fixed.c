@@ -44,19 +44,14 @@
 
 uint64_t collider_isqrt64(uint64_t v)
 {
-    /* digit by digit, two bits a step: the same loop as depth_exact.comp */
-    uint64_t r = 0, bit = (uint64_t)1 << 62;
-    while (bit > v)
-        bit >>= 2;
-    while (bit != 0) {
-        if (v >= r + bit) {
-            v -= r + bit;
-            r = (r >> 1) + bit;
-        } else {
-            r >>= 1;
-        }
-        bit >>= 2;
-    }
+    /* floor(sqrt(v)) is one integer whatever computes it: here a double
+     * estimate corrected both ways (every v here is below 2^62, so the
+     * squares cannot wrap); depth_exact.comp takes it digit by digit */
+    uint64_t r = (uint64_t)sqrt((double)v);
+    while (r > 0 && r * r > v)
+        r--;
+    while ((r + 1) * (r + 1) <= v)
+        r++;
     return r;
 }
 

@@ -91,8 +91,44 @@ static void test_swept_depth(void)
     free(swept);
 }
 
+/* collider_isqrt64 against the digit-by-digit loop depth_exact.comp runs */
+static uint64_t isqrt_digits(uint64_t v)
+{
+    uint64_t r = 0, bit = (uint64_t)1 << 62;
+    while (bit > v)
+        bit >>= 2;
+    while (bit != 0) {
+        if (v >= r + bit) {
+            v -= r + bit;
+            r = (r >> 1) + bit;
+        } else {
+            r >>= 1;
+        }
+        bit >>= 2;
+    }
+    return r;
+}
+
+static void test_isqrt(void)
+{
+    int bad = 0;
+    uint64_t x = 88172645463325252ull;
+    for (int i = 0; i < 200000; i++) {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        uint64_t v = x >> (2 + i % 62); /* every magnitude below 2^62 */
+        bad += collider_isqrt64(v) != isqrt_digits(v);
+    }
+    for (uint64_t k = 1; k < 3037000499ull; k = k * 3 + 1) /* squares and their neighbours */
+        for (int d = -1; d <= 1; d++)
+            bad += collider_isqrt64(k * k + d) != isqrt_digits(k * k + d);
+    CHECK(bad == 0, "isqrt64: the C estimate equals the GLSL digit loop (%d differ)", bad);
+}
+
 int main(void)
 {
+    test_isqrt();
     test_steps();
     test_swept_depth();
     return check_report();
