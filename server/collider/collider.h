@@ -5,11 +5,10 @@
  *
  * Depth "from below" (thesis Fig. 4.1) is, for every cell of a window, the
  * lowest point of any collider on the vertical line through the cell centre,
- * in height units. The GL backend rasterises the shapes' triangles with an
- * orthographic camera under the window; the CPU twin intersects the vertical
- * line with each primitive analytically and rasterises mesh triangles. Both
- * write the same int32 "bottom" array that the integer stages consume, so a
- * test can feed one backend's depth to the other.
+ * in height units. Both backends compute it by one fixed-point specification
+ * (depth_fixed.c, GLSL twin shaders/depth_exact.comp) on integers prepared
+ * once on the CPU, so their int32 "bottom" arrays are identical; a test can
+ * still feed one backend's depth to the other.
  *
  * Local frames: a cylinder's and a capsule's axis is the local Y axis (so a
  * wheel with the identity orientation rolls along X); a box is centred on its
@@ -86,6 +85,74 @@ void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, 
  */
 void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_rect window,
                         double cell_size_m, int32_t units_per_m, int32_t *bottom);
+
+/*
+ * The swept collider of a tick (sweep.c): the depth a tick sees is the
+ * minimum over the sub-step poses k = 1..steps of collider_sweep_pose(from,
+ * to, k, steps) — position lerped, orientation slerped, the last one `to`
+ * exactly. steps = ceil(travel / (cell / 2)), where travel = |Δposition| +
+ * reach × rotation angle bounds how far any point of the collider moves, so
+ * no point moves more than half a cell between sub-steps and no cell is
+ * skipped; at least 1 (a collider at rest or moving at most half a cell costs
+ * one pose), at most COLLIDER_SWEEP_STEPS_MAX: beyond that (512 cells per
+ * tick) the sub-steps are spaced travel / COLLIDER_SWEEP_STEPS_MAX apart and
+ * a small collider may leave gaps. Both backends use these poses.
+ */
+#define COLLIDER_SWEEP_STEPS_MAX 1024
+int collider_sweep_steps(const collider_geometry *g, collider_pose from, collider_pose to,
+                         double cell_size_m);
+collider_pose collider_sweep_pose(collider_pose from, collider_pose to, int k, int steps);
+/* World bounds of every pose k = 0..steps (the previous pose included). */
+void collider_sweep_bounds(const collider_geometry *g, collider_pose from, collider_pose to,
+                           int steps, vec3d *lo, vec3d *hi);
+
+/*
+ * The depth stage's fixed-point specification (depth_fixed.c, GLSL twin
+ * shaders/depth_exact.comp): a shape at one pose over one window becomes an
+ * instance of int64 words, prepared once on the CPU; both backends evaluate
+ * the same integer rule on it, so their bottoms are identical. Shapes for
+ * which collider_fixed_supported is 0 are not prepared (return 0).
+ * collider_depth_cpu uses it for the supported shapes.
+ */
+#define COLLIDER_FIXED_WORDS 28 /* CF_END + 3, rounded up */
+enum {
+    CF_SHAPE,  /* collider_shape */
+    CF_WINDOW, /* the GL batch's window index (set by the GL backend) */
+    CF_X0,     /* first cell, window-local */
+    CF_Y0,
+    CF_W, /* cells */
+    CF_H,
+    CF_SHIFT, /* S: fixed unit = 1/2^S height unit */
+    CF_CX0,   /* centre of cell (x0, y0) minus the shape's position, fixed units */
+    CF_CY0,
+    CF_STEP, /* cell pitch, fixed units */
+    CF_CZ,   /* the shape's position z, fixed units */
+    CF_R,    /* radius, fixed units */
+    CF_H0,   /* box half extents; CF_H1: a cylinder's or capsule's half length */
+    CF_H1,
+    CF_H2,
+    CF_ROT,              /* 9 words: local axis j in world coordinates, Q30, at CF_ROT + 3j */
+    CF_END = CF_ROT + 9, /* 3 words: a capsule's end centre offset (+ half_length along y) */
+};
+typedef struct collider_fixed {
+    int64_t v[COLLIDER_FIXED_WORDS];
+} collider_fixed;
+int collider_fixed_supported(const collider_geometry *g);
+/* 1: out holds the instance; 0: the shape misses the window or is not supported */
+int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
+                           double cell_size_m, int32_t units_per_m, collider_fixed *out);
+/* The rule at cell (x0 + lx, y0 + ly): 1 and *bottom set where the shape covers it. */
+int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom);
+/* A mesh at a pose: one instance per triangle that meets the window,
+ * appended to *out (grown with array_grow). Returns how many, or -1. The
+ * triangle's vertices sit at CF_ROT (x, y relative to the first cell
+ * centre, z absolute). */
+int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
+                                double cell_size_m, int32_t units_per_m, collider_fixed **out,
+                                int64_t *count, int64_t *capacity);
+/* bottom (window_w wide) lowered to the rule over the instance's cells. */
+void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w);
+uint64_t collider_isqrt64(uint64_t v);
 
 /*
  * Triangles in the local frame for the GL depth raster: primitives are

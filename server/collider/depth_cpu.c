@@ -14,6 +14,7 @@
 #include "collider/collider.h"
 
 #include <math.h>
+#include <stdlib.h>
 
 /* An entry point z (metres) → bottom units, with the clamp the stages expect. */
 static int32_t bottom_units(double z, int32_t units_per_m)
@@ -163,6 +164,22 @@ void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_re
 {
     if (window.w <= 0 || window.h <= 0 || !(cell_size_m > 0.0))
         return;
+    collider_fixed f;
+    if (g->shape == COLLIDER_MESH && g->mesh) { /* the fixed-point specification, as GL */
+        collider_fixed *tri = NULL;
+        int64_t n = 0, cap = 0;
+        if (collider_fixed_mesh_prepare(g, pose, window, cell_size_m, units_per_m, &tri, &n,
+                                        &cap) >= 0)
+            for (int64_t i = 0; i < n; i++)
+                collider_fixed_apply(&tri[i], bottom, window.w);
+        free(tri);
+        return;
+    }
+    if (collider_fixed_supported(g)) { /* the fixed-point specification, as GL computes it */
+        if (collider_fixed_prepare(g, pose, window, cell_size_m, units_per_m, &f))
+            collider_fixed_apply(&f, bottom, window.w);
+        return;
+    }
     quatd q = quat_normalize(pose.orientation);
     if (g->shape == COLLIDER_MESH) {
         if (g->mesh)

@@ -67,6 +67,7 @@ static const char *const compute_names[PROG_COMPUTE_COUNT] = {
     "shaders/displace_iterative_finish.comp",
     "shaders/even_slopes.comp",
     "shaders/depth_to_bottom.comp",
+    "shaders/depth_exact.comp",
 };
 
 static const char *const uniform_names[U_COUNT] = {

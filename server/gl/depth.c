@@ -5,8 +5,10 @@
  * GL_DEPTH_COMPONENT32F atlas by shelves (tallest first); each collider is
  * drawn once per window it meets with an orthographic camera under the
  * window, and depth_to_bottom.comp turns the atlas into the int32 bottoms
- * the integer stages read — the same bottoms the CPU twin's
- * sim_window_depth computes analytically. A batch too large for the largest
+ * the integer stages read. Every shape is now computed exactly instead
+ * (depth_exact, collider/depth_fixed.c's GLSL twin), after the raster: the
+ * same bottoms as the CPU twin's sim_window_depth, bit for bit. The raster
+ * path remains for shapes collider_fixed_supported refuses (none today). A batch too large for the largest
  * texture is rasterised in rounds, each converted before the next clears
  * the atlas.
  */
@@ -224,6 +226,87 @@ int gl_depth_pack_atlas(gl_backend *b, const sim_window_job *jobs, int count, in
     return rounds;
 }
 
+/*
+ * The fixed-point shapes (collider/depth_fixed.c): one instance per shape,
+ * sub-step pose and rasterised window, prepared on the CPU exactly as the
+ * CPU twin prepares them, uploaded, and lowered into the bottoms by
+ * depth_exact.comp (one workgroup row per instance) after the raster's
+ * bottoms are written.
+ */
+static int depth_exact(gl_backend *b, const sim_window_job *jobs, int count, error_text *err)
+{
+    int64_t n = 0, max_cells = 1;
+    for (int i = 0; i < count; i++) {
+        if (b->entries[i].raster_round == 0)
+            continue; /* its bottom was uploaded */
+        for (int c = 0; c < jobs[i].collider_count; c++) {
+            const sim_collider *col = &jobs[i].colliders[c];
+            if (!collider_fixed_supported(col->geometry))
+                continue;
+            int steps = sim_collider_sweep_steps(col, jobs[i].cell_size_m);
+            for (int k = 1; k <= steps; k++) {
+                if (col->geometry->shape == COLLIDER_MESH) {
+                    int64_t first = n;
+                    if (collider_fixed_mesh_prepare(
+                            col->geometry, sim_collider_sweep_pose(col, k, steps), jobs[i].rect,
+                            jobs[i].cell_size_m, jobs[i].units_per_m, &b->exact_host, &n,
+                            &b->exact_host_capacity) < 0) {
+                        error_set(err, "gl backend: out of memory for depth instances");
+                        return -1;
+                    }
+                    for (int64_t t = first; t < n; t++) {
+                        b->exact_host[t].v[CF_WINDOW] = i;
+                        if (b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H] > max_cells)
+                            max_cells = b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H];
+                    }
+                    continue;
+                }
+                if (array_grow((void **)&b->exact_host, &b->exact_host_capacity, n + 1,
+                               sizeof *b->exact_host) != 0) {
+                    error_set(err, "gl backend: out of memory for depth instances");
+                    return -1;
+                }
+                collider_fixed *f = &b->exact_host[n];
+                if (!collider_fixed_prepare(col->geometry, sim_collider_sweep_pose(col, k, steps),
+                                            jobs[i].rect, jobs[i].cell_size_m, jobs[i].units_per_m,
+                                            f))
+                    continue;
+                f->v[CF_WINDOW] = i;
+                if (f->v[CF_W] * f->v[CF_H] > max_cells)
+                    max_cells = f->v[CF_W] * f->v[CF_H];
+                n++;
+            }
+        }
+    }
+    if (n == 0)
+        return 0;
+    int64_t bytes = n * (int64_t)sizeof *b->exact_host;
+    if (!b->exact_buffer)
+        glGenBuffers(1, &b->exact_buffer);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->exact_buffer);
+    if (bytes > b->exact_buffer_bytes) {
+        glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)bytes, NULL, GL_DYNAMIC_DRAW);
+        b->exact_buffer_bytes = bytes;
+    }
+    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)bytes, b->exact_host);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    glUseProgram(b->programs[PROG_DEPTH_EXACT]);
+    glActiveTexture(GL_TEXTURE0);
+    glBindTexture(GL_TEXTURE_BUFFER, b->table_texture);
+    gl_bind(b, 2, BUF_BOTTOM);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, b->exact_buffer);
+    int64_t gx = (max_cells + 63) / 64;
+    if (gx > 64)
+        gx = 64; /* the shader strides over the rest */
+    for (int64_t first = 0; first < n; first += 65535) {
+        int64_t rows = n - first < 65535 ? n - first : 65535;
+        glUniform1i(b->uniforms[PROG_DEPTH_EXACT][U_STEP], (GLint)first);
+        glDispatchCompute((GLuint)gx, (GLuint)rows, 1);
+    }
+    gl_barrier();
+    return gl_check("exact depth", err);
+}
+
 int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, int rounds, error_text *err)
 {
     glBindFramebuffer(GL_FRAMEBUFFER, b->fbo);
@@ -251,15 +334,21 @@ int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, int rounds, err
             glScissor(e->slot_x, e->slot_y, e->w, e->h);
             for (int c = 0; c < jobs[i].collider_count; c++) {
                 const sim_collider *col = &jobs[i].colliders[c];
+                if (collider_fixed_supported(col->geometry))
+                    continue; /* computed exactly by depth_exact.comp below */
                 geometry_entry *g = geometry_find(b, col->geometry, err);
                 if (!g)
                     return -1;
-                float mvp[16];
-                window_mvp(&jobs[i], col->pose, mvp);
-                glUniformMatrix4fv(b->uniforms[PROG_RASTER][U_MVP], 1, GL_FALSE, mvp);
                 glBindVertexArray(g->vao);
-                glDrawElements(GL_TRIANGLES, g->index_count, GL_UNSIGNED_INT, NULL);
-                gl_sync.draws++;
+                /* the swept collider: the CPU's sub-step poses, drawn one by one */
+                int steps = sim_collider_sweep_steps(col, jobs[i].cell_size_m);
+                for (int k = 1; k <= steps; k++) {
+                    float mvp[16];
+                    window_mvp(&jobs[i], sim_collider_sweep_pose(col, k, steps), mvp);
+                    glUniformMatrix4fv(b->uniforms[PROG_RASTER][U_MVP], 1, GL_FALSE, mvp);
+                    glDrawElements(GL_TRIANGLES, g->index_count, GL_UNSIGNED_INT, NULL);
+                    gl_sync.draws++;
+                }
             }
         }
         glBindVertexArray(0);
@@ -278,11 +367,20 @@ int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, int rounds, err
     glDisable(GL_DEPTH_CLAMP);
     glDisable(GL_DEPTH_TEST);
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    if (depth_exact(b, jobs, count, err) != 0)
+        return -1;
     return gl_check("depth stage", err);
 }
 
 void gl_depth_delete_geometries(gl_backend *b)
 {
+    if (b->exact_buffer)
+        glDeleteBuffers(1, &b->exact_buffer);
+    b->exact_buffer = 0;
+    b->exact_buffer_bytes = 0;
+    free(b->exact_host);
+    b->exact_host = NULL;
+    b->exact_host_capacity = 0;
     for (int i = 0; i < b->geometry_count; i++) {
         glDeleteVertexArrays(1, &b->geometries[i].vao);
         glDeleteBuffers(1, &b->geometries[i].vbo);

@@ -64,6 +64,7 @@ enum {
     PROG_ITER_FINISH,
     PROG_EVEN_SLOPES,
     PROG_DEPTH_TO_BOTTOM,
+    PROG_DEPTH_EXACT,
     PROG_COMPUTE_COUNT,
     PROG_RASTER = PROG_COMPUTE_COUNT,
     PROG_COUNT
@@ -147,6 +148,11 @@ typedef struct gl_backend {
     geometry_entry *geometries;
     int geometry_count;
     int64_t geometry_capacity;
+    /* fixed-point depth instances (depth_exact.comp), built on the CPU */
+    GLuint exact_buffer;
+    int64_t exact_buffer_bytes;
+    collider_fixed *exact_host;
+    int64_t exact_host_capacity;
 
     /* Per-cell material words (id | compaction << 8), only created and grown
      * when a batch carries materials: uniform scenes never allocate them. */

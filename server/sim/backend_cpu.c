@@ -41,9 +41,13 @@ void sim_window_depth(const sim_window_job *job, int32_t *bottom)
     int64_t n = (int64_t)job->rect.w * job->rect.h;
     for (int64_t i = 0; i < n; i++)
         bottom[i] = COLLIDER_BOTTOM_NONE;
-    for (int c = 0; c < job->collider_count; c++)
-        collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, job->rect,
-                           job->cell_size_m, job->units_per_m, bottom);
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        for (int k = 1; k <= steps; k++) /* the swept collider: min over its sub-step poses */
+            collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
+                               job->cell_size_m, job->units_per_m, bottom);
+    }
 }
 
 /* One window through the stages, in the arena of the thread that runs it. */

@@ -22,7 +22,9 @@ int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *s
     for (int c = 0; c < job->collider_count && count < out_capacity; c++) {
         const sim_collider *col = &job->colliders[c];
         sim_window_job one = *job; /* this collider's own depth */
-        one.colliders = col;
+        sim_collider still = *col; /* a footprint is where it stands now, not its sweep */
+        still.has_previous = 0;
+        one.colliders = &still;
         one.collider_count = 1;
         sim_window_depth(&one, scratch);
         int64_t touched = 0, deepest = 0;

@@ -241,10 +241,18 @@ typedef struct sim_window_job {
     const world *world; /* where the window was gathered from (a backend's tile cache) */
 } sim_window_job;
 
+/* The swept collider of a tick (collider_sweep_*): 1 pose (this one) on the
+ * tick a collider appears; else sub-steps k = 1..steps from previous_pose to
+ * pose. Both backends' depth stages and the plan use these. */
+int sim_collider_sweep_steps(const sim_collider *c, double cell_size_m);
+collider_pose sim_collider_sweep_pose(const sim_collider *c, int k, int steps);
+void sim_collider_sweep_bounds(const sim_collider *c, double cell_size_m, vec3d *lo, vec3d *hi);
+
 /* The CPU depth stage of a job's window (the one "fill with no collider,
  * rasterise each collider" routine): bottom (w*h) becomes
- * COLLIDER_BOTTOM_NONE, lowered by collider_depth_cpu for each of the job's
- * colliders. Only rect, cell_size_m, units_per_m and the colliders are read. */
+ * COLLIDER_BOTTOM_NONE, lowered by collider_depth_cpu for each sub-step pose
+ * of each of the job's colliders (the swept collider). Only rect, cell_size_m, units_per_m and the
+ * colliders are read. */
 void sim_window_depth(const sim_window_job *job, int32_t *bottom);
 
 /* A footprint event of the decals model: where a collider touches the ground. */

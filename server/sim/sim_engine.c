@@ -287,8 +287,8 @@ static int32_t gather_colliders(sim_engine *e, const sim_collider *colliders, in
             continue;
         e->window_colliders[(*ref)++] = colliders[c];
         job->collider_count++;
-        vec3d lo, hi;
-        collider_bounds(colliders[c].geometry, colliders[c].pose, &lo, &hi);
+        vec3d lo, hi; /* the swept collider's: a sub-step may reach lower than this pose */
+        sim_collider_sweep_bounds(&colliders[c], e->world->cell_size_m, &lo, &hi);
         int32_t z = sim_units_clamped(lo.z, e->world->units_per_m);
         if (z < zmin)
             zmin = z;

@@ -2,8 +2,9 @@
  * sim_plan.c: the plan step of the tick (docs/design.md, "One tick") —
  * colliders' footprints become the tick's windows.
  *
- * Each collider's footprint is its bounding box at the last pose and at this
- * one (so a fast collider sweeps the cells in between), plus a margin;
+ * Each collider's footprint is the bounding box of its swept poses, from the
+ * last pose to this one (collider_sweep_bounds: the sub-step poses the depth
+ * stage presses with, so a rotating collider is covered too), plus a margin;
  * colliders entirely above the terrain under them are skipped. Footprints
  * that share a cell are merged until the windows are disjoint — simulating
  * overlapping areas separately is what corrupted the original's volume.
@@ -37,15 +38,7 @@ static world_rect collider_footprint(const world *w, const sim_params *p, const 
 {
     vec3d lo, hi;
     collider_bounds(c->geometry, c->pose, &lo, &hi);
-    if (c->has_previous) {
-        vec3d plo, phi;
-        collider_bounds(c->geometry, c->previous_pose, &plo, &phi);
-        lo.x = fmin(lo.x, plo.x);
-        lo.y = fmin(lo.y, plo.y);
-        lo.z = fmin(lo.z, plo.z);
-        hi.x = fmax(hi.x, phi.x);
-        hi.y = fmax(hi.y, phi.y);
-    }
+    sim_collider_sweep_bounds(c, w->cell_size_m, &lo, &hi);
     int x0 = clamp_to_int(lo.x / w->cell_size_m) - margin;
     int y0 = clamp_to_int(lo.y / w->cell_size_m) - margin;
     int x1 = clamp_to_int(hi.x / w->cell_size_m) + margin;
@@ -58,6 +51,30 @@ static world_rect collider_footprint(const world *w, const sim_params *p, const 
     if ((int64_t)sim_units_clamped(lo.z, w->units_per_m) > (int64_t)hmax + p->obstacle_gap)
         return (world_rect){0, 0, 0, 0}; /* flying above everything it could touch */
     return r;
+}
+
+int sim_collider_sweep_steps(const sim_collider *c, double cell_size_m)
+{
+    if (!c->has_previous)
+        return 1;
+    return collider_sweep_steps(c->geometry, c->previous_pose, c->pose, cell_size_m);
+}
+
+collider_pose sim_collider_sweep_pose(const sim_collider *c, int k, int steps)
+{
+    if (!c->has_previous)
+        return c->pose;
+    return collider_sweep_pose(c->previous_pose, c->pose, k, steps);
+}
+
+void sim_collider_sweep_bounds(const sim_collider *c, double cell_size_m, vec3d *lo, vec3d *hi)
+{
+    if (!c->has_previous) {
+        collider_bounds(c->geometry, c->pose, lo, hi);
+        return;
+    }
+    collider_sweep_bounds(c->geometry, c->previous_pose, c->pose,
+                          sim_collider_sweep_steps(c, cell_size_m), lo, hi);
 }
 
 static int compare_rects(const void *a, const void *b)
