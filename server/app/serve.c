@@ -4,7 +4,8 @@
  * (poses → windows → deformation → scatter; docs/design.md), publishing a
  * status block that the HTTP thread reads. A tick that overruns its period is
  * counted, and the loop does not try to catch up by running ticks back to
- * back. SIGINT and SIGTERM finish the current tick and stop cleanly.
+ * back. SIGINT and SIGTERM finish the current tick and stop cleanly; SIGHUP is logged and
+ * ignored. /healthz fails when the tick loop or the net thread stops moving (serve_watch_threads).
  *
  * app_serve reads as the daemon's life: open the world (scene, base terrain,
  * recovered store) → start the threads (hub, HTTP, engine and service, net)
@@ -29,6 +30,15 @@
 #include "store/store.h"
 
 static volatile sig_atomic_t stop_requested;
+static volatile sig_atomic_t hangup_seen;
+
+/* SIGHUP (a closed terminal, a log rotation's nudge) must not kill a daemon:
+ * noted here, logged by the tick loop (the log is stderr: nothing to reopen). */
+static void on_hangup(int sig)
+{
+    (void)sig;
+    hangup_seen = 1;
+}
 
 static void on_signal(int sig)
 {
@@ -84,6 +94,7 @@ static void publish_status(http_status *status, const service *svc, const store 
     status->overruns = overruns;
     status->clients = clients;
     status->colliders = colliders;
+    status->published_ms = time_now_ms();
     pthread_mutex_unlock(&status->lock);
 }
 
@@ -190,6 +201,20 @@ static int serve_start_engine(serve_daemon *d, error_text *err)
     return 0;
 }
 
+/* /healthz's watchdog: the tick loop and the net thread must keep moving. */
+#define SERVE_STALL_LIMIT_MS 10000.0
+
+static double net_stalled(const void *arg)
+{
+    return net_server_stalled_ms((const net_server *)arg);
+}
+
+static void serve_watch_threads(serve_daemon *d)
+{
+    http_server_watch(d->http, "tick", http_status_stalled_ms, &d->status, SERVE_STALL_LIMIT_MS);
+    http_server_watch(d->http, "net", net_stalled, d->net, SERVE_STALL_LIMIT_MS);
+}
+
 static int serve_start_net(serve_daemon *d, error_text *err)
 {
     const world *w = &d->w;
@@ -209,7 +234,10 @@ static int serve_start_net(serve_daemon *d, error_text *err)
                                .models_json = d->models,
                                .materials_json = "[\"default\"]"}};
     d->net = net_server_start(&nc, d->h, err);
-    return d->net ? 0 : -1;
+    if (!d->net)
+        return -1;
+    serve_watch_threads(d);
+    return 0;
 }
 
 /* Start the threads around the sim thread: hub, HTTP, net; then ready. */
@@ -245,6 +273,8 @@ static int serve_start(serve_daemon *d, error_text *err)
     sa.sa_handler = on_signal;
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
+    sa.sa_handler = on_hangup;
+    sigaction(SIGHUP, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
 
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
@@ -289,6 +319,10 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
         publish_status(&d->status, d->svc, d->st, stats.tick_ms, overruns,
                        net_server_client_count(d->net), stats.colliders);
         publish_metrics(&stats, d->engine, d->svc, &d->w);
+        if (hangup_seen) {
+            hangup_seen = 0;
+            log_info("SIGHUP received: ignored (the log is stderr; stop with SIGTERM)");
+        }
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
@@ -304,8 +338,8 @@ static void serve_stop(serve_daemon *d)
 {
     if (d->h)
         hub_close_reads(d->h);
+    http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
-    http_server_stop(d->http);
     service_destroy(d->svc);
     store_close(d->st);
     free(d->extra);

@@ -40,6 +40,13 @@
 
 #define ALLOWED_METHODS "GET, HEAD"
 
+typedef struct http_watch {
+    char name[32];
+    http_stalled_fn stalled_ms;
+    const void *arg;
+    double limit_ms;
+} http_watch;
+
 struct http_server {
     struct MHD_Daemon *daemon;
     http_status *status;
@@ -47,6 +54,9 @@ struct http_server {
     _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
     http_limits limits;
     int port;
+    pthread_mutex_t watch_lock; /* watches are added while MHD's threads serve */
+    http_watch watches[HTTP_MAX_WATCHES];
+    int nwatches;
 };
 
 /* Per-request state, created by the URI log callback (which sees the raw
@@ -540,6 +550,48 @@ static int announces_body(struct MHD_Connection *c)
     return 0;
 }
 
+/* Liveness: 503 when a watched thread has made no progress past its limit. */
+static enum MHD_Result serve_health(http_server *s, struct MHD_Connection *c)
+{
+    pthread_mutex_lock(&s->watch_lock);
+    http_watch w[HTTP_MAX_WATCHES];
+    int n = s->nwatches;
+    memcpy(w, s->watches, sizeof w);
+    pthread_mutex_unlock(&s->watch_lock);
+    for (int i = 0; i < n; i++) {
+        double stalled = w[i].stalled_ms(w[i].arg);
+        if (stalled > w[i].limit_ms)
+            return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
+                                 "the %s thread has made no progress for %.1f s", w[i].name,
+                                 stalled / 1000);
+    }
+    return respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ok\n");
+}
+
+int http_server_watch(http_server *s, const char *name, http_stalled_fn stalled_ms, const void *arg,
+                      double limit_ms)
+{
+    pthread_mutex_lock(&s->watch_lock);
+    int i = s->nwatches < HTTP_MAX_WATCHES ? s->nwatches++ : -1;
+    if (i >= 0) {
+        snprintf(s->watches[i].name, sizeof s->watches[i].name, "%s", name);
+        s->watches[i].stalled_ms = stalled_ms;
+        s->watches[i].arg = arg;
+        s->watches[i].limit_ms = limit_ms;
+    }
+    pthread_mutex_unlock(&s->watch_lock);
+    return i < 0 ? -1 : 0;
+}
+
+double http_status_stalled_ms(const void *status)
+{
+    http_status *st = (http_status *)status;
+    pthread_mutex_lock(&st->lock);
+    double at = st->published_ms;
+    pthread_mutex_unlock(&st->lock);
+    return at > 0 ? time_now_ms() - at : 0;
+}
+
 static int method_allowed(const char *method)
 {
     return strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
@@ -587,7 +639,7 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return respond_error(c, MHD_HTTP_BAD_REQUEST, "path must not contain \"..\" or NUL");
 
     if (strcmp(url, "/healthz") == 0)
-        return respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ok\n");
+        return serve_health(s, c);
     if (strcmp(url, "/metrics") == 0)
         return serve_metrics(c);
     http_status snap;
@@ -655,6 +707,7 @@ http_server *http_server_start_limited(int port, int bind_any, http_status *stat
     }
     s->status = status;
     s->heights = heights;
+    pthread_mutex_init(&s->watch_lock, NULL);
     http_limits l = limits ? *limits : (http_limits){0};
     l.connections = or_default(l.connections, HTTP_DEFAULT_CONNECTIONS);
     l.connections_per_ip = or_default(l.connections_per_ip, HTTP_DEFAULT_CONNECTIONS_PER_IP);
@@ -681,6 +734,7 @@ http_server *http_server_start_limited(int port, int bind_any, http_status *stat
         request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s, MHD_OPTION_END);
     if (!s->daemon) {
         error_set(err, "http: cannot listen on port %d (in use or not permitted)", port);
+        pthread_mutex_destroy(&s->watch_lock);
         free(s);
         return NULL;
     }
@@ -710,5 +764,6 @@ void http_server_stop(http_server *s)
     if (!s)
         return;
     MHD_stop_daemon(s->daemon);
+    pthread_mutex_destroy(&s->watch_lock);
     free(s);
 }

@@ -7,7 +7,9 @@
  * the hub (served between ticks, so a read never sees half a tick).
  *
  * Endpoints (GET and HEAD only; anything else is 405 with an Allow header):
- *   /healthz          200 "ok" while the process serves at all
+ *   /healthz          200 "ok" while the process serves and no watched thread
+ *                     (http_server_watch: the tick, the net thread) has gone
+ *                     without progress past its limit; else 503 naming it
  *   /readyz           200 "ready" once status.ready, else 503
  *   /metrics          Prometheus text 0.0.4 (metrics_render)
  *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
@@ -55,6 +57,7 @@ typedef struct http_status {
     char metric[16];
     double last_tick_ms;
     uint64_t overruns;
+    double published_ms; /* time_now_ms() of the last tick's publication; 0 = none yet */
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */
@@ -89,6 +92,15 @@ http_server *http_server_start_limited(int port, int bind_any, http_status *stat
  * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
 void http_server_set_base(http_server *s, const world *w);
 int http_server_port(const http_server *s);
+/* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
+ * `name` has gone without progress (any thread may call it); past limit_ms
+ * /healthz answers 503 naming it. At most HTTP_MAX_WATCHES; -1 when full. */
+#define HTTP_MAX_WATCHES 4
+typedef double (*http_stalled_fn)(const void *arg);
+int http_server_watch(http_server *s, const char *name, http_stalled_fn stalled_ms, const void *arg,
+                      double limit_ms);
+/* A stalled_ms for the tick: how long since status->published_ms (0 before the first tick). */
+double http_status_stalled_ms(const void *status);
 void http_server_stop(http_server *s); /* NULL is fine */
 
 #endif

@@ -50,6 +50,7 @@ _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of 
 #define NET_DRAIN_ROUNDS 64     /* batches per wake before serving sockets again */
 #define NET_HEARTBEAT_US 100000 /* backlog retries, shutdown checks */
 #define NET_STOP_GRACE_MS 800.0
+#define NET_STOP_DEADLINE_MS 10000.0 /* then the thread is left behind, the process goes on */
 
 /* The net thread's state (net_client_internal.h) and libwebsockets' context. */
 struct net_server {
@@ -62,7 +63,8 @@ struct net_server {
     int port;
     atomic_int stop_requested;
     atomic_int force_stop;
-    atomic_int client_count; /* read by any thread */
+    atomic_int client_count;     /* read by any thread */
+    _Atomic double last_beat_ms; /* the heartbeat's last run: the watchdog's clue */
     pthread_mutex_t wake_lock;
     int ctx_live;
     int stopping;
@@ -261,6 +263,8 @@ static void begin_shutdown(net_server *s)
 static void heartbeat(lws_sorted_usec_list_t *sul)
 {
     net_server *s = lws_container_of(sul, net_server, heartbeat);
+    atomic_store(&s->last_beat_ms, time_now_ms());
+    net_reap_dead_peers(&s->st);
     net_flush_backlog(&s->st);
     if (atomic_load(&s->stop_requested) && !s->stopping) {
         drain_hub(s);
@@ -446,6 +450,7 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
 {
     if (c->killed)
         return -1;
+    net_rx_hold_update(c); /* lws has flushed what it held: read again */
     if (c->slow && c->pending_bytes <= s->st.cfg.limits.max_pending_bytes / 2 && !c->closing) {
         c->slow = 0;
         net_request_resync(c, 0); /* caught up: fresh snapshots, then deltas again */
@@ -464,6 +469,7 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
         hub_frame_unref(it.frame);
         if (n < 0)
             return -1;
+        net_rx_hold_update(c); /* the kernel took only part of it: stop reading (net_peer.c) */
         if (c->q_count) {
             lws_callback_on_writable(wsi);
             return 0;
@@ -554,6 +560,7 @@ static void *service_main(void *arg)
 {
     net_server *s = arg;
     thread_owner_claim(&s->st.owner, "net");
+    atomic_store(&s->last_beat_ms, time_now_ms());
     hub_claim_net_end(s->st.hub);
     lws_sul_schedule(s->ctx, 0, &s->heartbeat, heartbeat, NET_HEARTBEAT_US);
     for (;;) {
@@ -723,6 +730,12 @@ int net_server_port(const net_server *s)
     return s->port;
 }
 
+double net_server_stalled_ms(const net_server *s)
+{
+    double beat = atomic_load(&((net_server *)s)->last_beat_ms);
+    return beat > 0 ? time_now_ms() - beat : 0;
+}
+
 int net_server_client_count(const net_server *s)
 {
     return atomic_load(&((net_server *)s)->client_count);
@@ -738,6 +751,13 @@ void net_server_stop(net_server *s)
         net_wake(s);
         if (time_now_ms() - start > NET_STOP_GRACE_MS)
             atomic_store(&s->force_stop, 1);
+        if (time_now_ms() - start > NET_STOP_DEADLINE_MS) {
+            /* Wedged inside libwebsockets: its context cannot be destroyed
+             * under it, so leave the thread and its memory to the exit. */
+            log_error("net: the websocket thread did not stop within %.0f s: left behind",
+                      NET_STOP_DEADLINE_MS / 1000);
+            return;
+        }
         struct timespec ts = {0, 5 * 1000 * 1000};
         nanosleep(&ts, NULL);
     }

@@ -60,6 +60,9 @@ typedef struct net_server net_server;
 net_server *net_server_start(const net_config *c, hub *h, error_text *err);
 int net_server_port(const net_server *s);
 int net_server_client_count(const net_server *s); /* connected clients; any thread */
+/* How long since the net thread last ran its heartbeat (every 100 ms when it is
+ * healthy); any thread, for the watchdog behind /healthz. */
+double net_server_stalled_ms(const net_server *s);
 /* Closes every client with close code 1001 ("server shutting down", after an
  * error shutting_down), joins the thread and frees s. Call it after the sim
  * thread has stopped publishing (the hub's waker points into s). */

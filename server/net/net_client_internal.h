@@ -92,6 +92,10 @@ typedef struct net_client {
      * came) and reason, made printable, at most 123 bytes as RFC 6455 allows */
     int peer_close_code;
     char peer_close_reason[124];
+    /* lws holds part of a frame the kernel would not take: reading is paused
+     * until it drains (net.c "dead peers"), so that lws never meets the
+     * peer's EOF with output buffered, and the heartbeat watches for the EOF */
+    int rx_held;
 } net_client;
 
 typedef struct net_collider_slot {
@@ -155,6 +159,12 @@ void net_client_kill(net_client *c, const char *why);
 /* Token bucket; 1 if the message may pass. Refusals are answered at most
  * once a second; refusals sustained for 10 s close the connection. */
 int net_rate_allow(net_client *c);
+
+/* ---- dead peers (net_peer.c) ---- */
+/* After a write: pause reading while lws holds part of a frame, resume once it is flushed. */
+void net_rx_hold_update(net_client *c);
+/* Kill the paused clients whose peer has hung up; how many. */
+int net_reap_dead_peers(net_state *s);
 
 /* ---- commands for the sim ---- */
 /* Push a command the sim must get (client left, resync): queued locally

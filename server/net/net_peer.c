@@ -1,0 +1,71 @@
+/*
+ * net_peer.c: dead peers (the net_client layer, see net_client_internal.h).
+ * A peer that closes its end, or dies, while libwebsockets still holds part
+ * of a frame for it must be closed at once, whatever its backlog; in a
+ * tick's terms this runs in the net thread's heartbeat, between ticks' fan-outs.
+ *
+ * Why: libwebsockets 4.1 meets such an EOF by deferring the close until its
+ * buffered output drains (LRS_FLUSHING_BEFORE_CLOSE). A peer whose window is
+ * shut never drains it, and lws's service loop retries the same readable
+ * socket without polling again: recv() = 0 forever, the whole net thread
+ * spinning inside one lws_service call (issue 15, item 1). So lws must never
+ * see the EOF while it holds output: once a write leaves part of a frame in
+ * lws (lws_partial_buffered), reading from that client is paused
+ * (lws_rx_flow_control, which takes POLLIN out of the poll set) until lws has
+ * flushed it, and meanwhile the heartbeat asks the kernel itself whether the
+ * peer has hung up (POLLRDHUP). Such a peer is killed: lws's timeout close
+ * is a violent one (no flush), and a zero linger drops the unsent bytes with a
+ * reset instead of leaving them to the kernel.
+ */
+#include "net/net_client_internal.h"
+
+#include <poll.h>
+#include <sys/socket.h>
+
+#include "metrics/metrics.h"
+
+void net_rx_hold_update(net_client *c)
+{
+    if (c->killed)
+        return;
+    int buffered = lws_partial_buffered(c->wsi) != 0;
+    if (buffered == c->rx_held)
+        return;
+    c->rx_held = buffered;
+    lws_rx_flow_control(c->wsi, buffered ? 0 : 1);
+    if (buffered) /* a writeable callback once lws has flushed: reading resumes there */
+        lws_callback_on_writable(c->wsi);
+}
+
+/* 1 if the kernel says the peer has closed its end or the connection failed. */
+static int peer_hung_up(struct lws *wsi)
+{
+    int fd = (int)lws_get_socket_fd(wsi);
+    if (fd < 0)
+        return 0;
+    struct pollfd p = {.fd = fd, .events = POLLRDHUP};
+    if (poll(&p, 1, 0) != 1)
+        return 0;
+    return (p.revents & (POLLRDHUP | POLLHUP | POLLERR)) != 0;
+}
+
+int net_reap_dead_peers(net_state *s)
+{
+    THREAD_OWNED(&s->owner);
+    int reaped = 0;
+    for (int i = 0; i < s->nclients; i++) {
+        net_client *c = s->clients[i];
+        if (c->killed || !c->rx_held || !peer_hung_up(c->wsi))
+            continue;
+        int fd = (int)lws_get_socket_fd(c->wsi);
+        struct linger zero = {.l_onoff = 1, .l_linger = 0};
+        if (fd >= 0)
+            setsockopt(fd, SOL_SOCKET, SO_LINGER, &zero, sizeof zero);
+        char why[128];
+        snprintf(why, sizeof why, "the peer hung up with %zu bytes still queued for it",
+                 c->pending_bytes);
+        net_client_kill(c, why);
+        reaped++;
+    }
+    return reaped;
+}
