@@ -22,6 +22,7 @@ typedef struct serve_options {
     int http_port;
     int ws_port;
     int bind_any;
+    int insecure_open; /* --insecure-open: --bind-any without any token is allowed */
     int demo_actors;
     double tick_hz;    /* 0: the scene's */
     const char *token; /* NULL: no token required */

@@ -31,6 +31,7 @@ enum {
     OPT_STORE_FAULT,
     OPT_FRESH,
     OPT_THREADS,
+    OPT_INSECURE_OPEN,
 };
 
 static const cli_option serve_table[] = {
@@ -46,7 +47,9 @@ static const cli_option serve_table[] = {
     [OPT_WS_PORT] = {"ws-port", "N",
                      "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},
     [OPT_BIND_ANY] = {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)"},
-    [OPT_TOKEN] = {"token", "T", "clients must send this token in hello (default: none)"},
+    [OPT_TOKEN] = {"token", "T",
+                   "clients must send this token in hello (default: none); deprecated on\n"
+                   "the command line (every local user can read it): use the config key"},
     [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
     [OPT_DEMO_ACTORS] = {"demo-actors", "N",
                          "built-in spheres sliding over the terrain, 0..256 (default 6)"},
@@ -71,6 +74,9 @@ static const cli_option serve_table[] = {
                    "refuse a directory holding anything else) before starting"},
     [OPT_THREADS] = {"threads", "N",
                      "threads of the CPU twin, 1..64 (default: the machine's cores)"},
+    [OPT_INSECURE_OPEN] = {"insecure-open", NULL,
+                           "allow --bind-any without a token: anyone who can reach the\n"
+                           "ports may deform the world"},
     {0},
 };
 
@@ -242,6 +248,8 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->backend = value;
         return 0;
     case OPT_TOKEN:
+        log_warn("serve: --token on the command line is deprecated (every local user can read "
+                 "/proc/PID/cmdline): put \"token\" in the --config file");
         o->token = value;
         return 0;
     case OPT_DATA:
@@ -262,6 +270,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_BIND_ANY:
         o->bind_any = 1;
+        return 0;
+    case OPT_INSECURE_OPEN:
+        o->insecure_open = 1;
         return 0;
     case OPT_NO_DEMO:
         o->demo_actors = 0;
@@ -322,6 +333,11 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     if (r == CLI_OK && o->demo_actors > 0 && o->data_dir && !o->data_given) {
         o->data_dir = NULL;
         o->demo_in_memory = 1;
+    }
+    if (r == CLI_OK && o->bind_any && !(o->token && o->token[0]) && !o->insecure_open) {
+        log_error("serve: --bind-any without a token would let anyone who can reach the ports "
+                  "deform the world: set \"token\" in the --config file, or pass --insecure-open");
+        return CLI_ERROR;
     }
     return r;
 }
