@@ -21,6 +21,7 @@ int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
 int app_export(int argc, char **argv); /* a data directory's world to raw32 / png16 */
 int app_bench(int argc, char **argv);  /* `terrad bench --trade` (bench_trade.c) */
+int app_fsck(int argc, char **argv);   /* check a data directory without starting (fsck.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -28,6 +29,7 @@ void app_serve_usage(FILE *out);
 void app_simulate_usage(FILE *out);
 void app_export_usage(FILE *out);
 void app_bench_usage(FILE *out);
+void app_fsck_usage(FILE *out);
 
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);

@@ -29,6 +29,7 @@ enum {
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
     OPT_STORE_FAULT,
+    OPT_RECOVER_TRUNCATE,
 };
 
 static const cli_option serve_table[] = {
@@ -63,6 +64,9 @@ static const cli_option serve_table[] = {
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
+    [OPT_RECOVER_TRUNCATE] = {"recover-truncate", NULL,
+                              "start on a damaged data directory anyway: cut the damage\n"
+                              "and log exactly which ticks are lost (default: refuse)"},
     {0},
 };
 
@@ -247,6 +251,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_STORE_FAULT:
         o->store_fault = value;
+        return 0;
+    case OPT_RECOVER_TRUNCATE:
+        o->recover_truncate = 1;
         return 0;
     case OPT_BIND_ANY:
         o->bind_any = 1;

@@ -39,7 +39,21 @@ static int compaction_run_job(store_dir *st, ZSTD_CCtx *cctx, const tile_copy *t
                   (unsigned long long)tick, err.message[0] ? err.message : "out of memory");
         return 0;
     }
-    /* every changed tile is on disk: the older segments are no longer needed */
+    /* every changed tile is on disk: CONTROL records them, then the older
+     * segments are no longer needed (a crash before CONTROL is written keeps
+     * them: recovery replays them over the new snapshots, which is harmless) */
+    pthread_mutex_lock(&st->ctl_lock);
+    for (int i = 0; i < count; i++)
+        st->ctl.tile_tick[tiles[i].ty * st->tiles_x + tiles[i].tx] = tick;
+    if (live > st->ctl.first_seq)
+        st->ctl.first_seq = live;
+    pthread_mutex_unlock(&st->ctl_lock);
+    if (store_control_save(st, &err) != 0) {
+        metrics_count_store_error("compaction");
+        log_error("store: compaction as of tick %llu: %s (the log is kept)",
+                  (unsigned long long)tick, err.message);
+        return 0;
+    }
     uint64_t *seqs;
     int n;
     if (store_list_segments(st->dir, &seqs, &n) == 0) {
@@ -138,6 +152,13 @@ void store_compaction_maybe_start(store_dir *st, const world *w, uint64_t tick)
     st->durable_tick = st->appended_tick;
     st->unsynced = 0;
     memset(st->changed, 0, (size_t)st->tiles_x * st->tiles_y);
+    /* CONTROL: the new segment belongs to the log now */
+    pthread_mutex_lock(&st->ctl_lock);
+    st->ctl.last_seq = st->wal_seq;
+    st->ctl.tick = st->durable_tick;
+    pthread_mutex_unlock(&st->ctl_lock);
+    if (store_control_save(st, &err) != 0)
+        log_error("%s", err.message);
     pthread_mutex_lock(&st->lock);
     st->job_tiles = tiles;
     st->job_count = n;

@@ -85,6 +85,84 @@ int store_dir_write_atomic(const store_dir *st, const char *dir, const char *nam
 /* ---- open / close ---- */
 
 static void dir_close(void *state);
+static int dir_append_tick(void *state, const world *w, uint64_t tick, const world_rect *rects,
+                           int n);
+
+/* The manifest: checked, or written for a new directory. A directory that
+ * holds data without one is damage (refused unless truncating). */
+static int dir_open_manifest(store_dir *st, const world *w, error_text *err)
+{
+    char path[1100];
+    uint32_t base_crc = store_base_identity(w);
+    snprintf(path, sizeof path, "%s/MANIFEST", st->dir);
+    if (access(path, F_OK) == 0)
+        return store_manifest_check(path, w, base_crc, err);
+    if (store_dir_has_data(st->dir)) {
+        if (!st->cfg.recover_truncate) {
+            error_set(err,
+                      "store: refusing to start: %s is missing next to existing data (nothing "
+                      "says which world it belongs to; --recover-truncate writes one)",
+                      path);
+            return -1;
+        }
+        log_error("store: damage: %s is missing next to existing data; --recover-truncate: "
+                  "writing one for this scene and starting anyway",
+                  path);
+    }
+    char *text = store_manifest_text(w, base_crc);
+    int rc =
+        text ? store_dir_write_atomic(NULL, st->dir, "MANIFEST", text, strlen(text), NULL, 0, err)
+             : -1;
+    free(text);
+    return rc;
+}
+
+/* Manifest, CONTROL, recovery, a fresh segment and a new CONTROL. */
+static int dir_open_recover(store_dir *st, world *w, store_recovery *rec, error_text *err)
+{
+    int had_data = store_dir_has_data(st->dir);
+    if (dir_open_manifest(st, w, err) != 0)
+        return -1;
+    store_control old;
+    if (store_control_init(&old, st->tiles_x, st->tiles_y) != 0) {
+        error_set(err, "store: out of memory");
+        return -1;
+    }
+    int truncate = st->cfg.recover_truncate;
+    int have = store_control_read(st->dir, &old, err);
+    int rc = -1;
+    if (have == 1 && had_data) {
+        error_set(err, "store: refusing to start: %s/CONTROL is missing next to existing data",
+                  st->dir);
+        have = -1;
+    }
+    if (have < 0 && !truncate)
+        goto out;
+    if (have < 0)
+        log_error("%s; --recover-truncate: recovering without it", err->message);
+    recover_args a = {.dir = st->dir,
+                      .w = w,
+                      .changed = st->changed,
+                      .flags = STORE_RECOVER_REPAIR | STORE_RECOVER_CHECK |
+                               (truncate ? STORE_RECOVER_TRUNCATE : 0),
+                      .ctl = have == 0 ? &old : NULL,
+                      .found = &st->ctl};
+    uint64_t last_seq = 0;
+    if (store_recover(&a, &last_seq, rec, err) != 0)
+        goto out;
+    st->appended_tick = st->durable_tick = st->seen_tick = rec->tick;
+    /* a fresh segment: nothing is ever appended after a possibly cut tail */
+    if (store_segment_start(st, last_seq + 1, err) != 0)
+        goto out;
+    if (!st->ctl.first_seq)
+        st->ctl.first_seq = st->wal_seq;
+    st->ctl.last_seq = st->wal_seq;
+    st->ctl.tick = rec->tick;
+    rc = store_control_save(st, err);
+out:
+    store_control_free(&old);
+    return rc;
+}
 
 static void *dir_open(const store_config *c, world *w, store_recovery *rec, error_text *err)
 {
@@ -101,6 +179,7 @@ static void *dir_open(const store_config *c, world *w, store_recovery *rec, erro
     st->lock_fd = st->wal_fd = -1;
     pthread_mutex_init(&st->lock, NULL);
     pthread_cond_init(&st->cond, NULL);
+    pthread_mutex_init(&st->ctl_lock, NULL);
     snprintf(st->dir, sizeof st->dir, "%s", c->dir);
     if (c->fault_path)
         snprintf(st->fault, sizeof st->fault, "%s", c->fault_path);
@@ -110,7 +189,7 @@ static void *dir_open(const store_config *c, world *w, store_recovery *rec, erro
     st->tiles_y = (w->height + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
     st->changed = calloc((size_t)st->tiles_x * st->tiles_y, 1);
     st->cctx = ZSTD_createCCtx();
-    if (!st->changed || !st->cctx) {
+    if (!st->changed || !st->cctx || store_control_init(&st->ctl, st->tiles_x, st->tiles_y) != 0) {
         error_set(err, "store: out of memory");
         goto fail;
     }
@@ -130,27 +209,7 @@ static void *dir_open(const store_config *c, world *w, store_recovery *rec, erro
                                        : strerror(errno));
         goto fail;
     }
-    /* the manifest names the world by its base terrain, before anything is applied */
-    uint32_t base_crc = store_base_identity(w);
-    snprintf(path, sizeof path, "%s/MANIFEST", st->dir);
-    if (access(path, F_OK) == 0) {
-        if (store_manifest_check(path, w, base_crc, err) != 0)
-            goto fail;
-    } else {
-        char *text = store_manifest_text(w, base_crc);
-        int rc = text ? store_dir_write_atomic(NULL, st->dir, "MANIFEST", text, strlen(text), NULL,
-                                               0, err)
-                      : -1;
-        free(text);
-        if (rc != 0)
-            goto fail;
-    }
-    uint64_t last_seq = 0;
-    if (store_recover(st->dir, w, st->changed, 1, 0, &last_seq, rec, err) != 0)
-        goto fail;
-    st->appended_tick = st->durable_tick = rec->tick;
-    /* a fresh segment: nothing is ever appended after a possibly cut tail */
-    if (store_segment_start(st, last_seq + 1, err) != 0)
+    if (dir_open_recover(st, w, rec, err) != 0)
         goto fail;
     st->last_sync_ms = time_now_ms();
     if (pthread_create(&st->thread, NULL, store_compaction_main, st) == 0)
@@ -171,13 +230,26 @@ static void dir_close(void *state)
         return;
     store_compaction_stop(st);
     if (st->wal_fd >= 0) {
-        fdatasync(st->wal_fd);
+        /* the last tick, even one that changed nothing, so the next start
+         * goes on after it; then CONTROL says it is durable */
+        if (!st->failed && st->seen_tick > st->appended_tick)
+            dir_append_tick(st, NULL, st->seen_tick, NULL, 0);
+        error_text err = {{0}};
+        if (!st->failed && fdatasync(st->wal_fd) == 0) {
+            pthread_mutex_lock(&st->ctl_lock);
+            st->ctl.tick = st->appended_tick;
+            pthread_mutex_unlock(&st->ctl_lock);
+            if (store_control_save(st, &err) != 0)
+                log_error("%s", err.message);
+        }
         close(st->wal_fd);
     }
     if (st->lock_fd >= 0)
         close(st->lock_fd); /* releases the flock */
     pthread_mutex_destroy(&st->lock);
     pthread_cond_destroy(&st->cond);
+    pthread_mutex_destroy(&st->ctl_lock);
+    store_control_free(&st->ctl);
     ZSTD_freeCCtx(st->cctx);
     free(st->changed);
     free(st->buf);
@@ -256,7 +328,11 @@ static int dir_append_tick(void *state, const world *w, uint64_t tick, const wor
     store_dir *st = state;
     if (st->failed)
         return -1;
-    if (n <= 0)
+    if (tick > st->seen_tick)
+        st->seen_tick = tick;
+    /* a tick that changed nothing is logged (an empty record) only every
+     * STORE_TICK_LOG_EVERY ticks, so a restart never reuses a tick number */
+    if (n <= 0 && tick < st->appended_tick + STORE_TICK_LOG_EVERY)
         return 0;
     size_t cells = 0;
     for (int i = 0; i < n; i++)
@@ -326,7 +402,8 @@ static int dir_append_tick(void *state, const world *w, uint64_t tick, const wor
         st->durable_tick = tick; /* as durable as promised: in the page cache */
         metrics_set_store_durable_tick(tick);
     }
-    store_compaction_maybe_start(st, w, tick);
+    if (w)
+        store_compaction_maybe_start(st, w, tick);
     return 0;
 }
 
@@ -351,7 +428,60 @@ int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_rec
     if (store_manifest_check(path, w, base_crc, err) != 0)
         return -1;
     uint64_t last_seq;
-    return store_recover(dir, w, NULL, 0, upto_tick, &last_seq, rec, err);
+    recover_args a = {.dir = dir, .w = w, .upto_tick = upto_tick};
+    return store_recover(&a, &last_seq, rec, err);
+}
+
+int store_fsck(const char *dir, world *w, store_recovery *rec, error_text *err)
+{
+    char path[1100];
+    snprintf(path, sizeof path, "%s/MANIFEST", dir);
+    memset(rec, 0, sizeof *rec);
+    if (access(dir, F_OK) != 0) {
+        error_set(err, "store: %s: %s", dir, strerror(errno));
+        return -1;
+    }
+    if (access(path, F_OK) != 0) {
+        error_set(err, "store: %s is missing%s", path,
+                  store_dir_has_data(dir) ? " next to existing data" : "");
+        log_error("store: damage: %s", err->message + 7);
+        return 1;
+    }
+    if (store_manifest_check(path, w, store_base_identity(w), err) != 0) {
+        log_error("store: damage: %s", err->message + 7);
+        return 1;
+    }
+    int tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    int tiles_y = (w->height + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    store_control ctl, found;
+    if (store_control_init(&ctl, tiles_x, tiles_y) != 0 ||
+        store_control_init(&found, tiles_x, tiles_y) != 0) {
+        error_set(err, "store: out of memory");
+        return -1;
+    }
+    error_text cerr = {{0}};
+    int have = store_control_read(dir, &ctl, &cerr);
+    int damaged = 0;
+    if (have != 0) {
+        error_set(err, "store: %s/CONTROL is %s", dir, have > 0 ? "missing" : "corrupt");
+        log_error("store: damage: %s", have > 0 ? err->message + 7 : cerr.message + 7);
+        damaged = 1;
+    }
+    uint64_t last_seq;
+    error_text rerr = {{0}};
+    recover_args a = {.dir = dir,
+                      .w = w,
+                      .flags = STORE_RECOVER_CHECK | STORE_RECOVER_ALL,
+                      .ctl = have == 0 ? &ctl : NULL,
+                      .found = &found};
+    if (store_recover(&a, &last_seq, rec, &rerr) != 0) {
+        if (!damaged)
+            *err = rerr;
+        damaged = 1;
+    }
+    store_control_free(&ctl);
+    store_control_free(&found);
+    return damaged;
 }
 
 const store_backend store_backend_dir = {
