@@ -10,6 +10,7 @@
  * The two threads meet only in the job fields under st->lock (see
  * store_internal.h); each side's entries assert which thread they run on.
  */
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -140,8 +141,10 @@ void store_compaction_maybe_start(store_dir *st, const world *w, uint64_t tick)
     }
     /* every record so far is synced before the old segment is left behind */
     error_text err = {{0}};
-    if (k != n || fdatasync(st->wal_fd) != 0 ||
-        store_segment_start(st, st->wal_seq + 1, &err) != 0) {
+    int synced = k == n && store_dir_fdatasync(st, st->wal_fd) == 0;
+    if (k == n && !synced)
+        store_dir_sync_failed_fatal(st, errno); /* never retried into a success */
+    if (!synced || store_segment_start(st, st->wal_seq + 1, &err) != 0) {
         for (int i = 0; i < k; i++)
             free(tiles[i].values);
         free(tiles);

@@ -22,7 +22,51 @@
 
 int store_dir_fault_active(const store_dir *st)
 {
-    return st->fault[0] && access(st->fault, F_OK) == 0;
+    return st->fault[0] && access(st->fault, F_OK) == 0 && !store_dir_fault_is_fsync(st);
+}
+
+/* The fault file holding "fsync": writes work, every fdatasync of the log fails EIO. */
+int store_dir_fault_is_fsync(const store_dir *st)
+{
+    if (!st->fault[0])
+        return 0;
+    FILE *f = fopen(st->fault, "r");
+    char word[8] = {0};
+    int yes = f && fread(word, 1, 5, f) == 5 && memcmp(word, "fsync", 5) == 0;
+    if (f)
+        fclose(f);
+    return yes;
+}
+
+int store_dir_fdatasync(const store_dir *st, int fd)
+{
+    if (st && store_dir_fault_is_fsync(st)) {
+        errno = EIO;
+        return -1;
+    }
+    return fdatasync(fd);
+}
+
+/*
+ * A failed fdatasync of the log is never retried into a success (fsyncgate:
+ * Linux reports a writeback error once, then marks the pages clean, so the
+ * next fdatasync "succeeds" without the data being on disk). Records written
+ * since the last good sync may be lost; when any of them is a tick held back
+ * for it (group commit), nothing of those ticks has been published, and the
+ * daemon stops here — a restart recovers from what is durable, as PostgreSQL
+ * panics. Every-tick mode never gets here: its one unsynced record is cut and
+ * its tick undone by the caller.
+ */
+void store_dir_sync_failed_fatal(const store_dir *st, int e)
+{
+    if (st->durable_tick == st->appended_tick)
+        return;
+    log_error("store: fdatasync of the log failed (%s, %s): ticks %llu..%llu were written but "
+              "may not be on disk; none of them was published. Stopping now so that a restart "
+              "recovers from what is durable (a retried fdatasync cannot be trusted)",
+              strerror(e), st->dir, (unsigned long long)st->durable_tick + 1,
+              (unsigned long long)st->appended_tick);
+    _exit(70); /* EX_SOFTWARE: no clean-up may sync or publish anything more */
 }
 
 int store_dir_write_all(const store_dir *st, int fd, const void *data, size_t len)
@@ -235,7 +279,10 @@ static void dir_close(void *state)
         if (!st->failed && st->seen_tick > st->appended_tick)
             dir_append_tick(st, NULL, st->seen_tick, NULL, 0);
         error_text err = {{0}};
-        if (!st->failed && fdatasync(st->wal_fd) == 0) {
+        int synced = !st->failed && store_dir_fdatasync(st, st->wal_fd) == 0;
+        if (!st->failed && !synced)
+            store_dir_sync_failed_fatal(st, errno);
+        if (synced) {
             pthread_mutex_lock(&st->ctl_lock);
             st->ctl.tick = st->appended_tick;
             pthread_mutex_unlock(&st->ctl_lock);
@@ -259,12 +306,22 @@ static void dir_close(void *state)
 
 /* ---- the tick ---- */
 
+/* The failure is logged once, then at most every FAIL_LOG_MS (with how many
+ * were not logged): a full disk must not fill the log too. */
+#define FAIL_LOG_MS 10000.0
+
 static void set_failed(store_dir *st, const char *kind, const char *what, int e)
 {
-    if (!st->failed)
+    double now = time_now_ms();
+    if (!st->fail_logged_ms || now - st->fail_logged_ms >= FAIL_LOG_MS) {
         log_error("store: %s: %s (%s): new deformation is refused until it can be written "
-                  "again; reads go on",
-                  what, strerror(e), st->dir);
+                  "again; reads go on (%lld failures not logged since the last line)",
+                  what, strerror(e), st->dir, (long long)st->fail_unlogged);
+        st->fail_logged_ms = now;
+        st->fail_unlogged = 0;
+    } else {
+        st->fail_unlogged++;
+    }
     st->failed = 1;
     st->failed_at_ms = time_now_ms();
     snprintf(st->failure, sizeof st->failure, "%s: %s", what, strerror(e));
@@ -279,15 +336,23 @@ static int dir_writable(void *state)
         return 1;
     if (time_now_ms() - st->failed_at_ms < RETRY_MS)
         return 0;
-    /* retry: cut back anything a failed write left, then see if a write works */
+    /* retry: cut back anything a failed write left, then write new bytes
+     * (a block past the log's end, synced, then cut again): truncating and
+     * syncing need no free space, so only a real write says the disk has room */
     st->failed_at_ms = time_now_ms();
-    if (store_dir_fault_active(st) || ftruncate(st->wal_fd, st->wal_len) != 0 ||
-        lseek(st->wal_fd, st->wal_len, SEEK_SET) < 0 || fdatasync(st->wal_fd) != 0)
+    static const uint8_t probe[4096];
+    int ok = ftruncate(st->wal_fd, st->wal_len) == 0 &&
+             lseek(st->wal_fd, st->wal_len, SEEK_SET) >= 0 &&
+             store_dir_write_all(st, st->wal_fd, probe, sizeof probe) == 0 &&
+             store_dir_fdatasync(st, st->wal_fd) == 0;
+    int e = errno;
+    if (ftruncate(st->wal_fd, st->wal_len) != 0 || lseek(st->wal_fd, st->wal_len, SEEK_SET) < 0)
+        ok = 0;
+    if (!ok) {
+        set_failed(st, e == ENOSPC ? "enospc" : "write", "still cannot write the log", e);
         return 0;
+    }
     log_info("store: %s is writable again: deformation resumes", st->dir);
-    st->durable_tick = st->appended_tick; /* held group-commit ticks are synced now */
-    st->unsynced = 0;
-    metrics_set_store_durable_tick(st->durable_tick);
     st->failed = 0;
     st->failure[0] = 0;
     metrics_set_store_available(1);
@@ -309,8 +374,11 @@ static uint64_t dir_durable_tick(const void *state)
 static int sync_now(store_dir *st)
 {
     double t0 = time_now_ms();
-    if (fdatasync(st->wal_fd) != 0) {
-        set_failed(st, "fsync", "fdatasync of the log", errno);
+    if (store_dir_fdatasync(st, st->wal_fd) != 0) {
+        int e = errno;
+        set_failed(st, "fsync", "fdatasync of the log", e);
+        if (st->cfg.durability == STORE_GROUP)
+            store_dir_sync_failed_fatal(st, e);
         return -1;
     }
     double now = time_now_ms();

@@ -120,6 +120,8 @@ typedef struct store_dir {
 
     int failed;
     double failed_at_ms;
+    double fail_logged_ms; /* the last failure logged (rate-limited) */
+    long long fail_unlogged;
     char failure[256];
 
     uint8_t *changed; /* per tile: changed since the last compaction boundary */
@@ -152,6 +154,11 @@ int store_dir_fsync(const char *dir);
 int store_dir_write_atomic(const store_dir *st, const char *dir, const char *name, const void *a,
                            size_t alen, const void *b, size_t blen, error_text *err);
 int store_dir_fault_active(const store_dir *st);
+int store_dir_fault_is_fsync(const store_dir *st);
+/* fdatasync, or EIO while the fault file says "fsync" (test hook). */
+int store_dir_fdatasync(const store_dir *st, int fd);
+/* After a failed fdatasync with ticks held for it: log and _exit (fsyncgate). */
+void store_dir_sync_failed_fatal(const store_dir *st, int e);
 
 /* ---- manifest and tile snapshots (store_snapshot.c) ---- */
 uint32_t store_base_identity(const world *w);

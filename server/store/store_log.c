@@ -225,7 +225,7 @@ int store_segment_start(store_dir *st, uint64_t seq, error_text *err)
     memcpy(h, WAL_MAGIC, 8);
     put64(h + 8, seq);
     put32(h + 16, store_crc32c(0, h, 16));
-    if (store_dir_write_all(st, fd, h, sizeof h) != 0 || fdatasync(fd) != 0 ||
+    if (store_dir_write_all(st, fd, h, sizeof h) != 0 || store_dir_fdatasync(st, fd) != 0 ||
         store_dir_fsync(st->dir) != 0) {
         error_set(err, "store: cannot start %s: %s", path, strerror(errno));
         close(fd);
