@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 180
+# ctest-timeout: 420
 """A client that stops reading (real daemon, loopback, CPU backend, demo
 actors deforming the world, max_pending_bytes lowered to 256 KiB so that the
 slow path starts within a second):
@@ -33,7 +33,7 @@ import terrad as tp  # noqa: E402
 check = Checks()
 PENDING = 256 * 1024
 RSS_BOUND_MB = 300
-MAX_STALL_S = 20.0  # kernel socket buffers take a few MB first
+MAX_STALL_S = 120.0  # kernel socket buffers take a few MB first; generous: a loaded machine fills them slowly
 AFTER_SLOW_S = 4.0
 
 
