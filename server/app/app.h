@@ -22,6 +22,7 @@ int app_serve(int argc, char **argv);
 int app_export(int argc, char **argv);  /* a data directory's world to int32 / png16 */
 int app_bench(int argc, char **argv);   /* `terrad bench --trade` (bench_trade.c) */
 int app_loadgen(int argc, char **argv); /* load generator for a running daemon (loadgen.c) */
+int app_fsck(int argc, char **argv);    /* check a data directory without starting (fsck.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -30,6 +31,7 @@ void app_simulate_usage(FILE *out);
 void app_export_usage(FILE *out);
 void app_bench_usage(FILE *out);
 void app_loadgen_usage(FILE *out);
+void app_fsck_usage(FILE *out);
 
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);

@@ -155,8 +155,10 @@ static int serve_open_world(serve_daemon *d, error_text *err)
         return -1;
     if (o->fresh)
         log_info("store: --fresh: %s started over (%d files removed)", o->data_dir, removed);
-    store_config stc = {
-        .dir = o->data_dir, .segment_bytes = o->wal_segment_bytes, .fault_path = o->store_fault};
+    store_config stc = {.dir = o->data_dir,
+                        .segment_bytes = o->wal_segment_bytes,
+                        .fault_path = o->store_fault,
+                        .recover_truncate = o->recover_truncate};
     if (store_parse_durability(o->durability, &stc, err) != 0 ||
         !(d->st = store_open(&stc, &d->w, &d->recovery, err)))
         return -1;
@@ -166,7 +168,9 @@ static int serve_open_world(serve_daemon *d, error_text *err)
              "log records in %.1f ms%s",
              o->data_dir, store_durability_name(&stc, dname, sizeof dname),
              (unsigned long long)r->tick, r->tiles_loaded, (long long)r->records_replayed, r->ms,
-             r->bytes_cut ? " (a torn tail was cut)" : "");
+             r->damage      ? " (DAMAGED: --recover-truncate cut what is listed above)"
+             : r->bytes_cut ? " (a torn tail was cut)"
+                            : "");
     return 0;
 }
 
@@ -195,7 +199,7 @@ static int serve_start_engine(serve_daemon *d, error_text *err)
         !(d->svc = service_create(d->engine, d->h, err)))
         return -1;
     if (d->st)
-        service_attach_store(d->svc, d->st, d->recovery.tick);
+        service_attach_store(d->svc, d->st, d->recovery.tick_floor);
     d->status.volume = service_volume(d->svc);
     d->status.tick = service_current_tick(d->svc);
     return 0;

@@ -35,6 +35,7 @@ typedef struct serve_options {
     const char *durability;  /* every-tick | group:MS | none */
     long wal_segment_bytes;  /* compaction threshold */
     const char *store_fault; /* test hook: writes fail ENOSPC while this file exists */
+    int recover_truncate;    /* start on a damaged data directory, cutting the damage */
     int config_loaded;       /* --config was given */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],

@@ -32,6 +32,7 @@ enum {
     OPT_FRESH,
     OPT_THREADS,
     OPT_INSECURE_OPEN,
+    OPT_RECOVER_TRUNCATE,
 };
 
 static const cli_option serve_table[] = {
@@ -77,6 +78,9 @@ static const cli_option serve_table[] = {
     [OPT_INSECURE_OPEN] = {"insecure-open", NULL,
                            "allow --bind-any without a token: anyone who can reach the\n"
                            "ports may deform the world"},
+    [OPT_RECOVER_TRUNCATE] = {"recover-truncate", NULL,
+                              "start on a damaged data directory anyway: cut the damage\n"
+                              "and log exactly which ticks are lost (default: refuse)"},
     {0},
 };
 
@@ -100,18 +104,17 @@ static int config_string(const cJSON *doc, const char *key, char *buf, size_t si
 /* "limits": PROTOCOL.md's names, each a positive number. */
 static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
 {
-    static const char *const keys[] = {"max_message_bytes",    "max_colliders",
-                                       "max_poses_per_batch",  "max_subscriptions",
-                                       "max_subscribed_cells", "max_messages_per_s",
-                                       "messages_burst",       "max_pending_bytes",
-                                       "hello_timeout_s",      NULL};
+    static const char *const keys[] = {
+        "max_message_bytes",    "max_colliders",      "max_poses_per_batch", "max_subscriptions",
+        "max_subscribed_cells", "max_messages_per_s", "messages_burst",      "max_pending_bytes",
+        "hello_timeout_s",      "max_active_cells",   "max_mesh_triangles",  NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
         return 0;
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[9];
+    double v[11];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -143,8 +146,14 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
         case 7:
             m->max_pending_bytes = (size_t)v[i];
             break;
-        default:
+        case 8:
             m->hello_timeout_s = v[i];
+            break;
+        case 9:
+            m->max_active_cells = (int64_t)v[i];
+            break;
+        default:
+            m->max_mesh_triangles = (int)v[i];
             break;
         }
     }
@@ -267,6 +276,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_STORE_FAULT:
         o->store_fault = value;
+        return 0;
+    case OPT_RECOVER_TRUNCATE:
+        o->recover_truncate = 1;
         return 0;
     case OPT_BIND_ANY:
         o->bind_any = 1;

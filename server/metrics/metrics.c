@@ -129,6 +129,8 @@ static void histogram_reset(histogram *hg)
 
 static atomic_uint_fast64_t bytes_in, bytes_out, messages_in, frames_out;
 static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, refused_windows;
+static atomic_uint_fast64_t snapshots_coalesced, snapshots_deferred, snapshots_dropped;
+static atomic_uint_fast64_t budget_refusals;
 /* the GL backend's tile cache, copied from its own totals each tick */
 static atomic_uint_fast64_t gpu_tile_uploads, gpu_tile_upload_bytes, gpu_tile_evictions;
 static atomic_int_fast64_t gpu_tiles_resident;
@@ -168,6 +170,10 @@ void metrics_reset(void)
     SET(messages_in, 0);
     SET(frames_out, 0);
     SET(frames_coalesced, 0);
+    SET(snapshots_coalesced, 0);
+    SET(snapshots_deferred, 0);
+    SET(snapshots_dropped, 0);
+    SET(budget_refusals, 0);
     SET(frames_dropped, 0);
     SET(tick_overruns, 0);
     SET(footprint_frames, 0);
@@ -295,6 +301,26 @@ void metrics_count_refused(int error_code)
     if (error_code < TERRAD_ERR_FIRST || error_code > TERRAD_ERR_LAST)
         error_code = TERRAD_E_INTERNAL;
     ADD(refused[error_code], 1);
+}
+
+void metrics_count_snapshots_coalesced(uint64_t n)
+{
+    ADD(snapshots_coalesced, n);
+}
+
+void metrics_count_budget_refusal(void)
+{
+    ADD(budget_refusals, 1);
+}
+
+void metrics_count_snapshots_deferred(uint64_t n)
+{
+    ADD(snapshots_deferred, n);
+}
+
+void metrics_count_snapshots_dropped(uint64_t n)
+{
+    ADD(snapshots_dropped, n);
 }
 
 void metrics_count_frames_coalesced(uint64_t n)
@@ -559,6 +585,17 @@ static void render_clients(text *t)
     text_printf(t, "terrad_delta_compression_ratio %.6g\n",
                 comp ? (double)raw / (double)comp : 0.0);
 
+    counter(t, "terrad_colliders_refused_budget_total",
+            "collider_create refused by a client's max_active_cells or max_mesh_triangles.",
+            GET(budget_refusals));
+    counter(t, "terrad_snapshot_requests_coalesced_total",
+            "Snapshot requests (subscribe, resync) answered by an identical pending one.",
+            GET(snapshots_coalesced));
+    counter(t, "terrad_snapshot_requests_deferred_total",
+            "Snapshot requests left for a later tick by the per-tick snapshot budget.",
+            GET(snapshots_deferred));
+    counter(t, "terrad_snapshot_requests_dropped_total",
+            "Snapshot requests never built because their client left.", GET(snapshots_dropped));
     counter(t, "terrad_frames_coalesced_total",
             "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
     counter(t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",

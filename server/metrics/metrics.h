@@ -29,6 +29,13 @@ void metrics_count_messages_in(uint64_t n);
 void metrics_count_frames_out(uint64_t n);
 /* A refused client message, by its wire error code (proto/PROTOCOL.md). */
 void metrics_count_refused(int error_code);
+/* snapshot requests (service): coalesced into an identical pending one,
+ * deferred to a later tick by the per-tick budget, dropped (client gone) */
+void metrics_count_snapshots_coalesced(uint64_t n);
+/* a collider_create refused by max_active_cells or max_mesh_triangles (net) */
+void metrics_count_budget_refusal(void);
+void metrics_count_snapshots_deferred(uint64_t n);
+void metrics_count_snapshots_dropped(uint64_t n);
 void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a slow client */
 void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
 /* FOOTPRINTS frames (and their events) queued to clients; frames not sent to a slow client. */

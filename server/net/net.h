@@ -25,7 +25,9 @@ typedef struct net_limits {
     int max_colliders, max_poses_per_batch, max_subscriptions;
     int64_t max_subscribed_cells;
     double max_messages_per_s, messages_burst;
-    int max_mesh_vertices, max_mesh_triangles;
+    int max_mesh_vertices;
+    int max_mesh_triangles;   /* Σ over a client's mesh colliders (a per-client budget) */
+    int64_t max_active_cells; /* Σ footprint cells over a client's colliders (budget) */
     double max_collider_extent_m;
     size_t max_pending_bytes;
     double hello_timeout_s;

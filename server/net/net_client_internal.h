@@ -66,6 +66,8 @@ typedef struct net_client {
     /* ownership */
     uint32_t *colliders;
     int collider_count;
+    int64_t active_cells;   /* Σ over its colliders: max_active_cells */
+    int64_t mesh_triangles; /* Σ over its mesh colliders: max_mesh_triangles */
     int64_t collider_capacity;
     net_sub *subs;
     int sub_count;
@@ -101,7 +103,9 @@ typedef struct net_client {
 typedef struct net_collider_slot {
     uint32_t id; /* 0 = empty */
     uint32_t owner;
-    int axis_z; /* capsule / cylinder: the client's axis is z, the collider module's y */
+    int axis_z;    /* capsule / cylinder: the client's axis is z, the collider module's y */
+    int64_t cells; /* its cost against the owner's budgets (net_requests.c) */
+    int triangles;
 } net_collider_slot;
 
 /* What the net thread knows, apart from libwebsockets' context (net.c). */

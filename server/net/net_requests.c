@@ -84,6 +84,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddNumberToObject(lim, "messages_burst", l->messages_burst);
     cJSON_AddNumberToObject(lim, "max_mesh_vertices", l->max_mesh_vertices);
     cJSON_AddNumberToObject(lim, "max_mesh_triangles", l->max_mesh_triangles);
+    cJSON_AddNumberToObject(lim, "max_active_cells", (double)l->max_active_cells);
     cJSON_AddNumberToObject(lim, "max_collider_extent_m", l->max_collider_extent_m);
     cJSON_AddNumberToObject(lim, "max_pending_bytes", (double)l->max_pending_bytes);
     cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
@@ -115,10 +116,68 @@ static void handle_hello(net_client *c, const net_control *m)
 
 /* ---- collider_create ---- */
 
+/* The cells a collider can cover at once, whatever its orientation: the
+ * square around its bounding sphere. What the tick's work grows with. */
+static int64_t collider_footprint_cells(const collider_geometry *g, const collider_mesh *mesh,
+                                        double cell_m)
+{
+    double r = 0;
+    switch (g->shape) {
+    case COLLIDER_SPHERE:
+        r = g->radius;
+        break;
+    case COLLIDER_BOX:
+        r = sqrt(g->half_extents.x * g->half_extents.x + g->half_extents.y * g->half_extents.y +
+                 g->half_extents.z * g->half_extents.z);
+        break;
+    case COLLIDER_CAPSULE:
+        r = g->radius + g->half_length;
+        break;
+    case COLLIDER_CYLINDER:
+        r = sqrt(g->radius * g->radius + g->half_length * g->half_length);
+        break;
+    case COLLIDER_MESH:
+        r = mesh ? mesh->bounding_radius : 0;
+        break;
+    }
+    double side = ceil(2 * r / (cell_m > 0 ? cell_m : 1)) + 1;
+    return (int64_t)(side * side);
+}
+
+/* Refuse a collider that would take its client past a cost budget; 1 when refused. */
+static int over_budget(net_client *c, const net_control *m, int64_t cells, int triangles)
+{
+    const net_limits *l = &c->srv->cfg.limits;
+    if (c->active_cells + cells > l->max_active_cells) {
+        net_error(c, TERRAD_E_LIMIT_COLLIDERS, m->ref, -1, 0,
+                  "collider_create: its footprint of %lld cells would take this client's colliders "
+                  "to %lld active cells, over max_active_cells (%lld)",
+                  (long long)cells, (long long)(c->active_cells + cells),
+                  (long long)l->max_active_cells);
+        return 1;
+    }
+    if (c->mesh_triangles + triangles > l->max_mesh_triangles) {
+        net_error(c, TERRAD_E_LIMIT_COLLIDERS, m->ref, -1, 0,
+                  "collider_create: %d triangles would take this client's meshes to %lld, over "
+                  "max_mesh_triangles (%d)",
+                  triangles, (long long)(c->mesh_triangles + triangles), l->max_mesh_triangles);
+        return 1;
+    }
+    return 0;
+}
+
 /* Takes over m->mesh. */
 static void handle_collider_create(net_client *c, net_control *m)
 {
     net_state *s = c->srv;
+    int64_t cells = collider_footprint_cells(&m->geometry, m->mesh ? m->mesh : m->geometry.mesh,
+                                             s->cfg.world.cell_size_m);
+    const collider_mesh *mesh = m->mesh ? m->mesh : m->geometry.mesh;
+    int triangles = m->geometry.shape == COLLIDER_MESH && mesh ? mesh->triangle_count : 0;
+    if (over_budget(c, m, cells, triangles)) {
+        metrics_count_budget_refusal();
+        return;
+    }
     uint32_t id = s->next_collider_id;
     if (id == 0 || net_collider_insert(s, id, c->id, m->axis_z) != 0) {
         net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
@@ -149,6 +208,13 @@ static void handle_collider_create(net_client *c, net_control *m)
     m->geometry.mesh = NULL;
     c->colliders[c->collider_count++] = id;
     s->next_collider_id = id + 1;
+    net_collider_slot *slot = net_collider_find(s, id);
+    if (slot) {
+        slot->cells = cells;
+        slot->triangles = triangles;
+    }
+    c->active_cells += cells;
+    c->mesh_triangles += triangles;
     cJSON *rep = reply("collider_created", m->ref);
     cJSON_AddNumberToObject(rep, "id", id);
     net_send_json(c, rep);
@@ -174,8 +240,11 @@ static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
 static void handle_collider_delete(net_client *c, const net_control *m)
 {
     uint32_t id = m->id;
-    if (!owned(c, id, m->ref))
+    net_collider_slot *slot = owned(c, id, m->ref);
+    if (!slot)
         return;
+    int64_t cells = slot->cells;
+    int triangles = slot->triangles;
     hub_command cmd = {.kind = HUB_COLLIDER_DELETE, .client = c->id, .collider = id};
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(c->srv, &cmd) != 0) {
@@ -184,6 +253,8 @@ static void handle_collider_delete(net_client *c, const net_control *m)
         return;
     }
     net_collider_remove(c->srv, id);
+    c->active_cells -= cells;
+    c->mesh_triangles -= triangles;
     hub_forget_pose(c->srv->hub, id);
     for (int i = 0; i < c->collider_count; i++)
         if (c->colliders[i] == id) {

@@ -7,6 +7,8 @@
  */
 #include "service/service_internal.h"
 
+#include "metrics/metrics.h"
+
 #include <stdlib.h>
 #include <string.h>
 
@@ -55,7 +57,9 @@ static void remove_collider(service *s, int index)
     s->collider_count--;
 }
 
-static void queue_snapshots(service *s, uint32_t client, const svc_subscription *subs, int n)
+/* 1 when the pending request ending at job `end` is the same client's same
+ * list of rectangles as subs (deduplicated like queue_snapshots does). */
+static void queue_snapshot_jobs(service *s, uint32_t client, const svc_subscription *subs, int n)
 {
     service_batch *b = &s->batch;
     for (int i = 0; i < n; i++) {
@@ -68,6 +72,65 @@ static void queue_snapshots(service *s, uint32_t client, const svc_subscription 
         b->snapshots[b->snapshot_count++] =
             (snapshot_job){.client = client, .rect = subs[i].rect, .last = i == n - 1};
     }
+}
+
+static int same_request(const service_batch *b, int end, uint32_t client, const world_rect *rects,
+                        int n)
+{
+    int start = end;
+    while (start > 0 && !b->snapshots[start - 1].last)
+        start--;
+    if (end - start + 1 != n)
+        return 0;
+    for (int i = 0; i < n; i++) {
+        const snapshot_job *j = &b->snapshots[start + i];
+        if (j->client != client || memcmp(&j->rect, &rects[i], sizeof rects[i]) != 0)
+            return 0;
+    }
+    return 1;
+}
+
+/* A subscribe's or resync's snapshot request joins the pending queue
+ * (answered by service_publish_snapshots within the per-tick budget). The
+ * same rectangle twice in one request is built once (the client's frames
+ * serve all its subscriptions); a request identical to one of the same
+ * client still pending is coalesced into it: one more snapshot_done mark,
+ * no second build (a resync flood costs one build per tick at most). */
+static void queue_snapshots(service *s, uint32_t client, const svc_subscription *subs, int n)
+{
+    service_batch *b = &s->batch;
+    world_rect *rects = malloc(((size_t)n + 1) * sizeof *rects);
+    int k = 0;
+    for (int i = 0; rects && i < n; i++) {
+        int dup = 0;
+        for (int j = 0; j < k && !dup; j++)
+            dup = memcmp(&rects[j], &subs[i].rect, sizeof rects[j]) == 0;
+        if (!dup)
+            rects[k++] = subs[i].rect;
+    }
+    for (int e = 0; rects && k > 0 && e < b->snapshot_count; e++) {
+        if (b->snapshots[e].last && b->snapshots[e].client == client &&
+            same_request(b, e, client, rects, k)) {
+            b->snapshots[e].marks++;
+            metrics_count_snapshots_coalesced(1);
+            free(rects);
+            return;
+        }
+    }
+    if (rects) {
+        svc_subscription *packed = calloc((size_t)k + 1, sizeof *packed);
+        for (int i = 0; packed && i < k; i++)
+            packed[i].rect = rects[i];
+        if (packed && k != n) {
+            free(rects);
+            queue_snapshot_jobs(s, client, packed, k);
+            free(packed);
+            return;
+        }
+        free(packed);
+        free(rects);
+    }
+    queue_snapshot_jobs(s, client, subs, n);
 }
 
 static void client_join(service *s, svc_client *cl, uint32_t id)
@@ -170,6 +233,7 @@ static void apply_command(service *s, hub_command *c)
         client_join(s, cl, c->client);
         break;
     case HUB_CLIENT_LEFT:
+        service_drop_snapshots(s, c->client); /* never built for a client that is gone */
         client_leave(s, cl, c->client);
         break;
     case HUB_COLLIDER_CREATE:

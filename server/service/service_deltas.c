@@ -11,6 +11,8 @@
  */
 #include "service/service_internal.h"
 
+#include "metrics/metrics.h"
+
 #include <stdlib.h>
 #include <string.h>
 
@@ -222,10 +224,81 @@ done:
     free(datas);
 }
 
+/* The cells a request's jobs [start, end] compress. */
+static int64_t request_cells(const service_batch *b, int start, int end)
+{
+    int64_t cells = 0;
+    for (int i = start; i <= end; i++)
+        cells += (int64_t)b->snapshots[i].rect.w * b->snapshots[i].rect.h;
+    return cells;
+}
+
+/*
+ * Answer pending snapshot requests within SERVICE_SNAPSHOT_CELLS_PER_TICK:
+ * in arrival order, one request per client per tick (so one client's flood
+ * cannot hold back another's subscribe), whole requests only (all of one
+ * request's frames carry this tick's tile versions, queued after its deltas
+ * as before), at least one request per tick. The rest wait, in order, and
+ * are counted in terrad_snapshot_requests_deferred_total.
+ */
 void service_publish_snapshots(service *s)
 {
     THREAD_OWNED(&s->owner);
-    for (int i = 0; i < s->batch.snapshot_count; i++)
-        publish_snapshot(s, &s->batch.snapshots[i]);
-    s->batch.snapshot_count = 0;
+    service_batch *b = &s->batch;
+    int64_t budget = SERVICE_SNAPSHOT_CELLS_PER_TICK, spent = 0;
+    uint32_t *served = calloc((size_t)b->snapshot_count + 1, sizeof *served);
+    int nserved = 0, kept = 0, start = 0;
+    uint64_t deferred = 0;
+    for (int i = 0; i < b->snapshot_count; i++) {
+        if (!b->snapshots[i].last)
+            continue;
+        uint32_t client = b->snapshots[i].client;
+        int again = 0;
+        for (int k = 0; k < nserved && !again; k++)
+            again = served[k] == client;
+        int64_t cells = request_cells(b, start, i);
+        int go = served && !again && (nserved == 0 || spent + cells <= budget);
+        if (!served && nserved == 0)
+            go = 1; /* no memory for the bookkeeping: at least one request */
+        if (go) {
+            for (int j = start; j <= i; j++)
+                publish_snapshot(s, &b->snapshots[j]);
+            terrad_rect none[1] = {{0}};
+            for (int m = 0; m < b->snapshots[i].marks; m++) /* coalesced requests' marks */
+                send_snapshot_frame(s, client, none, 0, 1);
+            spent += cells;
+            if (served)
+                served[nserved] = client;
+            nserved++;
+        } else {
+            for (int j = start; j <= i; j++)
+                b->snapshots[kept++] = b->snapshots[j];
+            deferred++;
+        }
+        start = i + 1;
+    }
+    /* an unfinished request (no memory for its last job) is kept as it is */
+    for (int j = start; j < b->snapshot_count; j++)
+        b->snapshots[kept++] = b->snapshots[j];
+    b->snapshot_count = kept;
+    free(served);
+    if (deferred)
+        metrics_count_snapshots_deferred(deferred);
+}
+
+void service_drop_snapshots(service *s, uint32_t client)
+{
+    THREAD_OWNED(&s->owner);
+    service_batch *b = &s->batch;
+    int kept = 0;
+    uint64_t dropped = 0;
+    for (int i = 0; i < b->snapshot_count; i++) {
+        if (b->snapshots[i].client == client)
+            dropped += b->snapshots[i].last;
+        else
+            b->snapshots[kept++] = b->snapshots[i];
+    }
+    b->snapshot_count = kept;
+    if (dropped)
+        metrics_count_snapshots_dropped(dropped);
 }

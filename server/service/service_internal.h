@@ -57,8 +57,14 @@ typedef struct svc_contact {
 typedef struct snapshot_job {
     uint32_t client;
     world_rect rect;
-    int last; /* the last job of its request: marks snapshot_done */
+    int last;  /* the last job of its request: marks snapshot_done */
+    int marks; /* on the last job: identical requests coalesced into this one */
 } snapshot_job;
+
+/* Snapshot cells compressed per tick, over every client: past it, requests
+ * wait for a later tick (a request is never split, so its frames all carry
+ * one tick's versions). One request per client per tick while others wait. */
+#define SERVICE_SNAPSHOT_CELLS_PER_TICK (512 * 512)
 
 /* One piece of a dirty rectangle inside one tile. */
 typedef struct tile_piece {
@@ -82,7 +88,7 @@ typedef struct service_batch {
     tile_piece *pieces; /* the dirty rectangles cut along tile edges, sorted by tile */
     int piece_count;
     int64_t piece_capacity;
-    snapshot_job *snapshots; /* subscriptions and resyncs to answer this tick */
+    snapshot_job *snapshots; /* subscriptions and resyncs not yet answered (FIFO) */
     int snapshot_count;
     int64_t snapshot_capacity;
     hub_out *out; /* frames to publish; may hold earlier ticks' waiting for a group commit */
@@ -157,6 +163,8 @@ void service_publish_feedback(service *s); /* CONTACT and ACK frames */
 int service_cut_into_tiles(service *s, const sim_tick_report *report);
 void service_publish_deltas(service *s, service_tick_stats *stats);
 void service_publish_snapshots(service *s);
+/* A client left: its pending snapshot requests are dropped, never built. */
+void service_drop_snapshots(service *s, uint32_t client);
 
 /* service_colliders.c */
 void service_publish_colliders(service *s, const sim_collider *extra, int extra_count);

@@ -43,6 +43,9 @@ typedef struct store_config {
     int64_t segment_bytes;  /* a log segment this large is compacted (0: 16 MiB) */
     const char *fault_path; /* test hook: while this file exists, writes fail ENOSPC */
     int compression_level;  /* zstd level (0: 3) */
+    /* --recover-truncate: start on a damaged directory anyway, cutting what
+     * is damaged and logging exactly what is lost (default: refuse) */
+    int recover_truncate;
 } store_config;
 
 /* "every-tick", "none" or "group:MS" (MS in 1..10000). */
@@ -54,6 +57,10 @@ typedef struct store_recovery {
     int tiles_loaded;         /* snapshots read */
     int64_t records_replayed; /* log records applied */
     int64_t bytes_cut;        /* a torn or corrupt tail cut off the log */
+    /* the tick the daemon goes on from: at least every tick any client saw,
+     * even those that changed nothing (so tick numbers never go backwards) */
+    uint64_t tick_floor;
+    int damage; /* damage found (and, with recover_truncate, cut) */
     double ms;
 } store_recovery;
 
@@ -108,6 +115,10 @@ int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_rec
  * a running daemon holds. A missing directory is fine. *removed counts the
  * files deleted. 0, or -1 with err set. */
 int store_remove(const char *dir, int *removed, error_text *err);
+/* terrad fsck: check a data directory against CONTROL without changing
+ * anything; every damage is logged (naming the file). 0 clean, 1 damaged
+ * (err says the first), -1 when it cannot be read at all. */
+int store_fsck(const char *dir, world *w, store_recovery *rec, error_text *err);
 
 /* CRC32C (Castagnoli), as every record, snapshot and the manifest use it. */
 uint32_t store_crc32c(uint32_t crc, const void *data, size_t len);

@@ -10,6 +10,7 @@
  * The two threads meet only in the job fields under st->lock (see
  * store_internal.h); each side's entries assert which thread they run on.
  */
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -39,7 +40,21 @@ static int compaction_run_job(store_dir *st, ZSTD_CCtx *cctx, const tile_copy *t
                   (unsigned long long)tick, err.message[0] ? err.message : "out of memory");
         return 0;
     }
-    /* every changed tile is on disk: the older segments are no longer needed */
+    /* every changed tile is on disk: CONTROL records them, then the older
+     * segments are no longer needed (a crash before CONTROL is written keeps
+     * them: recovery replays them over the new snapshots, which is harmless) */
+    pthread_mutex_lock(&st->ctl_lock);
+    for (int i = 0; i < count; i++)
+        st->ctl.tile_tick[tiles[i].ty * st->tiles_x + tiles[i].tx] = tick;
+    if (live > st->ctl.first_seq)
+        st->ctl.first_seq = live;
+    pthread_mutex_unlock(&st->ctl_lock);
+    if (store_control_save(st, &err) != 0) {
+        metrics_count_store_error("compaction");
+        log_error("store: compaction as of tick %llu: %s (the log is kept)",
+                  (unsigned long long)tick, err.message);
+        return 0;
+    }
     uint64_t *seqs;
     int n;
     if (store_list_segments(st->dir, &seqs, &n) == 0) {
@@ -126,8 +141,10 @@ void store_compaction_maybe_start(store_dir *st, const world *w, uint64_t tick)
     }
     /* every record so far is synced before the old segment is left behind */
     error_text err = {{0}};
-    if (k != n || fdatasync(st->wal_fd) != 0 ||
-        store_segment_start(st, st->wal_seq + 1, &err) != 0) {
+    int synced = k == n && store_dir_fdatasync(st, st->wal_fd) == 0;
+    if (k == n && !synced)
+        store_dir_sync_failed_fatal(st, errno); /* never retried into a success */
+    if (!synced || store_segment_start(st, st->wal_seq + 1, &err) != 0) {
         for (int i = 0; i < k; i++)
             free(tiles[i].values);
         free(tiles);
@@ -138,6 +155,13 @@ void store_compaction_maybe_start(store_dir *st, const world *w, uint64_t tick)
     st->durable_tick = st->appended_tick;
     st->unsynced = 0;
     memset(st->changed, 0, (size_t)st->tiles_x * st->tiles_y);
+    /* CONTROL: the new segment belongs to the log now */
+    pthread_mutex_lock(&st->ctl_lock);
+    st->ctl.last_seq = st->wal_seq;
+    st->ctl.tick = st->durable_tick;
+    pthread_mutex_unlock(&st->ctl_lock);
+    if (store_control_save(st, &err) != 0)
+        log_error("%s", err.message);
     pthread_mutex_lock(&st->lock);
     st->job_tiles = tiles;
     st->job_count = n;

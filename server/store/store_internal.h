@@ -6,12 +6,15 @@
  *   DIR/MANIFEST            JSON naming the world (dims, scale, CRC32C of the
  *                           base terrain) + a line "crc32c XXXXXXXX"
  *   DIR/LOCK                flock'ed while a daemon owns the directory
+ *   DIR/CONTROL             what the directory must hold: segments first..last,
+ *                           the tile snapshots, the last durable tick
  *   DIR/wal-<seq>.log       log segments: a 24-byte header, then records
  *   DIR/tiles/t-X-Y.snap    one per 256² tile ever changed
  *
  * Files: store_dir.c (open/close, appending a tick, syncing), store_log.c
  * (log segments and recovery), store_snapshot.c (manifest and tile
- * snapshots), store_compaction.c (the compaction thread). Never included from
+ * snapshots), store_control.c (CONTROL), store_recover.c (recovery and its
+ * damage checks), store_compaction.c (the compaction thread). Never included from
  * outside server/store/.
  */
 #ifndef TERRAD_STORE_INTERNAL_H
@@ -87,6 +90,19 @@ typedef struct tile_copy {
     int32_t *values;
 } tile_copy;
 
+/* DIR/CONTROL (store_control.c). */
+typedef struct store_control {
+    uint64_t tick;                /* the last tick durable when it was written */
+    uint64_t first_seq, last_seq; /* every segment first..last must be present */
+    int tiles_x, tiles_y;
+    uint64_t *tile_tick; /* per tile: the tick of its snapshot, 0: none */
+} store_control;
+
+/* Ticks that change nothing are not logged, but one empty record is written
+ * at least every STORE_TICK_LOG_EVERY ticks (and at close), so a restart can
+ * go on from a tick no client has seen (store_recovery.tick_floor). */
+#define STORE_TICK_LOG_EVERY 30
+
 typedef struct store_dir {
     store_config cfg;
     char dir[1024];
@@ -98,11 +114,14 @@ typedef struct store_dir {
     uint64_t wal_seq;
     int64_t wal_len; /* bytes known good in the current segment */
     uint64_t appended_tick, durable_tick;
-    int unsynced; /* records appended since the last fdatasync */
+    uint64_t seen_tick; /* the last tick handed to append_tick, logged or not */
+    int unsynced;       /* records appended since the last fdatasync */
     double last_sync_ms;
 
     int failed;
     double failed_at_ms;
+    double fail_logged_ms; /* the last failure logged (rate-limited) */
+    long long fail_unlogged;
     char failure[256];
 
     uint8_t *changed; /* per tile: changed since the last compaction boundary */
@@ -122,6 +141,9 @@ typedef struct store_dir {
     tile_copy *job_tiles;
     int job_count;
     uint64_t job_tick, job_first_live_seq;
+
+    pthread_mutex_t ctl_lock; /* ctl: updated by the sim and compaction threads */
+    store_control ctl;
 } store_dir;
 
 /* ---- files (store_dir.c) ---- */
@@ -132,6 +154,11 @@ int store_dir_fsync(const char *dir);
 int store_dir_write_atomic(const store_dir *st, const char *dir, const char *name, const void *a,
                            size_t alen, const void *b, size_t blen, error_text *err);
 int store_dir_fault_active(const store_dir *st);
+int store_dir_fault_is_fsync(const store_dir *st);
+/* fdatasync, or EIO while the fault file says "fsync" (test hook). */
+int store_dir_fdatasync(const store_dir *st, int fd);
+/* After a failed fdatasync with ticks held for it: log and _exit (fsyncgate). */
+void store_dir_sync_failed_fatal(const store_dir *st, int e);
 
 /* ---- manifest and tile snapshots (store_snapshot.c) ---- */
 uint32_t store_base_identity(const world *w);
@@ -147,8 +174,50 @@ int store_tile_write(const store_dir *st, const char *dir, const tile_copy *t, u
 int store_list_segments(const char *dir, uint64_t **seqs, int *count);
 void store_segment_path(const char *dir, uint64_t seq, char *out, size_t cap);
 int store_segment_start(store_dir *st, uint64_t seq, error_text *err);
-int store_recover(const char *dir, world *w, uint8_t *changed, int repair, uint64_t upto_tick,
-                  uint64_t *last_seq, store_recovery *rec, error_text *err);
+/* Apply every good record of one segment's bytes to w (w NULL: only count
+ * them); stops at the first record that is torn or fails a check. */
+typedef struct replay_result {
+    uint64_t last_tick;
+    int64_t records;
+    int64_t good_len; /* offset after the last good record */
+    int64_t file_len;
+    int header_ok;
+    char problem[200];
+    /* good records found after the problem: it was damage, not a torn tail */
+    int64_t later_records;
+    uint64_t later_max_tick;
+} replay_result;
+int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
+                         uint64_t upto_tick, replay_result *res, error_text *err);
+
+/* ---- recovery (store_recover.c) ---- */
+enum {
+    STORE_RECOVER_REPAIR = 1,   /* cut a torn tail off the last segment */
+    STORE_RECOVER_CHECK = 2,    /* hold the directory to CONTROL: damage refuses */
+    STORE_RECOVER_TRUNCATE = 4, /* damage is logged with what is lost, then cut */
+    STORE_RECOVER_ALL = 8,      /* fsck: log every damage found, not only the first */
+};
+typedef struct recover_args {
+    const char *dir;
+    world *w;
+    uint8_t *changed;         /* per tile, or NULL */
+    int flags;                /* STORE_RECOVER_* */
+    uint64_t upto_tick;       /* 0: all */
+    const store_control *ctl; /* NULL: none (no checks against it) */
+    store_control *found;     /* filled when not NULL: snapshots loaded, segments */
+} recover_args;
+int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec, error_text *err);
+/* 1 when DIR holds a log record, a snapshot or CONTROL (a MANIFEST must then be there). */
+int store_dir_has_data(const char *dir);
+
+/* ---- CONTROL (store_control.c) ---- */
+int store_control_init(store_control *c, int tiles_x, int tiles_y);
+void store_control_free(store_control *c);
+/* 0, 1 when there is none, -1 (err names the file) when it is corrupt. */
+int store_control_read(const char *dir, store_control *c, error_text *err);
+int store_control_write(const store_dir *st, const char *dir, const store_control *c,
+                        error_text *err);
+int store_control_save(store_dir *st, error_text *err);
 
 /* ---- compaction (store_compaction.c) ---- */
 void *store_compaction_main(void *arg);

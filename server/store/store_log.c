@@ -21,19 +21,45 @@
 
 #include "store/store_internal.h"
 
-typedef struct replay_result {
-    uint64_t last_tick;
-    int64_t records;
-    int64_t good_len; /* offset after the last good record */
-    int64_t file_len;
-    int header_ok;
-    char problem[200];
-} replay_result;
+/* A record at `at` whose header and payload checksums hold: its length, or 0. */
+static size_t record_at(const uint8_t *data, size_t len, size_t at, uint64_t *tick)
+{
+    if (len - at < REC_HEADER)
+        return 0;
+    const uint8_t *h = data + at;
+    uint32_t plen = get32(h + 4);
+    if (get32(h) != REC_MAGIC || get32(h + 20) != store_crc32c(0, h, 20) ||
+        plen > REC_MAX_PAYLOAD || len - at - REC_HEADER < plen ||
+        store_crc32c(0, h + REC_HEADER, plen) != get32(h + 16))
+        return 0;
+    *tick = get64(h + 8);
+    return REC_HEADER + plen;
+}
 
-/* Apply every good record of one segment to w (and mark changed tiles). Stops
- * at the first record that is torn or fails its checksum. */
-static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
-                          uint64_t upto_tick, replay_result *res, error_text *err)
+/* After a bad record: are there good records further on? A crash can only
+ * tear the end of what was being written, so any good record after the bad
+ * one means the bad one is damage in the middle of the log. */
+static void scan_after(const uint8_t *data, size_t len, size_t from, replay_result *res)
+{
+    for (size_t at = from; at + REC_HEADER <= len;) {
+        uint64_t tick;
+        size_t n = record_at(data, len, at, &tick);
+        if (!n) {
+            at++;
+            continue;
+        }
+        res->later_records++;
+        if (tick > res->later_max_tick)
+            res->later_max_tick = tick;
+        at += n;
+    }
+}
+
+/* Apply every good record of one segment to w (and mark changed tiles); with
+ * w NULL only count them. Stops at the first record that is torn or fails its
+ * checksum, then looks for good records after it (res->later_records). */
+int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
+                         uint64_t upto_tick, replay_result *res, error_text *err)
 {
     memset(res, 0, sizeof *res);
     res->last_tick = after_tick;
@@ -45,7 +71,7 @@ static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t
         return -1;
     }
     res->file_len = (int64_t)len;
-    int tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    int tiles_x = !w ? 0 : (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
     if (len < WAL_HEADER || memcmp(data, WAL_MAGIC, 8) != 0 ||
         get32(data + 16) != store_crc32c(0, data, 16)) {
         snprintf(res->problem, sizeof res->problem, "torn or corrupt segment header");
@@ -58,6 +84,20 @@ static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t
     int32_t *values = NULL;
     int64_t values_cap = 0;
     while (at < len) {
+        if (!w) { /* count only */
+            uint64_t tick;
+            size_t n = record_at(data, len, at, &tick);
+            if (!n) {
+                snprintf(res->problem, sizeof res->problem,
+                         "record at offset %zu is torn or fails its checksum", at);
+                break;
+            }
+            res->records++;
+            res->last_tick = tick;
+            at += n;
+            res->good_len = (int64_t)at;
+            continue;
+        }
         if (len - at < REC_HEADER) {
             snprintf(res->problem, sizeof res->problem, "torn record header at offset %zu", at);
             break;
@@ -126,6 +166,8 @@ static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t
         at += REC_HEADER + plen;
         res->good_len = (int64_t)at;
     }
+    if (res->problem[0])
+        scan_after(data, len, at + 1, res);
     free(values);
     free(data);
     return 0;
@@ -169,97 +211,6 @@ void store_segment_path(const char *dir, uint64_t seq, char *out, size_t cap)
     snprintf(out, cap, "%s/wal-%016llu.log", dir, (unsigned long long)seq);
 }
 
-/* Load tile snapshots, then replay every segment. With `repair`, a torn tail
- * of the last segment is cut off the file; without, it is only skipped. */
-int store_recover(const char *dir, world *w, uint8_t *changed, int repair, uint64_t upto_tick,
-                  uint64_t *last_seq, store_recovery *rec, error_text *err)
-{
-    double t0 = time_now_ms();
-    memset(rec, 0, sizeof *rec);
-    char tiles_dir[1100];
-    snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", dir);
-    /* A compaction may have folded every record into the snapshots and left an
-     * empty log: the world is then as of the newest snapshot, and the tick
-     * counter must go on from there, never back to 0. */
-    uint64_t snapshot_tick = 0;
-    DIR *d = opendir(tiles_dir);
-    if (d) {
-        struct dirent *e;
-        while ((e = readdir(d))) {
-            size_t n = strlen(e->d_name);
-            if (n > 5 && strcmp(e->d_name + n - 5, ".snap") == 0) {
-                char path[1400];
-                snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
-                uint64_t tile_tick = 0;
-                if (store_tile_load(path, w, upto_tick, &tile_tick, err) != 0) {
-                    closedir(d);
-                    return -1;
-                }
-                if (tile_tick > snapshot_tick)
-                    snapshot_tick = tile_tick;
-                rec->tiles_loaded++;
-            }
-        }
-        closedir(d);
-    }
-    uint64_t *seqs;
-    int count;
-    if (store_list_segments(dir, &seqs, &count) != 0) {
-        error_set(err, "store: cannot list %s: %s", dir, strerror(errno));
-        return -1;
-    }
-    uint64_t tick = 0;
-    for (int i = 0; i < count; i++) {
-        char path[1100];
-        store_segment_path(dir, seqs[i], path, sizeof path);
-        replay_result res;
-        if (segment_replay(path, w, changed, tick, upto_tick, &res, err) != 0) {
-            free(seqs);
-            return -1;
-        }
-        rec->records_replayed += res.records;
-        tick = res.last_tick;
-        if (res.problem[0]) {
-            if (i != count - 1) {
-                /* only the segment being written at a crash can be torn: this is damage */
-                error_set(err,
-                          "store: log segment %s is corrupt (%s) and is not the last segment: "
-                          "refusing to start rather than skip committed ticks",
-                          path, res.problem);
-                free(seqs);
-                return -1;
-            }
-            int64_t cut = res.file_len - (res.header_ok ? res.good_len : 0);
-            rec->bytes_cut = cut;
-            log_error("store: %s: %s; %s %lld bytes after offset %lld (last good tick %llu)", path,
-                      res.problem, repair ? "cutting" : "skipping", (long long)cut,
-                      (long long)(res.header_ok ? res.good_len : 0),
-                      (unsigned long long)res.last_tick);
-            if (repair) {
-                int rc = res.header_ok ? truncate(path, res.good_len) : unlink(path);
-                if (rc != 0 || store_dir_fsync(dir) != 0) {
-                    error_set(err, "store: cannot cut the torn tail of %s: %s", path,
-                              strerror(errno));
-                    free(seqs);
-                    return -1;
-                }
-                if (res.header_ok) {
-                    int fd = open(path, O_WRONLY | O_CLOEXEC);
-                    if (fd >= 0) {
-                        fsync(fd);
-                        close(fd);
-                    }
-                }
-            }
-        }
-    }
-    *last_seq = count ? seqs[count - 1] : 0;
-    free(seqs);
-    rec->tick = tick > snapshot_tick ? tick : snapshot_tick;
-    rec->ms = time_now_ms() - t0;
-    return 0;
-}
-
 /* Start segment seq: header written and synced, directory synced. */
 int store_segment_start(store_dir *st, uint64_t seq, error_text *err)
 {
@@ -274,7 +225,7 @@ int store_segment_start(store_dir *st, uint64_t seq, error_text *err)
     memcpy(h, WAL_MAGIC, 8);
     put64(h + 8, seq);
     put32(h + 16, store_crc32c(0, h, 16));
-    if (store_dir_write_all(st, fd, h, sizeof h) != 0 || fdatasync(fd) != 0 ||
+    if (store_dir_write_all(st, fd, h, sizeof h) != 0 || store_dir_fdatasync(st, fd) != 0 ||
         store_dir_fsync(st->dir) != 0) {
         error_set(err, "store: cannot start %s: %s", path, strerror(errno));
         close(fd);

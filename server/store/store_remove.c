@@ -1,7 +1,8 @@
 /*
  * store_remove.c: `terrad serve --fresh` — start a data directory over. Runs
  * before store_open, outside any tick. It deletes only the files a data
- * directory holds (store_internal.h's layout: MANIFEST, LOCK, wal-*.log,
+ * directory holds (store_internal.h's layout: MANIFEST, CONTROL, LOCK,
+ * wal-*.log and the wal-*.log.lost segments --recover-truncate set aside,
  * tiles/t-X-Y.snap, and their *.tmp leftovers of an interrupted write), and
  * refuses a directory holding anything else, so a mistyped --data (a home
  * directory, a project) loses nothing. It takes the directory's lock first:
@@ -42,8 +43,10 @@ static int top_level_known(const char *name)
     char base[256];
     if (strip_tmp(name, base, sizeof base) != 0)
         return 0;
-    return strcmp(base, "MANIFEST") == 0 || strcmp(name, "LOCK") == 0 ||
-           (strncmp(base, "wal-", 4) == 0 && name_is(base, "wal-%16llu.log%n", 1));
+    return strcmp(base, "MANIFEST") == 0 || strcmp(base, "CONTROL") == 0 ||
+           strcmp(name, "LOCK") == 0 ||
+           (strncmp(base, "wal-", 4) == 0 &&
+            (name_is(base, "wal-%16llu.log%n", 1) || name_is(base, "wal-%16llu.log.lost%n", 1)));
 }
 
 static int tile_known(const char *name)

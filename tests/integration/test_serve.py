@@ -76,12 +76,12 @@ def run_daemon(backend):
         check(status == 200 and world["width"] > 0 and world["units_per_m"] == 10000,
               f"{backend}: /v1/world {body}")
         first = json.loads(get(port, "/v1/stats")[1])
-        deadline = time.time() + 60  # a condition, not a speed: a loaded machine ticks slowly
-        while True:
-            time.sleep(0.5)
+        # behaviour, not speed: wait (generously) until ticks have advanced
+        deadline = time.time() + 120
+        later = first
+        while later["tick"] <= first["tick"] + 30 and time.time() < deadline:
+            time.sleep(0.2)
             later = json.loads(get(port, "/v1/stats")[1])
-            if later["tick"] > first["tick"] + 30 or time.time() > deadline:
-                break
         check(later["tick"] > first["tick"] + 30,
               f"{backend}: ticks advance ({first['tick']} -> {later['tick']})")
         check(isinstance(later["volume"], int) and later["volume"] == first["volume"],
@@ -92,7 +92,7 @@ def run_daemon(backend):
         check(status == 405, f"{backend}: POST refused with 405 ({status})")
         p.send_signal(signal.SIGTERM)
         try:
-            rc = p.wait(timeout=10)
+            rc = p.wait(timeout=120)  # generous: a loaded machine is slow, not wrong
         except subprocess.TimeoutExpired:
             p.kill()
             rc = None

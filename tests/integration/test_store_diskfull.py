@@ -107,6 +107,20 @@ async def scenario(d, fault):
     check(any("No space left on device" in line and "refused" in line for line in d.lines),
           "a clear log line")
 
+    # while the disk stays full, the store never says it is writable again: its
+    # retry must write new bytes, not only truncate and sync (which need no space)
+    lines_at_fault = len(d.lines)
+    statuses = []
+    for _ in range(12):
+        await asyncio.sleep(0.25)
+        statuses.append((await loop.run_in_executor(None, d.get, "/readyz"))[0])
+    check(all(st == 503 for st in statuses), f"/readyz stays 503 while the disk is full: {statuses}")
+    during = d.lines[lines_at_fault:]
+    check(not any("writable again" in line for line in during),
+          f"never 'writable again' while full: {[x for x in during if 'writable' in x][:3]}")
+    errors = [line for line in during if "terrad error" in line]
+    check(len(errors) <= 1, f"the error is logged once, then at a bounded rate: {errors[:4]}")
+
     # reads go on; the world stands still although the demo actors move
     t1, h1 = await loop.run_in_executor(None, d.heights, *region)
     await asyncio.sleep(0.5)
@@ -206,9 +220,58 @@ def main():
         r = subprocess.run([BIN, "export", "--data", os.path.join(tmp, "nothing"), "--out", png],
                            capture_output=True, text=True, timeout=60)
         check(r.returncode != 0 and "MANIFEST" in r.stderr, f"missing data dir named: {r.stderr}")
+        fsync_failure(tmp)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     check.finish()
+
+
+def fsync_failure(tmp):
+    """Group commit and a failed fdatasync (the fault file says "fsync"): the
+    held ticks are never published as durable (no retried fdatasync turns into
+    a success, as with fsyncgate); the daemon stops, and a restart recovers at
+    least every tick a client saw."""
+    data, fault = os.path.join(tmp, "data-fsync"), os.path.join(tmp, "fsync-fails")
+    d = Daemon(backend="cpu", demo=True, data_dir=data, extra=["--store-fault", fault],
+               durability="group:200", name="terrad-fsync")
+    check.daemons.append(d)
+    seen = {"tick": 0}
+
+    async def watch():
+        asyncio.get_running_loop().set_exception_handler(lambda loop, context: None)
+        client = tp.TerradClient(d.ws, name="fsync-watch")
+        await client.connect()
+        await client.subscribe(0, 0, 256, 256)
+        await client.wait_for(lambda: client.tick > 30, 120)
+        with open(fault, "w") as f:
+            f.write("fsync")
+        deadline = time.time() + 120
+        while d.alive() and time.time() < deadline:
+            seen["tick"] = max(seen["tick"], client.tick)
+            await asyncio.sleep(0.05)
+        seen["tick"] = max(seen["tick"], client.tick)
+        try:
+            await client.close()
+        except Exception:  # noqa: BLE001  (the daemon is gone)
+            pass
+
+    asyncio.run(watch())
+    status = d.proc.wait(60) if d.alive() else d.proc.returncode
+    d.thread.join(5)
+    check(status == 70, f"a failed fdatasync under group commit stops the daemon (status {status})")
+    check(any("fdatasync of the log failed" in line and "none of them was published" in line
+              for line in d.lines), "the log says which ticks were not durable and were not published")
+    if d.alive():
+        d.kill9()
+    os.unlink(fault)
+    d2 = Daemon(backend="cpu", demo=False, data_dir=data, durability="group:200",
+                name="terrad-fsync-restart")
+    with check.running(d2):
+        recovered = [line for line in d2.lines if "recovered tick" in line]
+        tick = int(recovered[0].split("recovered tick ")[1].split()[0]) if recovered else -1
+        check(tick >= seen["tick"] > 0,
+              f"every tick the client saw ({seen['tick']}) is recovered ({tick})")
+        check(d2.stats()["tick"] >= seen["tick"], "tick numbers go on from there")
 
 
 if __name__ == "__main__":

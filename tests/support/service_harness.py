@@ -176,7 +176,7 @@ class Daemon:
     def alive(self):
         return self.proc.poll() is None
 
-    def stop(self, timeout=15):
+    def stop(self, timeout=120):
         """SIGTERM; returns the exit status (None if it had to be killed)."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)

@@ -417,14 +417,23 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
     // no cracks: against a magenta background, no magenta inside the terrain
     const bg = [255, 0, 255];
     await pg.evaluate(() => window.terrad.setBackground([1, 0, 1]));
-    await sleep(500);
-    const img = await grab(pg);
-    const withSkirts = holes(img, bg);
+    // wait for the frames to settle (a loaded machine renders late) rather than a fixed sleep:
+    // the count is taken once two grabs in a row agree
+    let img = await grab(pg);
+    let withSkirts = holes(img, bg);
+    await until('the view with skirts to settle', async () => {
+      await sleep(300);
+      const next = await grab(pg);
+      const n = holes(next, bg);
+      const same = n === withSkirts;
+      img = next;
+      withSkirts = n;
+      return same && n === 0;
+    }, 120000, 0).catch(() => {});
     mkdirSync(ARTIFACTS, { recursive: true });
     await pg.screenshot({ path: path.join(ARTIFACTS, 'viewer-lod.png') });
     await pg.evaluate(() => window.terrad.setSkirts(false));
-    await sleep(500);
-    const withoutSkirts = holes(await grab(pg), bg);
+    const withoutSkirts = await until('cracks to show without skirts', async () => holes(await grab(pg), bg), 120000, 300).catch(() => 0);
     await pg.evaluate(() => window.terrad.setSkirts(true));
     console.error(`background pixels inside the terrain: ${withSkirts} with skirts, ${withoutSkirts} without`);
     assert.equal(withSkirts, 0, `${withSkirts} background pixels show through the terrain`);
