@@ -310,6 +310,9 @@ int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec
     /* ticks that changed nothing are logged only every STORE_TICK_LOG_EVERY
      * ticks: a client may have seen up to that many more */
     rec->tick_floor = rec->tick + STORE_TICK_LOG_EVERY;
+    /* a directory that never held a tick: no client can have seen one */
+    if (!ctl && rec->records_replayed == 0 && rec->tiles_loaded == 0)
+        rec->tick_floor = rec->tick;
     if (ctl && ctl->tick > rec->tick_floor)
         rec->tick_floor = ctl->tick;
     rec->ms = time_now_ms() - t0;
