@@ -15,6 +15,8 @@ void app_print_help(void)
            "  terrad simulate [options]     run a scene offline and print a JSON report\n"
            "  terrad export [options]       write a data directory's world (or a region)\n"
            "  terrad bench --trade [...]    the speed/accuracy sweep (terrad bench --help)\n"
+           "  terrad world add NAME --scene FILE | list | remove NAME  [--cluster URLS]\n"
+           "                                the cluster's worlds (docs/cluster.md)\n"
            "  terrad --help | --version\n"
            "\n"
            "serve options:\n"
@@ -87,6 +89,8 @@ int main(int argc, char **argv)
         return app_serve(argc - 2, argv + 2);
     if (strcmp(command, "export") == 0)
         return app_export(argc - 2, argv + 2);
+    if (strcmp(command, "world") == 0)
+        return app_world(argc - 2, argv + 2);
     if (command[0] == '-') /* options without a command: serve */
         return app_serve(argc - 1, argv + 1);
     fprintf(stderr, "terrad: unknown command \"%s\" (see terrad --help)\n", command);

@@ -16,6 +16,7 @@ int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
 int app_export(int argc, char **argv); /* a data directory's world to raw32 / png16 */
 int app_bench(int argc, char **argv);  /* `terrad bench --trade` (bench_trade.c) */
+int app_world(int argc, char **argv);  /* `terrad world add|list|remove` (world_cmd.c) */
 void app_print_help(void);
 
 /* "gl" or "cpu". */
