@@ -34,6 +34,8 @@
 #include <stdint.h>
 
 #include "base/base.h"
+#include "store/store.h"
+#include "world/world.h"
 
 #define CLUSTER_WORLD_NAME_MAX 64
 #define CLUSTER_NODE_NAME_MAX 64
@@ -131,8 +133,12 @@ cluster_status cluster_wal_append(cluster_wal *w, const void *data, size_t len, 
                                   error_text *err);
 /* The sequence the next append expects (0: the world has no record). */
 uint64_t cluster_wal_last_seq(const cluster_wal *w);
-/* Removes the world's records with sequences < seq (snapshots cover them). */
+/* Removes the world's records with sequences < seq (snapshots cover them);
+ * the last message this writer saw always stays (the next append expects it). */
 cluster_status cluster_wal_purge_below(cluster_wal *w, uint64_t seq, error_text *err);
+/* The same without a writer (any thread): the caller keeps seq <= the last. */
+cluster_status cluster_log_purge_below(cluster *cl, const char *world, uint64_t seq,
+                                       error_text *err);
 
 /* ---- Tile snapshots (cluster_kv.c) ---- */
 
@@ -163,5 +169,47 @@ int cluster_world_get(cluster *cl, const char *name, char **scene_json, error_te
 int cluster_world_list(cluster *cl, char ***names, int *count, error_text *err);
 /* Unregisters a world and deletes its log, snapshots and lease: 1, 0 when unknown, -1 error. */
 int cluster_world_remove(cluster *cl, const char *name, error_text *err);
+
+/* ---- A world's store on JetStream (cluster_store.c) ----
+ * What the data directory (store.h) is on one machine: a tick's changed
+ * rectangles with their new absolute values, zstd-compressed, as one record
+ * of the fenced log; every compact_records records, the tiles changed since
+ * the last time are copied at that tick boundary and a background thread
+ * writes them as snapshots and then purges the log they cover. Recovery loads
+ * the snapshots, replays the log over them (absolute values: a record older
+ * than a snapshot followed by the newer records gives the same heights) and
+ * fences earlier owners off. Only one thread (the sim thread) commits. */
+
+typedef struct cluster_store cluster_store;
+
+typedef struct cluster_store_config {
+    int compact_records;   /* records between compactions (0: 600, 10 s at 60 Hz) */
+    int compression_level; /* zstd level (0: 1) */
+} cluster_store_config;
+
+/* Takes world_name's log (see cluster_wal_take) and recovers it into w,
+ * whose heights must hold the scene's base terrain. rec->tick: the last
+ * tick committed, so the new owner continues the numbering. */
+cluster_store *cluster_store_open(cluster *cl, const char *world_name, world *w,
+                                  const cluster_store_config *c, store_recovery *rec,
+                                  error_text *err);
+/* Waits for a running compaction and closes (the lease is the caller's). */
+void cluster_store_close(cluster_store *cs);
+/*
+ * Commits tick `tick`'s changed rectangles (values read from w); returns
+ * once the stream acknowledged it. CLUSTER_ERROR: NATS did not answer (the
+ * caller undoes the tick and retries later); CLUSTER_FENCED: another node
+ * owns the world now (the caller undoes the tick and stops ticking it).
+ */
+cluster_status cluster_store_commit_tick(cluster_store *cs, const world *w, uint64_t tick,
+                                         const world_rect *rects, int n, error_text *err);
+/* The last tick committed (recovered or acknowledged). */
+uint64_t cluster_store_tick(const cluster_store *cs);
+/* Commit latency (publish to acknowledgement), milliseconds: p50 and p99. */
+void cluster_store_commit_ms(const cluster_store *cs, double *p50, double *p99);
+/* Compactions done, and the tiles they wrote (for tests and /metrics). */
+void cluster_store_compactions(cluster_store *cs, int64_t *count, int64_t *tiles);
+/* Waits until no compaction is pending or running. */
+void cluster_store_wait_compaction(cluster_store *cs);
 
 #endif

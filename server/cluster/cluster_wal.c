@@ -309,23 +309,29 @@ cluster_status cluster_wal_take(cluster_wal *w, uint64_t from_seq, cluster_recor
     return CLUSTER_FENCED;
 }
 
-cluster_status cluster_wal_purge_below(cluster_wal *w, uint64_t seq, error_text *err)
+cluster_status cluster_log_purge_below(cluster *cl, const char *world, uint64_t seq,
+                                       error_text *err)
 {
-    /* The subject's last message always stays: it is what the next append expects. */
-    if (seq > w->last_seq)
-        seq = w->last_seq;
     if (seq <= 1)
         return CLUSTER_OK;
+    char subject[128];
+    cluster_wal_subject(world, subject, sizeof subject);
     jsOptions jo;
     jsOptions_Init(&jo);
-    jo.Wait = w->cl->timeout_ms;
-    jo.Stream.Purge.Subject = w->subject;
+    jo.Wait = cl->timeout_ms;
+    jo.Stream.Purge.Subject = subject;
     jo.Stream.Purge.Sequence = seq;
     jsErrCode code = 0;
-    natsStatus s = js_PurgeStream(w->cl->js, CLUSTER_STREAM, &jo, &code);
+    natsStatus s = js_PurgeStream(cl->js, CLUSTER_STREAM, &jo, &code);
     if (s != NATS_OK) {
-        cluster_error(err, s, "purging the log of world %s below %" PRIu64, w->world, seq);
+        cluster_error(err, s, "purging the log of world %s below %" PRIu64, world, seq);
         return CLUSTER_ERROR;
     }
     return CLUSTER_OK;
+}
+
+cluster_status cluster_wal_purge_below(cluster_wal *w, uint64_t seq, error_text *err)
+{
+    /* The subject's last message always stays: it is what the next append expects. */
+    return cluster_log_purge_below(w->cl, w->world, seq < w->last_seq ? seq : w->last_seq, err);
 }

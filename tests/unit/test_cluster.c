@@ -16,112 +16,14 @@
  * Exit 77 (skipped) when nats-server is not installed.
  */
 // ctest-timeout: 240
-#include <arpa/inet.h>
-#include <netinet/in.h>
-#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/socket.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include "cluster/cluster.h"
 #include "check.h"
-
-typedef struct nats_proc {
-    pid_t pid;
-    int port, cluster_port;
-    char dir[192];
-} nats_proc;
-
-static char tmp_root[96];
-
-static int free_port(void)
-{
-    int fd = socket(AF_INET, SOCK_STREAM, 0);
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    socklen_t len = sizeof a;
-    if (fd < 0 || bind(fd, (struct sockaddr *)&a, sizeof a) != 0 ||
-        getsockname(fd, (struct sockaddr *)&a, &len) != 0)
-        exit(2);
-    close(fd);
-    return ntohs(a.sin_port);
-}
-
-static int port_open(int port)
-{
-    int fd = socket(AF_INET, SOCK_STREAM, 0);
-    struct sockaddr_in a = {.sin_family = AF_INET,
-                            .sin_port = htons((uint16_t)port),
-                            .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    int ok = fd >= 0 && connect(fd, (struct sockaddr *)&a, sizeof a) == 0;
-    if (fd >= 0)
-        close(fd);
-    return ok;
-}
-
-/* Starts server i of n (n > 1: clustered with routes to the others). */
-static void nats_start(nats_proc *all, int i, int n)
-{
-    nats_proc *p = &all[i];
-    char port[16], name[16], cluster[64], routes[256] = "", log[256];
-    snprintf(port, sizeof port, "%d", p->port);
-    snprintf(name, sizeof name, "n%d", i);
-    snprintf(cluster, sizeof cluster, "nats://127.0.0.1:%d", p->cluster_port);
-    snprintf(log, sizeof log, "%s/log", p->dir);
-    for (int j = 0; j < n; j++) {
-        if (j == i)
-            continue;
-        size_t at = strlen(routes);
-        snprintf(routes + at, sizeof routes - at, "%snats://127.0.0.1:%d", at ? "," : "",
-                 all[j].cluster_port);
-    }
-    char mkdir[256];
-    snprintf(mkdir, sizeof mkdir, "mkdir -p %s", p->dir);
-    if (system(mkdir) != 0)
-        exit(2);
-    p->pid = fork();
-    if (p->pid == 0) {
-        if (n > 1)
-            execlp("nats-server", "nats-server", "-js", "-sd", p->dir, "-a", "127.0.0.1", "-p",
-                   port, "--server_name", name, "-l", log, "--cluster_name", "terrad", "--cluster",
-                   cluster, "--routes", routes, (char *)NULL);
-        else
-            execlp("nats-server", "nats-server", "-js", "-sd", p->dir, "-a", "127.0.0.1", "-p",
-                   port, "--server_name", name, "-l", log, (char *)NULL);
-        _exit(127);
-    }
-    for (int k = 0; k < 200 && !port_open(p->port); k++)
-        usleep(25000);
-}
-
-static void nats_stop(nats_proc *p, int sig)
-{
-    if (p->pid <= 0)
-        return;
-    kill(p->pid, sig);
-    waitpid(p->pid, NULL, 0);
-    p->pid = 0;
-}
-
-static void nats_init(nats_proc *all, int n)
-{
-    for (int i = 0; i < n; i++) {
-        all[i].port = free_port();
-        all[i].cluster_port = free_port();
-        snprintf(all[i].dir, sizeof all[i].dir, "%s/n%d-%d", tmp_root, n, i);
-    }
-}
-
-static void urls_of(const nats_proc *all, int n, char *out, size_t cap)
-{
-    out[0] = '\0';
-    for (int i = 0; i < n; i++) {
-        size_t at = strlen(out);
-        snprintf(out + at, cap - at, "%snats://127.0.0.1:%d", i ? "," : "", all[i].port);
-    }
-}
+#include "nats_test.h"
 
 static cluster *connect_node(const char *urls, const char *node, int lease_ms)
 {
@@ -466,15 +368,11 @@ out:
 
 int main(void)
 {
-    if (system("command -v nats-server >/dev/null 2>&1") != 0) {
+    if (!nats_installed()) {
         printf("nats-server is not installed: skipped\n");
         return 77;
     }
-    snprintf(tmp_root, sizeof tmp_root, "/tmp/test_cluster-%d", (int)getpid());
-    char cmd[256];
-    snprintf(cmd, sizeof cmd, "mkdir -p %s", tmp_root);
-    if (system(cmd) != 0)
-        return 2;
+    nats_tmp_root("test_cluster");
     test_unreachable();
     nats_proc one[1];
     nats_init(one, 1);
@@ -496,8 +394,6 @@ int main(void)
     cluster_close(b);
     nats_stop(one, SIGTERM);
     test_three_servers();
-    snprintf(cmd, sizeof cmd, "rm -rf %s", tmp_root);
-    if (system(cmd) != 0)
-        printf("could not remove %s\n", tmp_root);
+    nats_tmp_remove();
     return check_report();
 }
