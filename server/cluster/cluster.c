@@ -124,8 +124,9 @@ static int known_servers(cluster *cl, int given)
  * its meta leader right after the servers start: retried for a while. */
 static int retryable(natsStatus s, jsErrCode code)
 {
-    return s == NATS_TIMEOUT || s == NATS_NO_RESPONDERS || code == 10008 /* unavailable */ ||
-           code == JSNotEnabledErr || code == JSNotEnabledForAccountErr;
+    return s == NATS_TIMEOUT || s == NATS_NO_RESPONDERS || code == JSClusterNotAvailErr ||
+           code == JSClusterNoPeersErr /* servers still joining */ || code == JSNotEnabledErr ||
+           code == JSNotEnabledForAccountErr;
 }
 
 static int ensure_stream(cluster *cl, error_text *err)
@@ -210,7 +211,9 @@ cluster *cluster_connect(const cluster_config *c, error_text *err)
     snprintf(cl->urls, sizeof cl->urls, "%s", c->urls);
     cl->lease_ms = c->lease_ms > 0 ? c->lease_ms : 3000;
     cl->timeout_ms = c->timeout_ms > 0 ? c->timeout_ms : 2000;
+    cl->renew_ms = c->renew_ms < 0 ? 0 : c->renew_ms > 0 ? c->renew_ms : 1000;
     pthread_mutex_init(&cl->lock, NULL);
+    pthread_cond_init(&cl->renewer_wake, NULL);
     int given = 0;
     if (connect_servers(cl, c, &given, err) != 0) {
         cluster_close(cl);
@@ -233,6 +236,11 @@ cluster *cluster_connect(const cluster_config *c, error_text *err)
         cluster_close(cl);
         return NULL;
     }
+    if (cl->renew_ms > 0 && cluster_renewer_start(cl) != 0) {
+        error_set(err, "cannot start the lease renewal thread");
+        cluster_close(cl);
+        return NULL;
+    }
     return cl;
 }
 
@@ -240,6 +248,7 @@ void cluster_close(cluster *cl)
 {
     if (!cl)
         return;
+    cluster_renewer_stop(cl);
     if (cl->leases && cl->nc) {
         for (int64_t i = 0; i < cl->lease_count; i++)
             if (cl->lease_list[i].held)
@@ -254,6 +263,7 @@ void cluster_close(cluster *cl)
         natsConnection_Destroy(cl->nc);
     }
     free(cl->lease_list);
+    pthread_cond_destroy(&cl->renewer_wake);
     pthread_mutex_destroy(&cl->lock);
     free(cl);
 }

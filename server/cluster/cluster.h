@@ -51,6 +51,8 @@ typedef struct cluster_config {
     const char *node; /* this node's name, 1..64 of [A-Za-z0-9_-] */
     int replicas;     /* of the stream and buckets; 0: 3 when >= 3 servers are known, else 1 */
     int lease_ms;     /* a lease not renewed for this long may be taken (0: 3000) */
+    int renew_ms;     /* a thread renews held leases this often (0: 1000; < 0: no thread,
+                         the caller renews with cluster_lease_renew) */
     int timeout_ms;   /* connect and each request (0: 2000) */
 } cluster_config;
 
@@ -84,7 +86,7 @@ int cluster_name_valid(const char *name, const char *what, error_text *err);
  */
 int cluster_lease_acquire(cluster *cl, const char *world, char *holder, size_t holder_cap,
                           error_text *err);
-/* Renews a held lease (call every second): CLUSTER_OK, CLUSTER_FENCED when
+/* Renews a held lease (the renewal thread does it every renew_ms): CLUSTER_OK, CLUSTER_FENCED when
  * another node took it (it is no longer held), CLUSTER_ERROR when NATS did
  * not answer (still held until lease_ms after the last renewal). */
 cluster_status cluster_lease_renew(cluster *cl, const char *world, error_text *err);

@@ -36,7 +36,11 @@ struct cluster {
     int replicas;
     int lease_ms, timeout_ms;
     int64_t max_payload;
-    pthread_mutex_t lock; /* guards lease_list */
+    int renew_ms;
+    pthread_t renewer;
+    int renewer_started, renewer_quit;
+    pthread_cond_t renewer_wake;
+    pthread_mutex_t lock; /* guards lease_list and renewer_quit */
     cluster_lease *lease_list;
     int64_t lease_count, lease_capacity;
 };
@@ -44,6 +48,9 @@ struct cluster {
 /* "what: <nats status text> (<last error>)" into err. */
 void cluster_error(error_text *err, natsStatus s, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
+/* The thread renewing held leases (cluster_lease.c). */
+int cluster_renewer_start(cluster *cl);
+void cluster_renewer_stop(cluster *cl);
 /* The subject of world's log. */
 void cluster_wal_subject(const char *world, char *out, size_t cap);
 /* Deletes every snapshot of world (cluster_kv.c); -1 on an error. */

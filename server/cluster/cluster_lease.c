@@ -17,6 +17,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/time.h>
+#include <time.h>
 
 static double wall_ms(void)
 {
@@ -221,4 +222,72 @@ int cluster_lease_holder(cluster *cl, const char *world, char *holder, size_t ca
         return found;
     lease_holder_of(value, holder, cap);
     return holder[0] != '\0';
+}
+
+/* ---- the renewal thread ---- */
+
+/* Renews every held lease once renew_ms has passed since its last renewal;
+ * a lease another node took is logged once, and cluster_lease_held says so. */
+static void renew_due(cluster *cl)
+{
+    char due[16][CLUSTER_WORLD_NAME_MAX + 1];
+    int n = 0;
+    double now = time_now_ms();
+    pthread_mutex_lock(&cl->lock);
+    for (int64_t i = 0; i < cl->lease_count && n < 16; i++)
+        if (cl->lease_list[i].held && now - cl->lease_list[i].renewed_ms >= cl->renew_ms)
+            snprintf(due[n++], sizeof due[0], "%s", cl->lease_list[i].world);
+    pthread_mutex_unlock(&cl->lock);
+    for (int i = 0; i < n; i++) {
+        error_text err = {{0}};
+        cluster_status r = cluster_lease_renew(cl, due[i], &err);
+        if (r == CLUSTER_FENCED)
+            log_warn("cluster: node %s lost the lease of world %s: %s", cl->node, due[i],
+                     err.message);
+        else if (r == CLUSTER_ERROR && !cluster_lease_held(cl, due[i]))
+            log_warn("cluster: node %s gave up the lease of world %s (not renewed for %d ms): %s",
+                     cl->node, due[i], cl->lease_ms, err.message);
+    }
+}
+
+static void *renewer_main(void *arg)
+{
+    cluster *cl = arg;
+    pthread_mutex_lock(&cl->lock);
+    while (!cl->renewer_quit) {
+        pthread_mutex_unlock(&cl->lock);
+        renew_due(cl);
+        pthread_mutex_lock(&cl->lock);
+        if (cl->renewer_quit)
+            break;
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        long step_ns = (long)(cl->renew_ms > 400 ? 100 : cl->renew_ms / 4 + 1) * 1000000L;
+        ts.tv_nsec += step_ns;
+        ts.tv_sec += ts.tv_nsec / 1000000000L;
+        ts.tv_nsec %= 1000000000L;
+        pthread_cond_timedwait(&cl->renewer_wake, &cl->lock, &ts);
+    }
+    pthread_mutex_unlock(&cl->lock);
+    return NULL;
+}
+
+int cluster_renewer_start(cluster *cl)
+{
+    if (pthread_create(&cl->renewer, NULL, renewer_main, cl) != 0)
+        return -1;
+    cl->renewer_started = 1;
+    return 0;
+}
+
+void cluster_renewer_stop(cluster *cl)
+{
+    if (!cl->renewer_started)
+        return;
+    pthread_mutex_lock(&cl->lock);
+    cl->renewer_quit = 1;
+    pthread_cond_broadcast(&cl->renewer_wake);
+    pthread_mutex_unlock(&cl->lock);
+    pthread_join(cl->renewer, NULL);
+    cl->renewer_started = 0;
 }

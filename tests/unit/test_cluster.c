@@ -25,9 +25,11 @@
 #include "check.h"
 #include "nats_test.h"
 
-static cluster *connect_node(const char *urls, const char *node, int lease_ms)
+/* renew_ms -1: the test renews by hand */
+static cluster *connect_node(const char *urls, const char *node, int lease_ms, int renew_ms)
 {
-    cluster_config c = {.urls = urls, .node = node, .lease_ms = lease_ms, .timeout_ms = 2000};
+    cluster_config c = {
+        .urls = urls, .node = node, .lease_ms = lease_ms, .renew_ms = renew_ms, .timeout_ms = 2000};
     error_text err = {{0}};
     cluster *cl = cluster_connect(&c, &err);
     CHECK(cl != NULL, "node %s connects to %s: %s", node, urls, err.message);
@@ -126,6 +128,31 @@ static void test_lease(cluster *a, cluster *b)
     CHECK(cluster_lease_acquire(a, "bad.name", holder, sizeof holder, &err) == -1,
           "a world name with a dot is refused: %s", err.message);
     cluster_lease_release(a, "w1");
+}
+
+/* The renewal thread keeps a lease without the caller; closing releases it. */
+static void test_renewer(const char *urls)
+{
+    cluster *k = connect_node(urls, "keeper", 600, 200), *t = connect_node(urls, "taker", 600, -1);
+    if (!k || !t) {
+        cluster_close(k);
+        cluster_close(t);
+        return;
+    }
+    error_text err = {{0}};
+    char holder[64];
+    CHECK(cluster_lease_acquire(k, "kept", holder, sizeof holder, &err) == 1, "keeper takes it");
+    int taken = 0;
+    for (int i = 0; i < 20; i++) { /* 2 s, more than 3 lease periods */
+        usleep(100000);
+        taken |= cluster_lease_acquire(t, "kept", holder, sizeof holder, &err) == 1;
+    }
+    CHECK(!taken && cluster_lease_held(k, "kept"),
+          "the renewal thread keeps the lease for 3 lease periods");
+    cluster_close(k);
+    CHECK(cluster_lease_acquire(t, "kept", holder, sizeof holder, &err) == 1,
+          "closing the keeper released it: taken at once");
+    cluster_close(t);
 }
 
 static void test_wal(cluster *a, cluster *b)
@@ -337,7 +364,7 @@ static void test_three_servers(void)
         nats_start(n, i, 3);
     char urls[256];
     urls_of(n, 3, urls, sizeof urls);
-    cluster *a = connect_node(urls, "a", 1000);
+    cluster *a = connect_node(urls, "a", 1000, 0);
     if (!a)
         goto out;
     CHECK(cluster_replicas(a) == 3, "3 replicas on 3 servers (%d)", cluster_replicas(a));
@@ -357,8 +384,10 @@ static void test_three_servers(void)
     record_log l = {0};
     CHECK(cluster_wal_read(w, 1, on_record, &l, &err) == CLUSTER_OK && l.count == 2,
           "both records read back (%d): %s", l.count, err.message);
-    CHECK(cluster_lease_acquire(a, "r3", NULL, 0, &err) == 1, "leases work on two of three: %s",
-          err.message);
+    int got = -1; /* the bucket's leader may be re-elected first: polled, as nodes do */
+    for (double t0 = time_now_ms(); got != 1 && time_now_ms() - t0 < 8000; usleep(100000))
+        got = cluster_lease_acquire(a, "r3", NULL, 0, &err);
+    CHECK(got == 1, "leases work on two of three: %s", err.message);
     cluster_wal_close(w);
     cluster_close(a);
 out:
@@ -379,10 +408,11 @@ int main(void)
     nats_start(one, 0, 1);
     char urls[64];
     urls_of(one, 1, urls, sizeof urls);
-    cluster *a = connect_node(urls, "a", 1000), *b = connect_node(urls, "b", 1000);
+    cluster *a = connect_node(urls, "a", 1000, -1), *b = connect_node(urls, "b", 1000, -1);
     if (a && b) {
         CHECK(cluster_replicas(a) == 1, "1 replica on one server");
         test_lease(a, b);
+        test_renewer(urls);
         test_wal(a, b);
         test_snapshots(a, b);
         test_registry(a, b);
