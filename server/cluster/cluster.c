@@ -194,6 +194,44 @@ static int ensure_bucket(cluster *cl, const char *bucket, kvStore **kv, error_te
     return -1;
 }
 
+int cluster_kv_read(cluster *cl, const char *bucket, const char *key, uint8_t **data, size_t *len,
+                    uint64_t *revision, error_text *err)
+{
+    char stream[96], subject[384];
+    snprintf(stream, sizeof stream, "KV_%s", bucket);
+    snprintf(subject, sizeof subject, "$KV.%s.%s", bucket, key);
+    natsMsg *msg = NULL;
+    jsErrCode code = 0;
+    natsStatus s = js_GetLastMsg(&msg, cl->js, stream, subject, NULL, &code);
+    if (s == NATS_NOT_FOUND || code == JSNoMessageFoundErr)
+        return 0;
+    if (s != NATS_OK) {
+        cluster_error(err, s, "%s key %s", bucket, key);
+        return -1;
+    }
+    const char *op = NULL;
+    if (natsMsgHeader_Get(msg, "KV-Operation", &op) == NATS_OK && op &&
+        (strcmp(op, "DEL") == 0 || strcmp(op, "PURGE") == 0)) {
+        natsMsg_Destroy(msg);
+        return 0;
+    }
+    int n = natsMsg_GetDataLength(msg);
+    uint8_t *out = malloc((size_t)n + 1);
+    if (!out) {
+        natsMsg_Destroy(msg);
+        error_set(err, "out of memory");
+        return -1;
+    }
+    if (n > 0)
+        memcpy(out, natsMsg_GetData(msg), (size_t)n);
+    out[n] = '\0';
+    *data = out;
+    *len = (size_t)n;
+    *revision = natsMsg_GetSequence(msg);
+    natsMsg_Destroy(msg);
+    return 1;
+}
+
 cluster *cluster_connect(const cluster_config *c, error_text *err)
 {
     if (!cluster_name_valid(c->node, "node", err))

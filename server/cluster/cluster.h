@@ -156,9 +156,17 @@ cluster_status cluster_snapshot_put(cluster *cl, const char *world, int tx, int 
 /* 1 and a malloc'd *data when present, 0 when absent, -1 on an error. */
 int cluster_snapshot_get(cluster *cl, const char *world, int tx, int ty, uint8_t **data,
                          size_t *len, uint64_t *covers_seq, error_text *err);
-/* Calls on_tile for each tile world has a snapshot of; -1 on an error. */
-int cluster_snapshot_list(cluster *cl, const char *world,
-                          void (*on_tile)(void *ctx, int tx, int ty), void *ctx, error_text *err);
+/*
+ * The world's snapshot index, "<world>.index": the log sequence the last
+ * complete compaction covers — recovery replays the log from there — and
+ * every tile with a snapshot. put merges tiles into the stored index and
+ * moves covers_seq forward only (compare-and-set, retried).
+ */
+cluster_status cluster_snapshot_index_put(cluster *cl, const char *world, uint64_t covers_seq,
+                                          const int (*tiles)[2], int count, error_text *err);
+/* 1 and a malloc'd *tiles (count pairs tx, ty), 0 when the world has none, -1 error. */
+int cluster_snapshot_index_get(cluster *cl, const char *world, uint64_t *covers_seq,
+                               int (**tiles)[2], int *count, error_text *err);
 
 /* ---- The world registry (cluster_kv.c) ---- */
 

@@ -48,6 +48,17 @@ struct cluster {
 /* "what: <nats status text> (<last error>)" into err. */
 void cluster_error(error_text *err, natsStatus s, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
+/*
+ * The latest value of key in bucket, asked of the bucket stream's leader:
+ * kvStore_Get may be answered by any replica (direct get), and one that is
+ * still catching up after a restart answers with an old value — an old
+ * snapshot head would send recovery to a log already purged. 1: found
+ * (*data malloc'd and NUL-terminated, *len, *revision), 0: absent or
+ * deleted, -1: error (err names the key).
+ */
+int cluster_kv_read(cluster *cl, const char *bucket, const char *key, uint8_t **data, size_t *len,
+                    uint64_t *revision, error_text *err);
+
 /* The thread renewing held leases (cluster_lease.c). */
 int cluster_renewer_start(cluster *cl);
 void cluster_renewer_stop(cluster *cl);

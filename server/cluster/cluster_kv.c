@@ -41,12 +41,11 @@ static void part_key(const char *world, int tx, int ty, uint64_t covers_seq, int
     snprintf(out, cap, "%s.part.%d_%d.%" PRIu64 ".%d", world, tx, ty, covers_seq, i);
 }
 
-/* Parses a head entry's value; -1 when it is not one. */
-static int head_parse(kvEntry *e, snap_head *h)
+/* Parses a head's value; -1 when it is not one. */
+static int head_parse(const uint8_t *value, size_t n, snap_head *h)
 {
-    const char *v = kvEntry_Value(e);
-    int n = kvEntry_ValueLen(e);
-    const char *nl = v ? memchr(v, '\n', (size_t)n) : NULL;
+    const char *v = (const char *)value;
+    const char *nl = v ? memchr(v, '\n', n) : NULL;
     char line[128];
     if (!nl || nl - v >= (int)sizeof line)
         return -1;
@@ -57,26 +56,23 @@ static int head_parse(kvEntry *e, snap_head *h)
                &h->parts) != 4 ||
         strcmp(magic, SNAP_MAGIC) != 0 || h->parts < 0)
         return -1;
-    h->revision = kvEntry_Revision(e);
     h->inline_data = (const uint8_t *)nl + 1;
     if (h->parts == 0 && (uint64_t)(v + n - (nl + 1)) != h->len)
         return -1;
     return 0;
 }
 
-/* 1 found (*e kept for the caller to destroy), 0 none, -1 error. */
-static int head_get(cluster *cl, const char *key, kvEntry **e, snap_head *h, error_text *err)
+/* 1 found (*value kept for the caller to free; h points into it), 0 none, -1 error. */
+static int head_get(cluster *cl, const char *key, uint8_t **value, snap_head *h, error_text *err)
 {
-    natsStatus s = kvStore_Get(e, cl->tiles, key);
-    if (s == NATS_NOT_FOUND)
-        return 0;
-    if (s != NATS_OK) {
-        cluster_error(err, s, "tile snapshot %s", key);
-        return -1;
-    }
-    if (head_parse(*e, h) != 0) {
-        kvEntry_Destroy(*e);
-        *e = NULL;
+    size_t n = 0;
+    *value = NULL;
+    int found = cluster_kv_read(cl, CLUSTER_BUCKET_TILES, key, value, &n, &h->revision, err);
+    if (found <= 0)
+        return found;
+    if (head_parse(*value, n, h) != 0) {
+        free(*value);
+        *value = NULL;
         error_set(err, "tile snapshot %s: not a snapshot head", key);
         return -1;
     }
@@ -123,10 +119,10 @@ cluster_status cluster_snapshot_put(cluster *cl, const char *world, int tx, int 
         return CLUSTER_ERROR;
     char key[256];
     head_key(world, tx, ty, key, sizeof key);
-    kvEntry *e = NULL;
+    uint8_t *head = NULL;
     snap_head old = {0};
-    int found = head_get(cl, key, &e, &old, err);
-    kvEntry_Destroy(e);
+    int found = head_get(cl, key, &head, &old, err);
+    free(head);
     if (found < 0)
         return CLUSTER_ERROR;
     if (found && old.covers_seq > covers_seq) {
@@ -175,22 +171,24 @@ static int parts_get(cluster *cl, const char *world, int tx, int ty, const snap_
     uint64_t at = 0;
     for (int i = 0; i < h->parts; i++) {
         char key[256];
-        kvEntry *e = NULL;
+        uint8_t *part = NULL;
+        size_t n = 0;
+        uint64_t rev = 0;
         part_key(world, tx, ty, h->covers_seq, i, key, sizeof key);
-        natsStatus s = kvStore_Get(&e, cl->tiles, key);
-        if (s != NATS_OK) {
-            cluster_error(err, s, "tile snapshot part %s", key);
+        int found = cluster_kv_read(cl, CLUSTER_BUCKET_TILES, key, &part, &n, &rev, err);
+        if (found <= 0) {
+            if (found == 0)
+                error_set(err, "tile snapshot part %s is missing", key);
             return -1;
         }
-        uint64_t n = (uint64_t)kvEntry_ValueLen(e);
         if (at + n > h->len) {
-            kvEntry_Destroy(e);
+            free(part);
             error_set(err, "tile snapshot part %s: longer than its head says", key);
             return -1;
         }
-        memcpy(out + at, kvEntry_Value(e), n);
+        memcpy(out + at, part, n);
         at += n;
-        kvEntry_Destroy(e);
+        free(part);
     }
     if (at != h->len) {
         error_set(err, "tile snapshot of %s tile %d,%d: %" PRIu64 " of %" PRIu64 " bytes", world,
@@ -205,9 +203,9 @@ int cluster_snapshot_get(cluster *cl, const char *world, int tx, int ty, uint8_t
 {
     char key[256];
     head_key(world, tx, ty, key, sizeof key);
-    kvEntry *e = NULL;
+    uint8_t *head = NULL;
     snap_head h = {0};
-    int found = head_get(cl, key, &e, &h, err);
+    int found = head_get(cl, key, &head, &h, err);
     if (found <= 0)
         return found;
     uint8_t *out = malloc(h.len ? h.len : 1);
@@ -218,7 +216,7 @@ int cluster_snapshot_get(cluster *cl, const char *world, int tx, int ty, uint8_t
         memcpy(out, h.inline_data, h.len);
     else
         rc = parts_get(cl, world, tx, ty, &h, out, err);
-    kvEntry_Destroy(e);
+    free(head);
     if (rc != 0) {
         free(out);
         return -1;
@@ -255,29 +253,127 @@ static int keys_each(kvStore *kv, const char *pattern, void (*on_key)(void *ctx,
     return 0;
 }
 
-typedef struct tile_list_ctx {
-    void (*on_tile)(void *ctx, int tx, int ty);
-    void *ctx;
-} tile_list_ctx;
+/* ---- the snapshot index: "TIDX1 <covers_seq> <count>\n" then "tx ty\n" per tile ---- */
 
-static void on_head_key(void *ctx, const char *key)
+typedef struct tile_set {
+    int (*xy)[2];
+    int64_t count, capacity;
+} tile_set;
+
+static int tile_set_add(tile_set *t, int tx, int ty)
 {
-    tile_list_ctx *t = ctx;
-    const char *tile = strstr(key, ".tile.");
-    int tx = 0, ty = 0;
-    if (tile && sscanf(tile + 6, "%d_%d", &tx, &ty) == 2)
-        t->on_tile(t->ctx, tx, ty);
+    for (int64_t i = 0; i < t->count; i++)
+        if (t->xy[i][0] == tx && t->xy[i][1] == ty)
+            return 0;
+    if (array_grow((void **)&t->xy, &t->capacity, t->count + 1, sizeof *t->xy) != 0)
+        return -1;
+    t->xy[t->count][0] = tx;
+    t->xy[t->count][1] = ty;
+    t->count++;
+    return 0;
 }
 
-int cluster_snapshot_list(cluster *cl, const char *world,
-                          void (*on_tile)(void *ctx, int tx, int ty), void *ctx, error_text *err)
+static int index_parse(const char *text, uint64_t *covers, tile_set *t)
 {
-    if (!cluster_name_valid(world, "world", err))
+    int count = 0, at = 0;
+    if (sscanf(text, "TIDX1 %" SCNu64 " %d\n%n", covers, &count, &at) != 2 || count < 0)
         return -1;
-    char pattern[128];
-    snprintf(pattern, sizeof pattern, "%s.tile.*", world);
-    tile_list_ctx t = {on_tile, ctx};
-    return keys_each(cl->tiles, pattern, on_head_key, &t, cl->timeout_ms, err);
+    for (int i = 0; i < count; i++) {
+        int tx, ty, n = 0;
+        if (sscanf(text + at, "%d %d\n%n", &tx, &ty, &n) != 2 || tile_set_add(t, tx, ty) != 0)
+            return -1;
+        at += n;
+    }
+    return 0;
+}
+
+/* 1 found (*rev), 0 none, -1 error; tiles merged into t. */
+static int index_read(cluster *cl, const char *key, uint64_t *covers, uint64_t *rev, tile_set *t,
+                      error_text *err)
+{
+    uint8_t *text = NULL;
+    size_t len = 0;
+    int found = cluster_kv_read(cl, CLUSTER_BUCKET_TILES, key, &text, &len, rev, err);
+    if (found == 1 && index_parse((const char *)text, covers, t) != 0) {
+        error_set(err, "snapshot index %s is corrupt", key);
+        found = -1;
+    }
+    free(text);
+    return found;
+}
+
+static char *index_format(uint64_t covers, const tile_set *t, size_t *len)
+{
+    size_t cap = 64 + (size_t)t->count * 24;
+    char *text = malloc(cap);
+    if (!text)
+        return NULL;
+    size_t at = (size_t)snprintf(text, cap, "TIDX1 %" PRIu64 " %" PRId64 "\n", covers, t->count);
+    for (int64_t i = 0; i < t->count; i++)
+        at += (size_t)snprintf(text + at, cap - at, "%d %d\n", t->xy[i][0], t->xy[i][1]);
+    *len = at;
+    return text;
+}
+
+cluster_status cluster_snapshot_index_put(cluster *cl, const char *world, uint64_t covers_seq,
+                                          const int (*tiles)[2], int count, error_text *err)
+{
+    char key[128];
+    snprintf(key, sizeof key, "%s.index", world);
+    for (int attempt = 0; attempt < 20; attempt++) {
+        tile_set t = {0};
+        uint64_t covers = 0, rev = 0;
+        int found = index_read(cl, key, &covers, &rev, &t, err);
+        int ok = found >= 0;
+        for (int i = 0; ok && i < count; i++)
+            ok = tile_set_add(&t, tiles[i][0], tiles[i][1]) == 0;
+        size_t len = 0;
+        char *text = ok ? index_format(covers > covers_seq ? covers : covers_seq, &t, &len) : NULL;
+        free(t.xy);
+        if (!text) {
+            if (found >= 0)
+                error_set(err, "out of memory");
+            return CLUSTER_ERROR;
+        }
+        if (len + HEAD_ROOM > (size_t)cl->max_payload) {
+            free(text);
+            error_set(err, "snapshot index %s: %zu bytes, more than NATS takes", key, len);
+            return CLUSTER_ERROR;
+        }
+        uint64_t new_rev = 0;
+        natsStatus s = found ? kvStore_Update(&new_rev, cl->tiles, key, text, (int)len, rev)
+                             : kvStore_Create(&new_rev, cl->tiles, key, text, (int)len);
+        free(text);
+        if (s == NATS_OK)
+            return CLUSTER_OK;
+        if (s != NATS_ERR) {
+            cluster_error(err, s, "snapshot index %s", key);
+            return CLUSTER_ERROR;
+        }
+        /* another writer moved it meanwhile: merge again */
+    }
+    error_set(err, "snapshot index %s: too many concurrent writers", key);
+    return CLUSTER_ERROR;
+}
+
+int cluster_snapshot_index_get(cluster *cl, const char *world, uint64_t *covers_seq,
+                               int (**tiles)[2], int *count, error_text *err)
+{
+    char key[128];
+    snprintf(key, sizeof key, "%s.index", world);
+    tile_set t = {0};
+    uint64_t rev = 0;
+    *covers_seq = 0;
+    int found = index_read(cl, key, covers_seq, &rev, &t, err);
+    if (found != 1) {
+        free(t.xy);
+        *tiles = NULL;
+        *count = 0;
+        return found;
+    }
+    *tiles = t.xy;
+    *count = (int)t.count;
+    return 1;
 }
 
 static void purge_key(void *ctx, const char *key)
@@ -320,26 +416,13 @@ int cluster_world_get(cluster *cl, const char *name, char **scene_json, error_te
 {
     if (!cluster_name_valid(name, "world", err))
         return -1;
-    kvEntry *e = NULL;
-    natsStatus s = kvStore_Get(&e, cl->worlds, name);
-    if (s == NATS_NOT_FOUND)
-        return 0;
-    if (s != NATS_OK) {
-        cluster_error(err, s, "world %s", name);
-        return -1;
-    }
-    int n = kvEntry_ValueLen(e);
-    char *out = malloc((size_t)n + 1);
-    if (!out) {
-        kvEntry_Destroy(e);
-        error_set(err, "out of memory");
-        return -1;
-    }
-    memcpy(out, kvEntry_Value(e), (size_t)n);
-    out[n] = '\0';
-    kvEntry_Destroy(e);
-    *scene_json = out;
-    return 1;
+    uint8_t *data = NULL;
+    size_t len = 0;
+    uint64_t rev = 0;
+    int found = cluster_kv_read(cl, CLUSTER_BUCKET_WORLDS, name, &data, &len, &rev, err);
+    if (found == 1)
+        *scene_json = (char *)data;
+    return found;
 }
 
 static int compare_names(const void *a, const void *b)

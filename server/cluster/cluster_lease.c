@@ -86,18 +86,13 @@ static void lease_holder_of(const char *value, char *holder, size_t cap)
 static int lease_read(cluster *cl, const char *world, char *value, size_t cap, uint64_t *revision,
                       error_text *err)
 {
-    kvEntry *e = NULL;
-    natsStatus s = kvStore_Get(&e, cl->leases, world);
-    if (s == NATS_NOT_FOUND)
-        return 0;
-    if (s != NATS_OK) {
-        cluster_error(err, s, "lease of world %s", world);
-        return -1;
-    }
-    snprintf(value, cap, "%.*s", kvEntry_ValueLen(e), (const char *)kvEntry_Value(e));
-    *revision = kvEntry_Revision(e);
-    kvEntry_Destroy(e);
-    return 1;
+    uint8_t *data = NULL;
+    size_t len = 0;
+    int found = cluster_kv_read(cl, CLUSTER_BUCKET_LEASES, world, &data, &len, revision, err);
+    if (found == 1)
+        snprintf(value, cap, "%s", (const char *)data);
+    free(data);
+    return found;
 }
 
 /* Writes our value over `revision` (0: create). 1 won, 0 lost the race, -1 error. */

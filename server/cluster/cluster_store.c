@@ -217,49 +217,57 @@ static int snapshot_load(cluster_store *cs, world *w, int tx, int ty, error_text
     return ok ? 1 : -1;
 }
 
-typedef struct tile_list {
-    int (*xy)[2];
-    int64_t count, capacity;
-} tile_list;
-
-static void on_listed_tile(void *ctx, int tx, int ty)
+/* Loads the snapshots the index names; *from_seq: where the log replay starts. */
+static int snapshots_load(cluster_store *cs, world *w, uint64_t *from_seq, store_recovery *rec,
+                          error_text *err)
 {
-    tile_list *l = ctx;
-    if (array_grow((void **)&l->xy, &l->capacity, l->count + 1, sizeof *l->xy) == 0) {
-        l->xy[l->count][0] = tx;
-        l->xy[l->count][1] = ty;
-        l->count++;
-    }
-}
-
-static int snapshots_load(cluster_store *cs, world *w, store_recovery *rec, error_text *err)
-{
-    tile_list l = {0};
-    if (cluster_snapshot_list(cs->cl, cs->world, on_listed_tile, &l, err) != 0)
+    int(*tiles)[2] = NULL;
+    int count = 0;
+    uint64_t covers = 0;
+    if (cluster_snapshot_index_get(cs->cl, cs->world, &covers, &tiles, &count, err) < 0)
         return -1;
     int rc = 0;
-    for (int64_t i = 0; rc == 0 && i < l.count; i++) {
-        int tx = l.xy[i][0], ty = l.xy[i][1];
+    for (int i = 0; rc == 0 && i < count; i++) {
+        int tx = tiles[i][0], ty = tiles[i][1];
         if (tx < 0 || ty < 0 || tx >= cs->tiles_x || ty >= cs->tiles_y) {
             error_set(err, "world %s: a snapshot of tile %d,%d, outside the world", cs->world, tx,
                       ty);
             rc = -1;
-        } else if (snapshot_load(cs, w, tx, ty, err) < 0) {
-            rc = -1;
         } else {
-            rec->tiles_loaded++;
+            int got = snapshot_load(cs, w, tx, ty, err);
+            if (got < 0)
+                rc = -1;
+            else if (got == 0) {
+                error_set(err, "world %s: the snapshot of tile %d,%d is missing", cs->world, tx,
+                          ty);
+                rc = -1;
+            } else {
+                rec->tiles_loaded++;
+            }
         }
     }
-    free(l.xy);
+    free(tiles);
+    *from_seq = covers > 0 ? covers : 1;
     return rc;
 }
 
 /* ---- compaction thread ---- */
 
-/* Writes the job's tiles; then the log they cover is purged. 0, or -1. */
+/* Writes the job's tiles, then the index naming them and seq (recovery
+ * replays from there), and only then purges the log below seq. 0, or -1. */
 static int compaction_run(cluster_store *cs, ZSTD_CCtx *cctx, const tile_copy *tiles, int count,
                           uint64_t seq, error_text *err)
 {
+    int(*xy)[2] = calloc((size_t)count + 1, sizeof *xy);
+    if (!xy) {
+        error_set(err, "out of memory");
+        return -1;
+    }
+    for (int i = 0; i < count; i++) {
+        xy[i][0] = tiles[i].tx;
+        xy[i][1] = tiles[i].ty;
+    }
+    cluster_status indexed = CLUSTER_ERROR;
     for (int i = 0; i < count; i++) {
         uint8_t *data = NULL;
         size_t len = 0;
@@ -268,10 +276,16 @@ static int compaction_run(cluster_store *cs, ZSTD_CCtx *cctx, const tile_copy *t
         cluster_status r =
             cluster_snapshot_put(cs->cl, cs->world, tiles[i].tx, tiles[i].ty, seq, data, len, err);
         free(data);
-        if (r == CLUSTER_ERROR)
+        if (r == CLUSTER_ERROR) {
+            free(xy);
             return -1;
+        }
         /* CLUSTER_FENCED: a newer owner stored a newer snapshot; fine */
     }
+    indexed = cluster_snapshot_index_put(cs->cl, cs->world, seq, (const int(*)[2])xy, count, err);
+    free(xy);
+    if (indexed != CLUSTER_OK)
+        return -1;
     /* record `seq` itself stays, so the subject keeps its last message */
     return cluster_log_purge_below(cs->cl, cs->world, seq, err) == CLUSTER_OK ? 0 : -1;
 }
@@ -433,8 +447,9 @@ cluster_store *cluster_store_open(cluster *cl, const char *world_name, world *w,
     }
     cs->wal = cluster_wal_open(cl, world_name, err);
     replay_ctx r = {cs, w, rec, err};
-    if (!cs->wal || snapshots_load(cs, w, rec, err) != 0 ||
-        cluster_wal_take(cs->wal, 1, replay_record, &r, err) != CLUSTER_OK) {
+    uint64_t from_seq = 1;
+    if (!cs->wal || snapshots_load(cs, w, &from_seq, rec, err) != 0 ||
+        cluster_wal_take(cs->wal, from_seq, replay_record, &r, err) != CLUSTER_OK) {
         cluster_store_close(cs);
         return NULL;
     }

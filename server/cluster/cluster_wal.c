@@ -21,6 +21,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <cjson/cJSON.h>
+
 #define HDR_EXPECT "Nats-Expected-Last-Subject-Sequence"
 #define HDR_KIND "Terrad-Kind"
 #define HDR_PART "Terrad-Part"
@@ -126,36 +128,121 @@ static int wal_deliver(cluster_wal *w, natsMsg *msg, uint64_t seq, cluster_recor
     return on_record ? on_record(ctx, seq, w->part_data, (size_t)w->part_len) : 0;
 }
 
-/* Delivers the records from *from up to end through one ordered consumer;
- * *from moves past each message delivered, so a retry resumes there. */
+/* Standard base64 (the JetStream API's "data" and "hdrs"); -1 when malformed. */
+static int64_t base64_decode(const char *in, uint8_t *out)
+{
+    int64_t n = 0;
+    uint32_t acc = 0;
+    int bits = 0;
+    for (const char *p = in; *p && *p != '='; p++) {
+        int v = *p >= 'A' && *p <= 'Z'   ? *p - 'A'
+                : *p >= 'a' && *p <= 'z' ? *p - 'a' + 26
+                : *p >= '0' && *p <= '9' ? *p - '0' + 52
+                : *p == '+'              ? 62
+                : *p == '/'              ? 63
+                                         : -1;
+        if (v < 0)
+            return -1;
+        acc = (acc << 6) | (uint32_t)v;
+        bits += 6;
+        if (bits >= 8) {
+            bits -= 8;
+            out[n++] = (uint8_t)(acc >> bits);
+        }
+    }
+    return n;
+}
+
+/* The API's message as a natsMsg with its headers ("NATS/1.0\r\nK: V\r\n..."). */
+static natsMsg *wal_message_from_json(const cJSON *m, const char *subject)
+{
+    const cJSON *data = cJSON_GetObjectItemCaseSensitive(m, "data");
+    const cJSON *hdrs = cJSON_GetObjectItemCaseSensitive(m, "hdrs");
+    const char *d = cJSON_IsString(data) ? data->valuestring : "";
+    uint8_t *bytes = malloc(strlen(d) * 3 / 4 + 4);
+    int64_t len = bytes ? base64_decode(d, bytes) : -1;
+    natsMsg *msg = NULL;
+    if (len < 0 || natsMsg_Create(&msg, subject, NULL, (const char *)bytes, (int)len) != NATS_OK) {
+        free(bytes);
+        return NULL;
+    }
+    free(bytes);
+    if (cJSON_IsString(hdrs)) {
+        char *text = malloc(strlen(hdrs->valuestring) * 3 / 4 + 4);
+        int64_t n = text ? base64_decode(hdrs->valuestring, (uint8_t *)text) : -1;
+        if (n < 0) {
+            free(text);
+            natsMsg_Destroy(msg);
+            return NULL;
+        }
+        text[n] = '\0';
+        char *save = NULL;
+        for (char *line = strtok_r(text, "\r\n", &save); line;
+             line = strtok_r(NULL, "\r\n", &save)) {
+            char *colon = strchr(line, ':');
+            if (!colon || strncmp(line, "NATS/", 5) == 0)
+                continue;
+            *colon = '\0';
+            const char *value = colon + 1;
+            while (*value == ' ')
+                value++;
+            natsMsgHeader_Add(msg, line, value);
+        }
+        free(text);
+    }
+    return msg;
+}
+
+/* "The subject's next message from *from", asked of the stream's leader
+ * ($JS.API.STREAM.MSG.GET with next_by_subj: a replica's direct get could
+ * answer from a store that lost its last writes to a kill -9 and skip
+ * records). NATS_NOT_FOUND: none at or after *from. */
+static natsStatus wal_get_next(cluster_wal *w, uint64_t from, natsMsg **out, uint64_t *seq)
+{
+    char api[128], req[256];
+    snprintf(api, sizeof api, "$JS.API.STREAM.MSG.GET.%s", CLUSTER_STREAM);
+    snprintf(req, sizeof req, "{\"seq\":%" PRIu64 ",\"next_by_subj\":\"%s\"}", from, w->subject);
+    natsMsg *reply = NULL;
+    natsStatus s = natsConnection_RequestString(&reply, w->cl->nc, api, req, w->cl->timeout_ms);
+    if (s != NATS_OK)
+        return s;
+    cJSON *doc =
+        cJSON_ParseWithLength(natsMsg_GetData(reply), (size_t)natsMsg_GetDataLength(reply));
+    natsMsg_Destroy(reply);
+    const cJSON *m = cJSON_GetObjectItemCaseSensitive(doc, "message");
+    const cJSON *error = cJSON_GetObjectItemCaseSensitive(doc, "error");
+    const cJSON *q = cJSON_GetObjectItemCaseSensitive(m, "seq");
+    s = NATS_ERR;
+    if (error) {
+        const cJSON *code = cJSON_GetObjectItemCaseSensitive(error, "err_code");
+        s = cJSON_IsNumber(code) && code->valueint == JSNoMessageFoundErr ? NATS_NOT_FOUND
+                                                                          : NATS_ERR;
+    } else if (cJSON_IsNumber(q) && q->valuedouble >= (double)from) {
+        *seq = (uint64_t)q->valuedouble;
+        *out = wal_message_from_json(m, w->subject);
+        s = *out ? NATS_OK : NATS_ERR;
+    }
+    cJSON_Delete(doc);
+    return s;
+}
+
+/* Delivers the messages from *from up to end, one request each; *from moves
+ * past each one, so a retry resumes there. Reading needs no consumer, so it
+ * works while the cluster is still electing a meta leader after losing a
+ * server. */
 static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, uint64_t end,
                                 cluster_record_fn on_record, void *ctx, int *stopped)
 {
-    jsSubOptions so;
-    jsSubOptions_Init(&so);
-    so.Ordered = true;
-    so.Config.DeliverPolicy = js_DeliverByStartSequence;
-    so.Config.OptStartSeq = *from;
-    natsSubscription *sub = NULL;
-    jsErrCode code = 0;
-    natsStatus s = js_SubscribeSync(&sub, w->cl->js, w->subject, NULL, &so, &code);
+    natsStatus s = NATS_OK;
     while (s == NATS_OK && *from <= end && !*stopped) {
         natsMsg *msg = NULL;
-        jsMsgMetaData *meta = NULL;
-        s = natsSubscription_NextMsg(&msg, sub, w->cl->timeout_ms);
-        if (s == NATS_OK)
-            s = natsMsg_GetMetaData(&meta, msg);
-        if (s == NATS_OK) {
-            uint64_t seq = meta->Sequence.Stream;
-            jsMsgMetaData_Destroy(meta);
-            *stopped = wal_deliver(w, msg, seq, on_record, ctx) != 0;
-            *from = seq + 1;
-        }
+        uint64_t seq = 0;
+        s = wal_get_next(w, *from, &msg, &seq);
+        if (s != NATS_OK)
+            break;
+        *stopped = wal_deliver(w, msg, seq, on_record, ctx) != 0;
+        *from = seq + 1;
         natsMsg_Destroy(msg);
-    }
-    if (sub) {
-        natsSubscription_Unsubscribe(sub);
-        natsSubscription_Destroy(sub);
     }
     return s;
 }
@@ -174,8 +261,8 @@ cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_recor
     uint64_t from = from_seq;
     int stopped = 0;
     natsStatus s = NATS_OK;
-    /* Right after a server is lost, creating the consumer may time out until
-     * the cluster has elected new leaders: a few passes, each resuming. */
+    /* Right after a server is lost, a replica may be behind or the stream's
+     * leader being elected: a few passes, each resuming where it stopped. */
     for (double deadline = time_now_ms() + 4.0 * w->cl->timeout_ms; from <= end && !stopped;) {
         s = wal_read_pass(w, &from, end, on_record, ctx, &stopped);
         if (s == NATS_OK || time_now_ms() > deadline)
