@@ -8,6 +8,7 @@
 #                       terrad bench --trade: the speed/accuracy sweep into docs/trade/)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
+#   make cluster        3 NATS servers + 3 terrad nodes on loopback, two demo worlds (Ctrl-C stops)
 #   make format         clang-format -i the C sources (format-check: only check)
 #   make web-deps       npm ci (when package-lock.json exists)
 #   make clean          remove build trees and test artifacts
@@ -51,7 +52,7 @@ endef
 FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
 .PHONY: deps build build-asan run test bench fuzz fuzz-smoke fuzz-build soak format \
-        format-check web-deps clean
+        format-check web-deps clean cluster
 
 deps:
 	@scripts/deps
@@ -66,6 +67,9 @@ build-asan: deps
 
 run: build
 	exec $(TERRAD) serve $(ARGS)
+
+cluster: build
+	exec $(PYTHON) scripts/cluster --bin $(TERRAD) $(ARGS)
 
 # make test: every step runs even when an earlier one fails, so CI sees all failures.
 # The last line is "N passed, N failed": the sum over both ctest runs, plus one failure

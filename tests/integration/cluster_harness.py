@@ -93,14 +93,18 @@ class NatsServer:
 
 
 class NatsCluster:
-    """n (1 or 3) servers in a temporary directory, removed by stop()."""
+    """n (1 or 3) servers in root (default: a temporary directory, removed by
+    stop()); base_port: client ports base_port.., cluster ports base_port+10..
+    (default: free ports)."""
 
-    def __init__(self, n=3, root=None):
+    def __init__(self, n=3, root=None, base_port=None):
         if NATS_SERVER is None:
             raise FileNotFoundError("nats-server")
         self.root = root or tempfile.mkdtemp(prefix="terrad-nats-")
         self.own_root = root is None
-        self.servers = [NatsServer(f"n{i}", os.path.join(self.root, f"n{i}")) for i in range(n)]
+        self.servers = [NatsServer(f"n{i}", os.path.join(self.root, f"n{i}"),
+                                   base_port + i if base_port else None,
+                                   base_port + 10 + i if base_port else None) for i in range(n)]
         if n > 1:
             for s in self.servers:
                 s.routes = [f"nats://127.0.0.1:{o.cluster_port}" for o in self.servers if o is not s]
