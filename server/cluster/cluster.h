@@ -213,6 +213,15 @@ void cluster_store_close(cluster_store *cs);
  */
 cluster_status cluster_store_commit_tick(cluster_store *cs, const world *w, uint64_t tick,
                                          const world_rect *rects, int n, error_text *err);
+/* 1 when a commit can be tried now: connected, the lease held, not fenced,
+ * and 500 ms past a failed commit. Otherwise 0, and cluster_store_failure
+ * says why. */
+int cluster_store_writable(cluster_store *cs);
+/* 1 once a commit was refused as fenced: another node owns the world now
+ * (or the log moved on after an unanswered commit); this store is done. */
+int cluster_store_fenced(const cluster_store *cs);
+/* Why commits fail ("" when the last one succeeded). */
+const char *cluster_store_failure(const cluster_store *cs);
 /* The last tick committed (recovered or acknowledged). */
 uint64_t cluster_store_tick(const cluster_store *cs);
 /* Commit latency (publish to acknowledgement), milliseconds: p50 and p99. */

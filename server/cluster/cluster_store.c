@@ -56,6 +56,10 @@ struct cluster_store {
     int job_count;
     uint64_t job_seq;
     int64_t compactions, compacted_tiles;
+    /* the store's face (store.h): why commits are refused, and since when */
+    int fenced;
+    char failure[256];
+    double failed_ms;
 };
 
 static void put_u32(uint8_t *p, uint32_t v)
@@ -493,13 +497,22 @@ void cluster_store_close(cluster_store *cs)
 cluster_status cluster_store_commit_tick(cluster_store *cs, const world *w, uint64_t tick,
                                          const world_rect *rects, int n, error_text *err)
 {
+    if (cs->fenced) {
+        error_set(err, "%s", cs->failure);
+        return CLUSTER_FENCED;
+    }
     size_t len = record_encode(cs, w, tick, rects, n, err);
     if (len == 0)
         return CLUSTER_ERROR;
     double t0 = time_now_ms();
     cluster_status r = cluster_wal_append(cs->wal, cs->packed, len, NULL, err);
-    if (r != CLUSTER_OK)
+    if (r != CLUSTER_OK) {
+        cs->fenced = r == CLUSTER_FENCED;
+        snprintf(cs->failure, sizeof cs->failure, "%s", err->message);
+        cs->failed_ms = time_now_ms();
         return r;
+    }
+    cs->failure[0] = '\0';
     if (cs->commit_ms.count >= 65536) /* the latest minutes are what /metrics shows */
         stat_series_free(&cs->commit_ms);
     stat_series_add(&cs->commit_ms, time_now_ms() - t0);
@@ -508,6 +521,37 @@ cluster_status cluster_store_commit_tick(cluster_store *cs, const world *w, uint
     mark_changed(cs, rects, n);
     compaction_maybe_start(cs, w);
     return CLUSTER_OK;
+}
+
+int cluster_store_writable(cluster_store *cs)
+{
+    if (cs->fenced)
+        return 0;
+    if (!cluster_connected(cs->cl)) {
+        snprintf(cs->failure, sizeof cs->failure, "world %s: not connected to NATS (%.120s)",
+                 cs->world, cs->cl->urls);
+        return 0;
+    }
+    if (!cluster_lease_held(cs->cl, cs->world)) {
+        snprintf(cs->failure, sizeof cs->failure,
+                 "world %s: this node (%s) does not hold its lease", cs->world, cs->cl->node);
+        return 0;
+    }
+    /* after a failed commit, try again at most every 500 ms */
+    if (cs->failure[0] && time_now_ms() - cs->failed_ms < 500)
+        return 0;
+    cs->failure[0] = '\0';
+    return 1;
+}
+
+int cluster_store_fenced(const cluster_store *cs)
+{
+    return cs->fenced;
+}
+
+const char *cluster_store_failure(const cluster_store *cs)
+{
+    return cs->failure;
 }
 
 uint64_t cluster_store_tick(const cluster_store *cs)

@@ -151,6 +151,11 @@ static void test_failover(cluster *a, cluster *b)
     CHECK(cluster_store_commit_tick(sa, &wa, 71, rects, n, &err) == CLUSTER_FENCED,
           "the deposed owner's commit is refused: %s", err.message);
     CHECK(log_records(b, "dunes") == before, "and the log holds nothing of it");
+    CHECK(cluster_store_fenced(sa) && !cluster_store_writable(sa) &&
+              strstr(cluster_store_failure(sa), "fenced off"),
+          "it stays refused and says why: %s", cluster_store_failure(sa));
+    CHECK(!cluster_store_writable(sb) && strstr(cluster_store_failure(sb), "lease"),
+          "a store whose node holds no lease is not writable: %s", cluster_store_failure(sb));
     cluster_store_close(sa);
     world_free(&wa);
 
