@@ -3,9 +3,10 @@
  * classify.comp: the first integer stage of a tick, right after depth
  * (sim_classify in sim_stages.c). Per cell: the penetration of the lowest
  * collider into the column, the part of it that is displaced (the rest is
- * compacted away), and the class (seed / obstacle / penetrating). With
- * per-cell materials (sim_classify_materials) each cell's row and compaction
- * memory decide how far the column yields and how much is compacted.
+ * compacted away), and the class (seed / obstacle / penetrating). Each
+ * cell's material row and compaction memory decide how far the column
+ * yields and how much is compacted (sim_classify_materials); the uniform
+ * path is row 0 of a one-row table of the params, as on the CPU.
  *
  * Two trivial per-cell steps of later stages are folded in to save passes,
  * with identical results: sim_displace's first step (heights -= raw; the raw
@@ -21,7 +22,8 @@ layout(std430, binding = 2) buffer heights_buf { int heights[]; };
 layout(std430, binding = 3) writeonly buffer moved_buf { int moved[]; };
 layout(std430, binding = 4) writeonly buffer cls_buf { int cls[]; };
 layout(std430, binding = 5) writeonly buffer seed_buf { int seed[]; };
-/* id | compaction memory << 8 per cell; only bound when u_materials_on. The
+/* id | compaction memory << 8 per cell; only bound (and read) when
+ * u_materials_on; otherwise every cell is row 0 with no memory. The
  * memory is updated in place (sim_compaction_commit); the host reads it
  * back for accepted windows only. */
 layout(std430, binding = 6) buffer material_buf { int material_word[]; };
@@ -44,22 +46,18 @@ void main()
             cl = CELL_OBSTACLE;
         }
     }
+    int word = u_materials_on != 0 ? material_word[c] : 0;
+    int id = material_id(word);
+    int max_m = u_material_max_compaction[id];
     int raw = pen, compacted;
-    if (u_materials_on != 0) {
-        int word = material_word[c];
-        int id = material_id(word);
-        int max_m = u_material_max_compaction[id];
-        if (max_m > 0) {
-            int m = min(word >> 8, max_m);
-            int hardness_q16 = int((uint(m) << 16u) / uint(max_m));
-            raw = pen - mul_q16_shift(pen, hardness_q16, 16);
-            compacted = min(mul_q16_shift(raw, u_material_rows[id].x, 16), max_m - m);
-            material_word[c] = (word & 255) | ((m + compacted) << 8);
-        } else {
-            compacted = mul_q16_shift(pen, u_material_rows[id].x, 16);
-        }
+    if (max_m > 0) { /* only with a material buffer: the params' row has none */
+        int m = min(word >> 8, max_m);
+        int hardness_q16 = int((uint(m) << 16u) / uint(max_m));
+        raw = pen - mul_q16_shift(pen, hardness_q16, 16);
+        compacted = min(mul_q16_shift(raw, u_material_rows[id].x, 16), max_m - m);
+        material_word[c] = (word & 255) | ((m + compacted) << 8);
     } else {
-        compacted = mul_q16_shift(pen, u_compression_q16, 16);
+        compacted = mul_q16_shift(pen, u_material_rows[id].x, 16);
     }
     moved[c] = raw - compacted;
     cls[c] = cl;

@@ -68,18 +68,15 @@ uniform int u_tile_count;
 
 /* Integer parameters (sim_params). */
 uniform int u_metric;
-uniform int u_compression_q16;
-uniform int u_roughness_q16;
-uniform int u_slope_threshold_axial;
-uniform int u_slope_threshold_diagonal;
 uniform int u_obstacle_gap;
 uniform int u_multi_target_step;
 uniform int u_multi_target_max;
 uniform int u_floor;
 
-/* Per-cell materials (sim_stages_materials.c). u_materials_on 0: the uniform
- * path above. Otherwise each cell's material word is id | memory << 8 and
- * row id holds (compression_q16, roughness_q16, threshold axial, diagonal). */
+/* Materials (sim_stages.c): row id holds (compression_q16, roughness_q16,
+ * threshold axial, diagonal). u_materials_on 0: no material buffer, every
+ * cell is row 0 (the uniform path, a one-row table of the params);
+ * otherwise each cell's material word is id | memory << 8. */
 uniform int u_materials_on;
 uniform int u_material_count;
 uniform ivec4 u_material_rows[16];

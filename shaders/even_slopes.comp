@@ -8,8 +8,9 @@
  *
  * The flux from column c to neighbour k is roughness/8 of the height
  * difference above the repose threshold (integer thresholds computed once on
- * the CPU), rounded down, and only towards free columns (seeds). With
- * per-cell materials each flux uses the row of the column it leaves.
+ * the CPU), rounded down, and only towards free columns (seeds). Each flux
+ * uses the material row of the column it leaves (sim_even_slopes_materials);
+ * the uniform path is row 0 of a one-row table of the params, as on the CPU.
  */
 #include "common.glsl"
 
@@ -20,28 +21,21 @@ layout(binding = 2) uniform isamplerBuffer u_heights_in;
 layout(binding = 3) uniform isamplerBuffer u_material; /* only read when u_materials_on */
 layout(std430, binding = 2) writeonly buffer heights_out_buf { int heights_out[]; };
 
-/* The flux out of a column of material `id` (-1: the uniform params), as
- * sim_even_slopes_materials: the leaving column's threshold and roughness. */
+/* The flux out of a column of material `id`, as sim_even_slopes_materials:
+ * the leaving column's threshold and roughness. */
 int slope_flux(int id, int hc, int hk, bool diagonal)
 {
-    int axial = u_slope_threshold_axial, diag = u_slope_threshold_diagonal;
-    int roughness = u_roughness_q16;
-    if (id >= 0) {
-        ivec4 row = u_material_rows[id];
-        roughness = row.y;
-        axial = row.z;
-        diag = row.w;
-    }
-    int threshold = diagonal ? diag : axial;
+    ivec4 row = u_material_rows[id];
+    int threshold = diagonal ? row.w : row.z;
     int excess = hc - hk - threshold;
     if (excess <= 0)
         return 0;
-    return mul_q16_shift(excess, roughness, 19);
+    return mul_q16_shift(excess, row.y, 19);
 }
 
 int cell_material(int c)
 {
-    return u_materials_on != 0 ? material_id(fetch(u_material, c)) : -1;
+    return u_materials_on != 0 ? material_id(fetch(u_material, c)) : 0;
 }
 
 void main()

@@ -1,23 +1,35 @@
 /*
  * app: terrad's commands — `simulate` (an offline run of a scene that prints
- * one JSON report), `serve` (the daemon: tick loop, demo actors, HTTP) and
- * `bench --trade` (the speed/accuracy sweep over models).
- * main.c only dispatches to these.
+ * one JSON report), `serve` (the daemon: tick loop, demo actors, HTTP),
+ * `export` (a data directory's world to a file) and `bench --trade` (the
+ * speed/accuracy sweep over models). main.c only dispatches to these.
  */
 #ifndef TERRAD_APP_H
 #define TERRAD_APP_H
+
+#include <stdio.h>
 
 #include "base/base.h"
 #include "ground/ground.h"
 #include "scene/scene.h"
 #include "sim/sim.h"
 
+/* Each command takes its own argv: argv[0] is the command's name, the
+ * options follow (base.h's cli_parse). Returns the exit status: 0, 1 (a
+ * failure) or 2 (a usage error); "CMD --help" prints the command's options. */
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
 int app_export(int argc, char **argv); /* a data directory's world to raw32 / png16 */
 int app_bench(int argc, char **argv);  /* `terrad bench --trade` (bench_trade.c) */
 int app_world(int argc, char **argv);  /* `terrad world add|list|remove` (world_cmd.c) */
-void app_print_help(void);
+
+/* Each command's --help: its usage and its options table (the one place the
+ * option texts live). `terrad --help` prints them all. */
+void app_serve_usage(FILE *out);
+void app_simulate_usage(FILE *out);
+void app_export_usage(FILE *out);
+void app_bench_usage(FILE *out);
+void app_world_usage(FILE *out);
 
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);

@@ -1,5 +1,6 @@
 /*
- * backend_select.c: picks a deformation backend by name for the commands.
+ * backend_select.c: picks a deformation backend by name for the commands,
+ * once before the first tick; every tick's deformation then runs on it.
  */
 #include <string.h>
 

@@ -24,7 +24,6 @@
 
 #include "app/app.h"
 #include "app/trade_internal.h"
-#include "gl/gl.h"
 
 #define HEADING_COUNT 3
 static const double headings_deg[HEADING_COUNT] = {0.0, 30.0, 45.0};
@@ -49,26 +48,40 @@ typedef struct trade_options {
     int scene_count;
 } trade_options;
 
-static void print_usage(FILE *f)
+enum { OPT_TRADE, OPT_QUICK, OPT_OUT, OPT_BACKEND, OPT_MODELS, OPT_SCENES };
+
+static const cli_option bench_table[] = {
+    [OPT_TRADE] = {"trade", NULL, "the speed/accuracy sweep (the one bench so far; required)"},
+    [OPT_QUICK] = {"quick", NULL,
+                   "a reduced sweep in seconds: cells 0.2 and 0.1 m, 1 and 10\n"
+                   "iterations, reference 20/20 (full: 0.1, 0.05, 0.025 m; 1, 5,\n"
+                   "10, 20; reference 50/50 checked against 100/100)"},
+    [OPT_OUT] = {"out", "DIR", "where trade.csv, trade.svg and trade.txt go (default docs/trade)"},
+    [OPT_BACKEND] = {"backend", "cpu|gl|both",
+                     "cpu: every run on the CPU twin; gl: every run on GL; both: both;\n"
+                     "default: the CPU twin for the sweep plus GL at one cell size"},
+    [OPT_MODELS] = {"models", "LIST", "comma-separated; default: all the models below"},
+    [OPT_SCENES] = {"scenes", "LIST", "comma-separated; default: all the scenes below"},
+    {0},
+};
+
+static const char bench_usage[] = "--trade [options]";
+
+/* The models and scenes --models and --scenes take. */
+static void bench_print_lists(FILE *f)
 {
-    fprintf(f,
-            "usage: terrad bench --trade [--out DIR] [--quick] [--backend cpu|gl|both]\n"
-            "                            [--models a,b,c] [--scenes a,b,c]\n"
-            "  --out DIR        where trade.csv, trade.svg and trade.txt go (default docs/trade)\n"
-            "  --quick          a reduced sweep in seconds: cells 0.2 and 0.1 m, 1 and 10\n"
-            "                   iterations, reference 20/20 (full: 0.1, 0.05, 0.025 m; 1, 5,\n"
-            "                   10, 20; reference 50/50 checked against 100/100)\n"
-            "  --backend B      cpu: every run on the CPU twin; gl: every run on GL; both: both;\n"
-            "                   default: the CPU twin for the sweep plus GL at one cell size\n"
-            "  --models LIST    default: all of");
+    fprintf(f, "\nmodels:");
     for (int i = 0; i < trade_model_count; i++)
         fprintf(f, " %s", trade_model_names[i]);
-    fprintf(f, "\n  --scenes LIST    default: all of");
+    fprintf(f, "\nscenes:\n");
     for (int i = 0; i < trade_scene_count; i++)
-        fprintf(f, " %s", trade_scene_names[i]);
-    fprintf(f, "\n");
-    for (int i = 0; i < trade_scene_count; i++)
-        fprintf(f, "    %-10s %s\n", trade_scene_names[i], trade_scene_about(i));
+        fprintf(f, "  %-10s %s\n", trade_scene_names[i], trade_scene_about(i));
+}
+
+void app_bench_usage(FILE *f)
+{
+    cli_print_help(f, "bench", bench_usage, bench_table);
+    bench_print_lists(f);
 }
 
 /* Split a comma list into indices by `lookup`; names the unknown entry. */
@@ -101,74 +114,78 @@ static int parse_list(const char *option, const char *list, int (*lookup)(const 
     return 0;
 }
 
-static int parse_options(int argc, char **argv, trade_options *o)
+typedef struct bench_args {
+    trade_options *o;
+    int trade;
+    const char *models, *scenes;
+} bench_args;
+
+static int bench_on_option(void *ctx, int index, const char *v, error_text *err)
+{
+    bench_args *a = ctx;
+    trade_options *o = a->o;
+    switch (index) {
+    case OPT_TRADE:
+        a->trade = 1;
+        return 0;
+    case OPT_QUICK:
+        o->quick = 1;
+        return 0;
+    case OPT_OUT:
+        o->out_dir = v;
+        return 0;
+    case OPT_BACKEND:
+        o->cpu_all = strcmp(v, "cpu") == 0 || strcmp(v, "both") == 0;
+        o->gl_all = strcmp(v, "gl") == 0 || strcmp(v, "both") == 0;
+        o->gl_one = 0;
+        if (!o->cpu_all && !o->gl_all) {
+            error_set(err, "must be cpu, gl or both (got \"%s\")", v);
+            return -1;
+        }
+        return 0;
+    case OPT_MODELS:
+        a->models = v;
+        return 0;
+    case OPT_SCENES:
+        a->scenes = v;
+        return 0;
+    }
+    return -1;
+}
+
+static cli_result parse_options(int argc, char **argv, trade_options *o)
 {
     memset(o, 0, sizeof *o);
     o->out_dir = "docs/trade";
     o->cpu_all = o->gl_one = 1;
-    int trade = 0;
-    const char *models = NULL, *scenes = NULL;
-    for (int i = 0; i < argc; i++) {
-        const char *a = argv[i];
-        if (strcmp(a, "--trade") == 0) {
-            trade = 1;
-            continue;
-        }
-        if (strcmp(a, "--quick") == 0) {
-            o->quick = 1;
-            continue;
-        }
-        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
-            print_usage(stdout);
-            exit(0);
-        }
-        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (!v) {
-            fprintf(stderr, "terrad bench: %s needs a value (see terrad bench --help)\n", a);
-            return -1;
-        }
-        i++;
-        if (strcmp(a, "--out") == 0) {
-            o->out_dir = v;
-        } else if (strcmp(a, "--backend") == 0) {
-            o->cpu_all = strcmp(v, "cpu") == 0 || strcmp(v, "both") == 0;
-            o->gl_all = strcmp(v, "gl") == 0 || strcmp(v, "both") == 0;
-            o->gl_one = 0;
-            if (!o->cpu_all && !o->gl_all) {
-                fprintf(stderr, "terrad bench: --backend must be cpu, gl or both (got \"%s\")\n",
-                        v);
-                return -1;
-            }
-        } else if (strcmp(a, "--models") == 0) {
-            models = v;
-        } else if (strcmp(a, "--scenes") == 0) {
-            scenes = v;
-        } else {
-            fprintf(stderr, "terrad bench: unknown option %s (see terrad bench --help)\n", a);
-            return -1;
-        }
-    }
-    if (!trade) {
+    bench_args a = {o, 0, NULL, NULL};
+    cli_result r =
+        cli_parse("bench", bench_usage, bench_table, argc, argv, bench_on_option, &a, NULL);
+    if (r == CLI_HELP) /* the lists --models and --scenes take */
+        bench_print_lists(stdout);
+    if (r != CLI_OK)
+        return r;
+    if (!a.trade) {
         fprintf(stderr, "terrad bench: say which bench: --trade (see terrad bench --help)\n");
-        return -1;
+        return CLI_ERROR;
     }
-    if (models) {
-        if (parse_list("--models", models, trade_model_index, trade_model_names, trade_model_count,
-                       o->models, &o->model_count) != 0)
-            return -1;
+    if (a.models) {
+        if (parse_list("--models", a.models, trade_model_index, trade_model_names,
+                       trade_model_count, o->models, &o->model_count) != 0)
+            return CLI_ERROR;
     } else {
         for (int i = 0; i < trade_model_count && i < 16; i++)
             o->models[o->model_count++] = i;
     }
-    if (scenes) {
-        if (parse_list("--scenes", scenes, trade_scene_index, trade_scene_names, trade_scene_count,
-                       o->scenes, &o->scene_count) != 0)
-            return -1;
+    if (a.scenes) {
+        if (parse_list("--scenes", a.scenes, trade_scene_index, trade_scene_names,
+                       trade_scene_count, o->scenes, &o->scene_count) != 0)
+            return CLI_ERROR;
     } else {
         for (int i = 0; i < trade_scene_count; i++)
             o->scenes[o->scene_count++] = i;
     }
-    return 0;
+    return CLI_OK;
 }
 
 /* mkdir -p */
@@ -247,8 +264,7 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     int32_t *after = malloc(cells * sizeof *after);
     sim_params params;
     sim_backend *backend = NULL;
-    sim_engine engine;
-    int engine_ready = 0;
+    sim_engine *engine = NULL;
     tick_log log = {{0}, 0};
     if (!before || !after) {
         error_set(err, "out of memory");
@@ -259,12 +275,11 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
                                  err) != 0 ||
         !(backend = app_backend_create(backend_name, err)) ||
-        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, err) != 0)
+        !(engine = sim_engine_create(&w, &params, backend, sc.active_margin_cells, err)))
         goto done;
-    engine_ready = 1;
     char *renderer = strcmp(backend->name, "gl") == 0 ? gl_renderer : cpu_renderer;
     snprintf(renderer, sizeof cpu_renderer, "%s", backend->renderer);
-    if (app_run_scene_ticks(&sc, &engine, r->ticks, log_tick, &log, err) != 0)
+    if (app_run_scene_ticks(&sc, engine, r->ticks, log_tick, &log, err) != 0)
         goto done;
 
     world_gather_window(&w, whole, after);
@@ -294,9 +309,11 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     r->world_cells = (int64_t)cells;
     r->tick_ms_mean = stat_series_mean(&log.tick_ms);
     r->tick_ms_p95 = stat_series_percentile(&log.tick_ms, 95);
-    r->scratch_bytes_peak = engine.peak_scratch_bytes;
+    sim_engine_stats es;
+    sim_engine_get_stats(engine, &es);
+    r->scratch_bytes_peak = es.peak_scratch_bytes;
     r->bytes_per_world_cell =
-        ((double)cells * sizeof(int32_t) + (double)engine.peak_scratch_bytes) / (double)cells;
+        ((double)cells * sizeof(int32_t) + (double)es.peak_scratch_bytes) / (double)cells;
     r->refused_windows = log.refused;
     r->profile_length = trade_profile_length(&spec);
     r->profile = malloc((size_t)r->profile_length * sizeof *r->profile);
@@ -308,8 +325,7 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     rc = 0;
 done:
     stat_series_free(&log.tick_ms);
-    if (engine_ready)
-        sim_engine_free(&engine);
+    sim_engine_destroy(engine);
     if (backend)
         backend->destroy(backend);
     free(before);
@@ -470,44 +486,166 @@ static void print_report(FILE *f, const trade_row *rows, int count, int table_it
     }
 }
 
+/* The sweep's plan and what it has measured so far. */
+typedef struct bench_sweep {
+    trade_options o;
+    const double *cells_m;
+    int cell_count;
+    const int *iterations;
+    int iteration_count;
+    double finest_m, gl_one_m;
+    const char *reference_model;
+    int reference_iterations;
+    trade_row *rows;
+    int row_count;
+    double convergence_m[16];
+    double started;
+} bench_sweep;
+
+static void bench_plan(bench_sweep *b)
+{
+    int quick = b->o.quick;
+    b->cells_m = quick ? quick_cells_m : full_cells_m;
+    b->cell_count = quick ? 2 : 3;
+    b->iterations = quick ? quick_iterations : full_iterations;
+    b->iteration_count = quick ? 2 : 4;
+    b->finest_m = b->cells_m[b->cell_count - 1];
+    b->gl_one_m = b->cells_m[b->cell_count - 2]; /* GL's single cell size by default */
+    b->reference_model = "persson-iterative";
+    b->reference_iterations = quick ? quick_reference_iterations : full_reference_iterations;
+}
+
+/* One model's rows of one scene: every backend, cell size and iteration count. */
+static int bench_sweep_model(bench_sweep *b, int scene_index, const char *model,
+                             const run_result *ref, error_text *err)
+{
+    for (int k = 0; k < 2; k++) {
+        const char *backend = k == 0 ? "cpu" : "gl";
+        for (int c = 0; c < b->cell_count; c++) {
+            int wanted = k == 0 ? b->o.cpu_all
+                                : b->o.gl_all || (b->o.gl_one && b->cells_m[c] == b->gl_one_m);
+            if (!wanted)
+                continue;
+            for (int it = 0; it < b->iteration_count; it++) {
+                if (measure_row(scene_index, model, backend, b->cells_m[c], b->iterations[it],
+                                ref->profile, ref->profile_length, &b->rows[b->row_count],
+                                err) != 0)
+                    return -1;
+                b->row_count++;
+            }
+        }
+    }
+    return 0;
+}
+
+/* One scene: the reference, its convergence check, then every model. */
+static int bench_sweep_scene(bench_sweep *b, int s, error_text *err)
+{
+    int scene_index = b->o.scenes[s];
+    const char *scene_name = trade_scene_names[scene_index];
+    run_result ref;
+    if (run_scene(scene_index, b->reference_model, "cpu", b->finest_m, b->reference_iterations, 0.0,
+                  &ref, err) != 0) {
+        error_prefix(err, scene_name, " reference: ");
+        return -1;
+    }
+    int rc = -1;
+    /* the reference and its convergence check, measured like any row */
+    const int ref_iterations[2] = {b->reference_iterations, 2 * b->reference_iterations};
+    const char *roles[2] = {"reference", "convergence"};
+    for (int k = 0; k < 2; k++) {
+        trade_row *row = &b->rows[b->row_count];
+        if (measure_row(scene_index, b->reference_model, "cpu", b->finest_m, ref_iterations[k],
+                        ref.profile, ref.profile_length, row, err) != 0)
+            goto out;
+        row->role = roles[k];
+        b->row_count++;
+    }
+    b->convergence_m[s] = b->rows[b->row_count - 1].cross_section_rms_m;
+    fprintf(stderr, "trade: %s: reference %s %g m %d/%d; %d/%d differs by %.4f mm RMS (%.0f s)\n",
+            scene_name, b->reference_model, b->finest_m, b->reference_iterations,
+            b->reference_iterations, 2 * b->reference_iterations, 2 * b->reference_iterations,
+            b->convergence_m[s] * 1e3, (time_now_ms() - b->started) / 1e3);
+    for (int m = 0; m < b->o.model_count; m++) {
+        const char *model = trade_model_names[b->o.models[m]];
+        if (bench_sweep_model(b, scene_index, model, &ref, err) != 0)
+            goto out;
+        fprintf(stderr, "trade: %s %s done (%.0f s)\n", scene_name, model,
+                (time_now_ms() - b->started) / 1e3);
+    }
+    rc = 0;
+out:
+    free(ref.profile);
+    return rc;
+}
+
+/* trade.csv, trade.svg and trade.txt, and the report on stdout. */
+static int bench_write(bench_sweep *b, const char *csv_path, const char *svg_path,
+                       const char *txt_path)
+{
+    error_text err = {{0}};
+    if (write_csv(csv_path, b->rows, b->row_count) != 0) {
+        fprintf(stderr, "terrad bench: cannot write %s: %s\n", csv_path, strerror(errno));
+        return -1;
+    }
+    char subtitle[700];
+    snprintf(subtitle, sizeof subtitle, "%s%s%s; %s sweep, %d rows", cpu_renderer,
+             gl_renderer[0] ? " / gl: " : "", gl_renderer, b->o.quick ? "quick" : "full",
+             b->row_count);
+    if (trade_plot_write(svg_path, b->rows, b->row_count, subtitle, &err) != 0) {
+        fprintf(stderr, "terrad bench: %s\n", err.message);
+        return -1;
+    }
+    int table_iterations = b->iterations[b->iteration_count - 1] >= 10 ? 10 : b->iterations[0];
+    FILE *txt = fopen(txt_path, "w");
+    if (!txt) {
+        fprintf(stderr, "terrad bench: cannot write %s: %s\n", txt_path, strerror(errno));
+        return -1;
+    }
+    fprintf(txt, "terrad bench --trade (%s sweep): %s\n", b->o.quick ? "quick" : "full", subtitle);
+    fprintf(txt, "lengths in mm; drift = |dSum h| / material displaced; %.0f s\n\n",
+            (time_now_ms() - b->started) / 1e3);
+    print_report(txt, b->rows, b->row_count, table_iterations, b->reference_iterations,
+                 b->convergence_m, &b->o);
+    if (fclose(txt) != 0) {
+        fprintf(stderr, "terrad bench: cannot write %s\n", txt_path);
+        return -1;
+    }
+    print_report(stdout, b->rows, b->row_count, table_iterations, b->reference_iterations,
+                 b->convergence_m, &b->o);
+    printf("\nwrote %s, %s, %s (%d rows, %.0f s)\n", csv_path, svg_path, txt_path, b->row_count,
+           (time_now_ms() - b->started) / 1e3);
+    return 0;
+}
+
 int app_bench(int argc, char **argv)
 {
-    trade_options o;
-    if (parse_options(argc, argv, &o) != 0)
-        return 2;
+    bench_sweep b = {0};
+    cli_result parsed = parse_options(argc, argv, &b.o);
+    if (parsed != CLI_OK)
+        return parsed == CLI_HELP ? 0 : 2;
+    trade_options *o = &b.o;
     log_set_quiet(1);
     char csv_path[1200], svg_path[1200], txt_path[1200];
-    snprintf(csv_path, sizeof csv_path, "%s/trade.csv", o.out_dir);
-    snprintf(svg_path, sizeof svg_path, "%s/trade.svg", o.out_dir);
-    snprintf(txt_path, sizeof txt_path, "%s/trade.txt", o.out_dir);
+    snprintf(csv_path, sizeof csv_path, "%s/trade.csv", o->out_dir);
+    snprintf(svg_path, sizeof svg_path, "%s/trade.svg", o->out_dir);
+    snprintf(txt_path, sizeof txt_path, "%s/trade.txt", o->out_dir);
     /* Refuse an unusable --out before spending minutes on the sweep. */
     FILE *probe = NULL;
-    if (make_dirs(o.out_dir) != 0 || !(probe = fopen(csv_path, "w"))) {
-        fprintf(stderr, "terrad bench: --out %s: cannot write %s: %s\n", o.out_dir, csv_path,
+    if (make_dirs(o->out_dir) != 0 || !(probe = fopen(csv_path, "w"))) {
+        fprintf(stderr, "terrad bench: --out %s: cannot write %s: %s\n", o->out_dir, csv_path,
                 strerror(errno));
         return 1;
     }
     fclose(probe);
-
-    const double *cells_m = o.quick ? quick_cells_m : full_cells_m;
-    int cell_count = o.quick ? 2 : 3;
-    const int *iterations = o.quick ? quick_iterations : full_iterations;
-    int iteration_count = o.quick ? 2 : 4;
-    double finest_m = cells_m[cell_count - 1];
-    double gl_one_m = cells_m[cell_count - 2]; /* GL's single cell size by default */
-    const char *reference_model = "persson-iterative";
-    int reference_iterations = o.quick ? quick_reference_iterations : full_reference_iterations;
-
-    int row_capacity = o.scene_count * (2 + o.model_count * 2 * cell_count * iteration_count);
-    trade_row *rows = calloc((size_t)row_capacity, sizeof *rows);
-    double convergence_m[16] = {0};
-    int row_count = 0, rc = 1;
-    error_text err = {{0}};
-    if (!rows) {
+    bench_plan(&b);
+    int row_capacity = o->scene_count * (2 + o->model_count * 2 * b.cell_count * b.iteration_count);
+    b.rows = calloc((size_t)row_capacity, sizeof *b.rows);
+    if (!b.rows) {
         fprintf(stderr, "terrad bench: out of memory\n");
         return 1;
     }
-    if (o.gl_one) {
+    if (o->gl_one) {
         /* GL is only asked for by default here: without a context, say so and go on. */
         error_text gl_err = {{0}};
         sim_backend *gl = app_backend_create("gl", &gl_err);
@@ -515,97 +653,20 @@ int app_bench(int argc, char **argv)
             gl->destroy(gl);
         } else {
             fprintf(stderr, "trade: GL backend unavailable, GL rows skipped: %s\n", gl_err.message);
-            o.gl_one = 0;
+            o->gl_one = 0;
         }
     }
-    double started = time_now_ms();
-    for (int s = 0; s < o.scene_count; s++) {
-        int scene_index = o.scenes[s];
-        const char *scene_name = trade_scene_names[scene_index];
-        run_result ref;
-        if (run_scene(scene_index, reference_model, "cpu", finest_m, reference_iterations, 0.0,
-                      &ref, &err) != 0) {
-            fprintf(stderr, "terrad bench: %s reference: %s\n", scene_name, err.message);
+    b.started = time_now_ms();
+    int rc = 1;
+    error_text err = {{0}};
+    for (int s = 0; s < o->scene_count; s++)
+        if (bench_sweep_scene(&b, s, &err) != 0) {
+            fprintf(stderr, "terrad bench: %s\n", err.message);
             goto done;
         }
-        /* the reference and its convergence check, measured like any row */
-        const int ref_iterations[2] = {reference_iterations, 2 * reference_iterations};
-        const char *roles[2] = {"reference", "convergence"};
-        for (int k = 0; k < 2; k++) {
-            trade_row *row = &rows[row_count];
-            if (measure_row(scene_index, reference_model, "cpu", finest_m, ref_iterations[k],
-                            ref.profile, ref.profile_length, row, &err) != 0) {
-                fprintf(stderr, "terrad bench: %s\n", err.message);
-                free(ref.profile);
-                goto done;
-            }
-            row->role = roles[k];
-            row_count++;
-        }
-        convergence_m[s] = rows[row_count - 1].cross_section_rms_m;
-        fprintf(stderr,
-                "trade: %s: reference %s %g m %d/%d; %d/%d differs by %.4f mm RMS (%.0f s)\n",
-                scene_name, reference_model, finest_m, reference_iterations, reference_iterations,
-                2 * reference_iterations, 2 * reference_iterations, convergence_m[s] * 1e3,
-                (time_now_ms() - started) / 1e3);
-        for (int m = 0; m < o.model_count; m++) {
-            const char *model = trade_model_names[o.models[m]];
-            for (int b = 0; b < 2; b++) {
-                const char *backend = b == 0 ? "cpu" : "gl";
-                for (int c = 0; c < cell_count; c++) {
-                    int wanted =
-                        b == 0 ? o.cpu_all : o.gl_all || (o.gl_one && cells_m[c] == gl_one_m);
-                    if (!wanted)
-                        continue;
-                    for (int it = 0; it < iteration_count; it++) {
-                        if (measure_row(scene_index, model, backend, cells_m[c], iterations[it],
-                                        ref.profile, ref.profile_length, &rows[row_count],
-                                        &err) != 0) {
-                            fprintf(stderr, "terrad bench: %s\n", err.message);
-                            free(ref.profile);
-                            goto done;
-                        }
-                        row_count++;
-                    }
-                }
-            }
-            fprintf(stderr, "trade: %s %s done (%.0f s)\n", scene_name, model,
-                    (time_now_ms() - started) / 1e3);
-        }
-        free(ref.profile);
-    }
-
-    if (write_csv(csv_path, rows, row_count) != 0) {
-        fprintf(stderr, "terrad bench: cannot write %s: %s\n", csv_path, strerror(errno));
-        goto done;
-    }
-    char subtitle[700];
-    snprintf(subtitle, sizeof subtitle, "%s%s%s; %s sweep, %d rows", cpu_renderer,
-             gl_renderer[0] ? " / gl: " : "", gl_renderer, o.quick ? "quick" : "full", row_count);
-    if (trade_plot_write(svg_path, rows, row_count, subtitle, &err) != 0) {
-        fprintf(stderr, "terrad bench: %s\n", err.message);
-        goto done;
-    }
-    int table_iterations = iterations[iteration_count - 1] >= 10 ? 10 : iterations[0];
-    FILE *txt = fopen(txt_path, "w");
-    if (!txt) {
-        fprintf(stderr, "terrad bench: cannot write %s: %s\n", txt_path, strerror(errno));
-        goto done;
-    }
-    fprintf(txt, "terrad bench --trade (%s sweep): %s\n", o.quick ? "quick" : "full", subtitle);
-    fprintf(txt, "lengths in mm; drift = |dSum h| / material displaced; %.0f s\n\n",
-            (time_now_ms() - started) / 1e3);
-    print_report(txt, rows, row_count, table_iterations, reference_iterations, convergence_m, &o);
-    if (fclose(txt) != 0) {
-        fprintf(stderr, "terrad bench: cannot write %s\n", txt_path);
-        goto done;
-    }
-    print_report(stdout, rows, row_count, table_iterations, reference_iterations, convergence_m,
-                 &o);
-    printf("\nwrote %s, %s, %s (%d rows, %.0f s)\n", csv_path, svg_path, txt_path, row_count,
-           (time_now_ms() - started) / 1e3);
-    rc = 0;
+    if (bench_write(&b, csv_path, svg_path, txt_path) == 0)
+        rc = 0;
 done:
-    free(rows);
+    free(b.rows);
     return rc;
 }

@@ -35,139 +35,182 @@ static int write_raw32(const char *path, const int32_t *v, size_t n)
     return fclose(f) == 0 && ok ? 0 : -1;
 }
 
+typedef struct export_options {
+    const char *data, *scene_path, *out, *format;
+    world_rect region;
+    long long upto_tick;
+    int have_region;
+} export_options;
+
+enum { OPT_DATA, OPT_SCENE, OPT_OUT, OPT_FORMAT, OPT_REGION, OPT_TICK };
+
+static const cli_option export_table[] = {
+    [OPT_DATA] = {"data", "DIR", "data directory (default ./data); read only, never repaired"},
+    [OPT_SCENE] = {"scene", "FILE", "the scene the daemon ran (default: the embedded scene)"},
+    [OPT_OUT] = {"out", "FILE", "output file (required)"},
+    [OPT_FORMAT] = {"format", "F",
+                    "raw32 (little-endian int32, row-major; default) or png16\n"
+                    "(height = value * scale + offset, written to FILE.json)"},
+    [OPT_REGION] = {"region", "x,y,w,h", "a region in cells (default: the whole world)"},
+    [OPT_TICK] = {"tick", "T", "the world as of tick T (default: the last logged tick)"},
+    {0},
+};
+
+static const char export_usage[] = "--out FILE [options]";
+
+void app_export_usage(FILE *out)
+{
+    cli_print_help(out, "export", export_usage, export_table);
+}
+
+static int export_on_option(void *ctx, int index, const char *v, error_text *err)
+{
+    export_options *o = ctx;
+    char *end, tail;
+    world_rect *r = &o->region;
+    switch (index) {
+    case OPT_DATA:
+        o->data = v;
+        return 0;
+    case OPT_SCENE:
+        o->scene_path = v;
+        return 0;
+    case OPT_OUT:
+        o->out = v;
+        return 0;
+    case OPT_FORMAT:
+        o->format = v;
+        return 0;
+    case OPT_TICK:
+        o->upto_tick = strtoll(v, &end, 10);
+        if (!*v || *end || o->upto_tick < 1) {
+            error_set(err, "must be a tick number >= 1 (got %s)", v);
+            return -1;
+        }
+        return 0;
+    case OPT_REGION:
+        if (sscanf(v, "%d,%d,%d,%d%c", &r->x, &r->y, &r->w, &r->h, &tail) != 4 || r->w <= 0 ||
+            r->h <= 0) {
+            error_set(err, "must be x,y,w,h with w, h > 0 (got %s)", v);
+            return -1;
+        }
+        o->have_region = 1;
+        return 0;
+    }
+    return -1;
+}
+
+/* The region as a 16-bit PNG, and its scale and offset in FILE.json. */
+static int export_png16(const export_options *o, const world *w, world_rect region,
+                        const int32_t *values, uint64_t tick)
+{
+    error_text err = {{0}};
+    size_t n = (size_t)region.w * region.h;
+    int32_t lo, hi;
+    world_rect_height_range(w, region, &lo, &hi);
+    int64_t range = (int64_t)hi - lo;
+    int64_t scale = range <= 65535 ? 1 : (range + 65534) / 65535;
+    uint16_t *pixels = malloc(n * sizeof *pixels);
+    if (!pixels) {
+        log_error("terrad export: out of memory for %zu pixels", n);
+        return -1;
+    }
+    for (size_t i = 0; i < n; i++)
+        pixels[i] = (uint16_t)(((int64_t)values[i] - lo) / scale);
+    int rc = png16_write(o->out, region.w, region.h, pixels, &err);
+    free(pixels);
+    if (rc != 0) {
+        log_error("%s", err.message);
+        return -1;
+    }
+    char side[1100];
+    snprintf(side, sizeof side, "%s.json", o->out);
+    FILE *f = fopen(side, "w");
+    if (!f ||
+        fprintf(f,
+                "{\"x\":%d,\"y\":%d,\"width\":%d,\"height\":%d,\"tick\":%llu,"
+                "\"offset_units\":%d,\"scale_units\":%lld,\"units_per_m\":%d,"
+                "\"height_units\":\"value * scale_units + offset_units\"}\n",
+                region.x, region.y, region.w, region.h, (unsigned long long)tick, lo,
+                (long long)scale, (int)w->units_per_m) < 0 ||
+        fclose(f) != 0) {
+        log_error("terrad export: cannot write %s", side);
+        return -1;
+    }
+    log_info("export: png16 height = value * %lld + %d units (%s)%s", (long long)scale, lo, side,
+             scale > 1 ? "; the range is over 65535 units, so it is quantised" : "");
+    return 0;
+}
+
+/* The recovered world's region to o->out. 0, or -1 (logged). */
+static int export_region(const export_options *o, const world *w, const store_recovery *rec)
+{
+    world_rect region = o->have_region ? o->region : (world_rect){0, 0, w->width, w->height};
+    world_rect clipped = region;
+    if (!world_clip_rect(w, &clipped) || clipped.x != region.x || clipped.y != region.y ||
+        clipped.w != region.w || clipped.h != region.h) {
+        log_error("terrad export: --region %d,%d,%d,%d is not inside the %dx%d world", region.x,
+                  region.y, region.w, region.h, w->width, w->height);
+        return -1;
+    }
+    size_t n = (size_t)region.w * region.h;
+    int32_t *values = malloc(n * sizeof *values);
+    if (!values) {
+        log_error("terrad export: out of memory for %zu cells", n);
+        return -1;
+    }
+    world_gather_window(w, region, values);
+    int rc = 0;
+    if (strcmp(o->format, "raw32") == 0) {
+        if (write_raw32(o->out, values, n) != 0) {
+            log_error("terrad export: cannot write %s", o->out);
+            rc = -1;
+        }
+    } else {
+        rc = export_png16(o, w, region, values, rec->tick);
+    }
+    free(values);
+    if (rc == 0)
+        log_info("export: %s %dx%d at %d,%d as of tick %llu (%d tile snapshots, %lld log records)",
+                 o->out, region.w, region.h, region.x, region.y, (unsigned long long)rec->tick,
+                 rec->tiles_loaded, (long long)rec->records_replayed);
+    return rc;
+}
+
 int app_export(int argc, char **argv)
 {
-    const char *data = "./data", *scene_path = NULL, *out = NULL, *format = "raw32";
-    world_rect region = {0, 0, 0, 0};
-    long long upto_tick = 0;
-    int have_region = 0;
-    for (int i = 0; i < argc; i++) {
-        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (!v) {
-            fprintf(stderr, "terrad export: %s needs a value (see terrad --help)\n", a);
-            return 2;
-        }
-        i++;
-        if (strcmp(a, "--data") == 0)
-            data = v;
-        else if (strcmp(a, "--scene") == 0)
-            scene_path = v;
-        else if (strcmp(a, "--out") == 0)
-            out = v;
-        else if (strcmp(a, "--format") == 0)
-            format = v;
-        else if (strcmp(a, "--tick") == 0) {
-            char *end;
-            upto_tick = strtoll(v, &end, 10);
-            if (!*v || *end || upto_tick < 1) {
-                fprintf(stderr, "terrad export: --tick must be a tick number >= 1 (got %s)\n", v);
-                return 2;
-            }
-        } else if (strcmp(a, "--region") == 0) {
-            char tail;
-            if (sscanf(v, "%d,%d,%d,%d%c", &region.x, &region.y, &region.w, &region.h, &tail) !=
-                    4 ||
-                region.w <= 0 || region.h <= 0) {
-                fprintf(stderr, "terrad export: --region must be x,y,w,h with w, h > 0 (got %s)\n",
-                        v);
-                return 2;
-            }
-            have_region = 1;
-        } else {
-            fprintf(stderr, "terrad export: unknown option %s (see terrad --help)\n", a);
-            return 2;
-        }
-    }
-    if (!out) {
+    export_options o = {.data = "./data", .format = "raw32"};
+    cli_result parsed =
+        cli_parse("export", export_usage, export_table, argc, argv, export_on_option, &o, NULL);
+    if (parsed != CLI_OK)
+        return parsed == CLI_HELP ? 0 : 2;
+    if (!o.out) {
         fprintf(stderr, "terrad export: --out FILE is required\n");
         return 2;
     }
-    if (strcmp(format, "raw32") != 0 && strcmp(format, "png16") != 0) {
-        fprintf(stderr, "terrad export: --format must be png16 or raw32 (got %s)\n", format);
+    if (strcmp(o.format, "raw32") != 0 && strcmp(o.format, "png16") != 0) {
+        fprintf(stderr, "terrad export: --format must be png16 or raw32 (got %s)\n", o.format);
         return 2;
     }
     error_text err = {{0}};
     scene sc;
-    if ((scene_path ? scene_load_file(scene_path, &sc, &err) : scene_load_default(&sc, &err)) !=
+    if ((o.scene_path ? scene_load_file(o.scene_path, &sc, &err) : scene_load_default(&sc, &err)) !=
         0) {
         log_error("%s", err.message);
         return 1;
     }
     world w;
-    int rc = 1;
-    int32_t *values = NULL;
-    uint16_t *pixels = NULL;
     if (scene_create_world(&sc, &w, &err) != 0) {
         log_error("%s", err.message);
         scene_free(&sc);
         return 1;
     }
+    int rc = 1;
     store_recovery rec;
-    if (store_load_readonly(data, &w, (uint64_t)upto_tick, &rec, &err) != 0) {
+    if (store_load_readonly(o.data, &w, (uint64_t)o.upto_tick, &rec, &err) != 0)
         log_error("%s", err.message);
-        goto done;
-    }
-    if (!have_region)
-        region = (world_rect){0, 0, w.width, w.height};
-    world_rect clipped = region;
-    if (!world_clip_rect(&w, &clipped) || clipped.x != region.x || clipped.y != region.y ||
-        clipped.w != region.w || clipped.h != region.h) {
-        log_error("terrad export: --region %d,%d,%d,%d is not inside the %dx%d world", region.x,
-                  region.y, region.w, region.h, w.width, w.height);
-        goto done;
-    }
-    size_t n = (size_t)region.w * region.h;
-    values = malloc(n * sizeof *values);
-    if (!values) {
-        log_error("terrad export: out of memory for %zu cells", n);
-        goto done;
-    }
-    world_gather_window(&w, region, values);
-    if (strcmp(format, "raw32") == 0) {
-        if (write_raw32(out, values, n) != 0) {
-            log_error("terrad export: cannot write %s", out);
-            goto done;
-        }
-    } else {
-        int32_t lo, hi;
-        world_rect_height_range(&w, region, &lo, &hi);
-        int64_t range = (int64_t)hi - lo;
-        int64_t scale = range <= 65535 ? 1 : (range + 65534) / 65535;
-        pixels = malloc(n * sizeof *pixels);
-        if (!pixels) {
-            log_error("terrad export: out of memory for %zu pixels", n);
-            goto done;
-        }
-        for (size_t i = 0; i < n; i++)
-            pixels[i] = (uint16_t)(((int64_t)values[i] - lo) / scale);
-        if (png16_write(out, region.w, region.h, pixels, &err) != 0) {
-            log_error("%s", err.message);
-            goto done;
-        }
-        char side[1100];
-        snprintf(side, sizeof side, "%s.json", out);
-        FILE *f = fopen(side, "w");
-        if (!f ||
-            fprintf(f,
-                    "{\"x\":%d,\"y\":%d,\"width\":%d,\"height\":%d,\"tick\":%llu,"
-                    "\"offset_units\":%d,\"scale_units\":%lld,\"units_per_m\":%d,"
-                    "\"height_units\":\"value * scale_units + offset_units\"}\n",
-                    region.x, region.y, region.w, region.h, (unsigned long long)rec.tick, lo,
-                    (long long)scale, (int)w.units_per_m) < 0 ||
-            fclose(f) != 0) {
-            log_error("terrad export: cannot write %s", side);
-            goto done;
-        }
-        log_info("export: png16 height = value * %lld + %d units (%s)%s", (long long)scale, lo,
-                 side, scale > 1 ? "; the range is over 65535 units, so it is quantised" : "");
-    }
-    log_info("export: %s %dx%d at %d,%d as of tick %llu (%d tile snapshots, %lld log records)", out,
-             region.w, region.h, region.x, region.y, (unsigned long long)rec.tick, rec.tiles_loaded,
-             (long long)rec.records_replayed);
-    rc = 0;
-done:
-    free(values);
-    free(pixels);
+    else if (export_region(&o, &w, &rec) == 0)
+        rc = 0;
     world_free(&w);
     scene_free(&sc);
     return rc;

@@ -1,7 +1,7 @@
 /*
  * ground_attach.c: gives the engine the scene's per-cell ground (materials
  * and compaction memory) before the first tick. Both backends run it: the
- * CPU twin (sim_stages_materials.c) and the GL shaders that mirror it.
+ * CPU twin (sim_stages.c) and the GL shaders that mirror it.
  */
 #include "app/app.h"
 

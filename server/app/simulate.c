@@ -16,7 +16,6 @@
 #include <string.h>
 
 #include "app/app.h"
-#include "gl/gl.h"
 #include "scene/scene.h"
 
 typedef struct simulate_options {
@@ -30,52 +29,83 @@ typedef struct simulate_options {
     int depth_from_cpu;
 } simulate_options;
 
-static int parse_options(int argc, char **argv, simulate_options *o)
+enum {
+    OPT_SCENE,
+    OPT_TICKS,
+    OPT_BACKEND,
+    OPT_METHOD,
+    OPT_MODEL,
+    OPT_METRIC,
+    OPT_OUT,
+    OPT_DEPTH_FROM_CPU,
+};
+
+static const cli_option simulate_table[] = {
+    [OPT_SCENE] = {"scene", "FILE", "scene JSON with scripted colliders (default: embedded scene)"},
+    [OPT_TICKS] = {"ticks", "N", "number of ticks to run, 0..1e8 (required)"},
+    [OPT_BACKEND] = {"backend", "gl|cpu", "default gl"},
+    [OPT_METHOD] = {"method", "M", "iterative | ssbo | multi (overrides the scene's material)"},
+    [OPT_MODEL] = {"model", "M",
+                   "persson-iterative | persson-ssbo | persson-multi | subtract |\n"
+                   "deferred | diffusion | decals (overrides the scene's model)"},
+    [OPT_METRIC] = {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)"},
+    [OPT_OUT] = {"out", "FILE", "write the final heights: little-endian int32, row-major"},
+    [OPT_DEPTH_FROM_CPU] = {"depth-from-cpu", NULL,
+                            "feed the CPU twin's analytic depth to the backend, so the\n"
+                            "gl and cpu backends can be compared bit for bit"},
+    {0},
+};
+
+static const char simulate_usage[] = "--ticks N [options]";
+
+void app_simulate_usage(FILE *out)
+{
+    cli_print_help(out, "simulate", simulate_usage, simulate_table);
+}
+
+static int simulate_on_option(void *ctx, int index, const char *value, error_text *err)
+{
+    simulate_options *o = ctx;
+    switch (index) {
+    case OPT_SCENE:
+        o->scene_path = value;
+        return 0;
+    case OPT_TICKS:
+        return cli_parse_long(value, 0, 100000000, &o->ticks, err);
+    case OPT_BACKEND:
+        o->backend = value;
+        return 0;
+    case OPT_METHOD:
+        o->method = value;
+        return 0;
+    case OPT_MODEL:
+        o->model = value;
+        return 0;
+    case OPT_METRIC:
+        o->metric = value;
+        return 0;
+    case OPT_OUT:
+        o->out_path = value;
+        return 0;
+    case OPT_DEPTH_FROM_CPU:
+        o->depth_from_cpu = 1;
+        return 0;
+    }
+    return -1;
+}
+
+static cli_result parse_options(int argc, char **argv, simulate_options *o)
 {
     memset(o, 0, sizeof *o);
     o->ticks = -1;
     o->backend = "gl";
-    for (int i = 0; i < argc; i++) {
-        const char *a = argv[i];
-        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (strcmp(a, "--depth-from-cpu") == 0) {
-            o->depth_from_cpu = 1;
-            continue;
-        }
-        if (!v) {
-            fprintf(stderr, "terrad simulate: %s needs a value\n", a);
-            return -1;
-        }
-        i++;
-        if (strcmp(a, "--scene") == 0) {
-            o->scene_path = v;
-        } else if (strcmp(a, "--ticks") == 0) {
-            char *end;
-            o->ticks = strtol(v, &end, 10);
-            if (*end || o->ticks < 0 || o->ticks > 100000000) {
-                fprintf(stderr, "terrad simulate: --ticks must be an integer in [0, 1e8]\n");
-                return -1;
-            }
-        } else if (strcmp(a, "--backend") == 0) {
-            o->backend = v;
-        } else if (strcmp(a, "--method") == 0) {
-            o->method = v;
-        } else if (strcmp(a, "--model") == 0) {
-            o->model = v;
-        } else if (strcmp(a, "--metric") == 0) {
-            o->metric = v;
-        } else if (strcmp(a, "--out") == 0) {
-            o->out_path = v;
-        } else {
-            fprintf(stderr, "terrad simulate: unknown option %s (see terrad --help)\n", a);
-            return -1;
-        }
-    }
-    if (o->ticks < 0) {
+    cli_result r = cli_parse("simulate", simulate_usage, simulate_table, argc, argv,
+                             simulate_on_option, o, NULL);
+    if (r == CLI_OK && o->ticks < 0) {
         fprintf(stderr, "terrad simulate: --ticks N is required\n");
-        return -1;
+        return CLI_ERROR;
     }
-    return 0;
+    return r;
 }
 
 /* Heights as little-endian int32, row-major: the format `--out` promises.
@@ -177,9 +207,10 @@ static void record_tick(void *ctx, long tick, const sim_tick_report *report, dou
 {
     (void)tick;
     simulate_totals *t = ctx;
-    double values[] = {report->times.depth,    report->times.classify,    report->times.jump_flood,
-                       report->times.displace, report->times.even_slopes, report->times.transfer,
-                       report->model_ms,       report->gather_scatter_ms, tick_ms};
+#define STAGE_VALUE(name) report->times.name,
+    double values[] = {SIM_STAGE_LIST(STAGE_VALUE) report->model_ms, report->gather_scatter_ms,
+                       tick_ms};
+#undef STAGE_VALUE
     for (int s = 0; s < t->stage_count; s++)
         stat_series_add(&t->stages[s].series, values[s]);
     t->active_sum += (double)report->active_cells;
@@ -222,139 +253,110 @@ int app_run_scene_ticks(const scene *sc, sim_engine *engine, long ticks, app_tic
     return rc;
 }
 
-int app_simulate(int argc, char **argv)
+/* --method, --model and --metric over the scene's material. 0, or -1 (printed). */
+static int apply_overrides(const simulate_options *o, scene *sc)
 {
-    simulate_options o;
-    if (parse_options(argc, argv, &o) != 0)
-        return 2;
-    log_set_quiet(1);
-    error_text err = {{0}};
-    scene sc;
-    int loaded =
-        o.scene_path ? scene_load_file(o.scene_path, &sc, &err) : scene_load_default(&sc, &err);
-    if (loaded != 0) {
-        fprintf(stderr, "terrad simulate: %s\n", err.message);
-        return 1;
-    }
-    if (o.method && sim_method_parse(o.method, &sc.material.method) != 0) {
+    if (o->method && sim_method_parse(o->method, &sc->material.method) != 0) {
         fprintf(stderr, "terrad simulate: --method must be iterative, ssbo or multi\n");
-        scene_free(&sc);
-        return 2;
+        return -1;
     }
-    if (o.method) /* the persson model of that method */
-        sc.material.model = sim_model_from_method(sc.material.method);
-    if (o.model) {
-        if (sim_model_parse(o.model, &sc.material.model) != 0) {
+    if (o->method) /* the persson model of that method */
+        sc->material.model = sim_model_from_method(sc->material.method);
+    if (o->model) {
+        if (sim_model_parse(o->model, &sc->material.model) != 0) {
             fprintf(stderr, "terrad simulate: --model must be persson-iterative, persson-ssbo, "
                             "persson-multi, subtract, deferred, diffusion or decals\n");
-            scene_free(&sc);
-            return 2;
+            return -1;
         }
-        if (sc.material.model == SIM_MODEL_PERSSON_ITERATIVE)
-            sc.material.method = SIM_METHOD_ITERATIVE;
-        else if (sc.material.model == SIM_MODEL_PERSSON_MULTI)
-            sc.material.method = SIM_METHOD_MULTI;
-        else if (sc.material.model == SIM_MODEL_PERSSON_SSBO)
-            sc.material.method = SIM_METHOD_SSBO;
+        if (sc->material.model == SIM_MODEL_PERSSON_ITERATIVE)
+            sc->material.method = SIM_METHOD_ITERATIVE;
+        else if (sc->material.model == SIM_MODEL_PERSSON_MULTI)
+            sc->material.method = SIM_METHOD_MULTI;
+        else if (sc->material.model == SIM_MODEL_PERSSON_SSBO)
+            sc->material.method = SIM_METHOD_SSBO;
     }
-    if (o.metric && sim_metric_parse(o.metric, &sc.material.metric) != 0) {
+    if (o->metric && sim_metric_parse(o->metric, &sc->material.metric) != 0) {
         fprintf(stderr, "terrad simulate: --metric must be euclidean, manhattan or chebyshev\n");
-        scene_free(&sc);
-        return 2;
+        return -1;
     }
+    return 0;
+}
+
+/* One offline run: what the report is made of. */
+typedef struct simulate_run {
+    simulate_options o;
+    scene sc;
     world w;
     sim_params params;
-    sim_backend *backend = NULL;
-    sim_engine engine;
+    sim_backend *backend;
+    sim_engine *engine;
     ground grd;
-    memset(&grd, 0, sizeof grd);
-    int rc = 1;
-    if (scene_create_world(&sc, &w, &err) != 0) {
-        fprintf(stderr, "terrad simulate: %s\n", err.message);
-        scene_free(&sc);
-        return 1;
-    }
-    if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
-                                 &err) != 0 ||
-        !(backend = app_backend_create(o.backend, &err)) ||
-        sim_engine_init(&engine, &w, &params, backend, sc.active_margin_cells, &err) != 0) {
-        fprintf(stderr, "terrad simulate: %s\n", err.message);
-        goto done_world;
-    }
-    if (app_ground_attach(&sc, &w, &engine, &grd, &err) != 0) {
-        fprintf(stderr, "terrad simulate: %s\n", err.message);
-        sim_engine_free(&engine);
-        goto done_world;
-    }
-    if (strcmp(backend->name, "gl") == 0)
-        sim_backend_gl_set_stage_timing(backend, 1);
-    engine.depth_from_cpu = o.depth_from_cpu;
+    simulate_totals totals;
+    int64_t volume_before, volume_after;
+} simulate_run;
 
-    stage_series stages[] = {{"depth", {0}},    {"classify", {0}},       {"jump_flood", {0}},
-                             {"displace", {0}}, {"even_slopes", {0}},    {"transfer", {0}},
-                             {"model", {0}},    {"gather_scatter", {0}}, {"tick", {0}}};
-    const int stage_count = (int)(sizeof stages / sizeof stages[0]);
-    int64_t volume_before = world_volume(&w);
-    simulate_totals totals = {stages, stage_count, 0.0, 0, 0};
-    if (app_run_scene_ticks(&sc, &engine, o.ticks, record_tick, &totals, &err) != 0) {
-        fprintf(stderr, "terrad simulate: %s\n", err.message);
-        goto done_colliders;
-    }
-    double active_sum = totals.active_sum;
-    long refused = totals.refused, footprint_events = totals.footprint_events;
-    int64_t volume_after = world_volume(&w);
-    if (o.out_path && write_heights(o.out_path, &w) != 0) {
-        fprintf(stderr, "terrad simulate: cannot write %s\n", o.out_path);
-        goto done_colliders;
-    }
-    double world_cells = (double)w.width * w.height;
-    double world_bytes = (double)world_resident_bytes(&w);
+static void add_int64(cJSON *obj, const char *key, int64_t value)
+{
+    /* int64 printed as a JSON integer exactly, not through a double */
+    char num[32];
+    snprintf(num, sizeof num, "%lld", (long long)value);
+    cJSON_AddItemToObject(obj, key, cJSON_CreateRaw(num));
+}
 
-    cJSON *root = cJSON_CreateObject();
-    cJSON_AddStringToObject(root, "scene", sc.name);
+/* What ran, the volumes and the per-stage times. */
+static void report_add_run(cJSON *root, simulate_run *r)
+{
+    const sim_backend *backend = r->backend;
+    const world *w = &r->w;
+    cJSON_AddStringToObject(root, "scene", r->sc.name);
     cJSON_AddStringToObject(root, "backend", backend->name);
     cJSON_AddStringToObject(root, "renderer", backend->renderer);
     cJSON_AddStringToObject(root, "version", backend->version);
-    cJSON_AddStringToObject(root, "model", sim_model_name(params.model));
+    cJSON_AddStringToObject(root, "model", sim_model_name(r->params.model));
     /* a model without a GL version ran on the CPU: say so */
     cJSON_AddBoolToObject(root, "model_on_cpu",
-                          !sim_model_is_persson(params.model) || strcmp(backend->name, "cpu") == 0);
-    cJSON_AddStringToObject(root, "method", sim_method_name(params.method));
-    cJSON_AddStringToObject(root, "metric", sim_metric_name(params.metric));
-    cJSON_AddNumberToObject(root, "ticks", (double)o.ticks);
-    cJSON_AddNumberToObject(root, "world_width", w.width);
-    cJSON_AddNumberToObject(root, "world_height", w.height);
-    /* int64 volumes printed as JSON integers exactly, not through a double */
-    char num[32];
-    snprintf(num, sizeof num, "%lld", (long long)volume_before);
-    cJSON_AddItemToObject(root, "volume_before", cJSON_CreateRaw(num));
-    snprintf(num, sizeof num, "%lld", (long long)volume_after);
-    cJSON_AddItemToObject(root, "volume_after", cJSON_CreateRaw(num));
-    if (grd.uses_compaction) { /* volume_after + compacted == volume_before */
-        snprintf(num, sizeof num, "%lld", (long long)ground_compaction_total(&grd));
-        cJSON_AddItemToObject(root, "compacted", cJSON_CreateRaw(num));
-    }
+                          !sim_model_is_persson(r->params.model) ||
+                              strcmp(backend->name, "cpu") == 0);
+    cJSON_AddStringToObject(root, "method", sim_method_name(r->params.method));
+    cJSON_AddStringToObject(root, "metric", sim_metric_name(r->params.metric));
+    cJSON_AddNumberToObject(root, "ticks", (double)r->o.ticks);
+    cJSON_AddNumberToObject(root, "world_width", w->width);
+    cJSON_AddNumberToObject(root, "world_height", w->height);
+    add_int64(root, "volume_before", r->volume_before);
+    add_int64(root, "volume_after", r->volume_after);
+    if (r->grd.uses_compaction) /* volume_after + compacted == volume_before */
+        add_int64(root, "compacted", ground_compaction_total(&r->grd));
     cJSON *st = cJSON_AddObjectToObject(root, "stages");
-    for (int s = 0; s < stage_count; s++) {
-        cJSON *one = cJSON_AddObjectToObject(st, stages[s].name);
+    const simulate_totals *t = &r->totals;
+    for (int s = 0; s < t->stage_count; s++) {
+        cJSON *one = cJSON_AddObjectToObject(st, t->stages[s].name);
         cJSON_AddNumberToObject(one, "mean_ms",
-                                round(stat_series_mean(&stages[s].series) * 1e4) / 1e4);
-        cJSON_AddNumberToObject(one, "p99_ms",
-                                round(stat_series_percentile(&stages[s].series, 99) * 1e4) / 1e4);
+                                round(stat_series_mean(&t->stages[s].series) * 1e4) / 1e4);
+        cJSON_AddNumberToObject(
+            one, "p99_ms", round(stat_series_percentile(&t->stages[s].series, 99) * 1e4) / 1e4);
     }
-    cJSON_AddNumberToObject(root, "active_cells_mean", o.ticks ? active_sum / o.ticks : 0.0);
-    cJSON_AddNumberToObject(root, "peak_active_cells", (double)engine.peak_active_cells);
-    cJSON_AddNumberToObject(root, "refused_windows", (double)refused);
+}
+
+/* Active cells, slopes, the world's and the GPU cache's memory. */
+static void report_add_cells(cJSON *root, simulate_run *r)
+{
+    sim_engine_stats es;
+    sim_engine_get_stats(r->engine, &es);
+    world *w = &r->w;
+    cJSON_AddNumberToObject(root, "active_cells_mean",
+                            r->o.ticks ? r->totals.active_sum / r->o.ticks : 0.0);
+    cJSON_AddNumberToObject(root, "peak_active_cells", (double)es.peak_active_cells);
+    cJSON_AddNumberToObject(root, "refused_windows", (double)r->totals.refused);
     const char *slope_scope;
-    snprintf(num, sizeof num, "%lld",
-             (long long)max_slope_excess(&params, &w, engine.ground ? &grd : NULL, &slope_scope));
-    cJSON_AddItemToObject(root, "max_slope_excess", cJSON_CreateRaw(num));
+    add_int64(
+        root, "max_slope_excess",
+        max_slope_excess(&r->params, w, es.per_cell_materials ? &r->grd : NULL, &slope_scope));
     cJSON_AddStringToObject(root, "max_slope_excess_scope", slope_scope);
-    cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(&w));
-    cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(&w));
-    cJSON_AddNumberToObject(root, "world_tile_cells", w.tile_cells);
-    gl_tile_cache_stats cache;
-    sim_backend_gl_tile_cache_stats(backend, &cache);
+    cJSON_AddNumberToObject(root, "world_resident_bytes", (double)world_resident_bytes(w));
+    cJSON_AddNumberToObject(root, "world_stored_tiles", (double)world_stored_tiles(w));
+    cJSON_AddNumberToObject(root, "world_tile_cells", w->tile_cells);
+    sim_tile_cache_stats cache;
+    sim_backend_tile_cache_stats(r->backend, &cache);
     cJSON_AddNumberToObject(root, "gpu_tile_cache_bytes", (double)cache.texture_bytes);
     cJSON_AddNumberToObject(root, "gpu_tiles_resident", cache.resident_tiles);
     cJSON_AddNumberToObject(root, "gpu_tile_uploads", (double)cache.uploads);
@@ -362,50 +364,128 @@ int app_simulate(int argc, char **argv)
     cJSON_AddNumberToObject(root, "gpu_tile_evictions", (double)cache.evictions);
     cJSON_AddNumberToObject(root, "gpu_windows_cached", (double)cache.windows_cached);
     cJSON_AddNumberToObject(root, "gpu_windows_direct", (double)cache.windows_direct);
-    cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)engine.peak_scratch_bytes);
-    const sim_stage_memory *mem = &engine.peak_memory;
+}
+
+/* Scratch memory by stage and per cell, and the process's peak. */
+static void report_add_memory(cJSON *root, simulate_run *r)
+{
+    sim_engine_stats es;
+    sim_engine_get_stats(r->engine, &es);
+    double world_cells = (double)r->w.width * r->w.height;
+    double world_bytes = (double)world_resident_bytes(&r->w);
+    cJSON_AddNumberToObject(root, "scratch_bytes_peak", (double)es.peak_scratch_bytes);
     cJSON *by_stage = cJSON_AddObjectToObject(root, "scratch_bytes_by_stage");
-    const struct {
-        const char *name;
-        uint64_t bytes;
-    } stage_bytes[] = {{"depth", mem->depth},
-                       {"classify", mem->classify},
-                       {"jump_flood", mem->jump_flood},
-                       {"displace", mem->displace},
-                       {"even_slopes", mem->even_slopes},
-                       {"backend_other", mem->backend_other},
-                       {"model", mem->model},
-                       {"gather_scatter", mem->gather_scatter}};
-    for (size_t k = 0; k < sizeof stage_bytes / sizeof stage_bytes[0]; k++)
-        cJSON_AddNumberToObject(by_stage, stage_bytes[k].name, (double)stage_bytes[k].bytes);
-    if (params.model == SIM_MODEL_DECALS)
-        cJSON_AddNumberToObject(root, "footprint_events", (double)footprint_events);
+#define ADD_STAGE_BYTES(name) cJSON_AddNumberToObject(by_stage, #name, (double)es.peak_memory.name);
+    SIM_MEMORY_STAGE_LIST(ADD_STAGE_BYTES)
+#undef ADD_STAGE_BYTES
+    if (r->params.model == SIM_MODEL_DECALS)
+        cJSON_AddNumberToObject(root, "footprint_events", (double)r->totals.footprint_events);
     cJSON_AddNumberToObject(
         root, "bytes_per_world_cell",
-        round((world_bytes + (double)engine.peak_scratch_bytes) / world_cells * 1e4) / 1e4);
+        round((world_bytes + (double)es.peak_scratch_bytes) / world_cells * 1e4) / 1e4);
     cJSON_AddNumberToObject(
         root, "bytes_per_active_cell",
-        engine.peak_active_cells
-            ? round((double)engine.peak_scratch_bytes / (double)engine.peak_active_cells * 1e2) /
-                  1e2
+        es.peak_active_cells
+            ? round((double)es.peak_scratch_bytes / (double)es.peak_active_cells * 1e2) / 1e2
             : 0.0);
     cJSON_AddNumberToObject(root, "peak_rss_bytes", (double)proc_peak_rss_bytes());
+}
+
+/* The report on stdout. 0, or -1 when it could not be made. */
+static int report_print(simulate_run *r)
+{
+    cJSON *root = cJSON_CreateObject();
+    report_add_run(root, r);
+    report_add_cells(root, r);
+    report_add_memory(root, r);
     char *text = cJSON_Print(root);
-    if (text) {
-        printf("%s\n", text);
-        free(text);
-        rc = 0;
-    }
     cJSON_Delete(root);
-done_colliders:
+    if (!text)
+        return -1;
+    printf("%s\n", text);
+    free(text);
+    return 0;
+}
+
+/* The engine on its backend with the scene's ground; the ticks; the report.
+ * Returns the exit status. */
+static int simulate_engine_run(simulate_run *r)
+{
+    error_text err = {{0}};
+    world *w = &r->w;
+    if (sim_params_from_material(&r->sc.material, w->cell_size_m, w->units_per_m, w->floor,
+                                 &r->params, &err) != 0 ||
+        !(r->backend = app_backend_create(r->o.backend, &err)) ||
+        !(r->engine =
+              sim_engine_create(w, &r->params, r->backend, r->sc.active_margin_cells, &err))) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        return 1;
+    }
+    if (app_ground_attach(&r->sc, w, r->engine, &r->grd, &err) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        sim_engine_destroy(r->engine);
+        return 1;
+    }
+    sim_backend_set_stage_timing(r->backend, 1);
+    sim_engine_set_depth_from_cpu(r->engine, r->o.depth_from_cpu);
+
+#define STAGE_SERIES(name) {#name, {0}},
+    stage_series stages[] = {
+        SIM_STAGE_LIST(STAGE_SERIES){"model", {0}}, {"gather_scatter", {0}}, {"tick", {0}}};
+#undef STAGE_SERIES
+    const int stage_count = (int)(sizeof stages / sizeof stages[0]);
+    r->volume_before = world_volume(w);
+    r->totals = (simulate_totals){stages, stage_count, 0.0, 0, 0};
+    int rc = 1;
+    if (app_run_scene_ticks(&r->sc, r->engine, r->o.ticks, record_tick, &r->totals, &err) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+    } else {
+        r->volume_after = world_volume(w);
+        if (r->o.out_path && write_heights(r->o.out_path, w) != 0)
+            fprintf(stderr, "terrad simulate: cannot write %s\n", r->o.out_path);
+        else if (report_print(r) == 0)
+            rc = 0;
+    }
     for (int s = 0; s < stage_count; s++)
         stat_series_free(&stages[s].series);
-    sim_engine_free(&engine);
-done_world:
-    ground_free(&grd);
-    if (backend)
-        backend->destroy(backend);
-    world_free(&w);
-    scene_free(&sc);
+    sim_engine_destroy(r->engine);
+    return rc;
+}
+
+int app_simulate(int argc, char **argv)
+{
+    simulate_run *r = calloc(1, sizeof *r);
+    if (!r) {
+        fprintf(stderr, "terrad simulate: out of memory\n");
+        return 1;
+    }
+    cli_result parsed = parse_options(argc, argv, &r->o);
+    int rc = parsed == CLI_HELP ? 0 : 2;
+    if (parsed != CLI_OK)
+        goto done;
+    log_set_quiet(1);
+    error_text err = {{0}};
+    rc = 1;
+    if ((r->o.scene_path ? scene_load_file(r->o.scene_path, &r->sc, &err)
+                         : scene_load_default(&r->sc, &err)) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        goto done;
+    }
+    if (apply_overrides(&r->o, &r->sc) != 0) {
+        rc = 2;
+        goto done;
+    }
+    if (scene_create_world(&r->sc, &r->w, &err) != 0) {
+        fprintf(stderr, "terrad simulate: %s\n", err.message);
+        goto done;
+    }
+    rc = simulate_engine_run(r);
+done:
+    ground_free(&r->grd);
+    if (r->backend)
+        r->backend->destroy(r->backend);
+    world_free(&r->w);
+    scene_free(&r->sc);
+    free(r);
     return rc;
 }

@@ -114,12 +114,19 @@ static int world_remove(cluster *cl, const char *name)
     return r == 1 ? 0 : 1;
 }
 
+void app_world_usage(FILE *out)
+{
+    cli_print_help(out, "world", WORLD_USAGE, world_options);
+}
+
+/* argv[0] is "world", argv[1] the verb. */
 int app_world(int argc, char **argv)
 {
+    argc--, argv++; /* from the verb on */
     const char *verb = argc > 0 ? argv[0] : "";
     int named = strcmp(verb, "add") == 0 || strcmp(verb, "remove") == 0;
     if (strcmp(verb, "--help") == 0 || strcmp(verb, "-h") == 0) {
-        cli_print_help(stdout, "world", WORLD_USAGE, world_options);
+        app_world_usage(stdout);
         return 0;
     }
     if (!named && strcmp(verb, "list") != 0) {

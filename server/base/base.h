@@ -49,6 +49,19 @@ void error_set(error_text *err, const char *fmt, ...) __attribute__((format(prin
 /* Prepend "prefix" + sep to the message a lower layer wrote. */
 void error_prefix(error_text *err, const char *prefix, const char *sep);
 
+/* ---- The sim's stage names, written once ----
+ * X-macro lists: sim.h generates sim_stage_times and sim_stage_memory from
+ * them, and metrics, serve and simulate name the stages through them. They
+ * live here, at the bottom, because metrics sits below sim and needs the
+ * same names. SIM_STAGE_LIST: the backend's timed stages, in tick order.
+ * SIM_MEMORY_STAGE_LIST: what the sim's scratch memory is held for. */
+#define SIM_STAGE_LIST(X) X(depth) X(classify) X(jump_flood) X(displace) X(even_slopes) X(transfer)
+#define SIM_MEMORY_STAGE_LIST(X)                                                                   \
+    X(depth)                                                                                       \
+    X(classify) X(jump_flood) X(displace) X(even_slopes) X(backend_other) X(model) X(gather_scatter)
+/* A list entry as a string and a comma: {SIM_STAGE_LIST(SIM_STAGE_NAME)}. */
+#define SIM_STAGE_NAME(name) #name,
+
 /* ---- One growable array (array.c) ----
  * *items holds *capacity elements of elem_size bytes. Makes room for at least
  * `needed` (capacity at least doubles, so appends are amortised O(1)); the new

@@ -227,9 +227,21 @@ int cluster_snapshot_get(cluster *cl, const char *world, int tx, int ty, uint8_t
     return 1;
 }
 
-/* Calls on_key for each live key of kv matching pattern; -1 on an error. */
-static int keys_each(kvStore *kv, const char *pattern, void (*on_key)(void *ctx, const char *key),
-                     void *ctx, int timeout_ms, error_text *err)
+typedef struct key_list {
+    char **keys;
+    int64_t count, capacity;
+} key_list;
+
+static void key_list_free(key_list *l)
+{
+    for (int64_t i = 0; i < l->count; i++)
+        free(l->keys[i]);
+    free(l->keys);
+    memset(l, 0, sizeof *l);
+}
+
+/* One listing through a watcher (an ordered consumer on the bucket). */
+static natsStatus keys_collect(kvStore *kv, const char *pattern, key_list *l, int timeout_ms)
 {
     kvWatchOptions o;
     kvWatchOptions_Init(&o);
@@ -242,14 +254,43 @@ static int keys_each(kvStore *kv, const char *pattern, void (*on_key)(void *ctx,
         s = kvWatcher_Next(&e, watcher, timeout_ms);
         if (s != NATS_OK || !e)
             break; /* NULL: every current value was delivered */
-        on_key(ctx, kvEntry_Key(e));
+        char *copy = strdup(kvEntry_Key(e));
         kvEntry_Destroy(e);
+        if (!copy ||
+            array_grow((void **)&l->keys, &l->capacity, l->count + 1, sizeof *l->keys) != 0) {
+            free(copy);
+            s = NATS_NO_MEMORY;
+            break;
+        }
+        l->keys[l->count++] = copy;
     }
     kvWatcher_Destroy(watcher);
+    return s;
+}
+
+/* Calls on_key for each live key of kv matching pattern; -1 on an error.
+ * A listing that fails (a leader being elected after a lost server) is
+ * started again for a while; on_key only sees a complete one. */
+static int keys_each(kvStore *kv, const char *pattern, void (*on_key)(void *ctx, const char *key),
+                     void *ctx, int timeout_ms, error_text *err)
+{
+    key_list l = {0};
+    natsStatus s = NATS_OK;
+    for (double deadline = time_now_ms() + 4.0 * timeout_ms;;) {
+        s = keys_collect(kv, pattern, &l, timeout_ms);
+        if (s == NATS_OK || s == NATS_NO_MEMORY || time_now_ms() > deadline)
+            break;
+        key_list_free(&l);
+        nats_Sleep(200);
+    }
     if (s != NATS_OK) {
+        key_list_free(&l);
         cluster_error(err, s, "listing %s", pattern);
         return -1;
     }
+    for (int64_t i = 0; i < l.count; i++)
+        on_key(ctx, l.keys[i]);
+    key_list_free(&l);
     return 0;
 }
 

@@ -12,37 +12,23 @@
 
 #include <errno.h>
 #include <math.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #define OBJ_VERTICES_MAX 10000000
 #define OBJ_TRIANGLES_MAX 20000000
-#define OBJ_FILE_BYTES_MAX ((long long)1 << 30)
+#define OBJ_FILE_BYTES_MAX ((size_t)1 << 30)
 
 typedef struct obj_reader {
     const char *path;
     float *v;
-    int vn, vcap;
+    int vn;
+    int64_t vcap; /* floats */
     uint32_t *idx;
-    int tn, tcap; /* triangles */
+    int tn;       /* triangles */
+    int64_t tcap; /* indices */
     error_text *err;
 } obj_reader;
-
-static int grow(void **p, int *cap, int need, size_t elem)
-{
-    if (need <= *cap)
-        return 0;
-    int c = *cap ? *cap : 1024;
-    while (c < need)
-        c = c > (1 << 29) ? need : c * 2;
-    void *n = realloc(*p, (size_t)c * elem);
-    if (!n)
-        return -1;
-    *p = n;
-    *cap = c;
-    return 0;
-}
 
 static int parse_vertex(obj_reader *r, char *s, int line)
 {
@@ -66,7 +52,7 @@ static int parse_vertex(obj_reader *r, char *s, int line)
         }
         s = end;
     }
-    if (grow((void **)&r->v, &r->vcap, 3 * (r->vn + 1), sizeof(float)) != 0) {
+    if (array_grow((void **)&r->v, &r->vcap, 3 * ((int64_t)r->vn + 1), sizeof *r->v) != 0) {
         error_set(r->err, "%s:%d: out of memory", r->path, line);
         return -1;
     }
@@ -111,7 +97,8 @@ static int parse_face(obj_reader *r, char *s, int line, int total_vertices)
                           OBJ_TRIANGLES_MAX);
                 return -1;
             }
-            if (grow((void **)&r->idx, &r->tcap, 3 * (r->tn + 1), sizeof(uint32_t)) != 0) {
+            if (array_grow((void **)&r->idx, &r->tcap, 3 * ((int64_t)r->tn + 1), sizeof *r->idx) !=
+                0) {
                 error_set(r->err, "%s:%d: out of memory", r->path, line);
                 return -1;
             }
@@ -144,29 +131,12 @@ static char *keyword(char *line, const char *kw)
 int collider_mesh_load_obj(const char *path, collider_mesh *mesh, error_text *err)
 {
     memset(mesh, 0, sizeof *mesh);
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        error_set(err, "%s: cannot open: %s", path, strerror(errno));
+    uint8_t *data = NULL;
+    size_t size = 0;
+    if (file_read_all(path, OBJ_FILE_BYTES_MAX, &data, &size, err) != 0)
         return -1;
-    }
-    fseeko(f, 0, SEEK_END);
-    long long size = (long long)ftello(f);
-    rewind(f);
-    if (size < 0 || size > OBJ_FILE_BYTES_MAX) {
-        error_set(err, "%s: file is larger than %lld bytes", path, OBJ_FILE_BYTES_MAX);
-        fclose(f);
-        return -1;
-    }
-    char *text = malloc((size_t)size + 1);
-    if (!text || fread(text, 1, (size_t)size, f) != (size_t)size) {
-        error_set(err, "%s: cannot read", path);
-        free(text);
-        fclose(f);
-        return -1;
-    }
-    fclose(f);
-    text[size] = '\0';
-    if (memchr(text, '\0', (size_t)size)) {
+    char *text = (char *)data; /* NUL-terminated by file_read_all */
+    if (memchr(text, '\0', size)) {
         error_set(err, "%s: not a text file (contains NUL bytes)", path);
         free(text);
         return -1;

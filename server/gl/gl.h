@@ -31,10 +31,11 @@ void gl_context_destroy(gl_context *c);
 /* The GL backend: creates its own context. */
 sim_backend *sim_backend_gl_create(error_text *err);
 
-/* With timing on, the backend waits for the GPU after every stage (glFinish)
- * so per-stage times are real; off (the default), it waits once per batch,
- * stage times are submission times and the wait is counted as transfer. */
-void sim_backend_gl_set_stage_timing(sim_backend *b, int on);
+/* Stage timing (sim_backend_set_stage_timing, an optional entry of the
+ * backend table): on, the backend waits for the GPU after every stage
+ * (glFinish) so per-stage times are real; off (the default), it waits once
+ * per batch, stage times are submission times and the wait is counted as
+ * transfer. */
 
 /*
  * Tests only: pretend the driver's limits are smaller, so that small batches
@@ -52,21 +53,10 @@ void sim_backend_gl_set_limits(sim_backend *b, int atlas_side, int64_t chunk_cel
  * uploaded from the CPU copy as before, so correctness never depends on the
  * cache. layers 0 turns it off. Defaults: 64 layers, 4 MiB per tick; the
  * environment variable TERRAD_GL_TILE_CACHE="LAYERS,BUDGET_BYTES" overrides
- * them when the backend is created (tests use a tiny cache).
+ * them when the backend is created (tests use a tiny cache). Its statistics
+ * are the backend table's optional tile_cache_stats entry
+ * (sim_backend_tile_cache_stats).
  */
-typedef struct gl_tile_cache_stats {
-    uint64_t texture_bytes; /* the array texture (its capacity) */
-    int resident_tiles;     /* layers holding a tile */
-    int tile_cells;         /* side of the tiles held, 0 while off */
-    uint64_t uploads;       /* tiles uploaded, since creation */
-    uint64_t upload_bytes;
-    uint64_t evictions;      /* resident tiles replaced by others */
-    uint64_t windows_cached; /* windows gathered from the cache */
-    uint64_t windows_direct; /* windows uploaded from the CPU copy */
-} gl_tile_cache_stats;
-
 void sim_backend_gl_set_tile_cache(sim_backend *b, int layers, int64_t budget_bytes);
-/* Zeroes *out for a backend that is not the GL one. */
-void sim_backend_gl_tile_cache_stats(const sim_backend *b, gl_tile_cache_stats *out);
 
 #endif

@@ -48,25 +48,52 @@ int ground_material_index(const ground *g, const char *name)
     return -1;
 }
 
-/* The integer row of one material; `path` names it in errors. */
-static int material_row(const ground *g, const sim_material *base, const ground_material *m,
-                        int32_t floor_units, const char *path, sim_material_row *row,
-                        error_text *err)
+int32_t ground_units_saturated(double units)
 {
-    sim_material sm = *base;
-    sm.compression = m->compression;
-    sm.roughness = m->roughness;
-    sm.repose_deg = m->repose_deg;
-    sim_params p;
-    error_text inner;
-    if (sim_params_from_material(&sm, g->cell_size_m, g->units_per_m, floor_units, &p, &inner) !=
-        0) {
-        /* inner names "material.<field>"; re-root it at this entry */
-        const char *field =
-            strncmp(inner.message, "material.", 9) == 0 ? inner.message + 9 : inner.message;
-        error_set(err, "%s.%s", path, field);
+    if (!(units > 0.0))
+        return 0;
+    if (units >= (double)(1 << 30))
+        return 1 << 30;
+    return (int32_t)floor(units);
+}
+
+static int in_unit_range(double v)
+{
+    return isfinite(v) && v >= 0.0 && v <= 1.0;
+}
+
+int ground_material_row_from(const ground_material *m, double cell_size_m, int32_t units_per_m,
+                             const char *path, ground_material_row *row, error_text *err)
+{
+    if (!in_unit_range(m->compression)) {
+        error_set(err, "%s.compression: must be a number in [0, 1] (got %g)", path, m->compression);
         return -1;
     }
+    if (!in_unit_range(m->roughness)) {
+        error_set(err, "%s.roughness: must be a number in [0, 1] (got %g)", path, m->roughness);
+        return -1;
+    }
+    if (!isfinite(m->repose_deg) || m->repose_deg < 0.0 || m->repose_deg >= 90.0) {
+        error_set(err, "%s.repose_deg: must be a number in [0, 90) (got %g)", path, m->repose_deg);
+        return -1;
+    }
+    memset(row, 0, sizeof *row);
+    row->compression_q16 = (int32_t)lround(m->compression * 65536.0);
+    row->roughness_q16 = (int32_t)lround(m->roughness * 65536.0);
+    double rise_per_m = tan(m->repose_deg * M_PI / 180.0);
+    double axial = rise_per_m * cell_size_m * units_per_m;
+    row->slope_threshold_axial = ground_units_saturated(axial);
+    row->slope_threshold_diagonal = ground_units_saturated(axial * M_SQRT2);
+    return 0;
+}
+
+/* The integer row of one material with its compaction memory; `path` names
+ * it in errors. */
+static int material_row(const ground *g, const ground_material *m, const char *path,
+                        ground_material_row *row, error_text *err)
+{
+    if (ground_material_row_from(m, g->cell_size_m, g->units_per_m, path, row, err) != 0)
+        return -1;
     if (!isfinite(m->max_compaction_m) || m->max_compaction_m < 0.0) {
         error_set(err, "%s.max_compaction_m: must be a number >= 0 (got %g)", path,
                   m->max_compaction_m);
@@ -80,8 +107,7 @@ static int material_row(const ground *g, const sim_material *base, const ground_
         return -1;
     }
     /* memory only where something is compacted: compression 0 needs none */
-    int32_t max_units = p.compression_q16 > 0 ? (int32_t)floor(units) : 0;
-    *row = sim_material_row_from_params(&p, max_units);
+    row->max_compaction = row->compression_q16 > 0 ? (int32_t)floor(units) : 0;
     return 0;
 }
 
@@ -121,7 +147,7 @@ static int ground_finish(ground *g, error_text *err)
     return 0;
 }
 
-int ground_init_uniform(ground *g, ground_extent w, const sim_material *base, error_text *err)
+int ground_init_uniform(ground *g, ground_extent w, const ground_material *base, error_text *err)
 {
     ground_base(g, w);
     ground_material *m = &g->materials[0];
@@ -130,7 +156,7 @@ int ground_init_uniform(ground *g, ground_extent w, const sim_material *base, er
     m->roughness = base->roughness;
     m->repose_deg = base->repose_deg;
     g->material_count = 1;
-    if (material_row(g, base, m, w.floor, "material", &g->table.rows[0], err) != 0)
+    if (material_row(g, m, "material", &g->table.rows[0], err) != 0)
         return -1;
     return ground_finish(g, err);
 }
@@ -152,8 +178,8 @@ static int read_number(const cJSON *o, const char *path, const char *key, double
     return 0;
 }
 
-static int parse_material_entry(ground *g, ground_extent w, const sim_material *base,
-                                const cJSON *entry, int index, error_text *err)
+static int parse_material_entry(ground *g, const ground_material *base, const cJSON *entry,
+                                int index, error_text *err)
 {
     char path[GROUND_NAME_MAX + 16];
     snprintf(path, sizeof path, "materials.%s", entry->string);
@@ -196,7 +222,7 @@ static int parse_material_entry(ground *g, ground_extent w, const sim_material *
                     &m->max_compaction_m, err) ||
         read_number(entry, path, "density_kg_m3", 0, 1e5, 0, &m->density_kg_m3, err))
         return -1;
-    return material_row(g, base, m, w.floor, path, &g->table.rows[index], err);
+    return material_row(g, m, path, &g->table.rows[index], err);
 }
 
 static int paint_material(const ground *g, const cJSON *o, const char *path, uint8_t *out,
@@ -311,8 +337,8 @@ static int parse_map(ground *g, const cJSON *map, error_text *err)
     return 0;
 }
 
-int ground_init_json(ground *g, ground_extent w, const sim_material *base, const void *materials_v,
-                     const void *map_v, error_text *err)
+int ground_init_json(ground *g, ground_extent w, const ground_material *base,
+                     const void *materials_v, const void *map_v, error_text *err)
 {
     const cJSON *materials = materials_v, *map = map_v;
     if (!materials) {
@@ -324,8 +350,8 @@ int ground_init_json(ground *g, ground_extent w, const sim_material *base, const
     }
     ground_base(g, w);
     if (!cJSON_IsObject(materials) || cJSON_GetArraySize(materials) < 1 ||
-        cJSON_GetArraySize(materials) > SIM_MATERIALS_MAX) {
-        error_set(err, "materials: must be an object with 1 to %d entries", SIM_MATERIALS_MAX);
+        cJSON_GetArraySize(materials) > GROUND_MATERIALS_MAX) {
+        error_set(err, "materials: must be an object with 1 to %d entries", GROUND_MATERIALS_MAX);
         return -1;
     }
     int index = 0;
@@ -339,7 +365,7 @@ int ground_init_json(ground *g, ground_extent w, const sim_material *base, const
             goto fail;
         }
         g->material_count = index; /* names so far, for the duplicate check */
-        if (parse_material_entry(g, w, base, e, index, err))
+        if (parse_material_entry(g, base, e, index, err))
             goto fail;
         g->material_count = index + 1;
     }

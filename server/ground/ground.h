@@ -5,7 +5,7 @@
  * height storage can change without them:
  *
  *   material ids  uint8 per cell, an index into the scene's material table
- *                 (at most SIM_MATERIALS_MAX). They come from the scene's
+ *                 (at most GROUND_MATERIALS_MAX). They come from the scene's
  *                 material map — a default material and painted rectangles
  *                 and circles, later paints on top — evaluated on demand
  *                 when a window is gathered; nothing is stored per cell.
@@ -18,6 +18,9 @@
  * The tick gathers both for each window (ground_gather_*), the stages read
  * them (sim_classify_materials, sim_even_slopes_materials) and the compaction
  * the window caused is scattered back (ground_scatter_compaction).
+ *
+ * The material table — each material's integer row — is defined here, below
+ * sim/, so the ground depends on the world alone and the sim on the ground.
  */
 #ifndef TERRAD_GROUND_H
 #define TERRAD_GROUND_H
@@ -25,7 +28,6 @@
 #include <stdint.h>
 
 #include "base/base.h"
-#include "sim/sim.h"
 #include "world/world.h"
 
 #define GROUND_TILE_SIDE 64
@@ -47,6 +49,38 @@ typedef struct ground_material {
 /* Presets: "snow", "sand", "mud", "pebbles" (numbers and sources in
  * docs/materials.md). Returns 0, or -1 for an unknown name. */
 int ground_material_preset(const char *name, ground_material *out);
+
+/* The integer form of a material's per-cell part, computed once on the CPU:
+ * what the classify and slope stages read per cell (sim_material_row_from_params
+ * gives the row of the uniform params). */
+#define GROUND_MATERIALS_MAX 16
+
+typedef struct ground_material_row {
+    int32_t compression_q16;          /* 0..65536 */
+    int32_t roughness_q16;            /* 0..65536 */
+    int32_t slope_threshold_axial;    /* units */
+    int32_t slope_threshold_diagonal; /* units */
+    int32_t max_compaction;           /* units, 0..65535; 0: no compaction memory */
+} ground_material_row;
+
+typedef struct ground_material_table {
+    int count; /* 1..GROUND_MATERIALS_MAX */
+    ground_material_row rows[GROUND_MATERIALS_MAX];
+} ground_material_table;
+
+/* A non-negative length in units, saturated at 2^30 (any larger threshold
+ * already means "never"). */
+int32_t ground_units_saturated(double units);
+
+/*
+ * compression, roughness and repose_deg of m into a row (max_compaction 0):
+ * Q16 shares and the angle of repose as height-difference thresholds for
+ * axial and diagonal neighbours, so no GPU evaluates atan or compares floats.
+ * Errors name "<path>.<field>", e.g. "material.roughness: must be a number in
+ * [0, 1] (got 2)". Returns 0 or -1.
+ */
+int ground_material_row_from(const ground_material *m, double cell_size_m, int32_t units_per_m,
+                             const char *path, ground_material_row *row, error_text *err);
 
 typedef enum ground_paint_kind {
     GROUND_PAINT_RECT,   /* cells whose centre is in [x0, x1) x [y0, y1) (metres) */
@@ -75,8 +109,8 @@ typedef struct ground {
     double cell_size_m;
     int32_t units_per_m;
     int material_count;
-    ground_material materials[SIM_MATERIALS_MAX];
-    sim_material_table table; /* the integer rows the stages use */
+    ground_material materials[GROUND_MATERIALS_MAX];
+    ground_material_table table; /* the integer rows the stages use */
     uint8_t default_material;
     ground_paint *paints;
     int paint_count;
@@ -88,23 +122,24 @@ typedef struct ground {
 } ground;
 
 /*
- * One material everywhere: `base` (the scene's "material"), no compaction
- * memory. The world's dimensions and scale give the integer rows.
+ * One material everywhere: `base` (the per-cell part of the scene's
+ * "material", sim_material_ground), no compaction memory. The world's
+ * dimensions and scale give the integer rows.
  */
-int ground_init_uniform(ground *g, ground_extent x, const sim_material *base, error_text *err);
+int ground_init_uniform(ground *g, ground_extent x, const ground_material *base, error_text *err);
 
 /*
  * From the scene: `materials` is the JSON object {"name": {"preset": ...,
  * overrides...}, ...} and `map` the object {"default": "name", "paint": [
  * {"material": "name", "rect": [x0, y0, x1, y1]} | {"material": "name",
  * "circle": [cx, cy, r]}, ...]} (metres), either may be NULL (then one
- * material, `base`). `base` supplies what is not per cell (method, metric,
- * iterations, obstacle gap). Errors name the field, e.g.
+ * material, `base`). `base` gives what an entry does not override
+ * (compression, roughness, repose). Errors name the field, e.g.
  * "materials.snow.roughness: must be a number in [0, 1] (got 2)".
  * The JSON values are cJSON pointers, passed as void to keep cJSON out of
  * this header.
  */
-int ground_init_json(ground *g, ground_extent x, const sim_material *base, const void *materials,
+int ground_init_json(ground *g, ground_extent x, const ground_material *base, const void *materials,
                      const void *map, error_text *err);
 void ground_free(ground *g);
 

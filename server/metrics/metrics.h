@@ -10,10 +10,11 @@
 #include <stddef.h>
 #include <stdint.h>
 
-/* Stage names for metrics_observe_stage_ms (the simulate report's names). */
-#define METRICS_STAGES                                                                             \
-    "depth", "classify", "jump_flood", "displace", "even_slopes", "transfer", "gather_scatter",    \
-        "model"
+#include "base/base.h"
+
+/* Stage names for metrics_observe_stage_ms: the sim's stages (base.h's
+ * list, the simulate report's names), then the engine's own two. */
+#define METRICS_STAGES SIM_STAGE_LIST(SIM_STAGE_NAME) "gather_scatter", "model"
 
 void metrics_reset(void); /* zero everything (tests) */
 
@@ -60,9 +61,7 @@ void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t byt
 
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
-#define METRICS_MEMORY_STAGES                                                                      \
-    "depth", "classify", "jump_flood", "displace", "even_slopes", "backend_other", "model",        \
-        "gather_scatter"
+#define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)
 void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes);
 
 /* The text exposition (text/plain; version=0.0.4); caller frees. */

@@ -61,20 +61,9 @@
 #include <string.h>
 
 #include "base/embedded.h"
+#include "scene/scene_internal.h"
 
-#define SCENE_COLLIDERS_MAX 4096
-#define SCENE_KEYFRAMES_MAX 100000
-#define SCENE_FILE_BYTES_MAX ((long)64 << 20)
-#define SCENE_SPEED_MAX 1e4    /* m/s */
-#define SCENE_SPIN_MAX_DEG 1e6 /* deg/s */
-#define SCENE_TIME_MAX_S 1e9
-
-typedef struct scene_parser {
-    const char *base_dir;
-    error_text *err;
-} scene_parser;
-
-/* ---- world, terrain, material ---- */
+/* ---- world and terrain ---- */
 
 static const char *const world_keys[] = {"width",   "height",     "cell_size_m", "units_per_m",
                                          "floor_m", "tile_cells", NULL};
@@ -133,8 +122,8 @@ static int check_height_m(const scene *s, const char *path, double metres, error
     return 0;
 }
 
-static int resolve_path(const char *base_dir, const char *rel, char *out, size_t size,
-                        const char *field, error_text *err)
+int scene_resolve_path(const char *base_dir, const char *rel, char *out, size_t size,
+                       const char *field, error_text *err)
 {
     int n;
     if (rel[0] == '/' || !base_dir || !base_dir[0])
@@ -224,483 +213,8 @@ static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, er
     if (json_get_number(t, "terrain", "scale_units", -1e9, 1e9, &b->value_scale_units, err) < 0 ||
         json_get_number(t, "terrain", "offset_units", -1e10, 1e10, &b->value_offset_units, err) <
             0 ||
-        resolve_path(ps->base_dir, rel, b->path, sizeof b->path, "terrain.path", err))
+        scene_resolve_path(ps->base_dir, rel, b->path, sizeof b->path, "terrain.path", err))
         return -1;
-    return 0;
-}
-
-static int parse_material(const cJSON *root, scene *s, error_text *err)
-{
-    sim_material *m = &s->material;
-    *m = sim_material_default();
-    m->tick_s = 1.0 / s->tick_hz;
-    const cJSON *o = cJSON_GetObjectItemCaseSensitive(root, "material");
-    if (!o)
-        return 0;
-    static const char *const keys[] = {"compression",
-                                       "roughness",
-                                       "repose_deg",
-                                       "obstacle_gap_m",
-                                       "multi_target_m",
-                                       "multi_target_max",
-                                       "displace_iterations",
-                                       "slope_iterations",
-                                       "metric",
-                                       "method",
-                                       "model",
-                                       "refill_m_per_s",
-                                       "trail_scale_per_m",
-                                       "trail_range_m",
-                                       "edge_height",
-                                       "edge_width",
-                                       "preset",
-                                       "D",
-                                       "zeta_inv",
-                                       "force_scale",
-                                       "dt",
-                                       "substeps",
-                                       "conservative",
-                                       "decal_min_strength_m",
-                                       NULL};
-    const char *P = "material";
-    if (json_expect_object(o, P, "scene", err) || json_check_keys(o, P, keys, NULL, err))
-        return -1;
-    double v;
-    int r;
-    if (json_get_number(o, P, "compression", 0, 1, &m->compression, err) < 0 ||
-        json_get_number(o, P, "roughness", 0, 1, &m->roughness, err) < 0 ||
-        json_get_number(o, P, "obstacle_gap_m", 0, 1000, &m->obstacle_gap_m, err) < 0 ||
-        json_get_positive(o, P, "multi_target_m", 1000, 0, &m->multi_target_m, err) < 0)
-        return -1;
-    if ((r = json_get_number(o, P, "repose_deg", 0, 90, &v, err)) < 0)
-        return -1;
-    if (r) {
-        if (v >= 90.0) {
-            error_set(err, "material.repose_deg: must be in [0, 90) (got %g)", v);
-            return -1;
-        }
-        m->repose_deg = v;
-    }
-    if ((r = json_get_integer(o, P, "multi_target_max", 1, 1024, 0, &v, err)) < 0)
-        return -1;
-    if (r)
-        m->multi_target_max = (int)v;
-    if ((r = json_get_integer(o, P, "displace_iterations", 0, 1000, 0, &v, err)) < 0)
-        return -1;
-    if (r)
-        m->displace_iterations = (int)v;
-    if ((r = json_get_integer(o, P, "slope_iterations", 0, 1000, 0, &v, err)) < 0)
-        return -1;
-    if (r)
-        m->slope_iterations = (int)v;
-    char name[32];
-    if ((r = json_get_string(o, P, "metric", name, sizeof name, err)) < 0)
-        return -1;
-    if (r && sim_metric_parse(name, &m->metric) != 0) {
-        error_set(err, "material.metric: must be euclidean, manhattan or chebyshev (got \"%s\")",
-                  name);
-        return -1;
-    }
-    if ((r = json_get_string(o, P, "method", name, sizeof name, err)) < 0)
-        return -1;
-    if (r && sim_method_parse(name, &m->method) != 0) {
-        error_set(err, "material.method: must be iterative, ssbo or multi (got \"%s\")", name);
-        return -1;
-    }
-    int has_method = r;
-    m->model = sim_model_from_method(m->method);
-    if ((r = json_get_string(o, P, "model", name, sizeof name, err)) < 0)
-        return -1;
-    if (r && sim_model_parse(name, &m->model) != 0) {
-        error_set(err,
-                  "material.model: must be persson-iterative, persson-ssbo, persson-multi, "
-                  "subtract, deferred, diffusion or decals (got \"%s\")",
-                  name);
-        return -1;
-    }
-    if (r && sim_model_is_persson(m->model)) {
-        sim_method implied = m->model == SIM_MODEL_PERSSON_ITERATIVE ? SIM_METHOD_ITERATIVE
-                             : m->model == SIM_MODEL_PERSSON_MULTI   ? SIM_METHOD_MULTI
-                                                                     : SIM_METHOD_SSBO;
-        if (has_method && implied != m->method) {
-            error_set(err, "material.method: \"%s\" contradicts material.model \"%s\"",
-                      sim_method_name(m->method), name);
-            return -1;
-        }
-        m->method = implied;
-    }
-    /* a preset first, so explicit D / zeta_inv / repose_deg override it */
-    char preset[32];
-    if ((r = json_get_string(o, P, "preset", preset, sizeof preset, err)) < 0)
-        return -1;
-    if (r) {
-        double repose = m->repose_deg;
-        const cJSON *rd = cJSON_GetObjectItemCaseSensitive(o, "repose_deg");
-        if (sim_material_diffusion_preset(m, preset) != 0) {
-            error_set(err, "material.preset: must be mud, pebbles or sand (got \"%s\")", preset);
-            return -1;
-        }
-        if (rd)
-            m->repose_deg = repose;
-    }
-    if (json_get_number(o, P, "refill_m_per_s", 0, 1000, &m->refill_m_per_s, err) < 0 ||
-        json_get_number(o, P, "trail_scale_per_m", 0, 1e6, &m->trail_scale_per_m, err) < 0 ||
-        json_get_number(o, P, "trail_range_m", 0, 1000, &m->trail_range_m, err) < 0 ||
-        json_get_number(o, P, "edge_height", 0, 100, &m->edge_height, err) < 0 ||
-        json_get_positive(o, P, "edge_width", 100, 0, &m->edge_width, err) < 0 ||
-        json_get_number(o, P, "D", 0, 1e12, &m->diffusion_d, err) < 0 ||
-        json_get_number(o, P, "zeta_inv", 0, 1e12, &m->diffusion_zeta_inv, err) < 0 ||
-        json_get_number(o, P, "force_scale", 0, 1e12, &m->diffusion_force_scale, err) < 0 ||
-        json_get_number(o, P, "dt", 0, 1e12, &m->diffusion_dt, err) < 0 ||
-        json_get_number(o, P, "decal_min_strength_m", 0, 1000, &m->decal_min_strength_m, err) < 0)
-        return -1;
-    const cJSON *sub = cJSON_GetObjectItemCaseSensitive(o, "substeps");
-    if (sub && cJSON_IsString(sub)) {
-        if (strcmp(sub->valuestring, "auto") != 0) {
-            error_set(err, "material.substeps: must be \"auto\" or an integer in [1, 100000]");
-            return -1;
-        }
-        m->diffusion_substeps = SIM_DIFFUSION_SUBSTEPS_AUTO;
-    } else {
-        if ((r = json_get_integer(o, P, "substeps", 1, 100000, 0, &v, err)) < 0)
-            return -1;
-        if (r)
-            m->diffusion_substeps = (int)v;
-    }
-    const cJSON *cons = cJSON_GetObjectItemCaseSensitive(o, "conservative");
-    if (cons) {
-        if (!cJSON_IsBool(cons)) {
-            error_set(err, "material.conservative: must be true or false");
-            return -1;
-        }
-        m->diffusion_conservative = cJSON_IsTrue(cons) ? 1 : 0;
-    }
-    /* the sim's own conversion has the last word on what it can run */
-    sim_params p;
-    if (sim_params_from_material(m, s->cell_size_m, s->units_per_m, s->floor_units, &p, err) != 0)
-        return -1;
-    return 0;
-}
-
-/* ---- colliders ---- */
-
-static int parse_quat(const cJSON *obj, const char *path, quatd *q, error_text *err)
-{
-    double v[4];
-    int r = json_get_vector(obj, path, "orientation", 4, 1e6, v, err);
-    if (r <= 0) {
-        *q = (quatd){1, 0, 0, 0};
-        return r;
-    }
-    double n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3];
-    if (!(n2 > 1e-12)) {
-        char p[256];
-        json_path_join(p, sizeof p, path, "orientation");
-        error_set(err, "%s: must be a non-zero quaternion [w, x, y, z]", p);
-        return -1;
-    }
-    *q = quat_normalize((quatd){v[0], v[1], v[2], v[3]});
-    return 1;
-}
-
-static int parse_position(const cJSON *obj, const char *path, vec3d *p, error_text *err)
-{
-    double v[3];
-    int r = json_get_vector(obj, path, "position", 3, 1e6, v, err);
-    if (r > 0)
-        *p = (vec3d){v[0], v[1], v[2]};
-    return r;
-}
-
-static int parse_keyframes(const cJSON *arr, const char *path, collider_motion *m, error_text *err)
-{
-    int n = cJSON_IsArray(arr) ? cJSON_GetArraySize(arr) : 0;
-    if (n < 1 || n > SCENE_KEYFRAMES_MAX) {
-        error_set(err, "%s: must be an array of 1 to %d keyframes", path, SCENE_KEYFRAMES_MAX);
-        return -1;
-    }
-    m->keyframes = calloc((size_t)n, sizeof *m->keyframes);
-    if (!m->keyframes) {
-        error_set(err, "%s: out of memory", path);
-        return -1;
-    }
-    m->keyframe_count = n;
-    static const char *const keys[] = {"time_s", "position", "orientation", NULL};
-    int i = 0;
-    for (const cJSON *k = arr->child; k; k = k->next, i++) {
-        char p[256];
-        json_path_index(p, sizeof p, path, i);
-        collider_keyframe *f = &m->keyframes[i];
-        if (json_expect_object(k, p, "scene", err) || json_check_keys(k, p, keys, NULL, err) ||
-            json_require_number(k, p, "time_s", -SCENE_TIME_MAX_S, SCENE_TIME_MAX_S, &f->time_s,
-                                err))
-            return -1;
-        if (i > 0 && !(f->time_s > m->keyframes[i - 1].time_s)) {
-            error_set(err, "%s.time_s: must be greater than the previous keyframe's (%g <= %g)", p,
-                      f->time_s, m->keyframes[i - 1].time_s);
-            return -1;
-        }
-        int r = parse_position(k, p, &f->pose.position, err);
-        if (r < 0)
-            return -1;
-        if (r == 0) {
-            error_set(err, "%s.position: missing ([x, y, z] in metres)", p);
-            return -1;
-        }
-        if (parse_quat(k, p, &f->pose.orientation, err) < 0)
-            return -1;
-    }
-    return 0;
-}
-
-static int parse_motion(const cJSON *c, const char *path, collider_motion *m, int has_position,
-                        error_text *err)
-{
-    const cJSON *o = cJSON_GetObjectItemCaseSensitive(c, "motion");
-    char p[256];
-    json_path_join(p, sizeof p, path, "motion");
-    m->kind = COLLIDER_MOTION_STATIC;
-    if (!o) {
-        if (!has_position) {
-            error_set(err, "%s.position: missing ([x, y, z] in metres)", path);
-            return -1;
-        }
-        return 0;
-    }
-    if (json_expect_object(o, p, "scene", err))
-        return -1;
-    const cJSON *kf = cJSON_GetObjectItemCaseSensitive(o, "keyframes");
-    if (kf) {
-        static const char *const keys[] = {"keyframes", NULL};
-        if (json_check_keys(o, p, keys, "keyframe motion (velocity and keyframes do not mix)", err))
-            return -1;
-        if (has_position) {
-            error_set(err,
-                      "%s.position: not allowed with motion.keyframes (the keyframes give "
-                      "the pose)",
-                      path);
-            return -1;
-        }
-        char q[280];
-        json_path_join(q, sizeof q, p, "keyframes");
-        if (parse_keyframes(kf, q, m, err) != 0)
-            return -1;
-        m->kind = COLLIDER_MOTION_KEYFRAMES;
-        m->start = m->keyframes[0].pose;
-        return 0;
-    }
-    static const char *const keys[] = {"velocity", "spin_axis", "spin_deg_per_s", NULL};
-    if (json_check_keys(o, p, keys, NULL, err))
-        return -1;
-    if (!has_position) {
-        error_set(err, "%s.position: missing ([x, y, z] in metres)", path);
-        return -1;
-    }
-    double v[3] = {0, 0, 0}, axis[3] = {0, 0, 1}, spin = 0;
-    if (json_get_vector(o, p, "velocity", 3, SCENE_SPEED_MAX, v, err) < 0 ||
-        json_get_vector(o, p, "spin_axis", 3, 1e6, axis, err) < 0 ||
-        json_get_number(o, p, "spin_deg_per_s", -SCENE_SPIN_MAX_DEG, SCENE_SPIN_MAX_DEG, &spin,
-                        err) < 0)
-        return -1;
-    if (spin != 0.0 && !(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2] > 1e-12)) {
-        error_set(err, "%s.spin_axis: must be a non-zero vector when spin_deg_per_s is not 0", p);
-        return -1;
-    }
-    m->kind = COLLIDER_MOTION_VELOCITY;
-    m->velocity = (vec3d){v[0], v[1], v[2]};
-    m->spin_axis = (vec3d){axis[0], axis[1], axis[2]};
-    m->spin_rad_per_s = spin * (M_PI / 180.0);
-    return 0;
-}
-
-static int load_mesh(const scene_parser *ps, const cJSON *c, const char *path, scene *s,
-                     collider_geometry *g, error_text *err)
-{
-    char rel[1024], full[1024];
-    int r = json_get_string(c, path, "obj", rel, sizeof rel, err);
-    if (r < 0)
-        return -1;
-    if (r == 0 || !rel[0]) {
-        error_set(err, "%s.obj: missing (the OBJ file of a mesh collider)", path);
-        return -1;
-    }
-    double scale = 1.0;
-    if (json_get_positive(c, path, "scale", 1e6, 0, &scale, err) < 0)
-        return -1;
-    char field[280];
-    json_path_join(field, sizeof field, path, "obj");
-    if (resolve_path(ps->base_dir, rel, full, sizeof full, field, err))
-        return -1;
-    collider_mesh *m = &s->meshes[s->mesh_count];
-    if (collider_mesh_load_obj(full, m, err) != 0) {
-        error_prefix(err, field, ": ");
-        return -1;
-    }
-    s->mesh_count++;
-    if (scale != 1.0) {
-        for (int i = 0; i < 3 * m->vertex_count; i++)
-            m->vertices[i] = (float)(m->vertices[i] * scale);
-        m->bounding_radius *= scale;
-    }
-    g->mesh = m;
-    return 0;
-}
-
-static int parse_collider(const scene_parser *ps, const cJSON *c, const char *path, int index,
-                          scene *s, scene_collider *sc, error_text *err)
-{
-    if (json_expect_object(c, path, "scene", err))
-        return -1;
-    char shape[32];
-    int r = json_get_string(c, path, "shape", shape, sizeof shape, err);
-    if (r < 0)
-        return -1;
-    if (r == 0) {
-        error_set(err, "%s.shape: missing (sphere, box, capsule, cylinder, wheel or mesh)", path);
-        return -1;
-    }
-    collider_geometry *g = &sc->geometry;
-    const char *context;
-    static const char *const sphere_keys[] = {"name",   "shape",  "position", "orientation",
-                                              "motion", "radius", NULL};
-    static const char *const axial_keys[] = {"name",   "shape",  "position",    "orientation",
-                                             "motion", "radius", "half_length", NULL};
-    static const char *const box_keys[] = {"name",   "shape",        "position", "orientation",
-                                           "motion", "half_extents", NULL};
-    static const char *const mesh_keys[] = {"name",   "shape", "position", "orientation",
-                                            "motion", "obj",   "scale",    NULL};
-    const char *const *keys;
-    if (strcmp(shape, "sphere") == 0) {
-        g->shape = COLLIDER_SPHERE;
-        keys = sphere_keys;
-        context = "a sphere";
-    } else if (strcmp(shape, "box") == 0) {
-        g->shape = COLLIDER_BOX;
-        keys = box_keys;
-        context = "a box";
-    } else if (strcmp(shape, "capsule") == 0) {
-        g->shape = COLLIDER_CAPSULE;
-        keys = axial_keys;
-        context = "a capsule";
-    } else if (strcmp(shape, "cylinder") == 0 || strcmp(shape, "wheel") == 0) {
-        g->shape = COLLIDER_CYLINDER;
-        keys = axial_keys;
-        context = "a cylinder";
-    } else if (strcmp(shape, "mesh") == 0) {
-        g->shape = COLLIDER_MESH;
-        keys = mesh_keys;
-        context = "a mesh";
-    } else {
-        error_set(err,
-                  "%s.shape: must be sphere, box, capsule, cylinder, wheel or mesh (got \"%s\")",
-                  path, shape);
-        return -1;
-    }
-    if (json_check_keys(c, path, keys, context, err))
-        return -1;
-    r = json_get_string(c, path, "name", sc->name, sizeof sc->name, err);
-    if (r < 0)
-        return -1;
-    if (r == 0)
-        snprintf(sc->name, sizeof sc->name, "collider-%d", index);
-
-    switch (g->shape) {
-    case COLLIDER_SPHERE:
-        if (json_get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
-            return -1;
-        break;
-    case COLLIDER_CAPSULE:
-    case COLLIDER_CYLINDER:
-        if (json_get_positive(c, path, "radius", 1000, 1, &g->radius, err) < 0)
-            return -1;
-        if (g->shape == COLLIDER_CAPSULE) {
-            if (json_require_number(c, path, "half_length", 0, 1000, &g->half_length, err))
-                return -1;
-        } else if (json_get_positive(c, path, "half_length", 1000, 1, &g->half_length, err) < 0) {
-            return -1;
-        }
-        break;
-    case COLLIDER_BOX: {
-        double e[3];
-        r = json_get_vector(c, path, "half_extents", 3, 1000, e, err);
-        if (r < 0)
-            return -1;
-        if (r == 0) {
-            error_set(err, "%s.half_extents: missing ([x, y, z] half sizes in metres)", path);
-            return -1;
-        }
-        g->half_extents = (vec3d){e[0], e[1], e[2]};
-        break;
-    }
-    case COLLIDER_MESH:
-        if (load_mesh(ps, c, path, s, g, err) != 0)
-            return -1;
-        break;
-    }
-    /* the collider module's own checks (sizes > 0, mesh extent) have the last word */
-    if (collider_geometry_validate(g, err) != 0) {
-        error_prefix(err, path, ".");
-        return -1;
-    }
-
-    collider_motion *m = &sc->motion;
-    int has_position = parse_position(c, path, &m->start.position, err);
-    if (has_position < 0 || parse_quat(c, path, &m->start.orientation, err) < 0)
-        return -1;
-    if (parse_motion(c, path, m, has_position, err) != 0)
-        return -1;
-    if (cJSON_GetObjectItemCaseSensitive(c, "orientation") &&
-        m->kind == COLLIDER_MOTION_KEYFRAMES) {
-        error_set(err,
-                  "%s.orientation: not allowed with motion.keyframes (the keyframes give "
-                  "the pose)",
-                  path);
-        return -1;
-    }
-    if (collider_pose_validate(&m->start, err) != 0) {
-        error_prefix(err, path, ".");
-        return -1;
-    }
-    return 0;
-}
-
-static int parse_colliders(const cJSON *root, const scene_parser *ps, scene *s, error_text *err)
-{
-    const cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "colliders");
-    if (!arr)
-        return 0;
-    if (!cJSON_IsArray(arr)) {
-        error_set(err, "colliders: must be an array (got %s)", json_type_name(arr));
-        return -1;
-    }
-    int n = cJSON_GetArraySize(arr);
-    if (n > SCENE_COLLIDERS_MAX) {
-        error_set(err, "colliders: at most %d colliders (got %d)", SCENE_COLLIDERS_MAX, n);
-        return -1;
-    }
-    if (n == 0)
-        return 0;
-    int meshes = 0;
-    for (const cJSON *c = arr->child; c; c = c->next) {
-        const cJSON *sh = cJSON_GetObjectItemCaseSensitive(c, "shape");
-        if (cJSON_IsString(sh) && sh->valuestring && strcmp(sh->valuestring, "mesh") == 0)
-            meshes++;
-    }
-    s->colliders = calloc((size_t)n, sizeof *s->colliders);
-    /* sized up front: geometry.mesh points into this array, so it never moves */
-    s->meshes = meshes ? calloc((size_t)meshes, sizeof *s->meshes) : NULL;
-    if (!s->colliders || (meshes && !s->meshes)) {
-        error_set(err, "colliders: out of memory");
-        return -1;
-    }
-    int i = 0;
-    for (const cJSON *c = arr->child; c; c = c->next, i++) {
-        char p[64];
-        json_path_index(p, sizeof p, "colliders", i);
-        s->collider_count = i + 1; /* so scene_free releases a half-parsed one */
-        if (parse_collider(ps, c, p, i, s, &s->colliders[i], err) != 0)
-            return -1;
-    }
     return 0;
 }
 
@@ -720,9 +234,9 @@ static int ground_from_json_text(const scene *s, const char *text, ground *g, er
         return -1;
     }
     ground_extent x = {s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units};
-    int rc =
-        ground_init_json(g, x, &s->material, cJSON_GetObjectItemCaseSensitive(root, "materials"),
-                         cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
+    ground_material base = sim_material_ground(&s->material);
+    int rc = ground_init_json(g, x, &base, cJSON_GetObjectItemCaseSensitive(root, "materials"),
+                              cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
     cJSON_Delete(root);
     return rc;
 }
@@ -754,8 +268,10 @@ static int parse_ground(const cJSON *root, scene *s, error_text *err)
 
 int scene_create_ground(const scene *s, const world *w, ground *g, error_text *err)
 {
-    if (!s->ground_json)
-        return ground_init_uniform(g, ground_extent_of_world(w), &s->material, err);
+    if (!s->ground_json) {
+        ground_material base = sim_material_ground(&s->material);
+        return ground_init_uniform(g, ground_extent_of_world(w), &base, err);
+    }
     return ground_from_json_text(s, s->ground_json, g, err);
 }
 
@@ -783,9 +299,9 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
         goto done;
     s->tick_hz = tick_hz; /* the material's rates are per second */
     if (parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||
-        parse_material(root, s, err) || parse_ground(root, s, err) ||
+        scene_parse_material(root, s, err) || parse_ground(root, s, err) ||
         json_get_integer(root, "", "active_margin_cells", 0, 4096, 0, &margin, err) < 0 ||
-        parse_colliders(root, &ps, s, err))
+        scene_parse_colliders(root, &ps, s, err))
         goto done;
     s->tick_hz = tick_hz;
     s->active_margin_cells = (int)margin;
@@ -800,30 +316,11 @@ done:
 int scene_load_file(const char *path, scene *s, error_text *err)
 {
     memset(s, 0, sizeof *s);
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        error_set(err, "%s: cannot open: %s", path, strerror(errno));
+    uint8_t *data = NULL;
+    size_t size = 0;
+    if (file_read_all(path, SCENE_FILE_BYTES_MAX, &data, &size, err) != 0)
         return -1;
-    }
-    long size = -1;
-    if (fseek(f, 0, SEEK_END) == 0)
-        size = ftell(f);
-    if (size < 0 || size > SCENE_FILE_BYTES_MAX) {
-        error_set(err, "%s: %s", path,
-                  size < 0 ? "cannot determine the file size" : "scene file larger than 64 MiB");
-        fclose(f);
-        return -1;
-    }
-    rewind(f);
-    char *text = malloc((size_t)size + 1);
-    if (!text || fread(text, 1, (size_t)size, f) != (size_t)size) {
-        error_set(err, "%s: cannot read", path);
-        free(text);
-        fclose(f);
-        return -1;
-    }
-    fclose(f);
-    text[size] = '\0';
+    const char *text = (const char *)data;
     char dir[1024];
     const char *slash = strrchr(path, '/');
     if (!slash)
@@ -833,7 +330,7 @@ int scene_load_file(const char *path, scene *s, error_text *err)
     else
         snprintf(dir, sizeof dir, "%.*s", (int)(slash - path), path);
     int rc = scene_load_json(text, dir, s, err);
-    free(text);
+    free(data);
     if (rc != 0)
         error_prefix(err, path, ": ");
     return rc;

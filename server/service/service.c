@@ -144,7 +144,7 @@ service *service_create(sim_engine *engine, hub *h, error_text *err)
         return NULL;
     }
     s->engine = engine;
-    s->world = engine->world;
+    s->world = sim_engine_world(engine);
     s->hub = h;
     s->tiles_x = (s->world->width + SERVICE_TILE_SIZE - 1) / SERVICE_TILE_SIZE;
     s->tiles_y = (s->world->height + SERVICE_TILE_SIZE - 1) / SERVICE_TILE_SIZE;
@@ -167,7 +167,8 @@ service *service_create(sim_engine *engine, hub *h, error_text *err)
 
 static void collider_release(service *s, svc_collider *c)
 {
-    s->engine->backend->forget_geometry(s->engine->backend, c->geometry);
+    sim_backend *backend = sim_engine_backend(s->engine);
+    backend->forget_geometry(backend, c->geometry);
     free(c->geometry);
     c->geometry = NULL;
     if (c->mesh) {
@@ -464,9 +465,13 @@ static void contact_measure(service *s, const svc_collider *c, terrad_contact *o
             s->bottom = b;
             s->bottom_cap = n;
         }
-        for (int64_t i = 0; i < n; i++)
-            s->bottom[i] = COLLIDER_BOTTOM_NONE;
-        collider_depth_cpu(c->geometry, c->pose, r, cs, w->units_per_m, s->bottom);
+        sim_collider one = {.geometry = c->geometry, .pose = c->pose};
+        sim_window_job job = {.rect = r,
+                              .cell_size_m = cs,
+                              .units_per_m = w->units_per_m,
+                              .colliders = &one,
+                              .collider_count = 1};
+        sim_window_depth(&job, s->bottom);
         for (int y = 0; y < r.h; y++) {
             for (int x = 0; x < r.w; x++) {
                 int32_t b = s->bottom[(int64_t)y * r.w + x];

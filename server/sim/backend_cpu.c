@@ -4,9 +4,12 @@
  * collider/depth_cpu.c), classify, jump flooding, displacement, slope
  * evening — and is both the test oracle and the backend for machines without
  * OpenGL 4.3. Scratch memory grows to the largest window seen, never to the
- * world.
+ * world. Its depth stage, sim_window_depth, is the one CPU depth routine of
+ * the tick (the engine, Sumner and decals cast theirs with it too). The
+ * backend interface's optional entries are reached through the calls at the
+ * end, which answer for a backend that lacks them.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -23,22 +26,16 @@ typedef struct cpu_backend {
 
 static int ensure_capacity(cpu_backend *b, int64_t cells, error_text *err)
 {
-    if (cells <= b->capacity_cells)
-        return 0;
-    int64_t cap = b->capacity_cells ? b->capacity_cells : 1024;
-    while (cap < cells)
-        cap *= 2;
-    int32_t *grown = realloc(b->arena, (size_t)cap * CPU_ARRAYS_PER_CELL * sizeof *grown);
-    if (!grown) {
-        error_set(err, "cpu backend: out of memory for %lld window cells", (long long)cap);
+    /* at least 1024 cells, so small windows do not regrow the arena */
+    if (array_grow((void **)&b->arena, &b->capacity_cells, cells < 1024 ? 1024 : cells,
+                   CPU_ARRAYS_PER_CELL * sizeof *b->arena) != 0) {
+        error_set(err, "cpu backend: out of memory for %lld window cells", (long long)cells);
         return -1;
     }
-    b->arena = grown;
-    b->capacity_cells = cap;
     return 0;
 }
 
-static void cpu_depth(const sim_window_job *job, int32_t *bottom)
+void sim_window_depth(const sim_window_job *job, int32_t *bottom)
 {
     int64_t n = (int64_t)job->rect.w * job->rect.h;
     for (int64_t i = 0; i < n; i++)
@@ -65,7 +62,7 @@ static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_jo
         if (job->bottom_override)
             memcpy(bottom, job->bottom_override, (size_t)n * sizeof *bottom);
         else
-            cpu_depth(job, bottom);
+            sim_window_depth(job, bottom);
         if (job->bottom_out)
             memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
         double t1 = time_now_ms();
@@ -170,4 +167,19 @@ sim_backend *sim_backend_cpu_create(error_text *err)
     b->base.destroy = cpu_destroy;
     b->base.impl = b;
     return &b->base;
+}
+
+/* ---- the backend interface's optional entries, for any backend ---- */
+
+void sim_backend_tile_cache_stats(const sim_backend *b, sim_tile_cache_stats *out)
+{
+    memset(out, 0, sizeof *out);
+    if (b && b->tile_cache_stats)
+        b->tile_cache_stats(b, out);
+}
+
+void sim_backend_set_stage_timing(sim_backend *b, int on)
+{
+    if (b && b->set_stage_timing)
+        b->set_stage_timing(b, on);
 }

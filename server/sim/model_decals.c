@@ -10,7 +10,7 @@
  * Per collider, its own depth is cast over the window (the shared depth
  * would mix colliders), so scratch is one int32 per cell.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <math.h>
 
@@ -18,14 +18,13 @@ int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *s
                       sim_footprint *out, int out_capacity)
 {
     int w = job->rect.w, h = job->rect.h;
-    int64_t n = (int64_t)w * h;
     int count = 0;
     for (int c = 0; c < job->collider_count && count < out_capacity; c++) {
         const sim_collider *col = &job->colliders[c];
-        for (int64_t i = 0; i < n; i++)
-            scratch[i] = COLLIDER_BOTTOM_NONE;
-        collider_depth_cpu(col->geometry, col->pose, job->rect, job->cell_size_m, job->units_per_m,
-                           scratch);
+        sim_window_job one = *job; /* this collider's own depth */
+        one.colliders = col;
+        one.collider_count = 1;
+        sim_window_depth(&one, scratch);
         int64_t touched = 0, deepest = 0;
         double sx = 0.0, sy = 0.0;
         for (int y = 0; y < h; y++) {

@@ -26,7 +26,7 @@
  *
  * All integer: Q16 scales, distances as integer square roots in Q8 cells.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <math.h>
 

@@ -33,7 +33,7 @@
  * which for such Δt is to its rest state anyway). Integer fluxes round
  * toward zero, which only lowers the weights.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <math.h>
 #include <string.h>

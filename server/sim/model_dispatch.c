@@ -6,7 +6,7 @@
  * per-cell material layer can route windows by material. Adding a model
  * is one case in each switch.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
 {

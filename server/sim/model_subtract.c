@@ -21,7 +21,7 @@
  * undoes what the cut took under it. With a depth given (bottom_override:
  * the tests, --depth-from-cpu) the same rule runs from that array.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
 {

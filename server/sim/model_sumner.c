@@ -27,7 +27,7 @@
  * If any column would leave [WORLD_HEIGHT_MIN, WORLD_HEIGHT_MAX] the window is
  * refused (SIM_WINDOW_HEIGHT_LIMIT) and job->heights are left as they were.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <stdint.h>
 #include <string.h>
@@ -83,11 +83,7 @@ static void sumner_depth(const sim_window_job *job, int32_t *bottom)
     if (job->bottom_override) {
         memcpy(bottom, job->bottom_override, (size_t)n * sizeof *bottom);
     } else {
-        for (int64_t i = 0; i < n; i++)
-            bottom[i] = COLLIDER_BOTTOM_NONE;
-        for (int c = 0; c < job->collider_count; c++)
-            collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, job->rect,
-                               job->cell_size_m, job->units_per_m, bottom);
+        sim_window_depth(job, bottom);
     }
     if (job->bottom_out)
         memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);

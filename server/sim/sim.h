@@ -1,11 +1,14 @@
 /*
- * sim: the deformation pipeline of Persson's thesis, ch. 4, in integers.
+ * sim: the deformation pipeline of Persson's thesis, ch. 4, in integers — the
+ * subsystem's whole public face: materials and their integer params, the
+ * backend interface (a function table, like Redis's ae), the per-window job a
+ * backend runs, and the engine that runs one tick over a world.
  *
- * One tick (DESIGN.md steps 3-7): colliders' footprints, swept from their last
- * pose to this one plus a margin, become rectangles, merged until disjoint:
- * the windows. Each window is gathered from the world, handed to a backend
- * (GL compute or the CPU twin), and scattered back. A backend runs, per
- * window:
+ * One tick (docs/design.md, "One tick"): colliders' footprints, swept from
+ * their last pose to this one plus a margin, become rectangles, merged until
+ * disjoint: the windows. Each window is gathered from the world, handed to a
+ * backend (GL compute or the CPU twin), and scattered back. A backend runs,
+ * per window, the stages of SIM_STAGE_LIST (base.h):
  *
  *   depth        lowest collider point above each cell (collider/)
  *   classify     penetration, compression, seed / obstacle / penetrating
@@ -14,8 +17,9 @@
  *   even_slopes  interleaved passes or SSBO, towards the angle of repose
  *
  * Everything after depth is integer-only and exactly specified by the CPU
- * twin below (sim_stages.c); the GLSL in shaders/ mirrors it line for line,
- * so the two backends give identical heights for identical depth input.
+ * twin (sim_stages.c, declared in sim_internal.h with the models' window
+ * functions); the GLSL in shaders/ mirrors it line for line, so the two
+ * backends give identical heights for identical depth input.
  * Volume: with compression 0 every unit taken from a column lands in exactly
  * one other column of the same window, so Σh over the world is unchanged.
  */
@@ -26,6 +30,7 @@
 
 #include "base/base.h"
 #include "collider/collider.h"
+#include "ground/ground.h"
 #include "world/world.h"
 
 /* Windows are at most this many cells on a side, so squared Euclidean
@@ -47,10 +52,11 @@ typedef enum sim_method {
 
 /*
  * The deformation model of a material (docs/models.md). The three persson-*
- * models run on the backends (GL or CPU twin) through the stages above; the
- * others are CPU window functions in server/sim/model_<name>.c that the
- * engine calls per window, taking the model from the window's params, so a
- * per-cell material layer can route each window (or cell) by its material.
+ * models run on the backends (GL or CPU twin) through the stages of
+ * SIM_STAGE_LIST; the others are CPU window functions in
+ * server/sim/model_<name>.c that the engine calls per window, taking the
+ * model from the window's params, so a per-cell material layer can route
+ * each window (or cell) by its material.
  */
 typedef enum sim_model {
     SIM_MODEL_PERSSON_ITERATIVE,
@@ -70,12 +76,6 @@ typedef enum sim_model {
 /* Automatic sub-stepping never runs more than this many per tick; beyond it
  * each substep is at the stability bound and the tick is saturated. */
 #define SIM_DIFFUSION_SUBSTEPS_MAX 64
-
-typedef enum sim_cell_class {
-    SIM_CELL_SEED = 0,        /* free: can receive material */
-    SIM_CELL_OBSTACLE = 1,    /* a collider rests just above: receives nothing */
-    SIM_CELL_PENETRATING = 2, /* a collider is inside the column */
-} sim_cell_class;
 
 /* The material as a person writes it (scene files, the wire). */
 typedef struct sim_material {
@@ -161,74 +161,13 @@ const char *sim_method_name(sim_method m);
 int sim_metric_parse(const char *name, sim_metric *out);
 int sim_method_parse(const char *name, sim_method *out);
 
-/* ---- The CPU twin's integer stages, on window-local row-major arrays ---- */
-
-/* Hash of a world cell, used to break jump-flooding ties (same in GLSL). */
-uint32_t sim_cell_hash(int32_t world_x, int32_t world_y);
-/* Distance under a metric; Euclidean is squared (order is all that matters). */
-int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy);
-
-/*
- * classify: raw[i] = penetration (units the column must lose), moved[i] =
- * the part of it that is displaced (raw minus compression), cls[i] = class.
- */
-void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
-                  const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
-
-/*
- * jump_flood: seed[i] = window-local index of the nearest seed cell, or -1 if
- * the window has none. scratch holds w*h int32. Ties go to the lower
- * (sim_cell_hash, index) of the candidate seed, so the answer does not
- * depend on evaluation order.
- */
-void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
-                    const int32_t *cls, int32_t *seed, int32_t *scratch);
-
-/* ---- Per-cell materials and compaction memory (sim_stages_materials.c) ----
- * The same stages with a material id per cell (an index into a small table of
- * integer rows) and, where some material remembers compaction, a uint16
- * compaction memory per cell. With ids == NULL every cell is row 0; with one
- * row equal to the params and max_compaction 0 the results are those of
- * sim_classify / sim_even_slopes, bit for bit. */
-#define SIM_MATERIALS_MAX 16
-
-typedef struct sim_material_row {
-    int32_t compression_q16;          /* 0..65536 */
-    int32_t roughness_q16;            /* 0..65536 */
-    int32_t slope_threshold_axial;    /* units */
-    int32_t slope_threshold_diagonal; /* units */
-    int32_t max_compaction;           /* units, 0..65535; 0: no compaction memory */
-} sim_material_row;
-
-typedef struct sim_material_table {
-    int count; /* 1..SIM_MATERIALS_MAX */
-    sim_material_row rows[SIM_MATERIALS_MAX];
-} sim_material_table;
+/* ---- Materials per cell (the table is ground/'s) ---- */
 
 /* A row from a material's integer params and its max compaction (units). */
-sim_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction);
-
-/*
- * classify with per-cell materials. A penetrated column with compaction
- * memory m of its material's max M yields only pen - pen*m/M (compacted
- * ground resists; the collider rests in it), of which the material's
- * compression share (at most M - m) is compacted and the rest displaced:
- * raw[i] = yield, moved[i] = yield - compacted. memory may be NULL (m = 0).
- */
-void sim_classify_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
-                            const uint16_t *memory, int cell_count, const int32_t *heights,
-                            const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
-/* After a window is accepted: memory[i] += raw[i] - moved[i] where the
- * cell's material remembers compaction. */
-void sim_compaction_commit(const sim_material_table *t, const uint8_t *ids, int cell_count,
-                           const int32_t *raw, const int32_t *moved, uint16_t *memory);
-/* even_slopes where each flux uses the material of the column it leaves. */
-void sim_even_slopes_materials(const sim_params *p, const sim_material_table *t, const uint8_t *ids,
-                               int w, int h, const int32_t *cls, int32_t *heights,
-                               int32_t *scratch);
-/* Largest excess above the threshold of the higher column's material. */
-int64_t sim_max_slope_excess_materials(const sim_material_table *t, const uint8_t *ids, int w,
-                                       int h, const int32_t *heights);
+ground_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction);
+/* The per-cell part of a material (compression, roughness, repose) as the
+ * ground's base material, named "default", with no compaction memory. */
+ground_material sim_material_ground(const sim_material *m);
 
 /* Outcome of a window. */
 typedef enum sim_window_status {
@@ -236,37 +175,33 @@ typedef enum sim_window_status {
     SIM_WINDOW_HEIGHT_LIMIT = 1, /* a column would leave the height range: refused */
 } sim_window_status;
 
-/*
- * displace: heights[i] -= raw[i], and the moved material lands by the
- * params' method. `scratch` holds 5*w*h int32. Returns SIM_WINDOW_HEIGHT_LIMIT
- * (heights then unspecified; the caller discards the window) if a column
- * would leave [WORLD_HEIGHT_MIN, WORLD_HEIGHT_MAX].
- */
-sim_window_status sim_displace(const sim_params *p, int w, int h, const int32_t *cls,
-                               const int32_t *seed, const int32_t *raw, const int32_t *moved,
-                               int32_t *heights, int32_t *scratch);
-
-/* even_slopes: params.slope_iterations Jacobi iterations; scratch holds 2*w*h int32. */
-void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int32_t *heights,
-                     int32_t *scratch);
-
-/* Largest height difference above the repose threshold between neighbours. */
+/* Measurements of a result (the simulate report, tests): the largest height
+ * difference above the repose threshold between neighbours — with one
+ * material, or with the threshold of the higher column's material. */
 int64_t sim_max_slope_excess(const sim_params *p, int w, int h, const int32_t *heights);
+int64_t sim_max_slope_excess_materials(const ground_material_table *t, const uint8_t *ids, int w,
+                                       int h, const int32_t *heights);
 
 /* ---- Backends ---- */
 
-/* Scratch bytes held per stage (what an allocation is for, not when it runs). */
+/* Scratch bytes held per stage (what an allocation is for, not when it runs):
+ * depth .. even_slopes for the persson backends, backend_other for a
+ * backend's scratch it does not split by stage (GL), model for the
+ * non-persson models' scratch (and base heights), gather_scatter for the
+ * engine's packed windows and bookkeeping. */
 typedef struct sim_stage_memory {
-    uint64_t depth, classify, jump_flood, displace, even_slopes; /* persson backends */
-    uint64_t backend_other;  /* a backend's scratch it does not split by stage (GL) */
-    uint64_t model;          /* the non-persson models' scratch (and base heights) */
-    uint64_t gather_scatter; /* the engine's packed windows and bookkeeping */
+#define SIM_STAGE_MEMORY_FIELD(name) uint64_t name;
+    SIM_MEMORY_STAGE_LIST(SIM_STAGE_MEMORY_FIELD)
+#undef SIM_STAGE_MEMORY_FIELD
 } sim_stage_memory;
 
 uint64_t sim_stage_memory_total(const sim_stage_memory *m);
 
+/* Milliseconds per stage of SIM_STAGE_LIST. */
 typedef struct sim_stage_times {
-    double depth, classify, jump_flood, displace, even_slopes, transfer; /* ms */
+#define SIM_STAGE_TIME_FIELD(name) double name;
+    SIM_STAGE_LIST(SIM_STAGE_TIME_FIELD)
+#undef SIM_STAGE_TIME_FIELD
 } sim_stage_times;
 
 /* A collider as the backends see it in one tick. */
@@ -295,43 +230,17 @@ typedef struct sim_window_job {
     /* Per-cell materials (ground/): NULL for the uniform path (params only).
      * material_ids NULL: every cell is row 0. compaction (in/out) NULL when no
      * material remembers compaction; written only for accepted windows. */
-    const sim_material_table *materials;
+    const ground_material_table *materials;
     const uint8_t *material_ids;
     uint16_t *compaction;
     const world *world; /* where the window was gathered from (a backend's tile cache) */
 } sim_window_job;
 
-/* ---- Sumner, O'Brien and Hodgins 1999 on the CPU (model_sumner.c) ----
- * The accuracy reference: ray-cast columns, first-ring displacement, erosion
- * by the slope-evening iterations. Σh exact with compression 0. Returns
- * SIM_WINDOW_HEIGHT_LIMIT with job->heights unchanged if a column would leave
- * the height range. `scratch` holds sim_sumner_scratch_cells(w, h) int32. */
-int64_t sim_sumner_scratch_cells(int w, int h);
-sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
-
-/* ---- The non-persson models: CPU window functions (model_<name>.c) ----
- *
- * Each takes the window's params (their model field picks the function in
- * sim_model_window), the job — with bottom_override holding the depth the
- * engine computed — and scratch of sim_model_scratch_cells(model, w*h) int32.
- * They change job->heights in place and return SIM_WINDOW_HEIGHT_LIMIT (the
- * engine then keeps the world's heights) when a column would leave the range.
- */
-int64_t sim_model_scratch_cells(sim_model m, int64_t cells);
-/* 1 when the model needs job->base_heights / the depth in bottom_override. */
-int sim_model_needs_base(const sim_params *p);
-int sim_model_needs_depth(sim_model m);
-sim_window_status sim_model_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
-
-/* heights = max(min(heights, bottom), floor) after rising toward base by refill_units. */
-sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
-/* Contact points → quadratic trail and rim in an integer image (min), then applied. */
-sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
-/* Drift-diffusion, conservative integer flux form or Gilardi's float scheme. */
-sim_window_status sim_diffusion_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
-/* Substeps the diffusion model runs for one tick (1 <= n <= SIM_DIFFUSION_SUBSTEPS_MAX
- * under auto), and the coefficients per substep (the bound is explained there). */
-int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift);
+/* The CPU depth stage of a job's window (the one "fill with no collider,
+ * rasterise each collider" routine): bottom (w*h) becomes
+ * COLLIDER_BOTTOM_NONE, lowered by collider_depth_cpu for each of the job's
+ * colliders. Only rect, cell_size_m, units_per_m and the colliders are read. */
+void sim_window_depth(const sim_window_job *job, int32_t *bottom);
 
 /* A footprint event of the decals model: where a collider touches the ground. */
 typedef struct sim_footprint {
@@ -342,9 +251,17 @@ typedef struct sim_footprint {
     double strength_m; /* deepest penetration */
 } sim_footprint;
 
-/* decals: one window's events (at most out_capacity); returns how many. */
-int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *scratch,
-                      sim_footprint *out, int out_capacity);
+/* A GPU tile cache's statistics (zeros for a backend without one). */
+typedef struct sim_tile_cache_stats {
+    uint64_t texture_bytes; /* the array texture (its capacity) */
+    int resident_tiles;     /* layers holding a tile */
+    int tile_cells;         /* side of the tiles held, 0 while off */
+    uint64_t uploads;       /* tiles uploaded, since creation */
+    uint64_t upload_bytes;
+    uint64_t evictions;      /* resident tiles replaced by others */
+    uint64_t windows_cached; /* windows gathered from the cache */
+    uint64_t windows_direct; /* windows uploaded from the CPU copy */
+} sim_tile_cache_stats;
 
 typedef struct sim_backend sim_backend;
 struct sim_backend {
@@ -368,11 +285,20 @@ struct sim_backend {
      * batch just run into w, so a backend that caches tiles can tell its
      * copy of them is current (or not). */
     void (*window_scattered)(sim_backend *b, int window, const world *w, world_rect r);
+    /* Optional (NULL: no tile cache): the tile cache's statistics. */
+    void (*tile_cache_stats)(const sim_backend *b, sim_tile_cache_stats *out);
+    /* Optional (NULL: times are always real): with timing on, wait for the
+     * device after every stage so per-stage times are real. */
+    void (*set_stage_timing)(sim_backend *b, int on);
     void (*destroy)(sim_backend *b);
     void *impl;
 };
 
 sim_backend *sim_backend_cpu_create(error_text *err);
+
+/* Through the optional entries: zeros / nothing where a backend has none. */
+void sim_backend_tile_cache_stats(const sim_backend *b, sim_tile_cache_stats *out);
+void sim_backend_set_stage_timing(sim_backend *b, int on);
 
 /* ---- The tick over a world ---- */
 
@@ -390,70 +316,39 @@ typedef struct sim_tick_report {
     int footprint_count;
 } sim_tick_report;
 
-typedef struct sim_engine {
-    world *world;
-    sim_params params;
-    sim_backend *backend;
-    int margin_cells;
-    int depth_from_cpu; /* feed the CPU twin's depth to the backend (GL ≡ CPU tests) */
-    /* reusable scratch, grown to the largest tick seen */
-    world_rect *windows;
-    sim_window_job *jobs;
-    int *status;
-    world_rect *dirty;
-    int *dirty_window;
-    int64_t *window_offsets; /* where each window starts in the packed arrays */
-    int window_capacity;
-    world_rect *footprints; /* per collider */
-    int footprint_capacity;
-    sim_collider *window_colliders;
-    int window_collider_capacity;
-    int32_t *heights, *before, *bottom; /* all windows of a tick, packed */
-    int64_t cell_capacity;
-    int64_t bottom_capacity;     /* bottom is allocated only when the engine casts depth */
-    uint64_t peak_scratch_bytes; /* engine's own plus the backend's, high-water mark */
-    int64_t peak_active_cells;
-    /* the non-persson models */
-    int32_t *model_scratch;
-    int64_t model_scratch_capacity; /* int32 */
-    int32_t *base;                  /* base heights of the packed windows (models that need them) */
-    int64_t base_capacity;
-    int64_t refill_q16_accumulated; /* subtract: refill's fraction carried over */
-    world_rect *refilling;          /* subtract: windows with cells still below base */
-    int refilling_count, refilling_capacity;
-    sim_footprint *footprints_out; /* decals: the last tick's events */
-    int footprint_out_capacity;
+/* The engine: opaque; the sim thread's alone once it has ticked (its first
+ * tick claims it; THREAD_OWNED checks every later one). */
+typedef struct sim_engine sim_engine;
+
+/* What the engine has held and done so far (simulate's report, metrics). */
+typedef struct sim_engine_stats {
+    uint64_t peak_scratch_bytes;  /* engine's own plus the backend's, high-water mark */
+    int64_t peak_active_cells;    /* most cells in one tick's windows */
     sim_stage_memory memory;      /* held after the last tick */
     sim_stage_memory peak_memory; /* per stage high-water mark */
-    int warned_cpu_model;         /* "runs on the CPU" said once */
-    /* Per-cell materials and compaction memory (sim_engine_set_ground). */
-    struct ground *ground; /* not owned; NULL: one material, the params */
-    uint8_t *material_ids; /* all windows of a tick, packed; only if not uniform */
-    uint16_t *compaction;  /* likewise; only if some material compacts */
-    int64_t ground_capacity;
-} sim_engine;
+    int per_cell_materials;       /* 1: the ground's layers are read (not the uniform path) */
+    int refilling_windows;        /* subtract: windows kept for the next tick's refill */
+} sim_engine_stats;
 
-int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *backend,
-                    int margin_cells, error_text *err);
+/* Returns NULL with err set (margin outside [0, 4096], out of memory). The
+ * world and the backend are not owned. */
+sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backend, int margin_cells,
+                              error_text *err);
+void sim_engine_destroy(sim_engine *e);
+/* The ground's per-cell layers (not owned; NULL: none). A ground with one
+ * material equal to the params and no compaction memory changes nothing: the
+ * uniform path runs. */
+void sim_engine_set_ground(sim_engine *e, ground *g);
+/* Feed the CPU twin's depth to the backend (GL ≡ CPU tests, --depth-from-cpu). */
+void sim_engine_set_depth_from_cpu(sim_engine *e, int on);
 /* Returns 0, or -1 with err set if the backend failed (the world is unchanged then). */
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);
-void sim_engine_free(sim_engine *e);
-/* After sim_engine_init: the ground's per-cell layers (not owned; NULL: none). A
- * ground with one material equal to the params and no compaction memory
- * changes nothing: the uniform path runs. */
-void sim_engine_set_ground(sim_engine *e, struct ground *g);
 /* After a tick: window i of the last tick, its heights before and after. */
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
                              const int32_t **after);
-
-/*
- * Footprints → disjoint windows (exposed for tests). footprints[i] receives
- * collider i's footprint (w == 0 when it cannot touch the terrain). Windows
- * are sorted by (y, x). Caller frees *out.
- */
-int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
-                     int collider_count, int margin_cells, world_rect *footprints, world_rect **out,
-                     int *out_count);
+void sim_engine_get_stats(const sim_engine *e, sim_engine_stats *out);
+world *sim_engine_world(const sim_engine *e);
+sim_backend *sim_engine_backend(const sim_engine *e);
 
 #endif

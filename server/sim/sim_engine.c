@@ -1,224 +1,267 @@
 /*
- * sim_engine.c: one deformation tick over a world (DESIGN.md steps 3-7).
+ * sim_engine.c: one deformation tick over a world (docs/design.md, "One
+ * tick"). sim_engine_tick reads as the tick's table of contents:
  *
- * Active areas: each collider's footprint is its bounding box at the last
- * pose and at this one (so a fast collider sweeps the cells in between),
- * plus a margin; colliders entirely above the terrain under them are
- * skipped. Footprints that share a cell are merged until the windows are
- * disjoint — simulating overlapping areas separately is what corrupted the
- * original's volume. Every window of the tick goes to the backend as one
- * batch; a window the backend refuses (height limit) leaves the world as it
- * was. The diff of each window against its gathered copy gives a tight dirty
- * rectangle for the wire and the log.
+ *   plan     footprints → disjoint windows (sim_plan.c), plus subtract's
+ *            windows still refilling
+ *   gather   each window's heights (and ground layers) packed one after
+ *            another, a job per window
+ *   depth    the CPU depth the engine casts itself: for --depth-from-cpu
+ *            (fed to the backend) and for the models that read it
+ *   model    the persson models on the backend, as one batch; the others
+ *            through their CPU window functions (model_<name>.c)
+ *   scatter  accepted windows back into the world; a tight dirty rectangle
+ *            per changed window for the wire and the log
+ *   commit   peaks, subtract's refilling windows, memory by stage
  *
- * Models (docs/models.md): the persson-* models go to the backend; the others
- * run their CPU window functions here (model_<name>.c, chosen per window by
- * the params' model), with only the inputs they need prepared — depth for
- * subtract and diffusion, base heights for refill and deferred — and only
- * their scratch allocated, so a subtract scene holds no jump-flooding or
- * displacement buffers at all. Subtract's refill keeps the windows that are
- * still below base in the next tick's plan until they are full again.
+ * A window the backend refuses (height limit) leaves the world as it was.
+ * Only the inputs a model needs are prepared — depth for subtract and
+ * diffusion, base heights for refill and deferred — and only its scratch
+ * allocated, so a subtract scene holds no jump-flooding or displacement
+ * buffers at all.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
-#include "ground/ground.h"
-
-#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-static int grow(void **buf, int64_t *capacity, int64_t needed, size_t elem)
-{
-    if (needed <= *capacity)
-        return 0;
-    int64_t cap = *capacity ? *capacity : 16;
-    while (cap < needed)
-        cap *= 2;
-    void *p = realloc(*buf, (size_t)cap * elem);
-    if (!p)
-        return -1;
-    *buf = p;
-    *capacity = cap;
-    return 0;
-}
+/* The tick's windows: entry i of every array is window i. They grow
+ * together (one capacity); jobs and status are contiguous because the
+ * backend runs the whole batch in one call, dirty and dirty_window because
+ * the report hands them out. */
+typedef struct engine_batch {
+    int64_t capacity; /* windows */
+    world_rect *windows;
+    sim_window_job *jobs;
+    int *status;
+    int64_t *offsets; /* where each window starts in the packed cells */
+    world_rect *dirty;
+    int *dirty_window;
+    int count;
+    int64_t cells; /* all windows' cells */
+    int64_t refs;  /* collider references of all windows */
+} engine_batch;
 
-static int clamp_to_int(double v)
-{
-    if (!(v > -1e9))
-        return -1000000000;
-    if (v > 1e9)
-        return 1000000000;
-    return (int)floor(v);
-}
+struct sim_engine {
+    world *world;
+    sim_params params;
+    sim_backend *backend;
+    int margin_cells;
+    int depth_from_cpu;
+    thread_owner owner; /* the sim thread, from the first tick */
+    engine_batch batch;
+    /* reusable scratch, grown to the largest tick seen */
+    world_rect *footprints; /* per collider */
+    int64_t footprint_capacity;
+    sim_collider *window_colliders;
+    int64_t window_collider_capacity;
+    int32_t *heights, *before; /* all windows of a tick, packed */
+    int64_t cell_capacity;
+    int32_t *bottom; /* allocated only when the engine casts depth */
+    int64_t bottom_capacity;
+    /* the non-persson models */
+    int32_t *model_scratch;
+    int64_t model_scratch_capacity; /* int32 */
+    int32_t *base;                  /* base heights of the packed windows (models that need them) */
+    int64_t base_capacity;
+    int64_t refill_q16_accumulated; /* subtract: refill's fraction carried over */
+    world_rect *refilling;          /* subtract: windows with cells still below base */
+    int refilling_count;
+    int64_t refilling_capacity;
+    sim_footprint *footprints_out; /* decals: the last tick's events */
+    int64_t footprint_out_capacity;
+    int warned_cpu_model; /* "runs on the CPU" said once */
+    /* Per-cell materials and compaction memory (sim_engine_set_ground). */
+    ground *ground;        /* not owned; NULL: one material, the params */
+    uint8_t *material_ids; /* packed like the heights; only if not uniform */
+    int64_t material_ids_capacity;
+    uint16_t *compaction; /* likewise; only if some material compacts */
+    int64_t compaction_capacity;
+    sim_engine_stats stats;
+};
 
-static int32_t units_clamped(double metres, int32_t units_per_m)
+sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backend, int margin_cells,
+                              error_text *err)
 {
-    double u = floor(metres * units_per_m);
-    if (!(u > WORLD_HEIGHT_MIN - 1.0))
-        return WORLD_HEIGHT_MIN - 1;
-    if (u > WORLD_HEIGHT_MAX + 1.0)
-        return WORLD_HEIGHT_MAX + 1;
-    return (int32_t)u;
-}
-
-static world_rect collider_footprint(const world *w, const sim_params *p, const sim_collider *c,
-                                     int margin)
-{
-    vec3d lo, hi;
-    collider_bounds(c->geometry, c->pose, &lo, &hi);
-    if (c->has_previous) {
-        vec3d plo, phi;
-        collider_bounds(c->geometry, c->previous_pose, &plo, &phi);
-        lo.x = fmin(lo.x, plo.x);
-        lo.y = fmin(lo.y, plo.y);
-        lo.z = fmin(lo.z, plo.z);
-        hi.x = fmax(hi.x, phi.x);
-        hi.y = fmax(hi.y, phi.y);
-    }
-    int x0 = clamp_to_int(lo.x / w->cell_size_m) - margin;
-    int y0 = clamp_to_int(lo.y / w->cell_size_m) - margin;
-    int x1 = clamp_to_int(hi.x / w->cell_size_m) + margin;
-    int y1 = clamp_to_int(hi.y / w->cell_size_m) + margin;
-    world_rect r = {x0, y0, x1 - x0 + 1, y1 - y0 + 1};
-    if (!world_clip_rect(w, &r))
-        return (world_rect){0, 0, 0, 0};
-    int32_t hmin, hmax;
-    world_rect_height_range(w, r, &hmin, &hmax);
-    if ((int64_t)units_clamped(lo.z, w->units_per_m) > (int64_t)hmax + p->obstacle_gap)
-        return (world_rect){0, 0, 0, 0}; /* flying above everything it could touch */
-    return r;
-}
-
-static int compare_rects(const void *a, const void *b)
-{
-    const world_rect *r = a, *s = b;
-    if (r->y != s->y)
-        return (r->y > s->y) - (r->y < s->y);
-    return (r->x > s->x) - (r->x < s->x);
-}
-
-/* Footprints plus extra rectangles (subtract's refilling windows) → windows. */
-static int plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
-                        int collider_count, int margin_cells, const world_rect *extra,
-                        int extra_count, world_rect *footprints, world_rect **out, int *out_count)
-{
-    world_rect *rects = malloc(((size_t)collider_count + extra_count + 1) * sizeof *rects);
-    if (!rects)
-        return -1;
-    int n = 0;
-    /* deferred writes its trail up to trail_range cells around a point */
-    if (p->model == SIM_MODEL_DEFERRED && p->trail_range_cells + 1 > margin_cells)
-        margin_cells = p->trail_range_cells + 1;
-    for (int i = 0; i < collider_count; i++) {
-        footprints[i] = collider_footprint(w, p, &colliders[i], margin_cells);
-        if (footprints[i].w > 0)
-            rects[n++] = footprints[i];
-    }
-    for (int i = 0; i < extra_count; i++)
-        rects[n++] = extra[i];
-    for (int changed = 1; changed;) {
-        changed = 0;
-        for (int i = 0; i < n; i++) {
-            for (int j = i + 1; j < n; j++) {
-                if (world_rects_overlap(rects[i], rects[j])) {
-                    rects[i] = world_rect_union(rects[i], rects[j]);
-                    rects[j] = rects[--n];
-                    changed = 1;
-                    j = i; /* the grown rectangle may now meet earlier ones */
-                }
-            }
-        }
-    }
-    /* Split windows wider than the distance arithmetic allows (a collider the
-     * size of a 65536² world); each piece still keeps its volume exactly. */
-    int pieces = 0;
-    for (int i = 0; i < n; i++)
-        pieces += ((rects[i].w + SIM_WINDOW_SIDE_MAX - 1) / SIM_WINDOW_SIDE_MAX) *
-                  ((rects[i].h + SIM_WINDOW_SIDE_MAX - 1) / SIM_WINDOW_SIDE_MAX);
-    world_rect *result = malloc(((size_t)pieces + 1) * sizeof *result);
-    if (!result) {
-        free(rects);
-        return -1;
-    }
-    int k = 0;
-    for (int i = 0; i < n; i++) {
-        for (int y = 0; y < rects[i].h; y += SIM_WINDOW_SIDE_MAX) {
-            for (int x = 0; x < rects[i].w; x += SIM_WINDOW_SIDE_MAX) {
-                world_rect r = {rects[i].x + x, rects[i].y + y, rects[i].w - x, rects[i].h - y};
-                if (r.w > SIM_WINDOW_SIDE_MAX)
-                    r.w = SIM_WINDOW_SIDE_MAX;
-                if (r.h > SIM_WINDOW_SIDE_MAX)
-                    r.h = SIM_WINDOW_SIDE_MAX;
-                result[k++] = r;
-            }
-        }
-    }
-    free(rects);
-    qsort(result, (size_t)k, sizeof *result, compare_rects);
-    *out = result;
-    *out_count = k;
-    return 0;
-}
-
-int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
-                     int collider_count, int margin_cells, world_rect *footprints, world_rect **out,
-                     int *out_count)
-{
-    return plan_windows(w, p, colliders, collider_count, margin_cells, NULL, 0, footprints, out,
-                        out_count);
-}
-
-int sim_engine_init(sim_engine *e, world *w, const sim_params *p, sim_backend *backend,
-                    int margin_cells, error_text *err)
-{
-    memset(e, 0, sizeof *e);
     if (margin_cells < 0 || margin_cells > 4096) {
         error_set(err, "active_margin_cells: must be in [0, 4096] (got %d)", margin_cells);
-        return -1;
+        return NULL;
+    }
+    sim_engine *e = calloc(1, sizeof *e);
+    if (!e) {
+        error_set(err, "sim: out of memory for the engine");
+        return NULL;
     }
     e->world = w;
     e->params = *p;
     e->backend = backend;
     e->margin_cells = margin_cells;
-    return 0;
+    return e;
 }
 
-void sim_engine_set_ground(sim_engine *e, struct ground *g)
+void sim_engine_destroy(sim_engine *e)
+{
+    if (!e)
+        return;
+    engine_batch *b = &e->batch;
+    free(b->windows);
+    free(b->jobs);
+    free(b->status);
+    free(b->offsets);
+    free(b->dirty);
+    free(b->dirty_window);
+    free(e->material_ids);
+    free(e->compaction);
+    free(e->footprints);
+    free(e->window_colliders);
+    free(e->heights);
+    free(e->before);
+    free(e->bottom);
+    free(e->model_scratch);
+    free(e->base);
+    free(e->refilling);
+    free(e->footprints_out);
+    free(e);
+}
+
+void sim_engine_set_ground(sim_engine *e, ground *g)
 {
     /* The uniform path only when it computes the same: one material whose
      * row is the params' own and no compaction memory. */
-    sim_material_row own = sim_material_row_from_params(&e->params, 0);
+    ground_material_row own = sim_material_row_from_params(&e->params, 0);
     int same =
         g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
     e->ground = g && !same ? g : NULL;
 }
 
-/* Per-cell layers of the tick's windows, packed like the heights; only those
- * the scene needs. */
-static int ground_grow(sim_engine *e, int64_t cells)
+void sim_engine_set_depth_from_cpu(sim_engine *e, int on)
 {
-    if (!e->ground || cells <= e->ground_capacity)
-        return 0;
-    int64_t cap = e->ground_capacity ? e->ground_capacity : 1024;
-    while (cap < cells)
-        cap *= 2;
-    if (!e->ground->uniform) {
-        uint8_t *ids = realloc(e->material_ids, (size_t)cap);
-        if (!ids)
-            return -1;
-        e->material_ids = ids;
-    }
-    if (e->ground->uses_compaction) {
-        uint16_t *m = realloc(e->compaction, (size_t)cap * sizeof *m);
-        if (!m)
-            return -1;
-        e->compaction = m;
-    }
-    e->ground_capacity = cap;
+    e->depth_from_cpu = on ? 1 : 0;
+}
+
+world *sim_engine_world(const sim_engine *e)
+{
+    return e->world;
+}
+
+sim_backend *sim_engine_backend(const sim_engine *e)
+{
+    return e->backend;
+}
+
+void sim_engine_get_stats(const sim_engine *e, sim_engine_stats *out)
+{
+    *out = e->stats;
+    out->per_cell_materials = e->ground != NULL;
+    out->refilling_windows = e->refilling_count;
+}
+
+world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
+                             const int32_t **after)
+{
+    *before = e->before + e->batch.offsets[i];
+    *after = e->heights + e->batch.offsets[i];
+    return e->batch.windows[i];
+}
+
+uint64_t sim_stage_memory_total(const sim_stage_memory *m)
+{
+    uint64_t total = 0;
+#define SIM_STAGE_MEMORY_ADD(name) total += m->name;
+    SIM_MEMORY_STAGE_LIST(SIM_STAGE_MEMORY_ADD)
+#undef SIM_STAGE_MEMORY_ADD
+    return total;
+}
+
+/* ---- plan ---- */
+
+/* Room for `count` windows in every array of the batch. */
+static int batch_reserve(engine_batch *b, int64_t count)
+{
+    int64_t cap = b->capacity;
+#define BATCH_GROW(array)                                                                          \
+    (cap = b->capacity, array_grow((void **)&b->array, &cap, count, sizeof *b->array))
+    if (BATCH_GROW(windows) != 0 || BATCH_GROW(jobs) != 0 || BATCH_GROW(status) != 0 ||
+        BATCH_GROW(offsets) != 0 || BATCH_GROW(dirty) != 0 || BATCH_GROW(dirty_window) != 0)
+        return -1;
+#undef BATCH_GROW
+    b->capacity = cap;
     return 0;
 }
 
-static void ground_gather_job(sim_engine *e, sim_window_job *job, int64_t offset)
+/* The tick's windows into the batch; cells and collider references counted. */
+static int tick_plan(sim_engine *e, const sim_collider *colliders, int collider_count,
+                     int refilling)
+{
+    engine_batch *b = &e->batch;
+    if (array_grow((void **)&e->footprints, &e->footprint_capacity, collider_count + 1,
+                   sizeof *e->footprints) != 0)
+        return -1;
+    world_rect *windows = NULL;
+    int count = 0;
+    if (sim_plan_windows(e->world, &e->params, colliders, collider_count, e->margin_cells,
+                         e->refilling, refilling ? e->refilling_count : 0, e->footprints, &windows,
+                         &count) != 0)
+        return -1;
+    if (batch_reserve(b, count + 1) != 0) {
+        free(windows);
+        return -1;
+    }
+    memcpy(b->windows, windows, (size_t)count * sizeof *windows);
+    free(windows);
+    b->count = count;
+    b->cells = 0;
+    b->refs = 0;
+    for (int i = 0; i < count; i++) {
+        b->cells += (int64_t)b->windows[i].w * b->windows[i].h;
+        for (int c = 0; c < collider_count; c++)
+            b->refs +=
+                e->footprints[c].w > 0 && world_rects_overlap(e->footprints[c], b->windows[i]);
+    }
+    return 0;
+}
+
+/* ---- gather ---- */
+
+/* The packed per-cell arrays for the batch, only those this scene reads. */
+static int tick_reserve_cells(sim_engine *e, int persson)
+{
+    int64_t need = e->batch.cells + 1, cap = e->cell_capacity;
+    if (array_grow((void **)&e->heights, &cap, need, sizeof *e->heights) != 0 ||
+        (cap = e->cell_capacity,
+         array_grow((void **)&e->before, &cap, need, sizeof *e->before) != 0))
+        return -1;
+    e->cell_capacity = cap;
+    if (e->ground && !e->ground->uniform &&
+        array_grow((void **)&e->material_ids, &e->material_ids_capacity, need,
+                   sizeof *e->material_ids) != 0)
+        return -1;
+    if (e->ground && e->ground->uses_compaction &&
+        array_grow((void **)&e->compaction, &e->compaction_capacity, need, sizeof *e->compaction) !=
+            0)
+        return -1;
+    /* depth on the engine's side only where something reads it */
+    if ((e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model))) &&
+        array_grow((void **)&e->bottom, &e->bottom_capacity, need, sizeof *e->bottom) != 0)
+        return -1;
+    if (!persson && sim_model_needs_base(&e->params) &&
+        array_grow((void **)&e->base, &e->base_capacity, need, sizeof *e->base) != 0)
+        return -1;
+    return array_grow((void **)&e->window_colliders, &e->window_collider_capacity,
+                      e->batch.refs + 1, sizeof *e->window_colliders);
+}
+
+/* subtract: whole units of refill this tick, the fraction carried to the next. */
+static int32_t tick_refill_units(sim_engine *e)
+{
+    e->refill_q16_accumulated += e->params.refill_q16_per_tick;
+    int64_t units = e->refill_q16_accumulated >> 16;
+    e->refill_q16_accumulated &= 0xffff;
+    return units > WORLD_HEIGHT_MAX ? WORLD_HEIGHT_MAX : (int32_t)units;
+}
+
+/* The ground's layers of one window, packed like its heights. */
+static void gather_ground(sim_engine *e, sim_window_job *job, int64_t offset)
 {
     if (!e->ground)
         return;
@@ -233,35 +276,142 @@ static void ground_gather_job(sim_engine *e, sim_window_job *job, int64_t offset
     }
 }
 
-void sim_engine_free(sim_engine *e)
+/* The colliders over window r into job; returns the lowest height (units)
+ * the depth stage must resolve there. */
+static int32_t gather_colliders(sim_engine *e, const sim_collider *colliders, int collider_count,
+                                sim_window_job *job, int *ref, int32_t zmin)
 {
-    free(e->material_ids);
-    free(e->compaction);
-    free(e->windows);
-    free(e->jobs);
-    free(e->status);
-    free(e->dirty);
-    free(e->dirty_window);
-    free(e->window_offsets);
-    free(e->footprints);
-    free(e->window_colliders);
-    free(e->heights);
-    free(e->before);
-    free(e->bottom);
-    free(e->model_scratch);
-    free(e->base);
-    free(e->refilling);
-    free(e->footprints_out);
-    memset(e, 0, sizeof *e);
+    job->colliders = e->window_colliders + *ref;
+    for (int c = 0; c < collider_count; c++) {
+        if (e->footprints[c].w == 0 || !world_rects_overlap(e->footprints[c], job->rect))
+            continue;
+        e->window_colliders[(*ref)++] = colliders[c];
+        job->collider_count++;
+        vec3d lo, hi;
+        collider_bounds(colliders[c].geometry, colliders[c].pose, &lo, &hi);
+        int32_t z = sim_units_clamped(lo.z, e->world->units_per_m);
+        if (z < zmin)
+            zmin = z;
+    }
+    return zmin;
 }
 
-world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
-                             const int32_t **after)
+/* A job per window: heights (and their copy), ground layers, colliders,
+ * base heights and the depth range. */
+static void tick_gather(sim_engine *e, const sim_collider *colliders, int collider_count,
+                        int32_t refill_units, int needs_base)
 {
-    *before = e->before + e->window_offsets[i];
-    *after = e->heights + e->window_offsets[i];
-    return e->windows[i];
+    world *w = e->world;
+    engine_batch *b = &e->batch;
+    int64_t offset = 0;
+    int ref = 0;
+    for (int i = 0; i < b->count; i++) {
+        world_rect r = b->windows[i];
+        sim_window_job *job = &b->jobs[i];
+        memset(job, 0, sizeof *job);
+        b->offsets[i] = offset;
+        job->rect = r;
+        job->cell_size_m = w->cell_size_m;
+        job->units_per_m = w->units_per_m;
+        job->heights = e->heights + offset;
+        job->world = w;
+        world_gather_window(w, r, job->heights);
+        gather_ground(e, job, offset);
+        memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
+        int32_t hmin, hmax;
+        world_rect_height_range(w, r, &hmin, &hmax);
+        int32_t zmin = gather_colliders(e, colliders, collider_count, job, &ref, hmin);
+        if (needs_base && world_base_fill_rect(w, r, e->base + offset) == 0)
+            job->base_heights = e->base + offset;
+        job->refill_units = refill_units;
+        job->depth_low = zmin - 1 > e->params.floor ? zmin - 1 : e->params.floor;
+        job->depth_high = hmax + e->params.obstacle_gap + 1;
+        offset += (int64_t)r.w * r.h;
+    }
 }
+
+/* ---- depth ---- */
+
+/* The depth the engine casts on the CPU: for every window with
+ * --depth-from-cpu (the backend then skips its own), else for the models
+ * that read it (timed as the depth stage). */
+static void tick_depth(sim_engine *e, int persson, sim_tick_report *report)
+{
+    int cast = e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model));
+    if (!cast)
+        return;
+    double t0 = time_now_ms();
+    engine_batch *b = &e->batch;
+    for (int i = 0; i < b->count; i++) {
+        sim_window_job *job = &b->jobs[i];
+        int32_t *bottom = e->bottom + b->offsets[i];
+        sim_window_depth(job, bottom);
+        job->bottom_override = bottom;
+    }
+    double ms = time_now_ms() - t0;
+    if (e->depth_from_cpu)
+        report->gather_scatter_ms += ms;
+    else
+        report->times.depth += ms;
+}
+
+/* ---- model ---- */
+
+/* The tick's windows through a non-persson model on the CPU. */
+static int run_model_windows(sim_engine *e, sim_tick_report *report, error_text *err)
+{
+    const sim_params *p = &e->params;
+    engine_batch *b = &e->batch;
+    int64_t largest = 0;
+    for (int i = 0; i < b->count; i++) {
+        int64_t n = (int64_t)b->windows[i].w * b->windows[i].h;
+        if (n > largest)
+            largest = n;
+    }
+    int64_t need = sim_model_scratch_cells(p->model, largest);
+    if (array_grow((void **)&e->model_scratch, &e->model_scratch_capacity, need + 1,
+                   sizeof *e->model_scratch) != 0 ||
+        (p->model == SIM_MODEL_DECALS &&
+         array_grow((void **)&e->footprints_out, &e->footprint_out_capacity, b->refs + 1,
+                    sizeof *e->footprints_out) != 0)) {
+        error_set(err, "sim: out of memory for the %s model's scratch", sim_model_name(p->model));
+        return -1;
+    }
+    for (int i = 0; i < b->count; i++) {
+        sim_window_job *job = &b->jobs[i];
+        double t0 = time_now_ms();
+        if (p->model == SIM_MODEL_DECALS) {
+            b->status[i] = SIM_WINDOW_OK;
+            report->footprint_count += sim_decals_window(
+                p, job, e->model_scratch, e->footprints_out + report->footprint_count,
+                (int)e->footprint_out_capacity - report->footprint_count);
+        } else {
+            b->status[i] = sim_model_window(p, job, e->model_scratch);
+        }
+        report->model_ms += time_now_ms() - t0;
+    }
+    report->footprints = e->footprints_out;
+    return 0;
+}
+
+/* The persson models on the backend as one batch, the others on the CPU. */
+static int tick_model(sim_engine *e, int persson, sim_tick_report *report, error_text *err)
+{
+    engine_batch *b = &e->batch;
+    if (b->count == 0)
+        return 0;
+    if (persson)
+        return e->backend->run_windows(e->backend, &e->params, b->jobs, b->count, b->status,
+                                       &report->times, err);
+    if (!e->warned_cpu_model && strcmp(e->backend->name, "cpu") != 0) {
+        log_info("sim: model %s has no %s version; it runs on the CPU",
+                 sim_model_name(e->params.model), e->backend->name);
+        e->warned_cpu_model = 1;
+    }
+    return run_model_windows(e, report, err);
+}
+
+/* ---- scatter ---- */
 
 /* Tight bounding box of the cells that differ; w == 0 when none does. */
 static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *after)
@@ -288,6 +438,60 @@ static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *
     return (world_rect){r.x + x0, r.y + y0, x1 - x0 + 1, y1 - y0 + 1};
 }
 
+/* Accepted windows back into the world, with their compaction; the report's
+ * dirty rectangles. */
+static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
+{
+    engine_batch *b = &e->batch;
+    report->dirty = b->dirty;
+    report->dirty_window = b->dirty_window;
+    for (int i = 0; i < b->count; i++) {
+        world_rect r = b->windows[i];
+        int64_t offset = b->offsets[i];
+        if (b->status[i] != SIM_WINDOW_OK) {
+            report->refused_windows++;
+            continue;
+        }
+        if (b->jobs[i].compaction &&
+            ground_scatter_compaction(e->ground, r, b->jobs[i].compaction, err) != 0)
+            return -1;
+        world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
+        if (d.w > 0) {
+            world_scatter_window(e->world, r, e->heights + offset);
+            if (e->backend->window_scattered)
+                e->backend->window_scattered(e->backend, i, e->world, r);
+            b->dirty_window[report->dirty_count] = i;
+            b->dirty[report->dirty_count++] = d;
+        }
+    }
+    return 0;
+}
+
+/* ---- commit ---- */
+
+/* subtract: the windows that still hold cells below base refill next tick. */
+static int keep_refilling(sim_engine *e)
+{
+    engine_batch *b = &e->batch;
+    e->refilling_count = 0;
+    for (int i = 0; i < b->count; i++) {
+        world_rect r = b->windows[i];
+        int64_t n = (int64_t)r.w * r.h, offset = b->offsets[i];
+        const int32_t *now =
+            b->status[i] == SIM_WINDOW_OK ? e->heights + offset : e->before + offset;
+        int below = 0;
+        for (int64_t k = 0; k < n && !below; k++)
+            below = now[k] < e->base[offset + k];
+        if (!below)
+            continue;
+        if (array_grow((void **)&e->refilling, &e->refilling_capacity, e->refilling_count + 1,
+                       sizeof *e->refilling) != 0)
+            return -1;
+        e->refilling[e->refilling_count++] = r;
+    }
+    return 0;
+}
+
 /* Scratch held now, by stage; the engine's packed windows are gather_scatter,
  * the depth it casts for a model is depth, the models' own is model. */
 static void engine_memory(const sim_engine *e, sim_stage_memory *m)
@@ -299,8 +503,8 @@ static void engine_memory(const sim_engine *e, sim_stage_memory *m)
         m->backend_other = e->backend->scratch_bytes(e->backend);
     m->gather_scatter =
         (uint64_t)e->cell_capacity * 2 * sizeof(int32_t) +
-        (uint64_t)e->window_capacity * (sizeof(world_rect) * 2 + sizeof(sim_window_job) +
-                                        sizeof(int) + sizeof(int64_t) + sizeof(int)) +
+        (uint64_t)e->batch.capacity * (sizeof(world_rect) * 2 + sizeof(sim_window_job) +
+                                       sizeof(int) + sizeof(int64_t) + sizeof(int)) +
         (uint64_t)e->footprint_capacity * sizeof(world_rect) +
         (uint64_t)e->window_collider_capacity * sizeof(sim_collider);
     m->depth += (uint64_t)e->bottom_capacity * sizeof(int32_t);
@@ -310,267 +514,63 @@ static void engine_memory(const sim_engine *e, sim_stage_memory *m)
                (uint64_t)e->footprint_out_capacity * sizeof(sim_footprint);
 }
 
-uint64_t sim_stage_memory_total(const sim_stage_memory *m)
-{
-    return m->depth + m->classify + m->jump_flood + m->displace + m->even_slopes +
-           m->backend_other + m->model + m->gather_scatter;
-}
-
 static void memory_peak(sim_stage_memory *peak, const sim_stage_memory *now)
 {
-    uint64_t *p = &peak->depth;
-    const uint64_t *n = &now->depth;
-    for (size_t i = 0; i < sizeof *peak / sizeof(uint64_t); i++)
-        if (n[i] > p[i])
-            p[i] = n[i];
+#define SIM_STAGE_MEMORY_PEAK(name)                                                                \
+    if (now->name > peak->name)                                                                    \
+        peak->name = now->name;
+    SIM_MEMORY_STAGE_LIST(SIM_STAGE_MEMORY_PEAK)
+#undef SIM_STAGE_MEMORY_PEAK
 }
 
-/* Run the tick's windows through a non-persson model on the CPU. */
-static int run_model_windows(sim_engine *e, int count, sim_tick_report *report, error_text *err)
+/* Peaks, subtract's refilling windows and the memory held, by stage. */
+static int tick_commit(sim_engine *e, int refilling, sim_tick_report *report)
 {
-    const sim_params *p = &e->params;
-    int64_t largest = 0;
-    int refs = 0;
-    for (int i = 0; i < count; i++) {
-        int64_t n = (int64_t)e->windows[i].w * e->windows[i].h;
-        if (n > largest)
-            largest = n;
-        refs += e->jobs[i].collider_count;
-    }
-    int64_t need = sim_model_scratch_cells(p->model, largest);
-    if (grow((void **)&e->model_scratch, &e->model_scratch_capacity, need + 1, sizeof(int32_t)) !=
-        0)
-        goto oom;
-    if (p->model == SIM_MODEL_DECALS) {
-        int64_t cap = e->footprint_out_capacity;
-        if (grow((void **)&e->footprints_out, &cap, refs + 1, sizeof(sim_footprint)) != 0)
-            goto oom;
-        e->footprint_out_capacity = (int)cap;
-    }
-    int needs_depth = sim_model_needs_depth(p->model);
-    int64_t offset = 0;
-    for (int i = 0; i < count; i++) {
-        sim_window_job *job = &e->jobs[i];
-        int64_t n = (int64_t)job->rect.w * job->rect.h;
-        double t0 = time_now_ms();
-        if (needs_depth && !job->bottom_override) {
-            int32_t *bottom = e->bottom + offset;
-            for (int64_t k = 0; k < n; k++)
-                bottom[k] = COLLIDER_BOTTOM_NONE;
-            for (int c = 0; c < job->collider_count; c++)
-                collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, job->rect,
-                                   job->cell_size_m, job->units_per_m, bottom);
-            job->bottom_override = bottom;
-        }
-        double t1 = time_now_ms();
-        if (p->model == SIM_MODEL_DECALS) {
-            e->status[i] = SIM_WINDOW_OK;
-            report->footprint_count += sim_decals_window(
-                p, job, e->model_scratch, e->footprints_out + report->footprint_count,
-                e->footprint_out_capacity - report->footprint_count);
-        } else {
-            e->status[i] = sim_model_window(p, job, e->model_scratch);
-        }
-        report->times.depth += t1 - t0;
-        report->model_ms += time_now_ms() - t1;
-        offset += n;
-    }
-    report->footprints = e->footprints_out;
+    sim_engine_stats *s = &e->stats;
+    report->window_count = e->batch.count;
+    report->active_cells = e->batch.cells;
+    if (e->batch.cells > s->peak_active_cells)
+        s->peak_active_cells = e->batch.cells;
+    if (refilling && keep_refilling(e) != 0)
+        return -1;
+    engine_memory(e, &s->memory);
+    memory_peak(&s->peak_memory, &s->memory);
+    uint64_t scratch = sim_stage_memory_total(&s->memory);
+    if (scratch > s->peak_scratch_bytes)
+        s->peak_scratch_bytes = scratch;
     return 0;
-oom:
-    error_set(err, "sim: out of memory for the %s model's scratch", sim_model_name(p->model));
-    return -1;
 }
 
-/* subtract: the windows that still hold cells below base refill next tick. */
-static int keep_refilling(sim_engine *e, int count)
-{
-    e->refilling_count = 0;
-    int64_t offset = 0;
-    for (int i = 0; i < count; i++) {
-        world_rect r = e->windows[i];
-        int64_t n = (int64_t)r.w * r.h;
-        const int32_t *now =
-            e->status[i] == SIM_WINDOW_OK ? e->heights + offset : e->before + offset;
-        int below = 0;
-        for (int64_t k = 0; k < n && !below; k++)
-            below = now[k] < e->base[offset + k];
-        if (below) {
-            int64_t cap = e->refilling_capacity;
-            if (grow((void **)&e->refilling, &cap, e->refilling_count + 1, sizeof(world_rect)) != 0)
-                return -1;
-            e->refilling_capacity = (int)cap;
-            e->refilling[e->refilling_count++] = r;
-        }
-        offset += n;
-    }
-    return 0;
-}
+/* ---- the tick ---- */
 
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err)
 {
+    if (!e->owner.tid)
+        thread_owner_claim(&e->owner, "sim");
+    THREAD_OWNED(&e->owner);
     memset(report, 0, sizeof *report);
-    world *w = e->world;
     double t_start = time_now_ms();
-    int64_t cap = e->footprint_capacity;
-    if (grow((void **)&e->footprints, &cap, collider_count + 1, sizeof *e->footprints) != 0)
-        goto oom;
-    e->footprint_capacity = (int)cap;
-
-    world_rect *windows = NULL;
-    int count = 0;
-    int refilling = e->params.model == SIM_MODEL_SUBTRACT && e->params.refill_q16_per_tick > 0;
-    if (plan_windows(w, &e->params, colliders, collider_count, e->margin_cells, e->refilling,
-                     refilling ? e->refilling_count : 0, e->footprints, &windows, &count) != 0)
-        goto oom;
-    cap = e->window_capacity;
-    int64_t cap2 = cap, cap3 = cap, cap4 = cap, cap5 = cap, cap6 = cap;
-    if (grow((void **)&e->jobs, &cap, count + 1, sizeof *e->jobs) != 0 ||
-        grow((void **)&e->dirty_window, &cap5, count + 1, sizeof *e->dirty_window) != 0 ||
-        grow((void **)&e->window_offsets, &cap6, count + 1, sizeof *e->window_offsets) != 0 ||
-        grow((void **)&e->status, &cap2, count + 1, sizeof *e->status) != 0 ||
-        grow((void **)&e->dirty, &cap3, count + 1, sizeof *e->dirty) != 0 ||
-        grow((void **)&e->windows, &cap4, count + 1, sizeof *e->windows) != 0) {
-        free(windows);
-        goto oom;
-    }
-    e->window_capacity = (int)cap;
-    memcpy(e->windows, windows, (size_t)count * sizeof *windows);
-    free(windows);
-
-    /* Cells and collider references of the whole batch. */
-    int64_t cells = 0, refs = 0;
-    for (int i = 0; i < count; i++) {
-        cells += (int64_t)e->windows[i].w * e->windows[i].h;
-        for (int c = 0; c < collider_count; c++)
-            refs += e->footprints[c].w > 0 && world_rects_overlap(e->footprints[c], e->windows[i]);
-    }
     int persson = sim_model_is_persson(e->params.model);
-    int needs_base = !persson && sim_model_needs_base(&e->params);
-    int64_t ccap = e->cell_capacity, ccap2 = ccap;
-    if (grow((void **)&e->heights, &ccap, cells + 1, sizeof(int32_t)) != 0 ||
-        grow((void **)&e->before, &ccap2, cells + 1, sizeof(int32_t)) != 0 ||
-        ground_grow(e, cells + 1) != 0)
+    int refilling = e->params.model == SIM_MODEL_SUBTRACT && e->params.refill_q16_per_tick > 0;
+    if (tick_plan(e, colliders, collider_count, refilling) != 0 ||
+        tick_reserve_cells(e, persson) != 0)
         goto oom;
-    e->cell_capacity = ccap;
-    /* depth on the engine's side only where something reads it */
-    if ((e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model))) &&
-        grow((void **)&e->bottom, &e->bottom_capacity, cells + 1, sizeof(int32_t)) != 0)
-        goto oom;
-    if (needs_base && grow((void **)&e->base, &e->base_capacity, cells + 1, sizeof(int32_t)) != 0)
-        goto oom;
-    int32_t refill_units = 0;
-    if (refilling) {
-        /* whole units this tick, the fraction carried to the next */
-        e->refill_q16_accumulated += e->params.refill_q16_per_tick;
-        int64_t units = e->refill_q16_accumulated >> 16;
-        e->refill_q16_accumulated &= 0xffff;
-        refill_units = units > WORLD_HEIGHT_MAX ? WORLD_HEIGHT_MAX : (int32_t)units;
-    }
-    int64_t rcap = e->window_collider_capacity;
-    if (grow((void **)&e->window_colliders, &rcap, refs + 1, sizeof(sim_collider)) != 0)
-        goto oom;
-    e->window_collider_capacity = (int)rcap;
-
-    int64_t offset = 0;
-    int ref = 0;
-    for (int i = 0; i < count; i++) {
-        world_rect r = e->windows[i];
-        sim_window_job *job = &e->jobs[i];
-        memset(job, 0, sizeof *job);
-        e->window_offsets[i] = offset;
-        job->rect = r;
-        job->cell_size_m = w->cell_size_m;
-        job->units_per_m = w->units_per_m;
-        job->heights = e->heights + offset;
-        job->world = w;
-        world_gather_window(w, r, job->heights);
-        ground_gather_job(e, job, offset);
-        memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
-        int32_t hmin, hmax;
-        world_rect_height_range(w, r, &hmin, &hmax);
-        int32_t zmin = hmin;
-        job->colliders = e->window_colliders + ref;
-        for (int c = 0; c < collider_count; c++) {
-            if (e->footprints[c].w == 0 || !world_rects_overlap(e->footprints[c], r))
-                continue;
-            e->window_colliders[ref++] = colliders[c];
-            job->collider_count++;
-            vec3d lo, hi;
-            collider_bounds(colliders[c].geometry, colliders[c].pose, &lo, &hi);
-            int32_t z = units_clamped(lo.z, w->units_per_m);
-            if (z < zmin)
-                zmin = z;
-        }
-        if (needs_base && world_base_fill_rect(w, r, e->base + offset) == 0)
-            job->base_heights = e->base + offset;
-        job->refill_units = refill_units;
-        job->depth_low = zmin - 1 > e->params.floor ? zmin - 1 : e->params.floor;
-        job->depth_high = hmax + e->params.obstacle_gap + 1;
-        if (e->depth_from_cpu) {
-            int32_t *bottom = e->bottom + offset;
-            for (int64_t k = 0; k < (int64_t)r.w * r.h; k++)
-                bottom[k] = COLLIDER_BOTTOM_NONE;
-            for (int c = 0; c < job->collider_count; c++)
-                collider_depth_cpu(job->colliders[c].geometry, job->colliders[c].pose, r,
-                                   w->cell_size_m, w->units_per_m, bottom);
-            job->bottom_override = bottom;
-        }
-        offset += (int64_t)r.w * r.h;
-    }
+    int32_t refill_units = refilling ? tick_refill_units(e) : 0;
+    tick_gather(e, colliders, collider_count, refill_units,
+                !persson && sim_model_needs_base(&e->params));
     report->gather_scatter_ms += time_now_ms() - t_start;
 
-    if (count > 0 && persson &&
-        e->backend->run_windows(e->backend, &e->params, e->jobs, count, e->status, &report->times,
-                                err) != 0)
+    tick_depth(e, persson, report);
+    if (tick_model(e, persson, report, err) != 0)
         return -1;
-    if (count > 0 && !persson) {
-        if (!e->warned_cpu_model && strcmp(e->backend->name, "cpu") != 0) {
-            log_info("sim: model %s has no %s version; it runs on the CPU",
-                     sim_model_name(e->params.model), e->backend->name);
-            e->warned_cpu_model = 1;
-        }
-        if (run_model_windows(e, count, report, err) != 0)
-            return -1;
-    }
 
     double t_scatter = time_now_ms();
-    offset = 0;
-    report->dirty = e->dirty;
-    report->dirty_window = e->dirty_window;
-    for (int i = 0; i < count; i++) {
-        world_rect r = e->windows[i];
-        int64_t n = (int64_t)r.w * r.h;
-        if (e->status[i] == SIM_WINDOW_OK) {
-            if (e->jobs[i].compaction &&
-                ground_scatter_compaction(e->ground, r, e->jobs[i].compaction, err) != 0)
-                return -1;
-            world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
-            if (d.w > 0) {
-                world_scatter_window(w, r, e->heights + offset);
-                if (e->backend->window_scattered)
-                    e->backend->window_scattered(e->backend, i, w, r);
-                e->dirty_window[report->dirty_count] = i;
-                e->dirty[report->dirty_count++] = d;
-            }
-        } else {
-            report->refused_windows++;
-        }
-        offset += n;
-    }
-    report->window_count = count;
-    report->active_cells = cells;
+    if (tick_scatter(e, report, err) != 0)
+        return -1;
     report->gather_scatter_ms += time_now_ms() - t_scatter;
-    if (cells > e->peak_active_cells)
-        e->peak_active_cells = cells;
-    if (refilling && keep_refilling(e, count) != 0)
+    if (tick_commit(e, refilling, report) != 0)
         goto oom;
-    engine_memory(e, &e->memory);
-    memory_peak(&e->peak_memory, &e->memory);
-    uint64_t scratch = sim_stage_memory_total(&e->memory);
-    if (scratch > e->peak_scratch_bytes)
-        e->peak_scratch_bytes = scratch;
     return 0;
 oom:
     error_set(err, "sim: out of memory planning %d colliders", collider_count);

@@ -133,32 +133,15 @@ static int in_range(double v, double lo, double hi)
     return isfinite(v) && v >= lo && v <= hi;
 }
 
-/* A non-negative length in units, saturated at 2^30 (any larger threshold
- * already means "never"). */
-static int32_t units_saturated(double units)
+ground_material sim_material_ground(const sim_material *m)
 {
-    if (!(units > 0.0))
-        return 0;
-    if (units >= (double)(1 << 30))
-        return 1 << 30;
-    return (int32_t)floor(units);
+    ground_material g = {"default", m->compression, m->roughness, m->repose_deg, 0.0, 0.0};
+    return g;
 }
 
-int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t units_per_m,
-                             int32_t floor_units, sim_params *p, error_text *err)
+/* The persson stages' fields, in the order their errors are reported. */
+static int validate_persson(const sim_material *m, error_text *err)
 {
-    if (!in_range(m->compression, 0.0, 1.0)) {
-        error_set(err, "material.compression: must be a number in [0, 1] (got %g)", m->compression);
-        return -1;
-    }
-    if (!in_range(m->roughness, 0.0, 1.0)) {
-        error_set(err, "material.roughness: must be a number in [0, 1] (got %g)", m->roughness);
-        return -1;
-    }
-    if (!isfinite(m->repose_deg) || m->repose_deg < 0.0 || m->repose_deg >= 90.0) {
-        error_set(err, "material.repose_deg: must be a number in [0, 90) (got %g)", m->repose_deg);
-        return -1;
-    }
     if (!in_range(m->obstacle_gap_m, 0.0, 1000.0)) {
         error_set(err, "material.obstacle_gap_m: must be a number in [0, 1000] (got %g)",
                   m->obstacle_gap_m);
@@ -196,6 +179,12 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         error_set(err, "material.model: unknown model");
         return -1;
     }
+    return 0;
+}
+
+/* The tick and the other models' fields. */
+static int validate_models(const sim_material *m, error_text *err)
+{
     if (!isfinite(m->tick_s) || m->tick_s <= 0.0 || m->tick_s > 3600.0) {
         error_set(err, "tick_hz: the tick must last (0, 3600] s (got %g s)", m->tick_s);
         return -1;
@@ -252,6 +241,19 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
                   m->decal_min_strength_m);
         return -1;
     }
+    return 0;
+}
+
+int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t units_per_m,
+                             int32_t floor_units, sim_params *p, error_text *err)
+{
+    /* the per-cell part (compression, roughness, repose) is the ground's row */
+    ground_material_row row;
+    ground_material per_cell = sim_material_ground(m);
+    if (ground_material_row_from(&per_cell, cell_size_m, units_per_m, "material", &row, err) != 0)
+        return -1;
+    if (validate_persson(m, err) != 0 || validate_models(m, err) != 0)
+        return -1;
     if (!isfinite(cell_size_m) || cell_size_m <= 0.0 || units_per_m < 1) {
         error_set(err, "world: cell size and units per metre must be positive");
         return -1;
@@ -259,13 +261,11 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
     memset(p, 0, sizeof *p);
     p->metric = m->metric;
     p->method = m->method;
-    p->compression_q16 = (int32_t)lround(m->compression * 65536.0);
-    p->roughness_q16 = (int32_t)lround(m->roughness * 65536.0);
-    double rise_per_m = tan(m->repose_deg * M_PI / 180.0);
-    double axial = rise_per_m * cell_size_m * units_per_m;
-    p->slope_threshold_axial = units_saturated(axial);
-    p->slope_threshold_diagonal = units_saturated(axial * M_SQRT2);
-    p->obstacle_gap = units_saturated(m->obstacle_gap_m * units_per_m);
+    p->compression_q16 = row.compression_q16;
+    p->roughness_q16 = row.roughness_q16;
+    p->slope_threshold_axial = row.slope_threshold_axial;
+    p->slope_threshold_diagonal = row.slope_threshold_diagonal;
+    p->obstacle_gap = ground_units_saturated(m->obstacle_gap_m * units_per_m);
     int32_t step = (int32_t)lround(m->multi_target_m * units_per_m);
     p->multi_target_step = step < 1 ? 1 : step;
     p->multi_target_max = m->multi_target_max;
@@ -294,6 +294,6 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
     p->repose_rad = m->repose_deg * M_PI / 180.0;
     p->cell_size_m = cell_size_m;
     p->units_per_m = units_per_m;
-    p->decal_min_strength = units_saturated(m->decal_min_strength_m * units_per_m);
+    p->decal_min_strength = ground_units_saturated(m->decal_min_strength_m * units_per_m);
     return 0;
 }

@@ -17,8 +17,22 @@
  *  - Slope evening is Jacobi style (read old heights, write new ones), not
  *    the original's read-modify-write of one buffer, so the result does not
  *    depend on thread order.
+ *
+ * Classify and slope evening read a material row per cell (docs/materials.md):
+ * one implementation serves per-cell materials and the uniform path, which is
+ * a one-row table of the params with ids == NULL (uniform_table).
+ *
+ * Compaction memory, in integers per penetrated column with penetration pen,
+ * memory m and its material's max M > 0:
+ *     hardness  = (m << 16) / M        (Q16, integer division)
+ *     resisted  = pen * hardness >> 16 (compacted ground carries the collider)
+ *     yield     = pen - resisted       (the column is lowered by this)
+ *     compacted = min(yield * c, M - m) (c the material's compression, Q16)
+ *     moved     = yield - compacted    (displaced like any other material)
+ * so repeated passes over one track lower it less each time, the memory
+ * never passes M, and Σh falls by exactly the compacted units.
  */
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -61,14 +75,44 @@ static int32_t mul_q16_shift(int32_t a, int32_t q16, int shift)
     return (int32_t)(((uint64_t)(uint32_t)a * (uint32_t)q16) >> shift);
 }
 
-void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
-                  const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls)
+ground_material_row sim_material_row_from_params(const sim_params *p, int32_t max_compaction)
+{
+    ground_material_row r = {
+        .compression_q16 = p->compression_q16,
+        .roughness_q16 = p->roughness_q16,
+        .slope_threshold_axial = p->slope_threshold_axial,
+        .slope_threshold_diagonal = p->slope_threshold_diagonal,
+        .max_compaction = max_compaction < 0       ? 0
+                          : max_compaction > 65535 ? 65535
+                                                   : max_compaction,
+    };
+    return r;
+}
+
+/* The uniform path's table: one row, the params' own, no compaction memory
+ * (with ids == NULL every cell reads it). The stages below then compute what
+ * a single material computes: there is one implementation for both. */
+static ground_material_table uniform_table(const sim_params *p)
+{
+    ground_material_table t = {.count = 1};
+    t.rows[0] = sim_material_row_from_params(p, 0);
+    return t;
+}
+
+static const ground_material_row *row_of(const ground_material_table *t, const uint8_t *ids, int i)
+{
+    int id = ids ? ids[i] : 0;
+    return &t->rows[id < t->count ? id : 0];
+}
+
+void sim_classify_materials(const sim_params *p, const ground_material_table *t, const uint8_t *ids,
+                            const uint16_t *memory, int cell_count, const int32_t *heights,
+                            const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls)
 {
     for (int i = 0; i < cell_count; i++) {
         int32_t h = heights[i], b = bottom[i];
         int32_t pen = 0, c = SIM_CELL_SEED;
         if (b != COLLIDER_BOTTOM_NONE) {
-            /* A collider below the floor pushes the column to the floor only. */
             int32_t effective = b > p->floor ? b : p->floor;
             if (h > effective) {
                 c = SIM_CELL_PENETRATING;
@@ -77,9 +121,43 @@ void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
                 c = SIM_CELL_OBSTACLE;
             }
         }
-        raw[i] = pen;
-        moved[i] = pen - mul_q16_shift(pen, p->compression_q16, 16);
+        const ground_material_row *row = row_of(t, ids, i);
+        int32_t yield = pen, compacted;
+        if (row->max_compaction > 0) {
+            int32_t m = memory ? memory[i] : 0;
+            if (m > row->max_compaction)
+                m = row->max_compaction;
+            /* hardness m/M in Q16 (<= 65536), so the GPU needs no 64-bit division */
+            int32_t hardness_q16 = (int32_t)(((uint32_t)m << 16) / (uint32_t)row->max_compaction);
+            yield = pen - mul_q16_shift(pen, hardness_q16, 16);
+            compacted = mul_q16_shift(yield, row->compression_q16, 16);
+            if (compacted > row->max_compaction - m)
+                compacted = row->max_compaction - m;
+        } else {
+            compacted = mul_q16_shift(pen, row->compression_q16, 16);
+        }
+        raw[i] = yield;
+        moved[i] = yield - compacted;
         cls[i] = c;
+    }
+}
+
+void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
+                  const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls)
+{
+    ground_material_table t = uniform_table(p);
+    sim_classify_materials(p, &t, NULL, NULL, cell_count, heights, bottom, raw, moved, cls);
+}
+
+void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, int cell_count,
+                           const int32_t *raw, const int32_t *moved, uint16_t *memory)
+{
+    for (int i = 0; i < cell_count; i++) {
+        const ground_material_row *row = row_of(t, ids, i);
+        if (row->max_compaction <= 0)
+            continue;
+        int32_t m = memory[i] + (raw[i] - moved[i]);
+        memory[i] = (uint16_t)(m > row->max_compaction ? row->max_compaction : m);
     }
 }
 
@@ -327,25 +405,19 @@ sim_window_status sim_displace(const sim_params *p, int w, int h, const int32_t 
     return land_received(n, heights, received);
 }
 
-/*
- * The flux from column c to neighbour k in one slope iteration: roughness/8
- * of the height difference above the repose threshold, rounded down, and only
- * towards free columns (seeds): material never flows under a collider. With
- * at most 1/8 of each excess per neighbour, no column can fall below its
- * lowest or rise above its highest neighbour in one iteration, so the scheme
- * neither oscillates nor overflows.
- */
-static int32_t slope_flux(const sim_params *p, int32_t hc, int32_t hk, int diagonal)
+/* Flux out of a column of material `row` towards a lower neighbour. */
+static int32_t slope_flux_row(const ground_material_row *row, int32_t hc, int32_t hk, int diagonal)
 {
-    int32_t threshold = diagonal ? p->slope_threshold_diagonal : p->slope_threshold_axial;
+    int32_t threshold = diagonal ? row->slope_threshold_diagonal : row->slope_threshold_axial;
     int32_t excess = hc - hk - threshold;
     if (excess <= 0)
         return 0;
-    return mul_q16_shift(excess, p->roughness_q16, 19);
+    return mul_q16_shift(excess, row->roughness_q16, 19);
 }
 
-void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int32_t *heights,
-                     int32_t *scratch)
+void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
+                               const uint8_t *ids, int w, int h, const int32_t *cls,
+                               int32_t *heights, int32_t *scratch)
 {
     int n = w * h;
     int32_t *next = scratch;
@@ -354,6 +426,7 @@ void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int3
             for (int x = 0; x < w; x++) {
                 int i = y * w + x;
                 int32_t hi = heights[i];
+                const ground_material_row *ri = row_of(t, ids, i);
                 int32_t out = 0, in = 0;
                 for (int j = 0; j < 8; j++) {
                     int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
@@ -361,9 +434,9 @@ void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int3
                         continue;
                     int q = qy * w + qx;
                     if (cls[q] == SIM_CELL_SEED)
-                        out += slope_flux(p, hi, heights[q], j >= 4);
+                        out += slope_flux_row(ri, hi, heights[q], j >= 4);
                     if (cls[i] == SIM_CELL_SEED)
-                        in += slope_flux(p, heights[q], hi, j >= 4);
+                        in += slope_flux_row(row_of(t, ids, q), heights[q], hi, j >= 4);
                 }
                 next[i] = hi - out + in;
             }
@@ -372,24 +445,37 @@ void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int3
     }
 }
 
-int64_t sim_max_slope_excess(const sim_params *p, int w, int h, const int32_t *heights)
+void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int32_t *heights,
+                     int32_t *scratch)
+{
+    ground_material_table t = uniform_table(p);
+    sim_even_slopes_materials(p, &t, NULL, w, h, cls, heights, scratch);
+}
+
+int64_t sim_max_slope_excess_materials(const ground_material_table *t, const uint8_t *ids, int w,
+                                       int h, const int32_t *heights)
 {
     int64_t worst = 0;
     for (int y = 0; y < h; y++) {
         for (int x = 0; x < w; x++) {
-            /* half the neighbourhood: each pair is seen from both ends via the sign */
-            for (int j = 0; j < 8; j += 2) {
+            int i = y * w + x;
+            for (int j = 0; j < 8; j++) {
                 int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
                 if (qx < 0 || qy < 0 || qx >= w || qy >= h)
                     continue;
-                int64_t d = (int64_t)heights[y * w + x] - heights[qy * w + qx];
-                if (d < 0)
-                    d = -d;
-                int64_t t = j >= 4 ? p->slope_threshold_diagonal : p->slope_threshold_axial;
-                if (d - t > worst)
-                    worst = d - t;
+                int64_t d = (int64_t)heights[i] - heights[qy * w + qx];
+                const ground_material_row *r = row_of(t, ids, i);
+                int64_t th = j >= 4 ? r->slope_threshold_diagonal : r->slope_threshold_axial;
+                if (d - th > worst)
+                    worst = d - th;
             }
         }
     }
     return worst;
+}
+
+int64_t sim_max_slope_excess(const sim_params *p, int w, int h, const int32_t *heights)
+{
+    ground_material_table t = uniform_table(p);
+    return sim_max_slope_excess_materials(&t, NULL, w, h, heights);
 }

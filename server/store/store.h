@@ -1,16 +1,23 @@
 /*
- * store: the daemon's persistent, crash-safe terrain (docs/storage.md). A data
- * directory holds a manifest naming the world it belongs to, zstd-compressed
- * snapshots of every 256×256-cell tile ever changed, and a write-ahead log of
- * committed ticks (each record: the tick, its changed rectangles and their new
- * absolute values, a CRC32C). In the tick (DESIGN.md "One tick") the service
- * appends a tick's changes after the deformation and before anything of that
- * tick is published, and publishes only once the store says the tick is as
- * durable as the policy promises. A background thread folds the log into tile
- * snapshots from copies of the changed tiles taken at a tick boundary, so it
- * never stalls a tick.
+ * store: the daemon's persistent, crash-safe terrain — one interface over a
+ * storage backend. Today's backend is a data directory (docs/storage.md): a
+ * write-ahead log of committed ticks compacted into tile snapshots; issue 11
+ * adds a second one behind the same calls.
  *
- * Only the sim thread calls into a store (the compaction thread is internal).
+ * The interface, in the order a daemon uses it:
+ *   open      recover the stored terrain into the world (store_open)
+ *   append    log one tick's changed rectangles (store_commit_tick)
+ *   durable   say when the appended ticks are as durable as the policy
+ *             promises, syncing when it is due (store_settle)
+ *   snapshot  fold the log into snapshots, off the tick (internal: a
+ *   compact   background thread of the backend, never stalling a tick)
+ *   close     finish, sync, release (store_close)
+ *
+ * In the tick (docs/design.md) the service appends a tick's changes after the
+ * deformation and before anything of that tick is published, and publishes
+ * only once the store says the tick is durable. The thread that opens a store
+ * is its sim thread: every call but store_open and the offline reader must
+ * come from it (checked in debug builds).
  */
 #ifndef TERRAD_STORE_H
 #define TERRAD_STORE_H
@@ -21,18 +28,18 @@
 #include "base/base.h"
 #include "world/world.h"
 
-#define STORE_TILE_SIZE 256
-
 typedef enum store_durability {
-    STORE_EVERY_TICK, /* fdatasync of the log before a tick is published */
-    STORE_GROUP,      /* one fdatasync per group_ms; ticks are held back until it */
-    STORE_NONE,       /* written (page cache) before publish, never synced */
+    STORE_EVERY_TICK, /* a sync before a tick is published */
+    STORE_GROUP,      /* one sync per group_ms; ticks are held back until it */
+    STORE_NONE,       /* written before publish, never synced */
 } store_durability;
 
+/* Zero means "default" for every number. */
 typedef struct store_config {
-    const char *dir;
     store_durability durability;
-    int group_ms;           /* STORE_GROUP */
+    int group_ms; /* STORE_GROUP */
+    /* the data-directory backend */
+    const char *dir;
     int64_t segment_bytes;  /* a log segment this large is compacted (0: 16 MiB) */
     const char *fault_path; /* test hook: while this file exists, writes fail ENOSPC */
     int compression_level;  /* zstd level (0: 3) */
@@ -44,27 +51,27 @@ const char *store_durability_name(const store_config *c, char *buf, size_t cap);
 
 typedef struct store_recovery {
     uint64_t tick;            /* the last tick recovered (0: none logged) */
-    int tiles_loaded;         /* tile snapshots read */
+    int tiles_loaded;         /* snapshots read */
     int64_t records_replayed; /* log records applied */
-    int64_t bytes_cut;        /* a torn or corrupt tail cut off the last log segment */
+    int64_t bytes_cut;        /* a torn or corrupt tail cut off the log */
     double ms;
 } store_recovery;
 
 typedef struct store store;
 
 /*
- * Open (creating it if needed) the data directory for world w, whose heights
- * must hold the scene's base terrain: checks the manifest against it, loads
- * the tile snapshots and replays the log into w. A data directory of another
- * world, a corrupt snapshot or a corrupt record before the log's last segment
- * is refused with an error naming the file. Takes a lock on the directory.
+ * Open (creating it if needed) the store for world w, whose heights must hold
+ * the scene's base terrain: checks that the store belongs to this world and
+ * replays what it holds into w. A store of another world or a corrupt one is
+ * refused with an error naming what is wrong; a torn tail of the log (a crash
+ * mid-write) is cut. The store is held exclusively until store_close.
  */
 store *store_open(const store_config *c, world *w, store_recovery *rec, error_text *err);
-/* Finishes a running compaction, syncs the log and closes. NULL is fine. */
+/* Finishes a running compaction, syncs and closes. NULL is fine. */
 void store_close(store *st);
 
 /* 1 when a tick's changes can be logged now; after a failure, 0 until a
- * retry (at most every 500 ms) finds the directory writable again. */
+ * retry (at most every 500 ms) finds the storage writable again. */
 int store_writable(store *st);
 /* Why it is not writable ("" when it is). */
 const char *store_failure(const store *st);
@@ -85,13 +92,13 @@ int store_settle(store *st);
 /* The last tick made durable (for /metrics and tests). */
 uint64_t store_durable_tick(const store *st);
 
-/* ---- offline use (terrad export, tests) ---- */
+/* ---- offline use of a data directory (terrad export, tests) ---- */
 
 /* Read-only recovery into w (base terrain already in it): nothing is cut or
  * written, no lock taken; a torn tail is skipped and reported in rec. With
  * upto_tick > 0 the world is rebuilt as of that tick (log records after it
- * are not applied); refused when a tile snapshot is newer than it (the log
- * before the snapshot was compacted away). */
+ * are not applied); refused when a snapshot is newer than it (the log before
+ * the snapshot was compacted away). */
 int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
                         error_text *err);
 

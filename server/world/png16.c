@@ -32,20 +32,34 @@ static void png_warning_cb(png_structp png, png_const_charp msg)
     (void)msg; /* warnings (odd chunks, gamma) do not change the samples */
 }
 
+/* The file, read whole (file_read_all), as libpng's input. */
+typedef struct png_source {
+    const uint8_t *data;
+    size_t len, at;
+} png_source;
+
+static void png_read_cb(png_structp png, png_bytep out, png_size_t n)
+{
+    png_source *src = png_get_io_ptr(png);
+    if (n > src->len - src->at)
+        png_error(png, "truncated file");
+    memcpy(out, src->data + src->at, n);
+    src->at += n;
+}
+
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err)
 {
     *pixels = NULL;
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        error_set(err, "%s: cannot open: %s", path, strerror(errno));
+    uint8_t *file = NULL;
+    size_t file_len = 0;
+    if (file_read_all(path, 0, &file, &file_len, err) != 0)
         return -1;
-    }
-    unsigned char sig[8];
-    if (fread(sig, 1, 8, f) != 8 || png_sig_cmp(sig, 0, 8) != 0) {
+    if (file_len < 8 || png_sig_cmp(file, 0, 8) != 0) {
         error_set(err, "%s: not a PNG file", path);
-        fclose(f);
+        free(file);
         return -1;
     }
+    png_source src = {file, file_len, 8};
     png_error_context ctx = {""};
     png_structp png =
         png_create_read_struct(PNG_LIBPNG_VER_STRING, &ctx, png_error_cb, png_warning_cb);
@@ -53,7 +67,7 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     if (!info) {
         error_set(err, "%s: out of memory", path);
         png_destroy_read_struct(&png, NULL, NULL);
-        fclose(f);
+        free(file);
         return -1;
     }
     /* volatile: these change after setjmp and are freed on the error path */
@@ -64,10 +78,10 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
         free(bytes);
         free(rows);
         png_destroy_read_struct(&png, &info, NULL);
-        fclose(f);
+        free(file);
         return -1;
     }
-    png_init_io(png, f);
+    png_set_read_fn(png, &src, png_read_cb);
     png_set_sig_bytes(png, 8);
     png_read_info(png, info);
     png_uint_32 w = png_get_image_width(png, info);
@@ -84,14 +98,14 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     if (problem) {
         error_set(err, "%s: image %s (bit depth %d)", path, problem, depth);
         png_destroy_read_struct(&png, &info, NULL);
-        fclose(f);
+        free(file);
         return -1;
     }
     if (w < 1 || h < 1 || w > WORLD_SIDE_MAX || h > WORLD_SIDE_MAX) {
         error_set(err, "%s: image is %u x %u; each side must be in [1, %d]", path, (unsigned)w,
                   (unsigned)h, WORLD_SIDE_MAX);
         png_destroy_read_struct(&png, &info, NULL);
-        fclose(f);
+        free(file);
         return -1;
     }
     png_set_interlace_handling(png);
@@ -104,7 +118,7 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
         free(bytes);
         free(rows);
         png_destroy_read_struct(&png, &info, NULL);
-        fclose(f);
+        free(file);
         return -1;
     }
     for (png_uint_32 y = 0; y < h; y++)
@@ -112,7 +126,7 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     png_read_image(png, rows);
     png_read_end(png, NULL);
     png_destroy_read_struct(&png, &info, NULL);
-    fclose(f);
+    free(file);
     free(rows);
 
     /* big-endian samples → host order, in place (2 bytes in, 2 bytes out) */

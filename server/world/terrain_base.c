@@ -14,7 +14,6 @@
  */
 #include "world/world_internal.h"
 
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -254,39 +253,21 @@ static int load_png16(const world *w, const world_base_spec *s, int32_t *cells, 
 static int load_raw(const world *w, const world_base_spec *s, int bytes, int32_t *cells,
                     error_text *err)
 {
-    FILE *f = fopen(s->path, "rb");
-    if (!f) {
-        error_set(err, "%s: cannot open: %s", s->path, strerror(errno));
-        return -1;
-    }
     uint64_t expected = (uint64_t)w->width * (uint64_t)w->height * (uint64_t)bytes;
-    if (fseeko(f, 0, SEEK_END) != 0) {
-        error_set(err, "%s: cannot seek: %s", s->path, strerror(errno));
-        fclose(f);
+    uint8_t *data = NULL;
+    size_t size = 0;
+    if (file_read_all(s->path, (size_t)expected, &data, &size, err) != 0)
         return -1;
-    }
-    off_t size = ftello(f);
-    if (size < 0 || (uint64_t)size != expected) {
+    if ((uint64_t)size != expected) {
         error_set(err, "%s: file is %lld bytes but a %d x %d world of int%d needs %llu", s->path,
                   (long long)size, w->width, w->height, bytes * 8, (unsigned long long)expected);
-        fclose(f);
-        return -1;
-    }
-    rewind(f);
-    unsigned char *row = malloc((size_t)w->width * (size_t)bytes);
-    if (!row) {
-        error_set(err, "%s: out of memory", s->path);
-        fclose(f);
+        free(data);
         return -1;
     }
     height_check c = height_check_make(w, s->path);
     int rc = 0;
     for (int y = 0; y < w->height && rc == 0; y++) {
-        if (fread(row, (size_t)bytes, (size_t)w->width, f) != (size_t)w->width) {
-            error_set(err, "%s: short read at row %d", s->path, y);
-            rc = -1;
-            break;
-        }
+        const unsigned char *row = data + (size_t)y * w->width * bytes;
         for (int x = 0; x < w->width; x++) {
             const unsigned char *p = row + (size_t)x * bytes;
             double value;
@@ -302,8 +283,7 @@ static int load_raw(const world *w, const world_base_spec *s, int bytes, int32_t
             }
         }
     }
-    free(row);
-    fclose(f);
+    free(data);
     return rc;
 }
 

@@ -2,8 +2,9 @@
  * world: the terrain itself — an extent in cells, a cell size in metres and
  * int32 heights in fixed units (default 10,000 per metre), held on the CPU as
  * the authoritative copy. Each tick gathers small windows out of it for the
- * deformation backends and scatters the results back (steps 4 and 7 of the
- * tick in DESIGN.md); nothing outside a window is touched.
+ * deformation backends and scatters the results back (the gather and
+ * scatter steps of the tick in docs/design.md); nothing outside a window is
+ * touched.
  *
  * The heights are held in square tiles (WORLD_TILE_CELLS_DEFAULT cells a side,
  * a power of two) and the world is sparse: a tile nobody has written is not

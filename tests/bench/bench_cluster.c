@@ -13,7 +13,7 @@
 
 #include "cluster/cluster.h"
 #include "world/world.h"
-#include "../unit/nats_test.h"
+#include "../support/nats_test.h"
 
 #define W 1024
 #define H 1024

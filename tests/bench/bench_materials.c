@@ -9,7 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 
 static void fill(int32_t *h, int n, int side)
 {
@@ -24,7 +24,7 @@ int main(void)
     error_text err;
     if (sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) != 0)
         return 1;
-    sim_material_table t = {.count = 2};
+    ground_material_table t = {.count = 2};
     t.rows[0] = sim_material_row_from_params(&p, 0);
     t.rows[1] = t.rows[0];
     t.rows[1].slope_threshold_axial /= 2;

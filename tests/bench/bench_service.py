@@ -29,7 +29,7 @@ import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "integration"))
+sys.path.insert(0, os.path.join(HERE, "..", "support"))
 from service_harness import Daemon, machine, metric_value  # noqa: E402
 
 import terrad_proto as tp  # noqa: E402

@@ -1,5 +1,5 @@
 """test_cluster_worlds: `terrad world add | list | remove` against real
-nats-server processes (tests/integration/cluster_harness.py): one server, then a
+nats-server processes (tests/support/cluster_harness.py): one server, then a
 3-server JetStream cluster that keeps the registry with one server killed.
 Bad input from the cluster side: a taken name, an unknown world, a scene the
 daemon's parser refuses, a bad name, and NATS unreachable (the error names
@@ -11,7 +11,7 @@ import subprocess
 import sys
 import tempfile
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
 import cluster_harness as ch  # noqa: E402
 from service_harness import BIN, SOURCE, Checks, skip  # noqa: E402

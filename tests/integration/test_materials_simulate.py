@@ -18,7 +18,7 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, SOURCE, Checks, Daemon, simulate  # noqa: E402
 
 SCENE = os.path.join(SOURCE, "tests", "scenes", "materials-mixed.json")

@@ -19,9 +19,11 @@
 import json
 import os
 import subprocess
+import sys
 import tempfile
 
-from service_harness import SOURCE, Checks, Daemon, metric_value, simulate
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from service_harness import SOURCE, Checks, Daemon, metric_value, simulate  # noqa: E402
 
 SCENES = os.path.join(SOURCE, "tests", "scenes")
 EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")

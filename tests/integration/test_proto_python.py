@@ -19,22 +19,10 @@ import os
 import random
 import sys
 
-SOURCE = os.environ.get("TERRAD_SOURCE_DIR", os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from service_harness import SOURCE, Checks, tp  # noqa: E402
 
-import terrad_proto as tp  # noqa: E402
-
-passed = 0
-failed = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what, flush=True)
+check = Checks()
 
 
 def raises(fn, name):
@@ -389,9 +377,8 @@ def main():
         asyncio.run(asyncio.wait_for(check_client(), 30))
     except Exception as e:
         check(False, f"client test raised {e!r}")
-    print(f"{passed} passed, {failed} failed")
-    return 1 if failed else 0
+    check.finish()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -6,8 +6,10 @@ equal GET /v1/heights at the same tick. On the CPU backend, and on the GL
 backend where a context can be made."""
 import os
 import subprocess
+import sys
 
-from service_harness import SOURCE, Checks, Daemon
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from service_harness import SOURCE, Checks, Daemon  # noqa: E402
 
 EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")
 check = Checks()

@@ -13,20 +13,10 @@ import time
 import urllib.error
 import urllib.request
 
-SOURCE = os.environ.get("TERRAD_SOURCE_DIR", ".")
-BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from service_harness import BIN, Checks  # noqa: E402
 
-passed = 0
-failed = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what, flush=True)
+check = Checks()
 
 
 def get(port, path, method="GET"):
@@ -109,9 +99,8 @@ def main():
         p.wait()
     q = subprocess.run([BIN, "serve", "--http-port", "99999"], capture_output=True, text=True)
     check(q.returncode == 2 and "--http-port" in q.stderr, "bad port value refused")
-    print(f"{passed} passed, {failed} failed")
-    return 1 if failed else 0
+    check.finish()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

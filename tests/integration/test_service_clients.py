@@ -22,7 +22,7 @@ import os
 import sys
 import traceback
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import (BIN, Checks, Daemon, RecordingClient, compare_with_server, skip,  # noqa: E402
                              wheel_pose)
 from terrad_proto import Pose  # noqa: E402

@@ -24,7 +24,7 @@ import socket
 import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import (BIN, Checks, Daemon, RecordingClient, compare_with_server,  # noqa: E402
                              metric_value, skip)
 

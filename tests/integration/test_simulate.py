@@ -22,24 +22,14 @@ import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
-SOURCE = os.environ.get("TERRAD_SOURCE_DIR", ".")
-BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from service_harness import BIN, SOURCE, Checks  # noqa: E402
+
 SCENES = os.path.join(SOURCE, "tests", "scenes")
 METHODS = ["iterative", "ssbo", "multi"]
 METRICS = ["euclidean", "manhattan", "chebyshev"]
 
-passed = 0
-failed = 0
-skipped = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what, flush=True)
+check = Checks()
 
 
 def simulate(scene, ticks, backend, *extra, out=None):
@@ -218,21 +208,19 @@ def test_extremes(tmp, backends):
 
 
 def main():
-    global skipped
     backends = ["cpu"]
     if gl_available():
         backends.append("gl")
     else:
-        skipped += 1
+        check.skipped += 1
     with tempfile.TemporaryDirectory() as tmp:
         test_extremes(tmp, backends)
         test_repeatable(tmp, backends)
         if "gl" in backends:
             test_gl_equals_cpu(tmp)
         test_volume_5000(backends)
-    print(f"{passed} passed, {failed} failed, {skipped} skipped")
-    return 1 if failed else 0
+    check.finish()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

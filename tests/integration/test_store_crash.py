@@ -28,7 +28,7 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, Checks, Daemon, RecordingClient, skip, tp  # noqa: E402
 
 KILLS = int(os.environ.get("TERRAD_CRASH_KILLS", "5"))

@@ -28,7 +28,7 @@ import sys
 import tempfile
 import xml.etree.ElementTree as ET
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, SOURCE, Checks  # noqa: E402
 
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",

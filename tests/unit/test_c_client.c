@@ -37,22 +37,10 @@
 
 #include <libwebsockets.h>
 
+#include "check.h"
 #include "terrad_client.h"
 
-static int passed, failed;
 static char log_path[256];
-
-#define CHECK(cond, ...)                                                                           \
-    do {                                                                                           \
-        if (cond) {                                                                                \
-            passed++;                                                                              \
-        } else {                                                                                   \
-            failed++;                                                                              \
-            printf("FAIL: " __VA_ARGS__);                                                          \
-            printf("  (%s:%d)\n", __FILE__, __LINE__);                                             \
-            fflush(stdout);                                                                        \
-        }                                                                                          \
-    } while (0)
 
 static double now_s(void)
 {
@@ -320,13 +308,13 @@ static void drive(int http_port, int ws_port)
         (terrad_client_desc){
             .port = ws_port, .name = "test_c_client", .hook = on_frame, .user = &hist},
         err, sizeof err);
-    CHECK(c != NULL, "connect + hello -> world: %s\n", err);
+    CHECK(c != NULL, "connect + hello -> world: %s", err);
     if (!c)
         return;
     const terrad_world_info *w = terrad_client_world(c);
     CHECK(w->width > 0 && w->height > 0 && w->tile_size > 0 && w->cell_size_m > 0 &&
               w->units_per_m > 0 && w->tick_hz > 0,
-          "world info: %dx%d tile %d cell %g units %d hz %g\n", w->width, w->height, w->tile_size,
+          "world info: %dx%d tile %d cell %g units %d hz %g", w->width, w->height, w->tile_size,
           w->cell_size_m, w->units_per_m, w->tick_hz);
     if (w->width < 64 || w->height < 64) {
         terrad_client_close(c);
@@ -337,14 +325,14 @@ static void drive(int http_port, int ws_port)
     /* refusals are protocol errors, and the connection goes on */
     uint32_t sid_bad = 0;
     int rc = terrad_client_subscribe(c, w->width - 4, 0, 8, 8, &sid_bad);
-    CHECK(rc == TERRAD_E_OUTSIDE_WORLD, "subscribe past the edge: %d (%s)\n", rc,
+    CHECK(rc == TERRAD_E_OUTSIDE_WORLD, "subscribe past the edge: %d (%s)", rc,
           terrad_client_last_error(c));
     rc = terrad_client_delete_collider(c, 0x7fffff00u);
-    CHECK(rc == TERRAD_E_UNKNOWN_COLLIDER, "delete an unknown collider: %d (%s)\n", rc,
+    CHECK(rc == TERRAD_E_UNKNOWN_COLLIDER, "delete an unknown collider: %d (%s)", rc,
           terrad_client_last_error(c));
     rc = terrad_client_create_collider(
         c, (terrad_collider_desc){.shape = TERRAD_SHAPE_SPHERE, .radius = NAN}, NULL);
-    CHECK(rc == TERRAD_E_BAD_VALUE, "a NaN radius is refused locally: %d\n", rc);
+    CHECK(rc == TERRAD_E_BAD_VALUE, "a NaN radius is refused locally: %d", rc);
 
     /* the strip */
     const int rw = w->width - 16 < 160 ? w->width - 16 : 160, rh = 48;
@@ -356,8 +344,8 @@ static void drive(int http_port, int ws_port)
     hist.copies = calloc(HISTORY * cells, sizeof(int32_t));
 
     long long vol0 = 0, tick0 = 0;
-    CHECK(get_stats(http_port, &vol0, &tick0) == 0, "GET /v1/stats\n");
-    CHECK(get_heights(http_port, rx, yc, rw, 1, row) >= 0, "GET /v1/heights of the path\n");
+    CHECK(get_stats(http_port, &vol0, &tick0) == 0, "GET /v1/stats");
+    CHECK(get_heights(http_port, rx, yc, rw, 1, row) >= 0, "GET /v1/heights of the path");
 
     uint32_t wheel = 0;
     const double radius = 0.3;
@@ -366,16 +354,16 @@ static void drive(int http_port, int ws_port)
                                                               .radius = radius,
                                                               .half_length = 0.1},
                                        &wheel);
-    CHECK(rc == 0 && wheel > 0, "collider_create cylinder: %d (%s)\n", rc,
+    CHECK(rc == 0 && wheel > 0, "collider_create cylinder: %d (%s)", rc,
           terrad_client_last_error(c));
     uint32_t sid = 0;
     rc = terrad_client_subscribe(c, rx, ry, (uint32_t)rw, (uint32_t)rh, &sid);
-    CHECK(rc == 0 && sid > 0, "subscribe: %d (%s)\n", rc, terrad_client_last_error(c));
+    CHECK(rc == 0 && sid > 0, "subscribe: %d (%s)", rc, terrad_client_last_error(c));
     hist.sid = sid;
     double t_end = now_s() + 5;
     while (!terrad_client_mirror_complete(c, sid) && now_s() < t_end)
         terrad_client_poll(c, 50);
-    CHECK(terrad_client_mirror_complete(c, sid), "the snapshot of the subscription arrives\n");
+    CHECK(terrad_client_mirror_complete(c, sid), "the snapshot of the subscription arrives");
 
     /* drive: a pose every tick, the cylinder's axis turned onto world y */
     const float qw = (float)cos(M_PI / 4), qx = (float)sin(M_PI / 4);
@@ -401,15 +389,15 @@ static void drive(int http_port, int ws_port)
             max_volume = ct.volume;
     }
     const terrad_client_stats *st = terrad_client_get_stats(c);
-    CHECK(send_errors == 0, "every pose batch was sent\n");
-    CHECK(st->acks > (uint64_t)ticks / 2, "ACKs came: %llu for %d batches\n",
+    CHECK(send_errors == 0, "every pose batch was sent");
+    CHECK(st->acks > (uint64_t)ticks / 2, "ACKs came: %llu for %d batches",
           (unsigned long long)st->acks, ticks);
-    CHECK(st->contact_frames - contact_frames0 > (uint64_t)ticks / 2, "CONTACT frames came: %llu\n",
+    CHECK(st->contact_frames - contact_frames0 > (uint64_t)ticks / 2, "CONTACT frames came: %llu",
           (unsigned long long)(st->contact_frames - contact_frames0));
-    CHECK(max_volume > 0, "penetrating volume > 0 in the snow (max %lld)\n", (long long)max_volume);
-    CHECK(st->delta_frames > 2, "DELTA frames came: %llu\n", (unsigned long long)st->delta_frames);
-    CHECK(st->errors == 0, "no unsolicited errors (%llu; last: %s)\n",
-          (unsigned long long)st->errors, terrad_client_last_error(c));
+    CHECK(max_volume > 0, "penetrating volume > 0 in the snow (max %lld)", (long long)max_volume);
+    CHECK(st->delta_frames > 2, "DELTA frames came: %llu", (unsigned long long)st->delta_frames);
+    CHECK(st->errors == 0, "no unsolicited errors (%llu; last: %s)", (unsigned long long)st->errors,
+          terrad_client_last_error(c));
 
     /* park in the air; compare at an ACKed tick */
     int same = 0, found = 0;
@@ -432,7 +420,7 @@ static void drive(int http_port, int ws_port)
             same = memcmp(hist.copies + slot * cells, server, cells * sizeof(int32_t)) == 0;
         }
     }
-    CHECK(found, "a mirror copy at the tick of GET /v1/heights (%lld)\n", tick);
+    CHECK(found, "a mirror copy at the tick of GET /v1/heights (%lld)", tick);
     if (found && !same) {
         size_t slot = (size_t)tick % HISTORY, diff = 0, first = 0;
         for (size_t i = 0; i < cells; i++)
@@ -442,25 +430,25 @@ static void drive(int http_port, int ws_port)
                rx + (int)(first % rw), ry + (int)(first / rw), hist.copies[slot * cells + first],
                server[first]);
     }
-    CHECK(same, "the mirror equals GET /v1/heights bit for bit at tick %lld\n", tick);
+    CHECK(same, "the mirror equals GET /v1/heights bit for bit at tick %lld", tick);
     /* and the terrain did change where the wheel went */
     int32_t *now_row = malloc((size_t)rw * sizeof *now_row);
     size_t changed = 0;
     if (get_heights(http_port, rx, yc, rw, 1, now_row) >= 0)
         for (int i = 0; i < rw; i++)
             changed += now_row[i] != row[i];
-    CHECK(changed > 10, "the wheel changed its path (%zu cells)\n", changed);
+    CHECK(changed > 10, "the wheel changed its path (%zu cells)", changed);
     free(now_row);
 
     long long vol1 = 0, tick1 = 0;
-    CHECK(get_stats(http_port, &vol1, &tick1) == 0 && vol1 == vol0, "Σh unchanged: %lld -> %lld\n",
+    CHECK(get_stats(http_port, &vol1, &tick1) == 0 && vol1 == vol0, "Σh unchanged: %lld -> %lld",
           vol0, vol1);
 
     rc = terrad_client_delete_collider(c, wheel);
-    CHECK(rc == 0, "collider_delete: %d (%s)\n", rc, terrad_client_last_error(c));
+    CHECK(rc == 0, "collider_delete: %d (%s)", rc, terrad_client_last_error(c));
     rc = terrad_client_unsubscribe(c, sid);
-    CHECK(rc == 0 && terrad_client_mirror(c, sid) == NULL, "unsubscribe: %d\n", rc);
-    CHECK(terrad_client_is_open(c), "the connection is still open\n");
+    CHECK(rc == 0 && terrad_client_mirror(c, sid) == NULL, "unsubscribe: %d", rc);
+    CHECK(terrad_client_is_open(c), "the connection is still open");
     terrad_client_close(c);
     free(server);
     free(row);
@@ -489,12 +477,11 @@ int main(void)
     drive(http_port, ws_port);
     if (daemon_pid) {
         int st = stop_daemon();
-        CHECK(st == 0, "SIGTERM stops the daemon with status 0 (got %d)\n", st);
+        CHECK(st == 0, "SIGTERM stops the daemon with status 0 (got %d)", st);
     }
     if (failed)
         print_log_tail();
     if (log_path[0])
         unlink(log_path);
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed ? 1 : 0;
+    return check_report();
 }

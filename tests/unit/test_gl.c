@@ -17,6 +17,7 @@
 #include "gl/gl.h"
 #include "sim/sim.h"
 #include "check.h"
+#include "test_params.h"
 
 /* A small deterministic generator (xorshift64*), so failures reproduce. */
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
@@ -367,13 +368,7 @@ static sim_params random_params(sim_method method, sim_metric metric, int32_t fl
     m.multi_target_max = 1 + (int)(rnd() % 24);
     m.displace_iterations = (int)(rnd() % 14);
     m.slope_iterations = (int)(rnd() % 14);
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(&m, 0.05, 10000, floor_units, &p, &err) != 0) {
-        printf("params: %s\n", err.message);
-        abort();
-    }
-    return p;
+    return test_params_from_material(&m, floor_units);
 }
 
 static void test_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds, int big_first)
@@ -532,7 +527,7 @@ static void test_scratch_and_timing(sim_backend *gl)
                                    .depth_high = 50000 + 1000 + 1};
     }
     static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
-    sim_backend_gl_set_stage_timing(gl, 1);
+    sim_backend_set_stage_timing(gl, 1);
     for (int mi = 0; mi < 3; mi++) {
         sim_material m = sim_material_default();
         m.method = methods[mi];
@@ -555,7 +550,7 @@ static void test_scratch_and_timing(sim_backend *gl)
                sim_method_name(m.method), N, W, H, gl->renderer, t.depth / reps, t.classify / reps,
                t.jump_flood / reps, t.displace / reps, t.even_slopes / reps, t.transfer / reps);
     }
-    sim_backend_gl_set_stage_timing(gl, 0);
+    sim_backend_set_stage_timing(gl, 0);
     uint64_t after = gl->scratch_bytes(gl);
     CHECK(after >= (uint64_t)N * W * H * 10 * sizeof(int32_t) && after < (uint64_t)64 << 20,
           "scratch: %llu bytes before, %llu after a %d-cell batch (grows with the batch)",
@@ -565,7 +560,7 @@ static void test_scratch_and_timing(sim_backend *gl)
         free(heights[k]);
 }
 
-/* ---- per-cell materials and compaction memory (sim_stages_materials.c) ---- */
+/* ---- per-cell materials and compaction memory (sim_stages.c) ---- */
 
 /* Random material tables, ids and compaction memory on random windows: heights,
  * statuses and the compaction written back agree bit for bit. */
@@ -577,7 +572,7 @@ static void test_materials_bit_exact(sim_backend *gl, sim_backend *cpu, int roun
         batch b = {0};
         b.count = 1 + (int)(rnd() % 5);
         sim_params p = random_params(methods[round % 3], (sim_metric)(rnd() % 3), 0);
-        sim_material_table t = {.count = 1 + (int)(rnd() % SIM_MATERIALS_MAX)};
+        ground_material_table t = {.count = 1 + (int)(rnd() % GROUND_MATERIALS_MAX)};
         for (int r = 0; r < t.count; r++) {
             sim_params q = random_params(methods[round % 3], SIM_METRIC_EUCLIDEAN, 0);
             int32_t max_c = rnd() % 2 ? (int32_t)(rnd() % 65536) : 0;
@@ -680,13 +675,13 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
     sim_params p;
     CHECK(sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) == 0, "params");
     sim_backend_gl_set_tile_cache(gl, 10, 8 * 16 * 16 * 4);
-    gl_tile_cache_stats before;
-    sim_backend_gl_tile_cache_stats(gl, &before);
-    sim_engine eg, ec;
-    CHECK(sim_engine_init(&eg, &wg, &p, gl, 2, &err) == 0 &&
-              sim_engine_init(&ec, &wc, &p, cpu, 2, &err) == 0,
-          "engines");
-    eg.depth_from_cpu = ec.depth_from_cpu = 1;
+    sim_tile_cache_stats before;
+    sim_backend_tile_cache_stats(gl, &before);
+    sim_engine *eg = sim_engine_create(&wg, &p, gl, 2, &err);
+    sim_engine *ec = sim_engine_create(&wc, &p, cpu, 2, &err);
+    CHECK(eg && ec, "engines");
+    sim_engine_set_depth_from_cpu(eg, 1);
+    sim_engine_set_depth_from_cpu(ec, 1);
     collider_geometry ball = {.shape = COLLIDER_SPHERE, .radius = 0.35};
     collider_geometry small = {.shape = COLLIDER_SPHERE, .radius = 0.15};
     /* pressed in only for ticks 20..39: its window covers more tiles than
@@ -721,8 +716,8 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
         sim_tick_report rg, rc;
         memset(&rg, 0, sizeof rg);
         memset(&rc, 0, sizeof rc);
-        tick_ok = sim_engine_tick(&eg, c, 4, &rg, &err) == 0 &&
-                  sim_engine_tick(&ec, c, 4, &rc, &err) == 0;
+        tick_ok =
+            sim_engine_tick(eg, c, 4, &rg, &err) == 0 && sim_engine_tick(ec, c, 4, &rc, &err) == 0;
         int32_t *a = malloc(200 * 150 * 4), *b = malloc(200 * 150 * 4);
         world_gather_window(&wg, (world_rect){0, 0, 200, 150}, a);
         world_gather_window(&wc, (world_rect){0, 0, 200, 150}, b);
@@ -733,8 +728,8 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
     CHECK(tick_ok, "tile cache: 90 ticks run (%s)", err.message);
     CHECK(same, "tile cache: GL through a 10-layer cache == CPU twin after every tick");
     CHECK(world_volume(&wg) == world_volume(&wc), "tile cache: same volume");
-    gl_tile_cache_stats after;
-    sim_backend_gl_tile_cache_stats(gl, &after);
+    sim_tile_cache_stats after;
+    sim_backend_tile_cache_stats(gl, &after);
     CHECK(after.windows_cached > before.windows_cached &&
               after.windows_direct > before.windows_direct && after.evictions > before.evictions,
           "tile cache: windows from the cache (%llu), direct (%llu), evictions (%llu)",
@@ -743,8 +738,8 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
           (unsigned long long)(after.evictions - before.evictions));
     CHECK(after.texture_bytes == 10 * 16 * 16 * 4 && after.resident_tiles <= 10,
           "tile cache: texture of 10 layers, %d resident", after.resident_tiles);
-    sim_engine_free(&eg);
-    sim_engine_free(&ec);
+    sim_engine_destroy(eg);
+    sim_engine_destroy(ec);
     world_free(&wg);
     world_free(&wc);
     sim_backend_gl_set_tile_cache(gl, 64, (int64_t)4 << 20);

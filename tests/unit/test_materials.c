@@ -1,6 +1,6 @@
 /*
  * test_materials.c: per-cell materials and compaction memory (server/ground/,
- * server/sim/sim_stages_materials.c): presets, the scene's material table and
+ * server/sim/sim_stages.c): presets, the scene's material table and
  * map with their errors, the uniform path equal to the plain stages bit for
  * bit, no compaction layer where no material compacts, repeated passes over
  * one track sinking less each time with exact volume accounting, and a
@@ -14,17 +14,14 @@
 #include <string.h>
 
 #include "ground/ground.h"
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 #include "check.h"
+#include "test_params.h"
 
 static sim_params base_params(sim_material *m)
 {
     *m = sim_material_default();
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, &err) != 0)
-        abort();
-    return p;
+    return test_params_from_material(m, WORLD_HEIGHT_MIN);
 }
 
 static void make_world(world *w, int width, int height, int32_t level)
@@ -57,7 +54,8 @@ static int ground_from_text(ground *g, const world *w, const char *text, error_t
         abort();
     sim_material base;
     base_params(&base);
-    int r = ground_init_json(g, ground_extent_of_world(w), &base,
+    ground_material per_cell = sim_material_ground(&base);
+    int r = ground_init_json(g, ground_extent_of_world(w), &per_cell,
                              cJSON_GetObjectItemCaseSensitive(root, "materials"),
                              cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
     cJSON_Delete(root);
@@ -168,7 +166,8 @@ static void test_no_layer_without_compaction(void)
     ground_free(&g);
     sim_material base;
     base_params(&base);
-    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &base, &err) == 0 && g.uniform &&
+    ground_material per_cell = sim_material_ground(&base);
+    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &per_cell, &err) == 0 && g.uniform &&
               !g.uses_compaction,
           "the old single material: uniform, no layer");
     ground_free(&g);
@@ -185,7 +184,7 @@ static void test_uniform_equals_plain(void)
     sim_params p = base_params(&m);
     m.compression = 0.37;
     sim_params_from_material(&m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, NULL);
-    sim_material_table t = {.count = 1};
+    ground_material_table t = {.count = 1};
     t.rows[0] = sim_material_row_from_params(&p, 0);
     for (int i = 0; i < N; i++) {
         heights[i] = (int32_t)((i * 7919) % 3001) - 1500;
@@ -370,7 +369,7 @@ static void test_mixed_window_repose(void)
     for (int k = 0; k < 2; k++) {
         /* excess measured per material: the higher column's own threshold */
         static uint8_t only[N];
-        sim_material_table t = g.table;
+        ground_material_table t = g.table;
         int64_t worst = 0;
         for (int y = 0; y < H; y++)
             for (int x = 0; x < W; x++)
@@ -417,9 +416,9 @@ static void test_engine_compaction(void)
     sim_material m;
     sim_params p = base_params(&m);
     sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine e;
-    CHECK(sim_engine_init(&e, &w, &p, cpu, 4, &err) == 0, "engine");
-    sim_engine_set_ground(&e, &g);
+    sim_engine *e = sim_engine_create(&w, &p, cpu, 4, &err);
+    CHECK(e != NULL, "engine");
+    sim_engine_set_ground(e, &g);
     collider_geometry sphere = {.shape = COLLIDER_SPHERE, .radius = 0.3};
     sim_collider col = {.id = 1, .geometry = &sphere};
     col.pose.orientation = (quatd){1, 0, 0, 0};
@@ -435,7 +434,7 @@ static void test_engine_compaction(void)
         col.has_previous = pass > 1;
         int32_t before = height_at(&w, 32, 32);
         sim_tick_report rep;
-        CHECK(sim_engine_tick(&e, &col, 1, &rep, &err) == 0, "tick %d", pass);
+        CHECK(sim_engine_tick(e, &col, 1, &rep, &err) == 0, "tick %d", pass);
         drop = before - height_at(&w, 32, 32);
         int32_t bottom = (int32_t)floor((z - 0.3) * 10000);
         contact = height_at(&w, 32, 32) - bottom;
@@ -452,7 +451,7 @@ static void test_engine_compaction(void)
     CHECK(contact_monotone && contact > 0,
           "the compacted snow carries the collider: contact depth grows (last %d)", contact);
     CHECK(exact, "Σh + Σmemory exact through the engine");
-    sim_engine_free(&e);
+    sim_engine_destroy(e);
     cpu->destroy(cpu);
     ground_free(&g);
     world_free(&w);
@@ -465,7 +464,7 @@ static void test_classify_extremes(void)
     enum { N = 8 };
     sim_material m;
     sim_params p = base_params(&m);
-    sim_material_table t = {.count = 2};
+    ground_material_table t = {.count = 2};
     t.rows[0] = sim_material_row_from_params(&p, 65535);
     t.rows[0].compression_q16 = 65536;
     t.rows[1] = sim_material_row_from_params(&p, 1);
@@ -507,20 +506,24 @@ static void test_engine_single_material(void)
     sim_params p = base_params(&m);
     error_text err;
     sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine e;
-    sim_engine_init(&e, &w, &p, cpu, 4, &err);
+    sim_engine *e = sim_engine_create(&w, &p, cpu, 4, &err);
+    sim_engine_stats es;
     ground g;
     CHECK(ground_from_text(&g, &w, "{\"materials\": {\"sand\": {\"preset\": \"sand\"}}}", &err) ==
               0,
           "sand only parses");
-    sim_engine_set_ground(&e, &g);
-    CHECK(e.ground == &g, "a single sand preset runs on its own row (45 deg, roughness 1)");
+    sim_engine_set_ground(e, &g);
+    sim_engine_get_stats(e, &es);
+    CHECK(es.per_cell_materials, "a single sand preset runs on its own row (45 deg, roughness 1)");
     ground_free(&g);
-    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &m, &err) == 0, "uniform ground");
-    sim_engine_set_ground(&e, &g);
-    CHECK(e.ground == NULL, "a ground equal to the params: the uniform path");
+    ground_material per_cell = sim_material_ground(&m);
+    CHECK(ground_init_uniform(&g, ground_extent_of_world(&w), &per_cell, &err) == 0,
+          "uniform ground");
+    sim_engine_set_ground(e, &g);
+    sim_engine_get_stats(e, &es);
+    CHECK(!es.per_cell_materials, "a ground equal to the params: the uniform path");
     ground_free(&g);
-    sim_engine_free(&e);
+    sim_engine_destroy(e);
     cpu->destroy(cpu);
     world_free(&w);
 }

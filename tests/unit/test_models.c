@@ -15,7 +15,8 @@
 #include <string.h>
 
 #include "check.h"
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
+#include "test_params.h"
 
 /* One cell of a world by its row-major index (the world is tiled: no dense array). */
 #define HEIGHT_AT(w, i) world_height_at(&(w), (int)((i) % (w).width), (int)((i) / (w).width))
@@ -33,28 +34,14 @@ static sim_params params_for(sim_model model, void (*tune)(sim_material *))
         m.method = SIM_METHOD_MULTI;
     if (tune)
         tune(&m);
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(&m, CELL, UPM, 0, &p, &err) != 0) {
-        printf("params: %s\n", err.message);
-        abort();
-    }
-    return p;
-}
-
-static int64_t sum(const int32_t *a, int64_t n)
-{
-    int64_t s = 0;
-    for (int64_t i = 0; i < n; i++)
-        s += a[i];
-    return s;
+    return test_params_from_material(&m, 0);
 }
 
 /* A flat world with a base, a CPU backend and an engine for one model. */
 typedef struct rig {
     world w;
     sim_backend *backend;
-    sim_engine engine;
+    sim_engine *engine;
 } rig;
 
 static void rig_init(rig *r, int side, double height_m, const sim_params *p)
@@ -64,7 +51,7 @@ static void rig_init(rig *r, int side, double height_m, const sim_params *p)
     if (world_init(&r->w, side, side, CELL, UPM, 0, &err) != 0 ||
         world_generate_base(&r->w, &base, &err) != 0 ||
         !(r->backend = sim_backend_cpu_create(&err)) ||
-        sim_engine_init(&r->engine, &r->w, p, r->backend, 2, &err) != 0) {
+        !(r->engine = sim_engine_create(&r->w, p, r->backend, 2, &err))) {
         printf("rig: %s\n", err.message);
         abort();
     }
@@ -72,7 +59,7 @@ static void rig_init(rig *r, int side, double height_m, const sim_params *p)
 
 static void rig_free(rig *r)
 {
-    sim_engine_free(&r->engine);
+    sim_engine_destroy(r->engine);
     r->backend->destroy(r->backend);
     world_free(&r->w);
 }
@@ -80,7 +67,7 @@ static void rig_free(rig *r)
 static void rig_tick(rig *r, const sim_collider *c, int count, sim_tick_report *report)
 {
     error_text err;
-    if (sim_engine_tick(&r->engine, c, count, report, &err) != 0) {
+    if (sim_engine_tick(r->engine, c, count, report, &err) != 0) {
         printf("tick: %s\n", err.message);
         abort();
     }
@@ -212,7 +199,7 @@ static void test_subtract_exact_min(void)
     sim_subtract_window(&p, &in_place, NULL);
     sim_subtract_window(&p, &given, NULL);
     CHECK(memcmp(a, b, sizeof a) == 0, "in-place cast == cast through a depth buffer");
-    CHECK(sum(a, N) < 5000LL * N + 7LL * N * (N - 1) / 2, "the ball cut something");
+    CHECK(test_sum(a, N) < 5000LL * N + 7LL * N * (N - 1) / 2, "the ball cut something");
 }
 
 static void refill_tune(sim_material *m)
@@ -251,7 +238,9 @@ static void test_subtract_refill(void)
     CHECK(!overshoot, "refill never passes the base");
     CHECK(!went_down, "refill only raises");
     rig_tick(&r, NULL, 0, &report);
-    CHECK(r.engine.refilling_count == 0 && report.window_count == 0,
+    sim_engine_stats es;
+    sim_engine_get_stats(r.engine, &es);
+    CHECK(es.refilling_windows == 0 && report.window_count == 0,
           "nothing left to refill: no windows");
     free(previous);
     rig_free(&r);
@@ -401,7 +390,7 @@ static void run_bump(double d, double dt, int conservative, int substeps, int ti
             bottom[y * W + x] = COLLIDER_BOTTOM_NONE;
         }
     int32_t lo = 5000, hi = 9300;
-    int64_t before = sum(h, N);
+    int64_t before = test_sum(h, N);
     int32_t *scratch = malloc(sizeof(int32_t) * (size_t)sim_model_scratch_cells(p.model, N));
     sim_window_job job = {.rect = {0, 0, W, H},
                           .cell_size_m = CELL,
@@ -419,7 +408,7 @@ static void run_bump(double d, double dt, int conservative, int substeps, int ti
             if (h[i] < lo || h[i] > hi)
                 *max_principle = 0;
     }
-    *drift = sum(h, N) - before;
+    *drift = test_sum(h, N) - before;
     free(scratch);
 }
 
@@ -547,25 +536,25 @@ static void test_height_limits(void)
             world w;
             world_base_spec base = {.kind = WORLD_BASE_FLAT, .height_m = heights_m[s]};
             sim_backend *b = sim_backend_cpu_create(&err);
-            sim_engine e;
+            sim_engine *e;
             world_init(&w, 40, 40, CELL, UPM, WORLD_HEIGHT_MIN, &err);
             CHECK(world_generate_base(&w, &base, &err) == 0, "base near the limit: %s",
                   err.message);
-            sim_engine_init(&e, &w, &p, b, 2, &err);
+            e = sim_engine_create(&w, &p, b, 2, &err);
             collider_geometry ball = {.shape = COLLIDER_SPHERE, .radius = 0.3};
             int in_range = 1;
             for (int t = 0; t < 5; t++) {
                 sim_collider c = collider_at(&ball, 1.0, 1.0, heights_m[s] + 0.3 - 0.2, 0.9, 1.0,
                                              heights_m[s] + 0.3 - 0.2, t > 0);
                 sim_tick_report report;
-                CHECK(sim_engine_tick(&e, &c, 1, &report, &err) == 0, "tick");
+                CHECK(sim_engine_tick(e, &c, 1, &report, &err) == 0, "tick");
                 for (int i = 0; i < 40 * 40; i++)
                     in_range &=
                         HEIGHT_AT(w, i) >= WORLD_HEIGHT_MIN && HEIGHT_AT(w, i) <= WORLD_HEIGHT_MAX;
             }
             CHECK(in_range, "%s at %s: heights stay in range", sim_model_name(models[k]),
                   s ? "-2^29" : "+2^29");
-            sim_engine_free(&e);
+            sim_engine_destroy(e);
             b->destroy(b);
             world_free(&w);
         }
@@ -666,8 +655,10 @@ static void test_memory_by_model(void)
         sim_collider c = collider_at(&slab, 3.2, 3.2, 0.5 + 0.2 - 0.05, 3.2, 3.2, 0.65, 1);
         sim_tick_report report;
         rig_tick(&r, &c, 1, &report);
-        peak[k] = r.engine.peak_scratch_bytes;
-        const sim_stage_memory *m = &r.engine.peak_memory;
+        sim_engine_stats es;
+        sim_engine_get_stats(r.engine, &es);
+        peak[k] = es.peak_scratch_bytes;
+        const sim_stage_memory *m = &es.peak_memory;
         if (models[k] == SIM_MODEL_SUBTRACT)
             CHECK(m->jump_flood == 0 && m->displace == 0 && m->classify == 0 && m->depth == 0,
                   "subtract holds no persson stage buffers");

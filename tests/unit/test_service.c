@@ -173,10 +173,9 @@ static void test_footprints(void)
     CHECK(sim_params_from_material(&m, w.cell_size_m, w.units_per_m, w.floor, &p, &err) == 0,
           "decals params: %s", err.message);
     sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine engine;
-    sim_engine_init(&engine, &w, &p, cpu, 4, &err);
+    sim_engine *engine = sim_engine_create(&w, &p, cpu, 4, &err);
     hub *h = hub_create();
-    service *svc = service_create(&engine, h, &err);
+    service *svc = service_create(engine, h, &err);
     int64_t start_volume = world_volume(&w);
 
     /* 1: left half with footprints; 2: the same without; 3: right half with;
@@ -246,7 +245,7 @@ static void test_footprints(void)
 
     service_destroy(svc);
     hub_destroy(h);
-    sim_engine_free(&engine);
+    sim_engine_destroy(engine);
     cpu->destroy(cpu);
     world_free(&w);
 }
@@ -262,10 +261,9 @@ int main(void)
     sim_params p;
     sim_params_from_material(&m, w.cell_size_m, w.units_per_m, w.floor, &p, &err);
     sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine engine;
-    sim_engine_init(&engine, &w, &p, cpu, 4, &err);
+    sim_engine *engine = sim_engine_create(&w, &p, cpu, 4, &err);
     hub *h = hub_create();
-    service *svc = service_create(&engine, h, &err);
+    service *svc = service_create(engine, h, &err);
     codec = terrad_codec_new(3);
     CHECK(svc != NULL, "service");
     int64_t start_volume = world_volume(&w);
@@ -370,7 +368,7 @@ int main(void)
 
     service_destroy(svc);
     hub_destroy(h);
-    sim_engine_free(&engine);
+    sim_engine_destroy(engine);
     cpu->destroy(cpu);
     world_free(&w);
     terrad_codec_free(codec);

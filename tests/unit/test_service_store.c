@@ -50,7 +50,7 @@ static void sleep_ms(int ms)
 typedef struct rig {
     world w;
     sim_backend *cpu;
-    sim_engine engine;
+    sim_engine *engine;
     hub *h;
     service *svc;
     store *st;
@@ -75,9 +75,9 @@ static int rig_open(rig *r, const char *durability)
     sim_params p;
     sim_params_from_material(&m, r->w.cell_size_m, r->w.units_per_m, r->w.floor, &p, &err);
     r->cpu = sim_backend_cpu_create(&err);
-    sim_engine_init(&r->engine, &r->w, &p, r->cpu, 4, &err);
+    r->engine = sim_engine_create(&r->w, &p, r->cpu, 4, &err);
     r->h = hub_create();
-    r->svc = service_create(&r->engine, r->h, &err);
+    r->svc = service_create(r->engine, r->h, &err);
     service_attach_store(r->svc, r->st, r->rec.tick);
     hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = 1};
     hub_push_command(r->h, &cmd);
@@ -99,7 +99,7 @@ static void rig_close(rig *r)
     service_destroy(r->svc);
     store_close(r->st);
     hub_destroy(r->h);
-    sim_engine_free(&r->engine);
+    sim_engine_destroy(r->engine);
     r->cpu->destroy(r->cpu);
     world_free(&r->w);
 }

@@ -9,27 +9,16 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 #include "check.h"
+#include "test_params.h"
 
 static sim_params params_for(sim_method method, sim_metric metric)
 {
     sim_material m = sim_material_default();
     m.method = method;
     m.metric = metric;
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) != 0)
-        abort();
-    return p;
-}
-
-static int64_t sum(const int32_t *a, int n)
-{
-    int64_t s = 0;
-    for (int i = 0; i < n; i++)
-        s += a[i];
-    return s;
+    return test_params_from_material(&m, 0);
 }
 
 /* Thesis Fig. 4.3: a 6x6 penetrating block in a 10x10 area; the Manhattan
@@ -145,8 +134,8 @@ static void test_displacement_small(void)
         CHECK(seed[2] == 1 || seed[2] == 3, "nearest seed of the middle is a neighbour");
         sim_window_status st = sim_displace(&p, 5, 1, cls, seed, raw, moved, h, scratch);
         CHECK(st == SIM_WINDOW_OK, "displacement ok");
-        CHECK(sum(h, 5) == 5300, "%s keeps volume (%lld)", sim_method_name(p.method),
-              (long long)sum(h, 5));
+        CHECK(test_sum(h, 5) == 5300, "%s keeps volume (%lld)", sim_method_name(p.method),
+              (long long)test_sum(h, 5));
         CHECK(h[2] == 1000, "%s leaves the column at the collider (%d)", sim_method_name(p.method),
               h[2]);
         if (p.method == SIM_METHOD_SSBO)
@@ -223,10 +212,10 @@ static void test_slopes(void)
         cls[i] = SIM_CELL_SEED;
     }
     h[4 * W + 4] = 101000; /* a 10 m spike */
-    int64_t before = sum(h, W * H);
+    int64_t before = test_sum(h, W * H);
     int64_t excess_before = sim_max_slope_excess(&p, W, H, h);
     sim_even_slopes(&p, W, H, cls, h, scratch);
-    CHECK(sum(h, W * H) == before, "slope evening keeps volume");
+    CHECK(test_sum(h, W * H) == before, "slope evening keeps volume");
     CHECK(sim_max_slope_excess(&p, W, H, h) < excess_before, "slope excess shrinks");
     int32_t lo = INT32_MAX, hi = INT32_MIN;
     for (int i = 0; i < W * H; i++) {
@@ -237,7 +226,7 @@ static void test_slopes(void)
     /* many iterations converge to the angle of repose without oscillating */
     p.slope_iterations = 1000;
     sim_even_slopes(&p, W, H, cls, h, scratch);
-    CHECK(sum(h, W * H) == before, "volume after 1000 iterations");
+    CHECK(test_sum(h, W * H) == before, "volume after 1000 iterations");
     /* flux rounds down, so at rest an excess below 8/roughness units may remain */
     int64_t rest = (int64_t)8 * 65536 / p.roughness_q16 + 1;
     CHECK(sim_max_slope_excess(&p, W, H, h) <= rest, "converged to repose (excess %lld <= %lld)",
@@ -290,15 +279,16 @@ static void test_random_volume(void)
                                     : kind < 8 ? heights[i] + (int32_t)(s >> 20) % 2000
                                                : (int32_t)(s >> 14) % 30000 - 5000;
                     }
-                    int64_t before = sum(heights, n);
+                    int64_t before = test_sum(heights, n);
                     sim_classify(&p, n, heights, bottom, raw, moved, cls);
                     sim_jump_flood(&p, w, h, round, 3 * round, cls, seed, scratch);
                     sim_window_status st =
                         sim_displace(&p, w, h, cls, seed, raw, moved, heights, scratch);
                     sim_even_slopes(&p, w, h, cls, heights, scratch);
-                    CHECK(st == SIM_WINDOW_OK && sum(heights, n) == before,
+                    CHECK(st == SIM_WINDOW_OK && test_sum(heights, n) == before,
                           "%dx%d %s/%s: volume %lld -> %lld", w, h, sim_method_name(p.method),
-                          sim_metric_name(p.metric), (long long)before, (long long)sum(heights, n));
+                          sim_metric_name(p.metric), (long long)before,
+                          (long long)test_sum(heights, n));
                     if (rep == 0)
                         memcpy(first, heights, sizeof(int32_t) * n);
                     else
@@ -339,7 +329,7 @@ static void test_plan_windows(void)
     c[3].pose.position.z = 50.0;
     world_rect fp[4], *win = NULL;
     int count = 0;
-    CHECK(sim_plan_windows(&w, &p, c, 4, 2, fp, &win, &count) == 0, "plan");
+    CHECK(sim_plan_windows(&w, &p, c, 4, 2, NULL, 0, fp, &win, &count) == 0, "plan");
     CHECK(count == 2,
           "two overlapping footprints merge, one far away stays, one flying is "
           "skipped: %d windows",
@@ -352,7 +342,8 @@ static void test_plan_windows(void)
     free(win);
     /* a collider crossing the world edge is clipped */
     c[0].pose.position.x = 0.1;
-    CHECK(sim_plan_windows(&w, &p, c, 1, 2, fp, &win, &count) == 0 && count == 1 && win[0].x == 0,
+    CHECK(sim_plan_windows(&w, &p, c, 1, 2, NULL, 0, fp, &win, &count) == 0 && count == 1 &&
+              win[0].x == 0,
           "clipped at the edge");
     free(win);
     world_free(&w);

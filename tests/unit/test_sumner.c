@@ -11,8 +11,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/sim.h"
+#include "sim/sim_internal.h"
 #include "check.h"
+#include "test_params.h"
 
 #define CELL_M 0.05
 #define UNITS 10000
@@ -24,21 +25,7 @@ static sim_params params_with(double repose, double roughness, double compressio
     m.roughness = roughness;
     m.compression = compression;
     m.slope_iterations = slope_it;
-    sim_params p;
-    error_text err;
-    if (sim_params_from_material(&m, CELL_M, UNITS, WORLD_HEIGHT_MIN, &p, &err) != 0) {
-        printf("params: %s\n", err.message);
-        abort();
-    }
-    return p;
-}
-
-static int64_t sum(const int32_t *a, int n)
-{
-    int64_t s = 0;
-    for (int i = 0; i < n; i++)
-        s += a[i];
-    return s;
+    return test_params_from_material(&m, WORLD_HEIGHT_MIN);
 }
 
 static int32_t *scratch_for(int w, int h)
@@ -68,7 +55,7 @@ static void test_volume_exact_moving_sphere(void)
         int x = i % W, y = i / W;
         heights[i] = 50000 + (int32_t)(800.0 * sin(x * 0.3) * cos(y * 0.2)) + (x * 7 + y * 13) % 97;
     }
-    int64_t before = sum(heights, W * H);
+    int64_t before = test_sum(heights, W * H);
     collider_geometry sphere = {.shape = COLLIDER_SPHERE, .radius = 0.4};
     sim_collider col = {.id = 1, .geometry = &sphere};
     col.pose.orientation = (quatd){1, 0, 0, 0};
@@ -83,12 +70,12 @@ static void test_volume_exact_moving_sphere(void)
         job.collider_count = 1;
         if (sim_sumner_window(&p, &job, scratch) == SIM_WINDOW_OK)
             ok++;
-        if (sum(heights, W * H) != before)
+        if (test_sum(heights, W * H) != before)
             bad++;
     }
     CHECK(ok == 300, "every tick accepted (%d)", ok);
     CHECK(bad == 0, "sum of heights changed on %d of 300 ticks (now %lld, was %lld)", bad,
-          (long long)sum(heights, W * H), (long long)before);
+          (long long)test_sum(heights, W * H), (long long)before);
     /* the sphere dug: the lowest column is well below the start */
     int32_t lowest = INT32_MAX;
     for (int i = 0; i < W * H; i++)
@@ -129,7 +116,7 @@ static void test_first_ring(void)
     }
     CHECK(ring_seen == 16, "16 first-ring cells (%d)", ring_seen);
     CHECK(wrong == 0, "%d cells differ from the first-ring rule", wrong);
-    CHECK(sum(heights, W * H) == 1000LL * W * H, "volume kept");
+    CHECK(test_sum(heights, W * H) == 1000LL * W * H, "volume kept");
     free(scratch);
 }
 
@@ -154,7 +141,7 @@ static void test_two_components(void)
     CHECK(heights[1 * W + 8] == 2 && heights[3 * W + 10] == 2, "right ring gets 2 each (%d, %d)",
           heights[1 * W + 8], heights[3 * W + 10]);
     CHECK(heights[2 * W + 5] == 0 && heights[2 * W + 6] == 0, "between the rings nothing lands");
-    CHECK(sum(heights, W * H) == 0, "volume kept");
+    CHECK(test_sum(heights, W * H) == 0, "volume kept");
     free(scratch);
 }
 
@@ -169,7 +156,7 @@ static void check_erosion_reaches_repose(double repose, double roughness)
     heights[16 * W + 16] = 400000; /* 40 m spike on 5 cm cells */
     sim_params p = params_with(repose, roughness, 0.0, 50);
     int32_t *scratch = scratch_for(W, H);
-    int64_t before = sum(heights, W * H);
+    int64_t before = test_sum(heights, W * H);
     int settled_at = -1;
     for (int call = 0; call < 400 && settled_at < 0; call++) {
         memcpy(previous, heights, sizeof heights);
@@ -184,7 +171,7 @@ static void check_erosion_reaches_repose(double repose, double roughness)
           roughness);
     CHECK(excess <= bound, "repose %g roughness %g: slope excess %lld above bound %lld", repose,
           roughness, (long long)excess, (long long)bound);
-    CHECK(sum(heights, W * H) == before, "repose %g: volume kept by erosion", repose);
+    CHECK(test_sum(heights, W * H) == before, "repose %g: volume kept by erosion", repose);
     free(scratch);
 }
 
@@ -235,9 +222,9 @@ static void test_compression_extremes(void)
         sim_window_job job = job_with_bottom(W, H, heights, bottom);
         CHECK(sim_sumner_window(&p, &job, scratch) == SIM_WINDOW_OK, "window accepted");
         int64_t compacted = 1001 - (1001 - ((1001LL * p.compression_q16) >> 16));
-        CHECK(sum(heights, W * H) == 5000LL * W * H - compacted,
+        CHECK(test_sum(heights, W * H) == 5000LL * W * H - compacted,
               "compression %g: volume %lld, expected %lld", compression,
-              (long long)sum(heights, W * H), (long long)(5000LL * W * H - compacted));
+              (long long)test_sum(heights, W * H), (long long)(5000LL * W * H - compacted));
         CHECK(heights[24] == 5000 - 1001, "compression %g: column pressed to the collider",
               compression);
         free(scratch);
@@ -275,7 +262,7 @@ static void test_one_cell_collider(void)
             ring_ok &= heights[j] == 10000 + 100 / 8 + ((dy == -1 || (dy == 0 && dx < 0)) ? 1 : 0);
     }
     CHECK(ring_ok, "100 units over 8 ring cells: 12 each, 4 more to the first four");
-    CHECK(sum(heights, W * H) == 10000LL * W * H, "volume kept");
+    CHECK(test_sum(heights, W * H) == 10000LL * W * H, "volume kept");
     free(scratch);
 }
 
@@ -328,11 +315,11 @@ static void test_height_limits(void)
     }
     heights[12] = WORLD_HEIGHT_MAX;
     bottom[12] = WORLD_HEIGHT_MIN - 1;
-    int64_t before = sum(heights, W * H);
+    int64_t before = test_sum(heights, W * H);
     job = job_with_bottom(W, H, heights, bottom);
     CHECK(sim_sumner_window(&p, &job, scratch) == SIM_WINDOW_OK, "full-range drop accepted");
     CHECK(heights[12] == WORLD_HEIGHT_MIN, "column at the floor (%d)", heights[12]);
-    CHECK(sum(heights, W * H) == before, "volume kept at the limits");
+    CHECK(test_sum(heights, W * H) == before, "volume kept at the limits");
     int in_range = 1;
     for (int i = 0; i < W * H; i++)
         in_range &= heights[i] >= WORLD_HEIGHT_MIN && heights[i] <= WORLD_HEIGHT_MAX;
@@ -350,7 +337,7 @@ static void test_materials_and_compaction(void)
     uint8_t ids[N];
     uint16_t memory[N];
     sim_params p = params_with(30.0, 0.5, 0.0, 5);
-    sim_material_table t = {.count = 2};
+    ground_material_table t = {.count = 2};
     t.rows[0] = sim_material_row_from_params(&p, 0);
     t.rows[1] = t.rows[0];
     t.rows[1].compression_q16 = 49152; /* 0.75 */
@@ -369,7 +356,7 @@ static void test_materials_and_compaction(void)
             bottom[i] =
                 (x >= 4 && x <= 6 && y >= 2 && y <= 5) ? before_cell - 300 : COLLIDER_BOTTOM_NONE;
         }
-        int64_t h_before = sum(heights, N), m_before = 0, m_after = 0;
+        int64_t h_before = test_sum(heights, N), m_before = 0, m_after = 0;
         for (int i = 0; i < N; i++)
             m_before += memory[i];
         sim_window_job job = job_with_bottom(W, H, heights, bottom);
@@ -379,9 +366,9 @@ static void test_materials_and_compaction(void)
         CHECK(sim_sumner_window(&p, &job, scratch) == SIM_WINDOW_OK, "pass %d accepted", pass);
         for (int i = 0; i < N; i++)
             m_after += memory[i];
-        CHECK(sum(heights, N) + m_after == h_before + m_before,
+        CHECK(test_sum(heights, N) + m_after == h_before + m_before,
               "pass %d: Σh + Σmemory exact (%lld + %lld vs %lld + %lld)", pass,
-              (long long)sum(heights, N), (long long)m_after, (long long)h_before,
+              (long long)test_sum(heights, N), (long long)m_after, (long long)h_before,
               (long long)m_before);
         int32_t yielded = before_cell - heights[5 * W + 5];
         if (pass == 0)

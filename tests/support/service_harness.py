@@ -1,10 +1,11 @@
-"""Shared pieces of the service tests (tests/integration/test_service_*.py,
-tests/bench/bench_service.py): start and stop the real daemon on loopback
-ports, HTTP helpers (/v1/stats, /v1/heights, /metrics), a TerradClient that
-keeps a copy of its mirrors at every ACK (to compare with GET /v1/heights at
-the same tick), wheel poses, and pass/fail bookkeeping.
+"""The one Python harness of the tests (tests/integration/test_*.py,
+tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
+real daemon on loopback ports, `terrad simulate` runs, HTTP helpers
+(/v1/stats, /v1/heights, /metrics), a TerradClient that keeps a copy of its
+mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
+wheel poses. A test puts tests/support on sys.path and imports what it needs.
 
-Not a test itself (ctest registers only test_*.py). Debian's /usr/bin/python3
+Not a test itself (ctest registers only tests/integration/test_*.py). Debian's /usr/bin/python3
 with python3-websockets and python3-zstandard.
 """
 import asyncio
@@ -38,9 +39,14 @@ PORTS_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*ws://127\.0\.0\.1:(\d+)/")
 # ---- pass/fail ---------------------------------------------------------------
 
 class Checks:
+    """check(cond, what) counts a pass or prints "FAIL: what"; finish() prints
+    the closing "N passed, N failed" line (", N skipped" when a test counted
+    parts it could not run here) and exits 1 on any failure."""
+
     def __init__(self):
         self.passed = 0
         self.failed = 0
+        self.skipped = 0
         self.daemons = []  # whose logs to print on failure
 
     def __call__(self, cond, what):
@@ -68,7 +74,8 @@ class Checks:
         if self.failed:
             for d in self.daemons:
                 d.print_log()
-        print(f"{self.passed} passed, {self.failed} failed", flush=True)
+        skipped = f", {self.skipped} skipped" if self.skipped else ""
+        print(f"{self.passed} passed, {self.failed} failed{skipped}", flush=True)
         sys.exit(1 if self.failed else 0)
 
 

@@ -1,9 +1,9 @@
 /*
- * nats_test.h: real nats-server processes for the cluster unit tests
- * (test_cluster.c, test_cluster_store.c): each on free loopback ports with
+ * nats_test.h: real nats-server processes for the cluster unit tests and
+ * bench_cluster (test_cluster*.c, bench_cluster.c): each on free loopback ports with
  * JetStream and its own store directory under one temporary root; n > 1
  * servers form the cluster "terrad" with routes to each other. The Python
- * tests use tests/integration/cluster_harness.py instead.
+ * tests and scripts/cluster use cluster_harness.py (beside this file).
  */
 #ifndef TERRAD_TEST_NATS_H
 #define TERRAD_TEST_NATS_H

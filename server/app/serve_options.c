@@ -1,0 +1,300 @@
+/*
+ * serve_options.c: `terrad serve`'s options — one table (what --help
+ * prints), read from the command line by base.h's cli_parse and from
+ * --config FILE by base.h's JSON field readers. Read once, before the daemon
+ * starts its threads and its first tick.
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+
+#include "app/app.h"
+#include "app/serve_internal.h"
+
+enum {
+    OPT_CONFIG,
+    OPT_SCENE,
+    OPT_BACKEND,
+    OPT_HTTP_PORT,
+    OPT_WS_PORT,
+    OPT_BIND_ANY,
+    OPT_TOKEN,
+    OPT_TICK_HZ,
+    OPT_DEMO_ACTORS,
+    OPT_NO_DEMO,
+    OPT_TICKS,
+    OPT_DATA,
+    OPT_NO_DATA,
+    OPT_DURABILITY,
+    OPT_WAL_SEGMENT_BYTES,
+    OPT_STORE_FAULT,
+};
+
+static const cli_option serve_table[] = {
+    [OPT_CONFIG] = {"config", "FILE",
+                    "JSON file with any of the options below (keys without the\n"
+                    "dashes, '_' for '-') and \"limits\": {...} with the names of\n"
+                    "proto/PROTOCOL.md's limits; later flags override it"},
+    [OPT_SCENE] = {"scene", "FILE", "scene JSON (default: the embedded default scene)"},
+    [OPT_BACKEND] = {"backend", "gl|cpu", "deformation backend (default gl: EGL, no window)"},
+    [OPT_HTTP_PORT] = {"http-port", "N",
+                       "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
+                       "/v1/heights and the viewer at / (default 8080; 0: any free)"},
+    [OPT_WS_PORT] = {"ws-port", "N",
+                     "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},
+    [OPT_BIND_ANY] = {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)"},
+    [OPT_TOKEN] = {"token", "T", "clients must send this token in hello (default: none)"},
+    [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
+    [OPT_DEMO_ACTORS] = {"demo-actors", "N",
+                         "built-in spheres sliding over the terrain, 0..256 (default 6)"},
+    [OPT_NO_DEMO] = {"no-demo", NULL, "no demo actors"},
+    [OPT_TICKS] = {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)"},
+    [OPT_DATA] = {"data", "DIR",
+                  "data directory: tile snapshots + write-ahead log, recovered\n"
+                  "at start (default ./data; docs/storage.md)"},
+    [OPT_NO_DATA] = {"no-data", NULL, "keep the terrain in memory only"},
+    [OPT_DURABILITY] = {"durability", "P",
+                        "every-tick (default: fdatasync before a tick is published),\n"
+                        "group:MS (one fdatasync per MS ms; ticks held until it) or\n"
+                        "none (written before publish, never synced)"},
+    [OPT_WAL_SEGMENT_BYTES] = {"wal-segment-bytes", "N",
+                               "compact the log into tile snapshots past N bytes (16 MiB)"},
+    [OPT_STORE_FAULT] = {"store-fault", "FILE",
+                         "test hook: storage writes fail ENOSPC while FILE exists\n"
+                         "(also TERRAD_STORE_FAULT)"},
+    {0},
+};
+
+static const char serve_usage[] = "[options]";
+
+void app_serve_usage(FILE *out)
+{
+    cli_print_help(out, "serve", serve_usage, serve_table);
+}
+
+/* A string key of the config: copied into buf, *out pointed at it. */
+static int config_string(const cJSON *doc, const char *key, char *buf, size_t size,
+                         const char **out, error_text *err)
+{
+    int r = json_get_string(doc, "", key, buf, size, err);
+    if (r > 0)
+        *out = buf;
+    return r < 0 ? -1 : 0;
+}
+
+/* "limits": PROTOCOL.md's names, each a positive number. */
+static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
+{
+    static const char *const keys[] = {"max_message_bytes",    "max_colliders",
+                                       "max_poses_per_batch",  "max_subscriptions",
+                                       "max_subscribed_cells", "max_messages_per_s",
+                                       "messages_burst",       "max_pending_bytes",
+                                       "hello_timeout_s",      NULL};
+    const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
+    if (!l)
+        return 0;
+    if (json_expect_object(l, "limits", "limits", err) ||
+        json_check_keys(l, "limits", keys, NULL, err))
+        return -1;
+    double v[9];
+    for (int i = 0; keys[i]; i++) {
+        int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
+        if (r < 0)
+            return -1;
+        if (r == 0)
+            continue;
+        switch (i) {
+        case 0:
+            m->max_message_bytes = (size_t)v[i];
+            break;
+        case 1:
+            m->max_colliders = (int)v[i];
+            break;
+        case 2:
+            m->max_poses_per_batch = (int)v[i];
+            break;
+        case 3:
+            m->max_subscriptions = (int)v[i];
+            break;
+        case 4:
+            m->max_subscribed_cells = (int64_t)v[i];
+            break;
+        case 5:
+            m->max_messages_per_s = v[i];
+            break;
+        case 6:
+            m->messages_burst = v[i];
+            break;
+        case 7:
+            m->max_pending_bytes = (size_t)v[i];
+            break;
+        default:
+            m->hello_timeout_s = v[i];
+            break;
+        }
+    }
+    return 0;
+}
+
+/* The config's numbers and flags, with the ranges of the matching options. */
+static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
+{
+    double v;
+    int r, flag;
+    if ((r = json_get_integer(doc, "", "http_port", 0, 65535, 0, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->http_port = (int)v;
+    if ((r = json_get_integer(doc, "", "ws_port", 0, 65535, 0, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->ws_port = (int)v;
+    if ((r = json_get_number(doc, "", "demo_actors", 0, 256, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->demo_actors = (int)v;
+    if ((r = json_get_number(doc, "", "tick_hz", 1, 1000, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->tick_hz = v;
+    if ((r = json_get_number(doc, "", "wal_segment_bytes", 4096, 1e12, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->wal_segment_bytes = (long)v;
+    if ((r = json_get_bool(doc, "", "bind_any", &flag, err)) < 0)
+        return -1;
+    if (r)
+        o->bind_any = flag;
+    if ((r = json_get_bool(doc, "", "no_data", &flag, err)) < 0)
+        return -1;
+    if (r && flag)
+        o->data_dir = NULL;
+    return 0;
+}
+
+/* --config FILE: a JSON object whose keys are the long options without the
+ * dashes (dashes as underscores) plus "limits" with PROTOCOL.md's names.
+ * Flags given on the command line after --config override it; within the
+ * file, "no_data": true wins over "data". */
+static int config_load(const char *path, serve_options *o, error_text *err)
+{
+    static const char *const keys[] = {
+        "scene",     "backend",    "token",       "data",
+        "no_data",   "durability", "store_fault", "wal_segment_bytes",
+        "http_port", "ws_port",    "bind_any",    "demo_actors",
+        "tick_hz",   "limits",     NULL};
+    uint8_t *text = NULL;
+    size_t len = 0;
+    if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
+        return -1;
+    cJSON *doc = cJSON_Parse((const char *)text);
+    free(text);
+    int rc = -1;
+    if (!cJSON_IsObject(doc)) {
+        error_set(err, "%s: not a JSON object (syntax error?)", path);
+        goto done;
+    }
+    if (json_check_keys(doc, "", keys, NULL, err) ||
+        config_string(doc, "scene", o->config_scene, sizeof o->config_scene, &o->scene_path, err) ||
+        config_string(doc, "backend", o->config_backend, sizeof o->config_backend, &o->backend,
+                      err) ||
+        config_string(doc, "token", o->config_token, sizeof o->config_token, &o->token, err) ||
+        config_string(doc, "data", o->config_data, sizeof o->config_data, &o->data_dir, err) ||
+        config_string(doc, "durability", o->config_durability, sizeof o->config_durability,
+                      &o->durability, err) ||
+        config_string(doc, "store_fault", o->config_store_fault, sizeof o->config_store_fault,
+                      &o->store_fault, err) ||
+        config_numbers(doc, o, err) || config_limits(doc, &o->limits, err)) {
+        error_prefix(err, path, ": ");
+        goto done;
+    }
+    rc = 0;
+done:
+    cJSON_Delete(doc);
+    return rc;
+}
+
+static int serve_on_option(void *ctx, int index, const char *value, error_text *err)
+{
+    serve_options *o = ctx;
+    long x;
+    switch (index) {
+    case OPT_CONFIG:
+        if (o->config_loaded) {
+            error_set(err, "given twice");
+            return -1;
+        }
+        o->config_loaded = 1;
+        return config_load(value, o, err);
+    case OPT_SCENE:
+        o->scene_path = value;
+        return 0;
+    case OPT_BACKEND:
+        o->backend = value;
+        return 0;
+    case OPT_TOKEN:
+        o->token = value;
+        return 0;
+    case OPT_DATA:
+        o->data_dir = value;
+        return 0;
+    case OPT_NO_DATA:
+        o->data_dir = NULL;
+        return 0;
+    case OPT_DURABILITY:
+        o->durability = value;
+        return 0;
+    case OPT_STORE_FAULT:
+        o->store_fault = value;
+        return 0;
+    case OPT_BIND_ANY:
+        o->bind_any = 1;
+        return 0;
+    case OPT_NO_DEMO:
+        o->demo_actors = 0;
+        return 0;
+    case OPT_WAL_SEGMENT_BYTES:
+        if (cli_parse_long(value, 4096, 1L << 40, &x, err) != 0)
+            return -1;
+        o->wal_segment_bytes = x;
+        return 0;
+    case OPT_HTTP_PORT:
+    case OPT_WS_PORT:
+        if (cli_parse_long(value, 0, 65535, &x, err) != 0)
+            return -1;
+        *(index == OPT_HTTP_PORT ? &o->http_port : &o->ws_port) = (int)x;
+        return 0;
+    case OPT_TICK_HZ:
+        if (cli_parse_long(value, 1, 1000, &x, err) != 0)
+            return -1;
+        o->tick_hz = (double)x;
+        return 0;
+    case OPT_DEMO_ACTORS:
+        if (cli_parse_long(value, 0, 256, &x, err) != 0)
+            return -1;
+        o->demo_actors = (int)x;
+        return 0;
+    case OPT_TICKS:
+        if (cli_parse_long(value, 0, 1000000000, &x, err) != 0)
+            return -1;
+        o->max_ticks = x;
+        return 0;
+    }
+    return -1;
+}
+
+cli_result serve_options_parse(int argc, char **argv, serve_options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->backend = "gl";
+    o->http_port = 8080;
+    o->ws_port = 8081;
+    o->demo_actors = 6;
+    o->max_ticks = -1;
+    o->limits = net_limits_default();
+    o->data_dir = "./data";
+    o->durability = "every-tick";
+    o->store_fault = getenv("TERRAD_STORE_FAULT");
+    return cli_parse("serve", serve_usage, serve_table, argc, argv, serve_on_option, o, NULL);
+}

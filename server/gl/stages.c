@@ -1,0 +1,157 @@
+/*
+ * stages.c: the integer stages of the GL backend (gl_internal.h) — classify,
+ * jump flooding, displacement (iterative, SSBO single or multiple target)
+ * and slope evening — as one dispatch per pass for the whole chunk. The
+ * compute shaders in shaders/ mirror sim_stages.c line for line, so the
+ * heights equal the CPU twin's bit for bit (tests/unit/test_gl.c).
+ */
+#include "gl/gl_internal.h"
+
+#include <string.h>
+
+/* ---- the integer stages ---- */
+
+void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_material_table *t)
+{
+    /* the uniform path is a one-row table of the params, as in sim_stages.c */
+    ground_material_table uniform = {.count = 1};
+    uniform.rows[0] = sim_material_row_from_params(p, 0);
+    int per_cell = t != NULL;
+    if (!t)
+        t = &uniform;
+    GLint rows[GROUND_MATERIALS_MAX * 4], max_compaction[GROUND_MATERIALS_MAX];
+    memset(rows, 0, sizeof rows);
+    memset(max_compaction, 0, sizeof max_compaction);
+    for (int i = 0; i < t->count; i++) {
+        rows[4 * i] = t->rows[i].compression_q16;
+        rows[4 * i + 1] = t->rows[i].roughness_q16;
+        rows[4 * i + 2] = t->rows[i].slope_threshold_axial;
+        rows[4 * i + 3] = t->rows[i].slope_threshold_diagonal;
+        max_compaction[i] = t->rows[i].max_compaction;
+    }
+    for (int prog = 0; prog < PROG_COMPUTE_COUNT; prog++) {
+        GLuint pr = b->programs[prog];
+        const GLint *u = b->uniforms[prog];
+        glProgramUniform1i(pr, u[U_METRIC], (GLint)p->metric);
+        glProgramUniform1i(pr, u[U_OBSTACLE_GAP], p->obstacle_gap);
+        glProgramUniform1i(pr, u[U_MULTI_STEP], p->multi_target_step);
+        glProgramUniform1i(pr, u[U_MULTI_MAX], p->multi_target_max);
+        glProgramUniform1i(pr, u[U_FLOOR], p->floor);
+        glProgramUniform1i(pr, u[U_MATERIALS_ON], per_cell);
+        glProgramUniform1i(pr, u[U_MATERIAL_COUNT], t->count);
+        glProgramUniform4iv(pr, u[U_MATERIAL_ROWS], GROUND_MATERIALS_MAX, rows);
+        glProgramUniform1iv(pr, u[U_MATERIAL_MAX], GROUND_MATERIALS_MAX, max_compaction);
+    }
+}
+
+/* jump_flood_first_step of sim_stages.c, for the largest side of the batch:
+ * steps at or beyond a smaller window's side only look outside it. */
+static int first_step(int side)
+{
+    int k = 1;
+    while (k * 2 < side)
+        k *= 2;
+    return k;
+}
+
+/* Returns the buffer (BUF_*) that holds the final seeds. */
+int gl_stage_jump_flood(gl_backend *b, int max_side)
+{
+    int in = BUF_SEED_A, out = BUF_SEED_B;
+    for (int k = first_step(max_side); k >= 1; k /= 2) {
+        glProgramUniform1i(b->programs[PROG_JUMP_FLOOD], b->uniforms[PROG_JUMP_FLOOD][U_STEP], k);
+        gl_sample(b, 1, in);
+        gl_bind(b, 2, out);
+        gl_dispatch(b, PROG_JUMP_FLOOD);
+        int t = in;
+        in = out;
+        out = t;
+    }
+    return in;
+}
+
+void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed)
+{
+    if (p->method == SIM_METHOD_ITERATIVE) {
+        /* mask words (with the split's remainder) and shares, ping-pong;
+         * see displace_iterative_init.comp */
+        int mask = BUF_S0, share = BUF_S1, mask_next = BUF_S2, share_next = BUF_S3;
+        gl_sample(b, 1, BUF_CLS);
+        gl_sample(b, 2, seed);
+        gl_sample(b, 3, BUF_MOVED);
+        gl_bind(b, 2, mask);
+        gl_bind(b, 3, share);
+        gl_dispatch(b, PROG_ITER_INIT);
+        for (int32_t pass = 0; pass < p->displace_iterations; pass++) {
+            gl_sample(b, 1, BUF_CLS);
+            gl_sample(b, 2, mask);
+            gl_sample(b, 3, share);
+            gl_bind(b, 2, mask_next);
+            gl_bind(b, 3, share_next);
+            gl_dispatch(b, PROG_ITER_PASS);
+            int t = mask;
+            mask = mask_next;
+            mask_next = t;
+            t = share;
+            share = share_next;
+            share_next = t;
+        }
+        gl_sample(b, 1, mask);
+        gl_sample(b, 2, share);
+        gl_bind(b, 2, BUF_HEIGHTS);
+        gl_dispatch(b, PROG_ITER_FINISH);
+        return;
+    }
+    /* Exact 64-bit received sums start at zero. */
+    const GLuint zero = 0;
+    for (int i = BUF_S0; i <= BUF_S1; i++) {
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[i]);
+        glClearBufferSubData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, 0, (GLsizeiptr)(cells * 4),
+                             GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+    }
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    gl_barrier();
+    gl_sample(b, 1, BUF_CLS);
+    gl_sample(b, 2, seed);
+    gl_sample(b, 3, BUF_MOVED);
+    gl_bind(b, 2, BUF_S0);
+    gl_bind(b, 3, BUF_S1);
+    gl_dispatch(b, p->method == SIM_METHOD_MULTI ? PROG_DISPLACE_MULTI : PROG_DISPLACE_SSBO);
+    gl_sample(b, 1, BUF_S0);
+    gl_sample(b, 2, BUF_S1);
+    gl_bind(b, 2, BUF_HEIGHTS);
+    gl_dispatch(b, PROG_DISPLACE_LAND);
+}
+
+/* Returns the buffer (BUF_*) that holds the final heights. */
+int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials)
+{
+    int in = BUF_HEIGHTS, out = BUF_S0;
+    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        if (materials) {
+            glActiveTexture(GL_TEXTURE3);
+            glBindTexture(GL_TEXTURE_BUFFER, b->material_texture);
+        }
+        gl_sample(b, 1, BUF_CLS);
+        gl_sample(b, 2, in);
+        gl_bind(b, 2, out);
+        gl_dispatch(b, PROG_EVEN_SLOPES);
+        int t = in;
+        in = out;
+        out = t;
+    }
+    return in;
+}
+
+/* classify (+ heights -= raw, + jump-flood seeds) */
+void gl_stage_classify(gl_backend *b, int materials)
+{
+    gl_sample(b, 1, BUF_BOTTOM);
+    gl_bind(b, 2, BUF_HEIGHTS);
+    gl_bind(b, 3, BUF_MOVED);
+    gl_bind(b, 4, BUF_CLS);
+    gl_bind(b, 5, BUF_SEED_A);
+    if (materials)
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 6, b->material_buffer);
+    gl_dispatch(b, PROG_CLASSIFY);
+}

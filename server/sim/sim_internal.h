@@ -1,0 +1,130 @@
+/*
+ * sim_internal.h: the sim subsystem's parts that only sim/ (and its tests)
+ * use — the CPU twin's integer stages on window-local row-major arrays, their
+ * per-cell-material forms, the non-persson models' window functions and the
+ * window planner. The backends and the engine are built from these; the
+ * public face is sim.h.
+ */
+#ifndef TERRAD_SIM_INTERNAL_H
+#define TERRAD_SIM_INTERNAL_H
+
+#include "sim/sim.h"
+
+typedef enum sim_cell_class {
+    SIM_CELL_SEED = 0,        /* free: can receive material */
+    SIM_CELL_OBSTACLE = 1,    /* a collider rests just above: receives nothing */
+    SIM_CELL_PENETRATING = 2, /* a collider is inside the column */
+} sim_cell_class;
+
+/* ---- The CPU twin's integer stages, on window-local row-major arrays ---- */
+
+/* Hash of a world cell, used to break jump-flooding ties (same in GLSL). */
+uint32_t sim_cell_hash(int32_t world_x, int32_t world_y);
+/* Distance under a metric; Euclidean is squared (order is all that matters). */
+int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy);
+
+/*
+ * classify: raw[i] = penetration (units the column must lose), moved[i] =
+ * the part of it that is displaced (raw minus compression), cls[i] = class.
+ */
+void sim_classify(const sim_params *p, int cell_count, const int32_t *heights,
+                  const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
+
+/*
+ * jump_flood: seed[i] = window-local index of the nearest seed cell, or -1 if
+ * the window has none. scratch holds w*h int32. Ties go to the lower
+ * (sim_cell_hash, index) of the candidate seed, so the answer does not
+ * depend on evaluation order.
+ */
+void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
+                    const int32_t *cls, int32_t *seed, int32_t *scratch);
+
+/* ---- Per-cell materials and compaction memory (sim_stages.c) ----
+ * Classify and slope evening with a material id per cell (an index into a
+ * small table of integer rows, ground/'s) and, where some material remembers
+ * compaction, a uint16 compaction memory per cell. With ids == NULL every
+ * cell is row 0. These are the one implementation: sim_classify and
+ * sim_even_slopes run them with a one-row table of the params. */
+
+/*
+ * classify with per-cell materials. A penetrated column with compaction
+ * memory m of its material's max M yields only pen - pen*m/M (compacted
+ * ground resists; the collider rests in it), of which the material's
+ * compression share (at most M - m) is compacted and the rest displaced:
+ * raw[i] = yield, moved[i] = yield - compacted. memory may be NULL (m = 0).
+ */
+void sim_classify_materials(const sim_params *p, const ground_material_table *t, const uint8_t *ids,
+                            const uint16_t *memory, int cell_count, const int32_t *heights,
+                            const int32_t *bottom, int32_t *raw, int32_t *moved, int32_t *cls);
+/* After a window is accepted: memory[i] += raw[i] - moved[i] where the
+ * cell's material remembers compaction. */
+void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, int cell_count,
+                           const int32_t *raw, const int32_t *moved, uint16_t *memory);
+/* even_slopes where each flux uses the material of the column it leaves. */
+void sim_even_slopes_materials(const sim_params *p, const ground_material_table *t,
+                               const uint8_t *ids, int w, int h, const int32_t *cls,
+                               int32_t *heights, int32_t *scratch);
+/*
+ * displace: heights[i] -= raw[i], and the moved material lands by the
+ * params' method. `scratch` holds 5*w*h int32. Returns SIM_WINDOW_HEIGHT_LIMIT
+ * (heights then unspecified; the caller discards the window) if a column
+ * would leave [WORLD_HEIGHT_MIN, WORLD_HEIGHT_MAX].
+ */
+sim_window_status sim_displace(const sim_params *p, int w, int h, const int32_t *cls,
+                               const int32_t *seed, const int32_t *raw, const int32_t *moved,
+                               int32_t *heights, int32_t *scratch);
+
+/* even_slopes: params.slope_iterations Jacobi iterations; scratch holds 2*w*h int32. */
+void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int32_t *heights,
+                     int32_t *scratch);
+
+/* ---- Sumner, O'Brien and Hodgins 1999 on the CPU (model_sumner.c) ----
+ * The accuracy reference: ray-cast columns, first-ring displacement, erosion
+ * by the slope-evening iterations. Σh exact with compression 0. Returns
+ * SIM_WINDOW_HEIGHT_LIMIT with job->heights unchanged if a column would leave
+ * the height range. `scratch` holds sim_sumner_scratch_cells(w, h) int32. */
+int64_t sim_sumner_scratch_cells(int w, int h);
+sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+
+/* ---- The non-persson models: CPU window functions (model_<name>.c) ----
+ *
+ * Each takes the window's params (their model field picks the function in
+ * sim_model_window), the job — with bottom_override holding the depth the
+ * engine computed — and scratch of sim_model_scratch_cells(model, w*h) int32.
+ * They change job->heights in place and return SIM_WINDOW_HEIGHT_LIMIT (the
+ * engine then keeps the world's heights) when a column would leave the range.
+ */
+int64_t sim_model_scratch_cells(sim_model m, int64_t cells);
+/* 1 when the model needs job->base_heights / the depth in bottom_override. */
+int sim_model_needs_base(const sim_params *p);
+int sim_model_needs_depth(sim_model m);
+sim_window_status sim_model_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+
+/* heights = max(min(heights, bottom), floor) after rising toward base by refill_units. */
+sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Contact points → quadratic trail and rim in an integer image (min), then applied. */
+sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Drift-diffusion, conservative integer flux form or Gilardi's float scheme. */
+sim_window_status sim_diffusion_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* Substeps the diffusion model runs for one tick (1 <= n <= SIM_DIFFUSION_SUBSTEPS_MAX
+ * under auto), and the coefficients per substep (the bound is explained there). */
+int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift);
+
+/* decals: one window's events (at most out_capacity); returns how many. */
+int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *scratch,
+                      sim_footprint *out, int out_capacity);
+
+/* A height in metres as units, clamped to one past the height range. */
+int32_t sim_units_clamped(double metres, int32_t units_per_m);
+
+/*
+ * Footprints → disjoint windows. footprints[i] receives collider i's
+ * footprint (w == 0 when it cannot touch the terrain); extra rectangles
+ * (subtract's refilling windows) join the footprints. Windows are sorted by
+ * (y, x). Caller frees *out.
+ */
+int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
+                     int collider_count, int margin_cells, const world_rect *extra, int extra_count,
+                     world_rect *footprints, world_rect **out, int *out_count);
+
+#endif

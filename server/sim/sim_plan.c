@@ -1,0 +1,131 @@
+/*
+ * sim_plan.c: the plan step of the tick (docs/design.md, "One tick") —
+ * colliders' footprints become the tick's windows.
+ *
+ * Each collider's footprint is its bounding box at the last pose and at this
+ * one (so a fast collider sweeps the cells in between), plus a margin;
+ * colliders entirely above the terrain under them are skipped. Footprints
+ * that share a cell are merged until the windows are disjoint — simulating
+ * overlapping areas separately is what corrupted the original's volume.
+ */
+#include "sim/sim_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+static int clamp_to_int(double v)
+{
+    if (!(v > -1e9))
+        return -1000000000;
+    if (v > 1e9)
+        return 1000000000;
+    return (int)floor(v);
+}
+
+int32_t sim_units_clamped(double metres, int32_t units_per_m)
+{
+    double u = floor(metres * units_per_m);
+    if (!(u > WORLD_HEIGHT_MIN - 1.0))
+        return WORLD_HEIGHT_MIN - 1;
+    if (u > WORLD_HEIGHT_MAX + 1.0)
+        return WORLD_HEIGHT_MAX + 1;
+    return (int32_t)u;
+}
+
+static world_rect collider_footprint(const world *w, const sim_params *p, const sim_collider *c,
+                                     int margin)
+{
+    vec3d lo, hi;
+    collider_bounds(c->geometry, c->pose, &lo, &hi);
+    if (c->has_previous) {
+        vec3d plo, phi;
+        collider_bounds(c->geometry, c->previous_pose, &plo, &phi);
+        lo.x = fmin(lo.x, plo.x);
+        lo.y = fmin(lo.y, plo.y);
+        lo.z = fmin(lo.z, plo.z);
+        hi.x = fmax(hi.x, phi.x);
+        hi.y = fmax(hi.y, phi.y);
+    }
+    int x0 = clamp_to_int(lo.x / w->cell_size_m) - margin;
+    int y0 = clamp_to_int(lo.y / w->cell_size_m) - margin;
+    int x1 = clamp_to_int(hi.x / w->cell_size_m) + margin;
+    int y1 = clamp_to_int(hi.y / w->cell_size_m) + margin;
+    world_rect r = {x0, y0, x1 - x0 + 1, y1 - y0 + 1};
+    if (!world_clip_rect(w, &r))
+        return (world_rect){0, 0, 0, 0};
+    int32_t hmin, hmax;
+    world_rect_height_range(w, r, &hmin, &hmax);
+    if ((int64_t)sim_units_clamped(lo.z, w->units_per_m) > (int64_t)hmax + p->obstacle_gap)
+        return (world_rect){0, 0, 0, 0}; /* flying above everything it could touch */
+    return r;
+}
+
+static int compare_rects(const void *a, const void *b)
+{
+    const world_rect *r = a, *s = b;
+    if (r->y != s->y)
+        return (r->y > s->y) - (r->y < s->y);
+    return (r->x > s->x) - (r->x < s->x);
+}
+
+int sim_plan_windows(const world *w, const sim_params *p, const sim_collider *colliders,
+                     int collider_count, int margin_cells, const world_rect *extra, int extra_count,
+                     world_rect *footprints, world_rect **out, int *out_count)
+{
+    world_rect *rects = malloc(((size_t)collider_count + extra_count + 1) * sizeof *rects);
+    if (!rects)
+        return -1;
+    int n = 0;
+    /* deferred writes its trail up to trail_range cells around a point */
+    if (p->model == SIM_MODEL_DEFERRED && p->trail_range_cells + 1 > margin_cells)
+        margin_cells = p->trail_range_cells + 1;
+    for (int i = 0; i < collider_count; i++) {
+        footprints[i] = collider_footprint(w, p, &colliders[i], margin_cells);
+        if (footprints[i].w > 0)
+            rects[n++] = footprints[i];
+    }
+    for (int i = 0; i < extra_count; i++)
+        rects[n++] = extra[i];
+    for (int changed = 1; changed;) {
+        changed = 0;
+        for (int i = 0; i < n; i++) {
+            for (int j = i + 1; j < n; j++) {
+                if (world_rects_overlap(rects[i], rects[j])) {
+                    rects[i] = world_rect_union(rects[i], rects[j]);
+                    rects[j] = rects[--n];
+                    changed = 1;
+                    j = i; /* the grown rectangle may now meet earlier ones */
+                }
+            }
+        }
+    }
+    /* Split windows wider than the distance arithmetic allows (a collider the
+     * size of a 65536² world); each piece still keeps its volume exactly. */
+    int pieces = 0;
+    for (int i = 0; i < n; i++)
+        pieces += ((rects[i].w + SIM_WINDOW_SIDE_MAX - 1) / SIM_WINDOW_SIDE_MAX) *
+                  ((rects[i].h + SIM_WINDOW_SIDE_MAX - 1) / SIM_WINDOW_SIDE_MAX);
+    world_rect *result = malloc(((size_t)pieces + 1) * sizeof *result);
+    if (!result) {
+        free(rects);
+        return -1;
+    }
+    int k = 0;
+    for (int i = 0; i < n; i++) {
+        for (int y = 0; y < rects[i].h; y += SIM_WINDOW_SIDE_MAX) {
+            for (int x = 0; x < rects[i].w; x += SIM_WINDOW_SIDE_MAX) {
+                world_rect r = {rects[i].x + x, rects[i].y + y, rects[i].w - x, rects[i].h - y};
+                if (r.w > SIM_WINDOW_SIDE_MAX)
+                    r.w = SIM_WINDOW_SIDE_MAX;
+                if (r.h > SIM_WINDOW_SIDE_MAX)
+                    r.h = SIM_WINDOW_SIDE_MAX;
+                result[k++] = r;
+            }
+        }
+    }
+    free(rects);
+    qsort(result, (size_t)k, sizeof *result, compare_rects);
+    *out = result;
+    *out_count = k;
+    return 0;
+}

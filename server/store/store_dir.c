@@ -1,0 +1,366 @@
+/*
+ * store_dir.c: the data-directory backend (store_internal.h) — opening and
+ * recovering a directory, appending a tick's record to the current log
+ * segment, syncing by the durability policy, and the failure state that
+ * refuses deformation while the directory cannot be written. Every entry
+ * runs on the sim thread, in the tick's commit step (docs/design.md); the
+ * snapshots are left to the compaction thread (store_compaction.c).
+ */
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "metrics/metrics.h"
+#include "store/store_internal.h"
+
+/* ---- files ---- */
+
+int store_dir_fault_active(const store_dir *st)
+{
+    return st->fault[0] && access(st->fault, F_OK) == 0;
+}
+
+int store_dir_write_all(const store_dir *st, int fd, const void *data, size_t len)
+{
+    if (st && store_dir_fault_active(st)) {
+        errno = ENOSPC;
+        return -1;
+    }
+    const uint8_t *p = data;
+    while (len > 0) {
+        ssize_t n = write(fd, p, len);
+        if (n < 0) {
+            if (errno == EINTR)
+                continue;
+            return -1;
+        }
+        p += n;
+        len -= (size_t)n;
+    }
+    return 0;
+}
+
+int store_dir_fsync(const char *dir)
+{
+    int fd = open(dir, O_RDONLY | O_DIRECTORY);
+    if (fd < 0)
+        return -1;
+    int rc = fsync(fd);
+    close(fd);
+    return rc;
+}
+
+int store_dir_write_atomic(const store_dir *st, const char *dir, const char *name, const void *a,
+                           size_t alen, const void *b, size_t blen, error_text *err)
+{
+    char path[1200], tmp[1210];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) {
+        error_set(err, "store: cannot create %s: %s", tmp, strerror(errno));
+        return -1;
+    }
+    if (store_dir_write_all(st, fd, a, alen) != 0 ||
+        (blen && store_dir_write_all(st, fd, b, blen) != 0) || fsync(fd) != 0) {
+        error_set(err, "store: writing %s: %s", tmp, strerror(errno));
+        close(fd);
+        unlink(tmp);
+        return -1;
+    }
+    close(fd);
+    if (rename(tmp, path) != 0 || store_dir_fsync(dir) != 0) {
+        error_set(err, "store: renaming %s to %s: %s", tmp, path, strerror(errno));
+        unlink(tmp);
+        return -1;
+    }
+    return 0;
+}
+
+/* ---- open / close ---- */
+
+static void dir_close(void *state);
+
+static void *dir_open(const store_config *c, world *w, store_recovery *rec, error_text *err)
+{
+    store_dir *st = calloc(1, sizeof *st);
+    if (!st) {
+        error_set(err, "store: out of memory");
+        return NULL;
+    }
+    st->cfg = *c;
+    if (st->cfg.segment_bytes <= 0)
+        st->cfg.segment_bytes = 16 << 20;
+    if (st->cfg.compression_level <= 0)
+        st->cfg.compression_level = 3;
+    st->lock_fd = st->wal_fd = -1;
+    pthread_mutex_init(&st->lock, NULL);
+    pthread_cond_init(&st->cond, NULL);
+    snprintf(st->dir, sizeof st->dir, "%s", c->dir);
+    if (c->fault_path)
+        snprintf(st->fault, sizeof st->fault, "%s", c->fault_path);
+    st->width = w->width;
+    st->height = w->height;
+    st->tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    st->tiles_y = (w->height + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    st->changed = calloc((size_t)st->tiles_x * st->tiles_y, 1);
+    st->cctx = ZSTD_createCCtx();
+    if (!st->changed || !st->cctx) {
+        error_set(err, "store: out of memory");
+        goto fail;
+    }
+    char tiles_dir[1100], path[1100];
+    snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", st->dir);
+    const char *made = st->dir;
+    if ((mkdir(st->dir, 0755) != 0 && errno != EEXIST) ||
+        (made = tiles_dir, mkdir(tiles_dir, 0755) != 0 && errno != EEXIST)) {
+        error_set(err, "store: --data: cannot create %s: %s", made, strerror(errno));
+        goto fail;
+    }
+    snprintf(path, sizeof path, "%s/LOCK", st->dir);
+    st->lock_fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (st->lock_fd < 0 || flock(st->lock_fd, LOCK_EX | LOCK_NB) != 0) {
+        error_set(err, "store: %s: %s", path,
+                  errno == EWOULDBLOCK ? "the data directory is in use by another terrad"
+                                       : strerror(errno));
+        goto fail;
+    }
+    /* the manifest names the world by its base terrain, before anything is applied */
+    uint32_t base_crc = store_base_identity(w);
+    snprintf(path, sizeof path, "%s/MANIFEST", st->dir);
+    if (access(path, F_OK) == 0) {
+        if (store_manifest_check(path, w, base_crc, err) != 0)
+            goto fail;
+    } else {
+        char *text = store_manifest_text(w, base_crc);
+        int rc = text ? store_dir_write_atomic(NULL, st->dir, "MANIFEST", text, strlen(text), NULL,
+                                               0, err)
+                      : -1;
+        free(text);
+        if (rc != 0)
+            goto fail;
+    }
+    uint64_t last_seq = 0;
+    if (store_recover(st->dir, w, st->changed, 1, 0, &last_seq, rec, err) != 0)
+        goto fail;
+    st->appended_tick = st->durable_tick = rec->tick;
+    /* a fresh segment: nothing is ever appended after a possibly cut tail */
+    if (store_segment_start(st, last_seq + 1, err) != 0)
+        goto fail;
+    st->last_sync_ms = time_now_ms();
+    if (pthread_create(&st->thread, NULL, store_compaction_main, st) == 0)
+        st->thread_started = 1;
+    metrics_set_store_recovery(rec->ms, rec->records_replayed, rec->bytes_cut);
+    metrics_set_store_durable_tick(st->durable_tick);
+    metrics_set_store_available(1);
+    return st;
+fail:
+    dir_close(st);
+    return NULL;
+}
+
+static void dir_close(void *state)
+{
+    store_dir *st = state;
+    if (!st)
+        return;
+    store_compaction_stop(st);
+    if (st->wal_fd >= 0) {
+        fdatasync(st->wal_fd);
+        close(st->wal_fd);
+    }
+    if (st->lock_fd >= 0)
+        close(st->lock_fd); /* releases the flock */
+    pthread_mutex_destroy(&st->lock);
+    pthread_cond_destroy(&st->cond);
+    ZSTD_freeCCtx(st->cctx);
+    free(st->changed);
+    free(st->buf);
+    free(st->values);
+    free(st);
+}
+
+/* ---- the tick ---- */
+
+static void set_failed(store_dir *st, const char *kind, const char *what, int e)
+{
+    if (!st->failed)
+        log_error("store: %s: %s (%s): new deformation is refused until it can be written "
+                  "again; reads go on",
+                  what, strerror(e), st->dir);
+    st->failed = 1;
+    st->failed_at_ms = time_now_ms();
+    snprintf(st->failure, sizeof st->failure, "%s: %s", what, strerror(e));
+    metrics_count_store_error(kind);
+    metrics_set_store_available(0);
+}
+
+static int dir_writable(void *state)
+{
+    store_dir *st = state;
+    if (!st->failed)
+        return 1;
+    if (time_now_ms() - st->failed_at_ms < RETRY_MS)
+        return 0;
+    /* retry: cut back anything a failed write left, then see if a write works */
+    st->failed_at_ms = time_now_ms();
+    if (store_dir_fault_active(st) || ftruncate(st->wal_fd, st->wal_len) != 0 ||
+        lseek(st->wal_fd, st->wal_len, SEEK_SET) < 0 || fdatasync(st->wal_fd) != 0)
+        return 0;
+    log_info("store: %s is writable again: deformation resumes", st->dir);
+    st->durable_tick = st->appended_tick; /* held group-commit ticks are synced now */
+    st->unsynced = 0;
+    metrics_set_store_durable_tick(st->durable_tick);
+    st->failed = 0;
+    st->failure[0] = 0;
+    metrics_set_store_available(1);
+    return 1;
+}
+
+static const char *dir_failure(const void *state)
+{
+    const store_dir *st = state;
+    return st->failure;
+}
+
+static uint64_t dir_durable_tick(const void *state)
+{
+    const store_dir *st = state;
+    return st->durable_tick;
+}
+
+static int sync_now(store_dir *st)
+{
+    double t0 = time_now_ms();
+    if (fdatasync(st->wal_fd) != 0) {
+        set_failed(st, "fsync", "fdatasync of the log", errno);
+        return -1;
+    }
+    double now = time_now_ms();
+    metrics_observe_store_fsync_ms(now - t0);
+    st->last_sync_ms = now;
+    st->durable_tick = st->appended_tick;
+    st->unsynced = 0;
+    metrics_set_store_durable_tick(st->durable_tick);
+    return 0;
+}
+
+static int dir_append_tick(void *state, const world *w, uint64_t tick, const world_rect *rects,
+                           int n)
+{
+    store_dir *st = state;
+    if (st->failed)
+        return -1;
+    if (n <= 0)
+        return 0;
+    size_t cells = 0;
+    for (int i = 0; i < n; i++)
+        cells += (size_t)rects[i].w * rects[i].h;
+    size_t raw = cells * 4;
+    size_t table = 4 + (size_t)n * 16 + 4;
+    size_t bound = ZSTD_compressBound(raw);
+    if (array_grow((void **)&st->values, &st->values_cap, (int64_t)cells + 1, sizeof *st->values) !=
+            0 ||
+        array_grow((void **)&st->buf, &st->buf_cap, (int64_t)(REC_HEADER + table + bound), 1) !=
+            0) {
+        set_failed(st, "memory", "no memory for a log record", ENOMEM);
+        return -1;
+    }
+    uint8_t *p = st->buf + REC_HEADER;
+    put32(p, (uint32_t)n);
+    size_t off = 0;
+    for (int i = 0; i < n; i++) {
+        world_rect r = rects[i];
+        put32(p + 4 + 16 * i, (uint32_t)r.x);
+        put32(p + 8 + 16 * i, (uint32_t)r.y);
+        put32(p + 12 + 16 * i, (uint32_t)r.w);
+        put32(p + 16 + 16 * i, (uint32_t)r.h);
+        world_gather_window(w, r, st->values + off);
+        off += (size_t)r.w * r.h;
+        for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
+            for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE; tx++)
+                st->changed[ty * st->tiles_x + tx] = 1;
+    }
+    put32(p + table - 4, (uint32_t)raw);
+    size_t packed =
+        ZSTD_compressCCtx(st->cctx, p + table, bound, st->values, raw, st->cfg.compression_level);
+    if (ZSTD_isError(packed)) {
+        set_failed(st, "compress", "zstd compression of a log record", EIO);
+        return -1;
+    }
+    size_t plen = table + packed;
+    uint8_t *h = st->buf;
+    put32(h, REC_MAGIC);
+    put32(h + 4, (uint32_t)plen);
+    put64(h + 8, tick);
+    put32(h + 16, store_crc32c(0, p, plen));
+    put32(h + 20, store_crc32c(0, h, 20));
+    if (store_dir_write_all(st, st->wal_fd, st->buf, REC_HEADER + plen) != 0) {
+        int e = errno;
+        /* leave the log exactly as it was: a half-written record is cut now (and
+         * would be cut as a torn tail by recovery anyway) */
+        if (ftruncate(st->wal_fd, st->wal_len) == 0)
+            lseek(st->wal_fd, st->wal_len, SEEK_SET);
+        set_failed(st, e == ENOSPC ? "enospc" : "write", "appending to the log", e);
+        return -1;
+    }
+    int64_t before = st->wal_len;
+    uint64_t before_tick = st->appended_tick;
+    st->wal_len += (int64_t)(REC_HEADER + plen);
+    st->appended_tick = tick;
+    st->unsynced++;
+    metrics_count_store_wal_bytes(REC_HEADER + plen);
+    if (st->cfg.durability == STORE_EVERY_TICK && sync_now(st) != 0) {
+        /* the caller undoes this tick, so its record must not survive to be replayed */
+        st->wal_len = before;
+        st->appended_tick = before_tick;
+        if (ftruncate(st->wal_fd, before) == 0)
+            lseek(st->wal_fd, before, SEEK_SET);
+        return -1;
+    } else if (st->cfg.durability == STORE_NONE) {
+        st->durable_tick = tick; /* as durable as promised: in the page cache */
+        metrics_set_store_durable_tick(tick);
+    }
+    store_compaction_maybe_start(st, w, tick);
+    return 0;
+}
+
+static int dir_settle(void *state)
+{
+    store_dir *st = state;
+    if (st->durable_tick == st->appended_tick)
+        return 1;
+    if (st->cfg.durability != STORE_GROUP)
+        return 0; /* every-tick after a failed sync: held until a retry syncs */
+    if (time_now_ms() - st->last_sync_ms < st->cfg.group_ms)
+        return 0;
+    return sync_now(st) == 0;
+}
+
+int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
+                        error_text *err)
+{
+    char path[1100];
+    snprintf(path, sizeof path, "%s/MANIFEST", dir);
+    uint32_t base_crc = store_base_identity(w);
+    if (store_manifest_check(path, w, base_crc, err) != 0)
+        return -1;
+    uint64_t last_seq;
+    return store_recover(dir, w, NULL, 0, upto_tick, &last_seq, rec, err);
+}
+
+const store_backend store_backend_dir = {
+    .name = "dir",
+    .open = dir_open,
+    .close = dir_close,
+    .writable = dir_writable,
+    .failure = dir_failure,
+    .append_tick = dir_append_tick,
+    .settle = dir_settle,
+    .durable_tick = dir_durable_tick,
+};

@@ -1,0 +1,161 @@
+/*
+ * store_internal.h: what the store's files share inside server/store/ — the
+ * one backend interface every store implementation fills (store.c dispatches
+ * to it), and the data-directory backend's layout, record format and state.
+ *
+ *   DIR/MANIFEST            JSON naming the world (dims, scale, CRC32C of the
+ *                           base terrain) + a line "crc32c XXXXXXXX"
+ *   DIR/LOCK                flock'ed while a daemon owns the directory
+ *   DIR/wal-<seq>.log       log segments: a 24-byte header, then records
+ *   DIR/tiles/t-X-Y.snap    one per 256² tile ever changed
+ *
+ * Files: store_dir.c (open/close, appending a tick, syncing), store_log.c
+ * (log segments and recovery), store_snapshot.c (manifest and tile
+ * snapshots), store_compaction.c (the compaction thread). Never included from
+ * outside server/store/.
+ */
+#ifndef TERRAD_STORE_INTERNAL_H
+#define TERRAD_STORE_INTERNAL_H
+
+#include <pthread.h>
+#include <stdint.h>
+
+#include <zstd.h>
+
+#include "store/store.h"
+
+/* ---- the backend interface ----
+ * One table per kind of store (after Redis ae.c's one event-loop API over
+ * several implementations). `state` is the backend's own object. Every entry
+ * but open runs on the sim thread (store.c asserts it). */
+typedef struct store_backend {
+    const char *name;
+    /* Open and recover into w (base terrain already in it). NULL: err says why. */
+    void *(*open)(const store_config *c, world *w, store_recovery *rec, error_text *err);
+    void (*close)(void *state);
+    int (*writable)(void *state);
+    const char *(*failure)(const void *state);
+    /* Append one tick's changed rectangles; 0, or -1 with nothing appended. */
+    int (*append_tick)(void *state, const world *w, uint64_t tick, const world_rect *rects, int n);
+    /* 1 when every appended tick is as durable as the policy promises. */
+    int (*settle)(void *state);
+    uint64_t (*durable_tick)(const void *state);
+} store_backend;
+
+/* The data directory (store_dir.c): a write-ahead log compacted into tile
+ * snapshots. */
+extern const store_backend store_backend_dir;
+
+/* ---- the data directory's format ---- */
+
+#define STORE_TILE_SIZE 256
+#define WAL_MAGIC "TRDWAL01"
+#define WAL_HEADER 24
+#define REC_MAGIC 0x52445254u /* "TRDR" */
+#define REC_HEADER 24
+#define REC_MAX_PAYLOAD (1u << 30)
+#define TILE_MAGIC "TRDTILE1"
+#define TILE_HEADER 56
+#define RETRY_MS 500.0
+/* A snapshot or a segment read whole is at most this large. */
+#define STORE_FILE_BYTES_MAX ((size_t)REC_MAX_PAYLOAD * 2)
+
+/* little-endian fields */
+static inline void put32(uint8_t *p, uint32_t v)
+{
+    for (int i = 0; i < 4; i++)
+        p[i] = (uint8_t)(v >> (8 * i));
+}
+static inline void put64(uint8_t *p, uint64_t v)
+{
+    for (int i = 0; i < 8; i++)
+        p[i] = (uint8_t)(v >> (8 * i));
+}
+static inline uint32_t get32(const uint8_t *p)
+{
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+static inline uint64_t get64(const uint8_t *p)
+{
+    return (uint64_t)get32(p) | (uint64_t)get32(p + 4) << 32;
+}
+
+/* A changed tile copied at a tick boundary, for the compaction thread. */
+typedef struct tile_copy {
+    int tx, ty;
+    world_rect rect;
+    int32_t *values;
+} tile_copy;
+
+typedef struct store_dir {
+    store_config cfg;
+    char dir[1024];
+    char fault[1024];
+    int lock_fd;
+    int width, height, tiles_x, tiles_y;
+
+    int wal_fd;
+    uint64_t wal_seq;
+    int64_t wal_len; /* bytes known good in the current segment */
+    uint64_t appended_tick, durable_tick;
+    int unsynced; /* records appended since the last fdatasync */
+    double last_sync_ms;
+
+    int failed;
+    double failed_at_ms;
+    char failure[256];
+
+    uint8_t *changed; /* per tile: changed since the last compaction boundary */
+    uint8_t *buf;     /* record scratch */
+    int64_t buf_cap;
+    int32_t *values;
+    int64_t values_cap;
+    ZSTD_CCtx *cctx;
+
+    /* compaction: one job at a time, handed over under the mutex */
+    thread_owner compaction_owner; /* claimed by the compaction thread */
+    pthread_t thread;
+    int thread_started;
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+    int job_ready, job_running, quit;
+    tile_copy *job_tiles;
+    int job_count;
+    uint64_t job_tick, job_first_live_seq;
+} store_dir;
+
+/* ---- files (store_dir.c) ---- */
+/* write() all of it, or fail with errno (ENOSPC from the fault hook too). */
+int store_dir_write_all(const store_dir *st, int fd, const void *data, size_t len);
+int store_dir_fsync(const char *dir);
+/* Atomic replacement: DIR/name.tmp, fsync, rename, fsync of DIR. */
+int store_dir_write_atomic(const store_dir *st, const char *dir, const char *name, const void *a,
+                           size_t alen, const void *b, size_t blen, error_text *err);
+int store_dir_fault_active(const store_dir *st);
+
+/* ---- manifest and tile snapshots (store_snapshot.c) ---- */
+uint32_t store_base_identity(const world *w);
+char *store_manifest_text(const world *w, uint32_t base_crc);
+int store_manifest_check(const char *path, const world *w, uint32_t base_crc, error_text *err);
+world_rect store_tile_rect(int width, int height, int tx, int ty);
+int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *tick_out,
+                    error_text *err);
+int store_tile_write(const store_dir *st, const char *dir, const tile_copy *t, uint64_t tick,
+                     ZSTD_CCtx *cctx, int level, error_text *err);
+
+/* ---- log segments and recovery (store_log.c) ---- */
+int store_list_segments(const char *dir, uint64_t **seqs, int *count);
+void store_segment_path(const char *dir, uint64_t seq, char *out, size_t cap);
+int store_segment_start(store_dir *st, uint64_t seq, error_text *err);
+int store_recover(const char *dir, world *w, uint8_t *changed, int repair, uint64_t upto_tick,
+                  uint64_t *last_seq, store_recovery *rec, error_text *err);
+
+/* ---- compaction (store_compaction.c) ---- */
+void *store_compaction_main(void *arg);
+/* At a tick boundary (sim thread): hand the changed tiles to the compaction
+ * thread once the current segment is past its size. */
+void store_compaction_maybe_start(store_dir *st, const world *w, uint64_t tick);
+/* Wake the compaction thread, wait for it to finish, free an unstarted job. */
+void store_compaction_stop(store_dir *st);
+
+#endif

@@ -1,0 +1,290 @@
+/*
+ * store_log.c: the data directory's write-ahead log — segments of records,
+ * one record per committed tick (its changed rectangles and their new
+ * absolute values, zstd compressed, CRC32C checked) — and recovery.
+ *
+ * Records hold absolute values, not differences, so replaying a record twice,
+ * or a record older than a tile snapshot followed by the newer ones, gives the
+ * same heights: recovery simply replays every segment still present, in
+ * order, over the snapshots. Recovery runs before the first tick; a segment
+ * is started on the sim thread (at open, and when compaction leaves the old
+ * one behind).
+ */
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "store/store_internal.h"
+
+typedef struct replay_result {
+    uint64_t last_tick;
+    int64_t records;
+    int64_t good_len; /* offset after the last good record */
+    int64_t file_len;
+    int header_ok;
+    char problem[200];
+} replay_result;
+
+/* Apply every good record of one segment to w (and mark changed tiles). Stops
+ * at the first record that is torn or fails its checksum. */
+static int segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
+                          uint64_t upto_tick, replay_result *res, error_text *err)
+{
+    memset(res, 0, sizeof *res);
+    res->last_tick = after_tick;
+    uint8_t *data = NULL;
+    size_t len = 0;
+    error_text read_err = {{0}};
+    if (file_read_all(path, STORE_FILE_BYTES_MAX, &data, &len, &read_err) != 0) {
+        error_set(err, "store: cannot read log segment %s", read_err.message);
+        return -1;
+    }
+    res->file_len = (int64_t)len;
+    int tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    if (len < WAL_HEADER || memcmp(data, WAL_MAGIC, 8) != 0 ||
+        get32(data + 16) != store_crc32c(0, data, 16)) {
+        snprintf(res->problem, sizeof res->problem, "torn or corrupt segment header");
+        free(data);
+        return 0;
+    }
+    res->header_ok = 1;
+    size_t at = WAL_HEADER;
+    res->good_len = WAL_HEADER;
+    int32_t *values = NULL;
+    int64_t values_cap = 0;
+    while (at < len) {
+        if (len - at < REC_HEADER) {
+            snprintf(res->problem, sizeof res->problem, "torn record header at offset %zu", at);
+            break;
+        }
+        const uint8_t *h = data + at;
+        uint32_t plen = get32(h + 4);
+        uint64_t tick = get64(h + 8);
+        if (get32(h) != REC_MAGIC || get32(h + 20) != store_crc32c(0, h, 20) ||
+            plen > REC_MAX_PAYLOAD) {
+            snprintf(res->problem, sizeof res->problem,
+                     "record header at offset %zu fails its checksum", at);
+            break;
+        }
+        if (len - at - REC_HEADER < plen) {
+            snprintf(res->problem, sizeof res->problem,
+                     "record of tick %llu at offset %zu is torn (%u payload bytes, %zu present)",
+                     (unsigned long long)tick, at, plen, len - at - REC_HEADER);
+            break;
+        }
+        const uint8_t *p = h + REC_HEADER;
+        if (upto_tick && tick > upto_tick)
+            break; /* a rebuild as of an earlier tick: the rest is not wanted */
+        if (store_crc32c(0, p, plen) != get32(h + 16)) {
+            snprintf(res->problem, sizeof res->problem,
+                     "record of tick %llu at offset %zu fails its payload checksum",
+                     (unsigned long long)tick, at);
+            break;
+        }
+        /* checksummed, so a malformed payload is a writer bug: still refuse it */
+        uint32_t nrect = plen >= 4 ? get32(p) : 0;
+        size_t table = 4 + (size_t)nrect * 16 + 4;
+        int ok = plen >= 4 && nrect <= 1u << 20 && table <= plen && tick > res->last_tick;
+        uint64_t raw = 0;
+        for (uint32_t i = 0; ok && i < nrect; i++) {
+            world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
+                            (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
+            world_rect c = r;
+            ok = r.w > 0 && r.h > 0 && world_clip_rect(w, &c) && c.x == r.x && c.y == r.y &&
+                 c.w == r.w && c.h == r.h;
+            raw += (uint64_t)r.w * r.h * 4;
+        }
+        ok = ok && raw == get32(p + table - 4) && raw <= REC_MAX_PAYLOAD &&
+             array_grow((void **)&values, &values_cap, (int64_t)(raw / 4 + 1), sizeof *values) == 0;
+        if (ok)
+            ok = ZSTD_decompress(values, raw, p + table, plen - table) == raw;
+        if (!ok) {
+            snprintf(res->problem, sizeof res->problem,
+                     "record of tick %llu at offset %zu is malformed", (unsigned long long)tick,
+                     at);
+            break;
+        }
+        size_t off = 0;
+        for (uint32_t i = 0; i < nrect; i++) {
+            world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
+                            (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
+            world_scatter_window(w, r, values + off);
+            off += (size_t)r.w * r.h;
+            if (changed)
+                for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
+                    for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE;
+                         tx++)
+                        changed[ty * tiles_x + tx] = 1;
+        }
+        res->records++;
+        res->last_tick = tick;
+        at += REC_HEADER + plen;
+        res->good_len = (int64_t)at;
+    }
+    free(values);
+    free(data);
+    return 0;
+}
+
+static int compare_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* The log segments' sequence numbers, ascending. */
+int store_list_segments(const char *dir, uint64_t **seqs, int *count)
+{
+    *seqs = NULL;
+    *count = 0;
+    DIR *d = opendir(dir);
+    if (!d)
+        return -1;
+    int64_t cap = 0;
+    struct dirent *e;
+    while ((e = readdir(d))) {
+        unsigned long long seq;
+        char tail[8];
+        if (sscanf(e->d_name, "wal-%16llu.%7s", &seq, tail) == 2 && strcmp(tail, "log") == 0) {
+            if (array_grow((void **)seqs, &cap, (int64_t)*count + 1, sizeof **seqs) != 0) {
+                closedir(d);
+                return -1;
+            }
+            (*seqs)[(*count)++] = seq;
+        }
+    }
+    closedir(d);
+    if (*count > 1)
+        qsort(*seqs, (size_t)*count, sizeof **seqs, compare_u64);
+    return 0;
+}
+
+void store_segment_path(const char *dir, uint64_t seq, char *out, size_t cap)
+{
+    snprintf(out, cap, "%s/wal-%016llu.log", dir, (unsigned long long)seq);
+}
+
+/* Load tile snapshots, then replay every segment. With `repair`, a torn tail
+ * of the last segment is cut off the file; without, it is only skipped. */
+int store_recover(const char *dir, world *w, uint8_t *changed, int repair, uint64_t upto_tick,
+                  uint64_t *last_seq, store_recovery *rec, error_text *err)
+{
+    double t0 = time_now_ms();
+    memset(rec, 0, sizeof *rec);
+    char tiles_dir[1100];
+    snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", dir);
+    /* A compaction may have folded every record into the snapshots and left an
+     * empty log: the world is then as of the newest snapshot, and the tick
+     * counter must go on from there, never back to 0. */
+    uint64_t snapshot_tick = 0;
+    DIR *d = opendir(tiles_dir);
+    if (d) {
+        struct dirent *e;
+        while ((e = readdir(d))) {
+            size_t n = strlen(e->d_name);
+            if (n > 5 && strcmp(e->d_name + n - 5, ".snap") == 0) {
+                char path[1400];
+                snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
+                uint64_t tile_tick = 0;
+                if (store_tile_load(path, w, upto_tick, &tile_tick, err) != 0) {
+                    closedir(d);
+                    return -1;
+                }
+                if (tile_tick > snapshot_tick)
+                    snapshot_tick = tile_tick;
+                rec->tiles_loaded++;
+            }
+        }
+        closedir(d);
+    }
+    uint64_t *seqs;
+    int count;
+    if (store_list_segments(dir, &seqs, &count) != 0) {
+        error_set(err, "store: cannot list %s: %s", dir, strerror(errno));
+        return -1;
+    }
+    uint64_t tick = 0;
+    for (int i = 0; i < count; i++) {
+        char path[1100];
+        store_segment_path(dir, seqs[i], path, sizeof path);
+        replay_result res;
+        if (segment_replay(path, w, changed, tick, upto_tick, &res, err) != 0) {
+            free(seqs);
+            return -1;
+        }
+        rec->records_replayed += res.records;
+        tick = res.last_tick;
+        if (res.problem[0]) {
+            if (i != count - 1) {
+                /* only the segment being written at a crash can be torn: this is damage */
+                error_set(err,
+                          "store: log segment %s is corrupt (%s) and is not the last segment: "
+                          "refusing to start rather than skip committed ticks",
+                          path, res.problem);
+                free(seqs);
+                return -1;
+            }
+            int64_t cut = res.file_len - (res.header_ok ? res.good_len : 0);
+            rec->bytes_cut = cut;
+            log_error("store: %s: %s; %s %lld bytes after offset %lld (last good tick %llu)", path,
+                      res.problem, repair ? "cutting" : "skipping", (long long)cut,
+                      (long long)(res.header_ok ? res.good_len : 0),
+                      (unsigned long long)res.last_tick);
+            if (repair) {
+                int rc = res.header_ok ? truncate(path, res.good_len) : unlink(path);
+                if (rc != 0 || store_dir_fsync(dir) != 0) {
+                    error_set(err, "store: cannot cut the torn tail of %s: %s", path,
+                              strerror(errno));
+                    free(seqs);
+                    return -1;
+                }
+                if (res.header_ok) {
+                    int fd = open(path, O_WRONLY | O_CLOEXEC);
+                    if (fd >= 0) {
+                        fsync(fd);
+                        close(fd);
+                    }
+                }
+            }
+        }
+    }
+    *last_seq = count ? seqs[count - 1] : 0;
+    free(seqs);
+    rec->tick = tick > snapshot_tick ? tick : snapshot_tick;
+    rec->ms = time_now_ms() - t0;
+    return 0;
+}
+
+/* Start segment seq: header written and synced, directory synced. */
+int store_segment_start(store_dir *st, uint64_t seq, error_text *err)
+{
+    char path[1100];
+    store_segment_path(st->dir, seq, path, sizeof path);
+    int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) {
+        error_set(err, "store: cannot create %s: %s", path, strerror(errno));
+        return -1;
+    }
+    uint8_t h[WAL_HEADER] = {0};
+    memcpy(h, WAL_MAGIC, 8);
+    put64(h + 8, seq);
+    put32(h + 16, store_crc32c(0, h, 16));
+    if (store_dir_write_all(st, fd, h, sizeof h) != 0 || fdatasync(fd) != 0 ||
+        store_dir_fsync(st->dir) != 0) {
+        error_set(err, "store: cannot start %s: %s", path, strerror(errno));
+        close(fd);
+        unlink(path);
+        return -1;
+    }
+    if (st->wal_fd >= 0)
+        close(st->wal_fd);
+    st->wal_fd = fd;
+    st->wal_seq = seq;
+    st->wal_len = WAL_HEADER;
+    return 0;
+}

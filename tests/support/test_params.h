@@ -1,0 +1,26 @@
+/*
+ * test_params.h: the unit tests' shared set-up of simulation parameters. A
+ * test that needs params builds a material, changes the fields it is about,
+ * and turns it into params on the tests' usual grid (5 cm cells, 10,000
+ * height units per metre); a refused material is a broken test, not a result,
+ * so the helper prints the reason and aborts. Σh sums of height arrays live
+ * here too, because every volume check needs one.
+ */
+#ifndef TERRAD_TEST_PARAMS_H
+#define TERRAD_TEST_PARAMS_H
+
+#include <stdint.h>
+
+#include "sim/sim.h"
+
+#define TEST_CELL_M 0.05
+#define TEST_UNITS_PER_M 10000
+
+/* Params of material m on the tests' grid with floor_units as the floor;
+ * aborts (after printing why) when m is refused. */
+sim_params test_params_from_material(const sim_material *m, int32_t floor_units);
+
+/* Σh of n heights, exact in int64. */
+int64_t test_sum(const int32_t *heights, int64_t n);
+
+#endif
