@@ -29,6 +29,9 @@ enum {
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
     OPT_STORE_FAULT,
+    OPT_CLUSTER,
+    OPT_NODE,
+    OPT_WORLD,
 };
 
 static const cli_option serve_table[] = {
@@ -63,6 +66,15 @@ static const cli_option serve_table[] = {
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
+    [OPT_CLUSTER] = {"cluster", "URLS",
+                     "join a NATS JetStream cluster (comma-separated nats:// URLs):\n"
+                     "the world, its log and snapshots live there instead of\n"
+                     "--data (docs/cluster.md)"},
+    [OPT_NODE] = {"node", "NAME", "--cluster: this node's name (default: the host name)"},
+    [OPT_WORLD] = {"world", "NAME",
+                   "--cluster: the world to tick (registered with terrad world add);\n"
+                   "default: the first registered world whose lease is free.\n"
+                   "A node waits (a standby) until it can take one"},
     {0},
 };
 
@@ -247,6 +259,15 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_STORE_FAULT:
         o->store_fault = value;
+        return 0;
+    case OPT_CLUSTER:
+        o->cluster_urls = value;
+        return 0;
+    case OPT_NODE:
+        o->node = value;
+        return 0;
+    case OPT_WORLD:
+        o->world_name = value;
         return 0;
     case OPT_BIND_ANY:
         o->bind_any = 1;

@@ -230,5 +230,9 @@ void cluster_store_commit_ms(const cluster_store *cs, double *p50, double *p99);
 void cluster_store_compactions(cluster_store *cs, int64_t *count, int64_t *tiles);
 /* Waits until no compaction is pending or running. */
 void cluster_store_wait_compaction(cluster_store *cs);
+/* The store's face (store.h) over cs, for the service: commits go through
+ * cluster_store_commit_tick, a tick is durable once committed, and
+ * store_close closes cs. Call on the sim thread. NULL: out of memory. */
+store *cluster_store_as_store(cluster_store *cs);
 
 #endif

@@ -580,3 +580,61 @@ void cluster_store_wait_compaction(cluster_store *cs)
         pthread_cond_wait(&cs->cond, &cs->lock);
     pthread_mutex_unlock(&cs->lock);
 }
+
+/* ---- the store's face (store.h): this store behind store_adopt ---- */
+
+static void backend_close(void *state)
+{
+    cluster_store_close(state);
+}
+
+static int backend_writable(void *state)
+{
+    return cluster_store_writable(state);
+}
+
+static const char *backend_failure(const void *state)
+{
+    return cluster_store_failure(state);
+}
+
+/* A refused commit is logged when commits start failing, not at every tick. */
+static int backend_append(void *state, const world *w, uint64_t tick, const world_rect *rects,
+                          int n)
+{
+    cluster_store *cs = state;
+    int was_failing = cs->failure[0] != '\0';
+    error_text err = {{0}};
+    if (cluster_store_commit_tick(cs, w, tick, rects, n, &err) == CLUSTER_OK)
+        return 0;
+    if (!was_failing)
+        log_error("cluster: tick %llu not committed: %s", (unsigned long long)tick, err.message);
+    return -1;
+}
+
+/* Every commit returned once acknowledged: nothing is ever waiting. */
+static int backend_settle(void *state)
+{
+    (void)state;
+    return 1;
+}
+
+static uint64_t backend_durable_tick(const void *state)
+{
+    return cluster_store_tick(state);
+}
+
+static const store_backend cluster_store_backend = {
+    .name = "jetstream",
+    .close = backend_close,
+    .writable = backend_writable,
+    .failure = backend_failure,
+    .append_tick = backend_append,
+    .settle = backend_settle,
+    .durable_tick = backend_durable_tick,
+};
+
+store *cluster_store_as_store(cluster_store *cs)
+{
+    return store_adopt(&cluster_store_backend, cs);
+}
