@@ -15,10 +15,9 @@ import time
 import urllib.error
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import cluster_harness as ch  # noqa: E402
+from cluster_harness import Node  # noqa: E402
 from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
-from test_cluster_serve import Node  # noqa: E402
 
 check = Checks()
 

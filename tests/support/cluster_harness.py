@@ -2,17 +2,24 @@
 start 1 or 3 real nats-server processes with JetStream on loopback, each
 with its own store directory and server name (3: one cluster "terrad",
 routes between all), wait until each accepts connections and JetStream
-answers, and stop them (SIGTERM, or SIGKILL for a crash).
+answers, and stop them (SIGTERM, or SIGKILL for a crash). Also Node, one
+`terrad serve --cluster` process whose log says which world it owns and on
+which ports.
 
 Not a test itself (ctest registers only test_*.py). Run with /usr/bin/python3.
 """
+import json
 import os
+import re
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import tempfile
+import threading
 import time
+import urllib.request
 
 NATS_SERVER = shutil.which("nats-server")
 
@@ -135,3 +142,79 @@ class NatsCluster:
     def __exit__(self, *exc):
         self.stop()
         return False
+
+
+# ---- terrad nodes ---------------------------------------------------------------
+
+SERVING_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/ and ws://127\.0\.0\.1:(\d+)/")
+OWNS_RE = re.compile(r"node (\S+) owns world (\S+)")
+
+
+def binary():
+    from service_harness import BIN  # the one place that knows where terrad is
+    return BIN
+
+
+class Node:
+    """One `terrad serve --cluster` process; its stderr is read by a thread
+    that notes, run after run (a node that loses its world starts again in
+    the same process), which world it owns and on which ports."""
+
+    def __init__(self, name, urls):
+        self.name = name
+        self.urls = urls
+        self.lines = []
+        self.start()
+
+    def start(self):
+        self.world = self.http = self.ws = None
+        self.serving = threading.Event()
+        self.proc = subprocess.Popen(
+            [binary(), "serve", "--cluster", self.urls, "--node", self.name, "--http-port", "0",
+             "--ws-port", "0", "--backend", "cpu", "--no-demo"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True, errors="replace")
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stderr:
+            self.lines.append(line)
+            m = OWNS_RE.search(line)
+            if m:
+                self.world = m.group(2)
+            m = SERVING_RE.search(line)
+            if m:
+                self.http = f"http://127.0.0.1:{m.group(1)}"
+                self.ws = f"ws://127.0.0.1:{m.group(2)}/"
+                self.serving.set()
+            if "is a standby" in line:
+                self.world = self.http = self.ws = None
+                self.serving.clear()
+
+    def get(self, path):
+        with urllib.request.urlopen(self.http + path, timeout=10) as r:
+            return r.status, r.read()
+
+    def stats(self):
+        return json.loads(self.get("/v1/stats")[1])
+
+    def heights(self, x, y, w, h):
+        body = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")[1]
+        return list(struct.unpack(f"<{w * h}i", body))
+
+    def kill9(self):
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def print_log(self, tail=40):
+        print(f"---- node {self.name}, last {tail} lines ----\n" + "".join(self.lines[-tail:]))
