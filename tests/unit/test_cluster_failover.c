@@ -49,24 +49,31 @@ static void make_world(world *w)
         exit(2);
 }
 
+static uint32_t next_random(uint32_t *rng)
+{
+    *rng = *rng * 1664525u + 1013904223u;
+    return *rng >> 8;
+}
+
 /* Tick t's deformation: 1..3 rectangles pushed down, from t alone. */
 static int deform_tick(world *w, uint64_t t, world_rect *rects)
 {
     uint32_t rng = (uint32_t)(t * 2654435761u) ^ 0x9e3779b9u;
-#define NEXT() (rng = rng * 1664525u + 1013904223u, rng >> 8)
-    int n = 1 + (int)(NEXT() % 3);
+    int n = 1 + (int)(next_random(&rng) % 3);
     for (int i = 0; i < n; i++) {
-        world_rect r = {(int)(NEXT() % (W - 40)), (int)(NEXT() % (H - 40)), 1 + (int)(NEXT() % 40),
-                        1 + (int)(NEXT() % 40)};
+        world_rect r;
+        r.x = (int)(next_random(&rng) % (W - 40));
+        r.y = (int)(next_random(&rng) % (H - 40));
+        r.w = 1 + (int)(next_random(&rng) % 40);
+        r.h = 1 + (int)(next_random(&rng) % 40);
         int32_t *v = malloc(4 * (size_t)r.w * r.h);
         world_gather_window(w, r, v);
         for (int k = 0; k < r.w * r.h; k++)
-            v[k] -= 1 + (int32_t)(NEXT() % 50);
+            v[k] -= 1 + (int32_t)(next_random(&rng) % 50);
         world_scatter_window(w, r, v);
         free(v);
         rects[i] = r;
     }
-#undef NEXT
     return n;
 }
 
