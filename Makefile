@@ -1,14 +1,21 @@
 # terrad: user-facing entry points. CMake does the real build work.
 #
-#   make deps           install missing Debian packages (scripts/deps)
-#   make build          configure (once) and build into build/ (CC=clang -> build-clang/)
-#   make run            build, then run the daemon: ./build/terrad serve $(ARGS)
+#   make deps           install missing Debian packages to build and run (scripts/deps --build)
+#   make deps-test      ... and the test tools (scripts/deps --test: clang, chromium, node, ...)
+#   make build          configure (once) and build everything into build/ (CC=clang -> build-clang/)
+#   make run            build only the daemon, then run it: ./build/terrad serve $(ARGS)
+#   make install        build the daemon and the client library, then install them
+#                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
 #   make test           everything CI runs; ends with "N passed, N failed"
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
-#                       terrad bench --trade: the speed/accuracy sweep into docs/trade/)
+#                       terrad bench --trade: the speed/accuracy sweep into
+#                       $(TRADE_OUT), default test-artifacts/trade/, and its plot)
+#   make docs-images    refresh the pictures the docs show, on purpose: docs/viewer.png (the
+#                       viewer test's picture of its trail) and docs/trade/ (the sweep and its plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
-#   make cluster        3 NATS servers + 3 terrad nodes on loopback, two demo worlds (Ctrl-C stops)
+#   make cluster        3 NATS servers + 3 terrad nodes on loopback, two demo worlds (Ctrl-C stops;
+#                       installs nats-server with the test set when it is missing)
 #   make format         clang-format -i the C sources (format-check: only check)
 #   make web-deps       npm ci (when package-lock.json exists)
 #   make clean          remove build trees and test artifacts
@@ -24,6 +31,9 @@ ARGS ?=
 JOBS ?= 2
 PYTHON := /usr/bin/python3
 ARTIFACTS := test-artifacts
+PREFIX ?= /usr/local
+DESTDIR ?=
+TRADE_OUT ?= $(ARTIFACTS)/trade
 
 # One build tree per compiler: the default compiler uses build/, CC=clang uses build-clang/.
 ifeq ($(filter cc gcc,$(notdir $(CC))),)
@@ -51,11 +61,16 @@ endef
 
 FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
-.PHONY: deps build build-asan run test bench fuzz fuzz-smoke fuzz-build soak format \
-        format-check web-deps clean cluster
+.PHONY: deps deps-test build build-asan daemon run cluster install test bench docs-images fuzz \
+        fuzz-smoke fuzz-build soak format format-check web-deps clean
 
+# Building and running need only --build (which includes --runtime); the test tools
+# (about 1 GB: chromium, clang, prometheus, node) come with make test.
 deps:
-	@scripts/deps
+	@scripts/deps --build
+
+deps-test:
+	@scripts/deps --test
 
 build: deps
 	$(call configure,$(BUILD),$(CC),)
@@ -65,16 +80,30 @@ build-asan: deps
 	$(call configure,$(ASAN_BUILD),$(CC),-DCMAKE_BUILD_TYPE=Debug -DCMAKE_C_FLAGS_DEBUG="-O1 -g" -DTERRAD_SANITIZE=ON)
 	cmake --build $(ASAN_BUILD) -j $(JOBS)
 
-run: build
+# The daemon alone: no unit tests, benchmarks or client library.
+daemon: deps
+	$(call configure,$(BUILD),$(CC),)
+	cmake --build $(BUILD) -j $(JOBS) --target terrad
+
+run: daemon
 	exec $(TERRAD) serve $(ARGS)
 
-cluster: build
+cluster: daemon
+	@command -v nats-server >/dev/null 2>&1 || scripts/deps --test
 	exec $(PYTHON) scripts/cluster --bin $(TERRAD) $(ARGS)
+
+# The install prefix is set at configure time too, so that the systemd unit, the man page
+# and the example configuration name the paths they are installed under.
+install: deps
+	$(call configure,$(BUILD),$(CC),)
+	cmake -S . -B $(BUILD) -DCMAKE_INSTALL_PREFIX=$(PREFIX) >/dev/null
+	cmake --build $(BUILD) -j $(JOBS) --target terrad client
+	DESTDIR=$(DESTDIR) cmake --install $(BUILD) --prefix $(PREFIX)
 
 # make test: every step runs even when an earlier one fails, so CI sees all failures.
 # The last line is "N passed, N failed": the sum over both ctest runs, plus one failure
 # for each step that broke before tests could run (a build, web-deps, or the fuzz smoke).
-test: deps
+test: deps-test
 	@mkdir -p $(ARTIFACTS); rm -f $(ARTIFACTS)/ctest-*.log; broken=0; \
 	if [ -f package-lock.json ]; then $(MAKE) --no-print-directory web-deps || broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build; then \
@@ -100,16 +129,26 @@ bench: build
 	    echo "== $$b"; $(TEST_ENV) $(PYTHON) "$$b"; ran=1; \
 	done; \
 	if { $(TERRAD) --help 2>&1 || true; } | grep -qw bench; then \
-	    echo "== $(TERRAD) bench --trade (docs/trade/)"; $(TERRAD) bench --trade; ran=1; \
+	    echo "== $(TERRAD) bench --trade --out $(TRADE_OUT)"; \
+	    $(TERRAD) bench --trade --out $(TRADE_OUT); \
+	    $(PYTHON) scripts/trade-plot $(TRADE_OUT)/trade.csv $(TRADE_OUT)/trade.svg; ran=1; \
 	else echo "bench: '$(TERRAD) bench' not available yet, skipped"; fi; \
 	[ $$ran = 1 ] || echo "bench: no benchmarks found"
+
+# Pictures in docs/ change only here, never as a side effect of make test or make bench.
+docs-images: build web-deps
+	@mkdir -p $(ARTIFACTS)
+	ctest --test-dir $(BUILD) --output-on-failure -R '^test_viewer$$'
+	cp $(ARTIFACTS)/viewer-trail.png docs/viewer.png
+	$(TERRAD) bench --trade --out docs/trade
+	$(PYTHON) scripts/trade-plot docs/trade/trade.csv docs/trade/trade.svg
 
 # Fuzz targets: tests/fuzz/fuzz_*.c, built with clang + libFuzzer + ASan/UBSan in build-fuzz/.
 # Seeds are read from tests/fuzz/corpus/<target>/ when it exists; new inputs and crashes go
 # to test-artifacts/fuzz/.
 FUZZ_TARGETS = $(patsubst tests/fuzz/%.c,%,$(wildcard tests/fuzz/fuzz_*.c))
 
-fuzz-build: deps
+fuzz-build: deps-test
 	$(call configure,$(FUZZ_BUILD),$(FUZZ_CC),-DTERRAD_FUZZ=ON)
 	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target fuzz
 

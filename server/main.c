@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "app/app.h"
+#include "terrad_version.h"
 
 static void print_help(void)
 {
@@ -42,7 +43,7 @@ int main(int argc, char **argv)
         return 0;
     }
     if (strcmp(command, "--version") == 0) {
-        printf("terrad 0.1.0\n");
+        printf("terrad %s\n", TERRAD_VERSION);
         return 0;
     }
     /* a command gets its own argv: argv[0] is its name */

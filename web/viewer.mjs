@@ -820,10 +820,15 @@ function draw() {
 
 let last = performance.now();
 function frame(now) {
-  const dt = Math.min(0.1, (now - last) / 1000);
+  // The page's collider moves at real-time speed whatever the frame rate: a slow frame (software
+  // GL) drives the whole time it took, in steps of at most 50 ms that each send their pose, so
+  // the path is not skipped either. Past a second (a hidden tab) the rest is dropped.
+  const elapsed = Math.min(1, (now - last) / 1000);
   last = now;
-  keyDrive(dt);
-  dragDrive(dt);
+  for (let left = elapsed; left > 1e-6; left -= 0.05) {
+    keyDrive(Math.min(0.05, left));
+    dragDrive(Math.min(0.05, left));
+  }
   sendPoses(now);
   // Draw only when something changed: software GL is slow, keep the main thread free.
   const o = app.own, sig = [canvas.clientWidth, canvas.clientHeight, devicePixelRatio, cam.yaw, cam.pitch, cam.dist,

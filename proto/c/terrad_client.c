@@ -55,6 +55,8 @@ struct terrad_client {
     terrad_client_stats stats;
     terrad_client_hook hook;
     void *user;
+    terrad_client_log_fn log;
+    int log_level;
 
     out_msg *out_head, *out_tail;
 
@@ -91,11 +93,34 @@ static int64_t now_us(void)
     return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
+static void log_line(terrad_client *c, int level, const char *text)
+{
+    if (c->log && level <= c->log_level)
+        c->log(c->user, level, text);
+}
+
+/* Keeps the sentence for terrad_client_last_error and logs it at level. */
+static void set_err_at(terrad_client *c, int level, const char *fmt, va_list ap)
+{
+    vsnprintf(c->err, sizeof c->err, fmt, ap);
+    log_line(c, level, c->err);
+}
+
+static void set_err(terrad_client *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 static void set_err(terrad_client *c, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(c->err, sizeof c->err, fmt, ap);
+    set_err_at(c, TERRAD_LOG_ERROR, fmt, ap);
+    va_end(ap);
+}
+
+static void set_warn(terrad_client *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void set_warn(terrad_client *c, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    set_err_at(c, TERRAD_LOG_WARN, fmt, ap);
     va_end(ap);
 }
 
@@ -314,7 +339,7 @@ static void on_delta(terrad_client *c, const uint8_t *buf, size_t len, uint64_t 
         client_sub *s = &c->subs[i];
         rc = terrad_mirror_apply(&s->m, c->codec, c->rects, n, c->scratch, c->scratch_cells);
         if (rc) {
-            set_err(c, "subscription %u: %s, asking for a resync", s->id, terrad_err_name(rc));
+            set_warn(c, "subscription %u: %s, asking for a resync", s->id, terrad_err_name(rc));
             c->stats.last_error_code = rc;
             c->stats.resyncs++;
             send_resync(c, s->id);
@@ -462,8 +487,8 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
             const unsigned char *p = in;
             c->stats.close_code = (p[0] << 8) | p[1];
             if (len > 2)
-                set_err(c, "closed by the server (%d): %.*s", c->stats.close_code, (int)(len - 2),
-                        (const char *)p + 2);
+                set_warn(c, "closed by the server (%d): %.*s", c->stats.close_code, (int)(len - 2),
+                         (const char *)p + 2);
         }
         break;
     case LWS_CALLBACK_CLIENT_CLOSED:
@@ -535,7 +560,13 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     c->timeout_ms = d.timeout_ms > 0 ? d.timeout_ms : 5000;
     c->hook = d.hook;
     c->user = d.user;
+    c->log = d.log;
+    c->log_level = d.log_level > 0 ? d.log_level : TERRAD_LOG_INFO;
     c->codec = terrad_codec_new(0);
+    /* libwebsockets prints a banner and notices to stderr by default: not in the host's
+     * stderr unless the host asks for them. */
+    if (d.lws_log_levels != TERRAD_CLIENT_LWS_LOG_KEEP)
+        lws_set_log_level(d.lws_log_levels, NULL);
 
     struct lws_context_creation_info info;
     memset(&info, 0, sizeof info);
@@ -585,14 +616,19 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     }
     service_until(c, now_us() + (int64_t)c->timeout_ms * 1000, world_or_error);
     if (!c->got_world) {
-        if (!c->err[0])
-            set_err(c,
-                    c->closed ? "the server closed the connection during the handshake"
-                              : "no world message within %d ms",
-                    c->timeout_ms);
+        if (!c->err[0]) {
+            if (c->closed)
+                set_err(c, "the server closed the connection during the handshake");
+            else
+                set_err(c, "no world message within %d ms", c->timeout_ms);
+        }
         goto fail;
     }
     c->wait_done = 0;
+    char line[160];
+    snprintf(line, sizeof line, "connected to %s:%d: world %dx%d cells, tick %llu", host, ci.port,
+             c->world.width, c->world.height, (unsigned long long)c->world.tick);
+    log_line(c, TERRAD_LOG_INFO, line);
     return c;
 
 fail:
@@ -611,6 +647,7 @@ void terrad_client_close(terrad_client *c)
         c->closing = 1;
         lws_callback_on_writable(c->wsi);
         service_until(c, now_us() + 1000000, never); /* until closed, 1 s at most */
+        log_line(c, TERRAD_LOG_INFO, "closed");
     }
     if (c->ctx)
         lws_context_destroy(c->ctx);

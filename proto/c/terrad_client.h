@@ -3,12 +3,29 @@
  * over libwebsockets' client API, for game backends and simulators written
  * in C or C++.
  *
- *     terrad_client *c = terrad_client_connect((terrad_client_desc){.port = 8081}, err, sizeof
- * err); uint32_t wheel, sub, seq; terrad_client_create_collider(c, (terrad_collider_desc){.shape =
- * TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2}, &wheel); terrad_client_subscribe(c, 0, 0, 128,
- * 128, &sub); terrad_pose p = {wheel, 1.0f, 1.0f, 0.5f, 1, 0, 0, 0}; terrad_client_send_poses(c,
- * &p, 1, &seq); while (terrad_client_poll(c, 20) >= 0) { ... terrad_client_mirror(c, sub)->heights
- * ... } terrad_client_close(c);
+ * Usage (the whole program: proto/c/examples/drive_wheel.c):
+ *
+ *     char err[256];
+ *     terrad_client *c = terrad_client_connect((terrad_client_desc){.port = 8081}, err,
+ *                                              sizeof err);
+ *     uint32_t wheel, sub, seq;
+ *     terrad_client_create_collider(
+ *         c, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2},
+ *         &wheel);
+ *     terrad_client_subscribe(c, 0, 0, 128, 128, &sub);
+ *     terrad_pose p = {wheel, 1.0f, 1.0f, 0.5f, 1, 0, 0, 0};
+ *     terrad_client_send_poses(c, &p, 1, &seq);
+ *     while (terrad_client_poll(c, 20) >= 0) {
+ *         const terrad_mirror *m = terrad_client_mirror(c, sub);
+ *         ... m->heights: row-major int32, exact where the tile's version is not 0 ...
+ *     }
+ *     terrad_client_close(c);
+ *
+ * Build against the installed library:
+ *
+ *     cc app.c $(pkg-config --cflags --libs terrad-client)
+ *
+ * and include <terrad/terrad_client.h>.
  *
  * One connection, one thread, no callbacks needed: requests (collider
  * create/delete, subscribe, unsubscribe) block until the server's reply or
@@ -25,6 +42,13 @@
  * allowed; a negative TERRAD_CLIENT_E_* (or TERRAD_E_NO_MEMORY) for local
  * failures. terrad_client_last_error() has a sentence for people.
  * Not thread-safe: use one client from one thread.
+ *
+ * Logging: the client writes nothing to stdout or stderr. Its messages (the
+ * same sentences terrad_client_last_error returns, and a line on connect and
+ * close) go to desc.log when one is given. libwebsockets' own log is
+ * process-wide; terrad_client_connect sets it to desc.lws_log_levels (0, the
+ * default: silent), or leaves it alone with TERRAD_CLIENT_LWS_LOG_KEEP for a
+ * host that uses libwebsockets itself.
  */
 #ifndef TERRAD_CLIENT_H
 #define TERRAD_CLIENT_H
@@ -50,14 +74,30 @@ typedef struct terrad_client terrad_client;
  * terrad_msg_type, tick the frame's tick (0 for PING/PONG). */
 typedef void (*terrad_client_hook)(void *user, terrad_client *c, int msg_type, uint64_t tick);
 
+/* Levels of the log callback. */
+typedef enum terrad_client_log_level {
+    TERRAD_LOG_ERROR = 1, /* a request or the connection failed */
+    TERRAD_LOG_WARN = 2,  /* something was refused or repaired (a resync) */
+    TERRAD_LOG_INFO = 3,  /* connected, closed */
+} terrad_client_log_level;
+
+/* One log message (no newline at the end). */
+typedef void (*terrad_client_log_fn)(void *user, int level, const char *message);
+
+/* desc.lws_log_levels: leave libwebsockets' log level and emitter as they are. */
+#define TERRAD_CLIENT_LWS_LOG_KEEP (-1)
+
 typedef struct terrad_client_desc {
-    const char *host;        /* NULL: "127.0.0.1" */
-    int port;                /* 0: 8081 */
-    const char *token;       /* NULL: "" */
-    const char *name;        /* hello.client; NULL: "terrad-c" */
-    int timeout_ms;          /* connect + hello, and each request; 0: 5000 */
-    terrad_client_hook hook; /* optional */
-    void *user;              /* passed to hook */
+    const char *host;         /* NULL: "127.0.0.1" */
+    int port;                 /* 0: 8081 */
+    const char *token;        /* NULL: "" */
+    const char *name;         /* hello.client; NULL: "terrad-c" */
+    int timeout_ms;           /* connect + hello, and each request; 0: 5000 */
+    terrad_client_hook hook;  /* optional */
+    void *user;               /* passed to hook and log */
+    terrad_client_log_fn log; /* optional; NULL: the client logs nothing */
+    int log_level;            /* messages up to this level reach log; 0: TERRAD_LOG_INFO */
+    int lws_log_levels;       /* libwebsockets' LLL_* bits to stderr; 0: silent; or KEEP */
 } terrad_client_desc;
 
 /* The world message (PROTOCOL.md "world"); limits not listed keep their defaults. */

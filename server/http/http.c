@@ -235,22 +235,15 @@ static int param_int(struct MHD_Connection *c, const char *name, int *out)
 
 typedef struct png_memory {
     unsigned char *data;
-    size_t len, cap;
+    size_t len;
+    int64_t cap;
 } png_memory;
 
 static void png_memory_write(png_structp png, png_bytep bytes, png_size_t n)
 {
     png_memory *m = png_get_io_ptr(png);
-    if (m->len + n > m->cap) {
-        size_t cap = m->cap ? m->cap : 65536;
-        while (cap < m->len + n)
-            cap *= 2;
-        unsigned char *d = realloc(m->data, cap);
-        if (!d)
-            png_error(png, "out of memory");
-        m->data = d;
-        m->cap = cap;
-    }
+    if (array_grow((void **)&m->data, &m->cap, (int64_t)(m->len + n), 1) != 0)
+        png_error(png, "out of memory");
     memcpy(m->data + m->len, bytes, n);
     m->len += n;
 }

@@ -1,7 +1,9 @@
 /*
  * hub.c: bounded queues and tables between the network, HTTP and sim
- * threads (see hub.h). Each structure has its own mutex, held only for
- * copies, so the three threads never wait on each other's work.
+ * threads (see hub.h, whose top comment lists every meeting point of the
+ * daemon's threads). Each structure has its own mutex, held only for
+ * copies, so the threads never wait on each other's work; each end asserts
+ * the thread that owns it (THREAD_OWNED, in debug and sanitizer builds).
  */
 #include "hub/hub.h"
 
@@ -11,6 +13,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+
+#include "base/base.h"
 
 #define HUB_COMMAND_CAPACITY 4096
 #define HUB_POSE_CAPACITY 65536
@@ -27,6 +31,7 @@ typedef struct hub_read {
 } hub_read;
 
 struct hub {
+    thread_owner sim_end, net_end; /* claimed by each side's thread (hub_claim_*) */
     pthread_mutex_t command_lock;
     hub_command *commands;
     int command_head, command_count;
@@ -116,8 +121,24 @@ void hub_destroy(hub *h)
 
 /* ---- commands ---- */
 
+void hub_claim_sim_end(hub *h)
+{
+    thread_owner_claim(&h->sim_end, "sim");
+}
+
+void hub_claim_net_end(hub *h)
+{
+    thread_owner_claim(&h->net_end, "net");
+}
+
+void hub_release_net_end(hub *h)
+{
+    thread_owner_release(&h->net_end);
+}
+
 int hub_push_command(hub *h, const hub_command *cmd)
 {
+    THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->command_lock);
     if (h->command_count == HUB_COMMAND_CAPACITY) {
         pthread_mutex_unlock(&h->command_lock);
@@ -131,6 +152,7 @@ int hub_push_command(hub *h, const hub_command *cmd)
 
 int hub_take_commands(hub *h, hub_command *out, int max)
 {
+    THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->command_lock);
     int n = h->command_count < max ? h->command_count : max;
     for (int i = 0; i < n; i++)
@@ -167,6 +189,7 @@ static int32_t pose_find(const hub *h, uint32_t collider, uint32_t *slot)
 
 int hub_set_pose(hub *h, const hub_pose *pose_in)
 {
+    THREAD_OWNED(&h->net_end);
     hub_pose stamped = *pose_in;
     stamped.received_ms = time_now_ms();
     const hub_pose *pose = &stamped;
@@ -199,6 +222,7 @@ static void pose_reindex(hub *h)
 
 void hub_forget_pose(hub *h, uint32_t collider)
 {
+    THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->pose_lock);
     uint32_t slot;
     int32_t at = pose_find(h, collider, &slot);
@@ -211,6 +235,7 @@ void hub_forget_pose(hub *h, uint32_t collider)
 
 int hub_take_poses(hub *h, hub_pose *out, int max)
 {
+    THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->pose_lock);
     int n = h->pose_count < max ? h->pose_count : max;
     memcpy(out, h->poses, (size_t)n * sizeof *out);
@@ -223,6 +248,7 @@ int hub_take_poses(hub *h, hub_pose *out, int max)
 
 void hub_note_batch(hub *h, uint32_t client, uint32_t sequence)
 {
+    THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->pose_lock);
     int i = 0;
     while (i < h->batch_count && h->batches[i].client != client)
@@ -236,6 +262,7 @@ void hub_note_batch(hub *h, uint32_t client, uint32_t sequence)
 
 int hub_take_batches(hub *h, hub_batch *out, int max)
 {
+    THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->pose_lock);
     int n = h->batch_count < max ? h->batch_count : max;
     memcpy(out, h->batches, (size_t)n * sizeof *out);
@@ -284,6 +311,7 @@ void hub_frame_unref(hub_frame *f)
 
 int hub_publish(hub *h, hub_out *items, int count)
 {
+    THREAD_OWNED(&h->sim_end);
     int dropped = 0;
     pthread_mutex_lock(&h->out_lock);
     for (int i = 0; i < count; i++) {
@@ -308,6 +336,7 @@ int hub_publish(hub *h, hub_out *items, int count)
 
 int hub_take_outbound(hub *h, hub_out *out, int max)
 {
+    THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->out_lock);
     int n = h->out_count < max ? h->out_count : max;
     for (int i = 0; i < n; i++)
@@ -320,6 +349,7 @@ int hub_take_outbound(hub *h, hub_out *out, int max)
 
 int hub_take_overflow(hub *h)
 {
+    THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->out_lock);
     int o = h->overflow;
     h->overflow = 0;
@@ -339,6 +369,13 @@ void hub_set_waker(hub *h, void (*wake)(void *arg), void *arg)
 
 int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int timeout_ms)
 {
+#ifdef TERRAD_THREAD_CHECKS
+    /* the sim thread serves reads between ticks: waiting here it would wait for itself */
+    if (h->sim_end.tid && h->sim_end.tid == (unsigned long)pthread_self()) {
+        log_error("hub_read_heights: called from the sim thread, which serves the reads");
+        abort();
+    }
+#endif
     struct timespec deadline;
     clock_gettime(CLOCK_MONOTONIC, &deadline);
     deadline.tv_sec += timeout_ms / 1000;
@@ -375,6 +412,7 @@ int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int tim
 
 void hub_serve_reads(hub *h, const world *w, uint64_t tick)
 {
+    THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->read_lock);
     int served = 0;
     for (int i = 0; i < HUB_MAX_READS; i++) {
@@ -398,6 +436,7 @@ void hub_serve_reads(hub *h, const world *w, uint64_t tick)
 
 void hub_close_reads(hub *h)
 {
+    THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->read_lock);
     h->reads_closed = 1;
     pthread_cond_broadcast(&h->read_done);
@@ -406,6 +445,7 @@ void hub_close_reads(hub *h)
 
 void hub_set_store_unavailable(hub *h, const char *reason)
 {
+    THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->out_lock);
     snprintf(h->store_unavailable, sizeof h->store_unavailable, "%s", reason ? reason : "");
     pthread_mutex_unlock(&h->out_lock);
@@ -413,6 +453,7 @@ void hub_set_store_unavailable(hub *h, const char *reason)
 
 int hub_store_unavailable(hub *h, char *reason, size_t cap)
 {
+    THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->out_lock);
     int down = h->store_unavailable[0] != 0;
     if (down && reason && cap)

@@ -1,6 +1,7 @@
 /*
- * hub: the one meeting point of the websocket thread, the HTTP thread and
- * the sim thread (DESIGN.md "One tick", steps 1-2 and 8).
+ * hub: the meeting point of the websocket thread, the HTTP threads and the
+ * sim thread (docs/design.md, "Threads"); one tick takes its input from here
+ * first and publishes its frames here last.
  *
  *   net → sim   commands (client joined/left, collider create/delete,
  *               subscribe/unsubscribe, resync) in a bounded queue, and a
@@ -11,11 +12,49 @@
  *   http → sim  height reads, served by the sim thread between ticks.
  *
  * Every call takes one mutex for a short copy; none waits on another thread
- * except hub_read_heights, which is only called from the HTTP thread. The
+ * except hub_read_heights, which is only called from the HTTP threads. The
  * sim thread never blocks on the network, and the network never blocks a
  * tick. Queues are bounded: a full command queue refuses the command (the
  * net thread answers the client), a full outbound queue drops tile deltas
  * and marks every client for a resync (counted).
+ *
+ * ---- The daemon's threads and every place they meet ----
+ * Threads:
+ *   sim         the main thread of `terrad serve` (app/serve.c): ticks the
+ *               service (service_tick) and the engine, owns the world, the
+ *               engine, the GL context and the store's log;
+ *   net         one thread running libwebsockets (net/net.c): owns every
+ *               connection, client record and the net side's collider table;
+ *   http        libmicrohttpd's pool of four polling threads (http/http.c):
+ *               own nothing but their requests;
+ *   compaction  the store's own thread (store/store.c): writes tile
+ *               snapshots from copies the sim thread hands over.
+ * Meeting points (nothing else is shared):
+ *   1. hub command queue     net → sim   mutex; bounded, refusable
+ *   2. hub pose table        net → sim   mutex; latest wins per collider
+ *   3. hub batch sequences   net → sim   mutex; latest wins per client
+ *   4. hub outbound queue    sim → net   mutex; the frames' reference counts
+ *                                        are atomic (hub_frame.refs); the
+ *                                        sim wakes the net thread through
+ *                                        hub_set_waker (lws_cancel_service,
+ *                                        under net.c's wake_lock)
+ *   5. hub storage state     sim → net   mutex (store unavailable + reason)
+ *   6. hub height reads      http → sim  mutex + condition variable; the
+ *                                        only place a thread waits on another
+ *   7. http_status block     sim → http  its own mutex (http/http.h), copied
+ *                                        once per tick by the sim thread
+ *   8. metrics               all → http  relaxed atomics, and a short mutex
+ *                                        per histogram (metrics/metrics.c)
+ *   9. store compaction      sim → compaction  store.c's mutex + condition
+ *                                        variable: one job (tile copies) at a time
+ *  10. net_server_client_count  net → any  an atomic counter (net/net.c)
+ *  11. stop requests         signal → sim (a sig_atomic_t in serve.c);
+ *                            sim → net (atomics in net.c, then a join)
+ * Ownership is checked, not only described: each end of the hub asserts its
+ * thread (THREAD_OWNED) in debug and sanitizer builds; the sim thread claims
+ * the sim end (service_create), the net thread the net end while it runs;
+ * hub_read_heights refuses the sim thread. The HTTP pool has no single
+ * owner thread to claim: its meeting points are 6, 7 and 8 only.
  */
 #ifndef TERRAD_HUB_H
 #define TERRAD_HUB_H
@@ -31,6 +70,13 @@ typedef struct hub hub;
 
 hub *hub_create(void);
 void hub_destroy(hub *h);
+
+/* Thread ownership of the two ends: each side claims its end from its own
+ * thread (the sim thread when it creates the service, the net thread when it
+ * starts); until then, and after the net end is released, nothing is checked. */
+void hub_claim_sim_end(hub *h);
+void hub_claim_net_end(hub *h);
+void hub_release_net_end(hub *h);
 
 /* ---- net → sim: commands ---- */
 
@@ -151,7 +197,7 @@ int hub_store_unavailable(hub *h, char *reason, size_t cap);
 
 /* ---- http → sim: height reads ---- */
 
-/* Any thread but the sim thread: copy a rectangle (inside the world) of
+/* Any thread but the sim thread (the HTTP threads): copy a rectangle (inside the world) of
  * heights as of the end of a tick. Waits up to timeout_ms; returns 0, or -1
  * on timeout or when the sim thread is gone. */
 int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int timeout_ms);

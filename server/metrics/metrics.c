@@ -24,6 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "base/base.h"
 #include "terrad_proto.h"
 
 /* ---- histograms ---- */
@@ -85,6 +86,8 @@ static histogram fsync_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
 static histogram stage_hist[STAGE_COUNT];
 static const char *const store_error_kinds[] = {METRICS_STORE_ERROR_KINDS};
 #define STORE_ERROR_KINDS COUNT_OF(store_error_kinds)
+static const char *const service_drop_reasons[] = {METRICS_SERVICE_DROP_REASONS};
+#define SERVICE_DROP_REASONS COUNT_OF(service_drop_reasons)
 static pthread_once_t stage_once = PTHREAD_ONCE_INIT;
 
 static void stage_hist_init(void)
@@ -136,6 +139,7 @@ static atomic_uint_fast64_t tick_now;
 static atomic_int_fast64_t volume, active_cells, colliders, clients;
 static atomic_uint_fast64_t store_wal_bytes, store_durable_tick, store_compactions;
 static atomic_uint_fast64_t store_errors[STORE_ERROR_KINDS];
+static atomic_uint_fast64_t service_dropped[SERVICE_DROP_REASONS];
 static atomic_int_fast64_t store_available, store_records_replayed, store_bytes_cut;
 static atomic_int_fast64_t store_recovery_us, store_compaction_us;
 
@@ -187,6 +191,8 @@ void metrics_reset(void)
     SET(store_compactions, 0);
     for (int i = 0; i < STORE_ERROR_KINDS; i++)
         SET(store_errors[i], 0);
+    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
+        SET(service_dropped[i], 0);
     SET(store_available, 0);
     SET(store_records_replayed, 0);
     SET(store_bytes_cut, 0);
@@ -240,6 +246,13 @@ void metrics_count_store_error(const char *kind)
     for (int i = 0; i < STORE_ERROR_KINDS; i++)
         if (strcmp(kind, store_error_kinds[i]) == 0)
             ADD(store_errors[i], 1);
+}
+
+void metrics_count_service_dropped(const char *reason)
+{
+    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
+        if (strcmp(reason, service_drop_reasons[i]) == 0)
+            ADD(service_dropped[i], 1);
 }
 
 void metrics_set_store_available(int available)
@@ -403,7 +416,8 @@ void metrics_set_memory_bytes(const char *part, uint64_t bytes)
 
 typedef struct text {
     char *data;
-    size_t len, cap;
+    size_t len;
+    int64_t cap;
     int failed;
 } text;
 
@@ -416,24 +430,20 @@ static void text_printf(text *t, const char *fmt, ...)
     for (;;) {
         va_list ap;
         va_start(ap, fmt);
-        int n = vsnprintf(t->data + t->len, t->cap - t->len, fmt, ap);
+        int n = vsnprintf(t->data + t->len, (size_t)t->cap - t->len, fmt, ap);
         va_end(ap);
         if (n < 0) {
             t->failed = 1;
             return;
         }
-        if ((size_t)n < t->cap - t->len) {
+        if ((size_t)n < (size_t)t->cap - t->len) {
             t->len += (size_t)n;
             return;
         }
-        size_t cap = t->cap * 2 + (size_t)n + 1;
-        char *d = realloc(t->data, cap);
-        if (!d) {
+        if (array_grow((void **)&t->data, &t->cap, (int64_t)(t->len + (size_t)n + 1), 1) != 0) {
             t->failed = 1;
             return;
         }
-        t->data = d;
-        t->cap = cap;
     }
 }
 
@@ -502,134 +512,169 @@ static void histogram_samples(text *t, const char *name, const char *labels, his
     }
 }
 
+/* Tick, stage and pose-to-delta histograms. */
+static void render_timings(text *t)
+{
+    header(t, "terrad_tick_duration_seconds", "histogram",
+           "Wall time of one simulation tick, all stages included.");
+    histogram_samples(t, "terrad_tick_duration_seconds", "", &tick_hist);
+
+    header(t, "terrad_stage_duration_seconds", "histogram",
+           "Wall time of one stage of a tick, by stage.");
+    for (int i = 0; i < STAGE_COUNT; i++) {
+        char labels[64];
+        snprintf(labels, sizeof labels, "stage=\"%s\",", stage_names[i]);
+        histogram_samples(t, "terrad_stage_duration_seconds", labels, &stage_hist[i]);
+    }
+
+    header(t, "terrad_pose_to_delta_latency_seconds", "histogram",
+           "Time from a pose batch's arrival to the delta frames of the tick that used it.");
+    histogram_samples(t, "terrad_pose_to_delta_latency_seconds", "", &latency_hist);
+}
+
+/* The world, the clients and what went over the websocket. */
+static void render_clients(text *t)
+{
+    gauge_int(t, "terrad_tick", "The last completed tick.", (int64_t)GET(tick_now));
+    /* %lld of an int64: exact, unlike any double formatting above 2^53. */
+    gauge_int(t, "terrad_volume_units", "Sum of all heights in height units (exact integer).",
+              (int64_t)GET(volume));
+    gauge_int(t, "terrad_active_cells", "Cells inside the last tick's active windows.",
+              (int64_t)GET(active_cells));
+    gauge_int(t, "terrad_colliders", "Live colliders.", (int64_t)GET(colliders));
+    gauge_int(t, "terrad_clients", "Connected websocket clients.", (int64_t)GET(clients));
+
+    counter(t, "terrad_bytes_in_total", "Websocket payload bytes received.", GET(bytes_in));
+    counter(t, "terrad_bytes_out_total", "Websocket payload bytes sent.", GET(bytes_out));
+    counter(t, "terrad_messages_in_total", "Websocket messages received.", GET(messages_in));
+    counter(t, "terrad_frames_out_total", "Websocket frames sent.", GET(frames_out));
+
+    uint64_t raw = GET(delta_raw), comp = GET(delta_compressed);
+    counter(t, "terrad_delta_raw_bytes_total", "Delta payload bytes before compression.", raw);
+    counter(t, "terrad_delta_compressed_bytes_total", "Delta payload bytes after compression.",
+            comp);
+    header(t, "terrad_delta_compression_ratio", "gauge",
+           "Raw over compressed delta bytes over the process's life (0 before any delta).");
+    text_printf(t, "terrad_delta_compression_ratio %.6g\n",
+                comp ? (double)raw / (double)comp : 0.0);
+
+    counter(t, "terrad_frames_coalesced_total",
+            "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
+    counter(t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
+            GET(frames_dropped));
+
+    counter(t, "terrad_footprint_frames_total",
+            "FOOTPRINTS frames queued to clients (decals model).", GET(footprint_frames));
+    counter(t, "terrad_footprint_events_total", "Footprint events in those frames.",
+            GET(footprint_events));
+    counter(t, "terrad_footprint_frames_dropped_total",
+            "FOOTPRINTS frames not sent to a slow client.", GET(footprint_frames_dropped));
+
+    header(t, "terrad_refused_messages_total", "counter",
+           "Client messages refused, by wire error name (proto/PROTOCOL.md).");
+    for (int code = TERRAD_ERR_FIRST; code <= TERRAD_ERR_LAST; code++) {
+        const char *name = terrad_err_name(code);
+        char esc[64];
+        escape_label(name ? name : "internal", esc, sizeof esc);
+        text_printf(t, "terrad_refused_messages_total{reason=\"%s\"} %llu\n", esc,
+                    (unsigned long long)GET(refused[code]));
+    }
+}
+
+/* Overruns, refused windows and the GL tile cache. */
+static void render_backend(text *t)
+{
+    counter(t, "terrad_tick_overruns_total", "Ticks that took longer than the tick period.",
+            GET(tick_overruns));
+    counter(t, "terrad_refused_windows_total",
+            "Active windows refused because their heights would leave the height limits.",
+            GET(refused_windows));
+    counter(t, "terrad_gpu_tile_uploads_total",
+            "World tiles uploaded into the GL backend's tile cache.", GET(gpu_tile_uploads));
+    counter(t, "terrad_gpu_tile_upload_bytes_total", "Bytes of those uploads.",
+            GET(gpu_tile_upload_bytes));
+    counter(t, "terrad_gpu_tile_evictions_total",
+            "Resident tiles the GL tile cache replaced by others (LRU).", GET(gpu_tile_evictions));
+    gauge_int(t, "terrad_gpu_tiles_resident", "World tiles resident in the GL tile cache.",
+              GET(gpu_tiles_resident));
+}
+
+/* The store (server/store). */
+static void render_store(text *t)
+{
+    counter(t, "terrad_store_wal_bytes_total", "Bytes appended to the write-ahead log.",
+            GET(store_wal_bytes));
+    header(t, "terrad_store_fsync_duration_seconds", "histogram",
+           "Wall time of one fdatasync of the write-ahead log.");
+    histogram_samples(t, "terrad_store_fsync_duration_seconds", "", &fsync_hist);
+    gauge_int(t, "terrad_store_durable_tick",
+              "The last tick as durable as the durability policy promises.",
+              (int64_t)GET(store_durable_tick));
+    gauge_int(t, "terrad_store_available",
+              "1 while ticks can be made durable; 0 while deformation is refused.",
+              (int64_t)GET(store_available));
+    counter(t, "terrad_store_compactions_total", "Log compactions into tile snapshots.",
+            GET(store_compactions));
+    header(t, "terrad_store_last_compaction_seconds", "gauge",
+           "Wall time of the last compaction (its own thread).");
+    text_printf(t, "terrad_store_last_compaction_seconds %.6f\n",
+                (double)GET(store_compaction_us) / 1e6);
+    header(t, "terrad_store_errors_total", "counter", "Storage errors, by kind.");
+    for (int i = 0; i < STORE_ERROR_KINDS; i++)
+        text_printf(t, "terrad_store_errors_total{kind=\"%s\"} %llu\n", store_error_kinds[i],
+                    (unsigned long long)GET(store_errors[i]));
+    header(t, "terrad_store_recovery_seconds", "gauge",
+           "Wall time of the recovery at start (snapshots and log replay).");
+    text_printf(t, "terrad_store_recovery_seconds %.6f\n", (double)GET(store_recovery_us) / 1e6);
+    gauge_int(t, "terrad_store_recovery_records", "Log records replayed at start.",
+              (int64_t)GET(store_records_replayed));
+    gauge_int(t, "terrad_store_cut_tail_bytes",
+              "Bytes of a torn or corrupt log tail cut at start (0: none).",
+              (int64_t)GET(store_bytes_cut));
+}
+
+/* Work the service dropped (server/service). */
+static void render_service(text *t)
+{
+    header(t, "terrad_service_dropped_total", "counter",
+           "Work a tick could not do (a frame, snapshot, poses or command dropped), by reason.");
+    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
+        text_printf(t, "terrad_service_dropped_total{reason=\"%s\"} %llu\n",
+                    service_drop_reasons[i], (unsigned long long)GET(service_dropped[i]));
+}
+
+/* Memory by part and the models' scratch by stage. */
+static void render_memory(text *t)
+{
+    header(t, "terrad_memory_bytes", "gauge", "Memory held by a part of the daemon, by part.");
+    pthread_mutex_lock(&memory_lock);
+    for (int i = 0; i < memory_part_count; i++) {
+        char esc[2 * MEMORY_PART_NAME + 4];
+        escape_label(memory_parts[i].name, esc, sizeof esc);
+        text_printf(t, "terrad_memory_bytes{part=\"%s\"} %llu\n", esc,
+                    (unsigned long long)memory_parts[i].bytes);
+    }
+    pthread_mutex_unlock(&memory_lock);
+
+    header(t, "terrad_sim_scratch_bytes", "gauge",
+           "Scratch memory the deformation models hold, by stage.");
+    for (int i = 0; i < MEMORY_STAGE_COUNT; i++)
+        text_printf(t, "terrad_sim_scratch_bytes{stage=\"%s\"} %llu\n", memory_stage_names[i],
+                    (unsigned long long)GET(stage_memory[i]));
+}
+
 char *metrics_render(size_t *len)
 {
     pthread_once(&stage_once, stage_hist_init);
     text t = {malloc(8192), 0, 8192, 0};
     if (!t.data)
         return NULL;
-
-    header(&t, "terrad_tick_duration_seconds", "histogram",
-           "Wall time of one simulation tick, all stages included.");
-    histogram_samples(&t, "terrad_tick_duration_seconds", "", &tick_hist);
-
-    header(&t, "terrad_stage_duration_seconds", "histogram",
-           "Wall time of one stage of a tick, by stage.");
-    for (int i = 0; i < STAGE_COUNT; i++) {
-        char labels[64];
-        snprintf(labels, sizeof labels, "stage=\"%s\",", stage_names[i]);
-        histogram_samples(&t, "terrad_stage_duration_seconds", labels, &stage_hist[i]);
-    }
-
-    header(&t, "terrad_pose_to_delta_latency_seconds", "histogram",
-           "Time from a pose batch's arrival to the delta frames of the tick that used it.");
-    histogram_samples(&t, "terrad_pose_to_delta_latency_seconds", "", &latency_hist);
-
-    gauge_int(&t, "terrad_tick", "The last completed tick.", (int64_t)GET(tick_now));
-    /* %lld of an int64: exact, unlike any double formatting above 2^53. */
-    gauge_int(&t, "terrad_volume_units", "Sum of all heights in height units (exact integer).",
-              (int64_t)GET(volume));
-    gauge_int(&t, "terrad_active_cells", "Cells inside the last tick's active windows.",
-              (int64_t)GET(active_cells));
-    gauge_int(&t, "terrad_colliders", "Live colliders.", (int64_t)GET(colliders));
-    gauge_int(&t, "terrad_clients", "Connected websocket clients.", (int64_t)GET(clients));
-
-    counter(&t, "terrad_bytes_in_total", "Websocket payload bytes received.", GET(bytes_in));
-    counter(&t, "terrad_bytes_out_total", "Websocket payload bytes sent.", GET(bytes_out));
-    counter(&t, "terrad_messages_in_total", "Websocket messages received.", GET(messages_in));
-    counter(&t, "terrad_frames_out_total", "Websocket frames sent.", GET(frames_out));
-
-    uint64_t raw = GET(delta_raw), comp = GET(delta_compressed);
-    counter(&t, "terrad_delta_raw_bytes_total", "Delta payload bytes before compression.", raw);
-    counter(&t, "terrad_delta_compressed_bytes_total", "Delta payload bytes after compression.",
-            comp);
-    header(&t, "terrad_delta_compression_ratio", "gauge",
-           "Raw over compressed delta bytes over the process's life (0 before any delta).");
-    text_printf(&t, "terrad_delta_compression_ratio %.6g\n",
-                comp ? (double)raw / (double)comp : 0.0);
-
-    counter(&t, "terrad_frames_coalesced_total",
-            "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
-    counter(&t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
-            GET(frames_dropped));
-
-    counter(&t, "terrad_footprint_frames_total",
-            "FOOTPRINTS frames queued to clients (decals model).", GET(footprint_frames));
-    counter(&t, "terrad_footprint_events_total", "Footprint events in those frames.",
-            GET(footprint_events));
-    counter(&t, "terrad_footprint_frames_dropped_total",
-            "FOOTPRINTS frames not sent to a slow client.", GET(footprint_frames_dropped));
-
-    header(&t, "terrad_refused_messages_total", "counter",
-           "Client messages refused, by wire error name (proto/PROTOCOL.md).");
-    for (int code = TERRAD_ERR_FIRST; code <= TERRAD_ERR_LAST; code++) {
-        const char *name = terrad_err_name(code);
-        char esc[64];
-        escape_label(name ? name : "internal", esc, sizeof esc);
-        text_printf(&t, "terrad_refused_messages_total{reason=\"%s\"} %llu\n", esc,
-                    (unsigned long long)GET(refused[code]));
-    }
-
-    counter(&t, "terrad_tick_overruns_total", "Ticks that took longer than the tick period.",
-            GET(tick_overruns));
-    counter(&t, "terrad_refused_windows_total",
-            "Active windows refused because their heights would leave the height limits.",
-            GET(refused_windows));
-    counter(&t, "terrad_gpu_tile_uploads_total",
-            "World tiles uploaded into the GL backend's tile cache.", GET(gpu_tile_uploads));
-    counter(&t, "terrad_gpu_tile_upload_bytes_total", "Bytes of those uploads.",
-            GET(gpu_tile_upload_bytes));
-    counter(&t, "terrad_gpu_tile_evictions_total",
-            "Resident tiles the GL tile cache replaced by others (LRU).", GET(gpu_tile_evictions));
-    gauge_int(&t, "terrad_gpu_tiles_resident", "World tiles resident in the GL tile cache.",
-              GET(gpu_tiles_resident));
-
-    counter(&t, "terrad_store_wal_bytes_total", "Bytes appended to the write-ahead log.",
-            GET(store_wal_bytes));
-    header(&t, "terrad_store_fsync_duration_seconds", "histogram",
-           "Wall time of one fdatasync of the write-ahead log.");
-    histogram_samples(&t, "terrad_store_fsync_duration_seconds", "", &fsync_hist);
-    gauge_int(&t, "terrad_store_durable_tick",
-              "The last tick as durable as the durability policy promises.",
-              (int64_t)GET(store_durable_tick));
-    gauge_int(&t, "terrad_store_available",
-              "1 while ticks can be made durable; 0 while deformation is refused.",
-              (int64_t)GET(store_available));
-    counter(&t, "terrad_store_compactions_total", "Log compactions into tile snapshots.",
-            GET(store_compactions));
-    header(&t, "terrad_store_last_compaction_seconds", "gauge",
-           "Wall time of the last compaction (its own thread).");
-    text_printf(&t, "terrad_store_last_compaction_seconds %.6f\n",
-                (double)GET(store_compaction_us) / 1e6);
-    header(&t, "terrad_store_errors_total", "counter", "Storage errors, by kind.");
-    for (int i = 0; i < STORE_ERROR_KINDS; i++)
-        text_printf(&t, "terrad_store_errors_total{kind=\"%s\"} %llu\n", store_error_kinds[i],
-                    (unsigned long long)GET(store_errors[i]));
-    header(&t, "terrad_store_recovery_seconds", "gauge",
-           "Wall time of the recovery at start (snapshots and log replay).");
-    text_printf(&t, "terrad_store_recovery_seconds %.6f\n", (double)GET(store_recovery_us) / 1e6);
-    gauge_int(&t, "terrad_store_recovery_records", "Log records replayed at start.",
-              (int64_t)GET(store_records_replayed));
-    gauge_int(&t, "terrad_store_cut_tail_bytes",
-              "Bytes of a torn or corrupt log tail cut at start (0: none).",
-              (int64_t)GET(store_bytes_cut));
-
-    header(&t, "terrad_memory_bytes", "gauge", "Memory held by a part of the daemon, by part.");
-    pthread_mutex_lock(&memory_lock);
-    for (int i = 0; i < memory_part_count; i++) {
-        char esc[2 * MEMORY_PART_NAME + 4];
-        escape_label(memory_parts[i].name, esc, sizeof esc);
-        text_printf(&t, "terrad_memory_bytes{part=\"%s\"} %llu\n", esc,
-                    (unsigned long long)memory_parts[i].bytes);
-    }
-    pthread_mutex_unlock(&memory_lock);
-
-    header(&t, "terrad_sim_scratch_bytes", "gauge",
-           "Scratch memory the deformation models hold, by stage.");
-    for (int i = 0; i < MEMORY_STAGE_COUNT; i++)
-        text_printf(&t, "terrad_sim_scratch_bytes{stage=\"%s\"} %llu\n", memory_stage_names[i],
-                    (unsigned long long)GET(stage_memory[i]));
-
+    render_timings(&t);
+    render_clients(&t);
+    render_backend(&t);
+    render_store(&t);
+    render_service(&t);
+    render_memory(&t);
     if (t.failed) {
         free(t.data);
         return NULL;

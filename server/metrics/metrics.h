@@ -59,6 +59,18 @@ void metrics_count_store_error(const char *kind);
 void metrics_set_store_available(int available);
 void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut);
 
+/* ---- the service's dropped work (server/service) ----
+ * terrad_service_dropped_total{reason=...}: something a tick meant to send or
+ * take that it could not (each also logged, at most once a second):
+ *   frame     an outbound frame not queued (no memory, or encoding failed);
+ *   snapshot  a snapshot piece or request that could not be built;
+ *   poses     the tick's poses left in the hub (no memory for its buffer);
+ *   command   a client command the sim could not apply (no memory);
+ *   contact   a collider's contact feedback not measured (no memory);
+ *   deltas    a tick's deltas not cut into tiles (no memory). */
+#define METRICS_SERVICE_DROP_REASONS "frame", "snapshot", "poses", "command", "contact", "deltas"
+void metrics_count_service_dropped(const char *reason);
+
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
 #define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)

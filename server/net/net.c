@@ -1,5 +1,9 @@
 /*
- * net.c: the websocket service thread, its connections and their queues.
+ * net.c: the websocket thread (the top layer of net/, see net_client_internal.h): the
+ * libwebsockets context, the protocol callback, writes, and the fan-out of
+ * the sim thread's frames. In a tick's terms: it feeds the hub what the
+ * next tick takes (commands, poses, batch sequences) and, when the sim
+ * thread publishes a tick, wakes to send its frames to the clients.
  *
  * One libwebsockets context, one protocol callback ("terrad.v1"), one
  * thread. Everything a connection owns (its reassembly buffer, its token
@@ -26,10 +30,12 @@
  *     and keeps asking for more.
  *
  * Incoming messages are reassembled up to max_message_bytes, rate limited by
- * a token bucket, and handed to net_requests.c.
+ * a token bucket (net_client.c), and handed to net_requests.c.
  */
-#include "net/net_internal.h"
+#include "net/net_requests_internal.h"
 
+#include <pthread.h>
+#include <stdatomic.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,13 +46,27 @@
 
 _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of headroom");
 
-#define NET_QUEUE_MAX_ITEMS 65536  /* frames queued for one client, at most */
-#define NET_DRAIN_BATCH 256        /* hub items taken per call */
-#define NET_DRAIN_ROUNDS 64        /* batches per wake before serving sockets again */
-#define NET_HEARTBEAT_US 100000    /* backlog retries, shutdown checks */
-#define NET_CLOSE_GRACE_S 3        /* a closing client gets this long to take its last frames */
-#define NET_FLOOD_FATAL_MS 10000.0 /* sustained rate limiting closes with 4010 */
+#define NET_DRAIN_BATCH 256     /* hub items taken per call */
+#define NET_DRAIN_ROUNDS 64     /* batches per wake before serving sockets again */
+#define NET_HEARTBEAT_US 100000 /* backlog retries, shutdown checks */
 #define NET_STOP_GRACE_MS 800.0
+
+/* The net thread's state (net_client_internal.h) and libwebsockets' context. */
+struct net_server {
+    net_state st; /* everything net_requests.c and net_client.c may see */
+    struct lws_context *ctx;
+    lws_sorted_usec_list_t heartbeat;
+    atomic_int thread_done;
+    pthread_t thread;
+    int thread_started;
+    int port;
+    atomic_int stop_requested;
+    atomic_int force_stop;
+    atomic_int client_count; /* read by any thread */
+    pthread_mutex_t wake_lock;
+    int ctx_live;
+    int stopping;
+};
 
 typedef struct net_session {
     net_client *c;
@@ -68,235 +88,6 @@ net_limits net_limits_default(void)
         .max_pending_bytes = 8388608,
         .hello_timeout_s = 5,
     };
-}
-
-/* ---- clients ---- */
-
-net_client *net_find_client(net_server *s, uint32_t id)
-{
-    int lo = 0, hi = s->nclients - 1;
-    while (lo <= hi) {
-        int mid = lo + (hi - lo) / 2;
-        uint32_t at = s->clients[mid]->id;
-        if (at == id)
-            return s->clients[mid];
-        if (at < id)
-            lo = mid + 1;
-        else
-            hi = mid - 1;
-    }
-    return NULL;
-}
-
-static int client_add(net_server *s, net_client *c)
-{
-    if (s->nclients == s->clients_cap) {
-        int cap = s->clients_cap ? s->clients_cap * 2 : 16;
-        net_client **grown = realloc(s->clients, (size_t)cap * sizeof *grown);
-        if (!grown)
-            return -1;
-        s->clients = grown;
-        s->clients_cap = cap;
-    }
-    s->clients[s->nclients++] = c; /* ids only grow: the array stays sorted */
-    return 0;
-}
-
-static void client_remove(net_server *s, net_client *c)
-{
-    for (int i = 0; i < s->nclients; i++)
-        if (s->clients[i] == c) {
-            memmove(&s->clients[i], &s->clients[i + 1],
-                    (size_t)(s->nclients - i - 1) * sizeof *s->clients);
-            s->nclients--;
-            return;
-        }
-}
-
-static void queue_release(net_client *c)
-{
-    for (size_t i = 0; i < c->q_count; i++)
-        hub_frame_unref(c->q[(c->q_head + i) % c->q_cap].frame);
-    c->q_head = c->q_count = 0;
-    c->pending_bytes = 0;
-}
-
-/* Drop every queued item for which drop(item) says so; returns how many. */
-static int queue_filter(net_client *c, int (*drop)(const net_item *, int), int arg)
-{
-    size_t kept = 0;
-    int dropped = 0;
-    for (size_t i = 0; i < c->q_count; i++) {
-        net_item it = c->q[(c->q_head + i) % c->q_cap];
-        if (drop(&it, arg)) {
-            c->pending_bytes -= it.frame->len;
-            hub_frame_unref(it.frame);
-            dropped++;
-        } else {
-            c->q[(c->q_head + kept) % c->q_cap] = it;
-            kept++;
-        }
-    }
-    c->q_count = kept;
-    return dropped;
-}
-
-/* Tile deltas, and the ACK and CONTACT frames queued behind them: an ACK of
- * tick t promises t's deltas came first, so it cannot outlive them. */
-static int is_tile_or_status(const net_item *it, int arg)
-{
-    (void)arg;
-    return it->kind == NET_ITEM_TILE || it->kind == NET_ITEM_STATUS;
-}
-
-static int is_status_of(const net_item *it, int type)
-{
-    return it->kind == NET_ITEM_STATUS && it->type == type;
-}
-
-int net_drop_tile_deltas(net_client *c)
-{
-    return queue_filter(c, is_tile_or_status, 0);
-}
-
-/* The client stopped reading and asked for more: let it go. */
-static void client_kill(net_client *c, const char *why)
-{
-    if (c->killed)
-        return;
-    c->killed = 1;
-    uint64_t frames = c->q_count;
-    queue_release(c);
-    metrics_count_frames_dropped(frames);
-    log_warn("net: client %u (%s) closed: %s", c->id, c->peer, why);
-    lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
-}
-
-void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
-{
-    net_server *s = c->srv;
-    if (c->killed) {
-        hub_frame_unref(f);
-        return;
-    }
-    net_item it = {.frame = f, .kind = (unsigned char)kind};
-    if (kind == NET_ITEM_STATUS) {
-        it.type = f->len > 2 ? f->data[2] : 0;
-        if (c->pending_bytes + f->len > s->cfg.limits.max_pending_bytes) {
-            int n = queue_filter(c, is_status_of, it.type);
-            if (n)
-                metrics_count_frames_coalesced((uint64_t)n);
-        }
-    }
-    if (c->pending_bytes + f->len > s->hard_pending_bytes || c->q_count >= NET_QUEUE_MAX_ITEMS) {
-        hub_frame_unref(f);
-        metrics_count_frames_dropped(1);
-        client_kill(c, "outgoing queue over its bound (the client stopped reading)");
-        return;
-    }
-    if (c->q_count == c->q_cap) {
-        size_t cap = c->q_cap ? c->q_cap * 2 : 64;
-        net_item *grown = malloc(cap * sizeof *grown);
-        if (!grown) {
-            hub_frame_unref(f);
-            client_kill(c, "out of memory for its outgoing queue");
-            return;
-        }
-        for (size_t i = 0; i < c->q_count; i++)
-            grown[i] = c->q[(c->q_head + i) % c->q_cap];
-        free(c->q);
-        c->q = grown;
-        c->q_cap = cap;
-        c->q_head = 0;
-    }
-    c->q[(c->q_head + c->q_count) % c->q_cap] = it;
-    c->q_count++;
-    c->pending_bytes += f->len;
-    lws_callback_on_writable(c->wsi);
-}
-
-void net_send_json(net_client *c, cJSON *msg)
-{
-    char *text = cJSON_PrintUnformatted(msg);
-    cJSON_Delete(msg);
-    hub_frame *f = text ? hub_frame_from_text(text) : NULL;
-    free(text);
-    if (!f) {
-        log_error("net: out of memory for a reply to client %u", c->id);
-        return;
-    }
-    net_enqueue(c, f, NET_ITEM_REPLY);
-}
-
-void net_close_after_flush(net_client *c, int code, const char *reason)
-{
-    if (c->closing)
-        return;
-    c->closing = 1;
-    c->close_code = code;
-    snprintf(c->close_reason, sizeof c->close_reason, "%s", reason);
-    lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
-    lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, NET_CLOSE_GRACE_S);
-    lws_callback_on_writable(c->wsi);
-}
-
-/* ---- commands for the sim ---- */
-
-static void backlog_flush(net_server *s)
-{
-    int sent = 0;
-    while (sent < s->backlog_count && hub_push_command(s->hub, &s->backlog[sent]) == 0)
-        sent++;
-    if (sent) {
-        memmove(s->backlog, s->backlog + sent,
-                (size_t)(s->backlog_count - sent) * sizeof *s->backlog);
-        s->backlog_count -= sent;
-    }
-}
-
-void net_push_must(net_server *s, const hub_command *cmd)
-{
-    backlog_flush(s);
-    if (s->backlog_count == 0 && hub_push_command(s->hub, cmd) == 0)
-        return;
-    if (s->backlog_count == s->backlog_cap) {
-        int cap = s->backlog_cap ? s->backlog_cap * 2 : 64;
-        hub_command *grown = realloc(s->backlog, (size_t)cap * sizeof *grown);
-        if (!grown) {
-            log_error("net: out of memory: a command for client %u is lost", cmd->client);
-            return;
-        }
-        s->backlog = grown;
-        s->backlog_cap = cap;
-    }
-    s->backlog[s->backlog_count++] = *cmd;
-}
-
-int net_push_refusable(net_server *s, const hub_command *cmd)
-{
-    backlog_flush(s);
-    if (s->backlog_count)
-        return -1; /* keep the order: what must go waits in front */
-    return hub_push_command(s->hub, cmd);
-}
-
-void net_warn_refusal(net_server *s, const net_client *c, int code, const char *message)
-{
-    double now = time_now_ms();
-    if (s->last_warn_ms > 0 && now - s->last_warn_ms < 1000.0) {
-        s->warns_suppressed++;
-        return;
-    }
-    if (s->warns_suppressed)
-        log_warn("net: client %u (%s): refused %s: %s (and %llu more refusals in the last "
-                 "second, not logged)",
-                 c->id, c->peer, terrad_err_name(code), message,
-                 (unsigned long long)s->warns_suppressed);
-    else
-        log_warn("net: client %u (%s): refused %s: %s", c->id, c->peer, terrad_err_name(code),
-                 message);
-    s->warns_suppressed = 0;
-    s->last_warn_ms = now;
 }
 
 /* ---- frames from the sim ---- */
@@ -328,23 +119,23 @@ static int sub_meets(const net_client *c, world_rect tile)
 
 static void fan_out(net_server *s, const hub_out *o)
 {
-    int ts = s->cfg.world.tile_size;
+    int ts = s->st.cfg.world.tile_size;
     world_rect tile = {o->tile_x * ts, o->tile_y * ts, ts, ts};
-    if (tile.x + tile.w > s->cfg.world.width)
-        tile.w = s->cfg.world.width - tile.x;
-    if (tile.y + tile.h > s->cfg.world.height)
-        tile.h = s->cfg.world.height - tile.y;
+    if (tile.x + tile.w > s->st.cfg.world.width)
+        tile.w = s->st.cfg.world.width - tile.x;
+    if (tile.y + tile.h > s->st.cfg.world.height)
+        tile.h = s->st.cfg.world.height - tile.y;
     if (tile.w <= 0 || tile.h <= 0 || tile.x < 0 || tile.y < 0)
         return;
-    for (int i = 0; i < s->nclients; i++) {
-        net_client *c = s->clients[i];
+    for (int i = 0; i < s->st.nclients; i++) {
+        net_client *c = s->st.clients[i];
         if (!c->ready || c->closing || c->killed || !sub_meets(c, tile))
             continue;
         if (dropping_deltas(c)) {
             metrics_count_frames_coalesced(1);
             continue;
         }
-        if (c->pending_bytes + o->frame->len > s->cfg.limits.max_pending_bytes) {
+        if (c->pending_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
             go_slow(c);
             continue;
         }
@@ -364,7 +155,7 @@ static int is_footprints(const hub_frame *f)
  * and queued as NET_ITEM_TILE so that going slow drops those still queued. */
 static void send_footprints(net_server *s, net_client *c, hub_frame *f)
 {
-    if (dropping_deltas(c) || c->pending_bytes + f->len > s->cfg.limits.max_pending_bytes) {
+    if (dropping_deltas(c) || c->pending_bytes + f->len > s->st.cfg.limits.max_pending_bytes) {
         metrics_count_footprints_dropped(1);
         hub_frame_unref(f);
         return;
@@ -377,11 +168,11 @@ static void send_footprints(net_server *s, net_client *c, hub_frame *f)
 
 static void dispatch(net_server *s, hub_out *o)
 {
-    if (o->tick > s->tick)
-        s->tick = o->tick;
+    if (o->tick > s->st.tick)
+        s->st.tick = o->tick;
     switch (o->kind) {
     case HUB_OUT_CLIENT: {
-        net_client *c = net_find_client(s, o->client);
+        net_client *c = net_find_client(&s->st, o->client);
         if (c && o->frame && is_footprints(o->frame)) {
             send_footprints(s, c, o->frame);
             o->frame = NULL;
@@ -418,8 +209,8 @@ static void dispatch(net_server *s, hub_out *o)
 static void resync_everyone(net_server *s)
 {
     log_warn("net: the outbound queue overflowed: every client gets fresh snapshots");
-    for (int i = 0; i < s->nclients; i++) {
-        net_client *c = s->clients[i];
+    for (int i = 0; i < s->st.nclients; i++) {
+        net_client *c = s->st.clients[i];
         if (!c->ready || c->sub_count == 0)
             continue;
         /* markers may have been lost with the dropped frames: forget them */
@@ -431,11 +222,11 @@ static void resync_everyone(net_server *s)
 
 static void drain_hub(net_server *s)
 {
-    if (hub_take_overflow(s->hub))
+    if (hub_take_overflow(s->st.hub))
         resync_everyone(s);
     hub_out items[NET_DRAIN_BATCH];
     for (int round = 0; round < NET_DRAIN_ROUNDS; round++) {
-        int n = hub_take_outbound(s->hub, items, NET_DRAIN_BATCH);
+        int n = hub_take_outbound(s->st.hub, items, NET_DRAIN_BATCH);
         for (int i = 0; i < n; i++)
             dispatch(s, &items[i]);
         if (n < NET_DRAIN_BATCH)
@@ -458,8 +249,8 @@ static void net_wake(void *arg)
 static void begin_shutdown(net_server *s)
 {
     s->stopping = 1;
-    for (int i = 0; i < s->nclients; i++) {
-        net_client *c = s->clients[i];
+    for (int i = 0; i < s->st.nclients; i++) {
+        net_client *c = s->st.clients[i];
         if (c->killed || c->closing)
             continue;
         net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1, "server shutting down");
@@ -470,7 +261,7 @@ static void begin_shutdown(net_server *s)
 static void heartbeat(lws_sorted_usec_list_t *sul)
 {
     net_server *s = lws_container_of(sul, net_server, heartbeat);
-    backlog_flush(s);
+    net_flush_backlog(&s->st);
     if (atomic_load(&s->stop_requested) && !s->stopping) {
         drain_hub(s);
         begin_shutdown(s);
@@ -504,25 +295,25 @@ static int offers_subprotocol(const char *value, const char *name)
 static void client_established(net_server *s, struct lws *wsi, net_session *pss)
 {
     net_client *c = calloc(1, sizeof *c);
-    if (!c || client_add(s, c) != 0) {
+    if (!c || net_client_add(&s->st, c) != 0) {
         free(c);
         log_error("net: out of memory for a new client");
         lws_set_timeout(wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
         return;
     }
-    c->id = s->next_client_id++;
+    c->id = s->st.next_client_id++;
     c->wsi = wsi;
-    c->srv = s;
+    c->srv = &s->st;
     c->next_sub_id = 1;
-    c->tokens = s->cfg.limits.messages_burst;
+    c->tokens = s->st.cfg.limits.messages_burst;
     c->refill_ms = time_now_ms();
     lws_get_peer_simple(wsi, c->peer, sizeof c->peer);
     snprintf(c->name, sizeof c->name, "?");
     pss->c = c;
     atomic_fetch_add(&s->client_count, 1);
-    metrics_set_clients(s->nclients);
+    metrics_set_clients(s->st.nclients);
     log_info("net: client %u connected from %s", c->id, c->peer);
-    lws_set_timer_usecs(wsi, (lws_usec_t)(s->cfg.limits.hello_timeout_s * 1e6));
+    lws_set_timer_usecs(wsi, (lws_usec_t)(s->st.cfg.limits.hello_timeout_s * 1e6));
 }
 
 static void client_closed(net_server *s, net_session *pss)
@@ -534,59 +325,27 @@ static void client_closed(net_server *s, net_session *pss)
     log_info("net: client %u (%s%s%s) disconnected", c->id, c->peer, c->ready ? ", " : "",
              c->ready ? c->name : "");
     for (int i = 0; i < c->collider_count; i++) {
-        hub_forget_pose(s->hub, c->colliders[i]);
-        net_collider_remove(s, c->colliders[i]);
+        hub_forget_pose(s->st.hub, c->colliders[i]);
+        net_collider_remove(&s->st, c->colliders[i]);
     }
     if (c->ready) {
         hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
-        net_push_must(s, &cmd); /* the sim deletes its colliders */
+        net_push_must(&s->st, &cmd); /* the sim deletes its colliders */
     }
-    queue_release(c);
-    client_remove(s, c);
+    net_release_queue(c);
+    net_client_remove(&s->st, c);
     free(c->q);
     free(c->rx);
     free(c->colliders);
     free(c->subs);
     free(c);
     atomic_fetch_sub(&s->client_count, 1);
-    metrics_set_clients(s->nclients);
-}
-
-/* Token bucket; returns 1 if the message may pass. A refusal is answered at
- * most once a second; refusals sustained for 10 s close the connection. */
-static int rate_allow(net_server *s, net_client *c)
-{
-    const net_limits *l = &s->cfg.limits;
-    double now = time_now_ms();
-    c->tokens += (now - c->refill_ms) / 1000.0 * l->max_messages_per_s;
-    if (c->tokens > l->messages_burst)
-        c->tokens = l->messages_burst;
-    c->refill_ms = now;
-    if (c->tokens >= 1.0) {
-        c->tokens -= 1.0;
-        return 1;
-    }
-    if (c->last_refusal_ms == 0 || now - c->last_refusal_ms > 1000.0)
-        c->flood_since_ms = now; /* a new flood: the last one paused for a second */
-    c->last_refusal_ms = now;
-    if (now - c->flood_since_ms >= NET_FLOOD_FATAL_MS) {
-        net_error(c, TERRAD_E_RATE_LIMITED, NULL, -1, 1,
-                  "over %g messages per second for 10 s: closing", l->max_messages_per_s);
-        net_close_after_flush(c, 4000 + TERRAD_E_RATE_LIMITED, "rate limited");
-    } else if (c->last_rate_error_ms == 0 || now - c->last_rate_error_ms >= 1000.0) {
-        c->last_rate_error_ms = now;
-        net_error(c, TERRAD_E_RATE_LIMITED, NULL, -1, 0,
-                  "over %g messages per second (burst %g): message dropped", l->max_messages_per_s,
-                  l->messages_burst);
-    } else {
-        metrics_count_refused(TERRAD_E_RATE_LIMITED);
-    }
-    return 0;
+    metrics_set_clients(s->st.nclients);
 }
 
 static int client_receive(net_server *s, struct lws *wsi, net_client *c, const void *in, size_t len)
 {
-    const net_limits *l = &s->cfg.limits;
+    const net_limits *l = &s->st.cfg.limits;
     if (!c->rx_active) {
         c->rx_active = 1;
         c->rx_len = c->rx_total = 0;
@@ -614,17 +373,9 @@ static int client_receive(net_server *s, struct lws *wsi, net_client *c, const v
                 c->rx_cap = 0;
             }
         } else {
-            if (c->rx_len + len + 1 > c->rx_cap) {
-                size_t cap = c->rx_cap ? c->rx_cap : 4096;
-                while (cap < c->rx_len + len + 1)
-                    cap *= 2;
-                unsigned char *grown = realloc(c->rx, cap);
-                if (!grown) {
-                    log_error("net: out of memory reassembling a message of client %u", c->id);
-                    return -1;
-                }
-                c->rx = grown;
-                c->rx_cap = cap;
+            if (array_grow((void **)&c->rx, &c->rx_cap, (int64_t)(c->rx_len + len + 1), 1) != 0) {
+                log_error("net: out of memory reassembling a message of client %u", c->id);
+                return -1;
             }
             if (len)
                 memcpy(c->rx + c->rx_len, in, len);
@@ -640,7 +391,7 @@ static int client_receive(net_server *s, struct lws *wsi, net_client *c, const v
     metrics_count_messages_in(1);
     if (c->closing || c->killed)
         return 0;
-    if (!rate_allow(s, c))
+    if (!net_rate_allow(c))
         return 0;
     if (c->rx_oversize) {
         net_error(c, TERRAD_E_TOO_LARGE, NULL, -1, 0,
@@ -664,7 +415,7 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
 {
     if (c->killed)
         return -1;
-    if (c->slow && c->pending_bytes <= s->cfg.limits.max_pending_bytes / 2 && !c->closing) {
+    if (c->slow && c->pending_bytes <= s->st.cfg.limits.max_pending_bytes / 2 && !c->closing) {
         c->slow = 0;
         net_request_resync(c, 0); /* caught up: fresh snapshots, then deltas again */
     }
@@ -704,6 +455,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
     net_server *s = ctx ? lws_context_user(ctx) : NULL;
     if (!s)
         return 0;
+    THREAD_OWNED(&s->st.owner);
 
     switch (reason) {
     case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
@@ -733,7 +485,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
     case LWS_CALLBACK_TIMER:
         if (pss->c && !pss->c->ready && !pss->c->closing) {
             net_error(pss->c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "no hello within %g s",
-                      s->cfg.limits.hello_timeout_s);
+                      s->st.cfg.limits.hello_timeout_s);
             net_close_after_flush(pss->c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");
         }
         return 0;
@@ -746,7 +498,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
             return 0;
         return client_writeable(s, wsi, pss->c);
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
-        backlog_flush(s);
+        net_flush_backlog(&s->st);
         drain_hub(s); /* the last tick's frames go out before the goodbye */
         if (atomic_load(&s->stop_requested) && !s->stopping)
             begin_shutdown(s);
@@ -766,14 +518,20 @@ static const struct lws_protocols net_protocols[] = {
 static void *service_main(void *arg)
 {
     net_server *s = arg;
+    thread_owner_claim(&s->st.owner, "net");
+    hub_claim_net_end(s->st.hub);
     lws_sul_schedule(s->ctx, 0, &s->heartbeat, heartbeat, NET_HEARTBEAT_US);
     for (;;) {
         if (lws_service(s->ctx, 0) < 0)
             break;
-        if (s->stopping && (s->nclients == 0 || atomic_load(&s->force_stop)))
+        if (s->stopping && (s->st.nclients == 0 || atomic_load(&s->force_stop)))
             break;
     }
     lws_sul_cancel(&s->heartbeat);
+    /* net_server_stop finishes on the caller's thread (lws_context_destroy
+     * still calls back for every client left) */
+    thread_owner_release(&s->st.owner);
+    hub_release_net_end(s->st.hub);
     atomic_store(&s->thread_done, 1);
     return NULL;
 }
@@ -813,21 +571,21 @@ static void server_free(net_server *s)
 {
     if (!s)
         return;
-    for (int i = 0; i < s->backlog_count; i++)
-        if (s->backlog[i].mesh) {
-            collider_mesh_free(s->backlog[i].mesh);
-            free(s->backlog[i].mesh);
+    for (int i = 0; i < s->st.backlog_count; i++)
+        if (s->st.backlog[i].mesh) {
+            collider_mesh_free(s->st.backlog[i].mesh);
+            free(s->st.backlog[i].mesh);
         }
-    free(s->backlog);
-    free(s->clients);
-    free(s->colliders);
-    free(s->poses);
-    cJSON_Delete(s->models);
-    cJSON_Delete(s->materials);
-    free(s->token);
-    free(s->models_json);
-    free(s->materials_json);
-    free(s->server_name);
+    free(s->st.backlog);
+    free(s->st.clients);
+    free(s->st.colliders);
+    free(s->st.poses);
+    cJSON_Delete(s->st.models);
+    cJSON_Delete(s->st.materials);
+    free(s->st.token);
+    free(s->st.models_json);
+    free(s->st.materials_json);
+    free(s->st.server_name);
     pthread_mutex_destroy(&s->wake_lock);
     free(s);
 }
@@ -863,32 +621,32 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
         return NULL;
     }
     pthread_mutex_init(&s->wake_lock, NULL);
-    s->cfg = *c;
-    s->hub = h;
-    s->token = dup_or_null(c->token && c->token[0] ? c->token : NULL);
-    s->models_json = dup_or_null(c->world.models_json);
-    s->materials_json = dup_or_null(c->world.materials_json);
-    s->server_name = strdup(c->server_name ? c->server_name : "terrad/0.1.0");
-    s->cfg.token = s->token;
-    s->cfg.world.models_json = s->models_json;
-    s->cfg.world.materials_json = s->materials_json;
-    s->cfg.server_name = s->server_name;
-    s->next_client_id = 1;
-    s->next_collider_id = 1;
-    s->poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->poses);
-    s->models = parse_names(s->models_json, "[]", "world.models_json", err);
-    s->materials =
-        s->models ? parse_names(s->materials_json, "[\"default\"]", "world.materials_json", err)
-                  : NULL;
-    if (!s->models || !s->materials || !s->poses || !s->server_name) {
-        if (!s->poses || !s->server_name)
+    s->st.cfg = *c;
+    s->st.hub = h;
+    s->st.token = dup_or_null(c->token && c->token[0] ? c->token : NULL);
+    s->st.models_json = dup_or_null(c->world.models_json);
+    s->st.materials_json = dup_or_null(c->world.materials_json);
+    s->st.server_name = strdup(c->server_name ? c->server_name : "terrad/0.1.0");
+    s->st.cfg.token = s->st.token;
+    s->st.cfg.world.models_json = s->st.models_json;
+    s->st.cfg.world.materials_json = s->st.materials_json;
+    s->st.cfg.server_name = s->st.server_name;
+    s->st.next_client_id = 1;
+    s->st.next_collider_id = 1;
+    s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
+    s->st.models = parse_names(s->st.models_json, "[]", "world.models_json", err);
+    s->st.materials = s->st.models ? parse_names(s->st.materials_json, "[\"default\"]",
+                                                 "world.materials_json", err)
+                                   : NULL;
+    if (!s->st.models || !s->st.materials || !s->st.poses || !s->st.server_name) {
+        if (!s->st.poses || !s->st.server_name)
             error_set(err, "net: out of memory");
         server_free(s);
         return NULL;
     }
     const net_limits *l = &c->limits;
-    s->hard_pending_bytes = 2 * l->max_pending_bytes + 4 * (size_t)l->max_subscribed_cells +
-                            2 * l->max_message_bytes + 65536;
+    s->st.hard_pending_bytes = 2 * l->max_pending_bytes + 4 * (size_t)l->max_subscribed_cells +
+                               2 * l->max_message_bytes + 65536;
 
     lws_set_log_level(LLL_ERR, lws_log_line);
     struct lws_context_creation_info info;
@@ -949,14 +707,15 @@ void net_server_stop(net_server *s)
         nanosleep(&ts, NULL);
     }
     pthread_join(s->thread, NULL);
-    hub_set_waker(s->hub, NULL, NULL);
+    hub_set_waker(s->st.hub, NULL, NULL);
     pthread_mutex_lock(&s->wake_lock);
     s->ctx_live = 0;
     pthread_mutex_unlock(&s->wake_lock);
     lws_context_destroy(s->ctx); /* closes what is left: CLOSED for each */
-    backlog_flush(s);
-    if (s->backlog_count)
-        log_warn("net: %d commands for the sim were still waiting at shutdown", s->backlog_count);
+    net_flush_backlog(&s->st);
+    if (s->st.backlog_count)
+        log_warn("net: %d commands for the sim were still waiting at shutdown",
+                 s->st.backlog_count);
     log_info("net: websocket server stopped");
     server_free(s);
 }

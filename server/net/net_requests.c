@@ -1,142 +1,30 @@
 /*
- * net_requests.c: what a client may ask for, checked field by field before
- * anything reaches the sim (PROTOCOL.md "Control messages", "POSE_BATCH").
+ * net_requests.c: what a client may ask for (PROTOCOL.md "Control messages",
+ * "POSE_BATCH"), the middle layer of the net thread (see net_client_internal.h).
  *
  * Every request is either refused with one error to its sender (and a
  * metric), or turned into a hub command / hub pose and answered at once.
- * The sim never sees a bad value: shapes, sizes, meshes, poses, ownership,
- * rectangles and limits are all settled here.
- *
- * Frames: the protocol's capsule and cylinder stand along the collider's z
- * axis, the collider module's along its y axis (a wheel's axle). Such
- * colliders carry a fixed quarter turn about x, applied to every pose here,
- * so the sim sees collider-module poses only.
+ * The sim never sees a bad value: net_control.c settles shapes, sizes,
+ * meshes, poses and rectangles; this file settles what depends on the
+ * client — hello once, its limits, ownership — and applies the request.
  */
-#include "net/net_internal.h"
+#include "net/net_requests_internal.h"
 
 #include <math.h>
-#include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "metrics/metrics.h"
+#include "net/net_control_internal.h"
 #include "terrad_proto.h"
 
-#define NET_REF_MAX_BYTES 64
-#define NET_TOKEN_MAX_BYTES 256
-#define NET_CLIENT_NAME_MAX_BYTES 64
-
-/* ---- collider table: id -> owner, open addressing, backward-shift deletion ---- */
-
-static size_t slot_of(uint32_t id, size_t cap)
-{
-    uint32_t x = id * 0x9e3779b1u;
-    return (x ^ (x >> 16)) & (cap - 1);
-}
-
-net_collider_slot *net_collider_find(net_server *s, uint32_t id)
-{
-    if (!s->colliders_cap || id == 0)
-        return NULL;
-    for (size_t i = slot_of(id, s->colliders_cap);; i = (i + 1) & (s->colliders_cap - 1)) {
-        if (s->colliders[i].id == id)
-            return &s->colliders[i];
-        if (s->colliders[i].id == 0)
-            return NULL;
-    }
-}
-
-static void table_put(net_collider_slot *t, size_t cap, net_collider_slot v)
-{
-    size_t i = slot_of(v.id, cap);
-    while (t[i].id != 0)
-        i = (i + 1) & (cap - 1);
-    t[i] = v;
-}
-
-int net_collider_insert(net_server *s, uint32_t id, uint32_t owner, int axis_z)
-{
-    if ((s->colliders_used + 1) * 2 > s->colliders_cap) {
-        size_t cap = s->colliders_cap ? s->colliders_cap * 2 : 256;
-        net_collider_slot *t = calloc(cap, sizeof *t);
-        if (!t)
-            return -1;
-        for (size_t i = 0; i < s->colliders_cap; i++)
-            if (s->colliders[i].id)
-                table_put(t, cap, s->colliders[i]);
-        free(s->colliders);
-        s->colliders = t;
-        s->colliders_cap = cap;
-    }
-    table_put(s->colliders, s->colliders_cap,
-              (net_collider_slot){.id = id, .owner = owner, .axis_z = axis_z});
-    s->colliders_used++;
-    return 0;
-}
-
-void net_collider_remove(net_server *s, uint32_t id)
-{
-    net_collider_slot *at = net_collider_find(s, id);
-    if (!at)
-        return;
-    size_t mask = s->colliders_cap - 1;
-    size_t i = (size_t)(at - s->colliders);
-    s->colliders[i].id = 0;
-    s->colliders_used--;
-    /* shift later members of the probe run back into the hole */
-    for (size_t j = (i + 1) & mask; s->colliders[j].id != 0; j = (j + 1) & mask) {
-        size_t home = slot_of(s->colliders[j].id, s->colliders_cap);
-        /* j's entry may move to i if home is not cyclically in (i, j] */
-        int between = (i <= j) ? (home > i && home <= j) : (home > i || home <= j);
-        if (!between) {
-            s->colliders[i] = s->colliders[j];
-            s->colliders[j].id = 0;
-            i = j;
-        }
-    }
-}
-
 /* ---- replies ---- */
-
-static cJSON *ref_copy(const cJSON *ref)
-{
-    return ref ? cJSON_Duplicate(ref, 1) : cJSON_CreateNull();
-}
-
-void net_error(net_client *c, int code, const cJSON *ref, int64_t collider, int fatal,
-               const char *fmt, ...)
-{
-    char message[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(message, sizeof message, fmt, ap);
-    va_end(ap);
-    if (code != TERRAD_E_SHUTTING_DOWN && code != TERRAD_E_INTERNAL) {
-        metrics_count_refused(code);
-        net_warn_refusal(c->srv, c, code, message);
-    }
-    if (!fatal && c->pending_bytes > c->srv->cfg.limits.max_pending_bytes) {
-        metrics_count_frames_dropped(1); /* it is not reading its errors anyway */
-        return;
-    }
-    cJSON *e = cJSON_CreateObject();
-    cJSON_AddStringToObject(e, "type", "error");
-    cJSON_AddNumberToObject(e, "code", code);
-    cJSON_AddStringToObject(e, "name", terrad_err_name(code));
-    cJSON_AddStringToObject(e, "message", message);
-    cJSON_AddItemToObject(e, "ref", ref_copy(ref));
-    if (collider >= 0)
-        cJSON_AddNumberToObject(e, "collider", (double)collider);
-    if (fatal)
-        cJSON_AddBoolToObject(e, "fatal", 1);
-    net_send_json(c, e);
-}
 
 static cJSON *reply(const char *type, const cJSON *ref)
 {
     cJSON *r = cJSON_CreateObject();
     cJSON_AddStringToObject(r, "type", type);
-    cJSON_AddItemToObject(r, "ref", ref_copy(ref));
+    cJSON_AddItemToObject(r, "ref", net_ref_copy(ref));
     return r;
 }
 
@@ -152,92 +40,6 @@ static void ref_text(const cJSON *ref, char *out, size_t cap)
     free(t);
 }
 
-/* ---- field readers: each sends bad_value naming the field and returns -1 ---- */
-
-typedef struct req {
-    net_client *c;
-    const cJSON *msg, *ref;
-} req;
-
-static int is_integer(const cJSON *v)
-{
-    return cJSON_IsNumber(v) && isfinite(v->valuedouble) &&
-           floor(v->valuedouble) == v->valuedouble && fabs(v->valuedouble) <= 9007199254740992.0;
-}
-
-/* 1 found, 0 absent (optional), -1 refused. */
-static int get_int(const req *r, const char *name, int required, int64_t lo, int64_t hi,
-                   int64_t *out)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(r->msg, name);
-    if (!v && !required)
-        return 0;
-    if (!v || !is_integer(v) || v->valuedouble < (double)lo || v->valuedouble > (double)hi) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "%s: %s an integer in [%lld, %lld]",
-                  name, v ? "must be" : "missing,", (long long)lo, (long long)hi);
-        return -1;
-    }
-    *out = (int64_t)v->valuedouble;
-    return 1;
-}
-
-static int get_length(const req *r, const char *name, double *out)
-{
-    double max = r->c->srv->cfg.limits.max_collider_extent_m;
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(r->msg, name);
-    if (!v || !cJSON_IsNumber(v) || !isfinite(v->valuedouble) || !(v->valuedouble > 0) ||
-        v->valuedouble > max) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "%s: %s a number of metres > 0 and <= %g (max_collider_extent_m)", name,
-                  v ? "must be" : "missing,", max);
-        return -1;
-    }
-    *out = v->valuedouble;
-    return 0;
-}
-
-/* An array of exactly n finite numbers. */
-static int get_numbers(const req *r, const cJSON *a, const char *name, int n, double *out)
-{
-    int ok = cJSON_IsArray(a) && cJSON_GetArraySize(a) == n;
-    int i = 0;
-    const cJSON *it;
-    if (ok)
-        cJSON_ArrayForEach(it, a)
-        {
-            if (!cJSON_IsNumber(it) || !isfinite(it->valuedouble)) {
-                ok = 0;
-                break;
-            }
-            out[i++] = it->valuedouble;
-        }
-    if (!ok) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "%s: must be an array of %d numbers",
-                  name, n);
-        return -1;
-    }
-    return 0;
-}
-
-/* ---- poses ---- */
-
-/* Orientation as the collider module wants it (see the top of the file). */
-static quatd module_orientation(quatd q, int axis_z)
-{
-    q = quat_normalize(q);
-    if (axis_z) {
-        const double h = 0.70710678118654752440; /* a quarter turn about x: y -> z */
-        q = quat_normalize(quat_multiply(q, (quatd){h, h, 0, 0}));
-    }
-    return q;
-}
-
-static int quat_norm_ok(double w, double x, double y, double z)
-{
-    double n2 = w * w + x * x + y * y + z * z;
-    return n2 >= 0.81 && n2 <= 1.21;
-}
-
 /* ---- hello ---- */
 
 static int token_equal(const char *a, const char *b)
@@ -249,7 +51,7 @@ static int token_equal(const char *a, const char *b)
     return diff == 0;
 }
 
-static cJSON *world_message(net_server *s, const net_client *c)
+static cJSON *world_message(net_state *s, const net_client *c)
 {
     const net_world_info *w = &s->cfg.world;
     const net_limits *l = &s->cfg.limits;
@@ -288,289 +90,39 @@ static cJSON *world_message(net_server *s, const net_client *c)
     return m;
 }
 
-static void handle_hello(const req *r)
+static void handle_hello(net_client *c, const net_control *m)
 {
-    net_client *c = r->c;
-    net_server *s = c->srv;
-    if (c->ready) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "hello: already received");
-        return;
-    }
-    int64_t protocol;
-    if (get_int(r, "protocol", 1, INT32_MIN, INT32_MAX, &protocol) < 0)
-        return;
-    if (protocol != TERRAD_PROTO_VERSION) {
-        net_error(c, TERRAD_E_BAD_VERSION, r->ref, -1, 1,
-                  "protocol: this server speaks version %d only (got %lld)", TERRAD_PROTO_VERSION,
-                  (long long)protocol);
-        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VERSION, "bad protocol version");
-        return;
-    }
-    const cJSON *token = cJSON_GetObjectItemCaseSensitive(r->msg, "token");
-    if (token && (!cJSON_IsString(token) || strlen(token->valuestring) > NET_TOKEN_MAX_BYTES)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "token: must be a string of at most %d bytes", NET_TOKEN_MAX_BYTES);
-        return;
-    }
-    const cJSON *name = cJSON_GetObjectItemCaseSensitive(r->msg, "client");
-    if (name && (!cJSON_IsString(name) || strlen(name->valuestring) > NET_CLIENT_NAME_MAX_BYTES)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "client: must be a string of at most %d bytes", NET_CLIENT_NAME_MAX_BYTES);
-        return;
-    }
-    if (s->token && !token_equal(token ? token->valuestring : "", s->token)) {
-        net_error(c, TERRAD_E_UNAUTHORIZED, r->ref, -1, 1, "token: wrong token");
+    net_state *s = c->srv;
+    if (s->token && !token_equal(m->token, s->token)) {
+        net_error(c, TERRAD_E_UNAUTHORIZED, m->ref, -1, 1, "token: wrong token");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "unauthorized");
         return;
     }
     c->ready = 1;
     lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
-    snprintf(c->name, sizeof c->name, "%s", name ? name->valuestring : "");
+    snprintf(c->name, sizeof c->name, "%s", m->client);
     for (char *p = c->name; *p; p++) /* for log lines */
         if ((unsigned char)*p < 0x20 || *p == 0x7f)
             *p = '?';
     cJSON *w = world_message(s, c);
-    cJSON_AddItemToObject(w, "ref", ref_copy(r->ref));
+    cJSON_AddItemToObject(w, "ref", net_ref_copy(m->ref));
     net_send_json(c, w);
     hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = c->id};
-    ref_text(r->ref, cmd.ref, sizeof cmd.ref);
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     net_push_must(s, &cmd);
     log_info("net: client %u (%s) said hello as \"%s\"", c->id, c->peer, c->name);
 }
 
 /* ---- collider_create ---- */
 
-static int material_known(net_server *s, const char *name)
+/* Takes over m->mesh. */
+static void handle_collider_create(net_client *c, net_control *m)
 {
-    const cJSON *it;
-    cJSON_ArrayForEach(it, s->materials) if (strcmp(it->valuestring, name) == 0) return 1;
-    return 0;
-}
-
-static void mesh_free(collider_mesh *m)
-{
-    if (m) {
-        collider_mesh_free(m);
-        free(m);
-    }
-}
-
-/* vertices and indices of a mesh shape; NULL after an error was sent. */
-static collider_mesh *parse_mesh(const req *r)
-{
-    net_client *c = r->c;
-    const net_limits *l = &c->srv->cfg.limits;
-    const cJSON *va = cJSON_GetObjectItemCaseSensitive(r->msg, "vertices");
-    const cJSON *ia = cJSON_GetObjectItemCaseSensitive(r->msg, "indices");
-    if (!cJSON_IsArray(va) || cJSON_GetArraySize(va) % 3 != 0) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "vertices: must be an array of 3·n numbers [x0, y0, z0, x1, ...]");
-        return NULL;
-    }
-    if (!cJSON_IsArray(ia) || cJSON_GetArraySize(ia) % 3 != 0) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "indices: must be an array of 3·m integers [a, b, c, ...]");
-        return NULL;
-    }
-    int n = cJSON_GetArraySize(va) / 3, m = cJSON_GetArraySize(ia) / 3;
-    if (n > l->max_mesh_vertices) {
-        net_error(c, TERRAD_E_TOO_LARGE, r->ref, -1, 0,
-                  "vertices: %d vertices, over max_mesh_vertices (%d)", n, l->max_mesh_vertices);
-        return NULL;
-    }
-    if (m > l->max_mesh_triangles) {
-        net_error(c, TERRAD_E_TOO_LARGE, r->ref, -1, 0,
-                  "indices: %d triangles, over max_mesh_triangles (%d)", m, l->max_mesh_triangles);
-        return NULL;
-    }
-    if (n < 3 || m < 1) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "mesh: needs at least 3 vertices and 1 triangle (got %d and %d)", n, m);
-        return NULL;
-    }
-    collider_mesh *mesh = calloc(1, sizeof *mesh);
-    if (mesh) {
-        mesh->vertices = malloc((size_t)n * 3 * sizeof *mesh->vertices);
-        mesh->indices = malloc((size_t)m * 3 * sizeof *mesh->indices);
-    }
-    if (!mesh || !mesh->vertices || !mesh->indices) {
-        mesh_free(mesh);
-        net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0, "out of memory for the mesh");
-        return NULL;
-    }
-    mesh->vertex_count = n;
-    mesh->triangle_count = m;
-    double radius2 = 0;
-    int i = 0;
-    const cJSON *it;
-    cJSON_ArrayForEach(it, va)
-    {
-        if (!cJSON_IsNumber(it) || !isfinite(it->valuedouble) ||
-            fabs(it->valuedouble) > l->max_collider_extent_m) {
-            net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                      "vertices[%d]: must be a number with |v| <= %g m (max_collider_extent_m)", i,
-                      l->max_collider_extent_m);
-            mesh_free(mesh);
-            return NULL;
-        }
-        mesh->vertices[i++] = (float)it->valuedouble;
-    }
-    for (int v = 0; v < n; v++) {
-        const float *p = &mesh->vertices[3 * v];
-        double d2 = (double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2];
-        if (d2 > radius2)
-            radius2 = d2;
-    }
-    mesh->bounding_radius = sqrt(radius2);
-    i = 0;
-    cJSON_ArrayForEach(it, ia)
-    {
-        if (!is_integer(it) || it->valuedouble < 0 || it->valuedouble >= n) {
-            net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                      "indices[%d]: must be an integer in [0, %d) (the vertex count)", i, n);
-            mesh_free(mesh);
-            return NULL;
-        }
-        mesh->indices[i++] = (uint32_t)it->valuedouble;
-    }
-    if (!(mesh->bounding_radius > 0) || mesh->bounding_radius > l->max_collider_extent_m) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "vertices: must reach a distance > 0 and <= %g m from the origin (got %g)",
-                  l->max_collider_extent_m, mesh->bounding_radius);
-        mesh_free(mesh);
-        return NULL;
-    }
-    return mesh;
-}
-
-/* Optional "pose": 1 given, 0 absent, -1 refused. */
-static int parse_pose(const req *r, int axis_z, collider_pose *out)
-{
-    const cJSON *pose = cJSON_GetObjectItemCaseSensitive(r->msg, "pose");
-    if (!pose)
-        return 0;
-    if (!cJSON_IsObject(pose)) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "pose: must be an object {\"p\": [x, y, z], \"q\": [qw, qx, qy, qz]}");
-        return -1;
-    }
-    double p[3], q[4];
-    if (get_numbers(r, cJSON_GetObjectItemCaseSensitive(pose, "p"), "pose.p", 3, p) ||
-        get_numbers(r, cJSON_GetObjectItemCaseSensitive(pose, "q"), "pose.q", 4, q))
-        return -1;
-    if (!quat_norm_ok(q[0], q[1], q[2], q[3])) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "pose.q: must be a unit quaternion (|q| within 0.9..1.1)");
-        return -1;
-    }
-    collider_pose cp = {{p[0], p[1], p[2]}, {q[0], q[1], q[2], q[3]}};
-    error_text err;
-    if (collider_pose_validate(&cp, &err)) {
-        net_error(r->c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "pose: %s", err.message);
-        return -1;
-    }
-    cp.orientation = module_orientation(cp.orientation, axis_z);
-    *out = cp;
-    return 1;
-}
-
-static void handle_collider_create(const req *r)
-{
-    net_client *c = r->c;
-    net_server *s = c->srv;
-    if (c->collider_count >= s->cfg.limits.max_colliders) {
-        net_error(c, TERRAD_E_LIMIT_COLLIDERS, r->ref, -1, 0,
-                  "this client already has max_colliders (%d) colliders",
-                  s->cfg.limits.max_colliders);
-        return;
-    }
-    const cJSON *shape = cJSON_GetObjectItemCaseSensitive(r->msg, "shape");
-    if (!cJSON_IsString(shape)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                  "shape: %s a string (sphere, box, capsule, cylinder, wheel or mesh)",
-                  shape ? "must be" : "missing,");
-        return;
-    }
-    const cJSON *material = cJSON_GetObjectItemCaseSensitive(r->msg, "material");
-    if (material && !cJSON_IsString(material)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "material: must be a string");
-        return;
-    }
-    const char *mat = material ? material->valuestring : "default";
-    if (strlen(mat) >= sizeof(((hub_command *)0)->material) || !material_known(s, mat)) {
-        net_error(c, TERRAD_E_UNSUPPORTED_COLLIDER, r->ref, -1, 0,
-                  "material: \"%.64s\" is not one of world.materials", mat);
-        return;
-    }
-    const cJSON *feedback = cJSON_GetObjectItemCaseSensitive(r->msg, "feedback");
-    if (feedback && !cJSON_IsBool(feedback)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "feedback: must be true or false");
-        return;
-    }
-
-    collider_geometry g;
-    memset(&g, 0, sizeof g);
-    collider_mesh *mesh = NULL;
-    int axis_z = 0;
-    const char *sh = shape->valuestring;
-    if (strcmp(sh, "sphere") == 0) {
-        g.shape = COLLIDER_SPHERE;
-        if (get_length(r, "radius", &g.radius))
-            return;
-    } else if (strcmp(sh, "box") == 0) {
-        g.shape = COLLIDER_BOX;
-        double e[3];
-        const cJSON *a = cJSON_GetObjectItemCaseSensitive(r->msg, "half_extents");
-        if (get_numbers(r, a, "half_extents", 3, e))
-            return;
-        for (int i = 0; i < 3; i++)
-            if (!(e[i] > 0) || e[i] > s->cfg.limits.max_collider_extent_m) {
-                net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0,
-                          "half_extents[%d]: must be > 0 and <= %g m (max_collider_extent_m)", i,
-                          s->cfg.limits.max_collider_extent_m);
-                return;
-            }
-        g.half_extents = (vec3d){e[0], e[1], e[2]};
-    } else if (strcmp(sh, "capsule") == 0 || strcmp(sh, "cylinder") == 0) {
-        g.shape = sh[1] == 'a' ? COLLIDER_CAPSULE : COLLIDER_CYLINDER;
-        axis_z = 1;
-        if (get_length(r, "radius", &g.radius) || get_length(r, "half_length", &g.half_length))
-            return;
-    } else if (strcmp(sh, "wheel") == 0) {
-        g.shape = COLLIDER_CYLINDER; /* the module's cylinder axis is y: the axle */
-        double width;
-        if (get_length(r, "radius", &g.radius) || get_length(r, "width", &width))
-            return;
-        g.half_length = width / 2;
-    } else if (strcmp(sh, "mesh") == 0) {
-        g.shape = COLLIDER_MESH;
-        mesh = parse_mesh(r);
-        if (!mesh)
-            return;
-        g.mesh = mesh;
-    } else {
-        net_error(c, TERRAD_E_UNSUPPORTED_COLLIDER, r->ref, -1, 0,
-                  "shape: \"%.64s\" is not one of sphere, box, capsule, cylinder, wheel, mesh", sh);
-        return;
-    }
-    error_text err;
-    if (collider_geometry_validate(&g, &err)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "%s", err.message);
-        mesh_free(mesh);
-        return;
-    }
-    collider_pose pose;
-    memset(&pose, 0, sizeof pose); /* all-zero orientation: no pose yet */
-    if (parse_pose(r, axis_z, &pose) < 0) {
-        mesh_free(mesh);
-        return;
-    }
-
+    net_state *s = c->srv;
     uint32_t id = s->next_collider_id;
-    if (id == 0 || net_collider_insert(s, id, c->id, axis_z) != 0) {
-        net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,
+    if (id == 0 || net_collider_insert(s, id, c->id, m->axis_z) != 0) {
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
                   id == 0 ? "collider ids exhausted" : "out of memory");
-        mesh_free(mesh);
         return;
     }
     hub_command cmd;
@@ -578,27 +130,26 @@ static void handle_collider_create(const req *r)
     cmd.kind = HUB_COLLIDER_CREATE;
     cmd.client = c->id;
     cmd.collider = id;
-    cmd.geometry = g;
-    cmd.mesh = mesh;
-    cmd.pose = pose;
-    snprintf(cmd.material, sizeof cmd.material, "%s", mat);
-    cmd.feedback = feedback ? cJSON_IsTrue(feedback) : 1;
-    ref_text(r->ref, cmd.ref, sizeof cmd.ref);
-    uint32_t *grown = realloc(c->colliders, (size_t)(c->collider_count + 1) * sizeof *grown);
+    cmd.geometry = m->geometry;
+    cmd.mesh = m->mesh;
+    cmd.pose = m->pose;
+    snprintf(cmd.material, sizeof cmd.material, "%s", m->material);
+    cmd.feedback = m->feedback;
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
+    int grown = array_grow((void **)&c->colliders, &c->collider_capacity,
+                           (int64_t)c->collider_count + 1, sizeof *c->colliders) == 0;
     if (!grown || net_push_refusable(s, &cmd) != 0) {
-        if (grown)
-            c->colliders = grown;
         net_collider_remove(s, id);
-        mesh_free(mesh);
-        net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
                   grown ? "server busy: the simulation's command queue is full, try again"
                         : "out of memory");
-        return;
+        return; /* the mesh stays m's */
     }
-    c->colliders = grown;
+    m->mesh = NULL; /* the command's, then the sim's */
+    m->geometry.mesh = NULL;
     c->colliders[c->collider_count++] = id;
     s->next_collider_id = id + 1;
-    cJSON *rep = reply("collider_created", r->ref);
+    cJSON *rep = reply("collider_created", m->ref);
     cJSON_AddNumberToObject(rep, "id", id);
     net_send_json(c, rep);
 }
@@ -620,27 +171,26 @@ static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
     return slot;
 }
 
-static void handle_collider_delete(const req *r)
+static void handle_collider_delete(net_client *c, const net_control *m)
 {
-    net_client *c = r->c;
-    int64_t id;
-    if (get_int(r, "id", 1, 0, UINT32_MAX, &id) < 0 || !owned(c, (uint32_t)id, r->ref))
+    uint32_t id = m->id;
+    if (!owned(c, id, m->ref))
         return;
-    hub_command cmd = {.kind = HUB_COLLIDER_DELETE, .client = c->id, .collider = (uint32_t)id};
-    ref_text(r->ref, cmd.ref, sizeof cmd.ref);
+    hub_command cmd = {.kind = HUB_COLLIDER_DELETE, .client = c->id, .collider = id};
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(c->srv, &cmd) != 0) {
-        net_error(c, TERRAD_E_INTERNAL, r->ref, id, 0,
+        net_error(c, TERRAD_E_INTERNAL, m->ref, id, 0,
                   "server busy: the simulation's command queue is full, try again");
         return;
     }
-    net_collider_remove(c->srv, (uint32_t)id);
-    hub_forget_pose(c->srv->hub, (uint32_t)id);
+    net_collider_remove(c->srv, id);
+    hub_forget_pose(c->srv->hub, id);
     for (int i = 0; i < c->collider_count; i++)
-        if (c->colliders[i] == (uint32_t)id) {
+        if (c->colliders[i] == id) {
             c->colliders[i] = c->colliders[--c->collider_count];
             break;
         }
-    cJSON *rep = reply("collider_deleted", r->ref);
+    cJSON *rep = reply("collider_deleted", m->ref);
     cJSON_AddNumberToObject(rep, "id", (double)id);
     net_send_json(c, rep);
 }
@@ -655,182 +205,153 @@ static int sub_index(const net_client *c, uint32_t id)
     return -1;
 }
 
-static void handle_subscribe(const req *r)
+static void handle_subscribe(net_client *c, const net_control *m)
 {
-    net_client *c = r->c;
-    net_server *s = c->srv;
+    net_state *s = c->srv;
     const net_limits *l = &s->cfg.limits;
-    int64_t x, y, w, h;
-    if (get_int(r, "x", 1, INT32_MIN, INT32_MAX, &x) < 0 ||
-        get_int(r, "y", 1, INT32_MIN, INT32_MAX, &y) < 0 ||
-        get_int(r, "w", 1, 1, INT32_MAX, &w) < 0 || get_int(r, "h", 1, 1, INT32_MAX, &h) < 0)
-        return;
-    const cJSON *colliders = cJSON_GetObjectItemCaseSensitive(r->msg, "colliders");
-    if (colliders && !cJSON_IsBool(colliders)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "colliders: must be true or false");
-        return;
-    }
-    const cJSON *footprints = cJSON_GetObjectItemCaseSensitive(r->msg, "footprints");
-    if (footprints && !cJSON_IsBool(footprints)) {
-        net_error(c, TERRAD_E_BAD_VALUE, r->ref, -1, 0, "footprints: must be true or false");
-        return;
-    }
-    if (x < 0 || y < 0 || x + w > s->cfg.world.width || y + h > s->cfg.world.height) {
-        net_error(c, TERRAD_E_OUTSIDE_WORLD, r->ref, -1, 0,
-                  "rectangle x=%lld y=%lld w=%lld h=%lld is not inside the world (%d x %d cells)",
-                  (long long)x, (long long)y, (long long)w, (long long)h, s->cfg.world.width,
-                  s->cfg.world.height);
-        return;
-    }
+    world_rect rect = m->rect;
+    int64_t cells = (int64_t)rect.w * rect.h;
     if (c->sub_count >= l->max_subscriptions) {
-        net_error(c, TERRAD_E_LIMIT_SUBSCRIPTIONS, r->ref, -1, 0,
+        net_error(c, TERRAD_E_LIMIT_SUBSCRIPTIONS, m->ref, -1, 0,
                   "this client already has max_subscriptions (%d) subscriptions",
                   l->max_subscriptions);
         return;
     }
-    if (c->sub_cells + w * h > l->max_subscribed_cells) {
-        net_error(c, TERRAD_E_LIMIT_SUBSCRIPTIONS, r->ref, -1, 0,
+    if (c->sub_cells + cells > l->max_subscribed_cells) {
+        net_error(c, TERRAD_E_LIMIT_SUBSCRIPTIONS, m->ref, -1, 0,
                   "%lld more cells would pass max_subscribed_cells (%lld; %lld subscribed)",
-                  (long long)(w * h), (long long)l->max_subscribed_cells, (long long)c->sub_cells);
+                  (long long)cells, (long long)l->max_subscribed_cells, (long long)c->sub_cells);
         return;
     }
-    net_sub *grown = realloc(c->subs, (size_t)(c->sub_count + 1) * sizeof *grown);
-    if (!grown) {
-        net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0, "out of memory");
+    if (array_grow((void **)&c->subs, &c->sub_capacity, (int64_t)c->sub_count + 1,
+                   sizeof *c->subs) != 0) {
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0, "out of memory");
         return;
     }
-    c->subs = grown;
-    world_rect rect = {(int)x, (int)y, (int)w, (int)h};
     hub_command cmd = {.kind = HUB_SUBSCRIBE,
                        .client = c->id,
                        .subscription = c->next_sub_id,
                        .rect = rect,
-                       .colliders = colliders ? cJSON_IsTrue(colliders) : 0,
-                       .footprints = footprints ? cJSON_IsTrue(footprints) : 0};
-    ref_text(r->ref, cmd.ref, sizeof cmd.ref);
+                       .colliders = m->colliders,
+                       .footprints = m->footprints};
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(s, &cmd) != 0) {
-        net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
                   "server busy: the simulation's command queue is full, try again");
         return;
     }
     c->subs[c->sub_count++] = (net_sub){c->next_sub_id, rect};
-    c->sub_cells += w * h;
+    c->sub_cells += cells;
     c->snapshots_requested++; /* the sim ends the subscription's snapshot with a marker */
-    cJSON *rep = reply("subscribed", r->ref);
+    cJSON *rep = reply("subscribed", m->ref);
     cJSON_AddNumberToObject(rep, "id", c->next_sub_id);
-    cJSON_AddNumberToObject(rep, "x", (double)x);
-    cJSON_AddNumberToObject(rep, "y", (double)y);
-    cJSON_AddNumberToObject(rep, "w", (double)w);
-    cJSON_AddNumberToObject(rep, "h", (double)h);
+    cJSON_AddNumberToObject(rep, "x", (double)rect.x);
+    cJSON_AddNumberToObject(rep, "y", (double)rect.y);
+    cJSON_AddNumberToObject(rep, "w", (double)rect.w);
+    cJSON_AddNumberToObject(rep, "h", (double)rect.h);
     net_send_json(c, rep);
     c->next_sub_id++;
 }
 
-static void handle_unsubscribe(const req *r)
+static void handle_unsubscribe(net_client *c, const net_control *m)
 {
-    net_client *c = r->c;
-    int64_t id;
-    if (get_int(r, "id", 1, 0, UINT32_MAX, &id) < 0)
-        return;
-    int i = sub_index(c, (uint32_t)id);
+    int i = sub_index(c, m->id);
     if (i < 0) {
-        net_error(c, TERRAD_E_UNKNOWN_SUBSCRIPTION, r->ref, -1, 0,
-                  "subscription %lld does not exist", (long long)id);
+        net_error(c, TERRAD_E_UNKNOWN_SUBSCRIPTION, m->ref, -1, 0,
+                  "subscription %lld does not exist", (long long)m->id);
         return;
     }
-    hub_command cmd = {.kind = HUB_UNSUBSCRIBE,
-                       .client = c->id,
-                       .subscription = (uint32_t)id,
-                       .rect = c->subs[i].rect};
-    ref_text(r->ref, cmd.ref, sizeof cmd.ref);
+    hub_command cmd = {
+        .kind = HUB_UNSUBSCRIBE, .client = c->id, .subscription = m->id, .rect = c->subs[i].rect};
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(c->srv, &cmd) != 0) {
-        net_error(c, TERRAD_E_INTERNAL, r->ref, -1, 0,
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
                   "server busy: the simulation's command queue is full, try again");
         return;
     }
     c->sub_cells -= (int64_t)c->subs[i].rect.w * c->subs[i].rect.h;
     c->subs[i] = c->subs[--c->sub_count];
-    cJSON *rep = reply("unsubscribed", r->ref);
-    cJSON_AddNumberToObject(rep, "id", (double)id);
+    cJSON *rep = reply("unsubscribed", m->ref);
+    cJSON_AddNumberToObject(rep, "id", (double)m->id);
     net_send_json(c, rep);
 }
 
-/* Fresh snapshots of every subscription of c: tile deltas stop at once (the
- * queued ones are dropped) and resume after the sim's last snapshot frame.
- * A resync of one subscription resyncs them all, because deltas are held
- * back per client, not per subscription. */
-void net_request_resync(net_client *c, uint32_t subscription)
+static void handle_resync(net_client *c, const net_control *m)
 {
-    (void)subscription;
-    int n = net_drop_tile_deltas(c);
-    if (n)
-        metrics_count_frames_coalesced((uint64_t)n);
-    c->slow = 0;
-    if (c->sub_count == 0)
-        return;
-    hub_command cmd = {.kind = HUB_RESYNC, .client = c->id, .subscription = 0};
-    c->snapshots_requested++;
-    c->resync_until = c->snapshots_requested;
-    net_push_must(c->srv, &cmd);
-}
-
-static void handle_resync(const req *r)
-{
-    int64_t id = 0;
-    int got = get_int(r, "id", 0, 0, UINT32_MAX, &id);
-    if (got < 0)
-        return;
-    if (got && sub_index(r->c, (uint32_t)id) < 0) {
-        net_error(r->c, TERRAD_E_UNKNOWN_SUBSCRIPTION, r->ref, -1, 0,
-                  "subscription %lld does not exist", (long long)id);
+    if (m->has_id && sub_index(c, m->id) < 0) {
+        net_error(c, TERRAD_E_UNKNOWN_SUBSCRIPTION, m->ref, -1, 0,
+                  "subscription %lld does not exist", (long long)m->id);
         return;
     }
-    net_request_resync(r->c, (uint32_t)id);
+    net_request_resync(c, m->id);
 }
 
 /* ---- text messages ---- */
 
+/* A refusal that depends on the client, not on the message, and comes
+ * before any problem with the request's fields; 1 when one was sent. */
+static int refused_by_state(net_client *c, const net_control *m)
+{
+    const net_limits *l = &c->srv->cfg.limits;
+    if (m->kind == NET_CONTROL_HELLO && c->ready) {
+        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 0, "hello: already received");
+        return 1;
+    }
+    if (m->kind == NET_CONTROL_COLLIDER_CREATE && c->collider_count >= l->max_colliders) {
+        net_error(c, TERRAD_E_LIMIT_COLLIDERS, m->ref, -1, 0,
+                  "this client already has max_colliders (%d) colliders", l->max_colliders);
+        return 1;
+    }
+    return 0;
+}
+
 void net_handle_text(net_client *c, const char *text, size_t len)
 {
-    cJSON *msg = cJSON_ParseWithLengthOpts(text, len, NULL, 0);
-    const cJSON *type = cJSON_IsObject(msg) ? cJSON_GetObjectItemCaseSensitive(msg, "type") : NULL;
-    if (!c->ready && !(cJSON_IsString(type) && strcmp(type->valuestring, "hello") == 0)) {
+    THREAD_OWNED(&c->srv->owner);
+    net_state *s = c->srv;
+    net_control_context ctx = {.limits = &s->cfg.limits,
+                               .materials = s->materials,
+                               .world_width = s->cfg.world.width,
+                               .world_height = s->cfg.world.height};
+    net_control m;
+    net_control_error err;
+    int rc = net_control_parse(text, len, &ctx, &m, &err);
+    if (!c->ready && m.kind != NET_CONTROL_HELLO) {
         net_error(c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "the first message must be hello");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");
-        cJSON_Delete(msg);
-        return;
+    } else if (rc != 0 && !err.field) {
+        net_error(c, err.code, m.ref, -1, 0, "%s", err.message);
+    } else if (refused_by_state(c, &m)) {
+        /* answered */
+    } else if (rc != 0) {
+        net_error(c, err.code, m.ref, -1, err.fatal, "%s", err.message);
+        if (err.code == TERRAD_E_BAD_VERSION)
+            net_close_after_flush(c, 4000 + TERRAD_E_BAD_VERSION, "bad protocol version");
+    } else {
+        switch (m.kind) {
+        case NET_CONTROL_HELLO:
+            handle_hello(c, &m);
+            break;
+        case NET_CONTROL_COLLIDER_CREATE:
+            handle_collider_create(c, &m);
+            break;
+        case NET_CONTROL_COLLIDER_DELETE:
+            handle_collider_delete(c, &m);
+            break;
+        case NET_CONTROL_SUBSCRIBE:
+            handle_subscribe(c, &m);
+            break;
+        case NET_CONTROL_UNSUBSCRIBE:
+            handle_unsubscribe(c, &m);
+            break;
+        case NET_CONTROL_RESYNC:
+            handle_resync(c, &m);
+            break;
+        case NET_CONTROL_NONE:
+            break;
+        }
     }
-    if (!cJSON_IsString(type)) {
-        net_error(c, TERRAD_E_BAD_JSON, NULL, -1, 0,
-                  msg ? "not a JSON object with a string \"type\"" : "malformed JSON");
-        cJSON_Delete(msg);
-        return;
-    }
-    req r = {.c = c, .msg = msg, .ref = cJSON_GetObjectItemCaseSensitive(msg, "ref")};
-    if (r.ref && !((cJSON_IsString(r.ref) && strlen(r.ref->valuestring) <= NET_REF_MAX_BYTES) ||
-                   is_integer(r.ref))) {
-        r.ref = NULL;
-        net_error(c, TERRAD_E_BAD_VALUE, NULL, -1, 0,
-                  "ref: must be a string of at most %d bytes or an integer", NET_REF_MAX_BYTES);
-        cJSON_Delete(msg);
-        return;
-    }
-    const char *t = type->valuestring;
-    if (strcmp(t, "hello") == 0)
-        handle_hello(&r);
-    else if (strcmp(t, "collider_create") == 0)
-        handle_collider_create(&r);
-    else if (strcmp(t, "collider_delete") == 0)
-        handle_collider_delete(&r);
-    else if (strcmp(t, "subscribe") == 0)
-        handle_subscribe(&r);
-    else if (strcmp(t, "unsubscribe") == 0)
-        handle_unsubscribe(&r);
-    else if (strcmp(t, "resync") == 0)
-        handle_resync(&r);
-    else
-        net_error(c, TERRAD_E_UNKNOWN_TYPE, r.ref, -1, 0, "type: \"%.64s\" is not a request", t);
-    cJSON_Delete(msg);
+    net_control_free(&m);
 }
 
 /* ---- binary messages ---- */
@@ -855,7 +376,7 @@ static int64_t first_bad_pose(const unsigned char *data, size_t len)
         int ok = 1;
         for (int k = 0; k < 7; k++)
             ok &= isfinite(v[k]) != 0;
-        if (!ok || !quat_norm_ok(v[3], v[4], v[5], v[6]))
+        if (!ok || !net_control_quat_norm_ok(v[3], v[4], v[5], v[6]))
             return rd_u32le(p);
     }
     return -1;
@@ -863,7 +384,7 @@ static int64_t first_bad_pose(const unsigned char *data, size_t len)
 
 static void handle_pose_batch(net_client *c, const unsigned char *data, size_t len)
 {
-    net_server *s = c->srv;
+    net_state *s = c->srv;
     uint32_t seq = 0;
     size_t count = 0;
     char store_reason[256];
@@ -904,7 +425,8 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
                 .client = c->id,
                 .sequence = seq,
                 .pose = {{p->x, p->y, p->z},
-                         module_orientation((quatd){p->qw, p->qx, p->qy, p->qz}, slot->axis_z)},
+                         net_control_orientation((quatd){p->qw, p->qx, p->qy, p->qz},
+                                                 slot->axis_z)},
             };
             if (hub_set_pose(s->hub, &hp) != 0) {
                 net_error(c, TERRAD_E_INTERNAL, ref, p->id, 0,
@@ -921,6 +443,7 @@ done:
 
 void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
 {
+    THREAD_OWNED(&c->srv->owner);
     if (!c->ready) {
         net_error(c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "the first message must be hello");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");

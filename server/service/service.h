@@ -1,15 +1,20 @@
 /*
  * service: the sim thread's side of the daemon — clients, their colliders
  * and subscriptions as the sim sees them, tile versions, and one tick of the
- * service (DESIGN.md "One tick", all of it):
+ * service (docs/design.md, "One tick", all of it; service_tick reads as its
+ * table of contents):
  *
- *   take commands and the latest poses from the hub → contact feedback
- *   against the terrain before the tick → deformation (sim engine) → split
- *   the dirty rectangles by tile, advance tile versions, encode each
- *   (rectangle, version) once → publish deltas, contacts, acks, then
- *   snapshots for new subscriptions and resyncs → serve height reads.
+ *   take commands, the latest poses and batch sequences from the hub →
+ *   contact feedback against the terrain before the tick → gather the
+ *   colliders → deformation (sim_engine_tick) → commit the change to the
+ *   store (undone if it cannot be logged) → split the dirty rectangles by
+ *   tile, advance tile versions, encode each (rectangle, version) once →
+ *   contacts after the tick, CONTACT and ACK frames, COLLIDERS, FOOTPRINTS,
+ *   snapshots for new subscriptions and resyncs → publish to the hub once
+ *   the store has made the tick durable → serve height reads.
  *
- * Only the sim thread calls into it.
+ * Only the sim thread calls into it (asserted in debug and sanitizer
+ * builds: the thread that creates the service owns it).
  */
 #ifndef TERRAD_SERVICE_H
 #define TERRAD_SERVICE_H

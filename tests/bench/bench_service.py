@@ -32,7 +32,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 from service_harness import Daemon, machine, metric_value  # noqa: E402
 
-import terrad_proto as tp  # noqa: E402
+import terrad as tp  # noqa: E402
 
 DRIVE_S = float(os.environ.get("TERRAD_BENCH_SECONDS", "5"))
 CLIENTS = [int(x) for x in os.environ.get("TERRAD_BENCH_CLIENTS", "1,8,64").split(",")]

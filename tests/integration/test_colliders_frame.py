@@ -18,7 +18,7 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import Checks, Daemon, RecordingClient, metric_value  # noqa: E402
-import terrad_proto as tp  # noqa: E402
+import terrad as tp  # noqa: E402
 
 check = Checks()
 

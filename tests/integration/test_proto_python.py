@@ -20,7 +20,8 @@ import random
 import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import SOURCE, Checks, tp  # noqa: E402
+from service_harness import SOURCE, Checks  # noqa: E402
+from terrad import proto as tp  # noqa: E402
 
 check = Checks()
 

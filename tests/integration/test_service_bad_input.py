@@ -23,7 +23,7 @@ import traceback
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, Checks, Daemon, RecordingClient, metric_value, skip  # noqa: E402
 
-import terrad_proto as tp  # noqa: E402
+import terrad as tp  # noqa: E402
 
 check = Checks()
 TOKEN = "s3cret-token"

@@ -25,7 +25,7 @@ import traceback
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import (BIN, Checks, Daemon, RecordingClient, compare_with_server, skip,  # noqa: E402
                              wheel_pose)
-from terrad_proto import Pose  # noqa: E402
+from terrad import Pose  # noqa: E402
 
 check = Checks()
 RADIUS = 0.3

@@ -28,7 +28,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import (BIN, Checks, Daemon, RecordingClient, compare_with_server,  # noqa: E402
                              metric_value, skip)
 
-import terrad_proto as tp  # noqa: E402
+import terrad as tp  # noqa: E402
 
 check = Checks()
 PENDING = 256 * 1024

@@ -29,9 +29,13 @@ import urllib.request
 SOURCE = os.environ.get("TERRAD_SOURCE_DIR",
                         os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")))
 BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
+# The Python client package (proto/python/terrad) from the source tree, for the tests and for
+# the Python programs they start (the examples).
 sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
+os.environ["PYTHONPATH"] = os.pathsep.join(
+    p for p in (os.path.join(SOURCE, "proto", "python"), os.environ.get("PYTHONPATH")) if p)
 
-import terrad_proto as tp  # noqa: E402
+import terrad as tp  # noqa: E402
 
 PORTS_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*ws://127\.0\.0\.1:(\d+)/")
 

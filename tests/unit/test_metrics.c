@@ -150,6 +150,10 @@ int main(void)
     metrics_set_memory_bytes("sim_scratch", 10);
     metrics_set_memory_bytes("sim_scratch", 20); /* replaces */
     metrics_set_memory_bytes("we\"ird\\part\nname", 5);
+    metrics_count_service_dropped("frame");
+    metrics_count_service_dropped("frame");
+    metrics_count_service_dropped("snapshot");
+    metrics_count_service_dropped("no_such_reason"); /* dropped */
 
     text = metrics_render(&len);
     CHECK(text != NULL, "render");
@@ -167,6 +171,10 @@ int main(void)
     expect_line(text, "terrad_delta_compressed_bytes_total 2000");
     expect_line(text, "terrad_delta_compression_ratio 3");
     expect_line(text, "# TYPE terrad_delta_compression_ratio gauge");
+    expect_line(text, "# TYPE terrad_service_dropped_total counter");
+    expect_line(text, "terrad_service_dropped_total{reason=\"frame\"} 2");
+    expect_line(text, "terrad_service_dropped_total{reason=\"snapshot\"} 1");
+    expect_line(text, "terrad_service_dropped_total{reason=\"poses\"} 0");
 
     char line[160];
     snprintf(line, sizeof line, "terrad_refused_messages_total{reason=\"%s\"} 2",

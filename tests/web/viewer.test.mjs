@@ -6,11 +6,13 @@
 // the terrain point under the pointer; a 2048² world is rendered as a 1024² window of
 // chunks whose level of detail falls with distance, without cracks (a pixel test), and
 // the window follows the camera; a daemon restarted under the page is shown,
-// reconnected to and resynchronised from. Writes test-artifacts/viewer.png.
+// reconnected to and resynchronised from. Writes test-artifacts/viewer.png and, close on the
+// trail, viewer-trail.png (only `make docs-images` copies that one to docs/viewer.png: make test
+// leaves the tree clean).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
-import { mkdtempSync, mkdirSync, rmSync, copyFileSync, existsSync } from 'node:fs';
+import { mkdtempSync, mkdirSync, rmSync, existsSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
 import { fileURLToPath } from 'node:url';
@@ -68,6 +70,7 @@ async function stopDaemon(proc) {
 }
 
 let daemon, context, page, profile;
+const failedResponses = []; // every HTTP answer of 400 or more the page got (a missing favicon)
 
 before(async () => {
   if (skip) return;
@@ -79,6 +82,7 @@ before(async () => {
   });
   page = context.pages()[0] || (await context.newPage());
   page.on('pageerror', (e) => console.error('page error:', e.message));
+  page.on('response', (r) => { if (r.status() >= 400) failedResponses.push(`${r.status()} ${r.url()}`); });
   await page.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
 });
 
@@ -170,6 +174,9 @@ test('the page loads, gets its first snapshot and draws the terrain', { skip, ti
   assert.match(overlay, /live/);
   await until('Σh in the overlay', async () => /^-?\d+$/.test((await page.textContent('#o-volume')).trim()), 5000);
   await assertMirrorsServer(daemon.ports.http);
+  const icon = await page.evaluate(() => fetch('favicon.svg').then((r) => [r.status, r.headers.get('content-type')]));
+  assert.deepEqual(icon, [200, 'image/svg+xml'], 'the favicon is served');
+  assert.deepEqual(failedResponses, [], 'no request of the page failed (no /favicon.ico 404)');
 });
 
 test('a collider driven through the page leaves a trail, and the heights match bit for bit', { skip, timeout: 150000 }, async () => {
@@ -190,8 +197,6 @@ test('a collider driven through the page leaves a trail, and the heights match b
   const afterImg = await grab();
   mkdirSync(ARTIFACTS, { recursive: true });
   await page.screenshot({ path: path.join(ARTIFACTS, 'viewer.png') });
-  mkdirSync(path.join(root, 'docs'), { recursive: true });
-  copyFileSync(path.join(ARTIFACTS, 'viewer.png'), path.join(root, 'docs/viewer.png'));
 
   // The canvas changed along the trail: project points of the path to the screen.
   const pts = await page.evaluate(([x0, y0, len]) => {
@@ -214,6 +219,16 @@ test('a collider driven through the page leaves a trail, and the heights match b
   }
   assert.ok(hit >= 7, `the canvas changed at only ${hit} of ${pts.length} points of the trail`);
   await assertMirrorsServer(daemon.ports.http);
+
+  // The README's picture (make docs-images copies it to docs/viewer.png): close on the trail,
+  // from the side, so that the trail is the subject. Then the camera goes back.
+  const cam0 = await page.evaluate(() => window.terrad.camera);
+  const frames0 = await page.evaluate(() => window.terrad.framesDrawn);
+  await page.evaluate(([x, y]) => window.terrad.setCamera({ target: [x, y], yaw: -Math.PI / 2 - 0.35, pitch: 0.62, dist: 3.9 }),
+    [start.x + (steps * dx) / 2 - 0.5, start.y + 0.45]); // the trail right of the overlay
+  await until('drawn from the new camera', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, frames0), 20000);
+  await page.screenshot({ path: path.join(ARTIFACTS, 'viewer-trail.png') });
+  await page.evaluate((c) => window.terrad.setCamera(c), cam0);
 });
 
 // Another client (Python, proto/python) holds a sphere in the air over the terrain.
@@ -221,7 +236,7 @@ function otherClient(wsPort, x, y, z, radius) {
   const code = `
 import asyncio, sys
 sys.path.insert(0, ${JSON.stringify(path.join(root, 'proto/python'))})
-import terrad_proto as tp
+import terrad as tp
 async def main():
     async with tp.TerradClient("ws://127.0.0.1:${wsPort}/", name="viewer-test-other") as c:
         cid = await c.create_collider("sphere", radius=${radius})
@@ -294,6 +309,22 @@ test('drive mode: dragging steers the collider to the terrain point under the po
   await page.mouse.up();
   assert.equal(await page.evaluate(() => window.terrad.dragTarget), null, 'letting go stops the steering');
   await page.evaluate(() => window.terrad.lift());
+});
+
+test('the keys drive the page\'s collider at real-time speed whatever the frame rate', { skip, timeout: 60000 }, async () => {
+  await page.evaluate(() => window.terrad.lower());
+  const a = await page.evaluate(() => window.terrad.collider);
+  const t0 = Date.now();
+  await page.keyboard.down('KeyW');
+  await sleep(1500);
+  await page.keyboard.up('KeyW');
+  const held = (Date.now() - t0) / 1000;
+  const b = await page.evaluate(() => window.terrad.collider);
+  await page.evaluate(() => window.terrad.lift());
+  // 1.5 m/s (keyDrive); software GL draws a few frames a second here, which the old 0.1 s
+  // cap per frame turned into a crawl.
+  const moved = Math.hypot(b.x - a.x, b.y - a.y), want = 1.5 * held;
+  assert.ok(moved > 0.6 * want && moved < 1.3 * want, `moved ${moved.toFixed(2)} m in ${held.toFixed(2)} s (want ~${want.toFixed(2)})`);
 });
 
 // Pixels of (near) the background colour strictly between the first and the last
@@ -385,4 +416,10 @@ test('a daemon restarted under the page: outage shown, reconnect, resync', { ski
   }, 20000, 500);
   await until('reconnected', () => page.evaluate(() => window.terrad.connected && window.terrad.state === 'live'), 45000);
   await assertMirrorsServer(daemon.ports.http);
+  // The page's collider is a server collider again (this daemon has no demo actors).
+  await until('the page\'s collider re-created', async () => {
+    const c = await page.evaluate(() => window.terrad.collider);
+    const stats = await (await fetch(`http://127.0.0.1:${daemon.ports.http}/v1/stats`)).json();
+    return c && c.id > 0 && stats.colliders >= 1;
+  }, 15000);
 });

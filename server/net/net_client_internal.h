@@ -1,13 +1,22 @@
 /*
- * net_internal.h: what net.c (connections, queues, fan-out) and
- * net_requests.c (what clients ask for) share. Not part of the public face
- * of net/; everything here runs on the service thread only.
+ * net_client_internal.h: the bottom layer of the net thread — its state. Not part of
+ * the face of net/ (that is net.h); included only by the files of net/.
+ *
+ *   net.c           the lws thread: context, protocol callback, writes, fan-out
+ *     ↓
+ *   net_requests.c  what clients ask for (control messages, POSE_BATCH)
+ *   net_control.c   the pure JSON control-message parser it uses
+ *     ↓
+ *   net_client.c    this layer: per-client records (limits, rate bucket,
+ *                   owned colliders, subscriptions, outgoing queue), the
+ *                   collider table, commands waiting for the hub
+ *
+ * Each layer calls only the ones below it. Everything here runs on the net
+ * thread only (net_state.owner), except where net.c notes otherwise.
  */
-#ifndef TERRAD_NET_INTERNAL_H
-#define TERRAD_NET_INTERNAL_H
+#ifndef TERRAD_NET_CLIENT_INTERNAL_H
+#define TERRAD_NET_CLIENT_INTERNAL_H
 
-#include <pthread.h>
-#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -34,17 +43,20 @@ typedef struct net_sub {
     world_rect rect;
 } net_sub;
 
+typedef struct net_state net_state;
+
 typedef struct net_client {
     uint32_t id;
     struct lws *wsi;
-    struct net_server *srv;
+    net_state *srv;
     int ready; /* hello accepted */
     char peer[64];
     char name[72];
 
     /* incoming message being reassembled */
     unsigned char *rx;
-    size_t rx_len, rx_cap, rx_total;
+    int64_t rx_cap;
+    size_t rx_len, rx_total;
     int rx_active, rx_binary, rx_oversize;
 
     /* rate limit: token bucket, and how long the flood has gone on */
@@ -54,8 +66,10 @@ typedef struct net_client {
     /* ownership */
     uint32_t *colliders;
     int collider_count;
+    int64_t collider_capacity;
     net_sub *subs;
     int sub_count;
+    int64_t sub_capacity;
     uint32_t next_sub_id;
     int64_t sub_cells;
 
@@ -82,28 +96,18 @@ typedef struct net_collider_slot {
     int axis_z; /* capsule / cylinder: the client's axis is z, the collider module's y */
 } net_collider_slot;
 
-struct net_server {
+/* What the net thread knows, apart from libwebsockets' context (net.c). */
+struct net_state {
+    thread_owner owner; /* the net thread: claimed when it starts, released when it ends */
     net_config cfg;
     char *token, *models_json, *materials_json, *server_name;
     cJSON *models, *materials;
     hub *hub;
-
-    struct lws_context *ctx;
-    lws_sorted_usec_list_t heartbeat;
     struct terrad_pose *poses; /* max_poses_per_batch, for decoding */
-    atomic_int thread_done;
-    pthread_t thread;
-    int thread_started;
-    int port;
-    atomic_int stop_requested;
-    atomic_int force_stop;
-    atomic_int client_count;
-    pthread_mutex_t wake_lock;
-    int ctx_live;
-    int stopping;
 
     net_client **clients; /* sorted by id */
-    int nclients, clients_cap;
+    int nclients;
+    int64_t clients_cap;
     uint32_t next_client_id;
     uint32_t next_collider_id;
 
@@ -111,7 +115,8 @@ struct net_server {
     size_t colliders_cap, colliders_used;
 
     hub_command *backlog; /* commands that must reach the sim, waiting for room */
-    int backlog_count, backlog_cap;
+    int backlog_count;
+    int64_t backlog_cap;
 
     uint64_t tick; /* the latest tick seen from the sim */
     size_t hard_pending_bytes;
@@ -120,34 +125,48 @@ struct net_server {
     uint64_t warns_suppressed;
 };
 
-typedef struct net_server net_server;
+/* ---- the client list ---- */
+net_client *net_find_client(net_state *s, uint32_t id);
+int net_client_add(net_state *s, net_client *c); /* ids only grow: appended */
+void net_client_remove(net_state *s, net_client *c);
 
-/* net.c */
-net_client *net_find_client(net_server *s, uint32_t id);
+/* ---- a client's outgoing queue ---- */
 /* Queue a frame for a client (takes over the caller's reference). */
 void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind);
 void net_send_json(net_client *c, cJSON *msg); /* frees msg */
-/* Close the client once its queue drains (at most a few seconds). */
-void net_close_after_flush(net_client *c, int code, const char *reason);
-/* Drop the client's queued tile deltas; returns how many. */
-/* Drop the queued tile deltas and the ACK/CONTACT frames that would vouch for them. */
-int net_drop_tile_deltas(net_client *c);
-/* Push a command the sim must get (client left, resync): queued locally
- * when the hub is full, retried in order. */
-void net_push_must(net_server *s, const hub_command *cmd);
-/* 0, or -1 when the hub (or the local backlog) is full: refuse the request. */
-int net_push_refusable(net_server *s, const hub_command *cmd);
-void net_warn_refusal(net_server *s, const net_client *c, int code, const char *message);
-
-/* net_requests.c */
+/* A copy of a request's "ref" for a reply (JSON null when there is none). */
+cJSON *net_ref_copy(const cJSON *ref);
+/* An error message to the client (PROTOCOL.md "error"), counted as refused
+ * unless code is shutting_down or internal. */
 void net_error(net_client *c, int code, const cJSON *ref, int64_t collider, int fatal,
                const char *fmt, ...) __attribute__((format(printf, 6, 7)));
-void net_handle_text(net_client *c, const char *text, size_t len);
-void net_handle_binary(net_client *c, const unsigned char *data, size_t len);
+/* Close the client once its queue drains (at most a few seconds). */
+void net_close_after_flush(net_client *c, int code, const char *reason);
+/* Drop the queued tile deltas and the ACK/CONTACT frames that would vouch for them. */
+int net_drop_tile_deltas(net_client *c);
+/* Drop every queued frame (the client is gone or being dropped). */
+void net_release_queue(net_client *c);
+/* The client stopped reading and asked for more: let it go. */
+void net_client_kill(net_client *c, const char *why);
+/* Token bucket; 1 if the message may pass. Refusals are answered at most
+ * once a second; refusals sustained for 10 s close the connection. */
+int net_rate_allow(net_client *c);
+
+/* ---- commands for the sim ---- */
+/* Push a command the sim must get (client left, resync): queued locally
+ * when the hub is full, retried in order. */
+void net_push_must(net_state *s, const hub_command *cmd);
+/* 0, or -1 when the hub (or the local backlog) is full: refuse the request. */
+int net_push_refusable(net_state *s, const hub_command *cmd);
+/* Retry the backlog, in order. */
+void net_flush_backlog(net_state *s);
+/* Fresh snapshots of every subscription of c (see net_client.c). */
 void net_request_resync(net_client *c, uint32_t subscription);
-/* collider table */
-net_collider_slot *net_collider_find(net_server *s, uint32_t id);
-int net_collider_insert(net_server *s, uint32_t id, uint32_t owner, int axis_z);
-void net_collider_remove(net_server *s, uint32_t id);
+void net_warn_refusal(net_state *s, const net_client *c, int code, const char *message);
+
+/* ---- the collider table: id -> owner ---- */
+net_collider_slot *net_collider_find(net_state *s, uint32_t id);
+int net_collider_insert(net_state *s, uint32_t id, uint32_t owner, int axis_z);
+void net_collider_remove(net_state *s, uint32_t id);
 
 #endif

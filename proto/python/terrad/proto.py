@@ -1,42 +1,52 @@
-"""terrad wire protocol for Python: codecs and a small asyncio client.
+"""terrad wire protocol for Python: the codecs (no network).
 
 The specification is proto/PROTOCOL.md; this module follows it field by field
-and is checked against proto/vectors/vectors.json, like the C codec.
+and is checked against proto/vectors/vectors.json, like the C codec. It is the
+one Python copy of the codec: terrad.client builds the asyncio client on it.
 
-Needs Python 3.11 (Debian's /usr/bin/python3) with the Debian packages
-python3-zstandard (zstd) and, for TerradClient only, python3-websockets.
+Needs the zstandard module (pip install zstandard; Debian: python3-zstandard).
 
-Codec part (no network):
     encode_pose_batch / decode_pose_batch, encode_delta / decode_delta,
     encode_contact / decode_contact, encode_ack / decode_ack,
-    encode_ping / decode_ping, decode_header, decode (any binary frame),
-    rect_diff, rect_pack, rect_unpack, rect_compress, rect_decompress,
-    apply_values, Mirror (a client-side copy of one region with tile versions),
-    and builders of the JSON control messages.
+    encode_ping / decode_ping, encode_colliders / decode_colliders,
+    encode_footprints / decode_footprints, decode_header, decode (any binary
+    frame), rect_diff, rect_pack, rect_unpack, rect_compress, rect_decompress,
+    apply_values, Mirror (a client-side copy of one region with tile
+    versions), and builders of the JSON control messages.
+
 Every decoder raises ProtoError(code) with the protocol's error name; none
 reads past its buffer or trusts a count before checking it against the length.
-
-Client part:
-    async with TerradClient("ws://127.0.0.1:8081/", token="") as c:
-        wheel = await c.create_collider("wheel", radius=0.35, width=0.25)
-        sub = await c.subscribe(0, 0, 256, 256)
-        await c.send_poses([Pose(wheel, 10.0, 10.0, 0.3, 1, 0, 0, 0)])
-        heights = c.mirrors[sub].heights    # row-major int32, exact
 """
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 
 try:
     import zstandard as _zstd
 except ImportError as _e:  # pragma: no cover - the package is a declared dependency
-    raise ImportError("terrad_proto needs zstd for Python: apt-get install python3-zstandard") from _e
+    raise ImportError(
+        "terrad needs the Python module 'zstandard' (zstd compression of the height deltas): "
+        "pip install zstandard, or your distribution's package (Debian: python3-zstandard)",
+        name="zstandard") from _e
+
+__all__ = [
+    "PROTOCOL_VERSION", "MAGIC", "SUBPROTOCOL", "HEADER_SIZE", "POSE_SIZE", "RECT_FIXED",
+    "CONTACT_SIZE", "ACK_SIZE", "PING_SIZE", "COLLIDER_STATE_SIZE", "FOOTPRINT_SIZE",
+    "FOOTPRINT_YAW_MAX", "MAX_COUNT", "ZSTD_LEVEL", "ERRORS", "ERROR_CODES", "MsgType", "Encoding",
+    "ProtoError", "ServerError", "Pose", "Rect", "Contact", "ColliderState", "Footprint",
+    "decode_header", "encode_pose_batch", "decode_pose_batch", "check_rect", "encode_delta",
+    "decode_delta", "encode_contact", "decode_contact", "encode_colliders", "decode_colliders",
+    "encode_footprints", "decode_footprints", "encode_ack", "decode_ack", "encode_ping",
+    "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
+    "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
+    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
+    "parse_control",
+]
 
 PROTOCOL_VERSION = 1
 MAGIC = 0x54
@@ -459,7 +469,8 @@ def decode_ack(buf: bytes) -> tuple[int, int]:
     _expect(buf, MsgType.ACK)
     if len(buf) != ACK_SIZE:
         raise ProtoError("bad_frame", f"ACK of {len(buf)} bytes")
-    return struct.unpack_from("<QI", buf, 4)
+    tick, seq = struct.unpack_from("<QI", buf, 4)
+    return tick, seq
 
 
 def encode_ping(nonce: int, pong: bool = False) -> bytes:
@@ -496,8 +507,12 @@ def decode(buf: bytes):
 # ---- rectangle payloads ------------------------------------------------------------------
 
 
-def _wrap(v: int) -> int:
+def wrap32(v: int) -> int:
+    """v modulo 2^32 as a signed int32 (the deltas' wrapping arithmetic)."""
     return ((v + 2**31) & _U32) - 2**31
+
+
+_wrap = wrap32
 
 
 def zigzag32(v: int) -> int:
@@ -671,7 +686,7 @@ def unsubscribe(sid: int, ref=None) -> dict:
 
 
 def resync(sid: int | None = None, ref=None) -> dict:
-    msg = {"type": "resync"}
+    msg: dict = {"type": "resync"}
     if sid is not None:
         msg["id"] = sid
     return _with_ref(msg, ref)
@@ -700,175 +715,10 @@ def parse_control(text: str | bytes) -> dict:
     return msg
 
 
-# ---- client --------------------------------------------------------------------------------
-
-
-class TerradClient:
-    """A terrad client over websockets (asyncio): hello, colliders, poses,
-    subscriptions with exact local mirrors, contact feedback.
-
-    Server errors answering a request raise ServerError from that request;
-    others are kept in .errors. A mirror that falls out of step (stale_base,
-    a bad payload) asks the server for a resync by itself."""
-
-    def __init__(self, uri: str, token: str = "", name: str = "terrad-python", max_size: int = 1 << 24,
-                 **connect_kwargs):
-        """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
-        ping_interval=None for a client that may stop reading for a while)."""
-        self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
-        self.connect_kwargs = connect_kwargs
-        self.ws = None
-        self.world: dict = {}
-        self.mirrors: dict[int, Mirror] = {}
-        self.contacts: dict[int, Contact] = {}
-        self.colliders: dict[int, ColliderState] = {}  # the latest COLLIDERS frame, by id
-        self.colliders_tick = 0
-        self.footprints: list[Footprint] = []  # every FOOTPRINTS event received, in order
-        self.footprints_tick = 0
-        self.contact_tick = 0
-        self.acked_tick = 0
-        self.acked_seq = 0
-        self.tick = 0  # last DELTA tick seen
-        self.errors: list[dict] = []
-        self._seq = 0
-        self._ref = 0
-        self._pending: dict[str, asyncio.Future] = {}
-        self._reader: asyncio.Task | None = None
-        self._changed = asyncio.Event()
-
-    async def __aenter__(self):
-        await self.connect()
-        return self
-
-    async def __aexit__(self, *exc):
-        await self.close()
-
-    async def connect(self) -> dict:
-        import websockets  # Debian: python3-websockets
-
-        self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL], max_size=self.max_size,
-                                           **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name)))
-        msg = parse_control(await self.ws.recv())
-        if msg["type"] == "error":
-            raise ServerError(msg)
-        if msg["type"] != "world":
-            raise ProtoError("bad_json", f"expected world, got {msg['type']}")
-        self.world = msg
-        self._reader = asyncio.get_running_loop().create_task(self._read())
-        return msg
-
-    async def close(self) -> None:
-        if self.ws is not None:
-            await self.ws.close()
-        if self._reader is not None:
-            try:
-                await self._reader
-            except Exception:
-                pass
-
-    async def request(self, msg: dict, reply: str, timeout: float = 10.0) -> dict:
-        """Send a control message with a fresh ref and wait for its reply."""
-        self._ref += 1
-        ref = f"r{self._ref}"
-        msg["ref"] = ref
-        fut = asyncio.get_running_loop().create_future()
-        self._pending[ref] = fut
-        await self.ws.send(json.dumps(msg))
-        try:
-            got = await asyncio.wait_for(fut, timeout)
-        finally:
-            self._pending.pop(ref, None)
-        if got["type"] != reply:
-            raise ProtoError("bad_json", f"expected {reply}, got {got['type']}")
-        return got
-
-    async def create_collider(self, shape: str, material: str = "default", **dims) -> int:
-        return (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
-
-    async def delete_collider(self, cid: int) -> None:
-        await self.request(collider_delete(cid), "collider_deleted")
-
-    async def send_poses(self, poses: list[Pose]) -> int:
-        """Send one batch; returns its sequence number (see wait_ack)."""
-        self._seq = (self._seq + 1) & _U32
-        await self.ws.send(encode_pose_batch(self._seq, poses))
-        return self._seq
-
-    async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
-                        footprints: bool = False) -> int:
-        got = await self.request(subscribe(x, y, w, h, colliders=colliders,
-                                           footprints=footprints), "subscribed")
-        return got["id"]
-
-    async def unsubscribe(self, sid: int) -> None:
-        await self.request(unsubscribe(sid), "unsubscribed")
-        self.mirrors.pop(sid, None)
-
-    async def resync(self, sid: int | None = None) -> None:
-        await self.ws.send(json.dumps(resync(sid)))
-
-    async def wait_for(self, predicate, timeout: float = 10.0) -> None:
-        """Wait until predicate() holds, re-checked after every message."""
-        async def loop():
-            while not predicate():
-                self._changed.clear()
-                await self._changed.wait()
-        await asyncio.wait_for(loop(), timeout)
-
-    async def wait_ack(self, seq: int, timeout: float = 10.0) -> None:
-        await self.wait_for(lambda: self.acked_seq >= seq, timeout)
-
-    async def _read(self) -> None:
-        try:
-            async for data in self.ws:
-                if isinstance(data, str):
-                    await self._on_json(data)
-                else:
-                    await self._on_binary(data)
-                self._changed.set()
-        finally:
-            for fut in self._pending.values():
-                if not fut.done():
-                    fut.set_exception(ConnectionError("connection closed"))
-            self._changed.set()
-
-    async def _on_json(self, text: str) -> None:
-        msg = parse_control(text)
-        t = msg["type"]
-        if t == "subscribed":
-            self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
-        fut = self._pending.get(msg.get("ref")) if isinstance(msg.get("ref"), str) else None
-        if t == "error":
-            if fut and not fut.done():
-                fut.set_exception(ServerError(msg))
-            else:
-                self.errors.append(msg)
-                del self.errors[:-100]
-        elif fut and not fut.done():
-            fut.set_result(msg)
-
-    async def _on_binary(self, data: bytes) -> None:
-        t = decode_header(data)
-        if t == MsgType.DELTA:
-            tick, rects = decode_delta(data)
-            self.tick = tick
-            for sid, m in self.mirrors.items():
-                try:
-                    m.apply(rects)
-                except ProtoError as e:
-                    self.errors.append(error(e.code, f"subscription {sid}: {e.message}"))
-                    await self.resync(sid)
-        elif t == MsgType.CONTACT:
-            self.contact_tick, cs = decode_contact(data)
-            self.contacts = {c.id: c for c in cs}
-        elif t == MsgType.COLLIDERS:
-            self.colliders_tick, states = decode_colliders(data)
-            self.colliders = {c.id: c for c in states}
-        elif t == MsgType.FOOTPRINTS:
-            self.footprints_tick, events = decode_footprints(data)
-            self.footprints.extend(events)
-        elif t == MsgType.ACK:
-            self.acked_tick, self.acked_seq = decode_ack(data)
-        elif t == MsgType.PING:
-            await self.ws.send(encode_ping(decode_ping(data)[1], pong=True))
+def __getattr__(name: str):
+    """The client lived in this module before it was a package (terrad_proto.TerradClient):
+    the name still resolves, to terrad.client.Client."""
+    if name in ("TerradClient", "Client"):
+        from .client import Client
+        return Client
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,31 @@
+"""terrad: the Python client of the terrad terrain deformation service.
+
+    import asyncio, terrad
+
+    async def main():
+        async with terrad.Client("ws://127.0.0.1:8081/") as client:
+            wheel = await client.create_collider("wheel", radius=0.3, width=0.2)
+            sid = await client.subscribe(0, 0, 128, 128)
+            await client.wait_complete(sid)
+            seq = await client.send_poses([terrad.Pose(wheel, 1.0, 1.0, 0.5)])
+            await client.wait_ack(seq)
+            print(client.heights(sid))   # NumPy int32 (h, w) when NumPy is there
+
+    asyncio.run(main())
+
+Modules: terrad.proto (the wire codecs: proto/PROTOCOL.md), terrad.client (the asyncio
+Client), terrad.sync (SyncClient, the same without asyncio), terrad.http (the HTTP API).
+Everything public is also here at the top level.
+"""
+
+from . import proto
+from .client import CALLBACK_ARGS, HAVE_NUMPY, Client, TerradClient, heights_grid
+from .proto import *  # noqa: F401,F403 - the codec's public names
+from .proto import __all__ as _proto_all
+from .sync import SyncClient
+from .http import get_heights, get_stats, get_world
+
+__version__ = "0.2.0"
+
+__all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "SyncClient", "TerradClient", "get_heights",
+           "get_stats", "get_world", "heights_grid", "proto", *_proto_all]

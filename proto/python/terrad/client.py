@@ -1,0 +1,306 @@
+"""terrad's asyncio client: hello, colliders, poses, subscriptions with exact local mirrors,
+contact feedback, and a public callback for every kind of frame.
+
+    async with Client("ws://127.0.0.1:8081/") as client:
+        wheel = await client.create_collider("wheel", radius=0.35, width=0.25)
+        sid = await client.subscribe(0, 0, 256, 256)
+        client.on(MsgType.ACK, lambda tick, seq: print("tick", tick, "used batch", seq))
+        await client.send_poses([Pose(wheel, 10.0, 10.0, 0.3)])
+        heights = client.heights(sid)   # NumPy int32 array (h, w), or a list of rows
+
+Needs the websockets module (pip install websockets; Debian: python3-websockets) and the
+codec's zstandard; NumPy is optional.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import json
+from collections.abc import Awaitable, Callable
+from typing import Any, Union
+
+from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Mirror, MsgType,
+                    Pose, ProtoError, ServerError, collider_create, collider_delete,
+                    decode_ack, decode_colliders, decode_contact, decode_delta,
+                    decode_footprints, decode_header, decode_ping, encode_ping,
+                    encode_pose_batch, error, hello, parse_control, resync, subscribe,
+                    unsubscribe)
+
+try:
+    import numpy as _np
+except ImportError:  # NumPy is optional: heights come as lists of rows without it
+    _np = None  # type: ignore[assignment]
+
+HAVE_NUMPY = _np is not None
+
+#: What `Client.on` takes: a MsgType, or "message" for the JSON control messages.
+FrameKind = Union[MsgType, str]
+Callback = Callable[..., Union[None, Awaitable[None]]]
+
+#: The arguments each kind of callback is called with.
+CALLBACK_ARGS: dict[FrameKind, str] = {
+    MsgType.DELTA: "(tick, rects) after the mirrors applied them",
+    MsgType.CONTACT: "(tick, contacts)",
+    MsgType.ACK: "(tick, seq)",
+    MsgType.COLLIDERS: "(tick, states)",
+    MsgType.FOOTPRINTS: "(tick, events)",
+    MsgType.PING: "(nonce,) after the client answered with a PONG",
+    MsgType.PONG: "(nonce,)",
+    "message": "(msg,) every JSON control message, a dict",
+}
+
+
+def heights_grid(values: list[int], w: int, h: int) -> Any:
+    """Row-major int32 heights as a NumPy array of shape (h, w) when NumPy is present, else
+    as a list of h rows; both index as grid[row][column]."""
+    if len(values) != w * h:
+        raise ValueError(f"{len(values)} values for a {w} x {h} grid")
+    if _np is not None:
+        return _np.array(values, dtype=_np.int32).reshape(h, w)
+    return [list(values[r * w:(r + 1) * w]) for r in range(h)]
+
+
+def _websockets():
+    try:
+        import websockets
+    except ImportError as e:
+        raise ImportError(
+            "terrad.Client needs the Python module 'websockets': pip install websockets, or "
+            "your distribution's package (Debian: python3-websockets)", name="websockets") from e
+    return websockets
+
+
+class Client:
+    """A terrad client over websockets (asyncio).
+
+    Server errors answering a request raise ServerError from that request; others are kept in
+    .errors. A mirror that falls out of step (stale_base, a bad payload) asks the server for a
+    resync by itself.
+
+    State kept up to date from the frames: world (the hello answer), mirrors (subscription id ->
+    Mirror), contacts (collider id -> the latest Contact), colliders (the latest COLLIDERS
+    frame, by id), footprints (every FOOTPRINTS event, in order), tick (of the last DELTA),
+    acked_tick and acked_seq (of the last ACK), errors (unsolicited error messages).
+
+    Callbacks: `on(kind, callback)` for every kind of frame (CALLBACK_ARGS); a callback may be
+    a plain function or a coroutine function, and runs on the client's event loop after the
+    state above was updated."""
+
+    def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
+                 max_size: int = 1 << 24, **connect_kwargs: Any):
+        """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
+        ping_interval=None for a client that may stop reading for a while)."""
+        self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
+        self.connect_kwargs = connect_kwargs
+        self.ws: Any = None
+        self.world: dict[str, Any] = {}
+        self.mirrors: dict[int, Mirror] = {}
+        self.contacts: dict[int, Contact] = {}
+        self.colliders: dict[int, ColliderState] = {}
+        self.colliders_tick = 0
+        self.footprints: list[Footprint] = []
+        self.footprints_tick = 0
+        self.contact_tick = 0
+        self.acked_tick = 0
+        self.acked_seq = 0
+        self.tick = 0
+        self.errors: list[dict[str, Any]] = []
+        self._callbacks: dict[FrameKind, list[Callback]] = {}
+        self._seq = 0
+        self._ref = 0
+        self._pending: dict[str, asyncio.Future[dict[str, Any]]] = {}
+        self._reader: asyncio.Task[None] | None = None
+        self._changed = asyncio.Event()
+
+    async def __aenter__(self) -> Client:
+        await self.connect()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # ---- callbacks ----------------------------------------------------------------------
+
+    def on(self, kind: FrameKind, callback: Callback) -> Callback:
+        """Call callback for every frame of this kind (a MsgType, or "message" for JSON
+        control messages), with the arguments CALLBACK_ARGS lists. Returns callback."""
+        if kind not in CALLBACK_ARGS:
+            raise ValueError(f"no callback for {kind!r}; one of {list(CALLBACK_ARGS)}")
+        self._callbacks.setdefault(kind, []).append(callback)
+        return callback
+
+    def off(self, kind: FrameKind, callback: Callback) -> None:
+        """Remove a callback added with on()."""
+        self._callbacks.get(kind, []).remove(callback)
+
+    async def _emit(self, kind: FrameKind, *args: Any) -> None:
+        for cb in list(self._callbacks.get(kind, ())):
+            r = cb(*args)
+            if inspect.isawaitable(r):
+                await r
+
+    # ---- connection and requests ------------------------------------------------------------
+
+    async def connect(self) -> dict[str, Any]:
+        websockets = _websockets()
+        self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
+                                           max_size=self.max_size, **self.connect_kwargs)
+        await self.ws.send(json.dumps(hello(self.token, self.name)))
+        msg = parse_control(await self.ws.recv())
+        if msg["type"] == "error":
+            raise ServerError(msg)
+        if msg["type"] != "world":
+            raise ProtoError("bad_json", f"expected world, got {msg['type']}")
+        self.world = msg
+        self._reader = asyncio.get_running_loop().create_task(self._read())
+        return msg
+
+    async def close(self) -> None:
+        if self.ws is not None:
+            await self.ws.close()
+        if self._reader is not None:
+            try:
+                await self._reader
+            except Exception:
+                pass
+
+    async def request(self, msg: dict[str, Any], reply: str, timeout: float = 10.0) -> dict[str, Any]:
+        """Send a control message with a fresh ref and wait for its reply."""
+        self._ref += 1
+        ref = f"r{self._ref}"
+        msg["ref"] = ref
+        fut: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._pending[ref] = fut
+        await self.ws.send(json.dumps(msg))
+        try:
+            got = await asyncio.wait_for(fut, timeout)
+        finally:
+            self._pending.pop(ref, None)
+        if got["type"] != reply:
+            raise ProtoError("bad_json", f"expected {reply}, got {got['type']}")
+        return got
+
+    async def create_collider(self, shape: str, material: str = "default", **dims: Any) -> int:
+        """shape: sphere (radius), box (half_extents), capsule and cylinder (radius,
+        half_length), wheel (radius, width), mesh (vertices, indices); returns its id."""
+        return (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
+
+    async def delete_collider(self, cid: int) -> None:
+        await self.request(collider_delete(cid), "collider_deleted")
+
+    async def send_poses(self, poses: list[Pose]) -> int:
+        """Send one batch; returns its sequence number (see wait_ack)."""
+        self._seq = (self._seq + 1) & _U32
+        await self.ws.send(encode_pose_batch(self._seq, poses))
+        return self._seq
+
+    async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
+                        footprints: bool = False) -> int:
+        """Subscribe to a region (cells); its snapshot and then its deltas keep mirrors[id]
+        exact. colliders / footprints: also COLLIDERS / FOOTPRINTS frames for it."""
+        got = await self.request(subscribe(x, y, w, h, colliders=colliders,
+                                           footprints=footprints), "subscribed")
+        return got["id"]
+
+    async def unsubscribe(self, sid: int) -> None:
+        await self.request(unsubscribe(sid), "unsubscribed")
+        self.mirrors.pop(sid, None)
+
+    async def resync(self, sid: int | None = None) -> None:
+        await self.ws.send(json.dumps(resync(sid)))
+
+    # ---- waiting and reading the state ----------------------------------------------------
+
+    async def wait_for(self, predicate: Callable[[], bool], timeout: float = 10.0) -> None:
+        """Wait until predicate() holds, re-checked after every message."""
+        async def loop() -> None:
+            while not predicate():
+                self._changed.clear()
+                await self._changed.wait()
+        await asyncio.wait_for(loop(), timeout)
+
+    async def wait_ack(self, seq: int, timeout: float = 10.0) -> None:
+        """Wait until the server has used pose batch seq (or a later one) in a tick."""
+        await self.wait_for(lambda: self.acked_seq >= seq, timeout)
+
+    async def wait_complete(self, sid: int, timeout: float = 10.0) -> None:
+        """Wait until every tile of subscription sid is held (its snapshot arrived)."""
+        await self.wait_for(lambda: sid in self.mirrors and self.mirrors[sid].complete, timeout)
+
+    def heights(self, sid: int) -> Any:
+        """A copy of subscription sid's heights (height units, world["units_per_m"] per metre)
+        as of the last DELTA: heights_grid's NumPy array (h, w) or list of rows."""
+        m = self.mirrors[sid]
+        return heights_grid(m.heights, m.w, m.h)
+
+    # ---- frames -------------------------------------------------------------------------
+
+    async def _read(self) -> None:
+        try:
+            async for data in self.ws:
+                if isinstance(data, str):
+                    await self._on_json(data)
+                else:
+                    await self._on_binary(data)
+                self._changed.set()
+        finally:
+            for fut in self._pending.values():
+                if not fut.done():
+                    fut.set_exception(ConnectionError("connection closed"))
+            self._changed.set()
+
+    async def _on_json(self, text: str) -> None:
+        msg = parse_control(text)
+        t = msg["type"]
+        if t == "subscribed":
+            self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
+        ref = msg.get("ref")
+        fut = self._pending.get(ref) if isinstance(ref, str) else None
+        if t == "error":
+            if fut and not fut.done():
+                fut.set_exception(ServerError(msg))
+            else:
+                self.errors.append(msg)
+                del self.errors[:-100]
+        elif fut and not fut.done():
+            fut.set_result(msg)
+        await self._emit("message", msg)
+
+    async def _on_binary(self, data: bytes) -> None:
+        t = decode_header(data)
+        if t == MsgType.DELTA:
+            tick, rects = decode_delta(data)
+            self.tick = tick
+            for sid, m in self.mirrors.items():
+                try:
+                    m.apply(rects)
+                except ProtoError as e:
+                    self.errors.append(error(e.code, f"subscription {sid}: {e.message}"))
+                    await self.resync(sid)
+            await self._emit(t, tick, rects)
+        elif t == MsgType.CONTACT:
+            self.contact_tick, cs = decode_contact(data)
+            self.contacts = {c.id: c for c in cs}
+            await self._emit(t, self.contact_tick, cs)
+        elif t == MsgType.COLLIDERS:
+            self.colliders_tick, states = decode_colliders(data)
+            self.colliders = {c.id: c for c in states}
+            await self._emit(t, self.colliders_tick, states)
+        elif t == MsgType.FOOTPRINTS:
+            self.footprints_tick, events = decode_footprints(data)
+            self.footprints.extend(events)
+            await self._emit(t, self.footprints_tick, events)
+        elif t == MsgType.ACK:
+            self.acked_tick, self.acked_seq = decode_ack(data)
+            await self._emit(t, self.acked_tick, self.acked_seq)
+        elif t == MsgType.PING:
+            nonce = decode_ping(data)[1]
+            await self.ws.send(encode_ping(nonce, pong=True))
+            await self._emit(t, nonce)
+        elif t == MsgType.PONG:
+            await self._emit(t, decode_ping(data)[1])
+
+
+#: The name the client had before it became a package.
+TerradClient = Client

@@ -1,0 +1,120 @@
+"""A small synchronous facade over terrad.Client, for scripts and simulators that do not use
+asyncio: the client runs on its own event loop in a background thread, and each method blocks
+until its coroutine is done there.
+
+    with SyncClient("ws://127.0.0.1:8081/") as client:
+        wheel = client.create_collider("wheel", radius=0.3, width=0.2)
+        sid = client.subscribe(0, 0, 128, 128)
+        client.wait_complete(sid)
+        seq = client.send_poses([Pose(wheel, 1.0, 1.0, 0.5)])
+        client.wait_ack(seq)
+        heights = client.heights(sid)
+
+Callbacks added with on() run on the background thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Coroutine
+from typing import Any, TypeVar
+
+from .client import Callback, Client, FrameKind
+from .proto import Contact, Pose
+
+T = TypeVar("T")
+
+
+class SyncClient:
+    """Blocking calls onto a Client (the attribute .client) that lives on a private loop."""
+
+    def __init__(self, uri: str, token: str = "", name: str = "terrad-python-sync",
+                 timeout: float = 10.0, **connect_kwargs: Any):
+        self.timeout = timeout
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="terrad-client",
+                                        daemon=True)
+        self._thread.start()
+        self.client = Client(uri, token=token, name=name, **connect_kwargs)
+        try:
+            self._call(self.client.connect())
+        except BaseException:
+            self._stop_loop()
+            raise
+
+    def _call(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
+        fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
+        return fut.result(self.timeout + 5 if timeout is None else timeout)
+
+    def _stop_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(10)
+        self._loop.close()
+
+    def __enter__(self) -> SyncClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._loop.is_closed():
+            return
+        try:
+            self._call(self.client.close())
+        finally:
+            self._stop_loop()
+
+    @property
+    def world(self) -> dict[str, Any]:
+        return self.client.world
+
+    def on(self, kind: FrameKind, callback: Callback) -> Callback:
+        """As Client.on; the callback runs on the client's background thread."""
+        return self.client.on(kind, callback)
+
+    def create_collider(self, shape: str, material: str = "default", **dims: Any) -> int:
+        return self._call(self.client.create_collider(shape, material, **dims))
+
+    def delete_collider(self, cid: int) -> None:
+        self._call(self.client.delete_collider(cid))
+
+    def send_poses(self, poses: list[Pose]) -> int:
+        return self._call(self.client.send_poses(poses))
+
+    def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
+                  footprints: bool = False) -> int:
+        return self._call(self.client.subscribe(x, y, w, h, colliders, footprints))
+
+    def unsubscribe(self, sid: int) -> None:
+        self._call(self.client.unsubscribe(sid))
+
+    def wait_ack(self, seq: int, timeout: float | None = None) -> None:
+        t = self.timeout if timeout is None else timeout
+        self._call(self.client.wait_ack(seq, t), t + 5)
+
+    def wait_complete(self, sid: int, timeout: float | None = None) -> None:
+        t = self.timeout if timeout is None else timeout
+        self._call(self.client.wait_complete(sid, t), t + 5)
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> None:
+        """predicate runs on the background thread, after every message."""
+        t = self.timeout if timeout is None else timeout
+        self._call(self.client.wait_for(predicate, t), t + 5)
+
+    def heights(self, sid: int) -> Any:
+        """As Client.heights (a copy taken on the client's thread)."""
+        async def copy() -> Any:
+            return self.client.heights(sid)
+        return self._call(copy())
+
+    def contact(self, cid: int) -> Contact | None:
+        """The latest contact feedback of collider cid, or None."""
+        async def get() -> Contact | None:
+            return self.client.contacts.get(cid)
+        return self._call(get())
+
+    @property
+    def acked_tick(self) -> int:
+        return self.client.acked_tick

@@ -1,0 +1,88 @@
+/*
+ * net_control_internal.h: the JSON control-message parser (PROTOCOL.md "Control
+ * messages") as a pure function: text in, a parsed request or an error code
+ * and message out. No libwebsockets, no client state: what it checks
+ * depends only on the text and the server's configuration (limits, the
+ * world's extent and materials), so it can be fuzzed on its own
+ * (tests/fuzz/fuzz_control.c). net_requests.c applies what depends on the
+ * client (hello twice, limits on colliders and subscriptions, ownership).
+ * Internal to net/: outside server/net only its unit test
+ * (tests/unit/test_net_control.c) and fuzz target include it.
+ */
+#ifndef TERRAD_NET_CONTROL_INTERNAL_H
+#define TERRAD_NET_CONTROL_INTERNAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cjson/cJSON.h>
+
+#include "collider/collider.h"
+#include "net/net.h"
+
+#define NET_REF_MAX_BYTES 64
+#define NET_TOKEN_MAX_BYTES 256
+#define NET_CLIENT_NAME_MAX_BYTES 64
+
+typedef enum net_control_kind {
+    NET_CONTROL_NONE, /* no request type could be read, or an unknown one */
+    NET_CONTROL_HELLO,
+    NET_CONTROL_COLLIDER_CREATE,
+    NET_CONTROL_COLLIDER_DELETE,
+    NET_CONTROL_SUBSCRIBE,
+    NET_CONTROL_UNSUBSCRIBE,
+    NET_CONTROL_RESYNC,
+} net_control_kind;
+
+/* What the parser may know about the server. */
+typedef struct net_control_context {
+    const net_limits *limits;
+    const cJSON *materials; /* world.materials: a JSON array of strings */
+    int world_width, world_height;
+} net_control_context;
+
+typedef struct net_control {
+    net_control_kind kind; /* set as soon as "type" is read, even when a field fails */
+    cJSON *ref;            /* the request's valid "ref" (owned), NULL if none (yet) */
+    /* hello */
+    int64_t protocol;
+    int has_token;
+    char token[NET_TOKEN_MAX_BYTES + 1];
+    char client[NET_CLIENT_NAME_MAX_BYTES + 1]; /* "" when absent */
+    /* collider_create */
+    collider_geometry geometry;
+    collider_mesh *mesh; /* owned, mesh shapes (geometry.mesh points to it) */
+    collider_pose pose;  /* in the collider module's frame; all-zero: no pose */
+    int axis_z;          /* capsule / cylinder: the client's axis is z */
+    char material[32];
+    int feedback;
+    /* collider_delete, unsubscribe, resync (id 0 and has_id 0: all) */
+    uint32_t id;
+    int has_id;
+    /* subscribe: inside the world */
+    world_rect rect;
+    int colliders, footprints;
+} net_control;
+
+typedef struct net_control_error {
+    int code;  /* TERRAD_E_*; 0: none */
+    int field; /* 0: the message itself is refused (JSON, type, ref); 1: a field of a request */
+    int fatal; /* the connection closes after the error (bad_version) */
+    char message[512];
+} net_control_error;
+
+/* Parses one text message (len bytes, not necessarily NUL-terminated).
+ * Returns 0 with *out filled, or -1 with err set and *out filled as far as
+ * parsing got (kind and ref as read). Either way free *out with
+ * net_control_free. */
+int net_control_parse(const char *text, size_t len, const net_control_context *ctx,
+                      net_control *out, net_control_error *err);
+void net_control_free(net_control *r);
+
+/* |q|² within 0.81..1.21 (|q| within 0.9..1.1), as POSE_BATCH requires too. */
+int net_control_quat_norm_ok(double w, double x, double y, double z);
+/* A client's orientation as the collider module wants it: normalised, and
+ * for axis_z shapes turned a quarter about x (the module's axis is y). */
+quatd net_control_orientation(quatd q, int axis_z);
+
+#endif

@@ -1,0 +1,249 @@
+/*
+ * service_commands.c: the first step of a tick (docs/design.md) — take what
+ * the net thread queued in the hub and apply it to the sim's view of the
+ * clients: commands (join/leave, collider create/delete, subscribe,
+ * unsubscribe, resync), the latest pose of each collider, and the batch
+ * sequences the tick will ACK. Sim thread only.
+ */
+#include "service/service_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+svc_client *service_find_client(service *s, uint32_t id)
+{
+    for (int i = 0; i < s->client_count; i++)
+        if (s->clients[i].id == id)
+            return &s->clients[i];
+    return NULL;
+}
+
+int service_find_collider(const service *s, uint32_t id)
+{
+    /* colliders stay sorted by id (ids only grow), so a binary search */
+    int lo = 0, hi = s->collider_count - 1;
+    while (lo <= hi) {
+        int mid = (lo + hi) / 2;
+        if (s->colliders[mid].id == id)
+            return mid;
+        if (s->colliders[mid].id < id)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return -1;
+}
+
+void service_release_collider(service *s, svc_collider *c)
+{
+    sim_backend *backend = sim_engine_backend(s->engine);
+    backend->forget_geometry(backend, c->geometry);
+    free(c->geometry);
+    c->geometry = NULL;
+    if (c->mesh) {
+        collider_mesh_free(c->mesh);
+        free(c->mesh);
+        c->mesh = NULL;
+    }
+}
+
+static void remove_collider(service *s, int index)
+{
+    service_release_collider(s, &s->colliders[index]);
+    memmove(&s->colliders[index], &s->colliders[index + 1],
+            (size_t)(s->collider_count - index - 1) * sizeof *s->colliders);
+    s->collider_count--;
+}
+
+static void queue_snapshots(service *s, uint32_t client, const svc_subscription *subs, int n)
+{
+    service_batch *b = &s->batch;
+    for (int i = 0; i < n; i++) {
+        if (array_grow((void **)&b->snapshots, &b->snapshot_capacity,
+                       (int64_t)b->snapshot_count + 1, sizeof *b->snapshots) != 0) {
+            service_note_drop(s, "snapshot", "no memory for %d snapshot requests of client %u",
+                              n - i, client);
+            return;
+        }
+        b->snapshots[b->snapshot_count++] =
+            (snapshot_job){.client = client, .rect = subs[i].rect, .last = i == n - 1};
+    }
+}
+
+static void client_join(service *s, svc_client *cl, uint32_t id)
+{
+    if (cl)
+        return;
+    if (array_grow((void **)&s->clients, &s->client_capacity, (int64_t)s->client_count + 1,
+                   sizeof *s->clients) != 0) {
+        service_note_drop(s, "command", "no memory for client %u", id);
+        return;
+    }
+    s->clients[s->client_count++] = (svc_client){.id = id};
+}
+
+static void client_leave(service *s, svc_client *cl, uint32_t id)
+{
+    for (int i = s->collider_count - 1; i >= 0; i--)
+        if (s->colliders[i].client == id)
+            remove_collider(s, i);
+    if (cl) {
+        free(cl->subs);
+        *cl = s->clients[--s->client_count];
+    }
+}
+
+static void collider_create(service *s, hub_command *c)
+{
+    collider_geometry *g = malloc(sizeof *g);
+    int known = service_find_collider(s, c->collider) >= 0 ||
+                (s->collider_count && s->colliders[s->collider_count - 1].id > c->collider);
+    if (!g || known ||
+        array_grow((void **)&s->colliders, &s->collider_capacity, (int64_t)s->collider_count + 1,
+                   sizeof *s->colliders) != 0) {
+        if (!known) /* the net thread gives out each id once, in order */
+            service_note_drop(s, "command", "no memory for collider %u of client %u", c->collider,
+                              c->client);
+        free(g);
+        if (c->mesh) {
+            collider_mesh_free(c->mesh);
+            free(c->mesh);
+        }
+        return;
+    }
+    *g = c->geometry;
+    g->mesh = c->mesh;
+    /* the net thread sends an all-zero orientation for "no pose yet" */
+    const quatd *q = &c->pose.orientation;
+    int has_pose = q->w != 0 || q->x != 0 || q->y != 0 || q->z != 0;
+    s->colliders[s->collider_count++] = (svc_collider){.id = c->collider,
+                                                       .client = c->client,
+                                                       .geometry = g,
+                                                       .mesh = c->mesh,
+                                                       .pose = c->pose,
+                                                       .previous_pose = c->pose,
+                                                       .has_pose = has_pose,
+                                                       .feedback = c->feedback};
+    c->mesh = NULL;
+}
+
+static void subscribe(service *s, svc_client *cl, const hub_command *c)
+{
+    /* the net thread pauses nothing for a subscribe, but it counts one
+     * snapshot mark per request: send it even when there is nothing */
+    svc_subscription sub = {c->subscription, c->rect, c->colliders, c->footprints};
+    if (cl && c->colliders)
+        cl->colliders_hash = 0; /* a new region: send the list at the next chance */
+    if (cl && array_grow((void **)&cl->subs, &cl->sub_capacity, (int64_t)cl->sub_count + 1,
+                         sizeof *cl->subs) == 0) {
+        cl->subs[cl->sub_count++] = sub;
+    } else {
+        if (cl)
+            service_note_drop(s, "command", "no memory for a subscription of client %u", cl->id);
+        sub.rect = (world_rect){0, 0, 0, 0};
+    }
+    queue_snapshots(s, c->client, &sub, 1);
+}
+
+static void resync(service *s, svc_client *cl, const hub_command *c)
+{
+    if (!cl)
+        return;
+    if (c->subscription == 0) {
+        queue_snapshots(s, cl->id, cl->subs, cl->sub_count);
+        if (cl->sub_count == 0) /* nothing to send, but the client waits for the mark */
+            queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}, 0, 0}, 1);
+    } else {
+        svc_subscription sub = {c->subscription, {0, 0, 0, 0}, 0, 0};
+        for (int i = 0; i < cl->sub_count; i++)
+            if (cl->subs[i].id == c->subscription)
+                sub = cl->subs[i];
+        queue_snapshots(s, cl->id, &sub, 1); /* one mark, even for a gone subscription */
+    }
+}
+
+static void apply_command(service *s, hub_command *c)
+{
+    svc_client *cl = service_find_client(s, c->client);
+    switch (c->kind) {
+    case HUB_CLIENT_JOINED:
+        client_join(s, cl, c->client);
+        break;
+    case HUB_CLIENT_LEFT:
+        client_leave(s, cl, c->client);
+        break;
+    case HUB_COLLIDER_CREATE:
+        collider_create(s, c);
+        break;
+    case HUB_COLLIDER_DELETE: {
+        int i = service_find_collider(s, c->collider);
+        if (i >= 0 && s->colliders[i].client == c->client)
+            remove_collider(s, i);
+        break;
+    }
+    case HUB_SUBSCRIBE:
+        subscribe(s, cl, c);
+        break;
+    case HUB_UNSUBSCRIBE:
+        for (int i = 0; cl && i < cl->sub_count; i++)
+            if (cl->subs[i].id == c->subscription) {
+                cl->subs[i] = cl->subs[--cl->sub_count];
+                break;
+            }
+        break;
+    case HUB_RESYNC:
+        resync(s, cl, c);
+        break;
+    }
+}
+
+static void apply_poses(service *s, int n)
+{
+    service_batch *b = &s->batch;
+    for (int i = 0; i < n; i++) {
+        const hub_pose *p = &b->poses[i];
+        int k = service_find_collider(s, p->collider);
+        if (k < 0 || s->colliders[k].client != p->client)
+            continue; /* deleted meanwhile */
+        if (!s->colliders[k].has_pose) {
+            s->colliders[k].has_pose = 1;
+            s->colliders[k].has_previous = 0; /* no sweep from a pose it never had */
+        }
+        s->colliders[k].pose = p->pose;
+        if (b->oldest_pose_ms == 0 || p->received_ms < b->oldest_pose_ms)
+            b->oldest_pose_ms = p->received_ms;
+    }
+}
+
+/* The batches (empty ones too) this tick answers with an ACK. */
+static void apply_batches(service *s)
+{
+    hub_batch batches[256];
+    int n;
+    while ((n = hub_take_batches(s->hub, batches, 256)) > 0) {
+        for (int i = 0; i < n; i++) {
+            svc_client *cl = service_find_client(s, batches[i].client);
+            if (cl) {
+                cl->last_sequence = batches[i].sequence;
+                cl->sequence_pending = 1;
+            }
+        }
+    }
+}
+
+void service_take_input(service *s)
+{
+    THREAD_OWNED(&s->owner);
+    service_batch *b = &s->batch;
+    int n = hub_take_commands(s->hub, b->commands, SERVICE_COMMANDS_PER_TICK);
+    for (int i = 0; i < n; i++)
+        apply_command(s, &b->commands[i]);
+    b->oldest_pose_ms = 0;
+    if (array_grow((void **)&b->poses, &b->pose_capacity, (int64_t)s->collider_count + 64,
+                   sizeof *b->poses) == 0)
+        apply_poses(s, hub_take_poses(s->hub, b->poses, (int)b->pose_capacity));
+    else /* they stay in the hub (latest wins) for the next tick */
+        service_note_drop(s, "poses", "no memory to take the poses of %d colliders this tick",
+                          s->collider_count);
+    apply_batches(s);
+}

@@ -1,0 +1,167 @@
+/*
+ * service_internal.h: what the files of server/service share — the service
+ * record, the tick's batch of working buffers, and the steps service_tick
+ * (service.c) calls in order. Not part of the face of service/; everything
+ * here runs on the sim thread only (service->owner).
+ *
+ *   service.c           life cycle, the tick's table of contents, the out queue
+ *   service_commands.c  take commands, poses and batch sequences from the hub
+ *   service_contacts.c  contact feedback before/after the deformation, ACKs
+ *   service_deltas.c    cut dirty rectangles into tiles, encode deltas, snapshots
+ *   service_colliders.c COLLIDERS frames for viewers
+ *   service_footprints.c FOOTPRINTS frames for viewers
+ */
+#ifndef TERRAD_SERVICE_INTERNAL_H
+#define TERRAD_SERVICE_INTERNAL_H
+
+#include "service/service.h"
+
+#include "terrad_proto.h"
+
+/* A frame never grows past the protocol's max_message_bytes. */
+#define SERVICE_FRAME_MAX (1024 * 1024)
+#define SERVICE_COMMANDS_PER_TICK 1024
+
+typedef struct svc_subscription {
+    uint32_t id;
+    world_rect rect;
+    int colliders;  /* asked for COLLIDERS frames */
+    int footprints; /* asked for FOOTPRINTS frames */
+} svc_subscription;
+
+typedef struct svc_client {
+    uint32_t id;
+    uint32_t last_sequence;
+    int sequence_pending; /* a batch was used since the last ACK */
+    svc_subscription *subs;
+    int sub_count;
+    int64_t sub_capacity;
+    uint64_t colliders_hash;      /* of the last COLLIDERS frame sent, 0: none yet */
+    uint64_t colliders_sent_tick; /* when it was sent */
+} svc_client;
+
+typedef struct svc_collider {
+    uint32_t id, client;
+    collider_geometry *geometry; /* on the heap: backends cache by its address */
+    collider_mesh *mesh;         /* owned, for mesh shapes */
+    collider_pose pose, previous_pose;
+    int has_pose; /* created without a pose: inert until its first POSE_BATCH */
+    int has_previous, feedback;
+} svc_collider;
+
+typedef struct svc_contact {
+    terrad_contact contact;
+    uint32_t client;
+} svc_contact;
+
+typedef struct snapshot_job {
+    uint32_t client;
+    world_rect rect;
+    int last; /* the last job of its request: marks snapshot_done */
+} snapshot_job;
+
+/* One piece of a dirty rectangle inside one tile. */
+typedef struct tile_piece {
+    int tile;   /* tile index */
+    int window; /* engine window it came from */
+    world_rect rect;
+} tile_piece;
+
+/* The tick's working buffers, kept from tick to tick so that a steady tick
+ * allocates nothing (capacities are array_grow's). */
+typedef struct service_batch {
+    hub_command *commands; /* SERVICE_COMMANDS_PER_TICK, taken from the hub */
+    hub_pose *poses;       /* taken from the hub */
+    int64_t pose_capacity;
+    double oldest_pose_ms;   /* earliest arrival among this tick's poses, 0 if none */
+    sim_collider *colliders; /* what the engine deforms with: posed clients' and extra */
+    int64_t collider_capacity;
+    svc_contact *contacts; /* contact feedback, measured before and finished after */
+    int contact_count;
+    int64_t contact_capacity;
+    tile_piece *pieces; /* the dirty rectangles cut along tile edges, sorted by tile */
+    int piece_count;
+    int64_t piece_capacity;
+    snapshot_job *snapshots; /* subscriptions and resyncs to answer this tick */
+    int snapshot_count;
+    int64_t snapshot_capacity;
+    hub_out *out; /* frames to publish; may hold earlier ticks' waiting for a group commit */
+    int out_count;
+    int64_t out_capacity;
+} service_batch;
+
+struct service {
+    sim_engine *engine;
+    world *world;
+    hub *hub;
+    store *store;       /* NULL: memory only */
+    int store_down;     /* last state told to the hub */
+    thread_owner owner; /* the sim thread: claimed by service_create */
+    uint64_t tick;
+    int64_t volume;
+    int tiles_x, tiles_y;
+    uint32_t *tile_versions;
+    terrad_codec *codec;
+
+    svc_client *clients;
+    int client_count;
+    int64_t client_capacity;
+    svc_collider *colliders; /* sorted by id (ids only grow) */
+    int collider_count;
+    int64_t collider_capacity;
+
+    service_batch batch;
+
+    /* scratch */
+    int32_t *values; /* one tile of values */
+    uint8_t *packed; /* compressed tile */
+    size_t packed_cap;
+    int32_t *bottom; /* contact scratch */
+    int64_t bottom_cap;
+    terrad_collider_state *states; /* COLLIDERS scratch */
+    int64_t state_capacity;
+    terrad_footprint *events; /* FOOTPRINTS scratch: one client's events */
+    int64_t event_capacity;
+
+    /* dropped work: logged at most once a second (the metric counts all) */
+    double last_drop_log_ms;
+    uint64_t drops_unlogged;
+};
+
+/* service.c */
+/* Count dropped work (terrad_service_dropped_total{reason}) and log it, at
+ * most once a second. */
+void service_note_drop(service *s, const char *reason, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* Append a frame to the tick's out queue (takes over its reference). A NULL
+ * frame (its allocation or encoding failed) or no room is counted as a
+ * dropped frame; returns 0 or -1. */
+int service_queue_out(service *s, hub_out item);
+/* Queue frame f for one client (snapshot_done: the last frame of a
+ * subscribe/resync answer). */
+int service_queue_client(service *s, uint32_t client, hub_frame *f, int snapshot_done);
+
+/* service_commands.c */
+svc_client *service_find_client(service *s, uint32_t id);
+int service_find_collider(const service *s, uint32_t id); /* index, or -1 */
+void service_release_collider(service *s, svc_collider *c);
+/* take the hub's commands, poses and batch sequences, and apply them */
+void service_take_input(service *s);
+
+/* service_contacts.c */
+void service_contacts_before_tick(service *s);
+void service_contacts_after_tick(service *s);
+void service_publish_feedback(service *s); /* CONTACT and ACK frames */
+
+/* service_deltas.c */
+int service_cut_into_tiles(service *s, const sim_tick_report *report);
+void service_publish_deltas(service *s, service_tick_stats *stats);
+void service_publish_snapshots(service *s);
+
+/* service_colliders.c */
+void service_publish_colliders(service *s, const sim_collider *extra, int extra_count);
+
+/* service_footprints.c */
+void service_publish_footprints(service *s, const sim_tick_report *report);
+
+#endif
