@@ -229,6 +229,7 @@ static int serve_start_net(serve_daemon *d, error_text *err)
                                .height_min = WORLD_HEIGHT_MIN,
                                .height_max = WORLD_HEIGHT_MAX,
                                .models_json = d->models,
+                               .name = d->cluster.cs ? d->cluster.world : NULL,
                                .materials_json = "[\"default\"]"}};
     d->net = net_server_start(&nc, d->h, err);
     return d->net ? 0 : -1;

@@ -13,6 +13,9 @@ loopback (docs/cluster.md):
   - fencing: the owner of "spheres" is stopped (SIGSTOP) past its lease;
     another node takes the world; after SIGCONT the old owner's commit is
     refused, it says it no longer owns the world and waits as a standby;
+  - hello names the world: the owner answers a hello naming its world with
+    the world message (which names it) and refuses one naming another world
+    (bad_value naming its own, close 4005);
   - bad input: a world that does not exist, NATS unreachable (the error
     names the URL).
 Nodes run with --no-demo, so the terrain changes only under the client.
@@ -20,6 +23,7 @@ Skipped (77) when nats-server is not installed.
 """
 # ctest-timeout: 420
 import asyncio
+import json
 import os
 import random
 import signal
@@ -139,6 +143,36 @@ def fencing(nodes):
         check(new.stats()["tick"] > t0, f"{new.name} keeps ticking spheres")
 
 
+async def hello_world(node, world):
+    """A raw hello naming a world: (the first answer, the close code or None)."""
+    import websockets
+    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
+    hello = dict(tp.hello("", "world-check"), world=world)
+    await ws.send(json.dumps(hello))
+    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
+    code = None
+    try:
+        await asyncio.wait_for(ws.recv(), 3)
+    except websockets.ConnectionClosed as e:
+        code = e.code
+    except asyncio.TimeoutError:
+        pass
+    await ws.close()
+    return answer, code
+
+
+def hello_names_the_world(nodes):
+    owner = owner_of(nodes, "dunes")
+    if not check(owner is not None, "dunes has an owner"):
+        return
+    answer, code = asyncio.run(hello_world(owner, "dunes"))
+    check(answer.get("type") == "world" and answer.get("world") == "dunes" and code is None,
+          f"a hello naming dunes gets the world message naming dunes ({answer}, {code})")
+    answer, code = asyncio.run(hello_world(owner, "spheres"))
+    check(answer.get("type") == "error" and "serves world \"dunes\"" in answer.get("message", "")
+          and code == 4005, f"a hello naming spheres is refused, naming dunes ({answer}, {code})")
+
+
 def bad_input(urls):
     p = subprocess.run([BIN, "serve", "--cluster", urls, "--world", "nope", "--http-port", "0",
                         "--ws-port", "0", "--backend", "cpu"], capture_output=True, text=True,
@@ -175,6 +209,7 @@ def main():
                   "two nodes own the two worlds, one each")
             time.sleep(1)
             check(sum(1 for n in nodes if n.world) == 2, "the third node is a standby")
+            hello_names_the_world(nodes)
             for k in range(KILLS):
                 failover_round(k, nodes)
             check(exact >= 1 or KILLS == 0, f"{exact} exact comparisons with the client's mirror")
