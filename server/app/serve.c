@@ -190,6 +190,8 @@ static void serve_status_init(serve_daemon *d)
     s->units_per_m = d->w.units_per_m;
     s->tile_size = SERVICE_TILE_SIZE;
     s->tick_hz = d->sc.tick_hz;
+    if (d->cluster.cs)
+        snprintf(s->world_name, sizeof s->world_name, "%s", d->cluster.world);
     s->volume = world_volume(&d->w);
 }
 

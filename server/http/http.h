@@ -53,6 +53,7 @@ typedef struct http_status {
     char metric[16];
     double last_tick_ms;
     uint64_t overruns;
+    char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */

@@ -168,6 +168,8 @@ def hello_names_the_world(nodes):
     answer, code = asyncio.run(hello_world(owner, "dunes"))
     check(answer.get("type") == "world" and answer.get("world") == "dunes" and code is None,
           f"a hello naming dunes gets the world message naming dunes ({answer}, {code})")
+    status, body = owner.get("/v1/world")
+    check(json.loads(body).get("world") == "dunes", f"/v1/world names dunes ({body[:300]!r})")
     answer, code = asyncio.run(hello_world(owner, "spheres"))
     check(answer.get("type") == "error" and "serves world \"dunes\"" in answer.get("message", "")
           and code == 4005, f"a hello naming spheres is refused, naming dunes ({answer}, {code})")
