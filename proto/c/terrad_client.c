@@ -932,3 +932,10 @@ int terrad_client_poll(terrad_client *c, int timeout_ms)
         return TERRAD_CLIENT_E_CLOSED;
     return n > 1000000 ? 1000000 : (int)n;
 }
+
+int terrad_client_fd(const terrad_client *c)
+{
+    if (c->closed || !c->wsi)
+        return -1;
+    return (int)lws_get_socket_fd(c->wsi);
+}

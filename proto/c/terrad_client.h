@@ -184,6 +184,11 @@ int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_cont
  * connection is closed. */
 int terrad_client_poll(terrad_client *c, int timeout_ms);
 
+/* The connection's socket descriptor (-1 once closed), for a program that
+ * drives many clients from one thread: wait with poll() on every client's
+ * descriptor, then call terrad_client_poll(c, 0) on those that are ready. */
+int terrad_client_fd(const terrad_client *c);
+
 #ifdef __cplusplus
 }
 #endif

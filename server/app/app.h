@@ -19,9 +19,10 @@
  * failure) or 2 (a usage error); "CMD --help" prints the command's options. */
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
-int app_export(int argc, char **argv); /* a data directory's world to raw32 / png16 */
-int app_bench(int argc, char **argv);  /* `terrad bench --trade` (bench_trade.c) */
-int app_world(int argc, char **argv);  /* `terrad world add|list|remove` (world_cmd.c) */
+int app_export(int argc, char **argv);  /* a data directory's world to raw32 / png16 */
+int app_bench(int argc, char **argv);   /* `terrad bench --trade` (bench_trade.c) */
+int app_loadgen(int argc, char **argv); /* load generator for a running daemon (loadgen.c) */
+int app_world(int argc, char **argv);   /* `terrad world add|list|remove` (world_cmd.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -29,6 +30,7 @@ void app_serve_usage(FILE *out);
 void app_simulate_usage(FILE *out);
 void app_export_usage(FILE *out);
 void app_bench_usage(FILE *out);
+void app_loadgen_usage(FILE *out);
 void app_world_usage(FILE *out);
 
 /* "gl" or "cpu". */

@@ -366,6 +366,23 @@ static void report_add_cells(cJSON *root, simulate_run *r)
     cJSON_AddNumberToObject(root, "gpu_windows_direct", (double)cache.windows_direct);
 }
 
+/* The GPU's synchronisation points per tick (zeros on the CPU backend):
+ * compute dispatches, draws, memory barriers, GPU→CPU readbacks and their
+ * bytes, full waits (glFinish, only with stage timing on). */
+static void report_add_gpu_sync(cJSON *root, simulate_run *r)
+{
+    sim_gpu_sync_stats g;
+    sim_backend_gpu_sync_stats(r->backend, &g);
+    double ticks = r->o.ticks > 0 ? (double)r->o.ticks : 1.0;
+    cJSON *o = cJSON_AddObjectToObject(root, "gpu_sync_per_tick");
+    cJSON_AddNumberToObject(o, "dispatches", round((double)g.dispatches / ticks * 100) / 100);
+    cJSON_AddNumberToObject(o, "draws", round((double)g.draws / ticks * 100) / 100);
+    cJSON_AddNumberToObject(o, "barriers", round((double)g.barriers / ticks * 100) / 100);
+    cJSON_AddNumberToObject(o, "readbacks", round((double)g.readbacks / ticks * 100) / 100);
+    cJSON_AddNumberToObject(o, "readback_bytes", round((double)g.readback_bytes / ticks));
+    cJSON_AddNumberToObject(o, "finishes", round((double)g.finishes / ticks * 100) / 100);
+}
+
 /* Scratch memory by stage and per cell, and the process's peak. */
 static void report_add_memory(cJSON *root, simulate_run *r)
 {
@@ -397,6 +414,7 @@ static int report_print(simulate_run *r)
     cJSON *root = cJSON_CreateObject();
     report_add_run(root, r);
     report_add_cells(root, r);
+    report_add_gpu_sync(root, r);
     report_add_memory(root, r);
     char *text = cJSON_Print(root);
     cJSON_Delete(root);

@@ -195,6 +195,54 @@ static int chunk_upload(gl_backend *b, const sim_params *p, const sim_window_job
     return gl_check("upload", err);
 }
 
+/* One GPU→CPU copy from the bound storage buffer, counted (gl_sync). */
+static void read_back(GLintptr off, GLsizeiptr size, void *out)
+{
+    glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, out);
+    gl_sync.readbacks++;
+    gl_sync.readback_bytes += (uint64_t)size;
+}
+
+/* The heights of every accepted window in one GPU→CPU transfer: the
+ * windows lie one after another in the buffer, so one mapping of the span
+ * from the first accepted window to the end of the last is one
+ * synchronisation point instead of one per window; each window is copied
+ * out of it as it was read before (the same ints). Falls back to a read per
+ * window where the mapping fails. */
+static void read_heights(gl_backend *b, sim_window_job *jobs, int count, int heights,
+                         const int *status)
+{
+    GLintptr lo = -1, hi = 0;
+    for (int i = 0; i < count; i++) {
+        if (status[i] != SIM_WINDOW_OK)
+            continue;
+        GLintptr off = (GLintptr)b->entries[i].offset * 4;
+        GLintptr end = off + (GLintptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        lo = lo < 0 || off < lo ? off : lo;
+        hi = end > hi ? end : hi;
+    }
+    if (lo < 0)
+        return;
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
+    const uint8_t *span = glMapBufferRange(GL_SHADER_STORAGE_BUFFER, lo, hi - lo, GL_MAP_READ_BIT);
+    if (span) {
+        gl_sync.readbacks++;
+        gl_sync.readback_bytes += (uint64_t)(hi - lo);
+    }
+    for (int i = 0; i < count; i++) {
+        if (status[i] != SIM_WINDOW_OK)
+            continue;
+        GLintptr off = (GLintptr)b->entries[i].offset * 4;
+        GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        if (span)
+            memcpy(jobs[i].heights, span + (off - lo), (size_t)size);
+        else
+            read_back(off, size, jobs[i].heights);
+    }
+    if (span)
+        glUnmapBuffer(GL_SHADER_STORAGE_BUFFER);
+}
+
 /* readback: status first, then only the windows that were accepted (a
  * refused window keeps the heights it came with), their compaction and any
  * bottoms asked for. */
@@ -202,27 +250,24 @@ static void chunk_readback(gl_backend *b, sim_window_job *jobs, int count, int h
 {
     int materials = jobs[0].materials != NULL;
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
-    glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)),
-                       b->status_host);
+    read_back(0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)), b->status_host);
+    for (int i = 0; i < count; i++)
+        status[i] = (b->status_host[i] & 1u) ? SIM_WINDOW_HEIGHT_LIMIT : SIM_WINDOW_OK;
+    read_heights(b, jobs, count, heights, status);
     for (int i = 0; i < count; i++) {
         GLintptr off = (GLintptr)b->entries[i].offset * 4;
         GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
-        status[i] = (b->status_host[i] & 1u) ? SIM_WINDOW_HEIGHT_LIMIT : SIM_WINDOW_OK;
-        if (status[i] == SIM_WINDOW_OK) {
-            glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
-            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].heights);
-        }
         if (status[i] == SIM_WINDOW_OK && materials && jobs[i].compaction) {
             int32_t *words = b->material_host + b->entries[i].offset;
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->material_buffer);
-            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, words);
+            read_back(off, size, words);
             int64_t n = (int64_t)jobs[i].rect.w * jobs[i].rect.h;
             for (int64_t k = 0; k < n; k++)
                 jobs[i].compaction[k] = (uint16_t)((uint32_t)words[k] >> 8);
         }
         if (jobs[i].bottom_out) {
             glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_BOTTOM]);
-            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, off, size, jobs[i].bottom_out);
+            read_back(off, size, jobs[i].bottom_out);
         }
     }
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
@@ -247,9 +292,11 @@ static void chunk_cache_scatter(gl_backend *b, const sim_window_job *jobs, int c
                          heights);
         scattered = 1;
     }
-    if (scattered)
+    if (scattered) {
         glMemoryBarrier(GL_SHADER_IMAGE_ACCESS_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT |
                         GL_TEXTURE_UPDATE_BARRIER_BIT);
+        gl_sync.barriers++;
+    }
 }
 
 /* One chunk of the batch through every stage, in the order of the banner. */
@@ -425,6 +472,7 @@ sim_backend *sim_backend_gl_create(error_text *err)
     b->base.scratch_bytes = gl_scratch_bytes;
     b->base.window_scattered = gl_window_scattered;
     b->base.tile_cache_stats = gl_tile_cache_stats;
+    b->base.gpu_sync_stats = gl_gpu_sync_stats;
     b->base.set_stage_timing = gl_set_stage_timing;
     b->base.destroy = gl_destroy;
     b->base.impl = b;

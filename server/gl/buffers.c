@@ -13,8 +13,17 @@
 
 /* ---- small helpers ---- */
 
+sim_gpu_sync_stats gl_sync;
+
+void gl_gpu_sync_stats(const sim_backend *b, sim_gpu_sync_stats *out)
+{
+    (void)b;
+    *out = gl_sync;
+}
+
 void gl_barrier(void)
 {
+    gl_sync.barriers++;
     /* Every pass reads what the previous one wrote through SSBOs, and buffer
      * clears and readbacks follow shader writes: the GL requires an explicit
      * barrier for both (the original implementation omitted it). */
@@ -59,14 +68,17 @@ void gl_dispatch(gl_backend *b, int prog)
     int64_t gx = groups < b->max_groups_x ? groups : b->max_groups_x;
     int64_t gy = (groups + gx - 1) / gx;
     glDispatchCompute((GLuint)gx, (GLuint)gy, 1);
+    gl_sync.dispatches++;
     gl_barrier();
 }
 
 /* Ends a stage: with stage timing on, waits for the GPU so the time is real. */
 double gl_stage_end(gl_backend *b, double *acc, double since)
 {
-    if (b->stage_timing)
+    if (b->stage_timing) {
         glFinish();
+        gl_sync.finishes++;
+    }
     double now = time_now_ms();
     *acc += now - since;
     return now;

@@ -259,10 +259,12 @@ int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, int rounds, err
                 glUniformMatrix4fv(b->uniforms[PROG_RASTER][U_MVP], 1, GL_FALSE, mvp);
                 glBindVertexArray(g->vao);
                 glDrawElements(GL_TRIANGLES, g->index_count, GL_UNSIGNED_INT, NULL);
+                gl_sync.draws++;
             }
         }
         glBindVertexArray(0);
         glMemoryBarrier(GL_FRAMEBUFFER_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT);
+        gl_sync.barriers++;
         glActiveTexture(GL_TEXTURE1);
         glBindTexture(GL_TEXTURE_2D, b->atlas);
         glUseProgram(b->programs[PROG_DEPTH_TO_BOTTOM]);

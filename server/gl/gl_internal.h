@@ -200,6 +200,12 @@ typedef struct tile_cache {
 
 /* A barrier after every pass: SSBO writes, buffer updates, texture fetches. */
 void gl_barrier(void);
+/* The process's GL synchronisation counters (sim.h sim_gpu_sync_stats): the
+ * GL context lives on one thread, so plain counters; every glDispatchCompute,
+ * glDraw*, glMemoryBarrier, glGetBufferSubData and glFinish of gl/ adds to
+ * them. */
+extern sim_gpu_sync_stats gl_sync;
+void gl_gpu_sync_stats(const sim_backend *b, sim_gpu_sync_stats *out);
 /* 0, or -1 with err naming what failed (out of GPU memory, a GL error). */
 int gl_check(const char *what, error_text *err);
 /* A per-cell buffer as a storage block (written) or a buffer texture (read). */

@@ -288,6 +288,7 @@ static void cache_window_uniforms(const tile_cache *c, const GLint *u, const sim
     glUniform1i(u[5], ((r.x + r.w - 1) >> c->shift) - (r.x >> c->shift) + 1);
     glUniform1i(u[6], (GLint)table_base);
     glDispatchCompute((GLuint)((r.w + 7) / 8), (GLuint)((r.h + 7) / 8), 1);
+    gl_sync.dispatches++;
 }
 
 void gl_cache_gather(gl_backend *b, const sim_window_job *job, int32_t offset, int64_t table_base)

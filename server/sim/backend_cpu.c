@@ -178,6 +178,13 @@ void sim_backend_tile_cache_stats(const sim_backend *b, sim_tile_cache_stats *ou
         b->tile_cache_stats(b, out);
 }
 
+void sim_backend_gpu_sync_stats(const sim_backend *b, sim_gpu_sync_stats *out)
+{
+    memset(out, 0, sizeof *out);
+    if (b && b->gpu_sync_stats)
+        b->gpu_sync_stats(b, out);
+}
+
 void sim_backend_set_stage_timing(sim_backend *b, int on)
 {
     if (b && b->set_stage_timing)

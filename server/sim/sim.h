@@ -263,6 +263,13 @@ typedef struct sim_tile_cache_stats {
     uint64_t windows_direct; /* windows uploaded from the CPU copy */
 } sim_tile_cache_stats;
 
+/* A GPU backend's synchronisation work, counted since creation (zeros for
+ * the CPU): compute dispatches, draws, memory barriers, GPU→CPU readbacks
+ * (glGetBufferSubData calls and their bytes) and full waits (glFinish). */
+typedef struct sim_gpu_sync_stats {
+    uint64_t dispatches, draws, barriers, readbacks, readback_bytes, finishes;
+} sim_gpu_sync_stats;
+
 typedef struct sim_backend sim_backend;
 struct sim_backend {
     const char *name;   /* "gl" or "cpu" */
@@ -287,6 +294,8 @@ struct sim_backend {
     void (*window_scattered)(sim_backend *b, int window, const world *w, world_rect r);
     /* Optional (NULL: no tile cache): the tile cache's statistics. */
     void (*tile_cache_stats)(const sim_backend *b, sim_tile_cache_stats *out);
+    /* Optional (NULL: no GPU): its synchronisation counters. */
+    void (*gpu_sync_stats)(const sim_backend *b, sim_gpu_sync_stats *out);
     /* Optional (NULL: times are always real): with timing on, wait for the
      * device after every stage so per-stage times are real. */
     void (*set_stage_timing)(sim_backend *b, int on);
@@ -299,6 +308,7 @@ sim_backend *sim_backend_cpu_create(error_text *err);
 /* Through the optional entries: zeros / nothing where a backend has none. */
 void sim_backend_tile_cache_stats(const sim_backend *b, sim_tile_cache_stats *out);
 void sim_backend_set_stage_timing(sim_backend *b, int on);
+void sim_backend_gpu_sync_stats(const sim_backend *b, sim_gpu_sync_stats *out);
 
 /* ---- The tick over a world ---- */
 

@@ -1,0 +1,179 @@
+/*
+ * loadgen_http.c: `terrad loadgen`'s plain HTTP/1.0 client for the daemon's own endpoints
+ * (GET /v1/stats, /metrics, /v1/heights), and its report (a table or JSON). Blocking and small:
+ * it runs only before and after the driving, never inside a tick's wait.
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <netdb.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include "app/loadgen_internal.h"
+
+int lg_http_init(lg_http *h, const char *url, const char *ws_host)
+{
+    memset(h, 0, sizeof *h);
+    if (!url) {
+        snprintf(h->host, sizeof h->host, "%s", ws_host);
+        h->port = 8080;
+        return 0;
+    }
+    const char *p = strncmp(url, "http://", 7) == 0 ? url + 7 : NULL;
+    const char *colon = p ? strchr(p, ':') : NULL;
+    if (!colon || colon == p || (size_t)(colon - p) >= sizeof h->host)
+        return -1;
+    memcpy(h->host, p, (size_t)(colon - p));
+    h->port = atoi(colon + 1);
+    return h->port > 0 && h->port < 65536 ? 0 : -1;
+}
+
+/* GET path; the body (malloc'd, NUL after it) and its length. Returns the status or -1. */
+static int http_get(const lg_http *h, const char *path, char **body, size_t *len)
+{
+    char port[16];
+    snprintf(port, sizeof port, "%d", h->port);
+    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM}, *ai = NULL;
+    if (getaddrinfo(h->host, port, &hints, &ai) != 0)
+        return -1;
+    int s = socket(ai->ai_family, ai->ai_socktype, ai->ai_protocol);
+    int ok = s >= 0 && connect(s, ai->ai_addr, ai->ai_addrlen) == 0;
+    freeaddrinfo(ai);
+    char req[512];
+    int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\nHost: %s\r\n\r\n", path, h->host);
+    if (!ok || write(s, req, (size_t)n) != n) {
+        if (s >= 0)
+            close(s);
+        return -1;
+    }
+    size_t cap = 65536, got = 0;
+    char *buf = malloc(cap + 1);
+    ssize_t r;
+    while (buf && (r = read(s, buf + got, cap - got)) > 0) {
+        got += (size_t)r;
+        if (got == cap) {
+            char *bigger = realloc(buf, 2 * cap + 1);
+            if (!bigger) {
+                free(buf);
+                buf = NULL;
+                break;
+            }
+            buf = bigger;
+            cap *= 2;
+        }
+    }
+    close(s);
+    if (!buf)
+        return -1;
+    buf[got] = 0;
+    int status = 0;
+    char *end = strstr(buf, "\r\n\r\n");
+    if (!end || sscanf(buf, "HTTP/%*s %d", &status) != 1) {
+        free(buf);
+        return -1;
+    }
+    *len = got - (size_t)(end + 4 - buf);
+    memmove(buf, end + 4, *len + 1);
+    *body = buf;
+    return status;
+}
+
+static uint64_t json_u64(const char *body, const char *key)
+{
+    const char *p = strstr(body, key);
+    return p ? strtoull(p + strlen(key), NULL, 10) : 0;
+}
+
+/* The value of an unlabelled sample "\nNAME VALUE" in a /metrics text, or 0. */
+static double metric(const char *body, const char *name)
+{
+    size_t n = strlen(name);
+    for (const char *p = body; (p = strstr(p, name)) != NULL; p += n)
+        if ((p == body || p[-1] == '\n') && p[n] == ' ')
+            return strtod(p + n + 1, NULL);
+    return 0;
+}
+
+int lg_http_stats(const lg_http *h, lg_stats *out)
+{
+    char *body = NULL;
+    size_t len = 0;
+    if (http_get(h, "/v1/stats", &body, &len) != 200) {
+        free(body);
+        return -1;
+    }
+    out->tick = json_u64(body, "\"tick\":");
+    out->overruns = json_u64(body, "\"overruns\":");
+    free(body);
+    body = NULL;
+    if (http_get(h, "/metrics", &body, &len) == 200) {
+        out->frames_dropped = (uint64_t)metric(body, "terrad_frames_dropped_total");
+        out->tick_seconds = metric(body, "terrad_tick_duration_seconds_sum");
+        out->tick_count = metric(body, "terrad_tick_duration_seconds_count");
+    }
+    free(body);
+    return 0;
+}
+
+int lg_http_heights(const lg_http *h, int x, int y, int w, int hh, int32_t *out)
+{
+    char path[128], *body = NULL;
+    size_t len = 0;
+    snprintf(path, sizeof path, "/v1/heights?x=%d&y=%d&w=%d&h=%d", x, y, w, hh);
+    int status = http_get(h, path, &body, &len);
+    int ok = status == 200 && len == (size_t)w * hh * 4;
+    if (ok) {
+        const unsigned char *b = (const unsigned char *)body;
+        for (size_t i = 0; i < len / 4; i++)
+            out[i] = (int32_t)((uint32_t)b[4 * i] | (uint32_t)b[4 * i + 1] << 8 |
+                               (uint32_t)b[4 * i + 2] << 16 | (uint32_t)b[4 * i + 3] << 24);
+    }
+    free(body);
+    return ok ? 0 : -1;
+}
+
+void lg_print_report(FILE *f, const lg_report *r, int json)
+{
+    double per_tick = r->ticks ? (double)r->delta_bytes / (double)r->ticks : 0;
+    double per_cell = r->changed_cells ? (double)r->delta_bytes / (double)r->changed_cells : 0;
+    const char *equal = r->mirrors_checked >= 0 && r->mirrors_equal == r->mirrors_checked &&
+                                r->mirrors_checked == r->clients
+                            ? "true"
+                            : "false";
+    if (json) {
+        fprintf(f,
+                "{\"clients\":%ld,\"wheels_per_client\":%ld,\"wheels\":%ld,\"tick_hz\":%g,"
+                "\"seconds\":%.3f,\"ticks\":%llu,\"ticks_per_s\":%.2f,\"overruns\":%llu,\"tick_"
+                "mean_ms\":%.3f,"
+                "\"poses_sent\":%llu,\"latency_ms\":{\"n\":%lld,\"p50\":%.3f,\"p99\":%.3f,"
+                "\"max\":%.3f},\"delta_frames\":%llu,\"delta_bytes\":%llu,"
+                "\"delta_bytes_per_tick\":%.1f,\"changed_cells\":%llu,"
+                "\"delta_bytes_per_changed_cell\":%.3f,\"frames_dropped\":%llu,\"resyncs\":%llu,"
+                "\"failed_clients\":%ld,\"mirrors_checked\":%ld,\"mirrors_equal_count\":%ld,"
+                "\"mirrors_equal\":%s}\n",
+                r->clients, r->wheels_per_client, r->clients * r->wheels_per_client, r->hz,
+                r->drive_s, (unsigned long long)r->ticks, r->ticks_per_s,
+                (unsigned long long)r->overruns, r->tick_mean_ms, (unsigned long long)r->poses_sent,
+                (long long)r->lat_n, r->p50_ms, r->p99_ms, r->max_ms,
+                (unsigned long long)r->delta_frames, (unsigned long long)r->delta_bytes, per_tick,
+                (unsigned long long)r->changed_cells, per_cell,
+                (unsigned long long)r->frames_dropped, (unsigned long long)r->resyncs,
+                r->failed_clients, r->mirrors_checked, r->mirrors_equal, equal);
+        return;
+    }
+    fprintf(f, "terrad loadgen: %ld clients x %ld wheels, %.1f s driving at %g Hz\n", r->clients,
+            r->wheels_per_client, r->drive_s, r->hz);
+    fprintf(f, "  ticks/s reached        %10.2f  (%llu ticks, %llu overruns, mean tick %.2f ms)\n",
+            r->ticks_per_s, (unsigned long long)r->ticks, (unsigned long long)r->overruns,
+            r->tick_mean_ms);
+    fprintf(f, "  pose->ACK latency ms   p50 %.2f  p99 %.2f  max %.2f  (%lld batches)\n", r->p50_ms,
+            r->p99_ms, r->max_ms, (long long)r->lat_n);
+    fprintf(f, "  delta bytes            %.0f per tick, %.2f per changed cell (%llu frames)\n",
+            per_tick, per_cell, (unsigned long long)r->delta_frames);
+    fprintf(f, "  frames dropped         %llu (server), resyncs %llu (clients)\n",
+            (unsigned long long)r->frames_dropped, (unsigned long long)r->resyncs);
+    fprintf(f, "  mirrors equal          %s (%ld of %ld checked, %ld clients; %ld failed)\n", equal,
+            r->mirrors_equal, r->mirrors_checked, r->clients, r->failed_clients);
+}
