@@ -276,7 +276,9 @@ static int keys_each(kvStore *kv, const char *pattern, void (*on_key)(void *ctx,
 {
     key_list l = {0};
     natsStatus s = NATS_OK;
-    for (double deadline = time_now_ms() + 4.0 * timeout_ms;;) {
+    /* a stream leader lost with its server is elected again within seconds, more under load */
+    double wait_ms = 4.0 * timeout_ms > 15000 ? 4.0 * timeout_ms : 15000;
+    for (double deadline = time_now_ms() + wait_ms;;) {
         s = keys_collect(kv, pattern, &l, timeout_ms);
         if (s == NATS_OK || s == NATS_NO_MEMORY || time_now_ms() > deadline)
             break;
