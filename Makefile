@@ -14,6 +14,8 @@
 #                       viewer test's picture of its trail) and docs/trade/ (the sweep and its plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
+#   make cluster        3 NATS servers + 3 terrad nodes on loopback, two demo worlds (Ctrl-C stops;
+#                       installs nats-server with the test set when it is missing)
 #   make format         clang-format -i the C sources (format-check: only check)
 #   make web-deps       npm ci (when package-lock.json exists)
 #   make clean          remove build trees and test artifacts
@@ -59,7 +61,7 @@ endef
 
 FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
-.PHONY: deps deps-test build build-asan daemon run install test bench docs-images fuzz \
+.PHONY: deps deps-test build build-asan daemon run cluster install test bench docs-images fuzz \
         fuzz-smoke fuzz-build soak format format-check web-deps clean
 
 # Building and running need only --build (which includes --runtime); the test tools
@@ -85,6 +87,10 @@ daemon: deps
 
 run: daemon
 	exec $(TERRAD) serve $(ARGS)
+
+cluster: daemon
+	@command -v nats-server >/dev/null 2>&1 || scripts/deps --test
+	exec $(PYTHON) scripts/cluster --bin $(TERRAD) $(ARGS)
 
 # The install prefix is set at configure time too, so that the systemd unit, the man page
 # and the example configuration name the paths they are installed under.

@@ -23,6 +23,7 @@ int app_export(int argc, char **argv);  /* a data directory's world to int32 / p
 int app_bench(int argc, char **argv);   /* `terrad bench --trade` (bench_trade.c) */
 int app_loadgen(int argc, char **argv); /* load generator for a running daemon (loadgen.c) */
 int app_fsck(int argc, char **argv);    /* check a data directory without starting (fsck.c) */
+int app_world(int argc, char **argv);   /* `terrad world add|list|remove` (world_cmd.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -32,6 +33,7 @@ void app_export_usage(FILE *out);
 void app_bench_usage(FILE *out);
 void app_loadgen_usage(FILE *out);
 void app_fsck_usage(FILE *out);
+void app_world_usage(FILE *out);
 
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);

@@ -12,12 +12,14 @@
  * → the tick loop → stop. Options: serve_options.c; demo actors, which keep
  * the terrain deforming without clients: serve_demo.c.
  */
+#include <errno.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "app/app.h"
 #include "app/serve_internal.h"
@@ -66,6 +68,8 @@ typedef struct serve_daemon {
     http_server *http;
     hub *h;
     char models[64];
+    serve_cluster cluster; /* --cluster: the world this node owns */
+    int lost_world;        /* the cluster gave the world to another node */
 } serve_daemon;
 
 static void sleep_until_ms(double deadline_ms)
@@ -130,10 +134,39 @@ static void publish_metrics(const service_tick_stats *st, const sim_engine *engi
                                cache.resident_tiles);
 }
 
+static void serve_catch_signals(void)
+{
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    sa.sa_handler = on_hangup;
+    sigaction(SIGHUP, &sa, NULL);
+}
+
+/* --cluster: the world this node owns, its scene from the registry and its
+ * store on JetStream (serve_cluster.c). A standby waits here. */
+static int serve_open_cluster_world(serve_daemon *d, error_text *err)
+{
+    serve_catch_signals();
+    if (serve_cluster_join(&d->cluster, &d->o, &stop_requested, &d->sc, err) != 0)
+        return -1;
+    if (d->o.tick_hz > 0)
+        d->sc.tick_hz = d->o.tick_hz;
+    d->sc.material.tick_s = 1.0 / d->sc.tick_hz;
+    if (scene_create_world(&d->sc, &d->w, err) != 0)
+        return -1;
+    d->st = serve_cluster_open_store(&d->cluster, &d->w, &d->recovery, err);
+    return d->st ? 0 : -1;
+}
+
 /* The scene, its world, and the store recovered over the world's base. */
 static int serve_open_world(serve_daemon *d, error_text *err)
 {
     serve_options *o = &d->o;
+    if (o->cluster_urls)
+        return serve_open_cluster_world(d, err);
     if ((o->scene_path ? scene_load_file(o->scene_path, &d->sc, err)
                        : scene_load_default(&d->sc, err)) != 0)
         return -1;
@@ -183,6 +216,8 @@ static void serve_status_init(serve_daemon *d)
     s->units_per_m = d->w.units_per_m;
     s->tile_size = SERVICE_TILE_SIZE;
     s->tick_hz = d->sc.tick_hz;
+    if (d->cluster.cs)
+        snprintf(s->world_name, sizeof s->world_name, "%s", d->cluster.world);
     s->volume = world_volume(&d->w);
 }
 
@@ -236,6 +271,7 @@ static int serve_start_net(serve_daemon *d, error_text *err)
                                .height_min = WORLD_HEIGHT_MIN,
                                .height_max = WORLD_HEIGHT_MAX,
                                .models_json = d->models,
+                               .name = d->cluster.cs ? d->cluster.world : NULL,
                                .materials_json = "[\"default\"]"}};
     d->net = net_server_start(&nc, d->h, err);
     if (!d->net)
@@ -272,13 +308,7 @@ static int serve_start(serve_daemon *d, error_text *err)
     snprintf(d->status.metric, sizeof d->status.metric, "%s", sim_metric_name(d->params.metric));
     pthread_mutex_unlock(&d->status.lock);
 
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
-    sa.sa_handler = on_hangup;
-    sigaction(SIGHUP, &sa, NULL);
+    serve_catch_signals();
     signal(SIGPIPE, SIG_IGN);
 
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
@@ -327,6 +357,13 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
             hangup_seen = 0;
             log_info("SIGHUP received: ignored (the log is stderr; stop with SIGTERM)");
         }
+        if (d->cluster.cs && serve_cluster_check(&d->cluster) != 0) {
+            log_warn("cluster: this node no longer owns world %s (%s): stopping, to wait again "
+                     "as a standby",
+                     d->cluster.world, d->cluster.lost);
+            d->lost_world = 1;
+            break;
+        }
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
@@ -346,6 +383,7 @@ static void serve_stop(serve_daemon *d)
     net_server_stop(d->net);
     service_destroy(d->svc);
     store_close(d->st);
+    serve_cluster_leave(&d->cluster);
     free(d->extra);
     free(d->actors);
     sim_engine_destroy(d->engine);
@@ -356,6 +394,22 @@ static void serve_stop(serve_daemon *d)
     world_free(&d->w);
     scene_free(&d->sc);
     pthread_mutex_destroy(&d->status.lock);
+}
+
+/* A node that lost its world starts over as a standby: the same command
+ * line, a fresh process (every thread and port of this run is closed). */
+static void serve_restart(int argc, char **argv)
+{
+    char **args = calloc((size_t)argc + 3, sizeof *args);
+    if (!args)
+        return;
+    args[0] = "terrad";
+    args[1] = "serve";
+    for (int i = 1; i < argc; i++)
+        args[i + 1] = argv[i];
+    execv("/proc/self/exe", args);
+    log_error("cluster: cannot start again (%s): exiting", strerror(errno));
+    free(args);
 }
 
 int app_serve(int argc, char **argv)
@@ -375,10 +429,15 @@ int app_serve(int argc, char **argv)
             if (serve_start(d, &err) == 0 && serve_run_ticks(d, &err) == 0)
                 rc = 0;
         }
-        if (rc != 0)
+        if (rc != 0 && err.message[0])
             log_error("%s", err.message);
+        if (rc != 0 && !err.message[0] && stop_requested)
+            rc = 0; /* a standby stopped before it owned a world */
     }
     serve_stop(d);
+    int lost = d->lost_world;
     free(d);
+    if (lost)
+        serve_restart(argc, argv);
     return rc;
 }

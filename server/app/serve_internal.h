@@ -1,17 +1,23 @@
 /*
  * serve_internal.h: what `terrad serve`'s files share inside server/app/ —
  * the options (serve_options.c reads them from the command line and
- * --config) and the demo actors (serve_demo.c) that keep the terrain
- * deforming without clients. serve.c runs the daemon on them.
+ * --config), the demo actors (serve_demo.c) that keep the terrain
+ * deforming without clients, and cluster mode (serve_cluster.c: which world
+ * this node ticks, and its store on JetStream). serve.c runs the daemon on
+ * them.
  */
 #ifndef TERRAD_SERVE_INTERNAL_H
 #define TERRAD_SERVE_INTERNAL_H
 
+#include <signal.h>
 #include <stdio.h>
 
 #include "base/base.h"
+#include "cluster/cluster.h"
 #include "collider/collider.h"
 #include "net/net.h"
+#include "scene/scene.h"
+#include "store/store.h"
 #include "world/world.h"
 
 #define SERVE_CONFIG_STRING_MAX 4096
@@ -28,15 +34,18 @@ typedef struct serve_options {
     const char *token; /* NULL: no token required */
     long max_ticks;    /* < 0: run until signalled */
     net_limits limits;
-    const char *data_dir;    /* NULL: memory only (--no-data, or a demo without --data) */
-    int data_given;          /* --data, or "data" in --config */
-    int demo_in_memory;      /* demo actors and no --data: no store */
-    int fresh;               /* --fresh: store_remove before store_open */
-    const char *durability;  /* every-tick | group:MS | none */
-    long wal_segment_bytes;  /* compaction threshold */
-    const char *store_fault; /* test hook: writes fail ENOSPC while this file exists */
-    int recover_truncate;    /* start on a damaged data directory, cutting the damage */
-    int config_loaded;       /* --config was given */
+    const char *data_dir;     /* NULL: memory only (--no-data, or a demo without --data) */
+    int data_given;           /* --data, or "data" in --config */
+    int demo_in_memory;       /* demo actors and no --data: no store */
+    int fresh;                /* --fresh: store_remove before store_open */
+    const char *durability;   /* every-tick | group:MS | none */
+    long wal_segment_bytes;   /* compaction threshold */
+    const char *store_fault;  /* test hook: writes fail ENOSPC while this file exists */
+    int recover_truncate;     /* start on a damaged data directory, cutting the damage */
+    int config_loaded;        /* --config was given */
+    const char *cluster_urls; /* --cluster: NULL when not in a cluster */
+    const char *node;         /* --node */
+    const char *world_name;   /* --world: NULL for the first one free */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
         config_token[SERVE_CONFIG_STRING_MAX], config_data[SERVE_CONFIG_STRING_MAX],
@@ -46,6 +55,34 @@ typedef struct serve_options {
 /* The command line (argv[0] = "serve"); fills o with the defaults first.
  * CLI_OK, CLI_HELP (printed) or CLI_ERROR (printed). */
 cli_result serve_options_parse(int argc, char **argv, serve_options *o);
+
+/* ---- cluster mode (serve_cluster.c) ---- */
+
+/* A node's hold on one world: the connection, the world's name and its store. */
+typedef struct serve_cluster {
+    cluster *cl;
+    char world[CLUSTER_WORLD_NAME_MAX + 1];
+    cluster_store *cs;
+    char lost[256];    /* why this node no longer owns the world */
+    double retried_ms; /* the last attempt to take a lapsed lease back */
+} serve_cluster;
+
+/*
+ * Joins the cluster and becomes the owner of one world: --world, or the
+ * first registered world whose lease this node can take; while none can be
+ * taken it waits (a standby), until *stop is set (then -1, err empty). Loads
+ * the world's scene from the registry into sc. 0, or -1 with err.
+ */
+int serve_cluster_join(serve_cluster *c, const serve_options *o, volatile sig_atomic_t *stop,
+                       scene *sc, error_text *err);
+/* The world's store, recovered into w (whose base terrain is in it): takes
+ * the log (fencing the previous owner off) and wraps it for the service. */
+store *serve_cluster_open_store(serve_cluster *c, world *w, store_recovery *rec, error_text *err);
+/* Once per tick: 0 while this node owns the world (a lapsed lease is taken
+ * back when NATS answers again), -1 once it does not (c->lost says why). */
+int serve_cluster_check(serve_cluster *c);
+/* Releases the lease if held and disconnects (store_close closes the store). */
+void serve_cluster_leave(serve_cluster *c);
 
 /* A sphere that slides across the world in a straight line, reflects off the
  * edges and bobs up and down, dipping into the terrain at the bottom. */

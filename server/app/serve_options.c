@@ -33,6 +33,9 @@ enum {
     OPT_THREADS,
     OPT_INSECURE_OPEN,
     OPT_RECOVER_TRUNCATE,
+    OPT_CLUSTER,
+    OPT_NODE,
+    OPT_WORLD,
 };
 
 static const cli_option serve_table[] = {
@@ -81,6 +84,15 @@ static const cli_option serve_table[] = {
     [OPT_RECOVER_TRUNCATE] = {"recover-truncate", NULL,
                               "start on a damaged data directory anyway: cut the damage\n"
                               "and log exactly which ticks are lost (default: refuse)"},
+    [OPT_CLUSTER] = {"cluster", "URLS",
+                     "join a NATS JetStream cluster (comma-separated nats:// URLs):\n"
+                     "the world, its log and snapshots live there instead of\n"
+                     "--data (docs/cluster.md)"},
+    [OPT_NODE] = {"node", "NAME", "--cluster: this node's name (default: the host name)"},
+    [OPT_WORLD] = {"world", "NAME",
+                   "--cluster: the world to tick (registered with terrad world add);\n"
+                   "default: the first registered world whose lease is free.\n"
+                   "A node waits (a standby) until it can take one"},
     {0},
 };
 
@@ -279,6 +291,15 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_RECOVER_TRUNCATE:
         o->recover_truncate = 1;
+        return 0;
+    case OPT_CLUSTER:
+        o->cluster_urls = value;
+        return 0;
+    case OPT_NODE:
+        o->node = value;
+        return 0;
+    case OPT_WORLD:
+        o->world_name = value;
         return 0;
     case OPT_BIND_ANY:
         o->bind_any = 1;

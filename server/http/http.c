@@ -178,8 +178,13 @@ static const char *json_double(double v, char *out, size_t cap)
 
 static enum MHD_Result serve_world(struct MHD_Connection *c, const http_status *st)
 {
-    char renderer[600], backend[40], method[40], metric[40], body[1400];
+    char renderer[600], backend[40], method[40], metric[40], body[1600], name[160] = "";
     char width_m[32], height_m[32], cell[32], hz[32];
+    if (st->world_name[0]) { /* cluster mode only: a single daemon's answer is unchanged */
+        char escaped[132];
+        json_escape(st->world_name, escaped, sizeof escaped);
+        snprintf(name, sizeof name, ",\"world\":\"%s\"", escaped);
+    }
     json_escape(st->renderer, renderer, sizeof renderer);
     json_escape(st->backend, backend, sizeof backend);
     json_escape(st->method, method, sizeof method);
@@ -192,14 +197,14 @@ static enum MHD_Result serve_world(struct MHD_Connection *c, const http_status *
              "\"height_m\":%s},"
              "\"cell_size_m\":%s,\"units_per_m\":%d,\"tick\":%llu,\"tick_hz\":%s,"
              "\"tile_size\":%d,\"models\":[%s%s%s],\"metric\":\"%s\","
-             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s,\"version\":\"%s\"}\n",
+             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s,\"version\":\"%s\"%s}\n",
              st->world_width, st->world_height, st->world_width, st->world_height,
              json_double(st->world_width * st->cell_size_m, width_m, sizeof width_m),
              json_double(st->world_height * st->cell_size_m, height_m, sizeof height_m),
              json_double(st->cell_size_m, cell, sizeof cell), st->units_per_m,
              (unsigned long long)st->tick, json_double(st->tick_hz, hz, sizeof hz), st->tile_size,
              method[0] ? "\"" : "", method, method[0] ? "\"" : "", metric, renderer, backend,
-             st->ready ? "true" : "false", TERRAD_VERSION);
+             st->ready ? "true" : "false", TERRAD_VERSION, name);
     return respond(c, MHD_HTTP_OK, "application/json", body);
 }
 

@@ -58,6 +58,7 @@ typedef struct http_status {
     double last_tick_ms;
     uint64_t overruns;
     double published_ms; /* time_now_ms() of the last tick's publication; 0 = none yet */
+    char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */

@@ -629,6 +629,7 @@ static void server_free(net_server *s)
     free(s->st.models_json);
     free(s->st.materials_json);
     free(s->st.server_name);
+    free(s->st.world_name);
     pthread_mutex_destroy(&s->wake_lock);
     free(s);
 }
@@ -675,6 +676,8 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.cfg.world.models_json = s->st.models_json;
     s->st.cfg.world.materials_json = s->st.materials_json;
     s->st.cfg.server_name = s->st.server_name;
+    s->st.world_name = dup_or_null(c->world.name);
+    s->st.cfg.world.name = s->st.world_name;
     s->st.next_client_id = 1;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
@@ -682,8 +685,9 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.materials = s->st.models ? parse_names(s->st.materials_json, "[\"default\"]",
                                                  "world.materials_json", err)
                                    : NULL;
-    if (!s->st.models || !s->st.materials || !s->st.poses || !s->st.server_name) {
-        if (!s->st.poses || !s->st.server_name)
+    if (!s->st.models || !s->st.materials || !s->st.poses || !s->st.server_name ||
+        (c->world.name && !s->st.world_name)) {
+        if (!s->st.poses || !s->st.server_name || (c->world.name && !s->st.world_name))
             error_set(err, "net: out of memory");
         server_free(s);
         return NULL;

@@ -112,7 +112,7 @@ typedef struct net_collider_slot {
 struct net_state {
     thread_owner owner; /* the net thread: claimed when it starts, released when it ends */
     net_config cfg;
-    char *token, *models_json, *materials_json, *server_name;
+    char *token, *models_json, *materials_json, *server_name, *world_name;
     cJSON *models, *materials;
     hub *hub;
     struct terrad_pose *poses; /* max_poses_per_batch, for decoding */

@@ -140,9 +140,14 @@ static int parse_hello(parser *r, net_control *out)
     if (name && (!cJSON_IsString(name) || strlen(name->valuestring) > NET_CLIENT_NAME_MAX_BYTES))
         return fail(r, TERRAD_E_BAD_VALUE, "client: must be a string of at most %d bytes",
                     NET_CLIENT_NAME_MAX_BYTES);
+    const cJSON *world = cJSON_GetObjectItemCaseSensitive(r->msg, "world");
+    if (world && (!cJSON_IsString(world) || strlen(world->valuestring) > NET_CLIENT_NAME_MAX_BYTES))
+        return fail(r, TERRAD_E_BAD_VALUE, "world: must be a string of at most %d bytes",
+                    NET_CLIENT_NAME_MAX_BYTES);
     out->has_token = token != NULL;
     snprintf(out->token, sizeof out->token, "%s", token ? token->valuestring : "");
     snprintf(out->client, sizeof out->client, "%s", name ? name->valuestring : "");
+    snprintf(out->world, sizeof out->world, "%s", world ? world->valuestring : "");
     return 0;
 }
 

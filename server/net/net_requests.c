@@ -59,6 +59,8 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddStringToObject(m, "type", "world");
     cJSON_AddNumberToObject(m, "protocol", TERRAD_PROTO_VERSION);
     cJSON_AddStringToObject(m, "server", s->server_name);
+    if (w->name) /* cluster mode only: a single daemon's world message is unchanged */
+        cJSON_AddStringToObject(m, "world", w->name);
     cJSON_AddNumberToObject(m, "client_id", c->id);
     cJSON_AddNumberToObject(m, "width", w->width);
     cJSON_AddNumberToObject(m, "height", w->height);
@@ -97,6 +99,16 @@ static void handle_hello(net_client *c, const net_control *m)
     if (s->token && !token_equal(m->token, s->token)) {
         net_error(c, TERRAD_E_UNAUTHORIZED, m->ref, -1, 1, "token: wrong token");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "unauthorized");
+        return;
+    }
+    const char *serves = s->cfg.world.name;
+    if (serves && m->world[0] && strcmp(m->world, serves) != 0) {
+        /* a cluster node ticks one world: the client is sent to look for another node */
+        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1,
+                  "world: this node serves world \"%s\", not \"%s\" (terrad world list "
+                  "names each world's node)",
+                  serves, m->world);
+        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
         return;
     }
     c->ready = 1;

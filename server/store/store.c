@@ -36,6 +36,17 @@ store *store_open(const store_config *c, world *w, store_recovery *rec, error_te
     return st;
 }
 
+store *store_adopt(const store_backend *backend, void *state)
+{
+    store *st = calloc(1, sizeof *st);
+    if (!st)
+        return NULL;
+    st->backend = backend;
+    st->state = state;
+    thread_owner_claim(&st->sim, "sim");
+    return st;
+}
+
 void store_close(store *st)
 {
     if (!st)

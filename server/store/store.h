@@ -77,6 +77,32 @@ store *store_open(const store_config *c, world *w, store_recovery *rec, error_te
 /* Finishes a running compaction, syncs and closes. NULL is fine. */
 void store_close(store *st);
 
+/* ---- the backend interface ----
+ * One table per kind of store (after Redis ae.c's one event-loop API over
+ * several implementations). `state` is the backend's own object. Every entry
+ * but open runs on the sim thread (store.c asserts it). The data directory's
+ * table is internal to store/; a backend that lives in a higher layer (the
+ * JetStream one in server/cluster) opens its state itself and hands it to
+ * store_adopt. */
+typedef struct store_backend {
+    const char *name;
+    /* Open and recover into w (base terrain already in it). NULL: err says why. */
+    void *(*open)(const store_config *c, world *w, store_recovery *rec, error_text *err);
+    void (*close)(void *state);
+    int (*writable)(void *state);
+    const char *(*failure)(const void *state);
+    /* Append one tick's changed rectangles; 0, or -1 with nothing appended. */
+    int (*append_tick)(void *state, const world *w, uint64_t tick, const world_rect *rects, int n);
+    /* 1 when every appended tick is as durable as the policy promises. */
+    int (*settle)(void *state);
+    uint64_t (*durable_tick)(const void *state);
+} store_backend;
+
+/* A store over a backend whose state the caller opened (and recovered) on
+ * the thread that will tick: store_close then closes the state. NULL: out of
+ * memory (the state is then the caller's still). */
+store *store_adopt(const store_backend *backend, void *state);
+
 /* 1 when a tick's changes can be logged now; after a failure, 0 until a
  * retry (at most every 500 ms) finds the storage writable again. */
 int store_writable(store *st);

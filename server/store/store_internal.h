@@ -27,24 +27,6 @@
 
 #include "store/store.h"
 
-/* ---- the backend interface ----
- * One table per kind of store (after Redis ae.c's one event-loop API over
- * several implementations). `state` is the backend's own object. Every entry
- * but open runs on the sim thread (store.c asserts it). */
-typedef struct store_backend {
-    const char *name;
-    /* Open and recover into w (base terrain already in it). NULL: err says why. */
-    void *(*open)(const store_config *c, world *w, store_recovery *rec, error_text *err);
-    void (*close)(void *state);
-    int (*writable)(void *state);
-    const char *(*failure)(const void *state);
-    /* Append one tick's changed rectangles; 0, or -1 with nothing appended. */
-    int (*append_tick)(void *state, const world *w, uint64_t tick, const world_rect *rects, int n);
-    /* 1 when every appended tick is as durable as the policy promises. */
-    int (*settle)(void *state);
-    uint64_t (*durable_tick)(const void *state);
-} store_backend;
-
 /* The data directory (store_dir.c): a write-ahead log compacted into tile
  * snapshots. */
 extern const store_backend store_backend_dir;

@@ -1,0 +1,424 @@
+/*
+ * cluster_wal.c: a world's fenced write-ahead log (cluster.h) on the stream
+ * TERRAD_WAL, subject terrad.wal.<world>. Every publish carries the header
+ * Nats-Expected-Last-Subject-Sequence with the last sequence this writer
+ * saw, so JetStream refuses it once anyone else appended — the fencing that
+ * makes a deposed owner's commit fail. In the tick, the store's commit is
+ * cluster_wal_append, which returns only once the stream's replicas have
+ * acknowledged the record.
+ *
+ * A record larger than max_payload goes out as parts (header Terrad-Part:
+ * "i/n"), each expecting the previous part's sequence; a reader keeps a
+ * record only when all its parts follow each other. Owner markers (header
+ * Terrad-Kind: owner) carry no data; they only move the expected sequence.
+ *
+ * One writer per cluster_wal: not for concurrent use.
+ */
+#include "cluster/cluster_internal.h"
+
+#include <inttypes.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+
+#define HDR_EXPECT "Nats-Expected-Last-Subject-Sequence"
+#define HDR_KIND "Terrad-Kind"
+#define HDR_PART "Terrad-Part"
+#define PART_ROOM 512 /* headers and protocol overhead within max_payload */
+
+struct cluster_wal {
+    cluster *cl;
+    char world[CLUSTER_WORLD_NAME_MAX + 1];
+    char subject[128];
+    uint64_t last_seq;
+    int uncertain; /* an append failed without an answer: it may have landed */
+    /* a record being put together from its parts while reading */
+    uint8_t *part_data;
+    int64_t part_len, part_capacity;
+    int part_next, part_total;
+};
+
+void cluster_wal_subject(const char *world, char *out, size_t cap)
+{
+    snprintf(out, cap, "%s%s", CLUSTER_SUBJECT_PREFIX, world);
+}
+
+cluster_wal *cluster_wal_open(cluster *cl, const char *world, error_text *err)
+{
+    if (!cluster_name_valid(world, "world", err))
+        return NULL;
+    cluster_wal *w = calloc(1, sizeof *w);
+    if (!w) {
+        error_set(err, "out of memory");
+        return NULL;
+    }
+    w->cl = cl;
+    snprintf(w->world, sizeof w->world, "%s", world);
+    cluster_wal_subject(world, w->subject, sizeof w->subject);
+    return w;
+}
+
+void cluster_wal_close(cluster_wal *w)
+{
+    if (!w)
+        return;
+    free(w->part_data);
+    free(w);
+}
+
+uint64_t cluster_wal_last_seq(const cluster_wal *w)
+{
+    return w->last_seq;
+}
+
+/* The subject's last sequence in the stream (0: none). */
+static cluster_status wal_end(cluster_wal *w, uint64_t *end, error_text *err)
+{
+    natsMsg *msg = NULL;
+    jsErrCode code = 0;
+    natsStatus s = js_GetLastMsg(&msg, w->cl->js, CLUSTER_STREAM, w->subject, NULL, &code);
+    if (s == NATS_NOT_FOUND || code == JSNoMessageFoundErr) {
+        *end = 0;
+        return CLUSTER_OK;
+    }
+    if (s != NATS_OK) {
+        cluster_error(err, s, "log of world %s", w->world);
+        return CLUSTER_ERROR;
+    }
+    *end = natsMsg_GetSequence(msg);
+    natsMsg_Destroy(msg);
+    return CLUSTER_OK;
+}
+
+/* One message of the log: a part of a record, a whole record or a marker. */
+static int wal_deliver(cluster_wal *w, natsMsg *msg, uint64_t seq, cluster_record_fn on_record,
+                       void *ctx)
+{
+    const char *kind = NULL, *part = NULL;
+    natsMsgHeader_Get(msg, HDR_KIND, &kind);
+    const uint8_t *data = (const uint8_t *)natsMsg_GetData(msg);
+    size_t len = (size_t)natsMsg_GetDataLength(msg);
+    if (kind && strcmp(kind, "owner") == 0) {
+        w->part_next = 0; /* a takeover cuts off a record whose parts were not all sent */
+        return 0;
+    }
+    int i = 0, n = 0;
+    if (natsMsgHeader_Get(msg, HDR_PART, &part) != NATS_OK || sscanf(part, "%d/%d", &i, &n) != 2 ||
+        n <= 1) {
+        w->part_next = 0;
+        return on_record ? on_record(ctx, seq, data, len) : 0;
+    }
+    if (i == 1) {
+        w->part_len = 0;
+        w->part_total = n;
+    } else if (i != w->part_next || n != w->part_total) {
+        w->part_next = 0; /* not the part expected: an incomplete record, dropped */
+        return 0;
+    }
+    if (array_grow((void **)&w->part_data, &w->part_capacity, w->part_len + (int64_t)len, 1) != 0)
+        return -1;
+    memcpy(w->part_data + w->part_len, data, len);
+    w->part_len += (int64_t)len;
+    w->part_next = i + 1;
+    if (i < n)
+        return 0;
+    w->part_next = 0;
+    return on_record ? on_record(ctx, seq, w->part_data, (size_t)w->part_len) : 0;
+}
+
+/* Standard base64 (the JetStream API's "data" and "hdrs"); -1 when malformed. */
+static int64_t base64_decode(const char *in, uint8_t *out)
+{
+    int64_t n = 0;
+    uint32_t acc = 0;
+    int bits = 0;
+    for (const char *p = in; *p && *p != '='; p++) {
+        int v = *p >= 'A' && *p <= 'Z'   ? *p - 'A'
+                : *p >= 'a' && *p <= 'z' ? *p - 'a' + 26
+                : *p >= '0' && *p <= '9' ? *p - '0' + 52
+                : *p == '+'              ? 62
+                : *p == '/'              ? 63
+                                         : -1;
+        if (v < 0)
+            return -1;
+        acc = (acc << 6) | (uint32_t)v;
+        bits += 6;
+        if (bits >= 8) {
+            bits -= 8;
+            out[n++] = (uint8_t)(acc >> bits);
+        }
+    }
+    return n;
+}
+
+/* The API's message as a natsMsg with its headers ("NATS/1.0\r\nK: V\r\n..."). */
+static natsMsg *wal_message_from_json(const cJSON *m, const char *subject)
+{
+    const cJSON *data = cJSON_GetObjectItemCaseSensitive(m, "data");
+    const cJSON *hdrs = cJSON_GetObjectItemCaseSensitive(m, "hdrs");
+    const char *d = cJSON_IsString(data) ? data->valuestring : "";
+    uint8_t *bytes = malloc(strlen(d) * 3 / 4 + 4);
+    int64_t len = bytes ? base64_decode(d, bytes) : -1;
+    natsMsg *msg = NULL;
+    if (len < 0 || natsMsg_Create(&msg, subject, NULL, (const char *)bytes, (int)len) != NATS_OK) {
+        free(bytes);
+        return NULL;
+    }
+    free(bytes);
+    if (cJSON_IsString(hdrs)) {
+        char *text = malloc(strlen(hdrs->valuestring) * 3 / 4 + 4);
+        int64_t n = text ? base64_decode(hdrs->valuestring, (uint8_t *)text) : -1;
+        if (n < 0) {
+            free(text);
+            natsMsg_Destroy(msg);
+            return NULL;
+        }
+        text[n] = '\0';
+        char *save = NULL;
+        for (char *line = strtok_r(text, "\r\n", &save); line;
+             line = strtok_r(NULL, "\r\n", &save)) {
+            char *colon = strchr(line, ':');
+            if (!colon || strncmp(line, "NATS/", 5) == 0)
+                continue;
+            *colon = '\0';
+            const char *value = colon + 1;
+            while (*value == ' ')
+                value++;
+            natsMsgHeader_Add(msg, line, value);
+        }
+        free(text);
+    }
+    return msg;
+}
+
+/* "The subject's next message from *from", asked of the stream's leader
+ * ($JS.API.STREAM.MSG.GET with next_by_subj: a replica's direct get could
+ * answer from a store that lost its last writes to a kill -9 and skip
+ * records). NATS_NOT_FOUND: none at or after *from. */
+static natsStatus wal_get_next(cluster_wal *w, uint64_t from, natsMsg **out, uint64_t *seq)
+{
+    char api[128], req[256];
+    snprintf(api, sizeof api, "$JS.API.STREAM.MSG.GET.%s", CLUSTER_STREAM);
+    snprintf(req, sizeof req, "{\"seq\":%" PRIu64 ",\"next_by_subj\":\"%s\"}", from, w->subject);
+    natsMsg *reply = NULL;
+    natsStatus s = natsConnection_RequestString(&reply, w->cl->nc, api, req, w->cl->timeout_ms);
+    if (s != NATS_OK)
+        return s;
+    cJSON *doc =
+        cJSON_ParseWithLength(natsMsg_GetData(reply), (size_t)natsMsg_GetDataLength(reply));
+    natsMsg_Destroy(reply);
+    const cJSON *m = cJSON_GetObjectItemCaseSensitive(doc, "message");
+    const cJSON *error = cJSON_GetObjectItemCaseSensitive(doc, "error");
+    const cJSON *q = cJSON_GetObjectItemCaseSensitive(m, "seq");
+    s = NATS_ERR;
+    if (error) {
+        const cJSON *code = cJSON_GetObjectItemCaseSensitive(error, "err_code");
+        s = cJSON_IsNumber(code) && code->valueint == JSNoMessageFoundErr ? NATS_NOT_FOUND
+                                                                          : NATS_ERR;
+    } else if (cJSON_IsNumber(q) && q->valuedouble >= (double)from) {
+        *seq = (uint64_t)q->valuedouble;
+        *out = wal_message_from_json(m, w->subject);
+        s = *out ? NATS_OK : NATS_ERR;
+    }
+    cJSON_Delete(doc);
+    return s;
+}
+
+/* Delivers the messages from *from up to end, one request each; *from moves
+ * past each one, so a retry resumes there. Reading needs no consumer, so it
+ * works while the cluster is still electing a meta leader after losing a
+ * server. */
+static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, uint64_t end,
+                                cluster_record_fn on_record, void *ctx, int *stopped)
+{
+    natsStatus s = NATS_OK;
+    while (s == NATS_OK && *from <= end && !*stopped) {
+        natsMsg *msg = NULL;
+        uint64_t seq = 0;
+        s = wal_get_next(w, *from, &msg, &seq);
+        if (s != NATS_OK)
+            break;
+        *stopped = wal_deliver(w, msg, seq, on_record, ctx) != 0;
+        *from = seq + 1;
+        natsMsg_Destroy(msg);
+    }
+    return s;
+}
+
+cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
+                                void *ctx, error_text *err)
+{
+    uint64_t end = 0;
+    if (wal_end(w, &end, err) != CLUSTER_OK)
+        return CLUSTER_ERROR;
+    /* A continuation (cluster_wal_take reading on) keeps a record's first parts. */
+    if (from_seq != w->last_seq + 1)
+        w->part_next = 0;
+    if (from_seq == 0)
+        from_seq = 1;
+    uint64_t from = from_seq;
+    int stopped = 0;
+    natsStatus s = NATS_OK;
+    /* Right after a server is lost, a replica may be behind or the stream's
+     * leader being elected: a few passes, each resuming where it stopped. */
+    for (double deadline = time_now_ms() + 4.0 * w->cl->timeout_ms; from <= end && !stopped;) {
+        s = wal_read_pass(w, &from, end, on_record, ctx, &stopped);
+        if (s == NATS_OK || time_now_ms() > deadline)
+            break;
+        nats_Sleep(100);
+    }
+    if (stopped) {
+        error_set(err, "log of world %s: reading stopped at sequence %" PRIu64, w->world, from - 1);
+        return CLUSTER_ERROR;
+    }
+    if (s != NATS_OK) {
+        cluster_error(err, s, "reading the log of world %s from sequence %" PRIu64, w->world, from);
+        return CLUSTER_ERROR;
+    }
+    w->last_seq = end;
+    w->uncertain = 0;
+    return CLUSTER_OK;
+}
+
+/* One publish expecting w->last_seq; on success w->last_seq is its sequence. */
+static cluster_status wal_publish(cluster_wal *w, const void *data, size_t len, const char *kind,
+                                  const char *part, error_text *err)
+{
+    natsMsg *msg = NULL;
+    char expect[32];
+    snprintf(expect, sizeof expect, "%" PRIu64, w->last_seq);
+    natsStatus s = natsMsg_Create(&msg, w->subject, NULL, data, (int)len);
+    if (s == NATS_OK)
+        s = natsMsgHeader_Set(msg, HDR_EXPECT, expect);
+    if (s == NATS_OK && kind)
+        s = natsMsgHeader_Set(msg, HDR_KIND, kind);
+    if (s == NATS_OK && part)
+        s = natsMsgHeader_Set(msg, HDR_PART, part);
+    jsPubAck *ack = NULL;
+    jsErrCode code = 0;
+    /* Not sent at all while disconnected (it could land after the reconnect). */
+    if (s == NATS_OK && natsConnection_Status(w->cl->nc) != NATS_CONN_STATUS_CONNECTED) {
+        natsMsg_Destroy(msg);
+        error_set(err, "appending to the log of world %s: not connected to NATS", w->world);
+        return CLUSTER_ERROR;
+    }
+    if (s == NATS_OK) {
+        jsPubOptions po;
+        jsPubOptions_Init(&po);
+        po.MaxWait = w->cl->timeout_ms;
+        s = js_PublishMsg(&ack, w->cl->js, msg, &po, &code);
+    }
+    natsMsg_Destroy(msg);
+    if (s == NATS_OK) {
+        w->last_seq = ack->Sequence;
+        jsPubAck_Destroy(ack);
+        return CLUSTER_OK;
+    }
+    if (code == JSStreamWrongLastSequenceErr) {
+        error_set(err,
+                  "log of world %s: another owner appended after sequence %" PRIu64
+                  " (this node is fenced off)",
+                  w->world, w->last_seq);
+        return CLUSTER_FENCED;
+    }
+    cluster_error(err, s, "appending to the log of world %s", w->world);
+    return CLUSTER_ERROR;
+}
+
+/* After an append that got no answer: did it land? If the log moved on, this
+ * writer's view is not the log's any more; it must stop and be reloaded. */
+static cluster_status wal_resolve(cluster_wal *w, error_text *err)
+{
+    uint64_t end = 0;
+    if (wal_end(w, &end, err) != CLUSTER_OK)
+        return CLUSTER_ERROR;
+    if (end != w->last_seq) {
+        error_set(err,
+                  "log of world %s: moved on to sequence %" PRIu64 " after an append whose "
+                  "answer was lost (this writer expected %" PRIu64 "); reload from the log",
+                  w->world, end, w->last_seq);
+        return CLUSTER_FENCED;
+    }
+    w->uncertain = 0;
+    return CLUSTER_OK;
+}
+
+cluster_status cluster_wal_append(cluster_wal *w, const void *data, size_t len, uint64_t *seq,
+                                  error_text *err)
+{
+    if (w->uncertain) {
+        cluster_status r = wal_resolve(w, err);
+        if (r != CLUSTER_OK)
+            return r;
+    }
+    size_t room =
+        (size_t)(w->cl->max_payload > 2 * PART_ROOM ? w->cl->max_payload - PART_ROOM : PART_ROOM);
+    size_t parts = len <= room ? 1 : (len + room - 1) / room;
+    if (parts > 1000000) {
+        error_set(err, "log of world %s: a record of %zu bytes is too large", w->world, len);
+        return CLUSTER_ERROR;
+    }
+    const uint8_t *bytes = data;
+    for (size_t i = 0; i < parts; i++) {
+        char part[48];
+        size_t at = i * room, n = len - at < room ? len - at : room;
+        snprintf(part, sizeof part, "%zu/%zu", i + 1, parts);
+        cluster_status r = wal_publish(w, bytes + at, n, NULL, parts > 1 ? part : NULL, err);
+        if (r == CLUSTER_ERROR)
+            w->uncertain = 1;
+        if (r != CLUSTER_OK)
+            return r;
+    }
+    if (seq)
+        *seq = w->last_seq;
+    return CLUSTER_OK;
+}
+
+cluster_status cluster_wal_take(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
+                                void *ctx, error_text *err)
+{
+    if (cluster_wal_read(w, from_seq, on_record, ctx, err) != CLUSTER_OK)
+        return CLUSTER_ERROR;
+    for (int attempt = 0; attempt < 100; attempt++) {
+        const char *node = cluster_node(w->cl);
+        cluster_status r = wal_publish(w, node, strlen(node), "owner", NULL, err);
+        if (r != CLUSTER_OK && r != CLUSTER_FENCED)
+            return r;
+        if (r == CLUSTER_OK)
+            return CLUSTER_OK;
+        /* the previous owner committed meanwhile: its records are ours to replay */
+        if (cluster_wal_read(w, w->last_seq + 1, on_record, ctx, err) != CLUSTER_OK)
+            return CLUSTER_ERROR;
+    }
+    error_set(err, "log of world %s: another writer keeps appending; not taken", w->world);
+    return CLUSTER_FENCED;
+}
+
+cluster_status cluster_log_purge_below(cluster *cl, const char *world, uint64_t seq,
+                                       error_text *err)
+{
+    if (seq <= 1)
+        return CLUSTER_OK;
+    char subject[128];
+    cluster_wal_subject(world, subject, sizeof subject);
+    jsOptions jo;
+    jsOptions_Init(&jo);
+    jo.Wait = cl->timeout_ms;
+    jo.Stream.Purge.Subject = subject;
+    jo.Stream.Purge.Sequence = seq;
+    jsErrCode code = 0;
+    natsStatus s = js_PurgeStream(cl->js, CLUSTER_STREAM, &jo, &code);
+    if (s != NATS_OK) {
+        cluster_error(err, s, "purging the log of world %s below %" PRIu64, world, seq);
+        return CLUSTER_ERROR;
+    }
+    return CLUSTER_OK;
+}
+
+cluster_status cluster_wal_purge_below(cluster_wal *w, uint64_t seq, error_text *err)
+{
+    /* The subject's last message always stays: it is what the next append expects. */
+    return cluster_log_purge_below(w->cl, w->world, seq < w->last_seq ? seq : w->last_seq, err);
+}

@@ -1,0 +1,233 @@
+"""test_cluster_serve: `terrad serve --cluster` on 3 real nats-server processes
+(JetStream, 3 replicas) with 3 terrad nodes and 2 registered worlds, on
+loopback (docs/cluster.md):
+
+  - each world is ticked by exactly one node; the third node is a standby;
+  - failover: a client drives a sphere through the owner of "dunes", the
+    owner is killed with SIGKILL (TERRAD_CLUSTER_KILLS times, default 3),
+    alternately at a random moment while driving and after the terrain has
+    settled; the standby takes the world and serves it within 10 s, its
+    tick is at least the last tick the client saw acknowledged, Σh is
+    unchanged, and after a settled kill GET /v1/heights equals the client's
+    mirror cell for cell; the killed node comes back as the standby;
+  - fencing: the owner of "spheres" is stopped (SIGSTOP) past its lease;
+    another node takes the world; after SIGCONT the old owner's commit is
+    refused, it says it no longer owns the world and waits as a standby;
+  - hello names the world: the owner answers a hello naming its world with
+    the world message (which names it) and refuses one naming another world
+    (bad_value naming its own, close 4005);
+  - bad input: a world that does not exist, NATS unreachable (the error
+    names the URL).
+Nodes run with --no-demo, so the terrain changes only under the client.
+Skipped (77) when nats-server is not installed.
+"""
+# ctest-timeout: 420
+import asyncio
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+import cluster_harness as ch  # noqa: E402
+from cluster_harness import Node  # noqa: E402
+from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+
+KILLS = int(os.environ.get("TERRAD_CLUSTER_KILLS", "3"))
+rand = random.Random(int(os.environ.get("TERRAD_CLUSTER_SEED", "20261124")))
+check = Checks()
+
+
+def owner_of(nodes, world, timeout=15):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for n in nodes:
+            if n.world == world and n.serving.is_set() and n.proc.poll() is None:
+                return n
+        time.sleep(0.05)
+    return None
+
+
+async def drive_and_kill(owner, run_s, settle):
+    """A client on the owner drives a sphere along a lane for run_s seconds;
+    the owner is then killed — at once, or (settle) after lifting the sphere
+    out of the terrain and waiting until nothing changes any more. Returns
+    (last acknowledged tick, lane, heights of the mirror at that ACK)."""
+    asyncio.get_running_loop().set_exception_handler(lambda loop, context: None)
+    c = RecordingClient(owner.ws, name="cluster-driver", keep=1)
+    await c.connect()
+    w = c.world
+    lane = (0, w["height"] // 2 - 32, w["width"], 64)
+    await c.subscribe(*lane)
+    await c.wait_for(lambda: all(m.complete for m in c.mirrors.values()), 30)
+    cid = await c.create_collider("sphere", radius=0.4)
+    cs, upm = w["cell_size_m"], w["units_per_m"]
+    mirror = next(iter(c.mirrors.values()))
+    x, y, vx = 1.0, (lane[1] + 32) * cs, 4.0
+    t_end = time.monotonic() + run_s
+    while time.monotonic() < t_end:
+        x += vx / 60
+        if x < 0.5 or x > w["width"] * cs - 0.5:
+            vx = -vx
+        cx, cy = int(x / cs), int(y / cs) - mirror.y
+        ground = mirror.heights[cy * mirror.w + cx] / upm
+        await c.send_poses([tp.Pose(cid, x, y, ground + 0.25, 1, 0, 0, 0)])
+        await asyncio.sleep(1 / 60)
+    if settle:
+        await c.send_poses([tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)])
+        await asyncio.sleep(0.7)
+    owner.kill9()
+    await asyncio.sleep(0.3)
+    copy = c.history.get(c.acked_tick)
+    try:
+        await c.close()
+    except Exception:  # noqa: BLE001
+        pass
+    heights = next(iter(copy.values()))[0] if copy else None
+    return c.acked_tick, lane, heights
+
+
+def failover_round(k, nodes):
+    owner = owner_of(nodes, "dunes")
+    if not check(owner is not None, f"round {k}: dunes has an owner"):
+        return
+    volume = owner.stats()["volume"]
+    settle = k % 2 == 0
+    acked, lane, heights = asyncio.run(drive_and_kill(owner, rand.uniform(1.0, 2.5), settle))
+    t_kill = time.monotonic()
+    check(heights is not None, f"round {k}: the client had an acknowledged mirror")
+    new = owner_of([n for n in nodes if n is not owner], "dunes", timeout=30)
+    took = time.monotonic() - t_kill
+    if not check(new is not None, f"round {k}: another node serves dunes after the kill"):
+        return
+    check(took < 10, f"round {k}: node {new.name} serves dunes {took:.1f} s after the kill")
+    st = new.stats()
+    check(st["tick"] >= acked, f"round {k}: recovered tick {st['tick']} >= the last tick the "
+          f"client saw acknowledged ({acked}): nothing acknowledged is lost")
+    check(st["volume"] == volume, f"round {k}: Σh {st['volume']} == before ({volume})")
+    global exact
+    if heights is not None and settle:
+        exact += 1
+        check(new.heights(*lane) == heights, f"round {k}: GET /v1/heights on {new.name} equals "
+              f"the client's mirror of its last acknowledged tick {acked} (the terrain had "
+              "settled before the kill)")
+    print(f"round {k}: killed {owner.name} (client saw tick {acked}); {new.name} serves dunes "
+          f"{took:.1f} s later at tick {st['tick']}", flush=True)
+    owner.start()  # back, as a standby
+
+
+def fencing(nodes):
+    owner = owner_of(nodes, "spheres")
+    if not check(owner is not None, "spheres has an owner"):
+        return
+    owner.proc.send_signal(signal.SIGSTOP)
+    new = owner_of([n for n in nodes if n is not owner], "spheres", timeout=30)
+    check(new is not None, f"another node takes spheres while {owner.name} is stopped")
+    before = len(owner.lines)
+    owner.proc.send_signal(signal.SIGCONT)
+    deadline = time.monotonic() + 15
+    said = False
+    while time.monotonic() < deadline and not said:
+        said = any("no longer owns world spheres" in l for l in owner.lines[before:])
+        time.sleep(0.1)
+    check(said, f"after SIGCONT, {owner.name} says it no longer owns spheres")
+    time.sleep(1)
+    check(owner.proc.poll() is None and any("is a standby" in l for l in owner.lines[before:]),
+          f"{owner.name} waits again as a standby")
+    if new:
+        t0 = new.stats()["tick"]
+        time.sleep(0.5)
+        check(new.stats()["tick"] > t0, f"{new.name} keeps ticking spheres")
+
+
+async def hello_world(node, world):
+    """A raw hello naming a world: (the first answer, the close code or None)."""
+    import websockets
+    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
+    hello = dict(tp.hello("", "world-check"), world=world)
+    await ws.send(json.dumps(hello))
+    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
+    code = None
+    try:
+        await asyncio.wait_for(ws.recv(), 3)
+    except websockets.ConnectionClosed as e:
+        code = e.code
+    except asyncio.TimeoutError:
+        pass
+    await ws.close()
+    return answer, code
+
+
+def hello_names_the_world(nodes):
+    owner = owner_of(nodes, "dunes")
+    if not check(owner is not None, "dunes has an owner"):
+        return
+    answer, code = asyncio.run(hello_world(owner, "dunes"))
+    check(answer.get("type") == "world" and answer.get("world") == "dunes" and code is None,
+          f"a hello naming dunes gets the world message naming dunes ({answer}, {code})")
+    status, body = owner.get("/v1/world")
+    check(json.loads(body).get("world") == "dunes", f"/v1/world names dunes ({body[:300]!r})")
+    answer, code = asyncio.run(hello_world(owner, "spheres"))
+    check(answer.get("type") == "error" and "serves world \"dunes\"" in answer.get("message", "")
+          and code == 4005, f"a hello naming spheres is refused, naming dunes ({answer}, {code})")
+
+
+def bad_input(urls):
+    p = subprocess.run([BIN, "serve", "--cluster", urls, "--world", "nope", "--http-port", "0",
+                        "--ws-port", "0", "--backend", "cpu"], capture_output=True, text=True,
+                       timeout=60)
+    check(p.returncode == 1 and 'no world named "nope"' in p.stderr,
+          f"a world that does not exist: exit 1 naming it ({p.returncode}, {p.stderr[-200:]!r})")
+    url = f"nats://127.0.0.1:{ch.free_port()}"
+    p = subprocess.run([BIN, "serve", "--cluster", url, "--http-port", "0", "--ws-port", "0",
+                        "--backend", "cpu"], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 1 and url in p.stderr,
+          f"NATS unreachable: exit 1 naming {url} ({p.returncode}, {p.stderr[-200:]!r})")
+
+
+exact = 0
+
+
+def main():
+    if ch.NATS_SERVER is None:
+        skip("nats-server is not installed")
+    nodes = []
+    with ch.NatsCluster(3) as nats:
+        try:
+            urls = nats.urls
+            for name, scene in (("dunes", "server/scene/default.json"),
+                                ("spheres", "tests/scenes/spheres.json")):
+                p = subprocess.run([BIN, "world", "add", name, "--scene",
+                                    os.path.join(SOURCE, scene), "--cluster", urls],
+                                   capture_output=True, text=True, timeout=60)
+                check(p.returncode == 0, f"world add {name}: {p.stderr.strip()}")
+            bad_input(urls)
+            nodes = [Node(f"n{i}", urls) for i in range(3)]
+            a, b = owner_of(nodes, "dunes", 30), owner_of(nodes, "spheres", 30)
+            check(a is not None and b is not None and a is not b,
+                  "two nodes own the two worlds, one each")
+            time.sleep(1)
+            check(sum(1 for n in nodes if n.world) == 2, "the third node is a standby")
+            hello_names_the_world(nodes)
+            for k in range(KILLS):
+                failover_round(k, nodes)
+            check(exact >= 1 or KILLS == 0, f"{exact} exact comparisons with the client's mirror")
+            fencing(nodes)
+        except Exception:  # noqa: BLE001
+            import traceback
+            check(False, "the test raised:\n" + traceback.format_exc())
+        finally:
+            codes = [n.stop() for n in nodes]
+            check(all(c == 0 for c in codes), f"SIGTERM stops every node with status 0 ({codes})")
+            if check.failed:
+                for n in nodes:
+                    n.print_log()
+                print(nats.logs())
+    check.finish()
+
+
+if __name__ == "__main__":
+    main()

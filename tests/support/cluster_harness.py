@@ -1,0 +1,220 @@
+"""NATS servers for the cluster tests and scripts/cluster (docs/cluster.md):
+start 1 or 3 real nats-server processes with JetStream on loopback, each
+with its own store directory and server name (3: one cluster "terrad",
+routes between all), wait until each accepts connections and JetStream
+answers, and stop them (SIGTERM, or SIGKILL for a crash). Also Node, one
+`terrad serve --cluster` process whose log says which world it owns and on
+which ports.
+
+Not a test itself (ctest registers only test_*.py). Run with /usr/bin/python3.
+"""
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import tempfile
+import threading
+import time
+import urllib.request
+
+NATS_SERVER = shutil.which("nats-server")
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def port_open(port):
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
+class NatsServer:
+    """One nats-server; start() may be called again after stop()/kill() (same
+    ports, same store directory: a restart)."""
+
+    def __init__(self, name, store_dir, port=None, cluster_port=None):
+        self.name = name
+        self.store_dir = store_dir
+        self.port = port or free_port()
+        self.cluster_port = cluster_port or free_port()
+        self.routes = []
+        self.proc = None
+        self.log_path = os.path.join(store_dir, "nats.log")
+
+    @property
+    def url(self):
+        return f"nats://127.0.0.1:{self.port}"
+
+    def start(self):
+        os.makedirs(self.store_dir, exist_ok=True)
+        args = [NATS_SERVER, "-js", "-sd", self.store_dir, "-a", "127.0.0.1", "-p", str(self.port),
+                "--server_name", self.name, "-l", self.log_path]
+        if self.routes:
+            args += ["--cluster_name", "terrad", "--cluster",
+                     f"nats://127.0.0.1:{self.cluster_port}", "--routes", ",".join(self.routes)]
+        self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL)
+
+    def wait_listening(self, timeout=10):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"{self.name} exited with {self.proc.returncode}:\n{self.log()}")
+            if port_open(self.port):
+                return
+            time.sleep(0.05)
+        raise RuntimeError(f"{self.name} does not listen on {self.port}:\n{self.log()}")
+
+    def alive(self):
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, sig=signal.SIGTERM, timeout=10):
+        if self.alive():
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode if self.proc else None
+
+    def kill(self):
+        return self.stop(signal.SIGKILL)
+
+    def log(self, tail=30):
+        try:
+            with open(self.log_path, errors="replace") as f:
+                return "".join(f.readlines()[-tail:])
+        except OSError:
+            return ""
+
+
+class NatsCluster:
+    """n (1 or 3) servers in root (default: a temporary directory, removed by
+    stop()); base_port: client ports base_port.., cluster ports base_port+10..
+    (default: free ports)."""
+
+    def __init__(self, n=3, root=None, base_port=None):
+        if NATS_SERVER is None:
+            raise FileNotFoundError("nats-server")
+        self.root = root or tempfile.mkdtemp(prefix="terrad-nats-")
+        self.own_root = root is None
+        self.servers = [NatsServer(f"n{i}", os.path.join(self.root, f"n{i}"),
+                                   base_port + i if base_port else None,
+                                   base_port + 10 + i if base_port else None) for i in range(n)]
+        if n > 1:
+            for s in self.servers:
+                s.routes = [f"nats://127.0.0.1:{o.cluster_port}" for o in self.servers if o is not s]
+
+    @property
+    def urls(self):
+        return ",".join(s.url for s in self.servers)
+
+    def start(self, timeout=20):
+        for s in self.servers:
+            s.start()
+        for s in self.servers:
+            s.wait_listening(timeout)
+        return self
+
+    def stop(self):
+        for s in self.servers:
+            s.stop()
+        if self.own_root:
+            shutil.rmtree(self.root, ignore_errors=True)
+
+    def logs(self):
+        return "\n".join(f"---- {s.name} ----\n{s.log()}" for s in self.servers)
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+# ---- terrad nodes ---------------------------------------------------------------
+
+SERVING_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/ and ws://127\.0\.0\.1:(\d+)/")
+OWNS_RE = re.compile(r"node (\S+) owns world (\S+)")
+
+
+def binary():
+    from service_harness import BIN  # the one place that knows where terrad is
+    return BIN
+
+
+class Node:
+    """One `terrad serve --cluster` process; its stderr is read by a thread
+    that notes, run after run (a node that loses its world starts again in
+    the same process), which world it owns and on which ports."""
+
+    def __init__(self, name, urls):
+        self.name = name
+        self.urls = urls
+        self.lines = []
+        self.start()
+
+    def start(self):
+        self.world = self.http = self.ws = None
+        self.serving = threading.Event()
+        self.proc = subprocess.Popen(
+            [binary(), "serve", "--cluster", self.urls, "--node", self.name, "--http-port", "0",
+             "--ws-port", "0", "--backend", "cpu", "--no-demo"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True, errors="replace")
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stderr:
+            self.lines.append(line)
+            m = OWNS_RE.search(line)
+            if m:
+                self.world = m.group(2)
+            m = SERVING_RE.search(line)
+            if m:
+                self.http = f"http://127.0.0.1:{m.group(1)}"
+                self.ws = f"ws://127.0.0.1:{m.group(2)}/"
+                self.serving.set()
+            if "is a standby" in line:
+                self.world = self.http = self.ws = None
+                self.serving.clear()
+
+    def get(self, path):
+        with urllib.request.urlopen(self.http + path, timeout=10) as r:
+            return r.status, r.read()
+
+    def stats(self):
+        return json.loads(self.get("/v1/stats")[1])
+
+    def heights(self, x, y, w, h):
+        body = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")[1]
+        return list(struct.unpack(f"<{w * h}i", body))
+
+    def kill9(self):
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def print_log(self, tail=40):
+        print(f"---- node {self.name}, last {tail} lines ----\n" + "".join(self.lines[-tail:]))

@@ -1,0 +1,133 @@
+/*
+ * nats_test.h: real nats-server processes for the cluster unit tests and
+ * bench_cluster (test_cluster*.c, bench_cluster.c): each on free loopback ports with
+ * JetStream and its own store directory under one temporary root; n > 1
+ * servers form the cluster "terrad" with routes to each other. The Python
+ * tests and scripts/cluster use cluster_harness.py (beside this file).
+ */
+#ifndef TERRAD_TEST_NATS_H
+#define TERRAD_TEST_NATS_H
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+static inline int nats_installed(void)
+{
+    return system("command -v nats-server >/dev/null 2>&1") == 0;
+}
+
+static char tmp_root[96];
+
+static inline void nats_tmp_root(const char *test)
+{
+    snprintf(tmp_root, sizeof tmp_root, "/tmp/%s-%d", test, (int)getpid());
+}
+
+static inline void nats_tmp_remove(void)
+{
+    char cmd[160];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", tmp_root);
+    if (system(cmd) != 0)
+        printf("could not remove %s\n", tmp_root);
+}
+
+typedef struct nats_proc {
+    pid_t pid;
+    int port, cluster_port;
+    char dir[192];
+} nats_proc;
+
+static inline int free_port(void)
+{
+    int fd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    socklen_t len = sizeof a;
+    if (fd < 0 || bind(fd, (struct sockaddr *)&a, sizeof a) != 0 ||
+        getsockname(fd, (struct sockaddr *)&a, &len) != 0)
+        exit(2);
+    close(fd);
+    return ntohs(a.sin_port);
+}
+
+static inline int port_open(int port)
+{
+    int fd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET,
+                            .sin_port = htons((uint16_t)port),
+                            .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    int ok = fd >= 0 && connect(fd, (struct sockaddr *)&a, sizeof a) == 0;
+    if (fd >= 0)
+        close(fd);
+    return ok;
+}
+
+/* Starts server i of n (n > 1: clustered with routes to the others). */
+static inline void nats_start(nats_proc *all, int i, int n)
+{
+    nats_proc *p = &all[i];
+    char port[16], name[16], cluster[64], routes[256] = "", log[256];
+    snprintf(port, sizeof port, "%d", p->port);
+    snprintf(name, sizeof name, "n%d", i);
+    snprintf(cluster, sizeof cluster, "nats://127.0.0.1:%d", p->cluster_port);
+    snprintf(log, sizeof log, "%s/log", p->dir);
+    for (int j = 0; j < n; j++) {
+        if (j == i)
+            continue;
+        size_t at = strlen(routes);
+        snprintf(routes + at, sizeof routes - at, "%snats://127.0.0.1:%d", at ? "," : "",
+                 all[j].cluster_port);
+    }
+    char mkdir[256];
+    snprintf(mkdir, sizeof mkdir, "mkdir -p %s", p->dir);
+    if (system(mkdir) != 0)
+        exit(2);
+    p->pid = fork();
+    if (p->pid == 0) {
+        if (n > 1)
+            execlp("nats-server", "nats-server", "-js", "-sd", p->dir, "-a", "127.0.0.1", "-p",
+                   port, "--server_name", name, "-l", log, "--cluster_name", "terrad", "--cluster",
+                   cluster, "--routes", routes, (char *)NULL);
+        else
+            execlp("nats-server", "nats-server", "-js", "-sd", p->dir, "-a", "127.0.0.1", "-p",
+                   port, "--server_name", name, "-l", log, (char *)NULL);
+        _exit(127);
+    }
+    for (int k = 0; k < 200 && !port_open(p->port); k++)
+        usleep(25000);
+}
+
+static inline void nats_stop(nats_proc *p, int sig)
+{
+    if (p->pid <= 0)
+        return;
+    kill(p->pid, sig);
+    waitpid(p->pid, NULL, 0);
+    p->pid = 0;
+}
+
+static inline void nats_init(nats_proc *all, int n)
+{
+    for (int i = 0; i < n; i++) {
+        all[i].port = free_port();
+        all[i].cluster_port = free_port();
+        snprintf(all[i].dir, sizeof all[i].dir, "%s/n%d-%d", tmp_root, n, i);
+    }
+}
+
+static inline void urls_of(const nats_proc *all, int n, char *out, size_t cap)
+{
+    out[0] = '\0';
+    for (int i = 0; i < n; i++) {
+        size_t at = strlen(out);
+        snprintf(out + at, cap - at, "%snats://127.0.0.1:%d", i ? "," : "", all[i].port);
+    }
+}
+
+#endif
