@@ -66,7 +66,8 @@ static void set_aside(const recover_state *s, const char *path)
     if (!(s->a->flags & STORE_RECOVER_REPAIR))
         return;
     char lost[1200];
-    snprintf(lost, sizeof lost, "%s.lost", path);
+    if (snprintf(lost, sizeof lost, "%.1190s.lost", path) >= (int)sizeof lost)
+        return; /* cannot happen: paths here are under 1,100 bytes */
     if (rename(path, lost) == 0)
         log_error("store: %s renamed %s", path, lost);
 }
