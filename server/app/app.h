@@ -35,6 +35,10 @@ void app_loadgen_usage(FILE *out);
 void app_fsck_usage(FILE *out);
 void app_world_usage(FILE *out);
 
+/* The scene at scene_path (NULL: the embedded default) and its world. On
+ * failure nothing is held. */
+int app_open_scene_world(const char *scene_path, scene *sc, world *w, error_text *err);
+
 /* "gl" or "cpu". */
 sim_backend *app_backend_create(const char *name, error_text *err);
 

@@ -55,15 +55,9 @@ int app_fsck(int argc, char **argv)
         return parsed == CLI_HELP ? 0 : 2;
     error_text err = {{0}};
     scene sc;
-    if ((o.scene_path ? scene_load_file(o.scene_path, &sc, &err) : scene_load_default(&sc, &err)) !=
-        0) {
-        log_error("%s", err.message);
-        return 1;
-    }
     world w;
-    if (scene_create_world(&sc, &w, &err) != 0) {
+    if (app_open_scene_world(o.scene_path, &sc, &w, &err) != 0) {
         log_error("%s", err.message);
-        scene_free(&sc);
         return 1;
     }
     store_recovery rec;

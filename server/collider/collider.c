@@ -282,3 +282,22 @@ void collider_motion_free(collider_motion *m)
     m->keyframes = NULL;
     m->keyframe_count = 0;
 }
+
+double collider_reach(const collider_geometry *g)
+{
+    switch (g->shape) {
+    case COLLIDER_SPHERE:
+        return g->radius;
+    case COLLIDER_CAPSULE:
+        return g->half_length + g->radius;
+    case COLLIDER_CYLINDER:
+        return sqrt(g->half_length * g->half_length + g->radius * g->radius);
+    case COLLIDER_BOX: {
+        vec3d h = g->half_extents;
+        return sqrt(h.x * h.x + h.y * h.y + h.z * h.z);
+    }
+    case COLLIDER_MESH:
+        return g->mesh ? g->mesh->bounding_radius : 0.0;
+    }
+    return 0.0;
+}

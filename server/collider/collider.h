@@ -74,6 +74,8 @@ vec3d quat_rotate(quatd q, vec3d v);
 
 /* World-space axis-aligned bounds of the collider at a pose. */
 void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi);
+/* Largest distance of any point of the collider from its position (metres). */
+double collider_reach(const collider_geometry *g);
 
 /*
  * CPU twin depth stage: for each cell of `window` (world cell coordinates),

@@ -275,23 +275,6 @@ int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, 
     return added;
 }
 
-static double fixed_reach(const collider_geometry *g)
-{
-    switch (g->shape) {
-    case COLLIDER_SPHERE:
-        return g->radius;
-    case COLLIDER_CAPSULE:
-        return g->half_length + g->radius;
-    case COLLIDER_CYLINDER:
-        return sqrt(g->half_length * g->half_length + g->radius * g->radius);
-    case COLLIDER_BOX:
-        return sqrt(g->half_extents.x * g->half_extents.x + g->half_extents.y * g->half_extents.y +
-                    g->half_extents.z * g->half_extents.z);
-    default:
-        return 0.0;
-    }
-}
-
 int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
                            double cell_size_m, int32_t units_per_m, collider_fixed *out)
 {
@@ -312,7 +295,7 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
     /* S: as fine as 1/65536 unit while every offset the rule meets (the
      * shape's reach and two cells) stays under 2^29 fixed units, so every
      * product and square below fits in int64 */
-    double extent = (fixed_reach(g) + 2.0 * cell_size_m) * (double)units_per_m;
+    double extent = (collider_reach(g) + 2.0 * cell_size_m) * (double)units_per_m;
     int s = 16;
     while (s > 0 && extent * ldexp(1.0, s) >= ldexp(1.0, 29))
         s--;

@@ -17,26 +17,6 @@
 
 #include <math.h>
 
-/* Largest distance of any point of the collider from its position. */
-static double reach(const collider_geometry *g)
-{
-    switch (g->shape) {
-    case COLLIDER_SPHERE:
-        return g->radius;
-    case COLLIDER_CAPSULE:
-        return g->half_length + g->radius;
-    case COLLIDER_CYLINDER:
-        return sqrt(g->half_length * g->half_length + g->radius * g->radius);
-    case COLLIDER_BOX: {
-        vec3d h = g->half_extents;
-        return sqrt(h.x * h.x + h.y * h.y + h.z * h.z);
-    }
-    case COLLIDER_MESH:
-        return g->mesh ? g->mesh->bounding_radius : 0.0;
-    }
-    return 0.0;
-}
-
 int collider_sweep_steps(const collider_geometry *g, collider_pose from, collider_pose to,
                          double cell_size_m)
 {
@@ -48,7 +28,7 @@ int collider_sweep_steps(const collider_geometry *g, collider_pose from, collide
     double dot = fabs(a.w * b.w + a.x * b.x + a.y * b.y + a.z * b.z);
     double angle = dot >= 1.0 ? 0.0 : 2.0 * acos(dot); /* rotation from a to b, radians */
     /* a point at distance R from the position travels at most |Δp| + R θ */
-    double travel = sqrt(dx * dx + dy * dy + dz * dz) + reach(g) * angle;
+    double travel = sqrt(dx * dx + dy * dy + dz * dz) + collider_reach(g) * angle;
     double steps = ceil(travel / (0.5 * cell_size_m));
     if (!(steps >= 1.0)) /* also NaN */
         return 1;

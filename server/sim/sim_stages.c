@@ -524,36 +524,6 @@ static int32_t slope_flux_row(const ground_material_row *row, int32_t hc, int32_
     return mul_q16_shift(excess, row->roughness_q16, 19);
 }
 
-void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
-                                     const uint8_t *ids, int w, int h, const int32_t *cls,
-                                     int32_t *heights, int32_t *scratch)
-{
-    int n = w * h;
-    int32_t *next = scratch;
-    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int i = y * w + x;
-                int32_t hi = heights[i];
-                const ground_material_row *ri = row_of(t, ids, i);
-                int32_t out = 0, in = 0;
-                for (int j = 0; j < 8; j++) {
-                    int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
-                    if (qx < 0 || qy < 0 || qx >= w || qy >= h)
-                        continue;
-                    int q = qy * w + qx;
-                    if (cls[q] == SIM_CELL_SEED)
-                        out += slope_flux_row(ri, hi, heights[q], j >= 4);
-                    if (cls[i] == SIM_CELL_SEED)
-                        in += slope_flux_row(row_of(t, ids, q), heights[q], hi, j >= 4);
-                }
-                next[i] = hi - out + in;
-            }
-        }
-        memcpy(heights, next, (size_t)n * sizeof *heights);
-    }
-}
-
 /* One cell's Jacobi update of slope evening: its height after one iteration
  * given the heights before it (the formula of sim_even_slopes_materials_dense). */
 static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, int w, int h,
@@ -575,6 +545,21 @@ static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, in
             in += slope_flux_row(row_of(t, ids, q), heights[q], hi, j >= 4);
     }
     return hi - out + in;
+}
+
+void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
+                                     const uint8_t *ids, int w, int h, const int32_t *cls,
+                                     int32_t *heights, int32_t *scratch)
+{
+    int n = w * h;
+    int32_t *next = scratch;
+    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        for (int y = 0; y < h; y++) {
+            for (int x = 0; x < w; x++)
+                next[y * w + x] = slope_next(t, ids, w, h, cls, heights, x, y);
+        }
+        memcpy(heights, next, (size_t)n * sizeof *heights);
+    }
 }
 
 /* Can slope_next change cell (x, y)? Only if some flux of its formula has a
