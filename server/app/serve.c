@@ -234,7 +234,11 @@ static int serve_start_engine(serve_daemon *d, error_text *err)
         !(d->svc = service_create(d->engine, d->h, err)))
         return -1;
     if (d->st)
-        service_attach_store(d->svc, d->st, d->recovery.tick_floor);
+        /* go on from the recovered tick, or past it where the store says a
+         * client may have seen later (unlogged idle) ticks */
+        service_attach_store(d->svc, d->st,
+                             d->recovery.tick_floor > d->recovery.tick ? d->recovery.tick_floor
+                                                                       : d->recovery.tick);
     d->status.volume = service_volume(d->svc);
     d->status.tick = service_current_tick(d->svc);
     return 0;
