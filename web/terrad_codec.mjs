@@ -18,7 +18,7 @@ export const ERRORS = {
   not_owner: 7, limit_colliders: 8, limit_subscriptions: 9, rate_limited: 10, outside_world: 11,
   bad_json: 12, unauthorized: 13, refused_height_limit: 14, store_unavailable: 15,
   bad_compression: 16, stale_base: 17, unsupported_collider: 18, unknown_subscription: 19,
-  shutting_down: 20, internal: 21,
+  shutting_down: 20, internal: 21, forbidden: 22,
 };
 const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12, COLLIDER_STATE_SIZE = 48;
 const FOOTPRINT_SIZE = 24;

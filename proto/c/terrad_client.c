@@ -575,6 +575,10 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     info.gid = -1;
     info.uid = -1;
     info.user = c;
+    if (d.tls) {
+        info.options |= LWS_SERVER_OPTION_DO_SSL_GLOBAL_INIT;
+        info.client_ssl_ca_filepath = d.tls_ca_file; /* NULL: OpenSSL's default CA paths */
+    }
     c->ctx = lws_create_context(&info);
     if (!c->ctx || !c->codec) {
         set_err(c, "cannot create the libwebsockets context");
@@ -593,6 +597,7 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     ci.protocol = TERRAD_PROTO_SUBPROTOCOL;
     ci.local_protocol_name = TERRAD_PROTO_SUBPROTOCOL;
     ci.pwsi = &c->wsi;
+    ci.ssl_connection = d.tls ? LCCSCF_USE_SSL : 0;
     if (!lws_client_connect_via_info(&ci)) {
         if (!c->err[0])
             set_err(c, "cannot connect to %s:%d", host, ci.port);

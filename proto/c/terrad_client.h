@@ -98,6 +98,12 @@ typedef struct terrad_client_desc {
     terrad_client_log_fn log; /* optional; NULL: the client logs nothing */
     int log_level;            /* messages up to this level reach log; 0: TERRAD_LOG_INFO */
     int lws_log_levels;       /* libwebsockets' LLL_* bits to stderr; 0: silent; or KEEP */
+    /* TLS (a daemon started with --tls-cert): 1 connects with wss://, the
+     * server's certificate checked against tls_ca_file (a PEM file, e.g. a
+     * self-signed certificate itself) or, when that is NULL, the system's CAs;
+     * its name must match host. 0: plain ws:// */
+    int tls;
+    const char *tls_ca_file;
 } terrad_client_desc;
 
 /* The world message (PROTOCOL.md "world"); limits not listed keep their defaults. */

@@ -44,6 +44,7 @@ static const char *const err_names[] = {
     "unknown_subscription",
     "shutting_down",
     "internal",
+    "forbidden",
 };
 
 const char *terrad_err_name(int code)

@@ -87,12 +87,13 @@ typedef enum terrad_proto_err {
     TERRAD_E_UNKNOWN_SUBSCRIPTION = 19,
     TERRAD_E_SHUTTING_DOWN = 20,
     TERRAD_E_INTERNAL = 21,
+    TERRAD_E_FORBIDDEN = 22, /* the token's role may not do this (a viewer creating a collider) */
     TERRAD_E_BUFFER_TOO_SMALL = -1, /* local: the caller's output buffer is too small */
     TERRAD_E_NO_MEMORY = -2,        /* local: an allocation failed */
 } terrad_proto_err;
 
 #define TERRAD_ERR_FIRST 1
-#define TERRAD_ERR_LAST 21
+#define TERRAD_ERR_LAST 22
 
 /* "bad_frame" etc.; "ok" for 0; NULL for an unknown code. */
 const char *terrad_err_name(int code);

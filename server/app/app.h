@@ -24,6 +24,7 @@ int app_bench(int argc, char **argv);   /* `terrad bench --trade` (bench_trade.c
 int app_loadgen(int argc, char **argv); /* load generator for a running daemon (loadgen.c) */
 int app_fsck(int argc, char **argv);    /* check a data directory without starting (fsck.c) */
 int app_world(int argc, char **argv);   /* `terrad world add|list|remove` (world_cmd.c) */
+int app_token(int argc, char **argv);   /* `terrad token add|hash`: the auth file (token_cmd.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -34,6 +35,7 @@ void app_bench_usage(FILE *out);
 void app_loadgen_usage(FILE *out);
 void app_fsck_usage(FILE *out);
 void app_world_usage(FILE *out);
+void app_token_usage(FILE *out);
 
 /* The scene at scene_path (NULL: the embedded default) and its world. On
  * failure nothing is held. */

@@ -4,8 +4,9 @@
  * (poses → windows → deformation → scatter; docs/design.md), publishing a
  * status block that the HTTP thread reads. A tick that overruns its period is
  * counted, and the loop does not try to catch up by running ticks back to
- * back. SIGINT and SIGTERM finish the current tick and stop cleanly; SIGHUP is logged and
- * ignored. /healthz fails when the tick loop or the net thread stops moving (serve_watch_threads).
+ * back. SIGINT and SIGTERM finish the current tick and stop cleanly; SIGHUP reads the
+ * --auth-file again between two ticks (serve_security.c). /healthz fails when the tick loop or the
+ * net thread stops moving (serve_watch_threads).
  *
  * app_serve reads as the daemon's life: open the world (scene, base terrain,
  * recovered store) → start the threads (hub, HTTP, engine and service, net)
@@ -34,8 +35,9 @@
 static volatile sig_atomic_t stop_requested;
 static volatile sig_atomic_t hangup_seen;
 
-/* SIGHUP (a closed terminal, a log rotation's nudge) must not kill a daemon:
- * noted here, logged by the tick loop (the log is stderr: nothing to reopen). */
+/* SIGHUP (a closed terminal, a log rotation's nudge, an operator's reload) must not
+ * kill a daemon: noted here; the tick loop reads the auth file again (the log is
+ * stderr: nothing to reopen). */
 static void on_hangup(int sig)
 {
     (void)sig;
@@ -67,6 +69,7 @@ typedef struct serve_daemon {
     net_server *net;
     http_server *http;
     hub *h;
+    auth_table *auth; /* NULL: no tokens, every client an admin (serve_security.c) */
     char models[64];
     serve_cluster cluster; /* --cluster: the world this node owns */
     int lost_world;        /* the cluster gave the world to another node */
@@ -265,6 +268,9 @@ static int serve_start_net(serve_daemon *d, error_text *err)
     net_config nc = {.port = d->o.ws_port,
                      .bind_any = d->o.bind_any,
                      .token = d->o.token,
+                     .auth = d->auth,
+                     .tls_cert = d->o.tls_cert,
+                     .tls_key = d->o.tls_key,
                      .limits = d->o.limits,
                      .world = {.width = w->width,
                                .height = w->height,
@@ -291,7 +297,9 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "serve: out of memory");
         return -1;
     }
-    if (!(d->http = http_server_start(d->o.http_port, d->o.bind_any, &d->status, d->h, err)))
+    http_security sec = {.auth = d->auth, .tls_cert = d->o.tls_cert, .tls_key = d->o.tls_key};
+    if (!(d->http = http_server_start_secure(d->o.http_port, d->o.bind_any, &d->status, d->h, NULL,
+                                             &sec, err)))
         return -1;
     http_server_set_base(d->http, &d->w); /* the base never changes once the world is made */
     if (serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
@@ -315,10 +323,12 @@ static int serve_start(serve_daemon *d, error_text *err)
     serve_catch_signals();
     signal(SIGPIPE, SIG_IGN);
 
+    int tls = d->o.tls_cert && d->o.tls_cert[0];
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
-             "http://127.0.0.1:%d/ and ws://127.0.0.1:%d/",
+             "%s://127.0.0.1:%d/ and %s://127.0.0.1:%d/",
              d->sc.name, d->w.width, d->w.height, d->backend->name, d->o.demo_actors,
-             http_server_port(d->http), net_server_port(d->net));
+             tls ? "https" : "http", http_server_port(d->http), tls ? "wss" : "ws",
+             net_server_port(d->net));
     return 0;
 }
 
@@ -359,7 +369,7 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
         publish_metrics(&stats, d->engine, d->svc, &d->w);
         if (hangup_seen) {
             hangup_seen = 0;
-            log_info("SIGHUP received: ignored (the log is stderr; stop with SIGTERM)");
+            serve_security_reload(&d->o, d->auth);
         }
         if (d->cluster.cs && serve_cluster_check(&d->cluster) != 0) {
             log_warn("cluster: this node no longer owns world %s (%s): stopping, to wait again "
@@ -385,6 +395,7 @@ static void serve_stop(serve_daemon *d)
         hub_close_reads(d->h);
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
+    auth_free(d->auth); /* after both servers: they check tokens against it */
     service_destroy(d->svc);
     store_close(d->st);
     serve_cluster_leave(&d->cluster);
@@ -428,7 +439,7 @@ int app_serve(int argc, char **argv)
     int rc = parsed == CLI_HELP ? 0 : parsed == CLI_ERROR ? 2 : 1;
     error_text err = {{0}};
     if (parsed == CLI_OK) {
-        if (serve_open_world(d, &err) == 0) {
+        if (serve_security_open(&d->o, &d->auth, &err) == 0 && serve_open_world(d, &err) == 0) {
             serve_status_init(d);
             if (serve_start(d, &err) == 0 && serve_run_ticks(d, &err) == 0)
                 rc = 0;

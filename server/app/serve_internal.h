@@ -30,9 +30,11 @@ typedef struct serve_options {
     int bind_any;
     int insecure_open; /* --insecure-open: --bind-any without any token is allowed */
     int demo_actors;
-    double tick_hz;    /* 0: the scene's */
-    const char *token; /* NULL: no token required */
-    long max_ticks;    /* < 0: run until signalled */
+    double tick_hz;                 /* 0: the scene's */
+    const char *token;              /* NULL: no token required (deprecated: one admin token) */
+    const char *auth_file;          /* --auth-file: tokens' hashes and roles, reread on SIGHUP */
+    const char *tls_cert, *tls_key; /* --tls-cert, --tls-key: wss:// and https:// only */
+    long max_ticks;                 /* < 0: run until signalled */
     net_limits limits;
     const char *data_dir;     /* NULL: memory only (--no-data, or a demo without --data) */
     int data_given;           /* --data, or "data" in --config */
@@ -49,12 +51,26 @@ typedef struct serve_options {
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
         config_token[SERVE_CONFIG_STRING_MAX], config_data[SERVE_CONFIG_STRING_MAX],
-        config_durability[64], config_store_fault[SERVE_CONFIG_STRING_MAX];
+        config_durability[64], config_store_fault[SERVE_CONFIG_STRING_MAX],
+        config_auth_file[SERVE_CONFIG_STRING_MAX], config_tls_cert[SERVE_CONFIG_STRING_MAX],
+        config_tls_key[SERVE_CONFIG_STRING_MAX];
 } serve_options;
 
 /* The command line (argv[0] = "serve"); fills o with the defaults first.
  * CLI_OK, CLI_HELP (printed) or CLI_ERROR (printed). */
 cli_result serve_options_parse(int argc, char **argv, serve_options *o);
+
+/* ---- who may connect, and how (serve_security.c) ---- */
+
+/* Before any port opens: the TLS pair checked (a bad file named), the auth
+ * table read (a malformed line named). *auth NULL when neither a file nor a
+ * token was given. 0, or -1 with err. */
+int serve_security_open(const serve_options *o, auth_table **auth, error_text *err);
+/* SIGHUP: read the auth file again (a bad file is logged and the old
+ * tokens kept); the net thread then closes connections of revoked tokens. */
+void serve_security_reload(const serve_options *o, auth_table *auth);
+/* Reads a config's "auth_file", "tls_cert" and "tls_key" into o. */
+int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 
 /* ---- cluster mode (serve_cluster.c) ---- */
 

@@ -36,6 +36,9 @@ enum {
     OPT_CLUSTER,
     OPT_NODE,
     OPT_WORLD,
+    OPT_AUTH_FILE,
+    OPT_TLS_CERT,
+    OPT_TLS_KEY,
 };
 
 static const cli_option serve_table[] = {
@@ -52,8 +55,8 @@ static const cli_option serve_table[] = {
                      "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},
     [OPT_BIND_ANY] = {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)"},
     [OPT_TOKEN] = {"token", "T",
-                   "clients must send this token in hello (default: none); deprecated on\n"
-                   "the command line (every local user can read it): use the config key"},
+                   "one admin token clients send in hello (default: none); deprecated:\n"
+                   "every local user can read the command line; use --auth-file"},
     [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
     [OPT_DEMO_ACTORS] = {"demo-actors", "N",
                          "built-in spheres sliding over the terrain, 0..256 (default 6)"},
@@ -93,6 +96,12 @@ static const cli_option serve_table[] = {
                    "--cluster: the world to tick (registered with terrad world add);\n"
                    "default: the first registered world whose lease is free.\n"
                    "A node waits (a standby) until it can take one"},
+    [OPT_AUTH_FILE] = {"auth-file", "FILE",
+                       "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
+                       "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"
+                       "and closes connections of revoked tokens"},
+    [OPT_TLS_CERT] = {"tls-cert", "FILE", "PEM certificate (chain): both ports TLS only"},
+    [OPT_TLS_KEY] = {"tls-key", "FILE", "PEM private key of --tls-cert"},
     {0},
 };
 
@@ -218,7 +227,8 @@ static int config_load(const char *path, serve_options *o, error_text *err)
         "scene",     "backend",    "token",       "data",
         "no_data",   "durability", "store_fault", "wal_segment_bytes",
         "http_port", "ws_port",    "bind_any",    "demo_actors",
-        "tick_hz",   "limits",     NULL};
+        "tick_hz",   "limits",     "auth_file",   "tls_cert",
+        "tls_key",   NULL};
     uint8_t *text = NULL;
     size_t len = 0;
     if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
@@ -240,7 +250,8 @@ static int config_load(const char *path, serve_options *o, error_text *err)
                       &o->durability, err) ||
         config_string(doc, "store_fault", o->config_store_fault, sizeof o->config_store_fault,
                       &o->store_fault, err) ||
-        config_numbers(doc, o, err) || config_limits(doc, &o->limits, err)) {
+        serve_security_config(doc, o, err) || config_numbers(doc, o, err) ||
+        config_limits(doc, &o->limits, err)) {
         error_prefix(err, path, ": ");
         goto done;
     }
@@ -270,8 +281,17 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return 0;
     case OPT_TOKEN:
         log_warn("serve: --token on the command line is deprecated (every local user can read "
-                 "/proc/PID/cmdline): put \"token\" in the --config file");
+                 "/proc/PID/cmdline): use --auth-file (terrad token add)");
         o->token = value;
+        return 0;
+    case OPT_AUTH_FILE:
+        o->auth_file = value;
+        return 0;
+    case OPT_TLS_CERT:
+        o->tls_cert = value;
+        return 0;
+    case OPT_TLS_KEY:
+        o->tls_key = value;
         return 0;
     case OPT_DATA:
         o->data_dir = value;
@@ -367,9 +387,11 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
         o->data_dir = NULL;
         o->demo_in_memory = 1;
     }
-    if (r == CLI_OK && o->bind_any && !(o->token && o->token[0]) && !o->insecure_open) {
+    if (r == CLI_OK && o->bind_any && !(o->token && o->token[0]) &&
+        !(o->auth_file && o->auth_file[0]) && !o->insecure_open) {
         log_error("serve: --bind-any without a token would let anyone who can reach the ports "
-                  "deform the world: set \"token\" in the --config file, or pass --insecure-open");
+                  "deform the world: give --auth-file (terrad token add), or pass "
+                  "--insecure-open");
         return CLI_ERROR;
     }
     return r;

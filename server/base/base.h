@@ -170,4 +170,48 @@ void thread_owner_check(const thread_owner *o, const char *function);
 #define THREAD_OWNED(owner) ((void)(owner))
 #endif
 
+/* ---- Authentication (auth.c) ----
+ * Who may do what: a table of tokens, each known only by its SHA-256, with
+ * a role and a name, read from an auth file (README "Security"): one line
+ * per token, "ROLE NAME SHA256HEX", '#' comments. The daemon's deprecated
+ * single token, when set, is one more entry: admin, named "token". Any
+ * thread may check a token; auth_reload (SIGHUP) swaps the entries in under
+ * a lock and bumps the generation, so the net thread can close connections
+ * whose token went away. Empty (no file, no token): auth is off and every
+ * client is an admin, as before roles existed. */
+typedef enum auth_role { AUTH_NONE = 0, AUTH_VIEWER, AUTH_DRIVER, AUTH_ADMIN } auth_role;
+#define AUTH_NAME_MAX 64
+#define AUTH_TOKEN_PREFIX "tdk_" /* what terrad token add makes: never mistaken for a hash */
+typedef struct auth_table auth_table;
+
+/* NULL on out of memory. path may be NULL (only the legacy token). Reads the
+ * file: -1 with err naming the file and line when it is malformed. */
+auth_table *auth_create(const char *path, const char *legacy_token, error_text *err);
+void auth_free(auth_table *t);
+/* Read the file again: 0 and the new entries in place, or -1 with err and the old ones kept. */
+int auth_reload(auth_table *t, error_text *err);
+int auth_enabled(const auth_table *t);         /* 1 once a file or a token was given */
+int auth_count(const auth_table *t);           /* tokens known now */
+unsigned auth_generation(const auth_table *t); /* bumped by every successful reload */
+/* The role of a presented token (AUTH_NONE: unknown), its entry's name into name
+ * (may be NULL), and its hash into hash (may be NULL), for auth_role_of_hash. */
+auth_role auth_check(auth_table *t, const char *token, char *name, size_t name_cap,
+                     unsigned char hash[32]);
+/* The role the entry with this hash has now (AUTH_NONE once revoked). */
+auth_role auth_role_of_hash(auth_table *t, const unsigned char hash[32]);
+const char *auth_role_name(auth_role r);
+auth_role auth_role_parse(const char *name); /* AUTH_NONE if not a role */
+/* The SHA-256 of token as 64 lowercase hex digits. */
+void auth_hash_hex(const char *token, char out[65]);
+/* A fresh random token (AUTH_TOKEN_PREFIX + 43 base64url characters); -1 without entropy. */
+int auth_new_token(char *out, size_t cap);
+/* One line of an auth file: 1 for an entry, 0 for a blank or comment line, -1 with err. */
+int auth_parse_line(const char *line, auth_role *role, char *name, unsigned char hash[32],
+                    error_text *err);
+
+/* ---- TLS files (tls.c) ----
+ * Checks a certificate and its private key before any port opens: each
+ * readable, PEM, and the key the certificate's. -1 with err naming the file. */
+int tls_check_pair(const char *cert_path, const char *key_path, error_text *err);
+
 #endif

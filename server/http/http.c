@@ -20,6 +20,7 @@
  * break keep-alive for probes and the viewer.
  */
 #include "http/http.h"
+#include "http/http_internal.h"
 
 #include <arpa/inet.h>
 #include <stdatomic.h>
@@ -57,6 +58,8 @@ struct http_server {
     pthread_mutex_t watch_lock; /* watches are added while MHD's threads serve */
     http_watch watches[HTTP_MAX_WATCHES];
     int nwatches;
+    auth_table *auth; /* the data endpoints' gate (http_auth.c) */
+    http_tls tls;
 };
 
 /* Per-request state, created by the URI log callback (which sees the raw
@@ -656,6 +659,12 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return snap.ready ? respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ready\n")
                           : respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "%s", why);
     }
+    if (strcmp(url, "/v1/stats") == 0 || strcmp(url, "/v1/world") == 0 ||
+        strcmp(url, "/v1/heights") == 0) {
+        struct MHD_Response *refusal = http_auth_refusal(c, s->auth);
+        if (refusal)
+            return queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
+    }
     if (strcmp(url, "/v1/stats") == 0)
         return serve_stats(c, &snap);
     if (strcmp(url, "/v1/world") == 0)
@@ -698,8 +707,9 @@ static unsigned or_default(unsigned v, unsigned d)
     return v ? v : d;
 }
 
-http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
-                                       const http_limits *limits, error_text *err)
+http_server *http_server_start_secure(int port, int bind_any, http_status *status, hub *heights,
+                                      const http_limits *limits, const http_security *sec,
+                                      error_text *err)
 {
     if (port < 0 || port > 65535) {
         error_set(err, "http: port %d out of range", port);
@@ -712,6 +722,11 @@ http_server *http_server_start_limited(int port, int bind_any, http_status *stat
     }
     s->status = status;
     s->heights = heights;
+    s->auth = sec ? sec->auth : NULL;
+    if (http_tls_load(&s->tls, sec, err) != 0) {
+        free(s);
+        return NULL;
+    }
     pthread_mutex_init(&s->watch_lock, NULL);
     http_limits l = limits ? *limits : (http_limits){0};
     l.connections = or_default(l.connections, HTTP_DEFAULT_CONNECTIONS);
@@ -731,21 +746,30 @@ http_server *http_server_start_limited(int port, int bind_any, http_status *stat
     addr.sin_port = htons((uint16_t)port);
     addr.sin_addr.s_addr = htonl(bind_any ? INADDR_ANY : INADDR_LOOPBACK);
     s->daemon = MHD_start_daemon(
-        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO, (uint16_t)port, NULL, NULL, handle, s,
+        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO | (http_tls_on(&s->tls) ? MHD_USE_TLS : 0),
+        (uint16_t)port, NULL, NULL, handle, s, MHD_OPTION_ARRAY, s->tls.options,
         MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr, MHD_OPTION_THREAD_POOL_SIZE, (unsigned)4,
         MHD_OPTION_CONNECTION_LIMIT, l.connections, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
         l.connections_per_ip, MHD_OPTION_CONNECTION_TIMEOUT, l.timeout_s,
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, l.memory_per_connection, MHD_OPTION_URI_LOG_CALLBACK,
         request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s, MHD_OPTION_END);
     if (!s->daemon) {
-        error_set(err, "http: cannot listen on port %d (in use or not permitted)", port);
+        error_set(err, "http: cannot listen on port %d (in use or not permitted%s)", port,
+                  http_tls_on(&s->tls) ? ", or GnuTLS refused the certificate and key" : "");
         pthread_mutex_destroy(&s->watch_lock);
+        http_tls_free(&s->tls);
         free(s);
         return NULL;
     }
     const union MHD_DaemonInfo *info = MHD_get_daemon_info(s->daemon, MHD_DAEMON_INFO_BIND_PORT);
     s->port = info ? info->port : port;
     return s;
+}
+
+http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
+                                       const http_limits *limits, error_text *err)
+{
+    return http_server_start_secure(port, bind_any, status, heights, limits, NULL, err);
 }
 
 http_server *http_server_start(int port, int bind_any, http_status *status, hub *heights,
@@ -770,5 +794,6 @@ void http_server_stop(http_server *s)
         return;
     MHD_stop_daemon(s->daemon);
     pthread_mutex_destroy(&s->watch_lock);
+    http_tls_free(&s->tls);
     free(s);
 }

@@ -25,6 +25,11 @@
  *   /v1/openapi.yaml  this API in OpenAPI 3 (docs/openapi.yaml, embedded)
  *   /, /<file>        the embedded web/ files ("/" is web/index.html)
  * Every error is JSON {"error": "..."}.
+ *
+ * With auth on (http_security.auth), /v1/world, /v1/stats and /v1/heights
+ * need "Authorization: Bearer TOKEN" (any role), else 401; the probes,
+ * /metrics, /v1/openapi.yaml and the viewer's files stay open. With a TLS
+ * pair every endpoint is HTTPS only (libmicrohttpd's GnuTLS).
  */
 #ifndef TERRAD_HTTP_H
 #define TERRAD_HTTP_H
@@ -89,6 +94,15 @@ http_server *http_server_start(int port, int bind_any, http_status *status, hub 
 /* The same with explicit limits (NULL = defaults). */
 http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
                                        const http_limits *limits, error_text *err);
+/* Who may read and how the bytes travel; all fields optional. */
+typedef struct http_security {
+    auth_table *auth;               /* NULL or not enabled: no token needed; outlives the server */
+    const char *tls_cert, *tls_key; /* both: HTTPS only (checked with tls_check_pair first) */
+} http_security;
+/* The same with a token gate and TLS (sec NULL: neither). */
+http_server *http_server_start_secure(int port, int bind_any, http_status *status, hub *heights,
+                                      const http_limits *limits, const http_security *sec,
+                                      error_text *err);
 /* The world whose base terrain (world_base_fill_rect: immutable once the
  * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
 void http_server_set_base(http_server *s, const world *w);

@@ -165,6 +165,7 @@ static int memory_part_count;
 void metrics_reset(void)
 {
     pthread_once(&stage_once, stage_hist_init);
+    metrics_auth_reset();
     SET(bytes_in, 0);
     SET(bytes_out, 0);
     SET(messages_in, 0);
@@ -723,6 +724,8 @@ char *metrics_render(size_t *len)
     render_service(&t);
     render_memory(&t);
     char process[2048];
+    if (metrics_auth_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (t.failed) {

@@ -85,6 +85,14 @@ void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t byt
 #define METRICS_SERVICE_DROP_REASONS "frame", "snapshot", "poses", "command", "contact", "deltas"
 void metrics_count_service_dropped(const char *reason);
 
+/* terrad_auth_refused_total{reason} (metrics_auth.c): bad_token (hello or HTTP
+ * without a known token), forbidden (a role without the right), revoked (an
+ * open connection whose token a reload removed). */
+#define METRICS_AUTH_REASONS "bad_token", "forbidden", "revoked"
+void metrics_count_auth_refused(const char *reason);
+void metrics_auth_reset(void);
+int metrics_auth_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
 #define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)

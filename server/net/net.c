@@ -267,6 +267,7 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     atomic_store(&s->last_beat_ms, time_now_ms());
     net_reap_dead_peers(&s->st);
     net_flush_backlog(&s->st);
+    net_auth_recheck(&s->st);
     if (atomic_load(&s->stop_requested) && !s->stopping) {
         drain_hub(s);
         begin_shutdown(s);
@@ -625,6 +626,7 @@ static void server_free(net_server *s)
     free(s->st.poses);
     cJSON_Delete(s->st.models);
     cJSON_Delete(s->st.materials);
+    net_auth_stop(&s->st);
     free(s->st.token);
     free(s->st.models_json);
     free(s->st.materials_json);
@@ -673,6 +675,7 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.materials_json = dup_or_null(c->world.materials_json);
     s->st.server_name = strdup(c->server_name ? c->server_name : "terrad/0.1.0");
     s->st.cfg.token = s->st.token;
+    s->st.cfg.tls_cert = s->st.cfg.tls_key = NULL; /* lws reads the files before start returns */
     s->st.cfg.world.models_json = s->st.models_json;
     s->st.cfg.world.materials_json = s->st.materials_json;
     s->st.cfg.server_name = s->st.server_name;
@@ -686,7 +689,7 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
                                                  "world.materials_json", err)
                                    : NULL;
     if (!s->st.models || !s->st.materials || !s->st.poses || !s->st.server_name ||
-        (c->world.name && !s->st.world_name)) {
+        (c->world.name && !s->st.world_name) || net_auth_start(&s->st, err) != 0) {
         if (!s->st.poses || !s->st.server_name || (c->world.name && !s->st.world_name))
             error_set(err, "net: out of memory");
         server_free(s);
@@ -707,10 +710,16 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     info.user = s;
     info.options = c->bind_any ? 0 : LWS_SERVER_OPTION_DISABLE_IPV6;
     info.pt_serv_buf_size = 65536;
+    if (c->tls_cert && c->tls_key) { /* wss:// only: a plain upgrade fails the TLS handshake */
+        info.options |= LWS_SERVER_OPTION_DO_SSL_GLOBAL_INIT;
+        info.ssl_cert_filepath = c->tls_cert;
+        info.ssl_private_key_filepath = c->tls_key;
+    }
     s->ctx = lws_create_context(&info);
     if (!s->ctx) {
-        error_set(err, "net: cannot listen on %s port %d (in use, or not allowed)",
-                  c->bind_any ? "every address," : "127.0.0.1", c->port);
+        error_set(err, "net: cannot listen on %s port %d (in use, not allowed%s)",
+                  c->bind_any ? "every address," : "127.0.0.1", c->port,
+                  c->tls_cert ? ", or the TLS certificate and key refused" : "");
         server_free(s);
         return NULL;
     }

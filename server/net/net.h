@@ -54,7 +54,14 @@ typedef struct net_world_info {
 typedef struct net_config {
     int port;          /* 0: pick a free port (see net_server_port) */
     int bind_any;      /* 0: loopback only */
-    const char *token; /* NULL or "": no token needed */
+    const char *token; /* NULL or "": no token needed (the deprecated single admin token) */
+    /* who may do what (base.h "Authentication"): shared with the HTTP side and
+     * reloaded on SIGHUP by its owner, which frees it after net_server_stop.
+     * NULL: a table of .token alone, made and freed here. */
+    auth_table *auth;
+    /* both set: wss:// only (libwebsockets' OpenSSL), the pair already checked
+     * with tls_check_pair; a plain ws:// upgrade on the port fails its handshake */
+    const char *tls_cert, *tls_key;
     net_limits limits;
     net_world_info world;
     const char *server_name; /* world.server; NULL = "terrad/0.1.0" */

@@ -50,6 +50,11 @@ typedef struct net_client {
     struct lws *wsi;
     net_state *srv;
     int ready; /* hello accepted */
+    /* what its hello's token allows (net_auth.c), the token's entry name for
+     * log lines and its hash, looked up again after each reload */
+    auth_role role;
+    char auth_name[AUTH_NAME_MAX + 1];
+    unsigned char token_hash[32];
     char peer[64];
     char name[72];
 
@@ -112,6 +117,9 @@ typedef struct net_collider_slot {
 struct net_state {
     thread_owner owner; /* the net thread: claimed when it starts, released when it ends */
     net_config cfg;
+    auth_table *auth; /* cfg.auth, or one of cfg.token alone (own_auth) */
+    int own_auth;
+    unsigned auth_generation; /* the table's, when the clients' roles were last checked */
     char *token, *models_json, *materials_json, *server_name, *world_name;
     cJSON *models, *materials;
     hub *hub;

@@ -383,6 +383,16 @@ static int parse_id(parser *r, int required, net_control *out)
     return 0;
 }
 
+/* collider_delete's optional "any_owner": an admin deleting another client's collider. */
+static int parse_any_owner(parser *r, net_control *out)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(r->msg, "any_owner");
+    if (v && !cJSON_IsBool(v))
+        return fail(r, TERRAD_E_BAD_VALUE, "any_owner: must be true or false");
+    out->any_owner = cJSON_IsTrue(v);
+    return 0;
+}
+
 /* ---- the message ---- */
 
 static const struct {
@@ -441,6 +451,10 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
             rc = parse_collider_create(&r, out);
             break;
         case NET_CONTROL_COLLIDER_DELETE:
+            rc = parse_id(&r, 1, out);
+            if (rc == 0)
+                rc = parse_any_owner(&r, out);
+            break;
         case NET_CONTROL_UNSUBSCRIBE:
             rc = parse_id(&r, 1, out);
             break;

@@ -60,6 +60,7 @@ typedef struct net_control {
     /* collider_delete, unsubscribe, resync (id 0 and has_id 0: all) */
     uint32_t id;
     int has_id;
+    int any_owner; /* collider_delete: an admin's delete of any client's collider */
     /* subscribe: inside the world */
     world_rect rect;
     int colliders, footprints;

@@ -42,15 +42,6 @@ static void ref_text(const cJSON *ref, char *out, size_t cap)
 
 /* ---- hello ---- */
 
-static int token_equal(const char *a, const char *b)
-{
-    size_t na = strlen(a), nb = strlen(b);
-    unsigned char diff = (unsigned char)(na != nb);
-    for (size_t i = 0; i < na; i++)
-        diff |= (unsigned char)(a[i] ^ b[i % (nb ? nb : 1)]);
-    return diff == 0;
-}
-
 static cJSON *world_message(net_state *s, const net_client *c)
 {
     const net_world_info *w = &s->cfg.world;
@@ -96,11 +87,8 @@ static cJSON *world_message(net_state *s, const net_client *c)
 static void handle_hello(net_client *c, const net_control *m)
 {
     net_state *s = c->srv;
-    if (s->token && !token_equal(m->token, s->token)) {
-        net_error(c, TERRAD_E_UNAUTHORIZED, m->ref, -1, 1, "token: wrong token");
-        net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "unauthorized");
+    if (net_auth_hello(c, m->token, m->ref) != 0)
         return;
-    }
     const char *serves = s->cfg.world.name;
     if (serves && m->world[0] && strcmp(m->world, serves) != 0) {
         /* a cluster node ticks one world: the client is sent to look for another node */
@@ -123,7 +111,11 @@ static void handle_hello(net_client *c, const net_control *m)
     hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = c->id};
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     net_push_must(s, &cmd);
-    log_info("net: client %u (%s) said hello as \"%s\"", c->id, c->peer, c->name);
+    if (auth_enabled(s->auth))
+        log_info("net: client %u (%s) said hello as \"%s\", token \"%s\" (role %s)", c->id, c->peer,
+                 c->name, c->auth_name, auth_role_name(c->role));
+    else
+        log_info("net: client %u (%s) said hello as \"%s\"", c->id, c->peer, c->name);
 }
 
 /* ---- collider_create ---- */
@@ -234,30 +226,40 @@ static void handle_collider_create(net_client *c, net_control *m)
 
 /* ---- collider_delete ---- */
 
-/* The slot of one of c's colliders, or NULL after an error was sent. */
-static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
+/* The slot of one of c's colliders (any client's when any_owner), or NULL
+ * after an error was sent. */
+static net_collider_slot *owned_by(net_client *c, uint32_t id, const cJSON *ref, int any_owner)
 {
     net_collider_slot *slot = net_collider_find(c->srv, id);
     if (!slot) {
         net_error(c, TERRAD_E_UNKNOWN_COLLIDER, ref, id, 0, "collider %u does not exist", id);
         return NULL;
     }
-    if (slot->owner != c->id) {
+    if (slot->owner != c->id && !any_owner) {
         net_error(c, TERRAD_E_NOT_OWNER, ref, id, 0, "collider %u belongs to another client", id);
         return NULL;
     }
     return slot;
 }
 
+static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
+{
+    return owned_by(c, id, ref, 0);
+}
+
+/* With "any_owner" (an admin's, refused for other roles before this) another
+ * client's collider is deleted in its owner's name (the sim removes a collider
+ * for its owner only); the owner's budgets get it back. */
 static void handle_collider_delete(net_client *c, const net_control *m)
 {
     uint32_t id = m->id;
-    net_collider_slot *slot = owned(c, id, m->ref);
+    net_collider_slot *slot = owned_by(c, id, m->ref, m->any_owner);
     if (!slot)
         return;
     int64_t cells = slot->cells;
     int triangles = slot->triangles;
-    hub_command cmd = {.kind = HUB_COLLIDER_DELETE, .client = c->id, .collider = id};
+    net_client *owner = slot->owner == c->id ? c : net_find_client(c->srv, slot->owner);
+    hub_command cmd = {.kind = HUB_COLLIDER_DELETE, .client = slot->owner, .collider = id};
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(c->srv, &cmd) != 0) {
         net_error(c, TERRAD_E_INTERNAL, m->ref, id, 0,
@@ -265,14 +267,19 @@ static void handle_collider_delete(net_client *c, const net_control *m)
         return;
     }
     net_collider_remove(c->srv, id);
-    c->active_cells -= cells;
-    c->mesh_triangles -= triangles;
     hub_forget_pose(c->srv->hub, id);
-    for (int i = 0; i < c->collider_count; i++)
-        if (c->colliders[i] == id) {
-            c->colliders[i] = c->colliders[--c->collider_count];
-            break;
-        }
+    if (owner) {
+        if (owner != c)
+            log_info("net: client %u (admin \"%s\") deleted collider %u of client %u", c->id,
+                     c->auth_name, id, owner->id);
+        owner->active_cells -= cells;
+        owner->mesh_triangles -= triangles;
+        for (int i = 0; i < owner->collider_count; i++)
+            if (owner->colliders[i] == id) {
+                owner->colliders[i] = owner->colliders[--owner->collider_count];
+                break;
+            }
+    }
     cJSON *rep = reply("collider_deleted", m->ref);
     cJSON_AddNumberToObject(rep, "id", (double)id);
     net_send_json(c, rep);
@@ -380,6 +387,14 @@ static int refused_by_state(net_client *c, const net_control *m)
         net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 0, "hello: already received");
         return 1;
     }
+    if (m->kind == NET_CONTROL_COLLIDER_CREATE &&
+        !net_auth_allows(c, AUTH_DRIVER, "collider_create", m->ref))
+        return 1;
+    if (m->kind == NET_CONTROL_COLLIDER_DELETE &&
+        !net_auth_allows(c, m->any_owner ? AUTH_ADMIN : AUTH_DRIVER,
+                         m->any_owner ? "collider_delete with any_owner" : "collider_delete",
+                         m->ref))
+        return 1;
     if (m->kind == NET_CONTROL_COLLIDER_CREATE && c->collider_count >= l->max_colliders) {
         net_error(c, TERRAD_E_LIMIT_COLLIDERS, m->ref, -1, 0,
                   "this client already has max_colliders (%d) colliders", l->max_colliders);
@@ -540,7 +555,8 @@ void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
     }
     switch (h.type) {
     case TERRAD_MSG_POSE_BATCH:
-        handle_pose_batch(c, data, len);
+        if (net_auth_allows(c, AUTH_DRIVER, "POSE_BATCH", NULL))
+            handle_pose_batch(c, data, len);
         return;
     case TERRAD_MSG_PING:
     case TERRAD_MSG_PONG: {

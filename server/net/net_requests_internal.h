@@ -16,4 +16,17 @@ void net_handle_text(net_client *c, const char *text, size_t len);
 /* A binary message (POSE_BATCH, PING, PONG). */
 void net_handle_binary(net_client *c, const unsigned char *data, size_t len);
 
+/* ---- who may do what (net_auth.c) ---- */
+/* s->auth: cfg.auth, or a table of cfg.token alone. 0, or -1 with err. */
+int net_auth_start(net_state *s, error_text *err);
+void net_auth_stop(net_state *s);
+/* A hello's token: 0 with c's role set, or -1 after an unauthorized error and close. */
+int net_auth_hello(net_client *c, const char *token, const cJSON *ref);
+/* 1 when c's role is at least `needed`; else 0 after a forbidden error naming
+ * the role and `what` (and the metric). */
+int net_auth_allows(net_client *c, auth_role needed, const char *what, const cJSON *ref);
+/* After a reload (the table's generation moved): each client's role looked up
+ * again; a client whose token is gone is closed (4013). Heartbeat, net thread. */
+void net_auth_recheck(net_state *s);
+
 #endif

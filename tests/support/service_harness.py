@@ -37,7 +37,7 @@ os.environ["PYTHONPATH"] = os.pathsep.join(
 
 import terrad as tp  # noqa: E402
 
-PORTS_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*ws://127\.0\.0\.1:(\d+)/")
+PORTS_RE = re.compile(r"(https?)://127\.0\.0\.1:(\d+)/.*wss?://127\.0\.0\.1:(\d+)/")
 
 
 # ---- pass/fail ---------------------------------------------------------------
@@ -144,6 +144,11 @@ class Daemon:
                                      env=None if env is None else {**os.environ, **env})
         self.pid = self.proc.pid
         self.http_port = self.ws_port = None
+        self.tls = False
+        # HTTP reads: the token sent as "Authorization: Bearer" (the data endpoints need
+        # one when auth is on) and, for a daemon with --tls-cert, an ssl.SSLContext
+        self.http_token = token
+        self.ssl_context = None
         got = threading.Event()
 
         def reader():
@@ -152,7 +157,8 @@ class Daemon:
                 if self.http_port is None:
                     m = PORTS_RE.search(line)
                     if m:
-                        self.http_port, self.ws_port = int(m.group(1)), int(m.group(2))
+                        self.tls = m.group(1) == "https"
+                        self.http_port, self.ws_port = int(m.group(2)), int(m.group(3))
                         got.set()
             got.set()
 
@@ -162,8 +168,8 @@ class Daemon:
         if self.http_port is None:
             self.stop()
             raise RuntimeError(f"{name}: the daemon did not print its ports:\n" + self.log())
-        self.http = f"http://127.0.0.1:{self.http_port}"
-        self.ws = f"ws://127.0.0.1:{self.ws_port}/"
+        self.http = f"{'https' if self.tls else 'http'}://127.0.0.1:{self.http_port}"
+        self.ws = f"{'wss' if self.tls else 'ws'}://127.0.0.1:{self.ws_port}/"
 
     def log(self, tail=80):
         return "".join(self.lines[-tail:])
@@ -218,9 +224,14 @@ class Daemon:
         return None
 
     # HTTP ------------------------------------------------------------------
-    def get(self, path, timeout=10):
+    def get(self, path, timeout=10, token=None):
+        """(status, body, headers); token: "Authorization: Bearer" (default self.http_token)."""
+        req = urllib.request.Request(self.http + path)
+        token = self.http_token if token is None else token
+        if token:
+            req.add_header("Authorization", f"Bearer {token}")
         try:
-            with urllib.request.urlopen(self.http + path, timeout=timeout) as r:
+            with urllib.request.urlopen(req, timeout=timeout, context=self.ssl_context) as r:
                 return r.status, r.read(), r.headers
         except urllib.error.HTTPError as e:
             return e.code, e.read(), e.headers

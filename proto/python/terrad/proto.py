@@ -102,6 +102,7 @@ ERRORS = {
     19: "unknown_subscription",
     20: "shutting_down",
     21: "internal",
+    22: "forbidden",
 }
 ERROR_CODES = {name: code for code, name in ERRORS.items()}
 
