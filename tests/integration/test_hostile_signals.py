@@ -1,6 +1,7 @@
 #!/usr/bin/python3
 """Signals (issue 15, item 10): SIGHUP must not kill the daemon (it killed it
-before: clients saw 1006); it is logged and ignored, and a connected client
+before: clients saw 1006); it is logged (it reads an --auth-file again, which
+test_auth_roles covers; without one nothing else happens), and a connected client
 carries on. SIGTERM with subscribed clients and demo actors deforming the
 world stops the daemon with status 0 (the harness gives it a generous 30 s).
 """
