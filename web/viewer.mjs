@@ -8,6 +8,10 @@ const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
 const httpPort = Number(location.port || (location.protocol === 'https:' ? 443 : 80));
 const wsPort = Number(params.get('ws')) || httpPort + 1;
+// A daemon with tokens (README "Security"): open the viewer as /#token=tdk_… — the fragment never
+// reaches a server or its logs; the token goes in the hello and as a bearer token to /v1/*.
+const token = new URLSearchParams(location.hash.slice(1)).get('token') || '';
+const apiInit = { cache: 'no-store', headers: token ? { Authorization: `Bearer ${token}` } : {} };
 const wsUrl = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.hostname}:${wsPort}/`;
 const MAX_FULL = 512 * 512; // whole world when it is at most this many cells: every chunk at full detail
 const WINDOW = 1024; // else a WINDOW x WINDOW subscription around the camera target, chunked LoD
@@ -53,7 +57,7 @@ function connect() {
   ws = sock;
   sock.onopen = () => {
     if (ws !== sock) return;
-    send(P.hello('', 'terrad-web'));
+    send(P.hello(token, 'terrad-web'));
   };
   sock.onmessage = (ev) => {
     if (ws !== sock) return;
@@ -179,7 +183,7 @@ function markDirty(m, rects) {
 // (or if it cannot) the window's first snapshot stands in.
 async function fetchBase(r) {
   try {
-    const res = await fetch(`/v1/heights?x=${r.x}&y=${r.y}&w=${r.w}&h=${r.h}&base=1`, { cache: 'no-store' });
+    const res = await fetch(`/v1/heights?x=${r.x}&y=${r.y}&w=${r.w}&h=${r.h}&base=1`, apiInit);
     if (!res.ok) return;
     const buf = await res.arrayBuffer();
     const v = new DataView(buf), n = r.w * r.h;
@@ -877,7 +881,7 @@ function fmtBytes(n) {
 }
 async function pollStats() {
   try {
-    const r = await fetch('/v1/stats', { cache: 'no-store' });
+    const r = await fetch('/v1/stats', apiInit);
     const text = await r.text();
     const s = JSON.parse(text);
     // Σh as the exact integer from the JSON text (JSON.parse would round past 2^53)

@@ -186,6 +186,12 @@ def start_refusals(check, tmp):
           f"({p.returncode})")
     with open(good) as f:
         check("tdk_" not in f.read(), "the auth file holds no plain token")
+    conf = os.path.join(tmp, "conf.json")
+    with open(conf, "w") as f:
+        json.dump({"auth_file": good, "bind_any": True}, f)
+    p = subprocess.run(base + ["--config", conf], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 0 and "1 tokens from " + good in p.stderr,
+          f"the config key auth_file is read ({p.returncode})")
 
 
 def main():

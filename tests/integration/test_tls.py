@@ -13,6 +13,7 @@ error naming the file.
 """
 # ctest-timeout: 180
 import asyncio
+import json
 import os
 import shutil
 import ssl
@@ -51,6 +52,12 @@ def start_refusals(check, tmp, cert, key, other_key):
         ("another certificate's key", ["--tls-cert", cert, "--tls-key", other_key], other_key),
         ("a certificate without a key", ["--tls-cert", cert], "--tls-key"),
     ]
+    conf = os.path.join(tmp, "conf.json")
+    with open(conf, "w") as f:
+        json.dump({"tls_cert": cert, "tls_key": key}, f)
+    p = subprocess.run(base + ["--config", conf], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 0 and "TLS on both ports" in p.stderr and "https://" in p.stderr,
+          f"the config keys tls_cert and tls_key are read ({p.returncode})")
     for what, args, named in cases:
         p = subprocess.run(base + args, capture_output=True, text=True, timeout=60)
         check(p.returncode != 0 and named in p.stderr,
