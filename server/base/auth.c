@@ -26,6 +26,7 @@ typedef struct auth_entry {
     unsigned char hash[32];
     auth_role role;
     char name[AUTH_NAME_MAX + 1];
+    int line; /* in the file, for the repeated-entry message */
 } auth_entry;
 
 struct auth_table {
@@ -165,6 +166,48 @@ int auth_parse_line(const char *line, auth_role *role, char *name, unsigned char
     return 1;
 }
 
+static int by_name(const void *a, const void *b)
+{
+    const auth_entry *x = *(const auth_entry *const *)a, *y = *(const auth_entry *const *)b;
+    int c = strcmp(x->name, y->name);
+    return c ? c : x->line - y->line;
+}
+
+static int by_hash(const void *a, const void *b)
+{
+    const auth_entry *x = *(const auth_entry *const *)a, *y = *(const auth_entry *const *)b;
+    int c = memcmp(x->hash, y->hash, 32);
+    return c ? c : x->line - y->line;
+}
+
+/* A name or hash given twice (sorted, so a reload of thousands of lines stays
+ * well inside a tick): -1 with err naming the later line. */
+static int check_repeats(const char *path, auth_entry *e, int n, error_text *err)
+{
+    if (n < 2)
+        return 0;
+    const auth_entry **p = malloc((size_t)n * sizeof *p);
+    if (!p) {
+        error_set(err, "%s: out of memory", path);
+        return -1;
+    }
+    int rc = 0;
+    for (int pass = 0; pass < 2 && rc == 0; pass++) {
+        for (int i = 0; i < n; i++)
+            p[i] = &e[i];
+        qsort(p, (size_t)n, sizeof *p, pass == 0 ? by_name : by_hash);
+        for (int i = 1; i < n && rc == 0; i++)
+            if (pass == 0 ? strcmp(p[i - 1]->name, p[i]->name) == 0
+                          : memcmp(p[i - 1]->hash, p[i]->hash, 32) == 0) {
+                error_set(err, "%s: line %d: token %s repeats line %d's %s", path, p[i]->line,
+                          p[i]->name, p[i - 1]->line, pass == 0 ? "name" : "hash");
+                rc = -1;
+            }
+    }
+    free(p);
+    return rc;
+}
+
 /* The file's entries into *out (malloc'd), or -1 with err naming file and line. */
 static int read_file(const char *path, auth_entry **out, int *count, error_text *err)
 {
@@ -184,12 +227,7 @@ static int read_file(const char *path, auth_entry **out, int *count, error_text 
         auth_entry a;
         error_text why = {{0}};
         int r = auth_parse_line(line, &a.role, a.name, a.hash, &why);
-        for (int i = 0; r == 1 && i < n; i++)
-            if (strcmp(e[i].name, a.name) == 0 || CRYPTO_memcmp(e[i].hash, a.hash, 32) == 0) {
-                error_set(&why, "token %s repeats line %d's %s", a.name, i + 1,
-                          strcmp(e[i].name, a.name) == 0 ? "name" : "hash");
-                r = -1;
-            }
+        a.line = line_no;
         if (r < 0) {
             error_set(err, "%s: line %d: %s", path, line_no, why.message);
             rc = -1;
@@ -210,6 +248,8 @@ static int read_file(const char *path, auth_entry **out, int *count, error_text 
     }
     OPENSSL_cleanse(text, len);
     free(text);
+    if (rc == 0)
+        rc = check_repeats(path, e, n, err);
     if (rc != 0) {
         free(e);
         return -1;
