@@ -53,6 +53,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
     if (w->name) /* cluster mode only: a single daemon's world message is unchanged */
         cJSON_AddStringToObject(m, "world", w->name);
     cJSON_AddNumberToObject(m, "client_id", c->id);
+    cJSON_AddStringToObject(m, "role", auth_role_name(c->role));
     cJSON_AddNumberToObject(m, "width", w->width);
     cJSON_AddNumberToObject(m, "height", w->height);
     cJSON_AddNumberToObject(m, "cell_size_m", w->cell_size_m);

@@ -67,6 +67,8 @@ async def roles(check, d, tok, path):
     for c in (viewer, d1, d2, admin):
         await c.connect()
     try:
+        check([c.world.get("role") for c in (viewer, d1, d2, admin)] ==
+              ["viewer", "driver", "driver", "admin"], "the world message names the role")
         sid = await viewer.subscribe(0, 0, 64, 64)
         await viewer.wait_complete(sid, timeout=30)
         check(True, "a viewer subscribes and gets its snapshot")
