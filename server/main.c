@@ -35,7 +35,8 @@ static void print_help(void)
         printf("\n");
     }
     printf("environment:\n"
-           "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n");
+           "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n"
+           "  TERRAD_TOKEN=T   loadgen's token for a daemon with --auth-file (a driver's)\n");
 }
 
 int main(int argc, char **argv)

@@ -163,8 +163,10 @@ static int client_start(lg_client *k, const char *host, int port, long wheels)
     char err[256];
     char name[32];
     snprintf(name, sizeof name, "loadgen-%d", k->index);
+    /* a daemon with tokens: $TERRAD_TOKEN (a driver's), never a flag that /proc shows */
     k->c = terrad_client_connect((terrad_client_desc){.host = host,
                                                       .port = port,
+                                                      .token = getenv("TERRAD_TOKEN"),
                                                       .name = name,
                                                       .timeout_ms = 30000,
                                                       .hook = on_frame,

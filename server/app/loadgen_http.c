@@ -41,8 +41,12 @@ static int http_get(const lg_http *h, const char *path, char **body, size_t *len
     int s = socket(ai->ai_family, ai->ai_socktype, ai->ai_protocol);
     int ok = s >= 0 && connect(s, ai->ai_addr, ai->ai_addrlen) == 0;
     freeaddrinfo(ai);
-    char req[512];
-    int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\nHost: %s\r\n\r\n", path, h->host);
+    char req[1024];
+    const char *token =
+        getenv("TERRAD_TOKEN"); /* the data endpoints need it on a daemon with tokens */
+    int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\nHost: %s\r\n%s%.300s%s\r\n", path,
+                     h->host, token && *token ? "Authorization: Bearer " : "", token ? token : "",
+                     token && *token ? "\r\n" : "");
     if (!ok || write(s, req, (size_t)n) != n) {
         if (s >= 0)
             close(s);
