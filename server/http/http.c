@@ -659,12 +659,9 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return snap.ready ? respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ready\n")
                           : respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "%s", why);
     }
-    if (strcmp(url, "/v1/stats") == 0 || strcmp(url, "/v1/world") == 0 ||
-        strcmp(url, "/v1/heights") == 0) {
-        struct MHD_Response *refusal = http_auth_refusal(c, s->auth);
-        if (refusal)
-            return queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
-    }
+    struct MHD_Response *refusal = http_auth_refusal(c, url, s->auth);
+    if (refusal)
+        return queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
     if (strcmp(url, "/v1/stats") == 0)
         return serve_stats(c, &snap);
     if (strcmp(url, "/v1/world") == 0)
@@ -754,8 +751,8 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, l.memory_per_connection, MHD_OPTION_URI_LOG_CALLBACK,
         request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s, MHD_OPTION_END);
     if (!s->daemon) {
-        error_set(err, "http: cannot listen on port %d (in use or not permitted%s)", port,
-                  http_tls_on(&s->tls) ? ", or GnuTLS refused the certificate and key" : "");
+        error_set(err, "http: cannot listen on port %d (in use, not permitted, or TLS refused)",
+                  port);
         pthread_mutex_destroy(&s->watch_lock);
         http_tls_free(&s->tls);
         free(s);

@@ -24,10 +24,11 @@ int http_tls_load(http_tls *t, const http_security *sec, error_text *err);
 void http_tls_free(http_tls *t);
 int http_tls_on(const http_tls *t);
 
-/* A data endpoint's gate: with auth on, the request must carry
+/* The data endpoints' gate (url: /v1/world, /v1/stats, /v1/heights; any other
+ * passes): with auth on, the request must carry
  * "Authorization: Bearer TOKEN" of a known token (any role). NULL when it
  * may go on, else a 401 response (JSON error, WWW-Authenticate) to queue;
  * the refusal is counted in terrad_auth_refused_total{reason="bad_token"}. */
-struct MHD_Response *http_auth_refusal(struct MHD_Connection *c, auth_table *auth);
+struct MHD_Response *http_auth_refusal(struct MHD_Connection *c, const char *url, auth_table *auth);
 
 #endif
