@@ -6,7 +6,9 @@ with `forbidden` naming the role; a driver creates, moves and deletes its own
 colliders but not another's (`not_owner`); an admin deletes anyone's with
 "any_owner": true; an
 unknown token is refused at hello (4013). HTTP data endpoints need a bearer
-token, probes do not. Editing the file and sending SIGHUP revokes a token: its
+token, probes do not; the C client library as a viewer gets `forbidden` too. A
+reload that changes a token's role keeps its connection under the new role.
+Editing the file and sending SIGHUP revokes a token: its
 open connection is closed (4013), a new hello and HTTP request with it are
 refused, the other clients go on; a malformed file on SIGHUP keeps the old
 tokens. At start, a plain token or a malformed line in the file stops the
@@ -126,6 +128,37 @@ async def roles(check, d, tok, path):
               "probes need no token")
         check(refused_count(d, "forbidden") >= 3 and refused_count(d, "bad_token") >= 4,
               "terrad_auth_refused_total counts forbidden and bad_token")
+
+        # the C client library with a viewer's token: subscribe works, create is forbidden
+        probe = os.environ.get("TERRAD_C_CLIENT_PROBE",
+                               os.path.join(os.path.dirname(BIN), "c_client_probe"))
+        r = await asyncio.to_thread(subprocess.run, [probe, "127.0.0.1", str(d.ws_port), "-",
+                                                     tok["viewer"], "viewer"],
+                                    capture_output=True, text=True, timeout=90)
+        check(r.returncode == 0 and "forbidden" in r.stdout,
+              f"C client as a viewer: snapshot, then create forbidden: {r.stdout.strip()}")
+
+        # a role changed by a reload: car-2 becomes a viewer and keeps its connection
+        with open(path) as f:
+            text = f.read()
+        with open(path, "w") as f:
+            f.write(text.replace("driver car-2 ", "viewer car-2 "))
+        os.kill(d.pid, signal.SIGHUP)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any("is now role viewer" in l for l in d.lines):
+            await asyncio.sleep(0.1)
+        try:
+            await d2.create_collider("sphere", radius=0.5)
+            check(False, "a driver made a viewer by a reload cannot create")
+        except tp.ServerError as e:
+            check(e.name == "forbidden" and d2.ws.close_code is None,
+                  f"a driver made a viewer by a reload keeps its connection, create forbidden ({e})")
+        with open(path, "w") as f:
+            f.write(text)
+        os.kill(d.pid, signal.SIGHUP)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any("is now role driver" in l for l in d.lines):
+            await asyncio.sleep(0.1)
 
         # revoke the viewer: the file without its line, then SIGHUP
         with open(path) as f:
