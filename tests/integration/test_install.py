@@ -2,7 +2,7 @@
 # ctest-timeout: 300
 """`cmake --install` into a temporary prefix, then use what it installed as a user would:
 
-- the daemon, the client library (shared with SONAME libterrad-client.so.0, and static), its
+- the daemon, the client library (shared with SONAME libterrad-client.so.1, and static), its
   headers and terrad-client.pc, the systemd unit, the example configuration and the man page
   land where GNUInstallDirs says;
 - `terrad --version` prints the version of CMakeLists.txt's project() line;
@@ -56,12 +56,12 @@ try:
     r = run([terrad, "--version"])
     check(r.stdout.strip() == f"terrad {version}", f"terrad --version says {version}: {r.stdout!r}")
 
-    so = next((os.path.join(d, "libterrad-client.so.0") for d, _, files in os.walk(prefix)
-               if "libterrad-client.so.0" in files), "")
-    check(so != "", "installed: libterrad-client.so.0")
+    so = next((os.path.join(d, "libterrad-client.so.1") for d, _, files in os.walk(prefix)
+               if "libterrad-client.so.1" in files), "")
+    check(so != "", "installed: libterrad-client.so.1")
     if so:
         dyn = run(["readelf", "-d", so]).stdout
-        check("Library soname: [libterrad-client.so.0]" in dyn, f"SONAME libterrad-client.so.0: {dyn}")
+        check("Library soname: [libterrad-client.so.1]" in dyn, f"SONAME libterrad-client.so.1: {dyn}")
         real = os.path.realpath(so)
         check(real.endswith(f"libterrad-client.so.{version}"), f"the real file is .so.{version}: {real}")
     libdir = os.path.dirname(so)

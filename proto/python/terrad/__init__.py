@@ -25,7 +25,7 @@ from .proto import __all__ as _proto_all
 from .sync import SyncClient
 from .http import get_heights, get_stats, get_world
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 __all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "SyncClient", "TerradClient", "get_heights",
            "get_stats", "get_world", "heights_grid", "proto", *_proto_all]
