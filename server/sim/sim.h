@@ -369,8 +369,6 @@ void sim_engine_destroy(sim_engine *e);
  * material equal to the params and no compaction memory changes nothing: the
  * uniform path runs. */
 void sim_engine_set_ground(sim_engine *e, ground *g);
-/* Feed the CPU twin's depth to the backend (GL ≡ CPU tests, --depth-from-cpu). */
-void sim_engine_set_depth_from_cpu(sim_engine *e, int on);
 /* Returns 0, or -1 with err set if the backend failed (the world is unchanged then). */
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);

@@ -6,8 +6,8 @@
  *            windows still refilling
  *   gather   each window's heights (and ground layers) packed one after
  *            another, a job per window
- *   depth    the CPU depth the engine casts itself: for --depth-from-cpu
- *            (fed to the backend) and for the models that read it
+ *   depth    the CPU depth the engine casts itself, for the models that
+ *            read it (diffusion)
  *   model    the persson models on the backend, as one batch; the others
  *            through their CPU window functions (model_<name>.c)
  *   scatter  accepted windows back into the world; a tight dirty rectangle
@@ -47,7 +47,6 @@ struct sim_engine {
     sim_params params;
     sim_backend *backend;
     int margin_cells;
-    int depth_from_cpu;
     thread_owner owner; /* the sim thread, from the first tick */
     engine_batch batch;
     /* reusable scratch, grown to the largest tick seen */
@@ -132,11 +131,6 @@ void sim_engine_set_ground(sim_engine *e, ground *g)
     int same =
         g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
     e->ground = g && !same ? g : NULL;
-}
-
-void sim_engine_set_depth_from_cpu(sim_engine *e, int on)
-{
-    e->depth_from_cpu = on ? 1 : 0;
 }
 
 world *sim_engine_world(const sim_engine *e)
@@ -241,7 +235,7 @@ static int tick_reserve_cells(sim_engine *e, int persson)
             0)
         return -1;
     /* depth on the engine's side only where something reads it */
-    if ((e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model))) &&
+    if (!persson && sim_model_needs_depth(e->params.model) &&
         array_grow((void **)&e->bottom, &e->bottom_capacity, need, sizeof *e->bottom) != 0)
         return -1;
     if (!persson && sim_model_needs_base(&e->params) &&
@@ -332,13 +326,12 @@ static void tick_gather(sim_engine *e, const sim_collider *colliders, int collid
 
 /* ---- depth ---- */
 
-/* The depth the engine casts on the CPU: for every window with
- * --depth-from-cpu (the backend then skips its own), else for the models
- * that read it (timed as the depth stage). */
+/* The depth the engine casts on the CPU for the models that read it
+ * (timed as the depth stage); the persson models get theirs from the
+ * backend, which computes the same fixed-point depth on either backend. */
 static void tick_depth(sim_engine *e, int persson, sim_tick_report *report)
 {
-    int cast = e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model));
-    if (!cast)
+    if (persson || !sim_model_needs_depth(e->params.model))
         return;
     double t0 = time_now_ms();
     engine_batch *b = &e->batch;
@@ -348,11 +341,7 @@ static void tick_depth(sim_engine *e, int persson, sim_tick_report *report)
         sim_window_depth(job, bottom);
         job->bottom_override = bottom;
     }
-    double ms = time_now_ms() - t0;
-    if (e->depth_from_cpu)
-        report->gather_scatter_ms += ms;
-    else
-        report->times.depth += ms;
+    report->times.depth += time_now_ms() - t0;
 }
 
 /* ---- model ---- */

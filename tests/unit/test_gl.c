@@ -763,8 +763,6 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
     sim_engine *eg = sim_engine_create(&wg, &p, gl, 2, &err);
     sim_engine *ec = sim_engine_create(&wc, &p, cpu, 2, &err);
     CHECK(eg && ec, "engines");
-    sim_engine_set_depth_from_cpu(eg, 1);
-    sim_engine_set_depth_from_cpu(ec, 1);
     collider_geometry ball = {.shape = COLLIDER_SPHERE, .radius = 0.35};
     collider_geometry small = {.shape = COLLIDER_SPHERE, .radius = 0.15};
     /* pressed in only for ticks 20..39: its window covers more tiles than
