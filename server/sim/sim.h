@@ -225,7 +225,6 @@ typedef struct sim_window_job {
     int32_t *heights;              /* in: gathered heights; out: new heights (w*h) */
     const sim_collider *colliders; /* those whose footprint meets the window */
     int collider_count;
-    int32_t depth_low, depth_high;  /* height range the depth stage must resolve (units) */
     const int32_t *bottom_override; /* non-NULL: use this depth, skip the depth stage */
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
     /* For the models that need them (NULL otherwise): */

@@ -270,10 +270,9 @@ static void gather_ground(sim_engine *e, sim_window_job *job, int64_t offset)
     }
 }
 
-/* The colliders over window r into job; returns the lowest height (units)
- * the depth stage must resolve there. */
-static int32_t gather_colliders(sim_engine *e, const sim_collider *colliders, int collider_count,
-                                sim_window_job *job, int *ref, int32_t zmin)
+/* The colliders over window r into job. */
+static void gather_colliders(sim_engine *e, const sim_collider *colliders, int collider_count,
+                             sim_window_job *job, int *ref)
 {
     job->colliders = e->window_colliders + *ref;
     for (int c = 0; c < collider_count; c++) {
@@ -281,17 +280,11 @@ static int32_t gather_colliders(sim_engine *e, const sim_collider *colliders, in
             continue;
         e->window_colliders[(*ref)++] = colliders[c];
         job->collider_count++;
-        vec3d lo, hi; /* the swept collider's: a sub-step may reach lower than this pose */
-        sim_collider_sweep_bounds(&colliders[c], e->world->cell_size_m, &lo, &hi);
-        int32_t z = sim_units_clamped(lo.z, e->world->units_per_m);
-        if (z < zmin)
-            zmin = z;
     }
-    return zmin;
 }
 
-/* A job per window: heights (and their copy), ground layers, colliders,
- * base heights and the depth range. */
+/* A job per window: heights (and their copy), ground layers, colliders and
+ * base heights. */
 static void tick_gather(sim_engine *e, const sim_collider *colliders, int collider_count,
                         int32_t refill_units, int needs_base)
 {
@@ -312,14 +305,10 @@ static void tick_gather(sim_engine *e, const sim_collider *colliders, int collid
         world_gather_window(w, r, job->heights);
         gather_ground(e, job, offset);
         memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
-        int32_t hmin, hmax;
-        world_rect_height_range(w, r, &hmin, &hmax);
-        int32_t zmin = gather_colliders(e, colliders, collider_count, job, &ref, hmin);
+        gather_colliders(e, colliders, collider_count, job, &ref);
         if (needs_base && world_base_fill_rect(w, r, e->base + offset) == 0)
             job->base_heights = e->base + offset;
         job->refill_units = refill_units;
-        job->depth_low = zmin - 1 > e->params.floor ? zmin - 1 : e->params.floor;
-        job->depth_high = hmax + e->params.obstacle_gap + 1;
         offset += (int64_t)r.w * r.h;
     }
 }
