@@ -34,9 +34,7 @@ struct window_entry {
     int offset;     /* first cell of the window in the flat buffers */
     int x, y;       /* world cell of the window's corner (jump-flood tie hash) */
     int w, h;       /* cells */
-    int slot_x, slot_y; /* depth atlas slot (rasterised windows) */
-    int raster_round;   /* atlas round + 1, or 0 when the bottom was uploaded */
-    int depth_low, depth_high; /* units (depth stage) */
+    int cast_depth; /* 1: the depth stage computes its bottoms, 0: they were uploaded */
 };
 
 /*
@@ -49,9 +47,9 @@ struct window_entry {
  * Samplers and storage blocks have separate binding points: sampler unit 0
  * is the batch table in every pass, storage binding 1 the window status.
  *
- * The batch table (RGBA32I texels): window i at texels 3i .. 3i+2 =
- * (offset, x, y, w), (h, slot_x, slot_y, raster_round),
- * (depth_low, depth_high, -, -); then, from texel 3 * u_window_count, one
+ * The batch table (RGBA32I texels): window i at texels 2i .. 2i+1 =
+ * (offset, x, y, w), (h, cast_depth, -, -); then, from texel
+ * 2 * u_window_count, one
  * texel per 8x8 tile of the batch: (window index, tile corner x | y << 16,
  * the window's offset, w | h << 16). One dispatch runs one workgroup per
  * tile, so an invocation finds its window and cell with one fetch, without
@@ -94,10 +92,9 @@ const int neighbour_dy[8] = int[8](0, 0, 1, -1, 1, 1, -1, -1);
 
 window_entry window_at(int i)
 {
-    ivec4 a = texelFetch(u_table, 3 * i);
-    ivec4 b = texelFetch(u_table, 3 * i + 1);
-    ivec4 c = texelFetch(u_table, 3 * i + 2);
-    return window_entry(a.x, a.y, a.z, a.w, b.x, b.y, b.z, b.w, c.x, c.y);
+    ivec4 a = texelFetch(u_table, 2 * i);
+    ivec4 b = texelFetch(u_table, 2 * i + 1);
+    return window_entry(a.x, a.y, a.z, a.w, b.x, b.y);
 }
 
 /* One int of a per-cell input. */
@@ -128,7 +125,7 @@ bool locate_cell(out cell_window win, out int x, out int y, out int c)
     c = 0;
     if (tile >= uint(u_tile_count))
         return false;
-    ivec4 t = texelFetch(u_table, 3 * u_window_count + int(tile));
+    ivec4 t = texelFetch(u_table, 2 * u_window_count + int(tile));
     win = cell_window(t.x, t.z, t.w & 0xffff, t.w >> 16);
     x = (t.y & 0xffff) + int(gl_LocalInvocationID.x);
     y = (t.y >> 16) + int(gl_LocalInvocationID.y);

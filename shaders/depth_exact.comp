@@ -2,7 +2,7 @@
 #extension GL_ARB_gpu_shader_int64 : require
 /*
  * depth_exact.comp: the depth stage's fixed-point shapes (issue 12, item 4),
- * run after depth_to_bottom.comp has written the raster's bottoms. The GLSL
+ * run after depth_clear.comp has set the bottoms to "none". The GLSL
  * twin of server/collider/depth_fixed.c, the specification: each workgroup
  * row (gl_WorkGroupID.y) is one instance — a shape at one sub-step pose over
  * one window, prepared on the CPU as int64 words — and every invocation

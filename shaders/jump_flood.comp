@@ -37,7 +37,7 @@ void main()
     if (!locate_cell(win, x, y, c))
         return;
     /* the window's world corner, for the tie-breaking hash */
-    ivec2 corner = texelFetch(u_table, 3 * win.index).yz;
+    ivec2 corner = texelFetch(u_table, 2 * win.index).yz;
     int ox = corner.x, oy = corner.y;
     int best = fetch(u_seed_in, c);
     int best_d = 0;

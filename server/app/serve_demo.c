@@ -46,16 +46,23 @@ static double terrain_height_m(const world *w, double x, double y)
 
 collider_pose demo_actor_step(demo_actor *a, const world *w, double dt, double time_s)
 {
-    double size_x = w->width * w->cell_size_m, size_y = w->height * w->cell_size_m;
+    /* The sphere bounces off the edge with its rim, so it stays inside the
+     * world. Bouncing with its centre put half of it outside: the half inside
+     * had no ring of free cells on the edge side, every pressed cell along the
+     * edge sent its material to the two ends of the footprint on the border
+     * column (metres high within a tick), and the demo world grew fins along
+     * its edges (issue 12; test_demo_edges). */
+    double r = a->geometry.radius;
+    double lo = r, hi_x = w->width * w->cell_size_m - r, hi_y = w->height * w->cell_size_m - r;
     a->x += a->vx * dt;
     a->y += a->vy * dt;
-    if (a->x < 0 || a->x > size_x) {
+    if (hi_x > lo && (a->x < lo || a->x > hi_x)) {
         a->vx = -a->vx;
-        a->x = a->x < 0 ? -a->x : 2 * size_x - a->x;
+        a->x = a->x < lo ? 2 * lo - a->x : 2 * hi_x - a->x;
     }
-    if (a->y < 0 || a->y > size_y) {
+    if (hi_y > lo && (a->y < lo || a->y > hi_y)) {
         a->vy = -a->vy;
-        a->y = a->y < 0 ? -a->y : 2 * size_y - a->y;
+        a->y = a->y < lo ? 2 * lo - a->y : 2 * hi_y - a->y;
     }
     double ground = terrain_height_m(w, a->x, a->y);
     double bob = fabs(sin(1.3 * time_s + a->phase));

@@ -26,7 +26,6 @@ typedef struct simulate_options {
     const char *model;
     const char *metric;
     const char *out_path;
-    int depth_from_cpu;
     long threads;
 } simulate_options;
 
@@ -38,7 +37,6 @@ enum {
     OPT_MODEL,
     OPT_METRIC,
     OPT_OUT,
-    OPT_DEPTH_FROM_CPU,
     OPT_THREADS,
 };
 
@@ -52,9 +50,6 @@ static const cli_option simulate_table[] = {
                    "deferred | diffusion | sumner | decals (overrides the scene's model)"},
     [OPT_METRIC] = {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)"},
     [OPT_OUT] = {"out", "FILE", "write the final heights: little-endian int32, row-major"},
-    [OPT_DEPTH_FROM_CPU] = {"depth-from-cpu", NULL,
-                            "feed the CPU twin's analytic depth to the backend, so the\n"
-                            "gl and cpu backends can be compared bit for bit"},
     [OPT_THREADS] = {"threads", "N",
                      "threads of the CPU twin, 1..64 (default: the machine's cores);\n"
                      "heights do not depend on it"},
@@ -91,9 +86,6 @@ static int simulate_on_option(void *ctx, int index, const char *value, error_tex
         return 0;
     case OPT_OUT:
         o->out_path = value;
-        return 0;
-    case OPT_DEPTH_FROM_CPU:
-        o->depth_from_cpu = 1;
         return 0;
     case OPT_THREADS:
         return cli_parse_long(value, 1, SIM_THREADS_MAX, &o->threads, err);
@@ -483,7 +475,6 @@ static int simulate_engine_run(simulate_run *r)
         return 1;
     }
     sim_backend_set_stage_timing(r->backend, 1);
-    sim_engine_set_depth_from_cpu(r->engine, r->o.depth_from_cpu);
 
 #define STAGE_SERIES(name) {#name, {0}},
     stage_series stages[] = {

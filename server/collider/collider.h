@@ -84,6 +84,8 @@ double collider_reach(const collider_geometry *g);
  * ((x + 0.5) * cell_size, (y + 0.5) * cell_size). The value is clamped to
  * [WORLD_HEIGHT_MIN - 1, WORLD_HEIGHT_MAX + 1]. Cells the collider does not
  * cover are left alone. The caller fills bottom with COLLIDER_BOTTOM_NONE first.
+ * z is the fixed-point rule's (collider_fixed_cell), the same as the GL
+ * backend's.
  */
 void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_rect window,
                         double cell_size_m, int32_t units_per_m, int32_t *bottom);
@@ -113,8 +115,8 @@ void collider_sweep_bounds(const collider_geometry *g, collider_pose from, colli
  * shaders/depth_exact.comp): a shape at one pose over one window becomes an
  * instance of int64 words, prepared once on the CPU; both backends evaluate
  * the same integer rule on it, so their bottoms are identical. Shapes for
- * which collider_fixed_supported is 0 are not prepared (return 0).
- * collider_depth_cpu uses it for the supported shapes.
+ * which collider_fixed_supported is 0 (a mesh without triangles) are not
+ * prepared (return 0). collider_depth_cpu is this rule on the CPU.
  */
 #define COLLIDER_FIXED_WORDS 28 /* CF_END + 3, rounded up */
 enum {
@@ -157,10 +159,9 @@ void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w
 uint64_t collider_isqrt64(uint64_t v);
 
 /*
- * Triangles in the local frame for the GL depth raster: primitives are
- * tessellated finely enough that the raster stays within a few millimetres of
- * the analytic surface for wheel-sized shapes; meshes are copied. The caller
- * frees both arrays.
+ * Triangles in the local frame (test_collider's meshes of primitives):
+ * primitives are tessellated to within a few millimetres of the exact surface
+ * for wheel-sized shapes; meshes are copied. The caller frees both arrays.
  */
 int collider_tessellate(const collider_geometry *g, float **vertices, int *vertex_count,
                         uint32_t **indices, int *index_count);

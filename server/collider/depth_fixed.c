@@ -347,7 +347,7 @@ int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t
         int64_t u[3], cz[3];
         for (int j = 0; j < 3; j++) {
             const int64_t *m = v + CF_ROT + 3 * j;
-            u[j] = floor_div(m[0] * dx + m[1] * dy, (int64_t)1 << 30);
+            u[j] = floor_shift(m[0] * dx + m[1] * dy, 30); /* = floor_div by 2^30, no divide */
             cz[j] = m[2];
         }
         int64_t lo = -TAU_LIMIT, hi = TAU_LIMIT;

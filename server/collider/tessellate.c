@@ -1,12 +1,12 @@
 /*
- * tessellate.c: triangles for the GL backend's depth raster (step 5 of the
- * tick on the GPU). Primitives are tessellated once per geometry, in the
- * local frame; the backend uploads them and draws them with the pose each
- * tick. Every vertex lies on the analytic surface, so each facet is a chord
- * inside the solid: seen from below, the raster is never lower than the CPU
- * twin's analytic bottom, only higher by the sagitta (0.7 mm for a 0.33 m
- * wheel at 48 segments). Erring upward means a tessellated wheel never digs
- * deeper than the exact one.
+ * tessellate.c: triangles of a collider in its local frame. The GL backend
+ * drew these for its depth until issue 12 (the depth is one fixed-point rule
+ * now, depth_fixed.c); what still uses them is test_collider, which turns a
+ * primitive into a mesh to check the mesh rule against the primitive's.
+ * Every vertex lies on the analytic surface, so each facet is a chord inside
+ * the solid: seen from below, a tessellated shape is never lower than the
+ * exact one, only higher by the sagitta (0.7 mm for a 0.33 m wheel at 48
+ * segments).
  */
 #include "collider/collider.h"
 

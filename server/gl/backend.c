@@ -6,7 +6,8 @@
  * dispatch per stage (per step or iteration) for the whole batch:
  *
  *   upload      heights (and uploaded bottoms) into flat per-cell buffers
- *   depth       colliders rasterised into a depth atlas, then depth → bottom
+ *   depth       depth_clear.comp, then depth_exact.comp: the fixed-point
+ *               depth of every collider (collider/depth_fixed.c's twin)
  *   classify    classify.comp (also heights -= raw, jump-flood init)
  *   jump_flood  jump_flood.comp, once per step size, ping-pong
  *   displace    displace_ssbo/multi.comp + displace_land.comp, or
@@ -16,18 +17,13 @@
  *
  * Layout: window i of the batch owns cells [offset_i, offset_i + w_i*h_i)
  * of every per-cell buffer, row-major. A batch table lists the windows
- * (offset, corner, size, atlas slot, depth range) and then every 8x8 tile of
+ * (offset, corner, size, whether the depth stage computes its bottoms) and then every 8x8 tile of
  * every window; a dispatch runs one workgroup per tile, so an invocation
  * finds its window and cell from one fetch (common.glsl). Passes read
  * through buffer textures and write through storage buffers, with a
  * glMemoryBarrier after every pass. Buffers grow by doubling to the largest
  * batch seen, so scratch memory follows active cells, never the world's
  * size; a batch larger than one storage block allows runs in chunks.
- *
- * The depth atlas is one GL_DEPTH_COMPONENT32F texture; windows are packed
- * into it by shelves (tallest first). If a batch does not fit the largest
- * texture, it is rasterised in several rounds, each converted to bottoms
- * before the next clears the atlas.
  *
  * Stage times: with stage timing on, glFinish ends every stage, so each
  * time is the GPU's. Off, a stage's time is only what it took to submit,
@@ -55,7 +51,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const compute_names[PROG_COMPUTE_COUNT] = {
+static const char *const compute_names[PROG_COUNT] = {
     "shaders/classify.comp",
     "shaders/jump_flood.comp",
     "shaders/displace_ssbo.comp",
@@ -66,32 +62,20 @@ static const char *const compute_names[PROG_COMPUTE_COUNT] = {
     "shaders/displace_iterative_dead_end.comp",
     "shaders/displace_iterative_finish.comp",
     "shaders/even_slopes.comp",
-    "shaders/depth_to_bottom.comp",
+    "shaders/depth_clear.comp",
     "shaders/depth_exact.comp",
 };
 
 static const char *const uniform_names[U_COUNT] = {
-    "u_tile_count",
-    "u_window_count",
-    "u_metric",
-    "u_obstacle_gap",
-    "u_multi_target_step",
-    "u_multi_target_max",
-    "u_floor",
-    "u_step",
-    "u_round",
-    "u_mvp",
-    "u_materials_on",
-    "u_material_count",
-    "u_material_rows",
-    "u_material_max_compaction",
+    "u_tile_count",        "u_window_count",     "u_metric",        "u_obstacle_gap",
+    "u_multi_target_step", "u_multi_target_max", "u_floor",         "u_step",
+    "u_materials_on",      "u_material_count",   "u_material_rows", "u_material_max_compaction",
 };
 
 /* ---- a batch ---- */
 
-/* The chunk's layout: a batch-table entry per window, the table's tiles, the
- * per-cell buffers sized for it, and the depth atlas packed. Returns the
- * atlas rounds (0: every window came with its bottom), or -1. */
+/* The chunk's layout: a batch-table entry per window, the table's tiles and
+ * the per-cell buffers sized for it. Returns 0, or -1. */
 static int chunk_layout(gl_backend *b, const sim_window_job *jobs, int count, int64_t *cells_out,
                         int *max_side_out, error_text *err)
 {
@@ -108,8 +92,7 @@ static int chunk_layout(gl_backend *b, const sim_window_job *jobs, int count, in
         e->y = job->rect.y;
         e->w = job->rect.w;
         e->h = job->rect.h;
-        e->depth_low = job->depth_low;
-        e->depth_high = job->depth_high;
+        e->cast_depth = job->bottom_override == NULL;
         if (e->w > max_side)
             max_side = e->w;
         if (e->h > max_side)
@@ -131,13 +114,9 @@ static int chunk_layout(gl_backend *b, const sim_window_job *jobs, int count, in
             }
     b->tile_count = tiles;
     b->window_count = count;
-    int atlas_w = 0, atlas_h = 0;
-    int rounds = gl_depth_pack_atlas(b, jobs, count, &atlas_w, &atlas_h);
-    if (rounds > 0 && gl_depth_ensure_atlas(b, atlas_w, atlas_h, err) != 0)
-        return -1;
     *cells_out = cells;
     *max_side_out = max_side;
-    return rounds;
+    return 0;
 }
 
 /* The material words of one window: id | compaction << 8. */
@@ -307,15 +286,14 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
 {
     int64_t cells = 0;
     int max_side = 1;
-    int rounds = chunk_layout(b, jobs, count, &cells, &max_side, err);
-    if (rounds < 0)
+    if (chunk_layout(b, jobs, count, &cells, &max_side, err) != 0)
         return -1;
     double t = time_now_ms();
     if (chunk_upload(b, p, jobs, count, first, err) != 0)
         return -1;
     t = gl_stage_end(b, &times->transfer, t);
 
-    if (rounds > 0 && gl_depth_run(b, jobs, count, rounds, err) != 0)
+    if (gl_depth_run(b, jobs, count, err) != 0)
         return -1;
     t = gl_stage_end(b, &times->depth, t);
 
@@ -354,11 +332,6 @@ static int check_windows(const gl_backend *b, const sim_window_job *jobs, int jo
         if (r.w < 1 || r.h < 1 || r.w > SIM_WINDOW_SIDE_MAX || r.h > SIM_WINDOW_SIDE_MAX) {
             error_set(err, "gl backend: window %d is %dx%d cells (sides must be 1..%d)", i, r.w,
                       r.h, SIM_WINDOW_SIDE_MAX);
-            return -1;
-        }
-        if (!jobs[i].bottom_override && (r.w > b->max_texture_size || r.h > b->max_texture_size)) {
-            error_set(err, "gl backend: window %d (%dx%d) exceeds the largest depth texture (%d)",
-                      i, r.w, r.h, b->max_texture_size);
             return -1;
         }
         if ((int64_t)r.w * r.h > b->max_chunk_cells) {
@@ -413,13 +386,11 @@ static void gl_set_stage_timing(sim_backend *base, int on)
     ((gl_backend *)base)->stage_timing = on != 0;
 }
 
-void sim_backend_gl_set_limits(sim_backend *base, int atlas_side, int64_t chunk_cells)
+void sim_backend_gl_set_limits(sim_backend *base, int64_t chunk_cells)
 {
     if (!base || !base->name || strcmp(base->name, "gl") != 0)
         return;
     gl_backend *b = (gl_backend *)base;
-    if (atlas_side > 0 && atlas_side < b->max_texture_size)
-        b->max_texture_size = atlas_side;
     if (chunk_cells > 0 && chunk_cells < b->max_chunk_cells)
         b->max_chunk_cells = chunk_cells;
 }
@@ -430,7 +401,7 @@ static void gl_destroy(sim_backend *base)
     if (!b)
         return;
     if (b->context && gl_context_make_current(b->context, NULL) == 0) {
-        gl_depth_delete_geometries(b);
+        gl_depth_delete(b);
         for (int i = 0; i < PROG_COUNT; i++)
             if (b->programs[i])
                 glDeleteProgram(b->programs[i]);
@@ -439,10 +410,6 @@ static void gl_destroy(sim_backend *base)
         glDeleteBuffers(BUF_COUNT, b->buffers);
         glDeleteBuffers(1, &b->table_buffer);
         glDeleteBuffers(1, &b->status_buffer);
-        if (b->atlas)
-            glDeleteTextures(1, &b->atlas);
-        if (b->fbo)
-            glDeleteFramebuffers(1, &b->fbo);
         if (b->material_buffer) {
             glDeleteBuffers(1, &b->material_buffer);
             glDeleteTextures(1, &b->material_texture);
@@ -452,10 +419,8 @@ static void gl_destroy(sim_backend *base)
     }
     gl_cache_free(b->cache);
     gl_context_destroy(b->context);
-    free(b->geometries);
     free(b->entries);
     free(b->status_host);
-    free(b->order);
     free(b->tiles);
     free(b->material_host);
     free(b);
@@ -492,14 +457,11 @@ sim_backend *sim_backend_gl_create(error_text *err)
     snprintf(b->base.renderer, sizeof b->base.renderer, "%s", gl_context_renderer(b->context));
     snprintf(b->base.version, sizeof b->base.version, "%s", gl_context_version(b->context));
 
-    for (int i = 0; i < PROG_COMPUTE_COUNT; i++) {
+    for (int i = 0; i < PROG_COUNT; i++) {
         b->programs[i] = gl_program_compute(compute_names[i], err);
         if (!b->programs[i])
             goto fail;
     }
-    b->programs[PROG_RASTER] = gl_program_raster("shaders/depth.vert", "shaders/depth.frag", err);
-    if (!b->programs[PROG_RASTER])
-        goto fail;
     if (gl_cache_load_programs(b->cache, err) != 0)
         goto fail;
     for (int i = 0; i < PROG_COUNT; i++)
@@ -528,7 +490,6 @@ sim_backend *sim_backend_gl_create(error_text *err)
     glGenTextures(1, &b->table_texture);
     glGenBuffers(1, &b->table_buffer);
     glGenBuffers(1, &b->status_buffer);
-    glGenFramebuffers(1, &b->fbo);
     if (gl_check("creating the backend", err) != 0)
         goto fail;
     /* Whichever thread runs the first batch makes the context current there

@@ -88,18 +88,15 @@ double gl_stage_end(gl_backend *b, double *acc, double since)
 
 /* ---- buffers ---- */
 
-static uint64_t texture_bytes(const gl_backend *b)
-{
-    return (uint64_t)b->atlas_w * (uint64_t)b->atlas_h * 4u;
-}
-
 uint64_t gl_scratch_bytes(const sim_backend *base)
 {
     const gl_backend *b = (const gl_backend *)base;
     uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
     bytes += (uint64_t)b->material_capacity * 2 * sizeof(int32_t); /* GPU and host copies */
     bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
-    return bytes + texture_bytes(b);
+    /* the depth stage's instances, GPU and host copies */
+    return bytes + (uint64_t)b->exact_buffer_bytes +
+           (uint64_t)b->exact_host_capacity * sizeof(collider_fixed);
 }
 
 int gl_ensure_cells(gl_backend *b, int64_t cells, error_text *err)
@@ -165,7 +162,7 @@ int gl_ensure_windows(gl_backend *b, int count, error_text *err)
     int64_t cap = b->host_capacity;
 #define HOST_GROW(array)                                                                           \
     (cap = b->host_capacity, array_grow((void **)&b->array, &cap, count, sizeof *b->array))
-    if (HOST_GROW(entries) != 0 || HOST_GROW(status_host) != 0 || HOST_GROW(order) != 0) {
+    if (HOST_GROW(entries) != 0 || HOST_GROW(status_host) != 0) {
         error_set(err, "gl backend: out of memory for %d windows", count);
         return -1;
     }

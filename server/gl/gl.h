@@ -39,11 +39,10 @@ sim_backend *sim_backend_gl_create(error_text *err);
 
 /*
  * Tests only: pretend the driver's limits are smaller, so that small batches
- * take the paths big ones need — a depth atlas of at most atlas_side texels
- * a side (several raster rounds) and at most chunk_cells cells per chunk
+ * take the paths big ones need — at most chunk_cells cells per chunk
  * (several chunks per batch). 0 keeps the driver's value.
  */
-void sim_backend_gl_set_limits(sim_backend *b, int atlas_side, int64_t chunk_cells);
+void sim_backend_gl_set_limits(sim_backend *b, int64_t chunk_cells);
 
 /*
  * The GPU tile cache: world tiles resident in one GL_TEXTURE_2D_ARRAY (R32I,

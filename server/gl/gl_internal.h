@@ -6,7 +6,7 @@
  *   backend.c     the backend table, a batch in chunks, each chunk's upload
  *                 and readback
  *   buffers.c     per-cell buffers, batch table, status flags; small helpers
- *   depth.c       geometry cache, depth atlas packing, the depth raster
+ *   depth.c       the depth stage: fixed-point instances, depth_exact.comp
  *   stages.c      the integer stages' dispatches (classify .. even_slopes)
  *   tile_cache.c  the GPU tile cache
  */
@@ -30,7 +30,6 @@ void gl_context_release(gl_context *c);
  * the file, and 0 is returned.
  */
 GLuint gl_program_compute(const char *name, error_text *err);
-GLuint gl_program_raster(const char *vertex_name, const char *fragment_name, error_text *err);
 
 /* ---- The GL backend's state ---- */
 
@@ -63,10 +62,8 @@ enum {
     PROG_ITER_DEAD_END,
     PROG_ITER_FINISH,
     PROG_EVEN_SLOPES,
-    PROG_DEPTH_TO_BOTTOM,
+    PROG_DEPTH_CLEAR,
     PROG_DEPTH_EXACT,
-    PROG_COMPUTE_COUNT,
-    PROG_RASTER = PROG_COMPUTE_COUNT,
     PROG_COUNT
 };
 
@@ -80,8 +77,6 @@ enum {
     U_MULTI_MAX,
     U_FLOOR,
     U_STEP,
-    U_ROUND,
-    U_MVP,
     U_MATERIALS_ON,
     U_MATERIAL_COUNT,
     U_MATERIAL_ROWS,
@@ -97,18 +92,9 @@ typedef struct window_entry {
     int32_t offset;
     int32_t x, y;
     int32_t w, h;
-    int32_t slot_x, slot_y;
-    int32_t raster_round; /* atlas round + 1, or 0: bottom uploaded */
-    int32_t depth_low, depth_high;
+    int32_t cast_depth; /* 1: the depth stage computes its bottoms, 0: uploaded */
     int32_t pad0, pad1;
 } window_entry;
-
-/* A collider geometry's triangles, uploaded once and cached by pointer. */
-typedef struct geometry_entry {
-    const collider_geometry *geometry;
-    GLuint vao, vbo, ebo;
-    GLsizei index_count;
-} geometry_entry;
 
 typedef struct gl_backend {
     sim_backend base;
@@ -133,7 +119,6 @@ typedef struct gl_backend {
     int window_capacity;
     window_entry *entries;
     uint32_t *status_host;
-    int *order;
     int64_t host_capacity;
     int32_t *tiles;
     int64_t tile_capacity;
@@ -141,13 +126,6 @@ typedef struct gl_backend {
     int64_t tile_count;
     int window_count;
 
-    /* depth atlas */
-    GLuint atlas, fbo;
-    int atlas_w, atlas_h;
-
-    geometry_entry *geometries;
-    int geometry_count;
-    int64_t geometry_capacity;
     /* fixed-point depth instances (depth_exact.comp), built on the CPU */
     GLuint exact_buffer;
     int64_t exact_buffer_bytes;
@@ -231,14 +209,11 @@ int gl_ensure_table(gl_backend *b, int window_count, int64_t tiles, error_text *
 
 /* ---- depth.c ---- */
 
-int gl_depth_ensure_atlas(gl_backend *b, int w, int h, error_text *err);
-/* Slots in the atlas for the windows without a bottom; returns the rounds. */
-int gl_depth_pack_atlas(gl_backend *b, const sim_window_job *jobs, int count, int *atlas_w,
-                        int *atlas_h);
-int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, int rounds, error_text *err);
+/* The bottoms of the windows with cast_depth, from their colliders. */
+int gl_depth_run(gl_backend *b, sim_window_job *jobs, int count, error_text *err);
 void gl_forget_geometry(sim_backend *base, const collider_geometry *g);
-/* Every cached geometry's GL objects (context current). */
-void gl_depth_delete_geometries(gl_backend *b);
+/* The depth stage's GL objects and host copies (context current). */
+void gl_depth_delete(gl_backend *b);
 
 /* ---- stages.c ---- */
 

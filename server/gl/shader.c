@@ -156,17 +156,3 @@ GLuint gl_program_compute(const char *name, error_text *err)
         return 0;
     return link_program(&cs, 1, name, err);
 }
-
-GLuint gl_program_raster(const char *vertex_name, const char *fragment_name, error_text *err)
-{
-    GLuint shaders[2];
-    shaders[0] = compile_stage(GL_VERTEX_SHADER, vertex_name, err);
-    if (!shaders[0])
-        return 0;
-    shaders[1] = compile_stage(GL_FRAGMENT_SHADER, fragment_name, err);
-    if (!shaders[1]) {
-        glDeleteShader(shaders[0]);
-        return 0;
-    }
-    return link_program(shaders, 2, vertex_name, err);
-}

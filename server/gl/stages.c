@@ -29,7 +29,7 @@ void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_mater
         rows[4 * i + 3] = t->rows[i].slope_threshold_diagonal;
         max_compaction[i] = t->rows[i].max_compaction;
     }
-    for (int prog = 0; prog < PROG_COMPUTE_COUNT; prog++) {
+    for (int prog = 0; prog < PROG_COUNT; prog++) {
         GLuint pr = b->programs[prog];
         const GLint *u = b->uniforms[prog];
         glProgramUniform1i(pr, u[U_METRIC], (GLint)p->metric);

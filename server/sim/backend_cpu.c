@@ -1,7 +1,7 @@
 /*
  * backend_cpu.c: the CPU twin as a backend. It runs a tick's windows one
- * after another through the same stages as the GL backend — depth (analytic,
- * collider/depth_cpu.c), classify, jump flooding, displacement, slope
+ * after another through the same stages as the GL backend — depth (fixed
+ * point, collider/depth_cpu.c), classify, jump flooding, displacement, slope
  * evening — and is both the test oracle and the backend for machines without
  * OpenGL 4.3. Scratch memory grows to the largest window seen, never to the
  * world. Its depth stage, sim_window_depth, is the one CPU depth routine of

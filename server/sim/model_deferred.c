@@ -20,7 +20,9 @@
  * The rim is measured from the base terrain (job->base_heights), not from
  * the current heights, so standing still does not pile rims on rims: both
  * the cut (min where the profile is under the base) and the rim (max against
- * base + bump where it is above) are idempotent.
+ * base + bump where it is above) are idempotent. A rim rises only on snow
+ * that is not already cut below the base, so the trail an earlier tick left
+ * stays a trench (issue 12, item 2).
  * Volume is not preserved — material is cut away and rims appear from
  * nothing; docs/models.md gives the drift measured here.
  *
@@ -137,7 +139,10 @@ sim_window_status sim_deferred_window(const sim_params *p, sim_window_job *job, 
                 job->heights[i] = cut;
             continue;
         }
-        if (foot >= snow || p->edge_height_q16 == 0 || p->trail_scale_q16 == 0)
+        /* a rim never refills a depression an earlier tick cut (now under the
+         * base): else each tick's rim lands in the trail just behind a moving
+         * collider and the trench becomes a row of dents at any speed */
+        if (now < snow || foot >= snow || p->edge_height_q16 == 0 || p->trail_scale_q16 == 0)
             continue;
         /* rim: a quadratic bump over the ring [R, R + W] outside the depression */
         int64_t depth = (int64_t)snow - foot;

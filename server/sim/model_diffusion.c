@@ -13,7 +13,9 @@
  *                  p is the penetration of the column, u the travel direction
  *                  of the nearest collider, e the edge's direction.
  *     A cell never gives more than it has above the floor (its outgoing
- *     fluxes are scaled down together), so no column crosses the floor.
+ *     fluxes are scaled down together), so no column crosses the floor; the
+ *     drift never lifts a column above the top of the collider that pushes
+ *     (edge_flux), so no column rises above what touched the scene.
  *
  *   Gilardi's scheme: eq. 6-8 as published, explicit and centred, in double,
  *     heights measured in cells (Δx = 1); the result is rounded back to
@@ -124,9 +126,19 @@ static int64_t scaled(int64_t c_q32, int64_t v)
     return v < 0 ? -r : r;
 }
 
-/* Flux from a to b (negative: b to a) across one edge; u·e in Q16. */
+/*
+ * Flux from a to b (negative: b to a) across one edge; u·e in Q16. top: the
+ * highest point of the collider that pushes (units). The drift part never
+ * lifts its receiver above that top: at most 1/8 of the room left under it,
+ * so with the diffusion part (each edge <= 1/8 of a height difference, four
+ * edges) a column ends at most at max(its highest neighbour, top) — the
+ * maximum principle of the diffusion extended to the push. Without it the
+ * drift fed the column just ahead of a deeply pressed ball faster than the
+ * slope could take it away, and a bow wave grew past the ball's own top
+ * (2.31 m beside a ball reaching 1.10 m; issue 12, item 1).
+ */
 static int64_t edge_flux(const sim_params *p, int64_t cd_q32, int64_t cz_q32, int32_t ha,
-                         int32_t hb, int32_t pa, int32_t pb, int64_t ue_q16)
+                         int32_t hb, int32_t pa, int32_t pb, int64_t ue_q16, int32_t top)
 {
     int64_t dh = (int64_t)ha - hb, flux = 0;
     int64_t t = p->slope_threshold_axial;
@@ -136,9 +148,34 @@ static int64_t edge_flux(const sim_params *p, int64_t cd_q32, int64_t cz_q32, in
         flux += scaled(cd_q32, dh + t);
     if (pa || pb) {
         int64_t push = (int64_t)pa - pb + ((((int64_t)pa + pb) * ue_q16) >> 17);
-        flux += scaled(cz_q32, push);
+        int64_t drift = scaled(cz_q32, push);
+        int64_t room = (int64_t)top - (drift > 0 ? hb : ha); /* under the receiver's top */
+        int64_t most = room > 0 ? room / 8 : 0;
+        if (drift > most)
+            drift = most;
+        else if (drift < -most)
+            drift = -most;
+        flux += drift;
     }
     return flux;
+}
+
+/* top[i]: the highest point (units) of the collider that pushes cell i, the
+ * swept collider's, so the push of a tick stays under what touched it. */
+static void pusher_tops(const sim_window_job *job, const int32_t *owner, int32_t *top)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    for (int64_t i = 0; i < n; i++)
+        top[i] = WORLD_HEIGHT_MIN;
+    for (int c = 0; c < job->collider_count; c++) {
+        vec3d lo, hi;
+        sim_collider_sweep_bounds(&job->colliders[c], job->cell_size_m, &lo, &hi);
+        int32_t z = sim_units_clamped(hi.z, job->units_per_m);
+        z = z > WORLD_HEIGHT_MAX ? WORLD_HEIGHT_MAX : z < WORLD_HEIGHT_MIN ? WORLD_HEIGHT_MIN : z;
+        for (int64_t i = 0; i < n; i++)
+            if (owner[i] == c)
+                top[i] = z;
+    }
 }
 
 static sim_window_status conservative_window(const sim_params *p, sim_window_job *job,
@@ -148,6 +185,7 @@ static sim_window_status conservative_window(const sim_params *p, sim_window_job
     int64_t n = (int64_t)w * h;
     int32_t *pen = scratch, *fx = pen + n, *fy = fx + n, *owner = fy + n;
     int64_t *out = (int64_t *)(void *)(owner + n); /* 4n int32 in: 8-byte aligned */
+    int32_t *top = (int32_t *)(void *)(out + n);
     int32_t *heights = job->heights;
     const int32_t *bottom = job->bottom_override;
     double cd, cz;
@@ -157,6 +195,7 @@ static sim_window_status conservative_window(const sim_params *p, sim_window_job
     if (cd_q32 == 0 && cz_q32 == 0)
         return SIM_WINDOW_OK; /* D = 0 and no drift: nothing moves */
     nearest_collider(job, owner);
+    pusher_tops(job, owner, top);
     for (int s = 0; s < steps; s++) {
         for (int64_t i = 0; i < n; i++) {
             pen[i] = penetration(p, heights[i], bottom[i]);
@@ -173,13 +212,13 @@ static sim_window_status conservative_window(const sim_params *p, sim_window_job
                 fx[i] = fy[i] = 0;
                 if (x + 1 < w) {
                     int64_t f = edge_flux(p, cd_q32, cz_q32, heights[i], heights[i + 1], pen[i],
-                                          pen[i + 1], (int64_t)lround(ux * 65536.0));
+                                          pen[i + 1], (int64_t)lround(ux * 65536.0), top[i]);
                     fx[i] = (int32_t)f;
                     out[f > 0 ? i : i + 1] += f > 0 ? f : -f;
                 }
                 if (y + 1 < h) {
                     int64_t f = edge_flux(p, cd_q32, cz_q32, heights[i], heights[i + w], pen[i],
-                                          pen[i + w], (int64_t)lround(uy * 65536.0));
+                                          pen[i + w], (int64_t)lround(uy * 65536.0), top[i]);
                     fy[i] = (int32_t)f;
                     out[f > 0 ? i : i + w] += f > 0 ? f : -f;
                 }

@@ -19,7 +19,7 @@
  * the cut is clamped at the floor. Heights are never below the floor (the
  * world refuses such a base and no model puts one there), so the clamp only
  * undoes what the cut took under it. With a depth given (bottom_override:
- * the tests, --depth-from-cpu) the same rule runs from that array.
+ * the unit tests) the same rule runs from that array.
  */
 #include "sim/sim_internal.h"
 

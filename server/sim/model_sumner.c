@@ -13,6 +13,7 @@
  *   3. contour map: the footprint (penetrated columns and obstacle columns,
  *      a collider resting just above) is split into 8-connected components;
  *      the free cells at distance 1 from a component are its first ring;
+ *      a moving component's ring is the part not behind it (ring_owners);
  *   4. each component's displaced material is spread evenly over its first
  *      ring; the integer remainder goes one unit each to the first ring
  *      cells in row-major order (deterministic);
@@ -29,6 +30,7 @@
  */
 #include "sim/sim_internal.h"
 
+#include <math.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -75,6 +77,111 @@ static int32_t label_footprint(int w, int h, const int32_t *cls, int32_t *label,
         count++;
     }
     return count;
+}
+
+/* Horizontal motion of each component this tick, into motion[2c], [2c+1]:
+ * the sum of the moves (pose - previous pose) of the colliders whose swept
+ * bounds hold one of its penetrating cells. seen (components) is scratch. */
+static void component_motion(const sim_window_job *job, int w, int h, const int32_t *cls,
+                             const int32_t *label, int32_t components, int32_t *seen,
+                             double *motion)
+{
+    for (int32_t c = 0; c < components; c++) {
+        seen[c] = -1;
+        motion[2 * c] = motion[2 * c + 1] = 0.0;
+    }
+    for (int k = 0; k < job->collider_count; k++) {
+        const sim_collider *col = &job->colliders[k];
+        if (!col->has_previous)
+            continue;
+        double mx = col->pose.position.x - col->previous_pose.position.x;
+        double my = col->pose.position.y - col->previous_pose.position.y;
+        if (!(mx != 0.0 || my != 0.0) || !isfinite(mx) || !isfinite(my))
+            continue;
+        vec3d lo, hi;
+        sim_collider_sweep_bounds(col, job->cell_size_m, &lo, &hi);
+        double x0 = floor(lo.x / job->cell_size_m) - job->rect.x;
+        double x1 = floor(hi.x / job->cell_size_m) - job->rect.x;
+        double y0 = floor(lo.y / job->cell_size_m) - job->rect.y;
+        double y1 = floor(hi.y / job->cell_size_m) - job->rect.y;
+        int ax = x0 < 0.0  ? 0
+                 : x0 >= w ? w
+                           : (int)x0,
+            bx = x1 < 0.0  ? -1
+                 : x1 >= w ? w - 1
+                           : (int)x1;
+        int ay = y0 < 0.0  ? 0
+                 : y0 >= h ? h
+                           : (int)y0,
+            by = y1 < 0.0  ? -1
+                 : y1 >= h ? h - 1
+                           : (int)y1;
+        for (int y = ay; y <= by; y++) {
+            for (int x = ax; x <= bx; x++) {
+                int i = y * w + x;
+                if (cls[i] != SIM_CELL_PENETRATING || seen[label[i]] == k)
+                    continue;
+                seen[label[i]] = k;
+                motion[2 * label[i]] += mx;
+                motion[2 * label[i] + 1] += my;
+            }
+        }
+    }
+}
+
+/*
+ * First rings, with the direction of motion (Onoue and Nishita's rule, as
+ * Persson's thesis ch. 3 summarises it): a moving component passes material
+ * only to ring cells that are not behind it, d_motion . d_column >= 0, where
+ * d_column points from a footprint cell to the ring cell beside it. Without
+ * it the ring behind a fast collider lies in the trench the collider just
+ * dug and refills it at every tick boundary (a dotted trail at 40 cells per
+ * tick; issue 12, item 2). A collider at rest has no direction and keeps the
+ * whole ring; a component with no ring cell ahead or beside it keeps the
+ * whole ring too. owner[i]: the component a free cell receives for (the
+ * lowest label among those that may give to it), or -1.
+ */
+static void ring_owners(const sim_window_job *job, int w, int h, const int32_t *cls,
+                        const int32_t *label, int32_t components, int32_t *any, double *motion,
+                        int32_t *owner, int32_t *ring_count)
+{
+    int n = w * h;
+    component_motion(job, w, h, cls, label, components, any, motion);
+    for (int32_t c = 0; c < components; c++)
+        ring_count[c] = 0;
+    for (int i = 0; i < n; i++) {
+        owner[i] = any[i] = -1;
+        if (cls[i] != SIM_CELL_SEED)
+            continue;
+        int x = i % w, y = i / w;
+        for (int j = 0; j < 8; j++) {
+            int qx = x + ring_dx[j], qy = y + ring_dy[j];
+            if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                continue;
+            int32_t l = label[qy * w + qx];
+            if (l < 0)
+                continue;
+            /* a cell touching two components belongs to the lower label */
+            if (any[i] < 0 || l < any[i])
+                any[i] = l;
+            /* d_column = -(ring_dx, ring_dy): ahead or beside when motion . d >= 0 */
+            int ahead = motion[2 * l] * ring_dx[j] + motion[2 * l + 1] * ring_dy[j] <= 0.0;
+            if (ahead && (owner[i] < 0 || l < owner[i]))
+                owner[i] = l;
+        }
+        if (owner[i] >= 0)
+            ring_count[owner[i]]++;
+    }
+    /* a component with no ring cell ahead or beside it takes its whole ring
+     * (motion is no longer needed: it holds that flag now) */
+    for (int32_t c = 0; c < components; c++)
+        motion[c] = ring_count[c] == 0 ? 1.0 : 0.0;
+    for (int i = 0; i < n; i++) {
+        if (owner[i] < 0 && any[i] >= 0 && motion[any[i]] != 0.0) {
+            owner[i] = any[i];
+            ring_count[owner[i]]++;
+        }
+    }
 }
 
 static void sumner_depth(const sim_window_job *job, int32_t *bottom)
@@ -125,23 +232,8 @@ sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, in
     for (int i = 0; i < n; i++)
         if (cls[i] == SIM_CELL_PENETRATING)
             total[label[i]] += given[i];
-    for (int i = 0; i < n; i++) {
-        owner[i] = -1;
-        if (cls[i] != SIM_CELL_SEED)
-            continue;
-        int x = i % w, y = i / w;
-        for (int j = 0; j < 8; j++) {
-            int qx = x + ring_dx[j], qy = y + ring_dy[j];
-            if (qx < 0 || qy < 0 || qx >= w || qy >= h)
-                continue;
-            int32_t l = label[qy * w + qx];
-            /* a cell touching two components belongs to the lower label */
-            if (l >= 0 && (owner[i] < 0 || l < owner[i]))
-                owner[i] = l;
-        }
-        if (owner[i] >= 0)
-            ring_count[owner[i]]++;
-    }
+    ring_owners(job, w, h, cls, label, components, queue, (double *)(void *)erosion_scratch, owner,
+                ring_count);
 
     /* 2 (cont.): new heights into `next`; a component with no ring keeps its
      * displaced material home and loses only the compacted part. */

@@ -225,7 +225,6 @@ typedef struct sim_window_job {
     int32_t *heights;              /* in: gathered heights; out: new heights (w*h) */
     const sim_collider *colliders; /* those whose footprint meets the window */
     int collider_count;
-    int32_t depth_low, depth_high;  /* height range the depth stage must resolve (units) */
     const int32_t *bottom_override; /* non-NULL: use this depth, skip the depth stage */
     int32_t *bottom_out;            /* non-NULL: receives the depth that was used */
     /* For the models that need them (NULL otherwise): */
@@ -369,8 +368,6 @@ void sim_engine_destroy(sim_engine *e);
  * material equal to the params and no compaction memory changes nothing: the
  * uniform path runs. */
 void sim_engine_set_ground(sim_engine *e, ground *g);
-/* Feed the CPU twin's depth to the backend (GL ≡ CPU tests, --depth-from-cpu). */
-void sim_engine_set_depth_from_cpu(sim_engine *e, int on);
 /* Returns 0, or -1 with err set if the backend failed (the world is unchanged then). */
 int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_count,
                     sim_tick_report *report, error_text *err);

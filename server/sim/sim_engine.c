@@ -6,8 +6,8 @@
  *            windows still refilling
  *   gather   each window's heights (and ground layers) packed one after
  *            another, a job per window
- *   depth    the CPU depth the engine casts itself: for --depth-from-cpu
- *            (fed to the backend) and for the models that read it
+ *   depth    the CPU depth the engine casts itself, for the models that
+ *            read it (diffusion)
  *   model    the persson models on the backend, as one batch; the others
  *            through their CPU window functions (model_<name>.c)
  *   scatter  accepted windows back into the world; a tight dirty rectangle
@@ -47,7 +47,6 @@ struct sim_engine {
     sim_params params;
     sim_backend *backend;
     int margin_cells;
-    int depth_from_cpu;
     thread_owner owner; /* the sim thread, from the first tick */
     engine_batch batch;
     /* reusable scratch, grown to the largest tick seen */
@@ -132,11 +131,6 @@ void sim_engine_set_ground(sim_engine *e, ground *g)
     int same =
         g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
     e->ground = g && !same ? g : NULL;
-}
-
-void sim_engine_set_depth_from_cpu(sim_engine *e, int on)
-{
-    e->depth_from_cpu = on ? 1 : 0;
 }
 
 world *sim_engine_world(const sim_engine *e)
@@ -241,7 +235,7 @@ static int tick_reserve_cells(sim_engine *e, int persson)
             0)
         return -1;
     /* depth on the engine's side only where something reads it */
-    if ((e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model))) &&
+    if (!persson && sim_model_needs_depth(e->params.model) &&
         array_grow((void **)&e->bottom, &e->bottom_capacity, need, sizeof *e->bottom) != 0)
         return -1;
     if (!persson && sim_model_needs_base(&e->params) &&
@@ -276,10 +270,9 @@ static void gather_ground(sim_engine *e, sim_window_job *job, int64_t offset)
     }
 }
 
-/* The colliders over window r into job; returns the lowest height (units)
- * the depth stage must resolve there. */
-static int32_t gather_colliders(sim_engine *e, const sim_collider *colliders, int collider_count,
-                                sim_window_job *job, int *ref, int32_t zmin)
+/* The colliders over window r into job. */
+static void gather_colliders(sim_engine *e, const sim_collider *colliders, int collider_count,
+                             sim_window_job *job, int *ref)
 {
     job->colliders = e->window_colliders + *ref;
     for (int c = 0; c < collider_count; c++) {
@@ -287,17 +280,11 @@ static int32_t gather_colliders(sim_engine *e, const sim_collider *colliders, in
             continue;
         e->window_colliders[(*ref)++] = colliders[c];
         job->collider_count++;
-        vec3d lo, hi; /* the swept collider's: a sub-step may reach lower than this pose */
-        sim_collider_sweep_bounds(&colliders[c], e->world->cell_size_m, &lo, &hi);
-        int32_t z = sim_units_clamped(lo.z, e->world->units_per_m);
-        if (z < zmin)
-            zmin = z;
     }
-    return zmin;
 }
 
-/* A job per window: heights (and their copy), ground layers, colliders,
- * base heights and the depth range. */
+/* A job per window: heights (and their copy), ground layers, colliders and
+ * base heights. */
 static void tick_gather(sim_engine *e, const sim_collider *colliders, int collider_count,
                         int32_t refill_units, int needs_base)
 {
@@ -318,27 +305,22 @@ static void tick_gather(sim_engine *e, const sim_collider *colliders, int collid
         world_gather_window(w, r, job->heights);
         gather_ground(e, job, offset);
         memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
-        int32_t hmin, hmax;
-        world_rect_height_range(w, r, &hmin, &hmax);
-        int32_t zmin = gather_colliders(e, colliders, collider_count, job, &ref, hmin);
+        gather_colliders(e, colliders, collider_count, job, &ref);
         if (needs_base && world_base_fill_rect(w, r, e->base + offset) == 0)
             job->base_heights = e->base + offset;
         job->refill_units = refill_units;
-        job->depth_low = zmin - 1 > e->params.floor ? zmin - 1 : e->params.floor;
-        job->depth_high = hmax + e->params.obstacle_gap + 1;
         offset += (int64_t)r.w * r.h;
     }
 }
 
 /* ---- depth ---- */
 
-/* The depth the engine casts on the CPU: for every window with
- * --depth-from-cpu (the backend then skips its own), else for the models
- * that read it (timed as the depth stage). */
+/* The depth the engine casts on the CPU for the models that read it
+ * (timed as the depth stage); the persson models get theirs from the
+ * backend, which computes the same fixed-point depth on either backend. */
 static void tick_depth(sim_engine *e, int persson, sim_tick_report *report)
 {
-    int cast = e->depth_from_cpu || (!persson && sim_model_needs_depth(e->params.model));
-    if (!cast)
+    if (persson || !sim_model_needs_depth(e->params.model))
         return;
     double t0 = time_now_ms();
     engine_batch *b = &e->batch;
@@ -348,11 +330,7 @@ static void tick_depth(sim_engine *e, int persson, sim_tick_report *report)
         sim_window_depth(job, bottom);
         job->bottom_override = bottom;
     }
-    double ms = time_now_ms() - t0;
-    if (e->depth_from_cpu)
-        report->gather_scatter_ms += ms;
-    else
-        report->times.depth += ms;
+    report->times.depth += time_now_ms() - t0;
 }
 
 /* ---- model ---- */

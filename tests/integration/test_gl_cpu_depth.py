@@ -3,8 +3,8 @@
 """GL ≡ CPU end to end (issue 12, item 4), through the real binary: every
 scene in tests/scenes (and so every mesh in tests/scenes/meshes, which only
 boot.json uses) is run by `terrad simulate --backend gl` and `--backend cpu`,
-each with its OWN depth (no --depth-from-cpu), and the two --out heights
-files must be identical byte for byte. The depth stage is one fixed-point
+each with its OWN depth (the option that handed GL the CPU's depth is
+gone), and the two --out heights files must be identical byte for byte. The depth stage is one fixed-point
 specification (server/collider/depth_fixed.c) with a GLSL twin
 (shaders/depth_exact.comp); docs/core.md gives the figures before it.
 

@@ -1,0 +1,103 @@
+/*
+ * test_demo_edges.c: the demo world's edges (issue 12, "Also": "the demo
+ * world grows tall thin fins along its edges after a few minutes of
+ * `make run`"). It runs what `terrad serve` runs without clients — the
+ * embedded default scene, the CPU twin and the six built-in demo actors
+ * (serve_demo.c), stepped and ticked exactly as serve_step_demo does — for
+ * 3,600 ticks (one minute of the demo at 60 Hz), without the daemon's clock.
+ *
+ * The fins came from the actors: they bounced off the world's edge with
+ * their centre, so a sphere spent its bounce half outside the world. The
+ * material of the half inside has no ring on the edge side: every pressed
+ * cell along the edge gave it to the two ends of the footprint on the edge
+ * column, which rose to 9.3 m in a tick and could only relax along that
+ * column (slope evening never moves material into a footprint), and left a
+ * fin when the actor moved on. An actor now bounces with its rim, so its
+ * sphere stays inside the world. Checked here:
+ *   - no actor's sphere ever reaches past the world's edge;
+ *   - no column of the border (the outermost 3 cells) ends higher than the
+ *     highest column of the interior: before, the border held the world's
+ *     tallest columns (5.4 m transient, 2.0 m left standing after three
+ *     minutes, against 1.9 m inside).
+ */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "app/app.h"
+#include "app/serve_internal.h"
+#include "check.h"
+
+#ifndef DEMO_TICKS
+#define DEMO_TICKS 3600
+#endif
+#define BORDER 3
+
+int main(void)
+{
+    error_text err = {{0}};
+    scene sc;
+    world w;
+    CHECK(app_open_scene_world(NULL, &sc, &w, &err) == 0, "default scene: %s", err.message);
+    sim_params p;
+    CHECK(sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &p, &err) ==
+              0,
+          "params: %s", err.message);
+    sim_backend *cpu = sim_backend_cpu_create(&err);
+    sim_engine *engine = sim_engine_create(&w, &p, cpu, sc.active_margin_cells, &err);
+    CHECK(engine != NULL, "engine: %s", err.message);
+    if (!engine)
+        return check_report();
+
+    enum { ACTORS = 6 }; /* serve's default --demo-actors */
+    demo_actor actors[ACTORS];
+    sim_collider colliders[ACTORS] = {{0}};
+    demo_actors_init(actors, ACTORS, &w);
+    double size_x = w.width * w.cell_size_m, size_y = w.height * w.cell_size_m;
+    int outside = 0, failed_ticks = 0;
+    for (long tick = 0; tick < DEMO_TICKS; tick++) {
+        for (int a = 0; a < ACTORS; a++) { /* as serve_step_demo */
+            sim_collider *c = &colliders[a];
+            c->id = a + 1;
+            c->geometry = &actors[a].geometry;
+            c->previous_pose = c->pose;
+            c->pose = demo_actor_step(&actors[a], &w, 1.0 / sc.tick_hz, (double)tick / sc.tick_hz);
+            c->has_previous = tick > 0;
+            double r = actors[a].geometry.radius, x = c->pose.position.x, y = c->pose.position.y;
+            if (x - r < 0.0 || x + r > size_x || y - r < 0.0 || y + r > size_y)
+                outside++;
+        }
+        sim_tick_report report;
+        if (sim_engine_tick(engine, colliders, ACTORS, &report, &err) != 0)
+            failed_ticks++;
+    }
+    CHECK(failed_ticks == 0, "every tick ran (%d failed: %s)", failed_ticks, err.message);
+    CHECK(outside == 0, "no actor's sphere reaches past the world's edge (%d poses did)", outside);
+
+    int32_t border_max = INT32_MIN, interior_max = INT32_MIN;
+    int bx = 0, by = 0;
+    for (int y = 0; y < w.height; y++) {
+        for (int x = 0; x < w.width; x++) {
+            int32_t h = world_height_at(&w, x, y);
+            int border =
+                x < BORDER || y < BORDER || x >= w.width - BORDER || y >= w.height - BORDER;
+            if (border && h > border_max) {
+                border_max = h;
+                bx = x;
+                by = y;
+            }
+            if (!border && h > interior_max)
+                interior_max = h;
+        }
+    }
+    printf("after %d ticks: highest border column %d at (%d, %d), highest interior column %d\n",
+           DEMO_TICKS, border_max, bx, by, interior_max);
+    CHECK(border_max <= interior_max,
+          "no fin on the border: its highest column %d (at %d, %d) <= the interior's %d",
+          border_max, bx, by, interior_max);
+
+    sim_engine_destroy(engine);
+    cpu->destroy(cpu);
+    world_free(&w);
+    scene_free(&sc);
+    return check_report();
+}
