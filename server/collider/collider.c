@@ -3,7 +3,7 @@
  * world-space bounds and scripted motion. Each tick starts here: a collider's
  * pose (streamed or from collider_motion_pose) and its bounds decide its
  * footprint, the footprints become windows (step 3 of the tick), and the
- * depth stage (depth_cpu.c, or the GL raster of tessellate.c's triangles)
+ * depth stage (depth_fixed.c on either backend)
  * then works only inside them. Bounds are exact rather than bounding-sphere
  * wide, because every extra cell of footprint is work for every later stage.
  */

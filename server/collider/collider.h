@@ -158,14 +158,6 @@ int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, 
 void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w);
 uint64_t collider_isqrt64(uint64_t v);
 
-/*
- * Triangles in the local frame (test_collider's meshes of primitives):
- * primitives are tessellated to within a few millimetres of the exact surface
- * for wheel-sized shapes; meshes are copied. The caller frees both arrays.
- */
-int collider_tessellate(const collider_geometry *g, float **vertices, int *vertex_count,
-                        uint32_t **indices, int *index_count);
-
 /* OBJ loading: v and f lines (polygons fanned into triangles, negative and
  * v/vt/vn indices accepted); everything else ignored. */
 int collider_mesh_load_obj(const char *path, collider_mesh *mesh, error_text *err);

@@ -1,12 +1,12 @@
 /*
  * obj.c: Wavefront OBJ meshes for mesh colliders (a boot, a track link, a
  * robot foot). Loaded once when a scene or a client registers the collider;
- * the tick then uses the triangles in depth_cpu.c and, tessellated as-is, in
- * the GL raster. Only `v` and `f` lines matter: polygons are fanned into
- * triangles, indices may be `i`, `i/t`, `i//n`, `i/t/n` or negative
- * (relative to the vertices read so far). Everything that would make a
- * wrong depth later — no triangles, an index out of range, a NaN coordinate,
- * an absurd size — is refused here with the file and line in the message.
+ * the tick then uses the triangles in the fixed-point depth rule
+ * (depth_fixed.c on the CPU, shaders/depth_exact.comp on GL). Only `v` and
+ * `f` lines matter: polygons are fanned into triangles, indices may be `i`, `i/t`, `i//n`, `i/t/n`
+ * or negative (relative to the vertices read so far). Everything that would make a wrong depth
+ * later — no triangles, an index out of range, a NaN coordinate, an absurd size — is refused here
+ * with the file and line in the message.
  */
 #include "collider/collider.h"
 

@@ -7,7 +7,7 @@
  * than half a cell between two of them; the depth is the minimum over those
  * poses. The poses are a pure function of (geometry, previous pose, pose,
  * cell size) computed here on the CPU in double precision, so the CPU twin
- * (sim_window_depth) and the GL raster (gl/depth.c) see the very same poses.
+ * (sim_window_depth) and the GL depth pass (gl/depth.c) see the very same poses.
  *
  * The previous pose itself is not a sub-step: its depth was applied on the
  * tick before, so a collider at rest, or one that moves at most half a cell,

@@ -3,8 +3,9 @@
  * motion, OBJ loading and — above all — the CPU twin's depth stage against
  * closed-form answers: a sphere at its centre and rim, a box at 45 degrees,
  * a wheel lying on its side, a standing cylinder (lines parallel to the
- * axis), a capsule's hemispheres, and the tessellated shapes the GL raster
- * draws, which must stay within millimetres above the analytic bottom.
+ * axis), a capsule's hemispheres, and the primitives tessellated into meshes
+ * (tests/support/tessellate.c), whose depth must stay within millimetres above
+ * the analytic bottom.
  */
 #include <math.h>
 #include <stdio.h>
@@ -14,6 +15,7 @@
 
 #include "collider/collider.h"
 #include "check.h"
+#include "tessellate.h"
 
 #define UPM 10000
 #define NONE COLLIDER_BOTTOM_NONE
@@ -411,7 +413,7 @@ static void test_depth_cylinder_capsule(void)
     free(b);
 }
 
-/* Depth of a tessellated shape (as the GL raster sees it) against the analytic one. */
+/* Depth of a tessellated shape (the mesh rule) against the analytic one. */
 static void compare_tessellated(const char *name, collider_geometry g, collider_pose p,
                                 int32_t max_above)
 {

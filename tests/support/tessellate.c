@@ -1,14 +1,14 @@
 /*
  * tessellate.c: triangles of a collider in its local frame. The GL backend
  * drew these for its depth until issue 12 (the depth is one fixed-point rule
- * now, depth_fixed.c); what still uses them is test_collider, which turns a
- * primitive into a mesh to check the mesh rule against the primitive's.
+ * now, server/collider/depth_fixed.c), so they live with the tests: test_collider
+ * turns a primitive into a mesh to check the mesh rule against the primitive's.
  * Every vertex lies on the analytic surface, so each facet is a chord inside
  * the solid: seen from below, a tessellated shape is never lower than the
  * exact one, only higher by the sagitta (0.7 mm for a 0.33 m wheel at 48
  * segments).
  */
-#include "collider/collider.h"
+#include "tessellate.h"
 
 #include <math.h>
 #include <stdlib.h>
