@@ -280,6 +280,33 @@ static int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x, in
     return best;
 }
 
+/* Chunks of a banded loop: a few per thread, so a thread that starts late
+ * leaves its share to the others (sim_parallel_for). */
+static int64_t band_chunk(int64_t items, int bands)
+{
+    int64_t chunk = items / ((int64_t)bands * 4);
+    return chunk < SIM_BAND_MIN_ITEMS / 4 ? SIM_BAND_MIN_ITEMS / 4 : chunk;
+}
+
+/* One step of sparse jump flooding over the listed cells. */
+typedef struct jfa_loop {
+    sim_metric metric;
+    int origin_x, origin_y, w, h, k;
+    const int32_t *list;
+    const int32_t *in;
+    int32_t *out;
+} jfa_loop;
+
+static void jfa_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+    const jfa_loop *l = ctx;
+    for (int64_t c = begin; c < end; c++) {
+        int i = l->list[c], y = i / l->w, x = i - y * l->w;
+        l->out[i] = jfa_pick(l->metric, l->origin_x, l->origin_y, x, y, l->k, l->w, l->h, l->in);
+    }
+}
+
 void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
                     const int32_t *cls, int32_t *seed, int32_t *scratch)
 {
@@ -301,15 +328,13 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
     if (count > 0) {
         memcpy(other, seed, (size_t)n * sizeof *seed);
         int32_t *in = seed, *out = other;
+        jfa_loop l = {p->metric, origin_x, origin_y, w, h, 0, list, NULL, NULL};
         int bands = sim_band_threads(count);
-        (void)bands; /* read only by the OpenMP pragma */
-        for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
+        for (l.k = jump_flood_first_step(w, h); l.k >= 1; l.k /= 2) {
             /* each listed cell reads `in`, writes its own `out`: bands are exact */
-            SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
-            for (int c = 0; c < count; c++) {
-                int i = list[c], y = i / w, x = i - y * w;
-                out[i] = jfa_pick(p->metric, origin_x, origin_y, x, y, k, w, h, in);
-            }
+            l.in = in;
+            l.out = out;
+            sim_parallel_for(count, band_chunk(count, bands), bands, jfa_range, &l);
             int32_t *t = in;
             in = out;
             out = t;
@@ -626,6 +651,25 @@ static int slope_first_list(const ground_material_table *t, const uint8_t *ids, 
     return count;
 }
 
+/* One iteration's new heights of the listed cells into value[]. */
+typedef struct slope_loop {
+    const ground_material_table *t;
+    const uint8_t *ids;
+    int w, h;
+    const int32_t *cls, *heights, *list;
+    int32_t *value;
+} slope_loop;
+
+static void slope_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+    const slope_loop *l = ctx;
+    for (int64_t c = begin; c < end; c++) {
+        int i = l->list[c], y = i / l->w;
+        l->value[c] = slope_next(l->t, l->ids, l->w, l->h, l->cls, l->heights, i - y * l->w, y);
+    }
+}
+
 /*
  * The sparse slope evening the engine runs; sim_even_slopes_materials_dense
  * is its reference. Iteration 1 visits the cells that slope_may_move; a
@@ -649,14 +693,10 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
     for (int i = 0; i < n; i++)
         mark[i] = -1;
     for (int32_t iter = 0; iter < p->slope_iterations && count > 0; iter++) {
-        int bands = sim_band_threads(count);
-        (void)bands; /* read only by the OpenMP pragma */
         /* Jacobi: every listed cell reads the old heights; bands are exact */
-        SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
-        for (int c = 0; c < count; c++) {
-            int i = list[c], y = i / w;
-            value[c] = slope_next(t, ids, w, h, cls, heights, i - y * w, y);
-        }
+        slope_loop l = {t, ids, w, h, cls, heights, list, value};
+        int bands = sim_band_threads(count);
+        sim_parallel_for(count, band_chunk(count, bands), bands, slope_range, &l);
         int next_count = 0;
         for (int c = 0; c < count; c++) {
             int i = list[c];
