@@ -23,6 +23,14 @@ void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn
  * another parallel loop or for a small loop. */
 #define SIM_BAND_MIN_ITEMS 4096
 int sim_band_threads(int64_t items);
+/* Chunk size for a banded loop of `items` on `bands` threads: a few chunks
+ * per thread, so a thread that starts late leaves its share to the others. */
+int64_t sim_band_chunk(int64_t items, int bands);
+
+/* The 8-neighbourhood in the order every stage visits it (sums and tie
+ * rules follow it); the first four are axial, the last four diagonal. */
+extern const int sim_neighbour_dx[8];
+extern const int sim_neighbour_dy[8];
 
 typedef enum sim_cell_class {
     SIM_CELL_SEED = 0,        /* free: can receive material */

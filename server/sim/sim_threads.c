@@ -167,6 +167,12 @@ void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn
     pthread_mutex_unlock(&pool.owner);
 }
 
+int64_t sim_band_chunk(int64_t items, int bands)
+{
+    int64_t chunk = items / ((int64_t)(bands > 0 ? bands : 1) * 4);
+    return chunk < SIM_BAND_MIN_ITEMS / 4 ? SIM_BAND_MIN_ITEMS / 4 : chunk;
+}
+
 int sim_band_threads(int64_t items)
 {
     /* below this a parallel loop costs more than it saves */
