@@ -114,14 +114,14 @@ struct cell_window {
 };
 
 /*
- * This invocation's cell: its window, the window-local coordinates and the
- * flat index. False for invocations past the batch or outside their window
+ * This invocation's cell in tile `tile` of the batch table (locate_cell:
+ * the workgroup's own tile; jump_flood.comp: a tile of the compacted list):
+ * its window, the window-local coordinates and the flat index. False for invocations past the batch or outside their window
  * (tiles overhang a window's right and top edges). Dispatches are 2D grids
  * of tiles so that batches beyond 65535 tiles fit.
  */
-bool locate_cell(out cell_window win, out int x, out int y, out int c)
+bool locate_tile_cell(uint tile, out cell_window win, out int x, out int y, out int c)
 {
-    uint tile = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     win = cell_window(0, 0, 1, 1);
     x = 0;
     y = 0;
@@ -134,6 +134,12 @@ bool locate_cell(out cell_window win, out int x, out int y, out int c)
     y = (t.y >> 16) + int(gl_LocalInvocationID.y);
     c = win.offset + y * win.w + x;
     return x < win.w && y < win.h;
+}
+
+bool locate_cell(out cell_window win, out int x, out int y, out int c)
+{
+    return locate_tile_cell(gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x, win, x, y,
+                            c);
 }
 
 /* Seeds are stored as window-local coordinates x | y << 16 rather than the

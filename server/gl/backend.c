@@ -68,6 +68,8 @@ static const char *const compute_names[PROG_COMPUTE_COUNT] = {
     "shaders/even_slopes.comp",
     "shaders/depth_to_bottom.comp",
     "shaders/depth_exact.comp",
+    "shaders/tile_list.comp",
+    "shaders/tile_args.comp",
 };
 
 static const char *const uniform_names[U_COUNT] = {
@@ -85,6 +87,7 @@ static const char *const uniform_names[U_COUNT] = {
     "u_material_count",
     "u_material_rows",
     "u_material_max_compaction",
+    "u_groups_max",
 };
 
 /* ---- a batch ---- */
@@ -322,7 +325,7 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
     gl_stage_classify(b, jobs[0].materials != NULL);
     t = gl_stage_end(b, &times->classify, t);
 
-    int seed = gl_stage_jump_flood(b, max_side);
+    int seed = gl_stage_jump_flood(b, max_side, cells);
     t = gl_stage_end(b, &times->jump_flood, t);
 
     gl_stage_displace(b, p, cells, seed);
@@ -439,6 +442,7 @@ static void gl_destroy(sim_backend *base)
         glDeleteBuffers(BUF_COUNT, b->buffers);
         glDeleteBuffers(1, &b->table_buffer);
         glDeleteBuffers(1, &b->status_buffer);
+        glDeleteBuffers(1, &b->tile_list_buffer);
         if (b->atlas)
             glDeleteTextures(1, &b->atlas);
         if (b->fbo)
@@ -528,6 +532,7 @@ sim_backend *sim_backend_gl_create(error_text *err)
     glGenTextures(1, &b->table_texture);
     glGenBuffers(1, &b->table_buffer);
     glGenBuffers(1, &b->status_buffer);
+    glGenBuffers(1, &b->tile_list_buffer);
     glGenFramebuffers(1, &b->fbo);
     if (gl_check("creating the backend", err) != 0)
         goto fail;

@@ -72,6 +72,19 @@ void gl_dispatch(gl_backend *b, int prog)
     gl_barrier();
 }
 
+void gl_dispatch_indirect(gl_backend *b, int prog, GLuint buffer, GLintptr offset)
+{
+    glUseProgram(b->programs[prog]);
+    glUniform1i(b->uniforms[prog][U_TILE_COUNT], (GLint)b->tile_count);
+    glUniform1i(b->uniforms[prog][U_WINDOW_COUNT], b->window_count);
+    glBindBuffer(GL_DISPATCH_INDIRECT_BUFFER, buffer);
+    glDispatchComputeIndirect(offset);
+    glBindBuffer(GL_DISPATCH_INDIRECT_BUFFER, 0);
+    gl_sync.dispatches++;
+    gl_sync.indirect++;
+    gl_barrier();
+}
+
 /* Ends a stage: with stage timing on, waits for the GPU so the time is real. */
 double gl_stage_end(gl_backend *b, double *acc, double since)
 {
@@ -99,6 +112,7 @@ uint64_t gl_scratch_bytes(const sim_backend *base)
     uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
     bytes += (uint64_t)b->material_capacity * 2 * sizeof(int32_t); /* GPU and host copies */
     bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
+    bytes += b->tile_list_capacity > 0 ? 16u + 4u * (uint64_t)b->tile_list_capacity : 0u;
     return bytes + texture_bytes(b);
 }
 
@@ -194,6 +208,18 @@ int gl_ensure_table(gl_backend *b, int window_count, int64_t tiles, error_text *
         0) {
         error_set(err, "gl backend: out of memory for %lld tiles", (long long)tiles);
         return -1;
+    }
+    if (tiles > b->tile_list_capacity) {
+        int64_t list_cap = b->tile_list_capacity ? b->tile_list_capacity : 1024;
+        while (list_cap < tiles)
+            list_cap *= 2;
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->tile_list_buffer);
+        glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(16 + 4 * list_cap), NULL,
+                     GL_DYNAMIC_COPY);
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+        if (gl_check("growing the tile list", err) != 0)
+            return -1;
+        b->tile_list_capacity = list_cap;
     }
     if (ints * 4 <= b->table_capacity)
         return 0;

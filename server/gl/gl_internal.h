@@ -65,6 +65,8 @@ enum {
     PROG_EVEN_SLOPES,
     PROG_DEPTH_TO_BOTTOM,
     PROG_DEPTH_EXACT,
+    PROG_TILE_LIST,
+    PROG_TILE_ARGS,
     PROG_COMPUTE_COUNT,
     PROG_RASTER = PROG_COMPUTE_COUNT,
     PROG_COUNT
@@ -86,6 +88,7 @@ enum {
     U_MATERIAL_COUNT,
     U_MATERIAL_ROWS,
     U_MATERIAL_MAX,
+    U_GROUPS_MAX,
     U_COUNT
 };
 
@@ -130,6 +133,10 @@ typedef struct gl_backend {
      * (capacity in windows) */
     GLuint table_buffer, table_texture, status_buffer;
     int64_t table_capacity;
+    /* jump flooding's compacted tile list (tile_list.comp): a count, the
+     * indirect dispatch's 3 group counts, then tile indices; capacity in tiles */
+    GLuint tile_list_buffer;
+    int64_t tile_list_capacity;
     int window_capacity;
     window_entry *entries;
     uint32_t *status_host;
@@ -220,6 +227,9 @@ void gl_bind(gl_backend *b, int binding, int buffer);
 void gl_sample(gl_backend *b, int unit, int buffer);
 /* One 8x8 workgroup per tile of the chunk, then a barrier. */
 void gl_dispatch(gl_backend *b, int prog);
+/* The same over the groups an earlier pass wrote into `buffer` at byte
+ * `offset` (glDispatchComputeIndirect), then a barrier. */
+void gl_dispatch_indirect(gl_backend *b, int prog, GLuint buffer, GLintptr offset);
 /* Ends a stage: adds the time since `since` to *acc (after glFinish with
  * stage timing on); returns now. */
 double gl_stage_end(gl_backend *b, double *acc, double since);
@@ -245,7 +255,7 @@ void gl_depth_delete_geometries(gl_backend *b);
 void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_material_table *t);
 void gl_stage_classify(gl_backend *b, int materials);
 /* These return the buffer (BUF_*) holding their result. */
-int gl_stage_jump_flood(gl_backend *b, int max_side);
+int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells);
 void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed);
 int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials);
 

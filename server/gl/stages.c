@@ -54,15 +54,44 @@ static int first_step(int side)
     return k;
 }
 
-/* Returns the buffer (BUF_*) that holds the final seeds. */
-int gl_stage_jump_flood(gl_backend *b, int max_side)
+/*
+ * Sparse jump flooding, as sim_jump_flood on the CPU: tile_list.comp lists
+ * the 8x8 tiles holding a cell that is not free, tile_args.comp makes the
+ * list an indirect dispatch, and each step runs over the listed tiles only.
+ * The other tiles hold free cells, which are their own seeds in both
+ * ping-pong buffers (SEED_A copied to SEED_B once), so whichever buffer
+ * ends the steps holds every cell's seed. Returns that buffer (BUF_*).
+ */
+int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells)
 {
+    const GLuint zero = 0;
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->tile_list_buffer);
+    glClearBufferSubData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, 0, 4, GL_RED_INTEGER, GL_UNSIGNED_INT,
+                         &zero);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, b->tile_list_buffer);
+    gl_sample(b, 1, BUF_CLS);
+    gl_dispatch(b, PROG_TILE_LIST);
+    glProgramUniform1i(b->programs[PROG_TILE_ARGS], b->uniforms[PROG_TILE_ARGS][U_GROUPS_MAX],
+                       b->max_groups_x);
+    glUseProgram(b->programs[PROG_TILE_ARGS]);
+    glDispatchCompute(1, 1, 1);
+    gl_sync.dispatches++;
+    /* the group counts are read as dispatch commands */
+    glMemoryBarrier(GL_COMMAND_BARRIER_BIT | GL_SHADER_STORAGE_BARRIER_BIT);
+    gl_sync.barriers++;
+    glBindBuffer(GL_COPY_READ_BUFFER, b->buffers[BUF_SEED_A]);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, b->buffers[BUF_SEED_B]);
+    glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, 0, 0, (GLsizeiptr)(cells * 4));
+    glBindBuffer(GL_COPY_READ_BUFFER, 0);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
     int in = BUF_SEED_A, out = BUF_SEED_B;
     for (int k = first_step(max_side); k >= 1; k /= 2) {
         glProgramUniform1i(b->programs[PROG_JUMP_FLOOD], b->uniforms[PROG_JUMP_FLOOD][U_STEP], k);
         gl_sample(b, 1, in);
         gl_bind(b, 2, out);
-        gl_dispatch(b, PROG_JUMP_FLOOD);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, b->tile_list_buffer);
+        gl_dispatch_indirect(b, PROG_JUMP_FLOOD, b->tile_list_buffer, 4);
         int t = in;
         in = out;
         out = t;

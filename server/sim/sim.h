@@ -281,6 +281,9 @@ typedef struct sim_tile_cache_stats {
  * (glGetBufferSubData calls and their bytes) and full waits (glFinish). */
 typedef struct sim_gpu_sync_stats {
     uint64_t dispatches, draws, barriers, readbacks, readback_bytes, finishes;
+    /* of the dispatches, those over a compacted list whose size the GPU
+     * wrote (glDispatchComputeIndirect: jump flooding's listed tiles) */
+    uint64_t indirect;
 } sim_gpu_sync_stats;
 
 typedef struct sim_backend sim_backend;

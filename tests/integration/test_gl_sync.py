@@ -1,8 +1,8 @@
 #!/usr/bin/python3
 # ctest-timeout: 300
 """`terrad simulate` reports the GPU's synchronisation points per tick
-(gpu_sync_per_tick: dispatches, draws, barriers, readbacks, readback_bytes,
-finishes), counted where server/gl issues them.
+(gpu_sync_per_tick: dispatches, the indirect ones among them, draws, barriers,
+readbacks, readback_bytes, finishes), counted where server/gl issues them.
 
 On the CPU backend every count is 0. On GL (skipped where no OpenGL 4.3
 context can be made) a tick of a scene that deforms dispatches compute
@@ -19,7 +19,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import BIN, SOURCE, Checks  # noqa: E402
 
 check = Checks()
-KEYS = ["dispatches", "draws", "barriers", "readbacks", "readback_bytes", "finishes"]
+KEYS = ["dispatches", "indirect", "draws", "barriers", "readbacks", "readback_bytes", "finishes"]
 
 
 def simulate(scene, backend, ticks=10):
@@ -48,6 +48,10 @@ else:
         check(sorted(g) == sorted(KEYS), f"gpu_sync_per_tick has {KEYS}: {g}")
         check(g.get("dispatches", 0) >= 1 and g.get("barriers", 0) >= 1,
               f"GL ticks dispatch compute passes with barriers: {g}")
+        # jump flooding runs over the compacted tile list: one indirect dispatch per step
+        # (spheres.json's windows need at least one step), counted among the dispatches
+        check(1 <= g.get("indirect", 0) < g.get("dispatches", 0),
+              f"jump flooding's steps are indirect dispatches over the listed tiles: {g}")
         check(g.get("readbacks", 0) >= 1 and g.get("readback_bytes", 0) >= 8,
               f"GL ticks read status and heights back: {g}")
         # the depth is one fixed-point compute pass now (docs/core.md), not a raster
