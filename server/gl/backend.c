@@ -8,10 +8,14 @@
  *   upload      heights (and uploaded bottoms) into flat per-cell buffers
  *   depth       colliders rasterised into a depth atlas, then depth → bottom
  *   classify    classify.comp (also heights -= raw, jump-flood init)
- *   jump_flood  jump_flood.comp, once per step size, ping-pong
+ *   jump_flood  tile_list.comp (the tiles that are not all free), then
+ *               jump_flood.comp once per step size over that list
+ *               (indirect dispatch), ping-pong
  *   displace    displace_ssbo/multi.comp + displace_land.comp, or
  *               displace_iterative_init/pass.../dead_end/finish.comp
- *   even_slopes even_slopes.comp per iteration, ping-pong
+ *   even_slopes even_slopes.comp per iteration, ping-pong: every tile first,
+ *               then the tiles around the last iteration's changes
+ *               (indirect dispatch over the list it appended)
  *   readback    window status flags, then the heights of accepted windows
  *
  * Layout: window i of the batch owns cells [offset_i, offset_i + w_i*h_i)
@@ -69,7 +73,6 @@ static const char *const compute_names[PROG_COMPUTE_COUNT] = {
     "shaders/depth_to_bottom.comp",
     "shaders/depth_exact.comp",
     "shaders/tile_list.comp",
-    "shaders/tile_args.comp",
 };
 
 static const char *const uniform_names[U_COUNT] = {
@@ -87,7 +90,9 @@ static const char *const uniform_names[U_COUNT] = {
     "u_material_count",
     "u_material_rows",
     "u_material_max_compaction",
-    "u_groups_max",
+    "u_list_row",
+    "u_sparse",
+    "u_stamp",
 };
 
 /* ---- a batch ---- */
@@ -443,6 +448,8 @@ static void gl_destroy(sim_backend *base)
         glDeleteBuffers(1, &b->table_buffer);
         glDeleteBuffers(1, &b->status_buffer);
         glDeleteBuffers(1, &b->tile_list_buffer);
+        glDeleteBuffers(1, &b->tile_next_buffer);
+        glDeleteBuffers(1, &b->tile_mark_buffer);
         if (b->atlas)
             glDeleteTextures(1, &b->atlas);
         if (b->fbo)
@@ -533,6 +540,8 @@ sim_backend *sim_backend_gl_create(error_text *err)
     glGenBuffers(1, &b->table_buffer);
     glGenBuffers(1, &b->status_buffer);
     glGenBuffers(1, &b->tile_list_buffer);
+    glGenBuffers(1, &b->tile_next_buffer);
+    glGenBuffers(1, &b->tile_mark_buffer);
     glGenFramebuffers(1, &b->fbo);
     if (gl_check("creating the backend", err) != 0)
         goto fail;

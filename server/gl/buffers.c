@@ -26,9 +26,10 @@ void gl_barrier(void)
     gl_sync.barriers++;
     /* Every pass reads what the previous one wrote through SSBOs, and buffer
      * clears and readbacks follow shader writes: the GL requires an explicit
-     * barrier for both (the original implementation omitted it). */
+     * barrier for both (the original implementation omitted it). Tile lists
+     * written by a pass are read by the next as indirect dispatch groups. */
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT |
-                    GL_TEXTURE_FETCH_BARRIER_BIT);
+                    GL_TEXTURE_FETCH_BARRIER_BIT | GL_COMMAND_BARRIER_BIT);
 }
 
 int gl_check(const char *what, error_text *err)
@@ -112,7 +113,7 @@ uint64_t gl_scratch_bytes(const sim_backend *base)
     uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
     bytes += (uint64_t)b->material_capacity * 2 * sizeof(int32_t); /* GPU and host copies */
     bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
-    bytes += b->tile_list_capacity > 0 ? 16u + 4u * (uint64_t)b->tile_list_capacity : 0u;
+    bytes += b->tile_list_capacity > 0 ? 3 * (16u + 4u * (uint64_t)b->tile_list_capacity) : 0u;
     return bytes + texture_bytes(b);
 }
 
@@ -213,9 +214,12 @@ int gl_ensure_table(gl_backend *b, int window_count, int64_t tiles, error_text *
         int64_t list_cap = b->tile_list_capacity ? b->tile_list_capacity : 1024;
         while (list_cap < tiles)
             list_cap *= 2;
-        glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->tile_list_buffer);
-        glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(16 + 4 * list_cap), NULL,
-                     GL_DYNAMIC_COPY);
+        const GLuint lists[3] = {b->tile_list_buffer, b->tile_next_buffer, b->tile_mark_buffer};
+        for (int i = 0; i < 3; i++) {
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, lists[i]);
+            glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(16 + 4 * list_cap), NULL,
+                         GL_DYNAMIC_COPY);
+        }
         glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
         if (gl_check("growing the tile list", err) != 0)
             return -1;

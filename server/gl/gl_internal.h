@@ -66,7 +66,6 @@ enum {
     PROG_DEPTH_TO_BOTTOM,
     PROG_DEPTH_EXACT,
     PROG_TILE_LIST,
-    PROG_TILE_ARGS,
     PROG_COMPUTE_COUNT,
     PROG_RASTER = PROG_COMPUTE_COUNT,
     PROG_COUNT
@@ -88,7 +87,9 @@ enum {
     U_MATERIAL_COUNT,
     U_MATERIAL_ROWS,
     U_MATERIAL_MAX,
-    U_GROUPS_MAX,
+    U_LIST_ROW,
+    U_SPARSE,
+    U_STAMP,
     U_COUNT
 };
 
@@ -96,6 +97,11 @@ enum {
  * table continues with TILE_INTS ints per 8x8 tile: window index, corner
  * x | y << 16, the window's offset, w | h << 16. */
 #define TILE_INTS 4
+/* A compacted tile list is dispatched indirectly as rows of this many
+ * groups: whoever appends slot s raises the row count to s / 64 + 1
+ * (atomicMax), so no pass is needed to turn a count into groups, and a row
+ * overhangs the list by at most 63 groups, which return at once. */
+#define TILE_LIST_ROW 64
 typedef struct window_entry {
     int32_t offset;
     int32_t x, y;
@@ -137,6 +143,9 @@ typedef struct gl_backend {
      * indirect dispatch's 3 group counts, then tile indices; capacity in tiles */
     GLuint tile_list_buffer;
     int64_t tile_list_capacity;
+    /* slope evening's next tile list (the same layout; the first list is
+     * tile_list_buffer, free by then) and a mark per tile (gl_stage_even_slopes) */
+    GLuint tile_next_buffer, tile_mark_buffer;
     int window_capacity;
     window_entry *entries;
     uint32_t *status_host;

@@ -554,9 +554,10 @@ static void test_dead_ends(sim_backend *gl, sim_backend *cpu)
 }
 
 /*
- * Sparse jump flooding on the GL backend (tile_list.comp, an indirect
- * dispatch over the listed tiles): windows where most 8x8 tiles hold free
- * cells only and are left out of the list — one small press in a large
+ * Sparse jump flooding and slope evening on the GL backend (compacted tile
+ * lists, indirect dispatch over the listed tiles; slope evening's list after
+ * each iteration is the tiles around a change): windows where most 8x8 tiles
+ * hold free cells only and are left out of the list — one small press in a large
  * window, presses at opposite corners (seeds read across unlisted tiles at
  * every step size), a window nothing penetrates (an empty list), a window
  * pressed everywhere (every tile listed, no seed at all) — against the CPU's
