@@ -112,7 +112,8 @@ uint64_t gl_scratch_bytes(const sim_backend *base)
     const gl_backend *b = (const gl_backend *)base;
     uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
     bytes += (uint64_t)b->material_capacity * 2 * sizeof(int32_t); /* GPU and host copies */
-    bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
+    bytes += (uint64_t)b->table_capacity +
+             (uint64_t)b->window_capacity * STATUS_WORDS * sizeof(uint32_t);
     bytes += b->tile_list_capacity > 0 ? 3 * (16u + 4u * (uint64_t)b->tile_list_capacity) : 0u;
     return bytes + texture_bytes(b);
 }
@@ -180,7 +181,9 @@ int gl_ensure_windows(gl_backend *b, int count, error_text *err)
     int64_t cap = b->host_capacity;
 #define HOST_GROW(array)                                                                           \
     (cap = b->host_capacity, array_grow((void **)&b->array, &cap, count, sizeof *b->array))
-    if (HOST_GROW(entries) != 0 || HOST_GROW(status_host) != 0 || HOST_GROW(order) != 0) {
+    if (HOST_GROW(entries) != 0 || HOST_GROW(order) != 0 ||
+        array_grow((void **)&b->status_host, &b->status_host_capacity,
+                   (int64_t)count * STATUS_WORDS, sizeof *b->status_host) != 0) {
         error_set(err, "gl backend: out of memory for %d windows", count);
         return -1;
     }
@@ -192,8 +195,9 @@ int gl_ensure_windows(gl_backend *b, int count, error_text *err)
     while (status_cap < count)
         status_cap *= 2;
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
-    glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)((size_t)status_cap * sizeof(uint32_t)),
-                 NULL, GL_DYNAMIC_READ);
+    glBufferData(GL_SHADER_STORAGE_BUFFER,
+                 (GLsizeiptr)((size_t)status_cap * STATUS_WORDS * sizeof(uint32_t)), NULL,
+                 GL_DYNAMIC_READ);
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
     if (gl_check("growing the window status buffer", err) != 0)
         return -1;

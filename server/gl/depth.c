@@ -8,9 +8,8 @@
  * the integer stages read. Every shape is now computed exactly instead
  * (depth_exact, collider/depth_fixed.c's GLSL twin), after the raster: the
  * same bottoms as the CPU twin's sim_window_depth, bit for bit. The raster
- * path remains for shapes collider_fixed_supported refuses (none today). A batch too large for the largest
- * texture is rasterised in rounds, each converted before the next clears
- * the atlas.
+ * path remains for shapes collider_fixed_supported refuses (none today). A batch too large for the
+ * largest texture is rasterised in rounds, each converted before the next clears the atlas.
  */
 #include "gl/gl_internal.h"
 

@@ -49,6 +49,9 @@ enum {
     BUF_S1,
     BUF_S2,
     BUF_S3,
+    /* the uploaded heights, kept for dirty_rect.comp; then the staging of
+     * the dirty rows read back (chunk_readback) */
+    BUF_ORIGINAL,
     BUF_COUNT
 };
 
@@ -66,6 +69,7 @@ enum {
     PROG_DEPTH_TO_BOTTOM,
     PROG_DEPTH_EXACT,
     PROG_TILE_LIST,
+    PROG_DIRTY_RECT,
     PROG_COMPUTE_COUNT,
     PROG_RASTER = PROG_COMPUTE_COUNT,
     PROG_COUNT
@@ -102,6 +106,10 @@ enum {
  * (atomicMax), so no pass is needed to turn a count into groups, and a row
  * overhangs the list by at most 63 groups, which return at once. */
 #define TILE_LIST_ROW 64
+/* Words per window in the status buffer: the status flags at [i], then from
+ * [count + 4 i] the window's dirty rectangle (min x, min y, max x, max y of
+ * the cells whose heights differ from the uploaded ones; min > max: none). */
+#define STATUS_WORDS 5
 typedef struct window_entry {
     int32_t offset;
     int32_t x, y;
@@ -148,7 +156,8 @@ typedef struct gl_backend {
     GLuint tile_next_buffer, tile_mark_buffer;
     int window_capacity;
     window_entry *entries;
-    uint32_t *status_host;
+    uint32_t *status_host; /* STATUS_WORDS per window */
+    int64_t status_host_capacity;
     int *order;
     int64_t host_capacity;
     int32_t *tiles;
@@ -265,6 +274,8 @@ void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_mater
 void gl_stage_classify(gl_backend *b, int materials);
 /* These return the buffer (BUF_*) holding their result. */
 int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells);
+/* Each window's dirty rectangle into the status buffer (dirty_rect.comp). */
+void gl_stage_dirty_rects(gl_backend *b, int heights);
 void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed);
 int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials);
 

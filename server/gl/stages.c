@@ -218,6 +218,13 @@ int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials)
     return in;
 }
 
+void gl_stage_dirty_rects(gl_backend *b, int heights)
+{
+    gl_sample(b, 1, heights);
+    gl_sample(b, 2, BUF_ORIGINAL);
+    gl_dispatch(b, PROG_DIRTY_RECT);
+}
+
 /* classify (+ heights -= raw, + jump-flood seeds) */
 void gl_stage_classify(gl_backend *b, int materials)
 {

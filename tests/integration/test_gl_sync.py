@@ -7,7 +7,8 @@ readbacks, readback_bytes, finishes), counted where server/gl issues them.
 On the CPU backend every count is 0. On GL (skipped where no OpenGL 4.3
 context can be made) a tick of a scene that deforms dispatches compute
 passes with barriers between them (the colliders' depth among them), and reads
-back the status words and the accepted windows' heights; simulate times
+back the status words with each window's dirty rectangle, then the rows of
+those rectangles, once; simulate times
 every stage, so each tick waits once per timed stage (glFinish).
 """
 import json
@@ -52,6 +53,12 @@ else:
         # (spheres.json's windows need at least one step), counted among the dispatches
         check(1 <= g.get("indirect", 0) < g.get("dispatches", 0),
               f"jump flooding's steps are indirect dispatches over the listed tiles: {g}")
+        # one read of the status words and dirty rectangles, one of the dirty rows: never
+        # more, and fewer bytes than the windows whole (spheres' windows have still margins)
+        check(g.get("readbacks", 0) <= 2, f"at most two readbacks a tick: {g}")
+        check(g.get("readback_bytes", 0) < 4 * r.get("active_cells_mean", 0),
+              f"a tick reads back its dirty rows, not its windows whole: {g}, "
+              f"{r.get('active_cells_mean')} active cells")
         check(g.get("readbacks", 0) >= 1 and g.get("readback_bytes", 0) >= 8,
               f"GL ticks read status and heights back: {g}")
         # the depth is one fixed-point compute pass now (docs/core.md), not a raster
