@@ -94,6 +94,7 @@ static const char *const uniform_names[U_COUNT] = {
     "u_list_row",
     "u_sparse",
     "u_stamp",
+    "u_list_kind",
 };
 
 /* ---- a batch ---- */
@@ -358,7 +359,7 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
     gl_stage_displace(b, p, cells, seed);
     t = gl_stage_end(b, &times->displace, t);
 
-    int heights = gl_stage_even_slopes(b, p, jobs[0].materials != NULL);
+    int heights = gl_stage_even_slopes(b, p, jobs[0].materials != NULL, cells);
     gl_stage_dirty_rects(b, heights);
     t = gl_stage_end(b, &times->even_slopes, t);
 

@@ -94,6 +94,7 @@ enum {
     U_LIST_ROW,
     U_SPARSE,
     U_STAMP,
+    U_LIST_KIND,
     U_COUNT
 };
 
@@ -277,7 +278,7 @@ int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells);
 /* Each window's dirty rectangle into the status buffer (dirty_rect.comp). */
 void gl_stage_dirty_rects(gl_backend *b, int heights);
 void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed);
-int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials);
+int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials, int64_t cells);
 
 /* ---- tile_cache.c ---- */
 

@@ -90,6 +90,7 @@ static void list_reset(gl_backend *b, GLuint list)
 int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells)
 {
     list_reset(b, b->tile_list_buffer);
+    glProgramUniform1i(b->programs[PROG_TILE_LIST], b->uniforms[PROG_TILE_LIST][U_LIST_KIND], 0);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, b->tile_list_buffer);
     gl_sample(b, 1, BUF_CLS);
     gl_dispatch(b, PROG_TILE_LIST); /* its barrier lets the steps' dispatches read the groups */
@@ -173,8 +174,10 @@ void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int se
 
 /*
  * Sparse slope evening, as the CPU's work list at tile granularity: the
- * first iteration runs over every tile (it also fills the other ping-pong
- * buffer); a tile where some cell changed appends itself and its 8
+ * first list is the tiles where some cell differs from a neighbour by more
+ * than the smallest threshold (tile_list.comp, kind 1; the heights are
+ * copied into the other ping-pong buffer once); a tile where some cell
+ * changed appends itself and its 8
  * neighbouring tiles of the same window to the next list (each once: a mark
  * per tile holds the iteration that listed it), and the next iteration is
  * an indirect dispatch over that list. A tile left out had no change within
@@ -182,21 +185,34 @@ void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int se
  * equal in both buffers (it was last written when it did not change).
  * Returns the buffer (BUF_*) that holds the final heights.
  */
-int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials)
+int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials, int64_t cells)
 {
     int in = BUF_HEIGHTS, out = BUF_S0;
     GLuint cur = b->tile_list_buffer, next = b->tile_next_buffer;
     const GLuint prog = b->programs[PROG_EVEN_SLOPES];
     const GLint *u = b->uniforms[PROG_EVEN_SLOPES];
-    if (p->slope_iterations > 0)
-        clear_words(b->tile_mark_buffer, b->tile_count);
+    if (p->slope_iterations <= 0)
+        return in;
+    clear_words(b->tile_mark_buffer, b->tile_count);
+    /* the first list: tiles where some flux may have a positive excess */
+    list_reset(b, cur);
+    glProgramUniform1i(b->programs[PROG_TILE_LIST], b->uniforms[PROG_TILE_LIST][U_LIST_KIND], 1);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, cur);
+    gl_sample(b, 1, BUF_HEIGHTS);
+    gl_dispatch(b, PROG_TILE_LIST);
+    /* an unlisted tile holds its heights in both ping-pong buffers */
+    glBindBuffer(GL_COPY_READ_BUFFER, b->buffers[BUF_HEIGHTS]);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, b->buffers[BUF_S0]);
+    glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, 0, 0, (GLsizeiptr)(cells * 4));
+    glBindBuffer(GL_COPY_READ_BUFFER, 0);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
     for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
         if (materials) {
             glActiveTexture(GL_TEXTURE3);
             glBindTexture(GL_TEXTURE_BUFFER, b->material_texture);
         }
         list_reset(b, next);
-        glProgramUniform1i(prog, u[U_SPARSE], iter > 0);
+        glProgramUniform1i(prog, u[U_SPARSE], 1);
         glProgramUniform1i(prog, u[U_STAMP], iter + 1);
         gl_sample(b, 1, BUF_CLS);
         gl_sample(b, 2, in);
@@ -204,10 +220,7 @@ int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials)
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, cur);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, next);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 5, b->tile_mark_buffer);
-        if (iter == 0)
-            gl_dispatch(b, PROG_EVEN_SLOPES);
-        else
-            gl_dispatch_indirect(b, PROG_EVEN_SLOPES, cur, 4);
+        gl_dispatch_indirect(b, PROG_EVEN_SLOPES, cur, 4);
         GLuint tl = cur;
         cur = next;
         next = tl;
