@@ -110,27 +110,41 @@ struct cell_window {
     int w, h;
 };
 
-/*
- * This invocation's cell: its window, the window-local coordinates and the
- * flat index. False for invocations past the batch or outside their window
- * (tiles overhang a window's right and top edges). Dispatches are 2D grids
- * of tiles so that batches beyond 65535 tiles fit.
- */
-bool locate_cell(out cell_window win, out int x, out int y, out int c)
+/* Tile `tile`'s texel of the batch table: (window index, corner x | y << 16,
+ * the window's offset, w | h << 16). */
+ivec4 tile_entry(uint tile)
 {
-    uint tile = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    return texelFetch(u_table, 2 * u_window_count + int(tile));
+}
+
+/*
+ * This invocation's cell in tile `tile` of the batch table (locate_cell:
+ * the workgroup's own tile; jump_flood.comp: a tile of the compacted list):
+ * its window, the window-local coordinates and the flat index. False for
+ * invocations past the batch or outside their window (tiles overhang a
+ * window's right and top edges). Dispatches are 2D grids of tiles so that
+ * batches beyond 65535 tiles fit.
+ */
+bool locate_tile_cell(uint tile, out cell_window win, out int x, out int y, out int c)
+{
     win = cell_window(0, 0, 1, 1);
     x = 0;
     y = 0;
     c = 0;
     if (tile >= uint(u_tile_count))
         return false;
-    ivec4 t = texelFetch(u_table, 2 * u_window_count + int(tile));
+    ivec4 t = tile_entry(tile);
     win = cell_window(t.x, t.z, t.w & 0xffff, t.w >> 16);
     x = (t.y & 0xffff) + int(gl_LocalInvocationID.x);
     y = (t.y >> 16) + int(gl_LocalInvocationID.y);
     c = win.offset + y * win.w + x;
     return x < win.w && y < win.h;
+}
+
+bool locate_cell(out cell_window win, out int x, out int y, out int c)
+{
+    return locate_tile_cell(gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x, win, x, y,
+                            c);
 }
 
 /* Seeds are stored as window-local coordinates x | y << 16 rather than the

@@ -11,6 +11,9 @@
  * the CPU), rounded down, and only towards free columns (seeds). Each flux
  * uses the material row of the column it leaves (sim_even_slopes_materials);
  * the uniform path is row 0 of a one-row table of the params, as on the CPU.
+ *
+ * Sparse as the CPU's work list, at tile granularity: after the first
+ * iteration only the tiles within one tile of a change run (main below).
  */
 #include "common.glsl"
 
@@ -38,14 +41,30 @@ int cell_material(int c)
     return u_materials_on != 0 ? material_id(fetch(u_material, c)) : 0;
 }
 
-void main()
+/* The tiles of this iteration and the next (gl_stage_even_slopes): with
+ * u_sparse 0 every tile of the batch runs, otherwise the listed ones. A tile
+ * where some cell changed lists itself and its 8 neighbouring tiles of the
+ * same window for the next iteration, each once (tile_mark = u_stamp). */
+uniform int u_sparse;
+uniform int u_stamp;
+uniform int u_list_row; /* indirect groups per row (tile_list.comp) */
+layout(std430, binding = 3) readonly buffer tile_list_buf {
+    uint tl_count;
+    uint tl_groups[3];
+    int tl_tile[];
+};
+layout(std430, binding = 4) buffer next_list_buf {
+    uint nl_count;
+    uint nl_groups[3];
+    int nl_tile[];
+};
+layout(std430, binding = 5) buffer tile_mark_buf { int tile_mark[]; };
+
+shared uint tile_changed;
+
+/* Cell c's height after one Jacobi iteration. */
+int even_slope(cell_window win, int x, int y, int c)
 {
-    int x, y, c;
-    cell_window win;
-    if (!locate_cell(win, x, y, c))
-        return;
-    if (window_refused(win.index))
-        return; /* refused windows skip slope evening, as in the C */
     int hi = fetch(u_heights_in, c);
     int outflow = 0, inflow = 0;
     bool self_seed = fetch(u_cls, c) == CELL_SEED;
@@ -61,5 +80,50 @@ void main()
         if (self_seed)
             inflow += slope_flux(cell_material(q), hq, hi, j >= 4);
     }
-    heights_out[c] = hi - outflow + inflow;
+    return hi - outflow + inflow;
+}
+
+/* List tile (of a window tw x th tiles wide) and its neighbours for the next
+ * iteration, each tile once. */
+void list_neighbourhood(uint tile)
+{
+    ivec4 t = tile_entry(tile);
+    int w = t.w & 0xffff, h = t.w >> 16;
+    int tx = (t.y & 0xffff) >> 3, ty = (t.y >> 16) >> 3;
+    int tw = (w + 7) >> 3, th = (h + 7) >> 3;
+    int first = int(tile) - (ty * tw + tx); /* a window's tiles are row-major */
+    for (int ny = max(ty - 1, 0); ny <= min(ty + 1, th - 1); ny++)
+        for (int nx = max(tx - 1, 0); nx <= min(tx + 1, tw - 1); nx++) {
+            int n = first + ny * tw + nx;
+            if (atomicExchange(tile_mark[n], u_stamp) != u_stamp) {
+                uint slot = atomicAdd(nl_count, 1u);
+                nl_tile[slot] = n;
+                atomicMax(nl_groups[1], slot / uint(u_list_row) + 1u);
+            }
+        }
+}
+
+void main()
+{
+    uint tile = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (u_sparse != 0) {
+        if (tile >= tl_count)
+            return; /* the whole group: the last row of groups overhangs the list */
+        tile = uint(tl_tile[tile]);
+    }
+    if (gl_LocalInvocationIndex == 0u)
+        tile_changed = 0u;
+    barrier();
+    int x, y, c;
+    cell_window win;
+    /* refused windows skip slope evening, as in the C */
+    if (locate_tile_cell(tile, win, x, y, c) && !window_refused(win.index)) {
+        int next = even_slope(win, x, y, c);
+        heights_out[c] = next;
+        if (next != fetch(u_heights_in, c))
+            atomicOr(tile_changed, 1u);
+    }
+    barrier();
+    if (gl_LocalInvocationIndex == 0u && tile_changed != 0u)
+        list_neighbourhood(tile);
 }

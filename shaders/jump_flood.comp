@@ -8,6 +8,9 @@
  * buffers, with K from the largest window of the batch: in a smaller window
  * the extra large steps only look outside it and change nothing.
  *
+ * Only the tiles tile_list.comp listed run (an indirect dispatch): the
+ * others hold free cells only, whose seeds never change.
+ *
  * Seeds are window-local coordinates x | y << 16 (-1: no seed known yet),
  * which order like the C's indices, so ties break identically.
  */
@@ -19,6 +22,16 @@ layout(binding = 1) uniform isamplerBuffer u_seed_in;
 layout(std430, binding = 2) writeonly buffer seed_out_buf { int seed_out[]; };
 
 uniform int u_step;
+
+/* The tiles to visit (tile_list.comp): a tile of free cells only keeps its
+ * seeds, so the steps are dispatched indirectly over the listed tiles. Both
+ * seed buffers hold classify's seeds for the other tiles (the host copies
+ * one into the other before the first step). */
+layout(std430, binding = 3) readonly buffer tile_list_buf {
+    uint tl_count;
+    uint tl_groups[3];
+    int tl_tile[];
+};
 
 /* seed_better: is candidate a (distance, hash, index) better than b? */
 bool seed_better(int da, uint ha, int a, int db, uint hb, int b)
@@ -32,9 +45,12 @@ bool seed_better(int da, uint ha, int a, int db, uint hb, int b)
 
 void main()
 {
+    uint listed = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (listed >= tl_count)
+        return; /* the last row of groups overhangs the list */
     int x, y, c;
     cell_window win;
-    if (!locate_cell(win, x, y, c))
+    if (!locate_tile_cell(uint(tl_tile[listed]), win, x, y, c))
         return;
     /* the window's world corner, for the tie-breaking hash */
     ivec2 corner = texelFetch(u_table, 2 * win.index).yz;

@@ -406,6 +406,7 @@ static void report_add_gpu_sync(cJSON *root, simulate_run *r)
     double ticks = r->o.ticks > 0 ? (double)r->o.ticks : 1.0;
     cJSON *o = cJSON_AddObjectToObject(root, "gpu_sync_per_tick");
     cJSON_AddNumberToObject(o, "dispatches", round((double)g.dispatches / ticks * 100) / 100);
+    cJSON_AddNumberToObject(o, "indirect", round((double)g.indirect / ticks * 100) / 100);
     cJSON_AddNumberToObject(o, "draws", round((double)g.draws / ticks * 100) / 100);
     cJSON_AddNumberToObject(o, "barriers", round((double)g.barriers / ticks * 100) / 100);
     cJSON_AddNumberToObject(o, "readbacks", round((double)g.readbacks / ticks * 100) / 100);

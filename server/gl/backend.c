@@ -9,10 +9,14 @@
  *   depth       depth_clear.comp, then depth_exact.comp: the fixed-point
  *               depth of every collider (collider/depth_fixed.c's twin)
  *   classify    classify.comp (also heights -= raw, jump-flood init)
- *   jump_flood  jump_flood.comp, once per step size, ping-pong
+ *   jump_flood  tile_list.comp (the tiles that are not all free), then
+ *               jump_flood.comp once per step size over that list
+ *               (indirect dispatch), ping-pong
  *   displace    displace_ssbo/multi.comp + displace_land.comp, or
  *               displace_iterative_init/pass.../dead_end/finish.comp
- *   even_slopes even_slopes.comp per iteration, ping-pong
+ *   even_slopes even_slopes.comp per iteration, ping-pong: every tile first,
+ *               then the tiles around the last iteration's changes
+ *               (indirect dispatch over the list it appended)
  *   readback    window status flags, then the heights of accepted windows
  *
  * Layout: window i of the batch owns cells [offset_i, offset_i + w_i*h_i)
@@ -64,12 +68,15 @@ static const char *const compute_names[PROG_COUNT] = {
     "shaders/even_slopes.comp",
     "shaders/depth_clear.comp",
     "shaders/depth_exact.comp",
+    "shaders/tile_list.comp",
+    "shaders/dirty_rect.comp",
 };
 
 static const char *const uniform_names[U_COUNT] = {
     "u_tile_count",        "u_window_count",     "u_metric",        "u_obstacle_gap",
     "u_multi_target_step", "u_multi_target_max", "u_floor",         "u_step",
     "u_materials_on",      "u_material_count",   "u_material_rows", "u_material_max_compaction",
+    "u_list_row",          "u_sparse",           "u_stamp",         "u_list_kind",
 };
 
 /* ---- a batch ---- */
@@ -143,10 +150,16 @@ static int chunk_upload(gl_backend *b, const sim_params *p, const sim_window_job
     glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, entry_bytes, b->entries);
     glBufferSubData(GL_SHADER_STORAGE_BUFFER, entry_bytes,
                     (GLsizeiptr)(b->tile_count * TILE_INTS * 4), b->tiles);
+    /* status flags clear, dirty rectangles empty (min > max) */
     memset(b->status_host, 0, (size_t)count * sizeof *b->status_host);
+    for (int i = 0; i < count; i++) {
+        uint32_t *r = b->status_host + count + 4 * i;
+        r[0] = r[1] = UINT32_MAX;
+        r[2] = r[3] = 0;
+    }
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
-    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)),
-                    b->status_host);
+    glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0,
+                    (GLsizeiptr)((size_t)count * STATUS_WORDS * sizeof(uint32_t)), b->status_host);
     if (gl_cache_plan_chunk(b, jobs, count, first, err) != 0)
         return -1;
     for (int i = 0; i < count; i++) {
@@ -169,6 +182,14 @@ static int chunk_upload(gl_backend *b, const sim_params *p, const sim_window_job
     }
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
     gl_barrier(); /* the gathered heights are read by the stages below */
+    /* the uploaded heights, for dirty_rect.comp at the end of the tick */
+    int64_t cells =
+        b->entries[count - 1].offset + (int64_t)jobs[count - 1].rect.w * jobs[count - 1].rect.h;
+    glBindBuffer(GL_COPY_READ_BUFFER, b->buffers[BUF_HEIGHTS]);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, b->buffers[BUF_ORIGINAL]);
+    glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, 0, 0, (GLsizeiptr)(cells * 4));
+    glBindBuffer(GL_COPY_READ_BUFFER, 0);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
     glActiveTexture(GL_TEXTURE0);
     glBindTexture(GL_TEXTURE_BUFFER, b->table_texture);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, b->status_buffer);
@@ -184,41 +205,48 @@ static void read_back(GLintptr off, GLsizeiptr size, void *out)
     gl_sync.readback_bytes += (uint64_t)size;
 }
 
-/* The heights of every accepted window in one GPU→CPU transfer: the
- * windows lie one after another in the buffer, so one mapping of the span
- * from the first accepted window to the end of the last is one
- * synchronisation point instead of one per window; each window is copied
- * out of it as it was read before (the same ints). Falls back to a read per
- * window where the mapping fails. */
+/* The rows of each accepted window's dirty rectangle, in one GPU→CPU
+ * transfer: the GPU copies each window's rows y0..y1 (whole rows, one range
+ * per window) one after another into BUF_ORIGINAL, free by now, and one read
+ * brings them all; each band lands in the window's host heights at row y0.
+ * Every other cell kept its uploaded height, which the host copy already
+ * holds, so the heights are those of reading the whole window. A tick that
+ * changed nothing reads no heights at all. */
 static void read_heights(gl_backend *b, sim_window_job *jobs, int count, int heights,
                          const int *status)
 {
-    GLintptr lo = -1, hi = 0;
+    GLintptr packed = 0;
     for (int i = 0; i < count; i++) {
-        if (status[i] != SIM_WINDOW_OK)
+        const uint32_t *r = b->status_host + count + 4 * i;
+        if (status[i] != SIM_WINDOW_OK || r[1] > r[3])
             continue;
-        GLintptr off = (GLintptr)b->entries[i].offset * 4;
-        GLintptr end = off + (GLintptr)jobs[i].rect.w * jobs[i].rect.h * 4;
-        lo = lo < 0 || off < lo ? off : lo;
-        hi = end > hi ? end : hi;
+        GLintptr off = ((GLintptr)b->entries[i].offset + (GLintptr)r[1] * jobs[i].rect.w) * 4;
+        GLsizeiptr size = (GLsizeiptr)(r[3] - r[1] + 1) * jobs[i].rect.w * 4;
+        glBindBuffer(GL_COPY_READ_BUFFER, b->buffers[heights]);
+        glBindBuffer(GL_COPY_WRITE_BUFFER, b->buffers[BUF_ORIGINAL]);
+        glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, off, packed, size);
+        packed += size;
     }
-    if (lo < 0)
+    glBindBuffer(GL_COPY_READ_BUFFER, 0);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
+    if (packed == 0)
         return;
-    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[heights]);
-    const uint8_t *span = glMapBufferRange(GL_SHADER_STORAGE_BUFFER, lo, hi - lo, GL_MAP_READ_BIT);
-    if (span) {
-        gl_sync.readbacks++;
-        gl_sync.readback_bytes += (uint64_t)(hi - lo);
-    }
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->buffers[BUF_ORIGINAL]);
+    const uint8_t *span = glMapBufferRange(GL_SHADER_STORAGE_BUFFER, 0, packed, GL_MAP_READ_BIT);
+    gl_sync.readbacks++;
+    gl_sync.readback_bytes += (uint64_t)packed;
+    packed = 0;
     for (int i = 0; i < count; i++) {
-        if (status[i] != SIM_WINDOW_OK)
+        const uint32_t *r = b->status_host + count + 4 * i;
+        if (status[i] != SIM_WINDOW_OK || r[1] > r[3])
             continue;
-        GLintptr off = (GLintptr)b->entries[i].offset * 4;
-        GLsizeiptr size = (GLsizeiptr)jobs[i].rect.w * jobs[i].rect.h * 4;
+        GLsizeiptr size = (GLsizeiptr)(r[3] - r[1] + 1) * jobs[i].rect.w * 4;
+        int32_t *dst = jobs[i].heights + (int64_t)r[1] * jobs[i].rect.w;
         if (span)
-            memcpy(jobs[i].heights, span + (off - lo), (size_t)size);
-        else
-            read_back(off, size, jobs[i].heights);
+            memcpy(dst, span + packed, (size_t)size);
+        else /* the mapping failed: read the band on its own */
+            glGetBufferSubData(GL_SHADER_STORAGE_BUFFER, packed, size, dst);
+        packed += size;
     }
     if (span)
         glUnmapBuffer(GL_SHADER_STORAGE_BUFFER);
@@ -231,7 +259,7 @@ static void chunk_readback(gl_backend *b, sim_window_job *jobs, int count, int h
 {
     int materials = jobs[0].materials != NULL;
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
-    read_back(0, (GLsizeiptr)((size_t)count * sizeof(uint32_t)), b->status_host);
+    read_back(0, (GLsizeiptr)((size_t)count * STATUS_WORDS * sizeof(uint32_t)), b->status_host);
     for (int i = 0; i < count; i++)
         status[i] = (b->status_host[i] & 1u) ? SIM_WINDOW_HEIGHT_LIMIT : SIM_WINDOW_OK;
     read_heights(b, jobs, count, heights, status);
@@ -300,13 +328,14 @@ static int run_chunk(gl_backend *b, const sim_params *p, sim_window_job *jobs, i
     gl_stage_classify(b, jobs[0].materials != NULL);
     t = gl_stage_end(b, &times->classify, t);
 
-    int seed = gl_stage_jump_flood(b, max_side);
+    int seed = gl_stage_jump_flood(b, max_side, cells);
     t = gl_stage_end(b, &times->jump_flood, t);
 
     gl_stage_displace(b, p, cells, seed);
     t = gl_stage_end(b, &times->displace, t);
 
-    int heights = gl_stage_even_slopes(b, p, jobs[0].materials != NULL);
+    int heights = gl_stage_even_slopes(b, p, jobs[0].materials != NULL, cells);
+    gl_stage_dirty_rects(b, heights);
     t = gl_stage_end(b, &times->even_slopes, t);
 
     chunk_readback(b, jobs, count, heights, status);
@@ -410,6 +439,9 @@ static void gl_destroy(sim_backend *base)
         glDeleteBuffers(BUF_COUNT, b->buffers);
         glDeleteBuffers(1, &b->table_buffer);
         glDeleteBuffers(1, &b->status_buffer);
+        glDeleteBuffers(1, &b->tile_list_buffer);
+        glDeleteBuffers(1, &b->tile_next_buffer);
+        glDeleteBuffers(1, &b->tile_mark_buffer);
         if (b->material_buffer) {
             glDeleteBuffers(1, &b->material_buffer);
             glDeleteTextures(1, &b->material_texture);
@@ -490,6 +522,9 @@ sim_backend *sim_backend_gl_create(error_text *err)
     glGenTextures(1, &b->table_texture);
     glGenBuffers(1, &b->table_buffer);
     glGenBuffers(1, &b->status_buffer);
+    glGenBuffers(1, &b->tile_list_buffer);
+    glGenBuffers(1, &b->tile_next_buffer);
+    glGenBuffers(1, &b->tile_mark_buffer);
     if (gl_check("creating the backend", err) != 0)
         goto fail;
     /* Whichever thread runs the first batch makes the context current there

@@ -26,9 +26,10 @@ void gl_barrier(void)
     gl_sync.barriers++;
     /* Every pass reads what the previous one wrote through SSBOs, and buffer
      * clears and readbacks follow shader writes: the GL requires an explicit
-     * barrier for both (the original implementation omitted it). */
+     * barrier for both (the original implementation omitted it). Tile lists
+     * written by a pass are read by the next as indirect dispatch groups. */
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT |
-                    GL_TEXTURE_FETCH_BARRIER_BIT);
+                    GL_TEXTURE_FETCH_BARRIER_BIT | GL_COMMAND_BARRIER_BIT);
 }
 
 int gl_check(const char *what, error_text *err)
@@ -72,6 +73,19 @@ void gl_dispatch(gl_backend *b, int prog)
     gl_barrier();
 }
 
+void gl_dispatch_indirect(gl_backend *b, int prog, GLuint buffer, GLintptr offset)
+{
+    glUseProgram(b->programs[prog]);
+    glUniform1i(b->uniforms[prog][U_TILE_COUNT], (GLint)b->tile_count);
+    glUniform1i(b->uniforms[prog][U_WINDOW_COUNT], b->window_count);
+    glBindBuffer(GL_DISPATCH_INDIRECT_BUFFER, buffer);
+    glDispatchComputeIndirect(offset);
+    glBindBuffer(GL_DISPATCH_INDIRECT_BUFFER, 0);
+    gl_sync.dispatches++;
+    gl_sync.indirect++;
+    gl_barrier();
+}
+
 /* Ends a stage: with stage timing on, waits for the GPU so the time is real. */
 double gl_stage_end(gl_backend *b, double *acc, double since)
 {
@@ -86,14 +100,14 @@ double gl_stage_end(gl_backend *b, double *acc, double since)
 
 /* ---- buffers ---- */
 
-/* ---- buffers ---- */
-
 uint64_t gl_scratch_bytes(const sim_backend *base)
 {
     const gl_backend *b = (const gl_backend *)base;
     uint64_t bytes = (uint64_t)b->cell_capacity * BUF_COUNT * sizeof(int32_t);
     bytes += (uint64_t)b->material_capacity * 2 * sizeof(int32_t); /* GPU and host copies */
-    bytes += (uint64_t)b->table_capacity + (uint64_t)b->window_capacity * sizeof(uint32_t);
+    bytes += (uint64_t)b->table_capacity +
+             (uint64_t)b->window_capacity * STATUS_WORDS * sizeof(uint32_t);
+    bytes += b->tile_list_capacity > 0 ? 3 * (16u + 4u * (uint64_t)b->tile_list_capacity) : 0u;
     /* the depth stage's instances, GPU and host copies */
     return bytes + (uint64_t)b->exact_buffer_bytes +
            (uint64_t)b->exact_host_capacity * sizeof(collider_fixed);
@@ -162,7 +176,9 @@ int gl_ensure_windows(gl_backend *b, int count, error_text *err)
     int64_t cap = b->host_capacity;
 #define HOST_GROW(array)                                                                           \
     (cap = b->host_capacity, array_grow((void **)&b->array, &cap, count, sizeof *b->array))
-    if (HOST_GROW(entries) != 0 || HOST_GROW(status_host) != 0) {
+    if (HOST_GROW(entries) != 0 ||
+        array_grow((void **)&b->status_host, &b->status_host_capacity,
+                   (int64_t)count * STATUS_WORDS, sizeof *b->status_host) != 0) {
         error_set(err, "gl backend: out of memory for %d windows", count);
         return -1;
     }
@@ -174,8 +190,9 @@ int gl_ensure_windows(gl_backend *b, int count, error_text *err)
     while (status_cap < count)
         status_cap *= 2;
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, b->status_buffer);
-    glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)((size_t)status_cap * sizeof(uint32_t)),
-                 NULL, GL_DYNAMIC_READ);
+    glBufferData(GL_SHADER_STORAGE_BUFFER,
+                 (GLsizeiptr)((size_t)status_cap * STATUS_WORDS * sizeof(uint32_t)), NULL,
+                 GL_DYNAMIC_READ);
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
     if (gl_check("growing the window status buffer", err) != 0)
         return -1;
@@ -191,6 +208,21 @@ int gl_ensure_table(gl_backend *b, int window_count, int64_t tiles, error_text *
         0) {
         error_set(err, "gl backend: out of memory for %lld tiles", (long long)tiles);
         return -1;
+    }
+    if (tiles > b->tile_list_capacity) {
+        int64_t list_cap = b->tile_list_capacity ? b->tile_list_capacity : 1024;
+        while (list_cap < tiles)
+            list_cap *= 2;
+        const GLuint lists[3] = {b->tile_list_buffer, b->tile_next_buffer, b->tile_mark_buffer};
+        for (int i = 0; i < 3; i++) {
+            glBindBuffer(GL_SHADER_STORAGE_BUFFER, lists[i]);
+            glBufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(16 + 4 * list_cap), NULL,
+                         GL_DYNAMIC_COPY);
+        }
+        glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
+        if (gl_check("growing the tile list", err) != 0)
+            return -1;
+        b->tile_list_capacity = list_cap;
     }
     if (ints * 4 <= b->table_capacity)
         return 0;

@@ -48,6 +48,9 @@ enum {
     BUF_S1,
     BUF_S2,
     BUF_S3,
+    /* the uploaded heights, kept for dirty_rect.comp; then the staging of
+     * the dirty rows read back (chunk_readback) */
+    BUF_ORIGINAL,
     BUF_COUNT
 };
 
@@ -64,6 +67,8 @@ enum {
     PROG_EVEN_SLOPES,
     PROG_DEPTH_CLEAR,
     PROG_DEPTH_EXACT,
+    PROG_TILE_LIST,
+    PROG_DIRTY_RECT,
     PROG_COUNT
 };
 
@@ -81,6 +86,10 @@ enum {
     U_MATERIAL_COUNT,
     U_MATERIAL_ROWS,
     U_MATERIAL_MAX,
+    U_LIST_ROW,
+    U_SPARSE,
+    U_STAMP,
+    U_LIST_KIND,
     U_COUNT
 };
 
@@ -88,6 +97,15 @@ enum {
  * table continues with TILE_INTS ints per 8x8 tile: window index, corner
  * x | y << 16, the window's offset, w | h << 16. */
 #define TILE_INTS 4
+/* A compacted tile list is dispatched indirectly as rows of this many
+ * groups: whoever appends slot s raises the row count to s / 64 + 1
+ * (atomicMax), so no pass is needed to turn a count into groups, and a row
+ * overhangs the list by at most 63 groups, which return at once. */
+#define TILE_LIST_ROW 64
+/* Words per window in the status buffer: the status flags at [i], then from
+ * [count + 4 i] the window's dirty rectangle (min x, min y, max x, max y of
+ * the cells whose heights differ from the uploaded ones; min > max: none). */
+#define STATUS_WORDS 5
 typedef struct window_entry {
     int32_t offset;
     int32_t x, y;
@@ -116,9 +134,17 @@ typedef struct gl_backend {
      * (capacity in windows) */
     GLuint table_buffer, table_texture, status_buffer;
     int64_t table_capacity;
+    /* jump flooding's compacted tile list (tile_list.comp): a count, the
+     * indirect dispatch's 3 group counts, then tile indices; capacity in tiles */
+    GLuint tile_list_buffer;
+    int64_t tile_list_capacity;
+    /* slope evening's next tile list (the same layout; the first list is
+     * tile_list_buffer, free by then) and a mark per tile (gl_stage_even_slopes) */
+    GLuint tile_next_buffer, tile_mark_buffer;
     int window_capacity;
     window_entry *entries;
-    uint32_t *status_host;
+    uint32_t *status_host; /* STATUS_WORDS per window */
+    int64_t status_host_capacity;
     int64_t host_capacity;
     int32_t *tiles;
     int64_t tile_capacity;
@@ -198,6 +224,9 @@ void gl_bind(gl_backend *b, int binding, int buffer);
 void gl_sample(gl_backend *b, int unit, int buffer);
 /* One 8x8 workgroup per tile of the chunk, then a barrier. */
 void gl_dispatch(gl_backend *b, int prog);
+/* The same over the groups an earlier pass wrote into `buffer` at byte
+ * `offset` (glDispatchComputeIndirect), then a barrier. */
+void gl_dispatch_indirect(gl_backend *b, int prog, GLuint buffer, GLintptr offset);
 /* Ends a stage: adds the time since `since` to *acc (after glFinish with
  * stage timing on); returns now. */
 double gl_stage_end(gl_backend *b, double *acc, double since);
@@ -220,9 +249,11 @@ void gl_depth_delete(gl_backend *b);
 void gl_stages_set_params(gl_backend *b, const sim_params *p, const ground_material_table *t);
 void gl_stage_classify(gl_backend *b, int materials);
 /* These return the buffer (BUF_*) holding their result. */
-int gl_stage_jump_flood(gl_backend *b, int max_side);
+int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells);
+/* Each window's dirty rectangle into the status buffer (dirty_rect.comp). */
+void gl_stage_dirty_rects(gl_backend *b, int heights);
 void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed);
-int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials);
+int gl_stage_even_slopes(gl_backend *b, const sim_params *p, int materials, int64_t cells);
 
 /* ---- tile_cache.c ---- */
 

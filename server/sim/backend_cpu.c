@@ -101,13 +101,31 @@ static void cpu_run_window(const sim_params *p, sim_window_job *job, int32_t *ar
     times->even_slopes += t5 - t4;
 }
 
+/* The windows loop's shared state: each thread sums its stage times apart. */
+typedef struct windows_loop {
+    cpu_backend *b;
+    const sim_params *p;
+    sim_window_job *jobs;
+    int *status;
+    sim_stage_times per_thread[SIM_THREADS_MAX];
+} windows_loop;
+
+static void run_windows_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    windows_loop *l = ctx;
+    for (int64_t j = begin; j < end; j++)
+        cpu_run_window(l->p, &l->jobs[j], l->b->arena[thread], &l->status[j],
+                       &l->per_thread[thread]);
+}
+
 /*
  * The windows of a tick are disjoint and independent: with several, they
- * run in parallel (each thread in its own arena) when they hold at least
+ * run in parallel (each thread in its own arena, one window at a time
+ * claimed from the pool's counter) when they hold at least
  * 2 * SIM_BAND_MIN_ITEMS cells; a window alone or holding more than half of
  * the tick's cells runs with the others one after another
  * and spreads its work lists over the threads inside the stages instead
- * (sim_band_threads; a region nested in the windows' runs on one thread).
+ * (sim_band_threads; a loop nested in the windows' runs on one thread).
  * Stage times are summed over windows, so with threads they are CPU time.
  */
 static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_job *jobs,
@@ -134,19 +152,19 @@ static int cpu_run_windows(sim_backend *base, const sim_params *p, sim_window_jo
             cpu_run_window(p, &jobs[j], b->arena[0], &status[j], times);
         return 0;
     }
-    sim_stage_times per_thread[SIM_THREADS_MAX];
-    memset(per_thread, 0, sizeof per_thread);
-    SIM_OMP(omp parallel for schedule(dynamic, 1) num_threads(threads))
-    for (int j = 0; j < job_count; j++) {
-        int t = sim_thread_index();
-        cpu_run_window(p, &jobs[j], b->arena[t], &status[j], &per_thread[t]);
-    }
+    windows_loop loop, *l = &loop;
+    memset(l, 0, sizeof *l);
+    l->b = b;
+    l->p = p;
+    l->jobs = jobs;
+    l->status = status;
+    sim_parallel_for(job_count, 1, threads, run_windows_range, l);
     for (int t = 0; t < threads; t++) {
-        times->depth += per_thread[t].depth;
-        times->classify += per_thread[t].classify;
-        times->jump_flood += per_thread[t].jump_flood;
-        times->displace += per_thread[t].displace;
-        times->even_slopes += per_thread[t].even_slopes;
+        times->depth += l->per_thread[t].depth;
+        times->classify += l->per_thread[t].classify;
+        times->jump_flood += l->per_thread[t].jump_flood;
+        times->displace += l->per_thread[t].displace;
+        times->even_slopes += l->per_thread[t].even_slopes;
     }
     return 0;
 }

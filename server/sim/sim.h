@@ -280,6 +280,9 @@ typedef struct sim_tile_cache_stats {
  * (glGetBufferSubData calls and their bytes) and full waits (glFinish). */
 typedef struct sim_gpu_sync_stats {
     uint64_t dispatches, draws, barriers, readbacks, readback_bytes, finishes;
+    /* of the dispatches, those over a compacted list whose size the GPU
+     * wrote (glDispatchComputeIndirect: jump flooding's listed tiles) */
+    uint64_t indirect;
 } sim_gpu_sync_stats;
 
 typedef struct sim_backend sim_backend;
@@ -318,7 +321,8 @@ struct sim_backend {
 sim_backend *sim_backend_cpu_create(error_text *err);
 /* Threads of the CPU twin's stages (sim_threads.c): n < 1 means the
  * machine's cores (the default), at most SIM_THREADS_MAX. Heights do not
- * depend on it. sim_threads() is the count in use (1 without OpenMP). */
+ * depend on it. sim_threads() is the count in use (sim_threads.c: a pool
+ * of worker threads that sleep between loops). */
 #define SIM_THREADS_MAX 64
 void sim_set_threads(int n);
 int sim_threads(void);

@@ -10,20 +10,27 @@
 
 #include "sim/sim.h"
 
-/* An OpenMP pragma where the build has OpenMP, nothing where it has not
- * (sim_threads.c says why the results do not depend on it). */
-#ifdef _OPENMP
-#define SIM_OMP(x) _Pragma(#x)
-#else
-#define SIM_OMP(x)
-#endif
+/* A parallel loop over items [0, items) in chunks (sim_threads.c): fn runs
+ * each chunk [begin, end) on some thread; `thread` is its slot, 0 (the
+ * caller) .. threads - 1, for per-thread scratch. A loop nested in another,
+ * or one begun while another thread's loop holds the pool, runs serially on
+ * the calling thread. Every caller writes only each item's own cells from
+ * values read before the loop, so the result does not depend on the split. */
+typedef void (*sim_range_fn)(void *ctx, int64_t begin, int64_t end, int thread);
+void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn, void *ctx);
 
-/* The calling thread's index in a parallel region (0 outside one), and how
- * many threads a loop of `items` independent items should use: 1 inside
- * another parallel region or for a small loop. */
+/* How many threads a loop of `items` independent items should use: 1 inside
+ * another parallel loop or for a small loop. */
 #define SIM_BAND_MIN_ITEMS 4096
-int sim_thread_index(void);
 int sim_band_threads(int64_t items);
+/* Chunk size for a banded loop of `items` on `bands` threads: a few chunks
+ * per thread, so a thread that starts late leaves its share to the others. */
+int64_t sim_band_chunk(int64_t items, int bands);
+
+/* The 8-neighbourhood in the order every stage visits it (sums and tie
+ * rules follow it); the first four are axial, the last four diagonal. */
+extern const int sim_neighbour_dx[8];
+extern const int sim_neighbour_dy[8];
 
 typedef enum sim_cell_class {
     SIM_CELL_SEED = 0,        /* free: can receive material */

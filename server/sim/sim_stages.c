@@ -40,8 +40,8 @@
 #include <string.h>
 
 /* 8-neighbourhood; the first four are axial, the last four diagonal. */
-static const int neighbour_dx[8] = {1, -1, 0, 0, 1, -1, 1, -1};
-static const int neighbour_dy[8] = {0, 0, 1, -1, 1, 1, -1, -1};
+const int sim_neighbour_dx[8] = {1, -1, 0, 0, 1, -1, 1, -1};
+const int sim_neighbour_dy[8] = {0, 0, 1, -1, 1, 1, -1, -1};
 
 uint32_t sim_cell_hash(int32_t world_x, int32_t world_y)
 {
@@ -161,169 +161,6 @@ void sim_compaction_commit(const ground_material_table *t, const uint8_t *ids, i
     }
 }
 
-/* Is seed candidate a (index, distance) better than b for this cell? */
-static int seed_better(int32_t da, uint32_t ha, int32_t a, int32_t db, uint32_t hb, int32_t b)
-{
-    if (da != db)
-        return da < db;
-    if (ha != hb)
-        return ha < hb;
-    return a < b;
-}
-
-/*
- * Step sizes: K = the largest power of two below max(w, h) (1 for a 1-cell
- * side), then K/2, ..., 1. A batch may run the largest window's sequence for
- * every window: steps >= max(w, h) only look outside the window and change
- * nothing.
- */
-static int jump_flood_first_step(int w, int h)
-{
-    int side = w > h ? w : h;
-    int k = 1;
-    while (k * 2 < side)
-        k *= 2;
-    return k;
-}
-
-void sim_jump_flood_dense(const sim_params *p, int w, int h, int origin_x, int origin_y,
-                          const int32_t *cls, int32_t *seed, int32_t *scratch)
-{
-    int n = w * h;
-    for (int i = 0; i < n; i++)
-        seed[i] = cls[i] == SIM_CELL_SEED ? i : -1;
-    int32_t *in = seed, *out = scratch;
-    for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int32_t best = in[y * w + x];
-                int32_t best_d = 0;
-                uint32_t best_h = 0;
-                if (best >= 0) {
-                    int bx = best % w, by = best / w;
-                    best_d = sim_metric_distance(p->metric, bx - x, by - y);
-                    best_h = sim_cell_hash(origin_x + bx, origin_y + by);
-                }
-                for (int j = 0; j < 8; j++) {
-                    int qx = x + neighbour_dx[j] * k, qy = y + neighbour_dy[j] * k;
-                    if (qx < 0 || qy < 0 || qx >= w || qy >= h)
-                        continue;
-                    int32_t s = in[qy * w + qx];
-                    if (s < 0)
-                        continue;
-                    int sx = s % w, sy = s / w;
-                    int32_t d = sim_metric_distance(p->metric, sx - x, sy - y);
-                    uint32_t hs = sim_cell_hash(origin_x + sx, origin_y + sy);
-                    if (best < 0 || seed_better(d, hs, s, best_d, best_h, best)) {
-                        best = s;
-                        best_d = d;
-                        best_h = hs;
-                    }
-                }
-                out[y * w + x] = best;
-            }
-        }
-        int32_t *t = in;
-        in = out;
-        out = t;
-    }
-    if (in != seed)
-        memcpy(seed, in, (size_t)n * sizeof *seed);
-}
-
-/*
- * The sparse jump flooding the engine runs; sim_jump_flood_dense is its
- * reference (test_sim_stages compares them on random windows). A free cell
- * is its own nearest seed at distance 0, which no candidate can beat, so
- * only the cells that are not free are visited: the work is 8 candidates
- * per step per penetrated or obstacle cell, not per window cell. Seeds are
- * carried packed as (y << 16 | x) — packed order is index order — so a
- * candidate costs no division, and the hash that breaks ties is computed
- * only on a tie of distances (the comparison is seed_better's, unchanged).
- */
-#define JFA_PACK_MAX 32768
-
-static int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x, int y, int k, int w,
-                        int h, const int32_t *restrict in)
-{
-    int32_t best = in[y * w + x];
-    int32_t best_d = 0;
-    uint32_t best_h = 0;
-    int have_h = 0;
-    if (best >= 0)
-        best_d = sim_metric_distance(metric, (best & 0xffff) - x, (best >> 16) - y);
-    for (int j = 0; j < 8; j++) {
-        int qx = x + neighbour_dx[j] * k, qy = y + neighbour_dy[j] * k;
-        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
-            continue;
-        int32_t s = in[qy * w + qx];
-        if (s < 0 || s == best)
-            continue;
-        int sx = s & 0xffff, sy = s >> 16;
-        int32_t d = sim_metric_distance(metric, sx - x, sy - y);
-        if (best >= 0 && d > best_d)
-            continue;
-        if (best >= 0 && d == best_d) {
-            if (!have_h)
-                best_h = sim_cell_hash(origin_x + (best & 0xffff), origin_y + (best >> 16));
-            have_h = 1;
-            uint32_t hs = sim_cell_hash(origin_x + sx, origin_y + sy);
-            if (hs > best_h || (hs == best_h && s > best))
-                continue;
-            best_h = hs;
-        } else {
-            have_h = 0;
-        }
-        best = s;
-        best_d = d;
-    }
-    return best;
-}
-
-void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_y,
-                    const int32_t *cls, int32_t *seed, int32_t *scratch)
-{
-    if (w > JFA_PACK_MAX || h > JFA_PACK_MAX) {
-        sim_jump_flood_dense(p, w, h, origin_x, origin_y, cls, seed, scratch);
-        return;
-    }
-    int n = w * h;
-    int32_t *restrict other = scratch, *restrict list = scratch + n;
-    int count = 0;
-    for (int y = 0, i = 0; y < h; y++) {
-        for (int x = 0; x < w; x++, i++) {
-            int free_cell = cls[i] == SIM_CELL_SEED;
-            seed[i] = free_cell ? (y << 16 | x) : -1;
-            if (!free_cell)
-                list[count++] = i;
-        }
-    }
-    if (count > 0) {
-        memcpy(other, seed, (size_t)n * sizeof *seed);
-        int32_t *in = seed, *out = other;
-        int bands = sim_band_threads(count);
-        (void)bands; /* read only by the OpenMP pragma */
-        for (int k = jump_flood_first_step(w, h); k >= 1; k /= 2) {
-            /* each listed cell reads `in`, writes its own `out`: bands are exact */
-            SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
-            for (int c = 0; c < count; c++) {
-                int i = list[c], y = i / w, x = i - y * w;
-                out[i] = jfa_pick(p->metric, origin_x, origin_y, x, y, k, w, h, in);
-            }
-            int32_t *t = in;
-            in = out;
-            out = t;
-        }
-        if (in != seed)
-            for (int c = 0; c < count; c++)
-                seed[list[c]] = in[list[c]];
-    }
-    /* packed → window-local index; free cells are their own seed */
-    for (int y = 0, i = 0; y < h; y++)
-        for (int x = 0; x < w; x++, i++)
-            seed[i] = seed[i] < 0 ? -1 : (seed[i] >> 16) * w + (seed[i] & 0xffff);
-}
-
 /* Add the received material to each column; refuse the window if any column
  * would rise above the height limit. `received` is exact (int64). */
 static sim_window_status land_received(int n, int32_t *heights, const int64_t *received)
@@ -423,7 +260,7 @@ static sim_window_status displace_iterative(const sim_params *p, int w, int h, c
         for (int x = 0; x < w; x++) {
             int i = y * w + x, bits = 0, count = 0;
             for (int j = 0; j < 8; j++) {
-                int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
                 if (qx < 0 || qy < 0 || qx >= w || qy >= h)
                     continue;
                 int q = qy * w + qx;
@@ -443,7 +280,7 @@ static sim_window_status displace_iterative(const sim_params *p, int w, int h, c
                 int64_t total = count > 0 ? transit[i] % count : transit[i];
                 int64_t inflow = 0;
                 for (int j = 0; j < 8; j++) {
-                    int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                    int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
                     if (qx < 0 || qy < 0 || qx >= w || qy >= h)
                         continue;
                     int q = qy * w + qx;
@@ -535,7 +372,7 @@ static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, in
     const ground_material_row *ri = row_of(t, ids, i);
     int32_t out = 0, in = 0;
     for (int j = 0; j < 8; j++) {
-        int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+        int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
         if (qx < 0 || qy < 0 || qx >= w || qy >= h)
             continue;
         int q = qy * w + qx;
@@ -545,6 +382,42 @@ static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, in
             in += slope_flux_row(row_of(t, ids, q), heights[q], hi, j >= 4);
     }
     return hi - out + in;
+}
+
+/*
+ * slope_next for a cell one cell or more inside a window of one material
+ * (ids == NULL): the same sum, with the neighbours at fixed offsets, no
+ * bounds checks and one threshold pair. The eight heights and classes are
+ * gathered into small arrays first, so the loop over them has no branch and
+ * no call: gcc -O2 vectorises it (16-byte vectors, the 32 x 32 -> 64-bit
+ * products as pmuludq; -fopt-info-vec). Integer sums do not depend
+ * on their order: the result is slope_next's to the bit (test_sparse_stages
+ * compares the sparse stages, which use this, with the dense reference).
+ */
+static int32_t slope_next_interior(const ground_material_row *restrict r, int w,
+                                   const int32_t *restrict cls, const int32_t *restrict heights,
+                                   int i)
+{
+    const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
+    const uint32_t rough = (uint32_t)r->roughness_q16;
+    const int32_t th[8] = {ax, ax, ax, ax, dg, dg, dg, dg};
+    const int32_t *restrict up = heights + i - w, *restrict mid = heights + i,
+                            *restrict down = heights + i + w;
+    const int32_t *restrict cup = cls + i - w, *restrict cmid = cls + i,
+                            *restrict cdown = cls + i + w;
+    /* the neighbours in slope_next's order: E, W, S, N, SE, SW, NE, NW */
+    const int32_t hq[8] = {mid[1], mid[-1], down[0], up[0], down[1], down[-1], up[1], up[-1]};
+    const int32_t cq[8] = {cmid[1],  cmid[-1],  cdown[0], cup[0],
+                           cdown[1], cdown[-1], cup[1],   cup[-1]};
+    int32_t hi = mid[0], out = 0, in = 0;
+    for (int j = 0; j < 8; j++) {
+        int32_t eo = hi - hq[j] - th[j], ei = hq[j] - hi - th[j];
+        int32_t fo = (int32_t)(((uint64_t)(uint32_t)(eo > 0 ? eo : 0) * rough) >> 19);
+        int32_t fi = (int32_t)(((uint64_t)(uint32_t)(ei > 0 ? ei : 0) * rough) >> 19);
+        out += cq[j] == SIM_CELL_SEED ? fo : 0;
+        in += fi;
+    }
+    return hi - out + (cmid[0] == SIM_CELL_SEED ? in : 0);
 }
 
 void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
@@ -573,7 +446,7 @@ static int slope_may_move(const ground_material_table *t, const uint8_t *ids, in
     int32_t hi = heights[i];
     const ground_material_row *ri = row_of(t, ids, i);
     for (int j = 0; j < 8; j++) {
-        int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+        int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
         if (qx < 0 || qy < 0 || qx >= w || qy >= h)
             continue;
         int q = qy * w + qx;
@@ -589,6 +462,24 @@ static int slope_may_move(const ground_material_table *t, const uint8_t *ids, in
         }
     }
     return 0;
+}
+
+/* Slope evening's work lists hold cells packed as (y << 16 | x), unsigned
+ * (a side is at most WORLD_SIDE_MAX = 65536 cells): a listed cell's x and y
+ * cost a mask and a shift, not a division. */
+static inline int32_t slope_pack(int x, int y)
+{
+    return (int32_t)((uint32_t)y << 16 | (uint32_t)x);
+}
+
+static inline int slope_x(int32_t packed)
+{
+    return (int)((uint32_t)packed & 0xffffu);
+}
+
+static inline int slope_y(int32_t packed)
+{
+    return (int)((uint32_t)packed >> 16);
 }
 
 /* The first work list: every cell of the window that slope_may_move. The
@@ -620,10 +511,35 @@ static int slope_first_list(const ground_material_table *t, const uint8_t *ids, 
                     continue;
             }
             if (slope_may_move(t, ids, w, h, cls, heights, x, y))
-                list[count++] = y * w + x;
+                list[count++] = slope_pack(x, y);
         }
     }
     return count;
+}
+
+/* One iteration's new heights of the listed cells into value[]. */
+typedef struct slope_loop {
+    const ground_material_table *t;
+    const uint8_t *ids;
+    int w, h;
+    const int32_t *cls, *heights, *list;
+    int32_t *value;
+} slope_loop;
+
+static void slope_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+    const slope_loop *l = ctx;
+    const int w = l->w, h = l->h;
+    const int32_t *restrict list = l->list;
+    int32_t *restrict value = l->value;
+    for (int64_t c = begin; c < end; c++) {
+        int x = slope_x(list[c]), y = slope_y(list[c]), i = y * w + x;
+        if (l->ids == NULL && x > 0 && y > 0 && x < w - 1 && y < h - 1)
+            value[c] = slope_next_interior(&l->t->rows[0], w, l->cls, l->heights, i);
+        else
+            value[c] = slope_next(l->t, l->ids, w, h, l->cls, l->heights, x, y);
+    }
 }
 
 /*
@@ -649,30 +565,25 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
     for (int i = 0; i < n; i++)
         mark[i] = -1;
     for (int32_t iter = 0; iter < p->slope_iterations && count > 0; iter++) {
-        int bands = sim_band_threads(count);
-        (void)bands; /* read only by the OpenMP pragma */
         /* Jacobi: every listed cell reads the old heights; bands are exact */
-        SIM_OMP(omp parallel for schedule(static) num_threads(bands) if (bands > 1))
-        for (int c = 0; c < count; c++) {
-            int i = list[c], y = i / w;
-            value[c] = slope_next(t, ids, w, h, cls, heights, i - y * w, y);
-        }
+        slope_loop l = {t, ids, w, h, cls, heights, list, value};
+        int bands = sim_band_threads(count);
+        sim_parallel_for(count, sim_band_chunk(count, bands), bands, slope_range, &l);
         int next_count = 0;
         for (int c = 0; c < count; c++) {
-            int i = list[c];
+            int x = slope_x(list[c]), y = slope_y(list[c]), i = y * w + x;
             if (value[c] == heights[i])
                 continue;
             heights[i] = value[c];
-            int y = i / w, x = i - y * w;
-            for (int qy = y - 1; qy <= y + 1; qy++) {
-                if (qy < 0 || qy >= h)
-                    continue;
-                for (int qx = x - 1; qx <= x + 1; qx++) {
-                    int q = qy * w + qx;
-                    if (qx < 0 || qx >= w || mark[q] == iter)
+            /* the changed cell and its neighbours inside the window, once each */
+            int x0 = x > 0 ? x - 1 : 0, x1 = x < w - 1 ? x + 1 : w - 1;
+            int y0 = y > 0 ? y - 1 : 0, y1 = y < h - 1 ? y + 1 : h - 1;
+            for (int qy = y0; qy <= y1; qy++) {
+                for (int qx = x0, q = qy * w + x0; qx <= x1; qx++, q++) {
+                    if (mark[q] == iter)
                         continue;
                     mark[q] = iter;
-                    next_list[next_count++] = q;
+                    next_list[next_count++] = slope_pack(qx, qy);
                 }
             }
         }
@@ -698,7 +609,7 @@ int64_t sim_max_slope_excess_materials(const ground_material_table *t, const uin
         for (int x = 0; x < w; x++) {
             int i = y * w + x;
             for (int j = 0; j < 8; j++) {
-                int qx = x + neighbour_dx[j], qy = y + neighbour_dy[j];
+                int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
                 if (qx < 0 || qy < 0 || qx >= w || qy >= h)
                     continue;
                 int64_t d = (int64_t)heights[i] - heights[qy * w + qx];

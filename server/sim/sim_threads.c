@@ -1,19 +1,26 @@
 /*
- * sim_threads.c: how many threads the CPU twin's stages use (--threads on
- * serve and simulate). One process-wide setting, read at the start of each
- * parallel region: the windows of a tick run in parallel (backend_cpu.c), and
- * a window's work lists split into bands across threads (sim_stages.c). Every
- * parallel loop writes only its own cells from values read before the loop
- * (Jacobi), so heights are identical for any thread count. Built without
- * OpenMP, everything runs on the calling thread and the setting is reported
- * as 1.
+ * sim_threads.c: the CPU twin's threads (--threads on serve and simulate).
+ * One process-wide setting and one small pool of worker threads: the windows
+ * of a tick run in parallel (backend_cpu.c), and a window's work lists split
+ * into chunks across threads (sim_stages.c). Every parallel loop writes only
+ * its own cells from values read before the loop (Jacobi), so heights are
+ * identical for any thread count and any split.
+ *
+ * Why a pool of our own and not OpenMP: on a machine whose cores are shared
+ * (the daemon beside its clients, other jobs), libgomp's default wait spins
+ * for ~300,000 iterations after every parallel region and at every barrier.
+ * Measured under the service bench at 64 wheels (docs/performance.md) that
+ * spinning was 61 % of the daemon's CPU, taken from the net thread and the
+ * clients. Here a worker sleeps on a condition variable between loops, and
+ * the caller never waits for a worker that has not started: the items are
+ * claimed from an atomic counter, so a caller whose workers are not
+ * scheduled runs the whole loop itself and waits only for chunks a worker
+ * has already claimed.
  */
 #include "sim/sim_internal.h"
 
+#include <pthread.h>
 #include <stdatomic.h>
-#ifdef _OPENMP
-#include <omp.h>
-#endif
 #include <unistd.h>
 
 static atomic_int thread_count; /* 0: not set, the machine's cores */
@@ -33,34 +40,145 @@ void sim_set_threads(int n)
 
 int sim_threads(void)
 {
-#ifdef _OPENMP
     int n = atomic_load(&thread_count);
     return n > 0 ? n : sim_default_threads();
-#else
-    return 1;
-#endif
 }
 
-int sim_thread_index(void)
+/* One parallel loop: chunks of `chunk` items claimed from `next`. */
+typedef struct pool_job {
+    sim_range_fn fn;
+    void *ctx;
+    int64_t items, chunk;
+    int threads;       /* slots 0 (the caller) .. threads - 1 */
+    atomic_llong next; /* first unclaimed item */
+    int joined;        /* workers inside the loop (under pool.lock) */
+    int closed;        /* the caller has finished: no worker may join */
+} pool_job;
+
+static struct {
+    pthread_mutex_t lock;
+    pthread_cond_t wake;   /* a new job */
+    pthread_cond_t done;   /* the last joined worker left */
+    pthread_mutex_t owner; /* one parallel loop at a time; others run serially */
+    pool_job *job;
+    uint64_t generation;
+    int workers; /* started; worker k has slot k (1-based) */
+} pool = {PTHREAD_MUTEX_INITIALIZER,
+          PTHREAD_COND_INITIALIZER,
+          PTHREAD_COND_INITIALIZER,
+          PTHREAD_MUTEX_INITIALIZER,
+          NULL,
+          0,
+          0};
+
+/* Non-zero on a pool worker and on a caller inside its loop: a loop nested in
+ * a parallel loop runs serially on the thread that meets it. */
+static _Thread_local int in_parallel;
+static _Thread_local int slot_of_thread;
+
+static void run_chunks(pool_job *j, int slot)
 {
-#ifdef _OPENMP
-    return omp_get_thread_num();
-#else
-    return 0;
-#endif
+    for (;;) {
+        int64_t begin = atomic_fetch_add(&j->next, j->chunk);
+        if (begin >= j->items)
+            return;
+        int64_t end = begin + j->chunk < j->items ? begin + j->chunk : j->items;
+        j->fn(j->ctx, begin, end, slot);
+    }
+}
+
+static void *worker_main(void *arg)
+{
+    int slot = (int)(intptr_t)arg;
+    in_parallel = 1;
+    slot_of_thread = slot;
+    pthread_mutex_lock(&pool.lock);
+    uint64_t seen = pool.generation;
+    for (;;) {
+        while (pool.generation == seen)
+            pthread_cond_wait(&pool.wake, &pool.lock);
+        seen = pool.generation;
+        pool_job *j = pool.job;
+        if (!j || j->closed || slot >= j->threads)
+            continue;
+        j->joined++;
+        pthread_mutex_unlock(&pool.lock);
+        run_chunks(j, slot);
+        pthread_mutex_lock(&pool.lock);
+        if (--j->joined == 0 && j->closed)
+            pthread_cond_signal(&pool.done);
+    }
+    return NULL;
+}
+
+/* Start workers up to slot threads - 1; fewer if the system refuses. */
+static int ensure_workers(int threads)
+{
+    pthread_mutex_lock(&pool.lock);
+    while (pool.workers < threads - 1) {
+        pthread_t t;
+        pthread_attr_t attr;
+        pthread_attr_init(&attr);
+        pthread_attr_setdetachstate(&attr, PTHREAD_CREATE_DETACHED);
+        int rc = pthread_create(&t, &attr, worker_main, (void *)(intptr_t)(pool.workers + 1));
+        pthread_attr_destroy(&attr);
+        if (rc != 0)
+            break;
+        pool.workers++;
+    }
+    int have = pool.workers + 1;
+    pthread_mutex_unlock(&pool.lock);
+    return have < threads ? have : threads;
+}
+
+void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn, void *ctx)
+{
+    if (items <= 0)
+        return;
+    if (chunk < 1)
+        chunk = 1;
+    if (threads > SIM_THREADS_MAX)
+        threads = SIM_THREADS_MAX;
+    if (threads <= 1 || items <= chunk || in_parallel || pthread_mutex_trylock(&pool.owner) != 0) {
+        fn(ctx, 0, items, in_parallel ? slot_of_thread : 0);
+        return;
+    }
+    threads = ensure_workers(threads);
+    pool_job j = {.fn = fn, .ctx = ctx, .items = items, .chunk = chunk, .threads = threads};
+    atomic_init(&j.next, 0);
+    pthread_mutex_lock(&pool.lock);
+    pool.job = &j;
+    pool.generation++;
+    pthread_cond_broadcast(&pool.wake);
+    pthread_mutex_unlock(&pool.lock);
+
+    in_parallel = 1;
+    slot_of_thread = 0;
+    run_chunks(&j, 0);
+    in_parallel = 0;
+
+    /* every item is claimed; wait only for the workers that claimed some */
+    pthread_mutex_lock(&pool.lock);
+    j.closed = 1;
+    while (j.joined > 0)
+        pthread_cond_wait(&pool.done, &pool.lock);
+    pool.job = NULL;
+    pthread_mutex_unlock(&pool.lock);
+    pthread_mutex_unlock(&pool.owner);
+}
+
+int64_t sim_band_chunk(int64_t items, int bands)
+{
+    int64_t chunk = items / ((int64_t)(bands > 0 ? bands : 1) * 4);
+    return chunk < SIM_BAND_MIN_ITEMS / 4 ? SIM_BAND_MIN_ITEMS / 4 : chunk;
 }
 
 int sim_band_threads(int64_t items)
 {
-#ifdef _OPENMP
-    /* below this a parallel region costs more than it saves */
-    if (items < SIM_BAND_MIN_ITEMS || omp_in_parallel())
+    /* below this a parallel loop costs more than it saves */
+    if (items < SIM_BAND_MIN_ITEMS || in_parallel)
         return 1;
     int n = sim_threads();
     int64_t most = items / (SIM_BAND_MIN_ITEMS / 2);
     return most < n ? (int)most : n;
-#else
-    (void)items;
-    return 1;
-#endif
 }

@@ -39,10 +39,18 @@ def layout(wheels):
     return clients, max(1, wheels // clients)
 
 
+def daemon_cpu_s(pid):
+    """User + system CPU seconds of a process so far (/proc/PID/stat)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run_case(backend, wheels):
     clients, per = layout(wheels)
     d = Daemon(backend=backend, name=f"bench-{backend}-{wheels}", durability="every-tick")
     try:
+        cpu0, t0 = daemon_cpu_s(d.pid), time.monotonic()
         p = subprocess.run([BIN, "loadgen", "--url", d.ws, "--http", d.http, "--clients",
                             str(clients), "--wheels-per-client", str(per), "--seconds",
                             str(DRIVE_S), "--json"], capture_output=True, text=True,
@@ -50,6 +58,10 @@ def run_case(backend, wheels):
         if not p.stdout.strip().startswith("{"):
             raise RuntimeError(f"loadgen failed ({p.returncode}): {p.stderr}")
         r = json.loads(p.stdout)
+        # the daemon's own CPU time per second of the run (user + system, all its threads):
+        # what the load of other jobs changes least
+        r["daemon_cpu_share"] = (daemon_cpu_s(d.pid) - cpu0) / (time.monotonic() - t0)
+        r["load"] = os.getloadavg()[0]
 
         r["tick_ms"] = r["tick_mean_ms"]
         r["backend"] = backend
@@ -82,7 +94,7 @@ def main():
         print(f"  renderer: {rn}")
     hdr = (f"{'backend':7} {'wheels':>6} {'clients':>7} {'ticks/s':>8} {'p50 ms':>7} "
            f"{'p99 ms':>7} {'max ms':>7} {'tick ms':>8} {'overruns':>8} {'B/tick':>8} "
-           f"{'B/cell':>7} {'dropped':>7} {'resyncs':>7} {'mirrors':>7}  anchor")
+           f"{'B/cell':>7} {'dropped':>7} {'resyncs':>7} {'mirrors':>7} {'CPU/s':>6} {'load':>5}  anchor")
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
@@ -97,10 +109,13 @@ def main():
               f"{lat['p50']:7.1f} {lat['p99']:7.1f} {lat['max']:7.1f} {r['tick_ms']:8.2f} "
               f"{r['overruns']:8d} {r['delta_bytes_per_tick']:8.0f} "
               f"{r['delta_bytes_per_changed_cell']:7.2f} {r['frames_dropped']:7d} "
-              f"{r['resyncs']:7d} {'equal' if r['mirrors_equal'] else 'DIFFER':>7}  {anchor}")
+              f"{r['resyncs']:7d} {'equal' if r['mirrors_equal'] else 'DIFFER':>7} "
+              f"{r['daemon_cpu_share']:6.2f} {r['load']:5.1f}  {anchor}")
     print("(latency: POSE_BATCH sent -> the ACK of the tick that used it, after that tick's "
           "DELTAs; B/cell: delta bytes per mirror cell a DELTA changed; tick ms: the server's mean "
-          "tick while driving, from terrad_tick_duration_seconds)")
+          "tick while driving, from terrad_tick_duration_seconds; CPU/s: the daemon's CPU seconds (all "
+          "threads) per second of the run; load: the 1-minute load average at its end, on "
+          f"{os.cpu_count()} cores shared with whatever else runs)")
     for r in rows:
         if not r["mirrors_equal"] or r["failed_clients"]:
             print(f"bench_service: {r['backend']}/{r['wheels']}: mirrors "

@@ -487,6 +487,86 @@ static void test_dead_ends(sim_backend *gl, sim_backend *cpu)
     }
 }
 
+/*
+ * Sparse jump flooding and slope evening on the GL backend (compacted tile
+ * lists, indirect dispatch over the listed tiles; slope evening's list after
+ * each iteration is the tiles around a change): windows where most 8x8 tiles
+ * hold free cells only and are left out of the list — one small press in a large
+ * window, presses at opposite corners (seeds read across unlisted tiles at
+ * every step size), a window nothing penetrates (an empty list), a window
+ * pressed everywhere (every tile listed, no seed at all) — against the CPU's
+ * sparse stages, every method x metric, with slope evening on.
+ */
+static void sparse_window(batch *b, int k, int w, int h, int presses, const int (*at)[3])
+{
+    int n = w * h;
+    b->heights[k] = malloc((size_t)n * sizeof(int32_t));
+    b->heights_cpu[k] = malloc((size_t)n * sizeof(int32_t));
+    b->bottom[k] = malloc((size_t)n * sizeof(int32_t));
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int i = y * w + x;
+            int32_t hh = 50000 + 37 * x - 23 * y + rnd_range(0, 400);
+            int32_t bt = COLLIDER_BOTTOM_NONE;
+            for (int d = 0; d < presses; d++) {
+                int dx = x - at[d][0], dy = y - at[d][1], r = at[d][2];
+                if (r < 0 || dx * dx + dy * dy <= r * r)
+                    bt = hh - 2000 - 40 * (dx * dx + dy * dy); /* r < 0: the whole window */
+                else if (dx * dx + dy * dy <= (r + 1) * (r + 1) && bt == COLLIDER_BOTTOM_NONE)
+                    bt = hh + 30; /* a ring of obstacles around the press */
+            }
+            b->heights[k][i] = b->heights_cpu[k][i] = hh;
+            b->bottom[k][i] = bt;
+        }
+    }
+    b->jobs[k] = (sim_window_job){
+        .rect = {k * 1000, 500 - k * 300, w, h},
+        .cell_size_m = 0.05,
+        .units_per_m = 10000,
+        .heights = b->heights[k],
+        .bottom_override = b->bottom[k],
+    };
+}
+
+static void test_sparse_tiles(sim_backend *gl, sim_backend *cpu, int chunked)
+{
+    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
+    static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
+                                          SIM_METRIC_CHEBYSHEV};
+    static const int one[1][3] = {{113, 71, 3}}, one_small[1][3] = {{47, 41, 3}};
+    static const int corners[2][3] = {{2, 2, 2}, {67, 17, 1}};
+    static const int everywhere[1][3] = {{0, 0, -1}};
+    for (int mi = 0; mi < 3; mi++) {
+        for (int di = 0; di < 3; di++) {
+            batch b = {0};
+            b.count = 4;
+            /* with 3400-cell chunks the first window must fit one: 60 x 50 */
+            if (chunked)
+                sparse_window(&b, 0, 60, 50, 1, one_small);
+            else
+                sparse_window(&b, 0, 150, 97, 1, one);
+            sparse_window(&b, 1, 70, 20, 2, corners);
+            sparse_window(&b, 2, 40, 40, 0, NULL);
+            sparse_window(&b, 3, 9, 9, 1, everywhere);
+            sim_material m = sim_material_default();
+            m.method = methods[mi];
+            m.metric = metrics[di];
+            m.displace_iterations = 6;
+            m.slope_iterations = 5;
+            sim_params p;
+            error_text err;
+            sim_params_from_material(&m, 0.05, 10000, WORLD_HEIGHT_MIN, &p, &err);
+            int limits = 0;
+            char label[64];
+            snprintf(label, sizeof label, "sparse tiles %s/%s", sim_method_name(m.method),
+                     sim_metric_name(m.metric));
+            int rc = compare_batch(gl, cpu, &p, &b, label, &limits);
+            CHECK(rc == 0 && limits == 0, "%s: GL and CPU heights equal", label);
+            batch_free(&b);
+        }
+    }
+}
+
 /* The same batch twice gives the same heights (atomics commute, ties hash). */
 static void test_repeatable(sim_backend *gl)
 {
@@ -776,6 +856,7 @@ int main(void)
     test_materials_bit_exact(gl, cpu, 24);
     test_height_limit(gl, cpu);
     test_dead_ends(gl, cpu);
+    test_sparse_tiles(gl, cpu, 0);
     test_repeatable(gl);
     test_scratch_and_timing(gl);
     test_tile_cache(gl, cpu);
@@ -785,6 +866,7 @@ int main(void)
     test_depth_exact(gl, 1);
     printf("info with 3400-cell chunks:\n");
     test_bit_exact(gl, cpu, 4, 0);
+    test_sparse_tiles(gl, cpu, 1);
     gl->destroy(gl);
     cpu->destroy(cpu);
     printf("%d passed, %d failed\n", passed, failed);
