@@ -18,6 +18,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -284,6 +285,31 @@ static int serve_start_net(serve_daemon *d, error_text *err)
     return 0;
 }
 
+/* Descriptors: HTTP gets a quarter of RLIMIT_NOFILE (8..256 connections),
+ * SERVE_FD_STORE stay free for the store and the process, and websocket
+ * sockets are refused past the rest (net_conn.c), so that no stranger can
+ * take the descriptors the store and the probes need. */
+#define SERVE_FD_STORE 32
+
+static unsigned serve_http_connections(void)
+{
+    struct rlimit rl;
+    if (getrlimit(RLIMIT_NOFILE, &rl) != 0 || rl.rlim_cur == RLIM_INFINITY)
+        return HTTP_DEFAULT_CONNECTIONS;
+    long n = ((long)rl.rlim_cur - SERVE_FD_STORE) / 4;
+    return n < 8 ? 8 : n > HTTP_DEFAULT_CONNECTIONS ? HTTP_DEFAULT_CONNECTIONS : (unsigned)n;
+}
+
+static http_server *serve_start_http(serve_daemon *d, error_text *err)
+{
+    http_limits hl = {.connections = serve_http_connections()};
+    hl.connections_per_ip = hl.connections < HTTP_DEFAULT_CONNECTIONS_PER_IP
+                                ? hl.connections
+                                : HTTP_DEFAULT_CONNECTIONS_PER_IP;
+    d->o.limits.fd_reserve = SERVE_FD_STORE + (int)hl.connections;
+    return http_server_start_limited(d->o.http_port, d->o.bind_any, &d->status, d->h, &hl, err);
+}
+
 /* Start the threads around the sim thread: hub, HTTP, net; then ready. */
 static int serve_start(serve_daemon *d, error_text *err)
 {
@@ -291,7 +317,7 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "serve: out of memory");
         return -1;
     }
-    if (!(d->http = http_server_start(d->o.http_port, d->o.bind_any, &d->status, d->h, err)))
+    if (!(d->http = serve_start_http(d, err)))
         return -1;
     http_server_set_base(d->http, &d->w); /* the base never changes once the world is made */
     if (serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)

@@ -116,17 +116,27 @@ static int config_string(const cJSON *doc, const char *key, char *buf, size_t si
 /* "limits": PROTOCOL.md's names, each a positive number. */
 static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
 {
-    static const char *const keys[] = {
-        "max_message_bytes",    "max_colliders",      "max_poses_per_batch", "max_subscriptions",
-        "max_subscribed_cells", "max_messages_per_s", "messages_burst",      "max_pending_bytes",
-        "hello_timeout_s",      "max_active_cells",   "max_mesh_triangles",  NULL};
+    static const char *const keys[] = {"max_message_bytes",
+                                       "max_colliders",
+                                       "max_poses_per_batch",
+                                       "max_subscriptions",
+                                       "max_subscribed_cells",
+                                       "max_messages_per_s",
+                                       "messages_burst",
+                                       "max_pending_bytes",
+                                       "hello_timeout_s",
+                                       "max_active_cells",
+                                       "max_mesh_triangles",
+                                       "max_connections",
+                                       "max_connections_per_address",
+                                       NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
         return 0;
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[11];
+    double v[13];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -164,8 +174,14 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
         case 9:
             m->max_active_cells = (int64_t)v[i];
             break;
-        default:
+        case 10:
             m->max_mesh_triangles = (int)v[i];
+            break;
+        case 11:
+            m->max_connections = (int)v[i];
+            break;
+        default:
+            m->max_connections_per_address = (int)v[i];
             break;
         }
     }

@@ -90,6 +90,9 @@ net_limits net_limits_default(void)
         .max_collider_extent_m = 50,
         .max_pending_bytes = 8388608,
         .hello_timeout_s = 5,
+        .max_connections = 0, /* 0: derived from RLIMIT_NOFILE by the caller, or none */
+        .max_connections_per_address = 256,
+        .fd_reserve = 64,
     };
 }
 
@@ -496,6 +499,8 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
     THREAD_OWNED(&s->st.owner);
 
     switch (reason) {
+    case LWS_CALLBACK_FILTER_NETWORK_CONNECTION:
+        return s->stopping || !net_admit_connection(&s->st, (int)(intptr_t)in);
     case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
         if (s->stopping)
             return 1;
@@ -584,6 +589,21 @@ static void lws_log_line(int level, const char *line)
     size_t n = strlen(line);
     while (n && (line[n - 1] == '\n' || line[n - 1] == '\r'))
         n--;
+    /* libwebsockets' own lines (accept errors among them) at a bounded rate:
+     * a flood must not become a flood of log lines */
+    static double window_ms;
+    static unsigned in_window, dropped;
+    double now = time_now_ms();
+    if (now - window_ms > 1000.0) {
+        if (dropped)
+            log_warn("libwebsockets: %u more lines not logged", dropped);
+        window_ms = now;
+        in_window = dropped = 0;
+    }
+    if (++in_window > 5) {
+        dropped++;
+        return;
+    }
     if (level & LLL_ERR)
         log_error("libwebsockets: %.*s", (int)n, line);
     else
@@ -679,6 +699,7 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.world_name = dup_or_null(c->world.name);
     s->st.cfg.world.name = s->st.world_name;
     s->st.next_client_id = 1;
+    s->st.fd_ceiling = c->limits.fd_reserve > 0 ? net_fd_ceiling(c->limits.fd_reserve) : 0;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
     s->st.models = parse_names(s->st.models_json, "[]", "world.models_json", err);

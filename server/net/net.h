@@ -31,6 +31,11 @@ typedef struct net_limits {
     double max_collider_extent_m;
     size_t max_pending_bytes;
     double hello_timeout_s;
+    /* Admission (0 = no cap): websocket clients in all and from one address.
+     * Whatever these say, an accepted socket is refused while fewer than
+     * fd_reserve descriptors are left under RLIMIT_NOFILE. */
+    int max_connections, max_connections_per_address;
+    int fd_reserve;
 } net_limits;
 
 net_limits net_limits_default(void);

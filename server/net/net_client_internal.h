@@ -135,6 +135,11 @@ struct net_state {
 
     double last_warn_ms;
     uint64_t warns_suppressed;
+
+    /* admission (net_conn.c) */
+    int fd_ceiling; /* accepted descriptors at or above it are refused; 0 = none */
+    uint64_t conn_refused, conn_refusals_unlogged;
+    double last_conn_refusal_log_ms;
 };
 
 /* ---- the client list ---- */
@@ -163,6 +168,12 @@ void net_client_kill(net_client *c, const char *why);
 /* Token bucket; 1 if the message may pass. Refusals are answered at most
  * once a second; refusals sustained for 10 s close the connection. */
 int net_rate_allow(net_client *c);
+
+/* ---- admission (net_conn.c) ---- */
+/* RLIMIT_NOFILE's soft limit minus reserve (at least 16; huge when unlimited). */
+int net_fd_ceiling(int reserve);
+/* 1 if a freshly accepted socket may stay, else 0 (logged at a bounded rate). */
+int net_admit_connection(net_state *s, int fd);
 
 /* ---- dead peers (net_peer.c) ---- */
 /* After a write: pause reading while lws holds part of a frame, resume once it is flushed. */

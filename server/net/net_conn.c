@@ -1,0 +1,94 @@
+/*
+ * net_conn.c: who may open a websocket connection at all (the net_client
+ * layer, see net_client_internal.h). Runs on the net thread when libwebsockets
+ * has accepted a socket and before any byte of it is read, so that idle
+ * strangers cannot take the descriptors the store, the probes and the
+ * legitimate clients need (issue 15, item 4: 499 idle connections once
+ * exhausted nofile 512, /healthz stopped answering and the store failed).
+ *
+ * Three checks, cheapest first:
+ *   - the descriptor reserve: the kernel hands out the lowest free number, so
+ *     an accepted descriptor at or above fd_ceiling (RLIMIT_NOFILE minus the
+ *     reserve, computed at start) means fewer than the reserve are left free;
+ *   - max_connections: established clients in all;
+ *   - max_connections_per_address: established clients from the same address.
+ * A refused socket is closed by libwebsockets at once; refusals are logged at
+ * most once a second with a count of those not logged.
+ */
+#include "net/net_client_internal.h"
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/socket.h>
+
+#define NET_REFUSAL_LOG_MS 1000.0
+
+int net_fd_ceiling(int reserve)
+{
+    struct rlimit rl;
+    if (getrlimit(RLIMIT_NOFILE, &rl) != 0 || rl.rlim_cur == RLIM_INFINITY ||
+        rl.rlim_cur > (rlim_t)1 << 30)
+        return 1 << 30;
+    long ceiling = (long)rl.rlim_cur - reserve;
+    return ceiling < 16 ? 16 : (int)ceiling;
+}
+
+static void peer_of(int fd, char *out, size_t size)
+{
+    struct sockaddr_storage a;
+    socklen_t n = sizeof a;
+    out[0] = 0;
+    if (getpeername(fd, (struct sockaddr *)&a, &n) != 0)
+        return;
+    if (a.ss_family == AF_INET)
+        inet_ntop(AF_INET, &((struct sockaddr_in *)&a)->sin_addr, out, (socklen_t)size);
+    else if (a.ss_family == AF_INET6)
+        inet_ntop(AF_INET6, &((struct sockaddr_in6 *)&a)->sin6_addr, out, (socklen_t)size);
+}
+
+static void log_refusal(net_state *s, const char *peer, const char *why)
+{
+    double now = time_now_ms();
+    s->conn_refused++;
+    if (now - s->last_conn_refusal_log_ms < NET_REFUSAL_LOG_MS) {
+        s->conn_refusals_unlogged++;
+        return;
+    }
+    s->last_conn_refusal_log_ms = now;
+    if (s->conn_refusals_unlogged)
+        log_warn("net: refused a connection from %s: %s (and %llu more since the last such line)",
+                 peer[0] ? peer : "?", why, (unsigned long long)s->conn_refusals_unlogged);
+    else
+        log_warn("net: refused a connection from %s: %s", peer[0] ? peer : "?", why);
+    s->conn_refusals_unlogged = 0;
+}
+
+int net_admit_connection(net_state *s, int fd)
+{
+    THREAD_OWNED(&s->owner);
+    const net_limits *l = &s->cfg.limits;
+    char peer[64];
+    peer_of(fd, peer, sizeof peer);
+    if (s->fd_ceiling > 0 && fd >= s->fd_ceiling) {
+        log_refusal(s, peer,
+                    "file descriptors nearly exhausted (the rest are kept for the "
+                    "store and the probes)");
+        return 0;
+    }
+    if (l->max_connections > 0 && s->nclients >= l->max_connections) {
+        log_refusal(s, peer, "max_connections reached");
+        return 0;
+    }
+    if (l->max_connections_per_address > 0 && peer[0]) {
+        int same = 0;
+        for (int i = 0; i < s->nclients; i++)
+            same += strcmp(s->clients[i]->peer, peer) == 0;
+        if (same >= l->max_connections_per_address) {
+            log_refusal(s, peer, "max_connections_per_address reached");
+            return 0;
+        }
+    }
+    return 1;
+}
