@@ -67,6 +67,7 @@ typedef struct serve_daemon {
     service *svc;
     net_server *net;
     http_server *http;
+    http_server *probe; /* --probe-port */
     hub *h;
     char models[64];
     serve_cluster cluster; /* --cluster: the world this node owns */
@@ -317,7 +318,8 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "serve: out of memory");
         return -1;
     }
-    if (!(d->http = serve_start_http(d, err)))
+    if (!(d->http = serve_start_http(d, err)) ||
+        (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
         return -1;
     http_server_set_base(d->http, &d->w); /* the base never changes once the world is made */
     if (serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
@@ -345,6 +347,9 @@ static int serve_start(serve_daemon *d, error_text *err)
              "http://127.0.0.1:%d/ and ws://127.0.0.1:%d/",
              d->sc.name, d->w.width, d->w.height, d->backend->name, d->o.demo_actors,
              http_server_port(d->http), net_server_port(d->net));
+    if (d->probe)
+        log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
+                 http_server_port(d->probe));
     return 0;
 }
 
@@ -409,6 +414,7 @@ static void serve_stop(serve_daemon *d)
 {
     if (d->h)
         hub_close_reads(d->h);
+    http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
     service_destroy(d->svc);

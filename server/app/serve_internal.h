@@ -29,6 +29,7 @@ typedef struct serve_options {
     int ws_port;
     int bind_any;
     int insecure_open; /* --insecure-open: --bind-any without any token is allowed */
+    int probe_port;    /* -1: none; else --probe-port (0 = any free port) */
     int demo_actors;
     double tick_hz;    /* 0: the scene's */
     const char *token; /* NULL: no token required */

@@ -36,6 +36,7 @@ enum {
     OPT_CLUSTER,
     OPT_NODE,
     OPT_WORLD,
+    OPT_PROBE_PORT,
 };
 
 static const cli_option serve_table[] = {
@@ -93,6 +94,9 @@ static const cli_option serve_table[] = {
                    "--cluster: the world to tick (registered with terrad world add);\n"
                    "default: the first registered world whose lease is free.\n"
                    "A node waits (a standby) until it can take one"},
+    [OPT_PROBE_PORT] = {"probe-port", "N",
+                        "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
+                        "connection budget (0: any free port; default: none)"},
     {0},
 };
 
@@ -331,6 +335,11 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
             return -1;
         o->wal_segment_bytes = x;
         return 0;
+    case OPT_PROBE_PORT:
+        if (cli_parse_long(value, 0, 65535, &x, err) != 0)
+            return -1;
+        o->probe_port = (int)x;
+        return 0;
     case OPT_HTTP_PORT:
     case OPT_WS_PORT:
         if (cli_parse_long(value, 0, 65535, &x, err) != 0)
@@ -367,6 +376,7 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     o->backend = "gl";
     o->http_port = 8080;
     o->ws_port = 8081;
+    o->probe_port = -1;
     o->demo_actors = 6;
     o->max_ticks = -1;
     o->limits = net_limits_default();

@@ -57,6 +57,7 @@ struct http_server {
     pthread_mutex_t watch_lock; /* watches are added while MHD's threads serve */
     http_watch watches[HTTP_MAX_WATCHES];
     int nwatches;
+    http_server *main; /* a probe listener: the server whose status and watches it reports */
 };
 
 /* Per-request state, created by the URI log callback (which sees the raw
@@ -643,6 +644,13 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     if (rq->raw_nul || strstr(url, ".."))
         return respond_error(c, MHD_HTTP_BAD_REQUEST, "path must not contain \"..\" or NUL");
 
+    if (s->main) { /* the probe listener: probes and metrics only */
+        s = s->main;
+        if (strcmp(url, "/healthz") != 0 && strcmp(url, "/readyz") != 0 &&
+            strcmp(url, "/metrics") != 0)
+            return respond_error(c, MHD_HTTP_NOT_FOUND,
+                                 "the probe port serves /healthz, /readyz and /metrics only");
+    }
     if (strcmp(url, "/healthz") == 0)
         return serve_health(s, c);
     if (strcmp(url, "/metrics") == 0)
@@ -757,6 +765,18 @@ http_server *http_server_start(int port, int bind_any, http_status *status, hub 
 void http_server_set_base(http_server *s, const world *w)
 {
     atomic_store(&s->base, w);
+}
+
+http_server *http_probe_start(http_server *main, int port, error_text *err)
+{
+    /* loopback only, a few connections with a short timeout: for the
+     * orchestrator on this host, never reachable by the strangers who may
+     * fill the main port */
+    http_limits l = {.connections = 16, .connections_per_ip = 16, .timeout_s = 3};
+    http_server *p = http_server_start_limited(port, 0, main->status, NULL, &l, err);
+    if (p)
+        p->main = main;
+    return p;
 }
 
 int http_server_port(const http_server *s)

@@ -93,6 +93,10 @@ http_server *http_server_start_limited(int port, int bind_any, http_status *stat
  * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
 void http_server_set_base(http_server *s, const world *w);
 int http_server_port(const http_server *s);
+/* A second listener on 127.0.0.1:port (0 = any) for /healthz, /readyz and
+ * /metrics only, with its own small connection budget, so that slow or idle
+ * strangers on the main port cannot starve the probes. Stop it before main. */
+http_server *http_probe_start(http_server *main, int port, error_text *err);
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms
  * /healthz answers 503 naming it. At most HTTP_MAX_WATCHES; -1 when full. */
