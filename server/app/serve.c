@@ -343,13 +343,15 @@ static int serve_start(serve_daemon *d, error_text *err)
     serve_catch_signals();
     signal(SIGPIPE, SIG_IGN);
 
+    /* before the "serving" line, which tells a supervisor (and the tests) that
+     * every port is known */
+    if (d->probe)
+        log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
+                 http_server_port(d->probe));
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
              "http://127.0.0.1:%d/ and ws://127.0.0.1:%d/",
              d->sc.name, d->w.width, d->w.height, d->backend->name, d->o.demo_actors,
              http_server_port(d->http), net_server_port(d->net));
-    if (d->probe)
-        log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
-                 http_server_port(d->probe));
     return 0;
 }
 

@@ -584,32 +584,6 @@ static void *service_main(void *arg)
     return NULL;
 }
 
-static void lws_log_line(int level, const char *line)
-{
-    size_t n = strlen(line);
-    while (n && (line[n - 1] == '\n' || line[n - 1] == '\r'))
-        n--;
-    /* libwebsockets' own lines (accept errors among them) at a bounded rate:
-     * a flood must not become a flood of log lines */
-    static double window_ms;
-    static unsigned in_window, dropped;
-    double now = time_now_ms();
-    if (now - window_ms > 1000.0) {
-        if (dropped)
-            log_warn("libwebsockets: %u more lines not logged", dropped);
-        window_ms = now;
-        in_window = dropped = 0;
-    }
-    if (++in_window > 5) {
-        dropped++;
-        return;
-    }
-    if (level & LLL_ERR)
-        log_error("libwebsockets: %.*s", (int)n, line);
-    else
-        log_warn("libwebsockets: %.*s", (int)n, line);
-}
-
 static char *dup_or_null(const char *text)
 {
     return text ? strdup(text) : NULL;
@@ -717,7 +691,7 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.hard_pending_bytes = 2 * l->max_pending_bytes + 4 * (size_t)l->max_subscribed_cells +
                                2 * l->max_message_bytes + 65536;
 
-    lws_set_log_level(LLL_ERR, lws_log_line);
+    lws_set_log_level(LLL_ERR, net_lws_log_line);
     struct lws_context_creation_info info;
     memset(&info, 0, sizeof info);
     info.port = c->port;

@@ -174,6 +174,8 @@ int net_rate_allow(net_client *c);
 int net_fd_ceiling(int reserve);
 /* 1 if a freshly accepted socket may stay, else 0 (logged at a bounded rate). */
 int net_admit_connection(net_state *s, int fd);
+/* libwebsockets' log lines (lws_set_log_level), at most 5 a second. */
+void net_lws_log_line(int level, const char *line);
 
 /* ---- dead peers (net_peer.c) ---- */
 /* After a write: pause reading while lws holds part of a frame, resume once it is flushed. */

@@ -92,3 +92,30 @@ int net_admit_connection(net_state *s, int fd)
     }
     return 1;
 }
+
+void net_lws_log_line(int level, const char *line)
+{
+    size_t n = strlen(line);
+    while (n && (line[n - 1] == '\n' || line[n - 1] == '\r'))
+        n--;
+    /* libwebsockets' own lines (accept errors among them) at a bounded rate:
+     * a flood must not become a flood of log lines. lws logs from the net
+     * thread only, so the window needs no lock. */
+    static double window_ms;
+    static unsigned in_window, dropped;
+    double now = time_now_ms();
+    if (now - window_ms > NET_REFUSAL_LOG_MS) {
+        if (dropped)
+            log_warn("libwebsockets: %u more lines not logged", dropped);
+        window_ms = now;
+        in_window = dropped = 0;
+    }
+    if (++in_window > 5) {
+        dropped++;
+        return;
+    }
+    if (level & LLL_ERR)
+        log_error("libwebsockets: %.*s", (int)n, line);
+    else
+        log_warn("libwebsockets: %.*s", (int)n, line);
+}
