@@ -376,6 +376,7 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
     double next_ms = time_now_ms();
     uint64_t overruns = 0;
     for (long tick = 0; !stop_requested && (d->o.max_ticks < 0 || tick < d->o.max_ticks); tick++) {
+        fault_stall("tick"); /* test hook (base/fault.c): a sim thread that stops */
         serve_step_demo(d, tick);
         service_tick_stats stats;
         error_text tick_err = {{0}};

@@ -267,6 +267,7 @@ static void begin_shutdown(net_server *s)
 static void heartbeat(lws_sorted_usec_list_t *sul)
 {
     net_server *s = lws_container_of(sul, net_server, heartbeat);
+    fault_stall("net"); /* test hook (base/fault.c): a net thread that stops */
     atomic_store(&s->last_beat_ms, time_now_ms());
     net_reap_dead_peers(&s->st);
     net_flush_backlog(&s->st);
