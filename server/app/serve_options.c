@@ -133,6 +133,7 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
                                        "max_mesh_triangles",
                                        "max_connections",
                                        "max_connections_per_address",
+                                       "max_client_lag_ticks",
                                        NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
@@ -140,7 +141,7 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[13];
+    double v[14];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -184,8 +185,11 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
         case 11:
             m->max_connections = (int)v[i];
             break;
-        default:
+        case 12:
             m->max_connections_per_address = (int)v[i];
+            break;
+        default:
+            m->max_client_lag_ticks = (int)v[i];
             break;
         }
     }

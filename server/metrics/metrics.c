@@ -131,6 +131,7 @@ static atomic_uint_fast64_t bytes_in, bytes_out, messages_in, frames_out;
 static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, refused_windows;
 static atomic_uint_fast64_t snapshots_coalesced, snapshots_deferred, snapshots_dropped;
 static atomic_uint_fast64_t budget_refusals;
+static atomic_uint_fast64_t clients_stale;
 /* the GL backend's tile cache, copied from its own totals each tick */
 static atomic_uint_fast64_t gpu_tile_uploads, gpu_tile_upload_bytes, gpu_tile_evictions;
 static atomic_int_fast64_t gpu_tiles_resident;
@@ -174,6 +175,7 @@ void metrics_reset(void)
     SET(snapshots_deferred, 0);
     SET(snapshots_dropped, 0);
     SET(budget_refusals, 0);
+    SET(clients_stale, 0);
     SET(frames_dropped, 0);
     SET(tick_overruns, 0);
     SET(footprint_frames, 0);
@@ -326,6 +328,11 @@ void metrics_count_snapshots_dropped(uint64_t n)
 void metrics_count_frames_coalesced(uint64_t n)
 {
     ADD(frames_coalesced, n);
+}
+
+void metrics_count_client_stale(void)
+{
+    ADD(clients_stale, 1);
 }
 
 void metrics_count_frames_dropped(uint64_t n)
@@ -600,6 +607,9 @@ static void render_clients(text *t)
             "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
     counter(t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
             GET(frames_dropped));
+    counter(t, "terrad_clients_stale_total",
+            "Clients switched to snapshots for being more than max_client_lag_ticks behind.",
+            GET(clients_stale));
 
     counter(t, "terrad_footprint_frames_total",
             "FOOTPRINTS frames queued to clients (decals model).", GET(footprint_frames));

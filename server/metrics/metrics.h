@@ -38,6 +38,8 @@ void metrics_count_snapshots_deferred(uint64_t n);
 void metrics_count_snapshots_dropped(uint64_t n);
 void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a slow client */
 void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
+/* a client switched to snapshots for being more than max_client_lag_ticks behind (net) */
+void metrics_count_client_stale(void);
 /* FOOTPRINTS frames (and their events) queued to clients; frames not sent to a slow client. */
 void metrics_count_footprints_sent(uint64_t frames, uint64_t events);
 void metrics_count_footprints_dropped(uint64_t frames);

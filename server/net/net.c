@@ -103,9 +103,17 @@ static int dropping_deltas(const net_client *c)
     return c->slow || c->snapshots_done < c->resync_until;
 }
 
-static void go_slow(net_client *c)
+/* behind: 0 when the client's queue is over max_pending_bytes, else how many
+ * ticks old its oldest queued delta is (past max_client_lag_ticks) */
+static void go_slow(net_client *c, uint64_t behind)
 {
-    if (!c->slow) /* before the drop, so the figure is what made it slow */
+    if (!c->slow && behind) {
+        log_info("net: client %u (%s) is stale (%llu ticks behind, limit %d): deltas replaced "
+                 "by a snapshot once it catches up",
+                 c->id, c->peer, (unsigned long long)behind,
+                 c->srv->cfg.limits.max_client_lag_ticks);
+        metrics_count_client_stale();
+    } else if (!c->slow) /* before the drop, so the figure is what made it slow */
         log_info("net: client %u (%s) is slow (%zu bytes pending, limit %zu): deltas replaced "
                  "by a snapshot once it catches up",
                  c->id, c->peer, c->pending_bytes, c->srv->cfg.limits.max_pending_bytes);
@@ -142,11 +150,29 @@ static void fan_out(net_server *s, const hub_out *o)
             continue;
         }
         if (c->pending_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
-            go_slow(c);
+            go_slow(c, 0);
             continue;
         }
         hub_frame_ref(o->frame);
         net_enqueue(c, o->frame, NET_ITEM_TILE);
+    }
+}
+
+/* Staleness, once a tick: a client whose oldest queued delta or status frame
+ * is more than max_client_lag_ticks old goes slow like one over
+ * max_pending_bytes (its deltas dropped, snapshots once it drains), so that
+ * a client reading steadily but too slowly is bounded in ticks, not only in
+ * bytes (issue 15: one frame per 20 ms was 54 s behind after 60 s). */
+static void drop_stale(net_server *s)
+{
+    uint64_t limit = (uint64_t)s->st.cfg.limits.max_client_lag_ticks;
+    for (int i = 0; i < s->st.nclients; i++) {
+        net_client *c = s->st.clients[i];
+        if (!c->ready || c->closing || c->killed || dropping_deltas(c))
+            continue;
+        uint64_t oldest = net_oldest_queued_tick(c);
+        if (oldest && s->st.tick > oldest + limit)
+            go_slow(c, s->st.tick - oldest);
     }
 }
 
@@ -205,6 +231,7 @@ static void dispatch(net_server *s, hub_out *o)
             fan_out(s, o);
         break;
     case HUB_OUT_TICK_DONE:
+        drop_stale(s);
         break;
     }
     if (o->frame)
@@ -222,7 +249,7 @@ static void resync_everyone(net_server *s)
         /* markers may have been lost with the dropped frames: forget them */
         c->snapshots_done = c->snapshots_requested;
         c->resync_until = c->snapshots_done;
-        go_slow(c);
+        go_slow(c, 0);
     }
 }
 
@@ -279,27 +306,6 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
 }
 
 /* ---- the protocol callback ---- */
-
-/* 1 if the comma-separated header value offers the protocol name. */
-static int offers_subprotocol(const char *value, const char *name)
-{
-    size_t n = strlen(name);
-    const char *p = value;
-    while (*p) {
-        while (*p == ' ' || *p == '\t' || *p == ',')
-            p++;
-        const char *end = p;
-        while (*end && *end != ',')
-            end++;
-        const char *last = end;
-        while (last > p && (last[-1] == ' ' || last[-1] == '\t'))
-            last--;
-        if ((size_t)(last - p) == n && memcmp(p, name, n) == 0)
-            return 1;
-        p = end;
-    }
-    return 0;
-}
 
 static void client_established(net_server *s, struct lws *wsi, net_session *pss)
 {
@@ -508,7 +514,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
         char offered[256] = "";
         if (lws_hdr_total_length(wsi, WSI_TOKEN_PROTOCOL) <= 0 ||
             lws_hdr_copy(wsi, offered, sizeof offered, WSI_TOKEN_PROTOCOL) <= 0 ||
-            !offers_subprotocol(offered, TERRAD_PROTO_SUBPROTOCOL)) {
+            !net_offers_subprotocol(offered, TERRAD_PROTO_SUBPROTOCOL)) {
             char peer[64] = "";
             lws_get_peer_simple(wsi, peer, sizeof peer);
             log_info("net: refused a handshake from %s without subprotocol %s", peer,
@@ -674,6 +680,9 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.world_name = dup_or_null(c->world.name);
     s->st.cfg.world.name = s->st.world_name;
     s->st.next_client_id = 1;
+    if (s->st.cfg.limits.max_client_lag_ticks <= 0) /* two seconds of ticks */
+        s->st.cfg.limits.max_client_lag_ticks =
+            c->world.tick_hz > 0 ? (int)ceil(2 * c->world.tick_hz) : 120;
     s->st.fd_ceiling = c->limits.fd_reserve > 0 ? net_fd_ceiling(c->limits.fd_reserve) : 0;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);

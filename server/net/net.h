@@ -31,6 +31,10 @@ typedef struct net_limits {
     double max_collider_extent_m;
     size_t max_pending_bytes;
     double hello_timeout_s;
+    /* A client whose oldest queued delta or status frame is more than this
+     * many ticks old is treated as slow (snapshots when it drains), as if it
+     * were over max_pending_bytes. 0: two seconds of ticks (world.tick_hz). */
+    int max_client_lag_ticks;
     /* Admission (0 = no cap): websocket clients in all and from one address.
      * Whatever these say, an accepted socket is refused while fewer than
      * fd_reserve descriptors are left under RLIMIT_NOFILE. */

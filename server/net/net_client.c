@@ -104,6 +104,19 @@ static int is_status_of(const net_item *it, int type)
     return it->kind == NET_ITEM_STATUS && it->type == type;
 }
 
+uint64_t net_oldest_queued_tick(const net_client *c)
+{
+    /* replies (snapshots among them) come first in a queue that is catching
+     * up; the first TILE or STATUS item is the oldest: items are queued in
+     * tick order */
+    for (size_t i = 0; i < c->q_count; i++) {
+        const net_item *it = &c->q[(c->q_head + i) % c->q_cap];
+        if (it->tick)
+            return it->tick;
+    }
+    return 0;
+}
+
 int net_drop_tile_deltas(net_client *c)
 {
     return queue_filter(c, is_tile_or_status, 0);
@@ -130,6 +143,8 @@ void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
         return;
     }
     net_item it = {.frame = f, .kind = (unsigned char)kind};
+    if (kind != NET_ITEM_REPLY)
+        it.tick = s->tick ? s->tick : 1;
     if (kind == NET_ITEM_STATUS) {
         it.type = f->len > 2 ? f->data[2] : 0;
         if (c->pending_bytes + f->len > s->cfg.limits.max_pending_bytes) {

@@ -34,6 +34,7 @@ typedef enum net_item_kind {
 
 typedef struct net_item {
     hub_frame *frame;
+    uint64_t tick; /* TILE and STATUS: the tick it was queued in (staleness); 0 for replies */
     unsigned char kind;
     unsigned char type; /* binary type byte (STATUS), else 0 */
 } net_item;
@@ -161,6 +162,8 @@ void net_error(net_client *c, int code, const cJSON *ref, int64_t collider, int 
 void net_close_after_flush(net_client *c, int code, const char *reason);
 /* Drop the queued tile deltas and the ACK/CONTACT frames that would vouch for them. */
 int net_drop_tile_deltas(net_client *c);
+/* The tick of the oldest queued TILE or STATUS item, 0 when none is queued. */
+uint64_t net_oldest_queued_tick(const net_client *c);
 /* Drop every queued frame (the client is gone or being dropped). */
 void net_release_queue(net_client *c);
 /* The client stopped reading and asked for more: let it go. */
@@ -174,6 +177,8 @@ int net_rate_allow(net_client *c);
 int net_fd_ceiling(int reserve);
 /* 1 if a freshly accepted socket may stay, else 0 (logged at a bounded rate). */
 int net_admit_connection(net_state *s, int fd);
+/* 1 if the comma-separated header value offers the protocol name. */
+int net_offers_subprotocol(const char *value, const char *name);
 /* libwebsockets' log lines (lws_set_log_level), at most 5 a second. */
 void net_lws_log_line(int level, const char *line);
 

@@ -24,6 +24,7 @@
 #include <sys/socket.h>
 
 #define NET_REFUSAL_LOG_MS 1000.0
+#define NET_SNDBUF (64 * 1024)
 
 int net_fd_ceiling(int reserve)
 {
@@ -90,6 +91,12 @@ int net_admit_connection(net_state *s, int fd)
             return 0;
         }
     }
+    /* Staleness is measured on the daemon's own queue (net.c drop_stale):
+     * what the kernel has taken is out of reach. On loopback its send buffer
+     * starts near 1.3 MB and may grow to 4 MB, seconds of frames for a slow
+     * reader, so it is fixed at NET_SNDBUF (the kernel doubles it). */
+    int sndbuf = NET_SNDBUF;
+    setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &sndbuf, sizeof sndbuf);
     return 1;
 }
 
@@ -118,4 +125,25 @@ void net_lws_log_line(int level, const char *line)
         log_error("libwebsockets: %.*s", (int)n, line);
     else
         log_warn("libwebsockets: %.*s", (int)n, line);
+}
+
+/* 1 if the comma-separated header value offers the protocol name. */
+int net_offers_subprotocol(const char *value, const char *name)
+{
+    size_t n = strlen(name);
+    const char *p = value;
+    while (*p) {
+        while (*p == ' ' || *p == '\t' || *p == ',')
+            p++;
+        const char *end = p;
+        while (*end && *end != ',')
+            end++;
+        const char *last = end;
+        while (last > p && (last[-1] == ' ' || last[-1] == '\t'))
+            last--;
+        if ((size_t)(last - p) == n && memcmp(p, name, n) == 0)
+            return 1;
+        p = end;
+    }
+    return 0;
 }
