@@ -69,6 +69,9 @@ typedef struct http_limits {
     size_t memory_per_connection; /* request headers and state (default 64 KiB) */
     int heights_timeout_ms;       /* wait for the sim thread, then 503 (default 2000) */
     int64_t heights_max_cells;    /* w*h per /v1/heights, else 413 (default 4,194,304) */
+    /* /v1/heights answers held (built, not yet read) per client address and
+     * in all, else 429 (defaults 64 MiB and 256 MiB) */
+    size_t heights_bytes_per_address, heights_bytes_total;
 } http_limits;
 
 #define HTTP_DEFAULT_CONNECTIONS 256
@@ -77,6 +80,8 @@ typedef struct http_limits {
 #define HTTP_DEFAULT_MEMORY_PER_CONNECTION (64 * 1024)
 #define HTTP_DEFAULT_HEIGHTS_TIMEOUT_MS 2000
 #define HTTP_DEFAULT_HEIGHTS_MAX_CELLS (4 * 1024 * 1024)
+#define HTTP_DEFAULT_HEIGHTS_BYTES_PER_ADDRESS ((size_t)64 << 20)
+#define HTTP_DEFAULT_HEIGHTS_BYTES_TOTAL ((size_t)256 << 20)
 #define HTTP_MAX_QUERY_BYTES 1024
 
 typedef struct http_server http_server;
