@@ -235,6 +235,7 @@ static int serve_start_engine(serve_daemon *d, error_text *err)
         app_ground_attach(&d->sc, w, d->engine, &d->grd, err) != 0 ||
         !(d->svc = service_create(d->engine, d->h, err)))
         return -1;
+    service_set_tick_budget(d->svc, d->o.limits.max_tick_cells);
     if (d->st)
         /* go on from the recovered tick, or past it where the store says a
          * client may have seen later (unlogged idle) ticks */

@@ -134,6 +134,7 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
                                        "max_connections",
                                        "max_connections_per_address",
                                        "max_client_lag_ticks",
+                                       "max_tick_cells",
                                        NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
@@ -141,7 +142,7 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[14];
+    double v[15];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -188,8 +189,11 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
         case 12:
             m->max_connections_per_address = (int)v[i];
             break;
-        default:
+        case 13:
             m->max_client_lag_ticks = (int)v[i];
+            break;
+        default:
+            m->max_tick_cells = (int64_t)v[i];
             break;
         }
     }

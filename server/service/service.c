@@ -201,9 +201,10 @@ static int gather_colliders(service *s, const sim_collider *extra, int extra_cou
         return -1;
     }
     int n = 0;
+    service_shed(s); /* whose colliders wait this tick */
     for (int i = 0; i < s->collider_count; i++) {
         svc_collider *c = &s->colliders[i];
-        if (!c->has_pose)
+        if (!c->has_pose || c->held)
             continue;
         b->colliders[n++] = (sim_collider){.id = (int)c->id,
                                            .geometry = c->geometry,
@@ -231,6 +232,8 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
             undo_tick(s, report);
     }
     for (int i = 0; i < s->collider_count; i++) {
+        if (s->colliders[i].held)
+            continue; /* it waited: the next tick sweeps from where it was */
         s->colliders[i].previous_pose = s->colliders[i].pose;
         s->colliders[i].has_previous = s->colliders[i].has_pose;
     }

@@ -90,6 +90,8 @@ async def slow_reader(check, d):
 
     c._on_binary = paced
     await c.connect()
+    got = c.world.get("limits", {}).get("max_client_lag_ticks")
+    check(got == LAG_LIMIT, f"the world message's limits carry max_client_lag_ticks ({got})")
     sid = await c.subscribe(0, 0, W, H)
     wheel = await c.create_collider("sphere", radius=0.2)  # parked above the terrain: ACKs
 
@@ -134,9 +136,6 @@ def main():
     check = Checks()
     d = Daemon(demo=True, config={"limits": {"max_client_lag_ticks": LAG_LIMIT}})
     with check.running(d):
-        w = d.world()
-        check(w.get("limits", {}).get("max_client_lag_ticks") == LAG_LIMIT
-              if "limits" in w else True, "the world's limits carry max_client_lag_ticks")
         asyncio.run(slow_reader(check, d))
     check.finish()
 
