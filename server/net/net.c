@@ -149,7 +149,7 @@ static void fan_out(net_server *s, const hub_out *o)
             metrics_count_frames_coalesced(1);
             continue;
         }
-        if (c->pending_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
+        if (c->droppable_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
             go_slow(c, 0);
             continue;
         }
@@ -187,7 +187,7 @@ static int is_footprints(const hub_frame *f)
  * and queued as NET_ITEM_TILE so that going slow drops those still queued. */
 static void send_footprints(net_server *s, net_client *c, hub_frame *f)
 {
-    if (dropping_deltas(c) || c->pending_bytes + f->len > s->st.cfg.limits.max_pending_bytes) {
+    if (dropping_deltas(c) || c->droppable_bytes + f->len > s->st.cfg.limits.max_pending_bytes) {
         metrics_count_footprints_dropped(1);
         hub_frame_unref(f);
         return;
@@ -471,6 +471,8 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
         c->q_head = (c->q_head + 1) % c->q_cap;
         c->q_count--;
         c->pending_bytes -= it.frame->len;
+        if (it.kind != NET_ITEM_REPLY)
+            c->droppable_bytes -= it.frame->len;
         int n = lws_write(wsi, it.frame->data, it.frame->len,
                           it.frame->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
         if (n >= 0) {

@@ -80,6 +80,10 @@ typedef struct net_client {
     net_item *q;
     size_t q_head, q_count, q_cap;
     size_t pending_bytes;
+    /* of which TILE and STATUS items: what going slow can drop, and what
+     * max_pending_bytes is compared with (a snapshot larger than the limit,
+     * queued in one go, must not make its client slow again at once) */
+    size_t droppable_bytes;
 
     /* snapshots: every HUB_SUBSCRIBE and HUB_RESYNC gets exactly one
      * snapshot_done marker back, in order; tile deltas wait while

@@ -11,6 +11,7 @@
  *   service_colliders.c COLLIDERS frames for viewers
  *   service_footprints.c FOOTPRINTS frames for viewers
  *   service_shed.c      the tick's cost budget: whose colliders wait a tick
+ *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
  */
 #ifndef TERRAD_SERVICE_INTERNAL_H
 #define TERRAD_SERVICE_INTERNAL_H
@@ -135,6 +136,8 @@ struct service {
     terrad_footprint *events; /* FOOTPRINTS scratch: one client's events */
     int64_t event_capacity;
 
+    struct snap_worker *snapper; /* service_snapshots.c */
+
     /* the tick's cost budget (service_shed.c); 0: none */
     int64_t max_tick_cells;
     double last_shed_log_ms;
@@ -176,6 +179,15 @@ void service_publish_deltas(service *s, service_tick_stats *stats);
 void service_publish_snapshots(service *s);
 /* A client left: its pending snapshot requests are dropped, never built. */
 void service_drop_snapshots(service *s, uint32_t client);
+
+/* service_snapshots.c: the worker that compresses and frames snapshots */
+typedef struct snap_worker snap_worker;
+int service_snapshots_start(service *s);
+void service_snapshots_stop(service *s);
+/* copy a job's cells and tile versions (tick t) for the worker */
+void service_snapshot_stage(service *s, const snapshot_job *job);
+void service_snapshots_hand_over(service *s); /* end of tick t */
+void service_snapshots_collect(service *s);   /* start of tick t + 1: queue the frames */
 
 /* service_shed.c: mark the colliders that wait this tick (before they are gathered) */
 void service_shed(service *s);
