@@ -42,14 +42,22 @@ def unread_heights(d, w, h):
 
 
 def status_of(s):
-    """The status line of an answer, reading only its first bytes."""
+    """The status of an answer and its first bytes: a 200's head only (its body
+    stays unread), anything else until its JSON body has come."""
+    head = b""
     try:
         s.settimeout(10)
         head = s.recv(512)
         line = head.split(b"\r\n", 1)[0].decode("latin-1")
-        return int(line.split()[1]), head
+        status = int(line.split()[1])
+        while status != 200 and not head.rstrip().endswith(b"}") and len(head) < 4096:
+            more = s.recv(512)
+            if not more:
+                break
+            head += more
+        return status, head
     except (OSError, ValueError, IndexError):
-        return None, b""
+        return None, head
 
 
 def main():
@@ -70,6 +78,8 @@ def main():
             st, head = status_of(s)
             statuses.append((st, head))
             peak = max(peak, (d.rss_kb() or 0) / 1024)
+        print("info: statuses " + str(sorted({str(st): sum(1 for x, _ in statuses if x == st)
+                                              for st, _ in statuses}.items())), flush=True)
         refused = [head for st, head in statuses if st == 429]
         served = [st for st, _ in statuses if st == 200]
         print(f"info: {UNREAD} unread requests of {bytes_each >> 20} MiB: {len(served)} answered, "
@@ -125,7 +135,11 @@ def main():
                 except OSError:
                     closed.add(k)
             i += 1
-            ok = d.get("/v1/stats")[0] == 200
+            try:
+                ok = d.get("/v1/stats", timeout=30)[0] == 200
+            except Exception as e:  # noqa: BLE001
+                print(f"info: /v1/stats beside the slow ones: {e!r}", flush=True)
+                ok = False
             if not ok:
                 break
             time.sleep(2)
