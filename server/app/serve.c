@@ -19,6 +19,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -68,6 +69,7 @@ typedef struct serve_daemon {
     service *svc;
     net_server *net;
     http_server *http;
+    http_server *probe; /* --probe-port */
     hub *h;
     auth_table *auth; /* NULL: no tokens, every client an admin (serve_security.c) */
     char models[64];
@@ -236,6 +238,7 @@ static int serve_start_engine(serve_daemon *d, error_text *err)
         app_ground_attach(&d->sc, w, d->engine, &d->grd, err) != 0 ||
         !(d->svc = service_create(d->engine, d->h, err)))
         return -1;
+    service_set_tick_budget(d->svc, d->o.limits.max_tick_cells);
     if (d->st)
         /* go on from the recovered tick, or past it where the store says a
          * client may have seen later (unlogged idle) ticks */
@@ -290,6 +293,35 @@ static int serve_start_net(serve_daemon *d, error_text *err)
     return 0;
 }
 
+/* Descriptors: HTTP gets a quarter of RLIMIT_NOFILE (8..256 connections),
+ * SERVE_FD_STORE stay free for the store and the process, and websocket
+ * sockets are refused past the rest (net_conn.c), so that no stranger can
+ * take the descriptors the store and the probes need. */
+#define SERVE_FD_STORE 32
+
+static unsigned serve_http_connections(void)
+{
+    struct rlimit rl;
+    if (getrlimit(RLIMIT_NOFILE, &rl) != 0 || rl.rlim_cur == RLIM_INFINITY)
+        return HTTP_DEFAULT_CONNECTIONS;
+    long n = ((long)rl.rlim_cur - SERVE_FD_STORE) / 4;
+    return n < 8 ? 8 : n > HTTP_DEFAULT_CONNECTIONS ? HTTP_DEFAULT_CONNECTIONS : (unsigned)n;
+}
+
+static http_server *serve_start_http(serve_daemon *d, error_text *err)
+{
+    http_limits hl = {.connections = serve_http_connections(),
+                      .heights_bytes_per_address = d->o.heights_bytes_per_address,
+                      .heights_bytes_total = d->o.heights_bytes_in_flight};
+    hl.connections_per_ip = hl.connections < HTTP_DEFAULT_CONNECTIONS_PER_IP
+                                ? hl.connections
+                                : HTTP_DEFAULT_CONNECTIONS_PER_IP;
+    d->o.limits.fd_reserve = SERVE_FD_STORE + (int)hl.connections;
+    http_security sec = {.auth = d->auth, .tls_cert = d->o.tls_cert, .tls_key = d->o.tls_key};
+    return http_server_start_secure(d->o.http_port, d->o.bind_any, &d->status, d->h, &hl, &sec,
+                                    err);
+}
+
 /* Start the threads around the sim thread: hub, HTTP, net; then ready. */
 static int serve_start(serve_daemon *d, error_text *err)
 {
@@ -297,9 +329,8 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "serve: out of memory");
         return -1;
     }
-    http_security sec = {.auth = d->auth, .tls_cert = d->o.tls_cert, .tls_key = d->o.tls_key};
-    if (!(d->http = http_server_start_secure(d->o.http_port, d->o.bind_any, &d->status, d->h, NULL,
-                                             &sec, err)))
+    if (!(d->http = serve_start_http(d, err)) ||
+        (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
         return -1;
     http_server_set_base(d->http, &d->w); /* the base never changes once the world is made */
     if (serve_start_engine(d, err) != 0 || serve_start_net(d, err) != 0)
@@ -323,6 +354,11 @@ static int serve_start(serve_daemon *d, error_text *err)
     serve_catch_signals();
     signal(SIGPIPE, SIG_IGN);
 
+    /* before the "serving" line, which tells a supervisor (and the tests) that
+     * every port is known */
+    if (d->probe)
+        log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
+                 http_server_port(d->probe));
     int tls = d->o.tls_cert && d->o.tls_cert[0];
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
              "%s://127.0.0.1:%d/ and %s://127.0.0.1:%d/",
@@ -353,6 +389,7 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
     double next_ms = time_now_ms();
     uint64_t overruns = 0;
     for (long tick = 0; !stop_requested && (d->o.max_ticks < 0 || tick < d->o.max_ticks); tick++) {
+        fault_stall("tick"); /* test hook (base/fault.c): a sim thread that stops */
         serve_step_demo(d, tick);
         service_tick_stats stats;
         error_text tick_err = {{0}};
@@ -393,6 +430,7 @@ static void serve_stop(serve_daemon *d)
 {
     if (d->h)
         hub_close_reads(d->h);
+    http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
     auth_free(d->auth); /* after both servers: they check tokens against it */

@@ -29,6 +29,7 @@ typedef struct serve_options {
     int ws_port;
     int bind_any;
     int insecure_open; /* --insecure-open: --bind-any without any token is allowed */
+    int probe_port;    /* -1: none; else --probe-port (0 = any free port) */
     int demo_actors;
     double tick_hz;                 /* 0: the scene's */
     const char *token;              /* NULL: no token required (deprecated: one admin token) */
@@ -36,6 +37,9 @@ typedef struct serve_options {
     const char *tls_cert, *tls_key; /* --tls-cert, --tls-key: wss:// and https:// only */
     long max_ticks;                 /* < 0: run until signalled */
     net_limits limits;
+    /* limits.max_heights_bytes_per_address / _in_flight: /v1/heights answers
+     * held at once (0: http.c's defaults, 64 MiB and 256 MiB) */
+    size_t heights_bytes_per_address, heights_bytes_in_flight;
     const char *data_dir;     /* NULL: memory only (--no-data, or a demo without --data) */
     int data_given;           /* --data, or "data" in --config */
     int demo_in_memory;       /* demo actors and no --data: no store */

@@ -39,6 +39,7 @@ enum {
     OPT_AUTH_FILE,
     OPT_TLS_CERT,
     OPT_TLS_KEY,
+    OPT_PROBE_PORT,
 };
 
 static const cli_option serve_table[] = {
@@ -102,6 +103,9 @@ static const cli_option serve_table[] = {
                        "and closes connections of revoked tokens"},
     [OPT_TLS_CERT] = {"tls-cert", "FILE", "PEM certificate (chain): both ports TLS only"},
     [OPT_TLS_KEY] = {"tls-key", "FILE", "PEM private key of --tls-cert"},
+    [OPT_PROBE_PORT] = {"probe-port", "N",
+                        "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
+                        "connection budget (0: any free port; default: none)"},
     {0},
 };
 
@@ -123,19 +127,34 @@ static int config_string(const cJSON *doc, const char *key, char *buf, size_t si
 }
 
 /* "limits": PROTOCOL.md's names, each a positive number. */
-static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
+static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
 {
-    static const char *const keys[] = {
-        "max_message_bytes",    "max_colliders",      "max_poses_per_batch", "max_subscriptions",
-        "max_subscribed_cells", "max_messages_per_s", "messages_burst",      "max_pending_bytes",
-        "hello_timeout_s",      "max_active_cells",   "max_mesh_triangles",  NULL};
+    net_limits *m = &o->limits;
+    static const char *const keys[] = {"max_message_bytes",
+                                       "max_colliders",
+                                       "max_poses_per_batch",
+                                       "max_subscriptions",
+                                       "max_subscribed_cells",
+                                       "max_messages_per_s",
+                                       "messages_burst",
+                                       "max_pending_bytes",
+                                       "hello_timeout_s",
+                                       "max_active_cells",
+                                       "max_mesh_triangles",
+                                       "max_connections",
+                                       "max_connections_per_address",
+                                       "max_client_lag_ticks",
+                                       "max_tick_cells",
+                                       "max_heights_bytes_per_address",
+                                       "max_heights_bytes_in_flight",
+                                       NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
         return 0;
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[11];
+    double v[17];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -173,8 +192,26 @@ static int config_limits(const cJSON *doc, net_limits *m, error_text *err)
         case 9:
             m->max_active_cells = (int64_t)v[i];
             break;
-        default:
+        case 10:
             m->max_mesh_triangles = (int)v[i];
+            break;
+        case 11:
+            m->max_connections = (int)v[i];
+            break;
+        case 12:
+            m->max_connections_per_address = (int)v[i];
+            break;
+        case 13:
+            m->max_client_lag_ticks = (int)v[i];
+            break;
+        case 14:
+            m->max_tick_cells = (int64_t)v[i];
+            break;
+        case 15:
+            o->heights_bytes_per_address = (size_t)v[i];
+            break;
+        default:
+            o->heights_bytes_in_flight = (size_t)v[i];
             break;
         }
     }
@@ -251,7 +288,7 @@ static int config_load(const char *path, serve_options *o, error_text *err)
         config_string(doc, "store_fault", o->config_store_fault, sizeof o->config_store_fault,
                       &o->store_fault, err) ||
         serve_security_config(doc, o, err) || config_numbers(doc, o, err) ||
-        config_limits(doc, &o->limits, err)) {
+        config_limits(doc, o, err)) {
         error_prefix(err, path, ": ");
         goto done;
     }
@@ -335,6 +372,11 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
             return -1;
         o->wal_segment_bytes = x;
         return 0;
+    case OPT_PROBE_PORT:
+        if (cli_parse_long(value, 0, 65535, &x, err) != 0)
+            return -1;
+        o->probe_port = (int)x;
+        return 0;
     case OPT_HTTP_PORT:
     case OPT_WS_PORT:
         if (cli_parse_long(value, 0, 65535, &x, err) != 0)
@@ -371,6 +413,7 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     o->backend = "gl";
     o->http_port = 8080;
     o->ws_port = 8081;
+    o->probe_port = -1;
     o->demo_actors = 6;
     o->max_ticks = -1;
     o->limits = net_limits_default();

@@ -24,6 +24,10 @@ void log_set_quiet(int quiet);
 /* Milliseconds from a monotonic clock. */
 double time_now_ms(void);
 
+/* Test hook (base/fault.c): with TERRAD_FAULT_STALL=FILE set, the calling
+ * thread waits while FILE exists and names it ("tick", "net"). */
+void fault_stall(const char *thread);
+
 /* A growing series of samples, for per-stage mean and p99. */
 typedef struct stat_series {
     double *samples;

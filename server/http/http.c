@@ -19,7 +19,6 @@
  * libmicrohttpd 0.9.75 send "Connection: close" (shared notes), which would
  * break keep-alive for probes and the viewer.
  */
-#include "http/http.h"
 #include "http/http_internal.h"
 
 #include <arpa/inet.h>
@@ -27,7 +26,6 @@
 #include <limits.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
-#include <png.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -60,6 +58,8 @@ struct http_server {
     int nwatches;
     auth_table *auth; /* the data endpoints' gate (http_auth.c) */
     http_tls tls;
+    http_server *main; /* a probe listener: the server whose status and watches it reports */
+    http_guard *guard; /* heights bytes per address, the header deadline (http_guard.c) */
 };
 
 /* Per-request state, created by the URI log callback (which sees the raw
@@ -255,88 +255,6 @@ static int param_int(struct MHD_Connection *c, const char *name, int *out)
     return 0;
 }
 
-typedef struct png_memory {
-    unsigned char *data;
-    size_t len;
-    int64_t cap;
-} png_memory;
-
-static void png_memory_write(png_structp png, png_bytep bytes, png_size_t n)
-{
-    png_memory *m = png_get_io_ptr(png);
-    if (array_grow((void **)&m->data, &m->cap, (int64_t)(m->len + n), 1) != 0)
-        png_error(png, "out of memory");
-    memcpy(m->data + m->len, bytes, n);
-    m->len += n;
-}
-
-static void png_memory_flush(png_structp png)
-{
-    (void)png;
-}
-
-/* Heights → 16-bit greyscale PNG, value = clamp(h - offset, 0, 65535) with
- * offset = the rectangle's minimum, so the image inverts exactly whenever the
- * rectangle's range fits 16 bits (*clipped says whether it did). Returns 0,
- * or -1 with out->data freed. */
-static int encode_png16(const int32_t *heights, int w, int h, int32_t *offset, int *clipped,
-                        png_memory *out)
-{
-    /* The offset and the clipped flag live behind the caller's pointers, not
-     * in locals, so nothing the rows loop changes is lost to a longjmp. */
-    size_t n = (size_t)w * (size_t)h;
-    int32_t min = INT32_MAX;
-    for (size_t i = 0; i < n; i++)
-        if (heights[i] < min)
-            min = heights[i];
-    *offset = min;
-    *clipped = 0;
-    out->data = NULL;
-    out->len = out->cap = 0;
-    unsigned char *row = malloc((size_t)w * 2);
-    if (!row)
-        return -1;
-    png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
-    png_infop info = png ? png_create_info_struct(png) : NULL;
-    if (!png || !info) {
-        png_destroy_write_struct(&png, NULL);
-        free(row);
-        return -1;
-    }
-    if (setjmp(png_jmpbuf(png))) {
-        png_destroy_write_struct(&png, &info);
-        free(row);
-        free(out->data);
-        out->data = NULL;
-        return -1;
-    }
-    png_set_write_fn(png, out, png_memory_write, png_memory_flush);
-    /* Speed over size: a 4-Mcell read should cost milliseconds, and height
-     * fields are smooth enough that the fastest level still compresses. */
-    png_set_compression_level(png, 1);
-    png_set_IHDR(png, info, (png_uint_32)w, (png_uint_32)h, 16, PNG_COLOR_TYPE_GRAY,
-                 PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-    png_write_info(png, info);
-    const int32_t lo = *offset;
-    for (int y = 0; y < h; y++) {
-        const int32_t *src = heights + (size_t)y * (size_t)w;
-        for (int x = 0; x < w; x++) {
-            int64_t v = (int64_t)src[x] - lo; /* ≥ 0 by the choice of lo */
-            if (v > 65535) {
-                v = 65535;
-                *clipped = 1;
-            }
-            row[2 * x] = (unsigned char)(v >> 8); /* PNG samples are big-endian */
-            row[2 * x + 1] = (unsigned char)(v & 0xff);
-        }
-        png_write_row(png, row);
-    }
-    png_write_end(png, NULL);
-    png_destroy_write_struct(&png, &info);
-    free(row);
-    return 0;
-}
-
 /* Query parameter `name`: 0 when absent or "0", 1 when "1", -1 otherwise. */
 static int param_is_one(struct MHD_Connection *c, const char *name)
 {
@@ -423,6 +341,12 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                              "(rows 0..%d)",
                              r.y, (long long)r.y + r.h - 1, st->world_height - 1);
 
+    /* freed when the request ends, read or not (MHD's idle timeout ends an unread one) */
+    if (http_guard_reserve(s->guard, c, (size_t)cells * 4) != 0)
+        return respond_error(c, MHD_HTTP_TOO_MANY_REQUESTS,
+                             "too many /v1/heights bytes in flight for this address (at most "
+                             "%zu per address, %zu in all): read the answers already asked for",
+                             s->limits.heights_bytes_per_address, s->limits.heights_bytes_total);
     int32_t *heights = malloc((size_t)cells * sizeof *heights);
     if (!heights)
         return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
@@ -444,8 +368,8 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
     if (png) {
         int32_t offset;
         int clipped;
-        png_memory m;
-        int rc = encode_png16(heights, r.w, r.h, &offset, &clipped, &m);
+        http_png_memory m;
+        int rc = http_png16_encode(heights, r.w, r.h, &offset, &clipped, &m);
         free(heights);
         if (rc != 0)
             return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR,
@@ -621,6 +545,7 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     }
     if (!rq->seen) {
         rq->seen = 1;
+        http_guard_headers_done(s->guard, c);
         /* A body we will not read: answer now, which also closes the
          * connection, rather than drain the body first. */
         if (announces_body(c)) {
@@ -646,6 +571,13 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     if (rq->raw_nul || strstr(url, ".."))
         return respond_error(c, MHD_HTTP_BAD_REQUEST, "path must not contain \"..\" or NUL");
 
+    if (s->main) { /* the probe listener: probes and metrics only */
+        s = s->main;
+        if (strcmp(url, "/healthz") != 0 && strcmp(url, "/readyz") != 0 &&
+            strcmp(url, "/metrics") != 0)
+            return respond_error(c, MHD_HTTP_NOT_FOUND,
+                                 "the probe port serves /healthz, /readyz and /metrics only");
+    }
     if (strcmp(url, "/healthz") == 0)
         return serve_health(s, c);
     if (strcmp(url, "/metrics") == 0)
@@ -692,9 +624,9 @@ static void *request_begin(void *cls, const char *uri, struct MHD_Connection *c)
 static void request_done(void *cls, struct MHD_Connection *c, void **state,
                          enum MHD_RequestTerminationCode code)
 {
-    (void)cls;
-    (void)c;
+    http_server *s = cls;
     (void)code;
+    http_guard_request_done(s->guard, c);
     free(*state);
     *state = NULL;
 }
@@ -735,7 +667,18 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         l.heights_timeout_ms = HTTP_DEFAULT_HEIGHTS_TIMEOUT_MS;
     if (l.heights_max_cells <= 0)
         l.heights_max_cells = HTTP_DEFAULT_HEIGHTS_MAX_CELLS;
+    if (!l.heights_bytes_per_address)
+        l.heights_bytes_per_address = HTTP_DEFAULT_HEIGHTS_BYTES_PER_ADDRESS;
+    if (!l.heights_bytes_total)
+        l.heights_bytes_total = HTTP_DEFAULT_HEIGHTS_BYTES_TOTAL;
     s->limits = l;
+    s->guard = http_guard_start(l.heights_bytes_per_address, l.heights_bytes_total, l.timeout_s);
+    if (!s->guard) {
+        error_set(err, "http: cannot start the connection guard (out of memory or threads)");
+        pthread_mutex_destroy(&s->watch_lock);
+        free(s);
+        return NULL;
+    }
 
     struct sockaddr_in addr;
     memset(&addr, 0, sizeof addr);
@@ -749,10 +692,12 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         MHD_OPTION_CONNECTION_LIMIT, l.connections, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
         l.connections_per_ip, MHD_OPTION_CONNECTION_TIMEOUT, l.timeout_s,
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, l.memory_per_connection, MHD_OPTION_URI_LOG_CALLBACK,
-        request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s, MHD_OPTION_END);
+        request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s,
+        MHD_OPTION_NOTIFY_CONNECTION, http_guard_notify, s->guard, MHD_OPTION_END);
     if (!s->daemon) {
         error_set(err, "http: cannot listen on port %d (in use, not permitted, or TLS refused)",
                   port);
+        http_guard_stop(s->guard);
         pthread_mutex_destroy(&s->watch_lock);
         http_tls_free(&s->tls);
         free(s);
@@ -780,6 +725,18 @@ void http_server_set_base(http_server *s, const world *w)
     atomic_store(&s->base, w);
 }
 
+http_server *http_probe_start(http_server *main, int port, error_text *err)
+{
+    /* loopback only, a few connections with a short timeout: for the
+     * orchestrator on this host, never reachable by the strangers who may
+     * fill the main port */
+    http_limits l = {.connections = 16, .connections_per_ip = 16, .timeout_s = 3};
+    http_server *p = http_server_start_limited(port, 0, main->status, NULL, &l, err);
+    if (p)
+        p->main = main;
+    return p;
+}
+
 int http_server_port(const http_server *s)
 {
     return s->port;
@@ -790,6 +747,7 @@ void http_server_stop(http_server *s)
     if (!s)
         return;
     MHD_stop_daemon(s->daemon);
+    http_guard_stop(s->guard);
     pthread_mutex_destroy(&s->watch_lock);
     http_tls_free(&s->tls);
     free(s);

@@ -74,6 +74,9 @@ typedef struct http_limits {
     size_t memory_per_connection; /* request headers and state (default 64 KiB) */
     int heights_timeout_ms;       /* wait for the sim thread, then 503 (default 2000) */
     int64_t heights_max_cells;    /* w*h per /v1/heights, else 413 (default 4,194,304) */
+    /* /v1/heights answers held (built, not yet read) per client address and
+     * in all, else 429 (defaults 64 MiB and 256 MiB) */
+    size_t heights_bytes_per_address, heights_bytes_total;
 } http_limits;
 
 #define HTTP_DEFAULT_CONNECTIONS 256
@@ -82,6 +85,8 @@ typedef struct http_limits {
 #define HTTP_DEFAULT_MEMORY_PER_CONNECTION (64 * 1024)
 #define HTTP_DEFAULT_HEIGHTS_TIMEOUT_MS 2000
 #define HTTP_DEFAULT_HEIGHTS_MAX_CELLS (4 * 1024 * 1024)
+#define HTTP_DEFAULT_HEIGHTS_BYTES_PER_ADDRESS ((size_t)64 << 20)
+#define HTTP_DEFAULT_HEIGHTS_BYTES_TOTAL ((size_t)256 << 20)
 #define HTTP_MAX_QUERY_BYTES 1024
 
 typedef struct http_server http_server;
@@ -107,6 +112,10 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
  * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
 void http_server_set_base(http_server *s, const world *w);
 int http_server_port(const http_server *s);
+/* A second listener on 127.0.0.1:port (0 = any) for /healthz, /readyz and
+ * /metrics only, with its own small connection budget, so that slow or idle
+ * strangers on the main port cannot starve the probes. Stop it before main. */
+http_server *http_probe_start(http_server *main, int port, error_text *err);
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms
  * /healthz answers 503 naming it. At most HTTP_MAX_WATCHES; -1 when full. */

@@ -28,7 +28,12 @@
  *   http        libmicrohttpd's pool of four polling threads (http/http.c):
  *               own nothing but their requests;
  *   compaction  the store's own thread (store/store.c): writes tile
- *               snapshots from copies the sim thread hands over.
+ *               snapshots from copies the sim thread hands over;
+ *   snapshot    the service's worker (service/service_snapshots.c):
+ *               compresses and frames client snapshots from cell copies
+ *               the sim thread hands over at the end of a tick;
+ *   http guard  a sweeper per HTTP listener (http/http_guard.c): cuts
+ *               connections whose request headers are late.
  * Meeting points (nothing else is shared):
  *   1. hub command queue     net → sim   mutex; bounded, refusable
  *   2. hub pose table        net → sim   mutex; latest wins per collider
@@ -50,6 +55,13 @@
  *  10. net_server_client_count  net → any  an atomic counter (net/net.c)
  *  11. stop requests         signal → sim (a sig_atomic_t in serve.c);
  *                            sim → net (atomics in net.c, then a join)
+ *  12. snapshot worker       sim → snapshot  its mutex + condition variable:
+ *                                        one tick's requests at a time, taken
+ *                                        back at the start of the next tick
+ *                                        (the sim thread waits there for a
+ *                                        worker not yet done)
+ *  13. http guard            http → sweeper  its mutex (per-address bytes,
+ *                                        connection start times)
  * Ownership is checked, not only described: each end of the hub asserts its
  * thread (THREAD_OWNED) in debug and sanitizer builds; the sim thread claims
  * the sim end (service_create), the net thread the net end while it runs;

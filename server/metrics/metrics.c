@@ -131,6 +131,7 @@ static atomic_uint_fast64_t bytes_in, bytes_out, messages_in, frames_out;
 static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, refused_windows;
 static atomic_uint_fast64_t snapshots_coalesced, snapshots_deferred, snapshots_dropped;
 static atomic_uint_fast64_t budget_refusals;
+static atomic_uint_fast64_t clients_stale, heights_refused, http_cut, tick_shed;
 /* the GL backend's tile cache, copied from its own totals each tick */
 static atomic_uint_fast64_t gpu_tile_uploads, gpu_tile_upload_bytes, gpu_tile_evictions;
 static atomic_int_fast64_t gpu_tiles_resident;
@@ -175,6 +176,10 @@ void metrics_reset(void)
     SET(snapshots_deferred, 0);
     SET(snapshots_dropped, 0);
     SET(budget_refusals, 0);
+    SET(clients_stale, 0);
+    SET(heights_refused, 0);
+    SET(http_cut, 0);
+    SET(tick_shed, 0);
     SET(frames_dropped, 0);
     SET(tick_overruns, 0);
     SET(footprint_frames, 0);
@@ -327,6 +332,26 @@ void metrics_count_snapshots_dropped(uint64_t n)
 void metrics_count_frames_coalesced(uint64_t n)
 {
     ADD(frames_coalesced, n);
+}
+
+void metrics_count_client_stale(void)
+{
+    ADD(clients_stale, 1);
+}
+
+void metrics_count_heights_refused(void)
+{
+    ADD(heights_refused, 1);
+}
+
+void metrics_count_http_cut(uint64_t n)
+{
+    ADD(http_cut, n);
+}
+
+void metrics_count_tick_shed(uint64_t colliders)
+{
+    ADD(tick_shed, colliders);
 }
 
 void metrics_count_frames_dropped(uint64_t n)
@@ -601,6 +626,19 @@ static void render_clients(text *t)
             "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
     counter(t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
             GET(frames_dropped));
+    counter(t, "terrad_clients_stale_total",
+            "Clients switched to snapshots for being more than max_client_lag_ticks behind.",
+            GET(clients_stale));
+    counter(t, "terrad_http_heights_refused_total",
+            "/v1/heights requests refused (429): their address had too many bytes in flight.",
+            GET(heights_refused));
+    counter(t, "terrad_http_connections_cut_total",
+            "HTTP connections closed for sending no whole request within the header deadline.",
+            GET(http_cut));
+    header(t, "terrad_tick_shed_total", "counter",
+           "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells.");
+    text_printf(t, "terrad_tick_shed_total{reason=\"max_tick_cells\"} %llu\n",
+                (unsigned long long)GET(tick_shed));
 
     counter(t, "terrad_footprint_frames_total",
             "FOOTPRINTS frames queued to clients (decals model).", GET(footprint_frames));

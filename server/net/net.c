@@ -90,6 +90,9 @@ net_limits net_limits_default(void)
         .max_collider_extent_m = 50,
         .max_pending_bytes = 8388608,
         .hello_timeout_s = 5,
+        .max_connections = 0, /* 0: derived from RLIMIT_NOFILE by the caller, or none */
+        .max_connections_per_address = 256,
+        .fd_reserve = 64,
     };
 }
 
@@ -100,9 +103,17 @@ static int dropping_deltas(const net_client *c)
     return c->slow || c->snapshots_done < c->resync_until;
 }
 
-static void go_slow(net_client *c)
+/* behind: 0 when the client's queue is over max_pending_bytes, else how many
+ * ticks old its oldest queued delta is (past max_client_lag_ticks) */
+static void go_slow(net_client *c, uint64_t behind)
 {
-    if (!c->slow) /* before the drop, so the figure is what made it slow */
+    if (!c->slow && behind) {
+        log_info("net: client %u (%s) is stale (%llu ticks behind, limit %d): deltas replaced "
+                 "by a snapshot once it catches up",
+                 c->id, c->peer, (unsigned long long)behind,
+                 c->srv->cfg.limits.max_client_lag_ticks);
+        metrics_count_client_stale();
+    } else if (!c->slow) /* before the drop, so the figure is what made it slow */
         log_info("net: client %u (%s) is slow (%zu bytes pending, limit %zu): deltas replaced "
                  "by a snapshot once it catches up",
                  c->id, c->peer, c->pending_bytes, c->srv->cfg.limits.max_pending_bytes);
@@ -138,12 +149,30 @@ static void fan_out(net_server *s, const hub_out *o)
             metrics_count_frames_coalesced(1);
             continue;
         }
-        if (c->pending_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
-            go_slow(c);
+        if (c->droppable_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
+            go_slow(c, 0);
             continue;
         }
         hub_frame_ref(o->frame);
         net_enqueue(c, o->frame, NET_ITEM_TILE);
+    }
+}
+
+/* Staleness, once a tick: a client whose oldest queued delta or status frame
+ * is more than max_client_lag_ticks old goes slow like one over
+ * max_pending_bytes (its deltas dropped, snapshots once it drains), so that
+ * a client reading steadily but too slowly is bounded in ticks, not only in
+ * bytes (issue 15: one frame per 20 ms was 54 s behind after 60 s). */
+static void drop_stale(net_server *s)
+{
+    uint64_t limit = (uint64_t)s->st.cfg.limits.max_client_lag_ticks;
+    for (int i = 0; i < s->st.nclients; i++) {
+        net_client *c = s->st.clients[i];
+        if (!c->ready || c->closing || c->killed || dropping_deltas(c))
+            continue;
+        uint64_t oldest = net_oldest_queued_tick(c);
+        if (oldest && s->st.tick > oldest + limit)
+            go_slow(c, s->st.tick - oldest);
     }
 }
 
@@ -158,7 +187,7 @@ static int is_footprints(const hub_frame *f)
  * and queued as NET_ITEM_TILE so that going slow drops those still queued. */
 static void send_footprints(net_server *s, net_client *c, hub_frame *f)
 {
-    if (dropping_deltas(c) || c->pending_bytes + f->len > s->st.cfg.limits.max_pending_bytes) {
+    if (dropping_deltas(c) || c->droppable_bytes + f->len > s->st.cfg.limits.max_pending_bytes) {
         metrics_count_footprints_dropped(1);
         hub_frame_unref(f);
         return;
@@ -202,6 +231,7 @@ static void dispatch(net_server *s, hub_out *o)
             fan_out(s, o);
         break;
     case HUB_OUT_TICK_DONE:
+        drop_stale(s);
         break;
     }
     if (o->frame)
@@ -219,7 +249,7 @@ static void resync_everyone(net_server *s)
         /* markers may have been lost with the dropped frames: forget them */
         c->snapshots_done = c->snapshots_requested;
         c->resync_until = c->snapshots_done;
-        go_slow(c);
+        go_slow(c, 0);
     }
 }
 
@@ -264,6 +294,7 @@ static void begin_shutdown(net_server *s)
 static void heartbeat(lws_sorted_usec_list_t *sul)
 {
     net_server *s = lws_container_of(sul, net_server, heartbeat);
+    fault_stall("net"); /* test hook (base/fault.c): a net thread that stops */
     atomic_store(&s->last_beat_ms, time_now_ms());
     net_reap_dead_peers(&s->st);
     net_flush_backlog(&s->st);
@@ -276,27 +307,6 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
 }
 
 /* ---- the protocol callback ---- */
-
-/* 1 if the comma-separated header value offers the protocol name. */
-static int offers_subprotocol(const char *value, const char *name)
-{
-    size_t n = strlen(name);
-    const char *p = value;
-    while (*p) {
-        while (*p == ' ' || *p == '\t' || *p == ',')
-            p++;
-        const char *end = p;
-        while (*end && *end != ',')
-            end++;
-        const char *last = end;
-        while (last > p && (last[-1] == ' ' || last[-1] == '\t'))
-            last--;
-        if ((size_t)(last - p) == n && memcmp(p, name, n) == 0)
-            return 1;
-        p = end;
-    }
-    return 0;
-}
 
 static void client_established(net_server *s, struct lws *wsi, net_session *pss)
 {
@@ -462,6 +472,8 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
         c->q_head = (c->q_head + 1) % c->q_cap;
         c->q_count--;
         c->pending_bytes -= it.frame->len;
+        if (it.kind != NET_ITEM_REPLY)
+            c->droppable_bytes -= it.frame->len;
         int n = lws_write(wsi, it.frame->data, it.frame->len,
                           it.frame->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
         if (n >= 0) {
@@ -497,13 +509,15 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
     THREAD_OWNED(&s->st.owner);
 
     switch (reason) {
+    case LWS_CALLBACK_FILTER_NETWORK_CONNECTION:
+        return s->stopping || !net_admit_connection(&s->st, (int)(intptr_t)in);
     case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
         if (s->stopping)
             return 1;
         char offered[256] = "";
         if (lws_hdr_total_length(wsi, WSI_TOKEN_PROTOCOL) <= 0 ||
             lws_hdr_copy(wsi, offered, sizeof offered, WSI_TOKEN_PROTOCOL) <= 0 ||
-            !offers_subprotocol(offered, TERRAD_PROTO_SUBPROTOCOL)) {
+            !net_offers_subprotocol(offered, TERRAD_PROTO_SUBPROTOCOL)) {
             char peer[64] = "";
             lws_get_peer_simple(wsi, peer, sizeof peer);
             log_info("net: refused a handshake from %s without subprotocol %s", peer,
@@ -578,17 +592,6 @@ static void *service_main(void *arg)
     hub_release_net_end(s->st.hub);
     atomic_store(&s->thread_done, 1);
     return NULL;
-}
-
-static void lws_log_line(int level, const char *line)
-{
-    size_t n = strlen(line);
-    while (n && (line[n - 1] == '\n' || line[n - 1] == '\r'))
-        n--;
-    if (level & LLL_ERR)
-        log_error("libwebsockets: %.*s", (int)n, line);
-    else
-        log_warn("libwebsockets: %.*s", (int)n, line);
 }
 
 static char *dup_or_null(const char *text)
@@ -682,6 +685,10 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.world_name = dup_or_null(c->world.name);
     s->st.cfg.world.name = s->st.world_name;
     s->st.next_client_id = 1;
+    if (s->st.cfg.limits.max_client_lag_ticks <= 0) /* two seconds of ticks */
+        s->st.cfg.limits.max_client_lag_ticks =
+            c->world.tick_hz > 0 ? (int)ceil(2 * c->world.tick_hz) : 120;
+    s->st.fd_ceiling = c->limits.fd_reserve > 0 ? net_fd_ceiling(c->limits.fd_reserve) : 0;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
     s->st.models = parse_names(s->st.models_json, "[]", "world.models_json", err);
@@ -699,7 +706,7 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.hard_pending_bytes = 2 * l->max_pending_bytes + 4 * (size_t)l->max_subscribed_cells +
                                2 * l->max_message_bytes + 65536;
 
-    lws_set_log_level(LLL_ERR, lws_log_line);
+    lws_set_log_level(LLL_ERR, net_lws_log_line);
     struct lws_context_creation_info info;
     memset(&info, 0, sizeof info);
     info.port = c->port;

@@ -31,6 +31,18 @@ typedef struct net_limits {
     double max_collider_extent_m;
     size_t max_pending_bytes;
     double hello_timeout_s;
+    /* A client whose oldest queued delta or status frame is more than this
+     * many ticks old is treated as slow (snapshots when it drains), as if it
+     * were over max_pending_bytes. 0: two seconds of ticks (world.tick_hz). */
+    int max_client_lag_ticks;
+    /* Not per client: the tick's cost budget in footprint cells over every
+     * client's colliders (service_set_tick_budget); 0: none. */
+    int64_t max_tick_cells;
+    /* Admission (0 = no cap): websocket clients in all and from one address.
+     * Whatever these say, an accepted socket is refused while fewer than
+     * fd_reserve descriptors are left under RLIMIT_NOFILE. */
+    int max_connections, max_connections_per_address;
+    int fd_reserve;
 } net_limits;
 
 net_limits net_limits_default(void);

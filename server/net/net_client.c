@@ -68,7 +68,7 @@ void net_release_queue(net_client *c)
     for (size_t i = 0; i < c->q_count; i++)
         hub_frame_unref(c->q[(c->q_head + i) % c->q_cap].frame);
     c->q_head = c->q_count = 0;
-    c->pending_bytes = 0;
+    c->pending_bytes = c->droppable_bytes = 0;
 }
 
 /* Drop every queued item for which drop(item) says so; returns how many. */
@@ -80,6 +80,8 @@ static int queue_filter(net_client *c, int (*drop)(const net_item *, int), int a
         net_item it = c->q[(c->q_head + i) % c->q_cap];
         if (drop(&it, arg)) {
             c->pending_bytes -= it.frame->len;
+            if (it.kind != NET_ITEM_REPLY)
+                c->droppable_bytes -= it.frame->len;
             hub_frame_unref(it.frame);
             dropped++;
         } else {
@@ -102,6 +104,19 @@ static int is_tile_or_status(const net_item *it, int arg)
 static int is_status_of(const net_item *it, int type)
 {
     return it->kind == NET_ITEM_STATUS && it->type == type;
+}
+
+uint64_t net_oldest_queued_tick(const net_client *c)
+{
+    /* replies (snapshots among them) come first in a queue that is catching
+     * up; the first TILE or STATUS item is the oldest: items are queued in
+     * tick order */
+    for (size_t i = 0; i < c->q_count; i++) {
+        const net_item *it = &c->q[(c->q_head + i) % c->q_cap];
+        if (it->tick)
+            return it->tick;
+    }
+    return 0;
 }
 
 int net_drop_tile_deltas(net_client *c)
@@ -130,9 +145,11 @@ void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
         return;
     }
     net_item it = {.frame = f, .kind = (unsigned char)kind};
+    if (kind != NET_ITEM_REPLY)
+        it.tick = s->tick ? s->tick : 1;
     if (kind == NET_ITEM_STATUS) {
         it.type = f->len > 2 ? f->data[2] : 0;
-        if (c->pending_bytes + f->len > s->cfg.limits.max_pending_bytes) {
+        if (c->droppable_bytes + f->len > s->cfg.limits.max_pending_bytes) {
             int n = queue_filter(c, is_status_of, it.type);
             if (n)
                 metrics_count_frames_coalesced((uint64_t)n);
@@ -162,6 +179,8 @@ void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
     c->q[(c->q_head + c->q_count) % c->q_cap] = it;
     c->q_count++;
     c->pending_bytes += f->len;
+    if (kind != NET_ITEM_REPLY)
+        c->droppable_bytes += f->len;
     lws_callback_on_writable(c->wsi);
 }
 

@@ -34,6 +34,7 @@ typedef enum net_item_kind {
 
 typedef struct net_item {
     hub_frame *frame;
+    uint64_t tick; /* TILE and STATUS: the tick it was queued in (staleness); 0 for replies */
     unsigned char kind;
     unsigned char type; /* binary type byte (STATUS), else 0 */
 } net_item;
@@ -84,6 +85,10 @@ typedef struct net_client {
     net_item *q;
     size_t q_head, q_count, q_cap;
     size_t pending_bytes;
+    /* of which TILE and STATUS items: what going slow can drop, and what
+     * max_pending_bytes is compared with (a snapshot larger than the limit,
+     * queued in one go, must not make its client slow again at once) */
+    size_t droppable_bytes;
 
     /* snapshots: every HUB_SUBSCRIBE and HUB_RESYNC gets exactly one
      * snapshot_done marker back, in order; tile deltas wait while
@@ -143,6 +148,11 @@ struct net_state {
 
     double last_warn_ms;
     uint64_t warns_suppressed;
+
+    /* admission (net_conn.c) */
+    int fd_ceiling; /* accepted descriptors at or above it are refused; 0 = none */
+    uint64_t conn_refused, conn_refusals_unlogged;
+    double last_conn_refusal_log_ms;
 };
 
 /* ---- the client list ---- */
@@ -164,6 +174,8 @@ void net_error(net_client *c, int code, const cJSON *ref, int64_t collider, int 
 void net_close_after_flush(net_client *c, int code, const char *reason);
 /* Drop the queued tile deltas and the ACK/CONTACT frames that would vouch for them. */
 int net_drop_tile_deltas(net_client *c);
+/* The tick of the oldest queued TILE or STATUS item, 0 when none is queued. */
+uint64_t net_oldest_queued_tick(const net_client *c);
 /* Drop every queued frame (the client is gone or being dropped). */
 void net_release_queue(net_client *c);
 /* The client stopped reading and asked for more: let it go. */
@@ -171,6 +183,16 @@ void net_client_kill(net_client *c, const char *why);
 /* Token bucket; 1 if the message may pass. Refusals are answered at most
  * once a second; refusals sustained for 10 s close the connection. */
 int net_rate_allow(net_client *c);
+
+/* ---- admission (net_conn.c) ---- */
+/* RLIMIT_NOFILE's soft limit minus reserve (at least 16; huge when unlimited). */
+int net_fd_ceiling(int reserve);
+/* 1 if a freshly accepted socket may stay, else 0 (logged at a bounded rate). */
+int net_admit_connection(net_state *s, int fd);
+/* 1 if the comma-separated header value offers the protocol name. */
+int net_offers_subprotocol(const char *value, const char *name);
+/* libwebsockets' log lines (lws_set_log_level), at most 5 a second. */
+void net_lws_log_line(int level, const char *line);
 
 /* ---- dead peers (net_peer.c) ---- */
 /* After a write: pause reading while lws holds part of a frame, resume once it is flushed. */

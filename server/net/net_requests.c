@@ -82,6 +82,8 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddNumberToObject(lim, "max_collider_extent_m", l->max_collider_extent_m);
     cJSON_AddNumberToObject(lim, "max_pending_bytes", (double)l->max_pending_bytes);
     cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
+    cJSON_AddNumberToObject(lim, "max_client_lag_ticks", l->max_client_lag_ticks);
+    cJSON_AddNumberToObject(lim, "max_tick_cells", (double)l->max_tick_cells);
     return m;
 }
 

@@ -45,7 +45,8 @@ service *service_create(sim_engine *engine, hub *h, error_text *err)
     s->packed_cap = terrad_rect_compress_bound(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
     s->packed = malloc(s->packed_cap);
     s->codec = terrad_codec_new(3);
-    if (!s->tile_versions || !s->batch.commands || !s->values || !s->packed || !s->codec) {
+    if (!s->tile_versions || !s->batch.commands || !s->values || !s->packed || !s->codec ||
+        service_snapshots_start(s) != 0) {
         service_destroy(s);
         error_set(err, "service: out of memory for %d tiles", s->tiles_x * s->tiles_y);
         return NULL;
@@ -61,6 +62,7 @@ void service_destroy(service *s)
     if (!s)
         return;
     service_batch *b = &s->batch;
+    service_snapshots_stop(s);
     for (int i = 0; i < s->collider_count; i++)
         service_release_collider(s, &s->colliders[i]);
     for (int i = 0; i < s->client_count; i++)
@@ -201,9 +203,10 @@ static int gather_colliders(service *s, const sim_collider *extra, int extra_cou
         return -1;
     }
     int n = 0;
+    service_shed(s); /* whose colliders wait this tick */
     for (int i = 0; i < s->collider_count; i++) {
         svc_collider *c = &s->colliders[i];
-        if (!c->has_pose)
+        if (!c->has_pose || c->held)
             continue;
         b->colliders[n++] = (sim_collider){.id = (int)c->id,
                                            .geometry = c->geometry,
@@ -231,6 +234,8 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
             undo_tick(s, report);
     }
     for (int i = 0; i < s->collider_count; i++) {
+        if (s->colliders[i].held)
+            continue; /* it waited: the next tick sweeps from where it was */
         s->colliders[i].previous_pose = s->colliders[i].pose;
         s->colliders[i].has_previous = s->colliders[i].has_pose;
     }
@@ -262,6 +267,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     THREAD_OWNED(&s->owner);
     double t0 = time_now_ms();
     memset(stats, 0, sizeof *stats);
+    service_snapshots_collect(s); /* last tick's snapshots, framed meanwhile: ahead of this tick */
     s->tick++;
 
     service_take_input(s);           /* commands, poses, batch sequences from the hub */
@@ -277,8 +283,9 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     service_publish_feedback(s); /* CONTACT, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
-    service_publish_snapshots(s); /* new subscriptions and resyncs */
+    service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */
     publish(s);
+    service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
     hub_serve_reads(s->hub, s->world, s->tick);
 
     stats->clients = s->client_count;

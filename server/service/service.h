@@ -61,6 +61,11 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
  */
 void service_attach_store(service *s, store *st, uint64_t recovered_tick);
 
+/* The tick's cost budget (limits.max_tick_cells): while the posed client
+ * colliders' footprint cells pass it, the most expensive client's colliders
+ * wait a tick (service_shed.c). 0: none (the default). */
+void service_set_tick_budget(service *s, int64_t max_tick_cells);
+
 uint64_t service_current_tick(const service *s);
 int64_t service_volume(const service *s); /* Σh, kept exactly, tick by tick */
 uint32_t service_tile_version(const service *s, int tile_x, int tile_y);

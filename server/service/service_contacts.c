@@ -163,7 +163,7 @@ void service_publish_feedback(service *s)
     for (int c = 0; c < s->client_count; c++) {
         svc_client *cl = &s->clients[c];
         send_contacts(s, cl);
-        if (cl->sequence_pending) {
+        if (cl->sequence_pending && !cl->held) { /* a held client's poses were not used */
             hub_frame *f = hub_frame_new(1, TERRAD_ACK_SIZE);
             if (f && terrad_ack_encode(f->data, TERRAD_ACK_SIZE, &f->len, s->tick,
                                        cl->last_sequence) != 0) {

@@ -6,8 +6,9 @@
  * edges; the pieces of one tile are combined into one rectangle, the tile's
  * version advances, and its differences are encoded once (zigzag + zstd)
  * and queued for the net thread to fan out. Σh follows from the same
- * differences. Snapshots carry whole tiles at their current version, the
- * last frame of a request marked snapshot_done. Sim thread only.
+ * differences. Snapshot requests are chosen here, within a per-tick budget;
+ * their cells are copied and framed off the tick (service_snapshots.c).
+ * Sim thread only.
  */
 #include "service/service_internal.h"
 
@@ -136,94 +137,6 @@ void service_publish_deltas(service *s, service_tick_stats *stats)
     }
 }
 
-/* Send the rectangles [first, first + count) as one DELTA frame to a client. */
-static void send_snapshot_frame(service *s, uint32_t client, const terrad_rect *rects, int count,
-                                int done)
-{
-    size_t size = terrad_delta_size(rects, (size_t)count);
-    hub_frame *f = hub_frame_new(1, size);
-    if (f && terrad_delta_encode(f->data, size, &f->len, s->tick, rects, (size_t)count) != 0) {
-        hub_frame_unref(f);
-        f = NULL;
-    }
-    service_queue_client(s, client, f, done);
-}
-
-/* Snapshot rectangles, one per tile ∩ subscription, packed into frames under
- * the size limit; the last frame of a request carries snapshot_done (an
- * empty request still sends an empty frame with the mark). */
-static void publish_snapshot(service *s, const snapshot_job *job)
-{
-    world_rect r = job->rect;
-    int tiles = 0;
-    if (r.w > 0 && r.h > 0)
-        tiles = ((r.x + r.w - 1) / SERVICE_TILE_SIZE - r.x / SERVICE_TILE_SIZE + 1) *
-                ((r.y + r.h - 1) / SERVICE_TILE_SIZE - r.y / SERVICE_TILE_SIZE + 1);
-    terrad_rect *rects = calloc((size_t)tiles + 1, sizeof *rects);
-    uint8_t **datas = calloc((size_t)tiles + 1, sizeof *datas);
-    int count = 0;
-    if (!rects || !datas) {
-        service_note_drop(s, "snapshot", "no memory for a snapshot of %d tiles for client %u",
-                          tiles, job->client);
-        if (job->last) /* the client still gets its mark, without a frame */
-            service_queue_out(s, (hub_out){.kind = HUB_OUT_CLIENT,
-                                           .client = job->client,
-                                           .snapshot_done = 1,
-                                           .tick = s->tick});
-        goto done;
-    }
-    for (int ty = r.y / SERVICE_TILE_SIZE; tiles && ty <= (r.y + r.h - 1) / SERVICE_TILE_SIZE;
-         ty++) {
-        for (int tx = r.x / SERVICE_TILE_SIZE; tx <= (r.x + r.w - 1) / SERVICE_TILE_SIZE; tx++) {
-            int x0 = r.x > tx * SERVICE_TILE_SIZE ? r.x : tx * SERVICE_TILE_SIZE;
-            int y0 = r.y > ty * SERVICE_TILE_SIZE ? r.y : ty * SERVICE_TILE_SIZE;
-            int x1 =
-                r.x + r.w < (tx + 1) * SERVICE_TILE_SIZE ? r.x + r.w : (tx + 1) * SERVICE_TILE_SIZE;
-            int y1 =
-                r.y + r.h < (ty + 1) * SERVICE_TILE_SIZE ? r.y + r.h : (ty + 1) * SERVICE_TILE_SIZE;
-            world_rect piece = {x0, y0, x1 - x0, y1 - y0};
-            world_gather_window(s->world, piece, s->values);
-            size_t len = 0;
-            if (terrad_rect_compress(s->codec, s->values, (size_t)piece.w * piece.h, s->packed,
-                                     s->packed_cap, &len) != 0 ||
-                !(datas[count] = malloc(len ? len : 1))) {
-                service_note_drop(s, "snapshot", "tile (%d, %d) of a snapshot for client %u", tx,
-                                  ty, job->client);
-                continue;
-            }
-            memcpy(datas[count], s->packed, len);
-            rects[count] = (terrad_rect){.x = piece.x,
-                                         .y = piece.y,
-                                         .w = (uint16_t)piece.w,
-                                         .h = (uint16_t)piece.h,
-                                         .base_version = 0,
-                                         .new_version = s->tile_versions[ty * s->tiles_x + tx],
-                                         .encoding = TERRAD_ENC_SNAPSHOT,
-                                         .data_len = (uint32_t)len,
-                                         .data = datas[count]};
-            count++;
-        }
-    }
-    int first = 0;
-    size_t size = TERRAD_DELTA_FIXED;
-    for (int i = 0; i < count; i++) {
-        size_t add = TERRAD_RECT_FIXED + rects[i].data_len;
-        if (i > first && (size + add > SERVICE_FRAME_MAX || i - first == TERRAD_MAX_COUNT)) {
-            send_snapshot_frame(s, job->client, rects + first, i - first, 0);
-            first = i;
-            size = TERRAD_DELTA_FIXED;
-        }
-        size += add;
-    }
-    if (count > first || job->last)
-        send_snapshot_frame(s, job->client, rects + first, count - first, job->last);
-done:
-    for (int i = 0; datas && i < count; i++)
-        free(datas[i]);
-    free(rects);
-    free(datas);
-}
-
 /* The cells a request's jobs [start, end] compress. */
 static int64_t request_cells(const service_batch *b, int start, int end)
 {
@@ -261,11 +174,8 @@ void service_publish_snapshots(service *s)
         if (!served && nserved == 0)
             go = 1; /* no memory for the bookkeeping: at least one request */
         if (go) {
-            for (int j = start; j <= i; j++)
-                publish_snapshot(s, &b->snapshots[j]);
-            terrad_rect none[1] = {{0}};
-            for (int m = 0; m < b->snapshots[i].marks; m++) /* coalesced requests' marks */
-                send_snapshot_frame(s, client, none, 0, 1);
+            for (int j = start; j <= i; j++) /* framed, with its marks, by the worker */
+                service_snapshot_stage(s, &b->snapshots[j]);
             spent += cells;
             if (served)
                 served[nserved] = client;

@@ -10,6 +10,8 @@
  *   service_deltas.c    cut dirty rectangles into tiles, encode deltas, snapshots
  *   service_colliders.c COLLIDERS frames for viewers
  *   service_footprints.c FOOTPRINTS frames for viewers
+ *   service_shed.c      the tick's cost budget: whose colliders wait a tick
+ *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
  */
 #ifndef TERRAD_SERVICE_INTERNAL_H
 #define TERRAD_SERVICE_INTERNAL_H
@@ -38,6 +40,10 @@ typedef struct svc_client {
     int64_t sub_capacity;
     uint64_t colliders_hash;      /* of the last COLLIDERS frame sent, 0: none yet */
     uint64_t colliders_sent_tick; /* when it was sent */
+    /* the tick's cost budget (service_shed.c) */
+    int64_t tick_cells; /* footprint cells of its posed colliders this tick */
+    int held;           /* its colliders wait this tick (and its ACK with them) */
+    int held_last;      /* they waited last tick: not held again this one */
 } svc_client;
 
 typedef struct svc_collider {
@@ -47,6 +53,7 @@ typedef struct svc_collider {
     collider_pose pose, previous_pose;
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
+    int held; /* waits this tick (service_shed.c): no deformation, previous pose kept */
 } svc_collider;
 
 typedef struct svc_contact {
@@ -129,6 +136,13 @@ struct service {
     terrad_footprint *events; /* FOOTPRINTS scratch: one client's events */
     int64_t event_capacity;
 
+    struct snap_worker *snapper; /* service_snapshots.c */
+
+    /* the tick's cost budget (service_shed.c); 0: none */
+    int64_t max_tick_cells;
+    double last_shed_log_ms;
+    uint64_t shed_unlogged;
+
     /* dropped work: logged at most once a second (the metric counts all) */
     double last_drop_log_ms;
     uint64_t drops_unlogged;
@@ -165,6 +179,18 @@ void service_publish_deltas(service *s, service_tick_stats *stats);
 void service_publish_snapshots(service *s);
 /* A client left: its pending snapshot requests are dropped, never built. */
 void service_drop_snapshots(service *s, uint32_t client);
+
+/* service_snapshots.c: the worker that compresses and frames snapshots */
+typedef struct snap_worker snap_worker;
+int service_snapshots_start(service *s);
+void service_snapshots_stop(service *s);
+/* copy a job's cells and tile versions (tick t) for the worker */
+void service_snapshot_stage(service *s, const snapshot_job *job);
+void service_snapshots_hand_over(service *s); /* end of tick t */
+void service_snapshots_collect(service *s);   /* start of tick t + 1: queue the frames */
+
+/* service_shed.c: mark the colliders that wait this tick (before they are gathered) */
+void service_shed(service *s);
 
 /* service_colliders.c */
 void service_publish_colliders(service *s, const sim_collider *extra, int extra_count);

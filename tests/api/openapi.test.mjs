@@ -10,7 +10,7 @@
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
-import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import http from 'node:http';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
@@ -50,7 +50,12 @@ function request(port, method, urlPath, { body, headers = {} } = {}) {
 
 function startDaemon() {
   const dataDir = mkdtempSync(path.join(tmpdir(), 'terrad-openapi-'));
-  const args = ['serve', '--http-port', '0', '--ws-port', '0', '--backend', 'cpu', '--no-data'];
+  // A small budget for /v1/heights answers held at once, so that 429 can be seen: 20,000 bytes
+  // pass the 64x64 base read below (16,384) and refuse a 100x100 read (40,000).
+  const config = path.join(dataDir, 'config.json');
+  writeFileSync(config, JSON.stringify({ limits: { max_heights_bytes_per_address: 20000 } }));
+  const args = ['serve', '--http-port', '0', '--ws-port', '0', '--backend', 'cpu', '--no-data',
+    '--config', config];
   const proc = spawn(BIN, args, { stdio: ['ignore', 'ignore', 'pipe'], cwd: dataDir });
   proc.dataDir = dataDir;
   let err = '';
@@ -191,6 +196,7 @@ test('every documented error answers as the document says', async () => {
   await fetchChecked('bad format', '/v1/heights?x=0&y=0&w=4&h=4&format=float', 400);
   await fetchChecked('outside the world', '/v1/heights?x=0&y=0&w=100000&h=1', 400);
   await fetchChecked('too many cells', '/v1/heights?x=0&y=0&w=4096&h=4096', 413);
+  await fetchChecked('over the address\'s heights budget', '/v1/heights?x=0&y=0&w=100&h=100', 429);
   const { res } = await fetchChecked('POST', '/v1/stats', 405, { method: 'POST' });
   assert.equal(res.headers.allow, 'GET, HEAD');
   await fetchChecked('a body', '/v1/stats', 413, { body: 'x'.repeat(64), headers: { 'Content-Length': '64' } });

@@ -331,9 +331,14 @@ int main(void)
     CHECK(views[0].last_contact_volume > 0, "penetrating volume reported (%lld)",
           (long long)views[0].last_contact_volume);
 
-    /* resync of client 2 gives a fresh snapshot that still matches */
+    /* resync of client 2 gives a fresh snapshot that still matches: its cells
+     * are copied in the tick that takes the request and framed off the tick,
+     * so its frames go out at the start of the next one (service_snapshots.c) */
     hub_command resync = {.kind = HUB_RESYNC, .client = 2, .subscription = 0};
     hub_push_command(h, &resync);
+    service_tick(svc, NULL, 0, &st, &err);
+    deliver(h, views, regions, 2);
+    CHECK(views[1].snapshot_marks == 1, "the resync's frames are not out within its own tick");
     service_tick(svc, NULL, 0, &st, &err);
     deliver(h, views, regions, 2);
     CHECK(views[1].snapshot_marks == 2, "resync marked done");

@@ -1,0 +1,282 @@
+/*
+ * http_guard.c: what one client address may hold of the HTTP threads (issue
+ * 15, items 6 and 7), beside libmicrohttpd's own connection limits and idle
+ * timeout (http.c):
+ *
+ *   - heights bytes in flight: each /v1/heights answer is one allocation of
+ *     the whole rectangle held until the client has read it; 62 unread
+ *     answers from one address once took RSS to 1.3 GB. An answer reserves
+ *     its bytes against its address (and against everyone) before it is
+ *     built, and gives them back when its request ends: sent, timed out by
+ *     MHD's idle timeout (an unread answer makes no progress), or the peer
+ *     gone. Past a budget the request is refused (429, JSON, a metric).
+ *   - a deadline for a request's headers: MHD's timeout counts idle time, so
+ *     a client sending one byte every few seconds (slowloris) was never cut.
+ *     A sweeper thread shuts down (shutdown(2), MHD then closes it) every
+ *     connection that has not sent a whole request's headers within
+ *     header_deadline_s of opening or of its previous request's end.
+ *
+ * The HTTP threads and the sweeper meet under one mutex, held for a short
+ * walk; nothing here touches the tick.
+ */
+#include "http/http_internal.h"
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+
+#include "metrics/metrics.h"
+
+#define GUARD_ADDRESSES 1024 /* distinct addresses holding bytes at once */
+#define GUARD_SWEEP_NS (250 * 1000 * 1000)
+
+typedef struct guard_address {
+    int family; /* 0: free */
+    unsigned char addr[16];
+    size_t bytes;
+} guard_address;
+
+typedef struct guard_conn {
+    struct guard_conn *prev, *next;
+    int fd;
+    int family;
+    unsigned char addr[16];
+    double since_ms; /* opened, or its previous request ended */
+    int in_request;  /* headers seen, the request not ended */
+    int cut;
+    size_t reserved; /* heights bytes of its current request */
+} guard_conn;
+
+struct http_guard {
+    pthread_mutex_t lock;
+    pthread_cond_t wake;
+    pthread_t thread;
+    int stop;
+    size_t per_address, total, in_flight;
+    double deadline_ms;
+    guard_conn *conns;
+    guard_address addresses[GUARD_ADDRESSES];
+    double last_log_ms;
+    unsigned cuts_unlogged;
+};
+
+static guard_conn *conn_of(struct MHD_Connection *c)
+{
+    const union MHD_ConnectionInfo *i =
+        MHD_get_connection_info(c, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+    return i ? i->socket_context : NULL;
+}
+
+static guard_address *address_slot(http_guard *g, const guard_conn *gc, int create)
+{
+    guard_address *free_slot = NULL;
+    for (int i = 0; i < GUARD_ADDRESSES; i++) {
+        guard_address *a = &g->addresses[i];
+        if (a->family == gc->family && memcmp(a->addr, gc->addr, sizeof a->addr) == 0)
+            return a;
+        if (!a->family && !free_slot)
+            free_slot = a;
+    }
+    if (!create || !free_slot)
+        return NULL;
+    free_slot->family = gc->family;
+    memcpy(free_slot->addr, gc->addr, sizeof free_slot->addr);
+    free_slot->bytes = 0;
+    return free_slot;
+}
+
+/* Give back what gc's request reserved (under the lock). */
+static void release(http_guard *g, guard_conn *gc)
+{
+    if (!gc->reserved)
+        return;
+    guard_address *a = address_slot(g, gc, 0);
+    if (a) {
+        a->bytes -= gc->reserved < a->bytes ? gc->reserved : a->bytes;
+        if (!a->bytes)
+            a->family = 0;
+    }
+    g->in_flight -= gc->reserved < g->in_flight ? gc->reserved : g->in_flight;
+    gc->reserved = 0;
+}
+
+static void sweep(http_guard *g)
+{
+    double now = time_now_ms();
+    unsigned cut = 0;
+    for (guard_conn *gc = g->conns; gc; gc = gc->next) {
+        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms)
+            continue;
+        shutdown(gc->fd, SHUT_RDWR); /* MHD sees the end and closes it */
+        gc->cut = 1;
+        cut++;
+    }
+    if (!cut)
+        return;
+    metrics_count_http_cut(cut);
+    g->cuts_unlogged += cut;
+    if (now - g->last_log_ms >= 1000.0) {
+        log_warn("http: closed %u connection(s) that sent no whole request within %.0f s",
+                 g->cuts_unlogged, g->deadline_ms / 1000);
+        g->cuts_unlogged = 0;
+        g->last_log_ms = now;
+    }
+}
+
+static void *sweeper(void *arg)
+{
+    http_guard *g = arg;
+    pthread_mutex_lock(&g->lock);
+    while (!g->stop) {
+        struct timespec t;
+        clock_gettime(CLOCK_REALTIME, &t);
+        t.tv_nsec += GUARD_SWEEP_NS;
+        if (t.tv_nsec >= 1000000000L) {
+            t.tv_sec++;
+            t.tv_nsec -= 1000000000L;
+        }
+        pthread_cond_timedwait(&g->wake, &g->lock, &t);
+        if (!g->stop)
+            sweep(g);
+    }
+    pthread_mutex_unlock(&g->lock);
+    return NULL;
+}
+
+http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s)
+{
+    http_guard *g = calloc(1, sizeof *g);
+    if (!g)
+        return NULL;
+    g->per_address = per_address;
+    g->total = total;
+    g->deadline_ms = header_deadline_s * 1000.0;
+    pthread_mutex_init(&g->lock, NULL);
+    pthread_cond_init(&g->wake, NULL);
+    if (pthread_create(&g->thread, NULL, sweeper, g) != 0) {
+        pthread_cond_destroy(&g->wake);
+        pthread_mutex_destroy(&g->lock);
+        free(g);
+        return NULL;
+    }
+    return g;
+}
+
+void http_guard_stop(http_guard *g)
+{
+    if (!g)
+        return;
+    pthread_mutex_lock(&g->lock);
+    g->stop = 1;
+    pthread_cond_signal(&g->wake);
+    pthread_mutex_unlock(&g->lock);
+    pthread_join(g->thread, NULL);
+    while (g->conns) { /* MHD has stopped: whatever it did not report closed */
+        guard_conn *gc = g->conns;
+        g->conns = gc->next;
+        free(gc);
+    }
+    pthread_cond_destroy(&g->wake);
+    pthread_mutex_destroy(&g->lock);
+    free(g);
+}
+
+static void conn_started(http_guard *g, struct MHD_Connection *c, void **socket_context)
+{
+    guard_conn *gc = calloc(1, sizeof *gc);
+    if (!gc)
+        return; /* unguarded: MHD's own limits still hold */
+    const union MHD_ConnectionInfo *fd =
+        MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+    const union MHD_ConnectionInfo *ad =
+        MHD_get_connection_info(c, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+    gc->fd = fd ? fd->connect_fd : -1;
+    if (ad && ad->client_addr && ad->client_addr->sa_family == AF_INET) {
+        gc->family = AF_INET;
+        memcpy(gc->addr, &((const struct sockaddr_in *)ad->client_addr)->sin_addr, 4);
+    } else if (ad && ad->client_addr && ad->client_addr->sa_family == AF_INET6) {
+        gc->family = AF_INET6;
+        memcpy(gc->addr, &((const struct sockaddr_in6 *)ad->client_addr)->sin6_addr, 16);
+    } else {
+        gc->family = -1; /* one shared slot for whatever else */
+    }
+    gc->since_ms = time_now_ms();
+    pthread_mutex_lock(&g->lock);
+    gc->next = g->conns;
+    if (g->conns)
+        g->conns->prev = gc;
+    g->conns = gc;
+    pthread_mutex_unlock(&g->lock);
+    *socket_context = gc;
+}
+
+void http_guard_notify(void *cls, struct MHD_Connection *c, void **socket_context,
+                       enum MHD_ConnectionNotificationCode code)
+{
+    http_guard *g = cls;
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+        conn_started(g, c, socket_context);
+        return;
+    }
+    guard_conn *gc = *socket_context;
+    if (!gc)
+        return;
+    pthread_mutex_lock(&g->lock);
+    release(g, gc);
+    if (gc->prev)
+        gc->prev->next = gc->next;
+    else
+        g->conns = gc->next;
+    if (gc->next)
+        gc->next->prev = gc->prev;
+    pthread_mutex_unlock(&g->lock);
+    free(gc);
+    *socket_context = NULL;
+}
+
+void http_guard_headers_done(http_guard *g, struct MHD_Connection *c)
+{
+    guard_conn *gc = conn_of(c);
+    if (!gc)
+        return;
+    pthread_mutex_lock(&g->lock);
+    gc->in_request = 1;
+    pthread_mutex_unlock(&g->lock);
+}
+
+int http_guard_reserve(http_guard *g, struct MHD_Connection *c, size_t bytes)
+{
+    guard_conn *gc = conn_of(c);
+    if (!gc)
+        return 0;
+    pthread_mutex_lock(&g->lock);
+    guard_address *a = address_slot(g, gc, 1);
+    int ok = a && a->bytes + bytes <= g->per_address && g->in_flight + bytes <= g->total;
+    if (ok) {
+        a->bytes += bytes;
+        g->in_flight += bytes;
+        gc->reserved += bytes;
+    } else if (a && !a->bytes) {
+        a->family = 0;
+    }
+    pthread_mutex_unlock(&g->lock);
+    if (!ok)
+        metrics_count_heights_refused();
+    return ok ? 0 : -1;
+}
+
+void http_guard_request_done(http_guard *g, struct MHD_Connection *c)
+{
+    guard_conn *gc = conn_of(c);
+    if (!gc)
+        return;
+    pthread_mutex_lock(&g->lock);
+    release(g, gc);
+    gc->in_request = 0;
+    gc->since_ms = time_now_ms();
+    pthread_mutex_unlock(&g->lock);
+}

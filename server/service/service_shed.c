@@ -1,0 +1,117 @@
+/*
+ * service_shed.c: the tick's cost budget (issue 15, item 3: one client within
+ * its own limits took the tick from 60 to 1.5 ticks/s and stalled everyone).
+ * At the start of each tick, before the colliders are gathered, the footprint
+ * cells of every posed client collider are summed (each charged the square
+ * around its bounding sphere, as the per-client budget max_active_cells
+ * charges it, net_requests.c). While the sum is over max_tick_cells, the most
+ * expensive client's colliders wait a tick ("held"): they do not deform, keep
+ * their previous pose (so the next tick sweeps the whole way and the trail
+ * has no gap) and the client's ACK waits with them.
+ *
+ * Fair and never a stall: only a client over its fair share (max_tick_cells
+ * divided by the clients with posed colliders) is ever held, so a light client
+ * keeps moving every tick; a client held in one tick is not held in the next;
+ * the last client with colliders is never held; a tick that cannot get under
+ * the budget that way runs over it. Deterministic: by cells, ties by lower
+ * client id; no clock. Counted in terrad_tick_shed_total and logged at most
+ * once a second. Sim thread only.
+ */
+#include "service/service_internal.h"
+
+#include <math.h>
+
+#include "metrics/metrics.h"
+
+void service_set_tick_budget(service *s, int64_t max_tick_cells)
+{
+    s->max_tick_cells = max_tick_cells > 0 ? max_tick_cells : 0;
+}
+
+static int64_t collider_cells(const service *s, const svc_collider *c)
+{
+    double cell = s->world->cell_size_m > 0 ? s->world->cell_size_m : 1;
+    double side = ceil(2 * collider_reach(c->geometry) / cell) + 1;
+    return (int64_t)(side * side);
+}
+
+/* The client to hold next: the most cells among those over the fair share and
+ * neither held now nor held last tick; -1 when there is none. */
+static int most_expensive(const service *s, int64_t fair)
+{
+    int pick = -1;
+    for (int i = 0; i < s->client_count; i++) {
+        const svc_client *cl = &s->clients[i];
+        if (cl->tick_cells <= fair || cl->held || cl->held_last)
+            continue;
+        if (pick < 0 || cl->tick_cells > s->clients[pick].tick_cells ||
+            (cl->tick_cells == s->clients[pick].tick_cells && cl->id < s->clients[pick].id))
+            pick = i;
+    }
+    return pick;
+}
+
+static void log_shed(service *s, uint64_t colliders, int64_t total)
+{
+    double now = time_now_ms();
+    s->shed_unlogged += colliders;
+    if (s->last_shed_log_ms > 0 && now - s->last_shed_log_ms < 1000.0)
+        return;
+    log_info("service: tick %llu: %llu collider(s) wait a tick (%lld footprint cells asked for, "
+             "max_tick_cells %lld; counted since the last such line)",
+             (unsigned long long)s->tick, (unsigned long long)s->shed_unlogged, (long long)total,
+             (long long)s->max_tick_cells);
+    s->shed_unlogged = 0;
+    s->last_shed_log_ms = now;
+}
+
+void service_shed(service *s)
+{
+    THREAD_OWNED(&s->owner);
+    if (!s->max_tick_cells)
+        return; /* no budget: nothing is ever held, the flags stay 0 */
+    int64_t total = 0;
+    for (int i = 0; i < s->client_count; i++) {
+        svc_client *cl = &s->clients[i];
+        cl->held_last = cl->held;
+        cl->held = 0;
+        cl->tick_cells = 0;
+    }
+    for (int i = 0; i < s->collider_count; i++) {
+        svc_collider *c = &s->colliders[i];
+        c->held = 0;
+        svc_client *cl = c->has_pose ? service_find_client(s, c->client) : NULL;
+        if (!cl)
+            continue;
+        int64_t cells = collider_cells(s, c);
+        cl->tick_cells += cells;
+        total += cells;
+    }
+    if (total <= s->max_tick_cells)
+        return;
+    int active = 0;
+    for (int i = 0; i < s->client_count; i++)
+        active += s->clients[i].tick_cells > 0;
+    int64_t left = total, fair = s->max_tick_cells / (active > 0 ? active : 1);
+    while (left > s->max_tick_cells && active > 1) {
+        int k = most_expensive(s, fair);
+        if (k < 0)
+            break; /* everyone left went last tick's wait: over budget this tick */
+        s->clients[k].held = 1;
+        left -= s->clients[k].tick_cells;
+        active--;
+    }
+    uint64_t held = 0;
+    for (int i = 0; i < s->collider_count; i++) {
+        svc_collider *c = &s->colliders[i];
+        svc_client *cl = c->has_pose ? service_find_client(s, c->client) : NULL;
+        if (cl && cl->held) {
+            c->held = 1;
+            held++;
+        }
+    }
+    if (held) {
+        metrics_count_tick_shed(held);
+        log_shed(s, held, total);
+    }
+}
