@@ -62,8 +62,18 @@ typedef struct net_config {
 
 typedef struct net_server net_server;
 
-/* Binds and starts the service thread. The strings of c are copied. */
+/* Binds and starts the service thread. The strings of c are copied.
+ * h == NULL: a cluster node's server, for several worlds (c->world unused):
+ * clients wait until their hello names one of the worlds added below. */
 net_server *net_server_start(const net_config *c, hub *h, error_text *err);
+/* A world this node serves from now on (info->name required; strings
+ * copied), its sim thread at the other end of h. Any thread. */
+int net_server_add_world(net_server *s, const net_world_info *info, hub *h, error_text *err);
+/* The world of h is no longer served: its clients get an error
+ * (shutting_down) and are closed; returns once the net thread let go of h,
+ * so h may be destroyed (0), or -1 when the net thread did not answer within
+ * 10 s (then h must be left alone). Any thread but the net thread. */
+int net_server_remove_world(net_server *s, hub *h);
 int net_server_port(const net_server *s);
 int net_server_client_count(const net_server *s); /* connected clients; any thread */
 /* How long since the net thread last ran its heartbeat (every 100 ms when it is

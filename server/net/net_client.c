@@ -46,7 +46,14 @@ int net_client_add(net_state *s, net_client *c)
     if (array_grow((void **)&s->clients, &s->clients_cap, (int64_t)s->nclients + 1,
                    sizeof *s->clients) != 0)
         return -1;
-    s->clients[s->nclients++] = c; /* ids only grow: the array stays sorted */
+    /* ids only grow, so a new client goes last; one moving from the lobby to
+     * a world may have said hello after a later one: kept sorted for the search */
+    int at = s->nclients;
+    while (at > 0 && s->clients[at - 1]->id > c->id)
+        at--;
+    memmove(&s->clients[at + 1], &s->clients[at], (size_t)(s->nclients - at) * sizeof *s->clients);
+    s->clients[at] = c;
+    s->nclients++;
     return 0;
 }
 
@@ -59,6 +66,32 @@ void net_client_remove(net_state *s, net_client *c)
             s->nclients--;
             return;
         }
+}
+
+int net_client_join_world(net_client *c, const char *world, char *why, size_t cap)
+{
+    net_state *lobby = c->srv, *to = NULL;
+    for (int i = 0; i < lobby->nworlds && !to; i++)
+        if (!world[0] || strcmp(lobby->worlds[i]->world_name, world) == 0)
+            to = lobby->worlds[i];
+    if (!to) {
+        size_t n =
+            (size_t)snprintf(why, cap, "world: this node does not serve world \"%s\"", world);
+        for (int i = 0; i < lobby->nworlds && n < cap; i++)
+            n += (size_t)snprintf(why + n, cap - n, "%s world \"%s\"", i ? "," : "; it serves",
+                                  lobby->worlds[i]->world_name);
+        if (n < cap)
+            snprintf(why + n, cap - n, "%s (terrad world list names each world's node)",
+                     lobby->nworlds ? "" : "; it serves no world now");
+        return -1;
+    }
+    if (net_client_add(to, c) != 0) {
+        snprintf(why, cap, "out of memory");
+        return -1;
+    }
+    net_client_remove(lobby, c);
+    c->srv = to;
+    return 0;
 }
 
 /* ---- the outgoing queue ---- */

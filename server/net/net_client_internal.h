@@ -135,12 +135,24 @@ struct net_state {
 
     double last_warn_ms;
     uint64_t warns_suppressed;
+
+    /* A cluster node's several worlds (net_worlds.c). The server's own state
+     * is then the lobby: every client starts there and moves, at its hello,
+     * to the state of the world it names (its own hub, world info, collider
+     * table and backlog). A single daemon has no lobby: one state, one world. */
+    int lobby;
+    net_state **worlds; /* the lobby's table of world states */
+    int nworlds;
+    int64_t worlds_cap;
 };
 
 /* ---- the client list ---- */
 net_client *net_find_client(net_state *s, uint32_t id);
 int net_client_add(net_state *s, net_client *c); /* ids only grow: appended */
 void net_client_remove(net_state *s, net_client *c);
+/* A lobby's client whose hello names world (or "" for the first one): moved
+ * to that world's state (c->srv). 0, or -1 with why (no such world here). */
+int net_client_join_world(net_client *c, const char *world, char *why, size_t cap);
 
 /* ---- a client's outgoing queue ---- */
 /* Queue a frame for a client (takes over the caller's reference). */

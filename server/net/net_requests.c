@@ -101,6 +101,14 @@ static void handle_hello(net_client *c, const net_control *m)
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "unauthorized");
         return;
     }
+    char why[400];
+    if (s->lobby && net_client_join_world(c, m->world, why, sizeof why) != 0) {
+        /* a cluster node serves the worlds it owns: the client is sent to another node */
+        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1, "%s", why);
+        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
+        return;
+    }
+    s = c->srv; /* the world's own state from here on */
     const char *serves = s->cfg.world.name;
     if (serves && m->world[0] && strcmp(m->world, serves) != 0) {
         /* a cluster node ticks one world: the client is sent to look for another node */

@@ -1,0 +1,61 @@
+/*
+ * net_server_internal.h: the top layer of the net thread (see
+ * net_client_internal.h) — the server itself: libwebsockets' context, the
+ * thread, and for a cluster node its several worlds (net_worlds.c). Shared by
+ * net.c and net_worlds.c only.
+ */
+#ifndef TERRAD_NET_SERVER_INTERNAL_H
+#define TERRAD_NET_SERVER_INTERNAL_H
+
+#include <pthread.h>
+#include <stdatomic.h>
+
+#include "net/net_client_internal.h"
+
+#define NET_MAX_WORLDS 64
+
+/* The net thread's state and libwebsockets' context. */
+struct net_server {
+    net_state st; /* a single daemon's one world, or a node's lobby */
+    struct lws_context *ctx;
+    lws_sorted_usec_list_t heartbeat;
+    atomic_int thread_done;
+    pthread_t thread;
+    int thread_started;
+    int port;
+    atomic_int stop_requested;
+    atomic_int force_stop;
+    atomic_int client_count;     /* read by any thread */
+    _Atomic double last_beat_ms; /* the heartbeat's last run: the watchdog's clue */
+    pthread_mutex_t wake_lock;
+    int ctx_live;
+    int stopping;
+    /* worlds coming and going (any thread → the net thread), under worlds_lock */
+    pthread_mutex_t worlds_lock;
+    pthread_cond_t worlds_cond;
+    net_state *adding[NET_MAX_WORLDS];
+    int nadding;
+    hub *removing[NET_MAX_WORLDS];
+    int nremoving;
+};
+
+typedef struct net_session {
+    net_client *c;
+} net_session;
+
+/* Wakes the net thread (the hubs' waker). Any thread. */
+void net_server_wake(void *arg);
+/* A JSON array of strings, or the fallback when text is NULL; NULL with err. */
+cJSON *net_parse_names(const char *text, const char *fallback, const char *what, error_text *err);
+/* The i-th state: 0 the server's own, then the worlds; NULL past the last. */
+net_state *net_state_at(net_server *s, int i);
+/* Net thread: adopt the worlds added and detach the ones removed since the last call. */
+void net_worlds_apply(net_server *s);
+/* Net thread: hand the frames waiting in w's hub to w's clients. */
+void net_drain_world(net_server *s, net_state *w);
+/* Frees what a state holds but the shared token and server name (not w itself). */
+void net_state_release(net_state *w);
+/* Frees a world's state (not the shared token and server name). */
+void net_world_state_free(net_state *w);
+
+#endif
