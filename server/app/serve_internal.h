@@ -114,6 +114,20 @@ void serve_sim_free(serve_sim *m);
  */
 int serve_node_run(const serve_options *o, volatile sig_atomic_t *stop);
 
+/* ---- any node serves any world (serve_relay.c) ---- */
+typedef struct serve_relays serve_relays;
+/* Makes net reach other nodes over cl (net_server_set_remote). NULL: out of memory. */
+serve_relays *serve_relays_start(cluster *cl, net_server *net, const char *node);
+/* Once a second: relay every registered world but those in busy (ticked or
+ * being taken here); stop relaying the unregistered ones. */
+void serve_relays_refresh(serve_relays *r, char (*busy)[CLUSTER_WORLD_NAME_MAX + 1], int nbusy);
+/* This node ticks world now: its relayed clients' messages come here. */
+int serve_relays_own(serve_relays *r, const char *world, error_text *err);
+/* Neither ticked nor relayed here any more (its clients are told and closed). */
+void serve_relays_drop(serve_relays *r, const char *world);
+/* Ends every subscription and relay. NULL is fine. */
+void serve_relays_stop(serve_relays *r);
+
 /* --node, or the host name with anything but [A-Za-z0-9_-] made '-'. */
 void serve_node_name(const serve_options *o, char *out, size_t cap);
 /* One pass over the candidate worlds (--worlds, or every registered one in

@@ -53,6 +53,8 @@ struct serve_node {
     http_status status; /* the node's: /readyz */
     http_server *http;
     net_server *net;
+    serve_relays *relays; /* the worlds other nodes tick, served here too */
+    double relays_ms;     /* their last refresh */
     pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
     node_world *worlds[NODE_MAX_WORLDS];
     int nworlds, max_worlds;
@@ -123,6 +125,11 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
         http_server_remove_world(n->http, m->name);
         return -1;
     }
+    if (serve_relays_own(n->relays, m->name, err) != 0) {
+        net_server_remove_world(n->net, m->h);
+        http_server_remove_world(n->http, m->name);
+        return -1;
+    }
     m->metrics_slot = metrics_world_slot(m->name);
     serve_sim_ready(m);
     atomic_store(&nw->registered, 1);
@@ -146,6 +153,7 @@ static void world_unregister(serve_node *n, node_world *nw)
     if (!atomic_load(&nw->registered))
         return;
     atomic_store(&nw->registered, 0);
+    serve_relays_drop(n->relays, m->name); /* its relayed clients' messages stop coming */
     http_server_remove_world(n->http, m->name);
     if (net_server_remove_world(n->net, m->h) != 0)
         m->h = NULL; /* the net thread may still hold it: left to the exit */
@@ -167,6 +175,8 @@ static void world_ticks(serve_node *n, node_world *nw)
             nw->lost = 1;
             return;
         }
+        if (tick % 8 == 0) /* /readyz follows the store at once, whatever the node loop waits on */
+            node_refresh_status(n);
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
@@ -276,6 +286,7 @@ static int take_world(serve_node *n, error_text *err)
     nw->m.metrics_slot = -1;
     snprintf(nw->m.name, sizeof nw->m.name, "%s", name);
     pthread_mutex_init(&nw->m.status.lock, NULL);
+    serve_relays_drop(n->relays, name); /* relayed here until now: its clients connect again */
     log_info("cluster: node %s owns world %s (NATS %s, %d replicas)", n->name, name,
              n->o->cluster_urls, cluster_replicas(n->cl));
     pthread_mutex_lock(&n->lock);
@@ -305,11 +316,25 @@ static int node_open_ports(serve_node *n, error_text *err)
         .port = o->ws_port, .bind_any = o->bind_any, .token = o->token, .limits = o->limits};
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
+    if (!(n->relays = serve_relays_start(n->cl, n->net, n->name))) {
+        error_set(err, "out of memory");
+        return -1;
+    }
     http_server_watch(n->http, "tick", node_stalled_ms, n, 10000.0);
     http_server_watch(n->http, "net", net_stalled, n->net, 10000.0);
     log_info("cluster: node %s listens on http://127.0.0.1:%d/ and websocket port %d", n->name,
              http_server_port(n->http), net_server_port(n->net));
     return 0;
+}
+
+/* Relay every registered world this node neither ticks nor is taking. */
+static void refresh_relays(serve_node *n)
+{
+    char busy[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1];
+    int count = 0;
+    for (int i = 0; i < n->nworlds; i++)
+        snprintf(busy[count++], sizeof busy[0], "%s", n->worlds[i]->m.name);
+    serve_relays_refresh(n->relays, busy, count);
 }
 
 /* The node's life after its ports are open: take, tick, reap, until stop. */
@@ -338,6 +363,10 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop)
         if (n->nworlds > 0)
             said_standby = 0;
         node_refresh_status(n);
+        if (time_now_ms() - n->relays_ms > 1000 && cluster_connected(n->cl)) {
+            n->relays_ms = time_now_ms();
+            refresh_relays(n);
+        }
         if (took != 1) /* took one: look for the next at once */
             sleep_ms(NODE_POLL_MS);
     }
@@ -353,6 +382,7 @@ static void node_stop(serve_node *n)
         if (n->nworlds)
             sleep_ms(10);
     }
+    serve_relays_stop(n->relays);
     http_server_stop(n->http); /* first: its watchdog reads the net server */
     net_server_stop(n->net);
     cluster_close(n->cl);

@@ -111,8 +111,8 @@ static void fan_out(net_state *w, const hub_out *o)
         return;
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
-        if (!c->ready || c->closing || c->killed || !sub_meets(c, tile))
-            continue;
+        if (!c->ready || c->closing || c->killed || c->remote || !sub_meets(c, tile))
+            continue; /* a remote client gets the delta from its relay */
         if (dropping_deltas(c)) {
             metrics_count_frames_coalesced(1);
             continue;
@@ -148,14 +148,17 @@ static void send_footprints(net_client *c, hub_frame *f)
     net_enqueue(c, f, NET_ITEM_TILE);
 }
 
-static void dispatch(net_state *w, hub_out *o)
+void net_dispatch(net_state *w, hub_out *o)
 {
     if (o->tick > w->tick)
         w->tick = o->tick;
     switch (o->kind) {
     case HUB_OUT_CLIENT: {
         net_client *c = net_find_client(w, o->client);
-        if (c && o->frame && is_footprints(o->frame)) {
+        if (c && c->remote) { /* its relay decides what to drop, as for its own clients */
+            if (!c->remote_gone && (o->frame || o->snapshot_done))
+                net_remote_frame(c, o->frame, o->snapshot_done);
+        } else if (c && o->frame && is_footprints(o->frame)) {
             send_footprints(c, o->frame);
             o->frame = NULL;
         } else if (c && o->frame) {
@@ -179,6 +182,14 @@ static void dispatch(net_state *w, hub_out *o)
     case HUB_OUT_TILE_DELTA:
         if (o->frame)
             fan_out(w, o);
+        if (o->frame && w->remote_send && !w->relay) { /* once, for every relay */
+            net_remote_msg m = {.kind = NET_REMOTE_DELTA,
+                                .binary = o->frame->binary,
+                                .tile_x = o->tile_x,
+                                .tile_y = o->tile_y,
+                                .tick = o->tick};
+            w->remote_send(w->remote_ctx, w->world_name, &m, o->frame->data, o->frame->len);
+        }
         break;
     case HUB_OUT_TICK_DONE:
         break;
@@ -213,7 +224,7 @@ static int drain_state(net_state *w)
     for (int round = 0; round < NET_DRAIN_ROUNDS; round++) {
         int n = hub_take_outbound(w->hub, items, NET_DRAIN_BATCH);
         for (int i = 0; i < n; i++)
-            dispatch(w, &items[i]);
+            net_dispatch(w, &items[i]);
         if (n < NET_DRAIN_BATCH)
             return 0;
     }
@@ -273,6 +284,7 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     net_server *s = lws_container_of(sul, net_server, heartbeat);
     atomic_store(&s->last_beat_ms, time_now_ms());
     net_worlds_apply(s);
+    net_remote_apply(s);
     for (int i = 0; net_state_at(s, i); i++)
         net_reap_dead_peers(net_state_at(s, i));
     flush_backlogs(s);
@@ -330,48 +342,18 @@ static void client_established(net_server *s, struct lws *wsi, net_session *pss)
     lws_set_timer_usecs(wsi, (lws_usec_t)(s->st.cfg.limits.hello_timeout_s * 1e6));
 }
 
-/* Who closed, with which code and reason: the client's close frame, else
- * the one net_close_after_flush sent, else none at all. */
-static void log_disconnect(const net_client *c)
+void net_client_free(net_server *s, net_client *c)
 {
-    const char *sep = c->ready ? ", " : "", *name = c->ready ? c->name : "";
-    if (c->peer_close_code)
-        log_info("net: client %u (%s%s%s) disconnected: the client closed with code %d (\"%s\")",
-                 c->id, c->peer, sep, name, c->peer_close_code, c->peer_close_reason);
-    else if (c->closing)
-        log_info("net: client %u (%s%s%s) disconnected: the server closed with code %d (\"%s\")",
-                 c->id, c->peer, sep, name, c->close_code, c->close_reason);
-    else
-        log_info("net: client %u (%s%s%s) disconnected: connection lost, no close frame", c->id,
-                 c->peer, sep, name);
-}
-
-/* The client's close frame (2-byte code, then a reason): kept for the log,
- * any byte outside printable ASCII written as '?'. */
-static void client_peer_close(net_client *c, const unsigned char *in, size_t len)
-{
-    c->peer_close_code = len >= 2 ? (in[0] << 8 | in[1]) : LWS_CLOSE_STATUS_NO_STATUS;
-    size_t n = len > 2 ? len - 2 : 0;
-    if (n > sizeof c->peer_close_reason - 1)
-        n = sizeof c->peer_close_reason - 1;
-    for (size_t i = 0; i < n; i++)
-        c->peer_close_reason[i] = in[2 + i] >= 0x20 && in[2 + i] < 0x7f ? (char)in[2 + i] : '?';
-    c->peer_close_reason[n] = 0;
-}
-
-static void client_closed(net_server *s, net_session *pss)
-{
-    net_client *c = pss->c;
-    if (!c)
-        return;
-    pss->c = NULL;
-    log_disconnect(c);
     net_state *w = c->srv; /* the lobby, or the world it said hello to */
     for (int i = 0; i < c->collider_count; i++) {
         hub_forget_pose(w->hub, c->colliders[i]);
         net_collider_remove(w, c->colliders[i]);
     }
-    if (c->ready) {
+    if (c->ready && w->relay) { /* the owner drops its remote client */
+        net_remote_msg m = {.kind = NET_REMOTE_CLIENT_GONE, .client = c->id};
+        snprintf(m.node, sizeof m.node, "%s", w->node);
+        w->remote_send(w->remote_ctx, w->world_name, &m, NULL, 0);
+    } else if (c->ready) {
         hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
         net_push_must(w, &cmd); /* the sim deletes its colliders */
     }
@@ -381,8 +363,19 @@ static void client_closed(net_server *s, net_session *pss)
     free(c->rx);
     free(c->colliders);
     free(c->subs);
+    if (!c->remote)
+        metrics_set_clients(atomic_fetch_sub(&s->client_count, 1) - 1);
     free(c);
-    metrics_set_clients(atomic_fetch_sub(&s->client_count, 1) - 1);
+}
+
+static void client_closed(net_server *s, net_session *pss)
+{
+    net_client *c = pss->c;
+    if (!c)
+        return;
+    pss->c = NULL;
+    net_log_disconnect(c);
+    net_client_free(s, c);
 }
 
 static int client_receive(net_server *s, struct lws *wsi, net_client *c, const void *in, size_t len)
@@ -528,7 +521,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
         return 0;
     case LWS_CALLBACK_WS_PEER_INITIATED_CLOSE:
         if (pss->c)
-            client_peer_close(pss->c, in, len);
+            net_client_peer_close(pss->c, in, len);
         return 0; /* lws echoes the close */
     case LWS_CALLBACK_CLOSED:
         client_closed(s, pss);
@@ -550,6 +543,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
         return client_writeable(s, wsi, pss->c);
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
         net_worlds_apply(s);
+        net_remote_apply(s);
         flush_backlogs(s);
         drain_hub(s); /* the last tick's frames go out before the goodbye */
         if (atomic_load(&s->stop_requested) && !s->stopping)
@@ -638,6 +632,7 @@ static void server_free(net_server *s)
     free(s->st.worlds);
     for (int i = 0; i < s->nadding; i++)
         net_world_state_free(s->adding[i]);
+    net_remote_drop_inbox(s);
     pthread_mutex_destroy(&s->wake_lock);
     pthread_mutex_destroy(&s->worlds_lock);
     pthread_cond_destroy(&s->worlds_cond);

@@ -71,8 +71,8 @@ void net_client_remove(net_state *s, net_client *c)
 int net_client_join_world(net_client *c, const char *world, char *why, size_t cap)
 {
     net_state *lobby = c->srv, *to = NULL;
-    for (int i = 0; i < lobby->nworlds && !to; i++)
-        if (!world[0] || strcmp(lobby->worlds[i]->world_name, world) == 0)
+    for (int i = 0; i < lobby->nworlds && !to; i++) /* no name: the first world ticked here */
+        if (world[0] ? strcmp(lobby->worlds[i]->world_name, world) == 0 : !lobby->worlds[i]->relay)
             to = lobby->worlds[i];
     if (!to) {
         size_t n =
@@ -151,14 +151,19 @@ void net_client_kill(net_client *c, const char *why)
     net_release_queue(c);
     metrics_count_frames_dropped(frames);
     log_warn("net: client %u (%s) closed: %s", c->id, c->peer, why);
-    lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+    if (c->remote)
+        net_remote_close(c, LWS_CLOSE_STATUS_POLICY_VIOLATION, "killed");
+    else
+        lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
 }
 
 void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
 {
     net_state *s = c->srv;
     THREAD_OWNED(&s->owner);
-    if (c->killed) {
+    if (c->killed || c->remote) { /* a remote client's frames go to its relay at once */
+        if (c->remote && !c->remote_gone)
+            net_remote_frame(c, f, 0);
         hub_frame_unref(f);
         return;
     }
@@ -252,6 +257,10 @@ void net_close_after_flush(net_client *c, int code, const char *reason)
     c->closing = 1;
     c->close_code = code;
     snprintf(c->close_reason, sizeof c->close_reason, "%s", reason);
+    if (c->remote) {
+        net_remote_close(c, code, reason);
+        return;
+    }
     lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
     lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, NET_CLOSE_GRACE_S);
     lws_callback_on_writable(c->wsi);
@@ -337,9 +346,14 @@ void net_request_resync(net_client *c, uint32_t subscription)
     c->slow = 0;
     if (c->sub_count == 0)
         return;
-    hub_command cmd = {.kind = HUB_RESYNC, .client = c->id, .subscription = 0};
     c->snapshots_requested++;
     c->resync_until = c->snapshots_requested;
+    if (c->srv->relay) { /* the owner sends the snapshots: asked as by the client */
+        static const char resync[] = "{\"type\":\"resync\"}";
+        net_relay_forward(c, 0, resync, sizeof resync - 1);
+        return;
+    }
+    hub_command cmd = {.kind = HUB_RESYNC, .client = c->id, .subscription = 0};
     net_push_must(c->srv, &cmd);
 }
 

@@ -35,8 +35,15 @@ struct net_server {
     pthread_cond_t worlds_cond;
     net_state *adding[NET_MAX_WORLDS];
     int nadding;
-    hub *removing[NET_MAX_WORLDS];
+    struct net_removal {
+        hub *h;        /* a world's hub, or */
+        char name[65]; /* a relayed world's name */
+    } removing[NET_MAX_WORLDS];
     int nremoving;
+    /* messages from other nodes (net_server_remote_input), under worlds_lock */
+    struct net_remote_item *inbox;
+    int ninbox;
+    int64_t inbox_cap;
 };
 
 typedef struct net_session {
@@ -53,6 +60,20 @@ net_state *net_state_at(net_server *s, int i);
 void net_worlds_apply(net_server *s);
 /* Net thread: hand the frames waiting in w's hub to w's clients. */
 void net_drain_world(net_server *s, net_state *w);
+/* Net thread: one item from the sim (or from the owner, on a relay) to w's clients. */
+void net_dispatch(net_state *w, hub_out *o);
+/* Net thread: frees a client record (its socket is gone, or it was a remote client). */
+void net_client_free(net_server *s, net_client *c);
+/* Net thread: the messages from other nodes, and the remote clients closed since. */
+void net_remote_apply(net_server *s);
+/* Frees the inbox's messages unread (the server stops). */
+void net_remote_drop_inbox(net_server *s);
+/* A state for a world (world info copied, strings duplicated); NULL with err. */
+net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err);
+/* Queues w for the net thread to adopt; -1 with err when the table is full. */
+int net_world_queue_add(net_server *s, net_state *w, error_text *err);
+/* Asks the net thread to detach the world of h (or named name) and waits. */
+int net_world_queue_remove(net_server *s, hub *h, const char *name);
 /* Frees what a state holds but the shared token and server name (not w itself). */
 void net_state_release(net_state *w);
 /* Frees a world's state (not the shared token and server name). */

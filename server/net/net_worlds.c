@@ -54,18 +54,18 @@ void net_world_state_free(net_state *w)
     }
 }
 
-int net_server_add_world(net_server *s, const net_world_info *info, hub *h, error_text *err)
+net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err)
 {
     if (!s->st.lobby || !info->name || info->width < 1 || info->height < 1 || info->tile_size < 1 ||
         !(info->cell_size_m > 0)) {
         error_set(err, "net: a world needs a server started without one, a name, an extent, "
                        "a cell size and a tile size");
-        return -1;
+        return NULL;
     }
     net_state *w = calloc(1, sizeof *w);
     if (!w) {
         error_set(err, "net: out of memory");
-        return -1;
+        return NULL;
     }
     w->cfg = s->st.cfg; /* limits, token and server name: the node's (shared, not copied) */
     w->cfg.world = *info;
@@ -78,6 +78,9 @@ int net_server_add_world(net_server *s, const net_world_info *info, hub *h, erro
     w->hub = h;
     w->next_collider_id = 1;
     w->hard_pending_bytes = s->st.hard_pending_bytes;
+    w->remote_send = s->st.remote_send;
+    w->remote_ctx = s->st.remote_ctx;
+    snprintf(w->node, sizeof w->node, "%s", s->st.node);
     w->poses = calloc((size_t)w->cfg.limits.max_poses_per_batch, sizeof *w->poses);
     w->models = net_parse_names(w->models_json, "[]", "world.models_json", err);
     w->materials =
@@ -87,8 +90,13 @@ int net_server_add_world(net_server *s, const net_world_info *info, hub *h, erro
         if (w->models && w->materials)
             error_set(err, "net: out of memory");
         net_world_state_free(w);
-        return -1;
+        return NULL;
     }
+    return w;
+}
+
+int net_world_queue_add(net_server *s, net_state *w, error_text *err)
+{
     pthread_mutex_lock(&s->worlds_lock);
     int full = s->nadding + s->st.nworlds >= NET_MAX_WORLDS;
     if (!full)
@@ -99,34 +107,53 @@ int net_server_add_world(net_server *s, const net_world_info *info, hub *h, erro
         net_world_state_free(w);
         return -1;
     }
+    net_server_wake(s);
+    return 0;
+}
+
+int net_server_add_world(net_server *s, const net_world_info *info, hub *h, error_text *err)
+{
+    net_state *w = net_world_state_new(s, info, h, err);
+    if (!w || net_world_queue_add(s, w, err) != 0)
+        return -1;
     hub_set_waker(h, net_server_wake, s);
     net_server_wake(s);
     return 0;
 }
 
-static int removing_index(const net_server *s, const hub *h)
+static int matches(const net_state *w, hub *h, const char *name)
+{
+    return h ? w->hub == h : strcmp(w->world_name, name) == 0;
+}
+
+static int removing_index(const net_server *s, hub *h, const char *name)
 {
     for (int i = 0; i < s->nremoving; i++)
-        if (s->removing[i] == h)
+        if (h ? s->removing[i].h == h : strcmp(s->removing[i].name, name) == 0)
             return i;
     return -1;
 }
 
-int net_server_remove_world(net_server *s, hub *h)
+int net_world_queue_remove(net_server *s, hub *h, const char *name)
 {
     pthread_mutex_lock(&s->worlds_lock);
     for (int i = 0; i < s->nadding; i++)
-        if (s->adding[i]->hub == h) { /* never adopted: no client has seen it */
+        if (matches(s->adding[i], h, name)) { /* never adopted: no client has seen it */
             net_world_state_free(s->adding[i]);
             s->adding[i] = s->adding[--s->nadding];
             pthread_mutex_unlock(&s->worlds_lock);
-            hub_set_waker(h, NULL, NULL);
+            if (h)
+                hub_set_waker(h, NULL, NULL);
             return 0;
         }
-    if (s->nremoving < NET_MAX_WORLDS)
-        s->removing[s->nremoving++] = h;
+    if (s->nremoving < NET_MAX_WORLDS) {
+        s->removing[s->nremoving].h = h;
+        snprintf(s->removing[s->nremoving].name, sizeof s->removing[0].name, "%s",
+                 name ? name : "");
+        s->nremoving++;
+    }
     double start = time_now_ms();
-    while (removing_index(s, h) >= 0 && !atomic_load(&s->thread_done) &&
+    while (removing_index(s, h, name) >= 0 && !atomic_load(&s->thread_done) &&
            time_now_ms() - start < NET_REMOVE_DEADLINE_MS) {
         pthread_mutex_unlock(&s->worlds_lock);
         net_server_wake(s);
@@ -138,10 +165,10 @@ int net_server_remove_world(net_server *s, hub *h)
             until.tv_sec++;
             until.tv_nsec -= 1000000000L;
         }
-        if (removing_index(s, h) >= 0)
+        if (removing_index(s, h, name) >= 0)
             pthread_cond_timedwait(&s->worlds_cond, &s->worlds_lock, &until);
     }
-    int left = removing_index(s, h);
+    int left = removing_index(s, h, name);
     if (left >= 0)
         s->removing[left] = s->removing[--s->nremoving];
     pthread_mutex_unlock(&s->worlds_lock);
@@ -153,12 +180,26 @@ int net_server_remove_world(net_server *s, hub *h)
     return 0;
 }
 
+int net_server_remove_world(net_server *s, hub *h)
+{
+    return net_world_queue_remove(s, h, NULL);
+}
+
 /* The world's clients are told and closed, and wait in the lobby for their
  * close (their colliders and subscriptions went with the world). */
 static void detach(net_server *s, net_state *w)
 {
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
+        if (c->remote) { /* its relay is told; nothing of it stays here */
+            if (!c->closing)
+                net_remote_close(c, LWS_CLOSE_STATUS_GOINGAWAY, "world moved");
+            c->collider_count = 0;
+            c->ready = 0;
+            c->srv = &s->st;
+            net_client_free(s, c);
+            continue;
+        }
         if (!c->closing && !c->killed) {
             net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1,
                       "world %s: this node no longer serves it (another node owns it now, or "
@@ -174,8 +215,10 @@ static void detach(net_server *s, net_state *w)
             net_client_kill(c, "out of memory moving it to the lobby");
     }
     w->nclients = 0;
-    hub_set_waker(w->hub, NULL, NULL);
-    hub_release_net_end(w->hub);
+    if (w->hub) {
+        hub_set_waker(w->hub, NULL, NULL);
+        hub_release_net_end(w->hub);
+    }
     thread_owner_release(&w->owner);
     log_info("net: world %s is no longer served here", w->world_name);
     net_world_state_free(w);
@@ -196,14 +239,16 @@ void net_worlds_apply(net_server *s)
             continue;
         }
         thread_owner_claim(&w->owner, "net");
-        hub_claim_net_end(w->hub);
+        if (w->hub)
+            hub_claim_net_end(w->hub);
         lobby->worlds[lobby->nworlds++] = w;
-        log_info("net: world %s is served here", w->world_name);
+        log_info("net: world %s is served here%s", w->world_name,
+                 w->relay ? " through its owner (a relay)" : "");
     }
     s->nadding = 0;
     for (int r = 0; r < s->nremoving; r++)
         for (int i = 0; i < lobby->nworlds; i++)
-            if (lobby->worlds[i]->hub == s->removing[r]) {
+            if (matches(lobby->worlds[i], s->removing[r].h, s->removing[r].name)) {
                 net_drain_world(s, lobby->worlds[i]); /* its last frames go out first */
                 detach(s, lobby->worlds[i]);
                 memmove(&lobby->worlds[i], &lobby->worlds[i + 1],
