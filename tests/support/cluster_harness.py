@@ -223,7 +223,7 @@ class Node:
 
 LISTENS_RE = re.compile(r"node (\S+) listens on http://127\.0\.0\.1:(\d+)/ and websocket port (\d+)")
 WORLD_SERVING_RE = re.compile(r"cluster: world (\S+): serving scene")
-LOST_RE = re.compile(r"no longer owns world (\S+) ")
+LOST_RE = re.compile(r"no longer owns world (\S+) |cluster: world (\S+) stopped here")
 
 
 class WorldsNode:
@@ -265,7 +265,7 @@ class WorldsNode:
                 self.worlds.add(m.group(1))
             m = LOST_RE.search(line)
             if m:
-                self.worlds.discard(m.group(1))
+                self.worlds.discard(m.group(1) or m.group(2))
 
     def serves(self, world):
         return self.proc.poll() is None and world in self.worlds
@@ -306,6 +306,11 @@ class WorldsNode:
 
     def print_log(self, tail=40):
         print(f"---- node {self.name}, last {tail} lines ----\n" + "".join(self.lines[-tail:]))
+        logdir = os.environ.get("TERRAD_CLUSTER_LOGDIR")
+        if logdir:  # the whole log, for a soak's post-mortem
+            os.makedirs(logdir, exist_ok=True)
+            with open(os.path.join(logdir, f"node-{self.name}.log"), "w") as f:
+                f.write("".join(self.lines))
 
 
 def wait_for(cond, timeout, step=0.05):
