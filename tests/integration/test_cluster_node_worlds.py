@@ -161,9 +161,9 @@ async def lose_one_world(a, urls):
     await t.subscribe(0, 0, 1, 1)
     r = world_cmd(urls, "remove", "tiny")
     check(r.returncode == 0, f"world remove tiny: {r.stderr.strip()}")
-    lost = wait_for(lambda: not a.serves("tiny"), 30)
-    check(lost and any("no longer owns world tiny" in l for l in a.lines),
-          "node a says it no longer owns tiny")
+    lost = wait_for(lambda: not a.serves("tiny") and
+                    any("no longer owns world tiny" in l for l in a.lines), 30)
+    check(lost, "node a says it no longer owns tiny")
     await asyncio.sleep(1)
     check(any(e.get("name") == "shutting_down" for e in t.errors) or t.ws.closed,
           f"tiny's client was told and closed ({t.errors})")
