@@ -147,7 +147,7 @@ static void relay_receive(void *ctx, const char *subject, const void *data, size
     int for_owner = m.kind <= NET_REMOTE_CLIENT_GONE;
     if (for_owner != e->owned)
         return;
-    if (!e->owned && m.kind != NET_REMOTE_DELTA && strcmp(m.node, r->node) != 0)
+    if (!e->owned && m.kind != NET_REMOTE_DELTA && m.client != 0 && strcmp(m.node, r->node) != 0)
         return; /* a frame for another relay's client */
     int64_t dropped = cluster_sub_dropped(e->sub);
     if (dropped != e->dropped) { /* NATS fell behind: deltas were lost, snapshots repair */
@@ -224,6 +224,12 @@ int serve_relays_own(serve_relays *r, const char *world, error_text *err)
         entry_remove(r, i);
     int rc = entry_add(r, world, 1, err);
     pthread_mutex_unlock(&r->lock);
+    if (rc == 0) {
+        /* Clients relayed to an earlier owner are unknown here: every relay
+         * closes them now (client 0: all), and they connect again. */
+        net_remote_msg m = {.kind = NET_REMOTE_CLOSE, .client = 0, .close_code = 1001};
+        relay_send(r, world, &m, r->node, strlen(r->node));
+    }
     return rc;
 }
 

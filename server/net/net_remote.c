@@ -149,6 +149,17 @@ static void relay_in(net_state *w, const struct net_remote_item *it)
         o.kind = HUB_OUT_TILE_DELTA;
         o.tile_x = m->tile_x;
         o.tile_y = m->tile_y;
+    } else if (m->kind == NET_REMOTE_CLOSE && m->client == 0) { /* a new owner: start again */
+        for (int i = 0; i < w->nclients; i++) {
+            net_client *c = w->clients[i];
+            if (c->closing || c->killed)
+                continue;
+            net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1,
+                      "world %s has a new owner (%s): connect again", w->world_name,
+                      (const char *)it->bytes);
+            net_close_after_flush(c, LWS_CLOSE_STATUS_GOINGAWAY, "world moved");
+        }
+        return;
     } else {
         net_client *c = strcmp(m->node, w->node) == 0 ? net_find_client(w, m->client) : NULL;
         if (!c)

@@ -11,7 +11,12 @@ real nats-server with JetStream and two terrad nodes:
   - bad input through the relay is refused by the owner, to the client on b
     (a collider with a NaN radius: bad_value), and a hello naming a world
     nobody registered is refused by b (bad_value, close 4005);
-  - b's client disconnecting removes its collider on a (colliders go to 0).
+  - b's client disconnecting removes its collider on a (colliders go to 0);
+  - the owner dies: node c (--worlds dunes, waiting) takes dunes; a viewer on
+    b is told at once (shutting_down: the new owner does not know it) and
+    closed; connecting to b again, it is served by c, and its mirror equals
+    c's GET /v1/heights?world=dunes. (b ticks a second world, "spare", so
+    that only c can take dunes.)
 No figure of speed is checked. Skipped (77) when nats-server is not installed.
 """
 # ctest-timeout: 240
@@ -52,6 +57,30 @@ async def eventually(client, predicate, timeout):
         return True
     except asyncio.TimeoutError:
         return predicate()
+
+
+async def relayed_failover(a, b, c_node, lane):
+    v = RecordingClient(b.ws, name="relayed-viewer", world="dunes")
+    await v.connect()
+    sid = await v.subscribe(*lane)
+    await v.wait_for(lambda: v.mirrors[sid].complete, 30)
+    a.kill9()
+    told = await eventually(v, lambda: any(e.get("name") == "shutting_down" for e in v.errors)
+                            or v.ws.closed, 60)
+    check(told and wait_for(lambda: c_node.serves("dunes"), 30),
+          f"after kill -9 of the owner, c ticks dunes and the viewer on b is told ({v.errors})")
+    try:
+        await v.close()
+    except Exception:  # noqa: BLE001
+        pass
+    v = RecordingClient(b.ws, name="relayed-viewer-again", world="dunes")
+    await v.connect()
+    sid = await v.subscribe(*lane)
+    await v.wait_for(lambda: v.mirrors[sid].complete, 30)
+    _, server = c_node.heights("dunes", *lane)
+    check(v.mirrors[sid].heights == server,
+          "connected to b again, the viewer is served by c: its mirror equals c's heights")
+    await v.close()
 
 
 async def scenario(a, b):
@@ -128,10 +157,14 @@ def main():
                                 os.path.join(SOURCE, "server/scene/default.json"), "--cluster", urls],
                                capture_output=True, text=True, timeout=60)
             check(r.returncode == 0, f"world add dunes: {r.stderr.strip()}")
-            a = WorldsNode("a", urls)
+            r = subprocess.run([BIN, "world", "add", "spare", "--scene",
+                                os.path.join(SOURCE, "tests/scenes/tiny.json"), "--cluster", urls],
+                               capture_output=True, text=True, timeout=60)
+            check(r.returncode == 0, f"world add spare: {r.stderr.strip()}")
+            a = WorldsNode("a", urls, extra=["--worlds", "dunes"])
             nodes.append(a)
             check(wait_for(lambda: a.serves("dunes"), 60), "node a ticks dunes")
-            b = WorldsNode("b", urls)
+            b = WorldsNode("b", urls, extra=["--worlds", "spare"])
             nodes.append(b)
             check(wait_for(lambda: any("relays world dunes" in l for l in b.lines), 30),
                   "node b relays dunes")
@@ -139,12 +172,18 @@ def main():
             check(answer.get("name") == "bad_value" and code == 4005,
                   f"a hello naming an unregistered world is refused by b ({answer}, {code})")
             asyncio.run(scenario(a, b))
+            c = WorldsNode("c", urls, extra=["--worlds", "dunes"])
+            nodes.append(c)
+            check(wait_for(lambda: any("is a standby" in l for l in c.lines), 30),
+                  "node c waits for dunes")
+            asyncio.run(relayed_failover(a, b, c, (0, 224, 256, 64)))
         except Exception:  # noqa: BLE001
             import traceback
             check(False, "the test raised:\n" + traceback.format_exc())
         finally:
             codes = [n.stop() for n in nodes]
-            check(all(c == 0 for c in codes), f"SIGTERM stops every node with status 0 ({codes})")
+            check(all(code in (0, -9) for code in codes),
+                  f"SIGTERM stops every node left with status 0 ({codes})")
             if check.failed:
                 for n in nodes:
                     n.print_log()
