@@ -74,6 +74,8 @@ int net_client_join_world(net_client *c, const char *world, char *why, size_t ca
     for (int i = 0; i < lobby->nworlds && !to; i++) /* no name: the first world ticked here */
         if (world[0] ? strcmp(lobby->worlds[i]->world_name, world) == 0 : !lobby->worlds[i]->relay)
             to = lobby->worlds[i];
+    if (!to && !world[0] && lobby->nworlds) /* ... or, on a node that ticks none, relayed */
+        to = lobby->worlds[0];
     if (!to) {
         size_t n =
             (size_t)snprintf(why, cap, "world: this node does not serve world \"%s\"", world);
