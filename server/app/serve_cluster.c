@@ -147,7 +147,9 @@ int serve_cluster_check(cluster *cl, serve_sim *m, double *retried_ms, char *los
     char holder[CLUSTER_NODE_NAME_MAX + 1] = "";
     error_text err = {{0}};
     int r = cluster_lease_acquire(cl, m->name, holder, sizeof holder, &err);
-    if (r == 0 && holder[0]) {
+    /* the lease still naming this node is its own lapsed renewal: no one took
+     * it, so keep the world and try again (fencing guards the log either way) */
+    if (r == 0 && holder[0] && strcmp(holder, cluster_node(cl)) != 0) {
         snprintf(lost, cap, "node %s took the lease of world %s", holder, m->name);
         return -1;
     }
