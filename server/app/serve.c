@@ -207,12 +207,12 @@ int app_serve(int argc, char **argv)
     }
     pthread_mutex_init(&d->m.status.lock, NULL);
     d->m.metrics_slot = -1;
+    serve_catch_signals(); /* from the start: a SIGTERM while connecting still stops cleanly */
     cli_result parsed = serve_options_parse(argc, argv, &d->o);
     int rc = parsed == CLI_HELP ? 0 : parsed == CLI_ERROR ? 2 : 1;
     error_text err = {{0}};
     if (parsed == CLI_OK && d->o.cluster_urls) {
         /* a node of a cluster: its worlds each tick on their own thread (serve_node.c) */
-        serve_catch_signals();
         signal(SIGPIPE, SIG_IGN);
         rc = serve_node_run(&d->o, &stop_requested);
     } else if (parsed == CLI_OK) {

@@ -296,6 +296,7 @@ class WorldsNode:
 
     def stop(self):
         if self.proc.poll() is None:
+            self.listening.wait(15)  # a node that has just started: past its start-up first
             self.proc.send_signal(signal.SIGTERM)
             try:
                 self.proc.wait(30)
