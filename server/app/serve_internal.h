@@ -15,6 +15,11 @@
 #include "base/base.h"
 #include "cluster/cluster.h"
 #include "collider/collider.h"
+#include "ground/ground.h"
+#include "http/http.h"
+#include "hub/hub.h"
+#include "service/service.h"
+#include "sim/sim.h"
 #include "net/net.h"
 #include "scene/scene.h"
 #include "store/store.h"
@@ -51,7 +56,8 @@ typedef struct serve_options {
     int config_loaded;        /* --config was given */
     const char *cluster_urls; /* --cluster: NULL when not in a cluster */
     const char *node;         /* --node */
-    const char *world_name;   /* --world: NULL for the first one free */
+    const char *worlds;       /* --worlds a,b,... (or --world a): NULL for any registered */
+    int max_worlds;           /* --max-worlds: worlds one node ticks at once (0: see below) */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
         config_token[SERVE_CONFIG_STRING_MAX], config_data[SERVE_CONFIG_STRING_MAX],
@@ -73,43 +79,102 @@ int serve_security_open(const serve_options *o, auth_table **auth, error_text *e
 /* SIGHUP: read the auth file again (a bad file is logged and the old
  * tokens kept); the net thread then closes connections of revoked tokens. */
 void serve_security_reload(const serve_options *o, auth_table *auth);
+/* The HTTP listener on o's port: its connections a quarter of RLIMIT_NOFILE,
+ * the /v1/heights byte budgets, the token gate and TLS. *fd_reserve: the
+ * descriptors the websocket server must leave free (net_limits.fd_reserve). */
+http_server *serve_http_open(const serve_options *o, auth_table *auth, http_status *status,
+                             hub *heights, int *fd_reserve, error_text *err);
 /* Reads a config's "auth_file", "tls_cert" and "tls_key" into o. */
 int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 
-/* ---- cluster mode (serve_cluster.c) ---- */
+/* ---- one world's simulation (serve_sim.c) ---- */
 
-/* A node's hold on one world: the connection, the world's name and its store. */
-typedef struct serve_cluster {
-    cluster *cl;
-    char world[CLUSTER_WORLD_NAME_MAX + 1];
-    cluster_store *cs;
-    char lost[256];    /* why this node no longer owns the world */
-    double retried_ms; /* the last attempt to take a lapsed lease back */
-} serve_cluster;
+typedef struct demo_actor demo_actor;
+
+/* Everything one world's sim thread holds; zero means "not made yet", so
+ * serve_sim_free releases whatever was made. */
+typedef struct serve_sim {
+    char name[CLUSTER_WORLD_NAME_MAX + 1]; /* cluster mode: the world's name; "" for a daemon */
+    scene sc;
+    world w;
+    store *st;         /* NULL: memory only */
+    cluster_store *cs; /* cluster mode: st's JetStream store (closed by store_close) */
+    store_recovery recovery;
+    http_status status; /* its lock is the caller's to init and destroy */
+    sim_params params;
+    sim_backend *backend;
+    sim_engine *engine;
+    ground grd;
+    demo_actor *actors;
+    sim_collider *extra;
+    int demo_actors;
+    service *svc;
+    hub *h; /* made by the caller (the HTTP server may need it first) */
+    char models[64];
+    uint64_t overruns;
+    int metrics_slot; /* cluster mode: the world's labelled series */
+} serve_sim;
+
+/* The world's status fields, from m->w and m->sc (before HTTP reads it). */
+void serve_sim_status_init(serve_sim *m);
+/* On the world's sim thread, with m->w made, m->st recovered and m->h made:
+ * the backend, engine, ground, service (attached to the store) and demo actors. */
+int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err);
+/* The world's info for the net server (pointing into m). */
+net_world_info serve_sim_world_info(const serve_sim *m);
+/* Ready for clients: the status block says so, with the backend's names. */
+void serve_sim_ready(serve_sim *m);
+/* One tick: demo poses, service_tick, the status block and the metrics. */
+int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err);
+/* Releases what was made (the hub too; the status lock stays the caller's). */
+void serve_sim_free(serve_sim *m);
+
+/* ---- cluster mode (serve_node.c, serve_cluster.c) ---- */
 
 /*
- * Joins the cluster and becomes the owner of one world: --world, or the
- * first registered world whose lease this node can take; while none can be
- * taken it waits (a standby), until *stop is set (then -1, err empty). Loads
- * the world's scene from the registry into sc. 0, or -1 with err.
+ * `terrad serve --cluster`: the node joins the NATS cluster and ticks every
+ * world it can take, up to --max-worlds (default 1; with --worlds, as many
+ * as it names), each on its own sim thread; one HTTP and one websocket port
+ * serve them all. Returns the exit status. stop: set by SIGINT/SIGTERM.
  */
-int serve_cluster_join(serve_cluster *c, const serve_options *o, volatile sig_atomic_t *stop,
-                       scene *sc, error_text *err);
-/* The world's store, recovered into w (whose base terrain is in it): takes
- * the log (fencing the previous owner off) and wraps it for the service. */
-store *serve_cluster_open_store(serve_cluster *c, world *w, store_recovery *rec, error_text *err);
+int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic_t *stop,
+                   volatile sig_atomic_t *hangup);
+
+/* ---- any node serves any world (serve_relay.c) ---- */
+typedef struct serve_relays serve_relays;
+/* Makes net reach other nodes over cl (net_server_set_remote). NULL: out of memory. */
+serve_relays *serve_relays_start(cluster *cl, net_server *net, const char *node);
+/* Once a second: relay every registered world but those in busy (ticked or
+ * being taken here); stop relaying the unregistered ones. */
+void serve_relays_refresh(serve_relays *r, char (*busy)[CLUSTER_WORLD_NAME_MAX + 1], int nbusy);
+/* This node ticks world now: its relayed clients' messages come here. */
+int serve_relays_own(serve_relays *r, const char *world, error_text *err);
+/* Neither ticked nor relayed here any more (its clients are told and closed). */
+void serve_relays_drop(serve_relays *r, const char *world);
+/* Ends every subscription and relay. NULL is fine. */
+void serve_relays_stop(serve_relays *r);
+
+/* --node, or the host name with anything but [A-Za-z0-9_-] made '-'. */
+void serve_node_name(const serve_options *o, char *out, size_t cap);
+/* One pass over the candidate worlds (--worlds, or every registered one in
+ * name order) not in held (count n): 1 and the world's lease taken (its name
+ * in out), 0 when none is free, -1 on an error (an unknown --worlds name). */
+int serve_cluster_take(cluster *cl, const serve_options *o,
+                       char (*held)[CLUSTER_WORLD_NAME_MAX + 1], int n, char *out, error_text *err);
+/* The world's registered scene into m->sc, then its world and its store
+ * recovered from JetStream (fencing the previous owner off) into m. */
+int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, error_text *err);
 /* Once per tick: 0 while this node owns the world (a lapsed lease is taken
- * back when NATS answers again), -1 once it does not (c->lost says why). */
-int serve_cluster_check(serve_cluster *c);
-/* Releases the lease if held and disconnects (store_close closes the store). */
-void serve_cluster_leave(serve_cluster *c);
+ * back when NATS answers again, at most once a second: *retried_ms), -1 once
+ * it does not (lost says why). */
+int serve_cluster_check(cluster *cl, serve_sim *m, double *retried_ms, char *lost, size_t cap);
 
 /* A sphere that slides across the world in a straight line, reflects off the
  * edges and bobs up and down, dipping into the terrain at the bottom. */
-typedef struct demo_actor {
+struct demo_actor {
     collider_geometry geometry;
     double x, y, vx, vy, phase;
-} demo_actor;
+};
 
 void demo_actors_init(demo_actor *a, int count, const world *w);
 collider_pose demo_actor_step(demo_actor *a, const world *w, double dt, double time_s);

@@ -36,6 +36,8 @@ enum {
     OPT_CLUSTER,
     OPT_NODE,
     OPT_WORLD,
+    OPT_WORLDS,
+    OPT_MAX_WORLDS,
     OPT_AUTH_FILE,
     OPT_TLS_CERT,
     OPT_TLS_KEY,
@@ -93,10 +95,14 @@ static const cli_option serve_table[] = {
                      "the world, its log and snapshots live there instead of\n"
                      "--data (docs/cluster.md)"},
     [OPT_NODE] = {"node", "NAME", "--cluster: this node's name (default: the host name)"},
-    [OPT_WORLD] = {"world", "NAME",
-                   "--cluster: the world to tick (registered with terrad world add);\n"
-                   "default: the first registered world whose lease is free.\n"
-                   "A node waits (a standby) until it can take one"},
+    [OPT_WORLD] = {"world", "NAME", "--cluster: the same as --worlds NAME"},
+    [OPT_WORLDS] = {"worlds", "A,B,...",
+                    "--cluster: the worlds this node may tick (registered with\n"
+                    "terrad world add; default: any registered world, in name order).\n"
+                    "A node waits (a standby) until it can take one"},
+    [OPT_MAX_WORLDS] = {"max-worlds", "K",
+                        "--cluster: worlds this node ticks at once, 1..64, each on its\n"
+                        "own sim thread (default 1; with --worlds, as many as named)"},
     [OPT_AUTH_FILE] = {"auth-file", "FILE",
                        "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
                        "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"
@@ -356,7 +362,13 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->node = value;
         return 0;
     case OPT_WORLD:
-        o->world_name = value;
+    case OPT_WORLDS:
+        o->worlds = value;
+        return 0;
+    case OPT_MAX_WORLDS:
+        if (cli_parse_long(value, 1, 64, &x, err) != 0)
+            return -1;
+        o->max_worlds = (int)x;
         return 0;
     case OPT_BIND_ANY:
         o->bind_any = 1;

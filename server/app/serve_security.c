@@ -6,6 +6,7 @@
  * table takes effect for the next hello or HTTP request at once, and the net
  * thread's heartbeat closes the connections whose token went away.
  */
+#include <sys/resource.h>
 #include <sys/stat.h>
 
 #include "app/serve_internal.h"
@@ -68,4 +69,33 @@ int serve_security_config(const cJSON *doc, serve_options *o, error_text *err)
                        err) ||
            config_path(doc, "tls_key", o->config_tls_key, sizeof o->config_tls_key, &o->tls_key,
                        err);
+}
+
+/* Descriptors: HTTP gets a quarter of RLIMIT_NOFILE (8..256 connections),
+ * SERVE_FD_STORE stay free for the store and the process, and websocket
+ * sockets are refused past the rest (net_conn.c), so that no stranger can
+ * take the descriptors the store and the probes need. */
+#define SERVE_FD_STORE 32
+
+static unsigned serve_http_connections(void)
+{
+    struct rlimit rl;
+    if (getrlimit(RLIMIT_NOFILE, &rl) != 0 || rl.rlim_cur == RLIM_INFINITY)
+        return HTTP_DEFAULT_CONNECTIONS;
+    long n = ((long)rl.rlim_cur - SERVE_FD_STORE) / 4;
+    return n < 8 ? 8 : n > HTTP_DEFAULT_CONNECTIONS ? HTTP_DEFAULT_CONNECTIONS : (unsigned)n;
+}
+
+http_server *serve_http_open(const serve_options *o, auth_table *auth, http_status *status,
+                             hub *heights, int *fd_reserve, error_text *err)
+{
+    http_limits hl = {.connections = serve_http_connections(),
+                      .heights_bytes_per_address = o->heights_bytes_per_address,
+                      .heights_bytes_total = o->heights_bytes_in_flight};
+    hl.connections_per_ip = hl.connections < HTTP_DEFAULT_CONNECTIONS_PER_IP
+                                ? hl.connections
+                                : HTTP_DEFAULT_CONNECTIONS_PER_IP;
+    *fd_reserve = SERVE_FD_STORE + (int)hl.connections;
+    http_security sec = {.auth = auth, .tls_cert = o->tls_cert, .tls_key = o->tls_key};
+    return http_server_start_secure(o->http_port, o->bind_any, status, heights, &hl, &sec, err);
 }

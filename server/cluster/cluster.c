@@ -325,3 +325,68 @@ int cluster_replicas(const cluster *cl)
 {
     return cl->replicas;
 }
+
+/* ---- messages between nodes ---- */
+
+struct cluster_sub {
+    natsSubscription *sub;
+    cluster_msg_fn fn;
+    void *ctx;
+};
+
+static void on_message(natsConnection *nc, natsSubscription *sub, natsMsg *msg, void *closure)
+{
+    (void)nc;
+    (void)sub;
+    cluster_sub *s = closure;
+    s->fn(s->ctx, natsMsg_GetSubject(msg), natsMsg_GetData(msg),
+          (size_t)natsMsg_GetDataLength(msg));
+    natsMsg_Destroy(msg);
+}
+
+cluster_status cluster_publish(cluster *cl, const char *subject, const void *data, size_t len)
+{
+    return natsConnection_Publish(cl->nc, subject, data, (int)len) == NATS_OK ? CLUSTER_OK
+                                                                              : CLUSTER_ERROR;
+}
+
+cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn fn, void *ctx,
+                               error_text *err)
+{
+    cluster_sub *s = calloc(1, sizeof *s);
+    if (!s) {
+        error_set(err, "cluster: out of memory");
+        return NULL;
+    }
+    s->fn = fn;
+    s->ctx = ctx;
+    natsStatus st = natsConnection_Subscribe(&s->sub, cl->nc, subject, on_message, s);
+    if (st == NATS_OK) /* a relay holds what it cannot take yet rather than lose it */
+        st = natsSubscription_SetPendingLimits(s->sub, 1 << 20, 1 << 30);
+    if (st != NATS_OK) {
+        error_set(err, "cluster: cannot subscribe to %s: %s", subject, natsStatus_GetText(st));
+        natsSubscription_Destroy(s->sub);
+        free(s);
+        return NULL;
+    }
+    return s;
+}
+
+int64_t cluster_sub_dropped(cluster_sub *s)
+{
+    int64_t dropped = 0;
+    natsSubscription_GetDropped(s->sub, &dropped);
+    return dropped;
+}
+
+void cluster_unsubscribe(cluster_sub *s)
+{
+    if (!s)
+        return;
+    if (natsSubscription_Drain(s->sub) == NATS_OK)
+        natsSubscription_WaitForDrainCompletion(s->sub, 2000);
+    else
+        natsSubscription_Unsubscribe(s->sub);
+    natsSubscription_Destroy(s->sub);
+    free(s);
+}

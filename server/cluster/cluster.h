@@ -76,6 +76,24 @@ int cluster_replicas(const cluster *cl);
 /* 1 when name is a valid world (or node) name, else 0 with err saying why. */
 int cluster_name_valid(const char *name, const char *what, error_text *err);
 
+/* ---- Messages between nodes (cluster.c) ----
+ * Plain NATS subjects, not JetStream: nothing is stored or acknowledged.
+ * NATS delivers the messages of one publisher to one subscription in the
+ * order they were published; that is all the relays (docs/cluster.md, any
+ * node serves any world) rely on. */
+typedef struct cluster_sub cluster_sub;
+/* Called on a thread of the NATS client, one message at a time per subscription. */
+typedef void (*cluster_msg_fn)(void *ctx, const char *subject, const void *data, size_t len);
+/* Publishes (buffered by the client, no answer): CLUSTER_OK, or CLUSTER_ERROR. */
+cluster_status cluster_publish(cluster *cl, const char *subject, const void *data, size_t len);
+/* fn gets every message on subject (NATS wildcards allowed) until unsubscribed. */
+cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn fn, void *ctx,
+                               error_text *err);
+/* Messages the client dropped for this subscription (it fell behind), since it began. */
+int64_t cluster_sub_dropped(cluster_sub *s);
+/* Ends it; returns once no call of fn runs (or after 2 s). NULL is fine. */
+void cluster_unsubscribe(cluster_sub *s);
+
 /* ---- Leases (cluster_lease.c) ---- */
 
 /*

@@ -39,29 +39,6 @@
 
 #define ALLOWED_METHODS "GET, HEAD"
 
-typedef struct http_watch {
-    char name[32];
-    http_stalled_fn stalled_ms;
-    const void *arg;
-    double limit_ms;
-} http_watch;
-
-struct http_server {
-    struct MHD_Daemon *daemon;
-    http_status *status;
-    hub *heights;
-    _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
-    http_limits limits;
-    int port;
-    pthread_mutex_t watch_lock; /* watches are added while MHD's threads serve */
-    http_watch watches[HTTP_MAX_WATCHES];
-    int nwatches;
-    auth_table *auth; /* the data endpoints' gate (http_auth.c) */
-    http_tls tls;
-    http_server *main; /* a probe listener: the server whose status and watches it reports */
-    http_guard *guard; /* heights bytes per address, the header deadline (http_guard.c) */
-};
-
 /* Per-request state, created by the URI log callback (which sees the raw
  * request target before libmicrohttpd splits and unescapes it) and freed
  * when the request completes. */
@@ -267,8 +244,9 @@ static int param_is_one(struct MHD_Connection *c, const char *name)
 /* The rectangle's heights into dst: the live world through the hub (at the
  * end of *tick), or with base=1 the scene's base terrain (tick 0). 0, or the
  * HTTP status to answer with and why. */
-static unsigned read_rect(http_server *s, struct MHD_Connection *c, world_rect r, int32_t *dst,
-                          uint64_t *tick, char *why, size_t cap)
+static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
+                          struct MHD_Connection *c, world_rect r, int32_t *dst, uint64_t *tick,
+                          char *why, size_t cap)
 {
     int base = param_is_one(c, "base");
     if (base < 0) {
@@ -276,7 +254,7 @@ static unsigned read_rect(http_server *s, struct MHD_Connection *c, world_rect r
         return MHD_HTTP_BAD_REQUEST;
     }
     if (base) { /* immutable once the world is made: read here without the sim thread */
-        const world *w = atomic_load(&s->base);
+        const world *w = base_world;
         if (!w) {
             snprintf(why, cap, "the base terrain is not available");
             return MHD_HTTP_SERVICE_UNAVAILABLE;
@@ -285,7 +263,7 @@ static unsigned read_rect(http_server *s, struct MHD_Connection *c, world_rect r
         *tick = 0;
         return 0;
     }
-    if (hub_read_heights(s->heights, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
+    if (hub_read_heights(heights, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
         snprintf(why, cap,
                  "the simulation did not serve the height read within %d ms (busy or shutting "
                  "down); retry",
@@ -295,8 +273,8 @@ static unsigned read_rect(http_server *s, struct MHD_Connection *c, world_rect r
     return 0;
 }
 
-static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
-                                     const http_status *st)
+static enum MHD_Result serve_heights(http_server *s, hub *from, const world *base,
+                                     struct MHD_Connection *c, const http_status *st)
 {
     static const char *const names[4] = {"x", "y", "w", "h"};
     int v[4];
@@ -328,7 +306,7 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                              "rectangle of %d x %d = %lld cells exceeds the limit of %lld cells "
                              "per request (heights_max_cells); read it in pieces",
                              r.w, r.h, (long long)cells, (long long)s->limits.heights_max_cells);
-    if (!s->heights || st->world_width <= 0 || st->world_height <= 0)
+    if (!from || st->world_width <= 0 || st->world_height <= 0)
         return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "heights are not available yet");
     if (r.x < 0 || (int64_t)r.x + r.w > st->world_width)
         return respond_error(c, MHD_HTTP_BAD_REQUEST,
@@ -354,7 +332,7 @@ static enum MHD_Result serve_heights(http_server *s, struct MHD_Connection *c,
                              (long long)cells);
     uint64_t tick = 0;
     char why[160];
-    unsigned status = read_rect(s, c, r, heights, &tick, why, sizeof why);
+    unsigned status = read_rect(s, from, base, c, r, heights, &tick, why, sizeof why);
     if (status) {
         free(heights);
         return respond_error(c, status, "%s", why);
@@ -524,6 +502,27 @@ double http_status_stalled_ms(const void *status)
     return at > 0 ? time_now_ms() - at : 0;
 }
 
+/* A cluster node's /v1/world, /v1/stats (view) or /v1/heights (view NULL)
+ * for the world ?world= names (the node's first when none is named). */
+static enum MHD_Result serve_hosted(http_server *s, struct MHD_Connection *c,
+                                    enum MHD_Result (*view)(struct MHD_Connection *,
+                                                            const http_status *))
+{
+    unsigned code = 0;
+    char why[512];
+    const char *name = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "world");
+    http_world *w = http_world_acquire(s, name, &code, why, sizeof why);
+    if (!w)
+        return respond_error(c, code, "%s", why);
+    http_status snap;
+    pthread_mutex_lock(&w->status->lock);
+    snap = *w->status; /* the copied lock is never used */
+    pthread_mutex_unlock(&w->status->lock);
+    enum MHD_Result r = view ? view(c, &snap) : serve_heights(s, w->heights, w->base, c, &snap);
+    http_world_release(s, w);
+    return r;
+}
+
 static int method_allowed(const char *method)
 {
     return strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
@@ -594,12 +593,16 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     struct MHD_Response *refusal = http_auth_refusal(c, url, s->auth);
     if (refusal)
         return queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
-    if (strcmp(url, "/v1/stats") == 0)
+    int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
+        heights = strcmp(url, "/v1/heights") == 0;
+    if (s->hosts_worlds && (stats || about || heights))
+        return serve_hosted(s, c, stats ? serve_stats : about ? serve_world : NULL);
+    if (stats)
         return serve_stats(c, &snap);
-    if (strcmp(url, "/v1/world") == 0)
+    if (about)
         return serve_world(c, &snap);
-    if (strcmp(url, "/v1/heights") == 0)
-        return serve_heights(s, c, &snap);
+    if (heights)
+        return serve_heights(s, s->heights, atomic_load(&s->base), c, &snap);
     return serve_static(c, url);
 }
 
@@ -657,6 +660,8 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         return NULL;
     }
     pthread_mutex_init(&s->watch_lock, NULL);
+    pthread_mutex_init(&s->worlds_lock, NULL);
+    pthread_cond_init(&s->worlds_cond, NULL);
     http_limits l = limits ? *limits : (http_limits){0};
     l.connections = or_default(l.connections, HTTP_DEFAULT_CONNECTIONS);
     l.connections_per_ip = or_default(l.connections_per_ip, HTTP_DEFAULT_CONNECTIONS_PER_IP);
@@ -750,5 +755,9 @@ void http_server_stop(http_server *s)
     http_guard_stop(s->guard);
     pthread_mutex_destroy(&s->watch_lock);
     http_tls_free(&s->tls);
+    for (int i = 0; i < s->nworlds; i++)
+        free(s->worlds[i]);
+    pthread_mutex_destroy(&s->worlds_lock);
+    pthread_cond_destroy(&s->worlds_cond);
     free(s);
 }

@@ -22,6 +22,7 @@
  *                     and for png16 X-Terrad-Offset, X-Terrad-Units-Per-Metre,
  *                     X-Terrad-Clipped; base=1: the scene's base terrain
  *                     (tick 0), read without the sim thread
+ *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME)
  *   /v1/openapi.yaml  this API in OpenAPI 3 (docs/openapi.yaml, embedded)
  *   /, /<file>        the embedded web/ files ("/" is web/index.html)
  * Every error is JSON {"error": "..."}.
@@ -116,6 +117,20 @@ int http_server_port(const http_server *s);
  * /metrics only, with its own small connection budget, so that slow or idle
  * strangers on the main port cannot starve the probes. Stop it before main. */
 http_server *http_probe_start(http_server *main, int port, error_text *err);
+
+/* ---- a cluster node's several worlds (http_worlds.c; docs/cluster.md) ----
+ * After http_server_host_worlds, /v1/world, /v1/stats and /v1/heights answer
+ * for the world ?world=NAME names (404 naming the worlds served when this
+ * node does not serve it; without ?world=, the first world added; 503 while
+ * none is). /readyz and /healthz stay the node's (status and the watches). */
+#define HTTP_MAX_WORLDS 64
+void http_server_host_worlds(http_server *s);
+/* status, heights and base must stay valid until http_server_remove_world returns. */
+int http_server_add_world(http_server *s, const char *name, http_status *status, hub *heights,
+                          const world *base, error_text *err);
+/* Waits for the requests using the world to end (close its hub's reads first). */
+void http_server_remove_world(http_server *s, const char *name);
+
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms
  * /healthz answers 503 naming it. At most HTTP_MAX_WATCHES; -1 when full. */

@@ -3,6 +3,7 @@
  * of http/ (that is http.h).
  *
  *   http.c        the MHD daemon, routing, probes, the /v1 answers
+ *   http_worlds.c a cluster node's table of worlds (?world=NAME)
  *   http_png.c    /v1/heights?format=png16
  *   http_guard.c  what one address may hold: heights bytes in flight, and the
  *                 deadline for a request's headers (slowloris)
@@ -15,6 +16,8 @@
 #include "http/http.h"
 
 #include <microhttpd.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -74,5 +77,53 @@ int http_tls_on(const http_tls *t);
  * may go on, else a 401 response (JSON error, WWW-Authenticate) to queue;
  * the refusal is counted in terrad_auth_refused_total{reason="bad_token"}. */
 struct MHD_Response *http_auth_refusal(struct MHD_Connection *c, const char *url, auth_table *auth);
+
+/* ---- the server (http.c) and its worlds (http_worlds.c) ---- */
+typedef struct http_watch {
+    char name[32];
+    http_stalled_fn stalled_ms;
+    const void *arg;
+    double limit_ms;
+} http_watch;
+
+/* One world a cluster node serves: its status block, its hub for height
+ * reads and its base terrain. refs: requests using it now (under worlds_lock);
+ * removal waits until none is. */
+typedef struct http_world {
+    char name[65];
+    http_status *status;
+    hub *heights;
+    const world *base;
+    int refs;
+} http_world;
+
+struct http_server {
+    struct MHD_Daemon *daemon;
+    http_status *status;
+    hub *heights;
+    _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
+    http_limits limits;
+    int port;
+    pthread_mutex_t watch_lock; /* watches are added while MHD's threads serve */
+    http_watch watches[HTTP_MAX_WATCHES];
+    int nwatches;
+    /* a cluster node (http_server_host_worlds): /v1/world, /v1/stats and
+     * /v1/heights answer for the world ?world=NAME names */
+    int hosts_worlds;
+    pthread_mutex_t worlds_lock;
+    pthread_cond_t worlds_cond;
+    http_world *worlds[HTTP_MAX_WORLDS];
+    int nworlds;
+    auth_table *auth; /* the data endpoints' gate (http_auth.c) */
+    http_tls tls;
+    http_server *main; /* a probe listener: the server whose status and watches it reports */
+    http_guard *guard; /* heights bytes per address, the header deadline (http_guard.c) */
+};
+
+/* The world a request names (?world=NAME; without it, the node's first
+ * world), counted as in use: NULL with the status to answer and why. */
+http_world *http_world_acquire(http_server *s, const char *name, unsigned *code, char *why,
+                               size_t cap);
+void http_world_release(http_server *s, http_world *w);
 
 #endif

@@ -22,7 +22,9 @@
  * Threads:
  *   sim         the main thread of `terrad serve` (app/serve.c): ticks the
  *               service (service_tick) and the engine, owns the world, the
- *               engine, the GL context and the store's log;
+ *               engine, the GL context and the store's log; on a cluster
+ *               node, one sim thread per world (app/serve_node.c), each with
+ *               a hub of its own, all on one net thread;
  *   net         one thread running libwebsockets (net/net.c): owns every
  *               connection, client record and the net side's collider table;
  *   http        libmicrohttpd's pool of four polling threads (http/http.c):

@@ -766,6 +766,10 @@ char *metrics_render(size_t *len)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
+    char *worlds = malloc(65536); /* 64 worlds x 8 families fit */
+    if (worlds && metrics_worlds_text(worlds, 65536) > 0)
+        text_printf(&t, "%s", worlds);
+    free(worlds);
     if (t.failed) {
         free(t.data);
         return NULL;

@@ -106,6 +106,24 @@ int metrics_auth_text(char *out, size_t cap); /* its length, or -1 when it does 
 #define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)
 void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes);
 
+/* ---- a cluster node's worlds (metrics_worlds.c) ----
+ * Series labelled world="NAME" (terrad_world_*), one set per world this node
+ * ticks now. A world's sim thread takes a slot when it starts, sets the
+ * figures each tick and drops the slot when it stops ticking the world. */
+#define METRICS_MAX_WORLDS 64
+typedef struct metrics_world_figures {
+    uint64_t tick;
+    int64_t volume, colliders;
+    int store_available;
+    double tick_ms, commit_p50_ms, commit_p99_ms;
+} metrics_world_figures;
+/* The slot of world name (-1 when all are taken: its figures are not shown). */
+int metrics_world_slot(const char *name);
+void metrics_world_tick(int slot, const metrics_world_figures *f);
+void metrics_world_drop(int slot);
+/* The per-world families as exposition text into out; its length or -1. */
+int metrics_worlds_text(char *out, size_t cap);
+
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);
 

@@ -33,6 +33,7 @@
  * a token bucket (net_client.c), and handed to net_requests.c.
  */
 #include "net/net_requests_internal.h"
+#include "net/net_server_internal.h"
 
 #include <pthread.h>
 #include <stdatomic.h>
@@ -51,28 +52,6 @@ _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of 
 #define NET_HEARTBEAT_US 100000 /* backlog retries, shutdown checks */
 #define NET_STOP_GRACE_MS 800.0
 #define NET_STOP_DEADLINE_MS 10000.0 /* then the thread is left behind, the process goes on */
-
-/* The net thread's state (net_client_internal.h) and libwebsockets' context. */
-struct net_server {
-    net_state st; /* everything net_requests.c and net_client.c may see */
-    struct lws_context *ctx;
-    lws_sorted_usec_list_t heartbeat;
-    atomic_int thread_done;
-    pthread_t thread;
-    int thread_started;
-    int port;
-    atomic_int stop_requested;
-    atomic_int force_stop;
-    atomic_int client_count;     /* read by any thread */
-    _Atomic double last_beat_ms; /* the heartbeat's last run: the watchdog's clue */
-    pthread_mutex_t wake_lock;
-    int ctx_live;
-    int stopping;
-};
-
-typedef struct net_session {
-    net_client *c;
-} net_session;
 
 net_limits net_limits_default(void)
 {
@@ -131,25 +110,25 @@ static int sub_meets(const net_client *c, world_rect tile)
     return 0;
 }
 
-static void fan_out(net_server *s, const hub_out *o)
+static void fan_out(net_state *w, const hub_out *o)
 {
-    int ts = s->st.cfg.world.tile_size;
+    int ts = w->cfg.world.tile_size;
     world_rect tile = {o->tile_x * ts, o->tile_y * ts, ts, ts};
-    if (tile.x + tile.w > s->st.cfg.world.width)
-        tile.w = s->st.cfg.world.width - tile.x;
-    if (tile.y + tile.h > s->st.cfg.world.height)
-        tile.h = s->st.cfg.world.height - tile.y;
+    if (tile.x + tile.w > w->cfg.world.width)
+        tile.w = w->cfg.world.width - tile.x;
+    if (tile.y + tile.h > w->cfg.world.height)
+        tile.h = w->cfg.world.height - tile.y;
     if (tile.w <= 0 || tile.h <= 0 || tile.x < 0 || tile.y < 0)
         return;
-    for (int i = 0; i < s->st.nclients; i++) {
-        net_client *c = s->st.clients[i];
-        if (!c->ready || c->closing || c->killed || !sub_meets(c, tile))
-            continue;
+    for (int i = 0; i < w->nclients; i++) {
+        net_client *c = w->clients[i];
+        if (!c->ready || c->closing || c->killed || c->remote || !sub_meets(c, tile))
+            continue; /* a remote client gets the delta from its relay */
         if (dropping_deltas(c)) {
             metrics_count_frames_coalesced(1);
             continue;
         }
-        if (c->droppable_bytes + o->frame->len > s->st.cfg.limits.max_pending_bytes) {
+        if (c->droppable_bytes + o->frame->len > w->cfg.limits.max_pending_bytes) {
             go_slow(c, 0);
             continue;
         }
@@ -163,16 +142,16 @@ static void fan_out(net_server *s, const hub_out *o)
  * max_pending_bytes (its deltas dropped, snapshots once it drains), so that
  * a client reading steadily but too slowly is bounded in ticks, not only in
  * bytes (issue 15: one frame per 20 ms was 54 s behind after 60 s). */
-static void drop_stale(net_server *s)
+static void drop_stale(net_state *w)
 {
-    uint64_t limit = (uint64_t)s->st.cfg.limits.max_client_lag_ticks;
-    for (int i = 0; i < s->st.nclients; i++) {
-        net_client *c = s->st.clients[i];
-        if (!c->ready || c->closing || c->killed || dropping_deltas(c))
-            continue;
+    uint64_t limit = (uint64_t)w->cfg.limits.max_client_lag_ticks;
+    for (int i = 0; i < w->nclients; i++) {
+        net_client *c = w->clients[i];
+        if (!c->ready || c->closing || c->killed || c->remote || dropping_deltas(c))
+            continue; /* a remote client's lag is its relay's to bound */
         uint64_t oldest = net_oldest_queued_tick(c);
-        if (oldest && s->st.tick > oldest + limit)
-            go_slow(c, s->st.tick - oldest);
+        if (oldest && w->tick > oldest + limit)
+            go_slow(c, w->tick - oldest);
     }
 }
 
@@ -185,9 +164,9 @@ static int is_footprints(const hub_frame *f)
  * client whose deltas are being dropped or whose queue would pass
  * max_pending_bytes (no resync follows: a missed event is simply not drawn),
  * and queued as NET_ITEM_TILE so that going slow drops those still queued. */
-static void send_footprints(net_server *s, net_client *c, hub_frame *f)
+static void send_footprints(net_client *c, hub_frame *f)
 {
-    if (dropping_deltas(c) || c->droppable_bytes + f->len > s->st.cfg.limits.max_pending_bytes) {
+    if (dropping_deltas(c) || c->droppable_bytes + f->len > c->srv->cfg.limits.max_pending_bytes) {
         metrics_count_footprints_dropped(1);
         hub_frame_unref(f);
         return;
@@ -198,15 +177,18 @@ static void send_footprints(net_server *s, net_client *c, hub_frame *f)
     net_enqueue(c, f, NET_ITEM_TILE);
 }
 
-static void dispatch(net_server *s, hub_out *o)
+void net_dispatch(net_state *w, hub_out *o)
 {
-    if (o->tick > s->st.tick)
-        s->st.tick = o->tick;
+    if (o->tick > w->tick)
+        w->tick = o->tick;
     switch (o->kind) {
     case HUB_OUT_CLIENT: {
-        net_client *c = net_find_client(&s->st, o->client);
-        if (c && o->frame && is_footprints(o->frame)) {
-            send_footprints(s, c, o->frame);
+        net_client *c = net_find_client(w, o->client);
+        if (c && c->remote) { /* its relay decides what to drop, as for its own clients */
+            if (!c->remote_gone && (o->frame || o->snapshot_done))
+                net_remote_frame(c, o->frame, o->snapshot_done);
+        } else if (c && o->frame && is_footprints(o->frame)) {
+            send_footprints(c, o->frame);
             o->frame = NULL;
         } else if (c && o->frame) {
             int status =
@@ -228,10 +210,18 @@ static void dispatch(net_server *s, hub_out *o)
     }
     case HUB_OUT_TILE_DELTA:
         if (o->frame)
-            fan_out(s, o);
+            fan_out(w, o);
+        if (o->frame && w->remote_send && !w->relay) { /* once, for every relay */
+            net_remote_msg m = {.kind = NET_REMOTE_DELTA,
+                                .binary = o->frame->binary,
+                                .tile_x = o->tile_x,
+                                .tile_y = o->tile_y,
+                                .tick = o->tick};
+            w->remote_send(w->remote_ctx, w->world_name, &m, o->frame->data, o->frame->len);
+        }
         break;
     case HUB_OUT_TICK_DONE:
-        drop_stale(s);
+        drop_stale(w);
         break;
     }
     if (o->frame)
@@ -239,11 +229,11 @@ static void dispatch(net_server *s, hub_out *o)
 }
 
 /* Every client must start over from snapshots: the hub dropped frames. */
-static void resync_everyone(net_server *s)
+static void resync_everyone(net_state *w)
 {
     log_warn("net: the outbound queue overflowed: every client gets fresh snapshots");
-    for (int i = 0; i < s->st.nclients; i++) {
-        net_client *c = s->st.clients[i];
+    for (int i = 0; i < w->nclients; i++) {
+        net_client *c = w->clients[i];
         if (!c->ready || c->sub_count == 0)
             continue;
         /* markers may have been lost with the dropped frames: forget them */
@@ -253,22 +243,47 @@ static void resync_everyone(net_server *s)
     }
 }
 
-static void drain_hub(net_server *s)
+/* 1 when w's hub has more to take (it was taken in whole batches). */
+static int drain_state(net_state *w)
 {
-    if (hub_take_overflow(s->st.hub))
-        resync_everyone(s);
+    if (!w->hub)
+        return 0;
+    if (hub_take_overflow(w->hub))
+        resync_everyone(w);
     hub_out items[NET_DRAIN_BATCH];
     for (int round = 0; round < NET_DRAIN_ROUNDS; round++) {
-        int n = hub_take_outbound(s->st.hub, items, NET_DRAIN_BATCH);
+        int n = hub_take_outbound(w->hub, items, NET_DRAIN_BATCH);
         for (int i = 0; i < n; i++)
-            dispatch(s, &items[i]);
+            net_dispatch(w, &items[i]);
         if (n < NET_DRAIN_BATCH)
-            return;
+            return 0;
     }
-    lws_cancel_service(s->ctx); /* more to come: serve the sockets, then carry on */
+    return 1;
 }
 
-static void net_wake(void *arg)
+void net_drain_world(net_server *s, net_state *w)
+{
+    if (drain_state(w))
+        lws_cancel_service(s->ctx);
+}
+
+static void drain_hub(net_server *s)
+{
+    int more = 0;
+    for (int i = 0; net_state_at(s, i); i++)
+        more |= drain_state(net_state_at(s, i));
+    if (more)
+        lws_cancel_service(s->ctx); /* more to come: serve the sockets, then carry on */
+}
+
+/* The backlogs of commands for the sims, retried in order. */
+static void flush_backlogs(net_server *s)
+{
+    for (int i = 0; net_state_at(s, i); i++)
+        net_flush_backlog(net_state_at(s, i));
+}
+
+void net_server_wake(void *arg)
 {
     net_server *s = arg;
     pthread_mutex_lock(&s->wake_lock);
@@ -282,12 +297,15 @@ static void net_wake(void *arg)
 static void begin_shutdown(net_server *s)
 {
     s->stopping = 1;
-    for (int i = 0; i < s->st.nclients; i++) {
-        net_client *c = s->st.clients[i];
-        if (c->killed || c->closing)
-            continue;
-        net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1, "server shutting down");
-        net_close_after_flush(c, LWS_CLOSE_STATUS_GOINGAWAY, "server shutting down");
+    for (int k = 0; net_state_at(s, k); k++) {
+        net_state *w = net_state_at(s, k);
+        for (int i = 0; i < w->nclients; i++) {
+            net_client *c = w->clients[i];
+            if (c->killed || c->closing)
+                continue;
+            net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1, "server shutting down");
+            net_close_after_flush(c, LWS_CLOSE_STATUS_GOINGAWAY, "server shutting down");
+        }
     }
 }
 
@@ -296,9 +314,13 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     net_server *s = lws_container_of(sul, net_server, heartbeat);
     fault_stall("net"); /* test hook (base/fault.c): a net thread that stops */
     atomic_store(&s->last_beat_ms, time_now_ms());
-    net_reap_dead_peers(&s->st);
-    net_flush_backlog(&s->st);
-    net_auth_recheck(&s->st);
+    net_worlds_apply(s);
+    net_remote_apply(s);
+    for (int i = 0; net_state_at(s, i); i++) {
+        net_reap_dead_peers(net_state_at(s, i));
+        net_auth_recheck(net_state_at(s, i));
+    }
+    flush_backlogs(s);
     if (atomic_load(&s->stop_requested) && !s->stopping) {
         drain_hub(s);
         begin_shutdown(s);
@@ -311,13 +333,14 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
 static void client_established(net_server *s, struct lws *wsi, net_session *pss)
 {
     net_client *c = calloc(1, sizeof *c);
+    if (c)
+        c->id = s->st.next_client_id++; /* before the add: the list is sorted by id */
     if (!c || net_client_add(&s->st, c) != 0) {
         free(c);
         log_error("net: out of memory for a new client");
         lws_set_timeout(wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
         return;
     }
-    c->id = s->st.next_client_id++;
     c->wsi = wsi;
     c->srv = &s->st;
     c->next_sub_id = 1;
@@ -326,39 +349,35 @@ static void client_established(net_server *s, struct lws *wsi, net_session *pss)
     lws_get_peer_simple(wsi, c->peer, sizeof c->peer);
     snprintf(c->name, sizeof c->name, "?");
     pss->c = c;
-    atomic_fetch_add(&s->client_count, 1);
-    metrics_set_clients(s->st.nclients);
+    metrics_set_clients(atomic_fetch_add(&s->client_count, 1) + 1);
     log_info("net: client %u connected from %s", c->id, c->peer);
     lws_set_timer_usecs(wsi, (lws_usec_t)(s->st.cfg.limits.hello_timeout_s * 1e6));
 }
 
-/* Who closed, with which code and reason: the client's close frame, else
- * the one net_close_after_flush sent, else none at all. */
-static void log_disconnect(const net_client *c)
+void net_client_free(net_server *s, net_client *c)
 {
-    const char *sep = c->ready ? ", " : "", *name = c->ready ? c->name : "";
-    if (c->peer_close_code)
-        log_info("net: client %u (%s%s%s) disconnected: the client closed with code %d (\"%s\")",
-                 c->id, c->peer, sep, name, c->peer_close_code, c->peer_close_reason);
-    else if (c->closing)
-        log_info("net: client %u (%s%s%s) disconnected: the server closed with code %d (\"%s\")",
-                 c->id, c->peer, sep, name, c->close_code, c->close_reason);
-    else
-        log_info("net: client %u (%s%s%s) disconnected: connection lost, no close frame", c->id,
-                 c->peer, sep, name);
-}
-
-/* The client's close frame (2-byte code, then a reason): kept for the log,
- * any byte outside printable ASCII written as '?'. */
-static void client_peer_close(net_client *c, const unsigned char *in, size_t len)
-{
-    c->peer_close_code = len >= 2 ? (in[0] << 8 | in[1]) : LWS_CLOSE_STATUS_NO_STATUS;
-    size_t n = len > 2 ? len - 2 : 0;
-    if (n > sizeof c->peer_close_reason - 1)
-        n = sizeof c->peer_close_reason - 1;
-    for (size_t i = 0; i < n; i++)
-        c->peer_close_reason[i] = in[2 + i] >= 0x20 && in[2 + i] < 0x7f ? (char)in[2 + i] : '?';
-    c->peer_close_reason[n] = 0;
+    net_state *w = c->srv; /* the lobby, or the world it said hello to */
+    for (int i = 0; i < c->collider_count; i++) {
+        hub_forget_pose(w->hub, c->colliders[i]);
+        net_collider_remove(w, c->colliders[i]);
+    }
+    if (c->ready && w->relay) { /* the owner drops its remote client */
+        net_remote_msg m = {.kind = NET_REMOTE_CLIENT_GONE, .client = c->id};
+        snprintf(m.node, sizeof m.node, "%s", w->node);
+        w->remote_send(w->remote_ctx, w->world_name, &m, NULL, 0);
+    } else if (c->ready) {
+        hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
+        net_push_must(w, &cmd); /* the sim deletes its colliders */
+    }
+    net_release_queue(c);
+    net_client_remove(w, c);
+    free(c->q);
+    free(c->rx);
+    free(c->colliders);
+    free(c->subs);
+    if (!c->remote)
+        metrics_set_clients(atomic_fetch_sub(&s->client_count, 1) - 1);
+    free(c);
 }
 
 static void client_closed(net_server *s, net_session *pss)
@@ -367,24 +386,8 @@ static void client_closed(net_server *s, net_session *pss)
     if (!c)
         return;
     pss->c = NULL;
-    log_disconnect(c);
-    for (int i = 0; i < c->collider_count; i++) {
-        hub_forget_pose(s->st.hub, c->colliders[i]);
-        net_collider_remove(&s->st, c->colliders[i]);
-    }
-    if (c->ready) {
-        hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
-        net_push_must(&s->st, &cmd); /* the sim deletes its colliders */
-    }
-    net_release_queue(c);
-    net_client_remove(&s->st, c);
-    free(c->q);
-    free(c->rx);
-    free(c->colliders);
-    free(c->subs);
-    free(c);
-    atomic_fetch_sub(&s->client_count, 1);
-    metrics_set_clients(s->st.nclients);
+    net_log_disconnect(c);
+    net_client_free(s, c);
 }
 
 static int client_receive(net_server *s, struct lws *wsi, net_client *c, const void *in, size_t len)
@@ -534,7 +537,7 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
         return 0;
     case LWS_CALLBACK_WS_PEER_INITIATED_CLOSE:
         if (pss->c)
-            client_peer_close(pss->c, in, len);
+            net_client_peer_close(pss->c, in, len);
         return 0; /* lws echoes the close */
     case LWS_CALLBACK_CLOSED:
         client_closed(s, pss);
@@ -555,7 +558,9 @@ static int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void 
             return 0;
         return client_writeable(s, wsi, pss->c);
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
-        net_flush_backlog(&s->st);
+        net_worlds_apply(s);
+        net_remote_apply(s);
+        flush_backlogs(s);
         drain_hub(s); /* the last tick's frames go out before the goodbye */
         if (atomic_load(&s->stop_requested) && !s->stopping)
             begin_shutdown(s);
@@ -577,19 +582,22 @@ static void *service_main(void *arg)
     net_server *s = arg;
     thread_owner_claim(&s->st.owner, "net");
     atomic_store(&s->last_beat_ms, time_now_ms());
-    hub_claim_net_end(s->st.hub);
+    if (s->st.hub)
+        hub_claim_net_end(s->st.hub);
     lws_sul_schedule(s->ctx, 0, &s->heartbeat, heartbeat, NET_HEARTBEAT_US);
     for (;;) {
         if (lws_service(s->ctx, 0) < 0)
             break;
-        if (s->stopping && (s->st.nclients == 0 || atomic_load(&s->force_stop)))
+        if (s->stopping && (atomic_load(&s->client_count) == 0 || atomic_load(&s->force_stop)))
             break;
     }
     lws_sul_cancel(&s->heartbeat);
     /* net_server_stop finishes on the caller's thread (lws_context_destroy
      * still calls back for every client left) */
     thread_owner_release(&s->st.owner);
-    hub_release_net_end(s->st.hub);
+    for (int i = 0; net_state_at(s, i); i++)
+        if (net_state_at(s, i)->hub)
+            hub_release_net_end(net_state_at(s, i)->hub);
     atomic_store(&s->thread_done, 1);
     return NULL;
 }
@@ -600,42 +608,26 @@ static char *dup_or_null(const char *text)
 }
 
 /* A JSON array of strings, or a default when text is NULL. */
-static cJSON *parse_names(const char *text, const char *fallback, const char *what, error_text *err)
-{
-    cJSON *a = cJSON_Parse(text ? text : fallback);
-    int ok = a && cJSON_IsArray(a);
-    const cJSON *it;
-    cJSON_ArrayForEach(it, a) if (!cJSON_IsString(it)) ok = 0;
-    if (!ok) {
-        error_set(err, "net: %s must be a JSON array of strings", what);
-        cJSON_Delete(a);
-        return NULL;
-    }
-    return a;
-}
-
 static void server_free(net_server *s)
 {
     if (!s)
         return;
-    for (int i = 0; i < s->st.backlog_count; i++)
-        if (s->st.backlog[i].mesh) {
-            collider_mesh_free(s->st.backlog[i].mesh);
-            free(s->st.backlog[i].mesh);
-        }
-    free(s->st.backlog);
-    free(s->st.clients);
-    free(s->st.colliders);
-    free(s->st.poses);
-    cJSON_Delete(s->st.models);
-    cJSON_Delete(s->st.materials);
-    net_auth_stop(&s->st);
+    net_state_release(&s->st);
+    net_auth_stop(&s->st); /* after the worlds' states: they share its table */
     free(s->st.token);
-    free(s->st.models_json);
-    free(s->st.materials_json);
     free(s->st.server_name);
-    free(s->st.world_name);
+    for (int i = 0; i < s->st.nworlds; i++) {
+        if (s->st.worlds[i]->hub)
+            hub_set_waker(s->st.worlds[i]->hub, NULL, NULL);
+        net_world_state_free(s->st.worlds[i]);
+    }
+    free(s->st.worlds);
+    for (int i = 0; i < s->nadding; i++)
+        net_world_state_free(s->adding[i]);
+    net_remote_drop_inbox(s);
     pthread_mutex_destroy(&s->wake_lock);
+    pthread_mutex_destroy(&s->worlds_lock);
+    pthread_cond_destroy(&s->worlds_cond);
     free(s);
 }
 
@@ -660,8 +652,8 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
 {
     if (limits_check(&c->limits, err))
         return NULL;
-    if (c->world.width < 1 || c->world.height < 1 || c->world.tile_size < 1 ||
-        !(c->world.cell_size_m > 0)) {
+    if (h && (c->world.width < 1 || c->world.height < 1 || c->world.tile_size < 1 ||
+              !(c->world.cell_size_m > 0))) {
         error_set(err, "net: the world info is incomplete (extent, cell size, tile size)");
         return NULL;
     }
@@ -671,8 +663,11 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
         return NULL;
     }
     pthread_mutex_init(&s->wake_lock, NULL);
+    pthread_mutex_init(&s->worlds_lock, NULL);
+    pthread_cond_init(&s->worlds_cond, NULL);
     s->st.cfg = *c;
     s->st.hub = h;
+    s->st.lobby = h == NULL;
     s->st.token = dup_or_null(c->token && c->token[0] ? c->token : NULL);
     s->st.models_json = dup_or_null(c->world.models_json);
     s->st.materials_json = dup_or_null(c->world.materials_json);
@@ -685,15 +680,14 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.world_name = dup_or_null(c->world.name);
     s->st.cfg.world.name = s->st.world_name;
     s->st.next_client_id = 1;
-    if (s->st.cfg.limits.max_client_lag_ticks <= 0) /* two seconds of ticks */
-        s->st.cfg.limits.max_client_lag_ticks =
-            c->world.tick_hz > 0 ? (int)ceil(2 * c->world.tick_hz) : 120;
+    if (!s->st.lobby) /* a node's worlds each take theirs (net_world_state_new) */
+        net_default_lag(&s->st);
     s->st.fd_ceiling = c->limits.fd_reserve > 0 ? net_fd_ceiling(c->limits.fd_reserve) : 0;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
-    s->st.models = parse_names(s->st.models_json, "[]", "world.models_json", err);
-    s->st.materials = s->st.models ? parse_names(s->st.materials_json, "[\"default\"]",
-                                                 "world.materials_json", err)
+    s->st.models = net_parse_names(s->st.models_json, "[]", "world.models_json", err);
+    s->st.materials = s->st.models ? net_parse_names(s->st.materials_json, "[\"default\"]",
+                                                     "world.materials_json", err)
                                    : NULL;
     if (!s->st.models || !s->st.materials || !s->st.poses || !s->st.server_name ||
         (c->world.name && !s->st.world_name) || net_auth_start(&s->st, err) != 0) {
@@ -733,10 +727,12 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     struct lws_vhost *vh = lws_get_vhost_by_name(s->ctx, "default");
     s->port = vh ? lws_get_vhost_listen_port(vh) : c->port;
     s->ctx_live = 1;
-    hub_set_waker(h, net_wake, s);
+    if (h)
+        hub_set_waker(h, net_server_wake, s);
     if (pthread_create(&s->thread, NULL, service_main, s) != 0) {
         error_set(err, "net: cannot start the service thread");
-        hub_set_waker(h, NULL, NULL);
+        if (h)
+            hub_set_waker(h, NULL, NULL);
         lws_context_destroy(s->ctx);
         server_free(s);
         return NULL;
@@ -770,7 +766,7 @@ void net_server_stop(net_server *s)
     atomic_store(&s->stop_requested, 1);
     double start = time_now_ms();
     while (!atomic_load(&s->thread_done)) {
-        net_wake(s);
+        net_server_wake(s);
         if (time_now_ms() - start > NET_STOP_GRACE_MS)
             atomic_store(&s->force_stop, 1);
         if (time_now_ms() - start > NET_STOP_DEADLINE_MS) {
@@ -784,12 +780,13 @@ void net_server_stop(net_server *s)
         nanosleep(&ts, NULL);
     }
     pthread_join(s->thread, NULL);
-    hub_set_waker(s->st.hub, NULL, NULL);
+    if (s->st.hub)
+        hub_set_waker(s->st.hub, NULL, NULL);
     pthread_mutex_lock(&s->wake_lock);
     s->ctx_live = 0;
     pthread_mutex_unlock(&s->wake_lock);
     lws_context_destroy(s->ctx); /* closes what is left: CLOSED for each */
-    net_flush_backlog(&s->st);
+    flush_backlogs(s);
     if (s->st.backlog_count)
         log_warn("net: %d commands for the sim were still waiting at shutdown",
                  s->st.backlog_count);

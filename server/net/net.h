@@ -81,8 +81,60 @@ typedef struct net_config {
 
 typedef struct net_server net_server;
 
-/* Binds and starts the service thread. The strings of c are copied. */
+/* Binds and starts the service thread. The strings of c are copied.
+ * h == NULL: a cluster node's server, for several worlds (c->world unused):
+ * clients wait until their hello names one of the worlds added below. */
 net_server *net_server_start(const net_config *c, hub *h, error_text *err);
+/* A world this node serves from now on (info->name required; strings
+ * copied), its sim thread at the other end of h. Any thread. */
+int net_server_add_world(net_server *s, const net_world_info *info, hub *h, error_text *err);
+/* The world of h is no longer served: its clients get an error
+ * (shutting_down) and are closed; returns once the net thread let go of h,
+ * so h may be destroyed (0), or -1 when the net thread did not answer within
+ * 10 s (then h must be left alone). Any thread but the net thread. */
+int net_server_remove_world(net_server *s, hub *h);
+
+/* ---- any node serves any world (net_remote.c; docs/cluster.md) ----
+ * A world another node owns is served here as a RELAY: a client's hello
+ * naming it joins it here, and its messages go to the owner as they came
+ * (net_remote_send_fn; the owner checks and applies them as from a client of
+ * its own, a "remote client"); what the owner sends that client comes back
+ * as NET_REMOTE_FRAME and CLOSE, and each tile delta of the world comes once
+ * per tick to every relay (NET_REMOTE_DELTA), which fans it out to its own
+ * subscribers as the owner does to its own: the same frame, not re-encoded. */
+typedef enum net_remote_kind {
+    NET_REMOTE_CLIENT_TEXT = 1, /* relay → owner: a client's text message */
+    NET_REMOTE_CLIENT_BINARY,   /* relay → owner: a client's binary message */
+    NET_REMOTE_CLIENT_GONE,     /* relay → owner: the client disconnected */
+    NET_REMOTE_FRAME,           /* owner → relay: a frame (or a snapshot mark) for one client */
+    NET_REMOTE_CLOSE,           /* owner → relay: close the client (close_code, the reason) */
+    NET_REMOTE_DELTA,           /* owner → every relay: a tile delta frame */
+} net_remote_kind;
+
+typedef struct net_remote_msg {
+    int kind;
+    char node[65];      /* the relay's node name (all but DELTA) */
+    uint32_t client;    /* the client's id on its relay */
+    int binary;         /* FRAME, DELTA: a binary frame */
+    int snapshot_done;  /* FRAME: the last of a subscription's snapshot */
+    int close_code;     /* CLOSE */
+    int tile_x, tile_y; /* DELTA */
+    uint64_t tick;
+} net_remote_msg;
+
+/* Called on the net thread; bytes are the message or frame (not kept). */
+typedef void (*net_remote_send_fn)(void *ctx, const char *world, const net_remote_msg *m,
+                                   const void *bytes, size_t len);
+/* This node's name and how to reach other nodes; before any world is added. */
+void net_server_set_remote(net_server *s, const char *node, net_remote_send_fn send, void *ctx);
+/* A world another node owns, relayed here (info->name required). Any thread. */
+int net_server_add_relay(net_server *s, const net_world_info *info, error_text *err);
+/* Stops relaying a world (its clients are told and closed); waits as
+ * net_server_remove_world does. Any thread but the net thread. */
+int net_server_remove_relay(net_server *s, const char *world);
+/* A message from another node for a world served here (copied). Any thread. */
+void net_server_remote_input(net_server *s, const char *world, const net_remote_msg *m,
+                             const void *bytes, size_t len);
 int net_server_port(const net_server *s);
 int net_server_client_count(const net_server *s); /* connected clients; any thread */
 /* How long since the net thread last ran its heartbeat (every 100 ms when it is

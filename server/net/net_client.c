@@ -46,7 +46,14 @@ int net_client_add(net_state *s, net_client *c)
     if (array_grow((void **)&s->clients, &s->clients_cap, (int64_t)s->nclients + 1,
                    sizeof *s->clients) != 0)
         return -1;
-    s->clients[s->nclients++] = c; /* ids only grow: the array stays sorted */
+    /* ids only grow, so a new client goes last; one moving from the lobby to
+     * a world may have said hello after a later one: kept sorted for the search */
+    int at = s->nclients;
+    while (at > 0 && s->clients[at - 1]->id > c->id)
+        at--;
+    memmove(&s->clients[at + 1], &s->clients[at], (size_t)(s->nclients - at) * sizeof *s->clients);
+    s->clients[at] = c;
+    s->nclients++;
     return 0;
 }
 
@@ -59,6 +66,34 @@ void net_client_remove(net_state *s, net_client *c)
             s->nclients--;
             return;
         }
+}
+
+int net_client_join_world(net_client *c, const char *world, char *why, size_t cap)
+{
+    net_state *lobby = c->srv, *to = NULL;
+    for (int i = 0; i < lobby->nworlds && !to; i++) /* no name: the first world ticked here */
+        if (world[0] ? strcmp(lobby->worlds[i]->world_name, world) == 0 : !lobby->worlds[i]->relay)
+            to = lobby->worlds[i];
+    if (!to && !world[0] && lobby->nworlds) /* ... or, on a node that ticks none, relayed */
+        to = lobby->worlds[0];
+    if (!to) {
+        size_t n =
+            (size_t)snprintf(why, cap, "world: this node does not serve world \"%s\"", world);
+        for (int i = 0; i < lobby->nworlds && n < cap; i++)
+            n += (size_t)snprintf(why + n, cap - n, "%s world \"%s\"", i ? "," : "; it serves",
+                                  lobby->worlds[i]->world_name);
+        if (n < cap)
+            snprintf(why + n, cap - n, "%s (terrad world list names each world's node)",
+                     lobby->nworlds ? "" : "; it serves no world now");
+        return -1;
+    }
+    if (net_client_add(to, c) != 0) {
+        snprintf(why, cap, "out of memory");
+        return -1;
+    }
+    net_client_remove(lobby, c);
+    c->srv = to;
+    return 0;
 }
 
 /* ---- the outgoing queue ---- */
@@ -133,14 +168,19 @@ void net_client_kill(net_client *c, const char *why)
     net_release_queue(c);
     metrics_count_frames_dropped(frames);
     log_warn("net: client %u (%s) closed: %s", c->id, c->peer, why);
-    lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+    if (c->remote)
+        net_remote_close(c, LWS_CLOSE_STATUS_POLICY_VIOLATION, "killed");
+    else
+        lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
 }
 
 void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
 {
     net_state *s = c->srv;
     THREAD_OWNED(&s->owner);
-    if (c->killed) {
+    if (c->killed || c->remote) { /* a remote client's frames go to its relay at once */
+        if (c->remote && !c->remote_gone)
+            net_remote_frame(c, f, 0);
         hub_frame_unref(f);
         return;
     }
@@ -238,6 +278,10 @@ void net_close_after_flush(net_client *c, int code, const char *reason)
     c->closing = 1;
     c->close_code = code;
     snprintf(c->close_reason, sizeof c->close_reason, "%s", reason);
+    if (c->remote) {
+        net_remote_close(c, code, reason);
+        return;
+    }
     lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
     lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, NET_CLOSE_GRACE_S);
     lws_callback_on_writable(c->wsi);
@@ -323,9 +367,14 @@ void net_request_resync(net_client *c, uint32_t subscription)
     c->slow = 0;
     if (c->sub_count == 0)
         return;
-    hub_command cmd = {.kind = HUB_RESYNC, .client = c->id, .subscription = 0};
     c->snapshots_requested++;
     c->resync_until = c->snapshots_requested;
+    if (c->srv->relay) { /* the owner sends the snapshots: asked as by the client */
+        static const char resync[] = "{\"type\":\"resync\"}";
+        net_relay_forward(c, 0, resync, sizeof resync - 1);
+        return;
+    }
+    hub_command cmd = {.kind = HUB_RESYNC, .client = c->id, .subscription = 0};
     net_push_must(c->srv, &cmd);
 }
 

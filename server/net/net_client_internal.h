@@ -102,6 +102,12 @@ typedef struct net_client {
     int killed; /* dropped without waiting for the queue */
     /* the client's close frame, for the disconnect log line: code (0 = none
      * came) and reason, made printable, at most 123 bytes as RFC 6455 allows */
+    /* a remote client (net_remote.c): its socket is on the relay node
+     * remote_node, where its id is remote_client; frames for it go there */
+    int remote;
+    char remote_node[65];
+    uint32_t remote_client;
+    int remote_gone; /* closed: freed by the net thread at its next pass */
     int peer_close_code;
     char peer_close_reason[124];
     /* lws holds part of a frame the kernel would not take: reading is paused
@@ -153,12 +159,28 @@ struct net_state {
     int fd_ceiling; /* accepted descriptors at or above it are refused; 0 = none */
     uint64_t conn_refused, conn_refusals_unlogged;
     double last_conn_refusal_log_ms;
+
+    /* A cluster node's several worlds (net_worlds.c). The server's own state
+     * is then the lobby: every client starts there and moves, at its hello,
+     * to the state of the world it names (its own hub, world info, collider
+     * table and backlog). A single daemon has no lobby: one state, one world. */
+    int lobby;
+    int relay; /* a world another node owns, served through it (net_remote.c) */
+    net_remote_send_fn remote_send; /* to other nodes; NULL for a single daemon */
+    void *remote_ctx;
+    char node[65];      /* this node's name */
+    net_state **worlds; /* the lobby's table of world states */
+    int nworlds;
+    int64_t worlds_cap;
 };
 
 /* ---- the client list ---- */
 net_client *net_find_client(net_state *s, uint32_t id);
 int net_client_add(net_state *s, net_client *c); /* ids only grow: appended */
 void net_client_remove(net_state *s, net_client *c);
+/* A lobby's client whose hello names world (or "" for the first one): moved
+ * to that world's state (c->srv). 0, or -1 with why (no such world here). */
+int net_client_join_world(net_client *c, const char *world, char *why, size_t cap);
 
 /* ---- a client's outgoing queue ---- */
 /* Queue a frame for a client (takes over the caller's reference). */
@@ -194,11 +216,23 @@ int net_offers_subprotocol(const char *value, const char *name);
 /* libwebsockets' log lines (lws_set_log_level), at most 5 a second. */
 void net_lws_log_line(int level, const char *line);
 
+/* ---- remote clients and relays (net_remote.c) ---- */
+/* A relay's client: its text or binary message goes to the world's owner as it came. */
+void net_relay_forward(net_client *c, int binary, const void *data, size_t len);
+/* A remote client's frame goes back to its relay (the frame is the caller's). */
+void net_remote_frame(net_client *c, const hub_frame *f, int snapshot_done);
+/* A remote client is closed: its relay is told (code, reason). */
+void net_remote_close(net_client *c, int code, const char *reason);
+
 /* ---- dead peers (net_peer.c) ---- */
 /* After a write: pause reading while lws holds part of a frame, resume once it is flushed. */
 void net_rx_hold_update(net_client *c);
 /* Kill the paused clients whose peer has hung up; how many. */
 int net_reap_dead_peers(net_state *s);
+/* The disconnect log line: who closed, with which code and reason. */
+void net_log_disconnect(const net_client *c);
+/* Keeps the client's close frame (code, printable reason) for that line. */
+void net_client_peer_close(net_client *c, const unsigned char *in, size_t len);
 
 /* ---- commands for the sim ---- */
 /* Push a command the sim must get (client left, resync): queued locally

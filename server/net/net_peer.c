@@ -69,3 +69,32 @@ int net_reap_dead_peers(net_state *s)
     }
     return reaped;
 }
+
+/* Who closed, with which code and reason: the client's close frame, else
+ * the one net_close_after_flush sent, else none at all. */
+void net_log_disconnect(const net_client *c)
+{
+    const char *sep = c->ready ? ", " : "", *name = c->ready ? c->name : "";
+    if (c->peer_close_code)
+        log_info("net: client %u (%s%s%s) disconnected: the client closed with code %d (\"%s\")",
+                 c->id, c->peer, sep, name, c->peer_close_code, c->peer_close_reason);
+    else if (c->closing)
+        log_info("net: client %u (%s%s%s) disconnected: the server closed with code %d (\"%s\")",
+                 c->id, c->peer, sep, name, c->close_code, c->close_reason);
+    else
+        log_info("net: client %u (%s%s%s) disconnected: connection lost, no close frame", c->id,
+                 c->peer, sep, name);
+}
+
+/* The client's close frame (2-byte code, then a reason): kept for the log,
+ * any byte outside printable ASCII written as '?'. */
+void net_client_peer_close(net_client *c, const unsigned char *in, size_t len)
+{
+    c->peer_close_code = len >= 2 ? (in[0] << 8 | in[1]) : LWS_CLOSE_STATUS_NO_STATUS;
+    size_t n = len > 2 ? len - 2 : 0;
+    if (n > sizeof c->peer_close_reason - 1)
+        n = sizeof c->peer_close_reason - 1;
+    for (size_t i = 0; i < n; i++)
+        c->peer_close_reason[i] = in[2 + i] >= 0x20 && in[2 + i] < 0x7f ? (char)in[2 + i] : '?';
+    c->peer_close_reason[n] = 0;
+}

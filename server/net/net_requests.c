@@ -92,6 +92,22 @@ static void handle_hello(net_client *c, const net_control *m)
     net_state *s = c->srv;
     if (net_auth_hello(c, m->token, m->ref) != 0)
         return;
+    char why[400];
+    if (s->lobby && net_client_join_world(c, m->world, why, sizeof why) != 0) {
+        /* a cluster node serves the worlds it owns: the client is sent to another node */
+        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1, "%s", why);
+        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
+        return;
+    }
+    s = c->srv;     /* the world's own state from here on */
+    if (s->relay) { /* its owner answers the hello (net_handle_text forwards it) */
+        c->ready = 1;
+        lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
+        snprintf(c->name, sizeof c->name, "%s", m->client);
+        log_info("net: client %u (%s) said hello for world %s, served through its owner", c->id,
+                 c->peer, s->world_name);
+        return;
+    }
     const char *serves = s->cfg.world.name;
     if (serves && m->world[0] && strcmp(m->world, serves) != 0) {
         /* a cluster node ticks one world: the client is sent to look for another node */
@@ -103,7 +119,8 @@ static void handle_hello(net_client *c, const net_control *m)
         return;
     }
     c->ready = 1;
-    lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
+    if (c->wsi)
+        lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
     snprintf(c->name, sizeof c->name, "%s", m->client);
     for (char *p = c->name; *p; p++) /* for log lines */
         if ((unsigned char)*p < 0x20 || *p == 0x7f)
@@ -406,6 +423,18 @@ static int refused_by_state(net_client *c, const net_control *m)
     return 0;
 }
 
+/* A relay's client asks for snapshots (a subscribe the owner will answer,
+ * or a resync of subscriptions it holds): the relay counts the snapshot marks
+ * to come, so that it pauses the client's deltas as the owner would. */
+static void relay_text(net_client *c, const net_control *m, int rc)
+{
+    if (rc != 0 || m->kind != NET_CONTROL_RESYNC || c->sub_count == 0 ||
+        (m->has_id && sub_index(c, m->id) < 0))
+        return;
+    c->snapshots_requested++;
+    c->resync_until = c->snapshots_requested;
+}
+
 void net_handle_text(net_client *c, const char *text, size_t len)
 {
     THREAD_OWNED(&c->srv->owner);
@@ -417,6 +446,12 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     net_control m;
     net_control_error err;
     int rc = net_control_parse(text, len, &ctx, &m, &err);
+    if (s->relay && c->ready) { /* checked and answered by the world's owner */
+        relay_text(c, &m, rc);
+        net_relay_forward(c, 0, text, len);
+        net_control_free(&m);
+        return;
+    }
     if (!c->ready && m.kind != NET_CONTROL_HELLO) {
         net_error(c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "the first message must be hello");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");
@@ -432,6 +467,8 @@ void net_handle_text(net_client *c, const char *text, size_t len)
         switch (m.kind) {
         case NET_CONTROL_HELLO:
             handle_hello(c, &m);
+            if (c->srv->relay && c->ready)
+                net_relay_forward(c, 0, text, len);
             break;
         case NET_CONTROL_COLLIDER_CREATE:
             handle_collider_create(c, &m);
@@ -548,6 +585,10 @@ void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
     if (!c->ready) {
         net_error(c, TERRAD_E_UNAUTHORIZED, NULL, -1, 1, "the first message must be hello");
         net_close_after_flush(c, 4000 + TERRAD_E_UNAUTHORIZED, "no hello");
+        return;
+    }
+    if (c->srv->relay) { /* pose batches are checked and applied by the world's owner */
+        net_relay_forward(c, 1, data, len);
         return;
     }
     terrad_header h;

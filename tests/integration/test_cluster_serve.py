@@ -14,8 +14,9 @@ loopback (docs/cluster.md):
     another node takes the world; after SIGCONT the old owner's commit is
     refused, it says it no longer owns the world and waits as a standby;
   - hello names the world: the owner answers a hello naming its world with
-    the world message (which names it) and refuses one naming another world
-    (bad_value naming its own, close 4005);
+    the world message (which names it), serves a hello naming the other world
+    through that world's owner (a relay), and refuses one naming no
+    registered world (bad_value naming what it serves, close 4005);
   - bad input: a world that does not exist, NATS unreachable (the error
     names the URL).
 Nodes run with --no-demo, so the terrain changes only under the client.
@@ -170,9 +171,17 @@ def hello_names_the_world(nodes):
           f"a hello naming dunes gets the world message naming dunes ({answer}, {code})")
     status, body = owner.get("/v1/world")
     check(json.loads(body).get("world") == "dunes", f"/v1/world names dunes ({body[:300]!r})")
+    deadline = time.monotonic() + 15  # the node relays every world it does not tick
+    while time.monotonic() < deadline and not any("relays world spheres" in l
+                                                  for l in owner.lines):
+        time.sleep(0.1)
     answer, code = asyncio.run(hello_world(owner, "spheres"))
-    check(answer.get("type") == "error" and "serves world \"dunes\"" in answer.get("message", "")
-          and code == 4005, f"a hello naming spheres is refused, naming dunes ({answer}, {code})")
+    check(answer.get("type") == "world" and answer.get("world") == "spheres" and code is None,
+          f"a hello naming spheres on dunes' owner is served through spheres' owner ({answer}, "
+          f"{code})")
+    answer, code = asyncio.run(hello_world(owner, "nowhere"))
+    check(answer.get("type") == "error" and "world \"dunes\"" in answer.get("message", "")
+          and code == 4005, f"a hello naming no registered world is refused ({answer}, {code})")
 
 
 def bad_input(urls):

@@ -19,6 +19,7 @@ import subprocess
 import tempfile
 import threading
 import time
+import urllib.error
 import urllib.request
 
 NATS_SERVER = shutil.which("nats-server")
@@ -218,3 +219,106 @@ class Node:
 
     def print_log(self, tail=40):
         print(f"---- node {self.name}, last {tail} lines ----\n" + "".join(self.lines[-tail:]))
+
+
+LISTENS_RE = re.compile(r"node (\S+) listens on http://127\.0\.0\.1:(\d+)/ and websocket port (\d+)")
+WORLD_SERVING_RE = re.compile(r"cluster: world (\S+): serving scene")
+LOST_RE = re.compile(r"no longer owns world (\S+) |cluster: world (\S+) stopped here")
+
+
+class WorldsNode:
+    """One `terrad serve --cluster` process that may tick several worlds
+    (--max-worlds): its ports come from the "listens on" line, and the worlds
+    it serves now from the "world X: serving scene" and "no longer owns world
+    X" lines of its log."""
+
+    def __init__(self, name, urls, max_worlds=1, extra=()):
+        self.name = name
+        self.urls = urls
+        self.max_worlds = max_worlds
+        self.extra = list(extra)
+        self.lines = []
+        self.start()
+
+    def start(self):
+        self.http = self.ws = None
+        self.worlds = set()
+        self.listening = threading.Event()
+        self.proc = subprocess.Popen(
+            [binary(), "serve", "--cluster", self.urls, "--node", self.name, "--http-port", "0",
+             "--ws-port", "0", "--backend", "cpu", "--no-demo", "--max-worlds",
+             str(self.max_worlds)] + self.extra,
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True, errors="replace")
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stderr:
+            self.lines.append(line)
+            m = LISTENS_RE.search(line)
+            if m:
+                self.http = f"http://127.0.0.1:{m.group(2)}"
+                self.ws = f"ws://127.0.0.1:{m.group(3)}/"
+                self.listening.set()
+            m = WORLD_SERVING_RE.search(line)
+            if m:
+                self.worlds.add(m.group(1))
+            m = LOST_RE.search(line)
+            if m:
+                self.worlds.discard(m.group(1) or m.group(2))
+
+    def serves(self, world):
+        return self.proc.poll() is None and world in self.worlds
+
+    def get(self, path):
+        """(status, body) also for 4xx/5xx answers."""
+        try:
+            with urllib.request.urlopen(self.http + path, timeout=10) as r:
+                return r.status, r.read()
+        except urllib.error.HTTPError as e:
+            return e.code, e.read()
+
+    def stats(self, world):
+        status, body = self.get(f"/v1/stats?world={world}")
+        return json.loads(body) if status == 200 else None
+
+    def heights(self, world, x, y, w, h):
+        """(tick, heights) of GET /v1/heights?world=..."""
+        with urllib.request.urlopen(f"{self.http}/v1/heights?world={world}&x={x}&y={y}&w={w}"
+                                    f"&h={h}", timeout=10) as r:
+            tick = r.headers.get("X-Terrad-Tick")
+            body = r.read()
+        return (int(tick) if tick else None), list(struct.unpack(f"<{w * h}i", body))
+
+    def kill9(self):
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.listening.wait(15)  # a node that has just started: past its start-up first
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def print_log(self, tail=40):
+        print(f"---- node {self.name}, last {tail} lines ----\n" + "".join(self.lines[-tail:]))
+        logdir = os.environ.get("TERRAD_CLUSTER_LOGDIR")
+        if logdir:  # the whole log, for a soak's post-mortem
+            os.makedirs(logdir, exist_ok=True)
+            with open(os.path.join(logdir, f"node-{self.name}.log"), "w") as f:
+                f.write("".join(self.lines))
+
+
+def wait_for(cond, timeout, step=0.05):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        v = cond()
+        if v:
+            return v
+        time.sleep(step)
+    return cond()

@@ -3,7 +3,7 @@
  * test_c_client: the C client library (proto/c/terrad_client.h) against the
  * real daemon on loopback.
  *
- * Starts `$TERRAD_BIN serve --http-port 0 --ws-port 0 --backend cpu
+ * Starts `$TERRAD_BIN serve --http-port 0 --ws-port 0 --backend cpu --no-data
  * --no-demo` (unless TERRAD_WS_PORT and TERRAD_HTTP_PORT name a running
  * one), connects, drives a wheel (a cylinder turned to roll along x) across
  * the dunes for about three seconds with a pose every tick while subscribed
@@ -103,7 +103,7 @@ static int start_daemon(int *http_port, int *ws_port)
         if (devnull >= 0)
             dup2(devnull, 0);
         execl(bin, bin, "serve", "--http-port", "0", "--ws-port", "0", "--backend", "cpu",
-              "--no-demo", (char *)NULL);
+              "--no-demo", "--no-data", (char *)NULL);
         _exit(127);
     }
     close(fd);
@@ -391,8 +391,7 @@ static void drive(int http_port, int ws_port)
     const terrad_client_stats *st = terrad_client_get_stats(c);
     CHECK(send_errors == 0, "every pose batch was sent");
     /* behaviour, not speed: a loaded machine may merge ticks, so no count per batch */
-    CHECK(st->acks > 0, "ACKs came: %llu for %d batches",
-          (unsigned long long)st->acks, ticks);
+    CHECK(st->acks > 0, "ACKs came: %llu for %d batches", (unsigned long long)st->acks, ticks);
     CHECK(st->contact_frames - contact_frames0 > 0, "CONTACT frames came: %llu",
           (unsigned long long)(st->contact_frames - contact_frames0));
     CHECK(max_volume > 0, "penetrating volume > 0 in the snow (max %lld)", (long long)max_volume);

@@ -88,10 +88,13 @@ class Client:
     state above was updated."""
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
-                 max_size: int = 1 << 24, **connect_kwargs: Any):
+                 max_size: int = 1 << 24, world: str = "", **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
-        ping_interval=None for a client that may stop reading for a while)."""
+        ping_interval=None for a client that may stop reading for a while). world: the
+        world a cluster node should serve this client (docs/cluster.md); "" for a single
+        daemon's one world."""
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
+        self.world_name = world
         self.connect_kwargs = connect_kwargs
         self.ws: Any = None
         self.world: dict[str, Any] = {}
@@ -146,7 +149,7 @@ class Client:
         websockets = _websockets()
         self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
                                            max_size=self.max_size, **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name)))
+        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":
             raise ServerError(msg)

@@ -653,8 +653,12 @@ class Mirror:
 # ---- JSON control messages ---------------------------------------------------------------
 
 
-def hello(token: str = "", client: str = "terrad-python") -> dict:
-    return {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
+def hello(token: str = "", client: str = "terrad-python", world: str = "") -> dict:
+    """world: the world a cluster node should serve (sent only when given)."""
+    msg = {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
+    if world:
+        msg["world"] = world
+    return msg
 
 
 def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True, **dims) -> dict:

@@ -1,0 +1,441 @@
+/*
+ * serve_node.c: `terrad serve --cluster` — a node of the cluster
+ * (docs/cluster.md). The node connects to NATS, opens one HTTP and one
+ * websocket port, and then, on its main thread, keeps taking worlds whose
+ * lease it can take (--worlds, or every registered world), up to
+ * --max-worlds. Each world it takes gets its own sim thread (world_main):
+ * recover the world from JetStream, start its engine and service on that
+ * thread (it owns the world's GL context and hub sim end), add it to the
+ * HTTP and websocket servers, and run the fixed-rate tick loop — the same
+ * serve_sim_step a single daemon runs — until the node stops or the world is
+ * lost (a fenced commit, or another node holds its lease). A lost world's
+ * clients are told and closed, its thread ends, and the node goes on with its
+ * other worlds; a node with no world waits as a standby.
+ *
+ * Why one thread per world rather than one loop over the worlds: a world's
+ * tick (deformation, then a JetStream commit that waits for the replicas'
+ * acknowledgement) does not hold up the others, each world keeps its own
+ * tick rate and overrun count, and the hub's and the GL context's
+ * one-owner-thread rule holds as on a single daemon. The cost is that the
+ * worlds' threads share the cores without a common schedule.
+ */
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "app/app.h"
+#include "app/serve_internal.h"
+#include "metrics/metrics.h"
+
+#define NODE_MAX_WORLDS 64
+#define NODE_POLL_MS 250
+#define NODE_RETRY_MS 5000.0 /* a world that failed to open is tried again after this */
+
+typedef struct serve_node serve_node;
+
+typedef struct node_world {
+    serve_sim m;
+    serve_node *node;
+    pthread_t thread;
+    atomic_int stop;       /* node → world: stop ticking (the node stops) */
+    atomic_int done;       /* world → node: the thread has ended */
+    atomic_int registered; /* served by the HTTP and websocket ports */
+    int lost;              /* the world belongs to another node now */
+    char why[256];         /* why it was lost, or failed to open */
+} node_world;
+
+struct serve_node {
+    const serve_options *o;
+    auth_table *auth;   /* the daemon's (serve_security.c); NULL: no tokens */
+    http_server *probe; /* --probe-port */
+    char name[CLUSTER_NODE_NAME_MAX + 1];
+    cluster *cl;
+    http_status status; /* the node's: /readyz */
+    http_server *http;
+    net_server *net;
+    serve_relays *relays; /* the worlds other nodes tick, served here too */
+    double relays_ms;     /* their last refresh */
+    pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
+    node_world *worlds[NODE_MAX_WORLDS];
+    int nworlds, max_worlds;
+    char failed[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1]; /* not retried before failed_ms */
+    double failed_ms[NODE_MAX_WORLDS];
+};
+
+static void sleep_ms(double ms)
+{
+    struct timespec ts = {(time_t)(ms / 1000), (long)((ms - 1000 * (time_t)(ms / 1000)) * 1e6)};
+    nanosleep(&ts, NULL);
+}
+
+/* /readyz: ready while the node ticks at least one world and every world it
+ * ticks can commit; otherwise it says why. */
+static void node_refresh_status(serve_node *n)
+{
+    char why[256] = "";
+    int ready = 0;
+    pthread_mutex_lock(&n->lock);
+    for (int i = 0; i < n->nworlds; i++) {
+        node_world *nw = n->worlds[i];
+        if (!atomic_load(&nw->registered))
+            continue;
+        pthread_mutex_lock(&nw->m.status.lock);
+        if (!nw->m.status.ready && !why[0])
+            snprintf(why, sizeof why, "world %.64s: %.180s", nw->m.name, nw->m.status.not_ready);
+        pthread_mutex_unlock(&nw->m.status.lock);
+        ready = 1;
+    }
+    pthread_mutex_unlock(&n->lock);
+    pthread_mutex_lock(&n->status.lock);
+    n->status.ready = ready && !why[0];
+    snprintf(n->status.not_ready, sizeof n->status.not_ready, "%s",
+             why[0] ? why : "this node ticks no world now (a standby)");
+    pthread_mutex_unlock(&n->status.lock);
+}
+
+/* The watchdog behind /healthz: the longest any world's tick loop has gone
+ * without publishing (0 while none ticks). */
+static double node_stalled_ms(const void *arg)
+{
+    serve_node *n = (serve_node *)arg;
+    double worst = 0;
+    pthread_mutex_lock(&n->lock);
+    for (int i = 0; i < n->nworlds; i++)
+        if (atomic_load(&n->worlds[i]->registered)) {
+            double ms = http_status_stalled_ms(&n->worlds[i]->m.status);
+            worst = ms > worst ? ms : worst;
+        }
+    pthread_mutex_unlock(&n->lock);
+    return worst;
+}
+
+static double net_stalled(const void *arg)
+{
+    return net_server_stalled_ms((const net_server *)arg);
+}
+
+/* The world joins the node's ports. */
+static int world_register(serve_node *n, node_world *nw, error_text *err)
+{
+    serve_sim *m = &nw->m;
+    net_world_info info = serve_sim_world_info(m);
+    if (http_server_add_world(n->http, m->name, &m->status, m->h, &m->w, err) != 0)
+        return -1;
+    if (net_server_add_world(n->net, &info, m->h, err) != 0) {
+        http_server_remove_world(n->http, m->name);
+        return -1;
+    }
+    if (serve_relays_own(n->relays, m->name, err) != 0) {
+        net_server_remove_world(n->net, m->h);
+        http_server_remove_world(n->http, m->name);
+        return -1;
+    }
+    m->metrics_slot = metrics_world_slot(m->name);
+    serve_sim_ready(m);
+    atomic_store(&nw->registered, 1);
+    node_refresh_status(n);
+    log_info("cluster: world %s: serving scene \"%s\" (%dx%d cells, %s backend, tick %llu) on "
+             "http://127.0.0.1:%d/ and ws://127.0.0.1:%d/ (hello \"world\": \"%s\", "
+             "/v1/*?world=%s)",
+             m->name, m->sc.name, m->w.width, m->w.height, m->backend->name,
+             (unsigned long long)service_current_tick(m->svc), http_server_port(n->http),
+             net_server_port(n->net), m->name, m->name);
+    return 0;
+}
+
+/* The world leaves the node's ports: reads fail fast, requests in flight end,
+ * its clients are told and closed. */
+static void world_unregister(serve_node *n, node_world *nw)
+{
+    serve_sim *m = &nw->m;
+    if (m->h)
+        hub_close_reads(m->h);
+    if (!atomic_load(&nw->registered))
+        return;
+    atomic_store(&nw->registered, 0);
+    serve_relays_drop(n->relays, m->name); /* its relayed clients' messages stop coming */
+    http_server_remove_world(n->http, m->name);
+    if (net_server_remove_world(n->net, m->h) != 0)
+        m->h = NULL; /* the net thread may still hold it: left to the exit */
+    metrics_world_drop(m->metrics_slot);
+}
+
+static void world_ticks(serve_node *n, node_world *nw)
+{
+    serve_sim *m = &nw->m;
+    double period_ms = 1000.0 / m->sc.tick_hz, next_ms = time_now_ms(), retried_ms = 0;
+    long max = n->o->max_ticks;
+    for (long tick = 0; !atomic_load(&nw->stop) && (max < 0 || tick < max); tick++) {
+        error_text err = {{0}};
+        if (serve_sim_step(m, tick, net_server_client_count(n->net), &err) != 0) {
+            snprintf(nw->why, sizeof nw->why, "%s", err.message);
+            return;
+        }
+        if (serve_cluster_check(n->cl, m, &retried_ms, nw->why, sizeof nw->why) != 0) {
+            nw->lost = 1;
+            return;
+        }
+        if (tick % 8 == 0) /* /readyz follows the store at once, whatever the node loop waits on */
+            node_refresh_status(n);
+        next_ms += period_ms;
+        if (next_ms < time_now_ms())
+            next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
+        sleep_ms(next_ms - time_now_ms());
+    }
+}
+
+/* One world's sim thread: open, serve, tick, leave. */
+static void *world_main(void *arg)
+{
+    node_world *nw = arg;
+    serve_node *n = nw->node;
+    serve_sim *m = &nw->m;
+    error_text err = {{0}};
+    if (serve_cluster_open_world(n->cl, m, n->o, &err) != 0) {
+        snprintf(nw->why, sizeof nw->why, "%s", err.message);
+    } else {
+        serve_sim_status_init(m);
+        if (!(m->h = hub_create()))
+            error_set(&err, "out of memory");
+        else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0)
+            world_ticks(n, nw);
+        if (err.message[0])
+            snprintf(nw->why, sizeof nw->why, "%s", err.message);
+    }
+    world_unregister(n, nw);
+    if (m->svc)
+        log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
+                 (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
+    serve_sim_free(m);
+    if (!nw->lost) /* another node may take it at once */
+        cluster_lease_release(n->cl, m->name);
+    node_refresh_status(n);
+    atomic_store(&nw->done, 1);
+    return NULL;
+}
+
+static int recently_failed(serve_node *n, const char *name)
+{
+    for (int i = 0; i < NODE_MAX_WORLDS; i++)
+        if (n->failed[i][0] && strcmp(n->failed[i], name) == 0)
+            return time_now_ms() < n->failed_ms[i];
+    return 0;
+}
+
+static void note_failed(serve_node *n, const char *name)
+{
+    int at = 0;
+    for (int i = 0; i < NODE_MAX_WORLDS; i++)
+        if (!n->failed[i][0] || strcmp(n->failed[i], name) == 0 ||
+            n->failed_ms[i] < n->failed_ms[at]) {
+            at = i;
+            if (!n->failed[i][0] || strcmp(n->failed[i], name) == 0)
+                break;
+        }
+    snprintf(n->failed[at], sizeof n->failed[at], "%s", name);
+    n->failed_ms[at] = time_now_ms() + NODE_RETRY_MS;
+}
+
+/* Joins the worlds whose threads ended: lost, failed or stopped. */
+static void reap_worlds(serve_node *n)
+{
+    for (int i = 0; i < n->nworlds; i++) {
+        node_world *nw = n->worlds[i];
+        if (!atomic_load(&nw->done))
+            continue;
+        pthread_join(nw->thread, NULL);
+        if (nw->lost)
+            log_warn("cluster: this node no longer owns world %s (%s): it stopped ticking it; "
+                     "its clients were told to connect again",
+                     nw->m.name, nw->why);
+        else if (nw->why[0] && !atomic_load(&nw->stop)) {
+            log_error("cluster: world %s: %s (tried again in %.0f s)", nw->m.name, nw->why,
+                      NODE_RETRY_MS / 1000);
+            note_failed(n, nw->m.name);
+        }
+        pthread_mutex_lock(&n->lock);
+        n->worlds[i] = n->worlds[--n->nworlds];
+        pthread_mutex_unlock(&n->lock);
+        pthread_mutex_destroy(&nw->m.status.lock);
+        free(nw);
+        i--;
+    }
+}
+
+/* Takes one more world if one is free: 1 took one, 0 none, -1 error. */
+static int take_world(serve_node *n, error_text *err)
+{
+    char held[NODE_MAX_WORLDS + 1][CLUSTER_WORLD_NAME_MAX + 1];
+    int count = 0;
+    for (int i = 0; i < n->nworlds; i++)
+        snprintf(held[count++], sizeof held[0], "%s", n->worlds[i]->m.name);
+    for (int i = 0; i < NODE_MAX_WORLDS && count < NODE_MAX_WORLDS; i++)
+        if (n->failed[i][0] && recently_failed(n, n->failed[i]))
+            snprintf(held[count++], sizeof held[0], "%s", n->failed[i]);
+    char name[CLUSTER_WORLD_NAME_MAX + 1];
+    int took = serve_cluster_take(n->cl, n->o, held, count, name, err);
+    if (took != 1)
+        return took;
+    node_world *nw = calloc(1, sizeof *nw);
+    if (!nw) {
+        cluster_lease_release(n->cl, name);
+        error_set(err, "out of memory");
+        return -1;
+    }
+    nw->node = n;
+    nw->m.metrics_slot = -1;
+    snprintf(nw->m.name, sizeof nw->m.name, "%s", name);
+    pthread_mutex_init(&nw->m.status.lock, NULL);
+    serve_relays_drop(n->relays, name); /* relayed here until now: its clients connect again */
+    log_info("cluster: node %s owns world %s (NATS %s, %d replicas)", n->name, name,
+             n->o->cluster_urls, cluster_replicas(n->cl));
+    pthread_mutex_lock(&n->lock);
+    n->worlds[n->nworlds++] = nw;
+    pthread_mutex_unlock(&n->lock);
+    if (pthread_create(&nw->thread, NULL, world_main, nw) != 0) {
+        pthread_mutex_lock(&n->lock);
+        n->nworlds--;
+        pthread_mutex_unlock(&n->lock);
+        cluster_lease_release(n->cl, name);
+        pthread_mutex_destroy(&nw->m.status.lock);
+        free(nw);
+        error_set(err, "cannot start a thread for world %s", name);
+        return -1;
+    }
+    return 1;
+}
+
+/* The node's ports: one HTTP and one websocket server for all its worlds. */
+static int node_open_ports(serve_node *n, error_text *err)
+{
+    const serve_options *o = n->o;
+    int fd_reserve = 0;
+    if (!(n->http = serve_http_open(o, n->auth, &n->status, NULL, &fd_reserve, err)) ||
+        (o->probe_port >= 0 && !(n->probe = http_probe_start(n->http, o->probe_port, err))))
+        return -1;
+    http_server_host_worlds(n->http);
+    net_config nc = {.port = o->ws_port,
+                     .bind_any = o->bind_any,
+                     .token = o->token,
+                     .auth = n->auth,
+                     .tls_cert = o->tls_cert,
+                     .tls_key = o->tls_key,
+                     .limits = o->limits};
+    nc.limits.fd_reserve = fd_reserve;
+    if (!(n->net = net_server_start(&nc, NULL, err)))
+        return -1;
+    if (!(n->relays = serve_relays_start(n->cl, n->net, n->name))) {
+        error_set(err, "out of memory");
+        return -1;
+    }
+    http_server_watch(n->http, "tick", node_stalled_ms, n, 10000.0);
+    http_server_watch(n->http, "net", net_stalled, n->net, 10000.0);
+    if (n->probe)
+        log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
+                 http_server_port(n->probe));
+    int tls = o->tls_cert && o->tls_cert[0];
+    log_info("cluster: node %s listens on %s://127.0.0.1:%d/ and websocket port %d", n->name,
+             tls ? "https" : "http", http_server_port(n->http), net_server_port(n->net));
+    return 0;
+}
+
+/* Relay every registered world this node neither ticks nor is taking. */
+static void refresh_relays(serve_node *n)
+{
+    char busy[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1];
+    int count = 0;
+    for (int i = 0; i < n->nworlds; i++)
+        snprintf(busy[count++], sizeof busy[0], "%s", n->worlds[i]->m.name);
+    serve_relays_refresh(n->relays, busy, count);
+}
+
+/* The node's life after its ports are open: take, tick, reap, until stop. */
+static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_atomic_t *hangup)
+{
+    int said_standby = 0, first = 1;
+    double warned_ms = 0;
+    while (!*stop) {
+        reap_worlds(n);
+        error_text err = {{0}};
+        int took = n->nworlds < n->max_worlds ? take_world(n, &err) : 0;
+        if (took < 0 && first) {
+            log_error("%s", err.message);
+            return 1;
+        }
+        if (took < 0 && time_now_ms() - warned_ms > 10000) {
+            warned_ms = time_now_ms();
+            log_warn("cluster: cannot take a world now: %s", err.message);
+        }
+        first = 0;
+        if (n->nworlds == 0 && !said_standby) {
+            said_standby = 1;
+            log_info("cluster: node %s is a standby: %s owned by another node; waiting", n->name,
+                     n->o->worlds ? n->o->worlds : "every registered world is");
+        }
+        if (n->nworlds > 0)
+            said_standby = 0;
+        node_refresh_status(n);
+        if (*hangup) {
+            *hangup = 0;
+            serve_security_reload(n->o, n->auth);
+        }
+        if (time_now_ms() - n->relays_ms > 1000 && cluster_connected(n->cl)) {
+            n->relays_ms = time_now_ms();
+            refresh_relays(n);
+        }
+        if (took != 1) /* took one: look for the next at once */
+            sleep_ms(NODE_POLL_MS);
+    }
+    return 0;
+}
+
+static void node_stop(serve_node *n)
+{
+    for (int i = 0; i < n->nworlds; i++)
+        atomic_store(&n->worlds[i]->stop, 1);
+    while (n->nworlds > 0) {
+        reap_worlds(n);
+        if (n->nworlds)
+            sleep_ms(10);
+    }
+    serve_relays_stop(n->relays);
+    http_server_stop(n->probe);
+    http_server_stop(n->http); /* first: its watchdog reads the net server */
+    net_server_stop(n->net);
+    cluster_close(n->cl);
+}
+
+int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic_t *stop,
+                   volatile sig_atomic_t *hangup)
+{
+    serve_node *n = calloc(1, sizeof *n);
+    if (!n) {
+        log_error("serve: out of memory");
+        return 1;
+    }
+    n->o = o;
+    n->auth = auth;
+    pthread_mutex_init(&n->lock, NULL);
+    pthread_mutex_init(&n->status.lock, NULL);
+    serve_node_name(o, n->name, sizeof n->name);
+    n->max_worlds = o->max_worlds;
+    if (n->max_worlds <= 0) { /* --worlds: every world named; else one */
+        n->max_worlds = 1;
+        for (const char *p = o->worlds; p && *p; p++)
+            n->max_worlds += *p == ',';
+    }
+    error_text err = {{0}};
+    cluster_config cc = {.urls = o->cluster_urls, .node = n->name};
+    int rc = 1;
+    if (!(n->cl = cluster_connect(&cc, &err)) || node_open_ports(n, &err) != 0)
+        log_error("%s", err.message);
+    else
+        rc = node_loop(n, stop, hangup);
+    node_stop(n);
+    pthread_mutex_destroy(&n->status.lock);
+    pthread_mutex_destroy(&n->lock);
+    free(n);
+    return rc;
+}

@@ -1,0 +1,214 @@
+/*
+ * serve_sim.c: one world's simulation inside `terrad serve` — the scene and
+ * its world, the engine on its backend, the ground, the service over the hub,
+ * the demo actors and the status block HTTP reads — and one step of the
+ * fixed-rate tick loop on it (demo poses → service_tick → status and
+ * metrics). A single daemon has one (serve.c, on the main thread); a cluster
+ * node has one per world it owns, each on its own sim thread (serve_node.c).
+ * Everything here runs on that world's sim thread: it creates the backend
+ * (and so owns the GL context) and the service (and so the hub's sim end).
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "app/app.h"
+#include "app/serve_internal.h"
+#include "metrics/metrics.h"
+#include "service/service.h"
+
+int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
+{
+    world *w = &m->w;
+    if (sim_params_from_material(&m->sc.material, w->cell_size_m, w->units_per_m, w->floor,
+                                 &m->params, err) != 0 ||
+        !(m->backend = app_backend_create(o->backend, err)) ||
+        !(m->engine =
+              sim_engine_create(w, &m->params, m->backend, m->sc.active_margin_cells, err)) ||
+        app_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
+        !(m->svc = service_create(m->engine, m->h, err)))
+        return -1;
+    service_set_tick_budget(m->svc, o->limits.max_tick_cells);
+    if (m->st)
+        /* go on from the recovered tick, or past it where the store says a
+         * client may have seen later (unlogged idle) ticks */
+        service_attach_store(m->svc, m->st,
+                             m->recovery.tick_floor > m->recovery.tick ? m->recovery.tick_floor
+                                                                       : m->recovery.tick);
+    m->actors = calloc((size_t)o->demo_actors + 1, sizeof *m->actors);
+    m->extra = calloc((size_t)o->demo_actors + 1, sizeof *m->extra);
+    if (!m->actors || !m->extra) {
+        error_set(err, "serve: out of memory");
+        return -1;
+    }
+    m->demo_actors = o->demo_actors;
+    demo_actors_init(m->actors, m->demo_actors, w);
+    snprintf(m->models, sizeof m->models, "[\"%s\"]", sim_model_name(m->params.model));
+
+    http_status *s = &m->status;
+    pthread_mutex_lock(&s->lock);
+    s->volume = service_volume(m->svc);
+    s->tick = service_current_tick(m->svc);
+    pthread_mutex_unlock(&s->lock);
+    return 0;
+}
+
+void serve_sim_ready(serve_sim *m)
+{
+    http_status *s = &m->status;
+    pthread_mutex_lock(&s->lock);
+    s->ready = 1;
+    snprintf(s->renderer, sizeof s->renderer, "%s", m->backend->renderer);
+    snprintf(s->backend, sizeof s->backend, "%s", m->backend->name);
+    snprintf(s->method, sizeof s->method, "%s", sim_model_name(m->params.model));
+    snprintf(s->metric, sizeof s->metric, "%s", sim_metric_name(m->params.metric));
+    pthread_mutex_unlock(&s->lock);
+}
+
+void serve_sim_status_init(serve_sim *m)
+{
+    http_status *s = &m->status;
+    s->world_width = m->w.width;
+    s->world_height = m->w.height;
+    s->cell_size_m = m->w.cell_size_m;
+    s->units_per_m = m->w.units_per_m;
+    s->tile_size = SERVICE_TILE_SIZE;
+    s->tick_hz = m->sc.tick_hz;
+    snprintf(s->world_name, sizeof s->world_name, "%s", m->name);
+    s->volume = world_volume(&m->w);
+}
+
+net_world_info serve_sim_world_info(const serve_sim *m)
+{
+    const world *w = &m->w;
+    return (net_world_info){.width = w->width,
+                            .height = w->height,
+                            .cell_size_m = w->cell_size_m,
+                            .units_per_m = w->units_per_m,
+                            .tick_hz = m->sc.tick_hz,
+                            .tile_size = SERVICE_TILE_SIZE,
+                            .height_min = WORLD_HEIGHT_MIN,
+                            .height_max = WORLD_HEIGHT_MAX,
+                            .models_json = m->models,
+                            .name = m->name[0] ? m->name : NULL,
+                            .materials_json = "[\"default\"]"};
+}
+
+static void publish_status(serve_sim *m, double tick_ms, int clients, int colliders)
+{
+    http_status *status = &m->status;
+    pthread_mutex_lock(&status->lock);
+    if (m->st) { /* not ready while deformation is refused; reads go on */
+        const char *why = store_failure(m->st);
+        status->ready = why[0] == 0;
+        snprintf(status->not_ready, sizeof status->not_ready, "%s%s",
+                 why[0] ? "storage unavailable, deformation refused: " : "", why);
+    }
+    status->tick = service_current_tick(m->svc);
+    status->volume = service_volume(m->svc);
+    status->last_tick_ms = tick_ms;
+    status->overruns = m->overruns;
+    status->clients = clients;
+    status->colliders = colliders;
+    status->published_ms = time_now_ms();
+    pthread_mutex_unlock(&status->lock);
+}
+
+/* The process-wide series. A cluster node's worlds share them (the stages'
+ * histograms add up); the per-world gauges are the labelled ones instead. */
+static void publish_metrics(const serve_sim *m, const service_tick_stats *st)
+{
+    const sim_stage_times *t = &st->report.times;
+    metrics_observe_tick_ms(st->tick_ms);
+#define OBSERVE_STAGE(name) metrics_observe_stage_ms(#name, t->name);
+    SIM_STAGE_LIST(OBSERVE_STAGE)
+#undef OBSERVE_STAGE
+    metrics_observe_stage_ms("gather_scatter", st->report.gather_scatter_ms);
+    metrics_observe_stage_ms("model", st->report.model_ms);
+    metrics_set_sim_threads(sim_threads());
+    if (st->report.refused_windows)
+        metrics_count_refused_windows((uint64_t)st->report.refused_windows);
+    if (m->name[0]) {
+        metrics_world_figures f = {.tick = service_current_tick(m->svc),
+                                   .volume = service_volume(m->svc),
+                                   .colliders = st->colliders,
+                                   .store_available = !m->st || !store_failure(m->st)[0],
+                                   .tick_ms = st->tick_ms};
+        if (m->cs)
+            cluster_store_commit_ms(m->cs, &f.commit_p50_ms, &f.commit_p99_ms);
+        metrics_world_tick(m->metrics_slot, &f);
+        return;
+    }
+    metrics_set_tick(service_current_tick(m->svc));
+    metrics_set_volume(service_volume(m->svc));
+    metrics_set_active_cells(st->report.active_cells);
+    metrics_set_colliders(st->colliders);
+    sim_engine_stats es;
+    sim_engine_get_stats(m->engine, &es);
+    metrics_set_memory_bytes("world_heights", world_resident_bytes(&m->w));
+    metrics_set_memory_bytes("sim_scratch", es.peak_scratch_bytes);
+    /* what the scene's models hold, by stage (docs/models.md) */
+#define SET_STAGE_MEMORY(name) metrics_set_stage_memory_bytes(#name, es.memory.name);
+    SIM_MEMORY_STAGE_LIST(SET_STAGE_MEMORY)
+#undef SET_STAGE_MEMORY
+    sim_tile_cache_stats cache;
+    sim_backend_tile_cache_stats(sim_engine_backend(m->engine), &cache);
+    metrics_set_memory_bytes("gpu_tile_cache", cache.texture_bytes);
+    metrics_set_gpu_tile_cache(cache.uploads, cache.upload_bytes, cache.evictions,
+                               cache.resident_tiles);
+}
+
+/* The demo actors' poses for this tick, as colliders beside the clients'. */
+static void step_demo(serve_sim *m, long tick)
+{
+    double t = (double)tick / m->sc.tick_hz;
+    for (int a = 0; a < m->demo_actors; a++) {
+        sim_collider *c = &m->extra[a];
+        c->id = (int)(0x80000000u + (unsigned)a);
+        c->geometry = &m->actors[a].geometry;
+        c->previous_pose = c->pose;
+        c->pose = demo_actor_step(&m->actors[a], &m->w, 1.0 / m->sc.tick_hz, t);
+        c->has_previous = tick > 0;
+    }
+}
+
+int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err)
+{
+    fault_stall("tick"); /* test hook (base/fault.c): a sim thread that stops */
+    step_demo(m, tick);
+    service_tick_stats stats;
+    error_text tick_err = {{0}};
+    if (service_tick(m->svc, m->extra, m->demo_actors, &stats, &tick_err) != 0) {
+        error_set(err, "tick %ld: %s", tick, tick_err.message);
+        return -1;
+    }
+    if (stats.tick_ms > 1000.0 / m->sc.tick_hz) {
+        m->overruns++;
+        metrics_count_tick_overrun();
+    }
+    publish_status(m, stats.tick_ms, clients, stats.colliders);
+    publish_metrics(m, &stats);
+    return 0;
+}
+
+void serve_sim_free(serve_sim *m)
+{
+    service_destroy(m->svc);
+    m->svc = NULL;
+    store_close(m->st); /* a cluster world's closes its JetStream store */
+    m->st = NULL;
+    m->cs = NULL;
+    free(m->extra);
+    free(m->actors);
+    sim_engine_destroy(m->engine);
+    ground_free(&m->grd);
+    if (m->backend)
+        m->backend->destroy(m->backend);
+    hub_destroy(m->h);
+    world_free(&m->w);
+    scene_free(&m->sc);
+    m->extra = NULL;
+    m->actors = NULL;
+    m->engine = NULL;
+    m->backend = NULL;
+    m->h = NULL;
+}

@@ -1,0 +1,172 @@
+/*
+ * metrics_worlds.c: per-world series of a cluster node (docs/cluster.md),
+ * labelled world="NAME". Each world's sim thread takes a slot when it starts
+ * ticking a world and sets its figures once per tick; the slot is dropped
+ * (its series disappear from /metrics) when the node stops ticking the world.
+ * Values are relaxed atomics like the rest of metrics/; the slot table's
+ * names are under a short mutex (taken only when a world comes or goes, and
+ * by the renderer).
+ */
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "metrics/metrics.h"
+
+typedef struct world_slot {
+    int used;
+    char name[65];
+    _Atomic uint64_t tick, ticks;
+    _Atomic int64_t volume, colliders;
+    _Atomic int available;
+    _Atomic double last_tick_ms, commit_p50_ms, commit_p99_ms;
+} world_slot;
+
+static world_slot slots[METRICS_MAX_WORLDS];
+static pthread_mutex_t slots_lock = PTHREAD_MUTEX_INITIALIZER;
+
+int metrics_world_slot(const char *name)
+{
+    pthread_mutex_lock(&slots_lock);
+    int free_at = -1, at = -1;
+    for (int i = 0; i < METRICS_MAX_WORLDS && at < 0; i++) {
+        if (slots[i].used && strcmp(slots[i].name, name) == 0)
+            at = i;
+        else if (!slots[i].used && free_at < 0)
+            free_at = i;
+    }
+    if (at < 0 && free_at >= 0) {
+        at = free_at;
+        world_slot *w = &slots[at];
+        snprintf(w->name, sizeof w->name, "%s", name);
+        atomic_store(&w->tick, 0);
+        atomic_store(&w->ticks, 0);
+        atomic_store(&w->volume, 0);
+        atomic_store(&w->colliders, 0);
+        atomic_store(&w->available, 1);
+        atomic_store(&w->last_tick_ms, 0);
+        atomic_store(&w->commit_p50_ms, 0);
+        atomic_store(&w->commit_p99_ms, 0);
+        w->used = 1;
+    }
+    pthread_mutex_unlock(&slots_lock);
+    return at;
+}
+
+void metrics_world_drop(int slot)
+{
+    if (slot < 0 || slot >= METRICS_MAX_WORLDS)
+        return;
+    pthread_mutex_lock(&slots_lock);
+    slots[slot].used = 0;
+    pthread_mutex_unlock(&slots_lock);
+}
+
+void metrics_world_tick(int slot, const metrics_world_figures *f)
+{
+    if (slot < 0 || slot >= METRICS_MAX_WORLDS)
+        return;
+    world_slot *w = &slots[slot];
+    atomic_store_explicit(&w->tick, f->tick, memory_order_relaxed);
+    atomic_fetch_add_explicit(&w->ticks, 1, memory_order_relaxed);
+    atomic_store_explicit(&w->volume, f->volume, memory_order_relaxed);
+    atomic_store_explicit(&w->colliders, f->colliders, memory_order_relaxed);
+    atomic_store_explicit(&w->available, f->store_available, memory_order_relaxed);
+    atomic_store_explicit(&w->last_tick_ms, f->tick_ms, memory_order_relaxed);
+    atomic_store_explicit(&w->commit_p50_ms, f->commit_p50_ms, memory_order_relaxed);
+    atomic_store_explicit(&w->commit_p99_ms, f->commit_p99_ms, memory_order_relaxed);
+}
+
+/* Appends at out + *n (cap in all); 0, or -1 when it does not fit. */
+static int put(char *out, size_t cap, size_t *n, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static int put(char *out, size_t cap, size_t *n, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    int k = vsnprintf(out + *n, cap - *n, fmt, ap);
+    va_end(ap);
+    if (k < 0 || (size_t)k >= cap - *n)
+        return -1;
+    *n += (size_t)k;
+    return 0;
+}
+
+/* One family: HELP and TYPE, then one sample per world in use. */
+static int family(char *out, size_t cap, size_t *n, const char *name, const char *type,
+                  const char *help, int which)
+{
+    int any = 0;
+    for (int i = 0; i < METRICS_MAX_WORLDS; i++)
+        any |= slots[i].used;
+    if (!any)
+        return 0;
+    if (put(out, cap, n, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type) != 0)
+        return -1;
+    for (int i = 0; i < METRICS_MAX_WORLDS; i++) {
+        world_slot *w = &slots[i];
+        if (!w->used)
+            continue;
+        char value[64];
+        switch (which) {
+        case 0:
+            snprintf(value, sizeof value, "%llu", (unsigned long long)atomic_load(&w->tick));
+            break;
+        case 1:
+            snprintf(value, sizeof value, "%llu", (unsigned long long)atomic_load(&w->ticks));
+            break;
+        case 2:
+            snprintf(value, sizeof value, "%lld", (long long)atomic_load(&w->volume));
+            break;
+        case 3:
+            snprintf(value, sizeof value, "%lld", (long long)atomic_load(&w->colliders));
+            break;
+        case 4:
+            snprintf(value, sizeof value, "%d", atomic_load(&w->available));
+            break;
+        case 5:
+            snprintf(value, sizeof value, "%.6f", atomic_load(&w->last_tick_ms) / 1000);
+            break;
+        case 6:
+            snprintf(value, sizeof value, "%.6f", atomic_load(&w->commit_p50_ms) / 1000);
+            break;
+        default:
+            snprintf(value, sizeof value, "%.6f", atomic_load(&w->commit_p99_ms) / 1000);
+            break;
+        }
+        /* world names are [A-Za-z0-9_-]: nothing to escape in a label value */
+        if (put(out, cap, n, "%s{world=\"%s\"} %s\n", name, w->name, value) != 0)
+            return -1;
+    }
+    return 0;
+}
+
+int metrics_worlds_text(char *out, size_t cap)
+{
+    static const struct {
+        const char *name, *type, *help;
+    } families[] = {
+        {"terrad_world_tick", "gauge", "The last tick of the world ticked by this node."},
+        {"terrad_world_ticks_total", "counter", "Ticks this node has run of the world."},
+        {"terrad_world_volume", "gauge", "Sum of the world's heights (exact integer units)."},
+        {"terrad_world_colliders", "gauge", "Live colliders in the world."},
+        {"terrad_world_store_available", "gauge",
+         "1 while the world's ticks can be committed to JetStream, 0 while they cannot."},
+        {"terrad_world_last_tick_seconds", "gauge", "Duration of the world's last tick."},
+        {"terrad_world_commit_p50_seconds", "gauge",
+         "Median commit latency of the world (publish to JetStream acknowledgement)."},
+        {"terrad_world_commit_p99_seconds", "gauge",
+         "99th percentile commit latency of the world (publish to acknowledgement)."},
+    };
+    size_t n = 0;
+    if (cap)
+        out[0] = 0;
+    pthread_mutex_lock(&slots_lock);
+    int rc = 0;
+    for (int f = 0; f < (int)(sizeof families / sizeof families[0]) && rc == 0; f++)
+        rc = family(out, cap, &n, families[f].name, families[f].type, families[f].help, f);
+    pthread_mutex_unlock(&slots_lock);
+    return rc == 0 ? (int)n : -1;
+}

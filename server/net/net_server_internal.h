@@ -1,0 +1,84 @@
+/*
+ * net_server_internal.h: the top layer of the net thread (see
+ * net_client_internal.h) — the server itself: libwebsockets' context, the
+ * thread, and for a cluster node its several worlds (net_worlds.c). Shared by
+ * net.c and net_worlds.c only.
+ */
+#ifndef TERRAD_NET_SERVER_INTERNAL_H
+#define TERRAD_NET_SERVER_INTERNAL_H
+
+#include <pthread.h>
+#include <stdatomic.h>
+
+#include "net/net_client_internal.h"
+
+#define NET_MAX_WORLDS 64
+
+/* The net thread's state and libwebsockets' context. */
+struct net_server {
+    net_state st; /* a single daemon's one world, or a node's lobby */
+    struct lws_context *ctx;
+    lws_sorted_usec_list_t heartbeat;
+    atomic_int thread_done;
+    pthread_t thread;
+    int thread_started;
+    int port;
+    atomic_int stop_requested;
+    atomic_int force_stop;
+    atomic_int client_count;     /* read by any thread */
+    _Atomic double last_beat_ms; /* the heartbeat's last run: the watchdog's clue */
+    pthread_mutex_t wake_lock;
+    int ctx_live;
+    int stopping;
+    /* worlds coming and going (any thread → the net thread), under worlds_lock */
+    pthread_mutex_t worlds_lock;
+    pthread_cond_t worlds_cond;
+    net_state *adding[NET_MAX_WORLDS];
+    int nadding;
+    struct net_removal {
+        hub *h;        /* a world's hub, or */
+        char name[65]; /* a relayed world's name */
+    } removing[NET_MAX_WORLDS];
+    int nremoving;
+    /* messages from other nodes (net_server_remote_input), under worlds_lock */
+    struct net_remote_item *inbox;
+    int ninbox;
+    int64_t inbox_cap;
+};
+
+typedef struct net_session {
+    net_client *c;
+} net_session;
+
+/* Wakes the net thread (the hubs' waker). Any thread. */
+void net_server_wake(void *arg);
+/* A JSON array of strings, or the fallback when text is NULL; NULL with err. */
+cJSON *net_parse_names(const char *text, const char *fallback, const char *what, error_text *err);
+/* The i-th state: 0 the server's own, then the worlds; NULL past the last. */
+net_state *net_state_at(net_server *s, int i);
+/* Net thread: adopt the worlds added and detach the ones removed since the last call. */
+void net_worlds_apply(net_server *s);
+/* Net thread: hand the frames waiting in w's hub to w's clients. */
+void net_drain_world(net_server *s, net_state *w);
+/* Net thread: one item from the sim (or from the owner, on a relay) to w's clients. */
+void net_dispatch(net_state *w, hub_out *o);
+/* Net thread: frees a client record (its socket is gone, or it was a remote client). */
+void net_client_free(net_server *s, net_client *c);
+/* Net thread: the messages from other nodes, and the remote clients closed since. */
+void net_remote_apply(net_server *s);
+/* Frees the inbox's messages unread (the server stops). */
+void net_remote_drop_inbox(net_server *s);
+/* A state for a world (world info copied, strings duplicated); NULL with err. */
+net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err);
+/* Queues w for the net thread to adopt; -1 with err when the table is full. */
+int net_world_queue_add(net_server *s, net_state *w, error_text *err);
+/* Asks the net thread to detach the world of h (or named name) and waits. */
+int net_world_queue_remove(net_server *s, hub *h, const char *name);
+/* Frees what a state holds but the shared token and server name (not w itself). */
+void net_state_release(net_state *w);
+/* limits.max_client_lag_ticks left at 0: two seconds of the world's ticks. */
+void net_default_lag(net_state *w);
+/* Frees a world's state (not the shared token and server name). */
+void net_world_state_free(net_state *w);
+
+#endif

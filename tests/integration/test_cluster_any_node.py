@@ -1,0 +1,194 @@
+"""test_cluster_any_node: any node serves any world (docs/cluster.md), on one
+real nats-server with JetStream and two terrad nodes:
+
+  - node a ticks "dunes"; node b ticks nothing and relays it;
+  - a client connected to b (hello "world": "dunes") gets the world message
+    from a (through b), drives a wheel: its pose batches go to a over NATS,
+    its ACKs come back, and each tick's deltas, published once by a, are
+    fanned out by b: the client sees its trail in its mirror, and the mirror
+    equals a's GET /v1/heights?world=dunes cell for cell at the same tick;
+  - a client on a sees the same trail (the deltas of b's client's wheel);
+  - bad input through the relay is refused by the owner, to the client on b
+    (a collider with a NaN radius: bad_value), and a hello naming a world
+    nobody registered is refused by b (bad_value, close 4005);
+  - b's client disconnecting removes its collider on a (colliders go to 0);
+  - the owner dies: node c (--worlds dunes, waiting) takes dunes; a viewer on
+    b is told at once (shutting_down: the new owner does not know it) and
+    closed; connecting to b again, it is served by c, and its mirror equals
+    c's GET /v1/heights?world=dunes. (b ticks a second world, "spare", so
+    that only c can take dunes.)
+No figure of speed is checked. Skipped (77) when nats-server is not installed.
+"""
+# ctest-timeout: 240
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+import cluster_harness as ch  # noqa: E402
+from cluster_harness import WorldsNode, wait_for  # noqa: E402
+from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+
+check = Checks()
+
+
+async def raw_hello(node, world):
+    import websockets
+    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
+    await ws.send(json.dumps(tp.hello("", "check", world)))
+    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
+    code = None
+    try:
+        await asyncio.wait_for(ws.recv(), 3)
+    except websockets.ConnectionClosed as e:
+        code = e.code
+    except asyncio.TimeoutError:
+        pass
+    await ws.close()
+    return answer, code
+
+
+async def eventually(client, predicate, timeout):
+    try:
+        await client.wait_for(predicate, timeout)
+        return True
+    except asyncio.TimeoutError:
+        return predicate()
+
+
+async def relayed_failover(a, b, c_node, lane):
+    v = RecordingClient(b.ws, name="relayed-viewer", world="dunes")
+    await v.connect()
+    sid = await v.subscribe(*lane)
+    await v.wait_for(lambda: v.mirrors[sid].complete, 30)
+    a.kill9()
+    told = await eventually(v, lambda: any(e.get("name") == "shutting_down" for e in v.errors)
+                            or v.ws.closed, 60)
+    check(told and wait_for(lambda: c_node.serves("dunes"), 30),
+          f"after kill -9 of the owner, c ticks dunes and the viewer on b is told ({v.errors})")
+    try:
+        await v.close()
+    except Exception:  # noqa: BLE001
+        pass
+    v = RecordingClient(b.ws, name="relayed-viewer-again", world="dunes")
+    await v.connect()
+    sid = await v.subscribe(*lane)
+    await v.wait_for(lambda: v.mirrors[sid].complete, 30)
+    _, server = c_node.heights("dunes", *lane)
+    check(v.mirrors[sid].heights == server,
+          "connected to b again, the viewer is served by c: its mirror equals c's heights")
+    await v.close()
+
+
+async def scenario(a, b):
+    c = RecordingClient(b.ws, name="remote-driver", keep=900, world="dunes")
+    await c.connect()
+    check(c.world.get("world") == "dunes" and c.world.get("width", 0) > 0,
+          f"the client on b gets dunes' world message ({str(c.world)[:160]})")
+    w = c.world
+    lane = (0, w["height"] // 2 - 32, w["width"], 64)
+    sid = await c.subscribe(*lane)
+    check(await eventually(c, lambda: c.mirrors[sid].complete, 30),
+          "the subscription's snapshot arrives on b")
+    v = RecordingClient(a.ws, name="local-viewer", keep=900, world="dunes")
+    await v.connect()
+    vsid = await v.subscribe(*lane)
+    await v.wait_for(lambda: all(m.complete for m in v.mirrors.values()), 30)
+    before = list(c.mirrors[sid].heights)
+    try:
+        await c.create_collider("sphere", radius=-1.0)
+        check(False, "a negative radius through the relay is refused")
+    except Exception as e:  # noqa: BLE001
+        check("bad_value" in str(e) or "radius" in str(e),
+              f"a negative radius through the relay is refused by the owner ({e})")
+    cid = await c.create_collider("wheel", radius=0.4, width=0.3)
+    cs, upm = w["cell_size_m"], w["units_per_m"]
+    mirror = c.mirrors[sid]
+    y = (lane[1] + 32) * cs
+    x = 1.0
+    t_end = time.monotonic() + 2.0
+    while time.monotonic() < t_end:
+        x += 3.0 / 60
+        cx, cy = int(x / cs), int(y / cs) - mirror.y
+        ground = mirror.heights[cy * mirror.w + cx] / upm
+        await c.send_poses([tp.Pose(cid, x, y, ground + 0.25, 1, 0, 0, 0)])  # a wheel: axle along y
+        await asyncio.sleep(1 / 60)
+    park = tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)
+    await c.send_poses([park])
+    await asyncio.sleep(0.8)
+    changed = sum(1 for p, q in zip(before, c.mirrors[sid].heights) if p != q)
+    check(changed > 0 and c.counts["DELTA"] > 0 and c.counts["ACK"] > 0,
+          f"the client on b sees its trail ({changed} cells changed, {c.counts})")
+    same = False
+    tick = None
+    for _ in range(6):
+        await c.send_poses([park])
+        tick, server = a.heights("dunes", *lane)
+        deadline = time.monotonic() + 10
+        while c.acked_tick < tick and time.monotonic() < deadline:
+            await c.send_poses([park])
+            await asyncio.sleep(0.01)
+        mine = c.history.get(tick, {}).get(sid)
+        if mine and mine[1]:
+            same = mine[0] == server
+            break
+    check(same, f"the mirror on b equals a's GET /v1/heights?world=dunes at tick {tick}")
+    check(await eventually(v, lambda: v.mirrors[vsid].heights == c.mirrors[sid].heights, 10),
+          "a client on a holds the same heights as the client on b")
+    st = a.stats("dunes")
+    check(st["colliders"] >= 1, f"a counts the relayed client's collider ({st['colliders']})")
+    await c.close()
+    check(wait_for(lambda: a.stats("dunes")["colliders"] == 0, 15),
+          "after the client on b leaves, its collider is gone on a")
+    await v.close()
+
+
+def main():
+    if ch.NATS_SERVER is None:
+        skip("nats-server is not installed")
+    nodes = []
+    with ch.NatsCluster(1) as nats:
+        try:
+            urls = nats.urls
+            r = subprocess.run([BIN, "world", "add", "dunes", "--scene",
+                                os.path.join(SOURCE, "server/scene/default.json"), "--cluster", urls],
+                               capture_output=True, text=True, timeout=60)
+            check(r.returncode == 0, f"world add dunes: {r.stderr.strip()}")
+            r = subprocess.run([BIN, "world", "add", "spare", "--scene",
+                                os.path.join(SOURCE, "tests/scenes/tiny.json"), "--cluster", urls],
+                               capture_output=True, text=True, timeout=60)
+            check(r.returncode == 0, f"world add spare: {r.stderr.strip()}")
+            a = WorldsNode("a", urls, extra=["--worlds", "dunes"])
+            nodes.append(a)
+            check(wait_for(lambda: a.serves("dunes"), 60), "node a ticks dunes")
+            b = WorldsNode("b", urls, extra=["--worlds", "spare"])
+            nodes.append(b)
+            check(wait_for(lambda: any("relays world dunes" in l for l in b.lines), 30),
+                  "node b relays dunes")
+            answer, code = asyncio.run(raw_hello(b, "nowhere"))
+            check(answer.get("name") == "bad_value" and code == 4005,
+                  f"a hello naming an unregistered world is refused by b ({answer}, {code})")
+            asyncio.run(scenario(a, b))
+            c = WorldsNode("c", urls, extra=["--worlds", "dunes"])
+            nodes.append(c)
+            check(wait_for(lambda: any("is a standby" in l for l in c.lines), 30),
+                  "node c waits for dunes")
+            asyncio.run(relayed_failover(a, b, c, (0, 224, 256, 64)))
+        except Exception:  # noqa: BLE001
+            import traceback
+            check(False, "the test raised:\n" + traceback.format_exc())
+        finally:
+            codes = [n.stop() for n in nodes]
+            check(all(code in (0, -9) for code in codes),
+                  f"SIGTERM stops every node left with status 0 ({codes})")
+            if check.failed:
+                for n in nodes:
+                    n.print_log()
+    check.finish()
+
+
+if __name__ == "__main__":
+    main()
