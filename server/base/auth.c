@@ -150,7 +150,8 @@ int auth_parse_line(const char *line, auth_role *role, char *name, unsigned char
         error_set(err, "the name must be 1..%d of A-Z a-z 0-9 . _ @ -", AUTH_NAME_MAX);
         return -1;
     }
-    snprintf(name, AUTH_NAME_MAX + 1, "%s", f[1]);
+    size_t name_len = strlen(f[1]); /* name_ok: at most AUTH_NAME_MAX */
+    memcpy(name, f[1], name_len + 1);
     int hex = strlen(f[2]) == 64;
     for (int i = 0; hex && i < 32; i++) {
         int hi = hex_value(f[2][2 * i]), lo = hex_value(f[2][2 * i + 1]);

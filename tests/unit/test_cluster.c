@@ -28,8 +28,11 @@
 /* renew_ms -1: the test renews by hand */
 static cluster *connect_node(const char *urls, const char *node, int lease_ms, int renew_ms)
 {
-    cluster_config c = {
-        .urls = urls, .node = node, .lease_ms = lease_ms, .renew_ms = renew_ms, .timeout_ms = 10000};
+    cluster_config c = {.urls = urls,
+                        .node = node,
+                        .lease_ms = lease_ms,
+                        .renew_ms = renew_ms,
+                        .timeout_ms = 10000};
     error_text err = {{0}};
     cluster *cl = cluster_connect(&c, &err);
     CHECK(cl != NULL, "node %s connects to %s: %s", node, urls, err.message);
