@@ -57,6 +57,9 @@ void serve_sim_ready(serve_sim *m)
     http_status *s = &m->status;
     pthread_mutex_lock(&s->lock);
     s->ready = 1;
+    /* the watchdog's clock starts here: a tick loop stuck before its first
+     * tick is as stuck as one stuck after it */
+    s->published_ms = time_now_ms();
     snprintf(s->renderer, sizeof s->renderer, "%s", m->backend->renderer);
     snprintf(s->backend, sizeof s->backend, "%s", m->backend->name);
     snprintf(s->method, sizeof s->method, "%s", sim_model_name(m->params.model));

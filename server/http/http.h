@@ -63,7 +63,8 @@ typedef struct http_status {
     char metric[16];
     double last_tick_ms;
     uint64_t overruns;
-    double published_ms; /* time_now_ms() of the last tick's publication; 0 = none yet */
+    double published_ms; /* time_now_ms() of the last tick's publication (or of
+                          * becoming ready, before the first); 0 = not yet */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
 } http_status;
 
@@ -138,7 +139,7 @@ void http_server_remove_world(http_server *s, const char *name);
 typedef double (*http_stalled_fn)(const void *arg);
 int http_server_watch(http_server *s, const char *name, http_stalled_fn stalled_ms, const void *arg,
                       double limit_ms);
-/* A stalled_ms for the tick: how long since status->published_ms (0 before the first tick). */
+/* A stalled_ms for the tick: how long since status->published_ms (0 before it is set). */
 double http_status_stalled_ms(const void *status);
 void http_server_stop(http_server *s); /* NULL is fine */
 

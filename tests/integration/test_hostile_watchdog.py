@@ -8,6 +8,10 @@ thread sleeps where it would go on; SIGSTOP would stop every thread, the
 probes' too). The watchdog's limit is 10 s, so each stall lasts until the
 503 is seen (waited for with a generous deadline).
 
+First a daemon whose tick loop is stuck before its first tick (the file names
+"tick" from the start): the watchdog's clock starts when the world is ready, so
+that is caught too (it was not: with no tick published, /healthz said 200).
+
 Also checked: the other threads go on meanwhile (a stalled net thread does
 not stop the ticks; a stalled tick does not stop /healthz from answering),
 the probe port (--probe-port) reports the same, and afterwards a new client
@@ -62,7 +66,19 @@ def main():
     check = Checks()
     fd, stall = tempfile.mkstemp(prefix="terrad-stall-")
     os.close(fd)
-    os.unlink(stall)  # the hook acts while the file exists
+    # stuck before the first tick
+    with open(stall, "w") as f:
+        f.write("tick\n")
+    d0 = Daemon(demo=True, env={"TERRAD_FAULT_STALL": stall})
+    try:
+        with check.running(d0):
+            st, body = wait_health(d0.http_port, 503)
+            check(st == 503 and "tick" in body,
+                  f"/healthz fails naming the tick when it is stuck before its first ({st} {body!r})")
+            os.unlink(stall)  # the hook acts while the file exists: let it stop
+    finally:
+        if os.path.exists(stall):
+            os.unlink(stall)
     d = Daemon(demo=True, extra=("--probe-port", "0"), env={"TERRAD_FAULT_STALL": stall})
     try:
         with check.running(d):
