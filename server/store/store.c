@@ -8,6 +8,7 @@
 #include "store/store.h"
 
 #include <pthread.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -143,4 +144,19 @@ uint32_t store_crc32c(uint32_t crc, const void *data, size_t len)
     while (len--)
         crc = crc_table[(crc ^ *p++) & 0xff] ^ (crc >> 8);
     return ~crc;
+}
+
+const char *store_text_crc_end(const char *text, const char *tail)
+{
+    char marker[16];
+    snprintf(marker, sizeof marker, "%scrc32c ", tail);
+    const char *at = strstr(text, marker);
+    if (!at)
+        return NULL;
+    const char *end = at + strlen(tail);
+    unsigned stored = 0;
+    if (sscanf(end, "crc32c %8x", &stored) != 1 ||
+        store_crc32c(0, text, (size_t)(end - text)) != stored)
+        return NULL;
+    return end;
 }

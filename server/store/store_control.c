@@ -53,10 +53,8 @@ int store_control_read(const char *dir, store_control *c, error_text *err)
         return -1;
     }
     char *text = (char *)data;
-    char *crc_line = strstr(text, "\ncrc32c ");
-    unsigned stored = 0;
-    int ok = crc_line && sscanf(crc_line + 1, "crc32c %8x", &stored) == 1 &&
-             store_crc32c(0, text, (size_t)(crc_line + 1 - text)) == stored;
+    const char *crc_end = store_text_crc_end(text, "\n");
+    int ok = crc_end != NULL;
     unsigned long long tick = 0, first = 0, last = 0;
     int n = 0;
     ok = ok &&
@@ -64,7 +62,7 @@ int store_control_read(const char *dir, store_control *c, error_text *err)
                 &n) == 3 &&
          n > 0;
     char *line = ok ? text + n : NULL;
-    while (ok && line < crc_line + 1) {
+    while (ok && line < crc_end) {
         int tx, ty, used = 0;
         unsigned long long tt;
         ok = sscanf(line, "tile %d %d %llu\n%n", &tx, &ty, &tt, &used) == 3 && used > 0 &&

@@ -197,6 +197,10 @@ int store_control_init(store_control *c, int tiles_x, int tiles_y);
 void store_control_free(store_control *c);
 /* 0, 1 when there is none, -1 (err names the file) when it is corrupt. */
 int store_control_read(const char *dir, store_control *c, error_text *err);
+/* The text files (MANIFEST, CONTROL) end in a line "crc32c XXXXXXXX" over
+ * everything before it, which ends in `tail` ("\n", or "}\n" for the
+ * manifest's JSON): the start of that line when the checksum holds, else NULL. */
+const char *store_text_crc_end(const char *text, const char *tail);
 int store_control_write(const store_dir *st, const char *dir, const store_control *c,
                         error_text *err);
 int store_control_save(store_dir *st, error_text *err);

@@ -68,10 +68,7 @@ int store_manifest_check(const char *path, const world *w, uint32_t base_crc, er
         return -1;
     }
     char *text = (char *)data;
-    char *crc_line = strstr(text, "}\ncrc32c ");
-    unsigned stored = 0;
-    if (!crc_line || sscanf(crc_line + 2, "crc32c %8x", &stored) != 1 ||
-        store_crc32c(0, text, (size_t)(crc_line + 2 - text)) != stored) {
+    if (!store_text_crc_end(text, "}\n")) {
         error_set(err, "store: %s is corrupt (checksum mismatch or truncated)", path);
         free(data);
         return -1;
