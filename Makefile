@@ -181,7 +181,10 @@ fuzz:
 soak: build
 	@shopt -s nullglob; scripts=(tests/soak/*.sh); \
 	if [ $${#scripts[@]} = 0 ]; then echo "soak: no tests/soak/*.sh"; exit 0; fi; \
-	for s in "$${scripts[@]}"; do echo "== $$s"; $(TEST_ENV) bash "$$s"; done
+	failed=(); for s in "$${scripts[@]}"; do echo "== $$s"; \
+	    $(TEST_ENV) bash "$$s" || failed+=("$$s"); done; \
+	if [ $${#failed[@]} != 0 ]; then echo "soak: FAILED: $${failed[*]}"; exit 1; fi; \
+	echo "soak: all $${#scripts[@]} passed"
 
 format:
 	@[ -z "$(FORMAT_FILES)" ] || clang-format -i $(FORMAT_FILES)

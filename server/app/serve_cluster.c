@@ -30,65 +30,59 @@ void serve_node_name(const serve_options *o, char *out, size_t cap)
             *p = '-';
 }
 
-/* --worlds as a list of names (each checked against the registry). */
-static int named_worlds(cluster *cl, const char *list, char ***names, int *count, error_text *err)
+static int listed(char *const *registered, int count, const char *name)
 {
-    *names = NULL;
-    *count = 0;
-    for (const char *p = list; *p;) {
-        const char *end = strchr(p, ',');
-        size_t n = end ? (size_t)(end - p) : strlen(p);
-        char name[CLUSTER_WORLD_NAME_MAX + 1];
-        snprintf(name, sizeof name, "%.*s", (int)(n < CLUSTER_WORLD_NAME_MAX ? n : 64), p);
-        char *scene_json = NULL;
-        int found = n ? cluster_world_get(cl, name, &scene_json, err) : 0;
-        free(scene_json);
-        if (found == 0)
-            error_set(err, "no world named \"%s\" in the cluster (terrad world add)", name);
-        char **grown = found > 0 ? realloc(*names, (size_t)(*count + 1) * sizeof *grown) : NULL;
-        if (found > 0 && (!grown || !(grown[*count] = strdup(name)))) {
-            error_set(err, "out of memory");
-            if (grown)
-                *names = grown;
-            found = -1;
-        }
-        if (found <= 0) {
-            for (int i = 0; i < *count; i++)
-                free((*names)[i]);
-            free(*names);
-            *names = NULL;
-            *count = 0;
-            return -1;
-        }
-        *names = grown;
-        (*count)++;
-        p = end ? end + 1 : p + n;
-    }
+    for (int i = 0; i < count; i++)
+        if (strcmp(registered[i], name) == 0)
+            return 1;
     return 0;
 }
 
-int serve_cluster_take(cluster *cl, const serve_options *o,
-                       char (*held)[CLUSTER_WORLD_NAME_MAX + 1], int n, char *out, error_text *err)
+/* The i-th name of --worlds ("a,b,c") into out; the count when out is NULL. */
+static int worlds_option_name(const char *list, int i, char *out, size_t cap)
 {
-    char **names = NULL;
-    int count = 0;
-    if ((o->worlds ? named_worlds(cl, o->worlds, &names, &count, err)
-                   : cluster_world_list(cl, &names, &count, err)) != 0)
-        return -1;
-    int took = 0;
+    int k = 0;
+    for (const char *p = list;; k++) {
+        const char *end = strchr(p, ',');
+        size_t len = end ? (size_t)(end - p) : strlen(p);
+        if (out && k == i) {
+            snprintf(out, cap, "%.*s", (int)(len < cap - 1 ? len : cap - 1), p);
+            return len < cap ? k : -1; /* too long: no world has that name */
+        }
+        if (!end)
+            return k + 1;
+        p = end + 1;
+    }
+}
+
+int serve_cluster_take(cluster *cl, const serve_options *o, char *const *registered,
+                       int nregistered, char (*held)[CLUSTER_WORLD_NAME_MAX + 1], int n, char *out,
+                       error_text *err)
+{
+    /* --worlds in its own order, every name registered; else the registry's (name) order */
+    int count = o->worlds ? worlds_option_name(o->worlds, 0, NULL, 0) : nregistered;
+    char name[CLUSTER_WORLD_NAME_MAX + 1];
+    for (int i = 0; o->worlds && i < count; i++)
+        if (worlds_option_name(o->worlds, i, name, sizeof name) < 0 || !name[0] ||
+            !listed(registered, nregistered, name)) {
+            error_set(err, "no world named \"%s\" in the cluster (terrad world add)", name);
+            return -1;
+        }
     for (int i = 0; i < count; i++) {
+        if (o->worlds)
+            worlds_option_name(o->worlds, i, name, sizeof name);
+        else
+            snprintf(name, sizeof name, "%s", registered[i]);
         int mine = 0;
         for (int k = 0; k < n; k++)
-            mine |= strcmp(held[k], names[i]) == 0;
+            mine |= strcmp(held[k], name) == 0;
         error_text ignored = {{0}};
-        if (!took && !mine && cluster_lease_acquire(cl, names[i], NULL, 0, &ignored) == 1) {
-            snprintf(out, CLUSTER_WORLD_NAME_MAX + 1, "%s", names[i]);
-            took = 1;
+        if (!mine && cluster_lease_acquire(cl, name, NULL, 0, &ignored) == 1) {
+            snprintf(out, CLUSTER_WORLD_NAME_MAX + 1, "%s", name);
+            return 1;
         }
-        free(names[i]);
     }
-    free(names);
-    return took;
+    return 0;
 }
 
 int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, error_text *err)

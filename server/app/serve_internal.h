@@ -144,9 +144,10 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
 typedef struct serve_relays serve_relays;
 /* Makes net reach other nodes over cl (net_server_set_remote). NULL: out of memory. */
 serve_relays *serve_relays_start(cluster *cl, net_server *net, const char *node);
-/* Once a second: relay every registered world but those in busy (ticked or
- * being taken here); stop relaying the unregistered ones. */
-void serve_relays_refresh(serve_relays *r, char (*busy)[CLUSTER_WORLD_NAME_MAX + 1], int nbusy);
+/* Relay every world of registered (the registry as last listed) but those
+ * in busy (ticked or being taken here); stop relaying the unregistered ones. */
+void serve_relays_refresh(serve_relays *r, char *const *registered, int nregistered,
+                          char (*busy)[CLUSTER_WORLD_NAME_MAX + 1], int nbusy);
 /* This node ticks world now: its relayed clients' messages come here. */
 int serve_relays_own(serve_relays *r, const char *world, error_text *err);
 /* Neither ticked nor relayed here any more (its clients are told and closed). */
@@ -156,11 +157,13 @@ void serve_relays_stop(serve_relays *r);
 
 /* --node, or the host name with anything but [A-Za-z0-9_-] made '-'. */
 void serve_node_name(const serve_options *o, char *out, size_t cap);
-/* One pass over the candidate worlds (--worlds, or every registered one in
- * name order) not in held (count n): 1 and the world's lease taken (its name
- * in out), 0 when none is free, -1 on an error (an unknown --worlds name). */
-int serve_cluster_take(cluster *cl, const serve_options *o,
-                       char (*held)[CLUSTER_WORLD_NAME_MAX + 1], int n, char *out, error_text *err);
+/* One pass over the candidate worlds (--worlds, or every one of registered,
+ * the registry as last listed, in name order) not in held (count n): 1 and
+ * the world's lease taken (its name in out), 0 when none is free, -1 on an
+ * error (a --worlds name that is not registered). */
+int serve_cluster_take(cluster *cl, const serve_options *o, char *const *registered,
+                       int nregistered, char (*held)[CLUSTER_WORLD_NAME_MAX + 1], int n, char *out,
+                       error_text *err);
 /* The world's registered scene into m->sc, then its world and its store
  * recovered from JetStream (fencing the previous owner off) into m. */
 int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, error_text *err);

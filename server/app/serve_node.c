@@ -31,6 +31,7 @@
 
 #define NODE_MAX_WORLDS 64
 #define NODE_POLL_MS 250
+#define NODE_LIST_MS 1000.0  /* the registry is listed again after this */
 #define NODE_RETRY_MS 5000.0 /* a world that failed to open is tried again after this */
 
 typedef struct serve_node serve_node;
@@ -56,7 +57,9 @@ struct serve_node {
     http_server *http;
     net_server *net;
     serve_relays *relays; /* the worlds other nodes tick, served here too */
-    double relays_ms;     /* their last refresh */
+    char **registered;    /* the registry as last listed (node_list_worlds) */
+    int nregistered;
+    double listed_ms;     /* when it was last listed (0: never) */
     pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
     node_world *worlds[NODE_MAX_WORLDS];
     int nworlds, max_worlds;
@@ -264,6 +267,43 @@ static void reap_worlds(serve_node *n)
     }
 }
 
+static void node_forget_worlds(serve_node *n)
+{
+    for (int i = 0; i < n->nregistered; i++)
+        free(n->registered[i]);
+    free(n->registered);
+    n->registered = NULL;
+    n->nregistered = 0;
+}
+
+/* The registry, listed again once NODE_LIST_MS has passed. A listing is an
+ * ordered consumer on the bucket that the NATS servers must agree on, so the
+ * node lists once a second for its lease polls and its relays together
+ * rather than once per poll, and only the first listing waits out a leader
+ * election: later ones are tried once, and one that fails leaves the last in
+ * place, so lease polls go on while NATS elects (a lapsed owner is taken
+ * over on time). 0, or -1 when no listing has succeeded yet. */
+static int node_list_worlds(serve_node *n, error_text *err)
+{
+    double now = time_now_ms();
+    if (n->listed_ms > 0 && now - n->listed_ms < NODE_LIST_MS)
+        return 0;
+    char **names = NULL;
+    int count = 0;
+    int first = n->listed_ms == 0;
+    if ((first ? cluster_world_list(n->cl, &names, &count, err)
+               : cluster_world_list_now(n->cl, &names, &count, err)) != 0) {
+        if (!first)
+            n->listed_ms = now; /* NATS is elected or back within seconds: a second is soon */
+        return first ? -1 : 0;
+    }
+    node_forget_worlds(n);
+    n->registered = names;
+    n->nregistered = count;
+    n->listed_ms = now;
+    return 0;
+}
+
 /* Takes one more world if one is free: 1 took one, 0 none, -1 error. */
 static int take_world(serve_node *n, error_text *err)
 {
@@ -275,7 +315,8 @@ static int take_world(serve_node *n, error_text *err)
         if (n->failed[i][0] && recently_failed(n, n->failed[i]))
             snprintf(held[count++], sizeof held[0], "%s", n->failed[i]);
     char name[CLUSTER_WORLD_NAME_MAX + 1];
-    int took = serve_cluster_take(n->cl, n->o, held, count, name, err);
+    int took =
+        serve_cluster_take(n->cl, n->o, n->registered, n->nregistered, held, count, name, err);
     if (took != 1)
         return took;
     node_world *nw = calloc(1, sizeof *nw);
@@ -348,7 +389,7 @@ static void refresh_relays(serve_node *n)
     int count = 0;
     for (int i = 0; i < n->nworlds; i++)
         snprintf(busy[count++], sizeof busy[0], "%s", n->worlds[i]->m.name);
-    serve_relays_refresh(n->relays, busy, count);
+    serve_relays_refresh(n->relays, n->registered, n->nregistered, busy, count);
 }
 
 /* The node's life after its ports are open: take, tick, reap, until stop. */
@@ -359,7 +400,12 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
     while (!*stop) {
         reap_worlds(n);
         error_text err = {{0}};
-        int took = n->nworlds < n->max_worlds ? take_world(n, &err) : 0;
+        double listed_ms = n->listed_ms;
+        int took = 0;
+        if ((cluster_connected(n->cl) || first) && node_list_worlds(n, &err) != 0)
+            took = -1;
+        else if (n->nworlds < n->max_worlds)
+            took = take_world(n, &err);
         if (took < 0 && first) {
             log_error("%s", err.message);
             return 1;
@@ -381,10 +427,8 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
             *hangup = 0;
             serve_security_reload(n->o, n->auth);
         }
-        if (time_now_ms() - n->relays_ms > 1000 && cluster_connected(n->cl)) {
-            n->relays_ms = time_now_ms();
+        if (n->listed_ms != listed_ms) /* listed again (or tried): the relays follow */
             refresh_relays(n);
-        }
         if (took != 1) /* took one: look for the next at once */
             sleep_ms(NODE_POLL_MS);
     }
@@ -401,6 +445,7 @@ static void node_stop(serve_node *n)
             sleep_ms(10);
     }
     serve_relays_stop(n->relays);
+    node_forget_worlds(n);
     http_server_stop(n->probe);
     http_server_stop(n->http); /* first: its watchdog reads the net server */
     net_server_stop(n->net);

@@ -277,13 +277,10 @@ static int relay_world(serve_relays *r, const char *world, error_text *err)
     return 0;
 }
 
-void serve_relays_refresh(serve_relays *r, char (*busy)[CLUSTER_WORLD_NAME_MAX + 1], int nbusy)
+void serve_relays_refresh(serve_relays *r, char *const *names, int count,
+                          char (*busy)[CLUSTER_WORLD_NAME_MAX + 1], int nbusy)
 {
-    char **names = NULL;
-    int count = 0;
     error_text err = {{0}};
-    if (cluster_world_list(r->cl, &names, &count, &err) != 0)
-        return; /* NATS unreachable: the relays stay as they are */
     pthread_mutex_lock(&r->lock);
     for (int i = 0; i < r->n; i++) { /* unregistered: no longer relayed */
         int listed = 0;
@@ -301,9 +298,7 @@ void serve_relays_refresh(serve_relays *r, char (*busy)[CLUSTER_WORLD_NAME_MAX +
             r->warned_ms = time_now_ms();
             log_warn("cluster: cannot relay world %s: %s", names[k], err.message);
         }
-        free(names[k]);
     }
-    free(names);
     pthread_mutex_unlock(&r->lock);
 }
 

@@ -24,10 +24,13 @@ void cluster_error(error_text *err, natsStatus s, const char *fmt, ...)
         const char *end = strstr(last, "): ");
         last = end ? end + 3 : last;
     }
+    /* "NATS:" whatever failed, unless what says so already: an operator
+     * reading /readyz or a log line learns that NATS, not this node, failed */
+    const char *from = strstr(what, "NATS") ? "" : "NATS: ";
     if (last && last[0] && strcmp(last, natsStatus_GetText(s)) != 0)
-        error_set(err, "%s: %s (%s)", what, natsStatus_GetText(s), last);
+        error_set(err, "%s: %s%s (%s)", what, from, natsStatus_GetText(s), last);
     else
-        error_set(err, "%s: %s", what, natsStatus_GetText(s));
+        error_set(err, "%s: %s%s", what, from, natsStatus_GetText(s));
 }
 
 int cluster_name_valid(const char *name, const char *what, error_text *err)

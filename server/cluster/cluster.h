@@ -193,8 +193,12 @@ cluster_status cluster_world_add(cluster *cl, const char *name, const char *scen
                                  error_text *err);
 /* 1 and a malloc'd NUL-terminated *scene_json, 0 when unknown, -1 on an error. */
 int cluster_world_get(cluster *cl, const char *name, char **scene_json, error_text *err);
-/* The registered names, sorted, malloc'd (free each and the array); -1 on an error. */
+/* The registered names, sorted, malloc'd (free each and the array); -1 on an
+ * error. A listing that fails while NATS elects a leader is tried again for
+ * up to 15 s (or 4 timeouts). */
 int cluster_world_list(cluster *cl, char ***names, int *count, error_text *err);
+/* The same, tried once: for a loop that lists again anyway and must not wait. */
+int cluster_world_list_now(cluster *cl, char ***names, int *count, error_text *err);
 /* Unregisters a world and deletes its log, snapshots and lease: 1, 0 when unknown, -1 error. */
 int cluster_world_remove(cluster *cl, const char *name, error_text *err);
 

@@ -45,7 +45,7 @@ struct cluster {
     int64_t lease_count, lease_capacity;
 };
 
-/* "what: <nats status text> (<last error>)" into err. */
+/* "what: NATS: <nats status text> (<last error>)" into err. */
 void cluster_error(error_text *err, natsStatus s, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 /*

@@ -270,14 +270,14 @@ static natsStatus keys_collect(kvStore *kv, const char *pattern, key_list *l, in
 
 /* Calls on_key for each live key of kv matching pattern; -1 on an error.
  * A listing that fails (a leader being elected after a lost server) is
- * started again for a while; on_key only sees a complete one. */
+ * started again for a while unless once; on_key only sees a complete one. */
 static int keys_each(kvStore *kv, const char *pattern, void (*on_key)(void *ctx, const char *key),
-                     void *ctx, int timeout_ms, error_text *err)
+                     void *ctx, int timeout_ms, int once, error_text *err)
 {
     key_list l = {0};
     natsStatus s = NATS_OK;
     /* a stream leader lost with its server is elected again within seconds, more under load */
-    double wait_ms = 4.0 * timeout_ms > 15000 ? 4.0 * timeout_ms : 15000;
+    double wait_ms = once ? 0 : 4.0 * timeout_ms > 15000 ? 4.0 * timeout_ms : 15000;
     for (double deadline = time_now_ms() + wait_ms;;) {
         s = keys_collect(kv, pattern, &l, timeout_ms);
         if (s == NATS_OK || s == NATS_NO_MEMORY || time_now_ms() > deadline)
@@ -428,7 +428,7 @@ int cluster_snapshot_delete_all(cluster *cl, const char *world, error_text *err)
 {
     char pattern[128];
     snprintf(pattern, sizeof pattern, "%s.>", world);
-    return keys_each(cl->tiles, pattern, purge_key, cl, cl->timeout_ms, err);
+    return keys_each(cl->tiles, pattern, purge_key, cl, cl->timeout_ms, 0, err);
 }
 
 cluster_status cluster_world_add(cluster *cl, const char *name, const char *scene_json,
@@ -491,10 +491,10 @@ static void on_world_key(void *ctx, const char *key)
     l->names[l->count++] = copy;
 }
 
-int cluster_world_list(cluster *cl, char ***names, int *count, error_text *err)
+static int world_list(cluster *cl, int once, char ***names, int *count, error_text *err)
 {
     name_list l = {0};
-    int rc = keys_each(cl->worlds, ">", on_world_key, &l, cl->timeout_ms, err);
+    int rc = keys_each(cl->worlds, ">", on_world_key, &l, cl->timeout_ms, once, err);
     if (rc == 0 && l.failed) {
         error_set(err, "out of memory");
         rc = -1;
@@ -510,6 +510,16 @@ int cluster_world_list(cluster *cl, char ***names, int *count, error_text *err)
     *names = l.names;
     *count = (int)l.count;
     return 0;
+}
+
+int cluster_world_list(cluster *cl, char ***names, int *count, error_text *err)
+{
+    return world_list(cl, 0, names, count, err);
+}
+
+int cluster_world_list_now(cluster *cl, char ***names, int *count, error_text *err)
+{
+    return world_list(cl, 1, names, count, err);
 }
 
 int cluster_world_remove(cluster *cl, const char *name, error_text *err)

@@ -33,7 +33,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import WorldsNode, wait_for  # noqa: E402
+from cluster_harness import Node, wait_for  # noqa: E402
 from service_harness import BIN, SOURCE, machine  # noqa: E402
 
 FAILOVERS = int(os.environ.get("TERRAD_BENCH_FAILOVERS", "6"))
@@ -43,10 +43,9 @@ SCENE = os.path.join(SOURCE, "tests/scenes/spheres.json")  # 256 x 256 cells, 60
 
 def add_worlds(urls, names):
     for name in names:
-        r = subprocess.run([BIN, "world", "add", name, "--scene", SCENE, "--cluster", urls],
-                           capture_output=True, text=True, timeout=60)
-        if r.returncode != 0:
-            raise RuntimeError(f"world add {name}: {r.stderr}")
+        ok, said = ch.world_add(urls, name, SCENE)
+        if not ok:
+            raise RuntimeError(f"world add {name}: {said}")
 
 
 def tick_of(node, world):
@@ -62,7 +61,7 @@ def failover():
     times = []
     with ch.NatsCluster(3) as nats:
         add_worlds(nats.urls, ["dunes"])
-        nodes = [WorldsNode("a", nats.urls), WorldsNode("b", nats.urls)]
+        nodes = [Node("a", nats.urls), Node("b", nats.urls)]
         try:
             for k in range(FAILOVERS):
                 owner = wait_for(lambda: next((n for n in nodes if n.serves("dunes")), None), 60)
@@ -103,7 +102,7 @@ def tick_rates(nats, worlds, nnodes):
     names = [f"w{worlds}n{nnodes}x{i}" for i in range(worlds)]
     add_worlds(nats.urls, names)
     per = math.ceil(worlds / nnodes)
-    nodes = [WorldsNode(f"n{i}", nats.urls, max_worlds=per,
+    nodes = [Node(f"n{i}", nats.urls, max_worlds=per,
                         extra=["--worlds", ",".join(names), "--demo-actors", "6"])
              for i in range(nnodes)]
     try:

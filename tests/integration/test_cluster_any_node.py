@@ -23,14 +23,13 @@ No figure of speed is checked. Skipped (77) when nats-server is not installed.
 import asyncio
 import json
 import os
-import subprocess
 import sys
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import WorldsNode, wait_for  # noqa: E402
-from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+from cluster_harness import Node, wait_for  # noqa: E402
+from service_harness import Checks, RecordingClient, skip, tp  # noqa: E402
 
 check = Checks()
 
@@ -153,18 +152,14 @@ def main():
     with ch.NatsCluster(1) as nats:
         try:
             urls = nats.urls
-            r = subprocess.run([BIN, "world", "add", "dunes", "--scene",
-                                os.path.join(SOURCE, "server/scene/default.json"), "--cluster", urls],
-                               capture_output=True, text=True, timeout=60)
-            check(r.returncode == 0, f"world add dunes: {r.stderr.strip()}")
-            r = subprocess.run([BIN, "world", "add", "spare", "--scene",
-                                os.path.join(SOURCE, "tests/scenes/tiny.json"), "--cluster", urls],
-                               capture_output=True, text=True, timeout=60)
-            check(r.returncode == 0, f"world add spare: {r.stderr.strip()}")
-            a = WorldsNode("a", urls, extra=["--worlds", "dunes"])
+            for name, scene in (("dunes", "server/scene/default.json"),
+                                ("spare", "tests/scenes/tiny.json")):
+                ok, said = ch.world_add(urls, name, scene)
+                check(ok, f"world add {name}: {said}")
+            a = Node("a", urls, extra=["--worlds", "dunes"])
             nodes.append(a)
             check(wait_for(lambda: a.serves("dunes"), 60), "node a ticks dunes")
-            b = WorldsNode("b", urls, extra=["--worlds", "spare"])
+            b = Node("b", urls, extra=["--worlds", "spare"])
             nodes.append(b)
             check(wait_for(lambda: any("relays world dunes" in l for l in b.lines), 30),
                   "node b relays dunes")
@@ -172,7 +167,7 @@ def main():
             check(answer.get("name") == "bad_value" and code == 4005,
                   f"a hello naming an unregistered world is refused by b ({answer}, {code})")
             asyncio.run(scenario(a, b))
-            c = WorldsNode("c", urls, extra=["--worlds", "dunes"])
+            c = Node("c", urls, extra=["--worlds", "dunes"])
             nodes.append(c)
             check(wait_for(lambda: any("is a standby" in l for l in c.lines), 30),
                   "node c waits for dunes")

@@ -13,14 +13,13 @@ checked: a figure of load, not of speed). Skipped (77) without nats-server.
 import asyncio
 import os
 import re
-import subprocess
 import sys
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import WorldsNode, wait_for  # noqa: E402
-from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+from cluster_harness import Node, wait_for  # noqa: E402
+from service_harness import Checks, RecordingClient, skip, tp  # noqa: E402
 
 VIEWERS = int(os.environ.get("TERRAD_FANOUT_VIEWERS", "60"))
 NODES = int(os.environ.get("TERRAD_FANOUT_NODES", "3"))
@@ -103,14 +102,12 @@ def main():
     with ch.NatsCluster(NATS) as nats:
         try:
             urls = nats.urls
-            r = subprocess.run([BIN, "world", "add", "dunes", "--scene",
-                                os.path.join(SOURCE, "server/scene/default.json"), "--cluster", urls],
-                               capture_output=True, text=True, timeout=60)
-            check(r.returncode == 0, f"world add dunes: {r.stderr.strip()}")
-            nodes.append(WorldsNode("n0", urls))
+            ok, said = ch.world_add(urls, "dunes", "server/scene/default.json")
+            check(ok, f"world add dunes: {said}")
+            nodes.append(Node("n0", urls))
             check(wait_for(lambda: nodes[0].serves("dunes"), 60), "n0 ticks dunes")
             for i in range(1, NODES):
-                nodes.append(WorldsNode(f"n{i}", urls))
+                nodes.append(Node(f"n{i}", urls))
             for n in nodes[1:]:
                 check(wait_for(lambda: any("relays world dunes" in l for l in n.lines), 30),
                       f"{n.name} relays dunes")

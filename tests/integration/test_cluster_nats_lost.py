@@ -9,15 +9,14 @@ process. Skipped (77) when nats-server is not installed.
 # ctest-timeout: 180
 import asyncio
 import os
-import subprocess
 import sys
 import time
 import urllib.error
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import Node  # noqa: E402
-from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+from cluster_harness import Node, wait_for  # noqa: E402
+from service_harness import Checks, RecordingClient, skip, tp  # noqa: E402
 
 check = Checks()
 
@@ -61,12 +60,10 @@ def main():
     with ch.NatsCluster(1) as nats:
         try:
             urls = nats.urls
-            p = subprocess.run([BIN, "world", "add", "dunes", "--scene",
-                                os.path.join(SOURCE, "server", "scene", "default.json"),
-                                "--cluster", urls], capture_output=True, text=True, timeout=60)
-            check(p.returncode == 0, f"world add: {p.stderr}")
+            ok, said = ch.world_add(urls, "dunes", "server/scene/default.json")
+            check(ok, f"world add: {said}")
             node = Node("solo", urls)
-            check(node.serving.wait(30), "the node serves dunes")
+            check(wait_for(lambda: node.serves("dunes"), 30), "the node serves dunes")
             check(readyz(node)[0] == 200, "ready while NATS is up")
             nats.servers[0].kill()
             status, body = wait_ready(node, False, 10)

@@ -31,7 +31,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import WorldsNode, wait_for  # noqa: E402
+from cluster_harness import Node, wait_for  # noqa: E402
 from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
 
 check = Checks()
@@ -187,7 +187,7 @@ def main():
             for name, scene in WORLDS.items():
                 r = world_cmd(urls, "add", name, "--scene", os.path.join(SOURCE, scene))
                 check(r.returncode == 0, f"world add {name}: {r.stderr.strip()}")
-            a = WorldsNode("a", urls, max_worlds=3)
+            a = Node("a", urls, max_worlds=3)
             nodes.append(a)
             check(wait_for(lambda: a.worlds >= set(WORLDS), 60), f"node a serves {sorted(WORLDS)}")
             http_views(a)
@@ -199,7 +199,7 @@ def main():
                 nonlocal b
                 c, lane, sid, park = await drive_and_compare(a, volumes)
                 await lose_one_world(a, urls)
-                b = WorldsNode("b", urls, max_worlds=2)
+                b = Node("b", urls, max_worlds=2)
                 nodes.append(b)
                 check(wait_for(lambda: b.listening.is_set() and
                                any("is a standby" in l for l in b.lines), 30),

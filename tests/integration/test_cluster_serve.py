@@ -35,7 +35,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node  # noqa: E402
-from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+from service_harness import BIN, Checks, RecordingClient, skip, tp  # noqa: E402
 
 KILLS = int(os.environ.get("TERRAD_CLUSTER_KILLS", "3"))
 rand = random.Random(int(os.environ.get("TERRAD_CLUSTER_SEED", "20261124")))
@@ -46,7 +46,7 @@ def owner_of(nodes, world, timeout=15):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for n in nodes:
-            if n.world == world and n.serving.is_set() and n.proc.poll() is None:
+            if n.serves(world):
                 return n
         time.sleep(0.05)
     return None
@@ -112,7 +112,7 @@ def failover_round(k, nodes):
     global exact
     if heights is not None and settle:
         exact += 1
-        check(new.heights(*lane) == heights, f"round {k}: GET /v1/heights on {new.name} equals "
+        check(new.heights("dunes", *lane)[1] == heights, f"round {k}: GET /v1/heights on {new.name} equals "
               f"the client's mirror of its last acknowledged tick {acked} (the terrain had "
               "settled before the kill)")
     print(f"round {k}: killed {owner.name} (client saw tick {acked}); {new.name} serves dunes "
@@ -209,10 +209,8 @@ def main():
             urls = nats.urls
             for name, scene in (("dunes", "server/scene/default.json"),
                                 ("spheres", "tests/scenes/spheres.json")):
-                p = subprocess.run([BIN, "world", "add", name, "--scene",
-                                    os.path.join(SOURCE, scene), "--cluster", urls],
-                                   capture_output=True, text=True, timeout=60)
-                check(p.returncode == 0, f"world add {name}: {p.stderr.strip()}")
+                ok, said = ch.world_add(urls, name, scene)
+                check(ok, f"world add {name}: {said}")
             bad_input(urls)
             nodes = [Node(f"n{i}", urls) for i in range(3)]
             a, b = owner_of(nodes, "dunes", 30), owner_of(nodes, "spheres", 30)

@@ -3,8 +3,8 @@ start 1 or 3 real nats-server processes with JetStream on loopback, each
 with its own store directory and server name (3: one cluster "terrad",
 routes between all), wait until each accepts connections and JetStream
 answers, and stop them (SIGTERM, or SIGKILL for a crash). Also Node, one
-`terrad serve --cluster` process whose log says which world it owns and on
-which ports.
+`terrad serve --cluster` process whose log says which worlds it ticks and on
+which ports, and world_add, `terrad world add`.
 
 Not a test itself (ctest registers only test_*.py). Run with /usr/bin/python3.
 """
@@ -147,8 +147,9 @@ class NatsCluster:
 
 # ---- terrad nodes ---------------------------------------------------------------
 
-SERVING_RE = re.compile(r"http://127\.0\.0\.1:(\d+)/ and ws://127\.0\.0\.1:(\d+)/")
-OWNS_RE = re.compile(r"node (\S+) owns world (\S+)")
+LISTENS_RE = re.compile(r"node (\S+) listens on http://127\.0\.0\.1:(\d+)/ and websocket port (\d+)")
+WORLD_SERVING_RE = re.compile(r"cluster: world (\S+): serving scene")
+LOST_RE = re.compile(r"no longer owns world (\S+) |cluster: world (\S+) stopped here")
 
 
 def binary():
@@ -156,81 +157,22 @@ def binary():
     return BIN
 
 
+def world_add(urls, name, scene):
+    """`terrad world add NAME --scene SCENE` (a path from the source root, or
+    absolute): (ok, what it said on stderr)."""
+    from service_harness import SOURCE
+    r = subprocess.run([binary(), "world", "add", name, "--scene", os.path.join(SOURCE, scene),
+                        "--cluster", urls], capture_output=True, text=True, timeout=60)
+    return r.returncode == 0, r.stderr.strip()
+
+
 class Node:
-    """One `terrad serve --cluster` process; its stderr is read by a thread
-    that notes, run after run (a node that loses its world starts again in
-    the same process), which world it owns and on which ports."""
-
-    def __init__(self, name, urls):
-        self.name = name
-        self.urls = urls
-        self.lines = []
-        self.start()
-
-    def start(self):
-        self.world = self.http = self.ws = None
-        self.serving = threading.Event()
-        self.proc = subprocess.Popen(
-            [binary(), "serve", "--cluster", self.urls, "--node", self.name, "--http-port", "0",
-             "--ws-port", "0", "--backend", "cpu", "--no-demo"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            text=True, errors="replace")
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self):
-        for line in self.proc.stderr:
-            self.lines.append(line)
-            m = OWNS_RE.search(line)
-            if m:
-                self.world = m.group(2)
-            m = SERVING_RE.search(line)
-            if m:
-                self.http = f"http://127.0.0.1:{m.group(1)}"
-                self.ws = f"ws://127.0.0.1:{m.group(2)}/"
-                self.serving.set()
-            if "is a standby" in line:
-                self.world = self.http = self.ws = None
-                self.serving.clear()
-
-    def get(self, path):
-        with urllib.request.urlopen(self.http + path, timeout=10) as r:
-            return r.status, r.read()
-
-    def stats(self):
-        return json.loads(self.get("/v1/stats")[1])
-
-    def heights(self, x, y, w, h):
-        body = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")[1]
-        return list(struct.unpack(f"<{w * h}i", body))
-
-    def kill9(self):
-        self.proc.send_signal(signal.SIGKILL)
-        self.proc.wait()
-
-    def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        return self.proc.returncode
-
-    def print_log(self, tail=40):
-        print(f"---- node {self.name}, last {tail} lines ----\n" + "".join(self.lines[-tail:]))
-
-
-LISTENS_RE = re.compile(r"node (\S+) listens on http://127\.0\.0\.1:(\d+)/ and websocket port (\d+)")
-WORLD_SERVING_RE = re.compile(r"cluster: world (\S+): serving scene")
-LOST_RE = re.compile(r"no longer owns world (\S+) |cluster: world (\S+) stopped here")
-
-
-class WorldsNode:
     """One `terrad serve --cluster` process that may tick several worlds
-    (--max-worlds): its ports come from the "listens on" line, and the worlds
-    it serves now from the "world X: serving scene" and "no longer owns world
-    X" lines of its log."""
+    (--max-worlds, default 1): its ports come from the "listens on" line of
+    its log, and the worlds it serves now from the "world X: serving scene"
+    and "no longer owns world X" lines (read by a thread; a node that loses a
+    world goes on in the same process). start() again after kill9(): a
+    restart."""
 
     def __init__(self, name, urls, max_worlds=1, extra=()):
         self.name = name
@@ -243,6 +185,7 @@ class WorldsNode:
     def start(self):
         self.http = self.ws = None
         self.worlds = set()
+        self.standby = False
         self.listening = threading.Event()
         self.proc = subprocess.Popen(
             [binary(), "serve", "--cluster", self.urls, "--node", self.name, "--http-port", "0",
@@ -263,12 +206,25 @@ class WorldsNode:
             m = WORLD_SERVING_RE.search(line)
             if m:
                 self.worlds.add(m.group(1))
+            if "is a standby" in line:
+                self.standby = True
             m = LOST_RE.search(line)
             if m:
                 self.worlds.discard(m.group(1) or m.group(2))
 
+    @property
+    def world(self):
+        """The world it serves (the first by name when several), or None."""
+        return min(self.worlds) if self.worlds and self.proc.poll() is None else None
+
     def serves(self, world):
         return self.proc.poll() is None and world in self.worlds
+
+    def up(self):
+        """Running, listening, and past its first look at the leases: it ticks
+        a world or waits as a standby (ready to take one over)."""
+        return self.proc.poll() is None and self.listening.is_set() and bool(
+            self.worlds or self.standby)
 
     def get(self, path):
         """(status, body) also for 4xx/5xx answers."""
@@ -278,8 +234,9 @@ class WorldsNode:
         except urllib.error.HTTPError as e:
             return e.code, e.read()
 
-    def stats(self, world):
-        status, body = self.get(f"/v1/stats?world={world}")
+    def stats(self, world=None):
+        """GET /v1/stats (of world): the JSON, or None when not 200."""
+        status, body = self.get("/v1/stats" + (f"?world={world}" if world else ""))
         return json.loads(body) if status == 200 else None
 
     def heights(self, world, x, y, w, h):

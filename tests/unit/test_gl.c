@@ -20,6 +20,11 @@
 #include "test_params.h"
 
 /* A small deterministic generator (xorshift64*), so failures reproduce. */
+/* Every displacement method and distance metric: each case runs them all. */
+static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
+static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
+                                      SIM_METRIC_CHEBYSHEV};
+
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
 
 static uint32_t rnd(void)
@@ -309,9 +314,6 @@ static sim_params random_params(sim_method method, sim_metric metric, int32_t fl
 
 static void test_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds, int big_first)
 {
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
-    static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
-                                          SIM_METRIC_CHEBYSHEV};
     for (int mi = 0; mi < 3; mi++) {
         for (int di = 0; di < 3; di++) {
             int batches = 0, windows = 0, limits = 0, ok = 1;
@@ -351,7 +353,6 @@ static void test_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds, int bi
  * in the same batch (a refusal must not touch its neighbours). */
 static void test_height_limit(sim_backend *gl, sim_backend *cpu)
 {
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
     for (int mi = 0; mi < 3; mi++) {
         for (int variant = 0; variant < 2; variant++) {
             batch b = {0};
@@ -420,8 +421,6 @@ static void test_height_limit(sim_backend *gl, sim_backend *cpu)
  */
 static void test_dead_ends(sim_backend *gl, sim_backend *cpu)
 {
-    static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
-                                          SIM_METRIC_CHEBYSHEV};
     for (int mi = 0; mi < 3; mi++) {
         for (int variant = 0; variant < 2; variant++) {
             batch b = {0};
@@ -530,9 +529,6 @@ static void sparse_window(batch *b, int k, int w, int h, int presses, const int 
 
 static void test_sparse_tiles(sim_backend *gl, sim_backend *cpu, int chunked)
 {
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
-    static const sim_metric metrics[3] = {SIM_METRIC_EUCLIDEAN, SIM_METRIC_MANHATTAN,
-                                          SIM_METRIC_CHEBYSHEV};
     static const int one[1][3] = {{113, 71, 3}}, one_small[1][3] = {{47, 41, 3}};
     static const int corners[2][3] = {{2, 2, 2}, {67, 17, 1}};
     static const int everywhere[1][3] = {{0, 0, -1}};
@@ -621,7 +617,6 @@ static void test_scratch_and_timing(sim_backend *gl)
                                    .colliders = &colliders[k],
                                    .collider_count = 1};
     }
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
     sim_backend_set_stage_timing(gl, 1);
     for (int mi = 0; mi < 3; mi++) {
         sim_material m = sim_material_default();
@@ -661,7 +656,6 @@ static void test_scratch_and_timing(sim_backend *gl)
  * statuses and the compaction written back agree bit for bit. */
 static void test_materials_bit_exact(sim_backend *gl, sim_backend *cpu, int rounds)
 {
-    static const sim_method methods[3] = {SIM_METHOD_ITERATIVE, SIM_METHOD_SSBO, SIM_METHOD_MULTI};
     int ok = 1, windows = 0, compacting = 0;
     for (int round = 0; round < rounds && ok; round++) {
         batch b = {0};
