@@ -285,22 +285,22 @@ static void node_forget_worlds(serve_node *n)
  * over on time). 0, or -1 when no listing has succeeded yet. */
 static int node_list_worlds(serve_node *n, error_text *err)
 {
-    double now = time_now_ms();
-    if (n->listed_ms > 0 && now - n->listed_ms < NODE_LIST_MS)
+    if (n->listed_ms > 0 && time_now_ms() - n->listed_ms < NODE_LIST_MS)
         return 0;
     char **names = NULL;
     int count = 0;
     int first = n->listed_ms == 0;
     if ((first ? cluster_world_list(n->cl, &names, &count, err)
                : cluster_world_list_now(n->cl, &names, &count, err)) != 0) {
+        /* a failed try waited out a timeout: a second of lease polls before the next */
         if (!first)
-            n->listed_ms = now; /* NATS is elected or back within seconds: a second is soon */
+            n->listed_ms = time_now_ms();
         return first ? -1 : 0;
     }
     node_forget_worlds(n);
     n->registered = names;
     n->nregistered = count;
-    n->listed_ms = now;
+    n->listed_ms = time_now_ms();
     return 0;
 }
 
