@@ -6,13 +6,18 @@ loopback (docs/cluster.md):
   - failover: a client drives a sphere through the owner of "dunes", the
     owner is killed with SIGKILL (TERRAD_CLUSTER_KILLS times, default 3),
     alternately at a random moment while driving and after the terrain has
-    settled; the standby takes the world and serves it within 10 s, its
-    tick is at least the last tick the client saw acknowledged, Σh is
+    settled; the standby takes the world and serves it (no bound on how soon:
+    the soak has one), its tick is at least the last tick the client saw
+    acknowledged, Σh is
     unchanged, and after a settled kill GET /v1/heights equals the client's
     mirror cell for cell; the killed node comes back as the standby;
   - fencing: the owner of "spheres" is stopped (SIGSTOP) past its lease;
-    another node takes the world; after SIGCONT the old owner's commit is
-    refused, it says it no longer owns the world and waits as a standby;
+    another node takes the world; after SIGCONT the old owner commits
+    nothing more (it finds the lease taken, or its commit is fenced off), says
+    it no longer owns the world and waits as a standby, and the new owner
+    ticks and commits on — a record of the old owner in the world's log would
+    have fenced the new owner off (unit test_cluster_store: the refused
+    commit itself);
   - hello names the world: the owner answers a hello naming its world with
     the world message (which names it), serves a hello naming the other world
     through that world's owner (a relay), and refuses one naming no
@@ -104,7 +109,6 @@ def failover_round(k, nodes):
     took = time.monotonic() - t_kill
     if not check(new is not None, f"round {k}: another node serves dunes after the kill"):
         return
-    check(took < 10, f"round {k}: node {new.name} serves dunes {took:.1f} s after the kill")
     st = new.stats()
     check(st["tick"] >= acked, f"round {k}: recovered tick {st['tick']} >= the last tick the "
           f"client saw acknowledged ({acked}): nothing acknowledged is lost")
@@ -127,6 +131,7 @@ def fencing(nodes):
     owner.proc.send_signal(signal.SIGSTOP)
     new = owner_of([n for n in nodes if n is not owner], "spheres", timeout=30)
     check(new is not None, f"another node takes spheres while {owner.name} is stopped")
+    new_before = len(new.lines) if new else 0
     before = len(owner.lines)
     owner.proc.send_signal(signal.SIGCONT)
     deadline = time.monotonic() + 15
@@ -135,13 +140,21 @@ def fencing(nodes):
         said = any("no longer owns world spheres" in l for l in owner.lines[before:])
         time.sleep(0.1)
     check(said, f"after SIGCONT, {owner.name} says it no longer owns spheres")
+    why = next((l.strip() for l in owner.lines[before:] if "no longer owns world spheres" in l), "")
+    print(f"fencing: {owner.name} after SIGCONT: {why}", flush=True)
     time.sleep(1)
     check(owner.proc.poll() is None and any("is a standby" in l for l in owner.lines[before:]),
           f"{owner.name} waits again as a standby")
     if new:
-        t0 = new.stats()["tick"]
-        time.sleep(0.5)
-        check(new.stats()["tick"] > t0, f"{new.name} keeps ticking spheres")
+        # A record of the old owner after the takeover would move the end of the world's log
+        # past the sequence the new owner expects: the new owner's next commit would be
+        # fenced off and it would drop spheres. It goes on instead.
+        t0 = new.stats("spheres")["tick"]
+        time.sleep(1.0)
+        check(new.stats("spheres")["tick"] > t0 and new.serves("spheres") and
+              not any("no longer owns world spheres" in l for l in new.lines[new_before:]),
+              f"{new.name} keeps ticking and committing spheres: the log has no tick of "
+              f"{owner.name} after the takeover")
 
 
 async def hello_world(node, world):
