@@ -142,8 +142,10 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
 
 /* ---- any node serves any world (serve_relay.c) ---- */
 typedef struct serve_relays serve_relays;
-/* Makes net reach other nodes over cl (net_server_set_remote). NULL: out of memory. */
-serve_relays *serve_relays_start(cluster *cl, net_server *net, const char *node);
+/* Makes net reach other nodes over cl (net_server_set_remote), and http answer
+ * for the worlds relayed here by asking their owners (http_server_set_forward).
+ * NULL: out of memory. */
+serve_relays *serve_relays_start(cluster *cl, net_server *net, http_server *http, const char *node);
 /* Relay every world of registered (the registry as last listed) but those
  * in busy (ticked or being taken here); stop relaying the unregistered ones. */
 void serve_relays_refresh(serve_relays *r, char *const *registered, int nregistered,

@@ -367,7 +367,7 @@ static int node_open_ports(serve_node *n, error_text *err)
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
-    if (!(n->relays = serve_relays_start(n->cl, n->net, n->name))) {
+    if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name))) {
         error_set(err, "out of memory");
         return -1;
     }

@@ -27,18 +27,21 @@
 
 #define RELAY_MAX 128
 #define WIRE_HEADER 28
+#define RELAY_HTTP_TIMEOUT_MS 5000
 
 typedef struct relay_entry {
     char world[CLUSTER_WORLD_NAME_MAX + 1];
     int owned; /* 1: this node ticks it (its ingress); 0: relayed here */
     cluster_sub *sub;
-    int64_t dropped; /* messages NATS dropped for it: its clients resync */
+    cluster_sub *http_sub; /* owned: the HTTP requests relays forward (terrad.http.<world>) */
+    int64_t dropped;       /* messages NATS dropped for it: its clients resync */
     serve_relays *r;
 } relay_entry;
 
 struct serve_relays {
     cluster *cl;
     net_server *net;
+    http_server *http;
     char node[CLUSTER_NODE_NAME_MAX + 1];
     pthread_mutex_t lock; /* entries: the node loop and the world threads */
     relay_entry *entries[RELAY_MAX];
@@ -158,27 +161,73 @@ static void relay_receive(void *ctx, const char *subject, const void *data, size
     net_server_remote_input(r->net, e->world, &m, payload, payload_len);
 }
 
-/* ---- the table of worlds ---- */
+/* ---- HTTP: a relay asks the owner, which answers as its own port would ---- */
 
-serve_relays *serve_relays_start(cluster *cl, net_server *net, const char *node)
-{
-    serve_relays *r = calloc(1, sizeof *r);
-    if (!r)
-        return NULL;
-    r->cl = cl;
-    r->net = net;
-    snprintf(r->node, sizeof r->node, "%s", node);
-    pthread_mutex_init(&r->lock, NULL);
-    net_server_set_remote(net, node, relay_send, r);
-    return r;
-}
-
+/* The entry of world; under r->lock. -1: none. */
 static int find(serve_relays *r, const char *world)
 {
     for (int i = 0; i < r->n; i++)
         if (strcmp(r->entries[i]->world, world) == 0)
             return i;
     return -1;
+}
+
+/* The owner's side, on a NATS thread: the request's bytes → the answer's. */
+static void owner_http_answer(void *ctx, const void *data, size_t len, void **answer,
+                              size_t *answer_len)
+{
+    relay_entry *e = ctx;
+    int64_t max = cluster_max_payload(e->r->cl);
+    if (http_server_answer(e->r->http, e->world, data, len, max > 0 ? (size_t)max : 1 << 20, answer,
+                           answer_len) != 0)
+        *answer = NULL; /* out of memory: the relay's request times out */
+}
+
+/* The relay's side, on an HTTP thread (http_forward_fn). */
+static int relay_http_forward(void *ctx, const char *world, const void *request, size_t len,
+                              void **answer, size_t *answer_len, unsigned *code, char *why,
+                              size_t cap)
+{
+    serve_relays *r = ctx;
+    pthread_mutex_lock(&r->lock);
+    int at = find(r, world), relayed = at >= 0 && !r->entries[at]->owned;
+    pthread_mutex_unlock(&r->lock);
+    if (!relayed)
+        return 0;
+    char subject[CLUSTER_WORLD_NAME_MAX + 16];
+    snprintf(subject, sizeof subject, "terrad.http.%s", world);
+    error_text err = {{0}};
+    /* longer than the owner's wait for its sim thread (heights_timeout_ms, 2 s by default) */
+    int rc = cluster_request(r->cl, subject, request, len, RELAY_HTTP_TIMEOUT_MS, answer,
+                             answer_len, &err);
+    if (rc == 0) {
+        *code = 503;
+        snprintf(why, cap,
+                 "no node ticks world \"%s\" now (its owner is gone and no node has taken it "
+                 "over yet); retry in a few seconds",
+                 world);
+    } else if (rc < 0) {
+        *code = 504;
+        snprintf(why, cap, "the owner of world \"%s\" did not answer: %s", world, err.message);
+    }
+    return rc == 1 ? 1 : -1;
+}
+
+/* ---- the table of worlds ---- */
+
+serve_relays *serve_relays_start(cluster *cl, net_server *net, http_server *http, const char *node)
+{
+    serve_relays *r = calloc(1, sizeof *r);
+    if (!r)
+        return NULL;
+    r->cl = cl;
+    r->net = net;
+    r->http = http;
+    snprintf(r->node, sizeof r->node, "%s", node);
+    pthread_mutex_init(&r->lock, NULL);
+    net_server_set_remote(net, node, relay_send, r);
+    http_server_set_forward(http, relay_http_forward, r);
+    return r;
 }
 
 /* Subscribes world's subject for its role; under r->lock. */
@@ -202,6 +251,13 @@ static int entry_add(serve_relays *r, const char *world, int owned, error_text *
         free(e);
         return -1;
     }
+    snprintf(subject, sizeof subject, "terrad.http.%s", world);
+    if (owned &&
+        !(e->http_sub = cluster_serve_requests(r->cl, subject, owner_http_answer, e, err))) {
+        cluster_unsubscribe(e->sub);
+        free(e);
+        return -1;
+    }
     r->entries[r->n++] = e;
     return 0;
 }
@@ -211,6 +267,7 @@ static void entry_remove(serve_relays *r, int i)
     relay_entry *e = r->entries[i];
     r->entries[i] = r->entries[--r->n];
     cluster_unsubscribe(e->sub);
+    cluster_unsubscribe(e->http_sub);
     if (!e->owned)
         net_server_remove_relay(r->net, e->world);
     free(e);
@@ -306,6 +363,7 @@ void serve_relays_stop(serve_relays *r)
 {
     if (!r)
         return;
+    http_server_set_forward(r->http, NULL, NULL); /* no HTTP thread uses r after this */
     pthread_mutex_lock(&r->lock);
     while (r->n > 0)
         entry_remove(r, r->n - 1);

@@ -334,6 +334,8 @@ int cluster_replicas(const cluster *cl)
 struct cluster_sub {
     natsSubscription *sub;
     cluster_msg_fn fn;
+    cluster_answer_fn answer_fn; /* cluster_serve_requests */
+    natsConnection *nc;
     void *ctx;
 };
 
@@ -347,14 +349,28 @@ static void on_message(natsConnection *nc, natsSubscription *sub, natsMsg *msg, 
     natsMsg_Destroy(msg);
 }
 
+static void on_request(natsConnection *nc, natsSubscription *sub, natsMsg *msg, void *closure)
+{
+    (void)sub;
+    cluster_sub *s = closure;
+    void *answer = NULL;
+    size_t len = 0;
+    s->answer_fn(s->ctx, natsMsg_GetData(msg), (size_t)natsMsg_GetDataLength(msg), &answer, &len);
+    const char *reply = natsMsg_GetReply(msg);
+    if (answer && reply && reply[0]) /* the asker times out when it cannot be sent */
+        natsConnection_Publish(nc, reply, answer, (int)len);
+    free(answer);
+    natsMsg_Destroy(msg);
+}
+
 cluster_status cluster_publish(cluster *cl, const char *subject, const void *data, size_t len)
 {
     return natsConnection_Publish(cl->nc, subject, data, (int)len) == NATS_OK ? CLUSTER_OK
                                                                               : CLUSTER_ERROR;
 }
 
-cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn fn, void *ctx,
-                               error_text *err)
+static cluster_sub *subscribe(cluster *cl, const char *subject, cluster_msg_fn fn,
+                              cluster_answer_fn answer_fn, void *ctx, error_text *err)
 {
     cluster_sub *s = calloc(1, sizeof *s);
     if (!s) {
@@ -362,8 +378,11 @@ cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn 
         return NULL;
     }
     s->fn = fn;
+    s->answer_fn = answer_fn;
+    s->nc = cl->nc;
     s->ctx = ctx;
-    natsStatus st = natsConnection_Subscribe(&s->sub, cl->nc, subject, on_message, s);
+    natsStatus st =
+        natsConnection_Subscribe(&s->sub, cl->nc, subject, answer_fn ? on_request : on_message, s);
     if (st == NATS_OK) /* a relay holds what it cannot take yet rather than lose it */
         st = natsSubscription_SetPendingLimits(s->sub, 1 << 20, 1 << 30);
     if (st != NATS_OK) {
@@ -373,6 +392,45 @@ cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn 
         return NULL;
     }
     return s;
+}
+
+cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn fn, void *ctx,
+                               error_text *err)
+{
+    return subscribe(cl, subject, fn, NULL, ctx, err);
+}
+
+cluster_sub *cluster_serve_requests(cluster *cl, const char *subject, cluster_answer_fn fn,
+                                    void *ctx, error_text *err)
+{
+    return subscribe(cl, subject, NULL, fn, ctx, err);
+}
+
+int cluster_request(cluster *cl, const char *subject, const void *data, size_t len, int timeout_ms,
+                    void **answer, size_t *answer_len, error_text *err)
+{
+    *answer = NULL;
+    *answer_len = 0;
+    natsMsg *reply = NULL;
+    natsStatus s = natsConnection_Request(&reply, cl->nc, subject, data, (int)len, timeout_ms);
+    if (s == NATS_NO_RESPONDERS)
+        return 0;
+    if (s != NATS_OK) {
+        cluster_error(err, s, "request on %s", subject);
+        return -1;
+    }
+    size_t n = (size_t)natsMsg_GetDataLength(reply);
+    *answer = malloc(n ? n : 1);
+    if (!*answer) {
+        natsMsg_Destroy(reply);
+        error_set(err, "cluster: out of memory");
+        return -1;
+    }
+    if (n)
+        memcpy(*answer, natsMsg_GetData(reply), n);
+    *answer_len = n;
+    natsMsg_Destroy(reply);
+    return 1;
 }
 
 int64_t cluster_sub_dropped(cluster_sub *s)

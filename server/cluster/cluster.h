@@ -89,6 +89,18 @@ cluster_status cluster_publish(cluster *cl, const char *subject, const void *dat
 /* fn gets every message on subject (NATS wildcards allowed) until unsubscribed. */
 cluster_sub *cluster_subscribe(cluster *cl, const char *subject, cluster_msg_fn fn, void *ctx,
                                error_text *err);
+/* Request and answer (any node serves any world's HTTP views): fn turns a
+ * request's bytes into its answer's (*answer malloc'd, or NULL: no answer). */
+typedef void (*cluster_answer_fn)(void *ctx, const void *data, size_t len, void **answer,
+                                  size_t *answer_len);
+/* fn answers every request on subject until unsubscribed (on a NATS thread). */
+cluster_sub *cluster_serve_requests(cluster *cl, const char *subject, cluster_answer_fn fn,
+                                    void *ctx, error_text *err);
+/* Sends a request on subject and waits up to timeout_ms for its answer: 1
+ * with *answer (malloc'd), 0 when nobody serves the subject now (NATS's "no
+ * responders"), -1 with err (no answer in time, NATS unreachable). */
+int cluster_request(cluster *cl, const char *subject, const void *data, size_t len, int timeout_ms,
+                    void **answer, size_t *answer_len, error_text *err);
 /* Messages the client dropped for this subscription (it fell behind), since it began. */
 int64_t cluster_sub_dropped(cluster_sub *s);
 /* Ends it; returns once no call of fn runs (or after 2 s). NULL is fine. */

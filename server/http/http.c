@@ -23,7 +23,6 @@
 
 #include <arpa/inet.h>
 #include <stdatomic.h>
-#include <limits.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
 #include <stdarg.h>
@@ -34,8 +33,6 @@
 
 #include "base/embedded.h"
 #include "metrics/metrics.h"
-#include "terrad_version.h"
-#include "world/world.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
 
@@ -51,7 +48,7 @@ typedef struct request {
 
 /* ---- responses ---- */
 
-static enum MHD_Result queue(struct MHD_Connection *c, unsigned code, struct MHD_Response *r)
+enum MHD_Result http_queue(struct MHD_Connection *c, unsigned code, struct MHD_Response *r)
 {
     if (!r)
         return MHD_NO;
@@ -75,26 +72,7 @@ static struct MHD_Response *text_response(const char *type, const char *body)
 static enum MHD_Result respond(struct MHD_Connection *c, unsigned code, const char *type,
                                const char *body)
 {
-    return queue(c, code, text_response(type, body));
-}
-
-/* Copy s into out as the inside of a JSON string (quotes and control
- * characters escaped; bounded, long input is cut). */
-static void json_escape(const char *s, char *out, size_t cap)
-{
-    size_t o = 0;
-    for (; *s && o + 7 < cap; s++) {
-        unsigned char ch = (unsigned char)*s;
-        if (ch == '"' || ch == '\\') {
-            out[o++] = '\\';
-            out[o++] = (char)ch;
-        } else if (ch < 0x20) {
-            o += (size_t)snprintf(out + o, cap - o, "\\u%04x", ch);
-        } else {
-            out[o++] = (char)ch;
-        }
-    }
-    out[o] = '\0';
+    return http_queue(c, code, text_response(type, body));
 }
 
 static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned code, const char *fmt, ...)
@@ -102,26 +80,26 @@ static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned code, co
 
 static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned code, const char *fmt, ...)
 {
-    char message[512], escaped[1100], body[1200];
+    char message[512];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(message, sizeof message, fmt, ap);
     va_end(ap);
-    json_escape(message, escaped, sizeof escaped);
-    snprintf(body, sizeof body, "{\"error\":\"%s\"}\n", escaped);
-    return respond(c, code, "application/json", body);
+    http_answer a = {0};
+    http_answer_error(&a, code, "%s", message);
+    return http_answer_queue(c, &a);
 }
 
 static enum MHD_Result respond_not_allowed(struct MHD_Connection *c, const char *method)
 {
     char m[32];
-    json_escape(method, m, sizeof m);
+    http_json_escape(method, m, sizeof m);
     char body[128];
     snprintf(body, sizeof body, "{\"error\":\"method %s not allowed; use GET or HEAD\"}\n", m);
     struct MHD_Response *r = text_response("application/json", body);
     if (r)
         MHD_add_response_header(r, "Allow", ALLOWED_METHODS);
-    return queue(c, MHD_HTTP_METHOD_NOT_ALLOWED, r);
+    return http_queue(c, MHD_HTTP_METHOD_NOT_ALLOWED, r);
 }
 
 /* ---- status views ---- */
@@ -131,61 +109,6 @@ static void status_copy(http_server *s, http_status *snap)
     pthread_mutex_lock(&s->status->lock);
     *snap = *s->status; /* the copied lock is never used */
     pthread_mutex_unlock(&s->status->lock);
-}
-
-static enum MHD_Result serve_stats(struct MHD_Connection *c, const http_status *st)
-{
-    char body[512];
-    snprintf(body, sizeof body,
-             "{\"tick\":%llu,\"volume\":%lld,\"clients\":%d,\"colliders\":%d,"
-             "\"last_tick_ms\":%.3f,\"overruns\":%llu,\"ready\":%s}\n",
-             (unsigned long long)st->tick, (long long)st->volume, st->clients, st->colliders,
-             st->last_tick_ms, (unsigned long long)st->overruns, st->ready ? "true" : "false");
-    return respond(c, MHD_HTTP_OK, "application/json", body);
-}
-
-/* The shortest decimal that reads back as the same double ("0.05", not
- * "0.050000000000000003"), so JSON readers see what the scene said. */
-static const char *json_double(double v, char *out, size_t cap)
-{
-    for (int digits = 15; digits <= 17; digits++) {
-        snprintf(out, cap, "%.*g", digits, v);
-        if (strtod(out, NULL) == v)
-            break;
-    }
-    return out;
-}
-
-static enum MHD_Result serve_world(struct MHD_Connection *c, const http_status *st)
-{
-    char renderer[600], backend[40], method[40], metric[40], body[1600], name[160] = "";
-    char width_m[32], height_m[32], cell[32], hz[32];
-    if (st->world_name[0]) { /* cluster mode only: a single daemon's answer is unchanged */
-        char escaped[132];
-        json_escape(st->world_name, escaped, sizeof escaped);
-        snprintf(name, sizeof name, ",\"world\":\"%s\"", escaped);
-    }
-    json_escape(st->renderer, renderer, sizeof renderer);
-    json_escape(st->backend, backend, sizeof backend);
-    json_escape(st->method, method, sizeof method);
-    json_escape(st->metric, metric, sizeof metric);
-    /* width/height stay at the top level for existing clients; extent
-     * repeats them with the size in metres. */
-    snprintf(body, sizeof body,
-             "{\"width\":%d,\"height\":%d,"
-             "\"extent\":{\"width_cells\":%d,\"height_cells\":%d,\"width_m\":%s,"
-             "\"height_m\":%s},"
-             "\"cell_size_m\":%s,\"units_per_m\":%d,\"tick\":%llu,\"tick_hz\":%s,"
-             "\"tile_size\":%d,\"models\":[%s%s%s],\"metric\":\"%s\","
-             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s,\"version\":\"%s\"%s}\n",
-             st->world_width, st->world_height, st->world_width, st->world_height,
-             json_double(st->world_width * st->cell_size_m, width_m, sizeof width_m),
-             json_double(st->world_height * st->cell_size_m, height_m, sizeof height_m),
-             json_double(st->cell_size_m, cell, sizeof cell), st->units_per_m,
-             (unsigned long long)st->tick, json_double(st->tick_hz, hz, sizeof hz), st->tile_size,
-             method[0] ? "\"" : "", method, method[0] ? "\"" : "", metric, renderer, backend,
-             st->ready ? "true" : "false", TERRAD_VERSION, name);
-    return respond(c, MHD_HTTP_OK, "application/json", body);
 }
 
 static enum MHD_Result serve_metrics(struct MHD_Connection *c)
@@ -201,190 +124,7 @@ static enum MHD_Result serve_metrics(struct MHD_Connection *c)
     }
     MHD_add_response_header(r, "Content-Type", "text/plain; version=0.0.4; charset=utf-8");
     MHD_add_response_header(r, "Cache-Control", "no-store");
-    return queue(c, MHD_HTTP_OK, r);
-}
-
-/* ---- /v1/heights ---- */
-
-/* A query parameter as an int: 0, or -1 (missing) / -2 (not an integer). */
-static int param_int(struct MHD_Connection *c, const char *name, int *out)
-{
-    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, name);
-    if (!v || !*v)
-        return -1;
-    const char *p = v;
-    int negative = 0;
-    if (*p == '-') {
-        negative = 1;
-        p++;
-    }
-    if (!*p)
-        return -2;
-    long long x = 0;
-    for (; *p; p++) {
-        if (*p < '0' || *p > '9')
-            return -2;
-        x = x * 10 + (*p - '0');
-        if (x > INT_MAX)
-            return -2;
-    }
-    *out = (int)(negative ? -x : x);
-    return 0;
-}
-
-/* Query parameter `name`: 0 when absent or "0", 1 when "1", -1 otherwise. */
-static int param_is_one(struct MHD_Connection *c, const char *name)
-{
-    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, name);
-    if (!v || strcmp(v, "0") == 0)
-        return 0;
-    return strcmp(v, "1") == 0 ? 1 : -1;
-}
-
-/* The rectangle's heights into dst: the live world through the hub (at the
- * end of *tick), or with base=1 the scene's base terrain (tick 0). 0, or the
- * HTTP status to answer with and why. */
-static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
-                          struct MHD_Connection *c, world_rect r, int32_t *dst, uint64_t *tick,
-                          char *why, size_t cap)
-{
-    int base = param_is_one(c, "base");
-    if (base < 0) {
-        snprintf(why, cap, "parameter base must be 0 or 1");
-        return MHD_HTTP_BAD_REQUEST;
-    }
-    if (base) { /* immutable once the world is made: read here without the sim thread */
-        const world *w = base_world;
-        if (!w) {
-            snprintf(why, cap, "the base terrain is not available");
-            return MHD_HTTP_SERVICE_UNAVAILABLE;
-        }
-        world_base_fill_rect(w, r, dst);
-        *tick = 0;
-        return 0;
-    }
-    if (hub_read_heights(heights, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
-        snprintf(why, cap,
-                 "the simulation did not serve the height read within %d ms (busy or shutting "
-                 "down); retry",
-                 s->limits.heights_timeout_ms);
-        return MHD_HTTP_SERVICE_UNAVAILABLE;
-    }
-    return 0;
-}
-
-static enum MHD_Result serve_heights(http_server *s, hub *from, const world *base,
-                                     struct MHD_Connection *c, const http_status *st)
-{
-    static const char *const names[4] = {"x", "y", "w", "h"};
-    int v[4];
-    for (int i = 0; i < 4; i++) {
-        int rc = param_int(c, names[i], &v[i]);
-        if (rc == -1)
-            return respond_error(c, MHD_HTTP_BAD_REQUEST,
-                                 "parameter %s is required (integer cells; "
-                                 "/v1/heights?x=&y=&w=&h=)",
-                                 names[i]);
-        if (rc == -2)
-            return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter %s must be a decimal integer",
-                                 names[i]);
-    }
-    world_rect r = {v[0], v[1], v[2], v[3]};
-    const char *format = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "format");
-    int png = 0;
-    if (format && strcmp(format, "png16") == 0)
-        png = 1;
-    else if (format && strcmp(format, "int32") != 0)
-        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter format must be int32 or png16");
-    if (r.w < 1)
-        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter w must be at least 1");
-    if (r.h < 1)
-        return respond_error(c, MHD_HTTP_BAD_REQUEST, "parameter h must be at least 1");
-    int64_t cells = (int64_t)r.w * r.h;
-    if (cells > s->limits.heights_max_cells)
-        return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE,
-                             "rectangle of %d x %d = %lld cells exceeds the limit of %lld cells "
-                             "per request (heights_max_cells); read it in pieces",
-                             r.w, r.h, (long long)cells, (long long)s->limits.heights_max_cells);
-    if (!from || st->world_width <= 0 || st->world_height <= 0)
-        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "heights are not available yet");
-    if (r.x < 0 || (int64_t)r.x + r.w > st->world_width)
-        return respond_error(c, MHD_HTTP_BAD_REQUEST,
-                             "parameters x and w: columns %d..%lld are outside the world "
-                             "(columns 0..%d)",
-                             r.x, (long long)r.x + r.w - 1, st->world_width - 1);
-    if (r.y < 0 || (int64_t)r.y + r.h > st->world_height)
-        return respond_error(c, MHD_HTTP_BAD_REQUEST,
-                             "parameters y and h: rows %d..%lld are outside the world "
-                             "(rows 0..%d)",
-                             r.y, (long long)r.y + r.h - 1, st->world_height - 1);
-
-    /* freed when the request ends, read or not (MHD's idle timeout ends an unread one) */
-    if (http_guard_reserve(s->guard, c, (size_t)cells * 4) != 0)
-        return respond_error(c, MHD_HTTP_TOO_MANY_REQUESTS,
-                             "too many /v1/heights bytes in flight for this address (at most "
-                             "%zu per address, %zu in all): read the answers already asked for",
-                             s->limits.heights_bytes_per_address, s->limits.heights_bytes_total);
-    int32_t *heights = malloc((size_t)cells * sizeof *heights);
-    if (!heights)
-        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE,
-                             "out of memory for %lld cells; try a smaller rectangle",
-                             (long long)cells);
-    uint64_t tick = 0;
-    char why[160];
-    unsigned status = read_rect(s, from, base, c, r, heights, &tick, why, sizeof why);
-    if (status) {
-        free(heights);
-        return respond_error(c, status, "%s", why);
-    }
-    char tick_text[32], rect_text[64], upm_text[32];
-    snprintf(tick_text, sizeof tick_text, "%llu", (unsigned long long)tick);
-    snprintf(rect_text, sizeof rect_text, "%d,%d,%d,%d", r.x, r.y, r.w, r.h);
-    snprintf(upm_text, sizeof upm_text, "%d", st->units_per_m);
-
-    struct MHD_Response *resp;
-    if (png) {
-        int32_t offset;
-        int clipped;
-        http_png_memory m;
-        int rc = http_png16_encode(heights, r.w, r.h, &offset, &clipped, &m);
-        free(heights);
-        if (rc != 0)
-            return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR,
-                                 "PNG encoding failed (out of memory?)");
-        resp = MHD_create_response_from_buffer(m.len, m.data, MHD_RESPMEM_MUST_FREE);
-        if (!resp) {
-            free(m.data);
-            return MHD_NO;
-        }
-        char offset_text[32];
-        snprintf(offset_text, sizeof offset_text, "%d", offset);
-        MHD_add_response_header(resp, "Content-Type", "image/png");
-        MHD_add_response_header(resp, "X-Terrad-Offset", offset_text);
-        MHD_add_response_header(resp, "X-Terrad-Clipped", clipped ? "1" : "0");
-    } else {
-        /* Little-endian on the wire whatever the host: rewrite in place
-         * (a no-op the compiler removes on x86 and arm64). */
-        unsigned char *b = (unsigned char *)heights;
-        for (int64_t i = 0; i < cells; i++) {
-            uint32_t u = (uint32_t)heights[i];
-            b[4 * i] = (unsigned char)u;
-            b[4 * i + 1] = (unsigned char)(u >> 8);
-            b[4 * i + 2] = (unsigned char)(u >> 16);
-            b[4 * i + 3] = (unsigned char)(u >> 24);
-        }
-        resp = MHD_create_response_from_buffer((size_t)cells * 4, heights, MHD_RESPMEM_MUST_FREE);
-        if (!resp) {
-            free(heights);
-            return MHD_NO;
-        }
-        MHD_add_response_header(resp, "Content-Type", "application/octet-stream");
-    }
-    MHD_add_response_header(resp, "Cache-Control", "no-store");
-    MHD_add_response_header(resp, "X-Terrad-Tick", tick_text);
-    MHD_add_response_header(resp, "X-Terrad-Rect", rect_text);
-    MHD_add_response_header(resp, "X-Terrad-Units-Per-Metre", upm_text);
-    return queue(c, MHD_HTTP_OK, resp);
+    return http_queue(c, MHD_HTTP_OK, r);
 }
 
 /* ---- static files ---- */
@@ -440,7 +180,7 @@ static enum MHD_Result serve_embedded(struct MHD_Connection *c, const char *name
     MHD_add_response_header(r, "Content-Type", content_type(name));
     /* The viewer changes with the binary: always revalidate. */
     MHD_add_response_header(r, "Cache-Control", "no-cache");
-    return queue(c, MHD_HTTP_OK, r);
+    return http_queue(c, MHD_HTTP_OK, r);
 }
 
 /* ---- dispatch ---- */
@@ -502,25 +242,25 @@ double http_status_stalled_ms(const void *status)
     return at > 0 ? time_now_ms() - at : 0;
 }
 
-/* A cluster node's /v1/world, /v1/stats (view) or /v1/heights (view NULL)
- * for the world ?world= names (the node's first when none is named). */
-static enum MHD_Result serve_hosted(http_server *s, struct MHD_Connection *c,
-                                    enum MHD_Result (*view)(struct MHD_Connection *,
-                                                            const http_status *))
+/* A cluster node's /v1/world, /v1/stats or /v1/heights for the world ?world=
+ * names (the node's first when none is named); a world another node ticks
+ * is asked of its owner. */
+static enum MHD_Result serve_hosted(http_server *s, struct MHD_Connection *c, http_view view)
 {
     unsigned code = 0;
     char why[512];
     const char *name = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "world");
     http_world *w = http_world_acquire(s, name, &code, why, sizeof why);
-    if (!w)
+    http_answer a = {0};
+    if (w) {
+        http_args args = {.c = c};
+        http_view_hosted(s, w, view, &args, &a);
+        http_world_release(s, w);
+    } else if (!(name && code == MHD_HTTP_NOT_FOUND &&
+                 http_forward_request(s, c, name, view, &a))) {
         return respond_error(c, code, "%s", why);
-    http_status snap;
-    pthread_mutex_lock(&w->status->lock);
-    snap = *w->status; /* the copied lock is never used */
-    pthread_mutex_unlock(&w->status->lock);
-    enum MHD_Result r = view ? view(c, &snap) : serve_heights(s, w->heights, w->base, c, &snap);
-    http_world_release(s, w);
-    return r;
+    }
+    return http_answer_queue(c, &a);
 }
 
 static int method_allowed(const char *method)
@@ -592,18 +332,23 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     }
     struct MHD_Response *refusal = http_auth_refusal(c, url, s->auth);
     if (refusal)
-        return queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
+        return http_queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
     int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
         heights = strcmp(url, "/v1/heights") == 0;
+    http_view view = stats ? HTTP_VIEW_STATS : about ? HTTP_VIEW_WORLD : HTTP_VIEW_HEIGHTS;
     if (s->hosts_worlds && (stats || about || heights))
-        return serve_hosted(s, c, stats ? serve_stats : about ? serve_world : NULL);
+        return serve_hosted(s, c, view);
+    if (!(stats || about || heights))
+        return serve_static(c, url);
+    http_answer a = {0};
+    http_args args = {.c = c};
     if (stats)
-        return serve_stats(c, &snap);
-    if (about)
-        return serve_world(c, &snap);
-    if (heights)
-        return serve_heights(s, s->heights, atomic_load(&s->base), c, &snap);
-    return serve_static(c, url);
+        http_view_stats(&snap, &a);
+    else if (about)
+        http_view_world(&snap, &a);
+    else
+        http_view_heights(s, s->heights, atomic_load(&s->base), &args, &snap, &a);
+    return http_answer_queue(c, &a);
 }
 
 static void *request_begin(void *cls, const char *uri, struct MHD_Connection *c)

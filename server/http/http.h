@@ -22,7 +22,8 @@
  *                     and for png16 X-Terrad-Offset, X-Terrad-Units-Per-Metre,
  *                     X-Terrad-Clipped; base=1: the scene's base terrain
  *                     (tick 0), read without the sim thread
- *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME)
+ *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME, and
+ *   answer for a world another node ticks too: asked of its owner over NATS)
  *   /v1/openapi.yaml  this API in OpenAPI 3 (docs/openapi.yaml, embedded)
  *   /, /<file>        the embedded web/ files ("/" is web/index.html)
  * Every error is JSON {"error": "..."}.
@@ -131,6 +132,22 @@ int http_server_add_world(http_server *s, const char *name, http_status *status,
                           const world *base, error_text *err);
 /* Waits for the requests using the world to end (close its hub's reads first). */
 void http_server_remove_world(http_server *s, const char *name);
+/* Any node serves any world (http_views.c): a request for a world this node
+ * does not serve goes, as bytes, to forward, which carries it to the world's
+ * owner and returns 1 with the owner's answer bytes (*answer malloc'd), 0
+ * when no world of that name is relayed here (404 as before), or -1 with the
+ * status and why (503: no node ticks it now; 504: the owner did not answer).
+ * The owner turns the request bytes into the answer bytes its own port would
+ * send with http_server_answer (an answer longer than max_len becomes a 413
+ * saying so): 0, or -1 out of memory. The request was checked (auth, limits)
+ * by the node it came to. */
+typedef int (*http_forward_fn)(void *ctx, const char *world, const void *request, size_t len,
+                               void **answer, size_t *answer_len, unsigned *code, char *why,
+                               size_t cap);
+/* fn NULL: none any more; returns once no call of the old one runs. */
+void http_server_set_forward(http_server *s, http_forward_fn fn, void *ctx);
+int http_server_answer(http_server *s, const char *world, const void *request, size_t len,
+                       size_t max_len, void **answer, size_t *answer_len);
 
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms

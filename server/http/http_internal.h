@@ -2,7 +2,9 @@
  * http_internal.h: what the files of server/http share; not part of the face
  * of http/ (that is http.h).
  *
- *   http.c        the MHD daemon, routing, probes, the /v1 answers
+ *   http.c        the MHD daemon, routing, probes, metrics, static files
+ *   http_views.c  the /v1 answers (world, stats, heights), also for a
+ *                 request another node forwarded (any node serves any world)
  *   http_worlds.c a cluster node's table of worlds (?world=NAME)
  *   http_png.c    /v1/heights?format=png16
  *   http_guard.c  what one address may hold: heights bytes in flight, and the
@@ -118,6 +120,11 @@ struct http_server {
     http_tls tls;
     http_server *main; /* a probe listener: the server whose status and watches it reports */
     http_guard *guard; /* heights bytes per address, the header deadline (http_guard.c) */
+    /* a world ticked elsewhere (http_server_set_forward); under worlds_lock,
+     * forward_calls: calls of forward running now */
+    http_forward_fn forward;
+    void *forward_ctx;
+    int forward_calls;
 };
 
 /* The world a request names (?world=NAME; without it, the node's first
@@ -125,5 +132,46 @@ struct http_server {
 http_world *http_world_acquire(http_server *s, const char *name, unsigned *code, char *why,
                                size_t cap);
 void http_world_release(http_server *s, http_world *w);
+
+/* Queues r (NULL: MHD_NO) with the headers every answer carries. */
+enum MHD_Result http_queue(struct MHD_Connection *c, unsigned code, struct MHD_Response *r);
+
+/* ---- the /v1 answers (http_views.c) ---- */
+/* One answer, built before it is sent (or carried to another node). */
+typedef struct http_answer {
+    unsigned code;   /* 0: out of memory (nothing to send) */
+    char type[64];   /* Content-Type */
+    char extra[256]; /* further header lines, "Name: value\n" each */
+    void *body;      /* malloc'd */
+    size_t len;
+} http_answer;
+/* The query arguments: this request's (c), or packed "key\0value\0…" from another node. */
+typedef struct http_args {
+    struct MHD_Connection *c; /* NULL: packed; also whom a heights answer's bytes are held for */
+    const char *packed;
+    size_t len;
+} http_args;
+typedef enum http_view { HTTP_VIEW_WORLD, HTTP_VIEW_STATS, HTTP_VIEW_HEIGHTS } http_view;
+
+/* s as the inside of a JSON string (quotes and control characters escaped;
+ * bounded, long input is cut). */
+void http_json_escape(const char *s, char *out, size_t cap);
+void http_answer_error(http_answer *a, unsigned code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+void http_answer_free(http_answer *a);
+/* Sends a (Cache-Control: no-store), which gives up its body. */
+enum MHD_Result http_answer_queue(struct MHD_Connection *c, http_answer *a);
+void http_view_stats(const http_status *st, http_answer *a);
+void http_view_world(const http_status *st, http_answer *a);
+void http_view_heights(http_server *s, hub *from, const world *base, const http_args *args,
+                       const http_status *st, http_answer *a);
+/* A hosted world's view, from a snapshot of its status. */
+void http_view_hosted(http_server *s, http_world *w, http_view view, const http_args *args,
+                      http_answer *a);
+/* The request of a world this node does not serve, asked of its owner
+ * through s->forward: 1 with *a to send (the owner's answer, or why there is
+ * none), 0 when the world is not relayed here. */
+int http_forward_request(http_server *s, struct MHD_Connection *c, const char *world,
+                         http_view view, http_answer *a);
 
 #endif

@@ -123,6 +123,12 @@ void metrics_world_tick(int slot, const metrics_world_figures *f);
 void metrics_world_drop(int slot);
 /* The per-world families as exposition text into out; its length or -1. */
 int metrics_worlds_text(char *out, size_t cap);
+/* terrad_http_forwarded_total{result}: a request for a world another node
+ * ticks, asked of its owner (any node serves any world): answered,
+ * no_owner (no node ticks it now), no_answer (none in time, or unreadable),
+ * not_relayed (no such world here: 404). Unknown results are ignored. */
+#define METRICS_FORWARD_RESULTS "answered", "no_owner", "no_answer", "not_relayed"
+void metrics_count_http_forwarded(const char *result);
 
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);

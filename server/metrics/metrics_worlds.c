@@ -27,6 +27,17 @@ typedef struct world_slot {
 static world_slot slots[METRICS_MAX_WORLDS];
 static pthread_mutex_t slots_lock = PTHREAD_MUTEX_INITIALIZER;
 
+static const char *const forward_results[] = {METRICS_FORWARD_RESULTS};
+#define FORWARD_RESULTS (sizeof forward_results / sizeof forward_results[0])
+static atomic_uint_fast64_t forwarded[FORWARD_RESULTS];
+
+void metrics_count_http_forwarded(const char *result)
+{
+    for (size_t i = 0; i < FORWARD_RESULTS; i++)
+        if (strcmp(result, forward_results[i]) == 0)
+            atomic_fetch_add_explicit(&forwarded[i], 1, memory_order_relaxed);
+}
+
 int metrics_world_slot(const char *name)
 {
     pthread_mutex_lock(&slots_lock);
@@ -168,5 +179,22 @@ int metrics_worlds_text(char *out, size_t cap)
     for (int f = 0; f < (int)(sizeof families / sizeof families[0]) && rc == 0; f++)
         rc = family(out, cap, &n, families[f].name, families[f].type, families[f].help, f);
     pthread_mutex_unlock(&slots_lock);
+    uint64_t any = 0;
+    for (size_t i = 0; i < FORWARD_RESULTS; i++)
+        any += atomic_load_explicit(&forwarded[i], memory_order_relaxed);
+    int node = 0; /* a cluster node: one that ticks a world now, or has forwarded */
+    for (int i = 0; i < METRICS_MAX_WORLDS; i++)
+        node |= slots[i].used;
+    if (!node && !any)
+        return rc == 0 ? (int)n : -1;
+    if (rc == 0)
+        rc = put(out, cap, &n,
+                 "# HELP terrad_http_forwarded_total HTTP requests for a world another node "
+                 "ticks, asked of its owner, by result.\n"
+                 "# TYPE terrad_http_forwarded_total counter\n");
+    for (size_t i = 0; i < FORWARD_RESULTS && rc == 0; i++)
+        rc = put(out, cap, &n, "terrad_http_forwarded_total{result=\"%s\"} %llu\n",
+                 forward_results[i],
+                 (unsigned long long)atomic_load_explicit(&forwarded[i], memory_order_relaxed));
     return rc == 0 ? (int)n : -1;
 }

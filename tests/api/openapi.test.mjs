@@ -210,6 +210,8 @@ test('every path was fetched and every explicit status was seen', () => {
     for (const status of Object.keys(item.get.responses)) {
       if (status === 'default' || (p === '/readyz' && status === '503')) continue; // 503: before ready only
       if (p === '/v1/heights' && status === '503') continue; // only while the tick is stuck
+      // a cluster node's answer for a world another node ticks: test_cluster_any_node
+      if (p === '/v1/heights' && status === '504') continue;
       assert.ok(seen.get(p).has(status), `${p}: status ${status} was seen (${[...seen.get(p)]})`);
     }
   }

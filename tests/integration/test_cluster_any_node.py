@@ -12,11 +12,18 @@ real nats-server with JetStream and two terrad nodes:
     (a collider with a NaN radius: bad_value), and a hello naming a world
     nobody registered is refused by b (bad_value, close 4005);
   - b's client disconnecting removes its collider on a (colliders go to 0);
+  - HTTP through the relay: b answers /v1/world, /v1/stats and /v1/heights
+    for dunes by asking a over NATS: the same bytes as a's own port (base
+    terrain, live heights once they stand still, PNG, errors), a rectangle
+    too large for one NATS message is refused with 413 naming max_payload,
+    a registered world no node ticks ("orphan") is a 503 saying so, an owner
+    that does not answer (SIGSTOP) a 504 saying so, and
+    terrad_http_forwarded_total counts each result;
   - the owner dies: node c (--worlds dunes, waiting) takes dunes; a viewer on
     b is told at once (shutting_down: the new owner does not know it) and
     closed; connecting to b again, it is served by c, and its mirror equals
-    c's GET /v1/heights?world=dunes. (b ticks a second world, "spare", so
-    that only c can take dunes.)
+    c's GET /v1/heights?world=dunes; b's HTTP answers for dunes now come
+    from c. (b ticks a second world, "spare", so that only c can take dunes.)
 No figure of speed is checked. Skipped (77) when nats-server is not installed.
 """
 # ctest-timeout: 240
@@ -24,7 +31,10 @@ import asyncio
 import json
 import os
 import sys
+import signal
 import time
+import urllib.error
+import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
@@ -145,6 +155,78 @@ async def scenario(a, b):
     await v.close()
 
 
+def get(node, path):
+    """(status, headers, body) of GET path on node, errors included."""
+    try:
+        with urllib.request.urlopen(node.http + path, timeout=30) as r:
+            return r.status, dict(r.headers), r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, dict(e.headers), e.read()
+
+
+def http_through_relay(a, b):
+    """b answers HTTP for dunes (ticked by a) with a's answers."""
+    for path in ("/v1/world?world=dunes", "/v1/stats?world=dunes"):
+        status, headers, body = get(b, path)
+        check(status == 200 and headers.get("Content-Type") == "application/json",
+              f"GET {path} on b answers 200 JSON ({status}, {body[:200]!r})")
+    mine, theirs = json.loads(get(a, "/v1/world?world=dunes")[2]), json.loads(
+        get(b, "/v1/world?world=dunes")[2])
+    for key in ("tick", "ready"):
+        mine.pop(key, None)
+        theirs.pop(key, None)
+    check(mine == theirs and theirs.get("world") == "dunes",
+          f"/v1/world of dunes on b is a's ({theirs})")
+    rect = "x=100&y=200&w=64&h=48"
+    for query in (f"{rect}&base=1", f"{rect}&base=1&format=png16",
+                  "x=0&y=0&w=3", "x=0&y=0&w=3&h=3&format=jpeg", "x=600&y=0&w=3&h=3"):
+        sa, ha, ba = get(a, f"/v1/heights?world=dunes&{query}")
+        sb, hb, bb = get(b, f"/v1/heights?world=dunes&{query}")
+        same = sa == sb and ba == bb and all(ha.get(h) == hb.get(h) for h in (
+            "Content-Type", "X-Terrad-Tick", "X-Terrad-Rect", "X-Terrad-Offset",
+            "X-Terrad-Units-Per-Metre"))
+        check(same, f"GET /v1/heights?{query} on b equals a's ({sa} {len(ba)} B, {sb} {len(bb)} "
+              f"B: {bb[:160]!r})")
+    live = False
+    for _ in range(40):  # the live heights once they stand still between two reads of a
+        a1 = get(a, f"/v1/heights?world=dunes&{rect}")[2]
+        sb, hb, bb = get(b, f"/v1/heights?world=dunes&{rect}")
+        if a1 == get(a, f"/v1/heights?world=dunes&{rect}")[2]:
+            live = sb == 200 and bb == a1 and int(hb.get("X-Terrad-Tick", "0")) > 0
+            break
+        time.sleep(0.25)
+    check(live, "live /v1/heights of dunes on b equals a's")
+    status, _, body = get(b, "/v1/heights?world=dunes&x=0&y=0&w=512&h=512")
+    check(status == 413 and b"max_payload" in body,
+          f"a rectangle too large for one NATS message is refused with 413 ({status}, {body!r})")
+    check(wait_for(lambda: any("relays world orphan" in l for l in b.lines), 30),
+          "b relays orphan too")
+    status, _, body = get(b, "/v1/stats?world=orphan")
+    check(status == 503 and b"no node ticks world" in body,
+          f"a registered world no node ticks: 503 saying so ({status}, {body!r})")
+    status, _, body = get(b, "/v1/stats?world=nowhere")
+    check(status == 404 and b"does not serve world" in body,
+          f"a world nobody registered: 404 as before ({status}, {body!r})")
+    metrics = get(b, "/metrics")[2].decode()
+    counts = {r: 0.0 for r in ("answered", "no_owner", "not_relayed")}
+    for line in metrics.splitlines():
+        for r in counts:
+            if line.startswith(f'terrad_http_forwarded_total{{result="{r}"}}'):
+                counts[r] = float(line.split()[-1])
+    check(counts["answered"] >= 10 and counts["no_owner"] >= 1 and counts["not_relayed"] >= 1,
+          f"terrad_http_forwarded_total on b counts each result ({counts})")
+    a.proc.send_signal(signal.SIGSTOP)  # an owner that does not answer
+    try:
+        status, _, body = get(b, "/v1/stats?world=dunes")
+    finally:
+        a.proc.send_signal(signal.SIGCONT)
+    check(status == 504 and b"did not answer" in body,
+          f"an owner that does not answer in time: 504 saying so ({status}, {body!r})")
+    tick = (a.stats("dunes") or {}).get("tick", 0)
+    check(wait_for(lambda: (a.stats("dunes") or {}).get("tick", 0) > tick + 30, 30),
+          "a ticks dunes on after SIGCONT (its lapsed lease taken back)")
+
+
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
@@ -153,7 +235,8 @@ def main():
         try:
             urls = nats.urls
             for name, scene in (("dunes", "server/scene/default.json"),
-                                ("spare", "tests/scenes/tiny.json")):
+                                ("spare", "tests/scenes/tiny.json"),
+                                ("orphan", "tests/scenes/tiny.json")):
                 ok, said = ch.world_add(urls, name, scene)
                 check(ok, f"world add {name}: {said}")
             a = Node("a", urls, extra=["--worlds", "dunes"])
@@ -166,12 +249,17 @@ def main():
             answer, code = asyncio.run(raw_hello(b, "nowhere"))
             check(answer.get("name") == "bad_value" and code == 4005,
                   f"a hello naming an unregistered world is refused by b ({answer}, {code})")
+            http_through_relay(a, b)
             asyncio.run(scenario(a, b))
             c = Node("c", urls, extra=["--worlds", "dunes"])
             nodes.append(c)
             check(wait_for(lambda: any("is a standby" in l for l in c.lines), 30),
                   "node c waits for dunes")
             asyncio.run(relayed_failover(a, b, c, (0, 224, 256, 64)))
+            base = "/v1/heights?world=dunes&x=0&y=0&w=128&h=128&base=1"
+            check(wait_for(lambda: get(b, "/v1/stats?world=dunes")[0] == 200, 30) and
+                  get(b, base)[2] == get(c, base)[2] and get(b, base)[0] == 200,
+                  "after the failover, b answers HTTP for dunes again (now from c)")
         except Exception:  # noqa: BLE001
             import traceback
             check(False, "the test raised:\n" + traceback.format_exc())
