@@ -118,8 +118,7 @@ static void bench_servers(int servers)
 {
     nats_proc nats[3];
     nats_init(nats, servers);
-    for (int i = 0; i < servers; i++)
-        nats_start(nats, i, servers);
+    nats_start_all(nats, servers);
     char urls[256], label[32];
     urls_of(nats, servers, urls, sizeof urls);
     error_text err = {{0}};

@@ -110,10 +110,14 @@ class NatsCluster:
             raise FileNotFoundError("nats-server")
         self.root = root or tempfile.mkdtemp(prefix="terrad-nats-")
         self.own_root = root is None
+        self.base_port = base_port
         self.servers = [NatsServer(f"n{i}", os.path.join(self.root, f"n{i}"),
                                    base_port + i if base_port else None,
                                    base_port + 10 + i if base_port else None) for i in range(n)]
-        if n > 1:
+        self._route()
+
+    def _route(self):
+        if len(self.servers) > 1:
             for s in self.servers:
                 s.routes = [f"nats://127.0.0.1:{o.cluster_port}" for o in self.servers if o is not s]
 
@@ -121,11 +125,26 @@ class NatsCluster:
     def urls(self):
         return ",".join(s.url for s in self.servers)
 
-    def start(self, timeout=20):
-        for s in self.servers:
-            s.start()
-        for s in self.servers:
-            s.wait_listening(timeout)
+    def start(self, timeout=20, attempts=5):
+        """Starts every server. A port free_port() found may be taken by another
+        test before nats-server binds it ("address already in use"): then the
+        cluster starts again on new ports (only when they were not given)."""
+        for attempt in range(attempts):
+            for s in self.servers:
+                s.start()
+            try:
+                for s in self.servers:
+                    s.wait_listening(timeout)
+                return self
+            except RuntimeError as e:
+                if self.base_port or "address already in use" not in str(e) or \
+                        attempt == attempts - 1:
+                    raise
+                for s in self.servers:
+                    s.kill()
+                    shutil.rmtree(s.store_dir, ignore_errors=True)  # nothing was stored yet
+                    s.port, s.cluster_port = free_port(), free_port()
+                self._route()
         return self
 
     def stop(self):

@@ -121,6 +121,36 @@ static inline void nats_init(nats_proc *all, int n)
     }
 }
 
+/* Starts all n servers. A port free_port() found may be taken by another
+ * test before nats-server binds it (it exits: "address already in use"):
+ * then all start again on new ports, up to 5 times. */
+static inline void nats_start_all(nats_proc *all, int n)
+{
+    for (int attempt = 0; attempt < 5; attempt++) {
+        for (int i = 0; i < n; i++)
+            nats_start(all, i, n);
+        usleep(300000); /* the route port is bound just after the client port */
+        int dead = 0;
+        for (int i = 0; i < n; i++) {
+            int status;
+            if (waitpid(all[i].pid, &status, WNOHANG) == all[i].pid) {
+                all[i].pid = 0;
+                dead = 1;
+            }
+        }
+        if (!dead)
+            return;
+        printf("# a nats-server could not bind its ports: starting the servers again\n");
+        for (int i = 0; i < n; i++)
+            nats_stop(&all[i], SIGKILL);
+        char cmd[160];
+        snprintf(cmd, sizeof cmd, "rm -rf %s/n%d-*", tmp_root, n);
+        if (system(cmd) != 0)
+            printf("# could not clear %s\n", tmp_root);
+        nats_init(all, n);
+    }
+}
+
 static inline void urls_of(const nats_proc *all, int n, char *out, size_t cap)
 {
     out[0] = '\0';

@@ -364,8 +364,7 @@ static void test_three_servers(void)
 {
     nats_proc n[3];
     nats_init(n, 3);
-    for (int i = 0; i < 3; i++)
-        nats_start(n, i, 3);
+    nats_start_all(n, 3);
     char urls[256];
     urls_of(n, 3, urls, sizeof urls);
     cluster *a = connect_node(urls, "a", 1000, 0);
@@ -409,7 +408,7 @@ int main(void)
     test_unreachable();
     nats_proc one[1];
     nats_init(one, 1);
-    nats_start(one, 0, 1);
+    nats_start_all(one, 1);
     char urls[64];
     urls_of(one, 1, urls, sizeof urls);
     cluster *a = connect_node(urls, "a", 1000, -1), *b = connect_node(urls, "b", 1000, -1);

@@ -281,8 +281,7 @@ int main(int argc, char **argv)
     nats_tmp_root("test_cluster_failover");
     nats_proc nats[3];
     nats_init(nats, 3);
-    for (int i = 0; i < 3; i++)
-        nats_start(nats, i, 3);
+    nats_start_all(nats, 3);
     char urls[256];
     urls_of(nats, 3, urls, sizeof urls);
     error_text err = {{0}};

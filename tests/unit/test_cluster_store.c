@@ -224,7 +224,7 @@ int main(void)
     nats_tmp_root("test_cluster_store");
     nats_proc one[1];
     nats_init(one, 1);
-    nats_start(one, 0, 1);
+    nats_start_all(one, 1);
     char urls[64];
     urls_of(one, 1, urls, sizeof urls);
     error_text err = {{0}};
