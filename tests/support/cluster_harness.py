@@ -137,11 +137,12 @@ class NatsCluster:
                     s.wait_listening(timeout)
                 return self
             except RuntimeError as e:
+                for s in self.servers:  # __exit__ does not run when __enter__ raises
+                    s.kill()
                 if self.base_port or "address already in use" not in str(e) or \
                         attempt == attempts - 1:
                     raise
                 for s in self.servers:
-                    s.kill()
                     shutil.rmtree(s.store_dir, ignore_errors=True)  # nothing was stored yet
                     s.port, s.cluster_port = free_port(), free_port()
                 self._route()
