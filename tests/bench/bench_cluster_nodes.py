@@ -33,7 +33,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import Node, wait_for  # noqa: E402
+from cluster_harness import Node, owner_of, wait_for  # noqa: E402
 from service_harness import BIN, SOURCE, machine  # noqa: E402
 
 FAILOVERS = int(os.environ.get("TERRAD_BENCH_FAILOVERS", "6"))
@@ -64,7 +64,7 @@ def failover():
         nodes = [Node("a", nats.urls), Node("b", nats.urls)]
         try:
             for k in range(FAILOVERS):
-                owner = wait_for(lambda: next((n for n in nodes if n.serves("dunes")), None), 60)
+                owner = owner_of(nodes, "dunes", 60)
                 if not owner:
                     print("  no owner: stopped")
                     break

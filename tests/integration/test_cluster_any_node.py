@@ -39,25 +39,9 @@ import urllib.request
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import Checks, RecordingClient, skip, tp  # noqa: E402
+from service_harness import Checks, RecordingClient, metric_value, raw_hello, skip, tp  # noqa: E402
 
 check = Checks()
-
-
-async def raw_hello(node, world):
-    import websockets
-    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
-    await ws.send(json.dumps(tp.hello("", "check", world)))
-    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
-    code = None
-    try:
-        await asyncio.wait_for(ws.recv(), 3)
-    except websockets.ConnectionClosed as e:
-        code = e.code
-    except asyncio.TimeoutError:
-        pass
-    await ws.close()
-    return answer, code
 
 
 async def eventually(client, predicate, timeout):
@@ -208,11 +192,8 @@ def http_through_relay(a, b):
     check(status == 404 and b"does not serve world" in body,
           f"a world nobody registered: 404 as before ({status}, {body!r})")
     metrics = get(b, "/metrics")[2].decode()
-    counts = {r: 0.0 for r in ("answered", "no_owner", "not_relayed")}
-    for line in metrics.splitlines():
-        for r in counts:
-            if line.startswith(f'terrad_http_forwarded_total{{result="{r}"}}'):
-                counts[r] = float(line.split()[-1])
+    counts = {r: metric_value(metrics, "terrad_http_forwarded_total", {"result": r}) or 0
+              for r in ("answered", "no_owner", "not_relayed")}
     check(counts["answered"] >= 10 and counts["no_owner"] >= 1 and counts["not_relayed"] >= 1,
           f"terrad_http_forwarded_total on b counts each result ({counts})")
     a.proc.send_signal(signal.SIGSTOP)  # an owner that does not answer

@@ -32,7 +32,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import BIN, SOURCE, Checks, RecordingClient, skip, tp  # noqa: E402
+from service_harness import BIN, SOURCE, Checks, RecordingClient, raw_hello, skip, tp  # noqa: E402
 
 check = Checks()
 WORLDS = {"dunes": "server/scene/default.json", "spheres": "tests/scenes/spheres.json",
@@ -42,23 +42,6 @@ WORLDS = {"dunes": "server/scene/default.json", "spheres": "tests/scenes/spheres
 def world_cmd(urls, *args):
     return subprocess.run([BIN, "world", *args, "--cluster", urls], capture_output=True,
                           text=True, timeout=60)
-
-
-async def hello(node, world):
-    """A raw hello naming a world: (the first answer, the close code or None)."""
-    import websockets
-    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
-    await ws.send(json.dumps(tp.hello("", "world-check", world)))
-    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
-    code = None
-    try:
-        await asyncio.wait_for(ws.recv(), 3)
-    except websockets.ConnectionClosed as e:
-        code = e.code
-    except asyncio.TimeoutError:
-        pass
-    await ws.close()
-    return answer, code
 
 
 def http_views(a):
@@ -92,11 +75,11 @@ def http_views(a):
 
 
 def hellos(a):
-    answer, code = asyncio.run(hello(a, "spheres"))
+    answer, code = asyncio.run(raw_hello(a, "spheres"))
     check(answer.get("type") == "world" and answer.get("world") == "spheres" and
           answer.get("width") == 256 and code is None,
           f"a hello naming spheres gets spheres' world message ({str(answer)[:200]}, {code})")
-    answer, code = asyncio.run(hello(a, "nope"))
+    answer, code = asyncio.run(raw_hello(a, "nope"))
     msg = answer.get("message", "")
     check(answer.get("name") == "bad_value" and code == 4005 and '"nope"' in msg and
           all(f'world "{w}"' in msg for w in WORLDS),

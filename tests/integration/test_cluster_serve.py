@@ -39,70 +39,23 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import Node  # noqa: E402
-from service_harness import BIN, Checks, RecordingClient, skip, tp  # noqa: E402
+from cluster_harness import Node, owner_of  # noqa: E402
+from service_harness import BIN, Checks, raw_hello, skip  # noqa: E402
 
 KILLS = int(os.environ.get("TERRAD_CLUSTER_KILLS", "3"))
 rand = random.Random(int(os.environ.get("TERRAD_CLUSTER_SEED", "20261124")))
 check = Checks()
 
 
-def owner_of(nodes, world, timeout=15):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        for n in nodes:
-            if n.serves(world):
-                return n
-        time.sleep(0.05)
-    return None
-
-
-async def drive_and_kill(owner, run_s, settle):
-    """A client on the owner drives a sphere along a lane for run_s seconds;
-    the owner is then killed — at once, or (settle) after lifting the sphere
-    out of the terrain and waiting until nothing changes any more. Returns
-    (last acknowledged tick, lane, heights of the mirror at that ACK)."""
-    asyncio.get_running_loop().set_exception_handler(lambda loop, context: None)
-    c = RecordingClient(owner.ws, name="cluster-driver", keep=1)
-    await c.connect()
-    w = c.world
-    lane = (0, w["height"] // 2 - 32, w["width"], 64)
-    await c.subscribe(*lane)
-    await c.wait_for(lambda: all(m.complete for m in c.mirrors.values()), 30)
-    cid = await c.create_collider("sphere", radius=0.4)
-    cs, upm = w["cell_size_m"], w["units_per_m"]
-    mirror = next(iter(c.mirrors.values()))
-    x, y, vx = 1.0, (lane[1] + 32) * cs, 4.0
-    t_end = time.monotonic() + run_s
-    while time.monotonic() < t_end:
-        x += vx / 60
-        if x < 0.5 or x > w["width"] * cs - 0.5:
-            vx = -vx
-        cx, cy = int(x / cs), int(y / cs) - mirror.y
-        ground = mirror.heights[cy * mirror.w + cx] / upm
-        await c.send_poses([tp.Pose(cid, x, y, ground + 0.25, 1, 0, 0, 0)])
-        await asyncio.sleep(1 / 60)
-    if settle:
-        await c.send_poses([tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)])
-        await asyncio.sleep(0.7)
-    owner.kill9()
-    await asyncio.sleep(0.3)
-    copy = c.history.get(c.acked_tick)
-    try:
-        await c.close()
-    except Exception:  # noqa: BLE001
-        pass
-    heights = next(iter(copy.values()))[0] if copy else None
-    return c.acked_tick, lane, heights
-
-
 def failover_round(k, nodes):
-    owner = owner_of(nodes, "dunes")
+    owner = owner_of(nodes, "dunes", 15)
     if not check(owner is not None, f"round {k}: dunes has an owner"):
         return
     volume = owner.stats()["volume"]
     settle = k % 2 == 0
-    acked, lane, heights = asyncio.run(drive_and_kill(owner, rand.uniform(1.0, 2.5), settle))
+    acked, lane, heights = asyncio.run(ch.drive_and_kill(owner, rand.uniform(1.0, 2.5), settle,
+                                                             half_lane=32, radius=0.4,
+                                                             speed=4.0, dip=0.25))
     t_kill = time.monotonic()
     check(heights is not None, f"round {k}: the client had an acknowledged mirror")
     new = owner_of([n for n in nodes if n is not owner], "dunes", timeout=30)
@@ -125,7 +78,7 @@ def failover_round(k, nodes):
 
 
 def fencing(nodes):
-    owner = owner_of(nodes, "spheres")
+    owner = owner_of(nodes, "spheres", 15)
     if not check(owner is not None, "spheres has an owner"):
         return
     owner.proc.send_signal(signal.SIGSTOP)
@@ -157,29 +110,11 @@ def fencing(nodes):
               f"{owner.name} after the takeover")
 
 
-async def hello_world(node, world):
-    """A raw hello naming a world: (the first answer, the close code or None)."""
-    import websockets
-    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
-    hello = dict(tp.hello("", "world-check"), world=world)
-    await ws.send(json.dumps(hello))
-    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
-    code = None
-    try:
-        await asyncio.wait_for(ws.recv(), 3)
-    except websockets.ConnectionClosed as e:
-        code = e.code
-    except asyncio.TimeoutError:
-        pass
-    await ws.close()
-    return answer, code
-
-
 def hello_names_the_world(nodes):
-    owner = owner_of(nodes, "dunes")
+    owner = owner_of(nodes, "dunes", 15)
     if not check(owner is not None, "dunes has an owner"):
         return
-    answer, code = asyncio.run(hello_world(owner, "dunes"))
+    answer, code = asyncio.run(raw_hello(owner, "dunes"))
     check(answer.get("type") == "world" and answer.get("world") == "dunes" and code is None,
           f"a hello naming dunes gets the world message naming dunes ({answer}, {code})")
     status, body = owner.get("/v1/world")
@@ -188,11 +123,11 @@ def hello_names_the_world(nodes):
     while time.monotonic() < deadline and not any("relays world spheres" in l
                                                   for l in owner.lines):
         time.sleep(0.1)
-    answer, code = asyncio.run(hello_world(owner, "spheres"))
+    answer, code = asyncio.run(raw_hello(owner, "spheres"))
     check(answer.get("type") == "world" and answer.get("world") == "spheres" and code is None,
           f"a hello naming spheres on dunes' owner is served through spheres' owner ({answer}, "
           f"{code})")
-    answer, code = asyncio.run(hello_world(owner, "nowhere"))
+    answer, code = asyncio.run(raw_hello(owner, "nowhere"))
     check(answer.get("type") == "error" and "world \"dunes\"" in answer.get("message", "")
           and code == 4005, f"a hello naming no registered world is refused ({answer}, {code})")
 

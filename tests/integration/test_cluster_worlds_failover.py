@@ -29,8 +29,8 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import Checks, RecordingClient, skip, tp  # noqa: E402
+from cluster_harness import Node, owner_of, wait_for  # noqa: E402
+from service_harness import Checks, skip  # noqa: E402
 
 KILLS = int(os.environ.get("TERRAD_CLUSTER_KILLS", "2"))
 TAKEOVER_S = float(os.environ["TERRAD_TAKEOVER_S"]) if os.environ.get("TERRAD_TAKEOVER_S") else None
@@ -40,51 +40,12 @@ SCENE = "tests/scenes/spheres.json"
 check = Checks()
 
 
-def owner_of(nodes, world, timeout=30):
-    return wait_for(lambda: next((n for n in nodes if n.serves(world)), None), timeout)
-
-
 def volume(node, world):
     try:
         st = node.stats(world)
         return st["volume"] if st else None
     except Exception:  # noqa: BLE001
         return None
-
-
-async def drive(owner, world, run_s, settle):
-    """Drives a sphere in world; kills the owner; returns (acked tick, lane, mirror at it)."""
-    asyncio.get_running_loop().set_exception_handler(lambda loop, context: None)
-    c = RecordingClient(owner.ws, name="driver", keep=1, world=world)
-    await c.connect()
-    w = c.world
-    lane = (0, w["height"] // 2 - 16, w["width"], 32)
-    sid = await c.subscribe(*lane)
-    await c.wait_for(lambda: c.mirrors[sid].complete, 30)
-    cid = await c.create_collider("sphere", radius=0.3)
-    cs, upm = w["cell_size_m"], w["units_per_m"]
-    mirror = c.mirrors[sid]
-    x, y, vx = 0.6, (lane[1] + 16) * cs, 3.0
-    t_end = time.monotonic() + run_s
-    while time.monotonic() < t_end:
-        x += vx / 60
-        if x < 0.5 or x > w["width"] * cs - 0.5:
-            vx = -vx
-        cx, cy = int(x / cs), int(y / cs) - mirror.y
-        ground = mirror.heights[cy * mirror.w + cx] / upm
-        await c.send_poses([tp.Pose(cid, x, y, ground + 0.18, 1, 0, 0, 0)])
-        await asyncio.sleep(1 / 60)
-    if settle:
-        await c.send_poses([tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)])
-        await asyncio.sleep(0.7)
-    owner.kill9()
-    await asyncio.sleep(0.2)
-    copy = c.history.get(c.acked_tick)
-    try:
-        await c.close()
-    except Exception:  # noqa: BLE001
-        pass
-    return c.acked_tick, lane, (copy[sid][0] if copy else None)
 
 
 def committing(node, world, since):
@@ -133,11 +94,12 @@ def kill_round(k, nodes, volumes, nats, takeovers):
         if not check(owner is not None, f"round {k}: {world} has an owner"):
             return
         moved = sorted(owner.worlds)
-    acked, lane, heights = asyncio.run(drive(owner, world, rand.uniform(0.5, 2.0), settle))
+    acked, lane, heights = asyncio.run(ch.drive_and_kill(owner, rand.uniform(0.5, 2.0), settle,
+                                                             world=world))
     t_kill = time.monotonic()
     others = [n for n in nodes if n is not owner]
     for w in moved:
-        new = wait_for(lambda: next((n for n in others if n.serves(w)), None), 60, step=0.02)
+        new = owner_of(others, w, 60, step=0.02)
         took = time.monotonic() - t_kill
         if not check(new is not None, f"round {k}: {w} ticks on another node after the kill"):
             continue

@@ -12,17 +12,13 @@ stops the daemon with status 0 (the harness waits a generous 30 s).
 """
 # ctest-timeout: 400
 import asyncio
-import base64
-import json
 import os
-import socket
-import struct
 import subprocess
 import sys
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, tp  # noqa: E402
+from service_harness import Checks, Daemon, hello_ok  # noqa: E402
 
 ATTACKER = r'''
 import base64, json, os, socket, struct, sys, time
@@ -69,15 +65,6 @@ def probe(d, path):
         return None
 
 
-async def hello_ok(d):
-    c = tp.TerradClient(d.ws, name="after-dead-peers")
-    try:
-        await asyncio.wait_for(c.connect(), 20)
-        return c.world is not None
-    finally:
-        await c.close()
-
-
 def one_round(check, peers):
     d = Daemon()
     with check.running(d):
@@ -90,7 +77,7 @@ def one_round(check, peers):
         time.sleep(2)  # the net thread would now spin on their EOFs
         ok = False
         try:
-            ok = asyncio.run(hello_ok(d))
+            ok = asyncio.run(hello_ok(d, "after-dead-peers", timeout=20))
         except Exception as e:  # noqa: BLE001
             print(f"{peers} peers: new client: {e!r}")
         check(ok, f"{peers} dead peers: a new client gets its world message")

@@ -21,7 +21,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import service_harness  # noqa: E402
-from service_harness import Checks, Daemon, tp  # noqa: E402
+from service_harness import Checks, Daemon, hello_ok  # noqa: E402
 
 CROWD = 300
 
@@ -66,15 +66,6 @@ def open_crowd(port, n):
         except OSError:
             s.close()
     return admitted
-
-
-async def hello_ok(d):
-    c = tp.TerradClient(d.ws, name="after-the-crowd")
-    try:
-        await asyncio.wait_for(c.connect(), 30)
-        return bool(c.world)
-    finally:
-        await c.close()
 
 
 def main():
@@ -123,7 +114,7 @@ def main():
         ok = False
         while not ok and time.monotonic() < deadline:
             try:
-                ok = asyncio.run(hello_ok(d))
+                ok = asyncio.run(hello_ok(d, "after-the-crowd"))
             except Exception:  # noqa: BLE001
                 time.sleep(1)
         check(ok, "after the crowd leaves, a new client gets its world message")

@@ -16,12 +16,10 @@
   normal client on the same port is served.
 """
 # ctest-timeout: 240
-import json
 import os
 import socket
 import sys
 import time
-import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import Checks, Daemon, metric_value  # noqa: E402

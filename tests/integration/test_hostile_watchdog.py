@@ -27,7 +27,7 @@ import time
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, tp  # noqa: E402
+from service_harness import Checks, Daemon, hello_ok  # noqa: E402
 
 DEADLINE_S = 90  # the watchdog's limit is 10 s; generous for a loaded machine
 
@@ -51,15 +51,6 @@ def wait_health(port, want, deadline_s=DEADLINE_S):
             break
         time.sleep(0.5)
     return st, body
-
-
-async def hello_ok(d):
-    c = tp.TerradClient(d.ws, name="after-the-stall")
-    try:
-        await asyncio.wait_for(c.connect(), 30)
-        return bool(c.world)
-    finally:
-        await c.close()
 
 
 def main():
@@ -117,7 +108,7 @@ def main():
             os.unlink(stall)
             st, _ = wait_health(d.http_port, 200)
             check(st == 200, f"/healthz is 200 again once the net thread goes on ({st})")
-            check(asyncio.run(hello_ok(d)), "a new client gets its world message afterwards")
+            check(asyncio.run(hello_ok(d, "after-the-stall")), "a new client gets its world message afterwards")
             check(any("fault hook: the net thread goes on" in l for l in d.lines),
                   "the hook logs what it did")
     finally:

@@ -4,7 +4,8 @@ with its own store directory and server name (3: one cluster "terrad",
 routes between all), wait until each accepts connections and JetStream
 answers, and stop them (SIGTERM, or SIGKILL for a crash). Also Node, one
 `terrad serve --cluster` process whose log says which worlds it ticks and on
-which ports, and world_add, `terrad world add`.
+which ports, world_add (`terrad world add`) and drive_and_kill (a client
+drives in a world until its owner is killed).
 
 Not a test itself (ctest registers only test_*.py). Run with /usr/bin/python3.
 """
@@ -289,6 +290,55 @@ class Node:
             os.makedirs(logdir, exist_ok=True)
             with open(os.path.join(logdir, f"node-{self.name}.log"), "w") as f:
                 f.write("".join(self.lines))
+
+
+def owner_of(nodes, world, timeout=30, step=0.05):
+    """The node of nodes that serves world (waiting up to timeout s), or None."""
+    return wait_for(lambda: next((n for n in nodes if n.serves(world)), None), timeout, step)
+
+
+async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=0.3, speed=3.0,
+                         dip=0.18):
+    """A client on owner (a Node; world: the hello's, else the node's first)
+    subscribes to a lane 2 * half_lane rows high across the world's middle and
+    drives a sphere along it, dip m into the terrain, for run_s seconds; then
+    owner is killed (SIGKILL) — at once, or (settle) after lifting the sphere
+    out of the terrain and waiting until nothing changes any more. Returns
+    (the last acknowledged tick, the lane, the heights of the client's mirror
+    at that ACK, or None)."""
+    import asyncio
+    from service_harness import RecordingClient, tp
+    asyncio.get_running_loop().set_exception_handler(lambda loop, context: None)
+    c = RecordingClient(owner.ws, name="driver", keep=1, world=world)
+    await c.connect()
+    w = c.world
+    lane = (0, w["height"] // 2 - half_lane, w["width"], 2 * half_lane)
+    sid = await c.subscribe(*lane)
+    await c.wait_for(lambda: c.mirrors[sid].complete, 30)
+    cid = await c.create_collider("sphere", radius=radius)
+    cs, upm = w["cell_size_m"], w["units_per_m"]
+    mirror = c.mirrors[sid]
+    x, y, vx = 1.0, (lane[1] + half_lane) * cs, speed
+    t_end = time.monotonic() + run_s
+    while time.monotonic() < t_end:
+        x += vx / 60
+        if x < 0.5 or x > w["width"] * cs - 0.5:
+            vx = -vx
+        cx, cy = int(x / cs), int(y / cs) - mirror.y
+        ground = mirror.heights[cy * mirror.w + cx] / upm
+        await c.send_poses([tp.Pose(cid, x, y, ground + dip, 1, 0, 0, 0)])
+        await asyncio.sleep(1 / 60)
+    if settle:
+        await c.send_poses([tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)])
+        await asyncio.sleep(0.7)
+    owner.kill9()
+    await asyncio.sleep(0.3)
+    copy = c.history.get(c.acked_tick)
+    try:
+        await c.close()
+    except Exception:  # noqa: BLE001
+        pass
+    return c.acked_tick, lane, (copy[sid][0] if copy else None)
 
 
 def wait_for(cond, timeout, step=0.05):

@@ -21,7 +21,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 import traceback
 import urllib.error
 import urllib.request
@@ -373,6 +372,34 @@ async def compare_with_server(client, daemon, sid, region, keep_acking, attempts
 
 
 WHEEL_Q = (math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0)  # cylinder axis z -> world -y
+
+
+async def hello_ok(d, name, timeout=30):
+    """A new client of d (anything with .ws) gets its world message."""
+    c = tp.TerradClient(d.ws, name=name)
+    try:
+        await asyncio.wait_for(c.connect(), timeout)
+        return bool(c.world)
+    finally:
+        await c.close()
+
+
+async def raw_hello(node, world):
+    """A raw hello naming a world on node (anything with .ws): (the first
+    answer, the close code or None)."""
+    import websockets
+    ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
+    await ws.send(json.dumps(tp.hello("", "world-check", world)))
+    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
+    code = None
+    try:
+        await asyncio.wait_for(ws.recv(), 3)
+    except websockets.ConnectionClosed as e:
+        code = e.code
+    except asyncio.TimeoutError:
+        pass
+    await ws.close()
+    return answer, code
 
 
 def wheel_pose(cid, x, y, z):
