@@ -48,8 +48,9 @@
  * so the trail does not depend on how its motion is cut into ticks. Δt is
  * the model's own time per tick (a scene parameter, not the tick's wall
  * time), and here it follows the collider's advance. A collider that moves at most 1.5 cells a
- * tick is one slice: the tick is exactly as before. The cost is L times the
- * window's substeps; the window already spans the sweep.
+ * tick is one slice: the tick is exactly as before. A slice of the integer
+ * form runs over its colliders' part of the window only (slice_rect), so a
+ * sliced tick costs what L slow ticks cost, not L times the whole sweep.
  */
 #include "sim/sim_internal.h"
 
@@ -57,6 +58,8 @@
 #include <string.h>
 
 #define STABLE_SUM (1.0 / 8.0)
+/* Around a slice's colliders (slice_rect): the default active_margin_cells. */
+#define SLICE_MARGIN_CELLS 4
 
 int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift)
 {
@@ -157,27 +160,30 @@ static const int32_t *slice_bottom(const sim_window_job *job, int j, int slices,
 }
 
 /* The collider nearest (in xy) to each cell where slice j ends: whose travel
- * pushes it. */
-static void nearest_collider(const sim_window_job *job, int j, int slices, int32_t *owner)
+ * pushes it (-1 with no collider). best_d: n doubles of scratch. */
+static void nearest_collider(const sim_window_job *job, int j, int slices, int32_t *owner,
+                             double *best_d)
 {
     int w = job->rect.w, h = job->rect.h;
-    for (int y = 0; y < h; y++) {
-        double cy = (job->rect.y + y + 0.5) * job->cell_size_m;
-        for (int x = 0; x < w; x++) {
-            double cx = (job->rect.x + x + 0.5) * job->cell_size_m;
-            int best = -1;
-            double best_d = 0.0;
-            for (int c = 0; c < job->collider_count; c++) {
-                const sim_collider *col = &job->colliders[c];
-                int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-                vec3d q = sim_collider_sweep_pose(col, slice_end(j, slices, steps), steps).position;
+    int64_t n = (int64_t)w * h;
+    for (int64_t i = 0; i < n; i++)
+        owner[i] = -1;
+    /* collider by collider, each one's position once; ties keep the first */
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        vec3d q = sim_collider_sweep_pose(col, slice_end(j, slices, steps), steps).position;
+        for (int y = 0; y < h; y++) {
+            double cy = (job->rect.y + y + 0.5) * job->cell_size_m;
+            for (int x = 0; x < w; x++) {
+                double cx = (job->rect.x + x + 0.5) * job->cell_size_m;
                 double d = (q.x - cx) * (q.x - cx) + (q.y - cy) * (q.y - cy);
-                if (best < 0 || d < best_d) {
-                    best = c;
-                    best_d = d;
+                int64_t i = (int64_t)y * w + x;
+                if (owner[i] < 0 || d < best_d[i]) {
+                    owner[i] = c;
+                    best_d[i] = d;
                 }
             }
-            owner[(int64_t)y * w + x] = best;
         }
     }
 }
@@ -253,8 +259,8 @@ static void pusher_tops(const sim_window_job *job, const int32_t *owner, int32_t
 typedef struct flux_state {
     int w, h;
     int64_t cd_q32, cz_q32;
-    const int32_t *bottom, *owner, *top;
-    int32_t *pen, *fx, *fy;
+    const int32_t *bottom;
+    int32_t *owner, *top, *pen, *fx, *fy;
     int64_t *out;
 } flux_state;
 
@@ -356,36 +362,102 @@ static sim_window_status flux_substep(const sim_params *p, sim_window_job *job, 
     return SIM_WINDOW_OK;
 }
 
+/* Where slice j of a sliced tick runs: the bounds of every collider's poses
+ * in the slice (from where it starts) plus SLICE_MARGIN_CELLS, within the
+ * window — the part a collider crossing a cell per tick would have as its
+ * window, so the cost of a slice follows the collider, not the sweep. */
+static world_rect slice_rect(const sim_window_job *job, int j, int slices)
+{
+    double lo_x = INFINITY, lo_y = INFINITY, hi_x = -INFINITY, hi_y = -INFINITY;
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        int k0 = slice_end(j - 1, slices, steps), k1 = slice_end(j, slices, steps);
+        for (int k = k0; k <= k1; k++) {
+            vec3d lo, hi;
+            collider_bounds(col->geometry, sim_collider_sweep_pose(col, k, steps), &lo, &hi);
+            lo_x = fmin(lo_x, lo.x);
+            lo_y = fmin(lo_y, lo.y);
+            hi_x = fmax(hi_x, hi.x);
+            hi_y = fmax(hi_y, hi.y);
+        }
+    }
+    world_rect r = job->rect;
+    if (!(lo_x <= hi_x && lo_y <= hi_y))
+        return r; /* no collider: the whole window */
+    double cell = job->cell_size_m;
+    double x0 = fmax(floor(lo_x / cell) - SLICE_MARGIN_CELLS, r.x);
+    double y0 = fmax(floor(lo_y / cell) - SLICE_MARGIN_CELLS, r.y);
+    double x1 = fmin(floor(hi_x / cell) + SLICE_MARGIN_CELLS, (double)r.x + r.w - 1);
+    double y1 = fmin(floor(hi_y / cell) + SLICE_MARGIN_CELLS, (double)r.y + r.h - 1);
+    if (x1 < x0 || y1 < y0)
+        return (world_rect){0, 0, 0, 0};
+    return (world_rect){(int)x0, (int)y0, (int)(x1 - x0) + 1, (int)(y1 - y0) + 1};
+}
+
+/* Copy sub (a part of the window) between the window's heights and a packed
+ * array: in = 1 packs, 0 writes back. */
+static void copy_part(const sim_window_job *job, world_rect sub, int32_t *packed, int in)
+{
+    for (int y = 0; y < sub.h; y++) {
+        int32_t *row =
+            job->heights + (int64_t)(sub.y - job->rect.y + y) * job->rect.w + (sub.x - job->rect.x);
+        int32_t *p = packed + (int64_t)y * sub.w;
+        memcpy(in ? p : row, in ? row : p, (size_t)sub.w * sizeof *p);
+    }
+}
+
+/* Slice j of the integer flux form over job's rect: its depth, who pushes
+ * each cell, then the tick's substeps. */
+static sim_window_status flux_slice(const sim_params *p, sim_window_job *job, flux_state *f, int j,
+                                    int slices, int substeps, int32_t *spare)
+{
+    f->w = job->rect.w;
+    f->h = job->rect.h;
+    f->bottom = slice_bottom(job, j, slices, spare);
+    nearest_collider(job, j, slices, f->owner, (double *)(void *)f->out); /* out: free here */
+    pusher_tops(job, f->owner, f->top);
+    for (int s = 0; s < substeps; s++) {
+        sim_window_status st = flux_substep(p, job, f);
+        if (st != SIM_WINDOW_OK)
+            return st;
+    }
+    return SIM_WINDOW_OK;
+}
+
 static sim_window_status conservative_window(const sim_params *p, sim_window_job *job,
                                              int32_t *scratch)
 {
-    flux_state f = {.w = job->rect.w, .h = job->rect.h};
-    int64_t n = (int64_t)f.w * f.h;
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
     int32_t *pen = scratch, *fx = pen + n, *fy = fx + n, *owner = fy + n;
     int64_t *out = (int64_t *)(void *)(owner + n); /* 4n int32 in: 8-byte aligned */
-    int32_t *top = (int32_t *)(void *)(out + n), *spare = top + n;
+    int32_t *top = (int32_t *)(void *)(out + n), *spare = top + n, *packed = spare + n;
     double cd, cz;
     int steps = sim_diffusion_substeps(p, &cd, &cz);
-    f.cd_q32 = (int64_t)floor(cd * 4294967296.0);
-    f.cz_q32 = (int64_t)floor(cz * 4294967296.0);
+    flux_state f = {.cd_q32 = (int64_t)floor(cd * 4294967296.0),
+                    .cz_q32 = (int64_t)floor(cz * 4294967296.0),
+                    .owner = owner,
+                    .top = top,
+                    .pen = pen,
+                    .fx = fx,
+                    .fy = fy,
+                    .out = out};
     if (f.cd_q32 == 0 && f.cz_q32 == 0)
         return SIM_WINDOW_OK; /* D = 0 and no drift: nothing moves */
-    f.owner = owner;
-    f.top = top;
-    f.pen = pen;
-    f.fx = fx;
-    f.fy = fy;
-    f.out = out;
     int slices = sweep_slices(job);
+    if (slices == 1)
+        return flux_slice(p, job, &f, 1, 1, steps, spare);
     for (int j = 1; j <= slices; j++) {
-        f.bottom = slice_bottom(job, j, slices, spare);
-        nearest_collider(job, j, slices, owner);
-        pusher_tops(job, owner, top);
-        for (int s = 0; s < steps; s++) {
-            sim_window_status st = flux_substep(p, job, &f);
-            if (st != SIM_WINDOW_OK)
-                return st;
-        }
+        sim_window_job part = *job;
+        part.rect = slice_rect(job, j, slices);
+        if (part.rect.w <= 0 || part.rect.h <= 0)
+            continue;
+        part.heights = packed;
+        copy_part(job, part.rect, packed, 1);
+        sim_window_status st = flux_slice(p, &part, &f, j, slices, steps, spare);
+        if (st != SIM_WINDOW_OK)
+            return st; /* the window is refused whole */
+        copy_part(job, part.rect, packed, 0);
     }
     return SIM_WINDOW_OK;
 }
@@ -472,7 +544,7 @@ static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job
     int slices = sweep_slices(job);
     for (int j = 1; j <= slices; j++) {
         g.bottom = slice_bottom(job, j, slices, spare);
-        nearest_collider(job, j, slices, owner);
+        nearest_collider(job, j, slices, owner, g.Fx); /* Fx: free until the substep */
         for (int s = 0; s < steps; s++)
             gilardi_substep(p, job, &g);
     }
