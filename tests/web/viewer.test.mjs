@@ -121,7 +121,8 @@ async function pageHeights(pg = page) {
 }
 
 // Polls until the page's heights equal GET /v1/heights of its region, at a tick the page has reached.
-async function assertMirrorsServer(port, ms = 30000, pg = page) {
+// Generous deadlines: on a loaded machine the page's main thread may spend seconds on a frame.
+async function assertMirrorsServer(port, ms = 60000, pg = page) {
   const end = Date.now() + ms;
   let detail = '';
   for (;;) {
@@ -131,7 +132,7 @@ async function assertMirrorsServer(port, ms = 30000, pg = page) {
       const tick = Number(r.headers.get('x-terrad-tick'));
       const server = Buffer.from(await r.arrayBuffer());
       try {
-        await until('page tick', async () => (await pg.evaluate(() => window.terrad.tick)) >= tick, 10000, 20);
+        await until('page tick', async () => (await pg.evaluate(() => window.terrad.tick)) >= tick, 30000, 20);
         const p = await pageHeights(pg);
         const mine = Buffer.from(p.b64, 'base64');
         if (mine.equals(server) && p.region.w === region.w) return;
@@ -420,7 +421,7 @@ function holes(img, bg) {
   return n;
 }
 
-test('a 2048² world: a chunked window, LoD falling with distance, no cracks, the window follows the camera', { skip, timeout: 150000 }, async () => {
+test('a 2048² world: a chunked window, LoD falling with distance, no cracks, the window follows the camera', { skip, timeout: 400000 }, async () => {
   const big = await startDaemon(0, 0, ['--scene', path.join(root, 'tests/scenes/large-dunes.json')]);
   const pg = await context.newPage();
   pg.on('pageerror', (e) => console.error('page error:', e.message));
@@ -477,7 +478,7 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
       const r = await pg.evaluate(() => window.terrad.state === 'live' && window.terrad.region);
       return r && r.x > region.x && Math.abs((r.x + r.w / 2) * cell - target[0]) < 2;
     }, 60000);
-    await assertMirrorsServer(big.ports.http, 20000, pg);
+    await assertMirrorsServer(big.ports.http, 120000, pg);
   } finally {
     await pg.close();
     await stopDaemon(big);
