@@ -284,7 +284,8 @@ static const family families[] = {
     SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
            "/v1/heights requests refused (429): their address had too many bytes in flight."),
     SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
-           "HTTP connections closed for sending no whole request within the header deadline."),
+           "HTTP connections closed while sending their headers: past the header deadline, "
+           "or to make room for a newer one past a connection limit."),
     LABELLED("terrad_tick_shed_total", F_COUNTER, S_TICK_SHED, "reason", shed_reasons, 1,
              "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells."),
     SCALAR("terrad_footprint_frames_total", F_COUNTER, S_FOOTPRINT_FRAMES,
