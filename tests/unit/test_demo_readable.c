@@ -31,7 +31,7 @@
 #define LOOK_A 3600 /* one minute of the demo at 60 Hz */
 #endif
 #ifndef LOOK_B
-#define LOOK_B 36000 /* ten minutes: the map was full by then */
+#define LOOK_B 14400 /* four minutes: laps of every actor (30 minutes: docs/core.md) */
 #endif
 #define ACTORS 6     /* serve's default --demo-actors */
 #define BAND_M 0.75  /* beyond the sphere's radius, for the rims */
