@@ -12,30 +12,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-svc_client *service_find_client(service *s, uint32_t id)
-{
-    for (int i = 0; i < s->client_count; i++)
-        if (s->clients[i].id == id)
-            return &s->clients[i];
-    return NULL;
-}
-
-int service_find_collider(const service *s, uint32_t id)
-{
-    /* colliders stay sorted by id (ids only grow), so a binary search */
-    int lo = 0, hi = s->collider_count - 1;
-    while (lo <= hi) {
-        int mid = (lo + hi) / 2;
-        if (s->colliders[mid].id == id)
-            return mid;
-        if (s->colliders[mid].id < id)
-            lo = mid + 1;
-        else
-            hi = mid - 1;
-    }
-    return -1;
-}
-
 void service_release_collider(service *s, svc_collider *c)
 {
     sim_backend *backend = sim_engine_backend(s->engine);
