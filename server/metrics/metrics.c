@@ -167,6 +167,7 @@ void metrics_reset(void)
 {
     pthread_once(&stage_once, stage_hist_init);
     metrics_auth_reset();
+    metrics_edits_reset();
     SET(bytes_in, 0);
     SET(bytes_out, 0);
     SET(messages_in, 0);
@@ -761,8 +762,10 @@ char *metrics_render(size_t *len)
     render_store(&t);
     render_service(&t);
     render_memory(&t);
-    char process[2048];
+    char process[4096];
     if (metrics_auth_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
+    if (metrics_edits_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
