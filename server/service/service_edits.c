@@ -28,7 +28,7 @@ static void reply_client(service *s, uint32_t client, const char *ref, cJSON *ob
     cJSON_AddItemToObject(obj, "ref", r ? r : cJSON_CreateNull());
     char *text = cJSON_PrintUnformatted(obj);
     cJSON_Delete(obj);
-    service_queue_client(s, client, text ? hub_frame_from_text(text) : NULL, 0);
+    service_queue_client(s, client, text ? hub_frame_from_text(text) : NULL, 0, 0); /* JSON */
     free(text);
 }
 
