@@ -1,6 +1,6 @@
 /*
  * shader.c: compiles and links the GL backend's programs from the shaders/
- * files embedded in the binary (base/embedded.h), so the daemon needs no
+ * files embedded in the binary (embedded_file_find, base/base.h), so the daemon needs no
  * files at run time. Compute shaders share shaders/common.glsl through a
  * one-level `#include "common.glsl"` line that is spliced in here, with
  * #line directives so the driver's messages still point at the right file
@@ -11,8 +11,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-#include "base/embedded.h"
 
 #define INCLUDE_DIRECTIVE "#include \""
 
