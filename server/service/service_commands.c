@@ -155,14 +155,16 @@ static void collider_create(service *s, hub_command *c)
     /* the net thread sends an all-zero orientation for "no pose yet" */
     const quatd *q = &c->pose.orientation;
     int has_pose = q->w != 0 || q->x != 0 || q->y != 0 || q->z != 0;
-    s->colliders[s->collider_count++] = (svc_collider){.id = c->collider,
-                                                       .client = c->client,
-                                                       .geometry = g,
-                                                       .mesh = c->mesh,
-                                                       .pose = c->pose,
-                                                       .previous_pose = c->pose,
-                                                       .has_pose = has_pose,
-                                                       .feedback = c->feedback};
+    s->colliders[s->collider_count++] =
+        (svc_collider){.id = c->collider,
+                       .client = c->client,
+                       .geometry = g,
+                       .mesh = c->mesh,
+                       .pose = c->pose,
+                       .previous_pose = c->pose,
+                       .has_pose = has_pose,
+                       .feedback = c->feedback,
+                       .cost_cells = collider_cost_cells(g, s->world->cell_size_m)};
     c->mesh = NULL;
 }
 
