@@ -153,7 +153,7 @@ static void send_contacts(service *s, const svc_client *cl)
         hub_frame_unref(f);
         f = NULL;
     }
-    service_queue_client(s, cl->id, f, 0);
+    service_queue_client(s, cl->id, f, TERRAD_MSG_CONTACT, 0);
     free(mine);
 }
 
@@ -170,7 +170,7 @@ void service_publish_feedback(service *s)
                 hub_frame_unref(f);
                 f = NULL;
             }
-            service_queue_client(s, cl->id, f, 0);
+            service_queue_client(s, cl->id, f, TERRAD_MSG_ACK, 0);
             cl->sequence_pending = 0;
         }
     }
