@@ -280,7 +280,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     if (service_cut_into_tiles(s, &stats->report) == 0) /* deltas: versions, Σh, frames */
         service_publish_deltas(s, stats);
     service_contacts_after_tick(s);
-    service_publish_feedback(s); /* CONTACT, ACK */
+    service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */

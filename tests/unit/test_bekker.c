@@ -294,11 +294,11 @@ static void engine_run(int threads, int passes, int64_t *sum_out, double *force_
         *force_out += rep.contacts[0].force_n[0] + rep.contacts[0].force_n[2] * 1e-3 +
                       rep.contacts[0].torque_nm[1] * 1e-6;
     }
-    int64_t s = 0;
+    uint64_t s = 0; /* a hash of every height, wrapping */
     for (int y = 0; y < 64; y++)
         for (int xx = 0; xx < 128; xx++)
-            s = s * 31 + world_height_at(&w, xx, y);
-    *sum_out = s;
+            s = s * 31u + (uint64_t)(uint32_t)world_height_at(&w, xx, y);
+    *sum_out = (int64_t)(s >> 1);
     sim_engine_destroy(e);
     backend->destroy(backend);
     world_free(&w);
