@@ -7,6 +7,9 @@
 #   make install        build the daemon and the client library, then install them
 #                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
 #   make test           everything CI runs; ends with "N passed, N failed"
+#   make test-stress    make test while a CPU hog runs beside it (stress-ng --cpu 2): the suite
+#                       must pass at any load; the hog stops however make test ends, and the
+#                       exit status is make test's
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
 #                       terrad bench --trade: the speed/accuracy sweep into
 #                       $(TRADE_OUT), default test-artifacts/trade/, and its plot)
@@ -61,7 +64,7 @@ endef
 
 FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
-.PHONY: deps deps-test build build-asan daemon run cluster install test bench docs-images fuzz \
+.PHONY: deps deps-test build build-asan daemon run cluster install test test-stress bench docs-images fuzz \
         fuzz-smoke fuzz-build soak format format-check web-deps clean
 
 # Building and running need only --build (which includes --runtime); the test tools
@@ -118,6 +121,19 @@ test: deps-test
 	    END { passed = total - failed; failed += broken; \
 	          printf "%d passed, %d failed\n", passed, failed; exit (failed > 0) }' \
 	    || { echo "make test: FAILED (logs in $(ARTIFACTS)/)" >&2; exit 1; }
+
+# make test-stress: the whole make test with Debian's stress-ng holding two CPUs busy beside it,
+# so a test that depends on the machine's speed fails here, not later on a busy CI machine
+# (tests assert behaviour, never speed). The hog is killed on every way out (the EXIT trap;
+# INT/TERM first turn into an exit); the status is make test's.
+test-stress: deps-test
+	@stress-ng --cpu 2 --quiet & hog=$$!; \
+	trap 'kill $$hog 2>/dev/null || true; wait $$hog 2>/dev/null || true' EXIT; \
+	trap 'exit 130' INT; trap 'exit 143' TERM; \
+	echo "test-stress: stress-ng --cpu 2 (pid $$hog) runs beside make test"; \
+	status=0; $(MAKE) --no-print-directory test || status=$$?; \
+	echo "test-stress: make test exited $$status under load"; \
+	exit $$status
 
 bench: build
 	@shopt -s nullglob; ran=0; \

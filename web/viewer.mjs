@@ -25,6 +25,7 @@ const app = {
   state: 'connecting', connected: false, tick: 0, framesDrawn: 0, world: null,
   mirror: null, baseline: null, subs: new Map(), activeSub: 0, wantRegion: null,
   own: null, lastError: '', bytes: 0, rate: 0, seq: 0, lastBatch: 0,
+  keyClock: { s: 0, maxStep: 0 }, // frame time the keys drove for (see frame())
   colliders: [], collidersTick: 0, // the latest COLLIDERS frame: every collider in view
   dirtyBox: null, // window cells changed since the last texture upload: {x0, y0, x1, y1}
   chunks: [], skirts: true, background: [0.114, 0.129, 0.161], dragTarget: null,
@@ -851,6 +852,12 @@ function frame(now) {
   // the path is not skipped either. Past a second (a hidden tab) the rest is dropped.
   const elapsed = Math.min(1, (now - last) / 1000);
   last = now;
+  if (app.own && keys.size) {
+    // the page's own clock of key driving, so a test can check the distance against the time
+    // the page integrated rather than against its own (loaded) wall clock
+    app.keyClock.s += elapsed;
+    app.keyClock.maxStep = Math.max(app.keyClock.maxStep, elapsed);
+  }
   for (let left = elapsed; left > 1e-6; left -= 0.05) {
     keyDrive(Math.min(0.05, left));
     dragDrive(Math.min(0.05, left));
@@ -926,6 +933,8 @@ window.terrad = {
   // the chunks drawn last frame: [{x, y (window cells), level (LoD, step 2^level)}]
   get chunks() { return app.chunks.map((c) => ({ ...c })); },
   get camera() { return { ...cam, target: app.target ? [...app.target] : null, eye: app.eye ? [...app.eye] : null }; },
+  // seconds of frame time the keys drove the collider for, and the longest single frame of it
+  get keyClock() { return { ...app.keyClock }; },
   get dragTarget() { return app.dragTarget ? [...app.dragTarget] : null; },
   // test hooks: camera, background colour, skirts on/off (off shows the cracks they hide)
   setCamera({ yaw, pitch, dist, target } = {}) {

@@ -12,6 +12,7 @@
 #include <signal.h>
 #include <stdio.h>
 
+#include "app/app.h"
 #include "base/base.h"
 #include "cluster/cluster.h"
 #include "collider/collider.h"
@@ -111,6 +112,7 @@ typedef struct serve_sim {
     service *svc;
     hub *h; /* made by the caller (the HTTP server may need it first) */
     char models[64];
+    char backend_reason[APP_BACKEND_REASON_MAX]; /* why this backend (app_backend_create) */
     uint64_t overruns;
     int metrics_slot; /* cluster mode: the world's labelled series */
 } serve_sim;

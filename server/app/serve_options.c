@@ -50,7 +50,10 @@ static const cli_option serve_table[] = {
                     "dashes, '_' for '-') and \"limits\": {...} with the names of\n"
                     "proto/PROTOCOL.md's limits; later flags override it"},
     [OPT_SCENE] = {"scene", "FILE", "scene JSON (default: the embedded default scene)"},
-    [OPT_BACKEND] = {"backend", "gl|cpu", "deformation backend (default gl: EGL, no window)"},
+    [OPT_BACKEND] = {"backend", "auto|gl|cpu",
+                     "deformation backend (default auto: gl, EGL with no window, where\n"
+                     "the renderer is a hardware GPU; cpu, the integer twin, where GL\n"
+                     "is software (llvmpipe, softpipe, SwiftShader) or missing)"},
     [OPT_HTTP_PORT] = {"http-port", "N",
                        "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
                        "/v1/heights and the viewer at / (default 8080; 0: any free)"},
@@ -422,7 +425,7 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
 cli_result serve_options_parse(int argc, char **argv, serve_options *o)
 {
     memset(o, 0, sizeof *o);
-    o->backend = "gl";
+    o->backend = "auto";
     o->http_port = 8080;
     o->ws_port = 8081;
     o->probe_port = -1;

@@ -422,7 +422,13 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
     if (!l.heights_bytes_total)
         l.heights_bytes_total = HTTP_DEFAULT_HEIGHTS_BYTES_TOTAL;
     s->limits = l;
-    s->guard = http_guard_start(l.heights_bytes_per_address, l.heights_bytes_total, l.timeout_s);
+    /* The connection limits are the guard's: it makes room by closing the
+     * oldest connection still sending its headers. libmicrohttpd's own limit
+     * sits above them (the closed ones linger until its thread sees the end),
+     * as a last stop. */
+    unsigned soft = l.connections - l.connections / 8;
+    s->guard = http_guard_start(l.heights_bytes_per_address, l.heights_bytes_total, l.timeout_s,
+                                soft, l.connections_per_ip < soft ? l.connections_per_ip : soft);
     if (!s->guard) {
         error_set(err, "http: cannot start the connection guard (out of memory or threads)");
         pthread_mutex_destroy(&s->watch_lock);
@@ -439,8 +445,7 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO | (http_tls_on(&s->tls) ? MHD_USE_TLS : 0),
         (uint16_t)port, NULL, NULL, handle, s, MHD_OPTION_ARRAY, s->tls.options,
         MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr, MHD_OPTION_THREAD_POOL_SIZE, (unsigned)4,
-        MHD_OPTION_CONNECTION_LIMIT, l.connections, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
-        l.connections_per_ip, MHD_OPTION_CONNECTION_TIMEOUT, l.timeout_s,
+        MHD_OPTION_CONNECTION_LIMIT, l.connections, MHD_OPTION_CONNECTION_TIMEOUT, l.timeout_s,
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, l.memory_per_connection, MHD_OPTION_URI_LOG_CALLBACK,
         request_begin, s, MHD_OPTION_NOTIFY_COMPLETED, request_done, s,
         MHD_OPTION_NOTIFY_CONNECTION, http_guard_notify, s->guard, MHD_OPTION_END);

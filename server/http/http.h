@@ -60,7 +60,8 @@ typedef struct http_status {
     int colliders;  /* live colliders (client and demo) */
     char renderer[256];
     char backend[16];
-    char method[16]; /* the model, e.g. "persson-single"; /v1/world "models" */
+    char backend_reason[320]; /* why this backend: `--backend auto`'s choice, or forced */
+    char method[16];          /* the model, e.g. "persson-single"; /v1/world "models" */
     char metric[16];
     double last_tick_ms;
     uint64_t overruns;

@@ -43,8 +43,11 @@ typedef struct http_guard http_guard;
 /* A guard for one listener: heights answers may hold at most per_address
  * bytes for one client address and total bytes in all; a connection that has
  * not sent a whole request's headers header_deadline_s after it opened (or
- * after its previous request ended) is cut. Starts its sweeper thread. */
-http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s);
+ * after its previous request ended) is cut. Past max_per_address connections
+ * from one address or max_conns in all (0: none), the oldest connection still
+ * sending its headers is closed to make room. Starts its sweeper thread. */
+http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s,
+                             unsigned max_conns, unsigned max_per_address);
 void http_guard_stop(http_guard *g); /* after MHD_stop_daemon */
 /* MHD_OPTION_NOTIFY_CONNECTION (cls: the guard). */
 void http_guard_notify(void *cls, struct MHD_Connection *c, void **socket_context,

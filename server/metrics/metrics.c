@@ -633,7 +633,8 @@ static void render_clients(text *t)
             "/v1/heights requests refused (429): their address had too many bytes in flight.",
             GET(heights_refused));
     counter(t, "terrad_http_connections_cut_total",
-            "HTTP connections closed for sending no whole request within the header deadline.",
+            "HTTP connections closed while sending their headers: past the header deadline, "
+            "or to make room for a newer one past a connection limit.",
             GET(http_cut));
     header(t, "terrad_tick_shed_total", "counter",
            "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells.");

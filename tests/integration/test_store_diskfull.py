@@ -111,6 +111,7 @@ async def scenario(d, fault):
     # retry must write new bytes, not only truncate and sync (which need no space)
     lines_at_fault = len(d.lines)
     statuses = []
+    t_window = time.monotonic()
     for _ in range(12):
         await asyncio.sleep(0.25)
         statuses.append((await loop.run_in_executor(None, d.get, "/readyz"))[0])
@@ -119,7 +120,10 @@ async def scenario(d, fault):
     check(not any("writable again" in line for line in during),
           f"never 'writable again' while full: {[x for x in during if 'writable' in x][:3]}")
     errors = [line for line in during if "terrad error" in line]
-    check(len(errors) <= 1, f"the error is logged once, then at a bounded rate: {errors[:4]}")
+    # once, then at most every 10 s (FAIL_LOG_MS): a loaded machine may stretch the window
+    allowed = 1 + int((time.monotonic() - t_window) / 10)
+    check(len(errors) <= allowed, f"the error is logged once, then at a bounded rate "
+          f"(at most {allowed} in this window): {errors[:4]}")
 
     # reads go on; the world stands still although the demo actors move
     t1, h1 = await loop.run_in_executor(None, d.heights, *region)

@@ -94,6 +94,22 @@ def skip(why):
     sys.exit(77)
 
 
+def export_heights(data, tick, out, region=None):
+    """(heights, stderr) of `terrad export --format raw32` of data as of tick
+    (0: the last), or (None, stderr) when it fails; out is the file it writes."""
+    args = [BIN, "export", "--data", data, "--out", out, "--format", "raw32"]
+    if region:
+        args += ["--region", ",".join(map(str, region))]
+    if tick:
+        args += ["--tick", str(tick)]
+    r = subprocess.run(args, capture_output=True, text=True, timeout=60)
+    if r.returncode != 0:
+        return None, r.stderr
+    with open(out, "rb") as f:
+        body = f.read()
+    return list(struct.unpack(f"<{len(body) // 4}i", body)), r.stderr
+
+
 # ---- the daemon ----------------------------------------------------------------
 
 class Daemon:
