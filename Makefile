@@ -13,6 +13,9 @@
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
 #                       terrad bench --trade: the speed/accuracy sweep into
 #                       $(TRADE_OUT), default test-artifacts/trade/, and its plot)
+#   make screenshot     a PNG of a running daemon's viewer (scripts/screenshot.mjs, headless
+#                       Chromium): URL= (default make run's http://127.0.0.1:8080/), OUT=
+#                       (default test-artifacts/screenshot.png); needs chromium and web-deps
 #   make docs-images    refresh the pictures the docs show, on purpose: docs/viewer.png (the
 #                       viewer test's picture of its trail) and docs/trade/ (the sweep and its plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
@@ -37,6 +40,8 @@ ARTIFACTS := test-artifacts
 PREFIX ?= /usr/local
 DESTDIR ?=
 TRADE_OUT ?= $(ARTIFACTS)/trade
+URL ?= http://127.0.0.1:8080/
+OUT ?= $(ARTIFACTS)/screenshot.png
 
 # One build tree per compiler: the default compiler uses build/, CC=clang uses build-clang/.
 ifeq ($(filter cc gcc,$(notdir $(CC))),)
@@ -65,7 +70,7 @@ endef
 FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
 .PHONY: deps deps-test build build-asan daemon run cluster install test test-stress bench docs-images fuzz \
-        fuzz-smoke fuzz-build soak format format-check web-deps clean
+        fuzz-smoke fuzz-build soak format format-check web-deps screenshot clean
 
 # Building and running need only --build (which includes --runtime); the test tools
 # (about 1 GB: chromium, clang, prometheus, node) come with make test.
@@ -158,6 +163,14 @@ docs-images: build web-deps
 	cp $(ARTIFACTS)/viewer-trail.png docs/viewer.png
 	$(TERRAD) bench --trade --out docs/trade
 	$(PYTHON) scripts/trade-plot docs/trade/trade.csv docs/trade/trade.svg
+
+# A picture of the viewer of a daemon that is already running (make run in another terminal).
+# Chromium and node come with scripts/deps --test; playwright-core with web-deps (once).
+screenshot:
+	@[ -x /usr/bin/chromium ] && command -v node >/dev/null || { \
+	    echo "screenshot: needs chromium and node: scripts/deps --test" >&2; exit 1; }
+	@[ -d node_modules/playwright-core ] || $(MAKE) --no-print-directory web-deps
+	node scripts/screenshot.mjs --url '$(URL)' --out '$(OUT)'
 
 # Fuzz targets: tests/fuzz/fuzz_*.c, built with clang + libFuzzer + ASan/UBSan in build-fuzz/.
 # Seeds are read from tests/fuzz/corpus/<target>/ when it exists; new inputs and crashes go

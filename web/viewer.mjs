@@ -74,6 +74,7 @@ function connect() {
     if (ws !== sock) return;
     ws = null;
     app.connected = false;
+    app.snapshotShown = false;
     app.subs.clear();
     if (app.own) app.own.id = 0; // the server deletes a client's colliders when it leaves
     scheduleReconnect();
@@ -843,6 +844,9 @@ function draw() {
   for (const c of drawables()) drawCollider(c);
   gl.bindVertexArray(null);
   app.framesDrawn++;
+  // What scripts/screenshot waits for: this frame showed the world's snapshot, coloured against
+  // the scene's base terrain, while connected (not the "connecting" screen, not a stale world).
+  app.snapshotShown = app.connected && app.baseFromServer;
 }
 
 let last = performance.now();
@@ -867,7 +871,7 @@ function frame(now) {
   const o = app.own, sig = [canvas.clientWidth, canvas.clientHeight, devicePixelRatio, cam.yaw, cam.pitch, cam.dist,
     ...(app.target || []), o ? o.x + o.y + o.z + o.id : 0, app.mirror ? app.mirror.x + app.mirror.w : -1, app.skirts, ...app.background].join();
   const need = app.dirty || app.meshDirty || app.collidersChanged || sig !== app.lastSig || now - (app.lastDraw || 0) > 1000;
-  if (gl && need) {
+  if (gl && need && !app.hold) {
     app.lastSig = sig;
     app.lastDraw = now;
     app.collidersChanged = false;
@@ -923,6 +927,9 @@ window.terrad = {
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },
   get connected() { return app.connected; },
   get framesDrawn() { return app.framesDrawn; },
+  // true once a frame has drawn the world's snapshot against its base terrain while connected:
+  // the moment a picture of the page shows the terrain (scripts/screenshot waits for it)
+  get ready() { return app.connected && !!app.snapshotShown; },
   // 1 once the colours are against the scene's base terrain (not the first snapshot)
   get baseFromServer() { return !!app.baseFromServer; },
   get collider() { return app.own ? { ...app.own } : null; },
@@ -947,6 +954,9 @@ window.terrad = {
     }
   },
   setBackground(rgb) { app.background = rgb.slice(0, 3); },
+  // true keeps the last frame on the canvas (no redraws), so that a screenshot under software GL
+  // does not wait behind frames (scripts/screenshot); the connection and the mirror go on
+  hold(on) { app.hold = !!on; },
   setSkirts(on) { app.skirts = !!on; },
   pick,
   createCollider,

@@ -65,7 +65,7 @@ static const cli_option serve_table[] = {
                    "every local user can read the command line; use --auth-file"},
     [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
     [OPT_DEMO_ACTORS] = {"demo-actors", "N",
-                         "built-in spheres sliding over the terrain, 0..256 (default 6)"},
+                         "built-in spheres running laps over the terrain, 0..256 (default 6)"},
     [OPT_NO_DEMO] = {"no-demo", NULL, "no demo actors"},
     [OPT_TICKS] = {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)"},
     [OPT_DATA] = {"data", "DIR",

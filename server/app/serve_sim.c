@@ -171,7 +171,7 @@ static void step_demo(serve_sim *m, long tick)
         c->id = (int)(0x80000000u + (unsigned)a);
         c->geometry = &m->actors[a].geometry;
         c->previous_pose = c->pose;
-        c->pose = demo_actor_step(&m->actors[a], &m->w, 1.0 / m->sc.tick_hz, t);
+        c->pose = demo_actor_step(&m->actors[a], &m->w, t);
         c->has_previous = tick > 0;
     }
 }

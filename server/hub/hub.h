@@ -186,6 +186,8 @@ typedef struct hub_out {
     uint32_t client;    /* HUB_OUT_CLIENT */
     int tile_x, tile_y; /* HUB_OUT_TILE_DELTA: tile coordinates (cells / tile_size) */
     int snapshot_done;  /* HUB_OUT_CLIENT: the last snapshot frame of a subscribe/resync */
+    int msg; /* HUB_OUT_CLIENT: the frame's TERRAD_MSG_* type as its maker knew it (0: a JSON
+              * reply); the net thread's drop rules go by it, not by the wire byte */
     uint64_t tick;
     hub_frame *frame; /* the queue holds one reference */
 } hub_out;

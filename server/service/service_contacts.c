@@ -154,7 +154,7 @@ static void send_contacts(service *s, const svc_client *cl)
         hub_frame_unref(f);
         f = NULL;
     }
-    service_queue_client(s, cl->id, f, 0);
+    service_queue_client(s, cl->id, f, TERRAD_MSG_CONTACT, 0);
     free(mine);
 }
 
@@ -198,7 +198,7 @@ static void send_forces(service *s, const svc_client *cl, const sim_tick_report 
         hub_frame_unref(f);
         f = NULL;
     }
-    service_queue_client(s, cl->id, f, 0);
+    service_queue_client(s, cl->id, f, TERRAD_MSG_FORCES, 0);
     free(mine);
 }
 
@@ -216,7 +216,7 @@ void service_publish_feedback(service *s, const sim_tick_report *report)
                 hub_frame_unref(f);
                 f = NULL;
             }
-            service_queue_client(s, cl->id, f, 0);
+            service_queue_client(s, cl->id, f, TERRAD_MSG_ACK, 0);
             cl->sequence_pending = 0;
         }
     }

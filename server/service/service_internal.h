@@ -4,7 +4,7 @@
  * (service.c) calls in order. Not part of the face of service/; everything
  * here runs on the sim thread only (service->owner).
  *
- *   service.c           life cycle, the tick's table of contents, the out queue
+ *   service.c           life cycle, the tick's table of contents
  *   service_commands.c  take commands, poses and batch sequences from the hub
  *   service_contacts.c  contact feedback before/after the deformation, ACKs
  *   service_deltas.c    cut dirty rectangles into tiles, encode deltas, snapshots
@@ -12,6 +12,10 @@
  *   service_footprints.c FOOTPRINTS frames for viewers
  *   service_shed.c      the tick's cost budget: whose colliders wait a tick
  *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
+ *   service_shared.c    the leaf every step uses: lookups, the out queue, drops
+ *
+ * service.c calls the steps; a step calls only steps listed after it in the
+ * tick and service_shared.c, so the call graph of service/ is acyclic.
  */
 #ifndef TERRAD_SERVICE_INTERNAL_H
 #define TERRAD_SERVICE_INTERNAL_H
@@ -53,7 +57,8 @@ typedef struct svc_collider {
     collider_pose pose, previous_pose;
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
-    int held; /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    int held;           /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    int64_t cost_cells; /* collider_cost_cells, once at its creation (a mesh's is O(triangles)) */
 } svc_collider;
 
 typedef struct svc_contact {
@@ -148,7 +153,9 @@ struct service {
     uint64_t drops_unlogged;
 };
 
-/* service.c */
+/* service_shared.c */
+svc_client *service_find_client(service *s, uint32_t id);
+int service_find_collider(const service *s, uint32_t id); /* index, or -1 */
 /* Count dropped work (terrad_service_dropped_total{reason}) and log it, at
  * most once a second. */
 void service_note_drop(service *s, const char *reason, const char *fmt, ...)
@@ -157,13 +164,11 @@ void service_note_drop(service *s, const char *reason, const char *fmt, ...)
  * frame (its allocation or encoding failed) or no room is counted as a
  * dropped frame; returns 0 or -1. */
 int service_queue_out(service *s, hub_out item);
-/* Queue frame f for one client (snapshot_done: the last frame of a
- * subscribe/resync answer). */
-int service_queue_client(service *s, uint32_t client, hub_frame *f, int snapshot_done);
+/* Queue frame f, a TERRAD_MSG_* msg, for one client (snapshot_done: the last
+ * frame of a subscribe/resync answer). */
+int service_queue_client(service *s, uint32_t client, hub_frame *f, int msg, int snapshot_done);
 
 /* service_commands.c */
-svc_client *service_find_client(service *s, uint32_t id);
-int service_find_collider(const service *s, uint32_t id); /* index, or -1 */
 void service_release_collider(service *s, svc_collider *c);
 /* take the hub's commands, poses and batch sequences, and apply them */
 void service_take_input(service *s);

@@ -110,6 +110,34 @@ def export_heights(data, tick, out, region=None):
     return list(struct.unpack(f"<{len(body) // 4}i", body)), r.stderr
 
 
+def uv_sphere_mesh(r, rings=126, segments=130):
+    """(vertices, indices) of a closed UV sphere of radius r: 2 + rings * segments
+    vertices and 2 * rings * segments triangles (the defaults: 16,382 and
+    32,760, the most this way fits under the default mesh limits), millimetre
+    vertices so that the collider_create stays under max_message_bytes."""
+    verts = [0.0, 0.0, r]
+    for i in range(1, rings + 1):
+        th = math.pi * i / (rings + 1)
+        for j in range(segments):
+            ph = 2 * math.pi * j / segments
+            verts += [round(r * math.sin(th) * math.cos(ph), 3),
+                      round(r * math.sin(th) * math.sin(ph), 3), round(r * math.cos(th), 3)]
+    verts += [0.0, 0.0, -r]
+    south = 1 + rings * segments
+    tris = []
+    for j in range(segments):
+        tris += [0, 1 + j, 1 + (j + 1) % segments]
+    for i in range(rings - 1):
+        a, b = 1 + i * segments, 1 + (i + 1) * segments
+        for j in range(segments):
+            k = (j + 1) % segments
+            tris += [a + j, b + j, b + k, a + j, b + k, a + k]
+    last = 1 + (rings - 1) * segments
+    for j in range(segments):
+        tris += [last + j, south, last + (j + 1) % segments]
+    return verts, tris
+
+
 # ---- the daemon ----------------------------------------------------------------
 
 class Daemon:
