@@ -213,6 +213,12 @@ int auth_new_token(char *out, size_t cap);
 int auth_parse_line(const char *line, auth_role *role, char *name, unsigned char hash[32],
                     error_text *err);
 
+/* Standard base64 (RFC 4648, '+' '/', '=' padding optional) decoded into out,
+ * which holds at least strlen(in) * 3 / 4 + 3 bytes: the JetStream API's
+ * "data" and "hdrs", a terrain edit's stamp. The byte count, or -1 when a
+ * character is not base64. */
+int64_t base64_decode(const char *in, uint8_t *out);
+
 /* ---- TLS files (tls.c) ----
  * Checks a certificate and its private key before any port opens: each
  * readable, PEM, and the key the certificate's. -1 with err naming the file. */

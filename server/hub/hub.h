@@ -102,7 +102,11 @@ typedef enum hub_command_kind {
     HUB_SUBSCRIBE, /* sim answers with snapshot frames for the client */
     HUB_UNSUBSCRIBE,
     HUB_RESYNC, /* fresh snapshots of one (subscription != 0) or all subscriptions */
+    HUB_EDIT,   /* a terrain edit: from a client (client != 0) or HTTP (waiter != NULL) */
 } hub_command_kind;
+
+/* An HTTP caller waiting for its edit (hub_edit_submit); opaque. */
+typedef struct hub_edit_waiter hub_edit_waiter;
 
 typedef struct hub_command {
     hub_command_kind kind;
@@ -118,6 +122,8 @@ typedef struct hub_command {
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     char ref[64];               /* the client's request reference, echoed in replies */
+    world_edit *edit;           /* edit: owned by the command, then by the sim */
+    hub_edit_waiter *waiter;    /* edit from HTTP: hub_edit_finish tells it the outcome */
 } hub_command;
 
 /* Returns 0, or -1 when the queue is full (the command is not taken: the
@@ -125,6 +131,27 @@ typedef struct hub_command {
 int hub_push_command(hub *h, const hub_command *cmd);
 /* sim thread: move up to max queued commands into out, in arrival order. */
 int hub_take_commands(hub *h, hub_command *out, int max);
+
+/* ---- http → sim: terrain edits ---- */
+
+/* What became of an edit. code 0: applied at `tick`, changing the cells of
+ * rect by `volume` units in all; else a TERRAD_E_* code and why. */
+typedef struct hub_edit_result {
+    int code;
+    uint64_t tick;
+    int64_t volume;
+    world_rect rect;
+    char message[320];
+} hub_edit_result;
+
+/* Any thread but the sim thread (the HTTP threads): queue the edit (taken
+ * over, whatever happens) with the commands, in arrival order, and wait up
+ * to timeout_ms for the tick that applies or refuses it. 0 with *res
+ * filled; -1 when the queue is full (nothing queued); 1 on timeout (the edit
+ * stays queued and is still applied or refused at its tick). */
+int hub_edit_submit(hub *h, world_edit *e, hub_edit_result *res, int timeout_ms);
+/* sim thread: an HTTP edit's outcome, for its waiter (which may be gone). */
+void hub_edit_finish(hub_edit_waiter *w, const hub_edit_result *res);
 
 /* ---- net → sim: poses ---- */
 

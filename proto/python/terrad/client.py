@@ -24,7 +24,7 @@ from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force,
                     Pose, ProtoError, ServerError, collider_create, collider_delete,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
                     decode_footprints, decode_forces, decode_header, decode_ping, encode_ping,
-                    encode_pose_batch, error, hello, parse_control, resync, subscribe,
+                    edit, encode_pose_batch, error, hello, parse_control, resync, subscribe,
                     unsubscribe)
 
 try:
@@ -201,6 +201,13 @@ class Client:
         self._seq = (self._seq + 1) & _U32
         await self.ws.send(encode_pose_batch(self._seq, poses))
         return self._seq
+
+    async def edit(self, op: str, **fields: Any) -> dict[str, Any]:
+        """A terrain edit (crater, stamp, reset, add, remove; see proto.edit). Returns the
+        server's "edited" reply once its tick is committed: the tick it took effect, the
+        exact volume_change (height units) and the rectangle it could change; a refusal
+        raises ServerError naming the field."""
+        return await self.request(edit(op, **fields), "edited")
 
     async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
                         footprints: bool = False) -> int:

@@ -46,7 +46,7 @@ __all__ = [
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
-    "parse_control",
+    "edit", "stamp_data", "parse_control",
 ]
 
 PROTOCOL_VERSION = 1
@@ -758,6 +758,19 @@ def resync(sid: int | None = None, ref=None) -> dict:
     if sid is not None:
         msg["id"] = sid
     return _with_ref(msg, ref)
+
+
+def edit(op: str, ref=None, **fields) -> dict:
+    """A terrain edit (PROTOCOL.md "edit"): op crater (x, y, radius, depth, rim), stamp
+    (x, y, w, h, data, mode, mask, format), reset (x, y, w, h, or none: the whole world),
+    add / remove (x, y, w, h, amount). Cells and height units, integers."""
+    return _with_ref({"type": "edit", "op": op, **fields}, ref)
+
+
+def stamp_data(values) -> str:
+    """A stamp's int32 heights (row-major) as the base64 its "data" field carries."""
+    import base64
+    return base64.b64encode(struct.pack(f"<{len(values)}i", *values)).decode("ascii")
 
 
 def error(code: int | str, message: str = "", ref=None) -> dict:
