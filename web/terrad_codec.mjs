@@ -442,6 +442,18 @@ export function colliderCreate(shape, dims = {}, { material = 'default', feedbac
   if (pose) m.pose = pose;
   return withRef(m, ref);
 }
+// A terrain edit (PROTOCOL.md "edit"): op crater | stamp | reset | add | remove, its fields in
+// cells and height units, e.g. edit('crater', { x: 40, y: 40, radius: 8, depth: 20000 }).
+export const edit = (op, fields = {}, ref) => withRef({ type: 'edit', op, ...fields }, ref);
+// A stamp's int32 heights (row-major) as the base64 its "data" field carries.
+export function stampData(values) {
+  const b = new Uint8Array(values.length * 4);
+  const v = new DataView(b.buffer);
+  values.forEach((x, i) => v.setInt32(4 * i, x, true));
+  let s = '';
+  for (const byte of b) s += String.fromCharCode(byte);
+  return btoa(s);
+}
 function withRef(m, ref) {
   if (ref !== undefined && ref !== null) m.ref = ref;
   return m;

@@ -68,6 +68,7 @@ struct terrad_client {
     char wait_ref[32];
     int wait_done, wait_code;
     int64_t wait_id;
+    int64_t wait_tick, wait_volume; /* an "edited" reply's */
     unsigned ref_counter;
     uint64_t poll_mark;
     uint32_t seq;
@@ -301,6 +302,8 @@ static void on_text(terrad_client *c, const char *text, size_t len)
             c->wait_done = 1;
             c->wait_code = 0;
             c->wait_id = json_int(m, "id", 0);
+            c->wait_tick = json_int(m, "tick", 0);
+            c->wait_volume = json_int(m, "volume_change", 0);
         }
     }
     cJSON_Delete(m);
@@ -857,6 +860,36 @@ int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, 
     if (rc == 0 && sid_out)
         *sid_out = (uint32_t)id;
     return rc;
+}
+
+int terrad_client_edit(terrad_client *c, const char *edit_json, uint64_t *tick_out,
+                       int64_t *volume_out)
+{
+    cJSON *m = cJSON_Parse(edit_json);
+    if (!cJSON_IsObject(m)) {
+        cJSON_Delete(m);
+        set_err(c, "edit: not a JSON object");
+        return TERRAD_E_BAD_JSON;
+    }
+    cJSON_DeleteItemFromObjectCaseSensitive(m, "type");
+    cJSON_DeleteItemFromObjectCaseSensitive(m, "ref");
+    cJSON_AddStringToObject(m, "type", "edit");
+    int rc = request(c, m, NULL);
+    if (rc == 0 && tick_out)
+        *tick_out = (uint64_t)c->wait_tick;
+    if (rc == 0 && volume_out)
+        *volume_out = c->wait_volume;
+    return rc;
+}
+
+int terrad_client_crater(terrad_client *c, int32_t x, int32_t y, int32_t radius, int32_t depth,
+                         int rim, uint64_t *tick_out, int64_t *volume_out)
+{
+    char text[200];
+    snprintf(text, sizeof text,
+             "{\"op\":\"crater\",\"x\":%d,\"y\":%d,\"radius\":%d,\"depth\":%d,\"rim\":%s}", x, y,
+             radius, depth, rim ? "true" : "false");
+    return terrad_client_edit(c, text, tick_out, volume_out);
 }
 
 int terrad_client_unsubscribe(terrad_client *c, uint32_t sid)

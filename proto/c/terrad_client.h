@@ -171,6 +171,16 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
 int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
                             uint32_t *sid_out);
 int terrad_client_unsubscribe(terrad_client *c, uint32_t sid);
+/* A terrain edit (PROTOCOL.md "edit"): edit_json is the message's fields as a
+ * JSON object, e.g. {"op":"stamp","x":0,"y":0,"w":2,"h":2,"data":"..."}
+ * ("type" and "ref" are set here). Waits for the server's "edited": 0 with
+ * the tick it took effect and its exact volume change (height units), or the
+ * error code with terrad_client_last_error naming the field. */
+int terrad_client_edit(terrad_client *c, const char *edit_json, uint64_t *tick_out,
+                       int64_t *volume_out);
+/* A crater at cell (x, y) of radius cells and depth units; rim 1 keeps Σh. */
+int terrad_client_crater(terrad_client *c, int32_t x, int32_t y, int32_t radius, int32_t depth,
+                         int rim, uint64_t *tick_out, int64_t *volume_out);
 /* Asks for fresh snapshots of one subscription (sid 0: all); no reply. */
 int terrad_client_resync(terrad_client *c, uint32_t sid);
 /* Sends a PING frame with the given nonce (the PONG shows in the hook). */

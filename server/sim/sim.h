@@ -380,7 +380,6 @@ struct sim_backend {
      * device after every stage so per-stage times are real. */
     void (*set_stage_timing)(sim_backend *b, int on);
     void (*destroy)(sim_backend *b);
-    void *impl;
 };
 
 sim_backend *sim_backend_cpu_create(error_text *err);

@@ -135,6 +135,9 @@ test('control messages', () => {
   assert.deepEqual(C.subscribe(1, 2, 3, 4), { type: 'subscribe', x: 1, y: 2, w: 3, h: 4 });
   assert.deepEqual(C.colliderCreate('sphere', { radius: 0.3 }, { ref: 'a' }),
     { type: 'collider_create', shape: 'sphere', material: 'default', feedback: true, radius: 0.3, ref: 'a' });
+  assert.deepEqual(C.edit('crater', { x: 4, y: 5, radius: 3, depth: 900, rim: false }, 'e1'),
+    { type: 'edit', op: 'crater', x: 4, y: 5, radius: 3, depth: 900, rim: false, ref: 'e1' });
+  assert.equal(C.stampData([1, -2, 0x7fffffff]), Buffer.from('01000000feffffffffffff7f', 'hex').toString('base64'));
   assert.equal(errorName(() => C.parseControl('[1]')), 'bad_json');
   assert.equal(C.parseControl('{"type":"world","x":1}').x, 1);
 });
