@@ -5,7 +5,9 @@
  * model. Per window:
  *
  *   1. depth at the collider's pose, one collider at a time, so every cell
- *      knows which collider touches it (the lowest; ties to the first);
+ *      knows which collider touches it (the lowest; ties to the first). A
+ *      collider whose pose travels more than 1.5 cells in a tick is pressed
+ *      in one-cell slices (sim_slices.c; bekker_sliced), each a slow tick;
  *   2. contact patches: 4-connected cells of one collider below the surface;
  *      each patch's Bekker width b = 2 A / L (Chrono SCM's rule: a long strip
  *      of width w gives w, a disc of radius r gives r);
@@ -41,12 +43,21 @@
 #include <stdint.h>
 #include <string.h>
 
-/* bottom, owner, tmp, cls, patch, queue (6n), settle (12n + 2), then
- * doubles aligned: sigma-free patch widths (n) and per-patch edges (n). */
-int64_t sim_bekker_scratch_cells(int w, int h)
+/* One slice's press and settle: bottom, owner, tmp, cls, patch, queue (6n),
+ * settle (12n + 2), then doubles aligned: sigma-free patch widths (n) and
+ * per-patch edges (n). */
+static int64_t press_scratch_cells(int w, int h)
 {
     int64_t n = (int64_t)w * h;
     return 6 * n + sim_settle_scratch_cells(w, h) + 2 + 2 * n + n;
+}
+
+/* A slice's press over its part, then the part packed: heights (n), soil
+ * state (SIM_SOIL_STATE_FIELDS n) and material ids (n bytes). */
+int64_t sim_bekker_scratch_cells(int w, int h)
+{
+    int64_t n = (int64_t)w * h;
+    return press_scratch_cells(w, h) + n + SIM_SOIL_STATE_FIELDS * n + (n + 3) / 4;
 }
 
 static vec3d v3(double x, double y, double z)
@@ -83,8 +94,10 @@ static void collider_velocity(const sim_collider *c, double tick_s, vec3d *v, ve
     *w = v3(d.x / s * angle, d.y / s * angle, d.z / s * angle);
 }
 
-/* 1: depth at each collider's pose and the collider that owns each cell. */
-static void bekker_depth(const sim_window_job *job, int32_t *bottom, int32_t *owner, int32_t *tmp)
+/* 1: depth at each collider's pose (where it stands at the end of slice j
+ * of `slices`) and the collider that owns each cell. */
+static void bekker_depth(const sim_window_job *job, int j, int slices, int32_t *bottom,
+                         int32_t *owner, int32_t *tmp)
 {
     int64_t n = (int64_t)job->rect.w * job->rect.h;
     if (job->bottom_override) {
@@ -101,8 +114,8 @@ static void bekker_depth(const sim_window_job *job, int32_t *bottom, int32_t *ow
             for (int64_t i = 0; i < n; i++)
                 tmp[i] = COLLIDER_BOTTOM_NONE;
             const sim_collider *c = &job->colliders[k];
-            collider_depth_cpu(c->geometry, c->pose, job->rect, job->cell_size_m, job->units_per_m,
-                               tmp);
+            collider_depth_cpu(c->geometry, sim_slice_pose(c, job->cell_size_m, j, slices),
+                               job->rect, job->cell_size_m, job->units_per_m, tmp);
             for (int64_t i = 0; i < n; i++)
                 if (tmp[i] < bottom[i]) {
                     bottom[i] = tmp[i];
@@ -273,11 +286,14 @@ static void bekker_point_motion(const sim_contact *c, vec3d centre, vec3d at, ve
     *slip = v3(v.x - vn * normal.x, v.y - vn * normal.y, v.z - vn * normal.z);
 }
 
-/* Steps 1-3 and the split of step 4: raw (plastic lowering) and moved
- * (displaced part) into the settle scratch, the classes into cls, the state
- * and the contacts updated. Heights are not changed. */
-static void bekker_press(const sim_params *p, sim_window_job *job, int32_t *scratch,
-                         int32_t **cls_out, int32_t **settle_out)
+/* Steps 1-3 and the split of step 4 for slice j of `slices` (1 of 1: the
+ * tick): raw (plastic lowering) and moved (displaced part) into the settle
+ * scratch, the classes into cls, the state and the contacts updated. Heights
+ * are not changed. A slice is 1/slices of the tick: the colliders stand
+ * where it ends, their velocities are the tick's, their slip lasts
+ * tick_s / slices. */
+static void bekker_press(const sim_params *p, sim_window_job *job, int j, int slices,
+                         int32_t *scratch, int32_t **cls_out, int32_t **settle_out)
 {
     int w = job->rect.w, h = job->rect.h, n = w * h;
     int32_t *bottom = scratch, *owner = bottom + n, *tmp = owner + n, *cls = tmp + n;
@@ -286,7 +302,7 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int32_t *scra
     double *width = (double *)(void *)(((uintptr_t)(edges + n) + 7) & ~(uintptr_t)7);
     int32_t *raw = SIM_SETTLE_RAW(settle, n), *moved = SIM_SETTLE_MOVED(settle, n);
     const int32_t *heights = job->heights;
-    bekker_depth(job, bottom, owner, tmp);
+    bekker_depth(job, j, slices, bottom, owner, tmp);
     for (int i = 0; i < n; i++) {
         int32_t gap = bottom[i] == COLLIDER_BOTTOM_NONE ? INT32_MAX : bottom[i] - heights[i];
         cls[i] = owner[i] >= 0 && bottom[i] < heights[i]   ? SIM_CELL_PENETRATING
@@ -306,13 +322,13 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int32_t *scra
                 continue;
             }
             sim_contact *c = &job->contacts[owner[i]];
-            vec3d centre = job->colliders[owner[i]].pose.position;
+            vec3d centre = sim_slice_pose(&job->colliders[owner[i]], cell, j, slices).position;
             vec3d at =
                 v3((job->rect.x + x + 0.5) * cell, (job->rect.y + y + 0.5) * cell, bottom[i] / upm);
             vec3d normal = bekker_normal(job, bottom, owner, x, y), slip;
             double sink_speed;
             bekker_point_motion(c, centre, at, normal, &sink_speed, &slip);
-            double slip_step = sqrt(v3_dot(slip, slip)) * p->tick_s;
+            double slip_step = sqrt(v3_dot(slip, slip)) * p->tick_s / slices;
             bekker_cell r = bekker_cell_step(p, heights[i], bottom[i], width[label[i]], sink_speed,
                                              slip_step, state);
             bekker_contact_add(c, at, centre, normal, slip, &r, area);
@@ -331,10 +347,81 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int32_t *scra
     *settle_out = settle;
 }
 
+/* Slice j's depth (scratch's first array) into the window's bottom_out,
+ * the lowest over the slices: the depth the tick pressed with. */
+static void slice_bottom_out(const sim_window_job *job, world_rect part, const int32_t *bottom)
+{
+    for (int y = 0; y < part.h; y++)
+        for (int x = 0; x < part.w; x++) {
+            int32_t *out = job->bottom_out + (int64_t)(part.y - job->rect.y + y) * job->rect.w +
+                           (part.x - job->rect.x + x);
+            int32_t b = bottom[(int64_t)y * part.w + x];
+            if (b < *out)
+                *out = b;
+        }
+}
+
+/*
+ * A tick whose fastest collider's pose travels more than 1.5 cells
+ * (sim_travel_slices): one slice per cell, each the press and settle of a slow tick with every
+ * collider where its slice ends, over its part of the window. Bekker's depth
+ * is at the pose, not swept (forces belong to where the collider is), so a
+ * tick of one press at its end left a dotted rut. The contacts are the last
+ * slice's: the push where each collider stands now. A refused slice refuses
+ * the window whole (the engine keeps the world's heights and state).
+ */
+static sim_window_status bekker_sliced(const sim_params *p, sim_window_job *job, int slices,
+                                       int32_t *scratch)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    int32_t *heights = scratch + press_scratch_cells(job->rect.w, job->rect.h);
+    int32_t *state = heights + n;
+    uint8_t *ids = (uint8_t *)(void *)(state + SIM_SOIL_STATE_FIELDS * n);
+    if (job->bottom_out)
+        for (int64_t i = 0; i < n; i++)
+            job->bottom_out[i] = COLLIDER_BOTTOM_NONE;
+    for (int j = 1; j <= slices; j++) {
+        sim_window_job part = *job;
+        part.rect = sim_slice_rect(job, j, slices);
+        if (part.rect.w <= 0 || part.rect.h <= 0) {
+            bekker_contacts_begin(p, job); /* nothing touched where it ends */
+            continue;
+        }
+        part.heights = heights;
+        part.soil_state = state;
+        part.bottom_out = NULL;
+        part.compaction = NULL;
+        part.base_heights = NULL;
+        sim_slice_copy(job->rect, part.rect, job->heights, heights, sizeof *heights, 1);
+        sim_slice_copy(job->rect, part.rect, job->soil_state, state,
+                       SIM_SOIL_STATE_FIELDS * sizeof *state, 1);
+        if (job->material_ids) {
+            sim_slice_copy(job->rect, part.rect, (void *)(uintptr_t)job->material_ids, ids,
+                           sizeof *ids, 1);
+            part.material_ids = ids;
+        }
+        int32_t *cls, *settle;
+        bekker_press(p, &part, j, slices, scratch, &cls, &settle);
+        if (job->bottom_out)
+            slice_bottom_out(job, part.rect, scratch);
+        sim_window_status st = sim_sumner_settle(p, &part, cls, settle);
+        if (st != SIM_WINDOW_OK)
+            return st;
+        sim_slice_copy(job->rect, part.rect, job->heights, heights, sizeof *heights, 0);
+        sim_slice_copy(job->rect, part.rect, job->soil_state, state,
+                       SIM_SOIL_STATE_FIELDS * sizeof *state, 0);
+    }
+    return SIM_WINDOW_OK;
+}
+
 sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
 {
+    /* a given depth is the tick's: one slice */
+    int slices = job->bottom_override ? 1 : sim_travel_slices(job);
+    if (slices > 1)
+        return bekker_sliced(p, job, slices, scratch);
     int32_t *cls, *settle;
-    bekker_press(p, job, scratch, &cls, &settle);
+    bekker_press(p, job, 1, 1, scratch, &cls, &settle);
     return sim_sumner_settle(p, job, cls, settle);
 }
 
@@ -348,7 +435,7 @@ static double carry_force(const sim_params *p, sim_window_job *job, int32_t z, c
     memcpy(job->soil_state, s0, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *s0);
     c->pose.position.z = (double)z / p->units_per_m;
     int32_t *cls, *settle;
-    bekker_press(p, job, scratch, &cls, &settle);
+    bekker_press(p, job, 1, 1, scratch, &cls, &settle);
     return job->contacts[0].force_n[2];
 }
 

@@ -43,13 +43,14 @@
  * the next tick's path: a row of dents, not a trench. So a tick whose
  * fastest collider crosses L > 1 cells runs L slices, each a full Δt with
  * every collider at the next 1/L of its sweep (the sub-step poses of
- * collider/sweep.c, each cast once): a collider crossing L cells in a tick
+ * collider/sweep.c, each cast once; the slicing is sim_slices.c, shared
+ * with bekker): a collider crossing L cells in a tick
  * presses each column as long as one crossing a cell per tick for L ticks,
  * so the trail does not depend on how its motion is cut into ticks. Δt is
  * the model's own time per tick (a scene parameter, not the tick's wall
  * time), and here it follows the collider's advance. A collider that moves at most 1.5 cells a
  * tick is one slice: the tick is exactly as before. A slice of the integer
- * form runs over its colliders' part of the window only (slice_rect), so a
+ * form runs over its colliders' part of the window only (sim_slice_rect), so a
  * sliced tick costs what L slow ticks cost, not L times the whole sweep.
  */
 #include "sim/sim_internal.h"
@@ -58,8 +59,6 @@
 #include <string.h>
 
 #define STABLE_SUM (1.0 / 8.0)
-/* Around a slice's colliders (slice_rect): the default active_margin_cells. */
-#define SLICE_MARGIN_CELLS 4
 
 int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift)
 {
@@ -108,28 +107,6 @@ static void travel(const sim_collider *c, double *ux, double *uy)
     *uy = dy / len;
 }
 
-/* Slices of the tick (the file comment): one per cell the window's fastest
- * collider crosses, steps / 2 of its half-cell sub-steps rounded down — a
- * move of exactly one cell sums to a hair over it in double and takes 3
- * sub-steps; it stays one slice — and 1 when every collider moves less. */
-static int sweep_slices(const sim_window_job *job)
-{
-    int slices = 1;
-    for (int c = 0; c < job->collider_count; c++) {
-        int steps = sim_collider_sweep_steps(&job->colliders[c], job->cell_size_m);
-        if (steps / 2 > slices)
-            slices = steps / 2;
-    }
-    return slices;
-}
-
-/* The sub-step of a collider swept in `steps` where slice j (1..slices) ends:
- * the last slice ends at the pose itself. */
-static int slice_end(int j, int slices, int steps)
-{
-    return (int)((int64_t)j * steps / slices);
-}
-
 /* Depth of slice j: each collider swept over its sub-steps of this slice
  * (one pose, where it stands, when it does not move within the slice), as
  * sim_window_depth casts the whole sweep; slices 1..n together cast every
@@ -142,7 +119,7 @@ static void slice_depth(const sim_window_job *job, int j, int slices, int32_t *b
     for (int c = 0; c < job->collider_count; c++) {
         const sim_collider *col = &job->colliders[c];
         int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-        int k0 = slice_end(j - 1, slices, steps), k1 = slice_end(j, slices, steps);
+        int k0 = sim_slice_end(j - 1, slices, steps), k1 = sim_slice_end(j, slices, steps);
         for (int k = k1 > k0 ? k0 + 1 : k1; k <= k1; k++)
             collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
                                job->cell_size_m, job->units_per_m, bottom);
@@ -171,8 +148,7 @@ static void nearest_collider(const sim_window_job *job, int j, int slices, int32
     /* collider by collider, each one's position once; ties keep the first */
     for (int c = 0; c < job->collider_count; c++) {
         const sim_collider *col = &job->colliders[c];
-        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-        vec3d q = sim_collider_sweep_pose(col, slice_end(j, slices, steps), steps).position;
+        vec3d q = sim_slice_pose(col, job->cell_size_m, j, slices).position;
         for (int y = 0; y < h; y++) {
             double cy = (job->rect.y + y + 0.5) * job->cell_size_m;
             for (int x = 0; x < w; x++) {
@@ -362,51 +338,6 @@ static sim_window_status flux_substep(const sim_params *p, sim_window_job *job, 
     return SIM_WINDOW_OK;
 }
 
-/* Where slice j of a sliced tick runs: the bounds of every collider's poses
- * in the slice (from where it starts) plus SLICE_MARGIN_CELLS, within the
- * window — the part a collider crossing a cell per tick would have as its
- * window, so the cost of a slice follows the collider, not the sweep. */
-static world_rect slice_rect(const sim_window_job *job, int j, int slices)
-{
-    double lo_x = INFINITY, lo_y = INFINITY, hi_x = -INFINITY, hi_y = -INFINITY;
-    for (int c = 0; c < job->collider_count; c++) {
-        const sim_collider *col = &job->colliders[c];
-        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-        int k0 = slice_end(j - 1, slices, steps), k1 = slice_end(j, slices, steps);
-        for (int k = k0; k <= k1; k++) {
-            vec3d lo, hi;
-            collider_bounds(col->geometry, sim_collider_sweep_pose(col, k, steps), &lo, &hi);
-            lo_x = fmin(lo_x, lo.x);
-            lo_y = fmin(lo_y, lo.y);
-            hi_x = fmax(hi_x, hi.x);
-            hi_y = fmax(hi_y, hi.y);
-        }
-    }
-    world_rect r = job->rect;
-    if (!(lo_x <= hi_x && lo_y <= hi_y))
-        return r; /* no collider: the whole window */
-    double cell = job->cell_size_m;
-    double x0 = fmax(floor(lo_x / cell) - SLICE_MARGIN_CELLS, r.x);
-    double y0 = fmax(floor(lo_y / cell) - SLICE_MARGIN_CELLS, r.y);
-    double x1 = fmin(floor(hi_x / cell) + SLICE_MARGIN_CELLS, (double)r.x + r.w - 1);
-    double y1 = fmin(floor(hi_y / cell) + SLICE_MARGIN_CELLS, (double)r.y + r.h - 1);
-    if (x1 < x0 || y1 < y0)
-        return (world_rect){0, 0, 0, 0};
-    return (world_rect){(int)x0, (int)y0, (int)(x1 - x0) + 1, (int)(y1 - y0) + 1};
-}
-
-/* Copy sub (a part of the window) between the window's heights and a packed
- * array: in = 1 packs, 0 writes back. */
-static void copy_part(const sim_window_job *job, world_rect sub, int32_t *packed, int in)
-{
-    for (int y = 0; y < sub.h; y++) {
-        int32_t *row =
-            job->heights + (int64_t)(sub.y - job->rect.y + y) * job->rect.w + (sub.x - job->rect.x);
-        int32_t *p = packed + (int64_t)y * sub.w;
-        memcpy(in ? p : row, in ? row : p, (size_t)sub.w * sizeof *p);
-    }
-}
-
 /* Slice j of the integer flux form over job's rect: its depth, who pushes
  * each cell, then the tick's substeps. */
 static sim_window_status flux_slice(const sim_params *p, sim_window_job *job, flux_state *f, int j,
@@ -444,20 +375,20 @@ static sim_window_status conservative_window(const sim_params *p, sim_window_job
                     .out = out};
     if (f.cd_q32 == 0 && f.cz_q32 == 0)
         return SIM_WINDOW_OK; /* D = 0 and no drift: nothing moves */
-    int slices = sweep_slices(job);
+    int slices = sim_sweep_slices(job);
     if (slices == 1)
         return flux_slice(p, job, &f, 1, 1, steps, spare);
     for (int j = 1; j <= slices; j++) {
         sim_window_job part = *job;
-        part.rect = slice_rect(job, j, slices);
+        part.rect = sim_slice_rect(job, j, slices);
         if (part.rect.w <= 0 || part.rect.h <= 0)
             continue;
         part.heights = packed;
-        copy_part(job, part.rect, packed, 1);
+        sim_slice_copy(job->rect, part.rect, job->heights, packed, sizeof *packed, 1);
         sim_window_status st = flux_slice(p, &part, &f, j, slices, steps, spare);
         if (st != SIM_WINDOW_OK)
             return st; /* the window is refused whole */
-        copy_part(job, part.rect, packed, 0);
+        sim_slice_copy(job->rect, part.rect, job->heights, packed, sizeof *packed, 0);
     }
     return SIM_WINDOW_OK;
 }
@@ -541,7 +472,7 @@ static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job
     (void)cz;
     for (int64_t i = 0; i < n; i++)
         g.H[i] = job->heights[i] / g.cell_units;
-    int slices = sweep_slices(job);
+    int slices = sim_sweep_slices(job);
     for (int j = 1; j <= slices; j++) {
         g.bottom = slice_bottom(job, j, slices, spare);
         nearest_collider(job, j, slices, owner, g.Fx); /* Fx: free until the substep */

@@ -189,6 +189,27 @@ sim_window_status sim_diffusion_window(const sim_params *p, sim_window_job *job,
  * under auto), and the coefficients per substep (the bound is explained there). */
 int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift);
 
+/*
+ * A fast collider's tick in one-cell slices (sim_slices.c; diffusion and
+ * bekker). sim_sweep_slices: how many the window's tick needs (1 when no
+ * collider moves more than 1.5 cells); sim_travel_slices: likewise, counting
+ * only how far each collider's pose position travels (bekker, which presses
+ * at the pose). sim_slice_end: the sub-step of a
+ * collider swept in `steps` where slice j (1..slices) ends (the last ends at
+ * the pose itself); sim_slice_pose: the pose there. sim_slice_rect: the part
+ * of the window slice j runs over (its colliders' poses in the slice + the
+ * default active margin; empty w/h 0). sim_slice_copy: a per-cell array of
+ * cell_bytes per cell between the window (in = 1 packs part out of it) and a
+ * packed part (in = 0 writes it back).
+ */
+int sim_sweep_slices(const sim_window_job *job);
+int sim_travel_slices(const sim_window_job *job);
+int sim_slice_end(int j, int slices, int steps);
+collider_pose sim_slice_pose(const sim_collider *c, double cell_size_m, int j, int slices);
+world_rect sim_slice_rect(const sim_window_job *job, int j, int slices);
+void sim_slice_copy(world_rect window, world_rect part, void *cells, void *packed,
+                    size_t cell_bytes, int in);
+
 /* decals: one window's events (at most out_capacity); returns how many. */
 int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *scratch,
                       sim_footprint *out, int out_capacity);
