@@ -7,9 +7,15 @@
 #   make install        build the daemon and the client library, then install them
 #                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
 #   make test           everything CI runs; ends with "N passed, N failed"
+#   make test-stress    make test while a CPU hog runs beside it (stress-ng --cpu 2): the suite
+#                       must pass at any load; the hog stops however make test ends, and the
+#                       exit status is make test's
 #   make bench          build, then run the benchmarks (build/bench_*, tests/bench/bench_*.py,
 #                       terrad bench --trade: the speed/accuracy sweep into
 #                       $(TRADE_OUT), default test-artifacts/trade/, and its plot)
+#   make screenshot     a PNG of a running daemon's viewer (scripts/screenshot.mjs, headless
+#                       Chromium): URL= (default make run's http://127.0.0.1:8080/), OUT=
+#                       (default test-artifacts/screenshot.png); needs chromium and web-deps
 #   make docs-images    refresh the pictures the docs show, on purpose: docs/viewer.png (the
 #                       viewer test's picture of its trail) and docs/trade/ (the sweep and its plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
@@ -34,6 +40,8 @@ ARTIFACTS := test-artifacts
 PREFIX ?= /usr/local
 DESTDIR ?=
 TRADE_OUT ?= $(ARTIFACTS)/trade
+URL ?= http://127.0.0.1:8080/
+OUT ?= $(ARTIFACTS)/screenshot.png
 
 # One build tree per compiler: the default compiler uses build/, CC=clang uses build-clang/.
 ifeq ($(filter cc gcc,$(notdir $(CC))),)
@@ -61,8 +69,8 @@ endef
 
 FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
-.PHONY: deps deps-test build build-asan daemon run cluster install test bench docs-images fuzz \
-        fuzz-smoke fuzz-build soak format format-check web-deps clean
+.PHONY: deps deps-test build build-asan daemon run cluster install test test-stress bench docs-images fuzz \
+        fuzz-smoke fuzz-build soak format format-check web-deps screenshot clean
 
 # Building and running need only --build (which includes --runtime); the test tools
 # (about 1 GB: chromium, clang, prometheus, node) come with make test.
@@ -119,6 +127,19 @@ test: deps-test
 	          printf "%d passed, %d failed\n", passed, failed; exit (failed > 0) }' \
 	    || { echo "make test: FAILED (logs in $(ARTIFACTS)/)" >&2; exit 1; }
 
+# make test-stress: the whole make test with Debian's stress-ng holding two CPUs busy beside it,
+# so a test that depends on the machine's speed fails here, not later on a busy CI machine
+# (tests assert behaviour, never speed). The hog is killed on every way out (the EXIT trap;
+# INT/TERM first turn into an exit); the status is make test's.
+test-stress: deps-test
+	@stress-ng --cpu 2 --quiet & hog=$$!; \
+	trap 'kill $$hog 2>/dev/null || true; wait $$hog 2>/dev/null || true' EXIT; \
+	trap 'exit 130' INT; trap 'exit 143' TERM; \
+	echo "test-stress: stress-ng --cpu 2 (pid $$hog) runs beside make test"; \
+	status=0; $(MAKE) --no-print-directory test || status=$$?; \
+	echo "test-stress: make test exited $$status under load"; \
+	exit $$status
+
 bench: build
 	@shopt -s nullglob; ran=0; \
 	for b in $(BUILD)/bench_*; do \
@@ -142,6 +163,14 @@ docs-images: build web-deps
 	cp $(ARTIFACTS)/viewer-trail.png docs/viewer.png
 	$(TERRAD) bench --trade --out docs/trade
 	$(PYTHON) scripts/trade-plot docs/trade/trade.csv docs/trade/trade.svg
+
+# A picture of the viewer of a daemon that is already running (make run in another terminal).
+# Chromium and node come with scripts/deps --test; playwright-core with web-deps (once).
+screenshot:
+	@[ -x /usr/bin/chromium ] && command -v node >/dev/null || { \
+	    echo "screenshot: needs chromium and node: scripts/deps --test" >&2; exit 1; }
+	@[ -d node_modules/playwright-core ] || $(MAKE) --no-print-directory web-deps
+	node scripts/screenshot.mjs --url '$(URL)' --out '$(OUT)'
 
 # Fuzz targets: tests/fuzz/fuzz_*.c, built with clang + libFuzzer + ASan/UBSan in build-fuzz/.
 # Seeds are read from tests/fuzz/corpus/<target>/ when it exists; new inputs and crashes go

@@ -25,6 +25,7 @@ const app = {
   state: 'connecting', connected: false, tick: 0, framesDrawn: 0, world: null,
   mirror: null, baseline: null, subs: new Map(), activeSub: 0, wantRegion: null,
   own: null, lastError: '', bytes: 0, rate: 0, seq: 0, lastBatch: 0,
+  keyClock: { s: 0, maxStep: 0 }, // frame time the keys drove for (see frame())
   colliders: [], collidersTick: 0, // the latest COLLIDERS frame: every collider in view
   dirtyBox: null, // window cells changed since the last texture upload: {x0, y0, x1, y1}
   chunks: [], skirts: true, background: [0.114, 0.129, 0.161], dragTarget: null,
@@ -73,6 +74,7 @@ function connect() {
     if (ws !== sock) return;
     ws = null;
     app.connected = false;
+    app.snapshotShown = false;
     app.subs.clear();
     if (app.own) app.own.id = 0; // the server deletes a client's colliders when it leaves
     scheduleReconnect();
@@ -842,6 +844,9 @@ function draw() {
   for (const c of drawables()) drawCollider(c);
   gl.bindVertexArray(null);
   app.framesDrawn++;
+  // What scripts/screenshot waits for: this frame showed the world's snapshot, coloured against
+  // the scene's base terrain, while connected (not the "connecting" screen, not a stale world).
+  app.snapshotShown = app.connected && app.baseFromServer;
 }
 
 let last = performance.now();
@@ -851,6 +856,12 @@ function frame(now) {
   // the path is not skipped either. Past a second (a hidden tab) the rest is dropped.
   const elapsed = Math.min(1, (now - last) / 1000);
   last = now;
+  if (app.own && keys.size) {
+    // the page's own clock of key driving, so a test can check the distance against the time
+    // the page integrated rather than against its own (loaded) wall clock
+    app.keyClock.s += elapsed;
+    app.keyClock.maxStep = Math.max(app.keyClock.maxStep, elapsed);
+  }
   for (let left = elapsed; left > 1e-6; left -= 0.05) {
     keyDrive(Math.min(0.05, left));
     dragDrive(Math.min(0.05, left));
@@ -860,7 +871,7 @@ function frame(now) {
   const o = app.own, sig = [canvas.clientWidth, canvas.clientHeight, devicePixelRatio, cam.yaw, cam.pitch, cam.dist,
     ...(app.target || []), o ? o.x + o.y + o.z + o.id : 0, app.mirror ? app.mirror.x + app.mirror.w : -1, app.skirts, ...app.background].join();
   const need = app.dirty || app.meshDirty || app.collidersChanged || sig !== app.lastSig || now - (app.lastDraw || 0) > 1000;
-  if (gl && need) {
+  if (gl && need && !app.hold) {
     app.lastSig = sig;
     app.lastDraw = now;
     app.collidersChanged = false;
@@ -916,6 +927,9 @@ window.terrad = {
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },
   get connected() { return app.connected; },
   get framesDrawn() { return app.framesDrawn; },
+  // true once a frame has drawn the world's snapshot against its base terrain while connected:
+  // the moment a picture of the page shows the terrain (scripts/screenshot waits for it)
+  get ready() { return app.connected && !!app.snapshotShown; },
   // 1 once the colours are against the scene's base terrain (not the first snapshot)
   get baseFromServer() { return !!app.baseFromServer; },
   get collider() { return app.own ? { ...app.own } : null; },
@@ -926,6 +940,8 @@ window.terrad = {
   // the chunks drawn last frame: [{x, y (window cells), level (LoD, step 2^level)}]
   get chunks() { return app.chunks.map((c) => ({ ...c })); },
   get camera() { return { ...cam, target: app.target ? [...app.target] : null, eye: app.eye ? [...app.eye] : null }; },
+  // seconds of frame time the keys drove the collider for, and the longest single frame of it
+  get keyClock() { return { ...app.keyClock }; },
   get dragTarget() { return app.dragTarget ? [...app.dragTarget] : null; },
   // test hooks: camera, background colour, skirts on/off (off shows the cracks they hide)
   setCamera({ yaw, pitch, dist, target } = {}) {
@@ -938,6 +954,9 @@ window.terrad = {
     }
   },
   setBackground(rgb) { app.background = rgb.slice(0, 3); },
+  // true keeps the last frame on the canvas (no redraws), so that a screenshot under software GL
+  // does not wait behind frames (scripts/screenshot); the connection and the mirror go on
+  hold(on) { app.hold = !!on; },
   setSkirts(on) { app.skirts = !!on; },
   pick,
   createCollider,

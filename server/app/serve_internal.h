@@ -12,6 +12,7 @@
 #include <signal.h>
 #include <stdio.h>
 
+#include "app/app.h"
 #include "base/base.h"
 #include "cluster/cluster.h"
 #include "collider/collider.h"
@@ -111,6 +112,7 @@ typedef struct serve_sim {
     service *svc;
     hub *h; /* made by the caller (the HTTP server may need it first) */
     char models[64];
+    char backend_reason[APP_BACKEND_REASON_MAX]; /* why this backend (app_backend_create) */
     uint64_t overruns;
     int metrics_slot; /* cluster mode: the world's labelled series */
 } serve_sim;
@@ -174,14 +176,15 @@ int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, 
  * it does not (lost says why). */
 int serve_cluster_check(cluster *cl, serve_sim *m, double *retried_ms, char *lost, size_t cap);
 
-/* A sphere that slides across the world in a straight line, reflects off the
- * edges and bobs up and down, dipping into the terrain at the bottom. */
+/* A sphere that runs laps of an ellipse (centre cx, cy; half-axes ax, ay;
+ * omega rad/s from angle0) in its own cell of the world and bobs up and
+ * down, dipping below the base terrain at the bottom (serve_demo.c). */
 struct demo_actor {
     collider_geometry geometry;
-    double x, y, vx, vy, phase;
+    double cx, cy, ax, ay, omega, angle0, phase;
 };
 
 void demo_actors_init(demo_actor *a, int count, const world *w);
-collider_pose demo_actor_step(demo_actor *a, const world *w, double dt, double time_s);
+collider_pose demo_actor_step(const demo_actor *a, const world *w, double time_s);
 
 #endif

@@ -50,7 +50,10 @@ static const cli_option serve_table[] = {
                     "dashes, '_' for '-') and \"limits\": {...} with the names of\n"
                     "proto/PROTOCOL.md's limits; later flags override it"},
     [OPT_SCENE] = {"scene", "FILE", "scene JSON (default: the embedded default scene)"},
-    [OPT_BACKEND] = {"backend", "gl|cpu", "deformation backend (default gl: EGL, no window)"},
+    [OPT_BACKEND] = {"backend", "auto|gl|cpu",
+                     "deformation backend (default auto: gl, EGL with no window, where\n"
+                     "the renderer is a hardware GPU; cpu, the integer twin, where GL\n"
+                     "is software (llvmpipe, softpipe, SwiftShader) or missing)"},
     [OPT_HTTP_PORT] = {"http-port", "N",
                        "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
                        "/v1/heights and the viewer at / (default 8080; 0: any free)"},
@@ -62,7 +65,7 @@ static const cli_option serve_table[] = {
                    "every local user can read the command line; use --auth-file"},
     [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
     [OPT_DEMO_ACTORS] = {"demo-actors", "N",
-                         "built-in spheres sliding over the terrain, 0..256 (default 6)"},
+                         "built-in spheres running laps over the terrain, 0..256 (default 6)"},
     [OPT_NO_DEMO] = {"no-demo", NULL, "no demo actors"},
     [OPT_TICKS] = {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)"},
     [OPT_DATA] = {"data", "DIR",
@@ -153,6 +156,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                                        "max_tick_cells",
                                        "max_heights_bytes_per_address",
                                        "max_heights_bytes_in_flight",
+                                       "max_edit_cells",
                                        NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
@@ -160,7 +164,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[17];
+    double v[18];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -216,8 +220,11 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
         case 15:
             o->heights_bytes_per_address = (size_t)v[i];
             break;
-        default:
+        case 16:
             o->heights_bytes_in_flight = (size_t)v[i];
+            break;
+        default:
+            m->max_edit_cells = (int64_t)v[i];
             break;
         }
     }
@@ -422,7 +429,7 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
 cli_result serve_options_parse(int argc, char **argv, serve_options *o)
 {
     memset(o, 0, sizeof *o);
-    o->backend = "gl";
+    o->backend = "auto";
     o->http_port = 8080;
     o->ws_port = 8081;
     o->probe_port = -1;

@@ -21,7 +21,8 @@ int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
     world *w = &m->w;
     if (sim_params_from_material(&m->sc.material, w->cell_size_m, w->units_per_m, w->floor,
                                  &m->params, err) != 0 ||
-        !(m->backend = app_backend_create(o->backend, err)) ||
+        !(m->backend =
+              app_backend_create(o->backend, m->backend_reason, sizeof m->backend_reason, err)) ||
         !(m->engine =
               sim_engine_create(w, &m->params, m->backend, m->sc.active_margin_cells, err)) ||
         app_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
@@ -62,6 +63,7 @@ void serve_sim_ready(serve_sim *m)
     s->published_ms = time_now_ms();
     snprintf(s->renderer, sizeof s->renderer, "%s", m->backend->renderer);
     snprintf(s->backend, sizeof s->backend, "%s", m->backend->name);
+    snprintf(s->backend_reason, sizeof s->backend_reason, "%s", m->backend_reason);
     snprintf(s->method, sizeof s->method, "%s", sim_model_name(m->params.model));
     snprintf(s->metric, sizeof s->metric, "%s", sim_metric_name(m->params.metric));
     pthread_mutex_unlock(&s->lock);
@@ -77,6 +79,7 @@ void serve_sim_status_init(serve_sim *m)
     s->tile_size = SERVICE_TILE_SIZE;
     s->tick_hz = m->sc.tick_hz;
     snprintf(s->world_name, sizeof s->world_name, "%s", m->name);
+    snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);
 }
 
@@ -169,7 +172,7 @@ static void step_demo(serve_sim *m, long tick)
         c->id = (int)(0x80000000u + (unsigned)a);
         c->geometry = &m->actors[a].geometry;
         c->previous_pose = c->pose;
-        c->pose = demo_actor_step(&m->actors[a], &m->w, 1.0 / m->sc.tick_hz, t);
+        c->pose = demo_actor_step(&m->actors[a], &m->w, t);
         c->has_previous = tick > 0;
     }
 }

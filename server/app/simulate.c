@@ -43,11 +43,13 @@ enum {
 static const cli_option simulate_table[] = {
     [OPT_SCENE] = {"scene", "FILE", "scene JSON with scripted colliders (default: embedded scene)"},
     [OPT_TICKS] = {"ticks", "N", "number of ticks to run, 0..1e8 (required)"},
-    [OPT_BACKEND] = {"backend", "gl|cpu", "default gl"},
+    [OPT_BACKEND] = {"backend", "auto|gl|cpu",
+                     "default auto: gl on a hardware GPU, cpu where GL is software\n"
+                     "(llvmpipe) or missing"},
     [OPT_METHOD] = {"method", "M", "iterative | ssbo | multi (overrides the scene's material)"},
     [OPT_MODEL] = {"model", "M",
                    "persson-iterative | persson-ssbo | persson-multi | subtract |\n"
-                   "deferred | diffusion | sumner | decals (overrides the scene's model)"},
+                   "deferred | diffusion | sumner | decals | bekker (overrides the scene's model)"},
     [OPT_METRIC] = {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)"},
     [OPT_OUT] = {"out", "FILE", "write the final heights: little-endian int32, row-major"},
     [OPT_THREADS] = {"threads", "N",
@@ -97,7 +99,7 @@ static cli_result parse_options(int argc, char **argv, simulate_options *o)
 {
     memset(o, 0, sizeof *o);
     o->ticks = -1;
-    o->backend = "gl";
+    o->backend = "auto";
     cli_result r = cli_parse("simulate", simulate_usage, simulate_table, argc, argv,
                              simulate_on_option, o, NULL);
     if (r == CLI_OK && o->ticks < 0) {
@@ -316,6 +318,7 @@ typedef struct simulate_run {
     world w;
     sim_params params;
     sim_backend *backend;
+    char backend_reason[APP_BACKEND_REASON_MAX];
     sim_engine *engine;
     ground grd;
     simulate_totals totals;
@@ -337,6 +340,7 @@ static void report_add_run(cJSON *root, simulate_run *r)
     const world *w = &r->w;
     cJSON_AddStringToObject(root, "scene", r->sc.name);
     cJSON_AddStringToObject(root, "backend", backend->name);
+    cJSON_AddStringToObject(root, "backend_reason", r->backend_reason);
     cJSON_AddStringToObject(root, "renderer", backend->renderer);
     cJSON_AddStringToObject(root, "version", backend->version);
     cJSON_AddStringToObject(root, "model", sim_model_name(r->params.model));
@@ -354,6 +358,8 @@ static void report_add_run(cJSON *root, simulate_run *r)
     add_int64(root, "volume_after", r->volume_after);
     if (r->grd.uses_compaction) /* volume_after + compacted == volume_before */
         add_int64(root, "compacted", ground_compaction_total(&r->grd));
+    else if (r->params.model == SIM_MODEL_BEKKER) /* the soil keeps its own */
+        add_int64(root, "compacted", sim_engine_soil_compacted(r->engine));
     cJSON *st = cJSON_AddObjectToObject(root, "stages");
     const simulate_totals *t = &r->totals;
     for (int s = 0; s < t->stage_count; s++) {
@@ -464,7 +470,8 @@ static int simulate_engine_run(simulate_run *r)
     world *w = &r->w;
     if (sim_params_from_material(&r->sc.material, w->cell_size_m, w->units_per_m, w->floor,
                                  &r->params, &err) != 0 ||
-        !(r->backend = app_backend_create(r->o.backend, &err)) ||
+        !(r->backend = app_backend_create(r->o.backend, r->backend_reason, sizeof r->backend_reason,
+                                          &err)) ||
         !(r->engine =
               sim_engine_create(w, &r->params, r->backend, r->sc.active_margin_cells, &err))) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);

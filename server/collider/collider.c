@@ -2,7 +2,7 @@
  * collider.c: the collider geometry's checks, quaternion arithmetic,
  * world-space bounds and scripted motion. Each tick starts here: a collider's
  * pose (streamed or from collider_motion_pose) and its bounds decide its
- * footprint, the footprints become windows (step 3 of the tick), and the
+ * footprint, the footprints become windows (row 4a of the tick table in docs/design.md), and the
  * depth stage (depth_fixed.c on either backend)
  * then works only inside them. Bounds are exact rather than bounding-sphere
  * wide, because every extra cell of footprint is work for every later stage.
@@ -300,4 +300,46 @@ double collider_reach(const collider_geometry *g)
         return g->mesh ? g->mesh->bounding_radius : 0.0;
     }
     return 0.0;
+}
+
+/*
+ * Issue 20, item 3: a mesh at the default limits (16,384 vertices, 32,768
+ * triangles) was charged only its bounding square (441 cells for a 0.5 m
+ * sphere) while its depth prepares every triangle on every tick: measured on
+ * the loaded 2-core AMD EPYC (tests/bench/bench_mesh.py), a triangle cost
+ * about as much of the tick as a cell of a primitive's window, and such a mesh
+ * 400 ms more per tick than the primitive sphere of its size. Hence one cell
+ * per triangle, plus the cells its span may hold.
+ */
+static int64_t mesh_triangle_cells(const collider_mesh *m, double cell)
+{
+    int64_t sum = 0;
+    for (int k = 0; k < m->triangle_count; k++) {
+        const uint32_t *ix = m->indices + 3 * (size_t)k;
+        double c[3] = {0, 0, 0}, r2 = 0;
+        for (int j = 0; j < 3; j++)
+            for (int a = 0; a < 3; a++)
+                c[a] += m->vertices[3 * (size_t)ix[j] + a] / 3.0;
+        for (int j = 0; j < 3; j++) {
+            double d2 = 0;
+            for (int a = 0; a < 3; a++) {
+                double d = m->vertices[3 * (size_t)ix[j] + a] - c[a];
+                d2 += d * d;
+            }
+            r2 = d2 > r2 ? d2 : r2;
+        }
+        double side = floor(2 * sqrt(r2) / cell) + 1;
+        sum += (int64_t)(side * side) + 1;
+    }
+    return sum;
+}
+
+int64_t collider_cost_cells(const collider_geometry *g, double cell_size_m)
+{
+    double cell = cell_size_m > 0 ? cell_size_m : 1;
+    double side = ceil(2 * collider_reach(g) / cell) + 1;
+    int64_t cells = (int64_t)(side * side);
+    if (g->shape == COLLIDER_MESH && g->mesh)
+        cells += mesh_triangle_cells(g->mesh, cell);
+    return cells;
 }

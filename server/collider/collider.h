@@ -76,6 +76,13 @@ vec3d quat_rotate(quatd q, vec3d v);
 void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi);
 /* Largest distance of any point of the collider from its position (metres). */
 double collider_reach(const collider_geometry *g);
+/* What one pose of the collider costs a tick, in cells, whatever its
+ * orientation (the per-client max_active_cells and the per-tick
+ * max_tick_cells charge it): the square around its bounding sphere (its
+ * window) and, for a mesh, per triangle the square around the triangle's own
+ * bounding sphere (the cells its depth instance may visit) plus one for the
+ * triangle itself. g->mesh must be set for a mesh. */
+int64_t collider_cost_cells(const collider_geometry *g, double cell_size_m);
 
 /*
  * CPU twin depth stage: for each cell of `window` (world cell coordinates),

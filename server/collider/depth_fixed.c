@@ -1,6 +1,6 @@
 /*
  * depth_fixed.c: the depth stage's fixed-point specification (issue 12,
- * item 4), step 5 of the tick on both backends. A GL raster of tessellated
+ * item 4), row 4d.1 of the tick table (docs/design.md) on both backends. A GL raster of tessellated
  * triangles in float and an analytic intersection in double never agree
  * bit for bit, so the shapes done here are computed by ONE integer
  * specification: this file, and its GLSL twin shaders/depth_exact.comp,
@@ -63,16 +63,24 @@ static int64_t floor_shift(int64_t v, int64_t s)
     return -(int64_t)(((uint64_t)(-v) + (((uint64_t)1 << s) - 1)) >> s);
 }
 
-/* metres → fixed units (1/2^s of a height unit), rounded, kept far from overflow */
-static int64_t to_fixed(double metres, int32_t units_per_m, int s)
+/* metres → fixed units, scale = units_per_m 2^s (exact: a power of two times
+ * an int32), rounded, kept far from overflow. Scaling by a power of two
+ * commutes with rounding, so metres * scale is metres * units_per_m * 2^s. */
+static int64_t to_fixed_scaled(double metres, double scale)
 {
-    double v = nearbyint(metres * (double)units_per_m * ldexp(1.0, s));
+    double v = nearbyint(metres * scale);
     const double lim = ldexp(1.0, 60);
     if (!(v > -lim)) /* also NaN */
         return -((int64_t)1 << 60);
     if (v > lim)
         return (int64_t)1 << 60;
     return (int64_t)v;
+}
+
+/* metres → fixed units (1/2^s of a height unit) */
+static int64_t to_fixed(double metres, int32_t units_per_m, int s)
+{
+    return to_fixed_scaled(metres, (double)units_per_m * ldexp(1.0, s));
 }
 
 /* floor(a / b) and ceil(a / b), b != 0, on magnitudes (depth_exact.comp: the same) */
@@ -178,21 +186,39 @@ int collider_fixed_supported(const collider_geometry *g)
     return g->shape != COLLIDER_MESH || g->mesh != NULL;
 }
 
-/* The cells whose centres may lie in [lo, hi] (metres), one cell wider each
- * way, clipped to the window; 0 when none. */
-static int fixed_span(double lo_x, double hi_x, double lo_y, double hi_y, double cell,
+/*
+ * The cells of the window whose centres lie in a triangle's bounding box, on
+ * the fixed grid itself (cell X's centre is X step + step / 2): exactly the
+ * cells its inclusive edge test can hit, so none is visited in vain and a
+ * triangle between cell centres, or vertical (no area in plan, it covers
+ * nothing), makes no instance at all (issue 20, item 3: at the default mesh
+ * limits most triangles are smaller than a cell, and the span one cell wider
+ * each way made each of them nine cells' work). The bottoms are the same:
+ * only cells the test can never hit are left out. 0 when none.
+ */
+static int fixed_span(const int64_t *a, const int64_t *b, const int64_t *c, int64_t step,
                       world_rect window, int *x0, int *x1, int *y0, int *y1)
 {
-    double a = ceil(lo_x / cell - 0.5) - 1, b = floor(hi_x / cell - 0.5) + 1;
-    double c = ceil(lo_y / cell - 0.5) - 1, d = floor(hi_y / cell - 0.5) + 1;
-    double wx0 = window.x, wx1 = (double)window.x + window.w - 1;
-    double wy0 = window.y, wy1 = (double)window.y + window.h - 1;
-    if (!(a <= b && c <= d) || b < wx0 || a > wx1 || d < wy0 || c > wy1)
+    int64_t area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+    if (area == 0)
         return 0;
-    *x0 = (int)(a < wx0 ? wx0 : a);
-    *x1 = (int)(b > wx1 ? wx1 : b);
-    *y0 = (int)(c < wy0 ? wy0 : c);
-    *y1 = (int)(d > wy1 ? wy1 : d);
+    int64_t lo_x = a[0] < b[0] ? a[0] : b[0], hi_x = a[0] > b[0] ? a[0] : b[0];
+    int64_t lo_y = a[1] < b[1] ? a[1] : b[1], hi_y = a[1] > b[1] ? a[1] : b[1];
+    lo_x = c[0] < lo_x ? c[0] : lo_x;
+    hi_x = c[0] > hi_x ? c[0] : hi_x;
+    lo_y = c[1] < lo_y ? c[1] : lo_y;
+    hi_y = c[1] > hi_y ? c[1] : hi_y;
+    int64_t half = step / 2;
+    int64_t cx0 = ceil_div(lo_x - half, step), cx1 = floor_div(hi_x - half, step);
+    int64_t cy0 = ceil_div(lo_y - half, step), cy1 = floor_div(hi_y - half, step);
+    int64_t wx0 = window.x, wx1 = (int64_t)window.x + window.w - 1;
+    int64_t wy0 = window.y, wy1 = (int64_t)window.y + window.h - 1;
+    if (cx0 > cx1 || cy0 > cy1 || cx1 < wx0 || cx0 > wx1 || cy1 < wy0 || cy0 > wy1)
+        return 0;
+    *x0 = (int)(cx0 < wx0 ? wx0 : cx0);
+    *x1 = (int)(cx1 > wx1 ? wx1 : cx1);
+    *y0 = (int)(cy0 < wy0 ? wy0 : cy0);
+    *y1 = (int)(cy1 > wy1 ? wy1 : cy1);
     return 1;
 }
 
@@ -222,29 +248,31 @@ int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, 
     double ext = 0.0;
     for (int k = 0; k < m->triangle_count; k++) {
         const uint32_t *ix = m->indices + 3 * (size_t)k;
-        for (int j = 0; j < 3; j++) {
+        for (int j = 0; j < 3; j++) { /* finite: plain compares are fmax, and cheaper */
             vec3d a = wv[ix[j]], b = wv[ix[(j + 1) % 3]];
-            ext = fmax(ext, fmax(fabs(a.x - b.x), fmax(fabs(a.y - b.y), fabs(a.z - b.z))));
+            double dx = fabs(a.x - b.x), dy = fabs(a.y - b.y), dz = fabs(a.z - b.z);
+            double d = dx > dy ? dx : dy;
+            d = dz > d ? dz : d;
+            ext = d > ext ? d : ext;
         }
     }
     ext = (ext + 2.0 * cell_size_m) * (double)units_per_m;
     int s = 16;
     while (s > 0 && ext * ldexp(1.0, s) >= ldexp(1.0, 19))
         s--;
+    double scale = (double)units_per_m * ldexp(1.0, s);
     for (int i = 0; i < m->vertex_count; i++) { /* once per vertex: shared edges agree */
-        fv[3 * i + 0] = to_fixed(wv[i].x, units_per_m, s);
-        fv[3 * i + 1] = to_fixed(wv[i].y, units_per_m, s);
-        fv[3 * i + 2] = to_fixed(wv[i].z, units_per_m, s);
+        fv[3 * i + 0] = to_fixed_scaled(wv[i].x, scale);
+        fv[3 * i + 1] = to_fixed_scaled(wv[i].y, scale);
+        fv[3 * i + 2] = to_fixed_scaled(wv[i].z, scale);
     }
     int64_t step = to_fixed(cell_size_m, units_per_m, s);
     int added = 0;
     for (int k = 0; k < m->triangle_count; k++) {
         const uint32_t *ix = m->indices + 3 * (size_t)k;
-        vec3d a = wv[ix[0]], b = wv[ix[1]], c = wv[ix[2]];
         int x0, x1, y0, y1;
-        if (!fixed_span(fmin(a.x, fmin(b.x, c.x)), fmax(a.x, fmax(b.x, c.x)),
-                        fmin(a.y, fmin(b.y, c.y)), fmax(a.y, fmax(b.y, c.y)), cell_size_m, window,
-                        &x0, &x1, &y0, &y1))
+        if (!fixed_span(fv + 3 * (size_t)ix[0], fv + 3 * (size_t)ix[1], fv + 3 * (size_t)ix[2],
+                        step, window, &x0, &x1, &y0, &y1))
             continue;
         if (array_grow((void **)out, capacity, *count + 1, sizeof **out) != 0) {
             free(wv);

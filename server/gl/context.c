@@ -16,6 +16,7 @@
  */
 #include "gl/gl_internal.h"
 
+#include <ctype.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -278,6 +279,31 @@ const char *gl_context_renderer(const gl_context *c)
 const char *gl_context_version(const gl_context *c)
 {
     return c->version;
+}
+
+int gl_renderer_is_software(const char *renderer)
+{
+    static const char *const software[] = {"llvmpipe", "softpipe", "swiftshader", "lavapipe",
+                                           "software rasterizer"};
+    char lower[256];
+    size_t n = 0;
+    for (; renderer && renderer[n] && n + 1 < sizeof lower; n++)
+        lower[n] = (char)tolower((unsigned char)renderer[n]);
+    lower[n] = 0;
+    for (size_t i = 0; i < sizeof software / sizeof software[0]; i++)
+        if (strstr(lower, software[i]))
+            return 1;
+    return 0;
+}
+
+int gl_probe_renderer(char *renderer, size_t cap, error_text *err)
+{
+    gl_context *c = gl_context_create(err);
+    if (!c)
+        return -1;
+    snprintf(renderer, cap, "%s", c->renderer);
+    gl_context_destroy(c);
+    return 0;
 }
 
 /*

@@ -28,6 +28,17 @@ const char *gl_context_renderer(const gl_context *c);
 const char *gl_context_version(const gl_context *c);
 void gl_context_destroy(gl_context *c);
 
+/*
+ * Whether a GL_RENDERER string names a software rasteriser (Mesa's llvmpipe
+ * and softpipe, SwiftShader, lavapipe, "Software Rasterizer"): GL there runs
+ * the compute shaders on the CPU, slower than the CPU twin.
+ */
+int gl_renderer_is_software(const char *renderer);
+/* Make a context, copy its GL_RENDERER into renderer and destroy it again:
+ * what `--backend auto` asks before choosing. 0, or -1 with err set as by
+ * gl_context_create. */
+int gl_probe_renderer(char *renderer, size_t cap, error_text *err);
+
 /* The GL backend: creates its own context. */
 sim_backend *sim_backend_gl_create(error_text *err);
 

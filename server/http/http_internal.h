@@ -43,8 +43,11 @@ typedef struct http_guard http_guard;
 /* A guard for one listener: heights answers may hold at most per_address
  * bytes for one client address and total bytes in all; a connection that has
  * not sent a whole request's headers header_deadline_s after it opened (or
- * after its previous request ended) is cut. Starts its sweeper thread. */
-http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s);
+ * after its previous request ended) is cut. Past max_per_address connections
+ * from one address or max_conns in all (0: none), the oldest connection still
+ * sending its headers is closed to make room. Starts its sweeper thread. */
+http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s,
+                             unsigned max_conns, unsigned max_per_address);
 void http_guard_stop(http_guard *g); /* after MHD_stop_daemon */
 /* MHD_OPTION_NOTIFY_CONNECTION (cls: the guard). */
 void http_guard_notify(void *cls, struct MHD_Connection *c, void **socket_context,
@@ -162,6 +165,13 @@ void http_answer_free(http_answer *a);
 /* Sends a (Cache-Control: no-store), which gives up its body. */
 enum MHD_Result http_answer_queue(struct MHD_Connection *c, http_answer *a);
 void http_view_stats(const http_status *st, http_answer *a);
+
+/* http_edits.c: POST /v1/worlds/{name}/edits. */
+#define HTTP_EDIT_MAX_BYTES (24 * 1024 * 1024) /* a stamp of max_edit_cells int32s, base64 */
+/* 1 with {name} when url is an edits path. */
+int http_edit_path(const char *url, char *name, size_t cap);
+void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, const char *body,
+                    size_t len, http_answer *a);
 void http_view_world(const http_status *st, http_answer *a);
 void http_view_heights(http_server *s, hub *from, const world *base, const http_args *args,
                        const http_status *st, http_answer *a);

@@ -189,7 +189,8 @@ static const char *json_double(double v, char *out, size_t cap)
 
 void http_view_world(const http_status *st, http_answer *a)
 {
-    char renderer[600], backend[40], method[40], metric[40], body[1600], name[160] = "";
+    char renderer[600], backend[40], method[40], metric[40], body[2400], name[160] = "";
+    char reason[700];
     char width_m[32], height_m[32], cell[32], hz[32];
     if (st->world_name[0]) { /* cluster mode only: a single daemon's answer is unchanged */
         char escaped[132];
@@ -198,6 +199,7 @@ void http_view_world(const http_status *st, http_answer *a)
     }
     http_json_escape(st->renderer, renderer, sizeof renderer);
     http_json_escape(st->backend, backend, sizeof backend);
+    http_json_escape(st->backend_reason, reason, sizeof reason);
     http_json_escape(st->method, method, sizeof method);
     http_json_escape(st->metric, metric, sizeof metric);
     /* width/height stay at the top level for existing clients; extent
@@ -208,14 +210,15 @@ void http_view_world(const http_status *st, http_answer *a)
              "\"height_m\":%s},"
              "\"cell_size_m\":%s,\"units_per_m\":%d,\"tick\":%llu,\"tick_hz\":%s,"
              "\"tile_size\":%d,\"models\":[%s%s%s],\"metric\":\"%s\","
-             "\"renderer\":\"%s\",\"backend\":\"%s\",\"ready\":%s,\"version\":\"%s\"%s}\n",
+             "\"renderer\":\"%s\",\"backend\":\"%s\",\"backend_reason\":\"%s\",\"ready\":%s,"
+             "\"version\":\"%s\"%s}\n",
              st->world_width, st->world_height, st->world_width, st->world_height,
              json_double(st->world_width * st->cell_size_m, width_m, sizeof width_m),
              json_double(st->world_height * st->cell_size_m, height_m, sizeof height_m),
              json_double(st->cell_size_m, cell, sizeof cell), st->units_per_m,
              (unsigned long long)st->tick, json_double(st->tick_hz, hz, sizeof hz), st->tile_size,
              method[0] ? "\"" : "", method, method[0] ? "\"" : "", metric, renderer, backend,
-             st->ready ? "true" : "false", TERRAD_VERSION, name);
+             reason, st->ready ? "true" : "false", TERRAD_VERSION, name);
     answer_text(a, MHD_HTTP_OK, "application/json", body);
 }
 

@@ -10,6 +10,12 @@
  * the tick nothing. Histograms hold several words that must agree (buckets,
  * sum, count), so each has a small mutex, held only for an increment.
  *
+ * Every family is one row of one table (`families`: name, type, help,
+ * label, slots): metrics_reset zeroes the slots, the update functions write
+ * them, metrics_render walks the rows in order. The families of worlds,
+ * auth and the process have their own files (metrics_worlds.c,
+ * metrics_auth.c, metrics_process.c).
+ *
  * Durations arrive in milliseconds (what the tick measures) and leave in
  * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
  * would round it above 2^53, and volume conservation is checked bit for bit.
@@ -69,7 +75,6 @@ static const char *const stage_names[] = {METRICS_STAGES};
 #define STAGE_COUNT COUNT_OF(stage_names)
 static const char *const memory_stage_names[] = {METRICS_MEMORY_STAGES};
 #define MEMORY_STAGE_COUNT COUNT_OF(memory_stage_names)
-static _Atomic uint64_t stage_memory[MEMORY_STAGE_COUNT];
 
 static histogram tick_hist = {.lock = PTHREAD_MUTEX_INITIALIZER,
                               .nbounds = COUNT_OF(tick_bounds_ms),
@@ -90,8 +95,15 @@ static const char *const service_drop_reasons[] = {METRICS_SERVICE_DROP_REASONS}
 #define SERVICE_DROP_REASONS COUNT_OF(service_drop_reasons)
 static pthread_once_t stage_once = PTHREAD_ONCE_INIT;
 
+static const char *refused_names[TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1];
+
+/* Once: the stage histograms' locks and bounds, the wire error names. */
 static void stage_hist_init(void)
 {
+    for (int code = TERRAD_ERR_FIRST; code <= TERRAD_ERR_LAST; code++) {
+        const char *name = terrad_err_name(code);
+        refused_names[code - TERRAD_ERR_FIRST] = name ? name : "internal";
+    }
     for (int i = 0; i < STAGE_COUNT; i++) {
         pthread_mutex_init(&stage_hist[i].lock, NULL);
         stage_hist[i].nbounds = COUNT_OF(stage_bounds_ms);
@@ -125,31 +137,217 @@ static void histogram_reset(histogram *hg)
     pthread_mutex_unlock(&hg->lock);
 }
 
-/* ---- counters and gauges ---- */
+/* ---- the table: every family /metrics shows ---- */
 
-static atomic_uint_fast64_t bytes_in, bytes_out, messages_in, frames_out;
-static atomic_uint_fast64_t frames_coalesced, frames_dropped, tick_overruns, refused_windows;
-static atomic_uint_fast64_t snapshots_coalesced, snapshots_deferred, snapshots_dropped;
-static atomic_uint_fast64_t budget_refusals;
-static atomic_uint_fast64_t clients_stale, heights_refused, http_cut, tick_shed;
-/* the GL backend's tile cache, copied from its own totals each tick */
-static atomic_uint_fast64_t gpu_tile_uploads, gpu_tile_upload_bytes, gpu_tile_evictions;
-static atomic_int_fast64_t gpu_tiles_resident;
-static atomic_uint_fast64_t delta_raw, delta_compressed;
-static atomic_uint_fast64_t footprint_frames, footprint_events, footprint_frames_dropped;
-static atomic_uint_fast64_t refused[TERRAD_ERR_LAST + 1]; /* by wire error code; [0] unused */
-static atomic_uint_fast64_t tick_now;
-static atomic_int_fast64_t sim_threads_in_use;
-static atomic_int_fast64_t volume, active_cells, colliders, clients;
-static atomic_uint_fast64_t store_wal_bytes, store_durable_tick, store_compactions;
-static atomic_uint_fast64_t store_errors[STORE_ERROR_KINDS];
-static atomic_uint_fast64_t service_dropped[SERVICE_DROP_REASONS];
-static atomic_int_fast64_t store_available, store_records_replayed, store_bytes_cut;
-static atomic_int_fast64_t store_recovery_us, store_compaction_us;
+/* A family's values live in one array of relaxed atomics, indexed by slot: a
+ * scalar has one slot, a labelled family one per label value. The family
+ * table below says, once for each family, its name, type, help, label and
+ * slots; the update functions write a slot, and metrics_reset and
+ * metrics_render walk the table (so a new metric is one slot and one row). */
+enum slot {
+    S_TICK,
+    S_VOLUME,
+    S_ACTIVE_CELLS,
+    S_COLLIDERS,
+    S_CLIENTS,
+    S_BYTES_IN,
+    S_BYTES_OUT,
+    S_MESSAGES_IN,
+    S_FRAMES_OUT,
+    S_DELTA_RAW,
+    S_DELTA_COMPRESSED,
+    S_BUDGET_REFUSALS,
+    S_SNAPSHOTS_COALESCED,
+    S_SNAPSHOTS_DEFERRED,
+    S_SNAPSHOTS_DROPPED,
+    S_FRAMES_COALESCED,
+    S_FRAMES_DROPPED,
+    S_CLIENTS_STALE,
+    S_HEIGHTS_REFUSED,
+    S_HTTP_CUT,
+    S_TICK_SHED,
+    S_FOOTPRINT_FRAMES,
+    S_FOOTPRINT_EVENTS,
+    S_FOOTPRINT_FRAMES_DROPPED,
+    S_SIM_THREADS,
+    S_TICK_OVERRUNS,
+    S_REFUSED_WINDOWS,
+    S_GPU_TILE_UPLOADS,
+    S_GPU_TILE_UPLOAD_BYTES,
+    S_GPU_TILE_EVICTIONS,
+    S_GPU_TILES_RESIDENT,
+    S_STORE_WAL_BYTES,
+    S_STORE_DURABLE_TICK,
+    S_STORE_AVAILABLE,
+    S_STORE_COMPACTIONS,
+    S_STORE_COMPACTION_US,
+    S_STORE_RECOVERY_US,
+    S_STORE_RECORDS_REPLAYED,
+    S_STORE_BYTES_CUT,
+    S_REFUSED, /* by wire error code, TERRAD_ERR_FIRST first */
+    S_STORE_ERRORS = S_REFUSED + TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,
+    S_SERVICE_DROPPED = S_STORE_ERRORS + STORE_ERROR_KINDS,
+    S_SCRATCH = S_SERVICE_DROPPED + SERVICE_DROP_REASONS,
+    S_COUNT = S_SCRATCH + MEMORY_STAGE_COUNT
+};
 
-#define ADD(v, n) atomic_fetch_add_explicit(&(v), (n), memory_order_relaxed)
-#define SET(v, n) atomic_store_explicit(&(v), (n), memory_order_relaxed)
-#define GET(v) atomic_load_explicit(&(v), memory_order_relaxed)
+/* Gauges are stored as the bits of an int64, counters as a uint64. */
+static atomic_uint_fast64_t value[S_COUNT];
+
+#define ADD(s, n) atomic_fetch_add_explicit(&value[s], (uint64_t)(n), memory_order_relaxed)
+#define SET(s, n) atomic_store_explicit(&value[s], (uint64_t)(n), memory_order_relaxed)
+#define GET(s) atomic_load_explicit(&value[s], memory_order_relaxed)
+
+typedef enum family_kind {
+    F_COUNTER,
+    F_GAUGE,
+    F_SECONDS,   /* a gauge kept in microseconds, shown in seconds */
+    F_RATIO,     /* a gauge: slot over slot2 (0 while slot2 is 0) */
+    F_HISTOGRAM, /* hist[0..series) */
+    F_PARTS,     /* the memory-part table (its own mutex) */
+} family_kind;
+
+typedef struct family {
+    const char *name;
+    family_kind kind;
+    const char *help;
+    int slot, slot2;
+    const char *label;               /* NULL: one unlabelled series */
+    const char *const *label_values; /* the label's values, one per series */
+    int series;                      /* with a label: how many */
+    histogram *hist;                 /* F_HISTOGRAM */
+} family;
+
+#define SCALAR(n, k, s, h)                                                                         \
+    {                                                                                              \
+        .name = n, .kind = k, .help = h, .slot = s                                                 \
+    }
+#define LABELLED(n, k, s, l, v, count, h)                                                          \
+    {                                                                                              \
+        .name = n, .kind = k, .help = h, .slot = s, .label = l, .label_values = v, .series = count \
+    }
+
+static const char *const shed_reasons[] = {"max_tick_cells"};
+
+static const family families[] = {
+    {.name = "terrad_tick_duration_seconds",
+     .kind = F_HISTOGRAM,
+     .help = "Wall time of one simulation tick, all stages included.",
+     .hist = &tick_hist},
+    {.name = "terrad_stage_duration_seconds",
+     .kind = F_HISTOGRAM,
+     .help = "Wall time of one stage of a tick, by stage.",
+     .label = "stage",
+     .label_values = stage_names,
+     .series = STAGE_COUNT,
+     .hist = stage_hist},
+    {.name = "terrad_pose_to_delta_latency_seconds",
+     .kind = F_HISTOGRAM,
+     .help = "Time from a pose batch's arrival to the delta frames of the tick that used it.",
+     .hist = &latency_hist},
+    /* the world, the clients and what went over the websocket */
+    SCALAR("terrad_tick", F_GAUGE, S_TICK, "The last completed tick."),
+    /* %lld of an int64: exact, unlike any double formatting above 2^53. */
+    SCALAR("terrad_volume_units", F_GAUGE, S_VOLUME,
+           "Sum of all heights in height units (exact integer)."),
+    SCALAR("terrad_active_cells", F_GAUGE, S_ACTIVE_CELLS,
+           "Cells inside the last tick's active windows."),
+    SCALAR("terrad_colliders", F_GAUGE, S_COLLIDERS, "Live colliders."),
+    SCALAR("terrad_clients", F_GAUGE, S_CLIENTS, "Connected websocket clients."),
+    SCALAR("terrad_bytes_in_total", F_COUNTER, S_BYTES_IN, "Websocket payload bytes received."),
+    SCALAR("terrad_bytes_out_total", F_COUNTER, S_BYTES_OUT, "Websocket payload bytes sent."),
+    SCALAR("terrad_messages_in_total", F_COUNTER, S_MESSAGES_IN, "Websocket messages received."),
+    SCALAR("terrad_frames_out_total", F_COUNTER, S_FRAMES_OUT, "Websocket frames sent."),
+    SCALAR("terrad_delta_raw_bytes_total", F_COUNTER, S_DELTA_RAW,
+           "Delta payload bytes before compression."),
+    SCALAR("terrad_delta_compressed_bytes_total", F_COUNTER, S_DELTA_COMPRESSED,
+           "Delta payload bytes after compression."),
+    {.name = "terrad_delta_compression_ratio",
+     .kind = F_RATIO,
+     .help = "Raw over compressed delta bytes over the process's life (0 before any delta).",
+     .slot = S_DELTA_RAW,
+     .slot2 = S_DELTA_COMPRESSED},
+    SCALAR("terrad_colliders_refused_budget_total", F_COUNTER, S_BUDGET_REFUSALS,
+           "collider_create refused by a client's max_active_cells or max_mesh_triangles."),
+    SCALAR("terrad_snapshot_requests_coalesced_total", F_COUNTER, S_SNAPSHOTS_COALESCED,
+           "Snapshot requests (subscribe, resync) answered by an identical pending one."),
+    SCALAR("terrad_snapshot_requests_deferred_total", F_COUNTER, S_SNAPSHOTS_DEFERRED,
+           "Snapshot requests left for a later tick by the per-tick snapshot budget."),
+    SCALAR("terrad_snapshot_requests_dropped_total", F_COUNTER, S_SNAPSHOTS_DROPPED,
+           "Snapshot requests never built because their client left."),
+    SCALAR("terrad_frames_coalesced_total", F_COUNTER, S_FRAMES_COALESCED,
+           "Delta frames replaced by a fresh snapshot for a slow client."),
+    SCALAR("terrad_frames_dropped_total", F_COUNTER, S_FRAMES_DROPPED,
+           "Frames never sent (slow client or overflow)."),
+    SCALAR("terrad_clients_stale_total", F_COUNTER, S_CLIENTS_STALE,
+           "Clients switched to snapshots for being more than max_client_lag_ticks behind."),
+    SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
+           "/v1/heights requests refused (429): their address had too many bytes in flight."),
+    SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
+           "HTTP connections closed while sending their headers: past the header deadline, "
+           "or to make room for a newer one past a connection limit."),
+    LABELLED("terrad_tick_shed_total", F_COUNTER, S_TICK_SHED, "reason", shed_reasons, 1,
+             "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells."),
+    SCALAR("terrad_footprint_frames_total", F_COUNTER, S_FOOTPRINT_FRAMES,
+           "FOOTPRINTS frames queued to clients (decals model)."),
+    SCALAR("terrad_footprint_events_total", F_COUNTER, S_FOOTPRINT_EVENTS,
+           "Footprint events in those frames."),
+    SCALAR("terrad_footprint_frames_dropped_total", F_COUNTER, S_FOOTPRINT_FRAMES_DROPPED,
+           "FOOTPRINTS frames not sent to a slow client."),
+    LABELLED("terrad_refused_messages_total", F_COUNTER, S_REFUSED, "reason", refused_names,
+             TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,
+             "Client messages refused, by wire error name (proto/PROTOCOL.md)."),
+    /* the backend: threads, overruns, refused windows and the GL tile cache */
+    SCALAR("terrad_sim_threads", F_GAUGE, S_SIM_THREADS,
+           "Threads the CPU twin's stages run on (serve --threads; heights do not depend on it)."),
+    SCALAR("terrad_tick_overruns_total", F_COUNTER, S_TICK_OVERRUNS,
+           "Ticks that took longer than the tick period."),
+    SCALAR("terrad_refused_windows_total", F_COUNTER, S_REFUSED_WINDOWS,
+           "Active windows refused because their heights would leave the height limits."),
+    SCALAR("terrad_gpu_tile_uploads_total", F_COUNTER, S_GPU_TILE_UPLOADS,
+           "World tiles uploaded into the GL backend's tile cache."),
+    SCALAR("terrad_gpu_tile_upload_bytes_total", F_COUNTER, S_GPU_TILE_UPLOAD_BYTES,
+           "Bytes of those uploads."),
+    SCALAR("terrad_gpu_tile_evictions_total", F_COUNTER, S_GPU_TILE_EVICTIONS,
+           "Resident tiles the GL tile cache replaced by others (LRU)."),
+    SCALAR("terrad_gpu_tiles_resident", F_GAUGE, S_GPU_TILES_RESIDENT,
+           "World tiles resident in the GL tile cache."),
+    /* the store (server/store) */
+    SCALAR("terrad_store_wal_bytes_total", F_COUNTER, S_STORE_WAL_BYTES,
+           "Bytes appended to the write-ahead log."),
+    {.name = "terrad_store_fsync_duration_seconds",
+     .kind = F_HISTOGRAM,
+     .help = "Wall time of one fdatasync of the write-ahead log.",
+     .hist = &fsync_hist},
+    SCALAR("terrad_store_durable_tick", F_GAUGE, S_STORE_DURABLE_TICK,
+           "The last tick as durable as the durability policy promises."),
+    SCALAR("terrad_store_available", F_GAUGE, S_STORE_AVAILABLE,
+           "1 while ticks can be made durable; 0 while deformation is refused."),
+    SCALAR("terrad_store_compactions_total", F_COUNTER, S_STORE_COMPACTIONS,
+           "Log compactions into tile snapshots."),
+    SCALAR("terrad_store_last_compaction_seconds", F_SECONDS, S_STORE_COMPACTION_US,
+           "Wall time of the last compaction (its own thread)."),
+    LABELLED("terrad_store_errors_total", F_COUNTER, S_STORE_ERRORS, "kind", store_error_kinds,
+             STORE_ERROR_KINDS, "Storage errors, by kind."),
+    SCALAR("terrad_store_recovery_seconds", F_SECONDS, S_STORE_RECOVERY_US,
+           "Wall time of the recovery at start (snapshots and log replay)."),
+    SCALAR("terrad_store_recovery_records", F_GAUGE, S_STORE_RECORDS_REPLAYED,
+           "Log records replayed at start."),
+    SCALAR("terrad_store_cut_tail_bytes", F_GAUGE, S_STORE_BYTES_CUT,
+           "Bytes of a torn or corrupt log tail cut at start (0: none)."),
+    /* work the service dropped (server/service) */
+    LABELLED("terrad_service_dropped_total", F_COUNTER, S_SERVICE_DROPPED, "reason",
+             service_drop_reasons, SERVICE_DROP_REASONS,
+             "Work a tick could not do (a frame, snapshot, poses or command dropped), by reason."),
+    /* memory by part and the models' scratch by stage */
+    {.name = "terrad_memory_bytes",
+     .kind = F_PARTS,
+     .help = "Memory held by a part of the daemon, by part.",
+     .label = "part",
+     .series = 1},
+    LABELLED("terrad_sim_scratch_bytes", F_GAUGE, S_SCRATCH, "stage", memory_stage_names,
+             MEMORY_STAGE_COUNT, "Scratch memory the deformation models hold, by stage."),
+};
 
 /* Memory parts: a short table of names, written rarely (once per tick with
  * the same names), so one mutex is simpler than anything lock-free. */
@@ -167,75 +365,40 @@ void metrics_reset(void)
 {
     pthread_once(&stage_once, stage_hist_init);
     metrics_auth_reset();
-    SET(bytes_in, 0);
-    SET(bytes_out, 0);
-    SET(messages_in, 0);
-    SET(frames_out, 0);
-    SET(frames_coalesced, 0);
-    SET(snapshots_coalesced, 0);
-    SET(snapshots_deferred, 0);
-    SET(snapshots_dropped, 0);
-    SET(budget_refusals, 0);
-    SET(clients_stale, 0);
-    SET(heights_refused, 0);
-    SET(http_cut, 0);
-    SET(tick_shed, 0);
-    SET(frames_dropped, 0);
-    SET(tick_overruns, 0);
-    SET(footprint_frames, 0);
-    SET(footprint_events, 0);
-    SET(footprint_frames_dropped, 0);
-    SET(refused_windows, 0);
-    SET(gpu_tile_uploads, 0);
-    SET(gpu_tile_upload_bytes, 0);
-    SET(gpu_tile_evictions, 0);
-    SET(gpu_tiles_resident, 0);
-    SET(delta_raw, 0);
-    SET(delta_compressed, 0);
-    for (int i = 0; i <= TERRAD_ERR_LAST; i++)
-        SET(refused[i], 0);
-    SET(tick_now, 0);
-    SET(volume, 0);
-    SET(active_cells, 0);
-    SET(colliders, 0);
-    SET(clients, 0);
-    SET(store_wal_bytes, 0);
-    SET(store_durable_tick, 0);
-    SET(store_compactions, 0);
-    for (int i = 0; i < STORE_ERROR_KINDS; i++)
-        SET(store_errors[i], 0);
-    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
-        SET(service_dropped[i], 0);
-    SET(store_available, 0);
-    SET(store_records_replayed, 0);
-    SET(store_bytes_cut, 0);
-    SET(store_recovery_us, 0);
-    SET(store_compaction_us, 0);
-    histogram_reset(&fsync_hist);
-    histogram_reset(&tick_hist);
-    histogram_reset(&latency_hist);
-    for (int i = 0; i < STAGE_COUNT; i++)
-        histogram_reset(&stage_hist[i]);
+    metrics_edits_reset();
+    for (int i = 0; i < S_COUNT; i++)
+        SET(i, 0);
+    for (int f = 0; f < COUNT_OF(families); f++)
+        for (int i = 0;
+             families[f].kind == F_HISTOGRAM && i < (families[f].label ? families[f].series : 1);
+             i++)
+            histogram_reset(&families[f].hist[i]);
     pthread_mutex_lock(&memory_lock);
     memory_part_count = 0;
     pthread_mutex_unlock(&memory_lock);
-    for (int i = 0; i < MEMORY_STAGE_COUNT; i++)
-        SET(stage_memory[i], 0);
+}
+
+/* The slot of name among a labelled family's values, or -1 (an unknown name
+ * is dropped rather than added: a label value made up at run time would grow
+ * the series without bound). */
+static int slot_of(int first, const char *const *names, int count, const char *name)
+{
+    for (int i = 0; name && i < count; i++)
+        if (strcmp(name, names[i]) == 0)
+            return first + i;
+    return -1;
 }
 
 void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes)
 {
-    for (int i = 0; stage && i < MEMORY_STAGE_COUNT; i++) {
-        if (strcmp(stage, memory_stage_names[i]) == 0) {
-            SET(stage_memory[i], bytes);
-            return;
-        }
-    }
+    int s = slot_of(S_SCRATCH, memory_stage_names, MEMORY_STAGE_COUNT, stage);
+    if (s >= 0)
+        SET(s, bytes);
 }
 
 void metrics_count_store_wal_bytes(uint64_t bytes)
 {
-    ADD(store_wal_bytes, bytes);
+    ADD(S_STORE_WAL_BYTES, bytes);
 }
 
 void metrics_observe_store_fsync_ms(double ms)
@@ -245,59 +408,59 @@ void metrics_observe_store_fsync_ms(double ms)
 
 void metrics_set_store_durable_tick(uint64_t tick)
 {
-    SET(store_durable_tick, tick);
+    SET(S_STORE_DURABLE_TICK, tick);
 }
 
 void metrics_count_store_compaction(double ms)
 {
-    ADD(store_compactions, 1);
-    SET(store_compaction_us, (int64_t)(ms * 1000.0));
+    ADD(S_STORE_COMPACTIONS, 1);
+    SET(S_STORE_COMPACTION_US, (int64_t)(ms * 1000.0));
 }
 
 void metrics_count_store_error(const char *kind)
 {
-    for (int i = 0; i < STORE_ERROR_KINDS; i++)
-        if (strcmp(kind, store_error_kinds[i]) == 0)
-            ADD(store_errors[i], 1);
+    int s = slot_of(S_STORE_ERRORS, store_error_kinds, STORE_ERROR_KINDS, kind);
+    if (s >= 0)
+        ADD(s, 1);
 }
 
 void metrics_count_service_dropped(const char *reason)
 {
-    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
-        if (strcmp(reason, service_drop_reasons[i]) == 0)
-            ADD(service_dropped[i], 1);
+    int s = slot_of(S_SERVICE_DROPPED, service_drop_reasons, SERVICE_DROP_REASONS, reason);
+    if (s >= 0)
+        ADD(s, 1);
 }
 
 void metrics_set_store_available(int available)
 {
-    SET(store_available, available ? 1 : 0);
+    SET(S_STORE_AVAILABLE, available ? 1 : 0);
 }
 
 void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut)
 {
-    SET(store_recovery_us, (int64_t)(ms * 1000.0));
-    SET(store_records_replayed, records_replayed);
-    SET(store_bytes_cut, bytes_cut);
+    SET(S_STORE_RECOVERY_US, (int64_t)(ms * 1000.0));
+    SET(S_STORE_RECORDS_REPLAYED, records_replayed);
+    SET(S_STORE_BYTES_CUT, bytes_cut);
 }
 
 void metrics_count_bytes_in(uint64_t n)
 {
-    ADD(bytes_in, n);
+    ADD(S_BYTES_IN, n);
 }
 
 void metrics_count_bytes_out(uint64_t n)
 {
-    ADD(bytes_out, n);
+    ADD(S_BYTES_OUT, n);
 }
 
 void metrics_count_messages_in(uint64_t n)
 {
-    ADD(messages_in, n);
+    ADD(S_MESSAGES_IN, n);
 }
 
 void metrics_count_frames_out(uint64_t n)
 {
-    ADD(frames_out, n);
+    ADD(S_FRAMES_OUT, n);
 }
 
 void metrics_count_refused(int error_code)
@@ -306,93 +469,93 @@ void metrics_count_refused(int error_code)
      * outside the table is our bug, not the client's, hence "internal". */
     if (error_code < TERRAD_ERR_FIRST || error_code > TERRAD_ERR_LAST)
         error_code = TERRAD_E_INTERNAL;
-    ADD(refused[error_code], 1);
+    ADD(S_REFUSED + error_code - TERRAD_ERR_FIRST, 1);
 }
 
 void metrics_count_snapshots_coalesced(uint64_t n)
 {
-    ADD(snapshots_coalesced, n);
+    ADD(S_SNAPSHOTS_COALESCED, n);
 }
 
 void metrics_count_budget_refusal(void)
 {
-    ADD(budget_refusals, 1);
+    ADD(S_BUDGET_REFUSALS, 1);
 }
 
 void metrics_count_snapshots_deferred(uint64_t n)
 {
-    ADD(snapshots_deferred, n);
+    ADD(S_SNAPSHOTS_DEFERRED, n);
 }
 
 void metrics_count_snapshots_dropped(uint64_t n)
 {
-    ADD(snapshots_dropped, n);
+    ADD(S_SNAPSHOTS_DROPPED, n);
 }
 
 void metrics_count_frames_coalesced(uint64_t n)
 {
-    ADD(frames_coalesced, n);
+    ADD(S_FRAMES_COALESCED, n);
 }
 
 void metrics_count_client_stale(void)
 {
-    ADD(clients_stale, 1);
+    ADD(S_CLIENTS_STALE, 1);
 }
 
 void metrics_count_heights_refused(void)
 {
-    ADD(heights_refused, 1);
+    ADD(S_HEIGHTS_REFUSED, 1);
 }
 
 void metrics_count_http_cut(uint64_t n)
 {
-    ADD(http_cut, n);
+    ADD(S_HTTP_CUT, n);
 }
 
 void metrics_count_tick_shed(uint64_t colliders)
 {
-    ADD(tick_shed, colliders);
+    ADD(S_TICK_SHED, colliders);
 }
 
 void metrics_count_frames_dropped(uint64_t n)
 {
-    ADD(frames_dropped, n);
+    ADD(S_FRAMES_DROPPED, n);
 }
 
 void metrics_count_footprints_sent(uint64_t frames, uint64_t events)
 {
-    ADD(footprint_frames, frames);
-    ADD(footprint_events, events);
+    ADD(S_FOOTPRINT_FRAMES, frames);
+    ADD(S_FOOTPRINT_EVENTS, events);
 }
 
 void metrics_count_footprints_dropped(uint64_t frames)
 {
-    ADD(footprint_frames_dropped, frames);
+    ADD(S_FOOTPRINT_FRAMES_DROPPED, frames);
 }
 
 void metrics_count_tick_overrun(void)
 {
-    ADD(tick_overruns, 1);
+    ADD(S_TICK_OVERRUNS, 1);
 }
 
 void metrics_set_gpu_tile_cache(uint64_t uploads, uint64_t upload_bytes, uint64_t evictions,
                                 int64_t resident_tiles)
 {
-    SET(gpu_tile_uploads, uploads);
-    SET(gpu_tile_upload_bytes, upload_bytes);
-    SET(gpu_tile_evictions, evictions);
-    SET(gpu_tiles_resident, resident_tiles);
+    SET(S_GPU_TILE_UPLOADS, uploads);
+    SET(S_GPU_TILE_UPLOAD_BYTES, upload_bytes);
+    SET(S_GPU_TILE_EVICTIONS, evictions);
+    SET(S_GPU_TILES_RESIDENT, resident_tiles);
 }
 
 void metrics_count_refused_windows(uint64_t n)
 {
-    ADD(refused_windows, n);
+    ADD(S_REFUSED_WINDOWS, n);
 }
 
 void metrics_count_delta_bytes(uint64_t raw_bytes, uint64_t compressed_bytes)
 {
-    ADD(delta_raw, raw_bytes);
-    ADD(delta_compressed, compressed_bytes);
+    ADD(S_DELTA_RAW, raw_bytes);
+    ADD(S_DELTA_COMPRESSED, compressed_bytes);
 }
 
 void metrics_observe_tick_ms(double ms)
@@ -403,16 +566,9 @@ void metrics_observe_tick_ms(double ms)
 void metrics_observe_stage_ms(const char *stage, double ms)
 {
     pthread_once(&stage_once, stage_hist_init);
-    if (!stage)
-        return;
-    /* Unknown stage names are dropped rather than added: a label value made
-     * up at run time would grow the series without bound. */
-    for (int i = 0; i < STAGE_COUNT; i++) {
-        if (strcmp(stage, stage_names[i]) == 0) {
-            histogram_observe(&stage_hist[i], ms);
-            return;
-        }
-    }
+    int s = slot_of(0, stage_names, STAGE_COUNT, stage);
+    if (s >= 0)
+        histogram_observe(&stage_hist[s], ms);
 }
 
 void metrics_observe_pose_to_delta_ms(double ms)
@@ -422,27 +578,32 @@ void metrics_observe_pose_to_delta_ms(double ms)
 
 void metrics_set_tick(uint64_t tick)
 {
-    SET(tick_now, tick);
+    SET(S_TICK, tick);
 }
 
 void metrics_set_volume(int64_t v)
 {
-    SET(volume, v);
+    SET(S_VOLUME, v);
 }
 
 void metrics_set_active_cells(int64_t cells)
 {
-    SET(active_cells, cells);
+    SET(S_ACTIVE_CELLS, cells);
 }
 
 void metrics_set_colliders(int64_t n)
 {
-    SET(colliders, n);
+    SET(S_COLLIDERS, n);
 }
 
 void metrics_set_clients(int64_t n)
 {
-    SET(clients, n);
+    SET(S_CLIENTS, n);
+}
+
+void metrics_set_sim_threads(int n)
+{
+    SET(S_SIM_THREADS, n);
 }
 
 void metrics_set_memory_bytes(const char *part, uint64_t bytes)
@@ -525,18 +686,6 @@ static void header(text *t, const char *name, const char *type, const char *help
     text_printf(t, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
 }
 
-static void counter(text *t, const char *name, const char *help, uint64_t v)
-{
-    header(t, name, "counter", help);
-    text_printf(t, "%s %llu\n", name, (unsigned long long)v);
-}
-
-static void gauge_int(text *t, const char *name, const char *help, int64_t v)
-{
-    header(t, name, "gauge", help);
-    text_printf(t, "%s %lld\n", name, (long long)v);
-}
-
 /* The samples of one histogram (no HELP/TYPE); labels is "" or `k="v",`. */
 static void histogram_samples(text *t, const char *name, const char *labels, histogram *hg)
 {
@@ -565,174 +714,8 @@ static void histogram_samples(text *t, const char *name, const char *labels, his
     }
 }
 
-/* Tick, stage and pose-to-delta histograms. */
-static void render_timings(text *t)
+static void render_parts(text *t)
 {
-    header(t, "terrad_tick_duration_seconds", "histogram",
-           "Wall time of one simulation tick, all stages included.");
-    histogram_samples(t, "terrad_tick_duration_seconds", "", &tick_hist);
-
-    header(t, "terrad_stage_duration_seconds", "histogram",
-           "Wall time of one stage of a tick, by stage.");
-    for (int i = 0; i < STAGE_COUNT; i++) {
-        char labels[64];
-        snprintf(labels, sizeof labels, "stage=\"%s\",", stage_names[i]);
-        histogram_samples(t, "terrad_stage_duration_seconds", labels, &stage_hist[i]);
-    }
-
-    header(t, "terrad_pose_to_delta_latency_seconds", "histogram",
-           "Time from a pose batch's arrival to the delta frames of the tick that used it.");
-    histogram_samples(t, "terrad_pose_to_delta_latency_seconds", "", &latency_hist);
-}
-
-/* The world, the clients and what went over the websocket. */
-static void render_clients(text *t)
-{
-    gauge_int(t, "terrad_tick", "The last completed tick.", (int64_t)GET(tick_now));
-    /* %lld of an int64: exact, unlike any double formatting above 2^53. */
-    gauge_int(t, "terrad_volume_units", "Sum of all heights in height units (exact integer).",
-              (int64_t)GET(volume));
-    gauge_int(t, "terrad_active_cells", "Cells inside the last tick's active windows.",
-              (int64_t)GET(active_cells));
-    gauge_int(t, "terrad_colliders", "Live colliders.", (int64_t)GET(colliders));
-    gauge_int(t, "terrad_clients", "Connected websocket clients.", (int64_t)GET(clients));
-
-    counter(t, "terrad_bytes_in_total", "Websocket payload bytes received.", GET(bytes_in));
-    counter(t, "terrad_bytes_out_total", "Websocket payload bytes sent.", GET(bytes_out));
-    counter(t, "terrad_messages_in_total", "Websocket messages received.", GET(messages_in));
-    counter(t, "terrad_frames_out_total", "Websocket frames sent.", GET(frames_out));
-
-    uint64_t raw = GET(delta_raw), comp = GET(delta_compressed);
-    counter(t, "terrad_delta_raw_bytes_total", "Delta payload bytes before compression.", raw);
-    counter(t, "terrad_delta_compressed_bytes_total", "Delta payload bytes after compression.",
-            comp);
-    header(t, "terrad_delta_compression_ratio", "gauge",
-           "Raw over compressed delta bytes over the process's life (0 before any delta).");
-    text_printf(t, "terrad_delta_compression_ratio %.6g\n",
-                comp ? (double)raw / (double)comp : 0.0);
-
-    counter(t, "terrad_colliders_refused_budget_total",
-            "collider_create refused by a client's max_active_cells or max_mesh_triangles.",
-            GET(budget_refusals));
-    counter(t, "terrad_snapshot_requests_coalesced_total",
-            "Snapshot requests (subscribe, resync) answered by an identical pending one.",
-            GET(snapshots_coalesced));
-    counter(t, "terrad_snapshot_requests_deferred_total",
-            "Snapshot requests left for a later tick by the per-tick snapshot budget.",
-            GET(snapshots_deferred));
-    counter(t, "terrad_snapshot_requests_dropped_total",
-            "Snapshot requests never built because their client left.", GET(snapshots_dropped));
-    counter(t, "terrad_frames_coalesced_total",
-            "Delta frames replaced by a fresh snapshot for a slow client.", GET(frames_coalesced));
-    counter(t, "terrad_frames_dropped_total", "Frames never sent (slow client or overflow).",
-            GET(frames_dropped));
-    counter(t, "terrad_clients_stale_total",
-            "Clients switched to snapshots for being more than max_client_lag_ticks behind.",
-            GET(clients_stale));
-    counter(t, "terrad_http_heights_refused_total",
-            "/v1/heights requests refused (429): their address had too many bytes in flight.",
-            GET(heights_refused));
-    counter(t, "terrad_http_connections_cut_total",
-            "HTTP connections closed for sending no whole request within the header deadline.",
-            GET(http_cut));
-    header(t, "terrad_tick_shed_total", "counter",
-           "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells.");
-    text_printf(t, "terrad_tick_shed_total{reason=\"max_tick_cells\"} %llu\n",
-                (unsigned long long)GET(tick_shed));
-
-    counter(t, "terrad_footprint_frames_total",
-            "FOOTPRINTS frames queued to clients (decals model).", GET(footprint_frames));
-    counter(t, "terrad_footprint_events_total", "Footprint events in those frames.",
-            GET(footprint_events));
-    counter(t, "terrad_footprint_frames_dropped_total",
-            "FOOTPRINTS frames not sent to a slow client.", GET(footprint_frames_dropped));
-
-    header(t, "terrad_refused_messages_total", "counter",
-           "Client messages refused, by wire error name (proto/PROTOCOL.md).");
-    for (int code = TERRAD_ERR_FIRST; code <= TERRAD_ERR_LAST; code++) {
-        const char *name = terrad_err_name(code);
-        char esc[64];
-        escape_label(name ? name : "internal", esc, sizeof esc);
-        text_printf(t, "terrad_refused_messages_total{reason=\"%s\"} %llu\n", esc,
-                    (unsigned long long)GET(refused[code]));
-    }
-}
-
-/* Overruns, refused windows and the GL tile cache. */
-void metrics_set_sim_threads(int n)
-{
-    atomic_store(&sim_threads_in_use, n);
-}
-
-static void render_backend(text *t)
-{
-    gauge_int(
-        t, "terrad_sim_threads",
-        "Threads the CPU twin's stages run on (serve --threads; heights do not depend on it).",
-        (int64_t)atomic_load(&sim_threads_in_use));
-    counter(t, "terrad_tick_overruns_total", "Ticks that took longer than the tick period.",
-            GET(tick_overruns));
-    counter(t, "terrad_refused_windows_total",
-            "Active windows refused because their heights would leave the height limits.",
-            GET(refused_windows));
-    counter(t, "terrad_gpu_tile_uploads_total",
-            "World tiles uploaded into the GL backend's tile cache.", GET(gpu_tile_uploads));
-    counter(t, "terrad_gpu_tile_upload_bytes_total", "Bytes of those uploads.",
-            GET(gpu_tile_upload_bytes));
-    counter(t, "terrad_gpu_tile_evictions_total",
-            "Resident tiles the GL tile cache replaced by others (LRU).", GET(gpu_tile_evictions));
-    gauge_int(t, "terrad_gpu_tiles_resident", "World tiles resident in the GL tile cache.",
-              GET(gpu_tiles_resident));
-}
-
-/* The store (server/store). */
-static void render_store(text *t)
-{
-    counter(t, "terrad_store_wal_bytes_total", "Bytes appended to the write-ahead log.",
-            GET(store_wal_bytes));
-    header(t, "terrad_store_fsync_duration_seconds", "histogram",
-           "Wall time of one fdatasync of the write-ahead log.");
-    histogram_samples(t, "terrad_store_fsync_duration_seconds", "", &fsync_hist);
-    gauge_int(t, "terrad_store_durable_tick",
-              "The last tick as durable as the durability policy promises.",
-              (int64_t)GET(store_durable_tick));
-    gauge_int(t, "terrad_store_available",
-              "1 while ticks can be made durable; 0 while deformation is refused.",
-              (int64_t)GET(store_available));
-    counter(t, "terrad_store_compactions_total", "Log compactions into tile snapshots.",
-            GET(store_compactions));
-    header(t, "terrad_store_last_compaction_seconds", "gauge",
-           "Wall time of the last compaction (its own thread).");
-    text_printf(t, "terrad_store_last_compaction_seconds %.6f\n",
-                (double)GET(store_compaction_us) / 1e6);
-    header(t, "terrad_store_errors_total", "counter", "Storage errors, by kind.");
-    for (int i = 0; i < STORE_ERROR_KINDS; i++)
-        text_printf(t, "terrad_store_errors_total{kind=\"%s\"} %llu\n", store_error_kinds[i],
-                    (unsigned long long)GET(store_errors[i]));
-    header(t, "terrad_store_recovery_seconds", "gauge",
-           "Wall time of the recovery at start (snapshots and log replay).");
-    text_printf(t, "terrad_store_recovery_seconds %.6f\n", (double)GET(store_recovery_us) / 1e6);
-    gauge_int(t, "terrad_store_recovery_records", "Log records replayed at start.",
-              (int64_t)GET(store_records_replayed));
-    gauge_int(t, "terrad_store_cut_tail_bytes",
-              "Bytes of a torn or corrupt log tail cut at start (0: none).",
-              (int64_t)GET(store_bytes_cut));
-}
-
-/* Work the service dropped (server/service). */
-static void render_service(text *t)
-{
-    header(t, "terrad_service_dropped_total", "counter",
-           "Work a tick could not do (a frame, snapshot, poses or command dropped), by reason.");
-    for (int i = 0; i < SERVICE_DROP_REASONS; i++)
-        text_printf(t, "terrad_service_dropped_total{reason=\"%s\"} %llu\n",
-                    service_drop_reasons[i], (unsigned long long)GET(service_dropped[i]));
-}
-
-/* Memory by part and the models' scratch by stage. */
-static void render_memory(text *t)
-{
-    header(t, "terrad_memory_bytes", "gauge", "Memory held by a part of the daemon, by part.");
     pthread_mutex_lock(&memory_lock);
     for (int i = 0; i < memory_part_count; i++) {
         char esc[2 * MEMORY_PART_NAME + 4];
@@ -741,12 +724,50 @@ static void render_memory(text *t)
                     (unsigned long long)memory_parts[i].bytes);
     }
     pthread_mutex_unlock(&memory_lock);
+}
 
-    header(t, "terrad_sim_scratch_bytes", "gauge",
-           "Scratch memory the deformation models hold, by stage.");
-    for (int i = 0; i < MEMORY_STAGE_COUNT; i++)
-        text_printf(t, "terrad_sim_scratch_bytes{stage=\"%s\"} %llu\n", memory_stage_names[i],
-                    (unsigned long long)GET(stage_memory[i]));
+/* One family: HELP and TYPE, then its samples. Gauges print as signed
+ * integers (%lld of an int64 is exact, unlike a double above 2^53). */
+static void render_family(text *t, const family *f)
+{
+    static const char *const types[] = {"counter", "gauge", "gauge", "gauge", "histogram", "gauge"};
+    header(t, f->name, types[f->kind], f->help);
+    int series = f->label ? f->series : 1;
+    for (int i = 0; i < series; i++) {
+        char labels[160] = "";
+        if (f->label && f->kind != F_PARTS) {
+            char esc[128];
+            escape_label(f->label_values[i], esc, sizeof esc);
+            snprintf(labels, sizeof labels, "%s=\"%s\",", f->label, esc);
+        }
+        int n = (int)strlen(labels);
+        char head[256]; /* name{labels}, without the histograms' trailing comma */
+        snprintf(head, sizeof head, "%s%s%.*s%s", f->name, n ? "{" : "", n ? n - 1 : 0, labels,
+                 n ? "}" : "");
+        uint64_t v = GET(f->slot + i);
+        switch (f->kind) {
+        case F_COUNTER:
+            text_printf(t, "%s %llu\n", head, (unsigned long long)v);
+            break;
+        case F_GAUGE:
+            text_printf(t, "%s %lld\n", head, (long long)(int64_t)v);
+            break;
+        case F_SECONDS:
+            text_printf(t, "%s %.6f\n", f->name, (double)(int64_t)v / 1e6);
+            break;
+        case F_RATIO: {
+            uint64_t below = GET(f->slot2);
+            text_printf(t, "%s %.6g\n", f->name, below ? (double)v / (double)below : 0.0);
+            break;
+        }
+        case F_HISTOGRAM:
+            histogram_samples(t, f->name, labels, &f->hist[i]);
+            break;
+        case F_PARTS:
+            render_parts(t);
+            break;
+        }
+    }
 }
 
 char *metrics_render(size_t *len)
@@ -755,14 +776,12 @@ char *metrics_render(size_t *len)
     text t = {malloc(8192), 0, 8192, 0};
     if (!t.data)
         return NULL;
-    render_timings(&t);
-    render_clients(&t);
-    render_backend(&t);
-    render_store(&t);
-    render_service(&t);
-    render_memory(&t);
-    char process[2048];
+    for (int f = 0; f < COUNT_OF(families); f++)
+        render_family(&t, &families[f]);
+    char process[4096];
     if (metrics_auth_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
+    if (metrics_edits_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);

@@ -2,12 +2,12 @@
  * net_client.c: the net thread's state (the bottom layer of net/, see
  * net_client_internal.h): the client list, each client's outgoing queue and token
  * bucket, the collider table (id -> owner), and the commands that must
- * reach the sim waiting for room in the hub. It calls neither net.c nor
- * net_requests.c: both build on it.
+ * reach the sim waiting for room in the hub. It calls only
+ * net_remote_send.c: every other file of net/ builds on it.
  *
  * A client's outgoing queue holds hub_frame references: the sim thread's
- * frames (fanned out by net.c) and the net thread's own replies. Its size
- * is bounded (see net.c's top comment for the policy); a client whose queue
+ * frames (fanned out by net_fanout.c) and the net thread's own replies. Its size
+ * is bounded (see net_fanout.c's top comment for the policy); a client whose queue
  * passes hard_pending_bytes has stopped reading and is dropped.
  */
 #include "net/net_client_internal.h"

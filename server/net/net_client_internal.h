@@ -2,17 +2,33 @@
  * net_client_internal.h: the bottom layer of the net thread — its state. Not part of
  * the face of net/ (that is net.h); included only by the files of net/.
  *
- *   net.c           the lws thread: context, protocol callback, writes, fan-out
+ *   net.c           the server's life: limits, lws context, thread, stop
+ *     ↓
+ *   net_callback.c  the lws protocol callback: a client's start and end, its
+ *                   reassembled messages, its writes
+ *     ↓
+ *   net_loop.c      between callbacks: a wake's and the heartbeat's work
+ *     ↓
+ *   net_remote.c    any node serves any world: the inbox from other nodes
+ *     ↓
+ *   net_worlds.c    a cluster node's worlds coming and going
+ *     ↓
+ *   net_fanout.c    the sim's frames to the clients (net_dispatch), the waker
  *     ↓
  *   net_requests.c  what clients ask for (control messages, POSE_BATCH)
  *   net_control.c   the pure JSON control-message parser it uses
+ *   net_auth.c      who may do what
+ *   net_peer.c      a client's end: dead peers, the disconnect line, freeing it
  *     ↓
  *   net_client.c    this layer: per-client records (limits, rate bucket,
  *                   owned colliders, subscriptions, outgoing queue), the
  *                   collider table, commands waiting for the hub
+ *   net_conn.c      admission of sockets before their handshake
+ *   net_remote_send.c  frames to another node (a leaf)
  *
- * Each layer calls only the ones below it. Everything here runs on the net
- * thread only (net_state.owner), except where net.c notes otherwise.
+ * Each layer calls only the ones below it (the call graph of net/ is
+ * acyclic). Everything here runs on the net thread only (net_state.owner),
+ * except where net.c notes otherwise.
  */
 #ifndef TERRAD_NET_CLIENT_INTERNAL_H
 #define TERRAD_NET_CLIENT_INTERNAL_H
@@ -111,7 +127,7 @@ typedef struct net_client {
     int peer_close_code;
     char peer_close_reason[124];
     /* lws holds part of a frame the kernel would not take: reading is paused
-     * until it drains (net.c "dead peers"), so that lws never meets the
+     * until it drains (net_peer.c), so that lws never meets the
      * peer's EOF with output buffered, and the heartbeat watches for the EOF */
     int rx_held;
 } net_client;
@@ -216,7 +232,7 @@ int net_offers_subprotocol(const char *value, const char *name);
 /* libwebsockets' log lines (lws_set_log_level), at most 5 a second. */
 void net_lws_log_line(int level, const char *line);
 
-/* ---- remote clients and relays (net_remote.c) ---- */
+/* ---- to other nodes (net_remote_send.c) ---- */
 /* A relay's client: its text or binary message goes to the world's owner as it came. */
 void net_relay_forward(net_client *c, int binary, const void *data, size_t len);
 /* A remote client's frame goes back to its relay (the frame is the caller's). */

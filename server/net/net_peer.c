@@ -17,9 +17,11 @@
  * is a violent one (no flush), and a zero linger drops the unsent bytes with a
  * reset instead of leaving them to the kernel.
  */
-#include "net/net_client_internal.h"
+#include "net/net_server_internal.h"
 
 #include <poll.h>
+#include <stdatomic.h>
+#include <stdlib.h>
 #include <sys/socket.h>
 
 #include "metrics/metrics.h"
@@ -97,4 +99,30 @@ void net_client_peer_close(net_client *c, const unsigned char *in, size_t len)
     for (size_t i = 0; i < n; i++)
         c->peer_close_reason[i] = in[2 + i] >= 0x20 && in[2 + i] < 0x7f ? (char)in[2 + i] : '?';
     c->peer_close_reason[n] = 0;
+}
+
+void net_client_free(net_server *s, net_client *c)
+{
+    net_state *w = c->srv; /* the lobby, or the world it said hello to */
+    for (int i = 0; i < c->collider_count; i++) {
+        hub_forget_pose(w->hub, c->colliders[i]);
+        net_collider_remove(w, c->colliders[i]);
+    }
+    if (c->ready && w->relay) { /* the owner drops its remote client */
+        net_remote_msg m = {.kind = NET_REMOTE_CLIENT_GONE, .client = c->id};
+        snprintf(m.node, sizeof m.node, "%s", w->node);
+        w->remote_send(w->remote_ctx, w->world_name, &m, NULL, 0);
+    } else if (c->ready) {
+        hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
+        net_push_must(w, &cmd); /* the sim deletes its colliders */
+    }
+    net_release_queue(c);
+    net_client_remove(w, c);
+    free(c->q);
+    free(c->rx);
+    free(c->colliders);
+    free(c->subs);
+    if (!c->remote)
+        metrics_set_clients(atomic_fetch_sub(&s->client_count, 1) - 1);
+    free(c);
 }

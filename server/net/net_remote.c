@@ -5,7 +5,7 @@
  *
  *   RELAY (a world another node owns): a client's hello naming it moves the
  *   client into the relay's state; every later message of the client goes to
- *   the owner as it came (net_relay_forward). What the owner sends the client
+ *   the owner as it came (net_relay_forward, net_remote_send.c). What the owner sends the client
  *   (NET_REMOTE_FRAME: replies, snapshots, ACK, CONTACT...) and every tile
  *   delta of the world (NET_REMOTE_DELTA, sent once per tick for all relays)
  *   go through net_dispatch exactly as a local world's hub items do: the same
@@ -17,7 +17,7 @@
  *   OWNER: a relayed client is a REMOTE client here — a client record with
  *   no socket, checked, limited and applied like any other (its colliders,
  *   budgets, subscriptions and the sim's snapshots are the owner's); its
- *   frames go back to its relay (net_remote_frame) and it gets no tile
+ *   frames go back to its relay (net_remote_frame, net_remote_send.c) and it gets no tile
  *   deltas of its own (its relay fans out the world's).
  */
 #include <stdlib.h>
@@ -94,15 +94,6 @@ void net_server_remote_input(net_server *s, const char *world, const net_remote_
 
 /* ---- the relay's side ---- */
 
-void net_relay_forward(net_client *c, int binary, const void *data, size_t len)
-{
-    net_state *w = c->srv;
-    net_remote_msg m = {.kind = binary ? NET_REMOTE_CLIENT_BINARY : NET_REMOTE_CLIENT_TEXT,
-                        .client = c->id};
-    snprintf(m.node, sizeof m.node, "%s", w->node);
-    w->remote_send(w->remote_ctx, w->world_name, &m, data, len);
-}
-
 /* The owner's replies that change what the relay fans out to the client. */
 static void relay_track(net_client *c, const unsigned char *text, size_t len)
 {
@@ -175,6 +166,8 @@ static void relay_in(net_state *w, const struct net_remote_item *it)
         o.kind = HUB_OUT_CLIENT;
         o.client = c->id;
         o.snapshot_done = m->snapshot_done;
+        /* the relay has only the owner's wire bytes: the type is their third byte */
+        o.msg = m->binary && it->len > 2 ? it->bytes[2] : 0;
     }
     if (it->len) {
         o.frame = hub_frame_new(m->binary, it->len);
@@ -188,30 +181,6 @@ static void relay_in(net_state *w, const struct net_remote_item *it)
 }
 
 /* ---- the owner's side ---- */
-
-void net_remote_frame(net_client *c, const hub_frame *f, int snapshot_done)
-{
-    net_state *w = c->srv;
-    net_remote_msg m = {.kind = NET_REMOTE_FRAME,
-                        .client = c->remote_client,
-                        .binary = f ? f->binary : 0,
-                        .snapshot_done = snapshot_done,
-                        .tick = w->tick};
-    snprintf(m.node, sizeof m.node, "%s", c->remote_node);
-    w->remote_send(w->remote_ctx, w->world_name, &m, f ? f->data : NULL, f ? f->len : 0);
-}
-
-void net_remote_close(net_client *c, int code, const char *reason)
-{
-    net_state *w = c->srv;
-    c->closing = 1;
-    if (c->remote_gone)
-        return;
-    c->remote_gone = 1; /* freed by net_remote_apply */
-    net_remote_msg m = {.kind = NET_REMOTE_CLOSE, .client = c->remote_client, .close_code = code};
-    snprintf(m.node, sizeof m.node, "%s", c->remote_node);
-    w->remote_send(w->remote_ctx, w->world_name, &m, reason, strlen(reason));
-}
 
 static net_client *remote_client(net_server *s, net_state *w, const net_remote_msg *m)
 {

@@ -84,6 +84,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
     cJSON_AddNumberToObject(lim, "max_client_lag_ticks", l->max_client_lag_ticks);
     cJSON_AddNumberToObject(lim, "max_tick_cells", (double)l->max_tick_cells);
+    cJSON_AddNumberToObject(lim, "max_edit_cells", (double)l->max_edit_cells);
     return m;
 }
 
@@ -140,41 +141,14 @@ static void handle_hello(net_client *c, const net_control *m)
 
 /* ---- collider_create ---- */
 
-/* The cells a collider can cover at once, whatever its orientation: the
- * square around its bounding sphere. What the tick's work grows with. */
-static int64_t collider_footprint_cells(const collider_geometry *g, const collider_mesh *mesh,
-                                        double cell_m)
-{
-    double r = 0;
-    switch (g->shape) {
-    case COLLIDER_SPHERE:
-        r = g->radius;
-        break;
-    case COLLIDER_BOX:
-        r = sqrt(g->half_extents.x * g->half_extents.x + g->half_extents.y * g->half_extents.y +
-                 g->half_extents.z * g->half_extents.z);
-        break;
-    case COLLIDER_CAPSULE:
-        r = g->radius + g->half_length;
-        break;
-    case COLLIDER_CYLINDER:
-        r = sqrt(g->radius * g->radius + g->half_length * g->half_length);
-        break;
-    case COLLIDER_MESH:
-        r = mesh ? mesh->bounding_radius : 0;
-        break;
-    }
-    double side = ceil(2 * r / (cell_m > 0 ? cell_m : 1)) + 1;
-    return (int64_t)(side * side);
-}
-
 /* Refuse a collider that would take its client past a cost budget; 1 when refused. */
 static int over_budget(net_client *c, const net_control *m, int64_t cells, int triangles)
 {
     const net_limits *l = &c->srv->cfg.limits;
     if (c->active_cells + cells > l->max_active_cells) {
         net_error(c, TERRAD_E_LIMIT_COLLIDERS, m->ref, -1, 0,
-                  "collider_create: its footprint of %lld cells would take this client's colliders "
+                  "collider_create: its cost of %lld cells (its footprint, and a mesh's "
+                  "triangles) would take this client's colliders "
                   "to %lld active cells, over max_active_cells (%lld)",
                   (long long)cells, (long long)(c->active_cells + cells),
                   (long long)l->max_active_cells);
@@ -194,9 +168,10 @@ static int over_budget(net_client *c, const net_control *m, int64_t cells, int t
 static void handle_collider_create(net_client *c, net_control *m)
 {
     net_state *s = c->srv;
-    int64_t cells = collider_footprint_cells(&m->geometry, m->mesh ? m->mesh : m->geometry.mesh,
-                                             s->cfg.world.cell_size_m);
-    const collider_mesh *mesh = m->mesh ? m->mesh : m->geometry.mesh;
+    collider_geometry g = m->geometry; /* the mesh may still be the message's */
+    g.mesh = m->mesh ? m->mesh : m->geometry.mesh;
+    int64_t cells = collider_cost_cells(&g, s->cfg.world.cell_size_m);
+    const collider_mesh *mesh = g.mesh;
     int triangles = m->geometry.shape == COLLIDER_MESH && mesh ? mesh->triangle_count : 0;
     if (over_budget(c, m, cells, triangles)) {
         metrics_count_budget_refusal();
@@ -386,6 +361,20 @@ static void handle_unsubscribe(net_client *c, const net_control *m)
     net_send_json(c, rep);
 }
 
+/* The edit goes to the sim with the commands; the sim answers `edited` (or
+ * an error) once its tick is committed. */
+static void handle_edit(net_client *c, net_control *m)
+{
+    hub_command cmd = {.kind = HUB_EDIT, .client = c->id, .edit = m->edit};
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
+    if (net_push_refusable(c->srv, &cmd) != 0) {
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
+                  "server busy: the simulation's command queue is full, try again");
+        return;
+    }
+    m->edit = NULL; /* the command has it */
+}
+
 static void handle_resync(net_client *c, const net_control *m)
 {
     if (m->has_id && sub_index(c, m->id) < 0) {
@@ -409,6 +398,8 @@ static int refused_by_state(net_client *c, const net_control *m)
     }
     if (m->kind == NET_CONTROL_COLLIDER_CREATE &&
         !net_auth_allows(c, AUTH_DRIVER, "collider_create", m->ref))
+        return 1;
+    if (m->kind == NET_CONTROL_EDIT && !net_auth_allows(c, AUTH_DRIVER, "edit", m->ref))
         return 1;
     if (m->kind == NET_CONTROL_COLLIDER_DELETE &&
         !net_auth_allows(c, m->any_owner ? AUTH_ADMIN : AUTH_DRIVER,
@@ -484,6 +475,9 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_RESYNC:
             handle_resync(c, &m);
+            break;
+        case NET_CONTROL_EDIT:
+            handle_edit(c, &m);
             break;
         case NET_CONTROL_NONE:
             break;

@@ -1,8 +1,9 @@
 /*
  * net_requests_internal.h: the middle layer of the net thread (see net_client_internal.h) —
  * what a client's whole message asks for, checked and answered, turned into
- * hub commands and poses. Called by net.c with one reassembled message;
- * calls only net_client.c and net_control.c. Net thread only.
+ * hub commands and poses. Called by net_callback.c (and net_remote.c, for a
+ * remote client) with one reassembled message; calls only net_auth.c,
+ * net_client.c, net_control.c and net_remote_send.c. Net thread only.
  */
 #ifndef TERRAD_NET_REQUESTS_INTERNAL_H
 #define TERRAD_NET_REQUESTS_INTERNAL_H

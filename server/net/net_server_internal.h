@@ -2,7 +2,8 @@
  * net_server_internal.h: the top layer of the net thread (see
  * net_client_internal.h) — the server itself: libwebsockets' context, the
  * thread, and for a cluster node its several worlds (net_worlds.c). Shared by
- * net.c and net_worlds.c only.
+ * the files of net/ that need the server itself (its layers are listed in
+ * net_client_internal.h).
  */
 #ifndef TERRAD_NET_SERVER_INTERNAL_H
 #define TERRAD_NET_SERVER_INTERNAL_H
@@ -50,8 +51,20 @@ typedef struct net_session {
     net_client *c;
 } net_session;
 
-/* Wakes the net thread (the hubs' waker). Any thread. */
+/* Wakes the net thread (the hubs' waker, net_fanout.c). Any thread. */
 void net_server_wake(void *arg);
+/* Net thread: one batch of rounds of w's hub items dispatched; 1 when the hub has more. */
+int net_drain_state(net_state *w);
+/* Net thread (net_loop.c): every state's hub drained, a wake asked for when more is left. */
+void net_drain_hubs(net_server *s);
+/* Net thread: the backlogs of commands for the sims, retried in order. */
+void net_flush_backlogs(net_server *s);
+/* Net thread: a wake's work (worlds, inbox, backlogs, frames, the shutdown's start). */
+void net_catch_up(net_server *s);
+/* Schedules the heartbeat (every 100 ms on the net thread). */
+void net_heartbeat_start(net_server *s);
+/* The protocol table (net_callback.c). */
+extern const struct lws_protocols net_protocols[];
 /* A JSON array of strings, or the fallback when text is NULL; NULL with err. */
 cJSON *net_parse_names(const char *text, const char *fallback, const char *what, error_text *err);
 /* The i-th state: 0 the server's own, then the worlds; NULL past the last. */
@@ -62,7 +75,7 @@ void net_worlds_apply(net_server *s);
 void net_drain_world(net_server *s, net_state *w);
 /* Net thread: one item from the sim (or from the owner, on a relay) to w's clients. */
 void net_dispatch(net_state *w, hub_out *o);
-/* Net thread: frees a client record (its socket is gone, or it was a remote client). */
+/* Net thread: frees a client record (its socket is gone, or it was a remote client; net_peer.c). */
 void net_client_free(net_server *s, net_client *c);
 /* Net thread: the messages from other nodes, and the remote clients closed since. */
 void net_remote_apply(net_server *s);

@@ -86,6 +86,7 @@ void service_destroy(service *s)
     free(s->bottom);
     free(s->states);
     free(s->events);
+    service_edits_free(s);
     free(s);
 }
 
@@ -109,63 +110,6 @@ int64_t service_volume(const service *s)
 uint32_t service_tile_version(const service *s, int tile_x, int tile_y)
 {
     return s->tile_versions[tile_y * s->tiles_x + tile_x];
-}
-
-/* ---- dropped work and the out queue ---- */
-
-void service_note_drop(service *s, const char *reason, const char *fmt, ...)
-{
-    metrics_count_service_dropped(reason);
-    double now = time_now_ms();
-    if (s->last_drop_log_ms > 0 && now - s->last_drop_log_ms < 1000.0) {
-        s->drops_unlogged++;
-        return;
-    }
-    char what[200];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(what, sizeof what, fmt, ap);
-    va_end(ap);
-    log_warn("service: tick %llu: dropped (%s): %s (and %llu more drops not logged)",
-             (unsigned long long)s->tick, reason, what, (unsigned long long)s->drops_unlogged);
-    s->drops_unlogged = 0;
-    s->last_drop_log_ms = now;
-}
-
-int service_queue_out(service *s, hub_out item)
-{
-    service_batch *b = &s->batch;
-    if (!item.frame && item.kind != HUB_OUT_TICK_DONE && !item.snapshot_done) {
-        service_note_drop(s, "frame", "a frame for %s could not be built",
-                          item.kind == HUB_OUT_TILE_DELTA ? "a tile" : "a client");
-        return -1;
-    }
-    if (array_grow((void **)&b->out, &b->out_capacity, (int64_t)b->out_count + 1, sizeof *b->out) !=
-        0) {
-        if (item.frame)
-            hub_frame_unref(item.frame);
-        service_note_drop(s, item.snapshot_done ? "snapshot" : "frame",
-                          "no memory to queue a frame%s",
-                          item.snapshot_done ? " (and its snapshot mark)" : "");
-        return -1;
-    }
-    b->out[b->out_count++] = item;
-    return 0;
-}
-
-int service_queue_client(service *s, uint32_t client, hub_frame *f, int snapshot_done)
-{
-    hub_out item = {.kind = HUB_OUT_CLIENT,
-                    .client = client,
-                    .snapshot_done = snapshot_done,
-                    .tick = s->tick,
-                    .frame = f};
-    if (!f && snapshot_done) {
-        /* the net thread holds the client's deltas until the mark arrives:
-         * the mark goes out even when its frame could not be built */
-        service_note_drop(s, "snapshot", "the last snapshot frame for client %u", client);
-    }
-    return service_queue_out(s, item);
 }
 
 /* ---- the tick ---- */
@@ -226,12 +170,19 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
 {
     if (s->store && !store_writable(s->store)) {
         memset(report, 0, sizeof *report); /* no deformation that cannot be kept */
+        service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "storage unavailable");
     } else {
-        if (sim_engine_tick(s->engine, s->batch.colliders, count, report, err) != 0)
+        if (sim_engine_tick(s->engine, s->batch.colliders, count, report, err) != 0) {
+            service_edits_undo(s, TERRAD_E_INTERNAL, "the deformation backend failed");
             return -1;
-        if (s->store &&
-            store_commit_tick(s->store, s->world, s->tick, report->dirty, report->dirty_count) != 0)
+        }
+        const world_rect *rects;
+        int n;
+        if (s->store && (service_edits_commit_rects(s, report, &rects, &n) != 0 ||
+                         store_commit_tick(s->store, s->world, s->tick, rects, n) != 0)) {
             undo_tick(s, report);
+            service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "the log could not take the tick");
+        }
     }
     for (int i = 0; i < s->collider_count; i++) {
         if (s->colliders[i].held)
@@ -279,8 +230,9 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
 
     if (service_cut_into_tiles(s, &stats->report) == 0) /* deltas: versions, Σh, frames */
         service_publish_deltas(s, stats);
+    service_edits_finish(s); /* each edit's sender: its tick and volume change */
     service_contacts_after_tick(s);
-    service_publish_feedback(s); /* CONTACT, ACK */
+    service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */

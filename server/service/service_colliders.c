@@ -136,7 +136,7 @@ void service_publish_colliders(service *s, const sim_collider *extra, int extra_
         if (!f ||
             terrad_colliders_encode(f->data, size, &f->len, s->tick, s->states, (size_t)n) != 0) {
             hub_frame_unref(f);
-            service_queue_client(s, cl->id, NULL, 0); /* counted as dropped */
+            service_queue_client(s, cl->id, NULL, TERRAD_MSG_COLLIDERS, 0); /* counted as dropped */
             continue;
         }
         uint64_t h = states_hash(f->data + TERRAD_COLLIDERS_FIXED, f->len - TERRAD_COLLIDERS_FIXED);
@@ -146,6 +146,6 @@ void service_publish_colliders(service *s, const sim_collider *extra, int extra_
         }
         cl->colliders_hash = h;
         cl->colliders_sent_tick = s->tick;
-        service_queue_client(s, cl->id, f, 0);
+        service_queue_client(s, cl->id, f, TERRAD_MSG_COLLIDERS, 0);
     }
 }

@@ -12,30 +12,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-svc_client *service_find_client(service *s, uint32_t id)
-{
-    for (int i = 0; i < s->client_count; i++)
-        if (s->clients[i].id == id)
-            return &s->clients[i];
-    return NULL;
-}
-
-int service_find_collider(const service *s, uint32_t id)
-{
-    /* colliders stay sorted by id (ids only grow), so a binary search */
-    int lo = 0, hi = s->collider_count - 1;
-    while (lo <= hi) {
-        int mid = (lo + hi) / 2;
-        if (s->colliders[mid].id == id)
-            return mid;
-        if (s->colliders[mid].id < id)
-            lo = mid + 1;
-        else
-            hi = mid - 1;
-    }
-    return -1;
-}
-
 void service_release_collider(service *s, svc_collider *c)
 {
     sim_backend *backend = sim_engine_backend(s->engine);
@@ -179,14 +155,16 @@ static void collider_create(service *s, hub_command *c)
     /* the net thread sends an all-zero orientation for "no pose yet" */
     const quatd *q = &c->pose.orientation;
     int has_pose = q->w != 0 || q->x != 0 || q->y != 0 || q->z != 0;
-    s->colliders[s->collider_count++] = (svc_collider){.id = c->collider,
-                                                       .client = c->client,
-                                                       .geometry = g,
-                                                       .mesh = c->mesh,
-                                                       .pose = c->pose,
-                                                       .previous_pose = c->pose,
-                                                       .has_pose = has_pose,
-                                                       .feedback = c->feedback};
+    s->colliders[s->collider_count++] =
+        (svc_collider){.id = c->collider,
+                       .client = c->client,
+                       .geometry = g,
+                       .mesh = c->mesh,
+                       .pose = c->pose,
+                       .previous_pose = c->pose,
+                       .has_pose = has_pose,
+                       .feedback = c->feedback,
+                       .cost_cells = collider_cost_cells(g, s->world->cell_size_m)};
     c->mesh = NULL;
 }
 
@@ -257,6 +235,9 @@ static void apply_command(service *s, hub_command *c)
         break;
     case HUB_RESYNC:
         resync(s, cl, c);
+        break;
+    case HUB_EDIT:
+        service_edit_command(s, c);
         break;
     }
 }

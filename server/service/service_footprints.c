@@ -104,12 +104,14 @@ void service_publish_footprints(service *s, const sim_tick_report *report)
             }
             s->events[n++] = footprint_wire(e);
             if (n == FOOTPRINTS_PER_FRAME) {
-                service_queue_client(s, cl->id, footprints_frame(s, n, shared, &shared_count), 0);
+                service_queue_client(s, cl->id, footprints_frame(s, n, shared, &shared_count),
+                                     TERRAD_MSG_FOOTPRINTS, 0);
                 n = 0;
             }
         }
         if (n > 0)
-            service_queue_client(s, cl->id, footprints_frame(s, n, shared, &shared_count), 0);
+            service_queue_client(s, cl->id, footprints_frame(s, n, shared, &shared_count),
+                                 TERRAD_MSG_FOOTPRINTS, 0);
     }
     for (int i = 0; i < shared_count; i++)
         hub_frame_unref(shared[i]);

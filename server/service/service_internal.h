@@ -4,7 +4,7 @@
  * (service.c) calls in order. Not part of the face of service/; everything
  * here runs on the sim thread only (service->owner).
  *
- *   service.c           life cycle, the tick's table of contents, the out queue
+ *   service.c           life cycle, the tick's table of contents
  *   service_commands.c  take commands, poses and batch sequences from the hub
  *   service_contacts.c  contact feedback before/after the deformation, ACKs
  *   service_deltas.c    cut dirty rectangles into tiles, encode deltas, snapshots
@@ -12,6 +12,11 @@
  *   service_footprints.c FOOTPRINTS frames for viewers
  *   service_shed.c      the tick's cost budget: whose colliders wait a tick
  *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
+ *   service_edits.c     terrain edits from game logic, at the start of the tick
+ *   service_shared.c    the leaf every step uses: lookups, the out queue, drops
+ *
+ * service.c calls the steps; a step calls only steps listed after it in the
+ * tick and service_shared.c, so the call graph of service/ is acyclic.
  */
 #ifndef TERRAD_SERVICE_INTERNAL_H
 #define TERRAD_SERVICE_INTERNAL_H
@@ -53,7 +58,8 @@ typedef struct svc_collider {
     collider_pose pose, previous_pose;
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
-    int held; /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    int held;           /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    int64_t cost_cells; /* collider_cost_cells, once at its creation (a mesh's is O(triangles)) */
 } svc_collider;
 
 typedef struct svc_contact {
@@ -73,10 +79,21 @@ typedef struct snapshot_job {
  * one tick's versions). One request per client per tick while others wait. */
 #define SERVICE_SNAPSHOT_CELLS_PER_TICK (512 * 512)
 
+/* An edit applied this tick (service_edits.c), until the tick is committed. */
+typedef struct svc_edit {
+    world_edit_op op;
+    world_rect rect;
+    int32_t *diff; /* new minus old over rect */
+    int64_t volume;
+    uint32_t client;         /* websocket sender (waiter == NULL) */
+    char ref[64];            /* its ref, JSON text */
+    hub_edit_waiter *waiter; /* HTTP sender */
+} svc_edit;
+
 /* One piece of a dirty rectangle inside one tile. */
 typedef struct tile_piece {
     int tile;   /* tile index */
-    int window; /* engine window it came from */
+    int window; /* engine window it came from; < 0: edit -1 - window */
     world_rect rect;
 } tile_piece;
 
@@ -125,6 +142,12 @@ struct service {
 
     service_batch batch;
 
+    svc_edit *edits; /* this tick's, in the order applied */
+    int edit_count;
+    int64_t edit_capacity;
+    world_rect *commit_rects; /* edits' and the engine's, for the store */
+    int64_t commit_capacity;
+
     /* scratch */
     int32_t *values; /* one tile of values */
     uint8_t *packed; /* compressed tile */
@@ -148,7 +171,9 @@ struct service {
     uint64_t drops_unlogged;
 };
 
-/* service.c */
+/* service_shared.c */
+svc_client *service_find_client(service *s, uint32_t id);
+int service_find_collider(const service *s, uint32_t id); /* index, or -1 */
 /* Count dropped work (terrad_service_dropped_total{reason}) and log it, at
  * most once a second. */
 void service_note_drop(service *s, const char *reason, const char *fmt, ...)
@@ -157,13 +182,11 @@ void service_note_drop(service *s, const char *reason, const char *fmt, ...)
  * frame (its allocation or encoding failed) or no room is counted as a
  * dropped frame; returns 0 or -1. */
 int service_queue_out(service *s, hub_out item);
-/* Queue frame f for one client (snapshot_done: the last frame of a
- * subscribe/resync answer). */
-int service_queue_client(service *s, uint32_t client, hub_frame *f, int snapshot_done);
+/* Queue frame f, a TERRAD_MSG_* msg, for one client (snapshot_done: the last
+ * frame of a subscribe/resync answer). */
+int service_queue_client(service *s, uint32_t client, hub_frame *f, int msg, int snapshot_done);
 
 /* service_commands.c */
-svc_client *service_find_client(service *s, uint32_t id);
-int service_find_collider(const service *s, uint32_t id); /* index, or -1 */
 void service_release_collider(service *s, svc_collider *c);
 /* take the hub's commands, poses and batch sequences, and apply them */
 void service_take_input(service *s);
@@ -171,7 +194,8 @@ void service_take_input(service *s);
 /* service_contacts.c */
 void service_contacts_before_tick(service *s);
 void service_contacts_after_tick(service *s);
-void service_publish_feedback(service *s); /* CONTACT and ACK frames */
+/* CONTACT, FORCES (bekker worlds: the report's contacts) and ACK per client. */
+void service_publish_feedback(service *s, const sim_tick_report *report);
 
 /* service_deltas.c */
 int service_cut_into_tiles(service *s, const sim_tick_report *report);
@@ -191,6 +215,18 @@ void service_snapshots_collect(service *s);   /* start of tick t + 1: queue the 
 
 /* service_shed.c: mark the colliders that wait this tick (before they are gathered) */
 void service_shed(service *s);
+
+/* service_edits.c */
+void service_edit_command(service *s, hub_command *c); /* apply it now, or refuse it */
+/* The tick's rectangles for the store: the edits' then the engine's (-1: no memory). */
+int service_edits_commit_rects(service *s, const sim_tick_report *report, const world_rect **rects,
+                               int *n);
+/* The store refused the tick: take the edits back (after the engine's
+ * windows), tell their senders code and why. */
+void service_edits_undo(service *s, int code, const char *why);
+/* The tick is committed: tell each sender its tick and volume change. */
+void service_edits_finish(service *s);
+void service_edits_free(service *s);
 
 /* service_colliders.c */
 void service_publish_colliders(service *s, const sim_collider *extra, int extra_count);

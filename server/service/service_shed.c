@@ -2,9 +2,10 @@
  * service_shed.c: the tick's cost budget (issue 15, item 3: one client within
  * its own limits took the tick from 60 to 1.5 ticks/s and stalled everyone).
  * At the start of each tick, before the colliders are gathered, the footprint
- * cells of every posed client collider are summed (each charged the square
- * around its bounding sphere, as the per-client budget max_active_cells
- * charges it, net_requests.c). While the sum is over max_tick_cells, the most
+ * cells of every posed client collider are summed (each charged
+ * collider_cost_cells, as the per-client budget max_active_cells charges it,
+ * net_requests.c: the square around its bounding sphere, and a mesh's
+ * triangles too). While the sum is over max_tick_cells, the most
  * expensive client's colliders wait a tick ("held"): they do not deform, keep
  * their previous pose (so the next tick sweeps the whole way and the trail
  * has no gap) and the client's ACK waits with them.
@@ -19,20 +20,11 @@
  */
 #include "service/service_internal.h"
 
-#include <math.h>
-
 #include "metrics/metrics.h"
 
 void service_set_tick_budget(service *s, int64_t max_tick_cells)
 {
     s->max_tick_cells = max_tick_cells > 0 ? max_tick_cells : 0;
-}
-
-static int64_t collider_cells(const service *s, const svc_collider *c)
-{
-    double cell = s->world->cell_size_m > 0 ? s->world->cell_size_m : 1;
-    double side = ceil(2 * collider_reach(c->geometry) / cell) + 1;
-    return (int64_t)(side * side);
 }
 
 /* The client to hold next: the most cells among those over the fair share and
@@ -83,7 +75,7 @@ void service_shed(service *s)
         svc_client *cl = c->has_pose ? service_find_client(s, c->client) : NULL;
         if (!cl)
             continue;
-        int64_t cells = collider_cells(s, c);
+        int64_t cells = c->cost_cells;
         cl->tick_cells += cells;
         total += cells;
     }

@@ -224,7 +224,7 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
         service_note_drop(s, "snapshot", "no memory to stage a snapshot for client %u",
                           job->client);
         if (job->last) /* the client still gets its mark, without a frame */
-            service_queue_client(s, job->client, NULL, 1);
+            service_queue_client(s, job->client, NULL, TERRAD_MSG_DELTA, 1);
         return;
     }
     snap_request *r = &w->staged[w->nstaged++];
@@ -312,11 +312,12 @@ void service_snapshots_collect(service *s)
                               r->job.client);
         if (r->mark_only) {
             for (int m = 0; m < r->job.last + r->job.marks; m++)
-                service_queue_client(s, r->job.client, NULL, 1);
+                service_queue_client(s, r->job.client, NULL, TERRAD_MSG_DELTA, 1);
             continue;
         }
         for (int k = 0; k < r->nframes; k++) {
-            service_queue_client(s, r->job.client, r->frames[k].f, r->frames[k].done);
+            service_queue_client(s, r->job.client, r->frames[k].f, TERRAD_MSG_DELTA,
+                                 r->frames[k].done);
             r->frames[k].f = NULL; /* the out queue holds it now */
         }
     }

@@ -111,8 +111,14 @@ async def scenario(a, b):
         await asyncio.sleep(1 / 60)
     park = tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)
     await c.send_poses([park])
-    await asyncio.sleep(0.8)
-    changed = sum(1 for p, q in zip(before, c.mirrors[sid].heights) if p != q)
+
+    def changed_cells():
+        return sum(1 for p, q in zip(before, c.mirrors[sid].heights) if p != q)
+    deadline = time.monotonic() + 60  # the trail's deltas arrive, however loaded the machine
+    while not (changed_cells() and c.counts["DELTA"] and c.counts["ACK"]) and time.monotonic() < deadline:
+        await c.send_poses([park])
+        await asyncio.sleep(0.05)
+    changed = changed_cells()
     check(changed > 0 and c.counts["DELTA"] > 0 and c.counts["ACK"] > 0,
           f"the client on b sees its trail ({changed} cells changed, {c.counts})")
     same = False

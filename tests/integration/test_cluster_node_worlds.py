@@ -87,7 +87,7 @@ def hellos(a):
 
 
 async def drive(node, world, run_s=1.5):
-    """Drives a sphere through world, lifts it, lets the terrain settle; returns
+    """Drives a sphere through world, lifts it, waits until the terrain settled; returns
     the client (still connected), its lane and its collider."""
     c = RecordingClient(node.ws, name="driver", keep=600, world=world)
     await c.connect()
@@ -107,8 +107,7 @@ async def drive(node, world, run_s=1.5):
         await c.send_poses([tp.Pose(cid, x, y, ground + 0.25, 1, 0, 0, 0)])
         await asyncio.sleep(1 / 60)
     park = tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)
-    await c.send_poses([park])
-    await asyncio.sleep(0.7)
+    await ch.settled(c, sid, park)  # quiescent by condition, not after a fixed sleep
     return c, lane, sid, park
 
 

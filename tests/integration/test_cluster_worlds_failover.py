@@ -111,8 +111,8 @@ def kill_round(k, nodes, volumes, nats, takeovers):
         check(st is not None and st["volume"] == volumes[w],
               f"round {k}: Σh of {w} on {new.name} equals its value before the kill")
         if w == world:
-            check(st is not None and st["tick"] >= acked,
-                  f"round {k}: {w} recovered at tick {st and st['tick']} >= the last tick the "
+            rec = new.recovered.get(w, -1)  # the tick recovered at, not the tick now
+            check(rec >= acked, f"round {k}: {w} recovered at tick {rec} >= the last tick the "
                   f"client saw acknowledged ({acked})")
             if settle and heights is not None:
                 _, now = new.heights(w, *lane)

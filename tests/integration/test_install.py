@@ -9,9 +9,11 @@
 - the installed terrad.json is accepted by `terrad serve --config` (a short run on free ports);
 - the man page renders without groff warnings; the unit passes `systemd-analyze verify` where
   systemd-analyze exists (skipped otherwise);
-- proto/c/examples/drive_wheel.c builds with `pkg-config --cflags --libs terrad-client` against
-  the installed library, shared and then static (`--static`), and both binaries pass against a
-  real daemon with the demo actors on: the mirror equals GET /v1/heights at the same tick.
+- the installed share/doc/terrad/examples/drive_wheel.c builds with `pkg-config --cflags --libs
+  terrad-client` against the installed library, shared and then static (`--static`), and both
+  binaries start and pass against a real daemon with the demo actors on (the mirror equals
+  GET /v1/heights at the same tick) with no LD_LIBRARY_PATH: the pkg-config flags carry a run
+  path to the prefix's lib/, so a program built against a non-system prefix starts as it is.
 """
 import glob
 import os
@@ -110,11 +112,16 @@ try:
     flags = run(["pkg-config", "--cflags", "--libs", "terrad-client"], env=env)
     check(flags.returncode == 0 and "-lterrad-client" in flags.stdout, f"pkg-config: {flags.stdout} {flags.stderr}")
     static = run(["pkg-config", "--static", "--cflags", "--libs", "terrad-client"], env=env)
-    example = os.path.join(SOURCE, "proto", "c", "examples", "drive_wheel.c")
+    example = one("share/doc/terrad/examples/drive_wheel.c")
     shared_bin, static_bin = os.path.join(prefix, "drive_wheel"), os.path.join(prefix, "drive_wheel_static")
     r = run(["cc", "-std=c11", "-Wall", "-Wextra", "-Werror", "-o", shared_bin, example]
             + flags.stdout.split() + ["-lm"])
     check(r.returncode == 0, f"cc drive_wheel.c $(pkg-config --cflags --libs terrad-client): {r.stderr}")
+    if os.path.exists(shared_bin):
+        dyn = run(["readelf", "-d", shared_bin]).stdout
+        paths = re.findall(r"\((?:RUNPATH|RPATH)\)\s+Library r(?:un)?path: \[([^\]]*)\]", dyn)
+        check(any(os.path.realpath(p) == os.path.realpath(libdir) for p in paths),
+              f"the shared build's run path leads to {libdir}: {paths}")
     r = run(["cc", "-std=c11", "-Wall", "-Wextra", "-Werror", "-static-libgcc", "-o", static_bin, example]
             + [a.replace("-lterrad-client", os.path.join(libdir, "libterrad-client.a"))
                for a in static.stdout.split()] + ["-lm"])
@@ -128,8 +135,10 @@ try:
         for exe in (shared_bin, static_bin):
             if not os.path.exists(exe):
                 continue
-            r = run([exe, "127.0.0.1", str(d.ws_port), str(d.http_port)],
-                    env={"LD_LIBRARY_PATH": libdir})
+            # As a user starts it: no LD_LIBRARY_PATH, from another directory.
+            env = {k: v for k, v in os.environ.items() if k != "LD_LIBRARY_PATH"}
+            r = subprocess.run([exe, "127.0.0.1", str(d.ws_port), str(d.http_port)],
+                               capture_output=True, text=True, timeout=240, env=env, cwd="/")
             print(f"{os.path.basename(exe)}: {r.stdout.strip()}")
             check(r.returncode == 0 and "mirror == GET /v1/heights" in r.stdout,
                   f"{os.path.basename(exe)} against the daemon: {r.stdout} {r.stderr[-2000:]}")

@@ -16,10 +16,10 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, SOURCE, Checks, Daemon, simulate  # noqa: E402
+from waiting import wait_for  # noqa: E402
 
 SCENE = os.path.join(SOURCE, "tests", "scenes", "materials-mixed.json")
 check = Checks()
@@ -93,10 +93,11 @@ check(rc != 0 and "material_map.paint[0].material" in err, "unknown paint materi
 d = Daemon(backend="cpu", demo=True, extra=["--scene", SCENE])
 with check.running(d):
     first = d.stats()
-    time.sleep(2.0)
-    later = d.stats()
+    # 120 ticks on, however slowly a loaded machine ticks
+    later = wait_for(lambda: (lambda st: st if st["tick"] >= first["tick"] + 120 else None)(d.stats()), 120)
+    later = later or d.stats()
     check(d.alive(), "daemon alive on the mixed scene")
-    check(later["tick"] > first["tick"], "daemon ticks (%d -> %d)" % (first["tick"], later["tick"]))
+    check(later["tick"] >= first["tick"] + 120, "daemon ticks (%d -> %d)" % (first["tick"], later["tick"]))
     check(later["volume"] <= first["volume"],
           "Σh only falls (snow compacts): %d -> %d" % (first["volume"], later["volume"]))
 check.finish()

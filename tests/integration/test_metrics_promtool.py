@@ -20,6 +20,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, Checks, Daemon, metric_value, skip  # noqa: E402
+from waiting import wait_for  # noqa: E402
 
 import terrad as tp  # noqa: E402
 
@@ -64,6 +65,8 @@ async def main():
     d = Daemon(backend="cpu", demo=True, name="terrad-metrics")
     with check.running(d):
         c = await traffic(d)
+        # more than 10 ticks behind us however slowly a loaded machine ticks (a condition)
+        wait_for(lambda: d.stats()["tick"] > 11, 60)
         status, body, headers = d.get("/metrics")
         await c.close()
         text = body.decode("utf-8", "replace")

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 180
+# ctest-timeout: 600
 """
 The websocket server (server/net) against a hand-driven hub: a small C
 harness (tests/support/net_harness.c, built by CMake) links net, hub and the
@@ -313,7 +313,7 @@ async def scenario_main():
         got[name] = []
         try:
             while True:
-                m = await asyncio.wait_for(sock.recv(), 0.5)
+                m = await asyncio.wait_for(sock.recv(), 2)  # generous: a loaded machine
                 if isinstance(m, bytes):
                     got[name].append((m[5], m[4]))
         except asyncio.TimeoutError:
@@ -321,14 +321,18 @@ async def scenario_main():
     print("fan-out:", got)
     assert got["A"] == [(0, 0)] and got["B"] == [(0, 0), (1, 0)] and got["C"] == [], got
 
-    # rate limit (not one error per message)
+    # rate limit (not one error per message). The bounds follow from the limits (240/s, burst
+    # 480, one rate_limited error a second) and the time the flood really took, so a loaded
+    # machine that stretches it changes the bounds, not the verdict.
     t0 = time.time()
     for i in range(1500):
         await ws2.send(b"\x54\x01\x02\x00" + struct.pack("<Q", i))
     errs = pongs = 0
+    t_last = t0
     try:
         while True:
-            m = await asyncio.wait_for(ws2.recv(), 0.5)
+            m = await asyncio.wait_for(ws2.recv(), 3)
+            t_last = time.time()
             if isinstance(m, str):
                 assert json.loads(m)["name"] == "rate_limited", m
                 errs += 1
@@ -336,8 +340,10 @@ async def scenario_main():
                 pongs += 1
     except asyncio.TimeoutError:
         pass
-    print(f"rate flood: {pongs} pongs, {errs} rate_limited errors")
-    assert 400 <= pongs <= 700 and 1 <= errs <= 3
+    window = t_last - t0  # the server handled the flood within it
+    print(f"rate flood: {pongs} pongs, {errs} rate_limited errors in {window:.2f} s")
+    assert 400 <= pongs <= 480 + 240 * window + 1, (pongs, window)
+    assert (errs >= 1 or pongs == 1500) and errs <= 1 + int(window), (errs, window)
 
     # slow client: D subscribes then stops reading while tiles flood
     D, _ = await connect(h, name="D")
@@ -449,11 +455,17 @@ async def scenario_limits():
     sk.sendall((f"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                 f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: terrad.v1\r\n\r\n").encode())
     time.sleep(0.2)
-    sk.sendall(frame(json.dumps({"type": "hello", "protocol": 1, "token": "secret"})))
-    sk.sendall(frame(json.dumps({"type": "subscribe", "x": 0, "y": 0, "w": 10, "h": 10})))
-    for i in range(38):
-        sk.sendall(frame(json.dumps({"type": "resync"})))
-    deadline = time.time() + 60  # a condition, not a time: a loaded machine builds 39 MB slowly
+    # hello, subscribe and 38 resyncs in ONE write: the server handles the whole read before it
+    # writes to this client, so 39 snapshots of 1 MB are queued (past the ~34 MB hard bound)
+    # before anything could pause its reading. Sent one by one, a loaded server read them in
+    # several pieces; its first partial write to this never-reading client paused reading
+    # (net_peer.c), the queue stayed under the bound and the client stayed open: not a bug
+    # (memory stays bounded), but a test whose outcome depended on the machine's speed.
+    frames = [frame(json.dumps({"type": "hello", "protocol": 1, "token": "secret"})),
+              frame(json.dumps({"type": "subscribe", "x": 0, "y": 0, "w": 10, "h": 10}))]
+    frames += [frame(json.dumps({"type": "resync"})) for _ in range(38)]
+    sk.sendall(b"".join(frames))
+    deadline = time.time() + 120  # a condition, not a time: a loaded machine builds 39 MB slowly
     while True:
         await asyncio.sleep(0.5)
         s = await h.stats()

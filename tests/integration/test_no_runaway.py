@@ -45,14 +45,14 @@ DEFAULT_REPOSE_DEG = 35.0  # sim_material_defaults (server/sim/sim_params.c)
 check = Checks()
 
 
-def deep_press():
+def deep_press(tmp):
     scene = {"name": "deep-press", "world": {"width": 80, "height": 64, "cell_size_m": 0.05},
              "terrain": {"kind": "flat", "height_m": 0.5},
              "material": {"compression": 0, "repose_deg": 30},
              "colliders": [{"name": "ball", "shape": "sphere", "radius": 0.4,
                             "position": [1.0, 1.6, 0.7], "motion": {"velocity": [0.3, 0, 0]}}]}
-    fd, path = tempfile.mkstemp(prefix="terrad-deep-press-", suffix=".json")
-    with os.fdopen(fd, "w") as f:
+    path = os.path.join(tmp, "deep-press.json")
+    with open(path, "w") as f:
         json.dump(scene, f)
     return path
 
@@ -78,24 +78,25 @@ def heights(path):
     return struct.unpack(f"<{len(data) // 4}i", data)
 
 
-out = tempfile.mktemp(prefix="terrad-runaway-", suffix=".bin")
-for path, ticks in ((os.path.join(SCENES, "spike.json"), 200),
-                    (os.path.join(SCENES, "spheres.json"), 40), (deep_press(), 150)):
-    with open(path) as f:
-        scene = json.load(f)
-    rc, r, err = simulate(path, 0, "--out", out)
-    check(rc == 0, f"{scene['name']}: tick 0 ran: {err[-300:]}")
-    b = bound(scene, ticks, max(heights(out)))
-    for model in MODELS:
-        for metric in METRICS:
-            what = f"{scene['name']} {model} {metric}"
-            rc, r, err = simulate(path, ticks, "--model", model, "--metric", metric, "--out", out)
-            check(rc == 0, f"{what}: simulate ran: {err[-300:]}")
-            if rc != 0:
-                continue
-            top = max(heights(out))
-            check(top <= b, f"{what}: highest column {top} <= bound {b}")
-            if model in EXACT:
-                check(r["volume_before"] == r["volume_after"], f"{what}: sum(h) exact")
-os.unlink(out)
+# Every file the test writes lives in one temporary directory, removed however the test ends.
+with tempfile.TemporaryDirectory(prefix="terrad-runaway-") as tmp:
+    out = os.path.join(tmp, "heights.bin")
+    for path, ticks in ((os.path.join(SCENES, "spike.json"), 200),
+                        (os.path.join(SCENES, "spheres.json"), 40), (deep_press(tmp), 150)):
+        with open(path) as f:
+            scene = json.load(f)
+        rc, r, err = simulate(path, 0, "--out", out)
+        check(rc == 0, f"{scene['name']}: tick 0 ran: {err[-300:]}")
+        b = bound(scene, ticks, max(heights(out)))
+        for model in MODELS:
+            for metric in METRICS:
+                what = f"{scene['name']} {model} {metric}"
+                rc, r, err = simulate(path, ticks, "--model", model, "--metric", metric, "--out", out)
+                check(rc == 0, f"{what}: simulate ran: {err[-300:]}")
+                if rc != 0:
+                    continue
+                top = max(heights(out))
+                check(top <= b, f"{what}: highest column {top} <= bound {b}")
+                if model in EXACT:
+                    check(r["volume_before"] == r["volume_after"], f"{what}: sum(h) exact")
 check.finish()

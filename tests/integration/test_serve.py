@@ -4,6 +4,11 @@ the terrain while Σh stays exactly the same, unknown paths and methods get
 clear errors, and SIGTERM stops it cleanly. Runs on the CPU backend so it
 needs no GL; the GL backend is exercised when a context can be made.
 
+The default backend is auto: GL where the renderer is a hardware GPU, the
+CPU twin where it is software (llvmpipe here) or missing; /v1/world and the
+log say which and why, `--backend gl` still forces GL, and a backend name
+that is none of them is refused naming --backend.
+
 The log: every line starts with an ISO-8601 UTC timestamp with milliseconds
 and the level; a disconnect names who closed, with the code and reason (a
 client closing with 4000 "bye", the server's 4003 "bad protocol version"),
@@ -29,7 +34,7 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, Checks, Daemon  # noqa: E402
+from service_harness import BIN, SOURCE, Checks, Daemon  # noqa: E402
 
 import websockets  # noqa: E402  (Debian's python3-websockets)
 
@@ -46,8 +51,11 @@ def get(port, path, method="GET"):
 
 
 def start(backend):
-    p = subprocess.Popen([BIN, "serve", "--http-port", "0", "--backend", backend, "--no-data"],
-                         stderr=subprocess.PIPE, text=True)
+    """backend None: the default (no --backend)."""
+    args = [BIN, "serve", "--http-port", "0", "--no-data"]
+    if backend is not None:
+        args += ["--backend", backend]
+    p = subprocess.Popen(args, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
     lines = []
     while time.time() < deadline:
@@ -75,6 +83,9 @@ def run_daemon(backend):
         world = json.loads(body)
         check(status == 200 and world["width"] > 0 and world["units_per_m"] == 10000,
               f"{backend}: /v1/world {body}")
+        check(world["backend"] == backend and
+              world["backend_reason"] == f"forced by --backend {backend}",
+              f"{backend}: /v1/world says the backend was forced: {body}")
         first = json.loads(get(port, "/v1/stats")[1])
         # behaviour, not speed: wait (generously) until ticks have advanced
         deadline = time.time() + 120
@@ -199,7 +210,48 @@ def check_demo_and_fresh():
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def gl_renderer():
+    """GL_RENDERER of the context `simulate --backend gl` makes here, or None."""
+    p = subprocess.run([BIN, "simulate", "--scene", os.path.join(SOURCE, "tests", "scenes",
+                        "tiny.json"), "--ticks", "1", "--backend", "gl"],
+                       capture_output=True, text=True, timeout=120)
+    return json.loads(p.stdout)["renderer"] if p.returncode == 0 else None
+
+
+def check_auto_backend():
+    """No --backend: auto. It chooses by the renderer, and says so."""
+    renderer = gl_renderer()
+    software = renderer is not None and any(
+        s in renderer.lower() for s in ("llvmpipe", "softpipe", "swiftshader", "lavapipe"))
+    p, port, lines = start(None)
+    check(p is not None, f"default-backend daemon started: {''.join(lines)[-500:]}")
+    if p is None:
+        return
+    try:
+        world = json.loads(get(port, "/v1/world")[1])
+        why = world.get("backend_reason", "")
+        if renderer is None:
+            check(world["backend"] == "cpu" and why.startswith("auto: no GL context"),
+                  f"auto without GL: the CPU twin, saying why: {world}")
+        elif software:
+            check(world["backend"] == "cpu" and renderer in why and "software" in why,
+                  f"auto on the software renderer {renderer!r}: the CPU twin, saying why: {world}")
+        else:
+            check(world["backend"] == "gl" and renderer in why and "hardware GPU" in why,
+                  f"auto on the hardware renderer {renderer!r}: GL, saying why: {world}")
+        check(any(f"backend: {world['backend']} (auto: " in line for line in lines),
+              f"the log says the choice and why: {lines}")
+    finally:
+        p.kill()
+        p.wait()
+    q = subprocess.run([BIN, "serve", "--http-port", "0", "--ws-port", "0", "--no-data",
+                        "--backend", "vulkan"], capture_output=True, text=True, timeout=60)
+    check(q.returncode != 0 and "--backend" in q.stderr and "auto, gl or cpu" in q.stderr,
+          f"an unknown backend refused naming --backend: {q.returncode} {q.stderr[-300:]}")
+
+
 def main():
+    check_auto_backend()
     check_demo_and_fresh()
     check_log_lines()
     err = run_daemon("cpu")

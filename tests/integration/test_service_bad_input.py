@@ -411,8 +411,14 @@ async def main():
         stop = asyncio.Event()
         good = {}
         task = asyncio.get_running_loop().create_task(good_client_task(d, stop, good))
-        await asyncio.sleep(0.5)
+        # the good client is connected and served before the corpus starts (a condition: a
+        # loaded machine takes longer than any fixed wait)
+        deadline = asyncio.get_running_loop().time() + 60
+        while not (good.get("client") and good["client"].counts["ACK"]) and \
+                asyncio.get_running_loop().time() < deadline and not task.done():
+            await asyncio.sleep(0.05)
         c = good.get("client")
+        check(c is not None, "the good client connected before the corpus")
         acks0 = c.counts["ACK"] if c else 0
         t0 = time.monotonic()
         stats0 = d.stats()

@@ -72,8 +72,8 @@ async def scenario(d):
     mesh = RecordingClient(d.ws, name="mesh", record=False)
     await mesh.connect()
     verts, tris = [], []
-    for i in range(302):
-        verts += [0.1 * (i % 20), 0.1 * (i // 20), 0.0]
+    for i in range(302):  # 2 cm apart: the triangles' own cells stay far inside max_active_cells
+        verts += [0.02 * (i % 20), 0.02 * (i // 20), 0.0]
     for i in range(300):
         tris += [i, i + 1, i + 2]
     m1, err1 = await create(mesh, "mesh", vertices=verts, indices=tris)

@@ -22,14 +22,12 @@ import asyncio
 import os
 import random
 import shutil
-import struct
-import subprocess
 import sys
 import tempfile
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, Checks, Daemon, RecordingClient, skip, tp  # noqa: E402
+from service_harness import BIN, Checks, Daemon, RecordingClient, export_heights, skip, tp  # noqa: E402
 
 KILLS = int(os.environ.get("TERRAD_CRASH_KILLS", "5"))
 check = Checks()
@@ -101,20 +99,6 @@ async def run_and_kill(d, run_s):
     return seen
 
 
-def export(data, tick, out, region=None):
-    args = [BIN, "export", "--data", data, "--out", out, "--format", "raw32"]
-    if region:
-        args += ["--region", ",".join(map(str, region))]
-    if tick:
-        args += ["--tick", str(tick)]
-    r = subprocess.run(args, capture_output=True, text=True, timeout=60)
-    if r.returncode != 0:
-        return None, r.stderr
-    with open(out, "rb") as f:
-        body = f.read()
-    return list(struct.unpack(f"<{len(body) // 4}i", body)), r.stderr
-
-
 def verify(data, k, seen, volumes, width, height, exported_last):
     """Restart on the data directory without demo actors or clients (so the
     world stays as recovered) and compare it with what the clients saw."""
@@ -167,7 +151,7 @@ def main():
             check(len(seen) >= 1, f"kill {k}: at least one client had an acknowledged mirror")
             volumes = []
             for tick_seen, region, heights in seen:
-                got, log = export(data, tick_seen, out, region)
+                got, log = export_heights(data, tick_seen, out, region)
                 if got is None and "compacted away" in log:
                     print(f"kill {k}: tick {tick_seen} was compacted over just before the kill; "
                           "only the restart checks apply")
@@ -175,10 +159,10 @@ def main():
                 exact_checks += 1
                 check(got == heights, f"kill {k}: the data directory as of tick {tick_seen} equals "
                       f"the client's mirror of {region} ({log.strip()[-300:]})")
-                whole, log = export(data, tick_seen, out)
+                whole, log = export_heights(data, tick_seen, out)
                 if whole is not None:
                     volumes.append((tick_seen, sum(whole)))
-            exported_last, log = export(data, 0, out)
+            exported_last, log = export_heights(data, 0, out)
             check(exported_last is not None, f"kill {k}: export of the data directory: {log}")
             line = verify(data, k, seen, volumes, width, height, exported_last)
             print(f"kill {k} ({policy}) after {run_s:.1f} s: clients saw ticks "

@@ -25,9 +25,9 @@ import subprocess
 import sys
 import tempfile
 import time
-import zlib
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from png_read import read_png  # noqa: E402
 from service_harness import BIN, Checks, Daemon, metric_value, skip, tp  # noqa: E402
 
 check = Checks()
@@ -35,39 +35,9 @@ check = Checks()
 
 def read_png16(path):
     """(width, height, values) of a 16-bit greyscale, non-interlaced PNG."""
-    with open(path, "rb") as f:
-        data = f.read()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    at, idat, width = 8, b"", 0
-    while at < len(data):
-        n, kind = struct.unpack(">I4s", data[at:at + 8])
-        body = data[at + 8:at + 8 + n]
-        if kind == b"IHDR":
-            width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", body)
-            assert depth == 16 and colour == 0 and interlace == 0
-        elif kind == b"IDAT":
-            idat += body
-        at += 12 + n
-    raw, stride, bpp = zlib.decompress(idat), width * 2, 2
-    rows, prev = [], bytearray(stride)
-    for y in range(height):
-        ft, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
-        for i in range(stride):
-            a = line[i - bpp] if i >= bpp else 0
-            b, c = prev[i], prev[i - bpp] if i >= bpp else 0
-            if ft == 1:
-                line[i] = (line[i] + a) & 255
-            elif ft == 2:
-                line[i] = (line[i] + b) & 255
-            elif ft == 3:
-                line[i] = (line[i] + (a + b) // 2) & 255
-            elif ft == 4:
-                p = a + b - c
-                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-                line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
-        rows.append(bytes(line))
-        prev = line
-    return width, height, list(struct.unpack(f">{width * height}H", b"".join(rows)))
+    width, height, depth, channels, values = read_png(path)
+    assert depth == 16 and channels == 1
+    return width, height, values
 
 
 def wait_until(pred, timeout=10.0):
@@ -111,6 +81,7 @@ async def scenario(d, fault):
     # retry must write new bytes, not only truncate and sync (which need no space)
     lines_at_fault = len(d.lines)
     statuses = []
+    t_window = time.monotonic()
     for _ in range(12):
         await asyncio.sleep(0.25)
         statuses.append((await loop.run_in_executor(None, d.get, "/readyz"))[0])
@@ -119,7 +90,10 @@ async def scenario(d, fault):
     check(not any("writable again" in line for line in during),
           f"never 'writable again' while full: {[x for x in during if 'writable' in x][:3]}")
     errors = [line for line in during if "terrad error" in line]
-    check(len(errors) <= 1, f"the error is logged once, then at a bounded rate: {errors[:4]}")
+    # once, then at most every 10 s (FAIL_LOG_MS): a loaded machine may stretch the window
+    allowed = 1 + int((time.monotonic() - t_window) / 10)
+    check(len(errors) <= allowed, f"the error is logged once, then at a bounded rate "
+          f"(at most {allowed} in this window): {errors[:4]}")
 
     # reads go on; the world stands still although the demo actors move
     t1, h1 = await loop.run_in_executor(None, d.heights, *region)

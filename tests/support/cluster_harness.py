@@ -23,6 +23,8 @@ import time
 import urllib.error
 import urllib.request
 
+from waiting import wait_for  # noqa: F401  (the cluster tests import it from here too)
+
 NATS_SERVER = shutil.which("nats-server")
 
 
@@ -169,7 +171,7 @@ class NatsCluster:
 # ---- terrad nodes ---------------------------------------------------------------
 
 LISTENS_RE = re.compile(r"node (\S+) listens on http://127\.0\.0\.1:(\d+)/ and websocket port (\d+)")
-WORLD_SERVING_RE = re.compile(r"cluster: world (\S+): serving scene")
+WORLD_SERVING_RE = re.compile(r"cluster: world (\S+): serving scene .*?, tick (\d+)\)")
 LOST_RE = re.compile(r"no longer owns world (\S+) |cluster: world (\S+) stopped here")
 
 
@@ -206,6 +208,7 @@ class Node:
     def start(self):
         self.http = self.ws = None
         self.worlds = set()
+        self.recovered = {}  # world -> the tick it was recovered at (its "serving" line)
         self.standby = False
         self.listening = threading.Event()
         self.proc = subprocess.Popen(
@@ -227,6 +230,7 @@ class Node:
             m = WORLD_SERVING_RE.search(line)
             if m:
                 self.worlds.add(m.group(1))
+                self.recovered[m.group(1)] = int(m.group(2))
             if "is a standby" in line:
                 self.standby = True
             m = LOST_RE.search(line)
@@ -297,13 +301,39 @@ def owner_of(nodes, world, timeout=30, step=0.05):
     return wait_for(lambda: next((n for n in nodes if n.serves(world)), None), timeout, step)
 
 
+async def settled(c, sid, park, quiet=30, timeout=120):
+    """Lift the sphere out of the terrain (park: its pose high above) and wait,
+    by condition, until the terrain is quiescent: the lift acknowledged, then the
+    mirror unchanged over `quiet` acknowledged ticks in a row. A fixed sleep
+    here once let a loaded machine kill the owner before the lift's ACK came,
+    so the comparison was with a tick older than the owner's last commit (a
+    moving target, not a lost tick). Raises TimeoutError after timeout s."""
+    import asyncio
+    seq = await c.send_poses([park])
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    last, since = None, None
+    while loop.time() < deadline:
+        await asyncio.sleep(1 / 60)
+        await c.send_poses([park])  # a batch each tick keeps the ACKs (and the tick) current
+        if c.acked_seq < seq:
+            continue
+        heights = c.mirrors[sid].heights
+        if last != heights:
+            last, since = list(heights), c.acked_tick
+        elif c.acked_tick - since >= quiet:
+            return
+    raise TimeoutError(f"the terrain did not settle within {timeout} s (acked tick {c.acked_tick})")
+
+
 async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=0.3, speed=3.0,
                          dip=0.18):
     """A client on owner (a Node; world: the hello's, else the node's first)
     subscribes to a lane 2 * half_lane rows high across the world's middle and
     drives a sphere along it, dip m into the terrain, for run_s seconds; then
     owner is killed (SIGKILL) — at once, or (settle) after lifting the sphere
-    out of the terrain and waiting until nothing changes any more. Returns
+    out of the terrain and waiting until nothing changes any more (settled).
+    Returns
     (the last acknowledged tick, the lane, the heights of the client's mirror
     at that ACK, or None)."""
     import asyncio
@@ -329,8 +359,7 @@ async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=
         await c.send_poses([tp.Pose(cid, x, y, ground + dip, 1, 0, 0, 0)])
         await asyncio.sleep(1 / 60)
     if settle:
-        await c.send_poses([tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0)])
-        await asyncio.sleep(0.7)
+        await settled(c, sid, tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0))
     owner.kill9()
     await asyncio.sleep(0.3)
     copy = c.history.get(c.acked_tick)
@@ -339,13 +368,3 @@ async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=
     except Exception:  # noqa: BLE001
         pass
     return c.acked_tick, lane, (copy[sid][0] if copy else None)
-
-
-def wait_for(cond, timeout, step=0.05):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        time.sleep(step)
-    return cond()

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 import traceback
 import urllib.error
 import urllib.request
@@ -92,6 +93,50 @@ def simulate(scene, ticks, *extra, backend="cpu"):
 def skip(why):
     print(f"skip: {why}", flush=True)
     sys.exit(77)
+
+
+def export_heights(data, tick, out, region=None):
+    """(heights, stderr) of `terrad export --format raw32` of data as of tick
+    (0: the last), or (None, stderr) when it fails; out is the file it writes."""
+    args = [BIN, "export", "--data", data, "--out", out, "--format", "raw32"]
+    if region:
+        args += ["--region", ",".join(map(str, region))]
+    if tick:
+        args += ["--tick", str(tick)]
+    r = subprocess.run(args, capture_output=True, text=True, timeout=60)
+    if r.returncode != 0:
+        return None, r.stderr
+    with open(out, "rb") as f:
+        body = f.read()
+    return list(struct.unpack(f"<{len(body) // 4}i", body)), r.stderr
+
+
+def uv_sphere_mesh(r, rings=126, segments=130):
+    """(vertices, indices) of a closed UV sphere of radius r: 2 + rings * segments
+    vertices and 2 * rings * segments triangles (the defaults: 16,382 and
+    32,760, the most this way fits under the default mesh limits), millimetre
+    vertices so that the collider_create stays under max_message_bytes."""
+    verts = [0.0, 0.0, r]
+    for i in range(1, rings + 1):
+        th = math.pi * i / (rings + 1)
+        for j in range(segments):
+            ph = 2 * math.pi * j / segments
+            verts += [round(r * math.sin(th) * math.cos(ph), 3),
+                      round(r * math.sin(th) * math.sin(ph), 3), round(r * math.cos(th), 3)]
+    verts += [0.0, 0.0, -r]
+    south = 1 + rings * segments
+    tris = []
+    for j in range(segments):
+        tris += [0, 1 + j, 1 + (j + 1) % segments]
+    for i in range(rings - 1):
+        a, b = 1 + i * segments, 1 + (i + 1) * segments
+        for j in range(segments):
+            k = (j + 1) % segments
+            tris += [a + j, b + j, b + k, a + j, b + k, a + k]
+    last = 1 + (rings - 1) * segments
+    for j in range(segments):
+        tris += [last + j, south, last + (j + 1) % segments]
+    return verts, tris
 
 
 # ---- the daemon ----------------------------------------------------------------
@@ -244,9 +289,16 @@ class Daemon:
     def world(self):
         return json.loads(self.get("/v1/world")[1])
 
-    def heights(self, x, y, w, h):
-        """(tick, list of w*h int32) from GET /v1/heights."""
-        status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")
+    def heights(self, x, y, w, h, busy_s=60):
+        """(tick, list of w*h int32) from GET /v1/heights. A 503 "retry" (the sim
+        thread, which serves reads between ticks, was too busy to answer within
+        its read timeout: a loaded machine) is asked again for up to busy_s."""
+        end = time.monotonic() + busy_s
+        while True:
+            status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")
+            if status != 503 or b"retry" not in body or time.monotonic() > end:
+                break
+            time.sleep(0.2)
         if status != 200 or len(body) != 4 * w * h:
             raise RuntimeError(f"/v1/heights {x},{y},{w},{h}: {status}, {len(body)} bytes: {body[:200]!r}")
         tick = headers.get("X-Terrad-Tick")

@@ -111,7 +111,7 @@ static void test_lease(cluster *a, cluster *b)
     CHECK(!b_took, "b never takes a lease a keeps renewing");
     /* a stops renewing: its own view expires, and b takes over */
     double t0 = time_now_ms();
-    while (!b_took && time_now_ms() - t0 < 5000) {
+    while (!b_took && time_now_ms() - t0 < 30000) { /* generous: a loaded machine */
         usleep(100000);
         b_took = cluster_lease_acquire(b, "w1", holder, sizeof holder, &err) == 1;
     }

@@ -5,7 +5,8 @@
  * a wheel lying on its side, a standing cylinder (lines parallel to the
  * axis), a capsule's hemispheres, and the primitives tessellated into meshes
  * (tests/support/tessellate.c), whose depth must stay within millimetres above
- * the analytic bottom.
+ * the analytic bottom; and the mesh rule's instances against the rule
+ * evaluated the long way at every cell.
  */
 #include <math.h>
 #include <stdio.h>
@@ -505,6 +506,134 @@ static void test_tessellation(void)
     free(idx);
 }
 
+/* The mesh rule the long way, from its definition (depth_fixed.c): vertices
+ * rotated in double and rounded once to 1/2^S units, every triangle tested
+ * at every cell centre of the window (inclusive edges, zero plan area hits
+ * nothing), the plane's height floored, the lowest kept. */
+static int64_t ref_floor_div(int64_t a, int64_t b)
+{
+    return a >= 0 ? a / b : -((-a + b - 1) / b);
+}
+
+static void mesh_depth_reference(const collider_mesh *m, collider_pose p, world_rect win,
+                                 double cell, int32_t *bottom)
+{
+    int64_t *fv = malloc(sizeof *fv * 3 * (size_t)m->vertex_count);
+    vec3d *wv = malloc(sizeof *wv * (size_t)m->vertex_count);
+    quatd q = quat_normalize(p.orientation);
+    for (int i = 0; i < m->vertex_count; i++) {
+        const float *v = m->vertices + 3 * i;
+        vec3d r = quat_rotate(q, (vec3d){v[0], v[1], v[2]});
+        wv[i] = (vec3d){r.x + p.position.x, r.y + p.position.y, r.z + p.position.z};
+    }
+    double ext = 0;
+    for (int k = 0; k < 3 * m->triangle_count; k++) {
+        vec3d a = wv[m->indices[k]], b = wv[m->indices[k - k % 3 + (k + 1) % 3]];
+        ext = fmax(ext, fmax(fabs(a.x - b.x), fmax(fabs(a.y - b.y), fabs(a.z - b.z))));
+    }
+    ext = (ext + 2 * cell) * UPM;
+    int s = 16;
+    while (s > 0 && ext * ldexp(1.0, s) >= ldexp(1.0, 19))
+        s--;
+    for (int i = 0; i < m->vertex_count; i++) {
+        fv[3 * i] = (int64_t)nearbyint(wv[i].x * UPM * ldexp(1.0, s));
+        fv[3 * i + 1] = (int64_t)nearbyint(wv[i].y * UPM * ldexp(1.0, s));
+        fv[3 * i + 2] = (int64_t)nearbyint(wv[i].z * UPM * ldexp(1.0, s));
+    }
+    int64_t step = (int64_t)nearbyint(cell * UPM * ldexp(1.0, s));
+    for (int y = 0; y < win.h; y++)
+        for (int x = 0; x < win.w; x++) {
+            int64_t px = (int64_t)(win.x + x) * step + step / 2;
+            int64_t py = (int64_t)(win.y + y) * step + step / 2;
+            for (int k = 0; k < m->triangle_count; k++) {
+                const int64_t *a = fv + 3 * m->indices[3 * k], *b = fv + 3 * m->indices[3 * k + 1],
+                              *c = fv + 3 * m->indices[3 * k + 2];
+                int64_t e0 = (c[0] - b[0]) * (py - b[1]) - (c[1] - b[1]) * (px - b[0]);
+                int64_t e1 = (a[0] - c[0]) * (py - c[1]) - (a[1] - c[1]) * (px - c[0]);
+                int64_t e2 = (b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0]);
+                int64_t area = e0 + e1 + e2, sg = area < 0 ? -1 : 1;
+                if (area == 0 || sg * e0 < 0 || sg * e1 < 0 || sg * e2 < 0)
+                    continue;
+                int64_t z =
+                    a[2] + ref_floor_div(sg * (e1 * (b[2] - a[2]) + e2 * (c[2] - a[2])), sg * area);
+                int64_t u = ref_floor_div(z, (int64_t)1 << s);
+                if (u < bottom[y * win.w + x])
+                    bottom[y * win.w + x] = (int32_t)u;
+            }
+        }
+    free(fv);
+    free(wv);
+}
+
+/* Issue 20, item 3: the mesh's instances visit only the cells of a
+ * triangle's bounding box on the fixed grid, and a triangle with none (or no
+ * plan area) makes none. A bumpy sheet of triangles a quarter of a cell wide,
+ * with vertical fins, tilted and off the grid: the same bottoms as the rule
+ * the long way, and far fewer instances than triangles. */
+static void test_mesh_exact_spans(void)
+{
+    enum { N = 80, FINS = 40 };
+    collider_mesh m = {0};
+    m.vertex_count = N * N + 4 * FINS;
+    m.triangle_count = 2 * (N - 1) * (N - 1) + 2 * FINS;
+    m.vertices = malloc(sizeof *m.vertices * 3 * (size_t)m.vertex_count);
+    m.indices = malloc(sizeof *m.indices * 3 * (size_t)m.triangle_count);
+    int t = 0;
+    for (int j = 0; j < N; j++)
+        for (int i = 0; i < N; i++) {
+            float *v = m.vertices + 3 * (j * N + i);
+            v[0] = (float)(i * 0.0125 - 0.5 + 0.003 * sin(7.0 * j));
+            v[1] = (float)(j * 0.0125 - 0.5);
+            v[2] = (float)(0.05 * sin(9.0 * i / N) * cos(5.0 * j / N));
+            if (i && j) {
+                uint32_t a = (uint32_t)((j - 1) * N + i - 1), b = a + 1, c = a + N, d = c + 1;
+                uint32_t tri[6] = {a, b, d, a, d, c};
+                memcpy(m.indices + 3 * t, tri, sizeof tri);
+                t += 2;
+            }
+        }
+    for (int f = 0; f < FINS; f++) { /* vertical quads: no plan area */
+        uint32_t base = (uint32_t)(N * N + 4 * f);
+        float x = (float)(-0.45 + 0.0223 * f), y = (float)(-0.4 + 0.017 * f);
+        float q[12] = {x, y, -0.2f, x + 0.03f, y, -0.2f, x + 0.03f, y, 0.1f, x, y, 0.1f};
+        memcpy(m.vertices + 3 * base, q, sizeof q);
+        uint32_t tri[6] = {base, base + 1, base + 2, base, base + 2, base + 3};
+        memcpy(m.indices + 3 * t, tri, sizeof tri);
+        t += 2;
+    }
+    collider_geometry g = {.shape = COLLIDER_MESH, .mesh = &m};
+    const double cell = 0.05;
+    world_rect win = {3, 2, 30, 28};
+    collider_pose poses[2] = {pose_at(0.9137, 0.8021, 0.3, identity),
+                              pose_at(0.9137, 0.8021, 0.3,
+                                      quat_multiply(quat_from_axis_angle((vec3d){0, 0, 1}, 0.7),
+                                                    quat_from_axis_angle((vec3d){1, 0, 0}, 0.3)))};
+    for (int k = 0; k < 2; k++) {
+        int32_t *got = bottom_new(win), *want = bottom_new(win);
+        collider_depth_cpu(&g, poses[k], win, cell, UPM, got);
+        mesh_depth_reference(&m, poses[k], win, cell, want);
+        int differ = 0, hit = 0;
+        for (int i = 0; i < win.w * win.h; i++) {
+            differ += got[i] != want[i];
+            hit += want[i] != NONE;
+        }
+        collider_fixed *inst = NULL;
+        int64_t n = 0, cap = 0;
+        collider_fixed_mesh_prepare(&g, poses[k], win, cell, UPM, &inst, &n, &cap);
+        CHECK(differ == 0 && hit >= 300,
+              "mesh pose %d: the bottoms of the rule the long way (%d of %d cells differ, %d hit)",
+              k, differ, win.w * win.h, hit);
+        CHECK(n > 0 && n < m.triangle_count / 2,
+              "mesh pose %d: %lld instances for %d triangles (sub-cell and vertical ones skipped)",
+              k, (long long)n, m.triangle_count);
+        free(inst);
+        free(got);
+        free(want);
+    }
+    free(m.vertices);
+    free(m.indices);
+}
+
 static void write_file(const char *path, const char *text)
 {
     FILE *f = fopen(path, "wb");
@@ -628,6 +757,7 @@ int main(void)
     test_depth_box();
     test_depth_cylinder_capsule();
     test_tessellation();
+    test_mesh_exact_spans();
     test_obj();
     test_motion();
     printf("%d passed, %d failed\n", passed, failed);

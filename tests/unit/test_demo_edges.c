@@ -12,8 +12,9 @@
  * cell along the edge gave it to the two ends of the footprint on the edge
  * column, which rose to 9.3 m in a tick and could only relax along that
  * column (slope evening never moves material into a footprint), and left a
- * fin when the actor moved on. An actor now bounces with its rim, so its
- * sphere stays inside the world. Checked here:
+ * fin when the actor moved on. Actors then bounced with their rim; now they
+ * run laps inside their own cell of the world (issue 20, test_demo_readable),
+ * so a sphere still never leaves the world. Checked here:
  *   - no actor's sphere ever reaches past the world's edge;
  *   - no column of the border (the outermost 3 cells) ends higher than the
  *     highest column of the interior: before, the border held the world's
@@ -60,7 +61,7 @@ int main(void)
             c->id = a + 1;
             c->geometry = &actors[a].geometry;
             c->previous_pose = c->pose;
-            c->pose = demo_actor_step(&actors[a], &w, 1.0 / sc.tick_hz, (double)tick / sc.tick_hz);
+            c->pose = demo_actor_step(&actors[a], &w, (double)tick / sc.tick_hz);
             c->has_previous = tick > 0;
             double r = actors[a].geometry.radius, x = c->pose.position.x, y = c->pose.position.y;
             if (x - r < 0.0 || x + r > size_x || y - r < 0.0 || y + r > size_y)

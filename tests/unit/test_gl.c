@@ -61,6 +61,30 @@ static int test_context(void)
     return 0;
 }
 
+/* `--backend auto` takes these for software rasterisers (real GL_RENDERER
+ * strings), the rest for GPUs; needs no context. */
+static void test_renderer_is_software(void)
+{
+    static const struct {
+        const char *renderer;
+        int software;
+    } cases[] = {
+        {"llvmpipe (LLVM 15.0.6, 256 bits)", 1},
+        {"softpipe", 1},
+        {"Google SwiftShader", 1},
+        {"ANGLE (Google, Vulkan 1.3.0 (SwiftShader Device (Subzero)), SwiftShader driver)", 1},
+        {"Mesa X11 Software Rasterizer", 1},
+        {"NVIDIA H100 80GB HBM3/PCIe/SSE2", 0},
+        {"AMD Radeon RX 7900 XTX (radeonsi, navi31, LLVM 15.0.6, DRM 3.54)", 0},
+        {"Mesa Intel(R) UHD Graphics 630 (CFL GT2)", 0},
+        {"", 0},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+        CHECK(gl_renderer_is_software(cases[i].renderer) == cases[i].software,
+              "renderer \"%s\" is %s", cases[i].renderer,
+              cases[i].software ? "software" : "hardware");
+}
+
 /* ---- GL depth vs CPU depth ---- */
 
 typedef struct depth_case {
@@ -835,8 +859,9 @@ static void test_tile_cache(sim_backend *gl, sim_backend *cpu)
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
+    test_renderer_is_software();
     if (test_context() != 0)
-        return 77;
+        return failed ? 1 : 77;
     error_text err = {{0}};
     sim_backend *gl = sim_backend_gl_create(&err);
     CHECK(gl != NULL, "gl backend: created (%s)", gl ? gl->renderer : err.message);
