@@ -194,7 +194,8 @@ void service_take_input(service *s);
 /* service_contacts.c */
 void service_contacts_before_tick(service *s);
 void service_contacts_after_tick(service *s);
-void service_publish_feedback(service *s); /* CONTACT and ACK frames */
+/* CONTACT, FORCES (bekker worlds: the report's contacts) and ACK per client. */
+void service_publish_feedback(service *s, const sim_tick_report *report);
 
 /* service_deltas.c */
 int service_cut_into_tiles(service *s, const sim_tick_report *report);
