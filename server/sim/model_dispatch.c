@@ -21,6 +21,8 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
         return cells; /* one collider's depth */
     case SIM_MODEL_SUMNER:
         return 14 * cells + 2; /* as sim_sumner_scratch_cells */
+    case SIM_MODEL_BEKKER:
+        return 21 * cells + 4; /* as sim_bekker_scratch_cells */
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:
@@ -52,6 +54,8 @@ sim_window_status sim_model_window(const sim_params *p, sim_window_job *job, int
     case SIM_MODEL_DECALS: /* the engine collects its events; heights stay */
     case SIM_MODEL_SUMNER:
         return sim_sumner_window(p, job, scratch);
+    case SIM_MODEL_BEKKER:
+        return sim_bekker_window(p, job, scratch);
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:

@@ -93,6 +93,18 @@ after(async () => {
   await stopDaemon(daemon);
 });
 
+// A picture of the page for test-artifacts/: the page holds its frame meanwhile (window.terrad.hold),
+// since under software GL on a busy machine a page that keeps drawing makes the capture wait
+// behind its frames past playwright's 30 s.
+async function snap(file, pg = page) {
+  await pg.evaluate(() => window.terrad.hold(true));
+  try {
+    await pg.screenshot({ path: path.join(ARTIFACTS, file), timeout: 180000 });
+  } finally {
+    await pg.evaluate(() => window.terrad.hold(false));
+  }
+}
+
 // The canvas as RGBA pixels (read back from a 2D copy of the WebGL canvas).
 async function grab(pg = page) {
   const r = await pg.evaluate(() => {
@@ -207,7 +219,7 @@ test('a collider driven through the page leaves a trail, and the heights match b
   await until('the trail drawn', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, drawn), 30000);
   const afterImg = await grab();
   mkdirSync(ARTIFACTS, { recursive: true });
-  await page.screenshot({ path: path.join(ARTIFACTS, 'viewer.png') });
+  await snap('viewer.png');
 
   // The canvas changed along the trail: project points of the path to the screen.
   const pts = await page.evaluate(([x0, y0, len]) => {
@@ -238,7 +250,7 @@ test('a collider driven through the page leaves a trail, and the heights match b
   await page.evaluate(([x, y]) => window.terrad.setCamera({ target: [x, y], yaw: -Math.PI / 2 - 0.35, pitch: 0.62, dist: 3.9 }),
     [start.x + (steps * dx) / 2 - 0.5, start.y + 0.45]); // the trail right of the overlay
   await until('drawn from the new camera', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, frames0), 20000);
-  await page.screenshot({ path: path.join(ARTIFACTS, 'viewer-trail.png') });
+  await snap('viewer-trail.png');
   await page.evaluate((c) => window.terrad.setCamera(c), cam0);
   trail = { x: start.x, y: start.y, len: steps * dx };
 });
@@ -270,7 +282,7 @@ test('a trail dug before the page loaded is coloured: the page compares with the
     await sleep(300);
     const img = await grab(late);
     mkdirSync(ARTIFACTS, { recursive: true });
-    await late.screenshot({ path: path.join(ARTIFACTS, 'viewer-late-page.png') });
+    await snap('viewer-late-page.png', late);
     // points along the trail (not its end, where the first page's lifted sphere hangs)
     const pts = await late.evaluate(([x0, y0, len]) => [1, 2, 3, 4, 5, 6, 7, 8].map((k) =>
       window.terrad.project(x0 + (len * k) / 10, y0)), [trail.x, trail.y, trail.len]);
@@ -464,7 +476,7 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
       return same && n === 0;
     }, 120000, 0).catch(() => {});
     mkdirSync(ARTIFACTS, { recursive: true });
-    await pg.screenshot({ path: path.join(ARTIFACTS, 'viewer-lod.png') });
+    await snap('viewer-lod.png', pg);
     await pg.evaluate(() => window.terrad.setSkirts(false));
     const withoutSkirts = await until('cracks to show without skirts', async () => holes(await grab(pg), bg), 120000, 300).catch(() => 0);
     await pg.evaluate(() => window.terrad.setSkirts(true));
