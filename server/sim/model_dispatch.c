@@ -16,7 +16,8 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
     case SIM_MODEL_DEFERRED:
         return 2 * cells; /* deformation and foot images */
     case SIM_MODEL_DIFFUSION:
-        return 9 * cells + 2; /* the larger of the two forms: Gilardi's doubles */
+        return 10 * cells +
+               2; /* the larger of the two forms: Gilardi's doubles, + a slice's depth */
     case SIM_MODEL_DECALS:
         return cells; /* one collider's depth */
     case SIM_MODEL_SUMNER:
