@@ -68,6 +68,7 @@ struct terrad_client {
     char wait_ref[32];
     int wait_done, wait_code;
     int64_t wait_id;
+    int64_t wait_tick, wait_volume; /* an "edited" reply's */
     unsigned ref_counter;
     uint64_t poll_mark;
     uint32_t seq;
@@ -77,6 +78,9 @@ struct terrad_client {
     terrad_contact *contacts;
     size_t ncontacts, contacts_cap;
     uint64_t contact_tick;
+    terrad_force *forces; /* the latest FORCES frame (bekker worlds) */
+    size_t nforces, forces_cap;
+    uint64_t forces_tick;
     terrad_rect *rects;
     size_t rects_cap;
     int32_t *scratch;
@@ -298,6 +302,8 @@ static void on_text(terrad_client *c, const char *text, size_t len)
             c->wait_done = 1;
             c->wait_code = 0;
             c->wait_id = json_int(m, "id", 0);
+            c->wait_tick = json_int(m, "tick", 0);
+            c->wait_volume = json_int(m, "volume_change", 0);
         }
     }
     cJSON_Delete(m);
@@ -373,6 +379,22 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         c->contact_tick = tick;
         c->stats.contact_frames++;
         c->stats.contact_tick = tick;
+        break;
+    }
+    case TERRAD_MSG_FORCES: {
+        size_t cap =
+            len >= TERRAD_FORCES_FIXED ? (len - TERRAD_FORCES_FIXED) / TERRAD_FORCE_SIZE : 0;
+        if (grow((void **)&c->forces, &c->forces_cap, cap + 1, sizeof *c->forces))
+            return bad_frame(c, "FORCES (no memory)", TERRAD_E_NO_MEMORY);
+        size_t n = 0;
+        rc = terrad_forces_decode(buf, len, &tick, c->forces, c->forces_cap, &n);
+        if (rc) {
+            c->nforces = 0;
+            return bad_frame(c, "FORCES", rc);
+        }
+        c->nforces = n;
+        c->forces_tick = tick;
+        c->stats.forces_frames++;
         break;
     }
     case TERRAD_MSG_ACK: {
@@ -663,6 +685,7 @@ void terrad_client_close(terrad_client *c)
     }
     free(c->subs);
     free(c->contacts);
+    free(c->forces);
     free(c->rects);
     free(c->scratch);
     free(c->rx);
@@ -839,6 +862,36 @@ int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, 
     return rc;
 }
 
+int terrad_client_edit(terrad_client *c, const char *edit_json, uint64_t *tick_out,
+                       int64_t *volume_out)
+{
+    cJSON *m = cJSON_Parse(edit_json);
+    if (!cJSON_IsObject(m)) {
+        cJSON_Delete(m);
+        set_err(c, "edit: not a JSON object");
+        return TERRAD_E_BAD_JSON;
+    }
+    cJSON_DeleteItemFromObjectCaseSensitive(m, "type");
+    cJSON_DeleteItemFromObjectCaseSensitive(m, "ref");
+    cJSON_AddStringToObject(m, "type", "edit");
+    int rc = request(c, m, NULL);
+    if (rc == 0 && tick_out)
+        *tick_out = (uint64_t)c->wait_tick;
+    if (rc == 0 && volume_out)
+        *volume_out = c->wait_volume;
+    return rc;
+}
+
+int terrad_client_crater(terrad_client *c, int32_t x, int32_t y, int32_t radius, int32_t depth,
+                         int rim, uint64_t *tick_out, int64_t *volume_out)
+{
+    char text[200];
+    snprintf(text, sizeof text,
+             "{\"op\":\"crater\",\"x\":%d,\"y\":%d,\"radius\":%d,\"depth\":%d,\"rim\":%s}", x, y,
+             radius, depth, rim ? "true" : "false");
+    return terrad_client_edit(c, text, tick_out, volume_out);
+}
+
 int terrad_client_unsubscribe(terrad_client *c, uint32_t sid)
 {
     cJSON *m = cJSON_CreateObject();
@@ -911,6 +964,20 @@ int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_cont
                 *out = c->contacts[i];
             if (tick_out)
                 *tick_out = c->contact_tick;
+            return 1;
+        }
+    return 0;
+}
+
+int terrad_client_force(const terrad_client *c, uint32_t collider, terrad_force *out,
+                        uint64_t *tick_out)
+{
+    for (size_t i = 0; i < c->nforces; i++)
+        if (c->forces[i].id == collider) {
+            if (out)
+                *out = c->forces[i];
+            if (tick_out)
+                *tick_out = c->forces_tick;
             return 1;
         }
     return 0;

@@ -122,6 +122,7 @@ typedef struct terrad_world_info {
 typedef struct terrad_client_stats {
     uint64_t delta_frames, delta_bytes, delta_tick; /* tick of the last DELTA */
     uint64_t contact_frames, contact_tick;
+    uint64_t forces_frames; /* FORCES frames (worlds of the bekker soil model) */
     uint64_t acks, ack_tick;
     uint32_t ack_seq;  /* the last POSE_BATCH the server used */
     uint64_t errors;   /* error messages not answering a request */
@@ -170,6 +171,16 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
 int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
                             uint32_t *sid_out);
 int terrad_client_unsubscribe(terrad_client *c, uint32_t sid);
+/* A terrain edit (PROTOCOL.md "edit"): edit_json is the message's fields as a
+ * JSON object, e.g. {"op":"stamp","x":0,"y":0,"w":2,"h":2,"data":"..."}
+ * ("type" and "ref" are set here). Waits for the server's "edited": 0 with
+ * the tick it took effect and its exact volume change (height units), or the
+ * error code with terrad_client_last_error naming the field. */
+int terrad_client_edit(terrad_client *c, const char *edit_json, uint64_t *tick_out,
+                       int64_t *volume_out);
+/* A crater at cell (x, y) of radius cells and depth units; rim 1 keeps Σh. */
+int terrad_client_crater(terrad_client *c, int32_t x, int32_t y, int32_t radius, int32_t depth,
+                         int rim, uint64_t *tick_out, int64_t *volume_out);
 /* Asks for fresh snapshots of one subscription (sid 0: all); no reply. */
 int terrad_client_resync(terrad_client *c, uint32_t sid);
 /* Sends a PING frame with the given nonce (the PONG shows in the hook). */
@@ -183,6 +194,11 @@ int terrad_client_mirror_complete(const terrad_client *c, uint32_t sid);
 /* The latest contact feedback for a collider (1), or 0 when none came yet. */
 int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_contact *out,
                           uint64_t *tick_out);
+
+/* The soil's latest push on a collider (FORCES, worlds of the bekker model):
+ * 1, or 0 when none came yet. */
+int terrad_client_force(const terrad_client *c, uint32_t collider, terrad_force *out,
+                        uint64_t *tick_out);
 
 /* Services the connection for up to timeout_ms (0: only what is ready),
  * returning as soon as at least one message was handled: the number of

@@ -56,7 +56,8 @@ static const cli_option serve_table[] = {
                      "is software (llvmpipe, softpipe, SwiftShader) or missing)"},
     [OPT_HTTP_PORT] = {"http-port", "N",
                        "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
-                       "/v1/heights and the viewer at / (default 8080; 0: any free)"},
+                       "/v1/heights, POST /v1/worlds/NAME/edits (terrain edits) and the\n"
+                       "viewer at / (default 8080; 0: any free)"},
     [OPT_WS_PORT] = {"ws-port", "N",
                      "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},
     [OPT_BIND_ANY] = {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)"},
@@ -156,6 +157,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                                        "max_tick_cells",
                                        "max_heights_bytes_per_address",
                                        "max_heights_bytes_in_flight",
+                                       "max_edit_cells",
                                        NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
@@ -163,7 +165,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[17];
+    double v[18];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -219,8 +221,11 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
         case 15:
             o->heights_bytes_per_address = (size_t)v[i];
             break;
-        default:
+        case 16:
             o->heights_bytes_in_flight = (size_t)v[i];
+            break;
+        default:
+            m->max_edit_cells = (int64_t)v[i];
             break;
         }
     }

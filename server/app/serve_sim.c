@@ -79,6 +79,7 @@ void serve_sim_status_init(serve_sim *m)
     s->tile_size = SERVICE_TILE_SIZE;
     s->tick_hz = m->sc.tick_hz;
     snprintf(s->world_name, sizeof s->world_name, "%s", m->name);
+    snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);
 }
 

@@ -1,6 +1,6 @@
 /*
  * base.c: logging, monotonic time, timing series and memory readings shared
- * by every subsystem (see base.h).
+ * by every subsystem (see base.h), and base64 decoding.
  */
 #include "base/base.h"
 
@@ -144,11 +144,6 @@ uint64_t proc_peak_rss_bytes(void)
     return proc_status_kib("VmHWM:");
 }
 
-uint64_t proc_rss_bytes(void)
-{
-    return proc_status_kib("VmRSS:");
-}
-
 void error_set(error_text *err, const char *fmt, ...)
 {
     if (!err)
@@ -166,4 +161,28 @@ void error_prefix(error_text *err, const char *prefix, const char *sep)
     char inner[sizeof err->message];
     snprintf(inner, sizeof inner, "%s", err->message);
     error_set(err, "%s%s%s", prefix, sep, inner);
+}
+
+int64_t base64_decode(const char *in, uint8_t *out)
+{
+    int64_t n = 0;
+    uint32_t acc = 0;
+    int bits = 0;
+    for (const char *p = in; *p && *p != '='; p++) {
+        int v = *p >= 'A' && *p <= 'Z'   ? *p - 'A'
+                : *p >= 'a' && *p <= 'z' ? *p - 'a' + 26
+                : *p >= '0' && *p <= '9' ? *p - '0' + 52
+                : *p == '+'              ? 62
+                : *p == '/'              ? 63
+                                         : -1;
+        if (v < 0)
+            return -1;
+        acc = (acc << 6) | (uint32_t)v;
+        bits += 6;
+        if (bits >= 8) {
+            bits -= 8;
+            out[n++] = (uint8_t)(acc >> bits);
+        }
+    }
+    return n;
 }

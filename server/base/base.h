@@ -39,10 +39,14 @@ double stat_series_mean(const stat_series *s);
 double stat_series_percentile(const stat_series *s, double p); /* p in [0,100] */
 void stat_series_free(stat_series *s);
 
+/* The data of a file compiled into the binary (shaders/, the default scene,
+ * docs/openapi.yaml; base/embedded.c), NUL-terminated, or NULL if none is
+ * embedded under that name (a path relative to the repository root, e.g.
+ * "shaders/classify.comp"). When size is not NULL it receives the length. */
+const char *embedded_file_find(const char *name, size_t *size);
+
 /* Peak resident set size of this process in bytes (VmHWM), 0 if unknown. */
 uint64_t proc_peak_rss_bytes(void);
-/* Current resident set size in bytes (VmRSS), 0 if unknown. */
-uint64_t proc_rss_bytes(void);
 
 /* Error text carried out of a failing call: one line, names the cause. */
 typedef struct error_text {
@@ -212,6 +216,12 @@ int auth_new_token(char *out, size_t cap);
 /* One line of an auth file: 1 for an entry, 0 for a blank or comment line, -1 with err. */
 int auth_parse_line(const char *line, auth_role *role, char *name, unsigned char hash[32],
                     error_text *err);
+
+/* Standard base64 (RFC 4648, '+' '/', '=' padding optional) decoded into out,
+ * which holds at least strlen(in) * 3 / 4 + 3 bytes: the JetStream API's
+ * "data" and "hdrs", a terrain edit's stamp. The byte count, or -1 when a
+ * character is not base64. */
+int64_t base64_decode(const char *in, uint8_t *out);
 
 /* ---- TLS files (tls.c) ----
  * Checks a certificate and its private key before any port opens: each

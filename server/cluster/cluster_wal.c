@@ -128,31 +128,6 @@ static int wal_deliver(cluster_wal *w, natsMsg *msg, uint64_t seq, cluster_recor
     return on_record ? on_record(ctx, seq, w->part_data, (size_t)w->part_len) : 0;
 }
 
-/* Standard base64 (the JetStream API's "data" and "hdrs"); -1 when malformed. */
-static int64_t base64_decode(const char *in, uint8_t *out)
-{
-    int64_t n = 0;
-    uint32_t acc = 0;
-    int bits = 0;
-    for (const char *p = in; *p && *p != '='; p++) {
-        int v = *p >= 'A' && *p <= 'Z'   ? *p - 'A'
-                : *p >= 'a' && *p <= 'z' ? *p - 'a' + 26
-                : *p >= '0' && *p <= '9' ? *p - '0' + 52
-                : *p == '+'              ? 62
-                : *p == '/'              ? 63
-                                         : -1;
-        if (v < 0)
-            return -1;
-        acc = (acc << 6) | (uint32_t)v;
-        bits += 6;
-        if (bits >= 8) {
-            bits -= 8;
-            out[n++] = (uint8_t)(acc >> bits);
-        }
-    }
-    return n;
-}
-
 /* The API's message as a natsMsg with its headers ("NATS/1.0\r\nK: V\r\n..."). */
 static natsMsg *wal_message_from_json(const cJSON *m, const char *subject)
 {

@@ -2,7 +2,7 @@
  * collider.c: the collider geometry's checks, quaternion arithmetic,
  * world-space bounds and scripted motion. Each tick starts here: a collider's
  * pose (streamed or from collider_motion_pose) and its bounds decide its
- * footprint, the footprints become windows (step 3 of the tick), and the
+ * footprint, the footprints become windows (row 4a of the tick table in docs/design.md), and the
  * depth stage (depth_fixed.c on either backend)
  * then works only inside them. Bounds are exact rather than bounding-sphere
  * wide, because every extra cell of footprint is work for every later stage.

@@ -12,7 +12,9 @@
  * its thread for up to one tick (or the timeout), and the other three keep
  * answering probes meanwhile. Connection, per-IP, memory and idle-time limits
  * keep a flood of slow sockets from holding the server; bodies, long query
- * strings and methods other than GET/HEAD are refused before any work.
+ * strings and methods other than GET/HEAD are refused before any work, but
+ * for POST /v1/worlds/{name}/edits (http_edits.c), whose body is kept up to
+ * HTTP_EDIT_MAX_BYTES.
  *
  * Every request takes two calls of the access handler: the first only marks
  * the request, the second answers. Answering on the first call makes
@@ -31,7 +33,6 @@
 #include <string.h>
 #include <strings.h>
 
-#include "base/embedded.h"
 #include "metrics/metrics.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
@@ -40,8 +41,11 @@
  * request target before libmicrohttpd splits and unescapes it) and freed
  * when the request completes. */
 typedef struct request {
-    int seen;         /* the first handler call has happened */
-    int body;         /* body bytes arrived: refused with 413 */
+    int seen;   /* the first handler call has happened */
+    int body;   /* body bytes arrived: refused with 413 */
+    int edit;   /* POST /v1/worlds/{name}/edits: the body is kept (http_edits.c) */
+    char *data; /* its bytes */
+    size_t len, cap;
     size_t query_len; /* bytes after '?' in the raw target */
     int raw_nul;      /* "%00" in the raw target */
 } request;
@@ -268,6 +272,46 @@ static int method_allowed(const char *method)
     return strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
 }
 
+/* POST /v1/worlds/{name}/edits: keep the body, then answer (http_edits.c). */
+static enum MHD_Result edit_request(http_server *s, struct MHD_Connection *c, const char *url,
+                                    request *rq, const char *upload, size_t *upload_size)
+{
+    if (*upload_size != 0) {
+        size_t n = *upload_size;
+        *upload_size = 0;
+        if (rq->len + n > HTTP_EDIT_MAX_BYTES) {
+            rq->body = 1; /* over the limit: the rest is dropped, 413 at the end */
+            return MHD_YES;
+        }
+        if (rq->len + n + 1 > rq->cap) {
+            size_t cap = rq->cap ? rq->cap : 4096;
+            while (cap < rq->len + n + 1)
+                cap *= 2;
+            char *grown = realloc(rq->data, cap);
+            if (!grown) {
+                rq->body = 1;
+                return MHD_YES;
+            }
+            rq->data = grown;
+            rq->cap = cap;
+        }
+        memcpy(rq->data + rq->len, upload, n);
+        rq->len += n;
+        return MHD_YES;
+    }
+    if (s->main)
+        return respond_error(c, MHD_HTTP_NOT_FOUND,
+                             "the probe port serves /healthz, /readyz and /metrics only");
+    if (rq->body)
+        return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE,
+                             "body: over %d bytes (or no memory for it)", HTTP_EDIT_MAX_BYTES);
+    char name[80];
+    http_edit_path(url, name, sizeof name);
+    http_answer a = {0};
+    http_edit_post(s, c, name, rq->data ? rq->data : "", rq->len, &a);
+    return http_answer_queue(c, &a);
+}
+
 static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *url,
                               const char *method, const char *version, const char *upload,
                               size_t *upload_size, void **state)
@@ -287,13 +331,17 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         http_guard_headers_done(s->guard, c);
         /* A body we will not read: answer now, which also closes the
          * connection, rather than drain the body first. */
-        if (announces_body(c)) {
+        char name[80];
+        rq->edit = strcmp(method, "POST") == 0 && http_edit_path(url, name, sizeof name);
+        if (announces_body(c) && !rq->edit) {
             if (!method_allowed(method))
                 return respond_not_allowed(c, method);
             return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE, "request bodies are not accepted");
         }
         return MHD_YES;
     }
+    if (rq->edit)
+        return edit_request(s, c, url, rq, upload, upload_size);
     if (*upload_size != 0) {
         rq->body = 1;
         *upload_size = 0; /* drop it; answered once the upload ends */
@@ -375,6 +423,9 @@ static void request_done(void *cls, struct MHD_Connection *c, void **state,
     http_server *s = cls;
     (void)code;
     http_guard_request_done(s->guard, c);
+    request *rq = *state;
+    if (rq)
+        free(rq->data);
     free(*state);
     *state = NULL;
 }
@@ -417,6 +468,8 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         l.heights_timeout_ms = HTTP_DEFAULT_HEIGHTS_TIMEOUT_MS;
     if (l.heights_max_cells <= 0)
         l.heights_max_cells = HTTP_DEFAULT_HEIGHTS_MAX_CELLS;
+    if (l.edit_max_cells <= 0)
+        l.edit_max_cells = WORLD_EDIT_MAX_CELLS_DEFAULT;
     if (!l.heights_bytes_per_address)
         l.heights_bytes_per_address = HTTP_DEFAULT_HEIGHTS_BYTES_PER_ADDRESS;
     if (!l.heights_bytes_total)

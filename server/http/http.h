@@ -68,6 +68,7 @@ typedef struct http_status {
     double published_ms; /* time_now_ms() of the last tick's publication (or of
                           * becoming ready, before the first); 0 = not yet */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
+    char scene_name[65]; /* the scene's name: a single daemon's world in /v1/worlds/{name}/edits */
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */
@@ -81,6 +82,8 @@ typedef struct http_limits {
     /* /v1/heights answers held (built, not yet read) per client address and
      * in all, else 429 (defaults 64 MiB and 256 MiB) */
     size_t heights_bytes_per_address, heights_bytes_total;
+    int64_t edit_max_cells; /* cells one POST /v1/worlds/{name}/edits may change (net's
+                               max_edit_cells) */
 } http_limits;
 
 #define HTTP_DEFAULT_CONNECTIONS 256

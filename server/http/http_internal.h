@@ -165,6 +165,13 @@ void http_answer_free(http_answer *a);
 /* Sends a (Cache-Control: no-store), which gives up its body. */
 enum MHD_Result http_answer_queue(struct MHD_Connection *c, http_answer *a);
 void http_view_stats(const http_status *st, http_answer *a);
+
+/* http_edits.c: POST /v1/worlds/{name}/edits. */
+#define HTTP_EDIT_MAX_BYTES (24 * 1024 * 1024) /* a stamp of max_edit_cells int32s, base64 */
+/* 1 with {name} when url is an edits path. */
+int http_edit_path(const char *url, char *name, size_t cap);
+void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, const char *body,
+                    size_t len, http_answer *a);
 void http_view_world(const http_status *st, http_answer *a);
 void http_view_heights(http_server *s, hub *from, const world *base, const http_args *args,
                        const http_status *st, http_answer *a);

@@ -15,6 +15,7 @@
 #include <time.h>
 
 #include "base/base.h"
+#include "terrad_proto.h"
 
 #define HUB_COMMAND_CAPACITY 4096
 #define HUB_POSE_CAPACITY 65536
@@ -100,6 +101,12 @@ void hub_destroy(hub *h)
             collider_mesh_free(c->mesh);
             free(c->mesh);
         }
+        if (c->edit) {
+            world_edit_free(c->edit);
+            free(c->edit);
+        }
+        hub_edit_finish(c->waiter, &(hub_edit_result){.code = TERRAD_E_SHUTTING_DOWN,
+                                                      .message = "the world is stopping"});
     }
     for (int i = 0; i < h->out_count; i++) {
         hub_out *o = &h->out[(h->out_head + i) % HUB_OUT_CAPACITY];
@@ -148,6 +155,92 @@ int hub_push_command(hub *h, const hub_command *cmd)
     h->command_count++;
     pthread_mutex_unlock(&h->command_lock);
     return 0;
+}
+
+/* ---- http → sim: edits ---- */
+
+/* Shared by the HTTP thread and the sim thread: the last to let go frees it. */
+struct hub_edit_waiter {
+    pthread_mutex_t lock;
+    pthread_cond_t done_cond;
+    int done, refs;
+    hub_edit_result result;
+};
+
+static void waiter_unref(hub_edit_waiter *w)
+{
+    pthread_mutex_lock(&w->lock);
+    int last = --w->refs == 0;
+    pthread_mutex_unlock(&w->lock);
+    if (last) {
+        pthread_mutex_destroy(&w->lock);
+        pthread_cond_destroy(&w->done_cond);
+        free(w);
+    }
+}
+
+void hub_edit_finish(hub_edit_waiter *w, const hub_edit_result *res)
+{
+    if (!w)
+        return;
+    pthread_mutex_lock(&w->lock);
+    w->result = *res;
+    w->done = 1;
+    pthread_cond_signal(&w->done_cond);
+    pthread_mutex_unlock(&w->lock);
+    waiter_unref(w);
+}
+
+int hub_edit_submit(hub *h, world_edit *e, hub_edit_result *res, int timeout_ms)
+{
+    hub_edit_waiter *w = calloc(1, sizeof *w);
+    if (!w) {
+        world_edit_free(e);
+        free(e);
+        snprintf(res->message, sizeof res->message, "out of memory");
+        return -1;
+    }
+    pthread_mutex_init(&w->lock, NULL);
+    pthread_condattr_t attr;
+    pthread_condattr_init(&attr);
+    pthread_condattr_setclock(&attr, CLOCK_MONOTONIC);
+    pthread_cond_init(&w->done_cond, &attr);
+    pthread_condattr_destroy(&attr);
+    w->refs = 2; /* this thread's and the command's */
+    pthread_mutex_lock(&h->command_lock);
+    int full = h->command_count == HUB_COMMAND_CAPACITY;
+    if (!full) {
+        h->commands[(h->command_head + h->command_count) % HUB_COMMAND_CAPACITY] =
+            (hub_command){.kind = HUB_EDIT, .edit = e, .waiter = w};
+        h->command_count++;
+    }
+    pthread_mutex_unlock(&h->command_lock);
+    if (full) {
+        world_edit_free(e);
+        free(e);
+        w->refs = 1;
+        waiter_unref(w);
+        snprintf(res->message, sizeof res->message,
+                 "server busy: the simulation's command queue is full, try again");
+        return -1;
+    }
+    struct timespec until;
+    clock_gettime(CLOCK_MONOTONIC, &until);
+    until.tv_sec += timeout_ms / 1000;
+    until.tv_nsec += (long)(timeout_ms % 1000) * 1000000L;
+    if (until.tv_nsec >= 1000000000L) {
+        until.tv_sec++;
+        until.tv_nsec -= 1000000000L;
+    }
+    pthread_mutex_lock(&w->lock);
+    while (!w->done && pthread_cond_timedwait(&w->done_cond, &w->lock, &until) == 0)
+        ;
+    int done = w->done;
+    if (done)
+        *res = w->result;
+    pthread_mutex_unlock(&w->lock);
+    waiter_unref(w);
+    return done ? 0 : 1;
 }
 
 int hub_take_commands(hub *h, hub_command *out, int max)

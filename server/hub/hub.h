@@ -18,57 +18,14 @@
  * net thread answers the client), a full outbound queue drops tile deltas
  * and marks every client for a resync (counted).
  *
- * ---- The daemon's threads and every place they meet ----
- * Threads:
- *   sim         the main thread of `terrad serve` (app/serve.c): ticks the
- *               service (service_tick) and the engine, owns the world, the
- *               engine, the GL context and the store's log; on a cluster
- *               node, one sim thread per world (app/serve_node.c), each with
- *               a hub of its own, all on one net thread;
- *   net         one thread running libwebsockets (net/net.c): owns every
- *               connection, client record and the net side's collider table;
- *   http        libmicrohttpd's pool of four polling threads (http/http.c):
- *               own nothing but their requests;
- *   compaction  the store's own thread (store/store.c): writes tile
- *               snapshots from copies the sim thread hands over;
- *   snapshot    the service's worker (service/service_snapshots.c):
- *               compresses and frames client snapshots from cell copies
- *               the sim thread hands over at the end of a tick;
- *   http guard  a sweeper per HTTP listener (http/http_guard.c): cuts
- *               connections whose request headers are late.
- * Meeting points (nothing else is shared):
- *   1. hub command queue     net → sim   mutex; bounded, refusable
- *   2. hub pose table        net → sim   mutex; latest wins per collider
- *   3. hub batch sequences   net → sim   mutex; latest wins per client
- *   4. hub outbound queue    sim → net   mutex; the frames' reference counts
- *                                        are atomic (hub_frame.refs); the
- *                                        sim wakes the net thread through
- *                                        hub_set_waker (lws_cancel_service,
- *                                        under net.c's wake_lock)
- *   5. hub storage state     sim → net   mutex (store unavailable + reason)
- *   6. hub height reads      http → sim  mutex + condition variable; the
- *                                        only place a thread waits on another
- *   7. http_status block     sim → http  its own mutex (http/http.h), copied
- *                                        once per tick by the sim thread
- *   8. metrics               all → http  relaxed atomics, and a short mutex
- *                                        per histogram (metrics/metrics.c)
- *   9. store compaction      sim → compaction  store.c's mutex + condition
- *                                        variable: one job (tile copies) at a time
- *  10. net_server_client_count  net → any  an atomic counter (net/net.c)
- *  11. stop requests         signal → sim (a sig_atomic_t in serve.c);
- *                            sim → net (atomics in net.c, then a join)
- *  12. snapshot worker       sim → snapshot  its mutex + condition variable:
- *                                        one tick's requests at a time, taken
- *                                        back at the start of the next tick
- *                                        (the sim thread waits there for a
- *                                        worker not yet done)
- *  13. http guard            http → sweeper  its mutex (per-address bytes,
- *                                        connection start times)
+ * The daemon's threads and every place they meet are mapped once, in
+ * docs/design.md ("Threads" and "Where they meet"); the hub is the main one.
  * Ownership is checked, not only described: each end of the hub asserts its
  * thread (THREAD_OWNED) in debug and sanitizer builds; the sim thread claims
  * the sim end (service_create), the net thread the net end while it runs;
  * hub_read_heights refuses the sim thread. The HTTP pool has no single
- * owner thread to claim: its meeting points are 6, 7 and 8 only.
+ * owner thread to claim: it meets the others only at the hub's height reads,
+ * http_status and the metrics (and its listener's guard).
  */
 #ifndef TERRAD_HUB_H
 #define TERRAD_HUB_H
@@ -102,7 +59,11 @@ typedef enum hub_command_kind {
     HUB_SUBSCRIBE, /* sim answers with snapshot frames for the client */
     HUB_UNSUBSCRIBE,
     HUB_RESYNC, /* fresh snapshots of one (subscription != 0) or all subscriptions */
+    HUB_EDIT,   /* a terrain edit: from a client (client != 0) or HTTP (waiter != NULL) */
 } hub_command_kind;
+
+/* An HTTP caller waiting for its edit (hub_edit_submit); opaque. */
+typedef struct hub_edit_waiter hub_edit_waiter;
 
 typedef struct hub_command {
     hub_command_kind kind;
@@ -118,6 +79,8 @@ typedef struct hub_command {
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     char ref[64];               /* the client's request reference, echoed in replies */
+    world_edit *edit;           /* edit: owned by the command, then by the sim */
+    hub_edit_waiter *waiter;    /* edit from HTTP: hub_edit_finish tells it the outcome */
 } hub_command;
 
 /* Returns 0, or -1 when the queue is full (the command is not taken: the
@@ -125,6 +88,27 @@ typedef struct hub_command {
 int hub_push_command(hub *h, const hub_command *cmd);
 /* sim thread: move up to max queued commands into out, in arrival order. */
 int hub_take_commands(hub *h, hub_command *out, int max);
+
+/* ---- http → sim: terrain edits ---- */
+
+/* What became of an edit. code 0: applied at `tick`, changing the cells of
+ * rect by `volume` units in all; else a TERRAD_E_* code and why. */
+typedef struct hub_edit_result {
+    int code;
+    uint64_t tick;
+    int64_t volume;
+    world_rect rect;
+    char message[320];
+} hub_edit_result;
+
+/* Any thread but the sim thread (the HTTP threads): queue the edit (taken
+ * over, whatever happens) with the commands, in arrival order, and wait up
+ * to timeout_ms for the tick that applies or refuses it. 0 with *res
+ * filled; -1 when the queue is full (nothing queued); 1 on timeout (the edit
+ * stays queued and is still applied or refused at its tick). */
+int hub_edit_submit(hub *h, world_edit *e, hub_edit_result *res, int timeout_ms);
+/* sim thread: an HTTP edit's outcome, for its waiter (which may be gone). */
+void hub_edit_finish(hub_edit_waiter *w, const hub_edit_result *res);
 
 /* ---- net → sim: poses ---- */
 

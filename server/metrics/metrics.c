@@ -365,6 +365,7 @@ void metrics_reset(void)
 {
     pthread_once(&stage_once, stage_hist_init);
     metrics_auth_reset();
+    metrics_edits_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -777,8 +778,10 @@ char *metrics_render(size_t *len)
         return NULL;
     for (int f = 0; f < COUNT_OF(families); f++)
         render_family(&t, &families[f]);
-    char process[2048];
+    char process[4096];
     if (metrics_auth_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
+    if (metrics_edits_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);

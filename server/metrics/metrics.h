@@ -101,6 +101,14 @@ void metrics_count_auth_refused(const char *reason);
 void metrics_auth_reset(void);
 int metrics_auth_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
+/* Terrain edits (metrics_edits.c): terrad_edits_total{op,result} and the
+ * volume they declared, terrad_edit_volume_added_units_total{op} and
+ * terrad_edit_volume_removed_units_total{op}. ok 0: refused. */
+#define METRICS_EDIT_OPS "crater", "stamp", "reset", "add", "remove"
+void metrics_count_edit(const char *op, int ok, int64_t volume_change);
+void metrics_edits_reset(void);
+int metrics_edits_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
 #define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)

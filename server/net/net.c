@@ -49,6 +49,7 @@ net_limits net_limits_default(void)
         .max_connections = 0, /* 0: derived from RLIMIT_NOFILE by the caller, or none */
         .max_connections_per_address = 256,
         .fd_reserve = 64,
+        .max_edit_cells = WORLD_EDIT_MAX_CELLS_DEFAULT,
     };
 }
 
@@ -111,9 +112,9 @@ static int limits_check(const net_limits *l, error_text *err)
 {
     if (l->max_message_bytes < 1024 || l->max_colliders < 1 || l->max_poses_per_batch < 1 ||
         l->max_poses_per_batch > TERRAD_MAX_COUNT || l->max_subscriptions < 1 ||
-        l->max_subscribed_cells < 1 || !(l->max_messages_per_s > 0) || !(l->messages_burst >= 1) ||
-        l->max_mesh_vertices < 3 || l->max_mesh_triangles < 1 || l->max_active_cells < 1 ||
-        !(l->max_collider_extent_m > 0) || l->max_pending_bytes < 1024 ||
+        l->max_subscribed_cells < 1 || l->max_edit_cells < 1 || !(l->max_messages_per_s > 0) ||
+        !(l->messages_burst >= 1) || l->max_mesh_vertices < 3 || l->max_mesh_triangles < 1 ||
+        l->max_active_cells < 1 || !(l->max_collider_extent_m > 0) || l->max_pending_bytes < 1024 ||
         !(l->hello_timeout_s > 0) || !isfinite(l->max_messages_per_s) ||
         !isfinite(l->messages_burst) || !isfinite(l->max_collider_extent_m) ||
         !isfinite(l->hello_timeout_s)) {

@@ -43,6 +43,7 @@ typedef struct net_limits {
      * fd_reserve descriptors are left under RLIMIT_NOFILE. */
     int max_connections, max_connections_per_address;
     int fd_reserve;
+    int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
 } net_limits;
 
 net_limits net_limits_default(void);

@@ -405,7 +405,25 @@ static const struct {
     {"subscribe", NET_CONTROL_SUBSCRIBE},
     {"unsubscribe", NET_CONTROL_UNSUBSCRIBE},
     {"resync", NET_CONTROL_RESYNC},
+    {"edit", NET_CONTROL_EDIT},
 };
+
+/* An edit's fields (world_edit_parse, shared with POST /v1/worlds/{name}/edits). */
+static int parse_edit(parser *r, net_control *out)
+{
+    world_edit_error werr;
+    world_edit e;
+    if (world_edit_parse(r->msg, r->ctx->world_width, r->ctx->world_height,
+                         r->ctx->limits->max_edit_cells, &e, &werr) != 0)
+        return fail(r, werr.code, "%s", werr.message);
+    out->edit = malloc(sizeof *out->edit);
+    if (!out->edit) {
+        world_edit_free(&e);
+        return fail(r, TERRAD_E_INTERNAL, "out of memory");
+    }
+    *out->edit = e;
+    return 0;
+}
 
 /* The message's "type" and "ref" (0), or -1 with the message refused. */
 static int parse_envelope(parser *r, const cJSON *msg, net_control *out, const char **type_name)
@@ -464,6 +482,9 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
         case NET_CONTROL_RESYNC:
             rc = parse_id(&r, 0, out);
             break;
+        case NET_CONTROL_EDIT:
+            rc = parse_edit(&r, out);
+            break;
         }
     }
     cJSON_Delete(msg);
@@ -479,4 +500,9 @@ void net_control_free(net_control *r)
     mesh_free(r->mesh);
     r->mesh = NULL;
     r->geometry.mesh = NULL;
+    if (r->edit) {
+        world_edit_free(r->edit);
+        free(r->edit);
+        r->edit = NULL;
+    }
 }

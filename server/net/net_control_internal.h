@@ -32,6 +32,7 @@ typedef enum net_control_kind {
     NET_CONTROL_SUBSCRIBE,
     NET_CONTROL_UNSUBSCRIBE,
     NET_CONTROL_RESYNC,
+    NET_CONTROL_EDIT,
 } net_control_kind;
 
 /* What the parser may know about the server. */
@@ -64,6 +65,8 @@ typedef struct net_control {
     /* subscribe: inside the world */
     world_rect rect;
     int colliders, footprints;
+    /* edit (owned; the command takes it over) */
+    world_edit *edit;
 } net_control;
 
 typedef struct net_control_error {

@@ -84,6 +84,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
     cJSON_AddNumberToObject(lim, "max_client_lag_ticks", l->max_client_lag_ticks);
     cJSON_AddNumberToObject(lim, "max_tick_cells", (double)l->max_tick_cells);
+    cJSON_AddNumberToObject(lim, "max_edit_cells", (double)l->max_edit_cells);
     return m;
 }
 
@@ -360,6 +361,20 @@ static void handle_unsubscribe(net_client *c, const net_control *m)
     net_send_json(c, rep);
 }
 
+/* The edit goes to the sim with the commands; the sim answers `edited` (or
+ * an error) once its tick is committed. */
+static void handle_edit(net_client *c, net_control *m)
+{
+    hub_command cmd = {.kind = HUB_EDIT, .client = c->id, .edit = m->edit};
+    ref_text(m->ref, cmd.ref, sizeof cmd.ref);
+    if (net_push_refusable(c->srv, &cmd) != 0) {
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0,
+                  "server busy: the simulation's command queue is full, try again");
+        return;
+    }
+    m->edit = NULL; /* the command has it */
+}
+
 static void handle_resync(net_client *c, const net_control *m)
 {
     if (m->has_id && sub_index(c, m->id) < 0) {
@@ -383,6 +398,8 @@ static int refused_by_state(net_client *c, const net_control *m)
     }
     if (m->kind == NET_CONTROL_COLLIDER_CREATE &&
         !net_auth_allows(c, AUTH_DRIVER, "collider_create", m->ref))
+        return 1;
+    if (m->kind == NET_CONTROL_EDIT && !net_auth_allows(c, AUTH_DRIVER, "edit", m->ref))
         return 1;
     if (m->kind == NET_CONTROL_COLLIDER_DELETE &&
         !net_auth_allows(c, m->any_owner ? AUTH_ADMIN : AUTH_DRIVER,
@@ -458,6 +475,9 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_RESYNC:
             handle_resync(c, &m);
+            break;
+        case NET_CONTROL_EDIT:
+            handle_edit(c, &m);
             break;
         case NET_CONTROL_NONE:
             break;

@@ -86,6 +86,7 @@ void service_destroy(service *s)
     free(s->bottom);
     free(s->states);
     free(s->events);
+    service_edits_free(s);
     free(s);
 }
 
@@ -169,12 +170,19 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
 {
     if (s->store && !store_writable(s->store)) {
         memset(report, 0, sizeof *report); /* no deformation that cannot be kept */
+        service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "storage unavailable");
     } else {
-        if (sim_engine_tick(s->engine, s->batch.colliders, count, report, err) != 0)
+        if (sim_engine_tick(s->engine, s->batch.colliders, count, report, err) != 0) {
+            service_edits_undo(s, TERRAD_E_INTERNAL, "the deformation backend failed");
             return -1;
-        if (s->store &&
-            store_commit_tick(s->store, s->world, s->tick, report->dirty, report->dirty_count) != 0)
+        }
+        const world_rect *rects;
+        int n;
+        if (s->store && (service_edits_commit_rects(s, report, &rects, &n) != 0 ||
+                         store_commit_tick(s->store, s->world, s->tick, rects, n) != 0)) {
             undo_tick(s, report);
+            service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "the log could not take the tick");
+        }
     }
     for (int i = 0; i < s->collider_count; i++) {
         if (s->colliders[i].held)
@@ -222,8 +230,9 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
 
     if (service_cut_into_tiles(s, &stats->report) == 0) /* deltas: versions, Σh, frames */
         service_publish_deltas(s, stats);
+    service_edits_finish(s); /* each edit's sender: its tick and volume change */
     service_contacts_after_tick(s);
-    service_publish_feedback(s); /* CONTACT, ACK */
+    service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */

@@ -236,6 +236,9 @@ static void apply_command(service *s, hub_command *c)
     case HUB_RESYNC:
         resync(s, cl, c);
         break;
+    case HUB_EDIT:
+        service_edit_command(s, c);
+        break;
     }
 }
 

@@ -2,9 +2,9 @@
  * service_deltas.c: what a tick changed, as the protocol's tile deltas, and
  * snapshots for new subscriptions and resyncs (PROTOCOL.md "DELTA").
  *
- * After the deformation, the engine's dirty rectangles are cut along tile
- * edges; the pieces of one tile are combined into one rectangle, the tile's
- * version advances, and its differences are encoded once (zigzag + zstd)
+ * After the deformation, the tick's edits' rectangles (service_edits.c) and
+ * the engine's dirty rectangles are cut along tile edges; the pieces of one tile are combined into
+ * one rectangle, the tile's version advances, and its differences are encoded once (zigzag + zstd)
  * and queued for the net thread to fan out. Σh follows from the same
  * differences. Snapshot requests are chosen here, within a per-tick budget;
  * their cells are copied and framed off the tick (service_snapshots.c).
@@ -30,8 +30,8 @@ int service_cut_into_tiles(service *s, const sim_tick_report *report)
     THREAD_OWNED(&s->owner);
     service_batch *b = &s->batch;
     b->piece_count = 0;
-    for (int d = 0; d < report->dirty_count; d++) {
-        world_rect r = report->dirty[d];
+    for (int d = -s->edit_count; d < report->dirty_count; d++) {
+        world_rect r = d < 0 ? s->edits[-1 - d].rect : report->dirty[d];
         int tx0 = r.x / SERVICE_TILE_SIZE, tx1 = (r.x + r.w - 1) / SERVICE_TILE_SIZE;
         int ty0 = r.y / SERVICE_TILE_SIZE, ty1 = (r.y + r.h - 1) / SERVICE_TILE_SIZE;
         for (int ty = ty0; ty <= ty1; ty++) {
@@ -49,7 +49,7 @@ int service_cut_into_tiles(service *s, const sim_tick_report *report)
                     return -1;
                 }
                 b->pieces[b->piece_count++] =
-                    (tile_piece){ty * s->tiles_x + tx, report->dirty_window[d],
+                    (tile_piece){ty * s->tiles_x + tx, d < 0 ? d : report->dirty_window[d],
                                  (world_rect){x0, y0, x1 - x0, y1 - y0}};
             }
         }
@@ -96,19 +96,30 @@ void service_publish_deltas(service *s, service_tick_stats *stats)
         int64_t change = 0;
         int any = 0;
         for (int k = i; k < j; k++) {
-            const int32_t *before, *after;
-            world_rect win = sim_engine_window(s->engine, pieces[k].window, &before, &after);
+            /* an edit's differences, or an engine window's after - before:
+             * added up, since edits may overlap each other and the windows
+             * (the edits came first, so the windows' before is after them) */
+            const int32_t *before = NULL, *after;
+            world_rect win;
+            if (pieces[k].window < 0) {
+                const svc_edit *e = &s->edits[-1 - pieces[k].window];
+                win = e->rect;
+                after = e->diff;
+            } else {
+                win = sim_engine_window(s->engine, pieces[k].window, &before, &after);
+            }
             world_rect p = pieces[k].rect;
             for (int y = p.y; y < p.y + p.h; y++) {
                 for (int x = p.x; x < p.x + p.w; x++) {
                     int64_t at = (int64_t)(y - win.y) * win.w + (x - win.x);
-                    int32_t d = after[at] - before[at];
-                    s->values[(y - box.y) * box.w + (x - box.x)] = d;
+                    int32_t d = before ? after[at] - before[at] : after[at];
+                    s->values[(y - box.y) * box.w + (x - box.x)] += d;
                     change += d;
-                    any |= d != 0;
                 }
             }
         }
+        for (int64_t c = 0; c < (int64_t)box.w * box.h && !any; c++)
+            any = s->values[c] != 0;
         if (any) {
             uint32_t base = s->tile_versions[tile];
             s->tile_versions[tile] = base + 1;

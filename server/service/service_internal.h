@@ -12,6 +12,7 @@
  *   service_footprints.c FOOTPRINTS frames for viewers
  *   service_shed.c      the tick's cost budget: whose colliders wait a tick
  *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
+ *   service_edits.c     terrain edits from game logic, at the start of the tick
  *   service_shared.c    the leaf every step uses: lookups, the out queue, drops
  *
  * service.c calls the steps; a step calls only steps listed after it in the
@@ -78,10 +79,21 @@ typedef struct snapshot_job {
  * one tick's versions). One request per client per tick while others wait. */
 #define SERVICE_SNAPSHOT_CELLS_PER_TICK (512 * 512)
 
+/* An edit applied this tick (service_edits.c), until the tick is committed. */
+typedef struct svc_edit {
+    world_edit_op op;
+    world_rect rect;
+    int32_t *diff; /* new minus old over rect */
+    int64_t volume;
+    uint32_t client;         /* websocket sender (waiter == NULL) */
+    char ref[64];            /* its ref, JSON text */
+    hub_edit_waiter *waiter; /* HTTP sender */
+} svc_edit;
+
 /* One piece of a dirty rectangle inside one tile. */
 typedef struct tile_piece {
     int tile;   /* tile index */
-    int window; /* engine window it came from */
+    int window; /* engine window it came from; < 0: edit -1 - window */
     world_rect rect;
 } tile_piece;
 
@@ -130,6 +142,12 @@ struct service {
 
     service_batch batch;
 
+    svc_edit *edits; /* this tick's, in the order applied */
+    int edit_count;
+    int64_t edit_capacity;
+    world_rect *commit_rects; /* edits' and the engine's, for the store */
+    int64_t commit_capacity;
+
     /* scratch */
     int32_t *values; /* one tile of values */
     uint8_t *packed; /* compressed tile */
@@ -176,7 +194,8 @@ void service_take_input(service *s);
 /* service_contacts.c */
 void service_contacts_before_tick(service *s);
 void service_contacts_after_tick(service *s);
-void service_publish_feedback(service *s); /* CONTACT and ACK frames */
+/* CONTACT, FORCES (bekker worlds: the report's contacts) and ACK per client. */
+void service_publish_feedback(service *s, const sim_tick_report *report);
 
 /* service_deltas.c */
 int service_cut_into_tiles(service *s, const sim_tick_report *report);
@@ -196,6 +215,18 @@ void service_snapshots_collect(service *s);   /* start of tick t + 1: queue the 
 
 /* service_shed.c: mark the colliders that wait this tick (before they are gathered) */
 void service_shed(service *s);
+
+/* service_edits.c */
+void service_edit_command(service *s, hub_command *c); /* apply it now, or refuse it */
+/* The tick's rectangles for the store: the edits' then the engine's (-1: no memory). */
+int service_edits_commit_rects(service *s, const sim_tick_report *report, const world_rect **rects,
+                               int *n);
+/* The store refused the tick: take the edits back (after the engine's
+ * windows), tell their senders code and why. */
+void service_edits_undo(service *s, int code, const char *why);
+/* The tick is committed: tell each sender its tick and volume change. */
+void service_edits_finish(service *s);
+void service_edits_free(service *s);
 
 /* service_colliders.c */
 void service_publish_colliders(service *s, const sim_collider *extra, int extra_count);

@@ -47,16 +47,12 @@ static void png_read_cb(png_structp png, png_bytep out, png_size_t n)
     src->at += n;
 }
 
-int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err)
+int png16_decode(const uint8_t *file, size_t file_len, const char *path, int *width, int *height,
+                 uint16_t **pixels, error_text *err)
 {
     *pixels = NULL;
-    uint8_t *file = NULL;
-    size_t file_len = 0;
-    if (file_read_all(path, 0, &file, &file_len, err) != 0)
-        return -1;
     if (file_len < 8 || png_sig_cmp(file, 0, 8) != 0) {
         error_set(err, "%s: not a PNG file", path);
-        free(file);
         return -1;
     }
     png_source src = {file, file_len, 8};
@@ -67,7 +63,6 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     if (!info) {
         error_set(err, "%s: out of memory", path);
         png_destroy_read_struct(&png, NULL, NULL);
-        free(file);
         return -1;
     }
     /* volatile: these change after setjmp and are freed on the error path */
@@ -78,7 +73,6 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
         free(bytes);
         free(rows);
         png_destroy_read_struct(&png, &info, NULL);
-        free(file);
         return -1;
     }
     png_set_read_fn(png, &src, png_read_cb);
@@ -98,14 +92,12 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     if (problem) {
         error_set(err, "%s: image %s (bit depth %d)", path, problem, depth);
         png_destroy_read_struct(&png, &info, NULL);
-        free(file);
         return -1;
     }
     if (w < 1 || h < 1 || w > WORLD_SIDE_MAX || h > WORLD_SIDE_MAX) {
         error_set(err, "%s: image is %u x %u; each side must be in [1, %d]", path, (unsigned)w,
                   (unsigned)h, WORLD_SIDE_MAX);
         png_destroy_read_struct(&png, &info, NULL);
-        free(file);
         return -1;
     }
     png_set_interlace_handling(png);
@@ -118,7 +110,6 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
         free(bytes);
         free(rows);
         png_destroy_read_struct(&png, &info, NULL);
-        free(file);
         return -1;
     }
     for (png_uint_32 y = 0; y < h; y++)
@@ -126,7 +117,6 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     png_read_image(png, rows);
     png_read_end(png, NULL);
     png_destroy_read_struct(&png, &info, NULL);
-    free(file);
     free(rows);
 
     /* big-endian samples → host order, in place (2 bytes in, 2 bytes out) */
@@ -139,6 +129,18 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
     *height = (int)h;
     *pixels = out;
     return 0;
+}
+
+int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err)
+{
+    *pixels = NULL;
+    uint8_t *file = NULL;
+    size_t file_len = 0;
+    if (file_read_all(path, 0, &file, &file_len, err) != 0)
+        return -1;
+    int rc = png16_decode(file, file_len, path, width, height, pixels, err);
+    free(file);
+    return rc;
 }
 
 int png16_write(const char *path, int width, int height, const uint16_t *pixels, error_text *err)

@@ -137,8 +137,62 @@ uint64_t world_resident_bytes(const world *w);
 int world_rects_overlap(world_rect a, world_rect b);
 world_rect world_rect_union(world_rect a, world_rect b);
 
+/* ---- terrain edits from game logic (world_edit.c; PROTOCOL.md "edit") ---- */
+
+#define WORLD_EDIT_RADIUS_MAX 1024 /* a crater's radius, cells */
+#define WORLD_EDIT_MAX_CELLS_DEFAULT 4194304
+
+typedef enum world_edit_op {
+    WORLD_EDIT_CRATER,
+    WORLD_EDIT_STAMP,
+    WORLD_EDIT_RESET,
+    WORLD_EDIT_ADD,
+    WORLD_EDIT_REMOVE,
+} world_edit_op;
+
+typedef enum world_stamp_mode {
+    WORLD_STAMP_SET,
+    WORLD_STAMP_ADD,
+    WORLD_STAMP_MIN,
+    WORLD_STAMP_MAX,
+} world_stamp_mode;
+
+typedef struct world_edit {
+    world_edit_op op;
+    world_rect rect;         /* the cells it may change (inside the world) */
+    int cx, cy, radius, rim; /* crater: centre and radius (cells); rim keeps Σh */
+    int64_t depth;           /* crater: units at the centre */
+    int32_t amount;          /* add / remove: units per cell */
+    world_stamp_mode mode;   /* stamp */
+    int32_t *values;         /* stamp: rect.w * rect.h heights or offsets (owned) */
+    uint8_t *mask;           /* stamp: NULL, or nonzero where the stamp applies (owned) */
+} world_edit;
+
+typedef struct world_edit_error {
+    int code;          /* TERRAD_E_BAD_VALUE, _OUTSIDE_WORLD, _TOO_LARGE (proto/c) */
+    char message[300]; /* names the field */
+} world_edit_error;
+
+/* An `edit` message's fields (its "type" and "ref" are the caller's) into
+ * out, for a width x height world, refusing one over max_cells. 0, or -1
+ * with err (nothing held). Free a parsed edit with world_edit_free. */
+int world_edit_parse(const cJSON *msg, int width, int height, int64_t max_cells, world_edit *out,
+                     world_edit_error *err);
+void world_edit_free(world_edit *e);
+const char *world_edit_op_name(world_edit_op op);
+/* Apply e to w whole: *rect the cells it could change, *diff (malloc'd,
+ * rect's cells) new minus old, *volume their exact sum. -1 with err when a
+ * cell would leave the height range: w is then unchanged. */
+int world_edit_apply(world *w, const world_edit *e, world_rect *rect, int32_t **diff,
+                     int64_t *volume, error_text *err);
+/* Take an applied edit back (the store could not log its tick). */
+void world_edit_undo(world *w, world_rect r, const int32_t *diff);
+
 /* Write / read a 16-bit greyscale PNG (used by base terrain and exports). */
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err);
+/* The same from bytes in memory; name is what errors call them. */
+int png16_decode(const uint8_t *data, size_t len, const char *name, int *width, int *height,
+                 uint16_t **pixels, error_text *err);
 int png16_write(const char *path, int width, int height, const uint16_t *pixels, error_text *err);
 
 #endif

@@ -53,7 +53,7 @@ function startDaemon() {
   // A small budget for /v1/heights answers held at once, so that 429 can be seen: 20,000 bytes
   // pass the 64x64 base read below (16,384) and refuse a 100x100 read (40,000).
   const config = path.join(dataDir, 'config.json');
-  writeFileSync(config, JSON.stringify({ limits: { max_heights_bytes_per_address: 20000 } }));
+  writeFileSync(config, JSON.stringify({ limits: { max_heights_bytes_per_address: 20000, max_edit_cells: 100000 } }));
   const args = ['serve', '--http-port', '0', '--ws-port', '0', '--backend', 'cpu', '--no-data',
     '--config', config];
   const proc = spawn(BIN, args, { stdio: ['ignore', 'ignore', 'pipe'], cwd: dataDir });
@@ -97,8 +97,10 @@ after(async () => {
 // The spec's operation for a request path; paths not in the document are the viewer's files.
 function operationFor(urlPath, method) {
   const p = urlPath.split('?')[0];
-  const key = api.paths[p] ? p : '/';
-  const op = api.paths[key].get; // HEAD answers as GET, without the body
+  const edits = /^\/v1\/worlds\/[^/]+\/edits$/.test(p) ? '/v1/worlds/{name}/edits' : null;
+  const key = edits || (api.paths[p] ? p : '/');
+  const item = api.paths[key];
+  const op = (method === 'POST' && item.post) || item.get; // HEAD answers as GET, without the body
   return { key, op };
 }
 
@@ -184,6 +186,20 @@ test('heights in both formats, with their headers, match the document', async ()
   await fetchChecked('base=2', '/v1/heights?x=0&y=0&w=1&h=1&base=2', 400);
 });
 
+test('POST /v1/worlds/{name}/edits: applied, and every refusal, as the document says', async () => {
+  const post = (what, name, body, want) => fetchChecked(what, `/v1/worlds/${name}/edits`, want, {
+    method: 'POST', body: typeof body === 'string' ? body : JSON.stringify(body),
+    headers: { 'Content-Type': 'application/json' } });
+  const { json } = await post('an add', 'default-dunes', { op: 'add', x: 1, y: 2, w: 3, h: 4, amount: 10 }, 200);
+  assert.equal(json.volume_change, 120);
+  await post('a crater', 'default-dunes', { op: 'crater', x: 40, y: 40, radius: 5, depth: 900 }, 200);
+  await post('not JSON', 'default-dunes', '{', 400);
+  await post('an unknown op', 'default-dunes', { op: 'explode' }, 400);
+  await post('another world', 'elsewhere', { op: 'reset' }, 404);
+  await post('over max_edit_cells', 'default-dunes', { op: 'add', x: 0, y: 0, w: 400, h: 400, amount: 1 }, 413);
+  await post('past the height range', 'default-dunes', { op: 'add', x: 0, y: 0, w: 2, h: 2, amount: 536870912 }, 422);
+});
+
 test('the document is served at /v1/openapi.yaml, byte for byte', async () => {
   const { res } = await fetchChecked('openapi', '/v1/openapi.yaml', 200);
   assert.equal(res.headers['content-type'], 'application/yaml');
@@ -207,7 +223,7 @@ test('every documented error answers as the document says', async () => {
 test('every path was fetched and every explicit status was seen', () => {
   for (const [p, item] of Object.entries(api.paths)) {
     assert.ok(seen.has(p), `${p} was fetched`);
-    for (const status of Object.keys(item.get.responses)) {
+    for (const status of Object.keys((item.get || item.post).responses)) {
       if (status === 'default' || (p === '/readyz' && status === '503')) continue; // 503: before ready only
       if (p === '/v1/heights' && status === '503') continue; // only while the tick is stuck
       // a cluster node's answer for a world another node ticks: test_cluster_any_node

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# ctest-timeout: 120
+# ctest-timeout: 600 (generous: apt-get --simulate alone took 90 s on the loaded 2-core machine)
 # docker/Dockerfile without a Docker engine (docker/check-runtime): the Dockerfile lints clean
 # (npm's dockerfile-utils, when make web-deps installed it), and every library the daemon
 # loads - ldd's list and what libepoxy opens for the GL backend - comes from the runtime stage's

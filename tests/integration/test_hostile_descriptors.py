@@ -81,6 +81,7 @@ def main():
         f.write(f'#!/bin/sh\nexec prlimit --nofile=256:256 "{service_harness.BIN}" "$@"\n')
     os.chmod(wrapper, stat.S_IRWXU)
     real_bin, service_harness.BIN = service_harness.BIN, wrapper
+    t_start = time.monotonic()
     try:
         d = Daemon(demo=True, durability="every-tick")
     finally:
@@ -107,7 +108,11 @@ def main():
         check(not any("store" in l and ("error" in l or "fail" in l) for l in d.lines),
               "no store error under the crowd")
         refusal_lines = sum(1 for l in d.lines if "refused a connection" in l or "accept" in l)
-        check(refusal_lines < 40, f"refusals are logged at a bounded rate ({refusal_lines} lines)")
+        # bounded: the old fixed allowance plus one line a second (NET_REFUSAL_LOG_MS) for however
+        # long a loaded machine stretched the run
+        secs = int(time.monotonic() - t_start)
+        check(refusal_lines < 40 + secs, f"refusals are logged at a bounded rate ({refusal_lines} "
+              f"lines in {secs} s)")
         for s in crowd:
             s.close()
         deadline = time.monotonic() + 60

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 240
+# ctest-timeout: 900
 """Several Python clients drive wheels against the real daemon (loopback,
 CPU backend, no demo actors):
 
@@ -255,11 +255,13 @@ async def scripted(d, steps=30):
 async def determinism(backend, runs=2):
     results = []
     for r in range(runs):
-        for attempt in range(3):
+        for attempt in range(5):
             try:
-                # 4 Hz: each step has 250 ms to land in the next tick, so a loaded machine
-                # (load 20+) still steps one pose per tick; the check itself is unchanged
-                d = Daemon(backend=backend, tick_hz=4, name=f"terrad-{backend}-det{r}")
+                # Each step must land in the tick after the last one's ACK. At 4 Hz (250 ms) both
+                # backends missed it 5 times running under make test-stress (a loaded GL tick left
+                # no window at all), so 1 Hz. The check itself is unchanged; only the room a
+                # loaded machine gets.
+                d = Daemon(backend=backend, tick_hz=1, name=f"terrad-{backend}-det{r}")
             except RuntimeError as e:
                 if backend == "gl":
                     return None, str(e).splitlines()[-1] if str(e) else "no GL"
@@ -281,7 +283,7 @@ async def determinism(backend, runs=2):
                 break
             print(f"info: {backend} run {r} attempt {attempt}: {detail}; retrying", flush=True)
         else:
-            check(False, f"{backend}: could not step the scenario one pose per tick in 3 attempts")
+            check(False, f"{backend}: could not step the scenario one pose per tick in 5 attempts")
             return False, "timing"
     same = results[0] == results[1]
     if not same:

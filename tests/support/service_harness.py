@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 import traceback
 import urllib.error
 import urllib.request
@@ -288,9 +289,16 @@ class Daemon:
     def world(self):
         return json.loads(self.get("/v1/world")[1])
 
-    def heights(self, x, y, w, h):
-        """(tick, list of w*h int32) from GET /v1/heights."""
-        status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")
+    def heights(self, x, y, w, h, busy_s=60):
+        """(tick, list of w*h int32) from GET /v1/heights. A 503 "retry" (the sim
+        thread, which serves reads between ticks, was too busy to answer within
+        its read timeout: a loaded machine) is asked again for up to busy_s."""
+        end = time.monotonic() + busy_s
+        while True:
+            status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")
+            if status != 503 or b"retry" not in body or time.monotonic() > end:
+                break
+            time.sleep(0.2)
         if status != 200 or len(body) != 4 * w * h:
             raise RuntimeError(f"/v1/heights {x},{y},{w},{h}: {status}, {len(body)} bytes: {body[:200]!r}")
         tick = headers.get("X-Terrad-Tick")

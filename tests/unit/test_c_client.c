@@ -444,6 +444,24 @@ static void drive(int http_port, int ws_port)
     CHECK(get_stats(http_port, &vol1, &tick1) == 0 && vol1 == vol0, "Σh unchanged: %lld -> %lld",
           vol0, vol1);
 
+    /* terrain edits: a crater with its rim keeps Σh; without, Σh falls by what the reply says */
+    uint64_t etick = 0;
+    int64_t evol = -1;
+    rc = terrad_client_crater(c, rx + 20, yc, 6, 20000, 1, &etick, &evol);
+    CHECK(rc == 0 && etick > 0 && evol == 0, "a crater with its rim: tick %llu, volume %lld (%s)",
+          (unsigned long long)etick, (long long)evol, terrad_client_last_error(c));
+    rc = terrad_client_crater(c, rx + 60, yc, 5, 20000, 0, &etick, &evol);
+    CHECK(rc == 0 && evol < 0, "a crater without: volume %lld", (long long)evol);
+    long long vol2 = 0, tick2 = 0;
+    for (int i = 0; i < 200 && get_stats(http_port, &vol2, &tick2) == 0 && tick2 < (long long)etick;
+         i++)
+        usleep(20000);
+    CHECK(vol2 - vol1 == evol, "Σh moved by the declared %lld: %lld -> %lld", (long long)evol, vol1,
+          vol2);
+    rc = terrad_client_edit(c, "{\"op\":\"explode\"}", NULL, NULL);
+    CHECK(rc == TERRAD_E_BAD_VALUE && strstr(terrad_client_last_error(c), "op"),
+          "an unknown op is refused naming it: %d (%s)", rc, terrad_client_last_error(c));
+
     rc = terrad_client_delete_collider(c, wheel);
     CHECK(rc == 0, "collider_delete: %d (%s)", rc, terrad_client_last_error(c));
     rc = terrad_client_unsubscribe(c, sid);

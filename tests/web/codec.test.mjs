@@ -23,6 +23,7 @@ const decoders = {
   CONTACT: C.decodeContact,
   COLLIDERS: C.decodeColliders,
   FOOTPRINTS: C.decodeFootprints,
+  FORCES: C.decodeForces,
   ACK: C.decodeAck,
   PING: C.decodePing,
   PONG: C.decodePing,
@@ -89,6 +90,13 @@ for (const v of V.vectors) {
           collider: e.collider, x: Math.fround(e.x), y: Math.fround(e.y), yaw: Math.fround(e.yaw),
           size_m: Math.fround(e.size_m), strength_m: Math.fround(e.strength_m) })));
         break;
+      case 'FORCES':
+        assert.equal(String(d.tick), f.tick);
+        assert.deepEqual(d.forces, f.forces.map((e) => ({
+          id: e.id, force: e.force.map(Math.fround), torque: e.torque.map(Math.fround),
+          sinkage_m: Math.fround(e.sinkage_m), area_m2: Math.fround(e.area_m2),
+          patch_width_m: Math.fround(e.patch_width_m), slip: Math.fround(e.slip), cells: e.cells })));
+        break;
       case 'ACK':
         assert.equal(String(d.tick), f.tick);
         assert.equal(d.seq, f.seq);
@@ -127,6 +135,9 @@ test('control messages', () => {
   assert.deepEqual(C.subscribe(1, 2, 3, 4), { type: 'subscribe', x: 1, y: 2, w: 3, h: 4 });
   assert.deepEqual(C.colliderCreate('sphere', { radius: 0.3 }, { ref: 'a' }),
     { type: 'collider_create', shape: 'sphere', material: 'default', feedback: true, radius: 0.3, ref: 'a' });
+  assert.deepEqual(C.edit('crater', { x: 4, y: 5, radius: 3, depth: 900, rim: false }, 'e1'),
+    { type: 'edit', op: 'crater', x: 4, y: 5, radius: 3, depth: 900, rim: false, ref: 'e1' });
+  assert.equal(C.stampData([1, -2, 0x7fffffff]), Buffer.from('01000000feffffffffffff7f', 'hex').toString('base64'));
   assert.equal(errorName(() => C.parseControl('[1]')), 'bad_json');
   assert.equal(C.parseControl('{"type":"world","x":1}').x, 1);
 });

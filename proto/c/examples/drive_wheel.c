@@ -68,8 +68,8 @@ static double now_s(void)
 }
 
 /* GET /v1/heights?x=&y=&w=&h= (int32 little-endian) into out; returns the tick or -1. */
-static long long get_heights(const char *host, const char *port, int x, int y, int w, int h,
-                             int32_t *out)
+static long long get_heights_once(const char *host, const char *port, int x, int y, int w, int h,
+                                  int32_t *out)
 {
     struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM}, *ai = NULL;
     if (getaddrinfo(host, port, &hints, &ai) != 0)
@@ -121,6 +121,20 @@ static long long get_heights(const char *host, const char *port, int x, int y, i
     return tick;
 }
 
+/* The sim thread serves heights between ticks and answers 503 when it cannot within its read
+ * timeout (a busy machine): ask again, for up to 30 s, as any client should. */
+static long long get_heights(const char *host, const char *port, int x, int y, int w, int h,
+                             int32_t *out)
+{
+    const double end = now_s() + 30;
+    for (;;) {
+        long long tick = get_heights_once(host, port, x, y, w, h, out);
+        if (tick >= 0 || now_s() > end)
+            return tick;
+        nanosleep(&(struct timespec){0, 200 * 1000 * 1000}, NULL);
+    }
+}
+
 /* Send one pose and service the connection until the next tick is due. */
 static int pose_and_wait(terrad_client *c, terrad_pose p, double *next, double period)
 {
@@ -162,8 +176,13 @@ int main(int argc, char **argv)
     uint32_t wheel = 0;
     const double radius = 0.3;
     int rc = -1;
-    if (!hist.copies || !server || get_heights(host, http_port, rx + 12, yc, 1, 1, &ground) < 0 ||
-        terrad_client_subscribe(c, rx, ry, (uint32_t)rw, (uint32_t)rh, &hist.sid) != 0 ||
+    if (!hist.copies || !server || get_heights(host, http_port, rx + 12, yc, 1, 1, &ground) < 0) {
+        fprintf(stderr,
+                "drive_wheel: out of memory, or GET /v1/heights on port %s failed for 30 s\n",
+                http_port);
+        goto done;
+    }
+    if (terrad_client_subscribe(c, rx, ry, (uint32_t)rw, (uint32_t)rh, &hist.sid) != 0 ||
         terrad_client_create_collider(
             c, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL, .radius = radius, .width = 0.2},
             &wheel) != 0) {

@@ -83,6 +83,10 @@ class SyncClient:
     def send_poses(self, poses: list[Pose]) -> int:
         return self._call(self.client.send_poses(poses))
 
+    def edit(self, op: str, **fields: Any) -> dict[str, Any]:
+        """A terrain edit; the server's "edited" reply (Client.edit)."""
+        return self._call(self.client.edit(op, **fields))
+
     def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
                   footprints: bool = False) -> int:
         return self._call(self.client.subscribe(x, y, w, h, colliders, footprints))

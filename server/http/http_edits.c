@@ -1,0 +1,192 @@
+/*
+ * http_edits.c: POST /v1/worlds/{name}/edits, terrain edits from a game
+ * backend's HTTP client (issue 22; docs/openapi.yaml). The body is one edit,
+ * the same JSON object as the websocket's `edit` message (world_edit_parse),
+ * and needs a driver or admin token where the server has tokens. The edit
+ * joins the websocket clients' commands in the world's hub, in arrival
+ * order; the HTTP thread waits (hub_edit_submit) for the tick that applies
+ * it and answers with that tick and the exact volume change, or refuses it
+ * naming the field. Nothing here touches the world: the sim thread applies
+ * the edit at the start of a tick (service_edits.c).
+ *
+ * {name} is the world's: a cluster node's registered world that it ticks,
+ * or on a single daemon its scene's name.
+ */
+#include <cjson/cJSON.h>
+#include <microhttpd.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include "http/http_internal.h"
+#include "metrics/metrics.h"
+#include "terrad_proto.h"
+
+#define EDIT_WAIT_MS 10000 /* a tick is at most a few hundred ms even on a loaded machine */
+
+int http_edit_path(const char *url, char *name, size_t cap)
+{
+    static const char prefix[] = "/v1/worlds/", suffix[] = "/edits";
+    size_t n = strlen(url), p = sizeof prefix - 1, q = sizeof suffix - 1;
+    if (n <= p + q || strncmp(url, prefix, p) != 0 || strcmp(url + n - q, suffix) != 0 ||
+        n - p - q >= cap)
+        return 0;
+    memcpy(name, url + p, n - p - q);
+    name[n - p - q] = 0;
+    return strchr(name, '/') == NULL;
+}
+
+/* The refusal for a token that may not edit (NULL: it may). */
+static unsigned edit_role_refusal(struct MHD_Connection *c, auth_table *auth, char *why, size_t cap)
+{
+    if (!auth_enabled(auth))
+        return 0;
+    const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
+    const char *token = h && strncasecmp(h, "Bearer ", 7) == 0 ? h + 7 : NULL;
+    while (token && *token == ' ')
+        token++;
+    auth_role role = token && *token ? auth_check(auth, token, NULL, 0, NULL) : AUTH_NONE;
+    if (role == AUTH_NONE) {
+        metrics_count_auth_refused("bad_token");
+        snprintf(why, cap, "send \"Authorization: Bearer TOKEN\" with a driver or admin token");
+        return MHD_HTTP_UNAUTHORIZED;
+    }
+    if (role < AUTH_DRIVER) {
+        metrics_count_auth_refused("forbidden");
+        snprintf(why, cap, "edit: the %s role may not edit the terrain (driver or admin)",
+                 auth_role_name(role));
+        return MHD_HTTP_FORBIDDEN;
+    }
+    return 0;
+}
+
+static unsigned status_of(int code)
+{
+    switch (code) {
+    case TERRAD_E_TOO_LARGE:
+        return MHD_HTTP_CONTENT_TOO_LARGE;
+    case TERRAD_E_REFUSED_HEIGHT_LIMIT:
+        return MHD_HTTP_UNPROCESSABLE_CONTENT;
+    case TERRAD_E_STORE_UNAVAILABLE:
+    case TERRAD_E_SHUTTING_DOWN:
+    case TERRAD_E_INTERNAL:
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    default:
+        return MHD_HTTP_BAD_REQUEST;
+    }
+}
+
+/* {"error": message, "name": the protocol's error name}. */
+static void answer_refusal(http_answer *a, unsigned status, int code, const char *message)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "error", message);
+    cJSON_AddStringToObject(o, "name", terrad_err_name(code));
+    char *text = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    if (!text)
+        return;
+    a->code = status;
+    snprintf(a->type, sizeof a->type, "application/json");
+    a->len = strlen(text);
+    a->body = text;
+}
+
+/* Parse, submit and wait: the answer into a. */
+static void edit_world(http_server *s, hub *h, const http_status *st, const char *body, size_t len,
+                       http_answer *a)
+{
+    cJSON *msg = cJSON_ParseWithLength(body, len);
+    if (!cJSON_IsObject(msg)) {
+        cJSON_Delete(msg);
+        answer_refusal(a, MHD_HTTP_BAD_REQUEST, TERRAD_E_BAD_JSON,
+                       "body: not a JSON object (one edit, as the websocket's edit message)");
+        return;
+    }
+    world_edit *e = malloc(sizeof *e);
+    world_edit_error werr = {0};
+    int rc = e ? world_edit_parse(msg, st->world_width, st->world_height, s->limits.edit_max_cells,
+                                  e, &werr)
+               : -1;
+    cJSON_Delete(msg);
+    if (rc != 0) {
+        if (!e)
+            snprintf(werr.message, sizeof werr.message, "out of memory");
+        free(e);
+        answer_refusal(a, status_of(werr.code), werr.code ? werr.code : TERRAD_E_INTERNAL,
+                       werr.message);
+        return;
+    }
+    const char *op = world_edit_op_name(e->op);
+    hub_edit_result res = {0};
+    int waited = hub_edit_submit(h, e, &res, EDIT_WAIT_MS);
+    if (waited != 0) {
+        answer_refusal(a, waited < 0 ? MHD_HTTP_SERVICE_UNAVAILABLE : MHD_HTTP_GATEWAY_TIMEOUT,
+                       TERRAD_E_INTERNAL,
+                       waited < 0 ? res.message
+                                  : "edit: no tick took it within 10 s; it is still queued and "
+                                    "will be applied or refused (watch /v1/stats)");
+        return;
+    }
+    if (res.code != 0) {
+        answer_refusal(a, status_of(res.code), res.code, res.message);
+        return;
+    }
+    char *text = malloc(256);
+    if (!text)
+        return;
+    snprintf(text, 256,
+             "{\"op\":\"%s\",\"tick\":%llu,\"volume_change\":%lld,\"x\":%d,\"y\":%d,\"w\":%d,"
+             "\"h\":%d}\n",
+             op, (unsigned long long)res.tick, (long long)res.volume, res.rect.x, res.rect.y,
+             res.rect.w, res.rect.h);
+    a->code = MHD_HTTP_OK;
+    snprintf(a->type, sizeof a->type, "application/json");
+    a->len = strlen(text);
+    a->body = text;
+}
+
+void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, const char *body,
+                    size_t len, http_answer *a)
+{
+    char why[320];
+    unsigned refused = edit_role_refusal(c, s->auth, why, sizeof why);
+    if (refused) {
+        answer_refusal(a, refused,
+                       refused == MHD_HTTP_FORBIDDEN ? TERRAD_E_FORBIDDEN : TERRAD_E_UNAUTHORIZED,
+                       why);
+        return;
+    }
+    if (s->hosts_worlds) {
+        unsigned code = 0;
+        http_world *w = http_world_acquire(s, name, &code, why, sizeof why);
+        if (!w || strcmp(w->name, name) != 0) {
+            if (w)
+                http_world_release(s, w);
+            answer_refusal(a, MHD_HTTP_NOT_FOUND, TERRAD_E_BAD_VALUE,
+                           w ? "name: no such world ticks on this node: send its edits to the "
+                               "node that ticks it"
+                             : why);
+            return;
+        }
+        http_status st;
+        pthread_mutex_lock(&w->status->lock);
+        st = *w->status;
+        pthread_mutex_unlock(&w->status->lock);
+        edit_world(s, w->heights, &st, body, len, a);
+        http_world_release(s, w);
+        return;
+    }
+    http_status st;
+    pthread_mutex_lock(&s->status->lock);
+    st = *s->status;
+    pthread_mutex_unlock(&s->status->lock);
+    if (strcmp(name, st.scene_name) != 0) {
+        snprintf(why, sizeof why, "name: this daemon's world is \"%.64s\" (its scene's name)",
+                 st.scene_name);
+        answer_refusal(a, MHD_HTTP_NOT_FOUND, TERRAD_E_BAD_VALUE, why);
+        return;
+    }
+    edit_world(s, s->heights, &st, body, len, a);
+}

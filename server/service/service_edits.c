@@ -1,0 +1,143 @@
+/*
+ * service_edits.c: terrain edits from game logic (issue 22; PROTOCOL.md
+ * "edit"), applied at the start of a tick. The edits a tick takes from the
+ * hub (websocket `edit` messages and POST /v1/worlds/{name}/edits, in the
+ * order they arrived) change the world in that order, each whole or not at
+ * all, before the colliders deform it, so the tick's result depends only on
+ * its inputs. Their rectangles are logged with the deformation's in the
+ * tick's one WAL record and their differences join the tick's tile deltas
+ * (service_deltas.c), so subscribers see an edit as an ordinary delta and Σh
+ * follows it exactly. Each sender hears, once the tick is committed, the
+ * tick the edit took effect and its exact volume change; a tick the store
+ * cannot log takes its edits back and tells their senders so.
+ * Sim thread only.
+ */
+#include "service/service_internal.h"
+
+#include <cjson/cJSON.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "metrics/metrics.h"
+
+/* A websocket sender's reply: the request's ref (JSON text, "" if none)
+ * into obj, then the text as one frame. */
+static void reply_client(service *s, uint32_t client, const char *ref, cJSON *obj)
+{
+    cJSON *r = ref[0] ? cJSON_Parse(ref) : NULL;
+    cJSON_AddItemToObject(obj, "ref", r ? r : cJSON_CreateNull());
+    char *text = cJSON_PrintUnformatted(obj);
+    cJSON_Delete(obj);
+    service_queue_client(s, client, text ? hub_frame_from_text(text) : NULL, 0, 0); /* JSON */
+    free(text);
+}
+
+/* The outcome to whoever sent the edit: its websocket client or HTTP waiter. */
+static void tell(service *s, const svc_edit *e, const hub_edit_result *res)
+{
+    metrics_count_edit(world_edit_op_name(e->op), res->code == 0, res->volume);
+    if (e->waiter) {
+        hub_edit_finish(e->waiter, res);
+        return;
+    }
+    cJSON *obj = cJSON_CreateObject();
+    if (res->code == 0) {
+        cJSON_AddStringToObject(obj, "type", "edited");
+        cJSON_AddStringToObject(obj, "op", world_edit_op_name(e->op));
+        cJSON_AddNumberToObject(obj, "tick", (double)res->tick);
+        cJSON_AddNumberToObject(obj, "volume_change", (double)res->volume);
+        cJSON_AddNumberToObject(obj, "x", res->rect.x);
+        cJSON_AddNumberToObject(obj, "y", res->rect.y);
+        cJSON_AddNumberToObject(obj, "w", res->rect.w);
+        cJSON_AddNumberToObject(obj, "h", res->rect.h);
+    } else {
+        cJSON_AddStringToObject(obj, "type", "error");
+        cJSON_AddNumberToObject(obj, "code", res->code);
+        cJSON_AddStringToObject(obj, "name", terrad_err_name(res->code));
+        cJSON_AddStringToObject(obj, "message", res->message);
+    }
+    reply_client(s, e->client, e->ref, obj);
+}
+
+void service_edit_command(service *s, hub_command *c)
+{
+    svc_edit e = {.op = c->edit->op, .client = c->client, .waiter = c->waiter};
+    snprintf(e.ref, sizeof e.ref, "%s", c->ref);
+    hub_edit_result res = {.tick = s->tick};
+    error_text err = {{0}};
+    if (s->store && !store_writable(s->store)) {
+        res.code = TERRAD_E_STORE_UNAVAILABLE;
+        snprintf(res.message, sizeof res.message, "edit: storage unavailable (%s); nothing changed",
+                 store_failure(s->store));
+    } else if (array_grow((void **)&s->edits, &s->edit_capacity, (int64_t)s->edit_count + 1,
+                          sizeof *s->edits) != 0) {
+        res.code = TERRAD_E_INTERNAL;
+        snprintf(res.message, sizeof res.message, "edit: out of memory; nothing changed");
+    } else if (world_edit_apply(s->world, c->edit, &e.rect, &e.diff, &e.volume, &err) != 0) {
+        res.code = TERRAD_E_REFUSED_HEIGHT_LIMIT;
+        snprintf(res.message, sizeof res.message, "%s", err.message);
+    }
+    world_edit_free(c->edit);
+    free(c->edit);
+    c->edit = NULL;
+    if (res.code != 0) {
+        tell(s, &e, &res);
+        return;
+    }
+    s->edits[s->edit_count++] = e;
+}
+
+int service_edits_commit_rects(service *s, const sim_tick_report *report, const world_rect **rects,
+                               int *n)
+{
+    if (s->edit_count == 0) {
+        *rects = report->dirty;
+        *n = report->dirty_count;
+        return 0;
+    }
+    int total = s->edit_count + report->dirty_count;
+    if (array_grow((void **)&s->commit_rects, &s->commit_capacity, total,
+                   sizeof *s->commit_rects) != 0)
+        return -1;
+    for (int i = 0; i < s->edit_count; i++)
+        s->commit_rects[i] = s->edits[i].rect;
+    if (report->dirty_count)
+        memcpy(s->commit_rects + s->edit_count, report->dirty,
+               (size_t)report->dirty_count * sizeof *report->dirty);
+    *rects = s->commit_rects;
+    *n = total;
+    return 0;
+}
+
+void service_edits_undo(service *s, int code, const char *why)
+{
+    for (int i = s->edit_count - 1; i >= 0; i--)
+        world_edit_undo(s->world, s->edits[i].rect, s->edits[i].diff);
+    for (int i = 0; i < s->edit_count; i++) {
+        hub_edit_result res = {.code = code, .tick = s->tick};
+        snprintf(res.message, sizeof res.message, "edit: %s; nothing changed", why);
+        tell(s, &s->edits[i], &res);
+        free(s->edits[i].diff);
+    }
+    s->edit_count = 0;
+}
+
+void service_edits_finish(service *s)
+{
+    for (int i = 0; i < s->edit_count; i++) {
+        svc_edit *e = &s->edits[i];
+        tell(s, e, &(hub_edit_result){.tick = s->tick, .volume = e->volume, .rect = e->rect});
+        free(e->diff);
+    }
+    s->edit_count = 0;
+}
+
+void service_edits_free(service *s)
+{
+    for (int i = 0; i < s->edit_count; i++) {
+        hub_edit_finish(s->edits[i].waiter, &(hub_edit_result){.code = TERRAD_E_SHUTTING_DOWN});
+        free(s->edits[i].diff);
+    }
+    free(s->edits);
+    free(s->commit_rects);
+}
