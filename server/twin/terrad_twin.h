@@ -52,13 +52,15 @@ TERRAD_TWIN_API void terrad_twin_config_free(terrad_twin_config *c);
  * multi_target_max, displace_iterations, slope_iterations, refill_m_per_s,
  * trail_scale_per_m, trail_range_m, edge_height, edge_width, diffusion_d,
  * diffusion_zeta_inv, diffusion_force_scale, diffusion_dt, diffusion_substeps,
- * diffusion_conservative, decal_min_strength_m. An unknown key or a
+ * diffusion_conservative, decal_min_strength_m; the bekker model's soil.n,
+ * soil.kc, soil.kphi, soil.cohesion_pa, soil.friction_deg, soil.shear_k_m,
+ * soil.elastic_pa_m, soil.damping_pa_s_m. An unknown key or a
  * non-finite value is refused; ranges are checked at terrad_twin_create.
  */
 TERRAD_TWIN_API int terrad_twin_config_set(terrad_twin_config *c, const char *key, double value,
                                            char *err);
 /* Name keys: model (persson-iterative | persson-ssbo | persson-multi |
- * subtract | deferred | diffusion | sumner | decals), metric (euclidean |
+ * subtract | deferred | diffusion | sumner | decals | bekker), metric (euclidean |
  * manhattan | chebyshev), terrain.kind (flat | dunes). */
 TERRAD_TWIN_API int terrad_twin_config_set_name(terrad_twin_config *c, const char *key,
                                                 const char *value, char *err);

@@ -136,6 +136,14 @@ static const config_key config_keys[] = {
     KEY_I("diffusion_substeps", material.diffusion_substeps),
     KEY_I("diffusion_conservative", material.diffusion_conservative),
     KEY_D("decal_min_strength_m", material.decal_min_strength_m),
+    KEY_D("soil.n", material.soil.n),
+    KEY_D("soil.kc", material.soil.kc),
+    KEY_D("soil.kphi", material.soil.kphi),
+    KEY_D("soil.cohesion_pa", material.soil.cohesion_pa),
+    KEY_D("soil.friction_deg", material.soil.friction_deg),
+    KEY_D("soil.shear_k_m", material.soil.shear_k_m),
+    KEY_D("soil.elastic_pa_m", material.soil.elastic_pa_m),
+    KEY_D("soil.damping_pa_s_m", material.soil.damping_pa_s_m),
 };
 
 int terrad_twin_config_set(terrad_twin_config *c, const char *key, double value, char *err)

@@ -30,7 +30,7 @@ REPLAY = os.environ.get("TERRAD_TWIN_REPLAY", "")
 WASM = os.environ.get("TERRAD_TWIN_WASM", "")
 REPLAY_MJS = os.path.join(SOURCE, "tests", "support", "twin_replay.mjs")
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
-          "diffusion", "sumner", "decals"]
+          "diffusion", "sumner", "decals", "bekker"]
 check = Checks()
 if not (os.path.exists(TRACE) and os.path.exists(REPLAY)):
     skip("twin_trace / twin_replay not built")

@@ -66,6 +66,14 @@ static void print_config(const scene *sc)
     set("diffusion_substeps", m->diffusion_substeps);
     set("diffusion_conservative", m->diffusion_conservative);
     set("decal_min_strength_m", m->decal_min_strength_m);
+    set("soil.n", m->soil.n);
+    set("soil.kc", m->soil.kc);
+    set("soil.kphi", m->soil.kphi);
+    set("soil.cohesion_pa", m->soil.cohesion_pa);
+    set("soil.friction_deg", m->soil.friction_deg);
+    set("soil.shear_k_m", m->soil.shear_k_m);
+    set("soil.elastic_pa_m", m->soil.elastic_pa_m);
+    set("soil.damping_pa_s_m", m->soil.damping_pa_s_m);
 }
 
 static void print_collider(int id, const collider_geometry *g)
