@@ -59,7 +59,7 @@ typedef struct svc_collider {
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
     int held;           /* waits this tick (service_shed.c): no deformation, previous pose kept */
-    int64_t cost_cells; /* collider_cost_cells, once at its creation (a mesh's is O(triangles)) */
+    collider_cost cost; /* collider_cost_of, once at its creation (a mesh's is O(triangles)) */
 } svc_collider;
 
 typedef struct svc_contact {

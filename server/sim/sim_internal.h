@@ -42,8 +42,22 @@ typedef enum sim_cell_class {
 
 /* Hash of a world cell, used to break jump-flooding ties (same in GLSL). */
 uint32_t sim_cell_hash(int32_t world_x, int32_t world_y);
-/* Distance under a metric; Euclidean is squared (order is all that matters). */
-int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy);
+/* Distance under a metric; Euclidean is squared (order is all that matters).
+ * Inline: jump flooding calls it for every candidate of every step. */
+static inline int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy)
+{
+    int32_t ax = dx < 0 ? -dx : dx;
+    int32_t ay = dy < 0 ? -dy : dy;
+    switch (m) {
+    case SIM_METRIC_MANHATTAN:
+        return ax + ay;
+    case SIM_METRIC_CHEBYSHEV:
+        return ax > ay ? ax : ay;
+    case SIM_METRIC_EUCLIDEAN:
+    default:
+        return ax * ax + ay * ay;
+    }
+}
 
 /*
  * classify: raw[i] = penetration (units the column must lose), moved[i] =
