@@ -34,9 +34,18 @@ static void print_help(void)
         usages[i](stdout);
         printf("\n");
     }
-    printf("environment:\n"
-           "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n"
-           "  TERRAD_TOKEN=T   loadgen's token for a daemon with --auth-file (a driver's)\n");
+    printf(
+        "environment:\n"
+        "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n"
+        "  TERRAD_GL_TILE_CACHE=LAYERS,BUDGET_BYTES  the GL backend's tile cache (default\n"
+        "                   64,4194304; 0 layers: off; docs/tiles.md)\n"
+        "  TERRAD_CLUSTER=URLS   world add|list|remove: the NATS URLs when --cluster is not\n"
+        "                   given (comma-separated; default nats://127.0.0.1:4222)\n"
+        "  TERRAD_TOKEN=T   loadgen's token for a daemon with --auth-file (a driver's)\n"
+        "  TERRAD_STORE_FAULT=FILE   test hook, as serve --store-fault: storage writes fail\n"
+        "                   with ENOSPC while FILE exists (docs/storage.md)\n"
+        "  TERRAD_FAULT_STALL=FILE   test hook: while FILE exists and names \"tick\" or\n"
+        "                   \"net\", that thread stalls (the watchdog's test; docs/service.md)\n");
 }
 
 int main(int argc, char **argv)

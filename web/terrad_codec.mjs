@@ -8,8 +8,8 @@ import { Decompress } from './vendor/fzstd.js';
 export const PROTOCOL_VERSION = 1;
 export const MAGIC = 0x54;
 export const SUBPROTOCOL = 'terrad.v1';
-export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14 };
-const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS' };
+export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14, FORCES: 0x15 };
+const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS', 21: 'FORCES' };
 export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
 export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
 export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
@@ -22,6 +22,7 @@ export const ERRORS = {
 };
 const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12, COLLIDER_STATE_SIZE = 48;
 const FOOTPRINT_SIZE = 24;
+const FORCE_SIZE = 48;
 const FOOTPRINT_YAW_MAX = Math.fround(3.1416); // pi rounded up to float32
 const MAX_COUNT = 0xffff;
 
@@ -211,6 +212,30 @@ export function decodeFootprints(buf) {
     footprints.push({ collider, x: f[0], y: f[1], yaw: f[2], size_m: f[3], strength_m: f[4] });
   }
   return { tick, footprints };
+}
+
+// FORCES (worlds of the bekker model): the soil's push on each of the client's colliders with
+// feedback, [{id, force: [x, y, z] N, torque: [x, y, z] N m about the pose position,
+// sinkage_m, area_m2, patch_width_m, slip, cells}].
+export function decodeForces(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.FORCES);
+  if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
+  if (b.length - 14 !== count * FORCE_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const forces = [];
+  for (let i = 0; i < count; i++) {
+    const o = 14 + i * FORCE_SIZE;
+    const id = v.getUint32(o, true);
+    const f = [];
+    for (let k = 0; k < 10; k++) f.push(v.getFloat32(o + 4 + 4 * k, true));
+    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `forces of collider ${id} are not finite`);
+    if (f[6] < 0 || f[7] < 0 || f[8] < 0) throw new ProtoError('bad_value', `forces of collider ${id}: sinkage, area and patch width must be >= 0`);
+    forces.push({ id, force: f.slice(0, 3), torque: f.slice(3, 6), sinkage_m: f[6], area_m2: f[7],
+      patch_width_m: f[8], slip: f[9], cells: v.getUint32(o + 44, true) });
+  }
+  return { tick, forces };
 }
 
 export function decodeAck(buf) {

@@ -78,6 +78,9 @@ struct terrad_client {
     terrad_contact *contacts;
     size_t ncontacts, contacts_cap;
     uint64_t contact_tick;
+    terrad_force *forces; /* the latest FORCES frame (bekker worlds) */
+    size_t nforces, forces_cap;
+    uint64_t forces_tick;
     terrad_rect *rects;
     size_t rects_cap;
     int32_t *scratch;
@@ -378,6 +381,22 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         c->stats.contact_tick = tick;
         break;
     }
+    case TERRAD_MSG_FORCES: {
+        size_t cap =
+            len >= TERRAD_FORCES_FIXED ? (len - TERRAD_FORCES_FIXED) / TERRAD_FORCE_SIZE : 0;
+        if (grow((void **)&c->forces, &c->forces_cap, cap + 1, sizeof *c->forces))
+            return bad_frame(c, "FORCES (no memory)", TERRAD_E_NO_MEMORY);
+        size_t n = 0;
+        rc = terrad_forces_decode(buf, len, &tick, c->forces, c->forces_cap, &n);
+        if (rc) {
+            c->nforces = 0;
+            return bad_frame(c, "FORCES", rc);
+        }
+        c->nforces = n;
+        c->forces_tick = tick;
+        c->stats.forces_frames++;
+        break;
+    }
     case TERRAD_MSG_ACK: {
         uint32_t seq;
         rc = terrad_ack_decode(buf, len, &tick, &seq);
@@ -666,6 +685,7 @@ void terrad_client_close(terrad_client *c)
     }
     free(c->subs);
     free(c->contacts);
+    free(c->forces);
     free(c->rects);
     free(c->scratch);
     free(c->rx);
@@ -944,6 +964,20 @@ int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_cont
                 *out = c->contacts[i];
             if (tick_out)
                 *tick_out = c->contact_tick;
+            return 1;
+        }
+    return 0;
+}
+
+int terrad_client_force(const terrad_client *c, uint32_t collider, terrad_force *out,
+                        uint64_t *tick_out)
+{
+    for (size_t i = 0; i < c->nforces; i++)
+        if (c->forces[i].id == collider) {
+            if (out)
+                *out = c->forces[i];
+            if (tick_out)
+                *tick_out = c->forces_tick;
             return 1;
         }
     return 0;

@@ -122,6 +122,7 @@ typedef struct terrad_world_info {
 typedef struct terrad_client_stats {
     uint64_t delta_frames, delta_bytes, delta_tick; /* tick of the last DELTA */
     uint64_t contact_frames, contact_tick;
+    uint64_t forces_frames; /* FORCES frames (worlds of the bekker soil model) */
     uint64_t acks, ack_tick;
     uint32_t ack_seq;  /* the last POSE_BATCH the server used */
     uint64_t errors;   /* error messages not answering a request */
@@ -193,6 +194,11 @@ int terrad_client_mirror_complete(const terrad_client *c, uint32_t sid);
 /* The latest contact feedback for a collider (1), or 0 when none came yet. */
 int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_contact *out,
                           uint64_t *tick_out);
+
+/* The soil's latest push on a collider (FORCES, worlds of the bekker model):
+ * 1, or 0 when none came yet. */
+int terrad_client_force(const terrad_client *c, uint32_t collider, terrad_force *out,
+                        uint64_t *tick_out);
 
 /* Services the connection for up to timeout_ms (0: only what is ready),
  * returning as soon as at least one message was handled: the number of

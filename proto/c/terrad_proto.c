@@ -91,6 +91,8 @@ const char *terrad_msg_type_name(int type)
         return "COLLIDERS";
     case TERRAD_MSG_FOOTPRINTS:
         return "FOOTPRINTS";
+    case TERRAD_MSG_FORCES:
+        return "FORCES";
     default:
         return NULL;
     }
@@ -682,6 +684,94 @@ int terrad_footprints_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
         if (footprint_check(&f))
             return TERRAD_E_BAD_VALUE;
         events[i] = f;
+    }
+    if (tick_out)
+        *tick_out = tick;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+/* ---- FORCES -------------------------------------------------------------- */
+
+static int force_check(const terrad_force *f)
+{
+    const float v[10] = {f->force[0],  f->force[1],  f->force[2], f->torque[0],     f->torque[1],
+                         f->torque[2], f->sinkage_m, f->area_m2,  f->patch_width_m, f->slip};
+    if (!finite_all(v, 10))
+        return TERRAD_E_BAD_VALUE;
+    if (f->sinkage_m < 0.0f || f->area_m2 < 0.0f || f->patch_width_m < 0.0f)
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+size_t terrad_forces_size(size_t count)
+{
+    return TERRAD_FORCES_FIXED + count * TERRAD_FORCE_SIZE;
+}
+
+int terrad_forces_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                         const terrad_force *forces, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (force_check(&forces[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_forces_size(count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_FORCES);
+    p = wr_u64(p, tick);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        const terrad_force *f = &forces[i];
+        p = wr_u32(p, f->id);
+        for (int k = 0; k < 3; k++)
+            p = wr_f32(p, f->force[k]);
+        for (int k = 0; k < 3; k++)
+            p = wr_f32(p, f->torque[k]);
+        p = wr_f32(p, f->sinkage_m);
+        p = wr_f32(p, f->area_m2);
+        p = wr_f32(p, f->patch_width_m);
+        p = wr_f32(p, f->slip);
+        p = wr_u32(p, f->cells);
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_force *forces,
+                         size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_FORCES, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 10)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * TERRAD_FORCE_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_force f;
+        f.id = rd_u32(&r);
+        for (int k = 0; k < 3; k++)
+            f.force[k] = rd_f32(&r);
+        for (int k = 0; k < 3; k++)
+            f.torque[k] = rd_f32(&r);
+        f.sinkage_m = rd_f32(&r);
+        f.area_m2 = rd_f32(&r);
+        f.patch_width_m = rd_f32(&r);
+        f.slip = rd_f32(&r);
+        f.cells = rd_u32(&r);
+        if (force_check(&f))
+            return TERRAD_E_BAD_VALUE;
+        forces[i] = f;
     }
     if (tick_out)
         *tick_out = tick;

@@ -49,6 +49,8 @@ extern "C" {
 #define TERRAD_COLLIDER_STATE_SIZE 48 /* u32 id, u8 owner, u8 shape, u16 0, 10 x f32 */
 #define TERRAD_FOOTPRINTS_FIXED 14    /* header, u64 tick, u16 count */
 #define TERRAD_FOOTPRINT_SIZE 24      /* u32 collider id, 5 x f32 */
+#define TERRAD_FORCES_FIXED 14        /* header, u64 tick, u16 count */
+#define TERRAD_FORCE_SIZE 48          /* u32 id, 10 x f32, u32 cells */
 #define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
@@ -60,6 +62,7 @@ typedef enum terrad_msg_type {
     TERRAD_MSG_ACK = 0x12,        /* server -> client */
     TERRAD_MSG_COLLIDERS = 0x13,  /* server -> client */
     TERRAD_MSG_FOOTPRINTS = 0x14, /* server -> client */
+    TERRAD_MSG_FORCES = 0x15,     /* server -> client */
 } terrad_msg_type;
 
 /* Error codes: positive values are the protocol's (PROTOCOL.md, "Errors"),
@@ -227,6 +230,27 @@ int terrad_footprints_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t
                              const terrad_footprint *events, size_t count);
 int terrad_footprints_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                              terrad_footprint *events, size_t cap, size_t *count_out);
+
+/* ---- FORCES -------------------------------------------------------------- */
+
+/* The soil's push on one collider in one tick (worlds of the bekker model):
+ * what a simulator applies to its body. */
+typedef struct terrad_force {
+    uint32_t id;         /* collider id */
+    float force[3];      /* N, on the collider, world frame */
+    float torque[3];     /* N m, about the collider's pose position */
+    float sinkage_m;     /* deepest total sinkage under it, >= 0 */
+    float area_m2;       /* contact area, >= 0 */
+    float patch_width_m; /* Bekker's b of its largest contact patch, >= 0 */
+    float slip;          /* wheels (cylinders): 1 - v/(wR) driving, wR/v - 1 skidding; else 0 */
+    uint32_t cells;      /* cells in contact */
+} terrad_force;
+
+size_t terrad_forces_size(size_t count);
+int terrad_forces_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                         const terrad_force *forces, size_t count);
+int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_force *forces,
+                         size_t cap, size_t *count_out);
 
 /* ---- ACK, PING, PONG ----------------------------------------------------- */
 

@@ -662,6 +662,64 @@ static void footprints_vectors(void)
             TERRAD_E_BAD_FRAME);
 }
 
+/* ---- FORCES ---- */
+
+static cJSON *forces_fields(uint64_t tick, const terrad_force *f, size_t n)
+{
+    cJSON *o = cJSON_CreateObject();
+    add_u64(o, "tick", tick);
+    cJSON *a = cJSON_AddArrayToObject(o, "forces");
+    for (size_t i = 0; i < n; i++) {
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddNumberToObject(e, "id", f[i].id);
+        cJSON_AddItemToObject(e, "force", cJSON_CreateFloatArray(f[i].force, 3));
+        cJSON_AddItemToObject(e, "torque", cJSON_CreateFloatArray(f[i].torque, 3));
+        cJSON_AddNumberToObject(e, "sinkage_m", f[i].sinkage_m);
+        cJSON_AddNumberToObject(e, "area_m2", f[i].area_m2);
+        cJSON_AddNumberToObject(e, "patch_width_m", f[i].patch_width_m);
+        cJSON_AddNumberToObject(e, "slip", f[i].slip);
+        cJSON_AddNumberToObject(e, "cells", f[i].cells);
+        cJSON_AddItemToArray(a, e);
+    }
+    return o;
+}
+
+static void forces_vectors(void)
+{
+    size_t len;
+    ok(terrad_forces_encode(buf, sizeof buf, &len, 12, NULL, 0), "forces");
+    valid(vector("forces_empty", "FORCES", "no collider with feedback"), forces_fields(12, NULL, 0),
+          buf, len);
+    terrad_force f[2] = {
+        {3, {-6.5f, 0.25f, 80.0f}, {0.125f, 5.25f, -0.5f}, 0.0075f, 0.0125f, 0.0625f, 0.2f, 500},
+        {0x80000002u, {0.0f, 0.0f, 0.0f}, {0.0f, 0.0f, 0.0f}, 0.0f, 0.0f, 0.0f, -1.0f, 0},
+    };
+    ok(terrad_forces_encode(buf, sizeof buf, &len, 987654321ull, f, 2), "forces");
+    valid(vector("forces_two", "FORCES", "a driven wheel at slip 0.2, a skidding wheel lifted off"),
+          forces_fields(987654321ull, f, 2), buf, len);
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 4, NAN); /* first entry's force x */
+    invalid("forces_nan", "FORCES", "force x is NaN", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 40, INFINITY); /* first entry's slip */
+    invalid("forces_inf", "FORCES", "slip is +Inf", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 28, -0.001f); /* first entry's sinkage */
+    invalid("forces_negative_sinkage", "FORCES", "sinkage < 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_f32(q + 14 + 32, -1.0f); /* first entry's area */
+    invalid("forces_negative_area", "FORCES", "area < 0", q, len, TERRAD_E_BAD_VALUE);
+    invalid("forces_truncated", "FORCES", "the last entry cut short", buf, len - 4,
+            TERRAD_E_BAD_FRAME);
+    buf[len] = 0;
+    invalid("forces_trailing", "FORCES", "a byte after the last entry", buf, len + 1,
+            TERRAD_E_BAD_FRAME);
+    memcpy(q, buf, len);
+    q[12] = 3; /* count 3, two entries follow */
+    invalid("forces_count", "FORCES", "count 3 with two entries", q, len, TERRAD_E_BAD_FRAME);
+}
+
 /* ---- mirror scenarios ---- */
 
 /* World heights of a tiny made-up world, used for snapshots. */
@@ -829,6 +887,7 @@ int main(void)
     small_vectors();
     colliders_vectors();
     footprints_vectors();
+    forces_vectors();
     mirror_scenarios();
     char *text = cJSON_Print(root);
     if (!text)

@@ -49,7 +49,7 @@ static const cli_option simulate_table[] = {
     [OPT_METHOD] = {"method", "M", "iterative | ssbo | multi (overrides the scene's material)"},
     [OPT_MODEL] = {"model", "M",
                    "persson-iterative | persson-ssbo | persson-multi | subtract |\n"
-                   "deferred | diffusion | sumner | decals (overrides the scene's model)"},
+                   "deferred | diffusion | sumner | decals | bekker (overrides the scene's model)"},
     [OPT_METRIC] = {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)"},
     [OPT_OUT] = {"out", "FILE", "write the final heights: little-endian int32, row-major"},
     [OPT_THREADS] = {"threads", "N",
@@ -358,6 +358,8 @@ static void report_add_run(cJSON *root, simulate_run *r)
     add_int64(root, "volume_after", r->volume_after);
     if (r->grd.uses_compaction) /* volume_after + compacted == volume_before */
         add_int64(root, "compacted", ground_compaction_total(&r->grd));
+    else if (r->params.model == SIM_MODEL_BEKKER) /* the soil keeps its own */
+        add_int64(root, "compacted", sim_engine_soil_compacted(r->engine));
     cJSON *st = cJSON_AddObjectToObject(root, "stages");
     const simulate_totals *t = &r->totals;
     for (int s = 0; s < t->stage_count; s++) {

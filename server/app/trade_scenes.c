@@ -20,8 +20,8 @@
 /* ---- Models ---- */
 
 const char *const trade_model_names[] = {
-    "persson-iterative", "persson-ssbo", "persson-multi", "subtract",
-    "deferred",          "diffusion",    "sumner",        "decals"};
+    "persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
+    "diffusion",         "sumner",       "decals",        "bekker"};
 const int trade_model_count = (int)(sizeof trade_model_names / sizeof trade_model_names[0]);
 
 int trade_model_index(const char *name)

@@ -144,11 +144,6 @@ uint64_t proc_peak_rss_bytes(void)
     return proc_status_kib("VmHWM:");
 }
 
-uint64_t proc_rss_bytes(void)
-{
-    return proc_status_kib("VmRSS:");
-}
-
 void error_set(error_text *err, const char *fmt, ...)
 {
     if (!err)

@@ -39,10 +39,14 @@ double stat_series_mean(const stat_series *s);
 double stat_series_percentile(const stat_series *s, double p); /* p in [0,100] */
 void stat_series_free(stat_series *s);
 
+/* The data of a file compiled into the binary (shaders/, the default scene,
+ * docs/openapi.yaml; base/embedded.c), NUL-terminated, or NULL if none is
+ * embedded under that name (a path relative to the repository root, e.g.
+ * "shaders/classify.comp"). When size is not NULL it receives the length. */
+const char *embedded_file_find(const char *name, size_t *size);
+
 /* Peak resident set size of this process in bytes (VmHWM), 0 if unknown. */
 uint64_t proc_peak_rss_bytes(void);
-/* Current resident set size in bytes (VmRSS), 0 if unknown. */
-uint64_t proc_rss_bytes(void);
 
 /* Error text carried out of a failing call: one line, names the cause. */
 typedef struct error_text {

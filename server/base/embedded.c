@@ -1,5 +1,6 @@
 /* embedded.c: lookup in the build-generated table of embedded files. */
-#include "base/embedded.h"
+#include "base/base.h"
+#include "base/embedded_internal.h"
 
 #include <string.h>
 

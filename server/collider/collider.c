@@ -2,7 +2,7 @@
  * collider.c: the collider geometry's checks, quaternion arithmetic,
  * world-space bounds and scripted motion. Each tick starts here: a collider's
  * pose (streamed or from collider_motion_pose) and its bounds decide its
- * footprint, the footprints become windows (step 3 of the tick), and the
+ * footprint, the footprints become windows (row 4a of the tick table in docs/design.md), and the
  * depth stage (depth_fixed.c on either backend)
  * then works only inside them. Bounds are exact rather than bounding-sphere
  * wide, because every extra cell of footprint is work for every later stage.
@@ -303,15 +303,29 @@ double collider_reach(const collider_geometry *g)
 }
 
 /*
- * Issue 20, item 3: a mesh at the default limits (16,384 vertices, 32,768
- * triangles) was charged only its bounding square (441 cells for a 0.5 m
- * sphere) while its depth prepares every triangle on every tick: measured on
- * the loaded 2-core AMD EPYC (tests/bench/bench_mesh.py), a triangle cost
- * about as much of the tick as a cell of a primitive's window, and such a mesh
- * 400 ms more per tick than the primitive sphere of its size. Hence one cell
- * per triangle, plus the cells its span may hold.
+ * What a collider costs a tick (issue 20, item 3), in "cells": one cell is the
+ * work of one cell of a window through the whole tick (depth, classify, jump
+ * flood, displacement, commit). Calibrated with instruction counts, which the
+ * machine's load does not change (callgrind, `terrad simulate --backend cpu
+ * --threads 1` on the daemon's default dunes, a collider ploughing fresh
+ * ground, per tick; docs/service.md has the table):
+ *   - a primitive sphere of r 0.5 / 2 / 8 m: 3.5 M / 30 M / 449 M
+ *     instructions, i.e. 4.1–4.4 k per cell of its window, which is the
+ *     bounding square plus the sim's active margin (4 cells) on each side;
+ *   - a mesh of 32,760 triangles (0.5 m): 17 M more than the sphere, 515
+ *     instructions per triangle (prepared on every sub-step): 1/8 cell;
+ *   - 40 sweep sub-steps of the 0.5 m sphere instead of 1: 3.8 M more, the
+ *     window growing with the travel (a lane of window per cell moved) and
+ *     under 100 instructions per cell of its square per sub-step: 1/32 cell.
  */
-static int64_t mesh_triangle_cells(const collider_mesh *m, double cell)
+#define COST_MARGIN_CELLS 4  /* the default active margin (scene.h) */
+#define COST_STEP_DIVISOR 32 /* cells of a depth pass per cell of window */
+#define COST_TRIANGLE_DIVISOR 8
+
+/* The cells a mesh's depth instances visit, summed over its triangles: per
+ * triangle the square around its own bounding sphere (what its depth may
+ * visit), whatever the orientation. */
+static int64_t mesh_visit_cells(const collider_mesh *m, double cell)
 {
     int64_t sum = 0;
     for (int k = 0; k < m->triangle_count; k++) {
@@ -329,17 +343,32 @@ static int64_t mesh_triangle_cells(const collider_mesh *m, double cell)
             r2 = d2 > r2 ? d2 : r2;
         }
         double side = floor(2 * sqrt(r2) / cell) + 1;
-        sum += (int64_t)(side * side) + 1;
+        sum += (int64_t)(side * side);
     }
     return sum;
 }
 
-int64_t collider_cost_cells(const collider_geometry *g, double cell_size_m)
+static int64_t ceil_div(int64_t a, int64_t b)
+{
+    return (a + b - 1) / b;
+}
+
+collider_cost collider_cost_of(const collider_geometry *g, double cell_size_m)
 {
     double cell = cell_size_m > 0 ? cell_size_m : 1;
     double side = ceil(2 * collider_reach(g) / cell) + 1;
-    int64_t cells = (int64_t)(side * side);
+    int64_t lane = (int64_t)side + 2 * COST_MARGIN_CELLS;
+    collider_cost c = {.window = lane * lane, .lane = lane};
     if (g->shape == COLLIDER_MESH && g->mesh)
-        cells += mesh_triangle_cells(g->mesh, cell);
-    return cells;
+        c.step = ceil_div(g->mesh->triangle_count, COST_TRIANGLE_DIVISOR) +
+                 ceil_div(mesh_visit_cells(g->mesh, cell), COST_STEP_DIVISOR);
+    else
+        c.step = ceil_div((int64_t)(side * side), COST_STEP_DIVISOR);
+    return c;
+}
+
+int64_t collider_cost_cells(const collider_cost *c, int steps, int feedback)
+{
+    int64_t n = steps > 1 ? steps : 1;
+    return c->window + (n + (feedback ? 1 : 0)) * c->step + (n - 1) / 2 * c->lane;
 }

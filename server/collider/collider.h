@@ -76,13 +76,20 @@ vec3d quat_rotate(quatd q, vec3d v);
 void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi);
 /* Largest distance of any point of the collider from its position (metres). */
 double collider_reach(const collider_geometry *g);
-/* What one pose of the collider costs a tick, in cells, whatever its
- * orientation (the per-client max_active_cells and the per-tick
- * max_tick_cells charge it): the square around its bounding sphere (its
- * window) and, for a mesh, per triangle the square around the triangle's own
- * bounding sphere (the cells its depth instance may visit) plus one for the
- * triangle itself. g->mesh must be set for a mesh. */
-int64_t collider_cost_cells(const collider_geometry *g, double cell_size_m);
+/* What the collider costs a tick, in cells of window work (collider.c has
+ * the calibration; the per-client max_active_cells and the per-tick
+ * max_tick_cells charge it), whatever its orientation: its window (the
+ * square around its bounding sphere and the active margin), the depth work of
+ * one pose (a mesh's: per triangle), and the lane of window each cell of
+ * travel adds. collider_cost_of is O(triangles) for a mesh (g->mesh must be
+ * set); collider_cost_cells charges a tick of `steps` sweep sub-steps (each
+ * does the depth work again; the travel is about steps / 2 cells) and one
+ * more depth pass for contact feedback. */
+typedef struct collider_cost {
+    int64_t window, step, lane;
+} collider_cost;
+collider_cost collider_cost_of(const collider_geometry *g, double cell_size_m);
+int64_t collider_cost_cells(const collider_cost *c, int steps, int feedback);
 
 /*
  * CPU twin depth stage: for each cell of `window` (world cell coordinates),

@@ -1,5 +1,6 @@
 /*
- * depth_cpu.c: the CPU twin's depth stage (step 5 of the tick). For every
+ * depth_cpu.c: the CPU twin's depth stage (rows 4c and 4d.1 of the tick
+ * table in docs/design.md). For every
  * cell of a window it finds the lowest point of a collider on the vertical
  * line through the cell centre and lowers the window's "bottom" array to it,
  * by the one fixed-point rule both backends share (depth_fixed.c; the GL

@@ -1,6 +1,6 @@
 /*
  * depth_fixed.c: the depth stage's fixed-point specification (issue 12,
- * item 4), step 5 of the tick on both backends. A GL raster of tessellated
+ * item 4), row 4d.1 of the tick table (docs/design.md) on both backends. A GL raster of tessellated
  * triangles in float and an analytic intersection in double never agree
  * bit for bit, so the shapes done here are computed by ONE integer
  * specification: this file, and its GLSL twin shaders/depth_exact.comp,

@@ -474,7 +474,6 @@ sim_backend *sim_backend_gl_create(error_text *err)
     b->base.gpu_sync_stats = gl_gpu_sync_stats;
     b->base.set_stage_timing = gl_set_stage_timing;
     b->base.destroy = gl_destroy;
-    b->base.impl = b;
     b->cache = gl_cache_create(err);
     if (!b->cache) {
         free(b);

@@ -1,14 +1,14 @@
 /*
- * depth.c: the GL backend's depth stage (gl_internal.h), step 5 of the tick
- * on the GPU. Every shape is computed exactly by depth_exact.comp, the GLSL
- * twin of collider/depth_fixed.c: the same bottoms as the CPU twin's
- * sim_window_depth, bit for bit. depth_clear.comp first sets the bottoms of
- * the windows that need a depth to COLLIDER_BOTTOM_NONE (windows whose
- * bottom was uploaded keep it), then the instances — one per shape, sub-step
- * pose of the swept collider and window, a mesh one per triangle — lower
- * them with atomicMin. (Until issue 12 the colliders were rasterised into a
- * depth atlas in float; that path and its atlas, geometry cache and
- * vertex/fragment programs are gone.)
+ * depth.c: the GL backend's depth stage (gl_internal.h), row 4d.1 of the
+ * tick table in docs/design.md, on the GPU. Every shape is computed exactly
+ * by depth_exact.comp, the GLSL twin of collider/depth_fixed.c: the same
+ * bottoms as the CPU twin's sim_window_depth, bit for bit. depth_clear.comp
+ * first sets the bottoms of the windows that need a depth to
+ * COLLIDER_BOTTOM_NONE (windows whose bottom was uploaded keep it), then the
+ * instances — one per shape, sub-step pose of the swept collider and window,
+ * a mesh one per triangle — lower them with atomicMin. (Until issue 12 the
+ * colliders were rasterised into a depth atlas in float; that path and its
+ * atlas, geometry cache and vertex/fragment programs are gone.)
  */
 #include "gl/gl_internal.h"
 

@@ -1,6 +1,6 @@
 /*
  * shader.c: compiles and links the GL backend's programs from the shaders/
- * files embedded in the binary (base/embedded.h), so the daemon needs no
+ * files embedded in the binary (embedded_file_find, base/base.h), so the daemon needs no
  * files at run time. Compute shaders share shaders/common.glsl through a
  * one-level `#include "common.glsl"` line that is spliced in here, with
  * #line directives so the driver's messages still point at the right file
@@ -11,8 +11,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-#include "base/embedded.h"
 
 #define INCLUDE_DIRECTIVE "#include \""
 
@@ -40,6 +38,27 @@ static void first_line(const char *text, char *out, size_t size)
     if (len)
         memcpy(out, text, len);
     out[len] = '\0';
+}
+
+/* A shader or program as the driver left it: obj when its status says so,
+ * else 0 after logging the driver's message and deleting obj (what is
+ * "compile" or "link"; the getters are the shader's or the program's). */
+static GLuint checked(GLuint obj, GLenum status, void (*get_iv)(GLuint, GLenum, GLint *),
+                      void (*get_log)(GLuint, GLsizei, GLsizei *, GLchar *),
+                      void (*destroy)(GLuint), const char *what, const char *name, error_text *err)
+{
+    GLint ok = 0;
+    get_iv(obj, status, &ok);
+    if (ok)
+        return obj;
+    char log[4096] = "";
+    get_log(obj, sizeof log, NULL, log);
+    log_info_log(what, name, log);
+    char line[160];
+    first_line(log, line, sizeof line);
+    error_set(err, "gl: %s does not %s: %s", name, what, line);
+    destroy(obj);
+    return 0;
 }
 
 static GLuint compile_stage(GLenum type, const char *name, error_text *err)
@@ -109,19 +128,8 @@ static GLuint compile_stage(GLenum type, const char *name, error_text *err)
     GLuint shader = glCreateShader(type);
     glShaderSource(shader, count, strings, lengths);
     glCompileShader(shader);
-    GLint ok = 0;
-    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = "";
-        glGetShaderInfoLog(shader, sizeof log, NULL, log);
-        log_info_log("compile", name, log);
-        char line[160];
-        first_line(log, line, sizeof line);
-        error_set(err, "gl: %s does not compile: %s", name, line);
-        glDeleteShader(shader);
-        return 0;
-    }
-    return shader;
+    return checked(shader, GL_COMPILE_STATUS, glGetShaderiv, glGetShaderInfoLog, glDeleteShader,
+                   "compile", name, err);
 }
 
 static GLuint link_program(const GLuint *shaders, int count, const char *name, error_text *err)
@@ -134,19 +142,8 @@ static GLuint link_program(const GLuint *shaders, int count, const char *name, e
         glDetachShader(program, shaders[i]);
         glDeleteShader(shaders[i]);
     }
-    GLint ok = 0;
-    glGetProgramiv(program, GL_LINK_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = "";
-        glGetProgramInfoLog(program, sizeof log, NULL, log);
-        log_info_log("link", name, log);
-        char line[160];
-        first_line(log, line, sizeof line);
-        error_set(err, "gl: %s does not link: %s", name, line);
-        glDeleteProgram(program);
-        return 0;
-    }
-    return program;
+    return checked(program, GL_LINK_STATUS, glGetProgramiv, glGetProgramInfoLog, glDeleteProgram,
+                   "link", name, err);
 }
 
 GLuint gl_program_compute(const char *name, error_text *err)

@@ -33,7 +33,6 @@
 #include <string.h>
 #include <strings.h>
 
-#include "base/embedded.h"
 #include "metrics/metrics.h"
 
 #define ALLOWED_METHODS "GET, HEAD"

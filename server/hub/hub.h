@@ -18,57 +18,14 @@
  * net thread answers the client), a full outbound queue drops tile deltas
  * and marks every client for a resync (counted).
  *
- * ---- The daemon's threads and every place they meet ----
- * Threads:
- *   sim         the main thread of `terrad serve` (app/serve.c): ticks the
- *               service (service_tick) and the engine, owns the world, the
- *               engine, the GL context and the store's log; on a cluster
- *               node, one sim thread per world (app/serve_node.c), each with
- *               a hub of its own, all on one net thread;
- *   net         one thread running libwebsockets (net/net.c): owns every
- *               connection, client record and the net side's collider table;
- *   http        libmicrohttpd's pool of four polling threads (http/http.c):
- *               own nothing but their requests;
- *   compaction  the store's own thread (store/store.c): writes tile
- *               snapshots from copies the sim thread hands over;
- *   snapshot    the service's worker (service/service_snapshots.c):
- *               compresses and frames client snapshots from cell copies
- *               the sim thread hands over at the end of a tick;
- *   http guard  a sweeper per HTTP listener (http/http_guard.c): cuts
- *               connections whose request headers are late.
- * Meeting points (nothing else is shared):
- *   1. hub command queue     net → sim   mutex; bounded, refusable
- *   2. hub pose table        net → sim   mutex; latest wins per collider
- *   3. hub batch sequences   net → sim   mutex; latest wins per client
- *   4. hub outbound queue    sim → net   mutex; the frames' reference counts
- *                                        are atomic (hub_frame.refs); the
- *                                        sim wakes the net thread through
- *                                        hub_set_waker (lws_cancel_service,
- *                                        under net.c's wake_lock)
- *   5. hub storage state     sim → net   mutex (store unavailable + reason)
- *   6. hub height reads      http → sim  mutex + condition variable; the
- *                                        only place a thread waits on another
- *   7. http_status block     sim → http  its own mutex (http/http.h), copied
- *                                        once per tick by the sim thread
- *   8. metrics               all → http  relaxed atomics, and a short mutex
- *                                        per histogram (metrics/metrics.c)
- *   9. store compaction      sim → compaction  store.c's mutex + condition
- *                                        variable: one job (tile copies) at a time
- *  10. net_server_client_count  net → any  an atomic counter (net/net.c)
- *  11. stop requests         signal → sim (a sig_atomic_t in serve.c);
- *                            sim → net (atomics in net.c, then a join)
- *  12. snapshot worker       sim → snapshot  its mutex + condition variable:
- *                                        one tick's requests at a time, taken
- *                                        back at the start of the next tick
- *                                        (the sim thread waits there for a
- *                                        worker not yet done)
- *  13. http guard            http → sweeper  its mutex (per-address bytes,
- *                                        connection start times)
+ * The daemon's threads and every place they meet are mapped once, in
+ * docs/design.md ("Threads" and "Where they meet"); the hub is the main one.
  * Ownership is checked, not only described: each end of the hub asserts its
  * thread (THREAD_OWNED) in debug and sanitizer builds; the sim thread claims
  * the sim end (service_create), the net thread the net end while it runs;
  * hub_read_heights refuses the sim thread. The HTTP pool has no single
- * owner thread to claim: its meeting points are 6, 7 and 8 only.
+ * owner thread to claim: it meets the others only at the hub's height reads,
+ * http_status and the metrics (and its listener's guard).
  */
 #ifndef TERRAD_HUB_H
 #define TERRAD_HUB_H

@@ -41,8 +41,8 @@ net_limits net_limits_default(void)
         .messages_burst = 480,
         .max_mesh_vertices = 16384,
         .max_mesh_triangles = 32768,
-        .max_active_cells = 262144,
-        .max_tick_cells = 1048576, /* four clients' whole max_active_cells; 0 turns it off */
+        .max_active_cells = 8192, /* docs/service.md: a quarter of a 60 Hz tick at most */
+        .max_tick_cells = 32768,  /* four clients' whole max_active_cells; 0 turns it off */
         .max_collider_extent_m = 50,
         .max_pending_bytes = 8388608,
         .hello_timeout_s = 5,

@@ -144,10 +144,11 @@ void net_dispatch(net_state *w, hub_out *o)
             o->frame = NULL;
         } else if (c && o->frame) {
             int status = o->msg == TERRAD_MSG_CONTACT || o->msg == TERRAD_MSG_ACK ||
-                         o->msg == TERRAD_MSG_COLLIDERS;
+                         o->msg == TERRAD_MSG_COLLIDERS || o->msg == TERRAD_MSG_FORCES;
             if (status && dropping_deltas(c)) {
                 /* An ACK of tick t promises that tick t's deltas came first: while
-                 * deltas are dropped for a resync, the tick's ACK and CONTACT go too. */
+                 * deltas are dropped for a resync, the tick's ACK, CONTACT and FORCES
+                 * go too. */
                 metrics_count_frames_coalesced(1);
             } else {
                 net_enqueue(c, o->frame, status ? NET_ITEM_STATUS : NET_ITEM_REPLY);

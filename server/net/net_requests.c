@@ -147,8 +147,8 @@ static int over_budget(net_client *c, const net_control *m, int64_t cells, int t
     const net_limits *l = &c->srv->cfg.limits;
     if (c->active_cells + cells > l->max_active_cells) {
         net_error(c, TERRAD_E_LIMIT_COLLIDERS, m->ref, -1, 0,
-                  "collider_create: its cost of %lld cells (its footprint, and a mesh's "
-                  "triangles) would take this client's colliders "
+                  "collider_create: its cost of %lld cells (its window, a pose's depth, "
+                  "feedback's) would take this client's colliders "
                   "to %lld active cells, over max_active_cells (%lld)",
                   (long long)cells, (long long)(c->active_cells + cells),
                   (long long)l->max_active_cells);
@@ -170,7 +170,9 @@ static void handle_collider_create(net_client *c, net_control *m)
     net_state *s = c->srv;
     collider_geometry g = m->geometry; /* the mesh may still be the message's */
     g.mesh = m->mesh ? m->mesh : m->geometry.mesh;
-    int64_t cells = collider_cost_cells(&g, s->cfg.world.cell_size_m);
+    /* one pose at rest, its feedback included: the sweep is charged per tick (service_shed.c) */
+    collider_cost cost = collider_cost_of(&g, s->cfg.world.cell_size_m);
+    int64_t cells = collider_cost_cells(&cost, 1, m->feedback);
     const collider_mesh *mesh = g.mesh;
     int triangles = m->geometry.shape == COLLIDER_MESH && mesh ? mesh->triangle_count : 0;
     if (over_budget(c, m, cells, triangles)) {

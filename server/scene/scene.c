@@ -60,7 +60,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "base/embedded.h"
 #include "scene/scene_internal.h"
 
 /* ---- world and terrain ---- */

@@ -33,7 +33,45 @@ static const char *const material_keys[] = {"compression",
                                             "substeps",
                                             "conservative",
                                             "decal_min_strength_m",
+                                            "soil",
                                             NULL};
+
+static const char *const soil_keys[] = {
+    "preset",       "n",         "kc",           "kphi",           "cohesion_pa",
+    "friction_deg", "shear_k_m", "elastic_pa_m", "damping_pa_s_m", NULL};
+
+/* "soil": the bekker model's terramechanics parameters — a preset first (the
+ * soils of docs/models.md), then each number overrides it. Ranges are
+ * sim_soil_validate's, so the message names the field and the range. */
+static int material_soil(const cJSON *o, sim_material *m, error_text *err)
+{
+    const char *P = "material.soil";
+    const cJSON *s = cJSON_GetObjectItemCaseSensitive(o, "soil");
+    if (!s)
+        return 0;
+    if (json_expect_object(s, P, "material", err) || json_check_keys(s, P, soil_keys, NULL, err))
+        return -1;
+    char preset[32];
+    int r;
+    if ((r = json_get_string(s, P, "preset", preset, sizeof preset, err)) < 0)
+        return -1;
+    if (r && sim_soil_preset(preset, &m->soil) != 0) {
+        error_set(err, "material.soil.preset: must be one of " SIM_SOIL_PRESET_LIST " (got \"%s\")",
+                  preset);
+        return -1;
+    }
+    /* any finite number here; the soil's own check states the range */
+    if (json_get_number(s, P, "n", -1e308, 1e308, &m->soil.n, err) < 0 ||
+        json_get_number(s, P, "kc", -1e308, 1e308, &m->soil.kc, err) < 0 ||
+        json_get_number(s, P, "kphi", -1e308, 1e308, &m->soil.kphi, err) < 0 ||
+        json_get_number(s, P, "cohesion_pa", -1e308, 1e308, &m->soil.cohesion_pa, err) < 0 ||
+        json_get_number(s, P, "friction_deg", -1e308, 1e308, &m->soil.friction_deg, err) < 0 ||
+        json_get_number(s, P, "shear_k_m", -1e308, 1e308, &m->soil.shear_k_m, err) < 0 ||
+        json_get_number(s, P, "elastic_pa_m", -1e308, 1e308, &m->soil.elastic_pa_m, err) < 0 ||
+        json_get_number(s, P, "damping_pa_s_m", -1e308, 1e308, &m->soil.damping_pa_s_m, err) < 0)
+        return -1;
+    return sim_soil_validate(&m->soil, P, err);
+}
 
 /* The numbers every model shares: compression, roughness, repose, the
  * multi-target settings and the iteration counts. */
@@ -179,7 +217,7 @@ int scene_parse_material(const cJSON *root, scene *s, error_text *err)
         return 0;
     if (json_expect_object(o, "material", "scene", err) ||
         json_check_keys(o, "material", material_keys, NULL, err) || material_numbers(o, m, err) ||
-        material_names(o, m, err) || material_model_params(o, m, err))
+        material_names(o, m, err) || material_model_params(o, m, err) || material_soil(o, m, err))
         return -1;
     /* the sim's own conversion has the last word on what it can run */
     sim_params p;

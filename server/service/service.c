@@ -232,7 +232,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
         service_publish_deltas(s, stats);
     service_edits_finish(s); /* each edit's sender: its tick and volume change */
     service_contacts_after_tick(s);
-    service_publish_feedback(s); /* CONTACT, ACK */
+    service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */

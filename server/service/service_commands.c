@@ -164,7 +164,7 @@ static void collider_create(service *s, hub_command *c)
                        .previous_pose = c->pose,
                        .has_pose = has_pose,
                        .feedback = c->feedback,
-                       .cost_cells = collider_cost_cells(g, s->world->cell_size_m)};
+                       .cost = collider_cost_of(g, s->world->cell_size_m)};
     c->mesh = NULL;
 }
 

@@ -3,8 +3,9 @@
  * tick's ACKs. Each collider with feedback is measured against the terrain
  * before the deformation (how deep it sinks, where, the surface normal);
  * after the deformation the support height under it is filled in, and each
- * client gets one CONTACT frame with its colliders and one ACK of the
- * latest pose batch the tick used. Sim thread only.
+ * client gets one CONTACT frame with its colliders, in a world of the
+ * bekker model one FORCES frame (the soil's push the engine summed), and one
+ * ACK of the latest pose batch the tick used. Sim thread only.
  */
 #include "service/service_internal.h"
 
@@ -157,12 +158,57 @@ static void send_contacts(service *s, const svc_client *cl)
     free(mine);
 }
 
-void service_publish_feedback(service *s)
+/* One client's FORCES frame (bekker worlds): the soil's push on each of its
+ * colliders with feedback, in the tick's collider order. */
+static void send_forces(service *s, const svc_client *cl, const sim_tick_report *report)
+{
+    int n = 0;
+    for (int i = 0; i < report->contact_count; i++) {
+        int k = service_find_collider(s, (uint32_t)report->contacts[i].collider_id);
+        n += k >= 0 && s->colliders[k].client == cl->id && s->colliders[k].feedback;
+    }
+    if (n == 0)
+        return;
+    terrad_force *mine = malloc((size_t)n * sizeof *mine);
+    if (!mine) {
+        service_note_drop(s, "frame", "no memory for the FORCES frame of client %u", cl->id);
+        return;
+    }
+    int m = 0;
+    for (int i = 0; i < report->contact_count; i++) {
+        const sim_contact *c = &report->contacts[i];
+        int k = service_find_collider(s, (uint32_t)c->collider_id);
+        if (k < 0 || s->colliders[k].client != cl->id || !s->colliders[k].feedback)
+            continue;
+        terrad_force *f = &mine[m++];
+        f->id = (uint32_t)c->collider_id;
+        for (int a = 0; a < 3; a++) {
+            f->force[a] = (float)c->force_n[a];
+            f->torque[a] = (float)c->torque_nm[a];
+        }
+        f->sinkage_m = (float)c->sinkage_m;
+        f->area_m2 = (float)c->area_m2;
+        f->patch_width_m = (float)c->patch_width_m;
+        f->slip = (float)c->slip;
+        f->cells = c->cells > UINT32_MAX ? UINT32_MAX : (uint32_t)c->cells;
+    }
+    size_t size = terrad_forces_size((size_t)n);
+    hub_frame *f = hub_frame_new(1, size);
+    if (f && terrad_forces_encode(f->data, size, &f->len, s->tick, mine, (size_t)n) != 0) {
+        hub_frame_unref(f);
+        f = NULL;
+    }
+    service_queue_client(s, cl->id, f, TERRAD_MSG_FORCES, 0);
+    free(mine);
+}
+
+void service_publish_feedback(service *s, const sim_tick_report *report)
 {
     THREAD_OWNED(&s->owner);
     for (int c = 0; c < s->client_count; c++) {
         svc_client *cl = &s->clients[c];
         send_contacts(s, cl);
+        send_forces(s, cl, report);
         if (cl->sequence_pending && !cl->held) { /* a held client's poses were not used */
             hub_frame *f = hub_frame_new(1, TERRAD_ACK_SIZE);
             if (f && terrad_ack_encode(f->data, TERRAD_ACK_SIZE, &f->len, s->tick,

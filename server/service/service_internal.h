@@ -59,7 +59,7 @@ typedef struct svc_collider {
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
     int held;           /* waits this tick (service_shed.c): no deformation, previous pose kept */
-    int64_t cost_cells; /* collider_cost_cells, once at its creation (a mesh's is O(triangles)) */
+    collider_cost cost; /* collider_cost_of, once at its creation (a mesh's is O(triangles)) */
 } svc_collider;
 
 typedef struct svc_contact {
@@ -194,7 +194,8 @@ void service_take_input(service *s);
 /* service_contacts.c */
 void service_contacts_before_tick(service *s);
 void service_contacts_after_tick(service *s);
-void service_publish_feedback(service *s); /* CONTACT and ACK frames */
+/* CONTACT, FORCES (bekker worlds: the report's contacts) and ACK per client. */
+void service_publish_feedback(service *s, const sim_tick_report *report);
 
 /* service_deltas.c */
 int service_cut_into_tiles(service *s, const sim_tick_report *report);

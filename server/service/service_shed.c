@@ -5,7 +5,11 @@
  * cells of every posed client collider are summed (each charged
  * collider_cost_cells, as the per-client budget max_active_cells charges it,
  * net_requests.c: the square around its bounding sphere, and a mesh's
- * triangles too). While the sum is over max_tick_cells, the most
+ * triangles too) once per sweep sub-step this tick (issue 20: a fast
+ * collider does its depth work once per sub-step, collider_sweep_steps, and
+ * a collider held last tick sweeps the two ticks' travel) and once more with
+ * contact feedback (service_contacts.c measures its depth again against the
+ * terrain before the tick). While the sum is over max_tick_cells, the most
  * expensive client's colliders wait a tick ("held"): they do not deform, keep
  * their previous pose (so the next tick sweeps the whole way and the trail
  * has no gap) and the client's ACK waits with them.
@@ -25,6 +29,19 @@
 void service_set_tick_budget(service *s, int64_t max_tick_cells)
 {
     s->max_tick_cells = max_tick_cells > 0 ? max_tick_cells : 0;
+}
+
+/* What a posed collider costs this tick, in cells: collider_cost_cells of its
+ * sweep sub-steps this tick (the rule the backends sweep by,
+ * sim_collider_sweep_steps) and its contact feedback. */
+static int64_t tick_cost(const service *s, const svc_collider *c)
+{
+    sim_collider one = {.geometry = c->geometry,
+                        .pose = c->pose,
+                        .previous_pose = c->previous_pose,
+                        .has_previous = c->has_previous};
+    return collider_cost_cells(&c->cost, sim_collider_sweep_steps(&one, s->world->cell_size_m),
+                               c->feedback);
 }
 
 /* The client to hold next: the most cells among those over the fair share and
@@ -49,7 +66,7 @@ static void log_shed(service *s, uint64_t colliders, int64_t total)
     s->shed_unlogged += colliders;
     if (s->last_shed_log_ms > 0 && now - s->last_shed_log_ms < 1000.0)
         return;
-    log_info("service: tick %llu: %llu collider(s) wait a tick (%lld footprint cells asked for, "
+    log_info("service: tick %llu: %llu collider(s) wait a tick (%lld cells asked for, "
              "max_tick_cells %lld; counted since the last such line)",
              (unsigned long long)s->tick, (unsigned long long)s->shed_unlogged, (long long)total,
              (long long)s->max_tick_cells);
@@ -75,7 +92,7 @@ void service_shed(service *s)
         svc_client *cl = c->has_pose ? service_find_client(s, c->client) : NULL;
         if (!cl)
             continue;
-        int64_t cells = c->cost_cells;
+        int64_t cells = tick_cost(s, c);
         cl->tick_cells += cells;
         total += cells;
     }

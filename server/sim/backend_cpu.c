@@ -246,7 +246,6 @@ sim_backend *sim_backend_cpu_create(error_text *err)
     b->base.scratch_bytes = cpu_scratch_bytes;
     b->base.stage_bytes = cpu_stage_bytes;
     b->base.destroy = cpu_destroy;
-    b->base.impl = b;
     return &b->base;
 }
 

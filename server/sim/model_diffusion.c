@@ -34,6 +34,23 @@
  * tick is "saturated": the material relaxes as fast as it can be resolved,
  * which for such Δt is to its rest state anyway). Integer fluxes round
  * toward zero, which only lowers the weights.
+ *
+ * A fast collider, sliced (issue 20, item 4). The model is a rate: a column
+ * deforms for as long as a collider presses it. Pressing the whole swept
+ * path for one Δt let a collider that crossed 20 cells in a tick touch each
+ * column for a tick or two instead of the ten a slow one gives, and the bow
+ * wave each tick left at its last pose stood above the snow in the middle of
+ * the next tick's path: a row of dents, not a trench. So a tick whose
+ * fastest collider crosses L > 1 cells runs L slices, each a full Δt with
+ * every collider at the next 1/L of its sweep (the sub-step poses of
+ * collider/sweep.c, each cast once): a collider crossing L cells in a tick
+ * presses each column as long as one crossing a cell per tick for L ticks,
+ * so the trail does not depend on how its motion is cut into ticks. Δt is
+ * the model's own time per tick (a scene parameter, not the tick's wall
+ * time), and here it follows the collider's advance. A collider that moves at most 1.5 cells a
+ * tick is one slice: the tick is exactly as before. A slice of the integer
+ * form runs over its colliders' part of the window only (slice_rect), so a
+ * sliced tick costs what L slow ticks cost, not L times the whole sweep.
  */
 #include "sim/sim_internal.h"
 
@@ -41,6 +58,8 @@
 #include <string.h>
 
 #define STABLE_SUM (1.0 / 8.0)
+/* Around a slice's colliders (slice_rect): the default active_margin_cells. */
+#define SLICE_MARGIN_CELLS 4
 
 int sim_diffusion_substeps(const sim_params *p, double *c_diffusion, double *c_drift)
 {
@@ -89,25 +108,82 @@ static void travel(const sim_collider *c, double *ux, double *uy)
     *uy = dy / len;
 }
 
-/* The collider nearest (in xy) to each cell: whose travel pushes it. */
-static void nearest_collider(const sim_window_job *job, int32_t *owner)
+/* Slices of the tick (the file comment): one per cell the window's fastest
+ * collider crosses, steps / 2 of its half-cell sub-steps rounded down — a
+ * move of exactly one cell sums to a hair over it in double and takes 3
+ * sub-steps; it stays one slice — and 1 when every collider moves less. */
+static int sweep_slices(const sim_window_job *job)
+{
+    int slices = 1;
+    for (int c = 0; c < job->collider_count; c++) {
+        int steps = sim_collider_sweep_steps(&job->colliders[c], job->cell_size_m);
+        if (steps / 2 > slices)
+            slices = steps / 2;
+    }
+    return slices;
+}
+
+/* The sub-step of a collider swept in `steps` where slice j (1..slices) ends:
+ * the last slice ends at the pose itself. */
+static int slice_end(int j, int slices, int steps)
+{
+    return (int)((int64_t)j * steps / slices);
+}
+
+/* Depth of slice j: each collider swept over its sub-steps of this slice
+ * (one pose, where it stands, when it does not move within the slice), as
+ * sim_window_depth casts the whole sweep; slices 1..n together cast every
+ * sub-step of the tick once. */
+static void slice_depth(const sim_window_job *job, int j, int slices, int32_t *bottom)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    for (int64_t i = 0; i < n; i++)
+        bottom[i] = COLLIDER_BOTTOM_NONE;
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        int k0 = slice_end(j - 1, slices, steps), k1 = slice_end(j, slices, steps);
+        for (int k = k1 > k0 ? k0 + 1 : k1; k <= k1; k++)
+            collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
+                               job->cell_size_m, job->units_per_m, bottom);
+    }
+}
+
+/* The depth slice j presses with: the engine's (the whole sweep) when the
+ * tick is one slice, else cast into spare. */
+static const int32_t *slice_bottom(const sim_window_job *job, int j, int slices, int32_t *spare)
+{
+    if (slices == 1)
+        return job->bottom_override;
+    slice_depth(job, j, slices, spare);
+    return spare;
+}
+
+/* The collider nearest (in xy) to each cell where slice j ends: whose travel
+ * pushes it (-1 with no collider). best_d: n doubles of scratch. */
+static void nearest_collider(const sim_window_job *job, int j, int slices, int32_t *owner,
+                             double *best_d)
 {
     int w = job->rect.w, h = job->rect.h;
-    for (int y = 0; y < h; y++) {
-        double cy = (job->rect.y + y + 0.5) * job->cell_size_m;
-        for (int x = 0; x < w; x++) {
-            double cx = (job->rect.x + x + 0.5) * job->cell_size_m;
-            int best = -1;
-            double best_d = 0.0;
-            for (int c = 0; c < job->collider_count; c++) {
-                vec3d q = job->colliders[c].pose.position;
+    int64_t n = (int64_t)w * h;
+    for (int64_t i = 0; i < n; i++)
+        owner[i] = -1;
+    /* collider by collider, each one's position once; ties keep the first */
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        vec3d q = sim_collider_sweep_pose(col, slice_end(j, slices, steps), steps).position;
+        for (int y = 0; y < h; y++) {
+            double cy = (job->rect.y + y + 0.5) * job->cell_size_m;
+            for (int x = 0; x < w; x++) {
+                double cx = (job->rect.x + x + 0.5) * job->cell_size_m;
                 double d = (q.x - cx) * (q.x - cx) + (q.y - cy) * (q.y - cy);
-                if (best < 0 || d < best_d) {
-                    best = c;
-                    best_d = d;
+                int64_t i = (int64_t)y * w + x;
+                if (owner[i] < 0 || d < best_d[i]) {
+                    owner[i] = c;
+                    best_d[i] = d;
                 }
             }
-            owner[(int64_t)y * w + x] = best;
         }
     }
 }
@@ -178,97 +254,210 @@ static void pusher_tops(const sim_window_job *job, const int32_t *owner, int32_t
     }
 }
 
+/* The integer flux form's state over one window: scratch arrays and the
+ * per-substep coefficients. */
+typedef struct flux_state {
+    int w, h;
+    int64_t cd_q32, cz_q32;
+    const int32_t *bottom;
+    int32_t *owner, *top, *pen, *fx, *fy;
+    int64_t *out;
+} flux_state;
+
+/* Each edge's flux, once: fx[i] from i to i+1, fy[i] from i to i+w; out[i]
+ * sums what cell i gives. */
+static void edge_fluxes(const sim_params *p, const sim_window_job *job, const flux_state *f)
+{
+    int w = f->w, h = f->h;
+    const int32_t *heights = job->heights, *pen = f->pen;
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int64_t i = (int64_t)y * w + x;
+            double ux = 0.0, uy = 0.0;
+            int o = f->owner[i];
+            if (o >= 0 && (pen[i] || (x + 1 < w && pen[i + 1]) || (y + 1 < h && pen[i + w])))
+                travel(&job->colliders[o], &ux, &uy);
+            f->fx[i] = f->fy[i] = 0;
+            if (x + 1 < w) {
+                int64_t fl = edge_flux(p, f->cd_q32, f->cz_q32, heights[i], heights[i + 1], pen[i],
+                                       pen[i + 1], (int64_t)lround(ux * 65536.0), f->top[i]);
+                f->fx[i] = (int32_t)fl;
+                f->out[fl > 0 ? i : i + 1] += fl > 0 ? fl : -fl;
+            }
+            if (y + 1 < h) {
+                int64_t fl = edge_flux(p, f->cd_q32, f->cz_q32, heights[i], heights[i + w], pen[i],
+                                       pen[i + w], (int64_t)lround(uy * 65536.0), f->top[i]);
+                f->fy[i] = (int32_t)fl;
+                f->out[fl > 0 ? i : i + w] += fl > 0 ? fl : -fl;
+            }
+        }
+    }
+}
+
+/* A cell gives at most what it has above the floor: scale its outflows
+ * together (each edge has one giver, so the sum stays exact). */
+static void limit_outflows(const sim_params *p, const sim_window_job *job, const flux_state *f)
+{
+    int w = f->w, h = f->h;
+    int64_t n = (int64_t)w * h;
+    int64_t *out = f->out;
+    int32_t *fx = f->fx, *fy = f->fy;
+    for (int64_t i = 0; i < n; i++) {
+        int64_t avail = (int64_t)job->heights[i] - p->floor;
+        if (avail < 0)
+            avail = 0;
+        out[i] = out[i] > avail ? (avail << 20) / out[i] : -1; /* Q20 factor, -1 = 1 */
+    }
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int64_t i = (int64_t)y * w + x;
+            if (x + 1 < w && fx[i]) {
+                int64_t giver = fx[i] > 0 ? i : i + 1;
+                if (out[giver] >= 0)
+                    fx[i] = (int32_t)(fx[i] > 0 ? (fx[i] * out[giver]) >> 20
+                                                : -((-(int64_t)fx[i] * out[giver]) >> 20));
+            }
+            if (y + 1 < h && fy[i]) {
+                int64_t giver = fy[i] > 0 ? i : i + w;
+                if (out[giver] >= 0)
+                    fy[i] = (int32_t)(fy[i] > 0 ? (fy[i] * out[giver]) >> 20
+                                                : -((-(int64_t)fy[i] * out[giver]) >> 20));
+            }
+        }
+    }
+}
+
+/* One substep of the integer flux form. */
+static sim_window_status flux_substep(const sim_params *p, sim_window_job *job, const flux_state *f)
+{
+    int w = f->w, h = f->h;
+    int64_t n = (int64_t)w * h;
+    int32_t *heights = job->heights;
+    for (int64_t i = 0; i < n; i++) {
+        f->pen[i] = penetration(p, heights[i], f->bottom[i]);
+        f->out[i] = 0;
+    }
+    edge_fluxes(p, job, f);
+    limit_outflows(p, job, f);
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int64_t i = (int64_t)y * w + x;
+            int64_t v = heights[i];
+            if (x + 1 < w)
+                v -= f->fx[i];
+            if (x > 0)
+                v += f->fx[i - 1];
+            if (y + 1 < h)
+                v -= f->fy[i];
+            if (y > 0)
+                v += f->fy[i - w];
+            if (v > WORLD_HEIGHT_MAX || v < WORLD_HEIGHT_MIN)
+                return SIM_WINDOW_HEIGHT_LIMIT;
+            /* fluxes were read from pen/fx/fy only: in place is safe */
+            f->out[i] = v;
+        }
+    }
+    for (int64_t i = 0; i < n; i++)
+        heights[i] = (int32_t)f->out[i];
+    return SIM_WINDOW_OK;
+}
+
+/* Where slice j of a sliced tick runs: the bounds of every collider's poses
+ * in the slice (from where it starts) plus SLICE_MARGIN_CELLS, within the
+ * window — the part a collider crossing a cell per tick would have as its
+ * window, so the cost of a slice follows the collider, not the sweep. */
+static world_rect slice_rect(const sim_window_job *job, int j, int slices)
+{
+    double lo_x = INFINITY, lo_y = INFINITY, hi_x = -INFINITY, hi_y = -INFINITY;
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        int k0 = slice_end(j - 1, slices, steps), k1 = slice_end(j, slices, steps);
+        for (int k = k0; k <= k1; k++) {
+            vec3d lo, hi;
+            collider_bounds(col->geometry, sim_collider_sweep_pose(col, k, steps), &lo, &hi);
+            lo_x = fmin(lo_x, lo.x);
+            lo_y = fmin(lo_y, lo.y);
+            hi_x = fmax(hi_x, hi.x);
+            hi_y = fmax(hi_y, hi.y);
+        }
+    }
+    world_rect r = job->rect;
+    if (!(lo_x <= hi_x && lo_y <= hi_y))
+        return r; /* no collider: the whole window */
+    double cell = job->cell_size_m;
+    double x0 = fmax(floor(lo_x / cell) - SLICE_MARGIN_CELLS, r.x);
+    double y0 = fmax(floor(lo_y / cell) - SLICE_MARGIN_CELLS, r.y);
+    double x1 = fmin(floor(hi_x / cell) + SLICE_MARGIN_CELLS, (double)r.x + r.w - 1);
+    double y1 = fmin(floor(hi_y / cell) + SLICE_MARGIN_CELLS, (double)r.y + r.h - 1);
+    if (x1 < x0 || y1 < y0)
+        return (world_rect){0, 0, 0, 0};
+    return (world_rect){(int)x0, (int)y0, (int)(x1 - x0) + 1, (int)(y1 - y0) + 1};
+}
+
+/* Copy sub (a part of the window) between the window's heights and a packed
+ * array: in = 1 packs, 0 writes back. */
+static void copy_part(const sim_window_job *job, world_rect sub, int32_t *packed, int in)
+{
+    for (int y = 0; y < sub.h; y++) {
+        int32_t *row =
+            job->heights + (int64_t)(sub.y - job->rect.y + y) * job->rect.w + (sub.x - job->rect.x);
+        int32_t *p = packed + (int64_t)y * sub.w;
+        memcpy(in ? p : row, in ? row : p, (size_t)sub.w * sizeof *p);
+    }
+}
+
+/* Slice j of the integer flux form over job's rect: its depth, who pushes
+ * each cell, then the tick's substeps. */
+static sim_window_status flux_slice(const sim_params *p, sim_window_job *job, flux_state *f, int j,
+                                    int slices, int substeps, int32_t *spare)
+{
+    f->w = job->rect.w;
+    f->h = job->rect.h;
+    f->bottom = slice_bottom(job, j, slices, spare);
+    nearest_collider(job, j, slices, f->owner, (double *)(void *)f->out); /* out: free here */
+    pusher_tops(job, f->owner, f->top);
+    for (int s = 0; s < substeps; s++) {
+        sim_window_status st = flux_substep(p, job, f);
+        if (st != SIM_WINDOW_OK)
+            return st;
+    }
+    return SIM_WINDOW_OK;
+}
+
 static sim_window_status conservative_window(const sim_params *p, sim_window_job *job,
                                              int32_t *scratch)
 {
-    int w = job->rect.w, h = job->rect.h;
-    int64_t n = (int64_t)w * h;
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
     int32_t *pen = scratch, *fx = pen + n, *fy = fx + n, *owner = fy + n;
     int64_t *out = (int64_t *)(void *)(owner + n); /* 4n int32 in: 8-byte aligned */
-    int32_t *top = (int32_t *)(void *)(out + n);
-    int32_t *heights = job->heights;
-    const int32_t *bottom = job->bottom_override;
+    int32_t *top = (int32_t *)(void *)(out + n), *spare = top + n, *packed = spare + n;
     double cd, cz;
     int steps = sim_diffusion_substeps(p, &cd, &cz);
-    int64_t cd_q32 = (int64_t)floor(cd * 4294967296.0);
-    int64_t cz_q32 = (int64_t)floor(cz * 4294967296.0);
-    if (cd_q32 == 0 && cz_q32 == 0)
+    flux_state f = {.cd_q32 = (int64_t)floor(cd * 4294967296.0),
+                    .cz_q32 = (int64_t)floor(cz * 4294967296.0),
+                    .owner = owner,
+                    .top = top,
+                    .pen = pen,
+                    .fx = fx,
+                    .fy = fy,
+                    .out = out};
+    if (f.cd_q32 == 0 && f.cz_q32 == 0)
         return SIM_WINDOW_OK; /* D = 0 and no drift: nothing moves */
-    nearest_collider(job, owner);
-    pusher_tops(job, owner, top);
-    for (int s = 0; s < steps; s++) {
-        for (int64_t i = 0; i < n; i++) {
-            pen[i] = penetration(p, heights[i], bottom[i]);
-            out[i] = 0;
-        }
-        /* fluxes, once per edge: fx[i] from i to i+1, fy[i] from i to i+w */
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int64_t i = (int64_t)y * w + x;
-                double ux = 0.0, uy = 0.0;
-                int o = owner[i];
-                if (o >= 0 && (pen[i] || (x + 1 < w && pen[i + 1]) || (y + 1 < h && pen[i + w])))
-                    travel(&job->colliders[o], &ux, &uy);
-                fx[i] = fy[i] = 0;
-                if (x + 1 < w) {
-                    int64_t f = edge_flux(p, cd_q32, cz_q32, heights[i], heights[i + 1], pen[i],
-                                          pen[i + 1], (int64_t)lround(ux * 65536.0), top[i]);
-                    fx[i] = (int32_t)f;
-                    out[f > 0 ? i : i + 1] += f > 0 ? f : -f;
-                }
-                if (y + 1 < h) {
-                    int64_t f = edge_flux(p, cd_q32, cz_q32, heights[i], heights[i + w], pen[i],
-                                          pen[i + w], (int64_t)lround(uy * 65536.0), top[i]);
-                    fy[i] = (int32_t)f;
-                    out[f > 0 ? i : i + w] += f > 0 ? f : -f;
-                }
-            }
-        }
-        /* a cell gives at most what it has above the floor: scale its outflows
-         * together (each edge has one giver, so the sum stays exact) */
-        for (int64_t i = 0; i < n; i++) {
-            int64_t avail = (int64_t)heights[i] - p->floor;
-            if (avail < 0)
-                avail = 0;
-            out[i] = out[i] > avail ? (avail << 20) / out[i] : -1; /* Q20 factor, -1 = 1 */
-        }
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int64_t i = (int64_t)y * w + x;
-                if (x + 1 < w && fx[i]) {
-                    int64_t giver = fx[i] > 0 ? i : i + 1;
-                    if (out[giver] >= 0)
-                        fx[i] = (int32_t)(fx[i] > 0 ? (fx[i] * out[giver]) >> 20
-                                                    : -((-(int64_t)fx[i] * out[giver]) >> 20));
-                }
-                if (y + 1 < h && fy[i]) {
-                    int64_t giver = fy[i] > 0 ? i : i + w;
-                    if (out[giver] >= 0)
-                        fy[i] = (int32_t)(fy[i] > 0 ? (fy[i] * out[giver]) >> 20
-                                                    : -((-(int64_t)fy[i] * out[giver]) >> 20));
-                }
-            }
-        }
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int64_t i = (int64_t)y * w + x;
-                int64_t v = heights[i];
-                if (x + 1 < w)
-                    v -= fx[i];
-                if (x > 0)
-                    v += fx[i - 1];
-                if (y + 1 < h)
-                    v -= fy[i];
-                if (y > 0)
-                    v += fy[i - w];
-                if (v > WORLD_HEIGHT_MAX || v < WORLD_HEIGHT_MIN)
-                    return SIM_WINDOW_HEIGHT_LIMIT;
-                /* fluxes were read from pen/fx/fy only: in place is safe */
-                out[i] = v;
-            }
-        }
-        for (int64_t i = 0; i < n; i++)
-            heights[i] = (int32_t)out[i];
+    int slices = sweep_slices(job);
+    if (slices == 1)
+        return flux_slice(p, job, &f, 1, 1, steps, spare);
+    for (int j = 1; j <= slices; j++) {
+        sim_window_job part = *job;
+        part.rect = slice_rect(job, j, slices);
+        if (part.rect.w <= 0 || part.rect.h <= 0)
+            continue;
+        part.heights = packed;
+        copy_part(job, part.rect, packed, 1);
+        sim_window_status st = flux_slice(p, &part, &f, j, slices, steps, spare);
+        if (st != SIM_WINDOW_OK)
+            return st; /* the window is refused whole */
+        copy_part(job, part.rect, packed, 0);
     }
     return SIM_WINDOW_OK;
 }
@@ -283,69 +472,91 @@ static double repose_weight(double d, double alpha)
     return w < 0.0 ? 0.0 : w > 1.0 ? 1.0 : w;
 }
 
+/* Gilardi's scheme's state over one window: heights in cells (H, next), the
+ * force field, and what the substeps read. */
+typedef struct gilardi_state {
+    int w, h;
+    double dt, cell_units;
+    double *H, *next, *Fx, *Fy;
+    const int32_t *bottom, *owner;
+} gilardi_state;
+
+/* One explicit substep: H advances into next, then the two swap. */
+static void gilardi_substep(const sim_params *p, const sim_window_job *job, gilardi_state *g)
+{
+    int w = g->w, h = g->h;
+    double *H = g->H, *next = g->next, *Fx = g->Fx, *Fy = g->Fy;
+    /* F = force_scale * (p u - ∇p), p in cells, spread over the contact */
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int64_t i = (int64_t)y * w + x;
+            int32_t hi =
+                (int32_t)fmax(fmin(H[i] * g->cell_units, WORLD_HEIGHT_MAX), WORLD_HEIGHT_MIN);
+            double pc = penetration(p, hi, g->bottom[i]) / g->cell_units;
+            double ux = 0.0, uy = 0.0;
+            if (g->owner[i] >= 0 && pc > 0.0)
+                travel(&job->colliders[g->owner[i]], &ux, &uy);
+            Fx[i] = p->diffusion_force_scale * pc * ux;
+            Fy[i] = p->diffusion_force_scale * pc * uy;
+        }
+    }
+    for (int y = 0; y < h; y++) {
+        for (int x = 0; x < w; x++) {
+            int64_t i = (int64_t)y * w + x;
+            int64_t l = x > 0 ? i - 1 : i, r = x + 1 < w ? i + 1 : i;
+            int64_t d = y > 0 ? i - w : i, u = y + 1 < h ? i + w : i;
+            /* eq. 6 and its z twin (Δx = 1) */
+            double dx = p->diffusion_d * (H[l] + H[r] - 2.0 * H[i]) -
+                        0.5 * p->diffusion_zeta_inv * (Fx[r] - Fx[l]);
+            double dy = p->diffusion_d * (H[d] + H[u] - 2.0 * H[i]) -
+                        0.5 * p->diffusion_zeta_inv * (Fy[u] - Fy[d]);
+            /* eq. 7 with the weights of eq. 4 / 8 */
+            next[i] = H[i] + g->dt * (repose_weight(dx, p->repose_rad) * dx +
+                                      repose_weight(dy, p->repose_rad) * dy);
+        }
+    }
+    g->H = next;
+    g->next = H;
+}
+
 static sim_window_status gilardi_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
 {
-    int w = job->rect.w, h = job->rect.h;
-    int64_t n = (int64_t)w * h;
-    double *H = (double *)(void *)scratch, *next = H + n, *Fx = next + n, *Fy = Fx + n;
-    int32_t *owner = (int32_t *)(void *)(Fy + n);
-    double cell_units = (double)p->units_per_m * p->cell_size_m; /* units per cell of height */
-    const int32_t *bottom = job->bottom_override;
+    gilardi_state g = {.w = job->rect.w, .h = job->rect.h};
+    int64_t n = (int64_t)g.w * g.h;
+    g.H = (double *)(void *)scratch;
+    g.next = g.H + n;
+    g.Fx = g.next + n;
+    g.Fy = g.Fx + n;
+    int32_t *owner = (int32_t *)(void *)(g.Fy + n), *spare = owner + n;
+    g.owner = owner;
+    g.cell_units = (double)p->units_per_m * p->cell_size_m; /* units per cell of height */
     double cd, cz;
     int steps = sim_diffusion_substeps(p, &cd, &cz);
-    double dt = p->diffusion_dt / steps;
+    g.dt = p->diffusion_dt / steps;
     /* under auto the substep keeps (D + ζ⁻¹ force_scale) Δt at the bound too */
     double rate = p->diffusion_d + p->diffusion_zeta_inv * p->diffusion_force_scale;
-    if (p->diffusion_substeps == SIM_DIFFUSION_SUBSTEPS_AUTO && rate * dt > STABLE_SUM)
-        dt = STABLE_SUM / rate;
+    if (p->diffusion_substeps == SIM_DIFFUSION_SUBSTEPS_AUTO && rate * g.dt > STABLE_SUM)
+        g.dt = STABLE_SUM / rate;
     (void)cd;
     (void)cz;
-    nearest_collider(job, owner);
     for (int64_t i = 0; i < n; i++)
-        H[i] = job->heights[i] / cell_units;
-    for (int s = 0; s < steps; s++) {
-        /* F = force_scale * (p u - ∇p), p in cells, spread over the contact */
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int64_t i = (int64_t)y * w + x;
-                int32_t hi =
-                    (int32_t)fmax(fmin(H[i] * cell_units, WORLD_HEIGHT_MAX), WORLD_HEIGHT_MIN);
-                double pc = penetration(p, hi, bottom[i]) / cell_units;
-                double ux = 0.0, uy = 0.0;
-                if (owner[i] >= 0 && pc > 0.0)
-                    travel(&job->colliders[owner[i]], &ux, &uy);
-                Fx[i] = p->diffusion_force_scale * pc * ux;
-                Fy[i] = p->diffusion_force_scale * pc * uy;
-            }
-        }
-        for (int y = 0; y < h; y++) {
-            for (int x = 0; x < w; x++) {
-                int64_t i = (int64_t)y * w + x;
-                int64_t l = x > 0 ? i - 1 : i, r = x + 1 < w ? i + 1 : i;
-                int64_t d = y > 0 ? i - w : i, u = y + 1 < h ? i + w : i;
-                /* eq. 6 and its z twin (Δx = 1) */
-                double dx = p->diffusion_d * (H[l] + H[r] - 2.0 * H[i]) -
-                            0.5 * p->diffusion_zeta_inv * (Fx[r] - Fx[l]);
-                double dy = p->diffusion_d * (H[d] + H[u] - 2.0 * H[i]) -
-                            0.5 * p->diffusion_zeta_inv * (Fy[u] - Fy[d]);
-                /* eq. 7 with the weights of eq. 4 / 8 */
-                next[i] = H[i] + dt * (repose_weight(dx, p->repose_rad) * dx +
-                                       repose_weight(dy, p->repose_rad) * dy);
-            }
-        }
-        double *t = H;
-        H = next;
-        next = t;
+        g.H[i] = job->heights[i] / g.cell_units;
+    int slices = sweep_slices(job);
+    for (int j = 1; j <= slices; j++) {
+        g.bottom = slice_bottom(job, j, slices, spare);
+        nearest_collider(job, j, slices, owner, g.Fx); /* Fx: free until the substep */
+        for (int s = 0; s < steps; s++)
+            gilardi_substep(p, job, &g);
     }
     /* back to integer units; a non-finite or out-of-range column refuses the window */
     int32_t *heights = job->heights;
     for (int64_t i = 0; i < n; i++) {
-        double u = H[i] * cell_units;
+        double u = g.H[i] * g.cell_units;
         if (!isfinite(u) || u > WORLD_HEIGHT_MAX || u < WORLD_HEIGHT_MIN)
             return SIM_WINDOW_HEIGHT_LIMIT;
     }
     for (int64_t i = 0; i < n; i++) {
-        int32_t v = (int32_t)llround(H[i] * cell_units);
+        int32_t v = (int32_t)llround(g.H[i] * g.cell_units);
         /* material never goes below the floor; a column already under it stays */
         if (v < p->floor)
             v = heights[i] < p->floor ? heights[i] : p->floor;

@@ -16,11 +16,14 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
     case SIM_MODEL_DEFERRED:
         return 2 * cells; /* deformation and foot images */
     case SIM_MODEL_DIFFUSION:
-        return 9 * cells + 2; /* the larger of the two forms: Gilardi's doubles */
+        return 10 * cells +
+               2; /* the larger of the two forms: Gilardi's doubles, + a slice's depth */
     case SIM_MODEL_DECALS:
         return cells; /* one collider's depth */
     case SIM_MODEL_SUMNER:
         return 14 * cells + 2; /* as sim_sumner_scratch_cells */
+    case SIM_MODEL_BEKKER:
+        return 21 * cells + 4; /* as sim_bekker_scratch_cells */
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:
@@ -52,6 +55,8 @@ sim_window_status sim_model_window(const sim_params *p, sim_window_job *job, int
     case SIM_MODEL_DECALS: /* the engine collects its events; heights stay */
     case SIM_MODEL_SUMNER:
         return sim_sumner_window(p, job, scratch);
+    case SIM_MODEL_BEKKER:
+        return sim_bekker_window(p, job, scratch);
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:

@@ -196,14 +196,40 @@ static void sumner_depth(const sim_window_job *job, int32_t *bottom)
         memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
 }
 
+int64_t sim_settle_scratch_cells(int w, int h)
+{
+    return 12 * (int64_t)w * h + 2;
+}
+
 sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
+{
+    int n = job->rect.w * job->rect.h;
+    int32_t *bottom = scratch;
+    int32_t *cls = bottom + n;
+    int32_t *settle = cls + n;
+    int32_t *raw = SIM_SETTLE_RAW(settle, n), *moved = SIM_SETTLE_MOVED(settle, n);
+
+    /* 1-2: ray-cast columns, penetration and class. */
+    sumner_depth(job, bottom);
+    if (job->materials)
+        sim_classify_materials(p, job->materials, job->material_ids, job->compaction, n,
+                               job->heights, bottom, raw, moved, cls);
+    else
+        sim_classify(p, n, job->heights, bottom, raw, moved, cls);
+    /* The engine keeps this only if the window is accepted. */
+    if (job->materials && job->compaction)
+        sim_compaction_commit(job->materials, job->material_ids, n, raw, moved, job->compaction);
+    return sim_sumner_settle(p, job, cls, settle);
+}
+
+/* Steps 2 (the new heights) to 5; raw in `next`, moved in `given` on entry. */
+sim_window_status sim_sumner_settle(const sim_params *p, sim_window_job *job, const int32_t *cls,
+                                    int32_t *scratch)
 {
     int w = job->rect.w, h = job->rect.h;
     int n = w * h;
     int32_t *heights = job->heights;
-    int32_t *bottom = scratch;
-    int32_t *cls = bottom + n;
-    int32_t *label = cls + n;
+    int32_t *label = scratch;
     int32_t *queue = label + n;
     int32_t *owner = queue + n;
     int32_t *ring_count = owner + n;
@@ -211,17 +237,6 @@ sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, in
     int32_t *next = given + n;
     int64_t *total = (int64_t *)(void *)(((uintptr_t)(next + n) + 7) & ~(uintptr_t)7);
     int32_t *erosion_scratch = (int32_t *)(void *)(total + n);
-
-    /* 1-2: ray-cast columns, penetration and class (raw into next, moved into given). */
-    sumner_depth(job, bottom);
-    if (job->materials)
-        sim_classify_materials(p, job->materials, job->material_ids, job->compaction, n, heights,
-                               bottom, next, given, cls);
-    else
-        sim_classify(p, n, heights, bottom, next, given, cls);
-    /* The engine keeps this only if the window is accepted. */
-    if (job->materials && job->compaction)
-        sim_compaction_commit(job->materials, job->material_ids, n, next, given, job->compaction);
 
     /* 3: components of the footprint and their first rings. */
     int32_t components = label_footprint(w, h, cls, label, queue);

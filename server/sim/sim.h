@@ -67,15 +67,48 @@ typedef enum sim_model {
     SIM_MODEL_DIFFUSION, /* Gilardi's drift-diffusion: integer flux form or their float scheme */
     SIM_MODEL_SUMNER,    /* Sumner, O'Brien and Hodgins 1999 on the CPU: the accuracy reference */
     SIM_MODEL_DECALS,    /* no deformation: footprint events only */
+    SIM_MODEL_BEKKER,    /* Bekker-Wong pressure-sinkage, Janosi-Hanamoto shear: soil forces */
 } sim_model;
 
-#define SIM_MODEL_COUNT 8
+#define SIM_MODEL_COUNT 9
 
 /* Diffusion's sub-stepping: automatic (stable for any dt) or a fixed count. */
 #define SIM_DIFFUSION_SUBSTEPS_AUTO 0
 /* Automatic sub-stepping never runs more than this many per tick; beyond it
  * each substep is at the stability bound and the tick is saturated. */
 #define SIM_DIFFUSION_SUBSTEPS_MAX 64
+
+/*
+ * A soil's terramechanics parameters (the bekker model, docs/models.md), in
+ * SI units as Wong's tables and Chrono's SCM give them: Bekker's
+ * p = (kc/b + kphi) z^n, Mohr-Coulomb's c and phi with Janosi-Hanamoto's K,
+ * the elastic unloading/reloading stiffness and a damping. The share of a
+ * plastic sinkage that compacts (rather than being pushed aside) is the
+ * material's `compression`.
+ */
+typedef struct sim_soil {
+    double n;              /* sinkage exponent, (0, 3] */
+    double kc;             /* N/m^(n+1), >= 0 */
+    double kphi;           /* N/m^(n+2), > 0 */
+    double cohesion_pa;    /* c, >= 0 */
+    double friction_deg;   /* phi, [0, 60] */
+    double shear_k_m;      /* Janosi-Hanamoto K, > 0 */
+    double elastic_pa_m;   /* unloading/reloading stiffness, > 0 */
+    double damping_pa_s_m; /* pressure per m/s of sinking, >= 0 */
+} sim_soil;
+
+/* Soils of docs/models.md's table (Wong; Ding et al. 2011): "dry-sand",
+ * "sandy-loam", "clayey-soil", "heavy-clay", "lete-sand", "snow-us",
+ * "snow-sweden", "lunar", "ding2011". Returns 0, or -1 for an unknown name. */
+int sim_soil_preset(const char *name, sim_soil *out);
+/* The names sim_soil_preset knows, for errors. */
+#define SIM_SOIL_PRESET_LIST                                                                       \
+    "dry-sand | sandy-loam | clayey-soil | heavy-clay | lete-sand | snow-us | snow-sweden | "      \
+    "lunar | ding2011"
+/* Every field in its physical range; errors name "<path>.<field>". */
+int sim_soil_validate(const sim_soil *s, const char *path, error_text *err);
+/* Bekker's pressure (Pa) at sinkage z (m) under a patch of width b (m). */
+double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m);
 
 /* The material as a person writes it (scene files, the wire). */
 typedef struct sim_material {
@@ -107,6 +140,8 @@ typedef struct sim_material {
     int diffusion_conservative;   /* 1: integer flux form (Σh exact); 0: their float scheme */
     /* decals */
     double decal_min_strength_m; /* a footprint shallower than this sends no event */
+    /* bekker: the soil (compression: the share of a plastic sinkage compacted) */
+    sim_soil soil;
 } sim_material;
 
 /* Gilardi's material presets (their Fig. 4): "mud", "pebbles", "sand". Sets D,
@@ -143,6 +178,8 @@ typedef struct sim_params {
     double cell_size_m;         /* the float scheme measures heights in cells */
     int32_t units_per_m;        /* ditto */
     int32_t decal_min_strength; /* units */
+    sim_soil soil;              /* bekker */
+    double tick_s;              /* bekker: velocities from consecutive poses */
 } sim_params;
 
 int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t units_per_m,
@@ -155,7 +192,7 @@ int sim_model_parse(const char *name, sim_model *out);
  * (test_models checks it against sim_model_name). */
 #define SIM_MODEL_LIST                                                                             \
     "persson-iterative | persson-ssbo | persson-multi | subtract | deferred | diffusion | "        \
-    "sumner | decals"
+    "sumner | decals | bekker"
 /* 1 for the persson-* models (the backends' stages), 0 otherwise. */
 int sim_model_is_persson(sim_model m);
 /* The persson model of a method, and back. */
@@ -218,6 +255,30 @@ typedef struct sim_collider {
     int has_previous; /* 0 on the first tick it exists: footprint is the pose alone */
 } sim_collider;
 
+/* The bekker model's state per cell, int32 each, in this order: plastic
+ * sinkage (height units below the undisturbed level: what the cell has been
+ * pressed to), Janosi shear displacement (micrometres, this pass), compacted
+ * volume (height units taken out of the height by compaction). */
+enum { SIM_SOIL_SINK, SIM_SOIL_SHEAR_UM, SIM_SOIL_COMPACTED, SIM_SOIL_STATE_FIELDS };
+
+/* The soil's push on one collider over one tick (bekker): what a simulator
+ * applies to the body. Summed over cells in row-major order within a window
+ * and over windows in plan order, so bit-identical run to run and for any
+ * thread count. */
+typedef struct sim_contact {
+    int collider_id;
+    double force_n[3];    /* on the collider, world frame */
+    double torque_nm[3];  /* about the collider's pose position */
+    double sinkage_m;     /* deepest total sinkage (below the undisturbed level) under it */
+    double area_m2;       /* cells in contact times the cell area */
+    double patch_width_m; /* Bekker's b of its largest contact patch: 2 A / L */
+    int64_t patch_cells;  /* that patch's size (the tie rule of the merge) */
+    double slip;          /* cylinders: 1 - v/(wR) driving, wR/v - 1 skidding; else 0 */
+    int64_t cells;        /* cells in contact */
+    double velocity[3];   /* m/s, from this tick's two poses */
+    double angular[3];    /* rad/s, likewise */
+} sim_contact;
+
 typedef struct sim_window_job {
     world_rect rect;               /* world cells */
     double cell_size_m;            /* for the depth stage */
@@ -238,6 +299,10 @@ typedef struct sim_window_job {
     const uint8_t *material_ids;
     uint16_t *compaction;
     const world *world; /* where the window was gathered from (a backend's tile cache) */
+    /* bekker (NULL otherwise): SIM_SOIL_STATE_FIELDS int32 per cell (in/out,
+     * kept only for accepted windows), and one contact per job collider (out). */
+    int32_t *soil_state;
+    sim_contact *contacts;
 } sim_window_job;
 
 /* The swept collider of a tick (collider_sweep_*): 1 pose (this one) on the
@@ -315,7 +380,6 @@ struct sim_backend {
      * device after every stage so per-stage times are real. */
     void (*set_stage_timing)(sim_backend *b, int on);
     void (*destroy)(sim_backend *b);
-    void *impl;
 };
 
 sim_backend *sim_backend_cpu_create(error_text *err);
@@ -347,6 +411,8 @@ typedef struct sim_tick_report {
     double model_ms;                 /* the non-persson models' window functions */
     const sim_footprint *footprints; /* decals: this tick's events (engine-owned) */
     int footprint_count;
+    const sim_contact *contacts; /* bekker: one per collider of the tick, in its order */
+    int contact_count;
 } sim_tick_report;
 
 /* The engine: opaque; the sim thread's alone once it has ticked (its first
@@ -379,6 +445,12 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
                              const int32_t **after);
 void sim_engine_get_stats(const sim_engine *e, sim_engine_stats *out);
+/* bekker: Σ compacted volume over the world (height units): Σh + this is
+ * constant. 0 for the other models. */
+int64_t sim_engine_soil_compacted(const sim_engine *e);
+/* bekker: one cell's soil state (SIM_SOIL_STATE_FIELDS values; zeros where
+ * nothing was ever pressed). */
+void sim_engine_soil_cell(const sim_engine *e, int x, int y, int32_t *out);
 world *sim_engine_world(const sim_engine *e);
 sim_backend *sim_engine_backend(const sim_engine *e);
 

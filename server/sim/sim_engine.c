@@ -22,6 +22,7 @@
  */
 #include "sim/sim_internal.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -76,6 +77,17 @@ struct sim_engine {
     int64_t material_ids_capacity;
     uint16_t *compaction; /* likewise; only if some material compacts */
     int64_t compaction_capacity;
+    /* bekker: the per-cell soil state (sparse tiles) and its packed windows,
+     * a contact per collider reference of the batch and per collider */
+    sim_soil_layer soil;
+    int32_t *soil_state;
+    int64_t soil_state_capacity;
+    int *window_collider_source; /* per reference: the collider's index in the tick */
+    int64_t window_collider_source_capacity;
+    sim_contact *job_contacts;
+    int64_t job_contacts_capacity;
+    sim_contact *contacts;
+    int64_t contacts_capacity;
     sim_engine_stats stats;
 };
 
@@ -95,6 +107,11 @@ sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backen
     e->params = *p;
     e->backend = backend;
     e->margin_cells = margin_cells;
+    if (p->model == SIM_MODEL_BEKKER && sim_soil_layer_init(&e->soil, w->width, w->height) != 0) {
+        free(e);
+        error_set(err, "sim: out of memory for the soil state");
+        return NULL;
+    }
     return e;
 }
 
@@ -120,6 +137,11 @@ void sim_engine_destroy(sim_engine *e)
     free(e->base);
     free(e->refilling);
     free(e->footprints_out);
+    sim_soil_layer_free(&e->soil);
+    free(e->soil_state);
+    free(e->window_collider_source);
+    free(e->job_contacts);
+    free(e->contacts);
     free(e);
 }
 
@@ -131,6 +153,16 @@ void sim_engine_set_ground(sim_engine *e, ground *g)
     int same =
         g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
     e->ground = g && !same ? g : NULL;
+}
+
+int64_t sim_engine_soil_compacted(const sim_engine *e)
+{
+    return sim_soil_layer_compacted(&e->soil);
+}
+
+void sim_engine_soil_cell(const sim_engine *e, int x, int y, int32_t *out)
+{
+    sim_soil_layer_cell(&e->soil, x, y, out);
 }
 
 world *sim_engine_world(const sim_engine *e)
@@ -218,7 +250,7 @@ static int tick_plan(sim_engine *e, const sim_collider *colliders, int collider_
 /* ---- gather ---- */
 
 /* The packed per-cell arrays for the batch, only those this scene reads. */
-static int tick_reserve_cells(sim_engine *e, int persson)
+static int tick_reserve_cells(sim_engine *e, int persson, int collider_count)
 {
     int64_t need = e->batch.cells + 1, cap = e->cell_capacity;
     if (array_grow((void **)&e->heights, &cap, need, sizeof *e->heights) != 0 ||
@@ -240,6 +272,16 @@ static int tick_reserve_cells(sim_engine *e, int persson)
         return -1;
     if (!persson && sim_model_needs_base(&e->params) &&
         array_grow((void **)&e->base, &e->base_capacity, need, sizeof *e->base) != 0)
+        return -1;
+    if (e->params.model == SIM_MODEL_BEKKER &&
+        (array_grow((void **)&e->soil_state, &e->soil_state_capacity, need * SIM_SOIL_STATE_FIELDS,
+                    sizeof *e->soil_state) != 0 ||
+         array_grow((void **)&e->window_collider_source, &e->window_collider_source_capacity,
+                    e->batch.refs + 1, sizeof *e->window_collider_source) != 0 ||
+         array_grow((void **)&e->job_contacts, &e->job_contacts_capacity, e->batch.refs + 1,
+                    sizeof *e->job_contacts) != 0 ||
+         array_grow((void **)&e->contacts, &e->contacts_capacity, collider_count + 1,
+                    sizeof *e->contacts) != 0))
         return -1;
     return array_grow((void **)&e->window_colliders, &e->window_collider_capacity,
                       e->batch.refs + 1, sizeof *e->window_colliders);
@@ -275,9 +317,13 @@ static void gather_colliders(sim_engine *e, const sim_collider *colliders, int c
                              sim_window_job *job, int *ref)
 {
     job->colliders = e->window_colliders + *ref;
+    if (e->params.model == SIM_MODEL_BEKKER)
+        job->contacts = e->job_contacts + *ref;
     for (int c = 0; c < collider_count; c++) {
         if (e->footprints[c].w == 0 || !world_rects_overlap(e->footprints[c], job->rect))
             continue;
+        if (e->params.model == SIM_MODEL_BEKKER)
+            e->window_collider_source[*ref] = c;
         e->window_colliders[(*ref)++] = colliders[c];
         job->collider_count++;
     }
@@ -304,6 +350,10 @@ static void tick_gather(sim_engine *e, const sim_collider *colliders, int collid
         job->world = w;
         world_gather_window(w, r, job->heights);
         gather_ground(e, job, offset);
+        if (e->params.model == SIM_MODEL_BEKKER) {
+            job->soil_state = e->soil_state + offset * SIM_SOIL_STATE_FIELDS;
+            sim_soil_layer_gather(&e->soil, r, job->soil_state);
+        }
         memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
         gather_colliders(e, colliders, collider_count, job, &ref);
         if (needs_base && world_base_fill_rect(w, r, e->base + offset) == 0)
@@ -433,6 +483,10 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
         if (b->jobs[i].compaction &&
             ground_scatter_compaction(e->ground, r, b->jobs[i].compaction, err) != 0)
             return -1;
+        if (b->jobs[i].soil_state && sim_soil_layer_scatter(&e->soil, r, b->jobs[i].soil_state)) {
+            error_set(err, "sim: out of memory for the soil state");
+            return -1;
+        }
         world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
         if (d.w > 0) {
             world_scatter_window(e->world, r, e->heights + offset);
@@ -443,6 +497,71 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
         }
     }
     return 0;
+}
+
+/* ---- contacts (bekker) ---- */
+
+/* One window's contact of a collider into the collider's. */
+static void contact_merge(sim_contact *to, const sim_contact *from)
+{
+    for (int a = 0; a < 3; a++) {
+        to->force_n[a] += from->force_n[a];
+        to->torque_nm[a] += from->torque_nm[a];
+        to->velocity[a] = from->velocity[a];
+        to->angular[a] = from->angular[a];
+    }
+    to->area_m2 += from->area_m2;
+    to->cells += from->cells;
+    if (from->sinkage_m > to->sinkage_m)
+        to->sinkage_m = from->sinkage_m;
+    if (from->patch_cells > to->patch_cells) { /* ties: the earlier window's */
+        to->patch_cells = from->patch_cells;
+        to->patch_width_m = from->patch_width_m;
+    }
+}
+
+/* A wheel's (cylinder's) slip: its axis is the local Y axis, it rolls along
+ * axis x up; 1 - v/(wR) while driving (wR >= v), wR/v - 1 while skidding. */
+static double contact_slip(const sim_contact *c, const sim_collider *col)
+{
+    if (col->geometry->shape != COLLIDER_CYLINDER)
+        return 0.0;
+    vec3d axis = quat_rotate(col->pose.orientation, (vec3d){0.0, 1.0, 0.0});
+    double fx = axis.y, fy = -axis.x, len = sqrt(fx * fx + fy * fy);
+    if (!(len > 1e-9))
+        return 0.0; /* axis upright: not rolling */
+    double v = (c->velocity[0] * fx + c->velocity[1] * fy) / len;
+    double wr = (c->angular[0] * axis.x + c->angular[1] * axis.y + c->angular[2] * axis.z) *
+                col->geometry->radius;
+    if (wr == 0.0 && v == 0.0)
+        return 0.0;
+    return fabs(wr) >= fabs(v) ? 1.0 - v / wr : wr / v - 1.0;
+}
+
+/* The soil's push per collider: the accepted windows' contacts added in plan
+ * order — a fixed order, so identical run to run and for any thread count. */
+static void tick_contacts(sim_engine *e, const sim_collider *colliders, int collider_count,
+                          sim_tick_report *report)
+{
+    if (e->params.model != SIM_MODEL_BEKKER)
+        return;
+    engine_batch *b = &e->batch;
+    for (int c = 0; c < collider_count; c++) {
+        memset(&e->contacts[c], 0, sizeof e->contacts[c]);
+        e->contacts[c].collider_id = colliders[c].id;
+    }
+    for (int i = 0; i < b->count; i++) {
+        const sim_window_job *job = &b->jobs[i];
+        if (b->status[i] != SIM_WINDOW_OK)
+            continue;
+        int64_t ref = job->colliders - e->window_colliders;
+        for (int k = 0; k < job->collider_count; k++)
+            contact_merge(&e->contacts[e->window_collider_source[ref + k]], &job->contacts[k]);
+    }
+    for (int c = 0; c < collider_count; c++)
+        e->contacts[c].slip = contact_slip(&e->contacts[c], &colliders[c]);
+    report->contacts = e->contacts;
+    report->contact_count = collider_count;
 }
 
 /* ---- commit ---- */
@@ -489,7 +608,11 @@ static void engine_memory(const sim_engine *e, sim_stage_memory *m)
     m->model = (uint64_t)e->model_scratch_capacity * sizeof(int32_t) +
                (uint64_t)e->base_capacity * sizeof(int32_t) +
                (uint64_t)e->refilling_capacity * sizeof(world_rect) +
-               (uint64_t)e->footprint_out_capacity * sizeof(sim_footprint);
+               (uint64_t)e->footprint_out_capacity * sizeof(sim_footprint) +
+               (uint64_t)e->soil_state_capacity * sizeof(int32_t) +
+               (uint64_t)e->job_contacts_capacity * sizeof(sim_contact) +
+               (uint64_t)e->contacts_capacity * sizeof(sim_contact) +
+               (uint64_t)e->window_collider_source_capacity * sizeof(int);
 }
 
 static void memory_peak(sim_stage_memory *peak, const sim_stage_memory *now)
@@ -532,7 +655,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
     int persson = sim_model_is_persson(e->params.model);
     int refilling = e->params.model == SIM_MODEL_SUBTRACT && e->params.refill_q16_per_tick > 0;
     if (tick_plan(e, colliders, collider_count, refilling) != 0 ||
-        tick_reserve_cells(e, persson) != 0)
+        tick_reserve_cells(e, persson, collider_count) != 0)
         goto oom;
     int32_t refill_units = refilling ? tick_refill_units(e) : 0;
     tick_gather(e, colliders, collider_count, refill_units,
@@ -546,6 +669,7 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
     double t_scatter = time_now_ms();
     if (tick_scatter(e, report, err) != 0)
         return -1;
+    tick_contacts(e, colliders, collider_count, report);
     report->gather_scatter_ms += time_now_ms() - t_scatter;
     if (tick_commit(e, refilling, report) != 0)
         goto oom;

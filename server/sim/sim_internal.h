@@ -42,8 +42,22 @@ typedef enum sim_cell_class {
 
 /* Hash of a world cell, used to break jump-flooding ties (same in GLSL). */
 uint32_t sim_cell_hash(int32_t world_x, int32_t world_y);
-/* Distance under a metric; Euclidean is squared (order is all that matters). */
-int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy);
+/* Distance under a metric; Euclidean is squared (order is all that matters).
+ * Inline: jump flooding calls it for every candidate of every step. */
+static inline int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy)
+{
+    int32_t ax = dx < 0 ? -dx : dx;
+    int32_t ay = dy < 0 ? -dy : dy;
+    switch (m) {
+    case SIM_METRIC_MANHATTAN:
+        return ax + ay;
+    case SIM_METRIC_CHEBYSHEV:
+        return ax > ay ? ax : ay;
+    case SIM_METRIC_EUCLIDEAN:
+    default:
+        return ax * ax + ay * ay;
+    }
+}
 
 /*
  * classify: raw[i] = penetration (units the column must lose), moved[i] =
@@ -117,6 +131,53 @@ void sim_even_slopes(const sim_params *p, int w, int h, const int32_t *cls, int3
  * the height range. `scratch` holds sim_sumner_scratch_cells(w, h) int32. */
 int64_t sim_sumner_scratch_cells(int w, int h);
 sim_window_status sim_sumner_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+
+/*
+ * The displacement half of Sumner's model, shared with bekker: the footprint
+ * (cls != SEED) split into 8-connected components, each component's
+ * displaced material spread evenly over its first ring (row-major remainder),
+ * then the slope evening; heights[i] -= raw[i] first. The caller puts raw and
+ * moved at SIM_SETTLE_RAW / SIM_SETTLE_MOVED of `scratch`
+ * (sim_settle_scratch_cells(w, h) int32). Σh changes by -Σ(raw - moved)
+ * exactly; SIM_WINDOW_HEIGHT_LIMIT leaves job->heights as they were.
+ */
+int64_t sim_settle_scratch_cells(int w, int h);
+#define SIM_SETTLE_MOVED(scratch, n) ((scratch) + 4 * (int64_t)(n))
+#define SIM_SETTLE_RAW(scratch, n) ((scratch) + 5 * (int64_t)(n))
+sim_window_status sim_sumner_settle(const sim_params *p, sim_window_job *job, const int32_t *cls,
+                                    int32_t *scratch);
+
+/* ---- bekker: soil forces (model_bekker.c, sim_soil.c) ----
+ * The window needs job->soil_state and job->contacts (one per job collider);
+ * scratch of sim_bekker_scratch_cells(w, h) int32. */
+int64_t sim_bekker_scratch_cells(int w, int h);
+sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/*
+ * Load-driven: the highest pose height z (whole units, in [lo, hi)) at which
+ * the soil's vertical force on c (job->colliders[0], which the caller owns)
+ * reaches load_n, by bisection — lo when even lo does not carry it (the
+ * collider stands as low as it may go). c's pose height is left at z; the
+ * job's heights and state are as they were (copies: n and
+ * SIM_SOIL_STATE_FIELDS * n int32); job->contacts[0] holds the last trial's.
+ */
+int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider *c, double load_n,
+                         int32_t lo, int32_t hi, int32_t *scratch, int32_t *heights_copy,
+                         int32_t *state_copy);
+
+/* The per-cell state in sparse 64x64 tiles (sim_soil.c). */
+typedef struct sim_soil_layer {
+    int width, height, tiles_x, tiles_y;
+    int32_t **tiles; /* NULL entries: never pressed */
+    int64_t allocated;
+} sim_soil_layer;
+int sim_soil_layer_init(sim_soil_layer *l, int width, int height);
+void sim_soil_layer_free(sim_soil_layer *l);
+void sim_soil_layer_gather(const sim_soil_layer *l, world_rect r, int32_t *dst);
+/* Returns 0, or -1 out of memory. */
+int sim_soil_layer_scatter(sim_soil_layer *l, world_rect r, const int32_t *src);
+int64_t sim_soil_layer_compacted(const sim_soil_layer *l);
+void sim_soil_layer_cell(const sim_soil_layer *l, int x, int y, int32_t *out);
+uint64_t sim_soil_layer_bytes(const sim_soil_layer *l);
 
 /* ---- The non-persson models: CPU window functions (model_<name>.c) ----
  *

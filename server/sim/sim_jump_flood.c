@@ -88,12 +88,21 @@ void sim_jump_flood_dense(const sim_params *p, int w, int h, int origin_x, int o
  * per step per penetrated or obstacle cell, not per window cell. Seeds are
  * carried packed as (y << 16 | x) — packed order is index order — so a
  * candidate costs no division, and the hash that breaks ties is computed
- * only on a tie of distances (the comparison is seed_better's, unchanged).
+ * only on a tie of distances.
+ *
+ * What a cell keeps is the least of {its seed, its 8 candidates} in the
+ * order (distance, sim_cell_hash, index): a strict total order, so the
+ * answer does not depend on the order the candidates are looked at
+ * (jfa_pick looks at them one at a time). That lets runs of listed cells
+ * along a row go 8 at a time (jfa_block), and each loop is compiled once
+ * per metric (jfa_range), so the distance is inline and branch-free.
  */
 #define JFA_PACK_MAX 32768
+#define JFA_LANES 8
+#define JFA_ALWAYS_INLINE inline __attribute__((always_inline))
 
-static int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x, int y, int k, int w,
-                        int h, const int32_t *restrict in)
+static JFA_ALWAYS_INLINE int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x,
+                                          int y, int k, int w, int h, const int32_t *restrict in)
 {
     int32_t best = in[y * w + x];
     int32_t best_d = 0;
@@ -129,7 +138,7 @@ static int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x, in
     return best;
 }
 
-/* One step of sparse jump flooding over the listed cells. */
+/* One step of sparse jump flooding over the listed cells (packed). */
 typedef struct jfa_loop {
     sim_metric metric;
     int origin_x, origin_y, w, h, k;
@@ -138,13 +147,145 @@ typedef struct jfa_loop {
     int32_t *out;
 } jfa_loop;
 
+/* Where a block's 8 candidates are: for candidate j of the cell at x,
+ * in[off[j] + x] | mask[j]. A candidate outside the window (the same for
+ * every cell of a block) reads the cell itself, masked to -1. */
+typedef struct jfa_block_at {
+    int32_t off[8];
+    int32_t mask[8];
+} jfa_block_at;
+
+/*
+ * Cells x .. x + 7 of row y, in SSE2 (the x86-64 baseline): the candidates
+ * of consecutive cells are consecutive cells of rows y - k, y and y + k, so
+ * each candidate is one contiguous load per 4 lanes and nothing branches.
+ * A seed minus the cell, both packed (y << 16 | x), is (dy, dx) as two
+ * int16 (|dx|, |dy| < JFA_PACK_MAX), so pmaddwd gives dx² + dy² (or, of
+ * |dx| and |dy|, their sum) in one instruction: sim_metric_distance's
+ * integers exactly. No seed (-1) is INT32_MAX, above every distance. Each
+ * lane keeps the nearest seed and a flag for a second, different seed at
+ * that same distance; without one, the nearest is the least element and
+ * jfa_pick's answer. The flagged lanes (a tie the hash must break: rare)
+ * come back as bits for jfa_pick to redo. Elsewhere every cell takes
+ * jfa_pick (JFA_BLOCKS 0).
+ */
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#define JFA_BLOCKS 1
+
+static JFA_ALWAYS_INLINE __m128i jfa_distance4(sim_metric metric, __m128i s, __m128i cell)
+{
+    const __m128i none = _mm_set1_epi32(INT32_MAX), v = _mm_sub_epi16(s, cell);
+    __m128i d;
+    if (metric == SIM_METRIC_EUCLIDEAN) {
+        d = _mm_madd_epi16(v, v);
+    } else {
+        __m128i a = _mm_max_epi16(v, _mm_sub_epi16(_mm_setzero_si128(), v));
+        if (metric == SIM_METRIC_MANHATTAN)
+            d = _mm_madd_epi16(a, _mm_set1_epi16(1));
+        else
+            d = _mm_and_si128(_mm_max_epi16(a, _mm_srli_epi32(a, 16)), _mm_set1_epi32(0xffff));
+    }
+    __m128i missing = _mm_srai_epi32(s, 31);
+    return _mm_or_si128(_mm_andnot_si128(missing, d), _mm_and_si128(missing, none));
+}
+
+static JFA_ALWAYS_INLINE int jfa_block(sim_metric metric, const jfa_block_at *restrict at, int x,
+                                       int y, int row, const int32_t *restrict in,
+                                       int32_t *restrict out)
+{
+    int ties = 0;
+    for (int half = 0; half < 2; half++) {
+        int cx = x + 4 * half;
+        const __m128i cell =
+            _mm_add_epi32(_mm_set1_epi32(y << 16 | cx), _mm_setr_epi32(0, 1, 2, 3));
+        __m128i best = _mm_loadu_si128((const __m128i *)(in + row + cx));
+        __m128i best_d = jfa_distance4(metric, best, cell), tie = _mm_setzero_si128();
+        for (int j = 0; j < 8; j++) {
+            __m128i s = _mm_or_si128(_mm_loadu_si128((const __m128i *)(in + at->off[j] + cx)),
+                                     _mm_set1_epi32(at->mask[j]));
+            __m128i d = jfa_distance4(metric, s, cell);
+            __m128i nearer = _mm_cmplt_epi32(d, best_d);
+            __m128i same = _mm_andnot_si128(_mm_cmpeq_epi32(s, best), _mm_cmpeq_epi32(d, best_d));
+            tie = _mm_andnot_si128(nearer, _mm_or_si128(tie, same));
+            best = _mm_or_si128(_mm_and_si128(nearer, s), _mm_andnot_si128(nearer, best));
+            best_d = _mm_or_si128(_mm_and_si128(nearer, d), _mm_andnot_si128(nearer, best_d));
+        }
+        _mm_storeu_si128((__m128i *)(out + row + cx), best);
+        ties |= _mm_movemask_ps(_mm_castsi128_ps(tie)) << (4 * half);
+    }
+    return ties;
+}
+#else
+#define JFA_BLOCKS 0
+#endif
+
+/* Listed cells x0 .. x1 - 1 of row y at step k. A block needs the same
+ * candidates inside the window for all its cells, so the run is cut where
+ * x - k or x + k crosses the window's edge; short pieces go one by one. */
+static JFA_ALWAYS_INLINE void jfa_run(const jfa_loop *l, sim_metric metric, int x0, int x1, int y)
+{
+    const int w = l->w, h = l->h, k = l->k, row = y * w;
+    /* x >= k: left candidates inside; x < w - k: right ones inside */
+    int e0 = k < w - k ? k : w - k, e1 = k < w - k ? w - k : k;
+    int lo = e0 < x0 ? x0 : e0 > x1 ? x1 : e0, hi = e1 < lo ? lo : e1 > x1 ? x1 : e1;
+    const int cut[4] = {x0, lo, hi, x1};
+    for (int part = 0; part < 3; part++) {
+        int x = cut[part], b = cut[part + 1];
+#if JFA_BLOCKS
+        if (b - x >= JFA_LANES) {
+            jfa_block_at at;
+            for (int j = 0; j < 8; j++) {
+                int dx = sim_neighbour_dx[j] * k, qy = y + sim_neighbour_dy[j] * k;
+                int inside = x + dx >= 0 && b - 1 + dx < w && qy >= 0 && qy < h;
+                at.off[j] = inside ? qy * w + dx : row;
+                at.mask[j] = inside ? 0 : -1;
+            }
+            for (; x + JFA_LANES <= b; x += JFA_LANES) {
+                int tie = jfa_block(metric, &at, x, y, row, l->in, l->out);
+                for (int t = 0; tie; t++, tie >>= 1)
+                    if (tie & 1)
+                        l->out[row + x + t] =
+                            jfa_pick(metric, l->origin_x, l->origin_y, x + t, y, k, w, h, l->in);
+            }
+        }
+#endif
+        for (; x < b; x++)
+            l->out[row + x] = jfa_pick(metric, l->origin_x, l->origin_y, x, y, k, w, h, l->in);
+    }
+}
+
+/* The listed cells [begin, end) of one step, as runs of consecutive cells
+ * of a row (consecutive packed values). */
+static JFA_ALWAYS_INLINE void jfa_cells(const jfa_loop *l, int64_t begin, int64_t end,
+                                        sim_metric metric)
+{
+    const int32_t *restrict list = l->list;
+    for (int64_t c = begin; c < end;) {
+        int64_t e = c + 1;
+        while (e < end && list[e] == list[e - 1] + 1)
+            e++;
+        int x0 = list[c] & 0xffff;
+        jfa_run(l, metric, x0, x0 + (int)(e - c), list[c] >> 16);
+        c = e;
+    }
+}
+
 static void jfa_range(void *ctx, int64_t begin, int64_t end, int thread)
 {
     (void)thread;
     const jfa_loop *l = ctx;
-    for (int64_t c = begin; c < end; c++) {
-        int i = l->list[c], y = i / l->w, x = i - y * l->w;
-        l->out[i] = jfa_pick(l->metric, l->origin_x, l->origin_y, x, y, l->k, l->w, l->h, l->in);
+    switch (l->metric) {
+    case SIM_METRIC_MANHATTAN:
+        jfa_cells(l, begin, end, SIM_METRIC_MANHATTAN);
+        break;
+    case SIM_METRIC_CHEBYSHEV:
+        jfa_cells(l, begin, end, SIM_METRIC_CHEBYSHEV);
+        break;
+    case SIM_METRIC_EUCLIDEAN:
+    default:
+        jfa_cells(l, begin, end, SIM_METRIC_EUCLIDEAN);
+        break;
     }
 }
 
@@ -163,7 +304,7 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
             int free_cell = cls[i] == SIM_CELL_SEED;
             seed[i] = free_cell ? (y << 16 | x) : -1;
             if (!free_cell)
-                list[count++] = i;
+                list[count++] = y << 16 | x;
         }
     }
     if (count > 0) {
@@ -181,8 +322,10 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
             out = t;
         }
         if (in != seed)
-            for (int c = 0; c < count; c++)
-                seed[list[c]] = in[list[c]];
+            for (int c = 0; c < count; c++) {
+                int i = (list[c] >> 16) * w + (list[c] & 0xffff);
+                seed[i] = in[i];
+            }
     }
     /* packed → window-local index; free cells are their own seed */
     for (int y = 0, i = 0; y < h; y++)

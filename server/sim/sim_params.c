@@ -38,6 +38,7 @@ sim_material sim_material_default(void)
         .diffusion_conservative = 1,
         .decal_min_strength_m = 0.0,
     };
+    sim_soil_preset("ding2011", &m.soil); /* the soil the validation measures */
     return m;
 }
 
@@ -63,8 +64,8 @@ int sim_material_diffusion_preset(sim_material *m, const char *name)
 }
 
 static const char *const model_names[SIM_MODEL_COUNT] = {
-    "persson-iterative", "persson-ssbo", "persson-multi", "subtract",
-    "deferred",          "diffusion",    "sumner",        "decals"};
+    "persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
+    "diffusion",         "sumner",       "decals",        "bekker"};
 
 const char *sim_model_name(sim_model m)
 {
@@ -254,6 +255,8 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
         return -1;
     if (validate_persson(m, err) != 0 || validate_models(m, err) != 0)
         return -1;
+    if (m->model == SIM_MODEL_BEKKER && sim_soil_validate(&m->soil, "material.soil", err) != 0)
+        return -1;
     if (!isfinite(cell_size_m) || cell_size_m <= 0.0 || units_per_m < 1) {
         error_set(err, "world: cell size and units per metre must be positive");
         return -1;
@@ -295,5 +298,7 @@ int sim_params_from_material(const sim_material *m, double cell_size_m, int32_t 
     p->cell_size_m = cell_size_m;
     p->units_per_m = units_per_m;
     p->decal_min_strength = ground_units_saturated(m->decal_min_strength_m * units_per_m);
+    p->soil = m->soil;
+    p->tick_s = m->tick_s;
     return 0;
 }

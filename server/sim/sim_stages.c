@@ -54,21 +54,6 @@ uint32_t sim_cell_hash(int32_t world_x, int32_t world_y)
     return h;
 }
 
-int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy)
-{
-    int32_t ax = dx < 0 ? -dx : dx;
-    int32_t ay = dy < 0 ? -dy : dy;
-    switch (m) {
-    case SIM_METRIC_MANHATTAN:
-        return ax + ay;
-    case SIM_METRIC_CHEBYSHEV:
-        return ax > ay ? ax : ay;
-    case SIM_METRIC_EUCLIDEAN:
-    default:
-        return ax * ax + ay * ay;
-    }
-}
-
 /* (a * q16) >> shift for a >= 0, q16 in [0, 65536]: exact in 64 bits. */
 static int32_t mul_q16_shift(int32_t a, int32_t q16, int shift)
 {
@@ -543,6 +528,141 @@ static void slope_range(void *ctx, int64_t begin, int64_t end, int thread)
 }
 
 /*
+ * Slope evening of a one-material window (ids == NULL) by blocks of
+ * SLOPE_SEG cells along a row: what the daemon runs. The same argument as
+ * the work list's, with a block for a cell: iteration 1 visits the blocks
+ * holding a cell that slope_may_move, and after an iteration the blocks
+ * holding a changed cell or one of its neighbours. Any block visited gives
+ * its cells' exact next heights, so visiting a superset of the listed cells
+ * changes nothing; in exchange the 16 cells of an inner block go through
+ * slope_block with contiguous loads and no branch (gcc vectorises it), and
+ * the marks are one byte per block, not a list entry per cell.
+ */
+#define SLOPE_SEG 16
+
+/* Next heights of cells i0 .. i0 + 15, all one cell or more inside the
+ * window: slope_next_interior's sum with the lanes along the row. */
+static void slope_block(const ground_material_row *restrict r, int w, const int32_t *restrict cls,
+                        const int32_t *restrict heights, int i0, int32_t *restrict dst)
+{
+    const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
+    const uint32_t rough = (uint32_t)r->roughness_q16;
+    /* the neighbours in slope_next's order: E, W, S, N, SE, SW, NE, NW */
+    const int off[8] = {1, -1, w, -w, w + 1, w - 1, -w + 1, -w - 1};
+    const int32_t *restrict hm = heights + i0;
+    int32_t out[SLOPE_SEG] = {0}, in[SLOPE_SEG] = {0};
+    for (int j = 0; j < 8; j++) {
+        const int32_t th = j < 4 ? ax : dg;
+        const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
+        for (int l = 0; l < SLOPE_SEG; l++) {
+            /* max(e, 0) and the class test as masks: no control flow to vectorise */
+            int32_t eo = hm[l] - hq[l] - th, ei = hq[l] - hm[l] - th;
+            uint32_t po = (uint32_t)(eo & ~(eo >> 31)), pi = (uint32_t)(ei & ~(ei >> 31));
+            int32_t fo = (int32_t)(((uint64_t)po * rough) >> 19);
+            int32_t fi = (int32_t)(((uint64_t)pi * rough) >> 19);
+            out[l] += fo & -(int32_t)(cq[l] == SIM_CELL_SEED);
+            in[l] += fi;
+        }
+    }
+    for (int l = 0; l < SLOPE_SEG; l++)
+        dst[l] = hm[l] - out[l] + (cls[i0 + l] == SIM_CELL_SEED ? in[l] : 0);
+}
+
+/* One iteration's next heights of the listed blocks (packed y << 16 | s). */
+typedef struct slope_blocks_loop {
+    const ground_material_table *t;
+    int w, h;
+    const int32_t *cls, *heights, *blocks;
+    int32_t *value;
+} slope_blocks_loop;
+
+static void slope_blocks_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+    const slope_blocks_loop *l = ctx;
+    const int w = l->w, h = l->h;
+    for (int64_t c = begin; c < end; c++) {
+        int y = slope_y(l->blocks[c]), x0 = slope_x(l->blocks[c]) * SLOPE_SEG;
+        int x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w, row = y * w;
+        /* the inner cells: one slope_block placed over them (a block at the
+         * window's side starts early; only its own cells are kept) */
+        int lo = x0 > 0 ? x0 : 1, hi = x1 < w ? x1 : w - 1;
+        if (y > 0 && y < h - 1 && w - 2 >= SLOPE_SEG && lo < hi) {
+            int b = lo < w - 1 - SLOPE_SEG ? lo : w - 1 - SLOPE_SEG;
+            int32_t next[SLOPE_SEG];
+            slope_block(&l->t->rows[0], w, l->cls, l->heights, row + b, next);
+            for (int x = lo; x < hi; x++)
+                l->value[row + x] = next[x - b];
+        } else {
+            lo = hi = x0;
+        }
+        /* the rest (the window's border, a narrow window): the specification */
+        for (int x = x0; x < x1; x++)
+            if (x < lo || x >= hi)
+                l->value[row + x] = slope_next(l->t, NULL, w, h, l->cls, l->heights, x, y);
+    }
+}
+
+/* Write block (y, s)'s next heights; mark for the next iteration the blocks
+ * of rows y - 1 .. y + 1 that hold a changed cell or a neighbour of one. */
+static void slope_block_commit(int w, int h, int segs, int y, int s, const int32_t *value,
+                               int32_t *heights, uint8_t *next)
+{
+    int x0 = s * SLOPE_SEG, x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w;
+    int first = -1, last = -1;
+    for (int x = x0, i = y * w + x0; x < x1; x++, i++) {
+        if (value[i] == heights[i])
+            continue;
+        heights[i] = value[i];
+        first = first < 0 ? x : first;
+        last = x;
+    }
+    if (first < 0)
+        return;
+    int s0 = first == x0 && s > 0 ? s - 1 : s;
+    int s1 = last == x1 - 1 && s + 1 < segs ? s + 1 : s;
+    for (int qy = y > 0 ? y - 1 : 0; qy <= (y < h - 1 ? y + 1 : h - 1); qy++)
+        for (int qs = s0; qs <= s1; qs++)
+            next[qy * segs + qs] = 1;
+}
+
+/* scratch: 4 * w * h int32 (value, the first list, the block list, marks). */
+static void slope_even_blocks(const sim_params *p, const ground_material_table *t, int w, int h,
+                              const int32_t *cls, int32_t *heights, int32_t *scratch)
+{
+    int n = w * h, segs = (w + SLOPE_SEG - 1) / SLOPE_SEG;
+    int32_t *restrict value = scratch, *restrict first = scratch + n;
+    int32_t *restrict blocks = scratch + 2 * n;
+    uint8_t *restrict mark = (uint8_t *)(scratch + 3 * n), *restrict next = mark + h * segs;
+    int count = slope_first_list(t, NULL, w, h, cls, heights, first);
+    if (count == 0)
+        return;
+    memset(mark, 0, (size_t)h * segs);
+    for (int c = 0; c < count; c++)
+        mark[slope_y(first[c]) * segs + slope_x(first[c]) / SLOPE_SEG] = 1;
+    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        int nb = 0;
+        for (int y = 0; y < h; y++)
+            for (int s = 0; s < segs; s++)
+                if (mark[y * segs + s])
+                    blocks[nb++] = slope_pack(s, y);
+        if (nb == 0)
+            break;
+        /* Jacobi: every block reads the old heights; bands are exact */
+        slope_blocks_loop l = {t, w, h, cls, heights, blocks, value};
+        int bands = sim_band_threads((int64_t)nb * SLOPE_SEG);
+        sim_parallel_for(nb, sim_band_chunk(nb, bands), bands, slope_blocks_range, &l);
+        memset(next, 0, (size_t)h * segs);
+        for (int c = 0; c < nb; c++)
+            slope_block_commit(w, h, segs, slope_y(blocks[c]), slope_x(blocks[c]), value, heights,
+                               next);
+        uint8_t *tmp = mark;
+        mark = next;
+        next = tmp;
+    }
+}
+
+/*
  * The sparse slope evening the engine runs; sim_even_slopes_materials_dense
  * is its reference. Iteration 1 visits the cells that slope_may_move; a
  * cell's next height depends only on itself and its 8 neighbours, so a cell
@@ -556,6 +676,10 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
                                const uint8_t *ids, int w, int h, const int32_t *cls,
                                int32_t *heights, int32_t *scratch)
 {
+    if (ids == NULL) {
+        slope_even_blocks(p, t, w, h, cls, heights, scratch);
+        return;
+    }
     int n = w * h;
     int32_t *restrict list = scratch, *restrict next_list = scratch + n;
     int32_t *restrict value = scratch + 2 * n, *restrict mark = scratch + 3 * n;

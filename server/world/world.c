@@ -2,8 +2,8 @@
  * world.c: the authoritative height field and the rectangle helpers the tick
  * uses around it. The sim engine plans windows with world_clip_rect,
  * world_rects_overlap and world_rect_union, gathers each window's heights out
- * of the world (step 4 of the tick), and scatters the new heights back
- * (step 7). Volumes are summed in int64 so that "Σh is unchanged" can be
+ * of the world (row 4b of the tick table in docs/design.md), and scatters
+ * the new heights back (row 4e). Volumes are summed in int64 so that "Σh is unchanged" can be
  * checked exactly.
  *
  * The heights live in tiles of tile_cells² cells. A tile is stored only once

@@ -7,6 +7,7 @@
  * tick rate). A tick here is 3 rectangles of 40×40 cells, compressed.
  * Every process shares this machine's cores: the figures say so.
  */
+#include "test_params.h"
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,20 +18,6 @@
 
 #define W 1024
 #define H 1024
-
-static void make_world(world *w)
-{
-    error_text err;
-    world_base_spec b = {.kind = WORLD_BASE_DUNES,
-                         .min_height_m = -0.1,
-                         .max_height_m = 0.4,
-                         .wavelength_m = 3.0,
-                         .octaves = 3,
-                         .seed = 5};
-    if (world_init(w, W, H, 0.1, 10000, WORLD_HEIGHT_MIN, &err) != 0 ||
-        world_generate_base(w, &b, &err) != 0)
-        exit(2);
-}
 
 static int deform(world *w, uint64_t t, world_rect *rects)
 {
@@ -53,7 +40,7 @@ static void bench_latency(cluster *cl, const char *label)
 {
     error_text err = {{0}};
     world w;
-    make_world(&w);
+    test_dunes_world(&w, W, H, 5);
     store_recovery rec;
     cluster_store *st = cluster_store_open(cl, label, &w, NULL, &rec, &err);
     if (!st) {
@@ -89,7 +76,7 @@ static void bench_rate(cluster *cl, int n, const char *label)
     for (int i = 0; i < n; i++) {
         char name[32];
         snprintf(name, sizeof name, "rate%d-%s-%d", n, label, i);
-        make_world(&w[i]);
+        test_dunes_world(&w[i], W, H, 5);
         st[i] = cluster_store_open(cl, name, &w[i], NULL, &rec, &err);
         if (!st[i])
             printf("%s: %s\n", name, err.message);

@@ -25,6 +25,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
+import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, Checks, Daemon, tp  # noqa: E402
@@ -84,6 +86,29 @@ async def roles(check, d, tok, path):
         await viewer.wait_for(lambda: any(m.get("code") == 22 for m in viewer.errors), 10)
         check(any("POSE_BATCH" in m.get("message", "") for m in viewer.errors),
               "a viewer's POSE_BATCH: forbidden")
+        # terrain edits (issue 22): a driver or an admin, never a viewer; HTTP alike
+        try:
+            await viewer.edit("add", x=0, y=0, w=2, h=2, amount=5)
+            check(False, "a viewer's edit is refused")
+        except tp.ServerError as e:
+            check(e.name == "forbidden" and "viewer" in e.message,
+                  f"a viewer's edit: forbidden, naming the role ({e})")
+        r = await d1.edit("add", x=0, y=0, w=2, h=2, amount=5)
+        r2 = await admin.edit("remove", x=0, y=0, w=2, h=2, amount=5)
+        check(r["volume_change"] == 20 and r2["volume_change"] == -20,
+              "a driver's and an admin's edits are applied")
+        edits = f"/v1/worlds/{d.world().get('world') or 'default-dunes'}/edits"
+        for who, want in (("viewer", 403), ("d1", 200), (None, 401)):
+            req = urllib.request.Request(d.http + edits, method="POST",
+                                         data=b'{"op":"add","x":0,"y":0,"w":1,"h":1,"amount":1}')
+            if who:
+                req.add_header("Authorization", f"Bearer {tok[who]}")
+            try:
+                with urllib.request.urlopen(req, timeout=30) as resp:
+                    status = resp.status
+            except urllib.error.HTTPError as e:
+                status = e.code
+            check(status == want, f"POST edits as {who or 'nobody'}: {want} ({status})")
 
         a = await d1.create_collider("sphere", radius=0.5)
         b = await d2.create_collider("sphere", radius=0.5)

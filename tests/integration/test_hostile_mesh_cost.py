@@ -1,22 +1,24 @@
 #!/usr/bin/python3
 """A mesh's real cost in the budgets (issue 20, item 3: one client's mesh at
 the default limits, 16,384 vertices and 32,768 triangles, posed in the dunes
-took the tick from 60 to 26 ticks/s, charged only its bounding square). Each
-triangle is now charged the square around its own bounding sphere plus one
-(collider_cost_cells), by the per-client max_active_cells and the per-tick
-max_tick_cells alike. Checked, with UV-sphere meshes of 16,382 vertices and
-32,760 triangles:
+took the tick from 60 to 26 ticks/s, charged only its bounding square). A
+collider is charged collider_cost_cells (collider.c has the calibration): its
+window, and per pose the depth work, for a mesh 1/8 cell per triangle (and
+1/32 per cell its triangles may visit), once more with contact feedback; by
+the per-client max_active_cells and the per-tick max_tick_cells alike.
+Checked, with UV-sphere meshes of 16,382 vertices and 32,760 triangles:
 
-  - default limits: a 4 m sphere mesh, whose bounding square alone fits
-    max_active_cells, is refused naming max_active_cells with a cost past it;
-  - default limits: a 0.5 m sphere mesh is accepted, and is charged at least
-    two cells per triangle: a primitive sphere that would fit beside the
-    mesh's bounding square is refused, its message counting the mesh's cost;
-  - the tick's budget (max_tick_cells 20,000, 10 Hz): the 0.5 m mesh (a
-    441-cell square) ploughing beside a light sphere waits a tick now and then
+  - default limits (max_active_cells 8,192, max_tick_cells 32,768): a 0.5 m
+    sphere mesh with feedback is refused naming max_active_cells, its cost
+    past it, although a primitive 0.5 m sphere with feedback is accepted;
+  - the same mesh without feedback is accepted, and charged at least its
+    window (841 cells) plus 32,760 / 8: a second one is refused, its message
+    counting both;
+  - the tick's budget (max_tick_cells 12,000, 10 Hz): the 0.5 m mesh with
+    feedback ploughing beside a light sphere waits a tick now and then
     (terrad_tick_shed_total counts, the log says so) while every pose batch of
-    the light client is acknowledged; by bounding squares alone (610 cells)
-    nothing would ever wait.
+    the light client is acknowledged; by windows alone (1,282 cells) nothing
+    would ever wait.
 """
 # ctest-timeout: 240
 import asyncio
@@ -30,7 +32,7 @@ from service_harness import (Checks, Daemon, RecordingClient, metric_value, tp, 
                              uv_sphere_mesh)
 
 TRIANGLES = 32760
-BUDGET = 20000
+BUDGET = 12000
 
 
 async def create(client, shape, **dims):
@@ -41,37 +43,39 @@ async def create(client, shape, **dims):
 
 
 def square(r, cell):
-    return (math.ceil(2 * r / cell) + 1) ** 2
+    """the window: the bounding square and the active margin (4 cells) each side"""
+    return (math.ceil(2 * r / cell) + 1 + 8) ** 2
 
 
 async def client_budget(check, d):
-    w = d.world()
-    cell = w["cell_size_m"]
     c = RecordingClient(d.ws, name="mesh-budget", record=False)
     await c.connect()
     limit = c.world["limits"]["max_active_cells"]
-    check(limit == 262144 and c.world["limits"].get("max_tick_cells") == 1048576,
+    check(limit == 8192 and c.world["limits"].get("max_tick_cells") == 32768,
           f"the default budgets: {c.world['limits']}")
-    verts, tris = uv_sphere_mesh(4.0)
+    verts, tris = uv_sphere_mesh(0.5)
     cid, err = await create(c, "mesh", vertices=verts, indices=tris)
     m = re.search(r"cost of (\d+) cells", err.message) if err else None
-    check(square(4.0, cell) < limit, f"a 4 m sphere's bounding square fits ({square(4.0, cell)})")
     check(cid is None and err.code == 8 and "max_active_cells" in err.message and m and
           int(m.group(1)) > limit,
-          f"the 4 m mesh is refused by its triangles' cost: {err and err.message}")
+          f"the mesh with feedback is refused by its triangles' cost: {err and err.message}")
+    sphere, err = await create(c, "sphere", radius=0.5)
+    check(sphere is not None, f"a primitive 0.5 m sphere with feedback fits: {err and err.message}")
+    await c.delete_collider(sphere)
 
-    verts, tris = uv_sphere_mesh(0.5)
-    mesh, err = await create(c, "mesh", vertices=verts, indices=tris)
-    check(mesh is not None, f"the 0.5 m mesh fits the budget: {err and err.message}")
-    r = 0.5 * cell * (math.isqrt(limit - square(0.5, cell)) - 2)  # fits beside the square alone
-    f = square(r, cell)
-    check(f + square(0.5, cell) <= limit, f"a {r:.2f} m sphere ({f} cells) fits beside the "
-          f"mesh's bounding square ({square(0.5, cell)} cells) in {limit}")
-    big, err = await create(c, "sphere", radius=r)
-    m = re.search(r"to (\d+) active cells", err.message) if err else None
-    check(big is None and m and int(m.group(1)) - f >= 2 * TRIANGLES,
-          f"refused: the mesh is charged at least two cells per triangle "
-          f"({err and err.message})")
+    plain = {"feedback": False, "vertices": verts, "indices": tris}
+    mesh = await c.request(tp.collider_create("mesh", **plain), "collider_created")
+    check(mesh is not None, "the mesh without feedback fits the budget")
+    try:
+        await c.request(tp.collider_create("mesh", **plain), "collider_created")
+        err = None
+    except tp.ServerError as e:
+        err = e
+    m = re.search(r"cost of (\d+) cells.* to (\d+) active cells", err.message) if err else None
+    least = square(0.5, 0.05) + TRIANGLES // 8
+    check(m and int(m.group(1)) >= least and int(m.group(2)) == 2 * int(m.group(1)),
+          f"a second one is refused, each charged at least {least} cells: "
+          f"{err and err.message}")
     await c.close()
 
 
@@ -111,7 +115,8 @@ def main():
     d = Daemon(name="terrad-mesh-defaults")
     with check.running(d):
         asyncio.run(client_budget(check, d))
-    d = Daemon(tick_hz=10, config={"limits": {"max_tick_cells": BUDGET}}, name="terrad-mesh-tick")
+    d = Daemon(tick_hz=10, config={"limits": {"max_tick_cells": BUDGET,
+                                                      "max_active_cells": 65536}}, name="terrad-mesh-tick")
     with check.running(d):
         asyncio.run(tick_budget(check, d))
     check.finish()

@@ -84,7 +84,8 @@ async def plough(check, d):
 
 def main():
     check = Checks()
-    d = Daemon(tick_hz=10, config={"limits": {"max_tick_cells": BUDGET}})
+    d = Daemon(tick_hz=10, config={"limits": {"max_tick_cells": BUDGET,
+                                                      "max_active_cells": 65536}})
     with check.running(d):
         asyncio.run(plough(check, d))
     check.finish()

@@ -78,7 +78,10 @@ async def scenario(d, mnt):
     cell, upm = w["cell_size_m"], w["units_per_m"]
     client = tp.TerradClient(d.ws, name="tmpfs-full")
     await client.connect()
-    cid = await client.create_collider("sphere", radius=2.0)
+    # without feedback: 2 m fits the default max_active_cells (docs/service.md)
+    cid = await client.request(tp.collider_create("sphere", feedback=False, radius=2.0),
+                               "collider_created")
+    cid = cid["id"]
     y = 256
     _, row = await loop.run_in_executor(None, d.heights, 0, y, w["width"], 1)
     z = min(row) / upm - 0.3 + 2.0  # below every cell of the row: each pose deforms

@@ -65,6 +65,8 @@ def decode_any(t, b):
         return tp.decode_colliders(b)
     if t == "FOOTPRINTS":
         return tp.decode_footprints(b)
+    if t == "FORCES":
+        return tp.decode_forces(b)
     return tp.decode_ping(b)
 
 
@@ -125,6 +127,14 @@ def check_valid(v):
         check(tick == int(f["tick"]), f"{name}: tick")
         check(es == want, f"{name}: footprints")
         check(tp.encode_footprints(int(f["tick"]), want) == b, f"{name}: encode")
+    elif t == "FORCES":
+        tick, fs = tp.decode_forces(b)
+        want = [tp.Force(e["id"], tuple(map(f32, e["force"])), tuple(map(f32, e["torque"])), f32(e["sinkage_m"]),
+                         f32(e["area_m2"]), f32(e["patch_width_m"]), f32(e["slip"]), e["cells"])
+                for e in f["forces"]]
+        check(tick == int(f["tick"]), f"{name}: tick")
+        check(fs == want, f"{name}: forces")
+        check(tp.encode_forces(int(f["tick"]), want) == b, f"{name}: encode")
     elif t == "ACK":
         check(tp.decode_ack(b) == (int(f["tick"]), f["seq"]), f"{name}: decode")
         check(tp.encode_ack(int(f["tick"]), f["seq"]) == b, f"{name}: encode")

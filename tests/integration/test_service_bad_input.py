@@ -390,7 +390,9 @@ async def corpus(d, ex):
 async def main():
     if not os.access(BIN, os.X_OK):
         skip(f"no daemon binary at {BIN}")
-    d = Daemon(backend="cpu", token=TOKEN, config={"limits": {"hello_timeout_s": 2}},
+    d = Daemon(backend="cpu", token=TOKEN, config={"limits": {"hello_timeout_s": 2,
+                                                           # max_colliders is what is checked
+                                                           "max_active_cells": 65536}},
                name="terrad-bad-input")
     with check.running(d):
         world = d.world()

@@ -1,18 +1,24 @@
 #!/usr/bin/python3
 # ctest-timeout: 900
-"""Continuous trails at any speed (issue 12, item 2), through the real binary.
+"""Continuous trails at any speed (issue 12, item 2; issue 20, item 4), through
+the real binary.
 
-One sphere (r 0.3 m, pressed 5 cm into 0.4 m of flat snow on 5 cm cells)
-drives the same straight 400-cell path at 1, 5, 40 and 200 cells per tick.
-For every model that deforms, and on both backends where the model has a GL
-version, no cell on the path's centre line may be left at the untouched
-height: the depth a tick sees is the collider swept from its previous pose
-to this one (docs/core.md, "Swept depth"), so a fast collider leaves a
-trench, not a row of dents. Sumner's ring gives nothing to the cells behind
-a moving collider and deferred's rim never rises on snow an earlier tick cut
-(docs/models.md): before those two rules sumner left one untouched cell per
-tick boundary at 40 and 200 cells per tick and deferred left 343, 79, 9 and 1.
-decals does not deform: it must leave every height as it was.
+One sphere (r 0.3 m on 5 cm cells, in 0.4 m of flat snow) drives the same
+straight 400-cell path at 1, 5, 20, 40 and 200 cells per tick, pressed 5 cm
+in and again 10 cm in. For every model that deforms, and on both backends
+where the model has a GL version, no cell on the path's centre line may be
+left at the untouched height (or above it): the depth a tick sees is the
+collider swept from its previous pose to this one (docs/core.md, "Swept
+depth"), so a fast collider leaves a trench, not a row of dents. Sumner's
+ring gives nothing to the cells behind a moving collider and deferred's rim
+never rises on snow an earlier tick cut (docs/models.md): before those two
+rules sumner left one untouched cell per tick boundary at 40 and 200 cells
+per tick and deferred left 343, 79, 9 and 1 at 1, 5, 40, 200. Diffusion, a
+rate, runs a fast tick in one-cell slices (docs/models.md): before, pressed
+10 cm in, it left 0, 78, 76, 36 and 4 centre-line cells untouched at 1, 5,
+20, 40 and 200 cells per tick. The models that keep volume keep Σh exactly
+at every speed; a sliced diffusion tick gives the same heights on 1 and 2
+threads. decals does not deform: it must leave every height as it was.
 
 The GL backend needs an OpenGL 4.3 context; where none can be made the GL
 cases are counted as skipped (this machine: Mesa llvmpipe).
@@ -25,12 +31,13 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, SOURCE, Checks  # noqa: E402
+from service_harness import BIN, Checks  # noqa: E402
 
 check = Checks()
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "diffusion",
           "deferred", "sumner"]
 UNDEFORMED = ["decals"]  # footprint events only: heights stay as they were
+VOLUME_KEEPING = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner"}
 GL_MODELS = {"persson-iterative", "persson-ssbo", "persson-multi"}
 CELL = 0.05
 HZ = 60
@@ -43,73 +50,92 @@ UNTOUCHED = 4000    # 0.4 m at the default 10,000 units per metre
 FIRST, LAST = X0 + 1, X0 + PATH - 1
 
 
-def run(scene, ticks, backend, model, out):
+SPEEDS = (1, 5, 20, 40, 200)  # cells per tick
+PRESSES = (0.05, 0.10)  # metres the sphere's lowest point is below the snow
+
+
+def run(scene, ticks, backend, model, out, threads=None):
     args = [BIN, "simulate", "--scene", scene, "--ticks", str(ticks), "--backend", backend,
             "--model", model, "--out", out]
+    if threads:
+        args += ["--threads", str(threads)]
     p = subprocess.run(args, capture_output=True, text=True, timeout=600)
     return p.returncode, p.stderr
 
 
-def scene_for(cells_per_tick, directory):
+def scene_for(cells_per_tick, press, directory):
     doc = {
-        "name": f"trail-{cells_per_tick}",
+        "name": f"trail-{cells_per_tick}-{press}",
         "world": {"width": W, "height": H, "cell_size_m": CELL},
         "tick_hz": HZ,
         "terrain": {"kind": "flat", "height_m": 0.4},
         "material": {"roughness": 0.4, "repose_deg": 30},
         "colliders": [{
             "name": "ball", "shape": "sphere", "radius": 0.3,
-            "position": [(X0 + 0.5) * CELL, (ROW + 0.5) * CELL, 0.65],
+            "position": [(X0 + 0.5) * CELL, (ROW + 0.5) * CELL, 0.4 + 0.3 - press],
             "motion": {"velocity": [cells_per_tick * CELL * HZ, 0, 0]}}],
     }
-    path = os.path.join(directory, f"trail-{cells_per_tick}.json")
+    path = os.path.join(directory, f"trail-{cells_per_tick}-{press}.json")
     with open(path, "w") as f:
         json.dump(doc, f)
     return path
 
 
-def centre_line(out):
+def heights_of(out):
     with open(out, "rb") as f:
-        data = f.read()
-    heights = struct.unpack(f"<{W * H}i", data)
-    return [heights[ROW * W + x] for x in range(W)]
+        return struct.unpack(f"<{W * H}i", f.read())
+
+
+def trail_case(scene, ticks, speed, press, model, backend, tmp, gl_ok):
+    """One model on one backend along one trail; returns whether GL ran."""
+    out = os.path.join(tmp, f"{model}-{backend}-{speed}-{press}.bin")
+    rc, err = run(scene, ticks, backend, model, out)
+    what = f"{model} {backend} {speed} cells/tick {press} m deep"
+    if backend == "gl" and gl_ok is None and rc != 0:
+        print("GL backend unavailable, GL cases skipped:", err[-200:])
+        check.skipped += 1
+        return False
+    if not check(rc == 0, f"{what} ran: {err[-300:]}"):
+        return gl_ok
+    heights = heights_of(out)
+    line = [heights[ROW * W + x] for x in range(W)]
+    gaps = [x for x in range(FIRST, LAST + 1) if line[x] >= UNTOUCHED]
+    check(not gaps, f"{what}: {len(gaps)} centre-line cells untouched, first {gaps[:8]}")
+    if model in VOLUME_KEEPING:
+        check(sum(heights) == UNTOUCHED * W * H,
+              f"{what}: Σh kept exactly ({sum(heights) - UNTOUCHED * W * H:+d} units)")
+    return True if backend == "gl" else gl_ok
 
 
 with tempfile.TemporaryDirectory(prefix="terrad-trails-") as tmp:
     gl_ok = None
-    for speed in (1, 5, 40, 200):
-        scene = scene_for(speed, tmp)
-        ticks = PATH // speed + 1  # poses at 0 .. PATH cells along the path
-        for model in MODELS:
-            backends = ["cpu"]
-            if model in GL_MODELS:
-                backends.append("gl")
-            for backend in backends:
-                if backend == "gl" and gl_ok is False:
-                    check.skipped += 1
-                    continue
-                out = os.path.join(tmp, f"{model}-{backend}-{speed}.bin")
-                rc, err = run(scene, ticks, backend, model, out)
-                if backend == "gl" and gl_ok is None:
-                    gl_ok = rc == 0
-                    if not gl_ok:
-                        print("GL backend unavailable, GL cases skipped:", err[-200:])
+    for press in PRESSES:
+        for speed in SPEEDS:
+            scene = scene_for(speed, press, tmp)
+            ticks = PATH // speed + 1  # poses at 0 .. PATH cells along the path
+            for model in MODELS:
+                backends = ["cpu"] + (["gl"] if model in GL_MODELS else [])
+                for backend in backends:
+                    if backend == "gl" and gl_ok is False:
                         check.skipped += 1
                         continue
-                if not check(rc == 0, f"{model} {backend} {speed} cells/tick ran: {err[-300:]}"):
-                    continue
-                line = centre_line(out)
-                gaps = [x for x in range(FIRST, LAST + 1) if line[x] >= UNTOUCHED]
-                check(not gaps, f"{model} {backend} {speed} cells/tick: {len(gaps)} centre-line "
-                      f"cells untouched, first {gaps[:8]}")
-        for model in UNDEFORMED:
-            out = os.path.join(tmp, f"{model}-cpu-{speed}.bin")
-            rc, err = run(scene, ticks, "cpu", model, out)
-            if check(rc == 0, f"{model} cpu {speed} cells/tick ran: {err[-300:]}"):
-                with open(out, "rb") as f:
-                    heights = struct.unpack(f"<{W * H}i", f.read())
-                check(all(v == UNTOUCHED for v in heights),
-                      f"{model} {speed} cells/tick leaves every height as it was")
-        print(f"{speed} cells/tick done", flush=True)
+                    gl_ok = trail_case(scene, ticks, speed, press, model, backend, tmp, gl_ok)
+            for model in UNDEFORMED:
+                out = os.path.join(tmp, f"{model}-cpu-{speed}-{press}.bin")
+                rc, err = run(scene, ticks, "cpu", model, out)
+                if check(rc == 0, f"{model} cpu {speed} cells/tick ran: {err[-300:]}"):
+                    check(all(v == UNTOUCHED for v in heights_of(out)),
+                          f"{model} {speed} cells/tick leaves every height as it was")
+            print(f"{speed} cells/tick, {press} m deep done", flush=True)
+
+    # a sliced diffusion tick runs per window: its heights do not depend on the thread count
+    scene = scene_for(40, 0.10, tmp)
+    outs = []
+    for threads in (1, 2):
+        outs.append(os.path.join(tmp, f"diffusion-threads-{threads}.bin"))
+        rc, err = run(scene, PATH // 40 + 1, "cpu", "diffusion", outs[-1], threads)
+        check(rc == 0, f"diffusion on {threads} threads ran: {err[-300:]}")
+    check(heights_of(outs[0]) == heights_of(outs[1]),
+          "diffusion at 40 cells/tick: the same heights on 1 and 2 threads")
 
 check.finish()

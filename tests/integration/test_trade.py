@@ -30,11 +30,11 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import BIN, SOURCE, Checks  # noqa: E402
 
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
-          "diffusion", "sumner", "decals"]
+          "diffusion", "sumner", "decals", "bekker"]
 # Σh exact by construction (docs/models.md, docs/materials.md; the scenes' snow has
-# compression 0 and diffusion runs its integer flux form by default).
+# compression 0, so bekker compacts nothing, and diffusion runs its integer flux form by default).
 VOLUME_EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner",
-                "decals"}
+                "decals", "bekker"}
 SCENES = ["car", "spheres", "footsteps"]
 QUICK_CELLS = {0.2, 0.1}
 QUICK_ITERATIONS = {1, 10}

@@ -12,6 +12,7 @@
 #include <stdint.h>
 
 #include "sim/sim.h"
+#include "world/world.h"
 
 #define TEST_CELL_M 0.05
 #define TEST_UNITS_PER_M 10000
@@ -22,5 +23,13 @@ sim_params test_params_from_material(const sim_material *m, int32_t floor_units)
 
 /* Σh of n heights, exact in int64. */
 int64_t test_sum(const int32_t *heights, int64_t n);
+
+/* The tests' dunes world: width x height cells of 10 cm, 10,000 units per
+ * metre, dunes from -0.1 to 0.4 m (3 m wavelength, 3 octaves) of this seed;
+ * exits 2 when it cannot be made. */
+void test_dunes_world(world *w, int width, int height, uint32_t seed);
+
+/* The tests' small deterministic generator (an LCG): the next 24 bits. */
+uint32_t test_next_random(uint32_t *state);
 
 #endif

@@ -17,6 +17,7 @@
  * any node can replay it. Exit 77 (skipped) when nats-server is missing.
  */
 // ctest-timeout: 300
+#include "test_params.h"
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
@@ -35,41 +36,21 @@
 #define ROUNDS 10
 #define WORLD_NAME "failover"
 
-static void make_world(world *w)
-{
-    error_text err;
-    world_base_spec b = {.kind = WORLD_BASE_DUNES,
-                         .min_height_m = -0.1,
-                         .max_height_m = 0.4,
-                         .wavelength_m = 3.0,
-                         .octaves = 3,
-                         .seed = 11};
-    if (world_init(w, W, H, 0.1, 10000, WORLD_HEIGHT_MIN, &err) != 0 ||
-        world_generate_base(w, &b, &err) != 0)
-        exit(2);
-}
-
-static uint32_t next_random(uint32_t *rng)
-{
-    *rng = *rng * 1664525u + 1013904223u;
-    return *rng >> 8;
-}
-
 /* Tick t's deformation: 1..3 rectangles pushed down, from t alone. */
 static int deform_tick(world *w, uint64_t t, world_rect *rects)
 {
     uint32_t rng = (uint32_t)(t * 2654435761u) ^ 0x9e3779b9u;
-    int n = 1 + (int)(next_random(&rng) % 3);
+    int n = 1 + (int)(test_next_random(&rng) % 3);
     for (int i = 0; i < n; i++) {
         world_rect r;
-        r.x = (int)(next_random(&rng) % (W - 40));
-        r.y = (int)(next_random(&rng) % (H - 40));
-        r.w = 1 + (int)(next_random(&rng) % 40);
-        r.h = 1 + (int)(next_random(&rng) % 40);
+        r.x = (int)(test_next_random(&rng) % (W - 40));
+        r.y = (int)(test_next_random(&rng) % (H - 40));
+        r.w = 1 + (int)(test_next_random(&rng) % 40);
+        r.h = 1 + (int)(test_next_random(&rng) % 40);
         int32_t *v = malloc(4 * (size_t)r.w * r.h);
         world_gather_window(w, r, v);
         for (int k = 0; k < r.w * r.h; k++)
-            v[k] -= 1 + (int32_t)(next_random(&rng) % 50);
+            v[k] -= 1 + (int32_t)(test_next_random(&rng) % 50);
         world_scatter_window(w, r, v);
         free(v);
         rects[i] = r;
@@ -103,7 +84,7 @@ static int owner_main(const char *urls, const char *node)
     while (cluster_lease_acquire(cl, WORLD_NAME, NULL, 0, &err) != 1)
         usleep(20000);
     world w;
-    make_world(&w);
+    test_dunes_world(&w, W, H, 11);
     store_recovery rec;
     cluster_store_config sc = {.compact_records = 50};
     cluster_store *st = cluster_store_open(cl, WORLD_NAME, &w, &sc, &rec, &err);
@@ -222,7 +203,7 @@ static double failover_round(const char *urls, cluster *me, world *ref, uint64_t
             usleep(50000);
             continue;
         }
-        make_world(&w);
+        test_dunes_world(&w, W, H, 11);
         st = cluster_store_open(me, WORLD_NAME, &w, NULL, &rec, &err);
         if (!st) {
             fprintf(stderr, "standby: round %d: %s (retrying)\n", round, err.message);
@@ -291,7 +272,7 @@ int main(int argc, char **argv)
     if (me) {
         CHECK(cluster_replicas(me) == 3, "3 replicas");
         world ref;
-        make_world(&ref);
+        test_dunes_world(&ref, W, H, 11);
         uint64_t ref_tick = 0;
         double ms[ROUNDS];
         int n = 0;

@@ -10,6 +10,7 @@
  * Exit 77 (skipped) when nats-server is not installed.
  */
 // ctest-timeout: 240
+#include "test_params.h"
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,38 +25,18 @@
 
 static uint32_t rng = 4242u;
 
-static uint32_t next_random(void)
-{
-    rng = rng * 1664525u + 1013904223u;
-    return rng >> 8;
-}
-
-static void make_world(world *w, uint32_t seed)
-{
-    error_text err;
-    if (world_init(w, W, H, 0.1, 10000, WORLD_HEIGHT_MIN, &err) != 0)
-        exit(2);
-    world_base_spec b = {.kind = WORLD_BASE_DUNES,
-                         .min_height_m = -0.1,
-                         .max_height_m = 0.4,
-                         .wavelength_m = 3.0,
-                         .octaves = 3,
-                         .seed = seed};
-    if (world_generate_base(w, &b, &err) != 0)
-        exit(2);
-}
-
 /* A tick: 1..3 random rectangles pushed down by a few units; returns n. */
 static int deform(world *w, world_rect *rects)
 {
-    int n = 1 + (int)(next_random() % 3);
+    int n = 1 + (int)(test_next_random(&rng) % 3);
     for (int i = 0; i < n; i++) {
-        world_rect r = {(int)(next_random() % (W - 40)), (int)(next_random() % (H - 40)),
-                        1 + (int)(next_random() % 40), 1 + (int)(next_random() % 40)};
+        world_rect r = {
+            (int)(test_next_random(&rng) % (W - 40)), (int)(test_next_random(&rng) % (H - 40)),
+            1 + (int)(test_next_random(&rng) % 40), 1 + (int)(test_next_random(&rng) % 40)};
         int32_t *v = malloc(4 * (size_t)r.w * r.h);
         world_gather_window(w, r, v);
         for (int k = 0; k < r.w * r.h; k++)
-            v[k] -= 1 + (int32_t)(next_random() % 50);
+            v[k] -= 1 + (int32_t)(test_next_random(&rng) % 50);
         world_scatter_window(w, r, v);
         free(v);
         rects[i] = r;
@@ -97,7 +78,7 @@ static void test_failover(cluster *a, cluster *b)
 {
     error_text err = {{0}};
     world wa, wb, wc;
-    make_world(&wa, 7);
+    test_dunes_world(&wa, W, H, 7);
     store_recovery rec;
     cluster_store_config cfg = {.compact_records = 20};
     cluster_store *sa = cluster_store_open(a, "dunes", &wa, &cfg, &rec, &err);
@@ -129,7 +110,7 @@ static void test_failover(cluster *a, cluster *b)
     printf("commit latency on one server: p50 %.2f ms, p99 %.2f ms\n", p50, p99);
 
     /* failover: b loads the snapshots and the log */
-    make_world(&wb, 7);
+    test_dunes_world(&wb, W, H, 7);
     cluster_store *sb = cluster_store_open(b, "dunes", &wb, &cfg, &rec, &err);
     CHECK(sb != NULL, "b takes the world over: %s", err.message);
     if (!sb) {
@@ -166,7 +147,7 @@ static void test_failover(cluster *a, cluster *b)
     }
     CHECK(ok, "b commits ticks 71..100: %s", err.message);
     cluster_store_wait_compaction(sb);
-    make_world(&wc, 7);
+    test_dunes_world(&wc, W, H, 7);
     cluster_store *sc = cluster_store_open(a, "dunes", &wc, &cfg, &rec, &err);
     CHECK(sc && rec.tick == 100 && same_heights(&wb, &wc),
           "a third opening equals b at tick 100 (%llu): %s", (unsigned long long)rec.tick,
@@ -184,8 +165,8 @@ static void test_two_worlds(cluster *a)
 {
     error_text err = {{0}};
     world w1, w2, r1, r2;
-    make_world(&w1, 1);
-    make_world(&w2, 2);
+    test_dunes_world(&w1, W, H, 1);
+    test_dunes_world(&w2, W, H, 2);
     store_recovery rec;
     cluster_store *s1 = cluster_store_open(a, "one", &w1, NULL, &rec, &err);
     cluster_store *s2 = cluster_store_open(a, "two", &w2, NULL, &rec, &err);
@@ -201,8 +182,8 @@ static void test_two_worlds(cluster *a)
     }
     cluster_store_close(s1);
     cluster_store_close(s2);
-    make_world(&r1, 1);
-    make_world(&r2, 2);
+    test_dunes_world(&r1, W, H, 1);
+    test_dunes_world(&r2, W, H, 2);
     s1 = cluster_store_open(a, "one", &r1, NULL, &rec, &err);
     CHECK(s1 && rec.tick == 10 && same_heights(&w1, &r1), "world one recovers alone");
     s2 = cluster_store_open(a, "two", &r2, NULL, &rec, &err);

@@ -748,6 +748,21 @@ static void test_motion(void)
     CHECK(p.position.x == 0, "NaN time: the first keyframe, not NaN");
 }
 
+/* The cost model's arithmetic (collider.c): a 0.3 m sphere at 0.05 m cells has
+ * a window of (13 + 8)^2, a depth of ceil(169 / 32) per pose and a lane of 21;
+ * 40 sub-steps charge the depth 40 times and 19 lanes, feedback one depth more. */
+static void test_cost(void)
+{
+    collider_geometry g = {.shape = COLLIDER_SPHERE, .radius = 0.3};
+    collider_cost c = collider_cost_of(&g, 0.05);
+    CHECK(c.window == 441 && c.step == 6 && c.lane == 21, "sphere cost %lld %lld %lld",
+          (long long)c.window, (long long)c.step, (long long)c.lane);
+    CHECK(collider_cost_cells(&c, 1, 0) == 447 && collider_cost_cells(&c, 1, 1) == 453 &&
+              collider_cost_cells(&c, 40, 0) == 441 + 240 + 399 &&
+              collider_cost_cells(&c, 0, 0) == 447,
+          "cells at rest, with feedback, over 40 sub-steps, and steps < 1 taken as 1");
+}
+
 int main(void)
 {
     test_validate();
@@ -760,6 +775,7 @@ int main(void)
     test_mesh_exact_spans();
     test_obj();
     test_motion();
+    test_cost();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }

@@ -349,6 +349,51 @@ static void check_footprints(const char *name, const cJSON *f, const uint8_t *b,
     CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
 }
 
+/* A float array of three from a vector's field. */
+static void floats3(const cJSON *o, const char *key, float *out)
+{
+    const cJSON *a = get(o, key);
+    for (int k = 0; k < 3; k++)
+        out[k] = (float)cJSON_GetArrayItem(a, k)->valuedouble;
+}
+
+static void check_forces(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_force fs[16], want[16];
+    uint64_t tick;
+    size_t count;
+    int rc = terrad_forces_decode(b, n, &tick, fs, 16, &count);
+    CHECK(rc == 0, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    const cJSON *a = get(f, "forces");
+    CHECK(tick == u64(f, "tick") && count == (size_t)cJSON_GetArraySize(a), "%s: tick, count",
+          name);
+    size_t i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, a)
+    {
+        if (i >= 16)
+            break;
+        terrad_force w = {.id = (uint32_t)num(e, "id"),
+                          .sinkage_m = (float)num(e, "sinkage_m"),
+                          .area_m2 = (float)num(e, "area_m2"),
+                          .patch_width_m = (float)num(e, "patch_width_m"),
+                          .slip = (float)num(e, "slip"),
+                          .cells = (uint32_t)num(e, "cells")};
+        floats3(e, "force", w.force);
+        floats3(e, "torque", w.torque);
+        want[i] = w;
+        if (i < count)
+            CHECK(memcmp(&fs[i], &w, sizeof w) == 0, "%s: entry %zu", name, i);
+        i++;
+    }
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_forces_encode(out, sizeof out, &len, tick, want, i);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
                         size_t n)
 {
@@ -418,6 +463,12 @@ static int decode_any(const char *type, const uint8_t *b, size_t n)
         size_t count;
         return terrad_footprints_decode(b, n, &tick, es, 16, &count);
     }
+    if (strcmp(type, "FORCES") == 0) {
+        terrad_force fs[16];
+        uint64_t tick;
+        size_t count;
+        return terrad_forces_decode(b, n, &tick, fs, 16, &count);
+    }
     uint8_t t;
     uint64_t nonce;
     return terrad_ping_decode(b, n, &t, &nonce);
@@ -460,6 +511,8 @@ static void check_vectors(const cJSON *root)
                 check_colliders(name, f, b, n);
             else if (strcmp(type, "FOOTPRINTS") == 0)
                 check_footprints(name, f, b, n);
+            else if (strcmp(type, "FORCES") == 0)
+                check_forces(name, f, b, n);
             else
                 check_small(name, type, f, b, n);
             /* Every proper prefix of a valid frame is refused. */

@@ -16,31 +16,25 @@
 #include "check.h"
 #include "test_params.h"
 
-static uint32_t next_random(uint32_t *s)
-{
-    *s = *s * 1664525u + 1013904223u;
-    return *s >> 8;
-}
-
 /* Heights: a smooth ramp with random bumps and cliffs, so some regions are at
  * rest and some are far over the thresholds. Bottom: blobs of penetration
  * and obstacles around a few centres. */
 static void random_window(uint32_t *s, int w, int h, int32_t *heights, int32_t *bottom)
 {
-    int blobs = 1 + (int)(next_random(s) % 4);
+    int blobs = 1 + (int)(test_next_random(s) % 4);
     int bx[4], by[4], br[4];
     for (int b = 0; b < blobs; b++) {
-        bx[b] = (int)(next_random(s) % (uint32_t)w);
-        by[b] = (int)(next_random(s) % (uint32_t)h);
-        br[b] = 1 + (int)(next_random(s) % 8);
+        bx[b] = (int)(test_next_random(s) % (uint32_t)w);
+        by[b] = (int)(test_next_random(s) % (uint32_t)h);
+        br[b] = 1 + (int)(test_next_random(s) % 8);
     }
-    int cliffs = (int)(next_random(s) % 3);
+    int cliffs = (int)(test_next_random(s) % 3);
     for (int y = 0; y < h; y++) {
         for (int x = 0; x < w; x++) {
             int i = y * w + x;
             int32_t z = 20000 + 30 * x + 10 * y;
-            if (next_random(s) % 8 == 0)
-                z += (int32_t)(next_random(s) % 3000);
+            if (test_next_random(s) % 8 == 0)
+                z += (int32_t)(test_next_random(s) % 3000);
             if (cliffs > 0 && x > w / 2)
                 z += 5000 * cliffs;
             heights[i] = z;
@@ -49,8 +43,8 @@ static void random_window(uint32_t *s, int w, int h, int32_t *heights, int32_t *
                 int dx = x - bx[b], dy = y - by[b];
                 if (dx * dx + dy * dy > br[b] * br[b])
                     continue;
-                bottom[i] = b % 2 == 0 ? z - 1 - (int32_t)(next_random(s) % 900)
-                                       : z + (int32_t)(next_random(s) % 50);
+                bottom[i] = b % 2 == 0 ? z - 1 - (int32_t)(test_next_random(s) % 900)
+                                       : z + (int32_t)(test_next_random(s) % 50);
             }
         }
     }
@@ -107,15 +101,15 @@ static void test_random_windows(void)
     static const int32_t iteration_counts[] = {0, 1, 3, 10, 40};
     uint32_t s = 12345;
     for (int round = 0; round < 80; round++) {
-        int w = 1 + (int)(next_random(&s) % (round < 10 ? 3 : 70));
-        int h = 1 + (int)(next_random(&s) % (round < 10 ? 3 : 70));
+        int w = 1 + (int)(test_next_random(&s) % (round < 10 ? 3 : 70));
+        int h = 1 + (int)(test_next_random(&s) % (round < 10 ? 3 : 70));
         int n = w * h;
         int32_t *start = malloc(sizeof(int32_t) * (size_t)n);
         int32_t *bottom = malloc(sizeof(int32_t) * (size_t)n);
         uint8_t *ids = malloc((size_t)n);
         random_window(&s, w, h, start, bottom);
         for (int i = 0; i < n; i++)
-            ids[i] = (uint8_t)(next_random(&s) % 4); /* 3 rows: id 3 falls back to row 0 */
+            ids[i] = (uint8_t)(test_next_random(&s) % 4); /* 3 rows: id 3 falls back to row 0 */
         sim_material m = sim_material_default();
         m.method = (sim_method)(round % 3);
         m.metric = (sim_metric)((round / 3) % 3);
@@ -128,11 +122,11 @@ static void test_random_windows(void)
         ground_material_table three = {.count = 3};
         for (int k = 0; k < 3; k++) {
             three.rows[k] = sim_material_row_from_params(&p, 0);
-            three.rows[k].slope_threshold_axial = (int32_t)(next_random(&s) % 2000);
-            three.rows[k].slope_threshold_diagonal = (int32_t)(next_random(&s) % 2800);
-            three.rows[k].roughness_q16 = 1 + (int32_t)(next_random(&s) % 65536);
+            three.rows[k].slope_threshold_axial = (int32_t)(test_next_random(&s) % 2000);
+            three.rows[k].slope_threshold_diagonal = (int32_t)(test_next_random(&s) % 2800);
+            three.rows[k].roughness_q16 = 1 + (int32_t)(test_next_random(&s) % 65536);
         }
-        int ox = (int)(next_random(&s) % 5000), oy = (int)(next_random(&s) % 5000);
+        int ox = (int)(test_next_random(&s) % 5000), oy = (int)(test_next_random(&s) % 5000);
         compare_on(&p, &one, NULL, w, h, ox, oy, start, bottom);
         compare_on(&p, &three, ids, w, h, ox, oy, start, bottom);
         free(start);
@@ -154,7 +148,7 @@ static void test_bands(void)
     int32_t *h_dense = malloc(sizeof(int32_t) * N), *h = malloc(sizeof(int32_t) * N);
     for (int i = 0; i < N; i++) {
         int x = i % W, y = i / W;
-        start[i] = 20000 + (int32_t)(next_random(&s) % 4000) + (x > W / 2 ? 9000 : 0);
+        start[i] = 20000 + (int32_t)(test_next_random(&s) % 4000) + (x > W / 2 ? 9000 : 0);
         int dx = x - W / 3, dy = y - H / 2;
         bottom[i] = dx * dx + dy * dy < 80 * 80 ? start[i] - 500 : COLLIDER_BOTTOM_NONE;
     }

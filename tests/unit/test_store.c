@@ -7,6 +7,7 @@
  * directory lock, the ENOSPC fault hook (nothing appended, recovery when it
  * goes), group commit's promise, and no temporary files left behind.
  */
+#include "test_params.h"
 #include <dirent.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -25,31 +26,9 @@
 static char dir[256];
 static uint32_t rng = 12345u;
 
-static uint32_t next_random(void)
-{
-    rng = rng * 1664525u + 1013904223u;
-    return rng >> 8;
-}
-
-/* A dunes base; another seed is another scene's terrain. */
-static void make_base_seeded(world *w, uint32_t seed)
-{
-    error_text err;
-    if (world_init(w, W, H, 0.1, 10000, WORLD_HEIGHT_MIN, &err) != 0)
-        exit(2);
-    world_base_spec b = {.kind = WORLD_BASE_DUNES,
-                         .min_height_m = -0.1,
-                         .max_height_m = 0.4,
-                         .wavelength_m = 3.0,
-                         .octaves = 3,
-                         .seed = seed};
-    if (world_generate_base(w, &b, &err) != 0)
-        exit(2);
-}
-
 static void make_base(world *w)
 {
-    make_base_seeded(w, 7);
+    test_dunes_world(w, W, H, 7);
 }
 
 /* The whole world, dense (W * H is small here). */
@@ -84,17 +63,17 @@ static int random_tick(store *st, world *w, uint64_t tick)
 {
     world_rect r[2];
     for (int k = 0; k < 2; k++) {
-        r[k].w = 1 + (int)(next_random() % 80);
-        r[k].h = 1 + (int)(next_random() % 80);
-        r[k].x = (int)(next_random() % (uint32_t)(W - r[k].w));
+        r[k].w = 1 + (int)(test_next_random(&rng) % 80);
+        r[k].h = 1 + (int)(test_next_random(&rng) % 80);
+        r[k].x = (int)(test_next_random(&rng) % (uint32_t)(W - r[k].w));
         /* one rectangle in the top half, one on the bottom edge (the partial tiles) */
-        r[k].y = k == 0 ? (int)(next_random() % (uint32_t)(H / 2 - r[k].h)) : H - r[k].h;
+        r[k].y = k == 0 ? (int)(test_next_random(&rng) % (uint32_t)(H / 2 - r[k].h)) : H - r[k].h;
         int32_t *cells = malloc((size_t)r[k].w * r[k].h * sizeof *cells);
         if (!cells)
             exit(2);
         world_gather_window(w, r[k], cells);
         for (int i = 0; i < r[k].w * r[k].h; i++)
-            cells[i] += (int32_t)(next_random() % 200) - 100;
+            cells[i] += (int32_t)(test_next_random(&rng) % 200) - 100;
         world_scatter_window(w, r[k], cells);
         free(cells);
     }
@@ -409,7 +388,7 @@ static void test_manifest_and_lock(void)
     CHECK(st && !second && strstr(err.message, "in use"), "a second daemon is refused: %s",
           err.message);
     store_close(st);
-    make_base_seeded(&other, 8); /* another scene's base terrain */
+    test_dunes_world(&other, W, H, 8); /* another scene's base terrain */
     st = open_dir(&other, &rec, 0, &err);
     CHECK(!st && strstr(err.message, "MANIFEST") && strstr(err.message, "base_crc32c"),
           "another scene's directory refused: %s", err.message);

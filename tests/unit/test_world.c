@@ -5,6 +5,7 @@
  * deliberate act), and heightmap files (16-bit PNG, raw int16/int32) written
  * to /tmp and read back, including every way such a file can be wrong.
  */
+#include "test_params.h"
 #include <math.h>
 #include <png.h>
 #include <stdio.h>
@@ -416,13 +417,6 @@ static void test_raw(void)
     world_free(&w);
 }
 
-/* A small deterministic generator for the tiling tests. */
-static uint32_t next_random(uint32_t *state)
-{
-    *state = *state * 1664525u + 1013904223u;
-    return *state >> 8;
-}
-
 typedef struct stored_list {
     int count, last_tx, last_ty;
     uint64_t generation_sum;
@@ -476,19 +470,20 @@ static void test_tiled_equals_dense(world_base_kind kind)
     int32_t *buf = malloc((size_t)W * H * sizeof *buf), *buf2 = malloc((size_t)W * H * 4);
     int same = 1, same_volume = 1, same_range = 1, same_rect_volume = 1;
     for (int round = 0; round < 200; round++) {
-        world_rect r = {(int)(next_random(&rng) % W), (int)(next_random(&rng) % H),
-                        1 + (int)(next_random(&rng) % 40), 1 + (int)(next_random(&rng) % 40)};
+        world_rect r = {(int)(test_next_random(&rng) % W), (int)(test_next_random(&rng) % H),
+                        1 + (int)(test_next_random(&rng) % 40),
+                        1 + (int)(test_next_random(&rng) % 40)};
         world_clip_rect(&tiled, &r);
         world_gather_window(&tiled, r, buf);
         world_gather_window(&whole, r, buf2);
         same &= memcmp(buf, buf2, (size_t)r.w * r.h * 4) == 0;
         for (int i = 0; i < r.w * r.h; i++)
-            buf[i] += (int32_t)(next_random(&rng) % 2001) - 1000;
+            buf[i] += (int32_t)(test_next_random(&rng) % 2001) - 1000;
         world_scatter_window(&tiled, r, buf);
         world_scatter_window(&whole, r, buf);
         same_volume &= world_volume(&tiled) == world_volume(&whole);
-        world_rect q = {(int)(next_random(&rng) % W) - 10, (int)(next_random(&rng) % H) - 10, 60,
-                        50};
+        world_rect q = {(int)(test_next_random(&rng) % W) - 10,
+                        (int)(test_next_random(&rng) % H) - 10, 60, 50};
         int32_t lo1, hi1, lo2, hi2;
         world_rect qc = q;
         world_clip_rect(&tiled, &qc);

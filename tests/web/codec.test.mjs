@@ -23,6 +23,7 @@ const decoders = {
   CONTACT: C.decodeContact,
   COLLIDERS: C.decodeColliders,
   FOOTPRINTS: C.decodeFootprints,
+  FORCES: C.decodeForces,
   ACK: C.decodeAck,
   PING: C.decodePing,
   PONG: C.decodePing,
@@ -88,6 +89,13 @@ for (const v of V.vectors) {
         assert.deepEqual(d.footprints, f.footprints.map((e) => ({
           collider: e.collider, x: Math.fround(e.x), y: Math.fround(e.y), yaw: Math.fround(e.yaw),
           size_m: Math.fround(e.size_m), strength_m: Math.fround(e.strength_m) })));
+        break;
+      case 'FORCES':
+        assert.equal(String(d.tick), f.tick);
+        assert.deepEqual(d.forces, f.forces.map((e) => ({
+          id: e.id, force: e.force.map(Math.fround), torque: e.torque.map(Math.fround),
+          sinkage_m: Math.fround(e.sinkage_m), area_m2: Math.fround(e.area_m2),
+          patch_width_m: Math.fround(e.patch_width_m), slip: Math.fround(e.slip), cells: e.cells })));
         break;
       case 'ACK':
         assert.equal(String(d.tick), f.tick);

@@ -20,10 +20,10 @@ import json
 from collections.abc import Awaitable, Callable
 from typing import Any, Union
 
-from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Mirror, MsgType,
+from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force, Mirror, MsgType,
                     Pose, ProtoError, ServerError, collider_create, collider_delete,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
-                    decode_footprints, decode_header, decode_ping, encode_ping,
+                    decode_footprints, decode_forces, decode_header, decode_ping, encode_ping,
                     edit, encode_pose_batch, error, hello, parse_control, resync, subscribe,
                     unsubscribe)
 
@@ -45,6 +45,7 @@ CALLBACK_ARGS: dict[FrameKind, str] = {
     MsgType.ACK: "(tick, seq)",
     MsgType.COLLIDERS: "(tick, states)",
     MsgType.FOOTPRINTS: "(tick, events)",
+    MsgType.FORCES: "(tick, forces)",
     MsgType.PING: "(nonce,) after the client answered with a PONG",
     MsgType.PONG: "(nonce,)",
     "message": "(msg,) every JSON control message, a dict",
@@ -79,7 +80,8 @@ class Client:
     resync by itself.
 
     State kept up to date from the frames: world (the hello answer), mirrors (subscription id ->
-    Mirror), contacts (collider id -> the latest Contact), colliders (the latest COLLIDERS
+    Mirror), contacts (collider id -> the latest Contact), forces (collider id -> the latest
+    Force: the soil's push, in worlds of the bekker model), colliders (the latest COLLIDERS
     frame, by id), footprints (every FOOTPRINTS event, in order), tick (of the last DELTA),
     acked_tick and acked_seq (of the last ACK), errors (unsolicited error messages).
 
@@ -100,6 +102,8 @@ class Client:
         self.world: dict[str, Any] = {}
         self.mirrors: dict[int, Mirror] = {}
         self.contacts: dict[int, Contact] = {}
+        self.forces: dict[int, Force] = {}
+        self.forces_tick = 0
         self.colliders: dict[int, ColliderState] = {}
         self.colliders_tick = 0
         self.footprints: list[Footprint] = []
@@ -293,6 +297,10 @@ class Client:
             self.contact_tick, cs = decode_contact(data)
             self.contacts = {c.id: c for c in cs}
             await self._emit(t, self.contact_tick, cs)
+        elif t == MsgType.FORCES:
+            self.forces_tick, fs = decode_forces(data)
+            self.forces = {f.id: f for f in fs}
+            await self._emit(t, self.forces_tick, fs)
         elif t == MsgType.COLLIDERS:
             self.colliders_tick, states = decode_colliders(data)
             self.colliders = {c.id: c for c in states}

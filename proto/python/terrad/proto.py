@@ -9,7 +9,8 @@ Needs the zstandard module (pip install zstandard; Debian: python3-zstandard).
     encode_pose_batch / decode_pose_batch, encode_delta / decode_delta,
     encode_contact / decode_contact, encode_ack / decode_ack,
     encode_ping / decode_ping, encode_colliders / decode_colliders,
-    encode_footprints / decode_footprints, decode_header, decode (any binary
+    encode_footprints / decode_footprints, encode_forces / decode_forces,
+    decode_header, decode (any binary
     frame), rect_diff, rect_pack, rect_unpack, rect_compress, rect_decompress,
     apply_values, Mirror (a client-side copy of one region with tile
     versions), and builders of the JSON control messages.
@@ -36,12 +37,12 @@ except ImportError as _e:  # pragma: no cover - the package is a declared depend
 
 __all__ = [
     "PROTOCOL_VERSION", "MAGIC", "SUBPROTOCOL", "HEADER_SIZE", "POSE_SIZE", "RECT_FIXED",
-    "CONTACT_SIZE", "ACK_SIZE", "PING_SIZE", "COLLIDER_STATE_SIZE", "FOOTPRINT_SIZE",
+    "CONTACT_SIZE", "ACK_SIZE", "PING_SIZE", "COLLIDER_STATE_SIZE", "FOOTPRINT_SIZE", "FORCE_SIZE",
     "FOOTPRINT_YAW_MAX", "MAX_COUNT", "ZSTD_LEVEL", "ERRORS", "ERROR_CODES", "MsgType", "Encoding",
     "ProtoError", "ServerError", "Pose", "Rect", "Contact", "ColliderState", "Footprint",
     "decode_header", "encode_pose_batch", "decode_pose_batch", "check_rect", "encode_delta",
     "decode_delta", "encode_contact", "decode_contact", "encode_colliders", "decode_colliders",
-    "encode_footprints", "decode_footprints", "encode_ack", "decode_ack", "encode_ping",
+    "encode_footprints", "decode_footprints", "Force", "encode_forces", "decode_forces", "encode_ack", "decode_ack", "encode_ping",
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
@@ -59,6 +60,7 @@ ACK_SIZE = 16
 PING_SIZE = 12
 COLLIDER_STATE_SIZE = 48
 FOOTPRINT_SIZE = 24
+FORCE_SIZE = 48
 FOOTPRINT_YAW_MAX = 3.1415998935699463  # pi rounded up to float32
 MAX_COUNT = 65535
 ZSTD_LEVEL = 3
@@ -73,6 +75,7 @@ class MsgType(IntEnum):
     ACK = 0x12
     COLLIDERS = 0x13
     FOOTPRINTS = 0x14
+    FORCES = 0x15
 
 
 class Encoding(IntEnum):
@@ -185,6 +188,22 @@ class Footprint:
     yaw: float
     size_m: float
     strength_m: float
+
+
+@dataclass
+class Force:
+    """One FORCES entry (worlds of the bekker model): the soil's push on a collider in one
+    tick. force (N) and torque (N m, about the collider's pose position) as (x, y, z) in the
+    world frame; sinkage_m, area_m2, patch_width_m (>= 0); slip (wheels; 0 otherwise);
+    cells in contact."""
+    id: int
+    force: tuple
+    torque: tuple
+    sinkage_m: float
+    area_m2: float
+    patch_width_m: float
+    slip: float
+    cells: int
 
 
 # ---- helpers -----------------------------------------------------------------
@@ -462,6 +481,48 @@ def decode_footprints(buf: bytes, max_events: int = MAX_COUNT) -> tuple[int, lis
     return tick, out
 
 
+# ---- FORCES --------------------------------------------------------------------------
+
+_FORCE = struct.Struct("<I10fI")
+
+
+def _check_force(cid, f) -> None:
+    if not all(math.isfinite(a) for a in f):
+        raise ProtoError("bad_value", f"forces of collider {cid} are not finite")
+    if f[6] < 0 or f[7] < 0 or f[8] < 0:
+        raise ProtoError("bad_value", f"forces of collider {cid}: sinkage, area and patch "
+                         "width must be >= 0")
+
+
+def encode_forces(tick: int, forces: list[Force]) -> bytes:
+    if len(forces) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(forces)} forces")
+    out = [_header(MsgType.FORCES), struct.pack("<QH", tick, len(forces))]
+    for e in forces:
+        f = [_f32(a) for a in (*e.force, *e.torque, e.sinkage_m, e.area_m2, e.patch_width_m,
+                               e.slip)]
+        _check_force(e.id, f)
+        out.append(_FORCE.pack(e.id, *f, e.cells))
+    return b"".join(out)
+
+
+def decode_forces(buf: bytes, max_forces: int = MAX_COUNT) -> tuple[int, list[Force]]:
+    _expect(buf, MsgType.FORCES)
+    if len(buf) < 14:
+        raise ProtoError("bad_frame", "truncated")
+    tick, count = struct.unpack_from("<QH", buf, 4)
+    if len(buf) - 14 != count * FORCE_SIZE:
+        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
+    if count > max_forces:
+        raise ProtoError("too_large", f"{count} forces")
+    out = []
+    for i in range(count):
+        cid, *f, cells = _FORCE.unpack_from(buf, 14 + i * FORCE_SIZE)
+        _check_force(cid, f)
+        out.append(Force(cid, tuple(f[0:3]), tuple(f[3:6]), *f[6:10], cells))
+    return tick, out
+
+
 def encode_ack(tick: int, seq: int) -> bytes:
     return _header(MsgType.ACK) + struct.pack("<QI", tick, seq)
 
@@ -502,6 +563,8 @@ def decode(buf: bytes):
         return t, decode_colliders(buf)
     if t == MsgType.FOOTPRINTS:
         return t, decode_footprints(buf)
+    if t == MsgType.FORCES:
+        return t, decode_forces(buf)
     return t, decode_ping(buf)[1]
 
 

@@ -1,0 +1,375 @@
+/*
+ * model_bekker.c: soil that pushes back (issue 21). A CPU window function
+ * the engine calls per window (row 4d of the tick) when a scene picks the
+ * bekker model; the GL backend runs it on the CPU too, as every non-persson
+ * model. Per window:
+ *
+ *   1. depth at the collider's pose, one collider at a time, so every cell
+ *      knows which collider touches it (the lowest; ties to the first);
+ *   2. contact patches: 4-connected cells of one collider below the surface;
+ *      each patch's Bekker width b = 2 A / L (Chrono SCM's rule: a long strip
+ *      of width w gives w, a disc of radius r gives r);
+ *   3. per contact cell, Chrono SCM's node rule (../shared/notes/
+ *      terramechanics.md) in height units: the total sinkage s is the cell's
+ *      plastic sinkage plus how far the collider is below its surface; the
+ *      elastic trial K_e (s - s_plastic) is the pressure unless it passes
+ *      Bekker's (kc/b + kphi) s^n, in which case the cell yields: its
+ *      plastic sinkage grows so that only the elastic share sigma/K_e stays
+ *      between the surface and the collider. A cell pressed before (a second
+ *      pass) reloads elastically up to where it yielded, so it sinks less.
+ *      Damping adds R times the sinking speed. Janosi-Hanamoto shear:
+ *      tau = (c + sigma tan phi)(1 - e^(-j/K)), j the shear displacement
+ *      accumulated along the collider's slip while the cell stays in contact
+ *      (reset when it leaves contact: j is per pass, as in Wong-Reece; SCM
+ *      never resets it), against the slip. The cell's force is
+ *      A (sigma N + tau T), N the collider's surface normal there;
+ *   4. the plastic lowering splits into compaction (the material's
+ *      `compression` share, kept per cell as an integer) and displacement,
+ *      which goes through Sumner's first-ring spread and the slope evening
+ *      (sim_sumner_settle), so Σh + Σcompacted is exact.
+ *
+ * Forces are summed over cells in row-major order into one contact per
+ * collider of the window; the engine adds windows in plan order. Every
+ * per-cell quantity is computed from that cell's inputs alone, so the sums
+ * and the integer state are identical for any thread count and tiling.
+ * sim_bekker_carry finds, by bisection on whole height units, the height at
+ * which the soil carries a given load (load-driven colliders).
+ */
+#include "sim/sim_internal.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+/* bottom, owner, tmp, cls, patch, queue (6n), settle (12n + 2), then
+ * doubles aligned: sigma-free patch widths (n) and per-patch edges (n). */
+int64_t sim_bekker_scratch_cells(int w, int h)
+{
+    int64_t n = (int64_t)w * h;
+    return 6 * n + sim_settle_scratch_cells(w, h) + 2 + 2 * n + n;
+}
+
+static vec3d v3(double x, double y, double z)
+{
+    return (vec3d){x, y, z};
+}
+
+static vec3d v3_cross(vec3d a, vec3d b)
+{
+    return v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+
+static double v3_dot(vec3d a, vec3d b)
+{
+    return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+
+/* Linear and angular velocity of a collider from its two poses this tick. */
+static void collider_velocity(const sim_collider *c, double tick_s, vec3d *v, vec3d *w)
+{
+    *v = *w = v3(0, 0, 0);
+    if (!c->has_previous || !(tick_s > 0.0))
+        return;
+    vec3d a = c->previous_pose.position, b = c->pose.position;
+    *v = v3((b.x - a.x) / tick_s, (b.y - a.y) / tick_s, (b.z - a.z) / tick_s);
+    quatd p = c->previous_pose.orientation;
+    quatd d = quat_multiply(c->pose.orientation, (quatd){p.w, -p.x, -p.y, -p.z});
+    if (d.w < 0.0)
+        d = (quatd){-d.w, -d.x, -d.y, -d.z};
+    double s = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);
+    if (!(s > 0.0) || !isfinite(s))
+        return;
+    double angle = 2.0 * atan2(s, d.w) / tick_s;
+    *w = v3(d.x / s * angle, d.y / s * angle, d.z / s * angle);
+}
+
+/* 1: depth at each collider's pose and the collider that owns each cell. */
+static void bekker_depth(const sim_window_job *job, int32_t *bottom, int32_t *owner, int32_t *tmp)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    if (job->bottom_override) {
+        for (int64_t i = 0; i < n; i++) {
+            bottom[i] = job->bottom_override[i];
+            owner[i] = bottom[i] != COLLIDER_BOTTOM_NONE && job->collider_count > 0 ? 0 : -1;
+        }
+    } else {
+        for (int64_t i = 0; i < n; i++) {
+            bottom[i] = COLLIDER_BOTTOM_NONE;
+            owner[i] = -1;
+        }
+        for (int k = 0; k < job->collider_count; k++) {
+            for (int64_t i = 0; i < n; i++)
+                tmp[i] = COLLIDER_BOTTOM_NONE;
+            const sim_collider *c = &job->colliders[k];
+            collider_depth_cpu(c->geometry, c->pose, job->rect, job->cell_size_m, job->units_per_m,
+                               tmp);
+            for (int64_t i = 0; i < n; i++)
+                if (tmp[i] < bottom[i]) {
+                    bottom[i] = tmp[i];
+                    owner[i] = k;
+                }
+        }
+    }
+    if (job->bottom_out)
+        memcpy(job->bottom_out, bottom, (size_t)n * sizeof *bottom);
+}
+
+/*
+ * 2: contact patches (4-connected, one owner) labelled in row-major order of
+ * their first cell; width[l] = 2 A / L in metres, L counting every cell edge
+ * not shared with the same patch (the window's border included). Returns the
+ * count. edges is scratch (one per patch).
+ */
+static int32_t bekker_patches(int w, int h, double cell_m, const int32_t *cls, const int32_t *owner,
+                              int32_t *label, int32_t *queue, int32_t *cells, int32_t *edges,
+                              double *width)
+{
+    static const int dx[4] = {1, -1, 0, 0}, dy[4] = {0, 0, 1, -1};
+    int n = w * h;
+    for (int i = 0; i < n; i++)
+        label[i] = -1;
+    int32_t count = 0;
+    for (int start = 0; start < n; start++) {
+        if (cls[start] != SIM_CELL_PENETRATING || label[start] >= 0)
+            continue;
+        int head = 0, tail = 0;
+        queue[tail++] = start;
+        label[start] = count;
+        cells[count] = edges[count] = 0;
+        while (head < tail) {
+            int i = queue[head++], x = i % w, y = i / w;
+            cells[count]++;
+            for (int j = 0; j < 4; j++) {
+                int qx = x + dx[j], qy = y + dy[j], q = qy * w + qx;
+                if (qx < 0 || qy < 0 || qx >= w || qy >= h || cls[q] != SIM_CELL_PENETRATING ||
+                    owner[q] != owner[i]) {
+                    edges[count]++;
+                    continue;
+                }
+                if (label[q] < 0) {
+                    label[q] = count;
+                    queue[tail++] = q;
+                }
+            }
+        }
+        width[count] = 2.0 * cells[count] * cell_m / edges[count];
+        count++;
+    }
+    return count;
+}
+
+/* The collider's surface normal at cell (x, y) from its depth (central
+ * differences over the same collider's cells, one-sided at its edge). */
+static vec3d bekker_normal(const sim_window_job *job, const int32_t *bottom, const int32_t *owner,
+                           int x, int y)
+{
+    int w = job->rect.w, h = job->rect.h, i = y * w + x;
+    double scale = 1.0 / ((double)job->units_per_m * job->cell_size_m);
+    double g[2] = {0.0, 0.0};
+    for (int axis = 0; axis < 2; axis++) {
+        int ax = axis == 0, ay = axis == 1;
+        int pi = -1, ni = -1;
+        if (x + ax < w && y + ay < h && owner[i + ax + ay * w] == owner[i])
+            pi = i + ax + ay * w;
+        if (x - ax >= 0 && y - ay >= 0 && owner[i - ax - ay * w] == owner[i])
+            ni = i - ax - ay * w;
+        if (pi >= 0 && ni >= 0)
+            g[axis] = ((double)bottom[pi] - bottom[ni]) * scale / 2.0;
+        else if (pi >= 0)
+            g[axis] = ((double)bottom[pi] - bottom[i]) * scale;
+        else if (ni >= 0)
+            g[axis] = ((double)bottom[i] - bottom[ni]) * scale;
+    }
+    double len = sqrt(g[0] * g[0] + g[1] * g[1] + 1.0);
+    return v3(-g[0] / len, -g[1] / len, 1.0 / len);
+}
+
+/* What one contact cell does: its pressure, plastic lowering and shear. */
+typedef struct bekker_cell {
+    double sigma, tau;
+    int32_t raw;
+    double sinkage_m;
+} bekker_cell;
+
+/* 3: SCM's node rule for one cell (state updated in place). */
+static bekker_cell bekker_cell_step(const sim_params *p, int32_t height, int32_t bottom,
+                                    double width_m, double sink_speed, double slip_step_m,
+                                    int32_t *state)
+{
+    const sim_soil *s = &p->soil;
+    double upm = (double)p->units_per_m;
+    int64_t e = (int64_t)height - bottom; /* > 0: in contact */
+    int64_t total = (int64_t)state[SIM_SOIL_SINK] + e;
+    bekker_cell out = {0.0, 0.0, 0, (double)total / upm};
+    double bekker = sim_soil_bekker_pa(s, width_m, (double)total / upm);
+    double trial = s->elastic_pa_m * ((double)e / upm);
+    if (trial > bekker) {
+        /* yield: only the elastic share sigma / K_e stays above the collider */
+        double el = floor(bekker / s->elastic_pa_m * upm);
+        int64_t raw = e - (el < (double)e ? (int64_t)el : e);
+        if (raw > (int64_t)height - p->floor)
+            raw = (int64_t)height - p->floor > 0 ? (int64_t)height - p->floor : 0;
+        out.raw = (int32_t)raw;
+        out.sigma = bekker;
+    } else {
+        out.sigma = trial; /* reloading below where the cell last yielded */
+    }
+    out.sigma += s->damping_pa_s_m * sink_speed;
+    if (out.sigma < 0.0)
+        out.sigma = 0.0;
+    int64_t sink = (int64_t)state[SIM_SOIL_SINK] + out.raw;
+    state[SIM_SOIL_SINK] = sink > INT32_MAX ? INT32_MAX : (int32_t)sink;
+    double j = (double)state[SIM_SOIL_SHEAR_UM] + floor(slip_step_m * 1e6);
+    state[SIM_SOIL_SHEAR_UM] = j > (double)INT32_MAX ? INT32_MAX : (int32_t)j;
+    double strength = s->cohesion_pa + out.sigma * tan(s->friction_deg * M_PI / 180.0);
+    out.tau = strength * (1.0 - exp(-(double)state[SIM_SOIL_SHEAR_UM] * 1e-6 / s->shear_k_m));
+    return out;
+}
+
+/* The window's per-collider kinematics into its contacts. */
+static void bekker_contacts_begin(const sim_params *p, sim_window_job *job)
+{
+    for (int k = 0; k < job->collider_count; k++) {
+        sim_contact *c = &job->contacts[k];
+        memset(c, 0, sizeof *c);
+        c->collider_id = job->colliders[k].id;
+        vec3d v, w;
+        collider_velocity(&job->colliders[k], p->tick_s, &v, &w);
+        c->velocity[0] = v.x, c->velocity[1] = v.y, c->velocity[2] = v.z;
+        c->angular[0] = w.x, c->angular[1] = w.y, c->angular[2] = w.z;
+    }
+}
+
+/* A contact cell's force and torque into its collider's contact. */
+static void bekker_contact_add(sim_contact *c, vec3d at, vec3d centre, vec3d normal, vec3d slip,
+                               const bekker_cell *cell, double area)
+{
+    double sl = sqrt(v3_dot(slip, slip));
+    vec3d f = v3(area * cell->sigma * normal.x, area * cell->sigma * normal.y,
+                 area * cell->sigma * normal.z);
+    if (sl > 0.0) {
+        double t = area * cell->tau / sl; /* against the slip */
+        f = v3(f.x - t * slip.x, f.y - t * slip.y, f.z - t * slip.z);
+    }
+    vec3d tq = v3_cross(v3(at.x - centre.x, at.y - centre.y, at.z - centre.z), f);
+    c->force_n[0] += f.x, c->force_n[1] += f.y, c->force_n[2] += f.z;
+    c->torque_nm[0] += tq.x, c->torque_nm[1] += tq.y, c->torque_nm[2] += tq.z;
+    c->area_m2 += area;
+    c->cells++;
+    if (cell->sinkage_m > c->sinkage_m)
+        c->sinkage_m = cell->sinkage_m;
+}
+
+/* The surface point's velocity of collider k at `at`, split into its
+ * sinking speed (along -normal) and tangential slip. */
+static void bekker_point_motion(const sim_contact *c, vec3d centre, vec3d at, vec3d normal,
+                                double *sink_speed, vec3d *slip)
+{
+    vec3d r = v3(at.x - centre.x, at.y - centre.y, at.z - centre.z);
+    vec3d wr = v3_cross(v3(c->angular[0], c->angular[1], c->angular[2]), r);
+    vec3d v = v3(c->velocity[0] + wr.x, c->velocity[1] + wr.y, c->velocity[2] + wr.z);
+    double vn = v3_dot(v, normal);
+    *sink_speed = -vn;
+    *slip = v3(v.x - vn * normal.x, v.y - vn * normal.y, v.z - vn * normal.z);
+}
+
+/* Steps 1-3 and the split of step 4: raw (plastic lowering) and moved
+ * (displaced part) into the settle scratch, the classes into cls, the state
+ * and the contacts updated. Heights are not changed. */
+static void bekker_press(const sim_params *p, sim_window_job *job, int32_t *scratch,
+                         int32_t **cls_out, int32_t **settle_out)
+{
+    int w = job->rect.w, h = job->rect.h, n = w * h;
+    int32_t *bottom = scratch, *owner = bottom + n, *tmp = owner + n, *cls = tmp + n;
+    int32_t *label = cls + n, *queue = label + n, *settle = queue + n;
+    int32_t *edges = settle + sim_settle_scratch_cells(w, h);
+    double *width = (double *)(void *)(((uintptr_t)(edges + n) + 7) & ~(uintptr_t)7);
+    int32_t *raw = SIM_SETTLE_RAW(settle, n), *moved = SIM_SETTLE_MOVED(settle, n);
+    const int32_t *heights = job->heights;
+    bekker_depth(job, bottom, owner, tmp);
+    for (int i = 0; i < n; i++) {
+        int32_t gap = bottom[i] == COLLIDER_BOTTOM_NONE ? INT32_MAX : bottom[i] - heights[i];
+        cls[i] = owner[i] >= 0 && bottom[i] < heights[i]   ? SIM_CELL_PENETRATING
+                 : owner[i] >= 0 && gap <= p->obstacle_gap ? SIM_CELL_OBSTACLE
+                                                           : SIM_CELL_SEED;
+        raw[i] = moved[i] = 0;
+    }
+    bekker_patches(w, h, job->cell_size_m, cls, owner, label, queue, tmp, edges, width);
+    bekker_contacts_begin(p, job);
+    double cell = job->cell_size_m, area = cell * cell, upm = (double)job->units_per_m;
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            int i = y * w + x;
+            int32_t *state = job->soil_state + (int64_t)i * SIM_SOIL_STATE_FIELDS;
+            if (cls[i] != SIM_CELL_PENETRATING) {
+                state[SIM_SOIL_SHEAR_UM] = 0; /* a pass ends when the cell leaves contact */
+                continue;
+            }
+            sim_contact *c = &job->contacts[owner[i]];
+            vec3d centre = job->colliders[owner[i]].pose.position;
+            vec3d at =
+                v3((job->rect.x + x + 0.5) * cell, (job->rect.y + y + 0.5) * cell, bottom[i] / upm);
+            vec3d normal = bekker_normal(job, bottom, owner, x, y), slip;
+            double sink_speed;
+            bekker_point_motion(c, centre, at, normal, &sink_speed, &slip);
+            double slip_step = sqrt(v3_dot(slip, slip)) * p->tick_s;
+            bekker_cell r = bekker_cell_step(p, heights[i], bottom[i], width[label[i]], sink_speed,
+                                             slip_step, state);
+            bekker_contact_add(c, at, centre, normal, slip, &r, area);
+            if (tmp[label[i]] > c->patch_cells) { /* tmp: the patches' cell counts */
+                c->patch_cells = tmp[label[i]];
+                c->patch_width_m = width[label[i]];
+            }
+            int64_t compacted = ((int64_t)r.raw * p->compression_q16) >> 16;
+            if ((int64_t)state[SIM_SOIL_COMPACTED] + compacted > INT32_MAX)
+                compacted = 0; /* the memory is full: displace it all, Σ stays exact */
+            state[SIM_SOIL_COMPACTED] += (int32_t)compacted;
+            raw[i] = r.raw;
+            moved[i] = r.raw - (int32_t)compacted;
+        }
+    *cls_out = cls;
+    *settle_out = settle;
+}
+
+sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, int32_t *scratch)
+{
+    int32_t *cls, *settle;
+    bekker_press(p, job, scratch, &cls, &settle);
+    return sim_sumner_settle(p, job, cls, settle);
+}
+
+/* The vertical force on job collider 0 at pose height z (units), the job's
+ * heights and state restored from the copies first. */
+static double carry_force(const sim_params *p, sim_window_job *job, int32_t z, const int32_t *h0,
+                          const int32_t *s0, int32_t *scratch, sim_collider *c)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    memcpy(job->heights, h0, (size_t)n * sizeof *h0);
+    memcpy(job->soil_state, s0, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *s0);
+    c->pose.position.z = (double)z / p->units_per_m;
+    int32_t *cls, *settle;
+    bekker_press(p, job, scratch, &cls, &settle);
+    return job->contacts[0].force_n[2];
+}
+
+int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider *c, double load_n,
+                         int32_t lo, int32_t hi, int32_t *scratch, int32_t *heights_copy,
+                         int32_t *state_copy)
+{
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    memcpy(heights_copy, job->heights, (size_t)n * sizeof *heights_copy);
+    memcpy(state_copy, job->soil_state, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *state_copy);
+    /* invariant: the soil carries the load at lo (or lo is as low as it may
+     * go), not at hi */
+    while (hi - lo > 1) {
+        int32_t mid = lo + (hi - lo) / 2;
+        if (carry_force(p, job, mid, heights_copy, state_copy, scratch, c) >= load_n)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    memcpy(job->heights, heights_copy, (size_t)n * sizeof *heights_copy);
+    memcpy(job->soil_state, state_copy, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *state_copy);
+    c->pose.position.z = (double)lo / p->units_per_m;
+    return lo;
+}

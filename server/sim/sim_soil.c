@@ -1,0 +1,192 @@
+/*
+ * sim_soil.c: the bekker model's soils and its per-cell state. The soils are
+ * terramechanics parameter sets (Bekker's n, kc, kphi; Mohr-Coulomb's c, phi;
+ * Janosi-Hanamoto's K; an elastic stiffness and a damping as Chrono's SCM
+ * has them), validated once when a scene is read. The state is what each
+ * cell of the world remembers between ticks — how far it has been pressed
+ * (its plastic sinkage), the shear displacement of the pass under way and
+ * the volume it has lost to compaction — in sparse 64x64 tiles allocated the
+ * first time a cell in them is pressed. The engine gathers a window's state
+ * with its heights (row 4b of the tick) and scatters it back with them for
+ * accepted windows only (row 4e), so a refused window changes nothing.
+ */
+#include "sim/sim_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/*
+ * Sources: Wong, Theory of Ground Vehicles (as transcribed in public code;
+ * ../shared/notes/terramechanics.md) for n, kc, kphi, c and phi; Ding et al.
+ * 2011 (J. Terramechanics 48(1), Table 2) for their planetary simulant and its
+ * K (9.7-13.1 mm: 11 mm). The tables give no K for the others: 0.01 m, the
+ * low end of sand's typical 0.01-0.025 m. The elastic stiffness 2e8 Pa/m and
+ * the damping 3e4 Pa s/m are Chrono's SCM demo values (no table gives them).
+ */
+typedef struct soil_preset {
+    const char *name;
+    sim_soil soil;
+} soil_preset;
+
+static const soil_preset soil_presets[] = {
+    {"dry-sand", {1.1, 0.99e3, 1528.43e3, 1.04e3, 28.0, 0.01, 2e8, 3e4}},
+    {"sandy-loam", {0.7, 5.27e3, 1515.04e3, 1.72e3, 29.0, 0.01, 2e8, 3e4}},
+    {"clayey-soil", {0.5, 13.19e3, 692.15e3, 4.14e3, 13.0, 0.01, 2e8, 3e4}},
+    {"heavy-clay", {0.13, 12.7e3, 1555.95e3, 68.95e3, 34.0, 0.01, 2e8, 3e4}},
+    {"lete-sand", {0.79, 102e3, 5301e3, 1.3e3, 31.1, 0.01, 2e8, 3e4}},
+    {"snow-us", {1.6, 4.37e3, 196.72e3, 1.03e3, 19.7, 0.01, 2e8, 3e4}},
+    {"snow-sweden", {1.44, 10.55e3, 66.08e3, 6e3, 20.7, 0.01, 2e8, 3e4}},
+    {"lunar", {1.0, 1.4e3, 820e3, 0.17e3, 35.0, 0.01, 2e8, 3e4}},
+    {"ding2011", {1.10, 15.6e3, 2407.4e3, 0.25e3, 31.9, 0.011, 2e8, 3e4}},
+};
+
+int sim_soil_preset(const char *name, sim_soil *out)
+{
+    for (size_t i = 0; i < sizeof soil_presets / sizeof soil_presets[0]; i++)
+        if (name && strcmp(name, soil_presets[i].name) == 0) {
+            *out = soil_presets[i].soil;
+            return 0;
+        }
+    return -1;
+}
+
+/* lo < v <= hi (open below) or lo <= v <= hi, finite. */
+static int soil_field(double v, double lo, int lo_open, double hi, const char *path,
+                      const char *field, error_text *err)
+{
+    if (isfinite(v) && (lo_open ? v > lo : v >= lo) && v <= hi)
+        return 0;
+    error_set(err, "%s.%s: must be a number in %s%g, %g] (got %g)", path, field,
+              lo_open ? "(" : "[", lo, hi, v);
+    return -1;
+}
+
+/*
+ * The ranges: n within (0, 3] (Wong's soils span 0.13-1.6; the issue asks
+ * for 0.1-2 to stay bounded); kc and kphi non-negative, not both zero, up to
+ * 1e9 and 1e11 (LETE sand's kphi is 5.3e6); friction below 60 deg (real soils
+ * stay under 45); K positive up to 1 m; the elastic stiffness positive.
+ */
+int sim_soil_validate(const sim_soil *s, const char *path, error_text *err)
+{
+    if (soil_field(s->n, 0.0, 1, 3.0, path, "n", err) ||
+        soil_field(s->kc, 0.0, 0, 1e9, path, "kc", err) ||
+        soil_field(s->kphi, 0.0, 0, 1e11, path, "kphi", err) ||
+        soil_field(s->cohesion_pa, 0.0, 0, 1e7, path, "cohesion_pa", err) ||
+        soil_field(s->friction_deg, 0.0, 0, 60.0, path, "friction_deg", err) ||
+        soil_field(s->shear_k_m, 0.0, 1, 1.0, path, "shear_k_m", err) ||
+        soil_field(s->elastic_pa_m, 0.0, 1, 1e13, path, "elastic_pa_m", err) ||
+        soil_field(s->damping_pa_s_m, 0.0, 0, 1e9, path, "damping_pa_s_m", err))
+        return -1;
+    if (s->kc == 0.0 && s->kphi == 0.0) {
+        error_set(err, "%s.kphi: kc and kphi cannot both be 0 (the soil would carry nothing)",
+                  path);
+        return -1;
+    }
+    return 0;
+}
+
+double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m)
+{
+    if (!(z_m > 0.0))
+        return 0.0;
+    double k = s->kphi + (b_m > 0.0 ? s->kc / b_m : 0.0);
+    return k * pow(z_m, s->n);
+}
+
+/* ---- The per-cell state: sparse tiles ---- */
+
+#define SOIL_TILE 64
+#define SOIL_TILE_INTS ((int64_t)SOIL_TILE * SOIL_TILE * SIM_SOIL_STATE_FIELDS)
+
+int sim_soil_layer_init(sim_soil_layer *l, int width, int height)
+{
+    memset(l, 0, sizeof *l);
+    l->width = width;
+    l->height = height;
+    l->tiles_x = (width + SOIL_TILE - 1) / SOIL_TILE;
+    l->tiles_y = (height + SOIL_TILE - 1) / SOIL_TILE;
+    l->tiles = calloc((size_t)l->tiles_x * (size_t)l->tiles_y + 1, sizeof *l->tiles);
+    return l->tiles ? 0 : -1;
+}
+
+void sim_soil_layer_free(sim_soil_layer *l)
+{
+    if (!l->tiles)
+        return;
+    for (int64_t i = 0; i < (int64_t)l->tiles_x * l->tiles_y; i++)
+        free(l->tiles[i]);
+    free(l->tiles);
+    memset(l, 0, sizeof *l);
+}
+
+/* The state of world cell (x, y), or NULL where its tile was never pressed. */
+static int32_t *layer_cell(const sim_soil_layer *l, int x, int y)
+{
+    int32_t *t = l->tiles[(int64_t)(y / SOIL_TILE) * l->tiles_x + x / SOIL_TILE];
+    if (!t)
+        return NULL;
+    return t + ((int64_t)(y % SOIL_TILE) * SOIL_TILE + x % SOIL_TILE) * SIM_SOIL_STATE_FIELDS;
+}
+
+void sim_soil_layer_gather(const sim_soil_layer *l, world_rect r, int32_t *dst)
+{
+    for (int y = 0; y < r.h; y++)
+        for (int x = 0; x < r.w; x++) {
+            int32_t *d = dst + ((int64_t)y * r.w + x) * SIM_SOIL_STATE_FIELDS;
+            const int32_t *s = layer_cell(l, r.x + x, r.y + y);
+            for (int f = 0; f < SIM_SOIL_STATE_FIELDS; f++)
+                d[f] = s ? s[f] : 0;
+        }
+}
+
+int sim_soil_layer_scatter(sim_soil_layer *l, world_rect r, const int32_t *src)
+{
+    for (int y = 0; y < r.h; y++)
+        for (int x = 0; x < r.w; x++) {
+            const int32_t *s = src + ((int64_t)y * r.w + x) * SIM_SOIL_STATE_FIELDS;
+            int wx = r.x + x, wy = r.y + y;
+            int32_t *d = layer_cell(l, wx, wy);
+            if (!d) {
+                if (!s[0] && !s[1] && !s[2])
+                    continue; /* nothing to remember: no tile */
+                int64_t t = (int64_t)(wy / SOIL_TILE) * l->tiles_x + wx / SOIL_TILE;
+                l->tiles[t] = calloc((size_t)SOIL_TILE_INTS, sizeof(int32_t));
+                if (!l->tiles[t])
+                    return -1;
+                l->allocated++;
+                d = layer_cell(l, wx, wy);
+            }
+            memcpy(d, s, SIM_SOIL_STATE_FIELDS * sizeof *d);
+        }
+    return 0;
+}
+
+int64_t sim_soil_layer_compacted(const sim_soil_layer *l)
+{
+    int64_t total = 0;
+    for (int64_t t = 0; l->tiles && t < (int64_t)l->tiles_x * l->tiles_y; t++) {
+        const int32_t *tile = l->tiles[t];
+        if (!tile)
+            continue;
+        for (int64_t i = 0; i < (int64_t)SOIL_TILE * SOIL_TILE; i++)
+            total += tile[i * SIM_SOIL_STATE_FIELDS + SIM_SOIL_COMPACTED];
+    }
+    return total;
+}
+
+void sim_soil_layer_cell(const sim_soil_layer *l, int x, int y, int32_t *out)
+{
+    const int32_t *s = NULL;
+    if (l->tiles && x >= 0 && y >= 0 && x < l->width && y < l->height)
+        s = layer_cell(l, x, y);
+    for (int f = 0; f < SIM_SOIL_STATE_FIELDS; f++)
+        out[f] = s ? s[f] : 0;
+}
+
+uint64_t sim_soil_layer_bytes(const sim_soil_layer *l)
+{
+    return (uint64_t)l->allocated * (uint64_t)SOIL_TILE_INTS * sizeof(int32_t) +
+           (uint64_t)l->tiles_x * (uint64_t)l->tiles_y * sizeof(int32_t *);
+}

@@ -1,0 +1,334 @@
+/*
+ * test_bekker.c: the bekker soil model (docs/models.md, issue 21) on its
+ * promises: soil parameters refused naming the field; Bekker pressure under
+ * a plate; elastic reloading, so a second pass sinks less; Janosi-Hanamoto
+ * traction with the wheel's slip; Σh + Σcompacted exact every tick, through
+ * the window function and through the engine over a world; the same
+ * heights, state and forces for any thread count; the extremes (n 0.1 and
+ * 2, c 0, phi 0, a load reaching the floor, a lifted wheel, many passes).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "check.h"
+#include "scene/scene.h"
+#include "soil_rig.h"
+#include "test_params.h"
+
+static int has(const error_text *e, const char *needle)
+{
+    return strstr(e->message, needle) != NULL;
+}
+
+/* A scene's material with this "soil" object; 0 when accepted. */
+static int scene_with_soil(const char *soil, error_text *err)
+{
+    char text[1024];
+    snprintf(text, sizeof text,
+             "{\"world\":{\"width\":32,\"height\":32,\"cell_size_m\":0.05},"
+             "\"terrain\":{\"kind\":\"flat\",\"height_m\":0.4},"
+             "\"material\":{\"model\":\"bekker\",\"compression\":0.5,\"soil\":%s}}",
+             soil);
+    scene s;
+    int rc = scene_load_json(text, ".", &s, err);
+    if (rc == 0)
+        scene_free(&s);
+    return rc;
+}
+
+static void test_params(void)
+{
+    const char *names[] = {"dry-sand", "sandy-loam",  "clayey-soil", "heavy-clay", "lete-sand",
+                           "snow-us",  "snow-sweden", "lunar",       "ding2011"};
+    error_text err = {{0}};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
+        sim_soil s;
+        CHECK(sim_soil_preset(names[i], &s) == 0 && sim_soil_validate(&s, "soil", &err) == 0,
+              "preset %s valid (%s)", names[i], err.message);
+        CHECK(strstr(SIM_SOIL_PRESET_LIST, names[i]) != NULL, "list names %s", names[i]);
+    }
+    CHECK(scene_with_soil("{\"preset\":\"lunar\",\"shear_k_m\":0.02}", &err) == 0,
+          "a preset with an override is accepted (%s)", err.message);
+    struct {
+        const char *soil, *field;
+    } bad[] = {
+        {"{\"n\":0}", "material.soil.n"},
+        {"{\"n\":-1}", "material.soil.n"},
+        {"{\"n\":4}", "material.soil.n"},
+        {"{\"shear_k_m\":0}", "material.soil.shear_k_m"},
+        {"{\"shear_k_m\":-0.01}", "material.soil.shear_k_m"},
+        {"{\"kc\":-1}", "material.soil.kc"},
+        {"{\"kc\":0,\"kphi\":0}", "material.soil.kphi"},
+        {"{\"friction_deg\":75}", "material.soil.friction_deg"},
+        {"{\"cohesion_pa\":-5}", "material.soil.cohesion_pa"},
+        {"{\"elastic_pa_m\":0}", "material.soil.elastic_pa_m"},
+        {"{\"damping_pa_s_m\":-1}", "material.soil.damping_pa_s_m"},
+        {"{\"preset\":\"mars\"}", "material.soil.preset"},
+        {"{\"kx\":1}", "kx"},
+        {"{\"n\":\"one\"}", "material.soil.n"},
+        {"[1]", "material.soil"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        memset(&err, 0, sizeof err);
+        CHECK(scene_with_soil(bad[i].soil, &err) != 0 && has(&err, bad[i].field),
+              "soil %s refused naming %s (%s)", bad[i].soil, bad[i].field, err.message);
+    }
+    /* NaN cannot be written in JSON: straight through the params */
+    sim_material m = sim_material_default();
+    m.model = SIM_MODEL_BEKKER;
+    m.soil.n = NAN;
+    sim_params p;
+    CHECK(sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) != 0 &&
+              has(&err, "material.soil.n"),
+          "NaN n refused (%s)", err.message);
+    m.soil.n = 1.0;
+    m.soil.kphi = INFINITY;
+    CHECK(sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) != 0 &&
+              has(&err, "material.soil.kphi"),
+          "infinite kphi refused (%s)", err.message);
+    /* other models do not look at the soil */
+    m.model = SIM_MODEL_SUMNER;
+    CHECK(sim_params_from_material(&m, 0.05, 10000, 0, &p, &err) == 0, "sumner ignores the soil");
+}
+
+static const quatd IDENTITY = {1, 0, 0, 0};
+
+/* A plate 10 x 40 cells of 5 mm pressed into fresh soil, then lifted and
+ * pressed again with the same load: the second pass reloads elastically up
+ * to where the first yielded and sinks (plastically) far less. */
+static void test_plate_and_second_pass(void)
+{
+    sim_soil soil;
+    sim_soil_preset("ding2011", &soil);
+    soil_rig r;
+    soil_rig_init(&r, &soil, 0.5, 0.005, 40, 60, 0.5);
+    r.geometry.shape = COLLIDER_BOX;
+    r.geometry.half_extents = (vec3d){0.025, 0.1, 0.05};
+    soil_rig_place(&r, 0.1, 0.15, 0.6, IDENTITY, 0);
+    int64_t mass = soil_rig_mass(&r);
+    double load = 200.0;
+    soil_rig_carry(&r, load);
+    soil_rig_step(&r);
+    CHECK(r.contact.force_n[2] >= load && r.contact.cells == 400,
+          "the plate is carried: Fz %.3f N over %lld cells", r.contact.force_n[2],
+          (long long)r.contact.cells);
+    CHECK(fabs(r.contact.force_n[0]) < 1e-9 && fabs(r.contact.force_n[1]) < 1e-9,
+          "no horizontal force under a still plate (%g, %g)", r.contact.force_n[0],
+          r.contact.force_n[1]);
+    CHECK(fabs(r.contact.torque_nm[0]) < 1e-6 && fabs(r.contact.torque_nm[1]) < 1e-6,
+          "no torque about a centred plate (%g, %g)", r.contact.torque_nm[0],
+          r.contact.torque_nm[1]);
+    double b = 2.0 * 400 * 0.005 / (2 * (10 + 40));
+    CHECK(fabs(r.contact.patch_width_m - b) < 1e-12, "patch width 2A/L %.5f (got %.5f)", b,
+          r.contact.patch_width_m);
+    CHECK(soil_rig_mass(&r) == mass, "Σh + Σcompacted exact after the first press");
+    int32_t mid = r.heights[30 * 40 + 20];
+    int32_t first = 5000 - mid;
+    CHECK(first > 0, "the first press sinks (%d units)", first);
+    /* lift: no contact, the shear of the pass is forgotten */
+    soil_rig_place(&r, 0.1, 0.15, 0.7, IDENTITY, 0);
+    soil_rig_step(&r);
+    CHECK(r.contact.cells == 0 && r.heights[30 * 40 + 20] == mid, "lifted: nothing changes");
+    soil_rig_place(&r, 0.1, 0.15, 0.6, IDENTITY, 0);
+    soil_rig_carry(&r, load);
+    soil_rig_step(&r);
+    int32_t second = mid - r.heights[30 * 40 + 20];
+    CHECK(second <= 1 && second * 10 < first,
+          "a second pass with the same load sinks far less (%d units against %d)", second, first);
+    CHECK(soil_rig_mass(&r) == mass, "Σh + Σcompacted exact after the second press");
+    /* a heavier load yields again: reloading ends where the first pass yielded */
+    soil_rig_carry(&r, 2 * load);
+    soil_rig_step(&r);
+    CHECK(mid - r.heights[30 * 40 + 20] > 2, "twice the load yields further (%d units)",
+          mid - r.heights[30 * 40 + 20]);
+    CHECK(soil_rig_mass(&r) == mass, "Σh + Σcompacted exact after the third press");
+    soil_rig_free(&r);
+}
+
+/* A wheel rolled over the soil under load with slip s for `ticks` ticks;
+ * returns the mean Fx over the second half; mass checked every tick. */
+static double roll_wheel(const sim_soil *soil, double slip, int ticks, double load, int *mass_ok,
+                         double *slip_seen, double *fz_seen)
+{
+    soil_rig r;
+    soil_rig_init(&r, soil, 0.5, 0.005, 200, 60, 0.3);
+    r.p.tick_s = 0.01;
+    r.geometry.shape = COLLIDER_CYLINDER;
+    r.geometry.radius = 0.1;
+    r.geometry.half_length = 0.05;
+    double v = 0.05, x = 0.15, angle = 0.0;
+    double omega = v / (r.geometry.radius * (1.0 - slip));
+    soil_rig_place(&r, x, 0.15, 0.42, IDENTITY, 0);
+    int64_t mass = soil_rig_mass(&r);
+    double fx = 0.0;
+    int counted = 0;
+    *mass_ok = 1;
+    for (int t = 0; t < ticks; t++) {
+        x += v * r.p.tick_s;
+        angle += omega * r.p.tick_s;
+        double z = r.collider.pose.position.z;
+        soil_rig_place(&r, x, 0.15, z, quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
+        soil_rig_carry(&r, load);
+        soil_rig_step(&r);
+        *mass_ok &= soil_rig_mass(&r) == mass;
+        if (t >= ticks / 2) {
+            fx += r.contact.force_n[0];
+            counted++;
+        }
+    }
+    /* slip as the engine reports it: from the poses (the engine's merge) */
+    double wr = r.contact.angular[1] * r.geometry.radius, vx = r.contact.velocity[0];
+    *slip_seen = fabs(wr) >= fabs(vx) ? 1.0 - vx / wr : wr / vx - 1.0;
+    *fz_seen = r.contact.force_n[2];
+    soil_rig_free(&r);
+    return fx / counted;
+}
+
+static void test_traction(void)
+{
+    sim_soil soil;
+    sim_soil_preset("ding2011", &soil);
+    int ok;
+    double seen, fz;
+    double towed = roll_wheel(&soil, 0.0, 120, 50.0, &ok, &seen, &fz);
+    CHECK(ok, "slip 0: Σh + Σcompacted exact every tick");
+    CHECK(towed < 0.0, "a towed wheel meets resistance (Fx %.2f N)", towed);
+    /* F(z) >= load > F(z + 1 unit): with K_e 2e8 Pa/m under ~2.5e-3 m^2 of
+     * elastically reloaded rut one unit (0.1 mm) is worth ~50 N, so the load
+     * is carried within that step (the soil's stiffness, not an error) */
+    CHECK(fz >= 50.0 && fz < 150.0, "the load is carried (Fz %.2f N)", fz);
+    double driven = roll_wheel(&soil, 0.4, 120, 50.0, &ok, &seen, &fz);
+    CHECK(ok, "slip 0.4: Σh + Σcompacted exact every tick");
+    CHECK(fabs(seen - 0.4) < 1e-6, "slip from the poses %.6f", seen);
+    CHECK(driven > towed + 5.0 && driven > 0.0, "a driven wheel pulls (Fx %.2f N, towed %.2f N)",
+          driven, towed);
+    /* c 0 and phi 0: no shear strength, no traction from slip */
+    sim_soil frictionless = soil;
+    frictionless.cohesion_pa = 0.0;
+    frictionless.friction_deg = 0.0;
+    double slick = roll_wheel(&frictionless, 0.4, 60, 50.0, &ok, &seen, &fz);
+    CHECK(ok && slick <= 0.0, "c 0, phi 0: a driven wheel gets no pull (Fx %.2f N)", slick);
+    /* extremes of n stay bounded with mass exact */
+    double ns[] = {0.1, 2.0};
+    for (int i = 0; i < 2; i++) {
+        sim_soil s = soil;
+        s.n = ns[i];
+        double f = roll_wheel(&s, 0.2, 40, 50.0, &ok, &seen, &fz);
+        CHECK(ok && isfinite(f) && fz >= 50.0, "n %.1f: bounded, mass exact (Fx %.2f, Fz %.2f)",
+              ns[i], f, fz);
+    }
+}
+
+/* A load the soil cannot carry: the plate stops at the floor, heights stay
+ * at or above it, mass exact; a lifted wheel feels nothing. */
+static void test_floor_and_lift(void)
+{
+    sim_soil soil;
+    sim_soil_preset("snow-us", &soil);
+    soil_rig r;
+    soil_rig_init(&r, &soil, 0.3, 0.005, 30, 30, 0.05);
+    r.geometry.shape = COLLIDER_BOX;
+    r.geometry.half_extents = (vec3d){0.025, 0.025, 0.02};
+    soil_rig_place(&r, 0.075, 0.075, 0.2, IDENTITY, 0);
+    int64_t mass = soil_rig_mass(&r);
+    soil_rig_carry(&r, 1e9);
+    soil_rig_step(&r);
+    int32_t low = INT32_MAX;
+    for (int64_t i = 0; i < r.cells; i++)
+        if (r.heights[i] < low)
+            low = r.heights[i];
+    CHECK(low >= r.p.floor && soil_rig_mass(&r) == mass,
+          "a huge load reaches the floor and no further (lowest %d), mass exact", low);
+    soil_rig_place(&r, 0.075, 0.075, 0.5, IDENTITY, 0);
+    soil_rig_step(&r);
+    CHECK(r.contact.cells == 0 && r.contact.force_n[2] == 0.0, "lifted: no force");
+    soil_rig_free(&r);
+}
+
+/* The engine over a world: a wheel driven back and forth over one rut;
+ * Σh + compacted exact every tick; the same for 1 and 4 threads, bit for bit
+ * (heights, forces). */
+static void engine_run(int threads, int passes, int64_t *sum_out, double *force_out, int *mass_ok)
+{
+    sim_set_threads(threads);
+    sim_material m = sim_material_default();
+    m.model = SIM_MODEL_BEKKER;
+    m.compression = 0.5;
+    sim_params p = test_params_from_material(&m, 0);
+    world w;
+    error_text err;
+    world_base_spec base = {.kind = WORLD_BASE_FLAT, .height_m = 0.4};
+    sim_backend *backend = NULL;
+    sim_engine *e = NULL;
+    if (world_init(&w, 128, 64, TEST_CELL_M, TEST_UNITS_PER_M, 0, &err) != 0 ||
+        world_generate_base(&w, &base, &err) != 0 || !(backend = sim_backend_cpu_create(&err)) ||
+        !(e = sim_engine_create(&w, &p, backend, 2, &err))) {
+        printf("engine: %s\n", err.message);
+        abort();
+    }
+    collider_geometry g = {.shape = COLLIDER_CYLINDER, .radius = 0.3, .half_length = 0.15};
+    sim_collider c = {.id = 7, .geometry = &g};
+    int64_t start = world_volume(&w);
+    *mass_ok = 1;
+    *force_out = 0.0;
+    double x = 1.0, dir = 1.0, angle = 0.0;
+    int ticks = passes * 40;
+    for (int t = 0; t < ticks; t++) {
+        if (t % 40 == 0 && t > 0)
+            dir = -dir;
+        c.previous_pose = c.pose;
+        c.has_previous = t > 0;
+        x += dir * 0.1;
+        angle += dir * 0.5;
+        c.pose.position = (vec3d){x, 1.6, 0.66};
+        c.pose.orientation = quat_from_axis_angle((vec3d){0, 1, 0}, angle);
+        sim_tick_report rep;
+        if (sim_engine_tick(e, &c, 1, &rep, &err) != 0) {
+            printf("tick: %s\n", err.message);
+            abort();
+        }
+        *mass_ok &= world_volume(&w) + sim_engine_soil_compacted(e) == start;
+        *mass_ok &= rep.contact_count == 1 && rep.contacts[0].collider_id == 7;
+        *force_out += rep.contacts[0].force_n[0] + rep.contacts[0].force_n[2] * 1e-3 +
+                      rep.contacts[0].torque_nm[1] * 1e-6;
+    }
+    uint64_t s = 0; /* a hash of every height, wrapping */
+    for (int y = 0; y < 64; y++)
+        for (int xx = 0; xx < 128; xx++)
+            s = s * 31u + (uint64_t)(uint32_t)world_height_at(&w, xx, y);
+    *sum_out = (int64_t)(s >> 1);
+    sim_engine_destroy(e);
+    backend->destroy(backend);
+    world_free(&w);
+}
+
+static void test_engine(void)
+{
+    int64_t a, b;
+    double fa, fb;
+    int ok_a, ok_b;
+    engine_run(1, 3, &a, &fa, &ok_a);
+    engine_run(4, 3, &b, &fb, &ok_b);
+    CHECK(ok_a && ok_b, "engine: Σh + Σcompacted exact every tick, one contact per collider");
+    CHECK(a == b && memcmp(&fa, &fb, sizeof fa) == 0,
+          "engine: 1 and 4 threads give the same heights and forces bit for bit");
+    CHECK(fa != 0.0, "engine: the wheel feels the soil");
+    int64_t c;
+    double fc;
+    int ok_c;
+    engine_run(2, 25, &c, &fc, &ok_c); /* 1,000 ticks: 25 passes over one rut */
+    CHECK(ok_c && isfinite(fc), "25 passes over one rut: bounded, mass exact");
+    sim_set_threads(0);
+}
+
+int main(void)
+{
+    test_params();
+    test_plate_and_second_pass();
+    test_traction();
+    test_floor_and_lift();
+    test_engine();
+    return check_report();
+}

@@ -1,0 +1,175 @@
+/*
+ * test_single_wheel_ding2011.c: the bekker model's single-wheel testbed run
+ * against Ding et al. 2011 (J. Terramechanics 48(1):27-45, HIT testbed; the
+ * smooth wheel of their Fig. 9, values read off the plots, about +-0.5 mm and
+ * +-1 N; ../shared/data/single-wheel-ding2011.csv). Wheel R 0.15735 m, width
+ * 0.165 m, 80 N, on their soil (Table 2: n 1.10, kc 15.6 kN/m^(n+1), kphi
+ * 2407.4 kN/m^(n+2), c 0.25 kPa, phi 31.9 deg, K 11 mm: preset "ding2011").
+ *
+ * The wheel is load-driven (sim_bekker_carry each tick), moves at 0.05 m/s
+ * and turns at v / (R (1 - s)); means over the second half of 0.5 m. Printed
+ * per slip: drawbar pull (Fx), sinkage, driving torque (minus the soil's
+ * torque about the axle), each beside the measurement, and the median
+ * relative errors (docs/validation.md). Chrono SCM on the same wheel
+ * (the note, measured here): median error 125 % on pull, 24 % on sinkage.
+ *
+ * Asserted, so a regression fails: the median errors on drawbar pull and on
+ * sinkage stay within DP_BOUND and SINKAGE_BOUND — today's 59 % and 41 %
+ * (integer and deterministic: the same on every run and machine) plus about
+ * ten points, room for a deliberate change of the model that does not make
+ * it worse — and the physics that must hold whatever the calibration: a
+ * resisted wheel at slip 0, pull and torque growing with slip. The issue's
+ * goal (median <= 20 % on both) is NOT met: like SCM, the model's pull keeps
+ * rising with slip where the real wheel's levels off near 15 N, and its
+ * sinkage does not grow with slip (no slip-sinkage: Bekker's pressure sees
+ * only the normal load). docs/validation.md has the table.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "check.h"
+#include "soil_rig.h"
+
+/* Ding et al. 2011, smooth wheel, 80 N: slip, DP (N), sinkage (m), torque (N m). */
+static const double ding[6][4] = {
+    {0.0, -6.5, 0.005, 0.0}, {0.1, 11.0, 0.0055, 3.0}, {0.2, 14.5, 0.0075, 4.2},
+    {0.3, 15.0, 0.010, 4.8}, {0.4, 15.0, 0.0125, 5.0}, {0.6, 15.0, 0.0175, 5.3},
+};
+
+#define RADIUS 0.15735
+#define WIDTH 0.165
+#define LOAD 80.0
+/* today's medians plus a margin (see the top comment) */
+#define DP_BOUND 0.70
+#define SINKAGE_BOUND 0.50
+
+static void run(double slip, double *dp, double *sinkage, double *torque)
+{
+    sim_soil s;
+    sim_soil_preset("ding2011", &s);
+    const double cell = 0.005, v = 0.05, dt = 0.05, metres = 0.5, ground = 0.5;
+    int w = (int)((metres + 4 * RADIUS) / cell), h = (int)(WIDTH / cell) + 20;
+    soil_rig r;
+    soil_rig_init(&r, &s, 0.5, cell, w, h, ground);
+    r.p.tick_s = dt;
+    r.geometry.shape = COLLIDER_CYLINDER;
+    r.geometry.radius = RADIUS;
+    r.geometry.half_length = WIDTH / 2;
+    double x = 1.5 * RADIUS, angle = 0.0, y = h * cell / 2;
+    double omega = v / (RADIUS * (1.0 - slip));
+    soil_rig_place(&r, x, y, ground + RADIUS, (quatd){1, 0, 0, 0}, 0);
+    int ticks = (int)(metres / (v * dt));
+    double sum_dp = 0, sum_z = 0, sum_t = 0;
+    int n = 0;
+    for (int t = 0; t < ticks; t++) {
+        x += v * dt;
+        angle += omega * dt;
+        soil_rig_place(&r, x, y, r.collider.pose.position.z,
+                       quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
+        soil_rig_carry(&r, LOAD);
+        soil_rig_step(&r);
+        if (t >= ticks / 2) {
+            sum_dp += r.contact.force_n[0];
+            sum_z += ground - (r.collider.pose.position.z - RADIUS);
+            sum_t += -r.contact.torque_nm[1];
+            n++;
+        }
+    }
+    *dp = sum_dp / n;
+    *sinkage = sum_z / n;
+    *torque = sum_t / n;
+    soil_rig_free(&r);
+}
+
+/*
+ * Wong-Reece's driven rigid wheel (the note's "Closed forms"): normal stress
+ * (kc/b + kphi) R^n (cos θ - cos θ1)^n ahead of θm = (0.43 + 0.32 s) θ1,
+ * mirrored behind it; shear from j(θ) = R[(θ1 - θ) - (1 - s)(sin θ1 - sin θ)].
+ * The entry angle θ1 is found by bisection so that the vertical load is W;
+ * then DP = R b ∫(τ cos θ - σ sin θ) dθ, T = R² b ∫ τ dθ (midpoint rule,
+ * 2,000 steps). The prediction the measured data are usually set against.
+ */
+static void wong_reece_at(const sim_soil *s, double slip, double t1, double *w, double *dp,
+                          double *torque)
+{
+    const int steps = 2000;
+    double k = s->kc / WIDTH + s->kphi, tm = (0.43 + 0.32 * slip) * t1;
+    double tf = tan(s->friction_deg * M_PI / 180), sw = 0, sdp = 0, st = 0, d = t1 / steps;
+    for (int i = 0; i < steps; i++) {
+        double t = (i + 0.5) * d;
+        double arg = t >= tm ? cos(t) - cos(t1) : cos(t1 - t / tm * t1) - cos(t1);
+        double sigma = arg > 0 ? k * pow(RADIUS, s->n) * pow(arg, s->n) : 0.0;
+        double j = RADIUS * ((t1 - t) - (1 - slip) * (sin(t1) - sin(t)));
+        double tau = (s->cohesion_pa + sigma * tf) * (1 - exp(-fabs(j) / s->shear_k_m));
+        tau = j < 0 ? -tau : tau;
+        sw += (sigma * cos(t) + tau * sin(t)) * d;
+        sdp += (tau * cos(t) - sigma * sin(t)) * d;
+        st += tau * d;
+    }
+    *w = RADIUS * WIDTH * sw;
+    *dp = RADIUS * WIDTH * sdp;
+    *torque = RADIUS * RADIUS * WIDTH * st;
+}
+
+static void wong_reece(double slip, double *dp, double *sinkage, double *torque)
+{
+    sim_soil s;
+    sim_soil_preset("ding2011", &s);
+    double lo = 1e-4, hi = 1.2, w;
+    for (int i = 0; i < 60; i++) {
+        double mid = 0.5 * (lo + hi);
+        wong_reece_at(&s, slip, mid, &w, dp, torque);
+        if (w < LOAD)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    wong_reece_at(&s, slip, hi, &w, dp, torque);
+    *sinkage = RADIUS * (1 - cos(hi));
+}
+
+static int by_value(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, by_value);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+int main(void)
+{
+    double e_dp[6], e_z[6], e_t[5], dp[6], z[6], tq[6], w_dp[6], w_z[6], w_t[6];
+    int nt = 0;
+    printf("| slip | DP terrad (N) | DP Ding | DP Wong-Reece | sinkage terrad (mm) | Ding | "
+           "Wong-Reece | torque terrad (N m) | Ding | Wong-Reece |\n"
+           "|---|---|---|---|---|---|---|---|---|---|\n");
+    for (int i = 0; i < 6; i++) {
+        run(ding[i][0], &dp[i], &z[i], &tq[i]);
+        wong_reece(ding[i][0], &w_dp[i], &w_z[i], &w_t[i]);
+        printf("| %.1f | %.2f | %.1f | %.2f | %.2f | %.1f | %.2f | %.2f | %.1f | %.2f |\n",
+               ding[i][0], dp[i], ding[i][1], w_dp[i], z[i] * 1e3, ding[i][2] * 1e3, w_z[i] * 1e3,
+               tq[i], ding[i][3], w_t[i]);
+        e_dp[i] = fabs(dp[i] - ding[i][1]) / fabs(ding[i][1]);
+        e_z[i] = fabs(z[i] - ding[i][2]) / ding[i][2];
+        if (ding[i][3] > 0.0)
+            e_t[nt++] = fabs(tq[i] - ding[i][3]) / ding[i][3];
+    }
+    double m_dp = median(e_dp, 6), m_z = median(e_z, 6), m_t = median(e_t, nt);
+    printf("median relative error: drawbar pull %.0f %%, sinkage %.0f %%, torque %.0f %%\n",
+           100 * m_dp, 100 * m_z, 100 * m_t);
+    CHECK(dp[0] < 0.0, "slip 0: the wheel is resisted (DP %.2f N)", dp[0]);
+    for (int i = 1; i < 6; i++)
+        CHECK(dp[i] > dp[i - 1] - 0.5 && tq[i] > tq[i - 1] - 0.05,
+              "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)", ding[i][0], dp[i],
+              tq[i]);
+    CHECK(m_dp <= DP_BOUND, "median drawbar pull error %.0f %% within %.0f %%", 100 * m_dp,
+          100 * DP_BOUND);
+    CHECK(m_z <= SINKAGE_BOUND, "median sinkage error %.0f %% within %.0f %%", 100 * m_z,
+          100 * SINKAGE_BOUND);
+    return check_report();
+}
