@@ -4,7 +4,7 @@
 #   make deps-test      ... and the test tools (scripts/deps --test: clang, chromium, node, ...)
 #   make build          configure (once) and build everything into build/ (CC=clang -> build-clang/)
 #   make run            build only the daemon, then run it: ./build/terrad serve $(ARGS)
-#   make install        build the daemon and the client library, then install them
+#   make install        build the daemon, the client library and the twin library, then install them
 #                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
 #   make test           everything CI runs; ends with "N passed, N failed"
 #   make test-stress    make test while a CPU hog runs beside it (stress-ng --cpu 2): the suite
@@ -105,7 +105,7 @@ cluster: daemon
 install: deps
 	$(call configure,$(BUILD),$(CC),)
 	cmake -S . -B $(BUILD) -DCMAKE_INSTALL_PREFIX=$(PREFIX) >/dev/null
-	cmake --build $(BUILD) -j $(JOBS) --target terrad client
+	cmake --build $(BUILD) -j $(JOBS) --target terrad client twin
 	DESTDIR=$(DESTDIR) cmake --install $(BUILD) --prefix $(PREFIX)
 
 # make test: every step runs even when an earlier one fails, so CI sees all failures.

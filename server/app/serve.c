@@ -154,7 +154,6 @@ static int serve_start(serve_daemon *d, error_text *err)
         return -1;
     net_config nc = {.port = d->o.ws_port,
                      .bind_any = d->o.bind_any,
-                     .token = d->o.token,
                      .auth = d->auth,
                      .tls_cert = d->o.tls_cert,
                      .tls_key = d->o.tls_key,

@@ -38,7 +38,6 @@ typedef struct serve_options {
     int probe_port;    /* -1: none; else --probe-port (0 = any free port) */
     int demo_actors;
     double tick_hz;                 /* 0: the scene's */
-    const char *token;              /* NULL: no token required (deprecated: one admin token) */
     const char *auth_file;          /* --auth-file: tokens' hashes and roles, reread on SIGHUP */
     const char *tls_cert, *tls_key; /* --tls-cert, --tls-key: wss:// and https:// only */
     long max_ticks;                 /* < 0: run until signalled */
@@ -61,10 +60,9 @@ typedef struct serve_options {
     int max_worlds;           /* --max-worlds: worlds one node ticks at once (0: see below) */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
-        config_token[SERVE_CONFIG_STRING_MAX], config_data[SERVE_CONFIG_STRING_MAX],
-        config_durability[64], config_store_fault[SERVE_CONFIG_STRING_MAX],
-        config_auth_file[SERVE_CONFIG_STRING_MAX], config_tls_cert[SERVE_CONFIG_STRING_MAX],
-        config_tls_key[SERVE_CONFIG_STRING_MAX];
+        config_data[SERVE_CONFIG_STRING_MAX], config_durability[64],
+        config_store_fault[SERVE_CONFIG_STRING_MAX], config_auth_file[SERVE_CONFIG_STRING_MAX],
+        config_tls_cert[SERVE_CONFIG_STRING_MAX], config_tls_key[SERVE_CONFIG_STRING_MAX];
 } serve_options;
 
 /* The command line (argv[0] = "serve"); fills o with the defaults first.
@@ -74,8 +72,8 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o);
 /* ---- who may connect, and how (serve_security.c) ---- */
 
 /* Before any port opens: the TLS pair checked (a bad file named), the auth
- * table read (a malformed line named). *auth NULL when neither a file nor a
- * token was given. 0, or -1 with err. */
+ * table read (a malformed line named). *auth NULL when no --auth-file was
+ * given. 0, or -1 with err. */
 int serve_security_open(const serve_options *o, auth_table **auth, error_text *err);
 /* SIGHUP: read the auth file again (a bad file is logged and the old
  * tokens kept); the net thread then closes connections of revoked tokens. */

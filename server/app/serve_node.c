@@ -359,7 +359,6 @@ static int node_open_ports(serve_node *n, error_text *err)
     http_server_host_worlds(n->http);
     net_config nc = {.port = o->ws_port,
                      .bind_any = o->bind_any,
-                     .token = o->token,
                      .auth = n->auth,
                      .tls_cert = o->tls_cert,
                      .tls_key = o->tls_key,

@@ -62,8 +62,8 @@ static const cli_option serve_table[] = {
                      "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},
     [OPT_BIND_ANY] = {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)"},
     [OPT_TOKEN] = {"token", "T",
-                   "one admin token clients send in hello (default: none); deprecated:\n"
-                   "every local user can read the command line; use --auth-file"},
+                   "removed (every local user can read the command line): refused\n"
+                   "with a pointer to --auth-file"},
     [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
     [OPT_DEMO_ACTORS] = {"demo-actors", "N",
                          "built-in spheres running laps over the terrain, 0..256 (default 6)"},
@@ -272,6 +272,21 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
  * dashes (dashes as underscores) plus "limits" with PROTOCOL.md's names.
  * Flags given on the command line after --config override it; within the
  * file, "no_data": true wins over "data". */
+#define TOKEN_REMOVED                                                                              \
+    "removed: a token is no longer given in clear; write its hash to an auth file "                \
+    "(terrad token add --auth-file FILE --role admin --name NAME) and give --auth-file FILE "      \
+    "(config \"auth_file\")"
+
+/* The single admin token ("token", like --token) went away: a config that
+ * still has it is refused, named, rather than started with auth off. */
+static int config_no_token(const cJSON *doc, error_text *err)
+{
+    if (!cJSON_GetObjectItemCaseSensitive(doc, "token"))
+        return 0;
+    error_set(err, "token: " TOKEN_REMOVED);
+    return -1;
+}
+
 static int config_load(const char *path, serve_options *o, error_text *err)
 {
     static const char *const keys[] = {
@@ -295,7 +310,7 @@ static int config_load(const char *path, serve_options *o, error_text *err)
         config_string(doc, "scene", o->config_scene, sizeof o->config_scene, &o->scene_path, err) ||
         config_string(doc, "backend", o->config_backend, sizeof o->config_backend, &o->backend,
                       err) ||
-        config_string(doc, "token", o->config_token, sizeof o->config_token, &o->token, err) ||
+        config_no_token(doc, err) ||
         config_string(doc, "data", o->config_data, sizeof o->config_data, &o->data_dir, err) ||
         config_string(doc, "durability", o->config_durability, sizeof o->config_durability,
                       &o->durability, err) ||
@@ -331,10 +346,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->backend = value;
         return 0;
     case OPT_TOKEN:
-        log_warn("serve: --token on the command line is deprecated (every local user can read "
-                 "/proc/PID/cmdline): use --auth-file (terrad token add)");
-        o->token = value;
-        return 0;
+        (void)value;
+        error_set(err, TOKEN_REMOVED);
+        return -1;
     case OPT_AUTH_FILE:
         o->auth_file = value;
         return 0;
@@ -450,8 +464,7 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
         o->data_dir = NULL;
         o->demo_in_memory = 1;
     }
-    if (r == CLI_OK && o->bind_any && !(o->token && o->token[0]) &&
-        !(o->auth_file && o->auth_file[0]) && !o->insecure_open) {
+    if (r == CLI_OK && o->bind_any && !(o->auth_file && o->auth_file[0]) && !o->insecure_open) {
         log_error("serve: --bind-any without a token would let anyone who can reach the ports "
                   "deform the world: give --auth-file (terrad token add), or pass "
                   "--insecure-open");

@@ -19,20 +19,17 @@ int serve_security_open(const serve_options *o, auth_table **auth, error_text *e
             return -1;
         log_info("serve: TLS on both ports (certificate %s)", o->tls_cert);
     }
-    int has_file = o->auth_file && o->auth_file[0], has_token = o->token && o->token[0];
-    if (!has_file && !has_token)
+    if (!o->auth_file || !o->auth_file[0])
         return 0;
-    *auth = auth_create(has_file ? o->auth_file : NULL, has_token ? o->token : NULL, err);
+    *auth = auth_create(o->auth_file, err);
     if (!*auth)
         return -1;
     struct stat st;
-    if (has_file && stat(o->auth_file, &st) == 0 && (st.st_mode & 0022))
+    if (stat(o->auth_file, &st) == 0 && (st.st_mode & 0022))
         log_warn("serve: %s is writable by other users: whoever can write it can give "
                  "themselves any role",
                  o->auth_file);
-    if (has_file)
-        log_info("serve: %d tokens from %s%s (SIGHUP reads it again)", auth_count(*auth),
-                 o->auth_file, has_token ? ", and the deprecated admin token" : "");
+    log_info("serve: %d tokens from %s (SIGHUP reads it again)", auth_count(*auth), o->auth_file);
     return 0;
 }
 

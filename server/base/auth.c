@@ -31,9 +31,8 @@ typedef struct auth_entry {
 
 struct auth_table {
     pthread_rwlock_t lock;
-    char *path;               /* NULL: no file */
-    unsigned char legacy[32]; /* the deprecated single token's hash */
-    int has_legacy, enabled;
+    char *path; /* NULL: no file */
+    int enabled;
     auth_entry *entries;
     int count;
     atomic_uint generation;
@@ -260,7 +259,7 @@ static int read_file(const char *path, auth_entry **out, int *count, error_text 
     return 0;
 }
 
-auth_table *auth_create(const char *path, const char *legacy_token, error_text *err)
+auth_table *auth_create(const char *path, error_text *err)
 {
     auth_table *t = calloc(1, sizeof *t);
     if (!t) {
@@ -268,10 +267,6 @@ auth_table *auth_create(const char *path, const char *legacy_token, error_text *
         return NULL;
     }
     pthread_rwlock_init(&t->lock, NULL);
-    if (legacy_token && legacy_token[0]) {
-        sha256(legacy_token, t->legacy);
-        t->has_legacy = t->enabled = 1;
-    }
     if (path && path[0]) {
         t->path = strdup(path);
         t->enabled = 1;
@@ -322,7 +317,7 @@ int auth_enabled(const auth_table *t)
 
 int auth_count(const auth_table *t)
 {
-    return t ? t->count + t->has_legacy : 0;
+    return t ? t->count : 0;
 }
 
 unsigned auth_generation(const auth_table *t)
@@ -335,10 +330,6 @@ static auth_role lookup(auth_table *t, const unsigned char h[32], char *name, si
 {
     auth_role role = AUTH_NONE;
     const char *who = NULL;
-    if (t->has_legacy && CRYPTO_memcmp(h, t->legacy, 32) == 0) {
-        role = AUTH_ADMIN;
-        who = "token";
-    }
     for (int i = 0; i < t->count; i++)
         if (CRYPTO_memcmp(h, t->entries[i].hash, 32) == 0 && role == AUTH_NONE) {
             role = t->entries[i].role;

@@ -181,24 +181,24 @@ void thread_owner_check(const thread_owner *o, const char *function);
 /* ---- Authentication (auth.c) ----
  * Who may do what: a table of tokens, each known only by its SHA-256, with
  * a role and a name, read from an auth file (README "Security"): one line
- * per token, "ROLE NAME SHA256HEX", '#' comments. The daemon's deprecated
- * single token, when set, is one more entry: admin, named "token". Any
- * thread may check a token; auth_reload (SIGHUP) swaps the entries in under
- * a lock and bumps the generation, so the net thread can close connections
- * whose token went away. Empty (no file, no token): auth is off and every
- * client is an admin, as before roles existed. */
+ * per token, "ROLE NAME SHA256HEX", '#' comments (no token is ever given
+ * in clear on a command line or in a config). Any thread may check a token;
+ * auth_reload (SIGHUP) swaps the entries in under a lock and bumps the
+ * generation, so the net thread can close connections whose token went
+ * away. Empty (no file): auth is off and every client is an admin, as
+ * before roles existed. */
 typedef enum auth_role { AUTH_NONE = 0, AUTH_VIEWER, AUTH_DRIVER, AUTH_ADMIN } auth_role;
 #define AUTH_NAME_MAX 64
 #define AUTH_TOKEN_PREFIX "tdk_" /* what terrad token add makes: never mistaken for a hash */
 typedef struct auth_table auth_table;
 
-/* NULL on out of memory. path may be NULL (only the legacy token). Reads the
- * file: -1 with err naming the file and line when it is malformed. */
-auth_table *auth_create(const char *path, const char *legacy_token, error_text *err);
+/* NULL on out of memory, or with err naming the file and line when it is
+ * malformed. path NULL: an empty table, auth off. */
+auth_table *auth_create(const char *path, error_text *err);
 void auth_free(auth_table *t);
 /* Read the file again: 0 and the new entries in place, or -1 with err and the old ones kept. */
 int auth_reload(auth_table *t, error_text *err);
-int auth_enabled(const auth_table *t);         /* 1 once a file or a token was given */
+int auth_enabled(const auth_table *t);         /* 1 once a file was given */
 int auth_count(const auth_table *t);           /* tokens known now */
 unsigned auth_generation(const auth_table *t); /* bumped by every successful reload */
 /* The role of a presented token (AUTH_NONE: unknown), its entry's name into name

@@ -92,29 +92,41 @@ int json_check_keys(const cJSON *obj, const char *path, const char *const *allow
     return 0;
 }
 
+/* The field key of obj (NULL when absent) and its path for messages, into p. */
+static const cJSON *field(const cJSON *obj, const char *path, const char *key, char p[256])
+{
+    json_path_join(p, 256, path, key);
+    return cJSON_GetObjectItemCaseSensitive(obj, key);
+}
+
+/* "P: must be WHAT (got X)": X the number when a number field holds one (its
+ * value was wrong), else v's type; -1. */
+static int refuse(error_text *err, const char *p, const char *what, const cJSON *v)
+{
+    if (cJSON_IsNumber(v))
+        error_set(err, "%s: must be %s (got %g)", p, what, v->valuedouble);
+    else
+        error_set(err, "%s: must be %s (got %s)", p, what, json_type_name(v));
+    return -1;
+}
+
 /* A finite number in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
 int json_get_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
                     double *out, error_text *err)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[256], what[96];
+    const cJSON *v = field(obj, path, key, p);
     if (!v)
         return 0;
-    char p[256];
-    json_path_join(p, sizeof p, path, key);
-    if (!cJSON_IsNumber(v)) {
-        error_set(err, "%s: must be a number (got %s)", p, json_type_name(v));
-        return -1;
+    if (!cJSON_IsNumber(v))
+        return refuse(err, p, "a number", v);
+    if (!isfinite(v->valuedouble))
+        return refuse(err, p, "a finite number", v);
+    if (v->valuedouble < lo || v->valuedouble > hi) {
+        json_path_format(what, sizeof what, "in [%g, %g]", lo, hi);
+        return refuse(err, p, what, v);
     }
-    double d = v->valuedouble;
-    if (!isfinite(d)) {
-        error_set(err, "%s: must be a finite number (got %g)", p, d);
-        return -1;
-    }
-    if (d < lo || d > hi) {
-        error_set(err, "%s: must be in [%g, %g] (got %g)", p, lo, hi, d);
-        return -1;
-    }
-    *out = d;
+    *out = v->valuedouble;
     return 1;
 }
 
@@ -131,69 +143,56 @@ int json_require_number(const cJSON *obj, const char *path, const char *key, dou
     return r < 0 ? -1 : 0;
 }
 
+/* v (at p) accepted when ok, named what in messages: 1 present, 0 absent (an
+ * error when required), -1 refused. */
+static int get_checked(int required, const char *what, int ok, const cJSON *v, const char *p,
+                       double *out, error_text *err)
+{
+    if (!v) {
+        if (!required)
+            return 0;
+        error_set(err, "%s: missing (%s)", p, what);
+        return -1;
+    }
+    if (!ok)
+        return refuse(err, p, what, v);
+    *out = v->valuedouble;
+    return 1;
+}
+
 /* Present and positive: (0, hi]. */
 int json_get_positive(const cJSON *obj, const char *path, const char *key, double hi, int required,
                       double *out, error_text *err)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    char p[256];
-    json_path_join(p, sizeof p, path, key);
-    if (!v) {
-        if (!required)
-            return 0;
-        error_set(err, "%s: missing (a finite number > 0 and <= %g)", p, hi);
-        return -1;
-    }
-    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) || v->valuedouble <= 0.0 ||
-        v->valuedouble > hi) {
-        if (cJSON_IsNumber(v))
-            error_set(err, "%s: must be a finite number > 0 and <= %g (got %g)", p, hi,
-                      v->valuedouble);
-        else
-            error_set(err, "%s: must be a finite number > 0 and <= %g (got %s)", p, hi,
-                      json_type_name(v));
-        return -1;
-    }
-    *out = v->valuedouble;
-    return 1;
+    char p[256], what[96];
+    const cJSON *v = field(obj, path, key, p);
+    json_path_format(what, sizeof what, "a finite number > 0 and <= %g", hi);
+    int ok = cJSON_IsNumber(v) && isfinite(v->valuedouble) && v->valuedouble > 0.0 &&
+             v->valuedouble <= hi;
+    return get_checked(required, what, ok, v, p, out, err);
 }
 
 /* An integer in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
 int json_get_integer(const cJSON *obj, const char *path, const char *key, double lo, double hi,
                      int required, double *out, error_text *err)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
-    char p[256];
-    json_path_join(p, sizeof p, path, key);
-    if (!v) {
-        if (!required)
-            return 0;
-        error_set(err, "%s: missing (an integer in [%.0f, %.0f])", p, lo, hi);
-        return -1;
-    }
-    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) ||
-        v->valuedouble != floor(v->valuedouble) || v->valuedouble < lo || v->valuedouble > hi) {
-        if (cJSON_IsNumber(v))
-            error_set(err, "%s: must be an integer in [%.0f, %.0f] (got %g)", p, lo, hi,
-                      v->valuedouble);
-        else
-            error_set(err, "%s: must be an integer in [%.0f, %.0f] (got %s)", p, lo, hi,
-                      json_type_name(v));
-        return -1;
-    }
-    *out = v->valuedouble;
-    return 1;
+    char p[256], what[96];
+    const cJSON *v = field(obj, path, key, p);
+    json_path_format(what, sizeof what, "an integer in [%.0f, %.0f]", lo, hi);
+    int ok = cJSON_IsNumber(v) && isfinite(v->valuedouble) &&
+             v->valuedouble == floor(v->valuedouble) && v->valuedouble >= lo &&
+             v->valuedouble <= hi;
+    return get_checked(required, what, ok, v, p, out, err);
 }
 
 /* A string shorter than size. Returns 1 when present, 0 when absent, -1 on error. */
 int json_get_string(const cJSON *obj, const char *path, const char *key, char *out, size_t size,
                     error_text *err)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[256];
+    const cJSON *v = field(obj, path, key, p);
     if (!v)
         return 0;
-    char p[256];
-    json_path_join(p, sizeof p, path, key);
     if (!cJSON_IsString(v) || !v->valuestring) {
         error_set(err, "%s: must be a string (got %s)", p, json_type_name(v));
         return -1;
@@ -210,11 +209,10 @@ int json_get_string(const cJSON *obj, const char *path, const char *key, char *o
 int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
                     double *out, error_text *err)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[256], what[96];
+    const cJSON *v = field(obj, path, key, p);
     if (!v)
         return 0;
-    char p[256];
-    json_path_join(p, sizeof p, path, key);
     if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) != n) {
         error_set(err, "%s: must be an array of %d numbers", p, n);
         return -1;
@@ -223,17 +221,11 @@ int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, 
     for (const cJSON *e = v->child; e; e = e->next, i++) {
         char q[280];
         json_path_format(q, sizeof q, "%s[%d]", p, i);
-        if (!cJSON_IsNumber(e) || !isfinite(e->valuedouble)) {
-            if (cJSON_IsNumber(e))
-                error_set(err, "%s: must be a finite number (got %g)", q, e->valuedouble);
-            else
-                error_set(err, "%s: must be a finite number (got %s)", q, json_type_name(e));
-            return -1;
-        }
+        if (!cJSON_IsNumber(e) || !isfinite(e->valuedouble))
+            return refuse(err, q, "a finite number", e);
         if (fabs(e->valuedouble) > limit) {
-            error_set(err, "%s: must be within [-%g, %g] (got %g)", q, limit, limit,
-                      e->valuedouble);
-            return -1;
+            json_path_format(what, sizeof what, "within [-%g, %g]", limit, limit);
+            return refuse(err, q, what, e);
         }
         out[i] = e->valuedouble;
     }
@@ -242,12 +234,11 @@ int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, 
 
 int json_get_bool(const cJSON *obj, const char *path, const char *key, int *out, error_text *err)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[256];
+    const cJSON *v = field(obj, path, key, p);
     if (!v)
         return 0;
     if (!cJSON_IsBool(v)) {
-        char p[256];
-        json_path_join(p, sizeof p, path, key);
         error_set(err, "%s: must be true or false (got %s)", p, json_type_name(v));
         return -1;
     }

@@ -7,13 +7,25 @@
  */
 #include "base/base.h"
 
-#include <pthread.h>
 #include <stdlib.h>
+#ifdef TERRAD_TWIN_LIB
+/* The twin library's WebAssembly build has one thread and no pthreads. */
+static unsigned long this_thread(void)
+{
+    return 1;
+}
+#else
+#include <pthread.h>
+static unsigned long this_thread(void)
+{
+    return (unsigned long)pthread_self();
+}
+#endif
 
 void thread_owner_claim(thread_owner *o, const char *name)
 {
     o->name = name;
-    o->tid = (unsigned long)pthread_self();
+    o->tid = this_thread();
 }
 
 void thread_owner_release(thread_owner *o)
@@ -27,7 +39,7 @@ void thread_owner_check(const thread_owner *o, const char *function)
      * a subsystem directly). Nothing to compare against. */
     if (!o->tid)
         return;
-    if (o->tid != (unsigned long)pthread_self()) {
+    if (o->tid != this_thread()) {
         log_error("%s: must run on the %s thread; called from another thread", function,
                   o->name ? o->name : "owning");
         abort();

@@ -91,7 +91,6 @@ static void server_free(net_server *s)
         return;
     net_state_release(&s->st);
     net_auth_stop(&s->st); /* after the worlds' states: they share its table */
-    free(s->st.token);
     free(s->st.server_name);
     for (int i = 0; i < s->st.nworlds; i++) {
         if (s->st.worlds[i]->hub)
@@ -145,11 +144,9 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.cfg = *c;
     s->st.hub = h;
     s->st.lobby = h == NULL;
-    s->st.token = dup_or_null(c->token && c->token[0] ? c->token : NULL);
     s->st.models_json = dup_or_null(c->world.models_json);
     s->st.materials_json = dup_or_null(c->world.materials_json);
     s->st.server_name = strdup(c->server_name ? c->server_name : "terrad/0.1.0");
-    s->st.cfg.token = s->st.token;
     s->st.cfg.tls_cert = s->st.cfg.tls_key = NULL; /* lws reads the files before start returns */
     s->st.cfg.world.models_json = s->st.models_json;
     s->st.cfg.world.materials_json = s->st.materials_json;

@@ -65,12 +65,11 @@ typedef struct net_world_info {
 } net_world_info;
 
 typedef struct net_config {
-    int port;          /* 0: pick a free port (see net_server_port) */
-    int bind_any;      /* 0: loopback only */
-    const char *token; /* NULL or "": no token needed (the deprecated single admin token) */
+    int port;     /* 0: pick a free port (see net_server_port) */
+    int bind_any; /* 0: loopback only */
     /* who may do what (base.h "Authentication"): shared with the HTTP side and
      * reloaded on SIGHUP by its owner, which frees it after net_server_stop.
-     * NULL: a table of .token alone, made and freed here. */
+     * NULL: auth off (an empty table, made and freed here). */
     auth_table *auth;
     /* both set: wss:// only (libwebsockets' OpenSSL), the pair already checked
      * with tls_check_pair; a plain ws:// upgrade on the port fails its handshake */

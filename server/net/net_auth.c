@@ -23,7 +23,7 @@ int net_auth_start(net_state *s, error_text *err)
     if (s->cfg.auth) {
         s->auth = s->cfg.auth;
     } else {
-        s->auth = auth_create(NULL, s->cfg.token, err);
+        s->auth = auth_create(NULL, err);
         if (!s->auth)
             return -1;
         s->own_auth = 1;

@@ -145,10 +145,10 @@ typedef struct net_collider_slot {
 struct net_state {
     thread_owner owner; /* the net thread: claimed when it starts, released when it ends */
     net_config cfg;
-    auth_table *auth; /* cfg.auth, or one of cfg.token alone (own_auth) */
+    auth_table *auth; /* cfg.auth, or an empty one (own_auth) */
     int own_auth;
     unsigned auth_generation; /* the table's, when the clients' roles were last checked */
-    char *token, *models_json, *materials_json, *server_name, *world_name;
+    char *models_json, *materials_json, *server_name, *world_name;
     cJSON *models, *materials;
     hub *hub;
     struct terrad_pose *poses; /* max_poses_per_batch, for decoding */

@@ -18,7 +18,7 @@ void net_handle_text(net_client *c, const char *text, size_t len);
 void net_handle_binary(net_client *c, const unsigned char *data, size_t len);
 
 /* ---- who may do what (net_auth.c) ---- */
-/* s->auth: cfg.auth, or a table of cfg.token alone. 0, or -1 with err. */
+/* s->auth: cfg.auth, or an empty one (auth off). 0, or -1 with err. */
 int net_auth_start(net_state *s, error_text *err);
 void net_auth_stop(net_state *s);
 /* A hello's token: 0 with c's role set, or -1 after an unauthorized error and close. */

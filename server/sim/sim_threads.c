@@ -16,21 +16,32 @@
  * claimed from an atomic counter, so a caller whose workers are not
  * scheduled runs the whole loop itself and waits only for chunks a worker
  * has already claimed.
+ *
+ * TERRAD_TWIN_LIB (the twin library's WebAssembly build, docs/engines.md,
+ * where there are no threads) compiles the same file without the pool: every
+ * loop runs on the caller, which is what a pool of one thread does anyway, so
+ * heights are the same.
  */
 #include "sim/sim_internal.h"
 
-#include <pthread.h>
 #include <stdatomic.h>
+#ifndef TERRAD_TWIN_LIB
+#include <pthread.h>
 #include <unistd.h>
+#endif
 
 static atomic_int thread_count; /* 0: not set, the machine's cores */
 
 int sim_default_threads(void)
 {
+#ifdef TERRAD_TWIN_LIB
+    return 1;
+#else
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     if (cores < 1)
         cores = 1;
     return cores > SIM_THREADS_MAX ? SIM_THREADS_MAX : (int)cores;
+#endif
 }
 
 void sim_set_threads(int n)
@@ -44,6 +55,17 @@ int sim_threads(void)
     return n > 0 ? n : sim_default_threads();
 }
 
+#ifdef TERRAD_TWIN_LIB
+static const int in_parallel = 0;
+
+void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn, void *ctx)
+{
+    (void)chunk;
+    (void)threads;
+    if (items > 0)
+        fn(ctx, 0, items, 0);
+}
+#else
 /* One parallel loop: chunks of `chunk` items claimed from `next`. */
 typedef struct pool_job {
     sim_range_fn fn;
@@ -166,6 +188,8 @@ void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn
     pthread_mutex_unlock(&pool.lock);
     pthread_mutex_unlock(&pool.owner);
 }
+
+#endif
 
 int64_t sim_band_chunk(int64_t items, int bands)
 {

@@ -146,6 +146,18 @@ uint32_t store_crc32c(uint32_t crc, const void *data, size_t len)
     return ~crc;
 }
 
+int store_file_read(const char *path, const char *what, uint8_t **data, size_t *len,
+                    error_text *err)
+{
+    error_text read_err = {{0}};
+    *data = NULL;
+    *len = 0;
+    if (file_read_all(path, STORE_FILE_BYTES_MAX, data, len, &read_err) == 0)
+        return 0;
+    error_set(err, "store: cannot read %s%s", what, read_err.message);
+    return -1;
+}
+
 const char *store_text_crc_end(const char *text, const char *tail)
 {
     char marker[16];

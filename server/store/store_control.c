@@ -45,13 +45,10 @@ int store_control_read(const char *dir, store_control *c, error_text *err)
     snprintf(path, sizeof path, "%s/CONTROL", dir);
     if (access(path, F_OK) != 0)
         return 1;
-    uint8_t *data = NULL;
-    size_t len = 0;
-    error_text read_err = {{0}};
-    if (file_read_all(path, STORE_FILE_BYTES_MAX, &data, &len, &read_err) != 0) {
-        error_set(err, "store: cannot read %s", read_err.message);
+    uint8_t *data;
+    size_t len;
+    if (store_file_read(path, "", &data, &len, err) != 0)
         return -1;
-    }
     char *text = (char *)data;
     const char *crc_end = store_text_crc_end(text, "\n");
     int ok = crc_end != NULL;

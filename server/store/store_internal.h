@@ -201,6 +201,11 @@ int store_control_read(const char *dir, store_control *c, error_text *err);
  * everything before it, which ends in `tail` ("\n", or "}\n" for the
  * manifest's JSON): the start of that line when the checksum holds, else NULL. */
 const char *store_text_crc_end(const char *text, const char *tail);
+/* A data-directory file whole (at most STORE_FILE_BYTES_MAX, NUL-terminated
+ * by file_read_all): 0, or -1 with err "store: cannot read WHAT<reason naming
+ * the path>" (what: "" or "log segment " ...). */
+int store_file_read(const char *path, const char *what, uint8_t **data, size_t *len,
+                    error_text *err);
 int store_control_write(const store_dir *st, const char *dir, const store_control *c,
                         error_text *err);
 int store_control_save(store_dir *st, error_text *err);

@@ -63,13 +63,10 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
 {
     memset(res, 0, sizeof *res);
     res->last_tick = after_tick;
-    uint8_t *data = NULL;
-    size_t len = 0;
-    error_text read_err = {{0}};
-    if (file_read_all(path, STORE_FILE_BYTES_MAX, &data, &len, &read_err) != 0) {
-        error_set(err, "store: cannot read log segment %s", read_err.message);
+    uint8_t *data;
+    size_t len;
+    if (store_file_read(path, "log segment ", &data, &len, err) != 0)
         return -1;
-    }
     res->file_len = (int64_t)len;
     int tiles_x = !w ? 0 : (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
     if (len < WAL_HEADER || memcmp(data, WAL_MAGIC, 8) != 0 ||

@@ -60,13 +60,10 @@ char *store_manifest_text(const world *w, uint32_t base_crc)
 /* Compare the manifest with the world; errors name the file and the field. */
 int store_manifest_check(const char *path, const world *w, uint32_t base_crc, error_text *err)
 {
-    uint8_t *data = NULL;
-    size_t len = 0;
-    error_text read_err = {{0}};
-    if (file_read_all(path, STORE_FILE_BYTES_MAX, &data, &len, &read_err) != 0) {
-        error_set(err, "store: cannot read %s", read_err.message);
+    uint8_t *data;
+    size_t len;
+    if (store_file_read(path, "", &data, &len, err) != 0)
         return -1;
-    }
     char *text = (char *)data;
     if (!store_text_crc_end(text, "}\n")) {
         error_set(err, "store: %s is corrupt (checksum mismatch or truncated)", path);
@@ -117,13 +114,10 @@ world_rect store_tile_rect(int width, int height, int tx, int ty)
 int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *tick_out,
                     error_text *err)
 {
-    uint8_t *data = NULL;
-    size_t len = 0;
-    error_text read_err = {{0}};
-    if (file_read_all(path, STORE_FILE_BYTES_MAX, &data, &len, &read_err) != 0) {
-        error_set(err, "store: cannot read tile snapshot %s", read_err.message);
+    uint8_t *data;
+    size_t len;
+    if (store_file_read(path, "tile snapshot ", &data, &len, err) != 0)
         return -1;
-    }
     int rc = -1;
     int32_t *values = NULL;
     if (len < TILE_HEADER || memcmp(data, TILE_MAGIC, 8) != 0 ||

@@ -228,6 +228,13 @@ static int load_png16(const world *w, const world_base_spec *s, int32_t *cells, 
 {
     int pw, ph;
     uint16_t *pixels = NULL;
+#ifdef TERRAD_TWIN_LIB
+    /* The twin library has no libpng (docs/engines.md): its bases are flat or
+     * dunes, which a client configures by value, not by file. */
+    (void)w, (void)pw, (void)ph, (void)pixels, (void)cells;
+    error_set(err, "%s: PNG bases are not part of the twin library", s->path);
+    return -1;
+#else
     if (png16_read(s->path, &pw, &ph, &pixels, err) != 0)
         return -1;
     if (pw != w->width || ph != w->height) {
@@ -248,6 +255,7 @@ static int load_png16(const world *w, const world_base_spec *s, int32_t *cells, 
         }
     free(pixels);
     return 0;
+#endif
 }
 
 static int load_raw(const world *w, const world_base_spec *s, int bytes, int32_t *cells,

@@ -345,6 +345,18 @@ int64_t world_volume(const world *w)
     return st->base.volume + st->change_sum;
 }
 
+/* Cell (x, y) of part p: from its tile's heights (src, from tile_source) or,
+ * for a tile never written (src NULL), the base terrain's value. */
+static inline int32_t part_height(const world *w, const tile_part *p, const int32_t *src,
+                                  size_t stride, int x, int y)
+{
+    if (src)
+        return src[(size_t)(y - p->tile.y) * stride + (size_t)(x - p->tile.x)];
+    int32_t one;
+    world_base_fill(w, &w->store->base, (world_rect){x, y, 1, 1}, &one, 1);
+    return one;
+}
+
 int64_t world_rect_volume(const world *w, world_rect r)
 {
     if (!world_clip_rect(w, &r))
@@ -352,19 +364,12 @@ int64_t world_rect_volume(const world *w, world_rect r)
     int64_t sum = 0;
     tile_walk k = tile_walk_begin(w, r);
     tile_part p;
-    int32_t one;
     while (tile_walk_next(w, &k, &p)) {
         size_t stride;
         const int32_t *src = tile_source(w, p.tx, p.ty, p.tile, &stride);
         for (int y = p.part.y; y < p.part.y + p.part.h; y++)
-            for (int x = p.part.x; x < p.part.x + p.part.w; x++) {
-                if (src) {
-                    sum += src[(size_t)(y - p.tile.y) * stride + (size_t)(x - p.tile.x)];
-                } else {
-                    world_base_fill(w, &w->store->base, (world_rect){x, y, 1, 1}, &one, 1);
-                    sum += one;
-                }
-            }
+            for (int x = p.part.x; x < p.part.x + p.part.w; x++)
+                sum += part_height(w, &p, src, stride, x, y);
     }
     return sum;
 }
@@ -460,19 +465,12 @@ void world_rect_height_range(const world *w, world_rect r, int32_t *lo, int32_t 
     int32_t mn = INT32_MAX, mx = INT32_MIN;
     tile_walk k = tile_walk_begin(w, r);
     tile_part p;
-    int32_t one;
     while (tile_walk_next(w, &k, &p)) {
         size_t stride;
         const int32_t *src = tile_source(w, p.tx, p.ty, p.tile, &stride);
         for (int y = p.part.y; y < p.part.y + p.part.h; y++)
             for (int x = p.part.x; x < p.part.x + p.part.w; x++) {
-                int32_t v;
-                if (src) {
-                    v = src[(size_t)(y - p.tile.y) * stride + (size_t)(x - p.tile.x)];
-                } else {
-                    world_base_fill(w, &w->store->base, (world_rect){x, y, 1, 1}, &one, 1);
-                    v = one;
-                }
+                int32_t v = part_height(w, &p, src, stride, x, y);
                 if (v < mn)
                     mn = v;
                 if (v > mx)

@@ -2,9 +2,9 @@
 """Authentication defaults (issue 15, item 11): `--bind-any` without any token
 used to start silently, letting anyone who can reach the ports deform the
 world. Now it refuses to start (status 2, a line saying why) unless
---insecure-open says so; a token on the command line still works but logs a
-deprecation warning (every local user can read /proc/PID/cmdline); the config
-key "token" is the way.
+--insecure-open says so. The single token of old is removed: `--token` (every
+local user can read /proc/PID/cmdline) and the config key "token" both stop the
+start with an error naming --auth-file, the way to give a token now.
 """
 # ctest-timeout: 120
 import json
@@ -33,16 +33,29 @@ def main():
     rc, err = run("--bind-any", "--insecure-open")
     check(rc == 0, f"--bind-any --insecure-open starts ({rc}): {err[-300:]}")
     rc, err = run("--token", "sekrit")
-    check(rc == 0 and "deprecated" in err, f"--token works and logs a deprecation ({rc})")
+    check(rc == 2 and "--token" in err and "--auth-file" in err,
+          f"--token is refused at start, naming --auth-file ({rc}): {err[-300:]}")
     fd, path = tempfile.mkstemp(suffix=".json")
     with os.fdopen(fd, "w") as f:
         json.dump({"token": "sekrit", "bind_any": True}, f)
     try:
         rc, err = run("--config", path)
-        check(rc == 0 and "deprecated" not in err,
-              f"a token from the config file allows --bind-any without a warning ({rc})")
+        check(rc == 2 and "token" in err and "--auth-file" in err,
+              f"a config's \"token\" is refused at start, naming --auth-file ({rc}): {err[-300:]}")
     finally:
         os.unlink(path)
+    fd, path = tempfile.mkstemp(prefix="terrad-auth-")
+    os.close(fd)
+    os.unlink(path)
+    try:
+        p = subprocess.run([BIN, "token", "add", "--auth-file", path, "--role", "admin",
+                            "--name", "ops"], capture_output=True, text=True, timeout=60)
+        check(p.returncode == 0, f"terrad token add makes the replacement ({p.returncode})")
+        rc, err = run("--bind-any", "--auth-file", path)
+        check(rc == 0, f"--bind-any with --auth-file starts ({rc}): {err[-300:]}")
+    finally:
+        if os.path.exists(path):
+            os.unlink(path)
     check.finish()
 
 

@@ -2,6 +2,8 @@
 # ctest-timeout: 300
 """`cmake --install` into a temporary prefix, then use what it installed as a user would:
 
+- the twin library (libterrad-twin.so.1, .a, terrad_twin.h, terrad-twin.pc, terrad_twin.wasm):
+  the installed twin_rut.c example builds with pkg-config and runs with no LD_LIBRARY_PATH
 - the daemon, the client library (shared with SONAME libterrad-client.so.1, and static), its
   headers and terrad-client.pc, the systemd unit, the example configuration and the man page
   land where GNUInstallDirs says;
@@ -129,6 +131,33 @@ try:
     if os.path.exists(static_bin):
         needed = run(["readelf", "-d", static_bin]).stdout
         check("libterrad-client" not in needed, "the static build does not load libterrad-client.so")
+
+    # The twin library (docs/engines.md): SONAME, static archive, header, .pc, the wasm module,
+    # and the installed example built with pkg-config and run with no LD_LIBRARY_PATH.
+    twin_so = os.path.join(libdir, "libterrad-twin.so.1")
+    check(os.path.exists(twin_so), "installed: libterrad-twin.so.1")
+    if os.path.exists(twin_so):
+        dyn = run(["readelf", "-d", twin_so]).stdout
+        check("Library soname: [libterrad-twin.so.1]" in dyn, f"SONAME libterrad-twin.so.1: {dyn}")
+    check(os.path.exists(os.path.join(libdir, "libterrad-twin.a")), "libterrad-twin.a")
+    check(os.path.exists(os.path.join(prefix, "include", "terrad", "terrad_twin.h")),
+          "include/terrad/terrad_twin.h")
+    if os.path.exists("/usr/lib/wasm32-wasi/libc.a"):
+        check(os.path.exists(os.path.join(prefix, "share", "terrad", "terrad_twin.wasm")),
+              "share/terrad/terrad_twin.wasm")
+    twin_flags = run(["pkg-config", "--cflags", "--libs", "terrad-twin"], env=env)
+    check(twin_flags.returncode == 0 and "-lterrad-twin" in twin_flags.stdout,
+          f"pkg-config terrad-twin: {twin_flags.stdout} {twin_flags.stderr}")
+    twin_bin = os.path.join(prefix, "twin_rut")
+    r = run(["cc", "-std=c11", "-Wall", "-Wextra", "-Werror", "-o", twin_bin,
+             one("share/doc/terrad/examples/twin_rut.c")] + twin_flags.stdout.split())
+    check(r.returncode == 0, f"cc twin_rut.c $(pkg-config --cflags --libs terrad-twin): {r.stderr}")
+    if os.path.exists(twin_bin):
+        env_run = {k: v for k, v in os.environ.items() if k != "LD_LIBRARY_PATH"}
+        r = subprocess.run([twin_bin], capture_output=True, text=True, timeout=60, env=env_run,
+                           cwd="/")
+        check(r.returncode == 0 and "rut: lowest cell" in r.stdout,
+              f"twin_rut runs from the installed library: {r.stdout} {r.stderr}")
 
     d = Daemon(backend="cpu", demo=True, name="terrad-install")
     with check.running(d):

@@ -26,6 +26,8 @@ import urllib.request
 from waiting import wait_for  # noqa: F401  (the cluster tests import it from here too)
 
 NATS_SERVER = shutil.which("nats-server")
+# the one nats-server command line, shared with nats_test.h (the C tests)
+NATS_START = os.path.join(os.path.dirname(os.path.abspath(__file__)), "nats-start")
 
 
 def free_port():
@@ -61,11 +63,9 @@ class NatsServer:
 
     def start(self):
         os.makedirs(self.store_dir, exist_ok=True)
-        args = [NATS_SERVER, "-js", "-sd", self.store_dir, "-a", "127.0.0.1", "-p", str(self.port),
-                "--server_name", self.name, "-l", self.log_path]
+        args = [NATS_START, self.name, str(self.port), self.store_dir, self.log_path]
         if self.routes:
-            args += ["--cluster_name", "terrad", "--cluster",
-                     f"nats://127.0.0.1:{self.cluster_port}", "--routes", ",".join(self.routes)]
+            args += [str(self.cluster_port), ",".join(self.routes)]
         self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL)
 

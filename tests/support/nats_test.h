@@ -2,8 +2,9 @@
  * nats_test.h: real nats-server processes for the cluster unit tests and
  * bench_cluster (test_cluster*.c, bench_cluster.c): each on free loopback ports with
  * JetStream and its own store directory under one temporary root; n > 1
- * servers form the cluster "terrad" with routes to each other. The Python
- * tests and scripts/cluster use cluster_harness.py (beside this file).
+ * servers form the cluster "terrad" with routes to each other. The command
+ * line itself is tests/support/nats-start, which cluster_harness.py (the
+ * Python tests, scripts/cluster) runs too.
  */
 #ifndef TERRAD_TEST_NATS_H
 #define TERRAD_TEST_NATS_H
@@ -72,10 +73,10 @@ static inline int port_open(int port)
 static inline void nats_start(nats_proc *all, int i, int n)
 {
     nats_proc *p = &all[i];
-    char port[16], name[16], cluster[64], routes[256] = "", log[256];
+    char port[16], name[16], cluster_port[16], routes[256] = "", log[256];
     snprintf(port, sizeof port, "%d", p->port);
     snprintf(name, sizeof name, "n%d", i);
-    snprintf(cluster, sizeof cluster, "nats://127.0.0.1:%d", p->cluster_port);
+    snprintf(cluster_port, sizeof cluster_port, "%d", p->cluster_port);
     snprintf(log, sizeof log, "%s/log", p->dir);
     for (int j = 0; j < n; j++) {
         if (j == i)
@@ -90,13 +91,11 @@ static inline void nats_start(nats_proc *all, int i, int n)
         exit(2);
     p->pid = fork();
     if (p->pid == 0) {
+        const char *start = TERRAD_TEST_SUPPORT_DIR "/nats-start";
         if (n > 1)
-            execlp("nats-server", "nats-server", "-js", "-sd", p->dir, "-a", "127.0.0.1", "-p",
-                   port, "--server_name", name, "-l", log, "--cluster_name", "terrad", "--cluster",
-                   cluster, "--routes", routes, (char *)NULL);
+            execl(start, start, name, port, p->dir, log, cluster_port, routes, (char *)NULL);
         else
-            execlp("nats-server", "nats-server", "-js", "-sd", p->dir, "-a", "127.0.0.1", "-p",
-                   port, "--server_name", name, "-l", log, (char *)NULL);
+            execl(start, start, name, port, p->dir, log, (char *)NULL);
         _exit(127);
     }
     for (int k = 0; k < 200 && !port_open(p->port); k++)

@@ -7,7 +7,8 @@
  * "client", "snapbytes", "noflood", "stats", "quit"). The Python test drives
  * it and checks the protocol's refusals, fan-out, rate limits, slow clients
  * and shutdown. Environment: MAX_PENDING, RATE, HELLO_TIMEOUT override the
- * net limits; argv[1] is the token (default "secret").
+ * net limits; argv[1] is the token (default "secret"), an admin in an auth
+ * file written here (tokens are never given in clear, README "Security").
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -96,13 +97,35 @@ static void *sim(void *arg)
     return NULL;
 }
 
+/* The one admin token, through an auth file as the daemon reads one. */
+static auth_table *admin_table(const char *token, error_text *err)
+{
+    char path[] = "/tmp/terrad-net-harness-XXXXXX", hex[65];
+    int fd = mkstemp(path);
+    if (fd < 0) {
+        error_set(err, "mkstemp failed");
+        return NULL;
+    }
+    auth_hash_hex(token, hex);
+    dprintf(fd, "admin harness %s\n", hex);
+    close(fd);
+    auth_table *t = auth_create(path, err);
+    unlink(path);
+    return t;
+}
+
 int main(int argc, char **argv)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
     H = hub_create();
     net_config c = {0};
     c.port = 0;
-    c.token = argc > 1 ? argv[1] : "secret";
+    error_text err = {{0}};
+    c.auth = admin_table(argc > 1 ? argv[1] : "secret", &err);
+    if (!c.auth) {
+        fprintf(stderr, "auth: %s\n", err.message);
+        return 1;
+    }
     c.limits = net_limits_default();
     if (getenv("MAX_PENDING"))
         c.limits.max_pending_bytes = (size_t)atol(getenv("MAX_PENDING"));
@@ -122,7 +145,6 @@ int main(int argc, char **argv)
                                .height_max = 1 << 29,
                                .models_json = "[\"persson-ssbo\"]",
                                .materials_json = "[\"default\",\"sand\"]"};
-    error_text err;
     net_server *s = net_server_start(&c, H, &err);
     if (!s) {
         fprintf(stderr, "start: %s\n", err.message);
@@ -196,5 +218,6 @@ int main(int argc, char **argv)
     quit = 1;
     pthread_join(t, NULL);
     hub_destroy(H);
+    auth_free(c.auth);
     return 0;
 }

@@ -10,6 +10,7 @@ with python3-websockets and python3-zstandard.
 """
 import asyncio
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -172,8 +173,14 @@ class Daemon:
         self.data_dir = data_dir
         if not demo:
             args.append("--no-demo")
+        self.auth_path = None
         if token is not None:
-            args += ["--token", token]
+            # the token as one admin entry of an auth file (README "Security"):
+            # the daemon takes no token in clear
+            fd, self.auth_path = tempfile.mkstemp(prefix="terrad-auth-")
+            with os.fdopen(fd, "w") as f:
+                f.write(f"admin token {hashlib.sha256(token.encode()).hexdigest()}\n")
+            args += ["--auth-file", self.auth_path]
         if tick_hz is not None:
             args += ["--tick-hz", str(tick_hz)]
         if config is not None:
@@ -238,12 +245,12 @@ class Daemon:
                 self.thread.join(2)
                 return None
         self.thread.join(5)
-        if self.config_path:
-            try:
-                os.unlink(self.config_path)
-            except OSError:
-                pass
-            self.config_path = None
+        for attr in ("config_path", "auth_path"):
+            path = getattr(self, attr)
+            if path:
+                with contextlib.suppress(OSError):
+                    os.unlink(path)
+                setattr(self, attr, None)
         if self.temp_data:
             shutil.rmtree(self.temp_data, ignore_errors=True)
             self.temp_data = None

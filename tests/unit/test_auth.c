@@ -87,20 +87,17 @@ static void test_table(void)
     snprintf(line, sizeof line, "# tokens\nviewer eye %s\ndriver car %s\n", hex_v, hex_d);
     write_file(path, line);
     error_text e = {{0}};
-    auth_table *t = auth_create(path, "legacy", &e);
+    auth_table *t = auth_create(path, &e);
     CHECK(t != NULL, "the file is read: %s", e.message);
     if (!t)
         return;
     char name[AUTH_NAME_MAX + 1];
     unsigned char hash[32];
-    CHECK(auth_enabled(t) && auth_count(t) == 3, "two tokens and the legacy one");
+    CHECK(auth_enabled(t) && auth_count(t) == 2, "two tokens");
     CHECK(auth_check(t, "viewer-secret", name, sizeof name, hash) == AUTH_VIEWER &&
               strcmp(name, "eye") == 0,
           "a viewer token");
     CHECK(auth_check(t, "driver-secret", NULL, 0, NULL) == AUTH_DRIVER, "a driver token");
-    CHECK(auth_check(t, "legacy", name, sizeof name, NULL) == AUTH_ADMIN &&
-              strcmp(name, "token") == 0,
-          "the deprecated token is an admin named token");
     CHECK(auth_check(t, "nope", NULL, 0, NULL) == AUTH_NONE &&
               auth_check(t, "", NULL, 0, NULL) == AUTH_NONE,
           "unknown and empty tokens are refused");
@@ -122,12 +119,12 @@ static void test_table(void)
 
     snprintf(line, sizeof line, "viewer a %s\ndriver a %s\n", hex_v, hex_d);
     write_file(path, line);
-    CHECK(auth_create(path, NULL, &e) == NULL && strstr(e.message, "line 2"), "a repeated name: %s",
+    CHECK(auth_create(path, &e) == NULL && strstr(e.message, "line 2"), "a repeated name: %s",
           e.message);
     snprintf(line, sizeof line, "%s/none", dir);
-    CHECK(auth_create(line, NULL, &e) == NULL && strstr(e.message, line), "a missing file: %s",
+    CHECK(auth_create(line, &e) == NULL && strstr(e.message, line), "a missing file: %s",
           e.message);
-    auth_table *off = auth_create(NULL, NULL, &e);
+    auth_table *off = auth_create(NULL, &e);
     CHECK(off && !auth_enabled(off) && auth_check(off, "", NULL, 0, NULL) == AUTH_ADMIN,
           "no file, no token: auth off, every client an admin");
     auth_free(off);

@@ -1,0 +1,142 @@
+/*
+ * twin_trace.c: writes what the twin library needs to replay a scene the way
+ * `terrad simulate` runs it (tests/integration/test_twin.py): the world's
+ * parameters as terrad_twin_config keys, the whole world as the window, the
+ * colliders and, per tick, every collider's pose (app_run_scene_ticks's
+ * poses). One line per item, numbers printed with %.17g so that C's strtod
+ * and JavaScript's Number() read back the same doubles:
+ *
+ *   set KEY VALUE | name KEY VALUE | window X Y W H | heights H0 H1 ... | base
+ *   collider ID SHAPE RADIUS HALF_LENGTH HX HY HZ
+ *   mesh ID NV NT X0 Y0 Z0 ... I0 I1 I2 ...
+ *   pose ID X Y Z QW QX QY QZ | tick
+ *
+ * A world of more than 65,536 cells is sent as "base" (the twin makes the
+ * untouched base terrain itself: terrad_twin_create with no heights), a
+ * smaller one cell by cell, so both ways are replayed.
+ *
+ * Usage: twin_trace SCENE TICKS > TRACE. Exit 77 for a scene the twin library
+ * does not take (per-cell materials or a file base), with the reason.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "scene/scene.h"
+
+static void set(const char *key, double v)
+{
+    printf("set %s %.17g\n", key, v);
+}
+
+static void print_config(const scene *sc)
+{
+    const sim_material *m = &sc->material;
+    set("width", sc->width);
+    set("height", sc->height);
+    set("cell_size_m", sc->cell_size_m);
+    set("units_per_m", sc->units_per_m);
+    set("floor_units", sc->floor_units);
+    set("margin_cells", sc->active_margin_cells);
+    set("tick_hz", sc->tick_hz);
+    printf("name terrain.kind %s\n", sc->base.kind == WORLD_BASE_FLAT ? "flat" : "dunes");
+    set("terrain.height_m", sc->base.height_m);
+    set("terrain.min_height_m", sc->base.min_height_m);
+    set("terrain.max_height_m", sc->base.max_height_m);
+    set("terrain.wavelength_m", sc->base.wavelength_m);
+    set("terrain.octaves", sc->base.octaves);
+    set("terrain.seed", sc->base.seed);
+    printf("name model %s\nname metric %s\n", sim_model_name(m->model), sim_metric_name(m->metric));
+    set("compression", m->compression);
+    set("roughness", m->roughness);
+    set("repose_deg", m->repose_deg);
+    set("obstacle_gap_m", m->obstacle_gap_m);
+    set("multi_target_m", m->multi_target_m);
+    set("multi_target_max", m->multi_target_max);
+    set("displace_iterations", m->displace_iterations);
+    set("slope_iterations", m->slope_iterations);
+    set("refill_m_per_s", m->refill_m_per_s);
+    set("trail_scale_per_m", m->trail_scale_per_m);
+    set("trail_range_m", m->trail_range_m);
+    set("edge_height", m->edge_height);
+    set("edge_width", m->edge_width);
+    set("diffusion_d", m->diffusion_d);
+    set("diffusion_zeta_inv", m->diffusion_zeta_inv);
+    set("diffusion_force_scale", m->diffusion_force_scale);
+    set("diffusion_dt", m->diffusion_dt);
+    set("diffusion_substeps", m->diffusion_substeps);
+    set("diffusion_conservative", m->diffusion_conservative);
+    set("decal_min_strength_m", m->decal_min_strength_m);
+    set("soil.n", m->soil.n);
+    set("soil.kc", m->soil.kc);
+    set("soil.kphi", m->soil.kphi);
+    set("soil.cohesion_pa", m->soil.cohesion_pa);
+    set("soil.friction_deg", m->soil.friction_deg);
+    set("soil.shear_k_m", m->soil.shear_k_m);
+    set("soil.elastic_pa_m", m->soil.elastic_pa_m);
+    set("soil.damping_pa_s_m", m->soil.damping_pa_s_m);
+}
+
+static void print_collider(int id, const collider_geometry *g)
+{
+    static const char *const shapes[] = {"sphere", "box", "capsule", "cylinder"};
+    if (g->shape != COLLIDER_MESH) {
+        printf("collider %d %s %.17g %.17g %.17g %.17g %.17g\n", id, shapes[g->shape], g->radius,
+               g->half_length, g->half_extents.x, g->half_extents.y, g->half_extents.z);
+        return;
+    }
+    const collider_mesh *m = g->mesh;
+    printf("mesh %d %d %d", id, m->vertex_count, m->triangle_count);
+    for (int i = 0; i < m->vertex_count * 3; i++)
+        printf(" %.9g", (double)m->vertices[i]);
+    for (int i = 0; i < m->triangle_count * 3; i++)
+        printf(" %u", m->indices[i]);
+    printf("\n");
+}
+
+int main(int argc, char **argv)
+{
+    scene sc;
+    world w;
+    error_text err = {{0}};
+    if (argc != 3) {
+        fprintf(stderr, "usage: twin_trace SCENE TICKS\n");
+        return 2;
+    }
+    if (scene_load_file(argv[1], &sc, &err) != 0 || scene_create_world(&sc, &w, &err) != 0) {
+        fprintf(stderr, "twin_trace: %s\n", err.message);
+        return 1;
+    }
+    if (sc.ground_json || (sc.base.kind != WORLD_BASE_FLAT && sc.base.kind != WORLD_BASE_DUNES)) {
+        printf("twin_trace: %s: per-cell materials and file bases are not part of the twin "
+               "library\n",
+               argv[1]);
+        return 77;
+    }
+    long ticks = atol(argv[2]);
+    print_config(&sc);
+    printf("window 0 0 %d %d\n", sc.width, sc.height);
+    if ((int64_t)sc.width * sc.height > 65536) {
+        printf("base\n");
+    } else {
+        printf("heights");
+        for (int y = 0; y < sc.height; y++)
+            for (int x = 0; x < sc.width; x++)
+                printf(" %d", (int)world_height_at(&w, x, y));
+        printf("\n");
+    }
+    for (int c = 0; c < sc.collider_count; c++)
+        print_collider(c, &sc.colliders[c].geometry);
+    double dt = 1.0 / sc.tick_hz;
+    for (long t = 0; t < ticks; t++) {
+        for (int c = 0; c < sc.collider_count; c++) {
+            collider_pose p = collider_motion_pose(&sc.colliders[c].motion, (double)t * dt);
+            printf("pose %d %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", c, p.position.x,
+                   p.position.y, p.position.z, p.orientation.w, p.orientation.x, p.orientation.y,
+                   p.orientation.z);
+        }
+        printf("tick\n");
+    }
+    world_free(&w);
+    scene_free(&sc);
+    return 0;
+}
