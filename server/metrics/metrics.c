@@ -383,10 +383,8 @@ void metrics_reset(void)
  * the series without bound). */
 static int slot_of(int first, const char *const *names, int count, const char *name)
 {
-    for (int i = 0; name && i < count; i++)
-        if (strcmp(name, names[i]) == 0)
-            return first + i;
-    return -1;
+    int i = metrics_label_index(names, count, name);
+    return i < 0 ? -1 : first + i;
 }
 
 void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes)

@@ -97,6 +97,9 @@ void metrics_count_service_dropped(const char *reason);
  * without a known token), forbidden (a role without the right), revoked (an
  * open connection whose token a reload removed). */
 #define METRICS_AUTH_REASONS "bad_token", "forbidden", "revoked"
+/* Within metrics/ (metrics_auth.c): the index of name among a label's count
+ * values, or -1 (NULL or unknown: dropped, never a new series). */
+int metrics_label_index(const char *const *names, int count, const char *name);
 void metrics_count_auth_refused(const char *reason);
 void metrics_auth_reset(void);
 int metrics_auth_text(char *out, size_t cap); /* its length, or -1 when it does not fit */

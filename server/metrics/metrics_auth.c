@@ -14,11 +14,19 @@ static const char *const reasons[] = {METRICS_AUTH_REASONS};
 #define REASONS (sizeof reasons / sizeof reasons[0])
 static atomic_uint_fast64_t refused[REASONS];
 
+int metrics_label_index(const char *const *names, int count, const char *name)
+{
+    for (int i = 0; name && i < count; i++)
+        if (strcmp(name, names[i]) == 0)
+            return i;
+    return -1;
+}
+
 void metrics_count_auth_refused(const char *reason)
 {
-    for (size_t i = 0; i < REASONS; i++)
-        if (strcmp(reason, reasons[i]) == 0)
-            atomic_fetch_add_explicit(&refused[i], 1, memory_order_relaxed);
+    int i = metrics_label_index(reasons, (int)REASONS, reason);
+    if (i >= 0)
+        atomic_fetch_add_explicit(&refused[i], 1, memory_order_relaxed);
 }
 
 void metrics_auth_reset(void)

@@ -33,9 +33,9 @@ static atomic_uint_fast64_t forwarded[FORWARD_RESULTS];
 
 void metrics_count_http_forwarded(const char *result)
 {
-    for (size_t i = 0; i < FORWARD_RESULTS; i++)
-        if (strcmp(result, forward_results[i]) == 0)
-            atomic_fetch_add_explicit(&forwarded[i], 1, memory_order_relaxed);
+    int i = metrics_label_index(forward_results, (int)FORWARD_RESULTS, result);
+    if (i >= 0)
+        atomic_fetch_add_explicit(&forwarded[i], 1, memory_order_relaxed);
 }
 
 int metrics_world_slot(const char *name)

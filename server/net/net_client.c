@@ -22,6 +22,7 @@
 #define NET_QUEUE_MAX_ITEMS 65536  /* frames queued for one client, at most */
 #define NET_CLOSE_GRACE_S 3        /* a closing client gets this long to take its last frames */
 #define NET_FLOOD_FATAL_MS 10000.0 /* sustained rate limiting closes with 4010 */
+#define NET_FLOOD_FORGIVE_S 3.0    /* the most a flood owes: seconds of allowance */
 
 /* ---- the client list ---- */
 
@@ -287,21 +288,37 @@ void net_close_after_flush(net_client *c, int code, const char *reason)
     lws_callback_on_writable(c->wsi);
 }
 
+/* The flood's clock runs on what the client sent, not on when the net thread
+ * got to it: a loaded server reads a flooding client late and in bunches (the
+ * messages wait in the socket), so the gaps between refusals say nothing about
+ * the client. flood_debt counts the refused messages the client has not earned
+ * back; it shrinks only when the bucket would overflow, i.e. while the client
+ * sends less than its rate. A stalled server refills the bucket, but the
+ * messages that queued meanwhile drain it again and the debt stays: the flood
+ * goes on and is closed after 10 s however slow the server was. A client that
+ * really pauses (NET_FLOOD_FORGIVE_S of allowance beyond its burst, at most)
+ * starts afresh. */
 int net_rate_allow(net_client *c)
 {
     const net_limits *l = &c->srv->cfg.limits;
     double now = time_now_ms();
     c->tokens += (now - c->refill_ms) / 1000.0 * l->max_messages_per_s;
-    if (c->tokens > l->messages_burst)
+    if (c->tokens > l->messages_burst) {
+        c->flood_debt -= c->tokens - l->messages_burst; /* sent less than its rate */
+        if (c->flood_debt < 0)
+            c->flood_debt = 0;
         c->tokens = l->messages_burst;
+    }
     c->refill_ms = now;
     if (c->tokens >= 1.0) {
         c->tokens -= 1.0;
         return 1;
     }
-    if (c->last_refusal_ms == 0 || now - c->last_refusal_ms > 1000.0)
-        c->flood_since_ms = now; /* a new flood: the last one paused for a second */
-    c->last_refusal_ms = now;
+    if (c->flood_debt <= c->tokens)
+        c->flood_since_ms = now; /* a new flood: the last one was earned back */
+    c->flood_debt += 1.0;
+    if (c->flood_debt > l->max_messages_per_s * NET_FLOOD_FORGIVE_S)
+        c->flood_debt = l->max_messages_per_s * NET_FLOOD_FORGIVE_S;
     if (now - c->flood_since_ms >= NET_FLOOD_FATAL_MS) {
         net_error(c, TERRAD_E_RATE_LIMITED, NULL, -1, 1,
                   "over %g messages per second for 10 s: closing", l->max_messages_per_s);

@@ -81,9 +81,10 @@ typedef struct net_client {
     size_t rx_len, rx_total;
     int rx_active, rx_binary, rx_oversize;
 
-    /* rate limit: token bucket, and how long the flood has gone on */
+    /* rate limit: token bucket, and how long the flood has gone on: since
+     * flood_since_ms, while flood_debt (refusals not yet earned back) lasts */
     double tokens, refill_ms;
-    double flood_since_ms, last_refusal_ms, last_rate_error_ms;
+    double flood_since_ms, flood_debt, last_rate_error_ms;
 
     /* ownership */
     uint32_t *colliders;
@@ -219,7 +220,8 @@ void net_release_queue(net_client *c);
 /* The client stopped reading and asked for more: let it go. */
 void net_client_kill(net_client *c, const char *why);
 /* Token bucket; 1 if the message may pass. Refusals are answered at most
- * once a second; refusals sustained for 10 s close the connection. */
+ * once a second; a flood not earned back for 10 s (by what the client sent,
+ * however late the server read it) closes the connection. */
 int net_rate_allow(net_client *c);
 
 /* ---- admission (net_conn.c) ---- */

@@ -7,7 +7,7 @@ rest of terrad_core, plays a fake sim thread (snapshots for subscribe/resync,
 tile deltas on request) and is driven over stdin; Python clients check the protocol's refusals, fan-out, rate
 limits, slow clients and shutdown (proto/PROTOCOL.md).
 """
-import asyncio, json, os, struct, sys, time
+import asyncio, json, os, struct, sys, tempfile, time
 
 import websockets
 
@@ -404,6 +404,67 @@ async def scenario_main():
 
 
 
+async def flood(ws, limit_s, stall=None):
+    """Send pings at ~100/s (5 x the harness's RATE=20) for limit_s or until the server
+    closes; the close (code, seconds since the flood began) or None, and the errors read.
+    With stall (a TERRAD_FAULT_STALL file), the net thread is stopped for 1.5 s in every
+    3 s: a server too slow to read, not a client that paused."""
+    t0 = time.time()
+    errs = 0
+    closed = None
+
+    async def reader():
+        nonlocal errs, closed
+        try:
+            while True:
+                if isinstance(await ws.recv(), str):
+                    errs += 1
+        except websockets.ConnectionClosed as ex:
+            closed = (ex.code, time.time() - t0)
+
+    async def staller():
+        while True:
+            await asyncio.sleep(1.5)
+            with open(stall, "w") as f:
+                f.write("net\n")
+            await asyncio.sleep(1.5)
+            os.unlink(stall)
+
+    r = asyncio.create_task(reader())
+    st = asyncio.create_task(staller()) if stall else None
+    try:
+        while closed is None and time.time() - t0 < limit_s:
+            await ws.send(b"\x54\x01\x02\x00" + b"\0" * 8)
+            await asyncio.sleep(0.01)
+    except websockets.ConnectionClosed:
+        pass
+    if st:
+        st.cancel()
+        if os.path.exists(stall):
+            os.unlink(stall)
+    await asyncio.sleep(0.5)
+    if closed is None and time.time() - t0 >= limit_s:
+        r.cancel()
+    return closed, errs
+
+
+async def scenario_flood_read_late():
+    """A flood the server reads late is still a flood (test-stress found it: a starved net
+    thread left gaps of over a second between refusals and each gap started the 10 s
+    again). The fault hook stops the net thread for 1.5 s in every 3 s while the client
+    floods; it must still be closed with 4010, after its 10 s."""
+    fd, stall = tempfile.mkstemp(prefix="terrad-stall-")
+    os.close(fd)
+    os.unlink(stall)
+    h = Harness()
+    await h.start({"RATE": "20", "TERRAD_FAULT_STALL": stall})
+    G, _ = await connect(h, name="G")
+    closed, errs = await flood(G, 120, stall=stall)
+    print(f"flood read late: closed={closed} errors={errs}")
+    assert closed and closed[0] == 4010 and closed[1] > 9.5, closed
+    print(await h.stop())
+
+
 async def scenario_limits():
     h = Harness()
     await h.start({"HELLO_TIMEOUT": "0.5", "RATE": "20"})
@@ -477,30 +538,20 @@ async def scenario_limits():
 
     # sustained flood: 4010 after 10 s
     F, _ = await connect(h, name="F")
-    t0 = time.time()
-    errs = 0
-    closed = None
-    async def reader():
-        nonlocal errs, closed
-        try:
-            while True:
-                m = await F.recv()
-                if isinstance(m, str):
-                    errs += 1
-                    last = json.loads(m)
-        except websockets.ConnectionClosed as ex:
-            closed = (ex.code, time.time() - t0)
-    r = asyncio.create_task(reader())
-    try:
-        while closed is None and time.time() - t0 < 120:
-            await F.send(b"\x54\x01\x02\x00" + b"\0" * 8)
-            await asyncio.sleep(0.01)
-    except websockets.ConnectionClosed:
-        pass
-    await asyncio.sleep(0.5)
+    closed, errs = await flood(F, 120)
     print(f"flood: closed={closed} errors={errs}")
     # the flood limit closes it, and not before its 10 s window (no upper bound: a loaded
     # machine may be late, which is not a bug)
+    assert closed and closed[0] == 4010 and closed[1] > 9.5, closed
+
+    # a client that really pauses is forgiven: 3 s of flood, 7 s of silence (more than the
+    # 3 s of allowance a flood may owe plus the 2 s burst), then a new flood gets its own 10 s
+    P, _ = await connect(h, name="P")
+    closed, _ = await flood(P, 3)
+    assert closed is None, closed
+    await asyncio.sleep(7)
+    closed, errs = await flood(P, 120)
+    print(f"flood after a pause: closed={closed} errors={errs}")
     assert closed and closed[0] == 4010 and closed[1] > 9.5, closed
     print(await h.stop())
 
@@ -509,6 +560,7 @@ async def scenario_limits():
 async def main():
     await scenario_main()
     await scenario_limits()
+    await scenario_flood_read_late()
 
 
 if __name__ == "__main__":

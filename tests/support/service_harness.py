@@ -408,7 +408,7 @@ async def compare_with_server(client, daemon, sid, region, keep_acking, attempts
         tick, server = await loop.run_in_executor(None, daemon.heights, *region)
         if tick is None:
             return False, None, "GET /v1/heights has no X-Terrad-Tick header"
-        deadline = loop.time() + 10
+        deadline = loop.time() + 30  # generous: a loaded machine's client reads late
         while client.acked_tick < tick and loop.time() < deadline:
             await keep_acking()
             await asyncio.sleep(0.008)
