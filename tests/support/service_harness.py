@@ -395,20 +395,28 @@ class RecordingClient(tp.TerradClient):
                 self.on_ack(self.acked_tick, self.acked_seq)
 
 
-async def compare_with_server(client, daemon, sid, region, keep_acking, attempts=6):
+async def compare_with_server(client, daemon, sid, region, keep_acking, attempts=6,
+                              deadline_s=None):
     """GET /v1/heights of region, wait for the client's ACK of that tick, and
     compare the mirror copy at that tick. keep_acking is an async callable
     that sends one (parked) pose batch, so that every tick gets an ACK.
-    Returns (same, tick, detail)."""
+    deadline_s bounds all the attempts together (a test's ctest timeout must
+    end in a failure that says why, not in a kill). Returns (same, tick, detail)."""
     loop = asyncio.get_running_loop()
+    end = None if deadline_s is None else loop.time() + deadline_s
     detail = "no attempt"
     tick = None
     for _ in range(attempts):
+        if end is not None and loop.time() >= end:
+            detail += f" (gave up after {deadline_s} s)"
+            break
         await keep_acking()
         tick, server = await loop.run_in_executor(None, daemon.heights, *region)
         if tick is None:
             return False, None, "GET /v1/heights has no X-Terrad-Tick header"
         deadline = loop.time() + 30  # generous: a loaded machine's client reads late
+        if end is not None:
+            deadline = min(deadline, end)
         while client.acked_tick < tick and loop.time() < deadline:
             await keep_acking()
             await asyncio.sleep(0.008)
