@@ -60,10 +60,16 @@ TEST_ENV := TERRAD_SOURCE_DIR=$(CURDIR) TERRAD_BIN=$(CURDIR)/$(BUILD)/terrad
 # Configure a build tree when it has no cache yet; `cmake --build` re-runs cmake by itself
 # afterwards whenever CMakeLists.txt or a globbed directory changes.
 # $(call configure,DIR,CC,EXTRA CMAKE ARGS)
+# A tree configured before scripts/deps --test brought the WebAssembly toolchain (make run, then
+# make test: the README's order) is configured again, so that it builds build/terrad_twin.wasm.
 define configure
 	@if [ ! -f $(1)/CMakeCache.txt ]; then \
 	    echo "configure: $(1) (CC=$(2))"; \
 	    CC=$(2) cmake -S . -B $(1) $(3); \
+	elif grep -q '^TERRAD_WASM_[A-Z]*:FILEPATH=.*NOTFOUND' $(1)/CMakeCache.txt && \
+	     command -v wasm-ld >/dev/null 2>&1; then \
+	    echo "configure: $(1) again (the WebAssembly toolchain is here now)"; \
+	    cmake -S . -B $(1) >/dev/null; \
 	fi
 endef
 

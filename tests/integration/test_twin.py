@@ -87,6 +87,8 @@ def compare(scene, ticks, label):
         n = differing(outs["sim"], read_file(base + ".native"))
         check(n == 0, f"{label}: native twin library vs simulate: {n} cells differ")
     if not have_wasm:
+        print(f"info: {label}: no WebAssembly twin ({WASM or 'TERRAD_TWIN_WASM unset'}) or no "
+              "node: the wasm replay is skipped", flush=True)
         return
     r = subprocess.run(["node", "--no-warnings", REPLAY_MJS, WASM, base + ".trace",
                         base + ".wasm"], capture_output=True, text=True, timeout=300)
