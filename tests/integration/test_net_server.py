@@ -31,9 +31,12 @@ class Harness:
         e = dict(os.environ)
         e.update(env or {})
         self.p = await asyncio.create_subprocess_exec(HARNESS, "secret", stdin=asyncio.subprocess.PIPE,
-                                                      stdout=asyncio.subprocess.PIPE, env=e)
+                                                      stdout=asyncio.subprocess.PIPE,
+                                                      stderr=asyncio.subprocess.PIPE, env=e)
         self.lines = []
+        self.log = []  # the server's log lines (also echoed to stderr for ctest's output)
         self.event = asyncio.Event()
+        self.log_reader = asyncio.create_task(self._read_log())
         line = (await self.p.stdout.readline()).decode()
         assert line.startswith("PORT "), line
         self.port = int(line.split()[1])
@@ -47,6 +50,14 @@ class Harness:
                 break
             self.lines.append(l.decode().strip())
             self.event.set()
+
+    async def _read_log(self):
+        while True:
+            l = await self.p.stderr.readline()
+            if not l:
+                break
+            sys.stderr.write(l.decode(errors="replace"))
+            self.log.append(l.decode(errors="replace").strip())
 
     async def cmd(self, text):
         self.p.stdin.write((text + "\n").encode())
@@ -461,7 +472,18 @@ async def scenario_flood_read_late():
     G, _ = await connect(h, name="G")
     closed, errs = await flood(G, 120, stall=stall)
     print(f"flood read late: closed={closed} errors={errs}")
-    assert closed and closed[0] == 4010 and closed[1] > 9.5, closed
+    assert closed and closed[1] > 9.5, closed
+    # What is pinned here is the server's decision: it closed G as a flood, with 4010, and not
+    # before the 10 s (the client's clock above). On a starved machine the close frame itself
+    # has been seen lost (1 run in ~10 beside stress-ng, and once in CI: the client saw the
+    # TCP connection end, 1006, in the same millisecond as the server's close, with 150
+    # stalled pings still unread on the server's side); its delivery is what scenario_limits'
+    # floods check, on a net thread that is not stalled. So a 1006 here must be matched by the
+    # server's own log line saying it closed G with 4010.
+    if closed[0] != 4010:
+        assert closed[0] == 1006, closed
+        said = [l for l in h.log if '(127.0.0.1, G) disconnected: the server closed with code 4010' in l]
+        assert said, ("client saw", closed, "server log", h.log[-5:])
     print(await h.stop())
 
 
