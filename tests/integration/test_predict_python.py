@@ -25,12 +25,11 @@ import asyncio
 import json
 import math
 import os
-import subprocess
 import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, Checks, Daemon, skip  # noqa: E402
+from service_harness import BIN, Checks, Daemon, skip, twin_config  # noqa: E402
 
 import terrad  # noqa: E402
 from terrad import Client, MsgType, Pose, TwinError  # noqa: E402
@@ -45,21 +44,6 @@ WAIT = 120  # generous: the machine may be loaded
 SCENE = {"name": "predict", "world": {"width": 256, "height": 256, "cell_size_m": 0.05},
          "terrain": {"kind": "flat", "height_m": 0.4}, "colliders": []}
 REGION = (64, 96, 128, 64)  # x, y, w, h cells: the predicted window
-
-
-def twin_config(scene_path):
-    """The scene's parameters as twin config keys, from twin_trace (the test's one reader of
-    scenes; a client is given its world's parameters however its game keeps them)."""
-    out = subprocess.run([TRACE, scene_path, "0"], capture_output=True, text=True, timeout=60,
-                         check=True).stdout
-    cfg = {}
-    for line in out.splitlines():
-        kind, *rest = line.split()
-        if kind == "set":
-            cfg[rest[0]] = float(rest[1])
-        elif kind == "name":
-            cfg[rest[0]] = rest[1]
-    return cfg
 
 
 def pose_at(cid, i, n, y_cell, z, cell):
@@ -155,6 +139,8 @@ async def drive(d, cfg):
             await asyncio.sleep(1 / hz)
         seq_b = await b.send_poses([pose_at(ball_b, n2 - 1, n2, y_b, z + 5.0, cell)])
         await b.wait_ack(seq_b, WAIT)
+        seq = await a.send_poses([pose_at(ball, n - 1, n, y_a, z + 5.0, cell)])
+        await a.wait_ack(seq, WAIT)  # an ACK with nothing pending, after all of B's rut
         check(pred.replayed - replayed0 > pred.exact - exact0,
               "another client's rut makes the replay differ from the server "
               f"({pred.exact - exact0} of {pred.replayed - replayed0} exact)")
