@@ -23,9 +23,11 @@ from .client import CALLBACK_ARGS, HAVE_NUMPY, Client, TerradClient, heights_gri
 from .proto import *  # noqa: F401,F403 - the codec's public names
 from .proto import __all__ as _proto_all
 from .sync import SyncClient
-from .http import get_heights, get_stats, get_world
+from .http import (WorldError, create_world, delete_world, get_heights, get_stats, get_world,
+                   list_worlds)
 
 __version__ = "0.3.0"
 
-__all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "SyncClient", "TerradClient", "get_heights",
-           "get_stats", "get_world", "heights_grid", "proto", *_proto_all]
+__all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "SyncClient", "TerradClient", "WorldError",
+           "create_world", "delete_world", "get_heights", "get_stats", "get_world", "heights_grid",
+           "list_worlds", "proto", *_proto_all]
