@@ -507,7 +507,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
         }
         forget(ws, lw);
         char message[700];
-        snprintf(message, sizeof message, "scene: world %s could not start: %s", name, why);
+        snprintf(message, sizeof message, "scene: world %s could not start: %.600s", name, why);
         return refuse("create", 422, "scene", message, json);
     }
     metrics_count_world_request("create", 1);
