@@ -111,6 +111,7 @@ static void publish_status(serve_sim *m, double tick_ms, int clients, int collid
     }
     status->tick = service_current_tick(m->svc);
     status->volume = service_volume(m->svc);
+    status->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
     status->last_tick_ms = tick_ms;
     status->overruns = m->overruns;
     status->clients = clients;
