@@ -128,6 +128,7 @@ void sim_engine_destroy(sim_engine *e)
     free(b->offsets);
     free(b->dirty);
     free(b->dirty_window);
+    free(b->soil_dirty);
     free(e->material_ids);
     free(e->compaction);
     free(e->footprints);
