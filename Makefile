@@ -17,7 +17,8 @@
 #                       Chromium): URL= (default make run's http://127.0.0.1:8080/), OUT=
 #                       (default test-artifacts/screenshot.png); needs chromium and web-deps
 #   make docs-images    refresh the pictures the docs show, on purpose: docs/viewer.png (the
-#                       viewer test's picture of its trail) and docs/trade/ (the sweep and its plot)
+#                       viewer test's picture of its trail), docs/trade/ (the sweep and its plot) and
+#                       docs/validation-ding2011.png + the table in docs/validation.md (validation-plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
 #   make cluster        3 NATS servers + 3 terrad nodes on loopback, two demo worlds (Ctrl-C stops;
@@ -169,6 +170,7 @@ docs-images: build web-deps
 	cp $(ARTIFACTS)/viewer-trail.png docs/viewer.png
 	$(TERRAD) bench --trade --out docs/trade
 	$(PYTHON) scripts/trade-plot docs/trade/trade.csv docs/trade/trade.svg
+	$(PYTHON) scripts/validation-plot --test $(BUILD)/test_single_wheel_ding2011
 
 # A picture of the viewer of a daemon that is already running (make run in another terminal).
 # Chromium and node come with scripts/deps --test; playwright-core with web-deps (once).

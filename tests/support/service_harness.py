@@ -91,6 +91,22 @@ def simulate(scene, ticks, *extra, backend="cpu"):
     return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
 
 
+def twin_config(scene_path):
+    """A scene's parameters as the twin library's config keys (terrad_twin.h), read by
+    twin_trace ($TERRAD_TWIN_TRACE): what a predicting client is given (test_predict_*)."""
+    trace = os.environ.get("TERRAD_TWIN_TRACE", "")
+    out = subprocess.run([trace, scene_path, "0"], capture_output=True, text=True, timeout=60,
+                         check=True).stdout
+    cfg = {}
+    for line in out.splitlines():
+        kind, *rest = line.split()
+        if kind == "set":
+            cfg[rest[0]] = float(rest[1])
+        elif kind == "name":
+            cfg[rest[0]] = rest[1]
+    return cfg
+
+
 def skip(why):
     print(f"skip: {why}", flush=True)
     sys.exit(77)
