@@ -10,6 +10,7 @@
  */
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "app/app.h"
 #include "app/serve_internal.h"
@@ -28,7 +29,7 @@ int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
         app_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
         !(m->svc = service_create(m->engine, m->h, err)))
         return -1;
-    service_set_tick_budget(m->svc, o->limits.max_tick_cells);
+    service_set_tick_budget(m->svc, o->limits.max_tick_cells, o->limits.max_sweep_cells);
     if (m->st)
         /* go on from the recovered tick, or past it where the store says a
          * client may have seen later (unlogged idle) ticks */
@@ -196,6 +197,34 @@ int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err)
     }
     publish_status(m, stats.tick_ms, clients, stats.colliders);
     publish_metrics(m, &stats);
+    return 0;
+}
+
+void serve_sleep_ms(double ms)
+{
+    if (ms <= 0)
+        return;
+    struct timespec ts = {(time_t)(ms / 1000), (long)((ms - 1000 * (time_t)(ms / 1000)) * 1e6)};
+    nanosleep(&ts, NULL);
+}
+
+int serve_sim_loop(serve_sim *m, atomic_int *stop, long max_ticks, net_server *net,
+                   serve_sim_check_fn check, void *ctx, char *why, size_t cap)
+{
+    double period_ms = 1000.0 / m->sc.tick_hz, next_ms = time_now_ms();
+    for (long tick = 0; !atomic_load(stop) && (max_ticks < 0 || tick < max_ticks); tick++) {
+        error_text err = {{0}};
+        if (serve_sim_step(m, tick, net_server_client_count(net), &err) != 0) {
+            snprintf(why, cap, "%s", err.message);
+            return -1;
+        }
+        if (check && check(ctx, m, tick, why, cap) != 0)
+            return 1;
+        next_ms += period_ms;
+        if (next_ms < time_now_ms())
+            next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
+        serve_sleep_ms(next_ms - time_now_ms());
+    }
     return 0;
 }
 

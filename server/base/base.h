@@ -1,9 +1,9 @@
 /*
  * base: the small pieces every subsystem uses — logging, monotonic time,
- * per-stage timing series (mean and p99), the process's memory, one growable
- * array, one whole-file reader, one set of JSON field readers whose errors
- * name the field, one command-line parser (getopt_long) and thread-ownership
- * checks. Nothing here knows about terrain; it exists so that each subsystem
+ * per-stage timing series (mean and p99), the process's memory, one integer
+ * hash, one growable array, one whole-file reader, one set of JSON field
+ * readers whose errors name the field, one command-line parser (getopt_long)
+ * and thread-ownership checks. Nothing here knows about terrain; it exists so that each subsystem
  * does not grow its own copy of these helpers. It is the bottom layer: it
  * includes no other subsystem.
  */
@@ -48,6 +48,20 @@ const char *embedded_file_find(const char *name, size_t *size);
 /* Peak resident set size of this process in bytes (VmHWM), 0 if unknown. */
 uint64_t proc_peak_rss_bytes(void);
 
+/* lowbias32 (Chris Wellons' "hash prospector"): a well-mixed 32-bit integer
+ * finaliser, the one copy. Heights depend on its exact bits: the jump
+ * flooding's tie order (sim_cell_hash, and its GLSL twin in
+ * shaders/common.glsl) and the dunes' lattice noise (world/terrain_base.c). */
+static inline uint32_t hash_lowbias32(uint32_t x)
+{
+    x ^= x >> 16;
+    x *= 0x7feb352du;
+    x ^= x >> 15;
+    x *= 0x846ca68bu;
+    x ^= x >> 16;
+    return x;
+}
+
 /* Error text carried out of a failing call: one line, names the cause. */
 typedef struct error_text {
     char message[256];
@@ -83,6 +97,12 @@ int array_grow(void **items, int64_t *capacity, int64_t needed, size_t elem_size
  * max_bytes (0: no limit but memory). Returns 0, or -1 with err naming the
  * path and the cause. */
 int file_read_all(const char *path, size_t max_bytes, uint8_t **data, size_t *len, error_text *err);
+/* len bytes into path, durably: written to path.tmp, fsynced, renamed over
+ * path, the directory fsynced (a crash leaves the old file or the new one,
+ * never a part). 0, or -1 with err naming the path (path.tmp removed). */
+int file_write_durably(const char *path, const void *data, size_t len, error_text *err);
+/* fsync of a directory (a rename or unlink in it made durable); errors ignored. */
+void file_sync_dir(const char *dir);
 
 /* ---- JSON field readers (json_fields.c) ----
  * For strict configuration and scene parsing with cJSON: every message names

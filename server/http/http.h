@@ -154,6 +154,24 @@ void http_server_set_forward(http_server *s, http_forward_fn fn, void *ctx);
 int http_server_answer(http_server *s, const char *world, const void *request, size_t len,
                        size_t max_len, void **answer, size_t *answer_len);
 
+/* ---- the world lifecycle API on a single daemon (http_world_api.c) ----
+ * POST /v1/worlds (admin), GET /v1/worlds (any known token) and
+ * DELETE /v1/worlds/{name}[?keep=1] (admin) call these on an HTTP thread;
+ * each returns the HTTP status and sets *json to the answer's body
+ * (malloc'd JSON; NULL: out of memory). The daemon adds each created world
+ * to the server's table (http_server_add_world, without
+ * http_server_host_worlds): /v1/world, /v1/stats and /v1/heights with
+ * ?world=NAME and /v1/worlds/NAME/edits then reach it, while requests
+ * naming no world (or the default scene's name) stay the default world's. */
+typedef struct http_world_api {
+    unsigned (*create)(void *ctx, const char *body, size_t len, char **json);
+    unsigned (*list)(void *ctx, char **json);
+    unsigned (*remove)(void *ctx, const char *name, int keep, char **json);
+    void *ctx;
+} http_world_api;
+/* Before the port serves requests (api copied; NULL: none, /v1/worlds is 404). */
+void http_server_set_world_api(http_server *s, const http_world_api *api);
+
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms
  * /healthz answers 503 naming it. At most HTTP_MAX_WATCHES; -1 when full. */
