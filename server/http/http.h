@@ -14,8 +14,8 @@
  *   /metrics          Prometheus text 0.0.4 (metrics_render)
  *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
  *                     models, renderer, backend
- *   /v1/stats         JSON: tick, volume (exact integer), clients, colliders,
- *                     last tick ms, overruns
+ *   /v1/stats         JSON: tick, volume (exact integer), soil_compacted (bekker),
+ *                     clients, colliders, last tick ms, overruns
  *   /v1/heights?x=&y=&w=&h=[&format=int32|png16][&base=1]
  *                     int32 little-endian row-major (default) or a 16-bit
  *                     greyscale PNG; headers X-Terrad-Tick, X-Terrad-Rect,
@@ -51,6 +51,7 @@ typedef struct http_status {
     char not_ready[256];           /* with ready == 0: why ("" = still starting) */
     uint64_t tick;                 /* last completed tick */
     int64_t volume;                /* Σh, exact */
+    int64_t soil_compacted;        /* bekker: Σ compacted (units); volume + this is constant */
     int world_width, world_height; /* cells; /v1/heights validates against them */
     double cell_size_m;
     int32_t units_per_m;

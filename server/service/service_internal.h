@@ -107,6 +107,7 @@ typedef struct tile_piece {
 typedef struct service_batch {
     hub_command *commands; /* SERVICE_COMMANDS_PER_TICK, taken from the hub */
     hub_pose *poses;       /* taken from the hub */
+    hub_batch *batches;    /* HUB_BATCH_CAPACITY, taken from the hub with the poses */
     int64_t pose_capacity;
     double oldest_pose_ms;   /* earliest arrival among this tick's poses, 0 if none */
     sim_collider *colliders; /* what the engine deforms with: posed clients' and extra */
@@ -227,7 +228,8 @@ void service_bound_sweeps(service *s); /* after the poses are taken, before serv
 
 /* service_edits.c */
 void service_edit_command(service *s, hub_command *c); /* apply it now, or refuse it */
-/* The tick's rectangles for the store: the edits' then the engine's (-1: no memory). */
+/* The tick's rectangles for the store: the edits', the engine's, then where only the soil
+ * state changed (bekker) (-1: no memory). */
 int service_edits_commit_rects(service *s, const sim_tick_report *report, const world_rect **rects,
                                int *n);
 /* The store refused the tick: take the edits back (after the engine's
