@@ -138,6 +138,11 @@ export class Twin {
     setPose(id, [x, y, z], [qw, qx, qy, qz]) {
         this.m.check(this.m.x.terrad_twin_set_pose(this.ptr, id, x, y, z, qw, qx, qy, qz, this.m.err));
     }
+    // The collider stood here in the last tick: the next tick sweeps from this pose (a
+    // predicting client's reset to the server's acknowledged tick, docs/engines.md).
+    place(id, [x, y, z], [qw, qx, qy, qz]) {
+        this.m.check(this.m.x.terrad_twin_place(this.ptr, id, x, y, z, qw, qx, qy, qz, this.m.err));
+    }
     tick() {
         this.m.check(this.m.x.terrad_twin_tick(this.ptr, this.m.err));
     }

@@ -158,6 +158,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                                        "max_heights_bytes_per_address",
                                        "max_heights_bytes_in_flight",
                                        "max_edit_cells",
+                                       "max_sweep_cells",
                                        NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
@@ -165,7 +166,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[18];
+    double v[19];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -224,8 +225,11 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
         case 16:
             o->heights_bytes_in_flight = (size_t)v[i];
             break;
-        default:
+        case 17:
             m->max_edit_cells = (int64_t)v[i];
+            break;
+        default:
+            m->max_sweep_cells = (int64_t)v[i];
             break;
         }
     }

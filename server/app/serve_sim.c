@@ -28,7 +28,7 @@ int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
         app_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
         !(m->svc = service_create(m->engine, m->h, err)))
         return -1;
-    service_set_tick_budget(m->svc, o->limits.max_tick_cells);
+    service_set_tick_budget(m->svc, o->limits.max_tick_cells, o->limits.max_sweep_cells);
     if (m->st)
         /* go on from the recovered tick, or past it where the store says a
          * client may have seen later (unlogged idle) ticks */

@@ -1,9 +1,9 @@
 /*
  * base: the small pieces every subsystem uses — logging, monotonic time,
- * per-stage timing series (mean and p99), the process's memory, one growable
- * array, one whole-file reader, one set of JSON field readers whose errors
- * name the field, one command-line parser (getopt_long) and thread-ownership
- * checks. Nothing here knows about terrain; it exists so that each subsystem
+ * per-stage timing series (mean and p99), the process's memory, one integer
+ * hash, one growable array, one whole-file reader, one set of JSON field
+ * readers whose errors name the field, one command-line parser (getopt_long)
+ * and thread-ownership checks. Nothing here knows about terrain; it exists so that each subsystem
  * does not grow its own copy of these helpers. It is the bottom layer: it
  * includes no other subsystem.
  */
@@ -47,6 +47,20 @@ const char *embedded_file_find(const char *name, size_t *size);
 
 /* Peak resident set size of this process in bytes (VmHWM), 0 if unknown. */
 uint64_t proc_peak_rss_bytes(void);
+
+/* lowbias32 (Chris Wellons' "hash prospector"): a well-mixed 32-bit integer
+ * finaliser, the one copy. Heights depend on its exact bits: the jump
+ * flooding's tie order (sim_cell_hash, and its GLSL twin in
+ * shaders/common.glsl) and the dunes' lattice noise (world/terrain_base.c). */
+static inline uint32_t hash_lowbias32(uint32_t x)
+{
+    x ^= x >> 16;
+    x *= 0x7feb352du;
+    x ^= x >> 15;
+    x *= 0x846ca68bu;
+    x ^= x >> 16;
+    return x;
+}
 
 /* Error text carried out of a failing call: one line, names the cause. */
 typedef struct error_text {

@@ -43,6 +43,7 @@ net_limits net_limits_default(void)
         .max_mesh_triangles = 32768,
         .max_active_cells = 8192, /* docs/service.md: a quarter of a 60 Hz tick at most */
         .max_tick_cells = 32768,  /* four clients' whole max_active_cells; 0 turns it off */
+        .max_sweep_cells = 32768, /* one client may cost a whole tick's budget, no more */
         .max_collider_extent_m = 50,
         .max_pending_bytes = 8388608,
         .hello_timeout_s = 5,

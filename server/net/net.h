@@ -38,6 +38,9 @@ typedef struct net_limits {
     /* Not per client: the tick's cost budget in footprint cells over every
      * client's colliders (service_set_tick_budget); 0: none. */
     int64_t max_tick_cells;
+    /* Per client: its colliders' cost this tick, their sweeps included; the
+     * poses that would pass it are refused (service_set_tick_budget); 0: none. */
+    int64_t max_sweep_cells;
     /* Admission (0 = no cap): websocket clients in all and from one address.
      * Whatever these say, an accepted socket is refused while fewer than
      * fd_reserve descriptors are left under RLIMIT_NOFILE. */

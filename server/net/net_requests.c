@@ -84,6 +84,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
     cJSON_AddNumberToObject(lim, "max_client_lag_ticks", l->max_client_lag_ticks);
     cJSON_AddNumberToObject(lim, "max_tick_cells", (double)l->max_tick_cells);
+    cJSON_AddNumberToObject(lim, "max_sweep_cells", (double)l->max_sweep_cells);
     cJSON_AddNumberToObject(lim, "max_edit_cells", (double)l->max_edit_cells);
     return m;
 }

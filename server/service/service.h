@@ -63,8 +63,11 @@ void service_attach_store(service *s, store *st, uint64_t recovered_tick);
 
 /* The tick's cost budget (limits.max_tick_cells): while the posed client
  * colliders' footprint cells pass it, the most expensive client's colliders
- * wait a tick (service_shed.c). 0: none (the default). */
-void service_set_tick_budget(service *s, int64_t max_tick_cells);
+ * wait a tick (service_shed.c). 0: none (the default). max_sweep_cells
+ * (limits.max_sweep_cells): one client's cost this tick; the new poses that
+ * would take it past are refused (the colliders stay where they were, the
+ * client gets limit_colliders naming the pose). 0: none (the default). */
+void service_set_tick_budget(service *s, int64_t max_tick_cells, int64_t max_sweep_cells);
 
 uint64_t service_current_tick(const service *s);
 int64_t service_volume(const service *s); /* Σh, kept exactly, tick by tick */

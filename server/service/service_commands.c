@@ -250,11 +250,18 @@ static void apply_poses(service *s, int n)
         int k = service_find_collider(s, p->collider);
         if (k < 0 || s->colliders[k].client != p->client)
             continue; /* deleted meanwhile */
-        if (!s->colliders[k].has_pose) {
-            s->colliders[k].has_pose = 1;
-            s->colliders[k].has_previous = 0; /* no sweep from a pose it never had */
+        svc_collider *c = &s->colliders[k];
+        if (!c->pose_new) { /* where it stood: a refused pose leaves it there */
+            c->pose_new = 1;
+            c->had_pose = c->has_pose;
+            c->pose_before = c->pose;
         }
-        s->colliders[k].pose = p->pose;
+        c->pose_sequence = p->sequence;
+        if (!c->has_pose) {
+            c->has_pose = 1;
+            c->has_previous = 0; /* no sweep from a pose it never had */
+        }
+        c->pose = p->pose;
         if (b->oldest_pose_ms == 0 || p->received_ms < b->oldest_pose_ms)
             b->oldest_pose_ms = p->received_ms;
     }
@@ -290,5 +297,6 @@ void service_take_input(service *s)
     else /* they stay in the hub (latest wins) for the next tick */
         service_note_drop(s, "poses", "no memory to take the poses of %d colliders this tick",
                           s->collider_count);
+    service_bound_sweeps(s); /* before anything measures the poses */
     apply_batches(s);
 }

@@ -20,18 +20,6 @@
 
 #include "metrics/metrics.h"
 
-/* A websocket sender's reply: the request's ref (JSON text, "" if none)
- * into obj, then the text as one frame. */
-static void reply_client(service *s, uint32_t client, const char *ref, cJSON *obj)
-{
-    cJSON *r = ref[0] ? cJSON_Parse(ref) : NULL;
-    cJSON_AddItemToObject(obj, "ref", r ? r : cJSON_CreateNull());
-    char *text = cJSON_PrintUnformatted(obj);
-    cJSON_Delete(obj);
-    service_queue_client(s, client, text ? hub_frame_from_text(text) : NULL, 0, 0); /* JSON */
-    free(text);
-}
-
 /* The outcome to whoever sent the edit: its websocket client or HTTP waiter. */
 static void tell(service *s, const svc_edit *e, const hub_edit_result *res)
 {
@@ -56,7 +44,7 @@ static void tell(service *s, const svc_edit *e, const hub_edit_result *res)
         cJSON_AddStringToObject(obj, "name", terrad_err_name(res->code));
         cJSON_AddStringToObject(obj, "message", res->message);
     }
-    reply_client(s, e->client, e->ref, obj);
+    service_reply_json(s, e->client, e->ref, obj);
 }
 
 void service_edit_command(service *s, hub_command *c)

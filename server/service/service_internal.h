@@ -58,7 +58,12 @@ typedef struct svc_collider {
     collider_pose pose, previous_pose;
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
-    int held;           /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    int held; /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    /* a pose taken this tick (service_bound_sweeps may refuse it): where the
+     * collider stood before it, and the POSE_BATCH it came in */
+    int pose_new, had_pose;
+    collider_pose pose_before;
+    uint32_t pose_sequence;
     collider_cost cost; /* collider_cost_of, once at its creation (a mesh's is O(triangles)) */
 } svc_collider;
 
@@ -161,9 +166,9 @@ struct service {
 
     struct snap_worker *snapper; /* service_snapshots.c */
 
-    /* the tick's cost budget (service_shed.c); 0: none */
-    int64_t max_tick_cells;
-    double last_shed_log_ms;
+    /* the tick's cost budget and one client's sweep budget (service_shed.c); 0: none */
+    int64_t max_tick_cells, max_sweep_cells;
+    double last_shed_log_ms, last_sweep_log_ms;
     uint64_t shed_unlogged;
 
     /* dropped work: logged at most once a second (the metric counts all) */
@@ -185,6 +190,9 @@ int service_queue_out(service *s, hub_out item);
 /* Queue frame f, a TERRAD_MSG_* msg, for one client (snapshot_done: the last
  * frame of a subscribe/resync answer). */
 int service_queue_client(service *s, uint32_t client, hub_frame *f, int msg, int snapshot_done);
+/* A JSON reply (obj, taken over) to a websocket client, with the request's ref
+ * (JSON text, "" for null) added. */
+void service_reply_json(service *s, uint32_t client, const char *ref, struct cJSON *obj);
 
 /* service_commands.c */
 void service_release_collider(service *s, svc_collider *c);
@@ -215,6 +223,7 @@ void service_snapshots_collect(service *s);   /* start of tick t + 1: queue the 
 
 /* service_shed.c: mark the colliders that wait this tick (before they are gathered) */
 void service_shed(service *s);
+void service_bound_sweeps(service *s); /* after the poses are taken, before service_shed */
 
 /* service_edits.c */
 void service_edit_command(service *s, hub_command *c); /* apply it now, or refuse it */

@@ -3,15 +3,17 @@
  * service/: it calls nothing else of the folder): finding a client or a
  * collider of the sim's view, queueing a frame for the net thread
  * (service_queue_out / service_queue_client: the tick's frames wait in
- * s->batch until step 9 hands them to the hub), and counting what could not
- * be sent. Nothing the tick meant to send is dropped silently: it is counted
- * in terrad_service_dropped_total{reason} and logged at most once a second.
- * Sim thread only.
+ * s->batch until step 9 hands them to the hub; service_reply_json for a
+ * JSON reply or error to one client), and counting what could not be sent. Nothing the tick meant
+ * to send is dropped silently: it is counted in terrad_service_dropped_total{reason} and logged at
+ * most once a second. Sim thread only.
  */
 #include "service/service_internal.h"
 
+#include <cjson/cJSON.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 
 #include "metrics/metrics.h"
 
@@ -93,4 +95,14 @@ int service_queue_client(service *s, uint32_t client, hub_frame *f, int msg, int
         service_note_drop(s, "snapshot", "the last snapshot frame for client %u", client);
     }
     return service_queue_out(s, item);
+}
+
+void service_reply_json(service *s, uint32_t client, const char *ref, cJSON *obj)
+{
+    cJSON *r = ref[0] ? cJSON_Parse(ref) : NULL;
+    cJSON_AddItemToObject(obj, "ref", r ? r : cJSON_CreateNull());
+    char *text = cJSON_PrintUnformatted(obj);
+    cJSON_Delete(obj);
+    service_queue_client(s, client, text ? hub_frame_from_text(text) : NULL, 0, 0); /* JSON */
+    free(text);
 }

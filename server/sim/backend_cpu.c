@@ -36,18 +36,31 @@ static int ensure_capacity(cpu_backend *b, int thread, int64_t cells, error_text
     return 0;
 }
 
-void sim_window_depth(const sim_window_job *job, int32_t *bottom)
+void sim_window_cast(const sim_window_job *job, int j, int slices, int32_t *target)
+{
+    for (int c = 0; c < job->collider_count; c++) {
+        const sim_collider *col = &job->colliders[c];
+        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
+        int k0 = sim_slice_end(j - 1, slices, steps), k1 = sim_slice_end(j, slices, steps);
+        /* the swept collider: min over its sub-step poses of the slice (the
+         * pose it stands at when it does not move within the slice) */
+        for (int k = k1 > k0 ? k0 + 1 : k1; k <= k1; k++)
+            collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
+                               job->cell_size_m, job->units_per_m, target);
+    }
+}
+
+void sim_window_depth_slice(const sim_window_job *job, int j, int slices, int32_t *bottom)
 {
     int64_t n = (int64_t)job->rect.w * job->rect.h;
     for (int64_t i = 0; i < n; i++)
         bottom[i] = COLLIDER_BOTTOM_NONE;
-    for (int c = 0; c < job->collider_count; c++) {
-        const sim_collider *col = &job->colliders[c];
-        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-        for (int k = 1; k <= steps; k++) /* the swept collider: min over its sub-step poses */
-            collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
-                               job->cell_size_m, job->units_per_m, bottom);
-    }
+    sim_window_cast(job, j, slices, bottom);
+}
+
+void sim_window_depth(const sim_window_job *job, int32_t *bottom)
+{
+    sim_window_depth_slice(job, 1, 1, bottom); /* one slice: every sub-step, 1..steps */
 }
 
 /* One window through the stages, in the arena of the thread that runs it. */

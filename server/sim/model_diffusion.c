@@ -107,32 +107,13 @@ static void travel(const sim_collider *c, double *ux, double *uy)
     *uy = dy / len;
 }
 
-/* Depth of slice j: each collider swept over its sub-steps of this slice
- * (one pose, where it stands, when it does not move within the slice), as
- * sim_window_depth casts the whole sweep; slices 1..n together cast every
- * sub-step of the tick once. */
-static void slice_depth(const sim_window_job *job, int j, int slices, int32_t *bottom)
-{
-    int64_t n = (int64_t)job->rect.w * job->rect.h;
-    for (int64_t i = 0; i < n; i++)
-        bottom[i] = COLLIDER_BOTTOM_NONE;
-    for (int c = 0; c < job->collider_count; c++) {
-        const sim_collider *col = &job->colliders[c];
-        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-        int k0 = sim_slice_end(j - 1, slices, steps), k1 = sim_slice_end(j, slices, steps);
-        for (int k = k1 > k0 ? k0 + 1 : k1; k <= k1; k++)
-            collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
-                               job->cell_size_m, job->units_per_m, bottom);
-    }
-}
-
 /* The depth slice j presses with: the engine's (the whole sweep) when the
  * tick is one slice, else cast into spare. */
 static const int32_t *slice_bottom(const sim_window_job *job, int j, int slices, int32_t *spare)
 {
     if (slices == 1)
         return job->bottom_override;
-    slice_depth(job, j, slices, spare);
+    sim_window_depth_slice(job, j, slices, spare);
     return spare;
 }
 

@@ -47,13 +47,7 @@ sim_window_status sim_subtract_window(const sim_params *p, sim_window_job *job, 
     }
     if (bottom)
         return SIM_WINDOW_OK;
-    for (int c = 0; c < job->collider_count; c++) {
-        const sim_collider *col = &job->colliders[c];
-        int steps = sim_collider_sweep_steps(col, job->cell_size_m);
-        for (int k = 1; k <= steps; k++) /* the swept collider, as sim_window_depth */
-            collider_depth_cpu(col->geometry, sim_collider_sweep_pose(col, k, steps), job->rect,
-                               job->cell_size_m, job->units_per_m, job->heights);
-    }
+    sim_window_cast(job, 1, 1, job->heights); /* the swept collider, as sim_window_depth */
     for (int64_t i = 0; i < n; i++)
         if (job->heights[i] < p->floor)
             job->heights[i] = p->floor;

@@ -223,6 +223,14 @@ collider_pose sim_slice_pose(const sim_collider *c, double cell_size_m, int j, i
 world_rect sim_slice_rect(const sim_window_job *job, int j, int slices);
 void sim_slice_copy(world_rect window, world_rect part, void *cells, void *packed,
                     size_t cell_bytes, int in);
+/* The CPU depth stage over a sub-step range (backend_cpu.c, beside
+ * sim_window_depth, which is slice 1 of 1): sim_window_cast lowers target
+ * (w*h, not filled first) by each collider's sub-step poses of slice j of
+ * `slices` (the pose it stands at when it does not move within the slice);
+ * sim_window_depth_slice fills bottom with COLLIDER_BOTTOM_NONE first. Slices
+ * 1..n together cast every sub-step of the tick once. */
+void sim_window_cast(const sim_window_job *job, int j, int slices, int32_t *target);
+void sim_window_depth_slice(const sim_window_job *job, int j, int slices, int32_t *bottom);
 
 /* decals: one window's events (at most out_capacity); returns how many. */
 int sim_decals_window(const sim_params *p, const sim_window_job *job, int32_t *scratch,

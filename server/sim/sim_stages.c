@@ -45,13 +45,7 @@ const int sim_neighbour_dy[8] = {0, 0, 1, -1, 1, 1, -1, -1};
 
 uint32_t sim_cell_hash(int32_t world_x, int32_t world_y)
 {
-    uint32_t h = (uint32_t)world_x * 0x8da6b343u ^ (uint32_t)world_y * 0xd8163841u;
-    h ^= h >> 16;
-    h *= 0x7feb352du;
-    h ^= h >> 15;
-    h *= 0x846ca68bu;
-    h ^= h >> 16;
-    return h;
+    return hash_lowbias32((uint32_t)world_x * 0x8da6b343u ^ (uint32_t)world_y * 0xd8163841u);
 }
 
 /* (a * q16) >> shift for a >= 0, q16 in [0, 65536]: exact in 64 bits. */

@@ -90,6 +90,12 @@ TERRAD_TWIN_API int terrad_twin_remove_collider(terrad_twin *t, int id, char *er
  * not swept. */
 TERRAD_TWIN_API int terrad_twin_set_pose(terrad_twin *t, int id, double x, double y, double z,
                                          double qw, double qx, double qy, double qz, char *err);
+/* The collider stood at this pose in the last tick: its pose from now on, and
+ * the pose the next tick sweeps from. How a predicting client puts its
+ * collider back where the server's acknowledged tick left it (docs/engines.md,
+ * "Prediction") after writing that tick's heights into the window. */
+TERRAD_TWIN_API int terrad_twin_place(terrad_twin *t, int id, double x, double y, double z,
+                                      double qw, double qx, double qy, double qz, char *err);
 /* One tick: the daemon's sim_engine_tick over the window with every posed
  * collider, in the order they were added. */
 TERRAD_TWIN_API int terrad_twin_tick(terrad_twin *t, char *err);

@@ -401,24 +401,47 @@ int terrad_twin_remove_collider(terrad_twin *t, int id, char *err)
     return 0;
 }
 
+/* The collider with this id, with a valid pose in *p; NULL (err written)
+ * otherwise. */
+static twin_collider *posed_collider(terrad_twin *t, int id, collider_pose *p, char *err)
+{
+    int k = t ? find_collider(t, id) : -1;
+    if (k < 0) {
+        fail(err, "id: no collider %d", id);
+        return NULL;
+    }
+    error_text e = {{0}};
+    if (collider_pose_validate(p, &e) != 0) {
+        copy_error(err, &e);
+        return NULL;
+    }
+    return &t->colliders[k];
+}
+
 int terrad_twin_set_pose(terrad_twin *t, int id, double x, double y, double z, double qw, double qx,
                          double qy, double qz, char *err)
 {
-    int k = t ? find_collider(t, id) : -1;
-    if (k < 0)
-        return fail(err, "id: no collider %d", id);
     collider_pose p = {{x, y, z}, {qw, qx, qy, qz}};
-    error_text e = {{0}};
-    if (collider_pose_validate(&p, &e) != 0) {
-        copy_error(err, &e);
+    twin_collider *c = posed_collider(t, id, &p, err);
+    if (!c)
         return -1;
-    }
-    twin_collider *c = &t->colliders[k];
     if (!c->has_pose) {
         c->has_pose = 1;
         c->has_previous = 0; /* no sweep from a pose it never had */
     }
     c->pose = p;
+    return 0;
+}
+
+int terrad_twin_place(terrad_twin *t, int id, double x, double y, double z, double qw, double qx,
+                      double qy, double qz, char *err)
+{
+    collider_pose p = {{x, y, z}, {qw, qx, qy, qz}};
+    twin_collider *c = posed_collider(t, id, &p, err);
+    if (!c)
+        return -1;
+    c->pose = c->previous_pose = p; /* as if the last tick had pressed here */
+    c->has_pose = c->has_previous = 1;
     return 0;
 }
 

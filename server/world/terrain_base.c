@@ -70,21 +70,10 @@ static int height_from_units(const height_check *c, double units, int x, int y, 
 
 /* ---- Dunes: seeded 2D gradient noise, fBm ---- */
 
-static uint32_t hash_u32(uint32_t x)
-{
-    /* a well-mixed 32-bit integer finaliser (lowbias32) */
-    x ^= x >> 16;
-    x *= 0x7feb352du;
-    x ^= x >> 15;
-    x *= 0x846ca68bu;
-    x ^= x >> 16;
-    return x;
-}
-
 static uint32_t lattice_hash(int64_t ix, int64_t iy, uint32_t seed)
 {
-    uint32_t h = hash_u32((uint32_t)ix ^ hash_u32(seed));
-    return hash_u32(h ^ hash_u32((uint32_t)iy + 0x9e3779b9u));
+    uint32_t h = hash_lowbias32((uint32_t)ix ^ hash_lowbias32(seed));
+    return hash_lowbias32(h ^ hash_lowbias32((uint32_t)iy + 0x9e3779b9u));
 }
 
 /* Eight unit gradients: axes and diagonals. Written as constants so nothing

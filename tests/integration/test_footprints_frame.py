@@ -16,13 +16,12 @@ scene whose material is the decals model:
   /metrics, and the connection goes on.
 """
 import asyncio
-import json
 import os
 import sys
-import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, RecordingClient, metric_value  # noqa: E402
+from service_harness import (Checks, RecordingClient, flat_scene, metric_value,  # noqa: E402
+                             serve_scene)
 import terrad as tp  # noqa: E402
 
 check = Checks()
@@ -45,20 +44,6 @@ class Watcher(RecordingClient):
             self.frames += 1
             self.events += [(tick, e) for e in events]
         await super()._on_binary(data)
-
-
-def scene_file():
-    scene = {
-        "name": "footprints",
-        "world": {"width": W, "height": H, "cell_size_m": CELL},
-        "terrain": {"kind": "flat", "height_m": GROUND},
-        "material": {"model": "decals"},
-        "colliders": [],
-    }
-    fd, path = tempfile.mkstemp(prefix="terrad-footprints-", suffix=".json")
-    with os.fdopen(fd, "w") as f:
-        json.dump(scene, f)
-    return path
 
 
 async def scenario(d):
@@ -145,12 +130,8 @@ async def scenario(d):
 
 
 def main():
-    path = scene_file()
-    try:
-        with check.running(Daemon(extra=["--scene", path], name="terrad-decals")) as d:
-            asyncio.run(scenario(d))
-    finally:
-        os.unlink(path)
+    serve_scene(check, flat_scene("footprints", W, H, CELL, GROUND, {"model": "decals"}), scenario,
+                "terrad-decals")
     check.finish()
 
 

@@ -13,14 +13,12 @@ bekker soil model (docs/models.md, proto/PROTOCOL.md "FORCES"):
 - lifted off the ground: Fz 0, no contact cells.
 """
 import asyncio
-import json
 import math
 import os
 import sys
-import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, RecordingClient  # noqa: E402
+from service_harness import Checks, RecordingClient, flat_scene, serve_scene  # noqa: E402
 import terrad as tp  # noqa: E402
 
 check = Checks()
@@ -47,20 +45,6 @@ class Watcher(RecordingClient):
             self.order.append((t, tp.decode_contact(data)[0] if t == tp.MsgType.CONTACT
                                else tp.decode_ack(data)[0]))
         await super()._on_binary(data)
-
-
-def scene_file():
-    scene = {
-        "name": "forces",
-        "world": {"width": W, "height": H, "cell_size_m": CELL},
-        "terrain": {"kind": "flat", "height_m": GROUND},
-        "material": {"model": "bekker", "compression": 0.5, "soil": {"preset": "ding2011"}},
-        "colliders": [],
-    }
-    fd, path = tempfile.mkstemp(prefix="terrad-forces-", suffix=".json")
-    with os.fdopen(fd, "w") as f:
-        json.dump(scene, f)
-    return path
 
 
 def wheel_pose(cid, x, y, z, angle):
@@ -127,12 +111,8 @@ async def scenario(d):
 
 
 def main():
-    path = scene_file()
-    try:
-        with check.running(Daemon(extra=["--scene", path], name="terrad-bekker")) as d:
-            asyncio.run(scenario(d))
-    finally:
-        os.unlink(path)
+    soil = {"model": "bekker", "compression": 0.5, "soil": {"preset": "ding2011"}}
+    serve_scene(check, flat_scene("forces", W, H, CELL, GROUND, soil), scenario, "terrad-bekker")
     check.finish()
 
 

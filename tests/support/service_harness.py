@@ -1,6 +1,7 @@
 """The one Python harness of the tests (tests/integration/test_*.py,
 tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
-real daemon on loopback ports, `terrad simulate` runs, HTTP helpers
+real daemon on loopback ports (serve_scene: on a scene given as a dict),
+`terrad simulate` runs, HTTP helpers
 (/v1/stats, /v1/heights, /metrics), a TerradClient that keeps a copy of its
 mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
 wheel poses. A test puts tests/support on sys.path and imports what it needs.
@@ -89,6 +90,42 @@ def simulate(scene, ticks, *extra, backend="cpu"):
     args = [BIN, "simulate", "--scene", scene, "--ticks", str(ticks), "--backend", backend]
     p = subprocess.run(args + list(extra), capture_output=True, text=True, timeout=240)
     return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else None), p.stderr
+
+
+def flat_scene(name, width, height, cell_size_m, ground_m, material):
+    """A scene (as a dict) of a flat world at ground_m metres, with no colliders."""
+    return {"name": name, "world": {"width": width, "height": height, "cell_size_m": cell_size_m},
+            "terrain": {"kind": "flat", "height_m": ground_m}, "material": material,
+            "colliders": []}
+
+
+def serve_scene(check, scene, scenario, name="terrad"):
+    """Run the coroutine scenario(d) against a daemon serving scene (a dict,
+    written to a temporary scene file that is removed afterwards)."""
+    fd, path = tempfile.mkstemp(prefix=f"{name}-", suffix=".json")
+    with os.fdopen(fd, "w") as f:
+        json.dump(scene, f)
+    try:
+        with check.running(Daemon(extra=["--scene", path], name=name)) as d:
+            asyncio.run(scenario(d))
+    finally:
+        os.unlink(path)
+
+
+def twin_config(scene_path):
+    """A scene's parameters as the twin library's config keys (terrad_twin.h), read by
+    twin_trace ($TERRAD_TWIN_TRACE): what a predicting client is given (test_predict_*)."""
+    trace = os.environ.get("TERRAD_TWIN_TRACE", "")
+    out = subprocess.run([trace, scene_path, "0"], capture_output=True, text=True, timeout=60,
+                         check=True).stdout
+    cfg = {}
+    for line in out.splitlines():
+        kind, *rest = line.split()
+        if kind == "set":
+            cfg[rest[0]] = float(rest[1])
+        elif kind == "name":
+            cfg[rest[0]] = rest[1]
+    return cfg
 
 
 def skip(why):

@@ -68,6 +68,13 @@ void soil_rig_place(soil_rig *r, double x, double y, double z, quatd q, int has_
         r->collider.previous_pose = r->collider.pose;
 }
 
+void soil_rig_plate(soil_rig *r, double hx, double hy, double hz, double x, double y, double z)
+{
+    r->geometry.shape = COLLIDER_BOX;
+    r->geometry.half_extents = (vec3d){hx, hy, hz};
+    soil_rig_place(r, x, y, z, (quatd){1, 0, 0, 0}, 0);
+}
+
 int32_t soil_rig_carry(soil_rig *r, double load_n)
 {
     int32_t top = r->heights[0];

@@ -29,6 +29,9 @@ void soil_rig_free(soil_rig *r);
 /* The collider at (x, y) with orientation q, its previous pose the current
  * one (has_previous 1), or none (0). */
 void soil_rig_place(soil_rig *r, double x, double y, double z, quatd q, int has_previous);
+/* A box plate of half extents (hx, hy, hz), upright at (x, y, z), no
+ * previous pose: the collider of the plate-sinkage tests. */
+void soil_rig_plate(soil_rig *r, double hx, double hy, double hz, double x, double y, double z);
 /* Load-driven: the highest pose height (units) at which the soil carries
  * load_n; the collider is left there (sim_bekker_carry). */
 int32_t soil_rig_carry(soil_rig *r, double load_n);

@@ -105,9 +105,7 @@ static void test_plate_and_second_pass(void)
     sim_soil_preset("ding2011", &soil);
     soil_rig r;
     soil_rig_init(&r, &soil, 0.5, 0.005, 40, 60, 0.5);
-    r.geometry.shape = COLLIDER_BOX;
-    r.geometry.half_extents = (vec3d){0.025, 0.1, 0.05};
-    soil_rig_place(&r, 0.1, 0.15, 0.6, IDENTITY, 0);
+    soil_rig_plate(&r, 0.025, 0.1, 0.05, 0.1, 0.15, 0.6);
     int64_t mass = soil_rig_mass(&r);
     double load = 200.0;
     soil_rig_carry(&r, load);
@@ -230,9 +228,7 @@ static void test_floor_and_lift(void)
     sim_soil_preset("snow-us", &soil);
     soil_rig r;
     soil_rig_init(&r, &soil, 0.3, 0.005, 30, 30, 0.05);
-    r.geometry.shape = COLLIDER_BOX;
-    r.geometry.half_extents = (vec3d){0.025, 0.025, 0.02};
-    soil_rig_place(&r, 0.075, 0.075, 0.2, IDENTITY, 0);
+    soil_rig_plate(&r, 0.025, 0.025, 0.02, 0.075, 0.075, 0.2);
     int64_t mass = soil_rig_mass(&r);
     soil_rig_carry(&r, 1e9);
     soil_rig_step(&r);

@@ -3,8 +3,9 @@
  * world grows tall thin fins along its edges after a few minutes of
  * `make run`"). It runs what `terrad serve` runs without clients — the
  * embedded default scene, the CPU twin and the six built-in demo actors
- * (serve_demo.c), stepped and ticked exactly as serve_step_demo does — for
- * 3,600 ticks (one minute of the demo at 60 Hz), without the daemon's clock.
+ * (serve_demo.c), stepped and ticked exactly as step_demo does
+ * (tests/support/demo_rig.c) — for 3,600 ticks (one minute of the demo at
+ * 60 Hz), without the daemon's clock.
  *
  * The fins came from the actors: they bounced off the world's edge with
  * their centre, so a sphere spent its bounce half outside the world. The
@@ -24,9 +25,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "app/app.h"
-#include "app/serve_internal.h"
 #include "check.h"
+#include "demo_rig.h"
 
 #ifndef DEMO_TICKS
 #define DEMO_TICKS 3600
@@ -36,51 +36,36 @@
 int main(void)
 {
     error_text err = {{0}};
-    scene sc;
-    world w;
-    CHECK(app_open_scene_world(NULL, &sc, &w, &err) == 0, "default scene: %s", err.message);
-    sim_params p;
-    CHECK(sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &p, &err) ==
-              0,
-          "params: %s", err.message);
-    sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine *engine = sim_engine_create(&w, &p, cpu, sc.active_margin_cells, &err);
-    CHECK(engine != NULL, "engine: %s", err.message);
-    if (!engine)
+    demo_rig r;
+    CHECK(demo_rig_open(&r, &err) == 0, "the demo world: %s", err.message);
+    if (!r.engine) {
+        demo_rig_close(&r);
         return check_report();
-
-    enum { ACTORS = 6 }; /* serve's default --demo-actors */
-    demo_actor actors[ACTORS];
-    sim_collider colliders[ACTORS] = {{0}};
-    demo_actors_init(actors, ACTORS, &w);
-    double size_x = w.width * w.cell_size_m, size_y = w.height * w.cell_size_m;
+    }
+    world *w = &r.w;
+    double size_x = w->width * w->cell_size_m, size_y = w->height * w->cell_size_m;
     int outside = 0, failed_ticks = 0;
     for (long tick = 0; tick < DEMO_TICKS; tick++) {
-        for (int a = 0; a < ACTORS; a++) { /* as serve_step_demo */
-            sim_collider *c = &colliders[a];
-            c->id = a + 1;
-            c->geometry = &actors[a].geometry;
-            c->previous_pose = c->pose;
-            c->pose = demo_actor_step(&actors[a], &w, (double)tick / sc.tick_hz);
-            c->has_previous = tick > 0;
-            double r = actors[a].geometry.radius, x = c->pose.position.x, y = c->pose.position.y;
-            if (x - r < 0.0 || x + r > size_x || y - r < 0.0 || y + r > size_y)
+        if (demo_rig_tick(&r, tick, &err) != 0)
+            failed_ticks++;
+        for (int a = 0; a < DEMO_RIG_ACTORS; a++) {
+            const sim_collider *c = &r.colliders[a];
+            double rad = r.actors[a].geometry.radius, x = c->pose.position.x,
+                   y = c->pose.position.y;
+            if (x - rad < 0.0 || x + rad > size_x || y - rad < 0.0 || y + rad > size_y)
                 outside++;
         }
-        sim_tick_report report;
-        if (sim_engine_tick(engine, colliders, ACTORS, &report, &err) != 0)
-            failed_ticks++;
     }
     CHECK(failed_ticks == 0, "every tick ran (%d failed: %s)", failed_ticks, err.message);
     CHECK(outside == 0, "no actor's sphere reaches past the world's edge (%d poses did)", outside);
 
     int32_t border_max = INT32_MIN, interior_max = INT32_MIN;
     int bx = 0, by = 0;
-    for (int y = 0; y < w.height; y++) {
-        for (int x = 0; x < w.width; x++) {
-            int32_t h = world_height_at(&w, x, y);
+    for (int y = 0; y < w->height; y++) {
+        for (int x = 0; x < w->width; x++) {
+            int32_t h = world_height_at(w, x, y);
             int border =
-                x < BORDER || y < BORDER || x >= w.width - BORDER || y >= w.height - BORDER;
+                x < BORDER || y < BORDER || x >= w->width - BORDER || y >= w->height - BORDER;
             if (border && h > border_max) {
                 border_max = h;
                 bx = x;
@@ -96,9 +81,6 @@ int main(void)
           "no fin on the border: its highest column %d (at %d, %d) <= the interior's %d",
           border_max, bx, by, interior_max);
 
-    sim_engine_destroy(engine);
-    cpu->destroy(cpu);
-    world_free(&w);
-    scene_free(&sc);
+    demo_rig_close(&r);
     return check_report();
 }

@@ -22,9 +22,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "app/app.h"
-#include "app/serve_internal.h"
 #include "check.h"
+#include "demo_rig.h"
 
 // ctest-timeout: 600
 #ifndef LOOK_A
@@ -33,7 +32,7 @@
 #ifndef LOOK_B
 #define LOOK_B 14400 /* four minutes: laps of every actor (30 minutes: docs/core.md) */
 #endif
-#define ACTORS 6     /* serve's default --demo-actors */
+#define ACTORS DEMO_RIG_ACTORS
 #define BAND_M 0.75  /* beyond the sphere's radius, for the rims */
 #define SAMPLES 1440 /* points per lap when drawing the lanes */
 
@@ -113,50 +112,26 @@ static void look(const world *w, const demo_actor *a, const unsigned char *owner
 int main(void)
 {
     error_text err = {{0}};
-    scene sc;
-    world w;
-    CHECK(app_open_scene_world(NULL, &sc, &w, &err) == 0, "default scene: %s", err.message);
-    sim_params p;
-    CHECK(sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &p, &err) ==
-              0,
-          "params: %s", err.message);
-    sim_backend *cpu = sim_backend_cpu_create(&err);
-    sim_engine *engine = sim_engine_create(&w, &p, cpu, sc.active_margin_cells, &err);
-    CHECK(engine != NULL, "engine: %s", err.message);
-    size_t cells = (size_t)w.width * w.height;
+    demo_rig r;
+    CHECK(demo_rig_open(&r, &err) == 0, "the demo world: %s", err.message);
+    const world *w = &r.w;
+    size_t cells = (size_t)w->width * w->height;
     int32_t *base = malloc(cells * sizeof *base);
     unsigned char *owner = calloc(cells, 1);
-    if (!engine || !base || !owner)
-        return check_report();
-    world_base_fill_rect(&w, (world_rect){0, 0, w.width, w.height}, base);
-
-    demo_actor actors[ACTORS];
-    sim_collider colliders[ACTORS] = {{0}};
-    demo_actors_init(actors, ACTORS, &w);
-    mark_lanes(&w, actors, ACTORS, owner);
-    int failed_ticks = 0;
-    for (long tick = 0; tick < LOOK_B; tick++) {
-        for (int a = 0; a < ACTORS; a++) { /* as step_demo (serve_sim.c) */
-            sim_collider *c = &colliders[a];
-            c->id = a + 1;
-            c->geometry = &actors[a].geometry;
-            c->previous_pose = c->pose;
-            c->pose = demo_actor_step(&actors[a], &w, (double)tick / sc.tick_hz);
-            c->has_previous = tick > 0;
+    if (r.engine && base && owner) {
+        world_base_fill_rect(w, (world_rect){0, 0, w->width, w->height}, base);
+        mark_lanes(w, r.actors, ACTORS, owner);
+        int failed_ticks = 0;
+        for (long tick = 0; tick < LOOK_B; tick++) {
+            if (demo_rig_tick(&r, tick, &err) != 0)
+                failed_ticks++;
+            if (tick + 1 == LOOK_A || tick + 1 == LOOK_B)
+                look(w, r.actors, owner, base, tick + 1);
         }
-        sim_tick_report report;
-        if (sim_engine_tick(engine, colliders, ACTORS, &report, &err) != 0)
-            failed_ticks++;
-        if (tick + 1 == LOOK_A || tick + 1 == LOOK_B)
-            look(&w, actors, owner, base, tick + 1);
+        CHECK(failed_ticks == 0, "every tick ran (%d failed: %s)", failed_ticks, err.message);
     }
-    CHECK(failed_ticks == 0, "every tick ran (%d failed: %s)", failed_ticks, err.message);
-
     free(owner);
     free(base);
-    sim_engine_destroy(engine);
-    cpu->destroy(cpu);
-    world_free(&w);
-    scene_free(&sc);
+    demo_rig_close(&r);
     return check_report();
 }

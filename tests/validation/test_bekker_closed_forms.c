@@ -65,10 +65,8 @@ static void test_plates(void)
         for (int d = 0; d < 3; d++) {
             soil_rig r;
             soil_rig_init(&r, &s, 0.5, cell, pw + 20, pl + 20, 0.5);
-            r.geometry.shape = COLLIDER_BOX;
-            r.geometry.half_extents = (vec3d){pw * cell / 2, pl * cell / 2, 0.05};
-            soil_rig_place(&r, (pw + 20) * cell / 2, (pl + 20) * cell / 2, 0.6, (quatd){1, 0, 0, 0},
-                           0);
+            soil_rig_plate(&r, pw * cell / 2, pl * cell / 2, 0.05, (pw + 20) * cell / 2,
+                           (pl + 20) * cell / 2, 0.6);
             double p = (s.kc / b + s.kphi) * pow(depths[d], s.n);
             double z = pow(p / (s.kc / b + s.kphi), 1.0 / s.n); /* the closed form */
             soil_rig_carry(&r, p * area);

@@ -14,7 +14,9 @@
     asyncio.run(main())
 
 Modules: terrad.proto (the wire codecs: proto/PROTOCOL.md), terrad.client (the asyncio
-Client), terrad.sync (SyncClient, the same without asyncio), terrad.http (the HTTP API).
+Client), terrad.sync (SyncClient, the same without asyncio), terrad.http (the HTTP API),
+terrad.twin (the twin library, libterrad-twin, through ctypes) and terrad.predict
+(Client.predict: the own rut at once, reconciled with the server at every ACK).
 Everything public is also here at the top level.
 """
 
@@ -22,10 +24,13 @@ from . import proto
 from .client import CALLBACK_ARGS, HAVE_NUMPY, Client, TerradClient, heights_grid
 from .proto import *  # noqa: F401,F403 - the codec's public names
 from .proto import __all__ as _proto_all
+from .predict import Prediction
 from .sync import SyncClient
+from .twin import Twin, TwinError
 from .http import get_heights, get_stats, get_world
 
 __version__ = "0.3.0"
 
-__all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "SyncClient", "TerradClient", "get_heights",
-           "get_stats", "get_world", "heights_grid", "proto", *_proto_all]
+__all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "Prediction", "SyncClient", "TerradClient",
+           "Twin", "TwinError", "get_heights", "get_stats", "get_world", "heights_grid", "proto",
+           *_proto_all]

@@ -20,6 +20,8 @@ import json
 from collections.abc import Awaitable, Callable
 from typing import Any, Union
 
+from .predict import Prediction
+from .twin import TwinError
 from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force, Mirror, MsgType,
                     Pose, ProtoError, ServerError, collider_create, collider_delete,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
@@ -113,6 +115,9 @@ class Client:
         self.acked_seq = 0
         self.tick = 0
         self.errors: list[dict[str, Any]] = []
+        # this client's colliders (id -> (shape, create fields)) and predicting subscriptions
+        self.own_colliders: dict[int, tuple[str, dict[str, Any]]] = {}
+        self.predictions: dict[int, Prediction] = {}
         self._callbacks: dict[FrameKind, list[Callback]] = {}
         self._seq = 0
         self._ref = 0
@@ -191,16 +196,49 @@ class Client:
     async def create_collider(self, shape: str, material: str = "default", **dims: Any) -> int:
         """shape: sphere (radius), box (half_extents), capsule and cylinder (radius,
         half_length), wheel (radius, width), mesh (vertices, indices); returns its id."""
-        return (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
+        fields = dict(dims, material=material)
+        if self.predictions and (material != "default" or "pose" in dims):
+            raise ValueError("material / pose: while predicting, a collider has the default "
+                             "material and gets its poses from send_poses")
+        cid = (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
+        self.own_colliders[cid] = (shape, fields)
+        for pred in self.predictions.values():
+            pred.add_collider(cid, shape, fields)
+        return cid
 
     async def delete_collider(self, cid: int) -> None:
         await self.request(collider_delete(cid), "collider_deleted")
+        self.own_colliders.pop(cid, None)
+        for pred in self.predictions.values():
+            pred.remove_collider(cid)
+
+    def predict(self, sid: int, config: dict[str, Any] | None = None,
+                library: str | None = None) -> Prediction:
+        """Predict subscription sid's heights on the twin library (terrad.predict): this
+        client's own colliders press its window at once, and every ACK reconciles it with
+        the server. config: the world's parameters under the twin's keys (model, material,
+        margin_cells, terrain.*; the world message gives the extent, cell size, units and
+        tick rate). Needs the complete snapshot (wait_complete) and libterrad-twin."""
+        if sid in self.predictions:
+            return self.predictions[sid]
+        pred = Prediction(self, sid, config or {}, library)
+        self.predictions[sid] = pred
+        return pred
+
+    def stop_predicting(self, sid: int) -> None:
+        pred = self.predictions.pop(sid, None)
+        if pred is not None:
+            pred.close()
 
     async def send_poses(self, poses: list[Pose]) -> int:
         """Send one batch; returns its sequence number (see wait_ack)."""
-        self._seq = (self._seq + 1) & _U32
-        await self.ws.send(encode_pose_batch(self._seq, poses))
-        return self._seq
+        seq = (self._seq + 1) & _U32
+        frame = encode_pose_batch(seq, poses)  # refuses bad poses before any prediction
+        self._seq = seq
+        for pred in self.predictions.values():
+            pred.on_send(seq, poses)  # the own rut, before the bytes leave
+        await self.ws.send(frame)
+        return seq
 
     async def edit(self, op: str, **fields: Any) -> dict[str, Any]:
         """A terrain edit (crater, stamp, reset, add, remove; see proto.edit). Returns the
@@ -220,6 +258,7 @@ class Client:
     async def unsubscribe(self, sid: int) -> None:
         await self.request(unsubscribe(sid), "unsubscribed")
         self.mirrors.pop(sid, None)
+        self.stop_predicting(sid)
 
     async def resync(self, sid: int | None = None) -> None:
         await self.ws.send(json.dumps(resync(sid)))
@@ -311,6 +350,11 @@ class Client:
             await self._emit(t, self.footprints_tick, events)
         elif t == MsgType.ACK:
             self.acked_tick, self.acked_seq = decode_ack(data)
+            for sid, pred in self.predictions.items():
+                try:
+                    pred.on_ack(self.acked_tick, self.acked_seq)  # the mirror is at this tick
+                except (TwinError, OSError) as e:  # the connection and the mirror go on
+                    self.errors.append(error("internal", f"prediction of {sid}: {e}"))
             await self._emit(t, self.acked_tick, self.acked_seq)
         elif t == MsgType.PING:
             nonce = decode_ping(data)[1]

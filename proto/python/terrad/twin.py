@@ -1,0 +1,215 @@
+"""The twin library (libterrad-twin, docs/engines.md) from Python, through ctypes: the
+daemon's CPU twin run on a client's own window, heights bit for bit the server's. It is what
+terrad.predict builds client-side prediction on.
+
+    from terrad.twin import Twin
+    twin = Twin({"width": 256, "height": 256, "terrain.height_m": 0.4}, 96, 96, 64, 64)
+    twin.add_collider(1, "sphere", radius=0.3)
+    twin.set_pose(1, (5.5, 6.4, 0.65))
+    twin.tick()
+    heights = twin.read()          # array('i'), 64 * 64 row-major, height units
+
+The library is found, in this order: the `library` argument, $TERRAD_TWIN_LIBRARY, the
+system's linker path (`make install`: libterrad-twin.so.1), and the build tree beside this
+package in a source checkout (build/libterrad-twin.so). Every refusal of the C API raises
+TwinError with the library's sentence, which names the field; the twin goes on working.
+"""
+
+from __future__ import annotations
+
+import array
+import ctypes
+import ctypes.util
+import os
+from collections.abc import Sequence
+from typing import Any
+
+_ERR_MAX = 256  # TERRAD_TWIN_ERROR_MAX
+_LIBRARY: ctypes.CDLL | None = None
+
+
+class TwinError(ValueError):
+    """A call of the twin library refused its input; the message names the field."""
+
+
+def _candidates() -> list[str]:
+    found = [os.environ.get("TERRAD_TWIN_LIBRARY", "")]
+    for name in ("libterrad-twin.so.1", "libterrad-twin.so"):
+        found.append(name)  # the dynamic linker's path: an installed library
+    system = ctypes.util.find_library("terrad-twin")
+    if system:
+        found.append(system)
+    here = os.path.dirname(os.path.abspath(__file__))
+    found.append(os.path.join(here, "..", "..", "..", "build", "libterrad-twin.so"))
+    return [c for c in found if c]
+
+
+def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
+    P, I, D, S = ctypes.c_void_p, ctypes.c_int, ctypes.c_double, ctypes.c_char_p
+    i32p = ctypes.POINTER(ctypes.c_int32)
+    sigs: dict[str, tuple[Any, list[Any]]] = {
+        "config_new": (P, []),
+        "config_free": (None, [P]),
+        "config_set": (I, [P, S, D, S]),
+        "config_set_name": (I, [P, S, S, S]),
+        "create": (P, [P, I, I, I, I, i32p, S]),
+        "destroy": (None, [P]),
+        "add_collider": (I, [P, I, S, D, D, D, D, D, S]),
+        "add_mesh": (I, [P, I, ctypes.POINTER(ctypes.c_float), I,
+                         ctypes.POINTER(ctypes.c_uint32), I, S]),
+        "remove_collider": (I, [P, I, S]),
+        "set_pose": (I, [P, I, D, D, D, D, D, D, D, S]),
+        "place": (I, [P, I, D, D, D, D, D, D, D, S]),
+        "tick": (I, [P, S]),
+        "read": (I, [P, I, I, I, I, i32p, S]),
+        "write": (I, [P, I, I, I, I, i32p, S]),
+    }
+    for name, (res, args) in sigs.items():
+        f = getattr(lib, "terrad_twin_" + name)
+        f.restype, f.argtypes = res, args
+    return lib
+
+
+def load_library(path: str | None = None) -> ctypes.CDLL:
+    """The twin library (see the module's text for where it is looked for); OSError naming
+    every place tried when none loads."""
+    global _LIBRARY
+    if path is None and _LIBRARY is not None:
+        return _LIBRARY
+    tried = []
+    for c in [path] if path else _candidates():
+        try:
+            lib = _declare(ctypes.CDLL(c))
+        except (OSError, AttributeError) as e:
+            tried.append(f"{c}: {e}")
+            continue
+        if path is None:
+            _LIBRARY = lib
+        return lib
+    raise OSError("the twin library libterrad-twin was not found (make build, or make install; "
+                  "or set TERRAD_TWIN_LIBRARY): " + "; ".join(tried))
+
+
+def _int32s(values: Sequence[int] | Any, n: int, what: str) -> Any:
+    flat = values.ravel().tolist() if hasattr(values, "ravel") else values
+    try:
+        buf = array.array("i", flat)
+    except (TypeError, OverflowError) as e:
+        raise TwinError(f"{what}: must be int32 height units ({e})") from e
+    if len(buf) != n:
+        raise TwinError(f"{what}: {len(buf)} values for {n} cells")
+    return (ctypes.c_int32 * n).from_buffer(buf)
+
+
+class Twin:
+    """One window of the world in the twin library. Not thread-safe: one thread's at a time."""
+
+    def __init__(self, config: dict[str, Any], x: int, y: int, w: int, h: int,
+                 heights: Sequence[int] | None = None, library: str | None = None):
+        """config: the world's parameters under the twin's keys (terrad_twin.h: width,
+        height, cell_size_m, units_per_m, model, compression, terrain.kind, ...), a number or
+        a name each. heights: w * h row-major (the server's), or None for the base terrain."""
+        self._lib = load_library(library)
+        self._t: int | None = None
+        self.x, self.y, self.w, self.h = x, y, w, h
+        err = ctypes.create_string_buffer(_ERR_MAX)
+        cfg = self._lib.terrad_twin_config_new()
+        if not cfg:
+            raise MemoryError("terrad_twin_config_new")
+        try:
+            for key, value in config.items():
+                if isinstance(value, str):
+                    rc = self._lib.terrad_twin_config_set_name(cfg, key.encode(), value.encode(), err)
+                elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                    rc = self._lib.terrad_twin_config_set(cfg, key.encode(), float(value), err)
+                else:
+                    raise TwinError(f"{key}: must be a number or a name, not {type(value).__name__}")
+                if rc != 0:
+                    raise TwinError(err.value.decode(errors="replace"))
+            buf = None if heights is None else _int32s(heights, w * h, "heights")
+            t = self._lib.terrad_twin_create(cfg, x, y, w, h, buf, err)
+        finally:
+            self._lib.terrad_twin_config_free(cfg)
+        if not t:
+            raise TwinError(err.value.decode(errors="replace"))
+        self._t = t
+        self._err = err
+
+    def _check(self, rc: int) -> None:
+        if rc != 0:
+            raise TwinError(self._err.value.decode(errors="replace"))
+
+    def _handle(self) -> int:
+        if self._t is None:
+            raise TwinError("twin: closed")
+        return self._t
+
+    def close(self) -> None:
+        if self._t is not None:
+            self._lib.terrad_twin_destroy(self._t)
+            self._t = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    def __enter__(self) -> Twin:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def add_collider(self, cid: int, shape: str, radius: float = 0.0, half_length: float = 0.0,
+                     half_extents: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """sphere (radius), box (half_extents), capsule / cylinder (radius, half_length; the
+        axis is the collider's local y, as a wheel's axle)."""
+        hx, hy, hz = half_extents
+        self._check(self._lib.terrad_twin_add_collider(self._handle(), cid, shape.encode(),
+                                                       radius, half_length, hx, hy, hz,
+                                                       self._err))
+
+    def add_mesh(self, cid: int, vertices: Sequence[float], indices: Sequence[int]) -> None:
+        """vertices: x, y, z flat (metres, the collider's frame); indices: 3 per triangle."""
+        v = (ctypes.c_float * len(vertices))(*vertices)
+        i = (ctypes.c_uint32 * len(indices))(*indices)
+        self._check(self._lib.terrad_twin_add_mesh(self._handle(), cid, v, len(vertices) // 3, i,
+                                                   len(indices) // 3, self._err))
+
+    def remove_collider(self, cid: int) -> None:
+        self._check(self._lib.terrad_twin_remove_collider(self._handle(), cid, self._err))
+
+    def set_pose(self, cid: int, p: Sequence[float],
+                 q: Sequence[float] = (1.0, 0.0, 0.0, 0.0)) -> None:
+        """The pose the next tick presses at, swept from the last tick's."""
+        self._check(self._lib.terrad_twin_set_pose(self._handle(), cid, *p, *q, self._err))
+
+    def place(self, cid: int, p: Sequence[float],
+              q: Sequence[float] = (1.0, 0.0, 0.0, 0.0)) -> None:
+        """The collider stood here in the last tick: the next tick sweeps from this pose."""
+        self._check(self._lib.terrad_twin_place(self._handle(), cid, *p, *q, self._err))
+
+    def tick(self) -> None:
+        self._check(self._lib.terrad_twin_tick(self._handle(), self._err))
+
+    def read(self, x: int | None = None, y: int | None = None, w: int | None = None,
+             h: int | None = None) -> array.array[int]:
+        """A rectangle of the window (default: all of it), row-major int32 height units."""
+        x, y = self.x if x is None else x, self.y if y is None else y
+        w, h = self.w if w is None else w, self.h if h is None else h
+        if w <= 0 or h <= 0:
+            raise TwinError("read: the rectangle must be non-empty and inside the window")
+        out = array.array("i", bytes(4 * w * h))
+        addr, _ = out.buffer_info()
+        self._check(self._lib.terrad_twin_read(self._handle(), x, y, w, h,
+                                               ctypes.cast(addr, ctypes.POINTER(ctypes.c_int32)),
+                                               self._err))
+        return out
+
+    def write(self, heights: Sequence[int] | Any, x: int | None = None, y: int | None = None,
+              w: int | None = None, h: int | None = None) -> None:
+        """The server's heights into a rectangle of the window (default: all of it)."""
+        x, y = self.x if x is None else x, self.y if y is None else y
+        w, h = self.w if w is None else w, self.h if h is None else h
+        if w <= 0 or h <= 0:
+            raise TwinError("write: the rectangle must be non-empty and inside the window")
+        buf = _int32s(heights, w * h, "heights")
+        self._check(self._lib.terrad_twin_write(self._handle(), x, y, w, h, buf, self._err))

@@ -1,0 +1,174 @@
+// predict_drive.mjs: web/predict.mjs against a real daemon, for tests/integration/test_predict_js.py.
+// Two websocket connections (Node 20's WebSocket: run with --experimental-websocket) with the
+// viewer's codec (web/terrad_codec.mjs): A subscribes to a window, predicts it on the
+// WebAssembly twin and drives a sphere through it, one batch per tick; then B ploughs the
+// same window while A keeps sending a lifted pose. Prints one JSON line of what it saw; the
+// Python test asserts on it (and on GET /v1/heights).
+//
+// Usage: node --experimental-websocket predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H
+import { readFileSync } from 'node:fs';
+import { Mirror, MsgType, colliderCreate, decodeAck, decodeDelta, decodeHeader, encodePoseBatch, hello, parseControl, subscribe } from '../../web/terrad_codec.mjs';
+import { loadTwinModule } from '../../web/twin.mjs';
+import { Prediction } from '../../web/predict.mjs';
+
+const [url, wasm, configPath, ...rect] = process.argv.slice(2);
+const [RX, RY, RW, RH] = rect.map(Number);
+const WAIT_MS = 120000; // generous: the machine may be loaded
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+async function until(what, fn) {
+    const end = Date.now() + WAIT_MS;
+    while (!fn()) {
+        if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
+        await sleep(5);
+    }
+}
+
+class Conn {
+    constructor(name) {
+        this.name = name;
+        this.replies = [];
+        this.errors = [];
+        this.mirrors = new Map();
+        this.ackedSeq = 0;
+        this.seq = 0;
+        this.prediction = null;
+        this.onAck = null;
+    }
+
+    async open() {
+        this.ws = new WebSocket(url, 'terrad.v1');
+        this.ws.binaryType = 'arraybuffer';
+        this.ws.onmessage = (e) => (typeof e.data === 'string' ? this.json(e.data) : this.binary(new Uint8Array(e.data)));
+        await new Promise((ok, fail) => {
+            this.ws.onopen = ok;
+            this.ws.onerror = () => fail(new Error(`${this.name}: cannot connect to ${url}`));
+        });
+        this.ws.send(JSON.stringify(hello('', `predict-${this.name}`)));
+        this.world = await this.reply('world');
+    }
+
+    json(text) {
+        const m = parseControl(text);
+        if (m.type === 'subscribed') this.mirrors.set(m.id, new Mirror(m.x, m.y, m.w, m.h, this.world.tile_size));
+        if (m.type === 'error') this.errors.push(m);
+        else this.replies.push(m);
+    }
+
+    binary(b) {
+        const t = decodeHeader(b);
+        if (t === MsgType.DELTA) {
+            const { rects } = decodeDelta(b);
+            for (const m of this.mirrors.values()) m.apply(rects);
+        } else if (t === MsgType.ACK) {
+            const { tick, seq } = decodeAck(b);
+            this.ackedSeq = seq;
+            this.ackedTick = tick;
+            if (this.prediction) this.prediction.onAck(tick, seq);
+            if (this.onAck) this.onAck();
+        }
+    }
+
+    async reply(type) {
+        let got;
+        await until(`${this.name}: ${type}`, () => (got = this.replies.find((m) => m.type === type)));
+        this.replies.splice(this.replies.indexOf(got), 1);
+        return got;
+    }
+
+    async collider(shape, dims) {
+        this.ws.send(JSON.stringify(colliderCreate(shape, dims)));
+        return (await this.reply('collider_created')).id;
+    }
+
+    send(poses) {
+        this.seq++;
+        const frame = encodePoseBatch(this.seq, poses);
+        if (this.prediction) this.prediction.onSend(this.seq, poses); // before the bytes leave
+        this.ws.send(frame);
+        return this.seq;
+    }
+}
+
+const a = new Conn('a'), b = new Conn('b');
+await a.open();
+await b.open();
+const { cell_size_m: cell, tick_hz: hz } = a.world;
+a.ws.send(JSON.stringify(subscribe(RX, RY, RW, RH)));
+const sid = (await a.reply('subscribed')).id;
+const mirror = a.mirrors.get(sid);
+await until('the snapshot', () => mirror.complete);
+const start = Int32Array.from(mirror.heights);
+const lowered = (row) => { // cells of a window row below where they started
+    let c = 0;
+    for (let k = row * RW; k < (row + 1) * RW; k++) if (mirror.heights[k] < start[k]) c++;
+    return c;
+};
+const twinModule = await loadTwinModule(readFileSync(wasm));
+const config = JSON.parse(readFileSync(configPath, 'utf8'));
+const out = { errors: [] };
+try {
+    new Prediction(twinModule, a.world, new Mirror(RX, RY, RW, RH, a.world.tile_size), config);
+} catch (e) {
+    out.refusedIncomplete = String(e.message);
+}
+try {
+    new Prediction(twinModule, a.world, mirror, { ...config, model: 'clay' });
+} catch (e) {
+    out.refusedModel = String(e.message);
+}
+const radius = 0.3, z = 0.4 + radius - 0.06;
+const own = new Map();
+const ball = await a.collider('sphere', { radius });
+own.set(ball, { shape: 'sphere', dims: { radius } });
+const pred = (a.prediction = new Prediction(twinModule, a.world, mirror, config, own));
+const x0 = (RX + 24) * cell, x1 = (RX + RW - 24) * cell;
+const pose = (id, i, n, row, dz = 0) => ({ id, x: x0 + ((x1 - x0) * i) / (n - 1), y: (row + 0.5) * cell, z: z + dz, qw: 1, qx: 0, qy: 0, qz: 0 });
+const rowA = RY + 20, rowB = RY + 44, n = 600;
+const t0 = Date.now();
+for (let i = 0; i < n; i++) {
+    const seq = a.send([pose(ball, i, n, rowA)]);
+    if (!out.early) { // the batch is not even sent yet: the server cannot have its rut
+        const mine = pred.heights();
+        let lower = 0;
+        for (let k = 0; k < mine.length; k++) if (mine[k] < mirror.heights[k]) lower++;
+        if (lower) out.early = { cells: lower, seq, ackedSeq: a.ackedSeq };
+    }
+    await sleep(Math.max(0, t0 + ((i + 1) * 1000) / hz - Date.now()));
+}
+let last = a.send([pose(ball, n - 1, n, rowA, 5)]);
+await until('the last ACK', () => a.ackedSeq >= last);
+out.drive = { predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime };
+out.settled = sameArrays(pred.heights(), mirror.heights);
+out.rutA = lowered(rowA - RY);
+
+// B ploughs A's window: only the server knows B's rut until A's next reconciliation.
+const other = await b.collider('sphere', { radius });
+const resets = [];
+a.onAck = () => {
+    if (pred.pending.length === 0) resets.push(sameArrays(pred.heights(), mirror.heights));
+};
+const before = { replayed: pred.replayed, exact: pred.exact };
+const n2 = 240, t1 = Date.now();
+for (let i = 0; i < n2; i++) {
+    b.send([pose(other, i, n2, rowB)]);
+    if (i % 2 === 0) a.send([pose(ball, n - 1, n, rowA, 5)]);
+    await sleep(Math.max(0, t1 + ((i + 1) * 1000) / hz - Date.now()));
+}
+last = b.send([pose(other, n2 - 1, n2, rowB, 5)]);
+await until('B\'s last ACK', () => b.ackedSeq >= last);
+last = a.send([pose(ball, n - 1, n, rowA, 5)]);
+await until('A\'s ACK after B', () => a.ackedSeq >= last);
+out.other = { replayed: pred.replayed - before.replayed, exact: pred.exact - before.exact, resets: resets.length, resetsEqual: resets.filter(Boolean).length };
+out.rutB = lowered(rowB - RY);
+out.final = { tick: Number(a.ackedTick), settled: sameArrays(pred.heights(), mirror.heights), heights: Array.from(mirror.heights) };
+out.errors = [...a.errors, ...b.errors];
+console.log(JSON.stringify(out));
+a.ws.close();
+b.ws.close();
+pred.destroy();
+process.exit(0);
+
+function sameArrays(x, y) {
+    return x.length === y.length && x.every((v, i) => v === y[i]);
+}
