@@ -59,8 +59,9 @@ typedef struct serve_daemon {
     serve_sim m; /* the one world: scene, world, store, engine, service, hub */
     net_server *net;
     http_server *http;
-    http_server *probe; /* --probe-port */
-    auth_table *auth;   /* NULL: no tokens, every client an admin (serve_security.c) */
+    http_server *probe;   /* --probe-port */
+    auth_table *auth;     /* NULL: no tokens, every client an admin (serve_security.c) */
+    serve_worlds *worlds; /* worlds created by API beside the default one (serve_worlds.c) */
 } serve_daemon;
 
 static void sleep_until_ms(double deadline_ms)
@@ -106,7 +107,8 @@ static int serve_open_world(serve_daemon *d, error_text *err)
         return 0;
     }
     int removed = 0;
-    if (o->fresh && store_remove(o->data_dir, &removed, err) != 0)
+    if (o->fresh && (serve_worlds_fresh(o->data_dir, err) != 0 ||
+                     store_remove(o->data_dir, &removed, err) != 0))
         return -1;
     if (o->fresh)
         log_info("store: --fresh: %s started over (%d files removed)", o->data_dir, removed);
@@ -159,8 +161,10 @@ static int serve_start(serve_daemon *d, error_text *err)
                      .tls_key = d->o.tls_key,
                      .limits = d->o.limits,
                      .world = serve_sim_world_info(m)};
+    nc.world.scene_name = m->sc.name;
     nc.limits.fd_reserve = fd_reserve;
-    if (!(d->net = net_server_start(&nc, m->h, err)))
+    if (!(d->net = net_server_start(&nc, m->h, err)) ||
+        !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, err)))
         return -1;
     http_server_watch(d->http, "tick", http_status_stalled_ms, &m->status, SERVE_STALL_LIMIT_MS);
     http_server_watch(d->http, "net", net_stalled, d->net, SERVE_STALL_LIMIT_MS);
@@ -207,6 +211,7 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
 /* Stop the threads, then release in the reverse order of making. */
 static void serve_stop(serve_daemon *d)
 {
+    serve_worlds_stop(d->worlds); /* its worlds leave the ports first */
     if (d->m.h)
         hub_close_reads(d->m.h);
     http_server_stop(d->probe);

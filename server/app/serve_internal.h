@@ -10,6 +10,7 @@
 #define TERRAD_SERVE_INTERNAL_H
 
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 
 #include "app/app.h"
@@ -57,12 +58,15 @@ typedef struct serve_options {
     const char *cluster_urls; /* --cluster: NULL when not in a cluster */
     const char *node;         /* --node */
     const char *worlds;       /* --worlds a,b,... (or --world a): NULL for any registered */
-    int max_worlds;           /* --max-worlds: worlds one node ticks at once (0: see below) */
+    int max_worlds;           /* --max-worlds: worlds one node ticks at once (0: see below),
+                               * or a single daemon creates beside its default one */
+    const char *scene_dir;    /* --scene-dir: scenes POST /v1/worlds may name (NULL: none) */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
         config_data[SERVE_CONFIG_STRING_MAX], config_durability[64],
         config_store_fault[SERVE_CONFIG_STRING_MAX], config_auth_file[SERVE_CONFIG_STRING_MAX],
-        config_tls_cert[SERVE_CONFIG_STRING_MAX], config_tls_key[SERVE_CONFIG_STRING_MAX];
+        config_tls_cert[SERVE_CONFIG_STRING_MAX], config_tls_key[SERVE_CONFIG_STRING_MAX],
+        config_scene_dir[SERVE_CONFIG_STRING_MAX];
 } serve_options;
 
 /* The command line (argv[0] = "serve"); fills o with the defaults first.
@@ -128,6 +132,28 @@ void serve_sim_ready(serve_sim *m);
 int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err);
 /* Releases what was made (the hub too; the status lock stays the caller's). */
 void serve_sim_free(serve_sim *m);
+/* Sleeps ms milliseconds (nothing when ms <= 0). */
+void serve_sleep_ms(double ms);
+/* After each tick of a world's own sim thread: non-zero (with why) stops it. */
+typedef int (*serve_sim_check_fn)(void *ctx, serve_sim *m, long tick, char *why, size_t cap);
+/* A world's fixed-rate tick loop on its own sim thread (a node's worlds, a
+ * single daemon's created worlds), net's clients counted in its status:
+ * until *stop (0), max_ticks (< 0: none; 0), a failed tick (-1, why) or
+ * check says stop (1, why). A tick behind its time drops the backlog. */
+int serve_sim_loop(serve_sim *m, atomic_int *stop, long max_ticks, net_server *net,
+                   serve_sim_check_fn check, void *ctx, char *why, size_t cap);
+
+/* ---- a single daemon's created worlds (serve_worlds.c) ---- */
+typedef struct serve_worlds serve_worlds;
+/* After the daemon's ports are open: the worlds of DATA/worlds recovered and
+ * started (each on its own sim thread), then POST/GET /v1/worlds and
+ * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
+serve_worlds *serve_worlds_start(const serve_options *o, const serve_sim *main_world,
+                                 http_server *http, net_server *net, error_text *err);
+/* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
+void serve_worlds_stop(serve_worlds *ws);
+/* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */
+int serve_worlds_fresh(const char *data_dir, error_text *err);
 
 /* ---- cluster mode (serve_node.c, serve_cluster.c) ---- */
 

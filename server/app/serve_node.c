@@ -44,6 +44,7 @@ typedef struct node_world {
     atomic_int done;       /* world → node: the thread has ended */
     atomic_int registered; /* served by the HTTP and websocket ports */
     int lost;              /* the world belongs to another node now */
+    double retried_ms;     /* serve_cluster_check's last retry of a lapsed lease */
     char why[256];         /* why it was lost, or failed to open */
 } node_world;
 
@@ -66,12 +67,6 @@ struct serve_node {
     char failed[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1]; /* not retried before failed_ms */
     double failed_ms[NODE_MAX_WORLDS];
 };
-
-static void sleep_ms(double ms)
-{
-    struct timespec ts = {(time_t)(ms / 1000), (long)((ms - 1000 * (time_t)(ms / 1000)) * 1e6)};
-    nanosleep(&ts, NULL);
-}
 
 /* /readyz: ready while the node ticks at least one world and every world it
  * ticks can commit; otherwise it says why. */
@@ -165,28 +160,17 @@ static void world_unregister(serve_node *n, node_world *nw)
     metrics_world_drop(m->metrics_slot);
 }
 
-static void world_ticks(serve_node *n, node_world *nw)
+/* After each of a world's ticks: does this node still own it? */
+static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap)
 {
-    serve_sim *m = &nw->m;
-    double period_ms = 1000.0 / m->sc.tick_hz, next_ms = time_now_ms(), retried_ms = 0;
-    long max = n->o->max_ticks;
-    for (long tick = 0; !atomic_load(&nw->stop) && (max < 0 || tick < max); tick++) {
-        error_text err = {{0}};
-        if (serve_sim_step(m, tick, net_server_client_count(n->net), &err) != 0) {
-            snprintf(nw->why, sizeof nw->why, "%s", err.message);
-            return;
-        }
-        if (serve_cluster_check(n->cl, m, &retried_ms, nw->why, sizeof nw->why) != 0) {
-            nw->lost = 1;
-            return;
-        }
-        if (tick % 8 == 0) /* /readyz follows the store at once, whatever the node loop waits on */
-            node_refresh_status(n);
-        next_ms += period_ms;
-        if (next_ms < time_now_ms())
-            next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
-        sleep_ms(next_ms - time_now_ms());
+    node_world *nw = ctx;
+    if (serve_cluster_check(nw->node->cl, m, &nw->retried_ms, why, cap) != 0) {
+        nw->lost = 1;
+        return 1;
     }
+    if (tick % 8 == 0) /* /readyz follows the store at once, whatever the node loop waits on */
+        node_refresh_status(nw->node);
+    return 0;
 }
 
 /* One world's sim thread: open, serve, tick, leave. */
@@ -203,7 +187,8 @@ static void *world_main(void *arg)
         if (!(m->h = hub_create()))
             error_set(&err, "out of memory");
         else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0)
-            world_ticks(n, nw);
+            serve_sim_loop(m, &nw->stop, n->o->max_ticks, n->net, world_check, nw, nw->why,
+                           sizeof nw->why);
         if (err.message[0])
             snprintf(nw->why, sizeof nw->why, "%s", err.message);
     }
@@ -429,7 +414,7 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
         if (n->listed_ms != listed_ms) /* listed again (or tried): the relays follow */
             refresh_relays(n);
         if (took != 1) /* took one: look for the next at once */
-            sleep_ms(NODE_POLL_MS);
+            serve_sleep_ms(NODE_POLL_MS);
     }
     return 0;
 }
@@ -441,7 +426,7 @@ static void node_stop(serve_node *n)
     while (n->nworlds > 0) {
         reap_worlds(n);
         if (n->nworlds)
-            sleep_ms(10);
+            serve_sleep_ms(10);
     }
     serve_relays_stop(n->relays);
     node_forget_worlds(n);

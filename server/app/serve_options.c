@@ -42,6 +42,7 @@ enum {
     OPT_TLS_CERT,
     OPT_TLS_KEY,
     OPT_PROBE_PORT,
+    OPT_SCENE_DIR,
 };
 
 static const cli_option serve_table[] = {
@@ -106,7 +107,9 @@ static const cli_option serve_table[] = {
                     "A node waits (a standby) until it can take one"},
     [OPT_MAX_WORLDS] = {"max-worlds", "K",
                         "--cluster: worlds this node ticks at once, 1..64, each on its\n"
-                        "own sim thread (default 1; with --worlds, as many as named)"},
+                        "own sim thread (default 1; with --worlds, as many as named).\n"
+                        "A single daemon: worlds POST /v1/worlds may create beside the\n"
+                        "default one, 1..63 (default 16)"},
     [OPT_AUTH_FILE] = {"auth-file", "FILE",
                        "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
                        "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"
@@ -116,6 +119,9 @@ static const cli_option serve_table[] = {
     [OPT_PROBE_PORT] = {"probe-port", "N",
                         "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
                         "connection budget (0: any free port; default: none)"},
+    [OPT_SCENE_DIR] = {"scene-dir", "DIR",
+                       "scenes POST /v1/worlds may name (\"scene_name\": NAME reads\n"
+                       "DIR/NAME.json; default: none, only scenes in the body)"},
     {0},
 };
 
@@ -257,6 +263,10 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
         return -1;
     if (r)
         o->tick_hz = v;
+    if ((r = json_get_integer(doc, "", "max_worlds", 1, 64, 0, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->max_worlds = (int)v;
     if ((r = json_get_number(doc, "", "wal_segment_bytes", 4096, 1e12, &v, err)) < 0)
         return -1;
     if (r)
@@ -298,7 +308,7 @@ static int config_load(const char *path, serve_options *o, error_text *err)
         "no_data",   "durability", "store_fault", "wal_segment_bytes",
         "http_port", "ws_port",    "bind_any",    "demo_actors",
         "tick_hz",   "limits",     "auth_file",   "tls_cert",
-        "tls_key",   NULL};
+        "tls_key",   "scene_dir",  "max_worlds",  NULL};
     uint8_t *text = NULL;
     size_t len = 0;
     if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
@@ -320,6 +330,8 @@ static int config_load(const char *path, serve_options *o, error_text *err)
                       &o->durability, err) ||
         config_string(doc, "store_fault", o->config_store_fault, sizeof o->config_store_fault,
                       &o->store_fault, err) ||
+        config_string(doc, "scene_dir", o->config_scene_dir, sizeof o->config_scene_dir,
+                      &o->scene_dir, err) ||
         serve_security_config(doc, o, err) || config_numbers(doc, o, err) ||
         config_limits(doc, o, err)) {
         error_prefix(err, path, ": ");
@@ -345,6 +357,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         return config_load(value, o, err);
     case OPT_SCENE:
         o->scene_path = value;
+        return 0;
+    case OPT_SCENE_DIR:
+        o->scene_dir = value;
         return 0;
     case OPT_BACKEND:
         o->backend = value;

@@ -10,6 +10,7 @@
  */
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "app/app.h"
 #include "app/serve_internal.h"
@@ -48,6 +49,7 @@ int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
     http_status *s = &m->status;
     pthread_mutex_lock(&s->lock);
     s->volume = service_volume(m->svc);
+    s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED); /* recovered, before a tick */
     s->tick = service_current_tick(m->svc);
     pthread_mutex_unlock(&s->lock);
     return 0;
@@ -81,6 +83,7 @@ void serve_sim_status_init(serve_sim *m)
     snprintf(s->world_name, sizeof s->world_name, "%s", m->name);
     snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);
+    s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
 }
 
 net_world_info serve_sim_world_info(const serve_sim *m)
@@ -111,6 +114,7 @@ static void publish_status(serve_sim *m, double tick_ms, int clients, int collid
     }
     status->tick = service_current_tick(m->svc);
     status->volume = service_volume(m->svc);
+    status->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
     status->last_tick_ms = tick_ms;
     status->overruns = m->overruns;
     status->clients = clients;
@@ -193,6 +197,34 @@ int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err)
     }
     publish_status(m, stats.tick_ms, clients, stats.colliders);
     publish_metrics(m, &stats);
+    return 0;
+}
+
+void serve_sleep_ms(double ms)
+{
+    if (ms <= 0)
+        return;
+    struct timespec ts = {(time_t)(ms / 1000), (long)((ms - 1000 * (time_t)(ms / 1000)) * 1e6)};
+    nanosleep(&ts, NULL);
+}
+
+int serve_sim_loop(serve_sim *m, atomic_int *stop, long max_ticks, net_server *net,
+                   serve_sim_check_fn check, void *ctx, char *why, size_t cap)
+{
+    double period_ms = 1000.0 / m->sc.tick_hz, next_ms = time_now_ms();
+    for (long tick = 0; !atomic_load(stop) && (max_ticks < 0 || tick < max_ticks); tick++) {
+        error_text err = {{0}};
+        if (serve_sim_step(m, tick, net_server_client_count(net), &err) != 0) {
+            snprintf(why, cap, "%s", err.message);
+            return -1;
+        }
+        if (check && check(ctx, m, tick, why, cap) != 0)
+            return 1;
+        next_ms += period_ms;
+        if (next_ms < time_now_ms())
+            next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
+        serve_sleep_ms(next_ms - time_now_ms());
+    }
     return 0;
 }
 

@@ -97,6 +97,12 @@ int array_grow(void **items, int64_t *capacity, int64_t needed, size_t elem_size
  * max_bytes (0: no limit but memory). Returns 0, or -1 with err naming the
  * path and the cause. */
 int file_read_all(const char *path, size_t max_bytes, uint8_t **data, size_t *len, error_text *err);
+/* len bytes into path, durably: written to path.tmp, fsynced, renamed over
+ * path, the directory fsynced (a crash leaves the old file or the new one,
+ * never a part). 0, or -1 with err naming the path (path.tmp removed). */
+int file_write_durably(const char *path, const void *data, size_t len, error_text *err);
+/* fsync of a directory (a rename or unlink in it made durable); errors ignored. */
+void file_sync_dir(const char *dir);
 
 /* ---- JSON field readers (json_fields.c) ----
  * For strict configuration and scene parsing with cJSON: every message names

@@ -44,6 +44,8 @@ typedef struct request {
     int seen;   /* the first handler call has happened */
     int body;   /* body bytes arrived: refused with 413 */
     int edit;   /* POST /v1/worlds/{name}/edits: the body is kept (http_edits.c) */
+    int api;    /* /v1/worlds or /v1/worlds/{name}: the world lifecycle API (http_world_api.c);
+                 * a POST's body is kept as an edit's is */
     char *data; /* its bytes */
     size_t len, cap;
     size_t query_len; /* bytes after '?' in the raw target */
@@ -305,9 +307,13 @@ static enum MHD_Result edit_request(http_server *s, struct MHD_Connection *c, co
     if (rq->body)
         return respond_error(c, MHD_HTTP_CONTENT_TOO_LARGE,
                              "body: over %d bytes (or no memory for it)", HTTP_EDIT_MAX_BYTES);
+    http_answer a = {0};
+    if (rq->api) {
+        http_world_api_answer(s, c, url, "POST", rq->data ? rq->data : "", rq->len, &a);
+        return http_answer_queue(c, &a);
+    }
     char name[80];
     http_edit_path(url, name, sizeof name);
-    http_answer a = {0};
     http_edit_post(s, c, name, rq->data ? rq->data : "", rq->len, &a);
     return http_answer_queue(c, &a);
 }
@@ -333,6 +339,9 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
          * connection, rather than drain the body first. */
         char name[80];
         rq->edit = strcmp(method, "POST") == 0 && http_edit_path(url, name, sizeof name);
+        rq->api = !rq->edit && http_world_api_path(s, url);
+        if (rq->api && strcmp(method, "POST") == 0)
+            rq->edit = 1; /* its body is kept */
         if (announces_body(c) && !rq->edit) {
             if (!method_allowed(method))
                 return respond_not_allowed(c, method);
@@ -346,6 +355,11 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         rq->body = 1;
         *upload_size = 0; /* drop it; answered once the upload ends */
         return MHD_YES;
+    }
+    if (rq->api && !s->main && !rq->body) {
+        http_answer a = {0};
+        http_world_api_answer(s, c, url, method, NULL, 0, &a);
+        return http_answer_queue(c, &a);
     }
     if (!method_allowed(method))
         return respond_not_allowed(c, method);
@@ -384,7 +398,7 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
         heights = strcmp(url, "/v1/heights") == 0;
     http_view view = stats ? HTTP_VIEW_STATS : about ? HTTP_VIEW_WORLD : HTTP_VIEW_HEIGHTS;
-    if (s->hosts_worlds && (stats || about || heights))
+    if ((s->hosts_worlds || http_world_named(s, c, &snap)) && (stats || about || heights))
         return serve_hosted(s, c, view);
     if (!(stats || about || heights))
         return serve_static(c, url);

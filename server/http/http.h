@@ -14,8 +14,8 @@
  *   /metrics          Prometheus text 0.0.4 (metrics_render)
  *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
  *                     models, renderer, backend
- *   /v1/stats         JSON: tick, volume (exact integer), clients, colliders,
- *                     last tick ms, overruns
+ *   /v1/stats         JSON: tick, volume (exact integer), soil_compacted (bekker),
+ *                     clients, colliders, last tick ms, overruns
  *   /v1/heights?x=&y=&w=&h=[&format=int32|png16][&base=1]
  *                     int32 little-endian row-major (default) or a 16-bit
  *                     greyscale PNG; headers X-Terrad-Tick, X-Terrad-Rect,
@@ -51,6 +51,7 @@ typedef struct http_status {
     char not_ready[256];           /* with ready == 0: why ("" = still starting) */
     uint64_t tick;                 /* last completed tick */
     int64_t volume;                /* Σh, exact */
+    int64_t soil_compacted;        /* bekker: Σ compacted (units); volume + this is constant */
     int world_width, world_height; /* cells; /v1/heights validates against them */
     double cell_size_m;
     int32_t units_per_m;
@@ -152,6 +153,24 @@ typedef int (*http_forward_fn)(void *ctx, const char *world, const void *request
 void http_server_set_forward(http_server *s, http_forward_fn fn, void *ctx);
 int http_server_answer(http_server *s, const char *world, const void *request, size_t len,
                        size_t max_len, void **answer, size_t *answer_len);
+
+/* ---- the world lifecycle API on a single daemon (http_world_api.c) ----
+ * POST /v1/worlds (admin), GET /v1/worlds (any known token) and
+ * DELETE /v1/worlds/{name}[?keep=1] (admin) call these on an HTTP thread;
+ * each returns the HTTP status and sets *json to the answer's body
+ * (malloc'd JSON; NULL: out of memory). The daemon adds each created world
+ * to the server's table (http_server_add_world, without
+ * http_server_host_worlds): /v1/world, /v1/stats and /v1/heights with
+ * ?world=NAME and /v1/worlds/NAME/edits then reach it, while requests
+ * naming no world (or the default scene's name) stay the default world's. */
+typedef struct http_world_api {
+    unsigned (*create)(void *ctx, const char *body, size_t len, char **json);
+    unsigned (*list)(void *ctx, char **json);
+    unsigned (*remove)(void *ctx, const char *name, int keep, char **json);
+    void *ctx;
+} http_world_api;
+/* Before the port serves requests (api copied; NULL: none, /v1/worlds is 404). */
+void http_server_set_world_api(http_server *s, const http_world_api *api);
 
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms

@@ -84,3 +84,30 @@ struct MHD_Response *http_auth_refusal(struct MHD_Connection *c, const char *url
     }
     return r;
 }
+
+unsigned http_role_refusal(struct MHD_Connection *c, auth_table *auth, auth_role least,
+                           const char *what, char *why, size_t cap)
+{
+    if (!auth_enabled(auth))
+        return 0;
+    const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
+    const char *token = h && strncasecmp(h, "Bearer ", 7) == 0 ? h + 7 : NULL;
+    while (token && *token == ' ')
+        token++;
+    auth_role role = token && *token ? auth_check(auth, token, NULL, 0, NULL) : AUTH_NONE;
+    if (role == AUTH_NONE) {
+        metrics_count_auth_refused("bad_token");
+        snprintf(why, cap, "send \"Authorization: Bearer TOKEN\" with a %s token",
+                 least >= AUTH_ADMIN    ? "an admin"
+                 : least >= AUTH_DRIVER ? "driver or admin"
+                                        : "known");
+        return MHD_HTTP_UNAUTHORIZED;
+    }
+    if (role < least) {
+        metrics_count_auth_refused("forbidden");
+        snprintf(why, cap, "token: the %s role may not %s (%s)", auth_role_name(role), what,
+                 least >= AUTH_ADMIN ? "admin only" : "driver or admin");
+        return MHD_HTTP_FORBIDDEN;
+    }
+    return 0;
+}

@@ -10,7 +10,8 @@
  * the edit at the start of a tick (service_edits.c).
  *
  * {name} is the world's: a cluster node's registered world that it ticks,
- * or on a single daemon its scene's name.
+ * or on a single daemon its scene's name or a world created beside it
+ * (POST /v1/worlds).
  */
 #include <cjson/cJSON.h>
 #include <microhttpd.h>
@@ -35,30 +36,6 @@ int http_edit_path(const char *url, char *name, size_t cap)
     memcpy(name, url + p, n - p - q);
     name[n - p - q] = 0;
     return strchr(name, '/') == NULL;
-}
-
-/* The refusal for a token that may not edit (NULL: it may). */
-static unsigned edit_role_refusal(struct MHD_Connection *c, auth_table *auth, char *why, size_t cap)
-{
-    if (!auth_enabled(auth))
-        return 0;
-    const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
-    const char *token = h && strncasecmp(h, "Bearer ", 7) == 0 ? h + 7 : NULL;
-    while (token && *token == ' ')
-        token++;
-    auth_role role = token && *token ? auth_check(auth, token, NULL, 0, NULL) : AUTH_NONE;
-    if (role == AUTH_NONE) {
-        metrics_count_auth_refused("bad_token");
-        snprintf(why, cap, "send \"Authorization: Bearer TOKEN\" with a driver or admin token");
-        return MHD_HTTP_UNAUTHORIZED;
-    }
-    if (role < AUTH_DRIVER) {
-        metrics_count_auth_refused("forbidden");
-        snprintf(why, cap, "edit: the %s role may not edit the terrain (driver or admin)",
-                 auth_role_name(role));
-        return MHD_HTTP_FORBIDDEN;
-    }
-    return 0;
 }
 
 static unsigned status_of(int code)
@@ -151,19 +128,30 @@ void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, 
                     size_t len, http_answer *a)
 {
     char why[320];
-    unsigned refused = edit_role_refusal(c, s->auth, why, sizeof why);
+    unsigned refused =
+        http_role_refusal(c, s->auth, AUTH_DRIVER, "edit the terrain", why, sizeof why);
     if (refused) {
         answer_refusal(a, refused,
                        refused == MHD_HTTP_FORBIDDEN ? TERRAD_E_FORBIDDEN : TERRAD_E_UNAUTHORIZED,
                        why);
         return;
     }
-    if (s->hosts_worlds) {
+    char scene_name[65];
+    pthread_mutex_lock(&s->status->lock);
+    snprintf(scene_name, sizeof scene_name, "%s", s->status->scene_name);
+    pthread_mutex_unlock(&s->status->lock);
+    if (s->hosts_worlds ||
+        (strcmp(name, scene_name) != 0 && http_world_api_path(s, "/v1/worlds"))) {
         unsigned code = 0;
         http_world *w = http_world_acquire(s, name, &code, why, sizeof why);
         if (!w || strcmp(w->name, name) != 0) {
             if (w)
                 http_world_release(s, w);
+            if (!s->hosts_worlds) /* a single daemon: its default world, or one created */
+                snprintf(why, sizeof why,
+                         "name: no world \"%.64s\" on this daemon (its default world is "
+                         "\"%.64s\"; GET /v1/worlds lists them)",
+                         name, scene_name);
             answer_refusal(a, MHD_HTTP_NOT_FOUND, TERRAD_E_BAD_VALUE,
                            w ? "name: no such world ticks on this node: send its edits to the "
                                "node that ticks it"

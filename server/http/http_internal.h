@@ -5,7 +5,9 @@
  *   http.c        the MHD daemon, routing, probes, metrics, static files
  *   http_views.c  the /v1 answers (world, stats, heights), also for a
  *                 request another node forwarded (any node serves any world)
- *   http_worlds.c a cluster node's table of worlds (?world=NAME)
+ *   http_worlds.c a cluster node's table of worlds (?world=NAME), also a
+ *                 single daemon's created worlds
+ *   http_world_api.c  POST/GET /v1/worlds, DELETE /v1/worlds/{name}
  *   http_png.c    /v1/heights?format=png16
  *   http_guard.c  what one address may hold: heights bytes in flight, and the
  *                 deadline for a request's headers (slowloris)
@@ -83,6 +85,12 @@ int http_tls_on(const http_tls *t);
  * the refusal is counted in terrad_auth_refused_total{reason="bad_token"}. */
 struct MHD_Response *http_auth_refusal(struct MHD_Connection *c, const char *url, auth_table *auth);
 
+/* 0 when the request's bearer token has at least role least (or auth is
+ * off); else 401 (no known token) or 403 (a lesser role) with why naming
+ * what it may not do, counted in terrad_auth_refused_total. */
+unsigned http_role_refusal(struct MHD_Connection *c, auth_table *auth, auth_role least,
+                           const char *what, char *why, size_t cap);
+
 /* ---- the server (http.c) and its worlds (http_worlds.c) ---- */
 typedef struct http_watch {
     char name[32];
@@ -128,6 +136,7 @@ struct http_server {
     http_forward_fn forward;
     void *forward_ctx;
     int forward_calls;
+    http_world_api world_api; /* a single daemon's lifecycle API (under worlds_lock) */
 };
 
 /* The world a request names (?world=NAME; without it, the node's first
@@ -165,6 +174,17 @@ void http_answer_free(http_answer *a);
 /* Sends a (Cache-Control: no-store), which gives up its body. */
 enum MHD_Result http_answer_queue(struct MHD_Connection *c, http_answer *a);
 void http_view_stats(const http_status *st, http_answer *a);
+
+/* http_world_api.c: the world lifecycle API. 1 when url is /v1/worlds or
+ * /v1/worlds/{name} and the API is on. */
+int http_world_api_path(http_server *s, const char *url);
+/* 1 when the request's ?world= names a world other than the default one
+ * (snap: the default world's status) and the API is on: it is served from
+ * the table of worlds. */
+int http_world_named(http_server *s, struct MHD_Connection *c, const http_status *snap);
+/* The answer to method on url (body: a POST's). */
+void http_world_api_answer(http_server *s, struct MHD_Connection *c, const char *url,
+                           const char *method, const char *body, size_t len, http_answer *a);
 
 /* http_edits.c: POST /v1/worlds/{name}/edits. */
 #define HTTP_EDIT_MAX_BYTES (24 * 1024 * 1024) /* a stamp of max_edit_cells int32s, base64 */

@@ -168,10 +168,11 @@ void http_view_stats(const http_status *st, http_answer *a)
 {
     char body[512];
     snprintf(body, sizeof body,
-             "{\"tick\":%llu,\"volume\":%lld,\"clients\":%d,\"colliders\":%d,"
-             "\"last_tick_ms\":%.3f,\"overruns\":%llu,\"ready\":%s}\n",
-             (unsigned long long)st->tick, (long long)st->volume, st->clients, st->colliders,
-             st->last_tick_ms, (unsigned long long)st->overruns, st->ready ? "true" : "false");
+             "{\"tick\":%llu,\"volume\":%lld,\"soil_compacted\":%lld,\"clients\":%d,"
+             "\"colliders\":%d,\"last_tick_ms\":%.3f,\"overruns\":%llu,\"ready\":%s}\n",
+             (unsigned long long)st->tick, (long long)st->volume, (long long)st->soil_compacted,
+             st->clients, st->colliders, st->last_tick_ms, (unsigned long long)st->overruns,
+             st->ready ? "true" : "false");
     answer_text(a, MHD_HTTP_OK, "application/json", body);
 }
 

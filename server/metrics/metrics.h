@@ -141,6 +141,11 @@ int metrics_worlds_text(char *out, size_t cap);
 #define METRICS_FORWARD_RESULTS "answered", "no_owner", "no_answer", "not_relayed"
 void metrics_count_http_forwarded(const char *result);
 
+/* terrad_world_requests_total{op,result}: the world lifecycle API on a
+ * single daemon, op "create" (POST /v1/worlds) or "delete" (DELETE
+ * /v1/worlds/NAME), result "ok" or "refused" (ok 0). Unknown ops ignored. */
+void metrics_count_world_request(const char *op, int ok);
+
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);
 

@@ -1,5 +1,6 @@
 /*
- * metrics_worlds.c: per-world series of a cluster node (docs/cluster.md),
+ * metrics_worlds.c: per-world series of a cluster node (docs/cluster.md) or
+ * of a single daemon's created worlds,
  * labelled world="NAME". Each world's sim thread takes a slot when it starts
  * ticking a world and sets its figures once per tick; the slot is dropped
  * (its series disappear from /metrics) when the node stops ticking the world.
@@ -37,6 +38,19 @@ void metrics_count_http_forwarded(const char *result)
     if (i >= 0)
         atomic_fetch_add_explicit(&forwarded[i], 1, memory_order_relaxed);
 }
+
+static const char *const request_ops[] = {"create", "delete"};
+static atomic_uint_fast64_t requests[2][2]; /* [op][ok] */
+
+void metrics_count_world_request(const char *op, int ok)
+{
+    int i = metrics_label_index(request_ops, 2, op);
+    if (i >= 0)
+        atomic_fetch_add_explicit(&requests[i][ok != 0], 1, memory_order_relaxed);
+}
+
+/* terrad_world_requests_total: every op and result, zeros too. */
+static int requests_text(char *out, size_t cap, size_t *n);
 
 int metrics_world_slot(const char *name)
 {
@@ -179,6 +193,8 @@ int metrics_worlds_text(char *out, size_t cap)
     for (int f = 0; f < (int)(sizeof families / sizeof families[0]) && rc == 0; f++)
         rc = family(out, cap, &n, families[f].name, families[f].type, families[f].help, f);
     pthread_mutex_unlock(&slots_lock);
+    if (rc == 0)
+        rc = requests_text(out, cap, &n);
     uint64_t any = 0;
     for (size_t i = 0; i < FORWARD_RESULTS; i++)
         any += atomic_load_explicit(&forwarded[i], memory_order_relaxed);
@@ -197,4 +213,19 @@ int metrics_worlds_text(char *out, size_t cap)
                  forward_results[i],
                  (unsigned long long)atomic_load_explicit(&forwarded[i], memory_order_relaxed));
     return rc == 0 ? (int)n : -1;
+}
+
+static int requests_text(char *out, size_t cap, size_t *n)
+{
+    int rc = put(out, cap, n,
+                 "# HELP terrad_world_requests_total World lifecycle requests (POST /v1/worlds, "
+                 "DELETE /v1/worlds/{name}) by op and result.\n"
+                 "# TYPE terrad_world_requests_total counter\n");
+    for (int i = 0; i < 2 && rc == 0; i++)
+        for (int ok = 1; ok >= 0 && rc == 0; ok--)
+            rc = put(
+                out, cap, n, "terrad_world_requests_total{op=\"%s\",result=\"%s\"} %llu\n",
+                request_ops[i], ok ? "ok" : "refused",
+                (unsigned long long)atomic_load_explicit(&requests[i][ok], memory_order_relaxed));
+    return rc;
 }

@@ -65,6 +65,12 @@ typedef struct net_world_info {
      * world message; a hello naming another world is refused. NULL: one
      * unnamed world, hello's "world" is ignored. */
     const char *name;
+    /* a single daemon (name NULL): its scene's name, which hello's "world"
+     * may name for this world; once worlds are added beside it
+     * (net_server_add_world: the world lifecycle API), a hello naming
+     * neither it nor an added world is refused. Not copied: it must outlive
+     * the server. */
+    const char *scene_name;
 } net_world_info;
 
 typedef struct net_config {
@@ -86,7 +92,10 @@ typedef struct net_server net_server;
 
 /* Binds and starts the service thread. The strings of c are copied.
  * h == NULL: a cluster node's server, for several worlds (c->world unused):
- * clients wait until their hello names one of the worlds added below. */
+ * clients wait until their hello names one of the worlds added below.
+ * A single daemon's server (h its default world) may have worlds added too
+ * (the world lifecycle API): a hello naming one joins it, any other hello
+ * the default world. */
 net_server *net_server_start(const net_config *c, hub *h, error_text *err);
 /* A world this node serves from now on (info->name required; strings
  * copied), its sim thread at the other end of h. Any thread. */
@@ -96,6 +105,10 @@ int net_server_add_world(net_server *s, const net_world_info *info, hub *h, erro
  * so h may be destroyed (0), or -1 when the net thread did not answer within
  * 10 s (then h must be left alone). Any thread but the net thread. */
 int net_server_remove_world(net_server *s, hub *h);
+/* The same for a world that was deleted (DELETE /v1/worlds/NAME): its
+ * clients are told the world was deleted and closed with 4020 "world
+ * deleted". */
+int net_server_delete_world(net_server *s, hub *h);
 
 /* ---- any node serves any world (net_remote.c; docs/cluster.md) ----
  * A world another node owns is served here as a RELAY: a client's hello

@@ -180,13 +180,16 @@ struct net_state {
     /* A cluster node's several worlds (net_worlds.c). The server's own state
      * is then the lobby: every client starts there and moves, at its hello,
      * to the state of the world it names (its own hub, world info, collider
-     * table and backlog). A single daemon has no lobby: one state, one world. */
+     * table and backlog). A single daemon has no lobby: its state is its
+     * default world's, and worlds created beside it (the world lifecycle API)
+     * are in worlds[] as on a node; hosted_worlds: one ever was. */
     int lobby;
+    int hosted_worlds;
     int relay; /* a world another node owns, served through it (net_remote.c) */
     net_remote_send_fn remote_send; /* to other nodes; NULL for a single daemon */
     void *remote_ctx;
     char node[65];      /* this node's name */
-    net_state **worlds; /* the lobby's table of world states */
+    net_state **worlds; /* the lobby's (or a single daemon's) table of world states */
     int nworlds;
     int64_t worlds_cap;
 };

@@ -89,6 +89,31 @@ static cJSON *world_message(net_state *s, const net_client *c)
     return m;
 }
 
+/* A single daemon's hello naming a world: one created beside the default
+ * (the world lifecycle API) is joined; the default world's scene name, or
+ * any name while no world was ever created, stays in the default world (as
+ * before worlds could be created). -1 with why: a name no world has. */
+static int net_hello_created_world(net_client *c, const net_control *m, char *why, size_t cap)
+{
+    net_state *s = c->srv;
+    const char *scene = s->cfg.world.scene_name;
+    if (scene && strcmp(m->world, scene) == 0)
+        return 0;
+    for (int i = 0; i < s->nworlds; i++)
+        if (strcmp(s->worlds[i]->world_name, m->world) == 0)
+            return net_client_join_world(c, m->world, why, cap);
+    if (!s->hosted_worlds)
+        return 0;
+    size_t n =
+        (size_t)snprintf(why, cap, "world: no world \"%s\" on this daemon (its worlds: \"%s\"",
+                         m->world, scene ? scene : "");
+    for (int i = 0; i < s->nworlds && n < cap; i++)
+        n += (size_t)snprintf(why + n, cap - n, ", \"%s\"", s->worlds[i]->world_name);
+    if (n < cap)
+        snprintf(why + n, cap - n, "; GET /v1/worlds lists them)");
+    return -1;
+}
+
 static void handle_hello(net_client *c, const net_control *m)
 {
     net_state *s = c->srv;
@@ -97,6 +122,11 @@ static void handle_hello(net_client *c, const net_control *m)
     char why[400];
     if (s->lobby && net_client_join_world(c, m->world, why, sizeof why) != 0) {
         /* a cluster node serves the worlds it owns: the client is sent to another node */
+        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1, "%s", why);
+        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
+        return;
+    }
+    if (!s->lobby && m->world[0] && net_hello_created_world(c, m, why, sizeof why) != 0) {
         net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1, "%s", why);
         net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
         return;

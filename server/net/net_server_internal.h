@@ -39,6 +39,7 @@ struct net_server {
     struct net_removal {
         hub *h;        /* a world's hub, or */
         char name[65]; /* a relayed world's name */
+        int deleted;   /* its clients are told it was deleted, not moved */
     } removing[NET_MAX_WORLDS];
     int nremoving;
     /* messages from other nodes (net_server_remote_input), under worlds_lock */
@@ -86,7 +87,7 @@ net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h
 /* Queues w for the net thread to adopt; -1 with err when the table is full. */
 int net_world_queue_add(net_server *s, net_state *w, error_text *err);
 /* Asks the net thread to detach the world of h (or named name) and waits. */
-int net_world_queue_remove(net_server *s, hub *h, const char *name);
+int net_world_queue_remove(net_server *s, hub *h, const char *name, int deleted);
 /* Frees what a state holds but the shared token and server name (not w itself). */
 void net_state_release(net_state *w);
 /* limits.max_client_lag_ticks left at 0: two seconds of the world's ticks. */

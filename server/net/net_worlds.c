@@ -78,10 +78,9 @@ void net_world_state_free(net_state *w)
 
 net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err)
 {
-    if (!s->st.lobby || !info->name || info->width < 1 || info->height < 1 || info->tile_size < 1 ||
+    if (!info->name || info->width < 1 || info->height < 1 || info->tile_size < 1 ||
         !(info->cell_size_m > 0)) {
-        error_set(err, "net: a world needs a server started without one, a name, an extent, "
-                       "a cell size and a tile size");
+        error_set(err, "net: a world needs a name, an extent, a cell size and a tile size");
         return NULL;
     }
     net_state *w = calloc(1, sizeof *w);
@@ -159,7 +158,7 @@ static int removing_index(const net_server *s, hub *h, const char *name)
     return -1;
 }
 
-int net_world_queue_remove(net_server *s, hub *h, const char *name)
+int net_world_queue_remove(net_server *s, hub *h, const char *name, int deleted)
 {
     pthread_mutex_lock(&s->worlds_lock);
     for (int i = 0; i < s->nadding; i++)
@@ -175,6 +174,7 @@ int net_world_queue_remove(net_server *s, hub *h, const char *name)
         s->removing[s->nremoving].h = h;
         snprintf(s->removing[s->nremoving].name, sizeof s->removing[0].name, "%s",
                  name ? name : "");
+        s->removing[s->nremoving].deleted = deleted;
         s->nremoving++;
     }
     double start = time_now_ms();
@@ -207,12 +207,18 @@ int net_world_queue_remove(net_server *s, hub *h, const char *name)
 
 int net_server_remove_world(net_server *s, hub *h)
 {
-    return net_world_queue_remove(s, h, NULL);
+    return net_world_queue_remove(s, h, NULL, 0);
 }
 
-/* The world's clients are told and closed, and wait in the lobby for their
- * close (their colliders and subscriptions went with the world). */
-static void detach(net_server *s, net_state *w)
+int net_server_delete_world(net_server *s, hub *h)
+{
+    return net_world_queue_remove(s, h, NULL, 1);
+}
+
+/* The world's clients are told and closed, and wait in the lobby (a single
+ * daemon: its default world's state, not ready) for their close (their
+ * colliders and subscriptions went with the world). */
+static void detach(net_server *s, net_state *w, int deleted)
 {
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
@@ -225,7 +231,12 @@ static void detach(net_server *s, net_state *w)
             net_client_free(s, c);
             continue;
         }
-        if (!c->closing && !c->killed) {
+        if (!c->closing && !c->killed && deleted) {
+            net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1,
+                      "world %s was deleted (DELETE /v1/worlds/%s): its terrain is gone",
+                      w->world_name, w->world_name);
+            net_close_after_flush(c, 4000 + TERRAD_E_SHUTTING_DOWN, "world deleted");
+        } else if (!c->closing && !c->killed) {
             net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1,
                       "world %s: this node no longer serves it (another node owns it now, or "
                       "this node is stopping): connect again",
@@ -251,9 +262,7 @@ static void detach(net_server *s, net_state *w)
 
 void net_worlds_apply(net_server *s)
 {
-    net_state *lobby = &s->st;
-    if (!lobby->lobby)
-        return;
+    net_state *lobby = &s->st; /* a node's lobby, or a single daemon's default world */
     pthread_mutex_lock(&s->worlds_lock);
     for (int i = 0; i < s->nadding; i++) {
         net_state *w = s->adding[i];
@@ -267,6 +276,7 @@ void net_worlds_apply(net_server *s)
         if (w->hub)
             hub_claim_net_end(w->hub);
         lobby->worlds[lobby->nworlds++] = w;
+        lobby->hosted_worlds = 1;
         log_info("net: world %s is served here%s", w->world_name,
                  w->relay ? " through its owner (a relay)" : "");
     }
@@ -275,7 +285,7 @@ void net_worlds_apply(net_server *s)
         for (int i = 0; i < lobby->nworlds; i++)
             if (matches(lobby->worlds[i], s->removing[r].h, s->removing[r].name)) {
                 net_drain_world(s, lobby->worlds[i]); /* its last frames go out first */
-                detach(s, lobby->worlds[i]);
+                detach(s, lobby->worlds[i], s->removing[r].deleted);
                 memmove(&lobby->worlds[i], &lobby->worlds[i + 1],
                         (size_t)(lobby->nworlds - i - 1) * sizeof *lobby->worlds);
                 lobby->nworlds--;

@@ -227,7 +227,8 @@ void service_bound_sweeps(service *s); /* after the poses are taken, before serv
 
 /* service_edits.c */
 void service_edit_command(service *s, hub_command *c); /* apply it now, or refuse it */
-/* The tick's rectangles for the store: the edits' then the engine's (-1: no memory). */
+/* The tick's rectangles for the store: the edits', the engine's, then where only the soil
+ * state changed (bekker) (-1: no memory). */
 int service_edits_commit_rects(service *s, const sim_tick_report *report, const world_rect **rects,
                                int *n);
 /* The store refused the tick: take the edits back (after the engine's

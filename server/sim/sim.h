@@ -409,6 +409,10 @@ typedef struct sim_tick_report {
     world_rect *dirty; /* tight rectangles of changed cells, one per changed window */
     int *dirty_window; /* the window each dirty rectangle came from */
     int dirty_count;
+    /* bekker: tight rectangles where the soil state (world_soil.c) changed,
+     * heights or not; the store logs them with the dirty ones */
+    const world_rect *soil_dirty;
+    int soil_dirty_count;
     double model_ms;                 /* the non-persson models' window functions */
     const sim_footprint *footprints; /* decals: this tick's events (engine-owned) */
     int footprint_count;
@@ -445,6 +449,9 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
 /* After a tick: window i of the last tick, its heights before and after. */
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
                              const int32_t **after);
+/* After a tick the store could not log: the soil state of its windows back
+ * as it was gathered (the caller puts the heights back, sim_engine_window). */
+void sim_engine_undo_soil(sim_engine *e);
 void sim_engine_get_stats(const sim_engine *e, sim_engine_stats *out);
 /* bekker: Σ compacted volume over the world (height units): Σh + this is
  * constant. 0 for the other models. */

@@ -38,6 +38,7 @@ typedef struct engine_batch {
     int64_t *offsets; /* where each window starts in the packed cells */
     world_rect *dirty;
     int *dirty_window;
+    world_rect *soil_dirty; /* bekker: where the soil state changed */
     int count;
     int64_t cells; /* all windows' cells */
     int64_t refs;  /* collider references of all windows */
@@ -77,11 +78,12 @@ struct sim_engine {
     int64_t material_ids_capacity;
     uint16_t *compaction; /* likewise; only if some material compacts */
     int64_t compaction_capacity;
-    /* bekker: the per-cell soil state (sparse tiles) and its packed windows,
-     * a contact per collider reference of the batch and per collider */
-    sim_soil_layer soil;
-    int32_t *soil_state;
-    int64_t soil_state_capacity;
+    /* bekker: the per-cell soil state's packed windows (the state itself is
+     * the world's: world_soil.c) as the model leaves them and as gathered (to
+     * find what changed, and to undo a tick the store cannot log), a contact
+     * per collider reference of the batch and per collider */
+    int32_t *soil_state, *soil_before;
+    int64_t soil_state_capacity, soil_before_capacity;
     int *window_collider_source; /* per reference: the collider's index in the tick */
     int64_t window_collider_source_capacity;
     sim_contact *job_contacts;
@@ -107,7 +109,7 @@ sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backen
     e->params = *p;
     e->backend = backend;
     e->margin_cells = margin_cells;
-    if (p->model == SIM_MODEL_BEKKER && sim_soil_layer_init(&e->soil, w->width, w->height) != 0) {
+    if (p->model == SIM_MODEL_BEKKER && world_soil_enable(w) != 0) {
         free(e);
         error_set(err, "sim: out of memory for the soil state");
         return NULL;
@@ -126,6 +128,7 @@ void sim_engine_destroy(sim_engine *e)
     free(b->offsets);
     free(b->dirty);
     free(b->dirty_window);
+    free(b->soil_dirty);
     free(e->material_ids);
     free(e->compaction);
     free(e->footprints);
@@ -137,8 +140,8 @@ void sim_engine_destroy(sim_engine *e)
     free(e->base);
     free(e->refilling);
     free(e->footprints_out);
-    sim_soil_layer_free(&e->soil);
     free(e->soil_state);
+    free(e->soil_before);
     free(e->window_collider_source);
     free(e->job_contacts);
     free(e->contacts);
@@ -157,12 +160,12 @@ void sim_engine_set_ground(sim_engine *e, ground *g)
 
 int64_t sim_engine_soil_compacted(const sim_engine *e)
 {
-    return sim_soil_layer_compacted(&e->soil);
+    return world_soil_sum(e->world, SIM_SOIL_COMPACTED);
 }
 
 void sim_engine_soil_cell(const sim_engine *e, int x, int y, int32_t *out)
 {
-    sim_soil_layer_cell(&e->soil, x, y, out);
+    world_soil_cell(e->world, x, y, out);
 }
 
 world *sim_engine_world(const sim_engine *e)
@@ -190,6 +193,16 @@ world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
     return e->batch.windows[i];
 }
 
+void sim_engine_undo_soil(sim_engine *e)
+{
+    const engine_batch *b = &e->batch;
+    for (int i = 0; i < b->count; i++)
+        if (b->jobs[i].soil_state && b->status[i] == SIM_WINDOW_OK)
+            /* back to what was gathered: the tiles exist, nothing is allocated */
+            (void)world_soil_scatter(e->world, b->windows[i],
+                                     e->soil_before + b->offsets[i] * SIM_SOIL_STATE_FIELDS);
+}
+
 uint64_t sim_stage_memory_total(const sim_stage_memory *m)
 {
     uint64_t total = 0;
@@ -208,7 +221,8 @@ static int batch_reserve(engine_batch *b, int64_t count)
 #define BATCH_GROW(array)                                                                          \
     (cap = b->capacity, array_grow((void **)&b->array, &cap, count, sizeof *b->array))
     if (BATCH_GROW(windows) != 0 || BATCH_GROW(jobs) != 0 || BATCH_GROW(status) != 0 ||
-        BATCH_GROW(offsets) != 0 || BATCH_GROW(dirty) != 0 || BATCH_GROW(dirty_window) != 0)
+        BATCH_GROW(offsets) != 0 || BATCH_GROW(dirty) != 0 || BATCH_GROW(dirty_window) != 0 ||
+        BATCH_GROW(soil_dirty) != 0)
         return -1;
 #undef BATCH_GROW
     b->capacity = cap;
@@ -276,6 +290,8 @@ static int tick_reserve_cells(sim_engine *e, int persson, int collider_count)
     if (e->params.model == SIM_MODEL_BEKKER &&
         (array_grow((void **)&e->soil_state, &e->soil_state_capacity, need * SIM_SOIL_STATE_FIELDS,
                     sizeof *e->soil_state) != 0 ||
+         array_grow((void **)&e->soil_before, &e->soil_before_capacity,
+                    need * SIM_SOIL_STATE_FIELDS, sizeof *e->soil_before) != 0 ||
          array_grow((void **)&e->window_collider_source, &e->window_collider_source_capacity,
                     e->batch.refs + 1, sizeof *e->window_collider_source) != 0 ||
          array_grow((void **)&e->job_contacts, &e->job_contacts_capacity, e->batch.refs + 1,
@@ -352,7 +368,9 @@ static void tick_gather(sim_engine *e, const sim_collider *colliders, int collid
         gather_ground(e, job, offset);
         if (e->params.model == SIM_MODEL_BEKKER) {
             job->soil_state = e->soil_state + offset * SIM_SOIL_STATE_FIELDS;
-            sim_soil_layer_gather(&e->soil, r, job->soil_state);
+            world_soil_gather(w, r, job->soil_state);
+            memcpy(e->soil_before + offset * SIM_SOIL_STATE_FIELDS, job->soil_state,
+                   (size_t)r.w * r.h * SIM_SOIL_STATE_FIELDS * sizeof(int32_t));
         }
         memcpy(e->before + offset, job->heights, (size_t)r.w * r.h * sizeof(int32_t));
         gather_colliders(e, colliders, collider_count, job, &ref);
@@ -441,16 +459,19 @@ static int tick_model(sim_engine *e, int persson, sim_tick_report *report, error
 
 /* ---- scatter ---- */
 
-/* Tight bounding box of the cells that differ; w == 0 when none does. */
-static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *after)
+/* Tight bounding box of the cells that differ (`fields` int32 per cell); w
+ * == 0 when none does. */
+static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *after, int fields)
 {
     int x0 = r.w, y0 = r.h, x1 = -1, y1 = -1;
+    size_t cell = (size_t)fields * sizeof *before;
     for (int y = 0; y < r.h; y++) {
-        const int32_t *a = before + (int64_t)y * r.w, *b = after + (int64_t)y * r.w;
-        if (memcmp(a, b, (size_t)r.w * sizeof *a) == 0)
+        const int32_t *a = before + (int64_t)y * r.w * fields,
+                      *b = after + (int64_t)y * r.w * fields;
+        if (memcmp(a, b, (size_t)r.w * cell) == 0)
             continue;
         for (int x = 0; x < r.w; x++) {
-            if (a[x] != b[x]) {
+            if (memcmp(a + (int64_t)x * fields, b + (int64_t)x * fields, cell) != 0) {
                 if (x < x0)
                     x0 = x;
                 if (x > x1)
@@ -473,6 +494,7 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
     engine_batch *b = &e->batch;
     report->dirty = b->dirty;
     report->dirty_window = b->dirty_window;
+    report->soil_dirty = b->soil_dirty;
     for (int i = 0; i < b->count; i++) {
         world_rect r = b->windows[i];
         int64_t offset = b->offsets[i];
@@ -483,11 +505,17 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
         if (b->jobs[i].compaction &&
             ground_scatter_compaction(e->ground, r, b->jobs[i].compaction, err) != 0)
             return -1;
-        if (b->jobs[i].soil_state && sim_soil_layer_scatter(&e->soil, r, b->jobs[i].soil_state)) {
-            error_set(err, "sim: out of memory for the soil state");
-            return -1;
+        if (b->jobs[i].soil_state) {
+            world_rect s = diff_rect(r, e->soil_before + offset * SIM_SOIL_STATE_FIELDS,
+                                     b->jobs[i].soil_state, SIM_SOIL_STATE_FIELDS);
+            if (s.w > 0 && world_soil_scatter(e->world, r, b->jobs[i].soil_state) != 0) {
+                error_set(err, "sim: out of memory for the soil state");
+                return -1;
+            }
+            if (s.w > 0)
+                b->soil_dirty[report->soil_dirty_count++] = s;
         }
-        world_rect d = diff_rect(r, e->before + offset, e->heights + offset);
+        world_rect d = diff_rect(r, e->before + offset, e->heights + offset, 1);
         if (d.w > 0) {
             world_scatter_window(e->world, r, e->heights + offset);
             if (e->backend->window_scattered)
@@ -609,7 +637,7 @@ static void engine_memory(const sim_engine *e, sim_stage_memory *m)
                (uint64_t)e->base_capacity * sizeof(int32_t) +
                (uint64_t)e->refilling_capacity * sizeof(world_rect) +
                (uint64_t)e->footprint_out_capacity * sizeof(sim_footprint) +
-               (uint64_t)e->soil_state_capacity * sizeof(int32_t) +
+               (uint64_t)(e->soil_state_capacity + e->soil_before_capacity) * sizeof(int32_t) +
                (uint64_t)e->job_contacts_capacity * sizeof(sim_contact) +
                (uint64_t)e->contacts_capacity * sizeof(sim_contact) +
                (uint64_t)e->window_collider_source_capacity * sizeof(int);

@@ -164,21 +164,6 @@ int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider 
                          int32_t lo, int32_t hi, int32_t *scratch, int32_t *heights_copy,
                          int32_t *state_copy);
 
-/* The per-cell state in sparse 64x64 tiles (sim_soil.c). */
-typedef struct sim_soil_layer {
-    int width, height, tiles_x, tiles_y;
-    int32_t **tiles; /* NULL entries: never pressed */
-    int64_t allocated;
-} sim_soil_layer;
-int sim_soil_layer_init(sim_soil_layer *l, int width, int height);
-void sim_soil_layer_free(sim_soil_layer *l);
-void sim_soil_layer_gather(const sim_soil_layer *l, world_rect r, int32_t *dst);
-/* Returns 0, or -1 out of memory. */
-int sim_soil_layer_scatter(sim_soil_layer *l, world_rect r, const int32_t *src);
-int64_t sim_soil_layer_compacted(const sim_soil_layer *l);
-void sim_soil_layer_cell(const sim_soil_layer *l, int x, int y, int32_t *out);
-uint64_t sim_soil_layer_bytes(const sim_soil_layer *l);
-
 /* ---- The non-persson models: CPU window functions (model_<name>.c) ----
  *
  * Each takes the window's params (their model field picks the function in

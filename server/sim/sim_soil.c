@@ -5,10 +5,11 @@
  * has them), validated once when a scene is read. The state is what each
  * cell of the world remembers between ticks — how far it has been pressed
  * (its plastic sinkage), the shear displacement of the pass under way and
- * the volume it has lost to compaction — in sparse 64x64 tiles allocated the
- * first time a cell in them is pressed. The engine gathers a window's state
- * with its heights (row 4b of the tick) and scatters it back with them for
- * accepted windows only (row 4e), so a refused window changes nothing.
+ * the volume it has lost to compaction — is kept by the world
+ * (world_soil.c), so the store persists it with the heights. The engine
+ * gathers a window's state with its heights (row 4b of the tick) and scatters
+ * it back with them for accepted windows only (row 4e), so a refused window
+ * changes nothing.
  */
 #include "sim/sim_internal.h"
 
@@ -103,98 +104,5 @@ double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m)
     return k * pow(z_m, s->n);
 }
 
-/* ---- The per-cell state: sparse tiles ---- */
-
-#define SOIL_TILE 64
-#define SOIL_TILE_INTS ((int64_t)SOIL_TILE * SOIL_TILE * SIM_SOIL_STATE_FIELDS)
-
-int sim_soil_layer_init(sim_soil_layer *l, int width, int height)
-{
-    memset(l, 0, sizeof *l);
-    l->width = width;
-    l->height = height;
-    l->tiles_x = (width + SOIL_TILE - 1) / SOIL_TILE;
-    l->tiles_y = (height + SOIL_TILE - 1) / SOIL_TILE;
-    l->tiles = calloc((size_t)l->tiles_x * (size_t)l->tiles_y + 1, sizeof *l->tiles);
-    return l->tiles ? 0 : -1;
-}
-
-void sim_soil_layer_free(sim_soil_layer *l)
-{
-    if (!l->tiles)
-        return;
-    for (int64_t i = 0; i < (int64_t)l->tiles_x * l->tiles_y; i++)
-        free(l->tiles[i]);
-    free(l->tiles);
-    memset(l, 0, sizeof *l);
-}
-
-/* The state of world cell (x, y), or NULL where its tile was never pressed. */
-static int32_t *layer_cell(const sim_soil_layer *l, int x, int y)
-{
-    int32_t *t = l->tiles[(int64_t)(y / SOIL_TILE) * l->tiles_x + x / SOIL_TILE];
-    if (!t)
-        return NULL;
-    return t + ((int64_t)(y % SOIL_TILE) * SOIL_TILE + x % SOIL_TILE) * SIM_SOIL_STATE_FIELDS;
-}
-
-void sim_soil_layer_gather(const sim_soil_layer *l, world_rect r, int32_t *dst)
-{
-    for (int y = 0; y < r.h; y++)
-        for (int x = 0; x < r.w; x++) {
-            int32_t *d = dst + ((int64_t)y * r.w + x) * SIM_SOIL_STATE_FIELDS;
-            const int32_t *s = layer_cell(l, r.x + x, r.y + y);
-            for (int f = 0; f < SIM_SOIL_STATE_FIELDS; f++)
-                d[f] = s ? s[f] : 0;
-        }
-}
-
-int sim_soil_layer_scatter(sim_soil_layer *l, world_rect r, const int32_t *src)
-{
-    for (int y = 0; y < r.h; y++)
-        for (int x = 0; x < r.w; x++) {
-            const int32_t *s = src + ((int64_t)y * r.w + x) * SIM_SOIL_STATE_FIELDS;
-            int wx = r.x + x, wy = r.y + y;
-            int32_t *d = layer_cell(l, wx, wy);
-            if (!d) {
-                if (!s[0] && !s[1] && !s[2])
-                    continue; /* nothing to remember: no tile */
-                int64_t t = (int64_t)(wy / SOIL_TILE) * l->tiles_x + wx / SOIL_TILE;
-                l->tiles[t] = calloc((size_t)SOIL_TILE_INTS, sizeof(int32_t));
-                if (!l->tiles[t])
-                    return -1;
-                l->allocated++;
-                d = layer_cell(l, wx, wy);
-            }
-            memcpy(d, s, SIM_SOIL_STATE_FIELDS * sizeof *d);
-        }
-    return 0;
-}
-
-int64_t sim_soil_layer_compacted(const sim_soil_layer *l)
-{
-    int64_t total = 0;
-    for (int64_t t = 0; l->tiles && t < (int64_t)l->tiles_x * l->tiles_y; t++) {
-        const int32_t *tile = l->tiles[t];
-        if (!tile)
-            continue;
-        for (int64_t i = 0; i < (int64_t)SOIL_TILE * SOIL_TILE; i++)
-            total += tile[i * SIM_SOIL_STATE_FIELDS + SIM_SOIL_COMPACTED];
-    }
-    return total;
-}
-
-void sim_soil_layer_cell(const sim_soil_layer *l, int x, int y, int32_t *out)
-{
-    const int32_t *s = NULL;
-    if (l->tiles && x >= 0 && y >= 0 && x < l->width && y < l->height)
-        s = layer_cell(l, x, y);
-    for (int f = 0; f < SIM_SOIL_STATE_FIELDS; f++)
-        out[f] = s ? s[f] : 0;
-}
-
-uint64_t sim_soil_layer_bytes(const sim_soil_layer *l)
-{
-    return (uint64_t)l->allocated * (uint64_t)SOIL_TILE_INTS * sizeof(int32_t) +
-           (uint64_t)l->tiles_x * (uint64_t)l->tiles_y * sizeof(int32_t *);
-}
+/* The state lives in the world (world_soil.c), which knows nothing of its meaning. */
+_Static_assert(SIM_SOIL_STATE_FIELDS == WORLD_SOIL_FIELDS, "the world holds the bekker state");

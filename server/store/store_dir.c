@@ -431,18 +431,19 @@ static int dir_append_tick(void *state, const world *w, uint64_t tick, const wor
     size_t cells = 0;
     for (int i = 0; i < n; i++)
         cells += (size_t)rects[i].w * rects[i].h;
-    size_t raw = cells * 4;
+    int soil = w && world_soil_enabled(w);
+    size_t raw = cells * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
     size_t table = 4 + (size_t)n * 16 + 4;
     size_t bound = ZSTD_compressBound(raw);
-    if (array_grow((void **)&st->values, &st->values_cap, (int64_t)cells + 1, sizeof *st->values) !=
-            0 ||
+    if (array_grow((void **)&st->values, &st->values_cap, (int64_t)(raw / 4) + 1,
+                   sizeof *st->values) != 0 ||
         array_grow((void **)&st->buf, &st->buf_cap, (int64_t)(REC_HEADER + table + bound), 1) !=
             0) {
         set_failed(st, "memory", "no memory for a log record", ENOMEM);
         return -1;
     }
     uint8_t *p = st->buf + REC_HEADER;
-    put32(p, (uint32_t)n);
+    put32(p, (uint32_t)n | (soil ? REC_SOIL : 0));
     size_t off = 0;
     for (int i = 0; i < n; i++) {
         world_rect r = rects[i];
@@ -451,6 +452,8 @@ static int dir_append_tick(void *state, const world *w, uint64_t tick, const wor
         put32(p + 12 + 16 * i, (uint32_t)r.w);
         put32(p + 16 + 16 * i, (uint32_t)r.h);
         world_gather_window(w, r, st->values + off);
+        if (soil)
+            world_soil_gather(w, r, st->values + cells + off * WORLD_SOIL_FIELDS);
         off += (size_t)r.w * r.h;
         for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
             for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE; tx++)

@@ -38,9 +38,17 @@ extern const store_backend store_backend_dir;
 #define WAL_HEADER 24
 #define REC_MAGIC 0x52445254u /* "TRDR" */
 #define REC_HEADER 24
+/* In a record's rectangle count: the soil state (WORLD_SOIL_FIELDS int32 per
+ * cell) of every rectangle follows their heights. Records without it (format
+ * 1, and worlds without soil) hold heights only. */
+#define REC_SOIL 0x80000000u
 #define REC_MAX_PAYLOAD (1u << 30)
 #define TILE_MAGIC "TRDTILE1"
 #define TILE_HEADER 56
+/* A snapshot's format (header offset 8): 1 heights only; 2 heights, then the
+ * tile's soil state (WORLD_SOIL_FIELDS int32 per cell). */
+#define TILE_FORMAT_HEIGHTS 1
+#define TILE_FORMAT_SOIL 2
 #define RETRY_MS 500.0
 /* A snapshot or a segment read whole is at most this large. */
 #define STORE_FILE_BYTES_MAX ((size_t)REC_MAX_PAYLOAD * 2)
@@ -69,7 +77,8 @@ static inline uint64_t get64(const uint8_t *p)
 typedef struct tile_copy {
     int tx, ty;
     world_rect rect;
-    int32_t *values;
+    int32_t *values; /* heights, then (soil set) the soil state */
+    int soil;
 } tile_copy;
 
 /* DIR/CONTROL (store_control.c). */

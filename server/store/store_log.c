@@ -55,6 +55,28 @@ static void scan_after(const uint8_t *data, size_t len, size_t from, replay_resu
     }
 }
 
+/* A checked record's rectangles into w: their heights, then (a record with
+ * REC_SOIL) their soil state; marks the tiles changed. 0, or -1 out of memory. */
+static int record_apply(world *w, uint8_t *changed, const uint8_t *p, uint32_t nrect, int soil,
+                        const int32_t *values, size_t cells)
+{
+    int tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    size_t off = 0;
+    for (uint32_t i = 0; i < nrect; i++) {
+        world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
+                        (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
+        world_scatter_window(w, r, values + off);
+        if (soil && world_soil_scatter(w, r, values + cells + off * WORLD_SOIL_FIELDS) != 0)
+            return -1;
+        off += (size_t)r.w * r.h;
+        if (changed)
+            for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
+                for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE; tx++)
+                    changed[ty * tiles_x + tx] = 1;
+    }
+    return 0;
+}
+
 /* Apply every good record of one segment to w (and mark changed tiles); with
  * w NULL only count them. Stops at the first record that is torn or fails its
  * checksum, then looks for good records after it (res->later_records). */
@@ -68,7 +90,6 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
     if (store_file_read(path, "log segment ", &data, &len, err) != 0)
         return -1;
     res->file_len = (int64_t)len;
-    int tiles_x = !w ? 0 : (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
     if (len < WAL_HEADER || memcmp(data, WAL_MAGIC, 8) != 0 ||
         get32(data + 16) != store_crc32c(0, data, 16)) {
         snprintf(res->problem, sizeof res->problem, "torn or corrupt segment header");
@@ -124,18 +145,20 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
             break;
         }
         /* checksummed, so a malformed payload is a writer bug: still refuse it */
-        uint32_t nrect = plen >= 4 ? get32(p) : 0;
+        uint32_t word = plen >= 4 ? get32(p) : 0, nrect = word & ~REC_SOIL;
+        int soil = (word & REC_SOIL) != 0;
         size_t table = 4 + (size_t)nrect * 16 + 4;
         int ok = plen >= 4 && nrect <= 1u << 20 && table <= plen && tick > res->last_tick;
-        uint64_t raw = 0;
+        uint64_t raw = 0, cells = 0;
         for (uint32_t i = 0; ok && i < nrect; i++) {
             world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
                             (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
             world_rect c = r;
             ok = r.w > 0 && r.h > 0 && world_clip_rect(w, &c) && c.x == r.x && c.y == r.y &&
                  c.w == r.w && c.h == r.h;
-            raw += (uint64_t)r.w * r.h * 4;
+            cells += (uint64_t)r.w * r.h;
         }
+        raw = cells * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
         ok = ok && raw == get32(p + table - 4) && raw <= REC_MAX_PAYLOAD &&
              array_grow((void **)&values, &values_cap, (int64_t)(raw / 4 + 1), sizeof *values) == 0;
         if (ok)
@@ -146,17 +169,11 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
                      at);
             break;
         }
-        size_t off = 0;
-        for (uint32_t i = 0; i < nrect; i++) {
-            world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
-                            (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
-            world_scatter_window(w, r, values + off);
-            off += (size_t)r.w * r.h;
-            if (changed)
-                for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
-                    for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE;
-                         tx++)
-                        changed[ty * tiles_x + tx] = 1;
+        if (record_apply(w, changed, p, nrect, soil, values, (size_t)cells) != 0) {
+            error_set(err, "store: out of memory for the soil state replaying %s", path);
+            free(values);
+            free(data);
+            return -1;
         }
         res->records++;
         res->last_tick = tick;

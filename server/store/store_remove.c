@@ -77,6 +77,11 @@ static int walk(const char *dir, const char *sub, int remove, int *count, error_
             continue;
         char p[1500];
         snprintf(p, sizeof p, "%s/%s", path, n);
+        /* a single daemon's created worlds (app/serve_worlds.c: one data
+         * directory each under worlds/, kept ones under worlds-kept/): the
+         * daemon's to remove, never a reason to refuse */
+        if (!sub && (strcmp(n, "worlds") == 0 || strcmp(n, "worlds-kept") == 0))
+            continue;
         if (!sub && strcmp(n, "tiles") == 0) {
             rc = walk(dir, "tiles", remove, count, err);
             if (rc == 0 && remove && rmdir(p) != 0) {

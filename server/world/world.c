@@ -181,6 +181,7 @@ void world_free(world *w)
         free(st->flat_row);
         free(st);
     }
+    world_soil_free(w);
     memset(w, 0, sizeof *w);
 }
 

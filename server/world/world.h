@@ -44,6 +44,7 @@ typedef struct world {
     int tile_cells;            /* side of a tile in cells, a power of two */
     int tiles_x, tiles_y;      /* tiles per row / column (the last ones may be partial) */
     struct world_store *store; /* tiles, base terrain, caches: world.c only */
+    struct world_soil *soil;   /* per-cell soil state, NULL while none: world_soil.c only */
 } world;
 
 /* How the base terrain is made. */
@@ -187,6 +188,29 @@ int world_edit_apply(world *w, const world_edit *e, world_rect *rect, int32_t **
                      int64_t *volume, error_text *err);
 /* Take an applied edit back (the store could not log its tick). */
 void world_edit_undo(world *w, world_rect r, const int32_t *diff);
+
+/* ---- per-cell soil state (world_soil.c) ----
+ * WORLD_SOIL_FIELDS int32 per cell beside the heights, zeros until written;
+ * what they mean is the model's (sim.h: SIM_SOIL_*). The store logs and
+ * snapshots them with the heights of the same rectangles. */
+
+#define WORLD_SOIL_FIELDS 3
+
+/* Allocate the (empty) layer; idempotent. 0, or -1 out of memory. */
+int world_soil_enable(world *w);
+int world_soil_enabled(const world *w);
+void world_soil_free(world *w);
+/* r (clipped) into dst, WORLD_SOIL_FIELDS per cell, row-major; zeros where
+ * nothing was written. */
+void world_soil_gather(const world *w, world_rect r, int32_t *dst);
+/* src over r (enabling the layer). 0, or -1 out of memory. */
+int world_soil_scatter(world *w, world_rect r, const int32_t *src);
+/* 1 when no cell of r (clipped) was ever written with anything but zeros. */
+int world_soil_rect_empty(const world *w, world_rect r);
+/* Σ of one field over the world, exactly (kept as cells are written). */
+int64_t world_soil_sum(const world *w, int field);
+void world_soil_cell(const world *w, int x, int y, int32_t *out);
+uint64_t world_soil_bytes(const world *w);
 
 /* Write / read a 16-bit greyscale PNG (used by base terrain and exports). */
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err);

@@ -10,7 +10,7 @@
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
-import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
+import { mkdirSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import http from 'node:http';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
@@ -53,7 +53,12 @@ function startDaemon() {
   // A small budget for /v1/heights answers held at once, so that 429 can be seen: 20,000 bytes
   // pass the 64x64 base read below (16,384) and refuse a 100x100 read (40,000).
   const config = path.join(dataDir, 'config.json');
-  writeFileSync(config, JSON.stringify({ limits: { max_heights_bytes_per_address: 20000, max_edit_cells: 100000 } }));
+  // a scene directory for POST /v1/worlds's scene_name, and room for one created world
+  mkdirSync(path.join(dataDir, 'scenes'));
+  writeFileSync(path.join(dataDir, 'scenes', 'pit.json'),
+    JSON.stringify({ name: 'pit', world: { width: 64, height: 64, cell_size_m: 0.05 } }));
+  writeFileSync(config, JSON.stringify({ limits: { max_heights_bytes_per_address: 20000, max_edit_cells: 100000 },
+    scene_dir: path.join(dataDir, 'scenes'), max_worlds: 1 }));
   const args = ['serve', '--http-port', '0', '--ws-port', '0', '--backend', 'cpu', '--no-data',
     '--config', config];
   const proc = spawn(BIN, args, { stdio: ['ignore', 'ignore', 'pipe'], cwd: dataDir });
@@ -97,10 +102,12 @@ after(async () => {
 // The spec's operation for a request path; paths not in the document are the viewer's files.
 function operationFor(urlPath, method) {
   const p = urlPath.split('?')[0];
-  const edits = /^\/v1\/worlds\/[^/]+\/edits$/.test(p) ? '/v1/worlds/{name}/edits' : null;
+  const edits = /^\/v1\/worlds\/[^/]+\/edits$/.test(p) ? '/v1/worlds/{name}/edits'
+    : /^\/v1\/worlds\/[^/]+$/.test(p) ? '/v1/worlds/{name}' : null;
   const key = edits || (api.paths[p] ? p : '/');
   const item = api.paths[key];
-  const op = (method === 'POST' && item.post) || item.get; // HEAD answers as GET, without the body
+  // HEAD answers as GET, without the body
+  const op = (method === 'POST' && item.post) || (method === 'DELETE' && item.delete) || item.get;
   return { key, op };
 }
 
@@ -108,7 +115,7 @@ function operationFor(urlPath, method) {
 function conforms(what, urlPath, method, res) {
   const { key, op } = operationFor(urlPath, method);
   if (!seen.has(key)) seen.set(key, new Set());
-  seen.get(key).add(String(res.status));
+  seen.get(key).add(`${method === 'HEAD' ? 'GET' : method} ${res.status}`);
   const response = op.responses[String(res.status)] || op.responses.default;
   assert.ok(response, `${what}: status ${res.status} is documented for ${key}`);
   const type = res.headers['content-type'];
@@ -200,6 +207,25 @@ test('POST /v1/worlds/{name}/edits: applied, and every refusal, as the document 
   await post('past the height range', 'default-dunes', { op: 'add', x: 0, y: 0, w: 2, h: 2, amount: 536870912 }, 422);
 });
 
+test('POST, GET /v1/worlds and DELETE /v1/worlds/{name}, and their refusals, as the document says', async () => {
+  const post = (what, body, want) => fetchChecked(what, '/v1/worlds', want, {
+    method: 'POST', body: typeof body === 'string' ? body : JSON.stringify(body),
+    headers: { 'Content-Type': 'application/json' } });
+  const { json: made } = await post('a world from scene_name', { name: 'pit-1', scene_name: 'pit' }, 201);
+  assert.equal(made.name, 'pit-1');
+  const { json: list } = await fetchChecked('the list', '/v1/worlds', 200);
+  assert.deepEqual(list.worlds.map((w) => w.name), ['default-dunes', 'pit-1']);
+  await post('a duplicate', { name: 'pit-1', scene_name: 'pit' }, 409);
+  await post('one too many', { name: 'pit-2', scene: { name: 'p', world: { width: 8, height: 8, cell_size_m: 0.1 } } }, 409);
+  await post('no such scene', { name: 'pit-3', scene_name: 'nowhere' }, 404);
+  await post('an unsafe name', { name: 'a b', scene_name: 'pit' }, 400);
+  await post('NaN', '{"name": "n", "scene": {"world": {"cell_size_m": NaN}}}', 400);
+  await fetchChecked('delete', '/v1/worlds/pit-1', 200, { method: 'DELETE' });
+  await post('a bad scene', { name: 'pit-4', scene: { name: 'p', world: { width: -1 } } }, 422);
+  await fetchChecked('delete again', '/v1/worlds/pit-1', 404, { method: 'DELETE' });
+  await fetchChecked('delete the default world', '/v1/worlds/default-dunes', 409, { method: 'DELETE' });
+});
+
 test('the document is served at /v1/openapi.yaml, byte for byte', async () => {
   const { res } = await fetchChecked('openapi', '/v1/openapi.yaml', 200);
   assert.equal(res.headers['content-type'], 'application/yaml');
@@ -223,12 +249,16 @@ test('every documented error answers as the document says', async () => {
 test('every path was fetched and every explicit status was seen', () => {
   for (const [p, item] of Object.entries(api.paths)) {
     assert.ok(seen.has(p), `${p} was fetched`);
-    for (const status of Object.keys((item.get || item.post).responses)) {
-      if (status === 'default' || (p === '/readyz' && status === '503')) continue; // 503: before ready only
-      if (p === '/v1/heights' && status === '503') continue; // only while the tick is stuck
-      // a cluster node's answer for a world another node ticks: test_cluster_any_node
-      if (p === '/v1/heights' && status === '504') continue;
-      assert.ok(seen.get(p).has(status), `${p}: status ${status} was seen (${[...seen.get(p)]})`);
+    for (const [method, op] of Object.entries(item)) {
+      if (!['get', 'post', 'delete'].includes(method)) continue;
+      for (const status of Object.keys(op.responses)) {
+        if (status === 'default' || (p === '/readyz' && status === '503')) continue; // 503: before ready only
+        if (p === '/v1/heights' && status === '503') continue; // only while the tick is stuck
+        // a cluster node's answer for a world another node ticks: test_cluster_any_node
+        if (p === '/v1/heights' && status === '504') continue;
+        const want = `${method.toUpperCase()} ${status}`;
+        assert.ok(seen.get(p).has(want), `${p}: ${want} was seen (${[...seen.get(p)]})`);
+      }
     }
   }
 });

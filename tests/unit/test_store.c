@@ -5,7 +5,8 @@
  * that is not the last refused, truncated and bit-flipped tile snapshots
  * refused naming the file, a manifest of another world refused, the
  * directory lock, the ENOSPC fault hook (nothing appended, recovery when it
- * goes), group commit's promise, and no temporary files left behind.
+ * goes), group commit's promise, no temporary files left behind, and the
+ * bekker model's per-cell soil state through the log and snapshots.
  */
 #include "test_params.h"
 #include <dirent.h>
@@ -492,6 +493,118 @@ static void test_group_commit(void)
     world_free(&live);
 }
 
+/* The soil state of the whole world, dense. */
+static int32_t *dense_soil(const world *w)
+{
+    int32_t *all = malloc((size_t)W * H * WORLD_SOIL_FIELDS * sizeof *all);
+    if (!all)
+        exit(2);
+    world_soil_gather(w, (world_rect){0, 0, W, H}, all);
+    return all;
+}
+
+static int same_soil(const world *a, const world *b)
+{
+    int32_t *da = dense_soil(a), *db = dense_soil(b);
+    int same = memcmp(da, db, (size_t)W * H * WORLD_SOIL_FIELDS * 4) == 0;
+    free(da);
+    free(db);
+    for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
+        same &= world_soil_sum(a, f) == world_soil_sum(b, f);
+    return same;
+}
+
+/* A tick of a soil model: heights change in one rectangle, the soil state in
+ * it and (heights untouched: a wheel resting, its shear reset) in another,
+ * kept left of x = 400 so the right-hand tiles never hold any. */
+static int soil_tick(store *st, world *w, uint64_t tick)
+{
+    world_rect r[2];
+    for (int k = 0; k < 2; k++) {
+        r[k].w = 1 + (int)(test_next_random(&rng) % 60);
+        r[k].h = 1 + (int)(test_next_random(&rng) % 60);
+        r[k].x = (int)(test_next_random(&rng) % (uint32_t)(400 - r[k].w));
+        r[k].y = (int)(test_next_random(&rng) % (uint32_t)(H - r[k].h));
+        int64_t n = (int64_t)r[k].w * r[k].h;
+        int32_t *cells = malloc((size_t)n * WORLD_SOIL_FIELDS * sizeof *cells);
+        if (!cells)
+            exit(2);
+        if (k == 0) {
+            world_gather_window(w, r[k], cells);
+            for (int64_t i = 0; i < n; i++)
+                cells[i] -= (int32_t)(test_next_random(&rng) % 50);
+            world_scatter_window(w, r[k], cells);
+        }
+        world_soil_gather(w, r[k], cells);
+        for (int64_t i = 0; i < n * WORLD_SOIL_FIELDS; i++)
+            cells[i] = k == 1 && i % WORLD_SOIL_FIELDS == 1
+                           ? 0
+                           : cells[i] + (int32_t)(test_next_random(&rng) % 1000);
+        if (world_soil_scatter(w, r[k], cells) != 0)
+            exit(2);
+        free(cells);
+    }
+    return store_commit_tick(st, w, tick, r, 2);
+}
+
+/* The per-cell soil state (issue 21) through the log and through snapshots
+ * (format 2 where a tile holds soil, format 1 elsewhere), recovered exactly
+ * into a world that has none yet (recovery runs before the engine). */
+static void test_soil_state(void)
+{
+    fresh_dir();
+    world live, back, again;
+    make_base(&live);
+    make_base(&back);
+    make_base(&again);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&live, &rec, 0, &err);
+    CHECK(st && world_soil_enable(&live) == 0, "open: %s", err.message);
+    if (!st)
+        return;
+    for (uint64_t t = 1; t <= 30; t++)
+        CHECK(soil_tick(st, &live, t) == 0, "soil tick %llu logged", (unsigned long long)t);
+    world_rect far = {500, 10, 20, 20}; /* heights only, in a tile without soil */
+    int32_t *cells = malloc((size_t)far.w * far.h * sizeof *cells);
+    world_gather_window(&live, far, cells);
+    cells[0] += 7;
+    world_scatter_window(&live, far, cells);
+    free(cells);
+    CHECK(store_commit_tick(st, &live, 31, &far, 1) == 0, "a tick without soil changes");
+    store_close(st);
+    st = open_dir(&back, &rec, 0, &err);
+    CHECK(st && rec.tick == 31 && rec.records_replayed == 31, "log replay: tick %llu: %s",
+          (unsigned long long)rec.tick, err.message);
+    CHECK(same_heights(&live, &back) && same_soil(&live, &back),
+          "log replay: heights and every cell's soil state as they were");
+    CHECK(world_soil_sum(&back, 2) > 0, "the soil state is not all zeros");
+    store_close(st);
+
+    /* compaction into snapshots, then recovery from them */
+    st = open_dir(&back, &rec, 20000, &err);
+    for (uint64_t t = 32; t <= 140 && st; t++)
+        soil_tick(st, &back, t);
+    store_close(st);
+    st = open_dir(&again, &rec, 20000, &err);
+    CHECK(st && rec.tick == 140 && rec.tiles_loaded > 0, "snapshots: tick %llu, %d tiles: %s",
+          (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
+    CHECK(same_heights(&back, &again) && same_soil(&back, &again),
+          "snapshots + log: heights and every cell's soil state as they were");
+    store_close(st);
+    char snap[400];
+    snprintf(snap, sizeof snap, "%s/tiles/t-00000-00000.snap", dir);
+    FILE *f = fopen(snap, "rb");
+    unsigned char head[12] = {0};
+    CHECK(f && fread(head, 1, sizeof head, f) == sizeof head && head[8] == 2,
+          "a tile with soil is snapshot in format 2 (%u)", head[8]);
+    if (f)
+        fclose(f);
+    world_free(&live);
+    world_free(&back);
+    world_free(&again);
+}
+
 int main(void)
 {
     snprintf(dir, sizeof dir, "/tmp/terrad_test_store_%d", (int)getpid());
@@ -504,6 +617,7 @@ int main(void)
     test_manifest_and_lock();
     test_fault_hook();
     test_group_commit();
+    test_soil_state();
     fresh_dir();
     return check_report();
 }

@@ -27,10 +27,11 @@ from .proto import __all__ as _proto_all
 from .predict import Prediction
 from .sync import SyncClient
 from .twin import Twin, TwinError
-from .http import get_heights, get_stats, get_world
+from .http import (WorldError, create_world, delete_world, get_heights, get_stats, get_world,
+                   list_worlds)
 
 __version__ = "0.3.0"
 
 __all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "Prediction", "SyncClient", "TerradClient",
-           "Twin", "TwinError", "get_heights", "get_stats", "get_world", "heights_grid", "proto",
-           *_proto_all]
+           "Twin", "TwinError", "WorldError", "create_world", "delete_world", "get_heights",
+           "get_stats", "get_world", "heights_grid", "list_worlds", "proto", *_proto_all]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import struct
+import urllib.error
 import urllib.request
 from typing import Any
 
@@ -36,3 +37,60 @@ def get_world(base: str, timeout: float = 10.0) -> dict[str, Any]:
 def get_stats(base: str, timeout: float = 10.0) -> dict[str, Any]:
     """GET /v1/stats."""
     return json.loads(_get(base, "/v1/stats", timeout)[0])
+
+
+# ---- the world lifecycle API (a single daemon; docs/openapi.yaml "worlds") ----
+
+class WorldError(Exception):
+    """A refused world request: .status (HTTP), .field (the field it names), .message."""
+
+    def __init__(self, status: int, message: str, field: str = ""):
+        super().__init__(f"{status}: {message}")
+        self.status = status
+        self.message = message
+        self.field = field
+
+
+def _request(base: str, method: str, path: str, body: Any, token: str, timeout: float) -> Any:
+    data = None if body is None else json.dumps(body, allow_nan=False).encode()
+    req = urllib.request.Request(base.rstrip("/") + path, data=data, method=method)
+    if data is not None:
+        req.add_header("Content-Type", "application/json")
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as r:
+            return json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        try:
+            doc = json.loads(e.read() or b"{}")
+        except ValueError:
+            doc = {}
+        raise WorldError(e.code, doc.get("error", str(e)), doc.get("field", "")) from None
+
+
+def create_world(base: str, name: str, scene: dict[str, Any] | None = None,
+                 scene_name: str | None = None, token: str = "",
+                 timeout: float = 120.0) -> dict[str, Any]:
+    """POST /v1/worlds (admin): a world from a scene (an object, as in a scene file) or from
+    scene_name (a scene of the daemon's --scene-dir). Returns the world's entry once it serves
+    (hello with world=name to join it); raises WorldError naming the refused field."""
+    body: dict[str, Any] = {"name": name}
+    if scene is not None:
+        body["scene"] = scene
+    if scene_name is not None:
+        body["scene_name"] = scene_name
+    return _request(base, "POST", "/v1/worlds", body, token, timeout)
+
+
+def list_worlds(base: str, token: str = "", timeout: float = 10.0) -> list[dict[str, Any]]:
+    """GET /v1/worlds: every world (the default one first), each with name, state, tick..."""
+    return _request(base, "GET", "/v1/worlds", None, token, timeout)["worlds"]
+
+
+def delete_world(base: str, name: str, keep: bool = False, token: str = "",
+                 timeout: float = 120.0) -> dict[str, Any]:
+    """DELETE /v1/worlds/{name} (admin): its clients are closed (4020 "world deleted"), its
+    storage removed, or kept for replays with keep=True."""
+    return _request(base, "DELETE", f"/v1/worlds/{name}" + ("?keep=1" if keep else ""), None,
+                    token, timeout)

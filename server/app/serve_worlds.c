@@ -1,0 +1,767 @@
+/*
+ * serve_worlds.c: worlds created and ended by API on a single daemon
+ * (issue 22; docs/openapi.yaml "worlds"): POST /v1/worlds, GET /v1/worlds,
+ * DELETE /v1/worlds/{name}. The default world (--scene) ticks on the main
+ * thread as before; each created world ticks on its own sim thread, as a
+ * cluster node's worlds do (serve_sim_loop; the same serve_sim, the same
+ * http_server_add_world / net_server_add_world), so a created world's tick
+ * is the same code as the default's and its clients reach it by hello's
+ * "world" and its HTTP by ?world=NAME or /v1/worlds/NAME/edits.
+ *
+ * Storage (with --data DIR): DIR/worlds/NAME.json is the world's scene and
+ * the mark that it exists — written (fsynced, renamed into place) before the
+ * create is acknowledged, and unlinked before a delete is — and
+ * DIR/worlds/NAME/ its data directory (a store of its own: snapshots and
+ * log). A start recovers every world whose NAME.json is there, so after
+ * kill -9 exactly the acknowledged worlds come back; a directory without its
+ * NAME.json is a delete or create cut short, and is removed. ?keep=1 moves
+ * both to DIR/worlds-kept/NAME-MS(.json) for replays instead.
+ *
+ * Creates and deletes run on the HTTP threads, off every tick; one lock
+ * guards the table (and waits for a world's thread to come up).
+ */
+#include <dirent.h>
+#include <errno.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <cjson/cJSON.h>
+
+#include "app/app.h"
+#include "app/serve_internal.h"
+#include "metrics/metrics.h"
+
+#define WORLDS_MAX 63 /* the websocket server's 64 world states less the default's */
+#define WORLDS_DEFAULT_MAX 16
+#define WORLD_START_WAIT_MS 60000.0 /* a scene's base terrain is made before it serves */
+#define SCENE_MAX_BYTES (1 << 20)
+#define PATH_CAP 1200
+
+typedef enum { LW_STARTING, LW_RUNNING, LW_FAILED, LW_ENDED } lw_state;
+static const char *const state_names[] = {"starting", "running", "failed", "ended"};
+
+typedef struct local_world {
+    serve_sim m;
+    serve_worlds *ws;
+    pthread_t thread;
+    int started;    /* the thread was created (joined by whoever ends it) */
+    int deleting;   /* a DELETE has it: no other may */
+    int deleted;    /* its clients are told it was deleted (not that the daemon stops) */
+    int registered; /* on the HTTP and websocket ports */
+    atomic_int stop;
+    lw_state state; /* under ws->lock */
+    char *scene_text;
+    char why[256];
+} local_world;
+
+struct serve_worlds {
+    serve_options o; /* the daemon's, with no demo actors and no tick limit */
+    http_server *http;
+    net_server *net;
+    const serve_sim *main_world; /* the default world (its status for the list) */
+    char root[PATH_CAP];         /* DATA/worlds; "" without --data */
+    char kept[PATH_CAP];         /* DATA/worlds-kept */
+    int max;
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+    local_world *worlds[WORLDS_MAX];
+    int nworlds;
+    int stopping, calls; /* the daemon stops: no new call; calls running now */
+};
+
+/* ---- answers ---- */
+
+/* An API call begins (0: the daemon is stopping, answer 503) and ends. */
+static int enter(serve_worlds *ws)
+{
+    pthread_mutex_lock(&ws->lock);
+    int ok = !ws->stopping;
+    ws->calls += ok;
+    pthread_mutex_unlock(&ws->lock);
+    return ok;
+}
+
+static void leave(serve_worlds *ws)
+{
+    pthread_mutex_lock(&ws->lock);
+    ws->calls--;
+    pthread_cond_broadcast(&ws->cond);
+    pthread_mutex_unlock(&ws->lock);
+}
+
+/* {"error": why, "field": field}: the body of every refusal. */
+static char *error_json(const char *field, const char *why)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "error", why);
+    cJSON_AddStringToObject(o, "field", field);
+    char *text = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return text;
+}
+
+static unsigned refuse(const char *op, unsigned code, const char *field, const char *why,
+                       char **json)
+{
+    metrics_count_world_request(op, 0);
+    log_info("worlds: %s refused (%u): %s", op, code, why);
+    *json = error_json(field, why);
+    return code;
+}
+
+/* One world's entry of GET /v1/worlds, from its status block. */
+static cJSON *world_entry(const char *name, http_status *st, const char *state, int is_default)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "name", name);
+    cJSON_AddStringToObject(o, "state", state);
+    cJSON_AddBoolToObject(o, "default", is_default);
+    pthread_mutex_lock(&st->lock);
+    cJSON_AddStringToObject(o, "scene", st->scene_name);
+    cJSON_AddNumberToObject(o, "width", st->world_width);
+    cJSON_AddNumberToObject(o, "height", st->world_height);
+    cJSON_AddNumberToObject(o, "tick", (double)st->tick);
+    cJSON_AddNumberToObject(o, "clients", st->clients);
+    cJSON_AddNumberToObject(o, "colliders", st->colliders);
+    cJSON_AddBoolToObject(o, "ready", st->ready);
+    pthread_mutex_unlock(&st->lock);
+    return o;
+}
+
+/* ---- files ---- */
+
+static void world_paths(const serve_worlds *ws, const char *name, char *dir, char *json)
+{
+    snprintf(dir, PATH_CAP, "%.1000s/%s", ws->root, name);
+    snprintf(json, PATH_CAP, "%.1000s/%s.json", ws->root, name);
+}
+
+/* A world's data directory and its tiles/ gone (store_remove refuses what is not a store's). */
+static int remove_store_dir(const char *dir, error_text *err)
+{
+    int removed = 0;
+    if (store_remove(dir, &removed, err) != 0)
+        return -1;
+    if (rmdir(dir) != 0 && errno != ENOENT) {
+        error_set(err, "cannot remove %s: %s", dir, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+/* ---- a world's sim thread ---- */
+
+static void set_state(local_world *lw, lw_state state)
+{
+    pthread_mutex_lock(&lw->ws->lock);
+    lw->state = state;
+    pthread_cond_broadcast(&lw->ws->cond);
+    pthread_mutex_unlock(&lw->ws->lock);
+}
+
+/* The scene, its world, and its store recovered over the base. */
+static int world_open(serve_worlds *ws, local_world *lw, error_text *err)
+{
+    serve_sim *m = &lw->m;
+    const char *base = ws->o.scene_dir ? ws->o.scene_dir : ".";
+    if (scene_load_json(lw->scene_text, base, &m->sc, err) != 0)
+        return -1;
+    if (ws->o.tick_hz > 0)
+        m->sc.tick_hz = ws->o.tick_hz;
+    m->sc.material.tick_s = 1.0 / m->sc.tick_hz;
+    if (scene_create_world(&m->sc, &m->w, err) != 0)
+        return -1;
+    if (!ws->root[0])
+        return 0;
+    char dir[PATH_CAP], json[PATH_CAP];
+    world_paths(ws, m->name, dir, json);
+    store_config stc = {
+        .dir = dir, .segment_bytes = ws->o.wal_segment_bytes, .fault_path = ws->o.store_fault};
+    if (store_parse_durability(ws->o.durability, &stc, err) != 0 ||
+        !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
+        return -1;
+    log_info("worlds: world %s: recovered tick %llu from %d tile snapshots and %lld log records",
+             m->name, (unsigned long long)m->recovery.tick, m->recovery.tiles_loaded,
+             (long long)m->recovery.records_replayed);
+    return 0;
+}
+
+static int world_register(serve_worlds *ws, local_world *lw, error_text *err)
+{
+    serve_sim *m = &lw->m;
+    net_world_info info = serve_sim_world_info(m);
+    if (http_server_add_world(ws->http, m->name, &m->status, m->h, &m->w, err) != 0)
+        return -1;
+    if (net_server_add_world(ws->net, &info, m->h, err) != 0) {
+        http_server_remove_world(ws->http, m->name);
+        return -1;
+    }
+    m->metrics_slot = metrics_world_slot(m->name);
+    serve_sim_ready(m);
+    lw->registered = 1;
+    log_info("worlds: world %s: serving scene \"%s\" (%dx%d cells, %s backend, tick %llu): "
+             "hello \"world\": \"%s\", /v1/*?world=%s",
+             m->name, m->sc.name, m->w.width, m->w.height, m->backend->name,
+             (unsigned long long)service_current_tick(m->svc), m->name, m->name);
+    return 0;
+}
+
+/* Off the ports: reads fail fast, requests in flight end, clients are told and closed. */
+static void world_unregister(serve_worlds *ws, local_world *lw)
+{
+    serve_sim *m = &lw->m;
+    if (m->h)
+        hub_close_reads(m->h);
+    if (!lw->registered)
+        return;
+    lw->registered = 0;
+    http_server_remove_world(ws->http, m->name);
+    if ((lw->deleted ? net_server_delete_world(ws->net, m->h)
+                     : net_server_remove_world(ws->net, m->h)) != 0)
+        m->h = NULL; /* the net thread may still hold it: left to the exit */
+    metrics_world_drop(m->metrics_slot);
+}
+
+static void *world_main(void *arg)
+{
+    local_world *lw = arg;
+    serve_worlds *ws = lw->ws;
+    serve_sim *m = &lw->m;
+    error_text err = {{0}};
+    int ran = 0;
+    if (world_open(ws, lw, &err) == 0) {
+        serve_sim_status_init(m);
+        if (!(m->h = hub_create()))
+            error_set(&err, "out of memory");
+        else if (serve_sim_start(m, &ws->o, &err) == 0 && world_register(ws, lw, &err) == 0) {
+            ran = 1;
+            set_state(lw, LW_RUNNING);
+            serve_sim_loop(m, &lw->stop, -1, ws->net, NULL, NULL, lw->why, sizeof lw->why);
+        }
+    }
+    if (err.message[0])
+        snprintf(lw->why, sizeof lw->why, "%s", err.message);
+    world_unregister(ws, lw);
+    if (m->svc)
+        log_info("worlds: world %s stopped after tick %llu (%llu overruns)%s%s", m->name,
+                 (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns,
+                 lw->why[0] ? ": " : "", lw->why);
+    serve_sim_free(m);
+    if (lw->why[0] && !ran)
+        log_error("worlds: world %s did not start: %s", m->name, lw->why);
+    set_state(lw, lw->why[0] && !atomic_load(&lw->stop) ? LW_FAILED : LW_ENDED);
+    return NULL;
+}
+
+/* ---- the table ---- */
+
+static local_world *find(serve_worlds *ws, const char *name)
+{
+    for (int i = 0; i < ws->nworlds; i++)
+        if (strcmp(ws->worlds[i]->m.name, name) == 0)
+            return ws->worlds[i];
+    return NULL;
+}
+
+static void forget(serve_worlds *ws, local_world *lw)
+{
+    pthread_mutex_lock(&ws->lock);
+    for (int i = 0; i < ws->nworlds; i++)
+        if (ws->worlds[i] == lw) {
+            memmove(&ws->worlds[i], &ws->worlds[i + 1],
+                    (size_t)(ws->nworlds - i - 1) * sizeof *ws->worlds);
+            ws->nworlds--;
+            break;
+        }
+    pthread_mutex_unlock(&ws->lock);
+    free(lw->scene_text);
+    pthread_mutex_destroy(&lw->m.status.lock);
+    free(lw);
+}
+
+/* Its thread stopped and joined (deleted: its clients are told so). */
+static void end_world(local_world *lw, int deleted)
+{
+    lw->deleted = deleted;
+    atomic_store(&lw->stop, 1);
+    if (lw->started)
+        pthread_join(lw->thread, NULL);
+    lw->started = 0;
+}
+
+/* A new entry (scene_text taken), in the table as "starting": NULL with
+ * *code and why when the name is taken or the table is full. */
+static local_world *reserve(serve_worlds *ws, const char *name, char *scene_text, unsigned *code,
+                            const char **field, char *why, size_t cap)
+{
+    local_world *lw = calloc(1, sizeof *lw);
+    if (!lw) {
+        free(scene_text);
+        *code = 500, *field = "body";
+        snprintf(why, cap, "out of memory");
+        return NULL;
+    }
+    lw->ws = ws;
+    lw->scene_text = scene_text;
+    lw->m.metrics_slot = -1;
+    snprintf(lw->m.name, sizeof lw->m.name, "%s", name);
+    pthread_mutex_init(&lw->m.status.lock, NULL);
+    pthread_mutex_lock(&ws->lock);
+    int taken = find(ws, name) != NULL, full = ws->nworlds >= ws->max;
+    if (!taken && !full)
+        ws->worlds[ws->nworlds++] = lw;
+    pthread_mutex_unlock(&ws->lock);
+    if (!taken && !full)
+        return lw;
+    *code = 409;
+    *field = taken ? "name" : "max_worlds";
+    if (taken)
+        snprintf(why, cap, "name: a world \"%s\" exists already (DELETE it first)", name);
+    else
+        snprintf(why, cap,
+                 "max_worlds: this daemon already holds %d created worlds, its limit "
+                 "(--max-worlds): delete one first",
+                 ws->max);
+    free(scene_text);
+    pthread_mutex_destroy(&lw->m.status.lock);
+    free(lw);
+    return NULL;
+}
+
+/* Starts lw's thread and waits until it serves (0) or failed (-1, why). */
+static int start_world(serve_worlds *ws, local_world *lw, char *why, size_t cap)
+{
+    if (pthread_create(&lw->thread, NULL, world_main, lw) != 0) {
+        snprintf(why, cap, "cannot start a thread for world %s", lw->m.name);
+        return -1;
+    }
+    lw->started = 1;
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    until.tv_sec += (time_t)(WORLD_START_WAIT_MS / 1000);
+    pthread_mutex_lock(&ws->lock);
+    while (lw->state == LW_STARTING)
+        if (pthread_cond_timedwait(&ws->cond, &ws->lock, &until) == ETIMEDOUT)
+            break;
+    lw_state state = lw->state;
+    pthread_mutex_unlock(&ws->lock);
+    if (state == LW_RUNNING)
+        return 0;
+    snprintf(why, cap, "%s", state == LW_STARTING ? "it did not start within 60 s" : lw->why);
+    end_world(lw, 0);
+    return -1;
+}
+
+/* ---- POST /v1/worlds ---- */
+
+/* Where cJSON stopped in a body that is not JSON, named by the key before it
+ * (a NaN or Infinity, which JSON has no literal for, stops it right there). */
+static void parse_failure(const char *body, size_t len, char *why, size_t cap)
+{
+    const char *at = cJSON_GetErrorPtr();
+    size_t off = at && at >= body && at <= body + len ? (size_t)(at - body) : len;
+    char key[64] = "";
+    for (size_t i = off; i > 0 && !key[0]; i--) {
+        if (body[i - 1] != ':')
+            continue;
+        size_t e = i - 1;
+        while (e > 0 && body[e - 1] == ' ')
+            e--;
+        if (e == 0 || body[e - 1] != '"')
+            break;
+        size_t b = e - 1;
+        while (b > 0 && body[b - 1] != '"')
+            b--;
+        snprintf(key, sizeof key, "%.*s", (int)(e - 1 - b < 63 ? e - 1 - b : 63), body + b);
+    }
+    snprintf(why, cap,
+             "body: not JSON at byte %zu%s%s%s (NaN and Infinity are not JSON numbers; one "
+             "object: {\"name\": ..., \"scene\": {...}} or {\"name\": ..., \"scene_name\": ...})",
+             off, key[0] ? ", in the value of \"" : "", key, key[0] ? "\"" : "");
+}
+
+/* The scene's text from the body: its "scene" object, or --scene-dir's
+ * "scene_name".json. NULL with *code, *field and why. */
+static char *scene_of(serve_worlds *ws, const cJSON *doc, unsigned *code, const char **field,
+                      char *why, size_t cap)
+{
+    const cJSON *obj = cJSON_GetObjectItemCaseSensitive(doc, "scene");
+    const cJSON *named = cJSON_GetObjectItemCaseSensitive(doc, "scene_name");
+    *code = 400;
+    *field = obj ? "scene" : "scene_name";
+    if (!obj == !named) {
+        snprintf(why, cap,
+                 "scene: give exactly one of \"scene\" (a scene object, as in a scene "
+                 "file) and \"scene_name\" (a scene of --scene-dir)");
+        return NULL;
+    }
+    if (obj) {
+        if (!cJSON_IsObject(obj)) {
+            snprintf(why, cap, "scene: must be a JSON object (a scene, as in a scene file)");
+            return NULL;
+        }
+        char *text = cJSON_PrintUnformatted(obj);
+        if (!text)
+            snprintf(why, cap, "scene: out of memory");
+        return text;
+    }
+    error_text err = {{0}};
+    if (!cJSON_IsString(named) || !cluster_name_valid(named->valuestring, "scene_name", &err)) {
+        snprintf(why, cap, "scene_name: %s",
+                 err.message[0] ? err.message : "must be a string, a scene's file name");
+        return NULL;
+    }
+    if (!ws->o.scene_dir) {
+        snprintf(why, cap, "scene_name: this daemon has no --scene-dir: send the scene itself");
+        return NULL;
+    }
+    char path[PATH_CAP];
+    snprintf(path, sizeof path, "%.1000s/%s.json", ws->o.scene_dir, named->valuestring);
+    uint8_t *text = NULL;
+    size_t len = 0;
+    if (file_read_all(path, SCENE_MAX_BYTES, &text, &len, &err) != 0) {
+        *code = 404;
+        snprintf(why, cap, "scene_name: no scene \"%s\" in the scene directory (%.120s)",
+                 named->valuestring, err.message);
+        return NULL;
+    }
+    return (char *)text;
+}
+
+/* The body checked: its name and scene text (the scene parsed and made
+ * into nothing yet). 0, or the status with *field and why. */
+static unsigned create_checked(serve_worlds *ws, const char *body, size_t len, char *name,
+                               char **scene_text, const char **field, char *why, size_t cap)
+{
+    cJSON *doc = cJSON_ParseWithLength(body, len);
+    *field = "body";
+    if (!cJSON_IsObject(doc)) {
+        if (doc)
+            snprintf(why, cap, "body: must be a JSON object: {\"name\": ..., \"scene\": {...}}");
+        else
+            parse_failure(body, len, why, cap);
+        cJSON_Delete(doc);
+        return 400;
+    }
+    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "name");
+    error_text err = {{0}};
+    unsigned code = 400;
+    *field = "name";
+    if (!cJSON_IsString(n) || !cluster_name_valid(n->valuestring, "world", &err)) {
+        snprintf(why, cap, "name: %s",
+                 err.message[0] ? err.message : "required: a string of letters, digits, _ and -");
+    } else if (strcmp(n->valuestring, ws->main_world->sc.name) == 0) {
+        code = 409;
+        snprintf(why, cap, "name: \"%s\" is the default world's (its scene's name)",
+                 n->valuestring);
+    } else if ((*scene_text = scene_of(ws, doc, &code, field, why, cap))) {
+        snprintf(name, CLUSTER_WORLD_NAME_MAX + 1, "%s", n->valuestring);
+        scene sc;
+        const char *base = ws->o.scene_dir ? ws->o.scene_dir : ".";
+        code = 0;
+        if (scene_load_json(*scene_text, base, &sc, &err) != 0) {
+            code = 422, *field = "scene";
+            snprintf(why, cap, "scene: %s", err.message);
+            free(*scene_text);
+            *scene_text = NULL;
+        } else {
+            scene_free(&sc);
+        }
+    }
+    cJSON_Delete(doc);
+    return code;
+}
+
+static unsigned create_world(serve_worlds *ws, const char *body, size_t len, char **json)
+{
+    char name[CLUSTER_WORLD_NAME_MAX + 1] = "", why[640];
+    char *text = NULL;
+    const char *field = "body";
+    unsigned code = create_checked(ws, body, len, name, &text, &field, why, sizeof why);
+    if (code)
+        return refuse("create", code, field, why, json);
+    local_world *lw = reserve(ws, name, text, &code, &field, why, sizeof why);
+    if (!lw)
+        return refuse("create", code, field, why, json);
+    char dir[PATH_CAP], path[PATH_CAP];
+    world_paths(ws, name, dir, path);
+    error_text err = {{0}};
+    if (ws->root[0] &&
+        ((mkdir(ws->root, 0755) != 0 && errno != EEXIST) || remove_store_dir(dir, &err) != 0 ||
+         file_write_durably(path, lw->scene_text, strlen(lw->scene_text), &err) != 0)) {
+        snprintf(why, sizeof why, "storage: %s", err.message[0] ? err.message : strerror(errno));
+        forget(ws, lw);
+        return refuse("create", 500, "storage", why, json);
+    }
+    if (start_world(ws, lw, why, sizeof why) != 0) {
+        if (ws->root[0]) {
+            unlink(path);
+            file_sync_dir(ws->root);
+            remove_store_dir(dir, &err);
+        }
+        forget(ws, lw);
+        char message[700];
+        snprintf(message, sizeof message, "scene: world %s could not start: %.600s", name, why);
+        return refuse("create", 422, "scene", message, json);
+    }
+    metrics_count_world_request("create", 1);
+    log_info("worlds: world %s created (POST /v1/worlds)", name);
+    cJSON *o = world_entry(name, &lw->m.status, "running", 0);
+    *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return 201;
+}
+
+/* ---- GET /v1/worlds ---- */
+
+static unsigned worlds_list(void *ctx, char **json)
+{
+    serve_worlds *ws = ctx;
+    cJSON *doc = cJSON_CreateObject(), *arr = cJSON_AddArrayToObject(doc, "worlds");
+    cJSON_AddItemToArray(arr, world_entry(ws->main_world->sc.name,
+                                          (http_status *)&ws->main_world->status, "running", 1));
+    pthread_mutex_lock(&ws->lock);
+    for (int i = 0; i < ws->nworlds; i++) {
+        local_world *lw = ws->worlds[i];
+        cJSON *e = world_entry(lw->m.name, &lw->m.status, state_names[lw->state], 0);
+        if (lw->state == LW_FAILED)
+            cJSON_AddStringToObject(e, "error", lw->why);
+        cJSON_AddItemToArray(arr, e);
+    }
+    cJSON_AddNumberToObject(doc, "max_worlds", ws->max);
+    pthread_mutex_unlock(&ws->lock);
+    *json = cJSON_PrintUnformatted(doc);
+    cJSON_Delete(doc);
+    return 200;
+}
+
+/* ---- DELETE /v1/worlds/{name} ---- */
+
+/* Its storage removed, or moved to worlds-kept/ (*kept: where). */
+static void drop_storage(serve_worlds *ws, const char *name, int keep, char *kept, size_t cap)
+{
+    char dir[PATH_CAP], path[PATH_CAP];
+    world_paths(ws, name, dir, path);
+    error_text err = {{0}};
+    if (keep) {
+        snprintf(kept, cap, "%.1000s/%s-%.0f", ws->kept, name, time_now_ms());
+        char kept_json[PATH_CAP + 8];
+        snprintf(kept_json, sizeof kept_json, "%s.json", kept);
+        if ((mkdir(ws->kept, 0755) != 0 && errno != EEXIST) || rename(dir, kept) != 0 ||
+            rename(path, kept_json) != 0)
+            log_error("worlds: world %s: cannot keep its storage in %s: %s", name, kept,
+                      strerror(errno));
+        file_sync_dir(ws->root);
+        return;
+    }
+    /* its scene first: once that is gone the world is, whatever else a crash leaves */
+    if (unlink(path) != 0 && errno != ENOENT)
+        log_error("worlds: cannot remove %s: %s", path, strerror(errno));
+    file_sync_dir(ws->root);
+    if (remove_store_dir(dir, &err) != 0)
+        log_error("worlds: world %s: %s (removed at the next start)", name, err.message);
+}
+
+static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char **json)
+{
+    char why[400];
+    pthread_mutex_lock(&ws->lock);
+    local_world *lw = find(ws, name);
+    int busy = lw && (lw->deleting || lw->state == LW_STARTING);
+    if (lw && !busy)
+        lw->deleting = 1;
+    pthread_mutex_unlock(&ws->lock);
+    if (!lw || busy) {
+        int main_world = strcmp(name, ws->main_world->sc.name) == 0;
+        snprintf(why, sizeof why, "name: %s",
+                 busy         ? "the world is starting or being deleted: try again"
+                 : main_world ? "the default world (the daemon's --scene) cannot be deleted"
+                              : "no such world (GET /v1/worlds lists them)");
+        return refuse("delete", busy || main_world ? 409 : 404, "name", why, json);
+    }
+    end_world(lw, 1);
+    char kept[PATH_CAP] = "";
+    if (ws->root[0])
+        drop_storage(ws, name, keep, kept, sizeof kept);
+    forget(ws, lw);
+    metrics_count_world_request("delete", 1);
+    log_info("worlds: world %s deleted (DELETE /v1/worlds/%s)%s%s", name, name,
+             kept[0] ? ", its storage kept in " : "", kept);
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "name", name);
+    cJSON_AddBoolToObject(o, "deleted", 1);
+    if (kept[0])
+        cJSON_AddStringToObject(o, "kept", kept);
+    else
+        cJSON_AddNullToObject(o, "kept");
+    *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return 200;
+}
+
+static unsigned stopping(const char *op, char **json)
+{
+    return refuse(op, 503, "name", "name: the daemon is stopping", json);
+}
+
+static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
+{
+    serve_worlds *ws = ctx;
+    if (!enter(ws))
+        return stopping("create", json);
+    unsigned code = create_world(ws, body, len, json);
+    leave(ws);
+    return code;
+}
+
+static unsigned worlds_remove(void *ctx, const char *name, int keep, char **json)
+{
+    serve_worlds *ws = ctx;
+    if (!enter(ws))
+        return stopping("delete", json);
+    unsigned code = delete_world(ws, name, keep, json);
+    leave(ws);
+    return code;
+}
+
+/* ---- the daemon's life ---- */
+
+/* Every world DATA/worlds/NAME.json names, started again; directories
+ * without one (a create or delete cut short) and *.tmp removed. */
+static void recover_worlds(serve_worlds *ws)
+{
+    DIR *d = opendir(ws->root);
+    struct dirent *e;
+    int count = 0;
+    while (d && (e = readdir(d))) {
+        char name[CLUSTER_WORLD_NAME_MAX + 8], path[PATH_CAP], dir[PATH_CAP];
+        size_t n = strlen(e->d_name);
+        if (n < 6 || n > CLUSTER_WORLD_NAME_MAX + 5 || strcmp(e->d_name + n - 5, ".json") != 0)
+            continue;
+        snprintf(name, sizeof name, "%.*s", (int)(n - 5), e->d_name);
+        error_text err = {{0}};
+        uint8_t *text = NULL;
+        size_t len = 0;
+        world_paths(ws, name, dir, path);
+        unsigned code = 0;
+        const char *field = NULL;
+        char why[400];
+        local_world *lw;
+        if (!cluster_name_valid(name, "world", &err) ||
+            file_read_all(path, SCENE_MAX_BYTES, &text, &len, &err) != 0) {
+            log_error("worlds: %s: %s (left alone)", path, err.message);
+        } else if (!(lw = reserve(ws, name, (char *)text, &code, &field, why, sizeof why))) {
+            log_error("worlds: %s: %s", path, why);
+        } else if (start_world(ws, lw, why, sizeof why) != 0) {
+            /* listed as failed: DELETE ends it; its storage stays for a look */
+            pthread_mutex_lock(&ws->lock);
+            lw->state = LW_FAILED;
+            snprintf(lw->why, sizeof lw->why, "%.255s", why);
+            pthread_mutex_unlock(&ws->lock);
+        } else {
+            count++;
+        }
+    }
+    if (d)
+        rewinddir(d);
+    while (d && (e = readdir(d))) { /* leftovers, after every world was taken */
+        char path[PATH_CAP], json[PATH_CAP + 8];
+        size_t n = strlen(e->d_name);
+        snprintf(path, sizeof path, "%.1000s/%.100s", ws->root, e->d_name);
+        snprintf(json, sizeof json, "%s.json", path);
+        error_text err = {{0}};
+        if (n > 4 && strcmp(e->d_name + n - 4, ".tmp") == 0)
+            unlink(path);
+        else if (e->d_name[0] != '.' && !strchr(e->d_name, '.') && access(json, F_OK) != 0 &&
+                 remove_store_dir(path, &err) != 0)
+            log_error("worlds: a left-over world directory: %s", err.message);
+    }
+    if (d)
+        closedir(d);
+    if (count)
+        log_info("worlds: %d created worlds recovered from %s", count, ws->root);
+}
+
+serve_worlds *serve_worlds_start(const serve_options *o, const serve_sim *main_world,
+                                 http_server *http, net_server *net, error_text *err)
+{
+    serve_worlds *ws = calloc(1, sizeof *ws);
+    if (!ws) {
+        error_set(err, "worlds: out of memory");
+        return NULL;
+    }
+    ws->o = *o;
+    ws->o.demo_actors = 0; /* a created world has only its clients' colliders */
+    ws->o.max_ticks = -1;
+    ws->http = http;
+    ws->net = net;
+    ws->main_world = main_world;
+    ws->max = o->max_worlds > 0 ? (o->max_worlds < WORLDS_MAX ? o->max_worlds : WORLDS_MAX)
+                                : WORLDS_DEFAULT_MAX;
+    if (o->data_dir) {
+        snprintf(ws->root, sizeof ws->root, "%.1000s/worlds", o->data_dir);
+        snprintf(ws->kept, sizeof ws->kept, "%.1000s/worlds-kept", o->data_dir);
+    }
+    pthread_mutex_init(&ws->lock, NULL);
+    pthread_cond_init(&ws->cond, NULL);
+    if (ws->root[0])
+        recover_worlds(ws);
+    http_world_api api = {worlds_create, worlds_list, worlds_remove, ws};
+    http_server_set_world_api(http, &api);
+    return ws;
+}
+
+void serve_worlds_stop(serve_worlds *ws)
+{
+    if (!ws)
+        return;
+    pthread_mutex_lock(&ws->lock);
+    ws->stopping = 1;
+    while (ws->calls > 0) /* a create or delete running ends first */
+        pthread_cond_wait(&ws->cond, &ws->lock);
+    pthread_mutex_unlock(&ws->lock);
+    for (int i = 0; i < ws->nworlds; i++)
+        atomic_store(&ws->worlds[i]->stop, 1); /* all at once: they stop side by side */
+    while (ws->nworlds > 0) {
+        local_world *lw = ws->worlds[0];
+        end_world(lw, 0);
+        forget(ws, lw);
+    }
+    pthread_cond_destroy(&ws->cond);
+    pthread_mutex_destroy(&ws->lock);
+    free(ws);
+}
+
+int serve_worlds_fresh(const char *data_dir, error_text *err)
+{
+    char root[PATH_CAP];
+    snprintf(root, sizeof root, "%.1000s/worlds", data_dir);
+    DIR *d = opendir(root);
+    if (!d)
+        return 0;
+    struct dirent *e;
+    int rc = 0;
+    while (rc == 0 && (e = readdir(d))) {
+        char path[PATH_CAP];
+        if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
+            continue;
+        snprintf(path, sizeof path, "%.1000s/%.100s", root, e->d_name);
+        struct stat sb;
+        if (lstat(path, &sb) == 0 && S_ISDIR(sb.st_mode))
+            rc = remove_store_dir(path, err);
+        else if (unlink(path) != 0)
+            error_set(err, "cannot remove %s: %s", path, strerror(errno)), rc = -1;
+    }
+    closedir(d);
+    if (rc == 0 && rmdir(root) != 0 && errno != ENOENT) {
+        error_set(err, "cannot remove %s: %s", root, strerror(errno));
+        rc = -1;
+    }
+    return rc;
+}
