@@ -111,6 +111,33 @@ int sim_soil_validate(const sim_soil *s, const char *path, error_text *err);
 /* Bekker's pressure (Pa) at sinkage z (m) under a patch of width b (m). */
 double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m);
 
+/*
+ * The single-wheel testbed (sim_testbed.c): a rigid wheel under a vertical
+ * load, load-driven each tick, driven at a slip across a flat bin of the
+ * bekker model; its drawbar pull, sinkage and driving torque are the means
+ * over the second half of the distance. Deterministic.
+ */
+typedef struct sim_wheel_run {
+    double radius_m, width_m, load_n;
+    double slip;        /* [0, 1): the wheel turns at v / (R (1 - slip)) */
+    double cell_m;      /* the bin's cells (default 0.005) */
+    double distance_m;  /* default 0.5 */
+    double speed_m_s;   /* default 0.05 */
+    double tick_s;      /* default 0.05 (1 mm of travel a tick, as the tests) */
+    double compression; /* the material's share compacted, default 0.5 */
+} sim_wheel_run;
+typedef struct sim_wheel_result {
+    double drawbar_pull_n; /* Fx on the wheel: > 0 pulls forward */
+    double sinkage_m;      /* below the undisturbed surface */
+    double torque_nm;      /* the driving torque (minus the soil's about the axle) */
+    long ticks;
+} sim_wheel_result;
+/* Zero wheel, the defaults above. */
+void sim_wheel_run_defaults(sim_wheel_run *r);
+/* 0, or -1 with err (a soil or run field out of range, or out of memory). */
+int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_result *out,
+                      error_text *err);
+
 /* The material as a person writes it (scene files, the wire). */
 typedef struct sim_material {
     double compression;      /* [0,1]: share of the penetration that is compacted away */

@@ -7,7 +7,8 @@
  * 2407.4 kN/m^(n+2), c 0.25 kPa, phi 31.9 deg, K 11 mm: preset "ding2011").
  *
  * The wheel is load-driven (sim_bekker_carry each tick), moves at 0.05 m/s
- * and turns at v / (R (1 - s)); means over the second half of 0.5 m. Printed
+ * and turns at v / (R (1 - s)); means over the second half of 0.5 m
+ * (sim_wheel_testbed, the run `terrad calibrate` and the trade also use). Printed
  * per slip: drawbar pull (Fx), sinkage, driving torque (minus the soil's
  * torque about the axle), each beside the measurement, and the median
  * relative errors (docs/validation.md). Chrono SCM on the same wheel
@@ -44,42 +45,26 @@ static const double ding[6][4] = {
 #define DP_BOUND 0.70
 #define SINKAGE_BOUND 0.35
 
+/* The testbed run (sim_wheel_testbed: 5 mm cells, 0.05 m/s, 1 mm a tick). */
 static void run(double slip, double *dp, double *sinkage, double *torque)
 {
     sim_soil s;
     sim_soil_preset("ding2011", &s);
-    const double cell = 0.005, v = 0.05, dt = 0.05, metres = 0.5, ground = 0.5;
-    int w = (int)((metres + 4 * RADIUS) / cell), h = (int)(WIDTH / cell) + 20;
-    soil_rig r;
-    soil_rig_init(&r, &s, 0.5, cell, w, h, ground);
-    r.p.tick_s = dt;
-    r.geometry.shape = COLLIDER_CYLINDER;
-    r.geometry.radius = RADIUS;
-    r.geometry.half_length = WIDTH / 2;
-    double x = 1.5 * RADIUS, angle = 0.0, y = h * cell / 2;
-    double omega = v / (RADIUS * (1.0 - slip));
-    soil_rig_place(&r, x, y, ground + RADIUS, (quatd){1, 0, 0, 0}, 0);
-    int ticks = (int)(metres / (v * dt));
-    double sum_dp = 0, sum_z = 0, sum_t = 0;
-    int n = 0;
-    for (int t = 0; t < ticks; t++) {
-        x += v * dt;
-        angle += omega * dt;
-        soil_rig_place(&r, x, y, r.collider.pose.position.z,
-                       quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
-        soil_rig_carry(&r, LOAD);
-        soil_rig_step(&r);
-        if (t >= ticks / 2) {
-            sum_dp += r.contact.force_n[0];
-            sum_z += ground - (r.collider.pose.position.z - RADIUS);
-            sum_t += -r.contact.torque_nm[1];
-            n++;
-        }
+    sim_wheel_run r;
+    sim_wheel_run_defaults(&r);
+    r.radius_m = RADIUS;
+    r.width_m = WIDTH;
+    r.load_n = LOAD;
+    r.slip = slip;
+    sim_wheel_result out;
+    error_text err;
+    if (sim_wheel_testbed(&s, &r, &out, &err) != 0) {
+        printf("testbed: %s\n", err.message);
+        abort();
     }
-    *dp = sum_dp / n;
-    *sinkage = sum_z / n;
-    *torque = sum_t / n;
-    soil_rig_free(&r);
+    *dp = out.drawbar_pull_n;
+    *sinkage = out.sinkage_m;
+    *torque = out.torque_nm;
 }
 
 /*
