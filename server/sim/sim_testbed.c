@@ -23,6 +23,12 @@
 #define TESTBED_UNITS_PER_M 10000
 #define TESTBED_GROUND_M 0.5
 
+/* Ding et al. 2011, smooth wheel, 80 N (sim.h): slip, DP (N), sinkage (m), torque (N m). */
+const sim_wheel_measured sim_wheel_ding2011[SIM_WHEEL_DING2011_ROWS] = {
+    {0.0, -6.5, 0.005, 0.0}, {0.1, 11.0, 0.0055, 3.0}, {0.2, 14.5, 0.0075, 4.2},
+    {0.3, 15.0, 0.010, 4.8}, {0.4, 15.0, 0.0125, 5.0}, {0.6, 15.0, 0.0175, 5.3},
+};
+
 void sim_wheel_run_defaults(sim_wheel_run *r)
 {
     memset(r, 0, sizeof *r);

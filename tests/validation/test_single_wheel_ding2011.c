@@ -32,15 +32,11 @@
 #include "check.h"
 #include "soil_rig.h"
 
-/* Ding et al. 2011, smooth wheel, 80 N: slip, DP (N), sinkage (m), torque (N m). */
-static const double ding[6][4] = {
-    {0.0, -6.5, 0.005, 0.0}, {0.1, 11.0, 0.0055, 3.0}, {0.2, 14.5, 0.0075, 4.2},
-    {0.3, 15.0, 0.010, 4.8}, {0.4, 15.0, 0.0125, 5.0}, {0.6, 15.0, 0.0175, 5.3},
-};
-
-#define RADIUS 0.15735
-#define WIDTH 0.165
-#define LOAD 80.0
+/* Ding et al. 2011, smooth wheel, 80 N (sim.h's sim_wheel_ding2011): slip,
+ * DP (N), sinkage (m), torque (N m). */
+#define RADIUS SIM_WHEEL_DING2011_RADIUS_M
+#define WIDTH SIM_WHEEL_DING2011_WIDTH_M
+#define LOAD SIM_WHEEL_DING2011_LOAD_N
 /* today's medians plus a margin (see the top comment) */
 #define DP_BOUND 0.70
 #define SINKAGE_BOUND 0.35
@@ -134,15 +130,18 @@ int main(void)
            "Wong-Reece | torque terrad (N m) | Ding | Wong-Reece |\n"
            "|---|---|---|---|---|---|---|---|---|---|\n");
     for (int i = 0; i < 6; i++) {
-        run(ding[i][0], &dp[i], &z[i], &tq[i]);
-        wong_reece(ding[i][0], &w_dp[i], &w_z[i], &w_t[i]);
+        run(sim_wheel_ding2011[i].slip, &dp[i], &z[i], &tq[i]);
+        wong_reece(sim_wheel_ding2011[i].slip, &w_dp[i], &w_z[i], &w_t[i]);
         printf("| %.1f | %.2f | %.1f | %.2f | %.2f | %.1f | %.2f | %.2f | %.1f | %.2f |\n",
-               ding[i][0], dp[i], ding[i][1], w_dp[i], z[i] * 1e3, ding[i][2] * 1e3, w_z[i] * 1e3,
-               tq[i], ding[i][3], w_t[i]);
-        e_dp[i] = fabs(dp[i] - ding[i][1]) / fabs(ding[i][1]);
-        e_z[i] = fabs(z[i] - ding[i][2]) / ding[i][2];
-        if (ding[i][3] > 0.0)
-            e_t[nt++] = fabs(tq[i] - ding[i][3]) / ding[i][3];
+               sim_wheel_ding2011[i].slip, dp[i], sim_wheel_ding2011[i].drawbar_pull_n, w_dp[i],
+               z[i] * 1e3, sim_wheel_ding2011[i].sinkage_m * 1e3, w_z[i] * 1e3, tq[i],
+               sim_wheel_ding2011[i].torque_nm, w_t[i]);
+        e_dp[i] = fabs(dp[i] - sim_wheel_ding2011[i].drawbar_pull_n) /
+                  fabs(sim_wheel_ding2011[i].drawbar_pull_n);
+        e_z[i] = fabs(z[i] - sim_wheel_ding2011[i].sinkage_m) / sim_wheel_ding2011[i].sinkage_m;
+        if (sim_wheel_ding2011[i].torque_nm > 0.0)
+            e_t[nt++] =
+                fabs(tq[i] - sim_wheel_ding2011[i].torque_nm) / sim_wheel_ding2011[i].torque_nm;
     }
     double m_dp = median(e_dp, 6), m_z = median(e_z, 6), m_t = median(e_t, nt);
     printf("median relative error: drawbar pull %.0f %%, sinkage %.0f %%, torque %.0f %%\n",
@@ -150,8 +149,8 @@ int main(void)
     CHECK(dp[0] < 0.0, "slip 0: the wheel is resisted (DP %.2f N)", dp[0]);
     for (int i = 1; i < 6; i++)
         CHECK(dp[i] > dp[i - 1] - 0.5 && tq[i] > tq[i - 1] - 0.05,
-              "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)", ding[i][0], dp[i],
-              tq[i]);
+              "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)",
+              sim_wheel_ding2011[i].slip, dp[i], tq[i]);
     CHECK(z[5] > z[0] + 0.004,
           "slip-sinkage: the wheel sinks deeper at slip 0.6 (%.2f mm) than "
           "at 0 (%.2f mm)",
