@@ -374,6 +374,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
         return worlds_refuse("create", 422, "scene", message, json);
     }
     metrics_count_world_request("create", 1);
+    net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
     cJSON *o = world_entry(name, &lw->m.status, "running", 0);
     *json = cJSON_PrintUnformatted(o);
@@ -454,6 +455,7 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
         drop_storage(ws, name, keep, kept, sizeof kept);
     forget(ws, lw);
     metrics_count_world_request("delete", 1);
+    net_server_event(ws->net, "world_deleted", name);
     log_info("worlds: world %s deleted (DELETE /v1/worlds/%s)%s%s", name, name,
              kept[0] ? ", its storage kept in " : "", kept);
     cJSON *o = cJSON_CreateObject();
