@@ -210,6 +210,33 @@ int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider 
                          int32_t lo, int32_t hi, int32_t *scratch, int32_t *heights_copy,
                          int32_t *state_copy);
 
+/*
+ * A soil bin (sim_testbed.c): one flat window of bekker soil (10,000 units
+ * per metre) and one collider, driven the way the engine drives the model
+ * (sim_bekker_window on a job with its soil state and contacts). The
+ * single-wheel testbed runs on it, and the tests press plates and roll
+ * wheels in it (tests/support/soil_rig.h). The caller sets the geometry and
+ * p.tick_s; slope evening is off.
+ */
+typedef struct sim_soil_bin {
+    sim_params p;
+    collider_geometry geometry;
+    sim_collider collider;
+    sim_contact contact;
+    sim_window_job job;
+    int32_t *heights, *state, *scratch, *heights_copy, *state_copy;
+    int64_t cells;
+} sim_soil_bin;
+int sim_soil_bin_init(sim_soil_bin *b, const sim_soil *soil, double compression, double cell_m,
+                      int w, int h, double height_m, error_text *err);
+void sim_soil_bin_free(sim_soil_bin *b);
+/* The collider's pose; its previous pose the current one (has_previous 1) or none. */
+void sim_soil_bin_place(sim_soil_bin *b, double x, double y, double z, quatd q, int has_previous);
+/* Load-driven: the collider left at the highest height carrying load_n (sim_bekker_carry). */
+int32_t sim_soil_bin_carry(sim_soil_bin *b, double load_n);
+/* One tick of the model at the collider's pose. */
+sim_window_status sim_soil_bin_step(sim_soil_bin *b);
+
 /* ---- The non-persson models: CPU window functions (model_<name>.c) ----
  *
  * Each takes the window's params (their model field picks the function in

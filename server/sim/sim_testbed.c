@@ -20,6 +20,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* the bin's height quantum: 0.1 mm, as the scenes' default */
 #define TESTBED_UNITS_PER_M 10000
 #define TESTBED_GROUND_M 0.5
 
@@ -39,38 +40,27 @@ void sim_wheel_run_defaults(sim_wheel_run *r)
     r->compression = 0.5;
 }
 
-/* The bin and the wheel: one window, one collider, the model's state. */
-typedef struct testbed {
-    sim_params p;
-    collider_geometry geometry;
-    sim_collider collider;
-    sim_contact contact;
-    sim_window_job job;
-    int32_t *heights, *state, *scratch, *heights_copy, *state_copy;
-    int64_t cells;
-} testbed;
-
-static void testbed_free(testbed *t)
+void sim_soil_bin_free(sim_soil_bin *t)
 {
     free(t->heights);
     free(t->heights_copy);
     free(t->state);
     free(t->state_copy);
     free(t->scratch);
+    memset(t, 0, sizeof *t);
 }
 
-static int testbed_init(testbed *t, const sim_soil *soil, const sim_wheel_run *run, int w, int h,
-                        error_text *err)
+int sim_soil_bin_init(sim_soil_bin *t, const sim_soil *soil, double compression, double cell_m,
+                      int w, int h, double height_m, error_text *err)
 {
     memset(t, 0, sizeof *t);
     sim_material m = sim_material_default();
     m.model = SIM_MODEL_BEKKER;
     m.soil = *soil;
-    m.compression = run->compression;
+    m.compression = compression;
     m.slope_iterations = 0;
-    if (sim_params_from_material(&m, run->cell_m, TESTBED_UNITS_PER_M, 0, &t->p, err) != 0)
+    if (sim_params_from_material(&m, cell_m, TESTBED_UNITS_PER_M, 0, &t->p, err) != 0)
         return -1;
-    t->p.tick_s = run->tick_s;
     t->cells = (int64_t)w * h;
     t->heights = malloc(sizeof(int32_t) * (size_t)t->cells);
     t->heights_copy = malloc(sizeof(int32_t) * (size_t)t->cells);
@@ -78,14 +68,14 @@ static int testbed_init(testbed *t, const sim_soil *soil, const sim_wheel_run *r
     t->state_copy = malloc(sizeof(int32_t) * (size_t)t->cells * SIM_SOIL_STATE_FIELDS);
     t->scratch = malloc(sizeof(int32_t) * (size_t)sim_bekker_scratch_cells(w, h));
     if (!t->heights || !t->heights_copy || !t->state || !t->state_copy || !t->scratch) {
-        testbed_free(t);
-        error_set(err, "wheel testbed: out of memory (%dx%d cells)", w, h);
+        sim_soil_bin_free(t);
+        error_set(err, "soil bin: out of memory (%dx%d cells)", w, h);
         return -1;
     }
     for (int64_t i = 0; i < t->cells; i++)
-        t->heights[i] = (int32_t)(TESTBED_GROUND_M * TESTBED_UNITS_PER_M);
+        t->heights[i] = (int32_t)(height_m * TESTBED_UNITS_PER_M);
     t->job.rect = (world_rect){0, 0, w, h};
-    t->job.cell_size_m = run->cell_m;
+    t->job.cell_size_m = cell_m;
     t->job.units_per_m = TESTBED_UNITS_PER_M;
     t->job.heights = t->heights;
     t->job.soil_state = t->state;
@@ -95,13 +85,10 @@ static int testbed_init(testbed *t, const sim_soil *soil, const sim_wheel_run *r
     t->collider.id = 1;
     t->collider.geometry = &t->geometry;
     t->collider.pose.orientation = (quatd){1, 0, 0, 0};
-    t->geometry.shape = COLLIDER_CYLINDER;
-    t->geometry.radius = run->radius_m;
-    t->geometry.half_length = run->width_m / 2;
     return 0;
 }
 
-static void testbed_place(testbed *t, double x, double y, double z, quatd q, int has_previous)
+void sim_soil_bin_place(sim_soil_bin *t, double x, double y, double z, quatd q, int has_previous)
 {
     t->collider.previous_pose = t->collider.pose;
     t->collider.pose.position = (vec3d){x, y, z};
@@ -111,17 +98,21 @@ static void testbed_place(testbed *t, double x, double y, double z, quatd q, int
         t->collider.previous_pose = t->collider.pose;
 }
 
-/* The highest pose height at which the soil carries the load (bisection
- * between the floor and just above the highest cell). */
-static void testbed_carry(testbed *t, double load_n)
+/* Bisection between the floor and just above the highest cell. */
+int32_t sim_soil_bin_carry(sim_soil_bin *t, double load_n)
 {
     int32_t top = t->heights[0];
     for (int64_t i = 0; i < t->cells; i++)
         if (t->heights[i] > top)
             top = t->heights[i];
     int32_t reach = (int32_t)(collider_reach(&t->geometry) * TESTBED_UNITS_PER_M) + 2;
-    sim_bekker_carry(&t->p, &t->job, &t->collider, load_n, t->p.floor + reach, top + reach,
-                     t->scratch, t->heights_copy, t->state_copy);
+    return sim_bekker_carry(&t->p, &t->job, &t->collider, load_n, t->p.floor + reach, top + reach,
+                            t->scratch, t->heights_copy, t->state_copy);
+}
+
+sim_window_status sim_soil_bin_step(sim_soil_bin *t)
+{
+    return sim_bekker_window(&t->p, &t->job, t->scratch);
 }
 
 static int run_checked(const sim_wheel_run *r, error_text *err)
@@ -159,27 +150,31 @@ int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_
     const double R = run->radius_m, cell = run->cell_m, v = run->speed_m_s, dt = run->tick_s;
     const double ground = TESTBED_GROUND_M;
     int w = (int)((run->distance_m + 4 * R) / cell), h = (int)(run->width_m / cell) + 20;
-    testbed t;
-    if (testbed_init(&t, soil, run, w, h, err) != 0)
+    sim_soil_bin t;
+    if (sim_soil_bin_init(&t, soil, run->compression, cell, w, h, ground, err) != 0)
         return -1;
+    t.p.tick_s = dt;
+    t.geometry.shape = COLLIDER_CYLINDER;
+    t.geometry.radius = R;
+    t.geometry.half_length = run->width_m / 2;
     double x = 1.5 * R, angle = 0.0, y = h * cell / 2;
     double omega = v / (R * (1.0 - run->slip));
-    testbed_place(&t, x, y, ground + R, (quatd){1, 0, 0, 0}, 0);
+    sim_soil_bin_place(&t, x, y, ground + R, (quatd){1, 0, 0, 0}, 0);
     long ticks = (long)(run->distance_m / (v * dt));
     double sum_dp = 0, sum_z = 0, sum_t = 0;
     long n = 0;
     for (long k = 0; k < ticks; k++) {
         x += v * dt;
         angle += omega * dt;
-        testbed_place(&t, x, y, t.collider.pose.position.z,
-                      quat_from_axis_angle((vec3d){0, 1, 0}, angle), k > 0);
-        testbed_carry(&t, run->load_n);
-        if (sim_bekker_window(&t.p, &t.job, t.scratch) != SIM_WINDOW_OK) {
+        sim_soil_bin_place(&t, x, y, t.collider.pose.position.z,
+                           quat_from_axis_angle((vec3d){0, 1, 0}, angle), k > 0);
+        sim_soil_bin_carry(&t, run->load_n);
+        if (sim_soil_bin_step(&t) != SIM_WINDOW_OK) {
             error_set(err,
                       "wheel testbed: the soil window was refused at tick %ld (the wheel "
                       "reached the height limit)",
                       k);
-            testbed_free(&t);
+            sim_soil_bin_free(&t);
             return -1;
         }
         if (k >= ticks / 2) {
@@ -193,6 +188,6 @@ int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_
     out->sinkage_m = sum_z / n;
     out->torque_nm = sum_t / n;
     out->ticks = ticks;
-    testbed_free(&t);
+    sim_soil_bin_free(&t);
     return 0;
 }

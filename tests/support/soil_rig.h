@@ -1,28 +1,22 @@
 /*
- * soil_rig.h: one window of bekker soil and one collider, driven the way the
- * engine drives the model (sim_bekker_window on a job with its soil state and
- * contacts), for the tests that press plates and roll wheels without a world:
- * test_bekker (unit) and the validation tests (tests/validation/). The
- * window is flat at height_m; the collider is the job's only one.
+ * soil_rig.h: one window of bekker soil and one collider for the tests that
+ * press plates and roll wheels without a world — test_bekker (unit) and the
+ * validation tests (tests/validation/). The rig is the model's own soil bin
+ * (sim_soil_bin, server/sim/sim_testbed.c, which the single-wheel testbed
+ * runs on); these wrappers abort on what would be a broken test, and add the
+ * plate and the mass sum only tests need. The window is flat at height_m;
+ * the collider is the job's only one.
  */
 #ifndef TERRAD_SOIL_RIG_H
 #define TERRAD_SOIL_RIG_H
 
 #include "sim/sim_internal.h"
 
-typedef struct soil_rig {
-    sim_params p;
-    collider_geometry geometry;
-    sim_collider collider;
-    sim_contact contact;
-    sim_window_job job;
-    int32_t *heights, *state, *scratch, *heights_copy, *state_copy;
-    int64_t cells;
-} soil_rig;
+typedef sim_soil_bin soil_rig;
 
 /* A w x h window of cell_m cells (10,000 units per metre) at height_m, the
- * soil and compression given, slope evening off unless slope_iterations > 0.
- * Aborts (printing why) when the soil is refused: a broken test. */
+ * soil and compression given, slope evening off. Aborts (printing why) when
+ * the soil is refused: a broken test. */
 void soil_rig_init(soil_rig *r, const sim_soil *soil, double compression, double cell_m, int w,
                    int h, double height_m);
 void soil_rig_free(soil_rig *r);
