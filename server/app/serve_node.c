@@ -151,8 +151,13 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
 static void world_unregister(serve_node *n, node_world *nw)
 {
     serve_sim *m = &nw->m;
-    if (m->h)
+    if (m->h) {
+        char why[160];
+        snprintf(why, sizeof why, "world %s %s", m->name,
+                 nw->deleted ? "was deleted" : "stopped on this node (moved, or the node stops)");
         hub_close_reads(m->h);
+        hub_close_edits(m->h, why);
+    }
     if (!atomic_load(&nw->registered))
         return;
     atomic_store(&nw->registered, 0);
@@ -240,11 +245,13 @@ static void note_failed(serve_node *n, const char *name)
     n->failed_ms[at] = time_now_ms() + NODE_RETRY_MS;
 }
 
-/* A deleted world leaves the last listing at once: not taken again from it. */
+/* A deleted world leaves the last listing at once: not taken again from it
+ * (and its world_deleted event goes now: the next listing will not differ). */
 static void forget_registered(serve_node *n, const char *name)
 {
     for (int i = 0; i < n->nregistered; i++)
         if (strcmp(n->registered[i], name) == 0) {
+            net_server_event(n->net, "world_deleted", name);
             free(n->registered[i]);
             memmove(&n->registered[i], &n->registered[i + 1],
                     (size_t)(n->nregistered - i - 1) * sizeof *n->registered);
@@ -290,6 +297,27 @@ static void node_forget_worlds(serve_node *n)
     n->nregistered = 0;
 }
 
+static int named(char *const *names, int count, const char *name)
+{
+    for (int i = 0; i < count; i++)
+        if (strcmp(names[i], name) == 0)
+            return 1;
+    return 0;
+}
+
+/* world_created / world_deleted for this node's subscribed admins: what a
+ * new listing has that the last had not, and the reverse. Every node lists,
+ * so the admins of every node hear of a world made or ended on any of them. */
+static void tell_changes(serve_node *n, char *const *names, int count)
+{
+    for (int i = 0; i < count; i++)
+        if (!named(n->registered, n->nregistered, names[i]))
+            net_server_event(n->net, "world_created", names[i]);
+    for (int i = 0; i < n->nregistered; i++)
+        if (!named(names, count, n->registered[i]))
+            net_server_event(n->net, "world_deleted", n->registered[i]);
+}
+
 /* The registry, listed again once NODE_LIST_MS has passed. A listing is an
  * ordered consumer on the bucket that the NATS servers must agree on, so the
  * node lists once a second for its lease polls and its relays together
@@ -311,6 +339,8 @@ static int node_list_worlds(serve_node *n, error_text *err)
             n->listed_ms = time_now_ms();
         return first ? -1 : 0;
     }
+    if (!first)
+        tell_changes(n, names, count);
     node_forget_worlds(n);
     n->registered = names;
     n->listings++;

@@ -196,8 +196,13 @@ static int world_register(serve_worlds *ws, local_world *lw, error_text *err)
 static void world_unregister(serve_worlds *ws, local_world *lw)
 {
     serve_sim *m = &lw->m;
-    if (m->h)
+    if (m->h) {
+        char why[160];
+        snprintf(why, sizeof why, "world %s %s", m->name,
+                 lw->deleted ? "was deleted (DELETE /v1/worlds)" : "stopped (the daemon stops)");
         hub_close_reads(m->h);
+        hub_close_edits(m->h, why);
+    }
     if (!lw->registered)
         return;
     lw->registered = 0;
@@ -374,6 +379,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
         return worlds_refuse("create", 422, "scene", message, json);
     }
     metrics_count_world_request("create", 1);
+    net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
     cJSON *o = world_entry(name, &lw->m.status, "running", 0);
     *json = cJSON_PrintUnformatted(o);
@@ -454,6 +460,7 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
         drop_storage(ws, name, keep, kept, sizeof kept);
     forget(ws, lw);
     metrics_count_world_request("delete", 1);
+    net_server_event(ws->net, "world_deleted", name);
     log_info("worlds: world %s deleted (DELETE /v1/worlds/%s)%s%s", name, name,
              kept[0] ? ", its storage kept in " : "", kept);
     cJSON *o = cJSON_CreateObject();
