@@ -13,7 +13,7 @@
 
 #include "net/net_client_internal.h"
 
-#define NET_MAX_WORLDS 64
+#define NET_MAX_WORLDS 512 /* worlds ticked here (256 at most) and relayed ones */
 
 /* The net thread's state and libwebsockets' context. */
 struct net_server {
