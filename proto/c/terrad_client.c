@@ -571,6 +571,12 @@ static int never(const terrad_client *c)
 
 terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap)
 {
+    return terrad_client_connect_world(d, NULL, err, err_cap);
+}
+
+terrad_client *terrad_client_connect_world(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap)
+{
     if (err && err_cap)
         err[0] = 0;
     terrad_client *c = calloc(1, sizeof *c);
@@ -632,6 +638,8 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     cJSON_AddNumberToObject(h, "protocol", TERRAD_PROTO_VERSION);
     cJSON_AddStringToObject(h, "token", d.token ? d.token : "");
     cJSON_AddStringToObject(h, "client", d.name ? d.name : "terrad-c");
+    if (world && world[0])
+        cJSON_AddStringToObject(h, "world", world);
     char *text = cJSON_PrintUnformatted(h);
     cJSON_Delete(h);
     int rc = text ? enqueue(c, text, strlen(text), 0) : TERRAD_E_NO_MEMORY;

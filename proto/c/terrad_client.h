@@ -151,6 +151,12 @@ typedef struct terrad_collider_desc {
 /* Connects, sends hello and waits for the world message. NULL on failure,
  * with a sentence in err (when err_cap > 0). */
 terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap);
+/* The same, joining the world named (hello's "world", PROTOCOL.md): a world
+ * created by POST /v1/worlds, or one a cluster serves; NULL or "": the
+ * default. A new function rather than a field of terrad_client_desc, so
+ * programs built against an older libterrad-client keep working. */
+terrad_client *terrad_client_connect_world(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap);
 /* Closes with code 1000 (waiting briefly for the close handshake) and frees c. */
 void terrad_client_close(terrad_client *c);
 

@@ -25,6 +25,9 @@
  */
 #include <dirent.h>
 #include <errno.h>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -582,6 +585,13 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
     if (ws->root[0])
         drop_storage(ws, name, keep, kept, sizeof kept);
     forget(ws, lw);
+#ifdef __GLIBC__
+    /* A world is made on an HTTP thread and ended on a tick worker, so its
+     * memory returns to several of glibc's per-thread arenas, which keep the
+     * free pages: without this a create/delete loop holds ~40 MB more (the
+     * arenas' high-water mark) than it started with. */
+    malloc_trim(0);
+#endif
     metrics_count_world_request("delete", 1);
     log_info("worlds: world %s deleted (DELETE /v1/worlds/%s)%s%s", name, name,
              kept[0] ? ", its storage kept in " : "", kept);
