@@ -17,8 +17,9 @@
  * bit-identical to the same world alone. Two exceptions to "any worker":
  * a world whose backend holds a GL context is pinned to one worker (the
  * context stays current on one thread, the GL backend's rule), and its end
- * runs there too. The hub's sim end moves with the tick: the worker claims
- * it before each tick (the ticker's lock orders the hand-over).
+ * runs there too. The sim thread's ownership (service, hub's sim end,
+ * engine, store) moves with the tick: the worker claims it before each tick
+ * (service_claim; the ticker's lock orders the hand-over).
  *
  * Why more workers than cores: a tick may wait (an fsync with
  * --durability every-tick, a JetStream commit waiting for the replicas), and
@@ -108,7 +109,7 @@ static void wait_until(serve_ticker *t, double due_ms)
 static int tick_once(serve_tick_job *j)
 {
     serve_sim *m = j->m;
-    hub_claim_sim_end(m->h); /* this worker is the world's sim thread for this tick */
+    service_claim(m->svc); /* this worker is the world's sim thread for this tick */
     error_text err = {{0}};
     int clients = j->net ? net_server_client_count(j->net) : 0;
     if (serve_sim_step(m, j->tick, clients, &err) != 0) {
@@ -144,6 +145,7 @@ static void *worker_main(void *arg)
             drop(t, j);
             pthread_cond_broadcast(&t->wake);
             pthread_mutex_unlock(&t->lock);
+            service_claim(j->m->svc); /* its end frees what the sim thread owns */
             j->end(j, j->rc);
             pthread_mutex_lock(&t->lock);
             continue;
