@@ -113,14 +113,20 @@ func main() {
 			C.terrad_client_poll(c, 2)
 		}
 	}
+	waitAck := func(seq C.uint32_t) {
+		for end := time.Now().Add(2 * time.Minute); int32(C.terrad_client_get_stats(c).ack_seq-seq) < 0; {
+			if time.Now().After(end) {
+				fail("no ACK of batch %d", seq)
+			}
+			C.terrad_client_poll(c, 20)
+		}
+	}
+	// A predicted collider leaves the prediction when it is deleted: delete it once its last
+	// batch is acknowledged, or the replay of that batch's tick misses it.
+	waitAck(seq)
 	C.terrad_client_delete_collider(c, ball)
 	C.terrad_client_send_poses(c, nil, 0, &seq) // an ACK after the deletion
-	for end := time.Now().Add(2 * time.Minute); int32(C.terrad_client_get_stats(c).ack_seq-seq) < 0; {
-		if time.Now().After(end) {
-			fail("no ACK of batch %d", seq)
-		}
-		C.terrad_client_poll(c, 20)
-	}
+	waitAck(seq)
 
 	s := C.terrad_client_get_stats(c)
 	ps := C.terrad_prediction_get_stats(pred)
