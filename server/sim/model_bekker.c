@@ -217,8 +217,12 @@ static bekker_cell bekker_cell_step(const sim_params *p, int32_t height, int32_t
     double bekker = sim_soil_bekker_pa(s, width_m, (double)total / upm);
     double trial = s->elastic_pa_m * ((double)e / upm);
     if (trial > bekker) {
-        /* yield: only the elastic share sigma / K_e stays above the collider */
-        double el = floor(bekker / s->elastic_pa_m * upm);
+        /* yield: only the elastic share sigma / K_e stays above the collider,
+         * rounded up to a whole unit: reloaded at the same depth the cell
+         * then yields again at the same sigma and stays. Rounded down (as
+         * before), a share under one unit left nothing to carry a load at the
+         * same height next tick, so a static load crept one unit per tick. */
+        double el = ceil(bekker / s->elastic_pa_m * upm);
         int64_t raw = e - (el < (double)e ? (int64_t)el : e);
         if (raw > (int64_t)height - p->floor)
             raw = (int64_t)height - p->floor > 0 ? (int64_t)height - p->floor : 0;
@@ -425,7 +429,7 @@ sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, in
     return sim_sumner_settle(p, job, cls, settle);
 }
 
-/* The vertical force on job collider 0 at pose height z (units), the job's
+/* The vertical force on job collider c at pose height z (units), the job's
  * heights and state restored from the copies first. */
 static double carry_force(const sim_params *p, sim_window_job *job, int32_t z, const int32_t *h0,
                           const int32_t *s0, int32_t *scratch, sim_collider *c)
@@ -436,7 +440,7 @@ static double carry_force(const sim_params *p, sim_window_job *job, int32_t z, c
     c->pose.position.z = (double)z / p->units_per_m;
     int32_t *cls, *settle;
     bekker_press(p, job, 1, 1, scratch, &cls, &settle);
-    return job->contacts[0].force_n[2];
+    return job->contacts[c - job->colliders].force_n[2];
 }
 
 int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider *c, double load_n,
