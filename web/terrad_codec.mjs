@@ -431,7 +431,9 @@ export class Mirror {
 
 // ---- JSON control messages ----
 
-export const hello = (token = '', client = 'terrad-web') => ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client });
+// world: a world created by POST /v1/worlds (or a cluster's world); '' for the default one.
+export const hello = (token = '', client = 'terrad-web', world = '') =>
+  ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}) });
 export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>
   withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}) }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
@@ -471,4 +473,48 @@ export function parseControl(text) {
   }
   if (typeof m !== 'object' || m === null || Array.isArray(m) || typeof m.type !== 'string') throw new ProtoError('bad_json', 'not an object with a string type');
   return m;
+}
+
+// ---- the world lifecycle API (HTTP, a single daemon; docs/openapi.yaml "worlds") ----
+// base: the daemon's HTTP address, e.g. 'http://127.0.0.1:8080'; token: an admin token where the
+// daemon has tokens (any known token lists). A refusal throws WorldError naming the field.
+
+export class WorldError extends Error {
+  constructor(status, message, field = '') {
+    super(`${status}: ${message}`);
+    this.status = status;
+    this.field = field;
+  }
+}
+
+async function worldRequest(base, method, path, body, token) {
+  const headers = {};
+  if (body !== undefined) headers['Content-Type'] = 'application/json';
+  if (token) headers.Authorization = `Bearer ${token}`;
+  const res = await fetch(base.replace(/\/$/, '') + path,
+    { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+  const doc = await res.json().catch(() => ({}));
+  if (!res.ok) throw new WorldError(res.status, doc.error || res.statusText, doc.field || '');
+  return doc;
+}
+
+// A world from scene (a scene object, as in a scene file) or sceneName (a scene of the daemon's
+// --scene-dir); resolves to its entry once it serves (hello(token, client, name) joins it).
+export function createWorld(base, name, { scene, sceneName, token = '' } = {}) {
+  const body = { name };
+  if (scene !== undefined) body.scene = scene;
+  if (sceneName !== undefined) body.scene_name = sceneName;
+  return worldRequest(base, 'POST', '/v1/worlds', body, token);
+}
+
+// Every world, the default one first: [{ name, state, default, scene, width, height, tick, ... }].
+export async function listWorlds(base, { token = '' } = {}) {
+  return (await worldRequest(base, 'GET', '/v1/worlds', undefined, token)).worlds;
+}
+
+// Ends a created world: its clients are closed with 4020 "world deleted"; keep: its storage is
+// kept for replays. Resolves to { name, deleted: true, kept }.
+export function deleteWorld(base, name, { keep = false, token = '' } = {}) {
+  return worldRequest(base, 'DELETE', `/v1/worlds/${encodeURIComponent(name)}${keep ? '?keep=1' : ''}`,
+    undefined, token);
 }

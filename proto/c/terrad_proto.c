@@ -427,10 +427,97 @@ int terrad_delta_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terr
     return TERRAD_OK;
 }
 
-/* ---- CONTACT ------------------------------------------------------------- */
+/* ---- tick lists: CONTACT, COLLIDERS, FOOTPRINTS, FORCES -------------------
+ * One outline: the header, the tick (u64), a count (u16), then count entries
+ * of one fixed size. Each frame gives its entry's check (the values a codec
+ * refuses as bad_value), its writer and its reader; encode checks every entry
+ * before writing any byte, decode stores an entry only once it is checked. */
 
-static int contact_check(const terrad_contact *c)
+typedef struct tick_list {
+    uint8_t type;
+    size_t fixed, entry_size, elem_size; /* wire: frame fixed part, entry; memory: entry */
+    int (*check)(const void *e);
+    uint8_t *(*write)(uint8_t *p, const void *e);
+    int (*read)(rd *r, void *e); /* TERRAD_OK, or the entry's error (a reserved field) */
+} tick_list;
+
+/* Any entry of a tick list, for decoding one before it is checked. */
+typedef union tick_entry {
+    terrad_contact contact;
+    terrad_collider_state collider;
+    terrad_footprint footprint;
+    terrad_force force;
+} tick_entry;
+
+static int tick_list_encode(const tick_list *t, uint8_t *buf, size_t cap, size_t *len_out,
+                            uint64_t tick, const void *entries, size_t count)
 {
+    const uint8_t *e = entries;
+    if (count > TERRAD_MAX_COUNT)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++)
+        if (t->check(e + i * t->elem_size))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = t->fixed + count * t->entry_size;
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, t->type);
+    p = wr_u64(p, tick);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++)
+        p = t->write(p, e + i * t->elem_size);
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+static int tick_list_decode(const tick_list *t, const uint8_t *buf, size_t len, uint64_t *tick_out,
+                            void *entries, size_t cap, size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, t->type, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < 10)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * t->entry_size)
+        return TERRAD_E_BAD_FRAME;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        tick_entry one;
+        rc = t->read(&r, &one);
+        if (rc || t->check(&one))
+            return rc ? rc : TERRAD_E_BAD_VALUE;
+        memcpy((uint8_t *)entries + i * t->elem_size, &one, t->elem_size);
+    }
+    if (tick_out)
+        *tick_out = tick;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
+static uint8_t *wr_f32s(uint8_t *p, const float *v, int n)
+{
+    for (int k = 0; k < n; k++)
+        p = wr_f32(p, v[k]);
+    return p;
+}
+
+static void rd_f32s(rd *r, float *v, int n)
+{
+    for (int k = 0; k < n; k++)
+        v[k] = rd_f32(r);
+}
+
+/* CONTACT */
+
+static int contact_check(const void *e)
+{
+    const terrad_contact *c = e;
     const float v[9] = {c->area_m2,    c->deepest[0],       c->deepest[1],
                         c->deepest[2], c->normal[0],        c->normal[1],
                         c->normal[2],  c->support_height_m, 0.0f};
@@ -441,6 +528,35 @@ static int contact_check(const terrad_contact *c)
     return TERRAD_OK;
 }
 
+static uint8_t *contact_write(uint8_t *p, const void *e)
+{
+    const terrad_contact *c = e;
+    p = wr_u32(p, c->id);
+    p = wr_u64(p, (uint64_t)c->volume);
+    p = wr_u32(p, c->cells);
+    p = wr_f32(p, c->area_m2);
+    p = wr_f32s(p, c->deepest, 3);
+    p = wr_f32s(p, c->normal, 3);
+    return wr_f32(p, c->support_height_m);
+}
+
+static int contact_read(rd *r, void *e)
+{
+    terrad_contact *c = e;
+    c->id = rd_u32(r);
+    c->volume = (int64_t)rd_u64(r);
+    c->cells = rd_u32(r);
+    c->area_m2 = rd_f32(r);
+    rd_f32s(r, c->deepest, 3);
+    rd_f32s(r, c->normal, 3);
+    c->support_height_m = rd_f32(r);
+    return TERRAD_OK;
+}
+
+static const tick_list contact_list = {
+    TERRAD_MSG_CONTACT, TERRAD_CONTACT_FIXED, TERRAD_CONTACT_SIZE, sizeof(terrad_contact),
+    contact_check,      contact_write,        contact_read};
+
 size_t terrad_contact_size(size_t count)
 {
     return TERRAD_CONTACT_FIXED + count * TERRAD_CONTACT_SIZE;
@@ -449,75 +565,20 @@ size_t terrad_contact_size(size_t count)
 int terrad_contact_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                           const terrad_contact *contacts, size_t count)
 {
-    if (count > TERRAD_MAX_COUNT)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++)
-        if (contact_check(&contacts[i]))
-            return TERRAD_E_BAD_VALUE;
-    size_t need = terrad_contact_size(count);
-    if (!buf || cap < need)
-        return TERRAD_E_BUFFER_TOO_SMALL;
-    uint8_t *p = wr_header(buf, TERRAD_MSG_CONTACT);
-    p = wr_u64(p, tick);
-    p = wr_u16(p, (uint16_t)count);
-    for (size_t i = 0; i < count; i++) {
-        const terrad_contact *c = &contacts[i];
-        p = wr_u32(p, c->id);
-        p = wr_u64(p, (uint64_t)c->volume);
-        p = wr_u32(p, c->cells);
-        p = wr_f32(p, c->area_m2);
-        for (int k = 0; k < 3; k++)
-            p = wr_f32(p, c->deepest[k]);
-        for (int k = 0; k < 3; k++)
-            p = wr_f32(p, c->normal[k]);
-        p = wr_f32(p, c->support_height_m);
-    }
-    if (len_out)
-        *len_out = need;
-    return TERRAD_OK;
+    return tick_list_encode(&contact_list, buf, cap, len_out, tick, contacts, count);
 }
 
 int terrad_contact_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                           terrad_contact *contacts, size_t cap, size_t *count_out)
 {
-    rd r;
-    int rc = expect_header(buf, len, TERRAD_MSG_CONTACT, &r);
-    if (rc)
-        return rc;
-    if (rd_left(&r) < 10)
-        return TERRAD_E_BAD_FRAME;
-    uint64_t tick = rd_u64(&r);
-    size_t count = rd_u16(&r);
-    if (rd_left(&r) != count * TERRAD_CONTACT_SIZE)
-        return TERRAD_E_BAD_FRAME;
-    if (count > cap)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++) {
-        terrad_contact c;
-        c.id = rd_u32(&r);
-        c.volume = (int64_t)rd_u64(&r);
-        c.cells = rd_u32(&r);
-        c.area_m2 = rd_f32(&r);
-        for (int k = 0; k < 3; k++)
-            c.deepest[k] = rd_f32(&r);
-        for (int k = 0; k < 3; k++)
-            c.normal[k] = rd_f32(&r);
-        c.support_height_m = rd_f32(&r);
-        if (contact_check(&c))
-            return TERRAD_E_BAD_VALUE;
-        contacts[i] = c;
-    }
-    if (tick_out)
-        *tick_out = tick;
-    if (count_out)
-        *count_out = count;
-    return TERRAD_OK;
+    return tick_list_decode(&contact_list, buf, len, tick_out, contacts, cap, count_out);
 }
 
-/* ---- COLLIDERS ----------------------------------------------------------- */
+/* COLLIDERS */
 
-static int collider_state_check(const terrad_collider_state *c)
+static int collider_state_check(const void *e)
 {
+    const terrad_collider_state *c = e;
     const float v[10] = {c->dims[0], c->dims[1], c->dims[2], c->p[0], c->p[1],
                          c->p[2],    c->q[0],    c->q[1],    c->q[2], c->q[3]};
     if (!finite_all(v, 10))
@@ -534,6 +595,37 @@ static int collider_state_check(const terrad_collider_state *c)
     return TERRAD_OK;
 }
 
+static uint8_t *collider_state_write(uint8_t *p, const void *e)
+{
+    const terrad_collider_state *c = e;
+    p = wr_u32(p, c->id);
+    p = wr_u8(p, c->owner);
+    p = wr_u8(p, c->kind);
+    p = wr_u16(p, 0);
+    p = wr_f32s(p, c->dims, 3);
+    p = wr_f32s(p, c->p, 3);
+    return wr_f32s(p, c->q, 4);
+}
+
+static int collider_state_read(rd *r, void *e)
+{
+    terrad_collider_state *c = e;
+    c->id = rd_u32(r);
+    c->owner = rd_u8(r);
+    c->kind = rd_u8(r);
+    if (rd_u16(r) != 0) /* reserved */
+        return TERRAD_E_BAD_VALUE;
+    rd_f32s(r, c->dims, 3);
+    rd_f32s(r, c->p, 3);
+    rd_f32s(r, c->q, 4);
+    return TERRAD_OK;
+}
+
+static const tick_list colliders_list = {TERRAD_MSG_COLLIDERS,       TERRAD_COLLIDERS_FIXED,
+                                         TERRAD_COLLIDER_STATE_SIZE, sizeof(terrad_collider_state),
+                                         collider_state_check,       collider_state_write,
+                                         collider_state_read};
+
 size_t terrad_colliders_size(size_t count)
 {
     return TERRAD_COLLIDERS_FIXED + count * TERRAD_COLLIDER_STATE_SIZE;
@@ -542,78 +634,20 @@ size_t terrad_colliders_size(size_t count)
 int terrad_colliders_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                             const terrad_collider_state *states, size_t count)
 {
-    if (count > TERRAD_MAX_COUNT)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++)
-        if (collider_state_check(&states[i]))
-            return TERRAD_E_BAD_VALUE;
-    size_t need = terrad_colliders_size(count);
-    if (!buf || cap < need)
-        return TERRAD_E_BUFFER_TOO_SMALL;
-    uint8_t *p = wr_header(buf, TERRAD_MSG_COLLIDERS);
-    p = wr_u64(p, tick);
-    p = wr_u16(p, (uint16_t)count);
-    for (size_t i = 0; i < count; i++) {
-        const terrad_collider_state *c = &states[i];
-        p = wr_u32(p, c->id);
-        p = wr_u8(p, c->owner);
-        p = wr_u8(p, c->kind);
-        p = wr_u16(p, 0);
-        for (int k = 0; k < 3; k++)
-            p = wr_f32(p, c->dims[k]);
-        for (int k = 0; k < 3; k++)
-            p = wr_f32(p, c->p[k]);
-        for (int k = 0; k < 4; k++)
-            p = wr_f32(p, c->q[k]);
-    }
-    if (len_out)
-        *len_out = need;
-    return TERRAD_OK;
+    return tick_list_encode(&colliders_list, buf, cap, len_out, tick, states, count);
 }
 
 int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                             terrad_collider_state *states, size_t cap, size_t *count_out)
 {
-    rd r;
-    int rc = expect_header(buf, len, TERRAD_MSG_COLLIDERS, &r);
-    if (rc)
-        return rc;
-    if (rd_left(&r) < 10)
-        return TERRAD_E_BAD_FRAME;
-    uint64_t tick = rd_u64(&r);
-    size_t count = rd_u16(&r);
-    if (rd_left(&r) != count * TERRAD_COLLIDER_STATE_SIZE)
-        return TERRAD_E_BAD_FRAME;
-    if (count > cap)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++) {
-        terrad_collider_state c;
-        c.id = rd_u32(&r);
-        c.owner = rd_u8(&r);
-        c.kind = rd_u8(&r);
-        if (rd_u16(&r) != 0) /* reserved */
-            return TERRAD_E_BAD_VALUE;
-        for (int k = 0; k < 3; k++)
-            c.dims[k] = rd_f32(&r);
-        for (int k = 0; k < 3; k++)
-            c.p[k] = rd_f32(&r);
-        for (int k = 0; k < 4; k++)
-            c.q[k] = rd_f32(&r);
-        if (collider_state_check(&c))
-            return TERRAD_E_BAD_VALUE;
-        states[i] = c;
-    }
-    if (tick_out)
-        *tick_out = tick;
-    if (count_out)
-        *count_out = count;
-    return TERRAD_OK;
+    return tick_list_decode(&colliders_list, buf, len, tick_out, states, cap, count_out);
 }
 
-/* ---- FOOTPRINTS ---------------------------------------------------------- */
+/* FOOTPRINTS */
 
-static int footprint_check(const terrad_footprint *f)
+static int footprint_check(const void *e)
 {
+    const terrad_footprint *f = e;
     const float v[5] = {f->x, f->y, f->yaw, f->size_m, f->strength_m};
     if (!finite_all(v, 5))
         return TERRAD_E_BAD_VALUE;
@@ -625,6 +659,33 @@ static int footprint_check(const terrad_footprint *f)
     return TERRAD_OK;
 }
 
+static uint8_t *footprint_write(uint8_t *p, const void *e)
+{
+    const terrad_footprint *f = e;
+    p = wr_u32(p, f->collider);
+    p = wr_f32(p, f->x);
+    p = wr_f32(p, f->y);
+    p = wr_f32(p, f->yaw);
+    p = wr_f32(p, f->size_m);
+    return wr_f32(p, f->strength_m);
+}
+
+static int footprint_read(rd *r, void *e)
+{
+    terrad_footprint *f = e;
+    f->collider = rd_u32(r);
+    f->x = rd_f32(r);
+    f->y = rd_f32(r);
+    f->yaw = rd_f32(r);
+    f->size_m = rd_f32(r);
+    f->strength_m = rd_f32(r);
+    return TERRAD_OK;
+}
+
+static const tick_list footprints_list = {
+    TERRAD_MSG_FOOTPRINTS, TERRAD_FOOTPRINTS_FIXED, TERRAD_FOOTPRINT_SIZE, sizeof(terrad_footprint),
+    footprint_check,       footprint_write,         footprint_read};
+
 size_t terrad_footprints_size(size_t count)
 {
     return TERRAD_FOOTPRINTS_FIXED + count * TERRAD_FOOTPRINT_SIZE;
@@ -633,69 +694,20 @@ size_t terrad_footprints_size(size_t count)
 int terrad_footprints_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                              const terrad_footprint *events, size_t count)
 {
-    if (count > TERRAD_MAX_COUNT)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++)
-        if (footprint_check(&events[i]))
-            return TERRAD_E_BAD_VALUE;
-    size_t need = terrad_footprints_size(count);
-    if (!buf || cap < need)
-        return TERRAD_E_BUFFER_TOO_SMALL;
-    uint8_t *p = wr_header(buf, TERRAD_MSG_FOOTPRINTS);
-    p = wr_u64(p, tick);
-    p = wr_u16(p, (uint16_t)count);
-    for (size_t i = 0; i < count; i++) {
-        const terrad_footprint *f = &events[i];
-        p = wr_u32(p, f->collider);
-        p = wr_f32(p, f->x);
-        p = wr_f32(p, f->y);
-        p = wr_f32(p, f->yaw);
-        p = wr_f32(p, f->size_m);
-        p = wr_f32(p, f->strength_m);
-    }
-    if (len_out)
-        *len_out = need;
-    return TERRAD_OK;
+    return tick_list_encode(&footprints_list, buf, cap, len_out, tick, events, count);
 }
 
 int terrad_footprints_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                              terrad_footprint *events, size_t cap, size_t *count_out)
 {
-    rd r;
-    int rc = expect_header(buf, len, TERRAD_MSG_FOOTPRINTS, &r);
-    if (rc)
-        return rc;
-    if (rd_left(&r) < 10)
-        return TERRAD_E_BAD_FRAME;
-    uint64_t tick = rd_u64(&r);
-    size_t count = rd_u16(&r);
-    if (rd_left(&r) != count * TERRAD_FOOTPRINT_SIZE)
-        return TERRAD_E_BAD_FRAME;
-    if (count > cap)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++) {
-        terrad_footprint f;
-        f.collider = rd_u32(&r);
-        f.x = rd_f32(&r);
-        f.y = rd_f32(&r);
-        f.yaw = rd_f32(&r);
-        f.size_m = rd_f32(&r);
-        f.strength_m = rd_f32(&r);
-        if (footprint_check(&f))
-            return TERRAD_E_BAD_VALUE;
-        events[i] = f;
-    }
-    if (tick_out)
-        *tick_out = tick;
-    if (count_out)
-        *count_out = count;
-    return TERRAD_OK;
+    return tick_list_decode(&footprints_list, buf, len, tick_out, events, cap, count_out);
 }
 
-/* ---- FORCES -------------------------------------------------------------- */
+/* FORCES */
 
-static int force_check(const terrad_force *f)
+static int force_check(const void *e)
 {
+    const terrad_force *f = e;
     const float v[10] = {f->force[0],  f->force[1],  f->force[2], f->torque[0],     f->torque[1],
                          f->torque[2], f->sinkage_m, f->area_m2,  f->patch_width_m, f->slip};
     if (!finite_all(v, 10))
@@ -705,6 +717,37 @@ static int force_check(const terrad_force *f)
     return TERRAD_OK;
 }
 
+static uint8_t *force_write(uint8_t *p, const void *e)
+{
+    const terrad_force *f = e;
+    p = wr_u32(p, f->id);
+    p = wr_f32s(p, f->force, 3);
+    p = wr_f32s(p, f->torque, 3);
+    p = wr_f32(p, f->sinkage_m);
+    p = wr_f32(p, f->area_m2);
+    p = wr_f32(p, f->patch_width_m);
+    p = wr_f32(p, f->slip);
+    return wr_u32(p, f->cells);
+}
+
+static int force_read(rd *r, void *e)
+{
+    terrad_force *f = e;
+    f->id = rd_u32(r);
+    rd_f32s(r, f->force, 3);
+    rd_f32s(r, f->torque, 3);
+    f->sinkage_m = rd_f32(r);
+    f->area_m2 = rd_f32(r);
+    f->patch_width_m = rd_f32(r);
+    f->slip = rd_f32(r);
+    f->cells = rd_u32(r);
+    return TERRAD_OK;
+}
+
+static const tick_list forces_list = {
+    TERRAD_MSG_FORCES, TERRAD_FORCES_FIXED, TERRAD_FORCE_SIZE, sizeof(terrad_force),
+    force_check,       force_write,         force_read};
+
 size_t terrad_forces_size(size_t count)
 {
     return TERRAD_FORCES_FIXED + count * TERRAD_FORCE_SIZE;
@@ -713,71 +756,13 @@ size_t terrad_forces_size(size_t count)
 int terrad_forces_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                          const terrad_force *forces, size_t count)
 {
-    if (count > TERRAD_MAX_COUNT)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++)
-        if (force_check(&forces[i]))
-            return TERRAD_E_BAD_VALUE;
-    size_t need = terrad_forces_size(count);
-    if (!buf || cap < need)
-        return TERRAD_E_BUFFER_TOO_SMALL;
-    uint8_t *p = wr_header(buf, TERRAD_MSG_FORCES);
-    p = wr_u64(p, tick);
-    p = wr_u16(p, (uint16_t)count);
-    for (size_t i = 0; i < count; i++) {
-        const terrad_force *f = &forces[i];
-        p = wr_u32(p, f->id);
-        for (int k = 0; k < 3; k++)
-            p = wr_f32(p, f->force[k]);
-        for (int k = 0; k < 3; k++)
-            p = wr_f32(p, f->torque[k]);
-        p = wr_f32(p, f->sinkage_m);
-        p = wr_f32(p, f->area_m2);
-        p = wr_f32(p, f->patch_width_m);
-        p = wr_f32(p, f->slip);
-        p = wr_u32(p, f->cells);
-    }
-    if (len_out)
-        *len_out = need;
-    return TERRAD_OK;
+    return tick_list_encode(&forces_list, buf, cap, len_out, tick, forces, count);
 }
 
 int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_force *forces,
                          size_t cap, size_t *count_out)
 {
-    rd r;
-    int rc = expect_header(buf, len, TERRAD_MSG_FORCES, &r);
-    if (rc)
-        return rc;
-    if (rd_left(&r) < 10)
-        return TERRAD_E_BAD_FRAME;
-    uint64_t tick = rd_u64(&r);
-    size_t count = rd_u16(&r);
-    if (rd_left(&r) != count * TERRAD_FORCE_SIZE)
-        return TERRAD_E_BAD_FRAME;
-    if (count > cap)
-        return TERRAD_E_TOO_LARGE;
-    for (size_t i = 0; i < count; i++) {
-        terrad_force f;
-        f.id = rd_u32(&r);
-        for (int k = 0; k < 3; k++)
-            f.force[k] = rd_f32(&r);
-        for (int k = 0; k < 3; k++)
-            f.torque[k] = rd_f32(&r);
-        f.sinkage_m = rd_f32(&r);
-        f.area_m2 = rd_f32(&r);
-        f.patch_width_m = rd_f32(&r);
-        f.slip = rd_f32(&r);
-        f.cells = rd_u32(&r);
-        if (force_check(&f))
-            return TERRAD_E_BAD_VALUE;
-        forces[i] = f;
-    }
-    if (tick_out)
-        *tick_out = tick;
-    if (count_out)
-        *count_out = count;
-    return TERRAD_OK;
+    return tick_list_decode(&forces_list, buf, len, tick_out, forces, cap, count_out);
 }
 
 /* ---- ACK, PING, PONG ----------------------------------------------------- */

@@ -170,6 +170,27 @@ static void set_u16(uint8_t *p, uint16_t u)
     p[1] = (uint8_t)(u >> 8);
 }
 
+/* The valid frame in buf (len bytes) with the f32 at offset off set to v: a
+ * vector a decoder must refuse as bad_value. */
+static void bad_f32(const char *name, const char *type, const char *about, size_t len, size_t off,
+                    float v)
+{
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    set_f32(q + off, v);
+    invalid(name, type, about, q, len, TERRAD_E_BAD_VALUE);
+}
+
+/* Likewise with the byte at offset off set to v, refused with err. */
+static void bad_byte(const char *name, const char *type, const char *about, size_t len, size_t off,
+                     uint8_t v, int err)
+{
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    q[off] = v;
+    invalid(name, type, about, q, len, err);
+}
+
 static void pose_vectors(void)
 {
     terrad_pose one = {7, 1.5f, -2.25f, 0.125f, 1, 0, 0, 0};
@@ -455,25 +476,39 @@ static void delta_vectors(void)
     }
 }
 
-/* ---- CONTACT, ACK, PING, PONG ---- */
-
-static cJSON *contact_fields(uint64_t tick, const terrad_contact *c, size_t n)
+/* The fields of a tick list (CONTACT, COLLIDERS, FOOTPRINTS, FORCES): the
+ * tick and, under key, each of the n entries (elem bytes apart) as entry()
+ * writes it. */
+static cJSON *tick_list_fields(uint64_t tick, const char *key, const void *entries, size_t elem,
+                               size_t n, cJSON *(*entry)(const void *))
 {
     cJSON *f = cJSON_CreateObject();
     add_u64(f, "tick", tick);
-    cJSON *a = cJSON_AddArrayToObject(f, "contacts");
-    for (size_t i = 0; i < n; i++) {
-        cJSON *o = cJSON_CreateObject();
-        cJSON_AddNumberToObject(o, "id", c[i].id);
-        add_i64(o, "volume", c[i].volume);
-        cJSON_AddNumberToObject(o, "cells", c[i].cells);
-        cJSON_AddNumberToObject(o, "area_m2", c[i].area_m2);
-        cJSON_AddItemToObject(o, "deepest", float_array(c[i].deepest, 3));
-        cJSON_AddItemToObject(o, "normal", float_array(c[i].normal, 3));
-        cJSON_AddNumberToObject(o, "support_height_m", c[i].support_height_m);
-        cJSON_AddItemToArray(a, o);
-    }
+    cJSON *a = cJSON_AddArrayToObject(f, key);
+    for (size_t i = 0; i < n; i++)
+        cJSON_AddItemToArray(a, entry((const uint8_t *)entries + i * elem));
     return f;
+}
+
+/* ---- CONTACT, ACK, PING, PONG ---- */
+
+static cJSON *contact_json(const void *entry)
+{
+    const terrad_contact *e = entry;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "id", e->id);
+    add_i64(o, "volume", e->volume);
+    cJSON_AddNumberToObject(o, "cells", e->cells);
+    cJSON_AddNumberToObject(o, "area_m2", e->area_m2);
+    cJSON_AddItemToObject(o, "deepest", float_array(e->deepest, 3));
+    cJSON_AddItemToObject(o, "normal", float_array(e->normal, 3));
+    cJSON_AddNumberToObject(o, "support_height_m", e->support_height_m);
+    return o;
+}
+
+static cJSON *contact_fields(uint64_t tick, const terrad_contact *c, size_t n)
+{
+    return tick_list_fields(tick, "contacts", c, sizeof *c, n, contact_json);
 }
 
 static void small_vectors(void)
@@ -495,9 +530,8 @@ static void small_vectors(void)
     valid(vector("contact_two", "CONTACT", "a wheel in contact, then maximum values"),
           contact_fields(987654321012345ull, c, 2), buf, len);
     uint8_t q[256];
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 32, NAN); /* first contact's normal y */
-    invalid("contact_nan_normal", "CONTACT", "normal y is NaN", q, len, TERRAD_E_BAD_VALUE);
+    bad_f32("contact_nan_normal", "CONTACT", "normal y is NaN", len, 14 + 32,
+            NAN); /* first contact's normal y */
     memcpy(q, buf, len);
     set_u32(q + 14 + 8, 0x80000000u); /* first contact's volume high word: negative */
     invalid("contact_negative_volume", "CONTACT", "volume < 0", q, len, TERRAD_E_BAD_VALUE);
@@ -531,22 +565,22 @@ static void small_vectors(void)
 
 /* ---- COLLIDERS ---- */
 
+static cJSON *collider_state_json(const void *entry)
+{
+    const terrad_collider_state *e = entry;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "id", e->id);
+    cJSON_AddNumberToObject(o, "owner", e->owner);
+    cJSON_AddNumberToObject(o, "kind", e->kind);
+    cJSON_AddItemToObject(o, "dims", float_array(e->dims, 3));
+    cJSON_AddItemToObject(o, "p", float_array(e->p, 3));
+    cJSON_AddItemToObject(o, "q", float_array(e->q, 4));
+    return o;
+}
+
 static cJSON *colliders_fields(uint64_t tick, const terrad_collider_state *c, size_t n)
 {
-    cJSON *f = cJSON_CreateObject();
-    add_u64(f, "tick", tick);
-    cJSON *a = cJSON_AddArrayToObject(f, "colliders");
-    for (size_t i = 0; i < n; i++) {
-        cJSON *o = cJSON_CreateObject();
-        cJSON_AddNumberToObject(o, "id", c[i].id);
-        cJSON_AddNumberToObject(o, "owner", c[i].owner);
-        cJSON_AddNumberToObject(o, "kind", c[i].kind);
-        cJSON_AddItemToObject(o, "dims", float_array(c[i].dims, 3));
-        cJSON_AddItemToObject(o, "p", float_array(c[i].p, 3));
-        cJSON_AddItemToObject(o, "q", float_array(c[i].q, 4));
-        cJSON_AddItemToArray(a, o);
-    }
-    return f;
+    return tick_list_fields(tick, "colliders", c, sizeof *c, n, collider_state_json);
 }
 
 static void colliders_vectors(void)
@@ -573,25 +607,18 @@ static void colliders_vectors(void)
     ok(terrad_colliders_encode(buf, sizeof buf, &len, 123456789012ull, c, 3), "colliders");
     valid(vector("colliders_three", "COLLIDERS", "own sphere, another client's wheel, a demo box"),
           colliders_fields(123456789012ull, c, 3), buf, len);
-    uint8_t q[256];
-    memcpy(q, buf, len);
-    q[14 + 4] = 3; /* first entry's owner */
-    invalid("colliders_bad_owner", "COLLIDERS", "owner 3", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    q[14 + 5] = 5; /* first entry's kind */
-    invalid("colliders_bad_kind", "COLLIDERS", "kind 5", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    q[14 + 6] = 1; /* reserved u16 */
-    invalid("colliders_reserved", "COLLIDERS", "reserved bytes set", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 8 + 4 * 4, NAN); /* first entry's y */
-    invalid("colliders_nan", "COLLIDERS", "position y is NaN", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 8, -0.3f); /* first entry's radius */
-    invalid("colliders_negative_dim", "COLLIDERS", "radius < 0", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 8 + 24, 2.0f); /* first entry's qw: |q|^2 = 4 */
-    invalid("colliders_quaternion", "COLLIDERS", "|q| = 2", q, len, TERRAD_E_BAD_VALUE);
+    bad_byte("colliders_bad_owner", "COLLIDERS", "owner 3", len, 14 + 4, 3,
+             TERRAD_E_BAD_VALUE); /* first entry's owner */
+    bad_byte("colliders_bad_kind", "COLLIDERS", "kind 5", len, 14 + 5, 5,
+             TERRAD_E_BAD_VALUE); /* first entry's kind */
+    bad_byte("colliders_reserved", "COLLIDERS", "reserved bytes set", len, 14 + 6, 1,
+             TERRAD_E_BAD_VALUE); /* reserved u16 */
+    bad_f32("colliders_nan", "COLLIDERS", "position y is NaN", len, 14 + 8 + 4 * 4,
+            NAN); /* first entry's y */
+    bad_f32("colliders_negative_dim", "COLLIDERS", "radius < 0", len, 14 + 8,
+            -0.3f); /* first entry's radius */
+    bad_f32("colliders_quaternion", "COLLIDERS", "|q| = 2", len, 14 + 8 + 24,
+            2.0f); /* first entry's qw: |q|^2 = 4 */
     invalid("colliders_truncated", "COLLIDERS", "the last entry cut short", buf, len - 4,
             TERRAD_E_BAD_FRAME);
     buf[len] = 0;
@@ -601,22 +628,22 @@ static void colliders_vectors(void)
 
 /* ---- FOOTPRINTS ---- */
 
+static cJSON *footprint_json(const void *entry)
+{
+    const terrad_footprint *e = entry;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "collider", e->collider);
+    cJSON_AddNumberToObject(o, "x", e->x);
+    cJSON_AddNumberToObject(o, "y", e->y);
+    cJSON_AddNumberToObject(o, "yaw", e->yaw);
+    cJSON_AddNumberToObject(o, "size_m", e->size_m);
+    cJSON_AddNumberToObject(o, "strength_m", e->strength_m);
+    return o;
+}
+
 static cJSON *footprints_fields(uint64_t tick, const terrad_footprint *e, size_t n)
 {
-    cJSON *f = cJSON_CreateObject();
-    add_u64(f, "tick", tick);
-    cJSON *a = cJSON_AddArrayToObject(f, "footprints");
-    for (size_t i = 0; i < n; i++) {
-        cJSON *o = cJSON_CreateObject();
-        cJSON_AddNumberToObject(o, "collider", e[i].collider);
-        cJSON_AddNumberToObject(o, "x", e[i].x);
-        cJSON_AddNumberToObject(o, "y", e[i].y);
-        cJSON_AddNumberToObject(o, "yaw", e[i].yaw);
-        cJSON_AddNumberToObject(o, "size_m", e[i].size_m);
-        cJSON_AddNumberToObject(o, "strength_m", e[i].strength_m);
-        cJSON_AddItemToArray(a, o);
-    }
-    return f;
+    return tick_list_fields(tick, "footprints", e, sizeof *e, n, footprint_json);
 }
 
 static void footprints_vectors(void)
@@ -634,54 +661,44 @@ static void footprints_vectors(void)
     valid(vector("footprints_three", "FOOTPRINTS",
                  "a sphere, another client's wheel turned, a demo box at yaw pi"),
           footprints_fields(123456789012ull, e, 3), buf, len);
-    uint8_t q[128];
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 4, NAN); /* first event's x */
-    invalid("footprints_nan", "FOOTPRINTS", "x is NaN", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 8, INFINITY); /* first event's y */
-    invalid("footprints_inf", "FOOTPRINTS", "y is +Inf", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 12, 4.0f); /* first event's yaw */
-    invalid("footprints_yaw", "FOOTPRINTS", "yaw 4 > pi", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 16, 0.0f); /* first event's size */
-    invalid("footprints_zero_size", "FOOTPRINTS", "size 0", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 20, -0.25f); /* first event's strength */
-    invalid("footprints_negative_strength", "FOOTPRINTS", "strength < 0", q, len,
-            TERRAD_E_BAD_VALUE);
+    bad_f32("footprints_nan", "FOOTPRINTS", "x is NaN", len, 14 + 4, NAN); /* first event's x */
+    bad_f32("footprints_inf", "FOOTPRINTS", "y is +Inf", len, 14 + 8,
+            INFINITY); /* first event's y */
+    bad_f32("footprints_yaw", "FOOTPRINTS", "yaw 4 > pi", len, 14 + 12,
+            4.0f); /* first event's yaw */
+    bad_f32("footprints_zero_size", "FOOTPRINTS", "size 0", len, 14 + 16,
+            0.0f); /* first event's size */
+    bad_f32("footprints_negative_strength", "FOOTPRINTS", "strength < 0", len, 14 + 20,
+            -0.25f); /* first event's strength */
     invalid("footprints_truncated", "FOOTPRINTS", "the last event cut short", buf, len - 4,
             TERRAD_E_BAD_FRAME);
     buf[len] = 0;
     invalid("footprints_trailing", "FOOTPRINTS", "a byte after the last event", buf, len + 1,
             TERRAD_E_BAD_FRAME);
-    memcpy(q, buf, len);
-    q[12] = 4; /* count 4, three events follow */
-    invalid("footprints_count", "FOOTPRINTS", "count 4 with three events", q, len,
-            TERRAD_E_BAD_FRAME);
+    bad_byte("footprints_count", "FOOTPRINTS", "count 4 with three events", len, 12, 4,
+             TERRAD_E_BAD_FRAME); /* count 4, three events follow */
 }
 
 /* ---- FORCES ---- */
 
+static cJSON *force_json(const void *entry)
+{
+    const terrad_force *f = entry;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "id", f->id);
+    cJSON_AddItemToObject(o, "force", cJSON_CreateFloatArray(f->force, 3));
+    cJSON_AddItemToObject(o, "torque", cJSON_CreateFloatArray(f->torque, 3));
+    cJSON_AddNumberToObject(o, "sinkage_m", f->sinkage_m);
+    cJSON_AddNumberToObject(o, "area_m2", f->area_m2);
+    cJSON_AddNumberToObject(o, "patch_width_m", f->patch_width_m);
+    cJSON_AddNumberToObject(o, "slip", f->slip);
+    cJSON_AddNumberToObject(o, "cells", f->cells);
+    return o;
+}
+
 static cJSON *forces_fields(uint64_t tick, const terrad_force *f, size_t n)
 {
-    cJSON *o = cJSON_CreateObject();
-    add_u64(o, "tick", tick);
-    cJSON *a = cJSON_AddArrayToObject(o, "forces");
-    for (size_t i = 0; i < n; i++) {
-        cJSON *e = cJSON_CreateObject();
-        cJSON_AddNumberToObject(e, "id", f[i].id);
-        cJSON_AddItemToObject(e, "force", cJSON_CreateFloatArray(f[i].force, 3));
-        cJSON_AddItemToObject(e, "torque", cJSON_CreateFloatArray(f[i].torque, 3));
-        cJSON_AddNumberToObject(e, "sinkage_m", f[i].sinkage_m);
-        cJSON_AddNumberToObject(e, "area_m2", f[i].area_m2);
-        cJSON_AddNumberToObject(e, "patch_width_m", f[i].patch_width_m);
-        cJSON_AddNumberToObject(e, "slip", f[i].slip);
-        cJSON_AddNumberToObject(e, "cells", f[i].cells);
-        cJSON_AddItemToArray(a, e);
-    }
-    return o;
+    return tick_list_fields(tick, "forces", f, sizeof *f, n, force_json);
 }
 
 static void forces_vectors(void)
@@ -697,27 +714,20 @@ static void forces_vectors(void)
     ok(terrad_forces_encode(buf, sizeof buf, &len, 987654321ull, f, 2), "forces");
     valid(vector("forces_two", "FORCES", "a driven wheel at slip 0.2, a skidding wheel lifted off"),
           forces_fields(987654321ull, f, 2), buf, len);
-    uint8_t q[256];
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 4, NAN); /* first entry's force x */
-    invalid("forces_nan", "FORCES", "force x is NaN", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 40, INFINITY); /* first entry's slip */
-    invalid("forces_inf", "FORCES", "slip is +Inf", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 28, -0.001f); /* first entry's sinkage */
-    invalid("forces_negative_sinkage", "FORCES", "sinkage < 0", q, len, TERRAD_E_BAD_VALUE);
-    memcpy(q, buf, len);
-    set_f32(q + 14 + 32, -1.0f); /* first entry's area */
-    invalid("forces_negative_area", "FORCES", "area < 0", q, len, TERRAD_E_BAD_VALUE);
+    bad_f32("forces_nan", "FORCES", "force x is NaN", len, 14 + 4, NAN); /* first entry's force x */
+    bad_f32("forces_inf", "FORCES", "slip is +Inf", len, 14 + 40,
+            INFINITY); /* first entry's slip */
+    bad_f32("forces_negative_sinkage", "FORCES", "sinkage < 0", len, 14 + 28,
+            -0.001f); /* first entry's sinkage */
+    bad_f32("forces_negative_area", "FORCES", "area < 0", len, 14 + 32,
+            -1.0f); /* first entry's area */
     invalid("forces_truncated", "FORCES", "the last entry cut short", buf, len - 4,
             TERRAD_E_BAD_FRAME);
     buf[len] = 0;
     invalid("forces_trailing", "FORCES", "a byte after the last entry", buf, len + 1,
             TERRAD_E_BAD_FRAME);
-    memcpy(q, buf, len);
-    q[12] = 3; /* count 3, two entries follow */
-    invalid("forces_count", "FORCES", "count 3 with two entries", q, len, TERRAD_E_BAD_FRAME);
+    bad_byte("forces_count", "FORCES", "count 3 with two entries", len, 12, 3,
+             TERRAD_E_BAD_FRAME); /* count 3, two entries follow */
 }
 
 /* ---- mirror scenarios ---- */

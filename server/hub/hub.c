@@ -22,7 +22,6 @@
 #define HUB_POSE_SLOTS (HUB_POSE_CAPACITY * 2)
 #define HUB_OUT_CAPACITY 65536
 #define HUB_MAX_READS 32
-#define HUB_BATCH_CAPACITY 4096 /* clients with a pending batch sequence */
 
 typedef struct hub_read {
     world_rect rect;
@@ -280,26 +279,57 @@ static int32_t pose_find(const hub *h, uint32_t collider, uint32_t *slot)
     return 0;
 }
 
-int hub_set_pose(hub *h, const hub_pose *pose_in)
+/* Latest wins per collider; the caller holds pose_lock. */
+static int store_pose_locked(hub *h, const hub_pose *pose_in, double now_ms)
 {
-    THREAD_OWNED(&h->net_end);
-    hub_pose stamped = *pose_in;
-    stamped.received_ms = time_now_ms();
-    const hub_pose *pose = &stamped;
-    pthread_mutex_lock(&h->pose_lock);
+    hub_pose pose = *pose_in;
+    pose.received_ms = now_ms;
     uint32_t slot;
-    int32_t at = pose_find(h, pose->collider, &slot);
-    int rc = 0;
+    int32_t at = pose_find(h, pose.collider, &slot);
     if (at) {
-        h->poses[at - 1] = *pose;
+        h->poses[at - 1] = pose;
     } else if (h->pose_count < HUB_POSE_CAPACITY) {
-        h->poses[h->pose_count] = *pose;
+        h->poses[h->pose_count] = pose;
         h->slots[slot] = ++h->pose_count;
     } else {
-        rc = -1;
+        return -1;
     }
+    return 0;
+}
+
+/* Latest wins per client; the caller holds pose_lock. */
+static void note_batch_locked(hub *h, uint32_t client, uint32_t sequence)
+{
+    int i = 0;
+    while (i < h->batch_count && h->batches[i].client != client)
+        i++;
+    if (i < h->batch_count)
+        h->batches[i].sequence = sequence;
+    else if (h->batch_count < HUB_BATCH_CAPACITY)
+        h->batches[h->batch_count++] = (hub_batch){client, sequence};
+}
+
+int hub_set_pose(hub *h, const hub_pose *pose)
+{
+    THREAD_OWNED(&h->net_end);
+    double now = time_now_ms();
+    pthread_mutex_lock(&h->pose_lock);
+    int rc = store_pose_locked(h, pose, now);
     pthread_mutex_unlock(&h->pose_lock);
     return rc;
+}
+
+int hub_set_batch(hub *h, uint32_t client, uint32_t sequence, const hub_pose *poses, int n)
+{
+    THREAD_OWNED(&h->net_end);
+    double now = time_now_ms();
+    pthread_mutex_lock(&h->pose_lock);
+    int stored = 0;
+    while (stored < n && store_pose_locked(h, &poses[stored], now) == 0)
+        stored++;
+    note_batch_locked(h, client, sequence);
+    pthread_mutex_unlock(&h->pose_lock);
+    return stored;
 }
 
 /* Rebuild the slot table after removing entries (cheap: only pending poses). */
@@ -326,15 +356,32 @@ void hub_forget_pose(hub *h, uint32_t collider)
     pthread_mutex_unlock(&h->pose_lock);
 }
 
-int hub_take_poses(hub *h, hub_pose *out, int max)
+/* The caller holds pose_lock. */
+static int take_poses_locked(hub *h, hub_pose *out, int max)
 {
-    THREAD_OWNED(&h->sim_end);
-    pthread_mutex_lock(&h->pose_lock);
     int n = h->pose_count < max ? h->pose_count : max;
     memcpy(out, h->poses, (size_t)n * sizeof *out);
     memmove(h->poses, h->poses + n, (size_t)(h->pose_count - n) * sizeof *h->poses);
     h->pose_count -= n;
     pose_reindex(h);
+    return n;
+}
+
+/* The caller holds pose_lock. */
+static int take_batches_locked(hub *h, hub_batch *out, int max)
+{
+    int n = h->batch_count < max ? h->batch_count : max;
+    memcpy(out, h->batches, (size_t)n * sizeof *out);
+    memmove(h->batches, h->batches + n, (size_t)(h->batch_count - n) * sizeof *h->batches);
+    h->batch_count -= n;
+    return n;
+}
+
+int hub_take_poses(hub *h, hub_pose *out, int max)
+{
+    THREAD_OWNED(&h->sim_end);
+    pthread_mutex_lock(&h->pose_lock);
+    int n = take_poses_locked(h, out, max);
     pthread_mutex_unlock(&h->pose_lock);
     return n;
 }
@@ -343,13 +390,7 @@ void hub_note_batch(hub *h, uint32_t client, uint32_t sequence)
 {
     THREAD_OWNED(&h->net_end);
     pthread_mutex_lock(&h->pose_lock);
-    int i = 0;
-    while (i < h->batch_count && h->batches[i].client != client)
-        i++;
-    if (i < h->batch_count)
-        h->batches[i].sequence = sequence;
-    else if (h->batch_count < HUB_BATCH_CAPACITY)
-        h->batches[h->batch_count++] = (hub_batch){client, sequence};
+    note_batch_locked(h, client, sequence);
     pthread_mutex_unlock(&h->pose_lock);
 }
 
@@ -357,10 +398,17 @@ int hub_take_batches(hub *h, hub_batch *out, int max)
 {
     THREAD_OWNED(&h->sim_end);
     pthread_mutex_lock(&h->pose_lock);
-    int n = h->batch_count < max ? h->batch_count : max;
-    memcpy(out, h->batches, (size_t)n * sizeof *out);
-    memmove(h->batches, h->batches + n, (size_t)(h->batch_count - n) * sizeof *h->batches);
-    h->batch_count -= n;
+    int n = take_batches_locked(h, out, max);
+    pthread_mutex_unlock(&h->pose_lock);
+    return n;
+}
+
+int hub_take_input(hub *h, hub_pose *poses, int max_poses, int *pose_count, hub_batch *batches)
+{
+    THREAD_OWNED(&h->sim_end);
+    pthread_mutex_lock(&h->pose_lock);
+    *pose_count = take_poses_locked(h, poses, max_poses);
+    int n = take_batches_locked(h, batches, HUB_BATCH_CAPACITY);
     pthread_mutex_unlock(&h->pose_lock);
     return n;
 }

@@ -137,9 +137,23 @@ typedef struct hub_batch {
     uint32_t sequence;
 } hub_batch;
 
+#define HUB_BATCH_CAPACITY 4096 /* clients with a pending batch sequence */
+
 void hub_note_batch(hub *h, uint32_t client, uint32_t sequence);
 /* sim thread: take the clients' latest batch sequences since the last call. */
 int hub_take_batches(hub *h, hub_batch *out, int max);
+
+/* One POSE_BATCH whole: its poses (as hub_set_pose) and its sequence (as
+ * hub_note_batch) under one hold of the lock, so a tick that takes its input
+ * with hub_take_input gets all of a batch or none of it, and the ACK it sends
+ * names the last batch whose poses it used (PROTOCOL.md, ACK; a predicting
+ * client replays the ticks from the ACKs, docs/engines.md). Returns the poses
+ * stored: fewer than n when the table is full. */
+int hub_set_batch(hub *h, uint32_t client, uint32_t sequence, const hub_pose *poses, int n);
+/* sim thread: a tick's input in one hold of the lock: every pose set since the
+ * last take (up to max_poses, *pose_count of them) and every noted batch
+ * (batches: HUB_BATCH_CAPACITY entries). Returns the batches taken. */
+int hub_take_input(hub *h, hub_pose *poses, int max_poses, int *pose_count, hub_batch *batches);
 
 /* ---- sim → net: frames ---- */
 

@@ -584,10 +584,15 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
                 goto done;
             }
         }
+        hub_pose *hp = malloc((count ? count : 1) * sizeof *hp);
+        if (!hp) {
+            net_error(c, TERRAD_E_INTERNAL, ref, -1, 0, "POSE_BATCH: out of memory");
+            goto done;
+        }
         for (size_t i = 0; i < count; i++) {
             const terrad_pose *p = &s->poses[i];
             net_collider_slot *slot = net_collider_find(s, p->id);
-            hub_pose hp = {
+            hp[i] = (hub_pose){
                 .collider = p->id,
                 .client = c->id,
                 .sequence = seq,
@@ -595,14 +600,14 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
                          net_control_orientation((quatd){p->qw, p->qx, p->qy, p->qz},
                                                  slot->axis_z)},
             };
-            if (hub_set_pose(s->hub, &hp) != 0) {
-                net_error(c, TERRAD_E_INTERNAL, ref, p->id, 0,
-                          "the pose table is full: pose of collider %u dropped", p->id);
-                break;
-            }
         }
-        /* every accepted batch, empty ones too, is acknowledged by the next tick */
-        hub_note_batch(s->hub, c->id, seq);
+        /* every accepted batch, empty ones too, is acknowledged by the next tick;
+         * its poses and its sequence reach the tick together (hub_set_batch) */
+        int stored = hub_set_batch(s->hub, c->id, seq, hp, (int)count);
+        if (stored < (int)count)
+            net_error(c, TERRAD_E_INTERNAL, ref, hp[stored].collider, 0,
+                      "the pose table is full: pose of collider %u dropped", hp[stored].collider);
+        free(hp);
     }
 done:
     cJSON_Delete(ref);

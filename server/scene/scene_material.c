@@ -36,9 +36,17 @@ static const char *const material_keys[] = {"compression",
                                             "soil",
                                             NULL};
 
-static const char *const soil_keys[] = {
-    "preset",       "n",         "kc",           "kphi",           "cohesion_pa",
-    "friction_deg", "shear_k_m", "elastic_pa_m", "damping_pa_s_m", NULL};
+static const char *const soil_keys[] = {"preset",
+                                        "n",
+                                        "kc",
+                                        "kphi",
+                                        "cohesion_pa",
+                                        "friction_deg",
+                                        "shear_k_m",
+                                        "elastic_pa_m",
+                                        "damping_pa_s_m",
+                                        "slip_n",
+                                        NULL};
 
 /* "soil": the bekker model's terramechanics parameters — a preset first (the
  * soils of docs/models.md), then each number overrides it. Ranges are
@@ -68,7 +76,8 @@ static int material_soil(const cJSON *o, sim_material *m, error_text *err)
         json_get_number(s, P, "friction_deg", -1e308, 1e308, &m->soil.friction_deg, err) < 0 ||
         json_get_number(s, P, "shear_k_m", -1e308, 1e308, &m->soil.shear_k_m, err) < 0 ||
         json_get_number(s, P, "elastic_pa_m", -1e308, 1e308, &m->soil.elastic_pa_m, err) < 0 ||
-        json_get_number(s, P, "damping_pa_s_m", -1e308, 1e308, &m->soil.damping_pa_s_m, err) < 0)
+        json_get_number(s, P, "damping_pa_s_m", -1e308, 1e308, &m->soil.damping_pa_s_m, err) < 0 ||
+        json_get_number(s, P, "slip_n", -1e308, 1e308, &m->soil.slip_n, err) < 0)
         return -1;
     return sim_soil_validate(&m->soil, P, err);
 }

@@ -41,12 +41,13 @@ service *service_create(sim_engine *engine, hub *h, error_text *err)
     s->tiles_y = (s->world->height + SERVICE_TILE_SIZE - 1) / SERVICE_TILE_SIZE;
     s->tile_versions = malloc((size_t)s->tiles_x * s->tiles_y * sizeof *s->tile_versions);
     s->batch.commands = malloc(SERVICE_COMMANDS_PER_TICK * sizeof *s->batch.commands);
+    s->batch.batches = malloc(HUB_BATCH_CAPACITY * sizeof *s->batch.batches);
     s->values = malloc(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE * sizeof *s->values);
     s->packed_cap = terrad_rect_compress_bound(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
     s->packed = malloc(s->packed_cap);
     s->codec = terrad_codec_new(3);
-    if (!s->tile_versions || !s->batch.commands || !s->values || !s->packed || !s->codec ||
-        service_snapshots_start(s) != 0) {
+    if (!s->tile_versions || !s->batch.commands || !s->batch.batches || !s->values || !s->packed ||
+        !s->codec || service_snapshots_start(s) != 0) {
         service_destroy(s);
         error_set(err, "service: out of memory for %d tiles", s->tiles_x * s->tiles_y);
         return NULL;
@@ -75,6 +76,7 @@ void service_destroy(service *s)
     free(s->clients);
     free(s->colliders);
     free(b->commands);
+    free(b->batches);
     free(b->poses);
     free(b->colliders);
     free(b->snapshots);

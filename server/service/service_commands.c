@@ -268,18 +268,15 @@ static void apply_poses(service *s, int n)
     }
 }
 
-/* The batches (empty ones too) this tick answers with an ACK. */
-static void apply_batches(service *s)
+/* The batches (empty ones too) this tick answers with an ACK: taken with
+ * their poses (hub_take_input), so the ACK names the batch the tick used. */
+static void apply_batches(service *s, int n)
 {
-    hub_batch batches[256];
-    int n;
-    while ((n = hub_take_batches(s->hub, batches, 256)) > 0) {
-        for (int i = 0; i < n; i++) {
-            svc_client *cl = service_find_client(s, batches[i].client);
-            if (cl) {
-                cl->last_sequence = batches[i].sequence;
-                cl->sequence_pending = 1;
-            }
+    for (int i = 0; i < n; i++) {
+        svc_client *cl = service_find_client(s, s->batch.batches[i].client);
+        if (cl) {
+            cl->last_sequence = s->batch.batches[i].sequence;
+            cl->sequence_pending = 1;
         }
     }
 }
@@ -292,12 +289,16 @@ void service_take_input(service *s)
     for (int i = 0; i < n; i++)
         apply_command(s, &b->commands[i]);
     b->oldest_pose_ms = 0;
+    int batches = 0;
     if (array_grow((void **)&b->poses, &b->pose_capacity, (int64_t)s->collider_count + 64,
-                   sizeof *b->poses) == 0)
-        apply_poses(s, hub_take_poses(s->hub, b->poses, (int)b->pose_capacity));
-    else /* they stay in the hub (latest wins) for the next tick */
+                   sizeof *b->poses) == 0) {
+        int poses;
+        batches = hub_take_input(s->hub, b->poses, (int)b->pose_capacity, &poses, b->batches);
+        apply_poses(s, poses);
+    } else { /* poses and batches stay in the hub (latest wins) for the next tick */
         service_note_drop(s, "poses", "no memory to take the poses of %d colliders this tick",
                           s->collider_count);
+    }
     service_bound_sweeps(s); /* before anything measures the poses */
-    apply_batches(s);
+    apply_batches(s, batches);
 }

@@ -108,6 +108,7 @@ typedef struct tile_piece {
 typedef struct service_batch {
     hub_command *commands; /* SERVICE_COMMANDS_PER_TICK, taken from the hub */
     hub_pose *poses;       /* taken from the hub */
+    hub_batch *batches;    /* HUB_BATCH_CAPACITY, taken from the hub with the poses */
     int64_t pose_capacity;
     double oldest_pose_ms;   /* earliest arrival among this tick's poses, 0 if none */
     sim_collider *colliders; /* what the engine deforms with: posed clients' and extra */

@@ -17,7 +17,9 @@
  *      elastic trial K_e (s - s_plastic) is the pressure unless it passes
  *      Bekker's (kc/b + kphi) s^n, in which case the cell yields: its
  *      plastic sinkage grows so that only the elastic share sigma/K_e stays
- *      between the surface and the collider. A cell pressed before (a second
+ *      between the surface and the collider. Slip-sinkage: n grows by the
+ *      soil's slip_n times the cell's slip ratio (bekker_slip_ratio), so a
+ *      slipping wheel digs in as real ones do. A cell pressed before (a second
  *      pass) reloads elastically up to where it yielded, so it sinks less.
  *      Damping adds R times the sinking speed. Janosi-Hanamoto shear:
  *      tau = (c + sigma tan phi)(1 - e^(-j/K)), j the shear displacement
@@ -207,14 +209,16 @@ typedef struct bekker_cell {
 /* 3: SCM's node rule for one cell (state updated in place). */
 static bekker_cell bekker_cell_step(const sim_params *p, int32_t height, int32_t bottom,
                                     double width_m, double sink_speed, double slip_step_m,
-                                    int32_t *state)
+                                    double slip_ratio, int32_t *state)
 {
     const sim_soil *s = &p->soil;
+    sim_soil slipping = *s;
+    slipping.n += s->slip_n * slip_ratio;
     double upm = (double)p->units_per_m;
     int64_t e = (int64_t)height - bottom; /* > 0: in contact */
     int64_t total = (int64_t)state[SIM_SOIL_SINK] + e;
     bekker_cell out = {0.0, 0.0, 0, (double)total / upm};
-    double bekker = sim_soil_bekker_pa(s, width_m, (double)total / upm);
+    double bekker = sim_soil_bekker_pa(&slipping, width_m, (double)total / upm);
     double trial = s->elastic_pa_m * ((double)e / upm);
     if (trial > bekker) {
         /* yield: only the elastic share sigma / K_e stays above the collider,
@@ -290,6 +294,19 @@ static void bekker_point_motion(const sim_contact *c, vec3d centre, vec3d at, ve
     *slip = v3(v.x - vn * normal.x, v.y - vn * normal.y, v.z - vn * normal.z);
 }
 
+/* The cell's slip ratio: its tangential slip speed u against u plus the
+ * collider's own tangential speed. At a wheel's lowest point this is the
+ * wheel's slip 1 - v/(wR); a plate pressed straight down, or a wheel at
+ * rest, has 0; a block sliding without turning 0.5. */
+static double bekker_slip_ratio(const sim_contact *c, vec3d normal, double u)
+{
+    vec3d v = v3(c->velocity[0], c->velocity[1], c->velocity[2]);
+    double vn = v3_dot(v, normal);
+    vec3d vt = v3(v.x - vn * normal.x, v.y - vn * normal.y, v.z - vn * normal.z);
+    double sum = u + sqrt(v3_dot(vt, vt));
+    return sum > 0.0 ? u / sum : 0.0;
+}
+
 /* Steps 1-3 and the split of step 4 for slice j of `slices` (1 of 1: the
  * tick): raw (plastic lowering) and moved (displaced part) into the settle
  * scratch, the classes into cls, the state and the contacts updated. Heights
@@ -332,9 +349,9 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int j, int sl
             vec3d normal = bekker_normal(job, bottom, owner, x, y), slip;
             double sink_speed;
             bekker_point_motion(c, centre, at, normal, &sink_speed, &slip);
-            double slip_step = sqrt(v3_dot(slip, slip)) * p->tick_s / slices;
+            double u = sqrt(v3_dot(slip, slip)), slip_step = u * p->tick_s / slices;
             bekker_cell r = bekker_cell_step(p, heights[i], bottom[i], width[label[i]], sink_speed,
-                                             slip_step, state);
+                                             slip_step, bekker_slip_ratio(c, normal, u), state);
             bekker_contact_add(c, at, centre, normal, slip, &r, area);
             if (tmp[label[i]] > c->patch_cells) { /* tmp: the patches' cell counts */
                 c->patch_cells = tmp[label[i]];

@@ -95,6 +95,7 @@ typedef struct sim_soil {
     double shear_k_m;      /* Janosi-Hanamoto K, > 0 */
     double elastic_pa_m;   /* unloading/reloading stiffness, > 0 */
     double damping_pa_s_m; /* pressure per m/s of sinking, >= 0 */
+    double slip_n;         /* slip-sinkage: n grows by slip_n x the cell's slip ratio, [0, 2] */
 } sim_soil;
 
 /* Soils of docs/models.md's table (Wong; Ding et al. 2011): "dry-sand",

@@ -17,6 +17,7 @@ import path from 'node:path';
 import { fileURLToPath } from 'node:url';
 import SwaggerParser from '@apidevtools/swagger-parser';
 import Ajv from 'ajv';
+import * as C from '../../web/terrad_codec.mjs';
 
 const root = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
 const BIN = process.env.TERRAD_BIN || path.join(root, 'build/terrad');
@@ -224,6 +225,18 @@ test('POST, GET /v1/worlds and DELETE /v1/worlds/{name}, and their refusals, as 
   await post('a bad scene', { name: 'pit-4', scene: { name: 'p', world: { width: -1 } } }, 422);
   await fetchChecked('delete again', '/v1/worlds/pit-1', 404, { method: 'DELETE' });
   await fetchChecked('delete the default world', '/v1/worlds/default-dunes', 409, { method: 'DELETE' });
+});
+
+test('the JS client (web/terrad_codec.mjs) creates, lists and deletes a world', async () => {
+  const base = `http://127.0.0.1:${daemon.port}`;
+  const made = await C.createWorld(base, 'js-1', { scene: { name: 'js', world: { width: 16, height: 16, cell_size_m: 0.1 } } });
+  assert.equal(made.state, 'running');
+  assert.deepEqual((await C.listWorlds(base)).map((w) => w.name), ['default-dunes', 'js-1']);
+  await assert.rejects(C.createWorld(base, 'js-2', { sceneName: 'pit' }),
+    (e) => e instanceof C.WorldError && e.status === 409 && e.field === 'max_worlds');
+  assert.equal((await C.deleteWorld(base, 'js-1')).deleted, true);
+  await assert.rejects(C.deleteWorld(base, 'js-1'), (e) => e.status === 404 && e.field === 'name');
+  assert.deepEqual((await C.listWorlds(base)).map((w) => w.name), ['default-dunes']);
 });
 
 test('the document is served at /v1/openapi.yaml, byte for byte', async () => {

@@ -3,8 +3,8 @@
 """Client-side prediction in the Python client (terrad.predict, docs/engines.md "Prediction")
 against a real daemon (--backend cpu, no demo actors, a flat scene of default material):
 
-- one client predicts a subscription and drives a sphere through it for 600 ticks, one pose
-  batch per tick. The prediction shows the rut before the server could have it: at the first
+- one client predicts a subscription and drives a sphere, a rolling wheel and a capsule
+  (its quaternion not of norm 1) through it for 600 ticks, one pose batch per tick. The prediction shows the rut before the server could have it: at the first
   pressing batch, before its bytes are sent, the predicted heights are below the mirror's
   under the sphere. At every ACK the replay of the server's ticks on the client's twin
   (from the previous ACK's heights, with the poses the ACKs say the server used) equals the
@@ -43,7 +43,7 @@ check = Checks()
 WAIT = 120  # generous: the machine may be loaded
 SCENE = {"name": "predict", "world": {"width": 256, "height": 256, "cell_size_m": 0.05},
          "terrain": {"kind": "flat", "height_m": 0.4}, "colliders": []}
-REGION = (64, 96, 128, 64)  # x, y, w, h cells: the predicted window
+REGION = (64, 80, 128, 96)  # x, y, w, h cells: the predicted window
 
 
 def pose_at(cid, i, n, y_cell, z, cell):
@@ -97,11 +97,29 @@ async def drive(d, cfg):
         radius = 0.3
         z = 0.4 + radius - 0.06
         ball = await a.create_collider("sphere", radius=radius)
-        y_a = REGION[1] + 20
+        # A rolling wheel (the axle's quaternion turning) and a capsule lying along x (a
+        # quaternion of norm 1.04, turned from the wire's z axis): the server's pose
+        # arithmetic, float32 and normalisation, is the prediction's too.
+        wheel = await a.create_collider("wheel", radius=radius, width=0.2)
+        capsule = await a.create_collider("capsule", radius=0.12, half_length=0.25)
+        y_a, y_w, y_c = REGION[1] + 20, REGION[1] + 40, REGION[1] + 60
         n = 600
+
+        def own_poses(i):
+            wp = pose_at(wheel, i, n, y_w, z, cell)
+            angle = wp.x / radius
+            wp.qw, wp.qy = math.cos(angle / 2), math.sin(angle / 2)
+            cp = pose_at(capsule, i, n, y_c, 0.4 + 0.12 - 0.04, cell)
+            cp.qw = cp.qy = 1.04 * math.sqrt(0.5)
+            return [pose_at(ball, i, n, y_a, z, cell), wp, cp]
+
         for i in range(n):
-            await a.send_poses([pose_at(ball, i, n, y_a, z, cell)])
+            await a.send_poses(own_poses(i))
             await asyncio.sleep(1 / hz)
+        last = own_poses(n - 1)
+        for p in last:
+            p.z += 5.0
+        await a.send_poses(last)
         seq = await a.send_poses([pose_at(ball, n - 1, n, y_a, z + 5.0, cell)])  # lifted
         await a.wait_ack(seq, WAIT)
         print(f"drove {n} ticks: {pred.predicted} batches predicted, {pred.reconciled} ACKs "
@@ -116,13 +134,13 @@ async def drive(d, cfg):
               f"{pred.reconciled} reconciliations, last differing {pred.last_differing})")
         check(list(pred.twin.read()) == list(a.mirrors[sid].heights),
               "with nothing pending, the prediction is the server's state")
-        deepest = min(pred.twin.read())
-        check(deepest < int(0.4 * units) - int(0.03 * units),
-              f"the sphere left a rut ({deepest} units at the deepest)")
+        rows = [list(pred.twin.read(REGION[0], y, REGION[2], 1)) for y in (y_a, y_w, y_c)]
+        check(all(min(r) < int(0.4 * units) - int(0.02 * units) for r in rows),
+              f"sphere, wheel and capsule left ruts ({[min(r) for r in rows]} units at the deepest)")
 
         # A second client ploughs the same window: only the server knows its rut.
         ball_b = await b.create_collider("sphere", radius=radius)
-        y_b = REGION[1] + 44
+        y_b = REGION[1] + 80
         resets = []
 
         def after_ack(tick, seq):  # runs after the prediction reconciled this ACK
@@ -160,7 +178,7 @@ async def drive(d, cfg):
                 same = http == list(a.mirrors[sid].heights) == list(pred.twin.read())
                 break
         check(same, "prediction, mirror and GET /v1/heights are equal once all is acknowledged")
-        check(any(v < int(0.4 * units) for v in a.mirrors[sid].heights[44 * REGION[2]:45 * REGION[2]]),
+        check(any(v < int(0.4 * units) for v in a.mirrors[sid].heights[80 * REGION[2]:81 * REGION[2]]),
               "the second client's rut is in the first client's prediction")
         check(not a.errors, f"no errors reached the client ({a.errors[:3]})")
         check(terrad.Prediction is type(pred), "the package exports Prediction")

@@ -121,13 +121,25 @@ const radius = 0.3, z = 0.4 + radius - 0.06;
 const own = new Map();
 const ball = await a.collider('sphere', { radius });
 own.set(ball, { shape: 'sphere', dims: { radius } });
+// A rolling wheel and a capsule lying along x (a quaternion of norm 1.04, turned from the
+// wire's z axis): the server's pose arithmetic is the prediction's too.
+const wheelDims = { radius, width: 0.2 }, capsuleDims = { radius: 0.12, half_length: 0.25 };
+const wheel = await a.collider('wheel', wheelDims);
+own.set(wheel, { shape: 'wheel', dims: wheelDims });
+const capsule = await a.collider('capsule', capsuleDims);
+own.set(capsule, { shape: 'capsule', dims: capsuleDims });
 const pred = (a.prediction = new Prediction(twinModule, a.world, mirror, config, own));
 const x0 = (RX + 24) * cell, x1 = (RX + RW - 24) * cell;
 const pose = (id, i, n, row, dz = 0) => ({ id, x: x0 + ((x1 - x0) * i) / (n - 1), y: (row + 0.5) * cell, z: z + dz, qw: 1, qx: 0, qy: 0, qz: 0 });
-const rowA = RY + 20, rowB = RY + 44, n = 600;
+const rowA = RY + 20, rowW = RY + 40, rowC = RY + 60, rowB = RY + 80, n = 600;
+const ownPoses = (i, dz = 0) => {
+    const wp = pose(wheel, i, n, rowW, dz), angle = wp.x / radius;
+    const cp = { ...pose(capsule, i, n, rowC, dz), z: 0.4 + 0.12 - 0.04 + dz, qw: 1.04 * Math.SQRT1_2, qy: 1.04 * Math.SQRT1_2 };
+    return [pose(ball, i, n, rowA, dz), { ...wp, qw: Math.cos(angle / 2), qy: Math.sin(angle / 2) }, cp];
+};
 const t0 = Date.now();
 for (let i = 0; i < n; i++) {
-    const seq = a.send([pose(ball, i, n, rowA)]);
+    const seq = a.send(ownPoses(i));
     if (!out.early) { // the batch is not even sent yet: the server cannot have its rut
         const mine = pred.heights();
         let lower = 0;
@@ -136,11 +148,11 @@ for (let i = 0; i < n; i++) {
     }
     await sleep(Math.max(0, t0 + ((i + 1) * 1000) / hz - Date.now()));
 }
-let last = a.send([pose(ball, n - 1, n, rowA, 5)]);
+let last = a.send(ownPoses(n - 1, 5));
 await until('the last ACK', () => a.ackedSeq >= last);
 out.drive = { predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime };
 out.settled = sameArrays(pred.heights(), mirror.heights);
-out.rutA = lowered(rowA - RY);
+out.ruts = [rowA, rowW, rowC].map((r) => lowered(r - RY));
 
 // B ploughs A's window: only the server knows B's rut until A's next reconciliation.
 const other = await b.collider('sphere', { radius });

@@ -74,6 +74,7 @@ static void print_config(const scene *sc)
     set("soil.shear_k_m", m->soil.shear_k_m);
     set("soil.elastic_pa_m", m->soil.elastic_pa_m);
     set("soil.damping_pa_s_m", m->soil.damping_pa_s_m);
+    set("soil.slip_n", m->soil.slip_n);
 }
 
 static void print_collider(int id, const collider_geometry *g)

@@ -65,6 +65,7 @@ static void test_params(void)
         {"{\"cohesion_pa\":-5}", "material.soil.cohesion_pa"},
         {"{\"elastic_pa_m\":0}", "material.soil.elastic_pa_m"},
         {"{\"damping_pa_s_m\":-1}", "material.soil.damping_pa_s_m"},
+        {"{\"slip_n\":2.5}", "material.soil.slip_n"},
         {"{\"preset\":\"mars\"}", "material.soil.preset"},
         {"{\"kx\":1}", "kx"},
         {"{\"n\":\"one\"}", "material.soil.n"},

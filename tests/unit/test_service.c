@@ -250,8 +250,45 @@ static void test_footprints(void)
     world_free(&w);
 }
 
+/* A POSE_BATCH reaches the tick whole: its poses and its sequence are taken
+ * together (hub_set_batch, hub_take_input), so the tick's ACK names the batch
+ * whose poses it used; a later batch waits, whole, for the next take. */
+static void test_batch_whole(void)
+{
+    hub *h = hub_create();
+    CHECK(h != NULL, "hub");
+    hub_pose poses[3];
+    for (int i = 0; i < 3; i++)
+        poses[i] = (hub_pose){.collider = (uint32_t)i + 1,
+                              .client = 9,
+                              .sequence = 5,
+                              .pose = {{1.0 + i, 2.0, 0.5}, {1, 0, 0, 0}}};
+    CHECK(hub_set_batch(h, 9, 5, poses, 3) == 3, "a batch of 3 poses stored");
+    hub_pose got[8];
+    hub_batch *batches = calloc(HUB_BATCH_CAPACITY, sizeof *batches);
+    CHECK(batches != NULL, "batches");
+    int n_poses = -1;
+    int n = hub_take_input(h, got, 8, &n_poses, batches);
+    CHECK(n == 1 && batches[0].client == 9 && batches[0].sequence == 5 && n_poses == 3,
+          "taken together: %d poses, %d batches (sequence %u)", n_poses, n,
+          n ? batches[0].sequence : 0);
+    poses[0].sequence = 6;
+    poses[0].pose.position.x = 7.0;
+    CHECK(hub_set_batch(h, 9, 6, poses, 1) == 1, "the next batch");
+    CHECK(hub_set_batch(h, 9, 7, NULL, 0) == 0, "an empty batch after it");
+    n = hub_take_input(h, got, 8, &n_poses, batches);
+    CHECK(n == 1 && batches[0].sequence == 7 && n_poses == 1 && got[0].pose.position.x == 7.0,
+          "the latest sequence with the latest poses (%d, %u, %d)", n, n ? batches[0].sequence : 0,
+          n_poses);
+    n = hub_take_input(h, got, 8, &n_poses, batches);
+    CHECK(n == 0 && n_poses == 0, "nothing left (%d, %d)", n, n_poses);
+    free(batches);
+    hub_destroy(h);
+}
+
 int main(void)
 {
+    test_batch_whole();
     error_text err;
     world w;
     world_base_spec base = {.kind = WORLD_BASE_FLAT, .height_m = 0.5};

@@ -14,15 +14,15 @@
  * (the note, measured here): median error 125 % on pull, 24 % on sinkage.
  *
  * Asserted, so a regression fails: the median errors on drawbar pull and on
- * sinkage stay within DP_BOUND and SINKAGE_BOUND — today's 59 % and 41 %
+ * sinkage stay within DP_BOUND and SINKAGE_BOUND — today's 58 % and 24 %
  * (integer and deterministic: the same on every run and machine) plus about
  * ten points, room for a deliberate change of the model that does not make
  * it worse — and the physics that must hold whatever the calibration: a
- * resisted wheel at slip 0, pull and torque growing with slip. The issue's
- * goal (median <= 20 % on both) is NOT met: like SCM, the model's pull keeps
- * rising with slip where the real wheel's levels off near 15 N, and its
- * sinkage does not grow with slip (no slip-sinkage: Bekker's pressure sees
- * only the normal load). docs/validation.md has the table.
+ * resisted wheel at slip 0, pull and torque growing with slip, sinkage
+ * growing with slip (slip-sinkage: the ding2011 soil's slip_n 0.4; 41 %
+ * median sinkage error without it). The issue's goal (median <= 20 % on
+ * both) is NOT met: like SCM, the model's pull keeps rising with slip where
+ * the real wheel's levels off near 15 N. docs/validation.md has the table.
  */
 #include <math.h>
 #include <stdio.h>
@@ -42,7 +42,7 @@ static const double ding[6][4] = {
 #define LOAD 80.0
 /* today's medians plus a margin (see the top comment) */
 #define DP_BOUND 0.70
-#define SINKAGE_BOUND 0.50
+#define SINKAGE_BOUND 0.35
 
 static void run(double slip, double *dp, double *sinkage, double *torque)
 {
@@ -167,6 +167,10 @@ int main(void)
         CHECK(dp[i] > dp[i - 1] - 0.5 && tq[i] > tq[i - 1] - 0.05,
               "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)", ding[i][0], dp[i],
               tq[i]);
+    CHECK(z[5] > z[0] + 0.004,
+          "slip-sinkage: the wheel sinks deeper at slip 0.6 (%.2f mm) than "
+          "at 0 (%.2f mm)",
+          z[5] * 1e3, z[0] * 1e3);
     CHECK(m_dp <= DP_BOUND, "median drawbar pull error %.0f %% within %.0f %%", 100 * m_dp,
           100 * DP_BOUND);
     CHECK(m_z <= SINKAGE_BOUND, "median sinkage error %.0f %% within %.0f %%", 100 * m_z,

@@ -132,6 +132,7 @@ for (const s of V.mirror_scenarios) {
 
 test('control messages', () => {
   assert.deepEqual(C.hello('', 'x'), { type: 'hello', protocol: 1, token: '', client: 'x' });
+  assert.deepEqual(C.hello('t', 'x', 'match-1'), { type: 'hello', protocol: 1, token: 't', client: 'x', world: 'match-1' });
   assert.deepEqual(C.subscribe(1, 2, 3, 4), { type: 'subscribe', x: 1, y: 2, w: 3, h: 4 });
   assert.deepEqual(C.colliderCreate('sphere', { radius: 0.3 }, { ref: 'a' }),
     { type: 'collider_create', shape: 'sphere', material: 'default', feedback: true, radius: 0.3, ref: 'a' });

@@ -355,44 +355,62 @@ def decode_delta(buf: bytes, max_rects: int = MAX_COUNT) -> tuple[int, list[Rect
     return tick, rects
 
 
-# ---- CONTACT, ACK, PING, PONG ----------------------------------------------------------
+# ---- tick lists: CONTACT, COLLIDERS, FOOTPRINTS, FORCES ----------------------------------
+# One outline: the header, the tick (u64), a count (u16), then count entries of one fixed
+# size; each frame gives its entry's packer and unpacker (each checks its entry).
+
+
+def _encode_tick_list(t: MsgType, tick: int, entries: list, what: str, pack) -> bytes:
+    if len(entries) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(entries)} {what}")
+    return b"".join([_header(t), struct.pack("<QH", tick, len(entries))] +
+                    [pack(e) for e in entries])
+
+
+def _decode_tick_list(buf: bytes, t: MsgType, size: int, cap: int, what: str,
+                      unpack) -> tuple[int, list]:
+    _expect(buf, t)
+    if len(buf) < 14:
+        raise ProtoError("bad_frame", "truncated")
+    tick, count = struct.unpack_from("<QH", buf, 4)
+    if len(buf) - 14 != count * size:
+        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
+    if count > cap:
+        raise ProtoError("too_large", f"{count} {what}")
+    return tick, [unpack(buf, 14 + i * size) for i in range(count)]
+
+
+# CONTACT
 
 _CONTACT = struct.Struct("<IqI8f")
 
 
+def _pack_contact(c: Contact) -> bytes:
+    f = [_f32(a) for a in (c.area_m2, *c.deepest, *c.normal, c.support_height_m)]
+    if c.volume < 0 or f[0] < 0:
+        raise ProtoError("bad_value", "negative volume or area")
+    return _CONTACT.pack(c.id, c.volume, c.cells, *f)
+
+
+def _unpack_contact(buf: bytes, pos: int) -> Contact:
+    cid, vol, cells, *f = _CONTACT.unpack_from(buf, pos)
+    if not all(math.isfinite(a) for a in f):
+        raise ProtoError("bad_value", f"contact of collider {cid} is not finite")
+    if vol < 0 or f[0] < 0:
+        raise ProtoError("bad_value", "negative volume or area")
+    return Contact(cid, vol, cells, f[0], tuple(f[1:4]), tuple(f[4:7]), f[7])
+
+
 def encode_contact(tick: int, contacts: list[Contact]) -> bytes:
-    if len(contacts) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(contacts)} contacts")
-    out = [_header(MsgType.CONTACT), struct.pack("<QH", tick, len(contacts))]
-    for c in contacts:
-        f = [_f32(a) for a in (c.area_m2, *c.deepest, *c.normal, c.support_height_m)]
-        if c.volume < 0 or f[0] < 0:
-            raise ProtoError("bad_value", "negative volume or area")
-        out.append(_CONTACT.pack(c.id, c.volume, c.cells, *f))
-    return b"".join(out)
+    return _encode_tick_list(MsgType.CONTACT, tick, contacts, "contacts", _pack_contact)
 
 
 def decode_contact(buf: bytes, max_contacts: int = MAX_COUNT) -> tuple[int, list[Contact]]:
-    _expect(buf, MsgType.CONTACT)
-    if len(buf) < 14:
-        raise ProtoError("bad_frame", "truncated")
-    tick, count = struct.unpack_from("<QH", buf, 4)
-    if len(buf) - 14 != count * CONTACT_SIZE:
-        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
-    if count > max_contacts:
-        raise ProtoError("too_large", f"{count} contacts")
-    out = []
-    for i in range(count):
-        cid, vol, cells, *f = _CONTACT.unpack_from(buf, 14 + i * CONTACT_SIZE)
-        if not all(math.isfinite(a) for a in f):
-            raise ProtoError("bad_value", f"contact of collider {cid} is not finite")
-        if vol < 0 or f[0] < 0:
-            raise ProtoError("bad_value", "negative volume or area")
-        out.append(Contact(cid, vol, cells, f[0], tuple(f[1:4]), tuple(f[4:7]), f[7]))
-    return tick, out
+    return _decode_tick_list(buf, MsgType.CONTACT, CONTACT_SIZE, max_contacts, "contacts",
+                             _unpack_contact)
 
 
-# ---- COLLIDERS -------------------------------------------------------------------------
+# COLLIDERS
 
 _COLLIDER_STATE = struct.Struct("<IBBH10f")
 
@@ -409,37 +427,30 @@ def _check_collider_state(cid, owner, kind, f) -> None:
     _check_quaternion(*f[6:10])
 
 
+def _pack_collider_state(c: ColliderState) -> bytes:
+    f = [_f32(a) for a in (*c.dims, *c.p, *c.q)]
+    _check_collider_state(c.id, c.owner, c.kind, f)
+    return _COLLIDER_STATE.pack(c.id, c.owner, c.kind, 0, *f)
+
+
+def _unpack_collider_state(buf: bytes, pos: int) -> ColliderState:
+    cid, owner, kind, reserved, *f = _COLLIDER_STATE.unpack_from(buf, pos)
+    if reserved != 0:
+        raise ProtoError("bad_value", f"collider {cid}: reserved bytes set")
+    _check_collider_state(cid, owner, kind, f)
+    return ColliderState(cid, owner, kind, tuple(f[0:3]), tuple(f[3:6]), tuple(f[6:10]))
+
+
 def encode_colliders(tick: int, states: list[ColliderState]) -> bytes:
-    if len(states) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(states)} colliders")
-    out = [_header(MsgType.COLLIDERS), struct.pack("<QH", tick, len(states))]
-    for c in states:
-        f = [_f32(a) for a in (*c.dims, *c.p, *c.q)]
-        _check_collider_state(c.id, c.owner, c.kind, f)
-        out.append(_COLLIDER_STATE.pack(c.id, c.owner, c.kind, 0, *f))
-    return b"".join(out)
+    return _encode_tick_list(MsgType.COLLIDERS, tick, states, "colliders", _pack_collider_state)
 
 
 def decode_colliders(buf: bytes, max_colliders: int = MAX_COUNT) -> tuple[int, list[ColliderState]]:
-    _expect(buf, MsgType.COLLIDERS)
-    if len(buf) < 14:
-        raise ProtoError("bad_frame", "truncated")
-    tick, count = struct.unpack_from("<QH", buf, 4)
-    if len(buf) - 14 != count * COLLIDER_STATE_SIZE:
-        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
-    if count > max_colliders:
-        raise ProtoError("too_large", f"{count} colliders")
-    out = []
-    for i in range(count):
-        cid, owner, kind, reserved, *f = _COLLIDER_STATE.unpack_from(buf, 14 + i * COLLIDER_STATE_SIZE)
-        if reserved != 0:
-            raise ProtoError("bad_value", f"collider {cid}: reserved bytes set")
-        _check_collider_state(cid, owner, kind, f)
-        out.append(ColliderState(cid, owner, kind, tuple(f[0:3]), tuple(f[3:6]), tuple(f[6:10])))
-    return tick, out
+    return _decode_tick_list(buf, MsgType.COLLIDERS, COLLIDER_STATE_SIZE, max_colliders,
+                             "colliders", _unpack_collider_state)
 
 
-# ---- FOOTPRINTS ------------------------------------------------------------------------
+# FOOTPRINTS
 
 _FOOTPRINT = struct.Struct("<I5f")
 
@@ -453,35 +464,28 @@ def _check_footprint(cid, f) -> None:
         raise ProtoError("bad_value", f"footprint of collider {cid}: size and strength must be > 0")
 
 
+def _pack_footprint(e: Footprint) -> bytes:
+    f = [_f32(a) for a in (e.x, e.y, e.yaw, e.size_m, e.strength_m)]
+    _check_footprint(e.collider, f)
+    return _FOOTPRINT.pack(e.collider, *f)
+
+
+def _unpack_footprint(buf: bytes, pos: int) -> Footprint:
+    cid, *f = _FOOTPRINT.unpack_from(buf, pos)
+    _check_footprint(cid, f)
+    return Footprint(cid, *f)
+
+
 def encode_footprints(tick: int, events: list[Footprint]) -> bytes:
-    if len(events) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(events)} footprints")
-    out = [_header(MsgType.FOOTPRINTS), struct.pack("<QH", tick, len(events))]
-    for e in events:
-        f = [_f32(a) for a in (e.x, e.y, e.yaw, e.size_m, e.strength_m)]
-        _check_footprint(e.collider, f)
-        out.append(_FOOTPRINT.pack(e.collider, *f))
-    return b"".join(out)
+    return _encode_tick_list(MsgType.FOOTPRINTS, tick, events, "footprints", _pack_footprint)
 
 
 def decode_footprints(buf: bytes, max_events: int = MAX_COUNT) -> tuple[int, list[Footprint]]:
-    _expect(buf, MsgType.FOOTPRINTS)
-    if len(buf) < 14:
-        raise ProtoError("bad_frame", "truncated")
-    tick, count = struct.unpack_from("<QH", buf, 4)
-    if len(buf) - 14 != count * FOOTPRINT_SIZE:
-        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
-    if count > max_events:
-        raise ProtoError("too_large", f"{count} footprints")
-    out = []
-    for i in range(count):
-        cid, *f = _FOOTPRINT.unpack_from(buf, 14 + i * FOOTPRINT_SIZE)
-        _check_footprint(cid, f)
-        out.append(Footprint(cid, *f))
-    return tick, out
+    return _decode_tick_list(buf, MsgType.FOOTPRINTS, FOOTPRINT_SIZE, max_events, "footprints",
+                             _unpack_footprint)
 
 
-# ---- FORCES --------------------------------------------------------------------------
+# FORCES
 
 _FORCE = struct.Struct("<I10fI")
 
@@ -494,33 +498,28 @@ def _check_force(cid, f) -> None:
                          "width must be >= 0")
 
 
+def _pack_force(e: Force) -> bytes:
+    f = [_f32(a) for a in (*e.force, *e.torque, e.sinkage_m, e.area_m2, e.patch_width_m, e.slip)]
+    _check_force(e.id, f)
+    return _FORCE.pack(e.id, *f, e.cells)
+
+
+def _unpack_force(buf: bytes, pos: int) -> Force:
+    cid, *f, cells = _FORCE.unpack_from(buf, pos)
+    _check_force(cid, f)
+    return Force(cid, tuple(f[0:3]), tuple(f[3:6]), *f[6:10], cells)
+
+
 def encode_forces(tick: int, forces: list[Force]) -> bytes:
-    if len(forces) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(forces)} forces")
-    out = [_header(MsgType.FORCES), struct.pack("<QH", tick, len(forces))]
-    for e in forces:
-        f = [_f32(a) for a in (*e.force, *e.torque, e.sinkage_m, e.area_m2, e.patch_width_m,
-                               e.slip)]
-        _check_force(e.id, f)
-        out.append(_FORCE.pack(e.id, *f, e.cells))
-    return b"".join(out)
+    return _encode_tick_list(MsgType.FORCES, tick, forces, "forces", _pack_force)
 
 
 def decode_forces(buf: bytes, max_forces: int = MAX_COUNT) -> tuple[int, list[Force]]:
-    _expect(buf, MsgType.FORCES)
-    if len(buf) < 14:
-        raise ProtoError("bad_frame", "truncated")
-    tick, count = struct.unpack_from("<QH", buf, 4)
-    if len(buf) - 14 != count * FORCE_SIZE:
-        raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 14} bytes")
-    if count > max_forces:
-        raise ProtoError("too_large", f"{count} forces")
-    out = []
-    for i in range(count):
-        cid, *f, cells = _FORCE.unpack_from(buf, 14 + i * FORCE_SIZE)
-        _check_force(cid, f)
-        out.append(Force(cid, tuple(f[0:3]), tuple(f[3:6]), *f[6:10], cells))
-    return tick, out
+    return _decode_tick_list(buf, MsgType.FORCES, FORCE_SIZE, max_forces, "forces",
+                             _unpack_force)
+
+
+# ---- ACK, PING, PONG -------------------------------------------------------------------
 
 
 def encode_ack(tick: int, seq: int) -> bytes:
