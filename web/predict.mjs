@@ -141,7 +141,11 @@ export class Prediction {
         const last = done[done.length - 1];
         if (last && last.seq === seq && sameHeights(last.predicted, server)) this.onTime++;
         const gap = this.acked.size === 0 ? 1 : this.baseTick === null ? 0 : tick - this.baseTick;
-        if (gap >= 1 && gap <= this.maxReplayTicks) {
+        // Batches acknowledged together after a gap of ticks may have been taken at different
+        // ticks of it (a slow client's older ACK is replaced by the newer one, PROTOCOL.md
+        // "Slow clients"): which tick took which is not known, so that ACK is not compared.
+        const spread = gap > 1 && done.length > 1;
+        if (gap >= 1 && gap <= this.maxReplayTicks && !spread) {
             this.restart(this.base);
             for (let i = 0; i < gap - 1; i++) this.twin.tick(); // ticks without an ACK: poses stood still
             const merged = new Map();

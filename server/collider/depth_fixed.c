@@ -102,14 +102,28 @@ static int64_t ceil_div(int64_t a, int64_t b)
 
 #define TAU_LIMIT ((int64_t)1 << 60)
 
+/* Inlined into the per-shape loops of collider_fixed_apply: a call per cell
+ * and per slab was most of the box's depth stage. */
+#define FIXED_INLINE inline __attribute__((always_inline))
+
 /* Narrow [lo, hi] to the τ with |u + c τ / 2^30| <= h; 0 when empty. */
-static int slab_fixed(int64_t u, int64_t c, int64_t h, int64_t *lo, int64_t *hi)
+static FIXED_INLINE int slab_fixed(int64_t u, int64_t c, int64_t h, int64_t *lo, int64_t *hi)
 {
     if (c == 0)
         return u >= -h && u <= h;
-    int64_t a = (-h - u) * ((int64_t)1 << 30), b = (h - u) * ((int64_t)1 << 30);
-    int64_t t0 = c > 0 ? ceil_div(a, c) : ceil_div(b, c);
-    int64_t t1 = c > 0 ? floor_div(b, c) : floor_div(a, c);
+    int64_t t0, t1;
+    if (c == ((int64_t)1 << 30) || c == -((int64_t)1 << 30)) {
+        /* a local axis along world z (every unrotated box): the quotients
+         * below are exact, (±h - u) 2^30 / ±2^30, so no division is needed
+         * (two 64-bit divisions per slab per cell were most of the deep
+         * box's depth stage); the same integers as the general case */
+        t0 = c > 0 ? -h - u : u - h;
+        t1 = c > 0 ? h - u : u + h;
+    } else {
+        int64_t a = (-h - u) * ((int64_t)1 << 30), b = (h - u) * ((int64_t)1 << 30);
+        t0 = c > 0 ? ceil_div(a, c) : ceil_div(b, c);
+        t1 = c > 0 ? floor_div(b, c) : floor_div(a, c);
+    }
     if (t0 > *lo)
         *lo = t0;
     if (t1 < *hi)
@@ -360,17 +374,29 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
     return 1;
 }
 
-int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom)
+/* collider_fixed_cell with the shape given: a constant where it is inlined,
+ * so each shape's loop keeps only its own branch. */
+static FIXED_INLINE int fixed_cell(const collider_fixed *f, int64_t shape, int64_t lx, int64_t ly,
+                                   int32_t *bottom)
 {
     const int64_t *v = f->v;
     int64_t r = v[CF_R];
     int64_t dx = v[CF_CX0] + lx * v[CF_STEP], dy = v[CF_CY0] + ly * v[CF_STEP];
     int64_t tau = 0;
     int hit = 0;
-    if (v[CF_SHAPE] == COLLIDER_SPHERE) {
+    if (shape == COLLIDER_SPHERE) {
         hit = sphere_fixed(dx, dy, r, &tau);
-    } else if (v[CF_SHAPE] == COLLIDER_MESH) {
+    } else if (shape == COLLIDER_MESH) {
         hit = triangle_fixed(v + CF_ROT, dx, dy, &tau);
+    } else if (shape == COLLIDER_BOX) {
+        /* the general branch's slabs, each offset computed only when the
+         * slab before it holds (no side effects: the same τ) */
+        const int64_t *m = v + CF_ROT;
+        int64_t lo = -TAU_LIMIT, hi = TAU_LIMIT;
+        hit = slab_fixed(floor_shift(m[0] * dx + m[1] * dy, 30), m[2], v[CF_H0], &lo, &hi) &&
+              slab_fixed(floor_shift(m[3] * dx + m[4] * dy, 30), m[5], v[CF_H1], &lo, &hi) &&
+              slab_fixed(floor_shift(m[6] * dx + m[7] * dy, 30), m[8], v[CF_H2], &lo, &hi);
+        tau = lo;
     } else {
         int64_t u[3], cz[3];
         for (int j = 0; j < 3; j++) {
@@ -379,16 +405,11 @@ int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t
             cz[j] = m[2];
         }
         int64_t lo = -TAU_LIMIT, hi = TAU_LIMIT;
-        if (v[CF_SHAPE] == COLLIDER_BOX) {
-            hit = slab_fixed(u[0], cz[0], v[CF_H0], &lo, &hi) &&
-                  slab_fixed(u[1], cz[1], v[CF_H1], &lo, &hi) &&
-                  slab_fixed(u[2], cz[2], v[CF_H2], &lo, &hi);
-        } else { /* cylinder, and the capsule's middle */
-            hit = slab_fixed(u[1], cz[1], v[CF_H1], &lo, &hi) &&
-                  disc_fixed(u[0], u[2], cz[0], cz[2], r, &lo, &hi);
-        }
+        /* cylinder, and the capsule's middle */
+        hit = slab_fixed(u[1], cz[1], v[CF_H1], &lo, &hi) &&
+              disc_fixed(u[0], u[2], cz[0], cz[2], r, &lo, &hi);
         tau = lo;
-        if (v[CF_SHAPE] == COLLIDER_CAPSULE) {
+        if (shape == COLLIDER_CAPSULE) {
             for (int e = -1; e <= 1; e += 2) {
                 int64_t t;
                 if (sphere_fixed(dx - e * v[CF_END + 0], dy - e * v[CF_END + 1], r, &t)) {
@@ -413,14 +434,39 @@ int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t
     return 1;
 }
 
-void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w)
+int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom)
+{
+    return fixed_cell(f, f->v[CF_SHAPE], lx, ly, bottom);
+}
+
+/* The instance's cells for one shape (a constant after inlining). */
+static FIXED_INLINE void fixed_apply_shape(const collider_fixed *f, int64_t shape, int32_t *bottom,
+                                           int window_w)
 {
     for (int64_t ly = 0; ly < f->v[CF_H]; ly++) {
         int32_t *row = bottom + (size_t)(f->v[CF_Y0] + ly) * (size_t)window_w + f->v[CF_X0];
         for (int64_t lx = 0; lx < f->v[CF_W]; lx++) {
             int32_t u;
-            if (collider_fixed_cell(f, lx, ly, &u) && u < row[lx])
+            if (fixed_cell(f, shape, lx, ly, &u) && u < row[lx])
                 row[lx] = u;
         }
+    }
+}
+
+void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w)
+{
+    switch (f->v[CF_SHAPE]) {
+    case COLLIDER_SPHERE:
+        fixed_apply_shape(f, COLLIDER_SPHERE, bottom, window_w);
+        break;
+    case COLLIDER_BOX:
+        fixed_apply_shape(f, COLLIDER_BOX, bottom, window_w);
+        break;
+    case COLLIDER_MESH:
+        fixed_apply_shape(f, COLLIDER_MESH, bottom, window_w);
+        break;
+    default:
+        fixed_apply_shape(f, f->v[CF_SHAPE], bottom, window_w);
+        break;
     }
 }

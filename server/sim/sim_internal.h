@@ -27,6 +27,25 @@ int sim_band_threads(int64_t items);
  * per thread, so a thread that starts late leaves its share to the others. */
 int64_t sim_band_chunk(int64_t items, int bands);
 
+/* The hot integer loops (slope evening's blocks, jump flooding's runs) are
+ * compiled twice on x86-64 with gcc or clang: for the SSE2 baseline and,
+ * with SIM_TARGET_AVX2, for AVX2, chosen at run time by sim_cpu_avx2().
+ * Both are the same integer operations on the same integers: the heights
+ * do not depend on which runs (test_sparse_stages runs both where the CPU
+ * has AVX2; TERRAD_NO_AVX2=1 in the environment forces the baseline). */
+#define SIM_ALWAYS_INLINE inline __attribute__((always_inline))
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(TERRAD_TWIN_LIB)
+#define SIM_AVX2_CLONE 1
+#define SIM_TARGET_AVX2 __attribute__((target("avx2")))
+#else
+#define SIM_AVX2_CLONE 0
+#endif
+/* 1 when the AVX2 forms may run: the CPU has AVX2, TERRAD_NO_AVX2 is unset
+ * (read once) and sim_cpu_avx2_allow(0) was not called (sim_threads.c). */
+int sim_cpu_avx2(void);
+/* Tests: 0 forces the SSE2 forms from now on, 1 lets AVX2 run again. */
+void sim_cpu_avx2_allow(int allow);
+
 /* The 8-neighbourhood in the order every stage visits it (sums and tie
  * rules follow it); the first four are axial, the last four diagonal. */
 extern const int sim_neighbour_dx[8];
@@ -110,6 +129,33 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
 void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
                                      const uint8_t *ids, int w, int h, const int32_t *cls,
                                      int32_t *heights, int32_t *scratch);
+/* The one-material form (ids == NULL) sim_even_slopes_materials runs: by
+ * blocks of 16 cells along a row (sim_slope_blocks.c); scratch 4*w*h int32. */
+void sim_even_slopes_blocks(const sim_params *p, const ground_material_table *t, int w, int h,
+                            const int32_t *cls, int32_t *heights, int32_t *scratch);
+/* One cell's Jacobi update of slope evening (the specification, any cell of
+ * the window), and whether it can change the cell at all. */
+int32_t sim_slope_next(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                       const int32_t *restrict cls, const int32_t *restrict heights, int x, int y);
+int sim_slope_may_move(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                       const int32_t *restrict cls, const int32_t *restrict heights, int x, int y);
+/* Slope evening's work lists hold cells packed as (y << 16 | x), unsigned
+ * (a side is at most WORLD_SIDE_MAX = 65536 cells): a listed cell's x and y
+ * cost a mask and a shift, not a division. */
+static inline int32_t sim_slope_pack(int x, int y)
+{
+    return (int32_t)((uint32_t)y << 16 | (uint32_t)x);
+}
+
+static inline int sim_slope_x(int32_t packed)
+{
+    return (int)((uint32_t)packed & 0xffffu);
+}
+
+static inline int sim_slope_y(int32_t packed)
+{
+    return (int)((uint32_t)packed >> 16);
+}
 /*
  * displace: heights[i] -= raw[i], and the moved material lands by the
  * params' method. `scratch` holds 5*w*h int32. Returns SIM_WINDOW_HEIGHT_LIMIT

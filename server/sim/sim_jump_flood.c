@@ -99,7 +99,7 @@ void sim_jump_flood_dense(const sim_params *p, int w, int h, int origin_x, int o
  */
 #define JFA_PACK_MAX 32768
 #define JFA_LANES 8
-#define JFA_ALWAYS_INLINE inline __attribute__((always_inline))
+#define JFA_ALWAYS_INLINE SIM_ALWAYS_INLINE
 
 static JFA_ALWAYS_INLINE int32_t jfa_pick(sim_metric metric, int origin_x, int origin_y, int x,
                                           int y, int k, int w, int h, const int32_t *restrict in)
@@ -142,6 +142,7 @@ static JFA_ALWAYS_INLINE int32_t jfa_pick(sim_metric metric, int origin_x, int o
 typedef struct jfa_loop {
     sim_metric metric;
     int origin_x, origin_y, w, h, k;
+    int avx2; /* jfa_blocks_avx2 runs the blocks (sim_cpu_avx2) */
     const int32_t *list;
     const int32_t *in;
     int32_t *out;
@@ -216,6 +217,72 @@ static JFA_ALWAYS_INLINE int jfa_block(sim_metric metric, const jfa_block_at *re
     }
     return ties;
 }
+
+#if SIM_AVX2_CLONE
+#include <immintrin.h>
+
+/* jfa_distance4 on 8 lanes (AVX2): the same integers */
+static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE __m256i jfa_distance8(sim_metric metric, __m256i s,
+                                                               __m256i cell)
+{
+    const __m256i none = _mm256_set1_epi32(INT32_MAX), v = _mm256_sub_epi16(s, cell);
+    __m256i d;
+    if (metric == SIM_METRIC_EUCLIDEAN) {
+        d = _mm256_madd_epi16(v, v);
+    } else {
+        __m256i a = _mm256_max_epi16(v, _mm256_sub_epi16(_mm256_setzero_si256(), v));
+        if (metric == SIM_METRIC_MANHATTAN)
+            d = _mm256_madd_epi16(a, _mm256_set1_epi16(1));
+        else
+            d = _mm256_and_si256(_mm256_max_epi16(a, _mm256_srli_epi32(a, 16)),
+                                 _mm256_set1_epi32(0xffff));
+    }
+    __m256i missing = _mm256_srai_epi32(s, 31);
+    return _mm256_blendv_epi8(d, none, missing);
+}
+
+/* jfa_block with the 8 lanes in one AVX2 register: the same rule, the same
+ * tie bits. Cells x .. x + 7 of row y; returns the lanes jfa_pick must redo. */
+static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE int jfa_block8(sim_metric metric,
+                                                        const jfa_block_at *restrict at, int x,
+                                                        int y, int row, const int32_t *restrict in,
+                                                        int32_t *restrict out)
+{
+    const __m256i cell =
+        _mm256_add_epi32(_mm256_set1_epi32(y << 16 | x), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+    __m256i best = _mm256_loadu_si256((const __m256i *)(in + row + x));
+    __m256i best_d = jfa_distance8(metric, best, cell), tie = _mm256_setzero_si256();
+    for (int j = 0; j < 8; j++) {
+        __m256i s = _mm256_or_si256(_mm256_loadu_si256((const __m256i *)(in + at->off[j] + x)),
+                                    _mm256_set1_epi32(at->mask[j]));
+        __m256i d = jfa_distance8(metric, s, cell);
+        __m256i nearer = _mm256_cmpgt_epi32(best_d, d);
+        __m256i same =
+            _mm256_andnot_si256(_mm256_cmpeq_epi32(s, best), _mm256_cmpeq_epi32(d, best_d));
+        tie = _mm256_andnot_si256(nearer, _mm256_or_si256(tie, same));
+        best = _mm256_blendv_epi8(best, s, nearer);
+        best_d = _mm256_blendv_epi8(best_d, d, nearer);
+    }
+    _mm256_storeu_si256((__m256i *)(out + row + x), best);
+    return _mm256_movemask_ps(_mm256_castsi256_ps(tie));
+}
+
+/* The blocks of cells x .. b - 1 of row y (b - x >= JFA_LANES) in AVX2,
+ * ties redone by jfa_pick; returns where the blocks stopped. */
+static SIM_TARGET_AVX2 int jfa_blocks_avx2(const jfa_loop *l, sim_metric metric,
+                                           const jfa_block_at *at, int x, int b, int y)
+{
+    const int w = l->w, h = l->h, k = l->k, row = y * w;
+    for (; x + JFA_LANES <= b; x += JFA_LANES) {
+        int tie = jfa_block8(metric, at, x, y, row, l->in, l->out);
+        for (int t = 0; tie; t++, tie >>= 1)
+            if (tie & 1)
+                l->out[row + x + t] =
+                    jfa_pick(metric, l->origin_x, l->origin_y, x + t, y, k, w, h, l->in);
+    }
+    return x;
+}
+#endif
 #else
 #define JFA_BLOCKS 0
 #endif
@@ -241,6 +308,10 @@ static JFA_ALWAYS_INLINE void jfa_run(const jfa_loop *l, sim_metric metric, int 
                 at.off[j] = inside ? qy * w + dx : row;
                 at.mask[j] = inside ? 0 : -1;
             }
+#if SIM_AVX2_CLONE
+            if (l->avx2)
+                x = jfa_blocks_avx2(l, metric, &at, x, b, y);
+#endif
             for (; x + JFA_LANES <= b; x += JFA_LANES) {
                 int tie = jfa_block(metric, &at, x, y, row, l->in, l->out);
                 for (int t = 0; tie; t++, tie >>= 1)
@@ -310,7 +381,7 @@ void sim_jump_flood(const sim_params *p, int w, int h, int origin_x, int origin_
     if (count > 0) {
         memcpy(other, seed, (size_t)n * sizeof *seed);
         int32_t *in = seed, *out = other;
-        jfa_loop l = {p->metric, origin_x, origin_y, w, h, 0, list, NULL, NULL};
+        jfa_loop l = {p->metric, origin_x, origin_y, w, h, 0, sim_cpu_avx2(), list, NULL, NULL};
         int bands = sim_band_threads(count);
         for (l.k = jump_flood_first_step(w, h); l.k >= 1; l.k /= 2) {
             /* each listed cell reads `in`, writes its own `out`: bands are exact */

@@ -342,9 +342,8 @@ static int32_t slope_flux_row(const ground_material_row *row, int32_t hc, int32_
 
 /* One cell's Jacobi update of slope evening: its height after one iteration
  * given the heights before it (the formula of sim_even_slopes_materials_dense). */
-static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, int w, int h,
-                          const int32_t *restrict cls, const int32_t *restrict heights, int x,
-                          int y)
+int32_t sim_slope_next(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                       const int32_t *restrict cls, const int32_t *restrict heights, int x, int y)
 {
     int i = y * w + x;
     int32_t hi = heights[i];
@@ -363,42 +362,6 @@ static int32_t slope_next(const ground_material_table *t, const uint8_t *ids, in
     return hi - out + in;
 }
 
-/*
- * slope_next for a cell one cell or more inside a window of one material
- * (ids == NULL): the same sum, with the neighbours at fixed offsets, no
- * bounds checks and one threshold pair. The eight heights and classes are
- * gathered into small arrays first, so the loop over them has no branch and
- * no call: gcc -O2 vectorises it (16-byte vectors, the 32 x 32 -> 64-bit
- * products as pmuludq; -fopt-info-vec). Integer sums do not depend
- * on their order: the result is slope_next's to the bit (test_sparse_stages
- * compares the sparse stages, which use this, with the dense reference).
- */
-static int32_t slope_next_interior(const ground_material_row *restrict r, int w,
-                                   const int32_t *restrict cls, const int32_t *restrict heights,
-                                   int i)
-{
-    const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
-    const uint32_t rough = (uint32_t)r->roughness_q16;
-    const int32_t th[8] = {ax, ax, ax, ax, dg, dg, dg, dg};
-    const int32_t *restrict up = heights + i - w, *restrict mid = heights + i,
-                            *restrict down = heights + i + w;
-    const int32_t *restrict cup = cls + i - w, *restrict cmid = cls + i,
-                            *restrict cdown = cls + i + w;
-    /* the neighbours in slope_next's order: E, W, S, N, SE, SW, NE, NW */
-    const int32_t hq[8] = {mid[1], mid[-1], down[0], up[0], down[1], down[-1], up[1], up[-1]};
-    const int32_t cq[8] = {cmid[1],  cmid[-1],  cdown[0], cup[0],
-                           cdown[1], cdown[-1], cup[1],   cup[-1]};
-    int32_t hi = mid[0], out = 0, in = 0;
-    for (int j = 0; j < 8; j++) {
-        int32_t eo = hi - hq[j] - th[j], ei = hq[j] - hi - th[j];
-        int32_t fo = (int32_t)(((uint64_t)(uint32_t)(eo > 0 ? eo : 0) * rough) >> 19);
-        int32_t fi = (int32_t)(((uint64_t)(uint32_t)(ei > 0 ? ei : 0) * rough) >> 19);
-        out += cq[j] == SIM_CELL_SEED ? fo : 0;
-        in += fi;
-    }
-    return hi - out + (cmid[0] == SIM_CELL_SEED ? in : 0);
-}
-
 void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_table *t,
                                      const uint8_t *ids, int w, int h, const int32_t *cls,
                                      int32_t *heights, int32_t *scratch)
@@ -408,7 +371,7 @@ void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_
     for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
         for (int y = 0; y < h; y++) {
             for (int x = 0; x < w; x++)
-                next[y * w + x] = slope_next(t, ids, w, h, cls, heights, x, y);
+                next[y * w + x] = sim_slope_next(t, ids, w, h, cls, heights, x, y);
         }
         memcpy(heights, next, (size_t)n * sizeof *heights);
     }
@@ -417,9 +380,8 @@ void sim_even_slopes_materials_dense(const sim_params *p, const ground_material_
 /* Can slope_next change cell (x, y)? Only if some flux of its formula has a
  * positive excess: out of it towards a free neighbour, or into it (when it
  * is free) from a neighbour. Cells where this is 0 keep their height. */
-static int slope_may_move(const ground_material_table *t, const uint8_t *ids, int w, int h,
-                          const int32_t *restrict cls, const int32_t *restrict heights, int x,
-                          int y)
+int sim_slope_may_move(const ground_material_table *t, const uint8_t *ids, int w, int h,
+                       const int32_t *restrict cls, const int32_t *restrict heights, int x, int y)
 {
     int i = y * w + x;
     int32_t hi = heights[i];
@@ -443,56 +405,18 @@ static int slope_may_move(const ground_material_table *t, const uint8_t *ids, in
     return 0;
 }
 
-/* Slope evening's work lists hold cells packed as (y << 16 | x), unsigned
- * (a side is at most WORLD_SIDE_MAX = 65536 cells): a listed cell's x and y
- * cost a mask and a shift, not a division. */
-static inline int32_t slope_pack(int x, int y)
-{
-    return (int32_t)((uint32_t)y << 16 | (uint32_t)x);
-}
-
-static inline int slope_x(int32_t packed)
-{
-    return (int)((uint32_t)packed & 0xffffu);
-}
-
-static inline int slope_y(int32_t packed)
-{
-    return (int)((uint32_t)packed >> 16);
-}
-
-/* The first work list: every cell of the window that slope_may_move. The
- * interior of a uniform window skips the per-cell material rows and the
- * bounds checks: a cell moves only if some neighbour differs from it by more
- * than the smaller threshold, which is a cheap, vectorisable filter. */
+/* The first work list: every cell of the window that sim_slope_may_move
+ * (per-cell materials; a one-material window takes the blocks of
+ * sim_slope_blocks.c, whose first pass filters 16 cells at a time). */
 static int slope_first_list(const ground_material_table *t, const uint8_t *ids, int w, int h,
                             const int32_t *restrict cls, const int32_t *restrict heights,
                             int32_t *restrict list)
 {
     int count = 0;
-    int32_t th = t->rows[0].slope_threshold_axial < t->rows[0].slope_threshold_diagonal
-                     ? t->rows[0].slope_threshold_axial
-                     : t->rows[0].slope_threshold_diagonal;
-    for (int y = 0; y < h; y++) {
-        int interior_row = ids == NULL && y > 0 && y < h - 1;
-        for (int x = 0; x < w; x++) {
-            if (interior_row && x > 0 && x < w - 1) {
-                const int32_t *r = heights + y * w + x;
-                int32_t hi = r[0], lo = r[0], hj = r[0];
-                const int32_t *nb[3] = {r - w, r, r + w};
-                for (int a = 0; a < 3; a++)
-                    for (int b = -1; b <= 1; b++) {
-                        hj = nb[a][b];
-                        hi = hj > hi ? hj : hi;
-                        lo = hj < lo ? hj : lo;
-                    }
-                if (hi - r[0] <= th && r[0] - lo <= th)
-                    continue;
-            }
-            if (slope_may_move(t, ids, w, h, cls, heights, x, y))
-                list[count++] = slope_pack(x, y);
-        }
-    }
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++)
+            if (sim_slope_may_move(t, ids, w, h, cls, heights, x, y))
+                list[count++] = sim_slope_pack(x, y);
     return count;
 }
 
@@ -513,146 +437,8 @@ static void slope_range(void *ctx, int64_t begin, int64_t end, int thread)
     const int32_t *restrict list = l->list;
     int32_t *restrict value = l->value;
     for (int64_t c = begin; c < end; c++) {
-        int x = slope_x(list[c]), y = slope_y(list[c]), i = y * w + x;
-        if (l->ids == NULL && x > 0 && y > 0 && x < w - 1 && y < h - 1)
-            value[c] = slope_next_interior(&l->t->rows[0], w, l->cls, l->heights, i);
-        else
-            value[c] = slope_next(l->t, l->ids, w, h, l->cls, l->heights, x, y);
-    }
-}
-
-/*
- * Slope evening of a one-material window (ids == NULL) by blocks of
- * SLOPE_SEG cells along a row: what the daemon runs. The same argument as
- * the work list's, with a block for a cell: iteration 1 visits the blocks
- * holding a cell that slope_may_move, and after an iteration the blocks
- * holding a changed cell or one of its neighbours. Any block visited gives
- * its cells' exact next heights, so visiting a superset of the listed cells
- * changes nothing; in exchange the 16 cells of an inner block go through
- * slope_block with contiguous loads and no branch (gcc vectorises it), and
- * the marks are one byte per block, not a list entry per cell.
- */
-#define SLOPE_SEG 16
-
-/* Next heights of cells i0 .. i0 + 15, all one cell or more inside the
- * window: slope_next_interior's sum with the lanes along the row. */
-static void slope_block(const ground_material_row *restrict r, int w, const int32_t *restrict cls,
-                        const int32_t *restrict heights, int i0, int32_t *restrict dst)
-{
-    const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
-    const uint32_t rough = (uint32_t)r->roughness_q16;
-    /* the neighbours in slope_next's order: E, W, S, N, SE, SW, NE, NW */
-    const int off[8] = {1, -1, w, -w, w + 1, w - 1, -w + 1, -w - 1};
-    const int32_t *restrict hm = heights + i0;
-    int32_t out[SLOPE_SEG] = {0}, in[SLOPE_SEG] = {0};
-    for (int j = 0; j < 8; j++) {
-        const int32_t th = j < 4 ? ax : dg;
-        const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
-        for (int l = 0; l < SLOPE_SEG; l++) {
-            /* max(e, 0) and the class test as masks: no control flow to vectorise */
-            int32_t eo = hm[l] - hq[l] - th, ei = hq[l] - hm[l] - th;
-            uint32_t po = (uint32_t)(eo & ~(eo >> 31)), pi = (uint32_t)(ei & ~(ei >> 31));
-            int32_t fo = (int32_t)(((uint64_t)po * rough) >> 19);
-            int32_t fi = (int32_t)(((uint64_t)pi * rough) >> 19);
-            out[l] += fo & -(int32_t)(cq[l] == SIM_CELL_SEED);
-            in[l] += fi;
-        }
-    }
-    for (int l = 0; l < SLOPE_SEG; l++)
-        dst[l] = hm[l] - out[l] + (cls[i0 + l] == SIM_CELL_SEED ? in[l] : 0);
-}
-
-/* One iteration's next heights of the listed blocks (packed y << 16 | s). */
-typedef struct slope_blocks_loop {
-    const ground_material_table *t;
-    int w, h;
-    const int32_t *cls, *heights, *blocks;
-    int32_t *value;
-} slope_blocks_loop;
-
-static void slope_blocks_range(void *ctx, int64_t begin, int64_t end, int thread)
-{
-    (void)thread;
-    const slope_blocks_loop *l = ctx;
-    const int w = l->w, h = l->h;
-    for (int64_t c = begin; c < end; c++) {
-        int y = slope_y(l->blocks[c]), x0 = slope_x(l->blocks[c]) * SLOPE_SEG;
-        int x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w, row = y * w;
-        /* the inner cells: one slope_block placed over them (a block at the
-         * window's side starts early; only its own cells are kept) */
-        int lo = x0 > 0 ? x0 : 1, hi = x1 < w ? x1 : w - 1;
-        if (y > 0 && y < h - 1 && w - 2 >= SLOPE_SEG && lo < hi) {
-            int b = lo < w - 1 - SLOPE_SEG ? lo : w - 1 - SLOPE_SEG;
-            int32_t next[SLOPE_SEG];
-            slope_block(&l->t->rows[0], w, l->cls, l->heights, row + b, next);
-            for (int x = lo; x < hi; x++)
-                l->value[row + x] = next[x - b];
-        } else {
-            lo = hi = x0;
-        }
-        /* the rest (the window's border, a narrow window): the specification */
-        for (int x = x0; x < x1; x++)
-            if (x < lo || x >= hi)
-                l->value[row + x] = slope_next(l->t, NULL, w, h, l->cls, l->heights, x, y);
-    }
-}
-
-/* Write block (y, s)'s next heights; mark for the next iteration the blocks
- * of rows y - 1 .. y + 1 that hold a changed cell or a neighbour of one. */
-static void slope_block_commit(int w, int h, int segs, int y, int s, const int32_t *value,
-                               int32_t *heights, uint8_t *next)
-{
-    int x0 = s * SLOPE_SEG, x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w;
-    int first = -1, last = -1;
-    for (int x = x0, i = y * w + x0; x < x1; x++, i++) {
-        if (value[i] == heights[i])
-            continue;
-        heights[i] = value[i];
-        first = first < 0 ? x : first;
-        last = x;
-    }
-    if (first < 0)
-        return;
-    int s0 = first == x0 && s > 0 ? s - 1 : s;
-    int s1 = last == x1 - 1 && s + 1 < segs ? s + 1 : s;
-    for (int qy = y > 0 ? y - 1 : 0; qy <= (y < h - 1 ? y + 1 : h - 1); qy++)
-        for (int qs = s0; qs <= s1; qs++)
-            next[qy * segs + qs] = 1;
-}
-
-/* scratch: 4 * w * h int32 (value, the first list, the block list, marks). */
-static void slope_even_blocks(const sim_params *p, const ground_material_table *t, int w, int h,
-                              const int32_t *cls, int32_t *heights, int32_t *scratch)
-{
-    int n = w * h, segs = (w + SLOPE_SEG - 1) / SLOPE_SEG;
-    int32_t *restrict value = scratch, *restrict first = scratch + n;
-    int32_t *restrict blocks = scratch + 2 * n;
-    uint8_t *restrict mark = (uint8_t *)(scratch + 3 * n), *restrict next = mark + h * segs;
-    int count = slope_first_list(t, NULL, w, h, cls, heights, first);
-    if (count == 0)
-        return;
-    memset(mark, 0, (size_t)h * segs);
-    for (int c = 0; c < count; c++)
-        mark[slope_y(first[c]) * segs + slope_x(first[c]) / SLOPE_SEG] = 1;
-    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
-        int nb = 0;
-        for (int y = 0; y < h; y++)
-            for (int s = 0; s < segs; s++)
-                if (mark[y * segs + s])
-                    blocks[nb++] = slope_pack(s, y);
-        if (nb == 0)
-            break;
-        /* Jacobi: every block reads the old heights; bands are exact */
-        slope_blocks_loop l = {t, w, h, cls, heights, blocks, value};
-        int bands = sim_band_threads((int64_t)nb * SLOPE_SEG);
-        sim_parallel_for(nb, sim_band_chunk(nb, bands), bands, slope_blocks_range, &l);
-        memset(next, 0, (size_t)h * segs);
-        for (int c = 0; c < nb; c++)
-            slope_block_commit(w, h, segs, slope_y(blocks[c]), slope_x(blocks[c]), value, heights,
-                               next);
-        uint8_t *tmp = mark;
-        mark = next;
-        next = tmp;
+        int x = sim_slope_x(list[c]), y = sim_slope_y(list[c]);
+        value[c] = sim_slope_next(l->t, l->ids, w, h, l->cls, l->heights, x, y);
     }
 }
 
@@ -671,7 +457,7 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
                                int32_t *heights, int32_t *scratch)
 {
     if (ids == NULL) {
-        slope_even_blocks(p, t, w, h, cls, heights, scratch);
+        sim_even_slopes_blocks(p, t, w, h, cls, heights, scratch);
         return;
     }
     int n = w * h;
@@ -689,7 +475,7 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
         sim_parallel_for(count, sim_band_chunk(count, bands), bands, slope_range, &l);
         int next_count = 0;
         for (int c = 0; c < count; c++) {
-            int x = slope_x(list[c]), y = slope_y(list[c]), i = y * w + x;
+            int x = sim_slope_x(list[c]), y = sim_slope_y(list[c]), i = y * w + x;
             if (value[c] == heights[i])
                 continue;
             heights[i] = value[c];
@@ -701,7 +487,7 @@ void sim_even_slopes_materials(const sim_params *p, const ground_material_table 
                     if (mark[q] == iter)
                         continue;
                     mark[q] = iter;
-                    next_list[next_count++] = slope_pack(qx, qy);
+                    next_list[next_count++] = sim_slope_pack(qx, qy);
                 }
             }
         }

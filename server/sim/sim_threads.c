@@ -25,12 +25,38 @@
 #include "sim/sim_internal.h"
 
 #include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
 #ifndef TERRAD_TWIN_LIB
 #include <pthread.h>
 #include <unistd.h>
 #endif
 
 static atomic_int thread_count; /* 0: not set, the machine's cores */
+
+/* -1: not read yet; else whether the AVX2 forms run (sim_internal.h) */
+static atomic_int avx2_state = -1;
+static atomic_int avx2_allowed = 1;
+
+int sim_cpu_avx2(void)
+{
+    int s = atomic_load_explicit(&avx2_state, memory_order_relaxed);
+    if (s < 0) {
+#if SIM_AVX2_CLONE
+        const char *off = getenv("TERRAD_NO_AVX2");
+        s = __builtin_cpu_supports("avx2") && !(off && off[0] && strcmp(off, "0") != 0);
+#else
+        s = 0;
+#endif
+        atomic_store_explicit(&avx2_state, s, memory_order_relaxed);
+    }
+    return s && atomic_load_explicit(&avx2_allowed, memory_order_relaxed);
+}
+
+void sim_cpu_avx2_allow(int allow)
+{
+    atomic_store_explicit(&avx2_allowed, allow != 0, memory_order_relaxed);
+}
 
 int sim_default_threads(void)
 {

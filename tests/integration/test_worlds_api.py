@@ -32,7 +32,7 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, metric_value, tp  # noqa: E402
+from service_harness import Checks, Daemon, metric_value, raw_hello, tp  # noqa: E402
 
 check = Checks()
 ADMIN, VIEWER = "admin-token-for-worlds", "viewer-token-for-worlds"
@@ -286,7 +286,7 @@ def main():
         status, doc = call(d, "POST", f"/v1/worlds/{default}/edits",
                            {"op": "add", "x": 0, "y": 0, "w": 2, "h": 2, "amount": 5})
         check(status == 200, "and the default world's edits still work by its scene's name")
-        answer, code = asyncio.run(raw_hello_token(d, "no-such"))
+        answer, code = asyncio.run(raw_hello(d, "no-such", token=ADMIN, answer_s=30, close_s=10))
         check(answer.get("type") == "error" and "no-such" in answer.get("message", "") and code == 4005,
               f"hello into no such world: refused naming it, close 4005 ({answer}, {code})")
         bad_inputs(d, data_dir, scene_dir)
@@ -302,22 +302,6 @@ def main():
             d.stop()
         shutil.rmtree(tmp, ignore_errors=True)
     check.finish()
-
-
-async def raw_hello_token(d, world):
-    import websockets
-    ws = await websockets.connect(d.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
-    await ws.send(json.dumps(tp.hello(ADMIN, "lost", world)))
-    answer = json.loads(await asyncio.wait_for(ws.recv(), 30))
-    code = None
-    try:
-        await asyncio.wait_for(ws.recv(), 10)
-    except websockets.ConnectionClosed as e:
-        code = e.code
-    except asyncio.TimeoutError:
-        pass
-    await ws.close()
-    return answer, code
 
 
 if __name__ == "__main__":

@@ -488,16 +488,16 @@ async def hello_ok(d, name, timeout=30):
         await c.close()
 
 
-async def raw_hello(node, world):
+async def raw_hello(node, world, token="", answer_s=10, close_s=3):
     """A raw hello naming a world on node (anything with .ws): (the first
-    answer, the close code or None)."""
+    answer, the close code or None; None when no close came within close_s)."""
     import websockets
     ws = await websockets.connect(node.ws, subprotocols=[tp.SUBPROTOCOL], close_timeout=2)
-    await ws.send(json.dumps(tp.hello("", "world-check", world)))
-    answer = json.loads(await asyncio.wait_for(ws.recv(), 10))
+    await ws.send(json.dumps(tp.hello(token, "world-check", world)))
+    answer = json.loads(await asyncio.wait_for(ws.recv(), answer_s))
     code = None
     try:
-        await asyncio.wait_for(ws.recv(), 3)
+        await asyncio.wait_for(ws.recv(), close_s)
     except websockets.ConnectionClosed as e:
         code = e.code
     except asyncio.TimeoutError:

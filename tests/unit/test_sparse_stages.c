@@ -6,7 +6,8 @@
  * for every metric, with one material and with per-cell materials, with
  * thresholds of 0, and with slope iteration counts from 0 to 40. The chain
  * classify → jump flood → displace → slopes runs once with each form and the
- * heights must agree bit for bit.
+ * heights must agree bit for bit. All of it runs twice: with the AVX2 forms
+ * of the hot loops (where the CPU has AVX2) and with the SSE2 baseline.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -191,7 +192,14 @@ static void test_bands(void)
 
 int main(void)
 {
-    test_random_windows();
-    test_bands();
+    /* both compiled forms of the hot loops (sim_internal.h): AVX2 where the
+     * CPU has it, then the SSE2 baseline; each must equal the dense form */
+    printf("# AVX2 forms %s\n", sim_cpu_avx2() ? "run" : "absent (baseline only)");
+    for (int allow = 1; allow >= 0; allow--) {
+        sim_cpu_avx2_allow(allow);
+        test_random_windows();
+        test_bands();
+    }
+    sim_cpu_avx2_allow(1);
     return check_report();
 }

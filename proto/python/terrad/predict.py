@@ -81,7 +81,8 @@ class Prediction:
     sent since. Counters: predicted (batches ticked at once), reconciled (ACKs taken),
     replayed (ACKs whose replay was compared with the server), exact (of those, 0 cells
     differing), last_differing (cells of the last comparison), skipped (ACKs not compared:
-    the mirror was resyncing, or the gap was longer than max_replay_ticks), on_time (ACKs
+    the mirror was resyncing, the gap was longer than max_replay_ticks, or several batches
+    were acknowledged after a gap of ticks, so which tick took each is unknown), on_time (ACKs
     of tick t, batch seq, where the heights predicted for seq before the ACK were the
     server's at t: the batches landed one per tick, as the prediction assumes).
     """
@@ -206,7 +207,11 @@ class Prediction:
             gap = 1  # nothing of ours pressed before t: the idle ticks changed nothing
         else:
             gap = tick - self.base_tick if self.base_tick is not None else 0
-        if 1 <= gap <= self.max_replay_ticks:
+        # Batches acknowledged together after a gap of ticks may have been taken at different
+        # ticks of it (a slow client's older ACK is replaced by the newer one, PROTOCOL.md
+        # "Slow clients"): which tick took which is not known, so that ACK is not compared.
+        spread = gap > 1 and len(used) > 1
+        if 1 <= gap <= self.max_replay_ticks and not spread:
             self._restart(self.base)
             for _ in range(gap - 1):  # ticks without an ACK: the poses stood still
                 self.twin.tick()

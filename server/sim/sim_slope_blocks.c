@@ -1,0 +1,293 @@
+/*
+ * sim_slope_blocks.c: slope evening of a one-material window by blocks of
+ * 16 cells along a row — the form of row 4d.5 of the tick (docs/design.md)
+ * the daemon runs for every uniform window, after displacement and before
+ * the scatter. sim_stages.c states the rule (sim_slope_next, per cell) and
+ * keeps the per-cell work list for per-cell materials; this file computes
+ * the same heights, bit for bit, with contiguous loads that vectorise, and
+ * on x86-64 an AVX2 form of its two hot loops (sim_internal.h,
+ * SIM_AVX2_CLONE). test_sparse_stages compares it with the dense reference
+ * in both forms.
+ */
+#include "sim/sim_internal.h"
+
+#include <string.h>
+
+/*
+ * The same argument as the work list's (sim_even_slopes_materials), with a
+ * block of SLOPE_SEG cells for a cell: iteration 1 visits the blocks holding
+ * a cell that may move (slope_first_blocks), and after an iteration the blocks
+ * holding a changed cell or one of its neighbours. Any block visited gives
+ * its cells' exact next heights, so visiting a superset of the listed cells
+ * changes nothing; in exchange the 16 cells of an inner block go through
+ * slope_block with contiguous loads and no branch (gcc vectorises it), and
+ * the marks are one byte per block, not a list entry per cell.
+ */
+#define SLOPE_SEG 16
+
+/* Next heights of cells i0 .. i0 + 15, all one cell or more inside the
+ * window: slope_next_interior's sum with the lanes along the row. Compiled
+ * twice on x86-64 (SIM_AVX2_CLONE: the baseline SSE2 and AVX2, picked once
+ * at run time): the same integer operations, so the same heights. */
+static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restrict r, int w,
+                                               const int32_t *restrict cls,
+                                               const int32_t *restrict heights, int i0,
+                                               int32_t *restrict dst)
+{
+    const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
+    const uint32_t rough = (uint32_t)r->roughness_q16;
+    /* the neighbours in slope_next's order: E, W, S, N, SE, SW, NE, NW */
+    const int off[8] = {1, -1, w, -w, w + 1, w - 1, -w + 1, -w - 1};
+    const int32_t *restrict hm = heights + i0;
+    int32_t out[SLOPE_SEG] = {0}, in[SLOPE_SEG] = {0};
+    if (ax >= 0 && dg >= 0) {
+        /* With thresholds >= 0 at most one of the two excesses below is
+         * positive (they sum to -2 th): one product per neighbour, of
+         * max(|d| - th, 0), is the flux out of the cell when d > 0 and into
+         * it when d < 0 (0 either way otherwise). Half the 64-bit
+         * products; the same integers. */
+        for (int j = 0; j < 8; j++) {
+            const int32_t th = j < 4 ? ax : dg;
+            const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
+            for (int l = 0; l < SLOPE_SEG; l++) {
+                int32_t d = hm[l] - hq[l], sign = d >> 31;
+                int32_t e = ((d ^ sign) - sign) - th;
+                uint32_t pe = (uint32_t)(e & ~(e >> 31));
+                int32_t f = (int32_t)(((uint64_t)pe * rough) >> 19);
+                out[l] += f & ~sign & -(int32_t)(cq[l] == SIM_CELL_SEED);
+                in[l] += f & sign;
+            }
+        }
+    } else {
+        for (int j = 0; j < 8; j++) {
+            const int32_t th = j < 4 ? ax : dg;
+            const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
+            for (int l = 0; l < SLOPE_SEG; l++) {
+                /* max(e, 0) and the class test as masks: no control flow to vectorise */
+                int32_t eo = hm[l] - hq[l] - th, ei = hq[l] - hm[l] - th;
+                uint32_t po = (uint32_t)(eo & ~(eo >> 31)), pi = (uint32_t)(ei & ~(ei >> 31));
+                int32_t fo = (int32_t)(((uint64_t)po * rough) >> 19);
+                int32_t fi = (int32_t)(((uint64_t)pi * rough) >> 19);
+                out[l] += fo & -(int32_t)(cq[l] == SIM_CELL_SEED);
+                in[l] += fi;
+            }
+        }
+    }
+    for (int l = 0; l < SLOPE_SEG; l++)
+        dst[l] = hm[l] - out[l] + (cls[i0 + l] == SIM_CELL_SEED ? in[l] : 0);
+}
+
+typedef void (*slope_block_fn)(const ground_material_row *restrict r, int w,
+                               const int32_t *restrict cls, const int32_t *restrict heights, int i0,
+                               int32_t *restrict dst);
+
+static void slope_block(const ground_material_row *restrict r, int w, const int32_t *restrict cls,
+                        const int32_t *restrict heights, int i0, int32_t *restrict dst)
+{
+    slope_block_body(r, w, cls, heights, i0, dst);
+}
+
+#if SIM_AVX2_CLONE
+SIM_TARGET_AVX2 static void slope_block_avx2(const ground_material_row *restrict r, int w,
+                                             const int32_t *restrict cls,
+                                             const int32_t *restrict heights, int i0,
+                                             int32_t *restrict dst)
+{
+    slope_block_body(r, w, cls, heights, i0, dst);
+}
+#endif
+
+/* The block routine for this CPU, chosen on first use (a race writes the same value). */
+static slope_block_fn slope_block_pick(void)
+{
+#if SIM_AVX2_CLONE
+    if (sim_cpu_avx2())
+        return slope_block_avx2;
+#endif
+    return slope_block;
+}
+
+/* One iteration's next heights of the listed blocks (packed y << 16 | s). */
+typedef struct slope_blocks_loop {
+    const ground_material_table *t;
+    int w, h;
+    const int32_t *cls, *heights, *blocks;
+    int32_t *value;
+} slope_blocks_loop;
+
+static void slope_blocks_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+    const slope_blocks_loop *l = ctx;
+    const int w = l->w, h = l->h;
+    const slope_block_fn block = slope_block_pick();
+    for (int64_t c = begin; c < end; c++) {
+        int y = sim_slope_y(l->blocks[c]), x0 = sim_slope_x(l->blocks[c]) * SLOPE_SEG;
+        int x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w, row = y * w;
+        /* the inner cells: one slope_block placed over them (a block at the
+         * window's side starts early; only its own cells are kept) */
+        int lo = x0 > 0 ? x0 : 1, hi = x1 < w ? x1 : w - 1;
+        if (y > 0 && y < h - 1 && w - 2 >= SLOPE_SEG && lo < hi) {
+            int b = lo < w - 1 - SLOPE_SEG ? lo : w - 1 - SLOPE_SEG;
+            int32_t next[SLOPE_SEG];
+            block(&l->t->rows[0], w, l->cls, l->heights, row + b, next);
+            for (int x = lo; x < hi; x++)
+                l->value[row + x] = next[x - b];
+        } else {
+            lo = hi = x0;
+        }
+        /* the rest (the window's border, a narrow window): the specification */
+        for (int x = x0; x < x1; x++)
+            if (x < lo || x >= hi)
+                l->value[row + x] = sim_slope_next(l->t, NULL, w, h, l->cls, l->heights, x, y);
+    }
+}
+
+/* Is some cell of i0 .. i0 + lanes - 1 (all one cell or more inside the
+ * window) steeper than th towards some neighbour? The filter of the first
+ * blocks: sim_slope_may_move needs a neighbour beyond its direction's
+ * threshold (>= th, the smaller) and a class besides, so every cell that may
+ * move passes it. Max and min over the 8 neighbours, so it vectorises. */
+static SIM_ALWAYS_INLINE int slope_steep_body(int w, const int32_t *restrict heights, int i0,
+                                              int32_t th, int lanes)
+{
+    const int off[8] = {1, -1, w, -w, w + 1, w - 1, -w + 1, -w - 1};
+    const int32_t *restrict hm = heights + i0;
+    int32_t hi[SLOPE_SEG], lo[SLOPE_SEG];
+    for (int l = 0; l < lanes; l++)
+        hi[l] = lo[l] = hm[l];
+    for (int j = 0; j < 8; j++)
+        for (int l = 0; l < lanes; l++) {
+            int32_t v = hm[l + off[j]];
+            hi[l] = v > hi[l] ? v : hi[l];
+            lo[l] = v < lo[l] ? v : lo[l];
+        }
+    int steep = 0;
+    for (int l = 0; l < lanes; l++)
+        steep |= (hi[l] - hm[l] > th) | (hm[l] - lo[l] > th);
+    return steep;
+}
+
+/* The first blocks of rows [begin, end): mark[y * segs + s] = 1 for a block
+ * holding a cell that may move — an inner cell that passes the filter
+ * above, a cell of the window's border that sim_slope_may_move. A superset
+ * of the cells that may move, which changes nothing (above); it replaces a
+ * per-cell list whose inner cells each took the filter and then
+ * sim_slope_may_move one at a time. */
+typedef struct slope_first_loop {
+    const ground_material_table *t;
+    int w, h, segs;
+    const int32_t *cls, *heights;
+    uint8_t *mark;
+} slope_first_loop;
+
+static SIM_ALWAYS_INLINE void slope_first_body(const slope_first_loop *l, int64_t begin,
+                                               int64_t end)
+{
+    const int w = l->w, h = l->h, segs = l->segs;
+    const ground_material_row *r = &l->t->rows[0];
+    const int32_t th = r->slope_threshold_axial < r->slope_threshold_diagonal
+                           ? r->slope_threshold_axial
+                           : r->slope_threshold_diagonal;
+    for (int y = (int)begin; y < (int)end; y++) {
+        uint8_t *mark = l->mark + (size_t)y * segs;
+        int inner_row = y > 0 && y < h - 1;
+        for (int s = 0; s < segs; s++) {
+            int x0 = s * SLOPE_SEG, x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w;
+            int lo = inner_row ? (x0 > 0 ? x0 : 1) : x1, hi = inner_row && x1 > w - 1 ? w - 1 : x1;
+            int steep = 0;
+            if (lo + SLOPE_SEG == hi)
+                steep = slope_steep_body(w, l->heights, y * w + lo, th, SLOPE_SEG);
+            else
+                for (int x = lo; x < hi && !steep; x++)
+                    steep = slope_steep_body(w, l->heights, y * w + x, th, 1);
+            for (int x = x0; x < x1 && !steep; x++) /* the border: the rule itself */
+                if (x < lo || x >= hi)
+                    steep = sim_slope_may_move(l->t, NULL, w, h, l->cls, l->heights, x, y);
+            mark[s] = (uint8_t)steep;
+        }
+    }
+}
+
+#if SIM_AVX2_CLONE
+SIM_TARGET_AVX2 static void slope_first_range_avx2(const slope_first_loop *l, int64_t begin,
+                                                   int64_t end)
+{
+    slope_first_body(l, begin, end);
+}
+#endif
+
+static void slope_first_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+#if SIM_AVX2_CLONE
+    if (sim_cpu_avx2()) {
+        slope_first_range_avx2(ctx, begin, end);
+        return;
+    }
+#endif
+    slope_first_body(ctx, begin, end);
+}
+
+/* Write block (y, s)'s next heights; mark for the next iteration the blocks
+ * of rows y - 1 .. y + 1 that hold a changed cell or a neighbour of one. */
+static void slope_block_commit(int w, int h, int segs, int y, int s, const int32_t *value,
+                               int32_t *heights, uint8_t *next)
+{
+    int x0 = s * SLOPE_SEG, x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w, i0 = y * w + x0;
+    /* whether any cell changed, and whether the first and the last did (the
+     * neighbouring blocks then hold neighbours of a changed cell): a compare
+     * over the block and a copy, no branch per cell */
+    int changed = 0;
+    if (x1 - x0 == SLOPE_SEG)
+        for (int l = 0; l < SLOPE_SEG; l++)
+            changed |= value[i0 + l] != heights[i0 + l];
+    else
+        for (int l = 0; l < x1 - x0; l++)
+            changed |= value[i0 + l] != heights[i0 + l];
+    if (!changed)
+        return;
+    int first_changed = value[i0] != heights[i0];
+    int last_changed = value[i0 + x1 - x0 - 1] != heights[i0 + x1 - x0 - 1];
+    memcpy(heights + i0, value + i0, (size_t)(x1 - x0) * sizeof *heights);
+    int s0 = first_changed && s > 0 ? s - 1 : s;
+    int s1 = last_changed && s + 1 < segs ? s + 1 : s;
+    for (int qy = y > 0 ? y - 1 : 0; qy <= (y < h - 1 ? y + 1 : h - 1); qy++)
+        for (int qs = s0; qs <= s1; qs++)
+            next[qy * segs + qs] = 1;
+}
+
+/* scratch: 4 * w * h int32 (value, the block list, marks). */
+void sim_even_slopes_blocks(const sim_params *p, const ground_material_table *t, int w, int h,
+                            const int32_t *cls, int32_t *heights, int32_t *scratch)
+{
+    int n = w * h, segs = (w + SLOPE_SEG - 1) / SLOPE_SEG;
+    int32_t *restrict value = scratch, *restrict blocks = scratch + 2 * n;
+    uint8_t *restrict mark = (uint8_t *)(scratch + 3 * n), *restrict next = mark + h * segs;
+    if (p->slope_iterations <= 0)
+        return;
+    /* rows write only their own marks: bands are exact */
+    slope_first_loop f = {t, w, h, segs, cls, heights, mark};
+    int rows_bands = sim_band_threads(n);
+    sim_parallel_for(h, sim_band_chunk(h, rows_bands), rows_bands, slope_first_range, &f);
+    for (int32_t iter = 0; iter < p->slope_iterations; iter++) {
+        int nb = 0;
+        for (int y = 0; y < h; y++)
+            for (int s = 0; s < segs; s++)
+                if (mark[y * segs + s])
+                    blocks[nb++] = sim_slope_pack(s, y);
+        if (nb == 0)
+            break;
+        /* Jacobi: every block reads the old heights; bands are exact */
+        slope_blocks_loop l = {t, w, h, cls, heights, blocks, value};
+        int bands = sim_band_threads((int64_t)nb * SLOPE_SEG);
+        sim_parallel_for(nb, sim_band_chunk(nb, bands), bands, slope_blocks_range, &l);
+        memset(next, 0, (size_t)h * segs);
+        for (int c = 0; c < nb; c++)
+            slope_block_commit(w, h, segs, sim_slope_y(blocks[c]), sim_slope_x(blocks[c]), value,
+                               heights, next);
+        uint8_t *tmp = mark;
+        mark = next;
+        next = tmp;
+    }
+}
