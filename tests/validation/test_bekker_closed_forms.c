@@ -38,7 +38,8 @@
  *    cell creep one unit per tick while the slow wheel stood over it: Ding's
  *    wheel sank 8.00 mm (-12 %); rounded up (a static load now holds, see
  *    test_load_driven) it sinks 6.95 mm (-24 %), hence 25 % on sinkage
- *    (was 20 %). Grid and height quanta (5 mm cells,
+ *    (was 20 %); with Wong-Reece's rear region in the shear (model_bekker.c,
+ *    bekker_shear_share) 7.04 mm (-23 %). Grid and height quanta (5 mm cells,
  *    0.1 mm units) are ~1 % of z0. A model change that breaks pressure,
  *    patch width, yielding or the normal's direction moves these figures by
  *    far more than the margins.
