@@ -47,7 +47,7 @@
 #define DP_BOUND 0.40
 #define SINKAGE_BOUND 0.30
 
-/* The testbed run (sim_wheel_testbed: 5 mm cells, 0.05 m/s, 1 mm a tick). */
+/* The testbed run (sim_wheel_testbed: 5 mm cells, 0.05 m/s, 2.5 mm a tick). */
 static void run(double slip, double *dp, double *sinkage, double *torque)
 {
     sim_soil s;
