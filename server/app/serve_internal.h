@@ -134,16 +134,47 @@ int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err);
 void serve_sim_free(serve_sim *m);
 /* Sleeps ms milliseconds (nothing when ms <= 0). */
 void serve_sleep_ms(double ms);
-/* After each tick of a world's own sim thread: non-zero (with why) stops it. */
+/* After each of a world's ticks: non-zero (with why) ends it. */
 typedef int (*serve_sim_check_fn)(void *ctx, serve_sim *m, long tick, char *why, size_t cap);
-/* A world's fixed-rate tick loop on its own sim thread (a node's worlds, a
- * single daemon's created worlds), net's clients counted in its status:
- * until *stop (0), max_ticks (< 0: none; 0), a failed tick (-1, why) or
- * check says stop (1, why). A tick behind its time drops the backlog. */
-int serve_sim_loop(serve_sim *m, atomic_int *stop, long max_ticks, net_server *net,
-                   serve_sim_check_fn check, void *ctx, char *why, size_t cap);
+
+/* ---- the shared pool of sim workers (serve_ticker.c) ---- */
+typedef struct serve_ticker serve_ticker;
+typedef struct serve_tick_job serve_tick_job;
+/* On a worker once the job ended: rc 0 asked to (serve_ticker_end, max_ticks,
+ * the ticker stopping), -1 a tick failed, 1 check said stop (j->why says
+ * why). The world leaves its ports and is freed here (its GL context is
+ * current on this thread); the ticker does nothing with j after it. */
+typedef void (*serve_tick_end_fn)(serve_tick_job *j, int rc);
+/* One world on the pool: the owner fills the first fields (in its own
+ * struct, alive until end ran); the rest is the ticker's, under its lock. */
+struct serve_tick_job {
+    serve_sim *m;             /* started (serve_sim_start) and registered */
+    net_server *net;          /* its clients counted in its status (NULL: none) */
+    long max_ticks;           /* < 0: none */
+    serve_sim_check_fn check; /* NULL: none */
+    serve_tick_end_fn end;
+    void *ctx; /* check's and end's */
+    char why[256];
+    long tick;
+    double due_ms, period_ms;
+    int pinned; /* -1: any worker; else the one its GL context is current on */
+    int running, ending, rc;
+};
+/* Worker threads for a process: twice the cores, 4..32 (serve_ticker.c says why). */
+int serve_ticker_default_workers(void);
+/* NULL with err when no worker thread starts. */
+serve_ticker *serve_ticker_start(int workers, error_text *err);
+/* j ticks from now on at its scene's tick_hz, its ticks counted from 0. */
+int serve_ticker_add(serve_ticker *t, serve_tick_job *j, error_text *err);
+/* Asks j to end (end runs soon on a worker); nothing if it is ending already. */
+void serve_ticker_end(serve_ticker *t, serve_tick_job *j);
+/* Every job ended (each end run), the workers joined. NULL is fine. */
+void serve_ticker_stop(serve_ticker *t);
 
 /* ---- a single daemon's created worlds (serve_worlds.c) ---- */
+/* --max-worlds' ceiling: worlds a node ticks, or a daemon creates beside its
+ * default one (the HTTP, websocket and metrics tables hold one more). */
+#define SERVE_WORLDS_MAX 256
 typedef struct serve_worlds serve_worlds;
 /* After the daemon's ports are open: the worlds of DATA/worlds recovered and
  * started (each on its own sim thread), then POST/GET /v1/worlds and
@@ -154,6 +185,20 @@ serve_worlds *serve_worlds_start(const serve_options *o, const serve_sim *main_w
 void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */
 int serve_worlds_fresh(const char *data_dir, error_text *err);
+
+/* ---- the body of POST /v1/worlds, checked once for both (serve_worlds_body.c) ---- */
+/* {"error": why, "field": field}: the body of every refusal (malloc'd). */
+char *worlds_error_json(const char *field, const char *why);
+/* Counted (terrad_world_requests_total), logged, and *json set: returns code. */
+unsigned worlds_refuse(const char *op, unsigned code, const char *field, const char *why,
+                       char **json);
+/* The body's name and scene text (malloc'd; the scene parsed by the
+ * daemon's parser, made into nothing): 0, or the status with field (the
+ * refused one: "name", "scene", a NaN's key...) and why. default_name: a
+ * name refused with 409 (a single daemon's default world; NULL: none). */
+unsigned worlds_body_check(const char *body, size_t len, const char *scene_dir,
+                           const char *default_name, char *name, char **scene_text, char *field,
+                           size_t fcap, char *why, size_t cap);
 
 /* ---- cluster mode (serve_node.c, serve_cluster.c) ---- */
 
@@ -167,6 +212,12 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
                    volatile sig_atomic_t *hangup);
 
 /* ---- any node serves any world (serve_relay.c) ---- */
+/* A node's POST/GET /v1/worlds and DELETE /v1/worlds/NAME, through the
+ * registry and leases (serve_node_api.c); freed after http stopped. */
+typedef struct serve_node_api serve_node_api;
+serve_node_api *serve_node_api_start(cluster *cl, const serve_options *o, const char *node,
+                                     http_server *http);
+void serve_node_api_free(serve_node_api *a);
 typedef struct serve_relays serve_relays;
 /* Makes net reach other nodes over cl (net_server_set_remote), and http answer
  * for the worlds relayed here by asking their owners (http_server_set_forward).

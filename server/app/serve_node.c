@@ -3,21 +3,21 @@
  * (docs/cluster.md). The node connects to NATS, opens one HTTP and one
  * websocket port, and then, on its main thread, keeps taking worlds whose
  * lease it can take (--worlds, or every registered world), up to
- * --max-worlds. Each world it takes gets its own sim thread (world_main):
- * recover the world from JetStream, start its engine and service on that
- * thread (it owns the world's GL context and hub sim end), add it to the
- * HTTP and websocket servers, and run the fixed-rate tick loop — the same
- * serve_sim_step a single daemon runs — until the node stops or the world is
- * lost (a fenced commit, or another node holds its lease). A lost world's
- * clients are told and closed, its thread ends, and the node goes on with its
- * other worlds; a node with no world waits as a standby.
+ * --max-worlds. Each world it takes is opened on a short-lived thread of
+ * its own (world_main: recover the world from JetStream, start its engine
+ * and service, add it to the HTTP and websocket servers), then handed to the
+ * node's shared pool of sim workers (serve_ticker.c), which runs the same
+ * serve_sim_step a single daemon runs at the world's rate until the node
+ * stops or the world is lost (a fenced commit, or another node holds its
+ * lease). A lost world's end runs on a worker (world_end: its clients are
+ * told and closed, it is freed), and the node goes on with its other worlds;
+ * a node with no world waits as a standby.
  *
- * Why one thread per world rather than one loop over the worlds: a world's
- * tick (deformation, then a JetStream commit that waits for the replicas'
- * acknowledgement) does not hold up the others, each world keeps its own
- * tick rate and overrun count, and the hub's and the GL context's
- * one-owner-thread rule holds as on a single daemon. The cost is that the
- * worlds' threads share the cores without a common schedule.
+ * Why a pool rather than a thread per world: the worlds share the cores on
+ * one schedule (earliest due first, so one heavy world does not starve the
+ * others), and a world costs no thread while it ticks. The pool has more
+ * workers than cores, so a tick waiting on its JetStream commit does not
+ * hold the other worlds up.
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -29,7 +29,7 @@
 #include "app/serve_internal.h"
 #include "metrics/metrics.h"
 
-#define NODE_MAX_WORLDS 64
+#define NODE_MAX_WORLDS SERVE_WORLDS_MAX
 #define NODE_POLL_MS 250
 #define NODE_LIST_MS 1000.0  /* the registry is listed again after this */
 #define NODE_RETRY_MS 5000.0 /* a world that failed to open is tried again after this */
@@ -39,11 +39,14 @@ typedef struct serve_node serve_node;
 typedef struct node_world {
     serve_sim m;
     serve_node *node;
-    pthread_t thread;
-    atomic_int stop;       /* node → world: stop ticking (the node stops) */
-    atomic_int done;       /* world → node: the thread has ended */
+    pthread_t thread;      /* opens the world, then ends (joined by reap_worlds) */
+    serve_tick_job job;    /* on the node's pool once opened */
+    atomic_int opened;     /* world → node: the job is on the pool */
+    atomic_int done;       /* world → node: it has ended (freed by reap_worlds) */
+    int joined;            /* its opening thread was joined */
     atomic_int registered; /* served by the HTTP and websocket ports */
     int lost;              /* the world belongs to another node now */
+    int deleted;           /* removed from the registry: its clients are told so (4020) */
     double retried_ms;     /* serve_cluster_check's last retry of a lapsed lease */
     char why[256];         /* why it was lost, or failed to open */
 } node_world;
@@ -57,13 +60,17 @@ struct serve_node {
     http_status status; /* the node's: /readyz */
     http_server *http;
     net_server *net;
+    serve_ticker *ticker; /* the sim workers every world of the node ticks on */
     serve_relays *relays; /* the worlds other nodes tick, served here too */
+    serve_node_api *api;  /* POST/GET /v1/worlds, DELETE /v1/worlds/NAME */
     char **registered;    /* the registry as last listed (node_list_worlds) */
     int nregistered;
     double listed_ms;     /* when it was last listed (0: never) */
+    unsigned listings;    /* successful listings so far */
     pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
     node_world *worlds[NODE_MAX_WORLDS];
     int nworlds, max_worlds;
+    int stopping; /* node_stop: worlds end because the node does */
     char failed[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1]; /* not retried before failed_ms */
     double failed_ms[NODE_MAX_WORLDS];
 };
@@ -148,14 +155,20 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
 static void world_unregister(serve_node *n, node_world *nw)
 {
     serve_sim *m = &nw->m;
-    if (m->h)
+    if (m->h) {
+        char why[160];
+        snprintf(why, sizeof why, "world %s %s", m->name,
+                 nw->deleted ? "was deleted" : "stopped on this node (moved, or the node stops)");
         hub_close_reads(m->h);
+        hub_close_edits(m->h, why);
+    }
     if (!atomic_load(&nw->registered))
         return;
     atomic_store(&nw->registered, 0);
     serve_relays_drop(n->relays, m->name); /* its relayed clients' messages stop coming */
     http_server_remove_world(n->http, m->name);
-    if (net_server_remove_world(n->net, m->h) != 0)
+    if ((nw->deleted ? net_server_delete_world(n->net, m->h)
+                     : net_server_remove_world(n->net, m->h)) != 0)
         m->h = NULL; /* the net thread may still hold it: left to the exit */
     metrics_world_drop(m->metrics_slot);
 }
@@ -165,7 +178,17 @@ static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap
 {
     node_world *nw = ctx;
     if (serve_cluster_check(nw->node->cl, m, &nw->retried_ms, why, cap) != 0) {
-        nw->lost = 1;
+        /* a delete purges the log first, so the owner is usually fenced
+         * before its next listing shows the world gone: ask the registry */
+        char *scene = NULL;
+        error_text err = {{0}};
+        if (cluster_world_get(nw->node->cl, m->name, &scene, &err) == 0) {
+            log_info("cluster: world %s was deleted from the registry: it stops here", m->name);
+            nw->deleted = 1;
+        } else {
+            nw->lost = 1;
+        }
+        free(scene);
         return 1;
     }
     if (tick % 8 == 0) /* /readyz follows the store at once, whatever the node loop waits on */
@@ -173,31 +196,51 @@ static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap
     return 0;
 }
 
-/* One world's sim thread: open, serve, tick, leave. */
+/* The job's end, on a worker: off the ports, freed, its lease let go. */
+static void world_end(serve_tick_job *j, int rc)
+{
+    node_world *nw = j->ctx;
+    serve_node *n = nw->node;
+    serve_sim *m = &nw->m;
+    if (rc != 0)
+        snprintf(nw->why, sizeof nw->why, "%s", j->why);
+    world_unregister(n, nw);
+    log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
+             (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
+    serve_sim_free(m);
+    if (!nw->lost && !nw->deleted) /* another node may take it at once */
+        cluster_lease_release(n->cl, m->name);
+    node_refresh_status(n);
+    atomic_store(&nw->done, 1);
+}
+
+/* One world's opening thread: open, serve, hand to the pool (or leave). */
 static void *world_main(void *arg)
 {
     node_world *nw = arg;
     serve_node *n = nw->node;
     serve_sim *m = &nw->m;
     error_text err = {{0}};
-    if (serve_cluster_open_world(n->cl, m, n->o, &err) != 0) {
-        snprintf(nw->why, sizeof nw->why, "%s", err.message);
-    } else {
+    if (serve_cluster_open_world(n->cl, m, n->o, &err) == 0) {
         serve_sim_status_init(m);
+        nw->job = (serve_tick_job){.m = m,
+                                   .net = n->net,
+                                   .max_ticks = n->o->max_ticks,
+                                   .check = world_check,
+                                   .end = world_end,
+                                   .ctx = nw};
         if (!(m->h = hub_create()))
             error_set(&err, "out of memory");
-        else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0)
-            serve_sim_loop(m, &nw->stop, n->o->max_ticks, n->net, world_check, nw, nw->why,
-                           sizeof nw->why);
-        if (err.message[0])
-            snprintf(nw->why, sizeof nw->why, "%s", err.message);
+        else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0 &&
+                 serve_ticker_add(n->ticker, &nw->job, &err) == 0) {
+            atomic_store(&nw->opened, 1);
+            return NULL;
+        }
     }
+    snprintf(nw->why, sizeof nw->why, "%s", err.message);
     world_unregister(n, nw);
-    if (m->svc)
-        log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
-                 (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
     serve_sim_free(m);
-    if (!nw->lost) /* another node may take it at once */
+    if (!nw->lost && !nw->deleted) /* another node may take it at once */
         cluster_lease_release(n->cl, m->name);
     node_refresh_status(n);
     atomic_store(&nw->done, 1);
@@ -226,19 +269,39 @@ static void note_failed(serve_node *n, const char *name)
     n->failed_ms[at] = time_now_ms() + NODE_RETRY_MS;
 }
 
+/* A deleted world leaves the last listing at once: not taken again from it
+ * (and its world_deleted event goes now: the next listing will not differ). */
+static void forget_registered(serve_node *n, const char *name)
+{
+    for (int i = 0; i < n->nregistered; i++)
+        if (strcmp(n->registered[i], name) == 0) {
+            net_server_event(n->net, "world_deleted", name);
+            free(n->registered[i]);
+            memmove(&n->registered[i], &n->registered[i + 1],
+                    (size_t)(n->nregistered - i - 1) * sizeof *n->registered);
+            n->nregistered--;
+            return;
+        }
+}
+
 /* Joins the worlds whose threads ended: lost, failed or stopped. */
 static void reap_worlds(serve_node *n)
 {
     for (int i = 0; i < n->nworlds; i++) {
         node_world *nw = n->worlds[i];
+        if (!nw->joined && (atomic_load(&nw->opened) || atomic_load(&nw->done))) {
+            pthread_join(nw->thread, NULL); /* its opening thread has ended */
+            nw->joined = 1;
+        }
         if (!atomic_load(&nw->done))
             continue;
-        pthread_join(nw->thread, NULL);
+        if (nw->deleted)
+            forget_registered(n, nw->m.name);
         if (nw->lost)
             log_warn("cluster: this node no longer owns world %s (%s): it stopped ticking it; "
                      "its clients were told to connect again",
                      nw->m.name, nw->why);
-        else if (nw->why[0] && !atomic_load(&nw->stop)) {
+        else if (nw->why[0] && !n->stopping && !nw->deleted) {
             log_error("cluster: world %s: %s (tried again in %.0f s)", nw->m.name, nw->why,
                       NODE_RETRY_MS / 1000);
             note_failed(n, nw->m.name);
@@ -259,6 +322,27 @@ static void node_forget_worlds(serve_node *n)
     free(n->registered);
     n->registered = NULL;
     n->nregistered = 0;
+}
+
+static int named(char *const *names, int count, const char *name)
+{
+    for (int i = 0; i < count; i++)
+        if (strcmp(names[i], name) == 0)
+            return 1;
+    return 0;
+}
+
+/* world_created / world_deleted for this node's subscribed admins: what a
+ * new listing has that the last had not, and the reverse. Every node lists,
+ * so the admins of every node hear of a world made or ended on any of them. */
+static void tell_changes(serve_node *n, char *const *names, int count)
+{
+    for (int i = 0; i < count; i++)
+        if (!named(n->registered, n->nregistered, names[i]))
+            net_server_event(n->net, "world_created", names[i]);
+    for (int i = 0; i < n->nregistered; i++)
+        if (!named(names, count, n->registered[i]))
+            net_server_event(n->net, "world_deleted", n->registered[i]);
 }
 
 /* The registry, listed again once NODE_LIST_MS has passed. A listing is an
@@ -282,8 +366,11 @@ static int node_list_worlds(serve_node *n, error_text *err)
             n->listed_ms = time_now_ms();
         return first ? -1 : 0;
     }
+    if (!first)
+        tell_changes(n, names, count);
     node_forget_worlds(n);
     n->registered = names;
+    n->listings++;
     n->nregistered = count;
     n->listed_ms = time_now_ms();
     return 0;
@@ -351,7 +438,8 @@ static int node_open_ports(serve_node *n, error_text *err)
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
-    if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name))) {
+    if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name)) ||
+        !(n->api = serve_node_api_start(n->cl, o, n->name, n->http))) {
         error_set(err, "out of memory");
         return -1;
     }
@@ -376,6 +464,31 @@ static void refresh_relays(serve_node *n)
     serve_relays_refresh(n->relays, n->registered, n->nregistered, busy, count);
 }
 
+/* After a new listing: each world this node ticks that the registry no
+ * longer names (checked once more by name: a listing is a snapshot) was
+ * deleted (DELETE /v1/worlds/NAME on any node, or `terrad world remove`):
+ * it stops, and its clients are closed with 4020 "world deleted". */
+static void stop_deleted(serve_node *n)
+{
+    for (int i = 0; i < n->nworlds; i++) {
+        node_world *nw = n->worlds[i];
+        int listed = 0;
+        for (int k = 0; k < n->nregistered && !listed; k++)
+            listed = strcmp(n->registered[k], nw->m.name) == 0;
+        if (listed || nw->deleted || !atomic_load(&nw->opened)) /* opening: the next listing */
+            continue;
+        char *scene = NULL;
+        error_text err = {{0}};
+        int found = cluster_world_get(n->cl, nw->m.name, &scene, &err);
+        free(scene);
+        if (found != 0)
+            continue;
+        log_info("cluster: world %s was deleted from the registry: it stops here", nw->m.name);
+        nw->deleted = 1; /* read by its end, after the ticker's lock */
+        serve_ticker_end(n->ticker, &nw->job);
+    }
+}
+
 /* The node's life after its ports are open: take, tick, reap, until stop. */
 static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_atomic_t *hangup)
 {
@@ -385,6 +498,7 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
         reap_worlds(n);
         error_text err = {{0}};
         double listed_ms = n->listed_ms;
+        unsigned listings = n->listings;
         int took = 0;
         if ((cluster_connected(n->cl) || first) && node_list_worlds(n, &err) != 0)
             took = -1;
@@ -413,6 +527,8 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
         }
         if (n->listed_ms != listed_ms) /* listed again (or tried): the relays follow */
             refresh_relays(n);
+        if (n->listings != listings)
+            stop_deleted(n);
         if (took != 1) /* took one: look for the next at once */
             serve_sleep_ms(NODE_POLL_MS);
     }
@@ -421,17 +537,21 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
 
 static void node_stop(serve_node *n)
 {
-    for (int i = 0; i < n->nworlds; i++)
-        atomic_store(&n->worlds[i]->stop, 1);
+    n->stopping = 1;
     while (n->nworlds > 0) {
+        for (int i = 0; i < n->nworlds; i++)
+            if (atomic_load(&n->worlds[i]->opened)) /* else still opening: asked next round */
+                serve_ticker_end(n->ticker, &n->worlds[i]->job);
         reap_worlds(n);
         if (n->nworlds)
             serve_sleep_ms(10);
     }
+    serve_ticker_stop(n->ticker);
     serve_relays_stop(n->relays);
     node_forget_worlds(n);
     http_server_stop(n->probe);
     http_server_stop(n->http); /* first: its watchdog reads the net server */
+    serve_node_api_free(n->api);
     net_server_stop(n->net);
     cluster_close(n->cl);
 }
@@ -458,7 +578,9 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
     error_text err = {{0}};
     cluster_config cc = {.urls = o->cluster_urls, .node = n->name};
     int rc = 1;
-    if (!(n->cl = cluster_connect(&cc, &err)) || node_open_ports(n, &err) != 0)
+    if (!(n->cl = cluster_connect(&cc, &err)) ||
+        !(n->ticker = serve_ticker_start(serve_ticker_default_workers(), &err)) ||
+        node_open_ports(n, &err) != 0)
         log_error("%s", err.message);
     else
         rc = node_loop(n, stop, hangup);
