@@ -980,6 +980,14 @@ window.terrad = {
   // the last frame drew: {frame, seq, ackedSeq, lower}
   get shown() { return app.mirror ? Int32Array.from(prediction.heights(app.mirror)) : null; },
   get drawn() { return { ...app.drawn }; },
+  // the height (units) the last frame drew at world point (x, y) metres; null outside the window
+  drawnAt(x, y) {
+    const m = app.mirror, w = app.world;
+    if (!m || !w) return null;
+    const i = Math.floor(x / w.cell_size_m) - m.x, j = Math.floor(y / w.cell_size_m) - m.y;
+    if (i < 0 || j < 0 || i >= m.w || j >= m.h) return null;
+    return (app.uploaded || m.heights)[j * m.w + i];
+  },
   // the prediction: {enabled, available, reason, active, window, pending, predicted,
   // reconciled, replayed, exact, skipped, onTime, lastDiffering} (predict.mjs's counters)
   get prediction() { return prediction.stats(); },
