@@ -439,6 +439,7 @@ export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
+/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string}} [opts] */
 export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref } = {}) {
   const m = { type: 'collider_create', shape, material, feedback, ...dims };
   if (pose) m.pose = pose;
@@ -497,6 +498,7 @@ async function worldRequest(base, method, path, body, token) {
 
 // A world from scene (a scene object, as in a scene file) or sceneName (a scene of the daemon's
 // --scene-dir); resolves to its entry once it serves (hello(token, client, name) joins it).
+/** @param {string} base @param {string} name @param {{scene?: object, sceneName?: string, token?: string}} [opts] */
 export function createWorld(base, name, { scene, sceneName, token = '' } = {}) {
   const body = { name };
   if (scene !== undefined) body.scene = scene;

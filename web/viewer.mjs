@@ -896,8 +896,10 @@ function draw() {
 // are drawn lower than the mirror holds (the predicted rut the server has not sent yet).
 function noteDrawn(m, hs) {
   let lower = 0;
-  if (hs !== m.heights && hs.length === m.heights.length)
-    for (let i = 0; i < hs.length; i++) if (hs[i] < m.heights[i]) lower++;
+  const b = prediction.box(); // only there may the drawn heights differ from the mirror's
+  if (b && hs !== m.heights && hs.length === m.heights.length)
+    for (let j = b.y0; j < b.y1; j++)
+      for (let k = j * m.w + b.x0, e = j * m.w + b.x1; k < e; k++) if (hs[k] < m.heights[k]) lower++;
   app.drawn = { frame: app.framesDrawn + 1, seq: app.seq - 1, ackedSeq: app.ackedSeq, lower };
 }
 

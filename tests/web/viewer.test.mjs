@@ -36,6 +36,10 @@ before(async () => {
   page.on('pageerror', (e) => console.error('page error:', e.message));
   page.on('response', (r) => { if (r.status() >= 400) failedResponses.push(`${r.status()} ${r.url()}`); });
   await page.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
+  // These tests are about the page's mirror, drawing and driving; its prediction has its own
+  // (viewer_predict.mjs). Off, a slow frame's many batches cost what they always did.
+  await until('the predict toggle', () => page.evaluate(() => !document.getElementById('predict').disabled), 120000);
+  await page.click('#predict');
 });
 
 after(async () => {
