@@ -437,6 +437,9 @@ export const hello = (token = '', client = 'terrad-web', world = '') =>
 export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>
   withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}) }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
+// admin: {type: 'event', event, world} for each world made or ended (PROTOCOL.md subscribe_events)
+export const subscribeEvents = (events = ['world_created', 'world_deleted'], ref) =>
+  withRef({ type: 'subscribe_events', events }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
 /** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string}} [opts] */

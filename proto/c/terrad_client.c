@@ -18,6 +18,7 @@
 #endif
 
 #include "terrad_client.h"
+#include "terrad_client_internal.h"
 
 #include <cjson/cJSON.h>
 #include <libwebsockets.h>
@@ -86,6 +87,10 @@ struct terrad_client {
     int32_t *scratch;
     size_t scratch_cells;
     terrad_codec *codec;
+    char world_name[72]; /* the world message's name */
+    client_own *own;     /* the colliders this client created */
+    size_t nown, own_cap;
+    terrad_prediction *predictions; /* terrad_client_predict.c */
 };
 
 /* ---- small helpers ------------------------------------------------------- */
@@ -225,6 +230,9 @@ static void on_world(terrad_client *c, const cJSON *m)
     w->max_poses_per_batch = json_int(l, "max_poses_per_batch", 64);
     w->max_colliders = json_int(l, "max_colliders", 64);
     w->max_subscriptions = json_int(l, "max_subscriptions", 16);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "world");
+    snprintf(c->world_name, sizeof c->world_name, "%s",
+             cJSON_IsString(name) ? name->valuestring : "");
     c->got_world = 1;
 }
 
@@ -405,6 +413,7 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         c->stats.acks++;
         c->stats.ack_tick = tick;
         c->stats.ack_seq = seq;
+        predict_acked(c, tick, seq);
         break;
     }
     case TERRAD_MSG_PING:
@@ -569,7 +578,7 @@ static int never(const terrad_client *c)
 
 /* ---- public -------------------------------------------------------------- */
 
-terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap)
+static terrad_client *connect_to(terrad_client_desc d, const char *world, char *err, size_t err_cap)
 {
     if (err && err_cap)
         err[0] = 0;
@@ -632,6 +641,8 @@ terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err
     cJSON_AddNumberToObject(h, "protocol", TERRAD_PROTO_VERSION);
     cJSON_AddStringToObject(h, "token", d.token ? d.token : "");
     cJSON_AddStringToObject(h, "client", d.name ? d.name : "terrad-c");
+    if (world && world[0])
+        cJSON_AddStringToObject(h, "world", world);
     char *text = cJSON_PrintUnformatted(h);
     cJSON_Delete(h);
     int rc = text ? enqueue(c, text, strlen(text), 0) : TERRAD_E_NO_MEMORY;
@@ -666,6 +677,27 @@ fail:
     return NULL;
 }
 
+terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap)
+{
+    return connect_to(d, NULL, err, err_cap);
+}
+
+terrad_client *terrad_client_connect_world(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap)
+{
+    if (world && strlen(world) > 64) {
+        if (err && err_cap)
+            snprintf(err, err_cap, "world: a name of %zu bytes (at most 64)", strlen(world));
+        return NULL;
+    }
+    return connect_to(d, world, err, err_cap);
+}
+
+const char *terrad_client_world_name(const terrad_client *c)
+{
+    return c->world_name;
+}
+
 void terrad_client_close(terrad_client *c)
 {
     if (!c)
@@ -678,6 +710,8 @@ void terrad_client_close(terrad_client *c)
     }
     if (c->ctx)
         lws_context_destroy(c->ctx);
+    predict_free_all(c);
+    free(c->own);
     free_queue(c);
     for (size_t i = 0; i < c->nsubs; i++) {
         free(c->subs[i].heights);
@@ -750,6 +784,41 @@ static int finite_positive(double v)
     return isfinite(v) && v > 0;
 }
 
+/* The colliders this client made, for its predictions (terrad_client_predict.c). */
+static void remember_own(terrad_client *c, uint32_t id, const terrad_collider_desc *d)
+{
+    if (grow((void **)&c->own, &c->own_cap, c->nown + 1, sizeof *c->own))
+        return; /* out of memory: a prediction will not know this collider */
+    client_own *o = &c->own[c->nown++];
+    *o = (client_own){.id = id,
+                      .shape = d->shape,
+                      .radius = d->radius,
+                      .half_length = d->half_length,
+                      .width = d->width,
+                      .default_material = !d->material || strcmp(d->material, "default") == 0};
+    memcpy(o->half_extents, d->half_extents, sizeof o->half_extents);
+    predict_collider(c, o, 1);
+}
+
+const client_own *client_own_colliders(const terrad_client *c, size_t *n)
+{
+    *n = c->nown;
+    return c->own;
+}
+
+terrad_prediction **client_predictions(terrad_client *c)
+{
+    return &c->predictions;
+}
+
+void client_set_error(terrad_client *c, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    set_err_at(c, TERRAD_LOG_ERROR, fmt, ap);
+    va_end(ap);
+}
+
 int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out)
 {
     cJSON *m = cJSON_CreateObject();
@@ -803,6 +872,7 @@ int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint
             return TERRAD_CLIENT_E_PROTOCOL;
         if (id_out)
             *id_out = (uint32_t)id;
+        remember_own(c, (uint32_t)id, &d);
     }
     return rc;
 }
@@ -814,7 +884,15 @@ int terrad_client_delete_collider(terrad_client *c, uint32_t id)
         return TERRAD_E_NO_MEMORY;
     cJSON_AddStringToObject(m, "type", "collider_delete");
     cJSON_AddNumberToObject(m, "id", id);
-    return request(c, m, NULL);
+    int rc = request(c, m, NULL);
+    for (size_t i = 0; rc == 0 && i < c->nown; i++)
+        if (c->own[i].id == id) {
+            predict_collider(c, &c->own[i], 0);
+            memmove(&c->own[i], &c->own[i + 1], (c->nown - i - 1) * sizeof *c->own);
+            c->nown--;
+            break;
+        }
+    return rc;
 }
 
 int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t count,
@@ -840,6 +918,7 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
     c->seq = seq;
     if (seq_out)
         *seq_out = seq;
+    predict_sent(c, seq, poses, count); /* queued, not sent: the rut before the bytes leave */
     flush(c);
     return 0;
 }

@@ -206,6 +206,71 @@ int terrad_client_force(const terrad_client *c, uint32_t collider, terrad_force 
  * connection is closed. */
 int terrad_client_poll(terrad_client *c, int timeout_ms);
 
+/* ---- added in 0.3: new calls only, libterrad-client.so.1's ABI is unchanged ---- */
+
+/* terrad_client_connect, with a hello naming the world to join (PROTOCOL.md
+ * "hello"): a world created by POST /v1/worlds, the default world's scene name,
+ * or, on a cluster, any registered world; NULL or "" is the default world. A
+ * name the server does not serve fails (NULL, err names "world" and the worlds
+ * it serves); a name longer than 64 bytes is refused before connecting. */
+terrad_client *terrad_client_connect_world(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap);
+/* The world message's `world`: the name of the world joined ("" when it
+ * carried none: a single daemon's default world). */
+const char *terrad_client_world_name(const terrad_client *c);
+
+/*
+ * Prediction (docs/engines.md, "Prediction"): the client runs the daemon's own
+ * deformation code (libterrad-twin) on a subscription's window, so this
+ * client's own colliders press it in the call that sends their poses, and
+ * every ACK reconciles it exactly with the server's heights. The wire is the
+ * same with it on or off.
+ *
+ *   terrad_client_subscribe(c, x, y, w, h, &sid);  ... poll until mirror_complete ...
+ *   terrad_prediction *p;
+ *   terrad_client_predict(c, sid, "model=persson-ssbo margin_cells=4 terrain.height_m=0.4", &p);
+ *   terrad_client_send_poses(c, poses, n, &seq);   // the twin ticks before the bytes leave
+ *   terrad_prediction_heights(p);                  // w * h, the own rut already in it
+ *
+ * config: the world's parameters as "key=value" pairs separated by spaces,
+ * tabs, commas or semicolons, under terrad_twin.h's keys (model, metric,
+ * margin_cells, terrain.kind, terrain.*, the material's compression, ...);
+ * a value that reads whole as a number is numeric, any other is a name.
+ * width, height, cell_size_m, units_per_m and tick_hz come from the world
+ * message unless given. The subscription's snapshot must be complete.
+ * Returns 0, or TERRAD_E_BAD_VALUE / TERRAD_E_NO_MEMORY with
+ * terrad_client_last_error naming the field ("sid", "config", or the key).
+ *
+ * Each terrad_client_send_poses is one tick of the twin with this client's own
+ * colliders (created by this client, default material) at their new poses;
+ * each ACK of tick t (batch seq) replays the server's ticks since the previous
+ * ACK from that ACK's heights with the poses the ACKs say were used, counts
+ * the cells differing from the mirror (0 when nothing else touched the
+ * window), resets the twin to the mirror, puts each own collider where tick t
+ * left it and applies the batches sent after seq again.
+ */
+typedef struct terrad_prediction terrad_prediction;
+
+typedef struct terrad_prediction_stats {
+    uint64_t predicted;  /* pose batches ticked locally */
+    uint64_t reconciled; /* ACKs taken */
+    uint64_t replayed;   /* ACKs whose replay was compared with the server's heights */
+    uint64_t exact;      /* of those, with 0 cells differing */
+    uint64_t skipped;    /* ACKs not compared (resyncing, a long gap, batches spread over a gap) */
+    uint64_t on_time;    /* ACKs whose batch's prediction already was the server's heights */
+    uint64_t last_differing; /* cells of the last comparison */
+    uint64_t pending;        /* batches sent and not acknowledged yet */
+} terrad_prediction_stats;
+
+int terrad_client_predict(terrad_client *c, uint32_t sid, const char *config,
+                          terrad_prediction **out);
+/* The predicted heights of the subscription's window (w * h, row-major, as
+ * the mirror's), valid until the next call on the client. */
+const int32_t *terrad_prediction_heights(const terrad_prediction *p);
+const terrad_prediction_stats *terrad_prediction_get_stats(const terrad_prediction *p);
+/* Ends a prediction (terrad_client_close ends those left). */
+void terrad_prediction_stop(terrad_prediction *p);
+
 /* The connection's socket descriptor (-1 once closed), for a program that
  * drives many clients from one thread: wait with poll() on every client's
  * descriptor, then call terrad_client_poll(c, 0) on those that are ready. */

@@ -155,6 +155,20 @@ void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */
 int serve_worlds_fresh(const char *data_dir, error_text *err);
 
+/* ---- the body of POST /v1/worlds, checked once for both (serve_worlds_body.c) ---- */
+/* {"error": why, "field": field}: the body of every refusal (malloc'd). */
+char *worlds_error_json(const char *field, const char *why);
+/* Counted (terrad_world_requests_total), logged, and *json set: returns code. */
+unsigned worlds_refuse(const char *op, unsigned code, const char *field, const char *why,
+                       char **json);
+/* The body's name and scene text (malloc'd; the scene parsed by the
+ * daemon's parser, made into nothing): 0, or the status with field (the
+ * refused one: "name", "scene", a NaN's key...) and why. default_name: a
+ * name refused with 409 (a single daemon's default world; NULL: none). */
+unsigned worlds_body_check(const char *body, size_t len, const char *scene_dir,
+                           const char *default_name, char *name, char **scene_text, char *field,
+                           size_t fcap, char *why, size_t cap);
+
 /* ---- cluster mode (serve_node.c, serve_cluster.c) ---- */
 
 /*
@@ -167,6 +181,12 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
                    volatile sig_atomic_t *hangup);
 
 /* ---- any node serves any world (serve_relay.c) ---- */
+/* A node's POST/GET /v1/worlds and DELETE /v1/worlds/NAME, through the
+ * registry and leases (serve_node_api.c); freed after http stopped. */
+typedef struct serve_node_api serve_node_api;
+serve_node_api *serve_node_api_start(cluster *cl, const serve_options *o, const char *node,
+                                     http_server *http);
+void serve_node_api_free(serve_node_api *a);
 typedef struct serve_relays serve_relays;
 /* Makes net reach other nodes over cl (net_server_set_remote), and http answer
  * for the worlds relayed here by asking their owners (http_server_set_forward).

@@ -44,6 +44,7 @@ typedef struct node_world {
     atomic_int done;       /* world → node: the thread has ended */
     atomic_int registered; /* served by the HTTP and websocket ports */
     int lost;              /* the world belongs to another node now */
+    int deleted;           /* removed from the registry: its clients are told so (4020) */
     double retried_ms;     /* serve_cluster_check's last retry of a lapsed lease */
     char why[256];         /* why it was lost, or failed to open */
 } node_world;
@@ -58,9 +59,11 @@ struct serve_node {
     http_server *http;
     net_server *net;
     serve_relays *relays; /* the worlds other nodes tick, served here too */
+    serve_node_api *api;  /* POST/GET /v1/worlds, DELETE /v1/worlds/NAME */
     char **registered;    /* the registry as last listed (node_list_worlds) */
     int nregistered;
     double listed_ms;     /* when it was last listed (0: never) */
+    unsigned listings;    /* successful listings so far */
     pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
     node_world *worlds[NODE_MAX_WORLDS];
     int nworlds, max_worlds;
@@ -155,7 +158,8 @@ static void world_unregister(serve_node *n, node_world *nw)
     atomic_store(&nw->registered, 0);
     serve_relays_drop(n->relays, m->name); /* its relayed clients' messages stop coming */
     http_server_remove_world(n->http, m->name);
-    if (net_server_remove_world(n->net, m->h) != 0)
+    if ((nw->deleted ? net_server_delete_world(n->net, m->h)
+                     : net_server_remove_world(n->net, m->h)) != 0)
         m->h = NULL; /* the net thread may still hold it: left to the exit */
     metrics_world_drop(m->metrics_slot);
 }
@@ -165,7 +169,17 @@ static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap
 {
     node_world *nw = ctx;
     if (serve_cluster_check(nw->node->cl, m, &nw->retried_ms, why, cap) != 0) {
-        nw->lost = 1;
+        /* a delete purges the log first, so the owner is usually fenced
+         * before its next listing shows the world gone: ask the registry */
+        char *scene = NULL;
+        error_text err = {{0}};
+        if (cluster_world_get(nw->node->cl, m->name, &scene, &err) == 0) {
+            log_info("cluster: world %s was deleted from the registry: it stops here", m->name);
+            nw->deleted = 1;
+        } else {
+            nw->lost = 1;
+        }
+        free(scene);
         return 1;
     }
     if (tick % 8 == 0) /* /readyz follows the store at once, whatever the node loop waits on */
@@ -197,7 +211,7 @@ static void *world_main(void *arg)
         log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
                  (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
     serve_sim_free(m);
-    if (!nw->lost) /* another node may take it at once */
+    if (!nw->lost && !nw->deleted) /* another node may take it at once */
         cluster_lease_release(n->cl, m->name);
     node_refresh_status(n);
     atomic_store(&nw->done, 1);
@@ -226,6 +240,21 @@ static void note_failed(serve_node *n, const char *name)
     n->failed_ms[at] = time_now_ms() + NODE_RETRY_MS;
 }
 
+/* A deleted world leaves the last listing at once: not taken again from it
+ * (and its world_deleted event goes now: the next listing will not differ). */
+static void forget_registered(serve_node *n, const char *name)
+{
+    for (int i = 0; i < n->nregistered; i++)
+        if (strcmp(n->registered[i], name) == 0) {
+            net_server_event(n->net, "world_deleted", name);
+            free(n->registered[i]);
+            memmove(&n->registered[i], &n->registered[i + 1],
+                    (size_t)(n->nregistered - i - 1) * sizeof *n->registered);
+            n->nregistered--;
+            return;
+        }
+}
+
 /* Joins the worlds whose threads ended: lost, failed or stopped. */
 static void reap_worlds(serve_node *n)
 {
@@ -234,11 +263,13 @@ static void reap_worlds(serve_node *n)
         if (!atomic_load(&nw->done))
             continue;
         pthread_join(nw->thread, NULL);
+        if (nw->deleted)
+            forget_registered(n, nw->m.name);
         if (nw->lost)
             log_warn("cluster: this node no longer owns world %s (%s): it stopped ticking it; "
                      "its clients were told to connect again",
                      nw->m.name, nw->why);
-        else if (nw->why[0] && !atomic_load(&nw->stop)) {
+        else if (nw->why[0] && !atomic_load(&nw->stop) && !nw->deleted) {
             log_error("cluster: world %s: %s (tried again in %.0f s)", nw->m.name, nw->why,
                       NODE_RETRY_MS / 1000);
             note_failed(n, nw->m.name);
@@ -259,6 +290,27 @@ static void node_forget_worlds(serve_node *n)
     free(n->registered);
     n->registered = NULL;
     n->nregistered = 0;
+}
+
+static int named(char *const *names, int count, const char *name)
+{
+    for (int i = 0; i < count; i++)
+        if (strcmp(names[i], name) == 0)
+            return 1;
+    return 0;
+}
+
+/* world_created / world_deleted for this node's subscribed admins: what a
+ * new listing has that the last had not, and the reverse. Every node lists,
+ * so the admins of every node hear of a world made or ended on any of them. */
+static void tell_changes(serve_node *n, char *const *names, int count)
+{
+    for (int i = 0; i < count; i++)
+        if (!named(n->registered, n->nregistered, names[i]))
+            net_server_event(n->net, "world_created", names[i]);
+    for (int i = 0; i < n->nregistered; i++)
+        if (!named(names, count, n->registered[i]))
+            net_server_event(n->net, "world_deleted", n->registered[i]);
 }
 
 /* The registry, listed again once NODE_LIST_MS has passed. A listing is an
@@ -282,8 +334,11 @@ static int node_list_worlds(serve_node *n, error_text *err)
             n->listed_ms = time_now_ms();
         return first ? -1 : 0;
     }
+    if (!first)
+        tell_changes(n, names, count);
     node_forget_worlds(n);
     n->registered = names;
+    n->listings++;
     n->nregistered = count;
     n->listed_ms = time_now_ms();
     return 0;
@@ -351,7 +406,8 @@ static int node_open_ports(serve_node *n, error_text *err)
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
-    if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name))) {
+    if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name)) ||
+        !(n->api = serve_node_api_start(n->cl, o, n->name, n->http))) {
         error_set(err, "out of memory");
         return -1;
     }
@@ -376,6 +432,31 @@ static void refresh_relays(serve_node *n)
     serve_relays_refresh(n->relays, n->registered, n->nregistered, busy, count);
 }
 
+/* After a new listing: each world this node ticks that the registry no
+ * longer names (checked once more by name: a listing is a snapshot) was
+ * deleted (DELETE /v1/worlds/NAME on any node, or `terrad world remove`):
+ * it stops, and its clients are closed with 4020 "world deleted". */
+static void stop_deleted(serve_node *n)
+{
+    for (int i = 0; i < n->nworlds; i++) {
+        node_world *nw = n->worlds[i];
+        int listed = 0;
+        for (int k = 0; k < n->nregistered && !listed; k++)
+            listed = strcmp(n->registered[k], nw->m.name) == 0;
+        if (listed || nw->deleted || !atomic_load(&nw->registered))
+            continue;
+        char *scene = NULL;
+        error_text err = {{0}};
+        int found = cluster_world_get(n->cl, nw->m.name, &scene, &err);
+        free(scene);
+        if (found != 0)
+            continue;
+        log_info("cluster: world %s was deleted from the registry: it stops here", nw->m.name);
+        nw->deleted = 1;
+        atomic_store(&nw->stop, 1);
+    }
+}
+
 /* The node's life after its ports are open: take, tick, reap, until stop. */
 static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_atomic_t *hangup)
 {
@@ -385,6 +466,7 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
         reap_worlds(n);
         error_text err = {{0}};
         double listed_ms = n->listed_ms;
+        unsigned listings = n->listings;
         int took = 0;
         if ((cluster_connected(n->cl) || first) && node_list_worlds(n, &err) != 0)
             took = -1;
@@ -413,6 +495,8 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
         }
         if (n->listed_ms != listed_ms) /* listed again (or tried): the relays follow */
             refresh_relays(n);
+        if (n->listings != listings)
+            stop_deleted(n);
         if (took != 1) /* took one: look for the next at once */
             serve_sleep_ms(NODE_POLL_MS);
     }
@@ -432,6 +516,7 @@ static void node_stop(serve_node *n)
     node_forget_worlds(n);
     http_server_stop(n->probe);
     http_server_stop(n->http); /* first: its watchdog reads the net server */
+    serve_node_api_free(n->api);
     net_server_stop(n->net);
     cluster_close(n->cl);
 }

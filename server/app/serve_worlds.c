@@ -40,7 +40,7 @@
 #define WORLDS_MAX 63 /* the websocket server's 64 world states less the default's */
 #define WORLDS_DEFAULT_MAX 16
 #define WORLD_START_WAIT_MS 60000.0 /* a scene's base terrain is made before it serves */
-#define SCENE_MAX_BYTES (1 << 20)
+#define SCENE_MAX_BYTES (1 << 20)   /* as serve_worlds_body.c's */
 #define PATH_CAP 1200
 
 typedef enum { LW_STARTING, LW_RUNNING, LW_FAILED, LW_ENDED } lw_state;
@@ -93,26 +93,6 @@ static void leave(serve_worlds *ws)
     ws->calls--;
     pthread_cond_broadcast(&ws->cond);
     pthread_mutex_unlock(&ws->lock);
-}
-
-/* {"error": why, "field": field}: the body of every refusal. */
-static char *error_json(const char *field, const char *why)
-{
-    cJSON *o = cJSON_CreateObject();
-    cJSON_AddStringToObject(o, "error", why);
-    cJSON_AddStringToObject(o, "field", field);
-    char *text = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
-    return text;
-}
-
-static unsigned refuse(const char *op, unsigned code, const char *field, const char *why,
-                       char **json)
-{
-    metrics_count_world_request(op, 0);
-    log_info("worlds: %s refused (%u): %s", op, code, why);
-    *json = error_json(field, why);
-    return code;
 }
 
 /* One world's entry of GET /v1/worlds, from its status block. */
@@ -360,135 +340,18 @@ static int start_world(serve_worlds *ws, local_world *lw, char *why, size_t cap)
 
 /* ---- POST /v1/worlds ---- */
 
-/* Where cJSON stopped in a body that is not JSON, named by the key before it
- * (a NaN or Infinity, which JSON has no literal for, stops it right there). */
-static void parse_failure(const char *body, size_t len, char *why, size_t cap)
-{
-    const char *at = cJSON_GetErrorPtr();
-    size_t off = at && at >= body && at <= body + len ? (size_t)(at - body) : len;
-    char key[64] = "";
-    for (size_t i = off; i > 0 && !key[0]; i--) {
-        if (body[i - 1] != ':')
-            continue;
-        size_t e = i - 1;
-        while (e > 0 && body[e - 1] == ' ')
-            e--;
-        if (e == 0 || body[e - 1] != '"')
-            break;
-        size_t b = e - 1;
-        while (b > 0 && body[b - 1] != '"')
-            b--;
-        snprintf(key, sizeof key, "%.*s", (int)(e - 1 - b < 63 ? e - 1 - b : 63), body + b);
-    }
-    snprintf(why, cap,
-             "body: not JSON at byte %zu%s%s%s (NaN and Infinity are not JSON numbers; one "
-             "object: {\"name\": ..., \"scene\": {...}} or {\"name\": ..., \"scene_name\": ...})",
-             off, key[0] ? ", in the value of \"" : "", key, key[0] ? "\"" : "");
-}
-
-/* The scene's text from the body: its "scene" object, or --scene-dir's
- * "scene_name".json. NULL with *code, *field and why. */
-static char *scene_of(serve_worlds *ws, const cJSON *doc, unsigned *code, const char **field,
-                      char *why, size_t cap)
-{
-    const cJSON *obj = cJSON_GetObjectItemCaseSensitive(doc, "scene");
-    const cJSON *named = cJSON_GetObjectItemCaseSensitive(doc, "scene_name");
-    *code = 400;
-    *field = obj ? "scene" : "scene_name";
-    if (!obj == !named) {
-        snprintf(why, cap,
-                 "scene: give exactly one of \"scene\" (a scene object, as in a scene "
-                 "file) and \"scene_name\" (a scene of --scene-dir)");
-        return NULL;
-    }
-    if (obj) {
-        if (!cJSON_IsObject(obj)) {
-            snprintf(why, cap, "scene: must be a JSON object (a scene, as in a scene file)");
-            return NULL;
-        }
-        char *text = cJSON_PrintUnformatted(obj);
-        if (!text)
-            snprintf(why, cap, "scene: out of memory");
-        return text;
-    }
-    error_text err = {{0}};
-    if (!cJSON_IsString(named) || !cluster_name_valid(named->valuestring, "scene_name", &err)) {
-        snprintf(why, cap, "scene_name: %s",
-                 err.message[0] ? err.message : "must be a string, a scene's file name");
-        return NULL;
-    }
-    if (!ws->o.scene_dir) {
-        snprintf(why, cap, "scene_name: this daemon has no --scene-dir: send the scene itself");
-        return NULL;
-    }
-    char path[PATH_CAP];
-    snprintf(path, sizeof path, "%.1000s/%s.json", ws->o.scene_dir, named->valuestring);
-    uint8_t *text = NULL;
-    size_t len = 0;
-    if (file_read_all(path, SCENE_MAX_BYTES, &text, &len, &err) != 0) {
-        *code = 404;
-        snprintf(why, cap, "scene_name: no scene \"%s\" in the scene directory (%.120s)",
-                 named->valuestring, err.message);
-        return NULL;
-    }
-    return (char *)text;
-}
-
-/* The body checked: its name and scene text (the scene parsed and made
- * into nothing yet). 0, or the status with *field and why. */
-static unsigned create_checked(serve_worlds *ws, const char *body, size_t len, char *name,
-                               char **scene_text, const char **field, char *why, size_t cap)
-{
-    cJSON *doc = cJSON_ParseWithLength(body, len);
-    *field = "body";
-    if (!cJSON_IsObject(doc)) {
-        if (doc)
-            snprintf(why, cap, "body: must be a JSON object: {\"name\": ..., \"scene\": {...}}");
-        else
-            parse_failure(body, len, why, cap);
-        cJSON_Delete(doc);
-        return 400;
-    }
-    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "name");
-    error_text err = {{0}};
-    unsigned code = 400;
-    *field = "name";
-    if (!cJSON_IsString(n) || !cluster_name_valid(n->valuestring, "world", &err)) {
-        snprintf(why, cap, "name: %s",
-                 err.message[0] ? err.message : "required: a string of letters, digits, _ and -");
-    } else if (strcmp(n->valuestring, ws->main_world->sc.name) == 0) {
-        code = 409;
-        snprintf(why, cap, "name: \"%s\" is the default world's (its scene's name)",
-                 n->valuestring);
-    } else if ((*scene_text = scene_of(ws, doc, &code, field, why, cap))) {
-        snprintf(name, CLUSTER_WORLD_NAME_MAX + 1, "%s", n->valuestring);
-        scene sc;
-        const char *base = ws->o.scene_dir ? ws->o.scene_dir : ".";
-        code = 0;
-        if (scene_load_json(*scene_text, base, &sc, &err) != 0) {
-            code = 422, *field = "scene";
-            snprintf(why, cap, "scene: %s", err.message);
-            free(*scene_text);
-            *scene_text = NULL;
-        } else {
-            scene_free(&sc);
-        }
-    }
-    cJSON_Delete(doc);
-    return code;
-}
-
 static unsigned create_world(serve_worlds *ws, const char *body, size_t len, char **json)
 {
-    char name[CLUSTER_WORLD_NAME_MAX + 1] = "", why[640];
+    char name[CLUSTER_WORLD_NAME_MAX + 1] = "", why[640], checked[64];
     char *text = NULL;
-    const char *field = "body";
-    unsigned code = create_checked(ws, body, len, name, &text, &field, why, sizeof why);
+    unsigned code = worlds_body_check(body, len, ws->o.scene_dir, ws->main_world->sc.name, name,
+                                      &text, checked, sizeof checked, why, sizeof why);
     if (code)
-        return refuse("create", code, field, why, json);
+        return worlds_refuse("create", code, checked, why, json);
+    const char *field = "body";
     local_world *lw = reserve(ws, name, text, &code, &field, why, sizeof why);
     if (!lw)
-        return refuse("create", code, field, why, json);
+        return worlds_refuse("create", code, field, why, json);
     char dir[PATH_CAP], path[PATH_CAP];
     world_paths(ws, name, dir, path);
     error_text err = {{0}};
@@ -497,7 +360,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
          file_write_durably(path, lw->scene_text, strlen(lw->scene_text), &err) != 0)) {
         snprintf(why, sizeof why, "storage: %s", err.message[0] ? err.message : strerror(errno));
         forget(ws, lw);
-        return refuse("create", 500, "storage", why, json);
+        return worlds_refuse("create", 500, "storage", why, json);
     }
     if (start_world(ws, lw, why, sizeof why) != 0) {
         if (ws->root[0]) {
@@ -508,9 +371,10 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
         forget(ws, lw);
         char message[700];
         snprintf(message, sizeof message, "scene: world %s could not start: %.600s", name, why);
-        return refuse("create", 422, "scene", message, json);
+        return worlds_refuse("create", 422, "scene", message, json);
     }
     metrics_count_world_request("create", 1);
+    net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
     cJSON *o = world_entry(name, &lw->m.status, "running", 0);
     *json = cJSON_PrintUnformatted(o);
@@ -583,7 +447,7 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
                  busy         ? "the world is starting or being deleted: try again"
                  : main_world ? "the default world (the daemon's --scene) cannot be deleted"
                               : "no such world (GET /v1/worlds lists them)");
-        return refuse("delete", busy || main_world ? 409 : 404, "name", why, json);
+        return worlds_refuse("delete", busy || main_world ? 409 : 404, "name", why, json);
     }
     end_world(lw, 1);
     char kept[PATH_CAP] = "";
@@ -591,6 +455,7 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
         drop_storage(ws, name, keep, kept, sizeof kept);
     forget(ws, lw);
     metrics_count_world_request("delete", 1);
+    net_server_event(ws->net, "world_deleted", name);
     log_info("worlds: world %s deleted (DELETE /v1/worlds/%s)%s%s", name, name,
              kept[0] ? ", its storage kept in " : "", kept);
     cJSON *o = cJSON_CreateObject();
@@ -607,7 +472,7 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
 
 static unsigned stopping(const char *op, char **json)
 {
-    return refuse(op, 503, "name", "name: the daemon is stopping", json);
+    return worlds_refuse(op, 503, "name", "name: the daemon is stopping", json);
 }
 
 static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)

@@ -109,6 +109,10 @@ int net_server_remove_world(net_server *s, hub *h);
  * clients are told the world was deleted and closed with 4020 "world
  * deleted". */
 int net_server_delete_world(net_server *s, hub *h);
+/* An event ("world_created", "world_deleted") about world, for every admin
+ * connection that subscribed to it (subscribe_events). Any thread; sent by
+ * the net thread soon after. */
+void net_server_event(net_server *s, const char *event, const char *world);
 
 /* ---- any node serves any world (net_remote.c; docs/cluster.md) ----
  * A world another node owns is served here as a RELAY: a client's hello

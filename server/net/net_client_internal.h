@@ -9,6 +9,8 @@
  *     ↓
  *   net_loop.c      between callbacks: a wake's and the heartbeat's work
  *     ↓
+ *   net_events.c    world_created / world_deleted to the admins who asked
+ *     ↓
  *   net_remote.c    any node serves any world: the inbox from other nodes
  *     ↓
  *   net_worlds.c    a cluster node's worlds coming and going
@@ -66,7 +68,8 @@ typedef struct net_client {
     uint32_t id;
     struct lws *wsi;
     net_state *srv;
-    int ready; /* hello accepted */
+    int ready;       /* hello accepted */
+    unsigned events; /* subscribe_events: one bit per NET_EVENT_NAMES entry */
     /* what its hello's token allows (net_auth.c), the token's entry name for
      * log lines and its hash, looked up again after each reload */
     auth_role role;

@@ -406,7 +406,30 @@ static const struct {
     {"unsubscribe", NET_CONTROL_UNSUBSCRIBE},
     {"resync", NET_CONTROL_RESYNC},
     {"edit", NET_CONTROL_EDIT},
+    {"subscribe_events", NET_CONTROL_SUBSCRIBE_EVENTS},
 };
+
+/* subscribe_events: "events", an array of known event names (empty: none). */
+static int parse_events(parser *r, net_control *out)
+{
+    static const char *const names[] = {NET_EVENT_NAMES};
+    const cJSON *events = cJSON_GetObjectItemCaseSensitive(r->msg, "events");
+    if (!cJSON_IsArray(events))
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "events: required, an array of event names (world_created, world_deleted)");
+    int i = 0;
+    for (const cJSON *e = events->child; e; e = e->next, i++) {
+        int known = -1;
+        for (int k = 0; k < NET_EVENT_COUNT && cJSON_IsString(e); k++)
+            if (strcmp(e->valuestring, names[k]) == 0)
+                known = k;
+        if (known < 0)
+            return fail(r, TERRAD_E_BAD_VALUE,
+                        "events[%d]: not an event name (world_created, world_deleted)", i);
+        out->events |= 1u << known;
+    }
+    return 0;
+}
 
 /* An edit's fields (world_edit_parse, shared with POST /v1/worlds/{name}/edits). */
 static int parse_edit(parser *r, net_control *out)
@@ -484,6 +507,9 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
             break;
         case NET_CONTROL_EDIT:
             rc = parse_edit(&r, out);
+            break;
+        case NET_CONTROL_SUBSCRIBE_EVENTS:
+            rc = parse_events(&r, out);
             break;
         }
     }

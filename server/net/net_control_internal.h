@@ -33,7 +33,13 @@ typedef enum net_control_kind {
     NET_CONTROL_UNSUBSCRIBE,
     NET_CONTROL_RESYNC,
     NET_CONTROL_EDIT,
+    NET_CONTROL_SUBSCRIBE_EVENTS,
 } net_control_kind;
+
+/* subscribe_events: the events an admin connection may ask for, one bit each
+ * (net_server_event sends them; PROTOCOL.md "Events"). */
+#define NET_EVENT_NAMES "world_created", "world_deleted"
+#define NET_EVENT_COUNT 2
 
 /* What the parser may know about the server. */
 typedef struct net_control_context {
@@ -65,6 +71,8 @@ typedef struct net_control {
     /* subscribe: inside the world */
     world_rect rect;
     int colliders, footprints;
+    /* subscribe_events: one bit per NET_EVENT_NAMES entry (0: none) */
+    unsigned events;
     /* edit (owned; the command takes it over) */
     world_edit *edit;
 } net_control;

@@ -418,6 +418,19 @@ static void handle_resync(net_client *c, const net_control *m)
     net_request_resync(c, m->id);
 }
 
+/* subscribe_events (admin): the events this connection gets from now on. */
+static void handle_subscribe_events(net_client *c, const net_control *m)
+{
+    static const char *const names[] = {NET_EVENT_NAMES};
+    c->events = m->events;
+    cJSON *rep = reply("events_subscribed", m->ref);
+    cJSON *arr = cJSON_AddArrayToObject(rep, "events");
+    for (int k = 0; k < NET_EVENT_COUNT; k++)
+        if (m->events & (1u << k))
+            cJSON_AddItemToArray(arr, cJSON_CreateString(names[k]));
+    net_send_json(c, rep);
+}
+
 /* ---- text messages ---- */
 
 /* A refusal that depends on the client, not on the message, and comes
@@ -433,6 +446,9 @@ static int refused_by_state(net_client *c, const net_control *m)
         !net_auth_allows(c, AUTH_DRIVER, "collider_create", m->ref))
         return 1;
     if (m->kind == NET_CONTROL_EDIT && !net_auth_allows(c, AUTH_DRIVER, "edit", m->ref))
+        return 1;
+    if (m->kind == NET_CONTROL_SUBSCRIBE_EVENTS &&
+        !net_auth_allows(c, AUTH_ADMIN, "subscribe_events", m->ref))
         return 1;
     if (m->kind == NET_CONTROL_COLLIDER_DELETE &&
         !net_auth_allows(c, m->any_owner ? AUTH_ADMIN : AUTH_DRIVER,
@@ -470,7 +486,8 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     net_control m;
     net_control_error err;
     int rc = net_control_parse(text, len, &ctx, &m, &err);
-    if (s->relay && c->ready) { /* checked and answered by the world's owner */
+    /* checked and answered by the world's owner; events are this node's */
+    if (s->relay && c->ready && m.kind != NET_CONTROL_SUBSCRIBE_EVENTS) {
         relay_text(c, &m, rc);
         net_relay_forward(c, 0, text, len);
         net_control_free(&m);
@@ -511,6 +528,9 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_EDIT:
             handle_edit(c, &m);
+            break;
+        case NET_CONTROL_SUBSCRIBE_EVENTS:
+            handle_subscribe_events(c, &m);
             break;
         case NET_CONTROL_NONE:
             break;

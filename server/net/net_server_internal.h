@@ -14,6 +14,12 @@
 #include "net/net_client_internal.h"
 
 #define NET_MAX_WORLDS 64
+#define NET_EVENTS_MAX 256 /* events waiting for the net thread (net_events.c) */
+
+struct net_event {
+    int bit;        /* its index in NET_EVENT_NAMES */
+    char world[65]; /* the world it is about */
+};
 
 /* The net thread's state and libwebsockets' context. */
 struct net_server {
@@ -46,6 +52,9 @@ struct net_server {
     struct net_remote_item *inbox;
     int ninbox;
     int64_t inbox_cap;
+    /* events for subscribed admins (net_server_event), under worlds_lock */
+    struct net_event events[NET_EVENTS_MAX];
+    int nevents;
 };
 
 typedef struct net_session {
@@ -62,6 +71,7 @@ void net_drain_hubs(net_server *s);
 void net_flush_backlogs(net_server *s);
 /* Net thread: a wake's work (worlds, inbox, backlogs, frames, the shutdown's start). */
 void net_catch_up(net_server *s);
+void net_events_apply(net_server *s);
 /* Schedules the heartbeat (every 100 ms on the net thread). */
 void net_heartbeat_start(net_server *s);
 /* The protocol table (net_callback.c). */

@@ -234,10 +234,15 @@ def crash_and_recover(d, data_dir, args):
         check(status == 201, f"create {n}: {status}")
     status, _ = call(d, "DELETE", "/v1/worlds/gone-b")
     check(status == 200, "delete gone-b")
+    base = stats(d, "keep-a")["volume"]  # nothing moves in keep-a: its Σh stays until the edit
     status, edit = call(d, "POST", "/v1/worlds/keep-a/edits",
                         {"op": "add", "x": 4, "y": 4, "w": 8, "h": 8, "amount": 700})
     check(status == 200 and edit.get("volume_change") == 700 * 64, f"an edit in keep-a: {edit}")
-    volume = stats(d, "keep-a")["volume"]
+    volume = base + 700 * 64
+    # the reply follows the tick's commit; the status block /v1/stats reads is
+    # published after it, so under load it may still show the tick before
+    check(wait_until(lambda: stats(d, "keep-a")["volume"] == volume, 60),
+          f"/v1/stats shows keep-a's edit (Σh {stats(d, 'keep-a')['volume']}, want {volume})")
     expect = sorted(n for n in names(d) if n != names(d)[0])
     d.kill9()
     d2 = Daemon(data_dir=data_dir, extra=args, name="restarted")

@@ -506,6 +506,54 @@ async def raw_hello(node, world, token="", answer_s=10, close_s=3):
     return answer, code
 
 
+class EventWatcher:
+    """A raw websocket connection to node (anything with .ws) that says hello
+    (into world, if given) and asks for events with subscribe_events
+    (PROTOCOL.md "Events"): answer() is the reply to that, next_event() the
+    next {"type": "event"} message (None when none came within timeout)."""
+
+    def __init__(self, node, token="", world="", events=("world_created", "world_deleted")):
+        self.node, self.token, self.world, self.events = node, token, world, list(events)
+        self.ws = None
+        self.hello = None
+
+    async def connect(self, timeout=60):
+        import websockets
+        self.ws = await websockets.connect(self.node.ws, subprotocols=[tp.SUBPROTOCOL],
+                                           close_timeout=2)
+        await self.ws.send(json.dumps(tp.hello(self.token, "event-watcher", self.world)))
+        self.hello = json.loads(await asyncio.wait_for(self.ws.recv(), timeout))
+        return self
+
+    async def subscribe(self, events=None, timeout=60):
+        """subscribe_events; returns its answer (events_subscribed or an error)."""
+        await self.ws.send(json.dumps(tp.subscribe_events(self.events if events is None
+                                                          else events, ref="ev")))
+        return await self._next(lambda m: m.get("ref") == "ev", timeout)
+
+    async def next_event(self, timeout=90, event=None, world=None):
+        """The next event (of that name, about that world, when given)."""
+        return await self._next(lambda m: m.get("type") == "event" and
+                                event in (None, m.get("event")) and
+                                world in (None, m.get("world")), timeout)
+
+    async def _next(self, wanted, timeout):
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout
+        while loop.time() < end:
+            try:
+                msg = await asyncio.wait_for(self.ws.recv(), max(0.01, end - loop.time()))
+            except asyncio.TimeoutError:
+                return None
+            if isinstance(msg, str) and wanted(json.loads(msg)):
+                return json.loads(msg)
+        return None
+
+    async def close(self):
+        if self.ws:
+            await self.ws.close()
+
+
 def wheel_pose(cid, x, y, z):
     """A cylinder (axis z in its frame) turned so that it rolls along x."""
     return tp.Pose(cid, x, y, z, *WHEEL_Q)

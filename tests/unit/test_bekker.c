@@ -4,8 +4,10 @@
  * a plate; elastic reloading, so a second pass sinks less; Janosi-Hanamoto
  * traction with the wheel's slip; Σh + Σcompacted exact every tick, through
  * the window function and through the engine over a world; the same
- * heights, state and forces for any thread count; the extremes (n 0.1 and
- * 2, c 0, phi 0, a load reaching the floor, a lifted wheel, many passes).
+ * heights, state and forces for any thread count; the extremes, each
+ * bounded (no NaN or infinite force, heights within floor..max) with mass
+ * exact: n 0.1 to 2, c 0, phi 0, a huge load reaching the floor, a wheel
+ * lifted off, 1,000 passes over one rut.
  */
 #include <math.h>
 #include <stdio.h>
@@ -146,8 +148,25 @@ static void test_plate_and_second_pass(void)
     soil_rig_free(&r);
 }
 
+/* Bounded: every height within [floor, WORLD_HEIGHT_MAX], the contact's
+ * force, torque, sinkage, area and width finite. */
+static int rig_bounded(const soil_rig *r)
+{
+    for (int64_t i = 0; i < r->cells; i++)
+        if (r->heights[i] < r->p.floor || r->heights[i] > WORLD_HEIGHT_MAX)
+            return 0;
+    const sim_contact *c = &r->contact;
+    double v[] = {c->force_n[0],   c->force_n[1], c->force_n[2], c->torque_nm[0], c->torque_nm[1],
+                  c->torque_nm[2], c->sinkage_m,  c->area_m2,    c->patch_width_m};
+    for (size_t i = 0; i < sizeof v / sizeof v[0]; i++)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
 /* A wheel rolled over the soil under load with slip s for `ticks` ticks;
- * returns the mean Fx over the second half; mass checked every tick. */
+ * returns the mean Fx over the second half; mass exact and everything
+ * bounded (rig_bounded) checked every tick into *mass_ok. */
 static double roll_wheel(const sim_soil *soil, double slip, int ticks, double load, int *mass_ok,
                          double *slip_seen, double *fz_seen)
 {
@@ -171,7 +190,7 @@ static double roll_wheel(const sim_soil *soil, double slip, int ticks, double lo
         soil_rig_place(&r, x, 0.15, z, quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
         soil_rig_carry(&r, load);
         soil_rig_step(&r);
-        *mass_ok &= soil_rig_mass(&r) == mass;
+        *mass_ok &= soil_rig_mass(&r) == mass && rig_bounded(&r);
         if (t >= ticks / 2) {
             fx += r.contact.force_n[0];
             counted++;
@@ -209,15 +228,27 @@ static void test_traction(void)
     frictionless.friction_deg = 0.0;
     double slick = roll_wheel(&frictionless, 0.4, 60, 50.0, &ok, &seen, &fz);
     CHECK(ok && slick <= 0.0, "c 0, phi 0: a driven wheel gets no pull (Fx %.2f N)", slick);
-    /* extremes of n stay bounded with mass exact */
-    double ns[] = {0.1, 2.0};
-    for (int i = 0; i < 2; i++) {
+    /* extremes of n stay bounded with mass exact, slip-sinkage on top (n up to 2.4) */
+    double ns[] = {0.1, 0.3, 0.7, 1.0, 1.5, 2.0};
+    for (size_t i = 0; i < sizeof ns / sizeof ns[0]; i++) {
         sim_soil s = soil;
         s.n = ns[i];
         double f = roll_wheel(&s, 0.2, 40, 50.0, &ok, &seen, &fz);
         CHECK(ok && isfinite(f) && fz >= 50.0, "n %.1f: bounded, mass exact (Fx %.2f, Fz %.2f)",
               ns[i], f, fz);
     }
+    /* c 0 alone: friction still pulls; phi 0 alone: cohesion alone, bounded */
+    sim_soil cohesionless = soil;
+    cohesionless.cohesion_pa = 0.0;
+    double sandy = roll_wheel(&cohesionless, 0.4, 60, 50.0, &ok, &seen, &fz);
+    CHECK(ok && sandy > towed, "c 0: bounded, mass exact, a driven wheel still pulls (Fx %.2f N)",
+          sandy);
+    sim_soil frictionless_only = soil;
+    frictionless_only.friction_deg = 0.0;
+    double clay = roll_wheel(&frictionless_only, 0.4, 60, 50.0, &ok, &seen, &fz);
+    CHECK(ok && isfinite(clay) && clay < driven,
+          "phi 0: bounded, mass exact, less pull than with friction (Fx %.2f N, %.2f N)", clay,
+          driven);
 }
 
 /* A load the soil cannot carry: the plate stops at the floor, heights stay
@@ -236,11 +267,73 @@ static void test_floor_and_lift(void)
     for (int64_t i = 0; i < r.cells; i++)
         if (r.heights[i] < low)
             low = r.heights[i];
-    CHECK(low >= r.p.floor && soil_rig_mass(&r) == mass,
-          "a huge load reaches the floor and no further (lowest %d), mass exact", low);
+    CHECK(low >= r.p.floor && soil_rig_mass(&r) == mass && rig_bounded(&r),
+          "a huge load reaches the floor and no further (lowest %d), mass exact, forces finite "
+          "(Fz %.3g N)",
+          low, r.contact.force_n[2]);
     soil_rig_place(&r, 0.075, 0.075, 0.5, IDENTITY, 0);
     soil_rig_step(&r);
     CHECK(r.contact.cells == 0 && r.contact.force_n[2] == 0.0, "lifted: no force");
+    soil_rig_free(&r);
+}
+
+/* 1,000 passes of a slipping wheel (slip 0.3) back and forth over one rut,
+ * 10 ticks a pass, each pass starting at the height that carries 20 N (so it
+ * sinks into its rut pass after pass), slope evening on; every 100th pass
+ * lifted 10 cm clear: mass exact and everything bounded every tick; the rut
+ * and its rims stay within a wheel's radius of the original surface; lifted,
+ * the wheel feels nothing (its window's rims still even out). */
+static void test_rut_passes(void)
+{
+    sim_soil soil;
+    sim_soil_preset("ding2011", &soil);
+    soil_rig r;
+    soil_rig_init(&r, &soil, 0.5, 0.005, 48, 24, 0.3);
+    r.p.tick_s = 0.01;
+    r.p.slope_iterations = 10; /* rims even out as in a world (the rig's default is off) */
+    r.geometry.shape = COLLIDER_CYLINDER;
+    r.geometry.radius = 0.05;
+    r.geometry.half_length = 0.03;
+    double z = 0.3 + 0.05 - 0.01;         /* 10 mm into the fresh soil */
+    int32_t surface = 3000, radius = 500; /* units */
+    int64_t mass = soil_rig_mass(&r);
+    int ok = 1, lifted_ok = 1, touched = 0;
+    double x = 0.08, angle = 0.0;
+    soil_rig_place(&r, x, 0.06, z, IDENTITY, 0);
+    for (int pass = 0; pass < 1000; pass++) {
+        double dir = pass % 2 ? -1.0 : 1.0;
+        int lift = pass % 100 == 99, after_lift = pass % 100 == 0 && pass > 0;
+        for (int t = 0; t < 10; t++) {
+            x += dir * 0.005;
+            angle += dir * 0.005 / (0.05 * 0.7);
+            soil_rig_place(&r, x, 0.06, lift ? z + 0.1 : z,
+                           quat_from_axis_angle((vec3d){0, 1, 0}, angle),
+                           t > 0 || !(lift || after_lift));
+            if (t == 0 && !lift) { /* each pass carries 20 N: it sinks into the rut */
+                soil_rig_carry(&r, 20.0);
+                z = r.collider.pose.position.z;
+            }
+            soil_rig_step(&r);
+            ok &= soil_rig_mass(&r) == mass && rig_bounded(&r);
+            if (lift)
+                lifted_ok &= r.contact.cells == 0 && r.contact.force_n[0] == 0.0 &&
+                             r.contact.force_n[2] == 0.0 && r.contact.torque_nm[1] == 0.0;
+            else
+                touched += r.contact.cells > 0;
+        }
+    }
+    int32_t low = INT32_MAX, high = INT32_MIN;
+    for (int64_t i = 0; i < r.cells; i++) {
+        low = r.heights[i] < low ? r.heights[i] : low;
+        high = r.heights[i] > high ? r.heights[i] : high;
+    }
+    CHECK(ok, "1,000 passes over one rut: Σh + Σcompacted exact and bounded every tick");
+    CHECK(lifted_ok && touched > 9900 / 2,
+          "lifted passes feel nothing; the wheel touches in most others (%d of 9,900 "
+          "ticks)",
+          touched);
+    CHECK(low >= surface - radius && high <= surface + radius,
+          "the rut and its rims stay within a radius of the surface (heights %d..%d)", low, high);
     soil_rig_free(&r);
 }
 
@@ -326,6 +419,7 @@ int main(void)
     test_plate_and_second_pass();
     test_traction();
     test_floor_and_lift();
+    test_rut_passes();
     test_engine();
     return check_report();
 }

@@ -46,7 +46,7 @@ __all__ = [
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
-    "edit", "stamp_data", "parse_control",
+    "edit", "stamp_data", "parse_control", "subscribe_events",
 ]
 
 PROTOCOL_VERSION = 1
@@ -750,6 +750,11 @@ def subscribe(x: int, y: int, w: int, h: int, ref=None, colliders: bool = False,
 
 def unsubscribe(sid: int, ref=None) -> dict:
     return _with_ref({"type": "unsubscribe", "id": sid}, ref)
+
+
+def subscribe_events(events=("world_created", "world_deleted"), ref=None) -> dict:
+    """Admin: {"type": "event", "event": ..., "world": ...} for each world made or ended."""
+    return _with_ref({"type": "subscribe_events", "events": list(events)}, ref)
 
 
 def resync(sid: int | None = None, ref=None) -> dict:

@@ -1,0 +1,67 @@
+/*
+ * net_events.c: events for the admin connections that asked for them with
+ * subscribe_events (proto/PROTOCOL.md "Events"; issue 22): world_created and
+ * world_deleted. Whoever learns of one calls net_server_event from any
+ * thread — a single daemon's POST and DELETE /v1/worlds (app/serve_worlds.c),
+ * a cluster node seeing its registry listing change (app/serve_node.c, so
+ * every node of a cluster tells its own admins) — which queues it under the
+ * server's worlds_lock and wakes the net thread; the net thread sends each
+ * one between two callbacks (net_events_apply, from net_catch_up) to every
+ * ready client, in any world's state, that subscribed to it. Events take no
+ * part in a tick.
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "metrics/metrics.h"
+#include "net/net_control_internal.h"
+#include "net/net_server_internal.h"
+
+void net_server_event(net_server *s, const char *event, const char *world)
+{
+    static const char *const names[] = {NET_EVENT_NAMES};
+    int bit = -1;
+    for (int k = 0; k < NET_EVENT_COUNT; k++)
+        if (strcmp(event, names[k]) == 0)
+            bit = k;
+    if (!s || bit < 0)
+        return;
+    pthread_mutex_lock(&s->worlds_lock);
+    if (s->nevents < NET_EVENTS_MAX) {
+        s->events[s->nevents].bit = bit;
+        snprintf(s->events[s->nevents].world, sizeof s->events[0].world, "%s", world);
+        s->nevents++;
+    } else {
+        metrics_count_frames_dropped(1); /* 256 waiting: the net thread is stuck anyway */
+    }
+    pthread_mutex_unlock(&s->worlds_lock);
+    net_server_wake(s);
+}
+
+static void send_event(net_state *w, int bit, const char *world)
+{
+    static const char *const names[] = {NET_EVENT_NAMES};
+    for (int i = 0; i < w->nclients; i++) {
+        net_client *c = w->clients[i];
+        if (!c->ready || c->closing || c->killed || c->remote || !(c->events & (1u << bit)))
+            continue;
+        cJSON *msg = cJSON_CreateObject();
+        cJSON_AddStringToObject(msg, "type", "event");
+        cJSON_AddStringToObject(msg, "event", names[bit]);
+        cJSON_AddStringToObject(msg, "world", world);
+        net_send_json(c, msg);
+    }
+}
+
+void net_events_apply(net_server *s)
+{
+    struct net_event events[NET_EVENTS_MAX];
+    pthread_mutex_lock(&s->worlds_lock);
+    int n = s->nevents;
+    memcpy(events, s->events, (size_t)n * sizeof *events);
+    s->nevents = 0;
+    pthread_mutex_unlock(&s->worlds_lock);
+    for (int e = 0; e < n; e++)
+        for (int i = 0; net_state_at(s, i); i++)
+            send_event(net_state_at(s, i), events[e].bit, events[e].world);
+}
