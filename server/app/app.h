@@ -1,8 +1,9 @@
 /*
  * app: terrad's commands — `simulate` (an offline run of a scene that prints
  * one JSON report), `serve` (the daemon: tick loop, demo actors, HTTP),
- * `export` (a data directory's world to a file) and `bench --trade` (the
- * speed/accuracy sweep over models). main.c only dispatches to these.
+ * `export` (a data directory's world to a file), `bench --trade` (the
+ * speed/accuracy sweep over models) and `calibrate` (a soil fitted to
+ * measurements). main.c only dispatches to these.
  */
 #ifndef TERRAD_APP_H
 #define TERRAD_APP_H
@@ -19,12 +20,13 @@
  * failure) or 2 (a usage error); "CMD --help" prints the command's options. */
 int app_simulate(int argc, char **argv);
 int app_serve(int argc, char **argv);
-int app_export(int argc, char **argv);  /* a data directory's world to int32 / png16 */
-int app_bench(int argc, char **argv);   /* `terrad bench --trade` (bench_trade.c) */
-int app_loadgen(int argc, char **argv); /* load generator for a running daemon (loadgen.c) */
-int app_fsck(int argc, char **argv);    /* check a data directory without starting (fsck.c) */
-int app_world(int argc, char **argv);   /* `terrad world add|list|remove` (world_cmd.c) */
-int app_token(int argc, char **argv);   /* `terrad token add|hash`: the auth file (token_cmd.c) */
+int app_export(int argc, char **argv);    /* a data directory's world to int32 / png16 */
+int app_bench(int argc, char **argv);     /* `terrad bench --trade` (bench_trade.c) */
+int app_loadgen(int argc, char **argv);   /* load generator for a running daemon (loadgen.c) */
+int app_fsck(int argc, char **argv);      /* check a data directory without starting (fsck.c) */
+int app_world(int argc, char **argv);     /* `terrad world add|list|remove` (world_cmd.c) */
+int app_token(int argc, char **argv);     /* `terrad token add|hash`: the auth file (token_cmd.c) */
+int app_calibrate(int argc, char **argv); /* soil parameters fitted to measurements (calibrate.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -36,6 +38,7 @@ void app_loadgen_usage(FILE *out);
 void app_fsck_usage(FILE *out);
 void app_world_usage(FILE *out);
 void app_token_usage(FILE *out);
+void app_calibrate_usage(FILE *out);
 
 /* The scene at scene_path (NULL: the embedded default) and its world. On
  * failure nothing is held. */

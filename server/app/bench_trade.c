@@ -13,9 +13,11 @@
  * cross-sections, sampled along the turned trail).
  *
  * Out: DIR/trade.csv (one row per run configuration) and DIR/trade.txt (the
- * table and the summary also printed). The plot (cost against error with each
- * scene's Pareto front) is drawn from the CSV by scripts/trade-plot
- * (matplotlib); `make bench` runs it.
+ * table and the summary also printed). With the bekker model in the sweep,
+ * its physical axis too (trade_physical.c): DIR/trade-physical.csv, each
+ * configuration's cost and error against Ding 2011's measured single wheel. The plot (cost against
+ * error with each scene's Pareto front) is drawn from the CSV by scripts/trade-plot (matplotlib);
+ * `make bench` runs it.
  */
 #include <errno.h>
 #include <math.h>
@@ -502,6 +504,8 @@ typedef struct bench_sweep {
     int row_count;
     double convergence_m[16];
     double started;
+    trade_physical_row physical[TRADE_PHYSICAL_MAX]; /* bekker against Ding 2011 */
+    int physical_count;
 } bench_sweep;
 
 static void bench_plan(bench_sweep *b)
@@ -582,10 +586,17 @@ out:
 }
 
 /* trade.csv and trade.txt, and the report on stdout. */
-static int bench_write(bench_sweep *b, const char *csv_path, const char *txt_path)
+static int bench_write(bench_sweep *b, const char *csv_path, const char *txt_path,
+                       const char *physical_path)
 {
     if (write_csv(csv_path, b->rows, b->row_count) != 0) {
         fprintf(stderr, "terrad bench: cannot write %s: %s\n", csv_path, strerror(errno));
+        return -1;
+    }
+    if (b->physical_count == 0)
+        remove(physical_path); /* not measured this time: no stale file beside the CSV */
+    else if (trade_physical_write_csv(physical_path, b->physical, b->physical_count) != 0) {
+        fprintf(stderr, "terrad bench: cannot write %s: %s\n", physical_path, strerror(errno));
         return -1;
     }
     char subtitle[700];
@@ -603,12 +614,16 @@ static int bench_write(bench_sweep *b, const char *csv_path, const char *txt_pat
             (time_now_ms() - b->started) / 1e3);
     print_report(txt, b->rows, b->row_count, table_iterations, b->reference_iterations,
                  b->convergence_m, &b->o);
+    if (b->physical_count)
+        trade_physical_report(txt, b->physical, b->physical_count);
     if (fclose(txt) != 0) {
         fprintf(stderr, "terrad bench: cannot write %s\n", txt_path);
         return -1;
     }
     print_report(stdout, b->rows, b->row_count, table_iterations, b->reference_iterations,
                  b->convergence_m, &b->o);
+    if (b->physical_count)
+        trade_physical_report(stdout, b->physical, b->physical_count);
     printf("\nwrote %s, %s (%d rows, %.0f s); plot it with scripts/trade-plot %s OUT.svg\n",
            csv_path, txt_path, b->row_count, (time_now_ms() - b->started) / 1e3, csv_path);
     return 0;
@@ -622,8 +637,9 @@ int app_bench(int argc, char **argv)
         return parsed == CLI_HELP ? 0 : 2;
     trade_options *o = &b.o;
     log_set_quiet(1);
-    char csv_path[1200], txt_path[1200];
+    char csv_path[1200], txt_path[1200], physical_path[1200];
     snprintf(csv_path, sizeof csv_path, "%s/trade.csv", o->out_dir);
+    snprintf(physical_path, sizeof physical_path, "%s/trade-physical.csv", o->out_dir);
     snprintf(txt_path, sizeof txt_path, "%s/trade.txt", o->out_dir);
     /* Refuse an unusable --out before spending minutes on the sweep. */
     FILE *probe = NULL;
@@ -659,7 +675,17 @@ int app_bench(int argc, char **argv)
             fprintf(stderr, "terrad bench: %s\n", err.message);
             goto done;
         }
-    if (bench_write(&b, csv_path, txt_path) == 0)
+    /* the physical axis: the model with forces against measured data */
+    for (int m = 0; m < o->model_count; m++)
+        if (strcmp(trade_model_names[o->models[m]], "bekker") == 0) {
+            if (trade_physical_run(o->quick, b.physical, &b.physical_count, &err) != 0) {
+                fprintf(stderr, "terrad bench: physical axis: %s\n", err.message);
+                goto done;
+            }
+            fprintf(stderr, "trade: bekker against Ding 2011 done (%.0f s)\n",
+                    (time_now_ms() - b.started) / 1e3);
+        }
+    if (bench_write(&b, csv_path, txt_path, physical_path) == 0)
         rc = 0;
 done:
     free(b.rows);

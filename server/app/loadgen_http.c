@@ -11,6 +11,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include "app/http_client_internal.h"
 #include "app/loadgen_internal.h"
 
 int lg_http_init(lg_http *h, const char *url, const char *ws_host)
@@ -21,67 +22,15 @@ int lg_http_init(lg_http *h, const char *url, const char *ws_host)
         h->port = 8080;
         return 0;
     }
-    const char *p = strncmp(url, "http://", 7) == 0 ? url + 7 : NULL;
-    const char *colon = p ? strchr(p, ':') : NULL;
-    if (!colon || colon == p || (size_t)(colon - p) >= sizeof h->host)
-        return -1;
-    memcpy(h->host, p, (size_t)(colon - p));
-    h->port = atoi(colon + 1);
-    return h->port > 0 && h->port < 65536 ? 0 : -1;
+    return app_http_url(url, h->host, sizeof h->host, &h->port);
 }
 
-/* GET path; the body (malloc'd, NUL after it) and its length. Returns the status or -1. */
+/* GET path; the body (malloc'd, NUL after it) and its length. Returns the status or -1.
+ * The data endpoints need $TERRAD_TOKEN on a daemon with tokens. */
 static int http_get(const lg_http *h, const char *path, char **body, size_t *len)
 {
-    char port[16];
-    snprintf(port, sizeof port, "%d", h->port);
-    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM}, *ai = NULL;
-    if (getaddrinfo(h->host, port, &hints, &ai) != 0)
-        return -1;
-    int s = socket(ai->ai_family, ai->ai_socktype, ai->ai_protocol);
-    int ok = s >= 0 && connect(s, ai->ai_addr, ai->ai_addrlen) == 0;
-    freeaddrinfo(ai);
-    char req[1024];
-    const char *token =
-        getenv("TERRAD_TOKEN"); /* the data endpoints need it on a daemon with tokens */
-    int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\nHost: %s\r\n%s%.300s%s\r\n", path,
-                     h->host, token && *token ? "Authorization: Bearer " : "", token ? token : "",
-                     token && *token ? "\r\n" : "");
-    if (!ok || write(s, req, (size_t)n) != n) {
-        if (s >= 0)
-            close(s);
-        return -1;
-    }
-    size_t cap = 65536, got = 0;
-    char *buf = malloc(cap + 1);
-    ssize_t r;
-    while (buf && (r = read(s, buf + got, cap - got)) > 0) {
-        got += (size_t)r;
-        if (got == cap) {
-            char *bigger = realloc(buf, 2 * cap + 1);
-            if (!bigger) {
-                free(buf);
-                buf = NULL;
-                break;
-            }
-            buf = bigger;
-            cap *= 2;
-        }
-    }
-    close(s);
-    if (!buf)
-        return -1;
-    buf[got] = 0;
-    int status = 0;
-    char *end = strstr(buf, "\r\n\r\n");
-    if (!end || sscanf(buf, "HTTP/%*s %d", &status) != 1) {
-        free(buf);
-        return -1;
-    }
-    *len = got - (size_t)(end + 4 - buf);
-    memmove(buf, end + 4, *len + 1);
-    *body = buf;
-    return status;
+    return app_http_request(h->host, h->port, "GET", path, getenv("TERRAD_TOKEN"), NULL, 0, body,
+                            len);
 }
 
 static uint64_t json_u64(const char *body, const char *key)

@@ -151,8 +151,13 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
 static void world_unregister(serve_node *n, node_world *nw)
 {
     serve_sim *m = &nw->m;
-    if (m->h)
+    if (m->h) {
+        char why[160];
+        snprintf(why, sizeof why, "world %s %s", m->name,
+                 nw->deleted ? "was deleted" : "stopped on this node (moved, or the node stops)");
         hub_close_reads(m->h);
+        hub_close_edits(m->h, why);
+    }
     if (!atomic_load(&nw->registered))
         return;
     atomic_store(&nw->registered, 0);

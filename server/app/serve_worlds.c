@@ -196,8 +196,13 @@ static int world_register(serve_worlds *ws, local_world *lw, error_text *err)
 static void world_unregister(serve_worlds *ws, local_world *lw)
 {
     serve_sim *m = &lw->m;
-    if (m->h)
+    if (m->h) {
+        char why[160];
+        snprintf(why, sizeof why, "world %s %s", m->name,
+                 lw->deleted ? "was deleted (DELETE /v1/worlds)" : "stopped (the daemon stops)");
         hub_close_reads(m->h);
+        hub_close_edits(m->h, why);
+    }
     if (!lw->registered)
         return;
     lw->registered = 0;

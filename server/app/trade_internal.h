@@ -101,4 +101,24 @@ typedef struct trade_row {
     long refused_windows;
 } trade_row;
 
+/* ---- The physical axis (trade_physical.c) ---- */
+
+/* One configuration of the bekker model on Ding 2011's smooth wheel. */
+typedef struct trade_physical_row {
+    double cell_m, tick_mm;
+    long ticks;
+    double tick_ms_mean; /* wall, mean over the slips */
+    double pull_n[SIM_WHEEL_DING2011_ROWS], sinkage_m[SIM_WHEEL_DING2011_ROWS],
+        torque_nm[SIM_WHEEL_DING2011_ROWS];
+    double pull_error, sinkage_error, torque_error; /* median relative, against Ding */
+    double pull_rms_vs_finest_n, sinkage_rms_vs_finest_m;
+} trade_physical_row;
+#define TRADE_PHYSICAL_MAX 9
+/* Every configuration (quick: two), the finest last; 0 or -1 with err. */
+int trade_physical_run(int quick, trade_physical_row *rows, int *count, error_text *err);
+/* DIR/trade-physical.csv: 0, or -1 (errno) */
+int trade_physical_write_csv(const char *path, const trade_physical_row *rows, int count);
+/* The table for trade.txt and stdout. */
+void trade_physical_report(FILE *f, const trade_physical_row *rows, int count);
+
 #endif

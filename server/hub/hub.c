@@ -35,6 +35,7 @@ struct hub {
     pthread_mutex_t command_lock;
     hub_command *commands;
     int command_head, command_count;
+    char edits_closed[256]; /* hub_close_edits: why edits are refused now ("" while open) */
 
     pthread_mutex_t pose_lock;
     hub_pose *poses; /* pending, in arrival order of first set */
@@ -207,6 +208,16 @@ int hub_edit_submit(hub *h, world_edit *e, hub_edit_result *res, int timeout_ms)
     pthread_condattr_destroy(&attr);
     w->refs = 2; /* this thread's and the command's */
     pthread_mutex_lock(&h->command_lock);
+    if (h->edits_closed[0]) { /* the world stops: no tick will take it */
+        *res = (hub_edit_result){.code = TERRAD_E_SHUTTING_DOWN};
+        snprintf(res->message, sizeof res->message, "%s", h->edits_closed);
+        pthread_mutex_unlock(&h->command_lock);
+        world_edit_free(e);
+        free(e);
+        w->refs = 1;
+        waiter_unref(w);
+        return 0;
+    }
     int full = h->command_count == HUB_COMMAND_CAPACITY;
     if (!full) {
         h->commands[(h->command_head + h->command_count) % HUB_COMMAND_CAPACITY] =
@@ -240,6 +251,22 @@ int hub_edit_submit(hub *h, world_edit *e, hub_edit_result *res, int timeout_ms)
     pthread_mutex_unlock(&w->lock);
     waiter_unref(w);
     return done ? 0 : 1;
+}
+
+void hub_close_edits(hub *h, const char *why)
+{
+    hub_edit_result res = {.code = TERRAD_E_SHUTTING_DOWN};
+    snprintf(res.message, sizeof res.message, "%s", why);
+    pthread_mutex_lock(&h->command_lock);
+    snprintf(h->edits_closed, sizeof h->edits_closed, "%s", why);
+    for (int i = 0; i < h->command_count; i++) {
+        hub_command *c = &h->commands[(h->command_head + i) % HUB_COMMAND_CAPACITY];
+        if (c->kind == HUB_EDIT && c->waiter) {
+            hub_edit_finish(c->waiter, &res); /* its HTTP thread answers now, not at 10 s */
+            c->waiter = NULL;
+        }
+    }
+    pthread_mutex_unlock(&h->command_lock);
 }
 
 int hub_take_commands(hub *h, hub_command *out, int max)

@@ -219,5 +219,10 @@ int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int tim
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
 /* sim thread, at exit: fail every pending and future read. */
 void hub_close_reads(hub *h);
+/* The world stops (deleted, lost, or the daemon stops): every HTTP edit
+ * waiting for a tick, and every later one, is answered at once with
+ * TERRAD_E_SHUTTING_DOWN and why, instead of waiting out its timeout. Any
+ * thread. */
+void hub_close_edits(hub *h, const char *why);
 
 #endif

@@ -111,6 +111,45 @@ int sim_soil_validate(const sim_soil *s, const char *path, error_text *err);
 /* Bekker's pressure (Pa) at sinkage z (m) under a patch of width b (m). */
 double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m);
 
+/*
+ * The single-wheel testbed (sim_testbed.c): a rigid wheel under a vertical
+ * load, load-driven each tick, driven at a slip across a flat bin of the
+ * bekker model; its drawbar pull, sinkage and driving torque are the means
+ * over the second half of the distance. Deterministic.
+ */
+typedef struct sim_wheel_run {
+    double radius_m, width_m, load_n;
+    double slip;        /* [0, 1): the wheel turns at v / (R (1 - slip)) */
+    double cell_m;      /* the bin's cells (default 0.005) */
+    double distance_m;  /* default 0.5 */
+    double speed_m_s;   /* default 0.05 */
+    double tick_s;      /* default 0.05 (2.5 mm of travel a tick, as the tests) */
+    double compression; /* the material's share compacted, default 0.5 */
+} sim_wheel_run;
+typedef struct sim_wheel_result {
+    double drawbar_pull_n; /* Fx on the wheel: > 0 pulls forward */
+    double sinkage_m;      /* below the undisturbed surface */
+    double torque_nm;      /* the driving torque (minus the soil's about the axle) */
+    long ticks;
+} sim_wheel_result;
+/* Zero wheel, the defaults above. */
+void sim_wheel_run_defaults(sim_wheel_run *r);
+/* 0, or -1 with err (a soil or run field out of range, or out of memory). */
+int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_result *out,
+                      error_text *err);
+/* Ding et al. 2011 (J. Terramechanics 48(1):27-45, HIT testbed): the smooth
+ * wheel of their Fig. 9 on their soil (preset "ding2011"), values read off
+ * the plots (about +-0.5 mm, +-1 N; tests/validation/single-wheel-ding2011.csv),
+ * for the validation test and the trade's physical axis. */
+typedef struct sim_wheel_measured {
+    double slip, drawbar_pull_n, sinkage_m, torque_nm;
+} sim_wheel_measured;
+#define SIM_WHEEL_DING2011_ROWS 6
+#define SIM_WHEEL_DING2011_RADIUS_M 0.15735
+#define SIM_WHEEL_DING2011_WIDTH_M 0.165
+#define SIM_WHEEL_DING2011_LOAD_N 80.0
+extern const sim_wheel_measured sim_wheel_ding2011[SIM_WHEEL_DING2011_ROWS];
+
 /* The material as a person writes it (scene files, the wire). */
 typedef struct sim_material {
     double compression;      /* [0,1]: share of the penetration that is compacted away */

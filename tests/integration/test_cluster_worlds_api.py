@@ -14,6 +14,9 @@ JetStream cluster and two real `terrad serve --cluster` nodes:
   - DELETE /v1/worlds/{name} on node b: the owner stops the world and its
     client is told and closed with 4020 "world deleted"; the list no longer
     has it; the same name can be created again;
+  - `terrad world add|list|remove --http URL` (the same command line, a
+    client of this API): add on node b, list on node a naming each world's
+    node, a refused scene and an unknown world named by the server's words;
   - an admin connection on node b (in another world, "keeper") that sent
     subscribe_events hears world_created and world_deleted of the world
     made and ended through node a's and node b's HTTP.
@@ -24,14 +27,16 @@ load); no figure of speed is checked. Skipped (77) without nats-server.
 import asyncio
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import Checks, EventWatcher, skip, tp  # noqa: E402
+from service_harness import BIN, SOURCE, Checks, EventWatcher, skip, tp  # noqa: E402
 
 check = Checks()
 
@@ -208,6 +213,35 @@ def arena(a, b, loop, watcher):
     check(wait_for(lambda: a.serves("arena") or b.serves("arena"), 90), "and served again")
 
 
+def world_cmd(node, *args):
+    """`terrad world ... --http` against node: (exit status, stdout, stderr)."""
+    p = subprocess.run([BIN, "world", *args, "--http", node.http], capture_output=True, text=True,
+                       timeout=120)
+    return p.returncode, p.stdout, p.stderr
+
+
+def command_line(a, b):
+    rc, out, err = world_cmd(b, "add", "cli-w", "--scene",
+                             os.path.join(SOURCE, "tests", "scenes", "tiny.json"))
+    check(rc == 0 and out.startswith("world cli-w added"), f"world add --http on b ({rc} {out!r} "
+          f"{err!r})")
+    check(wait_for(lambda: a.serves("cli-w") or b.serves("cli-w"), 90), "cli-w is served")
+    owner = "a" if a.serves("cli-w") else "b"
+    check(wait_for(lambda: f"cli-w {owner}\n" in world_cmd(a, "list")[1], 60),
+          f"world list --http on a names cli-w on node {owner}: {world_cmd(a, 'list')}")
+    with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as f:
+        f.write('{"world": {"width": -1}}')
+        bad = f.name
+    rc, out, err = world_cmd(a, "add", "cli-bad", "--scene", bad)
+    os.unlink(bad)
+    check(rc == 1 and "422: scene: world.width" in err, f"a refused scene: the server's words "
+          f"({rc} {err!r})")
+    rc, out, err = world_cmd(a, "remove", "cli-w")
+    check(rc == 0 and out == "world cli-w removed\n", f"world remove --http ({rc} {err!r})")
+    rc, out, err = world_cmd(a, "remove", "cli-w")
+    check(rc == 1 and "404: name: no such world" in err, f"remove an unknown world ({rc} {err!r})")
+
+
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
@@ -219,6 +253,7 @@ def main():
             nodes += [a, b]
             check(wait_for(lambda: a.up() and b.up(), 90), "both nodes are up (standbys)")
             scenario(a, b)
+            command_line(a, b)
         except Exception:  # noqa: BLE001
             import traceback
             check(False, "the test raised:\n" + traceback.format_exc())

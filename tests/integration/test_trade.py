@@ -12,6 +12,12 @@
   untouched, so their error is the same in every run of a scene and they show
   no anisotropy; coarse runs have a non-zero error and anisotropy (the measure
   is not blind);
+- the physical axis: with bekker in the sweep, trade-physical.csv holds a row per bekker
+  configuration on Ding 2011's single wheel (quick: 0.02 and 0.01 m cells), each with its cost
+  and its median errors against the measurements (finite, and the same on every run: the
+  testbed is deterministic, so the rows equal test_single_wheel_ding2011's kind of figures at
+  their own cell size), the finest at 0 against itself; trade.txt says the geometric models
+  have no forces; a sweep without bekker writes no such file;
 - no trade.svg (scripts/trade-plot draws the plot from the CSV: test_trade_plot);
   trade.txt carries the summary;
 - a subset (--models/--scenes) gives just that subset; GL rows when a GL
@@ -112,6 +118,27 @@ def check_rows(rows, models, scenes, backends, label):
               f"{label}: {s}: 0.2 m cells show some anisotropy")
 
 
+def check_physical(out, txt):
+    path = os.path.join(out, "trade-physical.csv")
+    check(os.path.exists(path), "bekker in the sweep: trade-physical.csv written")
+    if not os.path.exists(path):
+        return
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    check([float(r["cell_m"]) for r in rows] == [0.02, 0.01],
+          f"physical: one row per quick cell size ({[r['cell_m'] for r in rows]})")
+    for r in rows:
+        errs = [float(r[k]) for k in ("pull_median_error", "sinkage_median_error",
+                                      "torque_median_error")]
+        check(r["model"] == "bekker" and all(math.isfinite(e) and 0 <= e < 10 for e in errs)
+              and float(r["tick_ms_mean"]) > 0,
+              f"physical: {r['cell_m']} m: errors against Ding finite ({errs}), cost > 0")
+    check(rows and float(rows[-1]["pull_rms_vs_finest_n"]) == 0.0,
+          "physical: the finest configuration is 0 against itself")
+    check("against measured data" in txt and "compute no forces" in txt,
+          "trade.txt has the physical table and says the geometric models have no forces")
+
+
 def check_no_svg(out, p, label):
     """The bench writes data only; the picture is scripts/trade-plot's (matplotlib)."""
     check(not os.path.exists(os.path.join(out, "trade.svg")), f"{label}: the bench writes no SVG")
@@ -131,6 +158,7 @@ with tempfile.TemporaryDirectory() as tmp:
             txt = f.read()
         check("summary" in txt and "converged" in txt, "trade.txt has the summary")
         check("summary" in p.stdout and "wrote" in p.stdout, "the table is printed")
+        check_physical(out, txt)
 
     # a subset, and GL where it exists
     out = os.path.join(tmp, "subset")
@@ -143,6 +171,8 @@ with tempfile.TemporaryDirectory() as tmp:
         check({r["model"] for r in rows if r["role"] == "sweep"} == {"persson-ssbo"},
               "subset: only the model asked for")
         check_no_svg(out, p, "subset")
+        check(not os.path.exists(os.path.join(out, "trade-physical.csv")),
+              "subset without bekker: no trade-physical.csv")
 
     # GL where a context can be made (the same probe as test_simulate)
     probe = subprocess.run([BIN, "simulate", "--scene", os.path.join(SOURCE, "tests", "scenes",

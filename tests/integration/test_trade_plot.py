@@ -6,6 +6,9 @@
   the most accurate and the cheapest configuration of the scene;
 - the SVG it writes names every scene and labels every point of every front with its model,
   cell size and iterations (text kept as text);
+- the physical axis: docs/trade/trade-physical.csv beside it adds a panel of bekker's cost
+  against its error against measured data (Ding 2011), each configuration labelled; a CSV
+  with no such file beside it (a copy in a temporary directory) gets no such panel;
 - a CSV without sweep rows is refused with a message.
 Skips (77) without Debian's python3-matplotlib.
 """
@@ -58,9 +61,21 @@ with tempfile.TemporaryDirectory() as tmp:
         check(f"{scene}:" in svg, f"the SVG has a panel for {scene}")
         for p in tp.pareto_front([x for x in rows if x["scene"] == scene]):
             check(tp.label(p) in svg, f"{scene}: the front point {tp.label(p)} is labelled")
+    physical = tp.read_physical(os.path.join(os.path.dirname(CSV), "trade-physical.csv"))
+    check(len(physical) >= 3, f"docs/trade has the physical axis ({len(physical)} rows)")
+    check("against measured data" in svg and
+          all(tp.physical_label(p) in svg for p in physical),
+          "the SVG has the physical panel, every bekker configuration labelled")
     empty = os.path.join(tmp, "empty.csv")
     with open(CSV) as f, open(empty, "w") as g:
         g.write(f.readline())
+    alone = os.path.join(tmp, "alone.csv")
+    with open(CSV) as f, open(alone, "w") as g:
+        g.write(f.read())
+    r = subprocess.run(["/usr/bin/python3", SCRIPT, alone, out], capture_output=True, text=True,
+                       timeout=120)
+    check(r.returncode == 0 and "against measured data" not in open(out).read(),
+          f"no trade-physical.csv beside the CSV: no physical panel ({r.stderr[-200:]})")
     r = subprocess.run(["/usr/bin/python3", SCRIPT, empty, out], capture_output=True, text=True, timeout=60)
     check(r.returncode != 0 and "no sweep rows" in r.stderr, f"an empty sweep is refused: {r.stderr}")
 check.finish()

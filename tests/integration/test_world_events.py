@@ -8,7 +8,10 @@ PROTOCOL.md "Events"), against the real daemon and real websocket clients:
 - one subscribed to world_deleted only gets no world_created;
 - a viewer's subscribe_events is refused (forbidden) and its connection
   goes on; an unknown event name is refused naming events[i]; a missing
-  "events" names events.
+  "events" names events;
+- HTTP edits racing a DELETE of their world each end with an answer — applied
+  (200), or refused at once because the world stopped (503 shutting_down) or
+  is gone (404) — never by the edit's 10 s timeout (504).
 Waits are by condition with generous deadlines; no speed is checked."""
 import asyncio
 import hashlib
@@ -16,7 +19,9 @@ import json
 import os
 import shutil
 import sys
+import time
 import tempfile
+import threading
 import urllib.error
 import urllib.request
 
@@ -83,6 +88,41 @@ async def scenario(d):
         await w.close()
 
 
+def edits_racing_delete(d):
+    scene = {"name": "race", "world": {"width": 32, "height": 32, "cell_size_m": 0.05},
+             "terrain": {"kind": "flat", "height_m": 0.5}}
+    status, doc = call(d, "POST", "/v1/worlds", {"name": "ev-race", "scene": scene})
+    check(status == 201, f"create ev-race: {status} {doc}")
+    answers, stop = [], threading.Event()
+
+    def hammer():
+        while not stop.is_set():
+            status, doc = call(d, "POST", "/v1/worlds/ev-race/edits",
+                               {"op": "add", "x": 1, "y": 1, "w": 2, "h": 2, "amount": 1})
+            answers.append((status, doc))
+            if status == 404:
+                return
+
+    threads = [threading.Thread(target=hammer) for _ in range(6)]
+    for t in threads:
+        t.start()
+    end = time.monotonic() + 60
+    while time.monotonic() < end and not any(s == 200 for s, _ in answers):
+        time.sleep(0.05)
+    status, doc = call(d, "DELETE", "/v1/worlds/ev-race")
+    check(status == 200, f"delete ev-race while edits come: {status} {doc}")
+    stop.set()
+    for t in threads:
+        t.join(150)
+    statuses = sorted({s for s, _ in answers})
+    check(any(s == 200 for s, _ in answers), f"edits were applied before the delete: {statuses}")
+    check(set(statuses) <= {200, 404, 503}, f"every racing edit got an answer, none timed out: "
+          f"{statuses}")
+    refused = [doc for s, doc in answers if s == 503]
+    check(all(r.get("name") == "shutting_down" and "ev-race" in r.get("error", "")
+              for r in refused), f"a refused edit names the stopped world: {refused[:2]}")
+
+
 def main():
     tmp = tempfile.mkdtemp(prefix="terrad-events-")
     auth = os.path.join(tmp, "auth")
@@ -94,6 +134,7 @@ def main():
     check.daemons.append(d)
     try:
         asyncio.run(scenario(d))
+        edits_racing_delete(d)
     except Exception:  # noqa: BLE001
         import traceback
         check(False, "the test raised:\n" + traceback.format_exc())

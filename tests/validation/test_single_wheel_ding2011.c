@@ -7,7 +7,8 @@
  * 2407.4 kN/m^(n+2), c 0.25 kPa, phi 31.9 deg, K 11 mm: preset "ding2011").
  *
  * The wheel is load-driven (sim_bekker_carry each tick), moves at 0.05 m/s
- * and turns at v / (R (1 - s)); means over the second half of 0.5 m. Printed
+ * and turns at v / (R (1 - s)); means over the second half of 0.5 m
+ * (sim_wheel_testbed, the run `terrad calibrate` and the trade also use). Printed
  * per slip: drawbar pull (Fx), sinkage, driving torque (minus the soil's
  * torque about the axle), each beside the measurement, and the median
  * relative errors (docs/validation.md). Chrono SCM on the same wheel
@@ -31,55 +32,35 @@
 #include "check.h"
 #include "soil_rig.h"
 
-/* Ding et al. 2011, smooth wheel, 80 N: slip, DP (N), sinkage (m), torque (N m). */
-static const double ding[6][4] = {
-    {0.0, -6.5, 0.005, 0.0}, {0.1, 11.0, 0.0055, 3.0}, {0.2, 14.5, 0.0075, 4.2},
-    {0.3, 15.0, 0.010, 4.8}, {0.4, 15.0, 0.0125, 5.0}, {0.6, 15.0, 0.0175, 5.3},
-};
-
-#define RADIUS 0.15735
-#define WIDTH 0.165
-#define LOAD 80.0
+/* Ding et al. 2011, smooth wheel, 80 N (sim.h's sim_wheel_ding2011): slip,
+ * DP (N), sinkage (m), torque (N m). */
+#define RADIUS SIM_WHEEL_DING2011_RADIUS_M
+#define WIDTH SIM_WHEEL_DING2011_WIDTH_M
+#define LOAD SIM_WHEEL_DING2011_LOAD_N
 /* today's medians plus a margin (see the top comment) */
 #define DP_BOUND 0.70
 #define SINKAGE_BOUND 0.35
 
+/* The testbed run (sim_wheel_testbed: 5 mm cells, 0.05 m/s, 1 mm a tick). */
 static void run(double slip, double *dp, double *sinkage, double *torque)
 {
     sim_soil s;
     sim_soil_preset("ding2011", &s);
-    const double cell = 0.005, v = 0.05, dt = 0.05, metres = 0.5, ground = 0.5;
-    int w = (int)((metres + 4 * RADIUS) / cell), h = (int)(WIDTH / cell) + 20;
-    soil_rig r;
-    soil_rig_init(&r, &s, 0.5, cell, w, h, ground);
-    r.p.tick_s = dt;
-    r.geometry.shape = COLLIDER_CYLINDER;
-    r.geometry.radius = RADIUS;
-    r.geometry.half_length = WIDTH / 2;
-    double x = 1.5 * RADIUS, angle = 0.0, y = h * cell / 2;
-    double omega = v / (RADIUS * (1.0 - slip));
-    soil_rig_place(&r, x, y, ground + RADIUS, (quatd){1, 0, 0, 0}, 0);
-    int ticks = (int)(metres / (v * dt));
-    double sum_dp = 0, sum_z = 0, sum_t = 0;
-    int n = 0;
-    for (int t = 0; t < ticks; t++) {
-        x += v * dt;
-        angle += omega * dt;
-        soil_rig_place(&r, x, y, r.collider.pose.position.z,
-                       quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
-        soil_rig_carry(&r, LOAD);
-        soil_rig_step(&r);
-        if (t >= ticks / 2) {
-            sum_dp += r.contact.force_n[0];
-            sum_z += ground - (r.collider.pose.position.z - RADIUS);
-            sum_t += -r.contact.torque_nm[1];
-            n++;
-        }
+    sim_wheel_run r;
+    sim_wheel_run_defaults(&r);
+    r.radius_m = RADIUS;
+    r.width_m = WIDTH;
+    r.load_n = LOAD;
+    r.slip = slip;
+    sim_wheel_result out;
+    error_text err;
+    if (sim_wheel_testbed(&s, &r, &out, &err) != 0) {
+        printf("testbed: %s\n", err.message);
+        abort();
     }
-    *dp = sum_dp / n;
-    *sinkage = sum_z / n;
-    *torque = sum_t / n;
-    soil_rig_free(&r);
+    *dp = out.drawbar_pull_n;
+    *sinkage = out.sinkage_m;
+    *torque = out.torque_nm;
 }
 
 /*
@@ -149,15 +130,18 @@ int main(void)
            "Wong-Reece | torque terrad (N m) | Ding | Wong-Reece |\n"
            "|---|---|---|---|---|---|---|---|---|---|\n");
     for (int i = 0; i < 6; i++) {
-        run(ding[i][0], &dp[i], &z[i], &tq[i]);
-        wong_reece(ding[i][0], &w_dp[i], &w_z[i], &w_t[i]);
+        run(sim_wheel_ding2011[i].slip, &dp[i], &z[i], &tq[i]);
+        wong_reece(sim_wheel_ding2011[i].slip, &w_dp[i], &w_z[i], &w_t[i]);
         printf("| %.1f | %.2f | %.1f | %.2f | %.2f | %.1f | %.2f | %.2f | %.1f | %.2f |\n",
-               ding[i][0], dp[i], ding[i][1], w_dp[i], z[i] * 1e3, ding[i][2] * 1e3, w_z[i] * 1e3,
-               tq[i], ding[i][3], w_t[i]);
-        e_dp[i] = fabs(dp[i] - ding[i][1]) / fabs(ding[i][1]);
-        e_z[i] = fabs(z[i] - ding[i][2]) / ding[i][2];
-        if (ding[i][3] > 0.0)
-            e_t[nt++] = fabs(tq[i] - ding[i][3]) / ding[i][3];
+               sim_wheel_ding2011[i].slip, dp[i], sim_wheel_ding2011[i].drawbar_pull_n, w_dp[i],
+               z[i] * 1e3, sim_wheel_ding2011[i].sinkage_m * 1e3, w_z[i] * 1e3, tq[i],
+               sim_wheel_ding2011[i].torque_nm, w_t[i]);
+        e_dp[i] = fabs(dp[i] - sim_wheel_ding2011[i].drawbar_pull_n) /
+                  fabs(sim_wheel_ding2011[i].drawbar_pull_n);
+        e_z[i] = fabs(z[i] - sim_wheel_ding2011[i].sinkage_m) / sim_wheel_ding2011[i].sinkage_m;
+        if (sim_wheel_ding2011[i].torque_nm > 0.0)
+            e_t[nt++] =
+                fabs(tq[i] - sim_wheel_ding2011[i].torque_nm) / sim_wheel_ding2011[i].torque_nm;
     }
     double m_dp = median(e_dp, 6), m_z = median(e_z, 6), m_t = median(e_t, nt);
     printf("median relative error: drawbar pull %.0f %%, sinkage %.0f %%, torque %.0f %%\n",
@@ -165,8 +149,8 @@ int main(void)
     CHECK(dp[0] < 0.0, "slip 0: the wheel is resisted (DP %.2f N)", dp[0]);
     for (int i = 1; i < 6; i++)
         CHECK(dp[i] > dp[i - 1] - 0.5 && tq[i] > tq[i - 1] - 0.05,
-              "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)", ding[i][0], dp[i],
-              tq[i]);
+              "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)",
+              sim_wheel_ding2011[i].slip, dp[i], tq[i]);
     CHECK(z[5] > z[0] + 0.004,
           "slip-sinkage: the wheel sinks deeper at slip 0.6 (%.2f mm) than "
           "at 0 (%.2f mm)",

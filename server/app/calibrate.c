@@ -1,0 +1,600 @@
+/*
+ * calibrate.c: `terrad calibrate` — a soil's parameters fitted to measured
+ * data (docs/calibrate.md). Offline, no tick: plate-sinkage curves give
+ * Bekker's n, kc and kphi by linear least squares (calibrate_data.c);
+ * single-wheel runs give the shear and slip parameters (c, phi, K, slip_n
+ * or the ones --fit names) by running the bekker model's own testbed
+ * (sim_wheel_testbed) for every row: a 3 x 3 grid over the first two
+ * parameters, then rounds of coordinate descent with halving steps. No
+ * randomness and one order of evaluation, so the same input gives the same
+ * bytes out. Out: a report with the residual of every row (stdout), the
+ * scene-ready material JSON (--out) and the residuals as CSV (--residuals).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "app/app.h"
+#include "app/calibrate_internal.h"
+
+/* ---- The wheel's parameters: name, search range, first step ---- */
+
+enum { FIT_C, FIT_PHI, FIT_K, FIT_SLIP_N, FIT_COUNT };
+
+typedef struct fit_param {
+    const char *name;
+    double lo, hi, step; /* step: added, or for K a factor (log steps) */
+    int log_step;
+} fit_param;
+
+/* Ranges inside sim_soil_validate's, and where real soils lie (Wong's and
+ * Ding's tables: c 0-70 kPa, phi 13-35 deg, K 1-25 mm, slip_n 0-2). */
+static const fit_param fit_params[FIT_COUNT] = {
+    {"cohesion_pa", 0.0, 1e5, 500.0, 0},
+    {"friction_deg", 0.0, 50.0, 4.0, 0},
+    {"shear_k_m", 0.001, 0.1, 1.6, 1},
+    {"slip_n", 0.0, 2.0, 0.2, 0},
+};
+
+static double *param_field(sim_soil *s, int p)
+{
+    double *f[FIT_COUNT] = {&s->cohesion_pa, &s->friction_deg, &s->shear_k_m, &s->slip_n};
+    return f[p];
+}
+
+typedef struct cal_options {
+    const char *plates, *wheel, *out, *residuals, *base;
+    cal_wheel_defaults wheel_defaults;
+    int fit[FIT_COUNT], fit_count;
+    long rounds;
+    double compression;
+    sim_wheel_run testbed; /* cell, distance, speed and tick of every run */
+} cal_options;
+
+enum {
+    OPT_PLATES,
+    OPT_WHEEL,
+    OPT_WHERE,
+    OPT_RADIUS,
+    OPT_WIDTH,
+    OPT_LOAD,
+    OPT_BASE,
+    OPT_FIT,
+    OPT_ROUNDS,
+    OPT_CELL,
+    OPT_DISTANCE,
+    OPT_COMPRESSION,
+    OPT_OUT,
+    OPT_RESIDUALS,
+};
+
+static const cli_option cal_table[] = {
+    [OPT_PLATES] = {"plates", "FILE",
+                    "plate-sinkage CSV: width_m, pressure_pa, sinkage_m (>= 2 widths of\n"
+                    ">= 2 rows): n, kc and kphi by least squares"},
+    [OPT_WHEEL] = {"wheel", "FILE",
+                   "single-wheel CSV: slip and drawbar_pull_n, sinkage_m and/or torque_nm\n"
+                   "(an empty cell is not measured); radius_m, width_m, load_n\n"
+                   "as columns or the options below"},
+    [OPT_WHERE] = {"where", "COL=VALUE", "use only the wheel rows whose COL is VALUE"},
+    [OPT_RADIUS] = {"radius", "M", "the wheel's radius when the file has no radius_m"},
+    [OPT_WIDTH] = {"width", "M", "the wheel's width when the file has no width_m"},
+    [OPT_LOAD] = {"load", "N", "the vertical load when the file has no load_n"},
+    [OPT_BASE] = {"base", "PRESET",
+                  "the soil the fit starts from and keeps what it does not fit\n"
+                  "(a preset of docs/models.md; default ding2011)"},
+    [OPT_FIT] = {"fit", "LIST",
+                 "the wheel parameters fitted, in order (default\n"
+                 "cohesion_pa,friction_deg,shear_k_m,slip_n); the grid is over the first two"},
+    [OPT_ROUNDS] = {"rounds", "N", "rounds of coordinate descent after the grid (default 3)"},
+    [OPT_CELL] = {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)"},
+    [OPT_DISTANCE] = {"distance", "M", "each testbed run's travel (default 0.5)"},
+    [OPT_COMPRESSION] = {"compression", "X",
+                         "the material's compression in the runs and the JSON (default 0.5)"},
+    [OPT_OUT] = {"out", "FILE", "write the material JSON here (it is also printed)"},
+    [OPT_RESIDUALS] = {"residuals", "FILE", "write every row's residuals here as CSV"},
+    {0},
+};
+
+static const char cal_usage[] = "--plates FILE | --wheel FILE [options]";
+
+void app_calibrate_usage(FILE *f)
+{
+    cli_print_help(f, "calibrate", cal_usage, cal_table);
+}
+
+static int parse_fit(cal_options *o, const char *list, error_text *err)
+{
+    char buf[256];
+    o->fit_count = 0;
+    if (strlen(list) >= sizeof buf || !*list) {
+        error_set(err, "--fit: expected a comma-separated list");
+        return -1;
+    }
+    strcpy(buf, list);
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        int p = 0;
+        while (p < FIT_COUNT && strcmp(fit_params[p].name, tok) != 0)
+            p++;
+        int seen = 0;
+        for (int i = 0; i < o->fit_count && p < FIT_COUNT; i++)
+            seen |= o->fit[i] == p;
+        if (p == FIT_COUNT || seen) {
+            error_set(err, "--fit: \"%s\" is %s (cohesion_pa, friction_deg, shear_k_m, slip_n)",
+                      tok, seen ? "named twice" : "not a fitted parameter");
+            return -1;
+        }
+        o->fit[o->fit_count++] = p;
+    }
+    return 0;
+}
+
+static int cal_on_option(void *ctx, int index, const char *v, error_text *err)
+{
+    cal_options *o = ctx;
+    cal_wheel_defaults *d = &o->wheel_defaults;
+    switch (index) {
+    case OPT_PLATES:
+        o->plates = v;
+        return 0;
+    case OPT_WHEEL:
+        o->wheel = v;
+        return 0;
+    case OPT_WHERE: {
+        const char *eq = strchr(v, '=');
+        static char column[128];
+        if (!eq || eq == v || (size_t)(eq - v) >= sizeof column) {
+            error_set(err, "--where: expected COL=VALUE (got \"%s\")", v);
+            return -1;
+        }
+        memcpy(column, v, (size_t)(eq - v));
+        column[eq - v] = '\0';
+        d->where_column = column;
+        d->where_value = eq + 1;
+        return 0;
+    }
+    case OPT_RADIUS:
+        return cli_parse_double(v, 1e-3, 10, &d->radius_m, err);
+    case OPT_WIDTH:
+        return cli_parse_double(v, 1e-3, 10, &d->width_m, err);
+    case OPT_LOAD:
+        return cli_parse_double(v, 1e-3, 1e7, &d->load_n, err);
+    case OPT_BASE:
+        o->base = v;
+        return 0;
+    case OPT_FIT:
+        return parse_fit(o, v, err);
+    case OPT_ROUNDS:
+        return cli_parse_long(v, 0, 50, &o->rounds, err);
+    case OPT_CELL:
+        return cli_parse_double(v, 1e-3, 0.1, &o->testbed.cell_m, err);
+    case OPT_DISTANCE:
+        return cli_parse_double(v, 0.05, 10, &o->testbed.distance_m, err);
+    case OPT_COMPRESSION:
+        return cli_parse_double(v, 0, 1, &o->compression, err);
+    case OPT_OUT:
+        o->out = v;
+        return 0;
+    case OPT_RESIDUALS:
+        o->residuals = v;
+        return 0;
+    }
+    return 0;
+}
+
+/* ---- The wheel fit ---- */
+
+/* The model's three measures for every row, and the objective. */
+typedef struct wheel_eval {
+    double *pull, *sinkage, *torque;
+    double objective;
+} wheel_eval;
+
+typedef struct wheel_fit {
+    const cal_wheel_row *rows;
+    int count;
+    const cal_options *o;
+    double scale[3]; /* RMS of each measured column: residuals are in these units */
+    long evaluations;
+} wheel_fit;
+
+static int eval_alloc(wheel_eval *e, int n)
+{
+    e->pull = calloc((size_t)n, sizeof(double));
+    e->sinkage = calloc((size_t)n, sizeof(double));
+    e->torque = calloc((size_t)n, sizeof(double));
+    return e->pull && e->sinkage && e->torque ? 0 : -1;
+}
+
+static void eval_free(wheel_eval *e)
+{
+    free(e->pull);
+    free(e->sinkage);
+    free(e->torque);
+}
+
+static void eval_copy(wheel_eval *dst, const wheel_eval *src, int n)
+{
+    memcpy(dst->pull, src->pull, sizeof(double) * (size_t)n);
+    memcpy(dst->sinkage, src->sinkage, sizeof(double) * (size_t)n);
+    memcpy(dst->torque, src->torque, sizeof(double) * (size_t)n);
+    dst->objective = src->objective;
+}
+
+/* Every row through the testbed; the objective is Σ ((model - measured) /
+ * scale)² over the measured cells, each measure in its column's RMS. */
+static int evaluate(wheel_fit *f, const sim_soil *soil, wheel_eval *e, error_text *err)
+{
+    e->objective = 0;
+    f->evaluations++;
+    for (int i = 0; i < f->count; i++) {
+        const cal_wheel_row *r = &f->rows[i];
+        sim_wheel_run run = f->o->testbed;
+        run.radius_m = r->radius_m;
+        run.width_m = r->width_m;
+        run.load_n = r->load_n;
+        run.slip = r->slip;
+        run.compression = f->o->compression;
+        sim_wheel_result out;
+        if (sim_wheel_testbed(soil, &run, &out, err) != 0)
+            return -1;
+        e->pull[i] = out.drawbar_pull_n;
+        e->sinkage[i] = out.sinkage_m;
+        e->torque[i] = out.torque_nm;
+        const cal_measure *m[3] = {&r->pull_n, &r->sinkage_m, &r->torque_nm};
+        double got[3] = {out.drawbar_pull_n, out.sinkage_m, out.torque_nm};
+        for (int k = 0; k < 3; k++)
+            if (m[k]->has && f->scale[k] > 0) {
+                double d = (got[k] - m[k]->value) / f->scale[k];
+                e->objective += d * d;
+            }
+    }
+    return 0;
+}
+
+/* x moved by one step in direction dir (-1, +1), within the range. */
+static double stepped(int p, double x, double step, int dir)
+{
+    const fit_param *fp = &fit_params[p];
+    double y = fp->log_step ? (dir > 0 ? x * step : x / step) : x + dir * step;
+    return fmin(fmax(y, fp->lo), fp->hi);
+}
+
+/* Try soil with parameter p at x; keep it in best when strictly better. */
+static int try_value(wheel_fit *f, sim_soil *best, wheel_eval *be, wheel_eval *trial, int p,
+                     double x, error_text *err)
+{
+    sim_soil s = *best;
+    if (*param_field(&s, p) == x)
+        return 0;
+    *param_field(&s, p) = x;
+    if (evaluate(f, &s, trial, err) != 0)
+        return -1;
+    if (trial->objective < be->objective) {
+        *best = s;
+        eval_copy(be, trial, f->count);
+        return 1;
+    }
+    return 0;
+}
+
+/* The grid, then the rounds; best starts as the base soil, evaluated. */
+static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, error_text *err)
+{
+    const cal_options *o = f->o;
+    wheel_eval trial;
+    if (eval_alloc(&trial, f->count) != 0) {
+        error_set(err, "out of memory");
+        return -1;
+    }
+    double step[FIT_COUNT];
+    for (int p = 0; p < FIT_COUNT; p++)
+        step[p] = fit_params[p].step;
+    int rc = 0;
+    if (o->fit_count >= 2) { /* 3 x 3 around the base, in one fixed order */
+        int a = o->fit[0], b = o->fit[1];
+        sim_soil centre = *best;
+        for (int i = -1; i <= 1 && rc == 0; i++)
+            for (int j = -1; j <= 1 && rc == 0; j++) {
+                sim_soil s = centre;
+                *param_field(&s, a) = stepped(a, *param_field(&centre, a), step[a], i);
+                *param_field(&s, b) = stepped(b, *param_field(&centre, b), step[b], j);
+                if ((i == 0 && j == 0) || evaluate(f, &s, &trial, err) != 0) {
+                    rc = (i == 0 && j == 0) ? 0 : -1;
+                    continue;
+                }
+                if (trial.objective < be->objective) {
+                    *best = s;
+                    eval_copy(be, &trial, f->count);
+                }
+            }
+        fprintf(report, "grid 3 x 3 over %s, %s: objective %.6g\n", fit_params[a].name,
+                fit_params[b].name, be->objective);
+    }
+    for (long round = 0; round < o->rounds && rc == 0; round++) {
+        for (int i = 0; i < o->fit_count && rc == 0; i++) {
+            int p = o->fit[i], moved = 0;
+            for (int dir = -1; dir <= 1 && rc == 0; dir += 2) {
+                int got = try_value(f, best, be, &trial, p,
+                                    stepped(p, *param_field(best, p), step[p], dir), err);
+                rc = got < 0 ? -1 : 0;
+                moved |= got > 0;
+            }
+            if (!moved)
+                step[p] = fit_params[p].log_step ? sqrt(step[p]) : step[p] / 2;
+        }
+        fprintf(report, "round %ld: objective %.6g\n", round + 1, be->objective);
+    }
+    eval_free(&trial);
+    return rc;
+}
+
+/* Values as the JSON writes them (%.6g), so the residuals are those of the
+ * material printed, not of bits the JSON cannot carry. */
+static double printed(double v)
+{
+    char buf[64];
+    snprintf(buf, sizeof buf, "%.6g", v);
+    return strtod(buf, NULL);
+}
+
+static void round_soil(sim_soil *s)
+{
+    double *f[9] = {
+        &s->n,         &s->kc,           &s->kphi,           &s->cohesion_pa, &s->friction_deg,
+        &s->shear_k_m, &s->elastic_pa_m, &s->damping_pa_s_m, &s->slip_n};
+    for (int i = 0; i < 9; i++)
+        *f[i] = printed(*f[i]);
+}
+
+/* ---- Output ---- */
+
+static void write_material(FILE *out, const sim_soil *s, double compression)
+{
+    fprintf(out,
+            "{\"model\": \"bekker\", \"compression\": %.6g, \"soil\": {\"n\": %.6g, \"kc\": %.6g, "
+            "\"kphi\": %.6g, \"cohesion_pa\": %.6g, \"friction_deg\": %.6g, \"shear_k_m\": %.6g, "
+            "\"elastic_pa_m\": %.6g, \"damping_pa_s_m\": %.6g, \"slip_n\": %.6g}}\n",
+            compression, s->n, s->kc, s->kphi, s->cohesion_pa, s->friction_deg, s->shear_k_m,
+            s->elastic_pa_m, s->damping_pa_s_m, s->slip_n);
+}
+
+static double relative(double model, double measured)
+{
+    return measured != 0 ? (model - measured) / fabs(measured) : NAN;
+}
+
+static int by_value(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* Median of |relative error| over the rows that measured k (nonzero), or NaN. */
+static double median_error(const cal_wheel_row *rows, int n, const wheel_eval *e, int k)
+{
+    double *v = malloc(sizeof(double) * (size_t)n);
+    int m = 0;
+    for (int i = 0; v && i < n; i++) {
+        const cal_measure *c[3] = {&rows[i].pull_n, &rows[i].sinkage_m, &rows[i].torque_nm};
+        double got[3] = {e->pull[i], e->sinkage[i], e->torque[i]};
+        if (c[k]->has && c[k]->value != 0)
+            v[m++] = fabs(relative(got[k], c[k]->value));
+    }
+    double r = NAN;
+    if (m > 0) {
+        qsort(v, (size_t)m, sizeof *v, by_value);
+        r = m % 2 ? v[m / 2] : 0.5 * (v[m / 2 - 1] + v[m / 2]);
+    }
+    free(v);
+    return r;
+}
+
+static const char *const measure_names[3] = {"drawbar_pull_n", "sinkage_m", "torque_nm"};
+
+static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_eval *base,
+                         const wheel_eval *fitted, const char *base_name)
+{
+    fprintf(out, "\n| line | slip | pull measured | base | fitted | sinkage mm measured | base | "
+                 "fitted | torque measured | base | fitted |\n"
+                 "|---|---|---|---|---|---|---|---|---|---|---|\n");
+    for (int i = 0; i < f->count; i++) {
+        const cal_wheel_row *r = &f->rows[i];
+        const cal_measure *m[3] = {&r->pull_n, &r->sinkage_m, &r->torque_nm};
+        double b[3] = {base->pull[i], base->sinkage[i], base->torque[i]};
+        double g[3] = {fitted->pull[i], fitted->sinkage[i], fitted->torque[i]};
+        double unit[3] = {1, 1e3, 1};
+        fprintf(out, "| %d | %.3g", r->line, r->slip);
+        for (int k = 0; k < 3; k++) {
+            if (m[k]->has)
+                fprintf(out, " | %.2f", m[k]->value * unit[k]);
+            else
+                fprintf(out, " | -");
+            fprintf(out, " | %.2f | %.2f", b[k] * unit[k], g[k] * unit[k]);
+            if (csv && m[k]->has)
+                fprintf(csv, "wheel,%d,%.6g,%s,%.6g,%.6g,%.6g\n", r->line, r->slip,
+                        measure_names[k], m[k]->value, g[k], relative(g[k], m[k]->value));
+        }
+        fprintf(out, " |\n");
+    }
+    fprintf(out, "\nmedian relative error, base %s -> fitted:", base_name);
+    const char *label[3] = {"drawbar pull", "sinkage", "torque"};
+    for (int k = 0; k < 3; k++) {
+        double a = median_error(f->rows, f->count, base, k);
+        double c = median_error(f->rows, f->count, fitted, k);
+        if (!isnan(a))
+            fprintf(out, "%s %s %.0f %% -> %.0f %%", k ? "," : "", label[k], 100 * a, 100 * c);
+    }
+    fprintf(out, "\nobjective (sum of squared residuals in each column's RMS): %.6g -> %.6g\n",
+            base->objective, fitted->objective);
+}
+
+/* The wheel rows: the base soil evaluated, searched, the result rounded and re-run. */
+static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count, sim_soil *soil,
+                     FILE *report, FILE *csv, error_text *err)
+{
+    wheel_fit f = {rows, count, o, {0, 0, 0}, 0};
+    for (int k = 0; k < 3; k++) {
+        double s2 = 0;
+        int m = 0;
+        for (int i = 0; i < count; i++) {
+            const cal_measure *c[3] = {&rows[i].pull_n, &rows[i].sinkage_m, &rows[i].torque_nm};
+            if (c[k]->has) {
+                s2 += c[k]->value * c[k]->value;
+                m++;
+            }
+        }
+        f.scale[k] = m ? sqrt(s2 / m) : 0;
+    }
+    wheel_eval base, best;
+    int rc = -1;
+    if (eval_alloc(&base, count) != 0 || eval_alloc(&best, count) != 0)
+        error_set(err, "out of memory");
+    else if (evaluate(&f, soil, &base, err) == 0) {
+        fprintf(report, "base soil: objective %.6g\n", base.objective);
+        eval_copy(&best, &base, count);
+        if (search(&f, soil, &best, report, err) == 0) {
+            sim_soil exact = *soil;
+            round_soil(soil);
+            rc = memcmp(&exact, soil, sizeof exact) != 0 ? evaluate(&f, soil, &best, err) : 0;
+        }
+    }
+    if (rc == 0) {
+        fprintf(report, "%ld testbed evaluations of %d rows (cell %g m, %g m at %g m/s)\n",
+                f.evaluations, count, o->testbed.cell_m, o->testbed.distance_m,
+                o->testbed.speed_m_s);
+        report_wheel(report, csv, &f, &base, &best, o->base);
+    }
+    eval_free(&base);
+    eval_free(&best);
+    return rc;
+}
+
+static void report_plates(FILE *out, FILE *csv, const cal_plate_row *rows, int count,
+                          const cal_plate_fit *fit)
+{
+    fprintf(out, "plates: %d rows, %d widths -> n %.6g, kc %.6g N/m^(n+1), kphi %.6g N/m^(n+2)%s\n",
+            count, fit->widths, fit->n, fit->kc, fit->kphi,
+            fit->clamped ? " (a modulus came out negative and is held at 0)" : "");
+    fprintf(out,
+            "\n| line | width_m | pressure_pa | sinkage_mm | pressure error | sinkage error |\n"
+            "|---|---|---|---|---|---|\n");
+    double worst = 0;
+    for (int i = 0; i < count; i++) {
+        fprintf(out, "| %d | %.6g | %.6g | %.4g | %+.2f %% | %+.2f %% |\n", rows[i].line,
+                rows[i].width_m, rows[i].pressure_pa, rows[i].sinkage_m * 1e3,
+                100 * fit->pressure_rel[i], 100 * fit->sinkage_rel[i]);
+        worst = fmax(worst, fabs(fit->pressure_rel[i]));
+        if (csv) {
+            double kb = fit->kc / rows[i].width_m + fit->kphi;
+            fprintf(csv, "plate,%d,%.6g,pressure_pa,%.6g,%.6g,%.6g\n", rows[i].line,
+                    rows[i].width_m, rows[i].pressure_pa, kb * pow(rows[i].sinkage_m, fit->n),
+                    fit->pressure_rel[i]);
+        }
+    }
+    fprintf(out, "largest pressure error %.2f %%\n\n", 100 * worst);
+}
+
+/* ---- The command ---- */
+
+static int write_file(const char *path, const char *what, const sim_soil *s, double compression,
+                      error_text *err)
+{
+    FILE *f = fopen(path, "w");
+    if (f) {
+        write_material(f, s, compression);
+        if (fclose(f) == 0)
+            return 0;
+    }
+    error_set(err, "%s: cannot write the %s", path, what);
+    return -1;
+}
+
+/* The plates (if any) then the wheel (if any); 0, 1 (a failure) or 2 (bad input). */
+static int calibrate(cal_options *o, sim_soil *soil, FILE *csv, error_text *err)
+{
+    if (o->plates) {
+        cal_plate_row *rows;
+        int n = cal_read_plates(o->plates, &rows, err);
+        if (n < 0)
+            return 2;
+        cal_plate_fit fit;
+        int rc = cal_fit_plates(rows, n, o->plates, &fit, err);
+        if (rc == 0) {
+            soil->n = fit.n;
+            soil->kc = fit.kc;
+            soil->kphi = fit.kphi;
+            report_plates(stdout, csv, rows, n, &fit);
+            cal_plate_fit_free(&fit);
+        }
+        free(rows);
+        if (rc != 0)
+            return 2;
+    }
+    if (sim_soil_validate(soil, "soil", err) != 0)
+        return 2;
+    if (o->wheel) {
+        cal_wheel_row *rows;
+        int n = cal_read_wheel(o->wheel, &o->wheel_defaults, &rows, err);
+        if (n < 0)
+            return 2;
+        printf("wheel: %d rows of %s; fitting", n, o->wheel);
+        for (int i = 0; i < o->fit_count; i++)
+            printf("%s %s", i ? "," : "", fit_params[o->fit[i]].name);
+        printf("\n");
+        int rc = fit_wheel(o, rows, n, soil, stdout, csv, err);
+        free(rows);
+        if (rc != 0)
+            return 1;
+    } else
+        round_soil(soil);
+    return 0;
+}
+
+int app_calibrate(int argc, char **argv)
+{
+    cal_options o = {.base = "ding2011", .rounds = 3, .compression = 0.5};
+    sim_wheel_run_defaults(&o.testbed);
+    for (int p = 0; p < FIT_COUNT; p++)
+        o.fit[o.fit_count++] = p;
+    error_text err;
+    int first = 0;
+    cli_result r =
+        cli_parse("calibrate", cal_usage, cal_table, argc, argv, cal_on_option, &o, &first);
+    if (r != CLI_OK)
+        return r == CLI_HELP ? 0 : 2;
+    sim_soil soil;
+    if (first < argc || (!o.plates && !o.wheel) || sim_soil_preset(o.base, &soil) != 0) {
+        fprintf(stderr, "terrad calibrate: %s\n",
+                first < argc            ? "unexpected operand (see --help)"
+                : !o.plates && !o.wheel ? "give --plates FILE and/or --wheel FILE"
+                                        : "--base: unknown preset (" SIM_SOIL_PRESET_LIST ")");
+        return 2;
+    }
+    FILE *csv = NULL;
+    if (o.residuals) {
+        csv = fopen(o.residuals, "w");
+        if (!csv) {
+            fprintf(stderr, "terrad calibrate: %s: cannot write the residuals\n", o.residuals);
+            return 1;
+        }
+        fprintf(csv, "kind,line,x,measure,measured,model,relative_error\n");
+    }
+    printf("terrad calibrate: base soil %s\n", o.base);
+    int rc = calibrate(&o, &soil, csv, &err);
+    if (csv && fclose(csv) != 0 && rc == 0) {
+        error_set(&err, "%s: cannot write the residuals", o.residuals);
+        rc = 1;
+    }
+    if (rc == 0 && o.out)
+        rc = write_file(o.out, "material", &soil, o.compression, &err) == 0 ? 0 : 1;
+    if (rc != 0) {
+        fprintf(stderr, "terrad calibrate: %s\n", err.message);
+        return rc;
+    }
+    printf("\nmaterial (a scene's \"material\", or an entry of its \"materials\"):\n");
+    write_material(stdout, &soil, o.compression);
+    return 0;
+}
