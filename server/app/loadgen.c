@@ -11,8 +11,10 @@
  * per changed cell (cells of the mirror that a DELTA changed), frames the server dropped
  * (terrad_frames_dropped_total) and resyncs the clients asked for. At the end every wheel is
  * parked in the air, the world settles, and each mirror is compared with GET /v1/heights of its
- * block: "mirrors_equal". Prints a table, or JSON with --json. Exit 0 when every mirror is equal
- * and no client failed, 1 otherwise, 2 for a usage error.
+ * block: "mirrors_equal". With --worlds W the clients spread over W worlds a daemon created
+ * (POST /v1/worlds, named PREFIX0 .. PREFIX<W-1>; client i joins world i mod W), which is what
+ * the many-worlds bench drives (tests/bench/bench_worlds.py). Prints a table, or JSON with --json.
+ * Exit 0 when every mirror is equal and no client failed, 1 otherwise, 2 for a usage error.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -41,18 +43,20 @@ typedef struct lg_client {
     uint32_t sent_seq[SEQ_RING];
     uint64_t changed_cells;
     int measuring, failed;
-    double *lat; /* ms */
+    char world[96]; /* a created world's name; "" the default world */
+    double *lat;    /* ms */
     int64_t lat_n, lat_cap;
 } lg_client;
 
 typedef struct lg_options {
     const char *url, *http;
-    long clients, wheels;
+    long clients, wheels, worlds;
+    const char *world_prefix;
     double seconds;
     int json;
 } lg_options;
 
-enum { OPT_URL, OPT_HTTP, OPT_CLIENTS, OPT_SECONDS, OPT_WHEELS, OPT_JSON };
+enum { OPT_URL, OPT_HTTP, OPT_CLIENTS, OPT_SECONDS, OPT_WHEELS, OPT_WORLDS, OPT_PREFIX, OPT_JSON };
 
 static const cli_option loadgen_table[] = {
     [OPT_URL] = {"url", "URL",
@@ -62,6 +66,10 @@ static const cli_option loadgen_table[] = {
     [OPT_CLIENTS] = {"clients", "N", "websocket clients (default 8)"},
     [OPT_SECONDS] = {"seconds", "S", "seconds of driving (default 5)"},
     [OPT_WHEELS] = {"wheels-per-client", "K", "wheels each client drives (default 1)"},
+    [OPT_WORLDS] = {"worlds", "W",
+                    "spread the clients over W created worlds, PREFIX0..PREFIX<W-1>\n"
+                    "(client i joins world i mod W; default: the default world)"},
+    [OPT_PREFIX] = {"world-prefix", "PREFIX", "the created worlds' names (default \"w\")"},
     [OPT_JSON] = {"json", NULL, "print one JSON object instead of the table"},
     {0},
 };
@@ -89,6 +97,11 @@ static int loadgen_on_option(void *ctx, int index, const char *v, error_text *er
         return cli_parse_double(v, 0.1, 3600, &o->seconds, err);
     case OPT_WHEELS:
         return cli_parse_long(v, 1, 64, &o->wheels, err);
+    case OPT_WORLDS:
+        return cli_parse_long(v, 1, 4096, &o->worlds, err);
+    case OPT_PREFIX:
+        o->world_prefix = v;
+        return 0;
     case OPT_JSON:
         o->json = 1;
         return 0;
@@ -164,16 +177,16 @@ static int client_start(lg_client *k, const char *host, int port, long wheels)
     char name[32];
     snprintf(name, sizeof name, "loadgen-%d", k->index);
     /* a daemon with tokens: $TERRAD_TOKEN (a driver's), never a flag that /proc shows */
-    k->c = terrad_client_connect((terrad_client_desc){.host = host,
-                                                      .port = port,
-                                                      .token = getenv("TERRAD_TOKEN"),
-                                                      .name = name,
-                                                      .timeout_ms = 30000,
-                                                      .hook = on_frame,
-                                                      .user = k,
-                                                      .log = on_log,
-                                                      .log_level = TERRAD_LOG_WARN},
-                                 err, sizeof err);
+    k->c = terrad_client_connect_world((terrad_client_desc){.host = host,
+                                                            .port = port,
+                                                            .token = getenv("TERRAD_TOKEN"),
+                                                            .name = name,
+                                                            .timeout_ms = 30000,
+                                                            .hook = on_frame,
+                                                            .user = k,
+                                                            .log = on_log,
+                                                            .log_level = TERRAD_LOG_WARN},
+                                       k->world, err, sizeof err);
     if (!k->c) {
         fprintf(stderr, "terrad loadgen: client %d: %s\n", k->index, err);
         return -1;
@@ -370,8 +383,8 @@ static void check_mirrors(lg_client *cl, const lg_options *o, const lg_http *htt
                 continue;
             checked++;
             const terrad_mirror *m = terrad_client_mirror(cl[i].c, cl[i].sid);
-            if (lg_http_heights(http, cl[i].bx, cl[i].by, BLOCK, BLOCK, server) == 0 && m &&
-                memcmp(server, m->heights, (size_t)BLOCK * BLOCK * sizeof *server) == 0)
+            if (lg_http_heights(http, cl[i].world, cl[i].bx, cl[i].by, BLOCK, BLOCK, server) == 0 &&
+                m && memcmp(server, m->heights, (size_t)BLOCK * BLOCK * sizeof *server) == 0)
                 equal++;
         }
         r->mirrors_checked = checked;
@@ -393,6 +406,8 @@ static int run_clients(lg_client *cl, const lg_options *o, const char *host, int
         goto done;
     for (long i = 0; i < o->clients; i++) {
         cl[i].index = (int)i;
+        if (o->worlds > 0)
+            snprintf(cl[i].world, sizeof cl[i].world, "%.60s%ld", o->world_prefix, i % o->worlds);
         if (client_start(&cl[i], host, port, o->wheels) != 0)
             goto done;
     }
@@ -423,7 +438,11 @@ done:
 
 int app_loadgen(int argc, char **argv)
 {
-    lg_options o = {.url = "ws://127.0.0.1:8081/", .clients = 8, .seconds = 5, .wheels = 1};
+    lg_options o = {.url = "ws://127.0.0.1:8081/",
+                    .clients = 8,
+                    .seconds = 5,
+                    .wheels = 1,
+                    .world_prefix = "w"};
     cli_result parsed =
         cli_parse("loadgen", loadgen_usage, loadgen_table, argc, argv, loadgen_on_option, &o, NULL);
     if (parsed != CLI_OK)

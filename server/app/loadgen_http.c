@@ -70,11 +70,12 @@ int lg_http_stats(const lg_http *h, lg_stats *out)
     return 0;
 }
 
-int lg_http_heights(const lg_http *h, int x, int y, int w, int hh, int32_t *out)
+int lg_http_heights(const lg_http *h, const char *world, int x, int y, int w, int hh, int32_t *out)
 {
-    char path[128], *body = NULL;
+    char path[256], *body = NULL;
     size_t len = 0;
-    snprintf(path, sizeof path, "/v1/heights?x=%d&y=%d&w=%d&h=%d", x, y, w, hh);
+    snprintf(path, sizeof path, "/v1/heights?x=%d&y=%d&w=%d&h=%d%s%.80s", x, y, w, hh,
+             world[0] ? "&world=" : "", world);
     int status = http_get(h, path, &body, &len);
     int ok = status == 200 && len == (size_t)w * hh * 4;
     if (ok) {

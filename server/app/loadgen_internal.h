@@ -35,8 +35,8 @@ typedef struct lg_report {
 int lg_http_init(lg_http *h, const char *url, const char *ws_host);
 /* GET /v1/stats (tick, overruns) and /metrics (terrad_frames_dropped_total). */
 int lg_http_stats(const lg_http *h, lg_stats *out);
-/* GET /v1/heights of a region into out (w * h int32). */
-int lg_http_heights(const lg_http *h, int x, int y, int w, int hh, int32_t *out);
+/* GET /v1/heights of a region of world (?world=; "" the default) into out (w * h int32). */
+int lg_http_heights(const lg_http *h, const char *world, int x, int y, int w, int hh, int32_t *out);
 /* The table, or one JSON object. */
 void lg_print_report(FILE *f, const lg_report *r, int json);
 

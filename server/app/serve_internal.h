@@ -134,16 +134,47 @@ int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err);
 void serve_sim_free(serve_sim *m);
 /* Sleeps ms milliseconds (nothing when ms <= 0). */
 void serve_sleep_ms(double ms);
-/* After each tick of a world's own sim thread: non-zero (with why) stops it. */
+/* After each of a world's ticks: non-zero (with why) ends it. */
 typedef int (*serve_sim_check_fn)(void *ctx, serve_sim *m, long tick, char *why, size_t cap);
-/* A world's fixed-rate tick loop on its own sim thread (a node's worlds, a
- * single daemon's created worlds), net's clients counted in its status:
- * until *stop (0), max_ticks (< 0: none; 0), a failed tick (-1, why) or
- * check says stop (1, why). A tick behind its time drops the backlog. */
-int serve_sim_loop(serve_sim *m, atomic_int *stop, long max_ticks, net_server *net,
-                   serve_sim_check_fn check, void *ctx, char *why, size_t cap);
+
+/* ---- the shared pool of sim workers (serve_ticker.c) ---- */
+typedef struct serve_ticker serve_ticker;
+typedef struct serve_tick_job serve_tick_job;
+/* On a worker once the job ended: rc 0 asked to (serve_ticker_end, max_ticks,
+ * the ticker stopping), -1 a tick failed, 1 check said stop (j->why says
+ * why). The world leaves its ports and is freed here (its GL context is
+ * current on this thread); the ticker does nothing with j after it. */
+typedef void (*serve_tick_end_fn)(serve_tick_job *j, int rc);
+/* One world on the pool: the owner fills the first fields (in its own
+ * struct, alive until end ran); the rest is the ticker's, under its lock. */
+struct serve_tick_job {
+    serve_sim *m;             /* started (serve_sim_start) and registered */
+    net_server *net;          /* its clients counted in its status (NULL: none) */
+    long max_ticks;           /* < 0: none */
+    serve_sim_check_fn check; /* NULL: none */
+    serve_tick_end_fn end;
+    void *ctx; /* check's and end's */
+    char why[256];
+    long tick;
+    double due_ms, period_ms;
+    int pinned; /* -1: any worker; else the one its GL context is current on */
+    int running, ending, rc;
+};
+/* Worker threads for a process: twice the cores, 4..32 (serve_ticker.c says why). */
+int serve_ticker_default_workers(void);
+/* NULL with err when no worker thread starts. */
+serve_ticker *serve_ticker_start(int workers, error_text *err);
+/* j ticks from now on at its scene's tick_hz, its ticks counted from 0. */
+int serve_ticker_add(serve_ticker *t, serve_tick_job *j, error_text *err);
+/* Asks j to end (end runs soon on a worker); nothing if it is ending already. */
+void serve_ticker_end(serve_ticker *t, serve_tick_job *j);
+/* Every job ended (each end run), the workers joined. NULL is fine. */
+void serve_ticker_stop(serve_ticker *t);
 
 /* ---- a single daemon's created worlds (serve_worlds.c) ---- */
+/* --max-worlds' ceiling: worlds a node ticks, or a daemon creates beside its
+ * default one (the HTTP, websocket and metrics tables hold one more). */
+#define SERVE_WORLDS_MAX 256
 typedef struct serve_worlds serve_worlds;
 /* After the daemon's ports are open: the worlds of DATA/worlds recovered and
  * started (each on its own sim thread), then POST/GET /v1/worlds and

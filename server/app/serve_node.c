@@ -3,21 +3,21 @@
  * (docs/cluster.md). The node connects to NATS, opens one HTTP and one
  * websocket port, and then, on its main thread, keeps taking worlds whose
  * lease it can take (--worlds, or every registered world), up to
- * --max-worlds. Each world it takes gets its own sim thread (world_main):
- * recover the world from JetStream, start its engine and service on that
- * thread (it owns the world's GL context and hub sim end), add it to the
- * HTTP and websocket servers, and run the fixed-rate tick loop — the same
- * serve_sim_step a single daemon runs — until the node stops or the world is
- * lost (a fenced commit, or another node holds its lease). A lost world's
- * clients are told and closed, its thread ends, and the node goes on with its
- * other worlds; a node with no world waits as a standby.
+ * --max-worlds. Each world it takes is opened on a short-lived thread of
+ * its own (world_main: recover the world from JetStream, start its engine
+ * and service, add it to the HTTP and websocket servers), then handed to the
+ * node's shared pool of sim workers (serve_ticker.c), which runs the same
+ * serve_sim_step a single daemon runs at the world's rate until the node
+ * stops or the world is lost (a fenced commit, or another node holds its
+ * lease). A lost world's end runs on a worker (world_end: its clients are
+ * told and closed, it is freed), and the node goes on with its other worlds;
+ * a node with no world waits as a standby.
  *
- * Why one thread per world rather than one loop over the worlds: a world's
- * tick (deformation, then a JetStream commit that waits for the replicas'
- * acknowledgement) does not hold up the others, each world keeps its own
- * tick rate and overrun count, and the hub's and the GL context's
- * one-owner-thread rule holds as on a single daemon. The cost is that the
- * worlds' threads share the cores without a common schedule.
+ * Why a pool rather than a thread per world: the worlds share the cores on
+ * one schedule (earliest due first, so one heavy world does not starve the
+ * others), and a world costs no thread while it ticks. The pool has more
+ * workers than cores, so a tick waiting on its JetStream commit does not
+ * hold the other worlds up.
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -29,7 +29,7 @@
 #include "app/serve_internal.h"
 #include "metrics/metrics.h"
 
-#define NODE_MAX_WORLDS 64
+#define NODE_MAX_WORLDS SERVE_WORLDS_MAX
 #define NODE_POLL_MS 250
 #define NODE_LIST_MS 1000.0  /* the registry is listed again after this */
 #define NODE_RETRY_MS 5000.0 /* a world that failed to open is tried again after this */
@@ -39,9 +39,11 @@ typedef struct serve_node serve_node;
 typedef struct node_world {
     serve_sim m;
     serve_node *node;
-    pthread_t thread;
-    atomic_int stop;       /* node → world: stop ticking (the node stops) */
-    atomic_int done;       /* world → node: the thread has ended */
+    pthread_t thread;      /* opens the world, then ends (joined by reap_worlds) */
+    serve_tick_job job;    /* on the node's pool once opened */
+    atomic_int opened;     /* world → node: the job is on the pool */
+    atomic_int done;       /* world → node: it has ended (freed by reap_worlds) */
+    int joined;            /* its opening thread was joined */
     atomic_int registered; /* served by the HTTP and websocket ports */
     int lost;              /* the world belongs to another node now */
     int deleted;           /* removed from the registry: its clients are told so (4020) */
@@ -58,6 +60,7 @@ struct serve_node {
     http_status status; /* the node's: /readyz */
     http_server *http;
     net_server *net;
+    serve_ticker *ticker; /* the sim workers every world of the node ticks on */
     serve_relays *relays; /* the worlds other nodes tick, served here too */
     serve_node_api *api;  /* POST/GET /v1/worlds, DELETE /v1/worlds/NAME */
     char **registered;    /* the registry as last listed (node_list_worlds) */
@@ -67,6 +70,7 @@ struct serve_node {
     pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
     node_world *worlds[NODE_MAX_WORLDS];
     int nworlds, max_worlds;
+    int stopping; /* node_stop: worlds end because the node does */
     char failed[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1]; /* not retried before failed_ms */
     double failed_ms[NODE_MAX_WORLDS];
 };
@@ -192,29 +196,49 @@ static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap
     return 0;
 }
 
-/* One world's sim thread: open, serve, tick, leave. */
+/* The job's end, on a worker: off the ports, freed, its lease let go. */
+static void world_end(serve_tick_job *j, int rc)
+{
+    node_world *nw = j->ctx;
+    serve_node *n = nw->node;
+    serve_sim *m = &nw->m;
+    if (rc != 0)
+        snprintf(nw->why, sizeof nw->why, "%s", j->why);
+    world_unregister(n, nw);
+    log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
+             (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
+    serve_sim_free(m);
+    if (!nw->lost && !nw->deleted) /* another node may take it at once */
+        cluster_lease_release(n->cl, m->name);
+    node_refresh_status(n);
+    atomic_store(&nw->done, 1);
+}
+
+/* One world's opening thread: open, serve, hand to the pool (or leave). */
 static void *world_main(void *arg)
 {
     node_world *nw = arg;
     serve_node *n = nw->node;
     serve_sim *m = &nw->m;
     error_text err = {{0}};
-    if (serve_cluster_open_world(n->cl, m, n->o, &err) != 0) {
-        snprintf(nw->why, sizeof nw->why, "%s", err.message);
-    } else {
+    if (serve_cluster_open_world(n->cl, m, n->o, &err) == 0) {
         serve_sim_status_init(m);
+        nw->job = (serve_tick_job){.m = m,
+                                   .net = n->net,
+                                   .max_ticks = n->o->max_ticks,
+                                   .check = world_check,
+                                   .end = world_end,
+                                   .ctx = nw};
         if (!(m->h = hub_create()))
             error_set(&err, "out of memory");
-        else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0)
-            serve_sim_loop(m, &nw->stop, n->o->max_ticks, n->net, world_check, nw, nw->why,
-                           sizeof nw->why);
-        if (err.message[0])
-            snprintf(nw->why, sizeof nw->why, "%s", err.message);
+        else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0 &&
+                 serve_ticker_add(n->ticker, &nw->job, &err) == 0) {
+            atomic_store(&nw->opened, 1);
+            return NULL;
+        }
     }
+    snprintf(nw->why, sizeof nw->why, "%s", err.message);
     world_unregister(n, nw);
-    if (m->svc)
-        log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
-                 (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
     serve_sim_free(m);
     if (!nw->lost && !nw->deleted) /* another node may take it at once */
         cluster_lease_release(n->cl, m->name);
@@ -265,16 +289,19 @@ static void reap_worlds(serve_node *n)
 {
     for (int i = 0; i < n->nworlds; i++) {
         node_world *nw = n->worlds[i];
+        if (!nw->joined && (atomic_load(&nw->opened) || atomic_load(&nw->done))) {
+            pthread_join(nw->thread, NULL); /* its opening thread has ended */
+            nw->joined = 1;
+        }
         if (!atomic_load(&nw->done))
             continue;
-        pthread_join(nw->thread, NULL);
         if (nw->deleted)
             forget_registered(n, nw->m.name);
         if (nw->lost)
             log_warn("cluster: this node no longer owns world %s (%s): it stopped ticking it; "
                      "its clients were told to connect again",
                      nw->m.name, nw->why);
-        else if (nw->why[0] && !atomic_load(&nw->stop) && !nw->deleted) {
+        else if (nw->why[0] && !n->stopping && !nw->deleted) {
             log_error("cluster: world %s: %s (tried again in %.0f s)", nw->m.name, nw->why,
                       NODE_RETRY_MS / 1000);
             note_failed(n, nw->m.name);
@@ -448,7 +475,7 @@ static void stop_deleted(serve_node *n)
         int listed = 0;
         for (int k = 0; k < n->nregistered && !listed; k++)
             listed = strcmp(n->registered[k], nw->m.name) == 0;
-        if (listed || nw->deleted || !atomic_load(&nw->registered))
+        if (listed || nw->deleted || !atomic_load(&nw->opened)) /* opening: the next listing */
             continue;
         char *scene = NULL;
         error_text err = {{0}};
@@ -457,8 +484,8 @@ static void stop_deleted(serve_node *n)
         if (found != 0)
             continue;
         log_info("cluster: world %s was deleted from the registry: it stops here", nw->m.name);
-        nw->deleted = 1;
-        atomic_store(&nw->stop, 1);
+        nw->deleted = 1; /* read by its end, after the ticker's lock */
+        serve_ticker_end(n->ticker, &nw->job);
     }
 }
 
@@ -510,13 +537,16 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
 
 static void node_stop(serve_node *n)
 {
-    for (int i = 0; i < n->nworlds; i++)
-        atomic_store(&n->worlds[i]->stop, 1);
+    n->stopping = 1;
     while (n->nworlds > 0) {
+        for (int i = 0; i < n->nworlds; i++)
+            if (atomic_load(&n->worlds[i]->opened)) /* else still opening: asked next round */
+                serve_ticker_end(n->ticker, &n->worlds[i]->job);
         reap_worlds(n);
         if (n->nworlds)
             serve_sleep_ms(10);
     }
+    serve_ticker_stop(n->ticker);
     serve_relays_stop(n->relays);
     node_forget_worlds(n);
     http_server_stop(n->probe);
@@ -548,7 +578,9 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
     error_text err = {{0}};
     cluster_config cc = {.urls = o->cluster_urls, .node = n->name};
     int rc = 1;
-    if (!(n->cl = cluster_connect(&cc, &err)) || node_open_ports(n, &err) != 0)
+    if (!(n->cl = cluster_connect(&cc, &err)) ||
+        !(n->ticker = serve_ticker_start(serve_ticker_default_workers(), &err)) ||
+        node_open_ports(n, &err) != 0)
         log_error("%s", err.message);
     else
         rc = node_loop(n, stop, hangup);

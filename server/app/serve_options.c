@@ -106,10 +106,10 @@ static const cli_option serve_table[] = {
                     "terrad world add; default: any registered world, in name order).\n"
                     "A node waits (a standby) until it can take one"},
     [OPT_MAX_WORLDS] = {"max-worlds", "K",
-                        "--cluster: worlds this node ticks at once, 1..64, each on its\n"
-                        "own sim thread (default 1; with --worlds, as many as named).\n"
+                        "--cluster: worlds this node ticks at once, 1..256, all on one\n"
+                        "pool of sim workers (default 1; with --worlds, as many as named).\n"
                         "A single daemon: worlds POST /v1/worlds may create beside the\n"
-                        "default one, 1..63 (default 16)"},
+                        "default one, 1..256 (default 16)"},
     [OPT_AUTH_FILE] = {"auth-file", "FILE",
                        "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
                        "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"
@@ -263,7 +263,7 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
         return -1;
     if (r)
         o->tick_hz = v;
-    if ((r = json_get_integer(doc, "", "max_worlds", 1, 64, 0, &v, err)) < 0)
+    if ((r = json_get_integer(doc, "", "max_worlds", 1, SERVE_WORLDS_MAX, 0, &v, err)) < 0)
         return -1;
     if (r)
         o->max_worlds = (int)v;
@@ -407,7 +407,7 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->worlds = value;
         return 0;
     case OPT_MAX_WORLDS:
-        if (cli_parse_long(value, 1, 64, &x, err) != 0)
+        if (cli_parse_long(value, 1, SERVE_WORLDS_MAX, &x, err) != 0)
             return -1;
         o->max_worlds = (int)x;
         return 0;

@@ -3,10 +3,13 @@
  * its world, the engine on its backend, the ground, the service over the hub,
  * the demo actors and the status block HTTP reads — and one step of the
  * fixed-rate tick loop on it (demo poses → service_tick → status and
- * metrics). A single daemon has one (serve.c, on the main thread); a cluster
- * node has one per world it owns, each on its own sim thread (serve_node.c).
- * Everything here runs on that world's sim thread: it creates the backend
- * (and so owns the GL context) and the service (and so the hub's sim end).
+ * metrics). A single daemon's default world has one (serve.c, on the main
+ * thread); its created worlds (serve_worlds.c) and a cluster node's worlds
+ * (serve_node.c) have one each, ticked by the shared pool of sim workers
+ * (serve_ticker.c). Everything here runs on whichever thread is the world's
+ * sim thread at the time: the one that made it, then the worker running its
+ * tick (the backend keeps a GL context on one worker; the hub's sim end moves
+ * with the tick).
  */
 #include <stdlib.h>
 #include <string.h>
@@ -206,26 +209,6 @@ void serve_sleep_ms(double ms)
         return;
     struct timespec ts = {(time_t)(ms / 1000), (long)((ms - 1000 * (time_t)(ms / 1000)) * 1e6)};
     nanosleep(&ts, NULL);
-}
-
-int serve_sim_loop(serve_sim *m, atomic_int *stop, long max_ticks, net_server *net,
-                   serve_sim_check_fn check, void *ctx, char *why, size_t cap)
-{
-    double period_ms = 1000.0 / m->sc.tick_hz, next_ms = time_now_ms();
-    for (long tick = 0; !atomic_load(stop) && (max_ticks < 0 || tick < max_ticks); tick++) {
-        error_text err = {{0}};
-        if (serve_sim_step(m, tick, net_server_client_count(net), &err) != 0) {
-            snprintf(why, cap, "%s", err.message);
-            return -1;
-        }
-        if (check && check(ctx, m, tick, why, cap) != 0)
-            return 1;
-        next_ms += period_ms;
-        if (next_ms < time_now_ms())
-            next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
-        serve_sleep_ms(next_ms - time_now_ms());
-    }
-    return 0;
 }
 
 void serve_sim_free(serve_sim *m)

@@ -136,7 +136,7 @@ http_server *http_probe_start(http_server *main, int port, error_text *err);
  * for the world ?world=NAME names (404 naming the worlds served when this
  * node does not serve it; without ?world=, the first world added; 503 while
  * none is). /readyz and /healthz stay the node's (status and the watches). */
-#define HTTP_MAX_WORLDS 64
+#define HTTP_MAX_WORLDS 320 /* a node's 256 (--max-worlds), with room for those leaving */
 void http_server_host_worlds(http_server *s);
 /* status, heights and base must stay valid until http_server_remove_world returns. */
 int http_server_add_world(http_server *s, const char *name, http_status *status, hub *heights,

@@ -121,7 +121,7 @@ void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes);
  * Series labelled world="NAME" (terrad_world_*), one set per world this node
  * ticks now. A world's sim thread takes a slot when it starts, sets the
  * figures each tick and drops the slot when it stops ticking the world. */
-#define METRICS_MAX_WORLDS 64
+#define METRICS_MAX_WORLDS 320 /* a node's or daemon's 256 worlds, with room for those leaving */
 typedef struct metrics_world_figures {
     uint64_t tick;
     int64_t volume, colliders;

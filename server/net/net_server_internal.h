@@ -13,7 +13,7 @@
 
 #include "net/net_client_internal.h"
 
-#define NET_MAX_WORLDS 64
+#define NET_MAX_WORLDS 512 /* worlds ticked here (256 at most) and relayed ones */
 #define NET_EVENTS_MAX 256 /* events waiting for the net thread (net_events.c) */
 
 struct net_event {

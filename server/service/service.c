@@ -92,6 +92,15 @@ void service_destroy(service *s)
     free(s);
 }
 
+void service_claim(service *s)
+{
+    thread_owner_claim(&s->owner, "sim");
+    hub_claim_sim_end(s->hub);
+    sim_engine_claim(s->engine);
+    if (s->store)
+        store_claim(s->store);
+}
+
 void service_attach_store(service *s, store *st, uint64_t recovered_tick)
 {
     s->store = st;

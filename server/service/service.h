@@ -34,6 +34,11 @@ typedef struct service service;
 /* The engine and the world stay the caller's; the service reads and ticks them. */
 service *service_create(sim_engine *engine, hub *h, error_text *err);
 void service_destroy(service *s);
+/* This thread is the service's sim thread from now on: the service, its
+ * hub's sim end, its engine and its store are handed over to it (a pool of
+ * sim workers ticks a world on whichever worker is free; the hand-over is
+ * ordered by the pool's lock). */
+void service_claim(service *s);
 
 typedef struct service_tick_stats {
     sim_tick_report report;

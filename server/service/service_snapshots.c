@@ -18,6 +18,12 @@
  * its frames dropped (terrad_snapshot_requests_dropped_total); the frames
  * are replies in the client's queue, charged against its max_pending_bytes
  * and hard bound like any other output.
+ *
+ * The worker thread, its codec and its buffer are made at the first
+ * snapshot a world serves (start_worker), not with the service: a process
+ * may hold hundreds of worlds (issue 22), and one nobody has subscribed to
+ * costs no thread. Should the thread not start, the sim thread frames the
+ * requests itself (the same frames, inside the tick).
  */
 #include "service/service_internal.h"
 
@@ -50,6 +56,7 @@ typedef struct snap_request {
 
 struct snap_worker {
     pthread_t thread;
+    int started; /* the thread runs (start_worker) */
     pthread_mutex_t lock;
     pthread_cond_t cond;
     int stop, busy;
@@ -177,20 +184,30 @@ int service_snapshots_start(service *s)
     snap_worker *w = calloc(1, sizeof *w);
     if (!w)
         return -1;
-    w->packed_cap = terrad_rect_compress_bound(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
-    w->packed = malloc(w->packed_cap);
-    w->codec = terrad_codec_new(3); /* the level the deltas and snapshots always used */
     pthread_mutex_init(&w->lock, NULL);
     pthread_cond_init(&w->cond, NULL);
-    if (!w->packed || !w->codec || pthread_create(&w->thread, NULL, snap_main, w) != 0) {
-        terrad_codec_free(w->codec);
-        free(w->packed);
-        pthread_cond_destroy(&w->cond);
-        pthread_mutex_destroy(&w->lock);
-        free(w);
-        return -1;
-    }
     s->snapper = w;
+    return 0;
+}
+
+/* The codec and buffer, then the thread (sim thread, at the first hand-over):
+ * 0 when the codec is there (the thread may not be: w->started says). */
+static int start_worker(snap_worker *w)
+{
+    if (!w->codec) {
+        w->packed_cap = terrad_rect_compress_bound(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
+        w->packed = malloc(w->packed_cap);
+        w->codec = terrad_codec_new(3); /* the level the deltas and snapshots always used */
+        if (!w->packed || !w->codec) {
+            terrad_codec_free(w->codec);
+            free(w->packed);
+            w->codec = NULL;
+            w->packed = NULL;
+            return -1;
+        }
+    }
+    if (!w->started)
+        w->started = pthread_create(&w->thread, NULL, snap_main, w) == 0;
     return 0;
 }
 
@@ -203,7 +220,8 @@ void service_snapshots_stop(service *s)
     w->stop = 1;
     pthread_cond_broadcast(&w->cond);
     pthread_mutex_unlock(&w->lock);
-    pthread_join(w->thread, NULL);
+    if (w->started)
+        pthread_join(w->thread, NULL);
     free_requests(w->job, w->njob); /* never delivered: the daemon is stopping */
     free_requests(w->staged, w->nstaged);
     terrad_codec_free(w->codec);
@@ -276,12 +294,19 @@ void service_snapshots_hand_over(service *s)
     snap_worker *w = s->snapper;
     if (!w->nstaged)
         return;
+    if (start_worker(w) != 0)
+        for (int i = 0; i < w->nstaged; i++) /* no codec: the clients get their marks */
+            w->staged[i].mark_only = 1;
     pthread_mutex_lock(&w->lock);
     w->job = w->staged;
     w->njob = w->nstaged;
-    w->busy = 1;
+    w->busy = w->started;
     pthread_cond_broadcast(&w->cond);
     pthread_mutex_unlock(&w->lock);
+    if (!w->started) /* no thread: framed here, inside the tick */
+        for (int i = 0; i < w->njob; i++)
+            if (!w->job[i].mark_only)
+                frame_request(w, &w->job[i]);
     w->staged = NULL;
     w->nstaged = 0;
     w->staged_cap = 0;

@@ -478,6 +478,8 @@ typedef struct sim_engine_stats {
 sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backend, int margin_cells,
                               error_text *err);
 void sim_engine_destroy(sim_engine *e);
+/* This thread ticks e from now on (a world handed between sim workers). */
+void sim_engine_claim(sim_engine *e);
 /* The ground's per-cell layers (not owned; NULL: none). A ground with one
  * material equal to the params and no compaction memory changes nothing: the
  * uniform path runs. */

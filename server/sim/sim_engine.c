@@ -117,6 +117,11 @@ sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backen
     return e;
 }
 
+void sim_engine_claim(sim_engine *e)
+{
+    thread_owner_claim(&e->owner, "sim");
+}
+
 void sim_engine_destroy(sim_engine *e)
 {
     if (!e)

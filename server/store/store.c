@@ -37,6 +37,11 @@ store *store_open(const store_config *c, world *w, store_recovery *rec, error_te
     return st;
 }
 
+void store_claim(store *st)
+{
+    thread_owner_claim(&st->sim, "sim");
+}
+
 store *store_adopt(const store_backend *backend, void *state)
 {
     store *st = calloc(1, sizeof *st);

@@ -76,6 +76,8 @@ typedef struct store store;
 store *store_open(const store_config *c, world *w, store_recovery *rec, error_text *err);
 /* Finishes a running compaction, syncs and closes. NULL is fine. */
 void store_close(store *st);
+/* This thread is the store's sim thread from now on (a world handed between sim workers). */
+void store_claim(store *st);
 
 /* ---- the backend interface ----
  * One table per kind of store (after Redis ae.c's one event-loop API over

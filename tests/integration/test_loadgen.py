@@ -4,13 +4,15 @@
 
 A few C clients (the C client library, one process, non-blocking sockets) each drive two wheels
 for a few seconds, subscribed to their own blocks; at the end every client's mirror must equal
-the daemon's GET /v1/heights of its block, and the JSON report must carry every figure. The
+the daemon's GET /v1/heights of its block, and the JSON report must carry every figure; with
+--worlds the clients join worlds created by POST /v1/worlds, each mirror compared with its own. The
 figures themselves are printed, never judged (speed belongs to `make bench`). Usage errors exit 2.
 """
 import json
 import os
 import subprocess
 import sys
+import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import BIN, Checks, Daemon  # noqa: E402
@@ -52,6 +54,22 @@ with check.running(Daemon(name="loadgen", durability="every-tick")) as d:
     p = loadgen(d, "--clients", "1", "--seconds", "1")
     check(p.returncode == 0 and "mirrors equal          true" in p.stdout,
           f"the table form says the mirror is equal:\n{p.stdout}{p.stderr}")
+
+    # --worlds: the clients join created worlds (the C client's terrad_client_connect_world),
+    # and each mirror is compared with GET /v1/heights?world= of its own world
+    for name in ("lg0", "lg1"):
+        scene = {"name": name, "world": {"width": 128, "height": 128, "cell_size_m": 0.05},
+                 "terrain": {"kind": "flat", "height_m": 0.5}}
+        req = urllib.request.Request(d.http + "/v1/worlds", method="POST",
+                                     data=json.dumps({"name": name, "scene": scene}).encode())
+        with urllib.request.urlopen(req, timeout=120) as a:
+            check(a.status == 201, f"world {name} created")
+    p = loadgen(d, "--clients", "2", "--worlds", "2", "--world-prefix", "lg", "--seconds", "2",
+                "--json")
+    r = json.loads(p.stdout) if p.stdout.strip().startswith("{") else {}
+    check(p.returncode == 0 and r.get("mirrors_equal") is True and r.get("mirrors_checked") == 2
+          and r.get("failed_clients") == 0 and r.get("changed_cells", 0) > 0,
+          f"--worlds 2: clients in created worlds deform them, mirrors equal:\n{p.stdout}{p.stderr}")
 
     for bad in (["--clients", "0"], ["--frobnicate"], ["--url", "http://x"]):
         p = subprocess.run([BIN, "loadgen"] + bad, capture_output=True, text=True, timeout=30)
