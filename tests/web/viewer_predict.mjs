@@ -93,18 +93,26 @@ test('driving, the page draws its own rut before the server has answered; every 
   const first = (await stats()).window;
 
   relay.hold('down', true); // from here no ACK and no DELTA reaches the page
-  const acked = await page.evaluate(() => window.terrad.ackedSeq);
+  // ACKs already on their way may still land; none of a batch sent from here on can
+  const from = await page.evaluate(() => window.terrad.seq);
   const seq = await drive(20, 0.05); // a metre, onto cells the sphere has not pressed
   const now = await versusMirror();
   assert.ok(now.lower > 0, `the rut is in the page's heights at once (${now.lower} cells lower than the mirror)`);
   const drawn = await nextDrawn(seq);
   assert.ok(drawn.lower > 0, `a frame drew it (${JSON.stringify(drawn)})`);
-  assert.equal(drawn.ackedSeq, acked, 'before any ACK of those batches arrived');
+  assert.ok(drawn.ackedSeq < from, `before any ACK of those batches arrived (${drawn.ackedSeq} < ${from})`);
   relay.hold('down', false);
 
   // Answers flowing again: more driving, reconciled at every ACK.
   const last = await drive(60, 0.03); // past the sub-window's edge: it re-centres on the way
   await until('the ACK of the last batch', () => page.evaluate((s) => window.terrad.ackedSeq >= s, last), WAIT);
+  // A slow page's ACKs that acknowledge several batches after a gap are not compared (which tick
+  // took which is unknown: predict.mjs): drive on, back and forth, until 10 were compared.
+  for (let k = 0; (await stats()).replayed < 10; k++) {
+    if (k > 200) assert.fail(`fewer than 10 ACKs compared: ${JSON.stringify(await stats())}`);
+    const s = await drive(10, k % 2 ? -0.01 : 0.01);
+    await until('its ACK', () => page.evaluate((q) => window.terrad.ackedSeq >= q, s), WAIT);
+  }
   await page.evaluate(() => window.terrad.lift());
   const s = await stats();
   assert.ok(s.window.x > first.x, `the sub-window followed the collider (${JSON.stringify(first)} -> ${JSON.stringify(s.window)})`);
