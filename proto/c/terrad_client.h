@@ -247,7 +247,9 @@ const char *terrad_client_world_name(const terrad_client *c);
  * ACK from that ACK's heights with the poses the ACKs say were used, counts
  * the cells differing from the mirror (0 when nothing else touched the
  * window), resets the twin to the mirror, puts each own collider where tick t
- * left it and applies the batches sent after seq again.
+ * left it and applies the batches sent after seq again. Delete a predicted
+ * collider once its last batch is acknowledged: it leaves the prediction at
+ * once, so a replay of a tick that still had it would differ.
  */
 typedef struct terrad_prediction terrad_prediction;
 

@@ -144,6 +144,7 @@ static void publish_metrics(const serve_sim *m, const service_tick_stats *st)
         metrics_world_figures f = {.tick = service_current_tick(m->svc),
                                    .volume = service_volume(m->svc),
                                    .colliders = st->colliders,
+                                   .clients = st->clients,
                                    .store_available = !m->st || !store_failure(m->st)[0],
                                    .tick_ms = st->tick_ms};
         if (m->cs)

@@ -7,6 +7,15 @@
  * thread from copies of the changed tiles taken at a tick boundary, so it
  * never stalls a tick.
  *
+ *   record   "TRC2" | tick u64 | CRC32C u32 | payload
+ *   snapshot "TRS2" | tx, ty (i32) | CRC32C u32 | payload of one rectangle, the tile
+ *
+ * The payload is the data directory's log record payload, written and read
+ * by the one codec store_record.c (store.h): the changed rectangles' heights
+ * and, for a world with soil state (the bekker model), their soil state, so a
+ * world that fails over or restarts resumes with its plastic sinkage, shear
+ * displacement and compaction, not fresh soil. The checksum covers the
+ * payload. Version 1, heights only, is still read (never written):
  *   record   "TRC1" | tick u64 | rects u32 | raw bytes u32 | CRC32C u32 | zstd(raw)
  *            raw: per rectangle x, y, w, h (i32) then w*h heights (i32)
  *   snapshot "TRS1" | tx, ty, w, h (i32) | raw bytes u32 | CRC32C u32 | zstd(heights)
@@ -22,16 +31,21 @@
 
 #include <zstd.h>
 
-#define RECORD_MAGIC "TRC1"
-#define RECORD_HEADER 24
-#define SNAP_MAGIC "TRS1"
-#define SNAP_HEADER 28
+#define RECORD_MAGIC "TRC2"
+#define RECORD_HEADER 16
+#define SNAP_MAGIC "TRS2"
+#define SNAP_HEADER 16
+#define RECORD1_MAGIC "TRC1"
+#define RECORD1_HEADER 24
+#define SNAP1_MAGIC "TRS1"
+#define SNAP1_HEADER 28
 #define RAW_MAX (1u << 30)
 
 typedef struct tile_copy {
     int tx, ty;
     world_rect rect;
-    int32_t *values;
+    int soil;        /* the tile holds soil state: values has it after the heights */
+    int32_t *values; /* heights, then (soil) the soil state */
 } tile_copy;
 
 struct cluster_store {
@@ -44,8 +58,9 @@ struct cluster_store {
     int records_since;
     uint64_t tick;
     ZSTD_CCtx *cctx;
-    uint8_t *raw, *packed;
-    int64_t raw_cap, packed_cap;
+    store_record rec; /* the record codec's scratch (sim thread) */
+    uint8_t *raw;     /* a version 1 record, decompressed */
+    int64_t raw_cap;
     stat_series commit_ms;
     /* compaction: one job at a time, handed over under the mutex */
     pthread_mutex_t lock;
@@ -76,42 +91,23 @@ static uint32_t get_u32(const uint8_t *p)
 
 /* ---- records ---- */
 
-/* Encodes a tick into cs->packed; returns its length, 0 on failure. */
+/* Encodes a tick into cs->rec.buf; returns its length, 0 on failure. */
 static size_t record_encode(cluster_store *cs, const world *w, uint64_t tick,
                             const world_rect *rects, int n, error_text *err)
 {
-    int64_t raw_len = 0;
-    for (int i = 0; i < n; i++)
-        raw_len += 16 + 4 * (int64_t)rects[i].w * rects[i].h;
-    if (raw_len > RAW_MAX ||
-        array_grow((void **)&cs->raw, &cs->raw_cap, raw_len > 0 ? raw_len : 1, 1) != 0) {
-        error_set(err, "world %s: a tick of %" PRId64 " bytes", cs->world, raw_len);
+    int soil = world_soil_enabled(w);
+    if (store_record_gather(&cs->rec, w, rects, n, soil) != 0) {
+        error_set(err, "world %s: out of memory for a log record", cs->world);
         return 0;
     }
-    uint8_t *p = cs->raw;
-    for (int i = 0; i < n; i++) {
-        int32_t hdr[4] = {rects[i].x, rects[i].y, rects[i].w, rects[i].h};
-        memcpy(p, hdr, 16);
-        world_gather_window(w, rects[i], (int32_t *)(void *)(p + 16));
-        p += 16 + 4 * (size_t)rects[i].w * rects[i].h;
-    }
-    size_t bound = ZSTD_compressBound((size_t)raw_len);
-    if (array_grow((void **)&cs->packed, &cs->packed_cap, (int64_t)(RECORD_HEADER + bound), 1)) {
-        error_set(err, "out of memory");
+    size_t len = store_record_encode(&cs->rec, cs->cctx, cs->cfg.compression_level, rects, n, soil,
+                                     cs->rec.values, RECORD_HEADER, err);
+    if (len == 0)
         return 0;
-    }
-    size_t z = ZSTD_compressCCtx(cs->cctx, cs->packed + RECORD_HEADER, bound, cs->raw,
-                                 (size_t)raw_len, cs->cfg.compression_level);
-    if (ZSTD_isError(z)) {
-        error_set(err, "zstd: %s", ZSTD_getErrorName(z));
-        return 0;
-    }
-    memcpy(cs->packed, RECORD_MAGIC, 4);
-    memcpy(cs->packed + 4, &tick, 8);
-    put_u32(cs->packed + 12, (uint32_t)n);
-    put_u32(cs->packed + 16, (uint32_t)raw_len);
-    put_u32(cs->packed + 20, store_crc32c(0, cs->raw, (size_t)raw_len));
-    return RECORD_HEADER + z;
+    memcpy(cs->rec.buf, RECORD_MAGIC, 4);
+    memcpy(cs->rec.buf + 4, &tick, 8);
+    put_u32(cs->rec.buf + 12, store_crc32c(0, cs->rec.buf + RECORD_HEADER, len));
+    return RECORD_HEADER + len;
 }
 
 typedef struct replay_ctx {
@@ -121,21 +117,17 @@ typedef struct replay_ctx {
     error_text *err;
 } replay_ctx;
 
-/* Applies one record to the world; a record that does not decode stops recovery. */
-static int record_apply(void *ctx, uint64_t seq, const uint8_t *data, size_t len)
+/* A version 1 record (heights only) into w: 1 applied, 0 corrupt. */
+static int record1_apply(cluster_store *cs, world *w, const uint8_t *data, size_t len)
 {
-    replay_ctx *r = ctx;
-    cluster_store *cs = r->cs;
-    uint64_t tick = 0;
     uint32_t n = 0, raw_len = 0;
-    int ok = len >= RECORD_HEADER && memcmp(data, RECORD_MAGIC, 4) == 0;
+    int ok = len >= RECORD1_HEADER;
     if (ok) {
-        memcpy(&tick, data + 4, 8);
         n = get_u32(data + 12);
         raw_len = get_u32(data + 16);
         ok = raw_len <= RAW_MAX &&
              array_grow((void **)&cs->raw, &cs->raw_cap, raw_len ? raw_len : 1, 1) == 0 &&
-             ZSTD_decompress(cs->raw, raw_len, data + RECORD_HEADER, len - RECORD_HEADER) ==
+             ZSTD_decompress(cs->raw, raw_len, data + RECORD1_HEADER, len - RECORD1_HEADER) ==
                  raw_len &&
              store_crc32c(0, cs->raw, raw_len) == get_u32(data + 20);
     }
@@ -146,13 +138,41 @@ static int record_apply(void *ctx, uint64_t seq, const uint8_t *data, size_t len
         if (ok)
             memcpy(h, p, 16);
         world_rect rect = {h[0], h[1], h[2], h[3]}, clipped = rect;
-        ok = ok && rect.w > 0 && rect.h > 0 && world_clip_rect(r->w, &clipped) &&
+        ok = ok && rect.w > 0 && rect.h > 0 && world_clip_rect(w, &clipped) &&
              memcmp(&rect, &clipped, sizeof rect) == 0 &&
              (end - p - 16) / 4 >= (int64_t)rect.w * rect.h;
         if (ok) {
-            world_scatter_window(r->w, rect, (const int32_t *)(const void *)(p + 16));
+            world_scatter_window(w, rect, (const int32_t *)(const void *)(p + 16));
             p += 16 + 4 * (size_t)rect.w * rect.h;
         }
+    }
+    return ok;
+}
+
+/* Applies one record to the world; a record that does not decode stops recovery. */
+static int record_apply(void *ctx, uint64_t seq, const uint8_t *data, size_t len)
+{
+    replay_ctx *r = ctx;
+    cluster_store *cs = r->cs;
+    uint64_t tick = 0;
+    int ok = len >= RECORD_HEADER, applied = 1;
+    if (ok)
+        memcpy(&tick, data + 4, 8);
+    if (ok && memcmp(data, RECORD_MAGIC, 4) == 0) {
+        ok = store_crc32c(0, data + RECORD_HEADER, len - RECORD_HEADER) == get_u32(data + 12);
+        applied = ok ? store_record_apply(&cs->rec, r->w, data + RECORD_HEADER, len - RECORD_HEADER,
+                                          NULL, NULL)
+                     : 1;
+        ok = applied == 0;
+    } else if (ok && memcmp(data, RECORD1_MAGIC, 4) == 0) {
+        ok = record1_apply(cs, r->w, data, len);
+    } else {
+        ok = 0;
+    }
+    if (applied < 0) {
+        error_set(r->err, "world %s: out of memory replaying log sequence %" PRIu64, cs->world,
+                  seq);
+        return -1;
     }
     if (!ok) {
         error_set(r->err, "world %s: log record at sequence %" PRIu64 " is corrupt", cs->world,
@@ -167,29 +187,61 @@ static int record_apply(void *ctx, uint64_t seq, const uint8_t *data, size_t len
 
 /* ---- snapshots ---- */
 
-static int snapshot_encode(const tile_copy *t, ZSTD_CCtx *cctx, int level, uint8_t **out,
-                           size_t *len, error_text *err)
+/* A tile copy as a snapshot, in rec->buf: its length, or 0 with err set. */
+static size_t snapshot_encode(const tile_copy *t, store_record *rec, ZSTD_CCtx *cctx, int level,
+                              error_text *err)
 {
-    size_t raw = 4 * (size_t)t->rect.w * t->rect.h, bound = ZSTD_compressBound(raw);
-    uint8_t *p = malloc(SNAP_HEADER + bound);
-    if (!p) {
-        error_set(err, "out of memory");
-        return -1;
+    size_t len =
+        store_record_encode(rec, cctx, level, &t->rect, 1, t->soil, t->values, SNAP_HEADER, err);
+    if (len == 0)
+        return 0;
+    int32_t hdr[2] = {t->tx, t->ty};
+    memcpy(rec->buf, SNAP_MAGIC, 4);
+    memcpy(rec->buf + 4, hdr, 8);
+    put_u32(rec->buf + 12, store_crc32c(0, rec->buf + SNAP_HEADER, len));
+    return SNAP_HEADER + len;
+}
+
+/* A snapshot's one rectangle must be its tile. */
+static int snapshot_rect_check(void *ctx, world_rect r)
+{
+    const world_rect *want = ctx;
+    return memcmp(&r, want, sizeof r) != 0;
+}
+
+/* A tile snapshot's bytes into w: 1 applied, 0 corrupt or another tile's,
+ * -1 out of memory. */
+static int snapshot_apply(cluster_store *cs, world *w, int tx, int ty, const uint8_t *data,
+                          size_t len)
+{
+    world_rect rect = world_tile_rect(w, tx, ty);
+    int32_t hdr[4] = {0};
+    if (len >= SNAP_HEADER && memcmp(data, SNAP_MAGIC, 4) == 0) {
+        memcpy(hdr, data + 4, 8);
+        if (hdr[0] != tx || hdr[1] != ty ||
+            store_crc32c(0, data + SNAP_HEADER, len - SNAP_HEADER) != get_u32(data + 12) ||
+            len - SNAP_HEADER < 4 || (get_u32(data + SNAP_HEADER) & ~STORE_RECORD_SOIL) != 1)
+            return 0;
+        int r = store_record_apply(&cs->rec, w, data + SNAP_HEADER, len - SNAP_HEADER,
+                                   snapshot_rect_check, &rect);
+        return r < 0 ? -1 : r == 0;
     }
-    size_t z = ZSTD_compressCCtx(cctx, p + SNAP_HEADER, bound, t->values, raw, level);
-    if (ZSTD_isError(z)) {
-        free(p);
-        error_set(err, "zstd: %s", ZSTD_getErrorName(z));
+    /* version 1: heights only */
+    size_t raw = 4 * (size_t)rect.w * rect.h;
+    if (len < SNAP1_HEADER || memcmp(data, SNAP1_MAGIC, 4) != 0)
+        return 0;
+    memcpy(hdr, data + 4, 16);
+    int32_t *values = malloc(raw ? raw : 1);
+    if (!values)
         return -1;
-    }
-    int32_t hdr[4] = {t->tx, t->ty, t->rect.w, t->rect.h};
-    memcpy(p, SNAP_MAGIC, 4);
-    memcpy(p + 4, hdr, 16);
-    put_u32(p + 20, (uint32_t)raw);
-    put_u32(p + 24, store_crc32c(0, t->values, raw));
-    *out = p;
-    *len = SNAP_HEADER + z;
-    return 0;
+    int ok = hdr[0] == tx && hdr[1] == ty && hdr[2] == rect.w && hdr[3] == rect.h &&
+             get_u32(data + 20) == raw &&
+             ZSTD_decompress(values, raw, data + SNAP1_HEADER, len - SNAP1_HEADER) == raw &&
+             store_crc32c(0, values, raw) == get_u32(data + 24);
+    if (ok)
+        world_scatter_window(w, rect, values);
+    free(values);
+    return ok;
 }
 
 /* Loads tile (tx, ty)'s snapshot into w; -1 (err names the tile) when it is corrupt. */
@@ -201,24 +253,15 @@ static int snapshot_load(cluster_store *cs, world *w, int tx, int ty, error_text
     int found = cluster_snapshot_get(cs->cl, cs->world, tx, ty, &data, &len, &covers, err);
     if (found <= 0)
         return found;
-    world_rect rect = world_tile_rect(w, tx, ty);
-    size_t raw = 4 * (size_t)rect.w * rect.h;
-    int32_t hdr[4] = {0};
-    if (len >= SNAP_HEADER)
-        memcpy(hdr, data + 4, 16);
-    int32_t *values = malloc(raw ? raw : 1);
-    int ok = values && len >= SNAP_HEADER && memcmp(data, SNAP_MAGIC, 4) == 0 && hdr[0] == tx &&
-             hdr[1] == ty && hdr[2] == rect.w && hdr[3] == rect.h && get_u32(data + 20) == raw &&
-             ZSTD_decompress(values, raw, data + SNAP_HEADER, len - SNAP_HEADER) == raw &&
-             store_crc32c(0, values, raw) == get_u32(data + 24);
-    if (ok)
-        world_scatter_window(w, rect, values);
-    else
+    int ok = snapshot_apply(cs, w, tx, ty, data, len);
+    if (ok < 0)
+        error_set(err, "world %s: out of memory loading the snapshot of tile %d,%d", cs->world, tx,
+                  ty);
+    else if (!ok)
         error_set(err, "world %s: the snapshot of tile %d,%d is corrupt or of another world",
                   cs->world, tx, ty);
-    free(values);
     free(data);
-    return ok ? 1 : -1;
+    return ok > 0 ? 1 : -1;
 }
 
 /* Loads the snapshots the index names; *from_seq: where the log replay starts. */
@@ -259,8 +302,8 @@ static int snapshots_load(cluster_store *cs, world *w, uint64_t *from_seq, store
 
 /* Writes the job's tiles, then the index naming them and seq (recovery
  * replays from there), and only then purges the log below seq. 0, or -1. */
-static int compaction_run(cluster_store *cs, ZSTD_CCtx *cctx, const tile_copy *tiles, int count,
-                          uint64_t seq, error_text *err)
+static int compaction_run(cluster_store *cs, ZSTD_CCtx *cctx, store_record *rec,
+                          const tile_copy *tiles, int count, uint64_t seq, error_text *err)
 {
     int(*xy)[2] = calloc((size_t)count + 1, sizeof *xy);
     if (!xy) {
@@ -273,13 +316,13 @@ static int compaction_run(cluster_store *cs, ZSTD_CCtx *cctx, const tile_copy *t
     }
     cluster_status indexed = CLUSTER_ERROR;
     for (int i = 0; i < count; i++) {
-        uint8_t *data = NULL;
-        size_t len = 0;
-        if (snapshot_encode(&tiles[i], cctx, cs->cfg.compression_level, &data, &len, err) != 0)
+        size_t len = snapshot_encode(&tiles[i], rec, cctx, cs->cfg.compression_level, err);
+        if (len == 0) {
+            free(xy);
             return -1;
-        cluster_status r =
-            cluster_snapshot_put(cs->cl, cs->world, tiles[i].tx, tiles[i].ty, seq, data, len, err);
-        free(data);
+        }
+        cluster_status r = cluster_snapshot_put(cs->cl, cs->world, tiles[i].tx, tiles[i].ty, seq,
+                                                rec->buf, len, err);
         if (r == CLUSTER_ERROR) {
             free(xy);
             return -1;
@@ -298,6 +341,7 @@ static void *compaction_main(void *arg)
 {
     cluster_store *cs = arg;
     ZSTD_CCtx *cctx = ZSTD_createCCtx();
+    store_record rec = {0}; /* this thread's codec scratch */
     pthread_mutex_lock(&cs->lock);
     for (;;) {
         while (!cs->job_ready && !cs->quit)
@@ -313,7 +357,7 @@ static void *compaction_main(void *arg)
 
         double t0 = time_now_ms();
         error_text err = {{0}};
-        int ok = cctx && compaction_run(cs, cctx, tiles, count, seq, &err) == 0;
+        int ok = cctx && compaction_run(cs, cctx, &rec, tiles, count, seq, &err) == 0;
         if (ok)
             log_info("cluster: world %s: %d tiles compacted as of log sequence %" PRIu64
                      " in %.1f ms",
@@ -339,6 +383,7 @@ static void *compaction_main(void *arg)
         pthread_cond_broadcast(&cs->cond);
     }
     pthread_mutex_unlock(&cs->lock);
+    store_record_free(&rec);
     ZSTD_freeCCtx(cctx);
     return NULL;
 }
@@ -377,10 +422,14 @@ static void compaction_maybe_start(cluster_store *cs, const world *w)
         t->tx = i % cs->tiles_x;
         t->ty = i / cs->tiles_x;
         t->rect = world_tile_rect(w, t->tx, t->ty);
-        t->values = malloc(4 * (size_t)t->rect.w * t->rect.h);
+        t->soil = world_soil_enabled(w) && !world_soil_rect_empty(w, t->rect);
+        size_t cells = (size_t)t->rect.w * t->rect.h;
+        t->values = malloc(4 * cells * (t->soil ? 1 + WORLD_SOIL_FIELDS : 1));
         if (!t->values)
             break;
         world_gather_window(w, t->rect, t->values);
+        if (t->soil)
+            world_soil_gather(w, t->rect, t->values + cells);
         k++;
     }
     if (!tiles || k != n) {
@@ -487,7 +536,7 @@ void cluster_store_close(cluster_store *cs)
     ZSTD_freeCCtx(cs->cctx);
     free(cs->changed);
     free(cs->raw);
-    free(cs->packed);
+    store_record_free(&cs->rec);
     stat_series_free(&cs->commit_ms);
     pthread_cond_destroy(&cs->cond);
     pthread_mutex_destroy(&cs->lock);
@@ -505,7 +554,7 @@ cluster_status cluster_store_commit_tick(cluster_store *cs, const world *w, uint
     if (len == 0)
         return CLUSTER_ERROR;
     double t0 = time_now_ms();
-    cluster_status r = cluster_wal_append(cs->wal, cs->packed, len, NULL, err);
+    cluster_status r = cluster_wal_append(cs->wal, cs->rec.buf, len, NULL, err);
     if (r != CLUSTER_OK) {
         cs->fenced = r == CLUSTER_FENCED;
         snprintf(cs->failure, sizeof cs->failure, "%s", err->message);

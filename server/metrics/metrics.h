@@ -125,6 +125,7 @@ void metrics_set_stage_memory_bytes(const char *stage, uint64_t bytes);
 typedef struct metrics_world_figures {
     uint64_t tick;
     int64_t volume, colliders;
+    int64_t clients; /* the world's websocket clients (joined to its service) */
     int store_available;
     double tick_ms, commit_p50_ms, commit_p99_ms;
 } metrics_world_figures;

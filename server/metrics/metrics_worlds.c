@@ -4,6 +4,9 @@
  * labelled world="NAME". Each world's sim thread takes a slot when it starts
  * ticking a world and sets its figures once per tick; the slot is dropped
  * (its series disappear from /metrics) when the node stops ticking the world.
+ * The label set is bounded: one value per world this process ticks now, at
+ * most METRICS_MAX_WORLDS (64), above any --max-worlds (a node's 64, a
+ * daemon's 63 created worlds), so a create/delete loop never grows it.
  * Values are relaxed atomics like the rest of metrics/; the slot table's
  * names are under a short mutex (taken only when a world comes or goes, and
  * by the renderer).
@@ -20,7 +23,7 @@ typedef struct world_slot {
     int used;
     char name[65];
     _Atomic uint64_t tick, ticks;
-    _Atomic int64_t volume, colliders;
+    _Atomic int64_t volume, colliders, clients;
     _Atomic int available;
     _Atomic double last_tick_ms, commit_p50_ms, commit_p99_ms;
 } world_slot;
@@ -70,6 +73,7 @@ int metrics_world_slot(const char *name)
         atomic_store(&w->ticks, 0);
         atomic_store(&w->volume, 0);
         atomic_store(&w->colliders, 0);
+        atomic_store(&w->clients, 0);
         atomic_store(&w->available, 1);
         atomic_store(&w->last_tick_ms, 0);
         atomic_store(&w->commit_p50_ms, 0);
@@ -98,6 +102,7 @@ void metrics_world_tick(int slot, const metrics_world_figures *f)
     atomic_fetch_add_explicit(&w->ticks, 1, memory_order_relaxed);
     atomic_store_explicit(&w->volume, f->volume, memory_order_relaxed);
     atomic_store_explicit(&w->colliders, f->colliders, memory_order_relaxed);
+    atomic_store_explicit(&w->clients, f->clients, memory_order_relaxed);
     atomic_store_explicit(&w->available, f->store_available, memory_order_relaxed);
     atomic_store_explicit(&w->last_tick_ms, f->tick_ms, memory_order_relaxed);
     atomic_store_explicit(&w->commit_p50_ms, f->commit_p50_ms, memory_order_relaxed);
@@ -157,8 +162,11 @@ static int family(char *out, size_t cap, size_t *n, const char *name, const char
         case 6:
             snprintf(value, sizeof value, "%.6f", atomic_load(&w->commit_p50_ms) / 1000);
             break;
-        default:
+        case 7:
             snprintf(value, sizeof value, "%.6f", atomic_load(&w->commit_p99_ms) / 1000);
+            break;
+        default:
+            snprintf(value, sizeof value, "%lld", (long long)atomic_load(&w->clients));
             break;
         }
         /* world names are [A-Za-z0-9_-]: nothing to escape in a label value */
@@ -184,6 +192,9 @@ int metrics_worlds_text(char *out, size_t cap)
          "Median commit latency of the world (publish to JetStream acknowledgement)."},
         {"terrad_world_commit_p99_seconds", "gauge",
          "99th percentile commit latency of the world (publish to acknowledgement)."},
+        {"terrad_world_clients", "gauge",
+         "Websocket clients in the world (on a cluster, counted by the node ticking it, "
+         "relayed clients included)."},
     };
     size_t n = 0;
     if (cap)

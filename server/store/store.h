@@ -148,6 +148,40 @@ int store_remove(const char *dir, int *removed, error_text *err);
  * (err says the first), -1 when it cannot be read at all. */
 int store_fsck(const char *dir, world *w, store_recovery *rec, error_text *err);
 
+/* ---- a log record's payload: one codec for every backend (store_record.c) ----
+ * u32 rectangle count (bit 31, STORE_RECORD_SOIL: the soil state follows),
+ * per rectangle x, y, w, h (u32), u32 raw byte count, then zstd of the
+ * rectangles' heights (i32, row by row, one rectangle after the other) and,
+ * with the soil bit, their soil state (WORLD_SOIL_FIELDS i32 per cell, same
+ * order). The data directory's log records and the JetStream store's log
+ * records and tile snapshots all carry it (docs/storage.md, docs/cluster.md). */
+#define STORE_RECORD_SOIL 0x80000000u
+
+typedef struct store_record { /* scratch, reused from record to record */
+    int32_t *values;
+    int64_t values_cap;
+    uint8_t *buf; /* the encoded record, after the caller's header room */
+    int64_t buf_cap;
+} store_record;
+
+struct ZSTD_CCtx_s;
+
+void store_record_free(store_record *c);
+/* rects' heights, then (soil) their soil state, into c->values. 0, or -1
+ * out of memory. */
+int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n, int soil);
+/* Encodes rects with their values (laid out as store_record_gather lays
+ * them) into c->buf + head (head bytes left for the caller's header): the
+ * payload's length, or 0 with err set. */
+size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
+                           const world_rect *rects, int n, int soil, const int32_t *values,
+                           size_t head, error_text *err);
+/* Checks a payload whole (every rectangle inside w and accepted by check,
+ * when given; the sizes right) and only then applies it to w. 0; 1 when it
+ * is malformed (nothing applied); -1 out of memory. */
+int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
+                       int (*check)(void *ctx, world_rect r), void *ctx);
+
 /* CRC32C (Castagnoli), as every record, snapshot and the manifest use it. */
 uint32_t store_crc32c(uint32_t crc, const void *data, size_t len);
 

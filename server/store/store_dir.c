@@ -300,8 +300,7 @@ static void dir_close(void *state)
     store_control_free(&st->ctl);
     ZSTD_freeCCtx(st->cctx);
     free(st->changed);
-    free(st->buf);
-    free(st->values);
+    store_record_free(&st->rec);
     free(st);
 }
 
@@ -428,52 +427,32 @@ static int dir_append_tick(void *state, const world *w, uint64_t tick, const wor
      * STORE_TICK_LOG_EVERY ticks, so a restart never reuses a tick number */
     if (n <= 0 && tick < st->appended_tick + STORE_TICK_LOG_EVERY)
         return 0;
-    size_t cells = 0;
-    for (int i = 0; i < n; i++)
-        cells += (size_t)rects[i].w * rects[i].h;
     int soil = w && world_soil_enabled(w);
-    size_t raw = cells * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
-    size_t table = 4 + (size_t)n * 16 + 4;
-    size_t bound = ZSTD_compressBound(raw);
-    if (array_grow((void **)&st->values, &st->values_cap, (int64_t)(raw / 4) + 1,
-                   sizeof *st->values) != 0 ||
-        array_grow((void **)&st->buf, &st->buf_cap, (int64_t)(REC_HEADER + table + bound), 1) !=
-            0) {
+    error_text err = {{0}};
+    if (store_record_gather(&st->rec, w, rects, n, soil) != 0) {
         set_failed(st, "memory", "no memory for a log record", ENOMEM);
         return -1;
     }
-    uint8_t *p = st->buf + REC_HEADER;
-    put32(p, (uint32_t)n | (soil ? REC_SOIL : 0));
-    size_t off = 0;
+    size_t plen = store_record_encode(&st->rec, st->cctx, st->cfg.compression_level, rects, n, soil,
+                                      st->rec.values, REC_HEADER, &err);
+    if (plen == 0) {
+        set_failed(st, "compress", err.message, EIO);
+        return -1;
+    }
     for (int i = 0; i < n; i++) {
         world_rect r = rects[i];
-        put32(p + 4 + 16 * i, (uint32_t)r.x);
-        put32(p + 8 + 16 * i, (uint32_t)r.y);
-        put32(p + 12 + 16 * i, (uint32_t)r.w);
-        put32(p + 16 + 16 * i, (uint32_t)r.h);
-        world_gather_window(w, r, st->values + off);
-        if (soil)
-            world_soil_gather(w, r, st->values + cells + off * WORLD_SOIL_FIELDS);
-        off += (size_t)r.w * r.h;
         for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
             for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE; tx++)
                 st->changed[ty * st->tiles_x + tx] = 1;
     }
-    put32(p + table - 4, (uint32_t)raw);
-    size_t packed =
-        ZSTD_compressCCtx(st->cctx, p + table, bound, st->values, raw, st->cfg.compression_level);
-    if (ZSTD_isError(packed)) {
-        set_failed(st, "compress", "zstd compression of a log record", EIO);
-        return -1;
-    }
-    size_t plen = table + packed;
-    uint8_t *h = st->buf;
+    uint8_t *p = st->rec.buf + REC_HEADER;
+    uint8_t *h = st->rec.buf;
     put32(h, REC_MAGIC);
     put32(h + 4, (uint32_t)plen);
     put64(h + 8, tick);
     put32(h + 16, store_crc32c(0, p, plen));
     put32(h + 20, store_crc32c(0, h, 20));
-    if (store_dir_write_all(st, st->wal_fd, st->buf, REC_HEADER + plen) != 0) {
+    if (store_dir_write_all(st, st->wal_fd, st->rec.buf, REC_HEADER + plen) != 0) {
         int e = errno;
         /* leave the log exactly as it was: a half-written record is cut now (and
          * would be cut as a torn tail by recovery anyway) */

@@ -38,10 +38,9 @@ extern const store_backend store_backend_dir;
 #define WAL_HEADER 24
 #define REC_MAGIC 0x52445254u /* "TRDR" */
 #define REC_HEADER 24
-/* In a record's rectangle count: the soil state (WORLD_SOIL_FIELDS int32 per
- * cell) of every rectangle follows their heights. Records without it (format
- * 1, and worlds without soil) hold heights only. */
-#define REC_SOIL 0x80000000u
+/* A record's payload is store_record.c's (store.h): with STORE_RECORD_SOIL
+ * the soil state of every rectangle follows their heights; records without it
+ * (format 1, and worlds without soil) hold heights only. */
 #define REC_MAX_PAYLOAD (1u << 30)
 #define TILE_MAGIC "TRDTILE1"
 #define TILE_HEADER 56
@@ -116,10 +115,7 @@ typedef struct store_dir {
     char failure[256];
 
     uint8_t *changed; /* per tile: changed since the last compaction boundary */
-    uint8_t *buf;     /* record scratch */
-    int64_t buf_cap;
-    int32_t *values;
-    int64_t values_cap;
+    store_record rec; /* record scratch */
     ZSTD_CCtx *cctx;
 
     /* compaction: one job at a time, handed over under the mutex */

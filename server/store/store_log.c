@@ -55,25 +55,19 @@ static void scan_after(const uint8_t *data, size_t len, size_t from, replay_resu
     }
 }
 
-/* A checked record's rectangles into w: their heights, then (a record with
- * REC_SOIL) their soil state; marks the tiles changed. 0, or -1 out of memory. */
-static int record_apply(world *w, uint8_t *changed, const uint8_t *p, uint32_t nrect, int soil,
-                        const int32_t *values, size_t cells)
+/* While a record is checked: the tiles its rectangles touch are changed. */
+typedef struct mark_ctx {
+    uint8_t *changed;
+    int tiles_x;
+} mark_ctx;
+
+static int mark_tiles(void *ctx, world_rect r)
 {
-    int tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
-    size_t off = 0;
-    for (uint32_t i = 0; i < nrect; i++) {
-        world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
-                        (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
-        world_scatter_window(w, r, values + off);
-        if (soil && world_soil_scatter(w, r, values + cells + off * WORLD_SOIL_FIELDS) != 0)
-            return -1;
-        off += (size_t)r.w * r.h;
-        if (changed)
-            for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
-                for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE; tx++)
-                    changed[ty * tiles_x + tx] = 1;
-    }
+    mark_ctx *m = ctx;
+    if (m->changed)
+        for (int ty = r.y / STORE_TILE_SIZE; ty <= (r.y + r.h - 1) / STORE_TILE_SIZE; ty++)
+            for (int tx = r.x / STORE_TILE_SIZE; tx <= (r.x + r.w - 1) / STORE_TILE_SIZE; tx++)
+                m->changed[ty * m->tiles_x + tx] = 1;
     return 0;
 }
 
@@ -99,8 +93,8 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
     res->header_ok = 1;
     size_t at = WAL_HEADER;
     res->good_len = WAL_HEADER;
-    int32_t *values = NULL;
-    int64_t values_cap = 0;
+    store_record rec = {0};
+    mark_ctx mark = {changed, (w ? w->width + STORE_TILE_SIZE - 1 : 0) / STORE_TILE_SIZE};
     while (at < len) {
         if (!w) { /* count only */
             uint64_t tick;
@@ -145,33 +139,17 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
             break;
         }
         /* checksummed, so a malformed payload is a writer bug: still refuse it */
-        uint32_t word = plen >= 4 ? get32(p) : 0, nrect = word & ~REC_SOIL;
-        int soil = (word & REC_SOIL) != 0;
-        size_t table = 4 + (size_t)nrect * 16 + 4;
-        int ok = plen >= 4 && nrect <= 1u << 20 && table <= plen && tick > res->last_tick;
-        uint64_t raw = 0, cells = 0;
-        for (uint32_t i = 0; ok && i < nrect; i++) {
-            world_rect r = {(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
-                            (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
-            world_rect c = r;
-            ok = r.w > 0 && r.h > 0 && world_clip_rect(w, &c) && c.x == r.x && c.y == r.y &&
-                 c.w == r.w && c.h == r.h;
-            cells += (uint64_t)r.w * r.h;
-        }
-        raw = cells * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
-        ok = ok && raw == get32(p + table - 4) && raw <= REC_MAX_PAYLOAD &&
-             array_grow((void **)&values, &values_cap, (int64_t)(raw / 4 + 1), sizeof *values) == 0;
-        if (ok)
-            ok = ZSTD_decompress(values, raw, p + table, plen - table) == raw;
-        if (!ok) {
+        int applied =
+            tick > res->last_tick ? store_record_apply(&rec, w, p, plen, mark_tiles, &mark) : 1;
+        if (applied > 0) {
             snprintf(res->problem, sizeof res->problem,
                      "record of tick %llu at offset %zu is malformed", (unsigned long long)tick,
                      at);
             break;
         }
-        if (record_apply(w, changed, p, nrect, soil, values, (size_t)cells) != 0) {
+        if (applied < 0) {
             error_set(err, "store: out of memory for the soil state replaying %s", path);
-            free(values);
+            store_record_free(&rec);
             free(data);
             return -1;
         }
@@ -182,7 +160,7 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
     }
     if (res->problem[0])
         scan_after(data, len, at + 1, res);
-    free(values);
+    store_record_free(&rec);
     free(data);
     return 0;
 }

@@ -36,7 +36,8 @@ import urllib.request
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import BIN, SOURCE, Checks, EventWatcher, skip, tp  # noqa: E402
+from service_harness import (BIN, SOURCE, Checks, EventWatcher, metric_value, skip,  # noqa: E402
+                             tp)
 
 check = Checks()
 
@@ -90,6 +91,9 @@ async def edit_seen(owner, world):
             moved = bool((now != before).any()) if tp.HAVE_NUMPY else now != before
             await asyncio.sleep(0.05)
         check(moved, "the edit reached the subscriber as a delta")
+        check(wait_for(lambda: metric_value(owner.get("/metrics")[1].decode(),
+                                            "terrad_world_clients", {"world": world}) == 1, 60),
+              f"the owner's /metrics counts the client in terrad_world_clients{{world={world}}}")
     finally:
         await c.close()
 

@@ -5,7 +5,10 @@
  * failover — and holds exactly a's heights and tick; a's next commit is then
  * refused as fenced and leaves the log without it; b goes on, and a third
  * opening equals b. The log really is purged (fewer records than ticks) and
- * recovery still equals the live world; two worlds do not mix.
+ * recovery still equals the live world; two worlds do not mix. A world with
+ * soil state (the bekker model's) gets it back exactly, from snapshots and
+ * records; a log and snapshots of format 1 (heights only, written by hand
+ * here as older nodes wrote them) still load.
  *
  * Exit 77 (skipped) when nats-server is not installed.
  */
@@ -14,6 +17,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <zstd.h>
 
 #include "cluster/cluster.h"
 #include "world/world.h"
@@ -196,6 +201,171 @@ static void test_two_worlds(cluster *a)
     world_free(&r2);
 }
 
+/* Random soil state in the rectangles deform() chose (as the bekker model
+ * leaves beside its heights). */
+static void press_soil(world *w, const world_rect *rects, int n)
+{
+    for (int i = 0; i < n; i++) {
+        size_t k = (size_t)rects[i].w * rects[i].h * WORLD_SOIL_FIELDS;
+        int32_t *v = malloc(4 * k);
+        for (size_t j = 0; j < k; j++)
+            v[j] = (int32_t)(test_next_random(&rng) % 1000);
+        world_soil_scatter(w, rects[i], v);
+        free(v);
+    }
+}
+
+static int same_soil(const world *a, const world *b)
+{
+    world_rect all = {0, 0, W, H};
+    size_t k = (size_t)W * H * WORLD_SOIL_FIELDS;
+    int32_t *va = malloc(4 * k), *vb = malloc(4 * k);
+    world_soil_gather(a, all, va);
+    world_soil_gather(b, all, vb);
+    int same = memcmp(va, vb, 4 * k) == 0;
+    for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
+        same &= world_soil_sum(a, f) == world_soil_sum(b, f);
+    free(va);
+    free(vb);
+    return same;
+}
+
+/* A bekker world's soil state: committed with the heights, compacted into
+ * snapshots, and recovered exactly by another node. */
+static void test_soil(cluster *a, cluster *b)
+{
+    error_text err = {{0}};
+    world wa, wb;
+    test_dunes_world(&wa, W, H, 3);
+    world_soil_enable(&wa);
+    store_recovery rec;
+    cluster_store_config cfg = {.compact_records = 15};
+    cluster_store *sa = cluster_store_open(a, "soil", &wa, &cfg, &rec, &err);
+    CHECK(sa != NULL, "a opens a world with soil state: %s", err.message);
+    if (!sa) {
+        world_free(&wa);
+        return;
+    }
+    world_rect rects[3];
+    int ok = 1;
+    for (uint64_t t = 1; t <= 40; t++) {
+        int n = deform(&wa, rects);
+        press_soil(&wa, rects, n);
+        ok &= cluster_store_commit_tick(sa, &wa, t, rects, n, &err) == CLUSTER_OK;
+        cluster_store_wait_compaction(sa);
+    }
+    CHECK(ok && world_soil_sum(&wa, 0) > 0, "a commits 40 ticks of heights and soil: %s",
+          err.message);
+    test_dunes_world(&wb, W, H, 3); /* fresh soil: recovery alone must bring it */
+    cluster_store *sb = cluster_store_open(b, "soil", &wb, &cfg, &rec, &err);
+    CHECK(sb && rec.tick == 40 && rec.tiles_loaded > 0 && rec.records_replayed > 0,
+          "b takes it over from %d snapshots and %lld records: %s", rec.tiles_loaded,
+          (long long)rec.records_replayed, err.message);
+    CHECK(sb && same_heights(&wa, &wb) && same_soil(&wa, &wb),
+          "b's heights and soil state (every cell, every field) equal a's");
+    cluster_store_close(sa);
+    cluster_store_close(sb);
+    world_free(&wa);
+    world_free(&wb);
+}
+
+/* Format 1 as nodes before the soil state wrote it, by hand: records
+ * "TRC1" | tick | rects | raw bytes | CRC32C | zstd(x, y, w, h, heights...),
+ * snapshots "TRS1" | tx, ty, w, h | raw bytes | CRC32C | zstd(heights). */
+static size_t v1_record(const world *w, uint64_t tick, const world_rect *rects, int n,
+                        uint8_t **out)
+{
+    size_t raw = 0;
+    for (int i = 0; i < n; i++)
+        raw += 16 + 4 * (size_t)rects[i].w * rects[i].h;
+    uint8_t *r = malloc(raw), *p = r;
+    for (int i = 0; i < n; i++) {
+        int32_t hdr[4] = {rects[i].x, rects[i].y, rects[i].w, rects[i].h};
+        memcpy(p, hdr, 16);
+        world_gather_window(w, rects[i], (int32_t *)(void *)(p + 16));
+        p += 16 + 4 * (size_t)rects[i].w * rects[i].h;
+    }
+    size_t bound = ZSTD_compressBound(raw);
+    *out = malloc(24 + bound);
+    size_t z = ZSTD_compress(*out + 24, bound, r, raw, 1);
+    uint32_t words[3] = {(uint32_t)n, (uint32_t)raw, store_crc32c(0, r, raw)};
+    memcpy(*out, "TRC1", 4);
+    memcpy(*out + 4, &tick, 8);
+    memcpy(*out + 12, words, 12);
+    free(r);
+    return 24 + z;
+}
+
+static size_t v1_snapshot(const world *w, int tx, int ty, uint8_t **out)
+{
+    world_rect r = world_tile_rect(w, tx, ty);
+    size_t raw = 4 * (size_t)r.w * r.h, bound = ZSTD_compressBound(raw);
+    int32_t *v = malloc(raw);
+    world_gather_window(w, r, v);
+    *out = malloc(28 + bound);
+    size_t z = ZSTD_compress(*out + 28, bound, v, raw, 1);
+    int32_t hdr[4] = {tx, ty, r.w, r.h};
+    uint32_t words[2] = {(uint32_t)raw, store_crc32c(0, v, raw)};
+    memcpy(*out, "TRS1", 4);
+    memcpy(*out + 4, hdr, 16);
+    memcpy(*out + 20, words, 8);
+    free(v);
+    return 28 + z;
+}
+
+static void test_format1(cluster *a)
+{
+    error_text err = {{0}};
+    world we, wr;
+    test_dunes_world(&we, W, H, 5);
+    cluster_wal *wal = cluster_wal_open(a, "old", &err);
+    world_rect rects[3];
+    uint64_t seq = 0, first = 0;
+    int ok = wal != NULL;
+    for (uint64_t t = 1; ok && t <= 6; t++) {
+        int n = deform(&we, rects);
+        uint8_t *rec = NULL;
+        size_t len = v1_record(&we, t, rects, n, &rec);
+        ok = cluster_wal_append(wal, rec, len, &seq, &err) == CLUSTER_OK;
+        free(rec);
+        if (t == 3) { /* every tile as of record 3 (records 1, 2 then purgeable) */
+            int tiles[6][2], count = 0;
+            first = seq;
+            for (int ty = 0; ty < we.tiles_y; ty++)
+                for (int tx = 0; ok && tx < we.tiles_x; tx++) {
+                    uint8_t *snap = NULL;
+                    size_t slen = v1_snapshot(&we, tx, ty, &snap);
+                    ok =
+                        cluster_snapshot_put(a, "old", tx, ty, seq, snap, slen, &err) == CLUSTER_OK;
+                    tiles[count][0] = tx;
+                    tiles[count++][1] = ty;
+                    free(snap);
+                }
+            ok = ok && cluster_snapshot_index_put(a, "old", seq, (const int(*)[2])tiles, count,
+                                                  &err) == CLUSTER_OK;
+        }
+    }
+    cluster_wal_close(wal);
+    CHECK(ok && first > 0, "6 records and a snapshot of format 1 written: %s", err.message);
+    test_dunes_world(&wr, W, H, 5);
+    store_recovery rec;
+    cluster_store *s = cluster_store_open(a, "old", &wr, NULL, &rec, &err);
+    CHECK(s && rec.tick == 6 && rec.tiles_loaded == 6 && same_heights(&we, &wr),
+          "format 1 records and snapshots still load (tick %llu, %d tiles): %s",
+          (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
+    int n = deform(&we, rects);
+    CHECK(s && cluster_store_commit_tick(s, &we, 7, rects, n, &err) == CLUSTER_OK,
+          "a format 2 record follows them: %s", err.message);
+    cluster_store_close(s);
+    world_free(&wr);
+    test_dunes_world(&wr, W, H, 5);
+    s = cluster_store_open(a, "old", &wr, NULL, &rec, &err);
+    CHECK(s && rec.tick == 7 && same_heights(&we, &wr), "and the mixed log loads: %s", err.message);
+    cluster_store_close(s);
+    world_free(&we);
+    world_free(&wr);
+}
+
 int main(void)
 {
     if (!nats_installed()) {
@@ -215,6 +385,8 @@ int main(void)
     if (a && b) {
         test_failover(a, b);
         test_two_worlds(a);
+        test_soil(a, b);
+        test_format1(a);
     }
     cluster_close(a);
     cluster_close(b);

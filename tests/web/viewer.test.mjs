@@ -444,7 +444,7 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
     await until('the window moved with the camera', async () => {
       const r = await pg.evaluate(() => window.terrad.state === 'live' && window.terrad.region);
       return r && r.x > region.x && Math.abs((r.x + r.w / 2) * cell - target[0]) < 2;
-    }, 60000);
+    }, 120000);
     await assertMirrorsServer(big.ports.http, 120000, pg);
   } finally {
     await pg.close();

@@ -1,0 +1,3 @@
+module terrad.example/drive
+
+go 1.19

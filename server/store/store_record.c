@@ -1,0 +1,123 @@
+/*
+ * store_record.c: the one codec of a log record's payload (store.h), shared
+ * by every backend — the data directory's log (store_dir.c writes it,
+ * store_log.c replays it) and the cluster's JetStream log and tile snapshots
+ * (server/cluster/cluster_store.c). A tick's commit encodes the rectangles
+ * it changed after the deformation; recovery decodes and applies them before
+ * the first tick. One copy, so a world's soil state (bit 31 of the rectangle
+ * count) travels the same way whichever store holds it.
+ *
+ *   u32 count | STORE_RECORD_SOIL, count × (x, y, w, h) u32, u32 raw bytes,
+ *   zstd(heights of every rectangle in order, then with the soil bit their
+ *   soil state, WORLD_SOIL_FIELDS i32 per cell in the same order)
+ */
+#include "store/store_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#define RECORD_RECTS_MAX (1u << 20)
+
+void store_record_free(store_record *c)
+{
+    free(c->values);
+    free(c->buf);
+    memset(c, 0, sizeof *c);
+}
+
+static size_t rects_cells(const world_rect *rects, int n)
+{
+    size_t cells = 0;
+    for (int i = 0; i < n; i++)
+        cells += (size_t)rects[i].w * rects[i].h;
+    return cells;
+}
+
+int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n, int soil)
+{
+    size_t cells = rects_cells(rects, n);
+    size_t ints = cells * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
+    if (array_grow((void **)&c->values, &c->values_cap, (int64_t)ints + 1, sizeof *c->values) != 0)
+        return -1;
+    size_t off = 0;
+    for (int i = 0; i < n; i++) {
+        world_gather_window(w, rects[i], c->values + off);
+        if (soil)
+            world_soil_gather(w, rects[i], c->values + cells + off * WORLD_SOIL_FIELDS);
+        off += (size_t)rects[i].w * rects[i].h;
+    }
+    return 0;
+}
+
+size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
+                           const world_rect *rects, int n, int soil, const int32_t *values,
+                           size_t head, error_text *err)
+{
+    size_t raw = rects_cells(rects, n) * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
+    size_t table = 4 + (size_t)n * 16 + 4;
+    size_t bound = ZSTD_compressBound(raw);
+    if (n < 0 || (uint32_t)n > RECORD_RECTS_MAX || raw > REC_MAX_PAYLOAD) {
+        error_set(err, "store: a record of %d rectangles and %zu bytes is too large", n, raw);
+        return 0;
+    }
+    if (array_grow((void **)&c->buf, &c->buf_cap, (int64_t)(head + table + bound), 1) != 0) {
+        error_set(err, "store: out of memory for a log record");
+        return 0;
+    }
+    uint8_t *p = c->buf + head;
+    put32(p, (uint32_t)n | (soil ? STORE_RECORD_SOIL : 0));
+    for (int i = 0; i < n; i++) {
+        put32(p + 4 + 16 * i, (uint32_t)rects[i].x);
+        put32(p + 8 + 16 * i, (uint32_t)rects[i].y);
+        put32(p + 12 + 16 * i, (uint32_t)rects[i].w);
+        put32(p + 16 + 16 * i, (uint32_t)rects[i].h);
+    }
+    put32(p + table - 4, (uint32_t)raw);
+    size_t packed = ZSTD_compressCCtx(cctx, p + table, bound, values, raw, level);
+    if (ZSTD_isError(packed)) {
+        error_set(err, "store: zstd: %s", ZSTD_getErrorName(packed));
+        return 0;
+    }
+    return table + packed;
+}
+
+static world_rect rect_at(const uint8_t *p, uint32_t i)
+{
+    return (world_rect){(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
+                        (int32_t)get32(p + 12 + 16 * i), (int32_t)get32(p + 16 + 16 * i)};
+}
+
+int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
+                       int (*check)(void *ctx, world_rect r), void *ctx)
+{
+    /* everything is checked before anything is applied */
+    uint32_t word = len >= 4 ? get32(p) : 0, nrect = word & ~STORE_RECORD_SOIL;
+    int soil = (word & STORE_RECORD_SOIL) != 0;
+    size_t table = 4 + (size_t)nrect * 16 + 4;
+    int ok = len >= 4 && nrect <= RECORD_RECTS_MAX && table <= len;
+    uint64_t cells = 0;
+    for (uint32_t i = 0; ok && i < nrect; i++) {
+        world_rect r = rect_at(p, i), clipped = r;
+        ok = r.w > 0 && r.h > 0 && world_clip_rect(w, &clipped) && clipped.x == r.x &&
+             clipped.y == r.y && clipped.w == r.w && clipped.h == r.h &&
+             (!check || check(ctx, r) == 0);
+        cells += (uint64_t)r.w * r.h;
+    }
+    uint64_t raw = cells * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
+    if (!ok || raw != get32(p + table - 4) || raw > REC_MAX_PAYLOAD)
+        return 1;
+    if (array_grow((void **)&c->values, &c->values_cap, (int64_t)(raw / 4 + 1),
+                   sizeof *c->values) != 0)
+        return -1;
+    if (ZSTD_decompress(c->values, raw, p + table, len - table) != raw)
+        return 1;
+    size_t off = 0;
+    for (uint32_t i = 0; i < nrect; i++) {
+        world_rect r = rect_at(p, i);
+        world_scatter_window(w, r, c->values + off);
+        if (soil && world_soil_scatter(w, r, c->values + cells + off * WORLD_SOIL_FIELDS) != 0)
+            return -1;
+        off += (size_t)r.w * r.h;
+    }
+    return 0;
+}
