@@ -442,10 +442,13 @@ export const subscribeEvents = (events = ['world_created', 'world_deleted'], ref
   withRef({ type: 'subscribe_events', events }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
-/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string}} [opts] */
-export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref } = {}) {
+// loadN: a vertical load in newtons (bekker worlds; PROTOCOL.md "Load-driven colliders"): the
+// server sets the height that carries it each tick and reports it in FORCES.
+/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string, loadN?: number}} [opts] */
+export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref, loadN } = {}) {
   const m = { type: 'collider_create', shape, material, feedback, ...dims };
   if (pose) m.pose = pose;
+  if (loadN !== undefined) m.load_n = loadN;
   return withRef(m, ref);
 }
 // A terrain edit (PROTOCOL.md "edit"): op crater | stamp | reset | add | remove, its fields in

@@ -865,6 +865,8 @@ int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint
     }
     cJSON_AddStringToObject(m, "material", d.material ? d.material : "default");
     cJSON_AddBoolToObject(m, "feedback", !d.no_feedback);
+    if (d.load_n != 0.0) /* the server judges it (and names load_n when it refuses) */
+        cJSON_AddNumberToObject(m, "load_n", d.load_n);
     int64_t id = 0;
     int rc = request(c, m, &id);
     if (rc == 0) {

@@ -146,6 +146,10 @@ typedef struct terrad_collider_desc {
     double half_extents[3];
     const char *material; /* NULL: "default" */
     int no_feedback;      /* 1: no CONTACT entries for it (zero: feedback on) */
+    /* > 0: load-driven (bekker worlds, PROTOCOL.md "Load-driven colliders"):
+     * the vertical load in newtons; the server sets the height that carries
+     * it every tick and reports it in FORCES. 0: the poses' heights. */
+    double load_n;
 } terrad_collider_desc;
 
 /* Connects, sends hello and waits for the world message. NULL on failure,

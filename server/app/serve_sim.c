@@ -101,6 +101,7 @@ net_world_info serve_sim_world_info(const serve_sim *m)
                             .height_min = WORLD_HEIGHT_MIN,
                             .height_max = WORLD_HEIGHT_MAX,
                             .models_json = m->models,
+                            .loads = m->params.model == SIM_MODEL_BEKKER,
                             .name = m->name[0] ? m->name : NULL,
                             .materials_json = "[\"default\"]"};
 }

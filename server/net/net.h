@@ -61,6 +61,7 @@ typedef struct net_world_info {
     int32_t height_min, height_max;
     const char *models_json;    /* a JSON array of strings, e.g. ["persson-ssbo"]; NULL = [] */
     const char *materials_json; /* a JSON array of strings; NULL = ["default"] */
+    int loads; /* the world's model carries loads (bekker): collider_create may give load_n */
     /* cluster mode (docs/cluster.md): the world's registered name, sent in the
      * world message; a hello naming another world is refused. NULL: one
      * unnamed world, hello's "world" is ignored. */

@@ -327,6 +327,26 @@ static int parse_shape(parser *r, const char *sh, net_control *out)
                 "shape: \"%.64s\" is not one of sphere, box, capsule, cylinder, wheel, mesh", sh);
 }
 
+/* An optional "load_n": a load-driven collider (PROTOCOL.md "Load-driven
+ * colliders"), only where the world's model computes soil forces. */
+static int parse_load(parser *r, double *out)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(r->msg, "load_n");
+    *out = 0.0;
+    if (!v)
+        return 0;
+    if (!r->ctx->loads)
+        return fail(r, TERRAD_E_UNSUPPORTED_COLLIDER,
+                    "load_n: this world's model computes no soil forces (load-driven colliders "
+                    "need the bekker model)");
+    if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble) || !(v->valuedouble > 0) ||
+        v->valuedouble > NET_LOAD_MAX_N)
+        return fail(r, TERRAD_E_BAD_VALUE, "load_n: must be a number of newtons > 0 and <= %g",
+                    NET_LOAD_MAX_N);
+    *out = v->valuedouble;
+    return 0;
+}
+
 static int parse_collider_create(parser *r, net_control *out)
 {
     const cJSON *shape = cJSON_GetObjectItemCaseSensitive(r->msg, "shape");
@@ -342,7 +362,8 @@ static int parse_collider_create(parser *r, net_control *out)
         return fail(r, TERRAD_E_UNSUPPORTED_COLLIDER,
                     "material: \"%.64s\" is not one of world.materials", mat);
     snprintf(out->material, sizeof out->material, "%s", mat);
-    if (get_bool(r, "feedback", 1, &out->feedback) || parse_shape(r, shape->valuestring, out))
+    if (get_bool(r, "feedback", 1, &out->feedback) || parse_load(r, &out->load_n) ||
+        parse_shape(r, shape->valuestring, out))
         return -1;
     error_text err;
     if (collider_geometry_validate(&out->geometry, &err))

@@ -23,6 +23,7 @@
 #define NET_REF_MAX_BYTES 64
 #define NET_TOKEN_MAX_BYTES 256
 #define NET_CLIENT_NAME_MAX_BYTES 64
+#define NET_LOAD_MAX_N 1e9 /* a load-driven collider's load_n */
 
 typedef enum net_control_kind {
     NET_CONTROL_NONE, /* no request type could be read, or an unknown one */
@@ -46,6 +47,7 @@ typedef struct net_control_context {
     const net_limits *limits;
     const cJSON *materials; /* world.materials: a JSON array of strings */
     int world_width, world_height;
+    int loads; /* net_world_info.loads */
 } net_control_context;
 
 typedef struct net_control {
@@ -64,6 +66,7 @@ typedef struct net_control {
     int axis_z;          /* capsule / cylinder: the client's axis is z */
     char material[32];
     int feedback;
+    double load_n; /* > 0: load-driven (bekker worlds); 0: absent */
     /* collider_delete, unsubscribe, resync (id 0 and has_id 0: all) */
     uint32_t id;
     int has_id;

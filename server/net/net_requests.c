@@ -226,6 +226,7 @@ static void handle_collider_create(net_client *c, net_control *m)
     cmd.pose = m->pose;
     snprintf(cmd.material, sizeof cmd.material, "%s", m->material);
     cmd.feedback = m->feedback;
+    cmd.load_n = m->load_n;
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     int grown = array_grow((void **)&c->colliders, &c->collider_capacity,
                            (int64_t)c->collider_count + 1, sizeof *c->colliders) == 0;
@@ -482,7 +483,8 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     net_control_context ctx = {.limits = &s->cfg.limits,
                                .materials = s->materials,
                                .world_width = s->cfg.world.width,
-                               .world_height = s->cfg.world.height};
+                               .world_height = s->cfg.world.height,
+                               .loads = s->cfg.world.loads};
     net_control m;
     net_control_error err;
     int rc = net_control_parse(text, len, &ctx, &m, &err);

@@ -165,11 +165,16 @@ static int gather_colliders(service *s, const sim_collider *extra, int extra_cou
         svc_collider *c = &s->colliders[i];
         if (!c->has_pose || c->held)
             continue;
-        b->colliders[n++] = (sim_collider){.id = (int)c->id,
-                                           .geometry = c->geometry,
-                                           .pose = c->pose,
-                                           .previous_pose = c->previous_pose,
-                                           .has_previous = c->has_previous};
+        b->colliders[n] = (sim_collider){.id = (int)c->id,
+                                         .geometry = c->geometry,
+                                         .pose = c->pose,
+                                         .previous_pose = c->previous_pose,
+                                         .has_previous = c->has_previous,
+                                         .load_n = c->load_n};
+        /* load-driven: the height is the engine's; it starts from the last one found */
+        if (c->load_n > 0.0 && c->has_previous)
+            b->colliders[n].pose.position.z = c->previous_pose.position.z;
+        n++;
     }
     if (extra_count > 0)
         memcpy(b->colliders + n, extra, (size_t)extra_count * sizeof *extra);
@@ -196,6 +201,14 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
             undo_tick(s, report);
             service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "the log could not take the tick");
         }
+    }
+    for (int i = 0, k = 0; i < s->collider_count && report->contact_count; i++) {
+        svc_collider *c = &s->colliders[i];
+        if (!c->has_pose || c->held)
+            continue; /* as gather_colliders: the tick's colliders in its order */
+        if (c->load_n > 0.0 && k < report->contact_count)
+            c->pose.position.z = report->contacts[k].pose_z_m; /* where the soil carried it */
+        k++;
     }
     for (int i = 0; i < s->collider_count; i++) {
         if (s->colliders[i].held)

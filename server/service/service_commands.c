@@ -164,6 +164,7 @@ static void collider_create(service *s, hub_command *c)
                        .previous_pose = c->pose,
                        .has_pose = has_pose,
                        .feedback = c->feedback,
+                       .load_n = c->load_n,
                        .cost = collider_cost_of(g, s->world->cell_size_m)};
     c->mesh = NULL;
 }

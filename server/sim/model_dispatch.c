@@ -23,7 +23,7 @@ int64_t sim_model_scratch_cells(sim_model m, int64_t cells)
     case SIM_MODEL_SUMNER:
         return 14 * cells + 2; /* as sim_sumner_scratch_cells */
     case SIM_MODEL_BEKKER:
-        return 25 * cells + (cells + 3) / 4 + 4; /* as sim_bekker_scratch_cells */
+        return 29 * cells + (cells + 3) / 4 + 4; /* as sim_bekker_scratch_cells */
     case SIM_MODEL_PERSSON_ITERATIVE:
     case SIM_MODEL_PERSSON_SSBO:
     case SIM_MODEL_PERSSON_MULTI:

@@ -293,6 +293,10 @@ typedef struct sim_collider {
     collider_pose pose;
     collider_pose previous_pose;
     int has_previous; /* 0 on the first tick it exists: footprint is the pose alone */
+    /* bekker: > 0 load-driven, the vertical load (N) the soil must carry: the
+     * engine sets the pose height each tick (sim_bekker_carry, before the
+     * window deforms) and reports it in the contact's pose_z_m. 0: as posed. */
+    double load_n;
 } sim_collider;
 
 /* The bekker model's state per cell, int32 each, in this order: plastic
@@ -317,6 +321,7 @@ typedef struct sim_contact {
     int64_t cells;        /* cells in contact */
     double velocity[3];   /* m/s, from this tick's two poses */
     double angular[3];    /* rad/s, likewise */
+    double pose_z_m;      /* the pose height it deformed at (load-driven: the engine's) */
 } sim_contact;
 
 typedef struct sim_window_job {

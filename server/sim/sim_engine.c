@@ -84,6 +84,8 @@ struct sim_engine {
      * per collider reference of the batch and per collider */
     int32_t *soil_state, *soil_before;
     int64_t soil_state_capacity, soil_before_capacity;
+    int32_t *carry_copy; /* load-driven colliders' search: a window's heights + state */
+    int64_t carry_copy_capacity;
     int *window_collider_source; /* per reference: the collider's index in the tick */
     int64_t window_collider_source_capacity;
     sim_contact *job_contacts;
@@ -147,6 +149,7 @@ void sim_engine_destroy(sim_engine *e)
     free(e->footprints_out);
     free(e->soil_state);
     free(e->soil_before);
+    free(e->carry_copy);
     free(e->window_collider_source);
     free(e->job_contacts);
     free(e->contacts);
@@ -408,6 +411,30 @@ static void tick_depth(sim_engine *e, int persson, sim_tick_report *report)
 
 /* ---- model ---- */
 
+/* bekker: each load-driven collider of window i at the height where the soil
+ * carries its load, in the window's collider order, before the window deforms. */
+static void carry_loads(sim_engine *e, int i)
+{
+    sim_window_job *job = &e->batch.jobs[i];
+    sim_collider *cols = e->window_colliders + (job->colliders - e->window_colliders);
+    int64_t n = (int64_t)job->rect.w * job->rect.h;
+    int32_t top = job->heights[0];
+    for (int64_t k = 1; k < n; k++)
+        top = job->heights[k] > top ? job->heights[k] : top;
+    for (int k = 0; k < job->collider_count; k++) {
+        if (!(cols[k].load_n > 0.0))
+            continue;
+        /* the pose z at which the collider's lowest point is at the floor, and
+         * one at which it is above every cell (carrying nothing) */
+        int32_t reach = sim_units_clamped(collider_reach(cols[k].geometry), job->units_per_m) + 2;
+        int64_t lo = (int64_t)e->params.floor + reach, hi = (int64_t)top + reach + 1;
+        if (lo > WORLD_HEIGHT_MAX || hi > WORLD_HEIGHT_MAX)
+            continue; /* out of range: left as posed (the window refuses it) */
+        sim_bekker_carry(&e->params, job, &cols[k], cols[k].load_n, (int32_t)lo, (int32_t)hi,
+                         e->model_scratch, e->carry_copy, e->carry_copy + n);
+    }
+}
+
 /* The tick's windows through a non-persson model on the CPU. */
 static int run_model_windows(sim_engine *e, sim_tick_report *report, error_text *err)
 {
@@ -424,7 +451,10 @@ static int run_model_windows(sim_engine *e, sim_tick_report *report, error_text 
                    sizeof *e->model_scratch) != 0 ||
         (p->model == SIM_MODEL_DECALS &&
          array_grow((void **)&e->footprints_out, &e->footprint_out_capacity, b->refs + 1,
-                    sizeof *e->footprints_out) != 0)) {
+                    sizeof *e->footprints_out) != 0) ||
+        (p->model == SIM_MODEL_BEKKER &&
+         array_grow((void **)&e->carry_copy, &e->carry_copy_capacity,
+                    largest * (1 + SIM_SOIL_STATE_FIELDS) + 1, sizeof *e->carry_copy) != 0)) {
         error_set(err, "sim: out of memory for the %s model's scratch", sim_model_name(p->model));
         return -1;
     }
@@ -437,6 +467,8 @@ static int run_model_windows(sim_engine *e, sim_tick_report *report, error_text 
                 p, job, e->model_scratch, e->footprints_out + report->footprint_count,
                 (int)e->footprint_out_capacity - report->footprint_count);
         } else {
+            if (p->model == SIM_MODEL_BEKKER)
+                carry_loads(e, i);
             b->status[i] = sim_model_window(p, job, e->model_scratch);
         }
         report->model_ms += time_now_ms() - t0;
@@ -582,14 +614,18 @@ static void tick_contacts(sim_engine *e, const sim_collider *colliders, int coll
     for (int c = 0; c < collider_count; c++) {
         memset(&e->contacts[c], 0, sizeof e->contacts[c]);
         e->contacts[c].collider_id = colliders[c].id;
+        e->contacts[c].pose_z_m = colliders[c].pose.position.z;
     }
     for (int i = 0; i < b->count; i++) {
         const sim_window_job *job = &b->jobs[i];
         if (b->status[i] != SIM_WINDOW_OK)
             continue;
         int64_t ref = job->colliders - e->window_colliders;
-        for (int k = 0; k < job->collider_count; k++)
-            contact_merge(&e->contacts[e->window_collider_source[ref + k]], &job->contacts[k]);
+        for (int k = 0; k < job->collider_count; k++) {
+            sim_contact *to = &e->contacts[e->window_collider_source[ref + k]];
+            contact_merge(to, &job->contacts[k]);
+            to->pose_z_m = job->colliders[k].pose.position.z; /* a load-driven one's: found */
+        }
     }
     for (int c = 0; c < collider_count; c++)
         e->contacts[c].slip = contact_slip(&e->contacts[c], &colliders[c]);

@@ -200,11 +200,11 @@ int64_t sim_bekker_scratch_cells(int w, int h);
 sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
 /*
  * Load-driven: the highest pose height z (whole units, in [lo, hi)) at which
- * the soil's vertical force on c (job->colliders[0], which the caller owns)
+ * the soil's vertical force on c (one of job->colliders, which the caller owns)
  * reaches load_n, by bisection — lo when even lo does not carry it (the
  * collider stands as low as it may go). c's pose height is left at z; the
  * job's heights and state are as they were (copies: n and
- * SIM_SOIL_STATE_FIELDS * n int32); job->contacts[0] holds the last trial's.
+ * SIM_SOIL_STATE_FIELDS * n int32); job->contacts hold the last trial's.
  */
 int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider *c, double load_n,
                          int32_t lo, int32_t hi, int32_t *scratch, int32_t *heights_copy,

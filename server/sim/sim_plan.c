@@ -48,7 +48,9 @@ static world_rect collider_footprint(const world *w, const sim_params *p, const 
         return (world_rect){0, 0, 0, 0};
     int32_t hmin, hmax;
     world_rect_height_range(w, r, &hmin, &hmax);
-    if ((int64_t)sim_units_clamped(lo.z, w->units_per_m) > (int64_t)hmax + p->obstacle_gap)
+    /* a load-driven collider's height is the engine's to find: never skipped */
+    if (!(c->load_n > 0.0) &&
+        (int64_t)sim_units_clamped(lo.z, w->units_per_m) > (int64_t)hmax + p->obstacle_gap)
         return (world_rect){0, 0, 0, 0}; /* flying above everything it could touch */
     return r;
 }

@@ -413,8 +413,23 @@ static void test_engine(void)
     sim_set_threads(0);
 }
 
+/* The engine sizes a bekker window's scratch by model_dispatch.c's count per
+ * cell; it must cover what the model uses (a short count overran the heap in
+ * sliced windows). */
+static void test_scratch_size(void)
+{
+    static const int sizes[][2] = {{1, 1}, {3, 7}, {64, 64}, {440, 40}, {1000, 3}};
+    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0]; i++) {
+        int w = sizes[i][0], h = sizes[i][1];
+        CHECK(sim_model_scratch_cells(SIM_MODEL_BEKKER, (int64_t)w * h) >=
+                  sim_bekker_scratch_cells(w, h),
+              "the engine's scratch covers a %d x %d bekker window", w, h);
+    }
+}
+
 int main(void)
 {
+    test_scratch_size();
     test_params();
     test_plate_and_second_pass();
     test_traction();

@@ -21,7 +21,7 @@
  *    0.22). Rc is the normal stress's share of the resistance, so it is
  *    measured with c = phi = 0 (at zero slip the rolling wheel's shear
  *    thrust, Wong-Reece's j(θ) > 0, otherwise cancels most of it on the
- *    deeper lunar case: 1.4 N net against 12.5). Tolerance 20 % on sinkage
+ *    deeper lunar case: 1.4 N net against 12.5). Tolerance 25 % on sinkage
  *    and 35 % on resistance, because the
  *    closed form and the model differ in ways the formula itself ignores:
  *    it puts the wheel's width in kc/b where the model uses its contact
@@ -31,7 +31,15 @@
  *    but ~11 % at 0.22); it has no shear, where the model's rolling wheel
  *    shears the soil a little (Janosi j > 0 off the bottom point even at
  *    zero slip, Wong-Reece's j(θ)), which adds resistance; and it knows no
- *    elastic rebound behind the wheel. Grid and height quanta (5 mm cells,
+ *    elastic rebound behind the wheel, nor the displaced half of the plastic
+ *    sinkage (compression 0.5) heaped beside and ahead of the wheel, which
+ *    carries part of the load (not measured apart). Until 2026-11-27 a
+ *    yielded cell's elastic share was rounded down, which let every loaded
+ *    cell creep one unit per tick while the slow wheel stood over it: Ding's
+ *    wheel sank 8.00 mm (-12 %); rounded up (a static load now holds, see
+ *    test_load_driven) it sinks 6.95 mm (-24 %), hence 25 % on sinkage
+ *    (was 20 %); with Wong-Reece's rear region in the shear (model_bekker.c,
+ *    bekker_shear_share) 7.04 mm (-23 %). Grid and height quanta (5 mm cells,
  *    0.1 mm units) are ~1 % of z0. A model change that breaks pressure,
  *    patch width, yielding or the normal's direction moves these figures by
  *    far more than the margins.
@@ -142,7 +150,7 @@ static void test_wheels(void)
                "resistance %.2f N (Bekker %.2f, %+.1f%%)\n",
                cases[i].radius, cases[i].width, cases[i].load, cases[i].soil, z * 1e3, z0 * 1e3,
                100.0 * (z - z0) / z0, res, rc, 100.0 * (res - rc) / rc);
-        CHECK(fabs(z - z0) <= 0.20 * z0, "%s wheel: sinkage %.2f mm within 20 %% of %.2f mm",
+        CHECK(fabs(z - z0) <= 0.25 * z0, "%s wheel: sinkage %.2f mm within 25 %% of %.2f mm",
               cases[i].soil, z * 1e3, z0 * 1e3);
         CHECK(fabs(res - rc) <= 0.35 * rc, "%s wheel: resistance %.2f N within 35 %% of %.2f N",
               cases[i].soil, res, rc);

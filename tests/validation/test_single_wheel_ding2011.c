@@ -15,15 +15,21 @@
  * (the note, measured here): median error 125 % on pull, 24 % on sinkage.
  *
  * Asserted, so a regression fails: the median errors on drawbar pull and on
- * sinkage stay within DP_BOUND and SINKAGE_BOUND — today's 58 % and 24 %
+ * sinkage stay within DP_BOUND and SINKAGE_BOUND — today's 30 % and 21 %
  * (integer and deterministic: the same on every run and machine) plus about
  * ten points, room for a deliberate change of the model that does not make
- * it worse — and the physics that must hold whatever the calibration: a
- * resisted wheel at slip 0, pull and torque growing with slip, sinkage
- * growing with slip (slip-sinkage: the ding2011 soil's slip_n 0.4; 41 %
- * median sinkage error without it). The issue's goal (median <= 20 % on
- * both) is NOT met: like SCM, the model's pull keeps rising with slip where
- * the real wheel's levels off near 15 N. docs/validation.md has the table.
+ * it worse; Bekker-Wong's own model-form error is quoted at 15-30 % — and
+ * the physics that must hold whatever the calibration: a resisted wheel at
+ * slip 0; pull and torque rising with slip up to 0.3 and then levelling off
+ * as the real wheel's do (measured: 15 N from slip 0.3 to 0.6; the rise past
+ * 0.3 stays under an eighth (pull) and a fifth (torque) of the rise up to
+ * it: the model before Wong-Reece's rear region, bekker_shear_share, rose
+ * by 22 % and 25 %, Wong-Reece's closed form by 36 % of its pull); sinkage
+ * growing with slip (slip-sinkage: the ding2011 soil's slip_n 0.4, fitted on
+ * these data; 41 % median sinkage error without it). The issue's goal
+ * (median <= 20 % on both) is met for sinkage, NOT for pull: the model's
+ * pull now levels off, but too low (about 11 N against 15) and its torque
+ * at slip 0.1-0.2 is half the measured. docs/validation.md has the table.
  */
 #include <math.h>
 #include <stdio.h>
@@ -38,8 +44,8 @@
 #define WIDTH SIM_WHEEL_DING2011_WIDTH_M
 #define LOAD SIM_WHEEL_DING2011_LOAD_N
 /* today's medians plus a margin (see the top comment) */
-#define DP_BOUND 0.70
-#define SINKAGE_BOUND 0.35
+#define DP_BOUND 0.40
+#define SINKAGE_BOUND 0.30
 
 /* The testbed run (sim_wheel_testbed: 5 mm cells, 0.05 m/s, 1 mm a tick). */
 static void run(double slip, double *dp, double *sinkage, double *torque)
@@ -147,10 +153,16 @@ int main(void)
     printf("median relative error: drawbar pull %.0f %%, sinkage %.0f %%, torque %.0f %%\n",
            100 * m_dp, 100 * m_z, 100 * m_t);
     CHECK(dp[0] < 0.0, "slip 0: the wheel is resisted (DP %.2f N)", dp[0]);
-    for (int i = 1; i < 6; i++)
-        CHECK(dp[i] > dp[i - 1] - 0.5 && tq[i] > tq[i - 1] - 0.05,
-              "pull and torque grow with slip (slip %.1f: DP %.2f, torque %.2f)",
+    for (int i = 1; i <= 3; i++)
+        CHECK(dp[i] > dp[i - 1] && tq[i] > tq[i - 1],
+              "pull and torque grow with slip up to 0.3 (slip %.1f: DP %.2f, torque %.2f)",
               sim_wheel_ding2011[i].slip, dp[i], tq[i]);
+    for (int i = 4; i < 6; i++)
+        CHECK(fabs(dp[i] - dp[3]) < (dp[3] - dp[0]) / 8 &&
+                  fabs(tq[i] - tq[3]) < (tq[3] - tq[0]) / 5,
+              "pull and torque level off past slip 0.3 (slip %.1f: DP %.2f against %.2f, torque "
+              "%.2f against %.2f)",
+              sim_wheel_ding2011[i].slip, dp[i], dp[3], tq[i], tq[3]);
     CHECK(z[5] > z[0] + 0.004,
           "slip-sinkage: the wheel sinks deeper at slip 0.6 (%.2f mm) than "
           "at 0 (%.2f mm)",

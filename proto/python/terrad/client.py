@@ -195,7 +195,9 @@ class Client:
 
     async def create_collider(self, shape: str, material: str = "default", **dims: Any) -> int:
         """shape: sphere (radius), box (half_extents), capsule and cylinder (radius,
-        half_length), wheel (radius, width), mesh (vertices, indices); returns its id."""
+        half_length), wheel (radius, width), mesh (vertices, indices); returns its id.
+        load_n=N (bekker worlds): load-driven, the server sets the height that carries N
+        newtons each tick (forces[id] reports the sinkage and the force)."""
         fields = dict(dims, material=material)
         if self.predictions and (material != "default" or "pose" in dims):
             raise ValueError("material / pose: while predicting, a collider has the default "

@@ -723,11 +723,16 @@ def hello(token: str = "", client: str = "terrad-python", world: str = "") -> di
     return msg
 
 
-def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True, **dims) -> dict:
+def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True,
+                    load_n=None, **dims) -> dict:
     """shape: sphere (radius), box (half_extents), capsule (radius,
     half_length), cylinder (radius, half_length), wheel (radius, width), mesh
-    (vertices, indices). Optional pose=Pose-like dict {"p":[x,y,z],"q":[w,x,y,z]}."""
+    (vertices, indices). Optional pose=Pose-like dict {"p":[x,y,z],"q":[w,x,y,z]}.
+    load_n: a vertical load in newtons (bekker worlds): the server sets the height
+    that carries it each tick (PROTOCOL.md "Load-driven colliders")."""
     msg = {"type": "collider_create", "shape": shape, "material": material, "feedback": feedback}
+    if load_n is not None:
+        msg["load_n"] = load_n
     msg.update(dims)
     if ref is not None:
         msg["ref"] = ref
