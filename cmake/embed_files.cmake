@@ -1,6 +1,7 @@
 # embed_files.cmake: run with `cmake -P` to turn files into a C source.
 #   -DSOURCE_DIR=<repo root>   names are relative to it
-#   -DMANIFEST=<file>          one relative path per line
+#   -DMANIFEST=<file>          one relative path per line, or NAME=PATH: a built file
+#                              (an absolute PATH) served under the repository name NAME
 #   -DOUTPUT=<file.c>          defines embedded_files[] and embedded_file_count
 # Each file becomes a byte array (so any content is safe) with a NUL appended;
 # `size` excludes that NUL. A {NULL, NULL, 0} sentinel ends embedded_files[].
@@ -21,8 +22,15 @@ string(APPEND out "#include <stddef.h>\n\n#include \"base/embedded_internal.h\"\
 string(REPEAT "0x..," 16 line_pattern)
 set(table "")
 set(index 0)
-foreach(name IN LISTS names)
-    file(READ "${SOURCE_DIR}/${name}" hex HEX)
+foreach(entry IN LISTS names)
+    if(entry MATCHES "^([^=]+)=(.+)$")
+        set(name "${CMAKE_MATCH_1}")
+        set(path "${CMAKE_MATCH_2}")
+    else()
+        set(name "${entry}")
+        set(path "${SOURCE_DIR}/${entry}")
+    endif()
+    file(READ "${path}" hex HEX)
     string(LENGTH "${hex}" hex_len)
     math(EXPR size "${hex_len} / 2")
     # 16 bytes per line, each as 0xNN.

@@ -104,6 +104,21 @@ export class Prediction {
         return this.twin.read();
     }
 
+    // For own colliders the server had already posed when this Prediction was made (a window
+    // made or moved while driving): call it on an ACK of tick, with the mirror at that tick
+    // (right after the ACK, as the Prediction was made). last: Map id -> the pose (as sent) of
+    // the latest acknowledged batch that moved it; later: [{seq, poses}] sent after the ACK's
+    // seq, applied again as predictions. The next ACK then compares as with any other.
+    resume(tick, last, later) {
+        for (const [id, p] of last) if (this.axisZ.has(id)) this.acked.set(id, serverPose(p, this.axisZ.get(id)));
+        this.baseTick = Number(tick);
+        this.restart(this.base);
+        this.pending = later.map(({ seq, poses }) => {
+            const batch = new Map(poses.map((p) => [p.id, serverPose(p, this.axisZ.get(p.id) ?? false)]));
+            return { seq, batch, predicted: this.apply(batch) };
+        });
+    }
+
     // Batch seq (poses as encodePoseBatch takes them) is about to be sent.
     onSend(seq, poses) {
         const batch = new Map(poses.map((p) => [p.id, serverPose(p, this.axisZ.get(p.id) ?? false)]));

@@ -444,6 +444,7 @@ export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' }
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
 // loadN: a vertical load in newtons (bekker worlds; PROTOCOL.md "Load-driven colliders"): the
 // server sets the height that carries it each tick and reports it in FORCES.
+/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string, loadN?: number}} [opts] */
 export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref, loadN } = {}) {
   const m = { type: 'collider_create', shape, material, feedback, ...dims };
   if (pose) m.pose = pose;
@@ -503,6 +504,7 @@ async function worldRequest(base, method, path, body, token) {
 
 // A world from scene (a scene object, as in a scene file) or sceneName (a scene of the daemon's
 // --scene-dir); resolves to its entry once it serves (hello(token, client, name) joins it).
+/** @param {string} base @param {string} name @param {{scene?: object, sceneName?: string, token?: string}} [opts] */
 export function createWorld(base, name, { scene, sceneName, token = '' } = {}) {
   const body = { name };
   if (scene !== undefined) body.scene = scene;

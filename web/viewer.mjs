@@ -3,6 +3,7 @@
 // mirrors it with the protocol's tile-version rules and renders it as a lit mesh.
 // The websocket port: ?ws=PORT, else the page's HTTP port + 1 (the daemon's default pair).
 import * as P from './terrad_codec.mjs';
+import { ViewerPrediction, union } from './viewer_predict.mjs';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
@@ -29,7 +30,11 @@ const app = {
   colliders: [], collidersTick: 0, // the latest COLLIDERS frame: every collider in view
   dirtyBox: null, // window cells changed since the last texture upload: {x0, y0, x1, y1}
   chunks: [], skirts: true, background: [0.114, 0.129, 0.161], dragTarget: null,
+  ackedSeq: 0, shown: null, // the last ACK's batch; the heights the last frame drew (see shownHeights)
+  drawn: { frame: 0, seq: 0, ackedSeq: 0, lower: 0 }, // what the last frame drew (test hook)
 };
+// The page's own rut at once while it drives (viewer_predict.mjs): the predict toggle.
+const prediction = new ViewerPrediction(apiInit);
 let ws = null, retries = 0, refN = 0;
 
 // ---- connection ----
@@ -77,6 +82,7 @@ function connect() {
     app.snapshotShown = false;
     app.subs.clear();
     if (app.own) app.own.id = 0; // the server deletes a client's colliders when it leaves
+    prediction.reset(); // its ACKs are gone with the connection
     scheduleReconnect();
   };
   sock.onerror = () => {};
@@ -106,6 +112,7 @@ function onJson(text) {
       if (!app.target) app.target = [m.width * m.cell_size_m / 2, m.height * m.cell_size_m / 2, 0];
       app.wantRegion = null;
       followCamera(true);
+      prediction.load().then(showPredict);
       if (app.own) createCollider();
       break;
     case 'subscribed': {
@@ -142,7 +149,10 @@ function onBinary(b) {
       app.tick = Math.max(app.tick, Number(tick));
       promoteSubscription();
     } else if (t === P.MsgType.ACK) {
-      app.tick = Math.max(app.tick, Number(P.decodeAck(b).tick));
+      const { tick, seq } = P.decodeAck(b);
+      app.tick = Math.max(app.tick, Number(tick));
+      app.ackedSeq = seq;
+      markBox(prediction.onAck(tick, seq)); // the mirror holds the server's heights at tick
     } else if (t === P.MsgType.CONTACT) {
       const c = P.decodeContact(b);
       app.tick = Math.max(app.tick, Number(c.tick));
@@ -178,6 +188,19 @@ function markDirty(m, rects) {
     app.dirtyBox = b;
     app.dirty = true;
   }
+}
+
+// A box of window cells whose shown heights changed (the predicted sub-window), or null.
+function markBox(b) {
+  if (!b || !app.mirror) return;
+  app.dirtyBox = union(app.dirtyBox, b);
+  app.dirty = true;
+}
+
+// The heights a frame draws: the mirror's, with the predicted sub-window pasted in while the
+// page drives with prediction on.
+function shownHeights(m) {
+  return (app.shown = prediction.heights(m, app.shown));
 }
 
 // The scene's base terrain under a window (GET /v1/heights?...&base=1): the terrain is coloured
@@ -285,7 +308,10 @@ function sendPoses(now) {
   const o = app.own;
   if (o && o.id) {
     o.z = o.lifted ? heightAt(o.x, o.y) + o.radius + 1 : heightAt(o.x, o.y, app.baseline) + o.radius - SINK_M;
-    send(P.encodePoseBatch(app.seq++, [{ id: o.id, x: o.x, y: o.y, z: o.z, qw: 1, qx: 0, qy: 0, qz: 0 }]));
+    const poses = [{ id: o.id, x: o.x, y: o.y, z: o.z, qw: 1, qx: 0, qy: 0, qz: 0 }];
+    markBox(prediction.ensure(app.world, app.mirror, o));
+    markBox(prediction.onSend(app.seq, poses)); // the twin ticks before the bytes leave
+    send(P.encodePoseBatch(app.seq++, poses));
     app.lastBatch = now;
   } else if (app.connected && now - app.lastBatch > 250) {
     send(P.encodePoseBatch(app.seq++, [])); // an empty batch asks for an ACK: keeps the tick current
@@ -310,6 +336,20 @@ $('drive').addEventListener('click', () => {
   $('drive').classList.toggle('on', !!app.own && !app.own.lifted);
   $('drive').blur();
 });
+$('predict').addEventListener('click', () => {
+  prediction.enabled = !prediction.enabled;
+  markBox(prediction.drop()); // off: the mirror alone; on: the next pose starts it
+  showPredict();
+  $('predict').blur();
+});
+function showPredict() {
+  const b = $('predict');
+  b.textContent = prediction.enabled ? 'predict: on' : 'predict: off';
+  b.classList.toggle('on', prediction.enabled && prediction.available);
+  b.disabled = !prediction.available;
+  b.title = prediction.available ? 'show the own rut at once (on) or only the server\'s heights (off)'
+    : `prediction not available: ${prediction.reason}`;
+}
 
 // Move the collider towards the dragged-to point at DRIVE_SPEED.
 function dragDrive(dt) {
@@ -615,13 +655,13 @@ function allocTexture(tex, w, h, data) {
 }
 
 // A new window: both textures anew, and the skirt depth from its height range.
-function rebuildMesh(m) {
+function rebuildMesh(m, hs) {
   const upm = app.world.units_per_m;
   gpu.metres = new Float32Array(m.w * m.h);
   allocTexture(gpu.texB, m.w, m.h, toMetres(app.baseline, upm, new Float32Array(m.w * m.h)));
-  allocTexture(gpu.texH, m.w, m.h, toMetres(m.heights, upm, gpu.metres));
+  allocTexture(gpu.texH, m.w, m.h, toMetres(hs, upm, gpu.metres));
   let lo = Infinity, hi = -Infinity;
-  for (const v of m.heights) {
+  for (const v of hs) {
     if (v < lo) lo = v;
     if (v > hi) hi = v;
   }
@@ -631,13 +671,13 @@ function rebuildMesh(m) {
 }
 
 // Upload only the rows and columns the last deltas touched.
-function uploadDirty(m) {
+function uploadDirty(m, hs) {
   const b = app.dirtyBox;
   app.dirtyBox = null;
   if (!b) return;
   const upm = app.world.units_per_m, f = gpu.metres;
   for (let j = b.y0; j < b.y1; j++)
-    for (let i = b.x0, k = j * m.w + b.x0; i < b.x1; i++, k++) f[k] = m.heights[k] / upm;
+    for (let i = b.x0, k = j * m.w + b.x0; i < b.x1; i++, k++) f[k] = hs[k] / upm;
   gl.bindTexture(gl.TEXTURE_2D, gpu.texH);
   gl.pixelStorei(gl.UNPACK_ROW_LENGTH, m.w);
   gl.pixelStorei(gl.UNPACK_SKIP_PIXELS, b.x0);
@@ -799,10 +839,13 @@ function draw() {
   gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
   const m = app.mirror, w = app.world;
   if (!m || !w) return;
-  if (app.meshDirty) {
-    rebuildMesh(m);
-    app.meshDirty = false;
-  } else if (app.dirty) uploadDirty(m);
+  if (app.meshDirty || app.dirty) {
+    const hs = (app.uploaded = shownHeights(m));
+    if (app.meshDirty) rebuildMesh(m, hs);
+    else uploadDirty(m, hs);
+  }
+  noteDrawn(m, app.uploaded || m.heights);
+  app.meshDirty = false;
   app.dirty = false;
   const extent = Math.max(m.w, m.h) * w.cell_size_m;
   if (!cam.dist) cam.dist = Math.min(extent, 512 * w.cell_size_m) * 1.25;
@@ -847,6 +890,17 @@ function draw() {
   // What scripts/screenshot waits for: this frame showed the world's snapshot, coloured against
   // the scene's base terrain, while connected (not the "connecting" screen, not a stale world).
   app.snapshotShown = app.connected && app.baseFromServer;
+}
+
+// What this frame draws, for the tests: the last batch sent, the last ACK, and how many cells
+// are drawn lower than the mirror holds (the predicted rut the server has not sent yet).
+function noteDrawn(m, hs) {
+  let lower = 0;
+  const b = prediction.box(); // only there may the drawn heights differ from the mirror's
+  if (b && hs !== m.heights && hs.length === m.heights.length)
+    for (let j = b.y0; j < b.y1; j++)
+      for (let k = j * m.w + b.x0, e = j * m.w + b.x1; k < e; k++) if (hs[k] < m.heights[k]) lower++;
+  app.drawn = { frame: app.framesDrawn + 1, seq: app.seq - 1, ackedSeq: app.ackedSeq, lower };
 }
 
 let last = performance.now();
@@ -924,6 +978,23 @@ window.terrad = {
   get state() { return app.state; },
   get tick() { return app.tick; },
   get heights() { return app.mirror ? app.mirror.heights : null; },
+  // the heights a frame would draw now (the mirror with the prediction pasted in) and what
+  // the last frame drew: {frame, seq, ackedSeq, lower}
+  get shown() { return app.mirror ? Int32Array.from(prediction.heights(app.mirror)) : null; },
+  get drawn() { return { ...app.drawn }; },
+  // the height (units) the last frame drew at world point (x, y) metres; null outside the window
+  drawnAt(x, y) {
+    const m = app.mirror, w = app.world;
+    if (!m || !w) return null;
+    const i = Math.floor(x / w.cell_size_m) - m.x, j = Math.floor(y / w.cell_size_m) - m.y;
+    if (i < 0 || j < 0 || i >= m.w || j >= m.h) return null;
+    return (app.uploaded || m.heights)[j * m.w + i];
+  },
+  // the prediction: {enabled, available, reason, active, window, pending, predicted,
+  // reconciled, replayed, exact, skipped, onTime, lastDiffering} (predict.mjs's counters)
+  get prediction() { return prediction.stats(); },
+  get seq() { return app.seq; },
+  get ackedSeq() { return app.ackedSeq; },
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },
   get connected() { return app.connected; },
   get framesDrawn() { return app.framesDrawn; },

@@ -152,6 +152,10 @@ static int serve_start(serve_daemon *d, error_text *err)
         (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
         return -1;
     http_server_set_base(d->http, &m->w); /* the base never changes once the world is made */
+    error_text why = {{0}};
+    char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
+    http_server_set_twin(d->http, twin, why.message);
+    free(twin);
     if (serve_sim_start(m, &d->o, err) != 0)
         return -1;
     net_config nc = {.port = d->o.ws_port,

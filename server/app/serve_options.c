@@ -57,7 +57,7 @@ static const cli_option serve_table[] = {
                      "is software (llvmpipe, softpipe, SwiftShader) or missing)"},
     [OPT_HTTP_PORT] = {"http-port", "N",
                        "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
-                       "/v1/heights, POST /v1/worlds/NAME/edits (terrain edits) and the\n"
+                       "/v1/heights /v1/twin, POST /v1/worlds/NAME/edits (terrain edits) and the\n"
                        "viewer at / (default 8080; 0: any free)"},
     [OPT_WS_PORT] = {"ws-port", "N",
                      "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},

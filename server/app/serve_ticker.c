@@ -54,7 +54,8 @@ struct serve_ticker {
     int stopping;
     int next_pin; /* round-robin worker for pinned (GL) jobs */
     int nworkers;
-    int idle; /* workers waiting with nothing to take */
+    int idle;  /* workers waiting with nothing to take */
+    int cores; /* a world's tick runs serially once there are as many worlds */
     ticker_worker *workers;
 };
 
@@ -106,9 +107,10 @@ static void wait_until(serve_ticker *t, double due_ms)
 }
 
 /* One tick of j (outside the lock): its rc, why set when it is not 0. */
-static int tick_once(serve_tick_job *j)
+static int tick_once(serve_tick_job *j, int serial)
 {
     serve_sim *m = j->m;
+    sim_thread_serial(serial);
     service_claim(m->svc); /* this worker is the world's sim thread for this tick */
     error_text err = {{0}};
     int clients = j->net ? net_server_client_count(j->net) : 0;
@@ -151,8 +153,10 @@ static void *worker_main(void *arg)
             continue;
         }
         j->running = 1;
+        /* as many worlds as cores: they are the parallelism (sim_thread_serial says why) */
+        int serial = t->njobs >= t->cores;
         pthread_mutex_unlock(&t->lock);
-        int rc = tick_once(j);
+        int rc = tick_once(j, serial);
         pthread_mutex_lock(&t->lock);
         j->running = 0;
         j->tick++;
@@ -182,6 +186,8 @@ serve_ticker *serve_ticker_start(int workers, error_text *err)
         error_set(err, "ticker: out of memory");
         return NULL;
     }
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    t->cores = cores < 1 ? 1 : (int)cores;
     pthread_mutex_init(&t->lock, NULL);
     pthread_condattr_t ca;
     pthread_condattr_init(&ca);

@@ -148,6 +148,7 @@ static const char *content_type(const char *name)
         {".png", "image/png"},
         {".json", "application/json"},
         {".yaml", "application/yaml"},
+        {".wasm", "application/wasm"},
     };
     const char *dot = strrchr(name, '.');
     if (dot)
@@ -187,6 +188,16 @@ static enum MHD_Result serve_embedded(struct MHD_Connection *c, const char *name
     /* The viewer changes with the binary: always revalidate. */
     MHD_add_response_header(r, "Cache-Control", "no-cache");
     return http_queue(c, MHD_HTTP_OK, r);
+}
+
+/* GET /v1/twin: what a predicting client gives its twin (http_server_set_twin). */
+static enum MHD_Result serve_twin(http_server *s, struct MHD_Connection *c)
+{
+    const char *t = atomic_load(&s->twin);
+    if (!t || t[0] == '!')
+        return respond_error(c, MHD_HTTP_NOT_FOUND, "no twin config for this world: %s",
+                             t ? t + 1 : "not set (a cluster node's worlds have none)");
+    return respond(c, MHD_HTTP_OK, "application/json", t);
 }
 
 /* ---- dispatch ---- */
@@ -395,6 +406,8 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     struct MHD_Response *refusal = http_auth_refusal(c, url, s->auth);
     if (refusal)
         return http_queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
+    if (strcmp(url, "/v1/twin") == 0)
+        return serve_twin(s, c);
     int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
         heights = strcmp(url, "/v1/heights") == 0;
     http_view view = stats ? HTTP_VIEW_STATS : about ? HTTP_VIEW_WORLD : HTTP_VIEW_HEIGHTS;
@@ -547,6 +560,17 @@ void http_server_set_base(http_server *s, const world *w)
     atomic_store(&s->base, w);
 }
 
+void http_server_set_twin(http_server *s, const char *json, const char *why)
+{
+    size_t n = strlen(json ? json : why) + 2;
+    char *text = malloc(n);
+    if (!text)
+        return; /* /v1/twin then answers 404 "not set" */
+    snprintf(text, n, "%s%s", json ? "" : "!", json ? json : why);
+    char *old = atomic_exchange(&s->twin, text);
+    free(old); /* NULL: set once, before a request can hold it */
+}
+
 http_server *http_probe_start(http_server *main, int port, error_text *err)
 {
     /* loopback only, a few connections with a short timeout: for the
@@ -574,6 +598,7 @@ void http_server_stop(http_server *s)
     http_tls_free(&s->tls);
     for (int i = 0; i < s->nworlds; i++)
         free(s->worlds[i]);
+    free(atomic_load(&s->twin));
     pthread_mutex_destroy(&s->worlds_lock);
     pthread_cond_destroy(&s->worlds_cond);
     free(s);

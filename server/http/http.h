@@ -14,6 +14,8 @@
  *   /metrics          Prometheus text 0.0.4 (metrics_render)
  *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
  *                     models, renderer, backend
+ *   /v1/twin          JSON: the world's parameters as the twin library's config
+ *                     keys, for a predicting client (docs/engines.md)
  *   /v1/stats         JSON: tick, volume (exact integer), soil_compacted (bekker),
  *                     clients, colliders, last tick ms, overruns
  *   /v1/heights?x=&y=&w=&h=[&format=int32|png16][&base=1]
@@ -119,6 +121,10 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
 /* The world whose base terrain (world_base_fill_rect: immutable once the
  * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
 void http_server_set_base(http_server *s, const world *w);
+/* GET /v1/twin answers json (the world's parameters as the twin library's
+ * config keys: scene_twin_config_json), or 404 with why when json is NULL.
+ * Copied; call once. */
+void http_server_set_twin(http_server *s, const char *json, const char *why);
 int http_server_port(const http_server *s);
 /* A second listener on 127.0.0.1:port (0 = any) for /healthz, /readyz and
  * /metrics only, with its own small connection budget, so that slow or idle

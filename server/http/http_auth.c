@@ -4,7 +4,7 @@
  * is one SHA-256 and a read-locked table scan (base.h "Authentication"),
  * and a reload between ticks takes effect for the next request.
  *
- * What needs a token when auth is on: the data endpoints /v1/world,
+ * What needs a token when auth is on: the data endpoints /v1/world, /v1/twin,
  * /v1/stats and /v1/heights (any role: HTTP only reads). What never does:
  * the probes and /metrics (a load balancer or Prometheus has no token to
  * give), /v1/openapi.yaml and the viewer's static files (the viewer sends
@@ -57,7 +57,7 @@ int http_tls_on(const http_tls *t)
 struct MHD_Response *http_auth_refusal(struct MHD_Connection *c, const char *url, auth_table *auth)
 {
     if (!auth_enabled(auth) || (strcmp(url, "/v1/world") != 0 && strcmp(url, "/v1/stats") != 0 &&
-                                strcmp(url, "/v1/heights") != 0))
+                                strcmp(url, "/v1/heights") != 0 && strcmp(url, "/v1/twin") != 0))
         return NULL;
     const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
     const char *token = NULL;

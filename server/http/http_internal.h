@@ -115,6 +115,9 @@ struct http_server {
     http_status *status;
     hub *heights;
     _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
+    /* GET /v1/twin: the world's twin config as JSON, or "!" and why there is
+     * none (NULL: not set); set once (http_server_set_twin), freed at stop */
+    _Atomic(char *) twin;
     http_limits limits;
     int port;
     pthread_mutex_t watch_lock; /* watches are added while MHD's threads serve */

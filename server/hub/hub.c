@@ -383,11 +383,31 @@ void hub_forget_pose(hub *h, uint32_t collider)
     pthread_mutex_unlock(&h->pose_lock);
 }
 
+/* Every pending pose is taken: empty exactly the slots they used. Walking
+ * each pose's probe run from its home slot to the first empty one clears its
+ * whole cluster (every used slot lies in the run of some pose's home), so the
+ * table is empty again without pose_reindex's memset of all HUB_POSE_SLOTS —
+ * 512 KiB per tick per world, most of an idle world's tick (issue 22). */
+static void pose_clear_slots(hub *h)
+{
+    for (int i = 0; i < h->pose_count; i++)
+        for (uint32_t s = slot_of(h->poses[i].collider); h->slots[s] != 0;
+             s = (s + 1) & (HUB_POSE_SLOTS - 1))
+            h->slots[s] = 0;
+}
+
 /* The caller holds pose_lock. */
 static int take_poses_locked(hub *h, hub_pose *out, int max)
 {
     int n = h->pose_count < max ? h->pose_count : max;
+    if (n == 0)
+        return 0; /* nothing pending: the slot table is empty already */
     memcpy(out, h->poses, (size_t)n * sizeof *out);
+    if (n == h->pose_count) {
+        pose_clear_slots(h);
+        h->pose_count = 0;
+        return n;
+    }
     memmove(h->poses, h->poses + n, (size_t)(h->pose_count - n) * sizeof *h->poses);
     h->pose_count -= n;
     pose_reindex(h);

@@ -56,4 +56,12 @@ int scene_create_ground(const scene *s, const world *w, ground *g, error_text *e
 /* Make the world the scene describes (allocation + base terrain). */
 int scene_create_world(const scene *s, world *w, error_text *err);
 
+/* The scene's parameters as the twin library's config keys (terrad_twin.h),
+ * one call of fn per key: a number, or a name (name != NULL). -1 with err for
+ * a scene the twin does not take (per-cell materials, a file base). */
+typedef void (*scene_twin_key_fn)(void *ctx, const char *key, double number, const char *name);
+int scene_twin_config(const scene *s, scene_twin_key_fn fn, void *ctx, error_text *err);
+/* The same keys as a JSON object (malloc'd text; GET /v1/twin), or NULL with err. */
+char *scene_twin_config_json(const scene *s, error_text *err);
+
 #endif

@@ -6,8 +6,8 @@
  * keeps the per-cell work list for per-cell materials; this file computes
  * the same heights, bit for bit, with contiguous loads that vectorise, and
  * on x86-64 an AVX2 form of its two hot loops (sim_internal.h,
- * SIM_AVX2_CLONE). test_sparse_stages compares it with the dense reference
- * in both forms.
+ * SIM_AVX2_CLONE): 8-lane units with 32-bit products where they are exact.
+ * test_sparse_stages compares it with the dense reference in both forms.
  */
 #include "sim/sim_internal.h"
 
@@ -19,20 +19,30 @@
  * a cell that may move (slope_first_blocks), and after an iteration the blocks
  * holding a changed cell or one of its neighbours. Any block visited gives
  * its cells' exact next heights, so visiting a superset of the listed cells
- * changes nothing; in exchange the 16 cells of an inner block go through
- * slope_block with contiguous loads and no branch (gcc vectorises it), and
- * the marks are one byte per block, not a list entry per cell.
+ * changes nothing; in exchange the 16 cells of a block go through
+ * slope_block_body (or, in AVX2, two slope_unit8) with contiguous loads and
+ * no branch, and the marks are one byte per block, not a list entry per
+ * cell. Only the cells of the window's two sides go one by one.
  */
 #define SLOPE_SEG 16
 
-/* Next heights of cells i0 .. i0 + 15, all one cell or more inside the
- * window: slope_next_interior's sum with the lanes along the row. Compiled
- * twice on x86-64 (SIM_AVX2_CLONE: the baseline SSE2 and AVX2, picked once
- * at run time): the same integer operations, so the same heights. */
+/* The neighbours a block of row 0 or row h - 1 lacks (bits of slope_next's
+ * order: E, W, S, N, SE, SW, NE, NW). The rule skips a neighbour outside
+ * the window, which is adding 0: a block of the top or bottom row runs the
+ * block form without those directions (and reads nothing outside). */
+#define SLOPE_DIRS_ALL 0xffu
+#define SLOPE_DIRS_NO_NORTH (1u << 3 | 1u << 6 | 1u << 7)
+#define SLOPE_DIRS_NO_SOUTH (1u << 2 | 1u << 4 | 1u << 5)
+
+/* Next heights of cells i0 .. i0 + 15, one cell or more inside the window's
+ * sides (and above/below it, for the directions in dirs): slope_next's sum
+ * with the lanes along the row. dirs is a constant where it is inlined, so
+ * each form is compiled without a branch per neighbour. The baseline form
+ * (SSE2: no 32-bit multiply, so the products are 64-bit). */
 static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restrict r, int w,
                                                const int32_t *restrict cls,
                                                const int32_t *restrict heights, int i0,
-                                               int32_t *restrict dst)
+                                               int32_t *restrict dst, unsigned dirs)
 {
     const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
     const uint32_t rough = (uint32_t)r->roughness_q16;
@@ -47,6 +57,8 @@ static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restri
          * it when d < 0 (0 either way otherwise). Half the 64-bit
          * products; the same integers. */
         for (int j = 0; j < 8; j++) {
+            if (!(dirs & 1u << j))
+                continue;
             const int32_t th = j < 4 ? ax : dg;
             const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
             for (int l = 0; l < SLOPE_SEG; l++) {
@@ -60,6 +72,8 @@ static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restri
         }
     } else {
         for (int j = 0; j < 8; j++) {
+            if (!(dirs & 1u << j))
+                continue;
             const int32_t th = j < 4 ? ax : dg;
             const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
             for (int l = 0; l < SLOPE_SEG; l++) {
@@ -77,34 +91,30 @@ static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restri
         dst[l] = hm[l] - out[l] + (cls[i0 + l] == SIM_CELL_SEED ? in[l] : 0);
 }
 
-typedef void (*slope_block_fn)(const ground_material_row *restrict r, int w,
-                               const int32_t *restrict cls, const int32_t *restrict heights, int i0,
-                               int32_t *restrict dst);
-
-static void slope_block(const ground_material_row *restrict r, int w, const int32_t *restrict cls,
-                        const int32_t *restrict heights, int i0, int32_t *restrict dst)
+/* One cell's next height in a one-material window: sim_slope_next with the
+ * row hoisted (the window's side cells, a window narrower than a block).
+ * The same sum in the same order. */
+static int32_t slope_cell(const ground_material_row *r, int w, int h, const int32_t *restrict cls,
+                          const int32_t *restrict heights, int x, int y)
 {
-    slope_block_body(r, w, cls, heights, i0, dst);
-}
-
-#if SIM_AVX2_CLONE
-SIM_TARGET_AVX2 static void slope_block_avx2(const ground_material_row *restrict r, int w,
-                                             const int32_t *restrict cls,
-                                             const int32_t *restrict heights, int i0,
-                                             int32_t *restrict dst)
-{
-    slope_block_body(r, w, cls, heights, i0, dst);
-}
-#endif
-
-/* The block routine for this CPU, chosen on first use (a race writes the same value). */
-static slope_block_fn slope_block_pick(void)
-{
-#if SIM_AVX2_CLONE
-    if (sim_cpu_avx2())
-        return slope_block_avx2;
-#endif
-    return slope_block;
+    const int i = y * w + x;
+    const int32_t hi = heights[i];
+    const int seed = cls[i] == SIM_CELL_SEED;
+    const uint32_t rough = (uint32_t)r->roughness_q16;
+    int32_t out = 0, in = 0;
+    for (int j = 0; j < 8; j++) {
+        int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
+        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+            continue;
+        int q = qy * w + qx;
+        int32_t th = j >= 4 ? r->slope_threshold_diagonal : r->slope_threshold_axial;
+        int32_t eo = hi - heights[q] - th, ei = heights[q] - hi - th;
+        if (eo > 0 && cls[q] == SIM_CELL_SEED)
+            out += (int32_t)(((uint64_t)(uint32_t)eo * rough) >> 19);
+        if (ei > 0 && seed)
+            in += (int32_t)(((uint64_t)(uint32_t)ei * rough) >> 19);
+    }
+    return hi - out + in;
 }
 
 /* One iteration's next heights of the listed blocks (packed y << 16 | s). */
@@ -115,32 +125,197 @@ typedef struct slope_blocks_loop {
     int32_t *value;
 } slope_blocks_loop;
 
-static void slope_blocks_range(void *ctx, int64_t begin, int64_t end, int thread)
+/* The cells of a listed block outside the range [lo, hi) a vector form
+ * computed: the specification, cell by cell. */
+static void slope_rest(const slope_blocks_loop *l, int y, int x0, int x1, int lo, int hi)
 {
-    (void)thread;
-    const slope_blocks_loop *l = ctx;
+    for (int x = x0; x < x1; x++)
+        if (x < lo || x >= hi)
+            l->value[y * l->w + x] =
+                slope_cell(&l->t->rows[0], l->w, l->h, l->cls, l->heights, x, y);
+}
+
+/* The baseline: a block of 16 lanes placed over the block's cells off the
+ * window's sides (a block at a side starts early; only its own cells are
+ * kept); the sides and narrow windows cell by cell. */
+static void slope_blocks_range_base(const slope_blocks_loop *l, int64_t begin, int64_t end)
+{
     const int w = l->w, h = l->h;
-    const slope_block_fn block = slope_block_pick();
+    const ground_material_row *r = &l->t->rows[0];
     for (int64_t c = begin; c < end; c++) {
         int y = sim_slope_y(l->blocks[c]), x0 = sim_slope_x(l->blocks[c]) * SLOPE_SEG;
         int x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w, row = y * w;
-        /* the inner cells: one slope_block placed over them (a block at the
-         * window's side starts early; only its own cells are kept) */
         int lo = x0 > 0 ? x0 : 1, hi = x1 < w ? x1 : w - 1;
-        if (y > 0 && y < h - 1 && w - 2 >= SLOPE_SEG && lo < hi) {
+        if (w - 2 >= SLOPE_SEG && lo < hi) {
             int b = lo < w - 1 - SLOPE_SEG ? lo : w - 1 - SLOPE_SEG;
             int32_t next[SLOPE_SEG];
-            block(&l->t->rows[0], w, l->cls, l->heights, row + b, next);
+            unsigned dirs =
+                (y == 0 ? SLOPE_DIRS_NO_NORTH : 0) | (y == h - 1 ? SLOPE_DIRS_NO_SOUTH : 0);
+            if (dirs == 0)
+                slope_block_body(r, w, l->cls, l->heights, row + b, next, SLOPE_DIRS_ALL);
+            else if (dirs == SLOPE_DIRS_NO_NORTH)
+                slope_block_body(r, w, l->cls, l->heights, row + b, next,
+                                 SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_NORTH);
+            else if (dirs == SLOPE_DIRS_NO_SOUTH)
+                slope_block_body(r, w, l->cls, l->heights, row + b, next,
+                                 SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_SOUTH);
+            else /* a one-row window: E and W only */
+                slope_block_body(r, w, l->cls, l->heights, row + b, next, 3u);
             for (int x = lo; x < hi; x++)
                 l->value[row + x] = next[x - b];
         } else {
             lo = hi = x0;
         }
-        /* the rest (the window's border, a narrow window): the specification */
-        for (int x = x0; x < x1; x++)
-            if (x < lo || x >= hi)
-                l->value[row + x] = sim_slope_next(l->t, NULL, w, h, l->cls, l->heights, x, y);
+        slope_rest(l, y, x0, x1, lo, hi);
     }
+}
+
+#if SIM_AVX2_CLONE
+#include <immintrin.h>
+
+/* One neighbour direction's flux for 8 lanes (AVX2), thresholds >= 0 (the
+ * one-product form above). narrow: max(|d| - th, 0) * roughness in 32 bits
+ * (one vpmulld for 8 lanes), exact while the product fits: peak keeps the
+ * largest factor for the caller to check. Otherwise the 64-bit products of
+ * the baseline, vpmuludq on the even and the odd lanes. */
+static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_dir8(__m256i hm, const int32_t *hq,
+                                                         const int32_t *cq, int32_t th,
+                                                         __m256i rough, int narrow, __m256i *out,
+                                                         __m256i *in, __m256i *peak)
+{
+    const __m256i seed = _mm256_set1_epi32(SIM_CELL_SEED);
+    __m256i d = _mm256_sub_epi32(hm, _mm256_loadu_si256((const __m256i *)hq));
+    __m256i sign = _mm256_srai_epi32(d, 31);
+    __m256i pe = _mm256_max_epi32(_mm256_sub_epi32(_mm256_abs_epi32(d), _mm256_set1_epi32(th)),
+                                  _mm256_setzero_si256());
+    __m256i f;
+    if (narrow) {
+        *peak = _mm256_max_epu32(*peak, pe);
+        f = _mm256_srli_epi32(_mm256_mullo_epi32(pe, rough), 19);
+    } else {
+        /* the low 32 bits of (pe * rough) >> 19 of each lane, as the baseline */
+        __m256i even = _mm256_srli_epi64(_mm256_mul_epu32(pe, rough), 19);
+        __m256i odd = _mm256_srli_epi64(_mm256_mul_epu32(_mm256_srli_epi64(pe, 32), rough), 19);
+        f = _mm256_blend_epi32(even, _mm256_slli_epi64(odd, 32), 0xaa);
+    }
+    __m256i to_seed = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)cq), seed);
+    *out = _mm256_add_epi32(*out, _mm256_andnot_si256(sign, _mm256_and_si256(f, to_seed)));
+    *in = _mm256_add_epi32(*in, _mm256_and_si256(f, sign));
+}
+
+/* Next heights of the 8 cells i0 .. i0 + 7 (inside the window's sides; dirs
+ * as for slope_block_body), thresholds >= 0. narrow: with 32-bit products;
+ * returns 0 and writes nothing when some factor exceeds lim = UINT32_MAX /
+ * roughness, where the 32-bit product would differ from the 64-bit one (at
+ * roughness 0.3 a step of 21.8 m at 10^4 units per m: the deep box's bow
+ * wave reaches it), and the caller redoes the unit with narrow = 0. */
+static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE int slope_unit8(const ground_material_row *r, int w,
+                                                         const int32_t *restrict cls,
+                                                         const int32_t *restrict heights, int i0,
+                                                         int32_t *restrict dst, unsigned dirs,
+                                                         int narrow, uint32_t lim)
+{
+    const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
+    const __m256i rough = _mm256_set1_epi32(r->roughness_q16);
+    const __m256i hm = _mm256_loadu_si256((const __m256i *)(heights + i0));
+    __m256i out = _mm256_setzero_si256(), in = out, peak = out;
+    /* slope_next's order, E, W, S, N, SE, SW, NE, NW, written out: gcc does
+     * not unroll the loop over the directions itself */
+#define SLOPE_DIR8(j, o, th)                                                                       \
+    do {                                                                                           \
+        if (dirs & 1u << (j))                                                                      \
+            slope_dir8(hm, heights + i0 + (o), cls + i0 + (o), th, rough, narrow, &out, &in,       \
+                       &peak);                                                                     \
+    } while (0)
+    SLOPE_DIR8(0, 1, ax);
+    SLOPE_DIR8(1, -1, ax);
+    SLOPE_DIR8(2, w, ax);
+    SLOPE_DIR8(3, -w, ax);
+    SLOPE_DIR8(4, w + 1, dg);
+    SLOPE_DIR8(5, w - 1, dg);
+    SLOPE_DIR8(6, -w + 1, dg);
+    SLOPE_DIR8(7, -w - 1, dg);
+#undef SLOPE_DIR8
+    const __m256i limv = _mm256_set1_epi32((int32_t)lim);
+    if (narrow &&
+        _mm256_movemask_epi8(_mm256_cmpeq_epi32(_mm256_max_epu32(peak, limv), limv)) != -1)
+        return 0;
+    __m256i own_seed = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(cls + i0)),
+                                          _mm256_set1_epi32(SIM_CELL_SEED));
+    __m256i next = _mm256_add_epi32(_mm256_sub_epi32(hm, out), _mm256_and_si256(in, own_seed));
+    _mm256_storeu_si256((__m256i *)dst, next);
+    return 1;
+}
+
+/* slope_unit8 for a unit of row y of h, dirs a constant in each call:
+ * first with 32-bit products, again with 64-bit ones if they overflow */
+static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void
+slope_unit8_dirs(const ground_material_row *r, int w, const int32_t *cls, const int32_t *heights,
+                 int i0, int32_t *dst, unsigned dirs, uint32_t lim)
+{
+    if (!slope_unit8(r, w, cls, heights, i0, dst, dirs, 1, lim))
+        slope_unit8(r, w, cls, heights, i0, dst, dirs, 0, 0);
+}
+
+static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_unit8_row(const ground_material_row *r, int w,
+                                                              int h, const int32_t *cls,
+                                                              const int32_t *heights, int y, int i0,
+                                                              int32_t *dst, uint32_t lim)
+{
+    if (y > 0 && y < h - 1)
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, lim);
+    else if (h == 1)
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, 3u, lim);
+    else if (y == 0)
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_NORTH, lim);
+    else
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_SOUTH, lim);
+}
+
+/* The AVX2 form: a block's cells off the window's sides in units of 8
+ * lanes, each placed over as many of them as it can (the last one of a row
+ * ends at the side, starting early; only the block's own cells are kept),
+ * so a window 10 or more cells wide takes vectors and a narrow block's
+ * remainder costs one unit, not a whole block. */
+static SIM_TARGET_AVX2 void slope_blocks_range_avx2(const slope_blocks_loop *l, int64_t begin,
+                                                    int64_t end)
+{
+    const int w = l->w, h = l->h;
+    const ground_material_row *r = &l->t->rows[0];
+    const uint32_t lim =
+        r->roughness_q16 > 0 ? UINT32_MAX / (uint32_t)r->roughness_q16 : UINT32_MAX;
+    for (int64_t c = begin; c < end; c++) {
+        int y = sim_slope_y(l->blocks[c]), x0 = sim_slope_x(l->blocks[c]) * SLOPE_SEG;
+        int x1 = x0 + SLOPE_SEG < w ? x0 + SLOPE_SEG : w, row = y * w;
+        int lo = x0 > 0 ? x0 : 1, hi = x1 < w ? x1 : w - 1;
+        if (w - 2 < 8 || lo >= hi) {
+            slope_rest(l, y, x0, x1, x0, x0);
+            continue;
+        }
+        for (int u = lo; u < hi; u += 8) {
+            int b = u < w - 9 ? u : w - 9, e = u + 8 < hi ? u + 8 : hi;
+            int32_t next[8];
+            slope_unit8_row(r, w, h, l->cls, l->heights, y, row + b, next, lim);
+            for (int x = u; x < e; x++)
+                l->value[row + x] = next[x - b];
+        }
+        slope_rest(l, y, x0, x1, lo, hi);
+    }
+}
+#endif
+
+static void slope_blocks_range(void *ctx, int64_t begin, int64_t end, int thread)
+{
+    (void)thread;
+    const slope_blocks_loop *l = ctx;
+#if SIM_AVX2_CLONE
+    const ground_material_row *r = &l->t->rows[0];
+    if (sim_cpu_avx2() && r->slope_threshold_axial >= 0 && r->slope_threshold_diagonal >= 0) {
+        slope_blocks_range_avx2(l, begin, end);
+        return;
+    }
+#endif
+    slope_blocks_range_base(l, begin, end);
 }
 
 /* Is some cell of i0 .. i0 + lanes - 1 (all one cell or more inside the

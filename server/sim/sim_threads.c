@@ -83,6 +83,12 @@ int sim_threads(void)
 
 #ifdef TERRAD_TWIN_LIB
 static const int in_parallel = 0;
+static const int serial_thread = 0;
+
+void sim_thread_serial(int on)
+{
+    (void)on; /* one thread anyway */
+}
 
 void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn, void *ctx)
 {
@@ -123,6 +129,12 @@ static struct {
  * a parallel loop runs serially on the thread that meets it. */
 static _Thread_local int in_parallel;
 static _Thread_local int slot_of_thread;
+static _Thread_local int serial_thread; /* sim_thread_serial */
+
+void sim_thread_serial(int on)
+{
+    serial_thread = on != 0;
+}
 
 static void run_chunks(pool_job *j, int slot)
 {
@@ -187,7 +199,8 @@ void sim_parallel_for(int64_t items, int64_t chunk, int threads, sim_range_fn fn
         chunk = 1;
     if (threads > SIM_THREADS_MAX)
         threads = SIM_THREADS_MAX;
-    if (threads <= 1 || items <= chunk || in_parallel || pthread_mutex_trylock(&pool.owner) != 0) {
+    if (threads <= 1 || items <= chunk || in_parallel || serial_thread ||
+        pthread_mutex_trylock(&pool.owner) != 0) {
         fn(ctx, 0, items, in_parallel ? slot_of_thread : 0);
         return;
     }
@@ -226,7 +239,7 @@ int64_t sim_band_chunk(int64_t items, int bands)
 int sim_band_threads(int64_t items)
 {
     /* below this a parallel loop costs more than it saves */
-    if (items < SIM_BAND_MIN_ITEMS || in_parallel)
+    if (items < SIM_BAND_MIN_ITEMS || in_parallel || serial_thread)
         return 1;
     int n = sim_threads();
     int64_t most = items / (SIM_BAND_MIN_ITEMS / 2);

@@ -155,7 +155,7 @@ test('the document is valid OpenAPI 3 and describes every endpoint', () => {
   assert.match(api.openapi, /^3\./);
   const version = /project\(terrad VERSION (\d+\.\d+\.\d+)/.exec(readFileSync(path.join(root, 'CMakeLists.txt'), 'utf8'))[1];
   assert.equal(api.info.version, version, 'info.version is the version of CMakeLists.txt\'s project()');
-  for (const p of ['/healthz', '/readyz', '/metrics', '/v1/world', '/v1/stats', '/v1/heights',
+  for (const p of ['/healthz', '/readyz', '/metrics', '/v1/world', '/v1/twin', '/v1/stats', '/v1/heights',
     '/v1/openapi.yaml', '/']) {
     assert.ok(api.paths[p] && api.paths[p].get, `GET ${p} is described`);
   }
@@ -168,6 +168,9 @@ test('probes, metrics, world and stats match the document', async () => {
   assert.match(res.body.toString(), /^# TYPE terrad_|^# HELP terrad_/m);
   const { json: world } = await fetchChecked('world', '/v1/world', 200);
   assert.ok(world.width > 0 && world.tile_size > 0);
+  const { json: twin } = await fetchChecked('twin config', '/v1/twin', 200);
+  assert.equal(twin.width, world.width);
+  assert.equal(twin.model, world.models[0]);
   const { json: stats } = await fetchChecked('stats', '/v1/stats', 200);
   assert.equal(stats.ready, true);
   await fetchChecked('HEAD stats', '/v1/stats', 200, { method: 'HEAD' });

@@ -23,58 +23,14 @@
 
 #include "scene/scene.h"
 
-static void set(const char *key, double v)
+/* One config key: the scene's own list (scene_twin_config, also GET /v1/twin). */
+static void print_key(void *ctx, const char *key, double number, const char *name)
 {
-    printf("set %s %.17g\n", key, v);
-}
-
-static void print_config(const scene *sc)
-{
-    const sim_material *m = &sc->material;
-    set("width", sc->width);
-    set("height", sc->height);
-    set("cell_size_m", sc->cell_size_m);
-    set("units_per_m", sc->units_per_m);
-    set("floor_units", sc->floor_units);
-    set("margin_cells", sc->active_margin_cells);
-    set("tick_hz", sc->tick_hz);
-    printf("name terrain.kind %s\n", sc->base.kind == WORLD_BASE_FLAT ? "flat" : "dunes");
-    set("terrain.height_m", sc->base.height_m);
-    set("terrain.min_height_m", sc->base.min_height_m);
-    set("terrain.max_height_m", sc->base.max_height_m);
-    set("terrain.wavelength_m", sc->base.wavelength_m);
-    set("terrain.octaves", sc->base.octaves);
-    set("terrain.seed", sc->base.seed);
-    printf("name model %s\nname metric %s\n", sim_model_name(m->model), sim_metric_name(m->metric));
-    set("compression", m->compression);
-    set("roughness", m->roughness);
-    set("repose_deg", m->repose_deg);
-    set("obstacle_gap_m", m->obstacle_gap_m);
-    set("multi_target_m", m->multi_target_m);
-    set("multi_target_max", m->multi_target_max);
-    set("displace_iterations", m->displace_iterations);
-    set("slope_iterations", m->slope_iterations);
-    set("refill_m_per_s", m->refill_m_per_s);
-    set("trail_scale_per_m", m->trail_scale_per_m);
-    set("trail_range_m", m->trail_range_m);
-    set("edge_height", m->edge_height);
-    set("edge_width", m->edge_width);
-    set("diffusion_d", m->diffusion_d);
-    set("diffusion_zeta_inv", m->diffusion_zeta_inv);
-    set("diffusion_force_scale", m->diffusion_force_scale);
-    set("diffusion_dt", m->diffusion_dt);
-    set("diffusion_substeps", m->diffusion_substeps);
-    set("diffusion_conservative", m->diffusion_conservative);
-    set("decal_min_strength_m", m->decal_min_strength_m);
-    set("soil.n", m->soil.n);
-    set("soil.kc", m->soil.kc);
-    set("soil.kphi", m->soil.kphi);
-    set("soil.cohesion_pa", m->soil.cohesion_pa);
-    set("soil.friction_deg", m->soil.friction_deg);
-    set("soil.shear_k_m", m->soil.shear_k_m);
-    set("soil.elastic_pa_m", m->soil.elastic_pa_m);
-    set("soil.damping_pa_s_m", m->soil.damping_pa_s_m);
-    set("soil.slip_n", m->soil.slip_n);
+    (void)ctx;
+    if (name)
+        printf("name %s %s\n", key, name);
+    else
+        printf("set %s %.17g\n", key, number);
 }
 
 static void print_collider(int id, const collider_geometry *g)
@@ -107,14 +63,11 @@ int main(int argc, char **argv)
         fprintf(stderr, "twin_trace: %s\n", err.message);
         return 1;
     }
-    if (sc.ground_json || (sc.base.kind != WORLD_BASE_FLAT && sc.base.kind != WORLD_BASE_DUNES)) {
-        printf("twin_trace: %s: per-cell materials and file bases are not part of the twin "
-               "library\n",
-               argv[1]);
+    if (scene_twin_config(&sc, print_key, NULL, &err) != 0) {
+        printf("twin_trace: %s: %s\n", argv[1], err.message);
         return 77;
     }
     long ticks = atol(argv[2]);
-    print_config(&sc);
     printf("window 0 0 %d %d\n", sc.width, sc.height);
     if ((int64_t)sc.width * sc.height > 65536) {
         printf("base\n");

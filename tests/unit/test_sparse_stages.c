@@ -190,6 +190,53 @@ static void test_bands(void)
     free(h);
 }
 
+/* Steep one-material windows: steps far beyond the 32-bit products' reach
+ * (UINT32_MAX / roughness, 65,535 units at roughness 1.0), next to gentle
+ * ones, so slope evening's AVX2 units take both the 32-bit products and the
+ * 64-bit redo, in windows from 1 cell to wider than two blocks (the 8-lane
+ * units begin at 10 cells wide, the 16-lane blocks at 18). */
+static void test_steep_windows(void)
+{
+    static const int32_t roughness[] = {65536, 19661, 1, 40000};
+    uint32_t s = 4242;
+    for (int round = 0; round < 60; round++) {
+        int w = 1 + (int)(test_next_random(&s) % 60), h = 1 + (int)(test_next_random(&s) % 30);
+        int n = w * h;
+        int32_t *start = malloc(sizeof(int32_t) * (size_t)n),
+                *cls = malloc(sizeof(int32_t) * (size_t)n);
+        int32_t *h_sparse = malloc(sizeof(int32_t) * (size_t)n);
+        int32_t *h_dense = malloc(sizeof(int32_t) * (size_t)n);
+        int32_t *scratch = malloc(sizeof(int32_t) * (size_t)n * 5);
+        for (int i = 0; i < n; i++) {
+            uint32_t r = test_next_random(&s);
+            start[i] = 100000 + (int32_t)(r % 5000) + (r % 5 == 0 ? (int32_t)(r % 700000) : 0);
+            cls[i] = r % 7 == 0    ? SIM_CELL_OBSTACLE
+                     : r % 11 == 0 ? SIM_CELL_PENETRATING
+                                   : SIM_CELL_SEED;
+        }
+        sim_material m = sim_material_default();
+        m.slope_iterations = 1 + round % 12;
+        if (round % 5 == 0)
+            m.repose_deg = 0;
+        sim_params p = test_params_from_material(&m, 0);
+        ground_material_table t = {.count = 1};
+        t.rows[0] = sim_material_row_from_params(&p, 0);
+        t.rows[0].roughness_q16 = roughness[round % 4];
+        memcpy(h_sparse, start, sizeof(int32_t) * (size_t)n);
+        memcpy(h_dense, start, sizeof(int32_t) * (size_t)n);
+        sim_even_slopes_materials(&p, &t, NULL, w, h, cls, h_sparse, scratch);
+        sim_even_slopes_materials_dense(&p, &t, NULL, w, h, cls, h_dense, scratch);
+        CHECK(memcmp(h_sparse, h_dense, sizeof(int32_t) * (size_t)n) == 0,
+              "%dx%d steep, roughness %d, %d iterations: slopes equal dense", w, h,
+              t.rows[0].roughness_q16, p.slope_iterations);
+        free(start);
+        free(cls);
+        free(h_sparse);
+        free(h_dense);
+        free(scratch);
+    }
+}
+
 int main(void)
 {
     /* both compiled forms of the hot loops (sim_internal.h): AVX2 where the
@@ -198,6 +245,7 @@ int main(void)
     for (int allow = 1; allow >= 0; allow--) {
         sim_cpu_avx2_allow(allow);
         test_random_windows();
+        test_steep_windows();
         test_bands();
     }
     sim_cpu_avx2_allow(1);

@@ -149,4 +149,6 @@ test('vendored fzstd equals the pinned npm copy', { skip: !existsSync(path.join(
   assert.equal(pkg.version, lock.packages['node_modules/fzstd'].version);
   assert.ok(readFileSync(path.join(root, 'web/vendor/fzstd.js')).equals(readFileSync(path.join(root, 'node_modules/fzstd/esm/index.mjs'))),
     'web/vendor/fzstd.js differs from node_modules/fzstd/esm/index.mjs: run scripts/vendor-web');
+  assert.ok(readFileSync(path.join(root, 'web/vendor/fzstd.d.ts')).equals(readFileSync(path.join(root, 'node_modules/fzstd/lib/index.d.ts'))),
+    'web/vendor/fzstd.d.ts (its types, for clients/js) differs from node_modules/fzstd/lib/index.d.ts: run scripts/vendor-web');
 });

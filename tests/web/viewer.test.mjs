@@ -12,62 +12,13 @@
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
-import { mkdtempSync, mkdirSync, rmSync, existsSync } from 'node:fs';
+import { mkdtempSync, mkdirSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
-import { fileURLToPath } from 'node:url';
+import { CHROMIUM, FLAGS, haveBrowser, root, sleep, startDaemon, stopDaemon, until } from '../support/browser.mjs';
 
-const root = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
-const BIN = process.env.TERRAD_BIN || path.join(root, 'build/terrad');
-const CHROMIUM = '/usr/bin/chromium';
-const FLAGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run', '--disable-background-networking',
-  '--disable-component-update', '--disable-sync', '--enable-unsafe-swiftshader'];
 const ARTIFACTS = path.join(root, 'test-artifacts');
-const haveBrowser = existsSync(CHROMIUM) && existsSync(path.join(root, 'node_modules/playwright-core')) && existsSync(BIN);
 const skip = !haveBrowser && 'needs /usr/bin/chromium, node_modules/playwright-core and the terrad binary';
-
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-async function until(what, fn, ms = 15000, step = 100) {
-  const end = Date.now() + ms;
-  let last;
-  for (;;) {
-    last = await fn();
-    if (last) return last;
-    if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
-    await sleep(step);
-  }
-}
-
-function startDaemon(httpPort = 0, wsPort = 0, extra = []) {
-  const dataDir = mkdtempSync(path.join(tmpdir(), 'terrad-viewer-data-'));
-  const args = ['serve', '--http-port', String(httpPort), '--ws-port', String(wsPort), '--backend', 'cpu', '--no-demo', '--durability', 'none', ...extra];
-  const proc = spawn(BIN, args, { stdio: ['ignore', 'ignore', 'pipe'], cwd: dataDir });
-  let err = '';
-  return new Promise((resolve, reject) => {
-    const t = setTimeout(() => reject(new Error(`daemon did not start: ${err}`)), 60000);
-    proc.stderr.on('data', (d) => {
-      err += d;
-      const m = /http:\/\/127\.0\.0\.1:(\d+)\/ and ws:\/\/127\.0\.0\.1:(\d+)\//.exec(err);
-      if (m && !proc.ports) {
-        clearTimeout(t);
-        proc.ports = { http: Number(m[1]), ws: Number(m[2]) };
-        proc.dataDir = dataDir;
-        resolve(proc);
-      }
-    });
-    proc.on('exit', (code) => { clearTimeout(t); if (!proc.ports) reject(new Error(`daemon exited ${code}: ${err}`)); });
-  });
-}
-
-async function stopDaemon(proc) {
-  if (!proc || proc.exitCode !== null || proc.signalCode) return;
-  const gone = new Promise((r) => proc.once('exit', r));
-  proc.kill('SIGTERM');
-  const t = setTimeout(() => proc.kill('SIGKILL'), 5000);
-  await gone;
-  clearTimeout(t);
-  rmSync(proc.dataDir, { recursive: true, force: true });
-}
 
 let daemon, context, page, profile;
 let trail; // {x, y, len}: the trail the page dug (metres), for the page loaded after it
@@ -85,6 +36,10 @@ before(async () => {
   page.on('pageerror', (e) => console.error('page error:', e.message));
   page.on('response', (r) => { if (r.status() >= 400) failedResponses.push(`${r.status()} ${r.url()}`); });
   await page.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
+  // These tests are about the page's mirror, drawing and driving; its prediction has its own
+  // (viewer_predict.mjs). Off, a slow frame's many batches cost what they always did.
+  await until('the predict toggle', () => page.evaluate(() => !document.getElementById('predict').disabled), 120000);
+  await page.click('#predict');
 });
 
 after(async () => {

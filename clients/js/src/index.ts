@@ -1,0 +1,310 @@
+// terrad-client: terrad's websocket client for Node (20+) and browsers, with TypeScript types
+// (issue 23; docs/engines.md, "TypeScript"). An async client over the viewer's own codec
+// (web/terrad_codec.mjs: hello, subscriptions and their mirrors, colliders, pose batches,
+// DELTA, ACK, CONTACT, FORCES), the worlds API (HTTP) and prediction on the daemon's twin as
+// WebAssembly (web/twin.mjs, web/predict.mjs). Those three files are compiled into this
+// package from web/, never copied by hand: one codec for the viewer and every JS client.
+import * as P from '../../../web/terrad_codec.mjs';
+import { loadTwinModule } from '../../../web/twin.mjs';
+import { Prediction } from '../../../web/predict.mjs';
+
+export { P as codec, Prediction, loadTwinModule };
+
+/** A pose as POSE_BATCH carries it: metres and a quaternion (w, x, y, z). */
+export interface Pose {
+  id: number;
+  x: number;
+  y: number;
+  z: number;
+  qw: number;
+  qx: number;
+  qy: number;
+  qz: number;
+}
+
+/** The server's `world` message (PROTOCOL.md). */
+export interface World {
+  type: 'world';
+  width: number;
+  height: number;
+  cell_size_m: number;
+  units_per_m: number;
+  tick_hz: number;
+  tile_size: number;
+  tick: number;
+  [key: string]: unknown;
+}
+
+/** A subscription's copy of the server's heights (web/terrad_codec.mjs `Mirror`). */
+export interface Mirror {
+  x: number;
+  y: number;
+  w: number;
+  h: number;
+  heights: Int32Array;
+  readonly complete: boolean;
+}
+
+export type Shape = 'sphere' | 'box' | 'capsule' | 'cylinder' | 'wheel' | 'mesh';
+/** collider_create's fields: radius, half_extents, half_length, width, vertices, indices. */
+export type Dims = Record<string, number | number[]>;
+
+/** An `error` message from the server, as a rejection: its name, code, field and ref. */
+export class TerradError extends Error {
+  readonly code: number;
+  readonly field: string;
+  readonly ref: unknown;
+  constructor(readonly reply: { name?: string; code?: number; message?: string; field?: string; ref?: unknown }) {
+    super(`${reply.name ?? 'error'}: ${reply.message ?? ''}`);
+    this.code = reply.code ?? 0;
+    this.field = reply.field ?? '';
+    this.ref = reply.ref;
+  }
+}
+
+export interface ConnectOptions {
+  token?: string;
+  /** the client's name in the server's log (hello's `client`) */
+  name?: string;
+  /** a world made by POST /v1/worlds ('' for the daemon's own) */
+  world?: string;
+  /** how long a reply may take (ms, default 60,000) */
+  timeoutMs?: number;
+  /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket) */
+  WebSocket?: typeof WebSocket;
+}
+
+type Events = {
+  delta: (tick: bigint, rects: unknown[]) => void;
+  ack: (tick: bigint, seq: number) => void;
+  contact: (contact: ReturnType<typeof P.decodeContact>) => void;
+  forces: (forces: ReturnType<typeof P.decodeForces>) => void;
+  error: (error: TerradError) => void;
+};
+
+/** One connection to a daemon. */
+export class TerradClient {
+  world!: World;
+  /** the latest tick the server's frames named */
+  tick = 0n;
+  /** the latest ACK's batch sequence */
+  ackedSeq = -1;
+  readonly mirrors = new Map<number, Mirror>();
+  private ws: WebSocket;
+  private seq = 0;
+  private refN = 0;
+  private timeoutMs: number;
+  private waiting: { test: (m: any) => boolean; ok: (m: any) => void; fail: (e: Error) => void }[] = [];
+  private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], error: [] };
+  private predictions = new Map<number, Prediction>();
+  private closed: Error | null = null;
+
+  private constructor(ws: WebSocket, timeoutMs: number) {
+    this.ws = ws;
+    this.timeoutMs = timeoutMs;
+  }
+
+  /** Connects, says hello and resolves once the server's `world` message arrived. */
+  static async connect(url: string, opts: ConnectOptions = {}): Promise<TerradClient> {
+    const WS = opts.WebSocket ?? (globalThis as any).WebSocket;
+    if (!WS) throw new Error('WebSocket: none in this runtime (Node 20: run with --experimental-websocket, or pass opts.WebSocket)');
+    const ws: WebSocket = new WS(url, P.SUBPROTOCOL);
+    ws.binaryType = 'arraybuffer';
+    const c = new TerradClient(ws, opts.timeoutMs ?? 60000);
+    ws.onmessage = (e: MessageEvent) => (typeof e.data === 'string' ? c.onText(e.data) : c.onBinary(new Uint8Array(e.data)));
+    ws.onclose = (e: CloseEvent) => c.fail(new Error(`connection closed (${e.code}${e.reason ? ` ${e.reason}` : ''})`));
+    await new Promise<void>((ok, fail) => {
+      ws.onopen = () => ok();
+      ws.onerror = () => fail(new Error(`cannot connect to ${url}`));
+    });
+    ws.onerror = () => {};
+    const world = c.reply((m) => m.type === 'world');
+    c.sendJson(P.hello(opts.token ?? '', opts.name ?? 'terrad-client-js', opts.world ?? ''));
+    c.world = (await world) as World;
+    c.tick = BigInt(c.world.tick ?? 0);
+    return c;
+  }
+
+  on<K extends keyof Events>(event: K, fn: Events[K]): this {
+    this.listeners[event].push(fn);
+    return this;
+  }
+
+  /** Subscribes to a rectangle of cells; resolves to the subscription's id. */
+  async subscribe(x: number, y: number, w: number, h: number, opts: { colliders?: boolean } = {}): Promise<number> {
+    const ref = `sub-${++this.refN}`;
+    const m = await this.request(P.subscribe(x, y, w, h, ref, !!opts.colliders), ref, 'subscribed');
+    return m.id;
+  }
+
+  /** Resolves to the subscription's mirror once it holds the server's snapshot. */
+  async waitComplete(sid: number): Promise<Mirror> {
+    await this.until(`subscription ${sid}'s snapshot`, () => !!this.mirrors.get(sid)?.complete);
+    return this.mirrors.get(sid)!;
+  }
+
+  /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
+  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean } = {}): Promise<number> {
+    const ref = `col-${++this.refN}`;
+    const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
+    for (const p of this.predictions.values()) p.own.set(m.id, { shape, dims });
+    for (const p of this.predictions.values()) p.addCollider(m.id, shape, dims);
+    return m.id;
+  }
+
+  deleteCollider(id: number): void {
+    for (const p of this.predictions.values()) {
+      p.removeCollider(id);
+      p.own.delete(id);
+    }
+    this.sendJson(P.colliderDelete(id));
+  }
+
+  /** Sends one pose batch; returns its sequence. Predicting subscriptions tick their twin first. */
+  sendPoses(poses: Pose[]): number {
+    const seq = this.seq++ >>> 0;
+    for (const p of this.predictions.values()) p.onSend(seq, poses.filter((q) => p.own.has(q.id)));
+    this.ws.send(P.encodePoseBatch(seq, poses));
+    return seq;
+  }
+
+  /** Resolves to the tick of the ACK that acknowledges batch seq (or a later one). */
+  async waitAck(seq: number): Promise<bigint> {
+    await this.until(`the ACK of batch ${seq}`, () => this.ackedSeq !== -1 && ((this.ackedSeq - seq) >>> 0) < 0x80000000);
+    return this.tick;
+  }
+
+  /**
+   * Prediction on subscription sid (complete): this client's colliders' poses are applied at once
+   * on the twin (wasm: the bytes of terrad_twin.wasm, e.g. from GET /terrad_twin.wasm; config: the
+   * world's parameters, e.g. GET /v1/twin); every ACK reconciles exactly. Make it before creating
+   * the colliders it predicts (docs/engines.md, "Prediction").
+   */
+  async predict(sid: number, config: Record<string, number | string>, wasm: BufferSource): Promise<Prediction> {
+    const mirror = this.mirrors.get(sid);
+    if (!mirror) throw new Error(`sid: no subscription ${sid}`);
+    const twins = await loadTwinModule(wasm);
+    const p = new Prediction(twins, this.world, mirror, config, new Map());
+    this.predictions.set(sid, p);
+    return p;
+  }
+
+  close(): void {
+    for (const p of this.predictions.values()) p.destroy();
+    this.predictions.clear();
+    this.closed = new Error('closed by the client');
+    this.ws.close(1000);
+  }
+
+  // ---- internals ----
+
+  private sendJson(m: object): void {
+    this.ws.send(JSON.stringify(m));
+  }
+
+  private request(m: object, ref: string, type: string): Promise<any> {
+    const r = this.reply((x) => (x.type === type || x.type === 'error') && x.ref === ref);
+    this.sendJson(m);
+    return r.then((x) => {
+      if (x.type === 'error') throw new TerradError(x);
+      return x;
+    });
+  }
+
+  private reply(test: (m: any) => boolean): Promise<any> {
+    if (this.closed) return Promise.reject(this.closed);
+    return new Promise((ok, fail) => {
+      const w = { test, ok, fail };
+      const t = setTimeout(() => {
+        this.waiting = this.waiting.filter((x) => x !== w);
+        fail(new Error(`no reply within ${this.timeoutMs} ms`));
+      }, this.timeoutMs);
+      w.ok = (m) => { clearTimeout(t); ok(m); };
+      w.fail = (e) => { clearTimeout(t); fail(e); };
+      this.waiting.push(w);
+    });
+  }
+
+  private async until(what: string, cond: () => boolean): Promise<void> {
+    const end = Date.now() + this.timeoutMs;
+    while (!cond()) {
+      if (this.closed) throw this.closed;
+      if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
+      await new Promise((r) => setTimeout(r, 5));
+    }
+  }
+
+  private fail(e: Error): void {
+    this.closed ??= e;
+    for (const w of this.waiting.splice(0)) w.fail(e);
+  }
+
+  private onText(text: string): void {
+    const m: any = P.parseControl(text);
+    if (m.type === 'subscribed') this.mirrors.set(m.id, new P.Mirror(m.x, m.y, m.w, m.h, this.world.tile_size) as unknown as Mirror);
+    if (m.type === 'error') for (const f of this.listeners.error) f(new TerradError(m));
+    const w = this.waiting.find((x) => x.test(m));
+    if (w) {
+      this.waiting = this.waiting.filter((x) => x !== w);
+      w.ok(m);
+    }
+  }
+
+  private onBinary(b: Uint8Array): void {
+    const t = P.decodeHeader(b);
+    if (t === P.MsgType.DELTA) {
+      const { tick, rects } = P.decodeDelta(b);
+      for (const [id, m] of this.mirrors) {
+        try {
+          (m as any).apply(rects);
+        } catch {
+          this.sendJson(P.resync(id)); // a stale base or a bad frame: the snapshot again
+        }
+      }
+      this.tick = tick > this.tick ? tick : this.tick;
+      for (const f of this.listeners.delta) f(tick, rects);
+    } else if (t === P.MsgType.ACK) {
+      const { tick, seq } = P.decodeAck(b);
+      this.ackedSeq = seq;
+      this.tick = tick > this.tick ? tick : this.tick;
+      for (const p of this.predictions.values()) p.onAck(tick, seq);
+      for (const f of this.listeners.ack) f(tick, seq);
+    } else if (t === P.MsgType.CONTACT) {
+      const c = P.decodeContact(b);
+      for (const f of this.listeners.contact) f(c);
+    } else if (t === P.MsgType.FORCES) {
+      const c = P.decodeForces(b);
+      for (const f of this.listeners.forces) f(c);
+    } else if (t === P.MsgType.PING) {
+      this.ws.send(P.encodePing(P.decodePing(b).nonce, true));
+    }
+  }
+}
+
+/** The world lifecycle API of a single daemon (HTTP; docs/openapi.yaml "worlds"). */
+export class Worlds {
+  /** base: the daemon's HTTP address, e.g. 'http://127.0.0.1:8080'; token: an admin token where needed. */
+  constructor(readonly base: string, readonly token = '') {}
+  list(): Promise<Record<string, unknown>[]> {
+    return P.listWorlds(this.base, { token: this.token });
+  }
+  create(name: string, opts: { scene?: object; sceneName?: string } = {}): Promise<Record<string, unknown>> {
+    return P.createWorld(this.base, name, { ...opts, token: this.token });
+  }
+  remove(name: string, opts: { keep?: boolean } = {}): Promise<Record<string, unknown>> {
+    return P.deleteWorld(this.base, name, { ...opts, token: this.token });
+  }
+  /** The world's parameters as the twin's config keys (GET /v1/twin): for predict(). */
+  async twinConfig(): Promise<Record<string, number | string>> {
+    const res = await fetch(`${this.base.replace(/\/$/, '')}/v1/twin`, { headers: this.token ? { Authorization: `Bearer ${this.token}` } : {} });
+    const doc = await res.json();
+    if (!res.ok) throw new P.WorldError(res.status, doc.error || res.statusText, '');
+    return doc;
+  }
+  /** The twin as WebAssembly (GET /terrad_twin.wasm): for predict(). */
+  async twinWasm(): Promise<ArrayBuffer> {
+    const res = await fetch(`${this.base.replace(/\/$/, '')}/terrad_twin.wasm`);
+    if (!res.ok) throw new P.WorldError(res.status, 'the daemon was built without the WebAssembly twin', '');
+    return res.arrayBuffer();
+  }
+}

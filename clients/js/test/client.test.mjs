@@ -1,0 +1,111 @@
+// terrad-client (clients/js) against the real daemon on loopback, as an application uses it:
+// imported from the tarball `npm pack` made and `npm install` put in a fresh directory
+// ($TERRAD_CLIENT_DIR; tests/integration/test_ts_client.sh makes it). Checked: connect and
+// hello, a subscription's mirror, a collider driven with poses (ACKs, CONTACT feedback), the
+// prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
+// the worlds API (create, join, list, remove); bad input refused with errors naming the field.
+import { test, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import { mkdtempSync, rmSync, writeFileSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import path from 'node:path';
+import { pathToFileURL } from 'node:url';
+import { startDaemon, stopDaemon } from '../../../tests/support/browser.mjs';
+
+const APP = process.env.TERRAD_CLIENT_DIR;
+const skip = !APP && 'TERRAD_CLIENT_DIR (the installed package) not set: run tests/integration/test_ts_client.sh';
+const SCENE = {
+  name: 'ts-client', world: { width: 128, height: 128, cell_size_m: 0.05 },
+  terrain: { kind: 'dunes', min_height_m: 0.35, max_height_m: 0.45, wavelength_m: 4, octaves: 3, seed: 3 },
+  colliders: [],
+};
+let T, daemon, dir, ws, http;
+
+before(async () => {
+  if (skip) return;
+  T = await import(pathToFileURL(path.join(APP, 'node_modules/terrad-client/dist/clients/js/src/index.js')).href);
+  dir = mkdtempSync(path.join(tmpdir(), 'terrad-ts-client-'));
+  writeFileSync(path.join(dir, 'scene.json'), JSON.stringify(SCENE));
+  daemon = await startDaemon(0, 0, ['--scene', path.join(dir, 'scene.json'), '--max-worlds', '2']);
+  ws = `ws://127.0.0.1:${daemon.ports.ws}/`;
+  http = `http://127.0.0.1:${daemon.ports.http}`;
+});
+
+after(async () => {
+  await stopDaemon(daemon);
+  if (dir) rmSync(dir, { recursive: true, force: true });
+});
+
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+async function serverHeights(x, y, w, h) {
+  const b = Buffer.from(await (await fetch(`${http}/v1/heights?x=${x}&y=${y}&w=${w}&h=${h}`)).arrayBuffer());
+  return Array.from({ length: w * h }, (_, i) => b.readInt32LE(4 * i));
+}
+
+test('drive a collider with prediction: ACKs, contacts, every compared ACK exact, the mirror is the server\'s', { skip, timeout: 240000 }, async () => {
+  const c = await T.TerradClient.connect(ws, { name: 'ts-test' });
+  try {
+    assert.equal(c.world.width, 128);
+    const contacts = [];
+    c.on('contact', (m) => contacts.push(m));
+    const sid = await c.subscribe(16, 16, 96, 96);
+    const mirror = await c.waitComplete(sid);
+    const worlds = new T.Worlds(http);
+    const pred = await c.predict(sid, await worlds.twinConfig(), await worlds.twinWasm());
+    const ball = await c.createCollider('sphere', { radius: 0.3 });
+    const start = Int32Array.from(mirror.heights);
+    const n = 240, y = 64 * 0.05, z = 0.4 + 0.3 - 0.06;
+    let seq = 0, early = 0;
+    for (let i = 0; i < n; i++) {
+      seq = c.sendPoses([{ id: ball, x: (36 + (56 * i) / n) * 0.05, y, z, qw: 1, qx: 0, qy: 0, qz: 0 }]);
+      if (!early) { // the batch has just left: the server cannot have its rut yet
+        const mine = pred.heights();
+        for (let k = 0; k < mine.length; k++) if (mine[k] < mirror.heights[k]) early++;
+      }
+      await sleep(1000 / c.world.tick_hz);
+    }
+    seq = c.sendPoses([{ id: ball, x: 92 * 0.05, y, z: z + 5, qw: 1, qx: 0, qy: 0, qz: 0 }]); // lifted
+    await c.waitAck(seq);
+    assert.ok(early > 0, 'the prediction shows the rut before the server has it');
+    assert.ok(pred.replayed >= 10 && pred.exact === pred.replayed,
+      `every compared ACK's replay equals the server (${pred.exact} of ${pred.replayed}, ${pred.skipped} not compared)`);
+    assert.ok(contacts.length > 0, 'CONTACT feedback arrived');
+    let dug = 0;
+    for (let k = 0; k < start.length; k++) if (mirror.heights[k] < start[k]) dug++;
+    assert.ok(dug > 50, `the rut is in the mirror (${dug} cells)`);
+    const server = await serverHeights(16, 16, 96, 96);
+    assert.deepEqual(Array.from(mirror.heights), server, 'the mirror equals GET /v1/heights');
+  } finally {
+    c.close();
+  }
+});
+
+test('bad input is refused with an error naming the field; the client goes on', { skip, timeout: 120000 }, async () => {
+  const c = await T.TerradClient.connect(ws, { name: 'ts-bad' });
+  try {
+    await assert.rejects(c.createCollider('sphere', { radius: -1 }), (e) => e instanceof T.TerradError && /radius/.test(e.field + e.message));
+    await assert.rejects(c.subscribe(0, 0, 100000, 4), (e) => e instanceof T.TerradError && e.message.length > 0);
+    await assert.rejects(c.predict(999, {}, new Uint8Array()), /sid/);
+    const sid = await c.subscribe(0, 0, 16, 16);
+    await c.waitComplete(sid);
+    await assert.rejects(new T.Worlds(http).create('bad name!', { scene: SCENE }), (e) => e.status === 400 && e.field === 'name');
+    const id = await c.createCollider('box', { half_extents: [0.1, 0.1, 0.1] });
+    assert.ok(id > 0, 'the connection goes on');
+  } finally {
+    c.close();
+  }
+});
+
+test('the worlds API: create, join, list, remove', { skip, timeout: 120000 }, async () => {
+  const worlds = new T.Worlds(http);
+  const made = await worlds.create('ts-arena', { scene: { ...SCENE, name: 'ts-arena', world: { width: 64, height: 48, cell_size_m: 0.05 } } });
+  assert.equal(made.name, 'ts-arena');
+  assert.ok((await worlds.list()).some((w) => w.name === 'ts-arena'));
+  const c = await T.TerradClient.connect(ws, { world: 'ts-arena' });
+  assert.equal(c.world.width, 64);
+  c.close();
+  const gone = await worlds.remove('ts-arena');
+  assert.equal(gone.deleted, true);
+  assert.ok(!(await worlds.list()).some((w) => w.name === 'ts-arena'));
+});
