@@ -48,6 +48,9 @@ export class ViewerPrediction {
         this.want = null; // a Prediction to make at the next ACK: {world, mirror, id, radius, cx, cy}
         this.sent = []; // the page's batches after the last ACK: [{seq, poses}]
         this.last = new Map(); // id -> the pose of its latest acknowledged batch
+        // What the prediction costs the page's main thread (make bench: ms per frame):
+        // milliseconds spent in each step since the page loaded, and how many times.
+        this.cost = { sendMs: 0, sends: 0, ackMs: 0, acks: 0, pasteMs: 0, pastes: 0 };
     }
 
     // The twin module and the world's parameters, once per world message (a restarted
@@ -155,7 +158,10 @@ export class ViewerPrediction {
     onSend(seq, poses) {
         this.sent.push({ seq, poses });
         if (!this.pred) return null;
+        const t0 = performance.now();
         this.pred.onSend(seq, poses.filter((q) => q.id === this.pred.ownId));
+        this.cost.sendMs += performance.now() - t0;
+        this.cost.sends++;
         return this.box();
     }
 
@@ -166,11 +172,16 @@ export class ViewerPrediction {
         for (const b of this.sent.filter((e) => upTo(e.seq))) for (const q of b.poses) this.last.set(q.id, q);
         this.sent = this.sent.filter((e) => !upTo(e.seq));
         let box = null;
+        const t0 = performance.now();
         if (this.pred) {
             this.pred.onAck(tick, seq);
             box = this.box();
         }
         if (this.want && this.enabled && this.available) box = union(box, this.make(tick));
+        if (this.pred) {
+            this.cost.ackMs += performance.now() - t0;
+            this.cost.acks++;
+        }
         return box;
     }
 
@@ -186,19 +197,22 @@ export class ViewerPrediction {
     // predicted sub-window pasted in.
     heights(mirror, buf) {
         if (!this.active(mirror)) return mirror.heights;
+        const t0 = performance.now();
         const reuse = buf && buf !== mirror.heights && buf.length === mirror.heights.length; // never the mirror's own
         const out = reuse ? buf : new Int32Array(mirror.heights.length);
         out.set(mirror.heights);
         const s = this.pred.mirror, ph = this.pred.heights();
         for (let j = 0; j < s.h; j++)
             out.set(ph.subarray(j * s.w, (j + 1) * s.w), (s.y - mirror.y + j) * mirror.w + s.x - mirror.x);
+        this.cost.pasteMs += performance.now() - t0;
+        this.cost.pastes++;
         return out;
     }
 
     // For the overlay and the tests: the Prediction's counters (predict.mjs) and its window.
     stats() {
         const p = this.pred;
-        const s = { enabled: this.enabled, available: this.available, reason: this.reason, active: !!p };
+        const s = { enabled: this.enabled, available: this.available, reason: this.reason, active: !!p, cost: { ...this.cost } };
         if (!p) return s;
         const { x, y, w, h } = p.mirror;
         return { ...s, window: { x, y, w, h }, pending: p.pending.length, predicted: p.predicted, reconciled: p.reconciled,

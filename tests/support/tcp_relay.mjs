@@ -3,6 +3,7 @@
 // and forwards them delayMs after they arrived (an RTT of 2 * delayMs on loopback, for
 // make bench); hold('down', true) keeps every byte from the server until hold('down', false)
 // (the test's way to show what the page draws before the server's answer has arrived).
+// bytes.up / bytes.down count what each direction carried (make bench's bytes per second).
 import net from 'node:net';
 
 export function startRelay(targetPort, { delayMs = 0, host = '127.0.0.1' } = {}) {
@@ -38,6 +39,7 @@ export function startRelay(targetPort, { delayMs = 0, host = '127.0.0.1' } = {})
             if (queue.length && !held[dir]) timer = setTimeout(pump, Math.max(0, queue[0].at - now));
         };
         src.on('data', (data) => {
+            relay.bytes[dir] += data.length;
             queue.push({ at: Date.now() + relay.delayMs, data });
             if (!timer) pump();
         });
@@ -48,6 +50,7 @@ export function startRelay(targetPort, { delayMs = 0, host = '127.0.0.1' } = {})
     const relay = {
         delayMs,
         port: 0,
+        bytes: { up: 0, down: 0 },
         hold(dir, on) {
             held[dir] = !!on;
             if (!on) for (const p of pumps) p.kick();
