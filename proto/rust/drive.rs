@@ -87,7 +87,6 @@ struct ColliderDesc {
     half_extents: [c_double; 3],
     material: *const c_char,
     no_feedback: c_int,
-    load_n: c_double,
 }
 
 #[repr(C)]
@@ -252,7 +251,6 @@ fn main() {
         half_extents: [0.0; 3],
         material: std::ptr::null(),
         no_feedback: 0,
-        load_n: 0.0,
     };
     let mut ball = 0u32;
     c.check(unsafe { terrad_client_create_collider(c.0, sphere, &mut ball) }, "collider");
