@@ -64,7 +64,14 @@ export class Prediction {
         this.axisZ = new Map();
         this.acked = new Map(); // id -> [p, q] where the last acknowledged tick left it
         this.pending = []; // {seq, batch: Map id -> [p, q], predicted: Int32Array}
-        Object.assign(this, { predicted: 0, reconciled: 0, replayed: 0, exact: 0, skipped: 0, onTime: 0, lastDiffering: 0 });
+        // The counters, one assignment each so that tsc declares them for the TypeScript package.
+        this.predicted = 0; // pose batches ticked locally
+        this.reconciled = 0; // ACKs taken
+        this.replayed = 0; // ACKs whose replay was compared with the server's heights
+        this.exact = 0; // of those, with 0 cells differing
+        this.skipped = 0; // ACKs not compared (resyncing, a long gap)
+        this.onTime = 0; // ACKs whose batch's prediction already was the server's heights
+        this.lastDiffering = 0; // cells of the last comparison
         for (const [id, { shape, dims }] of own) this.addCollider(id, shape, dims);
     }
 

@@ -819,7 +819,9 @@ void client_set_error(terrad_client *c, const char *fmt, ...)
     va_end(ap);
 }
 
-int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out)
+/* load_n 0: the poses' heights (terrad_client_create_collider) */
+static int create_collider(terrad_client *c, terrad_collider_desc d, double load_n,
+                           uint32_t *id_out)
 {
     cJSON *m = cJSON_CreateObject();
     if (!m)
@@ -865,8 +867,8 @@ int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint
     }
     cJSON_AddStringToObject(m, "material", d.material ? d.material : "default");
     cJSON_AddBoolToObject(m, "feedback", !d.no_feedback);
-    if (d.load_n != 0.0) /* the server judges it (and names load_n when it refuses) */
-        cJSON_AddNumberToObject(m, "load_n", d.load_n);
+    if (load_n != 0.0) /* the server judges it (and names load_n when it refuses) */
+        cJSON_AddNumberToObject(m, "load_n", load_n);
     int64_t id = 0;
     int rc = request(c, m, &id);
     if (rc == 0) {
@@ -877,6 +879,17 @@ int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint
         remember_own(c, (uint32_t)id, &d);
     }
     return rc;
+}
+
+int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out)
+{
+    return create_collider(c, d, 0.0, id_out);
+}
+
+int terrad_client_create_loaded_collider(terrad_client *c, terrad_collider_desc d, double load_n,
+                                         uint32_t *id_out)
+{
+    return create_collider(c, d, load_n, id_out);
 }
 
 int terrad_client_delete_collider(terrad_client *c, uint32_t id)

@@ -146,10 +146,6 @@ typedef struct terrad_collider_desc {
     double half_extents[3];
     const char *material; /* NULL: "default" */
     int no_feedback;      /* 1: no CONTACT entries for it (zero: feedback on) */
-    /* > 0: load-driven (bekker worlds, PROTOCOL.md "Load-driven colliders"):
-     * the vertical load in newtons; the server sets the height that carries
-     * it every tick and reports it in FORCES. 0: the poses' heights. */
-    double load_n;
 } terrad_collider_desc;
 
 /* Connects, sends hello and waits for the world message. NULL on failure,
@@ -164,6 +160,16 @@ const char *terrad_client_last_error(const terrad_client *c);
 int terrad_client_is_open(const terrad_client *c);
 
 int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out);
+/* A load-driven collider (bekker worlds, PROTOCOL.md "Load-driven
+ * colliders"): load_n is the vertical load in newtons; the server sets the
+ * height that carries it every tick and reports it in FORCES (the poses'
+ * heights are ignored). A call of its own rather than a field of
+ * terrad_collider_desc, which is passed by value and so is part of
+ * libterrad-client.so.1's ABI (a program or a C# P/Invoke struct built
+ * against the first layout would pass a shorter struct). The server judges
+ * load_n and names it when it refuses (NaN, <= 0, a world without soil). */
+int terrad_client_create_loaded_collider(terrad_client *c, terrad_collider_desc d, double load_n,
+                                         uint32_t *id_out);
 int terrad_client_delete_collider(terrad_client *c, uint32_t id);
 /* Sends one POSE_BATCH (the next sequence number, returned in *seq_out)
  * and pushes it to the socket without waiting for anything. count 0 asks

@@ -3,8 +3,9 @@
 # The TypeScript package clients/js (terrad-client): `npm pack` makes its tarball (prepack runs
 # tsc: web/'s codec, twin loader and prediction compiled in with the client, .d.ts for all), a
 # fresh directory installs it, a TypeScript application is type-checked against its declarations
-# (clients/js/test/consumer.ts), and clients/js/test/*.test.mjs run against the real daemon with
-# the installed package under node's test runner. Skips (77) without node or
+# (clients/js/test/consumer.ts), the Node example (clients/js/examples/drive_wheel.ts) is compiled
+# against it, and clients/js/test/*.test.mjs run against the real daemon with the installed
+# package under node's test runner (example.test.mjs runs the example). Skips (77) without node or
 # node_modules/typescript (make web-deps).
 set -uo pipefail
 src="${TERRAD_SOURCE_DIR:-$(cd "$(dirname "$0")/../.." && pwd)}"
@@ -24,5 +25,11 @@ cp "$src/clients/js/test/consumer.ts" .
 printf '{"compilerOptions":{"target":"ES2022","module":"NodeNext","moduleResolution":"NodeNext","lib":["ES2022","DOM"],"strict":true,"noEmit":true,"skipLibCheck":false},"files":["consumer.ts"]}\n' > tsconfig.json
 node "$src/node_modules/typescript/bin/tsc" -p tsconfig.json
 echo "consumer.ts type-checks against the installed declarations"
+# The package's Node example, as the tarball ships it, compiled against the installed package
+# as its header says; clients/js/test/example.test.mjs runs the result against a daemon.
+cp node_modules/terrad-client/examples/drive_wheel.ts .
+printf '{"compilerOptions":{"target":"ES2022","module":"NodeNext","moduleResolution":"NodeNext","lib":["ES2022","DOM"],"strict":true,"outDir":"."},"files":["drive_wheel.ts"]}\n' > tsconfig.example.json
+node "$src/node_modules/typescript/bin/tsc" -p tsconfig.example.json
+echo "examples/drive_wheel.ts compiles against the installed package"
 cd "$src"
 TERRAD_CLIENT_DIR="$tmp/app" node --experimental-websocket --no-warnings --test --test-reporter=spec clients/js/test/

@@ -82,6 +82,14 @@ int main(int argc, char **argv)
         if (terrad_client_delete_collider(c, id) != 0)
             return fail(c, "delete");
         printf("collider %u created and deleted\n", id);
+        /* a load-driven collider in a world without soil: refused, naming load_n */
+        rc = terrad_client_create_loaded_collider(
+            c, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2},
+            80.0, &id);
+        if (rc == 0 || !strstr(terrad_client_last_error(c), "load_n"))
+            return fail(
+                c, "loaded collider on a world without soil (expected a refusal naming load_n)");
+        printf("loaded collider refused: %s\n", terrad_client_last_error(c));
     }
     terrad_client_close(c);
     printf("ok\n");
