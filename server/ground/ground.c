@@ -23,11 +23,32 @@
  *  - mud's compression and both max_compaction values, the snow repose
  *    angle and the densities are terrad's choices (no source gives them).
  */
+/* (no soil: an entry takes the scene's unless it has its own "soil") */
 static const ground_material presets[] = {
-    {"snow", 0.9, 0.5, 35.0, 0.30, 300.0},
-    {"sand", 0.0, 1.0, 45.0, 0.0, 1600.0},
-    {"mud", 0.5, 0.25, 72.0, 0.10, 1800.0},
-    {"pebbles", 0.0, 0.9, 60.0, 0.0, 1700.0},
+    {.name = "snow",
+     .compression = 0.9,
+     .roughness = 0.5,
+     .repose_deg = 35.0,
+     .max_compaction_m = 0.30,
+     .density_kg_m3 = 300.0},
+    {.name = "sand",
+     .compression = 0.0,
+     .roughness = 1.0,
+     .repose_deg = 45.0,
+     .max_compaction_m = 0.0,
+     .density_kg_m3 = 1600.0},
+    {.name = "mud",
+     .compression = 0.5,
+     .roughness = 0.25,
+     .repose_deg = 72.0,
+     .max_compaction_m = 0.10,
+     .density_kg_m3 = 1800.0},
+    {.name = "pebbles",
+     .compression = 0.0,
+     .roughness = 0.9,
+     .repose_deg = 60.0,
+     .max_compaction_m = 0.0,
+     .density_kg_m3 = 1700.0},
 };
 
 int ground_material_preset(const char *name, ground_material *out)
@@ -182,9 +203,11 @@ int ground_finish(ground *g, error_text *err)
     g->table.count = g->material_count;
     g->uniform = g->material_count == 1;
     g->uses_compaction = 0;
-    for (int i = 0; i < g->material_count; i++)
+    for (int i = 0; i < g->material_count; i++) {
+        g->table.soils[i] = g->materials[i].soil;
         if (g->table.rows[i].max_compaction > 0)
             g->uses_compaction = 1;
+    }
     if (g->uses_compaction) {
         g->compaction_tiles = calloc((size_t)g->tiles_x * g->tiles_y, sizeof *g->compaction_tiles);
         if (!g->compaction_tiles) {
@@ -203,10 +226,19 @@ int ground_init_uniform(ground *g, ground_extent w, const ground_material *base,
     m->compression = base->compression;
     m->roughness = base->roughness;
     m->repose_deg = base->repose_deg;
+    m->soil = base->soil;
     g->material_count = 1;
     if (ground_row_checked(g, m, "material", &g->table.rows[0], err) != 0)
         return -1;
     return ground_finish(g, err);
+}
+
+void ground_set_soil(ground *g, int index, const ground_soil *soil)
+{
+    if (index < 0 || index >= g->material_count)
+        return;
+    g->materials[index].soil = *soil;
+    g->table.soils[index] = *soil;
 }
 
 void ground_free(ground *g)

@@ -37,6 +37,28 @@
  * must fit (6.5 m at the default 10,000 units per metre). */
 #define GROUND_COMPACTION_MAX 65535
 
+/*
+ * A soil's terramechanics parameters (the bekker model, docs/models.md), in
+ * SI units as Wong's tables and Chrono's SCM give them: Bekker's
+ * p = (kc/b + kphi) z^n, Mohr-Coulomb's c and phi with Janosi-Hanamoto's K,
+ * the elastic unloading/reloading stiffness and a damping. The share of a
+ * plastic sinkage that compacts (rather than being pushed aside) is the
+ * material's `compression`. Defined here so each material of the table can
+ * carry its own (the sim names it sim_soil; its presets and ranges are the
+ * sim's, sim_soil.c, and the scene reads and checks each entry's).
+ */
+typedef struct ground_soil {
+    double n;              /* sinkage exponent, (0, 3] */
+    double kc;             /* N/m^(n+1), >= 0 */
+    double kphi;           /* N/m^(n+2), > 0 */
+    double cohesion_pa;    /* c, >= 0 */
+    double friction_deg;   /* phi, [0, 60] */
+    double shear_k_m;      /* Janosi-Hanamoto K, > 0 */
+    double elastic_pa_m;   /* unloading/reloading stiffness, > 0 */
+    double damping_pa_s_m; /* pressure per m/s of sinking, >= 0 */
+    double slip_n;         /* slip-sinkage: n grows by slip_n x the cell's slip ratio, [0, 2] */
+} ground_soil;
+
 typedef struct ground_material {
     char name[GROUND_NAME_MAX];
     double compression;      /* [0, 1] share of the yielded depth compacted away */
@@ -44,6 +66,7 @@ typedef struct ground_material {
     double repose_deg;       /* [0, 90) */
     double max_compaction_m; /* [0, ...] how far a column can be compacted in all; 0: no memory */
     double density_kg_m3;    /* informative (docs, clients); not used by the stages */
+    ground_soil soil;        /* bekker: the base's unless the entry has "soil" (the scene's) */
 } ground_material;
 
 /* Presets: "snow", "sand", "mud", "pebbles" (numbers and sources in
@@ -66,6 +89,9 @@ typedef struct ground_material_row {
 typedef struct ground_material_table {
     int count; /* 1..GROUND_MATERIALS_MAX */
     ground_material_row rows[GROUND_MATERIALS_MAX];
+    /* bekker: each material's soil, read per contact cell (model_bekker.c);
+     * no GPU stage reads it */
+    ground_soil soils[GROUND_MATERIALS_MAX];
 } ground_material_table;
 
 /* A non-negative length in units, saturated at 2^30 (any larger threshold
@@ -139,7 +165,10 @@ int ground_init_uniform(ground *g, ground_extent x, const ground_material *base,
  * {"material": "name", "rect": [x0, y0, x1, y1]} | {"material": "name",
  * "circle": [cx, cy, r]}, ...]} (metres), either may be NULL (then one
  * material, `base`). `base` gives what an entry does not override
- * (compression, roughness, repose). Errors name the field, e.g.
+ * (compression, roughness, repose, soil). An entry's "soil" is accepted
+ * but not read here: its presets and ranges are the sim's, so the scene
+ * reads it (scene_material.c) and sets it with ground_set_soil. Errors name
+ * the field, e.g.
  * "materials.snow.roughness: must be a number in [0, 1] (got 2)".
  * The JSON values are cJSON pointers, passed as void to keep cJSON out of
  * this header.
@@ -147,6 +176,10 @@ int ground_init_uniform(ground *g, ground_extent x, const ground_material *base,
 int ground_init_json(ground *g, ground_extent x, const ground_material *base, const void *materials,
                      const void *map, error_text *err);
 void ground_free(ground *g);
+
+/* Material `index`'s soil (the scene's reading of its entry's "soil",
+ * already checked by the sim's rules); an index out of the table is ignored. */
+void ground_set_soil(ground *g, int index, const ground_soil *soil);
 
 /* Index of a material by name, or -1. */
 int ground_material_index(const ground *g, const char *name);

@@ -39,9 +39,9 @@ static int parse_material_entry(ground *g, const ground_material *base, const cJ
         error_set(err, "%s: must be an object", path);
         return -1;
     }
-    static const char *const keys[] = {"preset",     "compression",      "roughness",
-                                       "repose_deg", "max_compaction_m", "density_kg_m3",
-                                       NULL};
+    static const char *const keys[] = {
+        "preset",           "compression",   "roughness", "repose_deg",
+        "max_compaction_m", "density_kg_m3", "soil",      NULL};
     for (const cJSON *k = entry->child; k; k = k->next) {
         int known = 0;
         for (int i = 0; keys[i]; i++)
@@ -49,7 +49,7 @@ static int parse_material_entry(ground *g, const ground_material *base, const cJ
         if (!known) {
             error_set(err,
                       "%s.%s: unknown key (allowed: preset, compression, roughness, "
-                      "repose_deg, max_compaction_m, density_kg_m3)",
+                      "repose_deg, max_compaction_m, density_kg_m3, soil)",
                       path, k->string);
             return -1;
         }
@@ -67,6 +67,7 @@ static int parse_material_entry(ground *g, const ground_material *base, const cJ
         }
     }
     snprintf(m->name, sizeof m->name, "%s", entry->string);
+    m->soil = base->soil; /* an entry's own "soil" is the scene's to read */
     if (read_number(entry, path, "compression", 0, 1, 0, &m->compression, err) ||
         read_number(entry, path, "roughness", 0, 1, 0, &m->roughness, err) ||
         read_number(entry, path, "repose_deg", 0, 90, 1, &m->repose_deg, err) ||

@@ -241,6 +241,26 @@ static const char *const top_keys[] = {
     "tick_hz", "active_margin_cells", "colliders", "materials", "material_map",
     NULL};
 
+/* Each "materials" entry's own "soil" (the bekker model's), over the
+ * scene's: the ground keeps it but leaves its rules to the sim. */
+static int ground_soils(const scene *s, const cJSON *materials, ground *g, error_text *err)
+{
+    int index = 0;
+    for (const cJSON *e = materials ? materials->child : NULL; e; e = e->next, index++) {
+        const cJSON *o = cJSON_GetObjectItemCaseSensitive(e, "soil");
+        if (!o)
+            continue;
+        char path[GROUND_NAME_MAX + 24], parent[GROUND_NAME_MAX + 16];
+        snprintf(path, sizeof path, "materials.%s.soil", e->string);
+        snprintf(parent, sizeof parent, "materials.%s", e->string);
+        sim_soil soil = s->material.soil;
+        if (scene_parse_soil(o, path, parent, &soil, err) != 0)
+            return -1;
+        ground_set_soil(g, index, &soil);
+    }
+    return 0;
+}
+
 /* Build the ground from JSON text {"materials", "material_map"}. */
 static int ground_from_json_text(const scene *s, const char *text, ground *g, error_text *err)
 {
@@ -251,8 +271,13 @@ static int ground_from_json_text(const scene *s, const char *text, ground *g, er
     }
     ground_extent x = {s->width, s->height, s->cell_size_m, s->units_per_m, s->floor_units};
     ground_material base = sim_material_ground(&s->material);
-    int rc = ground_init_json(g, x, &base, cJSON_GetObjectItemCaseSensitive(root, "materials"),
+    const cJSON *materials = cJSON_GetObjectItemCaseSensitive(root, "materials");
+    int rc = ground_init_json(g, x, &base, materials,
                               cJSON_GetObjectItemCaseSensitive(root, "material_map"), err);
+    if (rc == 0 && ground_soils(s, materials, g, err) != 0) {
+        ground_free(g);
+        rc = -1;
+    }
     cJSON_Delete(root);
     return rc;
 }

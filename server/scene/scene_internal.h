@@ -27,6 +27,10 @@ int scene_resolve_path(const char *base_dir, const char *rel, char *out, size_t 
                        const char *field, error_text *err);
 /* "material": the sim's material, checked by the sim's own conversion. */
 int scene_parse_material(const cJSON *root, scene *s, error_text *err);
+/* A "soil" object at `path` (inside `parent`) over *soil: a preset first,
+ * then each number, then the sim's ranges (errors name "<path>.<field>"). */
+int scene_parse_soil(const cJSON *s, const char *path, const char *parent, sim_soil *soil,
+                     error_text *err);
 /* "colliders": shapes, meshes and scripted motion. */
 int scene_parse_colliders(const cJSON *root, const scene_parser *ps, scene *s, error_text *err);
 

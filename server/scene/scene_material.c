@@ -48,38 +48,40 @@ static const char *const soil_keys[] = {"preset",
                                         "slip_n",
                                         NULL};
 
-/* "soil": the bekker model's terramechanics parameters — a preset first (the
- * soils of docs/models.md), then each number overrides it. Ranges are
- * sim_soil_validate's, so the message names the field and the range. */
-static int material_soil(const cJSON *o, sim_material *m, error_text *err)
+int scene_parse_soil(const cJSON *s, const char *path, const char *parent, sim_soil *soil,
+                     error_text *err)
 {
-    const char *P = "material.soil";
-    const cJSON *s = cJSON_GetObjectItemCaseSensitive(o, "soil");
-    if (!s)
-        return 0;
-    if (json_expect_object(s, P, "material", err) || json_check_keys(s, P, soil_keys, NULL, err))
+    if (json_expect_object(s, path, parent, err) || json_check_keys(s, path, soil_keys, NULL, err))
         return -1;
     char preset[32];
     int r;
-    if ((r = json_get_string(s, P, "preset", preset, sizeof preset, err)) < 0)
+    if ((r = json_get_string(s, path, "preset", preset, sizeof preset, err)) < 0)
         return -1;
-    if (r && sim_soil_preset(preset, &m->soil) != 0) {
-        error_set(err, "material.soil.preset: must be one of " SIM_SOIL_PRESET_LIST " (got \"%s\")",
+    if (r && sim_soil_preset(preset, soil) != 0) {
+        error_set(err, "%s.preset: must be one of " SIM_SOIL_PRESET_LIST " (got \"%s\")", path,
                   preset);
         return -1;
     }
     /* any finite number here; the soil's own check states the range */
-    if (json_get_number(s, P, "n", -1e308, 1e308, &m->soil.n, err) < 0 ||
-        json_get_number(s, P, "kc", -1e308, 1e308, &m->soil.kc, err) < 0 ||
-        json_get_number(s, P, "kphi", -1e308, 1e308, &m->soil.kphi, err) < 0 ||
-        json_get_number(s, P, "cohesion_pa", -1e308, 1e308, &m->soil.cohesion_pa, err) < 0 ||
-        json_get_number(s, P, "friction_deg", -1e308, 1e308, &m->soil.friction_deg, err) < 0 ||
-        json_get_number(s, P, "shear_k_m", -1e308, 1e308, &m->soil.shear_k_m, err) < 0 ||
-        json_get_number(s, P, "elastic_pa_m", -1e308, 1e308, &m->soil.elastic_pa_m, err) < 0 ||
-        json_get_number(s, P, "damping_pa_s_m", -1e308, 1e308, &m->soil.damping_pa_s_m, err) < 0 ||
-        json_get_number(s, P, "slip_n", -1e308, 1e308, &m->soil.slip_n, err) < 0)
+    if (json_get_number(s, path, "n", -1e308, 1e308, &soil->n, err) < 0 ||
+        json_get_number(s, path, "kc", -1e308, 1e308, &soil->kc, err) < 0 ||
+        json_get_number(s, path, "kphi", -1e308, 1e308, &soil->kphi, err) < 0 ||
+        json_get_number(s, path, "cohesion_pa", -1e308, 1e308, &soil->cohesion_pa, err) < 0 ||
+        json_get_number(s, path, "friction_deg", -1e308, 1e308, &soil->friction_deg, err) < 0 ||
+        json_get_number(s, path, "shear_k_m", -1e308, 1e308, &soil->shear_k_m, err) < 0 ||
+        json_get_number(s, path, "elastic_pa_m", -1e308, 1e308, &soil->elastic_pa_m, err) < 0 ||
+        json_get_number(s, path, "damping_pa_s_m", -1e308, 1e308, &soil->damping_pa_s_m, err) < 0 ||
+        json_get_number(s, path, "slip_n", -1e308, 1e308, &soil->slip_n, err) < 0)
         return -1;
-    return sim_soil_validate(&m->soil, P, err);
+    return sim_soil_validate(soil, path, err);
+}
+
+/* "soil": the bekker model's terramechanics parameters — a preset first (the
+ * soils of docs/models.md), then each number overrides it. */
+static int material_soil(const cJSON *o, sim_material *m, error_text *err)
+{
+    const cJSON *s = cJSON_GetObjectItemCaseSensitive(o, "soil");
+    return s ? scene_parse_soil(s, "material.soil", "material", &m->soil, err) : 0;
 }
 
 /* The numbers every model shares: compression, roughness, repose, the

@@ -34,6 +34,10 @@
  *      which goes through Sumner's first-ring spread and the slope evening
  *      (sim_sumner_settle), so Σh + Σcompacted is exact.
  *
+ * With a scene's `materials` table, steps 3 and 4 read each cell's own row:
+ * its material's soil (ground_material_table.soils: the scene's unless the
+ * entry has "soil") and compression; the patch width b stays the patch's.
+ *
  * Forces are summed over cells in row-major order into one contact per
  * collider of the window; the engine adds windows in plan order. Every
  * per-cell quantity is computed from that cell's inputs alone, so the sums
@@ -209,11 +213,11 @@ typedef struct bekker_cell {
 } bekker_cell;
 
 /* 3: SCM's node rule for one cell (state updated in place). */
-static bekker_cell bekker_cell_step(const sim_params *p, int32_t height, int32_t bottom,
-                                    double width_m, double sink_speed, double slip_step_m,
-                                    double slip_ratio, double shear_share, int32_t *state)
+static bekker_cell bekker_cell_step(const sim_params *p, const sim_soil *s, int32_t height,
+                                    int32_t bottom, double width_m, double sink_speed,
+                                    double slip_step_m, double slip_ratio, double shear_share,
+                                    int32_t *state)
 {
-    const sim_soil *s = &p->soil;
     sim_soil slipping = *s;
     slipping.n += s->slip_n * slip_ratio;
     double upm = (double)p->units_per_m;
@@ -361,7 +365,7 @@ static void bekker_arcs(const sim_window_job *job, const int32_t *bottom, const 
  * does not travel, so the plate checks do not move; the normal force and
  * the plastic state are the cell's own, so only forces change, not heights.
  */
-static double bekker_shear_share(const sim_params *p, const sim_contact *c, vec3d normal, double t1,
+static double bekker_shear_share(const sim_soil *s, const sim_contact *c, vec3d normal, double t1,
                                  double t2, double slip)
 {
     if (!(t1 > 0.0) || !(slip > 0.0))
@@ -373,7 +377,7 @@ static double bekker_shear_share(const sim_params *p, const sim_contact *c, vec3
     double a = cos(te) - cos(t1), b = cos(t) - cos(t1);
     if (!(a > 0.0) || !(b > 0.0))
         return 0.0;
-    double f = pow(a / b, p->soil.n);
+    double f = pow(a / b, s->n);
     return f < 1.0 ? f : 1.0;
 }
 
@@ -423,15 +427,20 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int j, int sl
             bekker_point_motion(c, centre, at, normal, &sink_speed, &slip);
             double u = sqrt(v3_dot(slip, slip)), slip_step = u * p->tick_s / slices;
             double ratio = bekker_slip_ratio(c, normal, u);
-            double share = bekker_shear_share(p, c, normal, entry[label[i]], rear[label[i]], ratio);
-            bekker_cell r = bekker_cell_step(p, heights[i], bottom[i], width[label[i]], sink_speed,
-                                             slip_step, ratio, share, state);
+            int id = job->material_ids ? job->material_ids[i] : 0;
+            const sim_soil *soil = job->materials ? &job->materials->soils[id] : &p->soil;
+            int32_t compression_q16 =
+                job->materials ? job->materials->rows[id].compression_q16 : p->compression_q16;
+            double share =
+                bekker_shear_share(soil, c, normal, entry[label[i]], rear[label[i]], ratio);
+            bekker_cell r = bekker_cell_step(p, soil, heights[i], bottom[i], width[label[i]],
+                                             sink_speed, slip_step, ratio, share, state);
             bekker_contact_add(c, at, centre, normal, slip, &r, area);
             if (tmp[label[i]] > c->patch_cells) { /* tmp: the patches' cell counts */
                 c->patch_cells = tmp[label[i]];
                 c->patch_width_m = width[label[i]];
             }
-            int64_t compacted = ((int64_t)r.raw * p->compression_q16) >> 16;
+            int64_t compacted = ((int64_t)r.raw * compression_q16) >> 16;
             if ((int64_t)state[SIM_SOIL_COMPACTED] + compacted > INT32_MAX)
                 compacted = 0; /* the memory is full: displace it all, Σ stays exact */
             state[SIM_SOIL_COMPACTED] += (int32_t)compacted;

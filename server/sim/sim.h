@@ -78,25 +78,9 @@ typedef enum sim_model {
  * each substep is at the stability bound and the tick is saturated. */
 #define SIM_DIFFUSION_SUBSTEPS_MAX 64
 
-/*
- * A soil's terramechanics parameters (the bekker model, docs/models.md), in
- * SI units as Wong's tables and Chrono's SCM give them: Bekker's
- * p = (kc/b + kphi) z^n, Mohr-Coulomb's c and phi with Janosi-Hanamoto's K,
- * the elastic unloading/reloading stiffness and a damping. The share of a
- * plastic sinkage that compacts (rather than being pushed aside) is the
- * material's `compression`.
- */
-typedef struct sim_soil {
-    double n;              /* sinkage exponent, (0, 3] */
-    double kc;             /* N/m^(n+1), >= 0 */
-    double kphi;           /* N/m^(n+2), > 0 */
-    double cohesion_pa;    /* c, >= 0 */
-    double friction_deg;   /* phi, [0, 60] */
-    double shear_k_m;      /* Janosi-Hanamoto K, > 0 */
-    double elastic_pa_m;   /* unloading/reloading stiffness, > 0 */
-    double damping_pa_s_m; /* pressure per m/s of sinking, >= 0 */
-    double slip_n;         /* slip-sinkage: n grows by slip_n x the cell's slip ratio, [0, 2] */
-} sim_soil;
+/* A soil's terramechanics parameters (the bekker model, docs/models.md):
+ * ground.h's ground_soil, so each material of the ground's table carries one. */
+typedef ground_soil sim_soil;
 
 /* Soils of docs/models.md's table (Wong; Ding et al. 2011): "dry-sand",
  * "sandy-loam", "clayey-soil", "heavy-clay", "lete-sand", "snow-us",

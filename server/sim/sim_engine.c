@@ -159,10 +159,13 @@ void sim_engine_destroy(sim_engine *e)
 void sim_engine_set_ground(sim_engine *e, ground *g)
 {
     /* The uniform path only when it computes the same: one material whose
-     * row is the params' own and no compaction memory. */
+     * row is the params' own (and, for bekker, whose soil is), and no
+     * compaction memory. */
     ground_material_row own = sim_material_row_from_params(&e->params, 0);
-    int same =
-        g && g->uniform && !g->uses_compaction && memcmp(&g->table.rows[0], &own, sizeof own) == 0;
+    int same = g && g->uniform && !g->uses_compaction &&
+               memcmp(&g->table.rows[0], &own, sizeof own) == 0 &&
+               (e->params.model != SIM_MODEL_BEKKER ||
+                memcmp(&g->table.soils[0], &e->params.soil, sizeof e->params.soil) == 0);
     e->ground = g && !same ? g : NULL;
 }
 

@@ -136,7 +136,7 @@ static int in_range(double v, double lo, double hi)
 
 ground_material sim_material_ground(const sim_material *m)
 {
-    ground_material g = {"default", m->compression, m->roughness, m->repose_deg, 0.0, 0.0};
+    ground_material g = {"default", m->compression, m->roughness, m->repose_deg, 0.0, 0.0, m->soil};
     return g;
 }
 
