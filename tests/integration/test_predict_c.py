@@ -27,7 +27,7 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, skip, twin_config  # noqa: E402
+from service_harness import Checks, Daemon, read_mirror, skip, twin_config, twin_config_text  # noqa: E402
 
 DRIVE = os.environ.get("TERRAD_C_PREDICT_DRIVE", "")
 TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
@@ -45,17 +45,6 @@ def drive(args):
     r = subprocess.run([DRIVE, *map(str, args)], capture_output=True, text=True, timeout=240)
     print(r.stdout + r.stderr, flush=True)
     return r.returncode == 0 and " 0 failed" in r.stdout
-
-
-def read_heights(path, n):
-    with open(path, "rb") as f:
-        data = f.read()
-    return list(struct.unpack(f"<{n}i", data)) if len(data) == 4 * n else None
-
-
-def config_text(cfg):
-    """The twin keys as terrad_client_predict's "key=value" pairs."""
-    return " ".join(f"{k}={v!r}" if isinstance(v, float) else f"{k}={v}" for k, v in cfg.items())
 
 
 def post_world(d, body):
@@ -77,9 +66,9 @@ def main():
         check(cfg.get("model") and cfg.get("width") == 256, f"the scene's twin config ({cfg})")
         out = os.path.join(tmp, "mirror.raw")
         with check.running(Daemon(extra=["--scene", path])) as d:
-            ok = drive(["predict", d.ws_port, *REGION, config_text(cfg), out])
+            ok = drive(["predict", d.ws_port, *REGION, twin_config_text(cfg), out])
             check(ok, "c_predict_drive predict: every check passed")
-            mirror = read_heights(out, REGION[2] * REGION[3]) if ok else None
+            mirror = read_mirror(out, REGION[2] * REGION[3]) if ok else None
             _, http = d.heights(*REGION)
             check(mirror is not None and mirror == http,
                   "the C client's mirror (its prediction's at the end) equals GET /v1/heights")
@@ -91,7 +80,7 @@ def main():
             out_w = os.path.join(tmp, "world.raw")
             ok = drive(["world", d.ws_port, WORLD["name"], w, h, out_w])
             check(ok, "c_predict_drive world: every check passed")
-            mirror = read_heights(out_w, w * h) if ok else None
+            mirror = read_mirror(out_w, w * h) if ok else None
             status, body, _ = d.get(f"/v1/heights?x=0&y=0&w={w}&h={h}&world={WORLD['name']}")
             http = list(struct.unpack(f"<{w * h}i", body)) if status == 200 and len(body) == 4 * w * h else None
             check(mirror is not None and mirror == http,

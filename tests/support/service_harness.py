@@ -133,6 +133,53 @@ def skip(why):
     sys.exit(77)
 
 
+def twin_config_text(cfg):
+    """The twin keys as terrad_client_predict's "key=value" pairs (what the C library's
+    prediction takes, so also the C#, Go and Rust examples built on it)."""
+    return " ".join(f"{k}={v!r}" if isinstance(v, float) else f"{k}={v}" for k, v in cfg.items())
+
+
+def read_mirror(path, n):
+    """n little-endian int32 heights a client wrote to path, or None (missing or short)."""
+    data = open(path, "rb").read() if os.path.exists(path) else b""
+    return list(struct.unpack(f"<{n}i", data)) if len(data) == 4 * n else None
+
+
+FFI_REGION = (64, 80, 128, 64)  # x, y, w, h cells: the window the language examples predict
+
+
+def require_client_library():
+    """Skips (77) unless twin_trace and libterrad-client.so are built; returns the library's
+    directory (the build tree)."""
+    libdir = os.path.dirname(BIN)
+    if not (os.access(os.environ.get("TERRAD_TWIN_TRACE", ""), os.X_OK)
+            and os.path.exists(os.path.join(libdir, "libterrad-client.so"))):
+        skip("twin_trace / libterrad-client.so not built")
+    return libdir
+
+
+def drive_ffi_example(check, tmp, name, command, passed, what, env=None):
+    """The one run of a language's example over libterrad-client (test_csharp_client,
+    test_go_example, test_rust_example): serves a flat 256² scene of default material, runs
+    command + [ws port, x, y, w, h, twin config, mirror file] (it says hello, predicts
+    FFI_REGION, drives through it and writes its mirror), checks passed(stdout) and that the
+    mirror equals GET /v1/heights."""
+    path = os.path.join(tmp, "scene.json")
+    with open(path, "w") as f:
+        json.dump({"name": name, "world": {"width": 256, "height": 256, "cell_size_m": 0.05},
+                   "terrain": {"kind": "flat", "height_m": 0.4}, "colliders": []}, f)
+    cfg = twin_config(path)
+    out = os.path.join(tmp, "mirror.raw")
+    with check.running(Daemon(extra=["--scene", path])) as d:
+        r = subprocess.run([*command, str(d.ws_port), *map(str, FFI_REGION), twin_config_text(cfg),
+                            out], capture_output=True, text=True, timeout=180, env=env)
+        print(r.stdout + r.stderr, flush=True)
+        check(r.returncode == 0 and passed(r.stdout), f"the {what}: every check passed")
+        mirror = read_mirror(out, FFI_REGION[2] * FFI_REGION[3])
+        _, http = d.heights(*FFI_REGION)
+        check(mirror is not None and mirror == http, f"the {what}'s mirror equals GET /v1/heights")
+
+
 def export_heights(data, tick, out, region=None):
     """(heights, stderr) of `terrad export --format raw32` of data as of tick
     (0: the last), or (None, stderr) when it fails; out is the file it writes."""
