@@ -30,13 +30,11 @@ import os
 import subprocess
 import sys
 import tempfile
-import urllib.error
-import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import (BIN, SOURCE, Checks, EventWatcher, metric_value, skip,  # noqa: E402
+from service_harness import (BIN, SOURCE, Checks, EventWatcher, json_call, metric_value, skip,  # noqa: E402
                              tp)
 
 check = Checks()
@@ -49,17 +47,7 @@ def scene(name, w=64, h=48):
 
 def call(node, method, path, body=None, raw=None):
     """(status, JSON answer) of one request to node's HTTP port."""
-    data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
-    req = urllib.request.Request(node.http + path, data=data, method=method)
-    try:
-        with urllib.request.urlopen(req, timeout=120) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as e:
-        text = e.read()
-        try:
-            return e.code, json.loads(text or b"{}")
-        except ValueError:
-            return e.code, {"raw": text.decode(errors="replace")}
+    return json_call(node.http, method, path, body, raw=raw)
 
 
 def listed(node):

@@ -17,11 +17,9 @@ import subprocess
 import sys
 import tempfile
 import time
-import urllib.error
-import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import BIN, Checks, Daemon, metric_value  # noqa: E402
+from service_harness import BIN, Checks, Daemon, json_call, metric_value  # noqa: E402
 
 check = Checks()
 ADMIN = "admin-token-for-soil-materials"
@@ -37,14 +35,7 @@ def scene(firm_soil):
 
 
 def call(d, method, path, body=None):
-    data = None if body is None else json.dumps(body).encode()
-    req = urllib.request.Request(d.http + path, data=data, method=method)
-    req.add_header("Authorization", f"Bearer {ADMIN}")
-    try:
-        with urllib.request.urlopen(req, timeout=120) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as e:
-        return e.code, json.loads(e.read() or b"{}")
+    return json_call(d.http, method, path, body, token=ADMIN)
 
 
 def refused(d):

@@ -22,25 +22,16 @@ import sys
 import time
 import tempfile
 import threading
-import urllib.error
-import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, EventWatcher  # noqa: E402
+from service_harness import Checks, Daemon, EventWatcher, json_call  # noqa: E402
 
 check = Checks()
 ADMIN, VIEWER = "admin-token-for-events", "viewer-token-for-events"
 
 
 def call(d, method, path, body=None):
-    data = None if body is None else json.dumps(body).encode()
-    req = urllib.request.Request(d.http + path, data=data, method=method)
-    req.add_header("Authorization", f"Bearer {ADMIN}")
-    try:
-        with urllib.request.urlopen(req, timeout=120) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as e:
-        return e.code, json.loads(e.read() or b"{}")
+    return json_call(d.http, method, path, body, token=ADMIN)
 
 
 async def scenario(d):

@@ -28,11 +28,9 @@ import shutil
 import sys
 import tempfile
 import time
-import urllib.error
-import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import Checks, Daemon, metric_value, raw_hello, tp  # noqa: E402
+from service_harness import Checks, Daemon, metric_value, json_call, raw_hello, tp  # noqa: E402
 
 check = Checks()
 ADMIN, VIEWER = "admin-token-for-worlds", "viewer-token-for-worlds"
@@ -47,16 +45,7 @@ def scene(name, w=96, h=80):
 
 
 def call(d, method, path, body=None, token=ADMIN, raw=None):
-    """(status, JSON answer) of one request."""
-    data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
-    req = urllib.request.Request(d.http + path, data=data, method=method)
-    if token:
-        req.add_header("Authorization", f"Bearer {token}")
-    try:
-        with urllib.request.urlopen(req, timeout=120) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as e:
-        return e.code, json.loads(e.read() or b"{}")
+    return json_call(d.http, method, path, body, token=token, raw=raw)
 
 
 def names(d):

@@ -16,14 +16,11 @@ Behaviour only: every wait is for a condition, with a generous deadline.
 (Heights on the pool bit-identical to a world alone: tests/unit/test_ticker.c.)
 """
 import asyncio
-import json
 import os
 import sys
-import urllib.error
-import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import SOURCE, Checks, Daemon, tp  # noqa: E402
+from service_harness import SOURCE, Checks, Daemon, json_call, tp  # noqa: E402
 from waiting import wait_for  # noqa: E402
 
 check = Checks()
@@ -37,13 +34,7 @@ def scene(name):
 
 
 def call(d, method, path, body=None):
-    req = urllib.request.Request(d.http + path, method=method,
-                                 data=None if body is None else json.dumps(body).encode())
-    try:
-        with urllib.request.urlopen(req, timeout=120) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as e:
-        return e.code, json.loads(e.read() or b"{}")
+    return json_call(d.http, method, path, body)
 
 
 def ticks(d):

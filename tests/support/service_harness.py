@@ -133,6 +133,25 @@ def skip(why):
     sys.exit(77)
 
 
+def json_call(base, method, path, body=None, token=None, raw=None, timeout=120):
+    """(status, JSON answer) of one HTTP request to base (a daemon's or node's http URL): body
+    as JSON, or raw bytes as they are; token as "Authorization: Bearer". An error answer that
+    is not JSON comes back as {"raw": its text}."""
+    data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
+    req = urllib.request.Request(base + path, data=data, method=method)
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        text = e.read()
+        try:
+            return e.code, json.loads(text or b"{}")
+        except ValueError:
+            return e.code, {"raw": text.decode(errors="replace")}
+
+
 def twin_config_text(cfg):
     """The twin keys as terrad_client_predict's "key=value" pairs (what the C library's
     prediction takes, so also the C#, Go and Rust examples built on it)."""
