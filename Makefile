@@ -58,19 +58,17 @@ FUZZ_CC ?= clang
 TERRAD := ./$(BUILD)/terrad
 TEST_ENV := TERRAD_SOURCE_DIR=$(CURDIR) TERRAD_BIN=$(CURDIR)/$(BUILD)/terrad
 
-# Configure a build tree when it has no cache yet; `cmake --build` re-runs cmake by itself
-# afterwards whenever CMakeLists.txt or a globbed directory changes.
+# Configure a build tree every time: a cache must not decide what the machine has. Configuring
+# again costs a second or two and rebuilds nothing that did not change; it is what finds the
+# WebAssembly toolchain (and so builds build/terrad_twin.wasm, which the daemon embeds) when it
+# arrived after the tree was first configured, or drops it when it went away.
 # $(call configure,DIR,CC,EXTRA CMAKE ARGS)
-# A tree configured before scripts/deps --test brought the WebAssembly toolchain (make run, then
-# make test: the README's order) is configured again, so that it builds build/terrad_twin.wasm.
 define configure
 	@if [ ! -f $(1)/CMakeCache.txt ]; then \
 	    echo "configure: $(1) (CC=$(2))"; \
 	    CC=$(2) cmake -S . -B $(1) $(3); \
-	elif grep -q '^TERRAD_WASM_[A-Z]*:FILEPATH=.*NOTFOUND' $(1)/CMakeCache.txt && \
-	     command -v wasm-ld >/dev/null 2>&1; then \
-	    echo "configure: $(1) again (the WebAssembly toolchain is here now)"; \
-	    cmake -S . -B $(1) >/dev/null; \
+	else \
+	    cmake -S . -B $(1) $(3) >/dev/null; \
 	fi
 endef
 
