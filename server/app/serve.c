@@ -159,6 +159,7 @@ static int serve_start(serve_daemon *d, error_text *err)
     host_sim_config cfg = serve_host_config(&d->o);
     if (host_sim_start(m, &cfg, err) != 0)
         return -1;
+    host_clock_client_attach(m, NULL, NULL); /* before the net server: a step may come at once */
     net_config nc = {.port = d->o.ws_port,
                      .bind_any = d->o.bind_any,
                      .auth = d->auth,
@@ -197,12 +198,22 @@ static int serve_run_ticks(serve_daemon *d, error_text *err)
     double period_ms = 1000.0 / m->sc.tick_hz;
     double next_ms = time_now_ms();
     for (long tick = 0; !stop_requested && (d->o.max_ticks < 0 || tick < d->o.max_ticks); tick++) {
+        /* a client-clocked world: a tick when its driver's step owes one, never by time */
+        while (m->sc.client_clock && !stop_requested && !host_sim_wait_step(m, 100))
+            if (hangup_seen) {
+                hangup_seen = 0;
+                serve_security_reload(&d->o, d->auth);
+            }
+        if (stop_requested)
+            break;
         if (host_sim_step(m, tick, net_server_client_count(d->net), err) != 0)
             return -1;
         if (hangup_seen) {
             hangup_seen = 0;
             serve_security_reload(&d->o, d->auth);
         }
+        if (m->sc.client_clock)
+            continue;
         next_ms += period_ms;
         if (next_ms < time_now_ms())
             next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */

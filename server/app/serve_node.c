@@ -232,7 +232,9 @@ static void *world_main(void *arg)
         host_sim_config cfg = serve_host_config(n->o);
         if (!(m->h = hub_create()))
             error_set(&err, "out of memory");
-        else if (host_sim_start(m, &cfg, &err) == 0 && world_register(n, nw, &err) == 0 &&
+        else if (host_sim_start(m, &cfg, &err) == 0 &&
+                 host_clock_client_attach(m, n->ticker, &nw->job) == 0 &&
+                 world_register(n, nw, &err) == 0 &&
                  host_ticker_add(n->ticker, &nw->job, &err) == 0) {
             atomic_store(&nw->opened, 1);
             return NULL;

@@ -165,6 +165,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                                        "max_heights_bytes_in_flight",
                                        "max_edit_cells",
                                        "max_sweep_cells",
+                                       "max_step_ticks",
                                        NULL};
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
@@ -172,7 +173,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[19];
+    double v[20];
     for (int i = 0; keys[i]; i++) {
         int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
         if (r < 0)
@@ -234,8 +235,11 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
         case 17:
             m->max_edit_cells = (int64_t)v[i];
             break;
-        default:
+        case 18:
             m->max_sweep_cells = (int64_t)v[i];
+            break;
+        default:
+            m->max_step_ticks = v[i] > 1e9 ? 1000000000 : (int)v[i];
             break;
         }
     }

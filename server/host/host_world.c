@@ -96,8 +96,9 @@ int host_world_start(host_world *hw, char *why, size_t cap)
                              .ctx = hw};
         if (!(m->h = hub_create()))
             error_set(&err, "out of memory");
-        else if (host_sim_start(m, &hw->config, &err) == 0 && world_register(hw, &err) == 0 &&
-                 host_ticker_add(hw->ticker, &hw->job, &err) == 0)
+        else if (host_sim_start(m, &hw->config, &err) == 0 &&
+                 host_clock_client_attach(m, hw->ticker, &hw->job) == 0 &&
+                 world_register(hw, &err) == 0 && host_ticker_add(hw->ticker, &hw->job, &err) == 0)
             return 0;
     }
     snprintf(why, cap, "%s", err.message);

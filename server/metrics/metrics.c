@@ -366,6 +366,7 @@ void metrics_reset(void)
     pthread_once(&stage_once, stage_hist_init);
     metrics_auth_reset();
     metrics_edits_reset();
+    metrics_steps_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -780,6 +781,8 @@ char *metrics_render(size_t *len)
     if (metrics_auth_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_edits_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
+    if (metrics_steps_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);

@@ -51,6 +51,7 @@ net_limits net_limits_default(void)
         .max_connections_per_address = 256,
         .fd_reserve = 64,
         .max_edit_cells = WORLD_EDIT_MAX_CELLS_DEFAULT,
+        .max_step_ticks = 600, /* ten seconds of 60 Hz ticks in one STEP */
     };
 }
 
