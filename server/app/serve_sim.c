@@ -53,6 +53,7 @@ int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
     pthread_mutex_lock(&s->lock);
     s->volume = service_volume(m->svc);
     s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED); /* recovered, before a tick */
+    s->compacted = sim_world_compacted(&m->w);
     s->tick = service_current_tick(m->svc);
     pthread_mutex_unlock(&s->lock);
     return 0;
@@ -87,6 +88,7 @@ void serve_sim_status_init(serve_sim *m)
     snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);
     s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
+    s->compacted = sim_world_compacted(&m->w);
 }
 
 net_world_info serve_sim_world_info(const serve_sim *m)
@@ -119,6 +121,7 @@ static void publish_status(serve_sim *m, double tick_ms, int clients, int collid
     status->tick = service_current_tick(m->svc);
     status->volume = service_volume(m->svc);
     status->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
+    status->compacted = sim_world_compacted(&m->w);
     status->last_tick_ms = tick_ms;
     status->overruns = m->overruns;
     status->clients = clients;

@@ -44,6 +44,8 @@ void metrics_count_client_stale(void);
 void metrics_count_heights_refused(void);
 /* HTTP connections cut for sending no whole request within the header deadline (http) */
 void metrics_count_http_cut(uint64_t n);
+/* an HTTP request answered 400, the parameter named in the answer (http) */
+void metrics_count_http_bad_request(void);
 /* colliders left out of one tick by the tick's cell budget, max_tick_cells (service) */
 void metrics_count_tick_shed(uint64_t colliders);
 /* FOOTPRINTS frames (and their events) queued to clients; frames not sent to a slow client. */
