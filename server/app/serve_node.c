@@ -6,8 +6,8 @@
  * --max-worlds. Each world it takes is opened on a short-lived thread of
  * its own (world_main: recover the world from JetStream, start its engine
  * and service, add it to the HTTP and websocket servers), then handed to the
- * node's shared pool of sim workers (serve_ticker.c), which runs the same
- * serve_sim_step a single daemon runs at the world's rate until the node
+ * node's shared pool of sim workers (host_ticker.c), which runs the same
+ * host_sim_step a single daemon runs at the world's rate until the node
  * stops or the world is lost (a fenced commit, or another node holds its
  * lease). A lost world's end runs on a worker (world_end: its clients are
  * told and closed, it is freed), and the node goes on with its other worlds;
@@ -37,10 +37,10 @@
 typedef struct serve_node serve_node;
 
 typedef struct node_world {
-    serve_sim m;
+    host_sim m;
     serve_node *node;
     pthread_t thread;      /* opens the world, then ends (joined by reap_worlds) */
-    serve_tick_job job;    /* on the node's pool once opened */
+    host_job job;          /* on the node's pool once opened */
     atomic_int opened;     /* world → node: the job is on the pool */
     atomic_int done;       /* world → node: it has ended (freed by reap_worlds) */
     int joined;            /* its opening thread was joined */
@@ -60,7 +60,7 @@ struct serve_node {
     http_status status; /* the node's: /readyz */
     http_server *http;
     net_server *net;
-    serve_ticker *ticker; /* the sim workers every world of the node ticks on */
+    host_ticker *ticker;  /* the sim workers every world of the node ticks on */
     serve_relays *relays; /* the worlds other nodes tick, served here too */
     serve_node_api *api;  /* POST/GET /v1/worlds, DELETE /v1/worlds/NAME */
     char **registered;    /* the registry as last listed (node_list_worlds) */
@@ -124,8 +124,8 @@ static double net_stalled(const void *arg)
 /* The world joins the node's ports. */
 static int world_register(serve_node *n, node_world *nw, error_text *err)
 {
-    serve_sim *m = &nw->m;
-    net_world_info info = serve_sim_world_info(m);
+    host_sim *m = &nw->m;
+    net_world_info info = host_sim_world_info(m);
     if (http_server_add_world(n->http, m->name, &m->status, m->h, &m->w, err) != 0)
         return -1;
     if (net_server_add_world(n->net, &info, m->h, err) != 0) {
@@ -138,7 +138,7 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
         return -1;
     }
     m->metrics_slot = metrics_world_slot(m->name);
-    serve_sim_ready(m);
+    host_sim_ready(m);
     atomic_store(&nw->registered, 1);
     node_refresh_status(n);
     log_info("cluster: world %s: serving scene \"%s\" (%dx%d cells, %s backend, tick %llu) on "
@@ -154,7 +154,7 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
  * its clients are told and closed. */
 static void world_unregister(serve_node *n, node_world *nw)
 {
-    serve_sim *m = &nw->m;
+    host_sim *m = &nw->m;
     if (m->h) {
         char why[160];
         snprintf(why, sizeof why, "world %s %s", m->name,
@@ -174,7 +174,7 @@ static void world_unregister(serve_node *n, node_world *nw)
 }
 
 /* After each of a world's ticks: does this node still own it? */
-static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap)
+static int world_check(void *ctx, host_sim *m, long tick, char *why, size_t cap)
 {
     node_world *nw = ctx;
     if (serve_cluster_check(nw->node->cl, m, &nw->retried_ms, why, cap) != 0) {
@@ -197,17 +197,17 @@ static int world_check(void *ctx, serve_sim *m, long tick, char *why, size_t cap
 }
 
 /* The job's end, on a worker: off the ports, freed, its lease let go. */
-static void world_end(serve_tick_job *j, int rc)
+static void world_end(host_job *j, int rc)
 {
     node_world *nw = j->ctx;
     serve_node *n = nw->node;
-    serve_sim *m = &nw->m;
+    host_sim *m = &nw->m;
     if (rc != 0)
         snprintf(nw->why, sizeof nw->why, "%s", j->why);
     world_unregister(n, nw);
     log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
              (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
-    serve_sim_free(m);
+    host_sim_free(m);
     if (!nw->lost && !nw->deleted) /* another node may take it at once */
         cluster_lease_release(n->cl, m->name);
     node_refresh_status(n);
@@ -219,27 +219,28 @@ static void *world_main(void *arg)
 {
     node_world *nw = arg;
     serve_node *n = nw->node;
-    serve_sim *m = &nw->m;
+    host_sim *m = &nw->m;
     error_text err = {{0}};
     if (serve_cluster_open_world(n->cl, m, n->o, &err) == 0) {
-        serve_sim_status_init(m);
-        nw->job = (serve_tick_job){.m = m,
-                                   .net = n->net,
-                                   .max_ticks = n->o->max_ticks,
-                                   .check = world_check,
-                                   .end = world_end,
-                                   .ctx = nw};
+        host_sim_status_init(m);
+        nw->job = (host_job){.m = m,
+                             .net = n->net,
+                             .max_ticks = n->o->max_ticks,
+                             .check = world_check,
+                             .end = world_end,
+                             .ctx = nw};
+        host_sim_config cfg = serve_host_config(n->o);
         if (!(m->h = hub_create()))
             error_set(&err, "out of memory");
-        else if (serve_sim_start(m, n->o, &err) == 0 && world_register(n, nw, &err) == 0 &&
-                 serve_ticker_add(n->ticker, &nw->job, &err) == 0) {
+        else if (host_sim_start(m, &cfg, &err) == 0 && world_register(n, nw, &err) == 0 &&
+                 host_ticker_add(n->ticker, &nw->job, &err) == 0) {
             atomic_store(&nw->opened, 1);
             return NULL;
         }
     }
     snprintf(nw->why, sizeof nw->why, "%s", err.message);
     world_unregister(n, nw);
-    serve_sim_free(m);
+    host_sim_free(m);
     if (!nw->lost && !nw->deleted) /* another node may take it at once */
         cluster_lease_release(n->cl, m->name);
     node_refresh_status(n);
@@ -485,7 +486,7 @@ static void stop_deleted(serve_node *n)
             continue;
         log_info("cluster: world %s was deleted from the registry: it stops here", nw->m.name);
         nw->deleted = 1; /* read by its end, after the ticker's lock */
-        serve_ticker_end(n->ticker, &nw->job);
+        host_ticker_end(n->ticker, &nw->job);
     }
 }
 
@@ -530,7 +531,7 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
         if (n->listings != listings)
             stop_deleted(n);
         if (took != 1) /* took one: look for the next at once */
-            serve_sleep_ms(NODE_POLL_MS);
+            host_sleep_ms(NODE_POLL_MS);
     }
     return 0;
 }
@@ -541,12 +542,12 @@ static void node_stop(serve_node *n)
     while (n->nworlds > 0) {
         for (int i = 0; i < n->nworlds; i++)
             if (atomic_load(&n->worlds[i]->opened)) /* else still opening: asked next round */
-                serve_ticker_end(n->ticker, &n->worlds[i]->job);
+                host_ticker_end(n->ticker, &n->worlds[i]->job);
         reap_worlds(n);
         if (n->nworlds)
-            serve_sleep_ms(10);
+            host_sleep_ms(10);
     }
-    serve_ticker_stop(n->ticker);
+    host_ticker_stop(n->ticker);
     serve_relays_stop(n->relays);
     node_forget_worlds(n);
     http_server_stop(n->probe);
@@ -579,7 +580,7 @@ int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic
     cluster_config cc = {.urls = o->cluster_urls, .node = n->name};
     int rc = 1;
     if (!(n->cl = cluster_connect(&cc, &err)) ||
-        !(n->ticker = serve_ticker_start(serve_ticker_default_workers(), &err)) ||
+        !(n->ticker = host_ticker_start(host_ticker_default_workers(), &err)) ||
         node_open_ports(n, &err) != 0)
         log_error("%s", err.message);
     else
