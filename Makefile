@@ -74,7 +74,7 @@ define configure
 	fi
 endef
 
-FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
+FORMAT_FILES = $(shell find server tests proto clients -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
 .PHONY: deps deps-test build build-asan daemon run cluster install test test-stress bench docs-images fuzz \
         fuzz-smoke fuzz-build soak format format-check web-deps screenshot clean

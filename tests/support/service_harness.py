@@ -31,11 +31,11 @@ import urllib.request
 SOURCE = os.environ.get("TERRAD_SOURCE_DIR",
                         os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")))
 BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
-# The Python client package (proto/python/terrad) from the source tree, for the tests and for
+# The Python client package (clients/python/terrad) from the source tree, for the tests and for
 # the Python programs they start (the examples).
-sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
+sys.path.insert(0, os.path.join(SOURCE, "clients", "python"))
 os.environ["PYTHONPATH"] = os.pathsep.join(
-    p for p in (os.path.join(SOURCE, "proto", "python"), os.environ.get("PYTHONPATH")) if p)
+    p for p in (os.path.join(SOURCE, "clients", "python"), os.environ.get("PYTHONPATH")) if p)
 
 import terrad as tp  # noqa: E402
 
