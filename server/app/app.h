@@ -44,15 +44,6 @@ void app_calibrate_usage(FILE *out);
  * failure nothing is held. */
 int app_open_scene_world(const char *scene_path, scene *sc, world *w, error_text *err);
 
-/* Room for app_backend_create's reason. */
-#define APP_BACKEND_REASON_MAX 320
-/* name "auto", "gl" or "cpu" (backend_select.c); the choice is logged, and
- * why it was made goes to why (may be NULL) for /v1/world and reports. */
-sim_backend *app_backend_create(const char *name, char *why, size_t why_cap, error_text *err);
-
-/* The scene's ground into the engine. On failure nothing is held. */
-int app_ground_attach(const scene *sc, const world *w, sim_engine *engine, ground *g,
-                      error_text *err);
 /* Called after each tick of app_run_scene_ticks with that tick's report and wall time. */
 typedef void (*app_tick_observer)(void *ctx, long tick, const sim_tick_report *report,
                                   double tick_ms);

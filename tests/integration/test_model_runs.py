@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import SOURCE, Checks, Daemon, metric_value, simulate  # noqa: E402
 
 SCENES = os.path.join(SOURCE, "tests", "scenes")
-EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")
+EXAMPLE = os.path.join(SOURCE, "clients", "python", "examples", "drive_wheel.py")
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
           "diffusion", "sumner", "decals"]
 EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner", "decals"}

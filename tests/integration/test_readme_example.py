@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """The README's Python example, for real: the daemon runs as `make run`
-starts it (demo actors on), and proto/python/examples/drive_wheel.py drives
+starts it (demo actors on), and clients/python/examples/drive_wheel.py drives
 a wheel, then checks that the heights it rebuilt from snapshots and deltas
 equal GET /v1/heights at the same tick. On the CPU backend, and on the GL
 backend where a context can be made. The example uses only the package's
@@ -14,7 +14,7 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import SOURCE, Checks, Daemon  # noqa: E402
 
-EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")
+EXAMPLE = os.path.join(SOURCE, "clients", "python", "examples", "drive_wheel.py")
 check = Checks()
 
 with open(os.path.join(SOURCE, "README.md")) as f:
