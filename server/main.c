@@ -24,7 +24,7 @@ static void print_help(void)
            "  terrad wheel [options]        the single-wheel testbed at chosen slips\n"
            "  terrad loadgen [options]      drive clients against a running daemon, measure it\n"
            "  terrad world add|list|remove  the cluster's worlds (docs/cluster.md)\n"
-           "  terrad token add|hash         tokens of an --auth-file (roles, README)\n"
+           "  terrad token add|hash         tokens of an --auth-file (docs/security.md)\n"
            "  terrad --help | --version\n"
            "\n"
            "Options take \"--opt value\" or \"--opt=value\"; \"terrad CMD --help\" prints one\n"
