@@ -34,6 +34,7 @@
 #include <strings.h>
 
 #include "metrics/metrics.h"
+#include "terrad_proto.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
 
@@ -198,6 +199,64 @@ static enum MHD_Result serve_twin(http_server *s, struct MHD_Connection *c)
         return respond_error(c, MHD_HTTP_NOT_FOUND, "no twin config for this world: %s",
                              t ? t + 1 : "not set (a cluster node's worlds have none)");
     return respond(c, MHD_HTTP_OK, "application/json", t);
+}
+
+/* The host part of a Host header ("name", "1.2.3.4" or "[v6]", without the
+ * port) into out: 0, or -1 when absent, too long or not a host name. */
+static int host_of(const char *host, char *out, size_t cap)
+{
+    if (!host || !host[0])
+        return -1;
+    size_t n = 0;
+    if (host[0] == '[') { /* an IPv6 literal: up to its bracket */
+        const char *end = strchr(host, ']');
+        if (!end)
+            return -1;
+        n = (size_t)(end - host) + 1;
+        for (const char *p = host + 1; p < end; p++)
+            if (!strchr("0123456789abcdefABCDEF:.", *p))
+                return -1;
+    } else {
+        while (host[n] && host[n] != ':') {
+            char ch = host[n++];
+            if (!((ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') ||
+                  (ch >= '0' && ch <= '9') || ch == '.' || ch == '-' || ch == '_'))
+                return -1;
+        }
+    }
+    if (n == 0 || n >= cap)
+        return -1;
+    memcpy(out, host, n);
+    out[n] = 0;
+    return 0;
+}
+
+/* GET /v1/websocket: where the websocket is (http_server_set_websocket). The
+ * viewer asks this rather than guessing a port: a daemon's two ports need not
+ * be neighbours, and behind a proxy neither may be what the page sees. */
+static enum MHD_Result serve_websocket(http_server *s, struct MHD_Connection *c)
+{
+    if (!atomic_load(&s->ws_ready))
+        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "the websocket server is not up yet");
+    char url[HTTP_PUBLIC_URL_MAX + 16], host[256];
+    const char *from = "public_ws_url";
+    if (s->ws_public[0]) {
+        http_json_escape(s->ws_public, url, sizeof url);
+    } else {
+        from = "host";
+        if (host_of(MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_HOST), host,
+                    sizeof host) != 0)
+            return respond_error(c, MHD_HTTP_BAD_REQUEST,
+                                 "Host: missing or not a host name; the websocket URL is built "
+                                 "from it (or give the daemon --public-ws-url)");
+        snprintf(url, sizeof url, "%s://%s:%d/", s->ws_tls ? "wss" : "ws", host, s->ws_port);
+    }
+    char body[HTTP_PUBLIC_URL_MAX + 160];
+    snprintf(body, sizeof body,
+             "{\"url\":\"%s\",\"port\":%d,\"subprotocol\":\"" TERRAD_PROTO_SUBPROTOCOL
+             "\",\"from\":\"%s\"}\n",
+             url, s->ws_port, from);
+    return respond(c, MHD_HTTP_OK, "application/json", body);
 }
 
 /* ---- dispatch ---- */
@@ -408,6 +467,8 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return http_queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
     if (strcmp(url, "/v1/twin") == 0)
         return serve_twin(s, c);
+    if (strcmp(url, "/v1/websocket") == 0)
+        return serve_websocket(s, c);
     int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
         heights = strcmp(url, "/v1/heights") == 0;
     http_view view = stats ? HTTP_VIEW_STATS : about ? HTTP_VIEW_WORLD : HTTP_VIEW_HEIGHTS;
@@ -581,6 +642,14 @@ http_server *http_probe_start(http_server *main, int port, error_text *err)
     if (p)
         p->main = main;
     return p;
+}
+
+void http_server_set_websocket(http_server *s, int port, int tls, const char *public_url)
+{
+    s->ws_port = port;
+    s->ws_tls = tls;
+    snprintf(s->ws_public, sizeof s->ws_public, "%s", public_url ? public_url : "");
+    atomic_store(&s->ws_ready, 1);
 }
 
 int http_server_port(const http_server *s)

@@ -140,6 +140,11 @@ struct http_server {
     void *forward_ctx;
     int forward_calls;
     http_world_api world_api; /* a single daemon's lifecycle API (under worlds_lock) */
+    /* GET /v1/websocket (http_server_set_websocket): ws_port 0 until the
+     * websocket server is up; written once before ws_ready is set */
+    int ws_port, ws_tls;
+    char ws_public[HTTP_PUBLIC_URL_MAX];
+    atomic_int ws_ready;
 };
 
 /* The world a request names (?world=NAME; without it, the node's first
