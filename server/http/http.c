@@ -51,6 +51,7 @@ typedef struct request {
     size_t len, cap;
     size_t query_len; /* bytes after '?' in the raw target */
     int raw_nul;      /* "%00" in the raw target */
+    int refused;      /* http_guard_headers_done's: past a connection limit, answered 503 */
 } request;
 
 /* ---- responses ---- */
@@ -344,6 +345,34 @@ static int method_allowed(const char *method)
     return strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
 }
 
+/* A request that came past a connection limit with no room to make
+ * (http_guard.c): its body is read and dropped, then it is answered 503 with
+ * Retry-After and the connection closed; nothing of it was done. */
+static enum MHD_Result refuse_busy(http_server *s, struct MHD_Connection *c, int why,
+                                   size_t *upload_size)
+{
+    if (*upload_size != 0) {
+        *upload_size = 0;
+        return MHD_YES;
+    }
+    unsigned per_address = 0, all = 0;
+    http_guard_limits(s->guard, &per_address, &all);
+    metrics_count_http_refused(why == HTTP_GUARD_REFUSED_ADDRESS ? 0 : 1);
+    char body[256];
+    snprintf(body, sizeof body,
+             "{\"error\":\"busy: %s (%u); nothing was done: retry after 1 s\"}\n",
+             why == HTTP_GUARD_REFUSED_ADDRESS
+                 ? "this address already has as many connections in requests as it may"
+                 : "the server already has as many connections in requests as it may",
+             why == HTTP_GUARD_REFUSED_ADDRESS ? per_address : all);
+    struct MHD_Response *r = text_response("application/json", body);
+    if (r) {
+        MHD_add_response_header(r, "Retry-After", "1");
+        MHD_add_response_header(r, MHD_HTTP_HEADER_CONNECTION, "close");
+    }
+    return http_queue(c, MHD_HTTP_SERVICE_UNAVAILABLE, r);
+}
+
 /* POST /v1/worlds/{name}/edits: keep the body, then answer (http_edits.c). */
 static enum MHD_Result edit_request(http_server *s, struct MHD_Connection *c, const char *url,
                                     request *rq, const char *upload, size_t *upload_size)
@@ -404,7 +433,11 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     }
     if (!rq->seen) {
         rq->seen = 1;
-        http_guard_headers_done(s->guard, c);
+        rq->refused = http_guard_headers_done(s->guard, c);
+        if (rq->refused < 0)
+            return MHD_NO; /* cut to make room, and told so: nothing of it is done */
+        if (rq->refused)
+            return MHD_YES; /* read it whole, then answer 503 (refuse_busy) */
         /* A body we will not read: answer now, which also closes the
          * connection, rather than drain the body first. */
         char name[80];
@@ -419,6 +452,8 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         }
         return MHD_YES;
     }
+    if (rq->refused)
+        return refuse_busy(s, c, rq->refused, upload_size);
     if (rq->edit)
         return edit_request(s, c, url, rq, upload, upload_size);
     if (*upload_size != 0) {
@@ -569,7 +604,8 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
      * as a last stop. */
     unsigned soft = l.connections - l.connections / 8;
     s->guard = http_guard_start(l.heights_bytes_per_address, l.heights_bytes_total, l.timeout_s,
-                                soft, l.connections_per_ip < soft ? l.connections_per_ip : soft);
+                                soft, l.connections_per_ip < soft ? l.connections_per_ip : soft,
+                                http_tls_on(&s->tls));
     if (!s->guard) {
         error_set(err, "http: cannot start the connection guard (out of memory or threads)");
         pthread_mutex_destroy(&s->watch_lock);
