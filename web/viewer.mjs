@@ -9,7 +9,7 @@ import { ViewerPrediction, union } from './viewer_predict.mjs';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
-// A daemon with tokens (README "Security"): open the viewer as /#token=tdk_… — the fragment never
+// A daemon with tokens (docs/security.md): open the viewer as /#token=tdk_… — the fragment never
 // reaches a server or its logs; the token goes in the hello and as a bearer token to /v1/*.
 const token = new URLSearchParams(location.hash.slice(1)).get('token') || '';
 const apiInit = { cache: 'no-store', headers: token ? { Authorization: `Bearer ${token}` } : {} };

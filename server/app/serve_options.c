@@ -536,3 +536,11 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     }
     return r;
 }
+
+host_sim_config serve_host_config(const serve_options *o)
+{
+    return (host_sim_config){.backend = o->backend,
+                             .max_tick_cells = o->limits.max_tick_cells,
+                             .max_sweep_cells = o->limits.max_sweep_cells,
+                             .demo_actors = o->demo_actors};
+}

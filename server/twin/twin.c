@@ -234,7 +234,7 @@ static int in_window(const terrad_twin *t, int x, int y, int w, int h)
 }
 
 /* The world, its ground and the engine, as the daemon makes them from a
- * scene (scene_create_world, scene_create_ground, serve_sim_start). */
+ * scene (scene_create_world, scene_create_ground, host_sim_start). */
 static int twin_open(terrad_twin *t, const terrad_twin_config *c, error_text *e)
 {
     if (c->units_per_m < 1 || c->units_per_m > 1e9 || c->floor_units != floor(c->floor_units) ||
