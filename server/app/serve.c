@@ -171,6 +171,9 @@ static int serve_start(serve_daemon *d, error_text *err)
     if (!(d->net = net_server_start(&nc, m->h, err)) ||
         !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, err)))
         return -1;
+    int tls = d->o.tls_cert && d->o.tls_cert[0];
+    /* GET /v1/websocket: the viewer asks where the websocket is, never guesses */
+    http_server_set_websocket(d->http, net_server_port(d->net), tls, d->o.public_ws_url);
     http_server_watch(d->http, "tick", http_status_stalled_ms, &m->status, SERVE_STALL_LIMIT_MS);
     http_server_watch(d->http, "net", net_stalled, d->net, SERVE_STALL_LIMIT_MS);
     host_sim_ready(m);
@@ -181,7 +184,6 @@ static int serve_start(serve_daemon *d, error_text *err)
     if (d->probe)
         log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
                  http_server_port(d->probe));
-    int tls = d->o.tls_cert && d->o.tls_cert[0];
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
              "%s://127.0.0.1:%d/ and %s://127.0.0.1:%d/",
              m->sc.name, m->w.width, m->w.height, m->backend->name, d->o.demo_actors,
