@@ -6,7 +6,9 @@
 #   make run            build only the daemon, then run it: ./build/terrad serve $(ARGS)
 #   make install        build the daemon, the client library and the twin library, then install them
 #                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
-#   make test           everything CI runs; ends with "N passed, N failed"
+#   make test           everything CI runs; ends with "N passed, N failed". It installs the
+#                       WebAssembly toolchain, so a test that needs build/terrad_twin.wasm fails
+#                       without it (TERRAD_REQUIRE_WASM=1) instead of skipping
 #   make test-stress    make test while a CPU hog runs beside it (stress-ng --cpu 2): the suite
 #                       must pass at any load; the hog stops however make test ends, and the
 #                       exit status is make test's
@@ -72,7 +74,7 @@ define configure
 	fi
 endef
 
-FORMAT_FILES = $(shell find server tests proto -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
+FORMAT_FILES = $(shell find server tests proto clients -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
 .PHONY: deps deps-test build build-asan daemon run cluster install test test-stress bench docs-images fuzz \
         fuzz-smoke fuzz-build soak format format-check web-deps screenshot clean
@@ -120,7 +122,8 @@ test: deps-test
 	@mkdir -p $(ARTIFACTS); rm -f $(ARTIFACTS)/ctest-*.log; broken=0; \
 	if [ -f package-lock.json ]; then $(MAKE) --no-print-directory web-deps || broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build; then \
-	    ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 | tee $(ARTIFACTS)/ctest-build.log || true; \
+	    TERRAD_REQUIRE_WASM=1 ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 \
+	        | tee $(ARTIFACTS)/ctest-build.log || true; \
 	else broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build-asan; then \
 	    ctest --test-dir $(ASAN_BUILD) --output-on-failure -L unit -j $(JOBS) 2>&1 | tee $(ARTIFACTS)/ctest-asan.log || true; \

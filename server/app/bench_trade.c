@@ -27,6 +27,7 @@
 #include <sys/stat.h>
 
 #include "app/app.h"
+#include "host/host.h"
 #include "app/trade_internal.h"
 
 #define HEADING_COUNT 3
@@ -278,7 +279,7 @@ static int run_scene(int scene_index, const char *model, const char *backend_nam
     world_gather_window(&w, whole, before);
     if (sim_params_from_material(&sc.material, w.cell_size_m, w.units_per_m, w.floor, &params,
                                  err) != 0 ||
-        !(backend = app_backend_create(backend_name, NULL, 0, err)) ||
+        !(backend = host_backend_create(backend_name, NULL, 0, err)) ||
         !(engine = sim_engine_create(&w, &params, backend, sc.active_margin_cells, err)))
         goto done;
     char *renderer = strcmp(backend->name, "gl") == 0 ? gl_renderer : cpu_renderer;
@@ -659,7 +660,7 @@ int app_bench(int argc, char **argv)
     if (o->gl_one) {
         /* GL is only asked for by default here: without a context, say so and go on. */
         error_text gl_err = {{0}};
-        sim_backend *gl = app_backend_create("gl", NULL, 0, &gl_err);
+        sim_backend *gl = host_backend_create("gl", NULL, 0, &gl_err);
         if (gl) {
             gl->destroy(gl);
         } else {

@@ -11,8 +11,8 @@
  * app_serve reads as the daemon's life: open the world (scene, base terrain,
  * recovered store) → start the threads (hub, HTTP, engine and service, net)
  * → the tick loop → stop. Options: serve_options.c; the world's simulation
- * and one step of the loop: serve_sim.c; demo actors, which keep the terrain
- * deforming without clients: serve_demo.c. With --cluster the daemon is a
+ * and one step of the loop: host_sim.c; demo actors, which keep the terrain
+ * deforming without clients: host_demo.c. With --cluster the daemon is a
  * node of a cluster instead, ticking several worlds (serve_node.c).
  */
 #include <errno.h>
@@ -56,7 +56,7 @@ static void on_signal(int sig)
  * releases whatever was made. */
 typedef struct serve_daemon {
     serve_options o;
-    serve_sim m; /* the one world: scene, world, store, engine, service, hub */
+    host_sim m; /* the one world: scene, world, store, engine, service, hub */
     net_server *net;
     http_server *http;
     http_server *probe;   /* --probe-port */
@@ -89,7 +89,7 @@ static void serve_catch_signals(void)
 static int serve_open_world(serve_daemon *d, error_text *err)
 {
     serve_options *o = &d->o;
-    serve_sim *m = &d->m;
+    host_sim *m = &d->m;
     if ((o->scene_path ? scene_load_file(o->scene_path, &m->sc, err)
                        : scene_load_default(&m->sc, err)) != 0)
         return -1;
@@ -142,7 +142,7 @@ static double net_stalled(const void *arg)
 /* Start the threads around the sim thread: hub, HTTP, engine, net; then ready. */
 static int serve_start(serve_daemon *d, error_text *err)
 {
-    serve_sim *m = &d->m;
+    host_sim *m = &d->m;
     if (!(m->h = hub_create())) {
         error_set(err, "serve: out of memory");
         return -1;
@@ -156,7 +156,8 @@ static int serve_start(serve_daemon *d, error_text *err)
     char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
     http_server_set_twin(d->http, twin, why.message);
     free(twin);
-    if (serve_sim_start(m, &d->o, err) != 0)
+    host_sim_config cfg = serve_host_config(&d->o);
+    if (host_sim_start(m, &cfg, err) != 0)
         return -1;
     net_config nc = {.port = d->o.ws_port,
                      .bind_any = d->o.bind_any,
@@ -164,15 +165,18 @@ static int serve_start(serve_daemon *d, error_text *err)
                      .tls_cert = d->o.tls_cert,
                      .tls_key = d->o.tls_key,
                      .limits = d->o.limits,
-                     .world = serve_sim_world_info(m)};
+                     .world = host_sim_world_info(m)};
     nc.world.scene_name = m->sc.name;
     nc.limits.fd_reserve = fd_reserve;
     if (!(d->net = net_server_start(&nc, m->h, err)) ||
         !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, err)))
         return -1;
+    int tls = d->o.tls_cert && d->o.tls_cert[0];
+    /* GET /v1/websocket: the viewer asks where the websocket is, never guesses */
+    http_server_set_websocket(d->http, net_server_port(d->net), tls, d->o.public_ws_url);
     http_server_watch(d->http, "tick", http_status_stalled_ms, &m->status, SERVE_STALL_LIMIT_MS);
     http_server_watch(d->http, "net", net_stalled, d->net, SERVE_STALL_LIMIT_MS);
-    serve_sim_ready(m);
+    host_sim_ready(m);
     serve_catch_signals();
     signal(SIGPIPE, SIG_IGN);
     /* before the "serving" line, which tells a supervisor (and the tests) that
@@ -180,7 +184,6 @@ static int serve_start(serve_daemon *d, error_text *err)
     if (d->probe)
         log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
                  http_server_port(d->probe));
-    int tls = d->o.tls_cert && d->o.tls_cert[0];
     log_info("serving scene \"%s\" (%dx%d cells, %s backend, %d demo actors) on "
              "%s://127.0.0.1:%d/ and %s://127.0.0.1:%d/",
              m->sc.name, m->w.width, m->w.height, m->backend->name, d->o.demo_actors,
@@ -192,11 +195,11 @@ static int serve_start(serve_daemon *d, error_text *err)
 /* The fixed-rate tick loop, until --ticks or a signal. */
 static int serve_run_ticks(serve_daemon *d, error_text *err)
 {
-    serve_sim *m = &d->m;
+    host_sim *m = &d->m;
     double period_ms = 1000.0 / m->sc.tick_hz;
     double next_ms = time_now_ms();
     for (long tick = 0; !stop_requested && (d->o.max_ticks < 0 || tick < d->o.max_ticks); tick++) {
-        if (serve_sim_step(m, tick, net_server_client_count(d->net), err) != 0)
+        if (host_sim_step(m, tick, net_server_client_count(d->net), err) != 0)
             return -1;
         if (hangup_seen) {
             hangup_seen = 0;
@@ -222,7 +225,7 @@ static void serve_stop(serve_daemon *d)
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
     auth_free(d->auth); /* after both servers: they check tokens against it */
-    serve_sim_free(&d->m);
+    host_sim_free(&d->m);
 }
 
 int app_serve(int argc, char **argv)
@@ -246,7 +249,7 @@ int app_serve(int argc, char **argv)
         rc = serve_node_run(&d->o, d->auth, &stop_requested, &hangup_seen);
     } else if (parsed == CLI_OK) {
         if (serve_open_world(d, &err) == 0) {
-            serve_sim_status_init(&d->m);
+            host_sim_status_init(&d->m);
             if (serve_start(d, &err) == 0 && serve_run_ticks(d, &err) == 0)
                 rc = 0;
         }

@@ -85,7 +85,7 @@ int serve_cluster_take(cluster *cl, const serve_options *o, char *const *registe
     return 0;
 }
 
-int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, error_text *err)
+int serve_cluster_open_world(cluster *cl, host_sim *m, const serve_options *o, error_text *err)
 {
     char *scene_json = NULL;
     if (cluster_world_get(cl, m->name, &scene_json, err) != 1) {
@@ -122,7 +122,7 @@ int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, 
     return 0;
 }
 
-int serve_cluster_check(cluster *cl, serve_sim *m, double *retried_ms, char *lost, size_t cap)
+int serve_cluster_check(cluster *cl, host_sim *m, double *retried_ms, char *lost, size_t cap)
 {
     if (cluster_store_fenced(m->cs)) {
         snprintf(lost, cap, "%s", cluster_store_failure(m->cs));

@@ -1,7 +1,7 @@
 /*
  * serve_internal.h: what `terrad serve`'s files share inside server/app/ —
  * the options (serve_options.c reads them from the command line and
- * --config), the demo actors (serve_demo.c) that keep the terrain
+ * --config), the demo actors (host_demo.c) that keep the terrain
  * deforming without clients, and cluster mode (serve_cluster.c: which world
  * this node ticks, and its store on JetStream). serve.c runs the daemon on
  * them.
@@ -19,6 +19,7 @@
 #include "collider/collider.h"
 #include "ground/ground.h"
 #include "http/http.h"
+#include "host/host.h"
 #include "hub/hub.h"
 #include "service/service.h"
 #include "sim/sim.h"
@@ -46,32 +47,35 @@ typedef struct serve_options {
     /* limits.max_heights_bytes_per_address / _in_flight: /v1/heights answers
      * held at once (0: http.c's defaults, 64 MiB and 256 MiB) */
     size_t heights_bytes_per_address, heights_bytes_in_flight;
-    const char *data_dir;     /* NULL: memory only (--no-data, or a demo without --data) */
-    int data_given;           /* --data, or "data" in --config */
-    int demo_in_memory;       /* demo actors and no --data: no store */
-    int fresh;                /* --fresh: store_remove before store_open */
-    const char *durability;   /* every-tick | group:MS | none */
-    long wal_segment_bytes;   /* compaction threshold */
-    const char *store_fault;  /* test hook: writes fail ENOSPC while this file exists */
-    int recover_truncate;     /* start on a damaged data directory, cutting the damage */
-    int config_loaded;        /* --config was given */
-    const char *cluster_urls; /* --cluster: NULL when not in a cluster */
-    const char *node;         /* --node */
-    const char *worlds;       /* --worlds a,b,... (or --world a): NULL for any registered */
-    int max_worlds;           /* --max-worlds: worlds one node ticks at once (0: see below),
-                               * or a single daemon creates beside its default one */
-    const char *scene_dir;    /* --scene-dir: scenes POST /v1/worlds may name (NULL: none) */
+    const char *data_dir;      /* NULL: memory only (--no-data, or a demo without --data) */
+    int data_given;            /* --data, or "data" in --config */
+    int demo_in_memory;        /* demo actors and no --data: no store */
+    int fresh;                 /* --fresh: store_remove before store_open */
+    const char *durability;    /* every-tick | group:MS | none */
+    long wal_segment_bytes;    /* compaction threshold */
+    const char *store_fault;   /* test hook: writes fail ENOSPC while this file exists */
+    int recover_truncate;      /* start on a damaged data directory, cutting the damage */
+    int config_loaded;         /* --config was given */
+    const char *cluster_urls;  /* --cluster: NULL when not in a cluster */
+    const char *node;          /* --node */
+    const char *worlds;        /* --worlds a,b,... (or --world a): NULL for any registered */
+    int max_worlds;            /* --max-worlds: worlds one node ticks at once (0: see below),
+                                * or a single daemon creates beside its default one */
+    const char *scene_dir;     /* --scene-dir: scenes POST /v1/worlds may name (NULL: none) */
+    const char *public_ws_url; /* --public-ws-url: GET /v1/websocket's answer (NULL: built) */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
         config_data[SERVE_CONFIG_STRING_MAX], config_durability[64],
         config_store_fault[SERVE_CONFIG_STRING_MAX], config_auth_file[SERVE_CONFIG_STRING_MAX],
         config_tls_cert[SERVE_CONFIG_STRING_MAX], config_tls_key[SERVE_CONFIG_STRING_MAX],
-        config_scene_dir[SERVE_CONFIG_STRING_MAX];
+        config_scene_dir[SERVE_CONFIG_STRING_MAX], config_public_ws_url[HTTP_PUBLIC_URL_MAX];
 } serve_options;
 
 /* The command line (argv[0] = "serve"); fills o with the defaults first.
  * CLI_OK, CLI_HELP (printed) or CLI_ERROR (printed). */
 cli_result serve_options_parse(int argc, char **argv, serve_options *o);
+/* What a world's simulation takes from the options (host_sim_start). */
+host_sim_config serve_host_config(const serve_options *o);
 
 /* ---- who may connect, and how (serve_security.c) ---- */
 
@@ -90,87 +94,6 @@ http_server *serve_http_open(const serve_options *o, auth_table *auth, http_stat
 /* Reads a config's "auth_file", "tls_cert" and "tls_key" into o. */
 int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 
-/* ---- one world's simulation (serve_sim.c) ---- */
-
-typedef struct demo_actor demo_actor;
-
-/* Everything one world's sim thread holds; zero means "not made yet", so
- * serve_sim_free releases whatever was made. */
-typedef struct serve_sim {
-    char name[CLUSTER_WORLD_NAME_MAX + 1]; /* cluster mode: the world's name; "" for a daemon */
-    scene sc;
-    world w;
-    store *st;         /* NULL: memory only */
-    cluster_store *cs; /* cluster mode: st's JetStream store (closed by store_close) */
-    store_recovery recovery;
-    http_status status; /* its lock is the caller's to init and destroy */
-    sim_params params;
-    sim_backend *backend;
-    sim_engine *engine;
-    ground grd;
-    demo_actor *actors;
-    sim_collider *extra;
-    int demo_actors;
-    service *svc;
-    hub *h; /* made by the caller (the HTTP server may need it first) */
-    char models[64];
-    char backend_reason[APP_BACKEND_REASON_MAX]; /* why this backend (app_backend_create) */
-    uint64_t overruns;
-    int metrics_slot; /* cluster mode: the world's labelled series */
-} serve_sim;
-
-/* The world's status fields, from m->w and m->sc (before HTTP reads it). */
-void serve_sim_status_init(serve_sim *m);
-/* On the world's sim thread, with m->w made, m->st recovered and m->h made:
- * the backend, engine, ground, service (attached to the store) and demo actors. */
-int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err);
-/* The world's info for the net server (pointing into m). */
-net_world_info serve_sim_world_info(const serve_sim *m);
-/* Ready for clients: the status block says so, with the backend's names. */
-void serve_sim_ready(serve_sim *m);
-/* One tick: demo poses, service_tick, the status block and the metrics. */
-int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err);
-/* Releases what was made (the hub too; the status lock stays the caller's). */
-void serve_sim_free(serve_sim *m);
-/* Sleeps ms milliseconds (nothing when ms <= 0). */
-void serve_sleep_ms(double ms);
-/* After each of a world's ticks: non-zero (with why) ends it. */
-typedef int (*serve_sim_check_fn)(void *ctx, serve_sim *m, long tick, char *why, size_t cap);
-
-/* ---- the shared pool of sim workers (serve_ticker.c) ---- */
-typedef struct serve_ticker serve_ticker;
-typedef struct serve_tick_job serve_tick_job;
-/* On a worker once the job ended: rc 0 asked to (serve_ticker_end, max_ticks,
- * the ticker stopping), -1 a tick failed, 1 check said stop (j->why says
- * why). The world leaves its ports and is freed here (its GL context is
- * current on this thread); the ticker does nothing with j after it. */
-typedef void (*serve_tick_end_fn)(serve_tick_job *j, int rc);
-/* One world on the pool: the owner fills the first fields (in its own
- * struct, alive until end ran); the rest is the ticker's, under its lock. */
-struct serve_tick_job {
-    serve_sim *m;             /* started (serve_sim_start) and registered */
-    net_server *net;          /* its clients counted in its status (NULL: none) */
-    long max_ticks;           /* < 0: none */
-    serve_sim_check_fn check; /* NULL: none */
-    serve_tick_end_fn end;
-    void *ctx; /* check's and end's */
-    char why[256];
-    long tick;
-    double due_ms, period_ms;
-    int pinned; /* -1: any worker; else the one its GL context is current on */
-    int running, ending, rc;
-};
-/* Worker threads for a process: twice the cores, 4..32 (serve_ticker.c says why). */
-int serve_ticker_default_workers(void);
-/* NULL with err when no worker thread starts. */
-serve_ticker *serve_ticker_start(int workers, error_text *err);
-/* j ticks from now on at its scene's tick_hz, its ticks counted from 0. */
-int serve_ticker_add(serve_ticker *t, serve_tick_job *j, error_text *err);
-/* Asks j to end (end runs soon on a worker); nothing if it is ending already. */
-void serve_ticker_end(serve_ticker *t, serve_tick_job *j);
-/* Every job ended (each end run), the workers joined. NULL is fine. */
-void serve_ticker_stop(serve_ticker *t);
-
 /* ---- a single daemon's created worlds (serve_worlds.c) ---- */
 /* --max-worlds' ceiling: worlds a node ticks, or a daemon creates beside its
  * default one (the HTTP, websocket and metrics tables hold one more). */
@@ -179,7 +102,7 @@ typedef struct serve_worlds serve_worlds;
 /* After the daemon's ports are open: the worlds of DATA/worlds recovered and
  * started (each on its own sim thread), then POST/GET /v1/worlds and
  * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
-serve_worlds *serve_worlds_start(const serve_options *o, const serve_sim *main_world,
+serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
                                  http_server *http, net_server *net, error_text *err);
 /* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
 void serve_worlds_stop(serve_worlds *ws);
@@ -245,21 +168,10 @@ int serve_cluster_take(cluster *cl, const serve_options *o, char *const *registe
                        error_text *err);
 /* The world's registered scene into m->sc, then its world and its store
  * recovered from JetStream (fencing the previous owner off) into m. */
-int serve_cluster_open_world(cluster *cl, serve_sim *m, const serve_options *o, error_text *err);
+int serve_cluster_open_world(cluster *cl, host_sim *m, const serve_options *o, error_text *err);
 /* Once per tick: 0 while this node owns the world (a lapsed lease is taken
  * back when NATS answers again, at most once a second: *retried_ms), -1 once
  * it does not (lost says why). */
-int serve_cluster_check(cluster *cl, serve_sim *m, double *retried_ms, char *lost, size_t cap);
-
-/* A sphere that runs laps of an ellipse (centre cx, cy; half-axes ax, ay;
- * omega rad/s from angle0) in its own cell of the world and bobs up and
- * down, dipping below the base terrain at the bottom (serve_demo.c). */
-struct demo_actor {
-    collider_geometry geometry;
-    double cx, cy, ax, ay, omega, angle0, phase;
-};
-
-void demo_actors_init(demo_actor *a, int count, const world *w);
-collider_pose demo_actor_step(const demo_actor *a, const world *w, double time_s);
+int serve_cluster_check(cluster *cl, host_sim *m, double *retried_ms, char *lost, size_t cap);
 
 #endif

@@ -87,7 +87,7 @@ static unsigned node_create(void *ctx, const char *body, size_t len, char **json
     double until = time_now_ms() + NODE_API_WAIT_MS;
     while (cluster_lease_holder(a->cl, name, holder, sizeof holder, &err) <= 0 &&
            time_now_ms() < until)
-        serve_sleep_ms(NODE_API_POLL_MS);
+        host_sleep_ms(NODE_API_POLL_MS);
     return answer(node_entry(name, holder), 201, json);
 }
 

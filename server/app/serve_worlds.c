@@ -3,8 +3,8 @@
  * (issue 22; docs/openapi.yaml "worlds"): POST /v1/worlds, GET /v1/worlds,
  * DELETE /v1/worlds/{name}. The default world (--scene) ticks on the main
  * thread as before; the created worlds tick on one shared pool of sim
- * workers, as a cluster node's worlds do (serve_ticker.c; the same
- * serve_sim, the same http_server_add_world / net_server_add_world), so a
+ * workers, as a cluster node's worlds do (host_ticker.c; the same
+ * host_sim, the same http_server_add_world / net_server_add_world), so a
  * created world's tick is the same code as the default's and its clients
  * reach it by hello's "world" and its HTTP by ?world=NAME or
  * /v1/worlds/NAME/edits.
@@ -50,13 +50,10 @@ typedef enum { LW_STARTING, LW_RUNNING, LW_FAILED, LW_ENDED } lw_state;
 static const char *const state_names[] = {"starting", "running", "failed", "ended"};
 
 typedef struct local_world {
-    serve_sim m;
+    host_world hw; /* its life (host/); hw.deleted: its clients are told it was deleted */
     serve_worlds *ws;
-    serve_tick_job job; /* on the pool while running */
-    int deleting;       /* a DELETE has it: no other may */
-    int deleted;        /* its clients are told it was deleted (not that the daemon stops) */
-    int registered;     /* on the HTTP and websocket ports */
-    lw_state state;     /* under ws->lock */
+    int deleting;   /* a DELETE has it: no other may */
+    lw_state state; /* under ws->lock */
     char *scene_text;
     char why[256];
 } local_world;
@@ -65,10 +62,10 @@ struct serve_worlds {
     serve_options o; /* the daemon's, with no demo actors and no tick limit */
     http_server *http;
     net_server *net;
-    serve_ticker *ticker;        /* the sim workers every created world ticks on */
-    const serve_sim *main_world; /* the default world (its status for the list) */
-    char root[PATH_CAP];         /* DATA/worlds; "" without --data */
-    char kept[PATH_CAP];         /* DATA/worlds-kept */
+    host_ticker *ticker;        /* the sim workers every created world ticks on */
+    const host_sim *main_world; /* the default world (its status for the list) */
+    char root[PATH_CAP];        /* DATA/worlds; "" without --data */
+    char kept[PATH_CAP];        /* DATA/worlds-kept */
     int max;
     pthread_mutex_t lock;
     pthread_cond_t cond;
@@ -147,10 +144,13 @@ static void set_state(local_world *lw, lw_state state)
     pthread_mutex_unlock(&lw->ws->lock);
 }
 
-/* The scene, its world, and its store recovered over the base. */
-static int world_open(serve_worlds *ws, local_world *lw, error_text *err)
+/* The registry backend of a created world (host.h): its scene from the
+ * create's body (or DATA/worlds/NAME.json), its store DATA/worlds/NAME/. */
+static int world_open(host_world *hw, error_text *err)
 {
-    serve_sim *m = &lw->m;
+    local_world *lw = hw->owner;
+    serve_worlds *ws = lw->ws;
+    host_sim *m = &hw->m;
     const char *base = ws->o.scene_dir ? ws->o.scene_dir : ".";
     if (scene_load_json(lw->scene_text, base, &m->sc, err) != 0)
         return -1;
@@ -174,85 +174,55 @@ static int world_open(serve_worlds *ws, local_world *lw, error_text *err)
     return 0;
 }
 
-static int world_register(serve_worlds *ws, local_world *lw, error_text *err)
+/* On the ports: running from now on (before its first tick, which may fail and end it). */
+static int world_registered(host_world *hw, error_text *err)
 {
-    serve_sim *m = &lw->m;
-    net_world_info info = serve_sim_world_info(m);
-    if (http_server_add_world(ws->http, m->name, &m->status, m->h, &m->w, err) != 0)
-        return -1;
-    if (net_server_add_world(ws->net, &info, m->h, err) != 0) {
-        http_server_remove_world(ws->http, m->name);
-        return -1;
-    }
-    m->metrics_slot = metrics_world_slot(m->name);
-    serve_sim_ready(m);
-    lw->registered = 1;
+    (void)err;
+    local_world *lw = hw->owner;
+    host_sim *m = &hw->m;
     log_info("worlds: world %s: serving scene \"%s\" (%dx%d cells, %s backend, tick %llu): "
              "hello \"world\": \"%s\", /v1/*?world=%s",
              m->name, m->sc.name, m->w.width, m->w.height, m->backend->name,
              (unsigned long long)service_current_tick(m->svc), m->name, m->name);
+    set_state(lw, LW_RUNNING);
     return 0;
 }
 
-/* Off the ports: reads fail fast, requests in flight end, clients are told and closed. */
-static void world_unregister(serve_worlds *ws, local_world *lw)
+/* Its end ran on a worker (off the ports, freed): its state final. */
+static void world_ended(host_world *hw, int rc)
 {
-    serve_sim *m = &lw->m;
-    if (m->h) {
-        char why[160];
-        snprintf(why, sizeof why, "world %s %s", m->name,
-                 lw->deleted ? "was deleted (DELETE /v1/worlds)" : "stopped (the daemon stops)");
-        hub_close_reads(m->h);
-        hub_close_edits(m->h, why);
-    }
-    if (!lw->registered)
-        return;
-    lw->registered = 0;
-    http_server_remove_world(ws->http, m->name);
-    if ((lw->deleted ? net_server_delete_world(ws->net, m->h)
-                     : net_server_remove_world(ws->net, m->h)) != 0)
-        m->h = NULL; /* the net thread may still hold it: left to the exit */
-    metrics_world_drop(m->metrics_slot);
-}
-
-/* The job's end, on a worker: off the ports, freed, its state final. */
-static void world_end(serve_tick_job *j, int rc)
-{
-    local_world *lw = j->ctx;
-    serve_sim *m = &lw->m;
+    local_world *lw = hw->owner;
     if (rc != 0)
-        snprintf(lw->why, sizeof lw->why, "%s", j->why);
-    world_unregister(lw->ws, lw);
-    log_info("worlds: world %s stopped after tick %llu (%llu overruns)%s%s", m->name,
-             (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns,
-             rc ? ": " : "", rc ? lw->why : "");
-    serve_sim_free(m);
+        snprintf(lw->why, sizeof lw->why, "%s", hw->why);
+    log_info("worlds: world %s stopped after tick %llu (%llu overruns)%s%s", hw->m.name,
+             hw->last_tick, hw->overruns, rc ? ": " : "", rc ? lw->why : "");
     set_state(lw, rc != 0 ? LW_FAILED : LW_ENDED);
 }
+
+static const host_world_ops local_world_ops = {
+    .open = world_open,
+    .registered = world_registered,
+    .ended = world_ended,
+    .deleted_why = "was deleted (DELETE /v1/worlds)",
+    .stopped_why = "stopped (the daemon stops)",
+};
 
 /* The world made on this thread (scene, store, engine, service), on the
  * ports and on the pool: 0, or -1 with why and everything made undone. */
 static int world_start(serve_worlds *ws, local_world *lw, char *why, size_t cap)
 {
-    serve_sim *m = &lw->m;
-    error_text err = {{0}};
-    if (world_open(ws, lw, &err) == 0) {
-        serve_sim_status_init(m);
-        lw->job =
-            (serve_tick_job){.m = m, .net = ws->net, .max_ticks = -1, .end = world_end, .ctx = lw};
-        if (!(m->h = hub_create()))
-            error_set(&err, "out of memory");
-        else if (serve_sim_start(m, &ws->o, &err) == 0 && world_register(ws, lw, &err) == 0) {
-            set_state(lw, LW_RUNNING); /* before its first tick, which may fail and end it */
-            if (serve_ticker_add(ws->ticker, &lw->job, &err) == 0)
-                return 0;
-            set_state(lw, LW_STARTING);
-        }
-    }
-    snprintf(why, cap, "%s", err.message);
-    world_unregister(ws, lw);
-    serve_sim_free(m);
-    log_error("worlds: world %s did not start: %s", m->name, why);
+    host_world *hw = &lw->hw;
+    hw->ops = &local_world_ops;
+    hw->owner = lw;
+    hw->http = ws->http;
+    hw->net = ws->net;
+    hw->ticker = ws->ticker;
+    hw->config = serve_host_config(&ws->o);
+    hw->max_ticks = -1;
+    if (host_world_start(hw, why, cap) == 0)
+        return 0;
+    set_state(lw, LW_STARTING);
+    log_error("worlds: world %s did not start: %s", hw->m.name, why);
     return -1;
 }
 
@@ -261,7 +231,7 @@ static int world_start(serve_worlds *ws, local_world *lw, char *why, size_t cap)
 static local_world *find(serve_worlds *ws, const char *name)
 {
     for (int i = 0; i < ws->nworlds; i++)
-        if (strcmp(ws->worlds[i]->m.name, name) == 0)
+        if (strcmp(ws->worlds[i]->hw.m.name, name) == 0)
             return ws->worlds[i];
     return NULL;
 }
@@ -278,7 +248,7 @@ static void forget(serve_worlds *ws, local_world *lw)
         }
     pthread_mutex_unlock(&ws->lock);
     free(lw->scene_text);
-    pthread_mutex_destroy(&lw->m.status.lock);
+    pthread_mutex_destroy(&lw->hw.m.status.lock);
     free(lw);
 }
 
@@ -286,13 +256,13 @@ static void forget(serve_worlds *ws, local_world *lw)
 static void end_world(local_world *lw, int deleted)
 {
     serve_worlds *ws = lw->ws;
-    lw->deleted = deleted; /* read by its end, after the ticker's lock */
+    lw->hw.deleted = deleted; /* read by its end, after the ticker's lock */
     pthread_mutex_lock(&ws->lock);
     int running = lw->state == LW_RUNNING;
     pthread_mutex_unlock(&ws->lock);
     if (!running)
         return; /* never started, or a failed tick already ended it */
-    serve_ticker_end(ws->ticker, &lw->job);
+    host_world_end(&lw->hw);
     pthread_mutex_lock(&ws->lock);
     while (lw->state == LW_RUNNING)
         pthread_cond_wait(&ws->cond, &ws->lock);
@@ -313,9 +283,9 @@ static local_world *reserve(serve_worlds *ws, const char *name, char *scene_text
     }
     lw->ws = ws;
     lw->scene_text = scene_text;
-    lw->m.metrics_slot = -1;
-    snprintf(lw->m.name, sizeof lw->m.name, "%s", name);
-    pthread_mutex_init(&lw->m.status.lock, NULL);
+    lw->hw.m.metrics_slot = -1;
+    snprintf(lw->hw.m.name, sizeof lw->hw.m.name, "%s", name);
+    pthread_mutex_init(&lw->hw.m.status.lock, NULL);
     pthread_mutex_lock(&ws->lock);
     int taken = find(ws, name) != NULL, full = ws->nworlds >= ws->max;
     if (!taken && !full)
@@ -333,7 +303,7 @@ static local_world *reserve(serve_worlds *ws, const char *name, char *scene_text
                  "(--max-worlds): delete one first",
                  ws->max);
     free(scene_text);
-    pthread_mutex_destroy(&lw->m.status.lock);
+    pthread_mutex_destroy(&lw->hw.m.status.lock);
     free(lw);
     return NULL;
 }
@@ -376,7 +346,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
     metrics_count_world_request("create", 1);
     net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
-    cJSON *o = world_entry(name, &lw->m.status, "running", 0);
+    cJSON *o = world_entry(name, &lw->hw.m.status, "running", 0);
     *json = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
     return 201;
@@ -393,7 +363,7 @@ static unsigned worlds_list(void *ctx, char **json)
     pthread_mutex_lock(&ws->lock);
     for (int i = 0; i < ws->nworlds; i++) {
         local_world *lw = ws->worlds[i];
-        cJSON *e = world_entry(lw->m.name, &lw->m.status, state_names[lw->state], 0);
+        cJSON *e = world_entry(lw->hw.m.name, &lw->hw.m.status, state_names[lw->state], 0);
         if (lw->state == LW_FAILED)
             cJSON_AddStringToObject(e, "error", lw->why);
         cJSON_AddItemToArray(arr, e);
@@ -560,7 +530,7 @@ static void recover_worlds(serve_worlds *ws)
         log_info("worlds: %d created worlds recovered from %s", count, ws->root);
 }
 
-serve_worlds *serve_worlds_start(const serve_options *o, const serve_sim *main_world,
+serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
                                  http_server *http, net_server *net, error_text *err)
 {
     serve_worlds *ws = calloc(1, sizeof *ws);
@@ -583,7 +553,7 @@ serve_worlds *serve_worlds_start(const serve_options *o, const serve_sim *main_w
     }
     pthread_mutex_init(&ws->lock, NULL);
     pthread_cond_init(&ws->cond, NULL);
-    if (!(ws->ticker = serve_ticker_start(serve_ticker_default_workers(), err))) {
+    if (!(ws->ticker = host_ticker_start(host_ticker_default_workers(), err))) {
         pthread_cond_destroy(&ws->cond);
         pthread_mutex_destroy(&ws->lock);
         free(ws);
@@ -605,7 +575,7 @@ void serve_worlds_stop(serve_worlds *ws)
     while (ws->calls > 0) /* a create or delete running ends first */
         pthread_cond_wait(&ws->cond, &ws->lock);
     pthread_mutex_unlock(&ws->lock);
-    serve_ticker_stop(ws->ticker); /* every world ends, side by side on the workers */
+    host_ticker_stop(ws->ticker); /* every world ends, side by side on the workers */
     while (ws->nworlds > 0)
         forget(ws, ws->worlds[0]);
     pthread_cond_destroy(&ws->cond);

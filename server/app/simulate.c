@@ -16,6 +16,7 @@
 #include <string.h>
 
 #include "app/app.h"
+#include "host/host.h"
 #include "scene/scene.h"
 
 typedef struct simulate_options {
@@ -318,7 +319,7 @@ typedef struct simulate_run {
     world w;
     sim_params params;
     sim_backend *backend;
-    char backend_reason[APP_BACKEND_REASON_MAX];
+    char backend_reason[HOST_BACKEND_REASON_MAX];
     sim_engine *engine;
     ground grd;
     simulate_totals totals;
@@ -470,14 +471,14 @@ static int simulate_engine_run(simulate_run *r)
     world *w = &r->w;
     if (sim_params_from_material(&r->sc.material, w->cell_size_m, w->units_per_m, w->floor,
                                  &r->params, &err) != 0 ||
-        !(r->backend = app_backend_create(r->o.backend, r->backend_reason, sizeof r->backend_reason,
-                                          &err)) ||
+        !(r->backend = host_backend_create(r->o.backend, r->backend_reason,
+                                           sizeof r->backend_reason, &err)) ||
         !(r->engine =
               sim_engine_create(w, &r->params, r->backend, r->sc.active_margin_cells, &err))) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         return 1;
     }
-    if (app_ground_attach(&r->sc, w, r->engine, &r->grd, &err) != 0) {
+    if (host_ground_attach(&r->sc, w, r->engine, &r->grd, &err) != 0) {
         fprintf(stderr, "terrad simulate: %s\n", err.message);
         sim_engine_destroy(r->engine);
         return 1;

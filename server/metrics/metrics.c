@@ -1,21 +1,24 @@
 /*
- * metrics.c: the process-wide counters, gauges and histograms behind GET /metrics.
+ * metrics.c: the process-wide counters, gauges and histograms behind
+ * GET /metrics.
  *
- * Every thread counts here: the websocket thread (bytes, messages, refusals), the sim thread once
- * per tick (tick and stage durations, Σh, active cells) and the fan-out (frames, delta bytes).
- * Counters and gauges are relaxed atomics: a scrape needs each value to be a value that was true
- * at some moment, not a consistent cut across all of them, and relaxed updates cost the tick
- * nothing. Histograms hold several words that must agree (buckets, sum, count), so each has a
- * small mutex, held only for an increment.
+ * Every thread counts here: the websocket thread (bytes, messages, refusals),
+ * the sim thread once per tick (tick and stage durations, Σh, active cells)
+ * and the fan-out (frames, delta bytes). Counters and gauges are relaxed
+ * atomics: a scrape needs each value to be a value that was true at some
+ * moment, not a consistent cut across all of them, and relaxed updates cost
+ * the tick nothing. Histograms hold several words that must agree (buckets,
+ * sum, count), so each has a small mutex, held only for an increment.
  *
- * Every family is one row of one table (`families`: name, type, help, label, slots): metrics_reset
- * zeroes the slots, the update functions write them, metrics_render walks the rows in order. The
- * families of worlds, auth and the process have their own files (metrics_worlds.c, metrics_auth.c,
- * metrics_process.c).
+ * Every family is one row of one table (`families`: name, type, help,
+ * label, slots): metrics_reset zeroes the slots, the update functions write
+ * them, metrics_render walks the rows in order. The families of worlds,
+ * auth, the process and refusals for room have their own files
+ * (metrics_worlds.c, metrics_auth.c, metrics_process.c, metrics_room.c).
  *
- * Durations arrive in milliseconds (what the tick measures) and leave in seconds, the Prometheus
- * base unit. Σh leaves as an exact integer: a double would round it above 2^53, and volume
- * conservation is checked bit for bit.
+ * Durations arrive in milliseconds (what the tick measures) and leave in
+ * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
+ * would round it above 2^53, and volume conservation is checked bit for bit.
  */
 #include "metrics/metrics.h"
 
@@ -44,7 +47,8 @@ typedef struct histogram {
     uint64_t count;
 } histogram;
 
-/* Tick durations: 60 Hz is 16.7 ms, so the buckets straddle one, two, four and eight periods. */
+/* Tick durations: 60 Hz is 16.7 ms, so the buckets straddle one, two, four
+ * and eight periods. */
 static const double tick_bounds_ms[] = {0.5, 1, 2, 4, 8, 16, 33, 66, 133};
 static const char *const tick_labels[] = {"0.0005", "0.001", "0.002", "0.004", "0.008",
                                           "0.016",  "0.033", "0.066", "0.133"};
@@ -135,10 +139,11 @@ static void histogram_reset(histogram *hg)
 
 /* ---- the table: every family /metrics shows ---- */
 
-/* A family's values live in one array of relaxed atomics, indexed by slot: a scalar has one
- * slot, a labelled family one per label value. The family table below says, once for each
- * family, its name, type, help, label and slots; the update functions write a slot, and
- * metrics_reset and metrics_render walk the table (so a new metric is one slot and one row). */
+/* A family's values live in one array of relaxed atomics, indexed by slot: a
+ * scalar has one slot, a labelled family one per label value. The family
+ * table below says, once for each family, its name, type, help, label and
+ * slots; the update functions write a slot, and metrics_reset and
+ * metrics_render walk the table (so a new metric is one slot and one row). */
 enum slot {
     S_TICK,
     S_VOLUME,
@@ -160,7 +165,6 @@ enum slot {
     S_CLIENTS_STALE,
     S_HEIGHTS_REFUSED,
     S_HTTP_CUT,
-    S_HTTP_BAD_REQUESTS,
     S_TICK_SHED,
     S_FOOTPRINT_FRAMES,
     S_FOOTPRINT_EVENTS,
@@ -279,8 +283,6 @@ static const family families[] = {
            "Clients switched to snapshots for being more than max_client_lag_ticks behind."),
     SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
            "/v1/heights requests refused (429): their address had too many bytes in flight."),
-    SCALAR("terrad_http_bad_requests_total", F_COUNTER, S_HTTP_BAD_REQUESTS,
-           "HTTP requests answered 400: a parameter missing or wrong (named in the answer)."),
     SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
            "HTTP connections closed while sending their headers: past the header deadline, "
            "or to make room for a newer one past a connection limit."),
@@ -364,6 +366,7 @@ void metrics_reset(void)
     pthread_once(&stage_once, stage_hist_init);
     metrics_auth_reset();
     metrics_edits_reset();
+    metrics_room_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -506,11 +509,6 @@ void metrics_count_heights_refused(void)
 void metrics_count_http_cut(uint64_t n)
 {
     ADD(S_HTTP_CUT, n);
-}
-
-void metrics_count_http_bad_request(void)
-{
-    ADD(S_HTTP_BAD_REQUESTS, 1);
 }
 
 void metrics_count_tick_shed(uint64_t colliders)
@@ -783,6 +781,8 @@ char *metrics_render(size_t *len)
     if (metrics_auth_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_edits_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
+    if (metrics_room_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);

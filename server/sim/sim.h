@@ -421,7 +421,7 @@ void sim_set_threads(int n);
 int sim_threads(void);
 int sim_default_threads(void);
 /* On: every parallel loop this thread meets runs on it alone (heights are
- * the same). A pool ticking several worlds (app/serve_ticker.c) has its
+ * the same). A pool ticking several worlds (host/host_ticker.c) has its
  * parallelism across the worlds already; a tick that waited for a chunk a
  * descheduled helper had claimed would hold up the worlds behind it. */
 void sim_thread_serial(int on);

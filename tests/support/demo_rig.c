@@ -27,7 +27,7 @@ int demo_rig_open(demo_rig *r, error_text *err)
 
 int demo_rig_tick(demo_rig *r, long tick, error_text *err)
 {
-    for (int a = 0; a < DEMO_RIG_ACTORS; a++) { /* as step_demo (serve_sim.c) */
+    for (int a = 0; a < DEMO_RIG_ACTORS; a++) { /* as step_demo (host_sim.c) */
         sim_collider *c = &r->colliders[a];
         c->id = a + 1;
         c->geometry = &r->actors[a].geometry;

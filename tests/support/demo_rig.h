@@ -1,7 +1,7 @@
 /*
  * demo_rig.h: what `terrad serve` runs without clients — the embedded
- * default scene, the CPU twin and the built-in demo actors (serve_demo.c),
- * stepped and ticked exactly as step_demo (serve_sim.c) does, without the
+ * default scene, the CPU twin and the built-in demo actors (host_demo.c),
+ * stepped and ticked exactly as step_demo (host_sim.c) does, without the
  * daemon's clock — for the tests of the demo world (test_demo_edges,
  * test_demo_readable).
  */

@@ -3,7 +3,7 @@
  * world grows tall thin fins along its edges after a few minutes of
  * `make run`"). It runs what `terrad serve` runs without clients — the
  * embedded default scene, the CPU twin and the six built-in demo actors
- * (serve_demo.c), stepped and ticked exactly as step_demo does
+ * (host_demo.c), stepped and ticked exactly as step_demo does
  * (tests/support/demo_rig.c) — for 3,600 ticks (one minute of the demo at
  * 60 Hz), without the daemon's clock.
  *

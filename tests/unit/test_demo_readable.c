@@ -3,7 +3,7 @@
  * run` goes (issue 20: "the demo fills the whole map with craters within ten
  * minutes, after which no trail can be told apart"). It runs what `terrad
  * serve` runs without clients — the embedded default scene, the CPU twin and
- * the six built-in demo actors (serve_demo.c), stepped as step_demo does —
+ * the six built-in demo actors (host_demo.c), stepped as step_demo does —
  * without the daemon's clock, and looks at the world twice: after LOOK_A and
  * after LOOK_B ticks.
  *

@@ -1,9 +1,9 @@
 /*
- * test_ticker.c: the shared pool of sim workers (app/serve_ticker.c, issue
+ * test_ticker.c: the shared pool of sim workers (host/host_ticker.c, issue
  * 22) ticks several worlds at once, and each world's heights after T ticks
  * are bit-identical to the same world ticked alone on one thread. The worlds
  * are the daemon's default scene with demo actors, whose poses are a
- * function of the tick number only (serve_demo.c), so the comparison needs
+ * function of the tick number only (host_demo.c), so the comparison needs
  * no clock. Also: a job asked to end mid-run ends (its end runs once, on a
  * worker), and a stopped ticker ends every job it still holds.
  */
@@ -19,8 +19,8 @@
 #define TICKS 24
 
 typedef struct pooled {
-    serve_sim m;
-    serve_tick_job job;
+    host_sim m;
+    host_job job;
     int32_t *heights; /* copied by its end */
     int64_t volume;
     long ticks; /* service ticks when it ended */
@@ -38,13 +38,13 @@ static int32_t *all_heights(const world *w)
     return h;
 }
 
-static void pooled_end(serve_tick_job *j, int rc)
+static void pooled_end(host_job *j, int rc)
 {
     pooled *p = j->ctx;
     p->heights = all_heights(&p->m.w);
     p->volume = world_volume(&p->m.w);
     p->ticks = (long)service_current_tick(p->m.svc);
-    serve_sim_free(&p->m); /* on the worker, as the daemon's ends do */
+    host_sim_free(&p->m); /* on the worker, as the daemon's ends do */
     pthread_mutex_lock(&lock);
     p->ended++;
     p->rc = rc;
@@ -53,7 +53,7 @@ static void pooled_end(serve_tick_job *j, int rc)
 }
 
 /* The default scene's world with o's demo actors, ready to tick. */
-static int open_world(serve_sim *m, const serve_options *o, error_text *err)
+static int open_world(host_sim *m, const serve_options *o, error_text *err)
 {
     memset(m, 0, sizeof *m);
     m->metrics_slot = -1;
@@ -61,12 +61,13 @@ static int open_world(serve_sim *m, const serve_options *o, error_text *err)
     if (app_open_scene_world(NULL, &m->sc, &m->w, err) != 0)
         return -1;
     m->sc.tick_hz = 1000; /* as fast as the workers go: overruns are fine here */
-    serve_sim_status_init(m);
+    host_sim_status_init(m);
     if (!(m->h = hub_create())) {
         error_set(err, "out of memory");
         return -1;
     }
-    return serve_sim_start(m, o, err);
+    host_sim_config c = serve_host_config(o);
+    return host_sim_start(m, &c, err);
 }
 
 static void wait_ended(pooled *p, int n)
@@ -86,35 +87,34 @@ int main(void)
     error_text err = {{0}};
 
     /* the world alone, ticked on this thread */
-    serve_sim alone;
+    host_sim alone;
     CHECK(open_world(&alone, &o, &err) == 0, "alone: %s", err.message);
     for (long t = 0; t < TICKS; t++)
-        CHECK(serve_sim_step(&alone, t, 0, &err) == 0, "alone tick %ld: %s", t, err.message);
+        CHECK(host_sim_step(&alone, t, 0, &err) == 0, "alone tick %ld: %s", t, err.message);
     int32_t *want = all_heights(&alone.w);
     int64_t want_volume = world_volume(&alone.w);
     {
-        serve_sim fresh;
+        host_sim fresh;
         CHECK(open_world(&fresh, &o, &err) == 0, "fresh: %s", err.message);
         int32_t *base = all_heights(&fresh.w);
         CHECK(want && base &&
                   memcmp(want, base, (size_t)alone.w.width * alone.w.height * sizeof *want) != 0,
               "the demo actors deformed the world alone");
         free(base);
-        serve_sim_free(&fresh);
+        host_sim_free(&fresh);
         pthread_mutex_destroy(&fresh.status.lock);
     }
 
     /* the same world POOL_WORLDS times on a pool of 3 workers, side by side */
-    serve_ticker *t = serve_ticker_start(3, &err);
+    host_ticker *t = host_ticker_start(3, &err);
     CHECK(t != NULL, "ticker: %s", err.message);
     pooled *p = calloc(POOL_WORLDS + 2, sizeof *p);
     for (int i = 0; i < POOL_WORLDS; i++) { /* all made first: they tick side by side */
         CHECK(open_world(&p[i].m, &o, &err) == 0, "world %d: %s", i, err.message);
-        p[i].job =
-            (serve_tick_job){.m = &p[i].m, .max_ticks = TICKS, .end = pooled_end, .ctx = &p[i]};
+        p[i].job = (host_job){.m = &p[i].m, .max_ticks = TICKS, .end = pooled_end, .ctx = &p[i]};
     }
     for (int i = 0; t && i < POOL_WORLDS; i++)
-        CHECK(serve_ticker_add(t, &p[i].job, &err) == 0, "add %d: %s", i, err.message);
+        CHECK(host_ticker_add(t, &p[i].job, &err) == 0, "add %d: %s", i, err.message);
     wait_ended(p, POOL_WORLDS);
     size_t cells = (size_t)alone.w.width * alone.w.height;
     for (int i = 0; i < POOL_WORLDS; i++) {
@@ -131,13 +131,13 @@ int main(void)
     pooled *a = &p[POOL_WORLDS], *b = &p[POOL_WORLDS + 1];
     for (int i = 0; t && i < 2; i++) {
         CHECK(open_world(&a[i].m, &o, &err) == 0, "endless %d: %s", i, err.message);
-        a[i].job = (serve_tick_job){.m = &a[i].m, .max_ticks = -1, .end = pooled_end, .ctx = &a[i]};
-        CHECK(serve_ticker_add(t, &a[i].job, &err) == 0, "add endless %d: %s", i, err.message);
+        a[i].job = (host_job){.m = &a[i].m, .max_ticks = -1, .end = pooled_end, .ctx = &a[i]};
+        CHECK(host_ticker_add(t, &a[i].job, &err) == 0, "add endless %d: %s", i, err.message);
     }
-    serve_ticker_end(t, &a->job);
+    host_ticker_end(t, &a->job);
     wait_ended(a, 1);
     CHECK(a->ended == 1 && a->rc == 0, "ended when asked (%d, rc %d)", a->ended, a->rc);
-    serve_ticker_stop(t);
+    host_ticker_stop(t);
     CHECK(b->ended == 1 && b->rc == 0, "the ticker's stop ended the last (%d, rc %d)", b->ended,
           b->rc);
 
@@ -147,7 +147,7 @@ int main(void)
     }
     free(p);
     free(want);
-    serve_sim_free(&alone);
+    host_sim_free(&alone);
     pthread_mutex_destroy(&alone.status.lock);
     return check_report();
 }

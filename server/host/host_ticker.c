@@ -1,13 +1,15 @@
 /*
- * serve_ticker.c: one shared pool of sim workers that ticks every world of
+ * host_ticker.c: one shared pool of sim workers that ticks every world of
  * the process at its own rate (issue 22) — a single daemon's created worlds
  * and a cluster node's worlds alike — instead of one sim thread per world.
  *
- * Each world is a job with a due time. A free worker takes the job whose due
- * time is earliest (earliest deadline first) and runs one tick of it
- * (serve_sim_step, then the owner's check), then the job is due one period
- * later, or now when it fell behind (the backlog is dropped, the rate kept,
- * as serve_sim_loop did). So a heavy world delays nobody more than one tick
+ * Each world is a job with a due time, which its clock gives (host_clock.c:
+ * the wall clock, one period after the last due time, or now when the world
+ * fell behind). A free worker takes the job whose due time is earliest
+ * (earliest deadline first) and runs one tick of it (host_sim_step, then the
+ * owner's check), then asks the clock when the next is due. A job whose
+ * clock says HOST_CLOCK_NEVER waits, taken by no worker, until
+ * host_ticker_wake asks its clock again. So a heavy world delays nobody more than one tick
  * of its own: every world that is due is taken in order of how late it is,
  * and when the cores do not suffice every world slows alike.
  *
@@ -33,7 +35,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "app/serve_internal.h"
+#include "host/host.h"
 
 #define TICKER_WORKERS_PER_CORE 2
 #define TICKER_WORKERS_MIN 4
@@ -41,15 +43,15 @@
 #define TICKER_WORKER_STACK (256 * 1024) /* a tick's deepest call chain is far below this */
 
 typedef struct ticker_worker {
-    serve_ticker *t;
+    host_ticker *t;
     int index;
     pthread_t thread;
 } ticker_worker;
 
-struct serve_ticker {
+struct host_ticker {
     pthread_mutex_t lock;
     pthread_cond_t wake; /* a job added, ended, or due earlier than a worker's wait */
-    serve_tick_job **jobs;
+    host_job **jobs;
     int njobs, cap;
     int stopping;
     int next_pin; /* round-robin worker for pinned (GL) jobs */
@@ -59,7 +61,7 @@ struct serve_ticker {
     ticker_worker *workers;
 };
 
-int serve_ticker_default_workers(void)
+int host_ticker_default_workers(void)
 {
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     long n = (cores < 1 ? 1 : cores) * TICKER_WORKERS_PER_CORE;
@@ -69,22 +71,24 @@ int serve_ticker_default_workers(void)
 }
 
 /* The next job this worker may run: an ending one first, else the earliest due. */
-static serve_tick_job *pick(serve_ticker *t, int worker)
+static host_job *pick(host_ticker *t, int worker)
 {
-    serve_tick_job *best = NULL;
+    host_job *best = NULL;
     for (int i = 0; i < t->njobs; i++) {
-        serve_tick_job *j = t->jobs[i];
+        host_job *j = t->jobs[i];
         if (j->running || (j->pinned >= 0 && j->pinned != worker))
             continue;
         if (j->ending)
             return j;
+        if (j->due_ms >= HOST_CLOCK_NEVER)
+            continue; /* its clock waits for host_ticker_wake */
         if (!best || j->due_ms < best->due_ms)
             best = j;
     }
     return best;
 }
 
-static void drop(serve_ticker *t, serve_tick_job *j)
+static void drop(host_ticker *t, host_job *j)
 {
     for (int i = 0; i < t->njobs; i++)
         if (t->jobs[i] == j) {
@@ -93,7 +97,7 @@ static void drop(serve_ticker *t, serve_tick_job *j)
         }
 }
 
-static void wait_until(serve_ticker *t, double due_ms)
+static void wait_until(host_ticker *t, double due_ms)
 {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -107,14 +111,14 @@ static void wait_until(serve_ticker *t, double due_ms)
 }
 
 /* One tick of j (outside the lock): its rc, why set when it is not 0. */
-static int tick_once(serve_tick_job *j, int serial)
+static int tick_once(host_job *j, int serial)
 {
-    serve_sim *m = j->m;
+    host_sim *m = j->m;
     sim_thread_serial(serial);
     service_claim(m->svc); /* this worker is the world's sim thread for this tick */
     error_text err = {{0}};
     int clients = j->net ? net_server_client_count(j->net) : 0;
-    if (serve_sim_step(m, j->tick, clients, &err) != 0) {
+    if (host_sim_step(m, j->tick, clients, &err) != 0) {
         snprintf(j->why, sizeof j->why, "%s", err.message);
         return -1;
     }
@@ -126,10 +130,10 @@ static int tick_once(serve_tick_job *j, int serial)
 static void *worker_main(void *arg)
 {
     ticker_worker *w = arg;
-    serve_ticker *t = w->t;
+    host_ticker *t = w->t;
     pthread_mutex_lock(&t->lock);
     for (;;) {
-        serve_tick_job *j = pick(t, w->index);
+        host_job *j = pick(t, w->index);
         if (!j) {
             if (t->stopping && t->njobs == 0)
                 break;
@@ -160,10 +164,7 @@ static void *worker_main(void *arg)
         pthread_mutex_lock(&t->lock);
         j->running = 0;
         j->tick++;
-        double now = time_now_ms();
-        j->due_ms += j->period_ms;
-        if (j->due_ms < now)
-            j->due_ms = now; /* behind: drop the backlog, keep the rate */
+        j->due_ms = j->clock.due_ms(j->clock.ctx, j->tick, j->period_ms, j->due_ms, time_now_ms());
         if (rc != 0 || (j->max_ticks >= 0 && j->tick >= j->max_ticks)) {
             j->ending = 1;
             j->rc = rc;
@@ -178,9 +179,9 @@ static void *worker_main(void *arg)
     return NULL;
 }
 
-serve_ticker *serve_ticker_start(int workers, error_text *err)
+host_ticker *host_ticker_start(int workers, error_text *err)
 {
-    serve_ticker *t = calloc(1, sizeof *t);
+    host_ticker *t = calloc(1, sizeof *t);
     if (!t || !(t->workers = calloc((size_t)workers, sizeof *t->workers))) {
         free(t);
         error_set(err, "ticker: out of memory");
@@ -206,19 +207,19 @@ serve_ticker *serve_ticker_start(int workers, error_text *err)
     pthread_attr_destroy(&attr);
     if (t->nworkers == 0) {
         error_set(err, "ticker: cannot start a worker thread");
-        serve_ticker_stop(t);
+        host_ticker_stop(t);
         return NULL;
     }
     log_info("ticker: %d sim workers tick every world of this process", t->nworkers);
     return t;
 }
 
-int serve_ticker_add(serve_ticker *t, serve_tick_job *j, error_text *err)
+int host_ticker_add(host_ticker *t, host_job *j, error_text *err)
 {
     pthread_mutex_lock(&t->lock);
     if (t->njobs == t->cap) {
         int cap = t->cap ? 2 * t->cap : 16;
-        serve_tick_job **jobs = realloc(t->jobs, (size_t)cap * sizeof *jobs);
+        host_job **jobs = realloc(t->jobs, (size_t)cap * sizeof *jobs);
         if (!jobs) {
             pthread_mutex_unlock(&t->lock);
             error_set(err, "ticker: out of memory");
@@ -227,9 +228,12 @@ int serve_ticker_add(serve_ticker *t, serve_tick_job *j, error_text *err)
         t->jobs = jobs;
         t->cap = cap;
     }
+    if (!j->clock.due_ms)
+        j->clock = host_clock_wall;
     j->period_ms = 1000.0 / j->m->sc.tick_hz;
-    j->due_ms = time_now_ms();
     j->tick = 0;
+    double now = time_now_ms();
+    j->due_ms = j->clock.due_ms(j->clock.ctx, 0, j->period_ms, now, now);
     j->running = j->rc = 0;
     j->ending = j->max_ticks == 0;
     j->why[0] = 0;
@@ -241,7 +245,19 @@ int serve_ticker_add(serve_ticker *t, serve_tick_job *j, error_text *err)
     return 0;
 }
 
-void serve_ticker_end(serve_ticker *t, serve_tick_job *j)
+void host_ticker_wake(host_ticker *t, host_job *j)
+{
+    pthread_mutex_lock(&t->lock);
+    for (int i = 0; i < t->njobs; i++)
+        if (t->jobs[i] == j && !j->running && !j->ending && j->due_ms >= HOST_CLOCK_NEVER) {
+            double now = time_now_ms();
+            j->due_ms = j->clock.due_ms(j->clock.ctx, j->tick, j->period_ms, now, now);
+            pthread_cond_broadcast(&t->wake);
+        }
+    pthread_mutex_unlock(&t->lock);
+}
+
+void host_ticker_end(host_ticker *t, host_job *j)
 {
     pthread_mutex_lock(&t->lock);
     for (int i = 0; i < t->njobs; i++)
@@ -252,7 +268,7 @@ void serve_ticker_end(serve_ticker *t, serve_tick_job *j)
     pthread_mutex_unlock(&t->lock);
 }
 
-void serve_ticker_stop(serve_ticker *t)
+void host_ticker_stop(host_ticker *t)
 {
     if (!t)
         return;

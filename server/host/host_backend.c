@@ -1,5 +1,5 @@
 /*
- * backend_select.c: picks a deformation backend by name for the commands,
+ * host_backend.c: picks a deformation backend by name for the commands,
  * once before the first tick; every tick's deformation then runs on it.
  *
  * `auto` (the default) chooses the faster one for this machine: GL where
@@ -14,12 +14,12 @@
 #include <pthread.h>
 #include <string.h>
 
-#include "app/app.h"
+#include "host/host.h"
 #include "gl/gl.h"
 
 static pthread_mutex_t auto_lock = PTHREAD_MUTEX_INITIALIZER;
 static int auto_decided, auto_gl;
-static char auto_reason[APP_BACKEND_REASON_MAX];
+static char auto_reason[HOST_BACKEND_REASON_MAX];
 
 /* The auto choice, probed on the first call. */
 static int auto_choose(char *why, size_t cap)
@@ -48,9 +48,9 @@ static int auto_choose(char *why, size_t cap)
     return gl;
 }
 
-sim_backend *app_backend_create(const char *name, char *why, size_t why_cap, error_text *err)
+sim_backend *host_backend_create(const char *name, char *why, size_t why_cap, error_text *err)
 {
-    char scratch[APP_BACKEND_REASON_MAX];
+    char scratch[HOST_BACKEND_REASON_MAX];
     if (!why) {
         why = scratch;
         why_cap = sizeof scratch;
@@ -69,4 +69,13 @@ sim_backend *app_backend_create(const char *name, char *why, size_t why_cap, err
     if (b)
         log_info("backend: %s (%s)", b->name, why);
     return b;
+}
+
+int host_ground_attach(const scene *sc, const world *w, sim_engine *engine, ground *g,
+                       error_text *err)
+{
+    if (scene_create_ground(sc, w, g, err) != 0)
+        return -1;
+    sim_engine_set_ground(engine, g);
+    return 0;
 }

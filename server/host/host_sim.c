@@ -1,12 +1,12 @@
 /*
- * serve_sim.c: one world's simulation inside `terrad serve` — the scene and
+ * host_sim.c: one world's simulation inside `terrad serve` — the scene and
  * its world, the engine on its backend, the ground, the service over the hub,
  * the demo actors and the status block HTTP reads — and one step of the
  * fixed-rate tick loop on it (demo poses → service_tick → status and
  * metrics). A single daemon's default world has one (serve.c, on the main
  * thread); its created worlds (serve_worlds.c) and a cluster node's worlds
  * (serve_node.c) have one each, ticked by the shared pool of sim workers
- * (serve_ticker.c). Everything here runs on whichever thread is the world's
+ * (host_ticker.c). Everything here runs on whichever thread is the world's
  * sim thread at the time: the one that made it, then the worker running its
  * tick (the backend keeps a GL context on one worker; the hub's sim end moves
  * with the tick).
@@ -15,37 +15,36 @@
 #include <string.h>
 #include <time.h>
 
-#include "app/app.h"
-#include "app/serve_internal.h"
+#include "host/host.h"
 #include "metrics/metrics.h"
 #include "service/service.h"
 
-int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
+int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
 {
     world *w = &m->w;
     if (sim_params_from_material(&m->sc.material, w->cell_size_m, w->units_per_m, w->floor,
                                  &m->params, err) != 0 ||
         !(m->backend =
-              app_backend_create(o->backend, m->backend_reason, sizeof m->backend_reason, err)) ||
+              host_backend_create(c->backend, m->backend_reason, sizeof m->backend_reason, err)) ||
         !(m->engine =
               sim_engine_create(w, &m->params, m->backend, m->sc.active_margin_cells, err)) ||
-        app_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
+        host_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
         !(m->svc = service_create(m->engine, m->h, err)))
         return -1;
-    service_set_tick_budget(m->svc, o->limits.max_tick_cells, o->limits.max_sweep_cells);
+    service_set_tick_budget(m->svc, c->max_tick_cells, c->max_sweep_cells);
     if (m->st)
         /* go on from the recovered tick, or past it where the store says a
          * client may have seen later (unlogged idle) ticks */
         service_attach_store(m->svc, m->st,
                              m->recovery.tick_floor > m->recovery.tick ? m->recovery.tick_floor
                                                                        : m->recovery.tick);
-    m->actors = calloc((size_t)o->demo_actors + 1, sizeof *m->actors);
-    m->extra = calloc((size_t)o->demo_actors + 1, sizeof *m->extra);
+    m->actors = calloc((size_t)c->demo_actors + 1, sizeof *m->actors);
+    m->extra = calloc((size_t)c->demo_actors + 1, sizeof *m->extra);
     if (!m->actors || !m->extra) {
         error_set(err, "serve: out of memory");
         return -1;
     }
-    m->demo_actors = o->demo_actors;
+    m->demo_actors = c->demo_actors;
     demo_actors_init(m->actors, m->demo_actors, w);
     snprintf(m->models, sizeof m->models, "[\"%s\"]", sim_model_name(m->params.model));
 
@@ -59,7 +58,7 @@ int serve_sim_start(serve_sim *m, const serve_options *o, error_text *err)
     return 0;
 }
 
-void serve_sim_ready(serve_sim *m)
+void host_sim_ready(host_sim *m)
 {
     http_status *s = &m->status;
     pthread_mutex_lock(&s->lock);
@@ -75,7 +74,7 @@ void serve_sim_ready(serve_sim *m)
     pthread_mutex_unlock(&s->lock);
 }
 
-void serve_sim_status_init(serve_sim *m)
+void host_sim_status_init(host_sim *m)
 {
     http_status *s = &m->status;
     s->world_width = m->w.width;
@@ -91,7 +90,7 @@ void serve_sim_status_init(serve_sim *m)
     s->compacted = sim_world_compacted(&m->w);
 }
 
-net_world_info serve_sim_world_info(const serve_sim *m)
+net_world_info host_sim_world_info(const host_sim *m)
 {
     const world *w = &m->w;
     return (net_world_info){.width = w->width,
@@ -108,7 +107,7 @@ net_world_info serve_sim_world_info(const serve_sim *m)
                             .materials_json = "[\"default\"]"};
 }
 
-static void publish_status(serve_sim *m, double tick_ms, int clients, int colliders)
+static void publish_status(host_sim *m, double tick_ms, int clients, int colliders)
 {
     http_status *status = &m->status;
     pthread_mutex_lock(&status->lock);
@@ -132,7 +131,7 @@ static void publish_status(serve_sim *m, double tick_ms, int clients, int collid
 
 /* The process-wide series. A cluster node's worlds share them (the stages'
  * histograms add up); the per-world gauges are the labelled ones instead. */
-static void publish_metrics(const serve_sim *m, const service_tick_stats *st)
+static void publish_metrics(const host_sim *m, const service_tick_stats *st)
 {
     const sim_stage_times *t = &st->report.times;
     metrics_observe_tick_ms(st->tick_ms);
@@ -176,7 +175,7 @@ static void publish_metrics(const serve_sim *m, const service_tick_stats *st)
 }
 
 /* The demo actors' poses for this tick, as colliders beside the clients'. */
-static void step_demo(serve_sim *m, long tick)
+static void step_demo(host_sim *m, long tick)
 {
     double t = (double)tick / m->sc.tick_hz;
     for (int a = 0; a < m->demo_actors; a++) {
@@ -189,7 +188,7 @@ static void step_demo(serve_sim *m, long tick)
     }
 }
 
-int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err)
+int host_sim_step(host_sim *m, long tick, int clients, error_text *err)
 {
     fault_stall("tick"); /* test hook (base/fault.c): a sim thread that stops */
     step_demo(m, tick);
@@ -208,7 +207,7 @@ int serve_sim_step(serve_sim *m, long tick, int clients, error_text *err)
     return 0;
 }
 
-void serve_sleep_ms(double ms)
+void host_sleep_ms(double ms)
 {
     if (ms <= 0)
         return;
@@ -216,7 +215,7 @@ void serve_sleep_ms(double ms)
     nanosleep(&ts, NULL);
 }
 
-void serve_sim_free(serve_sim *m)
+void host_sim_stop(host_sim *m)
 {
     service_destroy(m->svc);
     m->svc = NULL;
@@ -229,12 +228,17 @@ void serve_sim_free(serve_sim *m)
     ground_free(&m->grd);
     if (m->backend)
         m->backend->destroy(m->backend);
-    hub_destroy(m->h);
-    world_free(&m->w);
-    scene_free(&m->sc);
     m->extra = NULL;
     m->actors = NULL;
     m->engine = NULL;
     m->backend = NULL;
+}
+
+void host_sim_free(host_sim *m)
+{
+    host_sim_stop(m);
+    hub_destroy(m->h);
+    world_free(&m->w);
+    scene_free(&m->sc);
     m->h = NULL;
 }

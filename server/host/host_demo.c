@@ -1,5 +1,5 @@
 /*
- * serve_demo.c: `terrad serve`'s built-in demo actors — spheres that run
+ * host_demo.c: `terrad serve`'s built-in demo actors — spheres that run
  * laps and bob in and out of the terrain — so that a daemon without clients
  * still deforms its terrain and a newcomer sees it work. Each tick the sim
  * thread steps them and hands them to the service as colliders beside the
@@ -18,7 +18,7 @@
  */
 #include <math.h>
 
-#include "app/serve_internal.h"
+#include "host/host.h"
 
 void demo_actors_init(demo_actor *a, int count, const world *w)
 {

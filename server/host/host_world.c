@@ -1,0 +1,112 @@
+/*
+ * host_world.c: one world's life, the same for every world a daemon ticks
+ * (host.h): open (the registry backend's open: its scene, world and store) →
+ * its hub and simulation started → on the ports (http_server_add_world,
+ * net_server_add_world) and in the metrics (a labelled slot) → ready → on
+ * the ticker, which runs its ticks as its clock says → asked to end, or a
+ * tick failed, or the registry's check said stop → its end on a worker: off
+ * the ports (reads fail fast, requests in flight end, its clients are told
+ * and closed), freed (its GL context is current on that worker), and the
+ * registry told last (ops->ended). Before issue 29 a created world
+ * (app/serve_worlds.c) and a cluster world (app/serve_node.c) each had their
+ * own copy of this; what still differs between them is in their ops.
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "host/host.h"
+#include "metrics/metrics.h"
+
+/* The world joins the ports, then the registry hears it serves. */
+static int world_register(host_world *hw, error_text *err)
+{
+    host_sim *m = &hw->m;
+    net_world_info info = host_sim_world_info(m);
+    if (http_server_add_world(hw->http, m->name, &m->status, m->h, &m->w, err) != 0)
+        return -1;
+    if (net_server_add_world(hw->net, &info, m->h, err) != 0) {
+        http_server_remove_world(hw->http, m->name);
+        return -1;
+    }
+    m->metrics_slot = metrics_world_slot(m->name);
+    host_sim_ready(m);
+    atomic_store(&hw->registered, 1);
+    return hw->ops->registered ? hw->ops->registered(hw, err) : 0;
+}
+
+/* The world leaves the ports: reads fail fast, requests in flight end, its
+ * clients are told (deleted, or stopped) and closed. */
+static void world_unregister(host_world *hw)
+{
+    host_sim *m = &hw->m;
+    if (m->h) {
+        char why[160];
+        snprintf(why, sizeof why, "world %s %s", m->name,
+                 hw->deleted ? hw->ops->deleted_why : hw->ops->stopped_why);
+        hub_close_reads(m->h);
+        hub_close_edits(m->h, why);
+    }
+    if (!atomic_load(&hw->registered))
+        return;
+    atomic_store(&hw->registered, 0);
+    if (hw->ops->unregistering)
+        hw->ops->unregistering(hw);
+    http_server_remove_world(hw->http, m->name);
+    if ((hw->deleted ? net_server_delete_world(hw->net, m->h)
+                     : net_server_remove_world(hw->net, m->h)) != 0)
+        m->h = NULL; /* the net thread may still hold it: left to the exit */
+    metrics_world_drop(m->metrics_slot);
+}
+
+static int world_check(void *ctx, host_sim *m, long tick, char *why, size_t cap)
+{
+    (void)m;
+    host_world *hw = ctx;
+    return hw->ops->check(hw, tick, why, cap);
+}
+
+/* The job's end, on a worker: off the ports, freed, the registry told. */
+static void world_end(host_job *j, int rc)
+{
+    host_world *hw = j->ctx;
+    host_sim *m = &hw->m;
+    if (rc != 0)
+        snprintf(hw->why, sizeof hw->why, "%s", j->why);
+    world_unregister(hw);
+    hw->last_tick = (unsigned long long)service_current_tick(m->svc);
+    hw->overruns = (unsigned long long)m->overruns;
+    host_sim_free(m);
+    if (hw->ops->ended)
+        hw->ops->ended(hw, rc);
+}
+
+int host_world_start(host_world *hw, char *why, size_t cap)
+{
+    host_sim *m = &hw->m;
+    m->metrics_slot = -1;
+    error_text err = {{0}};
+    if (hw->ops->open(hw, &err) == 0) {
+        host_sim_status_init(m);
+        hw->job = (host_job){.m = m,
+                             .net = hw->net,
+                             .max_ticks = hw->max_ticks,
+                             .clock = hw->clock,
+                             .check = hw->ops->check ? world_check : NULL,
+                             .end = world_end,
+                             .ctx = hw};
+        if (!(m->h = hub_create()))
+            error_set(&err, "out of memory");
+        else if (host_sim_start(m, &hw->config, &err) == 0 && world_register(hw, &err) == 0 &&
+                 host_ticker_add(hw->ticker, &hw->job, &err) == 0)
+            return 0;
+    }
+    snprintf(why, cap, "%s", err.message);
+    world_unregister(hw);
+    host_sim_free(m);
+    return -1;
+}
+
+void host_world_end(host_world *hw)
+{
+    host_ticker_end(hw->ticker, &hw->job);
+}
