@@ -198,14 +198,12 @@ static void default_ended(host_world *hw, int rc)
     atomic_store(&d->ended, 1);
 }
 
-static const host_world_ops default_world_ops = {
-    .open = default_open,
-    .join = default_join,
-    .registered = default_registered,
-    .ended = default_ended,
-    .deleted_why = "was deleted",
-    .stopped_why = "stopped (the daemon stops)",
-};
+/* Its registry backend: no check after a tick, and with join its clients are
+ * not told it stopped (the daemon stops: net_server_stop closes them). */
+static const host_world_ops default_world_ops = {.open = default_open,
+                                                 .join = default_join,
+                                                 .registered = default_registered,
+                                                 .ended = default_ended};
 
 /* The HTTP port on the opened world, then its simulation, the websocket
  * port and its ticks (host_world_run → default_join). */
