@@ -219,8 +219,7 @@ static int serve_start(serve_daemon *d, error_text *err)
     char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
     http_server_set_twin(d->http, twin, why.message);
     free(twin);
-    d->def.http = d->http;
-    d->def.ticker = d->ticker;
+    host_world_place(&d->def, &default_world_ops, d, d->http, NULL, d->ticker);
     d->def.config = serve_host_config(&d->o);
     d->def.max_ticks = d->o.max_ticks;
     if (host_world_run(&d->def, err->message, sizeof err->message) != 0)
@@ -277,7 +276,7 @@ int app_serve(int argc, char **argv)
         return 1;
     }
     pthread_mutex_init(&d->def.m.status.lock, NULL);
-    d->def.ops = &default_world_ops;
+    d->def.ops = &default_world_ops; /* its open runs before the ports are made */
     d->def.owner = d;
     serve_catch_signals(); /* from the start: a SIGTERM while connecting still stops cleanly */
     cli_result parsed = serve_options_parse(argc, argv, &d->o);

@@ -213,11 +213,7 @@ static const host_world_ops local_world_ops = {
 static int world_start(serve_worlds *ws, local_world *lw, char *why, size_t cap)
 {
     host_world *hw = &lw->hw;
-    hw->ops = &local_world_ops;
-    hw->owner = lw;
-    hw->http = ws->http;
-    hw->net = ws->net;
-    hw->ticker = ws->ticker;
+    host_world_place(hw, &local_world_ops, lw, ws->http, ws->net, ws->ticker);
     hw->config = serve_host_config(&ws->o);
     hw->max_ticks = -1;
     if (host_world_start(hw, why, cap) == 0)

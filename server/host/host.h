@@ -232,6 +232,10 @@ struct host_world {
     unsigned long long last_tick; /* at its end */
     unsigned long long overruns;
 };
+/* Where hw comes from and where it goes: its registry backend (ops, owner),
+ * the ports it joins and the pool it ticks on (the rest of hw as it is). */
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+                      net_server *net, host_ticker *ticker);
 /* host_world_open, then host_world_run. */
 int host_world_start(host_world *hw, char *why, size_t cap);
 /* Opens hw (ops->open: scene, world, store), its status filled, its hub

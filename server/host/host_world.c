@@ -95,6 +95,16 @@ static void world_end(host_job *j, int rc)
         hw->ops->ended(hw, rc);
 }
 
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+                      net_server *net, host_ticker *ticker)
+{
+    hw->ops = ops;
+    hw->owner = owner;
+    hw->http = http;
+    hw->net = net;
+    hw->ticker = ticker;
+}
+
 int host_world_open(host_world *hw, char *why, size_t cap)
 {
     host_sim *m = &hw->m;

@@ -210,7 +210,6 @@ int world_soil_rect_empty(const world *w, world_rect r);
 /* Σ of one field over the world, exactly (kept as cells are written). */
 int64_t world_soil_sum(const world *w, int field);
 void world_soil_cell(const world *w, int x, int y, int32_t *out);
-uint64_t world_soil_bytes(const world *w);
 
 /* Write / read a 16-bit greyscale PNG (used by base terrain and exports). */
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err);

@@ -144,11 +144,3 @@ void world_soil_cell(const world *w, int x, int y, int32_t *out)
         out[f] = s ? s[f] : 0;
 }
 
-uint64_t world_soil_bytes(const world *w)
-{
-    const struct world_soil *s = w->soil;
-    if (!s)
-        return 0;
-    return (uint64_t)s->allocated * (uint64_t)SOIL_TILE_INTS * sizeof(int32_t) +
-           (uint64_t)s->tiles_x * (uint64_t)s->tiles_y * sizeof(int32_t *);
-}
