@@ -9,7 +9,7 @@ const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
 const httpPort = Number(location.port || (location.protocol === 'https:' ? 443 : 80));
 const wsPort = Number(params.get('ws')) || httpPort + 1;
-// A daemon with tokens (README "Security"): open the viewer as /#token=tdk_… — the fragment never
+// A daemon with tokens (docs/security.md): open the viewer as /#token=tdk_… — the fragment never
 // reaches a server or its logs; the token goes in the hello and as a bearer token to /v1/*.
 const token = new URLSearchParams(location.hash.slice(1)).get('token') || '';
 const apiInit = { cache: 'no-store', headers: token ? { Authorization: `Bearer ${token}` } : {} };

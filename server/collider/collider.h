@@ -71,6 +71,12 @@ quatd quat_multiply(quatd a, quatd b);
 quatd quat_from_axis_angle(vec3d axis, double radians);
 quatd quat_slerp(quatd a, quatd b, double t);
 vec3d quat_rotate(quatd q, vec3d v);
+/* A pose's orientation as it comes on the wire, as the engine uses it: normalised, and for a
+ * shape whose axis is z on the wire and y in the engine (capsule, cylinder: axis_z) turned a
+ * quarter about x. The one copy of the rule: the websocket server (net_control, net_requests)
+ * and the twin library's prediction (twin_predict.c) both call it, so a client predicts with
+ * the server's bits. */
+quatd collider_wire_orientation(quatd q, int axis_z);
 
 /* World-space axis-aligned bounds of the collider at a pose. */
 void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi);

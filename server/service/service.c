@@ -186,6 +186,7 @@ static int gather_colliders(service *s, const sim_collider *extra, int extra_cou
  * store cannot keep is undone, and none is made while it cannot write. */
 static int deform_and_commit(service *s, int count, sim_tick_report *report, error_text *err)
 {
+    s->tick_logged = 0;
     if (s->store && !store_writable(s->store)) {
         memset(report, 0, sizeof *report); /* no deformation that cannot be kept */
         service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "storage unavailable");
@@ -200,6 +201,8 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
                          store_commit_tick(s->store, s->world, s->tick, rects, n) != 0)) {
             undo_tick(s, report);
             service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "the log could not take the tick");
+        } else {
+            s->tick_logged = 1;
         }
     }
     for (int i = 0, k = 0; i < s->collider_count && report->contact_count; i++) {

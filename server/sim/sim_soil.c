@@ -19,7 +19,7 @@
 
 /*
  * Sources: Wong, Theory of Ground Vehicles (as transcribed in public code;
- * ../shared/notes/terramechanics.md) for n, kc, kphi, c and phi; Ding et al.
+ * docs/notes/terramechanics.md) for n, kc, kphi, c and phi; Ding et al.
  * 2011 (J. Terramechanics 48(1), Table 2) for their planetary simulant and its
  * K (9.7-13.1 mm: 11 mm). The tables give no K for the others: 0.01 m, the
  * low end of sand's typical 0.01-0.025 m. The elastic stiffness 2e8 Pa/m and

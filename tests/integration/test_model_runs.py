@@ -13,7 +13,7 @@
 - On the GL backend a model without a GL version runs on the CPU and says so.
 - Bad model names and parameters are refused naming the field.
 - Through the service: a daemon whose scene uses subtract, deferred, diffusion
-  or decals; the README's client drives a wheel and its mirror, rebuilt from
+  or decals; docs/clients.md's Python client drives a wheel and its mirror, rebuilt from
   the deltas, equals GET /v1/heights; /metrics shows the scratch per stage.
 """
 import json

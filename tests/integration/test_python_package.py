@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 300
-"""clients/python as a package, installed the way the README says, into a fresh virtual
+"""clients/python as a package, installed the way docs/clients.md says, into a fresh virtual
 environment that sees Debian's websockets, zstandard and numpy:
 
     /usr/bin/python3 -m venv --system-site-packages VENV

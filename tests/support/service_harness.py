@@ -306,7 +306,7 @@ class Daemon:
             args.append("--no-demo")
         self.auth_path = None
         if token is not None:
-            # the token as one admin entry of an auth file (README "Security"):
+            # the token as one admin entry of an auth file (docs/security.md):
             # the daemon takes no token in clear
             fd, self.auth_path = tempfile.mkstemp(prefix="terrad-auth-")
             with os.fdopen(fd, "w") as f:
