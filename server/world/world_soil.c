@@ -143,4 +143,3 @@ void world_soil_cell(const world *w, int x, int y, int32_t *out)
     for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
         out[f] = s ? s[f] : 0;
 }
-
