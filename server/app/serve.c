@@ -162,6 +162,9 @@ static int default_join(host_world *hw, error_text *err)
         !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, d->ticker, err)))
         return -1;
     hw->net = d->net; /* its clients counted in its status */
+    int tls = d->o.tls_cert && d->o.tls_cert[0];
+    /* GET /v1/websocket: the viewer asks where the websocket is, never guesses */
+    http_server_set_websocket(d->http, net_server_port(d->net), tls, d->o.public_ws_url);
     http_server_watch(d->http, "tick", http_status_stalled_ms, &m->status, SERVE_STALL_LIMIT_MS);
     http_server_watch(d->http, "net", net_stalled, d->net, SERVE_STALL_LIMIT_MS);
     return 0;

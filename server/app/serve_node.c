@@ -418,6 +418,8 @@ static int node_open_ports(serve_node *n, error_text *err)
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
+    int tls = o->tls_cert && o->tls_cert[0];
+    http_server_set_websocket(n->http, net_server_port(n->net), tls, o->public_ws_url);
     if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name)) ||
         !(n->api = serve_node_api_start(n->cl, o, n->name, n->http))) {
         error_set(err, "out of memory");
@@ -428,7 +430,6 @@ static int node_open_ports(serve_node *n, error_text *err)
     if (n->probe)
         log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
                  http_server_port(n->probe));
-    int tls = o->tls_cert && o->tls_cert[0];
     log_info("cluster: node %s listens on %s://127.0.0.1:%d/ and websocket port %d", n->name,
              tls ? "https" : "http", http_server_port(n->http), net_server_port(n->net));
     return 0;

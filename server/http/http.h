@@ -26,6 +26,10 @@
  *                     (tick 0), read without the sim thread
  *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME, and
  *   answer for a world another node ticks too: asked of its owner over NATS)
+ *   /v1/websocket     JSON: where this daemon's websocket is, for the viewer and
+ *                     other clients: {"url", "port", "subprotocol", "from"} —
+ *                     --public-ws-url as given, else ws[s]://<the Host the
+ *                     request named>:<the websocket port>/ (http_server_set_websocket)
  *   /v1/openapi.yaml  this API in OpenAPI 3 (docs/openapi.yaml, embedded)
  *   /, /<file>        the embedded web/ files ("/" is web/index.html)
  * Every error is JSON {"error": "..."}.
@@ -126,6 +130,12 @@ void http_server_set_base(http_server *s, const world *w);
  * Copied; call once. */
 void http_server_set_twin(http_server *s, const char *json, const char *why);
 int http_server_port(const http_server *s);
+/* GET /v1/websocket answers with the websocket server's place: public_url
+ * when given (checked by the caller: ws:// or wss://), else a URL built from
+ * the Host header the client used and port (wss when tls). Before the call,
+ * 503: the websocket server is not up yet. Copied; call once the port is known. */
+#define HTTP_PUBLIC_URL_MAX 512
+void http_server_set_websocket(http_server *s, int port, int tls, const char *public_url);
 /* A second listener on 127.0.0.1:port (0 = any) for /healthz, /readyz and
  * /metrics only, with its own small connection budget, so that slow or idle
  * strangers on the main port cannot starve the probes. Stop it before main. */
