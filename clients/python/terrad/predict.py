@@ -8,7 +8,9 @@ player sees their own rut in the frame they move, not a round trip later.
     await client.send_poses([Pose(wheel, ...)])   # the twin ticks at once
     pred.heights()                                 # the rut is there already
 
-The Prediction runs the twin library (terrad.twin) on the subscription's window. Each pose
+The Prediction is the twin library's (terrad_twin_prediction_* in terrad_twin.h, through
+terrad.twin's ctypes): the steps below are C, the same code the C client and the JavaScript
+clients (as WebAssembly) run. Each pose
 batch the client sends is one tick of the twin, at once, with the client's own colliders at
 their new poses. The server stays the authority: when its ACK of tick t (batch seq) arrives,
 the client's mirror holds the server's heights at t. The twin then
@@ -32,46 +34,20 @@ count then shows it and step 2 still resets to the server's state).
 
 from __future__ import annotations
 
-import array
-import math
+import ctypes
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from .proto import Pose, _f32
-from .twin import Twin, TwinError
+from .proto import Pose
+from .twin import _ERR_MAX, PredictionStats, Twin, TwinError, int32s, load_library, make_config
 
 if TYPE_CHECKING:
     from .client import Client
 
-_QUARTER_X = (0.70710678118654752440, 0.70710678118654752440, 0.0, 0.0)
 
-
-def _normalize(q: tuple[float, ...]) -> tuple[float, ...]:
-    """collider.c's quat_normalize, operation for operation (so the result is its bits)."""
-    w, x, y, z = q
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if not (n > 1e-300) or not math.isfinite(n):
-        return (1.0, 0.0, 0.0, 0.0)
-    return (w / n, x / n, y / n, z / n)
-
-
-def _multiply(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, ...]:
-    """collider.c's quat_multiply."""
-    return (a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-            a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-            a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0])
-
-
-def server_pose(p: Pose, axis_z: bool) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The pose exactly as the server uses it: every number through float32 (the wire), the
-    quaternion normalised, and for a capsule or cylinder (axis z on the wire, y in the
-    engine) turned a quarter about x (net_control_orientation)."""
-    v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
-    q = _normalize(tuple(v[3:]))
-    if axis_z:
-        q = _normalize(_multiply(q, _QUARTER_X))
-    return (v[0], v[1], v[2]), q
+def _stat(name: str) -> Any:
+    """A counter of the library's terrad_twin_prediction_stats, read when asked."""
+    return property(lambda self: int(getattr(self._stats(), name)), doc=f"stats: {name}")
 
 
 class Prediction:
@@ -84,8 +60,17 @@ class Prediction:
     the mirror was resyncing, the gap was longer than max_replay_ticks, or several batches
     were acknowledged after a gap of ticks, so which tick took each is unknown), on_time (ACKs
     of tick t, batch seq, where the heights predicted for seq before the ACK were the
-    server's at t: the batches landed one per tick, as the prediction assumes).
+    server's at t: the batches landed one per tick, as the prediction assumes). pending: the
+    seqs sent and not acknowledged yet; twin: the prediction's twin (terrad.twin.Twin), to read.
     """
+
+    predicted = _stat("predicted")
+    reconciled = _stat("reconciled")
+    replayed = _stat("replayed")
+    exact = _stat("exact")
+    skipped = _stat("skipped")
+    on_time = _stat("on_time")
+    last_differing = _stat("last_differing")
 
     def __init__(self, client: Client, sid: int, config: dict[str, Any],
                  library: str | None = None, max_replay_ticks: int | None = None):
@@ -99,24 +84,59 @@ class Prediction:
                                                     "units_per_m", "tick_hz") if k in world}
         cfg.update(config)
         self.client, self.sid = client, sid
-        self.twin = Twin(cfg, m.x, m.y, m.w, m.h, m.heights, library)
-        self.base = list(m.heights)  # the server's heights at the last ACK
-        self.base_tick: int | None = None
-        self.max_replay_ticks = (max_replay_ticks if max_replay_ticks is not None
-                                 else int(4 * float(cfg.get("tick_hz", 60))))
-        self.axis_z: dict[int, bool] = {}
-        self.acked: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
-        # sent, not acknowledged: (seq, the batch's server poses, a digest of its prediction)
-        self.pending: list[tuple[int, dict[int, Any], int]] = []
-        self.predicted = self.reconciled = self.replayed = self.exact = self.skipped = 0
-        self.on_time = 0
-        self.last_differing = 0
+        self._lib = load_library(library)
+        self._err = ctypes.create_string_buffer(_ERR_MAX)
+        self._p: int | None = None
+        self._cells = m.w * m.h
+        c = make_config(self._lib, cfg, self._err)
+        try:
+            p = self._lib.terrad_twin_prediction_create(
+                c, m.x, m.y, m.w, m.h, int32s(m.heights, self._cells, "heights"),
+                max_replay_ticks or 0, self._err)
+        finally:
+            self._lib.terrad_twin_config_free(c)
+        if not p:
+            raise TwinError(self._err.value.decode(errors="replace"))
+        self._p = p
+        self.twin = Twin.view(self._lib, self._lib.terrad_twin_prediction_twin(p), m.x, m.y,
+                              m.w, m.h)
         self._on_predict: list[Callable[[int], None]] = []
-        for cid, (shape, dims) in client.own_colliders.items():
-            self.add_collider(cid, shape, dims)
+        try:
+            for cid, (shape, dims) in client.own_colliders.items():
+                self.add_collider(cid, shape, dims)
+        except BaseException:
+            self.close()
+            raise
 
     def close(self) -> None:
-        self.twin.close()
+        if self._p is not None:
+            self.twin.close()
+            self._lib.terrad_twin_prediction_destroy(self._p)
+            self._p = None
+
+    def __del__(self) -> None:
+        if getattr(self, "_p", None) is not None:
+            self.close()
+
+    def _handle(self) -> int:
+        if self._p is None:
+            raise TwinError("prediction: closed")
+        return self._p
+
+    def _check(self, rc: int) -> None:
+        if rc != 0:
+            raise TwinError(self._err.value.decode(errors="replace"))
+
+    def _stats(self) -> PredictionStats:
+        return self._lib.terrad_twin_prediction_get_stats(self._handle()).contents
+
+    @property
+    def pending(self) -> list[int]:
+        """The seqs of the batches sent and not acknowledged yet, oldest first."""
+        n = self._lib.terrad_twin_prediction_pending(self._handle(), None, 0)
+        seqs = (ctypes.c_uint32 * max(n, 1))()
+        self._lib.terrad_twin_prediction_pending(self._handle(), seqs, n)
+        return list(seqs[:n])
 
     def on_predict(self, callback: Callable[[int], None]) -> None:
         """callback(seq) right after batch seq was ticked locally, before it is sent."""
@@ -132,104 +152,43 @@ class Prediction:
     def add_collider(self, cid: int, shape: str, dims: dict[str, Any]) -> None:
         """The twin's copy of a collider this client created (Client.create_collider calls
         this): sphere, box, capsule, cylinder, wheel, mesh."""
-        if shape == "sphere":
-            self.twin.add_collider(cid, "sphere", radius=dims["radius"])
-        elif shape == "box":
-            self.twin.add_collider(cid, "box", half_extents=dims["half_extents"])
-        elif shape in ("capsule", "cylinder"):
-            self.twin.add_collider(cid, shape, radius=dims["radius"],
-                                   half_length=dims["half_length"])
-        elif shape == "wheel":
-            self.twin.add_collider(cid, "cylinder", radius=dims["radius"],
-                                   half_length=dims["width"] / 2)
-        elif shape == "mesh":
-            self.twin.add_mesh(cid, dims["vertices"], dims["indices"])
-        else:
-            raise TwinError(f"shape: {shape!r} cannot be predicted")
         if dims.get("material", "default") != "default" or "pose" in dims:
-            self.twin.remove_collider(cid)
             raise TwinError(f"collider {cid}: a predicted collider has the default material "
                             "and gets its poses from send_poses (no pose at creation)")
-        self.axis_z[cid] = shape in ("capsule", "cylinder")
+        p = self._handle()
+        if shape == "mesh":
+            v, i = dims["vertices"], dims["indices"]
+            self._check(self._lib.terrad_twin_prediction_add_mesh(
+                p, cid, (ctypes.c_float * len(v))(*v), len(v) // 3,
+                (ctypes.c_uint32 * len(i))(*i), len(i) // 3, self._err))
+            return
+        hx, hy, hz = dims.get("half_extents", (0.0, 0.0, 0.0))
+        half_length = dims["width"] / 2 if shape == "wheel" else dims.get("half_length", 0.0)
+        self._check(self._lib.terrad_twin_prediction_add_collider(
+            p, cid, shape.encode(), dims.get("radius", 0.0), half_length, hx, hy, hz,
+            self._err))
 
     def remove_collider(self, cid: int) -> None:
-        if cid in self.axis_z:
-            self.twin.remove_collider(cid)
-            del self.axis_z[cid]
-            self.acked.pop(cid, None)
+        self._check(self._lib.terrad_twin_prediction_remove_collider(self._handle(), cid,
+                                                                     self._err))
 
     # ---- sending and reconciling -----------------------------------------------------------
 
-    def _apply(self, batch: dict[int, Any]) -> int:
-        """One tick of the twin with these poses; a digest of the heights it left."""
-        for cid, (p, q) in batch.items():
-            if cid in self.axis_z:
-                self.twin.set_pose(cid, p, q)
-        self.twin.tick()
-        return hash(self.twin.read().tobytes())
-
     def on_send(self, seq: int, poses: list[Pose]) -> None:
         """Batch seq is about to be sent: tick it locally at once."""
-        batch = {p.id: server_pose(p, self.axis_z.get(p.id, False)) for p in poses}
-        self.pending.append((seq, batch, self._apply(batch)))
-        self.predicted += 1
+        ids = (ctypes.c_uint32 * max(len(poses), 1))(*(p.id for p in poses))
+        values = (ctypes.c_double * max(7 * len(poses), 1))(
+            *(v for p in poses for v in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)))
+        self._check(self._lib.terrad_twin_prediction_sent(self._handle(), seq, ids, values,
+                                                          len(poses), self._err))
         for cb in list(self._on_predict):
             cb(seq)
 
-    def _restart(self, heights: list[int]) -> None:
-        """The twin at the server's heights, each collider where the acknowledged tick left
-        it (one without an acknowledged pose has none)."""
-        self.twin.write(heights)
-        for cid in list(self.axis_z):
-            if cid in self.acked:
-                self.twin.place(cid, *self.acked[cid])
-            else:  # remove and add: the twin forgets a pose it was given
-                self.twin.remove_collider(cid)
-                shape, dims = self.client.own_colliders[cid]
-                self.add_collider(cid, shape, dims)
-
     def on_ack(self, tick: int, seq: int) -> None:
-        """The server's ACK of tick t (batch seq); the mirror holds the server's heights at t."""
+        """The server's ACK of tick t (batch seq); the mirror holds the server's heights at t
+        (or is resyncing: then the batches are forgotten and the next ACK reconciles)."""
         m = self.client.mirrors.get(self.sid)
-        done = [e for e in self.pending if (seq - e[0]) & 0xFFFFFFFF < 0x80000000]
-        self.pending = [e for e in self.pending if (seq - e[0]) & 0xFFFFFFFF >= 0x80000000]
-        used = [b for _, b, _ in done]
-        if m is None or not m.complete:
-            self.skipped += 1  # resyncing: reconcile at the next ACK that has the heights
-            for b in used:
-                for cid, pose in b.items():
-                    self.acked[cid] = pose
-            return
-        server = m.heights
-        if done and done[-1][0] == seq:  # was batch seq's prediction the server's tick t?
-            self.on_time += done[-1][2] == hash(array.array("i", server).tobytes())
-        if not self.acked:
-            gap = 1  # nothing of ours pressed before t: the idle ticks changed nothing
-        else:
-            gap = tick - self.base_tick if self.base_tick is not None else 0
-        # Batches acknowledged together after a gap of ticks may have been taken at different
-        # ticks of it (a slow client's older ACK is replaced by the newer one, PROTOCOL.md
-        # "Slow clients"): which tick took which is not known, so that ACK is not compared.
-        spread = gap > 1 and len(used) > 1
-        if 1 <= gap <= self.max_replay_ticks and not spread:
-            self._restart(self.base)
-            for _ in range(gap - 1):  # ticks without an ACK: the poses stood still
-                self.twin.tick()
-            merged: dict[int, Any] = {}
-            for b in used:  # a tick takes the latest pose of each collider
-                merged.update(b)
-            self._apply(merged)
-            replay = self.twin.read()
-            self.last_differing = sum(1 for a, b in zip(replay, server) if a != b)
-            self.replayed += 1
-            self.exact += self.last_differing == 0
-        else:
-            self.skipped += 1
-        for b in used:
-            for cid, pose in b.items():
-                self.acked[cid] = pose
-        self.base = list(server)
-        self.base_tick = tick
-        self._restart(self.base)
-        self.pending = [(s, b, self._apply(b)) for s, b, _ in self.pending]
-        self.reconciled += 1
+        server = int32s(m.heights, self._cells, "heights") if m is not None and m.complete \
+            else None
+        self._check(self._lib.terrad_twin_prediction_acked(self._handle(), tick, seq, server,
+                                                           self._err))
