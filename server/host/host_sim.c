@@ -3,9 +3,9 @@
  * its world, the engine on its backend, the ground, the service over the hub,
  * the demo actors and the status block HTTP reads — and one step of the
  * fixed-rate tick loop on it (demo poses → service_tick → status and
- * metrics). A single daemon's default world has one (serve.c, on the main
- * thread); its created worlds (serve_worlds.c) and a cluster node's worlds
- * (serve_node.c) have one each, ticked by the shared pool of sim workers
+ * metrics). Every world of the process has one — a single daemon's default
+ * world (app/serve.c), its created worlds (app/serve_worlds.c) and a cluster
+ * node's worlds (app/serve_node.c) — ticked by the shared pool of sim workers
  * (host_ticker.c). Everything here runs on whichever thread is the world's
  * sim thread at the time: the one that made it, then the worker running its
  * tick (the backend keeps a GL context on one worker; the hub's sim end moves

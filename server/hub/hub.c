@@ -442,15 +442,6 @@ void hub_note_batch(hub *h, uint32_t client, uint32_t sequence)
     pthread_mutex_unlock(&h->pose_lock);
 }
 
-int hub_take_batches(hub *h, hub_batch *out, int max)
-{
-    THREAD_OWNED(&h->sim_end);
-    pthread_mutex_lock(&h->pose_lock);
-    int n = take_batches_locked(h, out, max);
-    pthread_mutex_unlock(&h->pose_lock);
-    return n;
-}
-
 int hub_take_input(hub *h, hub_pose *poses, int max_poses, int *pose_count, hub_batch *batches)
 {
     THREAD_OWNED(&h->sim_end);

@@ -140,8 +140,6 @@ typedef struct hub_batch {
 #define HUB_BATCH_CAPACITY 4096 /* clients with a pending batch sequence */
 
 void hub_note_batch(hub *h, uint32_t client, uint32_t sequence);
-/* sim thread: take the clients' latest batch sequences since the last call. */
-int hub_take_batches(hub *h, hub_batch *out, int max);
 
 /* One POSE_BATCH whole: its poses (as hub_set_pose) and its sequence (as
  * hub_note_batch) under one hold of the lock, so a tick that takes its input

@@ -211,7 +211,6 @@ int world_soil_rect_empty(const world *w, world_rect r);
 /* Σ of one field over the world, exactly (kept as cells are written). */
 int64_t world_soil_sum(const world *w, int field);
 void world_soil_cell(const world *w, int x, int y, int32_t *out);
-uint64_t world_soil_bytes(const world *w);
 
 /* ---- per-cell compaction memory (world_soil.c) ----
  * One int32 per cell beside the heights, in [0, WORLD_COMPACTION_MAX]:

@@ -197,11 +197,6 @@ void world_soil_cell(const world *w, int x, int y, int32_t *out)
     layer_cell_copy(w, w->soil, WORLD_SOIL_FIELDS, x, y, out);
 }
 
-uint64_t world_soil_bytes(const world *w)
-{
-    return layer_bytes(w->soil);
-}
-
 /* ---- compaction memory ---- */
 
 int world_compaction_enable(world *w)
