@@ -69,6 +69,7 @@ typedef struct guard_conn {
     double since_ms; /* opened, or its previous request ended */
     int in_request;  /* headers seen, the request not ended */
     int refused;     /* HTTP_GUARD_REFUSED_*: answered 503 once its request is read */
+    int served;      /* requests it has ended: a cut between two is a keep-alive's close */
     int cut;
     size_t reserved; /* heights bytes of its current request */
 } guard_conn;
@@ -139,11 +140,13 @@ static int waits_its_turn(const guard_conn *gc)
 }
 
 /* Close gc (under the lock), telling the client why first where the bytes
- * can be written straight to the socket (not TLS; nothing of a response was
- * written on it: it is between requests or before its first). */
+ * can be written straight to the socket: not TLS, and before its first
+ * request (nothing was ever written on it). An idle keep-alive connection
+ * (served) is closed as any server closes one between requests: its last
+ * answer may still be on its way, and bytes after it would be garbage. */
 static void cut(http_guard *g, guard_conn *gc, const char *status, const char *why)
 {
-    if (gc->fd >= 0 && !g->tls) {
+    if (gc->fd >= 0 && !g->tls && !gc->served) {
         char body[256], answer[512];
         int n = snprintf(body, sizeof body, "{\"error\":\"%s\"}\n", why);
         int len = snprintf(answer, sizeof answer,
@@ -395,6 +398,7 @@ void http_guard_request_done(http_guard *g, struct MHD_Connection *c)
     pthread_mutex_lock(&g->lock);
     release(g, gc);
     gc->in_request = 0;
+    gc->served++;
     gc->since_ms = time_now_ms();
     pthread_mutex_unlock(&g->lock);
 }
