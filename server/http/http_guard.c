@@ -131,12 +131,27 @@ static void release(http_guard *g, guard_conn *gc)
     gc->reserved = 0;
 }
 
-/* 1 when bytes the client sent wait unread in the kernel: it is not slow,
- * the HTTP threads have not got to it yet. */
-static int waits_its_turn(const guard_conn *gc)
+/* 1 when the client has sent its request's headers whole and they wait
+ * unread in the kernel: it is not slow, the HTTP threads have not got to it
+ * yet (libmicrohttpd handles headers as soon as it reads their end, so the
+ * end is among the unread bytes; one split inside "\r\n\r\n" is missed). Under TLS the bytes are
+ * ciphertext: any unread ones count. A slow sender's byte also waits a moment for a busy thread:
+ * only a whole request's headers protect it. */
+static int waits_its_turn(const http_guard *g, const guard_conn *gc)
 {
     int n = 0;
-    return gc->fd >= 0 && ioctl(gc->fd, FIONREAD, &n) == 0 && n > 0;
+    if (gc->fd < 0 || ioctl(gc->fd, FIONREAD, &n) != 0 || n <= 0)
+        return 0;
+    if (g->tls)
+        return 1;
+    char buf[4096];
+    ssize_t got = recv(gc->fd, buf, sizeof buf, MSG_PEEK | MSG_DONTWAIT);
+    if (got <= 0)
+        return 0;
+    for (ssize_t i = 0; i + 3 < got; i++)
+        if (buf[i] == '\r' && buf[i + 1] == '\n' && buf[i + 2] == '\r' && buf[i + 3] == '\n')
+            return 1;
+    return 0;
 }
 
 /* Close gc (under the lock), telling the client why first where the bytes
@@ -168,7 +183,8 @@ static void sweep(http_guard *g)
     double now = time_now_ms();
     unsigned n = 0;
     for (guard_conn *gc = g->conns; gc; gc = gc->next) {
-        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms || waits_its_turn(gc))
+        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms ||
+            waits_its_turn(g, gc))
             continue;
         cut(g, gc, "408 Request Timeout", "no whole request within the header deadline");
         n++;
@@ -261,7 +277,7 @@ static void evict_oldest(http_guard *g, guard_conn *nc, int same)
     for (guard_conn *gc = g->conns; gc; gc = gc->next)
         if (gc != nc && !gc->in_request && !gc->cut && !gc->refused &&
             (!same || same_address(gc, nc)) && (!pick || gc->since_ms <= pick->since_ms) &&
-            !waits_its_turn(gc))
+            !waits_its_turn(g, gc))
             pick = gc; /* newest first in the list: "<=" ends on the oldest */
     if (!pick) {
         nc->refused = same ? HTTP_GUARD_REFUSED_ADDRESS : HTTP_GUARD_REFUSED_ALL;
