@@ -103,7 +103,8 @@ typedef struct serve_worlds serve_worlds;
  * started (each on its own sim thread), then POST/GET /v1/worlds and
  * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
-                                 http_server *http, net_server *net, error_text *err);
+                                 http_server *http, net_server *net, host_ticker *ticker,
+                                 error_text *err);
 /* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
 void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */

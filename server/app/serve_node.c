@@ -216,11 +216,7 @@ static void *world_main(void *arg)
     node_world *nw = arg;
     serve_node *n = nw->node;
     host_world *hw = &nw->hw;
-    hw->ops = &cluster_world_ops;
-    hw->owner = nw;
-    hw->http = n->http;
-    hw->net = n->net;
-    hw->ticker = n->ticker;
+    host_world_place(hw, &cluster_world_ops, nw, n->http, n->net, n->ticker);
     hw->config = serve_host_config(n->o);
     hw->max_ticks = n->o->max_ticks;
     if (host_world_start(hw, nw->why, sizeof nw->why) == 0) {

@@ -47,6 +47,9 @@ void metrics_count_http_cut(uint64_t n);
 /* An HTTP request answered 503 for want of a connection slot: 0 past the
  * per-address limit, 1 past the overall one (terrad_http_refused_total). */
 void metrics_count_http_refused(int reason);
+/* An HTTP request answered 400, the parameter named in the answer (terrad_http_bad_requests_total).
+ */
+void metrics_count_http_bad_request(void);
 /* colliders left out of one tick by the tick's cell budget, max_tick_cells (service) */
 void metrics_count_tick_shed(uint64_t colliders);
 /* FOOTPRINTS frames (and their events) queued to clients; frames not sent to a slow client. */
