@@ -21,16 +21,18 @@ static void print_help(void)
            "  terrad fsck [options]         check a data directory without starting\n"
            "  terrad bench --trade [...]    the speed/accuracy sweep\n"
            "  terrad calibrate [options]    fit a soil's parameters to measured data\n"
+           "  terrad wheel [options]        the single-wheel testbed at chosen slips\n"
            "  terrad loadgen [options]      drive clients against a running daemon, measure it\n"
            "  terrad world add|list|remove  the cluster's worlds (docs/cluster.md)\n"
-           "  terrad token add|hash         tokens of an --auth-file (roles, README)\n"
+           "  terrad token add|hash         tokens of an --auth-file (docs/security.md)\n"
            "  terrad --help | --version\n"
            "\n"
            "Options take \"--opt value\" or \"--opt=value\"; \"terrad CMD --help\" prints one\n"
            "command's options. Every command's:\n\n");
     void (*usages[])(FILE *) = {app_serve_usage, app_simulate_usage, app_export_usage,
                                 app_fsck_usage,  app_bench_usage,    app_loadgen_usage,
-                                app_world_usage, app_token_usage,    app_calibrate_usage};
+                                app_world_usage, app_token_usage,    app_calibrate_usage,
+                                app_wheel_usage};
     for (size_t i = 0; i < sizeof usages / sizeof usages[0]; i++) {
         usages[i](stdout);
         printf("\n");
@@ -40,6 +42,8 @@ static void print_help(void)
         "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n"
         "  TERRAD_GL_TILE_CACHE=LAYERS,BUDGET_BYTES  the GL backend's tile cache (default\n"
         "                   64,4194304; 0 layers: off; docs/tiles.md)\n"
+        "  TERRAD_NO_AVX2=1   the CPU stages' SSE2 baseline instead of their AVX2 forms\n"
+        "                   (the same heights; for comparing them, docs/performance.md)\n"
         "  TERRAD_CLUSTER=URLS   world add|list|remove: the NATS URLs when --cluster is not\n"
         "                   given (comma-separated; default nats://127.0.0.1:4222)\n"
         "  TERRAD_TOKEN=T   loadgen's token for a daemon with --auth-file (a driver's)\n"
@@ -80,6 +84,8 @@ int main(int argc, char **argv)
         return app_token(argc - 1, argv + 1);
     if (strcmp(command, "calibrate") == 0)
         return app_calibrate(argc - 1, argv + 1);
+    if (strcmp(command, "wheel") == 0)
+        return app_wheel(argc - 1, argv + 1);
     if (argc == 1 || command[0] == '-') /* no command, or options without one: serve */
         return app_serve(argc, argv);
     fprintf(stderr, "terrad: unknown command \"%s\" (see terrad --help)\n", command);

@@ -2,8 +2,9 @@
  * app: terrad's commands — `simulate` (an offline run of a scene that prints
  * one JSON report), `serve` (the daemon: tick loop, demo actors, HTTP),
  * `export` (a data directory's world to a file), `bench --trade` (the
- * speed/accuracy sweep over models) and `calibrate` (a soil fitted to
- * measurements). main.c only dispatches to these.
+ * speed/accuracy sweep over models), `calibrate` (a soil fitted to
+ * measurements) and `wheel` (the single-wheel testbed at chosen slips). main.c only dispatches to
+ * these.
  */
 #ifndef TERRAD_APP_H
 #define TERRAD_APP_H
@@ -27,6 +28,7 @@ int app_fsck(int argc, char **argv);      /* check a data directory without star
 int app_world(int argc, char **argv);     /* `terrad world add|list|remove` (world_cmd.c) */
 int app_token(int argc, char **argv);     /* `terrad token add|hash`: the auth file (token_cmd.c) */
 int app_calibrate(int argc, char **argv); /* soil parameters fitted to measurements (calibrate.c) */
+int app_wheel(int argc, char **argv);     /* the single-wheel testbed run at slips (wheel_cmd.c) */
 
 /* Each command's --help: its usage and its options table (the one place the
  * option texts live). `terrad --help` prints them all. */
@@ -39,6 +41,7 @@ void app_fsck_usage(FILE *out);
 void app_world_usage(FILE *out);
 void app_token_usage(FILE *out);
 void app_calibrate_usage(FILE *out);
+void app_wheel_usage(FILE *out);
 
 /* The scene at scene_path (NULL: the embedded default) and its world. On
  * failure nothing is held. */

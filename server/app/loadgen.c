@@ -1,7 +1,7 @@
 /*
  * loadgen.c: `terrad loadgen` — a load generator for a running daemon, in C so that the service
  * bench measures the daemon and not its clients. One process, one thread, non-blocking sockets:
- * N clients of the C client library (proto/c/terrad_client.h), each with K wheels driving circles
+ * N clients of the C client library (clients/c/terrad_client.h), each with K wheels driving circles
  * inside its own 64 x 64 cell block, a POSE_BATCH every tick, a subscription to that block and a
  * mirror of it. One poll() over every client's socket waits for the next frame or the next tick.
  *

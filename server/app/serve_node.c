@@ -4,14 +4,15 @@
  * websocket port, and then, on its main thread, keeps taking worlds whose
  * lease it can take (--worlds, or every registered world), up to
  * --max-worlds. Each world it takes is opened on a short-lived thread of
- * its own (world_main: recover the world from JetStream, start its engine
- * and service, add it to the HTTP and websocket servers), then handed to the
- * node's shared pool of sim workers (host_ticker.c), which runs the same
- * host_sim_step a single daemon runs at the world's rate until the node
- * stops or the world is lost (a fenced commit, or another node holds its
- * lease). A lost world's end runs on a worker (world_end: its clients are
- * told and closed, it is freed), and the node goes on with its other worlds;
- * a node with no world waits as a standby.
+ * its own (world_main → host_world_start, the one life of every world,
+ * host/host_world.c, with this file's registry backend, cluster_world_ops:
+ * the world recovered from JetStream under the lease, its relays owned,
+ * the lease checked after each tick), then ticked by the node's shared pool
+ * of sim workers (host/host_ticker.c) until the node stops or the world is
+ * lost (a fenced commit, or another node holds its lease). A lost world's
+ * end runs on a worker (its clients are told and closed, it is freed, then
+ * world_ended lets its lease go), and the node goes on with its other
+ * worlds; a node with no world waits as a standby.
  *
  * Why a pool rather than a thread per world: the worlds share the cores on
  * one schedule (earliest due first, so one heavy world does not starve the
@@ -37,18 +38,16 @@
 typedef struct serve_node serve_node;
 
 typedef struct node_world {
-    host_sim m;
+    host_world hw; /* its life (host/); hw.deleted: removed from the registry, its clients
+                    * are told so (4020); hw.registered: served by the node's ports */
     serve_node *node;
-    pthread_t thread;      /* opens the world, then ends (joined by reap_worlds) */
-    host_job job;          /* on the node's pool once opened */
-    atomic_int opened;     /* world → node: the job is on the pool */
-    atomic_int done;       /* world → node: it has ended (freed by reap_worlds) */
-    int joined;            /* its opening thread was joined */
-    atomic_int registered; /* served by the HTTP and websocket ports */
-    int lost;              /* the world belongs to another node now */
-    int deleted;           /* removed from the registry: its clients are told so (4020) */
-    double retried_ms;     /* serve_cluster_check's last retry of a lapsed lease */
-    char why[256];         /* why it was lost, or failed to open */
+    pthread_t thread;  /* opens the world, then ends (joined by reap_worlds) */
+    atomic_int opened; /* world → node: it is on the pool */
+    atomic_int done;   /* world → node: it has ended (freed by reap_worlds) */
+    int joined;        /* its opening thread was joined */
+    int lost;          /* the world belongs to another node now */
+    double retried_ms; /* serve_cluster_check's last retry of a lapsed lease */
+    char why[256];     /* why it was lost, or failed to open */
 } node_world;
 
 struct serve_node {
@@ -84,12 +83,13 @@ static void node_refresh_status(serve_node *n)
     pthread_mutex_lock(&n->lock);
     for (int i = 0; i < n->nworlds; i++) {
         node_world *nw = n->worlds[i];
-        if (!atomic_load(&nw->registered))
+        if (!atomic_load(&nw->hw.registered))
             continue;
-        pthread_mutex_lock(&nw->m.status.lock);
-        if (!nw->m.status.ready && !why[0])
-            snprintf(why, sizeof why, "world %.64s: %.180s", nw->m.name, nw->m.status.not_ready);
-        pthread_mutex_unlock(&nw->m.status.lock);
+        pthread_mutex_lock(&nw->hw.m.status.lock);
+        if (!nw->hw.m.status.ready && !why[0])
+            snprintf(why, sizeof why, "world %.64s: %.180s", nw->hw.m.name,
+                     nw->hw.m.status.not_ready);
+        pthread_mutex_unlock(&nw->hw.m.status.lock);
         ready = 1;
     }
     pthread_mutex_unlock(&n->lock);
@@ -108,8 +108,8 @@ static double node_stalled_ms(const void *arg)
     double worst = 0;
     pthread_mutex_lock(&n->lock);
     for (int i = 0; i < n->nworlds; i++)
-        if (atomic_load(&n->worlds[i]->registered)) {
-            double ms = http_status_stalled_ms(&n->worlds[i]->m.status);
+        if (atomic_load(&n->worlds[i]->hw.registered)) {
+            double ms = http_status_stalled_ms(&n->worlds[i]->hw.m.status);
             worst = ms > worst ? ms : worst;
         }
     pthread_mutex_unlock(&n->lock);
@@ -121,25 +121,22 @@ static double net_stalled(const void *arg)
     return net_server_stalled_ms((const net_server *)arg);
 }
 
-/* The world joins the node's ports. */
-static int world_register(serve_node *n, node_world *nw, error_text *err)
+/* The registry backend of a cluster world (host.h): the registered scene
+ * and its store from JetStream, under this node's lease. */
+static int world_open(host_world *hw, error_text *err)
 {
-    host_sim *m = &nw->m;
-    net_world_info info = host_sim_world_info(m);
-    if (http_server_add_world(n->http, m->name, &m->status, m->h, &m->w, err) != 0)
+    node_world *nw = hw->owner;
+    return serve_cluster_open_world(nw->node->cl, &hw->m, nw->node->o, err);
+}
+
+/* On the ports: its relayed clients' messages come here from now on. */
+static int world_registered(host_world *hw, error_text *err)
+{
+    node_world *nw = hw->owner;
+    serve_node *n = nw->node;
+    host_sim *m = &hw->m;
+    if (serve_relays_own(n->relays, m->name, err) != 0)
         return -1;
-    if (net_server_add_world(n->net, &info, m->h, err) != 0) {
-        http_server_remove_world(n->http, m->name);
-        return -1;
-    }
-    if (serve_relays_own(n->relays, m->name, err) != 0) {
-        net_server_remove_world(n->net, m->h);
-        http_server_remove_world(n->http, m->name);
-        return -1;
-    }
-    m->metrics_slot = metrics_world_slot(m->name);
-    host_sim_ready(m);
-    atomic_store(&nw->registered, 1);
     node_refresh_status(n);
     log_info("cluster: world %s: serving scene \"%s\" (%dx%d cells, %s backend, tick %llu) on "
              "http://127.0.0.1:%d/ and ws://127.0.0.1:%d/ (hello \"world\": \"%s\", "
@@ -150,33 +147,18 @@ static int world_register(serve_node *n, node_world *nw, error_text *err)
     return 0;
 }
 
-/* The world leaves the node's ports: reads fail fast, requests in flight end,
- * its clients are told and closed. */
-static void world_unregister(serve_node *n, node_world *nw)
+/* Leaving the ports: its relayed clients' messages stop coming. */
+static void world_unregistering(host_world *hw)
 {
-    host_sim *m = &nw->m;
-    if (m->h) {
-        char why[160];
-        snprintf(why, sizeof why, "world %s %s", m->name,
-                 nw->deleted ? "was deleted" : "stopped on this node (moved, or the node stops)");
-        hub_close_reads(m->h);
-        hub_close_edits(m->h, why);
-    }
-    if (!atomic_load(&nw->registered))
-        return;
-    atomic_store(&nw->registered, 0);
-    serve_relays_drop(n->relays, m->name); /* its relayed clients' messages stop coming */
-    http_server_remove_world(n->http, m->name);
-    if ((nw->deleted ? net_server_delete_world(n->net, m->h)
-                     : net_server_remove_world(n->net, m->h)) != 0)
-        m->h = NULL; /* the net thread may still hold it: left to the exit */
-    metrics_world_drop(m->metrics_slot);
+    node_world *nw = hw->owner;
+    serve_relays_drop(nw->node->relays, hw->m.name);
 }
 
 /* After each of a world's ticks: does this node still own it? */
-static int world_check(void *ctx, host_sim *m, long tick, char *why, size_t cap)
+static int world_check(host_world *hw, long tick, char *why, size_t cap)
 {
-    node_world *nw = ctx;
+    node_world *nw = hw->owner;
+    host_sim *m = &hw->m;
     if (serve_cluster_check(nw->node->cl, m, &nw->retried_ms, why, cap) != 0) {
         /* a delete purges the log first, so the owner is usually fenced
          * before its next listing shows the world gone: ask the registry */
@@ -184,7 +166,7 @@ static int world_check(void *ctx, host_sim *m, long tick, char *why, size_t cap)
         error_text err = {{0}};
         if (cluster_world_get(nw->node->cl, m->name, &scene, &err) == 0) {
             log_info("cluster: world %s was deleted from the registry: it stops here", m->name);
-            nw->deleted = 1;
+            hw->deleted = 1;
         } else {
             nw->lost = 1;
         }
@@ -196,57 +178,52 @@ static int world_check(void *ctx, host_sim *m, long tick, char *why, size_t cap)
     return 0;
 }
 
-/* The job's end, on a worker: off the ports, freed, its lease let go. */
-static void world_end(host_job *j, int rc)
+/* Off the ports and freed (on a worker, or on its opening thread when it
+ * did not start): its lease let go unless another node has it. */
+static void world_gone(node_world *nw)
 {
-    node_world *nw = j->ctx;
     serve_node *n = nw->node;
-    host_sim *m = &nw->m;
-    if (rc != 0)
-        snprintf(nw->why, sizeof nw->why, "%s", j->why);
-    world_unregister(n, nw);
-    log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", m->name,
-             (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
-    host_sim_free(m);
-    if (!nw->lost && !nw->deleted) /* another node may take it at once */
-        cluster_lease_release(n->cl, m->name);
+    if (!nw->lost && !nw->hw.deleted) /* another node may take it at once */
+        cluster_lease_release(n->cl, nw->hw.m.name);
     node_refresh_status(n);
     atomic_store(&nw->done, 1);
 }
+
+/* Its end ran on a worker. */
+static void world_ended(host_world *hw, int rc)
+{
+    node_world *nw = hw->owner;
+    if (rc != 0)
+        snprintf(nw->why, sizeof nw->why, "%s", hw->why);
+    log_info("cluster: world %s stopped here after tick %llu (%llu overruns)", hw->m.name,
+             hw->last_tick, hw->overruns);
+    world_gone(nw);
+}
+
+static const host_world_ops cluster_world_ops = {
+    .open = world_open,
+    .registered = world_registered,
+    .unregistering = world_unregistering,
+    .check = world_check,
+    .ended = world_ended,
+    .deleted_why = "was deleted",
+    .stopped_why = "stopped on this node (moved, or the node stops)",
+};
 
 /* One world's opening thread: open, serve, hand to the pool (or leave). */
 static void *world_main(void *arg)
 {
     node_world *nw = arg;
     serve_node *n = nw->node;
-    host_sim *m = &nw->m;
-    error_text err = {{0}};
-    if (serve_cluster_open_world(n->cl, m, n->o, &err) == 0) {
-        host_sim_status_init(m);
-        nw->job = (host_job){.m = m,
-                             .net = n->net,
-                             .max_ticks = n->o->max_ticks,
-                             .check = world_check,
-                             .end = world_end,
-                             .ctx = nw};
-        host_sim_config cfg = serve_host_config(n->o);
-        if (!(m->h = hub_create()))
-            error_set(&err, "out of memory");
-        else if (host_sim_start(m, &cfg, &err) == 0 &&
-                 host_clock_client_attach(m, n->ticker, &nw->job) == 0 &&
-                 world_register(n, nw, &err) == 0 &&
-                 host_ticker_add(n->ticker, &nw->job, &err) == 0) {
-            atomic_store(&nw->opened, 1);
-            return NULL;
-        }
+    host_world *hw = &nw->hw;
+    host_world_place(hw, &cluster_world_ops, nw, n->http, n->net, n->ticker);
+    hw->config = serve_host_config(n->o);
+    hw->max_ticks = n->o->max_ticks;
+    if (host_world_start(hw, nw->why, sizeof nw->why) == 0) {
+        atomic_store(&nw->opened, 1);
+        return NULL;
     }
-    snprintf(nw->why, sizeof nw->why, "%s", err.message);
-    world_unregister(n, nw);
-    host_sim_free(m);
-    if (!nw->lost && !nw->deleted) /* another node may take it at once */
-        cluster_lease_release(n->cl, m->name);
-    node_refresh_status(n);
-    atomic_store(&nw->done, 1);
+    world_gone(nw);
     return NULL;
 }
 
@@ -298,21 +275,21 @@ static void reap_worlds(serve_node *n)
         }
         if (!atomic_load(&nw->done))
             continue;
-        if (nw->deleted)
-            forget_registered(n, nw->m.name);
+        if (nw->hw.deleted)
+            forget_registered(n, nw->hw.m.name);
         if (nw->lost)
             log_warn("cluster: this node no longer owns world %s (%s): it stopped ticking it; "
                      "its clients were told to connect again",
-                     nw->m.name, nw->why);
-        else if (nw->why[0] && !n->stopping && !nw->deleted) {
-            log_error("cluster: world %s: %s (tried again in %.0f s)", nw->m.name, nw->why,
+                     nw->hw.m.name, nw->why);
+        else if (nw->why[0] && !n->stopping && !nw->hw.deleted) {
+            log_error("cluster: world %s: %s (tried again in %.0f s)", nw->hw.m.name, nw->why,
                       NODE_RETRY_MS / 1000);
-            note_failed(n, nw->m.name);
+            note_failed(n, nw->hw.m.name);
         }
         pthread_mutex_lock(&n->lock);
         n->worlds[i] = n->worlds[--n->nworlds];
         pthread_mutex_unlock(&n->lock);
-        pthread_mutex_destroy(&nw->m.status.lock);
+        pthread_mutex_destroy(&nw->hw.m.status.lock);
         free(nw);
         i--;
     }
@@ -385,7 +362,7 @@ static int take_world(serve_node *n, error_text *err)
     char held[NODE_MAX_WORLDS + 1][CLUSTER_WORLD_NAME_MAX + 1];
     int count = 0;
     for (int i = 0; i < n->nworlds; i++)
-        snprintf(held[count++], sizeof held[0], "%s", n->worlds[i]->m.name);
+        snprintf(held[count++], sizeof held[0], "%s", n->worlds[i]->hw.m.name);
     for (int i = 0; i < NODE_MAX_WORLDS && count < NODE_MAX_WORLDS; i++)
         if (n->failed[i][0] && recently_failed(n, n->failed[i]))
             snprintf(held[count++], sizeof held[0], "%s", n->failed[i]);
@@ -401,9 +378,9 @@ static int take_world(serve_node *n, error_text *err)
         return -1;
     }
     nw->node = n;
-    nw->m.metrics_slot = -1;
-    snprintf(nw->m.name, sizeof nw->m.name, "%s", name);
-    pthread_mutex_init(&nw->m.status.lock, NULL);
+    nw->hw.m.metrics_slot = -1;
+    snprintf(nw->hw.m.name, sizeof nw->hw.m.name, "%s", name);
+    pthread_mutex_init(&nw->hw.m.status.lock, NULL);
     serve_relays_drop(n->relays, name); /* relayed here until now: its clients connect again */
     log_info("cluster: node %s owns world %s (NATS %s, %d replicas)", n->name, name,
              n->o->cluster_urls, cluster_replicas(n->cl));
@@ -415,7 +392,7 @@ static int take_world(serve_node *n, error_text *err)
         n->nworlds--;
         pthread_mutex_unlock(&n->lock);
         cluster_lease_release(n->cl, name);
-        pthread_mutex_destroy(&nw->m.status.lock);
+        pthread_mutex_destroy(&nw->hw.m.status.lock);
         free(nw);
         error_set(err, "cannot start a thread for world %s", name);
         return -1;
@@ -441,6 +418,8 @@ static int node_open_ports(serve_node *n, error_text *err)
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
+    int tls = o->tls_cert && o->tls_cert[0];
+    http_server_set_websocket(n->http, net_server_port(n->net), tls, o->public_ws_url);
     if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name)) ||
         !(n->api = serve_node_api_start(n->cl, o, n->name, n->http))) {
         error_set(err, "out of memory");
@@ -451,7 +430,6 @@ static int node_open_ports(serve_node *n, error_text *err)
     if (n->probe)
         log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
                  http_server_port(n->probe));
-    int tls = o->tls_cert && o->tls_cert[0];
     log_info("cluster: node %s listens on %s://127.0.0.1:%d/ and websocket port %d", n->name,
              tls ? "https" : "http", http_server_port(n->http), net_server_port(n->net));
     return 0;
@@ -463,7 +441,7 @@ static void refresh_relays(serve_node *n)
     char busy[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1];
     int count = 0;
     for (int i = 0; i < n->nworlds; i++)
-        snprintf(busy[count++], sizeof busy[0], "%s", n->worlds[i]->m.name);
+        snprintf(busy[count++], sizeof busy[0], "%s", n->worlds[i]->hw.m.name);
     serve_relays_refresh(n->relays, n->registered, n->nregistered, busy, count);
 }
 
@@ -477,18 +455,18 @@ static void stop_deleted(serve_node *n)
         node_world *nw = n->worlds[i];
         int listed = 0;
         for (int k = 0; k < n->nregistered && !listed; k++)
-            listed = strcmp(n->registered[k], nw->m.name) == 0;
-        if (listed || nw->deleted || !atomic_load(&nw->opened)) /* opening: the next listing */
+            listed = strcmp(n->registered[k], nw->hw.m.name) == 0;
+        if (listed || nw->hw.deleted || !atomic_load(&nw->opened)) /* opening: the next listing */
             continue;
         char *scene = NULL;
         error_text err = {{0}};
-        int found = cluster_world_get(n->cl, nw->m.name, &scene, &err);
+        int found = cluster_world_get(n->cl, nw->hw.m.name, &scene, &err);
         free(scene);
         if (found != 0)
             continue;
-        log_info("cluster: world %s was deleted from the registry: it stops here", nw->m.name);
-        nw->deleted = 1; /* read by its end, after the ticker's lock */
-        host_ticker_end(n->ticker, &nw->job);
+        log_info("cluster: world %s was deleted from the registry: it stops here", nw->hw.m.name);
+        nw->hw.deleted = 1; /* read by its end, after the ticker's lock */
+        host_world_end(&nw->hw);
     }
 }
 
@@ -544,7 +522,7 @@ static void node_stop(serve_node *n)
     while (n->nworlds > 0) {
         for (int i = 0; i < n->nworlds; i++)
             if (atomic_load(&n->worlds[i]->opened)) /* else still opening: asked next round */
-                host_ticker_end(n->ticker, &n->worlds[i]->job);
+                host_world_end(&n->worlds[i]->hw);
         reap_worlds(n);
         if (n->nworlds)
             host_sleep_ms(10);

@@ -1,6 +1,6 @@
 /*
  * serve_security.c: who may connect to `terrad serve`, and how the bytes
- * travel (README "Security"). Read once before any port opens — a bad TLS
+ * travel (docs/security.md). Read once before any port opens — a bad TLS
  * file or a malformed auth-file line stops the start, named — and the auth
  * file again on SIGHUP, between two ticks of the sim thread's loop: the new
  * table takes effect for the next hello or HTTP request at once, and the net

@@ -1,6 +1,6 @@
 /*
- * token_cmd.c: `terrad token add | hash` — the auth file's tokens (README
- * "Security"). `add` makes a fresh random token, appends "ROLE NAME
+ * token_cmd.c: `terrad token add | hash` — the auth file's tokens
+ * (docs/security.md). `add` makes a fresh random token, appends "ROLE NAME
  * SHA256HEX" to the file (made 0600 when new) and prints the token once, on
  * stdout: the file never holds it. `hash` prints the SHA-256 of a token read
  * from stdin, for tokens made elsewhere. Offline from any tick: a running

@@ -200,7 +200,7 @@ void thread_owner_check(const thread_owner *o, const char *function);
 
 /* ---- Authentication (auth.c) ----
  * Who may do what: a table of tokens, each known only by its SHA-256, with
- * a role and a name, read from an auth file (README "Security"): one line
+ * a role and a name, read from an auth file (docs/security.md): one line
  * per token, "ROLE NAME SHA256HEX", '#' comments (no token is ever given
  * in clear on a command line or in a config). Any thread may check a token;
  * auth_reload (SIGHUP) swaps the entries in under a lock and bumps the

@@ -125,6 +125,16 @@ quatd quat_multiply(quatd a, quatd b)
     };
 }
 
+quatd collider_wire_orientation(quatd q, int axis_z)
+{
+    q = quat_normalize(q);
+    if (axis_z) {
+        const double h = 0.70710678118654752440; /* a quarter turn about x: y -> z */
+        q = quat_normalize(quat_multiply(q, (quatd){h, h, 0, 0}));
+    }
+    return q;
+}
+
 quatd quat_from_axis_angle(vec3d axis, double radians)
 {
     double n = sqrt(axis.x * axis.x + axis.y * axis.y + axis.z * axis.z);

@@ -156,11 +156,12 @@ extern const host_clock host_clock_wall;
  * read waits (host_sim_step then only serves it), else HOST_CLOCK_NEVER: the
  * world waits, however long, for its driver. */
 host_clock host_clock_client(host_sim *m);
-/* After host_sim_start, before the world joins the net server and the
- * ticker: nothing for a wall-clocked world; for a client-clocked one, j's
- * clock becomes host_clock_client(m) and each step reaching m's hub adds its
- * ticks to m->clock_owed and wakes j on t (both NULL: m has a sim thread of
- * its own, which waits with host_sim_wait_step). Returns 0. */
+/* After host_sim_start, before the world joins the net server: nothing for a
+ * wall-clocked world; for a client-clocked one (whose job's clock must be
+ * host_clock_client(m)) each step reaching m's hub adds its ticks to
+ * m->clock_owed and wakes j on t (both NULL: m has a sim thread of its own,
+ * which waits with host_sim_wait_step). A wake before j is on the ticker is
+ * harmless: the ticker asks the clock when j joins. Returns 0. */
 int host_clock_client_attach(host_sim *m, host_ticker *t, host_job *j);
 /* 1 while m's driver's steps owe ticks not run yet. Any thread. */
 int host_sim_tick_owed(host_sim *m);
@@ -230,6 +231,14 @@ typedef struct host_world_ops {
     void (*ended)(host_world *hw, int rc);
     /* Why its clients are closed: deleted (hw->deleted) or stopped. */
     const char *deleted_why, *stopped_why;
+    /* The default world's ports were made with it (its status and hub given
+     * to the HTTP server at its start, its hub and info to the websocket
+     * server's): join starts what must follow its simulation (hw->net set
+     * here) in place of http_server_add_world / net_server_add_world and a
+     * labelled metrics slot; at its end its reads are closed and the ports
+     * keep its hub, world, scene and status until host_world_free, after
+     * they stopped. NULL for every other world. */
+    int (*join)(host_world *hw, error_text *err);
 } host_world_ops;
 
 struct host_world {
@@ -249,12 +258,23 @@ struct host_world {
     unsigned long long last_tick; /* at its end */
     unsigned long long overruns;
 };
-/* Opens hw (ops->open), makes its hub, starts its simulation, joins the
- * ports (http_server_add_world, net_server_add_world, a labelled metrics
- * slot), then ops->registered, and hands it to the ticker: 0, or -1 with
- * why and everything made undone (ops->ended is not called). */
+/* Where hw comes from and where it goes: its registry backend (ops, owner),
+ * the ports it joins and the pool it ticks on (the rest of hw as it is). */
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+                      net_server *net, host_ticker *ticker);
+/* host_world_open, then host_world_run. */
 int host_world_start(host_world *hw, char *why, size_t cap);
+/* Opens hw (ops->open: scene, world, store), its status filled, its hub
+ * made: 0, or -1 with why and everything made undone. */
+int host_world_open(host_world *hw, char *why, size_t cap);
+/* Starts its simulation, joins the ports (http_server_add_world,
+ * net_server_add_world, a labelled metrics slot; or ops->join), then
+ * ops->registered, and hands it to the ticker: 0, or -1 with why and
+ * everything made undone (ops->ended is not called). */
+int host_world_run(host_world *hw, char *why, size_t cap);
 /* Asks hw to end: its end runs soon on a worker (ops->ended last). */
 void host_world_end(host_world *hw);
+/* What a world with ops->join kept for its ports, freed once they stopped. */
+void host_world_free(host_world *hw);
 
 #endif

@@ -67,8 +67,6 @@ int host_clock_client_attach(host_sim *m, host_ticker *t, host_job *j)
 {
     if (!m->sc.client_clock)
         return 0;
-    if (j) /* before host_ticker_add: the job's clock is the client's */
-        j->clock = host_clock_client(m);
     m->clock_ticker = t;
     m->clock_job = j;
     hub_set_step_notify(m->h, client_step, m);

@@ -104,16 +104,6 @@ static int get_bool(parser *r, const char *name, int absent, int *out)
     return 0;
 }
 
-quatd net_control_orientation(quatd q, int axis_z)
-{
-    q = quat_normalize(q);
-    if (axis_z) {
-        const double h = 0.70710678118654752440; /* a quarter turn about x: y -> z */
-        q = quat_normalize(quat_multiply(q, (quatd){h, h, 0, 0}));
-    }
-    return q;
-}
-
 int net_control_quat_norm_ok(double w, double x, double y, double z)
 {
     double n2 = w * w + x * x + y * y + z * z;
@@ -274,7 +264,7 @@ static int parse_pose(parser *r, int axis_z, collider_pose *out)
     error_text err;
     if (collider_pose_validate(&cp, &err))
         return fail(r, TERRAD_E_BAD_VALUE, "pose: %s", err.message);
-    cp.orientation = net_control_orientation(cp.orientation, axis_z);
+    cp.orientation = collider_wire_orientation(cp.orientation, axis_z);
     *out = cp;
     return 1;
 }

@@ -97,8 +97,5 @@ void net_control_free(net_control *r);
 
 /* |q|² within 0.81..1.21 (|q| within 0.9..1.1), as POSE_BATCH requires too. */
 int net_control_quat_norm_ok(double w, double x, double y, double z);
-/* A client's orientation as the collider module wants it: normalised, and
- * for axis_z shapes turned a quarter about x (the module's axis is y). */
-quatd net_control_orientation(quatd q, int axis_z);
 
 #endif

@@ -607,8 +607,8 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
                 .client = c->id,
                 .sequence = seq,
                 .pose = {{p->x, p->y, p->z},
-                         net_control_orientation((quatd){p->qw, p->qx, p->qy, p->qz},
-                                                 slot->axis_z)},
+                         collider_wire_orientation((quatd){p->qw, p->qx, p->qy, p->qz},
+                                                   slot->axis_z)},
             };
         }
         /* every accepted batch, empty ones too, is acknowledged by the next tick;

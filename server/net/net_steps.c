@@ -61,7 +61,7 @@ static hub_pose *step_poses(net_client *c, const terrad_pose *in, size_t n, uint
             .client = c->id,
             .sequence = seq,
             .pose = {{p->x, p->y, p->z},
-                     net_control_orientation((quatd){p->qw, p->qx, p->qy, p->qz}, slot->axis_z)},
+                     collider_wire_orientation((quatd){p->qw, p->qx, p->qy, p->qz}, slot->axis_z)},
         };
     }
     return hp;

@@ -54,6 +54,12 @@ int scene_load_file(const char *path, scene *s, error_text *err);
 int scene_load_default(scene *s, error_text *err);
 void scene_free(scene *s);
 
+/* A material on its own in a JSON file (a scene's "material" object: what
+ * `terrad calibrate --out` writes), read with every check a scene's gets for
+ * a world of these cells; errors say "PATH: material.<field>: ...". */
+int scene_material_load_file(const char *path, double cell_size_m, int32_t units_per_m,
+                             sim_material *m, error_text *err);
+
 /* The per-cell ground layers the scene describes (scene_create_world's world). */
 int scene_create_ground(const scene *s, const world *w, ground *g, error_text *err);
 

@@ -3,8 +3,11 @@
  * parameters, read strictly (every key known, every number in range, errors
  * naming the field) before the first tick, and checked by the sim's own
  * conversion (sim_params_from_material), which has the last word on what a
- * tick can run.
+ * tick can run. scene_material_load_file reads one on its own (the JSON
+ * `terrad calibrate --out` writes, which `terrad wheel --soil FILE` takes)
+ * through the same code.
  */
+#include <stdlib.h>
 #include <string.h>
 
 #include "scene/scene_internal.h"
@@ -235,4 +238,41 @@ int scene_parse_material(const cJSON *root, scene *s, error_text *err)
     if (sim_params_from_material(m, s->cell_size_m, s->units_per_m, s->floor_units, &p, err) != 0)
         return -1;
     return 0;
+}
+
+int scene_material_load_file(const char *path, double cell_size_m, int32_t units_per_m,
+                             sim_material *m, error_text *err)
+{
+    uint8_t *data = NULL;
+    size_t len = 0;
+    if (file_read_all(path, SCENE_FILE_BYTES_MAX, &data, &len, err) != 0)
+        return -1;
+    /* file_read_all ends the text with a NUL; one inside it would end the parse early */
+    cJSON *o =
+        strlen((const char *)data) == len ? cJSON_ParseWithOpts((const char *)data, NULL, 1) : NULL;
+    free(data);
+    if (!o) {
+        error_set(err, "%s: not a JSON object (a syntax error)", path);
+        return -1;
+    }
+    /* read as a scene of these cells reads its "material": the same checks, the same names */
+    cJSON *root = cJSON_CreateObject();
+    scene s;
+    memset(&s, 0, sizeof s);
+    s.tick_hz = 60;
+    s.cell_size_m = cell_size_m;
+    s.units_per_m = units_per_m;
+    int rc = -1;
+    if (root && cJSON_AddItemToObject(root, "material", o)) {
+        o = NULL;
+        rc = scene_parse_material(root, &s, err);
+        if (rc != 0)
+            error_prefix(err, path, ": ");
+    } else
+        error_set(err, "%s: out of memory", path);
+    cJSON_Delete(o);
+    cJSON_Delete(root);
+    if (rc == 0)
+        *m = s.material;
+    return rc;
 }

@@ -135,9 +135,9 @@ static void undo_tick(service *s, sim_tick_report *report)
         world_rect win = sim_engine_window(s->engine, i, &before, &after);
         world_scatter_window(s->world, win, before);
     }
-    sim_engine_undo_soil(s->engine);
+    sim_engine_undo_state(s->engine);
     report->dirty_count = 0;
-    report->soil_dirty_count = 0;
+    report->state_dirty_count = 0;
 }
 
 static void tell_store_state(service *s)
@@ -187,6 +187,7 @@ static int gather_colliders(service *s, const sim_collider *extra, int extra_cou
  * store cannot keep is undone, and none is made while it cannot write. */
 static int deform_and_commit(service *s, int count, sim_tick_report *report, error_text *err)
 {
+    s->tick_logged = 0;
     if (s->store && !store_writable(s->store)) {
         memset(report, 0, sizeof *report); /* no deformation that cannot be kept */
         service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "storage unavailable");
@@ -201,6 +202,8 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
                          store_commit_tick(s->store, s->world, s->tick, rects, n) != 0)) {
             undo_tick(s, report);
             service_edits_undo(s, TERRAD_E_STORE_UNAVAILABLE, "the log could not take the tick");
+        } else {
+            s->tick_logged = 1;
         }
     }
     for (int i = 0, k = 0; i < s->collider_count && report->contact_count; i++) {

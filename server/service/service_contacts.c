@@ -209,7 +209,12 @@ void service_publish_feedback(service *s, const sim_tick_report *report)
         svc_client *cl = &s->clients[c];
         send_contacts(s, cl);
         send_forces(s, cl, report);
-        if (cl->sequence_pending && !cl->held) { /* a held client's poses were not used */
+        /* a held client's poses were not used; a tick the store did not log
+         * (refused or not writable) is not acknowledged at all: its number
+         * is not in the log, so a new owner or a restart would reuse it for
+         * other heights. The batch stays pending and the next logged tick,
+         * which deforms with its poses, ACKs it. */
+        if (cl->sequence_pending && !cl->held && s->tick_logged) {
             hub_frame *f = hub_frame_new(1, TERRAD_ACK_SIZE);
             if (f && terrad_ack_encode(f->data, TERRAD_ACK_SIZE, &f->len, s->tick,
                                        cl->last_sequence) != 0) {

@@ -140,6 +140,7 @@ struct service {
     hub *hub;
     store *store;       /* NULL: memory only */
     int store_down;     /* last state told to the hub */
+    int tick_logged;    /* the tick is in the store's log (or no store): its ACKs may go */
     thread_owner owner; /* the sim thread: claimed by service_create */
     uint64_t tick;
     int64_t volume;

@@ -11,7 +11,7 @@
  *   2. contact patches: 4-connected cells of one collider below the surface;
  *      each patch's Bekker width b = 2 A / L (Chrono SCM's rule: a long strip
  *      of width w gives w, a disc of radius r gives r);
- *   3. per contact cell, Chrono SCM's node rule (../shared/notes/
+ *   3. per contact cell, Chrono SCM's node rule (docs/notes/
  *      terramechanics.md) in height units: the total sinkage s is the cell's
  *      plastic sinkage plus how far the collider is below its surface; the
  *      elastic trial K_e (s - s_plastic) is the pressure unless it passes
@@ -349,7 +349,7 @@ static void bekker_arcs(const sim_window_job *job, const int32_t *bottom, const 
 
 /*
  * The share of a cell's normal stress that its shear may use: Wong-Reece's
- * rear region (Wong & Reece 1967, ../shared/notes/terramechanics.md), in
+ * rear region (Wong & Reece 1967, docs/notes/terramechanics.md), in
  * the form with an exit angle θ2 used for rover wheels (Ishigami et al.
  * 2007, J. Field Robotics 24(3):233-250). Over a
  * slipping wheel's arc the normal stress peaks at θm = (0.43 + 0.32 s) θ1

@@ -19,7 +19,7 @@
 
 /*
  * Sources: Wong, Theory of Ground Vehicles (as transcribed in public code;
- * ../shared/notes/terramechanics.md) for n, kc, kphi, c and phi; Ding et al.
+ * docs/notes/terramechanics.md) for n, kc, kphi, c and phi; Ding et al.
  * 2011 (J. Terramechanics 48(1), Table 2) for their planetary simulant and its
  * K (9.7-13.1 mm: 11 mm). The tables give no K for the others: 0.01 m, the
  * low end of sand's typical 0.01-0.025 m. The elastic stiffness 2e8 Pa/m and
@@ -106,3 +106,8 @@ double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m)
 
 /* The state lives in the world (world_soil.c), which knows nothing of its meaning. */
 _Static_assert(SIM_SOIL_STATE_FIELDS == WORLD_SOIL_FIELDS, "the world holds the bekker state");
+
+int64_t sim_world_compacted(const world *w)
+{
+    return world_soil_sum(w, SIM_SOIL_COMPACTED) + world_compaction_sum(w);
+}

@@ -106,6 +106,90 @@ TERRAD_TWIN_API int terrad_twin_read(const terrad_twin *t, int x, int y, int w, 
 TERRAD_TWIN_API int terrad_twin_write(terrad_twin *t, int x, int y, int w, int h,
                                       const int32_t *heights, char *err);
 
+/*
+ * Prediction (docs/engines.md, "Prediction"): a client's twin of one window,
+ * kept exact against the server's heights. Every client's prediction is this
+ * code: the C client (terrad_client_predict.c), Python (terrad.predict, by
+ * ctypes) and JavaScript (web/predict.mjs, this library as WebAssembly).
+ *
+ * The client tells it three things. sent: each pose batch it sends is one
+ * server tick, so it is one tick of the twin at once, with the client's own
+ * colliders at their poses (the wire's values: each number through float32,
+ * the orientation turned as the server turns it, collider_wire_orientation).
+ * acked: when the ACK of tick t (batch seq) arrives, every DELTA of t came
+ * before it, so the client's mirror holds the server's heights at t; the
+ * prediction replays the server's ticks since the previous ACK from that
+ * ACK's heights (tick t took the latest pose of each collider of the batches
+ * up to seq; a tick without an ACK kept the poses), counts the cells that
+ * differ from the mirror (0 whenever nothing else touched the window), then
+ * restarts the twin from the mirror, puts each own collider where tick t left
+ * it and applies the batches sent after seq again. Colliders: the client's
+ * own, added and removed as it creates and deletes them.
+ */
+typedef struct terrad_twin_prediction terrad_twin_prediction;
+
+typedef struct terrad_twin_prediction_stats {
+    uint64_t predicted;      /* pose batches ticked locally */
+    uint64_t reconciled;     /* ACKs taken (with the mirror's heights) */
+    uint64_t replayed;       /* ACKs whose replay was compared with the server's heights */
+    uint64_t exact;          /* of those, with 0 cells differing */
+    uint64_t skipped;        /* ACKs not compared: resyncing, a gap longer than max_replay_ticks,
+                                or batches acknowledged together after a gap (which tick took
+                                which is unknown) */
+    uint64_t on_time;        /* ACKs whose batch's prediction already was the server's heights */
+    uint64_t last_differing; /* cells of the last comparison */
+    uint64_t pending;        /* batches sent and not acknowledged yet */
+} terrad_twin_prediction_stats;
+
+/* A prediction of the window [x, x + w) x [y, y + h) from the server's heights
+ * there (a complete mirror). max_replay_ticks: the longest gap between ACKs
+ * that is replayed, or 0 for 4 seconds of the config's ticks. */
+TERRAD_TWIN_API terrad_twin_prediction *
+terrad_twin_prediction_create(const terrad_twin_config *c, int x, int y, int w, int h,
+                              const int32_t *heights, int max_replay_ticks, char *err);
+TERRAD_TWIN_API void terrad_twin_prediction_destroy(terrad_twin_prediction *p);
+/* An own collider, by its wire id and the wire's shape: "sphere" (radius),
+ * "box" (hx, hy, hz), "capsule" and "cylinder" (radius, half_length; the
+ * wire's axis z), "wheel" (radius, half_length = half its width; axle y). */
+TERRAD_TWIN_API int terrad_twin_prediction_add_collider(terrad_twin_prediction *p, uint32_t id,
+                                                        const char *shape, double radius,
+                                                        double half_length, double hx, double hy,
+                                                        double hz, char *err);
+TERRAD_TWIN_API int terrad_twin_prediction_add_mesh(terrad_twin_prediction *p, uint32_t id,
+                                                    const float *vertices, int vertex_count,
+                                                    const uint32_t *indices, int triangle_count,
+                                                    char *err);
+/* Deleted: it leaves the prediction at once (0 also when it was not in it). */
+TERRAD_TWIN_API int terrad_twin_prediction_remove_collider(terrad_twin_prediction *p, uint32_t id,
+                                                           char *err);
+/* Batch seq is being sent: poses[7 * i ...] = x, y, z, qw, qx, qy, qz of ids[i]
+ * as on the wire; ids that are not own colliders are left out. */
+TERRAD_TWIN_API int terrad_twin_prediction_sent(terrad_twin_prediction *p, uint32_t seq,
+                                                const uint32_t *ids, const double *poses, int count,
+                                                char *err);
+/* The ACK of tick (batch seq); server: the mirror's w * h heights at tick, or
+ * NULL while the mirror is resyncing (the batches are forgotten, the twin goes
+ * on predicting until an ACK with heights). */
+TERRAD_TWIN_API int terrad_twin_prediction_acked(terrad_twin_prediction *p, uint64_t tick,
+                                                 uint32_t seq, const int32_t *server, char *err);
+/* For own colliders the server had posed before this prediction was made (a
+ * window made or moved while driving), right after it was made from the
+ * mirror at the ACK of tick: where the latest acknowledged batch left each
+ * (poses as in _sent). The batches sent after that ACK then go to _sent. */
+TERRAD_TWIN_API int terrad_twin_prediction_resume(terrad_twin_prediction *p, uint64_t tick,
+                                                  const uint32_t *ids, const double *poses,
+                                                  int count, char *err);
+/* The predicted heights (w * h, row-major), valid until the next call. */
+TERRAD_TWIN_API const int32_t *terrad_twin_prediction_heights(const terrad_twin_prediction *p);
+TERRAD_TWIN_API const terrad_twin_prediction_stats *
+terrad_twin_prediction_get_stats(const terrad_twin_prediction *p);
+/* The seqs of the batches sent and not acknowledged, oldest first: up to max
+ * into seqs; returns how many there are. */
+TERRAD_TWIN_API int terrad_twin_prediction_pending(const terrad_twin_prediction *p, uint32_t *seqs,
+                                                   int max);
+/* The prediction's twin, for reading (terrad_twin_read); it belongs to p. */
+TERRAD_TWIN_API terrad_twin *terrad_twin_prediction_twin(terrad_twin_prediction *p);
+
 #ifdef __cplusplus
 }
 #endif

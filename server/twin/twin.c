@@ -10,6 +10,7 @@
  * because server/ is one library.
  */
 #include "twin/terrad_twin.h"
+#include "twin/twin_internal.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -50,8 +51,7 @@ struct terrad_twin {
     sim_collider *batch;
 };
 
-static int fail(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int fail(char *err, const char *fmt, ...)
+int twin_fail(char *err, const char *fmt, ...)
 {
     if (err) {
         va_list ap;
@@ -86,6 +86,11 @@ terrad_twin_config *terrad_twin_config_new(void)
 void terrad_twin_config_free(terrad_twin_config *c)
 {
     free(c);
+}
+
+double twin_config_tick_hz(const terrad_twin_config *c)
+{
+    return c->tick_hz;
 }
 
 /* The numeric keys: each a double field, or an int one (is_int). */
@@ -150,12 +155,12 @@ static const config_key config_keys[] = {
 int terrad_twin_config_set(terrad_twin_config *c, const char *key, double value, char *err)
 {
     if (!c || !key)
-        return fail(err, "config: no config or key");
+        return twin_fail(err, "config: no config or key");
     if (!isfinite(value))
-        return fail(err, "%s: must be a finite number (got %g)", key, value);
+        return twin_fail(err, "%s: must be a finite number (got %g)", key, value);
     if (strcmp(key, "terrain.seed") == 0) {
         if (value < 0 || value > 4294967295.0 || value != floor(value))
-            return fail(err, "%s: must be an integer in [0, 2^32) (got %g)", key, value);
+            return twin_fail(err, "%s: must be an integer in [0, 2^32) (got %g)", key, value);
         c->base.seed = (uint32_t)value;
         return 0;
     }
@@ -166,25 +171,25 @@ int terrad_twin_config_set(terrad_twin_config *c, const char *key, double value,
         char *field = (char *)c + k->offset;
         if (k->is_int) {
             if (value != floor(value) || fabs(value) > 2147483647.0)
-                return fail(err, "%s: must be an integer (got %g)", key, value);
+                return twin_fail(err, "%s: must be an integer (got %g)", key, value);
             *(int *)field = (int)value;
         } else {
             *(double *)field = value;
         }
         return 0;
     }
-    return fail(err, "%s: no such key (terrad_twin.h lists them)", key);
+    return twin_fail(err, "%s: no such key (terrad_twin.h lists them)", key);
 }
 
 int terrad_twin_config_set_name(terrad_twin_config *c, const char *key, const char *value,
                                 char *err)
 {
     if (!c || !key || !value)
-        return fail(err, "config: no config, key or value");
+        return twin_fail(err, "config: no config, key or value");
     sim_material *m = &c->material;
     if (strcmp(key, "model") == 0) {
         if (sim_model_parse(value, &m->model) != 0)
-            return fail(err, "model: must be one of " SIM_MODEL_LIST " (got \"%s\")", value);
+            return twin_fail(err, "model: must be one of " SIM_MODEL_LIST " (got \"%s\")", value);
         if (sim_model_is_persson(m->model))
             m->method = m->model == SIM_MODEL_PERSSON_ITERATIVE ? SIM_METHOD_ITERATIVE
                         : m->model == SIM_MODEL_PERSSON_MULTI   ? SIM_METHOD_MULTI
@@ -193,8 +198,8 @@ int terrad_twin_config_set_name(terrad_twin_config *c, const char *key, const ch
     }
     if (strcmp(key, "metric") == 0) {
         if (sim_metric_parse(value, &m->metric) != 0)
-            return fail(err, "metric: must be euclidean, manhattan or chebyshev (got \"%s\")",
-                        value);
+            return twin_fail(err, "metric: must be euclidean, manhattan or chebyshev (got \"%s\")",
+                             value);
         return 0;
     }
     if (strcmp(key, "terrain.kind") == 0) {
@@ -203,10 +208,10 @@ int terrad_twin_config_set_name(terrad_twin_config *c, const char *key, const ch
         else if (strcmp(value, "dunes") == 0)
             c->base.kind = WORLD_BASE_DUNES;
         else
-            return fail(err, "terrain.kind: must be flat or dunes (got \"%s\")", value);
+            return twin_fail(err, "terrain.kind: must be flat or dunes (got \"%s\")", value);
         return 0;
     }
-    return fail(err, "%s: no such name key (model, metric, terrain.kind)", key);
+    return twin_fail(err, "%s: no such name key (model, metric, terrain.kind)", key);
 }
 
 void terrad_twin_destroy(terrad_twin *t)
@@ -265,12 +270,12 @@ terrad_twin *terrad_twin_create(const terrad_twin_config *c, int x, int y, int w
                                 const int32_t *heights, char *err)
 {
     if (!c) {
-        fail(err, "create: no config");
+        twin_fail(err, "create: no config");
         return NULL;
     }
     terrad_twin *t = calloc(1, sizeof *t);
     if (!t) {
-        fail(err, "create: out of memory");
+        twin_fail(err, "create: out of memory");
         return NULL;
     }
     error_text e = {{0}};
@@ -282,8 +287,8 @@ terrad_twin *terrad_twin_create(const terrad_twin_config *c, int x, int y, int w
     t->window = (world_rect){x, y, w, h};
     if (x < 0 || y < 0 || !in_window(t, x, y, w, h) || (int64_t)x + w > t->w.width ||
         (int64_t)y + h > t->w.height) {
-        fail(err, "window: %d,%d %dx%d must be non-empty and inside the %dx%d world", x, y, w, h,
-             t->w.width, t->w.height);
+        twin_fail(err, "window: %d,%d %dx%d must be non-empty and inside the %dx%d world", x, y, w,
+                  h, t->w.width, t->w.height);
         terrad_twin_destroy(t);
         return NULL;
     }
@@ -307,7 +312,7 @@ static int add_collider(terrad_twin *t, int id, const collider_geometry *g, coll
                         char *err)
 {
     if (find_collider(t, id) >= 0)
-        return fail(err, "id: collider %d exists already", id);
+        return twin_fail(err, "id: collider %d exists already", id);
     error_text e = {{0}};
     if (collider_geometry_validate(g, &e) != 0) {
         copy_error(err, &e);
@@ -316,7 +321,7 @@ static int add_collider(terrad_twin *t, int id, const collider_geometry *g, coll
     if (array_grow((void **)&t->colliders, &t->collider_capacity, (int64_t)t->collider_count + 1,
                    sizeof *t->colliders) != 0 ||
         !(t->batch = realloc(t->batch, (size_t)t->collider_capacity * sizeof *t->batch)))
-        return fail(err, "collider: out of memory");
+        return twin_fail(err, "collider: out of memory");
     twin_collider *c = &t->colliders[t->collider_count++];
     memset(c, 0, sizeof *c);
     c->id = id;
@@ -332,7 +337,7 @@ int terrad_twin_add_collider(terrad_twin *t, int id, const char *shape, double r
                              double half_length, double hx, double hy, double hz, char *err)
 {
     if (!t || !shape)
-        return fail(err, "collider: no twin or shape");
+        return twin_fail(err, "collider: no twin or shape");
     collider_geometry g = {
         .radius = radius, .half_length = half_length, .half_extents = {hx, hy, hz}};
     if (strcmp(shape, "sphere") == 0)
@@ -344,7 +349,8 @@ int terrad_twin_add_collider(terrad_twin *t, int id, const char *shape, double r
     else if (strcmp(shape, "cylinder") == 0)
         g.shape = COLLIDER_CYLINDER;
     else
-        return fail(err, "shape: must be sphere, box, capsule or cylinder (got \"%s\")", shape);
+        return twin_fail(err, "shape: must be sphere, box, capsule or cylinder (got \"%s\")",
+                         shape);
     return add_collider(t, id, &g, NULL, err);
 }
 
@@ -353,13 +359,13 @@ int terrad_twin_add_mesh(terrad_twin *t, int id, const float *vertices, int vert
 {
     if (!t || !vertices || !indices || vertex_count < 3 || triangle_count < 1 ||
         vertex_count > (1 << 24) || triangle_count > (1 << 24))
-        return fail(err, "mesh: needs 3 to 2^24 vertices and 1 to 2^24 triangles%s", "");
+        return twin_fail(err, "mesh: needs 3 to 2^24 vertices and 1 to 2^24 triangles%s", "");
     collider_mesh m = {.vertex_count = vertex_count, .triangle_count = triangle_count};
     m.vertices = malloc((size_t)vertex_count * 3 * sizeof *m.vertices);
     m.indices = malloc((size_t)triangle_count * 3 * sizeof *m.indices);
     if (!m.vertices || !m.indices) {
         collider_mesh_free(&m);
-        return fail(err, "mesh: out of memory");
+        return twin_fail(err, "mesh: out of memory");
     }
     memcpy(m.vertices, vertices, (size_t)vertex_count * 3 * sizeof *m.vertices);
     memcpy(m.indices, indices, (size_t)triangle_count * 3 * sizeof *m.indices);
@@ -368,7 +374,7 @@ int terrad_twin_add_mesh(terrad_twin *t, int id, const float *vertices, int vert
         double r = sqrt((double)v[0] * v[0] + (double)v[1] * v[1] + (double)v[2] * v[2]);
         if (!isfinite(r)) {
             collider_mesh_free(&m);
-            return fail(err, "mesh: vertex %d is not finite", i);
+            return twin_fail(err, "mesh: vertex %d is not finite", i);
         }
         if (r > m.bounding_radius)
             m.bounding_radius = r;
@@ -376,7 +382,7 @@ int terrad_twin_add_mesh(terrad_twin *t, int id, const float *vertices, int vert
     for (int i = 0; i < triangle_count * 3; i++)
         if (m.indices[i] >= (uint32_t)vertex_count) {
             collider_mesh_free(&m);
-            return fail(err, "mesh: index %d names no vertex", i);
+            return twin_fail(err, "mesh: index %d names no vertex", i);
         }
     collider_geometry g = {.shape = COLLIDER_MESH, .mesh = &m};
     if (add_collider(t, id, &g, &m, err) != 0) {
@@ -390,7 +396,7 @@ int terrad_twin_remove_collider(terrad_twin *t, int id, char *err)
 {
     int k = t ? find_collider(t, id) : -1;
     if (k < 0)
-        return fail(err, "id: no collider %d", id);
+        return twin_fail(err, "id: no collider %d", id);
     collider_mesh_free(&t->colliders[k].mesh);
     memmove(t->colliders + k, t->colliders + k + 1,
             (size_t)(t->collider_count - k - 1) * sizeof *t->colliders);
@@ -407,7 +413,7 @@ static twin_collider *posed_collider(terrad_twin *t, int id, collider_pose *p, c
 {
     int k = t ? find_collider(t, id) : -1;
     if (k < 0) {
-        fail(err, "id: no collider %d", id);
+        twin_fail(err, "id: no collider %d", id);
         return NULL;
     }
     error_text e = {{0}};
@@ -445,10 +451,19 @@ int terrad_twin_place(terrad_twin *t, int id, double x, double y, double z, doub
     return 0;
 }
 
+int twin_unpose(terrad_twin *t, int id, char *err)
+{
+    int k = t ? find_collider(t, id) : -1;
+    if (k < 0)
+        return twin_fail(err, "id: no collider %d", id);
+    t->colliders[k].has_pose = t->colliders[k].has_previous = 0;
+    return 0;
+}
+
 int terrad_twin_tick(terrad_twin *t, char *err)
 {
     if (!t)
-        return fail(err, "tick: no twin");
+        return twin_fail(err, "tick: no twin");
     int n = 0;
     for (int i = 0; i < t->collider_count; i++) {
         const twin_collider *c = &t->colliders[i];
@@ -475,7 +490,7 @@ int terrad_twin_tick(terrad_twin *t, char *err)
 int terrad_twin_read(const terrad_twin *t, int x, int y, int w, int h, int32_t *out, char *err)
 {
     if (!t || !out || !in_window(t, x, y, w, h))
-        return fail(err, "read: the rectangle must be non-empty and inside the window");
+        return twin_fail(err, "read: the rectangle must be non-empty and inside the window");
     world_gather_window(&t->w, (world_rect){x, y, w, h}, out);
     return 0;
 }
@@ -483,10 +498,10 @@ int terrad_twin_read(const terrad_twin *t, int x, int y, int w, int h, int32_t *
 int terrad_twin_write(terrad_twin *t, int x, int y, int w, int h, const int32_t *heights, char *err)
 {
     if (!t || !heights || !in_window(t, x, y, w, h))
-        return fail(err, "write: the rectangle must be non-empty and inside the window");
+        return twin_fail(err, "write: the rectangle must be non-empty and inside the window");
     for (int64_t i = 0; i < (int64_t)w * h; i++)
         if (heights[i] < WORLD_HEIGHT_MIN || heights[i] > WORLD_HEIGHT_MAX)
-            return fail(err, "heights: cell %lld is outside the height range", (long long)i);
+            return twin_fail(err, "heights: cell %lld is outside the height range", (long long)i);
     world_scatter_window(&t->w, (world_rect){x, y, w, h}, heights);
     return 0;
 }

@@ -26,7 +26,7 @@ BIN = os.environ.get("TERRAD_BIN", os.path.join(SOURCE, "build", "terrad"))
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
           "diffusion", "decals", "sumner", "bekker"]
 # Chrono SCM's published CPU figures (its benchmark notes, i7-13700K, 4 threads) and the ones
-# measured on this machine (../shared/notes/terramechanics.md), ms per step: the anchors the
+# measured on this machine (docs/notes/terramechanics.md), ms per step: the anchors the
 # bekker model's cost is printed beside.
 SCM_ANCHORS = ("Chrono SCM anchors, ms/step: HMMWV 0.351 (i7-13700K, 4 threads); one wheel on "
                "0.02 m 2.12, on 0.01 m 8.61 (same); this machine, 1 thread: thesis-car carve "

@@ -48,6 +48,12 @@ CLEAN = {
     "server/service/service.h": "",
     "server/main.c": '#include "app/app.h"\n',
     "proto/c/terrad_proto.h": "",
+    "proto/c/terrad_proto.c": '#include "terrad_proto.h"\n',
+    "server/twin/terrad_twin.h": '#include "sim/sim.h"\n',
+    "clients/c/terrad_client.h": '#include "terrad_proto.h"\n',
+    "clients/c/terrad_client_internal.h": '#include "terrad_client.h"\n',
+    "clients/c/terrad_client.c": '#include "terrad_client_internal.h"\n#include "terrad_twin.h"\n',
+    "server/app/loadgen.c": '#include "terrad_client.h"\n',
     "server/sim/long.c": "int x;\n" * 800,
 }
 
@@ -82,6 +88,21 @@ def main():
     check(rc == 1 and offences(out) == [
         'server/service/service.c:2: includes "gl/gl_internal.h", an internal header of gl '
         "(only server/gl/ may include it)"], f"an internal header from outside fails:\n{out}")
+
+    tree = dict(CLEAN)
+    tree["proto/c/terrad_proto.c"] = '#include "terrad_proto.h"\n#include "terrad_twin.h"\n'
+    tree["server/sim/sim.c"] = '#include "terrad_client.h"\n'
+    tree["server/net/net.c"] = '#include "terrad_client_internal.h"\n'
+    rc, out = run(tree)
+    check(rc == 1 and sorted(offences(out)) == [
+        'proto/c/terrad_proto.c:2: forbidden edge proto -> twin ("terrad_twin.h"): twin (layer 4) '
+        "is a higher layer than proto (layer 0)",
+        'server/net/net.c:1: includes "terrad_client_internal.h", an internal header of clients '
+        "(only clients/c/ may include it)",
+        'server/sim/sim.c:1: forbidden edge sim -> clients ("terrad_client.h"): clients (layer 5) '
+        "is a higher layer than sim (layer 3)"],
+          f"proto/ and clients/ are in the layering: the wire includes no server header, the "
+          f"server below clients/ includes none of it:\n{out}")
 
     tree = dict(CLEAN)
     tree["server/tick/tick.c"] = '#include "sim/sim.h"\n'

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 240
-"""The C# client (proto/csharp/Terrad.cs, P/Invoke to libterrad-client) built with Debian's
+"""The C# client (clients/csharp/Terrad.cs, P/Invoke to libterrad-client) built with Debian's
 mono-mcs and run under mono against a real daemon (--backend cpu, a flat scene of default
 material), through tests/support/CsharpDrive.cs: hello (a world name over 64 bytes refused
 naming "world"), a subscription, a sphere driven through it whose rut arrives as DELTA
@@ -28,7 +28,7 @@ def main():
     with tempfile.TemporaryDirectory(prefix="terrad-csharp-") as tmp:
         exe = os.path.join(tmp, "drive.exe")
         r = subprocess.run([MCS, "-warnaserror", "-out:" + exe,
-                            os.path.join(SOURCE, "proto", "csharp", "Terrad.cs"),
+                            os.path.join(SOURCE, "clients", "csharp", "Terrad.cs"),
                             os.path.join(SOURCE, "tests", "support", "CsharpDrive.cs")],
                            capture_output=True, text=True, timeout=120)
         check(r.returncode == 0, f"mcs builds Terrad.cs and the drive ({r.stdout}{r.stderr})")

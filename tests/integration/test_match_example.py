@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 300
-"""proto/python/examples/match.py — the "match" a game backend plays (issue
+"""clients/python/examples/match.py — the "match" a game backend plays (issue
 22) — run as a user would against a real daemon with tokens: it creates a
 world, drives two wheels in it, fires a crater, resets the arena and deletes
 the world, and exits 0 only when each step did what it says. Afterwards the
@@ -13,12 +13,12 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import Checks, Daemon  # noqa: E402
 
 SOURCE = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "match.py")
+EXAMPLE = os.path.join(SOURCE, "clients", "python", "examples", "match.py")
 TOKEN = "match-example-admin"
 
 check = Checks()
 with check.running(Daemon(token=TOKEN)) as d:
-    env = {**os.environ, "PYTHONPATH": os.path.join(SOURCE, "proto", "python")}
+    env = {**os.environ, "PYTHONPATH": os.path.join(SOURCE, "clients", "python")}
     r = subprocess.run([sys.executable, EXAMPLE, d.ws, d.http + "/", TOKEN], capture_output=True,
                        text=True, timeout=240, env=env)
     print(r.stdout, end="")

@@ -13,7 +13,7 @@
 - On the GL backend a model without a GL version runs on the CPU and says so.
 - Bad model names and parameters are refused naming the field.
 - Through the service: a daemon whose scene uses subtract, deferred, diffusion
-  or decals; the README's client drives a wheel and its mirror, rebuilt from
+  or decals; docs/clients.md's Python client drives a wheel and its mirror, rebuilt from
   the deltas, equals GET /v1/heights; /metrics shows the scratch per stage.
 """
 import json
@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import SOURCE, Checks, Daemon, metric_value, simulate  # noqa: E402
 
 SCENES = os.path.join(SOURCE, "tests", "scenes")
-EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")
+EXAMPLE = os.path.join(SOURCE, "clients", "python", "examples", "drive_wheel.py")
 MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
           "diffusion", "sumner", "decals"]
 EXACT = {"persson-iterative", "persson-ssbo", "persson-multi", "diffusion", "sumner", "decals"}

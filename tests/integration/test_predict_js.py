@@ -16,7 +16,8 @@ WebSocket, drives through two connections with the viewer's codec and reports; h
   end the mirror equals GET /v1/heights and holds the other's rut;
 - bad input: a Prediction on a mirror without its snapshot, an unknown model: refused with
   an error naming the field.
-Skips (77) without node or build/terrad_twin.wasm.
+Skips (77) without node, twin_trace or build/terrad_twin.wasm (the last fails instead under
+make test: service_harness.need_twin_wasm).
 """
 import json
 import os
@@ -26,13 +27,13 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
-from service_harness import SOURCE, Checks, Daemon, skip, twin_config  # noqa: E402
+from service_harness import SOURCE, Checks, Daemon, need_twin_wasm, skip, twin_config  # noqa: E402
 
-WASM = os.environ.get("TERRAD_TWIN_WASM", "")
 TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
 DRIVE = os.path.join(SOURCE, "tests", "support", "predict_drive.mjs")
-if not (WASM and os.path.exists(WASM) and os.path.exists(TRACE)):
-    skip("build/terrad_twin.wasm or twin_trace not built")
+if not os.path.exists(TRACE):
+    skip("twin_trace not built")
+WASM = need_twin_wasm()
 if not shutil.which("node"):
     skip("node missing")
 check = Checks()

@@ -1,15 +1,15 @@
 #!/usr/bin/python3
 # ctest-timeout: 300
-"""proto/python as a package, installed the way the README says, into a fresh virtual
+"""clients/python as a package, installed the way docs/clients.md says, into a fresh virtual
 environment that sees Debian's websockets, zstandard and numpy:
 
     /usr/bin/python3 -m venv --system-site-packages VENV
-    VENV/bin/pip install --no-deps --no-build-isolation --no-index COPY-OF-proto/python
+    VENV/bin/pip install --no-deps --no-build-isolation --no-index COPY-OF-clients/python
 
 (from a copy, so that the build leaves nothing in the source tree). Then, with VENV's python:
 - `import terrad` comes from VENV's site-packages, its version is CMakeLists.txt's, py.typed is
   installed, and the codec is the package's one module (terrad.proto);
-- the example (proto/python/examples/drive_wheel.py) passes against a real daemon with the demo
+- the example (clients/python/examples/drive_wheel.py) passes against a real daemon with the demo
   actors on, from outside the source tree: the mirror equals GET /v1/heights at the same tick;
 - SyncClient drives a wheel without asyncio; every kind of frame reaches its public callback;
   heights are a NumPy int32 array (h, w) equal to GET /v1/heights, and lists of rows when NumPy
@@ -100,7 +100,7 @@ try:
     r = subprocess.run([PYTHON, "-m", "venv", "--system-site-packages", venv], capture_output=True, text=True)
     check(r.returncode == 0, f"python3 -m venv --system-site-packages: {r.stderr}")
     src = os.path.join(tmp, "python")
-    shutil.copytree(os.path.join(SOURCE, "proto", "python"), src,
+    shutil.copytree(os.path.join(SOURCE, "clients", "python"), src,
                     ignore=shutil.ignore_patterns("__pycache__", "build", "*.egg-info"))
     r = subprocess.run([os.path.join(venv, "bin", "pip"), "install", "--no-deps", "--no-build-isolation",
                         "--no-index", src], capture_output=True, text=True, timeout=240)
@@ -118,7 +118,7 @@ try:
     if shutil.which("mypy"):
         r = subprocess.run(["mypy", "--python-executable", os.path.join(venv, "bin", "python"),
                             "--no-incremental", "--cache-dir", os.path.join(tmp, "mypy-cache"),
-                            os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py")],
+                            os.path.join(SOURCE, "clients", "python", "examples", "drive_wheel.py")],
                            capture_output=True, text=True, timeout=240, env=env, cwd=work)
         check(r.returncode == 0 and "Success" in r.stdout, f"mypy on the example with the installed package: {r.stdout} {r.stderr}")
     else:
@@ -131,7 +131,7 @@ try:
 
     d = Daemon(backend="cpu", demo=True, name="terrad-venv")
     with check.running(d):
-        r = venv_python(venv, os.path.join(SOURCE, "proto", "python", "examples", "drive_wheel.py"),
+        r = venv_python(venv, os.path.join(SOURCE, "clients", "python", "examples", "drive_wheel.py"),
                         d.ws, d.http + "/", env=env, cwd=work)
         print(r.stdout.strip())
         check(r.returncode == 0 and "mirror == GET /v1/heights" in r.stdout,

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 300
-"""The Rust example over the C client library by FFI (proto/rust/drive.rs, docs/engines.md "Rust"),
+"""The Rust example over the C client library by FFI (clients/rust/drive.rs, docs/engines.md "Rust"),
 built with `rustc` alone (Debian's rustc 1.63; std only, no cargo, no crates) against the build
 tree's libterrad-client and run against a real daemon (--backend cpu, a flat scene of default
 material): it says hello, predicts a window, drives a sphere through it (every compared ACK
@@ -26,7 +26,7 @@ def main():
     with tempfile.TemporaryDirectory(prefix="terrad-rust-") as tmp:
         exe = os.path.join(tmp, "drive")
         r = subprocess.run([RUSTC, "--edition", "2018", "-O", "-D", "warnings", "-o", exe,
-                            os.path.join(SOURCE, "proto", "rust", "drive.rs"), "-L", "native=" + LIBDIR,
+                            os.path.join(SOURCE, "clients", "rust", "drive.rs"), "-L", "native=" + LIBDIR,
                             "-C", f"link-arg=-Wl,-rpath,{LIBDIR}"],
                            capture_output=True, text=True, timeout=240, cwd=tmp)
         check(r.returncode == 0, f"rustc ({r.stdout}{r.stderr})")

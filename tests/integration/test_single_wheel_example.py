@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 # ctest-timeout: 240
-"""proto/python/examples/single_wheel.py (the single-wheel testbed over the wire) against the
-real daemon on its scene (proto/python/examples/single_wheel_scene.json: the bekker model on
+"""clients/python/examples/single_wheel.py (the single-wheel testbed over the wire) against the
+real daemon on its scene (clients/python/examples/single_wheel_scene.json: the bekker model on
 Ding et al. 2011's soil; CPU backend, a store in a temporary directory):
 
 - it exits 0 and prints one row per slip of Ding's smooth wheel (0, 0.1, 0.2, 0.3, 0.4, 0.6),
@@ -23,7 +23,7 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import SOURCE, Checks, Daemon  # noqa: E402
 
-EXAMPLES = os.path.join(SOURCE, "proto", "python", "examples")
+EXAMPLES = os.path.join(SOURCE, "clients", "python", "examples")
 check = Checks()
 ROW = re.compile(r"^\s*([0-9.]+)\s+(-?[0-9.]+) \(\s*(-?[0-9.]+)\)\s+(-?[0-9.]+) \(\s*([0-9.]+)\)"
                  r"\s+(-?[0-9.]+) \(\s*([0-9.]+)\)\s+(-?[0-9.]+)\s+idle ticks (\d+)$")

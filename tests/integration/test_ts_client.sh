@@ -5,13 +5,15 @@
 # fresh directory installs it, a TypeScript application is type-checked against its declarations
 # (clients/js/test/consumer.ts), the Node example (clients/js/examples/drive_wheel.ts) is compiled
 # against it, and clients/js/test/*.test.mjs run against the real daemon with the installed
-# package under node's test runner (example.test.mjs runs the example). Skips (77) without node or
-# node_modules/typescript (make web-deps).
+# package under node's test runner (example.test.mjs runs the example). Skips (77) without node,
+# node_modules/typescript (make web-deps) or the WebAssembly twin predict() runs (build/
+# terrad_twin.wasm; under make test, TERRAD_REQUIRE_WASM=1, that fails instead).
 set -uo pipefail
 src="${TERRAD_SOURCE_DIR:-$(cd "$(dirname "$0")/../.." && pwd)}"
 export TERRAD_BIN="${TERRAD_BIN:-$src/build/terrad}"
 command -v node >/dev/null || { echo "SKIP: node missing"; exit 77; }
 [ -e "$src/node_modules/typescript" ] || { echo "SKIP: node_modules/typescript missing (make web-deps)"; exit 77; }
+/usr/bin/python3 "$src/tests/support/need_twin_wasm.py" || exit $?
 tmp=$(mktemp -d); trap 'rm -rf "$tmp"; rm -rf "$src/clients/js/dist"' EXIT
 set -e
 cd "$src/clients/js"

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 240
-"""proto/python/examples/vehicle.py (issue 21's remote simulator: a four-wheeled rover whose
+"""clients/python/examples/vehicle.py (issue 21's remote simulator: a four-wheeled rover whose
 dynamics the client integrates at 60 Hz from terrad's per-wheel forces and torques) against a
 real daemon with tokens. The example creates two worlds of the bekker model through the
 lifecycle API, stamps a 20-degree ramp into each and drives a rover up it. Asserted, behaviour
@@ -28,12 +28,12 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 from service_harness import SOURCE, Checks, Daemon, metric_value  # noqa: E402
 
-sys.path.insert(0, os.path.join(SOURCE, "proto", "python"))
-sys.path.insert(0, os.path.join(SOURCE, "proto", "python", "examples"))
+sys.path.insert(0, os.path.join(SOURCE, "clients", "python"))
+sys.path.insert(0, os.path.join(SOURCE, "clients", "python", "examples"))
 import terrad  # noqa: E402
 import vehicle  # noqa: E402
 
-EXAMPLE = os.path.join(SOURCE, "proto", "python", "examples", "vehicle.py")
+EXAMPLE = os.path.join(SOURCE, "clients", "python", "examples", "vehicle.py")
 TOKEN = "vehicle-example-admin"
 VERDICT = re.compile(r"^(soft|firm): (climbed|bogged|neither): moved (-?[0-9.]+) m \(the top is "
                      r"([0-9.]+) m away\), slip (-?[0-9.]+), sinkage (-?[0-9.]+) mm .*idle ticks (\d+)$")
@@ -54,7 +54,7 @@ with check.running(Daemon(token=TOKEN, name="terrad-vehicle")) as d:
                   f"soil {field} {value} refused naming material.soil.{field} ({e})")
     after = metric_value(d.metrics()[1], "terrad_world_requests_total", REFUSED) or 0
     check(after - before == 3, f"the three refusals are counted ({before} -> {after})")
-    env = {**os.environ, "PYTHONPATH": os.path.join(SOURCE, "proto", "python")}
+    env = {**os.environ, "PYTHONPATH": os.path.join(SOURCE, "clients", "python")}
     r = subprocess.run([sys.executable, EXAMPLE, d.ws, d.http + "/", TOKEN], capture_output=True,
                        text=True, timeout=200, env=env)
     print(r.stdout, end="")

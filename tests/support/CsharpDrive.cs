@@ -1,4 +1,4 @@
-// CsharpDrive.cs: the C# client (proto/csharp/Terrad.cs) against a real daemon, under Mono,
+// CsharpDrive.cs: the C# client (clients/csharp/Terrad.cs) against a real daemon, under Mono,
 // for tests/integration/test_csharp_client.py.
 //
 //   mono drive.exe PORT X Y W H CONFIG OUT

@@ -1,6 +1,6 @@
 // browser.mjs: what the browser tests share (tests/web/*.mjs): the daemon on loopback ports it
 // picks itself, headless Chromium (playwright-core, /usr/bin/chromium) with the flags
-// ../shared/notes/toolchain.md gives for software GL, and a wait by condition.
+// docs/notes/toolchain.md gives for software GL, and a wait by condition.
 import { spawn } from 'node:child_process';
 import { mkdtempSync, rmSync, existsSync } from 'node:fs';
 import { tmpdir } from 'node:os';

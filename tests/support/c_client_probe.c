@@ -1,5 +1,5 @@
 /*
- * c_client_probe: one round trip of the C client library (proto/c/terrad_client.h)
+ * c_client_probe: one round trip of the C client library (clients/c/terrad_client.h)
  * against a running daemon, for the Python tests that start the daemon
  * (test_tls.py: over wss:// with a self-signed certificate; test_auth_roles.py
  * could use it for roles). Not a test itself.

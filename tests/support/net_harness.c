@@ -8,7 +8,7 @@
  * it and checks the protocol's refusals, fan-out, rate limits, slow clients
  * and shutdown. Environment: MAX_PENDING, RATE, HELLO_TIMEOUT override the
  * net limits; argv[1] is the token (default "secret"), an admin in an auth
- * file written here (tokens are never given in clear, README "Security").
+ * file written here (tokens are never given in clear, docs/security.md).
  */
 #include <pthread.h>
 #include <stdatomic.h>

@@ -1,6 +1,6 @@
 // ctest-timeout: 120
 /*
- * test_c_client: the C client library (proto/c/terrad_client.h) against the
+ * test_c_client: the C client library (clients/c/terrad_client.h) against the
  * real daemon on loopback.
  *
  * Starts `$TERRAD_BIN serve --http-port 0 --ws-port 0 --backend cpu --no-data

@@ -120,6 +120,12 @@ static void test_quaternions(void)
           "multiply composes right to left");
     quatd n = quat_normalize((quatd){2, 0, 0, 0});
     CHECK(n.w == 1 && n.x == 0, "normalise");
+    /* the wire's capsule axis is z, the engine's y: the wire's identity points it along z */
+    v = quat_rotate(collider_wire_orientation((quatd){2, 0, 0, 0}, 1), (vec3d){0, 1, 0});
+    CHECK(near(v.x, 0, 1e-12) && near(v.y, 0, 1e-12) && near(v.z, 1, 1e-12),
+          "collider_wire_orientation turns an axis-z shape's y axis to the wire's z");
+    n = collider_wire_orientation((quatd){0, 0, 0, 3}, 0);
+    CHECK(n.w == 0 && n.z == 1, "collider_wire_orientation only normalises other shapes");
     n = quat_normalize((quatd){0, 0, 0, 0});
     CHECK(n.w == 1, "normalising zero gives the identity, not NaN");
     quatd h = quat_slerp(identity, q, 0.5);

@@ -1,6 +1,6 @@
 /*
  * test_bekker_closed_forms.c: the bekker model against Bekker's closed forms
- * (docs/validation.md; ../shared/notes/terramechanics.md, "Closed forms").
+ * (docs/validation.md; docs/notes/terramechanics.md, "Closed forms").
  *
  * 1. Plate sinkage, every soil of the note's table (the presets of
  *    sim_soil_preset), three pressures each: a rigid plate 10 x 50 cells of

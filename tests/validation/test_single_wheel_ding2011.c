@@ -2,7 +2,7 @@
  * test_single_wheel_ding2011.c: the bekker model's single-wheel testbed run
  * against Ding et al. 2011 (J. Terramechanics 48(1):27-45, HIT testbed; the
  * smooth wheel of their Fig. 9, values read off the plots, about +-0.5 mm and
- * +-1 N; ../shared/data/single-wheel-ding2011.csv). Wheel R 0.15735 m, width
+ * +-1 N; tests/validation/single-wheel-ding2011.csv). Wheel R 0.15735 m, width
  * 0.165 m, 80 N, on their soil (Table 2: n 1.10, kc 15.6 kN/m^(n+1), kphi
  * 2407.4 kN/m^(n+2), c 0.25 kPa, phi 31.9 deg, K 11 mm: preset "ding2011").
  *

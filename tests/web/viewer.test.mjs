@@ -252,11 +252,11 @@ test('a trail dug before the page loaded is coloured: the page compares with the
   }
 });
 
-// Another client (Python, proto/python) holds a sphere in the air over the terrain.
+// Another client (Python, clients/python) holds a sphere in the air over the terrain.
 function otherClient(wsPort, x, y, z, radius) {
   const code = `
 import asyncio, sys
-sys.path.insert(0, ${JSON.stringify(path.join(root, 'proto/python'))})
+sys.path.insert(0, ${JSON.stringify(path.join(root, 'clients/python'))})
 import terrad as tp
 async def main():
     async with tp.TerradClient("ws://127.0.0.1:${wsPort}/", name="viewer-test-other") as c:

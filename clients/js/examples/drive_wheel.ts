@@ -1,5 +1,5 @@
 // drive_wheel.ts: the terrad-client package from Node, doing what the Python drive example does
-// (proto/python/examples/drive_wheel.py; docs/engines.md "TypeScript"). It connects, creates a
+// (clients/python/examples/drive_wheel.py; docs/engines.md "TypeScript"). It connects, creates a
 // wheel, subscribes to the strip it drives along and sends a pose every tick for three seconds,
 // with prediction on when the daemon serves its twin (GET /v1/twin, /terrad_twin.wasm). Then it
 // parks the wheel above the snow (a pose each half tick, so an ACK closes every tick), asks the

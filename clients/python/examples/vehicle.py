@@ -2,7 +2,7 @@
 """A remote vehicle simulator on terrad's soil forces (issue 21): a four-wheeled rover climbs a
 20-degree slope of firm soil and bogs down on the same slope of soft soil.
 
-    python3 proto/python/examples/vehicle.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/] [TOKEN]
+    python3 clients/python/examples/vehicle.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/] [TOKEN]
 
 Two worlds are created through the lifecycle API (POST /v1/worlds: the bekker model; soft: Wong's
 "snow (US)" with slip-sinkage 0.4, firm: sandy loam), a ramp is stamped into each (an `edit`),

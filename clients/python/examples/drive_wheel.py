@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Drive a wheel across the terrain and check the deltas against the server.
 
-    pip install ./proto/python        # once (see proto/python/README.md)
-    python3 proto/python/examples/drive_wheel.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/]
+    pip install ./clients/python        # once (see clients/python/README.md)
+    python3 clients/python/examples/drive_wheel.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/]
 
 Connects, creates a wheel, subscribes to the strip it drives along and sends
 a pose every tick for three seconds. Then it parks the wheel above the snow

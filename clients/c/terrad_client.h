@@ -3,7 +3,7 @@
  * over libwebsockets' client API, for game backends and simulators written
  * in C or C++.
  *
- * Usage (the whole program: proto/c/examples/drive_wheel.c):
+ * Usage (the whole program: clients/c/examples/drive_wheel.c):
  *
  *     char err[256];
  *     terrad_client *c = terrad_client_connect((terrad_client_desc){.port = 8081}, err,

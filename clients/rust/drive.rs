@@ -1,6 +1,6 @@
 // drive.rs: terrad from Rust over the C client library by FFI (docs/engines.md "Rust"): connect,
 // subscribe a window, predict it, drive a sphere through it, and check that the prediction was
-// exact and that the mirror holds the rut. The Go example's twin (proto/go/drive.go).
+// exact and that the mirror holds the rut. The Go example's twin (clients/go/drive.go).
 //
 //     rustc --edition 2018 -O drive.rs $(pkg-config --libs-only-L terrad-client | sed 's/-L/-L native=/') \
 //           -C link-arg=-Wl,-rpath,$(pkg-config --variable=libdir terrad-client)

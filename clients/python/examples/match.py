@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Play a short match the way a game backend would (issue 22).
 
-    pip install ./proto/python        # once (see proto/python/README.md)
-    python3 proto/python/examples/match.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/] [TOKEN]
+    pip install ./clients/python        # once (see clients/python/README.md)
+    python3 clients/python/examples/match.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/] [TOKEN]
 
 1. creates a world for the match (POST /v1/worlds: a small flat arena);
 2. two players say hello into it and each drives a wheel across the arena;

@@ -1,6 +1,7 @@
 """The twin library (libterrad-twin, docs/engines.md) from Python, through ctypes: the
-daemon's CPU twin run on a client's own window, heights bit for bit the server's. It is what
-terrad.predict builds client-side prediction on.
+daemon's CPU twin run on a client's own window, heights bit for bit the server's. Its
+prediction (terrad_twin_prediction_*, the one copy every client runs) is what terrad.predict
+calls.
 
     from terrad.twin import Twin
     twin = Twin({"width": 256, "height": 256, "terrain.height_m": 0.4}, 96, 96, 64, 64)
@@ -44,9 +45,18 @@ def _candidates() -> list[str]:
     return [c for c in found if c]
 
 
+class PredictionStats(ctypes.Structure):
+    """terrad_twin_prediction_stats (terrad_twin.h)."""
+    _fields_ = [(name, ctypes.c_uint64) for name in (
+        "predicted", "reconciled", "replayed", "exact", "skipped", "on_time", "last_differing",
+        "pending")]
+
+
 def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     P, I, D, S = ctypes.c_void_p, ctypes.c_int, ctypes.c_double, ctypes.c_char_p
-    i32p = ctypes.POINTER(ctypes.c_int32)
+    U32, U64 = ctypes.c_uint32, ctypes.c_uint64
+    i32p, u32p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_uint32)
+    f32p, dp = ctypes.POINTER(ctypes.c_float), ctypes.POINTER(ctypes.c_double)
     sigs: dict[str, tuple[Any, list[Any]]] = {
         "config_new": (P, []),
         "config_free": (None, [P]),
@@ -63,6 +73,17 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "tick": (I, [P, S]),
         "read": (I, [P, I, I, I, I, i32p, S]),
         "write": (I, [P, I, I, I, I, i32p, S]),
+        "prediction_create": (P, [P, I, I, I, I, i32p, I, S]),
+        "prediction_destroy": (None, [P]),
+        "prediction_add_collider": (I, [P, U32, S, D, D, D, D, D, S]),
+        "prediction_add_mesh": (I, [P, U32, f32p, I, u32p, I, S]),
+        "prediction_remove_collider": (I, [P, U32, S]),
+        "prediction_sent": (I, [P, U32, u32p, dp, I, S]),
+        "prediction_acked": (I, [P, U64, U32, i32p, S]),
+        "prediction_resume": (I, [P, U64, u32p, dp, I, S]),
+        "prediction_get_stats": (ctypes.POINTER(PredictionStats), [P]),
+        "prediction_pending": (I, [P, u32p, I]),
+        "prediction_twin": (P, [P]),
     }
     for name, (res, args) in sigs.items():
         f = getattr(lib, "terrad_twin_" + name)
@@ -90,7 +111,7 @@ def load_library(path: str | None = None) -> ctypes.CDLL:
                   "or set TERRAD_TWIN_LIBRARY): " + "; ".join(tried))
 
 
-def _int32s(values: Sequence[int] | Any, n: int, what: str) -> Any:
+def int32s(values: Sequence[int] | Any, n: int, what: str) -> Any:
     flat = values.ravel().tolist() if hasattr(values, "ravel") else values
     try:
         buf = array.array("i", flat)
@@ -99,6 +120,28 @@ def _int32s(values: Sequence[int] | Any, n: int, what: str) -> Any:
     if len(buf) != n:
         raise TwinError(f"{what}: {len(buf)} values for {n} cells")
     return (ctypes.c_int32 * n).from_buffer(buf)
+
+
+def make_config(lib: ctypes.CDLL, config: dict[str, Any], err: Any) -> int:
+    """A terrad_twin_config from {key: number or name}; the caller frees it
+    (terrad_twin_config_free). TwinError naming the key on a refusal."""
+    cfg = lib.terrad_twin_config_new()
+    if not cfg:
+        raise MemoryError("terrad_twin_config_new")
+    try:
+        for key, value in config.items():
+            if isinstance(value, str):
+                rc = lib.terrad_twin_config_set_name(cfg, key.encode(), value.encode(), err)
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                rc = lib.terrad_twin_config_set(cfg, key.encode(), float(value), err)
+            else:
+                raise TwinError(f"{key}: must be a number or a name, not {type(value).__name__}")
+            if rc != 0:
+                raise TwinError(err.value.decode(errors="replace"))
+    except BaseException:
+        lib.terrad_twin_config_free(cfg)
+        raise
+    return cfg
 
 
 class Twin:
@@ -111,22 +154,12 @@ class Twin:
         a name each. heights: w * h row-major (the server's), or None for the base terrain."""
         self._lib = load_library(library)
         self._t: int | None = None
+        self._owned = True
         self.x, self.y, self.w, self.h = x, y, w, h
         err = ctypes.create_string_buffer(_ERR_MAX)
-        cfg = self._lib.terrad_twin_config_new()
-        if not cfg:
-            raise MemoryError("terrad_twin_config_new")
+        cfg = make_config(self._lib, config, err)
         try:
-            for key, value in config.items():
-                if isinstance(value, str):
-                    rc = self._lib.terrad_twin_config_set_name(cfg, key.encode(), value.encode(), err)
-                elif isinstance(value, (int, float)) and not isinstance(value, bool):
-                    rc = self._lib.terrad_twin_config_set(cfg, key.encode(), float(value), err)
-                else:
-                    raise TwinError(f"{key}: must be a number or a name, not {type(value).__name__}")
-                if rc != 0:
-                    raise TwinError(err.value.decode(errors="replace"))
-            buf = None if heights is None else _int32s(heights, w * h, "heights")
+            buf = None if heights is None else int32s(heights, w * h, "heights")
             t = self._lib.terrad_twin_create(cfg, x, y, w, h, buf, err)
         finally:
             self._lib.terrad_twin_config_free(cfg)
@@ -134,6 +167,16 @@ class Twin:
             raise TwinError(err.value.decode(errors="replace"))
         self._t = t
         self._err = err
+
+    @classmethod
+    def view(cls, lib: ctypes.CDLL, handle: int, x: int, y: int, w: int, h: int) -> Twin:
+        """A twin another object owns (a Prediction's): read and written here, never
+        destroyed here."""
+        t = cls.__new__(cls)
+        t._lib, t._t, t._owned = lib, handle, False
+        t.x, t.y, t.w, t.h = x, y, w, h
+        t._err = ctypes.create_string_buffer(_ERR_MAX)
+        return t
 
     def _check(self, rc: int) -> None:
         if rc != 0:
@@ -145,9 +188,9 @@ class Twin:
         return self._t
 
     def close(self) -> None:
-        if self._t is not None:
+        if self._t is not None and self._owned:
             self._lib.terrad_twin_destroy(self._t)
-            self._t = None
+        self._t = None
 
     def __del__(self) -> None:
         self.close()
@@ -211,5 +254,5 @@ class Twin:
         w, h = self.w if w is None else w, self.h if h is None else h
         if w <= 0 or h <= 0:
             raise TwinError("write: the rectangle must be non-empty and inside the window")
-        buf = _int32s(heights, w * h, "heights")
+        buf = int32s(heights, w * h, "heights")
         self._check(self._lib.terrad_twin_write(self._handle(), x, y, w, h, buf, self._err))

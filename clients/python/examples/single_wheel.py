@@ -2,8 +2,8 @@
 """A single-wheel testbed over the wire: drawbar pull, sinkage and torque against slip,
 beside Ding et al. 2011's measurements.
 
-    terrad --scene proto/python/examples/single_wheel_scene.json --no-demo --no-data
-    python3 proto/python/examples/single_wheel.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/]
+    terrad --scene clients/python/examples/single_wheel_scene.json --no-demo --no-data
+    python3 clients/python/examples/single_wheel.py [ws://127.0.0.1:8081/] [http://127.0.0.1:8080/]
 
 The scene is a flat bed of Ding et al. 2011's soil (J. Terramechanics 48(1):27-45; terrad's
 `bekker` model, preset "ding2011", 5 mm cells, 50 ticks per second). A wheel of their testbed's
