@@ -2,8 +2,8 @@
 // scripts/screenshot.mjs: a PNG of a running daemon's viewer, taken in headless Chromium.
 //   node scripts/screenshot.mjs [--url URL] [--out FILE] [--size WxH] [--timeout S]
 //   make screenshot [URL=...] [OUT=...]
-// URL defaults to http://127.0.0.1:8080/ (make run's; add ?ws=PORT for another websocket port,
-// #token=tdk_... for a daemon with tokens), OUT to test-artifacts/screenshot.png, the size to
+// URL defaults to http://127.0.0.1:8080/ (make run's; the page asks the daemon for its websocket,
+// add #token=tdk_... for a daemon with tokens), OUT to test-artifacts/screenshot.png, the size to
 // 1280x800, each wait (page load, first snapshot drawn, capture) to 180 s: software WebGL
 // on a busy machine draws a frame in seconds.
 //

@@ -42,6 +42,8 @@ static void print_help(void)
         "  TERRAD_EGL_PLATFORM=device|surfaceless   force an EGL platform\n"
         "  TERRAD_GL_TILE_CACHE=LAYERS,BUDGET_BYTES  the GL backend's tile cache (default\n"
         "                   64,4194304; 0 layers: off; docs/tiles.md)\n"
+        "  TERRAD_NO_AVX2=1   the CPU stages' SSE2 baseline instead of their AVX2 forms\n"
+        "                   (the same heights; for comparing them, docs/performance.md)\n"
         "  TERRAD_CLUSTER=URLS   world add|list|remove: the NATS URLs when --cluster is not\n"
         "                   given (comma-separated; default nats://127.0.0.1:4222)\n"
         "  TERRAD_TOKEN=T   loadgen's token for a daemon with --auth-file (a driver's)\n"

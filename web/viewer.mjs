@@ -1,19 +1,28 @@
 // terrad viewer: a live WebGL2 view of the deforming terrain (issue 4).
 // Connects to the websocket (subprotocol terrad.v1), subscribes to the region in view,
 // mirrors it with the protocol's tile-version rules and renders it as a lit mesh.
-// The websocket port: ?ws=PORT, else the page's HTTP port + 1 (the daemon's default pair).
+// Where the websocket is: the daemon says (GET v1/websocket, asked relative to the page's own
+// URL before each connection: its ws port, at the host the browser used, or the --public-ws-url
+// a proxy needs), never guessed from the page's port. ?ws=PORT or ?ws=URL overrides it.
 import * as P from './terrad_codec.mjs';
 import { ViewerPrediction, union } from './viewer_predict.mjs';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
-const httpPort = Number(location.port || (location.protocol === 'https:' ? 443 : 80));
-const wsPort = Number(params.get('ws')) || httpPort + 1;
 // A daemon with tokens (docs/security.md): open the viewer as /#token=tdk_… — the fragment never
 // reaches a server or its logs; the token goes in the hello and as a bearer token to /v1/*.
 const token = new URLSearchParams(location.hash.slice(1)).get('token') || '';
 const apiInit = { cache: 'no-store', headers: token ? { Authorization: `Bearer ${token}` } : {} };
-const wsUrl = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.hostname}:${wsPort}/`;
+let wsUrl = ''; // the last one connected to (or tried)
+// The websocket's URL: the page's ?ws= override, else the daemon's answer.
+async function websocketUrl() {
+  const given = params.get('ws');
+  if (given) return /^\d+$/.test(given) ? `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.hostname}:${given}/` : given;
+  const r = await fetch(new URL('v1/websocket', location.href), apiInit);
+  const body = await r.json();
+  if (!r.ok || typeof body.url !== 'string') throw new Error(`GET v1/websocket: ${r.status} ${body.error || ''}`);
+  return body.url;
+}
 const MAX_FULL = 512 * 512; // whole world when it is at most this many cells: every chunk at full detail
 const WINDOW = 1024; // else a WINDOW x WINDOW subscription around the camera target, chunked LoD
 const CHUNK = 64; // cells per chunk side (one tile); LoD level l draws every 2^l-th cell
@@ -50,12 +59,15 @@ function send(obj) {
   if (ws && ws.readyState === WebSocket.OPEN) ws.send(typeof obj === 'object' && !(obj instanceof Uint8Array) ? JSON.stringify(obj) : obj);
 }
 
-function connect() {
+async function connect() {
   setState(retries ? 'reconnecting…' : 'connecting');
   let sock;
   try {
+    wsUrl = await websocketUrl(); // asked again each time: a restarted daemon may have moved it
     sock = new WebSocket(wsUrl, P.SUBPROTOCOL);
   } catch (e) {
+    app.lastError = String(e.message || e);
+    $('o-error').textContent = app.lastError;
     scheduleReconnect();
     return;
   }

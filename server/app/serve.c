@@ -1,23 +1,28 @@
 /*
- * serve.c: `terrad serve` — the daemon. The calling thread becomes the sim
- * thread: it alone owns the GL context and runs the fixed-rate tick loop
- * (poses → windows → deformation → scatter; docs/design.md), publishing a
- * status block that the HTTP thread reads. A tick that overruns its period is
- * counted, and the loop does not try to catch up by running ticks back to
- * back. SIGINT and SIGTERM finish the current tick and stop cleanly; SIGHUP reads the
- * --auth-file again between two ticks (serve_security.c). /healthz fails when the tick loop or
- * the net thread stops moving.
+ * serve.c: `terrad serve` — the daemon. Its default world (--scene) is an
+ * ordinary world of host/ (host/host_world.c): opened, started, ticked on
+ * the process's shared pool of sim workers at the scene's rate (poses →
+ * windows → deformation → scatter; docs/design.md) beside the worlds
+ * created by API, and ended there. Where it differs is its registry backend
+ * (default_world_ops): its scene is --scene's, its store --data itself, and
+ * the ports are made with it (the HTTP server gets its status and hub at its
+ * start, the websocket server its hub and info) rather than joined later,
+ * so they keep its hub and world until they stopped. A tick that overruns
+ * its period is counted, and the world does not try to catch up by running
+ * ticks back to back (host/host_clock.c). The main thread waits: SIGINT and
+ * SIGTERM end the default world after its current tick and stop cleanly;
+ * SIGHUP reads the --auth-file again (serve_security.c). /healthz fails when
+ * the ticks or the net thread stop moving.
  *
  * app_serve reads as the daemon's life: open the world (scene, base terrain,
- * recovered store) → start the threads (hub, HTTP, engine and service, net)
- * → the tick loop → stop. Options: serve_options.c; the world's simulation
- * and one step of the loop: host_sim.c; demo actors, which keep the terrain
- * deforming without clients: host_demo.c. With --cluster the daemon is a
- * node of a cluster instead, ticking several worlds (serve_node.c).
+ * recovered store) → the HTTP port → its simulation and the websocket port
+ * (default_join) → ticking → stop. Options: serve_options.c; demo actors,
+ * which keep the terrain deforming without clients: host/host_demo.c. With
+ * --cluster the daemon is a node of a cluster instead (serve_node.c).
  */
 #include <errno.h>
-#include <math.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,8 +43,8 @@ static volatile sig_atomic_t stop_requested;
 static volatile sig_atomic_t hangup_seen;
 
 /* SIGHUP (a closed terminal, a log rotation's nudge, an operator's reload) must not
- * kill a daemon: noted here; the tick loop (or a node's loop) reads the auth file
- * again (the log is stderr: nothing to reopen). */
+ * kill a daemon: noted here; the main thread (serve_wait, or a node's loop) reads the
+ * auth file again (the log is stderr: nothing to reopen). */
 static void on_hangup(int sig)
 {
     (void)sig;
@@ -52,27 +57,25 @@ static void on_signal(int sig)
     stop_requested = 1;
 }
 
+/* How often the main thread looks at the signals' flags while the world ticks. */
+#define SERVE_WAIT_MS 50
+
 /* Everything the daemon holds; zero means "not made yet", so one stop
  * releases whatever was made. */
 typedef struct serve_daemon {
     serve_options o;
-    host_sim m; /* the one world: scene, world, store, engine, service, hub */
+    host_world def;      /* the default world: scene, world, store, engine, service, hub */
+    host_ticker *ticker; /* the sim workers every world of the daemon ticks on */
+    int running;         /* def is on the ticker */
+    atomic_int ended;    /* def's end ran (default_ended) */
+    int end_rc;
     net_server *net;
     http_server *http;
     http_server *probe;   /* --probe-port */
     auth_table *auth;     /* NULL: no tokens, every client an admin (serve_security.c) */
     serve_worlds *worlds; /* worlds created by API beside the default one (serve_worlds.c) */
+    int fd_reserve;       /* descriptors the websocket server leaves free (serve_http_open) */
 } serve_daemon;
-
-static void sleep_until_ms(double deadline_ms)
-{
-    double now = time_now_ms();
-    if (deadline_ms <= now)
-        return;
-    double wait = deadline_ms - now;
-    struct timespec ts = {(time_t)(wait / 1000.0), (long)(fmod(wait, 1000.0) * 1e6)};
-    nanosleep(&ts, NULL);
-}
 
 static void serve_catch_signals(void)
 {
@@ -86,10 +89,11 @@ static void serve_catch_signals(void)
 }
 
 /* The scene, its world, and the store recovered over the world's base. */
-static int serve_open_world(serve_daemon *d, error_text *err)
+static int default_open(host_world *hw, error_text *err)
 {
+    serve_daemon *d = hw->owner;
     serve_options *o = &d->o;
-    host_sim *m = &d->m;
+    host_sim *m = &hw->m;
     if ((o->scene_path ? scene_load_file(o->scene_path, &m->sc, err)
                        : scene_load_default(&m->sc, err)) != 0)
         return -1;
@@ -139,26 +143,12 @@ static double net_stalled(const void *arg)
     return net_server_stalled_ms((const net_server *)arg);
 }
 
-/* Start the threads around the sim thread: hub, HTTP, engine, net; then ready. */
-static int serve_start(serve_daemon *d, error_text *err)
+/* Its simulation started: the websocket port (with its hub and info), the
+ * created worlds and the watchdogs. Before it is ready and ticks. */
+static int default_join(host_world *hw, error_text *err)
 {
-    host_sim *m = &d->m;
-    if (!(m->h = hub_create())) {
-        error_set(err, "serve: out of memory");
-        return -1;
-    }
-    int fd_reserve = 0;
-    if (!(d->http = serve_http_open(&d->o, d->auth, &m->status, m->h, &fd_reserve, err)) ||
-        (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
-        return -1;
-    http_server_set_base(d->http, &m->w); /* the base never changes once the world is made */
-    error_text why = {{0}};
-    char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
-    http_server_set_twin(d->http, twin, why.message);
-    free(twin);
-    host_sim_config cfg = serve_host_config(&d->o);
-    if (host_sim_start(m, &cfg, err) != 0)
-        return -1;
+    serve_daemon *d = hw->owner;
+    host_sim *m = &hw->m;
     net_config nc = {.port = d->o.ws_port,
                      .bind_any = d->o.bind_any,
                      .auth = d->auth,
@@ -167,17 +157,28 @@ static int serve_start(serve_daemon *d, error_text *err)
                      .limits = d->o.limits,
                      .world = host_sim_world_info(m)};
     nc.world.scene_name = m->sc.name;
-    nc.limits.fd_reserve = fd_reserve;
+    nc.limits.fd_reserve = d->fd_reserve;
     if (!(d->net = net_server_start(&nc, m->h, err)) ||
-        !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, err)))
+        !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, d->ticker, err)))
         return -1;
+    hw->net = d->net; /* its clients counted in its status */
+    int tls = d->o.tls_cert && d->o.tls_cert[0];
+    /* GET /v1/websocket: the viewer asks where the websocket is, never guesses */
+    http_server_set_websocket(d->http, net_server_port(d->net), tls, d->o.public_ws_url);
     http_server_watch(d->http, "tick", http_status_stalled_ms, &m->status, SERVE_STALL_LIMIT_MS);
     http_server_watch(d->http, "net", net_stalled, d->net, SERVE_STALL_LIMIT_MS);
-    host_sim_ready(m);
+    return 0;
+}
+
+/* Ready, before its first tick: the "serving" line, which tells a supervisor
+ * (and the tests) that every port is known. */
+static int default_registered(host_world *hw, error_text *err)
+{
+    (void)err;
+    serve_daemon *d = hw->owner;
+    host_sim *m = &hw->m;
     serve_catch_signals();
     signal(SIGPIPE, SIG_IGN);
-    /* before the "serving" line, which tells a supervisor (and the tests) that
-     * every port is known */
     if (d->probe)
         log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
                  http_server_port(d->probe));
@@ -190,40 +191,84 @@ static int serve_start(serve_daemon *d, error_text *err)
     return 0;
 }
 
-/* The fixed-rate tick loop, until --ticks or a signal. */
-static int serve_run_ticks(serve_daemon *d, error_text *err)
+/* Its end ran on a worker (--ticks reached, a signal, or a failed tick). */
+static void default_ended(host_world *hw, int rc)
 {
-    host_sim *m = &d->m;
-    double period_ms = 1000.0 / m->sc.tick_hz;
-    double next_ms = time_now_ms();
-    for (long tick = 0; !stop_requested && (d->o.max_ticks < 0 || tick < d->o.max_ticks); tick++) {
-        if (host_sim_step(m, tick, net_server_client_count(d->net), err) != 0)
-            return -1;
+    serve_daemon *d = hw->owner;
+    if (rc == 0)
+        log_info("stopping after tick %llu (%llu overruns)", hw->last_tick, hw->overruns);
+    d->end_rc = rc;
+    atomic_store(&d->ended, 1);
+}
+
+/* Its registry backend: no check after a tick, and with join its clients are
+ * not told it stopped (the daemon stops: net_server_stop closes them). */
+static const host_world_ops default_world_ops = {.open = default_open,
+                                                 .join = default_join,
+                                                 .registered = default_registered,
+                                                 .ended = default_ended};
+
+/* The HTTP port on the opened world, then its simulation, the websocket
+ * port and its ticks (host_world_run → default_join). */
+static int serve_start(serve_daemon *d, error_text *err)
+{
+    host_sim *m = &d->def.m;
+    if (!(d->ticker = host_ticker_start(host_ticker_default_workers(), err)) ||
+        !(d->http = serve_http_open(&d->o, d->auth, &m->status, m->h, &d->fd_reserve, err)) ||
+        (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
+        return -1;
+    http_server_set_base(d->http, &m->w); /* the base never changes once the world is made */
+    error_text why = {{0}};
+    char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
+    http_server_set_twin(d->http, twin, why.message);
+    free(twin);
+    host_world_place(&d->def, &default_world_ops, d, d->http, NULL, d->ticker);
+    d->def.config = serve_host_config(&d->o);
+    d->def.max_ticks = d->o.max_ticks;
+    if (host_world_run(&d->def, err->message, sizeof err->message) != 0)
+        return -1;
+    d->running = 1;
+    return 0;
+}
+
+/* Until --ticks or a signal: the default world ticks on the pool; this
+ * thread reads the auth file again on SIGHUP. */
+static int serve_wait(serve_daemon *d, error_text *err)
+{
+    while (!stop_requested && !atomic_load(&d->ended)) {
         if (hangup_seen) {
             hangup_seen = 0;
             serve_security_reload(&d->o, d->auth);
         }
-        next_ms += period_ms;
-        if (next_ms < time_now_ms())
-            next_ms = time_now_ms(); /* behind: drop the backlog, keep the rate */
-        sleep_until_ms(next_ms);
+        host_sleep_ms(SERVE_WAIT_MS); /* a signal cuts it short */
     }
-    log_info("stopping after tick %llu (%llu overruns)",
-             (unsigned long long)service_current_tick(m->svc), (unsigned long long)m->overruns);
-    return 0;
+    host_world_end(&d->def); /* nothing when it ended already */
+    while (!atomic_load(&d->ended))
+        host_sleep_ms(1);
+    d->running = 0;
+    if (d->end_rc == 0)
+        return 0;
+    error_set(err, "%s", d->def.why);
+    return -1;
 }
 
 /* Stop the threads, then release in the reverse order of making. */
 static void serve_stop(serve_daemon *d)
 {
+    if (d->running) { /* started, never waited for */
+        host_world_end(&d->def);
+        while (!atomic_load(&d->ended))
+            host_sleep_ms(1);
+    }
     serve_worlds_stop(d->worlds); /* its worlds leave the ports first */
-    if (d->m.h)
-        hub_close_reads(d->m.h);
+    if (d->def.m.h)
+        hub_close_reads(d->def.m.h);
     http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
-    auth_free(d->auth); /* after both servers: they check tokens against it */
-    host_sim_free(&d->m);
+    host_ticker_stop(d->ticker); /* every world has ended: the workers are joined */
+    auth_free(d->auth);          /* after both servers: they check tokens against it */
+    host_world_free(&d->def);    /* its hub, world and scene, which the ports read */
 }
 
 int app_serve(int argc, char **argv)
@@ -233,8 +278,9 @@ int app_serve(int argc, char **argv)
         log_error("serve: out of memory");
         return 1;
     }
-    pthread_mutex_init(&d->m.status.lock, NULL);
-    d->m.metrics_slot = -1;
+    pthread_mutex_init(&d->def.m.status.lock, NULL);
+    d->def.ops = &default_world_ops; /* its open runs before the ports are made */
+    d->def.owner = d;
     serve_catch_signals(); /* from the start: a SIGTERM while connecting still stops cleanly */
     cli_result parsed = serve_options_parse(argc, argv, &d->o);
     int rc = parsed == CLI_HELP ? 0 : parsed == CLI_ERROR ? 2 : 1;
@@ -246,16 +292,14 @@ int app_serve(int argc, char **argv)
         signal(SIGPIPE, SIG_IGN);
         rc = serve_node_run(&d->o, d->auth, &stop_requested, &hangup_seen);
     } else if (parsed == CLI_OK) {
-        if (serve_open_world(d, &err) == 0) {
-            host_sim_status_init(&d->m);
-            if (serve_start(d, &err) == 0 && serve_run_ticks(d, &err) == 0)
-                rc = 0;
-        }
+        if (host_world_open(&d->def, err.message, sizeof err.message) == 0 &&
+            serve_start(d, &err) == 0 && serve_wait(d, &err) == 0)
+            rc = 0;
         if (rc != 0 && err.message[0])
             log_error("%s", err.message);
     }
     serve_stop(d);
-    pthread_mutex_destroy(&d->m.status.lock);
+    pthread_mutex_destroy(&d->def.m.status.lock);
     free(d);
     return rc;
 }

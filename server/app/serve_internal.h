@@ -47,27 +47,28 @@ typedef struct serve_options {
     /* limits.max_heights_bytes_per_address / _in_flight: /v1/heights answers
      * held at once (0: http.c's defaults, 64 MiB and 256 MiB) */
     size_t heights_bytes_per_address, heights_bytes_in_flight;
-    const char *data_dir;     /* NULL: memory only (--no-data, or a demo without --data) */
-    int data_given;           /* --data, or "data" in --config */
-    int demo_in_memory;       /* demo actors and no --data: no store */
-    int fresh;                /* --fresh: store_remove before store_open */
-    const char *durability;   /* every-tick | group:MS | none */
-    long wal_segment_bytes;   /* compaction threshold */
-    const char *store_fault;  /* test hook: writes fail ENOSPC while this file exists */
-    int recover_truncate;     /* start on a damaged data directory, cutting the damage */
-    int config_loaded;        /* --config was given */
-    const char *cluster_urls; /* --cluster: NULL when not in a cluster */
-    const char *node;         /* --node */
-    const char *worlds;       /* --worlds a,b,... (or --world a): NULL for any registered */
-    int max_worlds;           /* --max-worlds: worlds one node ticks at once (0: see below),
-                               * or a single daemon creates beside its default one */
-    const char *scene_dir;    /* --scene-dir: scenes POST /v1/worlds may name (NULL: none) */
+    const char *data_dir;      /* NULL: memory only (--no-data, or a demo without --data) */
+    int data_given;            /* --data, or "data" in --config */
+    int demo_in_memory;        /* demo actors and no --data: no store */
+    int fresh;                 /* --fresh: store_remove before store_open */
+    const char *durability;    /* every-tick | group:MS | none */
+    long wal_segment_bytes;    /* compaction threshold */
+    const char *store_fault;   /* test hook: writes fail ENOSPC while this file exists */
+    int recover_truncate;      /* start on a damaged data directory, cutting the damage */
+    int config_loaded;         /* --config was given */
+    const char *cluster_urls;  /* --cluster: NULL when not in a cluster */
+    const char *node;          /* --node */
+    const char *worlds;        /* --worlds a,b,... (or --world a): NULL for any registered */
+    int max_worlds;            /* --max-worlds: worlds one node ticks at once (0: see below),
+                                * or a single daemon creates beside its default one */
+    const char *scene_dir;     /* --scene-dir: scenes POST /v1/worlds may name (NULL: none) */
+    const char *public_ws_url; /* --public-ws-url: GET /v1/websocket's answer (NULL: built) */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],
         config_data[SERVE_CONFIG_STRING_MAX], config_durability[64],
         config_store_fault[SERVE_CONFIG_STRING_MAX], config_auth_file[SERVE_CONFIG_STRING_MAX],
         config_tls_cert[SERVE_CONFIG_STRING_MAX], config_tls_key[SERVE_CONFIG_STRING_MAX],
-        config_scene_dir[SERVE_CONFIG_STRING_MAX];
+        config_scene_dir[SERVE_CONFIG_STRING_MAX], config_public_ws_url[HTTP_PUBLIC_URL_MAX];
 } serve_options;
 
 /* The command line (argv[0] = "serve"); fills o with the defaults first.
@@ -102,7 +103,8 @@ typedef struct serve_worlds serve_worlds;
  * started (each on its own sim thread), then POST/GET /v1/worlds and
  * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
-                                 http_server *http, net_server *net, error_text *err);
+                                 http_server *http, net_server *net, host_ticker *ticker,
+                                 error_text *err);
 /* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
 void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */

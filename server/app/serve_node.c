@@ -216,11 +216,7 @@ static void *world_main(void *arg)
     node_world *nw = arg;
     serve_node *n = nw->node;
     host_world *hw = &nw->hw;
-    hw->ops = &cluster_world_ops;
-    hw->owner = nw;
-    hw->http = n->http;
-    hw->net = n->net;
-    hw->ticker = n->ticker;
+    host_world_place(hw, &cluster_world_ops, nw, n->http, n->net, n->ticker);
     hw->config = serve_host_config(n->o);
     hw->max_ticks = n->o->max_ticks;
     if (host_world_start(hw, nw->why, sizeof nw->why) == 0) {
@@ -422,6 +418,8 @@ static int node_open_ports(serve_node *n, error_text *err)
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
+    int tls = o->tls_cert && o->tls_cert[0];
+    http_server_set_websocket(n->http, net_server_port(n->net), tls, o->public_ws_url);
     if (!(n->relays = serve_relays_start(n->cl, n->net, n->http, n->name)) ||
         !(n->api = serve_node_api_start(n->cl, o, n->name, n->http))) {
         error_set(err, "out of memory");
@@ -432,7 +430,6 @@ static int node_open_ports(serve_node *n, error_text *err)
     if (n->probe)
         log_info("probes: http://127.0.0.1:%d/healthz (and /readyz, /metrics)",
                  http_server_port(n->probe));
-    int tls = o->tls_cert && o->tls_cert[0];
     log_info("cluster: node %s listens on %s://127.0.0.1:%d/ and websocket port %d", n->name,
              tls ? "https" : "http", http_server_port(n->http), net_server_port(n->net));
     return 0;

@@ -43,6 +43,7 @@ enum {
     OPT_TLS_KEY,
     OPT_PROBE_PORT,
     OPT_SCENE_DIR,
+    OPT_PUBLIC_WS_URL,
 };
 
 static const cli_option serve_table[] = {
@@ -122,6 +123,11 @@ static const cli_option serve_table[] = {
     [OPT_SCENE_DIR] = {"scene-dir", "DIR",
                        "scenes POST /v1/worlds may name (\"scene_name\": NAME reads\n"
                        "DIR/NAME.json; default: none, only scenes in the body)"},
+    [OPT_PUBLIC_WS_URL] = {"public-ws-url", "URL",
+                           "the websocket's address as clients reach it (ws://HOST:PORT/PATH\n"
+                           "or wss://…), for a proxy that maps ports or paths: what GET\n"
+                           "/v1/websocket tells the viewer (default: the Host the browser\n"
+                           "used, with the websocket port)"},
     {0},
 };
 
@@ -132,6 +138,28 @@ void app_serve_usage(FILE *out)
     cli_print_help(out, "serve", serve_usage, serve_table);
 }
 
+/* --public-ws-url: ws:// or wss://, a host, printable without spaces or
+ * quotes (it goes into JSON and a browser's WebSocket constructor as is). */
+static int public_ws_url_check(const char *v, error_text *err)
+{
+    size_t scheme = strncmp(v, "ws://", 5) == 0 ? 5 : strncmp(v, "wss://", 6) == 0 ? 6 : 0;
+    if (!scheme || !v[scheme] || v[scheme] == '/' || v[scheme] == ':') {
+        error_set(err, "\"%.80s\" is not a ws:// or wss:// URL with a host", v);
+        return -1;
+    }
+    if (strlen(v) >= HTTP_PUBLIC_URL_MAX) {
+        error_set(err, "longer than %d bytes", HTTP_PUBLIC_URL_MAX - 1);
+        return -1;
+    }
+    for (const char *p = v; *p; p++)
+        if ((unsigned char)*p <= ' ' || (unsigned char)*p >= 0x7f || strchr("\"\\<>`{}|^", *p)) {
+            error_set(err, "\"%.80s\": character %d is not allowed in a URL here", v,
+                      (int)(p - v) + 1);
+            return -1;
+        }
+    return 0;
+}
+
 /* A string key of the config: copied into buf, *out pointed at it. */
 static int config_string(const cJSON *doc, const char *key, char *buf, size_t size,
                          const char **out, error_text *err)
@@ -139,6 +167,19 @@ static int config_string(const cJSON *doc, const char *key, char *buf, size_t si
     int r = json_get_string(doc, "", key, buf, size, err);
     if (r > 0)
         *out = buf;
+    return r < 0 ? -1 : 0;
+}
+
+static int config_public_ws_url(const cJSON *doc, serve_options *o, error_text *err)
+{
+    int r = json_get_string(doc, "", "public_ws_url", o->config_public_ws_url,
+                            sizeof o->config_public_ws_url, err);
+    if (r > 0 && public_ws_url_check(o->config_public_ws_url, err) != 0) {
+        error_prefix(err, "public_ws_url", ": ");
+        return -1;
+    }
+    if (r > 0)
+        o->public_ws_url = o->config_public_ws_url;
     return r < 0 ? -1 : 0;
 }
 
@@ -308,7 +349,8 @@ static int config_load(const char *path, serve_options *o, error_text *err)
         "no_data",   "durability", "store_fault", "wal_segment_bytes",
         "http_port", "ws_port",    "bind_any",    "demo_actors",
         "tick_hz",   "limits",     "auth_file",   "tls_cert",
-        "tls_key",   "scene_dir",  "max_worlds",  NULL};
+        "tls_key",   "scene_dir",  "max_worlds",  "public_ws_url",
+        NULL};
     uint8_t *text = NULL;
     size_t len = 0;
     if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
@@ -332,8 +374,8 @@ static int config_load(const char *path, serve_options *o, error_text *err)
                       &o->store_fault, err) ||
         config_string(doc, "scene_dir", o->config_scene_dir, sizeof o->config_scene_dir,
                       &o->scene_dir, err) ||
-        serve_security_config(doc, o, err) || config_numbers(doc, o, err) ||
-        config_limits(doc, o, err)) {
+        config_public_ws_url(doc, o, err) || serve_security_config(doc, o, err) ||
+        config_numbers(doc, o, err) || config_limits(doc, o, err)) {
         error_prefix(err, path, ": ");
         goto done;
     }
@@ -361,6 +403,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
     case OPT_SCENE_DIR:
         o->scene_dir = value;
         return 0;
+    case OPT_PUBLIC_WS_URL:
+        o->public_ws_url = value;
+        return public_ws_url_check(value, err);
     case OPT_BACKEND:
         o->backend = value;
         return 0;

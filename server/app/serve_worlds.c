@@ -1,11 +1,12 @@
 /*
  * serve_worlds.c: worlds created and ended by API on a single daemon
  * (issue 22; docs/openapi.yaml "worlds"): POST /v1/worlds, GET /v1/worlds,
- * DELETE /v1/worlds/{name}. The default world (--scene) ticks on the main
- * thread as before; the created worlds tick on one shared pool of sim
- * workers, as a cluster node's worlds do (host_ticker.c; the same
- * host_sim, the same http_server_add_world / net_server_add_world), so a
- * created world's tick is the same code as the default's and its clients
+ * DELETE /v1/worlds/{name}. Each created world lives the one life of
+ * host/host_world.c with this file's registry backend (local_world_ops),
+ * on the daemon's shared pool of sim workers beside the default world
+ * (--scene), as a cluster node's worlds do (the same host_sim, the same
+ * http_server_add_world / net_server_add_world), so a created world's tick
+ * is the same code as the default's and its clients
  * reach it by hello's "world" and its HTTP by ?world=NAME or
  * /v1/worlds/NAME/edits.
  *
@@ -62,7 +63,7 @@ struct serve_worlds {
     serve_options o; /* the daemon's, with no demo actors and no tick limit */
     http_server *http;
     net_server *net;
-    host_ticker *ticker;        /* the sim workers every created world ticks on */
+    host_ticker *ticker;        /* the daemon's sim workers, which tick every world */
     const host_sim *main_world; /* the default world (its status for the list) */
     char root[PATH_CAP];        /* DATA/worlds; "" without --data */
     char kept[PATH_CAP];        /* DATA/worlds-kept */
@@ -212,11 +213,7 @@ static const host_world_ops local_world_ops = {
 static int world_start(serve_worlds *ws, local_world *lw, char *why, size_t cap)
 {
     host_world *hw = &lw->hw;
-    hw->ops = &local_world_ops;
-    hw->owner = lw;
-    hw->http = ws->http;
-    hw->net = ws->net;
-    hw->ticker = ws->ticker;
+    host_world_place(hw, &local_world_ops, lw, ws->http, ws->net, ws->ticker);
     hw->config = serve_host_config(&ws->o);
     hw->max_ticks = -1;
     if (host_world_start(hw, why, cap) == 0)
@@ -531,7 +528,8 @@ static void recover_worlds(serve_worlds *ws)
 }
 
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
-                                 http_server *http, net_server *net, error_text *err)
+                                 http_server *http, net_server *net, host_ticker *ticker,
+                                 error_text *err)
 {
     serve_worlds *ws = calloc(1, sizeof *ws);
     if (!ws) {
@@ -551,14 +549,9 @@ serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_wo
         snprintf(ws->root, sizeof ws->root, "%.1000s/worlds", o->data_dir);
         snprintf(ws->kept, sizeof ws->kept, "%.1000s/worlds-kept", o->data_dir);
     }
+    ws->ticker = ticker;
     pthread_mutex_init(&ws->lock, NULL);
     pthread_cond_init(&ws->cond, NULL);
-    if (!(ws->ticker = host_ticker_start(host_ticker_default_workers(), err))) {
-        pthread_cond_destroy(&ws->cond);
-        pthread_mutex_destroy(&ws->lock);
-        free(ws);
-        return NULL;
-    }
     if (ws->root[0])
         recover_worlds(ws);
     http_world_api api = {worlds_create, worlds_list, worlds_remove, ws};
@@ -575,7 +568,15 @@ void serve_worlds_stop(serve_worlds *ws)
     while (ws->calls > 0) /* a create or delete running ends first */
         pthread_cond_wait(&ws->cond, &ws->lock);
     pthread_mutex_unlock(&ws->lock);
-    host_ticker_stop(ws->ticker); /* every world ends, side by side on the workers */
+    /* every world ends, side by side on the workers (the default world goes on) */
+    pthread_mutex_lock(&ws->lock);
+    for (int i = 0; i < ws->nworlds; i++)
+        if (ws->worlds[i]->state == LW_RUNNING)
+            host_world_end(&ws->worlds[i]->hw);
+    for (int i = 0; i < ws->nworlds; i++)
+        while (ws->worlds[i]->state == LW_RUNNING)
+            pthread_cond_wait(&ws->cond, &ws->lock);
+    pthread_mutex_unlock(&ws->lock);
     while (ws->nworlds > 0)
         forget(ws, ws->worlds[0]);
     pthread_cond_destroy(&ws->cond);

@@ -359,10 +359,8 @@ static void report_add_run(cJSON *root, simulate_run *r)
     add_int64(root, "volume_after", r->volume_after);
     /* volume_after + compacted == volume_before; bekker's soil keeps its own
      * (it never writes the materials' compaction memory, even where one is on) */
-    if (r->params.model == SIM_MODEL_BEKKER)
-        add_int64(root, "compacted", sim_engine_soil_compacted(r->engine));
-    else if (r->grd.uses_compaction)
-        add_int64(root, "compacted", ground_compaction_total(&r->grd));
+    if (r->params.model == SIM_MODEL_BEKKER || r->grd.uses_compaction)
+        add_int64(root, "compacted", sim_world_compacted(w));
     cJSON *st = cJSON_AddObjectToObject(root, "stages");
     const simulate_totals *t = &r->totals;
     for (int s = 0; s < t->stage_count; s++) {

@@ -7,15 +7,20 @@
  * thread from copies of the changed tiles taken at a tick boundary, so it
  * never stalls a tick.
  *
- *   record   "TRC2" | tick u64 | CRC32C u32 | payload
- *   snapshot "TRS2" | tx, ty (i32) | CRC32C u32 | payload of one rectangle, the tile
+ *   record   "TRC3" | tick u64 | CRC32C u32 | payload
+ *   snapshot "TRS3" | tx, ty (i32) | CRC32C u32 | payload of one rectangle, the tile
  *
  * The payload is the data directory's log record payload, written and read
  * by the one codec store_record.c (store.h): the changed rectangles' heights
- * and, for a world with soil state (the bekker model), their soil state, so a
- * world that fails over or restarts resumes with its plastic sinkage, shear
- * displacement and compaction, not fresh soil. The checksum covers the
- * payload. Version 1, heights only, is still read (never written):
+ * and their per-cell state — for a bekker world its soil state, for a world
+ * whose materials remember compaction (the persson models, sumner) its
+ * compaction memory — so a world that fails over or restarts resumes with
+ * its plastic sinkage, shear displacement and compaction, not fresh soil.
+ * The checksum covers the payload. Version 3 may carry the compaction memory
+ * (payload bit 30) and is written only when it does; version 2 (heights and
+ * at most soil state) is written otherwise, so a world without the memory
+ * stays readable by builds before it; both are read by one path. Version 1,
+ * heights only, is still read (never written):
  *   record   "TRC1" | tick u64 | rects u32 | raw bytes u32 | CRC32C u32 | zstd(raw)
  *            raw: per rectangle x, y, w, h (i32) then w*h heights (i32)
  *   snapshot "TRS1" | tx, ty, w, h (i32) | raw bytes u32 | CRC32C u32 | zstd(heights)
@@ -32,8 +37,10 @@
 #include <zstd.h>
 
 #define RECORD_MAGIC "TRC2"
+#define RECORD3_MAGIC "TRC3"
 #define RECORD_HEADER 16
 #define SNAP_MAGIC "TRS2"
+#define SNAP3_MAGIC "TRS3"
 #define SNAP_HEADER 16
 #define RECORD1_MAGIC "TRC1"
 #define RECORD1_HEADER 24
@@ -44,8 +51,8 @@
 typedef struct tile_copy {
     int tx, ty;
     world_rect rect;
-    int soil;        /* the tile holds soil state: values has it after the heights */
-    int32_t *values; /* heights, then (soil) the soil state */
+    unsigned layers; /* STORE_LAYER_*: what values holds after the heights */
+    int32_t *values; /* heights, then the layers (store_layers_gather) */
 } tile_copy;
 
 struct cluster_store {
@@ -95,16 +102,16 @@ static uint32_t get_u32(const uint8_t *p)
 static size_t record_encode(cluster_store *cs, const world *w, uint64_t tick,
                             const world_rect *rects, int n, error_text *err)
 {
-    int soil = world_soil_enabled(w);
-    if (store_record_gather(&cs->rec, w, rects, n, soil) != 0) {
+    unsigned layers = store_world_layers(w);
+    if (store_record_gather(&cs->rec, w, rects, n, layers) != 0) {
         error_set(err, "world %s: out of memory for a log record", cs->world);
         return 0;
     }
-    size_t len = store_record_encode(&cs->rec, cs->cctx, cs->cfg.compression_level, rects, n, soil,
-                                     cs->rec.values, RECORD_HEADER, err);
+    size_t len = store_record_encode(&cs->rec, cs->cctx, cs->cfg.compression_level, rects, n,
+                                     layers, cs->rec.values, RECORD_HEADER, err);
     if (len == 0)
         return 0;
-    memcpy(cs->rec.buf, RECORD_MAGIC, 4);
+    memcpy(cs->rec.buf, layers & STORE_LAYER_COMPACTION ? RECORD3_MAGIC : RECORD_MAGIC, 4);
     memcpy(cs->rec.buf + 4, &tick, 8);
     put_u32(cs->rec.buf + 12, store_crc32c(0, cs->rec.buf + RECORD_HEADER, len));
     return RECORD_HEADER + len;
@@ -158,7 +165,7 @@ static int record_apply(void *ctx, uint64_t seq, const uint8_t *data, size_t len
     int ok = len >= RECORD_HEADER, applied = 1;
     if (ok)
         memcpy(&tick, data + 4, 8);
-    if (ok && memcmp(data, RECORD_MAGIC, 4) == 0) {
+    if (ok && (memcmp(data, RECORD_MAGIC, 4) == 0 || memcmp(data, RECORD3_MAGIC, 4) == 0)) {
         ok = store_crc32c(0, data + RECORD_HEADER, len - RECORD_HEADER) == get_u32(data + 12);
         applied = ok ? store_record_apply(&cs->rec, r->w, data + RECORD_HEADER, len - RECORD_HEADER,
                                           NULL, NULL)
@@ -192,11 +199,11 @@ static size_t snapshot_encode(const tile_copy *t, store_record *rec, ZSTD_CCtx *
                               error_text *err)
 {
     size_t len =
-        store_record_encode(rec, cctx, level, &t->rect, 1, t->soil, t->values, SNAP_HEADER, err);
+        store_record_encode(rec, cctx, level, &t->rect, 1, t->layers, t->values, SNAP_HEADER, err);
     if (len == 0)
         return 0;
     int32_t hdr[2] = {t->tx, t->ty};
-    memcpy(rec->buf, SNAP_MAGIC, 4);
+    memcpy(rec->buf, t->layers & STORE_LAYER_COMPACTION ? SNAP3_MAGIC : SNAP_MAGIC, 4);
     memcpy(rec->buf + 4, hdr, 8);
     put_u32(rec->buf + 12, store_crc32c(0, rec->buf + SNAP_HEADER, len));
     return SNAP_HEADER + len;
@@ -216,11 +223,12 @@ static int snapshot_apply(cluster_store *cs, world *w, int tx, int ty, const uin
 {
     world_rect rect = world_tile_rect(w, tx, ty);
     int32_t hdr[4] = {0};
-    if (len >= SNAP_HEADER && memcmp(data, SNAP_MAGIC, 4) == 0) {
+    if (len >= SNAP_HEADER &&
+        (memcmp(data, SNAP_MAGIC, 4) == 0 || memcmp(data, SNAP3_MAGIC, 4) == 0)) {
         memcpy(hdr, data + 4, 8);
         if (hdr[0] != tx || hdr[1] != ty ||
             store_crc32c(0, data + SNAP_HEADER, len - SNAP_HEADER) != get_u32(data + 12) ||
-            len - SNAP_HEADER < 4 || (get_u32(data + SNAP_HEADER) & ~STORE_RECORD_SOIL) != 1)
+            len - SNAP_HEADER < 4 || (get_u32(data + SNAP_HEADER) & ~STORE_RECORD_LAYER_BITS) != 1)
             return 0;
         int r = store_record_apply(&cs->rec, w, data + SNAP_HEADER, len - SNAP_HEADER,
                                    snapshot_rect_check, &rect);
@@ -422,14 +430,12 @@ static void compaction_maybe_start(cluster_store *cs, const world *w)
         t->tx = i % cs->tiles_x;
         t->ty = i / cs->tiles_x;
         t->rect = world_tile_rect(w, t->tx, t->ty);
-        t->soil = world_soil_enabled(w) && !world_soil_rect_empty(w, t->rect);
+        t->layers = store_rect_layers(w, t->rect);
         size_t cells = (size_t)t->rect.w * t->rect.h;
-        t->values = malloc(4 * cells * (t->soil ? 1 + WORLD_SOIL_FIELDS : 1));
+        t->values = malloc(4 * cells * (size_t)store_layers_ints(t->layers));
         if (!t->values)
             break;
-        world_gather_window(w, t->rect, t->values);
-        if (t->soil)
-            world_soil_gather(w, t->rect, t->values + cells);
+        store_layers_gather(w, t->rect, t->layers, t->values);
         k++;
     }
     if (!tiles || k != n) {

@@ -104,7 +104,7 @@ int64_t collider_cost_cells(const collider_cost *c, int steps, int feedback);
  * ((x + 0.5) * cell_size, (y + 0.5) * cell_size). The value is clamped to
  * [WORLD_HEIGHT_MIN - 1, WORLD_HEIGHT_MAX + 1]. Cells the collider does not
  * cover are left alone. The caller fills bottom with COLLIDER_BOTTOM_NONE first.
- * z is the fixed-point rule's (collider_fixed_cell), the same as the GL
+ * z is the fixed-point rule's (depth_fixed.c's fixed_cell), the same as the GL
  * backend's.
  */
 void collider_depth_cpu(const collider_geometry *g, collider_pose pose, world_rect window,
@@ -165,8 +165,6 @@ int collider_fixed_supported(const collider_geometry *g);
 /* 1: out holds the instance; 0: the shape misses the window or is not supported */
 int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
                            double cell_size_m, int32_t units_per_m, collider_fixed *out);
-/* The rule at cell (x0 + lx, y0 + ly): 1 and *bottom set where the shape covers it. */
-int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom);
 /* A mesh at a pose: one instance per triangle that meets the window,
  * appended to *out (grown with array_grow). Returns how many, or -1. The
  * triangle's vertices sit at CF_ROT (x, y relative to the first cell

@@ -374,8 +374,9 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
     return 1;
 }
 
-/* collider_fixed_cell with the shape given: a constant where it is inlined,
- * so each shape's loop keeps only its own branch. */
+/* The rule at cell (x0 + lx, y0 + ly): 1 and *bottom set where the shape
+ * covers it. The shape is given: a constant where it is inlined, so each
+ * shape's loop keeps only its own branch. */
 static FIXED_INLINE int fixed_cell(const collider_fixed *f, int64_t shape, int64_t lx, int64_t ly,
                                    int32_t *bottom)
 {
@@ -432,11 +433,6 @@ static FIXED_INLINE int fixed_cell(const collider_fixed *f, int64_t shape, int64
         u = (int64_t)WORLD_HEIGHT_MAX + 1;
     *bottom = (int32_t)u;
     return 1;
-}
-
-int collider_fixed_cell(const collider_fixed *f, int64_t lx, int64_t ly, int32_t *bottom)
-{
-    return fixed_cell(f, f->v[CF_SHAPE], lx, ly, bottom);
 }
 
 /* The instance's cells for one shape (a constant after inlining). */

@@ -1,10 +1,10 @@
 /*
- * ground.c: the scene's material table and material map, and the sparse
- * compaction memory (see ground.h). Material ids are evaluated from the map
- * whenever a window is gathered (a few comparisons per cell and paint), so
- * nothing per cell is stored for them; compaction memory lives in 64x64
- * uint16 tiles allocated the first time a cell in them is compacted. The
- * table and map read from a scene's JSON are ground_json.c's.
+ * ground.c: the scene's material table and material map (see ground.h).
+ * Material ids are evaluated from the map whenever a window is gathered (a
+ * few comparisons per cell and paint), so nothing per cell is stored for
+ * them; the compaction memory is the world's (world/world_soil.c), so the
+ * store keeps it. The table and map read from a scene's JSON are
+ * ground_json.c's.
  */
 #include "ground/ground_internal.h"
 
@@ -193,11 +193,9 @@ void ground_base(ground *g, ground_extent w)
     g->height = w.height;
     g->cell_size_m = w.cell_size_m;
     g->units_per_m = w.units_per_m;
-    g->tiles_x = (w.width + GROUND_TILE_SIDE - 1) / GROUND_TILE_SIDE;
-    g->tiles_y = (w.height + GROUND_TILE_SIDE - 1) / GROUND_TILE_SIDE;
 }
 
-/* Finish: uniform flag, compaction flag and its tile directory. */
+/* Finish: uniform flag and compaction flag (nothing can fail today). */
 int ground_finish(ground *g, error_text *err)
 {
     g->table.count = g->material_count;
@@ -208,13 +206,7 @@ int ground_finish(ground *g, error_text *err)
         if (g->table.rows[i].max_compaction > 0)
             g->uses_compaction = 1;
     }
-    if (g->uses_compaction) {
-        g->compaction_tiles = calloc((size_t)g->tiles_x * g->tiles_y, sizeof *g->compaction_tiles);
-        if (!g->compaction_tiles) {
-            error_set(err, "ground: out of memory for the compaction tile directory");
-            return -1;
-        }
-    }
+    (void)err;
     return 0;
 }
 
@@ -243,11 +235,6 @@ void ground_set_soil(ground *g, int index, const ground_soil *soil)
 
 void ground_free(ground *g)
 {
-    if (g->compaction_tiles) {
-        for (int i = 0; i < g->tiles_x * g->tiles_y; i++)
-            free(g->compaction_tiles[i]);
-        free(g->compaction_tiles);
-    }
     free(g->paints);
     memset(g, 0, sizeof *g);
 }
@@ -275,68 +262,4 @@ void ground_gather_ids(const ground *g, world_rect r, uint8_t *dst)
     for (int y = 0; y < r.h; y++)
         for (int x = 0; x < r.w; x++)
             dst[(int64_t)y * r.w + x] = material_at(g, r.x + x, r.y + y);
-}
-
-void ground_gather_compaction(const ground *g, world_rect r, uint16_t *dst)
-{
-    for (int y = 0; y < r.h; y++) {
-        int wy = r.y + y;
-        for (int x = 0; x < r.w; x++) {
-            int wx = r.x + x;
-            const uint16_t *tile = g->compaction_tiles
-                                       ? g->compaction_tiles[(wy / GROUND_TILE_SIDE) * g->tiles_x +
-                                                             wx / GROUND_TILE_SIDE]
-                                       : NULL;
-            dst[(int64_t)y * r.w + x] =
-                tile ? tile[(wy % GROUND_TILE_SIDE) * GROUND_TILE_SIDE + wx % GROUND_TILE_SIDE] : 0;
-        }
-    }
-}
-
-int ground_scatter_compaction(ground *g, world_rect r, const uint16_t *src, error_text *err)
-{
-    if (!g->compaction_tiles)
-        return 0;
-    for (int y = 0; y < r.h; y++) {
-        int wy = r.y + y;
-        for (int x = 0; x < r.w; x++) {
-            int wx = r.x + x;
-            uint16_t v = src[(int64_t)y * r.w + x];
-            uint16_t **slot =
-                &g->compaction_tiles[(wy / GROUND_TILE_SIDE) * g->tiles_x + wx / GROUND_TILE_SIDE];
-            if (!*slot) {
-                if (v == 0)
-                    continue; /* an absent tile already reads as zero */
-                *slot = calloc(GROUND_TILE_SIDE * GROUND_TILE_SIDE, sizeof **slot);
-                if (!*slot) {
-                    error_set(err, "ground: out of memory for a compaction tile");
-                    return -1;
-                }
-                g->compaction_tiles_allocated++;
-            }
-            (*slot)[(wy % GROUND_TILE_SIDE) * GROUND_TILE_SIDE + wx % GROUND_TILE_SIDE] = v;
-        }
-    }
-    return 0;
-}
-
-int64_t ground_compaction_total(const ground *g)
-{
-    int64_t total = 0;
-    if (!g->compaction_tiles)
-        return 0;
-    for (int t = 0; t < g->tiles_x * g->tiles_y; t++)
-        if (g->compaction_tiles[t])
-            for (int i = 0; i < GROUND_TILE_SIDE * GROUND_TILE_SIDE; i++)
-                total += g->compaction_tiles[t][i];
-    return total;
-}
-
-uint64_t ground_compaction_bytes(const ground *g)
-{
-    if (!g->compaction_tiles)
-        return 0;
-    return (uint64_t)g->tiles_x * g->tiles_y * sizeof *g->compaction_tiles +
-           (uint64_t)g->compaction_tiles_allocated * GROUND_TILE_SIDE * GROUND_TILE_SIDE *
-               sizeof(uint16_t);
 }

@@ -9,15 +9,16 @@
  *                 material map — a default material and painted rectangles
  *                 and circles, later paints on top — evaluated on demand
  *                 when a window is gathered; nothing is stored per cell.
- *   compaction    uint16 per cell: height units this column has been
- *                 compacted by so far (Persson ch. 6.2, future work). Only
- *                 allocated when some material has max_compaction_m > 0 and
- *                 compression > 0, and then only in 64x64 tiles that have
- *                 been compacted at least once.
+ *   compaction    flag only: when some material has max_compaction_m > 0
+ *                 and compression > 0, each cell remembers the height units
+ *                 it has been compacted by (Persson ch. 6.2, future work).
+ *                 The memory itself is the world's (world_compaction_*,
+ *                 world/world_soil.c), so the store logs and snapshots it
+ *                 with the heights; the engine gathers it per window and
+ *                 scatters back what the window compacted.
  *
- * The tick gathers both for each window (ground_gather_*), the stages read
- * them (sim_classify_materials, sim_even_slopes_materials) and the compaction
- * the window caused is scattered back (ground_scatter_compaction).
+ * The tick gathers the ids for each window (ground_gather_ids) and the stages
+ * read them (sim_classify_materials, sim_even_slopes_materials).
  *
  * The material table — each material's integer row — is defined here, below
  * sim/, so the ground depends on the world alone and the sim on the ground.
@@ -30,12 +31,11 @@
 #include "base/base.h"
 #include "world/world.h"
 
-#define GROUND_TILE_SIDE 64
 #define GROUND_NAME_MAX 32
 #define GROUND_PAINTS_MAX 256
 /* Compaction memory is uint16 height units; a material's max_compaction_m
  * must fit (6.5 m at the default 10,000 units per metre). */
-#define GROUND_COMPACTION_MAX 65535
+#define GROUND_COMPACTION_MAX WORLD_COMPACTION_MAX
 
 /*
  * A soil's terramechanics parameters (the bekker model, docs/models.md), in
@@ -145,11 +145,8 @@ typedef struct ground {
     uint8_t default_material;
     ground_paint *paints;
     int paint_count;
-    int uniform;                 /* every cell is material 0: no id buffer is needed */
-    int uses_compaction;         /* some material remembers compaction */
-    int tiles_x, tiles_y;        /* compaction tiles */
-    uint16_t **compaction_tiles; /* NULL unless uses_compaction; NULL entries: never compacted */
-    int64_t compaction_tiles_allocated;
+    int uniform;         /* every cell is material 0: no id buffer is needed */
+    int uses_compaction; /* some material remembers compaction (in the world) */
 } ground;
 
 /*
@@ -186,15 +183,5 @@ int ground_material_index(const ground *g, const char *name);
 
 /* Material ids of a rectangle of world cells, row-major (r must be inside). */
 void ground_gather_ids(const ground *g, world_rect r, uint8_t *dst);
-/* Compaction memory of a rectangle; zeros where nothing is stored. */
-void ground_gather_compaction(const ground *g, world_rect r, uint16_t *dst);
-/* Store a rectangle's compaction; allocates a tile only for non-zero values.
- * Returns 0, or -1 with err set when out of memory (then some tiles may be
- * unchanged). */
-int ground_scatter_compaction(ground *g, world_rect r, const uint16_t *src, error_text *err);
-/* Σ compaction memory over the world: what compression has taken from Σh. */
-int64_t ground_compaction_total(const ground *g);
-/* Bytes held by the compaction layer now. */
-uint64_t ground_compaction_bytes(const ground *g);
 
 #endif

@@ -205,6 +205,14 @@ typedef struct host_world_ops {
     void (*ended)(host_world *hw, int rc);
     /* Why its clients are closed: deleted (hw->deleted) or stopped. */
     const char *deleted_why, *stopped_why;
+    /* The default world's ports were made with it (its status and hub given
+     * to the HTTP server at its start, its hub and info to the websocket
+     * server's): join starts what must follow its simulation (hw->net set
+     * here) in place of http_server_add_world / net_server_add_world and a
+     * labelled metrics slot; at its end its reads are closed and the ports
+     * keep its hub, world, scene and status until host_world_free, after
+     * they stopped. NULL for every other world. */
+    int (*join)(host_world *hw, error_text *err);
 } host_world_ops;
 
 struct host_world {
@@ -224,12 +232,23 @@ struct host_world {
     unsigned long long last_tick; /* at its end */
     unsigned long long overruns;
 };
-/* Opens hw (ops->open), makes its hub, starts its simulation, joins the
- * ports (http_server_add_world, net_server_add_world, a labelled metrics
- * slot), then ops->registered, and hands it to the ticker: 0, or -1 with
- * why and everything made undone (ops->ended is not called). */
+/* Where hw comes from and where it goes: its registry backend (ops, owner),
+ * the ports it joins and the pool it ticks on (the rest of hw as it is). */
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+                      net_server *net, host_ticker *ticker);
+/* host_world_open, then host_world_run. */
 int host_world_start(host_world *hw, char *why, size_t cap);
+/* Opens hw (ops->open: scene, world, store), its status filled, its hub
+ * made: 0, or -1 with why and everything made undone. */
+int host_world_open(host_world *hw, char *why, size_t cap);
+/* Starts its simulation, joins the ports (http_server_add_world,
+ * net_server_add_world, a labelled metrics slot; or ops->join), then
+ * ops->registered, and hands it to the ticker: 0, or -1 with why and
+ * everything made undone (ops->ended is not called). */
+int host_world_run(host_world *hw, char *why, size_t cap);
 /* Asks hw to end: its end runs soon on a worker (ops->ended last). */
 void host_world_end(host_world *hw);
+/* What a world with ops->join kept for its ports, freed once they stopped. */
+void host_world_free(host_world *hw);
 
 #endif

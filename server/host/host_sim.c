@@ -3,9 +3,9 @@
  * its world, the engine on its backend, the ground, the service over the hub,
  * the demo actors and the status block HTTP reads — and one step of the
  * fixed-rate tick loop on it (demo poses → service_tick → status and
- * metrics). A single daemon's default world has one (serve.c, on the main
- * thread); its created worlds (serve_worlds.c) and a cluster node's worlds
- * (serve_node.c) have one each, ticked by the shared pool of sim workers
+ * metrics). Every world of the process has one — a single daemon's default
+ * world (app/serve.c), its created worlds (app/serve_worlds.c) and a cluster
+ * node's worlds (app/serve_node.c) — ticked by the shared pool of sim workers
  * (host_ticker.c). Everything here runs on whichever thread is the world's
  * sim thread at the time: the one that made it, then the worker running its
  * tick (the backend keeps a GL context on one worker; the hub's sim end moves
@@ -52,6 +52,7 @@ int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
     pthread_mutex_lock(&s->lock);
     s->volume = service_volume(m->svc);
     s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED); /* recovered, before a tick */
+    s->compacted = sim_world_compacted(&m->w);
     s->tick = service_current_tick(m->svc);
     pthread_mutex_unlock(&s->lock);
     return 0;
@@ -86,6 +87,7 @@ void host_sim_status_init(host_sim *m)
     snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);
     s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
+    s->compacted = sim_world_compacted(&m->w);
 }
 
 net_world_info host_sim_world_info(const host_sim *m)
@@ -118,6 +120,7 @@ static void publish_status(host_sim *m, double tick_ms, int clients, int collide
     status->tick = service_current_tick(m->svc);
     status->volume = service_volume(m->svc);
     status->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
+    status->compacted = sim_world_compacted(&m->w);
     status->last_tick_ms = tick_ms;
     status->overruns = m->overruns;
     status->clients = clients;

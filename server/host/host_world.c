@@ -21,14 +21,19 @@
 static int world_register(host_world *hw, error_text *err)
 {
     host_sim *m = &hw->m;
-    net_world_info info = host_sim_world_info(m);
-    if (http_server_add_world(hw->http, m->name, &m->status, m->h, &m->w, err) != 0)
-        return -1;
-    if (net_server_add_world(hw->net, &info, m->h, err) != 0) {
-        http_server_remove_world(hw->http, m->name);
-        return -1;
+    if (hw->ops->join) {
+        if (hw->ops->join(hw, err) != 0)
+            return -1;
+    } else {
+        net_world_info info = host_sim_world_info(m);
+        if (http_server_add_world(hw->http, m->name, &m->status, m->h, &m->w, err) != 0)
+            return -1;
+        if (net_server_add_world(hw->net, &info, m->h, err) != 0) {
+            http_server_remove_world(hw->http, m->name);
+            return -1;
+        }
+        m->metrics_slot = metrics_world_slot(m->name);
     }
-    m->metrics_slot = metrics_world_slot(m->name);
     host_sim_ready(m);
     atomic_store(&hw->registered, 1);
     return hw->ops->registered ? hw->ops->registered(hw, err) : 0;
@@ -39,6 +44,13 @@ static int world_register(host_world *hw, error_text *err)
 static void world_unregister(host_world *hw)
 {
     host_sim *m = &hw->m;
+    if (hw->ops->join) {
+        /* the default world: the ports stop after it (host_world_free) */
+        if (m->h)
+            hub_close_reads(m->h);
+        atomic_store(&hw->registered, 0);
+        return;
+    }
     if (m->h) {
         char why[160];
         snprintf(why, sizeof why, "world %s %s", m->name,
@@ -75,18 +87,46 @@ static void world_end(host_job *j, int rc)
     world_unregister(hw);
     hw->last_tick = (unsigned long long)service_current_tick(m->svc);
     hw->overruns = (unsigned long long)m->overruns;
-    host_sim_free(m);
+    if (hw->ops->join)
+        host_sim_stop(m); /* what the sim thread owns; the ports' part waits for them */
+    else
+        host_sim_free(m);
     if (hw->ops->ended)
         hw->ops->ended(hw, rc);
 }
 
-int host_world_start(host_world *hw, char *why, size_t cap)
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+                      net_server *net, host_ticker *ticker)
+{
+    hw->ops = ops;
+    hw->owner = owner;
+    hw->http = http;
+    hw->net = net;
+    hw->ticker = ticker;
+}
+
+int host_world_open(host_world *hw, char *why, size_t cap)
 {
     host_sim *m = &hw->m;
     m->metrics_slot = -1;
     error_text err = {{0}};
     if (hw->ops->open(hw, &err) == 0) {
         host_sim_status_init(m);
+        if ((m->h = hub_create()))
+            return 0;
+        error_set(&err, "out of memory");
+    }
+    snprintf(why, cap, "%s", err.message);
+    host_sim_free(m);
+    return -1;
+}
+
+int host_world_run(host_world *hw, char *why, size_t cap)
+{
+    host_sim *m = &hw->m;
+    error_text err = {{0}};
+    if (host_sim_start(m, &hw->config, &err) == 0 && world_register(hw, &err) == 0) {
+        /* after the join: the default world's websocket server is made there */
         hw->job = (host_job){.m = m,
                              .net = hw->net,
                              .max_ticks = hw->max_ticks,
@@ -94,19 +134,29 @@ int host_world_start(host_world *hw, char *why, size_t cap)
                              .check = hw->ops->check ? world_check : NULL,
                              .end = world_end,
                              .ctx = hw};
-        if (!(m->h = hub_create()))
-            error_set(&err, "out of memory");
-        else if (host_sim_start(m, &hw->config, &err) == 0 && world_register(hw, &err) == 0 &&
-                 host_ticker_add(hw->ticker, &hw->job, &err) == 0)
+        if (host_ticker_add(hw->ticker, &hw->job, &err) == 0)
             return 0;
     }
     snprintf(why, cap, "%s", err.message);
     world_unregister(hw);
-    host_sim_free(m);
+    if (hw->ops->join)
+        host_sim_stop(m);
+    else
+        host_sim_free(m);
     return -1;
+}
+
+int host_world_start(host_world *hw, char *why, size_t cap)
+{
+    return host_world_open(hw, why, cap) == 0 ? host_world_run(hw, why, cap) : -1;
 }
 
 void host_world_end(host_world *hw)
 {
     host_ticker_end(hw->ticker, &hw->job);
+}
+
+void host_world_free(host_world *hw)
+{
+    host_sim_free(&hw->m);
 }

@@ -34,6 +34,7 @@
 #include <strings.h>
 
 #include "metrics/metrics.h"
+#include "terrad_proto.h"
 
 #define ALLOWED_METHODS "GET, HEAD"
 
@@ -50,6 +51,7 @@ typedef struct request {
     size_t len, cap;
     size_t query_len; /* bytes after '?' in the raw target */
     int raw_nul;      /* "%00" in the raw target */
+    int refused;      /* http_guard_headers_done's: past a connection limit, answered 503 */
 } request;
 
 /* ---- responses ---- */
@@ -200,6 +202,64 @@ static enum MHD_Result serve_twin(http_server *s, struct MHD_Connection *c)
     return respond(c, MHD_HTTP_OK, "application/json", t);
 }
 
+/* The host part of a Host header ("name", "1.2.3.4" or "[v6]", without the
+ * port) into out: 0, or -1 when absent, too long or not a host name. */
+static int host_of(const char *host, char *out, size_t cap)
+{
+    if (!host || !host[0])
+        return -1;
+    size_t n = 0;
+    if (host[0] == '[') { /* an IPv6 literal: up to its bracket */
+        const char *end = strchr(host, ']');
+        if (!end)
+            return -1;
+        n = (size_t)(end - host) + 1;
+        for (const char *p = host + 1; p < end; p++)
+            if (!strchr("0123456789abcdefABCDEF:.", *p))
+                return -1;
+    } else {
+        while (host[n] && host[n] != ':') {
+            char ch = host[n++];
+            if (!((ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') ||
+                  (ch >= '0' && ch <= '9') || ch == '.' || ch == '-' || ch == '_'))
+                return -1;
+        }
+    }
+    if (n == 0 || n >= cap)
+        return -1;
+    memcpy(out, host, n);
+    out[n] = 0;
+    return 0;
+}
+
+/* GET /v1/websocket: where the websocket is (http_server_set_websocket). The
+ * viewer asks this rather than guessing a port: a daemon's two ports need not
+ * be neighbours, and behind a proxy neither may be what the page sees. */
+static enum MHD_Result serve_websocket(http_server *s, struct MHD_Connection *c)
+{
+    if (!atomic_load(&s->ws_ready))
+        return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "the websocket server is not up yet");
+    char url[HTTP_PUBLIC_URL_MAX + 16], host[256];
+    const char *from = "public_ws_url";
+    if (s->ws_public[0]) {
+        http_json_escape(s->ws_public, url, sizeof url);
+    } else {
+        from = "host";
+        if (host_of(MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_HOST), host,
+                    sizeof host) != 0)
+            return respond_error(c, MHD_HTTP_BAD_REQUEST,
+                                 "Host: missing or not a host name; the websocket URL is built "
+                                 "from it (or give the daemon --public-ws-url)");
+        snprintf(url, sizeof url, "%s://%s:%d/", s->ws_tls ? "wss" : "ws", host, s->ws_port);
+    }
+    char body[HTTP_PUBLIC_URL_MAX + 160];
+    snprintf(body, sizeof body,
+             "{\"url\":\"%s\",\"port\":%d,\"subprotocol\":\"" TERRAD_PROTO_SUBPROTOCOL
+             "\",\"from\":\"%s\"}\n",
+             url, s->ws_port, from);
+    return respond(c, MHD_HTTP_OK, "application/json", body);
+}
+
 /* ---- dispatch ---- */
 
 /* 1 if the request announces a body (any body is refused). */
@@ -285,6 +345,34 @@ static int method_allowed(const char *method)
     return strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
 }
 
+/* A request that came past a connection limit with no room to make
+ * (http_guard.c): its body is read and dropped, then it is answered 503 with
+ * Retry-After and the connection closed; nothing of it was done. */
+static enum MHD_Result refuse_busy(http_server *s, struct MHD_Connection *c, int why,
+                                   size_t *upload_size)
+{
+    if (*upload_size != 0) {
+        *upload_size = 0;
+        return MHD_YES;
+    }
+    unsigned per_address = 0, all = 0;
+    http_guard_limits(s->guard, &per_address, &all);
+    metrics_count_http_refused(why == HTTP_GUARD_REFUSED_ADDRESS ? 0 : 1);
+    char body[256];
+    snprintf(body, sizeof body,
+             "{\"error\":\"busy: %s (%u); nothing was done: retry after 1 s\"}\n",
+             why == HTTP_GUARD_REFUSED_ADDRESS
+                 ? "this address already has as many connections in requests as it may"
+                 : "the server already has as many connections in requests as it may",
+             why == HTTP_GUARD_REFUSED_ADDRESS ? per_address : all);
+    struct MHD_Response *r = text_response("application/json", body);
+    if (r) {
+        MHD_add_response_header(r, "Retry-After", "1");
+        MHD_add_response_header(r, MHD_HTTP_HEADER_CONNECTION, "close");
+    }
+    return http_queue(c, MHD_HTTP_SERVICE_UNAVAILABLE, r);
+}
+
 /* POST /v1/worlds/{name}/edits: keep the body, then answer (http_edits.c). */
 static enum MHD_Result edit_request(http_server *s, struct MHD_Connection *c, const char *url,
                                     request *rq, const char *upload, size_t *upload_size)
@@ -345,7 +433,11 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     }
     if (!rq->seen) {
         rq->seen = 1;
-        http_guard_headers_done(s->guard, c);
+        rq->refused = http_guard_headers_done(s->guard, c);
+        if (rq->refused < 0)
+            return MHD_NO; /* cut to make room, and told so: nothing of it is done */
+        if (rq->refused)
+            return MHD_YES; /* read it whole, then answer 503 (refuse_busy) */
         /* A body we will not read: answer now, which also closes the
          * connection, rather than drain the body first. */
         char name[80];
@@ -360,6 +452,8 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         }
         return MHD_YES;
     }
+    if (rq->refused)
+        return refuse_busy(s, c, rq->refused, upload_size);
     if (rq->edit)
         return edit_request(s, c, url, rq, upload, upload_size);
     if (*upload_size != 0) {
@@ -408,6 +502,8 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return http_queue(c, MHD_HTTP_UNAUTHORIZED, refusal);
     if (strcmp(url, "/v1/twin") == 0)
         return serve_twin(s, c);
+    if (strcmp(url, "/v1/websocket") == 0)
+        return serve_websocket(s, c);
     int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
         heights = strcmp(url, "/v1/heights") == 0;
     http_view view = stats ? HTTP_VIEW_STATS : about ? HTTP_VIEW_WORLD : HTTP_VIEW_HEIGHTS;
@@ -508,7 +604,8 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
      * as a last stop. */
     unsigned soft = l.connections - l.connections / 8;
     s->guard = http_guard_start(l.heights_bytes_per_address, l.heights_bytes_total, l.timeout_s,
-                                soft, l.connections_per_ip < soft ? l.connections_per_ip : soft);
+                                soft, l.connections_per_ip < soft ? l.connections_per_ip : soft,
+                                http_tls_on(&s->tls));
     if (!s->guard) {
         error_set(err, "http: cannot start the connection guard (out of memory or threads)");
         pthread_mutex_destroy(&s->watch_lock);
@@ -581,6 +678,14 @@ http_server *http_probe_start(http_server *main, int port, error_text *err)
     if (p)
         p->main = main;
     return p;
+}
+
+void http_server_set_websocket(http_server *s, int port, int tls, const char *public_url)
+{
+    s->ws_port = port;
+    s->ws_tls = tls;
+    snprintf(s->ws_public, sizeof s->ws_public, "%s", public_url ? public_url : "");
+    atomic_store(&s->ws_ready, 1);
 }
 
 int http_server_port(const http_server *s)

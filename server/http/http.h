@@ -16,16 +16,23 @@
  *                     models, renderer, backend
  *   /v1/twin          JSON: the world's parameters as the twin library's config
  *                     keys, for a predicting client (docs/engines.md)
- *   /v1/stats         JSON: tick, volume (exact integer), soil_compacted (bekker),
+ *   /v1/stats         JSON: tick, volume (exact integer), compacted (every model),
+ *                     soil_compacted (bekker's part of it),
  *                     clients, colliders, last tick ms, overruns
- *   /v1/heights?x=&y=&w=&h=[&format=int32|png16][&base=1]
+ *   /v1/heights?x=&y=&w=&h=[&format=int32|png16][&base=1][&layer=compaction]
  *                     int32 little-endian row-major (default) or a 16-bit
  *                     greyscale PNG; headers X-Terrad-Tick, X-Terrad-Rect,
  *                     and for png16 X-Terrad-Offset, X-Terrad-Units-Per-Metre,
  *                     X-Terrad-Clipped; base=1: the scene's base terrain
- *                     (tick 0), read without the sim thread
+ *                     (tick 0), read without the sim thread; layer=compaction:
+ *                     the compaction memory instead of the heights (zeros
+ *                     where none; docs/materials.md)
  *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME, and
  *   answer for a world another node ticks too: asked of its owner over NATS)
+ *   /v1/websocket     JSON: where this daemon's websocket is, for the viewer and
+ *                     other clients: {"url", "port", "subprotocol", "from"} —
+ *                     --public-ws-url as given, else ws[s]://<the Host the
+ *                     request named>:<the websocket port>/ (http_server_set_websocket)
  *   /v1/openapi.yaml  this API in OpenAPI 3 (docs/openapi.yaml, embedded)
  *   /, /<file>        the embedded web/ files ("/" is web/index.html)
  * Every error is JSON {"error": "..."}.
@@ -49,11 +56,12 @@
  * http_server_start; the rest under `lock` as they change. */
 typedef struct http_status {
     pthread_mutex_t lock;
-    int ready;                     /* GL context (or CPU backend) up and the world loaded */
-    char not_ready[256];           /* with ready == 0: why ("" = still starting) */
-    uint64_t tick;                 /* last completed tick */
-    int64_t volume;                /* Σh, exact */
-    int64_t soil_compacted;        /* bekker: Σ compacted (units); volume + this is constant */
+    int ready;              /* GL context (or CPU backend) up and the world loaded */
+    char not_ready[256];    /* with ready == 0: why ("" = still starting) */
+    uint64_t tick;          /* last completed tick */
+    int64_t volume;         /* Σh, exact */
+    int64_t soil_compacted; /* bekker: Σ compacted (units); volume + this is constant */
+    int64_t compacted;      /* every model: Σ compacted (soil state + compaction memory, units) */
     int world_width, world_height; /* cells; /v1/heights validates against them */
     double cell_size_m;
     int32_t units_per_m;
@@ -126,6 +134,12 @@ void http_server_set_base(http_server *s, const world *w);
  * Copied; call once. */
 void http_server_set_twin(http_server *s, const char *json, const char *why);
 int http_server_port(const http_server *s);
+/* GET /v1/websocket answers with the websocket server's place: public_url
+ * when given (checked by the caller: ws:// or wss://), else a URL built from
+ * the Host header the client used and port (wss when tls). Before the call,
+ * 503: the websocket server is not up yet. Copied; call once the port is known. */
+#define HTTP_PUBLIC_URL_MAX 512
+void http_server_set_websocket(http_server *s, int port, int tls, const char *public_url);
 /* A second listener on 127.0.0.1:port (0 = any) for /healthz, /readyz and
  * /metrics only, with its own small connection budget, so that slow or idle
  * strangers on the main port cannot starve the probes. Stop it before main. */

@@ -21,8 +21,20 @@
  *     connection limit a new connection does not wait for a slot: the oldest
  *     connection that is still sending its headers (from that address, or
  *     from any) is closed to make room. A client that sends its request at
- *     once is never that one; a slow crowd only pushes its own out. Only
- *     when every connection is inside a request is the new one refused.
+ *     once is never that one; a slow crowd only pushes its own out.
+ *   - never a silent close of a request (issue 28, item 5: of 200 concurrent
+ *     edits from one address, 77 were closed without an answer, some of them
+ *     applied). A connection whose bytes wait unread in the kernel is not
+ *     slow: the HTTP threads are busy (an edit holds its thread until its
+ *     tick), so it waits its turn, never cut. One closed to make room gets a
+ *     503 with Retry-After written before the close (plain HTTP; under TLS
+ *     the guard cannot write through the session and closes it as before);
+ *     it had sent no whole request, and the handler refuses any request of a
+ *     connection cut meanwhile, so nothing of it is applied. When every
+ *     connection of the address (or in all) is inside a request or waiting
+ *     its turn, the new one is refused: it is read and answered 503 with
+ *     Retry-After (http.c), never applied, counted in
+ *     terrad_http_refused_total.
  *
  * The HTTP threads and the sweeper meet under one mutex, held for a short
  * walk; nothing here touches the tick.
@@ -34,6 +46,7 @@
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <time.h>
 
@@ -55,6 +68,8 @@ typedef struct guard_conn {
     unsigned char addr[16];
     double since_ms; /* opened, or its previous request ended */
     int in_request;  /* headers seen, the request not ended */
+    int refused;     /* HTTP_GUARD_REFUSED_*: answered 503 once its request is read */
+    int served;      /* requests it has ended: a cut between two is a keep-alive's close */
     int cut;
     size_t reserved; /* heights bytes of its current request */
 } guard_conn;
@@ -67,6 +82,7 @@ struct http_guard {
     size_t per_address, total, in_flight;
     double deadline_ms;
     unsigned max_conns, max_per_address; /* 0: no limit */
+    int tls; /* answers cannot be written around the TLS session: a cut is a close */
     unsigned evicted_unlogged;
     double last_evict_log_ms;
     guard_conn *conns;
@@ -115,21 +131,67 @@ static void release(http_guard *g, guard_conn *gc)
     gc->reserved = 0;
 }
 
+/* 1 when the client has sent its request's headers whole and they wait
+ * unread in the kernel: it is not slow, the HTTP threads have not got to it
+ * yet (libmicrohttpd handles headers as soon as it reads their end, so the
+ * end is among the unread bytes; one split inside "\r\n\r\n" is missed). Under TLS the bytes are
+ * ciphertext: any unread ones count. A slow sender's byte also waits a moment for a busy thread:
+ * only a whole request's headers protect it. */
+static int waits_its_turn(const http_guard *g, const guard_conn *gc)
+{
+    int n = 0;
+    if (gc->fd < 0 || ioctl(gc->fd, FIONREAD, &n) != 0 || n <= 0)
+        return 0;
+    if (g->tls)
+        return 1;
+    char buf[4096];
+    ssize_t got = recv(gc->fd, buf, sizeof buf, MSG_PEEK | MSG_DONTWAIT);
+    if (got <= 0)
+        return 0;
+    for (ssize_t i = 0; i + 3 < got; i++)
+        if (buf[i] == '\r' && buf[i + 1] == '\n' && buf[i + 2] == '\r' && buf[i + 3] == '\n')
+            return 1;
+    return 0;
+}
+
+/* Close gc (under the lock), telling the client why first where the bytes
+ * can be written straight to the socket: not TLS, and before its first
+ * request (nothing was ever written on it). An idle keep-alive connection
+ * (served) is closed as any server closes one between requests: its last
+ * answer may still be on its way, and bytes after it would be garbage. */
+static void cut(http_guard *g, guard_conn *gc, const char *status, const char *why)
+{
+    if (gc->fd >= 0 && !g->tls && !gc->served) {
+        char body[256], answer[512];
+        int n = snprintf(body, sizeof body, "{\"error\":\"%s\"}\n", why);
+        int len = snprintf(answer, sizeof answer,
+                           "HTTP/1.1 %s\r\nContent-Type: application/json\r\nRetry-After: "
+                           "1\r\nConnection: close\r\nCache-Control: no-store\r\n"
+                           "Content-Length: %d\r\n\r\n%s",
+                           status, n, body);
+        if (len > 0 && (size_t)len < sizeof answer)
+            (void)!send(gc->fd, answer, (size_t)len, MSG_DONTWAIT | MSG_NOSIGNAL);
+    }
+    if (gc->fd >= 0)
+        shutdown(gc->fd, SHUT_RDWR); /* MHD sees the end and closes it */
+    gc->cut = 1;
+    metrics_count_http_cut(1);
+}
+
 static void sweep(http_guard *g)
 {
     double now = time_now_ms();
-    unsigned cut = 0;
+    unsigned n = 0;
     for (guard_conn *gc = g->conns; gc; gc = gc->next) {
-        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms)
+        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms ||
+            waits_its_turn(g, gc))
             continue;
-        shutdown(gc->fd, SHUT_RDWR); /* MHD sees the end and closes it */
-        gc->cut = 1;
-        cut++;
+        cut(g, gc, "408 Request Timeout", "no whole request within the header deadline");
+        n++;
     }
-    if (!cut)
+    if (!n)
         return;
-    metrics_count_http_cut(cut);
-    g->cuts_unlogged += cut;
+    g->cuts_unlogged += n;
     if (now - g->last_log_ms >= 1000.0) {
         log_warn("http: closed %u connection(s) that sent no whole request within %.0f s",
                  g->cuts_unlogged, g->deadline_ms / 1000);
@@ -159,13 +221,14 @@ static void *sweeper(void *arg)
 }
 
 http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s,
-                             unsigned max_conns, unsigned max_per_address)
+                             unsigned max_conns, unsigned max_per_address, int tls)
 {
     http_guard *g = calloc(1, sizeof *g);
     if (!g)
         return NULL;
     g->max_conns = max_conns;
     g->max_per_address = max_per_address;
+    g->tls = tls;
     g->per_address = per_address;
     g->total = total;
     g->deadline_ms = header_deadline_s * 1000.0;
@@ -205,20 +268,24 @@ static int same_address(const guard_conn *a, const guard_conn *b)
 }
 
 /* Close the oldest connection still sending its headers (from nc's address
- * when same, else from any); nc itself when none is older. Under the lock. */
+ * when same, else from any), answering it 503 where it can; when there is
+ * none (every other one is in a request or waits its turn), nc is refused:
+ * answered 503 once its request is read. Under the lock. */
 static void evict_oldest(http_guard *g, guard_conn *nc, int same)
 {
     guard_conn *pick = NULL;
     for (guard_conn *gc = g->conns; gc; gc = gc->next)
-        if (!gc->in_request && !gc->cut && (!same || same_address(gc, nc)) &&
-            (!pick || gc->since_ms <= pick->since_ms))
+        if (gc != nc && !gc->in_request && !gc->cut && !gc->refused &&
+            (!same || same_address(gc, nc)) && (!pick || gc->since_ms <= pick->since_ms) &&
+            !waits_its_turn(g, gc))
             pick = gc; /* newest first in the list: "<=" ends on the oldest */
-    if (!pick)
-        pick = nc;
-    if (pick->fd >= 0)
-        shutdown(pick->fd, SHUT_RDWR); /* MHD sees the end and closes it */
-    pick->cut = 1;
-    metrics_count_http_cut(1);
+    if (!pick) {
+        nc->refused = same ? HTTP_GUARD_REFUSED_ADDRESS : HTTP_GUARD_REFUSED_ALL;
+        return;
+    }
+    cut(g, pick, "503 Service Unavailable",
+        same ? "too many connections from this address at once; nothing was done: retry"
+             : "too many connections at once; nothing was done: retry");
     g->evicted_unlogged++;
     double now = time_now_ms();
     if (now - g->last_evict_log_ms >= 1000.0) {
@@ -235,7 +302,7 @@ static void make_room(http_guard *g, guard_conn *nc)
 {
     unsigned all = 0, mine = 0;
     for (guard_conn *gc = g->conns; gc; gc = gc->next) {
-        if (gc->cut)
+        if (gc->cut || gc->refused)
             continue;
         all++;
         mine += same_address(gc, nc);
@@ -300,14 +367,22 @@ void http_guard_notify(void *cls, struct MHD_Connection *c, void **socket_contex
     *socket_context = NULL;
 }
 
-void http_guard_headers_done(http_guard *g, struct MHD_Connection *c)
+int http_guard_headers_done(http_guard *g, struct MHD_Connection *c)
 {
     guard_conn *gc = conn_of(c);
     if (!gc)
-        return;
+        return 0;
     pthread_mutex_lock(&g->lock);
-    gc->in_request = 1;
+    int r = gc->cut ? -1 : gc->refused;
+    gc->in_request = 1; /* never cut from now on: it gets its answer */
     pthread_mutex_unlock(&g->lock);
+    return r;
+}
+
+void http_guard_limits(const http_guard *g, unsigned *per_address, unsigned *all)
+{
+    *per_address = g->max_per_address;
+    *all = g->max_conns;
 }
 
 int http_guard_reserve(http_guard *g, struct MHD_Connection *c, size_t bytes)
@@ -339,6 +414,7 @@ void http_guard_request_done(http_guard *g, struct MHD_Connection *c)
     pthread_mutex_lock(&g->lock);
     release(g, gc);
     gc->in_request = 0;
+    gc->served++;
     gc->since_ms = time_now_ms();
     pthread_mutex_unlock(&g->lock);
 }

@@ -49,13 +49,21 @@ typedef struct http_guard http_guard;
  * from one address or max_conns in all (0: none), the oldest connection still
  * sending its headers is closed to make room. Starts its sweeper thread. */
 http_guard *http_guard_start(size_t per_address, size_t total, unsigned header_deadline_s,
-                             unsigned max_conns, unsigned max_per_address);
+                             unsigned max_conns, unsigned max_per_address, int tls);
 void http_guard_stop(http_guard *g); /* after MHD_stop_daemon */
 /* MHD_OPTION_NOTIFY_CONNECTION (cls: the guard). */
 void http_guard_notify(void *cls, struct MHD_Connection *c, void **socket_context,
                        enum MHD_ConnectionNotificationCode code);
-/* The handler has seen the request's headers: no deadline until it ends. */
-void http_guard_headers_done(http_guard *g, struct MHD_Connection *c);
+/* The handler has seen the request's headers: no deadline until it ends.
+ * 0: serve it; HTTP_GUARD_REFUSED_ADDRESS or _ALL: answer 503 with
+ * Retry-After (it came past a connection limit with no room to make), never
+ * act on it; -1: the connection was cut meanwhile (answered where it could
+ * be): give up, never act on it. */
+#define HTTP_GUARD_REFUSED_ADDRESS 1
+#define HTTP_GUARD_REFUSED_ALL 2
+int http_guard_headers_done(http_guard *g, struct MHD_Connection *c);
+/* The connection limits it keeps (for the refusal's message). */
+void http_guard_limits(const http_guard *g, unsigned *per_address, unsigned *all);
 /* Reserve bytes of a heights answer for c's address until its request ends:
  * 0, or -1 (nothing reserved) when the address or everyone is over budget. */
 int http_guard_reserve(http_guard *g, struct MHD_Connection *c, size_t bytes);
@@ -140,6 +148,11 @@ struct http_server {
     void *forward_ctx;
     int forward_calls;
     http_world_api world_api; /* a single daemon's lifecycle API (under worlds_lock) */
+    /* GET /v1/websocket (http_server_set_websocket): ws_port 0 until the
+     * websocket server is up; written once before ws_ready is set */
+    int ws_port, ws_tls;
+    char ws_public[HTTP_PUBLIC_URL_MAX];
+    atomic_int ws_ready;
 };
 
 /* The world a request names (?world=NAME; without it, the node's first

@@ -76,6 +76,8 @@ void http_answer_error(http_answer *a, unsigned code, const char *fmt, ...)
     http_json_escape(message, escaped, sizeof escaped);
     snprintf(body, sizeof body, "{\"error\":\"%s\"}\n", escaped);
     answer_text(a, code, "application/json", body);
+    if (code == MHD_HTTP_BAD_REQUEST)
+        metrics_count_http_bad_request();
 }
 
 static void add_header(http_answer *a, const char *name, const char *value)
@@ -168,11 +170,12 @@ void http_view_stats(const http_status *st, http_answer *a)
 {
     char body[512];
     snprintf(body, sizeof body,
-             "{\"tick\":%llu,\"volume\":%lld,\"soil_compacted\":%lld,\"clients\":%d,"
-             "\"colliders\":%d,\"last_tick_ms\":%.3f,\"overruns\":%llu,\"ready\":%s}\n",
-             (unsigned long long)st->tick, (long long)st->volume, (long long)st->soil_compacted,
-             st->clients, st->colliders, st->last_tick_ms, (unsigned long long)st->overruns,
-             st->ready ? "true" : "false");
+             "{\"tick\":%llu,\"volume\":%lld,\"compacted\":%lld,\"soil_compacted\":%lld,"
+             "\"clients\":%d,\"colliders\":%d,\"last_tick_ms\":%.3f,\"overruns\":%llu,"
+             "\"ready\":%s}\n",
+             (unsigned long long)st->tick, (long long)st->volume, (long long)st->compacted,
+             (long long)st->soil_compacted, st->clients, st->colliders, st->last_tick_ms,
+             (unsigned long long)st->overruns, st->ready ? "true" : "false");
     answer_text(a, MHD_HTTP_OK, "application/json", body);
 }
 
@@ -235,6 +238,18 @@ static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
         snprintf(why, cap, "parameter base must be 0 or 1");
         return MHD_HTTP_BAD_REQUEST;
     }
+    const char *layer_name = arg(args, "layer");
+    hub_layer layer = HUB_LAYER_HEIGHTS;
+    if (layer_name && strcmp(layer_name, "compaction") == 0)
+        layer = HUB_LAYER_COMPACTION;
+    else if (layer_name && strcmp(layer_name, "heights") != 0) {
+        snprintf(why, cap, "parameter layer must be heights or compaction");
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    if (base && layer != HUB_LAYER_HEIGHTS) {
+        snprintf(why, cap, "parameter layer: the base terrain has heights only (base=1)");
+        return MHD_HTTP_BAD_REQUEST;
+    }
     if (base) { /* immutable once the world is made: read here without the sim thread */
         const world *w = base_world;
         if (!w) {
@@ -245,7 +260,7 @@ static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
         *tick = 0;
         return 0;
     }
-    if (hub_read_heights(heights, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
+    if (hub_read_layer(heights, layer, r, dst, tick, s->limits.heights_timeout_ms) != 0) {
         snprintf(why, cap,
                  "the simulation did not serve the height read within %d ms (busy or shutting "
                  "down); retry",

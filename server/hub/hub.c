@@ -25,6 +25,7 @@
 
 typedef struct hub_read {
     world_rect rect;
+    hub_layer layer;
     int32_t *out;
     uint64_t tick;
     int active, done;
@@ -441,15 +442,6 @@ void hub_note_batch(hub *h, uint32_t client, uint32_t sequence)
     pthread_mutex_unlock(&h->pose_lock);
 }
 
-int hub_take_batches(hub *h, hub_batch *out, int max)
-{
-    THREAD_OWNED(&h->sim_end);
-    pthread_mutex_lock(&h->pose_lock);
-    int n = take_batches_locked(h, out, max);
-    pthread_mutex_unlock(&h->pose_lock);
-    return n;
-}
-
 int hub_take_input(hub *h, hub_pose *poses, int max_poses, int *pose_count, hub_batch *batches)
 {
     THREAD_OWNED(&h->sim_end);
@@ -557,6 +549,12 @@ void hub_set_waker(hub *h, void (*wake)(void *arg), void *arg)
 
 int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int timeout_ms)
 {
+    return hub_read_layer(h, HUB_LAYER_HEIGHTS, r, out, tick, timeout_ms);
+}
+
+int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t *tick,
+                   int timeout_ms)
+{
 #ifdef TERRAD_THREAD_CHECKS
     /* the sim thread serves reads between ticks: waiting here it would wait for itself */
     if (h->sim_end.tid && h->sim_end.tid == (unsigned long)pthread_self()) {
@@ -581,7 +579,7 @@ int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int tim
         pthread_mutex_unlock(&h->read_lock);
         return -1;
     }
-    *slot = (hub_read){.rect = r, .out = out, .active = 1};
+    *slot = (hub_read){.rect = r, .layer = layer, .out = out, .active = 1};
     int rc = 0;
     while (!slot->done && !h->reads_closed) {
         if (pthread_cond_timedwait(&h->read_done, &h->read_lock, &deadline) == ETIMEDOUT) {
@@ -609,9 +607,12 @@ void hub_serve_reads(hub *h, const world *w, uint64_t tick)
             continue;
         world_rect clipped = r->rect;
         if (world_clip_rect(w, &clipped) && clipped.x == r->rect.x && clipped.y == r->rect.y &&
-            clipped.w == r->rect.w && clipped.h == r->rect.h)
-            world_gather_window(w, r->rect, r->out);
-        else
+            clipped.w == r->rect.w && clipped.h == r->rect.h) {
+            if (r->layer == HUB_LAYER_COMPACTION)
+                world_compaction_gather(w, r->rect, r->out);
+            else
+                world_gather_window(w, r->rect, r->out);
+        } else
             memset(r->out, 0, (size_t)r->rect.w * r->rect.h * sizeof *r->out);
         r->tick = tick;
         r->done = 1;

@@ -140,8 +140,6 @@ typedef struct hub_batch {
 #define HUB_BATCH_CAPACITY 4096 /* clients with a pending batch sequence */
 
 void hub_note_batch(hub *h, uint32_t client, uint32_t sequence);
-/* sim thread: take the clients' latest batch sequences since the last call. */
-int hub_take_batches(hub *h, hub_batch *out, int max);
 
 /* One POSE_BATCH whole: its poses (as hub_set_pose) and its sequence (as
  * hub_note_batch) under one hold of the lock, so a tick that takes its input
@@ -212,10 +210,17 @@ int hub_store_unavailable(hub *h, char *reason, size_t cap);
 
 /* ---- http → sim: height reads ---- */
 
+/* What a read copies: the heights, or the per-cell compaction memory
+ * (world_compaction_gather: zeros where none). */
+typedef enum hub_layer { HUB_LAYER_HEIGHTS, HUB_LAYER_COMPACTION } hub_layer;
+
 /* Any thread but the sim thread (the HTTP threads): copy a rectangle (inside the world) of
  * heights as of the end of a tick. Waits up to timeout_ms; returns 0, or -1
  * on timeout or when the sim thread is gone. */
 int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int timeout_ms);
+/* The same for any layer. */
+int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t *tick,
+                   int timeout_ms);
 /* sim thread, between ticks: serve the pending reads. */
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
 /* sim thread, at exit: fail every pending and future read. */

@@ -13,8 +13,8 @@
  * Every family is one row of one table (`families`: name, type, help,
  * label, slots): metrics_reset zeroes the slots, the update functions write
  * them, metrics_render walks the rows in order. The families of worlds,
- * auth and the process have their own files (metrics_worlds.c,
- * metrics_auth.c, metrics_process.c).
+ * auth, the process and refusals for room have their own files
+ * (metrics_worlds.c, metrics_auth.c, metrics_process.c, metrics_room.c).
  *
  * Durations arrive in milliseconds (what the tick measures) and leave in
  * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
@@ -366,6 +366,7 @@ void metrics_reset(void)
     pthread_once(&stage_once, stage_hist_init);
     metrics_auth_reset();
     metrics_edits_reset();
+    metrics_room_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -780,6 +781,8 @@ char *metrics_render(size_t *len)
     if (metrics_auth_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_edits_text(process, sizeof process) > 0)
+        text_printf(&t, "%s", process);
+    if (metrics_room_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);
     if (metrics_process_text(process, sizeof process) > 0)
         text_printf(&t, "%s", process);

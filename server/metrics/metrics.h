@@ -44,6 +44,12 @@ void metrics_count_client_stale(void);
 void metrics_count_heights_refused(void);
 /* HTTP connections cut for sending no whole request within the header deadline (http) */
 void metrics_count_http_cut(uint64_t n);
+/* An HTTP request answered 503 for want of a connection slot: 0 past the
+ * per-address limit, 1 past the overall one (terrad_http_refused_total). */
+void metrics_count_http_refused(int reason);
+/* An HTTP request answered 400, the parameter named in the answer (terrad_http_bad_requests_total).
+ */
+void metrics_count_http_bad_request(void);
 /* colliders left out of one tick by the tick's cell budget, max_tick_cells (service) */
 void metrics_count_tick_shed(uint64_t colliders);
 /* FOOTPRINTS frames (and their events) queued to clients; frames not sent to a slow client. */
@@ -103,6 +109,14 @@ int metrics_label_index(const char *const *names, int count, const char *name);
 void metrics_count_auth_refused(const char *reason);
 void metrics_auth_reset(void);
 int metrics_auth_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
+/* Told to come back or to catch up (metrics_room.c):
+ * terrad_http_refused_total{reason="connections_per_address"|"connections"}
+ * (overall 0 or 1: which limit) and terrad_clients_behind_total. */
+void metrics_count_http_refused(int overall);
+void metrics_count_client_behind(void);
+void metrics_room_reset(void);
+int metrics_room_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
 /* Terrain edits (metrics_edits.c): terrad_edits_total{op,result} and the
  * volume they declared, terrad_edit_volume_added_units_total{op} and

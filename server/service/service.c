@@ -134,9 +134,9 @@ static void undo_tick(service *s, sim_tick_report *report)
         world_rect win = sim_engine_window(s->engine, i, &before, &after);
         world_scatter_window(s->world, win, before);
     }
-    sim_engine_undo_soil(s->engine);
+    sim_engine_undo_state(s->engine);
     report->dirty_count = 0;
-    report->soil_dirty_count = 0;
+    report->state_dirty_count = 0;
 }
 
 static void tell_store_state(service *s)

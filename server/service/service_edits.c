@@ -78,13 +78,13 @@ void service_edit_command(service *s, hub_command *c)
 int service_edits_commit_rects(service *s, const sim_tick_report *report, const world_rect **rects,
                                int *n)
 {
-    if (s->edit_count == 0 && report->soil_dirty_count == 0) {
+    if (s->edit_count == 0 && report->state_dirty_count == 0) {
         *rects = report->dirty;
         *n = report->dirty_count;
         return 0;
     }
-    /* the edits', the deformation's, then where only the soil state changed */
-    int total = s->edit_count + report->dirty_count + report->soil_dirty_count;
+    /* the edits', the deformation's, then where only the per-cell state changed */
+    int total = s->edit_count + report->dirty_count + report->state_dirty_count;
     if (array_grow((void **)&s->commit_rects, &s->commit_capacity, total,
                    sizeof *s->commit_rects) != 0)
         return -1;
@@ -93,9 +93,9 @@ int service_edits_commit_rects(service *s, const sim_tick_report *report, const 
     if (report->dirty_count)
         memcpy(s->commit_rects + s->edit_count, report->dirty,
                (size_t)report->dirty_count * sizeof *report->dirty);
-    if (report->soil_dirty_count)
-        memcpy(s->commit_rects + s->edit_count + report->dirty_count, report->soil_dirty,
-               (size_t)report->soil_dirty_count * sizeof *report->soil_dirty);
+    if (report->state_dirty_count)
+        memcpy(s->commit_rects + s->edit_count + report->dirty_count, report->state_dirty,
+               (size_t)report->state_dirty_count * sizeof *report->state_dirty);
     *rects = s->commit_rects;
     *n = total;
     return 0;

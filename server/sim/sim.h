@@ -442,10 +442,11 @@ typedef struct sim_tick_report {
     world_rect *dirty; /* tight rectangles of changed cells, one per changed window */
     int *dirty_window; /* the window each dirty rectangle came from */
     int dirty_count;
-    /* bekker: tight rectangles where the soil state (world_soil.c) changed,
-     * heights or not; the store logs them with the dirty ones */
-    const world_rect *soil_dirty;
-    int soil_dirty_count;
+    /* tight rectangles where the per-cell state (world_soil.c: bekker's soil
+     * state, the compaction memory) changed, heights or not; the store logs
+     * them with the dirty ones */
+    const world_rect *state_dirty;
+    int state_dirty_count;
     double model_ms;                 /* the non-persson models' window functions */
     const sim_footprint *footprints; /* decals: this tick's events (engine-owned) */
     int footprint_count;
@@ -484,13 +485,18 @@ int sim_engine_tick(sim_engine *e, const sim_collider *colliders, int collider_c
 /* After a tick: window i of the last tick, its heights before and after. */
 world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
                              const int32_t **after);
-/* After a tick the store could not log: the soil state of its windows back
- * as it was gathered (the caller puts the heights back, sim_engine_window). */
-void sim_engine_undo_soil(sim_engine *e);
+/* After a tick the store could not log: the per-cell state (soil state,
+ * compaction memory) of its windows back as it was gathered (the caller puts
+ * the heights back, sim_engine_window). */
+void sim_engine_undo_state(sim_engine *e);
 void sim_engine_get_stats(const sim_engine *e, sim_engine_stats *out);
 /* bekker: Σ compacted volume over the world (height units): Σh + this is
  * constant. 0 for the other models. */
 int64_t sim_engine_soil_compacted(const sim_engine *e);
+/* Σ of what compaction has taken from Σh in w, for every model: bekker's
+ * compacted volume plus the persson models' and sumner's compaction memory
+ * (0 where nothing remembers it). /v1/stats `compacted`. */
+int64_t sim_world_compacted(const world *w);
 /* bekker: one cell's soil state (SIM_SOIL_STATE_FIELDS values; zeros where
  * nothing was ever pressed). */
 void sim_engine_soil_cell(const sim_engine *e, int x, int y, int32_t *out);

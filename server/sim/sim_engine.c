@@ -38,7 +38,7 @@ typedef struct engine_batch {
     int64_t *offsets; /* where each window starts in the packed cells */
     world_rect *dirty;
     int *dirty_window;
-    world_rect *soil_dirty; /* bekker: where the soil state changed */
+    world_rect *state_dirty; /* where the per-cell state (soil, compaction memory) changed */
     int count;
     int64_t cells; /* all windows' cells */
     int64_t refs;  /* collider references of all windows */
@@ -78,6 +78,11 @@ struct sim_engine {
     int64_t material_ids_capacity;
     uint16_t *compaction; /* likewise; only if some material compacts */
     int64_t compaction_capacity;
+    /* the memory itself is the world's (world_compaction_*): as gathered (to
+     * find what changed, and to undo a tick the store cannot log) and as the
+     * backend left it, widened to the world's int32 */
+    int32_t *compaction_before, *compaction_after;
+    int64_t compaction_before_capacity, compaction_after_capacity;
     /* bekker: the per-cell soil state's packed windows (the state itself is
      * the world's: world_soil.c) as the model leaves them and as gathered (to
      * find what changed, and to undo a tick the store cannot log), a contact
@@ -135,9 +140,11 @@ void sim_engine_destroy(sim_engine *e)
     free(b->offsets);
     free(b->dirty);
     free(b->dirty_window);
-    free(b->soil_dirty);
+    free(b->state_dirty);
     free(e->material_ids);
     free(e->compaction);
+    free(e->compaction_before);
+    free(e->compaction_after);
     free(e->footprints);
     free(e->window_colliders);
     free(e->heights);
@@ -167,6 +174,10 @@ void sim_engine_set_ground(sim_engine *e, ground *g)
                (e->params.model != SIM_MODEL_BEKKER ||
                 memcmp(&g->table.soils[0], &e->params.soil, sizeof e->params.soil) == 0);
     e->ground = g && !same ? g : NULL;
+    /* the world keeps the memory; a failure here is retried by the first
+     * scatter that has something to keep */
+    if (e->ground && e->ground->uses_compaction)
+        (void)world_compaction_enable(e->world);
 }
 
 int64_t sim_engine_soil_compacted(const sim_engine *e)
@@ -204,14 +215,20 @@ world_rect sim_engine_window(const sim_engine *e, int i, const int32_t **before,
     return e->batch.windows[i];
 }
 
-void sim_engine_undo_soil(sim_engine *e)
+void sim_engine_undo_state(sim_engine *e)
 {
     const engine_batch *b = &e->batch;
-    for (int i = 0; i < b->count; i++)
-        if (b->jobs[i].soil_state && b->status[i] == SIM_WINDOW_OK)
-            /* back to what was gathered: the tiles exist, nothing is allocated */
+    /* back to what was gathered: the tiles exist, nothing is allocated */
+    for (int i = 0; i < b->count; i++) {
+        if (b->status[i] != SIM_WINDOW_OK)
+            continue;
+        if (b->jobs[i].soil_state)
             (void)world_soil_scatter(e->world, b->windows[i],
                                      e->soil_before + b->offsets[i] * SIM_SOIL_STATE_FIELDS);
+        if (b->jobs[i].compaction)
+            (void)world_compaction_scatter(e->world, b->windows[i],
+                                           e->compaction_before + b->offsets[i]);
+    }
 }
 
 uint64_t sim_stage_memory_total(const sim_stage_memory *m)
@@ -233,7 +250,7 @@ static int batch_reserve(engine_batch *b, int64_t count)
     (cap = b->capacity, array_grow((void **)&b->array, &cap, count, sizeof *b->array))
     if (BATCH_GROW(windows) != 0 || BATCH_GROW(jobs) != 0 || BATCH_GROW(status) != 0 ||
         BATCH_GROW(offsets) != 0 || BATCH_GROW(dirty) != 0 || BATCH_GROW(dirty_window) != 0 ||
-        BATCH_GROW(soil_dirty) != 0)
+        BATCH_GROW(state_dirty) != 0)
         return -1;
 #undef BATCH_GROW
     b->capacity = cap;
@@ -288,8 +305,12 @@ static int tick_reserve_cells(sim_engine *e, int persson, int collider_count)
                    sizeof *e->material_ids) != 0)
         return -1;
     if (e->ground && e->ground->uses_compaction &&
-        array_grow((void **)&e->compaction, &e->compaction_capacity, need, sizeof *e->compaction) !=
-            0)
+        (array_grow((void **)&e->compaction, &e->compaction_capacity, need,
+                    sizeof *e->compaction) != 0 ||
+         array_grow((void **)&e->compaction_before, &e->compaction_before_capacity, need,
+                    sizeof *e->compaction_before) != 0 ||
+         array_grow((void **)&e->compaction_after, &e->compaction_after_capacity, need,
+                    sizeof *e->compaction_after) != 0))
         return -1;
     /* depth on the engine's side only where something reads it */
     if (!persson && sim_model_needs_depth(e->params.model) &&
@@ -334,8 +355,12 @@ static void gather_ground(sim_engine *e, sim_window_job *job, int64_t offset)
         ground_gather_ids(e->ground, job->rect, e->material_ids + offset);
     }
     if (e->ground->uses_compaction) {
+        int32_t *before = e->compaction_before + offset;
+        int64_t n = (int64_t)job->rect.w * job->rect.h;
         job->compaction = e->compaction + offset;
-        ground_gather_compaction(e->ground, job->rect, job->compaction);
+        world_compaction_gather(e->world, job->rect, before);
+        for (int64_t k = 0; k < n; k++) /* recovered memory is checked: [0, 65535] */
+            job->compaction[k] = (uint16_t)before[k];
     }
 }
 
@@ -527,14 +552,35 @@ static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *
     return (world_rect){r.x + x0, r.y + y0, x1 - x0 + 1, y1 - y0 + 1};
 }
 
-/* Accepted windows back into the world, with their compaction; the report's
- * dirty rectangles. */
+/* Window i's compaction memory back into the world where it changed; its
+ * rectangle into the report's state_dirty. 0, or -1 out of memory. */
+static int scatter_compaction(sim_engine *e, int i, sim_tick_report *report, error_text *err)
+{
+    engine_batch *b = &e->batch;
+    world_rect r = b->windows[i];
+    int64_t offset = b->offsets[i], n = (int64_t)r.w * r.h;
+    int32_t *after = e->compaction_after + offset;
+    for (int64_t k = 0; k < n; k++)
+        after[k] = b->jobs[i].compaction[k];
+    world_rect c = diff_rect(r, e->compaction_before + offset, after, 1);
+    if (c.w == 0)
+        return 0;
+    if (world_compaction_scatter(e->world, r, after) != 0) {
+        error_set(err, "sim: out of memory for the compaction memory");
+        return -1;
+    }
+    b->state_dirty[report->state_dirty_count++] = c;
+    return 0;
+}
+
+/* Accepted windows back into the world, with their per-cell state; the
+ * report's dirty rectangles. */
 static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
 {
     engine_batch *b = &e->batch;
     report->dirty = b->dirty;
     report->dirty_window = b->dirty_window;
-    report->soil_dirty = b->soil_dirty;
+    report->state_dirty = b->state_dirty;
     for (int i = 0; i < b->count; i++) {
         world_rect r = b->windows[i];
         int64_t offset = b->offsets[i];
@@ -542,8 +588,7 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
             report->refused_windows++;
             continue;
         }
-        if (b->jobs[i].compaction &&
-            ground_scatter_compaction(e->ground, r, b->jobs[i].compaction, err) != 0)
+        if (b->jobs[i].compaction && scatter_compaction(e, i, report, err) != 0)
             return -1;
         if (b->jobs[i].soil_state) {
             world_rect s = diff_rect(r, e->soil_before + offset * SIM_SOIL_STATE_FIELDS,
@@ -553,7 +598,7 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
                 return -1;
             }
             if (s.w > 0)
-                b->soil_dirty[report->soil_dirty_count++] = s;
+                b->state_dirty[report->state_dirty_count++] = s;
         }
         world_rect d = diff_rect(r, e->before + offset, e->heights + offset, 1);
         if (d.w > 0) {

@@ -16,7 +16,7 @@
 /*
  * The same argument as the work list's (sim_even_slopes_materials), with a
  * block of SLOPE_SEG cells for a cell: iteration 1 visits the blocks holding
- * a cell that may move (slope_first_blocks), and after an iteration the blocks
+ * a cell that may move (slope_first_range), and after an iteration the blocks
  * holding a changed cell or one of its neighbours. Any block visited gives
  * its cells' exact next heights, so visiting a superset of the listed cells
  * changes nothing; in exchange the 16 cells of a block go through

@@ -106,3 +106,8 @@ double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m)
 
 /* The state lives in the world (world_soil.c), which knows nothing of its meaning. */
 _Static_assert(SIM_SOIL_STATE_FIELDS == WORLD_SOIL_FIELDS, "the world holds the bekker state");
+
+int64_t sim_world_compacted(const world *w)
+{
+    return world_soil_sum(w, SIM_SOIL_COMPACTED) + world_compaction_sum(w);
+}

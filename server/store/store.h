@@ -149,13 +149,23 @@ int store_remove(const char *dir, int *removed, error_text *err);
 int store_fsck(const char *dir, world *w, store_recovery *rec, error_text *err);
 
 /* ---- a log record's payload: one codec for every backend (store_record.c) ----
- * u32 rectangle count (bit 31, STORE_RECORD_SOIL: the soil state follows),
- * per rectangle x, y, w, h (u32), u32 raw byte count, then zstd of the
- * rectangles' heights (i32, row by row, one rectangle after the other) and,
- * with the soil bit, their soil state (WORLD_SOIL_FIELDS i32 per cell, same
- * order). The data directory's log records and the JetStream store's log
- * records and tile snapshots all carry it (docs/storage.md, docs/cluster.md). */
+ * u32 rectangle count with layer bits (bit 31, STORE_RECORD_SOIL: the soil
+ * state follows; bit 30, STORE_RECORD_COMPACTION: the compaction memory
+ * follows), per rectangle x, y, w, h (u32), u32 raw byte count, then zstd of
+ * the rectangles' heights (i32, row by row, one rectangle after the other)
+ * and, with the soil bit, their soil state (WORLD_SOIL_FIELDS i32 per cell,
+ * same order), then with the compaction bit their compaction memory (one i32
+ * per cell in [0, WORLD_COMPACTION_MAX], same order). A payload without a
+ * bit (every one before that layer existed) still reads. The data
+ * directory's log records and the JetStream store's log records and tile
+ * snapshots all carry it (docs/storage.md, docs/cluster.md). */
 #define STORE_RECORD_SOIL 0x80000000u
+#define STORE_RECORD_COMPACTION 0x40000000u
+#define STORE_RECORD_LAYER_BITS (STORE_RECORD_SOIL | STORE_RECORD_COMPACTION)
+
+/* Which per-cell layers a record (or a tile copy) carries beside the heights. */
+#define STORE_LAYER_SOIL 1u
+#define STORE_LAYER_COMPACTION 2u
 
 typedef struct store_record { /* scratch, reused from record to record */
     int32_t *values;
@@ -167,18 +177,30 @@ typedef struct store_record { /* scratch, reused from record to record */
 struct ZSTD_CCtx_s;
 
 void store_record_free(store_record *c);
-/* rects' heights, then (soil) their soil state, into c->values. 0, or -1
- * out of memory. */
-int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n, int soil);
+/* The layers w keeps (a record of w carries them all, so replay puts back
+ * every cell it names whole). */
+unsigned store_world_layers(const world *w);
+/* The layers holding anything in r (a tile snapshot carries only those). */
+unsigned store_rect_layers(const world *w, world_rect r);
+/* int32 values per cell: the height and each layer's fields. */
+int store_layers_ints(unsigned layers);
+/* One rectangle's heights, then its layers, into dst (store_layers_ints per
+ * cell): a record of that one rectangle's values, a tile copy's. */
+void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst);
+/* rects' heights, then their layers, into c->values. 0, or -1 out of memory. */
+int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
+                        unsigned layers);
 /* Encodes rects with their values (laid out as store_record_gather lays
  * them) into c->buf + head (head bytes left for the caller's header): the
  * payload's length, or 0 with err set. */
 size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
-                           const world_rect *rects, int n, int soil, const int32_t *values,
+                           const world_rect *rects, int n, unsigned layers, const int32_t *values,
                            size_t head, error_text *err);
+/* The layers a payload carries (its first word's bits). */
+unsigned store_record_layers(const uint8_t *p, size_t len);
 /* Checks a payload whole (every rectangle inside w and accepted by check,
- * when given; the sizes right) and only then applies it to w. 0; 1 when it
- * is malformed (nothing applied); -1 out of memory. */
+ * when given; the sizes right; every memory in range) and only then applies
+ * it to w. 0; 1 when it is malformed (nothing applied); -1 out of memory. */
 int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
                        int (*check)(void *ctx, world_rect r), void *ctx);
 

@@ -134,13 +134,11 @@ void store_compaction_maybe_start(store_dir *st, const world *w, uint64_t tick)
         t->ty = i / st->tiles_x;
         t->rect = store_tile_rect(st->width, st->height, t->tx, t->ty);
         size_t cells = (size_t)t->rect.w * t->rect.h;
-        t->soil = world_soil_enabled(w) && !world_soil_rect_empty(w, t->rect);
-        t->values = malloc(cells * 4 * (t->soil ? 1 + WORLD_SOIL_FIELDS : 1));
+        t->layers = store_rect_layers(w, t->rect);
+        t->values = malloc(cells * 4 * (size_t)store_layers_ints(t->layers));
         if (!t->values)
             break;
-        world_gather_window(w, t->rect, t->values);
-        if (t->soil)
-            world_soil_gather(w, t->rect, t->values + cells);
+        store_layers_gather(w, t->rect, t->layers, t->values);
         k++;
     }
     /* every record so far is synced before the old segment is left behind */

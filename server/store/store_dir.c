@@ -427,14 +427,14 @@ static int dir_append_tick(void *state, const world *w, uint64_t tick, const wor
      * STORE_TICK_LOG_EVERY ticks, so a restart never reuses a tick number */
     if (n <= 0 && tick < st->appended_tick + STORE_TICK_LOG_EVERY)
         return 0;
-    int soil = w && world_soil_enabled(w);
+    unsigned layers = store_world_layers(w);
     error_text err = {{0}};
-    if (store_record_gather(&st->rec, w, rects, n, soil) != 0) {
+    if (store_record_gather(&st->rec, w, rects, n, layers) != 0) {
         set_failed(st, "memory", "no memory for a log record", ENOMEM);
         return -1;
     }
-    size_t plen = store_record_encode(&st->rec, st->cctx, st->cfg.compression_level, rects, n, soil,
-                                      st->rec.values, REC_HEADER, &err);
+    size_t plen = store_record_encode(&st->rec, st->cctx, st->cfg.compression_level, rects, n,
+                                      layers, st->rec.values, REC_HEADER, &err);
     if (plen == 0) {
         set_failed(st, "compress", err.message, EIO);
         return -1;

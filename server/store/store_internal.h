@@ -39,15 +39,19 @@ extern const store_backend store_backend_dir;
 #define REC_MAGIC 0x52445254u /* "TRDR" */
 #define REC_HEADER 24
 /* A record's payload is store_record.c's (store.h): with STORE_RECORD_SOIL
- * the soil state of every rectangle follows their heights; records without it
- * (format 1, and worlds without soil) hold heights only. */
+ * the soil state of every rectangle follows their heights, with
+ * STORE_RECORD_COMPACTION their compaction memory; records without either
+ * (format 1, and worlds without per-cell state) hold heights only. */
 #define REC_MAX_PAYLOAD (1u << 30)
 #define TILE_MAGIC "TRDTILE1"
 #define TILE_HEADER 56
-/* A snapshot's format (header offset 8): 1 heights only; 2 heights, then the
- * tile's soil state (WORLD_SOIL_FIELDS int32 per cell). */
+/* A snapshot's format (header offset 8) is 1 + the STORE_LAYER_* bits it
+ * carries after the heights: 1 heights only; 2 then the tile's soil state
+ * (WORLD_SOIL_FIELDS int32 per cell); 3 then its compaction memory (one int32
+ * per cell); 4 both, in that order. Each is written only for a tile holding
+ * those layers, so a tile without per-cell state stays format 1. */
 #define TILE_FORMAT_HEIGHTS 1
-#define TILE_FORMAT_SOIL 2
+#define TILE_FORMAT_MAX (1 + (STORE_LAYER_SOIL | STORE_LAYER_COMPACTION))
 #define RETRY_MS 500.0
 /* A snapshot or a segment read whole is at most this large. */
 #define STORE_FILE_BYTES_MAX ((size_t)REC_MAX_PAYLOAD * 2)
@@ -76,8 +80,8 @@ static inline uint64_t get64(const uint8_t *p)
 typedef struct tile_copy {
     int tx, ty;
     world_rect rect;
-    int32_t *values; /* heights, then (soil set) the soil state */
-    int soil;
+    int32_t *values; /* heights, then the layers (store_layers_gather) */
+    unsigned layers; /* STORE_LAYER_* */
 } tile_copy;
 
 /* DIR/CONTROL (store_control.c). */

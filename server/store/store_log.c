@@ -148,7 +148,7 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
             break;
         }
         if (applied < 0) {
-            error_set(err, "store: out of memory for the soil state replaying %s", path);
+            error_set(err, "store: out of memory for the per-cell state replaying %s", path);
             store_record_free(&rec);
             free(data);
             return -1;

@@ -4,12 +4,14 @@
  * store_log.c replays it) and the cluster's JetStream log and tile snapshots
  * (server/cluster/cluster_store.c). A tick's commit encodes the rectangles
  * it changed after the deformation; recovery decodes and applies them before
- * the first tick. One copy, so a world's soil state (bit 31 of the rectangle
- * count) travels the same way whichever store holds it.
+ * the first tick. One copy, so a world's per-cell state — bekker's soil state
+ * (bit 31 of the rectangle count), the compaction memory (bit 30) — travels
+ * the same way whichever store holds it.
  *
- *   u32 count | STORE_RECORD_SOIL, count × (x, y, w, h) u32, u32 raw bytes,
+ *   u32 count | layer bits, count × (x, y, w, h) u32, u32 raw bytes,
  *   zstd(heights of every rectangle in order, then with the soil bit their
- *   soil state, WORLD_SOIL_FIELDS i32 per cell in the same order)
+ *   soil state, WORLD_SOIL_FIELDS i32 per cell in the same order, then with
+ *   the compaction bit their compaction memory, one i32 per cell)
  */
 #include "store/store_internal.h"
 
@@ -25,6 +27,32 @@ void store_record_free(store_record *c)
     memset(c, 0, sizeof *c);
 }
 
+unsigned store_world_layers(const world *w)
+{
+    return (w && world_soil_enabled(w) ? STORE_LAYER_SOIL : 0) |
+           (w && world_compaction_enabled(w) ? STORE_LAYER_COMPACTION : 0);
+}
+
+unsigned store_rect_layers(const world *w, world_rect r)
+{
+    return (world_soil_enabled(w) && !world_soil_rect_empty(w, r) ? STORE_LAYER_SOIL : 0) |
+           (world_compaction_enabled(w) && !world_compaction_rect_empty(w, r)
+                ? STORE_LAYER_COMPACTION
+                : 0);
+}
+
+int store_layers_ints(unsigned layers)
+{
+    return 1 + (layers & STORE_LAYER_SOIL ? WORLD_SOIL_FIELDS : 0) +
+           (layers & STORE_LAYER_COMPACTION ? 1 : 0);
+}
+
+static uint32_t layer_bits(unsigned layers)
+{
+    return (layers & STORE_LAYER_SOIL ? STORE_RECORD_SOIL : 0) |
+           (layers & STORE_LAYER_COMPACTION ? STORE_RECORD_COMPACTION : 0);
+}
+
 static size_t rects_cells(const world_rect *rects, int n)
 {
     size_t cells = 0;
@@ -33,27 +61,58 @@ static size_t rects_cells(const world_rect *rects, int n)
     return cells;
 }
 
-int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n, int soil)
+/* Where each part of `cells` cells' values starts (ints from the start). */
+typedef struct layout {
+    size_t soil, compaction, ints;
+} layout;
+
+static layout layout_of(size_t cells, unsigned layers)
 {
-    size_t cells = rects_cells(rects, n);
-    size_t ints = cells * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
-    if (array_grow((void **)&c->values, &c->values_cap, (int64_t)ints + 1, sizeof *c->values) != 0)
+    layout l = {cells, cells, cells};
+    if (layers & STORE_LAYER_SOIL)
+        l.ints += cells * WORLD_SOIL_FIELDS;
+    l.compaction = l.ints;
+    if (layers & STORE_LAYER_COMPACTION)
+        l.ints += cells;
+    return l;
+}
+
+/* Rectangle r's values at `off` cells into a record of `cells` cells. */
+static void gather_at(const world *w, world_rect r, unsigned layers, layout l, size_t off,
+                      int32_t *values)
+{
+    world_gather_window(w, r, values + off);
+    if (layers & STORE_LAYER_SOIL)
+        world_soil_gather(w, r, values + l.soil + off * WORLD_SOIL_FIELDS);
+    if (layers & STORE_LAYER_COMPACTION)
+        world_compaction_gather(w, r, values + l.compaction + off);
+}
+
+void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst)
+{
+    gather_at(w, r, layers, layout_of((size_t)r.w * r.h, layers), 0, dst);
+}
+
+int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
+                        unsigned layers)
+{
+    layout l = layout_of(rects_cells(rects, n), layers);
+    if (array_grow((void **)&c->values, &c->values_cap, (int64_t)l.ints + 1, sizeof *c->values) !=
+        0)
         return -1;
     size_t off = 0;
     for (int i = 0; i < n; i++) {
-        world_gather_window(w, rects[i], c->values + off);
-        if (soil)
-            world_soil_gather(w, rects[i], c->values + cells + off * WORLD_SOIL_FIELDS);
+        gather_at(w, rects[i], layers, l, off, c->values);
         off += (size_t)rects[i].w * rects[i].h;
     }
     return 0;
 }
 
 size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
-                           const world_rect *rects, int n, int soil, const int32_t *values,
+                           const world_rect *rects, int n, unsigned layers, const int32_t *values,
                            size_t head, error_text *err)
 {
-    size_t raw = rects_cells(rects, n) * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
+    size_t raw = layout_of(rects_cells(rects, n), layers).ints * 4;
     size_t table = 4 + (size_t)n * 16 + 4;
     size_t bound = ZSTD_compressBound(raw);
     if (n < 0 || (uint32_t)n > RECORD_RECTS_MAX || raw > REC_MAX_PAYLOAD) {
@@ -65,7 +124,7 @@ size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
         return 0;
     }
     uint8_t *p = c->buf + head;
-    put32(p, (uint32_t)n | (soil ? STORE_RECORD_SOIL : 0));
+    put32(p, (uint32_t)n | layer_bits(layers));
     for (int i = 0; i < n; i++) {
         put32(p + 4 + 16 * i, (uint32_t)rects[i].x);
         put32(p + 8 + 16 * i, (uint32_t)rects[i].y);
@@ -81,6 +140,13 @@ size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
     return table + packed;
 }
 
+unsigned store_record_layers(const uint8_t *p, size_t len)
+{
+    uint32_t word = len >= 4 ? get32(p) : 0;
+    return (word & STORE_RECORD_SOIL ? STORE_LAYER_SOIL : 0) |
+           (word & STORE_RECORD_COMPACTION ? STORE_LAYER_COMPACTION : 0);
+}
+
 static world_rect rect_at(const uint8_t *p, uint32_t i)
 {
     return (world_rect){(int32_t)get32(p + 4 + 16 * i), (int32_t)get32(p + 8 + 16 * i),
@@ -91,8 +157,8 @@ int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
                        int (*check)(void *ctx, world_rect r), void *ctx)
 {
     /* everything is checked before anything is applied */
-    uint32_t word = len >= 4 ? get32(p) : 0, nrect = word & ~STORE_RECORD_SOIL;
-    int soil = (word & STORE_RECORD_SOIL) != 0;
+    uint32_t word = len >= 4 ? get32(p) : 0, nrect = word & ~STORE_RECORD_LAYER_BITS;
+    unsigned layers = store_record_layers(p, len);
     size_t table = 4 + (size_t)nrect * 16 + 4;
     int ok = len >= 4 && nrect <= RECORD_RECTS_MAX && table <= len;
     uint64_t cells = 0;
@@ -103,19 +169,29 @@ int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
              (!check || check(ctx, r) == 0);
         cells += (uint64_t)r.w * r.h;
     }
-    uint64_t raw = cells * 4 * (soil ? 1 + WORLD_SOIL_FIELDS : 1);
-    if (!ok || raw != get32(p + table - 4) || raw > REC_MAX_PAYLOAD)
+    if (!ok || cells > REC_MAX_PAYLOAD)
+        return 1;
+    layout l = layout_of((size_t)cells, layers);
+    uint64_t raw = (uint64_t)l.ints * 4;
+    if (raw != get32(p + table - 4) || raw > REC_MAX_PAYLOAD)
         return 1;
     if (array_grow((void **)&c->values, &c->values_cap, (int64_t)(raw / 4 + 1),
                    sizeof *c->values) != 0)
         return -1;
     if (ZSTD_decompress(c->values, raw, p + table, len - table) != raw)
         return 1;
+    for (size_t k = 0; (layers & STORE_LAYER_COMPACTION) && k < cells; k++)
+        if (c->values[l.compaction + k] < 0 || c->values[l.compaction + k] > WORLD_COMPACTION_MAX)
+            return 1;
     size_t off = 0;
     for (uint32_t i = 0; i < nrect; i++) {
         world_rect r = rect_at(p, i);
         world_scatter_window(w, r, c->values + off);
-        if (soil && world_soil_scatter(w, r, c->values + cells + off * WORLD_SOIL_FIELDS) != 0)
+        if ((layers & STORE_LAYER_SOIL) &&
+            world_soil_scatter(w, r, c->values + l.soil + off * WORLD_SOIL_FIELDS) != 0)
+            return -1;
+        if ((layers & STORE_LAYER_COMPACTION) &&
+            world_compaction_scatter(w, r, c->values + l.compaction + off) != 0)
             return -1;
         off += (size_t)r.w * r.h;
     }

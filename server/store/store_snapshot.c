@@ -1,7 +1,7 @@
 /*
  * store_snapshot.c: the data directory's manifest and tile snapshots. The
  * manifest, written once, names the world the directory belongs to; a tile
- * snapshot holds one 256² tile's heights as of a tick boundary, zstd
+ * snapshot holds one 256² tile's heights (and its per-cell state) as of a tick boundary, zstd
  * compressed. Snapshots are written by the compaction thread (never in a
  * tick) and read at recovery, before the first tick.
  */
@@ -128,11 +128,12 @@ int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *ti
     uint32_t format = get32(data + 8), ww = get32(data + 12), wh = get32(data + 16),
              tx = get32(data + 20), ty = get32(data + 24), comp = get32(data + 44),
              crc = get32(data + 48);
-    if (format != TILE_FORMAT_HEIGHTS && format != TILE_FORMAT_SOIL) {
-        error_set(err, "store: tile snapshot %s has format %u (this build reads 1 and 2)", path,
-                  format);
+    if (format < TILE_FORMAT_HEIGHTS || format > TILE_FORMAT_MAX) {
+        error_set(err, "store: tile snapshot %s has format %u (this build reads 1 to %d)", path,
+                  format, TILE_FORMAT_MAX);
         goto out;
     }
+    unsigned layers = format - TILE_FORMAT_HEIGHTS;
     if (ww != (uint32_t)w->width || wh != (uint32_t)w->height) {
         error_set(err, "store: tile snapshot %s is for a %ux%u world, this one is %dx%d", path, ww,
                   wh, w->width, w->height);
@@ -158,7 +159,7 @@ int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *ti
     *tick_out = get64(data + 36);
     world_rect r = store_tile_rect(w->width, w->height, (int)tx, (int)ty);
     size_t cells = (size_t)r.w * r.h;
-    size_t raw = cells * 4 * (format == TILE_FORMAT_SOIL ? 1 + WORLD_SOIL_FIELDS : 1);
+    size_t raw = cells * 4 * (size_t)store_layers_ints(layers);
     values = malloc(raw);
     if (!values || ZSTD_decompress(values, raw, data + TILE_HEADER, comp) != raw) {
         error_set(err, "store: tile snapshot %s does not decompress to %dx%d cells", path, r.w,
@@ -167,16 +168,25 @@ int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *ti
     }
     for (size_t i = 0; i < raw / 4; i++)
         values[i] = (int32_t)get32((uint8_t *)&values[i]);
+    /* heights first; the compaction memory, when there, is the last cells' worth */
+    const int32_t *memory = values + raw / 4 - cells;
     for (size_t i = 0; i < cells; i++) {
         int32_t v = values[i];
         if (v < WORLD_HEIGHT_MIN || v > WORLD_HEIGHT_MAX) {
             error_set(err, "store: tile snapshot %s holds a height outside the limits", path);
             goto out;
         }
+        if ((layers & STORE_LAYER_COMPACTION) &&
+            (memory[i] < 0 || memory[i] > WORLD_COMPACTION_MAX)) {
+            error_set(err, "store: tile snapshot %s holds a compaction memory outside [0, %d]",
+                      path, WORLD_COMPACTION_MAX);
+            goto out;
+        }
     }
     world_scatter_window(w, r, values);
-    if (format == TILE_FORMAT_SOIL && world_soil_scatter(w, r, values + cells) != 0) {
-        error_set(err, "store: out of memory for the soil state of tile snapshot %s", path);
+    if (((layers & STORE_LAYER_SOIL) && world_soil_scatter(w, r, values + cells) != 0) ||
+        ((layers & STORE_LAYER_COMPACTION) && world_compaction_scatter(w, r, memory) != 0)) {
+        error_set(err, "store: out of memory for the per-cell state of tile snapshot %s", path);
         goto out;
     }
     rc = 0;
@@ -189,7 +199,7 @@ out:
 int store_tile_write(const store_dir *st, const char *dir, const tile_copy *t, uint64_t tick,
                      ZSTD_CCtx *cctx, int level, error_text *err)
 {
-    size_t raw = (size_t)t->rect.w * t->rect.h * 4 * (t->soil ? 1 + WORLD_SOIL_FIELDS : 1);
+    size_t raw = (size_t)t->rect.w * t->rect.h * 4 * (size_t)store_layers_ints(t->layers);
     size_t cap = ZSTD_compressBound(raw);
     uint8_t *packed = malloc(cap);
     if (!packed) {
@@ -204,7 +214,7 @@ int store_tile_write(const store_dir *st, const char *dir, const tile_copy *t, u
     }
     uint8_t h[TILE_HEADER] = {0};
     memcpy(h, TILE_MAGIC, 8);
-    put32(h + 8, t->soil ? TILE_FORMAT_SOIL : TILE_FORMAT_HEIGHTS);
+    put32(h + 8, TILE_FORMAT_HEIGHTS + t->layers);
     put32(h + 12, (uint32_t)st->width);
     put32(h + 16, (uint32_t)st->height);
     put32(h + 20, (uint32_t)t->tx);

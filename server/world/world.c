@@ -182,6 +182,7 @@ void world_free(world *w)
         free(st);
     }
     world_soil_free(w);
+    world_compaction_free(w);
     memset(w, 0, sizeof *w);
 }
 

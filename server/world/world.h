@@ -37,14 +37,15 @@ typedef struct world_rect {
 } world_rect;
 
 typedef struct world {
-    int width, height;         /* cells */
-    double cell_size_m;        /* metres per cell, both axes */
-    int32_t units_per_m;       /* height units per metre */
-    int32_t floor;             /* material is never pushed below this height (units) */
-    int tile_cells;            /* side of a tile in cells, a power of two */
-    int tiles_x, tiles_y;      /* tiles per row / column (the last ones may be partial) */
-    struct world_store *store; /* tiles, base terrain, caches: world.c only */
-    struct world_soil *soil;   /* per-cell soil state, NULL while none: world_soil.c only */
+    int width, height;              /* cells */
+    double cell_size_m;             /* metres per cell, both axes */
+    int32_t units_per_m;            /* height units per metre */
+    int32_t floor;                  /* material is never pushed below this height (units) */
+    int tile_cells;                 /* side of a tile in cells, a power of two */
+    int tiles_x, tiles_y;           /* tiles per row / column (the last ones may be partial) */
+    struct world_store *store;      /* tiles, base terrain, caches: world.c only */
+    struct world_layer *soil;       /* per-cell soil state, NULL while none: world_soil.c only */
+    struct world_layer *compaction; /* per-cell compaction memory, likewise */
 } world;
 
 /* How the base terrain is made. */
@@ -210,7 +211,28 @@ int world_soil_rect_empty(const world *w, world_rect r);
 /* Σ of one field over the world, exactly (kept as cells are written). */
 int64_t world_soil_sum(const world *w, int field);
 void world_soil_cell(const world *w, int x, int y, int32_t *out);
-uint64_t world_soil_bytes(const world *w);
+
+/* ---- per-cell compaction memory (world_soil.c) ----
+ * One int32 per cell beside the heights, in [0, WORLD_COMPACTION_MAX]:
+ * height units the column has been compacted by so far (the persson models'
+ * and sumner's memory, docs/materials.md), zeros until written. Kept like the
+ * soil state: the store logs and snapshots it with the heights of the same
+ * rectangles. Enabled by the engine when some material remembers compaction
+ * (sim_engine_set_ground), or by a record that carries it. */
+
+#define WORLD_COMPACTION_MAX 65535
+
+int world_compaction_enable(world *w);
+int world_compaction_enabled(const world *w);
+void world_compaction_free(world *w);
+void world_compaction_gather(const world *w, world_rect r, int32_t *dst);
+/* src over r (enabling the layer). 0, or -1 out of memory. */
+int world_compaction_scatter(world *w, world_rect r, const int32_t *src);
+int world_compaction_rect_empty(const world *w, world_rect r);
+/* Σ memory over the world, exactly: what compression has taken from Σh. */
+int64_t world_compaction_sum(const world *w);
+int32_t world_compaction_cell(const world *w, int x, int y);
+uint64_t world_compaction_bytes(const world *w);
 
 /* Write / read a 16-bit greyscale PNG (used by base terrain and exports). */
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err);

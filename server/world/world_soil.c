@@ -1,47 +1,163 @@
 /*
- * world_soil.c: the per-cell soil state a world carries beside its heights
- * (issue 21) — WORLD_SOIL_FIELDS int32 per cell whose meaning belongs to the
- * model that writes them (sim's bekker: plastic sinkage, shear displacement,
- * compacted volume). It lives in the world, not in the engine, so that the
- * store logs and snapshots it with the heights of the same rectangles and
- * recovery puts it back before the first tick (docs/storage.md).
+ * world_soil.c: the per-cell state a world carries beside its heights, in
+ * two layers whose meaning belongs to the models that write them:
  *
- * Sparse 64x64 tiles, allocated the first time a cell in them holds anything
- * but zeros: a world nobody pressed costs a table of NULLs. The engine
- * gathers a window's state with its heights (row 4b of the tick) and
- * scatters it back for accepted windows only (row 4e).
+ *   soil        WORLD_SOIL_FIELDS int32 per cell (issue 21; sim's bekker:
+ *               plastic sinkage, shear displacement, compacted volume)
+ *   compaction  one int32 per cell in [0, 65535] (issue 28; the persson
+ *               models' and sumner's compaction memory: height units the
+ *               column has been compacted by, docs/materials.md)
+ *
+ * They live in the world, not in the engine or the ground, so that the store
+ * logs and snapshots them with the heights of the same rectangles and
+ * recovery puts them back before the first tick (docs/storage.md).
+ *
+ * Each layer is sparse 64x64 tiles, allocated the first time a cell in them
+ * holds anything but zeros: a world nobody pressed costs a table of NULLs.
+ * The engine gathers a window's state with its heights (row 4b of the tick)
+ * and scatters it back for accepted windows only (row 4e).
  */
 #include "world/world.h"
 
 #include <stdlib.h>
 #include <string.h>
 
-#define SOIL_TILE 64
-#define SOIL_TILE_INTS ((int64_t)SOIL_TILE * SOIL_TILE * WORLD_SOIL_FIELDS)
+#define LAYER_TILE 64
+#define LAYER_FIELDS_MAX WORLD_SOIL_FIELDS
 
-struct world_soil {
+struct world_layer {
+    int fields; /* int32 per cell */
     int tiles_x, tiles_y;
-    int32_t **tiles; /* NULL entries: never pressed */
+    int32_t **tiles; /* NULL entries: never written with anything but zeros */
     int64_t allocated;
-    int64_t sums[WORLD_SOIL_FIELDS]; /* kept by every scatter, so a sum costs nothing */
+    int64_t sums[LAYER_FIELDS_MAX]; /* kept by every scatter, so a sum costs nothing */
 };
+
+static int64_t tile_ints(const struct world_layer *l)
+{
+    return (int64_t)LAYER_TILE * LAYER_TILE * l->fields;
+}
+
+static int layer_enable(const world *w, struct world_layer **slot, int fields)
+{
+    if (*slot)
+        return 0;
+    struct world_layer *l = calloc(1, sizeof *l);
+    if (!l)
+        return -1;
+    l->fields = fields;
+    l->tiles_x = (w->width + LAYER_TILE - 1) / LAYER_TILE;
+    l->tiles_y = (w->height + LAYER_TILE - 1) / LAYER_TILE;
+    l->tiles = calloc((size_t)l->tiles_x * (size_t)l->tiles_y + 1, sizeof *l->tiles);
+    if (!l->tiles) {
+        free(l);
+        return -1;
+    }
+    *slot = l;
+    return 0;
+}
+
+static void layer_free(struct world_layer **slot)
+{
+    struct world_layer *l = *slot;
+    if (!l)
+        return;
+    for (int64_t i = 0; i < (int64_t)l->tiles_x * l->tiles_y; i++)
+        free(l->tiles[i]);
+    free(l->tiles);
+    free(l);
+    *slot = NULL;
+}
+
+/* The state of world cell (x, y), or NULL where its tile was never written. */
+static int32_t *layer_cell(const struct world_layer *l, int x, int y)
+{
+    if (!l)
+        return NULL;
+    int32_t *t = l->tiles[(int64_t)(y / LAYER_TILE) * l->tiles_x + x / LAYER_TILE];
+    if (!t)
+        return NULL;
+    return t + ((int64_t)(y % LAYER_TILE) * LAYER_TILE + x % LAYER_TILE) * l->fields;
+}
+
+/* r into dst, `fields` per cell; zeros where nothing was written (l may be NULL). */
+static void layer_gather(const struct world_layer *l, int fields, world_rect r, int32_t *dst)
+{
+    for (int y = 0; y < r.h; y++)
+        for (int x = 0; x < r.w; x++) {
+            int32_t *d = dst + ((int64_t)y * r.w + x) * fields;
+            const int32_t *s = layer_cell(l, r.x + x, r.y + y);
+            for (int f = 0; f < fields; f++)
+                d[f] = s ? s[f] : 0;
+        }
+}
+
+static int all_zero(const int32_t *v, int fields)
+{
+    for (int f = 0; f < fields; f++)
+        if (v[f])
+            return 0;
+    return 1;
+}
+
+static int layer_scatter(struct world_layer *l, world_rect r, const int32_t *src)
+{
+    for (int y = 0; y < r.h; y++)
+        for (int x = 0; x < r.w; x++) {
+            const int32_t *s = src + ((int64_t)y * r.w + x) * l->fields;
+            int wx = r.x + x, wy = r.y + y;
+            int32_t *d = layer_cell(l, wx, wy);
+            if (!d) {
+                if (all_zero(s, l->fields))
+                    continue; /* nothing to remember: no tile */
+                int64_t t = (int64_t)(wy / LAYER_TILE) * l->tiles_x + wx / LAYER_TILE;
+                l->tiles[t] = calloc((size_t)tile_ints(l), sizeof(int32_t));
+                if (!l->tiles[t])
+                    return -1;
+                l->allocated++;
+                d = layer_cell(l, wx, wy);
+            }
+            for (int f = 0; f < l->fields; f++)
+                l->sums[f] += (int64_t)s[f] - d[f];
+            memcpy(d, s, (size_t)l->fields * sizeof *d);
+        }
+    return 0;
+}
+
+static int layer_rect_empty(const struct world_layer *l, world_rect r)
+{
+    if (!l)
+        return 1;
+    for (int ty = r.y / LAYER_TILE; ty <= (r.y + r.h - 1) / LAYER_TILE; ty++)
+        for (int tx = r.x / LAYER_TILE; tx <= (r.x + r.w - 1) / LAYER_TILE; tx++)
+            if (l->tiles[(int64_t)ty * l->tiles_x + tx])
+                return 0;
+    return 1;
+}
+
+static void layer_cell_copy(const world *w, const struct world_layer *l, int fields, int x, int y,
+                            int32_t *out)
+{
+    const int32_t *s = NULL;
+    if (x >= 0 && y >= 0 && x < w->width && y < w->height)
+        s = layer_cell(l, x, y);
+    for (int f = 0; f < fields; f++)
+        out[f] = s ? s[f] : 0;
+}
+
+static uint64_t layer_bytes(const struct world_layer *l)
+{
+    if (!l)
+        return 0;
+    return (uint64_t)l->allocated * (uint64_t)tile_ints(l) * sizeof(int32_t) +
+           (uint64_t)l->tiles_x * (uint64_t)l->tiles_y * sizeof(int32_t *);
+}
+
+/* ---- soil ---- */
 
 int world_soil_enable(world *w)
 {
-    if (w->soil)
-        return 0;
-    struct world_soil *s = calloc(1, sizeof *s);
-    if (!s)
-        return -1;
-    s->tiles_x = (w->width + SOIL_TILE - 1) / SOIL_TILE;
-    s->tiles_y = (w->height + SOIL_TILE - 1) / SOIL_TILE;
-    s->tiles = calloc((size_t)s->tiles_x * (size_t)s->tiles_y + 1, sizeof *s->tiles);
-    if (!s->tiles) {
-        free(s);
-        return -1;
-    }
-    w->soil = s;
-    return 0;
+    return layer_enable(w, &w->soil, WORLD_SOIL_FIELDS);
 }
 
 int world_soil_enabled(const world *w)
@@ -51,83 +167,24 @@ int world_soil_enabled(const world *w)
 
 void world_soil_free(world *w)
 {
-    struct world_soil *s = w->soil;
-    if (!s)
-        return;
-    for (int64_t i = 0; i < (int64_t)s->tiles_x * s->tiles_y; i++)
-        free(s->tiles[i]);
-    free(s->tiles);
-    free(s);
-    w->soil = NULL;
-}
-
-/* The state of world cell (x, y), or NULL where its tile was never pressed. */
-static int32_t *soil_cell(const struct world_soil *s, int x, int y)
-{
-    if (!s)
-        return NULL;
-    int32_t *t = s->tiles[(int64_t)(y / SOIL_TILE) * s->tiles_x + x / SOIL_TILE];
-    if (!t)
-        return NULL;
-    return t + ((int64_t)(y % SOIL_TILE) * SOIL_TILE + x % SOIL_TILE) * WORLD_SOIL_FIELDS;
+    layer_free(&w->soil);
 }
 
 void world_soil_gather(const world *w, world_rect r, int32_t *dst)
 {
-    for (int y = 0; y < r.h; y++)
-        for (int x = 0; x < r.w; x++) {
-            int32_t *d = dst + ((int64_t)y * r.w + x) * WORLD_SOIL_FIELDS;
-            const int32_t *s = soil_cell(w->soil, r.x + x, r.y + y);
-            for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
-                d[f] = s ? s[f] : 0;
-        }
-}
-
-static int all_zero(const int32_t *v)
-{
-    for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
-        if (v[f])
-            return 0;
-    return 1;
+    layer_gather(w->soil, WORLD_SOIL_FIELDS, r, dst);
 }
 
 int world_soil_scatter(world *w, world_rect r, const int32_t *src)
 {
     if (world_soil_enable(w) != 0)
         return -1;
-    struct world_soil *l = w->soil;
-    for (int y = 0; y < r.h; y++)
-        for (int x = 0; x < r.w; x++) {
-            const int32_t *s = src + ((int64_t)y * r.w + x) * WORLD_SOIL_FIELDS;
-            int wx = r.x + x, wy = r.y + y;
-            int32_t *d = soil_cell(l, wx, wy);
-            if (!d) {
-                if (all_zero(s))
-                    continue; /* nothing to remember: no tile */
-                int64_t t = (int64_t)(wy / SOIL_TILE) * l->tiles_x + wx / SOIL_TILE;
-                l->tiles[t] = calloc((size_t)SOIL_TILE_INTS, sizeof(int32_t));
-                if (!l->tiles[t])
-                    return -1;
-                l->allocated++;
-                d = soil_cell(l, wx, wy);
-            }
-            for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
-                l->sums[f] += (int64_t)s[f] - d[f];
-            memcpy(d, s, WORLD_SOIL_FIELDS * sizeof *d);
-        }
-    return 0;
+    return layer_scatter(w->soil, r, src);
 }
 
 int world_soil_rect_empty(const world *w, world_rect r)
 {
-    const struct world_soil *s = w->soil;
-    if (!s)
-        return 1;
-    for (int ty = r.y / SOIL_TILE; ty <= (r.y + r.h - 1) / SOIL_TILE; ty++)
-        for (int tx = r.x / SOIL_TILE; tx <= (r.x + r.w - 1) / SOIL_TILE; tx++)
-            if (s->tiles[(int64_t)ty * s->tiles_x + tx])
-                return 0;
-    return 1;
+    return layer_rect_empty(w->soil, r);
 }
 
 int64_t world_soil_sum(const world *w, int field)
@@ -137,18 +194,56 @@ int64_t world_soil_sum(const world *w, int field)
 
 void world_soil_cell(const world *w, int x, int y, int32_t *out)
 {
-    const int32_t *s = NULL;
-    if (x >= 0 && y >= 0 && x < w->width && y < w->height)
-        s = soil_cell(w->soil, x, y);
-    for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
-        out[f] = s ? s[f] : 0;
+    layer_cell_copy(w, w->soil, WORLD_SOIL_FIELDS, x, y, out);
 }
 
-uint64_t world_soil_bytes(const world *w)
+/* ---- compaction memory ---- */
+
+int world_compaction_enable(world *w)
 {
-    const struct world_soil *s = w->soil;
-    if (!s)
-        return 0;
-    return (uint64_t)s->allocated * (uint64_t)SOIL_TILE_INTS * sizeof(int32_t) +
-           (uint64_t)s->tiles_x * (uint64_t)s->tiles_y * sizeof(int32_t *);
+    return layer_enable(w, &w->compaction, 1);
+}
+
+int world_compaction_enabled(const world *w)
+{
+    return w->compaction != NULL;
+}
+
+void world_compaction_free(world *w)
+{
+    layer_free(&w->compaction);
+}
+
+void world_compaction_gather(const world *w, world_rect r, int32_t *dst)
+{
+    layer_gather(w->compaction, 1, r, dst);
+}
+
+int world_compaction_scatter(world *w, world_rect r, const int32_t *src)
+{
+    if (world_compaction_enable(w) != 0)
+        return -1;
+    return layer_scatter(w->compaction, r, src);
+}
+
+int world_compaction_rect_empty(const world *w, world_rect r)
+{
+    return layer_rect_empty(w->compaction, r);
+}
+
+int64_t world_compaction_sum(const world *w)
+{
+    return w->compaction ? w->compaction->sums[0] : 0;
+}
+
+int32_t world_compaction_cell(const world *w, int x, int y)
+{
+    int32_t v;
+    layer_cell_copy(w, w->compaction, 1, x, y, &v);
+    return v;
+}
+
+uint64_t world_compaction_bytes(const world *w)
+{
+    return layer_bytes(w->compaction);
 }

@@ -156,7 +156,7 @@ test('the document is valid OpenAPI 3 and describes every endpoint', () => {
   const version = /project\(terrad VERSION (\d+\.\d+\.\d+)/.exec(readFileSync(path.join(root, 'CMakeLists.txt'), 'utf8'))[1];
   assert.equal(api.info.version, version, 'info.version is the version of CMakeLists.txt\'s project()');
   for (const p of ['/healthz', '/readyz', '/metrics', '/v1/world', '/v1/twin', '/v1/stats', '/v1/heights',
-    '/v1/openapi.yaml', '/']) {
+    '/v1/websocket', '/v1/openapi.yaml', '/']) {
     assert.ok(api.paths[p] && api.paths[p].get, `GET ${p} is described`);
   }
 });
@@ -171,6 +171,10 @@ test('probes, metrics, world and stats match the document', async () => {
   const { json: twin } = await fetchChecked('twin config', '/v1/twin', 200);
   assert.equal(twin.width, world.width);
   assert.equal(twin.model, world.models[0]);
+  const { json: ws } = await fetchChecked('websocket', '/v1/websocket', 200);
+  assert.match(ws.url, /^ws:\/\/127\.0\.0\.1:\d+\/$/);
+  assert.equal(ws.url, `ws://127.0.0.1:${ws.port}/`);
+  await fetchChecked('websocket without a usable Host', '/v1/websocket', 400, { headers: { Host: 'bad"host' } });
   const { json: stats } = await fetchChecked('stats', '/v1/stats', 200);
   assert.equal(stats.ready, true);
   await fetchChecked('HEAD stats', '/v1/stats', 200, { method: 'HEAD' });

@@ -4,16 +4,17 @@
 newcomer's path must not break unseen, as `make run` then `make test` once did.
 
 - The shell blocks (```sh) of README.md and of the pages its quick starts lead to (PAGES) are
-  read, continuation lines joined, comments dropped: one command a line.
+  read, continuation lines joined, comments dropped: one command a line; and the README's inline
+  commands (a `code span` that starts with make, terrad, ./build/terrad or scripts/deps).
 - Each command must be in COMMANDS, which says how it is exercised: run here, for real, on
   loopback (free ports; the docs' 8080/8081, make run's defaults, become the daemon's own, and
   ./build/terrad the binary under test), or the name of the test that runs it, or why it cannot
   run in a test at all (`make test` itself). A command the docs gain that COMMANDS does not know
   fails, and so does an entry of COMMANDS the docs no longer show (a stale table).
 - Run here: `make run` itself (the daemon up, GET /healthz 200, GET /terrad_twin.wasm a wasm
-  module, SIGTERM, make exits 0), `scripts/deps --python`, the game backend's curl calls (an
-  edit's exact volume change, a world created, listed and deleted), an export of a data
-  directory, an offline simulate, and token add / token hash.
+  module, SIGTERM, make exits 0), `scripts/deps` and its sets, `terrad --help`, the game
+  backend's curl calls (an edit's exact volume change, a world created, listed and deleted), an
+  export of a data directory, an offline simulate, and token add / token hash.
 - The docs' links: every relative link of README.md and docs/**/*.md leads to a file (and a
   heading, for a #fragment into a page), and docs/README.md names every page of docs/.
 """
@@ -50,6 +51,14 @@ def shell_commands(text):
             if line and not line.startswith("#"):
                 out.append(re.sub(r"\s+", " ", line))
     return out
+
+
+def inline_commands(text):
+    """The commands in text's inline code spans (outside fenced blocks): those that start with
+    make, terrad, ./build/terrad or scripts/deps."""
+    text = re.sub(r"```.*?```", "", text, flags=re.S).replace("\n", " ")
+    return [re.sub(r"\s+", " ", c.strip()) for c in re.findall(r"`([^`]+)`", text)
+            if re.match(r"(make|terrad|\./build/terrad|scripts/deps)( |$)", c.strip())]
 
 
 def sub(cmd, d=None):
@@ -145,9 +154,16 @@ def run_make_run(cmd, ctx):
             print(open(log, errors="replace").read()[-4000:])
 
 
-def run_deps_python(cmd, ctx):
-    r = sh(cmd)  # make test installed --test, which includes --python: nothing to install
+def run_deps(cmd, ctx):
+    r = sh(cmd)  # make test installed --test, which includes every set: nothing to install
     check(r.returncode == 0, f"{cmd}: {r.returncode} {r.stdout[-500:]} {r.stderr[-500:]}")
+
+
+def run_help(cmd, ctx):
+    r = sh(sub(cmd.replace("terrad", "./build/terrad", 1)))
+    out = r.stdout + r.stderr
+    check(r.returncode == 0 and all(c in out for c in ("serve", "simulate", "export", "calibrate")),
+          f"{cmd}: exits 0 and names the commands ({r.returncode}): {out[:300]}")
 
 
 def run_curl_edit(cmd, ctx):
@@ -240,11 +256,24 @@ COMMANDS = {
     # README.md
     "make run": run_make_run,
     "make test": "-: the whole suite, of which this test is one; .ci/run runs it after make run",
+    # README.md, inline
+    "make run ARGS=--no-demo": "test_serve: --no-demo (every daemon of the tests but the demo's "
+                               "runs it; make run with ARGS runs here, with its ports)",
+    "terrad --help": run_help,
+    "make test-stress": "-: make test, of which this test is one, beside a CPU hog",
+    "make build": "-: what make test does first; every test here runs on what it built",
+    "make install": "test_install: what it installs, used as a user would",
+    "make screenshot": "test_screenshot: scripts/screenshot.mjs against a real daemon",
+    "terrad calibrate": "test_calibrate: plates and the Ding 2011 wheel",
+    "terrad simulate": "test_simulate: every method and metric on both backends",
+    "scripts/deps": run_deps,
+    "scripts/deps --build": run_deps,
+    "scripts/deps --runtime": run_deps,
     # docs/clients.md
     "make web-deps": "-: npm ci replaces node_modules, which the browser tests use while this one "
                      "runs; make test runs it as its first step",
     "cd clients/js && npm pack": "test_ts_client: packs the package, installs the tarball, runs it",
-    "scripts/deps --python": run_deps_python,
+    "scripts/deps --python": run_deps,
     "/usr/bin/python3 -m venv --system-site-packages venv":
         "test_python_package: a fresh venv that sees Debian's modules",
     "venv/bin/pip install --no-deps --no-build-isolation ./clients/python":
@@ -333,8 +362,12 @@ def main():
     shown = {}
     for page in PAGES:
         with open(os.path.join(SOURCE, page), encoding="utf-8") as f:
-            for cmd in shell_commands(f.read()):
-                shown.setdefault(cmd, page)
+            text = f.read()
+        for cmd in shell_commands(text):
+            shown.setdefault(cmd, page)
+        if page == "README.md":
+            for cmd in inline_commands(text):
+                shown.setdefault(cmd, "README.md (inline)")
     for cmd, page in shown.items():
         check(cmd in COMMANDS, f"{page} shows a command that no test knows: {cmd!r} "
                                "(run it in a test and add it to COMMANDS here)")

@@ -47,7 +47,7 @@ with tempfile.TemporaryDirectory(prefix="terrad-screenshot-") as tmp:
     d = Daemon(backend="cpu", demo=True, extra=("--no-data",), name="terrad-screenshot")
     with check.running(d):
         # A generous wait: software WebGL on a busy CI machine draws a frame in seconds.
-        r = screenshot("--url", f"{d.http}/?ws={d.ws_port}", "--out", out, "--size", "640x400",
+        r = screenshot("--url", f"{d.http}/", "--out", out, "--size", "640x400",
                        "--timeout", "300")
         print(r.stdout.strip(), r.stderr.strip()[-2000:])
         check(r.returncode == 0 and os.path.exists(out), f"screenshot exits 0 with a PNG: {r.returncode}")

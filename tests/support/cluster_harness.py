@@ -264,10 +264,11 @@ class Node:
         status, body = self.get("/v1/stats" + (f"?world={world}" if world else ""))
         return json.loads(body) if status == 200 else None
 
-    def heights(self, world, x, y, w, h):
-        """(tick, heights) of GET /v1/heights?world=..."""
+    def heights(self, world, x, y, w, h, layer=None):
+        """(tick, heights) of GET /v1/heights?world=... (layer="compaction": the memory)"""
+        extra = f"&layer={layer}" if layer else ""
         with urllib.request.urlopen(f"{self.http}/v1/heights?world={world}&x={x}&y={y}&w={w}"
-                                    f"&h={h}", timeout=10) as r:
+                                    f"&h={h}{extra}", timeout=10) as r:
             tick = r.headers.get("X-Terrad-Tick")
             body = r.read()
         return (int(tick) if tick else None), list(struct.unpack(f"<{w * h}i", body))

@@ -99,12 +99,18 @@ def flat_scene(name, width, height, cell_size_m, ground_m, material):
             "colliders": []}
 
 
+def json_file(doc, prefix):
+    """doc written to a new temporary .json file; its path (the caller removes it)."""
+    fd, path = tempfile.mkstemp(prefix=f"{prefix}-", suffix=".json")
+    with os.fdopen(fd, "w") as f:
+        json.dump(doc, f)
+    return path
+
+
 def serve_scene(check, scene, scenario, name="terrad"):
     """Run the coroutine scenario(d) against a daemon serving scene (a dict,
     written to a temporary scene file that is removed afterwards)."""
-    fd, path = tempfile.mkstemp(prefix=f"{name}-", suffix=".json")
-    with os.fdopen(fd, "w") as f:
-        json.dump(scene, f)
+    path = json_file(scene, name)
     try:
         with check.running(Daemon(extra=["--scene", path], name=name)) as d:
             asyncio.run(scenario(d))
@@ -427,13 +433,15 @@ class Daemon:
     def world(self):
         return json.loads(self.get("/v1/world")[1])
 
-    def heights(self, x, y, w, h, busy_s=60):
-        """(tick, list of w*h int32) from GET /v1/heights. A 503 "retry" (the sim
-        thread, which serves reads between ticks, was too busy to answer within
-        its read timeout: a loaded machine) is asked again for up to busy_s."""
+    def heights(self, x, y, w, h, busy_s=60, layer=None):
+        """(tick, list of w*h int32) from GET /v1/heights (layer="compaction": the
+        compaction memory instead). A 503 "retry" (the sim thread, which serves
+        reads between ticks, was too busy to answer within its read timeout: a
+        loaded machine) is asked again for up to busy_s."""
         end = time.monotonic() + busy_s
+        extra = f"&layer={layer}" if layer else ""
         while True:
-            status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}")
+            status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}{extra}")
             if status != 503 or b"retry" not in body or time.monotonic() > end:
                 break
             time.sleep(0.2)

@@ -10,12 +10,9 @@ last steps agree), so how many idle ticks a loaded machine adds does not matter.
 
 Not a test itself (ctest registers only test_*.py). Run with /usr/bin/python3.
 """
-import json
 import math
-import os
-import tempfile
 
-from service_harness import RecordingClient
+from service_harness import RecordingClient, json_file
 import terrad as tp
 
 W, H, CELL, GROUND = 96, 48, 0.05, 0.4
@@ -58,10 +55,7 @@ def scene():
 
 def scene_file():
     """The scene in a temporary file (the caller removes it)."""
-    fd, path = tempfile.mkstemp(prefix="terrad-soil-recovery-", suffix=".json")
-    with os.fdopen(fd, "w") as f:
-        json.dump(scene(), f)
-    return path
+    return json_file(scene(), "terrad-soil-recovery")
 
 
 def wheel_pose(cid, x, angle, press):

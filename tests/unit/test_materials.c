@@ -99,8 +99,7 @@ static void test_table_and_map(void)
         CHECK(g.material_count == 3 && !g.uniform, "three materials, not uniform");
         CHECK(g.materials[1].roughness == 0.4, "override wins over the preset");
         CHECK(g.uses_compaction, "snow compacts: the layer exists");
-        CHECK(ground_compaction_bytes(&g) == (uint64_t)g.tiles_x * g.tiles_y * sizeof(void *),
-              "no compaction tile before anything is compacted");
+        CHECK(world_compaction_bytes(&w) == 0, "no compaction memory before anything is compacted");
         uint8_t ids[100 * 60];
         ground_gather_ids(&g, (world_rect){0, 0, 100, 60}, ids);
         CHECK(ids[0] == 1, "default snow at (0,0) (%d)", ids[0]);
@@ -158,10 +157,10 @@ static void test_no_layer_without_compaction(void)
                          "\"max_compaction_m\": 1}}, \"material_map\": {\"default\": \"sand\"}}",
                          &err);
     CHECK(r == 0, "parses (%s)", r ? err.message : "");
-    CHECK(!g.uses_compaction && g.compaction_tiles == NULL && ground_compaction_bytes(&g) == 0,
+    CHECK(!g.uses_compaction && !world_compaction_enabled(&w) && world_compaction_bytes(&w) == 0,
           "compression 0 everywhere: no compaction layer");
-    uint16_t mem[4] = {1, 2, 3, 4};
-    ground_gather_compaction(&g, (world_rect){0, 0, 2, 2}, mem);
+    int32_t mem[4] = {1, 2, 3, 4};
+    world_compaction_gather(&w, (world_rect){0, 0, 2, 2}, mem);
     CHECK(mem[0] == 0 && mem[3] == 0, "no layer reads as zero");
     ground_free(&g);
     sim_material base;
@@ -218,7 +217,9 @@ static void run_window(const sim_params *p, ground *g, world *w, world_rect r,
     uint16_t *memory = malloc((size_t)n * 2);
     world_gather_window(w, r, heights);
     ground_gather_ids(g, r, ids);
-    ground_gather_compaction(g, r, memory);
+    world_compaction_gather(w, r, seed); /* the world's int32 memory, as the engine reads it */
+    for (int i = 0; i < n; i++)
+        memory[i] = (uint16_t)seed[i];
     sim_classify_materials(p, &g->table, g->uniform ? NULL : ids, memory, n, heights, bottom, raw,
                            moved, cls);
     sim_jump_flood(p, r.w, r.h, r.x, r.y, cls, seed, scratch);
@@ -227,8 +228,9 @@ static void run_window(const sim_params *p, ground *g, world *w, world_rect r,
                                   scratch);
         sim_compaction_commit(&g->table, g->uniform ? NULL : ids, n, raw, moved, memory);
         world_scatter_window(w, r, heights);
-        error_text err;
-        if (ground_scatter_compaction(g, r, memory, &err) != 0)
+        for (int i = 0; i < n; i++)
+            seed[i] = memory[i];
+        if (world_compaction_scatter(w, r, seed) != 0)
             abort();
     }
     if (raw_out)
@@ -243,16 +245,26 @@ static void run_window(const sim_params *p, ground *g, world *w, world_rect r,
     free(memory);
 }
 
-static int64_t compaction_sum(const ground *g, world_rect r)
+static int64_t compaction_sum_of(const int32_t *m, int n)
 {
-    uint16_t *m = malloc((size_t)r.w * r.h * 2);
-    ground_gather_compaction(g, r, m);
     int64_t s = 0;
-    for (int i = 0; i < r.w * r.h; i++)
+    for (int i = 0; i < n; i++)
         s += m[i];
+    return s;
+}
+
+static int64_t compaction_sum(const world *w, world_rect r)
+{
+    int32_t *m = malloc((size_t)r.w * r.h * 4);
+    world_compaction_gather(w, r, m);
+    int64_t s = compaction_sum_of(m, r.w * r.h);
     free(m);
     return s;
 }
+
+/* A 128² world's compaction memory with one 64² tile allocated: the tile
+ * (int32 per cell) and the 2x2 tile directory. */
+#define ONE_MEMORY_TILE_128 ((uint64_t)64 * 64 * 4 + 4 * sizeof(int32_t *))
 
 /* The same footprint pressed 500 units below the current surface, pass after
  * pass: snow sinks less each time, and Σh + Σmemory is exact. */
@@ -285,9 +297,9 @@ static void test_repeated_passes_sink_less(void)
             bottom[i] =
                 (x >= 10 && x < 14 && y >= 10 && y < 14) ? here - 500 : COLLIDER_BOTTOM_NONE;
         }
-        int64_t mem_before = compaction_sum(&g, win);
+        int64_t mem_before = compaction_sum(&w, win);
         run_window(&p, &g, &w, win, bottom, raw);
-        int64_t mem_after = compaction_sum(&g, win);
+        int64_t mem_after = compaction_sum(&w, win);
         int64_t now = world_rect_volume(&w, (world_rect){0, 0, 128, 128});
         if (now + (mem_after - mem_before) != volume)
             accounted = 0;
@@ -304,8 +316,11 @@ static void test_repeated_passes_sink_less(void)
     CHECK(last_sink < 250, "after 12 passes the snow carries the collider (sinks %d of 500)",
           last_sink);
     CHECK(accounted, "Σh falls by exactly the compacted units");
-    CHECK(g.compaction_tiles_allocated == 1, "one compaction tile allocated (%lld)",
-          (long long)g.compaction_tiles_allocated);
+    CHECK(world_compaction_bytes(&w) == ONE_MEMORY_TILE_128,
+          "one compaction tile allocated (%llu bytes)",
+          (unsigned long long)world_compaction_bytes(&w));
+    CHECK(world_compaction_sum(&w) == compaction_sum(&w, (world_rect){0, 0, 128, 128}),
+          "the world's Σ memory is kept exactly as cells are written");
     /* the same passes on sand (compression 0): the volume is exact, no memory */
     int64_t before = world_rect_volume(&w, (world_rect){0, 0, 128, 128});
     world_rect sand = {80, 80, 24, 24};
@@ -323,7 +338,7 @@ static void test_repeated_passes_sink_less(void)
     CHECK(world_rect_volume(&w, (world_rect){0, 0, 128, 128}) == before, "sand keeps Σh exactly");
     CHECK(sand_sink[0] == 500 && sand_sink[2] == 500, "sand does not harden (%d, %d)", sand_sink[0],
           sand_sink[2]);
-    CHECK(compaction_sum(&g, sand) == 0 && g.compaction_tiles_allocated == 1,
+    CHECK(compaction_sum(&w, sand) == 0 && world_compaction_bytes(&w) == ONE_MEMORY_TILE_128,
           "no memory written for sand");
     free(bottom);
     free(raw);
@@ -423,7 +438,7 @@ static void test_engine_compaction(void)
     sim_collider col = {.id = 1, .geometry = &sphere};
     col.pose.orientation = (quatd){1, 0, 0, 0};
     world_rect all = {0, 0, 64, 64};
-    int64_t invariant = world_volume(&w) + compaction_sum(&g, all);
+    int64_t invariant = world_volume(&w) + compaction_sum(&w, all);
     int32_t last_drop = INT32_MAX, last_contact = -1;
     int drops_monotone = 1, contact_monotone = 1, exact = 1;
     int32_t first_drop = 0, drop = 0, contact = 0;
@@ -433,8 +448,28 @@ static void test_engine_compaction(void)
         col.previous_pose = col.pose;
         col.has_previous = pass > 1;
         int32_t before = height_at(&w, 32, 32);
+        static int32_t mem_before[64 * 64], mem_after[64 * 64];
+        world_compaction_gather(&w, all, mem_before);
         sim_tick_report rep;
         CHECK(sim_engine_tick(e, &col, 1, &rep, &err) == 0, "tick %d", pass);
+        /* every cell whose memory changed is in a rectangle the store logs */
+        world_compaction_gather(&w, all, mem_after);
+        int logged = 1, changed = 0;
+        for (int c = 0; c < 64 * 64; c++) {
+            if (mem_before[c] == mem_after[c])
+                continue;
+            changed++;
+            int in = 0;
+            for (int k = 0; k < rep.dirty_count + rep.state_dirty_count; k++) {
+                world_rect d =
+                    k < rep.dirty_count ? rep.dirty[k] : rep.state_dirty[k - rep.dirty_count];
+                in |= c % 64 >= d.x && c % 64 < d.x + d.w && c / 64 >= d.y && c / 64 < d.y + d.h;
+            }
+            logged &= in;
+        }
+        CHECK(logged && (changed > 0 || pass > 1),
+              "tick %d: the %d cells whose memory changed are in the logged rectangles", pass,
+              changed);
         drop = before - height_at(&w, 32, 32);
         int32_t bottom = (int32_t)floor((z - 0.3) * 10000);
         contact = height_at(&w, 32, 32) - bottom;
@@ -442,7 +477,7 @@ static void test_engine_compaction(void)
             first_drop = drop;
         drops_monotone &= drop <= last_drop;
         contact_monotone &= contact >= last_contact;
-        exact &= world_volume(&w) + compaction_sum(&g, all) == invariant;
+        exact &= world_volume(&w) + compaction_sum(&w, all) == invariant;
         last_drop = drop;
         last_contact = contact;
     }
@@ -451,6 +486,18 @@ static void test_engine_compaction(void)
     CHECK(contact_monotone && contact > 0,
           "the compacted snow carries the collider: contact depth grows (last %d)", contact);
     CHECK(exact, "Σh + Σmemory exact through the engine");
+    CHECK(sim_world_compacted(&w) == compaction_sum(&w, all) && sim_world_compacted(&w) > 0,
+          "the world's compacted total is Σ memory (%lld)", (long long)sim_world_compacted(&w));
+    /* a tick the store refuses is undone: memory back as it was gathered */
+    static int32_t kept[64 * 64], undone[64 * 64];
+    world_compaction_gather(&w, all, kept);
+    col.pose.position.z -= 0.05;
+    sim_tick_report rep;
+    CHECK(sim_engine_tick(e, &col, 1, &rep, &err) == 0, "one more tick");
+    CHECK(compaction_sum(&w, all) != compaction_sum_of(kept, 64 * 64), "it compacted more");
+    sim_engine_undo_state(e);
+    world_compaction_gather(&w, all, undone);
+    CHECK(memcmp(kept, undone, sizeof kept) == 0, "sim_engine_undo_state puts the memory back");
     sim_engine_destroy(e);
     cpu->destroy(cpu);
     ground_free(&g);

@@ -5,8 +5,9 @@
  * that is not the last refused, truncated and bit-flipped tile snapshots
  * refused naming the file, a manifest of another world refused, the
  * directory lock, the ENOSPC fault hook (nothing appended, recovery when it
- * goes), group commit's promise, no temporary files left behind, and the
- * bekker model's per-cell soil state through the log and snapshots.
+ * goes), group commit's promise, no temporary files left behind, the
+ * bekker model's per-cell soil state and the compaction memory through the
+ * log and snapshots (old formats still read).
  */
 #include "test_params.h"
 #include <dirent.h>
@@ -16,6 +17,8 @@
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
+
+#include <zstd.h>
 
 #include "store/store.h"
 #include "world/world.h"
@@ -493,40 +496,49 @@ static void test_group_commit(void)
     world_free(&live);
 }
 
-/* The soil state of the whole world, dense. */
-static int32_t *dense_soil(const world *w)
-{
-    int32_t *all = malloc((size_t)W * H * WORLD_SOIL_FIELDS * sizeof *all);
-    if (!all)
-        exit(2);
-    world_soil_gather(w, (world_rect){0, 0, W, H}, all);
-    return all;
-}
+/* A per-cell layer of the world, as these tests drive it: the soil state or
+ * the compaction memory, its fields per cell, how far right its ticks reach
+ * (so the right-hand tiles never hold any) and how a tick changes a value. */
+typedef struct test_layer {
+    int fields;
+    int x_max;
+    void (*gather)(const world *w, world_rect r, int32_t *dst);
+    int (*scatter)(world *w, world_rect r, const int32_t *src);
+    int64_t (*sum)(const world *w, int field);
+    int32_t (*next)(int32_t old, int64_t i, int k);
+} test_layer;
 
-static int same_soil(const world *a, const world *b)
+/* 1 when a's layer equals b's, cell for cell and in every field's kept sum. */
+static int same_layer(const world *a, const world *b, const test_layer *l)
 {
-    int32_t *da = dense_soil(a), *db = dense_soil(b);
-    int same = memcmp(da, db, (size_t)W * H * WORLD_SOIL_FIELDS * 4) == 0;
+    size_t ints = (size_t)W * H * (size_t)l->fields;
+    int32_t *da = malloc(ints * 4), *db = malloc(ints * 4);
+    if (!da || !db)
+        exit(2);
+    l->gather(a, (world_rect){0, 0, W, H}, da);
+    l->gather(b, (world_rect){0, 0, W, H}, db);
+    int same = memcmp(da, db, ints * 4) == 0;
     free(da);
     free(db);
-    for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
-        same &= world_soil_sum(a, f) == world_soil_sum(b, f);
+    for (int f = 0; f < l->fields; f++)
+        same &= l->sum(a, f) == l->sum(b, f);
     return same;
 }
 
-/* A tick of a soil model: heights change in one rectangle, the soil state in
- * it and (heights untouched: a wheel resting, its shear reset) in another,
- * kept left of x = 400 so the right-hand tiles never hold any. */
-static int soil_tick(store *st, world *w, uint64_t tick)
+/* A tick of a model with per-cell state: heights fall and the state changes
+ * in one rectangle, and the state alone in another (heights untouched: a
+ * wheel resting while its shear resets, a column pressed and refilled by its
+ * neighbours in the same tick). */
+static int layer_tick(store *st, world *w, uint64_t tick, const test_layer *l)
 {
     world_rect r[2];
     for (int k = 0; k < 2; k++) {
         r[k].w = 1 + (int)(test_next_random(&rng) % 60);
         r[k].h = 1 + (int)(test_next_random(&rng) % 60);
-        r[k].x = (int)(test_next_random(&rng) % (uint32_t)(400 - r[k].w));
+        r[k].x = (int)(test_next_random(&rng) % (uint32_t)(l->x_max - r[k].w));
         r[k].y = (int)(test_next_random(&rng) % (uint32_t)(H - r[k].h));
         int64_t n = (int64_t)r[k].w * r[k].h;
-        int32_t *cells = malloc((size_t)n * WORLD_SOIL_FIELDS * sizeof *cells);
+        int32_t *cells = malloc((size_t)n * (size_t)l->fields * sizeof *cells);
         if (!cells)
             exit(2);
         if (k == 0) {
@@ -535,17 +547,25 @@ static int soil_tick(store *st, world *w, uint64_t tick)
                 cells[i] -= (int32_t)(test_next_random(&rng) % 50);
             world_scatter_window(w, r[k], cells);
         }
-        world_soil_gather(w, r[k], cells);
-        for (int64_t i = 0; i < n * WORLD_SOIL_FIELDS; i++)
-            cells[i] = k == 1 && i % WORLD_SOIL_FIELDS == 1
-                           ? 0
-                           : cells[i] + (int32_t)(test_next_random(&rng) % 1000);
-        if (world_soil_scatter(w, r[k], cells) != 0)
+        l->gather(w, r[k], cells);
+        for (int64_t i = 0; i < n * l->fields; i++)
+            cells[i] = l->next(cells[i], i, k);
+        if (l->scatter(w, r[k], cells) != 0)
             exit(2);
         free(cells);
     }
     return store_commit_tick(st, w, tick, r, 2);
 }
+
+/* bekker's soil: the shear (field 1) reset where only the state changes */
+static int32_t soil_next(int32_t old, int64_t i, int k)
+{
+    return k == 1 && i % WORLD_SOIL_FIELDS == 1 ? 0
+                                                : old + (int32_t)(test_next_random(&rng) % 1000);
+}
+
+static const test_layer soil_layer = {
+    WORLD_SOIL_FIELDS, 400, world_soil_gather, world_soil_scatter, world_soil_sum, soil_next};
 
 /* The per-cell soil state (issue 21) through the log and through snapshots
  * (format 2 where a tile holds soil, format 1 elsewhere), recovered exactly
@@ -564,7 +584,8 @@ static void test_soil_state(void)
     if (!st)
         return;
     for (uint64_t t = 1; t <= 30; t++)
-        CHECK(soil_tick(st, &live, t) == 0, "soil tick %llu logged", (unsigned long long)t);
+        CHECK(layer_tick(st, &live, t, &soil_layer) == 0, "soil tick %llu logged",
+              (unsigned long long)t);
     world_rect far = {500, 10, 20, 20}; /* heights only, in a tile without soil */
     int32_t *cells = malloc((size_t)far.w * far.h * sizeof *cells);
     world_gather_window(&live, far, cells);
@@ -576,7 +597,7 @@ static void test_soil_state(void)
     st = open_dir(&back, &rec, 0, &err);
     CHECK(st && rec.tick == 31 && rec.records_replayed == 31, "log replay: tick %llu: %s",
           (unsigned long long)rec.tick, err.message);
-    CHECK(same_heights(&live, &back) && same_soil(&live, &back),
+    CHECK(same_heights(&live, &back) && same_layer(&live, &back, &soil_layer),
           "log replay: heights and every cell's soil state as they were");
     CHECK(world_soil_sum(&back, 2) > 0, "the soil state is not all zeros");
     store_close(st);
@@ -584,12 +605,12 @@ static void test_soil_state(void)
     /* compaction into snapshots, then recovery from them */
     st = open_dir(&back, &rec, 20000, &err);
     for (uint64_t t = 32; t <= 140 && st; t++)
-        soil_tick(st, &back, t);
+        layer_tick(st, &back, t, &soil_layer);
     store_close(st);
     st = open_dir(&again, &rec, 20000, &err);
     CHECK(st && rec.tick == 140 && rec.tiles_loaded > 0, "snapshots: tick %llu, %d tiles: %s",
           (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
-    CHECK(same_heights(&back, &again) && same_soil(&back, &again),
+    CHECK(same_heights(&back, &again) && same_layer(&back, &again, &soil_layer),
           "snapshots + log: heights and every cell's soil state as they were");
     store_close(st);
     char snap[400];
@@ -600,6 +621,125 @@ static void test_soil_state(void)
           "a tile with soil is snapshot in format 2 (%u)", head[8]);
     if (f)
         fclose(f);
+    world_free(&live);
+    world_free(&back);
+    world_free(&again);
+}
+
+/* the compaction memory: grows, never past its maximum */
+static int32_t memory_next(int32_t old, int64_t i, int k)
+{
+    (void)i, (void)k;
+    int32_t m = old + (int32_t)(test_next_random(&rng) % 700);
+    return m > WORLD_COMPACTION_MAX ? WORLD_COMPACTION_MAX : m;
+}
+
+static int64_t memory_sum(const world *w, int field)
+{
+    (void)field;
+    return world_compaction_sum(w);
+}
+
+/* left of x = 256: the right-hand tiles never hold any */
+static const test_layer memory_layer = {
+    1, 256, world_compaction_gather, world_compaction_scatter, memory_sum, memory_next};
+
+static unsigned snapshot_format(int tx, int ty)
+{
+    char snap[400];
+    snprintf(snap, sizeof snap, "%s/tiles/t-%05d-%05d.snap", dir, tx, ty);
+    FILE *f = fopen(snap, "rb");
+    unsigned char head[12] = {0};
+    int ok = f && fread(head, 1, sizeof head, f) == sizeof head;
+    if (f)
+        fclose(f);
+    return ok ? head[8] : 0;
+}
+
+/* The compaction memory (issue 28) through the log and snapshots: a
+ * directory the code before it wrote (a world without the layer: records
+ * without bit 30, format 1 snapshots) still loads with its heights and zero
+ * memory; records with the memory (bit 30) and format 3 snapshots after it
+ * recover every cell's memory and Σ memory exactly; a record holding a memory
+ * outside [0, 65535] is refused whole. */
+static void test_compaction_memory(void)
+{
+    fresh_dir();
+    world old, live, back, again;
+    make_base(&old);
+    make_base(&live);
+    make_base(&back);
+    make_base(&again);
+    error_text err = {{0}};
+    store_recovery rec;
+    /* the old format: what a persson world's store held before the memory was kept */
+    store *st = open_dir(&old, &rec, 20000, &err);
+    for (uint64_t t = 1; t <= 60 && st; t++)
+        CHECK(random_tick(st, &old, t) == 0, "old-format tick %llu", (unsigned long long)t);
+    store_close(st);
+    CHECK(!world_compaction_enabled(&old) && snapshot_format(0, 0) == 1,
+          "the old store: heights-only records and format 1 snapshots (%u)", snapshot_format(0, 0));
+
+    st = open_dir(&live, &rec, 0, &err);
+    CHECK(st && rec.tick == 60 && rec.tiles_loaded > 0 && same_heights(&old, &live) &&
+              world_compaction_sum(&live) == 0,
+          "the old store loads: tick %llu, %d snapshots, heights as they were, no memory: %s",
+          (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
+    if (!st)
+        return;
+    CHECK(world_compaction_enable(&live) == 0, "the engine enables the layer");
+    for (uint64_t t = 61; t <= 90; t++)
+        CHECK(layer_tick(st, &live, t, &memory_layer) == 0, "memory tick %llu logged",
+              (unsigned long long)t);
+    store_close(st);
+    st = open_dir(&back, &rec, 0, &err);
+    CHECK(st && rec.tick == 90, "log replay: tick %llu: %s", (unsigned long long)rec.tick,
+          err.message);
+    CHECK(same_heights(&live, &back) && same_layer(&live, &back, &memory_layer) &&
+              world_compaction_sum(&back) > 0,
+          "log replay: heights and every cell's memory as they were (Σ memory %lld)",
+          (long long)world_compaction_sum(&back));
+    store_close(st);
+
+    /* compaction into snapshots, then recovery from them */
+    st = open_dir(&back, &rec, 20000, &err);
+    for (uint64_t t = 91; t <= 200 && st; t++) {
+        layer_tick(st, &back, t, &memory_layer);
+        if (t % 3 == 0)
+            random_tick(st, &back, ++t); /* heights only, the right-hand tiles too */
+    }
+    store_close(st);
+    st = open_dir(&again, &rec, 20000, &err);
+    CHECK(st && rec.tick >= 200 && rec.tiles_loaded > 0, "snapshots: tick %llu, %d tiles: %s",
+          (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
+    CHECK(same_heights(&back, &again) && same_layer(&back, &again, &memory_layer),
+          "snapshots + log: heights and every cell's memory as they were");
+    store_close(st);
+    CHECK(snapshot_format(0, 0) == 3 && snapshot_format(2, 0) == 1,
+          "a tile with memory is snapshot in format 3 (%u), one without in format 1 (%u)",
+          snapshot_format(0, 0), snapshot_format(2, 0));
+
+    /* a memory out of range: the record is malformed, nothing of it applied */
+    store_record c = {0};
+    ZSTD_CCtx *cctx = ZSTD_createCCtx();
+    world_rect r = {3, 4, 2, 1};
+    int32_t values[4] = {100, 101, 7, WORLD_COMPACTION_MAX + 1};
+    size_t len = store_record_encode(&c, cctx, 1, &r, 1, STORE_LAYER_COMPACTION, values, 0, &err);
+    int32_t h_before = 0, h_after = 0;
+    world_gather_window(&again, (world_rect){3, 4, 1, 1}, &h_before);
+    int applied = len ? store_record_apply(&c, &again, c.buf, len, NULL, NULL) : -2;
+    world_gather_window(&again, (world_rect){3, 4, 1, 1}, &h_after);
+    CHECK(applied == 1 && h_after == h_before && store_record_layers(c.buf, len) == 2,
+          "a memory of 65536 is refused whole (apply %d)", applied);
+    values[3] = WORLD_COMPACTION_MAX;
+    len = store_record_encode(&c, cctx, 1, &r, 1, STORE_LAYER_COMPACTION, values, 0, &err);
+    applied = store_record_apply(&c, &again, c.buf, len, NULL, NULL);
+    CHECK(applied == 0 && world_compaction_cell(&again, 4, 4) == WORLD_COMPACTION_MAX &&
+              world_compaction_cell(&again, 3, 4) == 7,
+          "65535 is kept");
+    ZSTD_freeCCtx(cctx);
+    store_record_free(&c);
+    world_free(&old);
     world_free(&live);
     world_free(&back);
     world_free(&again);
@@ -618,6 +758,7 @@ int main(void)
     test_fault_hook();
     test_group_commit();
     test_soil_state();
+    test_compaction_memory();
     fresh_dir();
     return check_report();
 }

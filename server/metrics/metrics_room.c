@@ -1,0 +1,69 @@
+/*
+ * metrics_room.c: the clients told to come back or to catch up, for want of
+ * room (issue 28, item 5): terrad_http_refused_total{reason}, HTTP requests
+ * answered 503 with Retry-After because they came past a connection limit
+ * while every other connection was in a request (http_guard.c, counted by
+ * the HTTP threads), and terrad_clients_behind_total, websocket clients
+ * whose own report of the tick they have handled (PROTOCOL.md "seen") fell
+ * more than max_client_lag_ticks behind what was written to them (counted
+ * by the net thread); and terrad_http_bad_requests_total, HTTP requests
+ * answered 400 (a parameter missing or wrong, named in the answer: the
+ * sender must fix it, not retry). Rendered by metrics_render.
+ */
+#include <stdatomic.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include "metrics/metrics.h"
+
+static const char *const reasons[] = {"connections_per_address", "connections"};
+static atomic_uint_fast64_t http_refused[2], behind, bad_requests;
+
+void metrics_count_http_refused(int overall)
+{
+    atomic_fetch_add_explicit(&http_refused[overall ? 1 : 0], 1, memory_order_relaxed);
+}
+
+void metrics_count_http_bad_request(void)
+{
+    atomic_fetch_add_explicit(&bad_requests, 1, memory_order_relaxed);
+}
+
+void metrics_count_client_behind(void)
+{
+    atomic_fetch_add_explicit(&behind, 1, memory_order_relaxed);
+}
+
+void metrics_room_reset(void)
+{
+    atomic_store_explicit(&http_refused[0], 0, memory_order_relaxed);
+    atomic_store_explicit(&http_refused[1], 0, memory_order_relaxed);
+    atomic_store_explicit(&behind, 0, memory_order_relaxed);
+    atomic_store_explicit(&bad_requests, 0, memory_order_relaxed);
+}
+
+static unsigned long long get(atomic_uint_fast64_t *v)
+{
+    return (unsigned long long)atomic_load_explicit(v, memory_order_relaxed);
+}
+
+int metrics_room_text(char *out, size_t cap)
+{
+    int n = snprintf(
+        out, cap,
+        "# HELP terrad_http_refused_total HTTP requests answered 503 with Retry-After, nothing "
+        "done: they came past a connection limit while every other connection was in a request "
+        "or waiting its turn.\n# TYPE terrad_http_refused_total counter\n"
+        "terrad_http_refused_total{reason=\"%s\"} %llu\n"
+        "terrad_http_refused_total{reason=\"%s\"} %llu\n"
+        "# HELP terrad_clients_behind_total Clients switched to snapshots because the tick they "
+        "said they had handled (seen) was more than max_client_lag_ticks behind what was "
+        "written to them.\n# TYPE terrad_clients_behind_total counter\n"
+        "terrad_clients_behind_total %llu\n"
+        "# HELP terrad_http_bad_requests_total HTTP requests answered 400: a parameter missing "
+        "or wrong (named in the answer).\n# TYPE terrad_http_bad_requests_total counter\n"
+        "terrad_http_bad_requests_total %llu\n",
+        reasons[0], get(&http_refused[0]), reasons[1], get(&http_refused[1]), get(&behind),
+        get(&bad_requests));
+    return n < 0 || (size_t)n >= cap ? -1 : n;
+}
