@@ -33,7 +33,8 @@ struct cluster_wal {
     char world[CLUSTER_WORLD_NAME_MAX + 1];
     char subject[128];
     uint64_t last_seq;
-    int uncertain; /* an append failed without an answer: it may have landed */
+    int uncertain;       /* an append failed without an answer: it may have landed */
+    uint64_t must_start; /* the next read's first message must be at this sequence (0: any) */
     /* a record being put together from its parts while reading */
     uint8_t *part_data;
     int64_t part_len, part_capacity;
@@ -201,27 +202,48 @@ static natsStatus wal_get_next(cluster_wal *w, uint64_t from, natsMsg **out, uin
     return s;
 }
 
-/* Delivers the messages from *from up to end, one request each; *from moves
+/* Delivers the messages from *from until the leader says there is none
+ * after (NATS_NOT_FOUND ends the pass: *done), one request each; *from moves
  * past each one, so a retry resumes there. Reading needs no consumer, so it
  * works while the cluster is still electing a meta leader after losing a
- * server. */
-static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, uint64_t end,
-                                cluster_record_fn on_record, void *ctx, int *stopped)
+ * server. *stopped: on_record refused, or the first message is not at
+ * w->must_start. */
+static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, cluster_record_fn on_record,
+                                void *ctx, int *stopped, int *done)
 {
     natsStatus s = NATS_OK;
-    while (s == NATS_OK && *from <= end && !*stopped) {
+    while (s == NATS_OK && !*stopped) {
         natsMsg *msg = NULL;
         uint64_t seq = 0;
         s = wal_get_next(w, *from, &msg, &seq);
+        if (s == NATS_NOT_FOUND) {
+            *done = 1;
+            return NATS_OK;
+        }
         if (s != NATS_OK)
             break;
-        *stopped = wal_deliver(w, msg, seq, on_record, ctx) != 0;
-        *from = seq + 1;
+        if (w->must_start && seq != w->must_start) {
+            *stopped = 1;
+        } else {
+            w->must_start = 0;
+            *stopped = wal_deliver(w, msg, seq, on_record, ctx) != 0;
+            *from = seq + 1;
+        }
         natsMsg_Destroy(msg);
     }
     return s;
 }
 
+/* The log is read to where the leader has no next message, not only to the
+ * end its last_by_subj answer named: the two answers come from different
+ * lookups of the leader's store, and the chaos runs (docs/cluster.md,
+ * "Chaos") met a leader, right after NATS servers were killed and started
+ * again, that answered "no message" to last_by_subj for a world whose log
+ * held thousands: a recovery that trusted it replayed nothing, restarted the
+ * world at tick 0, and its owner marker, expecting that empty end, was
+ * accepted — every acknowledged tick of the world lost. So both answers must
+ * agree before the log counts as read, and an end short of what was read is
+ * not believed. */
 cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
                                 void *ctx, error_text *err)
 {
@@ -234,25 +256,40 @@ cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_recor
     if (from_seq == 0)
         from_seq = 1;
     uint64_t from = from_seq;
-    int stopped = 0;
+    int stopped = 0, done = 0;
     natsStatus s = NATS_OK;
     /* Right after a server is lost, a replica may be behind or the stream's
      * leader being elected: a few passes, each resuming where it stopped. */
-    for (double deadline = time_now_ms() + 4.0 * w->cl->timeout_ms; from <= end && !stopped;) {
-        s = wal_read_pass(w, &from, end, on_record, ctx, &stopped);
+    for (double deadline = time_now_ms() + 4.0 * w->cl->timeout_ms; !done && !stopped;) {
+        s = wal_read_pass(w, &from, on_record, ctx, &stopped, &done);
         if (s == NATS_OK || time_now_ms() > deadline)
             break;
         nats_Sleep(100);
+    }
+    if (stopped && w->must_start) {
+        error_set(err,
+                  "log of world %s: the record at sequence %" PRIu64 " that the snapshot index "
+                  "covers is not there (the stream's answer is behind): not read now",
+                  w->world, w->must_start);
+        w->must_start = 0;
+        return CLUSTER_ERROR;
     }
     if (stopped) {
         error_set(err, "log of world %s: reading stopped at sequence %" PRIu64, w->world, from - 1);
         return CLUSTER_ERROR;
     }
-    if (s != NATS_OK) {
+    if (s != NATS_OK || !done) {
         cluster_error(err, s, "reading the log of world %s from sequence %" PRIu64, w->world, from);
         return CLUSTER_ERROR;
     }
-    w->last_seq = end;
+    if (end >= from) {
+        error_set(err,
+                  "log of world %s: its last message is at sequence %" PRIu64 " but reading "
+                  "it ends before %" PRIu64 " (the stream's answers disagree): not read now",
+                  w->world, end, from);
+        return CLUSTER_ERROR;
+    }
+    w->last_seq = from - 1 > end ? from - 1 : end;
     w->uncertain = 0;
     return CLUSTER_OK;
 }
@@ -354,6 +391,8 @@ cluster_status cluster_wal_append(cluster_wal *w, const void *data, size_t len, 
 cluster_status cluster_wal_take(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
                                 void *ctx, error_text *err)
 {
+    /* from_seq > 1 is a snapshot index's: the record there is never purged */
+    w->must_start = from_seq > 1 ? from_seq : 0;
     if (cluster_wal_read(w, from_seq, on_record, ctx, err) != CLUSTER_OK)
         return CLUSTER_ERROR;
     for (int attempt = 0; attempt < 100; attempt++) {

@@ -69,6 +69,7 @@ typedef struct guard_conn {
     double since_ms; /* opened, or its previous request ended */
     int in_request;  /* headers seen, the request not ended */
     int refused;     /* HTTP_GUARD_REFUSED_*: answered 503 once its request is read */
+    int served;      /* requests it has ended: a cut between two is a keep-alive's close */
     int cut;
     size_t reserved; /* heights bytes of its current request */
 } guard_conn;
@@ -130,20 +131,37 @@ static void release(http_guard *g, guard_conn *gc)
     gc->reserved = 0;
 }
 
-/* 1 when bytes the client sent wait unread in the kernel: it is not slow,
- * the HTTP threads have not got to it yet. */
-static int waits_its_turn(const guard_conn *gc)
+/* 1 when the client has sent its request's headers whole and they wait
+ * unread in the kernel: it is not slow, the HTTP threads have not got to it
+ * yet (libmicrohttpd handles headers as soon as it reads their end, so the
+ * end is among the unread bytes; one split inside "\r\n\r\n" is missed). Under TLS the bytes are
+ * ciphertext: any unread ones count. A slow sender's byte also waits a moment for a busy thread:
+ * only a whole request's headers protect it. */
+static int waits_its_turn(const http_guard *g, const guard_conn *gc)
 {
     int n = 0;
-    return gc->fd >= 0 && ioctl(gc->fd, FIONREAD, &n) == 0 && n > 0;
+    if (gc->fd < 0 || ioctl(gc->fd, FIONREAD, &n) != 0 || n <= 0)
+        return 0;
+    if (g->tls)
+        return 1;
+    char buf[4096];
+    ssize_t got = recv(gc->fd, buf, sizeof buf, MSG_PEEK | MSG_DONTWAIT);
+    if (got <= 0)
+        return 0;
+    for (ssize_t i = 0; i + 3 < got; i++)
+        if (buf[i] == '\r' && buf[i + 1] == '\n' && buf[i + 2] == '\r' && buf[i + 3] == '\n')
+            return 1;
+    return 0;
 }
 
 /* Close gc (under the lock), telling the client why first where the bytes
- * can be written straight to the socket (not TLS; nothing of a response was
- * written on it: it is between requests or before its first). */
+ * can be written straight to the socket: not TLS, and before its first
+ * request (nothing was ever written on it). An idle keep-alive connection
+ * (served) is closed as any server closes one between requests: its last
+ * answer may still be on its way, and bytes after it would be garbage. */
 static void cut(http_guard *g, guard_conn *gc, const char *status, const char *why)
 {
-    if (gc->fd >= 0 && !g->tls) {
+    if (gc->fd >= 0 && !g->tls && !gc->served) {
         char body[256], answer[512];
         int n = snprintf(body, sizeof body, "{\"error\":\"%s\"}\n", why);
         int len = snprintf(answer, sizeof answer,
@@ -165,7 +183,8 @@ static void sweep(http_guard *g)
     double now = time_now_ms();
     unsigned n = 0;
     for (guard_conn *gc = g->conns; gc; gc = gc->next) {
-        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms || waits_its_turn(gc))
+        if (gc->in_request || gc->cut || now - gc->since_ms < g->deadline_ms ||
+            waits_its_turn(g, gc))
             continue;
         cut(g, gc, "408 Request Timeout", "no whole request within the header deadline");
         n++;
@@ -258,7 +277,7 @@ static void evict_oldest(http_guard *g, guard_conn *nc, int same)
     for (guard_conn *gc = g->conns; gc; gc = gc->next)
         if (gc != nc && !gc->in_request && !gc->cut && !gc->refused &&
             (!same || same_address(gc, nc)) && (!pick || gc->since_ms <= pick->since_ms) &&
-            !waits_its_turn(gc))
+            !waits_its_turn(g, gc))
             pick = gc; /* newest first in the list: "<=" ends on the oldest */
     if (!pick) {
         nc->refused = same ? HTTP_GUARD_REFUSED_ADDRESS : HTTP_GUARD_REFUSED_ALL;
@@ -395,6 +414,7 @@ void http_guard_request_done(http_guard *g, struct MHD_Connection *c)
     pthread_mutex_lock(&g->lock);
     release(g, gc);
     gc->in_request = 0;
+    gc->served++;
     gc->since_ms = time_now_ms();
     pthread_mutex_unlock(&g->lock);
 }
