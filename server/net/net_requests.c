@@ -69,23 +69,9 @@ static cJSON *world_message(net_state *s, const net_client *c)
     static const char *const shapes[] = {"sphere", "box", "capsule", "cylinder", "wheel", "mesh"};
     cJSON_AddItemToObject(m, "shapes", cJSON_CreateStringArray(shapes, 6));
     cJSON *lim = cJSON_AddObjectToObject(m, "limits");
-    cJSON_AddNumberToObject(lim, "max_message_bytes", (double)l->max_message_bytes);
-    cJSON_AddNumberToObject(lim, "max_colliders", l->max_colliders);
-    cJSON_AddNumberToObject(lim, "max_poses_per_batch", l->max_poses_per_batch);
-    cJSON_AddNumberToObject(lim, "max_subscriptions", l->max_subscriptions);
-    cJSON_AddNumberToObject(lim, "max_subscribed_cells", (double)l->max_subscribed_cells);
-    cJSON_AddNumberToObject(lim, "max_messages_per_s", l->max_messages_per_s);
-    cJSON_AddNumberToObject(lim, "messages_burst", l->messages_burst);
-    cJSON_AddNumberToObject(lim, "max_mesh_vertices", l->max_mesh_vertices);
-    cJSON_AddNumberToObject(lim, "max_mesh_triangles", l->max_mesh_triangles);
-    cJSON_AddNumberToObject(lim, "max_active_cells", (double)l->max_active_cells);
-    cJSON_AddNumberToObject(lim, "max_collider_extent_m", l->max_collider_extent_m);
-    cJSON_AddNumberToObject(lim, "max_pending_bytes", (double)l->max_pending_bytes);
-    cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
-    cJSON_AddNumberToObject(lim, "max_client_lag_ticks", l->max_client_lag_ticks);
-    cJSON_AddNumberToObject(lim, "max_tick_cells", (double)l->max_tick_cells);
-    cJSON_AddNumberToObject(lim, "max_sweep_cells", (double)l->max_sweep_cells);
-    cJSON_AddNumberToObject(lim, "max_edit_cells", (double)l->max_edit_cells);
+    for (const net_limit_spec *t = net_limit_table; t->name; t++) /* net_limits.c */
+        if (t->flags & NET_LIMIT_TOLD)
+            cJSON_AddNumberToObject(lim, t->name, net_limit_get(l, t));
     return m;
 }
 
