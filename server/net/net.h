@@ -48,7 +48,7 @@ typedef struct net_limits {
     int max_connections, max_connections_per_address;
     int fd_reserve;
     int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
-    int max_step_ticks; /* ticks one STEP may ask for (client-clocked worlds) */
+    int max_step_ticks;     /* ticks one STEP may ask for (client-clocked worlds) */
     /* HTTP's, not the websocket's: /v1/heights answers held at once by one
      * address and by all (0: http.c's defaults, 64 MiB and 256 MiB) */
     size_t max_heights_bytes_per_address, max_heights_bytes_in_flight;
