@@ -43,15 +43,18 @@ static hub_pose *step_poses(net_client *c, const terrad_pose *in, size_t n, uint
     }
     for (size_t i = 0; i < n; i++) {
         const terrad_pose *p = &in[i];
-        net_collider_slot *slot = net_collider_owned(c, p->id, ref, 0);
+        net_collider_slot *slot = net_collider_find(c->srv, p->id);
         collider_pose cp = {{p->x, p->y, p->z}, {p->qw, p->qx, p->qy, p->qz}};
         error_text err;
-        if (slot && collider_pose_validate(&cp, &err)) {
-            net_error(c, TERRAD_E_BAD_VALUE, ref, p->id, 0, "poses[%zu]: collider %u: %s", i, p->id,
-                      err.message);
-            slot = NULL;
-        }
-        if (!slot) {
+        int code = !slot                               ? TERRAD_E_UNKNOWN_COLLIDER
+                   : slot->owner != c->id              ? TERRAD_E_NOT_OWNER
+                   : collider_pose_validate(&cp, &err) ? TERRAD_E_BAD_VALUE
+                                                       : 0;
+        if (code) {
+            net_error(c, code, ref, p->id, 0, "poses[%zu]: collider %u %s", i, p->id,
+                      code == TERRAD_E_UNKNOWN_COLLIDER ? "does not exist"
+                      : code == TERRAD_E_NOT_OWNER      ? "belongs to another client"
+                                                        : err.message);
             metrics_count_step_refused("poses");
             free(hp);
             return NULL;
@@ -92,7 +95,8 @@ void net_handle_step(net_client *c, const unsigned char *data, size_t len)
     long bad = -1;
     int rc = poses ? terrad_step_decode(data, len, &h, poses, cap, &bad) : TERRAD_E_INTERNAL;
     if (rc == TERRAD_E_BAD_FRAME || rc == TERRAD_E_INTERNAL)
-        REFUSE("frame", rc, -1, "STEP: %s (%zu bytes)", terrad_err_name(rc), len);
+        REFUSE("frame", rc, -1, "frame: %s: %zu bytes, not 16 + 32 x count x sets",
+               terrad_err_name(rc), len);
     if (h.ticks == 0)
         REFUSE("ticks", TERRAD_E_BAD_VALUE, -1, "ticks: must be at least 1 (got 0)");
     if (h.ticks > (uint32_t)l->max_step_ticks)
@@ -116,7 +120,7 @@ void net_handle_step(net_client *c, const unsigned char *data, size_t len)
                "0.9..1.1): step dropped",
                bad);
     if (rc)
-        REFUSE("frame", rc, -1, "STEP: %s", terrad_err_name(rc));
+        REFUSE("frame", rc, -1, "frame: %s", terrad_err_name(rc));
     if (hub_store_unavailable(s->hub, store_reason, sizeof store_reason))
         REFUSE("store", TERRAD_E_STORE_UNAVAILABLE, -1,
                "STEP refused: storage cannot make ticks durable (%s); retry later", store_reason);
