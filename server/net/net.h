@@ -48,6 +48,7 @@ typedef struct net_limits {
     int max_connections, max_connections_per_address;
     int fd_reserve;
     int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
+    int max_step_ticks;     /* ticks one STEP may ask for (client-clocked worlds) */
     /* HTTP's, not the websocket's: /v1/heights answers held at once by one
      * address and by all (0: http.c's defaults, 64 MiB and 256 MiB) */
     size_t max_heights_bytes_per_address, max_heights_bytes_in_flight;
@@ -86,6 +87,9 @@ typedef struct net_world_info {
     const char *models_json;    /* a JSON array of strings, e.g. ["persson-ssbo"]; NULL = [] */
     const char *materials_json; /* a JSON array of strings; NULL = ["default"] */
     int loads; /* the world's model carries loads (bekker): collider_create may give load_n */
+    /* "clock": "client" — the world ticks only on its driver's STEP messages
+     * (PROTOCOL.md "STEP"); 0: the server's wall clock */
+    int client_clock;
     /* cluster mode (docs/cluster.md): the world's registered name, sent in the
      * world message; a hello naming another world is refused. NULL: one
      * unnamed world, hello's "world" is ignored. */

@@ -55,6 +55,8 @@ const net_limit_spec net_limit_table[] = {
         "one client's cost this tick, its sweeps included (a whole tick's budget)"),
     ROW(max_edit_cells, NET_LIMIT_INT64, WORLD_EDIT_MAX_CELLS_DEFAULT,
         NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "cells one terrain edit may change"),
+    ROW(max_step_ticks, NET_LIMIT_INT, 600, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "ticks one STEP of a client-clocked world may ask for (10 s of 60 Hz ticks)"),
     /* the server's own */
     ROW(max_connections, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG,
         "websocket connections in all (0: from RLIMIT_NOFILE)"),

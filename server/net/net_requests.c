@@ -62,6 +62,9 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddItemToArray(range, cJSON_CreateNumber(w->height_min));
     cJSON_AddItemToArray(range, cJSON_CreateNumber(w->height_max));
     cJSON_AddNumberToObject(m, "tick_hz", w->tick_hz);
+    cJSON_AddStringToObject(m, "clock", w->client_clock ? "client" : "wall");
+    if (w->client_clock)
+        cJSON_AddNumberToObject(m, "driver", s->driver);
     cJSON_AddNumberToObject(m, "tick", (double)s->tick);
     cJSON_AddNumberToObject(m, "tile_size", w->tile_size);
     cJSON_AddItemToObject(m, "models", cJSON_Duplicate(s->models, 1));
@@ -243,23 +246,9 @@ static void handle_collider_create(net_client *c, net_control *m)
 
 /* The slot of one of c's colliders (any client's when any_owner), or NULL
  * after an error was sent. */
-static net_collider_slot *owned_by(net_client *c, uint32_t id, const cJSON *ref, int any_owner)
-{
-    net_collider_slot *slot = net_collider_find(c->srv, id);
-    if (!slot) {
-        net_error(c, TERRAD_E_UNKNOWN_COLLIDER, ref, id, 0, "collider %u does not exist", id);
-        return NULL;
-    }
-    if (slot->owner != c->id && !any_owner) {
-        net_error(c, TERRAD_E_NOT_OWNER, ref, id, 0, "collider %u belongs to another client", id);
-        return NULL;
-    }
-    return slot;
-}
-
 static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
 {
-    return owned_by(c, id, ref, 0);
+    return net_collider_owned(c, id, ref, 0);
 }
 
 /* With "any_owner" (an admin's, refused for other roles before this) another
@@ -268,7 +257,7 @@ static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
 static void handle_collider_delete(net_client *c, const net_control *m)
 {
     uint32_t id = m->id;
-    net_collider_slot *slot = owned_by(c, id, m->ref, m->any_owner);
+    net_collider_slot *slot = net_collider_owned(c, id, m->ref, m->any_owner);
     if (!slot)
         return;
     int64_t cells = slot->cells;
@@ -641,6 +630,12 @@ void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
     case TERRAD_MSG_POSE_BATCH:
         if (net_auth_allows(c, AUTH_DRIVER, "POSE_BATCH", NULL))
             handle_pose_batch(c, data, len);
+        return;
+    case TERRAD_MSG_STEP:
+        if (net_auth_allows(c, AUTH_DRIVER, "STEP", NULL))
+            net_handle_step(c, data, len);
+        else
+            metrics_count_step_refused("driver");
         return;
     case TERRAD_MSG_PING:
     case TERRAD_MSG_PONG: {

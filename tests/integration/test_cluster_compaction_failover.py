@@ -105,6 +105,10 @@ def failover(nodes):
           "the owner compacts the log into tile snapshots after the first half")
     asyncio.run(cd.drive(check, owner.ws, read, cd.FIRST[HALF:], 0.02, world=WORLD))
     out["middle"] = node_state(owner)
+    relayed = node_reader(other)(0, 0, cd.W, cd.H, layer="compaction")[1]
+    check(relayed == out["middle"]["memory"],
+          f"{other.name}, which does not tick the world, serves its memory as the owner does "
+          "(/v1/heights?world=...&layer=compaction asked of the owner over NATS)")
     owner.kill9()
     new = owner_of([other], WORLD, 120)
     if not check(new is not None, f"{other.name} takes the world after the kill"):
