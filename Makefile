@@ -8,7 +8,8 @@
 #                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
 #   make test           everything CI runs; ends with "N passed, N failed". It installs the
 #                       WebAssembly toolchain, so a test that needs build/terrad_twin.wasm fails
-#                       without it (TERRAD_REQUIRE_WASM=1) instead of skipping
+#                       without it (TERRAD_REQUIRE_WASM=1) instead of skipping; likewise MuJoCo
+#                       for the co-simulation example (TERRAD_REQUIRE_MUJOCO=1)
 #   make test-stress    make test while a CPU hog runs beside it (stress-ng --cpu 2): the suite
 #                       must pass at any load; the hog stops however make test ends, and the
 #                       exit status is make test's
@@ -126,7 +127,7 @@ test: deps-test
 	@mkdir -p $(ARTIFACTS); rm -f $(ARTIFACTS)/ctest-*.log; broken=0; \
 	if [ -f package-lock.json ]; then $(MAKE) --no-print-directory web-deps || broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build; then \
-	    TERRAD_REQUIRE_WASM=1 ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 \
+	    TERRAD_REQUIRE_WASM=1 TERRAD_REQUIRE_MUJOCO=1 ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 \
 	        | tee $(ARTIFACTS)/ctest-build.log || true; \
 	else broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build-asan; then \
