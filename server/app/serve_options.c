@@ -28,6 +28,7 @@ enum {
     OPT_NO_DATA,
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
+    OPT_REPLAY_RETAIN_BYTES,
     OPT_STORE_FAULT,
     OPT_FRESH,
     OPT_THREADS,
@@ -82,6 +83,10 @@ static const cli_option serve_table[] = {
                         "none (written before publish, never synced)"},
     [OPT_WAL_SEGMENT_BYTES] = {"wal-segment-bytes", "N",
                                "compact the log into tile snapshots past N bytes (16 MiB)"},
+    [OPT_REPLAY_RETAIN_BYTES] = {"replay-retain-bytes", "N",
+                                 "keep the whole log (compacted segments too) while it is\n"
+                                 "under N bytes, so /v1/heights?tick= can rebuild every tick\n"
+                                 "since the first (default 0: compacted segments are deleted)"},
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
@@ -242,6 +247,10 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
         return -1;
     if (r)
         o->wal_segment_bytes = (long)v;
+    if ((r = json_get_number(doc, "", "replay_retain_bytes", 0, 1e12, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->replay_retain_bytes = (long)v;
     if ((r = json_get_bool(doc, "", "bind_any", &flag, err)) < 0)
         return -1;
     if (r)
@@ -274,13 +283,28 @@ static int config_no_token(const cJSON *doc, error_text *err)
 
 static int config_load(const char *path, serve_options *o, error_text *err)
 {
-    static const char *const keys[] = {
-        "scene",     "backend",    "token",       "data",
-        "no_data",   "durability", "store_fault", "wal_segment_bytes",
-        "http_port", "ws_port",    "bind_any",    "demo_actors",
-        "tick_hz",   "limits",     "auth_file",   "tls_cert",
-        "tls_key",   "scene_dir",  "max_worlds",  "public_ws_url",
-        NULL};
+    static const char *const keys[] = {"scene",
+                                       "backend",
+                                       "token",
+                                       "data",
+                                       "no_data",
+                                       "durability",
+                                       "store_fault",
+                                       "wal_segment_bytes",
+                                       "http_port",
+                                       "ws_port",
+                                       "bind_any",
+                                       "demo_actors",
+                                       "tick_hz",
+                                       "limits",
+                                       "auth_file",
+                                       "tls_cert",
+                                       "tls_key",
+                                       "scene_dir",
+                                       "max_worlds",
+                                       "public_ws_url",
+                                       "replay_retain_bytes",
+                                       NULL};
     uint8_t *text = NULL;
     size_t len = 0;
     if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
@@ -395,10 +419,11 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
     case OPT_NO_DEMO:
         o->demo_actors = 0;
         return 0;
-    case OPT_WAL_SEGMENT_BYTES:
-        if (cli_parse_long(value, 4096, 1L << 40, &x, err) != 0)
+    case OPT_WAL_SEGMENT_BYTES: /* a segment is at least 4 KiB; retention may be 0 */
+    case OPT_REPLAY_RETAIN_BYTES:
+        if (cli_parse_long(value, index == OPT_WAL_SEGMENT_BYTES ? 4096 : 0, 1L << 40, &x, err))
             return -1;
-        o->wal_segment_bytes = x;
+        *(index == OPT_WAL_SEGMENT_BYTES ? &o->wal_segment_bytes : &o->replay_retain_bytes) = x;
         return 0;
     case OPT_PROBE_PORT:
         if (cli_parse_long(value, 0, 65535, &x, err) != 0)
