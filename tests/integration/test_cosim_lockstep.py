@@ -15,7 +15,9 @@ real daemons on loopback:
   heights are the client's mirror; a daemon killed while a driver is stepping recovers at
   least the last tick the driver saw acknowledged;
 - a wall-clocked world refuses a STEP naming "clock"; a second would-be driver is refused
-  naming "driver"; "clock" of neither kind is refused by POST /v1/worlds naming "clock".
+  naming "driver"; "clock" of neither kind is refused by POST /v1/worlds naming "clock";
+- under --durability group:MS (a tick's frames held until the sync that covers it) every step is
+  answered: the step's end syncs, as no later tick would publish them.
 
 Behaviour only: every wait is for a condition, with a generous deadline.
 """
@@ -192,7 +194,18 @@ def refusals():
         check('terrad_steps_refused_total{field="driver"} 1' in text, "driver refusal counted")
 
 
+def group_commit():
+    """Under --durability group:MS a tick's frames wait for the sync that covers it; a
+    client-clocked world has no later tick to publish them, so its step's end syncs: every
+    step is answered, its ticks durable."""
+    with check.running(Daemon(durability="group:400", name="group-commit")) as d:
+        create(d, "g")
+        texts = drive(d, ["g"], "many", steps=40)
+        check(texts["g"].count("STEPPED ") == 40, "every step answered under group:400")
+
+
 determinism()
 kill9()
 refusals()
+group_commit()
 check.finish()
