@@ -263,4 +263,16 @@ void hub_close_reads(hub *h);
  * thread. */
 void hub_close_edits(hub *h, const char *why);
 
+/* ---- a terrain edit's wire form (hub_edit.c; PROTOCOL.md "edit") ---- */
+
+typedef struct hub_edit_error {
+    int code;          /* TERRAD_E_BAD_VALUE, _OUTSIDE_WORLD, _TOO_LARGE (proto/c) */
+    char message[300]; /* names the field */
+} hub_edit_error;
+/* An `edit` message's fields (its "type" and "ref" are the caller's) into
+ * out, for a width x height world, refusing one over max_cells. 0, or -1
+ * with err (nothing held). Free a parsed edit with world_edit_free. Any thread. */
+int hub_edit_parse(const cJSON *msg, int width, int height, int64_t max_cells, world_edit *out,
+                   hub_edit_error *err);
+
 #endif
