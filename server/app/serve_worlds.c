@@ -465,36 +465,36 @@ static unsigned stopping(const char *op, char **json)
     return worlds_refuse(op, 503, "name", "name: the daemon is stopping", json);
 }
 
-static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
+/* A create (body) or a delete (name, keep) while the daemon is not stopping. */
+static unsigned worlds_call(serve_worlds *ws, int create, const char *body, size_t len,
+                            const char *name, int keep, char **json)
 {
-    serve_worlds *ws = ctx;
     if (!enter(ws))
-        return stopping("create", json);
-    char draining[sizeof ws->draining];
-    pthread_mutex_lock(&ws->lock);
-    snprintf(draining, sizeof draining, "%s", ws->draining);
-    pthread_mutex_unlock(&ws->lock);
-    if (draining[0]) {
-        char why[300];
-        snprintf(why, sizeof why,
-                 "name: the daemon is draining (%s) and creates no world: create it on another",
-                 draining);
-        leave(ws);
-        return worlds_refuse("create", 503, "name", why, json);
-    }
-    unsigned code = create_world(ws, body, len, json);
+        return stopping(create ? "create" : "delete", json);
+    unsigned code = create ? create_world(ws, body, len, json) : delete_world(ws, name, keep, json);
     leave(ws);
     return code;
 }
 
-static unsigned worlds_remove(void *ctx, const char *name, int keep, char **json)
+static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
 {
     serve_worlds *ws = ctx;
-    if (!enter(ws))
-        return stopping("delete", json);
-    unsigned code = delete_world(ws, name, keep, json);
-    leave(ws);
-    return code;
+    char draining[sizeof ws->draining], why[300];
+    pthread_mutex_lock(&ws->lock);
+    snprintf(draining, sizeof draining, "%s", ws->draining);
+    pthread_mutex_unlock(&ws->lock);
+    if (draining[0]) { /* the orchestrator stops this daemon: the world belongs elsewhere */
+        snprintf(why, sizeof why,
+                 "name: the daemon is draining (%s) and creates no world: create it on another",
+                 draining);
+        return worlds_refuse("create", 503, "name", why, json);
+    }
+    return worlds_call(ctx, 1, body, len, NULL, 0, json);
+}
+
+static unsigned worlds_remove(void *ctx, const char *name, int keep, char **json)
+{
+    return worlds_call(ctx, 0, NULL, 0, name, keep, json);
 }
 
 /* ---- the daemon's life ---- */
