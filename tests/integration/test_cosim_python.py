@@ -12,7 +12,9 @@ loopback:
   the world as it was: ticks 0 and sets not 0/1/ticks (bad_value), ticks over max_step_ticks and
   count over max_poses_per_batch (too_large), a NaN pose (poses[i]), another client's collider
   (not_owner), a wall-clocked world (clock), a second driver (driver), a viewer (forbidden); the
-  world's tick has not moved and its driver steps on.
+  world's tick has not moved and its driver steps on;
+- the budgets hold per stepped tick: a stepped pose whose sweep passes max_sweep_cells is refused
+  alone at its tick (limit_colliders), and the step still runs and is answered.
 
 Behaviour only: every wait is for a condition, with a generous deadline.
 """
@@ -134,6 +136,13 @@ async def refusals(d):
         check(tick == 1, f"no refused step ticked the world (tick {tick})")
         t1 = await c.step(2)
         check(t1 == 3, f"the driver steps on: tick {t1}")
+        # the budgets hold per stepped tick: a pose 2 m away in one tick would pass
+        # max_sweep_cells; that pose alone is refused at its tick, the step still runs and is answered
+        t2 = await c.step(1, [[tp.Pose(wheel, 2.6, 0.24, 0.45, 1, 0, 0, 0)]])
+        await c.wait_for(lambda: any(e.get("name") == "limit_colliders" for e in c.errors), 30)
+        e = next(e for e in c.errors if e.get("name") == "limit_colliders")
+        check(t2 == t1 + 1 and "max_sweep_cells" in e["message"],
+              f"a stepped tick's sweep past max_sweep_cells refused ({t2}): {e['message']}")
         try:
             await c.step(1, [[tp.Pose(theirs, 0.6, 0.24, 0.45, 1, 0, 0, 0)]])
             check(False, "a step with another client's collider raises")
@@ -145,7 +154,7 @@ async def refusals(d):
         check(v and v >= 1, f"terrad_steps_refused_total{{field={field}}} = {v}")
 
 
-with check.running(Daemon(name="cosim-python")) as d:
+with check.running(Daemon(name="cosim-python", config={"limits": {"max_sweep_cells": 3000}})) as d:
     vecenv(d)
     asyncio.run(refusals(d))
 check.finish()
