@@ -345,6 +345,17 @@ done:
     return rc;
 }
 
+/* --wal-segment-bytes (at least 4 KiB) and --replay-retain-bytes (0: none). */
+static int store_bytes_option(serve_options *o, int index, const char *value, error_text *err)
+{
+    long x;
+    int segment = index == OPT_WAL_SEGMENT_BYTES;
+    if (cli_parse_long(value, segment ? 4096 : 0, 1L << 40, &x, err) != 0)
+        return -1;
+    *(segment ? &o->wal_segment_bytes : &o->replay_retain_bytes) = x;
+    return 0;
+}
+
 static int serve_on_option(void *ctx, int index, const char *value, error_text *err)
 {
     serve_options *o = ctx;
@@ -425,12 +436,9 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
     case OPT_NO_DEMO:
         o->demo_actors = 0;
         return 0;
-    case OPT_WAL_SEGMENT_BYTES: /* a segment is at least 4 KiB; retention may be 0 */
+    case OPT_WAL_SEGMENT_BYTES:
     case OPT_REPLAY_RETAIN_BYTES:
-        if (cli_parse_long(value, index == OPT_WAL_SEGMENT_BYTES ? 4096 : 0, 1L << 40, &x, err))
-            return -1;
-        *(index == OPT_WAL_SEGMENT_BYTES ? &o->wal_segment_bytes : &o->replay_retain_bytes) = x;
-        return 0;
+        return store_bytes_option(o, index, value, err);
     case OPT_PROBE_PORT:
     case OPT_DRAIN_GRACE_MS: /* a port, or at most a day */
         if (cli_parse_long(value, 0, index == OPT_PROBE_PORT ? 65535 : 86400000L, &x, err) != 0)
