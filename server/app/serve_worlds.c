@@ -104,6 +104,7 @@ static cJSON *world_entry(const char *name, http_status *st, const char *state, 
     cJSON_AddBoolToObject(o, "default", is_default);
     pthread_mutex_lock(&st->lock);
     cJSON_AddStringToObject(o, "scene", st->scene_name);
+    cJSON_AddStringToObject(o, "clock", st->client_clock ? "client" : "wall");
     cJSON_AddNumberToObject(o, "width", st->world_width);
     cJSON_AddNumberToObject(o, "height", st->world_height);
     cJSON_AddNumberToObject(o, "tick", (double)st->tick);
