@@ -266,6 +266,16 @@ test('every documented error answers as the document says', async () => {
   await fetchChecked('dot-dot', '/a/../v1/stats', 400);
 });
 
+test('POST /v1/drain: a body is 400; the drain is 202, and with no client to wait for the daemon exits 0', async () => {
+  await fetchChecked('a body', '/v1/drain', 400, { method: 'POST', body: '{}', headers: { 'Content-Length': '2' } });
+  const gone = new Promise((r) => daemon.once('exit', r));
+  const { json } = await fetchChecked('drain', '/v1/drain', 202, { method: 'POST' });
+  assert.equal(json.draining, true);
+  await gone;
+  assert.equal(daemon.exitCode, 0, 'the drained daemon exits with status 0');
+  rmSync(daemon.dataDir, { recursive: true, force: true });
+});
+
 test('every path was fetched and every explicit status was seen', () => {
   for (const [p, item] of Object.entries(api.paths)) {
     assert.ok(seen.has(p), `${p} was fetched`);
