@@ -25,7 +25,7 @@ import struct
 import sys
 import tempfile
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 from service_harness import Checks, Daemon, RecordingClient, json_call, metric_value  # noqa: E402
 import compaction_drive as cd  # noqa: E402
 import terrad as tp  # noqa: E402
