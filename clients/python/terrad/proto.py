@@ -46,7 +46,7 @@ __all__ = [
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
-    "edit", "stamp_data", "parse_control", "subscribe_events",
+    "edit", "stamp_data", "parse_control", "subscribe_events", "seen", "frame_tick",
 ]
 
 PROTOCOL_VERSION = 1
@@ -767,6 +767,19 @@ def resync(sid: int | None = None, ref=None) -> dict:
     if sid is not None:
         msg["id"] = sid
     return _with_ref(msg, ref)
+
+
+def seen(tick: int) -> dict:
+    """The latest tick whose frames this client has handled (PROTOCOL.md "seen"): the server
+    bounds the client's lag by it, end to end."""
+    return {"type": "seen", "tick": tick}
+
+
+def frame_tick(data: bytes) -> int:
+    """The tick a server frame carries (DELTA and after: u64 at offset 4), 0 for others."""
+    if len(data) >= 12 and data[2] >= MsgType.DELTA:
+        return struct.unpack_from("<Q", data, 4)[0]
+    return 0
 
 
 def edit(op: str, ref=None, **fields) -> dict:
