@@ -21,11 +21,14 @@ frame's tick. Checked, over the last 15 s of 45 s of slow reading:
   - the one that never says falls further behind than the other's worst
     (the case is hard: without "seen" the daemon cannot see the lag);
   - read at full speed again, the first reader's mirror equals GET
-    /v1/heights (the resync kept the protocol's promise).
+    /v1/heights (the resync kept the protocol's promise);
+  - a seen with a bad tick (negative, a string, later than any tick sent) is
+    refused naming tick, counted, and the connection goes on.
 Without the change the first check fails (the lag only grows).
 """
 # ctest-timeout: 600
 import asyncio
+import json
 import os
 import sys
 import time
@@ -106,6 +109,24 @@ async def readers(check, d):
     check(same, f"its mirror equals GET /v1/heights afterwards (tick {tick}) {detail}")
     check(not a.ws.closed, "its connection stayed open")
     await a.close()
+
+    # bad values: refused naming the field, counted, and the connection goes on
+    _, m0 = d.metrics()
+    refused0 = metric_value(m0, "terrad_refused_messages_total", {"reason": "bad_value"}) or 0
+    c = RecordingClient(d.ws, name="bad-seen", record=False)
+    await c.connect()
+    for bad in (-1, "7", 2 ** 52):
+        await c.ws.send(json.dumps({"type": "seen", "tick": bad}))
+    await c.wait_for(lambda: len(c.errors) >= 3, timeout=60)
+    check(all(e.get("name") == "bad_value" and e.get("message", "").startswith("tick: ")
+              for e in c.errors[:3]), f"bad seen ticks refused naming tick ({c.errors[:3]})")
+    _, m1 = d.metrics()
+    refused1 = metric_value(m1, "terrad_refused_messages_total", {"reason": "bad_value"}) or 0
+    check(refused1 >= refused0 + 3, f"and counted ({refused0} -> {refused1})")
+    sid2 = await c.subscribe(0, 0, 64, 64)
+    await c.wait_complete(sid2, timeout=60)
+    check(not c.ws.closed, "the connection goes on")
+    await c.close()
 
 
 def main():
