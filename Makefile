@@ -8,7 +8,8 @@
 #                       (PREFIX=/usr/local, DESTDIR= for staging; see packaging/)
 #   make test           everything CI runs; ends with "N passed, N failed". It installs the
 #                       WebAssembly toolchain, so a test that needs build/terrad_twin.wasm fails
-#                       without it (TERRAD_REQUIRE_WASM=1) instead of skipping
+#                       without it (TERRAD_REQUIRE_WASM=1) instead of skipping; likewise MuJoCo
+#                       for the co-simulation example (TERRAD_REQUIRE_MUJOCO=1)
 #   make test-stress    make test while a CPU hog runs beside it (stress-ng --cpu 2): the suite
 #                       must pass at any load; the hog stops however make test ends, and the
 #                       exit status is make test's
@@ -23,6 +24,10 @@
 #                       docs/validation-ding2011.png + the table in docs/validation.md (validation-plot)
 #   make fuzz           each fuzz target for 5 minutes (make fuzz-smoke: 10 s each)
 #   make soak           tests/soak/*.sh
+#   make chaos          seeded random fault schedules (kill -9, SIGSTOP of nodes and NATS servers)
+#                       against 3 NATS servers and 3 nodes; checks that no acknowledged tick is
+#                       lost (tests/chaos/chaos.py): SEED= replays a run, SCHEDULES= (default
+#                       200), FAULT_S= (default 10 s of faults per schedule)
 #   make cluster        3 NATS servers + 3 terrad nodes on loopback, two demo worlds (Ctrl-C stops;
 #                       installs nats-server with the test set when it is missing)
 #   make format         clang-format -i the C sources (format-check: only check)
@@ -77,7 +82,7 @@ endef
 FORMAT_FILES = $(shell find server tests proto clients -type f \( -name '*.c' -o -name '*.h' \) 2>/dev/null)
 
 .PHONY: deps deps-test build build-asan daemon run cluster install test test-stress bench docs-images fuzz \
-        fuzz-smoke fuzz-build soak format format-check web-deps screenshot clean
+        fuzz-smoke fuzz-build soak chaos format format-check web-deps screenshot clean
 
 # Building and running need only --build (which includes --runtime); the test tools
 # (about 1 GB: chromium, clang, prometheus, node) come with make test.
@@ -122,7 +127,7 @@ test: deps-test
 	@mkdir -p $(ARTIFACTS); rm -f $(ARTIFACTS)/ctest-*.log; broken=0; \
 	if [ -f package-lock.json ]; then $(MAKE) --no-print-directory web-deps || broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build; then \
-	    TERRAD_REQUIRE_WASM=1 ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 \
+	    TERRAD_REQUIRE_WASM=1 TERRAD_REQUIRE_MUJOCO=1 ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS) 2>&1 \
 	        | tee $(ARTIFACTS)/ctest-build.log || true; \
 	else broken=$$((broken+1)); fi; \
 	if $(MAKE) --no-print-directory build-asan; then \
@@ -215,6 +220,11 @@ fuzz-smoke:
 
 fuzz:
 	$(call fuzz_run,300)
+
+chaos: build
+	@command -v nats-server >/dev/null 2>&1 || scripts/deps --test
+	$(TEST_ENV) $(PYTHON) tests/chaos/chaos.py $(if $(SEED),--seed $(SEED)) \
+	    $(if $(SCHEDULES),--schedules $(SCHEDULES)) $(if $(FAULT_S),--fault-s $(FAULT_S))
 
 soak: build
 	@shopt -s nullglob; scripts=(tests/soak/*.sh); \

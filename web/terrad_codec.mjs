@@ -8,8 +8,8 @@ import { Decompress } from './vendor/fzstd.js';
 export const PROTOCOL_VERSION = 1;
 export const MAGIC = 0x54;
 export const SUBPROTOCOL = 'terrad.v1';
-export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14, FORCES: 0x15 };
-const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS', 21: 'FORCES' };
+export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, STEP: 0x04, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14, FORCES: 0x15, STEPPED: 0x16 };
+const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 4: 'STEP', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS', 21: 'FORCES', 22: 'STEPPED' };
 export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
 export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
 export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
@@ -70,15 +70,27 @@ export function encodePoseBatch(seq, poses) {
   b.set([MAGIC, PROTOCOL_VERSION, MsgType.POSE_BATCH, 0]);
   v.setUint32(4, seq >>> 0, true);
   v.setUint16(8, poses.length, true);
-  poses.forEach((p, i) => {
-    const o = 10 + i * POSE_SIZE;
-    const f = [p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz].map(Math.fround);
-    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `pose of collider ${p.id} is not finite`);
-    checkQuaternion(f[3], f[4], f[5], f[6]);
-    v.setUint32(o, p.id >>> 0, true);
-    f.forEach((a, k) => v.setFloat32(o + 4 + 4 * k, a, true));
-  });
+  poses.forEach((p, i) => writePose(v, 10 + i * POSE_SIZE, p));
   return b;
+}
+
+/** One pose at offset o (POSE_BATCH and STEP): checked, written as u32 id and 7 f32. */
+function writePose(v, o, p) {
+  const f = [p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz].map(Math.fround);
+  if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `pose of collider ${p.id} is not finite`);
+  checkQuaternion(f[3], f[4], f[5], f[6]);
+  v.setUint32(o, p.id >>> 0, true);
+  f.forEach((a, k) => v.setFloat32(o + 4 + 4 * k, a, true));
+}
+
+/** The pose at offset o, checked. */
+function readPose(v, o) {
+  const id = v.getUint32(o, true);
+  const f = [];
+  for (let k = 0; k < 7; k++) f.push(v.getFloat32(o + 4 + 4 * k, true));
+  if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `pose of collider ${id} is not finite`);
+  checkQuaternion(f[3], f[4], f[5], f[6]);
+  return { id, x: f[0], y: f[1], z: f[2], qw: f[3], qx: f[4], qy: f[5], qz: f[6] };
 }
 
 export function decodePoseBatch(buf) {
@@ -89,15 +101,7 @@ export function decodePoseBatch(buf) {
   const seq = v.getUint32(4, true), count = v.getUint16(8, true);
   if (b.length - 10 !== count * POSE_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
   const poses = [];
-  for (let i = 0; i < count; i++) {
-    const o = 10 + i * POSE_SIZE;
-    const id = v.getUint32(o, true);
-    const f = [];
-    for (let k = 0; k < 7; k++) f.push(v.getFloat32(o + 4 + 4 * k, true));
-    if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `pose of collider ${id} is not finite`);
-    checkQuaternion(f[3], f[4], f[5], f[6]);
-    poses.push({ id, x: f[0], y: f[1], z: f[2], qw: f[3], qx: f[4], qy: f[5], qz: f[6] });
-  }
+  for (let i = 0; i < count; i++) poses.push(readPose(v, 10 + i * POSE_SIZE));
   return { seq, poses };
 }
 
@@ -244,6 +248,53 @@ export function decodeAck(buf) {
   if (b.length !== ACK_SIZE) throw new ProtoError('bad_frame', `ACK of ${b.length} bytes`);
   const v = view(b);
   return { tick: v.getBigUint64(4, true), seq: v.getUint32(12, true) };
+}
+
+// ---- STEP and STEPPED (client-clocked worlds, PROTOCOL.md "STEP") ----
+
+const STEP_FIXED = 16, STEPPED_SIZE = 20;
+
+/** A STEP of `ticks` ticks; sets: [] (hold), [poses] (the first tick's) or one array of poses per tick. */
+export function encodeStep(seq, ticks, sets) {
+  const count = sets.length ? sets[0].length : 0;
+  if (!(ticks >= 1) || (sets.length > 1 && sets.length !== ticks)) throw new ProtoError('bad_value', `ticks ${ticks} with ${sets.length} sets`);
+  if (sets.some((s) => s.length !== count)) throw new ProtoError('bad_value', 'every set must have the same count');
+  const b = new Uint8Array(STEP_FIXED + POSE_SIZE * count * sets.length);
+  const v = view(b);
+  b.set([MAGIC, PROTOCOL_VERSION, MsgType.STEP, 0]);
+  v.setUint32(4, seq >>> 0, true);
+  v.setUint32(8, ticks >>> 0, true);
+  v.setUint16(12, count, true);
+  v.setUint16(14, sets.length, true);
+  sets.flat().forEach((p, i) => writePose(v, STEP_FIXED + i * POSE_SIZE, p));
+  return b;
+}
+
+export function decodeStep(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.STEP);
+  if (b.length < STEP_FIXED) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const seq = v.getUint32(4, true), ticks = v.getUint32(8, true), count = v.getUint16(12, true), nsets = v.getUint16(14, true);
+  if (b.length - STEP_FIXED !== count * nsets * POSE_SIZE) throw new ProtoError('bad_frame', `${nsets} sets of ${count} do not match the frame`);
+  if (ticks === 0 || (nsets > 1 && nsets !== ticks)) throw new ProtoError('bad_value', `ticks ${ticks} with ${nsets} sets`);
+  const sets = [];
+  for (let k = 0; k < nsets; k++) {
+    const s = [];
+    for (let i = 0; i < count; i++) s.push(readPose(v, STEP_FIXED + (k * count + i) * POSE_SIZE));
+    sets.push(s);
+  }
+  return { seq, ticks, sets };
+}
+
+export function decodeStepped(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.STEPPED);
+  if (b.length !== STEPPED_SIZE) throw new ProtoError('bad_frame', `STEPPED of ${b.length} bytes`);
+  const v = view(b);
+  const ticks = v.getUint32(16, true);
+  if (ticks === 0) throw new ProtoError('bad_value', 'STEPPED of 0 ticks');
+  return { tick: v.getBigUint64(4, true), seq: v.getUint32(12, true), ticks };
 }
 
 export function decodePing(buf) {

@@ -1,6 +1,7 @@
 // twin.mjs: the twin library (server/twin/terrad_twin.h) as WebAssembly, for browsers and Node:
 // the daemon's CPU twin compiled from the same C source (build/terrad_twin.wasm, docs/engines.md),
-// wrapped in a small class. The module is a WASI reactor with no start function; the few WASI
+// wrapped in a small class, with its prediction (terrad_twin_prediction_*: the one copy every
+// client runs, predict.mjs calls it). The module is a WASI reactor with no start function; the few WASI
 // calls libc may make (the clock for the engine's timings, stderr for a log line) are answered
 // here, so no WASI runtime is needed. Errors from the library are thrown with its sentence.
 
@@ -83,10 +84,23 @@ class TwinModule {
             ptrs.forEach((p) => this.x.free(p));
         }
     }
+    // fn(vertices, vertexCount, indices, triangleCount) with a mesh in the module's heap;
+    // vertices: Float32Array (xyz), indices: Uint32Array (3 per triangle). Throws fn's error.
+    withMesh(vertices, indices, fn) {
+        const v = this.alloc(vertices);
+        const i = this.alloc(indices);
+        try {
+            this.check(fn(v, vertices.length / 3, i, indices.length / 3));
+        } finally {
+            this.x.free(v);
+            this.x.free(i);
+        }
+    }
     // config: {key: number | string} in terrad_twin.h's keys (strings for model, metric,
-    // terrain.kind); heights: Int32Array of w * h, or null for the untouched base terrain.
-    create(config, x, y, w, h, heights) {
+    // terrain.kind) into a new terrad_twin_config; the caller frees it.
+    config(config) {
         const c = this.x.terrad_twin_config_new();
+        if (!c) throw new Error('terrad twin: out of memory');
         try {
             for (const [key, value] of Object.entries(config)) {
                 if (typeof value === 'string')
@@ -96,6 +110,16 @@ class TwinModule {
                     this.withStrings([key], (k) =>
                         this.check(this.x.terrad_twin_config_set(c, k, value, this.err)));
             }
+        } catch (e) {
+            this.x.terrad_twin_config_free(c);
+            throw e;
+        }
+        return c;
+    }
+    // heights: Int32Array of w * h, or null for the untouched base terrain.
+    create(config, x, y, w, h, heights) {
+        const c = this.config(config);
+        try {
             const hp = heights ? this.alloc(heights) : 0;
             const t = this.x.terrad_twin_create(c, x, y, w, h, hp, this.err);
             if (hp) this.x.free(hp);
@@ -105,31 +129,119 @@ class TwinModule {
             this.x.terrad_twin_config_free(c);
         }
     }
+    // The library's prediction of a window from the server's heights there (Int32Array of
+    // w * h); maxReplayTicks 0: 4 s of ticks. See TwinPrediction and predict.mjs.
+    createPrediction(config, x, y, w, h, heights, maxReplayTicks = 0) {
+        const c = this.config(config);
+        try {
+            const hp = this.alloc(heights);
+            const p = this.x.terrad_twin_prediction_create(c, x, y, w, h, hp, maxReplayTicks, this.err);
+            this.x.free(hp);
+            if (!p) this.check(-1);
+            return new TwinPrediction(this, p, { x, y, w, h });
+        } finally {
+            this.x.terrad_twin_config_free(c);
+        }
+    }
 }
 
-export class Twin {
+// A twin or a prediction in the module's heap.
+class Handle {
     constructor(m, ptr, window) {
         this.m = m;
         this.ptr = ptr;
         this.window = window;
     }
-    addCollider(id, shape, { radius = 0, halfLength = 0, halfExtents = [0, 0, 0] } = {}) {
-        const m = this.m;
-        m.withStrings([shape], (s) => m.check(m.x.terrad_twin_add_collider(this.ptr, id, s, radius,
-            halfLength, halfExtents[0], halfExtents[1], halfExtents[2], m.err)));
+    // fn(shape, radius, halfLength, hx, hy, hz) with the shape's name in the module's heap
+    withShape(shape, { radius = 0, halfLength = 0, halfExtents = [0, 0, 0] }, fn) {
+        this.m.withStrings([shape], (s) => this.m.check(fn(s, radius, halfLength, halfExtents[0], halfExtents[1], halfExtents[2])));
+    }
+}
+
+const STATS = ['predicted', 'reconciled', 'replayed', 'exact', 'skipped', 'onTime', 'lastDiffering', 'pending'];
+
+// terrad_twin_prediction_* (terrad_twin.h, "Prediction"): poses are {id, x, y, z, qw, qx, qy,
+// qz} as on the wire (the library takes them through float32 and turns them as the server does).
+export class TwinPrediction extends Handle {
+    // shape: sphere {radius}, box {halfExtents}, capsule / cylinder {radius, halfLength} (the
+    // wire's axis z), wheel {radius, halfLength: half its width}
+    addCollider(id, shape, dims = {}) {
+        this.withShape(shape, dims, (s, ...sizes) => this.m.x.terrad_twin_prediction_add_collider(this.ptr, id, s, ...sizes, this.m.err));
     }
     // vertices: Float32Array (xyz), indices: Uint32Array (3 per triangle)
     addMesh(id, vertices, indices) {
+        this.m.withMesh(vertices, indices, (v, nv, i, nt) => this.m.x.terrad_twin_prediction_add_mesh(this.ptr, id, v, nv, i, nt, this.m.err));
+    }
+    removeCollider(id) {
+        this.m.check(this.m.x.terrad_twin_prediction_remove_collider(this.ptr, id, this.m.err));
+    }
+    // fn(ids, values, count) with the poses in the module's heap
+    withPoses(poses, fn) {
         const m = this.m;
-        const v = m.alloc(vertices);
-        const i = m.alloc(indices);
+        const ids = m.alloc(Uint32Array.from(poses, (p) => p.id));
+        const values = m.alloc(Float64Array.from(poses.flatMap((p) => [p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz])));
         try {
-            m.check(m.x.terrad_twin_add_mesh(this.ptr, id, v, vertices.length / 3, i,
-                indices.length / 3, m.err));
+            m.check(fn(ids, values, poses.length));
         } finally {
-            m.x.free(v);
-            m.x.free(i);
+            m.x.free(ids);
+            m.x.free(values);
         }
+    }
+    // Batch seq is being sent: one tick of the twin at once.
+    sent(seq, poses) {
+        this.withPoses(poses, (ids, v, n) => this.m.x.terrad_twin_prediction_sent(this.ptr, seq, ids, v, n, this.m.err));
+    }
+    // The ACK of tick (BigInt or number), batch seq; server: the mirror's heights at tick
+    // (Int32Array), or null while it resyncs.
+    acked(tick, seq, server) {
+        const m = this.m;
+        const hp = server ? m.alloc(server) : 0;
+        try {
+            m.check(m.x.terrad_twin_prediction_acked(this.ptr, BigInt(tick), seq, hp, m.err));
+        } finally {
+            if (hp) m.x.free(hp);
+        }
+    }
+    // Own colliders the server had posed before this prediction was made at the ACK of tick:
+    // the poses of the latest acknowledged batches that moved them.
+    resume(tick, poses) {
+        this.withPoses(poses, (ids, v, n) => this.m.x.terrad_twin_prediction_resume(this.ptr, BigInt(tick), ids, v, n, this.m.err));
+    }
+    heights() {
+        const { w, h } = this.window;
+        const p = this.m.x.terrad_twin_prediction_heights(this.ptr);
+        return new Int32Array(this.m.x.memory.buffer.slice(p, p + w * h * 4));
+    }
+    // {predicted, reconciled, replayed, exact, skipped, onTime, lastDiffering, pending}
+    stats() {
+        const v = new DataView(this.m.x.memory.buffer, this.m.x.terrad_twin_prediction_get_stats(this.ptr), 8 * STATS.length);
+        return Object.fromEntries(STATS.map((k, i) => [k, Number(v.getBigUint64(8 * i, true))]));
+    }
+    // The seqs of the batches sent and not acknowledged yet, oldest first.
+    pending() {
+        const m = this.m;
+        const n = m.x.terrad_twin_prediction_pending(this.ptr, 0, 0);
+        const p = m.x.malloc(Math.max(1, 4 * n));
+        try {
+            m.x.terrad_twin_prediction_pending(this.ptr, p, n);
+            return Array.from(new Uint32Array(m.x.memory.buffer.slice(p, p + 4 * n)));
+        } finally {
+            m.x.free(p);
+        }
+    }
+    destroy() {
+        this.m.x.terrad_twin_prediction_destroy(this.ptr);
+        this.ptr = 0;
+    }
+}
+
+export class Twin extends Handle {
+    addCollider(id, shape, dims = {}) {
+        this.withShape(shape, dims, (s, ...sizes) => this.m.x.terrad_twin_add_collider(this.ptr, id, s, ...sizes, this.m.err));
+    }
+    // vertices: Float32Array (xyz), indices: Uint32Array (3 per triangle)
+    addMesh(id, vertices, indices) {
+        this.m.withMesh(vertices, indices, (v, nv, i, nt) => this.m.x.terrad_twin_add_mesh(this.ptr, id, v, nv, i, nt, this.m.err));
     }
     removeCollider(id) {
         this.m.check(this.m.x.terrad_twin_remove_collider(this.ptr, id, this.m.err));

@@ -23,6 +23,7 @@
 #include <cjson/cJSON.h>
 #include <libwebsockets.h>
 #include <math.h>
+#include <poll.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -31,6 +32,7 @@
 
 #define CLIENT_MAX_MESSAGE (64u << 20) /* largest frame we reassemble */
 #define CLIENT_RX_CHUNK 65536
+#define CLIENT_STEP_RING 128 /* more than the server queues (64): no answer overwritten unread */
 
 typedef struct out_msg {
     struct out_msg *next;
@@ -95,6 +97,15 @@ struct terrad_client {
     client_own *own;     /* the colliders this client created */
     size_t nown, own_cap;
     terrad_prediction *predictions; /* terrad_client_predict.c */
+    /* lockstep (client-clocked worlds): step numbers sent, and each answer
+     * (STEPPED or an error whose ref is "step:SEQ") in a ring by seq */
+    int client_clock;
+    uint32_t step_seq, step_waiting;
+    struct {
+        uint32_t seq;
+        int answered, code;
+        uint64_t tick;
+    } steps[CLIENT_STEP_RING];
 };
 
 /* ---- small helpers ------------------------------------------------------- */
@@ -183,6 +194,18 @@ static int enqueue(terrad_client *c, const void *data, size_t len, int binary)
     return 0;
 }
 
+/* A binary frame its encoder wrote into buf (rc: the encoder's result) queued
+ * when it was encoded; buf freed unless it is the caller's stackbuf. */
+static int enqueue_encoded(terrad_client *c, int rc, uint8_t *buf, size_t len,
+                           const uint8_t *stackbuf)
+{
+    if (rc == 0)
+        rc = enqueue(c, buf, len, 1);
+    if (buf != stackbuf)
+        free(buf);
+    return rc;
+}
+
 /* Push queued messages out without blocking for long. */
 static void flush(terrad_client *c)
 {
@@ -237,6 +260,8 @@ static void on_world(terrad_client *c, const cJSON *m)
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "world");
     snprintf(c->world_name, sizeof c->world_name, "%s",
              cJSON_IsString(name) ? name->valuestring : "");
+    const cJSON *clock = cJSON_GetObjectItemCaseSensitive(m, "clock");
+    c->client_clock = cJSON_IsString(clock) && strcmp(clock->valuestring, "client") == 0;
     c->got_world = 1;
 }
 
@@ -266,6 +291,16 @@ static int add_sub(terrad_client *c, uint32_t sid, int64_t x, int64_t y, int64_t
     return 0;
 }
 
+/* Step seq was answered: code 0 (STEPPED at tick) or the error's. */
+static void step_answered(terrad_client *c, uint32_t seq, int code, uint64_t tick)
+{
+    size_t i = seq % CLIENT_STEP_RING;
+    c->steps[i].seq = seq;
+    c->steps[i].answered = 1;
+    c->steps[i].code = code;
+    c->steps[i].tick = tick;
+}
+
 static void on_text(terrad_client *c, const char *text, size_t len)
 {
     cJSON *m = cJSON_ParseWithLength(text, len);
@@ -289,7 +324,10 @@ static void on_text(terrad_client *c, const char *text, size_t len)
         set_err(c, "server error %d %s: %s", code, cJSON_IsString(name) ? name->valuestring : "?",
                 cJSON_IsString(msg) ? msg->valuestring : "");
         c->stats.last_error_code = code;
-        if (mine) {
+        unsigned step;
+        if (cJSON_IsString(ref) && sscanf(ref->valuestring, "step:%u", &step) == 1) {
+            step_answered(c, step, code > 0 ? code : TERRAD_E_INTERNAL, 0);
+        } else if (mine) {
             c->wait_done = 1;
             c->wait_code = code > 0 ? code : TERRAD_E_INTERNAL;
         } else {
@@ -437,6 +475,14 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         c->stats.ack_tick = tick;
         c->stats.ack_seq = seq;
         predict_acked(c, tick, seq);
+        break;
+    }
+    case TERRAD_MSG_STEPPED: {
+        uint32_t seq, ticks;
+        rc = terrad_stepped_decode(buf, len, &tick, &seq, &ticks);
+        if (rc)
+            return bad_frame(c, "STEPPED", rc);
+        step_answered(c, seq, 0, tick);
         break;
     }
     case TERRAD_MSG_PING:
@@ -947,10 +993,7 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
     size_t len = 0;
     uint32_t seq = c->seq + 1;
     int rc = terrad_pose_batch_encode(buf, cap, &len, seq, poses, count);
-    if (rc == 0)
-        rc = enqueue(c, buf, len, 1);
-    if (buf != stackbuf)
-        free(buf);
+    rc = enqueue_encoded(c, rc, buf, len, stackbuf); /* len: set by the encoder first */
     if (rc) {
         if (rc > 0)
             set_err(c, "pose batch refused locally: %s", terrad_err_name(rc));
@@ -1131,4 +1174,145 @@ int terrad_client_fd(const terrad_client *c)
     if (c->closed || !c->wsi)
         return -1;
     return (int)lws_get_socket_fd(c->wsi);
+}
+
+/* ---- lockstep (client-clocked worlds) ------------------------------------- */
+
+int terrad_client_world_client_clock(const terrad_client *c)
+{
+    return c->client_clock;
+}
+
+int terrad_client_step_send(terrad_client *c, const terrad_step *s, uint32_t *seq_out)
+{
+    terrad_step_head h = {
+        .seq = c->step_seq + 1, .ticks = s->ticks, .count = s->count, .sets = s->sets};
+    size_t cap = terrad_step_size(s->count, s->sets);
+    uint8_t stackbuf[TERRAD_STEP_FIXED + 16 * TERRAD_POSE_SIZE];
+    uint8_t *buf = cap <= sizeof stackbuf ? stackbuf : malloc(cap);
+    if (!buf)
+        return TERRAD_E_NO_MEMORY;
+    size_t len = 0;
+    int rc = terrad_step_encode(buf, cap, &len, &h, s->poses);
+    rc = enqueue_encoded(c, rc, buf, len, stackbuf);
+    if (rc) {
+        if (rc > 0)
+            set_err(c,
+                    "step refused locally: %s (ticks %u, count %u, sets %u: sets must be 0, 1 "
+                    "or ticks, every pose finite with a unit quaternion)",
+                    terrad_err_name(rc), (unsigned)s->ticks, (unsigned)s->count, (unsigned)s->sets);
+        return rc;
+    }
+    c->step_seq = h.seq;
+    c->steps[h.seq % CLIENT_STEP_RING].answered = 0;
+    c->steps[h.seq % CLIENT_STEP_RING].seq = h.seq;
+    if (seq_out)
+        *seq_out = h.seq;
+    flush(c);
+    return 0;
+}
+
+static int step_done(const terrad_client *c, uint32_t seq)
+{
+    return c->steps[seq % CLIENT_STEP_RING].seq == seq && c->steps[seq % CLIENT_STEP_RING].answered;
+}
+
+static int waited_step(const terrad_client *c)
+{
+    return step_done(c, c->step_waiting);
+}
+
+/* The answer of a step that was answered (0 with its tick, or its error). */
+static int step_result(terrad_client *c, uint32_t seq, uint64_t *tick_out)
+{
+    size_t i = seq % CLIENT_STEP_RING;
+    if (tick_out)
+        *tick_out = c->steps[i].tick;
+    return c->steps[i].code;
+}
+
+static int step_unanswered(terrad_client *c, uint32_t seq)
+{
+    if (c->closed)
+        return TERRAD_CLIENT_E_CLOSED;
+    set_err(c, "step %u: no STEPPED within %d ms", seq, c->timeout_ms);
+    return TERRAD_CLIENT_E_TIMEOUT;
+}
+
+int terrad_client_step_wait(terrad_client *c, uint32_t seq, uint64_t *tick_out)
+{
+    c->step_waiting = seq;
+    if (!step_done(c, seq))
+        service_until(c, now_us() + (int64_t)c->timeout_ms * 1000, waited_step);
+    return step_done(c, seq) ? step_result(c, seq, tick_out) : step_unanswered(c, seq);
+}
+
+int terrad_client_step(terrad_client *c, const terrad_step *s, uint64_t *tick_out)
+{
+    uint32_t seq;
+    int rc = terrad_client_step_send(c, s, &seq);
+    return rc ? rc : terrad_client_step_wait(c, seq, tick_out);
+}
+
+int terrad_client_step_many(terrad_client *const *clients, const terrad_step *steps, size_t k,
+                            uint64_t *ticks_out, int *rcs_out)
+{
+    uint32_t stackseq[64];
+    struct pollfd stackfds[64];
+    uint32_t *seqs = k <= 64 ? stackseq : malloc(k * sizeof *seqs);
+    struct pollfd *fds = k <= 64 ? stackfds : malloc(k * sizeof *fds);
+    if (!seqs || !fds) {
+        if (seqs != stackseq)
+            free(seqs);
+        return TERRAD_E_NO_MEMORY;
+    }
+    int first = 0, timeout_ms = 0;
+    size_t open = 0;
+    for (size_t i = 0; i < k; i++) { /* all sent first: the worlds tick at once */
+        int rc = terrad_client_step_send(clients[i], &steps[i], &seqs[i]);
+        if (rc) {
+            seqs[i] = 0;
+            if (rcs_out)
+                rcs_out[i] = rc;
+            first = first ? first : rc;
+        } else {
+            open++;
+        }
+        timeout_ms = clients[i]->timeout_ms > timeout_ms ? clients[i]->timeout_ms : timeout_ms;
+    }
+    int64_t deadline = now_us() + (int64_t)timeout_ms * 1000;
+    while (open > 0 && now_us() < deadline) {
+        nfds_t n = 0;
+        open = 0;
+        for (size_t i = 0; i < k; i++) {
+            terrad_client *c = clients[i];
+            if (!seqs[i] || c->closed)
+                continue;
+            lws_service(c->ctx, -1); /* what arrived, without waiting */
+            if (step_done(c, seqs[i]) || c->closed)
+                continue;
+            open++;
+            fds[n++] = (struct pollfd){.fd = terrad_client_fd(c), .events = POLLIN};
+        }
+        if (open > 0)
+            poll(fds, n, 1);
+    }
+    for (size_t i = 0; i < k; i++) {
+        if (!seqs[i])
+            continue;
+        terrad_client *c = clients[i];
+        uint64_t tick = 0;
+        int rc =
+            step_done(c, seqs[i]) ? step_result(c, seqs[i], &tick) : step_unanswered(c, seqs[i]);
+        if (ticks_out)
+            ticks_out[i] = tick;
+        if (rcs_out)
+            rcs_out[i] = rc;
+        first = first ? first : rc;
+    }
+    if (seqs != stackseq)
+        free(seqs);
+    if (fds != stackfds)
+        free(fds);
+    return first;
 }

@@ -291,6 +291,54 @@ void terrad_prediction_stop(terrad_prediction *p);
  * descriptor, then call terrad_client_poll(c, 0) on those that are ready. */
 int terrad_client_fd(const terrad_client *c);
 
+/* ---- added in 0.4: lockstep co-simulation (PROTOCOL.md "STEP"; docs/simulators.md) ----
+ *
+ * A world made with "clock": "client" ticks only when its driver steps it:
+ *
+ *     terrad_pose wheels[4] = {...};                       // this tick's poses
+ *     terrad_step s = {.ticks = 1, .poses = wheels, .count = 4, .sets = 1};
+ *     uint64_t tick;
+ *     terrad_client_step(c, &s, &tick);                    // the tick ran and is durable
+ *     terrad_client_force(c, wheel_id, &f, NULL);          // its FORCES entry
+ *
+ * Each of the step's ticks sends what a wall-clock tick sends (DELTA, CONTACT,
+ * FORCES, ACK naming the step, ... each through the hook as usual), then one
+ * STEPPED after the last. The first accepted step makes this client the
+ * world's driver until it disconnects; another client's step is refused with
+ * forbidden (22) naming "driver". A step the server refuses returns the
+ * error's code, terrad_client_last_error naming the field (ticks, sets,
+ * count, poses[i], clock, driver, queue, store). */
+typedef struct terrad_step {
+    uint32_t ticks;           /* ticks to run, 1..limits.max_step_ticks */
+    const terrad_pose *poses; /* sets * count poses, set after set */
+    uint16_t count;           /* poses per set (<= limits.max_poses_per_batch) */
+    /* 0: every collider holds its pose; 1: the set poses them at the first
+     * tick and they hold after; ticks: set i is tick i's (ticks <= 65535) */
+    uint16_t sets;
+} terrad_step;
+
+/* Sends a STEP (its number in *seq_out) without waiting. Up to 64 may wait
+ * on the server (the world's queue); more are refused naming "queue". */
+int terrad_client_step_send(terrad_client *c, const terrad_step *s, uint32_t *seq_out);
+/* Services the connection until step seq is answered: 0 with the tick its
+ * last tick had (*tick_out), or the server's error code for it, or
+ * TERRAD_CLIENT_E_TIMEOUT after desc.timeout_ms, or TERRAD_CLIENT_E_CLOSED. */
+int terrad_client_step_wait(terrad_client *c, uint32_t seq, uint64_t *tick_out);
+/* step_send then step_wait. */
+int terrad_client_step(terrad_client *c, const terrad_step *s, uint64_t *tick_out);
+/* K worlds stepped as one (vectorised environments): steps[i] goes to
+ * clients[i] (each connected to its own client-clocked world), all sent
+ * before any is waited for, so the worlds' ticks run at once on the server's
+ * shared pool of sim workers; then every client is serviced until each step
+ * is answered. ticks_out[i] (may be NULL): the tick each ended at; rcs_out[i]
+ * (may be NULL): each one's result as terrad_client_step_wait's. Returns 0
+ * when all succeeded, else the first non-zero result. */
+int terrad_client_step_many(terrad_client *const *clients, const terrad_step *steps, size_t k,
+                            uint64_t *ticks_out, int *rcs_out);
+/* 1 when the world joined ticks on its driver's steps (world "clock":
+ * "client"), 0 on the server's wall clock. */
+int terrad_client_world_client_clock(const terrad_client *c);
+
 #ifdef __cplusplus
 }
 #endif

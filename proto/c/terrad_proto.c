@@ -81,6 +81,8 @@ const char *terrad_msg_type_name(int type)
         return "PING";
     case TERRAD_MSG_PONG:
         return "PONG";
+    case TERRAD_MSG_STEP:
+        return "STEP";
     case TERRAD_MSG_DELTA:
         return "DELTA";
     case TERRAD_MSG_CONTACT:
@@ -93,6 +95,8 @@ const char *terrad_msg_type_name(int type)
         return "FOOTPRINTS";
     case TERRAD_MSG_FORCES:
         return "FORCES";
+    case TERRAD_MSG_STEPPED:
+        return "STEPPED";
     default:
         return NULL;
     }
@@ -248,6 +252,32 @@ static int pose_check(const terrad_pose *p)
     return TERRAD_OK;
 }
 
+static uint8_t *wr_pose(uint8_t *p, const terrad_pose *q)
+{
+    p = wr_u32(p, q->id);
+    p = wr_f32(p, q->x);
+    p = wr_f32(p, q->y);
+    p = wr_f32(p, q->z);
+    p = wr_f32(p, q->qw);
+    p = wr_f32(p, q->qx);
+    p = wr_f32(p, q->qy);
+    return wr_f32(p, q->qz);
+}
+
+static terrad_pose rd_pose(rd *r)
+{
+    terrad_pose q;
+    q.id = rd_u32(r);
+    q.x = rd_f32(r);
+    q.y = rd_f32(r);
+    q.z = rd_f32(r);
+    q.qw = rd_f32(r);
+    q.qx = rd_f32(r);
+    q.qy = rd_f32(r);
+    q.qz = rd_f32(r);
+    return q;
+}
+
 size_t terrad_pose_batch_size(size_t count)
 {
     return TERRAD_POSE_BATCH_FIXED + count * TERRAD_POSE_SIZE;
@@ -267,17 +297,8 @@ int terrad_pose_batch_encode(uint8_t *buf, size_t cap, size_t *len_out, uint32_t
     uint8_t *p = wr_header(buf, TERRAD_MSG_POSE_BATCH);
     p = wr_u32(p, seq);
     p = wr_u16(p, (uint16_t)count);
-    for (size_t i = 0; i < count; i++) {
-        const terrad_pose *q = &poses[i];
-        p = wr_u32(p, q->id);
-        p = wr_f32(p, q->x);
-        p = wr_f32(p, q->y);
-        p = wr_f32(p, q->z);
-        p = wr_f32(p, q->qw);
-        p = wr_f32(p, q->qx);
-        p = wr_f32(p, q->qy);
-        p = wr_f32(p, q->qz);
-    }
+    for (size_t i = 0; i < count; i++)
+        p = wr_pose(p, &poses[i]);
     if (len_out)
         *len_out = need;
     return TERRAD_OK;
@@ -299,15 +320,7 @@ int terrad_pose_batch_decode(const uint8_t *buf, size_t len, uint32_t *seq_out, 
     if (count > cap)
         return TERRAD_E_TOO_LARGE;
     for (size_t i = 0; i < count; i++) {
-        terrad_pose q;
-        q.id = rd_u32(&r);
-        q.x = rd_f32(&r);
-        q.y = rd_f32(&r);
-        q.z = rd_f32(&r);
-        q.qw = rd_f32(&r);
-        q.qx = rd_f32(&r);
-        q.qy = rd_f32(&r);
-        q.qz = rd_f32(&r);
+        terrad_pose q = rd_pose(&r);
         if (pose_check(&q))
             return TERRAD_E_BAD_VALUE;
         poses[i] = q;
@@ -763,6 +776,120 @@ int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, ter
                          size_t cap, size_t *count_out)
 {
     return tick_list_decode(&forces_list, buf, len, tick_out, forces, cap, count_out);
+}
+
+/* ---- STEP and STEPPED ----------------------------------------------------- */
+
+size_t terrad_step_size(size_t count, size_t sets)
+{
+    return TERRAD_STEP_FIXED + count * sets * TERRAD_POSE_SIZE;
+}
+
+static int step_head_check(const terrad_step_head *h)
+{
+    if (h->ticks == 0 || (h->sets > 1 && h->sets != h->ticks))
+        return TERRAD_E_BAD_VALUE;
+    return TERRAD_OK;
+}
+
+int terrad_step_encode(uint8_t *buf, size_t cap, size_t *len_out, const terrad_step_head *h,
+                       const terrad_pose *poses)
+{
+    if (step_head_check(h))
+        return TERRAD_E_BAD_VALUE;
+    size_t n = (size_t)h->count * h->sets;
+    for (size_t i = 0; i < n; i++)
+        if (pose_check(&poses[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_step_size(h->count, h->sets);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_STEP);
+    p = wr_u32(p, h->seq);
+    p = wr_u32(p, h->ticks);
+    p = wr_u16(p, h->count);
+    p = wr_u16(p, h->sets);
+    for (size_t i = 0; i < n; i++)
+        p = wr_pose(p, &poses[i]);
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_step_decode(const uint8_t *buf, size_t len, terrad_step_head *head_out,
+                       terrad_pose *poses, size_t cap, long *bad_pose_out)
+{
+    if (bad_pose_out)
+        *bad_pose_out = -1;
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_STEP, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < TERRAD_STEP_FIXED - TERRAD_HEADER_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    terrad_step_head h;
+    h.seq = rd_u32(&r);
+    h.ticks = rd_u32(&r);
+    h.count = rd_u16(&r);
+    h.sets = rd_u16(&r);
+    size_t n = (size_t)h.count * h.sets;
+    if (rd_left(&r) != n * TERRAD_POSE_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (head_out)
+        *head_out = h;
+    if (step_head_check(&h))
+        return TERRAD_E_BAD_VALUE;
+    if (n > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < n; i++) {
+        terrad_pose q = rd_pose(&r);
+        if (pose_check(&q)) {
+            if (bad_pose_out)
+                *bad_pose_out = (long)i;
+            return TERRAD_E_BAD_VALUE;
+        }
+        poses[i] = q;
+    }
+    return TERRAD_OK;
+}
+
+int terrad_stepped_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick, uint32_t seq,
+                          uint32_t ticks)
+{
+    if (ticks == 0)
+        return TERRAD_E_BAD_VALUE;
+    if (!buf || cap < TERRAD_STEPPED_SIZE)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_STEPPED);
+    p = wr_u64(p, tick);
+    p = wr_u32(p, seq);
+    wr_u32(p, ticks);
+    if (len_out)
+        *len_out = TERRAD_STEPPED_SIZE;
+    return TERRAD_OK;
+}
+
+int terrad_stepped_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, uint32_t *seq_out,
+                          uint32_t *ticks_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_STEPPED, &r);
+    if (rc)
+        return rc;
+    if (len != TERRAD_STEPPED_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    uint32_t seq = rd_u32(&r);
+    uint32_t ticks = rd_u32(&r);
+    if (ticks == 0)
+        return TERRAD_E_BAD_VALUE;
+    if (tick_out)
+        *tick_out = tick;
+    if (seq_out)
+        *seq_out = seq;
+    if (ticks_out)
+        *ticks_out = ticks;
+    return TERRAD_OK;
 }
 
 /* ---- ACK, PING, PONG ----------------------------------------------------- */

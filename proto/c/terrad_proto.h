@@ -51,18 +51,22 @@ extern "C" {
 #define TERRAD_FOOTPRINT_SIZE 24      /* u32 collider id, 5 x f32 */
 #define TERRAD_FORCES_FIXED 14        /* header, u64 tick, u16 count */
 #define TERRAD_FORCE_SIZE 48          /* u32 id, 10 x f32, u32 cells */
+#define TERRAD_STEP_FIXED 16          /* header, u32 seq, u32 ticks, u16 count, u16 sets */
+#define TERRAD_STEPPED_SIZE 20        /* header, u64 tick, u32 seq, u32 ticks */
 #define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
     TERRAD_MSG_POSE_BATCH = 0x01, /* client -> server */
     TERRAD_MSG_PING = 0x02,       /* either way */
     TERRAD_MSG_PONG = 0x03,       /* either way */
+    TERRAD_MSG_STEP = 0x04,       /* client -> server: a client-clocked world's ticks */
     TERRAD_MSG_DELTA = 0x10,      /* server -> client */
     TERRAD_MSG_CONTACT = 0x11,    /* server -> client */
     TERRAD_MSG_ACK = 0x12,        /* server -> client */
     TERRAD_MSG_COLLIDERS = 0x13,  /* server -> client */
     TERRAD_MSG_FOOTPRINTS = 0x14, /* server -> client */
     TERRAD_MSG_FORCES = 0x15,     /* server -> client */
+    TERRAD_MSG_STEPPED = 0x16,    /* server -> client: a STEP's ticks are done and durable */
 } terrad_msg_type;
 
 /* Error codes: positive values are the protocol's (PROTOCOL.md, "Errors"),
@@ -251,6 +255,35 @@ int terrad_forces_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tic
                          const terrad_force *forces, size_t count);
 int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_force *forces,
                          size_t cap, size_t *count_out);
+
+/* ---- STEP and STEPPED (client-clocked worlds) ------------------------------ */
+
+/* A STEP's fixed fields (PROTOCOL.md "STEP"): the world ticks `ticks` times;
+ * `sets` pose sets of `count` poses follow, tick-major: 0 sets holds every
+ * collider where it is, 1 set poses them at the first tick and holds them
+ * after, `ticks` sets pose them at every tick (set i at the step's tick i). */
+typedef struct terrad_step_head {
+    uint32_t seq;   /* the client's step number, echoed in ACK and STEPPED */
+    uint32_t ticks; /* >= 1 */
+    uint16_t count; /* poses per set */
+    uint16_t sets;  /* 0, 1 or ticks */
+} terrad_step_head;
+
+size_t terrad_step_size(size_t count, size_t sets);
+/* poses: sets * count of them. */
+int terrad_step_encode(uint8_t *buf, size_t cap, size_t *len_out, const terrad_step_head *h,
+                       const terrad_pose *poses);
+/* Lengths first (bad_frame); *head_out is then filled whatever follows, so a
+ * receiver can name the field: ticks 0 or sets not 0, 1 or ticks (bad_value),
+ * more than cap poses (too_large), a pose not finite or far from unit length
+ * (bad_value, *bad_pose_out its index; -1 otherwise). */
+int terrad_step_decode(const uint8_t *buf, size_t len, terrad_step_head *head_out,
+                       terrad_pose *poses, size_t cap, long *bad_pose_out);
+/* STEPPED: the step `seq` of `ticks` ticks ended at tick `tick` (ticks >= 1). */
+int terrad_stepped_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick, uint32_t seq,
+                          uint32_t ticks);
+int terrad_stepped_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, uint32_t *seq_out,
+                          uint32_t *ticks_out);
 
 /* ---- ACK, PING, PONG ----------------------------------------------------- */
 

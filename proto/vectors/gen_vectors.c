@@ -563,6 +563,65 @@ static void small_vectors(void)
     valid(vector("pong_max", "PONG", "maximum nonce"), f, buf, len);
 }
 
+/* ---- STEP and STEPPED ---- */
+
+/* fields: seq, ticks, count, sets and the poses (as POSE_BATCH's), set after set */
+static void step_vector(const char *name, const char *about, terrad_step_head h,
+                        const terrad_pose *poses)
+{
+    size_t len;
+    ok(terrad_step_encode(buf, sizeof buf, &len, &h, poses), name);
+    cJSON *f = pose_fields(h.seq, poses, (size_t)h.count * h.sets);
+    cJSON_AddNumberToObject(f, "ticks", h.ticks);
+    cJSON_AddNumberToObject(f, "count", h.count);
+    cJSON_AddNumberToObject(f, "sets", h.sets);
+    valid(vector(name, "STEP", about), f, buf, len);
+}
+
+static void step_vectors(void)
+{
+    terrad_pose p[4] = {
+        {3, 1.0f, 2.0f, 0.5f, 1, 0, 0, 0},
+        {4, 1.5f, 2.0f, 0.5f, 0.70710677f, 0, 0.70710677f, 0},
+        {3, 1.25f, 2.0f, 0.5f, 1, 0, 0, 0},
+        {4, 1.75f, 2.0f, 0.5f, 0.5f, 0.5f, 0.5f, 0.5f},
+    };
+    step_vector("step_hold", "five ticks, every collider holds its pose (no sets)",
+                (terrad_step_head){.seq = 9, .ticks = 5, .count = 0, .sets = 0}, p);
+    step_vector("step_once", "three ticks, two poses at the first and held after",
+                (terrad_step_head){.seq = 10, .ticks = 3, .count = 2, .sets = 1}, p);
+    step_vector("step_each", "two ticks, one set of two poses per tick",
+                (terrad_step_head){.seq = 4294967295u, .ticks = 2, .count = 2, .sets = 2}, p);
+    size_t len = 0;
+    ok(terrad_step_encode(buf, sizeof buf, &len,
+                          &(terrad_step_head){.seq = 1, .ticks = 2, .count = 2, .sets = 2}, p),
+       "step");
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    set_u32(q + 8, 0);
+    invalid("step_zero_ticks", "STEP", "ticks 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_u32(q + 8, 3);
+    invalid("step_sets_not_ticks", "STEP", "two sets for three ticks", q, len, TERRAD_E_BAD_VALUE);
+    bad_f32("step_nan_pose", "STEP", "the second set's first pose has x NaN", len,
+            TERRAD_STEP_FIXED + 2 * TERRAD_POSE_SIZE + 4, NAN);
+    invalid("step_truncated", "STEP", "the last pose cut short", buf, len - 1, TERRAD_E_BAD_FRAME);
+    invalid("step_no_sets", "STEP", "ticks and count but no sets field", buf, 14,
+            TERRAD_E_BAD_FRAME);
+
+    ok(terrad_stepped_encode(buf, sizeof buf, &len, 1234567890123ull, 10, 3), "stepped");
+    cJSON *f = cJSON_CreateObject();
+    add_u64(f, "tick", 1234567890123ull);
+    cJSON_AddNumberToObject(f, "seq", 10);
+    cJSON_AddNumberToObject(f, "ticks", 3);
+    valid(vector("stepped_basic", "STEPPED", "step 10's three ticks ended at tick 1234567890123"),
+          f, buf, len);
+    invalid("stepped_short", "STEPPED", "19 bytes", buf, len - 1, TERRAD_E_BAD_FRAME);
+    memcpy(q, buf, len);
+    set_u32(q + 16, 0);
+    invalid("stepped_zero_ticks", "STEPPED", "ticks 0", q, len, TERRAD_E_BAD_VALUE);
+}
+
 /* ---- COLLIDERS ---- */
 
 static cJSON *collider_state_json(const void *entry)
@@ -898,6 +957,7 @@ int main(void)
     colliders_vectors();
     footprints_vectors();
     forces_vectors();
+    step_vectors();
     mirror_scenarios();
     char *text = cJSON_Print(root);
     if (!text)

@@ -67,6 +67,7 @@ typedef struct serve_daemon {
     host_world def;      /* the default world: scene, world, store, engine, service, hub */
     host_ticker *ticker; /* the sim workers every world of the daemon ticks on */
     int running;         /* def is on the ticker */
+    int ran;             /* it was: its end closed its reads on its sim thread */
     atomic_int ended;    /* def's end ran (default_ended) */
     int end_rc;
     net_server *net;
@@ -227,7 +228,7 @@ static int serve_start(serve_daemon *d, error_text *err)
     d->def.max_ticks = d->o.max_ticks;
     if (host_world_run(&d->def, err->message, sizeof err->message) != 0)
         return -1;
-    d->running = 1;
+    d->running = d->ran = 1;
     return 0;
 }
 
@@ -261,7 +262,7 @@ static void serve_stop(serve_daemon *d)
             host_sleep_ms(1);
     }
     serve_worlds_stop(d->worlds); /* its worlds leave the ports first */
-    if (d->def.m.h)
+    if (d->def.m.h && !d->ran)    /* this thread made it and is its sim thread still */
         hub_close_reads(d->def.m.h);
     http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */

@@ -44,9 +44,6 @@ typedef struct serve_options {
     const char *tls_cert, *tls_key; /* --tls-cert, --tls-key: wss:// and https:// only */
     long max_ticks;                 /* < 0: run until signalled */
     net_limits limits;
-    /* limits.max_heights_bytes_per_address / _in_flight: /v1/heights answers
-     * held at once (0: http.c's defaults, 64 MiB and 256 MiB) */
-    size_t heights_bytes_per_address, heights_bytes_in_flight;
     const char *data_dir;      /* NULL: memory only (--no-data, or a demo without --data) */
     int data_given;            /* --data, or "data" in --config */
     int demo_in_memory;        /* demo actors and no --data: no store */

@@ -136,6 +136,7 @@ static const char serve_usage[] = "[options]";
 void app_serve_usage(FILE *out)
 {
     cli_print_help(out, "serve", serve_usage, serve_table);
+    net_limits_usage(out);
 }
 
 /* --public-ws-url: ws:// or wss://, a host, printable without spaces or
@@ -183,102 +184,31 @@ static int config_public_ws_url(const cJSON *doc, serve_options *o, error_text *
     return r < 0 ? -1 : 0;
 }
 
-/* "limits": PROTOCOL.md's names, each a positive number. */
+/* "limits": PROTOCOL.md's names, each a positive number (net_limit_table,
+ * net/net_limits.c, says which and where each goes). */
 static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
 {
-    net_limits *m = &o->limits;
-    static const char *const keys[] = {"max_message_bytes",
-                                       "max_colliders",
-                                       "max_poses_per_batch",
-                                       "max_subscriptions",
-                                       "max_subscribed_cells",
-                                       "max_messages_per_s",
-                                       "messages_burst",
-                                       "max_pending_bytes",
-                                       "hello_timeout_s",
-                                       "max_active_cells",
-                                       "max_mesh_triangles",
-                                       "max_connections",
-                                       "max_connections_per_address",
-                                       "max_client_lag_ticks",
-                                       "max_tick_cells",
-                                       "max_heights_bytes_per_address",
-                                       "max_heights_bytes_in_flight",
-                                       "max_edit_cells",
-                                       "max_sweep_cells",
-                                       NULL};
+    const char *keys[64];
+    int n = 0;
+    for (const net_limit_spec *t = net_limit_table; t->name && n < 63; t++)
+        if (t->flags & NET_LIMIT_CONFIG)
+            keys[n++] = t->name;
+    keys[n] = NULL;
     const cJSON *l = cJSON_GetObjectItemCaseSensitive(doc, "limits");
     if (!l)
         return 0;
     if (json_expect_object(l, "limits", "limits", err) ||
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
-    double v[19];
-    for (int i = 0; keys[i]; i++) {
-        int r = json_get_positive(l, "limits", keys[i], 1e12, 0, &v[i], err);
+    for (const net_limit_spec *t = net_limit_table; t->name; t++) {
+        double v;
+        int r = (t->flags & NET_LIMIT_CONFIG)
+                    ? json_get_positive(l, "limits", t->name, 1e12, 0, &v, err)
+                    : 0;
         if (r < 0)
             return -1;
-        if (r == 0)
-            continue;
-        switch (i) {
-        case 0:
-            m->max_message_bytes = (size_t)v[i];
-            break;
-        case 1:
-            m->max_colliders = (int)v[i];
-            break;
-        case 2:
-            m->max_poses_per_batch = (int)v[i];
-            break;
-        case 3:
-            m->max_subscriptions = (int)v[i];
-            break;
-        case 4:
-            m->max_subscribed_cells = (int64_t)v[i];
-            break;
-        case 5:
-            m->max_messages_per_s = v[i];
-            break;
-        case 6:
-            m->messages_burst = v[i];
-            break;
-        case 7:
-            m->max_pending_bytes = (size_t)v[i];
-            break;
-        case 8:
-            m->hello_timeout_s = v[i];
-            break;
-        case 9:
-            m->max_active_cells = (int64_t)v[i];
-            break;
-        case 10:
-            m->max_mesh_triangles = (int)v[i];
-            break;
-        case 11:
-            m->max_connections = (int)v[i];
-            break;
-        case 12:
-            m->max_connections_per_address = (int)v[i];
-            break;
-        case 13:
-            m->max_client_lag_ticks = (int)v[i];
-            break;
-        case 14:
-            m->max_tick_cells = (int64_t)v[i];
-            break;
-        case 15:
-            o->heights_bytes_per_address = (size_t)v[i];
-            break;
-        case 16:
-            o->heights_bytes_in_flight = (size_t)v[i];
-            break;
-        case 17:
-            m->max_edit_cells = (int64_t)v[i];
-            break;
-        default:
-            m->max_sweep_cells = (int64_t)v[i];
-            break;
-        }
+        if (r > 0)
+            net_limit_set(&o->limits, t, v);
     }
     return 0;
 }
@@ -520,6 +450,8 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     o->store_fault = getenv("TERRAD_STORE_FAULT");
     cli_result r =
         cli_parse("serve", serve_usage, serve_table, argc, argv, serve_on_option, o, NULL);
+    if (r == CLI_HELP)
+        net_limits_usage(stdout); /* after the options cli_parse printed */
     if (o->data_dir && o->data_dir == o->config_data)
         o->data_given = 1; /* "data" in --config */
     /* the demo's pits would pile up in ./data run after run: a demo world is

@@ -87,8 +87,8 @@ http_server *serve_http_open(const serve_options *o, auth_table *auth, http_stat
                              hub *heights, int *fd_reserve, error_text *err)
 {
     http_limits hl = {.connections = serve_http_connections(),
-                      .heights_bytes_per_address = o->heights_bytes_per_address,
-                      .heights_bytes_total = o->heights_bytes_in_flight,
+                      .heights_bytes_per_address = o->limits.max_heights_bytes_per_address,
+                      .heights_bytes_total = o->limits.max_heights_bytes_in_flight,
                       .edit_max_cells = o->limits.max_edit_cells};
     hl.connections_per_ip = hl.connections < HTTP_DEFAULT_CONNECTIONS_PER_IP
                                 ? hl.connections

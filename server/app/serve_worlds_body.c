@@ -114,6 +114,38 @@ static char *scene_of(const char *scene_dir, const cJSON *doc, unsigned *code, c
     return (char *)text;
 }
 
+/* The body's "clock" ("wall" or "client"), beside name and scene, is the
+ * scene's "clock" (PROTOCOL.md "STEP"): written into the scene text, so the
+ * world's NAME.json (or registry entry) keeps it. 0, or -1 with field and why. */
+static int body_clock(const cJSON *doc, char **scene_text, char *field, size_t fcap, char *why,
+                      size_t cap)
+{
+    const cJSON *c = cJSON_GetObjectItemCaseSensitive(doc, "clock");
+    if (!c)
+        return 0;
+    snprintf(field, fcap, "clock");
+    if (!cJSON_IsString(c) ||
+        (strcmp(c->valuestring, "wall") != 0 && strcmp(c->valuestring, "client") != 0)) {
+        snprintf(why, cap, "clock: must be \"wall\" or \"client\"");
+        return -1;
+    }
+    cJSON *scene = cJSON_Parse(*scene_text);
+    char *text = NULL;
+    if (cJSON_IsObject(scene)) {
+        cJSON_DeleteItemFromObjectCaseSensitive(scene, "clock");
+        cJSON_AddStringToObject(scene, "clock", c->valuestring);
+        text = cJSON_PrintUnformatted(scene);
+    }
+    cJSON_Delete(scene);
+    if (!text) { /* not an object: scene_load_json names it */
+        snprintf(field, fcap, "scene");
+        return 0;
+    }
+    free(*scene_text);
+    *scene_text = text;
+    return 0;
+}
+
 unsigned worlds_body_check(const char *body, size_t len, const char *scene_dir,
                            const char *default_name, char *name, char **scene_text, char *field,
                            size_t fcap, char *why, size_t cap)
@@ -143,7 +175,11 @@ unsigned worlds_body_check(const char *body, size_t len, const char *scene_dir,
         snprintf(name, CLUSTER_WORLD_NAME_MAX + 1, "%s", n->valuestring);
         scene sc;
         code = 0;
-        if (scene_load_json(*scene_text, scene_dir ? scene_dir : ".", &sc, &err) != 0) {
+        if (body_clock(doc, scene_text, field, fcap, why, cap) != 0) {
+            code = 400;
+            free(*scene_text);
+            *scene_text = NULL;
+        } else if (scene_load_json(*scene_text, scene_dir ? scene_dir : ".", &sc, &err) != 0) {
             code = 422;
             snprintf(field, fcap, "scene");
             snprintf(why, cap, "scene: %s", err.message);

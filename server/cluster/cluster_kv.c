@@ -534,18 +534,9 @@ int cluster_world_remove(cluster *cl, const char *name, error_text *err)
         cluster_error(err, s, "removing world %s", name);
         return -1;
     }
-    char subject[128];
-    cluster_wal_subject(name, subject, sizeof subject);
-    jsOptions jo;
-    jsOptions_Init(&jo);
-    jo.Wait = cl->timeout_ms;
-    jo.Stream.Purge.Subject = subject;
-    jsErrCode code = 0;
-    s = js_PurgeStream(cl->js, CLUSTER_STREAM, &jo, &code);
-    if (s != NATS_OK) {
-        cluster_error(err, s, "purging the log of world %s", name);
+    /* every message, one by one: not a purge (cluster_log_purge_below says why) */
+    if (cluster_log_purge_below(cl, name, UINT64_MAX, err) != CLUSTER_OK)
         return -1;
-    }
     kvStore_Purge(cl->leases, name, NULL);
     return cluster_snapshot_delete_all(cl, name, err) == 0 ? 1 : -1;
 }

@@ -173,13 +173,14 @@ static natsMsg *wal_message_from_json(const cJSON *m, const char *subject)
  * ($JS.API.STREAM.MSG.GET with next_by_subj: a replica's direct get could
  * answer from a store that lost its last writes to a kill -9 and skip
  * records). NATS_NOT_FOUND: none at or after *from. */
-static natsStatus wal_get_next(cluster_wal *w, uint64_t from, natsMsg **out, uint64_t *seq)
+static natsStatus log_get_next(cluster *cl, const char *subject, uint64_t from, natsMsg **out,
+                               uint64_t *seq)
 {
     char api[128], req[256];
     snprintf(api, sizeof api, "$JS.API.STREAM.MSG.GET.%s", CLUSTER_STREAM);
-    snprintf(req, sizeof req, "{\"seq\":%" PRIu64 ",\"next_by_subj\":\"%s\"}", from, w->subject);
+    snprintf(req, sizeof req, "{\"seq\":%" PRIu64 ",\"next_by_subj\":\"%s\"}", from, subject);
     natsMsg *reply = NULL;
-    natsStatus s = natsConnection_RequestString(&reply, w->cl->nc, api, req, w->cl->timeout_ms);
+    natsStatus s = natsConnection_RequestString(&reply, cl->nc, api, req, cl->timeout_ms);
     if (s != NATS_OK)
         return s;
     cJSON *doc =
@@ -195,7 +196,7 @@ static natsStatus wal_get_next(cluster_wal *w, uint64_t from, natsMsg **out, uin
                                                                           : NATS_ERR;
     } else if (cJSON_IsNumber(q) && q->valuedouble >= (double)from) {
         *seq = (uint64_t)q->valuedouble;
-        *out = wal_message_from_json(m, w->subject);
+        *out = wal_message_from_json(m, subject);
         s = *out ? NATS_OK : NATS_ERR;
     }
     cJSON_Delete(doc);
@@ -215,7 +216,7 @@ static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, cluster_record_f
     while (s == NATS_OK && !*stopped) {
         natsMsg *msg = NULL;
         uint64_t seq = 0;
-        s = wal_get_next(w, *from, &msg, &seq);
+        s = log_get_next(w->cl, w->subject, *from, &msg, &seq);
         if (s == NATS_NOT_FOUND) {
             *done = 1;
             return NATS_OK;
@@ -410,25 +411,42 @@ cluster_status cluster_wal_take(cluster_wal *w, uint64_t from_seq, cluster_recor
     return CLUSTER_FENCED;
 }
 
+/* Removes the world's messages below seq one by one ($JS.API.STREAM.MSG.DELETE),
+ * never with a purge filtered by subject: nats-server before 2.9.18 (Debian 12
+ * ships 2.9.10) replays a purge, when a restarted server recovers its stream,
+ * as a purge of the whole stream up to the purge's last sequence — every
+ * other world's messages below it went with it on that server (nats-server
+ * issue #4196, fixed by #4212). make chaos met it: after a NATS server was
+ * killed and started again and led the stream, worlds recovered at tick 0 or
+ * could not be recovered (docs/cluster.md, "Chaos"). A delete is replayed as
+ * that one delete. */
 cluster_status cluster_log_purge_below(cluster *cl, const char *world, uint64_t seq,
                                        error_text *err)
 {
-    if (seq <= 1)
-        return CLUSTER_OK;
     char subject[128];
     cluster_wal_subject(world, subject, sizeof subject);
     jsOptions jo;
     jsOptions_Init(&jo);
     jo.Wait = cl->timeout_ms;
-    jo.Stream.Purge.Subject = subject;
-    jo.Stream.Purge.Sequence = seq;
-    jsErrCode code = 0;
-    natsStatus s = js_PurgeStream(cl->js, CLUSTER_STREAM, &jo, &code);
-    if (s != NATS_OK) {
-        cluster_error(err, s, "purging the log of world %s below %" PRIu64, world, seq);
-        return CLUSTER_ERROR;
+    uint64_t from = 1;
+    for (;;) {
+        natsMsg *msg = NULL;
+        uint64_t at = 0;
+        natsStatus s = log_get_next(cl, subject, from, &msg, &at);
+        if (s == NATS_NOT_FOUND)
+            return CLUSTER_OK;
+        natsMsg_Destroy(msg);
+        if (s == NATS_OK && at >= seq)
+            return CLUSTER_OK;
+        jsErrCode code = 0;
+        if (s == NATS_OK)
+            s = js_DeleteMsg(cl->js, CLUSTER_STREAM, at, &jo, &code);
+        if (s != NATS_OK && code != JSNoMessageFoundErr) {
+            cluster_error(err, s, "removing the log of world %s below %" PRIu64, world, seq);
+            return CLUSTER_ERROR;
+        }
+        from = at + 1;
     }
-    return CLUSTER_OK;
 }
 
 cluster_status cluster_wal_purge_below(cluster_wal *w, uint64_t seq, error_text *err)

@@ -63,6 +63,10 @@ collider_pose demo_actor_step(const demo_actor *a, const world *w, double time_s
 
 /* ---- one world's simulation (host_sim.c) ---- */
 
+/* The shared pool of sim workers and a world on it (below). */
+typedef struct host_ticker host_ticker;
+typedef struct host_job host_job;
+
 /* What host_sim_start takes from the daemon's options. */
 typedef struct host_sim_config {
     const char *backend; /* "auto", "gl" or "cpu" */
@@ -93,6 +97,13 @@ typedef struct host_sim {
     char backend_reason[HOST_BACKEND_REASON_MAX]; /* why this backend (host_backend_create) */
     uint64_t overruns;
     int metrics_slot; /* a named world's labelled series */
+    /* a client-clocked world (scene "clock": "client", host_clock_client):
+     * the ticks its driver's steps asked for (added by the net thread) and
+     * the ticks run (its sim thread), and whom a step wakes */
+    atomic_llong clock_owed;
+    atomic_llong clock_ran;
+    host_ticker *clock_ticker;
+    host_job *clock_job;
 } host_sim;
 
 /* The world's status fields, from m->w and m->sc (before HTTP reads it). */
@@ -140,11 +151,26 @@ typedef struct host_clock {
 } host_clock;
 /* The wall clock at the scene's tick_hz (ctx NULL). */
 extern const host_clock host_clock_wall;
+/* A client-clocked world's clock (PROTOCOL.md "STEP"): due now while m's
+ * driver's steps owe ticks (m->clock_owed > m->clock_ran) or an HTTP height
+ * read waits (host_sim_step then only serves it), else HOST_CLOCK_NEVER: the
+ * world waits, however long, for its driver. */
+host_clock host_clock_client(host_sim *m);
+/* After host_sim_start, before the world joins the net server: nothing for a
+ * wall-clocked world; for a client-clocked one (whose job's clock must be
+ * host_clock_client(m)) each step reaching m's hub adds its ticks to
+ * m->clock_owed and wakes j on t (both NULL: m has a sim thread of its own,
+ * which waits with host_sim_wait_step). A wake before j is on the ticker is
+ * harmless: the ticker asks the clock when j joins. Returns 0. */
+int host_clock_client_attach(host_sim *m, host_ticker *t, host_job *j);
+/* 1 while m's driver's steps owe ticks not run yet. Any thread. */
+int host_sim_tick_owed(host_sim *m);
+/* A client-clocked world's own sim thread (the default world's): 1 once a
+ * tick is owed, 0 after timeout_ms without one (height reads served meanwhile). */
+int host_sim_wait_step(host_sim *m, int timeout_ms);
 
 /* ---- the shared pool of sim workers (host_ticker.c) ---- */
 
-typedef struct host_ticker host_ticker;
-typedef struct host_job host_job;
 /* After each of a world's ticks: non-zero (with why) ends it. */
 typedef int (*host_check_fn)(void *ctx, host_sim *m, long tick, char *why, size_t cap);
 /* On a worker once the job ended: rc 0 asked to (host_ticker_end, max_ticks,

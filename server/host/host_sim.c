@@ -32,6 +32,7 @@ int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
         !(m->svc = service_create(m->engine, m->h, err)))
         return -1;
     service_set_tick_budget(m->svc, c->max_tick_cells, c->max_sweep_cells);
+    service_set_client_clock(m->svc, m->sc.client_clock);
     if (m->st)
         /* go on from the recovered tick, or past it where the store says a
          * client may have seen later (unlogged idle) ticks */
@@ -103,6 +104,7 @@ net_world_info host_sim_world_info(const host_sim *m)
                             .height_max = WORLD_HEIGHT_MAX,
                             .models_json = m->models,
                             .loads = m->params.model == SIM_MODEL_BEKKER,
+                            .client_clock = m->sc.client_clock,
                             .name = m->name[0] ? m->name : NULL,
                             .materials_json = "[\"default\"]"};
 }
@@ -126,6 +128,8 @@ static void publish_status(host_sim *m, double tick_ms, int clients, int collide
     status->clients = clients;
     status->colliders = colliders;
     status->published_ms = time_now_ms();
+    /* a client-clocked world whose steps are all run waits for its driver */
+    status->waiting = m->sc.client_clock && !host_sim_tick_owed(m);
     pthread_mutex_unlock(&status->lock);
 }
 
@@ -190,6 +194,11 @@ static void step_demo(host_sim *m, long tick)
 
 int host_sim_step(host_sim *m, long tick, int clients, error_text *err)
 {
+    if (m->sc.client_clock && !host_sim_tick_owed(m)) {
+        /* woken by a height read while it waits for its driver: no tick */
+        hub_serve_reads(m->h, &m->w, service_current_tick(m->svc));
+        return 0;
+    }
     fault_stall("tick"); /* test hook (base/fault.c): a sim thread that stops */
     step_demo(m, tick);
     service_tick_stats stats;
@@ -198,8 +207,15 @@ int host_sim_step(host_sim *m, long tick, int clients, error_text *err)
         error_set(err, "tick %ld: %s", tick, tick_err.message);
         return -1;
     }
-    if (stats.tick_ms > 1000.0 / m->sc.tick_hz) {
-        m->overruns++;
+    if (m->sc.client_clock) {
+        atomic_fetch_add(&m->clock_ran, 1);
+        /* the step's last tick: its frames (STEPPED last) go out once durable,
+         * and no later tick may come to publish them (a group commit's wait) */
+        for (int i = 0; i < 30000 && service_step_remaining(m->svc) == 0 && !service_settle(m->svc);
+             i++)
+            host_sleep_ms(1);
+    } else if (stats.tick_ms > 1000.0 / m->sc.tick_hz) {
+        m->overruns++; /* a client-clocked tick has no period to overrun */
         metrics_count_tick_overrun();
     }
     publish_status(m, stats.tick_ms, clients, stats.colliders);

@@ -125,12 +125,14 @@ int host_world_run(host_world *hw, char *why, size_t cap)
 {
     host_sim *m = &hw->m;
     error_text err = {{0}};
-    if (host_sim_start(m, &hw->config, &err) == 0 && world_register(hw, &err) == 0) {
+    /* a client-clocked world hears its steps from the moment it joins the ports */
+    if (host_sim_start(m, &hw->config, &err) == 0 &&
+        host_clock_client_attach(m, hw->ticker, &hw->job) == 0 && world_register(hw, &err) == 0) {
         /* after the join: the default world's websocket server is made there */
         hw->job = (host_job){.m = m,
                              .net = hw->net,
                              .max_ticks = hw->max_ticks,
-                             .clock = hw->clock,
+                             .clock = m->sc.client_clock ? host_clock_client(m) : hw->clock,
                              .check = hw->ops->check ? world_check : NULL,
                              .end = world_end,
                              .ctx = hw};

@@ -314,7 +314,7 @@ double http_status_stalled_ms(const void *status)
 {
     http_status *st = (http_status *)status;
     pthread_mutex_lock(&st->lock);
-    double at = st->published_ms;
+    double at = st->waiting ? 0 : st->published_ms;
     pthread_mutex_unlock(&st->lock);
     return at > 0 ? time_now_ms() - at : 0;
 }

@@ -78,6 +78,7 @@ typedef struct http_status {
     uint64_t overruns;
     double published_ms; /* time_now_ms() of the last tick's publication (or of
                           * becoming ready, before the first); 0 = not yet */
+    int waiting; /* a client-clocked world waiting for its driver's next step: not stalled */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
     char scene_name[65]; /* the scene's name: a single daemon's world in /v1/worlds/{name}/edits */
 } http_status;
@@ -199,7 +200,8 @@ void http_server_set_world_api(http_server *s, const http_world_api *api);
 typedef double (*http_stalled_fn)(const void *arg);
 int http_server_watch(http_server *s, const char *name, http_stalled_fn stalled_ms, const void *arg,
                       double limit_ms);
-/* A stalled_ms for the tick: how long since status->published_ms (0 before it is set). */
+/* A stalled_ms for the tick: how long since status->published_ms (0 before it
+ * is set, and while a client-clocked world waits for its driver). */
 double http_status_stalled_ms(const void *status);
 void http_server_stop(http_server *s); /* NULL is fine */
 

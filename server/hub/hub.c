@@ -59,6 +59,13 @@ struct hub {
     int reads_closed;
 
     char store_unavailable[256]; /* "" while the store is writable; under out_lock */
+
+    pthread_mutex_t step_lock;
+    pthread_cond_t step_cond; /* a step queued (hub_wait_step) */
+    hub_step steps[HUB_STEP_CAPACITY];
+    int step_head, step_count;
+    void (*step_notify)(void *arg, uint32_t ticks);
+    void *step_notify_arg;
 };
 
 hub *hub_create(void)
@@ -84,10 +91,12 @@ hub *hub_create(void)
     pthread_mutex_init(&h->pose_lock, NULL);
     pthread_mutex_init(&h->out_lock, NULL);
     pthread_mutex_init(&h->read_lock, NULL);
+    pthread_mutex_init(&h->step_lock, NULL);
     pthread_condattr_t attr;
     pthread_condattr_init(&attr);
     pthread_condattr_setclock(&attr, CLOCK_MONOTONIC);
     pthread_cond_init(&h->read_done, &attr);
+    pthread_cond_init(&h->step_cond, &attr);
     pthread_condattr_destroy(&attr);
     return h;
 }
@@ -119,6 +128,10 @@ void hub_destroy(hub *h)
     pthread_mutex_destroy(&h->out_lock);
     pthread_mutex_destroy(&h->read_lock);
     pthread_cond_destroy(&h->read_done);
+    for (int i = 0; i < h->step_count; i++)
+        hub_step_free(&h->steps[(h->step_head + i) % HUB_STEP_CAPACITY]);
+    pthread_mutex_destroy(&h->step_lock);
+    pthread_cond_destroy(&h->step_cond);
     free(h->commands);
     free(h->poses);
     free(h->slots);
@@ -156,6 +169,72 @@ int hub_push_command(hub *h, const hub_command *cmd)
     h->command_count++;
     pthread_mutex_unlock(&h->command_lock);
     return 0;
+}
+
+/* ---- steps ---- */
+
+void hub_step_free(hub_step *st)
+{
+    free(st->poses);
+    st->poses = NULL;
+}
+
+int hub_push_step(hub *h, hub_step *st)
+{
+    THREAD_OWNED(&h->net_end);
+    pthread_mutex_lock(&h->step_lock);
+    if (h->step_count == HUB_STEP_CAPACITY) {
+        pthread_mutex_unlock(&h->step_lock);
+        return -1;
+    }
+    h->steps[(h->step_head + h->step_count) % HUB_STEP_CAPACITY] = *st;
+    h->step_count++;
+    void (*fn)(void *, uint32_t) = h->step_notify;
+    void *arg = h->step_notify_arg;
+    pthread_cond_broadcast(&h->step_cond);
+    pthread_mutex_unlock(&h->step_lock);
+    st->poses = NULL;
+    if (fn) /* outside the lock: it takes the clock's own */
+        fn(arg, st->ticks);
+    return 0;
+}
+
+int hub_take_step(hub *h, hub_step *out)
+{
+    THREAD_OWNED(&h->sim_end);
+    pthread_mutex_lock(&h->step_lock);
+    int n = h->step_count > 0;
+    if (n) {
+        *out = h->steps[h->step_head];
+        h->step_head = (h->step_head + 1) % HUB_STEP_CAPACITY;
+        h->step_count--;
+    }
+    pthread_mutex_unlock(&h->step_lock);
+    return n;
+}
+
+void hub_set_step_notify(hub *h, void (*fn)(void *arg, uint32_t ticks), void *arg)
+{
+    pthread_mutex_lock(&h->step_lock);
+    h->step_notify = fn;
+    h->step_notify_arg = arg;
+    pthread_mutex_unlock(&h->step_lock);
+}
+
+int hub_wait_step(hub *h, int timeout_ms)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    long long ns = (long long)ts.tv_nsec + (long long)timeout_ms * 1000000LL;
+    ts.tv_sec += (time_t)(ns / 1000000000LL);
+    ts.tv_nsec = (long)(ns % 1000000000LL);
+    pthread_mutex_lock(&h->step_lock);
+    while (h->step_count == 0 &&
+           pthread_cond_timedwait(&h->step_cond, &h->step_lock, &ts) != ETIMEDOUT) {
+    }
+    int n = h->step_count > 0;
+    pthread_mutex_unlock(&h->step_lock);
+    return n;
 }
 
 /* ---- http → sim: edits ---- */
@@ -580,6 +659,15 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
         return -1;
     }
     *slot = (hub_read){.rect = r, .layer = layer, .out = out, .active = 1};
+    pthread_mutex_unlock(&h->read_lock);
+    /* a client-clocked world may be waiting for its driver: it serves reads between steps too */
+    pthread_mutex_lock(&h->step_lock);
+    void (*fn)(void *, uint32_t) = h->step_notify;
+    void *arg = h->step_notify_arg;
+    pthread_mutex_unlock(&h->step_lock);
+    if (fn)
+        fn(arg, 0);
+    pthread_mutex_lock(&h->read_lock);
     int rc = 0;
     while (!slot->done && !h->reads_closed) {
         if (pthread_cond_timedwait(&h->read_done, &h->read_lock, &deadline) == ETIMEDOUT) {
@@ -594,6 +682,16 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
     slot->active = 0; /* the sim thread will not touch `out` after this */
     pthread_mutex_unlock(&h->read_lock);
     return rc;
+}
+
+int hub_reads_pending(hub *h)
+{
+    pthread_mutex_lock(&h->read_lock);
+    int n = 0;
+    for (int i = 0; i < HUB_MAX_READS; i++)
+        n += h->reads[i].active && !h->reads[i].done;
+    pthread_mutex_unlock(&h->read_lock);
+    return n;
 }
 
 void hub_serve_reads(hub *h, const world *w, uint64_t tick)

@@ -153,6 +153,36 @@ int hub_set_batch(hub *h, uint32_t client, uint32_t sequence, const hub_pose *po
  * (batches: HUB_BATCH_CAPACITY entries). Returns the batches taken. */
 int hub_take_input(hub *h, hub_pose *poses, int max_poses, int *pose_count, hub_batch *batches);
 
+/* ---- net → sim: steps of a client-clocked world (PROTOCOL.md "STEP") ----
+ * Such a world ticks only when its driver says so: each accepted STEP is
+ * queued here whole (its poses checked by the net thread), and each of its
+ * ticks takes its pose set from it instead of the pose table. */
+
+typedef struct hub_step {
+    uint32_t client; /* the driver */
+    uint32_t seq;    /* the client's step number (ACK and STEPPED echo it) */
+    uint32_t ticks;  /* >= 1 */
+    int count, sets; /* poses per set; sets 0 (hold), 1 (first tick) or ticks */
+    hub_pose *poses; /* sets * count, tick-major; malloc'd, owned by the step */
+} hub_step;
+
+#define HUB_STEP_CAPACITY 64 /* steps queued per world: a driver's pipeline depth */
+
+/* Queue a step (taken over: its poses are the hub's then the sim's), then
+ * call the notify function with its ticks (a height read calls it with 0:
+ * the world serves reads between steps). 0, or -1 when HUB_STEP_CAPACITY
+ * steps wait already (nothing taken). Net thread. */
+int hub_push_step(hub *h, hub_step *st);
+/* sim thread: the oldest queued step (1), or 0 when none waits. */
+int hub_take_step(hub *h, hub_step *out);
+/* How the world's clock learns that ticks are due (the ticker's client clock:
+ * fn adds ticks to what it owes the world). Set before any step can come. */
+void hub_set_step_notify(hub *h, void (*fn)(void *arg, uint32_t ticks), void *arg);
+/* A sim thread of its own (the default world's): wait up to timeout_ms for a
+ * step to be queued; 1 when one waits. */
+int hub_wait_step(hub *h, int timeout_ms);
+void hub_step_free(hub_step *st);
+
 /* ---- sim → net: frames ---- */
 
 /* Bytes of headroom before a frame's payload: libwebsockets writes its frame
@@ -221,6 +251,8 @@ int hub_read_heights(hub *h, world_rect r, int32_t *out, uint64_t *tick, int tim
 /* The same for any layer. */
 int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t *tick,
                    int timeout_ms);
+/* Reads waiting to be served (any thread). */
+int hub_reads_pending(hub *h);
 /* sim thread, between ticks: serve the pending reads. */
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
 /* sim thread, at exit: fail every pending and future read. */
@@ -230,5 +262,17 @@ void hub_close_reads(hub *h);
  * TERRAD_E_SHUTTING_DOWN and why, instead of waiting out its timeout. Any
  * thread. */
 void hub_close_edits(hub *h, const char *why);
+
+/* ---- a terrain edit's wire form (hub_edit.c; PROTOCOL.md "edit") ---- */
+
+typedef struct hub_edit_error {
+    int code;          /* TERRAD_E_BAD_VALUE, _OUTSIDE_WORLD, _TOO_LARGE (proto/c) */
+    char message[300]; /* names the field */
+} hub_edit_error;
+/* An `edit` message's fields (its "type" and "ref" are the caller's) into
+ * out, for a width x height world, refusing one over max_cells. 0, or -1
+ * with err (nothing held). Free a parsed edit with world_edit_free. Any thread. */
+int hub_edit_parse(const cJSON *msg, int width, int height, int64_t max_cells, world_edit *out,
+                   hub_edit_error *err);
 
 #endif

@@ -367,6 +367,7 @@ void metrics_reset(void)
     metrics_auth_reset();
     metrics_edits_reset();
     metrics_room_reset();
+    metrics_steps_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -778,14 +779,13 @@ char *metrics_render(size_t *len)
     for (int f = 0; f < COUNT_OF(families); f++)
         render_family(&t, &families[f]);
     char process[4096];
-    if (metrics_auth_text(process, sizeof process) > 0)
-        text_printf(&t, "%s", process);
-    if (metrics_edits_text(process, sizeof process) > 0)
-        text_printf(&t, "%s", process);
-    if (metrics_room_text(process, sizeof process) > 0)
-        text_printf(&t, "%s", process);
-    if (metrics_process_text(process, sizeof process) > 0)
-        text_printf(&t, "%s", process);
+    /* the families rendered by the other files of metrics/, in this order */
+    int (*const parts[])(char *, size_t) = {metrics_auth_text, metrics_edits_text,
+                                            metrics_room_text, metrics_steps_text,
+                                            metrics_process_text};
+    for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
+        if (parts[i](process, sizeof process) > 0)
+            text_printf(&t, "%s", process);
     char *worlds = malloc(65536); /* 64 worlds x 8 families fit */
     if (worlds && metrics_worlds_text(worlds, 65536) > 0)
         text_printf(&t, "%s", worlds);

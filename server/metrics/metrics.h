@@ -126,6 +126,17 @@ void metrics_count_edit(const char *op, int ok, int64_t volume_change);
 void metrics_edits_reset(void);
 int metrics_edits_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
+/* Client-clocked worlds (metrics_steps.c): terrad_steps_total,
+ * terrad_stepped_ticks_total and terrad_steps_refused_total{field}: the
+ * field a refused STEP's error named (PROTOCOL.md "STEP"). */
+#define METRICS_STEP_FIELDS                                                                        \
+    "ticks", "sets", "count", "poses", "clock", "driver", "queue", "frame", "store"
+void metrics_count_steps(uint64_t n);
+void metrics_count_stepped_ticks(uint64_t n);
+void metrics_count_step_refused(const char *field);
+void metrics_steps_reset(void);
+int metrics_steps_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
 #define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)

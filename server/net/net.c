@@ -29,31 +29,6 @@ _Static_assert(HUB_FRAME_HEADROOM >= LWS_PRE, "hub frames need LWS_PRE bytes of 
 #define NET_STOP_GRACE_MS 800.0
 #define NET_STOP_DEADLINE_MS 10000.0 /* then the thread is left behind, the process goes on */
 
-net_limits net_limits_default(void)
-{
-    return (net_limits){
-        .max_message_bytes = 1048576,
-        .max_colliders = 64,
-        .max_poses_per_batch = 64,
-        .max_subscriptions = 16,
-        .max_subscribed_cells = 4194304,
-        .max_messages_per_s = 240,
-        .messages_burst = 480,
-        .max_mesh_vertices = 16384,
-        .max_mesh_triangles = 32768,
-        .max_active_cells = 8192, /* docs/service.md: a quarter of a 60 Hz tick at most */
-        .max_tick_cells = 32768,  /* four clients' whole max_active_cells; 0 turns it off */
-        .max_sweep_cells = 32768, /* one client may cost a whole tick's budget, no more */
-        .max_collider_extent_m = 50,
-        .max_pending_bytes = 8388608,
-        .hello_timeout_s = 5,
-        .max_connections = 0, /* 0: derived from RLIMIT_NOFILE by the caller, or none */
-        .max_connections_per_address = 256,
-        .fd_reserve = 64,
-        .max_edit_cells = WORLD_EDIT_MAX_CELLS_DEFAULT,
-    };
-}
-
 /* ---- the service thread ---- */
 
 static void *service_main(void *arg)

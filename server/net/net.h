@@ -15,6 +15,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "base/base.h"
 #include "hub/hub.h"
@@ -47,9 +48,33 @@ typedef struct net_limits {
     int max_connections, max_connections_per_address;
     int fd_reserve;
     int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
+    int max_step_ticks;     /* ticks one STEP may ask for (client-clocked worlds) */
+    /* HTTP's, not the websocket's: /v1/heights answers held at once by one
+     * address and by all (0: http.c's defaults, 64 MiB and 256 MiB) */
+    size_t max_heights_bytes_per_address, max_heights_bytes_in_flight;
 } net_limits;
 
+/* Every limit once (net_limits.c): name, field, default, where it may be set
+ * or is told, and what it bounds. The table ends with a row whose name is NULL. */
+typedef enum { NET_LIMIT_INT, NET_LIMIT_INT64, NET_LIMIT_SIZE, NET_LIMIT_DOUBLE } net_limit_kind;
+#define NET_LIMIT_CONFIG 1 /* --config's "limits" may set it (a number in (0, 1e12]) */
+#define NET_LIMIT_TOLD 2   /* the world message's "limits" tells clients its value */
+typedef struct net_limit_spec {
+    const char *name; /* PROTOCOL.md's, the config's and the world message's */
+    size_t offset;    /* of its field in net_limits */
+    net_limit_kind kind;
+    double def; /* net_limits_default's */
+    int flags;
+    const char *help;
+} net_limit_spec;
+extern const net_limit_spec net_limit_table[];
+double net_limit_get(const net_limits *l, const net_limit_spec *s);
+/* v as the field's type (an int field at most INT_MAX). */
+void net_limit_set(net_limits *l, const net_limit_spec *s, double v);
+/* The table's defaults. */
 net_limits net_limits_default(void);
+/* serve --help's limits section: the settable ones, their defaults, what they bound. */
+void net_limits_usage(FILE *out);
 
 /* What the world message tells a client (PROTOCOL.md "world"). */
 typedef struct net_world_info {
@@ -62,6 +87,9 @@ typedef struct net_world_info {
     const char *models_json;    /* a JSON array of strings, e.g. ["persson-ssbo"]; NULL = [] */
     const char *materials_json; /* a JSON array of strings; NULL = ["default"] */
     int loads; /* the world's model carries loads (bekker): collider_create may give load_n */
+    /* "clock": "client" — the world ticks only on its driver's STEP messages
+     * (PROTOCOL.md "STEP"); 0: the server's wall clock */
+    int client_clock;
     /* cluster mode (docs/cluster.md): the world's registered name, sent in the
      * world message; a hello naming another world is refused. NULL: one
      * unnamed world, hello's "world" is ignored. */

@@ -58,8 +58,24 @@ int net_client_add(net_state *s, net_client *c)
     return 0;
 }
 
+net_collider_slot *net_collider_owned(net_client *c, uint32_t id, const cJSON *ref, int any_owner)
+{
+    net_collider_slot *slot = net_collider_find(c->srv, id);
+    if (!slot) {
+        net_error(c, TERRAD_E_UNKNOWN_COLLIDER, ref, id, 0, "collider %u does not exist", id);
+        return NULL;
+    }
+    if (slot->owner != c->id && !any_owner) {
+        net_error(c, TERRAD_E_NOT_OWNER, ref, id, 0, "collider %u belongs to another client", id);
+        return NULL;
+    }
+    return slot;
+}
+
 void net_client_remove(net_state *s, net_client *c)
 {
+    if (s->driver == c->id)
+        s->driver = 0; /* a client-clocked world waits for its next driver */
     for (int i = 0; i < s->nclients; i++)
         if (s->clients[i] == c) {
             memmove(&s->clients[i], &s->clients[i + 1],

@@ -177,7 +177,8 @@ struct net_state {
     int backlog_count;
     int64_t backlog_cap;
 
-    uint64_t tick; /* the latest tick seen from the sim */
+    uint64_t tick;   /* the latest tick seen from the sim */
+    uint32_t driver; /* a client-clocked world: the client whose STEPs tick it (0: none) */
     size_t hard_pending_bytes;
 
     double last_warn_ms;
@@ -280,6 +281,9 @@ void net_warn_refusal(net_state *s, const net_client *c, int code, const char *m
 
 /* ---- the collider table: id -> owner ---- */
 net_collider_slot *net_collider_find(net_state *s, uint32_t id);
+/* The collider id of c's (or, any_owner, anyone's): NULL after an error
+ * unknown_collider or not_owner naming it. */
+net_collider_slot *net_collider_owned(net_client *c, uint32_t id, const cJSON *ref, int any_owner);
 int net_collider_insert(net_state *s, uint32_t id, uint32_t owner, int axis_z);
 void net_collider_remove(net_state *s, uint32_t id);
 

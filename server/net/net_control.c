@@ -443,13 +443,13 @@ static int parse_events(parser *r, net_control *out)
     return 0;
 }
 
-/* An edit's fields (world_edit_parse, shared with POST /v1/worlds/{name}/edits). */
+/* An edit's fields (hub_edit_parse, shared with POST /v1/worlds/{name}/edits). */
 static int parse_edit(parser *r, net_control *out)
 {
-    world_edit_error werr;
+    hub_edit_error werr;
     world_edit e;
-    if (world_edit_parse(r->msg, r->ctx->world_width, r->ctx->world_height,
-                         r->ctx->limits->max_edit_cells, &e, &werr) != 0)
+    if (hub_edit_parse(r->msg, r->ctx->world_width, r->ctx->world_height,
+                       r->ctx->limits->max_edit_cells, &e, &werr) != 0)
         return fail(r, werr.code, "%s", werr.message);
     out->edit = malloc(sizeof *out->edit);
     if (!out->edit) {

@@ -62,6 +62,9 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddItemToArray(range, cJSON_CreateNumber(w->height_min));
     cJSON_AddItemToArray(range, cJSON_CreateNumber(w->height_max));
     cJSON_AddNumberToObject(m, "tick_hz", w->tick_hz);
+    cJSON_AddStringToObject(m, "clock", w->client_clock ? "client" : "wall");
+    if (w->client_clock)
+        cJSON_AddNumberToObject(m, "driver", s->driver);
     cJSON_AddNumberToObject(m, "tick", (double)s->tick);
     cJSON_AddNumberToObject(m, "tile_size", w->tile_size);
     cJSON_AddItemToObject(m, "models", cJSON_Duplicate(s->models, 1));
@@ -69,23 +72,9 @@ static cJSON *world_message(net_state *s, const net_client *c)
     static const char *const shapes[] = {"sphere", "box", "capsule", "cylinder", "wheel", "mesh"};
     cJSON_AddItemToObject(m, "shapes", cJSON_CreateStringArray(shapes, 6));
     cJSON *lim = cJSON_AddObjectToObject(m, "limits");
-    cJSON_AddNumberToObject(lim, "max_message_bytes", (double)l->max_message_bytes);
-    cJSON_AddNumberToObject(lim, "max_colliders", l->max_colliders);
-    cJSON_AddNumberToObject(lim, "max_poses_per_batch", l->max_poses_per_batch);
-    cJSON_AddNumberToObject(lim, "max_subscriptions", l->max_subscriptions);
-    cJSON_AddNumberToObject(lim, "max_subscribed_cells", (double)l->max_subscribed_cells);
-    cJSON_AddNumberToObject(lim, "max_messages_per_s", l->max_messages_per_s);
-    cJSON_AddNumberToObject(lim, "messages_burst", l->messages_burst);
-    cJSON_AddNumberToObject(lim, "max_mesh_vertices", l->max_mesh_vertices);
-    cJSON_AddNumberToObject(lim, "max_mesh_triangles", l->max_mesh_triangles);
-    cJSON_AddNumberToObject(lim, "max_active_cells", (double)l->max_active_cells);
-    cJSON_AddNumberToObject(lim, "max_collider_extent_m", l->max_collider_extent_m);
-    cJSON_AddNumberToObject(lim, "max_pending_bytes", (double)l->max_pending_bytes);
-    cJSON_AddNumberToObject(lim, "hello_timeout_s", l->hello_timeout_s);
-    cJSON_AddNumberToObject(lim, "max_client_lag_ticks", l->max_client_lag_ticks);
-    cJSON_AddNumberToObject(lim, "max_tick_cells", (double)l->max_tick_cells);
-    cJSON_AddNumberToObject(lim, "max_sweep_cells", (double)l->max_sweep_cells);
-    cJSON_AddNumberToObject(lim, "max_edit_cells", (double)l->max_edit_cells);
+    for (const net_limit_spec *t = net_limit_table; t->name; t++) /* net_limits.c */
+        if (t->flags & NET_LIMIT_TOLD)
+            cJSON_AddNumberToObject(lim, t->name, net_limit_get(l, t));
     return m;
 }
 
@@ -257,23 +246,9 @@ static void handle_collider_create(net_client *c, net_control *m)
 
 /* The slot of one of c's colliders (any client's when any_owner), or NULL
  * after an error was sent. */
-static net_collider_slot *owned_by(net_client *c, uint32_t id, const cJSON *ref, int any_owner)
-{
-    net_collider_slot *slot = net_collider_find(c->srv, id);
-    if (!slot) {
-        net_error(c, TERRAD_E_UNKNOWN_COLLIDER, ref, id, 0, "collider %u does not exist", id);
-        return NULL;
-    }
-    if (slot->owner != c->id && !any_owner) {
-        net_error(c, TERRAD_E_NOT_OWNER, ref, id, 0, "collider %u belongs to another client", id);
-        return NULL;
-    }
-    return slot;
-}
-
 static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
 {
-    return owned_by(c, id, ref, 0);
+    return net_collider_owned(c, id, ref, 0);
 }
 
 /* With "any_owner" (an admin's, refused for other roles before this) another
@@ -282,7 +257,7 @@ static net_collider_slot *owned(net_client *c, uint32_t id, const cJSON *ref)
 static void handle_collider_delete(net_client *c, const net_control *m)
 {
     uint32_t id = m->id;
-    net_collider_slot *slot = owned_by(c, id, m->ref, m->any_owner);
+    net_collider_slot *slot = net_collider_owned(c, id, m->ref, m->any_owner);
     if (!slot)
         return;
     int64_t cells = slot->cells;
@@ -680,6 +655,12 @@ void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
     case TERRAD_MSG_POSE_BATCH:
         if (net_auth_allows(c, AUTH_DRIVER, "POSE_BATCH", NULL))
             handle_pose_batch(c, data, len);
+        return;
+    case TERRAD_MSG_STEP:
+        if (net_auth_allows(c, AUTH_DRIVER, "STEP", NULL))
+            net_handle_step(c, data, len);
+        else
+            metrics_count_step_refused("driver");
         return;
     case TERRAD_MSG_PING:
     case TERRAD_MSG_PONG: {

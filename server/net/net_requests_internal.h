@@ -17,6 +17,12 @@ void net_handle_text(net_client *c, const char *text, size_t len);
 /* A binary message (POSE_BATCH, PING, PONG). */
 void net_handle_binary(net_client *c, const unsigned char *data, size_t len);
 
+/* ---- a client-clocked world's STEP (net_steps.c) ---- */
+/* Checked (each refusal names its field, counted in
+ * terrad_steps_refused_total{field}) and queued for the world's ticks; the
+ * first accepted STEP makes c the world's driver until it leaves. */
+void net_handle_step(net_client *c, const unsigned char *data, size_t len);
+
 /* ---- who may do what (net_auth.c) ---- */
 /* s->auth: cfg.auth, or an empty one (auth off). 0, or -1 with err. */
 int net_auth_start(net_state *s, error_text *err);

@@ -40,6 +40,7 @@
  *                  "decal_min_strength_m"},
  *                                                 every key optional (sim_material_default)
  *     "tick_hz": 60, "active_margin_cells": 4,    optional
+ *     "clock": "wall" | "client",                 optional, default "wall"
  *     "colliders": [{"name": "...", "shape": "sphere|box|capsule|cylinder|wheel|mesh",
  *                    "radius", "half_length", "half_extents": [x,y,z],
  *                    "obj": "file.obj", "scale": 1,
@@ -236,10 +237,32 @@ static int parse_terrain(const cJSON *root, const scene_parser *ps, scene *s, er
 
 /* ---- entry points ---- */
 
-static const char *const top_keys[] = {
-    "name",    "description",         "world",     "terrain",   "material",
-    "tick_hz", "active_margin_cells", "colliders", "materials", "material_map",
-    NULL};
+static const char *const top_keys[] = {"name",
+                                       "description",
+                                       "world",
+                                       "terrain",
+                                       "material",
+                                       "tick_hz",
+                                       "active_margin_cells",
+                                       "colliders",
+                                       "materials",
+                                       "material_map",
+                                       "clock",
+                                       NULL};
+
+/* "clock": "wall" (the default) or "client" (ticks made due by STEP messages). */
+static int parse_clock(const cJSON *root, scene *s, error_text *err)
+{
+    char clock[16] = "wall";
+    if (json_get_string(root, "", "clock", clock, sizeof clock, err) < 0)
+        return -1;
+    if (strcmp(clock, "wall") != 0 && strcmp(clock, "client") != 0) {
+        error_set(err, "clock: \"%s\" is not \"wall\" or \"client\"", clock);
+        return -1;
+    }
+    s->client_clock = strcmp(clock, "client") == 0;
+    return 0;
+}
 
 /* Each "materials" entry's own "soil" (the bekker model's), over the
  * scene's: the ground keeps it but leaves its rules to the sim. */
@@ -381,7 +404,8 @@ int scene_load_json(const char *text, const char *base_dir, scene *s, error_text
     snprintf(s->name, sizeof s->name, "unnamed");
     if (json_get_string(root, "", "name", s->name, sizeof s->name, err) < 0 ||
         json_get_string(root, "", "description", description, sizeof description, err) < 0 ||
-        json_get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0)
+        json_get_positive(root, "", "tick_hz", 10000, 0, &tick_hz, err) < 0 ||
+        parse_clock(root, s, err) != 0)
         goto done;
     s->tick_hz = tick_hz; /* the material's rates are per second */
     if (parse_world(root, s, err) || parse_terrain(root, &ps, s, err) ||

@@ -33,7 +33,11 @@ typedef struct scene {
     int tile_cells; /* 0 = WORLD_TILE_CELLS_DEFAULT */
     world_base_spec base;
     sim_material material;
-    double tick_hz;          /* default 60 */
+    double tick_hz; /* default 60 */
+    /* who makes a tick due: 0 the server's wall clock at tick_hz ("wall", the
+     * default), 1 the world's driver's STEP messages ("client"; PROTOCOL.md
+     * "STEP") — tick_hz is then only the tick's length for rates and speeds */
+    int client_clock;
     int active_margin_cells; /* default 4 */
     scene_collider *colliders;
     int collider_count;

@@ -89,6 +89,7 @@ void service_destroy(service *s)
     free(s->states);
     free(s->events);
     service_edits_free(s);
+    hub_step_free(&s->step.step);
     free(s);
 }
 
@@ -222,21 +223,30 @@ static int deform_and_commit(service *s, int count, sim_tick_report *report, err
     return 0;
 }
 
+int service_settle(service *s)
+{
+    THREAD_OWNED(&s->owner);
+    service_batch *b = &s->batch;
+    if (b->out_count == 0)
+        return 1;
+    if (s->store && !store_settle(s->store))
+        return 0;
+    int dropped = hub_publish(s->hub, b->out, b->out_count);
+    if (dropped)
+        metrics_count_frames_dropped((uint64_t)dropped);
+    b->out_count = 0;
+    return 1;
+}
+
 /* Hand the tick's frames to the network, once the store has made the tick
  * durable (earlier ticks' frames wait in the batch until then). */
 static void publish(service *s)
 {
     service_batch *b = &s->batch;
     service_queue_out(s, (hub_out){.kind = HUB_OUT_TICK_DONE, .tick = s->tick});
-    if (!s->store || store_settle(s->store)) {
-        int dropped = hub_publish(s->hub, b->out, b->out_count);
-        /* from the oldest pose this tick used to its deltas being handed to the network */
-        if (b->oldest_pose_ms > 0)
-            metrics_observe_pose_to_delta_ms(time_now_ms() - b->oldest_pose_ms);
-        if (dropped)
-            metrics_count_frames_dropped((uint64_t)dropped);
-        b->out_count = 0;
-    }
+    /* from the oldest pose this tick used to its deltas being handed to the network */
+    if (service_settle(s) && b->oldest_pose_ms > 0)
+        metrics_observe_pose_to_delta_ms(time_now_ms() - b->oldest_pose_ms);
     if (s->store)
         tell_store_state(s);
 }
@@ -265,6 +275,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */
+    service_step_finish(s);       /* a client-clocked world: STEPPED after the step's last tick */
     publish(s);
     service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
     hub_serve_reads(s->hub, s->world, s->tick);

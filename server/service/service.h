@@ -74,6 +74,17 @@ void service_attach_store(service *s, store *st, uint64_t recovered_tick);
  * client gets limit_colliders naming the pose). 0: none (the default). */
 void service_set_tick_budget(service *s, int64_t max_tick_cells, int64_t max_sweep_cells);
 
+/* A client-clocked world (scene "clock": "client"; PROTOCOL.md "STEP"): each
+ * tick takes its poses from its driver's STEP (hub_push_step) and the step's
+ * last tick sends STEPPED. Before the first tick. */
+void service_set_client_clock(service *s, int on);
+/* Ticks of the step under way not run yet (0: none under way). */
+int service_step_remaining(const service *s);
+/* Frames held back for durability (a group commit) published once the store
+ * says they are durable: 1 when nothing is held any more. A client-clocked
+ * world that stops between steps calls it until it says 1, since no later
+ * tick would publish them. */
+int service_settle(service *s);
 uint64_t service_current_tick(const service *s);
 int64_t service_volume(const service *s); /* Σh, kept exactly, tick by tick */
 uint32_t service_tile_version(const service *s, int tile_x, int tile_y);

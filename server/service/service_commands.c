@@ -243,11 +243,11 @@ static void apply_command(service *s, hub_command *c)
     }
 }
 
-static void apply_poses(service *s, int n)
+void service_apply_poses(service *s, const hub_pose *poses, int n)
 {
     service_batch *b = &s->batch;
     for (int i = 0; i < n; i++) {
-        const hub_pose *p = &b->poses[i];
+        const hub_pose *p = &poses[i];
         int k = service_find_collider(s, p->collider);
         if (k < 0 || s->colliders[k].client != p->client)
             continue; /* deleted meanwhile */
@@ -294,11 +294,12 @@ void service_take_input(service *s)
                    sizeof *b->poses) == 0) {
         int poses;
         batches = hub_take_input(s->hub, b->poses, (int)b->pose_capacity, &poses, b->batches);
-        apply_poses(s, poses);
+        service_apply_poses(s, b->poses, poses);
     } else { /* poses and batches stay in the hub (latest wins) for the next tick */
         service_note_drop(s, "poses", "no memory to take the poses of %d colliders this tick",
                           s->collider_count);
     }
-    service_bound_sweeps(s); /* before anything measures the poses */
     apply_batches(s, batches);
+    service_step_input(s);   /* a client-clocked world: the step's poses win */
+    service_bound_sweeps(s); /* before anything measures the poses */
 }

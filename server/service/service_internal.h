@@ -13,6 +13,7 @@
  *   service_shed.c      the tick's cost budget: whose colliders wait a tick
  *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
  *   service_edits.c     terrain edits from game logic, at the start of the tick
+ *   service_steps.c     a client-clocked world's ticks: input from its driver's STEP
  *   service_shared.c    the leaf every step uses: lookups, the out queue, drops
  *
  * service.c calls the steps; a step calls only steps listed after it in the
@@ -127,6 +128,12 @@ typedef struct service_batch {
     int64_t out_capacity;
 } service_batch;
 
+/* The STEP being ticked (service_steps.c): its ticks done so far. */
+typedef struct service_step_state {
+    hub_step step; /* ticks 0: none */
+    uint32_t done;
+} service_step_state;
+
 struct service {
     sim_engine *engine;
     world *world;
@@ -169,6 +176,9 @@ struct service {
 
     struct snap_worker *snapper; /* service_snapshots.c */
 
+    int client_clock; /* ticks made due by STEP messages (service_steps.c) */
+    service_step_state step;
+
     /* the tick's cost budget and one client's sweep budget (service_shed.c); 0: none */
     int64_t max_tick_cells, max_sweep_cells;
     double last_shed_log_ms, last_sweep_log_ms;
@@ -201,6 +211,16 @@ void service_reply_json(service *s, uint32_t client, const char *ref, struct cJS
 void service_release_collider(service *s, svc_collider *c);
 /* take the hub's commands, poses and batch sequences, and apply them */
 void service_take_input(service *s);
+/* Take n poses as this tick's (as from the pose table: a pose of a collider
+ * gone or another client's is skipped). */
+void service_apply_poses(service *s, const hub_pose *poses, int n);
+
+/* service_steps.c */
+/* A client-clocked world: the current step's poses for this tick (taking the
+ * next step from the hub when none is under way), and its ACK. */
+void service_step_input(service *s);
+/* After the tick's frames: the step's last tick queues its STEPPED. */
+void service_step_finish(service *s);
 
 /* service_contacts.c */
 void service_contacts_before_tick(service *s);

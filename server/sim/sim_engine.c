@@ -552,9 +552,9 @@ static world_rect diff_rect(world_rect r, const int32_t *before, const int32_t *
     return (world_rect){r.x + x0, r.y + y0, x1 - x0 + 1, y1 - y0 + 1};
 }
 
-/* Window i's compaction memory back into the world where it changed; its
- * rectangle into the report's state_dirty. 0, or -1 out of memory. */
-static int scatter_compaction(sim_engine *e, int i, sim_tick_report *report, error_text *err)
+/* Window i's compaction memory back into the world where it changed; *c:
+ * that rectangle (w 0: none). 0, or -1 out of memory. */
+static int scatter_compaction(sim_engine *e, int i, world_rect *c, error_text *err)
 {
     engine_batch *b = &e->batch;
     world_rect r = b->windows[i];
@@ -562,14 +562,11 @@ static int scatter_compaction(sim_engine *e, int i, sim_tick_report *report, err
     int32_t *after = e->compaction_after + offset;
     for (int64_t k = 0; k < n; k++)
         after[k] = b->jobs[i].compaction[k];
-    world_rect c = diff_rect(r, e->compaction_before + offset, after, 1);
-    if (c.w == 0)
-        return 0;
-    if (world_compaction_scatter(e->world, r, after) != 0) {
+    *c = diff_rect(r, e->compaction_before + offset, after, 1);
+    if (c->w > 0 && world_compaction_scatter(e->world, r, after) != 0) {
         error_set(err, "sim: out of memory for the compaction memory");
         return -1;
     }
-    b->state_dirty[report->state_dirty_count++] = c;
     return 0;
 }
 
@@ -588,18 +585,20 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
             report->refused_windows++;
             continue;
         }
-        if (b->jobs[i].compaction && scatter_compaction(e, i, report, err) != 0)
+        world_rect c = {0, 0, 0, 0}, s = {0, 0, 0, 0};
+        if (b->jobs[i].compaction && scatter_compaction(e, i, &c, err) != 0)
             return -1;
         if (b->jobs[i].soil_state) {
-            world_rect s = diff_rect(r, e->soil_before + offset * SIM_SOIL_STATE_FIELDS,
-                                     b->jobs[i].soil_state, SIM_SOIL_STATE_FIELDS);
+            s = diff_rect(r, e->soil_before + offset * SIM_SOIL_STATE_FIELDS, b->jobs[i].soil_state,
+                          SIM_SOIL_STATE_FIELDS);
             if (s.w > 0 && world_soil_scatter(e->world, r, b->jobs[i].soil_state) != 0) {
                 error_set(err, "sim: out of memory for the soil state");
                 return -1;
             }
-            if (s.w > 0)
-                b->state_dirty[report->state_dirty_count++] = s;
         }
+        /* one rectangle a window at most: state_dirty has room for one each */
+        if (c.w > 0 || s.w > 0)
+            b->state_dirty[report->state_dirty_count++] = world_rect_union(c, s);
         world_rect d = diff_rect(r, e->before + offset, e->heights + offset, 1);
         if (d.w > 0) {
             world_scatter_window(e->world, r, e->heights + offset);

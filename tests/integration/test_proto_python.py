@@ -67,6 +67,10 @@ def decode_any(t, b):
         return tp.decode_footprints(b)
     if t == "FORCES":
         return tp.decode_forces(b)
+    if t == "STEP":
+        return tp.decode_step(b)
+    if t == "STEPPED":
+        return tp.decode_stepped(b)
     return tp.decode_ping(b)
 
 
@@ -135,6 +139,18 @@ def check_valid(v):
         check(tick == int(f["tick"]), f"{name}: tick")
         check(fs == want, f"{name}: forces")
         check(tp.encode_forces(int(f["tick"]), want) == b, f"{name}: encode")
+    elif t == "STEP":
+        seq, ticks, sets = tp.decode_step(b)
+        want = [pose_of(p) for p in f["poses"]]
+        n = f["count"]
+        want_sets = [want[k * n:(k + 1) * n] for k in range(f["sets"])]
+        check((seq, ticks) == (f["seq"], f["ticks"]), f"{name}: head")
+        check(sets == [[tp.Pose(p.id, *(f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)))
+                        for p in s] for s in want_sets], f"{name}: poses")
+        check(tp.encode_step(f["seq"], f["ticks"], want_sets) == b, f"{name}: encode")
+    elif t == "STEPPED":
+        check(tp.decode_stepped(b) == (int(f["tick"]), f["seq"], f["ticks"]), f"{name}: decode")
+        check(tp.encode_stepped(int(f["tick"]), f["seq"], f["ticks"]) == b, f"{name}: encode")
     elif t == "ACK":
         check(tp.decode_ack(b) == (int(f["tick"]), f["seq"]), f"{name}: decode")
         check(tp.encode_ack(int(f["tick"]), f["seq"]) == b, f"{name}: encode")

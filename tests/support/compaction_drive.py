@@ -34,9 +34,10 @@ SECOND = [FIRST[-1] - STEP * i for i in range(61)]  # back over it: a second pas
 Y = H * CELL / 2
 
 
-def scene():
-    """The persson scene (snow, and a crust that remembers 5 mm at most) as a dict."""
-    return {
+def scene(model=None):
+    """The scene (snow, and a crust that remembers 5 mm at most) as a dict: the persson
+    model (the default), or `model` (sumner keeps the same memory)."""
+    doc = {
         "name": "compaction-recovery",
         "world": {"width": W, "height": H, "cell_size_m": CELL, "units_per_m": UNITS},
         "terrain": {"kind": "flat", "height_m": GROUND},
@@ -49,11 +50,14 @@ def scene():
                          "paint": [{"material": "crust", "rect": [CRUST_X, 0.0, W * CELL, H * CELL]}]},
         "colliders": [],
     }
+    if model:
+        doc["material"]["model"] = model
+    return doc
 
 
-def scene_file():
+def scene_file(model=None):
     """The scene in a temporary file (the caller removes it)."""
-    return json_file(scene(), "terrad-compaction-recovery")
+    return json_file(scene(model), "terrad-compaction-recovery")
 
 
 def limit_of(i):

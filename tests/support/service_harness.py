@@ -139,21 +139,19 @@ def skip(why):
     sys.exit(77)
 
 
-def need_twin_wasm(check=None):
-    """The WebAssembly twin's path ($TERRAD_TWIN_WASM, else build/terrad_twin.wasm) when it is
-    built. When it is not, the test cannot run its wasm part: under `make test` (which exports
-    TERRAD_REQUIRE_WASM=1 after scripts/deps installed the toolchain) that is a failure, since a
-    skip there hid a build that had lost the twin (issue 28: make run had configured build/
-    before the toolchain came); elsewhere (ctest by hand on a machine without the toolchain) a
-    skip. With check (a Checks), the failure or skip is counted there and None is returned, so
-    the rest of the test runs; without, the test ends here (exit 1, or 77)."""
-    path = os.environ.get("TERRAD_TWIN_WASM") or os.path.join(SOURCE, "build", "terrad_twin.wasm")
+def need_built(path, needs, require_env, check=None):
+    """path when it is built (a file the build makes only when an optional dependency is there).
+    When it is not, the test cannot run that part: under `make test` (which exports require_env=1
+    after scripts/deps installed the dependency) that is a failure, since a skip there hid a
+    build that had lost it (issue 28: make run had configured build/ before the WebAssembly
+    toolchain came); elsewhere (ctest by hand on a machine without it) a skip. needs says what
+    builds it. With check (a Checks), the failure or skip is counted there and None is returned,
+    so the rest of the test runs; without, the test ends here (exit 1, or 77)."""
     if os.path.exists(path):
         return path
-    why = (f"{path} not built (its toolchain: clang, wasm-ld, wasi-libc and "
-           "libclang-rt-14-dev-wasm32, from scripts/deps --build)")
-    if os.environ.get("TERRAD_REQUIRE_WASM") == "1":
-        why += "; TERRAD_REQUIRE_WASM=1 (make test) requires it"
+    why = f"{path} not built (it needs {needs})"
+    if os.environ.get(require_env) == "1":
+        why += f"; {require_env}=1 (make test) requires it"
         if check is not None:
             check(False, why)
             return None
@@ -165,6 +163,15 @@ def need_twin_wasm(check=None):
         check.skipped += 1
         return None
     skip(why)
+
+
+def need_twin_wasm(check=None):
+    """The WebAssembly twin's path ($TERRAD_TWIN_WASM, else build/terrad_twin.wasm) when it is
+    built, else need_built's failure (make test: TERRAD_REQUIRE_WASM=1) or skip."""
+    path = os.environ.get("TERRAD_TWIN_WASM") or os.path.join(SOURCE, "build", "terrad_twin.wasm")
+    return need_built(path, "its toolchain: clang, wasm-ld, wasi-libc and "
+                      "libclang-rt-14-dev-wasm32, from scripts/deps --build",
+                      "TERRAD_REQUIRE_WASM", check)
 
 
 def json_call(base, method, path, body=None, token=None, raw=None, timeout=120):

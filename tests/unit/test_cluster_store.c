@@ -10,7 +10,9 @@
  * records; so does a world's compaction memory (issue 28), its log going
  * on from records without it; a log and snapshots of format 1 (heights only,
  * written by hand here as older nodes wrote them) still load. A log that
- * lacks the record the snapshot index covers is refused, not replayed.
+ * lacks the record the snapshot index covers is refused, not replayed. On
+ * three servers killed and started again, a world keeps its records when
+ * another world's compaction removed its log below them.
  *
  * Exit 77 (skipped) when nats-server is not installed.
  */
@@ -242,6 +244,85 @@ static void test_index_ahead_of_log(cluster *a)
     cluster_store_close(s);
     world_free(&w);
     world_free(&r);
+}
+
+/* Opens world name on urls, trying for up to 60 s (a NATS cluster just
+ * started elects its leaders first); NULL if it never opened. */
+static cluster_store *open_when_ready(const char *urls, cluster **cl, const char *name, world *w,
+                                      store_recovery *rec, error_text *err)
+{
+    cluster_config cc = {.urls = urls, .node = "late"};
+    for (int i = 0; i < 120; i++) {
+        if (!*cl)
+            *cl = cluster_connect(&cc, err);
+        cluster_store *s = *cl ? cluster_store_open(*cl, name, w, NULL, rec, err) : NULL;
+        if (s)
+            return s;
+        usleep(500000);
+    }
+    return NULL;
+}
+
+/* Three NATS servers (clustered: raft): one world compacts, which removes its
+ * log below the covered record, while another world's records sit below that
+ * sequence; then every server is killed (-9) and started again, so each
+ * replays its stream's raft log. nats-server before 2.9.18 replayed a purge
+ * filtered by subject as a purge of the whole stream (nats-server #4196):
+ * the other world's records were gone after the restart. Removed message by
+ * message (cluster_log_purge_below), they stay. */
+static void test_restart_keeps_other_worlds(void)
+{
+    nats_proc three[3];
+    nats_init(three, 3);
+    nats_start_all(three, 3);
+    char urls[256];
+    urls_of(three, 3, urls, sizeof urls);
+    error_text err = {{0}};
+    cluster_config cc = {.urls = urls, .node = "a"};
+    cluster *cl = cluster_connect(&cc, &err);
+    CHECK(cl != NULL, "connects to three servers: %s", err.message);
+    world keep, busy, back;
+    test_dunes_world(&keep, W, H, 5);
+    test_dunes_world(&busy, W, H, 6);
+    store_recovery rec;
+    cluster_store_config quiet = {.compact_records = 1000}, often = {.compact_records = 10};
+    cluster_store *sk = cl ? cluster_store_open(cl, "keep", &keep, &quiet, &rec, &err) : NULL;
+    cluster_store *sb = cl ? cluster_store_open(cl, "busy", &busy, &often, &rec, &err) : NULL;
+    CHECK(sk && sb, "two worlds open: %s", err.message);
+    world_rect rects[3];
+    for (uint64_t t = 1; sk && sb && t <= 30; t++) {
+        int n = deform(&keep, rects);
+        cluster_store_commit_tick(sk, &keep, t, rects, n, &err);
+    }
+    for (uint64_t t = 1; sk && sb && t <= 25; t++) {
+        int n = deform(&busy, rects);
+        cluster_store_commit_tick(sb, &busy, t, rects, n, &err);
+        cluster_store_wait_compaction(sb);
+    }
+    int64_t compactions = 0, tiles = 0;
+    if (sb)
+        cluster_store_compactions(sb, &compactions, &tiles);
+    CHECK(compactions >= 2, "busy compacted past keep's records (%lld)", (long long)compactions);
+    cluster_store_close(sk);
+    cluster_store_close(sb);
+    cluster_close(cl);
+    for (int i = 0; i < 3; i++)
+        nats_stop(&three[i], SIGKILL);
+    for (int i = 0; i < 3; i++)
+        nats_start(three, i, 3);
+    cl = NULL;
+    test_dunes_world(&back, W, H, 5);
+    sk = open_when_ready(urls, &cl, "keep", &back, &rec, &err);
+    CHECK(sk && rec.tick == 30 && rec.records_replayed == 30 && same_heights(&keep, &back),
+          "after every server restarted, keep has its 30 records (tick %llu, %lld replayed): %s",
+          (unsigned long long)rec.tick, (long long)rec.records_replayed, err.message);
+    cluster_store_close(sk);
+    cluster_close(cl);
+    for (int i = 0; i < 3; i++)
+        nats_stop(&three[i], SIGTERM);
+    world_free(&keep);
+    world_free(&busy);
+    world_free(&back);
 }
 
 /* Random soil state in the rectangles deform() chose (as the bekker model
@@ -523,6 +604,7 @@ int main(void)
     cluster_close(a);
     cluster_close(b);
     nats_stop(one, SIGTERM);
+    test_restart_keeps_other_worlds();
     nats_tmp_remove();
     return check_report();
 }

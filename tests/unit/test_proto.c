@@ -394,9 +394,52 @@ static void check_forces(const char *name, const cJSON *f, const uint8_t *b, siz
     CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
 }
 
+/* STEP: the head and its poses (fields as POSE_BATCH's, set after set), then encode back. */
+static void check_step(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_pose poses[16], want[16];
+    terrad_step_head h;
+    long bad;
+    int rc = terrad_step_decode(b, n, &h, poses, 16, &bad);
+    CHECK(rc == 0 && bad == -1, "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    CHECK(h.seq == (uint32_t)num(f, "seq") && h.ticks == (uint32_t)num(f, "ticks") &&
+              h.count == (uint16_t)num(f, "count") && h.sets == (uint16_t)num(f, "sets"),
+          "%s: head", name);
+    size_t i = 0;
+    const cJSON *p;
+    cJSON_ArrayForEach(p, get(f, "poses"))
+    {
+        terrad_pose w = {(uint32_t)num(p, "id"), (float)num(p, "x"),  (float)num(p, "y"),
+                         (float)num(p, "z"),     (float)num(p, "qw"), (float)num(p, "qx"),
+                         (float)num(p, "qy"),    (float)num(p, "qz")};
+        CHECK(i < 16 && memcmp(&poses[i], &w, sizeof w) == 0, "%s: pose %zu", name, i);
+        want[i++] = w;
+    }
+    CHECK(i == (size_t)h.count * h.sets, "%s: %zu poses", name, i);
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_step_encode(out, sizeof out, &len, &h, want);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
                         size_t n)
 {
+    if (strcmp(type, "STEPPED") == 0) {
+        uint64_t tick;
+        uint32_t seq, ticks;
+        uint8_t out[64];
+        size_t len;
+        int rc = terrad_stepped_decode(b, n, &tick, &seq, &ticks);
+        CHECK(rc == 0 && tick == u64(f, "tick") && seq == (uint32_t)num(f, "seq") &&
+                  ticks == (uint32_t)num(f, "ticks"),
+              "%s: decode", name);
+        rc = terrad_stepped_encode(out, sizeof out, &len, tick, seq, ticks);
+        CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+        return;
+    }
     uint8_t out[64];
     size_t len;
     if (strcmp(type, "ACK") == 0) {
@@ -469,6 +512,16 @@ static int decode_any(const char *type, const uint8_t *b, size_t n)
         size_t count;
         return terrad_forces_decode(b, n, &tick, fs, 16, &count);
     }
+    if (strcmp(type, "STEP") == 0) {
+        terrad_pose poses[16];
+        terrad_step_head h;
+        return terrad_step_decode(b, n, &h, poses, 16, NULL);
+    }
+    if (strcmp(type, "STEPPED") == 0) {
+        uint64_t tick;
+        uint32_t seq, ticks;
+        return terrad_stepped_decode(b, n, &tick, &seq, &ticks);
+    }
     uint8_t t;
     uint64_t nonce;
     return terrad_ping_decode(b, n, &t, &nonce);
@@ -513,6 +566,8 @@ static void check_vectors(const cJSON *root)
                 check_footprints(name, f, b, n);
             else if (strcmp(type, "FORCES") == 0)
                 check_forces(name, f, b, n);
+            else if (strcmp(type, "STEP") == 0)
+                check_step(name, f, b, n);
             else
                 check_small(name, type, f, b, n);
             /* Every proper prefix of a valid frame is refused. */

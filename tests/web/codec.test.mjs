@@ -25,6 +25,8 @@ const decoders = {
   FOOTPRINTS: C.decodeFootprints,
   FORCES: C.decodeForces,
   ACK: C.decodeAck,
+  STEP: C.decodeStep,
+  STEPPED: C.decodeStepped,
   PING: C.decodePing,
   PONG: C.decodePing,
 };
@@ -100,6 +102,18 @@ for (const v of V.vectors) {
       case 'ACK':
         assert.equal(String(d.tick), f.tick);
         assert.equal(d.seq, f.seq);
+        break;
+      case 'STEP': {
+        assert.deepEqual([d.seq, d.ticks], [f.seq, f.ticks]);
+        const sets = [];
+        for (let k = 0; k < f.sets; k++) sets.push(f.poses.slice(k * f.count, (k + 1) * f.count));
+        assert.deepEqual(d.sets, sets.map((s) => s.map((p) => ({ id: p.id, x: Math.fround(p.x), y: Math.fround(p.y),
+          z: Math.fround(p.z), qw: Math.fround(p.qw), qx: Math.fround(p.qx), qy: Math.fround(p.qy), qz: Math.fround(p.qz) }))));
+        assert.equal(hex(C.encodeStep(f.seq, f.ticks, sets)), v.hex);
+        break;
+      }
+      case 'STEPPED':
+        assert.deepEqual([String(d.tick), d.seq, d.ticks], [f.tick, f.seq, f.ticks]);
         break;
       default:
         assert.equal(String(d.nonce), f.nonce);

@@ -16,7 +16,8 @@
 Modules: terrad.proto (the wire codecs: proto/PROTOCOL.md), terrad.client (the asyncio
 Client), terrad.sync (SyncClient, the same without asyncio), terrad.http (the HTTP API),
 terrad.twin (the twin library, libterrad-twin, through ctypes) and terrad.predict
-(Client.predict: the own rut at once, reconciled with the server at every ACK).
+(Client.predict: the own rut at once, reconciled with the server at every ACK) and
+terrad.vecenv (WheelVecEnv: K client-clocked worlds stepped as one, reset()/step(actions)).
 Everything public is also here at the top level.
 """
 
@@ -29,9 +30,11 @@ from .sync import SyncClient
 from .twin import Twin, TwinError
 from .http import (WorldError, create_world, delete_world, get_heights, get_stats, get_world,
                    list_worlds)
+from .vecenv import OBS_FIELDS, WheelVecEnv, wheel_scene
 
 __version__ = "0.3.0"
 
 __all__ = ["CALLBACK_ARGS", "HAVE_NUMPY", "Client", "Prediction", "SyncClient", "TerradClient",
            "Twin", "TwinError", "WorldError", "create_world", "delete_world", "get_heights",
-           "get_stats", "get_world", "heights_grid", "list_worlds", "proto", *_proto_all]
+           "get_stats", "get_world", "heights_grid", "list_worlds", "proto", "OBS_FIELDS",
+           "WheelVecEnv", "wheel_scene", *_proto_all]

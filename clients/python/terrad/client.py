@@ -25,7 +25,8 @@ from .twin import TwinError
 from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force, Mirror, MsgType,
                     Pose, ProtoError, ServerError, collider_create, collider_delete,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
-                    decode_footprints, decode_forces, decode_header, decode_ping, encode_ping,
+                    decode_footprints, decode_forces, decode_header, decode_ping, decode_stepped,
+                    encode_ping, encode_step,
                     edit, encode_pose_batch, error, frame_tick, hello, parse_control, resync,
                     seen, subscribe, unsubscribe)
 
@@ -51,6 +52,7 @@ CALLBACK_ARGS: dict[FrameKind, str] = {
     MsgType.COLLIDERS: "(tick, states)",
     MsgType.FOOTPRINTS: "(tick, events)",
     MsgType.FORCES: "(tick, forces)",
+    MsgType.STEPPED: "(tick, seq, ticks): a STEP of this client ran and is durable",
     MsgType.PING: "(nonce,) after the client answered with a PONG",
     MsgType.PONG: "(nonce,)",
     "message": "(msg,) every JSON control message, a dict",
@@ -127,6 +129,8 @@ class Client:
         self._seq = 0
         self._ref = 0
         self._pending: dict[str, asyncio.Future[dict[str, Any]]] = {}
+        self._step_seq = 0
+        self._steps: dict[int, asyncio.Future[int]] = {}  # STEP seq -> its STEPPED tick
         self._reader: asyncio.Task[None] | None = None
         # PROTOCOL.md "seen": the latest tick handled, and what and when the server was told
         self.say_seen = say_seen
@@ -254,6 +258,28 @@ class Client:
         await self.ws.send(frame)
         return seq
 
+    async def step_send(self, ticks: int = 1, sets: list[list[Pose]] | None = None) -> asyncio.Future[int]:
+        """Send a STEP to a client-clocked world (PROTOCOL.md "STEP"): `ticks` ticks; sets
+        None or [] holds every collider, [poses] poses them at the first tick, one list per
+        tick poses them at every tick. Returns a future of the step's last tick, set by its
+        STEPPED (every tick's frames came first) or failed with ServerError naming the field."""
+        seq = (self._step_seq + 1) & _U32
+        frame = encode_step(seq, ticks, sets or [])
+        self._step_seq = seq
+        fut: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._steps[seq] = fut
+        await self.ws.send(frame)
+        return fut
+
+    async def step(self, ticks: int = 1, sets: list[list[Pose]] | None = None,
+                   timeout: float = 60.0) -> int:
+        """step_send, then wait for its STEPPED: returns the step's last tick."""
+        fut = await self.step_send(ticks, sets)
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        finally:
+            self._steps = {k: f for k, f in self._steps.items() if not f.done()}
+
     async def edit(self, op: str, **fields: Any) -> dict[str, Any]:
         """A terrain edit (crater, stamp, reset, add, remove; see proto.edit). Returns the
         server's "edited" reply once its tick is committed: the tick it took effect, the
@@ -313,7 +339,7 @@ class Client:
                     await self._say_seen(frame_tick(data))
                 self._changed.set()
         finally:
-            for fut in self._pending.values():
+            for fut in [*self._pending.values(), *self._steps.values()]:
                 if not fut.done():
                     fut.set_exception(ConnectionError("connection closed"))
             self._changed.set()
@@ -348,7 +374,11 @@ class Client:
             self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
         ref = msg.get("ref")
         fut = self._pending.get(ref) if isinstance(ref, str) else None
-        if t == "error":
+        step = self._steps.pop(int(ref[5:]), None) if isinstance(ref, str) and ref.startswith("step:") else None
+        if t == "error" and step is not None:
+            if not step.done():
+                step.set_exception(ServerError(msg))
+        elif t == "error":
             if fut and not fut.done():
                 fut.set_exception(ServerError(msg))
             else:
@@ -394,6 +424,12 @@ class Client:
                 except (TwinError, OSError) as e:  # the connection and the mirror go on
                     self.errors.append(error("internal", f"prediction of {sid}: {e}"))
             await self._emit(t, self.acked_tick, self.acked_seq)
+        elif t == MsgType.STEPPED:
+            tick, seq, ticks = decode_stepped(data)
+            fut = self._steps.pop(seq, None)
+            if fut is not None and not fut.done():
+                fut.set_result(tick)
+            await self._emit(t, tick, seq, ticks)
         elif t == MsgType.PING:
             nonce = decode_ping(data)[1]
             await self.ws.send(encode_ping(nonce, pong=True))

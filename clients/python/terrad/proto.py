@@ -46,7 +46,8 @@ __all__ = [
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
-    "edit", "stamp_data", "parse_control", "subscribe_events", "seen", "frame_tick",
+    "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
+    "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
 ]
 
 PROTOCOL_VERSION = 1
@@ -70,12 +71,14 @@ class MsgType(IntEnum):
     POSE_BATCH = 0x01
     PING = 0x02
     PONG = 0x03
+    STEP = 0x04
     DELTA = 0x10
     CONTACT = 0x11
     ACK = 0x12
     COLLIDERS = 0x13
     FOOTPRINTS = 0x14
     FORCES = 0x15
+    STEPPED = 0x16
 
 
 class Encoding(IntEnum):
@@ -288,6 +291,73 @@ def decode_pose_batch(buf: bytes, max_poses: int = MAX_COUNT) -> tuple[int, list
         _check_quaternion(*v[3:])
         poses.append(Pose(pid, *v))
     return seq, poses
+
+
+# ---- STEP and STEPPED (client-clocked worlds) ---------------------------------------
+
+STEP_FIXED = 16
+STEPPED_SIZE = 20
+
+
+def encode_step(seq: int, ticks: int, sets: list[list[Pose]]) -> bytes:
+    """A STEP: `ticks` ticks; sets [] holds every collider, one set poses them at the first
+    tick (held after), `ticks` sets pose them at every tick. Every set has the same count."""
+    count = len(sets[0]) if sets else 0
+    if ticks < 1 or (len(sets) > 1 and len(sets) != ticks):
+        raise ProtoError("bad_value", f"ticks {ticks} with {len(sets)} sets (0, 1 or ticks)")
+    if any(len(s) != count for s in sets) or count > MAX_COUNT or len(sets) > MAX_COUNT:
+        raise ProtoError("bad_value", "every set must have the same count (<= 65535)")
+    out = [_header(MsgType.STEP), struct.pack("<IIHH", seq & _U32, ticks, count, len(sets))]
+    for s in sets:
+        for p in s:
+            v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
+            if not all(math.isfinite(a) for a in v):
+                raise ProtoError("bad_value", f"pose of collider {p.id} is not finite")
+            _check_quaternion(*v[3:])
+            out.append(_POSE.pack(p.id, *v))
+    return b"".join(out)
+
+
+def decode_step(buf: bytes, max_poses: int = MAX_COUNT * 64) -> tuple[int, int, list[list[Pose]]]:
+    """(seq, ticks, sets)."""
+    _expect(buf, MsgType.STEP)
+    if len(buf) < STEP_FIXED:
+        raise ProtoError("bad_frame", "truncated")
+    seq, ticks, count, nsets = struct.unpack_from("<IIHH", buf, 4)
+    if len(buf) - STEP_FIXED != count * nsets * POSE_SIZE:
+        raise ProtoError("bad_frame", f"{nsets} sets of {count} do not match the frame")
+    if ticks == 0 or (nsets > 1 and nsets != ticks):
+        raise ProtoError("bad_value", f"ticks {ticks} with {nsets} sets")
+    if count * nsets > max_poses:
+        raise ProtoError("too_large", f"{count * nsets} poses")
+    sets = []
+    for k in range(nsets):
+        s = []
+        for i in range(count):
+            pid, *v = _POSE.unpack_from(buf, STEP_FIXED + (k * count + i) * POSE_SIZE)
+            if not all(math.isfinite(a) for a in v):
+                raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
+            _check_quaternion(*v[3:])
+            s.append(Pose(pid, *v))
+        sets.append(s)
+    return seq, ticks, sets
+
+
+def encode_stepped(tick: int, seq: int, ticks: int) -> bytes:
+    if ticks < 1:
+        raise ProtoError("bad_value", "ticks 0")
+    return _header(MsgType.STEPPED) + struct.pack("<QII", tick, seq, ticks)
+
+
+def decode_stepped(buf: bytes) -> tuple[int, int, int]:
+    """(tick, seq, ticks): step seq's ticks ran, the last being tick, and are durable."""
+    _expect(buf, MsgType.STEPPED)
+    if len(buf) != STEPPED_SIZE:
+        raise ProtoError("bad_frame", f"STEPPED of {len(buf)} bytes")
+    tick, seq, ticks = struct.unpack_from("<QII", buf, 4)
+    if ticks == 0:
+        raise ProtoError("bad_value", "STEPPED of 0 ticks")
+    return tick, seq, ticks
 
 
 # ---- DELTA -----------------------------------------------------------------------
@@ -564,6 +634,10 @@ def decode(buf: bytes):
         return t, decode_footprints(buf)
     if t == MsgType.FORCES:
         return t, decode_forces(buf)
+    if t == MsgType.STEP:
+        return t, decode_step(buf)
+    if t == MsgType.STEPPED:
+        return t, decode_stepped(buf)
     return t, decode_ping(buf)[1]
 
 

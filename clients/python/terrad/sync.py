@@ -26,22 +26,16 @@ from .proto import Contact, Pose
 T = TypeVar("T")
 
 
-class SyncClient:
-    """Blocking calls onto a Client (the attribute .client) that lives on a private loop."""
+class BackgroundLoop:
+    """A private asyncio loop on a daemon thread, and blocking calls onto it (SyncClient,
+    terrad.vecenv.WheelVecEnv). Subclasses set .timeout and define close()."""
 
-    def __init__(self, uri: str, token: str = "", name: str = "terrad-python-sync",
-                 timeout: float = 10.0, **connect_kwargs: Any):
-        self.timeout = timeout
+    timeout: float = 10.0
+
+    def _start_loop(self, name: str) -> None:
         self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, name="terrad-client",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._loop.run_forever, name=name, daemon=True)
         self._thread.start()
-        self.client = Client(uri, token=token, name=name, **connect_kwargs)
-        try:
-            self._call(self.client.connect())
-        except BaseException:
-            self._stop_loop()
-            raise
 
     def _call(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
         fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
@@ -52,11 +46,29 @@ class SyncClient:
         self._thread.join(10)
         self._loop.close()
 
-    def __enter__(self) -> SyncClient:
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class SyncClient(BackgroundLoop):
+    """Blocking calls onto a Client (the attribute .client) that lives on a private loop."""
+
+    def __init__(self, uri: str, token: str = "", name: str = "terrad-python-sync",
+                 timeout: float = 10.0, **connect_kwargs: Any):
+        self.timeout = timeout
+        self._start_loop("terrad-client")
+        self.client = Client(uri, token=token, name=name, **connect_kwargs)
+        try:
+            self._call(self.client.connect())
+        except BaseException:
+            self._stop_loop()
+            raise
 
     def close(self) -> None:
         if self._loop.is_closed():
@@ -82,6 +94,12 @@ class SyncClient:
 
     def send_poses(self, poses: list[Pose]) -> int:
         return self._call(self.client.send_poses(poses))
+
+    def step(self, ticks: int = 1, sets: list[list[Pose]] | None = None,
+             timeout: float | None = None) -> int:
+        """A client-clocked world's STEP (Client.step): its last tick, once it is durable."""
+        t = self.timeout if timeout is None else timeout
+        return self._call(self.client.step(ticks, sets, t), t + 5)
 
     def edit(self, op: str, **fields: Any) -> dict[str, Any]:
         """A terrain edit; the server's "edited" reply (Client.edit)."""
