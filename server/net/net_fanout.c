@@ -109,6 +109,11 @@ static void fan_out(net_state *w, const hub_out *o)
 static void drop_stale(net_state *w)
 {
     uint64_t limit = (uint64_t)w->cfg.limits.max_client_lag_ticks;
+    /* "seen" comes at most every 0.1 s, plus a round trip: a limit shorter than
+     * that in ticks is judged as 0.25 s; a client-clocked world's ticks come in
+     * bursts at its driver's pace, not the clock's, and are not judged by it */
+    uint64_t said_limit = (uint64_t)(w->cfg.world.tick_hz * 0.25);
+    said_limit = w->cfg.world.client_clock ? UINT64_MAX : said_limit > limit ? said_limit : limit;
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
         if (!c->ready || c->closing || c->killed || c->remote || dropping_deltas(c))
@@ -117,12 +122,12 @@ static void drop_stale(net_state *w)
         if (oldest && w->tick > oldest + limit) {
             go_slow(c, w->tick - oldest);
         } else if (c->seen_said && c->seen_tick >= c->seen_from &&
-                   c->written_tick > c->seen_tick + limit) {
+                   c->written_tick - c->seen_tick > said_limit && c->written_tick > c->seen_tick) {
             log_info("net: client %u (%s) has handled tick %llu, %llu behind what was sent to it "
                      "(limit %d): deltas replaced by a snapshot once it has read what is on its "
                      "way",
                      c->id, c->peer, (unsigned long long)c->seen_tick,
-                     (unsigned long long)(c->written_tick - c->seen_tick), (int)limit);
+                     (unsigned long long)(c->written_tick - c->seen_tick), (int)said_limit);
             metrics_count_client_behind();
             c->seen_wait = c->written_tick;
             go_slow(c, 0);
