@@ -97,7 +97,7 @@ int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 #define SERVE_WORLDS_MAX 256
 typedef struct serve_worlds serve_worlds;
 /* After the daemon's ports are open: the worlds of DATA/worlds recovered and
- * started (each on its own sim thread), then POST/GET /v1/worlds and
+ * started (each on ticker, the daemon's pool), then POST/GET /v1/worlds and
  * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
                                  http_server *http, net_server *net, host_ticker *ticker,
@@ -126,7 +126,7 @@ unsigned worlds_body_check(const char *body, size_t len, const char *scene_dir,
 /*
  * `terrad serve --cluster`: the node joins the NATS cluster and ticks every
  * world it can take, up to --max-worlds (default 1; with --worlds, as many
- * as it names), each on its own sim thread; one HTTP and one websocket port
+ * as it names), all on one pool of sim workers; one HTTP and one websocket port
  * serve them all. Returns the exit status. stop: set by SIGINT/SIGTERM.
  */
 int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic_t *stop,

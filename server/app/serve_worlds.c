@@ -449,24 +449,25 @@ static unsigned stopping(const char *op, char **json)
     return worlds_refuse(op, 503, "name", "name: the daemon is stopping", json);
 }
 
-static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
+/* A create (body) or a delete (name, keep) while the daemon is not stopping. */
+static unsigned worlds_call(serve_worlds *ws, int create, const char *body, size_t len,
+                            const char *name, int keep, char **json)
 {
-    serve_worlds *ws = ctx;
     if (!enter(ws))
-        return stopping("create", json);
-    unsigned code = create_world(ws, body, len, json);
+        return stopping(create ? "create" : "delete", json);
+    unsigned code = create ? create_world(ws, body, len, json) : delete_world(ws, name, keep, json);
     leave(ws);
     return code;
 }
 
+static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
+{
+    return worlds_call(ctx, 1, body, len, NULL, 0, json);
+}
+
 static unsigned worlds_remove(void *ctx, const char *name, int keep, char **json)
 {
-    serve_worlds *ws = ctx;
-    if (!enter(ws))
-        return stopping("delete", json);
-    unsigned code = delete_world(ws, name, keep, json);
-    leave(ws);
-    return code;
+    return worlds_call(ctx, 0, NULL, 0, name, keep, json);
 }
 
 /* ---- the daemon's life ---- */

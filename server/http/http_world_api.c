@@ -4,8 +4,8 @@
  * GET /v1/worlds lists them (any known token), DELETE /v1/worlds/{name}
  * ends one (admin; ?keep=1 keeps its storage). Only the routing, the role
  * and the answer's shape are here: the daemon (app/serve_worlds.c) does the
- * work through the callbacks it set, off any tick (each world ticks on its
- * own sim thread). A created world's reads and edits then go through the
+ * work through the callbacks it set, off any tick (each world ticks on the
+ * daemon's pool of sim workers). A created world's reads and edits go through the
  * server's table of worlds (http_worlds.c) by ?world=NAME or
  * /v1/worlds/{name}/edits, beside the default world's.
  */

@@ -178,9 +178,6 @@ int hub_take_step(hub *h, hub_step *out);
 /* How the world's clock learns that ticks are due (the ticker's client clock:
  * fn adds ticks to what it owes the world). Set before any step can come. */
 void hub_set_step_notify(hub *h, void (*fn)(void *arg, uint32_t ticks), void *arg);
-/* A sim thread of its own (the default world's): wait up to timeout_ms for a
- * step to be queued; 1 when one waits. */
-int hub_wait_step(hub *h, int timeout_ms);
 void hub_step_free(hub_step *st);
 
 /* ---- sim → net: frames ---- */

@@ -9,7 +9,9 @@ real daemons on loopback:
   two ticks holding) run in two worlds stepped as one on a daemon with --threads 1, then in two
   worlds each stepped alone on a daemon with --threads 2 and TERRAD_NO_AVX2=1: every FORCES
   entry of every tick (floats compared bit for bit), every STEPPED tick, every height of the
-  mirror and the world's Σh and Σ compacted soil (/v1/stats) are identical in all four;
+  mirror, the world's Σh and Σ compacted soil (/v1/stats) and its data directory byte for byte
+  (the log records hold every tick's changed heights and per-cell soil state) are identical in
+  all four;
 - kill -9 keeps every acknowledged step (--durability every-tick): a driver that stops after
   its steps leaves a world whose recovered tick is at least the last STEPPED tick and whose
   heights are the client's mirror; a daemon killed while a driver is stepping recovers at
@@ -84,6 +86,19 @@ def world_tick(d, world):
     return ticks.get(world)
 
 
+def store_bytes(d, world):
+    """Every file of world's data directory (its log records hold each tick's changed heights
+    and per-cell soil state), by name; LOCK left out."""
+    root = os.path.join(d.data_dir, "worlds", world)
+    out = {}
+    for dirpath, _, files in os.walk(root):
+        for name in files:
+            if name != "LOCK":
+                with open(os.path.join(dirpath, name), "rb") as f:
+                    out[os.path.relpath(os.path.join(dirpath, name), root)] = f.read()
+    return out
+
+
 def determinism():
     runs = {}
     with check.running(Daemon(extra=["--threads", "1"], name="threads-1")) as d:
@@ -91,24 +106,28 @@ def determinism():
         create(d, "b")
         texts = drive(d, ["a", "b"], "many")
         for w in ("a", "b"):
-            runs[f"1 thread, stepped as one: {w}"] = (texts[w], stats(d, w))
+            runs[f"1 thread, stepped as one: {w}"] = (texts[w], stats(d, w), store_bytes(d, w))
     with check.running(Daemon(extra=["--threads", "2"], env={"TERRAD_NO_AVX2": "1"},
                               name="threads-2")) as d:
         create(d, "a")
         create(d, "b")
         texts = drive(d, ["a", "b"], "alone")
         for w in ("a", "b"):
-            runs[f"2 threads, no AVX2, stepped alone: {w}"] = (texts[w], stats(d, w))
-    (first, (text, st)), *rest = runs.items()
+            runs[f"2 threads, no AVX2, stepped alone: {w}"] = (texts[w], stats(d, w), store_bytes(d, w))
+    (first, (text, st, logged)), *rest = runs.items()
     forces = text.count("\nF ")
     check(forces > 4 * STEPS, f"{first}: {forces} FORCES entries")
     check(text.count("STEPPED ") == STEPS, f"{first}: a STEPPED per step")
     m = mirror_of(text)
     check(len(m) == W * H and len(set(m)) > 10, f"{first}: the mirror holds the rover's ruts")
     check(st and st[1] and st[1] > 0, f"{first}: soil compacted ({st})")
-    for name, (t, s) in rest:
+    check(any(n.startswith("wal-") and len(b) > 1000 for n, b in logged.items()),
+          f"{first}: its log holds the ticks ({sorted(logged)})")
+    for name, (t, s, lg) in rest:
         check(t == text, f"{name}: FORCES, STEPPED ticks and heights identical to {first}")
         check(s == st, f"{name}: volume and compacted soil {s} == {st}")
+        check(lg == logged, f"{name}: its data directory (every tick's heights and soil state, "
+              f"as logged) byte for byte that of {first}")
 
 
 def acked(lines):
