@@ -36,8 +36,9 @@ typedef struct serve_options {
     int http_port;
     int ws_port;
     int bind_any;
-    int insecure_open; /* --insecure-open: --bind-any without any token is allowed */
-    int probe_port;    /* -1: none; else --probe-port (0 = any free port) */
+    int insecure_open;  /* --insecure-open: --bind-any without any token is allowed */
+    int probe_port;     /* -1: none; else --probe-port (0 = any free port) */
+    int drain_grace_ms; /* --drain-grace-ms: how long a drain waits for clients to leave */
     int demo_actors;
     double tick_hz;                 /* 0: the scene's */
     const char *auth_file;          /* --auth-file: tokens' hashes and roles, reread on SIGHUP */
@@ -102,6 +103,9 @@ typedef struct serve_worlds serve_worlds;
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
                                  http_server *http, net_server *net, host_ticker *ticker,
                                  error_text *err);
+/* The daemon drains (serve.c): POST /v1/worlds is refused with 503 naming
+ * why, and GET /v1/worlds says every world's lifecycle is "draining". */
+void serve_worlds_drain(serve_worlds *ws, const char *why);
 /* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
 void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */

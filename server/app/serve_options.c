@@ -42,6 +42,7 @@ enum {
     OPT_TLS_CERT,
     OPT_TLS_KEY,
     OPT_PROBE_PORT,
+    OPT_DRAIN_GRACE_MS,
     OPT_SCENE_DIR,
     OPT_PUBLIC_WS_URL,
 };
@@ -120,6 +121,11 @@ static const cli_option serve_table[] = {
     [OPT_PROBE_PORT] = {"probe-port", "N",
                         "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
                         "connection budget (0: any free port; default: none)"},
+    [OPT_DRAIN_GRACE_MS] = {"drain-grace-ms", "MS",
+                            "SIGTERM (or POST /v1/drain) drains: /readyz fails, new clients\n"
+                            "and worlds are refused, connected clients are told; the daemon\n"
+                            "stops once they have all left, or MS after (default 0: at once;\n"
+                            "set it below the orchestrator's grace, docs/fleet.md)"},
     [OPT_SCENE_DIR] = {"scene-dir", "DIR",
                        "scenes POST /v1/worlds may name (\"scene_name\": NAME reads\n"
                        "DIR/NAME.json; default: none, only scenes in the body)"},
@@ -401,9 +407,10 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->wal_segment_bytes = x;
         return 0;
     case OPT_PROBE_PORT:
-        if (cli_parse_long(value, 0, 65535, &x, err) != 0)
+    case OPT_DRAIN_GRACE_MS: /* a port, or at most a day */
+        if (cli_parse_long(value, 0, index == OPT_PROBE_PORT ? 65535 : 86400000L, &x, err) != 0)
             return -1;
-        o->probe_port = (int)x;
+        *(index == OPT_PROBE_PORT ? &o->probe_port : &o->drain_grace_ms) = (int)x;
         return 0;
     case OPT_HTTP_PORT:
     case OPT_WS_PORT:

@@ -73,6 +73,7 @@ struct serve_worlds {
     local_world *worlds[SERVE_WORLDS_MAX];
     int nworlds;
     int stopping, calls; /* the daemon stops: no new call; calls running now */
+    char draining[200];  /* "" or why the daemon drains: no create (serve_worlds_drain) */
 };
 
 /* ---- answers ---- */
@@ -95,14 +96,26 @@ static void leave(serve_worlds *ws)
     pthread_mutex_unlock(&ws->lock);
 }
 
+/* A running world's place in a fleet's lifecycle (docs/fleet.md): "draining"
+ * once the daemon drains, "driven" while a client is connected to it (an
+ * allocated game server's match), else "ready"; any other state is its own. */
+static const char *lifecycle(const char *state, const http_status *st, int draining)
+{
+    if (strcmp(state, "running") != 0)
+        return state;
+    return draining ? "draining" : !st->ready ? "starting" : st->clients > 0 ? "driven" : "ready";
+}
+
 /* One world's entry of GET /v1/worlds, from its status block. */
-static cJSON *world_entry(const char *name, http_status *st, const char *state, int is_default)
+static cJSON *world_entry(const char *name, http_status *st, const char *state, int is_default,
+                          int draining)
 {
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "name", name);
     cJSON_AddStringToObject(o, "state", state);
     cJSON_AddBoolToObject(o, "default", is_default);
     pthread_mutex_lock(&st->lock);
+    cJSON_AddStringToObject(o, "lifecycle", lifecycle(state, st, draining));
     cJSON_AddStringToObject(o, "scene", st->scene_name);
     cJSON_AddNumberToObject(o, "width", st->world_width);
     cJSON_AddNumberToObject(o, "height", st->world_height);
@@ -343,7 +356,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
     metrics_count_world_request("create", 1);
     net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
-    cJSON *o = world_entry(name, &lw->hw.m.status, "running", 0);
+    cJSON *o = world_entry(name, &lw->hw.m.status, "running", 0, 0);
     *json = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
     return 201;
@@ -355,12 +368,15 @@ static unsigned worlds_list(void *ctx, char **json)
 {
     serve_worlds *ws = ctx;
     cJSON *doc = cJSON_CreateObject(), *arr = cJSON_AddArrayToObject(doc, "worlds");
-    cJSON_AddItemToArray(arr, world_entry(ws->main_world->sc.name,
-                                          (http_status *)&ws->main_world->status, "running", 1));
     pthread_mutex_lock(&ws->lock);
+    int draining = ws->draining[0] != 0;
+    cJSON_AddItemToArray(arr, world_entry(ws->main_world->sc.name,
+                                          (http_status *)&ws->main_world->status, "running", 1,
+                                          draining));
     for (int i = 0; i < ws->nworlds; i++) {
         local_world *lw = ws->worlds[i];
-        cJSON *e = world_entry(lw->hw.m.name, &lw->hw.m.status, state_names[lw->state], 0);
+        cJSON *e =
+            world_entry(lw->hw.m.name, &lw->hw.m.status, state_names[lw->state], 0, draining);
         if (lw->state == LW_FAILED)
             cJSON_AddStringToObject(e, "error", lw->why);
         cJSON_AddItemToArray(arr, e);
@@ -462,6 +478,17 @@ static unsigned worlds_call(serve_worlds *ws, int create, const char *body, size
 
 static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
 {
+    serve_worlds *ws = ctx;
+    char draining[sizeof ws->draining], why[300];
+    pthread_mutex_lock(&ws->lock);
+    snprintf(draining, sizeof draining, "%s", ws->draining);
+    pthread_mutex_unlock(&ws->lock);
+    if (draining[0]) { /* the orchestrator stops this daemon: the world belongs elsewhere */
+        snprintf(why, sizeof why,
+                 "name: the daemon is draining (%s) and creates no world: create it on another",
+                 draining);
+        return worlds_refuse("create", 503, "name", why, json);
+    }
     return worlds_call(ctx, 1, body, len, NULL, 0, json);
 }
 
@@ -558,6 +585,15 @@ serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_wo
     http_world_api api = {worlds_create, worlds_list, worlds_remove, ws};
     http_server_set_world_api(http, &api);
     return ws;
+}
+
+void serve_worlds_drain(serve_worlds *ws, const char *why)
+{
+    if (!ws)
+        return;
+    pthread_mutex_lock(&ws->lock);
+    snprintf(ws->draining, sizeof ws->draining, "%s", why);
+    pthread_mutex_unlock(&ws->lock);
 }
 
 void serve_worlds_stop(serve_worlds *ws)

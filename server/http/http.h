@@ -10,7 +10,9 @@
  *   /healthz          200 "ok" while the process serves and no watched thread
  *                     (http_server_watch: the tick, the net thread) has gone
  *                     without progress past its limit; else 503 naming it
- *   /readyz           200 "ready" once status.ready, else 503
+ *   /readyz           200 "ready" once status.ready and not draining, else
+ *                     503 naming why (Kubernetes' readiness: alive but not
+ *                     ready while recovering or draining; /healthz stays 200)
  *   /metrics          Prometheus text 0.0.4 (metrics_render)
  *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
  *                     models, renderer, backend
@@ -192,6 +194,17 @@ typedef struct http_world_api {
 } http_world_api;
 /* Before the port serves requests (api copied; NULL: none, /v1/worlds is 404). */
 void http_server_set_world_api(http_server *s, const http_world_api *api);
+
+/* ---- the drain (docs/fleet.md) ----
+ * POST /v1/drain (admin role, no body) calls drain on an HTTP thread, which
+ * starts the daemon's drain (the same as SIGTERM's) and answers as the world
+ * API's calls do (202 and JSON). Set once before the port serves (NULL:
+ * /v1/drain is 404). */
+typedef unsigned (*http_drain_fn)(void *ctx, char **json);
+void http_server_set_drain(http_server *s, http_drain_fn drain, void *ctx);
+/* From now on /readyz answers 503 "not ready: draining: <why>" whatever the
+ * status says (the probe port too); /healthz is untouched. Any thread. */
+void http_server_set_draining(http_server *s, const char *why);
 
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms

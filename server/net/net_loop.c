@@ -58,6 +58,7 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     atomic_store(&s->last_beat_ms, time_now_ms());
     net_worlds_apply(s);
     net_events_apply(s);
+    net_drain_apply(s);
     net_remote_apply(s);
     for (int i = 0; net_state_at(s, i); i++) {
         net_reap_dead_peers(net_state_at(s, i));
@@ -80,6 +81,7 @@ void net_catch_up(net_server *s)
 {
     net_worlds_apply(s);
     net_events_apply(s);
+    net_drain_apply(s);
     net_remote_apply(s);
     net_flush_backlogs(s);
     net_drain_hubs(s); /* the last tick's frames go out before the goodbye */

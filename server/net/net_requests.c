@@ -108,6 +108,15 @@ static void handle_hello(net_client *c, const net_control *m)
     net_state *s = c->srv;
     if (net_auth_hello(c, m->token, m->ref) != 0)
         return;
+    const char *draining = net_draining(s);
+    if (draining) { /* a load balancer that has not yet seen /readyz fail sent it here */
+        net_error(c, TERRAD_E_SHUTTING_DOWN, m->ref, -1, 1,
+                  "hello: this server is draining (%s) and takes no new clients: connect to "
+                  "another",
+                  draining);
+        net_close_after_flush(c, 4000 + TERRAD_E_SHUTTING_DOWN, "draining");
+        return;
+    }
     char why[400];
     if (s->lobby && net_client_join_world(c, m->world, why, sizeof why) != 0) {
         /* a cluster node serves the worlds it owns: the client is sent to another node */
