@@ -33,7 +33,7 @@ import tempfile
 import time
 import urllib.request
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 from service_harness import (  # noqa: E402
     Checks, Daemon, RecordingClient, export_heights, json_call, raw_hello, tp)
 
