@@ -185,6 +185,9 @@ def refusals():
     with check.running(Daemon(name="refusals")) as d:
         create(d, "wall", clock="wall")
         create(d, "c")
+        status, doc = json_call(d.http, "GET", "/v1/worlds")
+        clocks = {w["name"]: w.get("clock") for w in doc.get("worlds", [])}
+        check(clocks.get("wall") == "wall" and clocks.get("c") == "client", f"GET /v1/worlds says the clock: {clocks}")
         status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": "x", "clock": "sundial", "scene": scene()})
         check(status == 400 and doc.get("field") == "clock", f"clock sundial: {status} {doc}")
         bad = dict(scene(), clock="sundial")
