@@ -117,6 +117,7 @@ static cJSON *world_entry(const char *name, http_status *st, const char *state, 
     pthread_mutex_lock(&st->lock);
     cJSON_AddStringToObject(o, "lifecycle", lifecycle(state, st, draining));
     cJSON_AddStringToObject(o, "scene", st->scene_name);
+    cJSON_AddStringToObject(o, "clock", st->client_clock ? "client" : "wall");
     cJSON_AddNumberToObject(o, "width", st->world_width);
     cJSON_AddNumberToObject(o, "height", st->world_height);
     cJSON_AddNumberToObject(o, "tick", (double)st->tick);

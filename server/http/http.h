@@ -80,7 +80,8 @@ typedef struct http_status {
     uint64_t overruns;
     double published_ms; /* time_now_ms() of the last tick's publication (or of
                           * becoming ready, before the first); 0 = not yet */
-    int waiting; /* a client-clocked world waiting for its driver's next step: not stalled */
+    int waiting;      /* a client-clocked world waiting for its driver's next step: not stalled */
+    int client_clock; /* its scene's "clock": "client" (GET /v1/worlds says "clock") */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
     char scene_name[65]; /* the scene's name: a single daemon's world in /v1/worlds/{name}/edits */
 } http_status;

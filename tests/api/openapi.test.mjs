@@ -6,7 +6,7 @@
 // every documented header that is present validates too, while the headers an answer must carry
 // (X-Terrad-Tick, -Rect, -Units-Per-Metre on heights; Allow on 405) are there. Every path of
 // the document is fetched, and every status code it names explicitly is seen at least once.
-// Run by tests/integration/test_openapi.sh (node --test).
+// Run by tests/integration/service/test_openapi.sh (node --test).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';

@@ -1,4 +1,4 @@
-"""The one Python harness of the tests (tests/integration/test_*.py,
+"""The one Python harness of the tests (tests/integration/*/test_*.py,
 tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
 real daemon on loopback ports (serve_scene: on a scene given as a dict),
 `terrad simulate` runs, HTTP helpers
@@ -6,7 +6,7 @@ real daemon on loopback ports (serve_scene: on a scene given as a dict),
 mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
 wheel poses. A test puts tests/support on sys.path and imports what it needs.
 
-Not a test itself (ctest registers only tests/integration/test_*.py). Debian's /usr/bin/python3
+Not a test itself (ctest registers only tests/integration/**/test_*.py). Debian's /usr/bin/python3
 with python3-websockets and python3-zstandard.
 """
 import asyncio
