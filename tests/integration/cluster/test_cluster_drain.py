@@ -23,7 +23,7 @@ import signal
 import sys
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, owner_of  # noqa: E402
 from service_harness import Checks, machine, raw_hello, skip  # noqa: E402
