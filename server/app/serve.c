@@ -136,11 +136,13 @@ static int default_open(host_world *hw, error_text *err)
         log_info("store: --fresh: %s started over (%d files removed)", o->data_dir, removed);
     store_config stc = {.dir = o->data_dir,
                         .segment_bytes = o->wal_segment_bytes,
+                        .retain_bytes = o->replay_retain_bytes,
                         .fault_path = o->store_fault,
                         .recover_truncate = o->recover_truncate};
     if (store_parse_durability(o->durability, &stc, err) != 0 ||
         !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
         return -1;
+    m->status.replay_dir = o->data_dir; /* /v1/heights?tick=N rebuilds from it */
     char dname[32];
     const store_recovery *r = &m->recovery;
     log_info("store: %s (durability %s): recovered tick %llu from %d tile snapshots and %lld "

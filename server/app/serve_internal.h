@@ -51,6 +51,7 @@ typedef struct serve_options {
     int fresh;                 /* --fresh: store_remove before store_open */
     const char *durability;    /* every-tick | group:MS | none */
     long wal_segment_bytes;    /* compaction threshold */
+    long replay_retain_bytes;  /* keep the whole log while under this (replay) */
     const char *store_fault;   /* test hook: writes fail ENOSPC while this file exists */
     int recover_truncate;      /* start on a damaged data directory, cutting the damage */
     int config_loaded;         /* --config was given */

@@ -28,6 +28,7 @@ enum {
     OPT_NO_DATA,
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
+    OPT_REPLAY_RETAIN_BYTES,
     OPT_STORE_FAULT,
     OPT_FRESH,
     OPT_THREADS,
@@ -83,6 +84,10 @@ static const cli_option serve_table[] = {
                         "none (written before publish, never synced)"},
     [OPT_WAL_SEGMENT_BYTES] = {"wal-segment-bytes", "N",
                                "compact the log into tile snapshots past N bytes (16 MiB)"},
+    [OPT_REPLAY_RETAIN_BYTES] = {"replay-retain-bytes", "N",
+                                 "keep the whole log (compacted segments too) while it is\n"
+                                 "under N bytes, so /v1/heights?tick= can rebuild every tick\n"
+                                 "since the first (default 0: compacted segments are deleted)"},
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
@@ -248,6 +253,10 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
         return -1;
     if (r)
         o->wal_segment_bytes = (long)v;
+    if ((r = json_get_number(doc, "", "replay_retain_bytes", 0, 1e12, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->replay_retain_bytes = (long)v;
     if ((r = json_get_bool(doc, "", "bind_any", &flag, err)) < 0)
         return -1;
     if (r)
@@ -280,13 +289,28 @@ static int config_no_token(const cJSON *doc, error_text *err)
 
 static int config_load(const char *path, serve_options *o, error_text *err)
 {
-    static const char *const keys[] = {
-        "scene",     "backend",    "token",       "data",
-        "no_data",   "durability", "store_fault", "wal_segment_bytes",
-        "http_port", "ws_port",    "bind_any",    "demo_actors",
-        "tick_hz",   "limits",     "auth_file",   "tls_cert",
-        "tls_key",   "scene_dir",  "max_worlds",  "public_ws_url",
-        NULL};
+    static const char *const keys[] = {"scene",
+                                       "backend",
+                                       "token",
+                                       "data",
+                                       "no_data",
+                                       "durability",
+                                       "store_fault",
+                                       "wal_segment_bytes",
+                                       "http_port",
+                                       "ws_port",
+                                       "bind_any",
+                                       "demo_actors",
+                                       "tick_hz",
+                                       "limits",
+                                       "auth_file",
+                                       "tls_cert",
+                                       "tls_key",
+                                       "scene_dir",
+                                       "max_worlds",
+                                       "public_ws_url",
+                                       "replay_retain_bytes",
+                                       NULL};
     uint8_t *text = NULL;
     size_t len = 0;
     if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
@@ -319,6 +343,17 @@ static int config_load(const char *path, serve_options *o, error_text *err)
 done:
     cJSON_Delete(doc);
     return rc;
+}
+
+/* --wal-segment-bytes (at least 4 KiB) and --replay-retain-bytes (0: none). */
+static int store_bytes_option(serve_options *o, int index, const char *value, error_text *err)
+{
+    long x;
+    int segment = index == OPT_WAL_SEGMENT_BYTES;
+    if (cli_parse_long(value, segment ? 4096 : 0, 1L << 40, &x, err) != 0)
+        return -1;
+    *(segment ? &o->wal_segment_bytes : &o->replay_retain_bytes) = x;
+    return 0;
 }
 
 static int serve_on_option(void *ctx, int index, const char *value, error_text *err)
@@ -402,10 +437,8 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->demo_actors = 0;
         return 0;
     case OPT_WAL_SEGMENT_BYTES:
-        if (cli_parse_long(value, 4096, 1L << 40, &x, err) != 0)
-            return -1;
-        o->wal_segment_bytes = x;
-        return 0;
+    case OPT_REPLAY_RETAIN_BYTES:
+        return store_bytes_option(o, index, value, err);
     case OPT_PROBE_PORT:
     case OPT_DRAIN_GRACE_MS: /* a port, or at most a day */
         if (cli_parse_long(value, 0, index == OPT_PROBE_PORT ? 65535 : 86400000L, &x, err) != 0)

@@ -57,6 +57,7 @@ typedef struct local_world {
     lw_state state; /* under ws->lock */
     char *scene_text;
     char why[256];
+    char data_dir[PATH_CAP]; /* its store, which /v1/heights?world=NAME&tick=N rebuilds from */
 } local_world;
 
 struct serve_worlds {
@@ -178,11 +179,15 @@ static int world_open(host_world *hw, error_text *err)
         return 0;
     char dir[PATH_CAP], json[PATH_CAP];
     world_paths(ws, m->name, dir, json);
-    store_config stc = {
-        .dir = dir, .segment_bytes = ws->o.wal_segment_bytes, .fault_path = ws->o.store_fault};
+    store_config stc = {.dir = dir,
+                        .segment_bytes = ws->o.wal_segment_bytes,
+                        .retain_bytes = ws->o.replay_retain_bytes,
+                        .fault_path = ws->o.store_fault};
     if (store_parse_durability(ws->o.durability, &stc, err) != 0 ||
         !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
         return -1;
+    snprintf(lw->data_dir, sizeof lw->data_dir, "%s", dir);
+    m->status.replay_dir = lw->data_dir;
     log_info("worlds: world %s: recovered tick %llu from %d tile snapshots and %lld log records",
              m->name, (unsigned long long)m->recovery.tick, m->recovery.tiles_loaded,
              (long long)m->recovery.records_replayed);

@@ -28,7 +28,9 @@
  *                     X-Terrad-Clipped; base=1: the scene's base terrain
  *                     (tick 0), read without the sim thread; layer=compaction:
  *                     the compaction memory instead of the heights (zeros
- *                     where none; docs/materials.md)
+ *                     where none; docs/materials.md); tick=N: as of past tick
+ *                     N, rebuilt from the data directory (store_replay_rect;
+ *                     400 future, 404 no log, 410 compacted away)
  *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME, and
  *   answer for a world another node ticks too: asked of its owner over NATS)
  *   /v1/websocket     JSON: where this daemon's websocket is, for the viewer and
@@ -84,6 +86,10 @@ typedef struct http_status {
     int client_clock; /* its scene's "clock": "client" (GET /v1/worlds says "clock") */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
     char scene_name[65]; /* the scene's name: a single daemon's world in /v1/worlds/{name}/edits */
+    /* the data directory /v1/heights?tick=N rebuilds past ticks from
+     * (store_replay_rect); NULL: none (memory only, or a cluster node's
+     * JetStream store). Set before the world is on the ports; outlives it. */
+    const char *replay_dir;
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */
