@@ -116,6 +116,14 @@ typedef struct net_client {
      * snapshots_done < resync_until */
     uint64_t snapshots_requested, snapshots_done, resync_until;
     int slow; /* dropped deltas for want of room: resync once the queue drains */
+    /* end to end (PROTOCOL.md "seen"): the latest tick of a ticked frame
+     * handed to the socket; the latest the client said it has handled
+     * (seen_said: it ever said); seen_wait: slow for that lag, the snapshots
+     * wait until the client has handled this tick (what was on its way);
+     * seen_from: then it is judged again once it has handled this tick (its
+     * snapshots: they are of this tick or later) */
+    uint64_t written_tick, seen_tick, seen_wait, seen_from;
+    int seen_said;
 
     int closing; /* close after the queue drains */
     int close_code;

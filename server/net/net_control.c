@@ -418,6 +418,7 @@ static const struct {
     {"resync", NET_CONTROL_RESYNC},
     {"edit", NET_CONTROL_EDIT},
     {"subscribe_events", NET_CONTROL_SUBSCRIBE_EVENTS},
+    {"seen", NET_CONTROL_SEEN},
 };
 
 /* subscribe_events: "events", an array of known event names (empty: none). */
@@ -522,6 +523,12 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
         case NET_CONTROL_SUBSCRIBE_EVENTS:
             rc = parse_events(&r, out);
             break;
+        case NET_CONTROL_SEEN: { /* "tick": an integer a double holds exactly */
+            int64_t tick = 0;
+            rc = get_int(&r, "tick", 1, 0, INT64_C(9007199254740992), &tick) < 0 ? -1 : 0;
+            out->seen_tick = (uint64_t)tick;
+            break;
+        }
         }
     }
     cJSON_Delete(msg);

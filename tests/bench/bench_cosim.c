@@ -170,20 +170,28 @@ static int create_world(const daemon_proc *d, const char *name)
     return http_call(d->http, "POST", "/v1/worlds", body, out, sizeof out) == 201 ? 0 : -1;
 }
 
-/* terrad_tick_duration_seconds' sum and count, from /metrics. */
-static void tick_seconds(const daemon_proc *d, double *sum, double *count)
+/* From /metrics: terrad_tick_duration_seconds' sum and count, and the engine's part of the
+ * ticks (terrad_stage_duration_seconds of the model and of gather/scatter: the rest of a tick is
+ * the service's — input, contacts, deltas, the log, publishing). */
+static void tick_seconds(const daemon_proc *d, double *sum, double *count, double *engine)
 {
     static char out[1 << 20];
-    *sum = *count = 0;
+    *sum = *count = *engine = 0;
     if (http_call(d->http, "GET", "/metrics", NULL, out, sizeof out) != 200)
         return;
-    static const char sum_key[] = "\nterrad_tick_duration_seconds_sum ",
-                      count_key[] = "\nterrad_tick_duration_seconds_count ";
-    const char *s = strstr(out, sum_key), *c = strstr(out, count_key);
-    if (s)
-        *sum = atof(s + sizeof sum_key - 1);
-    if (c)
-        *count = atof(c + sizeof count_key - 1);
+    static const char *const keys[] = {
+        "\nterrad_tick_duration_seconds_sum ", "\nterrad_tick_duration_seconds_count ",
+        "\nterrad_stage_duration_seconds_sum{stage=\"model\"} ",
+        "\nterrad_stage_duration_seconds_sum{stage=\"gather_scatter\"} "};
+    double v[4] = {0, 0, 0, 0};
+    for (int i = 0; i < 4; i++) {
+        const char *p = strstr(out, keys[i]);
+        if (p)
+            v[i] = atof(p + strlen(keys[i]));
+    }
+    *sum = v[0];
+    *count = v[1];
+    *engine = v[2] + v[3];
 }
 
 static double daemon_cpu_s(const daemon_proc *d)
@@ -287,8 +295,8 @@ static double one_rover(const daemon_proc *d, const char *world, uint32_t n, lon
         if (terrad_client_step(r.c, &s, NULL) != 0)
             return fprintf(stderr, "%s\n", terrad_client_last_error(r.c)), 0;
     }
-    double sum0, count0, sum1, count1;
-    tick_seconds(d, &sum0, &count0);
+    double sum0, count0, eng0, sum1, count1, eng1;
+    tick_seconds(d, &sum0, &count0, &eng0);
     double dcpu0 = daemon_cpu_s(d), ccpu0 = cpu_self_s(), t0 = now_s();
     for (long i = 0; i < steps; i++) {
         terrad_step s = rover_step(&r, n);
@@ -298,17 +306,20 @@ static double one_rover(const daemon_proc *d, const char *world, uint32_t n, lon
         rt[i] = now_s() - a;
     }
     double wall = now_s() - t0, ccpu = cpu_self_s() - ccpu0, dcpu = daemon_cpu_s(d) - dcpu0;
-    tick_seconds(d, &sum1, &count1);
+    tick_seconds(d, &sum1, &count1, &eng1);
     qsort(rt, (size_t)steps, sizeof *rt, cmp_double);
     double step_ms = wall / (double)steps * 1e3;
     double tick_ms = count1 > count0 ? (sum1 - sum0) / (count1 - count0) * 1e3 : 0;
+    double engine_ms = count1 > count0 ? (eng1 - eng0) / (count1 - count0) * 1e3 : 0;
     double server_ms = tick_ms * n, client_ms = ccpu / (double)steps * 1e3;
     printf("%s: n = %u tick%s a step, %ld steps: %.0f steps/s, %.0f rover-ticks/s; round trip "
-           "p50 %.3f ms, p99 %.3f ms; a step = %.3f ms: the daemon's ticks %.3f ms (%.3f a tick), "
-           "client CPU %.3f ms, protocol and wake-ups %.3f ms (daemon CPU %.3f ms a step)\n",
+           "p50 %.3f ms, p99 %.3f ms; a step = %.3f ms: the daemon's ticks %.3f ms (%.3f a tick: "
+           "engine %.3f, service %.3f), client CPU %.3f ms, protocol and wake-ups %.3f ms "
+           "(daemon CPU %.3f ms a step)\n",
            label, n, n > 1 ? "s" : "", steps, steps / wall, steps * (double)n / wall,
-           rt[steps / 2] * 1e3, rt[steps * 99 / 100] * 1e3, step_ms, server_ms, tick_ms, client_ms,
-           step_ms - server_ms - client_ms, dcpu / (double)steps * 1e3);
+           rt[steps / 2] * 1e3, rt[steps * 99 / 100] * 1e3, step_ms, server_ms, tick_ms, engine_ms,
+           tick_ms - engine_ms, client_ms, step_ms - server_ms - client_ms,
+           dcpu / (double)steps * 1e3);
     free(rt);
     terrad_client_close(r.c);
     return steps * (double)n / wall;

@@ -499,6 +499,23 @@ def machine():
 
 # ---- clients -------------------------------------------------------------------
 
+class TickWatch:
+    """The daemon's tick, polled in a thread (HTTP never blocks the reader's loop)."""
+
+    def __init__(self, d):
+        self.d, self.tick, self.stop = d, d.stats()["tick"], threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def run(self):
+        while not self.stop.is_set():
+            try:
+                self.tick = self.d.stats()["tick"]
+            except Exception:  # noqa: BLE001
+                pass
+            time.sleep(0.05)
+
+
 class RecordingClient(tp.TerradClient):
     """Keeps a copy of its mirrors at each ACK (every DELTA of tick t arrives
     before the ACK of tick t), counts frames, and remembers the contact

@@ -25,12 +25,11 @@ import os
 import socket
 import struct
 import sys
-import threading
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import (Checks, Daemon, RecordingClient, compare_with_server,  # noqa: E402
-                             metric_value, tp)
+from service_harness import (Checks, Daemon, RecordingClient, TickWatch,  # noqa: E402
+                             compare_with_server, metric_value, tp)
 
 LAG_LIMIT = 30        # ticks (half a second at 60 Hz)
 READ_S = 16.0         # seconds of slow reading
@@ -47,27 +46,12 @@ def small_socket(port, rcvbuf=8192):
     return s
 
 
-class TickWatch:
-    """The daemon's tick, polled in a thread (HTTP never blocks the reader's loop)."""
-
-    def __init__(self, d):
-        self.d, self.tick, self.stop = d, d.stats()["tick"], threading.Event()
-        self.thread = threading.Thread(target=self.run, daemon=True)
-        self.thread.start()
-
-    def run(self):
-        while not self.stop.is_set():
-            try:
-                self.tick = self.d.stats()["tick"]
-            except Exception:  # noqa: BLE001
-                pass
-            time.sleep(0.05)
-
-
 async def slow_reader(check, d):
     w = d.world()
     W, H = w["width"], w["height"]
-    c = RecordingClient(d.ws, name="slow-reader", keep=600, sock=small_socket(d.ws_port),
+    # say_seen=False: this is the bound for a client that never says which tick it has handled
+    # (PROTOCOL.md "seen"; test_hostile_lag has the one that does)
+    c = RecordingClient(d.ws, name="slow-reader", keep=600, sock=small_socket(d.ws_port), say_seen=False,
                         max_queue=1, ping_interval=None, read_limit=4096, write_limit=4096)
     # the reader's pace: one frame per 20 ms, recording each ticked frame's lag
     lags = []
