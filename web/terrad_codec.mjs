@@ -492,6 +492,43 @@ export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref
 export const subscribeEvents = (events = ['world_created', 'world_deleted'], ref) =>
   withRef({ type: 'subscribe_events', events }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
+// PROTOCOL.md "seen": the latest tick whose frames this client has handled.
+export const seen = (tick) => ({ type: 'seen', tick });
+// The tick a server frame carries (DELTA and after: u64 at offset 4), 0 for others.
+export function frameTick(buf) {
+  const b = bytes(buf);
+  return b.length >= 12 && b[2] >= MsgType.DELTA ? Number(new DataView(b.buffer, b.byteOffset, b.length).getBigUint64(4, true)) : 0;
+}
+// Tells the server the latest tick handled (send(message) sends a control message), at most
+// every intervalMs, and once more after a pause so that the last frames are said too: the
+// server bounds this client's lag by it, frames waiting in its own buffers included.
+export class SeenReporter {
+  constructor(send, intervalMs = 100) {
+    Object.assign(this, { send, intervalMs, tick: 0, said: 0, at: 0, timer: null });
+  }
+  // after a frame's handling: its tick counts as handled
+  handled(frame) {
+    const t = frameTick(frame);
+    if (t > this.tick) this.tick = t;
+    this.say();
+  }
+  say() {
+    if (this.tick <= this.said) return;
+    const wait = this.at + this.intervalMs - Date.now();
+    if (wait <= 0) {
+      this.said = this.tick;
+      this.at = Date.now();
+      this.send(seen(this.tick));
+    } else if (!this.timer) {
+      this.timer = setTimeout(() => { this.timer = null; this.say(); }, wait);
+    }
+  }
+  // the connection ended: nothing more to say, and the next one starts from nothing
+  reset() {
+    clearTimeout(this.timer);
+    Object.assign(this, { tick: 0, said: 0, at: 0, timer: null });
+  }
+}
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
 // loadN: a vertical load in newtons (bekker worlds; PROTOCOL.md "Load-driven colliders"): the
 // server sets the height that carries it each tick and reports it in FORCES.

@@ -45,6 +45,9 @@ const app = {
 // The page's own rut at once while it drives (viewer_predict.mjs): the predict toggle.
 const prediction = new ViewerPrediction(apiInit);
 let ws = null, retries = 0, refN = 0;
+// PROTOCOL.md "seen": the page says which tick it has drawn from, so a page that cannot keep up
+// (a slow machine, a background tab) is resynchronised instead of falling ever further behind.
+const seenReporter = new P.SeenReporter((m) => send(m));
 
 // ---- connection ----
 
@@ -84,7 +87,9 @@ async function connect() {
       onJson(ev.data);
     } else {
       app.bytes += ev.data.byteLength;
-      onBinary(new Uint8Array(ev.data));
+      const frame = new Uint8Array(ev.data);
+      onBinary(frame);
+      seenReporter.handled(frame);
     }
   };
   sock.onclose = () => {
@@ -95,6 +100,7 @@ async function connect() {
     app.subs.clear();
     if (app.own) app.own.id = 0; // the server deletes a client's colliders when it leaves
     prediction.reset(); // its ACKs are gone with the connection
+    seenReporter.reset();
     scheduleReconnect();
   };
   sock.onerror = () => {};

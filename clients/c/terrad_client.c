@@ -74,6 +74,10 @@ struct terrad_client {
     int64_t wait_tick, wait_volume; /* an "edited" reply's */
     unsigned ref_counter;
     uint64_t poll_mark;
+    /* PROTOCOL.md "seen": the latest tick handled (the hook has run), what the
+     * server was told, and when (it bounds this client's lag by it) */
+    uint64_t handled_tick, said_tick;
+    int64_t said_us;
     uint32_t seq;
 
     client_sub *subs;
@@ -364,6 +368,25 @@ static void bad_frame(terrad_client *c, const char *what, int code)
 
 static int send_resync(terrad_client *c, uint32_t sid);
 
+#define CLIENT_SEEN_INTERVAL_US 100000 /* a "seen" at most every 0.1 s */
+
+/* Tell the server the latest tick handled, at most every 0.1 s; called after
+ * each frame and from terrad_client_poll, so the last frames before a pause
+ * are said too. */
+static void say_seen(terrad_client *c)
+{
+    int64_t now = now_us();
+    if (c->handled_tick <= c->said_tick || now - c->said_us < CLIENT_SEEN_INTERVAL_US)
+        return;
+    char text[64];
+    int n = snprintf(text, sizeof text, "{\"type\":\"seen\",\"tick\":%llu}",
+                     (unsigned long long)c->handled_tick);
+    if (enqueue(c, text, (size_t)n, 0) == 0) {
+        c->said_tick = c->handled_tick;
+        c->said_us = now;
+    }
+}
+
 static void on_delta(terrad_client *c, const uint8_t *buf, size_t len, uint64_t *tick)
 {
     size_t cap = len >= TERRAD_DELTA_FIXED ? (len - TERRAD_DELTA_FIXED) / TERRAD_RECT_FIXED + 1 : 1;
@@ -482,6 +505,9 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
     }
     if (c->hook)
         c->hook(c->user, c, hd.type, tick);
+    if (tick > c->handled_tick)
+        c->handled_tick = tick;
+    say_seen(c);
 }
 
 static void on_receive(terrad_client *c, struct lws *wsi, const void *in, size_t len)
@@ -1136,6 +1162,7 @@ int terrad_client_poll(terrad_client *c, int timeout_ms)
         c->poll_mark = before;
         service_until(c, now_us() + (int64_t)timeout_ms * 1000, got_message);
     }
+    say_seen(c);
     uint64_t n = c->stats.messages - before;
     if (n == 0 && c->closed)
         return TERRAD_CLIENT_E_CLOSED;

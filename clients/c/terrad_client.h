@@ -35,7 +35,10 @@
  * itself), CONTACT frames replace the latest contact feedback, ACKs the
  * latest acknowledged tick and sequence, and unsolicited errors are counted
  * and kept as the last error. An optional hook sees every binary frame after
- * it has been handled (for example to copy a mirror at each ACK).
+ * it has been handled (for example to copy a mirror at each ACK). The client
+ * tells the server the latest tick handled (PROTOCOL.md "seen": after the
+ * hook, at most every 0.1 s, and from terrad_client_poll after a pause), so
+ * the server bounds its lag end to end: keep polling.
  *
  * Return values: 0 for success; a positive protocol error code
  * (terrad_proto_err) when the server refused a request or a value is not

@@ -7,7 +7,7 @@
 //	./drive PORT X Y W H "model=persson-ssbo margin_cells=4 terrain.height_m=0.4" mirror.raw
 //
 // The last argument (optional) is where the mirror's heights go (int32, little-endian), for
-// tests/integration/test_go_example.py to compare with GET /v1/heights. Exit status 1 when a
+// tests/integration/clients/test_go_example.py to compare with GET /v1/heights. Exit status 1 when a
 // check fails. One client from one goroutine, locked to its thread, as the C library asks.
 package main
 

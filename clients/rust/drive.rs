@@ -9,7 +9,7 @@
 // No cargo and no crates: std only, so Debian's rustc (1.63) builds it offline. The structs below
 // are <terrad/terrad_client.h>'s, field for field (#[repr(C)]); the two descriptors are passed by
 // value, so their layout must match exactly. The last argument (optional) is where the mirror's
-// heights go (int32, little-endian), for tests/integration/test_rust_example.py to compare with
+// heights go (int32, little-endian), for tests/integration/clients/test_rust_example.py to compare with
 // GET /v1/heights. Exit status 1 when a check fails. One client from one thread, as the library asks.
 use std::ffi::{CStr, CString};
 use std::io::Write;

@@ -10,9 +10,13 @@
  * so they keep its hub and world until they stopped. A tick that overruns
  * its period is counted, and the world does not try to catch up by running
  * ticks back to back (host/host_clock.c). The main thread waits: SIGINT and
- * SIGTERM end the default world after its current tick and stop cleanly;
- * SIGHUP reads the --auth-file again (serve_security.c). /healthz fails when
- * the ticks or the net thread stop moving.
+ * SIGTERM (or POST /v1/drain, admin) start a drain (docs/fleet.md) — /readyz
+ * fails while /healthz stays ok, new clients and worlds are refused naming
+ * it, connected clients are told — and once they have all left, or
+ * --drain-grace-ms later, the default world ends after its current tick and
+ * the daemon stops cleanly (every tick persisted, exit 0); a second signal
+ * stops it at once. SIGHUP reads the --auth-file again (serve_security.c).
+ * /healthz fails when the ticks or the net thread stop moving.
  *
  * app_serve reads as the daemon's life: open the world (scene, base terrain,
  * recovered store) → the HTTP port → its simulation and the websocket port
@@ -28,6 +32,8 @@
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
+
+#include <cjson/cJSON.h>
 
 #include "app/app.h"
 #include "app/serve_internal.h"
@@ -51,10 +57,18 @@ static void on_hangup(int sig)
     hangup_seen = 1;
 }
 
+static volatile sig_atomic_t drain_signal;  /* the first SIGTERM or SIGINT */
+static volatile sig_atomic_t signal_drains; /* a single daemon's: set before it serves */
+
+/* The first SIGTERM or SIGINT drains a single daemon (an orchestrator's stop,
+ * docs/fleet.md); a second one stops it at once (an operator who will not
+ * wait). A cluster node, and a daemon still starting, stop at once. */
 static void on_signal(int sig)
 {
     (void)sig;
-    stop_requested = 1;
+    if (drain_signal || !signal_drains)
+        stop_requested = 1;
+    drain_signal = 1;
 }
 
 /* How often the main thread looks at the signals' flags while the world ticks. */
@@ -67,14 +81,18 @@ typedef struct serve_daemon {
     host_world def;      /* the default world: scene, world, store, engine, service, hub */
     host_ticker *ticker; /* the sim workers every world of the daemon ticks on */
     int running;         /* def is on the ticker */
+    int ran;             /* it was: its end closed its reads on its sim thread */
     atomic_int ended;    /* def's end ran (default_ended) */
     int end_rc;
     net_server *net;
     http_server *http;
-    http_server *probe;   /* --probe-port */
-    auth_table *auth;     /* NULL: no tokens, every client an admin (serve_security.c) */
-    serve_worlds *worlds; /* worlds created by API beside the default one (serve_worlds.c) */
-    int fd_reserve;       /* descriptors the websocket server leaves free (serve_http_open) */
+    http_server *probe;     /* --probe-port */
+    auth_table *auth;       /* NULL: no tokens, every client an admin (serve_security.c) */
+    serve_worlds *worlds;   /* worlds created by API beside the default one (serve_worlds.c) */
+    int fd_reserve;         /* descriptors the websocket server leaves free (serve_http_open) */
+    atomic_int drain_asked; /* POST /v1/drain (an HTTP thread) */
+    int draining;           /* the main thread started the drain (serve_drain) */
+    double drain_deadline_ms;
 } serve_daemon;
 
 static void serve_catch_signals(void)
@@ -118,11 +136,13 @@ static int default_open(host_world *hw, error_text *err)
         log_info("store: --fresh: %s started over (%d files removed)", o->data_dir, removed);
     store_config stc = {.dir = o->data_dir,
                         .segment_bytes = o->wal_segment_bytes,
+                        .retain_bytes = o->replay_retain_bytes,
                         .fault_path = o->store_fault,
                         .recover_truncate = o->recover_truncate};
     if (store_parse_durability(o->durability, &stc, err) != 0 ||
         !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
         return -1;
+    m->status.replay_dir = o->data_dir; /* /v1/heights?tick=N rebuilds from it */
     char dname[32];
     const store_recovery *r = &m->recovery;
     log_info("store: %s (durability %s): recovered tick %llu from %d tile snapshots and %lld "
@@ -143,6 +163,20 @@ static double net_stalled(const void *arg)
     return net_server_stalled_ms((const net_server *)arg);
 }
 
+/* POST /v1/drain (admin; http_server_set_drain): the main thread drains. */
+static unsigned drain_call(void *ctx, char **json)
+{
+    serve_daemon *d = ctx;
+    int again = atomic_exchange(&d->drain_asked, 1);
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddBoolToObject(o, "draining", 1);
+    cJSON_AddBoolToObject(o, "already", again || drain_signal);
+    cJSON_AddNumberToObject(o, "grace_ms", (double)d->o.drain_grace_ms);
+    *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return 202;
+}
+
 /* Its simulation started: the websocket port (with its hub and info), the
  * created worlds and the watchdogs. Before it is ready and ticks. */
 static int default_join(host_world *hw, error_text *err)
@@ -161,6 +195,8 @@ static int default_join(host_world *hw, error_text *err)
     if (!(d->net = net_server_start(&nc, m->h, err)) ||
         !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, d->ticker, err)))
         return -1;
+    http_server_set_drain(d->http, drain_call, d); /* POST /v1/drain */
+    signal_drains = 1;
     hw->net = d->net; /* its clients counted in its status */
     int tls = d->o.tls_cert && d->o.tls_cert[0];
     /* GET /v1/websocket: the viewer asks where the websocket is, never guesses */
@@ -227,18 +263,41 @@ static int serve_start(serve_daemon *d, error_text *err)
     d->def.max_ticks = d->o.max_ticks;
     if (host_world_run(&d->def, err->message, sizeof err->message) != 0)
         return -1;
-    d->running = 1;
+    d->running = d->ran = 1;
     return 0;
 }
 
-/* Until --ticks or a signal: the default world ticks on the pool; this
- * thread reads the auth file again on SIGHUP. */
+/* The drain begins: readiness off, new clients and worlds refused naming
+ * why, connected clients told; the world ticks on for them meanwhile. */
+static void serve_drain(serve_daemon *d, const char *why)
+{
+    d->draining = 1;
+    d->drain_deadline_ms = time_now_ms() + (double)d->o.drain_grace_ms;
+    http_server_set_draining(d->http, why);
+    serve_worlds_drain(d->worlds, why);
+    net_server_drain(d->net, why, d->o.drain_grace_ms);
+    log_info("drain: %s: not ready, taking no new clients or worlds; stopping once %d clients "
+             "have left, or in %d ms",
+             why, net_server_client_count(d->net), d->o.drain_grace_ms);
+}
+
+/* Until --ticks, a signal that stops, or a drain's end: the default world
+ * ticks on the pool; this thread reads the auth file again on SIGHUP. */
 static int serve_wait(serve_daemon *d, error_text *err)
 {
     while (!stop_requested && !atomic_load(&d->ended)) {
         if (hangup_seen) {
             hangup_seen = 0;
             serve_security_reload(&d->o, d->auth);
+        }
+        if (!d->draining && (drain_signal || atomic_load(&d->drain_asked)))
+            serve_drain(d, drain_signal ? "SIGTERM" : "POST /v1/drain");
+        if (d->draining) {
+            int left = net_server_client_count(d->net);
+            if (left == 0 || time_now_ms() >= d->drain_deadline_ms) {
+                log_info("drain: %s", left ? "the grace is over" : "every client has left");
+                break;
+            }
         }
         host_sleep_ms(SERVE_WAIT_MS); /* a signal cuts it short */
     }
@@ -261,7 +320,7 @@ static void serve_stop(serve_daemon *d)
             host_sleep_ms(1);
     }
     serve_worlds_stop(d->worlds); /* its worlds leave the ports first */
-    if (d->def.m.h)
+    if (d->def.m.h && !d->ran)    /* this thread made it and is its sim thread still */
         hub_close_reads(d->def.m.h);
     http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */

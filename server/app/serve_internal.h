@@ -36,8 +36,9 @@ typedef struct serve_options {
     int http_port;
     int ws_port;
     int bind_any;
-    int insecure_open; /* --insecure-open: --bind-any without any token is allowed */
-    int probe_port;    /* -1: none; else --probe-port (0 = any free port) */
+    int insecure_open;  /* --insecure-open: --bind-any without any token is allowed */
+    int probe_port;     /* -1: none; else --probe-port (0 = any free port) */
+    int drain_grace_ms; /* --drain-grace-ms: how long a drain waits for clients to leave */
     int demo_actors;
     double tick_hz;                 /* 0: the scene's */
     const char *auth_file;          /* --auth-file: tokens' hashes and roles, reread on SIGHUP */
@@ -50,6 +51,7 @@ typedef struct serve_options {
     int fresh;                 /* --fresh: store_remove before store_open */
     const char *durability;    /* every-tick | group:MS | none */
     long wal_segment_bytes;    /* compaction threshold */
+    long replay_retain_bytes;  /* keep the whole log while under this (replay) */
     const char *store_fault;   /* test hook: writes fail ENOSPC while this file exists */
     int recover_truncate;      /* start on a damaged data directory, cutting the damage */
     int config_loaded;         /* --config was given */
@@ -97,11 +99,14 @@ int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 #define SERVE_WORLDS_MAX 256
 typedef struct serve_worlds serve_worlds;
 /* After the daemon's ports are open: the worlds of DATA/worlds recovered and
- * started (each on its own sim thread), then POST/GET /v1/worlds and
+ * started (each on ticker, the daemon's pool), then POST/GET /v1/worlds and
  * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
                                  http_server *http, net_server *net, host_ticker *ticker,
                                  error_text *err);
+/* The daemon drains (serve.c): POST /v1/worlds is refused with 503 naming
+ * why, and GET /v1/worlds says every world's lifecycle is "draining". */
+void serve_worlds_drain(serve_worlds *ws, const char *why);
 /* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
 void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */
@@ -126,7 +131,7 @@ unsigned worlds_body_check(const char *body, size_t len, const char *scene_dir,
 /*
  * `terrad serve --cluster`: the node joins the NATS cluster and ticks every
  * world it can take, up to --max-worlds (default 1; with --worlds, as many
- * as it names), each on its own sim thread; one HTTP and one websocket port
+ * as it names), all on one pool of sim workers; one HTTP and one websocket port
  * serve them all. Returns the exit status. stop: set by SIGINT/SIGTERM.
  */
 int serve_node_run(const serve_options *o, auth_table *auth, volatile sig_atomic_t *stop,

@@ -28,6 +28,7 @@ enum {
     OPT_NO_DATA,
     OPT_DURABILITY,
     OPT_WAL_SEGMENT_BYTES,
+    OPT_REPLAY_RETAIN_BYTES,
     OPT_STORE_FAULT,
     OPT_FRESH,
     OPT_THREADS,
@@ -42,6 +43,7 @@ enum {
     OPT_TLS_CERT,
     OPT_TLS_KEY,
     OPT_PROBE_PORT,
+    OPT_DRAIN_GRACE_MS,
     OPT_SCENE_DIR,
     OPT_PUBLIC_WS_URL,
 };
@@ -82,6 +84,10 @@ static const cli_option serve_table[] = {
                         "none (written before publish, never synced)"},
     [OPT_WAL_SEGMENT_BYTES] = {"wal-segment-bytes", "N",
                                "compact the log into tile snapshots past N bytes (16 MiB)"},
+    [OPT_REPLAY_RETAIN_BYTES] = {"replay-retain-bytes", "N",
+                                 "keep the whole log (compacted segments too) while it is\n"
+                                 "under N bytes, so /v1/heights?tick= can rebuild every tick\n"
+                                 "since the first (default 0: compacted segments are deleted)"},
     [OPT_STORE_FAULT] = {"store-fault", "FILE",
                          "test hook: storage writes fail ENOSPC while FILE exists\n"
                          "(also TERRAD_STORE_FAULT)"},
@@ -120,6 +126,11 @@ static const cli_option serve_table[] = {
     [OPT_PROBE_PORT] = {"probe-port", "N",
                         "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
                         "connection budget (0: any free port; default: none)"},
+    [OPT_DRAIN_GRACE_MS] = {"drain-grace-ms", "MS",
+                            "SIGTERM (or POST /v1/drain) drains: /readyz fails, new clients\n"
+                            "and worlds are refused, connected clients are told; the daemon\n"
+                            "stops once they have all left, or MS after (default 0: at once;\n"
+                            "set it below the orchestrator's grace, docs/fleet.md)"},
     [OPT_SCENE_DIR] = {"scene-dir", "DIR",
                        "scenes POST /v1/worlds may name (\"scene_name\": NAME reads\n"
                        "DIR/NAME.json; default: none, only scenes in the body)"},
@@ -242,6 +253,10 @@ static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
         return -1;
     if (r)
         o->wal_segment_bytes = (long)v;
+    if ((r = json_get_number(doc, "", "replay_retain_bytes", 0, 1e12, &v, err)) < 0)
+        return -1;
+    if (r)
+        o->replay_retain_bytes = (long)v;
     if ((r = json_get_bool(doc, "", "bind_any", &flag, err)) < 0)
         return -1;
     if (r)
@@ -274,13 +289,28 @@ static int config_no_token(const cJSON *doc, error_text *err)
 
 static int config_load(const char *path, serve_options *o, error_text *err)
 {
-    static const char *const keys[] = {
-        "scene",     "backend",    "token",       "data",
-        "no_data",   "durability", "store_fault", "wal_segment_bytes",
-        "http_port", "ws_port",    "bind_any",    "demo_actors",
-        "tick_hz",   "limits",     "auth_file",   "tls_cert",
-        "tls_key",   "scene_dir",  "max_worlds",  "public_ws_url",
-        NULL};
+    static const char *const keys[] = {"scene",
+                                       "backend",
+                                       "token",
+                                       "data",
+                                       "no_data",
+                                       "durability",
+                                       "store_fault",
+                                       "wal_segment_bytes",
+                                       "http_port",
+                                       "ws_port",
+                                       "bind_any",
+                                       "demo_actors",
+                                       "tick_hz",
+                                       "limits",
+                                       "auth_file",
+                                       "tls_cert",
+                                       "tls_key",
+                                       "scene_dir",
+                                       "max_worlds",
+                                       "public_ws_url",
+                                       "replay_retain_bytes",
+                                       NULL};
     uint8_t *text = NULL;
     size_t len = 0;
     if (file_read_all(path, (size_t)1 << 20, &text, &len, err) != 0)
@@ -313,6 +343,17 @@ static int config_load(const char *path, serve_options *o, error_text *err)
 done:
     cJSON_Delete(doc);
     return rc;
+}
+
+/* --wal-segment-bytes (at least 4 KiB) and --replay-retain-bytes (0: none). */
+static int store_bytes_option(serve_options *o, int index, const char *value, error_text *err)
+{
+    long x;
+    int segment = index == OPT_WAL_SEGMENT_BYTES;
+    if (cli_parse_long(value, segment ? 4096 : 0, 1L << 40, &x, err) != 0)
+        return -1;
+    *(segment ? &o->wal_segment_bytes : &o->replay_retain_bytes) = x;
+    return 0;
 }
 
 static int serve_on_option(void *ctx, int index, const char *value, error_text *err)
@@ -396,14 +437,13 @@ static int serve_on_option(void *ctx, int index, const char *value, error_text *
         o->demo_actors = 0;
         return 0;
     case OPT_WAL_SEGMENT_BYTES:
-        if (cli_parse_long(value, 4096, 1L << 40, &x, err) != 0)
-            return -1;
-        o->wal_segment_bytes = x;
-        return 0;
+    case OPT_REPLAY_RETAIN_BYTES:
+        return store_bytes_option(o, index, value, err);
     case OPT_PROBE_PORT:
-        if (cli_parse_long(value, 0, 65535, &x, err) != 0)
+    case OPT_DRAIN_GRACE_MS: /* a port, or at most a day */
+        if (cli_parse_long(value, 0, index == OPT_PROBE_PORT ? 65535 : 86400000L, &x, err) != 0)
             return -1;
-        o->probe_port = (int)x;
+        *(index == OPT_PROBE_PORT ? &o->probe_port : &o->drain_grace_ms) = (int)x;
         return 0;
     case OPT_HTTP_PORT:
     case OPT_WS_PORT:

@@ -57,6 +57,7 @@ typedef struct local_world {
     lw_state state; /* under ws->lock */
     char *scene_text;
     char why[256];
+    char data_dir[PATH_CAP]; /* its store, which /v1/heights?world=NAME&tick=N rebuilds from */
 } local_world;
 
 struct serve_worlds {
@@ -73,6 +74,7 @@ struct serve_worlds {
     local_world *worlds[SERVE_WORLDS_MAX];
     int nworlds;
     int stopping, calls; /* the daemon stops: no new call; calls running now */
+    char draining[200];  /* "" or why the daemon drains: no create (serve_worlds_drain) */
 };
 
 /* ---- answers ---- */
@@ -95,15 +97,28 @@ static void leave(serve_worlds *ws)
     pthread_mutex_unlock(&ws->lock);
 }
 
+/* A running world's place in a fleet's lifecycle (docs/fleet.md): "draining"
+ * once the daemon drains, "driven" while a client is connected to it (an
+ * allocated game server's match), else "ready"; any other state is its own. */
+static const char *lifecycle(const char *state, const http_status *st, int draining)
+{
+    if (strcmp(state, "running") != 0)
+        return state;
+    return draining ? "draining" : !st->ready ? "starting" : st->clients > 0 ? "driven" : "ready";
+}
+
 /* One world's entry of GET /v1/worlds, from its status block. */
-static cJSON *world_entry(const char *name, http_status *st, const char *state, int is_default)
+static cJSON *world_entry(const char *name, http_status *st, const char *state, int is_default,
+                          int draining)
 {
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "name", name);
     cJSON_AddStringToObject(o, "state", state);
     cJSON_AddBoolToObject(o, "default", is_default);
     pthread_mutex_lock(&st->lock);
+    cJSON_AddStringToObject(o, "lifecycle", lifecycle(state, st, draining));
     cJSON_AddStringToObject(o, "scene", st->scene_name);
+    cJSON_AddStringToObject(o, "clock", st->client_clock ? "client" : "wall");
     cJSON_AddNumberToObject(o, "width", st->world_width);
     cJSON_AddNumberToObject(o, "height", st->world_height);
     cJSON_AddNumberToObject(o, "tick", (double)st->tick);
@@ -164,11 +179,15 @@ static int world_open(host_world *hw, error_text *err)
         return 0;
     char dir[PATH_CAP], json[PATH_CAP];
     world_paths(ws, m->name, dir, json);
-    store_config stc = {
-        .dir = dir, .segment_bytes = ws->o.wal_segment_bytes, .fault_path = ws->o.store_fault};
+    store_config stc = {.dir = dir,
+                        .segment_bytes = ws->o.wal_segment_bytes,
+                        .retain_bytes = ws->o.replay_retain_bytes,
+                        .fault_path = ws->o.store_fault};
     if (store_parse_durability(ws->o.durability, &stc, err) != 0 ||
         !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
         return -1;
+    snprintf(lw->data_dir, sizeof lw->data_dir, "%s", dir);
+    m->status.replay_dir = lw->data_dir;
     log_info("worlds: world %s: recovered tick %llu from %d tile snapshots and %lld log records",
              m->name, (unsigned long long)m->recovery.tick, m->recovery.tiles_loaded,
              (long long)m->recovery.records_replayed);
@@ -343,7 +362,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
     metrics_count_world_request("create", 1);
     net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
-    cJSON *o = world_entry(name, &lw->hw.m.status, "running", 0);
+    cJSON *o = world_entry(name, &lw->hw.m.status, "running", 0, 0);
     *json = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
     return 201;
@@ -355,12 +374,15 @@ static unsigned worlds_list(void *ctx, char **json)
 {
     serve_worlds *ws = ctx;
     cJSON *doc = cJSON_CreateObject(), *arr = cJSON_AddArrayToObject(doc, "worlds");
-    cJSON_AddItemToArray(arr, world_entry(ws->main_world->sc.name,
-                                          (http_status *)&ws->main_world->status, "running", 1));
     pthread_mutex_lock(&ws->lock);
+    int draining = ws->draining[0] != 0;
+    cJSON_AddItemToArray(arr, world_entry(ws->main_world->sc.name,
+                                          (http_status *)&ws->main_world->status, "running", 1,
+                                          draining));
     for (int i = 0; i < ws->nworlds; i++) {
         local_world *lw = ws->worlds[i];
-        cJSON *e = world_entry(lw->hw.m.name, &lw->hw.m.status, state_names[lw->state], 0);
+        cJSON *e =
+            world_entry(lw->hw.m.name, &lw->hw.m.status, state_names[lw->state], 0, draining);
         if (lw->state == LW_FAILED)
             cJSON_AddStringToObject(e, "error", lw->why);
         cJSON_AddItemToArray(arr, e);
@@ -449,24 +471,36 @@ static unsigned stopping(const char *op, char **json)
     return worlds_refuse(op, 503, "name", "name: the daemon is stopping", json);
 }
 
-static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
+/* A create (body) or a delete (name, keep) while the daemon is not stopping. */
+static unsigned worlds_call(serve_worlds *ws, int create, const char *body, size_t len,
+                            const char *name, int keep, char **json)
 {
-    serve_worlds *ws = ctx;
     if (!enter(ws))
-        return stopping("create", json);
-    unsigned code = create_world(ws, body, len, json);
+        return stopping(create ? "create" : "delete", json);
+    unsigned code = create ? create_world(ws, body, len, json) : delete_world(ws, name, keep, json);
     leave(ws);
     return code;
 }
 
-static unsigned worlds_remove(void *ctx, const char *name, int keep, char **json)
+static unsigned worlds_create(void *ctx, const char *body, size_t len, char **json)
 {
     serve_worlds *ws = ctx;
-    if (!enter(ws))
-        return stopping("delete", json);
-    unsigned code = delete_world(ws, name, keep, json);
-    leave(ws);
-    return code;
+    char draining[sizeof ws->draining], why[300];
+    pthread_mutex_lock(&ws->lock);
+    snprintf(draining, sizeof draining, "%s", ws->draining);
+    pthread_mutex_unlock(&ws->lock);
+    if (draining[0]) { /* the orchestrator stops this daemon: the world belongs elsewhere */
+        snprintf(why, sizeof why,
+                 "name: the daemon is draining (%s) and creates no world: create it on another",
+                 draining);
+        return worlds_refuse("create", 503, "name", why, json);
+    }
+    return worlds_call(ctx, 1, body, len, NULL, 0, json);
+}
+
+static unsigned worlds_remove(void *ctx, const char *name, int keep, char **json)
+{
+    return worlds_call(ctx, 0, NULL, 0, name, keep, json);
 }
 
 /* ---- the daemon's life ---- */
@@ -557,6 +591,15 @@ serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_wo
     http_world_api api = {worlds_create, worlds_list, worlds_remove, ws};
     http_server_set_world_api(http, &api);
     return ws;
+}
+
+void serve_worlds_drain(serve_worlds *ws, const char *why)
+{
+    if (!ws)
+        return;
+    pthread_mutex_lock(&ws->lock);
+    snprintf(ws->draining, sizeof ws->draining, "%s", why);
+    pthread_mutex_unlock(&ws->lock);
 }
 
 void serve_worlds_stop(serve_worlds *ws)

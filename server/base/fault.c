@@ -1,7 +1,7 @@
 /*
  * fault.c: a test hook that makes a thread stop making progress, so that the
  * watchdog behind /healthz (http_server_watch) can be tested on a real daemon
- * (tests/integration/test_hostile_watchdog.py). SIGSTOP would stop the whole
+ * (tests/integration/hostile/test_hostile_watchdog.py). SIGSTOP would stop the whole
  * process, probes included; this stops one thread and nothing else.
  *
  * TERRAD_FAULT_STALL=FILE: while FILE exists and its first word names the

@@ -159,15 +159,11 @@ host_clock host_clock_client(host_sim *m);
 /* After host_sim_start, before the world joins the net server: nothing for a
  * wall-clocked world; for a client-clocked one (whose job's clock must be
  * host_clock_client(m)) each step reaching m's hub adds its ticks to
- * m->clock_owed and wakes j on t (both NULL: m has a sim thread of its own,
- * which waits with host_sim_wait_step). A wake before j is on the ticker is
+ * m->clock_owed and wakes j on t. A wake before j is on the ticker is
  * harmless: the ticker asks the clock when j joins. Returns 0. */
 int host_clock_client_attach(host_sim *m, host_ticker *t, host_job *j);
 /* 1 while m's driver's steps owe ticks not run yet. Any thread. */
 int host_sim_tick_owed(host_sim *m);
-/* A client-clocked world's own sim thread (the default world's): 1 once a
- * tick is owed, 0 after timeout_ms without one (height reads served meanwhile). */
-int host_sim_wait_step(host_sim *m, int timeout_ms);
 
 /* ---- the shared pool of sim workers (host_ticker.c) ---- */
 

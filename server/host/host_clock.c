@@ -77,12 +77,3 @@ int host_sim_tick_owed(host_sim *m)
 {
     return atomic_load(&m->clock_owed) > atomic_load(&m->clock_ran);
 }
-
-int host_sim_wait_step(host_sim *m, int timeout_ms)
-{
-    if (!host_sim_tick_owed(m)) {
-        hub_serve_reads(m->h, &m->w, service_current_tick(m->svc)); /* between steps too */
-        hub_wait_step(m->h, timeout_ms);
-    }
-    return host_sim_tick_owed(m);
-}

@@ -84,6 +84,7 @@ void host_sim_status_init(host_sim *m)
     s->units_per_m = m->w.units_per_m;
     s->tile_size = SERVICE_TILE_SIZE;
     s->tick_hz = m->sc.tick_hz;
+    s->client_clock = m->sc.client_clock;
     snprintf(s->world_name, sizeof s->world_name, "%s", m->name);
     snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);

@@ -157,8 +157,10 @@ static void *worker_main(void *arg)
             continue;
         }
         j->running = 1;
-        /* as many worlds as cores: they are the parallelism (sim_thread_serial says why) */
-        int serial = t->njobs >= t->cores;
+        /* as many worlds as cores: they are the parallelism (sim_thread_serial
+         * says why); a world alone (a daemon's default world, say) keeps
+         * --threads' helpers, as it had on its own thread, even on one core */
+        int serial = t->njobs > 1 && t->njobs >= t->cores;
         pthread_mutex_unlock(&t->lock);
         int rc = tick_once(j, serial);
         pthread_mutex_lock(&t->lock);

@@ -491,7 +491,11 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     http_status snap;
     status_copy(s, &snap);
     if (strcmp(url, "/readyz") == 0) {
-        char why[320];
+        char why[320], draining[256];
+        http_draining(s, draining, sizeof draining);
+        if (draining[0]) /* alive (/healthz) but taking nothing new */
+            return respond_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "not ready: draining: %s",
+                                 draining);
         snprintf(why, sizeof why, "not ready: %s",
                  snap.not_ready[0] ? snap.not_ready : "the GL context or the world is not up");
         return snap.ready ? respond(c, MHD_HTTP_OK, "text/plain; charset=utf-8", "ready\n")

@@ -10,7 +10,9 @@
  *   /healthz          200 "ok" while the process serves and no watched thread
  *                     (http_server_watch: the tick, the net thread) has gone
  *                     without progress past its limit; else 503 naming it
- *   /readyz           200 "ready" once status.ready, else 503
+ *   /readyz           200 "ready" once status.ready and not draining, else
+ *                     503 naming why (Kubernetes' readiness: alive but not
+ *                     ready while recovering or draining; /healthz stays 200)
  *   /metrics          Prometheus text 0.0.4 (metrics_render)
  *   /v1/world         JSON: extent, cell size, units per metre, tick, tile size,
  *                     models, renderer, backend
@@ -26,7 +28,9 @@
  *                     X-Terrad-Clipped; base=1: the scene's base terrain
  *                     (tick 0), read without the sim thread; layer=compaction:
  *                     the compaction memory instead of the heights (zeros
- *                     where none; docs/materials.md)
+ *                     where none; docs/materials.md); tick=N: as of past tick
+ *                     N, rebuilt from the data directory (store_replay_rect;
+ *                     400 future, 404 no log, 410 compacted away)
  *   (cluster mode: /v1/world, /v1/stats and /v1/heights take ?world=NAME, and
  *   answer for a world another node ticks too: asked of its owner over NATS)
  *   /v1/websocket     JSON: where this daemon's websocket is, for the viewer and
@@ -78,9 +82,14 @@ typedef struct http_status {
     uint64_t overruns;
     double published_ms; /* time_now_ms() of the last tick's publication (or of
                           * becoming ready, before the first); 0 = not yet */
-    int waiting; /* a client-clocked world waiting for its driver's next step: not stalled */
+    int waiting;      /* a client-clocked world waiting for its driver's next step: not stalled */
+    int client_clock; /* its scene's "clock": "client" (GET /v1/worlds says "clock") */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
     char scene_name[65]; /* the scene's name: a single daemon's world in /v1/worlds/{name}/edits */
+    /* the data directory /v1/heights?tick=N rebuilds past ticks from
+     * (store_replay_rect); NULL: none (memory only, or a cluster node's
+     * JetStream store). Set before the world is on the ports; outlives it. */
+    const char *replay_dir;
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */
@@ -192,6 +201,17 @@ typedef struct http_world_api {
 } http_world_api;
 /* Before the port serves requests (api copied; NULL: none, /v1/worlds is 404). */
 void http_server_set_world_api(http_server *s, const http_world_api *api);
+
+/* ---- the drain (docs/fleet.md) ----
+ * POST /v1/drain (admin role, no body) calls drain on an HTTP thread, which
+ * starts the daemon's drain (the same as SIGTERM's) and answers as the world
+ * API's calls do (202 and JSON). Set once before the port serves (NULL:
+ * /v1/drain is 404). */
+typedef unsigned (*http_drain_fn)(void *ctx, char **json);
+void http_server_set_drain(http_server *s, http_drain_fn drain, void *ctx);
+/* From now on /readyz answers 503 "not ready: draining: <why>" whatever the
+ * status says (the probe port too); /healthz is untouched. Any thread. */
+void http_server_set_draining(http_server *s, const char *why);
 
 /* The watchdog behind /healthz: stalled_ms(arg) says how long the thread
  * `name` has gone without progress (any thread may call it); past limit_ms

@@ -1,7 +1,7 @@
 /*
  * http_edits.c: POST /v1/worlds/{name}/edits, terrain edits from a game
  * backend's HTTP client (issue 22; docs/openapi.yaml). The body is one edit,
- * the same JSON object as the websocket's `edit` message (world_edit_parse),
+ * the same JSON object as the websocket's `edit` message (hub_edit_parse),
  * and needs a driver or admin token where the server has tokens. The edit
  * joins the websocket clients' commands in the world's hub, in arrival
  * order; the HTTP thread waits (hub_edit_submit) for the tick that applies
@@ -82,9 +82,9 @@ static void edit_world(http_server *s, hub *h, const http_status *st, const char
         return;
     }
     world_edit *e = malloc(sizeof *e);
-    world_edit_error werr = {0};
-    int rc = e ? world_edit_parse(msg, st->world_width, st->world_height, s->limits.edit_max_cells,
-                                  e, &werr)
+    hub_edit_error werr = {0};
+    int rc = e ? hub_edit_parse(msg, st->world_width, st->world_height, s->limits.edit_max_cells, e,
+                                &werr)
                : -1;
     cJSON_Delete(msg);
     if (rc != 0) {

@@ -148,6 +148,9 @@ struct http_server {
     void *forward_ctx;
     int forward_calls;
     http_world_api world_api; /* a single daemon's lifecycle API (under worlds_lock) */
+    http_drain_fn drain;      /* POST /v1/drain (under worlds_lock) */
+    void *drain_ctx;
+    char draining[256]; /* "" or why /readyz fails: the daemon drains (under worlds_lock) */
     /* GET /v1/websocket (http_server_set_websocket): ws_port 0 until the
      * websocket server is up; written once before ws_ready is set */
     int ws_port, ws_tls;
@@ -192,12 +195,14 @@ enum MHD_Result http_answer_queue(struct MHD_Connection *c, http_answer *a);
 void http_view_stats(const http_status *st, http_answer *a);
 
 /* http_world_api.c: the world lifecycle API. 1 when url is /v1/worlds or
- * /v1/worlds/{name} and the API is on. */
+ * /v1/worlds/{name} and the API is on, or /v1/drain and a drain is set. */
 int http_world_api_path(http_server *s, const char *url);
 /* 1 when the request's ?world= names a world other than the default one
  * (snap: the default world's status) and the API is on: it is served from
  * the table of worlds. */
 int http_world_named(http_server *s, struct MHD_Connection *c, const http_status *snap);
+/* "" or why the daemon drains (http_server_set_draining), copied into why. */
+void http_draining(http_server *s, char *why, size_t cap);
 /* The answer to method on url (body: a POST's). */
 void http_world_api_answer(http_server *s, struct MHD_Connection *c, const char *url,
                            const char *method, const char *body, size_t len, http_answer *a);

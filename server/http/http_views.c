@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "metrics/metrics.h"
+#include "store/store.h"
 #include "terrad_version.h"
 #include "world/world.h"
 
@@ -226,13 +227,78 @@ void http_view_world(const http_status *st, http_answer *a)
     answer_text(a, MHD_HTTP_OK, "application/json", body);
 }
 
+/* One rebuild at a time per process: each holds a world's worth of tiles
+ * at most and replays the retained log, so a burst of ?tick= requests queues
+ * here instead of multiplying that (docs/storage.md "Replay"). */
+static pthread_mutex_t replay_lock = PTHREAD_MUTEX_INITIALIZER;
+
+/* ?tick=N: the rectangle as of the end of tick N, rebuilt from the world's
+ * data directory on this worker (store_replay_rect), never from the sim
+ * thread's world. 0, or the status and why naming the parameter. */
+static unsigned read_past(const world *base_world, const http_status *st, const http_args *args,
+                          const char *text, world_rect r, int32_t *dst, uint64_t *tick, char *why,
+                          size_t cap)
+{
+    char *end = NULL;
+    unsigned long long n = 0;
+    if (text[0] >= '0' && text[0] <= '9')
+        n = strtoull(text, &end, 10);
+    if (!end || *end || end - text > 19) {
+        snprintf(why, cap, "parameter tick must be a decimal integer (a past tick)");
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    if (arg(args, "base") || arg(args, "layer")) {
+        snprintf(why, cap, "parameter tick: a past tick serves heights only (no base=, layer=)");
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    if (!st->replay_dir) {
+        snprintf(why, cap,
+                 "parameter tick: this world keeps no log to replay (memory only, or a "
+                 "cluster node's store)");
+        return MHD_HTTP_NOT_FOUND;
+    }
+    if (n > st->tick) {
+        snprintf(why, cap, "parameter tick: %llu is in the future (the world is at tick %llu)", n,
+                 (unsigned long long)st->tick);
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    if (!base_world) {
+        snprintf(why, cap, "the base terrain is not available");
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
+    *tick = n;
+    if (n == 0) { /* before the first tick: the base */
+        world_base_fill_rect(base_world, r, dst);
+        return 0;
+    }
+    error_text err = {{0}};
+    pthread_mutex_lock(&replay_lock);
+    int rc = store_replay_rect(st->replay_dir, base_world, n, r, dst, &err);
+    pthread_mutex_unlock(&replay_lock);
+    if (rc == 1) {
+        snprintf(why, cap,
+                 "parameter tick: tick %llu is no longer held (the log before a newer tile "
+                 "snapshot was compacted away; keep more with --replay-retain-bytes): %.300s",
+                 n, err.message);
+        return MHD_HTTP_GONE;
+    }
+    if (rc != 0) {
+        snprintf(why, cap, "parameter tick: rebuilding tick %llu failed: %.400s", n, err.message);
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
+    return 0;
+}
+
 /* The rectangle's heights into dst: the live world through the hub (at the
  * end of *tick), or with base=1 the scene's base terrain (tick 0). 0, or the
  * HTTP status to answer with and why. */
 static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
-                          const http_args *args, world_rect r, int32_t *dst, uint64_t *tick,
-                          char *why, size_t cap)
+                          const http_status *st, const http_args *args, world_rect r, int32_t *dst,
+                          uint64_t *tick, char *why, size_t cap)
 {
+    const char *past = arg(args, "tick");
+    if (past)
+        return read_past(base_world, st, args, past, r, dst, tick, why, cap);
     int base = arg_is_one(args, "base");
     if (base < 0) {
         snprintf(why, cap, "parameter base must be 0 or 1");
@@ -333,8 +399,8 @@ void http_view_heights(http_server *s, hub *from, const world *base, const http_
                                  "out of memory for %lld cells; try a smaller rectangle",
                                  (long long)cells);
     uint64_t tick = 0;
-    char why[160];
-    unsigned status = read_rect(s, from, base, args, r, heights, &tick, why, sizeof why);
+    char why[512];
+    unsigned status = read_rect(s, from, base, st, args, r, heights, &tick, why, sizeof why);
     if (status) {
         free(heights);
         return http_answer_error(a, status, "%s", why);

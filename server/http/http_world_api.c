@@ -4,8 +4,8 @@
  * GET /v1/worlds lists them (any known token), DELETE /v1/worlds/{name}
  * ends one (admin; ?keep=1 keeps its storage). Only the routing, the role
  * and the answer's shape are here: the daemon (app/serve_worlds.c) does the
- * work through the callbacks it set, off any tick (each world ticks on its
- * own sim thread). A created world's reads and edits then go through the
+ * work through the callbacks it set, off any tick (each world ticks on the
+ * daemon's pool of sim workers). A created world's reads and edits go through the
  * server's table of worlds (http_worlds.c) by ?world=NAME or
  * /v1/worlds/{name}/edits, beside the default world's.
  */
@@ -15,14 +15,46 @@
 #include <string.h>
 
 #include "http/http_internal.h"
+#include "metrics/metrics.h"
 
 #define PREFIX "/v1/worlds"
+#define DRAIN_PATH "/v1/drain"
 
 void http_server_set_world_api(http_server *s, const http_world_api *api)
 {
     pthread_mutex_lock(&s->worlds_lock);
     s->world_api = api ? *api : (http_world_api){0};
     pthread_mutex_unlock(&s->worlds_lock);
+}
+
+void http_server_set_drain(http_server *s, http_drain_fn drain, void *ctx)
+{
+    pthread_mutex_lock(&s->worlds_lock);
+    s->drain = drain;
+    s->drain_ctx = ctx;
+    pthread_mutex_unlock(&s->worlds_lock);
+}
+
+void http_server_set_draining(http_server *s, const char *why)
+{
+    pthread_mutex_lock(&s->worlds_lock);
+    snprintf(s->draining, sizeof s->draining, "%s", why && why[0] ? why : "draining");
+    pthread_mutex_unlock(&s->worlds_lock);
+}
+
+void http_draining(http_server *s, char *why, size_t cap)
+{
+    pthread_mutex_lock(&s->worlds_lock);
+    snprintf(why, cap, "%s", s->draining);
+    pthread_mutex_unlock(&s->worlds_lock);
+}
+
+static int drain_on(http_server *s)
+{
+    pthread_mutex_lock(&s->worlds_lock);
+    int on = s->drain != NULL;
+    pthread_mutex_unlock(&s->worlds_lock);
+    return on;
 }
 
 static int api_on(http_server *s)
@@ -35,6 +67,8 @@ static int api_on(http_server *s)
 
 int http_world_api_path(http_server *s, const char *url)
 {
+    if (strcmp(url, DRAIN_PATH) == 0)
+        return drain_on(s);
     size_t p = sizeof PREFIX - 1;
     if (strncmp(url, PREFIX, p) != 0 || !api_on(s))
         return 0;
@@ -57,9 +91,43 @@ static void answer_json(http_answer *a, unsigned code, char *json)
     a->len = strlen(json);
 }
 
+/* POST /v1/drain: admin, no body; the daemon's drain answers. */
+static void drain_answer(http_server *s, struct MHD_Connection *c, const char *method, size_t len,
+                         http_answer *a)
+{
+    if (strcmp(method, "POST") != 0) {
+        http_answer_error(a, MHD_HTTP_METHOD_NOT_ALLOWED, "method %.16s not allowed here; use POST",
+                          method);
+        snprintf(a->extra, sizeof a->extra, "Allow: POST\n");
+        return;
+    }
+    char why[200];
+    unsigned refused = http_role_refusal(c, s->auth, AUTH_ADMIN, "drain", why, sizeof why);
+    if (refused) {
+        http_answer_error(a, refused, "%s", why);
+        return;
+    }
+    if (len > 0) {
+        http_answer_error(a, MHD_HTTP_BAD_REQUEST, "body: POST /v1/drain takes no body");
+        metrics_count_http_bad_request();
+        return;
+    }
+    pthread_mutex_lock(&s->worlds_lock);
+    http_drain_fn drain = s->drain;
+    void *ctx = s->drain_ctx;
+    pthread_mutex_unlock(&s->worlds_lock);
+    char *json = NULL;
+    unsigned code = drain(ctx, &json);
+    answer_json(a, code, json);
+}
+
 void http_world_api_answer(http_server *s, struct MHD_Connection *c, const char *url,
                            const char *method, const char *body, size_t len, http_answer *a)
 {
+    if (strcmp(url, DRAIN_PATH) == 0) {
+        drain_answer(s, c, method, len, a);
+        return;
+    }
     pthread_mutex_lock(&s->worlds_lock);
     http_world_api api = s->world_api; /* set once before the port opens; copied for the lock */
     pthread_mutex_unlock(&s->worlds_lock);

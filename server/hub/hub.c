@@ -61,7 +61,6 @@ struct hub {
     char store_unavailable[256]; /* "" while the store is writable; under out_lock */
 
     pthread_mutex_t step_lock;
-    pthread_cond_t step_cond; /* a step queued (hub_wait_step) */
     hub_step steps[HUB_STEP_CAPACITY];
     int step_head, step_count;
     void (*step_notify)(void *arg, uint32_t ticks);
@@ -96,7 +95,6 @@ hub *hub_create(void)
     pthread_condattr_init(&attr);
     pthread_condattr_setclock(&attr, CLOCK_MONOTONIC);
     pthread_cond_init(&h->read_done, &attr);
-    pthread_cond_init(&h->step_cond, &attr);
     pthread_condattr_destroy(&attr);
     return h;
 }
@@ -131,7 +129,6 @@ void hub_destroy(hub *h)
     for (int i = 0; i < h->step_count; i++)
         hub_step_free(&h->steps[(h->step_head + i) % HUB_STEP_CAPACITY]);
     pthread_mutex_destroy(&h->step_lock);
-    pthread_cond_destroy(&h->step_cond);
     free(h->commands);
     free(h->poses);
     free(h->slots);
@@ -191,7 +188,6 @@ int hub_push_step(hub *h, hub_step *st)
     h->step_count++;
     void (*fn)(void *, uint32_t) = h->step_notify;
     void *arg = h->step_notify_arg;
-    pthread_cond_broadcast(&h->step_cond);
     pthread_mutex_unlock(&h->step_lock);
     st->poses = NULL;
     if (fn) /* outside the lock: it takes the clock's own */
@@ -219,22 +215,6 @@ void hub_set_step_notify(hub *h, void (*fn)(void *arg, uint32_t ticks), void *ar
     h->step_notify = fn;
     h->step_notify_arg = arg;
     pthread_mutex_unlock(&h->step_lock);
-}
-
-int hub_wait_step(hub *h, int timeout_ms)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    long long ns = (long long)ts.tv_nsec + (long long)timeout_ms * 1000000LL;
-    ts.tv_sec += (time_t)(ns / 1000000000LL);
-    ts.tv_nsec = (long)(ns % 1000000000LL);
-    pthread_mutex_lock(&h->step_lock);
-    while (h->step_count == 0 &&
-           pthread_cond_timedwait(&h->step_cond, &h->step_lock, &ts) != ETIMEDOUT) {
-    }
-    int n = h->step_count > 0;
-    pthread_mutex_unlock(&h->step_lock);
-    return n;
 }
 
 /* ---- http → sim: edits ---- */

@@ -178,9 +178,6 @@ int hub_take_step(hub *h, hub_step *out);
 /* How the world's clock learns that ticks are due (the ticker's client clock:
  * fn adds ticks to what it owes the world). Set before any step can come. */
 void hub_set_step_notify(hub *h, void (*fn)(void *arg, uint32_t ticks), void *arg);
-/* A sim thread of its own (the default world's): wait up to timeout_ms for a
- * step to be queued; 1 when one waits. */
-int hub_wait_step(hub *h, int timeout_ms);
 void hub_step_free(hub_step *st);
 
 /* ---- sim → net: frames ---- */
@@ -262,5 +259,17 @@ void hub_close_reads(hub *h);
  * TERRAD_E_SHUTTING_DOWN and why, instead of waiting out its timeout. Any
  * thread. */
 void hub_close_edits(hub *h, const char *why);
+
+/* ---- a terrain edit's wire form (hub_edit.c; PROTOCOL.md "edit") ---- */
+
+typedef struct hub_edit_error {
+    int code;          /* TERRAD_E_BAD_VALUE, _OUTSIDE_WORLD, _TOO_LARGE (proto/c) */
+    char message[300]; /* names the field */
+} hub_edit_error;
+/* An `edit` message's fields (its "type" and "ref" are the caller's) into
+ * out, for a width x height world, refusing one over max_cells. 0, or -1
+ * with err (nothing held). Free a parsed edit with world_edit_free. Any thread. */
+int hub_edit_parse(const cJSON *msg, int width, int height, int64_t max_cells, world_edit *out,
+                   hub_edit_error *err);
 
 #endif

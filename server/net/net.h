@@ -184,6 +184,14 @@ int net_server_remove_relay(net_server *s, const char *world);
 /* A message from another node for a world served here (copied). Any thread. */
 void net_server_remote_input(net_server *s, const char *world, const net_remote_msg *m,
                              const void *bytes, size_t len);
+/* The daemon drains (docs/fleet.md; PROTOCOL.md "draining"): from now on a
+ * hello is refused with error shutting_down naming why and closed with 4020
+ * "draining", and every client that said hello is told once, soon after on
+ * the net thread, with {"type": "draining", "reason": why, "grace_ms": N}
+ * (grace_ms: how long the daemon waits for its clients before it stops).
+ * The clients stay connected and served until they leave or the daemon
+ * stops. Any thread; the first call's why is kept. */
+void net_server_drain(net_server *s, const char *why, int64_t grace_ms);
 int net_server_port(const net_server *s);
 int net_server_client_count(const net_server *s); /* connected clients; any thread */
 /* How long since the net thread last ran its heartbeat (every 100 ms when it is

@@ -140,8 +140,12 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
     if (c->killed)
         return -1;
     net_rx_hold_update(c); /* lws has flushed what it held: read again */
-    if (c->slow && c->pending_bytes <= s->st.cfg.limits.max_pending_bytes / 2 && !c->closing) {
+    if (c->slow && c->pending_bytes <= s->st.cfg.limits.max_pending_bytes / 2 && !c->closing &&
+        c->seen_tick >= c->seen_wait) {
         c->slow = 0;
+        if (c->seen_wait)
+            c->seen_from = c->srv->tick;
+        c->seen_wait = 0;
         net_request_resync(c, 0); /* caught up: fresh snapshots, then deltas again */
     }
     if (c->q_count) {
@@ -151,6 +155,13 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
         c->pending_bytes -= it.frame->len;
         if (it.kind != NET_ITEM_REPLY)
             c->droppable_bytes -= it.frame->len;
+        if (it.frame->binary && it.frame->len >= 12 && it.frame->data[2] >= TERRAD_MSG_DELTA) {
+            uint64_t tick = 0; /* every server frame from DELTA on has its u64 tick at 4 */
+            for (int b = 7; b >= 0; b--)
+                tick = tick << 8 | it.frame->data[4 + b];
+            if (tick > c->written_tick)
+                c->written_tick = tick;
+        }
         int n = lws_write(wsi, it.frame->data, it.frame->len,
                           it.frame->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
         if (n >= 0) {

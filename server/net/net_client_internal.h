@@ -35,6 +35,7 @@
 #ifndef TERRAD_NET_CLIENT_INTERNAL_H
 #define TERRAD_NET_CLIENT_INTERNAL_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -115,6 +116,14 @@ typedef struct net_client {
      * snapshots_done < resync_until */
     uint64_t snapshots_requested, snapshots_done, resync_until;
     int slow; /* dropped deltas for want of room: resync once the queue drains */
+    /* end to end (PROTOCOL.md "seen"): the latest tick of a ticked frame
+     * handed to the socket; the latest the client said it has handled
+     * (seen_said: it ever said); seen_wait: slow for that lag, the snapshots
+     * wait until the client has handled this tick (what was on its way);
+     * seen_from: then it is judged again once it has handled this tick (its
+     * snapshots: they are of this tick or later) */
+    uint64_t written_tick, seen_tick, seen_wait, seen_from;
+    int seen_said;
 
     int closing; /* close after the queue drains */
     int close_code;
@@ -189,6 +198,12 @@ struct net_state {
      * are in worlds[] as on a node; hosted_worlds: one ever was. */
     int lobby;
     int hosted_worlds;
+    /* the server's own state only: the daemon drains (net_server_drain) —
+     * drain_why and drain_grace_ms are written before draining is set */
+    atomic_int draining;
+    int drain_told; /* the net thread told the clients (net_drain_apply) */
+    char drain_why[200];
+    int64_t drain_grace_ms;
     int relay; /* a world another node owns, served through it (net_remote.c) */
     net_remote_send_fn remote_send; /* to other nodes; NULL for a single daemon */
     void *remote_ctx;
@@ -197,6 +212,10 @@ struct net_state {
     int nworlds;
     int64_t worlds_cap;
 };
+
+/* Why the daemon drains (st: the server's own state, where every client
+ * says hello), or NULL (net_events.c). Any thread. */
+const char *net_draining(const net_state *st);
 
 /* ---- the client list ---- */
 net_client *net_find_client(net_state *s, uint32_t id);

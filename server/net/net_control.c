@@ -418,6 +418,7 @@ static const struct {
     {"resync", NET_CONTROL_RESYNC},
     {"edit", NET_CONTROL_EDIT},
     {"subscribe_events", NET_CONTROL_SUBSCRIBE_EVENTS},
+    {"seen", NET_CONTROL_SEEN},
 };
 
 /* subscribe_events: "events", an array of known event names (empty: none). */
@@ -442,13 +443,13 @@ static int parse_events(parser *r, net_control *out)
     return 0;
 }
 
-/* An edit's fields (world_edit_parse, shared with POST /v1/worlds/{name}/edits). */
+/* An edit's fields (hub_edit_parse, shared with POST /v1/worlds/{name}/edits). */
 static int parse_edit(parser *r, net_control *out)
 {
-    world_edit_error werr;
+    hub_edit_error werr;
     world_edit e;
-    if (world_edit_parse(r->msg, r->ctx->world_width, r->ctx->world_height,
-                         r->ctx->limits->max_edit_cells, &e, &werr) != 0)
+    if (hub_edit_parse(r->msg, r->ctx->world_width, r->ctx->world_height,
+                       r->ctx->limits->max_edit_cells, &e, &werr) != 0)
         return fail(r, werr.code, "%s", werr.message);
     out->edit = malloc(sizeof *out->edit);
     if (!out->edit) {
@@ -522,6 +523,12 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
         case NET_CONTROL_SUBSCRIBE_EVENTS:
             rc = parse_events(&r, out);
             break;
+        case NET_CONTROL_SEEN: { /* "tick": an integer a double holds exactly */
+            int64_t tick = 0;
+            rc = get_int(&r, "tick", 1, 0, INT64_C(9007199254740992), &tick) < 0 ? -1 : 0;
+            out->seen_tick = (uint64_t)tick;
+            break;
+        }
         }
     }
     cJSON_Delete(msg);

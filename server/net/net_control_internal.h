@@ -35,6 +35,7 @@ typedef enum net_control_kind {
     NET_CONTROL_RESYNC,
     NET_CONTROL_EDIT,
     NET_CONTROL_SUBSCRIBE_EVENTS,
+    NET_CONTROL_SEEN,
 } net_control_kind;
 
 /* subscribe_events: the events an admin connection may ask for, one bit each
@@ -74,6 +75,8 @@ typedef struct net_control {
     /* subscribe: inside the world */
     world_rect rect;
     int colliders, footprints;
+    /* seen: the latest tick whose frames the client has handled */
+    uint64_t seen_tick;
     /* subscribe_events: one bit per NET_EVENT_NAMES entry (0: none) */
     unsigned events;
     /* edit (owned; the command takes it over) */

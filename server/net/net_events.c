@@ -8,8 +8,11 @@
  * server's worlds_lock and wakes the net thread; the net thread sends each
  * one between two callbacks (net_events_apply, from net_catch_up) to every
  * ready client, in any world's state, that subscribed to it. Events take no
- * part in a tick.
+ * part in a tick. The drain's notice (net_server_drain, net_drain_apply)
+ * travels the same way: set from any thread, sent by the net thread to
+ * every client once.
  */
+#include <stdatomic.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -64,4 +67,45 @@ void net_events_apply(net_server *s)
     for (int e = 0; e < n; e++)
         for (int i = 0; net_state_at(s, i); i++)
             send_event(net_state_at(s, i), events[e].bit, events[e].world);
+}
+
+/* ---- the drain (docs/fleet.md) ---- */
+
+void net_server_drain(net_server *s, const char *why, int64_t grace_ms)
+{
+    int idle = 0;
+    if (!s || !atomic_compare_exchange_strong(&s->st.draining, &idle, 2))
+        return; /* draining already: the first reason stands */
+    snprintf(s->st.drain_why, sizeof s->st.drain_why, "%s", why && why[0] ? why : "draining");
+    s->st.drain_grace_ms = grace_ms;
+    atomic_store(&s->st.draining, 1); /* why and grace are written first */
+    net_server_wake(s);
+}
+
+const char *net_draining(const net_state *st)
+{
+    return atomic_load(&((net_state *)st)->draining) == 1 ? st->drain_why : NULL;
+}
+
+void net_drain_apply(net_server *s)
+{
+    if (s->st.drain_told || !net_draining(&s->st))
+        return;
+    s->st.drain_told = 1;
+    int told = 0;
+    for (int k = 0; net_state_at(s, k); k++) {
+        net_state *w = net_state_at(s, k);
+        for (int i = 0; i < w->nclients; i++) {
+            net_client *c = w->clients[i];
+            if (!c->ready || c->closing || c->killed)
+                continue;
+            cJSON *msg = cJSON_CreateObject();
+            cJSON_AddStringToObject(msg, "type", "draining");
+            cJSON_AddStringToObject(msg, "reason", s->st.drain_why);
+            cJSON_AddNumberToObject(msg, "grace_ms", (double)s->st.drain_grace_ms);
+            net_send_json(c, msg);
+            told++;
+        }
+    }
+    log_info("net: draining (%s): %d clients told, new clients refused", s->st.drain_why, told);
 }

@@ -17,6 +17,13 @@
  *     (each one says everything the older said, for a later tick);
  *   - FOOTPRINTS frames are dropped like tile deltas (and not sent at all to
  *     a slow client): events for visuals, nothing to resync;
+ *   - end to end (issue 28, item 5: a client reading one frame per 20 ms
+ *     was 52 s behind, its frames waiting in its own socket buffers where
+ *     the daemon's queue cannot see them): a client that says which tick it
+ *     has handled (PROTOCOL.md "seen") and is more than max_client_lag_ticks
+ *     behind what was written to it goes slow too, and its snapshots wait
+ *     until it has handled what was already on its way (seen_wait), so it
+ *     reads them fresh; a client that never says keeps the two bounds above;
  *   - anything beyond hard_pending_bytes (room for max_pending_bytes, a
  *     whole snapshot of the largest allowed subscription area and a few
  *     messages) closes the connection: such a client has stopped reading
@@ -49,7 +56,7 @@ static void go_slow(net_client *c, uint64_t behind)
                  c->id, c->peer, (unsigned long long)behind,
                  c->srv->cfg.limits.max_client_lag_ticks);
         metrics_count_client_stale();
-    } else if (!c->slow) /* before the drop, so the figure is what made it slow */
+    } else if (!c->slow && !c->seen_wait) /* before the drop: what made it slow */
         log_info("net: client %u (%s) is slow (%zu bytes pending, limit %zu): deltas replaced "
                  "by a snapshot once it catches up",
                  c->id, c->peer, c->pending_bytes, c->srv->cfg.limits.max_pending_bytes);
@@ -102,13 +109,29 @@ static void fan_out(net_state *w, const hub_out *o)
 static void drop_stale(net_state *w)
 {
     uint64_t limit = (uint64_t)w->cfg.limits.max_client_lag_ticks;
+    /* "seen" comes at most every 0.1 s, plus a round trip: a limit shorter than
+     * that in ticks is judged as 0.25 s; a client-clocked world's ticks come in
+     * bursts at its driver's pace, not the clock's, and are not judged by it */
+    uint64_t said_limit = (uint64_t)(w->cfg.world.tick_hz * 0.25);
+    said_limit = w->cfg.world.client_clock ? UINT64_MAX : said_limit > limit ? said_limit : limit;
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
         if (!c->ready || c->closing || c->killed || c->remote || dropping_deltas(c))
             continue; /* a remote client's lag is its relay's to bound */
         uint64_t oldest = net_oldest_queued_tick(c);
-        if (oldest && w->tick > oldest + limit)
+        if (oldest && w->tick > oldest + limit) {
             go_slow(c, w->tick - oldest);
+        } else if (c->seen_said && c->seen_tick >= c->seen_from &&
+                   c->written_tick - c->seen_tick > said_limit && c->written_tick > c->seen_tick) {
+            log_info("net: client %u (%s) has handled tick %llu, %llu behind what was sent to it "
+                     "(limit %d): deltas replaced by a snapshot once it has read what is on its "
+                     "way",
+                     c->id, c->peer, (unsigned long long)c->seen_tick,
+                     (unsigned long long)(c->written_tick - c->seen_tick), (int)said_limit);
+            metrics_count_client_behind();
+            c->seen_wait = c->written_tick;
+            go_slow(c, 0);
+        }
     }
 }
 

@@ -56,6 +56,7 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     net_server *s = lws_container_of(sul, net_server, heartbeat);
     fault_stall("net"); /* test hook (base/fault.c): a net thread that stops */
     atomic_store(&s->last_beat_ms, time_now_ms());
+    net_drain_apply(s);
     net_worlds_apply(s);
     net_events_apply(s);
     net_remote_apply(s);
@@ -78,6 +79,7 @@ void net_heartbeat_start(net_server *s)
 
 void net_catch_up(net_server *s)
 {
+    net_drain_apply(s); /* a drain's notice before a world's removal closes its clients */
     net_worlds_apply(s);
     net_events_apply(s);
     net_remote_apply(s);

@@ -108,6 +108,15 @@ static void handle_hello(net_client *c, const net_control *m)
     net_state *s = c->srv;
     if (net_auth_hello(c, m->token, m->ref) != 0)
         return;
+    const char *draining = net_draining(s);
+    if (draining) { /* a load balancer that has not yet seen /readyz fail sent it here */
+        net_error(c, TERRAD_E_SHUTTING_DOWN, m->ref, -1, 1,
+                  "hello: this server is draining (%s) and takes no new clients: connect to "
+                  "another",
+                  draining);
+        net_close_after_flush(c, 4000 + TERRAD_E_SHUTTING_DOWN, "draining");
+        return;
+    }
     char why[400];
     if (s->lobby && net_client_join_world(c, m->world, why, sizeof why) != 0) {
         /* a cluster node serves the worlds it owns: the client is sent to another node */
@@ -394,6 +403,26 @@ static void handle_resync(net_client *c, const net_control *m)
     net_request_resync(c, m->id);
 }
 
+/* seen: the latest tick the client has handled (PROTOCOL.md "seen"); judged
+ * against what was written to it once a tick (net_fanout.c drop_stale). A
+ * client waiting to catch up before its snapshots is woken when it has. */
+static void handle_seen(net_client *c, const net_control *m)
+{
+    if (m->seen_tick > c->written_tick && m->seen_tick > c->srv->tick) {
+        net_error(
+            c, TERRAD_E_BAD_VALUE, m->ref, -1, 0,
+            "tick: %llu is later than any tick this server has sent (%llu)",
+            (unsigned long long)m->seen_tick,
+            (unsigned long long)(c->written_tick > c->srv->tick ? c->written_tick : c->srv->tick));
+        return;
+    }
+    c->seen_said = 1;
+    if (m->seen_tick > c->seen_tick)
+        c->seen_tick = m->seen_tick;
+    if (c->slow && c->seen_wait && c->seen_tick >= c->seen_wait && c->wsi)
+        lws_callback_on_writable(c->wsi);
+}
+
 /* subscribe_events (admin): the events this connection gets from now on. */
 static void handle_subscribe_events(net_client *c, const net_control *m)
 {
@@ -464,7 +493,9 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     net_control_error err;
     int rc = net_control_parse(text, len, &ctx, &m, &err);
     /* checked and answered by the world's owner; events are this node's */
-    if (s->relay && c->ready && m.kind != NET_CONTROL_SUBSCRIBE_EVENTS) {
+    /* seen: the relay holds the client's socket and bounds its lag */
+    if (s->relay && c->ready && m.kind != NET_CONTROL_SUBSCRIBE_EVENTS &&
+        m.kind != NET_CONTROL_SEEN) {
         relay_text(c, &m, rc);
         net_relay_forward(c, 0, text, len);
         net_control_free(&m);
@@ -508,6 +539,9 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_SUBSCRIBE_EVENTS:
             handle_subscribe_events(c, &m);
+            break;
+        case NET_CONTROL_SEEN:
+            handle_seen(c, &m);
             break;
         case NET_CONTROL_NONE:
             break;

@@ -72,6 +72,8 @@ void net_flush_backlogs(net_server *s);
 /* Net thread: a wake's work (worlds, inbox, backlogs, frames, the shutdown's start). */
 void net_catch_up(net_server *s);
 void net_events_apply(net_server *s);
+/* Net thread: once draining, every client told (net_server_drain). */
+void net_drain_apply(net_server *s);
 /* Schedules the heartbeat (every 100 ms on the net thread). */
 void net_heartbeat_start(net_server *s);
 /* The protocol table (net_callback.c). */

@@ -46,6 +46,10 @@ typedef struct store_config {
     /* --recover-truncate: start on a damaged directory anyway, cutting what
      * is damaged and logging exactly what is lost (default: refuse) */
     int recover_truncate;
+    /* replay (docs/storage.md "Retention"): the whole log is kept, compacted
+     * segments included, while it is under this many bytes, so that every
+     * tick since the first can be rebuilt (0: compacted segments go at once) */
+    int64_t retain_bytes;
 } store_config;
 
 /* "every-tick", "none" or "group:MS" (MS in 1..10000). */
@@ -136,6 +140,20 @@ uint64_t store_durable_tick(const store *st);
  * the snapshot was compacted away). */
 int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
                         error_text *err);
+
+/*
+ * GET /v1/heights?tick=N: rectangle r of the world as of tick `tick`, rebuilt
+ * from data directory `dir` into dst (r.w * r.h heights) beside a live daemon
+ * (its own reads of the files; nothing is written, nothing of the sim
+ * thread's is touched). base holds the scene's base terrain (read with
+ * world_base_fill_rect only, immutable). While the log is whole (segment 1
+ * still present: retention kept it) the rebuild is the base and every record
+ * up to the tick, else the tile snapshots and the records after them. Memory:
+ * one world of base's size and one log segment at a time. Returns 0; 1 when
+ * the store no longer holds the tick (compacted away: why says so); -1 on
+ * another error (why). */
+int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
+                      error_text *why);
 
 /* Start data directory `dir` over (terrad serve --fresh): deletes the files
  * a data directory holds and nothing else. A directory holding any other

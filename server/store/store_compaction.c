@@ -11,13 +11,34 @@
  * store_internal.h); each side's entries assert which thread they run on.
  */
 #include <errno.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "metrics/metrics.h"
 #include "store/store_internal.h"
+
+/* The bytes of every log segment present. */
+static int64_t compaction_log_bytes(const store_dir *st)
+{
+    uint64_t *seqs;
+    int n;
+    int64_t total = 0;
+    if (store_list_segments(st->dir, &seqs, &n) != 0)
+        return INT64_MAX; /* cannot tell: delete as without retention */
+    for (int i = 0; i < n; i++) {
+        char path[1100];
+        struct stat sb;
+        store_segment_path(st->dir, seqs[i], path, sizeof path);
+        if (stat(path, &sb) == 0)
+            total += sb.st_size;
+    }
+    free(seqs);
+    return total;
+}
 
 /* Write one job's tiles, then drop the segments they make unneeded.
  * Returns 1 when every tile is on disk. Compaction thread only. */
@@ -43,6 +64,11 @@ static int compaction_run_job(store_dir *st, ZSTD_CCtx *cctx, const tile_copy *t
     /* every changed tile is on disk: CONTROL records them, then the older
      * segments are no longer needed (a crash before CONTROL is written keeps
      * them: recovery replays them over the new snapshots, which is harmless) */
+    /* retention: while the whole log is under retain_bytes nothing is
+     * deleted, so every tick since the first can be replayed (store_replay.c);
+     * past it the folded segments go as before */
+    if (st->cfg.retain_bytes > 0 && compaction_log_bytes(st) <= st->cfg.retain_bytes)
+        live = 0;
     pthread_mutex_lock(&st->ctl_lock);
     for (int i = 0; i < count; i++)
         st->ctl.tile_tick[tiles[i].ty * st->tiles_x + tiles[i].tx] = tick;

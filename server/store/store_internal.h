@@ -183,10 +183,11 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
 
 /* ---- recovery (store_recover.c) ---- */
 enum {
-    STORE_RECOVER_REPAIR = 1,   /* cut a torn tail off the last segment */
-    STORE_RECOVER_CHECK = 2,    /* hold the directory to CONTROL: damage refuses */
-    STORE_RECOVER_TRUNCATE = 4, /* damage is logged with what is lost, then cut */
-    STORE_RECOVER_ALL = 8,      /* fsck: log every damage found, not only the first */
+    STORE_RECOVER_REPAIR = 1,    /* cut a torn tail off the last segment */
+    STORE_RECOVER_CHECK = 2,     /* hold the directory to CONTROL: damage refuses */
+    STORE_RECOVER_TRUNCATE = 4,  /* damage is logged with what is lost, then cut */
+    STORE_RECOVER_ALL = 8,       /* fsck: log every damage found, not only the first */
+    STORE_RECOVER_NO_TILES = 16, /* replay: the whole log from the base, no snapshots */
 };
 typedef struct recover_args {
     const char *dir;

@@ -245,7 +245,7 @@ int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec
     /* A compaction may have folded every record into the snapshots and left an
      * empty log: the world is then as of the newest snapshot, and the tick
      * counter must go on from there, never back to 0. */
-    if (load_tiles(&s) != 0)
+    if (!(a->flags & STORE_RECOVER_NO_TILES) && load_tiles(&s) != 0)
         return -1;
     uint64_t *seqs;
     int count;

@@ -4,7 +4,7 @@
  * ground, world), compiled from the same source, behind a small C API that a
  * client runs on its own window: describe the world, create a window from the
  * server's heights, give colliders their poses, tick, read heights. The
- * heights are the daemon's bit for bit (tests/integration/test_twin.py runs
+ * heights are the daemon's bit for bit (tests/integration/clients/test_twin.py runs
  * this library natively and as WebAssembly against `terrad simulate`).
  *
  * A window is a rectangle of the world's cells; the twin knows nothing outside

@@ -170,16 +170,7 @@ typedef struct world_edit {
     uint8_t *mask;           /* stamp: NULL, or nonzero where the stamp applies (owned) */
 } world_edit;
 
-typedef struct world_edit_error {
-    int code;          /* TERRAD_E_BAD_VALUE, _OUTSIDE_WORLD, _TOO_LARGE (proto/c) */
-    char message[300]; /* names the field */
-} world_edit_error;
-
-/* An `edit` message's fields (its "type" and "ref" are the caller's) into
- * out, for a width x height world, refusing one over max_cells. 0, or -1
- * with err (nothing held). Free a parsed edit with world_edit_free. */
-int world_edit_parse(const cJSON *msg, int width, int height, int64_t max_cells, world_edit *out,
-                     world_edit_error *err);
+/* (An `edit` message is parsed into a world_edit by hub_edit_parse, hub/hub_edit.c.) */
 void world_edit_free(world_edit *e);
 const char *world_edit_op_name(world_edit_op op);
 /* Apply e to w whole: *rect the cells it could change, *diff (malloc'd,

@@ -6,7 +6,7 @@
 // every documented header that is present validates too, while the headers an answer must carry
 // (X-Terrad-Tick, -Rect, -Units-Per-Metre on heights; Allow on 405) are there. Every path of
 // the document is fetched, and every status code it names explicitly is seen at least once.
-// Run by tests/integration/test_openapi.sh (node --test).
+// Run by tests/integration/service/test_openapi.sh (node --test).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
@@ -264,6 +264,16 @@ test('every documented error answers as the document says', async () => {
   await fetchChecked('a body', '/v1/stats', 413, { body: 'x'.repeat(64), headers: { 'Content-Length': '64' } });
   await fetchChecked('a long query', `/v1/heights?x=0&y=0&w=1&h=1&pad=${'a'.repeat(1100)}`, 414);
   await fetchChecked('dot-dot', '/a/../v1/stats', 400);
+});
+
+test('POST /v1/drain: a body is 400; the drain is 202, and with no client to wait for the daemon exits 0', async () => {
+  await fetchChecked('a body', '/v1/drain', 400, { method: 'POST', body: '{}', headers: { 'Content-Length': '2' } });
+  const gone = new Promise((r) => daemon.once('exit', r));
+  const { json } = await fetchChecked('drain', '/v1/drain', 202, { method: 'POST' });
+  assert.equal(json.draining, true);
+  await gone;
+  assert.equal(daemon.exitCode, 0, 'the drained daemon exits with status 0');
+  rmSync(daemon.dataDir, { recursive: true, force: true });
 });
 
 test('every path was fetched and every explicit status was seen', () => {

@@ -1,5 +1,5 @@
 // CsharpDrive.cs: the C# client (clients/csharp/Terrad.cs) against a real daemon, under Mono,
-// for tests/integration/test_csharp_client.py.
+// for tests/integration/clients/test_csharp_client.py.
 //
 //   mono drive.exe PORT X Y W H CONFIG OUT
 //

@@ -1,7 +1,7 @@
 /*
  * c_predict_drive: the C client's prediction and its hello into a named world
  * (terrad_client.h, docs/engines.md), driven against a real daemon for
- * tests/integration/test_predict_c.py, linked to the shared libterrad-client
+ * tests/integration/clients/test_predict_c.py, linked to the shared libterrad-client
  * (and through it libterrad-twin) as a game would be.
  *
  *   c_predict_drive predict PORT X Y W H CONFIG OUT   the Python test's drive, in C

@@ -1,6 +1,6 @@
 /*
  * net_harness: the websocket server (server/net) against a hand-driven hub,
- * for tests/integration/test_net_server.py. It plays a fake sim thread: it
+ * for tests/integration/service/test_net_server.py. It plays a fake sim thread: it
  * prints every command and pose the net thread queues in the hub, answers
  * subscribe/resync with a marker snapshot frame (bytes 4..5 = 0xEEEE), and
  * publishes tile deltas when told to on stdin ("delta", "flood", "burst",

@@ -1,4 +1,4 @@
-// predict_drive.mjs: web/predict.mjs against a real daemon, for tests/integration/test_predict_js.py.
+// predict_drive.mjs: web/predict.mjs against a real daemon, for tests/integration/clients/test_predict_js.py.
 // Two websocket connections (Node 20's WebSocket: run with --experimental-websocket) with the
 // viewer's codec (web/terrad_codec.mjs): A subscribes to a window, predicts it on the
 // WebAssembly twin and drives a sphere through it, one batch per tick; then B ploughs the

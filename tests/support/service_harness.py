@@ -1,4 +1,4 @@
-"""The one Python harness of the tests (tests/integration/test_*.py,
+"""The one Python harness of the tests (tests/integration/*/test_*.py,
 tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
 real daemon on loopback ports (serve_scene: on a scene given as a dict),
 `terrad simulate` runs, HTTP helpers
@@ -6,7 +6,7 @@ real daemon on loopback ports (serve_scene: on a scene given as a dict),
 mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
 wheel poses. A test puts tests/support on sys.path and imports what it needs.
 
-Not a test itself (ctest registers only tests/integration/test_*.py). Debian's /usr/bin/python3
+Not a test itself (ctest registers only tests/integration/**/test_*.py). Debian's /usr/bin/python3
 with python3-websockets and python3-zstandard.
 """
 import asyncio
@@ -498,6 +498,23 @@ def machine():
 
 
 # ---- clients -------------------------------------------------------------------
+
+class TickWatch:
+    """The daemon's tick, polled in a thread (HTTP never blocks the reader's loop)."""
+
+    def __init__(self, d):
+        self.d, self.tick, self.stop = d, d.stats()["tick"], threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def run(self):
+        while not self.stop.is_set():
+            try:
+                self.tick = self.d.stats()["tick"]
+            except Exception:  # noqa: BLE001
+                pass
+            time.sleep(0.05)
+
 
 class RecordingClient(tp.TerradClient):
     """Keeps a copy of its mirrors at each ACK (every DELTA of tick t arrives

@@ -3,7 +3,7 @@
  * through the twin library's C API alone — it links libterrad-twin.so and
  * nothing of the daemon — and writes the window's final heights as
  * little-endian int32, row-major, the format of `terrad simulate --out`
- * (tests/integration/test_twin.py compares the two). twin_wasm.mjs does the
+ * (tests/integration/clients/test_twin.py compares the two). twin_wasm.mjs does the
  * same through the WebAssembly module.
  *
  * Usage: twin_replay OUT < TRACE. Exit 1 with the library's error.

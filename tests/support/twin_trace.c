@@ -1,6 +1,6 @@
 /*
  * twin_trace.c: writes what the twin library needs to replay a scene the way
- * `terrad simulate` runs it (tests/integration/test_twin.py): the world's
+ * `terrad simulate` runs it (tests/integration/clients/test_twin.py): the world's
  * parameters as terrad_twin_config keys, the whole world as the window, the
  * colliders and, per tick, every collider's pose (app_run_scene_ticks's
  * poses). One line per item, numbers printed with %.17g so that C's strtod

@@ -152,6 +152,20 @@ static void test_subscriptions(void)
     CHECK(parse("{\"type\":\"resync\",\"id\":4}", &m, &e) == 0 && m.has_id && m.id == 4,
           "resync one");
     net_control_free(&m);
+    /* seen (issue 28, item 5): the latest tick the client has handled */
+    CHECK(parse("{\"type\":\"seen\",\"tick\":9007199254740992}", &m, &e) == 0 &&
+              m.kind == NET_CONTROL_SEEN && m.seen_tick == 9007199254740992ull,
+          "seen: %s", e.message);
+    net_control_free(&m);
+    expect_error("{\"type\":\"seen\"}", TERRAD_E_BAD_VALUE, 1,
+                 "tick: missing, an integer in [0, 9007199254740992]");
+    static const char *const bad[] = {"-1", "1.5", "\"7\"", "9007199254740993e3"};
+    for (int i = 0; i < 4; i++) {
+        char text[96];
+        snprintf(text, sizeof text, "{\"type\":\"seen\",\"tick\":%s}", bad[i]);
+        expect_error(text, TERRAD_E_BAD_VALUE, 1,
+                     "tick: must be an integer in [0, 9007199254740992]");
+    }
 }
 
 int main(void)

@@ -5,9 +5,13 @@
  * are the daemon's default scene with demo actors, whose poses are a
  * function of the tick number only (host_demo.c), so the comparison needs
  * no clock. Also: a job asked to end mid-run ends (its end runs once, on a
- * worker), and a stopped ticker ends every job it still holds.
+ * worker), a stopped ticker ends every job it still holds, and the clock seam
+ * (host.h, host_clock): a world whose clock says HOST_CLOCK_NEVER is taken by
+ * no worker while others tick, and after host_ticker_wake runs exactly the
+ * ticks its clock then allows (a client-driven clock's steps).
  */
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -25,6 +29,8 @@ typedef struct pooled {
     int64_t volume;
     long ticks; /* service ticks when it ended */
     int ended, rc;
+    atomic_long ticked; /* counted by count_tick */
+    atomic_long owed;   /* owed_due's: the ticks its clock allows */
 } pooled;
 
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
@@ -70,6 +76,30 @@ static int open_world(host_sim *m, const serve_options *o, error_text *err)
     return host_sim_start(m, &c, err);
 }
 
+/* A job's check: counts its ticks. */
+static int count_tick(void *ctx, host_sim *m, long tick, char *why, size_t cap)
+{
+    (void)m, (void)tick, (void)why, (void)cap;
+    atomic_fetch_add(&((pooled *)ctx)->ticked, 1);
+    return 0;
+}
+
+/* A clock of the seam's kind a client-driven world has: due at once while
+ * ticks are owed, never otherwise. */
+static double owed_due(void *ctx, long tick, double period_ms, double last_due_ms, double now_ms)
+{
+    (void)period_ms, (void)last_due_ms;
+    return tick < atomic_load(&((pooled *)ctx)->owed) ? now_ms : HOST_CLOCK_NEVER;
+}
+
+/* Until p has ticked at least n times (a generous deadline: a busy machine). */
+static int wait_ticked(pooled *p, long n)
+{
+    for (int i = 0; i < 120000 && atomic_load(&p->ticked) < n; i++)
+        host_sleep_ms(1);
+    return atomic_load(&p->ticked) >= n;
+}
+
 static void wait_ended(pooled *p, int n)
 {
     pthread_mutex_lock(&lock);
@@ -108,7 +138,7 @@ int main(void)
     /* the same world POOL_WORLDS times on a pool of 3 workers, side by side */
     host_ticker *t = host_ticker_start(3, &err);
     CHECK(t != NULL, "ticker: %s", err.message);
-    pooled *p = calloc(POOL_WORLDS + 2, sizeof *p);
+    pooled *p = calloc(POOL_WORLDS + 4, sizeof *p);
     for (int i = 0; i < POOL_WORLDS; i++) { /* all made first: they tick side by side */
         CHECK(open_world(&p[i].m, &o, &err) == 0, "world %d: %s", i, err.message);
         p[i].job = (host_job){.m = &p[i].m, .max_ticks = TICKS, .end = pooled_end, .ctx = &p[i]};
@@ -137,11 +167,42 @@ int main(void)
     host_ticker_end(t, &a->job);
     wait_ended(a, 1);
     CHECK(a->ended == 1 && a->rc == 0, "ended when asked (%d, rc %d)", a->ended, a->rc);
+
+    /* the clock seam: a parked world beside a witness that ticks on the wall clock */
+    pooled *parked = &p[POOL_WORLDS + 2], *witness = &p[POOL_WORLDS + 3];
+    pooled *both[] = {parked, witness};
+    for (int i = 0; t && i < 2; i++) {
+        CHECK(open_world(&both[i]->m, &o, &err) == 0, "clocked %d: %s", i, err.message);
+        both[i]->job = (host_job){.m = &both[i]->m,
+                                  .max_ticks = -1,
+                                  .check = count_tick,
+                                  .end = pooled_end,
+                                  .ctx = both[i]};
+    }
+    parked->job.clock = (host_clock){.name = "owed", .due_ms = owed_due, .ctx = parked};
+    for (int i = 0; t && i < 2; i++)
+        CHECK(host_ticker_add(t, &both[i]->job, &err) == 0, "add clocked %d: %s", i, err.message);
+    CHECK(wait_ticked(witness, 20), "the witness ticks on the wall clock");
+    CHECK(atomic_load(&parked->ticked) == 0, "a world whose clock says never is not ticked (%ld)",
+          atomic_load(&parked->ticked));
+    atomic_store(&parked->owed, 3);
+    host_ticker_wake(t, &parked->job);
+    CHECK(wait_ticked(parked, 3), "woken, it runs the ticks its clock allows");
+    long seen = atomic_load(&witness->ticked);
+    CHECK(wait_ticked(witness, seen + 20), "the witness goes on");
+    CHECK(atomic_load(&parked->ticked) == 3, "then it waits again: exactly 3 ticks (%ld)",
+          atomic_load(&parked->ticked));
+    host_ticker_end(t, &parked->job);
+    wait_ended(parked, 1);
+    CHECK(parked->ended == 1 && parked->ticks == 3,
+          "a parked world ends when asked, after its 3 "
+          "ticks (%d, %ld)",
+          parked->ended, parked->ticks);
     host_ticker_stop(t);
     CHECK(b->ended == 1 && b->rc == 0, "the ticker's stop ended the last (%d, rc %d)", b->ended,
           b->rc);
 
-    for (int i = 0; i < POOL_WORLDS + 2; i++) {
+    for (int i = 0; i < POOL_WORLDS + 4; i++) {
         free(p[i].heights);
         pthread_mutex_destroy(&p[i].m.status.lock);
     }

@@ -9,7 +9,7 @@
 // - the toggle off: the same move draws the mirror only, until the server's deltas arrive;
 // - a daemon without a twin config for its world (/v1/twin 404) leaves the toggle disabled,
 //   saying why, and the page goes on.
-// Run by tests/integration/test_viewer_predict.sh (node --test); its own file, not *.test.mjs,
+// Run by tests/integration/web/test_viewer_predict.sh (node --test); its own file, not *.test.mjs,
 // so the viewer's suite (test_viewer.sh) does not run it twice.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';

@@ -98,6 +98,8 @@ export class TerradClient {
   private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], error: [] };
   private predictions = new Map<number, Prediction>();
   private closed: Error | null = null;
+  /** PROTOCOL.md "seen": the server bounds this client's lag by the tick it says it handled */
+  private seen = new P.SeenReporter((m: object) => { if (!this.closed) this.sendJson(m); });
 
   private constructor(ws: WebSocket, timeoutMs: number) {
     this.ws = ws;
@@ -193,6 +195,7 @@ export class TerradClient {
     for (const p of this.predictions.values()) p.destroy();
     this.predictions.clear();
     this.closed = new Error('closed by the client');
+    this.seen.reset();
     this.ws.close(1000);
   }
 
@@ -236,6 +239,7 @@ export class TerradClient {
 
   private fail(e: Error): void {
     this.closed ??= e;
+    this.seen.reset();
     for (const w of this.waiting.splice(0)) w.fail(e);
   }
 
@@ -278,6 +282,7 @@ export class TerradClient {
     } else if (t === P.MsgType.PING) {
       this.ws.send(P.encodePing(P.decodePing(b).nonce, true));
     }
+    this.seen.handled(b); // after its listeners: handled
   }
 }
 

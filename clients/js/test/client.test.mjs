@@ -1,6 +1,6 @@
 // terrad-client (clients/js) against the real daemon on loopback, as an application uses it:
 // imported from the tarball `npm pack` made and `npm install` put in a fresh directory
-// ($TERRAD_CLIENT_DIR; tests/integration/test_ts_client.sh makes it). Checked: connect and
+// ($TERRAD_CLIENT_DIR; tests/integration/clients/test_ts_client.sh makes it). Checked: connect and
 // hello, a subscription's mirror, a collider driven with poses (ACKs, CONTACT feedback), the
 // prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
 // the worlds API (create, join, list, remove); bad input refused with errors naming the field.
@@ -13,7 +13,7 @@ import { pathToFileURL } from 'node:url';
 import { startDaemon, stopDaemon } from '../../../tests/support/browser.mjs';
 
 const APP = process.env.TERRAD_CLIENT_DIR;
-const skip = !APP && 'TERRAD_CLIENT_DIR (the installed package) not set: run tests/integration/test_ts_client.sh';
+const skip = !APP && 'TERRAD_CLIENT_DIR (the installed package) not set: run tests/integration/clients/test_ts_client.sh';
 const SCENE = {
   name: 'ts-client', world: { width: 128, height: 128, cell_size_m: 0.05 },
   terrain: { kind: 'dunes', min_height_m: 0.35, max_height_m: 0.45, wavelength_m: 4, octaves: 3, seed: 3 },

@@ -1,5 +1,5 @@
 // A TypeScript application of terrad-client, type-checked (tsc --noEmit) against the installed
-// package's declarations by tests/integration/test_ts_client.sh: the types are there and bite.
+// package's declarations by tests/integration/clients/test_ts_client.sh: the types are there and bite.
 import { TerradClient, TerradError, Worlds, type Pose } from 'terrad-client';
 
 export async function drive(url: string, http: string): Promise<bigint> {

@@ -1,5 +1,5 @@
 // The package's Node example (clients/js/examples/drive_wheel.ts, compiled against the installed
-// package by tests/integration/test_ts_client.sh into $TERRAD_CLIENT_DIR/drive_wheel.js) run
+// package by tests/integration/clients/test_ts_client.sh into $TERRAD_CLIENT_DIR/drive_wheel.js) run
 // against a real daemon with demo actors deforming the world, as the Python drive example is:
 // its mirror at the ACK of the tick GET /v1/heights names must equal those heights (exit 0).
 import { test, before, after } from 'node:test';
@@ -11,7 +11,7 @@ import { startDaemon, stopDaemon } from '../../../tests/support/browser.mjs';
 
 const APP = process.env.TERRAD_CLIENT_DIR;
 const EXAMPLE = APP && path.join(APP, 'drive_wheel.js');
-const skip = !(EXAMPLE && existsSync(EXAMPLE)) && 'the compiled example is missing: run tests/integration/test_ts_client.sh';
+const skip = !(EXAMPLE && existsSync(EXAMPLE)) && 'the compiled example is missing: run tests/integration/clients/test_ts_client.sh';
 let daemon;
 
 before(async () => {

@@ -27,8 +27,8 @@ from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
                     decode_footprints, decode_forces, decode_header, decode_ping, decode_stepped,
                     encode_ping, encode_step,
-                    edit, encode_pose_batch, error, hello, parse_control, resync, subscribe,
-                    unsubscribe)
+                    edit, encode_pose_batch, error, frame_tick, hello, parse_control, resync,
+                    seen, subscribe, unsubscribe)
 
 try:
     import numpy as _np
@@ -42,6 +42,9 @@ FrameKind = Union[MsgType, str]
 Callback = Callable[..., Union[None, Awaitable[None]]]
 
 #: The arguments each kind of callback is called with.
+#: How often, at most, a client tells the server the tick it has handled ("seen").
+SEEN_INTERVAL_S = 0.1
+
 CALLBACK_ARGS: dict[FrameKind, str] = {
     MsgType.DELTA: "(tick, rects) after the mirrors applied them",
     MsgType.CONTACT: "(tick, contacts)",
@@ -94,11 +97,13 @@ class Client:
     state above was updated."""
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
-                 max_size: int = 1 << 24, world: str = "", **connect_kwargs: Any):
+                 max_size: int = 1 << 24, world: str = "", say_seen: bool = True,
+                 **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
         ping_interval=None for a client that may stop reading for a while). world: the
         world a cluster node should serve this client (docs/cluster.md); "" for a single
-        daemon's one world."""
+        daemon's one world. say_seen: tell the server the tick handled (PROTOCOL.md "seen"),
+        so that it bounds this client's lag end to end; False: only its own queue is judged."""
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
         self.world_name = world
         self.connect_kwargs = connect_kwargs
@@ -127,6 +132,11 @@ class Client:
         self._step_seq = 0
         self._steps: dict[int, asyncio.Future[int]] = {}  # STEP seq -> its STEPPED tick
         self._reader: asyncio.Task[None] | None = None
+        # PROTOCOL.md "seen": the latest tick handled, and what and when the server was told
+        self.say_seen = say_seen
+        self._handled = self._said = 0
+        self._said_at = 0.0
+        self._seen_later: asyncio.Task[None] | None = None
         self._changed = asyncio.Event()
 
     async def __aenter__(self) -> Client:
@@ -173,6 +183,8 @@ class Client:
         return msg
 
     async def close(self) -> None:
+        if self._seen_later is not None:
+            self._seen_later.cancel()
         if self.ws is not None:
             await self.ws.close()
         if self._reader is not None:
@@ -324,12 +336,36 @@ class Client:
                     await self._on_json(data)
                 else:
                     await self._on_binary(data)
+                    await self._say_seen(frame_tick(data))
                 self._changed.set()
         finally:
             for fut in [*self._pending.values(), *self._steps.values()]:
                 if not fut.done():
                     fut.set_exception(ConnectionError("connection closed"))
             self._changed.set()
+
+    async def _say_seen(self, tick: int) -> None:
+        """Tell the server the latest tick handled (the frame's callbacks have run), at most
+        every SEEN_INTERVAL_S: it bounds this client's lag by it, frames waiting in this
+        client's own buffers included (PROTOCOL.md "seen")."""
+        self._handled = max(self._handled, tick)
+        if not self.say_seen or self._handled <= self._said:
+            return
+        loop = asyncio.get_running_loop()
+        wait = self._said_at + SEEN_INTERVAL_S - loop.time()
+        if wait <= 0:
+            self._said, self._said_at = self._handled, loop.time()
+            await self.ws.send(json.dumps(seen(self._handled)))
+        elif self._seen_later is None:  # the last frames before a pause are said too
+            self._seen_later = loop.create_task(self._say_seen_later(wait))
+
+    async def _say_seen_later(self, wait: float) -> None:
+        await asyncio.sleep(wait)
+        self._seen_later = None
+        try:
+            await self._say_seen(0)
+        except Exception:  # noqa: BLE001 - the connection closed meanwhile: the reader says why
+            pass
 
     async def _on_json(self, text: str) -> None:
         msg = parse_control(text)

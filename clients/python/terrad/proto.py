@@ -47,7 +47,7 @@ __all__ = [
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
     "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
-    "encode_step", "decode_step", "encode_stepped", "decode_stepped",
+    "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
 ]
 
 PROTOCOL_VERSION = 1
@@ -841,6 +841,19 @@ def resync(sid: int | None = None, ref=None) -> dict:
     if sid is not None:
         msg["id"] = sid
     return _with_ref(msg, ref)
+
+
+def seen(tick: int) -> dict:
+    """The latest tick whose frames this client has handled (PROTOCOL.md "seen"): the server
+    bounds the client's lag by it, end to end."""
+    return {"type": "seen", "tick": tick}
+
+
+def frame_tick(data: bytes) -> int:
+    """The tick a server frame carries (DELTA and after: u64 at offset 4), 0 for others."""
+    if len(data) >= 12 and data[2] >= MsgType.DELTA:
+        return struct.unpack_from("<Q", data, 4)[0]
+    return 0
 
 
 def edit(op: str, ref=None, **fields) -> dict:

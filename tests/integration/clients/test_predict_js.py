@@ -1,0 +1,89 @@
+#!/usr/bin/python3
+# ctest-timeout: 300
+"""Client-side prediction in JavaScript (web/predict.mjs over the WebAssembly twin,
+docs/engines.md "Prediction") against a real daemon (--backend cpu, no demo actors, a scene
+of dunes with its own material): tests/support/predict_drive.mjs, under Node 20 with its
+WebSocket, drives through two connections with the viewer's codec and reports; here:
+
+- the prediction shows the rut before the server could have it (at the first pressing
+  batch, before its bytes are sent, predicted heights below the mirror's);
+- 600 ticks, one batch per tick (a sphere, a rolling wheel and a capsule whose quaternion is
+  not of norm 1): at every compared ACK the JavaScript client's replay of the
+  server's ticks equals the server's heights in every cell, and with nothing pending the
+  prediction is the mirror;
+- a second connection ploughs the same window: the replay then differs from the server, and
+  after every reconciliation with nothing pending the prediction equals the mirror; at the
+  end the mirror equals GET /v1/heights and holds the other's rut;
+- bad input: a Prediction on a mirror without its snapshot, an unknown model: refused with
+  an error naming the field.
+Skips (77) without node, twin_trace or build/terrad_twin.wasm (the last fails instead under
+make test: service_harness.need_twin_wasm).
+"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
+from service_harness import SOURCE, Checks, Daemon, need_twin_wasm, skip, twin_config  # noqa: E402
+
+TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
+DRIVE = os.path.join(SOURCE, "tests", "support", "predict_drive.mjs")
+if not os.path.exists(TRACE):
+    skip("twin_trace not built")
+WASM = need_twin_wasm()
+if not shutil.which("node"):
+    skip("node missing")
+check = Checks()
+SCENE = {"name": "predict-js", "world": {"width": 256, "height": 256, "cell_size_m": 0.05},
+         "terrain": {"kind": "dunes", "min_height_m": 0.35, "max_height_m": 0.45,
+                     "wavelength_m": 4, "octaves": 3, "seed": 7},
+         "material": {"roughness": 0.4, "repose_deg": 30}, "colliders": []}
+REGION = (64, 80, 128, 96)
+
+
+def main():
+    with tempfile.TemporaryDirectory(prefix="terrad-predict-js-") as tmp:
+        scene, config = os.path.join(tmp, "scene.json"), os.path.join(tmp, "twin.json")
+        with open(scene, "w") as f:
+            json.dump(SCENE, f)
+        with open(config, "w") as f:
+            json.dump(twin_config(scene), f)
+        with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
+            p = subprocess.run(["node", "--experimental-websocket", "--no-warnings", DRIVE, d.ws,
+                                WASM, config, *map(str, REGION)],
+                               capture_output=True, text=True, timeout=240)
+            if not check(p.returncode == 0, f"the Node driver ran ({p.returncode}):\n{p.stderr[-3000:]}"):
+                return
+            out = json.loads(p.stdout.strip().splitlines()[-1])
+            drive, other, final = out["drive"], out["other"], out["final"]
+            print(f"JS drove 600 ticks: {drive}; with another client: {other}; "
+                  f"first rut seen early: {out.get('early')}", flush=True)
+            early = out.get("early") or {}
+            check(early.get("cells", 0) > 0 and early["ackedSeq"] < early["seq"],
+                  f"the prediction shows the rut before the server's ACK of its batch ({early})")
+            check(drive["replayed"] >= 10 and drive["exact"] == drive["replayed"],
+                  f"every compared ACK: the JavaScript replay equals the server in every cell "
+                  f"({drive['exact']} of {drive['replayed']}; {drive['skipped']} not compared)")
+            check(out["settled"], "with nothing pending, the prediction is the server's state")
+            check(min(out["ruts"]) > 20, f"sphere, wheel and capsule left ruts ({out['ruts']} cells "
+                  "of their rows lower)")
+            check(other["replayed"] > other["exact"],
+                  f"another client's rut makes the replay differ ({other})")
+            check(other["resets"] > 0 and other["resetsEqual"] == other["resets"] and final["settled"],
+                  f"after every reconciliation the prediction is the server's ({other})")
+            tick, http = d.heights(*REGION)
+            check(http == final["heights"] and tick >= final["tick"],
+                  "the mirror equals GET /v1/heights once all is acknowledged")
+            check(out["rutB"] > 20, f"the other client's rut is in the window ({out['rutB']} cells)")
+            check("snapshot" in out.get("refusedIncomplete", ""),
+                  f"a mirror without its snapshot is refused ({out.get('refusedIncomplete')})")
+            check("model" in out.get("refusedModel", ""),
+                  f"an unknown model is refused naming it ({out.get('refusedModel')})")
+            check(not out["errors"], f"no server errors ({out['errors'][:3]})")
+    check.finish()
+
+
+main()

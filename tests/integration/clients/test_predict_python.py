@@ -1,0 +1,231 @@
+#!/usr/bin/python3
+# ctest-timeout: 300
+"""Client-side prediction in the Python client (terrad.predict, docs/engines.md "Prediction")
+against a real daemon (--backend cpu, no demo actors, a flat scene of default material):
+
+- one client predicts a subscription and drives a sphere, a rolling wheel and a capsule
+  (its quaternion not of norm 1) through it for 600 ticks, one pose batch per tick. The prediction shows the rut before the server could have it: at the first
+  pressing batch, before its bytes are sent, the predicted heights are below the mirror's
+  under the sphere. At every ACK the replay of the server's ticks on the client's twin
+  (from the previous ACK's heights, with the poses the ACKs say the server used) equals the
+  server's heights at that tick in every cell: 0 cells differ at every compared ACK;
+- a second client ploughs through the same window while the first drives: the first one's
+  replay then differs from the server (it cannot know the other's rut), and after every
+  reconciliation with nothing pending the prediction equals the mirror, the rut of the
+  other included; at the end prediction, mirror and GET /v1/heights are equal at one tick;
+- bad input to the new API gets a clear error naming the field (an unknown subscription, a
+  subscription without its snapshot, an unknown model, a non-finite number, an unknown key;
+  terrad_twin_place with an unknown id or a NaN position), and the client goes on driving and
+  predicting;
+- terrad_twin_place, offline: a twin restarted from another's heights after one tick, its
+  sphere placed where that tick left it, gives the next tick the same heights as the twin
+  that ran both ticks.
+"""
+import asyncio
+import json
+import math
+import os
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
+from service_harness import BIN, Checks, Daemon, skip, twin_config  # noqa: E402
+
+import terrad  # noqa: E402
+from terrad import Client, MsgType, Pose, TwinError  # noqa: E402
+
+TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
+LIB = os.path.join(os.path.dirname(BIN), "libterrad-twin.so")
+if not (os.path.exists(TRACE) and os.path.exists(LIB)):
+    skip("twin_trace / libterrad-twin.so not built")
+os.environ["TERRAD_TWIN_LIBRARY"] = LIB
+check = Checks()
+WAIT = 120  # generous: the machine may be loaded
+SCENE = {"name": "predict", "world": {"width": 256, "height": 256, "cell_size_m": 0.05},
+         "terrain": {"kind": "flat", "height_m": 0.4}, "colliders": []}
+REGION = (64, 80, 128, 96)  # x, y, w, h cells: the predicted window
+
+
+def pose_at(cid, i, n, y_cell, z, cell):
+    """Along x through the window, leaving a 24-cell halo at both ends."""
+    x0, x1 = (REGION[0] + 24) * cell, (REGION[0] + REGION[2] - 24) * cell
+    return Pose(cid, x0 + (x1 - x0) * i / (n - 1), (y_cell + 0.5) * cell, z)
+
+
+async def bad_input(client, sid, cfg):
+    try:
+        client.predict(9999, cfg)
+        check(False, "predict on an unknown subscription is refused")
+    except ValueError as e:
+        check("sid" in str(e), f"an unknown subscription is refused naming sid ({e})")
+    late = await client.subscribe(0, 0, 8, 8)
+    client.mirrors[late].versions[0] = 0  # as if its snapshot had not come yet
+    try:
+        client.predict(late, cfg)
+        check(False, "predict before the snapshot is refused")
+    except ValueError as e:
+        check("snapshot" in str(e), f"predict before the snapshot is refused ({e})")
+    await client.unsubscribe(late)
+    for key, value in (("model", "nope"), ("compression", math.nan), ("shape_of_things", 1.0)):
+        try:
+            client.predict(sid, {**cfg, key: value})
+            check(False, f"predict with {key}={value} is refused")
+        except TwinError as e:
+            check(key in str(e), f"a bad {key} is refused naming it ({e})")
+    check(sid not in client.predictions, "a refused predict leaves no prediction behind")
+
+
+async def drive(d, cfg):
+    async with Client(d.ws) as a, Client(d.ws) as b:
+        world = a.world
+        cell, hz, units = world["cell_size_m"], world["tick_hz"], world["units_per_m"]
+        sid = await a.subscribe(*REGION)
+        await a.wait_complete(sid, WAIT)
+        await bad_input(a, sid, cfg)
+        pred = a.predict(sid, cfg)
+        early = {}
+
+        def seen(seq):  # called before batch seq's bytes are sent
+            if "cells" in early:
+                return
+            mine, server = pred.twin.read(), a.mirrors[sid].heights
+            lower = sum(1 for p, s in zip(mine, server) if p < s)
+            if lower:
+                early.update(cells=lower, seq=seq, acked=a.acked_seq)
+
+        pred.on_predict(seen)
+        radius = 0.3
+        z = 0.4 + radius - 0.06
+        ball = await a.create_collider("sphere", radius=radius)
+        # A rolling wheel (the axle's quaternion turning) and a capsule lying along x (a
+        # quaternion of norm 1.04, turned from the wire's z axis): the server's pose
+        # arithmetic, float32 and normalisation, is the prediction's too.
+        wheel = await a.create_collider("wheel", radius=radius, width=0.2)
+        capsule = await a.create_collider("capsule", radius=0.12, half_length=0.25)
+        y_a, y_w, y_c = REGION[1] + 20, REGION[1] + 40, REGION[1] + 60
+        n = 600
+
+        def own_poses(i):
+            wp = pose_at(wheel, i, n, y_w, z, cell)
+            angle = wp.x / radius
+            wp.qw, wp.qy = math.cos(angle / 2), math.sin(angle / 2)
+            cp = pose_at(capsule, i, n, y_c, 0.4 + 0.12 - 0.04, cell)
+            cp.qw = cp.qy = 1.04 * math.sqrt(0.5)
+            return [pose_at(ball, i, n, y_a, z, cell), wp, cp]
+
+        for i in range(n):
+            await a.send_poses(own_poses(i))
+            await asyncio.sleep(1 / hz)
+        last = own_poses(n - 1)
+        for p in last:
+            p.z += 5.0
+        await a.send_poses(last)
+        seq = await a.send_poses([pose_at(ball, n - 1, n, y_a, z + 5.0, cell)])  # lifted
+        await a.wait_ack(seq, WAIT)
+        print(f"drove {n} ticks: {pred.predicted} batches predicted, {pred.reconciled} ACKs "
+              f"reconciled, {pred.replayed} replays compared ({pred.exact} exact), {pred.on_time} "
+              f"predictions already the server's heights at their ACK, "
+              f"{pred.skipped} not compared; first rut seen early: {early}", flush=True)
+        check(early.get("cells", 0) > 0 and early["acked"] < early["seq"],
+              f"the prediction shows the rut before the server's ACK of its batch ({early})")
+        check(pred.replayed >= 10 and pred.exact == pred.replayed,
+              f"every compared ACK: the client's replay equals the server's heights in every "
+              f"cell ({pred.exact} of {pred.replayed} exact; {pred.skipped} not compared, "
+              f"{pred.reconciled} reconciliations, last differing {pred.last_differing})")
+        check(list(pred.twin.read()) == list(a.mirrors[sid].heights),
+              "with nothing pending, the prediction is the server's state")
+        rows = [list(pred.twin.read(REGION[0], y, REGION[2], 1)) for y in (y_a, y_w, y_c)]
+        check(all(min(r) < int(0.4 * units) - int(0.02 * units) for r in rows),
+              f"sphere, wheel and capsule left ruts ({[min(r) for r in rows]} units at the deepest)")
+
+        # A second client ploughs the same window: only the server knows its rut.
+        ball_b = await b.create_collider("sphere", radius=radius)
+        y_b = REGION[1] + 80
+        resets = []
+
+        def after_ack(tick, seq):  # runs after the prediction reconciled this ACK
+            if not pred.pending:
+                resets.append(list(pred.twin.read()) == list(a.mirrors[sid].heights))
+
+        a.on(MsgType.ACK, after_ack)
+        replayed0, exact0 = pred.replayed, pred.exact
+        n2 = 240
+        for i in range(n2):
+            await b.send_poses([pose_at(ball_b, i, n2, y_b, z, cell)])
+            if i % 2 == 0:  # a still sphere of its own, so that ACKs come to the first client
+                await a.send_poses([pose_at(ball, n - 1, n, y_a, z + 5.0, cell)])
+            await asyncio.sleep(1 / hz)
+        seq_b = await b.send_poses([pose_at(ball_b, n2 - 1, n2, y_b, z + 5.0, cell)])
+        await b.wait_ack(seq_b, WAIT)
+        seq = await a.send_poses([pose_at(ball, n - 1, n, y_a, z + 5.0, cell)])
+        await a.wait_ack(seq, WAIT)  # an ACK with nothing pending, after all of B's rut
+        check(pred.replayed - replayed0 > pred.exact - exact0,
+              "another client's rut makes the replay differ from the server "
+              f"({pred.exact - exact0} of {pred.replayed - replayed0} exact)")
+        check(len(resets) > 0 and all(resets),
+              f"after every reconciliation the prediction is the server's ({resets.count(False)} "
+              f"of {len(resets)} not)")
+
+        # The end: prediction, mirror and GET /v1/heights at one tick.
+        loop = asyncio.get_running_loop()
+        same = False
+        for _ in range(10):
+            tick, grid = await loop.run_in_executor(None, lambda: d.heights(*REGION))
+            seq = await a.send_poses([pose_at(ball, n - 1, n, y_a, z + 5.0, cell)])
+            await a.wait_ack(seq, WAIT)
+            if a.acked_tick >= tick:
+                http = [int(v) for v in grid]
+                same = http == list(a.mirrors[sid].heights) == list(pred.twin.read())
+                break
+        check(same, "prediction, mirror and GET /v1/heights are equal once all is acknowledged")
+        check(any(v < int(0.4 * units) for v in a.mirrors[sid].heights[80 * REGION[2]:81 * REGION[2]]),
+              "the second client's rut is in the first client's prediction")
+        check(not a.errors, f"no errors reached the client ({a.errors[:3]})")
+        check(terrad.Prediction is type(pred), "the package exports Prediction")
+
+
+def place_resumes(cfg):
+    """terrad_twin_place: a twin restarted from another's heights after tick 1, its sphere
+    placed where tick 1 left it, gives tick 2 the same heights as the twin that ran both (the
+    sweep from the placed pose, not a fresh first press); bad places are refused."""
+    window = (REGION[0], REGION[1], REGION[2], REGION[3])
+    p, q = (4.6, 5.9, 0.64), (0.95, 0.0, 0.31, 0.0)
+    p2 = (4.75, 5.9, 0.64)
+    with terrad.Twin(cfg, *window) as a:
+        a.add_collider(7, "sphere", radius=0.3)
+        a.set_pose(7, p, q)
+        a.tick()
+        after1 = a.read()
+        a.set_pose(7, p2, q)
+        a.tick()
+        after2 = a.read()
+    with terrad.Twin(cfg, *window, heights=after1) as b:
+        b.add_collider(7, "sphere", radius=0.3)
+        b.place(7, p, q)
+        b.set_pose(7, p2, q)
+        b.tick()
+        check(b.read() == after2 and after2 != after1,
+              "a placed collider resumes exactly: tick 2 from tick 1's heights equals the run")
+        for args, field in (((8, p, q), "id"), ((7, (math.nan, 1.0, 1.0), q), "position")):
+            try:
+                b.place(*args)
+                check(False, f"place refuses a bad {field}")
+            except TwinError as e:
+                check(field in str(e), f"place refuses a bad {field} naming it ({e})")
+        b.tick()  # and goes on
+
+
+def main():
+    with tempfile.TemporaryDirectory(prefix="terrad-predict-") as tmp:
+        path = os.path.join(tmp, "scene.json")
+        with open(path, "w") as f:
+            json.dump(SCENE, f)
+        cfg = twin_config(path)
+        check(cfg.get("model") and cfg.get("width") == 256, f"the scene's twin config ({cfg})")
+        place_resumes(cfg)
+        with check.running(Daemon(extra=["--scene", path, "--no-data"])) as d:
+            asyncio.run(asyncio.wait_for(drive(d, cfg), 240))
+    check.finish()
+
+
+main()

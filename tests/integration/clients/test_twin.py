@@ -1,0 +1,180 @@
+#!/usr/bin/python3
+# ctest-timeout: 600
+"""The twin library (server/twin/terrad_twin.h, docs/engines.md) against the daemon's twin.
+
+- Every scene under tests/scenes/ (and one small scene per deformation model) is
+  run by `terrad simulate --backend cpu` and replayed through the twin library
+  twice: natively (tests/support/twin_replay.c, linked to libterrad-twin.so
+  alone) and as WebAssembly under Node (tests/support/twin_replay.mjs over
+  build/terrad_twin.wasm with web/twin.mjs). The final heights differ in 0
+  cells, and the scene did deform (so equality is not trivial). A scene the
+  library does not take (per-cell materials) is named and counted as skipped.
+- Bad input to the C API (ctypes over libterrad-twin.so): an unknown key, a
+  non-finite value, an unknown model or shape, a window outside the world, a
+  pose with NaN, an unknown collider, a read outside the window: each refused
+  with a sentence naming the field, and the twin goes on working.
+"""
+import ctypes
+import glob
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
+from service_harness import BIN, SOURCE, Checks, need_twin_wasm, skip  # noqa: E402
+
+TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
+REPLAY = os.environ.get("TERRAD_TWIN_REPLAY", "")
+REPLAY_MJS = os.path.join(SOURCE, "tests", "support", "twin_replay.mjs")
+MODELS = ["persson-iterative", "persson-ssbo", "persson-multi", "subtract", "deferred",
+          "diffusion", "sumner", "decals", "bekker"]
+check = Checks()
+if not (os.path.exists(TRACE) and os.path.exists(REPLAY)):
+    skip("twin_trace / twin_replay not built")
+# Without the wasm module (a failure under make test) or node, only the native replays run.
+WASM = need_twin_wasm(check)
+have_wasm = WASM is not None and subprocess.run(["node", "--version"],
+                                                capture_output=True).returncode == 0
+tmp = tempfile.mkdtemp(prefix="terrad-twin-")
+
+
+def read_file(path):
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def differing(a, b):
+    """Cells (int32) that differ between two raw height files of one size."""
+    if len(a) != len(b):
+        return -1
+    va, vb = memoryview(a).cast("i"), memoryview(b).cast("i")
+    return sum(1 for i in range(len(va)) if va[i] != vb[i])
+
+
+# Scenes that leave the heights as they were, by design: no colliders (large-dunes is the
+# viewer's level-of-detail scene), one cell with nowhere to push material (tiny), and the
+# decals model, which sends footprint events only.
+UNCHANGED = {"large-dunes", "tiny", "model decals"}
+
+
+def compare(scene, ticks, label):
+    base = os.path.join(tmp, label)
+    with open(base + ".trace", "w") as f:
+        t = subprocess.run([TRACE, scene, str(ticks)], stdout=f, stderr=subprocess.PIPE,
+                           text=True, timeout=120)
+    if t.returncode == 77:
+        print(f"{label}: not replayed: {read_file(base + '.trace').decode().strip()}", flush=True)
+        check.skipped += 1
+        return
+    if not check(t.returncode == 0, f"{label}: twin_trace ran: {t.stderr[-300:]}"):
+        return
+    outs = {}
+    for name, ticks_run in (("start", 0), ("sim", ticks)):
+        p = subprocess.run([BIN, "simulate", "--scene", scene, "--ticks", str(ticks_run),
+                            "--backend", "cpu", "--out", f"{base}.{name}"],
+                           capture_output=True, text=True, timeout=300)
+        if not check(p.returncode == 0, f"{label}: simulate --ticks {ticks_run}: {p.stderr[-300:]}"):
+            return
+        outs[name] = read_file(f"{base}.{name}")
+    changed = differing(outs["start"], outs["sim"])
+    check(changed == 0 if label in UNCHANGED else changed > 0,
+          f"{label}: {changed} cells changed in simulate")
+    with open(base + ".trace") as f:
+        r = subprocess.run([REPLAY, base + ".native"], stdin=f, capture_output=True, text=True,
+                           timeout=300)
+    if check(r.returncode == 0, f"{label}: native replay: {r.stderr[-300:]}"):
+        n = differing(outs["sim"], read_file(base + ".native"))
+        check(n == 0, f"{label}: native twin library vs simulate: {n} cells differ")
+    if not have_wasm:
+        print(f"info: {label}: no WebAssembly twin or no node: the wasm replay is skipped",
+              flush=True)
+        return
+    r = subprocess.run(["node", "--no-warnings", REPLAY_MJS, WASM, base + ".trace",
+                        base + ".wasm"], capture_output=True, text=True, timeout=300)
+    if check(r.returncode == 0, f"{label}: wasm replay: {r.stderr[-500:]}"):
+        n = differing(outs["sim"], read_file(base + ".wasm"))
+        check(n == 0, f"{label}: WebAssembly twin library vs simulate: {n} cells differ")
+
+
+for scene in sorted(glob.glob(os.path.join(SOURCE, "tests", "scenes", "*.json"))):
+    name = os.path.splitext(os.path.basename(scene))[0]
+    big = name in ("large-dunes", "thesis-car")
+    compare(scene, 60 if big else 150, name)
+
+for model in MODELS:
+    scene = {
+        "name": "twin-" + model,
+        "world": {"width": 160, "height": 96, "cell_size_m": 0.05},
+        "terrain": {"kind": "dunes", "min_height_m": 0.3, "max_height_m": 0.5,
+                    "wavelength_m": 2.0, "seed": 7},
+        "material": {"model": model, "refill_m_per_s": 0.05},
+        "colliders": [
+            {"name": "ball", "shape": "sphere", "radius": 0.3, "position": [1.0, 2.4, 0.7],
+             "motion": {"velocity": [1.2, 0.3, 0]}},
+            {"name": "wheel", "shape": "cylinder", "radius": 0.3, "half_length": 0.1,
+             "position": [6.0, 1.5, 0.65], "motion": {"velocity": [-1.0, 0, 0]}}],
+    }
+    path = os.path.join(tmp, f"model-{model}.json")
+    with open(path, "w") as f:
+        json.dump(scene, f)
+    compare(path, 120, "model " + model)
+
+# ---- bad input to the C API ----
+lib = ctypes.CDLL(os.path.join(os.path.dirname(REPLAY), "libterrad-twin.so"))
+lib.terrad_twin_config_new.restype = ctypes.c_void_p
+lib.terrad_twin_config_set.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_double,
+                                       ctypes.c_char_p]
+lib.terrad_twin_config_set_name.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_char_p,
+                                            ctypes.c_char_p]
+lib.terrad_twin_create.restype = ctypes.c_void_p
+lib.terrad_twin_create.argtypes = [ctypes.c_void_p] + [ctypes.c_int] * 4 + [
+    ctypes.c_void_p, ctypes.c_char_p]
+lib.terrad_twin_add_collider.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p] + [
+    ctypes.c_double] * 5 + [ctypes.c_char_p]
+lib.terrad_twin_set_pose.argtypes = [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_double] * 7 + [
+    ctypes.c_char_p]
+lib.terrad_twin_tick.argtypes = [ctypes.c_void_p, ctypes.c_char_p]
+lib.terrad_twin_read.argtypes = [ctypes.c_void_p] + [ctypes.c_int] * 4 + [ctypes.c_void_p,
+                                                                          ctypes.c_char_p]
+lib.terrad_twin_destroy.argtypes = [ctypes.c_void_p]
+lib.terrad_twin_config_free.argtypes = [ctypes.c_void_p]
+err = ctypes.create_string_buffer(256)
+
+
+def refused(rc, field):
+    text = err.value.decode()
+    check(rc == -1 and field in text, f"refused naming {field!r}: rc {rc}, {text!r}")
+
+
+cfg = lib.terrad_twin_config_new()
+refused(lib.terrad_twin_config_set(cfg, b"widht", 10, err), "widht")
+refused(lib.terrad_twin_config_set(cfg, b"roughness", float("nan"), err), "roughness")
+refused(lib.terrad_twin_config_set(cfg, b"width", 12.5, err), "width")
+refused(lib.terrad_twin_config_set_name(cfg, b"model", b"clay", err), "model")
+for key, value in ((b"width", 64), (b"height", 64), (b"terrain.height_m", 0.4)):
+    check(lib.terrad_twin_config_set(cfg, key, value, err) == 0, f"set {key}")
+check(lib.terrad_twin_create(cfg, 40, 40, 40, 40, None, err) is None
+      and "window" in err.value.decode(), f"a window outside the world: {err.value!r}")
+lib.terrad_twin_config_set(cfg, b"roughness", 2.0, err)
+check(lib.terrad_twin_create(cfg, 0, 0, 64, 64, None, err) is None
+      and "roughness" in err.value.decode(), f"roughness out of range at create: {err.value!r}")
+lib.terrad_twin_config_set(cfg, b"roughness", 0.3, err)
+twin = lib.terrad_twin_create(cfg, 8, 8, 48, 48, None, err)
+check(twin is not None, f"a 48 x 48 window of the base: {err.value!r}")
+refused(lib.terrad_twin_add_collider(twin, 1, b"cone", 0.3, 0, 0, 0, 0, err), "shape")
+refused(lib.terrad_twin_add_collider(twin, 1, b"sphere", -1, 0, 0, 0, 0, err), "radius")
+check(lib.terrad_twin_add_collider(twin, 1, b"sphere", 0.3, 0, 0, 0, 0, err) == 0, "a sphere")
+refused(lib.terrad_twin_add_collider(twin, 1, b"sphere", 0.3, 0, 0, 0, 0, err), "id")
+refused(lib.terrad_twin_set_pose(twin, 1, float("nan"), 1, 0.5, 1, 0, 0, 0, err), "position")
+refused(lib.terrad_twin_set_pose(twin, 2, 1, 1, 0.5, 1, 0, 0, 0, err), "id")
+cells = (ctypes.c_int32 * (48 * 48))()
+refused(lib.terrad_twin_read(twin, 0, 0, 48, 48, cells, err), "read")
+check(lib.terrad_twin_set_pose(twin, 1, 1.6, 1.6, 0.6, 1, 0, 0, 0, err) == 0, "a good pose")
+check(lib.terrad_twin_tick(twin, err) == 0, f"it ticks after the refusals: {err.value!r}")
+check(lib.terrad_twin_read(twin, 8, 8, 48, 48, cells, err) == 0
+      and min(cells) < 4000 and max(cells) > 4000, "the sphere pressed into the 0.4 m base")
+lib.terrad_twin_destroy(twin)
+lib.terrad_twin_config_free(cfg)
+check.finish()

@@ -1,0 +1,252 @@
+#!/usr/bin/python3
+# ctest-timeout: 900
+"""Lockstep co-simulation (issue 30, items 1 and 2): client-clocked worlds stepped by a real C
+client (tests/support/c_cosim_drive.c, over libterrad-client's terrad_client_step_many) against
+real daemons on loopback:
+
+- determinism: the same 2,000-step script (a four-wheeled rover on bekker soil, two wheels
+  load-driven and two pose-driven; steps of one tick, of three ticks with a pose set each, of
+  two ticks holding) run in two worlds stepped as one on a daemon with --threads 1, then in two
+  worlds each stepped alone on a daemon with --threads 2 and TERRAD_NO_AVX2=1: every FORCES
+  entry of every tick (floats compared bit for bit), every STEPPED tick, every height of the
+  mirror, the world's Σh and Σ compacted soil (/v1/stats) and its data directory byte for byte
+  (the log records hold every tick's changed heights and per-cell soil state) are identical in
+  all four;
+- kill -9 keeps every acknowledged step (--durability every-tick): a driver that stops after
+  its steps leaves a world whose recovered tick is at least the last STEPPED tick and whose
+  heights are the client's mirror; a daemon killed while a driver is stepping recovers at
+  least the last tick the driver saw acknowledged;
+- a wall-clocked world refuses a STEP naming "clock"; a second would-be driver is refused
+  naming "driver"; "clock" of neither kind is refused by POST /v1/worlds naming "clock";
+- the daemon's own world (--scene) client-clocked does not tick by itself, and a driver steps it;
+- under --durability group:MS (a tick's frames held until the sync that covers it) every step is
+  answered: the step's end syncs, as no later tick would publish them.
+
+Behaviour only: every wait is for a condition, with a generous deadline.
+"""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
+from service_harness import BIN, Checks, Daemon, json_call  # noqa: E402
+from waiting import wait_for  # noqa: E402
+
+check = Checks()
+DRIVE = os.environ.get("TERRAD_C_COSIM_DRIVE", os.path.join(os.path.dirname(BIN), "c_cosim_drive"))
+STEPS = 2000
+W, H = 96, 64  # c_cosim_drive's world
+
+
+def scene():
+    return {"name": "cosim", "world": {"width": W, "height": H, "cell_size_m": 0.05},
+            "terrain": {"kind": "flat", "height_m": 0.4},
+            "material": {"model": "bekker", "compression": 0.5, "soil": {"preset": "ding2011"}}}
+
+
+def create(d, name, clock="client"):
+    status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": name, "clock": clock, "scene": scene()})
+    check(status == 201, f"POST /v1/worlds {name} ({clock}): {status} {doc}")
+
+
+def drive(d, worlds, mode, steps=STEPS, out=None):
+    """Runs c_cosim_drive to its end; returns {world: its output text}."""
+    out = out or tempfile.mkdtemp(prefix="terrad-cosim-")
+    prefix = os.path.join(out, "drive")
+    r = subprocess.run([DRIVE, str(d.ws_port), ",".join(worlds), str(steps), prefix, mode],
+                       capture_output=True, text=True, timeout=600)
+    check(r.returncode == 0, f"c_cosim_drive {mode} {worlds}: rc {r.returncode}: {r.stderr[-2000:]}")
+    texts = {}
+    for w in worlds:
+        with open(f"{prefix}.{w}") as f:
+            texts[w] = f.read()
+    return texts
+
+
+def stats(d, world):
+    status, doc = json_call(d.http, "GET", f"/v1/stats?world={world}")
+    return (doc.get("volume"), doc.get("soil_compacted")) if status == 200 else None
+
+
+def mirror_of(text):
+    """The MIRROR block of a drive's output: W*H heights."""
+    lines = text.split("MIRROR", 1)[1].splitlines()[1:]
+    return [int(v) for line in lines for v in line.split()]
+
+
+def heights(d, world):
+    status, body, _ = d.get(f"/v1/heights?x=0&y=0&w={W}&h={H}&world={world}", timeout=60)
+    import struct
+    return list(struct.unpack(f"<{W * H}i", body)) if status == 200 and len(body) == 4 * W * H else None
+
+
+def world_tick(d, world):
+    status, doc = json_call(d.http, "GET", "/v1/worlds")
+    ticks = {w["name"]: w["tick"] for w in doc.get("worlds", [])} if status == 200 else {}
+    return ticks.get(world)
+
+
+def store_bytes(d, world):
+    """Every file of world's data directory (its log records hold each tick's changed heights
+    and per-cell soil state), by name; LOCK left out."""
+    root = os.path.join(d.data_dir, "worlds", world)
+    out = {}
+    for dirpath, _, files in os.walk(root):
+        for name in files:
+            if name != "LOCK":
+                with open(os.path.join(dirpath, name), "rb") as f:
+                    out[os.path.relpath(os.path.join(dirpath, name), root)] = f.read()
+    return out
+
+
+def determinism():
+    runs = {}
+    with check.running(Daemon(extra=["--threads", "1"], name="threads-1")) as d:
+        create(d, "a")
+        create(d, "b")
+        texts = drive(d, ["a", "b"], "many")
+        for w in ("a", "b"):
+            runs[f"1 thread, stepped as one: {w}"] = (texts[w], stats(d, w), store_bytes(d, w))
+    with check.running(Daemon(extra=["--threads", "2"], env={"TERRAD_NO_AVX2": "1"},
+                              name="threads-2")) as d:
+        create(d, "a")
+        create(d, "b")
+        texts = drive(d, ["a", "b"], "alone")
+        for w in ("a", "b"):
+            runs[f"2 threads, no AVX2, stepped alone: {w}"] = (texts[w], stats(d, w), store_bytes(d, w))
+    (first, (text, st, logged)), *rest = runs.items()
+    forces = text.count("\nF ")
+    check(forces > 4 * STEPS, f"{first}: {forces} FORCES entries")
+    check(text.count("STEPPED ") == STEPS, f"{first}: a STEPPED per step")
+    m = mirror_of(text)
+    check(len(m) == W * H and len(set(m)) > 10, f"{first}: the mirror holds the rover's ruts")
+    check(st and st[1] and st[1] > 0, f"{first}: soil compacted ({st})")
+    check(any(n.startswith("wal-") and len(b) > 1000 for n, b in logged.items()),
+          f"{first}: its log holds the ticks ({sorted(logged)})")
+    for name, (t, s, lg) in rest:
+        check(t == text, f"{name}: FORCES, STEPPED ticks and heights identical to {first}")
+        check(s == st, f"{name}: volume and compacted soil {s} == {st}")
+        check(lg == logged, f"{name}: its data directory (every tick's heights and soil state, "
+              f"as logged) byte for byte that of {first}")
+
+
+def acked(lines):
+    ticks = [int(line.split()[2]) for line in lines if line.startswith("ACKED ")]
+    return ticks[-1] if ticks else 0
+
+
+def kill9():
+    data = tempfile.mkdtemp(prefix="terrad-cosim-data-")
+    out = tempfile.mkdtemp(prefix="terrad-cosim-")
+    d = Daemon(data_dir=data, durability="every-tick", name="before-kill")
+    create(d, "k")
+    create(d, "m")
+    # a driver that stops after its steps: the world waits, the daemon dies
+    p = subprocess.Popen([DRIVE, str(d.ws_port), "k", "300", os.path.join(out, "drive"), "pause"],
+                         stdout=subprocess.PIPE, text=True)
+    lines = []
+    for line in p.stdout:
+        lines.append(line)
+        if line.startswith("PAUSED"):
+            break
+    last = acked(lines)
+    check(last > 0 and lines[-1].startswith("PAUSED"), f"paused driver: {lines[-3:]}")
+    d.kill9()
+    p.kill()
+    p.wait()
+    with open(os.path.join(out, "drive.k")) as f:
+        mirror = mirror_of(f.read())
+    d = Daemon(data_dir=data, durability="every-tick", name="after-kill")
+    try:
+        tick = wait_for(lambda: world_tick(d, "k"), 60)
+        check(tick is not None and tick >= last, f"recovered tick {tick} >= the last STEPPED tick {last}")
+        check(heights(d, "k") == mirror, "recovered heights == the driver's mirror at its last STEPPED tick")
+        # a daemon killed while its driver steps
+        p = subprocess.Popen([DRIVE, str(d.ws_port), "m", str(STEPS), os.path.join(out, "drive")],
+                             stdout=subprocess.PIPE, text=True)
+        lines = []
+        for line in p.stdout:
+            lines.append(line)
+            if len(lines) >= 400:
+                break
+        d.kill9()
+        lines += p.stdout.readlines()
+        p.wait()
+        last = acked(lines)
+        check(p.returncode != 0 and 400 <= len(lines) < STEPS, f"the driver lost its daemon after {len(lines)} steps")
+    finally:
+        d.stop()
+    with check.running(Daemon(data_dir=data, durability="every-tick", name="after-second-kill")) as d:
+        tick = wait_for(lambda: world_tick(d, "m"), 60)
+        check(tick is not None and tick >= last, f"recovered tick {tick} >= the last STEPPED tick {last} seen")
+
+
+def refusals():
+    with check.running(Daemon(name="refusals")) as d:
+        create(d, "wall", clock="wall")
+        create(d, "c")
+        status, doc = json_call(d.http, "GET", "/v1/worlds")
+        clocks = {w["name"]: w.get("clock") for w in doc.get("worlds", [])}
+        check(clocks.get("wall") == "wall" and clocks.get("c") == "client", f"GET /v1/worlds says the clock: {clocks}")
+        status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": "x", "clock": "sundial", "scene": scene()})
+        check(status == 400 and doc.get("field") == "clock", f"clock sundial: {status} {doc}")
+        bad = dict(scene(), clock="sundial")
+        status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": "y", "scene": bad})
+        check(status == 422 and "clock" in doc.get("error", ""), f"scene clock sundial: {status} {doc}")
+        out = tempfile.mkdtemp(prefix="terrad-cosim-")
+        r = subprocess.run([DRIVE, str(d.ws_port), "wall", "3", os.path.join(out, "w")],
+                           capture_output=True, text=True, timeout=120)
+        check(r.returncode != 0 and "client-clocked" in r.stderr, f"a wall world is not stepped: {r.stderr}")
+        # one driver at a time: a second driver is refused naming driver while the first waits
+        p = subprocess.Popen([DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d1"), "pause"],
+                             stdout=subprocess.PIPE, text=True)
+        for line in p.stdout:
+            if line.startswith("PAUSED"):
+                break
+        r = subprocess.run([DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d2")],
+                           capture_output=True, text=True, timeout=120)
+        check(r.returncode != 0 and "driver: client" in r.stderr, f"second driver: {r.stderr}")
+        p.kill()
+        p.wait()
+        # the first driver gone, the next one drives
+        ok = wait_for(lambda: subprocess.run([DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d3")],
+                                             capture_output=True, timeout=120).returncode == 0, 60, step=0.5)
+        check(ok, "a new driver once the first left")
+        _, text = d.metrics()
+        check('terrad_steps_refused_total{field="driver"} 1' in text, "driver refusal counted")
+
+
+def group_commit():
+    """Under --durability group:MS a tick's frames wait for the sync that covers it; a
+    client-clocked world has no later tick to publish them, so its step's end syncs: every
+    step is answered, its ticks durable."""
+    with check.running(Daemon(durability="group:400", name="group-commit")) as d:
+        create(d, "g")
+        texts = drive(d, ["g"], "many", steps=40)
+        check(texts["g"].count("STEPPED ") == 40, "every step answered under group:400")
+
+
+def default_world():
+    """The daemon's own world (--scene) may be client-clocked too: it waits for its driver, and
+    a driver (hello naming the scene) steps it as any created world."""
+    fd, path = tempfile.mkstemp(prefix="terrad-cosim-scene-", suffix=".json")
+    with os.fdopen(fd, "w") as f:
+        json.dump(dict(scene(), clock="client"), f)
+    try:
+        with check.running(Daemon(extra=["--scene", path], name="default-world")) as d:
+            check(d.stats()["tick"] == 0, "a client-clocked default world does not tick by itself")
+            texts = drive(d, ["cosim"], "many", steps=30)
+            tick = int(texts["cosim"].split("STEPPED ")[-1].split()[0])
+            check(d.stats()["tick"] == tick, f"its tick is the last STEPPED: {d.stats()['tick']} == {tick}")
+    finally:
+        os.unlink(path)
+
+
+determinism()
+kill9()
+refusals()
+group_commit()
+default_world()
+check.finish()

@@ -1,0 +1,158 @@
+#!/usr/bin/python3
+# ctest-timeout: 480
+"""Replay (issue 32 item 3; docs/storage.md "Replay"): GET /v1/heights?tick=N rebuilds a
+past tick from the data directory, and it is what was served live at that tick, bit for bit.
+
+- A real client presses a sphere along a track (tests/support/compaction_drive.py's scene)
+  against a daemon with 4 KiB log segments, so the log is compacted into tile snapshots
+  many times during the drive, and --replay-retain-bytes keeping the whole log. After
+  every few ACKs the test reads GET /v1/heights as served live then (its X-Terrad-Tick).
+- Afterwards, ?tick=N of each of those ticks equals the live answer exactly — after the
+  compactions, and again after kill -9 and a restart on the directory.
+- The same for a world created with POST /v1/worlds (?world=NAME&tick=N).
+- Refusals, each naming the parameter, counted, the daemon going on: a tick in the future
+  (400), not a number (400), with base= (400); a daemon without retention (the default):
+  an early tick whose log was compacted away is 410 while a tick after the newest snapshot
+  is still rebuilt exactly; a memory-only daemon: 404.
+
+Without store_replay_rect ?tick= is ignored and the live heights come back: every
+comparison of an early tick fails (the world has changed since) and no refusal is seen.
+"""
+import asyncio
+import os
+import shutil
+import struct
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
+from service_harness import Checks, Daemon, RecordingClient, json_call, metric_value  # noqa: E402
+import compaction_drive as cd  # noqa: E402
+import terrad as tp  # noqa: E402
+
+check = Checks()
+SEGMENT = ["--wal-segment-bytes", "4096"]
+RETAIN = ["--replay-retain-bytes", str(64 << 20)]
+WORLD = "replay-match"
+
+
+def read(d, query):
+    """(status, tick, heights or error text) of GET /v1/heights?x=0&y=0&w=W&h=H&query."""
+    status, body, headers = d.get(f"/v1/heights?x=0&y=0&w={cd.W}&h={cd.H}{query}", timeout=60)
+    if status != 200:
+        return status, None, body.decode(errors="replace")
+    return status, int(headers["X-Terrad-Tick"]), list(struct.unpack(f"<{cd.W * cd.H}i", body))
+
+
+async def drive(d, world=""):
+    """Presses a sphere along the track; every 4th ACK, the live heights (GET /v1/heights at
+    that moment). Returns {tick: heights}."""
+    live = {}
+    c = RecordingClient(d.ws, name="driver", world=world or None, record=False)
+    await c.connect()
+    sphere = await c.create_collider("sphere", radius=cd.RADIUS)
+    z = cd.GROUND + cd.RADIUS - 0.03
+    query = f"&world={world}" if world else ""
+    for i, x in enumerate(cd.FIRST[:40]):
+        seq = await c.send_poses([tp.Pose(sphere, x, cd.Y, z, 1.0, 0.0, 0.0, 0.0)])
+        await c.wait_ack(seq, cd.WAIT)
+        if i % 4 == 3:
+            status, tick, hs = read(d, query)
+            if check(status == 200, f"live read {i}: 200 ({status} {hs if status != 200 else ''})"):
+                live[tick] = hs
+    await c.close()
+    return live
+
+
+def compare(d, live, what, world=""):
+    query = f"&world={world}" if world else ""
+    same = 0
+    for tick, hs in sorted(live.items()):
+        status, got_tick, got = read(d, f"{query}&tick={tick}")
+        ok = status == 200 and got_tick == tick and got == hs
+        if not ok:
+            diff = "" if status != 200 else sum(a != b for a, b in zip(got, hs))
+            check(False, f"{what}: ?tick={tick} equals the heights served live then "
+                         f"({status} {got if status != 200 else f'{diff} cells differ'})")
+        same += ok
+    first = min(live)
+    _, now, current = read(d, query)
+    check(current != live[first], f"{what}: the world changed since tick {first} (so the test can fail)")
+    check(same == len(live) and len(live) >= 5,
+          f"{what}: all {len(live)} recorded ticks rebuilt bit for bit ({same} equal)")
+
+
+def compactions(d):
+    return metric_value(d.metrics()[1], "terrad_store_compactions_total") or 0
+
+
+def refusals(d, world_tick):
+    before = metric_value(d.metrics()[1], "terrad_http_bad_requests_total") or 0
+    for query, code, say in ((f"&tick={world_tick + 100000}", 400, "parameter tick: "),
+                             ("&tick=abc", 400, "parameter tick must be a decimal integer"),
+                             ("&tick=-3", 400, "parameter tick must be a decimal integer"),
+                             ("&tick=5&base=1", 400, "parameter tick: a past tick serves heights only")):
+        status, _, why = read(d, query)
+        check(status == code and say in why, f"?{query[1:]}: {code} naming the field ({status} {why!r})")
+    after = metric_value(d.metrics()[1], "terrad_http_bad_requests_total")
+    check(after == before + 4, f"each counted in terrad_http_bad_requests_total ({before} -> {after})")
+    check(d.stats()["ready"], "and the daemon goes on")
+
+
+def retained(scene):
+    data = tempfile.mkdtemp(prefix="terrad-replay-")
+    args = dict(extra=["--scene", scene] + SEGMENT + RETAIN, durability="every-tick")
+    try:
+        d = Daemon(data_dir=data, name="terrad-replay", **args)
+        check.daemons.append(d)
+        live = asyncio.run(drive(d))
+        check(compactions(d) >= 2, f"the log was compacted during the drive ({compactions(d)} times)")
+        compare(d, live, "after compactions")
+        refusals(d, d.stats()["tick"])
+        # a created world: its own directory, the same rebuild
+        status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": WORLD, "scene": cd.scene()})
+        check(status in (200, 201), f"POST /v1/worlds {WORLD} ({status} {doc})")
+        live_world = asyncio.run(drive(d, WORLD))
+        compare(d, live_world, f"created world {WORLD}", WORLD)
+        d.kill9()
+        d = Daemon(data_dir=data, name="terrad-replay-restarted", **args)
+        check.daemons.append(d)
+        compare(d, live, "after kill -9 and a restart")
+        compare(d, live_world, f"created world {WORLD} after the restart", WORLD)
+        d.stop()
+    finally:
+        shutil.rmtree(data, ignore_errors=True)
+
+
+def not_retained(scene):
+    with check.running(Daemon(extra=["--scene", scene] + SEGMENT)) as d:
+        live = asyncio.run(drive(d))
+        check(compactions(d) >= 2, f"compacted ({compactions(d)} times)")
+        first = min(live)
+        status, _, why = read(d, f"&tick={first}")
+        check(status == 410 and "parameter tick: " in why and "no longer held" in why,
+              f"without retention, tick {first} (compacted away) is 410 naming the field ({status} {why!r})")
+        # a tick after the newest snapshot is still held: read live now, rebuild it
+        status, now, hs = read(d, "")
+        status, tick, got = read(d, f"&tick={now}")
+        check(status == 200 and tick == now and got == hs,
+              f"a tick after the newest snapshot ({now}) is rebuilt exactly ({status})")
+        check(d.stats()["ready"], "and the daemon goes on")
+    with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
+        status, _, why = read(d, "&tick=1")
+        check(status == 404 and "parameter tick" in why,
+              f"a memory-only daemon: 404 naming the field ({status} {why!r})")
+
+
+def main():
+    scene = cd.scene_file()
+    try:
+        retained(scene)
+        not_retained(scene)
+    finally:
+        os.unlink(scene)
+    check.finish()
+
+
+if __name__ == "__main__":
+    main()
