@@ -2,8 +2,12 @@
 # ctest-timeout: 60
 """scripts/check_layers on synthetic trees: each rule is broken once on
 purpose and must be named (file, line, edge), each limit is checked on both
-sides of its bound, and a clean tree passes. The real tree is checked by the
-check_layers test itself."""
+sides of its bound, and a clean tree passes. Each tree carries the real
+docs/design.md, whose "Layers" table is then broken (a floor moved, a row
+gone, a face misnamed) beside folders it does not list and a second public
+header. The real tree is checked by the check_layers test itself."""
+import importlib.machinery
+import importlib.util
 import os
 import subprocess
 import sys
@@ -27,8 +31,9 @@ def run(files, *args):
         for rel, text in files.items():
             path = os.path.join(root, rel)
             os.makedirs(os.path.dirname(path), exist_ok=True)
-            with open(path, "w") as f:
-                f.write(text)
+            if not rel.endswith("/"):  # a name ending in / is a folder, maybe empty
+                with open(path, "w") as f:
+                    f.write(text)
         p = subprocess.run(["/usr/bin/python3", SCRIPT, "--root", root, *args],
                            capture_output=True, text=True, timeout=30)
         return p.returncode, p.stdout
@@ -56,6 +61,80 @@ CLEAN = {
     "server/app/loadgen.c": '#include "terrad_client.h"\n',
     "server/sim/long.c": "int x;\n" * 800,
 }
+
+
+def load_script():
+    loader = importlib.machinery.SourceFileLoader("check_layers", SCRIPT)
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
+    loader.exec_module(module)
+    return module
+
+
+LAYERS = load_script()
+with open(os.path.join(SOURCE, LAYERS.DESIGN), encoding="utf-8") as design_file:
+    DESIGN = design_file.read()
+ROWS = LAYERS.design_rows(SOURCE, [])
+# Every path the real table names, with its face in the row's first folder: the table holds here.
+for _, _, _, where, face in ROWS:
+    CLEAN.setdefault(where[0] + face if where[0].endswith("/") else where[0], "")
+    for rel in where[1:]:
+        CLEAN.setdefault(rel, "")
+CLEAN[LAYERS.DESIGN] = DESIGN
+
+
+def design_line(name):
+    """The line number of subsystem name's row in the real table, and that row's line."""
+    number = next(row[0] for row in ROWS if row[2] == name)
+    return number, DESIGN.splitlines()[number - 1]
+
+
+def edited(line, new):
+    """CLEAN with the real table's line `line` replaced by new (None: removed)."""
+    lines = DESIGN.splitlines(keepends=True)
+    lines[line - 1] = "" if new is None else new + "\n"
+    return dict(CLEAN, **{LAYERS.DESIGN: "".join(lines)})
+
+
+def check_design():
+    number, line = design_line("host")
+    layer = LAYERS.LAYER_OF["host"]
+    tree = edited(number, line.replace(f"| {layer} | host |", f"| {layer + 1} | host |", 1))
+    rc, out = run(tree)
+    check(rc == 1 and offences(out) == [
+        f"docs/design.md:{number}: subsystem 'host' is on layer {layer + 1} here and on layer "
+        f"{layer} in scripts/check_layers LAYERS"], f"a floor moved in design.md fails, named:\n{out}")
+
+    tree = dict(CLEAN, **{"server/foo/": ""})
+    rc, out = run(tree)
+    check(rc == 1 and offences(out) == [
+        "server/foo/:1: a folder that neither docs/design.md's \"Layers\" table nor "
+        "scripts/check_layers LAYERS lists"], f"an empty folder in server/ fails, named:\n{out}")
+
+    tree = dict(CLEAN, **{"clients/cpp/": ""})
+    rc, out = run(tree)
+    check(rc == 1 and offences(out) == [
+        "clients/cpp/:1: a folder that docs/design.md's \"Layers\" table does not list"],
+          f"a folder in clients/ that the table does not list fails:\n{out}")
+
+    number, _ = design_line("world")
+    rc, out = run(edited(number, None))
+    check(rc == 1 and offences(out) == [
+        "docs/design.md:1: subsystem 'world' of scripts/check_layers LAYERS is not in the "
+        "\"Layers\" table",
+        "server/world/:1: a folder that docs/design.md's \"Layers\" table does not list"],
+          f"a subsystem missing from design.md fails:\n{out}")
+
+    number, line = design_line("gl")
+    rc, out = run(edited(number, line.replace("`gl.h`", "`gl_face.h`", 1)))
+    check(rc == 1 and offences(out) == [
+        f"docs/design.md:{number}: the face of 'gl' is gl_face.h here, but its public header is "
+        "gl.h"], f"a face design.md misnames fails:\n{out}")
+
+    number, _ = design_line("sim")
+    rc, out = run(dict(CLEAN, **{"server/sim/extra.h": ""}))
+    check(rc == 1 and offences(out) == [
+        f"docs/design.md:{number}: 'sim' has 2 public headers (extra.h, sim.h); a subsystem has "
+        "one, its face"], f"a second public header fails:\n{out}")
 
 
 def offences(out):
@@ -127,6 +206,7 @@ def main():
           f"a function of 121 lines fails, one of 120 passes, braces in strings, comments, macros "
           f"and initialisers are ignored:\n{out}")
 
+    check_design()
     check.finish()
 
 

@@ -1,0 +1,149 @@
+/*
+ * bench_replay.c: seek to a tick of a long match (issue 32 item 3, goal: any
+ * tick of a 1-hour match in <= 100 ms; docs/performance.md "Replay").
+ *
+ * A 1024² dunes world and its data directory (durability none, the default
+ * 16 MiB segments, the whole log retained: --replay-retain-bytes) take a
+ * match of BENCH_REPLAY_TICKS ticks (default 36,000: 10 minutes at 60 Hz,
+ * so that make bench stays short; 216000 is the hour of the goal) of 8
+ * vehicles, each pressing four 6×10-cell wheel patches a unit deeper every
+ * tick along its own lap, logged as the daemon logs a tick
+ * (store_commit_tick). Then store_replay_rect — what GET /v1/heights?tick=N
+ * runs — rebuilds a 256² window at ticks through the match, and the answer
+ * is checked against the heights the world held at that tick (kept while
+ * writing). Prints one JSON line per seek (the best of two); never fails on
+ * speed (a rebuild that is not exact says so on stderr: the test is
+ * tests/integration/store/test_replay_heights.py).
+ */
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "store/store.h"
+#include "world/world.h"
+
+#define SIDE 1024
+#define VEHICLES 8
+#define WHEELS 4
+#define WIN 256
+#define SEEKS 5
+
+static double now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+/* Vehicle v's wheel k at tick t: a lap around its own ring, a cell every 4 ticks. */
+static world_rect wheel(int v, int k, uint64_t t)
+{
+    int cx = 150 + (v % 4) * 240, cy = 256 + (v / 4) * 512, r = 60 + 8 * v;
+    int step = (int)(t / 4 % (uint64_t)(8 * r));
+    int side = step / (2 * r), along = step % (2 * r);
+    int x = side == 0 ? cx - r + along : side == 1 ? cx + r : side == 2 ? cx + r - along : cx - r;
+    int y = side == 0 ? cy - r : side == 1 ? cy - r + along : side == 2 ? cy + r : cy + r - along;
+    return (world_rect){x + (k & 1) * 14, y + (k >> 1) * 20, 6, 10};
+}
+
+int main(void)
+{
+    const char *env = getenv("BENCH_REPLAY_TICKS");
+    uint64_t ticks = env ? strtoull(env, NULL, 10) : 36000;
+    char dir[] = "/tmp/terrad-bench-replay-XXXXXX";
+    if (!mkdtemp(dir)) {
+        perror("bench_replay: mkdtemp");
+        return 1;
+    }
+    world w;
+    error_text err = {{0}};
+    world_base_spec spec = {.kind = WORLD_BASE_DUNES,
+                            .min_height_m = 0.2,
+                            .max_height_m = 0.6,
+                            .wavelength_m = 20,
+                            .octaves = 4,
+                            .seed = 7};
+    if (world_init(&w, SIDE, SIDE, 0.05, 10000, 0, &err) != 0 ||
+        world_generate_base(&w, &spec, &err) != 0) {
+        fprintf(stderr, "bench_replay: %s\n", err.message);
+        return 1;
+    }
+    store_config c = {.dir = dir, .durability = STORE_NONE, .retain_bytes = (int64_t)1 << 40};
+    store_recovery rec;
+    store *st = store_open(&c, &w, &rec, &err);
+    if (!st) {
+        fprintf(stderr, "bench_replay: %s\n", err.message);
+        return 1;
+    }
+    world_rect win = {384, 128, WIN, WIN}; /* crossed by vehicles 0, 1 and 2 */
+    uint64_t at[SEEKS];
+    int32_t *want[SEEKS];
+    for (int s = 0; s < SEEKS; s++) {
+        at[s] = s == SEEKS - 1 ? ticks : ticks * (uint64_t)(2 * s + 1) / 10;
+        want[s] = malloc(sizeof(int32_t) * WIN * WIN);
+    }
+    double t0 = now_ms();
+    for (uint64_t t = 1; t <= ticks; t++) {
+        world_rect rects[VEHICLES * WHEELS];
+        int n = 0;
+        for (int v = 0; v < VEHICLES; v++)
+            for (int k = 0; k < WHEELS; k++) {
+                world_rect r = rects[n++] = wheel(v, k, t);
+                for (int y = r.y; y < r.y + r.h; y++)
+                    for (int x = r.x; x < r.x + r.w; x++)
+                        world_set_height(&w, x, y, world_height_at(&w, x, y) - 1);
+            }
+        if (store_commit_tick(st, &w, t, rects, n) != 0) {
+            fprintf(stderr, "bench_replay: commit: %s\n", store_failure(st));
+            return 1;
+        }
+        store_settle(st);
+        for (int s = 0; s < SEEKS; s++)
+            if (t == at[s])
+                world_gather_window(&w, win, want[s]);
+    }
+    double write_ms = now_ms() - t0;
+    store_close(st);
+    char cmd[200];
+    snprintf(cmd, sizeof cmd, "du -sk %s", dir);
+    FILE *du = popen(cmd, "r");
+    long kb = 0;
+    if (du && fscanf(du, "%ld", &kb) != 1)
+        kb = 0;
+    if (du)
+        pclose(du);
+    printf("{\"bench\":\"replay_write\",\"ticks\":%llu,\"vehicles\":%d,\"log_mib\":%.1f,"
+           "\"write_s\":%.1f}\n",
+           (unsigned long long)ticks, VEHICLES, kb / 1024.0, write_ms / 1e3);
+    int32_t *got = malloc(sizeof(int32_t) * WIN * WIN);
+    int all_exact = 1;
+    for (int s = 0; s < SEEKS; s++) {
+        double best = 1e30;
+        int exact = 0;
+        for (int rep = 0; rep < 2; rep++) {
+            double t1 = now_ms();
+            int rc = store_replay_rect(dir, &w, at[s], win, got, &err);
+            double ms = now_ms() - t1;
+            best = ms < best ? ms : best;
+            exact = rc == 0 && memcmp(got, want[s], sizeof(int32_t) * WIN * WIN) == 0;
+            if (rc != 0)
+                fprintf(stderr, "bench_replay: tick %llu: %s\n", (unsigned long long)at[s],
+                        err.message);
+        }
+        printf("{\"bench\":\"replay_seek\",\"tick\":%llu,\"of\":%llu,\"window\":%d,"
+               "\"ms\":%.1f,\"exact\":%s,\"goal_ms\":100}\n",
+               (unsigned long long)at[s], (unsigned long long)ticks, WIN, best,
+               exact ? "true" : "false");
+        fflush(stdout);
+        all_exact &= exact;
+    }
+    snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+    if (system(cmd) != 0)
+        fprintf(stderr, "bench_replay: could not remove %s\n", dir);
+    if (!all_exact)
+        fprintf(stderr, "bench_replay: a rebuild was NOT exact (see \"exact\" above)\n");
+    return 0; /* a bench prints; it never fails */
+}
