@@ -516,8 +516,23 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
     return 0;
 }
 
+/* A cluster node's drain (docs/fleet.md): a node stops at once on SIGTERM,
+ * but first /readyz turns 503, new clients are refused and the connected
+ * ones told (the "draining" message, before their worlds close), and then
+ * each world's end releases its lease (world_gone): a standby takes it over
+ * from JetStream without waiting for the lease to lapse. */
+static void node_drain(serve_node *n)
+{
+    const char *why = "SIGTERM: this node hands its worlds to other nodes";
+    if (n->http)
+        http_server_set_draining(n->http, why);
+    if (n->net)
+        net_server_drain(n->net, why, 0);
+}
+
 static void node_stop(serve_node *n)
 {
+    node_drain(n);
     n->stopping = 1;
     while (n->nworlds > 0) {
         for (int i = 0; i < n->nworlds; i++)

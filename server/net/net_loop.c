@@ -56,9 +56,9 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     net_server *s = lws_container_of(sul, net_server, heartbeat);
     fault_stall("net"); /* test hook (base/fault.c): a net thread that stops */
     atomic_store(&s->last_beat_ms, time_now_ms());
+    net_drain_apply(s);
     net_worlds_apply(s);
     net_events_apply(s);
-    net_drain_apply(s);
     net_remote_apply(s);
     for (int i = 0; net_state_at(s, i); i++) {
         net_reap_dead_peers(net_state_at(s, i));
@@ -79,9 +79,9 @@ void net_heartbeat_start(net_server *s)
 
 void net_catch_up(net_server *s)
 {
+    net_drain_apply(s); /* a drain's notice before a world's removal closes its clients */
     net_worlds_apply(s);
     net_events_apply(s);
-    net_drain_apply(s);
     net_remote_apply(s);
     net_flush_backlogs(s);
     net_drain_hubs(s); /* the last tick's frames go out before the goodbye */

@@ -328,13 +328,14 @@ async def settled(c, sid, park, quiet=30, timeout=120):
 
 
 async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=0.3, speed=3.0,
-                         dip=0.18):
+                         dip=0.18, end=None):
     """A client on owner (a Node; world: the hello's, else the node's first)
     subscribes to a lane 2 * half_lane rows high across the world's middle and
     drives a sphere along it, dip m into the terrain, for run_s seconds; then
     owner is killed (SIGKILL) — at once, or (settle) after lifting the sphere
     out of the terrain and waiting until nothing changes any more (settled).
-    Returns
+    end: called instead of the SIGKILL (a test's own way to stop the owner:
+    SIGTERM). Returns
     (the last acknowledged tick, the lane, the heights of the client's mirror
     at that ACK, or None)."""
     import asyncio
@@ -361,7 +362,7 @@ async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=
         await asyncio.sleep(1 / 60)
     if settle:
         await settled(c, sid, tp.Pose(cid, x, y, 50.0, 1, 0, 0, 0))
-    owner.kill9()
+    (end or owner.kill9)()
     await asyncio.sleep(0.3)
     copy = c.history.get(c.acked_tick)
     try:
