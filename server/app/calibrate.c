@@ -3,9 +3,10 @@
  * data (docs/calibrate.md). Offline, no tick: plate-sinkage curves give
  * Bekker's n, kc and kphi by linear least squares (calibrate_data.c);
  * single-wheel runs give the shear and slip parameters (c, phi, K, slip_n
- * or the ones --fit names) by running the bekker model's own testbed
- * (sim_wheel_testbed) for every row: a 3 x 3 grid over the first two
- * parameters, then rounds of coordinate descent with halving steps. No
+ * or the ones --fit names, n, kc and kphi among them) by running the bekker
+ * model's own testbed (sim_wheel_testbed) for every row: a 3 x 3 grid over
+ * the first two parameters, then rounds of coordinate descent with halving
+ * steps and a pattern move; what the rows cannot separate is reported. No
  * randomness and one order of evaluation, so the same input gives the same
  * bytes out. Out: a report with the residual of every row (stdout), the
  * scene-ready material JSON (--out) and the residuals as CSV (--residuals).
@@ -20,7 +21,10 @@
 
 /* ---- The wheel's parameters: name, search range, first step ---- */
 
-enum { FIT_C, FIT_PHI, FIT_K, FIT_SLIP_N, FIT_COUNT };
+enum { FIT_C, FIT_PHI, FIT_K, FIT_SLIP_N, FIT_N, FIT_KC, FIT_KPHI, FIT_COUNT };
+
+/* --fit's default: the shear and slip parameters; n, kc and kphi on request */
+#define FIT_DEFAULT_COUNT FIT_N
 
 typedef struct fit_param {
     const char *name;
@@ -29,17 +33,22 @@ typedef struct fit_param {
 } fit_param;
 
 /* Ranges inside sim_soil_validate's, and where real soils lie (Wong's and
- * Ding's tables: c 0-70 kPa, phi 13-35 deg, K 1-25 mm, slip_n 0-2). */
+ * Ding's tables: c 0-70 kPa, phi 13-35 deg, K 1-25 mm, slip_n 0-2, n
+ * 0.2-1.6; kc and kphi span decades, so they move in log steps). */
 static const fit_param fit_params[FIT_COUNT] = {
     {"cohesion_pa", 0.0, 1e5, 500.0, 0},
     {"friction_deg", 0.0, 50.0, 4.0, 0},
     {"shear_k_m", 0.001, 0.1, 1.6, 1},
     {"slip_n", 0.0, 2.0, 0.2, 0},
+    {"n", 0.2, 2.5, 0.1, 0},
+    {"kc", 1.0, 1e8, 1.6, 1},
+    {"kphi", 1.0, 1e10, 1.6, 1},
 };
 
 static double *param_field(sim_soil *s, int p)
 {
-    double *f[FIT_COUNT] = {&s->cohesion_pa, &s->friction_deg, &s->shear_k_m, &s->slip_n};
+    double *f[FIT_COUNT] = {&s->cohesion_pa, &s->friction_deg, &s->shear_k_m, &s->slip_n,
+                            &s->n,           &s->kc,           &s->kphi};
     return f[p];
 }
 
@@ -88,7 +97,8 @@ static const cli_option cal_table[] = {
                   "JSON file of the bekker model (as --out writes it)"},
     [OPT_FIT] = {"fit", "LIST",
                  "the wheel parameters fitted, in order (default\n"
-                 "cohesion_pa,friction_deg,shear_k_m,slip_n); the grid is over the first two"},
+                 "cohesion_pa,friction_deg,shear_k_m,slip_n; n, kc and kphi may join\n"
+                 "them); the grid is over the first two"},
     [OPT_ROUNDS] = {"rounds", "N", "rounds of coordinate descent after the grid (default 3)"},
     [OPT_CELL] = {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)"},
     [OPT_DISTANCE] = {"distance", "M", "each testbed run's travel (default 0.5)"},
@@ -125,7 +135,9 @@ static int parse_fit(cal_options *o, const char *list, error_text *err)
         for (int i = 0; i < o->fit_count && p < FIT_COUNT; i++)
             seen |= o->fit[i] == p;
         if (p == FIT_COUNT || seen) {
-            error_set(err, "--fit: \"%s\" is %s (cohesion_pa, friction_deg, shear_k_m, slip_n)",
+            error_set(err,
+                      "--fit: \"%s\" is %s (cohesion_pa, friction_deg, shear_k_m, slip_n, n, "
+                      "kc, kphi)",
                       tok, seen ? "named twice" : "not a fitted parameter");
             return -1;
         }
@@ -318,6 +330,7 @@ static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, er
                 fit_params[b].name, be->objective);
     }
     for (long round = 0; round < o->rounds && rc == 0; round++) {
+        sim_soil before = *best;
         for (int i = 0; i < o->fit_count && rc == 0; i++) {
             int p = o->fit[i], moved = 0;
             for (int dir = -1; dir <= 1 && rc == 0; dir += 2) {
@@ -328,6 +341,25 @@ static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, er
             }
             if (!moved)
                 step[p] = fit_params[p].log_step ? sqrt(step[p]) : step[p] / 2;
+        }
+        /* Hooke-Jeeves' pattern move: the round's move once more, all
+         * parameters at once, follows a valley across the axes (n against
+         * kphi) that one-at-a-time steps only zigzag along */
+        sim_soil pattern = *best;
+        int moved = 0;
+        for (int i = 0; i < o->fit_count; i++) {
+            int p = o->fit[i];
+            double x = *param_field(best, p), x0 = *param_field(&before, p);
+            double y = fit_params[p].log_step && x0 > 0 ? x * (x / x0) : 2 * x - x0;
+            *param_field(&pattern, p) = fmin(fmax(y, fit_params[p].lo), fit_params[p].hi);
+            moved |= y != x;
+        }
+        if (moved && rc == 0) {
+            rc = evaluate(f, &pattern, &trial, err);
+            if (rc == 0 && trial.objective < be->objective) {
+                *best = pattern;
+                eval_copy(be, &trial, f->count);
+            }
         }
         fprintf(report, "round %ld: objective %.6g\n", round + 1, be->objective);
     }
@@ -435,6 +467,57 @@ static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_e
             base->objective, fitted->objective);
 }
 
+/* ---- What the wheel rows cannot separate ---- */
+
+static int fitting(const cal_options *o, int p)
+{
+    for (int i = 0; i < o->fit_count; i++)
+        if (o->fit[i] == p)
+            return 1;
+    return 0;
+}
+
+/*
+ * Bekker's pressure (kc/b + kphi) z^n seen through wheel rows: kc and kphi
+ * act only through kc/b + kphi, b the contact patch's width (near the
+ * wheel's), so wheels of one width cannot tell them apart; and one wheel
+ * under one load sinks over a narrow range of z (only slip-sinkage moves
+ * it), so n trades against the modulus. The search still stops at some
+ * pair; the report says which pair is not determined rather than present
+ * it as measured. Returns the count of such warnings.
+ */
+static int report_separable(const cal_options *o, const cal_wheel_row *rows, int count, FILE *out)
+{
+    int widths = 1, wheels = 1;
+    for (int i = 1; i < count; i++) {
+        int new_width = 1, new_wheel = 1;
+        for (int j = 0; j < i; j++) {
+            new_width &= rows[j].width_m != rows[i].width_m;
+            new_wheel &= rows[j].width_m != rows[i].width_m ||
+                         rows[j].radius_m != rows[i].radius_m || rows[j].load_n != rows[i].load_n;
+        }
+        widths += new_width;
+        wheels += new_wheel;
+    }
+    int warned = 0;
+    if (fitting(o, FIT_KC) && fitting(o, FIT_KPHI) && widths < 2) {
+        fprintf(out,
+                "\nnot separable: kc and kphi from wheels of one width (%g m): only "
+                "kc/b + kphi is determined; the pair printed is one point of that line "
+                "(fit kc or kphi alone, add rows of another width, or give --plates)\n",
+                rows[0].width_m);
+        warned++;
+    }
+    if (fitting(o, FIT_N) && (fitting(o, FIT_KC) || fitting(o, FIT_KPHI)) && wheels < 2) {
+        fprintf(out, "\nnot separable: n with kc/kphi from one wheel under one load: its "
+                     "sinkage spans too little of the pressure-sinkage curve; n and the modulus "
+                     "trade against each other (add rows of another load or wheel, or give "
+                     "--plates)\n");
+        warned++;
+    }
+    return warned;
+}
+
 /* The wheel rows: the base soil evaluated, searched, the result rounded and re-run. */
 static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count, sim_soil *soil,
                      FILE *report, FILE *csv, error_text *err)
@@ -470,6 +553,7 @@ static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count,
                 f.evaluations, count, o->testbed.cell_m, o->testbed.distance_m,
                 o->testbed.speed_m_s);
         report_wheel(report, csv, &f, &base, &best, o->base);
+        report_separable(o, rows, count, report);
     }
     eval_free(&base);
     eval_free(&best);
@@ -561,7 +645,7 @@ int app_calibrate(int argc, char **argv)
 {
     cal_options o = {.base = "ding2011", .rounds = 3, .compression = 0.5};
     sim_wheel_run_defaults(&o.testbed);
-    for (int p = 0; p < FIT_COUNT; p++)
+    for (int p = 0; p < FIT_DEFAULT_COUNT; p++)
         o.fit[o.fit_count++] = p;
     error_text err;
     int first = 0;

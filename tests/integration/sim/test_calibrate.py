@@ -18,6 +18,11 @@
   exact numbers (as `terrad wheel --format json` prints them) gives the very material, residuals
   and report the preset gives; a file with a field out of range, or of another model, is refused
   naming the file and the field;
+- `--fit` takes n, kc and kphi: wheel rows that `terrad wheel` made from a known soil (n 0.93,
+  kphi 1.2e6 where ding2011 has 1.1 and 2.41e6) are fitted back from a base that has one of
+  them wrong — n alone from n 1.1, kphi alone from twice its value: the parameter within 1 %,
+  every sinkage residual under 1 %; kc and kphi together from one wheel width, and n with
+  kphi from one wheel under one load, are reported as not separable;
 - bad input is refused with exit 2 and a message naming the file, the line and the field:
   a missing column, NaN, a negative width, too few widths or rows, an empty measurement row.
 """
@@ -166,6 +171,48 @@ def test_base_file(tmp):
             "--base", "clay9", "not a preset")
 
 
+KNOWN_SOIL = {"n": 0.93, "kphi": 1.2e6}  # beside ding2011's n 1.1, kphi 2.4074e6
+WHEEL_RUN = ["--radius", "0.15735", "--width", "0.165", "--load", "80"]
+TESTBED = ["--cell", "0.02", "--distance", "0.2"]
+
+
+def test_pressure_sinkage(tmp):
+    known = preset_material("ding2011")
+    known["soil"].update(KNOWN_SOIL)
+    path = write(os.path.join(tmp, "known.json"), json.dumps(known))
+    p = subprocess.run([BIN, "wheel", "--soil", path, *WHEEL_RUN, "--slips", "0.1,0.3,0.5,0.7",
+                        *TESTBED], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 0, f"terrad wheel runs the known soil ({p.stderr[-200:]})")
+    rows = write(os.path.join(tmp, "known-rows.csv"), p.stdout)
+    for name, wrong in (("n", 1.1), ("kphi", 2 * KNOWN_SOIL["kphi"])):
+        base = json.loads(json.dumps(known))
+        base["soil"][name] = wrong
+        base_path = write(os.path.join(tmp, f"base-{name}.json"), json.dumps(base))
+        out, res = os.path.join(tmp, f"fit-{name}.json"), os.path.join(tmp, f"fit-{name}.csv")
+        rc, stdout, stderr = calibrate("--wheel", rows, *TESTBED, "--fit", name, "--rounds", "12",
+                                       "--base", base_path, "--out", out, "--residuals", res)
+        check(rc == 0, f"--fit {name}: exit 0 ({rc}: {stderr[-300:]})")
+        if rc != 0:
+            continue
+        got = material_of(out)["soil"][name]
+        err = abs(got - KNOWN_SOIL[name]) / KNOWN_SOIL[name]
+        check(err <= 0.01, f"--fit {name} from {wrong:g}: {got:g} against {KNOWN_SOIL[name]:g} "
+              f"({100 * err:.2f} % <= 1 %)")
+        with open(res) as f:
+            sink = [abs(float(r.split(",")[6])) for r in f.read().splitlines()[1:]
+                    if r.split(",")[3] == "sinkage_m"]
+        check(len(sink) == 4 and max(sink) <= 0.01,
+              f"--fit {name}: every sinkage residual under 1 % ({sink})")
+        check("not separable" not in stdout, f"--fit {name} alone is not reported as degenerate")
+    for fit, needle in (("kc,kphi", "not separable: kc and kphi from wheels of one width"),
+                        ("n,kphi", "not separable: n with kc/kphi from one wheel under one load")):
+        rc, stdout, stderr = calibrate("--wheel", rows, *TESTBED, "--fit", fit, "--rounds", "1",
+                                       "--base", "ding2011")
+        check(rc == 0 and needle in stdout,
+              f"--fit {fit} on one wheel: exit 0, the report says \"{needle}\" ({rc}: "
+              f"{(stdout + stderr)[-300:]})")
+
+
 async def pressed_wheel(d):
     """A wheel pressed 2 cm into the soil: the soil carries it (FORCES, Fz > 0)."""
     c = RecordingClient(d.ws, name="calibrated", record=False)
@@ -248,6 +295,7 @@ def main():
         test_bad(tmp)
         test_plates(tmp)
         test_base_file(tmp)
+        test_pressure_sinkage(tmp)
         fitted = test_ding(tmp)
         if fitted:
             test_serve(tmp, fitted)
