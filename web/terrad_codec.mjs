@@ -493,7 +493,7 @@ export const subscribeEvents = (events = ['world_created', 'world_deleted'], ref
   withRef({ type: 'subscribe_events', events }, ref);
 export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
 // PROTOCOL.md "seen": the latest tick whose frames this client has handled.
-export const seen = (tick) => ({ type: 'seen', tick });
+export const seen = (tick) => ({ type: 'seen', tick, ref: 'seen' }); // ref: an older daemon's refusal names it
 // The tick a server frame carries (DELTA and after: u64 at offset 4), 0 for others.
 export function frameTick(buf) {
   const b = bytes(buf);
@@ -504,7 +504,7 @@ export function frameTick(buf) {
 // server bounds this client's lag by it, frames waiting in its own buffers included.
 export class SeenReporter {
   constructor(send, intervalMs = 100) {
-    Object.assign(this, { send, intervalMs, tick: 0, said: 0, at: 0, timer: null });
+    Object.assign(this, { send, intervalMs, tick: 0, said: 0, at: 0, timer: null, off: false });
   }
   // after a frame's handling: its tick counts as handled
   handled(frame) {
@@ -512,8 +512,12 @@ export class SeenReporter {
     if (t > this.tick) this.tick = t;
     this.say();
   }
+  // the server's error about a seen (ref 'seen'): a daemon from before it says unknown_type
+  refused(error) {
+    if (error && error.ref === 'seen' && error.name === 'unknown_type') this.off = true;
+  }
   say() {
-    if (this.tick <= this.said) return;
+    if (this.off || this.tick <= this.said) return;
     const wait = this.at + this.intervalMs - Date.now();
     if (wait <= 0) {
       this.said = this.tick;
@@ -526,7 +530,7 @@ export class SeenReporter {
   // the connection ended: nothing more to say, and the next one starts from nothing
   reset() {
     clearTimeout(this.timer);
-    Object.assign(this, { tick: 0, said: 0, at: 0, timer: null });
+    Object.assign(this, { tick: 0, said: 0, at: 0, timer: null, off: false });
   }
 }
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);

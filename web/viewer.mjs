@@ -143,6 +143,8 @@ function onJson(text) {
       if (app.own) app.own.id = m.id;
       break;
     case 'error':
+      seenReporter.refused(m);
+      if (m.ref === 'seen' && m.name === 'unknown_type') break; // a daemon from before "seen"
       app.lastError = `${m.name}: ${m.message}`;
       $('o-error').textContent = app.lastError;
       console.warn('terrad error', m);

@@ -78,6 +78,7 @@ struct terrad_client {
      * server was told, and when (it bounds this client's lag by it) */
     uint64_t handled_tick, said_tick;
     int64_t said_us;
+    int no_seen; /* a daemon from before "seen" refused it (unknown_type) */
     uint32_t seq;
 
     client_sub *subs;
@@ -325,7 +326,10 @@ static void on_text(terrad_client *c, const char *text, size_t len)
                 cJSON_IsString(msg) ? msg->valuestring : "");
         c->stats.last_error_code = code;
         unsigned step;
-        if (cJSON_IsString(ref) && sscanf(ref->valuestring, "step:%u", &step) == 1) {
+        if (cJSON_IsString(ref) && strcmp(ref->valuestring, "seen") == 0) {
+            c->no_seen |= code == TERRAD_E_UNKNOWN_TYPE; /* a daemon from before "seen" */
+            c->stats.errors++;
+        } else if (cJSON_IsString(ref) && sscanf(ref->valuestring, "step:%u", &step) == 1) {
             step_answered(c, step, code > 0 ? code : TERRAD_E_INTERNAL, 0);
         } else if (mine) {
             c->wait_done = 1;
@@ -376,10 +380,10 @@ static int send_resync(terrad_client *c, uint32_t sid);
 static void say_seen(terrad_client *c)
 {
     int64_t now = now_us();
-    if (c->handled_tick <= c->said_tick || now - c->said_us < CLIENT_SEEN_INTERVAL_US)
+    if (c->no_seen || c->handled_tick <= c->said_tick || now - c->said_us < CLIENT_SEEN_INTERVAL_US)
         return;
-    char text[64];
-    int n = snprintf(text, sizeof text, "{\"type\":\"seen\",\"tick\":%llu}",
+    char text[80]; /* ref: an older daemon's refusal names it */
+    int n = snprintf(text, sizeof text, "{\"type\":\"seen\",\"tick\":%llu,\"ref\":\"seen\"}",
                      (unsigned long long)c->handled_tick);
     if (enqueue(c, text, (size_t)n, 0) == 0) {
         c->said_tick = c->handled_tick;

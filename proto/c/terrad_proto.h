@@ -243,7 +243,7 @@ typedef struct terrad_force {
     uint32_t id;         /* collider id */
     float force[3];      /* N, on the collider, world frame */
     float torque[3];     /* N m, about the collider's pose position */
-    float sinkage_m;     /* deepest total sinkage under it, >= 0 */
+    float sinkage_m;     /* below the undisturbed surface at its lowest point, >= 0 */
     float area_m2;       /* contact area, >= 0 */
     float patch_width_m; /* Bekker's b of its largest contact patch, >= 0 */
     float slip;          /* wheels (cylinders): 1 - v/(wR) driving, wR/v - 1 skidding; else 0 */

@@ -270,7 +270,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     if (service_cut_into_tiles(s, &stats->report) == 0) /* deltas: versions, Σh, frames */
         service_publish_deltas(s, stats);
     service_edits_finish(s); /* each edit's sender: its tick and volume change */
-    service_contacts_after_tick(s);
+    service_contacts_after_tick(s, &stats->report);
     service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);

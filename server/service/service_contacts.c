@@ -5,7 +5,9 @@
  * after the deformation the support height under it is filled in, and each
  * client gets one CONTACT frame with its colliders, in a world of the
  * bekker model one FORCES frame (the soil's push the engine summed), and one
- * ACK of the latest pose batch the tick used. Sim thread only.
+ * ACK of the latest pose batch the tick used. A load-driven collider's
+ * CONTACT is the engine's, measured where the engine put it (its height is
+ * the server's, not the pose's). Sim thread only.
  */
 #include "service/service_internal.h"
 
@@ -113,7 +115,33 @@ void service_contacts_before_tick(service *s)
     }
 }
 
-void service_contacts_after_tick(service *s)
+/* A load-driven collider's contact is the engine's, measured in the model's
+ * press at the height the engine found for it against the heights before the
+ * deformation (sim_contact's CONTACT fields): the client's pose height,
+ * which contact_measure saw, is not where the collider stood. */
+static void contact_from_engine(const world *w, const sim_tick_report *report, terrad_contact *ct)
+{
+    for (int i = 0; i < report->contact_count; i++) {
+        const sim_contact *e = &report->contacts[i];
+        if ((uint32_t)e->collider_id != ct->id)
+            continue;
+        ct->volume = e->volume;
+        ct->cells = e->cells > UINT32_MAX ? UINT32_MAX : (uint32_t)e->cells;
+        ct->area_m2 = (float)(e->cells * w->cell_size_m * w->cell_size_m);
+        if (e->cells == 0)
+            return; /* no contact: contact_measure's normal and centre stand */
+        double len =
+            sqrt(e->normal_sum[0] * e->normal_sum[0] + e->normal_sum[1] * e->normal_sum[1] +
+                 e->normal_sum[2] * e->normal_sum[2]);
+        for (int a = 0; a < 3; a++) {
+            ct->deepest[a] = (float)e->deepest[a];
+            ct->normal[a] = (float)(e->normal_sum[a] / len);
+        }
+        return;
+    }
+}
+
+void service_contacts_after_tick(service *s, const sim_tick_report *report)
 {
     const world *w = s->world;
     for (int i = 0; i < s->batch.contact_count; i++) {
@@ -121,6 +149,13 @@ void service_contacts_after_tick(service *s)
         int k = service_find_collider(s, ct->id);
         if (k < 0)
             continue;
+        if (s->colliders[k].load_n > 0.0 && !s->colliders[k].held) {
+            ct->volume = 0, ct->cells = 0, ct->area_m2 = 0.0f;
+            ct->deepest[0] = (float)s->colliders[k].pose.position.x;
+            ct->deepest[1] = (float)s->colliders[k].pose.position.y;
+            ct->deepest[2] = NAN; /* the support height below, unless in contact */
+            contact_from_engine(w, report, ct);
+        }
         const collider_pose *p = &s->colliders[k].pose;
         int cx = (int)floor(p->position.x / w->cell_size_m);
         int cy = (int)floor(p->position.y / w->cell_size_m);

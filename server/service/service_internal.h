@@ -224,7 +224,7 @@ void service_step_finish(service *s);
 
 /* service_contacts.c */
 void service_contacts_before_tick(service *s);
-void service_contacts_after_tick(service *s);
+void service_contacts_after_tick(service *s, const sim_tick_report *report);
 /* CONTACT, FORCES (bekker worlds: the report's contacts) and ACK per client. */
 void service_publish_feedback(service *s, const sim_tick_report *report);
 

@@ -284,8 +284,41 @@ static void bekker_contact_add(sim_contact *c, vec3d at, vec3d centre, vec3d nor
     c->torque_nm[0] += tq.x, c->torque_nm[1] += tq.y, c->torque_nm[2] += tq.z;
     c->area_m2 += area;
     c->cells++;
-    if (cell->sinkage_m > c->sinkage_m)
-        c->sinkage_m = cell->sinkage_m;
+}
+
+/* CONTACT's measures of one contact cell (PROTOCOL.md) into its collider's
+ * contact, and the sinkage at the collider's lowest point. Cells come in
+ * row-major order: the deepest point's ties keep the first. */
+static void bekker_contact_measure(const sim_window_job *job, sim_contact *c, int x, int y,
+                                   int32_t bottom, double sinkage_m)
+{
+    int w = job->rect.w, h = job->rect.h, i = y * w + x;
+    const int32_t *hs = job->heights;
+    int64_t pen = (int64_t)hs[i] - bottom;
+    double cell = job->cell_size_m, upm = (double)job->units_per_m;
+    c->volume += pen;
+    if (pen > c->deepest_units) {
+        c->deepest_units = pen;
+        c->deepest[0] = (job->rect.x + x + 0.5) * cell;
+        c->deepest[1] = (job->rect.y + y + 0.5) * cell;
+        c->deepest[2] = bottom / upm;
+    }
+    /* among the cells where the bottom is lowest (a cylinder's whole line),
+     * the least: a cell at the rut's side edge was also pressed under soil
+     * the spread had put on it, which was never the undisturbed surface */
+    if (c->cells == 1 || bottom < c->lowest_bottom ||
+        (bottom == c->lowest_bottom && sinkage_m < c->sinkage_m)) {
+        c->lowest_bottom = bottom;
+        c->sinkage_m = sinkage_m;
+    }
+    int xp = x + 1 < w ? x + 1 : x, xm = x > 0 ? x - 1 : x;
+    int yp = y + 1 < h ? y + 1 : y, ym = y > 0 ? y - 1 : y;
+    double gx = ((double)hs[y * w + xp] - hs[y * w + xm]) / upm / ((xp - xm) * cell);
+    double gy = ((double)hs[yp * w + x] - hs[ym * w + x]) / upm / ((yp - ym) * cell);
+    double len = sqrt(gx * gx + gy * gy + 1.0);
+    c->normal_sum[0] += -gx / len;
+    c->normal_sum[1] += -gy / len;
+    c->normal_sum[2] += 1.0 / len;
 }
 
 /* The surface point's velocity of collider k at `at`, split into its
@@ -436,6 +469,7 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int j, int sl
             bekker_cell r = bekker_cell_step(p, soil, heights[i], bottom[i], width[label[i]],
                                              sink_speed, slip_step, ratio, share, state);
             bekker_contact_add(c, at, centre, normal, slip, &r, area);
+            bekker_contact_measure(job, c, x, y, bottom[i], r.sinkage_m);
             if (tmp[label[i]] > c->patch_cells) { /* tmp: the patches' cell counts */
                 c->patch_cells = tmp[label[i]];
                 c->patch_width_m = width[label[i]];
@@ -563,4 +597,32 @@ int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider 
     memcpy(job->soil_state, state_copy, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *state_copy);
     c->pose.position.z = (double)lo / p->units_per_m;
     return lo;
+}
+
+void sim_bekker_contact_merge(sim_contact *to, const sim_contact *from)
+{
+    for (int a = 0; a < 3; a++) {
+        to->force_n[a] += from->force_n[a];
+        to->torque_nm[a] += from->torque_nm[a];
+        to->velocity[a] = from->velocity[a];
+        to->angular[a] = from->angular[a];
+        to->normal_sum[a] += from->normal_sum[a];
+    }
+    if (from->cells > 0 &&
+        (to->cells == 0 || from->lowest_bottom < to->lowest_bottom ||
+         (from->lowest_bottom == to->lowest_bottom && from->sinkage_m < to->sinkage_m))) {
+        to->lowest_bottom = from->lowest_bottom; /* as in the press: the least at the lowest */
+        to->sinkage_m = from->sinkage_m;
+    }
+    if (from->deepest_units > to->deepest_units) { /* ties: the earlier window's */
+        to->deepest_units = from->deepest_units;
+        memcpy(to->deepest, from->deepest, sizeof to->deepest);
+    }
+    to->volume += from->volume;
+    to->area_m2 += from->area_m2;
+    to->cells += from->cells;
+    if (from->patch_cells > to->patch_cells) { /* ties: the earlier window's */
+        to->patch_cells = from->patch_cells;
+        to->patch_width_m = from->patch_width_m;
+    }
 }

@@ -295,9 +295,13 @@ enum { SIM_SOIL_SINK, SIM_SOIL_SHEAR_UM, SIM_SOIL_COMPACTED, SIM_SOIL_STATE_FIEL
  * thread count. */
 typedef struct sim_contact {
     int collider_id;
-    double force_n[3];    /* on the collider, world frame */
-    double torque_nm[3];  /* about the collider's pose position */
-    double sinkage_m;     /* deepest total sinkage (below the undisturbed level) under it */
+    double force_n[3];   /* on the collider, world frame */
+    double torque_nm[3]; /* about the collider's pose position */
+    /* below the undisturbed surface at its lowest point in contact: the total
+     * sinkage (plastic so far + penetration) of the contact cells where its
+     * bottom is lowest, the least of them (a rut's edge cell was also pressed
+     * under soil spread onto it) */
+    double sinkage_m;
     double area_m2;       /* cells in contact times the cell area */
     double patch_width_m; /* Bekker's b of its largest contact patch: 2 A / L */
     int64_t patch_cells;  /* that patch's size (the tie rule of the merge) */
@@ -306,6 +310,15 @@ typedef struct sim_contact {
     double velocity[3];   /* m/s, from this tick's two poses */
     double angular[3];    /* rad/s, likewise */
     double pose_z_m;      /* the pose height it deformed at (load-driven: the engine's) */
+    /* PROTOCOL.md CONTACT's fields at that pose against the heights before
+     * the deformation (a load-driven collider's CONTACT is these): Σ
+     * penetration (units), the deepest cell's penetration, centre and bottom,
+     * the terrain normals' sum (central differences inside the window) */
+    int64_t volume;
+    int64_t deepest_units;
+    double deepest[3];
+    double normal_sum[3];
+    int32_t lowest_bottom; /* the sinkage cell's bottom (units); merge ties */
 } sim_contact;
 
 typedef struct sim_window_job {

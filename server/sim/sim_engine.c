@@ -613,25 +613,6 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
 
 /* ---- contacts (bekker) ---- */
 
-/* One window's contact of a collider into the collider's. */
-static void contact_merge(sim_contact *to, const sim_contact *from)
-{
-    for (int a = 0; a < 3; a++) {
-        to->force_n[a] += from->force_n[a];
-        to->torque_nm[a] += from->torque_nm[a];
-        to->velocity[a] = from->velocity[a];
-        to->angular[a] = from->angular[a];
-    }
-    to->area_m2 += from->area_m2;
-    to->cells += from->cells;
-    if (from->sinkage_m > to->sinkage_m)
-        to->sinkage_m = from->sinkage_m;
-    if (from->patch_cells > to->patch_cells) { /* ties: the earlier window's */
-        to->patch_cells = from->patch_cells;
-        to->patch_width_m = from->patch_width_m;
-    }
-}
-
 /* A wheel's (cylinder's) slip: its axis is the local Y axis, it rolls along
  * axis x up; 1 - v/(wR) while driving (wR >= v), wR/v - 1 while skidding. */
 static double contact_slip(const sim_contact *c, const sim_collider *col)
@@ -670,7 +651,7 @@ static void tick_contacts(sim_engine *e, const sim_collider *colliders, int coll
         int64_t ref = job->colliders - e->window_colliders;
         for (int k = 0; k < job->collider_count; k++) {
             sim_contact *to = &e->contacts[e->window_collider_source[ref + k]];
-            contact_merge(to, &job->contacts[k]);
+            sim_bekker_contact_merge(to, &job->contacts[k]);
             to->pose_z_m = job->colliders[k].pose.position.z; /* a load-driven one's: found */
         }
     }

@@ -198,6 +198,10 @@ sim_window_status sim_sumner_settle(const sim_params *p, sim_window_job *job, co
  * scratch of sim_bekker_scratch_cells(w, h) int32. */
 int64_t sim_bekker_scratch_cells(int w, int h);
 sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* One window's contact of a collider into the collider's (the engine adds
+ * windows in plan order): sums, and the sinkage and deepest point kept by the
+ * press's own rules. */
+void sim_bekker_contact_merge(sim_contact *to, const sim_contact *from);
 /*
  * Load-driven: the highest pose height z (whole units, in [lo, hi)) at which
  * the soil's vertical force on c (one of job->colliders, which the caller owns)

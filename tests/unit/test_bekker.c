@@ -427,12 +427,60 @@ static void test_scratch_size(void)
     }
 }
 
+/*
+ * Issue 31 item 5: a load-driven wheel's contact describes the wheel where the
+ * search left it. Rolling Ding's wheel (80 N, slip 0.2) on its soil: every
+ * tick's contact has cells, Σ penetration > 0 and its deepest point at the
+ * wheel's bottom height or above; its sinkage is the wheel's own, the
+ * undisturbed surface less the rim's lowest point (ground - (z - R)),
+ * within one height unit (the lowest cell's centre is within half a cell of
+ * the rim's lowest point; before, the deepest cell's: 12-15 % above it) in all
+ * but 2 of 40 ticks (1 here: a cell of the lowest line pressed under the pile
+ * the rim pushed ahead counts that pile; the per-cell state cannot tell it).
+ */
+static void test_loaded_wheel_measures(void)
+{
+    sim_soil soil;
+    sim_soil_preset("ding2011", &soil);
+    soil_rig r;
+    double R = SIM_WHEEL_DING2011_RADIUS_M, ground = 0.5, v = 0.05, slip = 0.2;
+    soil_rig_init(&r, &soil, 0.5, 0.005, 160, 53, ground);
+    r.p.tick_s = 0.05;
+    r.geometry.shape = COLLIDER_CYLINDER;
+    r.geometry.radius = R;
+    r.geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+    double x = 1.5 * R, angle = 0.0, omega = v / (R * (1.0 - slip));
+    soil_rig_place(&r, x, 53 * 0.005 / 2, ground + R, IDENTITY, 0);
+    int ok = 1, off = 0;
+    for (int t = 0; t < 60; t++) {
+        x += v * r.p.tick_s;
+        angle += omega * r.p.tick_s;
+        soil_rig_place(&r, x, 53 * 0.005 / 2, r.collider.pose.position.z,
+                       quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
+        soil_rig_carry(&r, SIM_WHEEL_DING2011_LOAD_N);
+        soil_rig_step(&r);
+        const sim_contact *c = &r.contact;
+        double rim = r.collider.pose.position.z - R, own = ground - rim;
+        ok &= c->cells > 0 && c->volume > 0 && c->deepest_units > 0 &&
+              c->deepest[2] >= rim - 1e-4 && c->normal_sum[2] > 0.0;
+        if (t >= 20)
+            off += fabs(c->sinkage_m - own) > 1e-4 + 1e-9;
+    }
+    CHECK(ok, "a loaded wheel's contact has its cells, volume and deepest point every tick");
+    CHECK(off <= 2,
+          "its sinkage is the rim's lowest point below the surface within a unit (%d of 40 "
+          "ticks off)",
+          off);
+    soil_rig_free(&r);
+}
+
 int main(void)
 {
     test_scratch_size();
     test_params();
     test_plate_and_second_pass();
     test_traction();
+    test_loaded_wheel_measures();
     test_floor_and_lift();
     test_rut_passes();
     test_engine();

@@ -246,6 +246,7 @@ export class TerradClient {
   private onText(text: string): void {
     const m: any = P.parseControl(text);
     if (m.type === 'subscribed') this.mirrors.set(m.id, new P.Mirror(m.x, m.y, m.w, m.h, this.world.tile_size) as unknown as Mirror);
+    if (m.type === 'error') this.seen.refused(m);
     if (m.type === 'error') for (const f of this.listeners.error) f(new TerradError(m));
     const w = this.waiting.find((x) => x.test(m));
     if (w) {

@@ -8,19 +8,18 @@ beside Ding et al. 2011's measurements.
 The scene is a flat bed of Ding et al. 2011's soil (J. Terramechanics 48(1):27-45; terrad's
 `bekker` model, preset "ding2011", 5 mm cells, 50 ticks per second). A wheel of their testbed's
 size (R 0.15735 m, width 0.165 m) rolls 0.4 m at 0.125 m/s, turning at v / (R (1 - s)), once for
-each slip 0, 0.1, 0.2, 0.3, 0.4, 0.6, each run in its own lane of fresh soil. The 80 N vertical
-load is held by the client: after every tick it reads the wheel's vertical force from the FORCES
-frame and moves the wheel's height by (Fz - W) / K (a damped proportional search, K = 150 kN/m,
-at most 0.1 mm a tick), because the wire takes a height per collider today (a load-driven
-collider, issue 21's item 4, is not on the wire yet; the validation test uses the server-side
-search). Poses go in lock step: one batch, wait for its ACK, read that tick's FORCES, send the
-next, so the server's velocity (pose minus previous pose over one tick) is the commanded one.
-A tick that comes before the next pose does stands the wheel still for a tick (its shear
-relaxes where cells leave contact); the example counts those "idle ticks" per run: with none,
-its figures are those of a testbed driven tick by tick.
+each slip 0, 0.1, 0.2, 0.3, 0.4, 0.6, each run in its own lane of fresh soil. The wheel is
+load-driven (PROTOCOL.md "Load-driven colliders": created with load_n = 80 N): its poses set x
+and the turn, the server finds each tick the height at which the soil carries the load (the
+validation test's search, sim_bekker_carry) and the height the client sends is ignored. Poses
+go in lock step: one batch, wait for its ACK, read that tick's FORCES, send the next, so the
+server's velocity (pose minus previous pose over one tick) is the commanded one. A tick that
+comes before the next pose does stands the wheel still for a tick; the example counts those
+"idle ticks" per run: with none, its figures are those of a testbed driven tick by tick.
 
 Printed per slip, as means over the second half of the run: drawbar pull (Fx, along travel),
-sinkage (the ground's height minus the wheel's lowest point), driving torque (minus the
+sinkage (FORCES' sinkage: below the undisturbed surface at the wheel's lowest point), driving
+torque (minus the
 soil's torque about the axle) and the load the wheel carried, each beside Ding's smooth-wheel
 values (their Fig. 9, read off the plot: about +-1 N, +-0.5 mm). docs/validation.md has the
 same wheel run server-side by the validation test, its errors and the Wong-Reece prediction.
@@ -40,9 +39,6 @@ DING = [(0.0, -6.5, 0.005, 0.0), (0.1, 11.0, 0.0055, 3.0), (0.2, 14.5, 0.0075, 4
         (0.3, 15.0, 0.010, 4.8), (0.4, 15.0, 0.0125, 5.0), (0.6, 15.0, 0.0175, 5.3)]
 SPEED = 0.125       # m/s along +x: 2.5 mm a tick at 50 Hz, as the validation test's ticks
 DISTANCE = 0.4      # m rolled; means over the second half
-STIFFNESS = 150e3   # N/m: the load search's gain, stiffer than the soil's dFz/dz (~15 kN/m)
-START_SINKAGE = 0.007  # m: where each wheel starts, near the static sinkage (docs/validation.md)
-MAX_STEP = 0.0001   # m: the most the search moves a wheel in one tick (one height unit)
 
 
 def wheel_pose(cid, x, y, z, angle):
@@ -51,8 +47,8 @@ def wheel_pose(cid, x, y, z, angle):
 
 
 async def roll(wheel, client, x0, dt, steps):
-    """One wheel in lock step with the server: a pose, its ACK, that tick's FORCES, the next
-    height. Sums the second half's figures into wheel["sum"]."""
+    """One wheel in lock step with the server: a pose, its ACK, that tick's FORCES. Its height
+    is the server's (load-driven). Sums the second half's figures into wheel["sum"]."""
     x, last_tick = x0, None
     for k in range(steps):
         x += SPEED * dt
@@ -70,12 +66,10 @@ async def roll(wheel, client, x0, dt, steps):
         if k >= steps // 2 and f:
             s = wheel["sum"]
             s[0] += f.force[0]
-            s[1] += wheel["ground"] - (wheel["z"] - RADIUS)
+            s[1] += f.sinkage_m
             s[2] += -f.torque[1]
             s[3] += fz
             wheel["n"] += 1
-        # the load search: deeper while the soil carries less than the load
-        wheel["z"] += max(-MAX_STEP, min(MAX_STEP, (fz - LOAD) / STIFFNESS))
 
 
 async def testbed(ws_uri, http_uri):
@@ -98,9 +92,9 @@ async def testbed(ws_uri, http_uri):
             y = (i + 0.5) * lane
             _, h = await loop.run_in_executor(None, read, int(x0 / cell), int(y / cell), 1, 1)
             ground = int(h[0][0]) / units
-            cid = await client.create_collider("wheel", radius=RADIUS, width=WIDTH)
+            cid = await client.create_collider("wheel", radius=RADIUS, width=WIDTH, load_n=LOAD)
             wheel = {"id": cid, "slip": slip, "y": y, "ground": ground,
-                     "z": ground + RADIUS - START_SINKAGE, "angle": 0.0, "sum": [0.0] * 4,
+                     "z": ground + RADIUS, "angle": 0.0, "sum": [0.0] * 4,
                      "n": 0, "idle": 0, "forces": forces,
                      "omega": SPEED / (RADIUS * (1.0 - slip))}
             await roll(wheel, client, x0, dt, steps)

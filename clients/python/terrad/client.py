@@ -378,6 +378,8 @@ class Client:
         if t == "error" and step is not None:
             if not step.done():
                 step.set_exception(ServerError(msg))
+        elif t == "error" and ref == "seen" and msg.get("name") == "unknown_type":
+            self.say_seen = False  # a daemon from before "seen": it bounds only its own queue
         elif t == "error":
             if fut and not fut.done():
                 fut.set_exception(ServerError(msg))

@@ -846,7 +846,7 @@ def resync(sid: int | None = None, ref=None) -> dict:
 def seen(tick: int) -> dict:
     """The latest tick whose frames this client has handled (PROTOCOL.md "seen"): the server
     bounds the client's lag by it, end to end."""
-    return {"type": "seen", "tick": tick}
+    return {"type": "seen", "tick": tick, "ref": "seen"}  # ref: an older daemon's refusal names it
 
 
 def frame_tick(data: bytes) -> int:

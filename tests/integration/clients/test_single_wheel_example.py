@@ -6,9 +6,9 @@ Ding et al. 2011's soil; CPU backend, a store in a temporary directory):
 
 - it exits 0 and prints one row per slip of Ding's smooth wheel (0, 0.1, 0.2, 0.3, 0.4, 0.6),
   each with drawbar pull, sinkage, torque and load beside Ding's values;
-- the client-side load search holds the wheel's mean vertical force near the 80 N load
-  (within 20 %), and the sinkage is that of a wheel in soil (between 2 and 30 mm; Ding measured
-  5-17.5 mm, the server-side test 8-15 mm);
+- the server-side load search (a load-driven wheel, load_n 80) holds its mean vertical force
+  near 80 N (within 20 %), and the sinkage is that of a wheel in soil (between 2 and 30 mm;
+  Ding measured 5-17.5 mm, the server-side test 8-15 mm);
 - the physics that must hold whatever the calibration and the machine's load: the towed wheel
   (slip 0) is resisted, the wheel at slip 0.6 pulls (more than the towed one by 10 N) and needs
   more driving torque than the towed one.
@@ -43,7 +43,8 @@ with check.running(Daemon(extra=["--scene", os.path.join(EXAMPLES, "single_wheel
     check(sorted(rows) == [0.0, 0.1, 0.2, 0.3, 0.4, 0.6], f"one row per slip: {sorted(rows)}")
     if len(rows) == 6:
         for slip, (dp, z, t, load, idle) in rows.items():
-            check(64.0 <= load <= 96.0, f"slip {slip}: the load search holds 80 N ({load} N)")
+            check(64.0 <= load <= 96.0,
+                  f"slip {slip}: the server's load search holds 80 N ({load} N)")
             check(2.0 <= z <= 30.0, f"slip {slip}: sinkage of a wheel in soil ({z} mm)")
         check(rows[0.0][0] < 0.0, f"the towed wheel is resisted (DP {rows[0.0][0]} N)")
         check(rows[0.6][0] > rows[0.0][0] + 10.0,

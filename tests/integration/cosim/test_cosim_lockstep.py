@@ -18,11 +18,13 @@ real daemons on loopback:
   least the last tick the driver saw acknowledged;
 - a wall-clocked world refuses a STEP naming "clock"; a second would-be driver is refused
   naming "driver"; "clock" of neither kind is refused by POST /v1/worlds naming "clock";
+- the daemon's own world (--scene) client-clocked does not tick by itself, and a driver steps it;
 - under --durability group:MS (a tick's frames held until the sync that covers it) every step is
   answered: the step's end syncs, as no later tick would publish them.
 
 Behaviour only: every wait is for a condition, with a generous deadline.
 """
+import json
 import os
 import subprocess
 import sys
@@ -226,8 +228,25 @@ def group_commit():
         check(texts["g"].count("STEPPED ") == 40, "every step answered under group:400")
 
 
+def default_world():
+    """The daemon's own world (--scene) may be client-clocked too: it waits for its driver, and
+    a driver (hello naming the scene) steps it as any created world."""
+    fd, path = tempfile.mkstemp(prefix="terrad-cosim-scene-", suffix=".json")
+    with os.fdopen(fd, "w") as f:
+        json.dump(dict(scene(), clock="client"), f)
+    try:
+        with check.running(Daemon(extra=["--scene", path], name="default-world")) as d:
+            check(d.stats()["tick"] == 0, "a client-clocked default world does not tick by itself")
+            texts = drive(d, ["cosim"], "many", steps=30)
+            tick = int(texts["cosim"].split("STEPPED ")[-1].split()[0])
+            check(d.stats()["tick"] == tick, f"its tick is the last STEPPED: {d.stats()['tick']} == {tick}")
+    finally:
+        os.unlink(path)
+
+
 determinism()
 kill9()
 refusals()
 group_commit()
+default_world()
 check.finish()

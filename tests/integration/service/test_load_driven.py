@@ -11,6 +11,8 @@
   normal force is the load: at least the load and above it by less than one height unit of
   elastic reloading under the plate (K_e x 0.1 mm x area), the step of the search;
 - the pose height a client sends is ignored: a later pose far above the soil changes nothing;
+  CONTACT describes each plate where the server put it (its cells, volume and deepest point
+  at the found height; before issue 31 it was measured at the pose 0.2 m up: 0 cells);
 - bad values are refused naming `load_n` (`bad_value`: 0, negative, a string "NaN", above
   1e9; `unsupported_collider` on a world of another model), each counted in
   terrad_refused_messages_total, and the daemon goes on.
@@ -40,12 +42,17 @@ class Watcher(RecordingClient):
     def __init__(self, *a, **k):
         super().__init__(*a, record=False, **k)
         self.log = {}  # id -> [(tick, Force)]
+        self.found_contacts = {}  # id -> [(tick, Contact)]
 
     async def _on_binary(self, data):
         if tp.decode_header(data) == tp.MsgType.FORCES:
             tick, fs = tp.decode_forces(data)
             for f in fs:
                 self.log.setdefault(f.id, []).append((tick, f))
+        elif tp.decode_header(data) == tp.MsgType.CONTACT:
+            tick, cs = tp.decode_contact(data)
+            for ct in cs:
+                self.found_contacts.setdefault(ct.id, []).append((tick, ct))
         await super()._on_binary(data)
 
     def settled(self, cid):
@@ -98,6 +105,14 @@ async def plates(d):
               f"normal force {f.force[2]:.1f} N is the load {load:.1f} N (within one unit's "
               f"{step_n:.0f} N of elastic reloading)")
         check(f.cells == PW * PL, f"the whole plate is in contact ({f.cells} cells)")
+        # its CONTACT is where the server put it, not 0.2 m up where the poses say
+        tick = c.log[cid][-1][0]
+        ct = [x for tk, x in c.found_contacts.get(cid, []) if tk == tick]
+        check(len(ct) == 1 and ct[0].cells == PW * PL and ct[0].volume > 0
+              and ct[0].deepest[2] < GROUND and abs(ct[0].area_m2 - area) < 1e-6,
+              f"its CONTACT at the found height: {ct[0] if ct else None}")
+        check(bool(ct) and abs(GROUND - ct[0].deepest[2] - f.sinkage_m) <= 1 / UPM + 1e-6,
+              "CONTACT's deepest point is at the FORCES sinkage below the surface")
     # a pose far above the soil: the height stays the server's
     seq = await c.send_poses([tp.Pose(ids[0], *plate_pose(0, GROUND + 1.0)["p"], 1, 0, 0, 0)])
     await c.wait_ack(seq, WAIT)
@@ -107,6 +122,16 @@ async def plates(d):
     after = c.log[ids[0]][-1][1]
     check(after.cells == PW * PL and abs(after.sinkage_m - before.sinkage_m) <= 1 / UPM + 1e-9,
           f"a pose 1 m up is ignored: sinkage {after.sinkage_m:.5f} m ({before.sinkage_m:.5f})")
+    # a pose 2 cm above the soil (a sweep the server takes: 1 m is refused as too
+    # long a sweep): CONTACT is the plate where the server put it, not where posed
+    seq = await c.send_poses([tp.Pose(ids[0], *plate_pose(0, GROUND + 0.07)["p"], 1, 0, 0, 0)])
+    await c.wait_ack(seq, WAIT)
+    t = c.acked_tick
+    await c.wait_for(lambda: c.found_contacts[ids[0]][-1][0] > t, WAIT)
+    ct = [x for tk, x in c.found_contacts.get(ids[0], []) if tk == t]
+    check(len(ct) == 1 and ct[0].cells == PW * PL and ct[0].deepest[2] < GROUND,
+          f"the CONTACT of the tick that posed it 2 cm above the soil has the plate's cells: "
+          f"{ct}")
     await c.close()
 
 
