@@ -67,8 +67,14 @@ static int compaction_run_job(store_dir *st, ZSTD_CCtx *cctx, const tile_copy *t
     /* retention: while the whole log is under retain_bytes nothing is
      * deleted, so every tick since the first can be replayed (store_replay.c);
      * past it the folded segments go as before */
-    if (st->cfg.retain_bytes > 0 && compaction_log_bytes(st) <= st->cfg.retain_bytes)
+    if (st->cfg.retain_bytes > 0 && compaction_log_bytes(st) <= st->cfg.retain_bytes) {
         live = 0;
+        if (store_keyframes_keep(tiles_dir, tiles, count, tick) != 0)
+            log_error("store: keeping the keyframes of tick %llu: %s (replays start earlier)",
+                      (unsigned long long)tick, strerror(errno));
+    } else if (st->cfg.retain_bytes > 0) {
+        store_keyframes_drop(tiles_dir);
+    }
     pthread_mutex_lock(&st->ctl_lock);
     for (int i = 0; i < count; i++)
         st->ctl.tile_tick[tiles[i].ty * st->tiles_x + tiles[i].tx] = tick;

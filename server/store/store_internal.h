@@ -181,6 +181,16 @@ typedef struct replay_result {
 int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
                          uint64_t upto_tick, replay_result *res, error_text *err);
 
+/* ---- replay keyframes (store_replay.c; docs/storage.md "Replay") ---- */
+/* 1 when name is a keyframe (k-TICK-X-Y.snap: *done 0) or a generation's
+ * marker (k-TICK.done: *done 1). */
+int store_keyframe_name(const char *name, uint64_t *tick, int *tx, int *ty, int *done);
+/* Under retention, after a compaction wrote tiles as of tick: links them as
+ * keyframes, then marks the generation whole. 0 or -1 (errno). */
+int store_keyframes_keep(const char *tiles_dir, const tile_copy *tiles, int count, uint64_t tick);
+/* Retention over: every keyframe and marker goes (before the segments). */
+void store_keyframes_drop(const char *tiles_dir);
+
 /* ---- recovery (store_recover.c) ---- */
 enum {
     STORE_RECOVER_REPAIR = 1,    /* cut a torn tail off the last segment */

@@ -16,7 +16,7 @@
 #include <sys/file.h>
 #include <unistd.h>
 
-#include "store/store.h"
+#include "store/store_internal.h"
 
 /* 1 when the whole of `name` matches `fmt` (its numbers, then %n). */
 static int name_is(const char *name, const char *fmt, int fields)
@@ -52,8 +52,12 @@ static int top_level_known(const char *name)
 static int tile_known(const char *name)
 {
     char base[256];
-    return strip_tmp(name, base, sizeof base) == 0 && strncmp(base, "t-", 2) == 0 &&
-           name_is(base, "t-%5llu-%5llu.snap%n", 2);
+    uint64_t tick;
+    int tx, ty, done;
+    if (strip_tmp(name, base, sizeof base) != 0)
+        return 0;
+    return (strncmp(base, "t-", 2) == 0 && name_is(base, "t-%5llu-%5llu.snap%n", 2)) ||
+           store_keyframe_name(base, &tick, &tx, &ty, &done); /* replay's (store_replay.c) */
 }
 
 /* Checks (remove = 0) or deletes (remove = 1) every entry of dir/sub; an

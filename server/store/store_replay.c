@@ -1,22 +1,188 @@
 /*
  * store_replay.c: the world as of a past tick, rebuilt from a data directory
- * beside the live daemon (GET /v1/heights?tick=N; docs/storage.md "Replay").
- * It runs on an HTTP worker, never in the tick: it reads the files the sim
- * and compaction threads write (every whole file appears by rename, every
- * record is complete before its tick is published), into a world of its own.
+ * beside the live daemon (GET /v1/heights?tick=N; docs/storage.md "Replay"),
+ * and the keyframes that make it quick. It runs on an HTTP worker, never in
+ * the tick: it reads the files the sim and compaction threads write (every
+ * whole file appears by rename or link, every record is complete before its
+ * tick is published), into a world of its own.
  *
- * The rebuild: the base terrain over the requested rectangle, then either the
- * whole log up to the tick (while retention keeps segment 1: every tick since
- * the first can be rebuilt) or the tile snapshots and the log after them (a
- * snapshot newer than the tick means the store no longer holds it: 410).
- * Records hold absolute heights, so replaying every record up to the tick
- * over either start gives the cells as they were at the end of that tick.
+ * Keyframes: under retention a compaction's tile snapshots (the world as of
+ * its tick, tiles changed since the previous one) are kept, hard-linked as
+ * tiles/k-TICK-X-Y.snap, and tiles/k-TICK.done says the generation is whole.
+ * The world at a whole generation's tick G is, per tile, its newest keyframe
+ * at or before G (a tile changed since would be in a later generation), else
+ * the base. So a rebuild of tick N starts from the newest whole generation at
+ * or before N, loads only the requested rectangle's tiles, and replays the
+ * records after G up to N, skipping the segments before. Without one: the
+ * whole log from the base (while retention keeps segment 1), else the tile
+ * snapshots and the log after them (a snapshot newer than N: 410). Records
+ * hold absolute heights, so replaying a record older than the start is
+ * harmless: the later ones of the same cells follow it.
  */
+#include <dirent.h>
+#include <fcntl.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 #include "store/store_internal.h"
+
+int store_keyframe_name(const char *name, uint64_t *tick, int *tx, int *ty, int *done)
+{
+    unsigned long long t;
+    int a, b, end = -1;
+    *done = 0;
+    if (sscanf(name, "k-%16llu-%5d-%5d.snap%n", &t, &a, &b, &end) == 3 && end > 0 && !name[end]) {
+        *tick = t, *tx = a, *ty = b;
+        return 1;
+    }
+    end = -1;
+    if (sscanf(name, "k-%16llu.done%n", &t, &end) == 1 && end > 0 && !name[end]) {
+        *tick = t, *done = 1;
+        return 1;
+    }
+    return 0;
+}
+
+int store_keyframes_keep(const char *tiles_dir, const tile_copy *tiles, int count, uint64_t tick)
+{
+    char from[1200], to[1200];
+    for (int i = 0; i < count; i++) {
+        snprintf(from, sizeof from, "%s/t-%05d-%05d.snap", tiles_dir, tiles[i].tx, tiles[i].ty);
+        snprintf(to, sizeof to, "%s/k-%016llu-%05d-%05d.snap", tiles_dir, (unsigned long long)tick,
+                 tiles[i].tx, tiles[i].ty);
+        unlink(to); /* a retried compaction of the same tick */
+        if (link(from, to) != 0)
+            return -1;
+    }
+    /* the links are durable before the marker says the generation is whole */
+    if (store_dir_fsync(tiles_dir) != 0)
+        return -1;
+    snprintf(to, sizeof to, "%s/k-%016llu.done", tiles_dir, (unsigned long long)tick);
+    int fd = open(to, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd < 0)
+        return -1;
+    close(fd);
+    return store_dir_fsync(tiles_dir);
+}
+
+void store_keyframes_drop(const char *tiles_dir)
+{
+    DIR *d = opendir(tiles_dir);
+    struct dirent *e;
+    uint64_t tick;
+    int tx, ty, done;
+    char path[1400];
+    /* before the segments go: a reader that still finds a generation and
+     * then misses its records fails and tries again without one */
+    while (d && (e = readdir(d)))
+        if (store_keyframe_name(e->d_name, &tick, &tx, &ty, &done)) {
+            snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
+            unlink(path);
+        }
+    if (d)
+        closedir(d);
+    store_dir_fsync(tiles_dir);
+}
+
+/* The newest whole generation at or before tick (0: none) and, per tile of
+ * r, the tick of its newest keyframe at or before it (0: the base). */
+static uint64_t keyframe_start(const char *tiles_dir, uint64_t tick, world_rect r,
+                               uint64_t *tile_tick, int tiles_x)
+{
+    DIR *d = opendir(tiles_dir);
+    struct dirent *e;
+    uint64_t g = 0, t;
+    int tx, ty, done;
+    while (d && (e = readdir(d)))
+        if (store_keyframe_name(e->d_name, &t, &tx, &ty, &done) && done && t <= tick && t > g)
+            g = t;
+    if (d)
+        rewinddir(d);
+    int x0 = r.x / STORE_TILE_SIZE, y0 = r.y / STORE_TILE_SIZE;
+    int x1 = (r.x + r.w - 1) / STORE_TILE_SIZE, y1 = (r.y + r.h - 1) / STORE_TILE_SIZE;
+    while (g && d && (e = readdir(d)))
+        if (store_keyframe_name(e->d_name, &t, &tx, &ty, &done) && !done && t <= g && tx >= x0 &&
+            tx <= x1 && ty >= y0 && ty <= y1 && t > tile_tick[ty * tiles_x + tx])
+            tile_tick[ty * tiles_x + tx] = t;
+    if (d)
+        closedir(d);
+    return g;
+}
+
+/* A segment's first record's tick (UINT64_MAX: none yet, or unreadable). */
+static uint64_t segment_first_tick(const char *path)
+{
+    uint8_t h[WAL_HEADER + REC_HEADER];
+    int fd = open(path, O_RDONLY);
+    if (fd < 0)
+        return UINT64_MAX;
+    ssize_t n = pread(fd, h, sizeof h, 0);
+    close(fd);
+    return n == (ssize_t)sizeof h ? get64(h + WAL_HEADER + 8) : UINT64_MAX;
+}
+
+/* From generation g: the rectangle's tiles' keyframes, then the segments
+ * that can hold records after g, up to tick. 0 or -1. */
+static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world_rect r,
+                                 error_text *why)
+{
+    char tiles_dir[1100], path[1400];
+    snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", dir);
+    int tiles_x = (w->width + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    int tiles_y = (w->height + STORE_TILE_SIZE - 1) / STORE_TILE_SIZE;
+    uint64_t *tile_tick = calloc((size_t)tiles_x * tiles_y, sizeof *tile_tick);
+    uint64_t *seqs = NULL, *first = NULL;
+    int count = 0, rc = -1;
+    if (!tile_tick) {
+        error_set(why, "store: out of memory");
+        return -1;
+    }
+    uint64_t g = keyframe_start(tiles_dir, tick, r, tile_tick, tiles_x);
+    if (!g) {
+        free(tile_tick);
+        return 1; /* no generation at or before the tick */
+    }
+    for (int i = 0; i < tiles_x * tiles_y; i++) {
+        uint64_t t;
+        if (!tile_tick[i])
+            continue;
+        snprintf(path, sizeof path, "%s/k-%016llu-%05d-%05d.snap", tiles_dir,
+                 (unsigned long long)tile_tick[i], i % tiles_x, i / tiles_x);
+        if (store_tile_load(path, w, 0, &t, why) != 0)
+            goto out;
+    }
+    if (store_list_segments(dir, &seqs, &count) != 0 ||
+        !(first = malloc(sizeof *first * ((size_t)count + 1)))) {
+        error_set(why, "store: cannot list the segments of %s", dir);
+        goto out;
+    }
+    for (int i = 0; i < count; i++) {
+        store_segment_path(dir, seqs[i], path, sizeof path);
+        first[i] = segment_first_tick(path);
+    }
+    for (int i = 0; i < count; i++) {
+        if (i + 1 < count && first[i + 1] <= g + 1)
+            continue; /* every record of it is at or before g */
+        if (first[i] != UINT64_MAX && first[i] > tick)
+            break; /* every record from here on is after the tick */
+        replay_result res;
+        store_segment_path(dir, seqs[i], path, sizeof path);
+        if (store_segment_replay(path, w, NULL, 0, tick, &res, why) != 0)
+            goto out;
+        if (res.problem[0] && i != count - 1) {
+            error_set(why, "store: %s: %s", path, res.problem);
+            goto out;
+        }
+    }
+    rc = 0;
+out:
+    free(tile_tick);
+    free(seqs);
+    free(first);
+    return rc;
+}
 
 /* One rebuild; 0, 1 (gone) or -1. */
 static int replay_once(const char *dir, const world *base, uint64_t tick, world_rect r,
@@ -30,20 +196,21 @@ static int replay_once(const char *dir, const world *base, uint64_t tick, world_
      * cells no record or snapshot names keep it */
     world_base_fill_rect(base, r, dst);
     world_scatter_window(&w, r, dst);
-    char first[1100];
-    store_segment_path(dir, 1, first, sizeof first);
-    int whole = access(first, F_OK) == 0;
-    recover_args a = {
-        .dir = dir, .w = &w, .upto_tick = tick, .flags = whole ? STORE_RECOVER_NO_TILES : 0};
-    uint64_t last_seq;
-    store_recovery rec;
-    int rc = 0;
-    if (store_recover(&a, &last_seq, &rec, why) != 0) {
-        /* store_tile_load's refusal of a snapshot newer than the tick */
-        rc = strstr(why->message, "compacted away") ? 1 : -1;
-    } else {
-        world_gather_window(&w, r, dst);
+    int rc = replay_from_keyframes(dir, &w, tick, r, why);
+    if (rc == 1) {
+        char first[1100];
+        store_segment_path(dir, 1, first, sizeof first);
+        int whole = access(first, F_OK) == 0;
+        recover_args a = {
+            .dir = dir, .w = &w, .upto_tick = tick, .flags = whole ? STORE_RECOVER_NO_TILES : 0};
+        uint64_t last_seq;
+        store_recovery rec;
+        rc = 0;
+        if (store_recover(&a, &last_seq, &rec, why) != 0)         /* store_tile_load's refusal */
+            rc = strstr(why->message, "compacted away") ? 1 : -1; /* of a newer snapshot */
     }
+    if (rc == 0)
+        world_gather_window(&w, r, dst);
     world_free(&w);
     return rc;
 }

@@ -2,8 +2,9 @@
  * bench_replay.c: seek to a tick of a long match (issue 32 item 3, goal: any
  * tick of a 1-hour match in <= 100 ms; docs/performance.md "Replay").
  *
- * A 1024² dunes world and its data directory (durability none, the default
- * 16 MiB segments, the whole log retained: --replay-retain-bytes) take a
+ * A 1024² dunes world and its data directory (durability none, 1 MiB
+ * segments — BENCH_REPLAY_SEGMENT_BYTES; each compaction a keyframe — and the
+ * whole log retained: --replay-retain-bytes) take a
  * match of BENCH_REPLAY_TICKS ticks (default 36,000: 10 minutes at 60 Hz,
  * so that make bench stays short; 216000 is the hour of the goal) of 8
  * vehicles, each pressing four 6×10-cell wheel patches a unit deeper every
@@ -71,7 +72,11 @@ int main(void)
         fprintf(stderr, "bench_replay: %s\n", err.message);
         return 1;
     }
-    store_config c = {.dir = dir, .durability = STORE_NONE, .retain_bytes = (int64_t)1 << 40};
+    const char *seg = getenv("BENCH_REPLAY_SEGMENT_BYTES");
+    store_config c = {.dir = dir,
+                      .durability = STORE_NONE,
+                      .segment_bytes = seg ? strtoll(seg, NULL, 10) : 1 << 20,
+                      .retain_bytes = (int64_t)1 << 40};
     store_recovery rec;
     store *st = store_open(&c, &w, &rec, &err);
     if (!st) {
@@ -115,9 +120,10 @@ int main(void)
         kb = 0;
     if (du)
         pclose(du);
-    printf("{\"bench\":\"replay_write\",\"ticks\":%llu,\"vehicles\":%d,\"log_mib\":%.1f,"
-           "\"write_s\":%.1f}\n",
-           (unsigned long long)ticks, VEHICLES, kb / 1024.0, write_ms / 1e3);
+    printf("{\"bench\":\"replay_write\",\"ticks\":%llu,\"vehicles\":%d,\"segment_bytes\":%lld,"
+           "\"dir_mib\":%.1f,\"write_s\":%.1f}\n",
+           (unsigned long long)ticks, VEHICLES, (long long)c.segment_bytes, kb / 1024.0,
+           write_ms / 1e3);
     int32_t *got = malloc(sizeof(int32_t) * WIN * WIN);
     int all_exact = 1;
     for (int s = 0; s < SEEKS; s++) {

@@ -8,7 +8,8 @@ past tick from the data directory, and it is what was served live at that tick, 
   many times during the drive, and --replay-retain-bytes keeping the whole log. After
   every few ACKs the test reads GET /v1/heights as served live then (its X-Terrad-Tick).
 - Afterwards, ?tick=N of each of those ticks equals the live answer exactly — after the
-  compactions, and again after kill -9 and a restart on the directory.
+  compactions (each kept as a keyframe generation, tiles/k-TICK.done, which the rebuilds
+  start from), and again after kill -9 and a restart on the directory.
 - The same for a world created with POST /v1/worlds (?world=NAME&tick=N).
 - Refusals, each naming the parameter, counted, the daemon going on: a tick in the future
   (400), not a number (400), with base= (400); a daemon without retention (the default):
@@ -22,11 +23,12 @@ import asyncio
 import os
 import shutil
 import struct
+import subprocess
 import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import Checks, Daemon, RecordingClient, json_call, metric_value  # noqa: E402
+from service_harness import BIN, Checks, Daemon, RecordingClient, json_call, metric_value  # noqa: E402
 import compaction_drive as cd  # noqa: E402
 import terrad as tp  # noqa: E402
 
@@ -107,6 +109,8 @@ def retained(scene):
         check.daemons.append(d)
         live = asyncio.run(drive(d))
         check(compactions(d) >= 2, f"the log was compacted during the drive ({compactions(d)} times)")
+        marks = [n for n in os.listdir(os.path.join(data, "tiles")) if n.endswith(".done")]
+        check(len(marks) >= 2, f"each compaction kept a keyframe generation ({marks})")
         compare(d, live, "after compactions")
         refusals(d, d.stats()["tick"])
         # a created world: its own directory, the same rebuild
@@ -120,6 +124,10 @@ def retained(scene):
         compare(d, live, "after kill -9 and a restart")
         compare(d, live_world, f"created world {WORLD} after the restart", WORLD)
         d.stop()
+        fsck = subprocess.run([BIN, "fsck", "--data", data, "--scene", scene],
+                              capture_output=True, text=True, timeout=120)
+        check(fsck.returncode == 0, f"terrad fsck finds the directory with keyframes clean "
+                                    f"({fsck.returncode} {fsck.stderr[-300:]!r})")
     finally:
         shutil.rmtree(data, ignore_errors=True)
 
