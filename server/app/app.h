@@ -47,6 +47,14 @@ void app_wheel_usage(FILE *out);
  * failure nothing is held. */
 int app_open_scene_world(const char *scene_path, scene *sc, world *w, error_text *err);
 
+/* A soil given on the command line (option names it in messages): a preset
+ * of docs/models.md (compression 0.5), else a material JSON file of the
+ * bekker model, as `terrad calibrate --out` writes it (its soil and its
+ * compression), read as a scene of cell_m cells reads its "material": the
+ * same checks, errors naming the file and the field. wheel_cmd.c. */
+int app_soil_load(const char *arg, const char *option, double cell_m, sim_soil *soil,
+                  double *compression, error_text *err);
+
 /* Called after each tick of app_run_scene_ticks with that tick's report and wall time. */
 typedef void (*app_tick_observer)(void *ctx, long tick, const sim_tick_report *report,
                                   double tick_ms);

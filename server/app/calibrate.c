@@ -49,6 +49,7 @@ typedef struct cal_options {
     int fit[FIT_COUNT], fit_count;
     long rounds;
     double compression;
+    int has_compression;   /* else the base file's, or 0.5 */
     sim_wheel_run testbed; /* cell, distance, speed and tick of every run */
 } cal_options;
 
@@ -81,9 +82,10 @@ static const cli_option cal_table[] = {
     [OPT_RADIUS] = {"radius", "M", "the wheel's radius when the file has no radius_m"},
     [OPT_WIDTH] = {"width", "M", "the wheel's width when the file has no width_m"},
     [OPT_LOAD] = {"load", "N", "the vertical load when the file has no load_n"},
-    [OPT_BASE] = {"base", "PRESET",
-                  "the soil the fit starts from and keeps what it does not fit\n"
-                  "(a preset of docs/models.md; default ding2011)"},
+    [OPT_BASE] = {"base", "PRESET|FILE",
+                  "the soil the fit starts from and keeps what it does not fit:\n"
+                  "a preset of docs/models.md (default ding2011) or a material\n"
+                  "JSON file of the bekker model (as --out writes it)"},
     [OPT_FIT] = {"fit", "LIST",
                  "the wheel parameters fitted, in order (default\n"
                  "cohesion_pa,friction_deg,shear_k_m,slip_n); the grid is over the first two"},
@@ -91,7 +93,8 @@ static const cli_option cal_table[] = {
     [OPT_CELL] = {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)"},
     [OPT_DISTANCE] = {"distance", "M", "each testbed run's travel (default 0.5)"},
     [OPT_COMPRESSION] = {"compression", "X",
-                         "the material's compression in the runs and the JSON (default 0.5)"},
+                         "the material's compression in the runs and the JSON (default:\n"
+                         "the --base file's, or 0.5)"},
     [OPT_OUT] = {"out", "FILE", "write the material JSON here (it is also printed)"},
     [OPT_RESIDUALS] = {"residuals", "FILE", "write every row's residuals here as CSV"},
     {0},
@@ -173,6 +176,7 @@ static int cal_on_option(void *ctx, int index, const char *v, error_text *err)
     case OPT_DISTANCE:
         return cli_parse_double(v, 0.05, 10, &o->testbed.distance_m, err);
     case OPT_COMPRESSION:
+        o->has_compression = 1;
         return cli_parse_double(v, 0, 1, &o->compression, err);
     case OPT_OUT:
         o->out = v;
@@ -565,14 +569,20 @@ int app_calibrate(int argc, char **argv)
         cli_parse("calibrate", cal_usage, cal_table, argc, argv, cal_on_option, &o, &first);
     if (r != CLI_OK)
         return r == CLI_HELP ? 0 : 2;
-    sim_soil soil;
-    if (first < argc || (!o.plates && !o.wheel) || sim_soil_preset(o.base, &soil) != 0) {
+    if (first < argc || (!o.plates && !o.wheel)) {
         fprintf(stderr, "terrad calibrate: %s\n",
-                first < argc            ? "unexpected operand (see --help)"
-                : !o.plates && !o.wheel ? "give --plates FILE and/or --wheel FILE"
-                                        : "--base: unknown preset (" SIM_SOIL_PRESET_LIST ")");
+                first < argc ? "unexpected operand (see --help)"
+                             : "give --plates FILE and/or --wheel FILE");
         return 2;
     }
+    sim_soil soil;
+    double compression;
+    if (app_soil_load(o.base, "--base", o.testbed.cell_m, &soil, &compression, &err) != 0) {
+        fprintf(stderr, "terrad calibrate: %s\n", err.message);
+        return 2;
+    }
+    if (!o.has_compression)
+        o.compression = compression;
     FILE *csv = NULL;
     if (o.residuals) {
         csv = fopen(o.residuals, "w");

@@ -144,28 +144,39 @@ static int wheel_on_option(void *ctx, int index, const char *v, error_text *err)
     return 0;
 }
 
+int app_soil_load(const char *arg, const char *option, double cell_m, sim_soil *soil,
+                  double *compression, error_text *err)
+{
+    *compression = 0.5;
+    if (sim_soil_preset(arg, soil) == 0)
+        return 0;
+    sim_material m;
+    /* read for the bin's cells and height quantum (sim_testbed.c's 0.1 mm) */
+    if (scene_material_load_file(arg, cell_m, 10000, &m, err) != 0) {
+        char prefix[256];
+        snprintf(prefix, sizeof prefix,
+                 "%s: not a preset (" SIM_SOIL_PRESET_LIST ") nor a material file", option);
+        error_prefix(err, prefix, ": ");
+        return -1;
+    }
+    if (m.model != SIM_MODEL_BEKKER) {
+        error_set(err,
+                  "%s: %s: material.model must be \"bekker\" (got \"%s\"): only the "
+                  "bekker model has a soil to run a wheel on",
+                  option, arg, sim_model_name(m.model));
+        return -1;
+    }
+    *soil = m.soil;
+    *compression = m.compression;
+    return 0;
+}
+
 /* --soil: a preset name, else a material file of the bekker model. */
 static int wheel_soil(wheel_options *o, error_text *err)
 {
-    double compression = 0.5;
-    if (sim_soil_preset(o->soil_arg, &o->soil) != 0) {
-        sim_material m;
-        /* read for the bin's cells and height quantum (sim_testbed.c's 0.1 mm) */
-        if (scene_material_load_file(o->soil_arg, o->run.cell_m, 10000, &m, err) != 0) {
-            error_prefix(err, "--soil: not a preset (" SIM_SOIL_PRESET_LIST ") nor a material file",
-                         ": ");
-            return -1;
-        }
-        if (m.model != SIM_MODEL_BEKKER) {
-            error_set(err,
-                      "--soil: %s: material.model must be \"bekker\" (got \"%s\"): only the "
-                      "bekker model has a soil to run a wheel on",
-                      o->soil_arg, sim_model_name(m.model));
-            return -1;
-        }
-        o->soil = m.soil;
-        compression = m.compression;
-    }
+    double compression;
+    if (app_soil_load(o->soil_arg, "--soil", o->run.cell_m, &o->soil, &compression, err) != 0)
+        return -1;
     if (!o->has_compression)
         o->compression = compression;
     o->run.compression = o->compression;

@@ -14,6 +14,10 @@
 - the material JSON it writes is a scene's material: a real `terrad serve` loads it and a
   client's wheel pressed into it gets the soil's FORCES; the same JSON with a field out of
   range is refused by serve naming the field;
+- `--base FILE` starts the fit from a material JSON: a file holding the ding2011 preset's
+  exact numbers (as `terrad wheel --format json` prints them) gives the very material, residuals
+  and report the preset gives; a file with a field out of range, or of another model, is refused
+  naming the file and the field;
 - bad input is refused with exit 2 and a message naming the file, the line and the field:
   a missing column, NaN, a negative width, too few widths or rows, an empty measurement row.
 """
@@ -124,6 +128,44 @@ def test_ding(tmp):
     return os.path.join(tmp, "ding-0.json")
 
 
+def preset_material(name):
+    """The preset's soil to the last bit, as a material JSON object (terrad wheel prints it)."""
+    p = subprocess.run([BIN, "wheel", "--soil", name, "--radius", "0.1", "--width", "0.1",
+                        "--load", "10", "--slips", "0", "--cell", "0.05", "--distance", "0.05",
+                        "--format", "json"], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 0, f"terrad wheel prints {name}'s soil ({p.stderr[-200:]})")
+    return {"model": "bekker", "compression": 0.5, "soil": json.loads(p.stdout)["soil"]}
+
+
+def test_base_file(tmp):
+    material = preset_material("ding2011")
+    base = write(os.path.join(tmp, "base-ding.json"), json.dumps(material))
+    outs = []
+    for k, arg in enumerate(("ding2011", base)):
+        out, res = os.path.join(tmp, f"base-{k}.json"), os.path.join(tmp, f"base-{k}.csv")
+        rc, stdout, stderr = calibrate("--wheel", DING, *WHEEL_ARGS, *SMALL, "--base", arg,
+                                       "--out", out, "--residuals", res)
+        check(rc == 0, f"fit from --base {arg}: exit 0 ({rc}: {stderr[-300:]})")
+        if rc != 0:
+            return
+        with open(out) as f, open(res) as g:
+            # the report names its base twice; the rest must be the same bytes
+            report = stdout.replace(f"base soil {arg}\n", "").replace(f"base {arg} ->", "")
+            outs.append((report, f.read(), g.read()))
+    check(outs[0] == outs[1], "a fit from a file holding the ding2011 preset gives the preset's "
+          "material, residuals and report byte for byte")
+    bad = json.loads(json.dumps(material))
+    bad["soil"]["friction_deg"] = 75
+    f = write(os.path.join(tmp, "base-bad.json"), json.dumps(bad))
+    refused("--base file with friction_deg 75", ["--wheel", DING, *WHEEL_ARGS, "--base", f],
+            "--base", "base-bad.json", "material.soil.friction_deg")
+    f = write(os.path.join(tmp, "base-diffusion.json"), json.dumps({"model": "diffusion"}))
+    refused("--base file of another model", ["--wheel", DING, *WHEEL_ARGS, "--base", f],
+            "base-diffusion.json", "material.model")
+    refused("--base neither preset nor file", ["--wheel", DING, *WHEEL_ARGS, "--base", "clay9"],
+            "--base", "clay9", "not a preset")
+
+
 async def pressed_wheel(d):
     """A wheel pressed 2 cm into the soil: the soil carries it (FORCES, Fz > 0)."""
     c = RecordingClient(d.ws, name="calibrated", record=False)
@@ -205,6 +247,7 @@ def main():
     try:
         test_bad(tmp)
         test_plates(tmp)
+        test_base_file(tmp)
         fitted = test_ding(tmp)
         if fitted:
             test_serve(tmp, fitted)
