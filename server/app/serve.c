@@ -275,6 +275,7 @@ static void serve_drain(serve_daemon *d, const char *why)
     d->drain_deadline_ms = time_now_ms() + (double)d->o.drain_grace_ms;
     http_server_set_draining(d->http, why);
     serve_worlds_drain(d->worlds, why);
+    serve_worlds_watch(d->worlds); /* "draining" told before the daemon may stop */
     net_server_drain(d->net, why, d->o.drain_grace_ms);
     log_info("drain: %s: not ready, taking no new clients or worlds; stopping once %d clients "
              "have left, or in %d ms",
@@ -292,6 +293,7 @@ static int serve_wait(serve_daemon *d, error_text *err)
         }
         if (!d->draining && (drain_signal || atomic_load(&d->drain_asked)))
             serve_drain(d, drain_signal ? "SIGTERM" : "POST /v1/drain");
+        serve_worlds_watch(d->worlds); /* world_state events */
         if (d->draining) {
             int left = net_server_client_count(d->net);
             if (left == 0 || time_now_ms() >= d->drain_deadline_ms) {
