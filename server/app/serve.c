@@ -163,18 +163,23 @@ static double net_stalled(const void *arg)
     return net_server_stalled_ms((const net_server *)arg);
 }
 
+unsigned serve_drain_json(int already, int grace_ms, char **json)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddBoolToObject(o, "draining", 1);
+    cJSON_AddBoolToObject(o, "already", already);
+    cJSON_AddNumberToObject(o, "grace_ms", grace_ms);
+    *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return 202;
+}
+
 /* POST /v1/drain (admin; http_server_set_drain): the main thread drains. */
 static unsigned drain_call(void *ctx, char **json)
 {
     serve_daemon *d = ctx;
     int again = atomic_exchange(&d->drain_asked, 1);
-    cJSON *o = cJSON_CreateObject();
-    cJSON_AddBoolToObject(o, "draining", 1);
-    cJSON_AddBoolToObject(o, "already", again || drain_signal);
-    cJSON_AddNumberToObject(o, "grace_ms", (double)d->o.drain_grace_ms);
-    *json = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
-    return 202;
+    return serve_drain_json(again || drain_signal, d->o.drain_grace_ms, json);
 }
 
 /* Its simulation started: the websocket port (with its hub and info), the
