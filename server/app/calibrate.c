@@ -53,7 +53,7 @@ static double *param_field(sim_soil *s, int p)
 }
 
 typedef struct cal_options {
-    const char *plates, *wheel, *out, *residuals, *base;
+    const char *plates, *wheel, *predict, *out, *residuals, *base;
     cal_wheel_defaults wheel_defaults;
     int fit[FIT_COUNT], fit_count;
     long rounds;
@@ -65,6 +65,7 @@ typedef struct cal_options {
 enum {
     OPT_PLATES,
     OPT_WHEEL,
+    OPT_PREDICT,
     OPT_WHERE,
     OPT_RADIUS,
     OPT_WIDTH,
@@ -87,6 +88,9 @@ static const cli_option cal_table[] = {
                    "single-wheel CSV: slip and drawbar_pull_n, sinkage_m and/or torque_nm\n"
                    "(an empty cell is not measured); radius_m, width_m, load_n\n"
                    "as columns or the options below"},
+    [OPT_PREDICT] = {"predict", "FILE",
+                     "wheel rows held out of the fit (the --wheel format, the same\n"
+                     "defaults and --where): the base and fitted soils' errors on them"},
     [OPT_WHERE] = {"where", "COL=VALUE", "use only the wheel rows whose COL is VALUE"},
     [OPT_RADIUS] = {"radius", "M", "the wheel's radius when the file has no radius_m"},
     [OPT_WIDTH] = {"width", "M", "the wheel's width when the file has no width_m"},
@@ -156,6 +160,9 @@ static int cal_on_option(void *ctx, int index, const char *v, error_text *err)
         return 0;
     case OPT_WHEEL:
         o->wheel = v;
+        return 0;
+    case OPT_PREDICT:
+        o->predict = v;
         return 0;
     case OPT_WHERE: {
         const char *eq = strchr(v, '=');
@@ -430,8 +437,8 @@ static double median_error(const cal_wheel_row *rows, int n, const wheel_eval *e
 
 static const char *const measure_names[3] = {"drawbar_pull_n", "sinkage_m", "torque_nm"};
 
-static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_eval *base,
-                         const wheel_eval *fitted, const char *base_name)
+static void report_wheel(FILE *out, FILE *csv, const char *kind, const wheel_fit *f,
+                         const wheel_eval *base, const wheel_eval *fitted, const char *base_name)
 {
     fprintf(out, "\n| line | slip | pull measured | base | fitted | sinkage mm measured | base | "
                  "fitted | torque measured | base | fitted |\n"
@@ -450,7 +457,7 @@ static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_e
                 fprintf(out, " | -");
             fprintf(out, " | %.2f | %.2f", b[k] * unit[k], g[k] * unit[k]);
             if (csv && m[k]->has)
-                fprintf(csv, "wheel,%d,%.6g,%s,%.6g,%.6g,%.6g\n", r->line, r->slip,
+                fprintf(csv, "%s,%d,%.6g,%s,%.6g,%.6g,%.6g\n", kind, r->line, r->slip,
                         measure_names[k], m[k]->value, g[k], relative(g[k], m[k]->value));
         }
         fprintf(out, " |\n");
@@ -518,11 +525,10 @@ static int report_separable(const cal_options *o, const cal_wheel_row *rows, int
     return warned;
 }
 
-/* The wheel rows: the base soil evaluated, searched, the result rounded and re-run. */
-static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count, sim_soil *soil,
-                     FILE *report, FILE *csv, error_text *err)
+/* The rows and each measured column's RMS (the objective's units). */
+static void fit_init(wheel_fit *f, const cal_options *o, const cal_wheel_row *rows, int count)
 {
-    wheel_fit f = {rows, count, o, {0, 0, 0}, 0};
+    *f = (wheel_fit){rows, count, o, {0, 0, 0}, 0};
     for (int k = 0; k < 3; k++) {
         double s2 = 0;
         int m = 0;
@@ -533,8 +539,43 @@ static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count,
                 m++;
             }
         }
-        f.scale[k] = m ? sqrt(s2 / m) : 0;
+        f->scale[k] = m ? sqrt(s2 / m) : 0;
     }
+}
+
+/* --predict: rows the fit never saw, run on the base soil and the fitted
+ * one; their errors beside the fit's own say whether the soil carries over
+ * to another wheel, or only to the wheel it was fitted on. */
+static int predict_wheel(const cal_options *o, const sim_soil *base_soil, const sim_soil *soil,
+                         FILE *report, FILE *csv, error_text *err)
+{
+    cal_wheel_row *rows;
+    int count = cal_read_wheel(o->predict, &o->wheel_defaults, &rows, err);
+    if (count < 0)
+        return 2;
+    wheel_fit f;
+    fit_init(&f, o, rows, count);
+    wheel_eval base, fitted;
+    int rc = 1;
+    if (eval_alloc(&base, count) != 0 || eval_alloc(&fitted, count) != 0)
+        error_set(err, "out of memory");
+    else if (evaluate(&f, base_soil, &base, err) == 0 && evaluate(&f, soil, &fitted, err) == 0) {
+        fprintf(report, "\nheld out (not fitted): %d rows of %s\n", count, o->predict);
+        report_wheel(report, csv, "predict", &f, &base, &fitted, o->base);
+        rc = 0;
+    }
+    eval_free(&base);
+    eval_free(&fitted);
+    free(rows);
+    return rc;
+}
+
+/* The wheel rows: the base soil evaluated, searched, the result rounded and re-run. */
+static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count, sim_soil *soil,
+                     FILE *report, FILE *csv, error_text *err)
+{
+    wheel_fit f;
+    fit_init(&f, o, rows, count);
     wheel_eval base, best;
     int rc = -1;
     if (eval_alloc(&base, count) != 0 || eval_alloc(&best, count) != 0)
@@ -552,7 +593,7 @@ static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count,
         fprintf(report, "%ld testbed evaluations of %d rows (cell %g m, %g m at %g m/s)\n",
                 f.evaluations, count, o->testbed.cell_m, o->testbed.distance_m,
                 o->testbed.speed_m_s);
-        report_wheel(report, csv, &f, &base, &best, o->base);
+        report_wheel(report, csv, "wheel", &f, &base, &best, o->base);
         report_separable(o, rows, count, report);
     }
     eval_free(&base);
@@ -632,10 +673,13 @@ static int calibrate(cal_options *o, sim_soil *soil, FILE *csv, error_text *err)
         for (int i = 0; i < o->fit_count; i++)
             printf("%s %s", i ? "," : "", fit_params[o->fit[i]].name);
         printf("\n");
+        sim_soil base_soil = *soil;
         int rc = fit_wheel(o, rows, n, soil, stdout, csv, err);
         free(rows);
         if (rc != 0)
             return 1;
+        if (o->predict && (rc = predict_wheel(o, &base_soil, soil, stdout, csv, err)) != 0)
+            return rc;
     } else
         round_soil(soil);
     return 0;
@@ -653,10 +697,11 @@ int app_calibrate(int argc, char **argv)
         cli_parse("calibrate", cal_usage, cal_table, argc, argv, cal_on_option, &o, &first);
     if (r != CLI_OK)
         return r == CLI_HELP ? 0 : 2;
-    if (first < argc || (!o.plates && !o.wheel)) {
+    if (first < argc || (!o.plates && !o.wheel) || (o.predict && !o.wheel)) {
         fprintf(stderr, "terrad calibrate: %s\n",
-                first < argc ? "unexpected operand (see --help)"
-                             : "give --plates FILE and/or --wheel FILE");
+                first < argc            ? "unexpected operand (see --help)"
+                : !o.plates && !o.wheel ? "give --plates FILE and/or --wheel FILE"
+                                        : "--predict: needs --wheel (the rows fitted)");
         return 2;
     }
     sim_soil soil;
