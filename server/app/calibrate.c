@@ -220,6 +220,7 @@ typedef struct wheel_fit {
     int count;
     const cal_options *o;
     double scale[3]; /* RMS of each measured column: residuals are in these units */
+    double z_ref;    /* > 0: n moves with kc, kphi so that the pressure at z_ref stays */
     long evaluations;
 } wheel_fit;
 
@@ -285,6 +286,31 @@ static double stepped(int p, double x, double step, int dir)
     return fmin(fmax(y, fp->lo), fp->hi);
 }
 
+static int fitting(const cal_options *o, int p)
+{
+    for (int i = 0; i < o->fit_count; i++)
+        if (o->fit[i] == p)
+            return 1;
+    return 0;
+}
+
+/* Parameter p of s set to x. With n fitted beside kc or kphi, a step of n
+ * alone would cross the valley where n and the modulus trade (the rows feel
+ * (kc/b + kphi) z^n over a narrow range of z): n then moves along it, kc and
+ * kphi (those fitted) scaled so that the pressure at the rows' typical
+ * sinkage z_ref stays, and the modulus' own steps move across it. */
+static void set_param(const wheel_fit *f, sim_soil *s, int p, double x)
+{
+    if (p == FIT_N && f->z_ref > 0) {
+        double scale = pow(f->z_ref, s->n - x);
+        for (int q = FIT_KC; q <= FIT_KPHI; q++)
+            if (fitting(f->o, q)) /* one left out keeps its value: it is not fitted */
+                *param_field(s, q) =
+                    fmin(fmax(*param_field(s, q) * scale, fit_params[q].lo), fit_params[q].hi);
+    }
+    *param_field(s, p) = x;
+}
+
 /* Try soil with parameter p at x; keep it in best when strictly better. */
 static int try_value(wheel_fit *f, sim_soil *best, wheel_eval *be, wheel_eval *trial, int p,
                      double x, error_text *err)
@@ -292,7 +318,7 @@ static int try_value(wheel_fit *f, sim_soil *best, wheel_eval *be, wheel_eval *t
     sim_soil s = *best;
     if (*param_field(&s, p) == x)
         return 0;
-    *param_field(&s, p) = x;
+    set_param(f, &s, p, x);
     if (evaluate(f, &s, trial, err) != 0)
         return -1;
     if (trial->objective < be->objective) {
@@ -322,8 +348,8 @@ static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, er
         for (int i = -1; i <= 1 && rc == 0; i++)
             for (int j = -1; j <= 1 && rc == 0; j++) {
                 sim_soil s = centre;
-                *param_field(&s, a) = stepped(a, *param_field(&centre, a), step[a], i);
-                *param_field(&s, b) = stepped(b, *param_field(&centre, b), step[b], j);
+                set_param(f, &s, a, stepped(a, *param_field(&centre, a), step[a], i));
+                set_param(f, &s, b, stepped(b, *param_field(&centre, b), step[b], j));
                 if ((i == 0 && j == 0) || evaluate(f, &s, &trial, err) != 0) {
                     rc = (i == 0 && j == 0) ? 0 : -1;
                     continue;
@@ -476,22 +502,14 @@ static void report_wheel(FILE *out, FILE *csv, const char *kind, const wheel_fit
 
 /* ---- What the wheel rows cannot separate ---- */
 
-static int fitting(const cal_options *o, int p)
-{
-    for (int i = 0; i < o->fit_count; i++)
-        if (o->fit[i] == p)
-            return 1;
-    return 0;
-}
-
 /*
  * Bekker's pressure (kc/b + kphi) z^n seen through wheel rows: kc and kphi
  * act only through kc/b + kphi, b the contact patch's width (near the
  * wheel's), so wheels of one width cannot tell them apart; and one wheel
  * under one load sinks over a narrow range of z (only slip-sinkage moves
- * it), so n trades against the modulus. The search still stops at some
- * pair; the report says which pair is not determined rather than present
- * it as measured. Returns the count of such warnings.
+ * it), so n largely trades against the modulus. The search still stops
+ * at some pair; the report says which pair is not (or poorly) determined
+ * rather than present it as measured. Returns the count of such warnings.
  */
 static int report_separable(const cal_options *o, const cal_wheel_row *rows, int count, FILE *out)
 {
@@ -516,10 +534,10 @@ static int report_separable(const cal_options *o, const cal_wheel_row *rows, int
         warned++;
     }
     if (fitting(o, FIT_N) && (fitting(o, FIT_KC) || fitting(o, FIT_KPHI)) && wheels < 2) {
-        fprintf(out, "\nnot separable: n with kc/kphi from one wheel under one load: its "
-                     "sinkage spans too little of the pressure-sinkage curve; n and the modulus "
-                     "trade against each other (add rows of another load or wheel, or give "
-                     "--plates)\n");
+        fprintf(out, "\npoorly separable: n with kc/kphi from one wheel under one load: its "
+                     "sinkage spans little of the pressure-sinkage curve (only slip-sinkage "
+                     "moves it), so n and the modulus largely trade against each other; the "
+                     "pair is uncertain (add rows of another load or wheel, or give --plates)\n");
         warned++;
     }
     return warned;
@@ -528,7 +546,17 @@ static int report_separable(const cal_options *o, const cal_wheel_row *rows, int
 /* The rows and each measured column's RMS (the objective's units). */
 static void fit_init(wheel_fit *f, const cal_options *o, const cal_wheel_row *rows, int count)
 {
-    *f = (wheel_fit){rows, count, o, {0, 0, 0}, 0};
+    *f = (wheel_fit){rows, count, o, {0, 0, 0}, 0, 0};
+    /* z_ref: the geometric mean of the measured sinkages */
+    double lz = 0;
+    int nz = 0;
+    for (int i = 0; i < count; i++)
+        if (rows[i].sinkage_m.has) {
+            lz += log(rows[i].sinkage_m.value);
+            nz++;
+        }
+    if (nz && fitting(o, FIT_N) && (fitting(o, FIT_KC) || fitting(o, FIT_KPHI)))
+        f->z_ref = exp(lz / nz);
     for (int k = 0; k < 3; k++) {
         double s2 = 0;
         int m = 0;
