@@ -3,9 +3,10 @@
  * data (docs/calibrate.md). Offline, no tick: plate-sinkage curves give
  * Bekker's n, kc and kphi by linear least squares (calibrate_data.c);
  * single-wheel runs give the shear and slip parameters (c, phi, K, slip_n
- * or the ones --fit names) by running the bekker model's own testbed
- * (sim_wheel_testbed) for every row: a 3 x 3 grid over the first two
- * parameters, then rounds of coordinate descent with halving steps. No
+ * or the ones --fit names, n, kc and kphi among them) by running the bekker
+ * model's own testbed (sim_wheel_testbed) for every row: a 3 x 3 grid over
+ * the first two parameters, then rounds of coordinate descent with halving
+ * steps and a pattern move; what the rows cannot separate is reported. No
  * randomness and one order of evaluation, so the same input gives the same
  * bytes out. Out: a report with the residual of every row (stdout), the
  * scene-ready material JSON (--out) and the residuals as CSV (--residuals).
@@ -20,7 +21,10 @@
 
 /* ---- The wheel's parameters: name, search range, first step ---- */
 
-enum { FIT_C, FIT_PHI, FIT_K, FIT_SLIP_N, FIT_COUNT };
+enum { FIT_C, FIT_PHI, FIT_K, FIT_SLIP_N, FIT_N, FIT_KC, FIT_KPHI, FIT_COUNT };
+
+/* --fit's default: the shear and slip parameters; n, kc and kphi on request */
+#define FIT_DEFAULT_COUNT FIT_N
 
 typedef struct fit_param {
     const char *name;
@@ -29,22 +33,27 @@ typedef struct fit_param {
 } fit_param;
 
 /* Ranges inside sim_soil_validate's, and where real soils lie (Wong's and
- * Ding's tables: c 0-70 kPa, phi 13-35 deg, K 1-25 mm, slip_n 0-2). */
+ * Ding's tables: c 0-70 kPa, phi 13-35 deg, K 1-25 mm, slip_n 0-2, n
+ * 0.2-1.6; kc and kphi span decades, so they move in log steps). */
 static const fit_param fit_params[FIT_COUNT] = {
     {"cohesion_pa", 0.0, 1e5, 500.0, 0},
     {"friction_deg", 0.0, 50.0, 4.0, 0},
     {"shear_k_m", 0.001, 0.1, 1.6, 1},
     {"slip_n", 0.0, 2.0, 0.2, 0},
+    {"n", 0.2, 2.5, 0.1, 0},
+    {"kc", 1.0, 1e8, 1.6, 1},
+    {"kphi", 1.0, 1e10, 1.6, 1},
 };
 
 static double *param_field(sim_soil *s, int p)
 {
-    double *f[FIT_COUNT] = {&s->cohesion_pa, &s->friction_deg, &s->shear_k_m, &s->slip_n};
+    double *f[FIT_COUNT] = {&s->cohesion_pa, &s->friction_deg, &s->shear_k_m, &s->slip_n,
+                            &s->n,           &s->kc,           &s->kphi};
     return f[p];
 }
 
 typedef struct cal_options {
-    const char *plates, *wheel, *out, *residuals, *base;
+    const char *plates, *wheel, *predict, *out, *residuals, *base;
     cal_wheel_defaults wheel_defaults;
     int fit[FIT_COUNT], fit_count;
     long rounds;
@@ -56,6 +65,7 @@ typedef struct cal_options {
 enum {
     OPT_PLATES,
     OPT_WHEEL,
+    OPT_PREDICT,
     OPT_WHERE,
     OPT_RADIUS,
     OPT_WIDTH,
@@ -78,6 +88,9 @@ static const cli_option cal_table[] = {
                    "single-wheel CSV: slip and drawbar_pull_n, sinkage_m and/or torque_nm\n"
                    "(an empty cell is not measured); radius_m, width_m, load_n\n"
                    "as columns or the options below"},
+    [OPT_PREDICT] = {"predict", "FILE",
+                     "wheel rows held out of the fit (the --wheel format, the same\n"
+                     "defaults and --where): the base and fitted soils' errors on them"},
     [OPT_WHERE] = {"where", "COL=VALUE", "use only the wheel rows whose COL is VALUE"},
     [OPT_RADIUS] = {"radius", "M", "the wheel's radius when the file has no radius_m"},
     [OPT_WIDTH] = {"width", "M", "the wheel's width when the file has no width_m"},
@@ -88,7 +101,8 @@ static const cli_option cal_table[] = {
                   "JSON file of the bekker model (as --out writes it)"},
     [OPT_FIT] = {"fit", "LIST",
                  "the wheel parameters fitted, in order (default\n"
-                 "cohesion_pa,friction_deg,shear_k_m,slip_n); the grid is over the first two"},
+                 "cohesion_pa,friction_deg,shear_k_m,slip_n; n, kc and kphi may join\n"
+                 "them); the grid is over the first two"},
     [OPT_ROUNDS] = {"rounds", "N", "rounds of coordinate descent after the grid (default 3)"},
     [OPT_CELL] = {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)"},
     [OPT_DISTANCE] = {"distance", "M", "each testbed run's travel (default 0.5)"},
@@ -125,7 +139,9 @@ static int parse_fit(cal_options *o, const char *list, error_text *err)
         for (int i = 0; i < o->fit_count && p < FIT_COUNT; i++)
             seen |= o->fit[i] == p;
         if (p == FIT_COUNT || seen) {
-            error_set(err, "--fit: \"%s\" is %s (cohesion_pa, friction_deg, shear_k_m, slip_n)",
+            error_set(err,
+                      "--fit: \"%s\" is %s (cohesion_pa, friction_deg, shear_k_m, slip_n, n, "
+                      "kc, kphi)",
                       tok, seen ? "named twice" : "not a fitted parameter");
             return -1;
         }
@@ -144,6 +160,9 @@ static int cal_on_option(void *ctx, int index, const char *v, error_text *err)
         return 0;
     case OPT_WHEEL:
         o->wheel = v;
+        return 0;
+    case OPT_PREDICT:
+        o->predict = v;
         return 0;
     case OPT_WHERE: {
         const char *eq = strchr(v, '=');
@@ -201,6 +220,7 @@ typedef struct wheel_fit {
     int count;
     const cal_options *o;
     double scale[3]; /* RMS of each measured column: residuals are in these units */
+    double z_ref;    /* > 0: n moves with kc, kphi so that the pressure at z_ref stays */
     long evaluations;
 } wheel_fit;
 
@@ -266,6 +286,31 @@ static double stepped(int p, double x, double step, int dir)
     return fmin(fmax(y, fp->lo), fp->hi);
 }
 
+static int fitting(const cal_options *o, int p)
+{
+    for (int i = 0; i < o->fit_count; i++)
+        if (o->fit[i] == p)
+            return 1;
+    return 0;
+}
+
+/* Parameter p of s set to x. With n fitted beside kc or kphi, a step of n
+ * alone would cross the valley where n and the modulus trade (the rows feel
+ * (kc/b + kphi) z^n over a narrow range of z): n then moves along it, kc and
+ * kphi (those fitted) scaled so that the pressure at the rows' typical
+ * sinkage z_ref stays, and the modulus' own steps move across it. */
+static void set_param(const wheel_fit *f, sim_soil *s, int p, double x)
+{
+    if (p == FIT_N && f->z_ref > 0) {
+        double scale = pow(f->z_ref, s->n - x);
+        for (int q = FIT_KC; q <= FIT_KPHI; q++)
+            if (fitting(f->o, q)) /* one left out keeps its value: it is not fitted */
+                *param_field(s, q) =
+                    fmin(fmax(*param_field(s, q) * scale, fit_params[q].lo), fit_params[q].hi);
+    }
+    *param_field(s, p) = x;
+}
+
 /* Try soil with parameter p at x; keep it in best when strictly better. */
 static int try_value(wheel_fit *f, sim_soil *best, wheel_eval *be, wheel_eval *trial, int p,
                      double x, error_text *err)
@@ -273,7 +318,7 @@ static int try_value(wheel_fit *f, sim_soil *best, wheel_eval *be, wheel_eval *t
     sim_soil s = *best;
     if (*param_field(&s, p) == x)
         return 0;
-    *param_field(&s, p) = x;
+    set_param(f, &s, p, x);
     if (evaluate(f, &s, trial, err) != 0)
         return -1;
     if (trial->objective < be->objective) {
@@ -303,8 +348,8 @@ static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, er
         for (int i = -1; i <= 1 && rc == 0; i++)
             for (int j = -1; j <= 1 && rc == 0; j++) {
                 sim_soil s = centre;
-                *param_field(&s, a) = stepped(a, *param_field(&centre, a), step[a], i);
-                *param_field(&s, b) = stepped(b, *param_field(&centre, b), step[b], j);
+                set_param(f, &s, a, stepped(a, *param_field(&centre, a), step[a], i));
+                set_param(f, &s, b, stepped(b, *param_field(&centre, b), step[b], j));
                 if ((i == 0 && j == 0) || evaluate(f, &s, &trial, err) != 0) {
                     rc = (i == 0 && j == 0) ? 0 : -1;
                     continue;
@@ -318,6 +363,7 @@ static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, er
                 fit_params[b].name, be->objective);
     }
     for (long round = 0; round < o->rounds && rc == 0; round++) {
+        sim_soil before = *best;
         for (int i = 0; i < o->fit_count && rc == 0; i++) {
             int p = o->fit[i], moved = 0;
             for (int dir = -1; dir <= 1 && rc == 0; dir += 2) {
@@ -328,6 +374,25 @@ static int search(wheel_fit *f, sim_soil *best, wheel_eval *be, FILE *report, er
             }
             if (!moved)
                 step[p] = fit_params[p].log_step ? sqrt(step[p]) : step[p] / 2;
+        }
+        /* Hooke-Jeeves' pattern move: the round's move once more, all
+         * parameters at once, follows a valley across the axes (n against
+         * kphi) that one-at-a-time steps only zigzag along */
+        sim_soil pattern = *best;
+        int moved = 0;
+        for (int i = 0; i < o->fit_count; i++) {
+            int p = o->fit[i];
+            double x = *param_field(best, p), x0 = *param_field(&before, p);
+            double y = fit_params[p].log_step && x0 > 0 ? x * (x / x0) : 2 * x - x0;
+            *param_field(&pattern, p) = fmin(fmax(y, fit_params[p].lo), fit_params[p].hi);
+            moved |= y != x;
+        }
+        if (moved && rc == 0) {
+            rc = evaluate(f, &pattern, &trial, err);
+            if (rc == 0 && trial.objective < be->objective) {
+                *best = pattern;
+                eval_copy(be, &trial, f->count);
+            }
         }
         fprintf(report, "round %ld: objective %.6g\n", round + 1, be->objective);
     }
@@ -398,8 +463,8 @@ static double median_error(const cal_wheel_row *rows, int n, const wheel_eval *e
 
 static const char *const measure_names[3] = {"drawbar_pull_n", "sinkage_m", "torque_nm"};
 
-static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_eval *base,
-                         const wheel_eval *fitted, const char *base_name)
+static void report_wheel(FILE *out, FILE *csv, const char *kind, const wheel_fit *f,
+                         const wheel_eval *base, const wheel_eval *fitted, const char *base_name)
 {
     fprintf(out, "\n| line | slip | pull measured | base | fitted | sinkage mm measured | base | "
                  "fitted | torque measured | base | fitted |\n"
@@ -418,7 +483,7 @@ static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_e
                 fprintf(out, " | -");
             fprintf(out, " | %.2f | %.2f", b[k] * unit[k], g[k] * unit[k]);
             if (csv && m[k]->has)
-                fprintf(csv, "wheel,%d,%.6g,%s,%.6g,%.6g,%.6g\n", r->line, r->slip,
+                fprintf(csv, "%s,%d,%.6g,%s,%.6g,%.6g,%.6g\n", kind, r->line, r->slip,
                         measure_names[k], m[k]->value, g[k], relative(g[k], m[k]->value));
         }
         fprintf(out, " |\n");
@@ -435,11 +500,63 @@ static void report_wheel(FILE *out, FILE *csv, const wheel_fit *f, const wheel_e
             base->objective, fitted->objective);
 }
 
-/* The wheel rows: the base soil evaluated, searched, the result rounded and re-run. */
-static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count, sim_soil *soil,
-                     FILE *report, FILE *csv, error_text *err)
+/* ---- What the wheel rows cannot separate ---- */
+
+/*
+ * Bekker's pressure (kc/b + kphi) z^n seen through wheel rows: kc and kphi
+ * act only through kc/b + kphi, b the contact patch's width (near the
+ * wheel's), so wheels of one width cannot tell them apart; and one wheel
+ * under one load sinks over a narrow range of z (only slip-sinkage moves
+ * it), so n largely trades against the modulus. The search still stops
+ * at some pair; the report says which pair is not (or poorly) determined
+ * rather than present it as measured. Returns the count of such warnings.
+ */
+static int report_separable(const cal_options *o, const cal_wheel_row *rows, int count, FILE *out)
 {
-    wheel_fit f = {rows, count, o, {0, 0, 0}, 0};
+    int widths = 1, wheels = 1;
+    for (int i = 1; i < count; i++) {
+        int new_width = 1, new_wheel = 1;
+        for (int j = 0; j < i; j++) {
+            new_width &= rows[j].width_m != rows[i].width_m;
+            new_wheel &= rows[j].width_m != rows[i].width_m ||
+                         rows[j].radius_m != rows[i].radius_m || rows[j].load_n != rows[i].load_n;
+        }
+        widths += new_width;
+        wheels += new_wheel;
+    }
+    int warned = 0;
+    if (fitting(o, FIT_KC) && fitting(o, FIT_KPHI) && widths < 2) {
+        fprintf(out,
+                "\nnot separable: kc and kphi from wheels of one width (%g m): only "
+                "kc/b + kphi is determined; the pair printed is one point of that line "
+                "(fit kc or kphi alone, add rows of another width, or give --plates)\n",
+                rows[0].width_m);
+        warned++;
+    }
+    if (fitting(o, FIT_N) && (fitting(o, FIT_KC) || fitting(o, FIT_KPHI)) && wheels < 2) {
+        fprintf(out, "\npoorly separable: n with kc/kphi from one wheel under one load: its "
+                     "sinkage spans little of the pressure-sinkage curve (only slip-sinkage "
+                     "moves it), so n and the modulus largely trade against each other; the "
+                     "pair is uncertain (add rows of another load or wheel, or give --plates)\n");
+        warned++;
+    }
+    return warned;
+}
+
+/* The rows and each measured column's RMS (the objective's units). */
+static void fit_init(wheel_fit *f, const cal_options *o, const cal_wheel_row *rows, int count)
+{
+    *f = (wheel_fit){rows, count, o, {0, 0, 0}, 0, 0};
+    /* z_ref: the geometric mean of the measured sinkages */
+    double lz = 0;
+    int nz = 0;
+    for (int i = 0; i < count; i++)
+        if (rows[i].sinkage_m.has) {
+            lz += log(rows[i].sinkage_m.value);
+            nz++;
+        }
+    if (nz && fitting(o, FIT_N) && (fitting(o, FIT_KC) || fitting(o, FIT_KPHI)))
+        f->z_ref = exp(lz / nz);
     for (int k = 0; k < 3; k++) {
         double s2 = 0;
         int m = 0;
@@ -450,8 +567,43 @@ static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count,
                 m++;
             }
         }
-        f.scale[k] = m ? sqrt(s2 / m) : 0;
+        f->scale[k] = m ? sqrt(s2 / m) : 0;
     }
+}
+
+/* --predict: rows the fit never saw, run on the base soil and the fitted
+ * one; their errors beside the fit's own say whether the soil carries over
+ * to another wheel, or only to the wheel it was fitted on. */
+static int predict_wheel(const cal_options *o, const sim_soil *base_soil, const sim_soil *soil,
+                         FILE *report, FILE *csv, error_text *err)
+{
+    cal_wheel_row *rows;
+    int count = cal_read_wheel(o->predict, &o->wheel_defaults, &rows, err);
+    if (count < 0)
+        return 2;
+    wheel_fit f;
+    fit_init(&f, o, rows, count);
+    wheel_eval base, fitted;
+    int rc = 1;
+    if (eval_alloc(&base, count) != 0 || eval_alloc(&fitted, count) != 0)
+        error_set(err, "out of memory");
+    else if (evaluate(&f, base_soil, &base, err) == 0 && evaluate(&f, soil, &fitted, err) == 0) {
+        fprintf(report, "\nheld out (not fitted): %d rows of %s\n", count, o->predict);
+        report_wheel(report, csv, "predict", &f, &base, &fitted, o->base);
+        rc = 0;
+    }
+    eval_free(&base);
+    eval_free(&fitted);
+    free(rows);
+    return rc;
+}
+
+/* The wheel rows: the base soil evaluated, searched, the result rounded and re-run. */
+static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count, sim_soil *soil,
+                     FILE *report, FILE *csv, error_text *err)
+{
+    wheel_fit f;
+    fit_init(&f, o, rows, count);
     wheel_eval base, best;
     int rc = -1;
     if (eval_alloc(&base, count) != 0 || eval_alloc(&best, count) != 0)
@@ -469,7 +621,8 @@ static int fit_wheel(const cal_options *o, const cal_wheel_row *rows, int count,
         fprintf(report, "%ld testbed evaluations of %d rows (cell %g m, %g m at %g m/s)\n",
                 f.evaluations, count, o->testbed.cell_m, o->testbed.distance_m,
                 o->testbed.speed_m_s);
-        report_wheel(report, csv, &f, &base, &best, o->base);
+        report_wheel(report, csv, "wheel", &f, &base, &best, o->base);
+        report_separable(o, rows, count, report);
     }
     eval_free(&base);
     eval_free(&best);
@@ -548,10 +701,13 @@ static int calibrate(cal_options *o, sim_soil *soil, FILE *csv, error_text *err)
         for (int i = 0; i < o->fit_count; i++)
             printf("%s %s", i ? "," : "", fit_params[o->fit[i]].name);
         printf("\n");
+        sim_soil base_soil = *soil;
         int rc = fit_wheel(o, rows, n, soil, stdout, csv, err);
         free(rows);
         if (rc != 0)
             return 1;
+        if (o->predict && (rc = predict_wheel(o, &base_soil, soil, stdout, csv, err)) != 0)
+            return rc;
     } else
         round_soil(soil);
     return 0;
@@ -561,7 +717,7 @@ int app_calibrate(int argc, char **argv)
 {
     cal_options o = {.base = "ding2011", .rounds = 3, .compression = 0.5};
     sim_wheel_run_defaults(&o.testbed);
-    for (int p = 0; p < FIT_COUNT; p++)
+    for (int p = 0; p < FIT_DEFAULT_COUNT; p++)
         o.fit[o.fit_count++] = p;
     error_text err;
     int first = 0;
@@ -569,10 +725,11 @@ int app_calibrate(int argc, char **argv)
         cli_parse("calibrate", cal_usage, cal_table, argc, argv, cal_on_option, &o, &first);
     if (r != CLI_OK)
         return r == CLI_HELP ? 0 : 2;
-    if (first < argc || (!o.plates && !o.wheel)) {
+    if (first < argc || (!o.plates && !o.wheel) || (o.predict && !o.wheel)) {
         fprintf(stderr, "terrad calibrate: %s\n",
-                first < argc ? "unexpected operand (see --help)"
-                             : "give --plates FILE and/or --wheel FILE");
+                first < argc            ? "unexpected operand (see --help)"
+                : !o.plates && !o.wheel ? "give --plates FILE and/or --wheel FILE"
+                                        : "--predict: needs --wheel (the rows fitted)");
         return 2;
     }
     sim_soil soil;

@@ -163,18 +163,23 @@ static double net_stalled(const void *arg)
     return net_server_stalled_ms((const net_server *)arg);
 }
 
+unsigned serve_drain_json(int already, int grace_ms, char **json)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddBoolToObject(o, "draining", 1);
+    cJSON_AddBoolToObject(o, "already", already);
+    cJSON_AddNumberToObject(o, "grace_ms", grace_ms);
+    *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return 202;
+}
+
 /* POST /v1/drain (admin; http_server_set_drain): the main thread drains. */
 static unsigned drain_call(void *ctx, char **json)
 {
     serve_daemon *d = ctx;
     int again = atomic_exchange(&d->drain_asked, 1);
-    cJSON *o = cJSON_CreateObject();
-    cJSON_AddBoolToObject(o, "draining", 1);
-    cJSON_AddBoolToObject(o, "already", again || drain_signal);
-    cJSON_AddNumberToObject(o, "grace_ms", (double)d->o.drain_grace_ms);
-    *json = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
-    return 202;
+    return serve_drain_json(again || drain_signal, d->o.drain_grace_ms, json);
 }
 
 /* Its simulation started: the websocket port (with its hub and info), the
@@ -275,6 +280,7 @@ static void serve_drain(serve_daemon *d, const char *why)
     d->drain_deadline_ms = time_now_ms() + (double)d->o.drain_grace_ms;
     http_server_set_draining(d->http, why);
     serve_worlds_drain(d->worlds, why);
+    serve_worlds_watch(d->worlds); /* "draining" told before the daemon may stop */
     net_server_drain(d->net, why, d->o.drain_grace_ms);
     log_info("drain: %s: not ready, taking no new clients or worlds; stopping once %d clients "
              "have left, or in %d ms",
@@ -292,6 +298,7 @@ static int serve_wait(serve_daemon *d, error_text *err)
         }
         if (!d->draining && (drain_signal || atomic_load(&d->drain_asked)))
             serve_drain(d, drain_signal ? "SIGTERM" : "POST /v1/drain");
+        serve_worlds_watch(d->worlds); /* world_state events */
         if (d->draining) {
             int left = net_server_client_count(d->net);
             if (left == 0 || time_now_ms() >= d->drain_deadline_ms) {

@@ -107,6 +107,11 @@ serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_wo
 /* The daemon drains (serve.c): POST /v1/worlds is refused with 503 naming
  * why, and GET /v1/worlds says every world's lifecycle is "draining". */
 void serve_worlds_drain(serve_worlds *ws, const char *why);
+/* POST /v1/drain's answer (serve.c; a single daemon's and a node's): 202. */
+unsigned serve_drain_json(int already, int grace_ms, char **json);
+/* The main thread, now and then: each world whose lifecycle changed since the
+ * last call is told to the admins that subscribed (world_state events). */
+void serve_worlds_watch(serve_worlds *ws);
 /* Every created world stopped (its storage kept), before the ports close. NULL is fine. */
 void serve_worlds_stop(serve_worlds *ws);
 /* --fresh: DATA/worlds and everything in it removed (worlds-kept/ stays). */

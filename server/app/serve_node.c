@@ -69,7 +69,8 @@ struct serve_node {
     pthread_mutex_t lock; /* worlds[] for the HTTP threads (readiness, watchdog) */
     node_world *worlds[NODE_MAX_WORLDS];
     int nworlds, max_worlds;
-    int stopping; /* node_stop: worlds end because the node does */
+    int stopping;           /* node_stop: worlds end because the node does */
+    atomic_int drain_asked; /* POST /v1/drain (an HTTP thread): the node loop ends */
     char failed[NODE_MAX_WORLDS][CLUSTER_WORLD_NAME_MAX + 1]; /* not retried before failed_ms */
     double failed_ms[NODE_MAX_WORLDS];
 };
@@ -401,6 +402,13 @@ static int take_world(serve_node *n, error_text *err)
 }
 
 /* The node's ports: one HTTP and one websocket server for all its worlds. */
+/* POST /v1/drain on a node: as SIGTERM, it hands its worlds over and stops. */
+static unsigned node_drain_call(void *ctx, char **json)
+{
+    serve_node *n = ctx;
+    return serve_drain_json(atomic_exchange(&n->drain_asked, 1), 0, json);
+}
+
 static int node_open_ports(serve_node *n, error_text *err)
 {
     const serve_options *o = n->o;
@@ -425,6 +433,7 @@ static int node_open_ports(serve_node *n, error_text *err)
         error_set(err, "out of memory");
         return -1;
     }
+    http_server_set_drain(n->http, node_drain_call, n); /* POST /v1/drain */
     http_server_watch(n->http, "tick", node_stalled_ms, n, 10000.0);
     http_server_watch(n->http, "net", net_stalled, n->net, 10000.0);
     if (n->probe)
@@ -475,7 +484,7 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
 {
     int said_standby = 0, first = 1;
     double warned_ms = 0;
-    while (!*stop) {
+    while (!*stop && !atomic_load(&n->drain_asked)) {
         reap_worlds(n);
         error_text err = {{0}};
         double listed_ms = n->listed_ms;
@@ -523,7 +532,9 @@ static int node_loop(serve_node *n, volatile sig_atomic_t *stop, volatile sig_at
  * from JetStream without waiting for the lease to lapse. */
 static void node_drain(serve_node *n)
 {
-    const char *why = "SIGTERM: this node hands its worlds to other nodes";
+    const char *why = atomic_load(&n->drain_asked)
+                          ? "POST /v1/drain: this node hands its worlds to other nodes"
+                          : "SIGTERM: this node hands its worlds to other nodes";
     if (n->http)
         http_server_set_draining(n->http, why);
     if (n->net)

@@ -57,6 +57,7 @@ typedef struct local_world {
     lw_state state; /* under ws->lock */
     char *scene_text;
     char why[256];
+    char told[16]; /* the lifecycle last sent as a world_state event (serve_worlds_watch) */
     char data_dir[PATH_CAP]; /* its store, which /v1/heights?world=NAME&tick=N rebuilds from */
 } local_world;
 
@@ -75,6 +76,7 @@ struct serve_worlds {
     int nworlds;
     int stopping, calls; /* the daemon stops: no new call; calls running now */
     char draining[200];  /* "" or why the daemon drains: no create (serve_worlds_drain) */
+    char main_told[16];  /* the default world's told (serve_worlds_watch) */
 };
 
 /* ---- answers ---- */
@@ -98,13 +100,13 @@ static void leave(serve_worlds *ws)
 }
 
 /* A running world's place in a fleet's lifecycle (docs/fleet.md): "draining"
- * once the daemon drains, "driven" while a client is connected to it (an
- * allocated game server's match), else "ready"; any other state is its own. */
+ * once the daemon drains, "driven" while a collider is in it (a client drives:
+ * an allocated game server's match), else "ready"; any other state is its own. */
 static const char *lifecycle(const char *state, const http_status *st, int draining)
 {
     if (strcmp(state, "running") != 0)
         return state;
-    return draining ? "draining" : !st->ready ? "starting" : st->clients > 0 ? "driven" : "ready";
+    return draining ? "draining" : !st->ready ? "starting" : st->colliders > 0 ? "driven" : "ready";
 }
 
 /* One world's entry of GET /v1/worlds, from its status block. */
@@ -591,6 +593,34 @@ serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_wo
     http_world_api api = {worlds_create, worlds_list, worlds_remove, ws};
     http_server_set_world_api(http, &api);
     return ws;
+}
+
+/* One world's lifecycle now; a world_state event when it is not what was told. */
+static void watch_one(serve_worlds *ws, const char *name, http_status *st, const char *state,
+                      char *told, size_t cap)
+{
+    pthread_mutex_lock(&st->lock);
+    const char *now = lifecycle(state, st, ws->draining[0] != 0);
+    pthread_mutex_unlock(&st->lock);
+    if (strcmp(now, told) == 0)
+        return;
+    snprintf(told, cap, "%s", now);
+    net_server_world_state(ws->net, name, now);
+}
+
+void serve_worlds_watch(serve_worlds *ws)
+{
+    if (!ws)
+        return;
+    pthread_mutex_lock(&ws->lock);
+    watch_one(ws, ws->main_world->sc.name, (http_status *)&ws->main_world->status, "running",
+              ws->main_told, sizeof ws->main_told);
+    for (int i = 0; i < ws->nworlds; i++) {
+        local_world *lw = ws->worlds[i];
+        watch_one(ws, lw->hw.m.name, &lw->hw.m.status, state_names[lw->state], lw->told,
+                  sizeof lw->told);
+    }
+    pthread_mutex_unlock(&ws->lock);
 }
 
 void serve_worlds_drain(serve_worlds *ws, const char *why)

@@ -228,8 +228,9 @@ void http_view_world(const http_status *st, http_answer *a)
 }
 
 /* One rebuild at a time per process: each holds a world's worth of tiles
- * at most and replays the retained log, so a burst of ?tick= requests queues
- * here instead of multiplying that (docs/storage.md "Replay"). */
+ * at most and replays up to a segment of log (more without keyframes), so a
+ * second ?tick= request meanwhile is refused with 503 instead of multiplying
+ * that (docs/storage.md "Replay"). */
 static pthread_mutex_t replay_lock = PTHREAD_MUTEX_INITIALIZER;
 
 /* ?tick=N: the rectangle as of the end of tick N, rebuilt from the world's
@@ -272,7 +273,14 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
         return 0;
     }
     error_text err = {{0}};
-    pthread_mutex_lock(&replay_lock);
+    /* refused, not queued: a queue of slow rebuilds would hold every HTTP
+     * worker (four) and starve the live reads and the probes */
+    if (pthread_mutex_trylock(&replay_lock) != 0) {
+        snprintf(why, cap,
+                 "parameter tick: another past-tick rebuild is running (one at a time "
+                 "per daemon); retry");
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
     int rc = store_replay_rect(st->replay_dir, base_world, n, r, dst, &err);
     pthread_mutex_unlock(&replay_lock);
     if (rc == 1) {

@@ -142,6 +142,9 @@ int net_server_delete_world(net_server *s, hub *h);
  * connection that subscribed to it (subscribe_events). Any thread; sent by
  * the net thread soon after. */
 void net_server_event(net_server *s, const char *event, const char *world);
+/* The event "world_state": world's lifecycle state (docs/fleet.md: starting,
+ * ready, driven, draining, failed, ended) is now state. Any thread. */
+void net_server_world_state(net_server *s, const char *world, const char *state);
 
 /* ---- any node serves any world (net_remote.c; docs/cluster.md) ----
  * A world another node owns is served here as a RELAY: a client's hello

@@ -143,9 +143,6 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
     if (c->slow && c->pending_bytes <= s->st.cfg.limits.max_pending_bytes / 2 && !c->closing &&
         c->seen_tick >= c->seen_wait) {
         c->slow = 0;
-        if (c->seen_wait)
-            c->seen_from = c->srv->tick;
-        c->seen_wait = 0;
         net_request_resync(c, 0); /* caught up: fresh snapshots, then deltas again */
     }
     if (c->q_count) {

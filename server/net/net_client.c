@@ -398,6 +398,10 @@ void net_request_resync(net_client *c, uint32_t subscription)
     if (n)
         metrics_count_frames_coalesced((uint64_t)n);
     c->slow = 0;
+    /* whatever asked for it (the client, going slow, an overflow): "seen" is
+     * judged again once the client has handled the snapshots' tick */
+    c->seen_wait = 0;
+    c->seen_from = c->srv->tick;
     if (c->sub_count == 0)
         return;
     c->snapshots_requested++;

@@ -120,8 +120,8 @@ typedef struct net_client {
      * handed to the socket; the latest the client said it has handled
      * (seen_said: it ever said); seen_wait: slow for that lag, the snapshots
      * wait until the client has handled this tick (what was on its way);
-     * seen_from: then it is judged again once it has handled this tick (its
-     * snapshots: they are of this tick or later) */
+     * seen_from: after a resync (net_request_resync) it is judged again once
+     * it has handled this tick (its snapshots: of this tick or later) */
     uint64_t written_tick, seen_tick, seen_wait, seen_from;
     int seen_said;
 

@@ -428,7 +428,8 @@ static int parse_events(parser *r, net_control *out)
     const cJSON *events = cJSON_GetObjectItemCaseSensitive(r->msg, "events");
     if (!cJSON_IsArray(events))
         return fail(r, TERRAD_E_BAD_VALUE,
-                    "events: required, an array of event names (world_created, world_deleted)");
+                    "events: required, an array of event names (world_created, world_deleted, "
+                    "world_state)");
     int i = 0;
     for (const cJSON *e = events->child; e; e = e->next, i++) {
         int known = -1;
@@ -437,7 +438,8 @@ static int parse_events(parser *r, net_control *out)
                 known = k;
         if (known < 0)
             return fail(r, TERRAD_E_BAD_VALUE,
-                        "events[%d]: not an event name (world_created, world_deleted)", i);
+                        "events[%d]: not an event name (world_created, world_deleted, world_state)",
+                        i);
         out->events |= 1u << known;
     }
     return 0;

@@ -40,8 +40,8 @@ typedef enum net_control_kind {
 
 /* subscribe_events: the events an admin connection may ask for, one bit each
  * (net_server_event sends them; PROTOCOL.md "Events"). */
-#define NET_EVENT_NAMES "world_created", "world_deleted"
-#define NET_EVENT_COUNT 2
+#define NET_EVENT_NAMES "world_created", "world_deleted", "world_state"
+#define NET_EVENT_COUNT 3
 
 /* What the parser may know about the server. */
 typedef struct net_control_context {

@@ -1,9 +1,9 @@
 /*
  * net_events.c: events for the admin connections that asked for them with
- * subscribe_events (proto/PROTOCOL.md "Events"; issue 22): world_created and
- * world_deleted. Whoever learns of one calls net_server_event from any
- * thread — a single daemon's POST and DELETE /v1/worlds (app/serve_worlds.c),
- * a cluster node seeing its registry listing change (app/serve_node.c, so
+ * subscribe_events (proto/PROTOCOL.md "Events"; issue 22): world_created,
+ * world_deleted and world_state (a world's lifecycle, docs/fleet.md). Whoever learns of one calls
+ * net_server_event from any thread — a single daemon's POST and DELETE /v1/worlds
+ * (app/serve_worlds.c), a cluster node seeing its registry listing change (app/serve_node.c, so
  * every node of a cluster tells its own admins) — which queues it under the
  * server's worlds_lock and wakes the net thread; the net thread sends each
  * one between two callbacks (net_events_apply, from net_catch_up) to every
@@ -20,7 +20,7 @@
 #include "net/net_control_internal.h"
 #include "net/net_server_internal.h"
 
-void net_server_event(net_server *s, const char *event, const char *world)
+static void queue_event(net_server *s, const char *event, const char *world, const char *state)
 {
     static const char *const names[] = {NET_EVENT_NAMES};
     int bit = -1;
@@ -31,9 +31,10 @@ void net_server_event(net_server *s, const char *event, const char *world)
         return;
     pthread_mutex_lock(&s->worlds_lock);
     if (s->nevents < NET_EVENTS_MAX) {
-        s->events[s->nevents].bit = bit;
-        snprintf(s->events[s->nevents].world, sizeof s->events[0].world, "%s", world);
-        s->nevents++;
+        struct net_event *e = &s->events[s->nevents++];
+        e->bit = bit;
+        snprintf(e->world, sizeof e->world, "%s", world);
+        snprintf(e->state, sizeof e->state, "%s", state);
     } else {
         metrics_count_frames_dropped(1); /* 256 waiting: the net thread is stuck anyway */
     }
@@ -41,8 +42,19 @@ void net_server_event(net_server *s, const char *event, const char *world)
     net_server_wake(s);
 }
 
-static void send_event(net_state *w, int bit, const char *world)
+void net_server_event(net_server *s, const char *event, const char *world)
 {
+    queue_event(s, event, world, "");
+}
+
+void net_server_world_state(net_server *s, const char *world, const char *state)
+{
+    queue_event(s, "world_state", world, state);
+}
+
+static void send_event(net_state *w, const struct net_event *e)
+{
+    int bit = e->bit;
     static const char *const names[] = {NET_EVENT_NAMES};
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
@@ -51,7 +63,9 @@ static void send_event(net_state *w, int bit, const char *world)
         cJSON *msg = cJSON_CreateObject();
         cJSON_AddStringToObject(msg, "type", "event");
         cJSON_AddStringToObject(msg, "event", names[bit]);
-        cJSON_AddStringToObject(msg, "world", world);
+        cJSON_AddStringToObject(msg, "world", e->world);
+        if (e->state[0])
+            cJSON_AddStringToObject(msg, "state", e->state);
         net_send_json(c, msg);
     }
 }
@@ -66,7 +80,7 @@ void net_events_apply(net_server *s)
     pthread_mutex_unlock(&s->worlds_lock);
     for (int e = 0; e < n; e++)
         for (int i = 0; net_state_at(s, i); i++)
-            send_event(net_state_at(s, i), events[e].bit, events[e].world);
+            send_event(net_state_at(s, i), &events[e]);
 }
 
 /* ---- the drain (docs/fleet.md) ---- */

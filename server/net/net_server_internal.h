@@ -19,6 +19,7 @@
 struct net_event {
     int bit;        /* its index in NET_EVENT_NAMES */
     char world[65]; /* the world it is about */
+    char state[16]; /* world_state: its lifecycle state ("" for the others) */
 };
 
 /* The net thread's state and libwebsockets' context. */

@@ -67,13 +67,18 @@ static int compaction_run_job(store_dir *st, ZSTD_CCtx *cctx, const tile_copy *t
     /* retention: while the whole log is under retain_bytes nothing is
      * deleted, so every tick since the first can be replayed (store_replay.c);
      * past it the folded segments go as before */
-    if (st->cfg.retain_bytes > 0 && compaction_log_bytes(st) <= st->cfg.retain_bytes) {
+    /* keyframes describe the world only while no record was ever deleted
+     * (segment 1 present): once retention ends it stays ended */
+    char first[1100];
+    store_segment_path(st->dir, 1, first, sizeof first);
+    if (st->cfg.retain_bytes > 0 && access(first, F_OK) == 0 &&
+        compaction_log_bytes(st) <= st->cfg.retain_bytes) {
         live = 0;
         if (store_keyframes_keep(tiles_dir, tiles, count, tick) != 0)
             log_error("store: keeping the keyframes of tick %llu: %s (replays start earlier)",
                       (unsigned long long)tick, strerror(errno));
-    } else if (st->cfg.retain_bytes > 0) {
-        store_keyframes_drop(tiles_dir);
+    } else {
+        store_keyframes_drop(tiles_dir); /* any left, before their records go */
     }
     pthread_mutex_lock(&st->ctl_lock);
     for (int i = 0; i < count; i++)

@@ -253,6 +253,12 @@ int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec
         error_set(err, "store: cannot list %s: %s", a->dir, strerror(errno));
         return -1;
     }
+    if ((a->flags & STORE_RECOVER_NO_TILES) && (count == 0 || seqs[0] != 1)) {
+        /* a replay from the base needs every record: a compaction took the first */
+        error_set(err, "store: the first log segment of %s went during the rebuild", a->dir);
+        free(seqs);
+        return -1;
+    }
     int check = a->flags & STORE_RECOVER_CHECK;
     const store_control *ctl = a->ctl;
     uint64_t tick = 0;

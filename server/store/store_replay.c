@@ -158,6 +158,10 @@ static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world
         error_set(why, "store: cannot list the segments of %s", dir);
         goto out;
     }
+    if (count == 0 || seqs[0] != 1) { /* retention ended meanwhile: try again without */
+        error_set(why, "store: the first log segment of %s went during the rebuild", dir);
+        goto out;
+    }
     for (int i = 0; i < count; i++) {
         store_segment_path(dir, seqs[i], path, sizeof path);
         first[i] = segment_first_tick(path);
@@ -196,11 +200,12 @@ static int replay_once(const char *dir, const world *base, uint64_t tick, world_
      * cells no record or snapshot names keep it */
     world_base_fill_rect(base, r, dst);
     world_scatter_window(&w, r, dst);
-    int rc = replay_from_keyframes(dir, &w, tick, r, why);
+    /* keyframes and the whole log both need every record since the first */
+    char first[1100];
+    store_segment_path(dir, 1, first, sizeof first);
+    int whole = access(first, F_OK) == 0;
+    int rc = whole ? replay_from_keyframes(dir, &w, tick, r, why) : 1;
     if (rc == 1) {
-        char first[1100];
-        store_segment_path(dir, 1, first, sizeof first);
-        int whole = access(first, F_OK) == 0;
         recover_args a = {
             .dir = dir, .w = &w, .upto_tick = tick, .flags = whole ? STORE_RECOVER_NO_TILES : 0};
         uint64_t last_seq;

@@ -149,6 +149,10 @@ int main(void)
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     if (system(cmd) != 0)
         fprintf(stderr, "bench_replay: could not remove %s\n", dir);
+    for (int s = 0; s < SEEKS; s++)
+        free(want[s]);
+    free(got);
+    world_free(&w);
     if (!all_exact)
         fprintf(stderr, "bench_replay: a rebuild was NOT exact (see \"exact\" above)\n");
     return 0; /* a bench prints; it never fails */

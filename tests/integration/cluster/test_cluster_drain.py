@@ -11,6 +11,10 @@ the terrain has settled; the owner gets SIGTERM. Then:
     tick the client saw acknowledged, and GET /v1/heights of the client's lane
     equals the client's mirror cell for cell (nothing acknowledged lost).
 
+Then a third node starts as the standby and POST /v1/drain on the new owner
+hands the world over the same way (202, the owner exits 0, the third node
+serves it).
+
 The hand-over time (SIGTERM → the standby serves the world) is printed, a
 figure for docs/fleet.md, never a threshold. Without the node's drain the
 notice check fails (the client is only closed). Skipped (77) when
@@ -26,9 +30,17 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, owner_of  # noqa: E402
-from service_harness import Checks, machine, raw_hello, skip  # noqa: E402
+from service_harness import Checks, json_call, machine, raw_hello, skip  # noqa: E402
 
 check = Checks()
+
+
+def exit_code(node, timeout=60):
+    """node's exit status once it has exited by itself (None: still running)."""
+    try:
+        return node.proc.wait(timeout)
+    except Exception:  # noqa: BLE001  (subprocess.TimeoutExpired)
+        return None
 
 
 def handover(nats, nodes):
@@ -56,10 +68,7 @@ def handover(nats, nodes):
     served = owner_of([standby], "dunes", 120, step=0.01)
     took = time.monotonic() - sent[0] if sent else None
     check(served is standby, "the standby serves dunes after the owner's SIGTERM")
-    try:
-        rc = owner.proc.wait(60)
-    except Exception:  # noqa: BLE001  (subprocess.TimeoutExpired)
-        rc = None
+    rc = exit_code(owner)
     check(rc == 0, f"the drained owner exits 0 ({rc})")
     check(any("draining" in line and "1 clients told" in line for line in owner.lines),
           "the owner told its connected client it drains")
@@ -76,6 +85,29 @@ def handover(nats, nodes):
     if took is not None and served is standby:
         print(f"hand-over: {took:.2f} s from SIGTERM to the standby serving dunes "
               f"({machine()})", flush=True)
+    admin_drain(urls, nodes, standby)
+
+
+def admin_drain(urls, nodes, owner):
+    """The same hand-over asked by POST /v1/drain on the owner (no tokens: any
+    caller is an admin), to a third node started as the new standby."""
+    third = Node("n2", urls)
+    nodes.append(third)
+    check(ch.wait_for(lambda: third.up(), 60), "a third node waits as a standby")
+    t0 = time.monotonic()
+    st, body = json_call(owner.http, "POST", "/v1/drain", raw=b"")
+    check(st == 202 and body.get("draining") is True and body.get("grace_ms") == 0,
+          f"POST /v1/drain on the owner answers 202, grace 0 ({st} {body})")
+    served = owner_of([third], "dunes", 120, step=0.01)
+    took = time.monotonic() - t0
+    check(served is third, "after POST /v1/drain the third node serves dunes")
+    rc = exit_code(owner)
+    check(rc == 0, f"the owner drained by POST /v1/drain exits 0 ({rc})")
+    check(any("POST /v1/drain" in line and "draining" in line for line in owner.lines),
+          "the owner says it drains for POST /v1/drain")
+    if served is third:
+        print(f"hand-over: {took:.2f} s from POST /v1/drain to the next node serving dunes",
+              flush=True)
 
 
 def main():

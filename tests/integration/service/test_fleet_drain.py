@@ -14,7 +14,9 @@ admin call POST /v1/drain. Each time, while the client drives:
   and close 4020; POST /v1/worlds is refused with 503 naming it; GET
   /v1/worlds says the default world's lifecycle is "draining";
 - the admin call: without a token 401, with a body 400 naming "body"; a
-  second call says the drain was already on;
+  second call says the drain was already on; an admin that subscribed to
+  world_state events hears the default world go "driven" once the client's
+  collider is in it, then "draining";
 - once the client has its last ACK and leaves, the daemon exits 0 by itself
   (the grace is far longer), and every tick the client saw acknowledged is on
   disk: `terrad export --tick T` of its window equals the client's mirror at
@@ -35,7 +37,7 @@ import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 from service_harness import (  # noqa: E402
-    Checks, Daemon, RecordingClient, export_heights, json_call, raw_hello, tp)
+    Checks, Daemon, EventWatcher, RecordingClient, export_heights, json_call, raw_hello, tp)
 
 check = Checks()
 ADMIN = "admin-token-for-the-drain"
@@ -91,6 +93,16 @@ async def drive(client, sid, stop, sent):
 async def scenario(d, data, how):
     port = probe_port(d)
     token = ADMIN if how == "admin" else ""
+    watcher = None
+    if how == "admin":  # an allocator watching the world's lifecycle (world_state events)
+        st, body = json_call(d.http, "GET", "/v1/worlds", token=ADMIN)
+        name = body["worlds"][0]["name"] if st == 200 else "?"
+        check(st == 200 and body["worlds"][0].get("lifecycle") == "ready",
+              f"admin: before any client the default world is ready ({st} {body})")
+        watcher = await EventWatcher(d, token=ADMIN, events=("world_state",)).connect()
+        answer = await watcher.subscribe()
+        check(answer and answer.get("type") == "events_subscribed",
+              f"admin: subscribe_events world_state is accepted ({answer})")
     c = RecordingClient(d.ws, token=token, name=f"drain-{how}", keep=600)
     notices = []
     c.on("message", lambda msg: notices.append(msg) if msg.get("type") == "draining" else None)
@@ -102,6 +114,10 @@ async def scenario(d, data, how):
     stop, sent = asyncio.Event(), [0]
     task = asyncio.create_task(drive(c, sid, stop, sent))
     check(await until(lambda: c.acked_tick > 0), f"{how}: the client's poses are acknowledged")
+    if watcher:
+        ev = await watcher.next_event(WAIT, "world_state", name)
+        check(ev and ev.get("state") == "driven",
+              f"admin: a world_state event says the world is driven once a collider is in it ({ev})")
     check(probe(port, "/healthz")[0] == 200 and probe(port, "/readyz")[0] == 200,
           f"{how}: before the drain /healthz and /readyz are 200")
 
@@ -146,6 +162,10 @@ async def scenario(d, data, how):
         st, body = json_call(d.http, "POST", "/v1/drain", raw=b"", token=ADMIN)
         check(st == 202 and body.get("already") is True,
               f"admin: a second POST /v1/drain says it was already on ({st} {body})")
+        ev = await watcher.next_event(WAIT, "world_state", name)
+        check(ev and ev.get("state") == "draining",
+              f"admin: a world_state event says the world is draining ({ev})")
+        await watcher.close()
 
     told_at = c.acked_tick
     check(await until(lambda: c.acked_tick > told_at + 5),

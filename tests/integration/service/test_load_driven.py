@@ -12,7 +12,8 @@
   elastic reloading under the plate (K_e x 0.1 mm x area), the step of the search;
 - the pose height a client sends is ignored: a later pose far above the soil changes nothing;
   CONTACT describes each plate where the server put it (its cells, volume and deepest point
-  at the found height; before issue 31 it was measured at the pose 0.2 m up: 0 cells);
+  at the found height; before issue 31 it was measured at the pose 0.2 m up: 0 cells), and
+  a COLLIDERS subscription's entry for it has the found height (ground less FORCES' sinkage);
 - bad values are refused naming `load_n` (`bad_value`: 0, negative, a string "NaN", above
   1e9; `unsupported_collider` on a world of another model), each counted in
   terrad_refused_messages_total, and the daemon goes on.
@@ -43,12 +44,17 @@ class Watcher(RecordingClient):
         super().__init__(*a, record=False, **k)
         self.log = {}  # id -> [(tick, Force)]
         self.found_contacts = {}  # id -> [(tick, Contact)]
+        self.found_states = {}  # id -> {tick: ColliderState}
 
     async def _on_binary(self, data):
         if tp.decode_header(data) == tp.MsgType.FORCES:
             tick, fs = tp.decode_forces(data)
             for f in fs:
                 self.log.setdefault(f.id, []).append((tick, f))
+        elif tp.decode_header(data) == tp.MsgType.COLLIDERS:
+            tick, states = tp.decode_colliders(data)
+            for st in states:
+                self.found_states.setdefault(st.id, {})[tick] = st
         elif tp.decode_header(data) == tp.MsgType.CONTACT:
             tick, cs = tp.decode_contact(data)
             for ct in cs:
@@ -85,6 +91,9 @@ async def plates(d):
     area = PW * PL * CELL * CELL
     b = 2 * area / (2 * (PW + PL) * CELL)
     k = SOIL["kc"] / b + SOIL["kphi"]
+    # a viewer's subscription with colliders: COLLIDERS frames carry each plate's pose as
+    # the tick used it, its height the one the server found
+    await c.request(tp.subscribe(0, 0, W, H, colliders=True), "subscribed")
     ids, loads = [], []
     for i, z in enumerate(DEPTHS):
         load = k * z ** SOIL["n"] * area
@@ -113,6 +122,11 @@ async def plates(d):
               f"its CONTACT at the found height: {ct[0] if ct else None}")
         check(bool(ct) and abs(GROUND - ct[0].deepest[2] - f.sinkage_m) <= 1 / UPM + 1e-6,
               "CONTACT's deepest point is at the FORCES sinkage below the surface")
+        seen = c.found_states.get(cid, {})  # frames come when something in view moved
+        st = seen[max(tk for tk in seen if tk <= tick)] if any(tk <= tick for tk in seen) else None
+        check(st is not None and abs(st.p[2] - 0.05 - (GROUND - f.sinkage_m)) <= 1 / UPM + 1e-6,
+              f"COLLIDERS carries the found height: plate bottom {st.p[2] - 0.05 if st else None} "
+              f"m = ground less the sinkage {GROUND - f.sinkage_m:.5f} m")
     # a pose far above the soil: the height stays the server's
     seq = await c.send_poses([tp.Pose(ids[0], *plate_pose(0, GROUND + 1.0)["p"], 1, 0, 0, 0)])
     await c.wait_ack(seq, WAIT)

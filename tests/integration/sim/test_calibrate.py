@@ -18,6 +18,18 @@
   exact numbers (as `terrad wheel --format json` prints them) gives the very material, residuals
   and report the preset gives; a file with a field out of range, or of another model, is refused
   naming the file and the field;
+- `--fit` takes n, kc and kphi: wheel rows that `terrad wheel` made from a known soil (n 0.93,
+  kphi 1.2e6 where ding2011 has 1.1 and 2.41e6) are fitted back from a base that has one of
+  them wrong — n alone from n 1.1, kphi alone from twice its value: the parameter within 1 %,
+  every sinkage residual under 1 %; kc and kphi together from one wheel width, and n with
+  kphi from one wheel under one load, are reported as not (poorly) separable; n and kphi from
+  rows of three wheels (0.165 m under 80 N and 160 N, 0.08 m under 40 N) from ding2011: n
+  within 3 %, kphi within 15 %, every sinkage residual under 3 % (seen 1.2 %, 7.8 %, 1.3 %);
+- `--predict FILE` carries a fit over to another wheel: rows that `terrad wheel` made from a
+  known soil for two wheels (0.165 m wide under 80 N, 0.1 m under 40 N); fitted on one, the
+  other's rows (never fitted) are reported beside the fit's own, and the fitted soil predicts
+  them better than the base soil on every measure the fit improved; a `predict` residual per
+  held-out cell; --predict without --wheel, and a bad predict file, are refused by name;
 - bad input is refused with exit 2 and a message naming the file, the line and the field:
   a missing column, NaN, a negative width, too few widths or rows, an empty measurement row.
 """
@@ -166,6 +178,120 @@ def test_base_file(tmp):
             "--base", "clay9", "not a preset")
 
 
+KNOWN_SOIL = {"n": 0.93, "kphi": 1.2e6}  # beside ding2011's n 1.1, kphi 2.4074e6
+WHEEL_RUN = ["--radius", "0.15735", "--width", "0.165", "--load", "80"]
+TESTBED = ["--cell", "0.02", "--distance", "0.2"]
+
+
+def test_pressure_sinkage(tmp):
+    known = preset_material("ding2011")
+    known["soil"].update(KNOWN_SOIL)
+    path = write(os.path.join(tmp, "known.json"), json.dumps(known))
+    p = subprocess.run([BIN, "wheel", "--soil", path, *WHEEL_RUN, "--slips", "0.1,0.3,0.5,0.7",
+                        *TESTBED], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 0, f"terrad wheel runs the known soil ({p.stderr[-200:]})")
+    rows = write(os.path.join(tmp, "known-rows.csv"), p.stdout)
+    for name, wrong in (("n", 1.1), ("kphi", 2 * KNOWN_SOIL["kphi"])):
+        base = json.loads(json.dumps(known))
+        base["soil"][name] = wrong
+        base_path = write(os.path.join(tmp, f"base-{name}.json"), json.dumps(base))
+        out, res = os.path.join(tmp, f"fit-{name}.json"), os.path.join(tmp, f"fit-{name}.csv")
+        rc, stdout, stderr = calibrate("--wheel", rows, *TESTBED, "--fit", name, "--rounds", "12",
+                                       "--base", base_path, "--out", out, "--residuals", res)
+        check(rc == 0, f"--fit {name}: exit 0 ({rc}: {stderr[-300:]})")
+        if rc != 0:
+            continue
+        got = material_of(out)["soil"][name]
+        err = abs(got - KNOWN_SOIL[name]) / KNOWN_SOIL[name]
+        check(err <= 0.01, f"--fit {name} from {wrong:g}: {got:g} against {KNOWN_SOIL[name]:g} "
+              f"({100 * err:.2f} % <= 1 %)")
+        with open(res) as f:
+            sink = [abs(float(r.split(",")[6])) for r in f.read().splitlines()[1:]
+                    if r.split(",")[3] == "sinkage_m"]
+        check(len(sink) == 4 and max(sink) <= 0.01,
+              f"--fit {name}: every sinkage residual under 1 % ({sink})")
+        check("separable" not in stdout, f"--fit {name} alone is not reported as degenerate")
+    three = [p.stdout]
+    for wheel in (["--width", "0.08", "--load", "40"], ["--width", "0.165", "--load", "160"]):
+        q = subprocess.run([BIN, "wheel", "--soil", path, "--radius", "0.15735", *wheel,
+                            "--slips", "0.1,0.3,0.5", *TESTBED], capture_output=True, text=True,
+                           timeout=60)
+        three.append(q.stdout.split("\n", 1)[1])
+    rows3 = write(os.path.join(tmp, "known-three.csv"), "".join(three))
+    out, res = os.path.join(tmp, "fit-three.json"), os.path.join(tmp, "fit-three.csv")
+    rc, stdout, stderr = calibrate("--wheel", rows3, *TESTBED, "--fit", "n,kphi", "--rounds",
+                                   "12", "--out", out, "--residuals", res)
+    check(rc == 0 and "separable" not in stdout,
+          f"--fit n,kphi on three wheels: exit 0, not reported degenerate ({rc}: {stderr[-300:]})")
+    if rc == 0:
+        soil = material_of(out)["soil"]
+        for name, bound in (("n", 0.03), ("kphi", 0.15)):
+            err = abs(soil[name] - KNOWN_SOIL[name]) / KNOWN_SOIL[name]
+            check(err <= bound, f"three wheels: {name} {soil[name]:g} against "
+                  f"{KNOWN_SOIL[name]:g} ({100 * err:.2f} % <= {100 * bound:g} %)")
+        with open(res) as f:
+            sink = [abs(float(r.split(",")[6])) for r in f.read().splitlines()[1:]
+                    if r.split(",")[3] == "sinkage_m"]
+        check(len(sink) == 10 and max(sink) <= 0.03,
+              f"three wheels: every sinkage residual under 3 % ({sink})")
+    for fit, needle in (("kc,kphi", "not separable: kc and kphi from wheels of one width"),
+                        ("n,kphi", "poorly separable: n with kc/kphi from one wheel under one load")):
+        rc, stdout, stderr = calibrate("--wheel", rows, *TESTBED, "--fit", fit, "--rounds", "1",
+                                       "--base", "ding2011")
+        check(rc == 0 and needle in stdout,
+              f"--fit {fit} on one wheel: exit 0, the report says \"{needle}\" ({rc}: "
+              f"{(stdout + stderr)[-300:]})")
+
+
+CROSS_SOIL = {"n": 0.9, "kphi": 1.2e6, "friction_deg": 27, "slip_n": 0.8, "shear_k_m": 0.02}
+CROSS_WHEELS = {"A": ["--radius", "0.15735", "--width", "0.165", "--load", "80"],
+                "B": ["--radius", "0.1", "--width", "0.1", "--load", "40"]}
+
+
+def medians(report, after):
+    """The (pull, sinkage, torque) median errors, base and fitted, of the table after `after`."""
+    part = report[report.index(after):] if after in report else ""
+    m = re.search(r"drawbar pull (\d+) % -> (\d+) %, sinkage (\d+) % -> (\d+) %, "
+                  r"torque (\d+) % -> (\d+) %", part)
+    return [(int(m.group(2 * k + 1)), int(m.group(2 * k + 2))) for k in range(3)] if m else None
+
+
+def test_cross_wheel(tmp):
+    known = preset_material("ding2011")
+    known["soil"].update(CROSS_SOIL)
+    path = write(os.path.join(tmp, "cross.json"), json.dumps(known))
+    rows = {}
+    for name, wheel in CROSS_WHEELS.items():
+        p = subprocess.run([BIN, "wheel", "--soil", path, *wheel, "--slips", "0.1,0.2,0.4,0.6",
+                            *TESTBED], capture_output=True, text=True, timeout=60)
+        check(p.returncode == 0, f"terrad wheel runs wheel {name} ({p.stderr[-200:]})")
+        rows[name] = write(os.path.join(tmp, f"cross-{name}.csv"), p.stdout)
+    res = os.path.join(tmp, "cross-res.csv")
+    rc, stdout, stderr = calibrate("--wheel", rows["A"], "--predict", rows["B"], *TESTBED,
+                                   "--rounds", "3", "--residuals", res)
+    check(rc == 0, f"fit on A, predict B: exit 0 ({rc}: {stderr[-300:]})")
+    own, held = medians(stdout, "median relative"), medians(stdout, "held out (not fitted)")
+    check(own and held, f"the report gives the fit's own errors and the held-out wheel's "
+          f"({stdout[-600:]})")
+    if own and held:
+        for k, label in enumerate(("pull", "sinkage", "torque")):
+            if own[k][1] < own[k][0]:
+                check(held[k][1] < held[k][0], f"{label}: the fit improves the held-out wheel "
+                      f"as it does its own (own {own[k]}, held out {held[k]})")
+    with open(res) as f:
+        kinds = [r.split(",")[0] for r in f.read().splitlines()[1:]]
+    check(kinds.count("wheel") == 12 and kinds.count("predict") == 12,
+          f"a residual per fitted and per held-out cell ({kinds.count('wheel')}, "
+          f"{kinds.count('predict')})")
+    refused("--predict without --wheel", ["--plates", rows["A"], "--predict", rows["B"]],
+            "--predict", "--wheel")
+    bad = write(os.path.join(tmp, "cross-bad.csv"), "slip,sinkage_m,radius_m,width_m,load_n\n"
+                "0.1,0.01,0.1,0.1,40\n0.2,-0.01,0.1,0.1,40\n")
+    refused("a bad --predict file", ["--wheel", rows["A"], *TESTBED, "--rounds", "0",
+                                     "--fit", "slip_n", "--predict", bad],
+            "cross-bad.csv:3", "sinkage_m")
+
+
 async def pressed_wheel(d):
     """A wheel pressed 2 cm into the soil: the soil carries it (FORCES, Fz > 0)."""
     c = RecordingClient(d.ws, name="calibrated", record=False)
@@ -248,6 +374,8 @@ def main():
         test_bad(tmp)
         test_plates(tmp)
         test_base_file(tmp)
+        test_pressure_sinkage(tmp)
+        test_cross_wheel(tmp)
         fitted = test_ding(tmp)
         if fitted:
             test_serve(tmp, fitted)

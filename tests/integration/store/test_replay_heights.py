@@ -11,6 +11,8 @@ past tick from the data directory, and it is what was served live at that tick, 
   compactions (each kept as a keyframe generation, tiles/k-TICK.done, which the rebuilds
   start from), and again after kill -9 and a restart on the directory.
 - The same for a world created with POST /v1/worlds (?world=NAME&tick=N).
+- A retention smaller than the log: past it the keyframes and the first segments go, an
+  early tick is 410 and a recent one still exact.
 - Refusals, each naming the parameter, counted, the daemon going on: a tick in the future
   (400), not a number (400), with base= (400); a daemon without retention (the default):
   an early tick whose log was compacted away is 410 while a tick after the newest snapshot
@@ -152,11 +154,37 @@ def not_retained(scene):
               f"a memory-only daemon: 404 naming the field ({status} {why!r})")
 
 
+def retention_ends(scene):
+    """A retention smaller than the drive's log: once the log passes it, the keyframes go
+    before the segments, and the daemon serves what a daemon without retention serves."""
+    data = tempfile.mkdtemp(prefix="terrad-replay-ends-")
+    try:
+        with check.running(Daemon(data_dir=data, extra=["--scene", scene] + SEGMENT +
+                                  ["--replay-retain-bytes", "8192"])) as d:
+            live = asyncio.run(drive(d))
+            names = os.listdir(os.path.join(data, "tiles"))
+            check(not any(n.startswith("k-") for n in names),
+                  f"past the retention no keyframe is left ({sorted(names)[:4]})")
+            check(not os.path.exists(os.path.join(data, "wal-0000000000000001.log")),
+                  "and the first segment was deleted")
+            first = min(live)
+            status, _, why = read(d, f"&tick={first}")
+            check(status == 410 and "parameter tick: " in why,
+                  f"an early tick is then 410 ({status} {why!r})")
+            status, now, hs = read(d, "")
+            status, tick, got = read(d, f"&tick={now}")
+            check(status == 200 and tick == now and got == hs,
+                  f"a tick after the newest snapshot ({now}) is still rebuilt exactly ({status})")
+    finally:
+        shutil.rmtree(data, ignore_errors=True)
+
+
 def main():
     scene = cd.scene_file()
     try:
         retained(scene)
         not_retained(scene)
+        retention_ends(scene)
     finally:
         os.unlink(scene)
     check.finish()
