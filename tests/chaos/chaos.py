@@ -17,9 +17,9 @@ its mirror, while a schedule of faults runs:
 1-3 faults per schedule, at random times within FAULT_S seconds, so they
 overlap ("several at once"). The one bound: a NATS server is killed only
 while every other is up and caught up (the promise is the loss of one server
-at a time; nats-server does not fsync each write, and two servers killed
-while one of them is still catching up lost acknowledged messages in the
-first runs — docs/cluster.md); pauses overlap anything. Then everything is healed (continued,
+at a time, and a server back from kill -9 counts as lost until it has caught
+up: nats-server does not fsync each write — docs/cluster.md); pauses overlap
+anything. Then everything is healed (continued,
 restarted), every world must tick and commit again, the clients lift their
 spheres and wait until the terrain is quiescent, and the owner of a random
 world is killed: a settled kill, after which the new owner's heights must
@@ -396,9 +396,8 @@ class Run:
             if action == "start" and kind in ("nats-kill", "leader-kill"):
                 # the promise covers the loss of one NATS server at a time: no kill while
                 # another server is down or back but not yet caught up (nats-server does
-                # not fsync each write: two servers killed while one caught up lost
-                # acknowledged messages — docs/cluster.md, "Chaos"); a paused one keeps
-                # what it has, so pauses do not count
+                # not fsync each write — docs/cluster.md); a paused one keeps what it has,
+                # so pauses do not count
                 if any(q.catching_up for q in self.nats_procs) and \
                         nats_api.streams_current(self.nats.urls):
                     for q in self.nats_procs:

@@ -1,8 +1,8 @@
 """test_chaos: the short, fixed-seed run of `make chaos` (tests/chaos/chaos.py,
 docs/cluster.md "Chaos"): 3 nats-servers, 3 terrad nodes, 3 worlds driven by
-clients that record every ACK; 2 schedules of seed 22 — a node paused, the
-stream leader's NATS server killed and a NATS server paused at once, then a
-node killed while a NATS server is paused — each followed by a settled kill,
+clients that record every ACK; 2 schedules of seed 22 — a node paused, then
+the stream leader's NATS server killed and another paused at once; a node
+killed, then a NATS server paused — each followed by a settled kill,
 and at the end every node killed at once. Checks that every acknowledged tick
 is in the log each recovery read (recovered tick >= every ACK received before
 it), the mirror equals the new owner's heights after a settled kill, Σh is
