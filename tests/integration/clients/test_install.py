@@ -1,5 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 300
+# ctest-lock: build-tree (cmake --install reads the build tree that make run may rebuild)
 """`cmake --install` into a temporary prefix, then use what it installed as a user would:
 
 - the twin library (libterrad-twin.so.1, .a, terrad_twin.h, terrad-twin.pc, terrad_twin.wasm):

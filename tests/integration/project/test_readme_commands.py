@@ -1,5 +1,6 @@
 #!/usr/bin/python3
 # ctest-timeout: 900 (generous: make run configures and checks the build tree on a busy machine)
+# ctest-lock: build-tree (make run reconfigures and may rebuild the build tree)
 """Every command the README shows runs in a test, or says why it cannot (issue 28 item 6): a
 newcomer's path must not break unseen, as `make run` then `make test` once did.
 
