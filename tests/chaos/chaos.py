@@ -47,8 +47,14 @@ replayed by running the same seed up to it: the output says how
 (`make chaos SEED=S SCHEDULES=i+1`). Ends with one summary line:
 "chaos: seed S: N schedules, F faults, A acknowledged ticks checked, L lost".
 
+A run that checked nothing fails too, naming its seed: a schedule in which no
+acknowledged tick was compared with a recovery, owners killed but no takeover
+seen, a client session dead of an exception that is a bug rather than a lost
+connection, fewer settled checks than --min-settled, no ACK for every world
+within 60 s of the start; --budget-s cuts every wait to what is left of it.
+
   /usr/bin/python3 tests/chaos/chaos.py [--seed S] [--schedules N] [--fault-s F]
-                                        [--logdir DIR]
+                                        [--logdir DIR] [--budget-s B] [--min-settled M]
 Exit status: 0 all checks held, 1 a check failed, 77 nats-server missing.
 """
 import argparse
@@ -172,6 +178,8 @@ class Driver:
         self.node = None
         self.connects = 0
         self.checked_upto = 0  # the ACKs before this index were compared with a recovery
+        self.errors = []  # tracebacks of sessions that ended by an exception other than a lost
+        #                   connection: a bug of the driver or the client, which must fail the run
 
     def on_ack(self, tick, _seq):
         self.times.append(time.time())
@@ -236,8 +244,13 @@ class Driver:
                 continue
             try:
                 await self._session(node)
-            except Exception:  # noqa: BLE001 — the owner died or paused: connect again
-                pass
+            except (AttributeError, TypeError, NameError, IndexError, KeyError,
+                    ZeroDivisionError, AssertionError):
+                # a bug of the driver or the client: it would end every session of this
+                # world at once and leave it unchecked, so it fails the run
+                self.errors.append(traceback.format_exc())
+            except Exception:  # noqa: BLE001 — the owner died, paused or gave the world
+                pass  # away (closed connections, timeouts, a ServerError at hello): again
             c, self.client = self.client, None
             if c is not None:
                 try:
@@ -263,9 +276,19 @@ class Run:
         self.log_tick = {w: 0 for w in WORLDS}
         self.seen_lines = {}   # node name -> lines of its log already read
         self.settled_checks = 0
+        self.settled_skipped = 0
         self.schedule = -1
         self.done = 0
         self.saved = None
+        # every wait of the run ends by this time (--budget-s), so a slow run fails with a
+        # message before an outer timeout (ctest's) kills it silently
+        self.deadline = time.monotonic() + args.budget_s if args.budget_s else None
+
+    def left(self, timeout):
+        """timeout, cut to what is left of the run's budget (at least 1 s)."""
+        if self.deadline is None:
+            return timeout
+        return max(1.0, min(timeout, self.deadline - time.monotonic()))
 
     # -- state of the nodes, from their logs --
     def owner(self, world):
@@ -350,12 +373,13 @@ class Run:
 
     def check_volumes(self, when):
         for w in WORLDS:
-            v = wait_for(lambda: self.volume(w), 20)
+            v = wait_for(lambda: self.volume(w), self.left(20))
             if v != self.volumes[w]:
                 self.fail(f"{w}: Σh {v} {when}, not {self.volumes[w]}")
 
     # -- phases --
     def wait_all_committing(self, timeout=180):
+        timeout = self.left(timeout)
         t0 = time.monotonic()
         if not wait_for(lambda: all(p.obj.up() for p in self.node_procs), timeout, 0.1):
             return False
@@ -447,11 +471,13 @@ class Run:
         for d in self.drivers.values():
             d.settled = None
             d.parked = True
-        ok = wait_for(lambda: all(d.settled for d in self.drivers.values()), 60, 0.1)
+        ok = wait_for(lambda: all(d.settled for d in self.drivers.values()), self.left(60), 0.1)
         world = rng.choice(WORLDS)
         d = self.drivers[world]
         owner = self.owner(world)
         if not ok or owner is None or d.node is not owner or d.settled[1] is None:
+            # a skip is logged and counted; --min-settled makes too few settled checks fail
+            self.settled_skipped += 1
             log(f"  settled kill skipped: {world} not quiescent on its owner")
             for dd in self.drivers.values():
                 dd.parked = False
@@ -463,7 +489,7 @@ class Run:
         self.faults += 1
         self.kinds["settled-kill"] = self.kinds.get("settled-kill", 0) + 1
         others = [p.obj for p in self.node_procs if p.obj is not owner]
-        new = ch.owner_of(others, world, 60, step=0.05)
+        new = ch.owner_of(others, world, self.left(60), step=0.05)
         if new is None:
             self.fail(f"{world}: no node took it over within 60 s of the settled kill")
         else:
@@ -503,7 +529,11 @@ class Run:
         if not self.wait_all_committing():
             self.fail("after the settled kill, not every world ticks and commits within 180 s")
             return False
+        before = sum(d.checked_upto for d in self.drivers.values())
         self.check_takeovers()
+        if sum(d.checked_upto for d in self.drivers.values()) == before:
+            self.fail("no acknowledged tick was checked against a recovery in this schedule "
+                      "(no takeover, and the settled kill skipped)")
         self.check_log()
         self.check_volumes("at the end of the schedule")
         return True
@@ -534,8 +564,12 @@ class Run:
                 loop_thread = threading.Thread(target=lambda: loop.run_until_complete(clients()),
                                                daemon=True)
                 loop_thread.start()
-                wait_for(lambda: all(d.ticks for d in self.drivers.values()), 60)
-                for i in range(a.schedules):
+                if not wait_for(lambda: all(d.ticks for d in self.drivers.values()),
+                                self.left(60)):
+                    self.fail("not every world's client received an ACK within 60 s of the "
+                              "start: " + ", ".join(f"{w} {len(d.ticks)} ACKs"
+                                                    for w, d in self.drivers.items()))
+                for i in range(a.schedules if not self.failures else 0):
                     if not self.one_schedule(i) or (self.failures and not a.keep_going):
                         break
                     self.done += 1
@@ -573,6 +607,29 @@ class Run:
         acked = sum(len(set(d.ticks)) for d in drivers)
         checked = sum(len(set(d.ticks[:d.checked_upto])) for d in drivers)
         kinds = ", ".join(f"{v} {k}" for k, v in sorted(self.kinds.items()))
+        # a run that checked nothing must not pass: the checks above only compare what
+        # happened, so say when too little happened for them to mean anything (the
+        # processes are gone: these failures are recorded without saving logs)
+        def fail(what):
+            self.failures.append(f"FAIL ({self.schedule}): {what}")
+            log(self.failures[-1])
+
+        for d in drivers:
+            for tb in d.errors[:1]:
+                fail(f"{d.world}: the client's session died of an exception "
+                          f"({len(d.errors)} times), not of a lost connection:\n{tb}")
+        if drivers and checked == 0:
+            fail("no acknowledged tick was checked against a recovery")
+        if self.takeovers == 0 and any(k in self.kinds for k in
+                                       ("node-kill", "settled-kill", "final-kill")):
+            fail("owners were killed but no takeover (\"serving\" line) was seen")
+        if self.settled_checks < a.min_settled:
+            fail(f"{self.settled_checks} settled checks, fewer than --min-settled "
+                      f"{a.min_settled} ({self.settled_skipped} settled kills skipped: a world "
+                      f"not quiescent on its owner within 60 s)")
+        if self.deadline is not None and time.monotonic() > self.deadline:
+            fail(f"the run took longer than its budget of {a.budget_s:g} s (--budget-s): "
+                      f"its waits were cut short")
         print(f"chaos: seed {a.seed}: {self.done} schedules of {a.schedules}, fault window "
               f"{a.fault_s:g} s; {self.faults} faults ({kinds}); "
               f"{checked} acknowledged ticks checked (of {acked} acknowledged) in "
@@ -580,6 +637,8 @@ class Run:
               f"{self.records} log records checked for fencing; {len(self.lost)} lost; "
               f"{len(self.failures)} failed checks", flush=True)
         if self.failures:
+            for f in self.failures:
+                print(f"chaos: seed {a.seed}: {f.splitlines()[0]}", flush=True)
             print(f"chaos: FAILED — replay: make chaos SEED={a.seed} SCHEDULES="
                   f"{self.schedule + 1 if isinstance(self.schedule, int) else a.schedules}"
                   f"{' FAULT_S=' + str(a.fault_s) if a.fault_s != 10.0 else ''}", flush=True)
@@ -614,6 +673,10 @@ def parse(argv=None):
     ap.add_argument("--schedules", type=int, default=int(os.environ.get("SCHEDULES") or 200))
     ap.add_argument("--fault-s", type=float, default=float(os.environ.get("FAULT_S") or 10.0))
     ap.add_argument("--logdir", default=os.environ.get("CHAOS_LOGDIR"))
+    ap.add_argument("--budget-s", type=float, default=None,
+                    help="every wait ends by this many seconds after the start (default none)")
+    ap.add_argument("--min-settled", type=int, default=0,
+                    help="fail when fewer settled kills were checked (default 0)")
     ap.add_argument("--keep-going", action="store_true",
                     help="go on after a failed check (the default stops at the first)")
     return ap.parse_args(argv)

@@ -7,7 +7,8 @@ loopback:
   one give, for each world, exactly the observations, rewards, terminated, truncated and ticks
   (NumPy arrays, compared bit for bit) and the heights that the same world's actions give when it
   is stepped alone; the arrays have the interface's shapes and types; a wheel that reaches the end
-  of its bin is terminated at that step, the others truncated at max_steps;
+  of its bin is terminated at that step and never truncated; in a run whose max_steps comes before
+  any wheel's end every world is truncated at max_steps and after, never before;
 - every refusal of a STEP names its field, counts in terrad_steps_refused_total{field} and leaves
   the world as it was: ticks 0 and sets not 0/1/ticks (bad_value), ticks over max_step_ticks and
   count over max_poses_per_batch (too_large), a NaN pose (poses[i]), another client's collider
@@ -37,16 +38,16 @@ def actions(t):
     return np.array([0.1 + 0.002 * t, 0.35 - 0.003 * t, -0.2 + 0.004 * (t % 17)], np.float32)
 
 
-def run(d, prefix, which):
-    """Runs the worlds `which` (indices into actions) as one WheelVecEnv; returns per world the
-    list of (obs, reward, terminated, truncated, tick) and its final heights."""
+def run(d, prefix, which, steps=STEPS, max_steps=STEPS - 5):
+    """Runs the worlds `which` (indices into actions) as one WheelVecEnv for `steps` steps; returns
+    per world the list of (obs, reward, terminated, truncated, tick) and its final heights."""
     env = tp.WheelVecEnv(d.http, d.ws, len(which), prefix=prefix, ticks_per_step=4,
-                         max_steps=STEPS - 5)
+                         max_steps=max_steps)
     rows = {i: [] for i in which}
     try:
         obs, info = env.reset()
         check(obs.shape == (len(which), 6) and obs.dtype == np.float32, f"{prefix}: reset obs {obs.shape}")
-        for t in range(STEPS):
+        for t in range(steps):
             a = actions(t)[list(which)]
             obs, rew, term, trunc, info = env.step(a)
             if t == 0:
@@ -77,9 +78,30 @@ def vecenv(d):
     check(any(np.frombuffer(r[0], np.float32)[3] > 0 for r in rows), "the wheel sinks in (sinkage > 0)")
     ticks = [r[4] for r in rows]
     check(ticks[:5] == [5, 9, 13, 17, 21], f"four ticks a step after the reset's one: {ticks[:5]}")
-    trunc = [t for t, r in enumerate(many[1]) if r[3]]
-    term1 = [t for t, r in enumerate(many[1]) if r[2]]
-    check((trunc and trunc[0] == STEPS - 6) or term1, f"world 1 truncated at max_steps ({trunc[:1]}, {term1[:1]})")
+    ends(many, STEPS - 5)
+    # every wheel here reaches the end of its bin before STEPS - 5 steps: truncation is checked
+    # on a run whose max_steps comes first (6 steps of 4 ticks: no wheel gets that far)
+    short, _ = run(d, "short", (0, 1, 2), steps=9, max_steps=6)
+    check(ends(short, 6) == K, f"every world of a run shorter than its bin is truncated at max_steps")
+
+
+def ends(rows, max_steps):
+    """Checks each world's terminated/truncated flags: max_steps steps make step index
+    max_steps - 1 the last; a world not terminated by then is truncated there and after, never
+    before; a terminated one never is, and none is both at once. Returns how many truncated."""
+    last, truncated = max_steps - 1, 0
+    for i, rs in rows.items():
+        trunc = [t for t, r in enumerate(rs) if r[3]]
+        term = next((t for t, r in enumerate(rs) if r[2]), None)
+        check(not any(r[2] and r[3] for r in rs), f"world {i}: never terminated and truncated at once")
+        if term is not None and term <= last:
+            check(not trunc, f"world {i}: terminated at step {term}, never truncated ({trunc[:1]})")
+        else:
+            truncated += 1
+            check(trunc[:1] == [last] and all(r[2] or r[3] for r in rs[last:]),
+                  f"world {i}: not terminated by step {last}, truncated at max_steps (step {last}) "
+                  f"and after ({trunc[:1]}, terminated at {term})")
+    return truncated
 
 
 def raw_step(seq, ticks, count, sets, poses=b""):
@@ -90,7 +112,7 @@ def pose_bytes(cid, x, y, z, qw=1.0):
     return struct.pack("<I7f", cid, x, y, z, qw, 0.0, 0.0, 0.0)
 
 
-async def refused(c, frame, seq, what):
+async def refused(c, frame, seq):
     """Sends a raw STEP frame; returns the error answering it (ref "step:SEQ")."""
     await c.ws.send(frame)
     ref = f"step:{seq}"
@@ -124,12 +146,12 @@ async def refusals(d):
             ("frame", "bad_frame", raw_step(106, 1, 1, 1, b"\0" * 7)),
         ]
         for field, name, frame in cases:
-            e = await refused(c, frame, struct.unpack_from("<I", frame, 4)[0], field)
+            e = await refused(c, frame, struct.unpack_from("<I", frame, 4)[0])
             check(e["name"] == name and e["message"].startswith(field),
                   f"{field or name}: {e['name']}: {e['message']}")
-        e = await refused(w, raw_step(7, 1, 0, 0), 7, "clock")
+        e = await refused(w, raw_step(7, 1, 0, 0), 7)
         check(e["name"] == "bad_value" and e["message"].startswith("clock"), f"wall world: {e['message']}")
-        e = await refused(o, raw_step(8, 1, 0, 0), 8, "driver")
+        e = await refused(o, raw_step(8, 1, 0, 0), 8)
         check(e["name"] == "forbidden" and e["message"].startswith("driver"), f"second driver: {e['message']}")
         status, doc = json_call(d.http, "GET", "/v1/worlds")
         tick = {x["name"]: x["tick"] for x in doc["worlds"]}["r"]
