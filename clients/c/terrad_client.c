@@ -1268,6 +1268,8 @@ int terrad_client_step_many(terrad_client *const *clients, const terrad_step *st
     if (!seqs || !fds) {
         if (seqs != stackseq)
             free(seqs);
+        if (fds != stackfds)
+            free(fds); /* k > 64: either malloc may have failed alone */
         return TERRAD_E_NO_MEMORY;
     }
     int first = 0, timeout_ms = 0;

@@ -67,6 +67,9 @@ void host_sim_ready(host_sim *m)
     /* the watchdog's clock starts here: a tick loop stuck before its first
      * tick is as stuck as one stuck after it */
     s->published_ms = time_now_ms();
+    /* a client-clocked world with no step yet waits for its driver: not
+     * stalled (publish_status keeps this true after each tick) */
+    s->waiting = m->sc.client_clock && !host_sim_tick_owed(m);
     snprintf(s->renderer, sizeof s->renderer, "%s", m->backend->renderer);
     snprintf(s->backend, sizeof s->backend, "%s", m->backend->name);
     snprintf(s->backend_reason, sizeof s->backend_reason, "%s", m->backend_reason);
@@ -201,7 +204,10 @@ int host_sim_step(host_sim *m, long tick, int clients, error_text *err)
         return 0;
     }
     fault_stall("tick"); /* test hook (base/fault.c): a sim thread that stops */
-    step_demo(m, tick);
+    /* a client-clocked world: the ticker's count also counts height reads
+     * (the return above), so the demo actors go by the service's tick, which
+     * only steps move: the same steps give the same heights */
+    step_demo(m, m->sc.client_clock ? (long)service_current_tick(m->svc) + 1 : tick);
     service_tick_stats stats;
     error_text tick_err = {{0}};
     if (service_tick(m->svc, m->extra, m->demo_actors, &stats, &tick_err) != 0) {

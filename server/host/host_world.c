@@ -64,6 +64,10 @@ static void world_unregister(host_world *hw)
     if (hw->ops->unregistering)
         hw->ops->unregistering(hw);
     http_server_remove_world(hw->http, m->name);
+    /* m is freed after this; should the net thread keep m->h (a failed
+     * removal below), a STEP or height read must no longer wake m's clock */
+    if (m->h)
+        hub_set_step_notify(m->h, NULL, NULL);
     if ((hw->deleted ? net_server_delete_world(hw->net, m->h)
                      : net_server_remove_world(hw->net, m->h)) != 0)
         m->h = NULL; /* the net thread may still hold it: left to the exit */

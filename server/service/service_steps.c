@@ -5,7 +5,8 @@
  * input is taken from the step (its pose set for that tick, or none: the
  * colliders hold) on top of what the hub holds, and whose ACK names the step.
  * After the step's last tick its driver gets STEPPED, queued behind that
- * tick's frames, so it goes out when they do: once the tick is durable.
+ * tick's frames, so it goes out when they do: once the tick is durable. A
+ * step tick the store could not log ends the step with an error instead.
  *
  * Nothing here reads a clock: which tick takes which poses is the step's
  * order alone, so the same steps give the same heights, soil state and FORCES
@@ -13,6 +14,8 @@
  */
 #include "service/service_internal.h"
 
+#include <cjson/cJSON.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -48,11 +51,47 @@ void service_step_input(service *s)
     }
 }
 
+/* The step's tick could not be logged (the store cannot write, or its
+ * commit failed: deform_and_commit undid it). STEPPED promises durable ticks,
+ * so the driver gets an error naming the store instead, the step's remaining
+ * ticks and pose sets are dropped, and its ACK is not sent: the world stays at
+ * the last logged tick and the driver may send the step again. */
+static void step_refuse_store(service *s)
+{
+    service_step_state *st = &s->step;
+    svc_client *cl = service_find_client(s, st->step.client);
+    if (cl) {
+        if (cl->sequence_pending && cl->last_sequence == st->step.seq)
+            cl->sequence_pending = 0;
+        char message[300], ref[32];
+        snprintf(message, sizeof message,
+                 "store: STEP %u: tick %llu (tick %u of %u) could not be made durable (storage "
+                 "unavailable or its log failed): the step is dropped, the world stays at the "
+                 "last logged tick; retry later",
+                 st->step.seq, (unsigned long long)s->tick, st->done + 1, st->step.ticks);
+        cJSON *obj = cJSON_CreateObject();
+        cJSON_AddStringToObject(obj, "type", "error");
+        cJSON_AddNumberToObject(obj, "code", TERRAD_E_STORE_UNAVAILABLE);
+        cJSON_AddStringToObject(obj, "name", terrad_err_name(TERRAD_E_STORE_UNAVAILABLE));
+        cJSON_AddStringToObject(obj, "message", message);
+        snprintf(ref, sizeof ref, "\"step:%u\"", st->step.seq); /* as net_handle_step's refusals */
+        service_reply_json(s, cl->id, ref, obj);
+    }
+    metrics_count_step_refused("store");
+    hub_step_free(&st->step);
+    memset(&st->step, 0, sizeof st->step);
+    st->done = 0;
+}
+
 void service_step_finish(service *s)
 {
     service_step_state *st = &s->step;
     if (!s->client_clock || st->step.ticks == 0)
         return;
+    if (!s->tick_logged) {
+        step_refuse_store(s);
+        return;
+    }
     metrics_count_stepped_ticks(1);
     if (++st->done < st->step.ticks)
         return;

@@ -440,18 +440,22 @@ class Daemon:
     def world(self):
         return json.loads(self.get("/v1/world")[1])
 
+    def get_busy(self, path, busy_s=60, timeout=10):
+        """get(), but a 503 "retry" (the sim thread, which serves reads between
+        ticks, was too busy to answer within its read timeout: a loaded machine)
+        is asked again for up to busy_s; any other answer is returned as is."""
+        end = time.monotonic() + busy_s
+        while True:
+            status, body, headers = self.get(path, timeout=timeout)
+            if status != 503 or b"retry" not in body or time.monotonic() > end:
+                return status, body, headers
+            time.sleep(0.2)
+
     def heights(self, x, y, w, h, busy_s=60, layer=None):
         """(tick, list of w*h int32) from GET /v1/heights (layer="compaction": the
-        compaction memory instead). A 503 "retry" (the sim thread, which serves
-        reads between ticks, was too busy to answer within its read timeout: a
-        loaded machine) is asked again for up to busy_s."""
-        end = time.monotonic() + busy_s
+        compaction memory instead), through get_busy."""
         extra = f"&layer={layer}" if layer else ""
-        while True:
-            status, body, headers = self.get(f"/v1/heights?x={x}&y={y}&w={w}&h={h}{extra}")
-            if status != 503 or b"retry" not in body or time.monotonic() > end:
-                break
-            time.sleep(0.2)
+        status, body, headers = self.get_busy(f"/v1/heights?x={x}&y={y}&w={w}&h={h}{extra}", busy_s)
         if status != 200 or len(body) != 4 * w * h:
             raise RuntimeError(f"/v1/heights {x},{y},{w},{h}: {status}, {len(body)} bytes: {body[:200]!r}")
         tick = headers.get("X-Terrad-Tick")

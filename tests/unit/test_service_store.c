@@ -4,8 +4,9 @@
  * drives a wheel on the CPU backend; its mirror must equal the world, the
  * store must recover that world; under the ENOSPC fault hook the failing
  * tick is undone, no delta and no ACK goes out, the hub reports the store unavailable
- * and nothing deforms until the fault goes; under group commit the frames of
- * a tick wait for the sync that covers them.
+ * and nothing deforms until the fault goes; a client-clocked world's step
+ * during the fault gets an error naming the store, never STEPPED; under
+ * group commit the frames of a tick wait for the sync that covers them.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -23,7 +24,10 @@ static char dir[256], fault[300];
 
 typedef struct view {
     int deltas, acks;
-    uint64_t acked_tick; /* the latest ACK's tick */
+    uint64_t acked_tick;   /* the latest ACK's tick */
+    int stepped;           /* STEPPED frames */
+    uint64_t stepped_tick; /* the latest STEPPED's tick */
+    int step_store_errors; /* errors naming a step ("step:SEQ") and the store */
 } view;
 
 static void deliver(hub *h, view *v)
@@ -40,6 +44,22 @@ static void deliver(hub *h, view *v)
                 terrad_ack_decode(out[i].frame->data, out[i].frame->len, &tick, &seq) == 0) {
                 v->acks++;
                 v->acked_tick = tick;
+            }
+            uint32_t ticks;
+            if (out[i].kind == HUB_OUT_CLIENT && out[i].frame && out[i].frame->binary &&
+                terrad_stepped_decode(out[i].frame->data, out[i].frame->len, &tick, &seq, &ticks) ==
+                    0) {
+                v->stepped++;
+                v->stepped_tick = tick;
+            }
+            if (out[i].kind == HUB_OUT_CLIENT && out[i].frame && !out[i].frame->binary) {
+                char text[1024];
+                size_t n =
+                    out[i].frame->len < sizeof text - 1 ? out[i].frame->len : sizeof text - 1;
+                memcpy(text, out[i].frame->data, n);
+                text[n] = 0;
+                if (strstr(text, "\"ref\":\"step:") && strstr(text, "store"))
+                    v->step_store_errors++;
             }
             if (out[i].frame)
                 hub_frame_unref(out[i].frame);
@@ -200,6 +220,64 @@ static void test_fault_and_recovery(void)
     free(now);
 }
 
+/* One STEP of a client-clocked world: one tick, the wheel at step t. */
+static void step(rig *r, int t, view *v)
+{
+    hub_step st = {.client = 1, .seq = (uint32_t)t, .ticks = 1, .count = 1, .sets = 1};
+    st.poses = malloc(sizeof *st.poses);
+    st.poses[0] = (hub_pose){.collider = 1,
+                             .client = 1,
+                             .sequence = (uint32_t)t,
+                             .pose = {{2.0 + 0.02 * t, 5.0, 0.75}, {1, 0, 0, 0}}};
+    CHECK(hub_push_step(r->h, &st) == 0, "step %d queued", t);
+    service_tick_stats stats;
+    error_text err;
+    CHECK(service_tick(r->svc, NULL, 0, &stats, &err) == 0, "step %d: %s", t, err.message);
+    deliver(r->h, v);
+}
+
+/* STEPPED promises its ticks are durable (PROTOCOL.md "STEP"): a step whose
+ * tick the store could not log gets an error naming the store instead
+ * (issue 30: STEPPED went out whatever happened to the tick). */
+static void test_client_clock_store_fault(void)
+{
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+    if (system(cmd) != 0)
+        return;
+    rig r;
+    if (rig_open(&r, "every-tick") != 0) {
+        CHECK(0, "rig");
+        return;
+    }
+    service_set_client_clock(r.svc, 1);
+    view v = {0};
+    int t = 1;
+    for (; t <= 5; t++)
+        step(&r, t, &v);
+    CHECK(v.stepped == 5 && v.step_store_errors == 0, "steps answered STEPPED (%d, %d errors)",
+          v.stepped, v.step_store_errors);
+    FILE *f = fopen(fault, "w");
+    if (f)
+        fclose(f);
+    view during = {0};
+    for (int k = 0; k < 5; k++, t++)
+        step(&r, t, &during);
+    CHECK(during.stepped == 0, "no STEPPED for a tick the store did not log (%d)", during.stepped);
+    CHECK(during.step_store_errors == 5, "each such step gets an error naming the store (%d)",
+          during.step_store_errors);
+    CHECK(during.acks == 0, "nor an ACK (%d)", during.acks);
+    unlink(fault);
+    sleep_ms(600);
+    view after = {0};
+    for (int k = 0; k < 5; k++, t++)
+        step(&r, t, &after);
+    CHECK(after.stepped > 0 && after.stepped_tick <= store_durable_tick(r.st),
+          "STEPPED resumes, each of a logged tick (%d, tick %llu, durable %llu)", after.stepped,
+          (unsigned long long)after.stepped_tick, (unsigned long long)store_durable_tick(r.st));
+    rig_close(&r);
+}
+
 static void test_group_commit_holds_frames(void)
 {
     char cmd[300];
@@ -232,6 +310,7 @@ int main(void)
     snprintf(dir, sizeof dir, "/tmp/terrad_test_service_store_%d", (int)getpid());
     snprintf(fault, sizeof fault, "%s.fault", dir);
     test_fault_and_recovery();
+    test_client_clock_store_fault();
     test_group_commit_holds_frames();
     char cmd[700];
     snprintf(cmd, sizeof cmd, "rm -rf %s %s", dir, fault);

@@ -27,15 +27,15 @@ WORLDS = ["a", "b"]
 check = Checks()
 
 
-async def drive(node, world, stop):
+async def drive(node, world, stop, ticks):
     """Poses every 5 ms (a batch pending at every tick) until stop is set or
-    the store refuses them; returns the client's ACK ticks."""
+    the store refuses them; appends the client's ACK ticks to ticks (read
+    while it runs) and returns it."""
     c = RecordingClient(node.ws, name=f"acks-{world}", keep=1, record=False, world=world)
     await c.connect()
     cid = await c.create_collider("sphere", radius=0.3)
     w = c.world
     x, y = 1.0, w["height"] * w["cell_size_m"] / 2
-    ticks = []
     c.on_ack = lambda tick, seq: ticks.append(tick)
     while not stop.is_set() and not any("store_unavailable" in str(e) for e in c.errors):
         x = x + 0.01 if x < w["width"] * w["cell_size_m"] - 1 else 1.0
@@ -51,10 +51,16 @@ async def drive(node, world, stop):
 
 async def drive_through_nats_kill(node, nats):
     stop = asyncio.Event()
-    tasks = [asyncio.create_task(drive(node, w, stop)) for w in WORLDS]
-    await asyncio.sleep(2.0)  # ticks committed and acknowledged first
-    nats.servers[0].kill()
+    acks = [[] for _ in WORLDS]
+    tasks = [asyncio.create_task(drive(node, w, stop, a)) for w, a in zip(WORLDS, acks)]
+    # ticks committed and acknowledged first: wait for them (a fixed sleep could end before
+    # the first ACK on a busy box), unless a client has already stopped
     loop = asyncio.get_running_loop()
+    deadline = loop.time() + 120
+    while (not all(len(a) >= 20 for a in acks) and not any(t.done() for t in tasks)
+           and loop.time() < deadline):
+        await asyncio.sleep(0.05)
+    nats.servers[0].kill()
     deadline = loop.time() + 30
     while not all(t.done() for t in tasks) and loop.time() < deadline:
         await asyncio.sleep(0.05)

@@ -19,6 +19,8 @@ real daemons on loopback:
 - a wall-clocked world refuses a STEP naming "clock"; a second would-be driver is refused
   naming "driver"; "clock" of neither kind is refused by POST /v1/worlds naming "clock";
 - the daemon's own world (--scene) client-clocked does not tick by itself, and a driver steps it;
+  waiting past the 10 s watchdog limit it stays healthy (/healthz, /readyz 200), and its demo
+  actors give the same heights whether height reads come between the steps or not;
 - under --durability group:MS (a tick's frames held until the sync that covers it) every step is
   answered: the step's end syncs, as no later tick would publish them.
 
@@ -29,6 +31,8 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 from service_harness import BIN, Checks, Daemon, json_call  # noqa: E402
@@ -230,19 +234,46 @@ def group_commit():
 
 def default_world():
     """The daemon's own world (--scene) may be client-clocked too: it waits for its driver, and
-    a driver (hello naming the scene) steps it as any created world."""
+    a driver (hello naming the scene) steps it as any created world. Waiting for its driver is not
+    a stall: /healthz stays 200 past the 10 s watchdog limit with no step yet (issue 30: it
+    answered 503 "tick", and a liveness probe would have restarted the daemon). Its demo actors go
+    by its steps, not by how many height reads came between them (issue 30: the ticker's count,
+    bumped by each read, posed them): the same steps give the same heights with reads between."""
     fd, path = tempfile.mkstemp(prefix="terrad-cosim-scene-", suffix=".json")
     with os.fdopen(fd, "w") as f:
         json.dump(dict(scene(), clock="client"), f)
     try:
-        with check.running(Daemon(extra=["--scene", path], name="default-world")) as d:
+        with check.running(Daemon(extra=["--scene", path], demo=True, name="default-world")) as d:
             check(d.stats()["tick"] == 0, "a client-clocked default world does not tick by itself")
+            time.sleep(12.5)  # past SERVE_STALL_LIMIT_MS (10 s) with no step: a condition of time
+            status, body, _ = d.get("/healthz")
+            check(status == 200, f"/healthz while it waits for its driver: {status} {body!r}")
+            status, body, _ = d.get("/readyz")
+            check(status == 200, f"/readyz while it waits for its driver: {status} {body!r}")
             texts = drive(d, ["cosim"], "many", steps=30)
             tick = int(texts["cosim"].split("STEPPED ")[-1].split()[0])
             check(d.stats()["tick"] == tick, f"its tick is the last STEPPED: {d.stats()['tick']} == {tick}")
+            quiet = heights(d, "cosim")
+        with check.running(Daemon(extra=["--scene", path], demo=True, name="default-world-reads")) as d:
+            stop = threading.Event()
+            reads = [0]
+
+            def read_heights():
+                while not stop.is_set():
+                    d.get(f"/v1/heights?x=0&y=0&w=8&h=8&world=cosim", timeout=60)
+                    reads[0] += 1
+
+            reader = threading.Thread(target=read_heights)
+            reader.start()
+            try:
+                texts = drive(d, ["cosim"], "many", steps=30)
+            finally:
+                stop.set()
+                reader.join()
+            check(reads[0] > 0, f"height reads came between the steps ({reads[0]})")
+            check(heights(d, "cosim") == quiet, "the same steps give the same heights, read between or not")
     finally:
         os.unlink(path)
-
 
 determinism()
 kill9()

@@ -41,8 +41,9 @@ WORLD = "replay-match"
 
 
 def read(d, query):
-    """(status, tick, heights or error text) of GET /v1/heights?x=0&y=0&w=W&h=H&query."""
-    status, body, headers = d.get(f"/v1/heights?x=0&y=0&w={cd.W}&h={cd.H}{query}", timeout=60)
+    """(status, tick, heights or error text) of GET /v1/heights?x=0&y=0&w=W&h=H&query; a 503
+    "retry" (the sim thread too busy to serve the read in time: a loaded machine) is asked again."""
+    status, body, headers = d.get_busy(f"/v1/heights?x=0&y=0&w={cd.W}&h={cd.H}{query}", timeout=60)
     if status != 200:
         return status, None, body.decode(errors="replace")
     return status, int(headers["X-Terrad-Tick"]), list(struct.unpack(f"<{cd.W * cd.H}i", body))
