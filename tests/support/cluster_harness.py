@@ -370,3 +370,40 @@ async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=
     except Exception:  # noqa: BLE001
         pass
     return c.acked_tick, lane, (copy[sid][0] if copy else None)
+
+
+def run_failover_test(check, world, scene, twin, failover, compare):
+    """The frame of a one-world failover test against a twin (test_cluster_soil_failover,
+    test_cluster_compaction_failover): twin(scene) runs the reference on a single daemon; one NATS
+    server, the world registered from the scene file, two nodes; failover(nodes) drives, kills the
+    owner and returns what the new owner served (falsy when it already failed a check); compare
+    (check, ref, got, what) holds it against the twin. Logs are printed when a check failed; the
+    scene file is removed. Ends the test (check.finish)."""
+    from service_harness import skip
+    if NATS_SERVER is None:
+        os.unlink(scene)
+        skip("nats-server is not installed")
+    nodes = []
+    try:
+        ref = twin(scene)
+        with NatsCluster(1) as nats:
+            try:
+                ok, said = world_add(nats.urls, world, scene)
+                check(ok, f"world add {world}: {said}")
+                nodes = [Node(f"n{i}", nats.urls) for i in range(2)]
+                got = failover(nodes)
+                if got:
+                    compare(check, ref, got, "kill -9 of the owner and a takeover")
+            except Exception:  # noqa: BLE001
+                import traceback
+                check(False, "the test raised:\n" + traceback.format_exc())
+            finally:
+                for n in nodes:
+                    n.stop()
+                if check.failed:
+                    for n in nodes:
+                        n.print_log()
+                    print(nats.logs())
+    finally:
+        os.unlink(scene)
+    check.finish()

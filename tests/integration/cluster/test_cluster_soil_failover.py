@@ -27,8 +27,8 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import Node, owner_of  # noqa: E402
-from service_harness import Checks, Daemon, skip  # noqa: E402
+from cluster_harness import owner_of  # noqa: E402
+from service_harness import Checks, Daemon  # noqa: E402
 import soil_drive as sd  # noqa: E402
 
 check = Checks()
@@ -94,33 +94,7 @@ def failover(nodes):
 
 
 def main():
-    if ch.NATS_SERVER is None:
-        skip("nats-server is not installed")
-    scene = sd.scene_file()
-    nodes = []
-    try:
-        ref = twin(scene)
-        with ch.NatsCluster(1) as nats:
-            try:
-                ok, said = ch.world_add(nats.urls, WORLD, scene)
-                check(ok, f"world add {WORLD}: {said}")
-                nodes = [Node(f"n{i}", nats.urls) for i in range(2)]
-                got = failover(nodes)
-                if got:
-                    sd.compare(check, ref, got, "kill -9 of the owner and a takeover")
-            except Exception:  # noqa: BLE001
-                import traceback
-                check(False, "the test raised:\n" + traceback.format_exc())
-            finally:
-                for n in nodes:
-                    n.stop()
-                if check.failed:
-                    for n in nodes:
-                        n.print_log()
-                    print(nats.logs())
-    finally:
-        os.unlink(scene)
-    check.finish()
+    ch.run_failover_test(check, WORLD, sd.scene_file(), twin, failover, sd.compare)
 
 
 if __name__ == "__main__":
