@@ -184,6 +184,7 @@ enum slot {
     S_STORE_RECOVERY_US,
     S_STORE_RECORDS_REPLAYED,
     S_STORE_BYTES_CUT,
+    S_CLUSTER_TAKES_REDONE,
     S_REFUSED, /* by wire error code, TERRAD_ERR_FIRST first */
     S_STORE_ERRORS = S_REFUSED + TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,
     S_SERVICE_DROPPED = S_STORE_ERRORS + STORE_ERROR_KINDS,
@@ -281,6 +282,9 @@ static const family families[] = {
            "Frames never sent (slow client or overflow)."),
     SCALAR("terrad_clients_stale_total", F_COUNTER, S_CLIENTS_STALE,
            "Clients switched to snapshots for being more than max_client_lag_ticks behind."),
+    SCALAR("terrad_cluster_takes_redone_total", F_COUNTER, S_CLUSTER_TAKES_REDONE,
+           "Takes of a world's log that found a record other than this node's own marker and "
+           "confirm record after the point it recovered to, and were read on and redone."),
     SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
            "/v1/heights requests refused (429): their address had too many bytes in flight."),
     SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
@@ -429,6 +433,11 @@ void metrics_count_service_dropped(const char *reason)
     int s = slot_of(S_SERVICE_DROPPED, service_drop_reasons, SERVICE_DROP_REASONS, reason);
     if (s >= 0)
         ADD(s, 1);
+}
+
+void metrics_count_cluster_take_redone(void)
+{
+    ADD(S_CLUSTER_TAKES_REDONE, 1);
 }
 
 void metrics_set_store_available(int available)

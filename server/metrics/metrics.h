@@ -86,6 +86,8 @@ void metrics_count_store_compaction(double ms);
 void metrics_count_store_error(const char *kind);
 void metrics_set_store_available(int available);
 void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut);
+/* A take of a world's log (cluster_wal_take) that was not clean and was redone. */
+void metrics_count_cluster_take_redone(void);
 
 /* ---- the service's dropped work (server/service) ----
  * terrad_service_dropped_total{reason=...}: something a tick meant to send or
