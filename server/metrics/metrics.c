@@ -12,9 +12,8 @@
  *
  * Every family is one row of one table (`families`: name, type, help,
  * label, slots): metrics_reset zeroes the slots, the update functions write
- * them, metrics_render walks the rows in order. The families of worlds,
- * auth, the process and refusals for room have their own files
- * (metrics_worlds.c, metrics_auth.c, metrics_process.c, metrics_room.c).
+ * them, metrics_render walks the rows in order. Families with files of their
+ * own: metrics_worlds.c, _auth, _process, _room, _edits, _steps, _cluster.
  *
  * Durations arrive in milliseconds (what the tick measures) and leave in
  * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
@@ -184,7 +183,6 @@ enum slot {
     S_STORE_RECOVERY_US,
     S_STORE_RECORDS_REPLAYED,
     S_STORE_BYTES_CUT,
-    S_CLUSTER_TAKES_REDONE,
     S_REFUSED, /* by wire error code, TERRAD_ERR_FIRST first */
     S_STORE_ERRORS = S_REFUSED + TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,
     S_SERVICE_DROPPED = S_STORE_ERRORS + STORE_ERROR_KINDS,
@@ -282,9 +280,6 @@ static const family families[] = {
            "Frames never sent (slow client or overflow)."),
     SCALAR("terrad_clients_stale_total", F_COUNTER, S_CLIENTS_STALE,
            "Clients switched to snapshots for being more than max_client_lag_ticks behind."),
-    SCALAR("terrad_cluster_takes_redone_total", F_COUNTER, S_CLUSTER_TAKES_REDONE,
-           "Takes of a world's log that found a record other than this node's own marker and "
-           "confirm record after the point it recovered to, and were read on and redone."),
     SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
            "/v1/heights requests refused (429): their address had too many bytes in flight."),
     SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
@@ -372,6 +367,7 @@ void metrics_reset(void)
     metrics_edits_reset();
     metrics_room_reset();
     metrics_steps_reset();
+    metrics_cluster_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -433,11 +429,6 @@ void metrics_count_service_dropped(const char *reason)
     int s = slot_of(S_SERVICE_DROPPED, service_drop_reasons, SERVICE_DROP_REASONS, reason);
     if (s >= 0)
         ADD(s, 1);
-}
-
-void metrics_count_cluster_take_redone(void)
-{
-    ADD(S_CLUSTER_TAKES_REDONE, 1);
 }
 
 void metrics_set_store_available(int available)
@@ -789,9 +780,9 @@ char *metrics_render(size_t *len)
         render_family(&t, &families[f]);
     char process[4096];
     /* the families rendered by the other files of metrics/, in this order */
-    int (*const parts[])(char *, size_t) = {metrics_auth_text, metrics_edits_text,
-                                            metrics_room_text, metrics_steps_text,
-                                            metrics_process_text};
+    int (*const parts[])(char *, size_t) = {metrics_auth_text,    metrics_edits_text,
+                                            metrics_room_text,    metrics_steps_text,
+                                            metrics_cluster_text, metrics_process_text};
     for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
         if (parts[i](process, sizeof process) > 0)
             text_printf(&t, "%s", process);

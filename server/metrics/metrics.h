@@ -86,8 +86,6 @@ void metrics_count_store_compaction(double ms);
 void metrics_count_store_error(const char *kind);
 void metrics_set_store_available(int available);
 void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t bytes_cut);
-/* A take of a world's log (cluster_wal_take) that was not clean and was redone. */
-void metrics_count_cluster_take_redone(void);
 
 /* ---- the service's dropped work (server/service) ----
  * terrad_service_dropped_total{reason=...}: something a tick meant to send or
@@ -138,6 +136,13 @@ void metrics_count_stepped_ticks(uint64_t n);
 void metrics_count_step_refused(const char *field);
 void metrics_steps_reset(void);
 int metrics_steps_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
+/* metrics_cluster.c: terrad_cluster_takes_redone_total, takes of a world's log
+ * (cluster_wal_take) that found another writer's message after the point they
+ * recovered to and were made again. */
+void metrics_count_cluster_take_redone(void);
+void metrics_cluster_reset(void);
+int metrics_cluster_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
