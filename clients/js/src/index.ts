@@ -70,7 +70,8 @@ export interface ConnectOptions {
   world?: string;
   /** how long a reply may take (ms, default 60,000) */
   timeoutMs?: number;
-  /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket) */
+  /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket;
+   *  Node 18: the `ws` package's WebSocket) */
   WebSocket?: typeof WebSocket;
 }
 
@@ -109,7 +110,7 @@ export class TerradClient {
   /** Connects, says hello and resolves once the server's `world` message arrived. */
   static async connect(url: string, opts: ConnectOptions = {}): Promise<TerradClient> {
     const WS = opts.WebSocket ?? (globalThis as any).WebSocket;
-    if (!WS) throw new Error('WebSocket: none in this runtime (Node 20: run with --experimental-websocket, or pass opts.WebSocket)');
+    if (!WS) throw new Error('WebSocket: none in this runtime (Node 20: run with --experimental-websocket; Node 18: pass opts.WebSocket, e.g. the ws package\'s)');
     const ws: WebSocket = new WS(url, P.SUBPROTOCOL);
     ws.binaryType = 'arraybuffer';
     const c = new TerradClient(ws, opts.timeoutMs ?? 60000);
