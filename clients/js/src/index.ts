@@ -48,6 +48,8 @@ export interface Mirror {
 export type Shape = 'sphere' | 'box' | 'capsule' | 'cylinder' | 'wheel' | 'mesh';
 /** collider_create's fields: radius, half_extents, half_length, width, vertices, indices. */
 export type Dims = Record<string, number | number[]>;
+/** A wheel's lugs (PROTOCOL.md collider_create "grousers"): metres. */
+export type Grousers = { count: number; height: number; thickness: number };
 
 /** An `error` message from the server, as a rejection: its name, code, field and ref. */
 export class TerradError extends Error {
@@ -147,7 +149,9 @@ export class TerradClient {
   }
 
   /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
-  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean } = {}): Promise<number> {
+  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers } = {}): Promise<number> {
+    if (opts.grousers && this.predictions.size > 0)
+      throw new Error('grousers: a lugged wheel cannot be predicted (the twin library has no grousers yet)');
     const ref = `col-${++this.refN}`;
     const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
     for (const p of this.predictions.values()) p.own.set(m.id, { shape, dims });
