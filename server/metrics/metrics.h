@@ -137,6 +137,13 @@ void metrics_count_step_refused(const char *field);
 void metrics_steps_reset(void);
 int metrics_steps_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
+/* metrics_cluster.c: terrad_cluster_takes_redone_total, takes of a world's log
+ * (cluster_wal_take) that found another writer's message after the point they
+ * recovered to and were made again. */
+void metrics_count_cluster_take_redone(void);
+void metrics_cluster_reset(void);
+int metrics_cluster_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */
 #define METRICS_MEMORY_STAGES SIM_MEMORY_STAGE_LIST(SIM_STAGE_NAME)
