@@ -103,7 +103,7 @@ void metrics_count_service_dropped(const char *reason);
  * without a known token), forbidden (a role without the right), revoked (an
  * open connection whose token a reload removed). */
 #define METRICS_AUTH_REASONS "bad_token", "forbidden", "revoked"
-/* Within metrics/ (metrics_auth.c): the index of name among a label's count
+/* Within metrics/ (metrics_text.c): the index of name among a label's count
  * values, or -1 (NULL or unknown: dropped, never a new series). */
 int metrics_label_index(const char *const *names, int count, const char *name);
 void metrics_count_auth_refused(const char *reason);

@@ -10,9 +10,9 @@
  */
 #include <stdatomic.h>
 #include <stdint.h>
-#include <stdio.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 static atomic_uint_fast64_t takes_redone;
 
@@ -28,11 +28,10 @@ void metrics_cluster_reset(void)
 
 int metrics_cluster_text(char *out, size_t cap)
 {
-    int w = snprintf(out, cap,
-                     "# HELP terrad_cluster_takes_redone_total Takes of a world's log that found "
-                     "another writer's message after the point they recovered to, and were made "
-                     "again.\n# TYPE terrad_cluster_takes_redone_total counter\n"
-                     "terrad_cluster_takes_redone_total %llu\n",
-                     (unsigned long long)atomic_load_explicit(&takes_redone, memory_order_relaxed));
-    return w < 0 || (size_t)w >= cap ? -1 : w;
+    size_t n = 0;
+    int rc = metrics_put_counter(out, cap, &n, "terrad_cluster_takes_redone_total",
+                                 "Takes of a world's log that found another writer's message "
+                                 "after the point they recovered to, and were made again.",
+                                 &takes_redone);
+    return rc == 0 ? (int)n : -1;
 }
