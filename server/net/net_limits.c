@@ -57,6 +57,10 @@ const net_limit_spec net_limit_table[] = {
         NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "cells one terrain edit may change"),
     ROW(max_step_ticks, NET_LIMIT_INT, 600, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "ticks one STEP of a client-clocked world may ask for (10 s of 60 Hz ticks)"),
+    ROW(checksum_interval_ticks, NET_LIMIT_INT, 30, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "ticks between a subscription's CHECKSUM frames (0.5 s at 60 Hz)"),
+    ROW(max_resync_tiles, NET_LIMIT_INT, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "tiles one resync request may name (a 512 x 512 window's)"),
     /* the server's own */
     ROW(max_connections, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG,
         "websocket connections in all (0: from RLIMIT_NOFILE)"),
