@@ -408,7 +408,7 @@ class Client:
         d["checksum_frames"] += 1
         d["checksum_tick"] = tick
         m = self.mirrors.get(sid)
-        differing = [(s.tile_x, s.tile_y) for s in tiles if m is not None and m.tile_differs(s) == 1]
+        differing = m.tiles_differing(tiles) if m is not None else []
         d["tiles_differing"] += len(differing)
         asked = differing[:int(self.world.get("limits", {}).get("max_resync_tiles", 64))]
         if asked and m is not None:

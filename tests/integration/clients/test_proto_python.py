@@ -205,6 +205,16 @@ def check_hashes(doc):
     check(m.tile_differs(s) == 1, "one height changed: the tile differs")
     check(m.tile_differs(tp.TileSum(0, 1, 5, 0)) == 0, "a tile not held is not compared")
     check(m.tile_differs(tp.TileSum(3, 1, 5, 0)) == -1, "a tile outside the region")
+    # a whole frame at once (NumPy, when there is one): the same verdicts as tile by tile
+    m.versions = [3, 0, 4, 5, 5, 5]
+    sums = [tp.TileSum(tx, ty, 5, tp.heights_hash(m.heights, 100, min(tx * 64 + 64, 130) - max(tx * 64, 30),
+                                                  min(ty * 64 + 64, 110) - max(ty * 64, 40),
+                                                  (max(ty * 64, 40) - 40) * 100 + max(tx * 64, 30) - 30))
+            for ty in range(2) for tx in range(3)]
+    m.heights[69 * 100 + 99] = -m.heights[69 * 100 + 99] - 1  # the last cell of tile (2, 1)
+    want = [(s.tile_x, s.tile_y) for s in sums if m.tile_differs(s) == 1]
+    check(want == [(0, 0), (2, 0), (2, 1)], f"tile by tile: {want}")
+    check(m.tiles_differing(sums) == want, f"a whole frame: {m.tiles_differing(sums)}")
 
 
 def check_scenarios(doc):
