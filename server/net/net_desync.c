@@ -8,10 +8,10 @@
  * those tiles (net_request_resync_tiles), each becoming one HUB_RESYNC_TILE
  * for the next tick, whose snapshot goes out ahead of the tick after.
  *
- * net_tile_current is the one place that says whether a client holds a
- * tile's latest version: true everywhere while every tile delta reaches every
- * subscriber; a bandwidth budget that lets far tiles go stale for a client
- * answers here, and the checksums then cover only the tiles it keeps current.
+ * Whether a client holds a tile's latest version is net_client_tile_current's
+ * to say (net_budget.c: a bandwidth budget lets far tiles go stale for a
+ * client, a tile in its ledger is not current): the checksums cover only the
+ * tiles it keeps current.
  */
 #include "net/net_client_internal.h"
 
@@ -20,14 +20,6 @@
 
 #include "metrics/metrics.h"
 #include "terrad_proto.h"
-
-int net_tile_current(const net_client *c, int tile_x, int tile_y)
-{
-    (void)c;
-    (void)tile_x;
-    (void)tile_y;
-    return 1;
-}
 
 hub_frame *net_checksum_for(net_client *c, hub_frame *f)
 {
@@ -41,7 +33,7 @@ hub_frame *net_checksum_for(net_client *c, hub_frame *f)
         return f;
     }
     for (size_t i = 0; i < n; i++)
-        if (net_tile_current(c, sums[i].tile_x, sums[i].tile_y))
+        if (net_client_tile_current(c, sums[i].tile_x, sums[i].tile_y))
             sums[kept++] = sums[i];
     if (kept == n) {
         free(sums);

@@ -61,6 +61,10 @@ const net_limit_spec net_limit_table[] = {
         "ticks between a subscription's CHECKSUM frames (0.5 s at 60 Hz)"),
     ROW(max_resync_tiles, NET_LIMIT_INT, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "tiles one resync request may name (a 512 x 512 window's)"),
+    ROW(default_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "a client's bandwidth budget when its hello states none (0: none)"),
+    ROW(max_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "the largest budget a hello may state (0: any, and none)"),
     /* the server's own */
     ROW(max_connections, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG,
         "websocket connections in all (0: from RLIMIT_NOFILE)"),

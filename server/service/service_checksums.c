@@ -12,7 +12,7 @@
  * frame before it holds exactly the tick's heights: the comparison is exact,
  * never racy. The net thread drops the frame for a client whose deltas are
  * being dropped (it would compare a mirror that is known to be behind) and
- * keeps only the tiles that are current for it (net_tile_current).
+ * keeps only the tiles that are current for it (net_client_tile_current).
  *
  * A tile that differs is asked for again alone: HUB_RESYNC_TILE queues a
  * quiet snapshot job (no snapshot_done mark, so the client's other tiles'
