@@ -273,15 +273,24 @@ def _check_quaternion(qw, qx, qy, qz) -> None:
 _POSE = struct.Struct("<I7f")
 
 
+def _pack_pose(p: Pose) -> bytes:
+    """One pose entry (POSE_BATCH, STEP): float32 values (_f32 refuses what is not finite),
+    a unit quaternion."""
+    v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
+    _check_quaternion(*v[3:])
+    return _POSE.pack(p.id, *v)
+
+
+def _unpack_pose(buf: bytes, pos: int) -> Pose:
+    pid, *v = _POSE.unpack_from(buf, pos)
+    if not all(math.isfinite(a) for a in v):
+        raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
+    _check_quaternion(*v[3:])
+    return Pose(pid, *v)
+
+
 def encode_pose_batch(seq: int, poses: list[Pose]) -> bytes:
-    if len(poses) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(poses)} poses")
-    out = [_header(MsgType.POSE_BATCH), struct.pack("<IH", seq & _U32, len(poses))]
-    for p in poses:
-        v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
-        _check_quaternion(*v[3:])
-        out.append(_POSE.pack(p.id, *v))
-    return b"".join(out)
+    return _encode_list(MsgType.POSE_BATCH, "<IH", seq & _U32, poses, "poses", _pack_pose)
 
 
 def decode_pose_batch(buf: bytes, max_poses: int = MAX_COUNT) -> tuple[int, list[Pose]]:
@@ -293,14 +302,7 @@ def decode_pose_batch(buf: bytes, max_poses: int = MAX_COUNT) -> tuple[int, list
         raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 10} bytes of poses")
     if count > max_poses:
         raise ProtoError("too_large", f"{count} poses, at most {max_poses}")
-    poses = []
-    for i in range(count):
-        pid, *v = _POSE.unpack_from(buf, 10 + i * POSE_SIZE)
-        if not all(math.isfinite(a) for a in v):
-            raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
-        _check_quaternion(*v[3:])
-        poses.append(Pose(pid, *v))
-    return seq, poses
+    return seq, [_unpack_pose(buf, 10 + i * POSE_SIZE) for i in range(count)]
 
 
 # ---- STEP and STEPPED (client-clocked worlds) ---------------------------------------
@@ -318,14 +320,7 @@ def encode_step(seq: int, ticks: int, sets: list[list[Pose]]) -> bytes:
     if any(len(s) != count for s in sets) or count > MAX_COUNT or len(sets) > MAX_COUNT:
         raise ProtoError("bad_value", "every set must have the same count (<= 65535)")
     out = [_header(MsgType.STEP), struct.pack("<IIHH", seq & _U32, ticks, count, len(sets))]
-    for s in sets:
-        for p in s:
-            v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
-            if not all(math.isfinite(a) for a in v):
-                raise ProtoError("bad_value", f"pose of collider {p.id} is not finite")
-            _check_quaternion(*v[3:])
-            out.append(_POSE.pack(p.id, *v))
-    return b"".join(out)
+    return b"".join(out + [_pack_pose(p) for s in sets for p in s])
 
 
 def decode_step(buf: bytes, max_poses: int = MAX_COUNT * 64) -> tuple[int, int, list[list[Pose]]]:
@@ -340,16 +335,8 @@ def decode_step(buf: bytes, max_poses: int = MAX_COUNT * 64) -> tuple[int, int, 
         raise ProtoError("bad_value", f"ticks {ticks} with {nsets} sets")
     if count * nsets > max_poses:
         raise ProtoError("too_large", f"{count * nsets} poses")
-    sets = []
-    for k in range(nsets):
-        s = []
-        for i in range(count):
-            pid, *v = _POSE.unpack_from(buf, STEP_FIXED + (k * count + i) * POSE_SIZE)
-            if not all(math.isfinite(a) for a in v):
-                raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
-            _check_quaternion(*v[3:])
-            s.append(Pose(pid, *v))
-        sets.append(s)
+    sets = [[_unpack_pose(buf, STEP_FIXED + (k * count + i) * POSE_SIZE) for i in range(count)]
+            for k in range(nsets)]
     return seq, ticks, sets
 
 
@@ -494,14 +481,19 @@ def decode_delta(buf: bytes, max_rects: int = MAX_COUNT) -> tuple[int, list[Rect
 
 # ---- tick lists: CONTACT, COLLIDERS, FOOTPRINTS, FORCES ----------------------------------
 # One outline: the header, the tick (u64), a count (u16), then count entries of one fixed
-# size; each frame gives its entry's packer and unpacker (each checks its entry).
+# size; each frame gives its entry's packer and unpacker (each checks its entry). POSE_BATCH
+# is the same outline with a seq (u32) for the tick (_encode_list's head).
+
+
+def _encode_list(t: MsgType, head: str, first: int, entries: list, what: str, pack) -> bytes:
+    if len(entries) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(entries)} {what}")
+    return b"".join([_header(t), struct.pack(head, first, len(entries))] +
+                    [pack(e) for e in entries])
 
 
 def _encode_tick_list(t: MsgType, tick: int, entries: list, what: str, pack) -> bytes:
-    if len(entries) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(entries)} {what}")
-    return b"".join([_header(t), struct.pack("<QH", tick, len(entries))] +
-                    [pack(e) for e in entries])
+    return _encode_list(t, "<QH", tick, entries, what, pack)
 
 
 def _decode_tick_list(buf: bytes, t: MsgType, size: int, cap: int, what: str,
