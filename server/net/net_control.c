@@ -134,6 +134,8 @@ static int parse_hello(parser *r, net_control *out)
     if (world && (!cJSON_IsString(world) || strlen(world->valuestring) > NET_CLIENT_NAME_MAX_BYTES))
         return fail(r, TERRAD_E_BAD_VALUE, "world: must be a string of at most %d bytes",
                     NET_CLIENT_NAME_MAX_BYTES);
+    if (get_bool(r, "snapshot_base", 0, &out->snapshot_base) < 0)
+        return -1;
     out->has_token = token != NULL;
     snprintf(out->token, sizeof out->token, "%s", token ? token->valuestring : "");
     snprintf(out->client, sizeof out->client, "%s", name ? name->valuestring : "");

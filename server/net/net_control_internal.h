@@ -60,6 +60,7 @@ typedef struct net_control {
     char token[NET_TOKEN_MAX_BYTES + 1];
     char client[NET_CLIENT_NAME_MAX_BYTES + 1]; /* "" when absent */
     char world[NET_CLIENT_NAME_MAX_BYTES + 1];  /* hello's world: "" when absent */
+    int snapshot_base; /* hello's snapshot_base: base snapshots asked for */
     /* collider_create */
     collider_geometry geometry;
     collider_mesh *mesh; /* owned, mesh shapes (geometry.mesh points to it) */

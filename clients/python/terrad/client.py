@@ -98,12 +98,16 @@ class Client:
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
                  max_size: int = 1 << 24, world: str = "", say_seen: bool = True,
-                 **connect_kwargs: Any):
+                 base_snapshots: bool = False, **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
         ping_interval=None for a client that may stop reading for a while). world: the
         world a cluster node should serve this client (docs/cluster.md); "" for a single
         daemon's one world. say_seen: tell the server the tick handled (PROTOCOL.md "seen"),
-        so that it bounds this client's lag end to end; False: only its own queue is judged."""
+        so that it bounds this client's lag end to end; False: only its own queue is judged.
+        base_snapshots: ask for snapshots against the scene's base terrain (PROTOCOL.md "Base
+        snapshots"; a late joiner's window in a fraction of the bytes), which this client
+        rebuilds with the twin library (terrad.twin); the mirrors hold the same heights."""
+        self.base_snapshots = base_snapshots
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
         self.world_name = world
         self.connect_kwargs = connect_kwargs
@@ -172,7 +176,8 @@ class Client:
         websockets = _websockets()
         self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
                                            max_size=self.max_size, **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name)))
+        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name,
+                                            self.base_snapshots)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":
             raise ServerError(msg)
@@ -371,7 +376,13 @@ class Client:
         msg = parse_control(text)
         t = msg["type"]
         if t == "subscribed":
-            self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
+            mirror = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
+            if self.world.get("snapshot_base") and isinstance(self.world.get("base"), dict):
+                # its snapshots come less the base: rebuilt here before any of them is read
+                from .twin import Twin
+                with Twin(self.world["base"], msg["x"], msg["y"], msg["w"], msg["h"]) as base:
+                    mirror.base = list(base.read())
+            self.mirrors[msg["id"]] = mirror
         ref = msg.get("ref")
         fut = self._pending.get(ref) if isinstance(ref, str) else None
         step = self._steps.pop(int(ref[5:]), None) if isinstance(ref, str) and ref.startswith("step:") else None
