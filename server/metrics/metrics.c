@@ -12,9 +12,8 @@
  *
  * Every family is one row of one table (`families`: name, type, help,
  * label, slots): metrics_reset zeroes the slots, the update functions write
- * them, metrics_render walks the rows in order. The families of worlds,
- * auth, the process and refusals for room have their own files
- * (metrics_worlds.c, metrics_auth.c, metrics_process.c, metrics_room.c).
+ * them, metrics_render walks the rows in order. Families with files of their
+ * own: metrics_worlds.c, _auth, _process, _room, _edits, _steps, _cluster.
  *
  * Durations arrive in milliseconds (what the tick measures) and leave in
  * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
@@ -368,6 +367,7 @@ void metrics_reset(void)
     metrics_edits_reset();
     metrics_room_reset();
     metrics_steps_reset();
+    metrics_cluster_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -780,9 +780,9 @@ char *metrics_render(size_t *len)
         render_family(&t, &families[f]);
     char process[4096];
     /* the families rendered by the other files of metrics/, in this order */
-    int (*const parts[])(char *, size_t) = {metrics_auth_text, metrics_edits_text,
-                                            metrics_room_text, metrics_steps_text,
-                                            metrics_process_text};
+    int (*const parts[])(char *, size_t) = {metrics_auth_text,    metrics_edits_text,
+                                            metrics_room_text,    metrics_steps_text,
+                                            metrics_cluster_text, metrics_process_text};
     for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
         if (parts[i](process, sizeof process) > 0)
             text_printf(&t, "%s", process);

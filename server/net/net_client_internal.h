@@ -13,7 +13,7 @@
  *     ↓
  *   net_remote.c    any node serves any world: the inbox from other nodes
  *     ↓
- *   net_worlds.c    a cluster node's worlds coming and going
+ *   net_worlds.c    worlds coming and going (the table of worlds, relays)
  *     ↓
  *   net_fanout.c    the sim's frames to the clients (net_dispatch), the waker
  *     ↓
@@ -192,7 +192,8 @@ struct net_state {
     uint64_t conn_refused, conn_refusals_unlogged;
     double last_conn_refusal_log_ms;
 
-    /* A cluster node's several worlds (net_worlds.c). The server's own state
+    /* The worlds of the table (cfg.worlds) and the relayed ones, each with its
+     * own state (net_worlds.c). On a cluster node the server's own state
      * is then the lobby: every client starts there and moves, at its hello,
      * to the state of the world it names (its own hub, world info, collider
      * table and backlog). A single daemon has no lobby: its state is its
@@ -210,6 +211,7 @@ struct net_state {
     net_remote_send_fn remote_send; /* to other nodes; NULL for a single daemon */
     void *remote_ctx;
     char node[65];      /* this node's name */
+    hub_world *entry;   /* a world of the table (cfg.worlds) this state was made for */
     net_state **worlds; /* the lobby's (or a single daemon's) table of world states */
     int nworlds;
     int64_t worlds_cap;

@@ -307,6 +307,11 @@ static int parse_shape(parser *r, const char *sh, net_control *out)
         if (get_length(r, "radius", &g->radius) || get_length(r, "width", &width))
             return -1;
         g->half_length = width / 2;
+        /* optional lugs (collider_grousers_from_json; their sizes against the rim are
+         * collider_geometry_validate's, after this) */
+        error_text err;
+        if (collider_grousers_from_json(r->msg, "", &g->grousers, &err) < 0)
+            return fail(r, TERRAD_E_BAD_VALUE, "%s", err.message);
         return 0;
     }
     if (strcmp(sh, "mesh") == 0) {
@@ -357,6 +362,10 @@ static int parse_collider_create(parser *r, net_control *out)
     if (get_bool(r, "feedback", 1, &out->feedback) || parse_load(r, &out->load_n) ||
         parse_shape(r, shape->valuestring, out))
         return -1;
+    if (cJSON_GetObjectItemCaseSensitive(r->msg, "grousers") && out->geometry.grousers.count == 0)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "grousers: only a wheel carries grousers (shape \"wheel\", its axle the "
+                    "collider's y axis)");
     error_text err;
     if (collider_geometry_validate(&out->geometry, &err))
         return fail(r, TERRAD_E_BAD_VALUE, "%s", err.message);

@@ -103,8 +103,33 @@ static void test_collider_create(void)
                  TERRAD_E_BAD_VALUE, 1,
                  "mesh: needs at least 3 vertices and 1 triangle (got 1 and 1)");
 
+    /* grousers: a wheel's, an object of three sizes, no taller than the rim's radius */
+    expect_error("{\"type\":\"collider_create\",\"shape\":\"wheel\",\"radius\":0.15,"
+                 "\"width\":0.16,\"grousers\":{\"count\":30,\"height\":0.2,\"thickness\":0.004}}",
+                 TERRAD_E_BAD_VALUE, 1,
+                 "grousers.height: must be a finite number > 0 and <= the radius 0.15 m (got 0.2)");
+    expect_error("{\"type\":\"collider_create\",\"shape\":\"wheel\",\"radius\":0.15,"
+                 "\"width\":0.16,\"grousers\":{\"count\":2.5,\"height\":0.01,\"thickness\":0.004}}",
+                 TERRAD_E_BAD_VALUE, 1, "grousers.count: must be an integer in [1, 360] (got 2.5)");
+    expect_error("{\"type\":\"collider_create\",\"shape\":\"wheel\",\"radius\":0.15,"
+                 "\"width\":0.16,\"grousers\":{\"count\":30,\"height\":0.01,\"lugs\":1}}",
+                 TERRAD_E_BAD_VALUE, 1,
+                 "grousers.lugs: unknown key for grousers (count, height, thickness)");
+    expect_error("{\"type\":\"collider_create\",\"shape\":\"sphere\",\"radius\":0.15,"
+                 "\"grousers\":{\"count\":30,\"height\":0.01,\"thickness\":0.004}}",
+                 TERRAD_E_BAD_VALUE, 1,
+                 "grousers: only a wheel carries grousers (shape \"wheel\", its axle the "
+                 "collider's y axis)");
     net_control m;
     net_control_error e;
+    CHECK(parse("{\"type\":\"collider_create\",\"shape\":\"wheel\",\"radius\":0.15735,"
+                "\"width\":0.165,\"grousers\":{\"count\":30,\"height\":0.01,\"thickness\":0.004}}",
+                &m, &e) == 0,
+          "lugged wheel accepted: %s", e.message);
+    CHECK(m.geometry.shape == COLLIDER_CYLINDER && m.geometry.grousers.count == 30 &&
+              m.geometry.grousers.height == 0.01 && m.geometry.grousers.thickness == 0.004,
+          "lugged wheel's grousers read");
+    net_control_free(&m);
     CHECK(parse("{\"type\":\"collider_create\",\"shape\":\"capsule\",\"radius\":0.5,"
                 "\"half_length\":1,\"material\":\"sand\",\"feedback\":false,"
                 "\"pose\":{\"p\":[1,2,3],\"q\":[1,0,0,0]}}",

@@ -218,11 +218,15 @@ class Client:
         """shape: sphere (radius), box (half_extents), capsule and cylinder (radius,
         half_length), wheel (radius, width), mesh (vertices, indices); returns its id.
         load_n=N (bekker worlds): load-driven, the server sets the height that carries N
-        newtons each tick (forces[id] reports the sinkage and the force)."""
+        newtons each tick (forces[id] reports the sinkage and the force).
+        grousers={"count": N, "height": m, "thickness": m}: a wheel's lugs."""
         fields = dict(dims, material=material)
         if self.predictions and (material != "default" or "pose" in dims):
             raise ValueError("material / pose: while predicting, a collider has the default "
                              "material and gets its poses from send_poses")
+        if self.predictions and "grousers" in dims:
+            raise ValueError("grousers: a lugged wheel cannot be predicted (the twin library "
+                             "has no grousers yet)")
         cid = (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
         self.own_colliders[cid] = (shape, fields)
         for pred in self.predictions.values():

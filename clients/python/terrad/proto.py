@@ -909,15 +909,19 @@ def hello(token: str = "", client: str = "terrad-python", world: str = "",
 
 
 def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True,
-                    load_n=None, **dims) -> dict:
+                    load_n=None, grousers=None, **dims) -> dict:
     """shape: sphere (radius), box (half_extents), capsule (radius,
     half_length), cylinder (radius, half_length), wheel (radius, width), mesh
     (vertices, indices). Optional pose=Pose-like dict {"p":[x,y,z],"q":[w,x,y,z]}.
     load_n: a vertical load in newtons (bekker worlds): the server sets the height
-    that carries it each tick (PROTOCOL.md "Load-driven colliders")."""
+    that carries it each tick (PROTOCOL.md "Load-driven colliders").
+    grousers: a wheel's lugs, {"count": N, "height": m, "thickness": m}."""
     msg = {"type": "collider_create", "shape": shape, "material": material, "feedback": feedback}
     if load_n is not None:
         msg["load_n"] = load_n
+    if grousers is not None:
+        msg["grousers"] = {"count": int(grousers["count"]), "height": float(grousers["height"]),
+                           "thickness": float(grousers["thickness"])}
     msg.update(dims)
     if ref is not None:
         msg["ref"] = ref
