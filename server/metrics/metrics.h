@@ -40,6 +40,9 @@ void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a
 void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
 /* a client switched to snapshots for being more than max_client_lag_ticks behind (net) */
 void metrics_count_client_stale(void);
+/* bandwidth budgets (net/net_budget.c): bytes queued to budgeted clients,
+ * deltas folded into their pending tiles, frames past a client's budget */
+void metrics_count_budget(uint64_t bytes, uint64_t coalesced, uint64_t overruns);
 /* a /v1/heights request refused: its address (or everyone) has too many bytes in flight (http) */
 void metrics_count_heights_refused(void);
 /* HTTP connections cut for sending no whole request within the header deadline (http) */

@@ -27,8 +27,8 @@ from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
                     decode_footprints, decode_forces, decode_header, decode_ping, decode_stepped,
                     encode_ping, encode_step,
-                    edit, encode_pose_batch, error, frame_tick, hello, parse_control, resync,
-                    seen, subscribe, unsubscribe)
+                    edit, encode_pose_batch, error, focus, frame_tick, hello, parse_control,
+                    resync, seen, subscribe, unsubscribe)
 
 try:
     import numpy as _np
@@ -98,18 +98,23 @@ class Client:
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
                  max_size: int = 1 << 24, world: str = "", say_seen: bool = True,
-                 base_snapshots: bool = False, **connect_kwargs: Any):
+                 budget: int | None = None, base_snapshots: bool = False,
+                 **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
         ping_interval=None for a client that may stop reading for a while). world: the
         world a cluster node should serve this client (docs/cluster.md); "" for a single
         daemon's one world. say_seen: tell the server the tick handled (PROTOCOL.md "seen"),
         so that it bounds this client's lag end to end; False: only its own queue is judged.
+        budget: bytes per second the server may send this client (PROTOCOL.md "Budgets":
+        near tiles first, far ones later, exact once the terrain settles); None: the
+        server's default; world["budget"] says the one in force.
         base_snapshots: ask for snapshots against the scene's base terrain (PROTOCOL.md "Base
         snapshots"; a late joiner's window in a fraction of the bytes), which this client
         rebuilds with the twin library (terrad.twin); the mirrors hold the same heights."""
         self.base_snapshots = base_snapshots
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
         self.world_name = world
+        self.budget = budget
         self.connect_kwargs = connect_kwargs
         self.ws: Any = None
         self.world: dict[str, Any] = {}
@@ -176,7 +181,7 @@ class Client:
         websockets = _websockets()
         self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
                                            max_size=self.max_size, **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name,
+        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name, self.budget,
                                             self.base_snapshots)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":
@@ -308,6 +313,11 @@ class Client:
         await self.request(unsubscribe(sid), "unsubscribed")
         self.mirrors.pop(sid, None)
         self.stop_predicting(sid)
+
+    async def focus(self, x: float | None = None, y: float | None = None) -> None:
+        """Where a budgeted client looks (cells): its nearest tiles come every tick, far ones
+        later. None: its own colliders again."""
+        await self.ws.send(json.dumps(focus(x, y)))
 
     async def resync(self, sid: int | None = None) -> None:
         await self.ws.send(json.dumps(resync(sid)))

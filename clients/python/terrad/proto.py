@@ -45,7 +45,7 @@ __all__ = [
     "encode_footprints", "decode_footprints", "Force", "encode_forces", "decode_forces", "encode_ack", "decode_ack", "encode_ping",
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
-    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
+    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "focus", "error",
     "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
     "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
 ]
@@ -897,12 +897,16 @@ class Mirror:
 
 
 def hello(token: str = "", client: str = "terrad-python", world: str = "",
-          snapshot_base: bool = False) -> dict:
-    """world: the world a cluster node should serve (sent only when given). snapshot_base:
-    ask for snapshots against the scene's base (PROTOCOL.md "Base snapshots")."""
+          budget: int | None = None, snapshot_base: bool = False) -> dict:
+    """world: the world a cluster node should serve (sent only when given). budget: the
+    most bytes per second this client wants to be sent (PROTOCOL.md "Budgets"; None: the
+    server's default, 0: none). snapshot_base: ask for snapshots against the scene's base
+    (PROTOCOL.md "Base snapshots")."""
     msg = {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
     if world:
         msg["world"] = world
+    if budget is not None:
+        msg["budget"] = budget
     if snapshot_base:
         msg["snapshot_base"] = True
     return msg
@@ -949,6 +953,15 @@ def unsubscribe(sid: int, ref=None) -> dict:
 def subscribe_events(events=("world_created", "world_deleted"), ref=None) -> dict:
     """Admin: {"type": "event", "event": ..., "world": ...} for each world made or ended."""
     return _with_ref({"type": "subscribe_events", "events": list(events)}, ref)
+
+
+def focus(x: float | None = None, y: float | None = None) -> dict:
+    """A budgeted client's focus point in cells (PROTOCOL.md "focus"); None: cleared (its
+    colliders are the focus again)."""
+    msg: dict = {"type": "focus"}
+    if x is not None and y is not None:
+        msg["x"], msg["y"] = x, y
+    return msg
 
 
 def resync(sid: int | None = None, ref=None) -> dict:
