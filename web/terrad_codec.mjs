@@ -536,11 +536,13 @@ export class SeenReporter {
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
 // loadN: a vertical load in newtons (bekker worlds; PROTOCOL.md "Load-driven colliders"): the
 // server sets the height that carries it each tick and reports it in FORCES.
-/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string, loadN?: number}} [opts] */
-export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref, loadN } = {}) {
+// grousers: a wheel's lugs {count, height, thickness} (metres; PROTOCOL.md collider_create).
+/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string, loadN?: number, grousers?: {count: number, height: number, thickness: number}}} [opts] */
+export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref, loadN, grousers } = {}) {
   const m = { type: 'collider_create', shape, material, feedback, ...dims };
   if (pose) m.pose = pose;
   if (loadN !== undefined) m.load_n = loadN;
+  if (grousers !== undefined) m.grousers = grousers;
   return withRef(m, ref);
 }
 // A terrain edit (PROTOCOL.md "edit"): op crater | stamp | reset | add | remove, its fields in

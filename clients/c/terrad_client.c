@@ -861,7 +861,7 @@ static int finite_positive(double v)
 }
 
 /* The colliders this client made, for its predictions (terrad_client_predict.c). */
-static void remember_own(terrad_client *c, uint32_t id, const terrad_collider_desc *d)
+static void remember_own(terrad_client *c, uint32_t id, const terrad_collider_desc *d, int lugged)
 {
     if (grow((void **)&c->own, &c->own_cap, c->nown + 1, sizeof *c->own))
         return; /* out of memory: a prediction will not know this collider */
@@ -871,7 +871,8 @@ static void remember_own(terrad_client *c, uint32_t id, const terrad_collider_de
                       .radius = d->radius,
                       .half_length = d->half_length,
                       .width = d->width,
-                      .default_material = !d->material || strcmp(d->material, "default") == 0};
+                      .default_material = !d->material || strcmp(d->material, "default") == 0,
+                      .lugged = lugged};
     memcpy(o->half_extents, d->half_extents, sizeof o->half_extents);
     predict_collider(c, o, 1);
 }
@@ -895,9 +896,9 @@ void client_set_error(terrad_client *c, const char *fmt, ...)
     va_end(ap);
 }
 
-/* load_n 0: the poses' heights (terrad_client_create_collider) */
+/* load_n 0: the poses' heights (terrad_client_create_collider); lugs NULL: a smooth rim */
 static int create_collider(terrad_client *c, terrad_collider_desc d, double load_n,
-                           uint32_t *id_out)
+                           const terrad_grousers *lugs, uint32_t *id_out)
 {
     cJSON *m = cJSON_CreateObject();
     if (!m)
@@ -945,6 +946,12 @@ static int create_collider(terrad_client *c, terrad_collider_desc d, double load
     cJSON_AddBoolToObject(m, "feedback", !d.no_feedback);
     if (load_n != 0.0) /* the server judges it (and names load_n when it refuses) */
         cJSON_AddNumberToObject(m, "load_n", load_n);
+    if (lugs) { /* the server judges the sizes against the rim and names the field */
+        cJSON *g = cJSON_AddObjectToObject(m, "grousers");
+        cJSON_AddNumberToObject(g, "count", lugs->count);
+        cJSON_AddNumberToObject(g, "height", lugs->height);
+        cJSON_AddNumberToObject(g, "thickness", lugs->thickness);
+    }
     int64_t id = 0;
     int rc = request(c, m, &id);
     if (rc == 0) {
@@ -952,20 +959,26 @@ static int create_collider(terrad_client *c, terrad_collider_desc d, double load
             return TERRAD_CLIENT_E_PROTOCOL;
         if (id_out)
             *id_out = (uint32_t)id;
-        remember_own(c, (uint32_t)id, &d);
+        remember_own(c, (uint32_t)id, &d, lugs != NULL);
     }
     return rc;
 }
 
 int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint32_t *id_out)
 {
-    return create_collider(c, d, 0.0, id_out);
+    return create_collider(c, d, 0.0, NULL, id_out);
 }
 
 int terrad_client_create_loaded_collider(terrad_client *c, terrad_collider_desc d, double load_n,
                                          uint32_t *id_out)
 {
-    return create_collider(c, d, load_n, id_out);
+    return create_collider(c, d, load_n, NULL, id_out);
+}
+
+int terrad_client_create_lugged_collider(terrad_client *c, terrad_collider_desc d,
+                                         terrad_grousers g, double load_n, uint32_t *id_out)
+{
+    return create_collider(c, d, load_n, &g, id_out);
 }
 
 int terrad_client_delete_collider(terrad_client *c, uint32_t id)

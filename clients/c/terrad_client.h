@@ -173,6 +173,18 @@ int terrad_client_create_collider(terrad_client *c, terrad_collider_desc d, uint
  * load_n and names it when it refuses (NaN, <= 0, a world without soil). */
 int terrad_client_create_loaded_collider(terrad_client *c, terrad_collider_desc d, double load_n,
                                          uint32_t *id_out);
+/* A wheel with grousers (PROTOCOL.md collider_create "grousers"): `count`
+ * lugs across the rim, `height` out from it, `thickness` along it (metres).
+ * d.shape must be TERRAD_SHAPE_WHEEL (the server refuses another shape,
+ * naming grousers); load_n 0: pose-driven, else load-driven as above. A call
+ * of its own for the same ABI reason. Not predicted (terrad_client_predict):
+ * the twin library has no grousers yet. */
+typedef struct terrad_grousers {
+    int count;
+    double height, thickness;
+} terrad_grousers;
+int terrad_client_create_lugged_collider(terrad_client *c, terrad_collider_desc d,
+                                         terrad_grousers g, double load_n, uint32_t *id_out);
 int terrad_client_delete_collider(terrad_client *c, uint32_t id);
 /* Sends one POSE_BATCH (the next sequence number, returned in *seq_out)
  * and pushes it to the socket without waiting for anything. count 0 asks

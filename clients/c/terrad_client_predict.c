@@ -37,7 +37,8 @@ static void sync_stats(terrad_prediction *p)
 }
 
 /* The twin's copy of an own collider (only default-material ones: the twin
- * presses with the world's material). */
+ * presses with the world's material; no lugged wheel: the twin library has
+ * no grousers yet). */
 static int add_own(terrad_prediction *p, const client_own *o, char *err)
 {
     static const char *const shapes[] = {[TERRAD_SHAPE_SPHERE] = "sphere",
@@ -45,7 +46,7 @@ static int add_own(terrad_prediction *p, const client_own *o, char *err)
                                          [TERRAD_SHAPE_CAPSULE] = "capsule",
                                          [TERRAD_SHAPE_CYLINDER] = "cylinder",
                                          [TERRAD_SHAPE_WHEEL] = "wheel"};
-    if (!o->default_material)
+    if (!o->default_material || o->lugged)
         return 0;
     if ((unsigned)o->shape >= sizeof shapes / sizeof shapes[0] || !shapes[o->shape]) {
         snprintf(err, TERRAD_TWIN_ERROR_MAX, "shape: %d cannot be predicted", (int)o->shape);

@@ -86,6 +86,7 @@ typedef struct serve_daemon {
     int end_rc;
     net_server *net;
     http_server *http;
+    hub_worlds *table;      /* the worlds created beside it, which both ports read */
     http_server *probe;     /* --probe-port */
     auth_table *auth;       /* NULL: no tokens, every client an admin (serve_security.c) */
     serve_worlds *worlds;   /* worlds created by API beside the default one (serve_worlds.c) */
@@ -194,11 +195,12 @@ static int default_join(host_world *hw, error_text *err)
                      .tls_cert = d->o.tls_cert,
                      .tls_key = d->o.tls_key,
                      .limits = d->o.limits,
-                     .world = host_sim_world_info(m)};
+                     .world = host_sim_world_info(m),
+                     .worlds = d->table};
     nc.world.scene_name = m->sc.name;
     nc.limits.fd_reserve = d->fd_reserve;
     if (!(d->net = net_server_start(&nc, m->h, err)) ||
-        !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->net, d->ticker, err)))
+        !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->table, d->net, d->ticker, err)))
         return -1;
     http_server_set_drain(d->http, drain_call, d); /* POST /v1/drain */
     signal_drains = 1;
@@ -254,16 +256,21 @@ static const host_world_ops default_world_ops = {.open = default_open,
 static int serve_start(serve_daemon *d, error_text *err)
 {
     host_sim *m = &d->def.m;
+    if (!(d->table = hub_worlds_create())) {
+        error_set(err, "out of memory");
+        return -1;
+    }
     if (!(d->ticker = host_ticker_start(host_ticker_default_workers(), err)) ||
         !(d->http = serve_http_open(&d->o, d->auth, &m->status, m->h, &d->fd_reserve, err)) ||
         (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
         return -1;
+    http_server_set_worlds(d->http, d->table);
     http_server_set_base(d->http, &m->w); /* the base never changes once the world is made */
     error_text why = {{0}};
     char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
     http_server_set_twin(d->http, twin, why.message);
     free(twin);
-    host_world_place(&d->def, &default_world_ops, d, d->http, NULL, d->ticker);
+    host_world_place(&d->def, &default_world_ops, d, d->table, NULL, d->ticker);
     d->def.config = serve_host_config(&d->o);
     d->def.max_ticks = d->o.max_ticks;
     if (host_world_run(&d->def, err->message, sizeof err->message) != 0)
@@ -332,9 +339,10 @@ static void serve_stop(serve_daemon *d)
     http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
-    host_ticker_stop(d->ticker); /* every world has ended: the workers are joined */
-    auth_free(d->auth);          /* after both servers: they check tokens against it */
-    host_world_free(&d->def);    /* its hub, world and scene, which the ports read */
+    host_ticker_stop(d->ticker);  /* every world has ended: the workers are joined */
+    auth_free(d->auth);           /* after both servers: they check tokens against it */
+    hub_worlds_destroy(d->table); /* and read this */
+    host_world_free(&d->def);     /* its hub, world and scene, which the ports read */
 }
 
 int app_serve(int argc, char **argv)

@@ -99,11 +99,12 @@ int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 #define SERVE_WORLDS_MAX 256
 typedef struct serve_worlds serve_worlds;
 /* After the daemon's ports are open: the worlds of DATA/worlds recovered and
- * started (each on ticker, the daemon's pool), then POST/GET /v1/worlds and
- * DELETE /v1/worlds/NAME served on http. main_world: the default world. */
+ * started (each on ticker, the daemon's pool, and in table, which both ports
+ * read), then POST/GET /v1/worlds and DELETE /v1/worlds/NAME served on http.
+ * main_world: the default world. */
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
-                                 http_server *http, net_server *net, host_ticker *ticker,
-                                 error_text *err);
+                                 http_server *http, hub_worlds *table, net_server *net,
+                                 host_ticker *ticker, error_text *err);
 /* The daemon drains (serve.c): POST /v1/worlds is refused with 503 naming
  * why, and GET /v1/worlds says every world's lifecycle is "draining". */
 void serve_worlds_drain(serve_worlds *ws, const char *why);

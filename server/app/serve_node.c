@@ -59,6 +59,7 @@ struct serve_node {
     http_status status; /* the node's: /readyz */
     http_server *http;
     net_server *net;
+    hub_worlds *table;    /* the worlds it ticks, which both ports read */
     host_ticker *ticker;  /* the sim workers every world of the node ticks on */
     serve_relays *relays; /* the worlds other nodes tick, served here too */
     serve_node_api *api;  /* POST/GET /v1/worlds, DELETE /v1/worlds/NAME */
@@ -217,7 +218,7 @@ static void *world_main(void *arg)
     node_world *nw = arg;
     serve_node *n = nw->node;
     host_world *hw = &nw->hw;
-    host_world_place(hw, &cluster_world_ops, nw, n->http, n->net, n->ticker);
+    host_world_place(hw, &cluster_world_ops, nw, n->table, n->net, n->ticker);
     hw->config = serve_host_config(n->o);
     hw->max_ticks = n->o->max_ticks;
     if (host_world_start(hw, nw->why, sizeof nw->why) == 0) {
@@ -413,16 +414,22 @@ static int node_open_ports(serve_node *n, error_text *err)
 {
     const serve_options *o = n->o;
     int fd_reserve = 0;
+    if (!(n->table = hub_worlds_create())) {
+        error_set(err, "out of memory");
+        return -1;
+    }
     if (!(n->http = serve_http_open(o, n->auth, &n->status, NULL, &fd_reserve, err)) ||
         (o->probe_port >= 0 && !(n->probe = http_probe_start(n->http, o->probe_port, err))))
         return -1;
+    http_server_set_worlds(n->http, n->table);
     http_server_host_worlds(n->http);
     net_config nc = {.port = o->ws_port,
                      .bind_any = o->bind_any,
                      .auth = n->auth,
                      .tls_cert = o->tls_cert,
                      .tls_key = o->tls_key,
-                     .limits = o->limits};
+                     .limits = o->limits,
+                     .worlds = n->table};
     nc.limits.fd_reserve = fd_reserve;
     if (!(n->net = net_server_start(&nc, NULL, err)))
         return -1;
@@ -560,6 +567,7 @@ static void node_stop(serve_node *n)
     http_server_stop(n->http); /* first: its watchdog reads the net server */
     serve_node_api_free(n->api);
     net_server_stop(n->net);
+    hub_worlds_destroy(n->table); /* after both ports: they read it */
     cluster_close(n->cl);
 }
 

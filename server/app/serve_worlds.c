@@ -5,7 +5,8 @@
  * host/host_world.c with this file's registry backend (local_world_ops),
  * on the daemon's shared pool of sim workers beside the default world
  * (--scene), as a cluster node's worlds do (the same host_sim, the same
- * http_server_add_world / net_server_add_world), so a created world's tick
+ * entry of the daemon's one table of worlds, hub_worlds_add, which both
+ * ports read), so a created world's tick
  * is the same code as the default's and its clients
  * reach it by hello's "world" and its HTTP by ?world=NAME or
  * /v1/worlds/NAME/edits.
@@ -64,6 +65,7 @@ typedef struct local_world {
 struct serve_worlds {
     serve_options o; /* the daemon's, with no demo actors and no tick limit */
     http_server *http;
+    hub_worlds *table; /* the daemon's worlds, which both ports read */
     net_server *net;
     host_ticker *ticker;        /* the daemon's sim workers, which tick every world */
     const host_sim *main_world; /* the default world (its status for the list) */
@@ -234,7 +236,7 @@ static const host_world_ops local_world_ops = {
 static int world_start(serve_worlds *ws, local_world *lw, char *why, size_t cap)
 {
     host_world *hw = &lw->hw;
-    host_world_place(hw, &local_world_ops, lw, ws->http, ws->net, ws->ticker);
+    host_world_place(hw, &local_world_ops, lw, ws->table, ws->net, ws->ticker);
     hw->config = serve_host_config(&ws->o);
     hw->max_ticks = -1;
     if (host_world_start(hw, why, cap) == 0)
@@ -564,8 +566,8 @@ static void recover_worlds(serve_worlds *ws)
 }
 
 serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_world,
-                                 http_server *http, net_server *net, host_ticker *ticker,
-                                 error_text *err)
+                                 http_server *http, hub_worlds *table, net_server *net,
+                                 host_ticker *ticker, error_text *err)
 {
     serve_worlds *ws = calloc(1, sizeof *ws);
     if (!ws) {
@@ -576,6 +578,7 @@ serve_worlds *serve_worlds_start(const serve_options *o, const host_sim *main_wo
     ws->o.demo_actors = 0; /* a created world has only its clients' colliders */
     ws->o.max_ticks = -1;
     ws->http = http;
+    ws->table = table;
     ws->net = net;
     ws->main_world = main_world;
     ws->max = o->max_worlds > 0

@@ -21,8 +21,41 @@ static int size_ok(double v)
     return isfinite(v) && v > 0.0 && v <= COLLIDER_SIZE_MAX_M;
 }
 
+/* A cylinder's grousers (lugs.c): a whole count, each lug no taller and no
+ * thicker than the rim's radius (the plate then starts inside the rim). */
+static int grousers_validate(const collider_geometry *g, error_text *err)
+{
+    const collider_grousers *l = &g->grousers;
+    if (l->count == 0)
+        return 0;
+    if (g->shape != COLLIDER_CYLINDER) {
+        error_set(err, "grousers: only a wheel (a cylinder) carries grousers");
+        return -1;
+    }
+    if (l->count < 0 || l->count > COLLIDER_GROUSERS_MAX) {
+        error_set(err, "grousers.count: must be an integer 0..%d (got %d)", COLLIDER_GROUSERS_MAX,
+                  l->count);
+        return -1;
+    }
+    if (!size_ok(l->height) || l->height > g->radius) {
+        error_set(err,
+                  "grousers.height: must be a finite number > 0 and <= the radius %g m (got %g)",
+                  g->radius, l->height);
+        return -1;
+    }
+    if (!size_ok(l->thickness) || l->thickness > g->radius) {
+        error_set(err,
+                  "grousers.thickness: must be a finite number > 0 and <= the radius %g m (got %g)",
+                  g->radius, l->thickness);
+        return -1;
+    }
+    return 0;
+}
+
 int collider_geometry_validate(const collider_geometry *g, error_text *err)
 {
+    if (g->grousers.count != 0 && g->shape != COLLIDER_CYLINDER)
+        return grousers_validate(g, err);
     switch (g->shape) {
     case COLLIDER_SPHERE:
         if (!size_ok(g->radius)) {
@@ -44,7 +77,7 @@ int collider_geometry_validate(const collider_geometry *g, error_text *err)
                       g->half_length);
             return -1;
         }
-        return 0;
+        return grousers_validate(g, err);
     case COLLIDER_BOX: {
         const double e[3] = {g->half_extents.x, g->half_extents.y, g->half_extents.z};
         for (int i = 0; i < 3; i++)
@@ -181,6 +214,15 @@ vec3d quat_rotate(quatd q, vec3d v)
 
 /* ---- Bounds ---- */
 
+double collider_rim_reach(const collider_geometry *g)
+{
+    if (g->shape != COLLIDER_CYLINDER || g->grousers.count <= 0)
+        return g->radius;
+    /* a lug's outer corners: r + height out, thickness / 2 aside */
+    double o = g->radius + g->grousers.height, t = 0.5 * g->grousers.thickness;
+    return sqrt(o * o + t * t);
+}
+
 void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi)
 {
     quatd q = quat_normalize(pose.orientation);
@@ -203,7 +245,7 @@ void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, 
     case COLLIDER_CAPSULE:
     case COLLIDER_CYLINDER: {
         vec3d a = quat_rotate(q, (vec3d){0, 1, 0});
-        double L = g->half_length, r = g->radius;
+        double L = g->half_length, r = collider_rim_reach(g);
         if (g->shape == COLLIDER_CAPSULE) {
             e = (vec3d){fabs(a.x) * L + r, fabs(a.y) * L + r, fabs(a.z) * L + r};
         } else {
@@ -300,8 +342,10 @@ double collider_reach(const collider_geometry *g)
         return g->radius;
     case COLLIDER_CAPSULE:
         return g->half_length + g->radius;
-    case COLLIDER_CYLINDER:
-        return sqrt(g->half_length * g->half_length + g->radius * g->radius);
+    case COLLIDER_CYLINDER: {
+        double r = collider_rim_reach(g);
+        return sqrt(g->half_length * g->half_length + r * r);
+    }
     case COLLIDER_BOX: {
         vec3d h = g->half_extents;
         return sqrt(h.x * h.x + h.y * h.y + h.z * h.z);
@@ -374,6 +418,17 @@ collider_cost collider_cost_of(const collider_geometry *g, double cell_size_m)
                  ceil_div(mesh_visit_cells(g->mesh, cell), COST_STEP_DIVISOR);
     else
         c.step = ceil_div((int64_t)(side * side), COST_STEP_DIVISOR);
+    if (g->shape == COLLIDER_CYLINDER && g->grousers.count > 0) {
+        /* a lug is a box instance: its bounding square, prepared like a triangle */
+        const collider_grousers *l = &g->grousers;
+        double lug = ceil(2 *
+                          sqrt(g->half_length * g->half_length +
+                               (l->height + l->thickness) * (l->height + l->thickness)) /
+                          cell) +
+                     3;
+        c.step += ceil_div(l->count, COST_TRIANGLE_DIVISOR) +
+                  ceil_div((int64_t)l->count * (int64_t)(lug * lug), COST_STEP_DIVISOR);
+    }
     return c;
 }
 

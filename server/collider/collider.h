@@ -54,12 +54,28 @@ typedef struct collider_mesh {
     double bounding_radius; /* max |v| over vertices */
 } collider_mesh;
 
+/*
+ * A wheel's grousers (lugs, issue 31 item 1; lugs.c): `count` flat plates
+ * across the whole width of a cylinder's rim, `height` radially out from the
+ * rim, `thickness` along it, spaced 360°/count about the axle (local y), lug
+ * 0 pointing along local -z. count 0: a smooth rim. The depth stage presses
+ * each lug as a box instance of the one fixed-point rule, so the lugged rim
+ * is exact and identical on both backends like every shape.
+ */
+#define COLLIDER_GROUSERS_MAX 360
+typedef struct collider_grousers {
+    int count;
+    double height;    /* m */
+    double thickness; /* m */
+} collider_grousers;
+
 typedef struct collider_geometry {
     collider_shape shape;
-    double radius;             /* sphere, capsule, cylinder */
-    double half_length;        /* capsule, cylinder: half the length of the axis segment */
-    vec3d half_extents;        /* box */
-    const collider_mesh *mesh; /* mesh: not owned */
+    double radius;              /* sphere, capsule, cylinder */
+    double half_length;         /* capsule, cylinder: half the length of the axis segment */
+    vec3d half_extents;         /* box */
+    const collider_mesh *mesh;  /* mesh: not owned */
+    collider_grousers grousers; /* cylinder only; zero: smooth */
 } collider_geometry;
 
 /* Refuse NaN, Inf, non-positive or absurd sizes; the message names the field. */
@@ -80,6 +96,8 @@ quatd collider_wire_orientation(quatd q, int axis_z);
 
 /* World-space axis-aligned bounds of the collider at a pose. */
 void collider_bounds(const collider_geometry *g, collider_pose pose, vec3d *lo, vec3d *hi);
+/* A cylinder's radius, its lugs' corners included (lugs.c); other shapes: radius. */
+double collider_rim_reach(const collider_geometry *g);
 /* Largest distance of any point of the collider from its position (metres). */
 double collider_reach(const collider_geometry *g);
 /* What the collider costs a tick, in cells of window work (collider.c has
@@ -172,6 +190,21 @@ int collider_fixed_prepare(const collider_geometry *g, collider_pose pose, world
 int collider_fixed_mesh_prepare(const collider_geometry *g, collider_pose pose, world_rect window,
                                 double cell_size_m, int32_t units_per_m, collider_fixed **out,
                                 int64_t *count, int64_t *capacity);
+/* A wheel's optional "grousers" object of obj (lugs_json.c; path names obj
+ * in messages): 1 read into out, 0 absent (out zeroed), -1 refused. */
+int collider_grousers_from_json(const cJSON *obj, const char *path, collider_grousers *out,
+                                error_text *err);
+/* Every instance of a shape at a pose, appended to *out (grown with
+ * array_grow): a mesh's triangles, a primitive's one instance, and a lugged
+ * cylinder's rim plus one box per lug that meets the window (lugs.c). The
+ * one list both backends lower the bottoms with. Returns how many, or -1. */
+int collider_fixed_instances(const collider_geometry *g, collider_pose pose, world_rect window,
+                             double cell_size_m, int32_t units_per_m, collider_fixed **out,
+                             int64_t *count, int64_t *capacity);
+/* Lug k (0 <= k < count) of a lugged cylinder at a pose: the box it is, and
+ * its pose (lugs.c). */
+collider_geometry collider_lug_box(const collider_geometry *g, collider_pose pose, int k,
+                                   collider_pose *lug_pose);
 /* bottom (window_w wide) lowered to the rule over the instance's cells. */
 void collider_fixed_apply(const collider_fixed *f, int32_t *bottom, int window_w);
 uint64_t collider_isqrt64(uint64_t v);

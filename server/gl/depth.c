@@ -6,8 +6,8 @@
  * first sets the bottoms of the windows that need a depth to
  * COLLIDER_BOTTOM_NONE (windows whose bottom was uploaded keep it), then the
  * instances — one per shape, sub-step pose of the swept collider and window,
- * a mesh one per triangle — lower them with atomicMin. (Until issue 12 the
- * colliders were rasterised into a depth atlas in float; that path and its
+ * a mesh one per triangle, a lugged wheel one per lug beside its rim — lower them with atomicMin.
+ * (Until issue 12 the colliders were rasterised into a depth atlas in float; that path and its
  * atlas, geometry cache and vertex/fragment programs are gone.)
  */
 #include "gl/gl_internal.h"
@@ -33,36 +33,19 @@ static int depth_exact(gl_backend *b, const sim_window_job *jobs, int count, err
                 continue; /* a mesh without triangles: nothing to press */
             int steps = sim_collider_sweep_steps(col, jobs[i].cell_size_m);
             for (int k = 1; k <= steps; k++) {
-                if (col->geometry->shape == COLLIDER_MESH) {
-                    int64_t first = n;
-                    if (collider_fixed_mesh_prepare(
-                            col->geometry, sim_collider_sweep_pose(col, k, steps), jobs[i].rect,
-                            jobs[i].cell_size_m, jobs[i].units_per_m, &b->exact_host, &n,
-                            &b->exact_host_capacity) < 0) {
-                        error_set(err, "gl backend: out of memory for depth instances");
-                        return -1;
-                    }
-                    for (int64_t t = first; t < n; t++) {
-                        b->exact_host[t].v[CF_WINDOW] = i;
-                        if (b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H] > max_cells)
-                            max_cells = b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H];
-                    }
-                    continue;
-                }
-                if (array_grow((void **)&b->exact_host, &b->exact_host_capacity, n + 1,
-                               sizeof *b->exact_host) != 0) {
+                /* a primitive's one instance, a mesh's triangles, a lugged wheel's lugs */
+                int64_t first = n;
+                if (collider_fixed_instances(col->geometry, sim_collider_sweep_pose(col, k, steps),
+                                             jobs[i].rect, jobs[i].cell_size_m, jobs[i].units_per_m,
+                                             &b->exact_host, &n, &b->exact_host_capacity) < 0) {
                     error_set(err, "gl backend: out of memory for depth instances");
                     return -1;
                 }
-                collider_fixed *f = &b->exact_host[n];
-                if (!collider_fixed_prepare(col->geometry, sim_collider_sweep_pose(col, k, steps),
-                                            jobs[i].rect, jobs[i].cell_size_m, jobs[i].units_per_m,
-                                            f))
-                    continue;
-                f->v[CF_WINDOW] = i;
-                if (f->v[CF_W] * f->v[CF_H] > max_cells)
-                    max_cells = f->v[CF_W] * f->v[CF_H];
-                n++;
+                for (int64_t t = first; t < n; t++) {
+                    b->exact_host[t].v[CF_WINDOW] = i;
+                    if (b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H] > max_cells)
+                        max_cells = b->exact_host[t].v[CF_W] * b->exact_host[t].v[CF_H];
+                }
             }
         }
     }

@@ -230,19 +230,20 @@ typedef struct host_world_ops {
     /* The default world's ports were made with it (its status and hub given
      * to the HTTP server at its start, its hub and info to the websocket
      * server's): join starts what must follow its simulation (hw->net set
-     * here) in place of http_server_add_world / net_server_add_world and a
-     * labelled metrics slot; at its end its reads are closed and the ports
-     * keep its hub, world, scene and status until host_world_free, after
-     * they stopped. NULL for every other world. */
+     * here) in place of hub_worlds_add and a labelled metrics slot; at its end its reads are closed
+     * and the ports keep its hub, world, scene and status until host_world_free, after they
+     * stopped. NULL for every other world. */
     int (*join)(host_world *hw, error_text *err);
 } host_world_ops;
 
 struct host_world {
     host_sim m; /* m.name and m.status.lock: the owner's */
     const host_world_ops *ops;
-    void *owner;       /* the ops' */
-    http_server *http; /* the ports it joins */
-    net_server *net;
+    void *owner;         /* the ops' */
+    hub_worlds *worlds;  /* the table of worlds both ports read, which it joins */
+    hub_world *entry;    /* its entry there while it is on the ports */
+    net_world_info info; /* what the net thread reads of it (host_sim_world_info) */
+    net_server *net;     /* its clients counted in its status */
     host_ticker *ticker; /* the pool it ticks on */
     host_sim_config config;
     long max_ticks;        /* < 0: none */
@@ -255,16 +256,17 @@ struct host_world {
     unsigned long long overruns;
 };
 /* Where hw comes from and where it goes: its registry backend (ops, owner),
- * the ports it joins and the pool it ticks on (the rest of hw as it is). */
-void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+ * the table of worlds it joins (the ports read it), the websocket server that
+ * counts its clients and the pool it ticks on (the rest of hw as it is). */
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, hub_worlds *worlds,
                       net_server *net, host_ticker *ticker);
 /* host_world_open, then host_world_run. */
 int host_world_start(host_world *hw, char *why, size_t cap);
 /* Opens hw (ops->open: scene, world, store), its status filled, its hub
  * made: 0, or -1 with why and everything made undone. */
 int host_world_open(host_world *hw, char *why, size_t cap);
-/* Starts its simulation, joins the ports (http_server_add_world,
- * net_server_add_world, a labelled metrics slot; or ops->join), then
+/* Starts its simulation, joins the ports (hub_worlds_add: the table both
+ * read; a labelled metrics slot; or ops->join), then
  * ops->registered, and hands it to the ticker: 0, or -1 with why and
  * everything made undone (ops->ended is not called). */
 int host_world_run(host_world *hw, char *why, size_t cap);

@@ -1,8 +1,8 @@
 /*
  * host_world.c: one world's life, the same for every world a daemon ticks
  * (host.h): open (the registry backend's open: its scene, world and store) →
- * its hub and simulation started → on the ports (http_server_add_world,
- * net_server_add_world) and in the metrics (a labelled slot) → ready → on
+ * its hub and simulation started → on the ports (one entry of the table of
+ * worlds both read, hub_worlds_add) and in the metrics (a labelled slot) → ready → on
  * the ticker, which runs its ticks as its clock says → asked to end, or a
  * tick failed, or the registry's check said stop → its end on a worker: off
  * the ports (reads fail fast, requests in flight end, its clients are told
@@ -25,13 +25,11 @@ static int world_register(host_world *hw, error_text *err)
         if (hw->ops->join(hw, err) != 0)
             return -1;
     } else {
-        net_world_info info = host_sim_world_info(m);
-        if (http_server_add_world(hw->http, m->name, &m->status, m->h, &m->w, err) != 0)
+        hw->info = host_sim_world_info(m); /* read by the net thread when it adopts it */
+        hub_world e = {.h = m->h, .base = &m->w, .status = &m->status, .info = &hw->info};
+        snprintf(e.name, sizeof e.name, "%s", m->name);
+        if (!(hw->entry = hub_worlds_add(hw->worlds, &e, err)))
             return -1;
-        if (net_server_add_world(hw->net, &info, m->h, err) != 0) {
-            http_server_remove_world(hw->http, m->name);
-            return -1;
-        }
         m->metrics_slot = metrics_world_slot(m->name);
     }
     host_sim_ready(m);
@@ -63,14 +61,15 @@ static void world_unregister(host_world *hw)
     atomic_store(&hw->registered, 0);
     if (hw->ops->unregistering)
         hw->ops->unregistering(hw);
-    http_server_remove_world(hw->http, m->name);
     /* m is freed after this; should the net thread keep m->h (a failed
      * removal below), a STEP or height read must no longer wake m's clock */
     if (m->h)
         hub_set_step_notify(m->h, NULL, NULL);
-    if ((hw->deleted ? net_server_delete_world(hw->net, m->h)
-                     : net_server_remove_world(hw->net, m->h)) != 0)
+    /* out of the one table: the HTTP requests using it end, the net thread
+     * tells its clients (deleted, or stopped) and closes them */
+    if (hub_worlds_remove(hw->worlds, hw->entry, hw->deleted) != 0)
         m->h = NULL; /* the net thread may still hold it: left to the exit */
+    hw->entry = NULL;
     metrics_world_drop(m->metrics_slot);
 }
 
@@ -99,12 +98,12 @@ static void world_end(host_job *j, int rc)
         hw->ops->ended(hw, rc);
 }
 
-void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, http_server *http,
+void host_world_place(host_world *hw, const host_world_ops *ops, void *owner, hub_worlds *worlds,
                       net_server *net, host_ticker *ticker)
 {
     hw->ops = ops;
     hw->owner = owner;
-    hw->http = http;
+    hw->worlds = worlds;
     hw->net = net;
     hw->ticker = ticker;
 }

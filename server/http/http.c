@@ -327,7 +327,7 @@ static enum MHD_Result serve_hosted(http_server *s, struct MHD_Connection *c, ht
     unsigned code = 0;
     char why[512];
     const char *name = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "world");
-    http_world *w = http_world_acquire(s, name, &code, why, sizeof why);
+    hub_world *w = http_world_acquire(s, name, &code, why, sizeof why);
     http_answer a = {0};
     if (w) {
         http_args args = {.c = c};
@@ -705,8 +705,6 @@ void http_server_stop(http_server *s)
     http_guard_stop(s->guard);
     pthread_mutex_destroy(&s->watch_lock);
     http_tls_free(&s->tls);
-    for (int i = 0; i < s->nworlds; i++)
-        free(s->worlds[i]);
     free(atomic_load(&s->twin));
     pthread_mutex_destroy(&s->worlds_lock);
     pthread_cond_destroy(&s->worlds_cond);

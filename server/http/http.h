@@ -155,18 +155,16 @@ void http_server_set_websocket(http_server *s, int port, int tls, const char *pu
  * strangers on the main port cannot starve the probes. Stop it before main. */
 http_server *http_probe_start(http_server *main, int port, error_text *err);
 
-/* ---- a cluster node's several worlds (http_worlds.c; docs/cluster.md) ----
- * After http_server_host_worlds, /v1/world, /v1/stats and /v1/heights answer
- * for the world ?world=NAME names (404 naming the worlds served when this
- * node does not serve it; without ?world=, the first world added; 503 while
- * none is). /readyz and /healthz stay the node's (status and the watches). */
-#define HTTP_MAX_WORLDS 320 /* a node's 256 (--max-worlds), with room for those leaving */
+/* ---- the worlds served here (http_worlds.c; docs/cluster.md) ----
+ * /v1/world, /v1/stats, /v1/heights with ?world=NAME and /v1/worlds/NAME/edits
+ * read the daemon's one table of worlds (hub.h, hub_worlds: each world's host
+ * adds it there once, for the HTTP and the websocket port alike; set before
+ * the port serves). After http_server_host_worlds (a cluster node) every such
+ * request does (404 naming the worlds served when this node does not serve
+ * it; without ?world=, the first world added; 503 while none is); /readyz and
+ * /healthz stay the node's (status and the watches). */
+void http_server_set_worlds(http_server *s, hub_worlds *t);
 void http_server_host_worlds(http_server *s);
-/* status, heights and base must stay valid until http_server_remove_world returns. */
-int http_server_add_world(http_server *s, const char *name, http_status *status, hub *heights,
-                          const world *base, error_text *err);
-/* Waits for the requests using the world to end (close its hub's reads first). */
-void http_server_remove_world(http_server *s, const char *name);
 /* Any node serves any world (http_views.c): a request for a world this node
  * does not serve goes, as bytes, to forward, which carries it to the world's
  * owner and returns 1 with the owner's answer bytes (*answer malloc'd), 0
@@ -189,7 +187,7 @@ int http_server_answer(http_server *s, const char *world, const void *request, s
  * DELETE /v1/worlds/{name}[?keep=1] (admin) call these on an HTTP thread;
  * each returns the HTTP status and sets *json to the answer's body
  * (malloc'd JSON; NULL: out of memory). The daemon adds each created world
- * to the server's table (http_server_add_world, without
+ * to the table of worlds (http_server_set_worlds, without
  * http_server_host_worlds): /v1/world, /v1/stats and /v1/heights with
  * ?world=NAME and /v1/worlds/NAME/edits then reach it, while requests
  * naming no world (or the default scene's name) stay the default world's. */

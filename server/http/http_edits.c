@@ -143,7 +143,7 @@ void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, 
     if (s->hosts_worlds ||
         (strcmp(name, scene_name) != 0 && http_world_api_path(s, "/v1/worlds"))) {
         unsigned code = 0;
-        http_world *w = http_world_acquire(s, name, &code, why, sizeof why);
+        hub_world *w = http_world_acquire(s, name, &code, why, sizeof why);
         if (!w || strcmp(w->name, name) != 0) {
             if (w)
                 http_world_release(s, w);
@@ -158,11 +158,11 @@ void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, 
                              : why);
             return;
         }
-        http_status st;
-        pthread_mutex_lock(&w->status->lock);
-        st = *w->status;
-        pthread_mutex_unlock(&w->status->lock);
-        edit_world(s, w->heights, &st, body, len, a);
+        http_status st, *from = w->status;
+        pthread_mutex_lock(&from->lock);
+        st = *from;
+        pthread_mutex_unlock(&from->lock);
+        edit_world(s, w->h, &st, body, len, a);
         http_world_release(s, w);
         return;
     }

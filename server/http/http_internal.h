@@ -5,8 +5,8 @@
  *   http.c        the MHD daemon, routing, probes, metrics, static files
  *   http_views.c  the /v1 answers (world, stats, heights), also for a
  *                 request another node forwarded (any node serves any world)
- *   http_worlds.c a cluster node's table of worlds (?world=NAME), also a
- *                 single daemon's created worlds
+ *   http_worlds.c the world ?world=NAME names, from the daemon's one table
+ *                 of worlds (hub.h, hub_worlds)
  *   http_world_api.c  POST/GET /v1/worlds, DELETE /v1/worlds/{name}
  *   http_png.c    /v1/heights?format=png16
  *   http_guard.c  what one address may hold: heights bytes in flight, and the
@@ -107,17 +107,6 @@ typedef struct http_watch {
     double limit_ms;
 } http_watch;
 
-/* One world a cluster node serves: its status block, its hub for height
- * reads and its base terrain. refs: requests using it now (under worlds_lock);
- * removal waits until none is. */
-typedef struct http_world {
-    char name[65];
-    http_status *status;
-    hub *heights;
-    const world *base;
-    int refs;
-} http_world;
-
 struct http_server {
     struct MHD_Daemon *daemon;
     http_status *status;
@@ -135,10 +124,9 @@ struct http_server {
      * /v1/heights answer for the world ?world=NAME names */
     int hosts_worlds;
     pthread_mutex_t worlds_lock;
-    pthread_cond_t worlds_cond;
-    http_world *worlds[HTTP_MAX_WORLDS];
-    int nworlds;
-    auth_table *auth; /* the data endpoints' gate (http_auth.c) */
+    pthread_cond_t worlds_cond; /* forward_calls ended */
+    hub_worlds *worlds;         /* the daemon's one table of worlds (http_server_set_worlds) */
+    auth_table *auth;           /* the data endpoints' gate (http_auth.c) */
     http_tls tls;
     http_server *main; /* a probe listener: the server whose status and watches it reports */
     http_guard *guard; /* heights bytes per address, the header deadline (http_guard.c) */
@@ -160,9 +148,9 @@ struct http_server {
 
 /* The world a request names (?world=NAME; without it, the node's first
  * world), counted as in use: NULL with the status to answer and why. */
-http_world *http_world_acquire(http_server *s, const char *name, unsigned *code, char *why,
-                               size_t cap);
-void http_world_release(http_server *s, http_world *w);
+hub_world *http_world_acquire(http_server *s, const char *name, unsigned *code, char *why,
+                              size_t cap);
+void http_world_release(http_server *s, hub_world *w);
 
 /* Queues r (NULL: MHD_NO) with the headers every answer carries. */
 enum MHD_Result http_queue(struct MHD_Connection *c, unsigned code, struct MHD_Response *r);
@@ -217,7 +205,7 @@ void http_view_world(const http_status *st, http_answer *a);
 void http_view_heights(http_server *s, hub *from, const world *base, const http_args *args,
                        const http_status *st, http_answer *a);
 /* A hosted world's view, from a snapshot of its status. */
-void http_view_hosted(http_server *s, http_world *w, http_view view, const http_args *args,
+void http_view_hosted(http_server *s, hub_world *w, http_view view, const http_args *args,
                       http_answer *a);
 /* The request of a world this node does not serve, asked of its owner
  * through s->forward: 1 with *a to send (the owner's answer, or why there is

@@ -456,19 +456,20 @@ void http_view_heights(http_server *s, hub *from, const world *base, const http_
     add_header(a, "X-Terrad-Units-Per-Metre", text);
 }
 
-void http_view_hosted(http_server *s, http_world *w, http_view view, const http_args *args,
+void http_view_hosted(http_server *s, hub_world *w, http_view view, const http_args *args,
                       http_answer *a)
 {
     http_status snap;
-    pthread_mutex_lock(&w->status->lock);
-    snap = *w->status; /* the copied lock is never used */
-    pthread_mutex_unlock(&w->status->lock);
+    http_status *st = w->status;
+    pthread_mutex_lock(&st->lock);
+    snap = *st; /* the copied lock is never used */
+    pthread_mutex_unlock(&st->lock);
     if (view == HTTP_VIEW_STATS)
         http_view_stats(&snap, a);
     else if (view == HTTP_VIEW_WORLD)
         http_view_world(&snap, a);
     else
-        http_view_heights(s, w->heights, w->base, args, &snap, a);
+        http_view_heights(s, w->h, w->base, args, &snap, a);
 }
 
 /* ---- any node serves any world: the bytes between nodes ---- */
@@ -632,7 +633,7 @@ int http_server_answer(http_server *s, const char *world, const void *request, s
     }
     unsigned code = 0;
     char why[512];
-    http_world *w = view >= 0 ? http_world_acquire(s, world, &code, why, sizeof why) : NULL;
+    hub_world *w = view >= 0 ? http_world_acquire(s, world, &code, why, sizeof why) : NULL;
     if (view < 0) {
         http_answer_error(&a, MHD_HTTP_BAD_REQUEST,
                           "a request from another node this node cannot read (%zu bytes)", len);

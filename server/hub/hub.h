@@ -34,6 +34,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "base/base.h"
 #include "collider/collider.h"
 #include "world/world.h"
 
@@ -259,6 +260,62 @@ void hub_close_reads(hub *h);
  * TERRAD_E_SHUTTING_DOWN and why, instead of waiting out its timeout. Any
  * thread. */
 void hub_close_edits(hub *h, const char *why);
+
+/* ---- the one table of the worlds served here (hub_worlds.c) ----
+ * Every world a daemon or a cluster node ticks is one entry, added once by
+ * its host (host/host_world.c) when it serves and removed once when it stops;
+ * the HTTP threads (?world=NAME, GET /v1/worlds' 404s) and the net thread
+ * (hello's world) read this one table. HTTP requests take an entry for as
+ * long as they run (hub_worlds_acquire); the net thread holds each entry it
+ * made a world state for (hub_worlds_hold_next) until it detached it
+ * (hub_worlds_let_go). Removal takes the entry out of the table at once, so
+ * nobody new finds it, then waits for both to let go. Any thread. */
+#define HUB_WORLDS_MAX 320    /* a node's 256 (--max-worlds), with room for those leaving */
+#define HUB_WORLD_NAME_MAX 64 /* as cluster names */
+typedef struct hub_worlds hub_worlds;
+/* One world on the ports, as its host fills it (read-only once added). The
+ * ports' own views of it are opaque here, hub/ sitting below them: status is
+ * http/'s http_status, info net/'s net_world_info; both, like h and base,
+ * stay valid until hub_worlds_remove returns. */
+typedef struct hub_world {
+    char name[HUB_WORLD_NAME_MAX + 1];
+    hub *h;
+    const world *base; /* its base terrain (/v1/heights?base=1) */
+    void *status;
+    const void *info;
+    int deleted; /* set by hub_worlds_remove: its clients are told it was deleted */
+} hub_world;
+
+hub_worlds *hub_worlds_create(void);
+/* After every entry was removed and the readers stopped. NULL is fine. */
+void hub_worlds_destroy(hub_worlds *t);
+/* changed(ctx) is called (under the table's lock: quick, never calling the
+ * table) after every add and remove, and again while a removal waits for its
+ * holder: the net thread's waker. One watcher; NULL stops it, and once this
+ * returns the old one is not called again. */
+void hub_worlds_watch(hub_worlds *t, void (*changed)(void *ctx), void *ctx);
+/* w copied into the table: the entry, or NULL with err (the table is full). */
+hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err);
+/* w leaves the table (deleted: its clients are told so), then this waits for
+ * the requests using it to end (close its hub's reads first) and for its
+ * holder to let go: 0, or -1 when the holder did not within 10 s (w is then
+ * left to it, and so must its hub be: the holder may still use it). */
+int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted);
+/* The world named name (NULL: the first), counted as in use until
+ * hub_worlds_release; NULL when there is none. */
+hub_world *hub_worlds_acquire(hub_worlds *t, const char *name);
+void hub_worlds_release(hub_worlds *t, hub_world *w);
+/* The names in the table, each quoted, ", " between, into out (cut at cap): how many. */
+int hub_worlds_names(hub_worlds *t, char *out, size_t cap);
+/* Changes on every add and remove: a holder compares it to skip the rest. */
+unsigned hub_worlds_generation(hub_worlds *t);
+/* The holder (the net thread): an entry of the table it does not hold yet,
+ * held from now on; NULL when it holds them all. */
+hub_world *hub_worlds_hold_next(hub_worlds *t);
+/* The holder: an entry it holds that has left the table; NULL when none. It
+ * detaches what it made for it, then lets go. */
+hub_world *hub_worlds_gone_next(hub_worlds *t);
+void hub_worlds_let_go(hub_worlds *t, hub_world *w);
 
 /* ---- a terrain edit's wire form (hub_edit.c; PROTOCOL.md "edit") ---- */
 

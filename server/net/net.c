@@ -65,6 +65,7 @@ static void server_free(net_server *s)
 {
     if (!s)
         return;
+    net_worlds_let_go(s); /* the table's entries its states were made for */
     net_state_release(&s->st);
     net_auth_stop(&s->st); /* after the worlds' states: they share its table */
     free(s->st.server_name);
@@ -188,6 +189,8 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
         return NULL;
     }
     s->thread_started = 1;
+    if (c->worlds) /* the worlds ticked here: the table wakes the net thread on a change */
+        hub_worlds_watch(c->worlds, net_server_wake, s);
     log_info("net: websocket server listening on %s:%d (subprotocol %s)",
              c->bind_any ? "*" : "127.0.0.1", s->port, TERRAD_PROTO_SUBPROTOCOL);
     return s;
@@ -213,6 +216,8 @@ void net_server_stop(net_server *s)
 {
     if (!s)
         return;
+    if (s->st.cfg.worlds)
+        hub_worlds_watch(s->st.cfg.worlds, NULL, NULL);
     atomic_store(&s->stop_requested, 1);
     double start = time_now_ms();
     while (!atomic_load(&s->thread_done)) {

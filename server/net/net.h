@@ -49,6 +49,9 @@ typedef struct net_limits {
     int fd_reserve;
     int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
     int max_step_ticks;     /* ticks one STEP may ask for (client-clocked worlds) */
+    /* bandwidth budgets, bytes/s (net_budget.c): a client's when its hello
+     * states none, and the most a hello may state (0: none) */
+    double default_budget_bytes_per_s, max_budget_bytes_per_s;
     /* HTTP's, not the websocket's: /v1/heights answers held at once by one
      * address and by all (0: http.c's defaults, 64 MiB and 256 MiB) */
     size_t max_heights_bytes_per_address, max_heights_bytes_in_flight;
@@ -96,7 +99,7 @@ typedef struct net_world_info {
     const char *name;
     /* a single daemon (name NULL): its scene's name, which hello's "world"
      * may name for this world; once worlds are added beside it
-     * (net_server_add_world: the world lifecycle API), a hello naming
+     * (net_config.worlds: the world lifecycle API), a hello naming
      * neither it nor an added world is refused. Not copied: it must outlive
      * the server. */
     const char *scene_name;
@@ -115,29 +118,24 @@ typedef struct net_config {
     net_limits limits;
     net_world_info world;
     const char *server_name; /* world.server; NULL = "terrad/0.1.0" */
+    /* the daemon's one table of worlds (hub.h, hub_worlds), which each
+     * world's host adds it to: the net thread makes a state for every entry
+     * (its info an net_world_info; info->name required, strings copied), its
+     * sim thread at the other end of its hub, and when the entry leaves the
+     * table tells its clients (shutting_down; 4020 "world deleted" for a
+     * deleted one) and closes them before it lets go. NULL: none. */
+    hub_worlds *worlds;
 } net_config;
 
 typedef struct net_server net_server;
 
 /* Binds and starts the service thread. The strings of c are copied.
  * h == NULL: a cluster node's server, for several worlds (c->world unused):
- * clients wait until their hello names one of the worlds added below.
- * A single daemon's server (h its default world) may have worlds added too
- * (the world lifecycle API): a hello naming one joins it, any other hello
- * the default world. */
+ * clients wait until their hello names one of the worlds of c->worlds.
+ * A single daemon's server (h its default world) may have worlds in
+ * c->worlds too (the world lifecycle API): a hello naming one joins it, any
+ * other hello the default world. */
 net_server *net_server_start(const net_config *c, hub *h, error_text *err);
-/* A world this node serves from now on (info->name required; strings
- * copied), its sim thread at the other end of h. Any thread. */
-int net_server_add_world(net_server *s, const net_world_info *info, hub *h, error_text *err);
-/* The world of h is no longer served: its clients get an error
- * (shutting_down) and are closed; returns once the net thread let go of h,
- * so h may be destroyed (0), or -1 when the net thread did not answer within
- * 10 s (then h must be left alone). Any thread but the net thread. */
-int net_server_remove_world(net_server *s, hub *h);
-/* The same for a world that was deleted (DELETE /v1/worlds/NAME): its
- * clients are told the world was deleted and closed with 4020 "world
- * deleted". */
-int net_server_delete_world(net_server *s, hub *h);
 /* An event ("world_created", "world_deleted") about world, for every admin
  * connection that subscribed to it (subscribe_events). Any thread; sent by
  * the net thread soon after. */
@@ -181,8 +179,9 @@ typedef void (*net_remote_send_fn)(void *ctx, const char *world, const net_remot
 void net_server_set_remote(net_server *s, const char *node, net_remote_send_fn send, void *ctx);
 /* A world another node owns, relayed here (info->name required). Any thread. */
 int net_server_add_relay(net_server *s, const net_world_info *info, error_text *err);
-/* Stops relaying a world (its clients are told and closed); waits as
- * net_server_remove_world does. Any thread but the net thread. */
+/* Stops relaying a world (its clients are told and closed); returns once the
+ * net thread let go of it (0), or -1 when it did not answer within 10 s. Any
+ * thread but the net thread. */
 int net_server_remove_relay(net_server *s, const char *world);
 /* A message from another node for a world served here (copied). Any thread. */
 void net_server_remote_input(net_server *s, const char *world, const net_remote_msg *m,

@@ -13,7 +13,7 @@
  *     ↓
  *   net_remote.c    any node serves any world: the inbox from other nodes
  *     ↓
- *   net_worlds.c    a cluster node's worlds coming and going
+ *   net_worlds.c    worlds coming and going (the table of worlds, relays)
  *     ↓
  *   net_fanout.c    the sim's frames to the clients (net_dispatch), the waker
  *     ↓
@@ -22,6 +22,10 @@
  *   net_auth.c      who may do what
  *   net_peer.c      a client's end: dead peers, the disconnect line, freeing it
  *     ↓
+ *   net_budget.c    a client's bandwidth budget: its byte window and its
+ *                   ledger of tiles not sent yet (net_fanout.c hands it
+ *                   a budgeted client's deltas and snapshots)
+ *     ↓ (and net_enqueue charges its window, net_request_resync clears its ledger)
  *   net_client.c    this layer: per-client records (limits, rate bucket,
  *                   owned colliders, subscriptions, outgoing queue), the
  *                   collider table, commands waiting for the hub
@@ -43,6 +47,7 @@
 #include <libwebsockets.h>
 
 #include "net/net.h"
+#include "terrad_proto.h"
 
 /* What an outgoing queue entry is, for what may be dropped when. */
 typedef enum net_item_kind {
@@ -64,6 +69,7 @@ typedef struct net_sub {
 } net_sub;
 
 typedef struct net_state net_state;
+typedef struct net_budget net_budget; /* net_budget.c */
 
 typedef struct net_client {
     uint32_t id;
@@ -143,6 +149,11 @@ typedef struct net_client {
      * until it drains (net_peer.c), so that lws never meets the
      * peer's EOF with output buffered, and the heartbeat watches for the EOF */
     int rx_held;
+    /* its bandwidth budget (net_budget.c; NULL: none) and its `focus`
+     * message's point, in cells (has_focus 0: its colliders' poses) */
+    net_budget *budget;
+    int has_focus;
+    double focus_x, focus_y;
 } net_client;
 
 typedef struct net_collider_slot {
@@ -190,7 +201,8 @@ struct net_state {
     uint64_t conn_refused, conn_refusals_unlogged;
     double last_conn_refusal_log_ms;
 
-    /* A cluster node's several worlds (net_worlds.c). The server's own state
+    /* The worlds of the table (cfg.worlds) and the relayed ones, each with its
+     * own state (net_worlds.c). On a cluster node the server's own state
      * is then the lobby: every client starts there and moves, at its hello,
      * to the state of the world it names (its own hub, world info, collider
      * table and backlog). A single daemon has no lobby: its state is its
@@ -207,8 +219,10 @@ struct net_state {
     int relay; /* a world another node owns, served through it (net_remote.c) */
     net_remote_send_fn remote_send; /* to other nodes; NULL for a single daemon */
     void *remote_ctx;
-    char node[65];      /* this node's name */
-    net_state **worlds; /* the lobby's (or a single daemon's) table of world states */
+    char node[65];              /* this node's name */
+    hub_world *entry;           /* a world of the table (cfg.worlds) this state was made for */
+    terrad_codec *budget_codec; /* budgeted clients' deltas, summed and encoded (net_budget.c) */
+    net_state **worlds;         /* the lobby's (or a single daemon's) table of world states */
     int nworlds;
     int64_t worlds_cap;
 };
@@ -249,6 +263,33 @@ void net_client_kill(net_client *c, const char *why);
  * once a second; a flood not earned back for 10 s (by what the client sent,
  * however late the server read it) closes the connection. */
 int net_rate_allow(net_client *c);
+
+/* ---- bandwidth budgets (net_budget.c; PROTOCOL.md "Budgets") ---- */
+/* Give c a budget of rate bytes/s: 0, or -1 (no memory). */
+int net_budget_start(net_client *c, double rate);
+void net_budget_free(net_client *c);         /* logs what it sent */
+double net_budget_rate(const net_client *c); /* 0: none */
+/* Every frame queued for a budgeted client (tile_data: a delta, a snapshot
+ * piece or FOOTPRINTS, which wait for room; else it was never held). */
+void net_budget_charge(net_client *c, size_t len, int tile_data);
+/* 1 if a frame of len bytes fits the window now (always without a budget). */
+int net_budget_fits(net_client *c, size_t len);
+/* A tile delta (o: HUB_OUT_TILE_DELTA) for a budgeted client: 0 when the
+ * caller queues it as for any client, 1 when the ledger took it. */
+int net_budget_delta(net_client *c, const hub_out *o);
+/* A snapshot frame for a budgeted client: into the ledger (takes f). */
+void net_budget_snapshot(net_client *c, hub_frame *f);
+/* The ledger forgets everything (a resync sends fresh snapshots). */
+void net_budget_reset(net_client *c);
+/* Send what the window has room for, nearest the client's focus first. */
+void net_budget_flush(net_client *c);
+void net_budget_flush_state(net_state *w);
+/* The latest poses of c's colliders: its focus when it set none. */
+void net_budget_note_poses(net_client *c, const terrad_pose *poses, size_t count);
+/* 1 if tile (tx, ty) of a subscription of c is current for it: every change
+ * of it has been queued to it (not in its budget's ledger, no resync or
+ * snapshot outstanding). For per-tile checksums: only current tiles compare. */
+int net_client_tile_current(const net_client *c, int tx, int ty);
 
 /* ---- admission (net_conn.c) ---- */
 /* RLIMIT_NOFILE's soft limit minus reserve (at least 16; huge when unlimited). */

@@ -134,6 +134,19 @@ static int parse_hello(parser *r, net_control *out)
     if (world && (!cJSON_IsString(world) || strlen(world->valuestring) > NET_CLIENT_NAME_MAX_BYTES))
         return fail(r, TERRAD_E_BAD_VALUE, "world: must be a string of at most %d bytes",
                     NET_CLIENT_NAME_MAX_BYTES);
+    /* budget: bytes/s, 0 for none; the daemon's max_budget_bytes_per_s bounds it */
+    double max = r->ctx->limits->max_budget_bytes_per_s;
+    out->budget = -1;
+    if (get_int(r, "budget", 0, 0, INT64_C(1000000000000), &out->budget) < 0)
+        return -1;
+    if (out->budget >= 0 && out->budget < NET_BUDGET_MIN && out->budget != 0)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "budget: %lld bytes/s is under the smallest budget, %d (0: none)",
+                    (long long)out->budget, NET_BUDGET_MIN);
+    if (max > 0 && (out->budget == 0 || out->budget > max))
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "budget: %lld bytes/s is over this server's max_budget_bytes_per_s (%.0f)%s",
+                    (long long)out->budget, max, out->budget == 0 ? " (0 asks for none)" : "");
     out->has_token = token != NULL;
     snprintf(out->token, sizeof out->token, "%s", token ? token->valuestring : "");
     snprintf(out->client, sizeof out->client, "%s", name ? name->valuestring : "");
@@ -305,6 +318,11 @@ static int parse_shape(parser *r, const char *sh, net_control *out)
         if (get_length(r, "radius", &g->radius) || get_length(r, "width", &width))
             return -1;
         g->half_length = width / 2;
+        /* optional lugs (collider_grousers_from_json; their sizes against the rim are
+         * collider_geometry_validate's, after this) */
+        error_text err;
+        if (collider_grousers_from_json(r->msg, "", &g->grousers, &err) < 0)
+            return fail(r, TERRAD_E_BAD_VALUE, "%s", err.message);
         return 0;
     }
     if (strcmp(sh, "mesh") == 0) {
@@ -355,6 +373,10 @@ static int parse_collider_create(parser *r, net_control *out)
     if (get_bool(r, "feedback", 1, &out->feedback) || parse_load(r, &out->load_n) ||
         parse_shape(r, shape->valuestring, out))
         return -1;
+    if (cJSON_GetObjectItemCaseSensitive(r->msg, "grousers") && out->geometry.grousers.count == 0)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "grousers: only a wheel carries grousers (shape \"wheel\", its axle the "
+                    "collider's y axis)");
     error_text err;
     if (collider_geometry_validate(&out->geometry, &err))
         return fail(r, TERRAD_E_BAD_VALUE, "%s", err.message);
@@ -419,7 +441,33 @@ static const struct {
     {"edit", NET_CONTROL_EDIT},
     {"subscribe_events", NET_CONTROL_SUBSCRIBE_EVENTS},
     {"seen", NET_CONTROL_SEEN},
+    {"focus", NET_CONTROL_FOCUS},
 };
+
+/* focus: "x" and "y", cells inside the world, both or neither (neither: cleared). */
+static int parse_focus(parser *r, net_control *out)
+{
+    const cJSON *x = cJSON_GetObjectItemCaseSensitive(r->msg, "x");
+    const cJSON *y = cJSON_GetObjectItemCaseSensitive(r->msg, "y");
+    if (!x && !y)
+        return 0;
+    const char *bad = !cJSON_IsNumber(x) || !isfinite(x->valuedouble) || x->valuedouble < 0 ||
+                              x->valuedouble > r->ctx->world_width
+                          ? "x"
+                      : !cJSON_IsNumber(y) || !isfinite(y->valuedouble) || y->valuedouble < 0 ||
+                              y->valuedouble > r->ctx->world_height
+                          ? "y"
+                          : NULL;
+    if (bad)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "%s: must be a number of cells in [0, %d] (x and y both, or neither to "
+                    "clear the focus)",
+                    bad, bad[0] == 'x' ? r->ctx->world_width : r->ctx->world_height);
+    out->has_focus = 1;
+    out->focus_x = x->valuedouble;
+    out->focus_y = y->valuedouble;
+    return 0;
+}
 
 /* subscribe_events: "events", an array of known event names (empty: none). */
 static int parse_events(parser *r, net_control *out)
@@ -524,6 +572,9 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
             break;
         case NET_CONTROL_SUBSCRIBE_EVENTS:
             rc = parse_events(&r, out);
+            break;
+        case NET_CONTROL_FOCUS:
+            rc = parse_focus(&r, out);
             break;
         case NET_CONTROL_SEEN: { /* "tick": an integer a double holds exactly */
             int64_t tick = 0;

@@ -57,6 +57,10 @@ const net_limit_spec net_limit_table[] = {
         NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "cells one terrain edit may change"),
     ROW(max_step_ticks, NET_LIMIT_INT, 600, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "ticks one STEP of a client-clocked world may ask for (10 s of 60 Hz ticks)"),
+    ROW(default_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "a client's bandwidth budget when its hello states none (0: none)"),
+    ROW(max_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "the largest budget a hello may state (0: any, and none)"),
     /* the server's own */
     ROW(max_connections, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG,
         "websocket connections in all (0: from RLIMIT_NOFILE)"),

@@ -59,7 +59,7 @@ int net_server_add_relay(net_server *s, const net_world_info *info, error_text *
 
 int net_server_remove_relay(net_server *s, const char *world)
 {
-    return net_world_queue_remove(s, NULL, world, 0);
+    return net_world_queue_remove(s, world);
 }
 
 void net_server_remote_input(net_server *s, const char *world, const net_remote_msg *m,

@@ -54,6 +54,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
         cJSON_AddStringToObject(m, "world", w->name);
     cJSON_AddNumberToObject(m, "client_id", c->id);
     cJSON_AddStringToObject(m, "role", auth_role_name(c->role));
+    cJSON_AddNumberToObject(m, "budget", net_budget_rate(c)); /* bytes/s in force, 0: none */
     cJSON_AddNumberToObject(m, "width", w->width);
     cJSON_AddNumberToObject(m, "height", w->height);
     cJSON_AddNumberToObject(m, "cell_size_m", w->cell_size_m);
@@ -129,7 +130,16 @@ static void handle_hello(net_client *c, const net_control *m)
         net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
         return;
     }
-    s = c->srv;     /* the world's own state from here on */
+    s = c->srv; /* the world's own state from here on */
+    /* its budget: stated, else the daemon's default (else the limit, if any);
+     * the relay, which holds its socket, keeps it for a relayed world */
+    double budget = m->budget >= 0 ? (double)m->budget : s->cfg.limits.default_budget_bytes_per_s;
+    if (m->budget < 0 && budget <= 0)
+        budget = s->cfg.limits.max_budget_bytes_per_s;
+    if (budget > 0 && !c->budget && net_budget_start(c, budget) != 0) {
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0, "hello: out of memory for its budget");
+        return;
+    }
     if (s->relay) { /* its owner answers the hello (net_handle_text forwards it) */
         c->ready = 1;
         lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
@@ -495,7 +505,7 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     /* checked and answered by the world's owner; events are this node's */
     /* seen: the relay holds the client's socket and bounds its lag */
     if (s->relay && c->ready && m.kind != NET_CONTROL_SUBSCRIBE_EVENTS &&
-        m.kind != NET_CONTROL_SEEN) {
+        m.kind != NET_CONTROL_SEEN && m.kind != NET_CONTROL_FOCUS) {
         relay_text(c, &m, rc);
         net_relay_forward(c, 0, text, len);
         net_control_free(&m);
@@ -542,6 +552,11 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_SEEN:
             handle_seen(c, &m);
+            break;
+        case NET_CONTROL_FOCUS: /* no reply: the budget's nearest tiles move (net_budget.c) */
+            c->has_focus = m.has_focus;
+            c->focus_x = m.focus_x;
+            c->focus_y = m.focus_y;
             break;
         case NET_CONTROL_NONE:
             break;
@@ -633,6 +648,7 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
         /* every accepted batch, empty ones too, is acknowledged by the next tick;
          * its poses and its sequence reach the tick together (hub_set_batch) */
         int stored = hub_set_batch(s->hub, c->id, seq, hp, (int)count);
+        net_budget_note_poses(c, s->poses, count); /* its focus, unless it set one */
         if (stored < (int)count)
             net_error(c, TERRAD_E_INTERNAL, ref, hp[stored].collider, 0,
                       "the pose table is full: pose of collider %u dropped", hp[stored].collider);
@@ -666,10 +682,7 @@ void net_handle_binary(net_client *c, const unsigned char *data, size_t len)
             handle_pose_batch(c, data, len);
         return;
     case TERRAD_MSG_STEP:
-        if (net_auth_allows(c, AUTH_DRIVER, "STEP", NULL))
-            net_handle_step(c, data, len);
-        else
-            metrics_count_step_refused("driver");
+        net_handle_step(c, data, len); /* checks the role itself: its refusal names "step:SEQ" */
         return;
     case TERRAD_MSG_PING:
     case TERRAD_MSG_PONG: {

@@ -1,7 +1,8 @@
 /*
  * net_server_internal.h: the top layer of the net thread (see
  * net_client_internal.h) — the server itself: libwebsockets' context, the
- * thread, and for a cluster node its several worlds (net_worlds.c). Shared by
+ * thread, and the world states it keeps for the table of worlds and the
+ * relayed worlds (net_worlds.c). Shared by
  * the files of net/ that need the server itself (its layers are listed in
  * net_client_internal.h).
  */
@@ -38,17 +39,17 @@ struct net_server {
     pthread_mutex_t wake_lock;
     int ctx_live;
     int stopping;
-    /* worlds coming and going (any thread → the net thread), under worlds_lock */
+    /* relayed worlds coming and going (any thread → the net thread), under
+     * worlds_lock; the worlds ticked here come and go in st.cfg.worlds */
     pthread_mutex_t worlds_lock;
     pthread_cond_t worlds_cond;
     net_state *adding[NET_MAX_WORLDS];
     int nadding;
     struct net_removal {
-        hub *h;        /* a world's hub, or */
         char name[65]; /* a relayed world's name */
-        int deleted;   /* its clients are told it was deleted, not moved */
     } removing[NET_MAX_WORLDS];
     int nremoving;
+    unsigned table_seen; /* cfg.worlds' generation when the net thread last looked */
     /* messages from other nodes (net_server_remote_input), under worlds_lock */
     struct net_remote_item *inbox;
     int ninbox;
@@ -83,7 +84,8 @@ extern const struct lws_protocols net_protocols[];
 cJSON *net_parse_names(const char *text, const char *fallback, const char *what, error_text *err);
 /* The i-th state: 0 the server's own, then the worlds; NULL past the last. */
 net_state *net_state_at(net_server *s, int i);
-/* Net thread: adopt the worlds added and detach the ones removed since the last call. */
+/* Net thread: adopt the worlds added (to the table, or relayed) and detach the
+ * ones removed since the last call. */
 void net_worlds_apply(net_server *s);
 /* Net thread: hand the frames waiting in w's hub to w's clients. */
 void net_drain_world(net_server *s, net_state *w);
@@ -99,8 +101,10 @@ void net_remote_drop_inbox(net_server *s);
 net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err);
 /* Queues w for the net thread to adopt; -1 with err when the table is full. */
 int net_world_queue_add(net_server *s, net_state *w, error_text *err);
-/* Asks the net thread to detach the world of h (or named name) and waits. */
-int net_world_queue_remove(net_server *s, hub *h, const char *name, int deleted);
+/* Asks the net thread to detach the relayed world named name and waits. */
+int net_world_queue_remove(net_server *s, const char *name);
+/* The entries of the table held for the states left at the stop let go. */
+void net_worlds_let_go(net_server *s);
 /* Frees what a state holds but the shared token and server name (not w itself). */
 void net_state_release(net_state *w);
 /* limits.max_client_lag_ticks left at 0: two seconds of the world's ticks. */

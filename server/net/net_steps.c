@@ -80,6 +80,12 @@ void net_handle_step(net_client *c, const unsigned char *data, size_t len)
     terrad_pose *poses = NULL;
     hub_pose *hp = NULL;
     char store_reason[256];
+    /* The role is checked here, not where the frame is routed, so that a refusal carries the
+     * STEP's ref and the client's wait for that step ends with the error, not a timeout. */
+    if (!net_auth_allows(c, AUTH_DRIVER, "STEP", ref)) {
+        metrics_count_step_refused("driver");
+        goto done;
+    }
     if (!s->cfg.world.client_clock)
         REFUSE("clock", TERRAD_E_BAD_VALUE, -1,
                "clock: this world ticks on the server's wall clock (\"clock\": \"wall\"); STEP "

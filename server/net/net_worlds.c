@@ -1,15 +1,17 @@
 /*
- * net_worlds.c: a cluster node's several worlds on one websocket port
- * (docs/cluster.md). Each world the node owns has its own state here — its
- * hub (the world's sim thread on the other end), world info, collider table
- * and commands waiting for the hub — and the server's own state is the
- * lobby, where a client waits until its hello names a world
- * (net_client_join_world). Worlds come and go while clients are connected:
- * the world's sim thread calls net_server_add_world once it has recovered the
- * world, and net_server_remove_world once it stopped ticking it (lost to
- * another node, or the node stops); the net thread adopts and detaches them
- * between two callbacks (net_worlds_apply), so nothing else of the net thread
- * needs a lock. A detached world's clients are told and closed.
+ * net_worlds.c: the several worlds on one websocket port (docs/cluster.md).
+ * Each world served here has its own state — its hub (the world's sim thread
+ * on the other end), world info, collider table and commands waiting for the
+ * hub — and the server's own state is a node's lobby, where a client waits
+ * until its hello names a world (net_client_join_world), or a single
+ * daemon's default world. The worlds ticked here are the entries of the
+ * daemon's one table of worlds (hub.h, hub_worlds), which each world's host
+ * adds it to and removes it from (host/host_world.c; the HTTP threads read
+ * the same table); the worlds another node ticks are relayed
+ * (net_server_add_relay, net_remote.c) through a queue of their own. The net
+ * thread adopts and detaches them between two callbacks (net_worlds_apply),
+ * so nothing else of the net thread needs a lock. A detached world's clients
+ * are told and closed, and only then does the table's removal return.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -40,6 +42,7 @@ void net_state_release(net_state *w)
     free(w->clients);
     free(w->colliders);
     free(w->poses);
+    terrad_codec_free(w->budget_codec);
     cJSON_Delete(w->models);
     cJSON_Delete(w->materials);
     free(w->models_json);
@@ -135,50 +138,30 @@ int net_world_queue_add(net_server *s, net_state *w, error_text *err)
     return 0;
 }
 
-int net_server_add_world(net_server *s, const net_world_info *info, hub *h, error_text *err)
-{
-    net_state *w = net_world_state_new(s, info, h, err);
-    if (!w || net_world_queue_add(s, w, err) != 0)
-        return -1;
-    hub_set_waker(h, net_server_wake, s);
-    net_server_wake(s);
-    return 0;
-}
-
-static int matches(const net_state *w, hub *h, const char *name)
-{
-    return h ? w->hub == h : strcmp(w->world_name, name) == 0;
-}
-
-static int removing_index(const net_server *s, hub *h, const char *name)
+static int removing_index(const net_server *s, const char *name)
 {
     for (int i = 0; i < s->nremoving; i++)
-        if (h ? s->removing[i].h == h : strcmp(s->removing[i].name, name) == 0)
+        if (strcmp(s->removing[i].name, name) == 0)
             return i;
     return -1;
 }
 
-int net_world_queue_remove(net_server *s, hub *h, const char *name, int deleted)
+int net_world_queue_remove(net_server *s, const char *name)
 {
     pthread_mutex_lock(&s->worlds_lock);
     for (int i = 0; i < s->nadding; i++)
-        if (matches(s->adding[i], h, name)) { /* never adopted: no client has seen it */
+        if (strcmp(s->adding[i]->world_name, name) == 0) { /* never adopted: no client saw it */
             net_world_state_free(s->adding[i]);
             s->adding[i] = s->adding[--s->nadding];
             pthread_mutex_unlock(&s->worlds_lock);
-            if (h)
-                hub_set_waker(h, NULL, NULL);
             return 0;
         }
     if (s->nremoving < NET_MAX_WORLDS) {
-        s->removing[s->nremoving].h = h;
-        snprintf(s->removing[s->nremoving].name, sizeof s->removing[0].name, "%s",
-                 name ? name : "");
-        s->removing[s->nremoving].deleted = deleted;
+        snprintf(s->removing[s->nremoving].name, sizeof s->removing[0].name, "%s", name);
         s->nremoving++;
     }
     double start = time_now_ms();
-    while (removing_index(s, h, name) >= 0 && !atomic_load(&s->thread_done) &&
+    while (removing_index(s, name) >= 0 && !atomic_load(&s->thread_done) &&
            time_now_ms() - start < NET_REMOVE_DEADLINE_MS) {
         pthread_mutex_unlock(&s->worlds_lock);
         net_server_wake(s);
@@ -190,10 +173,10 @@ int net_world_queue_remove(net_server *s, hub *h, const char *name, int deleted)
             until.tv_sec++;
             until.tv_nsec -= 1000000000L;
         }
-        if (removing_index(s, h, name) >= 0)
+        if (removing_index(s, name) >= 0)
             pthread_cond_timedwait(&s->worlds_cond, &s->worlds_lock, &until);
     }
-    int left = removing_index(s, h, name);
+    int left = removing_index(s, name);
     if (left >= 0)
         s->removing[left] = s->removing[--s->nremoving];
     pthread_mutex_unlock(&s->worlds_lock);
@@ -203,16 +186,6 @@ int net_world_queue_remove(net_server *s, hub *h, const char *name, int deleted)
         return -1;
     }
     return 0;
-}
-
-int net_server_remove_world(net_server *s, hub *h)
-{
-    return net_world_queue_remove(s, h, NULL, 0);
-}
-
-int net_server_delete_world(net_server *s, hub *h)
-{
-    return net_world_queue_remove(s, h, NULL, 1);
 }
 
 /* The world's clients are told and closed, and wait in the lobby (a single
@@ -260,35 +233,83 @@ static void detach(net_server *s, net_state *w, int deleted)
     net_world_state_free(w);
 }
 
-void net_worlds_apply(net_server *s)
+/* Net thread: w served here from now on (a relay, or an entry of the table). */
+static void adopt(net_server *s, net_state *w)
 {
     net_state *lobby = &s->st; /* a node's lobby, or a single daemon's default world */
-    pthread_mutex_lock(&s->worlds_lock);
-    for (int i = 0; i < s->nadding; i++) {
-        net_state *w = s->adding[i];
-        if (array_grow((void **)&lobby->worlds, &lobby->worlds_cap, (int64_t)lobby->nworlds + 1,
-                       sizeof *lobby->worlds) != 0) {
-            log_error("net: out of memory adopting world %s", w->world_name);
-            net_world_state_free(w);
+    if (array_grow((void **)&lobby->worlds, &lobby->worlds_cap, (int64_t)lobby->nworlds + 1,
+                   sizeof *lobby->worlds) != 0) {
+        log_error("net: out of memory adopting world %s", w->world_name);
+        net_world_state_free(w);
+        return;
+    }
+    thread_owner_claim(&w->owner, "net");
+    if (w->hub) {
+        hub_claim_net_end(w->hub);
+        hub_set_waker(w->hub, net_server_wake, s);
+    }
+    lobby->worlds[lobby->nworlds++] = w;
+    lobby->hosted_worlds = 1;
+    log_info("net: world %s is served here%s", w->world_name,
+             w->relay ? " through its owner (a relay)" : "");
+}
+
+/* Net thread: the i-th world leaves (its last frames go out first, then its
+ * clients are told and closed). */
+static void leave(net_server *s, int i, int deleted)
+{
+    net_state *lobby = &s->st;
+    net_drain_world(s, lobby->worlds[i]);
+    detach(s, lobby->worlds[i], deleted);
+    memmove(&lobby->worlds[i], &lobby->worlds[i + 1],
+            (size_t)(lobby->nworlds - i - 1) * sizeof *lobby->worlds);
+    lobby->nworlds--;
+}
+
+/* Net thread: the table's entries that left are detached and let go, the
+ * new ones get a state (one that cannot stays held without one). */
+static void apply_table(net_server *s)
+{
+    hub_worlds *t = s->st.cfg.worlds;
+    unsigned generation = t ? hub_worlds_generation(t) : 0;
+    if (!t || generation == s->table_seen)
+        return;
+    s->table_seen = generation;
+    net_state *lobby = &s->st;
+    hub_world *e;
+    while ((e = hub_worlds_gone_next(t))) {
+        for (int i = 0; i < lobby->nworlds; i++)
+            if (lobby->worlds[i]->entry == e) {
+                leave(s, i, e->deleted);
+                break;
+            }
+        hub_worlds_let_go(t, e);
+    }
+    while ((e = hub_worlds_hold_next(t))) {
+        error_text err = {{0}};
+        net_state *w = net_world_state_new(s, e->info, e->h, &err);
+        if (!w) {
+            log_error("net: world %s cannot be served here: %s", e->name, err.message);
             continue;
         }
-        thread_owner_claim(&w->owner, "net");
-        if (w->hub)
-            hub_claim_net_end(w->hub);
-        lobby->worlds[lobby->nworlds++] = w;
-        lobby->hosted_worlds = 1;
-        log_info("net: world %s is served here%s", w->world_name,
-                 w->relay ? " through its owner (a relay)" : "");
+        w->entry = e;
+        adopt(s, w);
     }
+}
+
+void net_worlds_apply(net_server *s)
+{
+    apply_table(s);
+    net_state *lobby = &s->st;
+    pthread_mutex_lock(&s->worlds_lock);
+    for (int i = 0; i < s->nadding; i++)
+        adopt(s, s->adding[i]);
     s->nadding = 0;
     for (int r = 0; r < s->nremoving; r++)
         for (int i = 0; i < lobby->nworlds; i++)
-            if (matches(lobby->worlds[i], s->removing[r].h, s->removing[r].name)) {
-                net_drain_world(s, lobby->worlds[i]); /* its last frames go out first */
-                detach(s, lobby->worlds[i], s->removing[r].deleted);
-                memmove(&lobby->worlds[i], &lobby->worlds[i + 1],
-                        (size_t)(lobby->nworlds - i - 1) * sizeof *lobby->worlds);
-                lobby->nworlds--;
+            if (lobby->worlds[i]->relay &&
+                strcmp(lobby->worlds[i]->world_name, s->removing[r].name) == 0) {
+                leave(s, i, 0);
                 break;
             }
     if (s->nremoving) {
@@ -296,4 +317,12 @@ void net_worlds_apply(net_server *s)
         pthread_cond_broadcast(&s->worlds_cond);
     }
     pthread_mutex_unlock(&s->worlds_lock);
+}
+
+void net_worlds_let_go(net_server *s)
+{
+    hub_worlds *t = s->st.cfg.worlds;
+    for (int i = 0; t && i < s->st.nworlds; i++)
+        if (s->st.worlds[i]->entry)
+            hub_worlds_let_go(t, s->st.worlds[i]->entry);
 }

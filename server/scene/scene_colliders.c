@@ -173,6 +173,11 @@ static int load_mesh(const scene_parser *ps, const cJSON *c, const char *path, s
     return 0;
 }
 
+/* a cylinder's keys: the axial shape's and its optional lugs (collider/lugs_json.c) */
+static const char *const wheel_keys[] = {"name",        "shape",    "position",
+                                         "orientation", "motion",   "radius",
+                                         "half_length", "grousers", NULL};
+
 static int parse_collider(const scene_parser *ps, const cJSON *c, const char *path, int index,
                           scene *s, scene_collider *sc, error_text *err)
 {
@@ -211,7 +216,7 @@ static int parse_collider(const scene_parser *ps, const cJSON *c, const char *pa
         context = "a capsule";
     } else if (strcmp(shape, "cylinder") == 0 || strcmp(shape, "wheel") == 0) {
         g->shape = COLLIDER_CYLINDER;
-        keys = axial_keys;
+        keys = wheel_keys;
         context = "a cylinder";
     } else if (strcmp(shape, "mesh") == 0) {
         g->shape = COLLIDER_MESH;
@@ -243,7 +248,8 @@ static int parse_collider(const scene_parser *ps, const cJSON *c, const char *pa
         if (g->shape == COLLIDER_CAPSULE) {
             if (json_require_number(c, path, "half_length", 0, 1000, &g->half_length, err))
                 return -1;
-        } else if (json_get_positive(c, path, "half_length", 1000, 1, &g->half_length, err) < 0) {
+        } else if (json_get_positive(c, path, "half_length", 1000, 1, &g->half_length, err) < 0 ||
+                   collider_grousers_from_json(c, path, &g->grousers, err) < 0) {
             return -1;
         }
         break;

@@ -90,6 +90,17 @@ int main(int argc, char **argv)
             return fail(
                 c, "loaded collider on a world without soil (expected a refusal naming load_n)");
         printf("loaded collider refused: %s\n", terrad_client_last_error(c));
+        /* a lugged wheel: created and deleted; lugs taller than the rim: refused naming them */
+        terrad_collider_desc wheel = {.shape = TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2};
+        if (terrad_client_create_lugged_collider(c, wheel, (terrad_grousers){12, 0.02, 0.01}, 0.0,
+                                                 &id) != 0 ||
+            terrad_client_delete_collider(c, id) != 0)
+            return fail(c, "lugged wheel create and delete");
+        rc = terrad_client_create_lugged_collider(c, wheel, (terrad_grousers){12, 0.5, 0.01}, 0.0,
+                                                  &id);
+        if (rc == 0 || !strstr(terrad_client_last_error(c), "grousers.height"))
+            return fail(c, "lugs taller than the rim (expected a refusal naming grousers.height)");
+        printf("lugged wheel %u created and deleted; %s\n", id, terrad_client_last_error(c));
     }
     terrad_client_close(c);
     printf("ok\n");

@@ -1,11 +1,11 @@
 // predict_drive.mjs: web/predict.mjs against a real daemon, for tests/integration/clients/test_predict_js.py.
-// Two websocket connections (Node 20's WebSocket: run with --experimental-websocket) with the
+// Two websocket connections (a WebSocket: run with --import tests/support/node_websocket.mjs) with the
 // viewer's codec (web/terrad_codec.mjs): A subscribes to a window, predicts it on the
 // WebAssembly twin and drives a sphere through it, one batch per tick; then B ploughs the
 // same window while A keeps sending a lifted pose. Prints one JSON line of what it saw; the
 // Python test asserts on it (and on GET /v1/heights).
 //
-// Usage: node --experimental-websocket predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H
+// Usage: node --import tests/support/node_websocket.mjs predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H
 import { readFileSync } from 'node:fs';
 import { Mirror, MsgType, colliderCreate, decodeAck, decodeDelta, decodeHeader, encodePoseBatch, hello, parseControl, subscribe } from '../../web/terrad_codec.mjs';
 import { loadTwinModule } from '../../web/twin.mjs';

@@ -11,6 +11,7 @@ with python3-websockets and python3-zstandard.
 """
 import asyncio
 import contextlib
+import glob
 import hashlib
 import json
 import math
@@ -132,6 +133,20 @@ def twin_config(scene_path):
         elif kind == "name":
             cfg[rest[0]] = rest[1]
     return cfg
+
+
+def children_of(pid):
+    """The pids whose parent is pid, read from /proc (a bare machine may have no procps)."""
+    kids = []
+    for status in glob.glob("/proc/[0-9]*/status"):
+        try:
+            with open(status) as f:
+                ppid = next((line.split()[1] for line in f if line.startswith("PPid:")), None)
+        except OSError:
+            continue
+        if ppid == str(pid):
+            kids.append(int(status.split("/")[2]))
+    return sorted(kids)
 
 
 def skip(why):

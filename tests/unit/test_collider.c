@@ -79,6 +79,24 @@ static void test_validate(void)
     g.half_length = NAN;
     CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "half_length"),
           "NaN half_length refused: %s", e.message);
+    /* grousers (lugs.c): a wheel's only, no taller or thicker than the rim's radius */
+    g = (collider_geometry){.shape = COLLIDER_CYLINDER,
+                            .radius = 0.15,
+                            .half_length = 0.08,
+                            .grousers = {30, 0.01, 0.004}};
+    CHECK(collider_geometry_validate(&g, &e) == 0, "lugged wheel accepted: %s", e.message);
+    g.grousers.height = 0.2;
+    CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.height"),
+          "lug taller than the radius refused: %s", e.message);
+    g.grousers = (collider_grousers){30, 0.01, NAN};
+    CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.thickness"),
+          "NaN lug thickness refused: %s", e.message);
+    g.grousers = (collider_grousers){COLLIDER_GROUSERS_MAX + 1, 0.01, 0.004};
+    CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.count"),
+          "too many lugs refused: %s", e.message);
+    g = (collider_geometry){.shape = COLLIDER_SPHERE, .radius = 0.3, .grousers = {4, 0.01, 0.01}};
+    CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers: only a wheel"),
+          "lugs on a sphere refused: %s", e.message);
     g = (collider_geometry){.shape = COLLIDER_BOX, .half_extents = {1, 0, 1}};
     CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "half_extents[1]"),
           "zero box side refused: %s", e.message);
@@ -769,6 +787,70 @@ static void test_cost(void)
           "cells at rest, with feedback, over 40 sub-steps, and steps < 1 taken as 1");
 }
 
+/* A lugged wheel (lugs.c: the rim and a box per lug, by the one fixed-point
+ * rule) against a brute-force march through the solid it describes, at a
+ * spin that puts no lug straight down and at one that does; and its reach
+ * and bounds grown by the lugs. Without the lug instances every cell under a
+ * lug is the rim's, up to a lug height (100 units) too high. */
+static void test_depth_lugged(void)
+{
+    const double cell = 0.002, r = 0.15, hl = 0.02, h = 0.01, t = 0.004;
+    const int n = 12;
+    collider_geometry g = {
+        .shape = COLLIDER_CYLINDER, .radius = r, .half_length = hl, .grousers = {n, h, t}};
+    CHECK(near(collider_reach(&g), sqrt(hl * hl + (r + h) * (r + h) + t * t / 4), 1e-12),
+          "lugged reach: the lugs' corners (%g)", collider_reach(&g));
+    world_rect win = {0, 0, 200, 40};
+    double px = 0.2, py = 0.04, pz = 0.5;
+    for (int spin = 0; spin < 2; spin++) {
+        double a = spin ? 0.0 : 0.11; /* lug 0 straight down, or turned off the vertical */
+        quatd q = quat_from_axis_angle((vec3d){0, 1, 0}, a);
+        vec3d lo, hi;
+        collider_bounds(&g, pose_at(px, py, pz, q), &lo, &hi);
+        CHECK(lo.z <= pz - r - h, "lugged bounds reach the lugs (%g)", lo.z);
+        int32_t *b = bottom_new(win);
+        collider_depth_cpu(&g, pose_at(px, py, pz, q), win, cell, UPM, b);
+        quatd inv = {q.w, -q.x, -q.y, -q.z};
+        int worst = 0, lug_cells = 0;
+        for (int y = 0; y < win.h; y++)
+            for (int x = 0; x < win.w; x++) {
+                double lowest = INFINITY;
+                for (double z = pz - r - h - 0.001; z < pz + r + h; z += 4e-5) {
+                    vec3d l = quat_rotate(
+                        inv, (vec3d){(x + 0.5) * cell - px, (y + 0.5) * cell - py, z - pz});
+                    if (fabs(l.y) > hl)
+                        break;
+                    int in = l.x * l.x + l.z * l.z <= r * r;
+                    for (int k = 0; k < n && !in; k++) { /* lug k: local -z turned by 2πk/n */
+                        double th = 2 * M_PI * k / n, c = cos(th), s = sin(th);
+                        double tx = c * l.x - s * l.z, rz = -(s * l.x + c * l.z);
+                        in = fabs(tx) <= t / 2 && rz <= r + h && rz >= r - h;
+                    }
+                    if (in) {
+                        lowest = z;
+                        break;
+                    }
+                }
+                int32_t expect = isinf(lowest) ? NONE : units(lowest);
+                int32_t got = b[y * win.w + x];
+                if ((expect == NONE) != (got == NONE))
+                    worst = 1 << 30;
+                else if (expect != NONE && abs(got - expect) > worst)
+                    worst = abs(got - expect);
+                lug_cells += got != NONE && expect != NONE && fabs((x + 0.5) * cell - px) < r &&
+                             got < units(pz - sqrt(r * r - pow((x + 0.5) * cell - px, 2))) - 10;
+            }
+        CHECK(worst <= 1, "lugged wheel (spin %g rad) matches a brute-force march (worst %d units)",
+              a, worst);
+        CHECK(lug_cells > 0, "lugged wheel (spin %g rad): cells below the rim under lugs (%d)", a,
+              lug_cells);
+        if (spin)
+            CHECK(abs(b[(int)(py / cell) * win.w + (int)(px / cell)] - units(pz - r - h)) <= 1,
+                  "lug 0 straight down: the bottom is z - r - h");
+        free(b);
+    }
+}
+
 int main(void)
 {
     test_validate();
@@ -777,6 +859,7 @@ int main(void)
     test_depth_sphere();
     test_depth_box();
     test_depth_cylinder_capsule();
+    test_depth_lugged();
     test_tessellation();
     test_mesh_exact_spans();
     test_obj();

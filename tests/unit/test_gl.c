@@ -116,6 +116,12 @@ static void test_depth_exact(sim_backend *gl, int again)
         {"box tilted",
          {.shape = COLLIDER_BOX, .half_extents = {0.25, 0.15, 0.1}},
          {{5.0, 1.0, 0.5}, quat_multiply(axis_angle(0, 0, 1, 35), axis_angle(1, 0, 0, 20))}},
+        {"lugged wheel r=0.3 8 lugs, yawed and spun",
+         {.shape = COLLIDER_CYLINDER,
+          .radius = 0.3,
+          .half_length = 0.1,
+          .grousers = {8, 0.06, 0.03}},
+         {{9.0, 1.0, 0.40}, quat_multiply(axis_angle(0, 0, 1, 20), axis_angle(0, 1, 0, 7))}},
         {"capsule lying",
          {.shape = COLLIDER_CAPSULE, .radius = 0.2, .half_length = 0.2},
          {{7.0, 1.0, 0.42}, axis_angle(0, 0, 1, -60)}},
@@ -127,7 +133,7 @@ static void test_depth_exact(sim_backend *gl, int again)
     int status[CASES];
     for (int k = 0; k < CASES; k++) {
         /* windows of different odd sizes */
-        int side = 41 + 6 * k;
+        int side = 41 + 4 * k;
         world_rect r = {(int)(cases[k].pose.position.x / cell) - side / 2,
                         (int)(cases[k].pose.position.y / cell) - side / 2 + k, side, side - 3};
         int n = r.w * r.h;

@@ -272,6 +272,18 @@ static void test_errors(void)
     refused("{" WORLD ", \"colliders\": [{\"shape\": \"wheel\", \"radius\": 0.3, "
             "\"position\": [0, 0, 0]}]}",
             "colliders[0].half_length: missing");
+    refused("{" WORLD ", \"colliders\": [{\"shape\": \"wheel\", \"radius\": 0.3, "
+            "\"half_length\": 0.1, \"grousers\": {\"count\": 12, \"height\": 0.02}, "
+            "\"position\": [0, 0, 0]}]}",
+            "colliders[0].grousers.thickness: missing");
+    refused("{" WORLD ", \"colliders\": [{\"shape\": \"wheel\", \"radius\": 0.3, "
+            "\"half_length\": 0.1, \"grousers\": {\"count\": 12, \"height\": 0.5, "
+            "\"thickness\": 0.01}, \"position\": [0, 0, 0]}]}",
+            "colliders[0].grousers.height: must be a finite number > 0 and <= the radius");
+    refused("{" WORLD ", \"colliders\": [{\"shape\": \"capsule\", \"radius\": 0.3, "
+            "\"half_length\": 0.1, \"grousers\": {\"count\": 12, \"height\": 0.02, "
+            "\"thickness\": 0.01}, \"position\": [0, 0, 0]}]}",
+            "colliders[0].grousers: unknown key for a capsule");
     refused("{" WORLD ", \"colliders\": [{\"shape\": \"blob\", \"position\": [0, 0, 0]}]}",
             "colliders[0].shape");
     refused("{" WORLD ", \"colliders\": [{\"radius\": 0.3, \"position\": [0, 0, 0]}]}",
@@ -344,6 +356,7 @@ static void test_details(void)
         scene_load_json("{" WORLD ", \"material\": {\"roughness\": 0.7}, \"colliders\": ["
                         "{\"name\": \"w\", \"shape\": \"wheel\", \"radius\": 0.3, "
                         "\"half_length\": 0.1, \"position\": [1, 2, 3], "
+                        "\"grousers\": {\"count\": 12, \"height\": 0.02, \"thickness\": 0.01}, "
                         "\"orientation\": [2, 0, 0, 0], \"motion\": {\"velocity\": [1, 0, 0], "
                         "\"spin_axis\": [0, 1, 0], \"spin_deg_per_s\": 90}},"
                         "{\"shape\": \"capsule\", \"radius\": 0.1, \"half_length\": 0, "
@@ -366,8 +379,12 @@ static void test_details(void)
           "collider names, given and defaulted");
     CHECK(s.colliders[0].geometry.shape == COLLIDER_CYLINDER &&
               s.colliders[0].motion.start.orientation.w == 1 &&
-              fabs(s.colliders[0].motion.spin_rad_per_s - M_PI / 2) < 1e-12,
-          "wheel is a cylinder; orientation normalised; spin in rad/s");
+              fabs(s.colliders[0].motion.spin_rad_per_s - M_PI / 2) < 1e-12 &&
+              s.colliders[0].geometry.grousers.count == 12 &&
+              s.colliders[0].geometry.grousers.height == 0.02 &&
+              s.colliders[0].geometry.grousers.thickness == 0.01 &&
+              s.colliders[1].geometry.grousers.count == 0,
+          "wheel is a cylinder with its grousers; orientation normalised; spin in rad/s");
     collider_pose p = collider_motion_pose(&s.colliders[1].motion, 1.0);
     CHECK(s.colliders[1].motion.kind == COLLIDER_MOTION_KEYFRAMES &&
               s.colliders[1].motion.keyframe_count == 2 && fabs(p.position.x - 1) < 1e-12,

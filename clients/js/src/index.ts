@@ -48,6 +48,8 @@ export interface Mirror {
 export type Shape = 'sphere' | 'box' | 'capsule' | 'cylinder' | 'wheel' | 'mesh';
 /** collider_create's fields: radius, half_extents, half_length, width, vertices, indices. */
 export type Dims = Record<string, number | number[]>;
+/** A wheel's lugs (PROTOCOL.md collider_create "grousers"): metres. */
+export type Grousers = { count: number; height: number; thickness: number };
 
 /** An `error` message from the server, as a rejection: its name, code, field and ref. */
 export class TerradError extends Error {
@@ -70,7 +72,8 @@ export interface ConnectOptions {
   world?: string;
   /** how long a reply may take (ms, default 60,000) */
   timeoutMs?: number;
-  /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket) */
+  /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket;
+   *  Node 18: the `ws` package's WebSocket) */
   WebSocket?: typeof WebSocket;
 }
 
@@ -109,7 +112,7 @@ export class TerradClient {
   /** Connects, says hello and resolves once the server's `world` message arrived. */
   static async connect(url: string, opts: ConnectOptions = {}): Promise<TerradClient> {
     const WS = opts.WebSocket ?? (globalThis as any).WebSocket;
-    if (!WS) throw new Error('WebSocket: none in this runtime (Node 20: run with --experimental-websocket, or pass opts.WebSocket)');
+    if (!WS) throw new Error('WebSocket: none in this runtime (Node 20: run with --experimental-websocket; Node 18: pass opts.WebSocket, e.g. the ws package\'s)');
     const ws: WebSocket = new WS(url, P.SUBPROTOCOL);
     ws.binaryType = 'arraybuffer';
     const c = new TerradClient(ws, opts.timeoutMs ?? 60000);
@@ -146,7 +149,9 @@ export class TerradClient {
   }
 
   /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
-  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean } = {}): Promise<number> {
+  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers } = {}): Promise<number> {
+    if (opts.grousers && this.predictions.size > 0)
+      throw new Error('grousers: a lugged wheel cannot be predicted (the twin library has no grousers yet)');
     const ref = `col-${++this.refN}`;
     const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
     for (const p of this.predictions.values()) p.own.set(m.id, { shape, dims });

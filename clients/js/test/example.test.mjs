@@ -20,7 +20,7 @@ before(async () => {
 after(() => stopDaemon(daemon));
 
 test('the Node example drives a wheel and its mirror equals GET /v1/heights', { skip, timeout: 180000 }, async () => {
-  const child = spawn(process.execPath, ['--experimental-websocket', '--no-warnings', EXAMPLE,
+  const child = spawn(process.execPath, [...process.execArgv, '--no-warnings', EXAMPLE,
     `ws://127.0.0.1:${daemon.ports.ws}/`, `http://127.0.0.1:${daemon.ports.http}/`], { cwd: APP });
   let out = '';
   child.stdout.on('data', (d) => (out += d));

@@ -27,8 +27,8 @@ from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force,
                     decode_ack, decode_colliders, decode_contact, decode_delta,
                     decode_footprints, decode_forces, decode_header, decode_ping, decode_stepped,
                     encode_ping, encode_step,
-                    edit, encode_pose_batch, error, frame_tick, hello, parse_control, resync,
-                    seen, subscribe, unsubscribe)
+                    edit, encode_pose_batch, error, focus, frame_tick, hello, parse_control,
+                    resync, seen, subscribe, unsubscribe)
 
 try:
     import numpy as _np
@@ -98,14 +98,18 @@ class Client:
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
                  max_size: int = 1 << 24, world: str = "", say_seen: bool = True,
-                 **connect_kwargs: Any):
+                 budget: int | None = None, **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
         ping_interval=None for a client that may stop reading for a while). world: the
         world a cluster node should serve this client (docs/cluster.md); "" for a single
         daemon's one world. say_seen: tell the server the tick handled (PROTOCOL.md "seen"),
-        so that it bounds this client's lag end to end; False: only its own queue is judged."""
+        so that it bounds this client's lag end to end; False: only its own queue is judged.
+        budget: bytes per second the server may send this client (PROTOCOL.md "Budgets":
+        near tiles first, far ones later, exact once the terrain settles); None: the
+        server's default; world["budget"] says the one in force."""
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
         self.world_name = world
+        self.budget = budget
         self.connect_kwargs = connect_kwargs
         self.ws: Any = None
         self.world: dict[str, Any] = {}
@@ -172,7 +176,7 @@ class Client:
         websockets = _websockets()
         self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
                                            max_size=self.max_size, **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name)))
+        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name, self.budget)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":
             raise ServerError(msg)
@@ -213,11 +217,15 @@ class Client:
         """shape: sphere (radius), box (half_extents), capsule and cylinder (radius,
         half_length), wheel (radius, width), mesh (vertices, indices); returns its id.
         load_n=N (bekker worlds): load-driven, the server sets the height that carries N
-        newtons each tick (forces[id] reports the sinkage and the force)."""
+        newtons each tick (forces[id] reports the sinkage and the force).
+        grousers={"count": N, "height": m, "thickness": m}: a wheel's lugs."""
         fields = dict(dims, material=material)
         if self.predictions and (material != "default" or "pose" in dims):
             raise ValueError("material / pose: while predicting, a collider has the default "
                              "material and gets its poses from send_poses")
+        if self.predictions and "grousers" in dims:
+            raise ValueError("grousers: a lugged wheel cannot be predicted (the twin library "
+                             "has no grousers yet)")
         cid = (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
         self.own_colliders[cid] = (shape, fields)
         for pred in self.predictions.values():
@@ -299,6 +307,11 @@ class Client:
         await self.request(unsubscribe(sid), "unsubscribed")
         self.mirrors.pop(sid, None)
         self.stop_predicting(sid)
+
+    async def focus(self, x: float | None = None, y: float | None = None) -> None:
+        """Where a budgeted client looks (cells): its nearest tiles come every tick, far ones
+        later. None: its own colliders again."""
+        await self.ws.send(json.dumps(focus(x, y)))
 
     async def resync(self, sid: int | None = None) -> None:
         await self.ws.send(json.dumps(resync(sid)))

@@ -45,7 +45,7 @@ __all__ = [
     "encode_footprints", "decode_footprints", "Force", "encode_forces", "decode_forces", "encode_ack", "decode_ack", "encode_ping",
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
-    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
+    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "focus", "error",
     "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
     "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
 ]
@@ -789,24 +789,33 @@ class Mirror:
 # ---- JSON control messages ---------------------------------------------------------------
 
 
-def hello(token: str = "", client: str = "terrad-python", world: str = "") -> dict:
-    """world: the world a cluster node should serve (sent only when given)."""
+def hello(token: str = "", client: str = "terrad-python", world: str = "",
+          budget: int | None = None) -> dict:
+    """world: the world a cluster node should serve (sent only when given). budget: the
+    most bytes per second this client wants to be sent (PROTOCOL.md "Budgets"; None: the
+    server's default, 0: none)."""
     msg = {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
     if world:
         msg["world"] = world
+    if budget is not None:
+        msg["budget"] = budget
     return msg
 
 
 def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True,
-                    load_n=None, **dims) -> dict:
+                    load_n=None, grousers=None, **dims) -> dict:
     """shape: sphere (radius), box (half_extents), capsule (radius,
     half_length), cylinder (radius, half_length), wheel (radius, width), mesh
     (vertices, indices). Optional pose=Pose-like dict {"p":[x,y,z],"q":[w,x,y,z]}.
     load_n: a vertical load in newtons (bekker worlds): the server sets the height
-    that carries it each tick (PROTOCOL.md "Load-driven colliders")."""
+    that carries it each tick (PROTOCOL.md "Load-driven colliders").
+    grousers: a wheel's lugs, {"count": N, "height": m, "thickness": m}."""
     msg = {"type": "collider_create", "shape": shape, "material": material, "feedback": feedback}
     if load_n is not None:
         msg["load_n"] = load_n
+    if grousers is not None:
+        msg["grousers"] = {"count": int(grousers["count"]), "height": float(grousers["height"]),
+                           "thickness": float(grousers["thickness"])}
     msg.update(dims)
     if ref is not None:
         msg["ref"] = ref
@@ -834,6 +843,15 @@ def unsubscribe(sid: int, ref=None) -> dict:
 def subscribe_events(events=("world_created", "world_deleted"), ref=None) -> dict:
     """Admin: {"type": "event", "event": ..., "world": ...} for each world made or ended."""
     return _with_ref({"type": "subscribe_events", "events": list(events)}, ref)
+
+
+def focus(x: float | None = None, y: float | None = None) -> dict:
+    """A budgeted client's focus point in cells (PROTOCOL.md "focus"); None: cleared (its
+    colliders are the focus again)."""
+    msg: dict = {"type": "focus"}
+    if x is not None and y is not None:
+        msg["x"], msg["y"] = x, y
+    return msg
 
 
 def resync(sid: int | None = None, ref=None) -> dict:

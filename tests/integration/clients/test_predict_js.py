@@ -31,6 +31,7 @@ from service_harness import SOURCE, Checks, Daemon, need_twin_wasm, skip, twin_c
 
 TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
 DRIVE = os.path.join(SOURCE, "tests", "support", "predict_drive.mjs")
+NODE_WEBSOCKET = os.path.join(SOURCE, "tests", "support", "node_websocket.mjs")
 if not os.path.exists(TRACE):
     skip("twin_trace not built")
 WASM = need_twin_wasm()
@@ -52,7 +53,7 @@ def main():
         with open(config, "w") as f:
             json.dump(twin_config(scene), f)
         with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
-            p = subprocess.run(["node", "--experimental-websocket", "--no-warnings", DRIVE, d.ws,
+            p = subprocess.run(["node", "--import", NODE_WEBSOCKET, "--no-warnings", DRIVE, d.ws,
                                 WASM, config, *map(str, REGION)],
                                capture_output=True, text=True, timeout=240)
             if not check(p.returncode == 0, f"the Node driver ran ({p.returncode}):\n{p.stderr[-3000:]}"):

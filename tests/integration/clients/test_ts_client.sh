@@ -34,4 +34,4 @@ printf '{"compilerOptions":{"target":"ES2022","module":"NodeNext","moduleResolut
 node "$src/node_modules/typescript/bin/tsc" -p tsconfig.example.json
 echo "examples/drive_wheel.ts compiles against the installed package"
 cd "$src"
-TERRAD_CLIENT_DIR="$tmp/app" node --experimental-websocket --no-warnings --test --test-reporter=spec clients/js/test/
+TERRAD_CLIENT_DIR="$tmp/app" node --import "$src/tests/support/node_websocket.mjs" --no-warnings --test --test-reporter=spec clients/js/test/

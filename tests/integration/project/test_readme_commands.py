@@ -34,7 +34,7 @@ import time
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import BIN, PORTS_RE, SOURCE, Checks, Daemon  # noqa: E402
+from service_harness import BIN, PORTS_RE, SOURCE, Checks, Daemon, children_of  # noqa: E402
 
 check = Checks()
 # README.md and the pages made from its old sections (each user's quick start).
@@ -135,11 +135,10 @@ def run_make_run(cmd, ctx):
         check(status == 200 and body[:4] == b"\0asm",
               f"make run: GET /terrad_twin.wasm serves the WebAssembly twin ({status}, {body[:4]!r})")
         # make's one child is the daemon (the recipe execs it): SIGTERM to it, as Ctrl-C would
-        kids = subprocess.run(["ps", "-o", "pid=", "--ppid", str(make.pid)], capture_output=True,
-                              text=True).stdout.split()
+        kids = children_of(make.pid)
         check(len(kids) == 1, f"make run: one child, the daemon ({kids})")
         for pid in kids:
-            os.kill(int(pid), signal.SIGTERM)
+            os.kill(pid, signal.SIGTERM)
         try:
             st = make.wait(120)
         except subprocess.TimeoutExpired:

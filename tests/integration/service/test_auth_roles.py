@@ -1,8 +1,8 @@
 #!/usr/bin/python3
 """Roles (issue 15, "Authentication and transport"): tokens from an --auth-file
 made with `terrad token add` (the file holds SHA-256 hashes only), each with a
-role. A viewer subscribes but its collider_create and POSE_BATCH are refused
-with `forbidden` naming the role; a driver creates, moves and deletes its own
+role. A viewer subscribes but its collider_create, POSE_BATCH and STEP (the
+refusal answers its step) are refused with `forbidden` naming the role; a driver creates, moves and deletes its own
 colliders but not another's (`not_owner`); an admin deletes anyone's with
 "any_owner": true; an
 unknown token is refused at hello (4013). HTTP data endpoints need a bearer
@@ -86,6 +86,16 @@ async def roles(check, d, tok, path):
         await viewer.wait_for(lambda: any(m.get("code") == 22 for m in viewer.errors), 10)
         check(any("POSE_BATCH" in m.get("message", "") for m in viewer.errors),
               "a viewer's POSE_BATCH: forbidden")
+        # a viewer's STEP (issue 30): the refusal carries the step's ref ("step:SEQ"), so the
+        # client's wait for that step ends with the error, not a timeout
+        try:
+            await viewer.step(1, timeout=30)
+            check(False, "a viewer's STEP is refused")
+        except tp.ServerError as e:
+            check(e.name == "forbidden" and e.message.startswith("STEP") and "viewer" in e.message,
+                  f"a viewer's STEP: forbidden, naming the role, answered to its step ({e})")
+        except asyncio.TimeoutError:
+            check(False, "a viewer's STEP: its refusal names the step (the wait timed out)")
         # terrain edits (issue 22): a driver or an admin, never a viewer; HTTP alike
         try:
             await viewer.edit("add", x=0, y=0, w=2, h=2, amount=5)

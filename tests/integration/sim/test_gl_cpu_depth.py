@@ -10,7 +10,9 @@ specification (server/collider/depth_fixed.c) with a GLSL twin
 
 Beside the stored scenes, shapes the scenes do not have: a 0.2 mm plate
 (the 552 cells of issue 12), a tilted wheel, a tilted capsule, a box at an
-odd angle and the boot mesh rolled, each moving fast enough to sweep. The
+odd angle and the boot mesh rolled, each moving fast enough to sweep; and
+tests/scenes/lugged/lugged-wheel.json, a rolling wheel with grousers (its
+lugs are box instances beside the rim, server/collider/lugs.c). The
 GL backend needs an OpenGL 4.3 context with GL_ARB_gpu_shader_int64; where none can be made the test is
 skipped (this machine: Mesa llvmpipe, software).
 """
@@ -86,7 +88,8 @@ with tempfile.TemporaryDirectory(prefix="terrad-glcpu-") as tmp:
     rc, err = run(os.path.join(SOURCE, "tests", "scenes", "tiny.json"), "gl", probe)
     if rc != 0:
         skip(f"GL backend unavailable: {err.strip()[-200:]}")
-    for scene in SCENES + extra_scenes(tmp):
+    lugged = os.path.join(SOURCE, "tests", "scenes", "lugged", "lugged-wheel.json")
+    for scene in SCENES + extra_scenes(tmp) + [lugged]:
         name = os.path.basename(scene)
         outs = {}
         for backend in ("gl", "cpu"):

@@ -2,7 +2,8 @@
 # ctest-timeout: 900
 """Heights do not depend on the thread count: `terrad simulate --threads N`
 for N = 1, 2 and 7 writes identical heights (--out, byte for byte) on every
-scene of tests/scenes × method × metric on the CPU twin, and reports the
+scene of tests/scenes (and the lugged wheel of tests/scenes/lugged) × method ×
+metric on the CPU twin, and reports the
 count it ran with as "threads". Bad counts are refused with the option named.
 `terrad serve --threads N` reports N in the gauge terrad_sim_threads.
 
@@ -39,6 +40,7 @@ def main():
     check = Checks()
     scenes = sorted(f for f in os.listdir(SCENES) if f.endswith(".json"))
     check(len(scenes) >= 5, f"scenes found in tests/scenes: {scenes}")
+    scenes.append(os.path.join("lugged", "lugged-wheel.json"))
     with tempfile.TemporaryDirectory() as tmp:
         cases = [(s, m, k) for s in scenes for m in METHODS for k in METRICS]
 
@@ -46,7 +48,7 @@ def main():
             s, m, k = c
             results = []
             for t in THREADS:
-                out = os.path.join(tmp, f"{s}-{m}-{k}-{t}.bin")
+                out = os.path.join(tmp, f"{os.path.basename(s)}-{m}-{k}-{t}.bin")
                 results.append((t,) + run_one(os.path.join(SCENES, s), m, k, t, out))
             return c, results
 

@@ -1,0 +1,163 @@
+/*
+ * test_hub_worlds.c: the one table of worlds both ports read (hub.h,
+ * hub_worlds; issue 29). Lookups by name (NULL: the first), the names a 404
+ * lists, a full table refused with a reason, and the removal's two waits:
+ * an entry leaves the table at once (no new lookup finds it) but removal
+ * returns only once the readers using it released it and its holder (the
+ * net thread's part, played here by the test) let go after seeing it gone,
+ * with the deleted flag it was removed with. The watcher (the net thread's
+ * waker) is told of every add and remove.
+ */
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "check.h"
+#include "hub/hub.h"
+
+static atomic_int told;
+
+static void watcher(void *ctx)
+{
+    (void)ctx;
+    atomic_fetch_add(&told, 1);
+}
+
+/* A removal on a thread of its own (it waits): rc once done. */
+typedef struct removal {
+    hub_worlds *t;
+    hub_world *w;
+    int deleted, rc;
+    atomic_int done;
+} removal;
+
+static void *remove_main(void *arg)
+{
+    removal *r = arg;
+    r->rc = hub_worlds_remove(r->t, r->w, r->deleted);
+    atomic_store(&r->done, 1);
+    return NULL;
+}
+
+static hub_world *add(hub_worlds *t, const char *name)
+{
+    hub_world e = {0};
+    snprintf(e.name, sizeof e.name, "%s", name);
+    error_text err = {{0}};
+    hub_world *w = hub_worlds_add(t, &e, &err);
+    CHECK(w != NULL, "add %s: %s", name, err.message);
+    return w;
+}
+
+/* 1 when r is still waiting after ms (it should be). */
+static int still_waiting(removal *r, int ms)
+{
+    for (int i = 0; i < ms / 10; i++) {
+        if (atomic_load(&r->done))
+            return 0;
+        struct timespec ts = {0, 10 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+    }
+    return !atomic_load(&r->done);
+}
+
+static void test_lookups(void)
+{
+    hub_worlds *t = hub_worlds_create();
+    CHECK(hub_worlds_acquire(t, NULL) == NULL, "an empty table has no first world");
+    hub_world *a = add(t, "alpha"), *b = add(t, "beta");
+    hub_world *got = hub_worlds_acquire(t, "beta");
+    CHECK(got == b, "beta by name");
+    hub_worlds_release(t, got);
+    got = hub_worlds_acquire(t, NULL);
+    CHECK(got == a, "no name: the first added");
+    hub_worlds_release(t, got);
+    CHECK(hub_worlds_acquire(t, "gamma") == NULL, "an unknown name finds nothing");
+    char names[64];
+    int n = hub_worlds_names(t, names, sizeof names);
+    CHECK(n == 2 && strcmp(names, "\"alpha\", \"beta\"") == 0, "names: %d %s", n, names);
+    CHECK(hub_worlds_remove(t, a, 0) == 0 && hub_worlds_remove(t, b, 0) == 0, "removed");
+    n = hub_worlds_names(t, names, sizeof names);
+    CHECK(n == 0 && names[0] == 0, "no names left: %d %s", n, names);
+    hub_worlds_destroy(t);
+}
+
+static void test_full(void)
+{
+    hub_worlds *t = hub_worlds_create();
+    hub_world *in[HUB_WORLDS_MAX];
+    for (int i = 0; i < HUB_WORLDS_MAX; i++) {
+        char name[16];
+        snprintf(name, sizeof name, "w%d", i);
+        in[i] = add(t, name);
+    }
+    hub_world e = {.name = "one-more"};
+    error_text err = {{0}};
+    CHECK(hub_worlds_add(t, &e, &err) == NULL && strstr(err.message, "already serves"),
+          "a full table refuses with a reason: %s", err.message);
+    for (int i = 0; i < HUB_WORLDS_MAX; i++)
+        hub_worlds_remove(t, in[i], 0);
+    hub_worlds_destroy(t);
+}
+
+static void test_remove_waits_for_readers(void)
+{
+    hub_worlds *t = hub_worlds_create();
+    hub_world *a = add(t, "alpha");
+    hub_world *reader = hub_worlds_acquire(t, "alpha");
+    removal r = {.t = t, .w = a};
+    pthread_t th;
+    pthread_create(&th, NULL, remove_main, &r);
+    CHECK(still_waiting(&r, 200), "removal waits while a request uses the world");
+    CHECK(hub_worlds_acquire(t, "alpha") == NULL, "but nothing new finds it meanwhile");
+    hub_worlds_release(t, reader);
+    pthread_join(th, NULL);
+    CHECK(r.rc == 0, "removal returns once the request released it");
+    hub_worlds_destroy(t);
+}
+
+static void test_holder(void)
+{
+    hub_worlds *t = hub_worlds_create();
+    hub_worlds_watch(t, watcher, NULL);
+    unsigned g0 = hub_worlds_generation(t);
+    hub_world *a = add(t, "alpha"), *b = add(t, "beta");
+    CHECK(atomic_load(&told) == 2, "the watcher is told of each add: %d", atomic_load(&told));
+    CHECK(hub_worlds_generation(t) != g0, "the generation moved");
+    CHECK(hub_worlds_hold_next(t) == a && hub_worlds_hold_next(t) == b &&
+              hub_worlds_hold_next(t) == NULL,
+          "the holder takes each entry once");
+    CHECK(hub_worlds_gone_next(t) == NULL, "nothing gone yet");
+    removal r = {.t = t, .w = a, .deleted = 1};
+    pthread_t th;
+    pthread_create(&th, NULL, remove_main, &r);
+    hub_world *gone = NULL;
+    for (int i = 0; i < 500 && !gone; i++) {
+        gone = hub_worlds_gone_next(t);
+        struct timespec ts = {0, 2 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+    }
+    CHECK(gone == a && gone->deleted, "the holder sees the removed entry, deleted");
+    CHECK(still_waiting(&r, 200), "removal waits for the holder");
+    CHECK(atomic_load(&told) >= 4, "the watcher is told again while it waits: %d",
+          atomic_load(&told));
+    hub_worlds_let_go(t, a);
+    pthread_join(th, NULL);
+    CHECK(r.rc == 0 && hub_worlds_gone_next(t) == NULL, "removal returns once let go");
+    hub_worlds_watch(t, NULL, NULL);
+    int before = atomic_load(&told);
+    hub_worlds_let_go(t, b); /* a holder that stops lets go of what it still holds */
+    CHECK(hub_worlds_remove(t, b, 0) == 0, "removal after the holder let go");
+    CHECK(atomic_load(&told) == before, "an unwatched table tells nobody");
+    hub_worlds_destroy(t);
+}
+
+int main(void)
+{
+    test_lookups();
+    test_full();
+    test_remove_waits_for_readers();
+    test_holder();
+    return check_report();
+}
