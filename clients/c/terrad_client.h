@@ -133,6 +133,13 @@ typedef struct terrad_client_stats {
     uint64_t messages; /* everything received */
     int last_error_code;
     int close_code; /* the server's close code, once closed (0: none given) */
+    /* desync detection (PROTOCOL.md "CHECKSUM"; appended, so the layout of
+     * libterrad-client.so.1's fields above is unchanged): CHECKSUM frames
+     * compared, tiles found differing from the server's, and tiles asked for
+     * again (resync with "tiles"); each differing tile is not held (its deltas
+     * skipped) until its snapshot comes, which makes it equal again */
+    uint64_t checksum_frames, checksum_tick;
+    uint64_t tiles_differing, tiles_resynced;
 } terrad_client_stats;
 
 typedef enum terrad_shape {
