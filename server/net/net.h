@@ -101,6 +101,11 @@ typedef struct net_world_info {
      * world message; NULL for a single daemon's default world, whose world
      * message is unchanged (its state is named by its entry of the table). */
     const char *name;
+    /* The scene's twin config as a JSON object (scene_twin_config_json), sent
+     * as the world message's "base" to a client whose hello asked for base
+     * snapshots (PROTOCOL.md "Base snapshots"); NULL: the twin cannot make
+     * this world's base, and such a client gets absolute snapshots. Copied. */
+    const char *base_json;
 } net_world_info;
 
 typedef struct net_config {
