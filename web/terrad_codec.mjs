@@ -586,8 +586,12 @@ export class Mirror {
 // ---- JSON control messages ----
 
 // world: a world created by POST /v1/worlds (or a cluster's world); '' for the default one.
-export const hello = (token = '', client = 'terrad-web', world = '') =>
-  ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}) });
+// budget: bytes/s the server may send (PROTOCOL.md "Budgets"), 0 none; -1: the server's default
+export const hello = (token = '', client = 'terrad-web', world = '', budget = -1) =>
+  ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}),
+     ...(budget >= 0 ? { budget } : {}) });
+// a budgeted client's focus in cells (its nearest tiles first); no x, y: cleared
+export const focus = (x = -1, y = -1) => (x < 0 || y < 0 ? { type: 'focus' } : { type: 'focus', x, y });
 export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>
   withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}) }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);

@@ -259,6 +259,7 @@ static void on_world(terrad_client *c, const cJSON *m)
     w->max_poses_per_batch = json_int(l, "max_poses_per_batch", 64);
     w->max_colliders = json_int(l, "max_colliders", 64);
     w->max_subscriptions = json_int(l, "max_subscriptions", 16);
+    w->budget = json_int(m, "budget", 0);
     c->max_resync_tiles = (int)json_int(l, "max_resync_tiles", 64);
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "world");
     snprintf(c->world_name, sizeof c->world_name, "%s",
@@ -772,6 +773,8 @@ static terrad_client *connect_to(terrad_client_desc d, const char *world, char *
     cJSON_AddStringToObject(h, "client", d.name ? d.name : "terrad-c");
     if (world && world[0])
         cJSON_AddStringToObject(h, "world", world);
+    if (d.budget) /* -1: none (0 on the wire); 0: the server's default (not sent) */
+        cJSON_AddNumberToObject(h, "budget", d.budget < 0 ? 0 : (double)d.budget);
     char *text = cJSON_PrintUnformatted(h);
     cJSON_Delete(h);
     int rc = text ? enqueue(c, text, strlen(text), 0) : TERRAD_E_NO_MEMORY;
@@ -1150,6 +1153,16 @@ static int send_resync(terrad_client *c, uint32_t sid)
     int n = sid ? snprintf(text, sizeof text, "{\"type\":\"resync\",\"id\":%u}", sid)
                 : snprintf(text, sizeof text, "{\"type\":\"resync\"}");
     return enqueue(c, text, (size_t)n, 0);
+}
+
+int terrad_client_focus(terrad_client *c, int set, double x, double y)
+{
+    char text[128];
+    int n = set ? snprintf(text, sizeof text, "{\"type\":\"focus\",\"x\":%.17g,\"y\":%.17g}", x, y)
+                : snprintf(text, sizeof text, "{\"type\":\"focus\"}");
+    int rc = enqueue(c, text, (size_t)n, 0);
+    flush(c);
+    return rc;
 }
 
 int terrad_client_resync(terrad_client *c, uint32_t sid)

@@ -10,9 +10,9 @@
  */
 #include <stdatomic.h>
 #include <stdint.h>
-#include <stdio.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 static const char *const fields[] = {METRICS_RESYNC_FIELDS};
 #define FIELDS (int)(sizeof fields / sizeof fields[0])
@@ -57,38 +57,29 @@ void metrics_desync_reset(void)
         atomic_store_explicit(&refused[i], 0, memory_order_relaxed);
 }
 
-static unsigned long long get(atomic_uint_fast64_t *v)
-{
-    return (unsigned long long)atomic_load_explicit(v, memory_order_relaxed);
-}
-
 int metrics_desync_text(char *out, size_t cap)
 {
+    static const struct {
+        const char *name, *help;
+        atomic_uint_fast64_t *value;
+    } counters[] = {
+        {"terrad_checksum_frames_total", "CHECKSUM frames queued for clients.", &frames},
+        {"terrad_checksum_bytes_total", "Bytes of CHECKSUM frames queued for clients.", &bytes},
+        {"terrad_checksum_frames_skipped_total",
+         "CHECKSUM frames not sent: the client's deltas were being dropped (a resync under way).",
+         &skipped},
+        {"terrad_resync_tiles_requested_total",
+         "Tiles clients asked for again (resync with tiles).", &requested},
+        {"terrad_tile_resyncs_total", "Tile snapshots queued for a resync with tiles.", &resyncs},
+    };
     size_t n = 0;
-    int w = snprintf(
-        out, cap,
-        "# HELP terrad_checksum_frames_total CHECKSUM frames queued for clients.\n"
-        "# TYPE terrad_checksum_frames_total counter\nterrad_checksum_frames_total %llu\n"
-        "# HELP terrad_checksum_bytes_total Bytes of CHECKSUM frames queued for clients.\n"
-        "# TYPE terrad_checksum_bytes_total counter\nterrad_checksum_bytes_total %llu\n"
-        "# HELP terrad_checksum_frames_skipped_total CHECKSUM frames not sent: the client's "
-        "deltas were being dropped (a resync under way).\n"
-        "# TYPE terrad_checksum_frames_skipped_total counter\n"
-        "terrad_checksum_frames_skipped_total %llu\n"
-        "# HELP terrad_resync_tiles_requested_total Tiles clients asked for again (resync with "
-        "tiles).\n# TYPE terrad_resync_tiles_requested_total counter\n"
-        "terrad_resync_tiles_requested_total %llu\n"
-        "# HELP terrad_tile_resyncs_total Tile snapshots queued for a resync with tiles.\n"
-        "# TYPE terrad_tile_resyncs_total counter\nterrad_tile_resyncs_total %llu\n"
-        "# HELP terrad_resync_refused_total resync requests refused, by the field the error "
-        "named.\n# TYPE terrad_resync_refused_total counter\n",
-        get(&frames), get(&bytes), get(&skipped), get(&requested), get(&resyncs));
-    for (int i = 0; i < FIELDS && w >= 0 && (size_t)w < cap - n; i++) {
-        n += (size_t)w;
-        w = snprintf(out + n, cap - n, "terrad_resync_refused_total{field=\"%s\"} %llu\n",
-                     fields[i], get(&refused[i]));
-    }
-    if (w < 0 || (size_t)w >= cap - n)
-        return -1;
-    return (int)(n + (size_t)w);
+    int rc = 0;
+    for (size_t i = 0; i < sizeof counters / sizeof counters[0] && rc == 0; i++)
+        rc = metrics_put_counter(out, cap, &n, counters[i].name, counters[i].help,
+                                 counters[i].value);
+    if (rc == 0)
+        rc = metrics_put_labelled(out, cap, &n, "terrad_resync_refused_total",
+                                  "resync requests refused, by the field the error named.", "field",
+                                  fields, FIELDS, refused);
+    return rc == 0 ? (int)n : -1;
 }

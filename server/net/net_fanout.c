@@ -157,7 +157,8 @@ static void send_footprints(net_client *c, hub_frame *f)
 
 /* CHECKSUM frames (PROTOCOL.md "CHECKSUM") compare a mirror that holds every
  * delta up to their tick: not sent to a client whose deltas are being dropped
- * (a resync under way), nor past max_pending_bytes; droppable like a delta. */
+ * (a resync under way), nor past max_pending_bytes, nor past a budget's
+ * window (PROTOCOL.md "Budgets"); droppable like a delta. */
 static void send_checksum(net_client *c, hub_frame *f)
 {
     if (dropping_deltas(c) || c->droppable_bytes + f->len > c->srv->cfg.limits.max_pending_bytes) {
@@ -168,6 +169,11 @@ static void send_checksum(net_client *c, hub_frame *f)
     f = net_checksum_for(c, f);
     if (!f)
         return;
+    if (!net_budget_fits(c, f->len)) { /* a budget's window has no room: the next one checks */
+        metrics_count_checksums_skipped(1);
+        hub_frame_unref(f);
+        return;
+    }
     metrics_count_checksums(1, f->len);
     net_enqueue(c, f, NET_ITEM_TILE);
 }

@@ -3,8 +3,9 @@
 // ($TERRAD_CLIENT_DIR; tests/integration/clients/test_ts_client.sh makes it). Checked: connect and
 // hello, a subscription's mirror, a collider driven with poses (ACKs, CONTACT feedback), the
 // prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
-// the worlds API (create, join, list, remove); bad input refused with errors naming the field;
-// a mirror corrupted on purpose repaired by the client itself (PROTOCOL.md "CHECKSUM").
+// the worlds API (create, join, list, remove); bad input refused with errors naming the field; a
+// budget in hello; a mirror corrupted on purpose repaired by the client itself (PROTOCOL.md
+// "CHECKSUM").
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { mkdtempSync, rmSync, writeFileSync } from 'node:fs';
@@ -126,6 +127,21 @@ test('a corrupted mirror is found by a CHECKSUM and repaired tile by tile', { sk
     assert.deepEqual(Array.from(mirror.heights), await serverHeights(10, 20, 100, 90), 'the mirror equals GET /v1/heights');
     const metrics = await (await fetch(`${http}/metrics`)).text();
     assert.match(metrics, /^terrad_tile_resyncs_total [1-9]/m, 'the daemon counted the tile snapshot');
+  } finally {
+    c.close();
+  }
+});
+
+test('a budget in hello (PROTOCOL.md "Budgets"): the world message says it, the mirror still becomes the server\'s', { skip, timeout: 120000 }, async () => {
+  const c = await T.TerradClient.connect(ws, { name: 'ts-budget', budget: 20000 });
+  try {
+    assert.equal(c.world.budget, 20000, 'world.budget is the one asked for');
+    c.focus(64, 64);
+    const sid = await c.subscribe(0, 0, 128, 128);
+    await c.waitComplete(sid);
+    const want = await serverHeights(0, 0, 128, 128);
+    for (let i = 0; i < 600 && !want.every((v, k) => v === c.mirrors.get(sid).heights[k]); i++) await sleep(100);
+    assert.deepEqual(Array.from(c.mirrors.get(sid).heights), want, 'the budgeted mirror equals GET /v1/heights');
   } finally {
     c.close();
   }

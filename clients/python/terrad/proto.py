@@ -676,29 +676,20 @@ def decode_ping(buf: bytes) -> tuple[MsgType, int]:
     return t, struct.unpack_from("<Q", buf, 4)[0]
 
 
+# Each binary frame's decoder, by its type (PING and PONG: decode_ping, below).
+_DECODERS = {
+    MsgType.POSE_BATCH: decode_pose_batch, MsgType.DELTA: decode_delta,
+    MsgType.CONTACT: decode_contact, MsgType.ACK: decode_ack, MsgType.COLLIDERS: decode_colliders,
+    MsgType.FOOTPRINTS: decode_footprints, MsgType.FORCES: decode_forces,
+    MsgType.STEP: decode_step, MsgType.STEPPED: decode_stepped, MsgType.CHECKSUM: decode_checksum,
+}
+
+
 def decode(buf: bytes):
-    """Any binary frame: (MsgType, decoded tuple)."""
+    """Any binary frame: (MsgType, decoded tuple); a PING or PONG's nonce."""
     t = decode_header(buf)
-    if t == MsgType.POSE_BATCH:
-        return t, decode_pose_batch(buf)
-    if t == MsgType.DELTA:
-        return t, decode_delta(buf)
-    if t == MsgType.CONTACT:
-        return t, decode_contact(buf)
-    if t == MsgType.ACK:
-        return t, decode_ack(buf)
-    if t == MsgType.COLLIDERS:
-        return t, decode_colliders(buf)
-    if t == MsgType.FOOTPRINTS:
-        return t, decode_footprints(buf)
-    if t == MsgType.FORCES:
-        return t, decode_forces(buf)
-    if t == MsgType.STEP:
-        return t, decode_step(buf)
-    if t == MsgType.STEPPED:
-        return t, decode_stepped(buf)
-    if t == MsgType.CHECKSUM:
-        return t, decode_checksum(buf)
+    if t in _DECODERS:
+        return t, _DECODERS[t](buf)
     return t, decode_ping(buf)[1]
 
 
