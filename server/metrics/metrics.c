@@ -1,6 +1,5 @@
 /*
- * metrics.c: the process-wide counters, gauges and histograms behind
- * GET /metrics.
+ * metrics.c: the process-wide counters, gauges and histograms behind GET /metrics.
  *
  * Every thread counts here: the websocket thread (bytes, messages, refusals),
  * the sim thread once per tick (tick and stage durations, Σh, active cells)
@@ -377,6 +376,7 @@ void metrics_reset(void)
     metrics_edits_reset();
     metrics_room_reset();
     metrics_steps_reset();
+    metrics_desync_reset();
     metrics_cluster_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
@@ -764,9 +764,9 @@ char *metrics_render(size_t *len)
         render_family(&t, &families[f]);
     char process[4096];
     /* the families rendered by the other files of metrics/, in this order */
-    int (*const parts[])(char *, size_t) = {metrics_auth_text,    metrics_edits_text,
-                                            metrics_room_text,    metrics_steps_text,
-                                            metrics_cluster_text, metrics_process_text};
+    int (*const parts[])(char *, size_t) = {
+        metrics_auth_text,    metrics_edits_text,  metrics_room_text,   metrics_steps_text,
+        metrics_cluster_text, metrics_desync_text, metrics_process_text};
     for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
         if (parts[i](process, sizeof process) > 0)
             text_printf(&t, "%s", process);

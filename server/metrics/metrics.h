@@ -140,6 +140,18 @@ void metrics_count_step_refused(const char *field);
 void metrics_steps_reset(void);
 int metrics_steps_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
+/* Desync detection and repair (metrics_desync.c; PROTOCOL.md "CHECKSUM"):
+ * CHECKSUM frames and bytes sent, frames skipped for a client being
+ * resynced, tiles asked for again and their snapshots, and
+ * terrad_resync_refused_total{field}: the field a refused resync named. */
+#define METRICS_RESYNC_FIELDS "id", "tiles"
+void metrics_count_checksums(uint64_t frames, uint64_t bytes);
+void metrics_count_checksums_skipped(uint64_t n);
+void metrics_count_resync_tiles_requested(uint64_t n);
+void metrics_count_tile_resyncs(uint64_t n);
+void metrics_count_resync_refused(const char *field);
+void metrics_desync_reset(void);
+int metrics_desync_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 /* metrics_cluster.c: terrad_cluster_takes_redone_total, takes of a world's log
  * (cluster_wal_take) that found another writer's message after the point they
  * recovered to and were made again. */

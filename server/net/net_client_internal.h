@@ -29,6 +29,7 @@
  *   net_client.c    this layer: per-client records (limits, rate bucket,
  *                   owned colliders, subscriptions, outgoing queue), the
  *                   collider table, commands waiting for the hub
+ *   net_desync.c    CHECKSUM frames per client, resyncs of single tiles
  *   net_conn.c      admission of sockets before their handshake
  *   net_remote_send.c  frames to another node (a leaf)
  *
@@ -330,6 +331,16 @@ void net_flush_backlog(net_state *s);
 /* Fresh snapshots of every subscription of c (see net_client.c). */
 void net_request_resync(net_client *c, uint32_t subscription);
 void net_warn_refusal(net_state *s, const net_client *c, int code, const char *message);
+
+/* ---- desync detection and repair (net_desync.c) ---- */
+/* The sim's CHECKSUM frame f (the caller's reference, taken over) as c gets
+ * it: f itself, or a copy of only c's current tiles (NULL: no memory). */
+hub_frame *net_checksum_for(net_client *c, hub_frame *f);
+/* resync with "tiles" (n [x, y] pairs) of subscription sub: each tile must meet
+ * it (else outside_world naming tiles[i], nothing asked); each becomes one
+ * HUB_RESYNC_TILE, a quiet snapshot of tile ∩ subscription. */
+void net_request_resync_tiles(net_client *c, const net_sub *sub, const int32_t *tiles, int n,
+                              const cJSON *ref);
 
 /* ---- the collider table: id -> owner ---- */
 net_collider_slot *net_collider_find(net_state *s, uint32_t id);

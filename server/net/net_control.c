@@ -416,6 +416,41 @@ static int parse_id(parser *r, int required, net_control *out)
     return 0;
 }
 
+/* resync: "id" (required with "tiles"), and "tiles", an array of 1 to
+ * max_resync_tiles [tile x, tile y] pairs of integers >= 0 (PROTOCOL.md
+ * "resync"). Whether each tile meets the subscription is the client's state
+ * (net_requests.c). */
+static int parse_resync(parser *r, net_control *out)
+{
+    const cJSON *tiles = cJSON_GetObjectItemCaseSensitive(r->msg, "tiles");
+    if (parse_id(r, tiles != NULL, out) != 0)
+        return -1;
+    if (!tiles)
+        return 0;
+    int max = r->ctx->limits->max_resync_tiles, n = cJSON_GetArraySize(tiles);
+    if (!cJSON_IsArray(tiles) || n == 0)
+        return fail(r, TERRAD_E_BAD_VALUE, "tiles: must be a non-empty array of [x, y] tiles");
+    if (n > max)
+        return fail(r, TERRAD_E_TOO_LARGE, "tiles: %d tiles, more than max_resync_tiles (%d)", n,
+                    max);
+    out->tiles = malloc((size_t)n * 2 * sizeof *out->tiles);
+    if (!out->tiles)
+        return fail(r, TERRAD_E_INTERNAL, "out of memory");
+    int i = 0;
+    for (const cJSON *t = tiles->child; t; t = t->next, i++) {
+        const cJSON *x = cJSON_GetArrayItem(t, 0), *y = cJSON_GetArrayItem(t, 1);
+        if (!cJSON_IsArray(t) || cJSON_GetArraySize(t) != 2 || !is_integer(x) || !is_integer(y) ||
+            x->valuedouble < 0 || y->valuedouble < 0 || x->valuedouble > INT32_MAX ||
+            y->valuedouble > INT32_MAX)
+            return fail(r, TERRAD_E_BAD_VALUE,
+                        "tiles[%d]: must be [x, y], two integers >= 0 (tile coordinates)", i);
+        out->tiles[2 * i] = (int32_t)x->valuedouble;
+        out->tiles[2 * i + 1] = (int32_t)y->valuedouble;
+    }
+    out->tile_count = n;
+    return 0;
+}
+
 /* collider_delete's optional "any_owner": an admin deleting another client's collider. */
 static int parse_any_owner(parser *r, net_control *out)
 {
@@ -565,7 +600,7 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
             rc = parse_subscribe(&r, out);
             break;
         case NET_CONTROL_RESYNC:
-            rc = parse_id(&r, 0, out);
+            rc = parse_resync(&r, out);
             break;
         case NET_CONTROL_EDIT:
             rc = parse_edit(&r, out);
@@ -596,6 +631,9 @@ void net_control_free(net_control *r)
     r->ref = NULL;
     mesh_free(r->mesh);
     r->mesh = NULL;
+    free(r->tiles);
+    r->tiles = NULL;
+    r->tile_count = 0;
     r->geometry.mesh = NULL;
     if (r->edit) {
         world_edit_free(r->edit);

@@ -78,6 +78,10 @@ typedef struct net_control {
     /* collider_delete, unsubscribe, resync (id 0 and has_id 0: all) */
     uint32_t id;
     int has_id;
+    /* resync's "tiles" (owned): tile_count [tile x, tile y] pairs, each >= 0;
+     * with them, "id" is required (PROTOCOL.md "resync") */
+    int32_t *tiles;
+    int tile_count;
     int any_owner; /* collider_delete: an admin's delete of any client's collider */
     /* subscribe: inside the world */
     world_rect rect;

@@ -155,6 +155,29 @@ static void send_footprints(net_client *c, hub_frame *f)
     net_enqueue(c, f, NET_ITEM_TILE);
 }
 
+/* CHECKSUM frames (PROTOCOL.md "CHECKSUM") compare a mirror that holds every
+ * delta up to their tick: not sent to a client whose deltas are being dropped
+ * (a resync under way), nor past max_pending_bytes, nor past a budget's
+ * window (PROTOCOL.md "Budgets"); droppable like a delta. */
+static void send_checksum(net_client *c, hub_frame *f)
+{
+    if (dropping_deltas(c) || c->droppable_bytes + f->len > c->srv->cfg.limits.max_pending_bytes) {
+        metrics_count_checksums_skipped(1);
+        hub_frame_unref(f);
+        return;
+    }
+    f = net_checksum_for(c, f);
+    if (!f)
+        return;
+    if (!net_budget_fits(c, f->len)) { /* a budget's window has no room: the next one checks */
+        metrics_count_checksums_skipped(1);
+        hub_frame_unref(f);
+        return;
+    }
+    metrics_count_checksums(1, f->len);
+    net_enqueue(c, f, NET_ITEM_TILE);
+}
+
 void net_dispatch(net_state *w, hub_out *o)
 {
     if (o->tick > w->tick)
@@ -167,6 +190,9 @@ void net_dispatch(net_state *w, hub_out *o)
                 net_remote_frame(c, o->frame, o->snapshot_done);
         } else if (c && o->frame && o->msg == TERRAD_MSG_FOOTPRINTS) {
             send_footprints(c, o->frame);
+            o->frame = NULL;
+        } else if (c && o->frame && o->msg == TERRAD_MSG_CHECKSUM) {
+            send_checksum(c, o->frame);
             o->frame = NULL;
         } else if (c && o->frame && c->budget && o->msg == TERRAD_MSG_DELTA) {
             net_budget_snapshot(c, o->frame); /* pieces go as its window allows */

@@ -406,11 +406,16 @@ static void handle_edit(net_client *c, net_control *m)
 static void handle_resync(net_client *c, const net_control *m)
 {
     if (m->has_id && sub_index(c, m->id) < 0) {
+        if (m->tile_count)
+            metrics_count_resync_refused("id");
         net_error(c, TERRAD_E_UNKNOWN_SUBSCRIPTION, m->ref, -1, 0,
-                  "subscription %lld does not exist", (long long)m->id);
+                  "id: subscription %lld does not exist", (long long)m->id);
         return;
     }
-    net_request_resync(c, m->id);
+    if (m->tile_count)
+        net_request_resync_tiles(c, &c->subs[sub_index(c, m->id)], m->tiles, m->tile_count, m->ref);
+    else
+        net_request_resync(c, m->id);
 }
 
 /* seen: the latest tick the client has handled (PROTOCOL.md "seen"); judged
@@ -483,7 +488,7 @@ static int refused_by_state(net_client *c, const net_control *m)
  * to come, so that it pauses the client's deltas as the owner would. */
 static void relay_text(net_client *c, const net_control *m, int rc)
 {
-    if (rc != 0 || m->kind != NET_CONTROL_RESYNC || c->sub_count == 0 ||
+    if (rc != 0 || m->kind != NET_CONTROL_RESYNC || m->tile_count || c->sub_count == 0 ||
         (m->has_id && sub_index(c, m->id) < 0))
         return;
     c->snapshots_requested++;
@@ -519,6 +524,8 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     } else if (refused_by_state(c, &m)) {
         /* answered */
     } else if (rc != 0) {
+        if (m.kind == NET_CONTROL_RESYNC) /* the field first in the message */
+            metrics_count_resync_refused(strncmp(err.message, "tiles", 5) ? "id" : "tiles");
         net_error(c, err.code, m.ref, -1, err.fatal, "%s", err.message);
         if (err.code == TERRAD_E_BAD_VERSION)
             net_close_after_flush(c, 4000 + TERRAD_E_BAD_VERSION, "bad protocol version");

@@ -556,6 +556,16 @@ int world_rects_overlap(world_rect a, world_rect b)
            (int64_t)a.y < (int64_t)b.y + b.h && (int64_t)b.y < (int64_t)a.y + a.h;
 }
 
+world_rect world_rect_meet(world_rect a, world_rect b)
+{
+    int64_t x0 = a.x > b.x ? a.x : b.x, y0 = a.y > b.y ? a.y : b.y;
+    int64_t x1 = (int64_t)a.x + a.w < (int64_t)b.x + b.w ? (int64_t)a.x + a.w : (int64_t)b.x + b.w;
+    int64_t y1 = (int64_t)a.y + a.h < (int64_t)b.y + b.h ? (int64_t)a.y + a.h : (int64_t)b.y + b.h;
+    if (x1 <= x0 || y1 <= y0)
+        return (world_rect){(int)x0, (int)y0, 0, 0};
+    return (world_rect){(int)x0, (int)y0, (int)(x1 - x0), (int)(y1 - y0)};
+}
+
 world_rect world_rect_union(world_rect a, world_rect b)
 {
     if (a.w <= 0 || a.h <= 0)
