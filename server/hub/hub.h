@@ -82,6 +82,7 @@ typedef struct hub_command {
     char material[32];          /* create */
     int feedback;               /* create: send CONTACT entries for this collider */
     double load_n;              /* create: > 0 load-driven (bekker), the load in newtons */
+    int forces_height;          /* create: its FORCES entries carry its pose height */
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */

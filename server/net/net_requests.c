@@ -202,6 +202,7 @@ static void handle_collider_create(net_client *c, net_control *m)
     snprintf(cmd.material, sizeof cmd.material, "%s", m->material);
     cmd.feedback = m->feedback;
     cmd.load_n = m->load_n;
+    cmd.forces_height = m->forces_height;
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     int grown = array_grow((void **)&c->colliders, &c->collider_capacity,
                            (int64_t)c->collider_count + 1, sizeof *c->colliders) == 0;
