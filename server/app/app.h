@@ -47,6 +47,15 @@ void app_wheel_usage(FILE *out);
  * failure nothing is held. */
 int app_open_scene_world(const char *scene_path, scene *sc, world *w, error_text *err);
 
+/* The --scene row of every command that reads a data directory offline
+ * (export, fsck): a directory holds the world as changes over its scene's
+ * base terrain, so it must be opened with the scene the daemon ran (the
+ * path goes to app_open_scene_world). One row, so the commands say it alike. */
+#define APP_OPTION_SCENE_RAN                                                                       \
+    {                                                                                              \
+        "scene", "FILE", "the scene the daemon ran (default: the embedded scene)"                  \
+    }
+
 /* A soil given on the command line (option names it in messages): a preset
  * of docs/models.md (compression 0.5), else a material JSON file of the
  * bekker model, as `terrad calibrate --out` writes it (its soil and its

@@ -49,7 +49,7 @@ enum { OPT_DATA, OPT_SCENE, OPT_OUT, OPT_FORMAT, OPT_REGION, OPT_TICK };
 
 static const cli_option export_table[] = {
     [OPT_DATA] = {"data", "DIR", "data directory (default ./data); read only, never repaired"},
-    [OPT_SCENE] = {"scene", "FILE", "the scene the daemon ran (default: the embedded scene)"},
+    [OPT_SCENE] = APP_OPTION_SCENE_RAN,
     [OPT_OUT] = {"out", "FILE", "output file (required)"},
     [OPT_FORMAT] = {"format", "F",
                     "int32 (little-endian, row-major, as GET /v1/heights; default;\n"

@@ -22,7 +22,7 @@ enum { OPT_DATA, OPT_SCENE };
 
 static const cli_option fsck_table[] = {
     [OPT_DATA] = {"data", "DIR", "data directory to check (default ./data); never changed"},
-    [OPT_SCENE] = {"scene", "FILE", "the scene the daemon ran (default: the embedded scene)"},
+    [OPT_SCENE] = APP_OPTION_SCENE_RAN,
     {0},
 };
 
