@@ -122,8 +122,10 @@ static void bekker_depth(const sim_window_job *job, int j, int slices, int32_t *
             for (int64_t i = 0; i < n; i++)
                 tmp[i] = COLLIDER_BOTTOM_NONE;
             const sim_collider *c = &job->colliders[k];
-            collider_depth_cpu(c->geometry, sim_slice_pose(c, job->cell_size_m, j, slices),
-                               job->rect, job->cell_size_m, job->units_per_m, tmp);
+            /* a lugged wheel presses with its lugs' envelope (model_lugs.c) */
+            collider_geometry g = sim_lug_envelope(c->geometry);
+            collider_depth_cpu(&g, sim_slice_pose(c, job->cell_size_m, j, slices), job->rect,
+                               job->cell_size_m, job->units_per_m, tmp);
             for (int64_t i = 0; i < n; i++)
                 if (tmp[i] < bottom[i]) {
                     bottom[i] = tmp[i];
@@ -481,6 +483,11 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int j, int sl
             raw[i] = r.raw;
             moved[i] = r.raw - (int32_t)compacted;
         }
+    for (int k = 0; k < job->collider_count; k++) /* a lugged wheel's bulldozing */
+        if (sim_lugged(job->colliders[k].geometry))
+            sim_lug_thrust(&p->soil, &job->colliders[k],
+                           sim_slice_pose(&job->colliders[k], cell, j, slices),
+                           job->contacts[k].lowest_bottom / upm, &job->contacts[k]);
     *cls_out = cls;
     *settle_out = settle;
 }
