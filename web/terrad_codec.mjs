@@ -8,8 +8,8 @@ import { Decompress } from './vendor/fzstd.js';
 export const PROTOCOL_VERSION = 1;
 export const MAGIC = 0x54;
 export const SUBPROTOCOL = 'terrad.v1';
-export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, STEP: 0x04, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14, FORCES: 0x15, STEPPED: 0x16 };
-const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 4: 'STEP', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS', 21: 'FORCES', 22: 'STEPPED' };
+export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, STEP: 0x04, DELTA: 0x10, CONTACT: 0x11, ACK: 0x12, COLLIDERS: 0x13, FOOTPRINTS: 0x14, FORCES: 0x15, STEPPED: 0x16, CHECKSUM: 0x17 };
+const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 4: 'STEP', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS', 21: 'FORCES', 22: 'STEPPED', 23: 'CHECKSUM' };
 export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
 export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
 export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
@@ -297,6 +297,68 @@ export function decodeStepped(buf) {
   return { tick: v.getBigUint64(4, true), seq: v.getUint32(12, true), ticks };
 }
 
+// ---- CHECKSUM (desync detection, PROTOCOL.md "CHECKSUM") ----
+
+const CHECKSUM_FIXED = 18, TILE_SUM_SIZE = 20;
+
+/**
+ * PROTOCOL.md "Tile hash": FNV-1a 64 over the heights as u32 words, row-major, of the w x h
+ * heights at heights[start + j * stride + i], as a BigInt. Computed in two 32-bit halves:
+ * the prime is 2^40 + 0x1b3, so (hi:lo) * prime = hi * 0x1b3 + lo * 2^8 (high word, with the
+ * carry of lo * 0x1b3) : lo * 0x1b3 (low word), every partial product exact in a double.
+ */
+export function heightsHash(heights, stride, w, h, start = 0) {
+  let hi = 0xcbf29ce4, lo = 0x84222325;
+  for (let j = 0; j < h; j++) {
+    const o = start + j * stride;
+    for (let i = 0; i < w; i++) {
+      const x = (lo ^ heights[o + i]) >>> 0;
+      const p = x * 0x1b3;
+      hi = (Math.imul(hi, 0x1b3) + Math.floor(p / 4294967296) + (x << 8)) >>> 0;
+      lo = p >>> 0;
+    }
+  }
+  return (BigInt(hi) << 32n) | BigInt(lo);
+}
+
+export function encodeChecksum(tick, subscription, tiles) {
+  if (!(subscription > 0) || tiles.length > MAX_COUNT) throw new ProtoError('bad_value', 'subscription 0 or too many tiles');
+  const b = new Uint8Array(CHECKSUM_FIXED + TILE_SUM_SIZE * tiles.length);
+  const v = view(b);
+  b.set([MAGIC, PROTOCOL_VERSION, MsgType.CHECKSUM, 0]);
+  v.setBigUint64(4, BigInt(tick), true);
+  v.setUint32(12, subscription, true);
+  v.setUint16(16, tiles.length, true);
+  tiles.forEach((t, i) => {
+    if (t.tile_x < 0 || t.tile_y < 0 || t.version === 0) throw new ProtoError('bad_value', `tile (${t.tile_x}, ${t.tile_y}) of version ${t.version}`);
+    const o = CHECKSUM_FIXED + i * TILE_SUM_SIZE;
+    v.setInt32(o, t.tile_x, true);
+    v.setInt32(o + 4, t.tile_y, true);
+    v.setUint32(o + 8, t.version, true);
+    v.setBigUint64(o + 12, BigInt(t.hash), true);
+  });
+  return b;
+}
+
+/** { tick, subscription, tiles: [{ tile_x, tile_y, version, hash (BigInt) }] } */
+export function decodeChecksum(buf) {
+  const b = bytes(buf);
+  expect(b, MsgType.CHECKSUM);
+  if (b.length < CHECKSUM_FIXED) throw new ProtoError('bad_frame', 'truncated');
+  const v = view(b);
+  const tick = v.getBigUint64(4, true), subscription = v.getUint32(12, true), count = v.getUint16(16, true);
+  if (b.length - CHECKSUM_FIXED !== count * TILE_SUM_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  if (subscription === 0) throw new ProtoError('bad_value', 'subscription 0');
+  const tiles = [];
+  for (let i = 0; i < count; i++) {
+    const o = CHECKSUM_FIXED + i * TILE_SUM_SIZE;
+    const t = { tile_x: v.getInt32(o, true), tile_y: v.getInt32(o + 4, true), version: v.getUint32(o + 8, true), hash: v.getBigUint64(o + 12, true) };
+    if (t.tile_x < 0 || t.tile_y < 0 || t.version === 0) throw new ProtoError('bad_value', `tile (${t.tile_x}, ${t.tile_y}) of version ${t.version}`);
+    tiles.push(t);
+  }
+  return { tick, subscription, tiles };
+}
+
 export function decodePing(buf) {
   const b = bytes(buf);
   const t = decodeHeader(b);
@@ -478,20 +540,46 @@ export class Mirror {
     }
     return touched;
   }
+
+  /** One CHECKSUM entry against the mirror (terrad_mirror_tile_differs): 1 when the tile is held
+   * and its version or hash differs, 0 when it agrees or is not held, -1 when the region does
+   * not touch it. */
+  tileDiffers(s) {
+    const T = this.tileSize;
+    if (!(s.tile_x >= this.tx0 && s.tile_x < this.tx0 + this.tilesX && s.tile_y >= this.ty0 && s.tile_y < this.ty0 + this.tilesY)) return -1;
+    const t = s.tile_x - this.tx0 + (s.tile_y - this.ty0) * this.tilesX;
+    if (this.versions[t] === 0) return 0;
+    if (this.versions[t] !== s.version) return 1;
+    const x0 = Math.max(s.tile_x * T, this.x), y0 = Math.max(s.tile_y * T, this.y);
+    const x1 = Math.min(s.tile_x * T + T, this.x + this.w), y1 = Math.min(s.tile_y * T + T, this.y + this.h);
+    const start = (y0 - this.y) * this.w + (x0 - this.x);
+    return heightsHash(this.heights, this.w, x1 - x0, y1 - y0, start) === BigInt(s.hash) ? 0 : 1;
+  }
+
+  /** Not held any more (its deltas skipped) until a snapshot of it arrives. */
+  forgetTile(tileX, tileY) {
+    this.versions[tileX - this.tx0 + (tileY - this.ty0) * this.tilesX] = 0;
+  }
 }
 
 // ---- JSON control messages ----
 
 // world: a world created by POST /v1/worlds (or a cluster's world); '' for the default one.
-export const hello = (token = '', client = 'terrad-web', world = '') =>
-  ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}) });
+// budget: bytes/s the server may send (PROTOCOL.md "Budgets"), 0 none; -1: the server's default
+export const hello = (token = '', client = 'terrad-web', world = '', budget = -1) =>
+  ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}),
+     ...(budget >= 0 ? { budget } : {}) });
+// a budgeted client's focus in cells (its nearest tiles first); no x, y: cleared
+export const focus = (x = -1, y = -1) => (x < 0 || y < 0 ? { type: 'focus' } : { type: 'focus', x, y });
 export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>
   withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}) }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
 // admin: {type: 'event', event, world} for each world made or ended (PROTOCOL.md subscribe_events)
 export const subscribeEvents = (events = ['world_created', 'world_deleted'], ref) =>
   withRef({ type: 'subscribe_events', events }, ref);
-export const resync = (id, ref) => withRef(id === undefined ? { type: 'resync' } : { type: 'resync', id }, ref);
+// tiles: [[tile x, tile y], ...] of subscription id: snapshots of only those (PROTOCOL.md "resync").
+export const resync = (id, ref, tiles) =>
+  withRef(id === undefined ? { type: 'resync' } : tiles ? { type: 'resync', id, tiles } : { type: 'resync', id }, ref);
 // PROTOCOL.md "seen": the latest tick whose frames this client has handled.
 export const seen = (tick) => ({ type: 'seen', tick, ref: 'seen' }); // ref: an older daemon's refusal names it
 // The tick a server frame carries (DELTA and after: u64 at offset 4), 0 for others.

@@ -14,6 +14,11 @@ const params = new URLSearchParams(location.search);
 const token = new URLSearchParams(location.hash.slice(1)).get('token') || '';
 const apiInit = { cache: 'no-store', headers: token ? { Authorization: `Bearer ${token}` } : {} };
 let wsUrl = ''; // the last one connected to (or tried)
+// The page's bandwidth budget (PROTOCOL.md "Budgets"), ?budget=BYTES_PER_S (0: none): 128 KiB/s by
+// default, twice what a game's whole stream is usually allowed (Roblox, Valheim: 50–64 kB/s), since
+// a viewer watches a whole world; the tiles near the camera target (its focus) come first.
+const BUDGET = params.has('budget') ? Math.max(0, Math.floor(Number(params.get('budget')) || 0)) : 131072;
+let budgetRefused = false; // the daemon's max_budget_bytes_per_s is lower: take its default instead
 // The websocket's URL: the page's ?ws= override, else the daemon's answer.
 async function websocketUrl() {
   const given = params.get('ws');
@@ -78,7 +83,7 @@ async function connect() {
   ws = sock;
   sock.onopen = () => {
     if (ws !== sock) return;
-    send(P.hello(token, 'terrad-web'));
+    send(P.hello(token, 'terrad-web', '', budgetRefused ? -1 : BUDGET));
   };
   sock.onmessage = (ev) => {
     if (ws !== sock) return;
@@ -143,6 +148,11 @@ function onJson(text) {
       if (app.own) app.own.id = m.id;
       break;
     case 'error':
+      if (!app.connected && /^budget:/.test(m.message || '') && !budgetRefused) {
+        budgetRefused = true; // over the daemon's limit: hello again with the daemon's own budget
+        send(P.hello(token, 'terrad-web'));
+        break;
+      }
       seenReporter.refused(m);
       if (m.ref === 'seen' && m.name === 'unknown_type') break; // a daemon from before "seen"
       app.lastError = `${m.name}: ${m.message}`;
@@ -274,6 +284,12 @@ function promoteSubscription() {
 function followCamera(force) {
   const w = app.world;
   if (!w || !app.connected) return;
+  // the budget's focus: the camera target, told again once it has moved half a tile
+  const fx = Math.floor(app.target[0] / w.cell_size_m), fy = Math.floor(app.target[1] / w.cell_size_m);
+  if (force || !app.focus || Math.abs(app.focus[0] - fx) + Math.abs(app.focus[1] - fy) >= CHUNK / 2) {
+    app.focus = [fx, fy];
+    send(P.focus(Math.max(0, Math.min(w.width, fx)), Math.max(0, Math.min(w.height, fy))));
+  }
   let r;
   if (w.width * w.height <= MAX_FULL) r = { x: 0, y: 0, w: w.width, h: w.height };
   else {

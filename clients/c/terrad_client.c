@@ -78,7 +78,8 @@ struct terrad_client {
      * server was told, and when (it bounds this client's lag by it) */
     uint64_t handled_tick, said_tick;
     int64_t said_us;
-    int no_seen; /* a daemon from before "seen" refused it (unknown_type) */
+    int no_seen;          /* a daemon from before "seen" refused it (unknown_type) */
+    int max_resync_tiles; /* the world's limits.max_resync_tiles */
     uint32_t seq;
 
     client_sub *subs;
@@ -258,6 +259,8 @@ static void on_world(terrad_client *c, const cJSON *m)
     w->max_poses_per_batch = json_int(l, "max_poses_per_batch", 64);
     w->max_colliders = json_int(l, "max_colliders", 64);
     w->max_subscriptions = json_int(l, "max_subscriptions", 16);
+    w->budget = json_int(m, "budget", 0);
+    c->max_resync_tiles = (int)json_int(l, "max_resync_tiles", 64);
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "world");
     snprintf(c->world_name, sizeof c->world_name, "%s",
              cJSON_IsString(name) ? name->valuestring : "");
@@ -426,6 +429,54 @@ static void on_delta(terrad_client *c, const uint8_t *buf, size_t len, uint64_t 
     }
 }
 
+/* PROTOCOL.md "CHECKSUM": every frame before it is applied, so the mirror
+ * holds the frame's tick; each held tile that differs is forgotten (version
+ * 0: its deltas skipped) and asked for again, at most max_resync_tiles per
+ * request (the rest at the next CHECKSUM). */
+static void on_checksum(terrad_client *c, const uint8_t *buf, size_t len, uint64_t *tick)
+{
+    size_t cap =
+        len >= TERRAD_CHECKSUM_FIXED ? (len - TERRAD_CHECKSUM_FIXED) / TERRAD_TILE_SUM_SIZE + 1 : 1;
+    terrad_tile_sum *sums = malloc(cap * sizeof *sums);
+    uint32_t sid;
+    size_t n = 0;
+    int rc =
+        sums ? terrad_checksum_decode(buf, len, tick, &sid, sums, cap, &n) : TERRAD_E_NO_MEMORY;
+    if (rc) {
+        free(sums);
+        return bad_frame(c, "CHECKSUM", rc);
+    }
+    c->stats.checksum_frames++;
+    c->stats.checksum_tick = *tick;
+    client_sub *s = find_sub(c, sid);
+    char *text = s ? malloc(64 + n * 24) : NULL;
+    size_t at = 0, asked = 0;
+    for (size_t i = 0; text && i < n; i++) {
+        if (terrad_mirror_tile_differs(&s->m, &sums[i]) != 1)
+            continue;
+        c->stats.tiles_differing++;
+        if ((int)asked == (c->max_resync_tiles > 0 ? c->max_resync_tiles : 64))
+            continue;
+        int64_t t = (sums[i].tile_x - s->m.tx0) + (sums[i].tile_y - s->m.ty0) * s->m.tiles_x;
+        s->m.versions[t] = 0; /* not held: its snapshot makes it equal again */
+        at += (size_t)snprintf(text + at, 64 + n * 24 - at, "%s[%d,%d]",
+                               asked ? "," : "{\"type\":\"resync\",\"tiles\":[", sums[i].tile_x,
+                               sums[i].tile_y);
+        asked++;
+    }
+    if (asked) {
+        at += (size_t)snprintf(text + at, 64 + n * 24 - at, "],\"id\":%u}", sid);
+        set_warn(c,
+                 "subscription %u: %zu tile(s) differ from the server's at tick %llu, asking "
+                 "for them again",
+                 sid, asked, (unsigned long long)*tick);
+        if (enqueue(c, text, at, 0) == 0)
+            c->stats.tiles_resynced += asked;
+    }
+    free(text);
+    free(sums);
+}
+
 static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
 {
     terrad_header hd;
@@ -481,6 +532,9 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         predict_acked(c, tick, seq);
         break;
     }
+    case TERRAD_MSG_CHECKSUM:
+        on_checksum(c, buf, len, &tick);
+        break;
     case TERRAD_MSG_STEPPED: {
         uint32_t seq, ticks;
         rc = terrad_stepped_decode(buf, len, &tick, &seq, &ticks);
@@ -719,6 +773,8 @@ static terrad_client *connect_to(terrad_client_desc d, const char *world, char *
     cJSON_AddStringToObject(h, "client", d.name ? d.name : "terrad-c");
     if (world && world[0])
         cJSON_AddStringToObject(h, "world", world);
+    if (d.budget) /* -1: none (0 on the wire); 0: the server's default (not sent) */
+        cJSON_AddNumberToObject(h, "budget", d.budget < 0 ? 0 : (double)d.budget);
     char *text = cJSON_PrintUnformatted(h);
     cJSON_Delete(h);
     int rc = text ? enqueue(c, text, strlen(text), 0) : TERRAD_E_NO_MEMORY;
@@ -1097,6 +1153,16 @@ static int send_resync(terrad_client *c, uint32_t sid)
     int n = sid ? snprintf(text, sizeof text, "{\"type\":\"resync\",\"id\":%u}", sid)
                 : snprintf(text, sizeof text, "{\"type\":\"resync\"}");
     return enqueue(c, text, (size_t)n, 0);
+}
+
+int terrad_client_focus(terrad_client *c, int set, double x, double y)
+{
+    char text[128];
+    int n = set ? snprintf(text, sizeof text, "{\"type\":\"focus\",\"x\":%.17g,\"y\":%.17g}", x, y)
+                : snprintf(text, sizeof text, "{\"type\":\"focus\"}");
+    int rc = enqueue(c, text, (size_t)n, 0);
+    flush(c);
+    return rc;
 }
 
 int terrad_client_resync(terrad_client *c, uint32_t sid)

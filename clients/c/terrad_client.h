@@ -107,6 +107,11 @@ typedef struct terrad_client_desc {
      * its name must match host. 0: plain ws:// */
     int tls;
     const char *tls_ca_file;
+    /* bytes per second the server may send this client (PROTOCOL.md
+     * "Budgets": near tiles every tick, far ones later, exact once the
+     * terrain settles; terrad_world_info.budget says the one in force).
+     * 0: the server's default; -1: none */
+    int64_t budget;
 } terrad_client_desc;
 
 /* The world message (PROTOCOL.md "world"); limits not listed keep their defaults. */
@@ -119,6 +124,7 @@ typedef struct terrad_world_info {
     int64_t height_min, height_max;
     uint64_t tick; /* at hello */
     int64_t max_message_bytes, max_poses_per_batch, max_colliders, max_subscriptions;
+    int64_t budget; /* this connection's budget in bytes/s (0: none) */
 } terrad_world_info;
 
 /* Counters and the latest of each kind of frame. */
@@ -133,6 +139,13 @@ typedef struct terrad_client_stats {
     uint64_t messages; /* everything received */
     int last_error_code;
     int close_code; /* the server's close code, once closed (0: none given) */
+    /* desync detection (PROTOCOL.md "CHECKSUM"; appended, so the layout of
+     * libterrad-client.so.1's fields above is unchanged): CHECKSUM frames
+     * compared, tiles found differing from the server's, and tiles asked for
+     * again (resync with "tiles"); each differing tile is not held (its deltas
+     * skipped) until its snapshot comes, which makes it equal again */
+    uint64_t checksum_frames, checksum_tick;
+    uint64_t tiles_differing, tiles_resynced;
 } terrad_client_stats;
 
 typedef enum terrad_shape {
@@ -206,6 +219,9 @@ int terrad_client_edit(terrad_client *c, const char *edit_json, uint64_t *tick_o
 /* A crater at cell (x, y) of radius cells and depth units; rim 1 keeps Σh. */
 int terrad_client_crater(terrad_client *c, int32_t x, int32_t y, int32_t radius, int32_t depth,
                          int rim, uint64_t *tick_out, int64_t *volume_out);
+/* A budgeted client's focus, in cells: its nearest tiles come first
+ * (PROTOCOL.md "focus"); set 0 clears it (its colliders again). No reply. */
+int terrad_client_focus(terrad_client *c, int set, double x, double y);
 /* Asks for fresh snapshots of one subscription (sid 0: all); no reply. */
 int terrad_client_resync(terrad_client *c, uint32_t sid);
 /* Sends a PING frame with the given nonce (the PONG shows in the hook). */

@@ -100,6 +100,7 @@ static class Native
         public IntPtr Hook, User, Log;
         public int LogLevel, LwsLogLevels, Tls;
         public IntPtr TlsCaFile;
+        public long Budget; // bytes/s (PROTOCOL.md "Budgets"); 0: the server's default, -1: none
     }
 
     [StructLayout(LayoutKind.Sequential)]

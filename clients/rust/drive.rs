@@ -39,6 +39,7 @@ struct ClientDesc {
     lws_log_levels: c_int,
     tls: c_int,
     tls_ca_file: *const c_char,
+    budget: i64, // bytes/s (PROTOCOL.md "Budgets"); 0: the server's default, -1: none
 }
 
 #[repr(C)]
@@ -218,6 +219,7 @@ fn main() {
         lws_log_levels: 0,
         tls: 0,
         tls_ca_file: std::ptr::null(),
+        budget: 0,
     };
     let raw = unsafe { terrad_client_connect_world(desc, std::ptr::null(), err.as_mut_ptr(), err.len()) };
     if raw.is_null() {

@@ -97,6 +97,8 @@ const char *terrad_msg_type_name(int type)
         return "FORCES";
     case TERRAD_MSG_STEPPED:
         return "STEPPED";
+    case TERRAD_MSG_CHECKSUM:
+        return "CHECKSUM";
     default:
         return NULL;
     }
@@ -892,6 +894,93 @@ int terrad_stepped_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, ui
     return TERRAD_OK;
 }
 
+/* ---- CHECKSUM -------------------------------------------------------------- */
+
+uint64_t terrad_heights_hash(const int32_t *heights, size_t stride, uint32_t w, uint32_t h)
+{
+    uint64_t x = TERRAD_HASH_SEED;
+    for (uint32_t j = 0; j < h; j++) {
+        const int32_t *row = heights + (size_t)j * stride;
+        for (uint32_t i = 0; i < w; i++)
+            x = (x ^ (uint32_t)row[i]) * TERRAD_HASH_PRIME;
+    }
+    return x;
+}
+
+size_t terrad_checksum_size(size_t count)
+{
+    return TERRAD_CHECKSUM_FIXED + count * TERRAD_TILE_SUM_SIZE;
+}
+
+static int tile_sum_check(const terrad_tile_sum *s)
+{
+    return s->tile_x < 0 || s->tile_y < 0 || s->version == 0 ? TERRAD_E_BAD_VALUE : TERRAD_OK;
+}
+
+int terrad_checksum_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                           uint32_t subscription, const terrad_tile_sum *sums, size_t count)
+{
+    if (count > TERRAD_MAX_COUNT || subscription == 0)
+        return TERRAD_E_BAD_VALUE;
+    for (size_t i = 0; i < count; i++)
+        if (tile_sum_check(&sums[i]))
+            return TERRAD_E_BAD_VALUE;
+    size_t need = terrad_checksum_size(count);
+    if (!buf || cap < need)
+        return TERRAD_E_BUFFER_TOO_SMALL;
+    uint8_t *p = wr_header(buf, TERRAD_MSG_CHECKSUM);
+    p = wr_u64(p, tick);
+    p = wr_u32(p, subscription);
+    p = wr_u16(p, (uint16_t)count);
+    for (size_t i = 0; i < count; i++) {
+        p = wr_u32(p, (uint32_t)sums[i].tile_x);
+        p = wr_u32(p, (uint32_t)sums[i].tile_y);
+        p = wr_u32(p, sums[i].version);
+        p = wr_u64(p, sums[i].hash);
+    }
+    if (len_out)
+        *len_out = need;
+    return TERRAD_OK;
+}
+
+int terrad_checksum_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                           uint32_t *subscription_out, terrad_tile_sum *sums, size_t cap,
+                           size_t *count_out)
+{
+    rd r;
+    int rc = expect_header(buf, len, TERRAD_MSG_CHECKSUM, &r);
+    if (rc)
+        return rc;
+    if (rd_left(&r) < TERRAD_CHECKSUM_FIXED - TERRAD_HEADER_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    uint64_t tick = rd_u64(&r);
+    uint32_t subscription = rd_u32(&r);
+    size_t count = rd_u16(&r);
+    if (rd_left(&r) != count * TERRAD_TILE_SUM_SIZE)
+        return TERRAD_E_BAD_FRAME;
+    if (subscription == 0)
+        return TERRAD_E_BAD_VALUE;
+    if (count > cap)
+        return TERRAD_E_TOO_LARGE;
+    for (size_t i = 0; i < count; i++) {
+        terrad_tile_sum s;
+        s.tile_x = (int32_t)rd_u32(&r);
+        s.tile_y = (int32_t)rd_u32(&r);
+        s.version = rd_u32(&r);
+        s.hash = rd_u64(&r);
+        if (tile_sum_check(&s))
+            return TERRAD_E_BAD_VALUE;
+        sums[i] = s;
+    }
+    if (tick_out)
+        *tick_out = tick;
+    if (subscription_out)
+        *subscription_out = subscription;
+    if (count_out)
+        *count_out = count;
+    return TERRAD_OK;
+}
+
 /* ---- ACK, PING, PONG ----------------------------------------------------- */
 
 int terrad_ack_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick, uint32_t seq)
@@ -1272,4 +1361,24 @@ int terrad_mirror_apply(terrad_mirror *m, terrad_codec *c, const terrad_rect *re
         memset(m->versions, 0, (size_t)m->tiles_x * m->tiles_y * sizeof *m->versions);
     terrad_codec_free(own);
     return rc;
+}
+
+int terrad_mirror_tile_differs(const terrad_mirror *m, const terrad_tile_sum *sum)
+{
+    int64_t T = m->tile_size;
+    if (sum->tile_x < m->tx0 || sum->tile_y < m->ty0 || sum->tile_x >= m->tx0 + m->tiles_x ||
+        sum->tile_y >= m->ty0 + m->tiles_y)
+        return -1;
+    size_t t = (size_t)(sum->tile_x - m->tx0) + (size_t)(sum->tile_y - m->ty0) * m->tiles_x;
+    if (m->versions[t] == 0)
+        return 0;
+    if (m->versions[t] != sum->version)
+        return 1;
+    box region = {m->x, m->y, (int64_t)m->x + m->w, (int64_t)m->y + m->h}, part;
+    box tile = {sum->tile_x * T, sum->tile_y * T, sum->tile_x * T + T, sum->tile_y * T + T};
+    box_meet(tile, region, &part);
+    const int32_t *first = m->heights + (size_t)(part.y0 - m->y) * m->w + (size_t)(part.x0 - m->x);
+    uint64_t h = terrad_heights_hash(first, m->w, (uint32_t)(part.x1 - part.x0),
+                                     (uint32_t)(part.y1 - part.y0));
+    return h != sum->hash;
 }

@@ -53,6 +53,8 @@ extern "C" {
 #define TERRAD_FORCE_SIZE 48          /* u32 id, 10 x f32, u32 cells */
 #define TERRAD_STEP_FIXED 16          /* header, u32 seq, u32 ticks, u16 count, u16 sets */
 #define TERRAD_STEPPED_SIZE 20        /* header, u64 tick, u32 seq, u32 ticks */
+#define TERRAD_CHECKSUM_FIXED 18      /* header, u64 tick, u32 subscription, u16 count */
+#define TERRAD_TILE_SUM_SIZE 20       /* i32 tile x, i32 tile y, u32 version, u64 hash */
 #define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
@@ -67,6 +69,7 @@ typedef enum terrad_msg_type {
     TERRAD_MSG_FOOTPRINTS = 0x14, /* server -> client */
     TERRAD_MSG_FORCES = 0x15,     /* server -> client */
     TERRAD_MSG_STEPPED = 0x16,    /* server -> client: a STEP's ticks are done and durable */
+    TERRAD_MSG_CHECKSUM = 0x17,   /* server -> client: a subscription's tile hashes at a tick */
 } terrad_msg_type;
 
 /* Error codes: positive values are the protocol's (PROTOCOL.md, "Errors"),
@@ -285,6 +288,33 @@ int terrad_stepped_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t ti
 int terrad_stepped_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, uint32_t *seq_out,
                           uint32_t *ticks_out);
 
+/* ---- CHECKSUM (desync detection, PROTOCOL.md "CHECKSUM") ------------------ */
+
+/* The hash of a rectangle of heights (PROTOCOL.md "Tile hash"): FNV-1a 64 over
+ * the heights as u32 words, row-major: h = 0xcbf29ce484222325, then for each
+ * height h = (h ^ (uint32_t)height) * 0x100000001b3 (mod 2^64). Each step is a
+ * bijection of h, so a change of any one height always changes the hash. */
+#define TERRAD_HASH_SEED 0xcbf29ce484222325ull
+#define TERRAD_HASH_PRIME 0x100000001b3ull
+/* w x h heights whose rows are stride heights apart. */
+uint64_t terrad_heights_hash(const int32_t *heights, size_t stride, uint32_t w, uint32_t h);
+
+/* One tile of a subscription: its version and the hash of its part of the
+ * subscription (tile ∩ subscription) at the frame's tick. */
+typedef struct terrad_tile_sum {
+    int32_t tile_x, tile_y; /* tile coordinates (cells / tile_size), >= 0 */
+    uint32_t version;       /* >= 1 */
+    uint64_t hash;          /* terrad_heights_hash of the tile's part */
+} terrad_tile_sum;
+
+size_t terrad_checksum_size(size_t count);
+int terrad_checksum_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                           uint32_t subscription, const terrad_tile_sum *sums, size_t count);
+/* subscription 0, a negative tile coordinate or version 0: bad_value. */
+int terrad_checksum_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
+                           uint32_t *subscription_out, terrad_tile_sum *sums, size_t cap,
+                           size_t *count_out);
+
 /* ---- ACK, PING, PONG ----------------------------------------------------- */
 
 int terrad_ack_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick, uint32_t seq);
@@ -361,6 +391,11 @@ int terrad_mirror_init(terrad_mirror *m, int32_t x, int32_t y, uint32_t w, uint3
  * and the error returned: resync. */
 int terrad_mirror_apply(terrad_mirror *m, terrad_codec *c, const terrad_rect *rects, size_t count,
                         int32_t *scratch, size_t scratch_cells);
+/* One CHECKSUM entry against the mirror: 1 when the mirror holds the tile
+ * (version != 0) and its version or the hash of its part of the region
+ * differs (a desync: ask for the tile), 0 when it agrees or the tile is not
+ * held (its snapshot is on its way), -1 when the region does not touch it. */
+int terrad_mirror_tile_differs(const terrad_mirror *m, const terrad_tile_sum *sum);
 
 #ifdef __cplusplus
 }

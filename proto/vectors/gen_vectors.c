@@ -789,6 +789,84 @@ static void forces_vectors(void)
              TERRAD_E_BAD_FRAME); /* count 3, two entries follow */
 }
 
+/* ---- CHECKSUM and the tile hash ---- */
+
+static cJSON *tile_sum_json(const void *entry)
+{
+    const terrad_tile_sum *t = entry;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "tile_x", t->tile_x);
+    cJSON_AddNumberToObject(o, "tile_y", t->tile_y);
+    cJSON_AddNumberToObject(o, "version", t->version);
+    add_u64(o, "hash", t->hash);
+    return o;
+}
+
+static cJSON *checksum_fields(uint64_t tick, uint32_t sub, const terrad_tile_sum *t, size_t n)
+{
+    cJSON *f = tick_list_fields(tick, "tiles", t, sizeof *t, n, tile_sum_json);
+    cJSON_AddNumberToObject(f, "subscription", sub);
+    return f;
+}
+
+/* "hashes": heights (row-major, w x h) and their terrad_heights_hash */
+static void hash_vector(cJSON *hashes, const char *about, const int32_t *v, uint32_t w, uint32_t h)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "about", about);
+    cJSON_AddNumberToObject(o, "w", w);
+    cJSON_AddNumberToObject(o, "h", h);
+    cJSON_AddItemToObject(o, "heights", int_array(v, (size_t)w * h));
+    add_u64(o, "hash", terrad_heights_hash(v, w, w, h));
+    cJSON_AddItemToArray(hashes, o);
+}
+
+static void checksum_vectors(cJSON *hashes)
+{
+    hash_vector(hashes, "no heights: the seed", NULL, 0, 0);
+    int32_t one[1] = {0};
+    hash_vector(hashes, "one height 0", one, 1, 1);
+    int32_t small[6] = {1, -1, 2, -2, 10000, -10000};
+    hash_vector(hashes, "3 x 2, both signs", small, 3, 2);
+    int32_t ext[4] = {INT32_MIN, INT32_MAX, 0x12345678, -0x12345678};
+    hash_vector(hashes, "2 x 2 extremes", ext, 2, 2);
+    int32_t bumped[6] = {1, -1, 2, -2, 10001, -10000};
+    hash_vector(hashes, "the 3 x 2 one with one height one unit up", bumped, 3, 2);
+    static int32_t tile[64 * 64];
+    for (int i = 0; i < 64 * 64; i++)
+        tile[i] = 4000 + (i % 64) * 7 - (i / 64) * 3 + (i % 5 == 0 ? -11 : 0);
+    hash_vector(hashes, "a whole 64 x 64 tile: 4000 + 7 x - 3 y - 11 where (64 y + x) % 5 == 0",
+                tile, 64, 64);
+
+    size_t len;
+    ok(terrad_checksum_encode(buf, sizeof buf, &len, 30, 1, NULL, 0), "checksum");
+    valid(vector("checksum_empty", "CHECKSUM", "a subscription with no tile current"),
+          checksum_fields(30, 1, NULL, 0), buf, len);
+    terrad_tile_sum t[2] = {{0, 0, 1, TERRAD_HASH_SEED},
+                            {3, 2, 4294967295u, 0x8000000000000001ull}};
+    ok(terrad_checksum_encode(buf, sizeof buf, &len, 1234567890123ull, 7, t, 2), "checksum");
+    valid(vector("checksum_two", "CHECKSUM", "two tiles of subscription 7, the largest version"),
+          checksum_fields(1234567890123ull, 7, t, 2), buf, len);
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    set_u32(q + 12, 0);
+    invalid("checksum_subscription_zero", "CHECKSUM", "subscription 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_u32(q + 18 + 8, 0);
+    invalid("checksum_version_zero", "CHECKSUM", "a tile of version 0", q, len, TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_u32(q + 18 + 20, 0xffffffffu);
+    invalid("checksum_negative_tile", "CHECKSUM", "tile x -1", q, len, TERRAD_E_BAD_VALUE);
+    invalid("checksum_truncated", "CHECKSUM", "the last entry cut short", buf, len - 1,
+            TERRAD_E_BAD_FRAME);
+    invalid("checksum_short", "CHECKSUM", "17 bytes", buf, 17, TERRAD_E_BAD_FRAME);
+    buf[len] = 0;
+    invalid("checksum_trailing", "CHECKSUM", "a byte after the last entry", buf, len + 1,
+            TERRAD_E_BAD_FRAME);
+    bad_byte("checksum_count", "CHECKSUM", "count 3 with two entries", len, 16, 3,
+             TERRAD_E_BAD_FRAME);
+}
+
 /* ---- mirror scenarios ---- */
 
 /* World heights of a tiny made-up world, used for snapshots. */
@@ -958,6 +1036,7 @@ int main(void)
     footprints_vectors();
     forces_vectors();
     step_vectors();
+    checksum_vectors(cJSON_AddArrayToObject(root, "hashes"));
     mirror_scenarios();
     char *text = cJSON_Print(root);
     if (!text)

@@ -514,5 +514,6 @@ host_sim_config serve_host_config(const serve_options *o)
     return (host_sim_config){.backend = o->backend,
                              .max_tick_cells = o->limits.max_tick_cells,
                              .max_sweep_cells = o->limits.max_sweep_cells,
+                             .checksum_interval_ticks = o->limits.checksum_interval_ticks,
                              .demo_actors = o->demo_actors};
 }

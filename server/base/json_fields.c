@@ -110,39 +110,6 @@ static int refuse(error_text *err, const char *p, const char *what, const cJSON 
     return -1;
 }
 
-/* A finite number in [lo, hi]. Returns 1 when present, 0 when absent, -1 on error. */
-int json_get_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
-                    double *out, error_text *err)
-{
-    char p[256], what[96];
-    const cJSON *v = field(obj, path, key, p);
-    if (!v)
-        return 0;
-    if (!cJSON_IsNumber(v))
-        return refuse(err, p, "a number", v);
-    if (!isfinite(v->valuedouble))
-        return refuse(err, p, "a finite number", v);
-    if (v->valuedouble < lo || v->valuedouble > hi) {
-        json_path_format(what, sizeof what, "in [%g, %g]", lo, hi);
-        return refuse(err, p, what, v);
-    }
-    *out = v->valuedouble;
-    return 1;
-}
-
-int json_require_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
-                        double *out, error_text *err)
-{
-    int r = json_get_number(obj, path, key, lo, hi, out, err);
-    if (r == 0) {
-        char p[256];
-        json_path_join(p, sizeof p, path, key);
-        error_set(err, "%s: missing (a number in [%g, %g])", p, lo, hi);
-        return -1;
-    }
-    return r < 0 ? -1 : 0;
-}
-
 /* v (at p) accepted when ok, named what in messages: 1 present, 0 absent (an
  * error when required), -1 refused. */
 static int get_checked(int required, const char *what, int ok, const cJSON *v, const char *p,
@@ -158,6 +125,35 @@ static int get_checked(int required, const char *what, int ok, const cJSON *v, c
         return refuse(err, p, what, v);
     *out = v->valuedouble;
     return 1;
+}
+
+/* A finite number in [lo, hi]. Returns 1 when present, 0 when absent, -1 on
+ * error, which names the first test the value fails: a number, finite, in
+ * range. */
+int json_get_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                    double *out, error_text *err)
+{
+    char p[256], range[96] = "";
+    const cJSON *v = field(obj, path, key, p);
+    int number = cJSON_IsNumber(v), finite = number && isfinite(v->valuedouble);
+    int ok = finite && v->valuedouble >= lo && v->valuedouble <= hi;
+    if (finite && !ok)
+        json_path_format(range, sizeof range, "in [%g, %g]", lo, hi);
+    const char *what = !number ? "a number" : !finite ? "a finite number" : range;
+    return get_checked(0, what, ok, v, p, out, err);
+}
+
+int json_require_number(const cJSON *obj, const char *path, const char *key, double lo, double hi,
+                        double *out, error_text *err)
+{
+    int r = json_get_number(obj, path, key, lo, hi, out, err);
+    if (r == 0) {
+        char p[256];
+        json_path_join(p, sizeof p, path, key);
+        error_set(err, "%s: missing (a number in [%g, %g])", p, lo, hi);
+        return -1;
+    }
+    return r < 0 ? -1 : 0;
 }
 
 /* Present and positive: (0, hi]. */

@@ -141,7 +141,7 @@ typedef int (*cluster_record_fn)(void *ctx, uint64_t seq, const uint8_t *data, s
 
 /*
  * Reads the world's records with sequences >= from_seq up to the subject's
- * current end (owner markers are skipped, a record whose parts are not all
+ * current end (owner markers and confirm records are skipped, a record whose parts are not all
  * there is dropped), and makes that end the sequence the next append
  * expects. Returns CLUSTER_OK or CLUSTER_ERROR.
  */
@@ -151,10 +151,17 @@ cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_recor
  * Becomes the world's writer: reads from from_seq to the end (as
  * cluster_wal_read) and appends an owner marker naming this node, expecting
  * that end; if another writer appended meanwhile, reads on and tries again.
- * After it returns CLUSTER_OK, every append of an earlier owner is refused.
+ * Then it confirms the take: a confirm record expecting the marker, and a
+ * read from the end it recovered to that must find only its own marker and
+ * confirm record — else what it found is applied and the take made again
+ * (nats-server 2.9 can store an old owner's append in flight beside the
+ * marker). After it returns CLUSTER_OK, on_record has had every record of
+ * the log and every later append of an earlier owner is refused.
  */
 cluster_status cluster_wal_take(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
                                 void *ctx, error_text *err);
+/* How many times the last cluster_wal_take found its take not clean and made it again. */
+int64_t cluster_wal_takes_redone(const cluster_wal *w);
 /*
  * Appends one record, expecting the subject's last sequence to be the one
  * this writer last saw; returns once the stream has acknowledged it

@@ -9,10 +9,16 @@
  *
  * A record larger than max_payload goes out as parts (header Terrad-Part:
  * "i/n"), each expecting the previous part's sequence; a reader keeps a
- * record only when all its parts follow each other. Owner markers (header
- * Terrad-Kind: owner) carry no data; they only move the expected sequence.
+ * record only when all its parts follow each other. Owner markers and
+ * confirm records (header Terrad-Kind: owner / confirm, the node's name as
+ * data) carry no terrain; they only move the expected sequence.
  *
- * One writer per cluster_wal: not for concurrent use.
+ * A take is confirmed before the new owner serves anything: nats-server 2.9
+ * checks the expected sequence of a clustered stream only before proposing,
+ * against what the leader has applied, so an old owner's append in flight
+ * when the marker is proposed is stored too (cluster_wal_take says how it is
+ * found). One writer per cluster_wal, one append in flight at a time
+ * (js_PublishMsg waits for the PubAck): not for concurrent use.
  */
 #include "cluster/cluster_internal.h"
 
@@ -23,10 +29,14 @@
 
 #include <cjson/cJSON.h>
 
+#include "metrics/metrics.h"
+
 #define HDR_EXPECT "Nats-Expected-Last-Subject-Sequence"
 #define HDR_KIND "Terrad-Kind"
 #define HDR_PART "Terrad-Part"
 #define PART_ROOM 512 /* headers and protocol overhead within max_payload */
+#define KIND_OWNER "owner"
+#define KIND_CONFIRM "confirm"
 
 struct cluster_wal {
     cluster *cl;
@@ -35,6 +45,13 @@ struct cluster_wal {
     uint64_t last_seq;
     int uncertain;       /* an append failed without an answer: it may have landed */
     uint64_t must_start; /* the next read's first message must be at this sequence (0: any) */
+    /* a confirming read (wal_confirm): what it found after the point recovered to */
+    int checking;            /* classify each message read */
+    uint64_t confirm_seq;    /* this writer's confirm record, which the read must reach (0: none) */
+    int saw_confirm;         /* the read delivered confirm_seq */
+    int64_t foreign;         /* messages read that are not this node's markers */
+    char first_foreign[160]; /* the first of them, in words */
+    int64_t takes_redone;    /* by the last cluster_wal_take */
     /* a record being put together from its parts while reading */
     uint8_t *part_data;
     int64_t part_len, part_capacity;
@@ -93,6 +110,31 @@ static cluster_status wal_end(cluster_wal *w, uint64_t *end, error_text *err)
     return CLUSTER_OK;
 }
 
+/* During a confirming read: is this message this node's own marker? Anything
+ * else after the point recovered to is foreign; the first is described for
+ * the log line. */
+static void wal_classify(cluster_wal *w, uint64_t seq, const char *kind, int marker,
+                         const uint8_t *data, size_t len)
+{
+    const char *node = cluster_node(w->cl);
+    if (marker && len == strlen(node) && memcmp(data, node, len) == 0) {
+        if (seq == w->confirm_seq)
+            w->saw_confirm = 1;
+        return;
+    }
+    if (w->foreign++ > 0)
+        return;
+    if (marker)
+        snprintf(w->first_foreign, sizeof w->first_foreign,
+                 "sequence %" PRIu64 ", %s %s of node %.*s", seq,
+                 strcmp(kind, KIND_OWNER) == 0 ? "an" : "a",
+                 strcmp(kind, KIND_OWNER) == 0 ? "owner marker" : "confirm record",
+                 (int)(len < 64 ? len : 64), (const char *)data);
+    else
+        snprintf(w->first_foreign, sizeof w->first_foreign,
+                 "sequence %" PRIu64 ", a record of %zu bytes", seq, len);
+}
+
 /* One message of the log: a part of a record, a whole record or a marker. */
 static int wal_deliver(cluster_wal *w, natsMsg *msg, uint64_t seq, cluster_record_fn on_record,
                        void *ctx)
@@ -101,10 +143,16 @@ static int wal_deliver(cluster_wal *w, natsMsg *msg, uint64_t seq, cluster_recor
     natsMsgHeader_Get(msg, HDR_KIND, &kind);
     const uint8_t *data = (const uint8_t *)natsMsg_GetData(msg);
     size_t len = (size_t)natsMsg_GetDataLength(msg);
-    if (kind && strcmp(kind, "owner") == 0) {
-        w->part_next = 0; /* a takeover cuts off a record whose parts were not all sent */
+    int marker = kind && (strcmp(kind, KIND_OWNER) == 0 || strcmp(kind, KIND_CONFIRM) == 0);
+    if (w->checking)
+        wal_classify(w, seq, kind, marker, data, len);
+    /* A marker does not cut off a record whose parts it sits between: a later
+     * part expected the part before it, so past a marker it can only have
+     * landed by the race cluster_wal_take confirms against — its writer had
+     * it acknowledged, and it is part of the log. A record whose last parts
+     * never came is dropped at the next record's first part. */
+    if (marker)
         return 0;
-    }
     int i = 0, n = 0;
     if (natsMsgHeader_Get(msg, HDR_PART, &part) != NATS_OK || sscanf(part, "%d/%d", &i, &n) != 2 ||
         n <= 1) {
@@ -245,14 +293,14 @@ static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, cluster_record_f
  * accepted — every acknowledged tick of the world lost. So both answers must
  * agree before the log counts as read, and an end short of what was read is
  * not believed. */
-cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
-                                void *ctx, error_text *err)
+static cluster_status wal_read(cluster_wal *w, uint64_t from_seq, int keep_parts,
+                               cluster_record_fn on_record, void *ctx, error_text *err)
 {
     uint64_t end = 0;
     if (wal_end(w, &end, err) != CLUSTER_OK)
         return CLUSTER_ERROR;
     /* A continuation (cluster_wal_take reading on) keeps a record's first parts. */
-    if (from_seq != w->last_seq + 1)
+    if (!keep_parts)
         w->part_next = 0;
     if (from_seq == 0)
         from_seq = 1;
@@ -293,6 +341,12 @@ cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_recor
     w->last_seq = from - 1 > end ? from - 1 : end;
     w->uncertain = 0;
     return CLUSTER_OK;
+}
+
+cluster_status cluster_wal_read(cluster_wal *w, uint64_t from_seq, cluster_record_fn on_record,
+                                void *ctx, error_text *err)
+{
+    return wal_read(w, from_seq, from_seq == w->last_seq + 1, on_record, ctx, err);
 }
 
 /* One publish expecting w->last_seq; on success w->last_seq is its sequence. */
@@ -340,18 +394,59 @@ static cluster_status wal_publish(cluster_wal *w, const void *data, size_t len, 
     return CLUSTER_ERROR;
 }
 
-/* After an append that got no answer: did it land? If the log moved on, this
- * writer's view is not the log's any more; it must stop and be reloaded. */
+/* Appends a confirm record expecting w->last_seq, then reads the subject from
+ * recovered + 1 to where the leader has no next message, handing every record
+ * it finds to on_record. *clean: the confirm record was accepted, the read
+ * reached it, and nothing but this node's own markers lies after recovered.
+ * Why this proves a take (or an append whose answer was lost): whatever
+ * another writer had proposed before the confirm record is before it in the
+ * stream's raft log, and the PubAck of the confirm record comes from the
+ * leader once it applied it, so the leader's read after that answer holds
+ * every such append; anything proposed later expects a sequence below ours
+ * and is refused by the leader's check. */
+static cluster_status wal_confirm(cluster_wal *w, uint64_t recovered, cluster_record_fn on_record,
+                                  void *ctx, int *clean, error_text *err)
+{
+    const char *node = cluster_node(w->cl);
+    uint64_t expected = w->last_seq;
+    cluster_status r = wal_publish(w, node, strlen(node), KIND_CONFIRM, NULL, err);
+    if (r == CLUSTER_ERROR)
+        return CLUSTER_ERROR;
+    w->checking = 1;
+    w->confirm_seq = r == CLUSTER_OK ? w->last_seq : 0;
+    w->saw_confirm = 0;
+    w->foreign = 0;
+    w->first_foreign[0] = '\0';
+    cluster_status got = wal_read(w, recovered + 1, 1, on_record, ctx, err);
+    w->checking = 0;
+    if (got != CLUSTER_OK)
+        return CLUSTER_ERROR;
+    *clean = r == CLUSTER_OK && w->foreign == 0 && w->saw_confirm;
+    if (!*clean && w->foreign == 0)
+        snprintf(w->first_foreign, sizeof w->first_foreign,
+                 r == CLUSTER_OK ? "the leader's answer does not yet hold the confirm record "
+                                   "(it expected sequence %" PRIu64 ")"
+                                 : "the confirm record expecting sequence %" PRIu64 " was refused",
+                 expected);
+    return CLUSTER_OK;
+}
+
+/* After an append that got no answer: did it land? It may still be in
+ * flight (a paused server holds it), so the log's end now proves nothing; a
+ * confirm record does. If anything but the confirm lies after what this
+ * writer last saw, its view is not the log's any more: it must stop and be
+ * reloaded. */
 static cluster_status wal_resolve(cluster_wal *w, error_text *err)
 {
-    uint64_t end = 0;
-    if (wal_end(w, &end, err) != CLUSTER_OK)
+    uint64_t before = w->last_seq;
+    int clean = 0;
+    if (wal_confirm(w, before, NULL, NULL, &clean, err) != CLUSTER_OK)
         return CLUSTER_ERROR;
-    if (end != w->last_seq) {
+    if (!clean) {
         error_set(err,
-                  "log of world %s: moved on to sequence %" PRIu64 " after an append whose "
-                  "answer was lost (this writer expected %" PRIu64 "); reload from the log",
-                  w->world, end, w->last_seq);
+                  "log of world %s: after an append whose answer was lost, %s after sequence "
+                  "%" PRIu64 " (this writer expected nothing else there); reload from the log",
+                  w->world, w->first_foreign, before);
         return CLUSTER_FENCED;
     }
     w->uncertain = 0;
@@ -394,21 +489,45 @@ cluster_status cluster_wal_take(cluster_wal *w, uint64_t from_seq, cluster_recor
 {
     /* from_seq > 1 is a snapshot index's: the record there is never purged */
     w->must_start = from_seq > 1 ? from_seq : 0;
+    w->takes_redone = 0;
     if (cluster_wal_read(w, from_seq, on_record, ctx, err) != CLUSTER_OK)
         return CLUSTER_ERROR;
+    const char *node = cluster_node(w->cl);
     for (int attempt = 0; attempt < 100; attempt++) {
-        const char *node = cluster_node(w->cl);
-        cluster_status r = wal_publish(w, node, strlen(node), "owner", NULL, err);
-        if (r != CLUSTER_OK && r != CLUSTER_FENCED)
+        uint64_t recovered = w->last_seq;
+        cluster_status r = wal_publish(w, node, strlen(node), KIND_OWNER, NULL, err);
+        if (r == CLUSTER_ERROR)
             return r;
-        if (r == CLUSTER_OK)
-            return CLUSTER_OK;
-        /* the previous owner committed meanwhile: its records are ours to replay */
-        if (cluster_wal_read(w, w->last_seq + 1, on_record, ctx, err) != CLUSTER_OK)
+        if (r == CLUSTER_FENCED) {
+            /* the previous owner committed meanwhile: its records are ours to replay */
+            if (cluster_wal_read(w, w->last_seq + 1, on_record, ctx, err) != CLUSTER_OK)
+                return CLUSTER_ERROR;
+            continue;
+        }
+        /* The marker was accepted, but on nats-server 2.9 an old owner's
+         * append proposed before it was applied is stored too, before or
+         * after it (docs/cluster.md, "The fencing race"): confirm the take
+         * before anything is served. A foreign record found is applied (its
+         * writer may have acknowledged it) and the take is made again,
+         * expecting the log's true end. */
+        int clean = 0;
+        if (wal_confirm(w, recovered, on_record, ctx, &clean, err) != CLUSTER_OK)
             return CLUSTER_ERROR;
+        if (clean)
+            return CLUSTER_OK;
+        w->takes_redone++;
+        metrics_count_cluster_take_redone();
+        log_info("cluster: world %s: take after sequence %" PRIu64 " not clean: %s; read on to "
+                 "sequence %" PRIu64 ", taking again",
+                 w->world, recovered, w->first_foreign, w->last_seq);
     }
     error_set(err, "log of world %s: another writer keeps appending; not taken", w->world);
     return CLUSTER_FENCED;
+}
+
+int64_t cluster_wal_takes_redone(const cluster_wal *w)
+{
+    return w->takes_redone;
 }
 
 /* Removes the world's messages below seq one by one ($JS.API.STREAM.MSG.DELETE),

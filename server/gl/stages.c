@@ -113,25 +113,28 @@ int gl_stage_jump_flood(gl_backend *b, int max_side, int64_t cells)
     return in;
 }
 
+/* One displacement dispatch of the three-in, two-out layout (displace_iterative_init,
+ * displace_iterative_pass, displace_ssbo, displace_multi): prog reads units 1-3 (in1, in2,
+ * in3) and writes bindings 2-3 (out2, out3). */
+static void displace_pass(gl_backend *b, int prog, int in1, int in2, int in3, int out2, int out3)
+{
+    gl_sample(b, 1, in1);
+    gl_sample(b, 2, in2);
+    gl_sample(b, 3, in3);
+    gl_bind(b, 2, out2);
+    gl_bind(b, 3, out3);
+    gl_dispatch(b, prog);
+}
+
 void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int seed)
 {
     if (p->method == SIM_METHOD_ITERATIVE) {
         /* mask words (with the split's remainder) and shares, ping-pong;
          * see displace_iterative_init.comp */
         int mask = BUF_S0, share = BUF_S1, mask_next = BUF_S2, share_next = BUF_S3;
-        gl_sample(b, 1, BUF_CLS);
-        gl_sample(b, 2, seed);
-        gl_sample(b, 3, BUF_MOVED);
-        gl_bind(b, 2, mask);
-        gl_bind(b, 3, share);
-        gl_dispatch(b, PROG_ITER_INIT);
+        displace_pass(b, PROG_ITER_INIT, BUF_CLS, seed, BUF_MOVED, mask, share);
         for (int32_t pass = 0; pass < p->displace_iterations; pass++) {
-            gl_sample(b, 1, BUF_CLS);
-            gl_sample(b, 2, mask);
-            gl_sample(b, 3, share);
-            gl_bind(b, 2, mask_next);
-            gl_bind(b, 3, share_next);
-            gl_dispatch(b, PROG_ITER_PASS);
+            displace_pass(b, PROG_ITER_PASS, BUF_CLS, mask, share, mask_next, share_next);
             int t = mask;
             mask = mask_next;
             mask_next = t;
@@ -160,12 +163,8 @@ void gl_stage_displace(gl_backend *b, const sim_params *p, int64_t cells, int se
     }
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, 0);
     gl_barrier();
-    gl_sample(b, 1, BUF_CLS);
-    gl_sample(b, 2, seed);
-    gl_sample(b, 3, BUF_MOVED);
-    gl_bind(b, 2, BUF_S0);
-    gl_bind(b, 3, BUF_S1);
-    gl_dispatch(b, p->method == SIM_METHOD_MULTI ? PROG_DISPLACE_MULTI : PROG_DISPLACE_SSBO);
+    displace_pass(b, p->method == SIM_METHOD_MULTI ? PROG_DISPLACE_MULTI : PROG_DISPLACE_SSBO,
+                  BUF_CLS, seed, BUF_MOVED, BUF_S0, BUF_S1);
     gl_sample(b, 1, BUF_S0);
     gl_sample(b, 2, BUF_S1);
     gl_bind(b, 2, BUF_HEIGHTS);

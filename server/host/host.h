@@ -71,6 +71,7 @@ typedef struct host_job host_job;
 typedef struct host_sim_config {
     const char *backend; /* "auto", "gl" or "cpu" */
     int64_t max_tick_cells, max_sweep_cells;
+    int checksum_interval_ticks; /* limits.checksum_interval_ticks (PROTOCOL.md "CHECKSUM") */
     int demo_actors;
 } host_sim_config;
 

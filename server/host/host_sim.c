@@ -32,6 +32,7 @@ int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
         !(m->svc = service_create(m->engine, m->h, err)))
         return -1;
     service_set_tick_budget(m->svc, c->max_tick_cells, c->max_sweep_cells);
+    service_set_checksum_interval(m->svc, c->checksum_interval_ticks);
     service_set_client_clock(m->svc, m->sc.client_clock);
     if (m->st)
         /* go on from the recovered tick, or past it where the store says a

@@ -61,6 +61,10 @@ typedef enum hub_command_kind {
     HUB_UNSUBSCRIBE,
     HUB_RESYNC, /* fresh snapshots of one (subscription != 0) or all subscriptions */
     HUB_EDIT,   /* a terrain edit: from a client (client != 0) or HTTP (waiter != NULL) */
+    /* a snapshot of one tile of a subscription (rect: tile ∩ subscription), no
+     * snapshot_done mark: the client's other tiles' deltas never pause
+     * (PROTOCOL.md "resync" with "tiles") */
+    HUB_RESYNC_TILE,
 } hub_command_kind;
 
 /* An HTTP caller waiting for its edit (hub_edit_submit); opaque. */

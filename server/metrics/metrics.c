@@ -1,6 +1,5 @@
 /*
- * metrics.c: the process-wide counters, gauges and histograms behind
- * GET /metrics.
+ * metrics.c: the process-wide counters, gauges and histograms behind GET /metrics.
  *
  * Every thread counts here: the websocket thread (bytes, messages, refusals),
  * the sim thread once per tick (tick and stage durations, Σh, active cells)
@@ -12,9 +11,8 @@
  *
  * Every family is one row of one table (`families`: name, type, help,
  * label, slots): metrics_reset zeroes the slots, the update functions write
- * them, metrics_render walks the rows in order. The families of worlds,
- * auth, the process and refusals for room have their own files
- * (metrics_worlds.c, metrics_auth.c, metrics_process.c, metrics_room.c).
+ * them, metrics_render walks the rows in order. Families with files of their
+ * own: metrics_worlds.c, _auth, _process, _room, _edits, _steps, _cluster.
  *
  * Durations arrive in milliseconds (what the tick measures) and leave in
  * seconds, the Prometheus base unit. Σh leaves as an exact integer: a double
@@ -163,6 +161,9 @@ enum slot {
     S_FRAMES_COALESCED,
     S_FRAMES_DROPPED,
     S_CLIENTS_STALE,
+    S_BUDGET_BYTES,
+    S_BUDGET_COALESCED,
+    S_BUDGET_OVERRUNS,
     S_HEIGHTS_REFUSED,
     S_HTTP_CUT,
     S_TICK_SHED,
@@ -281,6 +282,13 @@ static const family families[] = {
            "Frames never sent (slow client or overflow)."),
     SCALAR("terrad_clients_stale_total", F_COUNTER, S_CLIENTS_STALE,
            "Clients switched to snapshots for being more than max_client_lag_ticks behind."),
+    SCALAR("terrad_budget_bytes_total", F_COUNTER, S_BUDGET_BYTES,
+           "Bytes queued to clients with a bandwidth budget (websocket headers included)."),
+    SCALAR("terrad_budget_deltas_coalesced_total", F_COUNTER, S_BUDGET_COALESCED,
+           "Tile deltas folded into a budgeted client's pending tiles, sent later as one."),
+    SCALAR("terrad_budget_overruns_total", F_COUNTER, S_BUDGET_OVERRUNS,
+           "Frames that took a budgeted client's last second past its budget (replies and "
+           "status frames, which are never held, or a piece larger than the budget)."),
     SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
            "/v1/heights requests refused (429): their address had too many bytes in flight."),
     SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
@@ -368,6 +376,8 @@ void metrics_reset(void)
     metrics_edits_reset();
     metrics_room_reset();
     metrics_steps_reset();
+    metrics_desync_reset();
+    metrics_cluster_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
     for (int f = 0; f < COUNT_OF(families); f++)
@@ -443,25 +453,22 @@ void metrics_set_store_recovery(double ms, int64_t records_replayed, int64_t byt
     SET(S_STORE_BYTES_CUT, bytes_cut);
 }
 
-void metrics_count_bytes_in(uint64_t n)
-{
-    ADD(S_BYTES_IN, n);
-}
-
-void metrics_count_bytes_out(uint64_t n)
-{
-    ADD(S_BYTES_OUT, n);
-}
-
-void metrics_count_messages_in(uint64_t n)
-{
-    ADD(S_MESSAGES_IN, n);
-}
-
-void metrics_count_frames_out(uint64_t n)
-{
-    ADD(S_FRAMES_OUT, n);
-}
+/* A counter's one-line adder: void NAME(uint64_t n). */
+#define COUNTER(name, slot)                                                                        \
+    void name(uint64_t n)                                                                          \
+    {                                                                                              \
+        ADD(slot, n);                                                                              \
+    }
+COUNTER(metrics_count_bytes_in, S_BYTES_IN)
+COUNTER(metrics_count_bytes_out, S_BYTES_OUT)
+COUNTER(metrics_count_messages_in, S_MESSAGES_IN)
+COUNTER(metrics_count_frames_out, S_FRAMES_OUT)
+COUNTER(metrics_count_snapshots_coalesced, S_SNAPSHOTS_COALESCED)
+COUNTER(metrics_count_snapshots_deferred, S_SNAPSHOTS_DEFERRED)
+COUNTER(metrics_count_snapshots_dropped, S_SNAPSHOTS_DROPPED)
+COUNTER(metrics_count_frames_coalesced, S_FRAMES_COALESCED)
+COUNTER(metrics_count_http_cut, S_HTTP_CUT)
+COUNTER(metrics_count_frames_dropped, S_FRAMES_DROPPED)
 
 void metrics_count_refused(int error_code)
 {
@@ -472,29 +479,9 @@ void metrics_count_refused(int error_code)
     ADD(S_REFUSED + error_code - TERRAD_ERR_FIRST, 1);
 }
 
-void metrics_count_snapshots_coalesced(uint64_t n)
-{
-    ADD(S_SNAPSHOTS_COALESCED, n);
-}
-
 void metrics_count_budget_refusal(void)
 {
     ADD(S_BUDGET_REFUSALS, 1);
-}
-
-void metrics_count_snapshots_deferred(uint64_t n)
-{
-    ADD(S_SNAPSHOTS_DEFERRED, n);
-}
-
-void metrics_count_snapshots_dropped(uint64_t n)
-{
-    ADD(S_SNAPSHOTS_DROPPED, n);
-}
-
-void metrics_count_frames_coalesced(uint64_t n)
-{
-    ADD(S_FRAMES_COALESCED, n);
 }
 
 void metrics_count_client_stale(void)
@@ -502,24 +489,21 @@ void metrics_count_client_stale(void)
     ADD(S_CLIENTS_STALE, 1);
 }
 
+void metrics_count_budget(uint64_t bytes, uint64_t coalesced, uint64_t overruns)
+{
+    ADD(S_BUDGET_BYTES, bytes);
+    ADD(S_BUDGET_COALESCED, coalesced);
+    ADD(S_BUDGET_OVERRUNS, overruns);
+}
+
 void metrics_count_heights_refused(void)
 {
     ADD(S_HEIGHTS_REFUSED, 1);
 }
 
-void metrics_count_http_cut(uint64_t n)
-{
-    ADD(S_HTTP_CUT, n);
-}
-
 void metrics_count_tick_shed(uint64_t colliders)
 {
     ADD(S_TICK_SHED, colliders);
-}
-
-void metrics_count_frames_dropped(uint64_t n)
-{
-    ADD(S_FRAMES_DROPPED, n);
 }
 
 void metrics_count_footprints_sent(uint64_t frames, uint64_t events)
@@ -780,9 +764,9 @@ char *metrics_render(size_t *len)
         render_family(&t, &families[f]);
     char process[4096];
     /* the families rendered by the other files of metrics/, in this order */
-    int (*const parts[])(char *, size_t) = {metrics_auth_text, metrics_edits_text,
-                                            metrics_room_text, metrics_steps_text,
-                                            metrics_process_text};
+    int (*const parts[])(char *, size_t) = {
+        metrics_auth_text,    metrics_edits_text,  metrics_room_text,   metrics_steps_text,
+        metrics_cluster_text, metrics_desync_text, metrics_process_text};
     for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
         if (parts[i](process, sizeof process) > 0)
             text_printf(&t, "%s", process);

@@ -40,6 +40,9 @@ void metrics_count_frames_coalesced(uint64_t n); /* replaced by a snapshot for a
 void metrics_count_frames_dropped(uint64_t n);   /* never sent (slow client, overflow) */
 /* a client switched to snapshots for being more than max_client_lag_ticks behind (net) */
 void metrics_count_client_stale(void);
+/* bandwidth budgets (net/net_budget.c): bytes queued to budgeted clients,
+ * deltas folded into their pending tiles, frames past a client's budget */
+void metrics_count_budget(uint64_t bytes, uint64_t coalesced, uint64_t overruns);
 /* a /v1/heights request refused: its address (or everyone) has too many bytes in flight (http) */
 void metrics_count_heights_refused(void);
 /* HTTP connections cut for sending no whole request within the header deadline (http) */
@@ -103,7 +106,7 @@ void metrics_count_service_dropped(const char *reason);
  * without a known token), forbidden (a role without the right), revoked (an
  * open connection whose token a reload removed). */
 #define METRICS_AUTH_REASONS "bad_token", "forbidden", "revoked"
-/* Within metrics/ (metrics_auth.c): the index of name among a label's count
+/* Within metrics/ (metrics_text.c): the index of name among a label's count
  * values, or -1 (NULL or unknown: dropped, never a new series). */
 int metrics_label_index(const char *const *names, int count, const char *name);
 void metrics_count_auth_refused(const char *reason);
@@ -136,6 +139,25 @@ void metrics_count_stepped_ticks(uint64_t n);
 void metrics_count_step_refused(const char *field);
 void metrics_steps_reset(void);
 int metrics_steps_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+
+/* Desync detection and repair (metrics_desync.c; PROTOCOL.md "CHECKSUM"):
+ * CHECKSUM frames and bytes sent, frames skipped for a client being
+ * resynced, tiles asked for again and their snapshots, and
+ * terrad_resync_refused_total{field}: the field a refused resync named. */
+#define METRICS_RESYNC_FIELDS "id", "tiles"
+void metrics_count_checksums(uint64_t frames, uint64_t bytes);
+void metrics_count_checksums_skipped(uint64_t n);
+void metrics_count_resync_tiles_requested(uint64_t n);
+void metrics_count_tile_resyncs(uint64_t n);
+void metrics_count_resync_refused(const char *field);
+void metrics_desync_reset(void);
+int metrics_desync_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
+/* metrics_cluster.c: terrad_cluster_takes_redone_total, takes of a world's log
+ * (cluster_wal_take) that found another writer's message after the point they
+ * recovered to and were made again. */
+void metrics_count_cluster_take_redone(void);
+void metrics_cluster_reset(void);
+int metrics_cluster_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
 /* Scratch memory the sim holds per stage (METRICS_MEMORY_STAGES), as the
  * gauge terrad_sim_scratch_bytes{stage=...}; unknown stages are ignored. */

@@ -5,22 +5,13 @@
  * connection's token, and by the HTTP threads; rendered by metrics_render.
  */
 #include <stdatomic.h>
-#include <stdio.h>
-#include <string.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 static const char *const reasons[] = {METRICS_AUTH_REASONS};
 #define REASONS (sizeof reasons / sizeof reasons[0])
 static atomic_uint_fast64_t refused[REASONS];
-
-int metrics_label_index(const char *const *names, int count, const char *name)
-{
-    for (int i = 0; name && i < count; i++)
-        if (strcmp(name, names[i]) == 0)
-            return i;
-    return -1;
-}
 
 void metrics_count_auth_refused(const char *reason)
 {
@@ -38,16 +29,8 @@ void metrics_auth_reset(void)
 int metrics_auth_text(char *out, size_t cap)
 {
     size_t n = 0;
-    int w = snprintf(out, cap,
-                     "# HELP terrad_auth_refused_total Requests refused for their sender's token "
-                     "or role, by reason.\n# TYPE terrad_auth_refused_total counter\n");
-    for (size_t i = 0; w >= 0 && (size_t)w < cap - n && i <= REASONS; i++) {
-        n += (size_t)w;
-        if (i == REASONS)
-            return (int)n;
-        w = snprintf(out + n, cap - n, "terrad_auth_refused_total{reason=\"%s\"} %llu\n",
-                     reasons[i],
-                     (unsigned long long)atomic_load_explicit(&refused[i], memory_order_relaxed));
-    }
-    return -1;
+    int rc = metrics_put_labelled(out, cap, &n, "terrad_auth_refused_total",
+                                  "Requests refused for their sender's token or role, by reason.",
+                                  "reason", reasons, (int)REASONS, refused);
+    return rc == 0 ? (int)n : -1;
 }

@@ -8,31 +8,29 @@
  */
 #include <stdatomic.h>
 #include <stdint.h>
-#include <stdio.h>
-#include <string.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 static const char *const ops[] = {METRICS_EDIT_OPS};
-#define OPS (sizeof ops / sizeof ops[0])
+#define OPS (int)(sizeof ops / sizeof ops[0])
 static atomic_uint_fast64_t applied[OPS], refused[OPS], added[OPS], removed[OPS];
 
 void metrics_count_edit(const char *op, int ok, int64_t volume_change)
 {
-    for (size_t i = 0; i < OPS; i++) {
-        if (strcmp(op, ops[i]) != 0)
-            continue;
-        atomic_fetch_add_explicit(ok ? &applied[i] : &refused[i], 1, memory_order_relaxed);
-        if (ok && volume_change > 0)
-            atomic_fetch_add_explicit(&added[i], (uint64_t)volume_change, memory_order_relaxed);
-        if (ok && volume_change < 0)
-            atomic_fetch_add_explicit(&removed[i], (uint64_t)-volume_change, memory_order_relaxed);
-    }
+    int i = metrics_label_index(ops, OPS, op);
+    if (i < 0)
+        return;
+    atomic_fetch_add_explicit(ok ? &applied[i] : &refused[i], 1, memory_order_relaxed);
+    if (ok && volume_change > 0)
+        atomic_fetch_add_explicit(&added[i], (uint64_t)volume_change, memory_order_relaxed);
+    if (ok && volume_change < 0)
+        atomic_fetch_add_explicit(&removed[i], (uint64_t)-volume_change, memory_order_relaxed);
 }
 
 void metrics_edits_reset(void)
 {
-    for (size_t i = 0; i < OPS; i++) {
+    for (int i = 0; i < OPS; i++) {
         atomic_store_explicit(&applied[i], 0, memory_order_relaxed);
         atomic_store_explicit(&refused[i], 0, memory_order_relaxed);
         atomic_store_explicit(&added[i], 0, memory_order_relaxed);
@@ -40,41 +38,25 @@ void metrics_edits_reset(void)
     }
 }
 
-static unsigned long long get(atomic_uint_fast64_t *v)
-{
-    return (unsigned long long)atomic_load_explicit(v, memory_order_relaxed);
-}
-
 int metrics_edits_text(char *out, size_t cap)
 {
     size_t n = 0;
-    int w = snprintf(out, cap,
-                     "# HELP terrad_edits_total Terrain edits (the edit message, POST "
-                     "/v1/worlds/{name}/edits) by op and result.\n"
-                     "# TYPE terrad_edits_total counter\n");
-    for (size_t i = 0; i < OPS && w >= 0 && (size_t)w < cap - n; i++) {
-        n += (size_t)w;
-        w = snprintf(out + n, cap - n,
-                     "terrad_edits_total{op=\"%s\",result=\"applied\"} %llu\n"
-                     "terrad_edits_total{op=\"%s\",result=\"refused\"} %llu\n",
-                     ops[i], get(&applied[i]), ops[i], get(&refused[i]));
-    }
-    static const char *const families[2][2] = {
-        {"terrad_edit_volume_added_units_total", "Height units the applied edits added"},
-        {"terrad_edit_volume_removed_units_total", "Height units the applied edits removed"}};
-    for (int f = 0; f < 2; f++) {
-        if (w < 0 || (size_t)w >= cap - n)
-            return -1;
-        n += (size_t)w;
-        w = snprintf(out + n, cap - n, "# HELP %s %s (cells x units), by op.\n# TYPE %s counter\n",
-                     families[f][0], families[f][1], families[f][0]);
-        for (size_t i = 0; i < OPS && w >= 0 && (size_t)w < cap - n; i++) {
-            n += (size_t)w;
-            w = snprintf(out + n, cap - n, "%s{op=\"%s\"} %llu\n", families[f][0], ops[i],
-                         get(f ? &removed[i] : &added[i]));
-        }
-    }
-    if (w < 0 || (size_t)w >= cap - n)
-        return -1;
-    return (int)(n + (size_t)w);
+    int rc = metrics_put(out, cap, &n,
+                         "# HELP terrad_edits_total Terrain edits (the edit message, POST "
+                         "/v1/worlds/{name}/edits) by op and result.\n"
+                         "# TYPE terrad_edits_total counter\n");
+    for (int i = 0; i < OPS && rc == 0; i++)
+        rc = metrics_put(out, cap, &n,
+                         "terrad_edits_total{op=\"%s\",result=\"applied\"} %llu\n"
+                         "terrad_edits_total{op=\"%s\",result=\"refused\"} %llu\n",
+                         ops[i], metrics_load(&applied[i]), ops[i], metrics_load(&refused[i]));
+    if (rc == 0)
+        rc = metrics_put_labelled(out, cap, &n, "terrad_edit_volume_added_units_total",
+                                  "Height units the applied edits added (cells x units), by op.",
+                                  "op", ops, OPS, added);
+    if (rc == 0)
+        rc = metrics_put_labelled(out, cap, &n, "terrad_edit_volume_removed_units_total",
+                                  "Height units the applied edits removed (cells x units), by op.",
+                                  "op", ops, OPS, removed);
+    return rc == 0 ? (int)n : -1;
 }

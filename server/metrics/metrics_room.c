@@ -12,9 +12,9 @@
  */
 #include <stdatomic.h>
 #include <stdint.h>
-#include <stdio.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 static const char *const reasons[] = {"connections_per_address", "connections"};
 static atomic_uint_fast64_t http_refused[2], behind, bad_requests;
@@ -42,28 +42,24 @@ void metrics_room_reset(void)
     atomic_store_explicit(&bad_requests, 0, memory_order_relaxed);
 }
 
-static unsigned long long get(atomic_uint_fast64_t *v)
-{
-    return (unsigned long long)atomic_load_explicit(v, memory_order_relaxed);
-}
-
 int metrics_room_text(char *out, size_t cap)
 {
-    int n = snprintf(
-        out, cap,
-        "# HELP terrad_http_refused_total HTTP requests answered 503 with Retry-After, nothing "
-        "done: they came past a connection limit while every other connection was in a request "
-        "or waiting its turn.\n# TYPE terrad_http_refused_total counter\n"
-        "terrad_http_refused_total{reason=\"%s\"} %llu\n"
-        "terrad_http_refused_total{reason=\"%s\"} %llu\n"
-        "# HELP terrad_clients_behind_total Clients switched to snapshots because the tick they "
-        "said they had handled (seen) was more than max_client_lag_ticks behind what was "
-        "written to them.\n# TYPE terrad_clients_behind_total counter\n"
-        "terrad_clients_behind_total %llu\n"
-        "# HELP terrad_http_bad_requests_total HTTP requests answered 400: a parameter missing "
-        "or wrong (named in the answer).\n# TYPE terrad_http_bad_requests_total counter\n"
-        "terrad_http_bad_requests_total %llu\n",
-        reasons[0], get(&http_refused[0]), reasons[1], get(&http_refused[1]), get(&behind),
-        get(&bad_requests));
-    return n < 0 || (size_t)n >= cap ? -1 : n;
+    size_t n = 0;
+    int rc = metrics_put_labelled(
+        out, cap, &n, "terrad_http_refused_total",
+        "HTTP requests answered 503 with Retry-After, nothing done: they came past a connection "
+        "limit while every other connection was in a request or waiting its turn.",
+        "reason", reasons, 2, http_refused);
+    if (rc == 0)
+        rc = metrics_put_counter(
+            out, cap, &n, "terrad_clients_behind_total",
+            "Clients switched to snapshots because the tick they said they had handled (seen) was "
+            "more than max_client_lag_ticks behind what was written to them.",
+            &behind);
+    if (rc == 0)
+        rc = metrics_put_counter(out, cap, &n, "terrad_http_bad_requests_total",
+                                 "HTTP requests answered 400: a parameter missing or wrong "
+                                 "(named in the answer).",
+                                 &bad_requests);
+    return rc == 0 ? (int)n : -1;
 }

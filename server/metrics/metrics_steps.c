@@ -7,9 +7,9 @@
  */
 #include <stdatomic.h>
 #include <stdint.h>
-#include <stdio.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 static const char *const fields[] = {METRICS_STEP_FIELDS};
 #define FIELDS (int)(sizeof fields / sizeof fields[0])
@@ -40,29 +40,18 @@ void metrics_steps_reset(void)
         atomic_store_explicit(&refused[i], 0, memory_order_relaxed);
 }
 
-static unsigned long long get(atomic_uint_fast64_t *v)
-{
-    return (unsigned long long)atomic_load_explicit(v, memory_order_relaxed);
-}
-
 int metrics_steps_text(char *out, size_t cap)
 {
     size_t n = 0;
-    int w = snprintf(out, cap,
-                     "# HELP terrad_steps_total STEP messages of client-clocked worlds whose "
-                     "ticks all ran (STEPPED queued).\n# TYPE terrad_steps_total counter\n"
-                     "terrad_steps_total %llu\n"
-                     "# HELP terrad_stepped_ticks_total Ticks of client-clocked worlds.\n"
-                     "# TYPE terrad_stepped_ticks_total counter\nterrad_stepped_ticks_total %llu\n"
-                     "# HELP terrad_steps_refused_total STEP messages refused, by the field the "
-                     "error named.\n# TYPE terrad_steps_refused_total counter\n",
-                     get(&steps), get(&ticks));
-    for (int i = 0; i < FIELDS && w >= 0 && (size_t)w < cap - n; i++) {
-        n += (size_t)w;
-        w = snprintf(out + n, cap - n, "terrad_steps_refused_total{field=\"%s\"} %llu\n", fields[i],
-                     get(&refused[i]));
-    }
-    if (w < 0 || (size_t)w >= cap - n)
-        return -1;
-    return (int)(n + (size_t)w);
+    int rc = metrics_put_counter(
+        out, cap, &n, "terrad_steps_total",
+        "STEP messages of client-clocked worlds whose ticks all ran (STEPPED queued).", &steps);
+    if (rc == 0)
+        rc = metrics_put_counter(out, cap, &n, "terrad_stepped_ticks_total",
+                                 "Ticks of client-clocked worlds.", &ticks);
+    if (rc == 0)
+        rc = metrics_put_labelled(out, cap, &n, "terrad_steps_refused_total",
+                                  "STEP messages refused, by the field the error named.", "field",
+                                  fields, FIELDS, refused);
+    return rc == 0 ? (int)n : -1;
 }

@@ -12,12 +12,12 @@
  * by the renderer).
  */
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "metrics/metrics.h"
+#include "metrics/metrics_internal.h"
 
 typedef struct world_slot {
     int used;
@@ -109,21 +109,6 @@ void metrics_world_tick(int slot, const metrics_world_figures *f)
     atomic_store_explicit(&w->commit_p99_ms, f->commit_p99_ms, memory_order_relaxed);
 }
 
-/* Appends at out + *n (cap in all); 0, or -1 when it does not fit. */
-static int put(char *out, size_t cap, size_t *n, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-static int put(char *out, size_t cap, size_t *n, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    int k = vsnprintf(out + *n, cap - *n, fmt, ap);
-    va_end(ap);
-    if (k < 0 || (size_t)k >= cap - *n)
-        return -1;
-    *n += (size_t)k;
-    return 0;
-}
-
 /* One family: HELP and TYPE, then one sample per world in use. */
 static int family(char *out, size_t cap, size_t *n, const char *name, const char *type,
                   const char *help, int which)
@@ -133,7 +118,7 @@ static int family(char *out, size_t cap, size_t *n, const char *name, const char
         any |= slots[i].used;
     if (!any)
         return 0;
-    if (put(out, cap, n, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type) != 0)
+    if (metrics_put(out, cap, n, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type) != 0)
         return -1;
     for (int i = 0; i < METRICS_MAX_WORLDS; i++) {
         world_slot *w = &slots[i];
@@ -170,7 +155,7 @@ static int family(char *out, size_t cap, size_t *n, const char *name, const char
             break;
         }
         /* world names are [A-Za-z0-9_-]: nothing to escape in a label value */
-        if (put(out, cap, n, "%s{world=\"%s\"} %s\n", name, w->name, value) != 0)
+        if (metrics_put(out, cap, n, "%s{world=\"%s\"} %s\n", name, w->name, value) != 0)
             return -1;
     }
     return 0;
@@ -215,26 +200,23 @@ int metrics_worlds_text(char *out, size_t cap)
     if (!node && !any)
         return rc == 0 ? (int)n : -1;
     if (rc == 0)
-        rc = put(out, cap, &n,
-                 "# HELP terrad_http_forwarded_total HTTP requests for a world another node "
-                 "ticks, asked of its owner, by result.\n"
-                 "# TYPE terrad_http_forwarded_total counter\n");
-    for (size_t i = 0; i < FORWARD_RESULTS && rc == 0; i++)
-        rc = put(out, cap, &n, "terrad_http_forwarded_total{result=\"%s\"} %llu\n",
-                 forward_results[i],
-                 (unsigned long long)atomic_load_explicit(&forwarded[i], memory_order_relaxed));
+        rc = metrics_put_labelled(
+            out, cap, &n, "terrad_http_forwarded_total",
+            "HTTP requests for a world another node ticks, asked of its owner, by result.",
+            "result", forward_results, (int)FORWARD_RESULTS, forwarded);
     return rc == 0 ? (int)n : -1;
 }
 
 static int requests_text(char *out, size_t cap, size_t *n)
 {
-    int rc = put(out, cap, n,
-                 "# HELP terrad_world_requests_total World lifecycle requests (POST /v1/worlds, "
-                 "DELETE /v1/worlds/{name}) by op and result.\n"
-                 "# TYPE terrad_world_requests_total counter\n");
+    int rc =
+        metrics_put(out, cap, n,
+                    "# HELP terrad_world_requests_total World lifecycle requests (POST /v1/worlds, "
+                    "DELETE /v1/worlds/{name}) by op and result.\n"
+                    "# TYPE terrad_world_requests_total counter\n");
     for (int i = 0; i < 2 && rc == 0; i++)
         for (int ok = 1; ok >= 0 && rc == 0; ok--)
-            rc = put(
+            rc = metrics_put(
                 out, cap, n, "terrad_world_requests_total{op=\"%s\",result=\"%s\"} %llu\n",
                 request_ops[i], ok ? "ok" : "refused",
                 (unsigned long long)atomic_load_explicit(&requests[i][ok], memory_order_relaxed));

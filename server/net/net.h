@@ -49,6 +49,13 @@ typedef struct net_limits {
     int fd_reserve;
     int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
     int max_step_ticks;     /* ticks one STEP may ask for (client-clocked worlds) */
+    /* desync detection (PROTOCOL.md "CHECKSUM"): every subscription's tile
+     * hashes every this many ticks (service_set_checksum_interval), and the
+     * tiles one resync request may name */
+    int checksum_interval_ticks, max_resync_tiles;
+    /* bandwidth budgets, bytes/s (net_budget.c): a client's when its hello
+     * states none, and the most a hello may state (0: none) */
+    double default_budget_bytes_per_s, max_budget_bytes_per_s;
     /* HTTP's, not the websocket's: /v1/heights answers held at once by one
      * address and by all (0: http.c's defaults, 64 MiB and 256 MiB) */
     size_t max_heights_bytes_per_address, max_heights_bytes_in_flight;

@@ -238,6 +238,7 @@ void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
     c->pending_bytes += f->len;
     if (kind != NET_ITEM_REPLY)
         c->droppable_bytes += f->len;
+    net_budget_charge(c, f->len, kind == NET_ITEM_TILE);
     lws_callback_on_writable(c->wsi);
 }
 
@@ -398,6 +399,7 @@ void net_request_resync(net_client *c, uint32_t subscription)
     if (n)
         metrics_count_frames_coalesced((uint64_t)n);
     c->slow = 0;
+    net_budget_reset(c); /* the snapshots replace whatever it was still owed */
     /* whatever asked for it (the client, going slow, an overflow): "seen" is
      * judged again once the client has handled the snapshots' tick */
     c->seen_wait = 0;

@@ -22,9 +22,14 @@
  *   net_auth.c      who may do what
  *   net_peer.c      a client's end: dead peers, the disconnect line, freeing it
  *     ↓
+ *   net_budget.c    a client's bandwidth budget: its byte window and its
+ *                   ledger of tiles not sent yet (net_fanout.c hands it
+ *                   a budgeted client's deltas and snapshots)
+ *     ↓ (and net_enqueue charges its window, net_request_resync clears its ledger)
  *   net_client.c    this layer: per-client records (limits, rate bucket,
  *                   owned colliders, subscriptions, outgoing queue), the
  *                   collider table, commands waiting for the hub
+ *   net_desync.c    CHECKSUM frames per client, resyncs of single tiles
  *   net_conn.c      admission of sockets before their handshake
  *   net_remote_send.c  frames to another node (a leaf)
  *
@@ -43,6 +48,7 @@
 #include <libwebsockets.h>
 
 #include "net/net.h"
+#include "terrad_proto.h"
 
 /* What an outgoing queue entry is, for what may be dropped when. */
 typedef enum net_item_kind {
@@ -64,6 +70,7 @@ typedef struct net_sub {
 } net_sub;
 
 typedef struct net_state net_state;
+typedef struct net_budget net_budget; /* net_budget.c */
 
 typedef struct net_client {
     uint32_t id;
@@ -143,6 +150,11 @@ typedef struct net_client {
      * until it drains (net_peer.c), so that lws never meets the
      * peer's EOF with output buffered, and the heartbeat watches for the EOF */
     int rx_held;
+    /* its bandwidth budget (net_budget.c; NULL: none) and its `focus`
+     * message's point, in cells (has_focus 0: its colliders' poses) */
+    net_budget *budget;
+    int has_focus;
+    double focus_x, focus_y;
 } net_client;
 
 typedef struct net_collider_slot {
@@ -208,9 +220,10 @@ struct net_state {
     int relay; /* a world another node owns, served through it (net_remote.c) */
     net_remote_send_fn remote_send; /* to other nodes; NULL for a single daemon */
     void *remote_ctx;
-    char node[65];      /* this node's name */
-    hub_world *entry;   /* a world of the table (cfg.worlds) this state was made for */
-    net_state **worlds; /* the lobby's (or a single daemon's) table of world states */
+    char node[65];              /* this node's name */
+    hub_world *entry;           /* a world of the table (cfg.worlds) this state was made for */
+    terrad_codec *budget_codec; /* budgeted clients' deltas, summed and encoded (net_budget.c) */
+    net_state **worlds;         /* the lobby's (or a single daemon's) table of world states */
     int nworlds;
     int64_t worlds_cap;
 };
@@ -252,6 +265,33 @@ void net_client_kill(net_client *c, const char *why);
  * however late the server read it) closes the connection. */
 int net_rate_allow(net_client *c);
 
+/* ---- bandwidth budgets (net_budget.c; PROTOCOL.md "Budgets") ---- */
+/* Give c a budget of rate bytes/s: 0, or -1 (no memory). */
+int net_budget_start(net_client *c, double rate);
+void net_budget_free(net_client *c);         /* logs what it sent */
+double net_budget_rate(const net_client *c); /* 0: none */
+/* Every frame queued for a budgeted client (tile_data: a delta, a snapshot
+ * piece or FOOTPRINTS, which wait for room; else it was never held). */
+void net_budget_charge(net_client *c, size_t len, int tile_data);
+/* 1 if a frame of len bytes fits the window now (always without a budget). */
+int net_budget_fits(net_client *c, size_t len);
+/* A tile delta (o: HUB_OUT_TILE_DELTA) for a budgeted client: 0 when the
+ * caller queues it as for any client, 1 when the ledger took it. */
+int net_budget_delta(net_client *c, const hub_out *o);
+/* A snapshot frame for a budgeted client: into the ledger (takes f). */
+void net_budget_snapshot(net_client *c, hub_frame *f);
+/* The ledger forgets everything (a resync sends fresh snapshots). */
+void net_budget_reset(net_client *c);
+/* Send what the window has room for, nearest the client's focus first. */
+void net_budget_flush(net_client *c);
+void net_budget_flush_state(net_state *w);
+/* The latest poses of c's colliders: its focus when it set none. */
+void net_budget_note_poses(net_client *c, const terrad_pose *poses, size_t count);
+/* 1 if tile (tx, ty) of a subscription of c is current for it: every change
+ * of it has been queued to it (not in its budget's ledger, no resync or
+ * snapshot outstanding). For per-tile checksums: only current tiles compare. */
+int net_client_tile_current(const net_client *c, int tx, int ty);
+
 /* ---- admission (net_conn.c) ---- */
 /* RLIMIT_NOFILE's soft limit minus reserve (at least 16; huge when unlimited). */
 int net_fd_ceiling(int reserve);
@@ -291,6 +331,16 @@ void net_flush_backlog(net_state *s);
 /* Fresh snapshots of every subscription of c (see net_client.c). */
 void net_request_resync(net_client *c, uint32_t subscription);
 void net_warn_refusal(net_state *s, const net_client *c, int code, const char *message);
+
+/* ---- desync detection and repair (net_desync.c) ---- */
+/* The sim's CHECKSUM frame f (the caller's reference, taken over) as c gets
+ * it: f itself, or a copy of only c's current tiles (NULL: no memory). */
+hub_frame *net_checksum_for(net_client *c, hub_frame *f);
+/* resync with "tiles" (n [x, y] pairs) of subscription sub: each tile must meet
+ * it (else outside_world naming tiles[i], nothing asked); each becomes one
+ * HUB_RESYNC_TILE, a quiet snapshot of tile ∩ subscription. */
+void net_request_resync_tiles(net_client *c, const net_sub *sub, const int32_t *tiles, int n,
+                              const cJSON *ref);
 
 /* ---- the collider table: id -> owner ---- */
 net_collider_slot *net_collider_find(net_state *s, uint32_t id);

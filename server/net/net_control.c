@@ -134,6 +134,19 @@ static int parse_hello(parser *r, net_control *out)
     if (world && (!cJSON_IsString(world) || strlen(world->valuestring) > NET_CLIENT_NAME_MAX_BYTES))
         return fail(r, TERRAD_E_BAD_VALUE, "world: must be a string of at most %d bytes",
                     NET_CLIENT_NAME_MAX_BYTES);
+    /* budget: bytes/s, 0 for none; the daemon's max_budget_bytes_per_s bounds it */
+    double max = r->ctx->limits->max_budget_bytes_per_s;
+    out->budget = -1;
+    if (get_int(r, "budget", 0, 0, INT64_C(1000000000000), &out->budget) < 0)
+        return -1;
+    if (out->budget >= 0 && out->budget < NET_BUDGET_MIN && out->budget != 0)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "budget: %lld bytes/s is under the smallest budget, %d (0: none)",
+                    (long long)out->budget, NET_BUDGET_MIN);
+    if (max > 0 && (out->budget == 0 || out->budget > max))
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "budget: %lld bytes/s is over this server's max_budget_bytes_per_s (%.0f)%s",
+                    (long long)out->budget, max, out->budget == 0 ? " (0 asks for none)" : "");
     out->has_token = token != NULL;
     snprintf(out->token, sizeof out->token, "%s", token ? token->valuestring : "");
     snprintf(out->client, sizeof out->client, "%s", name ? name->valuestring : "");
@@ -403,6 +416,41 @@ static int parse_id(parser *r, int required, net_control *out)
     return 0;
 }
 
+/* resync: "id" (required with "tiles"), and "tiles", an array of 1 to
+ * max_resync_tiles [tile x, tile y] pairs of integers >= 0 (PROTOCOL.md
+ * "resync"). Whether each tile meets the subscription is the client's state
+ * (net_requests.c). */
+static int parse_resync(parser *r, net_control *out)
+{
+    const cJSON *tiles = cJSON_GetObjectItemCaseSensitive(r->msg, "tiles");
+    if (parse_id(r, tiles != NULL, out) != 0)
+        return -1;
+    if (!tiles)
+        return 0;
+    int max = r->ctx->limits->max_resync_tiles, n = cJSON_GetArraySize(tiles);
+    if (!cJSON_IsArray(tiles) || n == 0)
+        return fail(r, TERRAD_E_BAD_VALUE, "tiles: must be a non-empty array of [x, y] tiles");
+    if (n > max)
+        return fail(r, TERRAD_E_TOO_LARGE, "tiles: %d tiles, more than max_resync_tiles (%d)", n,
+                    max);
+    out->tiles = malloc((size_t)n * 2 * sizeof *out->tiles);
+    if (!out->tiles)
+        return fail(r, TERRAD_E_INTERNAL, "out of memory");
+    int i = 0;
+    for (const cJSON *t = tiles->child; t; t = t->next, i++) {
+        const cJSON *x = cJSON_GetArrayItem(t, 0), *y = cJSON_GetArrayItem(t, 1);
+        if (!cJSON_IsArray(t) || cJSON_GetArraySize(t) != 2 || !is_integer(x) || !is_integer(y) ||
+            x->valuedouble < 0 || y->valuedouble < 0 || x->valuedouble > INT32_MAX ||
+            y->valuedouble > INT32_MAX)
+            return fail(r, TERRAD_E_BAD_VALUE,
+                        "tiles[%d]: must be [x, y], two integers >= 0 (tile coordinates)", i);
+        out->tiles[2 * i] = (int32_t)x->valuedouble;
+        out->tiles[2 * i + 1] = (int32_t)y->valuedouble;
+    }
+    out->tile_count = n;
+    return 0;
+}
+
 /* collider_delete's optional "any_owner": an admin deleting another client's collider. */
 static int parse_any_owner(parser *r, net_control *out)
 {
@@ -428,7 +476,33 @@ static const struct {
     {"edit", NET_CONTROL_EDIT},
     {"subscribe_events", NET_CONTROL_SUBSCRIBE_EVENTS},
     {"seen", NET_CONTROL_SEEN},
+    {"focus", NET_CONTROL_FOCUS},
 };
+
+/* focus: "x" and "y", cells inside the world, both or neither (neither: cleared). */
+static int parse_focus(parser *r, net_control *out)
+{
+    const cJSON *x = cJSON_GetObjectItemCaseSensitive(r->msg, "x");
+    const cJSON *y = cJSON_GetObjectItemCaseSensitive(r->msg, "y");
+    if (!x && !y)
+        return 0;
+    const char *bad = !cJSON_IsNumber(x) || !isfinite(x->valuedouble) || x->valuedouble < 0 ||
+                              x->valuedouble > r->ctx->world_width
+                          ? "x"
+                      : !cJSON_IsNumber(y) || !isfinite(y->valuedouble) || y->valuedouble < 0 ||
+                              y->valuedouble > r->ctx->world_height
+                          ? "y"
+                          : NULL;
+    if (bad)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "%s: must be a number of cells in [0, %d] (x and y both, or neither to "
+                    "clear the focus)",
+                    bad, bad[0] == 'x' ? r->ctx->world_width : r->ctx->world_height);
+    out->has_focus = 1;
+    out->focus_x = x->valuedouble;
+    out->focus_y = y->valuedouble;
+    return 0;
+}
 
 /* subscribe_events: "events", an array of known event names (empty: none). */
 static int parse_events(parser *r, net_control *out)
@@ -526,13 +600,16 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
             rc = parse_subscribe(&r, out);
             break;
         case NET_CONTROL_RESYNC:
-            rc = parse_id(&r, 0, out);
+            rc = parse_resync(&r, out);
             break;
         case NET_CONTROL_EDIT:
             rc = parse_edit(&r, out);
             break;
         case NET_CONTROL_SUBSCRIBE_EVENTS:
             rc = parse_events(&r, out);
+            break;
+        case NET_CONTROL_FOCUS:
+            rc = parse_focus(&r, out);
             break;
         case NET_CONTROL_SEEN: { /* "tick": an integer a double holds exactly */
             int64_t tick = 0;
@@ -554,6 +631,9 @@ void net_control_free(net_control *r)
     r->ref = NULL;
     mesh_free(r->mesh);
     r->mesh = NULL;
+    free(r->tiles);
+    r->tiles = NULL;
+    r->tile_count = 0;
     r->geometry.mesh = NULL;
     if (r->edit) {
         world_edit_free(r->edit);

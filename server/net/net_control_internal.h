@@ -23,7 +23,8 @@
 #define NET_REF_MAX_BYTES 64
 #define NET_TOKEN_MAX_BYTES 256
 #define NET_CLIENT_NAME_MAX_BYTES 64
-#define NET_LOAD_MAX_N 1e9 /* a load-driven collider's load_n */
+#define NET_LOAD_MAX_N 1e9  /* a load-driven collider's load_n */
+#define NET_BUDGET_MIN 1024 /* bytes/s: the smallest budget a hello may state */
 
 typedef enum net_control_kind {
     NET_CONTROL_NONE, /* no request type could be read, or an unknown one */
@@ -36,6 +37,7 @@ typedef enum net_control_kind {
     NET_CONTROL_EDIT,
     NET_CONTROL_SUBSCRIBE_EVENTS,
     NET_CONTROL_SEEN,
+    NET_CONTROL_FOCUS,
 } net_control_kind;
 
 /* subscribe_events: the events an admin connection may ask for, one bit each
@@ -60,6 +62,11 @@ typedef struct net_control {
     char token[NET_TOKEN_MAX_BYTES + 1];
     char client[NET_CLIENT_NAME_MAX_BYTES + 1]; /* "" when absent */
     char world[NET_CLIENT_NAME_MAX_BYTES + 1];  /* hello's world: "" when absent */
+    int64_t budget; /* hello's bandwidth budget, bytes/s: -1 absent, 0 none */
+    /* focus: the point in cells its budget's nearest tiles are measured from
+     * (has_focus 0: cleared) */
+    int has_focus;
+    double focus_x, focus_y;
     /* collider_create */
     collider_geometry geometry;
     collider_mesh *mesh; /* owned, mesh shapes (geometry.mesh points to it) */
@@ -71,6 +78,10 @@ typedef struct net_control {
     /* collider_delete, unsubscribe, resync (id 0 and has_id 0: all) */
     uint32_t id;
     int has_id;
+    /* resync's "tiles" (owned): tile_count [tile x, tile y] pairs, each >= 0;
+     * with them, "id" is required (PROTOCOL.md "resync") */
+    int32_t *tiles;
+    int tile_count;
     int any_owner; /* collider_delete: an admin's delete of any client's collider */
     /* subscribe: inside the world */
     world_rect rect;

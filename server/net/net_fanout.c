@@ -92,6 +92,8 @@ static void fan_out(net_state *w, const hub_out *o)
             metrics_count_frames_coalesced(1);
             continue;
         }
+        if (c->budget && net_budget_delta(c, o))
+            continue; /* folded into its ledger: sent when its window has room */
         if (c->droppable_bytes + o->frame->len > w->cfg.limits.max_pending_bytes) {
             go_slow(c, 0);
             continue;
@@ -141,7 +143,8 @@ static void drop_stale(net_state *w)
  * and queued as NET_ITEM_TILE so that going slow drops those still queued. */
 static void send_footprints(net_client *c, hub_frame *f)
 {
-    if (dropping_deltas(c) || c->droppable_bytes + f->len > c->srv->cfg.limits.max_pending_bytes) {
+    if (dropping_deltas(c) || c->droppable_bytes + f->len > c->srv->cfg.limits.max_pending_bytes ||
+        !net_budget_fits(c, f->len)) {
         metrics_count_footprints_dropped(1);
         hub_frame_unref(f);
         return;
@@ -149,6 +152,29 @@ static void send_footprints(net_client *c, hub_frame *f)
     uint64_t events =
         f->len >= TERRAD_FOOTPRINTS_FIXED ? (uint64_t)f->data[12] | (uint64_t)f->data[13] << 8 : 0;
     metrics_count_footprints_sent(1, events);
+    net_enqueue(c, f, NET_ITEM_TILE);
+}
+
+/* CHECKSUM frames (PROTOCOL.md "CHECKSUM") compare a mirror that holds every
+ * delta up to their tick: not sent to a client whose deltas are being dropped
+ * (a resync under way), nor past max_pending_bytes, nor past a budget's
+ * window (PROTOCOL.md "Budgets"); droppable like a delta. */
+static void send_checksum(net_client *c, hub_frame *f)
+{
+    if (dropping_deltas(c) || c->droppable_bytes + f->len > c->srv->cfg.limits.max_pending_bytes) {
+        metrics_count_checksums_skipped(1);
+        hub_frame_unref(f);
+        return;
+    }
+    f = net_checksum_for(c, f);
+    if (!f)
+        return;
+    if (!net_budget_fits(c, f->len)) { /* a budget's window has no room: the next one checks */
+        metrics_count_checksums_skipped(1);
+        hub_frame_unref(f);
+        return;
+    }
+    metrics_count_checksums(1, f->len);
     net_enqueue(c, f, NET_ITEM_TILE);
 }
 
@@ -165,6 +191,15 @@ void net_dispatch(net_state *w, hub_out *o)
         } else if (c && o->frame && o->msg == TERRAD_MSG_FOOTPRINTS) {
             send_footprints(c, o->frame);
             o->frame = NULL;
+        } else if (c && o->frame && o->msg == TERRAD_MSG_CHECKSUM) {
+            send_checksum(c, o->frame);
+            o->frame = NULL;
+        } else if (c && o->frame && c->budget && o->msg == TERRAD_MSG_DELTA) {
+            net_budget_snapshot(c, o->frame); /* pieces go as its window allows */
+            o->frame = NULL;
+        } else if (c && o->frame && c->budget && o->msg == TERRAD_MSG_COLLIDERS &&
+                   !net_budget_fits(c, o->frame->len)) {
+            metrics_count_frames_coalesced(1); /* the next one says everything it said */
         } else if (c && o->frame) {
             int status = o->msg == TERRAD_MSG_CONTACT || o->msg == TERRAD_MSG_ACK ||
                          o->msg == TERRAD_MSG_COLLIDERS || o->msg == TERRAD_MSG_FORCES;
@@ -196,6 +231,7 @@ void net_dispatch(net_state *w, hub_out *o)
         break;
     case HUB_OUT_TICK_DONE:
         drop_stale(w);
+        net_budget_flush_state(w);
         break;
     }
     if (o->frame)

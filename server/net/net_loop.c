@@ -63,6 +63,7 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
     for (int i = 0; net_state_at(s, i); i++) {
         net_reap_dead_peers(net_state_at(s, i));
         net_auth_recheck(net_state_at(s, i));
+        net_budget_flush_state(net_state_at(s, i)); /* a window emptied between ticks */
     }
     net_flush_backlogs(s);
     if (atomic_load(&s->stop_requested) && !s->stopping) {

@@ -117,6 +117,7 @@ void net_client_free(net_server *s, net_client *c)
         net_push_must(w, &cmd); /* the sim deletes its colliders */
     }
     net_release_queue(c);
+    net_budget_free(c);
     net_client_remove(w, c);
     free(c->q);
     free(c->rx);

@@ -54,6 +54,7 @@ static cJSON *world_message(net_state *s, const net_client *c)
         cJSON_AddStringToObject(m, "world", w->name);
     cJSON_AddNumberToObject(m, "client_id", c->id);
     cJSON_AddStringToObject(m, "role", auth_role_name(c->role));
+    cJSON_AddNumberToObject(m, "budget", net_budget_rate(c)); /* bytes/s in force, 0: none */
     cJSON_AddNumberToObject(m, "width", w->width);
     cJSON_AddNumberToObject(m, "height", w->height);
     cJSON_AddNumberToObject(m, "cell_size_m", w->cell_size_m);
@@ -129,7 +130,16 @@ static void handle_hello(net_client *c, const net_control *m)
         net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
         return;
     }
-    s = c->srv;     /* the world's own state from here on */
+    s = c->srv; /* the world's own state from here on */
+    /* its budget: stated, else the daemon's default (else the limit, if any);
+     * the relay, which holds its socket, keeps it for a relayed world */
+    double budget = m->budget >= 0 ? (double)m->budget : s->cfg.limits.default_budget_bytes_per_s;
+    if (m->budget < 0 && budget <= 0)
+        budget = s->cfg.limits.max_budget_bytes_per_s;
+    if (budget > 0 && !c->budget && net_budget_start(c, budget) != 0) {
+        net_error(c, TERRAD_E_INTERNAL, m->ref, -1, 0, "hello: out of memory for its budget");
+        return;
+    }
     if (s->relay) { /* its owner answers the hello (net_handle_text forwards it) */
         c->ready = 1;
         lws_set_timer_usecs(c->wsi, LWS_SET_TIMER_USEC_CANCEL);
@@ -396,11 +406,16 @@ static void handle_edit(net_client *c, net_control *m)
 static void handle_resync(net_client *c, const net_control *m)
 {
     if (m->has_id && sub_index(c, m->id) < 0) {
+        if (m->tile_count)
+            metrics_count_resync_refused("id");
         net_error(c, TERRAD_E_UNKNOWN_SUBSCRIPTION, m->ref, -1, 0,
-                  "subscription %lld does not exist", (long long)m->id);
+                  "id: subscription %lld does not exist", (long long)m->id);
         return;
     }
-    net_request_resync(c, m->id);
+    if (m->tile_count)
+        net_request_resync_tiles(c, &c->subs[sub_index(c, m->id)], m->tiles, m->tile_count, m->ref);
+    else
+        net_request_resync(c, m->id);
 }
 
 /* seen: the latest tick the client has handled (PROTOCOL.md "seen"); judged
@@ -473,7 +488,7 @@ static int refused_by_state(net_client *c, const net_control *m)
  * to come, so that it pauses the client's deltas as the owner would. */
 static void relay_text(net_client *c, const net_control *m, int rc)
 {
-    if (rc != 0 || m->kind != NET_CONTROL_RESYNC || c->sub_count == 0 ||
+    if (rc != 0 || m->kind != NET_CONTROL_RESYNC || m->tile_count || c->sub_count == 0 ||
         (m->has_id && sub_index(c, m->id) < 0))
         return;
     c->snapshots_requested++;
@@ -495,7 +510,7 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     /* checked and answered by the world's owner; events are this node's */
     /* seen: the relay holds the client's socket and bounds its lag */
     if (s->relay && c->ready && m.kind != NET_CONTROL_SUBSCRIBE_EVENTS &&
-        m.kind != NET_CONTROL_SEEN) {
+        m.kind != NET_CONTROL_SEEN && m.kind != NET_CONTROL_FOCUS) {
         relay_text(c, &m, rc);
         net_relay_forward(c, 0, text, len);
         net_control_free(&m);
@@ -509,6 +524,8 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     } else if (refused_by_state(c, &m)) {
         /* answered */
     } else if (rc != 0) {
+        if (m.kind == NET_CONTROL_RESYNC) /* the field first in the message */
+            metrics_count_resync_refused(strncmp(err.message, "tiles", 5) ? "id" : "tiles");
         net_error(c, err.code, m.ref, -1, err.fatal, "%s", err.message);
         if (err.code == TERRAD_E_BAD_VERSION)
             net_close_after_flush(c, 4000 + TERRAD_E_BAD_VERSION, "bad protocol version");
@@ -542,6 +559,11 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_SEEN:
             handle_seen(c, &m);
+            break;
+        case NET_CONTROL_FOCUS: /* no reply: the budget's nearest tiles move (net_budget.c) */
+            c->has_focus = m.has_focus;
+            c->focus_x = m.focus_x;
+            c->focus_y = m.focus_y;
             break;
         case NET_CONTROL_NONE:
             break;
@@ -633,6 +655,7 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
         /* every accepted batch, empty ones too, is acknowledged by the next tick;
          * its poses and its sequence reach the tick together (hub_set_batch) */
         int stored = hub_set_batch(s->hub, c->id, seq, hp, (int)count);
+        net_budget_note_poses(c, s->poses, count); /* its focus, unless it set one */
         if (stored < (int)count)
             net_error(c, TERRAD_E_INTERNAL, ref, hp[stored].collider, 0,
                       "the pose table is full: pose of collider %u dropped", hp[stored].collider);

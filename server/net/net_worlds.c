@@ -42,6 +42,7 @@ void net_state_release(net_state *w)
     free(w->clients);
     free(w->colliders);
     free(w->poses);
+    terrad_codec_free(w->budget_codec);
     cJSON_Delete(w->models);
     cJSON_Delete(w->materials);
     free(w->models_json);

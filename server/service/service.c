@@ -88,6 +88,7 @@ void service_destroy(service *s)
     free(s->bottom);
     free(s->states);
     free(s->events);
+    free(s->sums);
     service_edits_free(s);
     hub_step_free(&s->step.step);
     free(s);
@@ -274,6 +275,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
     service_publish_footprints(s, &stats->report);
+    service_publish_checksums(s); /* every checksum_interval ticks: tile hashes, last */
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */
     service_step_finish(s);       /* a client-clocked world: STEPPED after the step's last tick */
     publish(s);

@@ -74,6 +74,11 @@ void service_attach_store(service *s, store *st, uint64_t recovered_tick);
  * client gets limit_colliders naming the pose). 0: none (the default). */
 void service_set_tick_budget(service *s, int64_t max_tick_cells, int64_t max_sweep_cells);
 
+/* Desync detection (PROTOCOL.md "CHECKSUM"): every `ticks` ticks (tick % ticks
+ * == 0), each subscription's tile hashes go to its client behind the tick's
+ * other frames (service_checksums.c). 0: none. */
+void service_set_checksum_interval(service *s, int ticks);
+
 /* A client-clocked world (scene "clock": "client"; PROTOCOL.md "STEP"): each
  * tick takes its poses from its driver's STEP (hub_push_step) and the step's
  * last tick sends STEPPED. Before the first tick. */

@@ -240,6 +240,10 @@ static void apply_command(service *s, hub_command *c)
     case HUB_EDIT:
         service_edit_command(s, c);
         break;
+    case HUB_RESYNC_TILE:
+        if (cl)
+            service_resync_tile(s, c);
+        break;
     }
 }
 

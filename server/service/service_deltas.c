@@ -177,8 +177,8 @@ void service_publish_snapshots(service *s)
         if (!b->snapshots[i].last)
             continue;
         uint32_t client = b->snapshots[i].client;
-        int again = 0;
-        for (int k = 0; k < nserved && !again; k++)
+        int again = 0, quiet = b->snapshots[i].quiet; /* a tile's resync: not the client's one */
+        for (int k = 0; k < nserved && !again && !quiet; k++)
             again = served[k] == client;
         int64_t cells = request_cells(b, start, i);
         int go = served && !again && (nserved == 0 || spent + cells <= budget);
@@ -188,9 +188,9 @@ void service_publish_snapshots(service *s)
             for (int j = start; j <= i; j++) /* framed, with its marks, by the worker */
                 service_snapshot_stage(s, &b->snapshots[j]);
             spent += cells;
-            if (served)
+            if (served && !quiet)
                 served[nserved] = client;
-            nserved++;
+            nserved += !quiet || nserved == 0;
         } else {
             for (int j = start; j <= i; j++)
                 b->snapshots[kept++] = b->snapshots[j];

@@ -10,6 +10,7 @@
  *   service_deltas.c    cut dirty rectangles into tiles, encode deltas, snapshots
  *   service_colliders.c COLLIDERS frames for viewers
  *   service_footprints.c FOOTPRINTS frames for viewers
+ *   service_checksums.c CHECKSUM frames (desync detection), one tile's resync
  *   service_shed.c      the tick's cost budget: whose colliders wait a tick
  *   service_snapshots.c snapshots off the tick: copied here, framed by a worker
  *   service_edits.c     terrain edits from game logic, at the start of the tick
@@ -79,6 +80,7 @@ typedef struct snapshot_job {
     world_rect rect;
     int last;  /* the last job of its request: marks snapshot_done */
     int marks; /* on the last job: identical requests coalesced into this one */
+    int quiet; /* one tile's resync (HUB_RESYNC_TILE): no snapshot_done mark */
 } snapshot_job;
 
 /* Snapshot cells compressed per tick, over every client: past it, requests
@@ -184,6 +186,10 @@ struct service {
     double last_shed_log_ms, last_sweep_log_ms;
     uint64_t shed_unlogged;
 
+    int checksum_interval; /* ticks between CHECKSUM frames (service_checksums.c); 0: none */
+    terrad_tile_sum *sums; /* CHECKSUM scratch: one subscription's tiles */
+    int64_t sum_capacity;
+
     /* dropped work: logged at most once a second (the metric counts all) */
     double last_drop_log_ms;
     uint64_t drops_unlogged;
@@ -266,5 +272,11 @@ void service_publish_colliders(service *s, const sim_collider *extra, int extra_
 
 /* service_footprints.c */
 void service_publish_footprints(service *s, const sim_tick_report *report);
+
+/* service_checksums.c: every checksum_interval ticks, each subscription's
+ * tile hashes (CHECKSUM frames) behind the tick's other frames; and a tile's
+ * resync (HUB_RESYNC_TILE) queued as a quiet snapshot job */
+void service_publish_checksums(service *s);
+void service_resync_tile(service *s, const hub_command *c);
 
 #endif

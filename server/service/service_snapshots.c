@@ -146,8 +146,9 @@ static void frame_request(snap_worker *w, snap_request *r)
         }
         size += add;
     }
-    if (count > first || r->job.last)
-        add_frame(r, rects + first, count - first, r->job.last);
+    int mark = r->job.last && !r->job.quiet; /* a tile's resync has no snapshot_done */
+    if (count > first || mark)
+        add_frame(r, rects + first, count - first, mark);
     terrad_rect none[1] = {{0}};
     for (int m = 0; m < r->job.marks; m++) /* coalesced requests' marks */
         add_frame(r, none, 0, 1);
@@ -241,7 +242,7 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
                    sizeof *w->staged) != 0) {
         service_note_drop(s, "snapshot", "no memory to stage a snapshot for client %u",
                           job->client);
-        if (job->last) /* the client still gets its mark, without a frame */
+        if (job->last && !job->quiet) /* the client still gets its mark, without a frame */
             service_queue_client(s, job->client, NULL, TERRAD_MSG_DELTA, 1);
         return;
     }
@@ -264,13 +265,9 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
     for (int ty = q.y / SERVICE_TILE_SIZE; tiles && ty <= (q.y + q.h - 1) / SERVICE_TILE_SIZE;
          ty++) {
         for (int tx = q.x / SERVICE_TILE_SIZE; tx <= (q.x + q.w - 1) / SERVICE_TILE_SIZE; tx++) {
-            int x0 = q.x > tx * SERVICE_TILE_SIZE ? q.x : tx * SERVICE_TILE_SIZE;
-            int y0 = q.y > ty * SERVICE_TILE_SIZE ? q.y : ty * SERVICE_TILE_SIZE;
-            int x1 =
-                q.x + q.w < (tx + 1) * SERVICE_TILE_SIZE ? q.x + q.w : (tx + 1) * SERVICE_TILE_SIZE;
-            int y1 =
-                q.y + q.h < (ty + 1) * SERVICE_TILE_SIZE ? q.y + q.h : (ty + 1) * SERVICE_TILE_SIZE;
-            world_rect piece = {x0, y0, x1 - x0, y1 - y0};
+            world_rect piece =
+                world_rect_meet(q, (world_rect){tx * SERVICE_TILE_SIZE, ty * SERVICE_TILE_SIZE,
+                                                SERVICE_TILE_SIZE, SERVICE_TILE_SIZE});
             snap_piece *p = &r->pieces[r->npieces++];
             p->rect = (terrad_rect){.x = piece.x,
                                     .y = piece.y,
@@ -336,7 +333,7 @@ void service_snapshots_collect(service *s)
             service_note_drop(s, "snapshot", "%d piece(s) of a snapshot for client %u", r->failed,
                               r->job.client);
         if (r->mark_only) {
-            for (int m = 0; m < r->job.last + r->job.marks; m++)
+            for (int m = 0; m < (r->job.quiet ? 0 : r->job.last) + r->job.marks; m++)
                 service_queue_client(s, r->job.client, NULL, TERRAD_MSG_DELTA, 1);
             continue;
         }

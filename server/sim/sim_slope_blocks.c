@@ -50,17 +50,17 @@ static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restri
     const int off[8] = {1, -1, w, -w, w + 1, w - 1, -w + 1, -w - 1};
     const int32_t *restrict hm = heights + i0;
     int32_t out[SLOPE_SEG] = {0}, in[SLOPE_SEG] = {0};
-    if (ax >= 0 && dg >= 0) {
-        /* With thresholds >= 0 at most one of the two excesses below is
-         * positive (they sum to -2 th): one product per neighbour, of
-         * max(|d| - th, 0), is the flux out of the cell when d > 0 and into
-         * it when d < 0 (0 either way otherwise). Half the 64-bit
-         * products; the same integers. */
-        for (int j = 0; j < 8; j++) {
-            if (!(dirs & 1u << j))
-                continue;
-            const int32_t th = j < 4 ? ax : dg;
-            const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
+    /* With thresholds >= 0 at most one of the two excesses below is positive
+     * (they sum to -2 th): one product per neighbour, of max(|d| - th, 0), is
+     * the flux out of the cell when d > 0 and into it when d < 0 (0 either
+     * way otherwise). Half the 64-bit products; the same integers. */
+    const int one_product = ax >= 0 && dg >= 0;
+    for (int j = 0; j < 8; j++) {
+        if (!(dirs & 1u << j))
+            continue;
+        const int32_t th = j < 4 ? ax : dg;
+        const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
+        if (one_product) {
             for (int l = 0; l < SLOPE_SEG; l++) {
                 int32_t d = hm[l] - hq[l], sign = d >> 31;
                 int32_t e = ((d ^ sign) - sign) - th;
@@ -69,13 +69,7 @@ static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restri
                 out[l] += f & ~sign & -(int32_t)(cq[l] == SIM_CELL_SEED);
                 in[l] += f & sign;
             }
-        }
-    } else {
-        for (int j = 0; j < 8; j++) {
-            if (!(dirs & 1u << j))
-                continue;
-            const int32_t th = j < 4 ? ax : dg;
-            const int32_t *restrict hq = heights + i0 + off[j], *restrict cq = cls + i0 + off[j];
+        } else {
             for (int l = 0; l < SLOPE_SEG; l++) {
                 /* max(e, 0) and the class test as masks: no control flow to vectorise */
                 int32_t eo = hm[l] - hq[l] - th, ei = hq[l] - hm[l] - th;
@@ -91,32 +85,6 @@ static SIM_ALWAYS_INLINE void slope_block_body(const ground_material_row *restri
         dst[l] = hm[l] - out[l] + (cls[i0 + l] == SIM_CELL_SEED ? in[l] : 0);
 }
 
-/* One cell's next height in a one-material window: sim_slope_next with the
- * row hoisted (the window's side cells, a window narrower than a block).
- * The same sum in the same order. */
-static int32_t slope_cell(const ground_material_row *r, int w, int h, const int32_t *restrict cls,
-                          const int32_t *restrict heights, int x, int y)
-{
-    const int i = y * w + x;
-    const int32_t hi = heights[i];
-    const int seed = cls[i] == SIM_CELL_SEED;
-    const uint32_t rough = (uint32_t)r->roughness_q16;
-    int32_t out = 0, in = 0;
-    for (int j = 0; j < 8; j++) {
-        int qx = x + sim_neighbour_dx[j], qy = y + sim_neighbour_dy[j];
-        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
-            continue;
-        int q = qy * w + qx;
-        int32_t th = j >= 4 ? r->slope_threshold_diagonal : r->slope_threshold_axial;
-        int32_t eo = hi - heights[q] - th, ei = heights[q] - hi - th;
-        if (eo > 0 && cls[q] == SIM_CELL_SEED)
-            out += (int32_t)(((uint64_t)(uint32_t)eo * rough) >> 19);
-        if (ei > 0 && seed)
-            in += (int32_t)(((uint64_t)(uint32_t)ei * rough) >> 19);
-    }
-    return hi - out + in;
-}
-
 /* One iteration's next heights of the listed blocks (packed y << 16 | s). */
 typedef struct slope_blocks_loop {
     const ground_material_table *t;
@@ -126,13 +94,14 @@ typedef struct slope_blocks_loop {
 } slope_blocks_loop;
 
 /* The cells of a listed block outside the range [lo, hi) a vector form
- * computed: the specification, cell by cell. */
+ * computed: the specification, cell by cell (sim_slope_next; ids NULL, as
+ * every cell of the window is of the table's one row). */
 static void slope_rest(const slope_blocks_loop *l, int y, int x0, int x1, int lo, int hi)
 {
     for (int x = x0; x < x1; x++)
         if (x < lo || x >= hi)
             l->value[y * l->w + x] =
-                slope_cell(&l->t->rows[0], l->w, l->h, l->cls, l->heights, x, y);
+                sim_slope_next(l->t, NULL, l->w, l->h, l->cls, l->heights, x, y);
 }
 
 /* The baseline: a block of 16 lanes placed over the block's cells off the

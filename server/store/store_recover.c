@@ -60,6 +60,18 @@ static int damage(recover_state *s, const char *fmt, ...)
     return 1;
 }
 
+/* Segment seq, which CONTROL records, is not in the directory: one damage,
+ * "SEGMENT is missing (CONTROL records segments F..L): " and what is lost.
+ * damage()'s result. */
+static int segment_missing(recover_state *s, uint64_t seq, const char *lost)
+{
+    const store_control *ctl = s->a->ctl;
+    char path[1100];
+    store_segment_path(s->a->dir, seq, path, sizeof path);
+    return damage(s, "%s is missing (CONTROL records segments %llu..%llu): %s", path,
+                  (unsigned long long)ctl->first_seq, (unsigned long long)ctl->last_seq, lost);
+}
+
 /* Keep a damaged file for the operator instead of replaying or deleting it. */
 static void set_aside(const recover_state *s, const char *path)
 {
@@ -266,25 +278,21 @@ int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec
     /* the segments CONTROL records must start at its first one */
     if (check && ctl && ctl->last_seq >= ctl->first_seq && ctl->first_seq > 0 &&
         (count == 0 || seqs[count - 1] < ctl->first_seq || seqs[0] > ctl->first_seq)) {
-        char missing[1100];
-        store_segment_path(a->dir, ctl->first_seq, missing, sizeof missing);
-        if (damage(&s,
-                   "%s is missing (CONTROL records segments %llu..%llu): ticks after %llu "
-                   "up to %llu are lost",
-                   missing, (unsigned long long)ctl->first_seq, (unsigned long long)ctl->last_seq,
-                   (unsigned long long)s.snapshot_tick, (unsigned long long)ctl->tick))
+        char lost[100];
+        snprintf(lost, sizeof lost, "ticks after %llu up to %llu are lost",
+                 (unsigned long long)s.snapshot_tick, (unsigned long long)ctl->tick);
+        if (segment_missing(&s, ctl->first_seq, lost))
             goto fail;
         replayed = 0;
     } else if ((replayed = replay_segments(&s, seqs, count, &tick)) < 0) {
         goto fail;
     } else if (check && ctl && count > 0 && seqs[count - 1] < ctl->last_seq && !rec->damage) {
-        char newest[1100];
-        store_segment_path(a->dir, ctl->last_seq, newest, sizeof newest);
-        if (damage(&s,
-                   "%s is missing (CONTROL records segments %llu..%llu): the ticks it held are "
-                   "lost, every tick after %llu (CONTROL last recorded tick %llu)",
-                   newest, (unsigned long long)ctl->first_seq, (unsigned long long)ctl->last_seq,
-                   (unsigned long long)tick, (unsigned long long)ctl->tick))
+        char lost[120];
+        snprintf(lost, sizeof lost,
+                 "the ticks it held are lost, every tick after %llu (CONTROL last recorded "
+                 "tick %llu)",
+                 (unsigned long long)tick, (unsigned long long)ctl->tick);
+        if (segment_missing(&s, ctl->last_seq, lost))
             goto fail;
     }
     if (replayed < count && (a->flags & STORE_RECOVER_TRUNCATE))

@@ -407,48 +407,41 @@ int terrad_twin_remove_collider(terrad_twin *t, int id, char *err)
     return 0;
 }
 
-/* The collider with this id, with a valid pose in *p; NULL (err written)
- * otherwise. */
-static twin_collider *posed_collider(terrad_twin *t, int id, collider_pose *p, char *err)
+/* Collider id's pose p once p is valid (else -1, err written). placed: also
+ * its previous pose, as if the last tick had pressed there (no sweep to it);
+ * otherwise a collider that had no pose has no previous one to sweep from. */
+static int pose_collider(terrad_twin *t, int id, collider_pose p, int placed, char *err)
 {
     int k = t ? find_collider(t, id) : -1;
-    if (k < 0) {
-        twin_fail(err, "id: no collider %d", id);
-        return NULL;
-    }
+    if (k < 0)
+        return twin_fail(err, "id: no collider %d", id);
     error_text e = {{0}};
-    if (collider_pose_validate(p, &e) != 0) {
+    if (collider_pose_validate(&p, &e) != 0) {
         copy_error(err, &e);
-        return NULL;
+        return -1;
     }
-    return &t->colliders[k];
+    twin_collider *c = &t->colliders[k];
+    if (placed) {
+        c->previous_pose = p;
+        c->has_previous = 1;
+    } else if (!c->has_pose) {
+        c->has_previous = 0;
+    }
+    c->has_pose = 1;
+    c->pose = p;
+    return 0;
 }
 
 int terrad_twin_set_pose(terrad_twin *t, int id, double x, double y, double z, double qw, double qx,
                          double qy, double qz, char *err)
 {
-    collider_pose p = {{x, y, z}, {qw, qx, qy, qz}};
-    twin_collider *c = posed_collider(t, id, &p, err);
-    if (!c)
-        return -1;
-    if (!c->has_pose) {
-        c->has_pose = 1;
-        c->has_previous = 0; /* no sweep from a pose it never had */
-    }
-    c->pose = p;
-    return 0;
+    return pose_collider(t, id, (collider_pose){{x, y, z}, {qw, qx, qy, qz}}, 0, err);
 }
 
 int terrad_twin_place(terrad_twin *t, int id, double x, double y, double z, double qw, double qx,
                       double qy, double qz, char *err)
 {
-    collider_pose p = {{x, y, z}, {qw, qx, qy, qz}};
-    twin_collider *c = posed_collider(t, id, &p, err);
-    if (!c)
-        return -1;
-    c->pose = c->previous_pose = p; /* as if the last tick had pressed here */
-    c->has_pose = c->has_previous = 1;
-    return 0;
+    return pose_collider(t, id, (collider_pose){{x, y, z}, {qw, qx, qy, qz}}, 1, err);
 }
 
 int twin_unpose(terrad_twin *t, int id, char *err)

@@ -359,20 +359,40 @@ static inline int32_t part_height(const world *w, const tile_part *p, const int3
     return one;
 }
 
-int64_t world_rect_volume(const world *w, world_rect r)
+/* The sum, least and greatest of the heights of r, in one walk of its tiles
+ * (world_rect_volume and world_rect_height_range); an empty r leaves 0,
+ * INT32_MAX and INT32_MIN. */
+static void rect_heights(const world *w, world_rect r, int64_t *sum, int32_t *lo, int32_t *hi)
 {
-    if (!world_clip_rect(w, &r))
-        return 0;
-    int64_t sum = 0;
+    int64_t s = 0;
+    int32_t mn = INT32_MAX, mx = INT32_MIN;
     tile_walk k = tile_walk_begin(w, r);
     tile_part p;
     while (tile_walk_next(w, &k, &p)) {
         size_t stride;
         const int32_t *src = tile_source(w, p.tx, p.ty, p.tile, &stride);
         for (int y = p.part.y; y < p.part.y + p.part.h; y++)
-            for (int x = p.part.x; x < p.part.x + p.part.w; x++)
-                sum += part_height(w, &p, src, stride, x, y);
+            for (int x = p.part.x; x < p.part.x + p.part.w; x++) {
+                int32_t v = part_height(w, &p, src, stride, x, y);
+                s += v;
+                if (v < mn)
+                    mn = v;
+                if (v > mx)
+                    mx = v;
+            }
     }
+    *sum = s;
+    *lo = mn;
+    *hi = mx;
+}
+
+int64_t world_rect_volume(const world *w, world_rect r)
+{
+    if (!world_clip_rect(w, &r))
+        return 0;
+    int64_t sum;
+    int32_t lo, hi;
+    rect_heights(w, r, &sum, &lo, &hi);
     return sum;
 }
 
@@ -464,25 +484,10 @@ void world_scatter_window(world *w, world_rect r, const int32_t *src)
 
 void world_rect_height_range(const world *w, world_rect r, int32_t *lo, int32_t *hi)
 {
-    int32_t mn = INT32_MAX, mx = INT32_MIN;
-    tile_walk k = tile_walk_begin(w, r);
-    tile_part p;
-    while (tile_walk_next(w, &k, &p)) {
-        size_t stride;
-        const int32_t *src = tile_source(w, p.tx, p.ty, p.tile, &stride);
-        for (int y = p.part.y; y < p.part.y + p.part.h; y++)
-            for (int x = p.part.x; x < p.part.x + p.part.w; x++) {
-                int32_t v = part_height(w, &p, src, stride, x, y);
-                if (v < mn)
-                    mn = v;
-                if (v > mx)
-                    mx = v;
-            }
-    }
+    int64_t sum;
+    rect_heights(w, r, &sum, lo, hi);
     if (r.w <= 0 || r.h <= 0)
-        mn = mx = 0; /* an empty rectangle has no heights; 0 keeps callers' arithmetic sane */
-    *lo = mn;
-    *hi = mx;
+        *lo = *hi = 0; /* an empty rectangle has no heights; 0 keeps callers' arithmetic sane */
 }
 
 int32_t world_height_at(const world *w, int x, int y)
@@ -549,6 +554,16 @@ int world_rects_overlap(world_rect a, world_rect b)
         return 0;
     return (int64_t)a.x < (int64_t)b.x + b.w && (int64_t)b.x < (int64_t)a.x + a.w &&
            (int64_t)a.y < (int64_t)b.y + b.h && (int64_t)b.y < (int64_t)a.y + a.h;
+}
+
+world_rect world_rect_meet(world_rect a, world_rect b)
+{
+    int64_t x0 = a.x > b.x ? a.x : b.x, y0 = a.y > b.y ? a.y : b.y;
+    int64_t x1 = (int64_t)a.x + a.w < (int64_t)b.x + b.w ? (int64_t)a.x + a.w : (int64_t)b.x + b.w;
+    int64_t y1 = (int64_t)a.y + a.h < (int64_t)b.y + b.h ? (int64_t)a.y + a.h : (int64_t)b.y + b.h;
+    if (x1 <= x0 || y1 <= y0)
+        return (world_rect){(int)x0, (int)y0, 0, 0};
+    return (world_rect){(int)x0, (int)y0, (int)(x1 - x0), (int)(y1 - y0)};
 }
 
 world_rect world_rect_union(world_rect a, world_rect b)

@@ -138,6 +138,8 @@ uint64_t world_resident_bytes(const world *w);
 /* 1 if two rectangles share at least one cell. */
 int world_rects_overlap(world_rect a, world_rect b);
 world_rect world_rect_union(world_rect a, world_rect b);
+/* The cells a and b share (w or h 0 when none): a tile's part of a subscription. */
+world_rect world_rect_meet(world_rect a, world_rect b);
 
 /* ---- terrain edits from game logic (world_edit.c; PROTOCOL.md "edit") ---- */
 

@@ -270,6 +270,7 @@ class Run:
         self.faults = 0
         self.kinds = {}
         self.takeovers = 0
+        self.takes_redone = 0  # takes confirmed only the second time (cluster_wal_take)
         self.lost = set()
         self.records = 0
         self.log_seq = {w: 1 for w in WORLDS}
@@ -331,6 +332,9 @@ class Run:
             start = self.seen_lines.get(p.name, 0)
             self.seen_lines[p.name] = len(lines)
             for line in lines[start:]:
+                if "not clean:" in line:  # a take that found another writer's record, redone
+                    self.takes_redone += 1
+                    log(f"node {p.name}: {line.split('cluster: ', 1)[-1].strip()}")
                 m = SERVING_RE.match(line)
                 if not m:
                     continue
@@ -633,7 +637,8 @@ class Run:
         print(f"chaos: seed {a.seed}: {self.done} schedules of {a.schedules}, fault window "
               f"{a.fault_s:g} s; {self.faults} faults ({kinds}); "
               f"{checked} acknowledged ticks checked (of {acked} acknowledged) in "
-              f"{self.takeovers} takeovers and {self.settled_checks} settled kills; "
+              f"{self.takeovers} takeovers ({self.takes_redone} takes redone) and "
+              f"{self.settled_checks} settled kills; "
               f"{self.records} log records checked for fencing; {len(self.lost)} lost; "
               f"{len(self.failures)} failed checks", flush=True)
         if self.failures:

@@ -14,6 +14,7 @@ by the stream's leader only (as server/cluster/cluster_wal.c reads).
 import base64
 import json
 import random
+import re
 import socket
 import struct
 import time
@@ -166,8 +167,9 @@ def streams_current(urls, streams=(STREAM, "KV_TERRAD_TILES", "KV_TERRAD_LEASES"
 def read_log(urls, world, from_seq):
     """The world's log from sequence from_seq: a list of (seq, kind, tick or
     node) — kind "record" (tick: the record's tick, from its TRC1/TRC2
-    header; a record in parts counts once, at its first part), or "owner"
-    (node: the owner marker's node). Raises NatsError when no leader answers."""
+    header; a record in parts counts once, at its first part), "owner" (node:
+    the owner marker's node) or "confirm" (node: the node whose take it
+    confirms). Raises NatsError when no leader answers."""
     conn = connect(urls)
     out = []
     try:
@@ -184,8 +186,9 @@ def read_log(urls, world, from_seq):
             seq = m["seq"]
             hdrs = base64.b64decode(m.get("hdrs") or "").decode(errors="replace")
             data = base64.b64decode(m.get("data") or "")
-            if "Terrad-Kind: owner" in hdrs:
-                out.append((seq, "owner", data.decode(errors="replace")))
+            kind = re.search(r"Terrad-Kind: *(owner|confirm)\r", hdrs)
+            if kind:
+                out.append((seq, kind.group(1), data.decode(errors="replace")))
             elif "Terrad-Part:" not in hdrs or "Terrad-Part: 1/" in hdrs:
                 if len(data) < 12 or data[:3] != b"TRC":
                     raise NatsError(f"log of {world}: sequence {seq} is not a record")

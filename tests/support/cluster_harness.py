@@ -5,10 +5,14 @@ routes between all), wait until each accepts connections and JetStream
 answers, and stop them (SIGTERM, or SIGKILL for a crash). Also Node, one
 `terrad serve --cluster` process whose log says which worlds it ticks and on
 which ports, world_add (`terrad world add`) and drive_and_kill (a client
-drives in a world until its owner is killed).
+drives in a world until its owner is killed); running_nodes (a test body over
+nodes: stopped after, logs on failure) and the pieces of a one-world failover
+against a twin (run_failover_test, owner_and_standby, drive_across_compaction,
+take_over).
 
 Not a test itself (ctest registers only test_*.py). Run with /usr/bin/python3.
 """
+import contextlib
 import json
 import os
 import re
@@ -20,6 +24,7 @@ import subprocess
 import tempfile
 import threading
 import time
+import traceback
 import urllib.error
 import urllib.request
 
@@ -302,6 +307,92 @@ def owner_of(nodes, world, timeout=30, step=0.05):
     return wait_for(lambda: next((n for n in nodes if n.serves(world)), None), timeout, step)
 
 
+def node_reader(node, world):
+    """read(x, y, w, h, layer=None) of world through node (its owner or a relay), asked again
+    on a 503 (a sim thread too busy to serve the read in time on a loaded machine) for up to a
+    minute."""
+    def read(x, y, w, h, layer=None):
+        end = time.monotonic() + 60
+        while True:
+            try:
+                return node.heights(world, x, y, w, h, layer=layer)
+            except urllib.error.HTTPError as e:
+                if e.code != 503 or time.monotonic() > end:
+                    raise
+                time.sleep(0.2)
+    return read
+
+
+def all_zero(codes):
+    """running_nodes' usual stopped: every node's exit status is 0."""
+    return all(c == 0 for c in codes)
+
+
+@contextlib.contextmanager
+def running_nodes(check, nodes, nats=None, tail=40, stopped=None,
+                  said="SIGTERM stops every node with status 0"):
+    """The cluster form of Checks.running: runs a test body over nodes (a list the body may
+    still fill); an exception is a failed check; then every node is stopped (SIGTERM) and, given
+    stopped, stopped(codes) must hold (said names it); after any failure each node's log (its
+    last tail lines) and, given nats, the NATS servers' logs are printed."""
+    try:
+        yield nodes
+    except Exception:  # noqa: BLE001
+        check(False, "the test raised:\n" + traceback.format_exc())
+    finally:
+        codes = [n.stop() for n in nodes]
+        if stopped is not None:
+            check(stopped(codes), f"{said} ({codes})")
+        if check.failed:
+            for n in nodes:
+                n.print_log(tail)
+            if nats is not None:
+                print(nats.logs())
+
+
+def owner_and_standby(check, nodes, world, what="the world"):
+    """The node that takes world (what names it in the check) and, once every node is up, the
+    other one of two: (owner, standby), or (None, None) when no node took it."""
+    owner = owner_of(nodes, world, 60)
+    if not check(owner is not None, f"a node takes {what}"):
+        return None, None
+    wait_for(lambda: all(n.up() for n in nodes), 60)
+    return owner, next(n for n in nodes if n is not owner)
+
+
+def compactions(node, world):
+    """How many compactions of world's log into tile snapshots node has logged so far."""
+    said = re.compile(rf"cluster: world {re.escape(world)}: \d+ tiles compacted")
+    return sum(1 for line in list(node.lines) if said.search(line))
+
+
+def drive_across_compaction(check, owner, world, first, second):
+    """first(), then a wait until owner has compacted world's log into tile snapshots, then
+    second(): a takeover after it reads both kinds of record (snapshots, log records after)."""
+    first()
+    before = compactions(owner, world)
+    check(wait_for(lambda: compactions(owner, world) > before, 120),
+          "the owner compacts the log into tile snapshots after the first half")
+    second()
+
+
+def take_over(check, owner, standby, world):
+    """owner killed with SIGKILL; the standby must take world, recovering from tile snapshots and
+    log records after them (its log says how many). The new owner, or None."""
+    owner.kill9()
+    new = owner_of([standby], world, 120)
+    if not check(new is not None, f"{standby.name} takes the world after the kill"):
+        return None
+    said = re.compile(rf"cluster: world {re.escape(world)} recovered at tick \d+ from (\d+) tile "
+                      r"snapshots and (\d+) log records")
+    found = [m for m in map(said.search, list(new.lines)) if m]
+    tiles, records = (int(found[-1].group(1)), int(found[-1].group(2))) if found else (0, 0)
+    check(tiles > 0 and records > 0,
+          f"the new owner recovered from tile snapshots ({tiles}) and log records after them "
+          f"({records})")
+    return new
+
+
 async def settled(c, sid, park, quiet=30, timeout=120):
     """Lift the sphere out of the terrain (park: its pose high above) and wait,
     by condition, until the terrain is quiescent: the lift acknowledged, then the
@@ -374,36 +465,30 @@ async def drive_and_kill(owner, run_s, settle, world=None, half_lane=16, radius=
 
 def run_failover_test(check, world, scene, twin, failover, compare):
     """The frame of a one-world failover test against a twin (test_cluster_soil_failover,
-    test_cluster_compaction_failover): twin(scene) runs the reference on a single daemon; one NATS
-    server, the world registered from the scene file, two nodes; failover(nodes) drives, kills the
-    owner and returns what the new owner served (falsy when it already failed a check); compare
-    (check, ref, got, what) holds it against the twin. Logs are printed when a check failed; the
-    scene file is removed. Ends the test (check.finish)."""
-    from service_harness import skip
+    test_cluster_compaction_failover): twin(d) runs the reference on d, a single daemon of the
+    scene that is never failed (every tick durable); one NATS server, the world registered from
+    the scene file, two nodes; failover(nodes) drives, kills the owner and returns what the new
+    owner served (falsy when it already failed a check); compare(check, ref, got, what) holds it
+    against the twin. Logs are printed when a check failed; the scene file is removed. Ends the
+    test (check.finish)."""
+    from service_harness import Daemon, skip
     if NATS_SERVER is None:
         os.unlink(scene)
         skip("nats-server is not installed")
-    nodes = []
     try:
-        ref = twin(scene)
-        with NatsCluster(1) as nats:
-            try:
-                ok, said = world_add(nats.urls, world, scene)
-                check(ok, f"world add {world}: {said}")
-                nodes = [Node(f"n{i}", nats.urls) for i in range(2)]
-                got = failover(nodes)
-                if got:
-                    compare(check, ref, got, "kill -9 of the owner and a takeover")
-            except Exception:  # noqa: BLE001
-                import traceback
-                check(False, "the test raised:\n" + traceback.format_exc())
-            finally:
-                for n in nodes:
-                    n.stop()
-                if check.failed:
-                    for n in nodes:
-                        n.print_log()
-                    print(nats.logs())
+        d = Daemon(extra=["--scene", scene], name="terrad-twin", durability="every-tick")
+        check.daemons.append(d)
+        try:
+            ref = twin(d)
+        finally:
+            d.stop()
+        with NatsCluster(1) as nats, running_nodes(check, [], nats) as nodes:
+            ok, said = world_add(nats.urls, world, scene)
+            check(ok, f"world add {world}: {said}")
+            nodes += [Node(f"n{i}", nats.urls) for i in range(2)]
+            got = failover(nodes)
+            if got:
+                compare(check, ref, got, "kill -9 of the owner and a takeover")
     finally:
         os.unlink(scene)
     check.finish()

@@ -2,7 +2,8 @@
 tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
 real daemon on loopback ports (serve_scene: on a scene given as a dict),
 `terrad simulate` runs, HTTP helpers
-(/v1/stats, /v1/heights, /metrics), a TerradClient that keeps a copy of its
+(/v1/stats, /v1/heights, /metrics), the c_cosim_drive client's world and
+output (cosim_*), a TerradClient that keeps a copy of its
 mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
 wheel poses. A test puts tests/support on sys.path and imports what it needs.
 
@@ -218,6 +219,46 @@ def read_mirror(path, n):
     """n little-endian int32 heights a client wrote to path, or None (missing or short)."""
     data = open(path, "rb").read() if os.path.exists(path) else b""
     return list(struct.unpack(f"<{n}i", data)) if len(data) == 4 * n else None
+
+
+# c_cosim_drive (tests/support/c_cosim_drive.c): the C client that steps client-clocked worlds
+# (test_cosim_lockstep, test_cosim_cluster_failover), its world and its output.
+COSIM_DRIVE = os.environ.get("TERRAD_C_COSIM_DRIVE", os.path.join(os.path.dirname(BIN), "c_cosim_drive"))
+COSIM_W, COSIM_H = 96, 64
+
+
+def cosim_scene(**extra):
+    """c_cosim_drive's world, a flat bekker scene of COSIM_W x COSIM_H cells, with extra keys
+    (clock="client") as a dict."""
+    return {"name": "cosim", "world": {"width": COSIM_W, "height": COSIM_H, "cell_size_m": 0.05},
+            "terrain": {"kind": "flat", "height_m": 0.4},
+            "material": {"model": "bekker", "compression": 0.5, "soil": {"preset": "ding2011"}},
+            **extra}
+
+
+def cosim_paused(port, world, steps, prefix):
+    """c_cosim_drive stepping world steps times through websocket port, then waiting ("pause")
+    until it is killed: (the process, its output lines up to PAUSED). prefix: its output files."""
+    p = subprocess.Popen([COSIM_DRIVE, str(port), world, str(steps), prefix, "pause"],
+                         stdout=subprocess.PIPE, text=True)
+    lines = []
+    for line in p.stdout:
+        lines.append(line)
+        if line.startswith("PAUSED"):
+            break
+    return p, lines
+
+
+def cosim_acked(lines):
+    """The last tick c_cosim_drive's lines say was acknowledged (ACKED), or 0."""
+    ticks = [int(line.split()[2]) for line in lines if line.startswith("ACKED ")]
+    return ticks[-1] if ticks else 0
+
+
+def cosim_mirror(text):
+    """The MIRROR block of a c_cosim_drive output: its COSIM_W * COSIM_H heights."""
+    lines = text.split("MIRROR", 1)[1].splitlines()[1:]
+    return [int(v) for line in lines for v in line.split()]
 
 
 FFI_REGION = (64, 80, 128, 64)  # x, y, w, h cells: the window the language examples predict

@@ -473,6 +473,31 @@ static void drive(int http_port, int ws_port)
     free(hist.copies);
 }
 
+/* PROTOCOL.md "Budgets": desc.budget goes in hello, the world message says the one in force */
+static void budgeted(int ws_port)
+{
+    char err[512];
+    for (int k = 0; k < 2; k++) {
+        int64_t asked = k == 0 ? 20000 : -1;
+        terrad_client *c = terrad_client_connect(
+            (terrad_client_desc){.port = ws_port, .name = "test_c_budget", .budget = asked}, err,
+            sizeof err);
+        CHECK(c != NULL, "connect with budget %lld: %s", (long long)asked, err);
+        if (!c)
+            continue;
+        const terrad_world_info *w = terrad_client_world(c);
+        CHECK(w->budget == (asked > 0 ? asked : 0), "budget %lld asked, %lld in force",
+              (long long)asked, (long long)w->budget);
+        CHECK(terrad_client_focus(c, 1, 10, 10) == 0 && terrad_client_focus(c, 0, 0, 0) == 0,
+              "focus sent and cleared");
+        uint32_t sid = 0;
+        int rc = terrad_client_subscribe(c, 0, 0, 16, 16, &sid);
+        CHECK(rc == 0 && terrad_client_is_open(c), "a budgeted client subscribes and goes on: %d",
+              rc);
+        terrad_client_close(c);
+    }
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -493,6 +518,7 @@ int main(void)
         }
     }
     drive(http_port, ws_port);
+    budgeted(ws_port);
     if (daemon_pid) {
         int st = stop_daemon();
         CHECK(st == 0, "SIGTERM stops the daemon with status 0 (got %d)", st);

@@ -154,6 +154,8 @@ int main(void)
     metrics_count_service_dropped("frame");
     metrics_count_service_dropped("snapshot");
     metrics_count_service_dropped("no_such_reason"); /* dropped */
+    metrics_count_cluster_take_redone();
+    metrics_count_cluster_take_redone();
 
     text = metrics_render(&len);
     CHECK(text != NULL, "render");
@@ -173,6 +175,8 @@ int main(void)
     expect_line(text, "# TYPE terrad_delta_compression_ratio gauge");
     expect_line(text, "# TYPE terrad_service_dropped_total counter");
     expect_line(text, "terrad_service_dropped_total{reason=\"frame\"} 2");
+    expect_line(text, "terrad_cluster_takes_redone_total 2");
+    expect_line(text, "# TYPE terrad_cluster_takes_redone_total counter");
     expect_line(text, "terrad_service_dropped_total{reason=\"snapshot\"} 1");
     expect_line(text, "terrad_service_dropped_total{reason=\"poses\"} 0");
 
@@ -245,6 +249,7 @@ int main(void)
     expect_line(text, "terrad_memory_bytes{part=\"part31\"} 31");
     CHECK(!strstr(text, "part32"), "33rd part ignored");
     expect_line(text, "terrad_bytes_in_total 0");
+    expect_line(text, "terrad_cluster_takes_redone_total 0");
     free(text);
 
     printf("%d passed, %d failed\n", passed, failed);

@@ -79,7 +79,44 @@ static void test_hello(void)
     CHECK(m.kind == NET_CONTROL_HELLO && strcmp(m.client, "me") == 0 && !m.has_token,
           "hello fields");
     CHECK(cJSON_IsNumber(m.ref) && m.ref->valuedouble == 7, "integer ref");
+    CHECK(m.budget == -1, "no budget stated: -1 (%lld)", (long long)m.budget);
     net_control_free(&m);
+}
+
+/* PROTOCOL.md "Budgets": hello's budget within max_budget_bytes_per_s, and focus */
+static void test_budget(void)
+{
+    char text[160];
+    net_control m;
+    net_control_error e;
+    snprintf(text, sizeof text, "{\"type\":\"hello\",\"protocol\":%d,\"budget\":10000}",
+             TERRAD_PROTO_VERSION);
+    CHECK(parse(text, &m, &e) == 0 && m.budget == 10000, "budget 10000 taken: %s", e.message);
+    net_control_free(&m);
+    snprintf(text, sizeof text, "{\"type\":\"hello\",\"protocol\":%d,\"budget\":100}",
+             TERRAD_PROTO_VERSION);
+    expect_error(text, TERRAD_E_BAD_VALUE, 1,
+                 "budget: 100 bytes/s is under the smallest budget, 1024 (0: none)");
+    limits.max_budget_bytes_per_s = 65536;
+    snprintf(text, sizeof text, "{\"type\":\"hello\",\"protocol\":%d,\"budget\":70000}",
+             TERRAD_PROTO_VERSION);
+    expect_error(text, TERRAD_E_BAD_VALUE, 1,
+                 "budget: 70000 bytes/s is over this server's max_budget_bytes_per_s (65536)");
+    snprintf(text, sizeof text, "{\"type\":\"hello\",\"protocol\":%d,\"budget\":0}",
+             TERRAD_PROTO_VERSION);
+    expect_error(text, TERRAD_E_BAD_VALUE, 1,
+                 "budget: 0 bytes/s is over this server's max_budget_bytes_per_s (65536) (0 "
+                 "asks for none)");
+    limits.max_budget_bytes_per_s = 0;
+    CHECK(parse("{\"type\":\"focus\",\"x\":10.5,\"y\":20}", &m, &e) == 0 && m.has_focus &&
+              m.focus_x == 10.5 && m.focus_y == 20,
+          "focus taken: %s", e.message);
+    net_control_free(&m);
+    CHECK(parse("{\"type\":\"focus\"}", &m, &e) == 0 && !m.has_focus, "focus cleared");
+    net_control_free(&m);
+    expect_error("{\"type\":\"focus\",\"x\":10,\"y\":300}", TERRAD_E_BAD_VALUE, 1,
+                 "y: must be a number of cells in [0, 256] (x and y both, or neither to clear "
+                 "the focus)");
 }
 
 static void test_collider_create(void)
@@ -199,6 +236,7 @@ int main(void)
     materials = cJSON_Parse("[\"default\", \"sand\"]");
     test_envelope();
     test_hello();
+    test_budget();
     test_collider_create();
     test_subscriptions();
     cJSON_Delete(materials);

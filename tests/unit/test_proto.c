@@ -424,6 +424,77 @@ static void check_step(const char *name, const cJSON *f, const uint8_t *b, size_
     CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
 }
 
+static void check_checksum(const char *name, const cJSON *f, const uint8_t *b, size_t n)
+{
+    terrad_tile_sum sums[16];
+    uint64_t tick;
+    uint32_t sub;
+    size_t count;
+    int rc = terrad_checksum_decode(b, n, &tick, &sub, sums, 16, &count);
+    CHECK(rc == 0 && tick == u64(f, "tick") && sub == (uint32_t)num(f, "subscription"),
+          "%s: decode: %s", name, terrad_err_name(rc));
+    if (rc)
+        return;
+    size_t i = 0;
+    const cJSON *t;
+    cJSON_ArrayForEach(t, get(f, "tiles"))
+    {
+        CHECK(i < count && sums[i].tile_x == (int32_t)num(t, "tile_x") &&
+                  sums[i].tile_y == (int32_t)num(t, "tile_y") &&
+                  sums[i].version == (uint32_t)num(t, "version") && sums[i].hash == u64(t, "hash"),
+              "%s: tile %zu", name, i);
+        i++;
+    }
+    CHECK(i == count, "%s: %zu tiles", name, i);
+    uint8_t out[1024];
+    size_t len;
+    rc = terrad_checksum_encode(out, sizeof out, &len, tick, sub, sums, count);
+    CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
+}
+
+/* The tile hash of each "hashes" entry, and a mirror's view of it: one height
+ * changed makes its tile differ. */
+static void check_hashes(const cJSON *root)
+{
+    const cJSON *e;
+    int k = 0;
+    cJSON_ArrayForEach(e, get(root, "hashes"))
+    {
+        uint32_t w = (uint32_t)num(e, "w"), h = (uint32_t)num(e, "h");
+        int32_t *v = calloc((size_t)w * h + 1, sizeof *v);
+        size_t i = 0;
+        const cJSON *x;
+        cJSON_ArrayForEach(x, get(e, "heights")) v[i++] = (int32_t)x->valuedouble;
+        CHECK(i == (size_t)w * h && terrad_heights_hash(v, w, w, h) == u64(e, "hash"), "hash: %s",
+              str(e, "about"));
+        free(v);
+        k++;
+    }
+    CHECK(k >= 5, "%d hash vectors", k);
+    /* a region of 100 x 70 cells at (30, 40) over 64-cell tiles: the part of tile (1, 1) */
+    int32_t *heights = calloc(100 * 70, sizeof *heights);
+    uint32_t versions[6];
+    terrad_mirror m;
+    CHECK(terrad_mirror_init(&m, 30, 40, 100, 70, 64, heights, versions) == 0, "mirror init");
+    for (int i = 0; i < 100 * 70; i++)
+        heights[i] = i * 3;
+    versions[4] = 5; /* tile (1, 1): column 1, row 1 of the region's 3 x 2 tiles */
+    /* its part: x 64..127, y 64..109 -> region columns 34..97, rows 24..69 */
+    uint64_t want = terrad_heights_hash(heights + 24 * 100 + 34, 100, 64, 46);
+    terrad_tile_sum sum = {1, 1, 5, want};
+    CHECK(terrad_mirror_tile_differs(&m, &sum) == 0, "a mirror agrees with its own hash");
+    heights[30 * 100 + 40]++;
+    CHECK(terrad_mirror_tile_differs(&m, &sum) == 1, "one height changed: the tile differs");
+    heights[30 * 100 + 40]--;
+    sum.version = 6;
+    CHECK(terrad_mirror_tile_differs(&m, &sum) == 1, "another version: the tile differs");
+    sum = (terrad_tile_sum){0, 1, 5, 0};
+    CHECK(terrad_mirror_tile_differs(&m, &sum) == 0, "a tile not held is not compared");
+    sum = (terrad_tile_sum){3, 1, 5, 0};
+    CHECK(terrad_mirror_tile_differs(&m, &sum) == -1, "a tile outside the region");
+    free(heights);
+}
+
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
                         size_t n)
 {
@@ -522,6 +593,13 @@ static int decode_any(const char *type, const uint8_t *b, size_t n)
         uint32_t seq, ticks;
         return terrad_stepped_decode(b, n, &tick, &seq, &ticks);
     }
+    if (strcmp(type, "CHECKSUM") == 0) {
+        terrad_tile_sum sums[16];
+        uint64_t tick;
+        uint32_t sub;
+        size_t count;
+        return terrad_checksum_decode(b, n, &tick, &sub, sums, 16, &count);
+    }
     uint8_t t;
     uint64_t nonce;
     return terrad_ping_decode(b, n, &t, &nonce);
@@ -568,6 +646,8 @@ static void check_vectors(const cJSON *root)
                 check_forces(name, f, b, n);
             else if (strcmp(type, "STEP") == 0)
                 check_step(name, f, b, n);
+            else if (strcmp(type, "CHECKSUM") == 0)
+                check_checksum(name, f, b, n);
             else
                 check_small(name, type, f, b, n);
             /* Every proper prefix of a valid frame is refused. */
@@ -900,6 +980,7 @@ int main(void)
         CHECK((int)num(root, "protocol") == TERRAD_PROTO_VERSION, "protocol version");
         check_vectors(root);
         check_scenarios(root);
+        check_hashes(root);
     }
     test_encoder_refusals();
     test_random_round_trip();

@@ -27,6 +27,7 @@ const decoders = {
   ACK: C.decodeAck,
   STEP: C.decodeStep,
   STEPPED: C.decodeStepped,
+  CHECKSUM: C.decodeChecksum,
   PING: C.decodePing,
   PONG: C.decodePing,
 };
@@ -115,6 +116,12 @@ for (const v of V.vectors) {
       case 'STEPPED':
         assert.deepEqual([String(d.tick), d.seq, d.ticks], [f.tick, f.seq, f.ticks]);
         break;
+      case 'CHECKSUM': {
+        const tiles = f.tiles.map((t) => ({ ...t, hash: BigInt(t.hash) }));
+        assert.deepEqual([String(d.tick), d.subscription, d.tiles], [f.tick, f.subscription, tiles]);
+        assert.equal(hex(C.encodeChecksum(BigInt(f.tick), f.subscription, tiles)), v.hex);
+        break;
+      }
       default:
         assert.equal(String(d.nonce), f.nonce);
         assert.equal(d.type, C.MsgType[v.type]);
@@ -123,6 +130,19 @@ for (const v of V.vectors) {
     for (let n = 0; n < buf.length; n++) assert.notEqual(errorName(() => decoders[v.type](buf.subarray(0, n))), '', `prefix ${n}`);
   });
 }
+
+test('tile hashes match the vectors; a mirror compares its tiles', () => {
+  for (const e of V.hashes) assert.equal(String(C.heightsHash(Int32Array.from(e.heights), e.w, e.w, e.h)), e.hash, e.about);
+  const m = new C.Mirror(30, 40, 100, 70, 64);
+  for (let i = 0; i < 100 * 70; i++) m.heights[i] = i * 3;
+  m.versions[4] = 5; // tile (1, 1): its part is region columns 34..97, rows 24..69
+  const s = { tile_x: 1, tile_y: 1, version: 5, hash: C.heightsHash(m.heights, 100, 64, 46, 24 * 100 + 34) };
+  assert.equal(m.tileDiffers(s), 0);
+  m.heights[30 * 100 + 40] += 1;
+  assert.equal(m.tileDiffers(s), 1, 'one height changed: the tile differs');
+  assert.equal(m.tileDiffers({ ...s, tile_x: 0 }), 0, 'a tile not held is not compared');
+  assert.equal(m.tileDiffers({ ...s, tile_x: 3 }), -1, 'a tile outside the region');
+});
 
 test('zigzag edge values', () => {
   const cases = [[0, 0], [-1, 1], [1, 2], [2147483647, 0xfffffffe], [-2147483648, 0xffffffff]];

@@ -35,7 +35,9 @@ before(async () => {
   page = context.pages()[0] || (await context.newPage());
   page.on('pageerror', (e) => console.error('page error:', e.message));
   page.on('response', (r) => { if (r.status() >= 400) failedResponses.push(`${r.status()} ${r.url()}`); });
-  await page.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
+  // budget=0: these tests compare the page's mirror with the server tick by tick, which a budget
+  // (PROTOCOL.md "Budgets": far tiles later) would not promise
+  await page.goto(`http://127.0.0.1:${daemon.ports.http}/?budget=0&ws=${daemon.ports.ws}`);
   // These tests are about the page's mirror, drawing and driving; its prediction has its own
   // (viewer_predict.mjs). Off, a slow frame's many batches cost what they always did.
   await until('the predict toggle', () => page.evaluate(() => !document.getElementById('predict').disabled), 120000);
@@ -227,7 +229,7 @@ test('a trail dug before the page loaded is coloured: the page compares with the
   assert.ok(trail, 'the trail of the previous test');
   const late = await context.newPage();
   try {
-    await late.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${daemon.ports.ws}`);
+    await late.goto(`http://127.0.0.1:${daemon.ports.http}/?budget=0&ws=${daemon.ports.ws}`);
     await until('the late page live, with the base terrain', () => late.evaluate(() => window.terrad &&
       window.terrad.state === 'live' && window.terrad.baseFromServer && window.terrad.framesDrawn > 3), 30000);
     const frames = await late.evaluate(() => window.terrad.framesDrawn);
@@ -393,7 +395,7 @@ test('a 2048² world: a chunked window, LoD falling with distance, no cracks, th
   const pg = await context.newPage();
   pg.on('pageerror', (e) => console.error('page error:', e.message));
   try {
-    await pg.goto(`http://127.0.0.1:${big.ports.http}/?ws=${big.ports.ws}`);
+    await pg.goto(`http://127.0.0.1:${big.ports.http}/?budget=0&ws=${big.ports.ws}`);
     await until('the first window', () => pg.evaluate(() => window.terrad && window.terrad.state === 'live' && window.terrad.framesDrawn > 2), 60000);
     const world = await pg.evaluate(() => window.terrad.world);
     const region = await pg.evaluate(() => window.terrad.region);

@@ -38,7 +38,7 @@ before(async () => {
   relay = await startRelay(daemon.ports.ws);
   browser = await launchPage({ width: 480, height: 320 });
   page = browser.page;
-  await page.goto(`http://127.0.0.1:${daemon.ports.http}/?ws=${relay.port}`);
+  await page.goto(`http://127.0.0.1:${daemon.ports.http}/?budget=0&ws=${relay.port}`);
 });
 
 after(async () => {
@@ -161,7 +161,7 @@ test('a world the twin does not take: the toggle is disabled, says why, and the 
     const body = await res.json();
     assert.equal(res.status, 404);
     assert.match(body.error, /per-cell materials/);
-    await second.page.goto(`http://127.0.0.1:${other.ports.http}/?ws=${other.ports.ws}`);
+    await second.page.goto(`http://127.0.0.1:${other.ports.http}/?budget=0&ws=${other.ports.ws}`);
     await until('the page shows the world', () => second.page.evaluate(() => window.terrad.ready), WAIT);
     await until('the page gave up on prediction', () => second.page.evaluate(() => window.terrad.prediction.reason !== 'loading'), WAIT);
     assert.equal(await second.page.isDisabled('#predict'), true, 'the toggle is disabled');

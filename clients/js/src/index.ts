@@ -70,6 +70,10 @@ export interface ConnectOptions {
   name?: string;
   /** a world made by POST /v1/worlds ('' for the daemon's own) */
   world?: string;
+  /** bytes per second the server may send this client (PROTOCOL.md "Budgets": near tiles
+   * every tick, far ones later, exact once the terrain settles); absent: the server's default.
+   * `world.budget` says the one in force. */
+  budget?: number;
   /** how long a reply may take (ms, default 60,000) */
   timeoutMs?: number;
   /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket;
@@ -124,7 +128,7 @@ export class TerradClient {
     });
     ws.onerror = () => {};
     const world = c.reply((m) => m.type === 'world');
-    c.sendJson(P.hello(opts.token ?? '', opts.name ?? 'terrad-client-js', opts.world ?? ''));
+    c.sendJson(P.hello(opts.token ?? '', opts.name ?? 'terrad-client-js', opts.world ?? '', opts.budget ?? -1));
     c.world = (await world) as World;
     c.tick = BigInt(c.world.tick ?? 0);
     return c;
@@ -133,6 +137,12 @@ export class TerradClient {
   on<K extends keyof Events>(event: K, fn: Events[K]): this {
     this.listeners[event].push(fn);
     return this;
+  }
+
+  /** A budgeted client's focus in cells: its nearest tiles come every tick, far ones later
+   * (no arguments: its own colliders again). No reply. */
+  focus(x?: number, y?: number): void {
+    this.sendJson(P.focus(x, y));
   }
 
   /** Subscribes to a rectangle of cells; resolves to the subscription's id. */

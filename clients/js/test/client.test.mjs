@@ -3,7 +3,8 @@
 // ($TERRAD_CLIENT_DIR; tests/integration/clients/test_ts_client.sh makes it). Checked: connect and
 // hello, a subscription's mirror, a collider driven with poses (ACKs, CONTACT feedback), the
 // prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
-// the worlds API (create, join, list, remove); bad input refused with errors naming the field.
+// the worlds API (create, join, list, remove); bad input refused with errors naming the field; a
+// budget in hello.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { mkdtempSync, rmSync, writeFileSync } from 'node:fs';
@@ -92,6 +93,21 @@ test('bad input is refused with an error naming the field; the client goes on', 
     await assert.rejects(new T.Worlds(http).create('bad name!', { scene: SCENE }), (e) => e.status === 400 && e.field === 'name');
     const id = await c.createCollider('box', { half_extents: [0.1, 0.1, 0.1] });
     assert.ok(id > 0, 'the connection goes on');
+  } finally {
+    c.close();
+  }
+});
+
+test('a budget in hello (PROTOCOL.md "Budgets"): the world message says it, the mirror still becomes the server\'s', { skip, timeout: 120000 }, async () => {
+  const c = await T.TerradClient.connect(ws, { name: 'ts-budget', budget: 20000 });
+  try {
+    assert.equal(c.world.budget, 20000, 'world.budget is the one asked for');
+    c.focus(64, 64);
+    const sid = await c.subscribe(0, 0, 128, 128);
+    await c.waitComplete(sid);
+    const want = await serverHeights(0, 0, 128, 128);
+    for (let i = 0; i < 600 && !want.every((v, k) => v === c.mirrors.get(sid).heights[k]); i++) await sleep(100);
+    assert.deepEqual(Array.from(c.mirrors.get(sid).heights), want, 'the budgeted mirror equals GET /v1/heights');
   } finally {
     c.close();
   }

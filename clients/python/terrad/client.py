@@ -24,11 +24,11 @@ from .predict import Prediction
 from .twin import TwinError
 from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force, Mirror, MsgType,
                     Pose, ProtoError, ServerError, collider_create, collider_delete,
-                    decode_ack, decode_colliders, decode_contact, decode_delta,
+                    decode_ack, decode_checksum, decode_colliders, decode_contact, decode_delta,
                     decode_footprints, decode_forces, decode_header, decode_ping, decode_stepped,
                     encode_ping, encode_step,
-                    edit, encode_pose_batch, error, frame_tick, hello, parse_control, resync,
-                    seen, subscribe, unsubscribe)
+                    edit, encode_pose_batch, error, focus, frame_tick, hello, parse_control,
+                    resync, seen, subscribe, unsubscribe)
 
 try:
     import numpy as _np
@@ -53,6 +53,7 @@ CALLBACK_ARGS: dict[FrameKind, str] = {
     MsgType.FOOTPRINTS: "(tick, events)",
     MsgType.FORCES: "(tick, forces)",
     MsgType.STEPPED: "(tick, seq, ticks): a STEP of this client ran and is durable",
+    MsgType.CHECKSUM: "(tick, subscription, differing): the tiles [(x, y)] found differing and asked for again",
     MsgType.PING: "(nonce,) after the client answered with a PONG",
     MsgType.PONG: "(nonce,)",
     "message": "(msg,) every JSON control message, a dict",
@@ -90,7 +91,9 @@ class Client:
     Mirror), contacts (collider id -> the latest Contact), forces (collider id -> the latest
     Force: the soil's push, in worlds of the bekker model), colliders (the latest COLLIDERS
     frame, by id), footprints (every FOOTPRINTS event, in order), tick (of the last DELTA),
-    acked_tick and acked_seq (of the last ACK), errors (unsolicited error messages).
+    acked_tick and acked_seq (of the last ACK), errors (unsolicited error messages), desync
+    (PROTOCOL.md "CHECKSUM": checksum_frames compared, checksum_tick, tiles_differing found,
+    tiles_resynced asked for again; a differing tile is repaired by itself).
 
     Callbacks: `on(kind, callback)` for every kind of frame (CALLBACK_ARGS); a callback may be
     a plain function or a coroutine function, and runs on the client's event loop after the
@@ -98,14 +101,18 @@ class Client:
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
                  max_size: int = 1 << 24, world: str = "", say_seen: bool = True,
-                 **connect_kwargs: Any):
+                 budget: int | None = None, **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
         ping_interval=None for a client that may stop reading for a while). world: the
         world a cluster node should serve this client (docs/cluster.md); "" for a single
         daemon's one world. say_seen: tell the server the tick handled (PROTOCOL.md "seen"),
-        so that it bounds this client's lag end to end; False: only its own queue is judged."""
+        so that it bounds this client's lag end to end; False: only its own queue is judged.
+        budget: bytes per second the server may send this client (PROTOCOL.md "Budgets":
+        near tiles first, far ones later, exact once the terrain settles); None: the
+        server's default; world["budget"] says the one in force."""
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
         self.world_name = world
+        self.budget = budget
         self.connect_kwargs = connect_kwargs
         self.ws: Any = None
         self.world: dict[str, Any] = {}
@@ -122,6 +129,7 @@ class Client:
         self.acked_seq = 0
         self.tick = 0
         self.errors: list[dict[str, Any]] = []
+        self.desync = {"checksum_frames": 0, "checksum_tick": 0, "tiles_differing": 0, "tiles_resynced": 0}
         # this client's colliders (id -> (shape, create fields)) and predicting subscriptions
         self.own_colliders: dict[int, tuple[str, dict[str, Any]]] = {}
         self.predictions: dict[int, Prediction] = {}
@@ -172,7 +180,7 @@ class Client:
         websockets = _websockets()
         self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
                                            max_size=self.max_size, **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name)))
+        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name, self.budget)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":
             raise ServerError(msg)
@@ -304,8 +312,14 @@ class Client:
         self.mirrors.pop(sid, None)
         self.stop_predicting(sid)
 
-    async def resync(self, sid: int | None = None) -> None:
-        await self.ws.send(json.dumps(resync(sid)))
+    async def focus(self, x: float | None = None, y: float | None = None) -> None:
+        """Where a budgeted client looks (cells): its nearest tiles come every tick, far ones
+        later. None: its own colliders again."""
+        await self.ws.send(json.dumps(focus(x, y)))
+
+    async def resync(self, sid: int | None = None, tiles: list[tuple[int, int]] | None = None) -> None:
+        """Fresh snapshots of subscription sid (None: all); tiles: of only those tiles."""
+        await self.ws.send(json.dumps(resync(sid, tiles=tiles)))
 
     # ---- waiting and reading the state ----------------------------------------------------
 
@@ -394,6 +408,25 @@ class Client:
             fut.set_result(msg)
         await self._emit("message", msg)
 
+    async def _on_checksum(self, data: bytes) -> None:
+        """PROTOCOL.md "CHECKSUM": every frame before it is applied, so the mirror holds its
+        tick; each held tile that differs is forgotten (its deltas skipped) and asked for
+        again, at most max_resync_tiles per request (the rest at the next CHECKSUM)."""
+        tick, sid, tiles = decode_checksum(data)
+        d = self.desync
+        d["checksum_frames"] += 1
+        d["checksum_tick"] = tick
+        m = self.mirrors.get(sid)
+        differing = m.tiles_differing(tiles) if m is not None else []
+        d["tiles_differing"] += len(differing)
+        asked = differing[:int(self.world.get("limits", {}).get("max_resync_tiles", 64))]
+        if asked and m is not None:
+            for x, y in asked:
+                m.forget_tile(x, y)
+            await self.resync(sid, tiles=asked)
+            d["tiles_resynced"] += len(asked)
+        await self._emit(MsgType.CHECKSUM, tick, sid, asked)
+
     async def _on_binary(self, data: bytes) -> None:
         t = decode_header(data)
         if t == MsgType.DELTA:
@@ -430,6 +463,8 @@ class Client:
                 except (TwinError, OSError) as e:  # the connection and the mirror go on
                     self.errors.append(error("internal", f"prediction of {sid}: {e}"))
             await self._emit(t, self.acked_tick, self.acked_seq)
+        elif t == MsgType.CHECKSUM:
+            await self._on_checksum(data)
         elif t == MsgType.STEPPED:
             tick, seq, ticks = decode_stepped(data)
             fut = self._steps.pop(seq, None)

@@ -24,8 +24,15 @@ from __future__ import annotations
 import json
 import math
 import struct
+from array import array as _array
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
+
+try:  # optional: CHECKSUM comparisons of many tiles at once (Mirror.tiles_differing)
+    import numpy as _np
+except ImportError:
+    _np = None
 
 try:
     import zstandard as _zstd
@@ -45,9 +52,11 @@ __all__ = [
     "encode_footprints", "decode_footprints", "Force", "encode_forces", "decode_forces", "encode_ack", "decode_ack", "encode_ping",
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
     "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
-    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "error",
+    "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "focus", "error",
     "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
     "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
+    "CHECKSUM_FIXED", "TILE_SUM_SIZE", "HASH_SEED", "HASH_PRIME", "TileSum", "heights_hash",
+    "encode_checksum", "decode_checksum",
 ]
 
 PROTOCOL_VERSION = 1
@@ -79,6 +88,7 @@ class MsgType(IntEnum):
     FOOTPRINTS = 0x14
     FORCES = 0x15
     STEPPED = 0x16
+    CHECKSUM = 0x17
 
 
 class Encoding(IntEnum):
@@ -263,15 +273,24 @@ def _check_quaternion(qw, qx, qy, qz) -> None:
 _POSE = struct.Struct("<I7f")
 
 
+def _pack_pose(p: Pose) -> bytes:
+    """One pose entry (POSE_BATCH, STEP): float32 values (_f32 refuses what is not finite),
+    a unit quaternion."""
+    v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
+    _check_quaternion(*v[3:])
+    return _POSE.pack(p.id, *v)
+
+
+def _unpack_pose(buf: bytes, pos: int) -> Pose:
+    pid, *v = _POSE.unpack_from(buf, pos)
+    if not all(math.isfinite(a) for a in v):
+        raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
+    _check_quaternion(*v[3:])
+    return Pose(pid, *v)
+
+
 def encode_pose_batch(seq: int, poses: list[Pose]) -> bytes:
-    if len(poses) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(poses)} poses")
-    out = [_header(MsgType.POSE_BATCH), struct.pack("<IH", seq & _U32, len(poses))]
-    for p in poses:
-        v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
-        _check_quaternion(*v[3:])
-        out.append(_POSE.pack(p.id, *v))
-    return b"".join(out)
+    return _encode_list(MsgType.POSE_BATCH, "<IH", seq & _U32, poses, "poses", _pack_pose)
 
 
 def decode_pose_batch(buf: bytes, max_poses: int = MAX_COUNT) -> tuple[int, list[Pose]]:
@@ -283,14 +302,7 @@ def decode_pose_batch(buf: bytes, max_poses: int = MAX_COUNT) -> tuple[int, list
         raise ProtoError("bad_frame", f"count {count} does not match {len(buf) - 10} bytes of poses")
     if count > max_poses:
         raise ProtoError("too_large", f"{count} poses, at most {max_poses}")
-    poses = []
-    for i in range(count):
-        pid, *v = _POSE.unpack_from(buf, 10 + i * POSE_SIZE)
-        if not all(math.isfinite(a) for a in v):
-            raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
-        _check_quaternion(*v[3:])
-        poses.append(Pose(pid, *v))
-    return seq, poses
+    return seq, [_unpack_pose(buf, 10 + i * POSE_SIZE) for i in range(count)]
 
 
 # ---- STEP and STEPPED (client-clocked worlds) ---------------------------------------
@@ -308,14 +320,7 @@ def encode_step(seq: int, ticks: int, sets: list[list[Pose]]) -> bytes:
     if any(len(s) != count for s in sets) or count > MAX_COUNT or len(sets) > MAX_COUNT:
         raise ProtoError("bad_value", "every set must have the same count (<= 65535)")
     out = [_header(MsgType.STEP), struct.pack("<IIHH", seq & _U32, ticks, count, len(sets))]
-    for s in sets:
-        for p in s:
-            v = [_f32(a) for a in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)]
-            if not all(math.isfinite(a) for a in v):
-                raise ProtoError("bad_value", f"pose of collider {p.id} is not finite")
-            _check_quaternion(*v[3:])
-            out.append(_POSE.pack(p.id, *v))
-    return b"".join(out)
+    return b"".join(out + [_pack_pose(p) for s in sets for p in s])
 
 
 def decode_step(buf: bytes, max_poses: int = MAX_COUNT * 64) -> tuple[int, int, list[list[Pose]]]:
@@ -330,16 +335,8 @@ def decode_step(buf: bytes, max_poses: int = MAX_COUNT * 64) -> tuple[int, int, 
         raise ProtoError("bad_value", f"ticks {ticks} with {nsets} sets")
     if count * nsets > max_poses:
         raise ProtoError("too_large", f"{count * nsets} poses")
-    sets = []
-    for k in range(nsets):
-        s = []
-        for i in range(count):
-            pid, *v = _POSE.unpack_from(buf, STEP_FIXED + (k * count + i) * POSE_SIZE)
-            if not all(math.isfinite(a) for a in v):
-                raise ProtoError("bad_value", f"pose of collider {pid} is not finite")
-            _check_quaternion(*v[3:])
-            s.append(Pose(pid, *v))
-        sets.append(s)
+    sets = [[_unpack_pose(buf, STEP_FIXED + (k * count + i) * POSE_SIZE) for i in range(count)]
+            for k in range(nsets)]
     return seq, ticks, sets
 
 
@@ -358,6 +355,63 @@ def decode_stepped(buf: bytes) -> tuple[int, int, int]:
     if ticks == 0:
         raise ProtoError("bad_value", "STEPPED of 0 ticks")
     return tick, seq, ticks
+
+
+# ---- CHECKSUM (desync detection) -----------------------------------------------------
+
+CHECKSUM_FIXED = 18
+TILE_SUM_SIZE = 20
+HASH_SEED = 0xCBF29CE484222325
+HASH_PRIME = 0x100000001B3
+_U64 = (1 << 64) - 1
+_TILE_SUM = struct.Struct("<iiIQ")
+
+
+class TileSum(NamedTuple):
+    tile_x: int
+    tile_y: int
+    version: int
+    hash: int
+
+
+def heights_hash(heights, stride: int, w: int, h: int, start: int = 0) -> int:
+    """PROTOCOL.md "Tile hash": FNV-1a 64 over the heights as u32 words, row-major, of the
+    w x h heights at heights[start + j * stride + i]."""
+    x = HASH_SEED
+    for j in range(h):
+        o = start + j * stride
+        for v in heights[o:o + w]:
+            x = ((x ^ (v & _U32)) * HASH_PRIME) & _U64
+    return x
+
+
+def encode_checksum(tick: int, subscription: int, tiles: list[TileSum]) -> bytes:
+    if subscription <= 0 or len(tiles) > MAX_COUNT:
+        raise ProtoError("bad_value", "subscription 0 or too many tiles")
+    out = [_header(MsgType.CHECKSUM), struct.pack("<QIH", tick, subscription, len(tiles))]
+    for t in tiles:
+        if t.tile_x < 0 or t.tile_y < 0 or t.version == 0:
+            raise ProtoError("bad_value", f"tile ({t.tile_x}, {t.tile_y}) of version {t.version}")
+        out.append(_TILE_SUM.pack(t.tile_x, t.tile_y, t.version, t.hash))
+    return b"".join(out)
+
+
+def decode_checksum(buf: bytes) -> tuple[int, int, list[TileSum]]:
+    """(tick, subscription, tiles): each tile's version and heights hash at tick."""
+    _expect(buf, MsgType.CHECKSUM)
+    if len(buf) < CHECKSUM_FIXED:
+        raise ProtoError("bad_frame", "truncated")
+    tick, sub, count = struct.unpack_from("<QIH", buf, 4)
+    if len(buf) - CHECKSUM_FIXED != count * TILE_SUM_SIZE:
+        raise ProtoError("bad_frame", f"count {count} does not match the frame")
+    if sub == 0:
+        raise ProtoError("bad_value", "subscription 0")
+    tiles = [TileSum(*_TILE_SUM.unpack_from(buf, CHECKSUM_FIXED + i * TILE_SUM_SIZE))
+             for i in range(count)]
+    for t in tiles:
+        if t.tile_x < 0 or t.tile_y < 0 or t.version == 0:
+            raise ProtoError("bad_value", f"tile ({t.tile_x}, {t.tile_y}) of version {t.version}")
+    return tick, sub, tiles
 
 
 # ---- DELTA -----------------------------------------------------------------------
@@ -427,14 +481,19 @@ def decode_delta(buf: bytes, max_rects: int = MAX_COUNT) -> tuple[int, list[Rect
 
 # ---- tick lists: CONTACT, COLLIDERS, FOOTPRINTS, FORCES ----------------------------------
 # One outline: the header, the tick (u64), a count (u16), then count entries of one fixed
-# size; each frame gives its entry's packer and unpacker (each checks its entry).
+# size; each frame gives its entry's packer and unpacker (each checks its entry). POSE_BATCH
+# is the same outline with a seq (u32) for the tick (_encode_list's head).
+
+
+def _encode_list(t: MsgType, head: str, first: int, entries: list, what: str, pack) -> bytes:
+    if len(entries) > MAX_COUNT:
+        raise ProtoError("too_large", f"{len(entries)} {what}")
+    return b"".join([_header(t), struct.pack(head, first, len(entries))] +
+                    [pack(e) for e in entries])
 
 
 def _encode_tick_list(t: MsgType, tick: int, entries: list, what: str, pack) -> bytes:
-    if len(entries) > MAX_COUNT:
-        raise ProtoError("too_large", f"{len(entries)} {what}")
-    return b"".join([_header(t), struct.pack("<QH", tick, len(entries))] +
-                    [pack(e) for e in entries])
+    return _encode_list(t, "<QH", tick, entries, what, pack)
 
 
 def _decode_tick_list(buf: bytes, t: MsgType, size: int, cap: int, what: str,
@@ -617,27 +676,20 @@ def decode_ping(buf: bytes) -> tuple[MsgType, int]:
     return t, struct.unpack_from("<Q", buf, 4)[0]
 
 
+# Each binary frame's decoder, by its type (PING and PONG: decode_ping, below).
+_DECODERS = {
+    MsgType.POSE_BATCH: decode_pose_batch, MsgType.DELTA: decode_delta,
+    MsgType.CONTACT: decode_contact, MsgType.ACK: decode_ack, MsgType.COLLIDERS: decode_colliders,
+    MsgType.FOOTPRINTS: decode_footprints, MsgType.FORCES: decode_forces,
+    MsgType.STEP: decode_step, MsgType.STEPPED: decode_stepped, MsgType.CHECKSUM: decode_checksum,
+}
+
+
 def decode(buf: bytes):
-    """Any binary frame: (MsgType, decoded tuple)."""
+    """Any binary frame: (MsgType, decoded tuple); a PING or PONG's nonce."""
     t = decode_header(buf)
-    if t == MsgType.POSE_BATCH:
-        return t, decode_pose_batch(buf)
-    if t == MsgType.DELTA:
-        return t, decode_delta(buf)
-    if t == MsgType.CONTACT:
-        return t, decode_contact(buf)
-    if t == MsgType.ACK:
-        return t, decode_ack(buf)
-    if t == MsgType.COLLIDERS:
-        return t, decode_colliders(buf)
-    if t == MsgType.FOOTPRINTS:
-        return t, decode_footprints(buf)
-    if t == MsgType.FORCES:
-        return t, decode_forces(buf)
-    if t == MsgType.STEP:
-        return t, decode_step(buf)
-    if t == MsgType.STEPPED:
-        return t, decode_stepped(buf)
+    if t in _DECODERS:
+        return t, _DECODERS[t](buf)
     return t, decode_ping(buf)[1]
 
 
@@ -785,15 +837,86 @@ class Mirror:
             self.versions = [0] * len(self.versions)
             raise
 
+    def tile_differs(self, s: TileSum) -> int:
+        """One CHECKSUM entry against the mirror (terrad_mirror_tile_differs): 1 when the
+        tile is held and its version or hash differs, 0 when it agrees or is not held, -1
+        when the region does not touch it."""
+        T = self.tile_size
+        if not (self.tx0 <= s.tile_x < self.tx0 + self.tiles_x and self.ty0 <= s.tile_y < self.ty0 + self.tiles_y):
+            return -1
+        t = (s.tile_x - self.tx0) + (s.tile_y - self.ty0) * self.tiles_x
+        if self.versions[t] == 0:
+            return 0
+        if self.versions[t] != s.version:
+            return 1
+        x0, y0 = max(s.tile_x * T, self.x), max(s.tile_y * T, self.y)
+        x1, y1 = min(s.tile_x * T + T, self.x + self.w), min(s.tile_y * T + T, self.y + self.h)
+        start = (y0 - self.y) * self.w + (x0 - self.x)
+        return int(heights_hash(self.heights, self.w, x1 - x0, y1 - y0, start) != s.hash)
+
+    def tiles_differing(self, sums: list[TileSum]) -> list[tuple[int, int]]:
+        """The (tile x, tile y) of every entry of one CHECKSUM frame for which tile_differs is
+        1. With NumPy the hashes of tile parts of one shape are computed side by side (one
+        pass over their cells for all of them: a whole 512 x 512 window in milliseconds, not
+        the tenths of a second a Python loop takes); without it, one tile at a time."""
+        T = self.tile_size
+        todo = []  # (entry, x0, y0, w, h) of held tiles whose version agrees
+        out = []
+        for s in sums:
+            if not (self.tx0 <= s.tile_x < self.tx0 + self.tiles_x and self.ty0 <= s.tile_y < self.ty0 + self.tiles_y):
+                continue
+            held = self.versions[(s.tile_x - self.tx0) + (s.tile_y - self.ty0) * self.tiles_x]
+            if held == 0:
+                continue
+            if held != s.version:
+                out.append((s.tile_x, s.tile_y))
+                continue
+            x0, y0 = max(s.tile_x * T, self.x), max(s.tile_y * T, self.y)
+            x1, y1 = min(s.tile_x * T + T, self.x + self.w), min(s.tile_y * T + T, self.y + self.h)
+            todo.append((s, x0 - self.x, y0 - self.y, x1 - x0, y1 - y0))
+        if _np is None or len(todo) < 2:
+            for s, x0, y0, w, h in todo:
+                if heights_hash(self.heights, self.w, w, h, y0 * self.w + x0) != s.hash:
+                    out.append((s.tile_x, s.tile_y))
+            return out
+        try:
+            words = _array("i", self.heights)
+        except OverflowError:  # a height outside int32 (the list was written to): its u32 word
+            words = _array("I", [v & _U32 for v in self.heights])
+        grid = _np.frombuffer(words, dtype=_np.uint32).reshape(self.h, self.w)
+        shapes: dict[tuple[int, int], list] = {}
+        for t in todo:
+            shapes.setdefault((t[3], t[4]), []).append(t)
+        for (w, h), group in shapes.items():
+            cells = _np.stack([grid[y0:y0 + h, x0:x0 + w].reshape(-1) for _, x0, y0, _, _ in group])
+            cells = _np.ascontiguousarray(cells.T.astype(_np.uint64))
+            x = _np.full(len(group), HASH_SEED, dtype=_np.uint64)
+            prime = _np.uint64(HASH_PRIME)
+            for k in range(w * h):
+                x ^= cells[k]
+                x *= prime
+            out += [(s.tile_x, s.tile_y) for (s, *_), got in zip(group, x.tolist()) if got != s.hash]
+        return out
+
+    def forget_tile(self, tile_x: int, tile_y: int) -> None:
+        """Not held any more (its deltas skipped) until a snapshot of it arrives."""
+        t = (tile_x - self.tx0) + (tile_y - self.ty0) * self.tiles_x
+        self.versions[t] = 0
+
 
 # ---- JSON control messages ---------------------------------------------------------------
 
 
-def hello(token: str = "", client: str = "terrad-python", world: str = "") -> dict:
-    """world: the world a cluster node should serve (sent only when given)."""
+def hello(token: str = "", client: str = "terrad-python", world: str = "",
+          budget: int | None = None) -> dict:
+    """world: the world a cluster node should serve (sent only when given). budget: the
+    most bytes per second this client wants to be sent (PROTOCOL.md "Budgets"; None: the
+    server's default, 0: none)."""
     msg = {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
     if world:
         msg["world"] = world
+    if budget is not None:
+        msg["budget"] = budget
     return msg
 
 
@@ -840,10 +963,22 @@ def subscribe_events(events=("world_created", "world_deleted"), ref=None) -> dic
     return _with_ref({"type": "subscribe_events", "events": list(events)}, ref)
 
 
-def resync(sid: int | None = None, ref=None) -> dict:
+def focus(x: float | None = None, y: float | None = None) -> dict:
+    """A budgeted client's focus point in cells (PROTOCOL.md "focus"); None: cleared (its
+    colliders are the focus again)."""
+    msg: dict = {"type": "focus"}
+    if x is not None and y is not None:
+        msg["x"], msg["y"] = x, y
+    return msg
+
+
+def resync(sid: int | None = None, ref=None, tiles=None) -> dict:
+    """tiles: [(tile x, tile y), ...] of subscription sid: snapshots of only those."""
     msg: dict = {"type": "resync"}
     if sid is not None:
         msg["id"] = sid
+    if tiles is not None:
+        msg["tiles"] = [[int(x), int(y)] for x, y in tiles]
     return _with_ref(msg, ref)
 
 

@@ -71,6 +71,8 @@ def decode_any(t, b):
         return tp.decode_step(b)
     if t == "STEPPED":
         return tp.decode_stepped(b)
+    if t == "CHECKSUM":
+        return tp.decode_checksum(b)
     return tp.decode_ping(b)
 
 
@@ -151,6 +153,10 @@ def check_valid(v):
     elif t == "STEPPED":
         check(tp.decode_stepped(b) == (int(f["tick"]), f["seq"], f["ticks"]), f"{name}: decode")
         check(tp.encode_stepped(int(f["tick"]), f["seq"], f["ticks"]) == b, f"{name}: encode")
+    elif t == "CHECKSUM":
+        want = [tp.TileSum(e["tile_x"], e["tile_y"], e["version"], int(e["hash"])) for e in f["tiles"]]
+        check(tp.decode_checksum(b) == (int(f["tick"]), f["subscription"], want), f"{name}: decode")
+        check(tp.encode_checksum(int(f["tick"]), f["subscription"], want) == b, f"{name}: encode")
     elif t == "ACK":
         check(tp.decode_ack(b) == (int(f["tick"]), f["seq"]), f"{name}: decode")
         check(tp.encode_ack(int(f["tick"]), f["seq"]) == b, f"{name}: encode")
@@ -183,6 +189,32 @@ def check_vectors(doc):
         else:
             got = raises(lambda: decode_any(v["type"], bytes.fromhex(v["hex"])), v["error"])
             check(got is True, f"{v['name']}: got {got}, want {v['error']}")
+
+
+def check_hashes(doc):
+    """The tile hash of every "hashes" entry, and a mirror's view of one of its tiles."""
+    for e in doc["hashes"]:
+        check(tp.heights_hash(e["heights"], e["w"], e["w"], e["h"]) == int(e["hash"]), f"hash: {e['about']}")
+    m = tp.Mirror(30, 40, 100, 70, 64)
+    m.heights = [i * 3 for i in range(100 * 70)]
+    m.versions[4] = 5  # tile (1, 1): its part is region columns 34..97, rows 24..69
+    want = tp.heights_hash(m.heights, 100, 64, 46, 24 * 100 + 34)
+    s = tp.TileSum(1, 1, 5, want)
+    check(m.tile_differs(s) == 0, "a mirror agrees with its own hash")
+    m.heights[30 * 100 + 40] += 1
+    check(m.tile_differs(s) == 1, "one height changed: the tile differs")
+    check(m.tile_differs(tp.TileSum(0, 1, 5, 0)) == 0, "a tile not held is not compared")
+    check(m.tile_differs(tp.TileSum(3, 1, 5, 0)) == -1, "a tile outside the region")
+    # a whole frame at once (NumPy, when there is one): the same verdicts as tile by tile
+    m.versions = [3, 0, 4, 5, 5, 5]
+    sums = [tp.TileSum(tx, ty, 5, tp.heights_hash(m.heights, 100, min(tx * 64 + 64, 130) - max(tx * 64, 30),
+                                                  min(ty * 64 + 64, 110) - max(ty * 64, 40),
+                                                  (max(ty * 64, 40) - 40) * 100 + max(tx * 64, 30) - 30))
+            for ty in range(2) for tx in range(3)]
+    m.heights[69 * 100 + 99] = -m.heights[69 * 100 + 99] - 1  # the last cell of tile (2, 1)
+    want = [(s.tile_x, s.tile_y) for s in sums if m.tile_differs(s) == 1]
+    check(want == [(0, 0), (2, 0), (2, 1)], f"tile by tile: {want}")
+    check(m.tiles_differing(sums) == want, f"a whole frame: {m.tiles_differing(sums)}")
 
 
 def check_scenarios(doc):
@@ -398,6 +430,7 @@ def main():
         doc = json.load(f)
     check_vectors(doc)
     check_scenarios(doc)
+    check_hashes(doc)
     check_refusals()
     check_random(random.Random(1234))
     try:

@@ -71,45 +71,33 @@ async def drive_through_nats_kill(node, nats):
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
-    with ch.NatsCluster(1) as nats:
-        try:
-            for w in WORLDS:
-                ok, said = ch.world_add(nats.urls, w, "tests/chaos/chaos_scene.json")
-                check(ok, f"world add {w}: {said}")
-            first = Node("first", nats.urls, max_worlds=2)
-            nodes.append(first)
-            check(wait_for(lambda: all(first.serves(w) for w in WORLDS), 60),
-                  "the first node ticks both worlds")
-            acks = asyncio.run(drive_through_nats_kill(first, nats))
-            for w, ticks in zip(WORLDS, acks):
-                check(len(ticks) > 10, f"{w}: the client saw ticks acknowledged ({len(ticks)})")
-            first.kill9()
-            nats.servers[0].start()
-            nats.servers[0].wait_listening()
-            second = Node("second", nats.urls, max_worlds=2)
-            nodes.append(second)
-            check(wait_for(lambda: all(second.serves(w) for w in WORLDS), 90),
-                  "a second node recovers both worlds from the log")
-            for w, ticks in zip(WORLDS, acks):
-                rec = second.recovered.get(w, -1)
-                last = max(ticks, default=0)
-                check(rec >= last, f"{w}: recovered at tick {rec} >= the last tick its client "
-                      f"saw acknowledged ({last})")
-            for w in WORLDS:
-                rec = second.recovered.get(w, -1)
-                check(wait_for(lambda: (second.stats(w) or {}).get("tick", 0) > rec + 30, 60),
-                      f"{w} ticks on from there")
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            for n in nodes:
-                n.stop()
-            if check.failed:
-                for n in nodes:
-                    n.print_log(30)
-                print(nats.logs())
+    with ch.NatsCluster(1) as nats, ch.running_nodes(check, [], nats, tail=30) as nodes:
+        for w in WORLDS:
+            ok, said = ch.world_add(nats.urls, w, "tests/chaos/chaos_scene.json")
+            check(ok, f"world add {w}: {said}")
+        first = Node("first", nats.urls, max_worlds=2)
+        nodes.append(first)
+        check(wait_for(lambda: all(first.serves(w) for w in WORLDS), 60),
+              "the first node ticks both worlds")
+        acks = asyncio.run(drive_through_nats_kill(first, nats))
+        for w, ticks in zip(WORLDS, acks):
+            check(len(ticks) > 10, f"{w}: the client saw ticks acknowledged ({len(ticks)})")
+        first.kill9()
+        nats.servers[0].start()
+        nats.servers[0].wait_listening()
+        second = Node("second", nats.urls, max_worlds=2)
+        nodes.append(second)
+        check(wait_for(lambda: all(second.serves(w) for w in WORLDS), 90),
+              "a second node recovers both worlds from the log")
+        for w, ticks in zip(WORLDS, acks):
+            rec = second.recovered.get(w, -1)
+            last = max(ticks, default=0)
+            check(rec >= last, f"{w}: recovered at tick {rec} >= the last tick its client "
+                  f"saw acknowledged ({last})")
+        for w in WORLDS:
+            rec = second.recovered.get(w, -1)
+            check(wait_for(lambda: (second.stats(w) or {}).get("tick", 0) > rec + 30, 60),
+                  f"{w} ticks on from there")
     check.finish()
 
 

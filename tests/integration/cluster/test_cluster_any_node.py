@@ -217,46 +217,36 @@ def http_through_relay(a, b):
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
-    with ch.NatsCluster(1) as nats:
-        try:
-            urls = nats.urls
-            for name, scene in (("dunes", "server/scene/default.json"),
-                                ("spare", "tests/scenes/tiny.json"),
-                                ("orphan", "tests/scenes/tiny.json")):
-                ok, said = ch.world_add(urls, name, scene)
-                check(ok, f"world add {name}: {said}")
-            a = Node("a", urls, extra=["--worlds", "dunes"])
-            nodes.append(a)
-            check(wait_for(lambda: a.serves("dunes"), 60), "node a ticks dunes")
-            b = Node("b", urls, extra=["--worlds", "spare"])
-            nodes.append(b)
-            check(wait_for(lambda: any("relays world dunes" in l for l in b.lines), 30),
-                  "node b relays dunes")
-            answer, code = asyncio.run(raw_hello(b, "nowhere"))
-            check(answer.get("name") == "bad_value" and code == 4005,
-                  f"a hello naming an unregistered world is refused by b ({answer}, {code})")
-            http_through_relay(a, b)
-            asyncio.run(scenario(a, b))
-            c = Node("c", urls, extra=["--worlds", "dunes"])
-            nodes.append(c)
-            check(wait_for(lambda: any("is a standby" in l for l in c.lines), 30),
-                  "node c waits for dunes")
-            asyncio.run(relayed_failover(a, b, c, (0, 224, 256, 64)))
-            base = "/v1/heights?world=dunes&x=0&y=0&w=128&h=128&base=1"
-            check(wait_for(lambda: get(b, "/v1/stats?world=dunes")[0] == 200, 30) and
-                  get(b, base)[2] == get(c, base)[2] and get(b, base)[0] == 200,
-                  "after the failover, b answers HTTP for dunes again (now from c)")
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            codes = [n.stop() for n in nodes]
-            check(all(code in (0, -9) for code in codes),
-                  f"SIGTERM stops every node left with status 0 ({codes})")
-            if check.failed:
-                for n in nodes:
-                    n.print_log()
+    left = "SIGTERM stops every node left with status 0"
+    with ch.NatsCluster(1) as nats, ch.running_nodes(
+            check, [], stopped=lambda codes: all(c in (0, -9) for c in codes), said=left) as nodes:
+        urls = nats.urls
+        for name, scene in (("dunes", "server/scene/default.json"),
+                            ("spare", "tests/scenes/tiny.json"),
+                            ("orphan", "tests/scenes/tiny.json")):
+            ok, said = ch.world_add(urls, name, scene)
+            check(ok, f"world add {name}: {said}")
+        a = Node("a", urls, extra=["--worlds", "dunes"])
+        nodes.append(a)
+        check(wait_for(lambda: a.serves("dunes"), 60), "node a ticks dunes")
+        b = Node("b", urls, extra=["--worlds", "spare"])
+        nodes.append(b)
+        check(wait_for(lambda: any("relays world dunes" in l for l in b.lines), 30),
+              "node b relays dunes")
+        answer, code = asyncio.run(raw_hello(b, "nowhere"))
+        check(answer.get("name") == "bad_value" and code == 4005,
+              f"a hello naming an unregistered world is refused by b ({answer}, {code})")
+        http_through_relay(a, b)
+        asyncio.run(scenario(a, b))
+        c = Node("c", urls, extra=["--worlds", "dunes"])
+        nodes.append(c)
+        check(wait_for(lambda: any("is a standby" in l for l in c.lines), 30),
+              "node c waits for dunes")
+        asyncio.run(relayed_failover(a, b, c, (0, 224, 256, 64)))
+        base = "/v1/heights?world=dunes&x=0&y=0&w=128&h=128&base=1"
+        check(wait_for(lambda: get(b, "/v1/stats?world=dunes")[0] == 200, 30) and
+              get(b, base)[2] == get(c, base)[2] and get(b, base)[0] == 200,
+              "after the failover, b answers HTTP for dunes again (now from c)")
     check.finish()
 
 

@@ -98,29 +98,19 @@ async def viewers_scenario(nodes, region):
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
-    with ch.NatsCluster(NATS) as nats:
-        try:
-            urls = nats.urls
-            ok, said = ch.world_add(urls, "dunes", "server/scene/default.json")
-            check(ok, f"world add dunes: {said}")
-            nodes.append(Node("n0", urls))
-            check(wait_for(lambda: nodes[0].serves("dunes"), 60), "n0 ticks dunes")
-            for i in range(1, NODES):
-                nodes.append(Node(f"n{i}", urls))
-            for n in nodes[1:]:
-                check(wait_for(lambda: any("relays world dunes" in l for l in n.lines), 30),
-                      f"{n.name} relays dunes")
-            asyncio.run(viewers_scenario(nodes, (0, 224, 256, 64)))
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            codes = [n.stop() for n in nodes]
-            check(all(c == 0 for c in codes), f"SIGTERM stops every node with status 0 ({codes})")
-            if check.failed:
-                for n in nodes:
-                    n.print_log(20)
+    with ch.NatsCluster(NATS) as nats, ch.running_nodes(check, [], tail=20,
+                                                        stopped=ch.all_zero) as nodes:
+        urls = nats.urls
+        ok, said = ch.world_add(urls, "dunes", "server/scene/default.json")
+        check(ok, f"world add dunes: {said}")
+        nodes.append(Node("n0", urls))
+        check(wait_for(lambda: nodes[0].serves("dunes"), 60), "n0 ticks dunes")
+        for i in range(1, NODES):
+            nodes.append(Node(f"n{i}", urls))
+        for n in nodes[1:]:
+            check(wait_for(lambda: any("relays world dunes" in l for l in n.lines), 30),
+                  f"{n.name} relays dunes")
+        asyncio.run(viewers_scenario(nodes, (0, 224, 256, 64)))
     check.finish()
 
 

@@ -165,61 +165,51 @@ async def lose_one_world(a, urls):
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
-    with ch.NatsCluster(1) as nats:
-        try:
-            urls = nats.urls
-            for name, scene in WORLDS.items():
-                r = world_cmd(urls, "add", name, "--scene", os.path.join(SOURCE, scene))
-                check(r.returncode == 0, f"world add {name}: {r.stderr.strip()}")
-            a = Node("a", urls, max_worlds=3)
-            nodes.append(a)
-            check(wait_for(lambda: a.worlds >= set(WORLDS), 60), f"node a serves {sorted(WORLDS)}")
-            http_views(a)
-            hellos(a)
-            volumes = {w: a.stats(w)["volume"] for w in WORLDS}
-            b = None
+    last = "SIGTERM stops the last node with status 0"
+    with ch.NatsCluster(1) as nats, ch.running_nodes(
+            check, [], nats, stopped=lambda codes: codes and codes[-1] == 0, said=last) as nodes:
+        urls = nats.urls
+        for name, scene in WORLDS.items():
+            r = world_cmd(urls, "add", name, "--scene", os.path.join(SOURCE, scene))
+            check(r.returncode == 0, f"world add {name}: {r.stderr.strip()}")
+        a = Node("a", urls, max_worlds=3)
+        nodes.append(a)
+        check(wait_for(lambda: a.worlds >= set(WORLDS), 60), f"node a serves {sorted(WORLDS)}")
+        http_views(a)
+        hellos(a)
+        volumes = {w: a.stats(w)["volume"] for w in WORLDS}
+        b = None
 
-            async def scenario():
-                nonlocal b
-                c, lane, sid, park = await drive_and_compare(a, volumes)
-                await lose_one_world(a, urls)
-                b = Node("b", urls, max_worlds=2)
-                nodes.append(b)
-                check(wait_for(lambda: b.listening.is_set() and
-                               any("is a standby" in l for l in b.lines), 30),
-                      "node b waits as a standby")
-                acked = c.acked_tick
-                mine = c.history.get(acked, {}).get(sid)
-                a.kill9()
-                took = wait_for(lambda: b.serves("dunes") and b.serves("spheres"), 60)
-                check(took, "node b serves dunes and spheres after kill -9 of node a")
-                if took:
-                    st = b.stats("dunes")
-                    check(st["tick"] >= acked and st["volume"] == volumes["dunes"],
-                          f"dunes on b: tick {st['tick']} >= acked {acked}, Σh unchanged")
-                    check(b.stats("spheres")["volume"] == volumes["spheres"],
-                          "spheres on b: Σh unchanged")
-                    _, heights = b.heights("dunes", *lane)
-                    check(mine is not None and heights == mine[0],
-                          "GET /v1/heights?world=dunes on b equals the client's mirror of its "
-                          f"last acknowledged tick {acked}")
-                try:
-                    await c.close()
-                except Exception:  # noqa: BLE001
-                    pass
+        async def scenario():
+            nonlocal b
+            c, lane, sid, park = await drive_and_compare(a, volumes)
+            await lose_one_world(a, urls)
+            b = Node("b", urls, max_worlds=2)
+            nodes.append(b)
+            check(wait_for(lambda: b.listening.is_set() and
+                           any("is a standby" in l for l in b.lines), 30),
+                  "node b waits as a standby")
+            acked = c.acked_tick
+            mine = c.history.get(acked, {}).get(sid)
+            a.kill9()
+            took = wait_for(lambda: b.serves("dunes") and b.serves("spheres"), 60)
+            check(took, "node b serves dunes and spheres after kill -9 of node a")
+            if took:
+                st = b.stats("dunes")
+                check(st["tick"] >= acked and st["volume"] == volumes["dunes"],
+                      f"dunes on b: tick {st['tick']} >= acked {acked}, Σh unchanged")
+                check(b.stats("spheres")["volume"] == volumes["spheres"],
+                      "spheres on b: Σh unchanged")
+                _, heights = b.heights("dunes", *lane)
+                check(mine is not None and heights == mine[0],
+                      "GET /v1/heights?world=dunes on b equals the client's mirror of its "
+                      f"last acknowledged tick {acked}")
+            try:
+                await c.close()
+            except Exception:  # noqa: BLE001
+                pass
 
-            asyncio.run(scenario())
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            codes = [n.stop() for n in nodes]
-            check(codes and codes[-1] == 0, f"SIGTERM stops the last node with status 0 ({codes})")
-            if check.failed:
-                for n in nodes:
-                    n.print_log()
-                print(nats.logs())
+        asyncio.run(scenario())
     check.finish()
 
 

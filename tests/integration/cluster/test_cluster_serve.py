@@ -154,36 +154,24 @@ exact = 0
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
-    with ch.NatsCluster(3) as nats:
-        try:
-            urls = nats.urls
-            for name, scene in (("dunes", "server/scene/default.json"),
-                                ("spheres", "tests/scenes/spheres.json")):
-                ok, said = ch.world_add(urls, name, scene)
-                check(ok, f"world add {name}: {said}")
-            bad_input(urls)
-            nodes = [Node(f"n{i}", urls) for i in range(3)]
-            a, b = owner_of(nodes, "dunes", 30), owner_of(nodes, "spheres", 30)
-            check(a is not None and b is not None and a is not b,
-                  "two nodes own the two worlds, one each")
-            ch.wait_for(lambda: all(n.up() for n in nodes), 60)  # each ticks or waits as a standby
-            check(sum(1 for n in nodes if n.world) == 2, "the third node is a standby")
-            hello_names_the_world(nodes)
-            for k in range(KILLS):
-                failover_round(k, nodes)
-            check(exact >= 1 or KILLS == 0, f"{exact} exact comparisons with the client's mirror")
-            fencing(nodes)
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            codes = [n.stop() for n in nodes]
-            check(all(c == 0 for c in codes), f"SIGTERM stops every node with status 0 ({codes})")
-            if check.failed:
-                for n in nodes:
-                    n.print_log()
-                print(nats.logs())
+    with ch.NatsCluster(3) as nats, ch.running_nodes(check, [], nats, stopped=ch.all_zero) as nodes:
+        urls = nats.urls
+        for name, scene in (("dunes", "server/scene/default.json"),
+                            ("spheres", "tests/scenes/spheres.json")):
+            ok, said = ch.world_add(urls, name, scene)
+            check(ok, f"world add {name}: {said}")
+        bad_input(urls)
+        nodes += [Node(f"n{i}", urls) for i in range(3)]
+        a, b = owner_of(nodes, "dunes", 30), owner_of(nodes, "spheres", 30)
+        check(a is not None and b is not None and a is not b,
+              "two nodes own the two worlds, one each")
+        ch.wait_for(lambda: all(n.up() for n in nodes), 60)  # each ticks or waits as a standby
+        check(sum(1 for n in nodes if n.world) == 2, "the third node is a standby")
+        hello_names_the_world(nodes)
+        for k in range(KILLS):
+            failover_round(k, nodes)
+        check(exact >= 1 or KILLS == 0, f"{exact} exact comparisons with the client's mirror")
+        fencing(nodes)
     check.finish()
 
 

@@ -22,72 +22,49 @@ nats-server is not installed.
 """
 import asyncio
 import os
-import re
 import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 import cluster_harness as ch  # noqa: E402
-from cluster_harness import owner_of  # noqa: E402
-from service_harness import Checks, Daemon  # noqa: E402
+from service_harness import Checks  # noqa: E402
 import soil_drive as sd  # noqa: E402
 
 check = Checks()
 WORLD = "soil"
 HALF = len(sd.FIRST) // 2
-COMPACTED_RE = re.compile(r"cluster: world soil: \d+ tiles compacted")
-RECOVERED_RE = re.compile(
-    r"cluster: world soil recovered at tick \d+ from (\d+) tile snapshots and (\d+) log records")
+
+
+def state(read, stats):
+    """Heights, then Σ compacted (stats(): /v1/stats), of a world read by read(x, y, w, h)."""
+    _, hs = read(0, 0, sd.W, sd.H)
+    return hs, stats()["soil_compacted"]
 
 
 def node_state(n):
-    _, hs = n.heights(WORLD, 0, 0, sd.W, sd.H)
-    return hs, n.stats(WORLD)["soil_compacted"]
+    return state(ch.node_reader(n, WORLD), lambda: n.stats(WORLD))
 
 
-def daemon_state(d):
-    _, hs = d.heights(0, 0, sd.W, sd.H)
-    return hs, d.stats()["soil_compacted"]
-
-
-def twin(scene):
-    """The reference: a single daemon, the same passes, never failed."""
-    d = Daemon(extra=["--scene", scene], name="terrad-twin", durability="every-tick")
-    check.daemons.append(d)
-    try:
-        asyncio.run(sd.drive(check, d.ws, sd.FIRST[:HALF], 0.02))
-        asyncio.run(sd.drive(check, d.ws, sd.FIRST[HALF:], 0.02))
-        middle = daemon_state(d)
-        second = asyncio.run(sd.drive(check, d.ws, sd.SECOND, 0.03))
-        return middle, middle, second, daemon_state(d)
-    finally:
-        d.stop()
-
-
-def compactions(n):
-    return sum(1 for line in list(n.lines) if COMPACTED_RE.search(line))
+def twin(d):
+    """The reference: the twin daemon, the same passes, never failed."""
+    asyncio.run(sd.drive(check, d.ws, sd.FIRST[:HALF], 0.02))
+    asyncio.run(sd.drive(check, d.ws, sd.FIRST[HALF:], 0.02))
+    middle = state(d.heights, d.stats)
+    second = asyncio.run(sd.drive(check, d.ws, sd.SECOND, 0.03))
+    return middle, middle, second, state(d.heights, d.stats)
 
 
 def failover(nodes):
-    owner = owner_of(nodes, WORLD, 60)
-    if not check(owner is not None, "a node takes the bekker world"):
+    owner, other = ch.owner_and_standby(check, nodes, WORLD, "the bekker world")
+    if owner is None:
         return None
-    ch.wait_for(lambda: all(n.up() for n in nodes), 60)
-    other = next(n for n in nodes if n is not owner)
-    asyncio.run(sd.drive(check, owner.ws, sd.FIRST[:HALF], 0.02, world=WORLD))
-    before = compactions(owner)
-    check(ch.wait_for(lambda: compactions(owner) > before, 120),
-          "the owner compacts the log into tile snapshots after the first half")
-    asyncio.run(sd.drive(check, owner.ws, sd.FIRST[HALF:], 0.02, world=WORLD))
+    ch.drive_across_compaction(
+        check, owner, WORLD,
+        lambda: asyncio.run(sd.drive(check, owner.ws, sd.FIRST[:HALF], 0.02, world=WORLD)),
+        lambda: asyncio.run(sd.drive(check, owner.ws, sd.FIRST[HALF:], 0.02, world=WORLD)))
     middle = node_state(owner)
-    owner.kill9()
-    new = owner_of([other], WORLD, 120)
-    if not check(new is not None, f"{other.name} takes the world after the kill"):
+    new = ch.take_over(check, owner, other, WORLD)
+    if new is None:
         return None
-    said = [m for m in map(RECOVERED_RE.search, list(new.lines)) if m]
-    tiles, records = (int(said[-1].group(1)), int(said[-1].group(2))) if said else (0, 0)
-    check(tiles > 0 and records > 0,
-          f"the new owner recovered from tile snapshots ({tiles}) and log records after them "
-          f"({records})")
     recovered = node_state(new)
     second = asyncio.run(sd.drive(check, new.ws, sd.SECOND, 0.03, world=WORLD))
     return middle, recovered, second, node_state(new)

@@ -237,25 +237,15 @@ def command_line(a, b):
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
-    with ch.NatsCluster(3) as nats:
-        try:
-            a = Node("a", nats.urls, max_worlds=2)
-            b = Node("b", nats.urls, max_worlds=2)
-            nodes += [a, b]
-            check(wait_for(lambda: a.up() and b.up(), 90), "both nodes are up (standbys)")
-            scenario(a, b)
-            command_line(a, b)
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            codes = [n.stop() for n in nodes]
-            check(codes == [0, 0], f"SIGTERM stops both nodes with status 0 ({codes})")
-            if check.failed:
-                for n in nodes:
-                    n.print_log()
-                print(nats.logs())
+    both = "SIGTERM stops both nodes with status 0"
+    with ch.NatsCluster(3) as nats, ch.running_nodes(
+            check, [], nats, stopped=lambda codes: codes == [0, 0], said=both) as nodes:
+        a = Node("a", nats.urls, max_worlds=2)
+        b = Node("b", nats.urls, max_worlds=2)
+        nodes += [a, b]
+        check(wait_for(lambda: a.up() and b.up(), 90), "both nodes are up (standbys)")
+        scenario(a, b)
+        command_line(a, b)
     check.finish()
 
 

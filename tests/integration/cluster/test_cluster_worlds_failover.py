@@ -128,38 +128,27 @@ def kill_round(k, nodes, volumes, nats, takeovers):
 def main():
     if ch.NATS_SERVER is None:
         skip("nats-server is not installed")
-    nodes = []
     takeovers = []
-    with ch.NatsCluster(3) as nats:
-        try:
-            for w in WORLDS:
-                ok, said = ch.world_add(nats.urls, w, SCENE)
-                check(ok, f"world add {w}: {said}")
-            nodes = [Node(f"n{i}", nats.urls, max_worlds=3) for i in range(3)]
-            check(wait_for(lambda: all(any(n.serves(w) for n in nodes) for w in WORLDS), 120),
-                  "the 6 worlds tick on the nodes")
-            volumes = {w: volume(owner_of(nodes, w), w) for w in WORLDS}
-            for k in range(KILLS):
-                kill_round(k, nodes, volumes, nats, takeovers)
-            for s in nats.servers:
-                if not s.alive():
-                    s.start()
-            check(wait_for(lambda: all(any(n.serves(w) for n in nodes) for w in WORLDS), 60),
-                  "at the end, every world ticks")
-            if takeovers:
-                takeovers.sort()
-                print(f"takeovers: {len(takeovers)}, p50 {takeovers[len(takeovers) // 2]:.1f} s, "
-                      f"max {takeovers[-1]:.1f} s", flush=True)
-        except Exception:  # noqa: BLE001
-            import traceback
-            check(False, "the test raised:\n" + traceback.format_exc())
-        finally:
-            codes = [n.stop() for n in nodes]
-            check(all(c == 0 for c in codes), f"SIGTERM stops every node with status 0 ({codes})")
-            if check.failed:
-                for n in nodes:
-                    n.print_log(30)
-                print(nats.logs())
+    with ch.NatsCluster(3) as nats, ch.running_nodes(check, [], nats, tail=30,
+                                                     stopped=ch.all_zero) as nodes:
+        for w in WORLDS:
+            ok, said = ch.world_add(nats.urls, w, SCENE)
+            check(ok, f"world add {w}: {said}")
+        nodes += [Node(f"n{i}", nats.urls, max_worlds=3) for i in range(3)]
+        check(wait_for(lambda: all(any(n.serves(w) for n in nodes) for w in WORLDS), 120),
+              "the 6 worlds tick on the nodes")
+        volumes = {w: volume(owner_of(nodes, w), w) for w in WORLDS}
+        for k in range(KILLS):
+            kill_round(k, nodes, volumes, nats, takeovers)
+        for s in nats.servers:
+            if not s.alive():
+                s.start()
+        check(wait_for(lambda: all(any(n.serves(w) for n in nodes) for w in WORLDS), 60),
+              "at the end, every world ticks")
+        if takeovers:
+            takeovers.sort()
+            print(f"takeovers: {len(takeovers)}, p50 {takeovers[len(takeovers) // 2]:.1f} s, "
+                  f"max {takeovers[-1]:.1f} s", flush=True)
     check.finish()
 
 

@@ -26,7 +26,6 @@ real daemons on loopback:
 
 Behaviour only: every wait is for a condition, with a generous deadline.
 """
-import json
 import os
 import subprocess
 import sys
@@ -35,23 +34,18 @@ import threading
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import BIN, Checks, Daemon, json_call  # noqa: E402
+from service_harness import (COSIM_DRIVE, COSIM_H, COSIM_W, Checks, Daemon,  # noqa: E402
+                             cosim_acked, cosim_mirror, cosim_paused, cosim_scene, json_call,
+                             json_file)
 from waiting import wait_for  # noqa: E402
 
 check = Checks()
-DRIVE = os.environ.get("TERRAD_C_COSIM_DRIVE", os.path.join(os.path.dirname(BIN), "c_cosim_drive"))
+W, H = COSIM_W, COSIM_H  # c_cosim_drive's world
 STEPS = 2000
-W, H = 96, 64  # c_cosim_drive's world
-
-
-def scene():
-    return {"name": "cosim", "world": {"width": W, "height": H, "cell_size_m": 0.05},
-            "terrain": {"kind": "flat", "height_m": 0.4},
-            "material": {"model": "bekker", "compression": 0.5, "soil": {"preset": "ding2011"}}}
 
 
 def create(d, name, clock="client"):
-    status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": name, "clock": clock, "scene": scene()})
+    status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": name, "clock": clock, "scene": cosim_scene()})
     check(status == 201, f"POST /v1/worlds {name} ({clock}): {status} {doc}")
 
 
@@ -59,7 +53,7 @@ def drive(d, worlds, mode, steps=STEPS, out=None):
     """Runs c_cosim_drive to its end; returns {world: its output text}."""
     out = out or tempfile.mkdtemp(prefix="terrad-cosim-")
     prefix = os.path.join(out, "drive")
-    r = subprocess.run([DRIVE, str(d.ws_port), ",".join(worlds), str(steps), prefix, mode],
+    r = subprocess.run([COSIM_DRIVE, str(d.ws_port), ",".join(worlds), str(steps), prefix, mode],
                        capture_output=True, text=True, timeout=600)
     check(r.returncode == 0, f"c_cosim_drive {mode} {worlds}: rc {r.returncode}: {r.stderr[-2000:]}")
     texts = {}
@@ -72,12 +66,6 @@ def drive(d, worlds, mode, steps=STEPS, out=None):
 def stats(d, world):
     status, doc = json_call(d.http, "GET", f"/v1/stats?world={world}")
     return (doc.get("volume"), doc.get("soil_compacted")) if status == 200 else None
-
-
-def mirror_of(text):
-    """The MIRROR block of a drive's output: W*H heights."""
-    lines = text.split("MIRROR", 1)[1].splitlines()[1:]
-    return [int(v) for line in lines for v in line.split()]
 
 
 def heights(d, world):
@@ -124,7 +112,7 @@ def determinism():
     forces = text.count("\nF ")
     check(forces > 4 * STEPS, f"{first}: {forces} FORCES entries")
     check(text.count("STEPPED ") == STEPS, f"{first}: a STEPPED per step")
-    m = mirror_of(text)
+    m = cosim_mirror(text)
     check(len(m) == W * H and len(set(m)) > 10, f"{first}: the mirror holds the rover's ruts")
     check(st and st[1] and st[1] > 0, f"{first}: soil compacted ({st})")
     check(any(n.startswith("wal-") and len(b) > 1000 for n, b in logged.items()),
@@ -136,11 +124,6 @@ def determinism():
               f"as logged) byte for byte that of {first}")
 
 
-def acked(lines):
-    ticks = [int(line.split()[2]) for line in lines if line.startswith("ACKED ")]
-    return ticks[-1] if ticks else 0
-
-
 def kill9():
     data = tempfile.mkdtemp(prefix="terrad-cosim-data-")
     out = tempfile.mkdtemp(prefix="terrad-cosim-")
@@ -148,27 +131,21 @@ def kill9():
     create(d, "k")
     create(d, "m")
     # a driver that stops after its steps: the world waits, the daemon dies
-    p = subprocess.Popen([DRIVE, str(d.ws_port), "k", "300", os.path.join(out, "drive"), "pause"],
-                         stdout=subprocess.PIPE, text=True)
-    lines = []
-    for line in p.stdout:
-        lines.append(line)
-        if line.startswith("PAUSED"):
-            break
-    last = acked(lines)
+    p, lines = cosim_paused(d.ws_port, "k", 300, os.path.join(out, "drive"))
+    last = cosim_acked(lines)
     check(last > 0 and lines[-1].startswith("PAUSED"), f"paused driver: {lines[-3:]}")
     d.kill9()
     p.kill()
     p.wait()
     with open(os.path.join(out, "drive.k")) as f:
-        mirror = mirror_of(f.read())
+        mirror = cosim_mirror(f.read())
     d = Daemon(data_dir=data, durability="every-tick", name="after-kill")
     try:
         tick = wait_for(lambda: world_tick(d, "k"), 60)
         check(tick is not None and tick >= last, f"recovered tick {tick} >= the last STEPPED tick {last}")
         check(heights(d, "k") == mirror, "recovered heights == the driver's mirror at its last STEPPED tick")
         # a daemon killed while its driver steps
-        p = subprocess.Popen([DRIVE, str(d.ws_port), "m", str(STEPS), os.path.join(out, "drive")],
+        p = subprocess.Popen([COSIM_DRIVE, str(d.ws_port), "m", str(STEPS), os.path.join(out, "drive")],
                              stdout=subprocess.PIPE, text=True)
         lines = []
         for line in p.stdout:
@@ -178,7 +155,7 @@ def kill9():
         d.kill9()
         lines += p.stdout.readlines()
         p.wait()
-        last = acked(lines)
+        last = cosim_acked(lines)
         check(p.returncode != 0 and 400 <= len(lines) < STEPS, f"the driver lost its daemon after {len(lines)} steps")
     finally:
         d.stop()
@@ -194,28 +171,24 @@ def refusals():
         status, doc = json_call(d.http, "GET", "/v1/worlds")
         clocks = {w["name"]: w.get("clock") for w in doc.get("worlds", [])}
         check(clocks.get("wall") == "wall" and clocks.get("c") == "client", f"GET /v1/worlds says the clock: {clocks}")
-        status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": "x", "clock": "sundial", "scene": scene()})
+        status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": "x", "clock": "sundial", "scene": cosim_scene()})
         check(status == 400 and doc.get("field") == "clock", f"clock sundial: {status} {doc}")
-        bad = dict(scene(), clock="sundial")
+        bad = cosim_scene(clock="sundial")
         status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": "y", "scene": bad})
         check(status == 422 and "clock" in doc.get("error", ""), f"scene clock sundial: {status} {doc}")
         out = tempfile.mkdtemp(prefix="terrad-cosim-")
-        r = subprocess.run([DRIVE, str(d.ws_port), "wall", "3", os.path.join(out, "w")],
+        r = subprocess.run([COSIM_DRIVE, str(d.ws_port), "wall", "3", os.path.join(out, "w")],
                            capture_output=True, text=True, timeout=120)
         check(r.returncode != 0 and "client-clocked" in r.stderr, f"a wall world is not stepped: {r.stderr}")
         # one driver at a time: a second driver is refused naming driver while the first waits
-        p = subprocess.Popen([DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d1"), "pause"],
-                             stdout=subprocess.PIPE, text=True)
-        for line in p.stdout:
-            if line.startswith("PAUSED"):
-                break
-        r = subprocess.run([DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d2")],
+        p, _ = cosim_paused(d.ws_port, "c", 5, os.path.join(out, "d1"))
+        r = subprocess.run([COSIM_DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d2")],
                            capture_output=True, text=True, timeout=120)
         check(r.returncode != 0 and "driver: client" in r.stderr, f"second driver: {r.stderr}")
         p.kill()
         p.wait()
         # the first driver gone, the next one drives
-        ok = wait_for(lambda: subprocess.run([DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d3")],
+        ok = wait_for(lambda: subprocess.run([COSIM_DRIVE, str(d.ws_port), "c", "5", os.path.join(out, "d3")],
                                              capture_output=True, timeout=120).returncode == 0, 60, step=0.5)
         check(ok, "a new driver once the first left")
         _, text = d.metrics()
@@ -239,9 +212,7 @@ def default_world():
     answered 503 "tick", and a liveness probe would have restarted the daemon). Its demo actors go
     by its steps, not by how many height reads came between them (issue 30: the ticker's count,
     bumped by each read, posed them): the same steps give the same heights with reads between."""
-    fd, path = tempfile.mkstemp(prefix="terrad-cosim-scene-", suffix=".json")
-    with os.fdopen(fd, "w") as f:
-        json.dump(dict(scene(), clock="client"), f)
+    path = json_file(cosim_scene(clock="client"), "terrad-cosim-scene")
     try:
         with check.running(Daemon(extra=["--scene", path], demo=True, name="default-world")) as d:
             check(d.stats()["tick"] == 0, "a client-clocked default world does not tick by itself")

@@ -18,6 +18,7 @@ tick number (its ticks go on from at least the last one logged).
 """
 # ctest-timeout: 300
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -176,7 +177,13 @@ def main():
             os.unlink(os.path.join(data, newest))
             return newest
 
-        case(tmp, pristine, "newest-segment", drop_newest)
+        _, err = case(tmp, pristine, "newest-segment", drop_newest)
+        missing = re.compile(re.escape(newest) + r" is missing \(CONTROL records segments \d+\.\.\d+\): "
+                             r"(ticks after \d+ up to \d+ are lost|the ticks it held are lost, every "
+                             r"tick after \d+ \(CONTROL last recorded tick \d+\))")
+        check(missing.search(err),
+              "newest-segment: the damage names the segment, CONTROL's range and what is lost: "
+              f"{[line for line in err.splitlines() if 'damage' in line]}")
 
         def drop_tile(data):
             tile = sorted(t for t in os.listdir(os.path.join(data, "tiles")) if t.endswith(".snap"))[0]

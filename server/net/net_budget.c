@@ -1,0 +1,590 @@
+/*
+ * net_budget.c: a client's bandwidth budget (issue 32 item 1; PROTOCOL.md
+ * "Budgets"). A client whose hello states `budget` (bytes/s), or that gets the
+ * daemon's default_budget_bytes_per_s, is sent at most that many bytes in any
+ * one-second window, by the server's own accounting of every frame queued for
+ * it. It runs on the net thread, between the sim's frames and the client's
+ * queue: net_dispatch (net_fanout.c) hands a budgeted client's tile deltas and
+ * snapshot frames here instead of queueing them, and once a tick
+ * (HUB_OUT_TICK_DONE) and every heartbeat net_budget_flush sends what the
+ * window has room for.
+ *
+ * The window is a log of (time, bytes) per frame queued (net_budget_charge,
+ * from net_enqueue): a token bucket whose tokens come back exactly one second
+ * after they were spent, so no one-second window ever holds more than the
+ * budget (a plain bucket of depth B would allow B + rate in one second).
+ * Replies, errors, ACK, CONTACT, FORCES and STEPPED frames are counted but
+ * never held: they answer what the client itself did, and an ACK must follow
+ * its tick's deltas. Tile data yields to them: it is queued only when the
+ * window, plus as many status bytes again as the last second held (what they
+ * will likely take in the next), has room.
+ *
+ * The ledger holds what a budgeted client has not been sent yet, per tile:
+ * snapshot pieces (a subscribe's or a resync's frames, split one tile per
+ * frame so that each can go when there is room) and the tile deltas it did
+ * not get, summed (differences add modulo 2^32) into one delta from the
+ * version it holds to the newest — the coalesced delta, against the version
+ * the client has, that replaces any number of ticks' deltas. A tile in the
+ * ledger is not current for the client (net_client_tile_current); a tile out
+ * of it is: every delta of it since its snapshot was queued. A delta of a
+ * tile near the client's focus (its `focus` point, else its colliders' latest
+ * poses, else its first subscription's centre: within one tile of it) goes at
+ * once while the window has room, a far one while the second stays under
+ * half the budget; any other is folded into the ledger, and
+ * far tiles are flushed at lower rates (a tile d tiles away waits (d − 1) ×
+ * 100 ms, at most 500 ms, so more ticks fold into one delta), nearest first.
+ * Once activity stops every ledger entry goes as the window allows: the
+ * client's mirror becomes exact.
+ */
+#include "net/net_server_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "metrics/metrics.h"
+#include "terrad_proto.h"
+
+#define WINDOW_MS 1000.0
+#define NEAR_TILES 1       /* Chebyshev distance in tiles sent every tick */
+#define FAR_STEP_MS 100.0  /* a far tile waits this much per tile beyond NEAR_TILES */
+#define FAR_MAX_MS 500.0   /* and never longer: the mirror settles within a second */
+#define STATUS_SLACK 256.0 /* bytes kept free beyond the last second's status frames */
+#define MAX_FOCUS_POSES 16
+
+typedef struct budget_tile {
+    int tx, ty;
+    hub_frame **snaps; /* one-rectangle snapshot frames, in arrival order */
+    int nsnaps;
+    int64_t snaps_cap;
+    int32_t *acc;       /* tile_size² summed differences, tile-local, NULL: none */
+    int x0, y0, x1, y1; /* what acc covers that changed, world cells, [x0, x1) */
+    uint32_t base, latest;
+    uint64_t tick;
+    double since_ms;    /* pending since */
+    hub_frame *encoded; /* acc as a DELTA frame, made when first needed */
+} budget_tile;
+
+struct net_budget {
+    double rate; /* bytes per second */
+    /* the window: a ring of frames queued in the last second */
+    double *ms;
+    uint32_t *bytes;
+    unsigned char *held; /* 1: tile data, 0: never held (replies, status) */
+    int head, count, cap;
+    uint64_t sum, status_sum;
+    uint64_t peak, total, coalesced;
+    /* the ledger */
+    budget_tile *tiles;
+    int ntiles;
+    int64_t tiles_cap;
+    /* focus: the client's latest colliders' positions, in cells */
+    double px[MAX_FOCUS_POSES], py[MAX_FOCUS_POSES];
+    int npos;
+};
+
+static size_t wire_bytes(size_t len)
+{
+    return len + (len < 126 ? 2 : len < 65536 ? 4 : 10); /* the websocket header too */
+}
+
+/* ---- the window ---- */
+
+static void expire(net_budget *b, double now)
+{
+    while (b->count && b->ms[b->head] <= now - WINDOW_MS) {
+        b->sum -= b->bytes[b->head];
+        if (!b->held[b->head])
+            b->status_sum -= b->bytes[b->head];
+        b->head = (b->head + 1) % b->cap;
+        b->count--;
+    }
+}
+
+void net_budget_charge(net_client *c, size_t len, int tile_data)
+{
+    net_budget *b = c->budget;
+    if (!b)
+        return;
+    double now = time_now_ms();
+    expire(b, now);
+    uint32_t n = (uint32_t)wire_bytes(len);
+    if (b->count == b->cap) { /* full: the newest entry takes them, counted until later */
+        int last = (b->head + b->count - 1) % b->cap;
+        b->bytes[last] += n;
+        b->ms[last] = now;
+        if (!tile_data)
+            b->held[last] = 0; /* the status sum below stays a lower bound */
+    } else {
+        int at = (b->head + b->count) % b->cap;
+        b->ms[at] = now;
+        b->bytes[at] = n;
+        b->held[at] = (unsigned char)(tile_data != 0);
+        b->count++;
+        if (!tile_data)
+            b->status_sum += n;
+    }
+    b->sum += n;
+    b->total += n;
+    if (b->sum > b->peak)
+        b->peak = b->sum;
+    metrics_count_budget(n, 0, (double)b->sum > b->rate);
+}
+
+/* Bytes of tile data the window has room for now. */
+static double room(net_budget *b)
+{
+    expire(b, time_now_ms());
+    return b->rate - (double)b->sum - (double)b->status_sum - STATUS_SLACK;
+}
+
+/* ---- the client's budget ---- */
+
+int net_budget_start(net_client *c, double rate)
+{
+    net_budget *b = calloc(1, sizeof *b);
+    int cap = 1024;
+    if (b) {
+        b->ms = malloc((size_t)cap * sizeof *b->ms);
+        b->bytes = malloc((size_t)cap * sizeof *b->bytes);
+        b->held = malloc((size_t)cap);
+    }
+    if (!b || !b->ms || !b->bytes || !b->held) {
+        if (b) {
+            free(b->ms);
+            free(b->bytes);
+            free(b->held);
+        }
+        free(b);
+        return -1;
+    }
+    b->cap = cap;
+    b->rate = rate;
+    c->budget = b;
+    return 0;
+}
+
+static void tile_clear(budget_tile *t)
+{
+    for (int i = 0; i < t->nsnaps; i++)
+        hub_frame_unref(t->snaps[i]);
+    free(t->snaps);
+    free(t->acc);
+    if (t->encoded)
+        hub_frame_unref(t->encoded);
+    memset(t, 0, sizeof *t);
+}
+
+void net_budget_reset(net_client *c)
+{
+    net_budget *b = c->budget;
+    if (!b)
+        return;
+    for (int i = 0; i < b->ntiles; i++)
+        tile_clear(&b->tiles[i]);
+    b->ntiles = 0;
+}
+
+void net_budget_free(net_client *c)
+{
+    net_budget *b = c->budget;
+    if (!b)
+        return;
+    log_info("net: client %u (%s): budget %.0f bytes/s, %llu bytes sent, the fullest second "
+             "held %llu, %llu deltas coalesced",
+             c->id, c->peer, b->rate, (unsigned long long)b->total, (unsigned long long)b->peak,
+             (unsigned long long)b->coalesced);
+    net_budget_reset(c);
+    free(b->tiles);
+    free(b->ms);
+    free(b->bytes);
+    free(b->held);
+    free(b);
+    c->budget = NULL;
+}
+
+double net_budget_rate(const net_client *c)
+{
+    return c->budget ? c->budget->rate : 0;
+}
+
+void net_budget_note_poses(net_client *c, const terrad_pose *poses, size_t count)
+{
+    net_budget *b = c->budget;
+    double cell = c->srv->cfg.world.cell_size_m;
+    if (!b || count == 0 || !(cell > 0))
+        return;
+    b->npos = 0;
+    for (size_t i = 0; i < count && b->npos < MAX_FOCUS_POSES; i++) {
+        b->px[b->npos] = poses[i].x / cell;
+        b->py[b->npos] = poses[i].y / cell;
+        b->npos++;
+    }
+}
+
+/* ---- the ledger ---- */
+
+static budget_tile *tile_find(net_budget *b, int tx, int ty)
+{
+    for (int i = 0; i < b->ntiles; i++)
+        if (b->tiles[i].tx == tx && b->tiles[i].ty == ty)
+            return &b->tiles[i];
+    return NULL;
+}
+
+static budget_tile *tile_get(net_budget *b, int tx, int ty)
+{
+    budget_tile *t = tile_find(b, tx, ty);
+    if (t)
+        return t;
+    if (array_grow((void **)&b->tiles, &b->tiles_cap, (int64_t)b->ntiles + 1, sizeof *b->tiles))
+        return NULL;
+    t = &b->tiles[b->ntiles++];
+    memset(t, 0, sizeof *t);
+    t->tx = tx;
+    t->ty = ty;
+    t->since_ms = time_now_ms();
+    return t;
+}
+
+static void tile_remove(net_budget *b, budget_tile *t)
+{
+    tile_clear(t);
+    *t = b->tiles[--b->ntiles];
+}
+
+/* Distance in tiles (Chebyshev) from the client's focus to tile (tx, ty). */
+static int tile_distance(const net_client *c, int tx, int ty)
+{
+    int ts = c->srv->cfg.world.tile_size;
+    double fx[MAX_FOCUS_POSES + 1], fy[MAX_FOCUS_POSES + 1];
+    int n = 0;
+    if (c->has_focus) {
+        fx[0] = c->focus_x;
+        fy[0] = c->focus_y;
+        n = 1;
+    } else if (c->budget && c->budget->npos) {
+        for (int i = 0; i < c->budget->npos; i++) {
+            fx[i] = c->budget->px[i];
+            fy[i] = c->budget->py[i];
+        }
+        n = c->budget->npos;
+    } else if (c->sub_count) {
+        fx[0] = c->subs[0].rect.x + c->subs[0].rect.w / 2.0;
+        fy[0] = c->subs[0].rect.y + c->subs[0].rect.h / 2.0;
+        n = 1;
+    }
+    int best = n ? INT32_MAX : 0;
+    for (int i = 0; i < n; i++) {
+        int dx = abs((int)floor(fx[i] / ts) - tx), dy = abs((int)floor(fy[i] / ts) - ty);
+        int d = dx > dy ? dx : dy;
+        if (d < best)
+            best = d;
+    }
+    return best;
+}
+
+/* Adds one delta frame's differences to tile t's sum. 0, or -1 (memory, a
+ * frame that does not decode): the caller resyncs the client. */
+static int fold(net_state *w, budget_tile *t, const hub_frame *f)
+{
+    int ts = w->cfg.world.tile_size;
+    size_t max = f->len / (TERRAD_DELTA_FIXED + 25) + 1, count = 0;
+    uint64_t tick = 0;
+    terrad_rect *rects = malloc(max * sizeof *rects);
+    if (!rects || terrad_delta_decode(f->data, f->len, &tick, rects, max, &count) != 0) {
+        free(rects);
+        return -1;
+    }
+    if (!t->acc) {
+        t->acc = calloc((size_t)ts * (size_t)ts, sizeof *t->acc);
+        if (!t->acc) {
+            free(rects);
+            return -1;
+        }
+        t->x0 = t->y0 = INT32_MAX;
+        t->x1 = t->y1 = INT32_MIN;
+    }
+    if (!w->budget_codec)
+        w->budget_codec = terrad_codec_new(3);
+    int32_t *values = malloc((size_t)ts * (size_t)ts * sizeof *values);
+    if (!values || !w->budget_codec) {
+        free(values);
+        free(rects);
+        return -1;
+    }
+    int rc = 0;
+    for (size_t i = 0; i < count && rc == 0; i++) {
+        const terrad_rect *r = &rects[i];
+        size_t cells = (size_t)r->w * r->h;
+        if (r->encoding != TERRAD_ENC_DELTA || r->w > ts || r->h > ts ||
+            terrad_rect_decompress(w->budget_codec, r->data, r->data_len, cells, values,
+                                   (size_t)ts * (size_t)ts) != 0) {
+            rc = -1;
+            break;
+        }
+        int ox = r->x - t->tx * ts, oy = r->y - t->ty * ts;
+        if (ox < 0 || oy < 0 || ox + r->w > ts || oy + r->h > ts) {
+            rc = -1;
+            break;
+        }
+        for (int y = 0; y < r->h; y++)
+            for (int x = 0; x < r->w; x++) {
+                int32_t *a = &t->acc[(size_t)(oy + y) * (size_t)ts + (size_t)(ox + x)];
+                *a = (int32_t)((uint32_t)*a + (uint32_t)values[(size_t)y * r->w + (size_t)x]);
+            }
+        if (r->x < t->x0)
+            t->x0 = r->x;
+        if (r->y < t->y0)
+            t->y0 = r->y;
+        if (r->x + r->w > t->x1)
+            t->x1 = r->x + r->w;
+        if (r->y + r->h > t->y1)
+            t->y1 = r->y + r->h;
+        if (!t->base)
+            t->base = r->base_version;
+        t->latest = r->new_version;
+    }
+    free(values);
+    free(rects);
+    t->tick = tick;
+    if (t->encoded) {
+        hub_frame_unref(t->encoded);
+        t->encoded = NULL;
+    }
+    return rc;
+}
+
+/* The summed differences as one DELTA frame (cached until more fold in). */
+static hub_frame *encode_acc(net_state *w, budget_tile *t)
+{
+    if (t->encoded)
+        return t->encoded;
+    int ts = w->cfg.world.tile_size;
+    int rw = t->x1 - t->x0, rh = t->y1 - t->y0;
+    size_t cells = (size_t)rw * (size_t)rh;
+    int32_t *values = malloc(cells * sizeof *values);
+    size_t cap = terrad_rect_compress_bound(cells), len = 0;
+    uint8_t *data = malloc(cap);
+    hub_frame *f = NULL;
+    if (values && data && w->budget_codec) {
+        int ox = t->x0 - t->tx * ts, oy = t->y0 - t->ty * ts;
+        for (int y = 0; y < rh; y++)
+            memcpy(values + (size_t)y * rw, t->acc + (size_t)(oy + y) * ts + ox,
+                   (size_t)rw * sizeof *values);
+        if (terrad_rect_compress(w->budget_codec, values, cells, data, cap, &len) == 0) {
+            terrad_rect r = {.x = t->x0,
+                             .y = t->y0,
+                             .w = (uint16_t)rw,
+                             .h = (uint16_t)rh,
+                             .base_version = t->base,
+                             .new_version = t->latest,
+                             .encoding = TERRAD_ENC_DELTA,
+                             .data_len = (uint32_t)len,
+                             .data = data};
+            size_t size = terrad_delta_size(&r, 1);
+            f = hub_frame_new(1, size);
+            if (f && terrad_delta_encode(f->data, size, &f->len, t->tick, &r, 1) != 0) {
+                hub_frame_unref(f);
+                f = NULL;
+            }
+        }
+    }
+    free(values);
+    free(data);
+    t->encoded = f;
+    return f;
+}
+
+static void resync_for(net_client *c, const char *why)
+{
+    log_warn("net: client %u (%s): budget ledger %s: fresh snapshots", c->id, c->peer, why);
+    net_request_resync(c, 0);
+}
+
+int net_budget_delta(net_client *c, const hub_out *o)
+{
+    net_budget *b = c->budget;
+    budget_tile *t = tile_find(b, o->tile_x, o->tile_y);
+    double left = room(b), need = (double)wire_bytes(o->frame->len);
+    /* near, and room: the shared frame goes as to any client; a far one only
+     * while the second stays under half the budget (the rest is the near
+     * tiles'), else it is folded and goes later, at its tile's lower rate */
+    if (!t && left >= need &&
+        (tile_distance(c, o->tile_x, o->tile_y) <= NEAR_TILES ||
+         b->rate - left + need <= b->rate / 2))
+        return 0;
+    if (!t)
+        t = tile_get(b, o->tile_x, o->tile_y);
+    if (!t || fold(c->srv, t, o->frame) != 0) {
+        resync_for(c, "out of memory or an undecodable delta");
+        return 1;
+    }
+    b->coalesced++;
+    metrics_count_budget(0, 1, 0);
+    return 1;
+}
+
+/* A subscribe's or resync's snapshot frame: one frame per rectangle into the
+ * ledger (each tile's piece goes when there is room). Takes f. */
+void net_budget_snapshot(net_client *c, hub_frame *f)
+{
+    net_budget *b = c->budget;
+    net_state *w = c->srv;
+    int ts = w->cfg.world.tile_size;
+    size_t max = f->len / (TERRAD_DELTA_FIXED + 25) + 1;
+    terrad_rect *rects = malloc(max * sizeof *rects);
+    size_t count = 0;
+    uint64_t tick = 0;
+    int bad = !rects || terrad_delta_decode(f->data, f->len, &tick, rects, max, &count) != 0;
+    for (size_t i = 0; !bad && i < count; i++) {
+        budget_tile *t = tile_get(b, rects[i].x / ts, rects[i].y / ts);
+        size_t size = terrad_delta_size(&rects[i], 1);
+        hub_frame *one = t ? hub_frame_new(1, size) : NULL;
+        if (!one || terrad_delta_encode(one->data, size, &one->len, tick, &rects[i], 1) != 0 ||
+            array_grow((void **)&t->snaps, &t->snaps_cap, (int64_t)t->nsnaps + 1,
+                       sizeof *t->snaps) != 0) {
+            if (one)
+                hub_frame_unref(one);
+            bad = 1;
+            break;
+        }
+        if (t->acc && t->latest == rects[i].new_version) {
+            /* the tile's deltas up to the snapshot, for the client's other
+             * subscriptions that hold it, go first (the snapshot is of their
+             * version) whatever the window says: rare (a second subscription
+             * over a pending tile) */
+            hub_frame *d = encode_acc(w, t);
+            if (d) {
+                hub_frame_ref(d);
+                net_enqueue(c, d, NET_ITEM_TILE);
+            }
+            free(t->acc);
+            t->acc = NULL;
+            t->base = 0;
+            if (t->encoded) {
+                hub_frame_unref(t->encoded);
+                t->encoded = NULL;
+            }
+        }
+        t->snaps[t->nsnaps++] = one;
+    }
+    free(rects);
+    hub_frame_unref(f);
+    if (bad)
+        resync_for(c, "out of memory for a snapshot");
+}
+
+static int sub_meets_tile(const net_client *c, int tx, int ty)
+{
+    int ts = c->srv->cfg.world.tile_size;
+    world_rect tile = {tx * ts, ty * ts, ts, ts};
+    for (int i = 0; i < c->sub_count; i++)
+        if (world_rects_overlap(c->subs[i].rect, tile))
+            return 1;
+    return 0;
+}
+
+typedef struct flush_order {
+    int tile;
+    int distance;
+} flush_order;
+
+static int by_distance(const void *a, const void *b)
+{
+    const flush_order *x = a, *y = b;
+    return x->distance != y->distance ? (x->distance > y->distance) - (x->distance < y->distance)
+                                      : (x->tile > y->tile) - (x->tile < y->tile);
+}
+
+/* Sends tile t's ledger entry if the window has room for all of it; 1 when
+ * sent. An entry larger than the budget itself could never fit: it goes once
+ * the window is empty (an overrun, counted). */
+static int flush_tile(net_client *c, budget_tile *t, double *left)
+{
+    const net_budget *b = c->budget;
+    hub_frame *d = t->acc ? encode_acc(c->srv, t) : NULL;
+    if (t->acc && !d)
+        return 0;
+    double need = d ? (double)wire_bytes(d->len) : 0;
+    for (int i = 0; i < t->nsnaps; i++)
+        need += (double)wire_bytes(t->snaps[i]->len);
+    if (need > *left && (b->sum > 0 || need <= b->rate - STATUS_SLACK))
+        return 0;
+    *left -= need;
+    for (int i = 0; i < t->nsnaps; i++) {
+        net_enqueue(c, t->snaps[i], NET_ITEM_TILE); /* the ledger's reference */
+        t->snaps[i] = NULL;
+    }
+    t->nsnaps = 0;
+    if (d) {
+        t->encoded = NULL;
+        net_enqueue(c, d, NET_ITEM_TILE);
+    }
+    return 1;
+}
+
+void net_budget_flush(net_client *c)
+{
+    net_budget *b = c->budget;
+    if (!b || !b->ntiles || c->slow || c->snapshots_done < c->resync_until)
+        return;
+    double now = time_now_ms(), left = room(b);
+    flush_order *order = malloc((size_t)b->ntiles * sizeof *order);
+    if (!order)
+        return;
+    int n = 0;
+    for (int i = 0; i < b->ntiles; i++) {
+        budget_tile *t = &b->tiles[i];
+        if (!sub_meets_tile(c, t->tx, t->ty)) { /* unsubscribed meanwhile */
+            tile_remove(b, t);
+            i--;
+            continue;
+        }
+        int d = tile_distance(c, t->tx, t->ty);
+        double wait = d > NEAR_TILES ? (d - NEAR_TILES) * FAR_STEP_MS : 0;
+        if (wait > FAR_MAX_MS)
+            wait = FAR_MAX_MS;
+        if (t->nsnaps || now - t->since_ms >= wait)
+            order[n++] = (flush_order){i, d};
+    }
+    qsort(order, (size_t)n, sizeof *order, by_distance);
+    int sent = 0;
+    for (int k = 0; k < n && left > 0; k++) {
+        budget_tile *t = &b->tiles[order[k].tile];
+        if (flush_tile(c, t, &left)) {
+            tile_clear(t);
+            t->tx = INT32_MIN; /* removed below, after the indices are spent */
+            sent++;
+        } else {
+            break; /* nearest first: a far tile does not pass a near one */
+        }
+    }
+    free(order);
+    for (int i = 0; sent && i < b->ntiles; i++)
+        if (b->tiles[i].tx == INT32_MIN) {
+            b->tiles[i] = b->tiles[--b->ntiles];
+            i--;
+        }
+}
+
+void net_budget_flush_state(net_state *w)
+{
+    for (int i = 0; i < w->nclients; i++) {
+        net_client *c = w->clients[i];
+        if (c->budget && c->ready && !c->closing && !c->killed)
+            net_budget_flush(c);
+    }
+}
+
+int net_budget_fits(net_client *c, size_t len)
+{
+    return !c->budget || room(c->budget) >= (double)wire_bytes(len);
+}
+
+int net_client_tile_current(const net_client *c, int tx, int ty)
+{
+    if (c->slow || c->snapshots_done < c->snapshots_requested)
+        return 0;
+    return !c->budget || !tile_find(c->budget, tx, ty);
+}

@@ -1,0 +1,80 @@
+/*
+ * net_desync.c: desync detection and repair on the net thread (PROTOCOL.md
+ * "CHECKSUM" and "resync" with "tiles"; the sim's half is
+ * service/service_checksums.c). In a tick's terms: the sim queues a
+ * subscription's CHECKSUM frame last among tick t's frames; net_fanout.c
+ * hands it here for each client (net_checksum_for), which keeps only the
+ * tiles current for that client; a client whose mirror differs asks for
+ * those tiles (net_request_resync_tiles), each becoming one HUB_RESYNC_TILE
+ * for the next tick, whose snapshot goes out ahead of the tick after.
+ *
+ * Whether a client holds a tile's latest version is net_client_tile_current's
+ * to say (net_budget.c: a bandwidth budget lets far tiles go stale for a
+ * client, a tile in its ledger is not current): the checksums cover only the
+ * tiles it keeps current.
+ */
+#include "net/net_client_internal.h"
+
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "metrics/metrics.h"
+#include "terrad_proto.h"
+
+hub_frame *net_checksum_for(net_client *c, hub_frame *f)
+{
+    enum { CAP = 4096 };
+    uint64_t tick;
+    uint32_t sub;
+    size_t n = 0, kept = 0;
+    terrad_tile_sum *sums = malloc(CAP * sizeof *sums);
+    if (!sums || terrad_checksum_decode(f->data, f->len, &tick, &sub, sums, CAP, &n) != 0) {
+        free(sums); /* the sim's own frame: sent as it is */
+        return f;
+    }
+    for (size_t i = 0; i < n; i++)
+        if (net_client_tile_current(c, sums[i].tile_x, sums[i].tile_y))
+            sums[kept++] = sums[i];
+    if (kept == n) {
+        free(sums);
+        return f;
+    }
+    size_t size = terrad_checksum_size(kept);
+    hub_frame *g = hub_frame_new(1, size);
+    if (g && terrad_checksum_encode(g->data, size, &g->len, tick, sub, sums, kept) != 0) {
+        hub_frame_unref(g);
+        g = NULL;
+    }
+    free(sums);
+    hub_frame_unref(f);
+    return g;
+}
+
+void net_request_resync_tiles(net_client *c, const net_sub *sub, const int32_t *tiles, int n,
+                              const cJSON *ref)
+{
+    int ts = c->srv->cfg.world.tile_size;
+    for (int i = 0; i < n; i++) {
+        world_rect tile = {tiles[2 * i] * ts, tiles[2 * i + 1] * ts, ts, ts};
+        if ((int64_t)tiles[2 * i] * ts > INT32_MAX - ts ||
+            (int64_t)tiles[2 * i + 1] * ts > INT32_MAX - ts ||
+            !world_rects_overlap(tile, sub->rect)) {
+            metrics_count_resync_refused("tiles");
+            net_error(c, TERRAD_E_OUTSIDE_WORLD, ref, -1, 0,
+                      "tiles[%d]: tile (%d, %d) does not meet subscription %u (x=%d y=%d w=%d "
+                      "h=%d, tiles of %d cells)",
+                      i, tiles[2 * i], tiles[2 * i + 1], sub->id, sub->rect.x, sub->rect.y,
+                      sub->rect.w, sub->rect.h, ts);
+            return;
+        }
+    }
+    for (int i = 0; i < n; i++) {
+        world_rect tile = {tiles[2 * i] * ts, tiles[2 * i + 1] * ts, ts, ts};
+        hub_command cmd = {.kind = HUB_RESYNC_TILE,
+                           .client = c->id,
+                           .subscription = sub->id,
+                           .rect = world_rect_meet(tile, sub->rect)}; /* tile ∩ subscription */
+        net_push_must(c->srv, &cmd);
+    }
+    metrics_count_resync_tiles_requested((uint64_t)n);
+}
