@@ -46,6 +46,7 @@ typedef struct client_sub {
     terrad_mirror m;
     int32_t *heights;
     uint32_t *versions;
+    int32_t *base; /* base snapshots: the scene's base over the region (m.base) */
 } client_sub;
 
 struct terrad_client {
@@ -102,6 +103,10 @@ struct terrad_client {
     /* lockstep (client-clocked worlds): step numbers sent, and each answer
      * (STEPPED or an error whose ref is "step:SEQ") in a ring by seq */
     int client_clock;
+    /* base snapshots (terrad_client_connect_base): asked for in hello, and the
+     * world message's answer with the base's twin config */
+    int base_asked, base_on;
+    cJSON *base;
     uint32_t step_seq, step_waiting;
     struct {
         uint32_t seq;
@@ -266,6 +271,10 @@ static void on_world(terrad_client *c, const cJSON *m)
              cJSON_IsString(name) ? name->valuestring : "");
     const cJSON *clock = cJSON_GetObjectItemCaseSensitive(m, "clock");
     c->client_clock = cJSON_IsString(clock) && strcmp(clock->valuestring, "client") == 0;
+    const cJSON *base = cJSON_GetObjectItemCaseSensitive(m, "base");
+    c->base_on = c->base_asked &&
+                 cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(m, "snapshot_base")) &&
+                 cJSON_IsObject(base) && (c->base = cJSON_Duplicate(base, 1)) != NULL;
     c->got_world = 1;
 }
 
@@ -283,12 +292,27 @@ static int add_sub(terrad_client *c, uint32_t sid, int64_t x, int64_t y, int64_t
                                             (uint32_t)c->world.tile_size);
     s->heights = calloc((size_t)w * (size_t)h, sizeof *s->heights);
     s->versions = calloc(tiles ? tiles : 1, sizeof *s->versions);
-    if (!s->heights || !s->versions ||
+    if (c->base_on)
+        s->base = malloc((size_t)w * (size_t)h * sizeof *s->base);
+    if (!s->heights || !s->versions || (c->base_on && !s->base) ||
         terrad_mirror_init(&s->m, (int32_t)x, (int32_t)y, (uint32_t)w, (uint32_t)h,
                            (uint32_t)c->world.tile_size, s->heights, s->versions) != 0) {
         free(s->heights);
         free(s->versions);
+        free(s->base);
         return TERRAD_E_NO_MEMORY;
+    }
+    if (c->base_on) { /* before any snapshot of it is read: they come after "subscribed" */
+        char why[300];
+        if (client_base_fill(c->base, (int)x, (int)y, (int)w, (int)h, s->base, why, sizeof why) !=
+            0) {
+            set_err(c, "%s", why);
+            free(s->heights);
+            free(s->versions);
+            free(s->base);
+            return TERRAD_CLIENT_E_PROTOCOL;
+        }
+        s->m.base = s->base;
     }
     s->id = sid;
     c->nsubs++;
@@ -708,10 +732,16 @@ static int never(const terrad_client *c)
 
 /* ---- public -------------------------------------------------------------- */
 
-static terrad_client *connect_to(terrad_client_desc d, const char *world, char *err, size_t err_cap)
+static terrad_client *connect_to(terrad_client_desc d, const char *world, int base, char *err,
+                                 size_t err_cap)
 {
     if (err && err_cap)
         err[0] = 0;
+    if (world && strlen(world) > 64) { /* refused before connecting */
+        if (err && err_cap)
+            snprintf(err, err_cap, "world: a name of %zu bytes (at most 64)", strlen(world));
+        return NULL;
+    }
     terrad_client *c = calloc(1, sizeof *c);
     if (!c) {
         if (err && err_cap)
@@ -719,6 +749,7 @@ static terrad_client *connect_to(terrad_client_desc d, const char *world, char *
         return NULL;
     }
     c->timeout_ms = d.timeout_ms > 0 ? d.timeout_ms : 5000;
+    c->base_asked = base;
     c->hook = d.hook;
     c->user = d.user;
     c->log = d.log;
@@ -773,6 +804,8 @@ static terrad_client *connect_to(terrad_client_desc d, const char *world, char *
     cJSON_AddStringToObject(h, "client", d.name ? d.name : "terrad-c");
     if (world && world[0])
         cJSON_AddStringToObject(h, "world", world);
+    if (c->base_asked)
+        cJSON_AddBoolToObject(h, "snapshot_base", 1);
     if (d.budget) /* -1: none (0 on the wire); 0: the server's default (not sent) */
         cJSON_AddNumberToObject(h, "budget", d.budget < 0 ? 0 : (double)d.budget);
     char *text = cJSON_PrintUnformatted(h);
@@ -811,18 +844,24 @@ fail:
 
 terrad_client *terrad_client_connect(terrad_client_desc d, char *err, size_t err_cap)
 {
-    return connect_to(d, NULL, err, err_cap);
+    return connect_to(d, NULL, 0, err, err_cap);
 }
 
 terrad_client *terrad_client_connect_world(terrad_client_desc d, const char *world, char *err,
                                            size_t err_cap)
 {
-    if (world && strlen(world) > 64) {
-        if (err && err_cap)
-            snprintf(err, err_cap, "world: a name of %zu bytes (at most 64)", strlen(world));
-        return NULL;
-    }
-    return connect_to(d, world, err, err_cap);
+    return connect_to(d, world, 0, err, err_cap);
+}
+
+terrad_client *terrad_client_connect_base(terrad_client_desc d, const char *world, char *err,
+                                          size_t err_cap)
+{
+    return connect_to(d, world, 1, err, err_cap);
+}
+
+int terrad_client_base_snapshots(const terrad_client *c)
+{
+    return c->base_on;
 }
 
 const char *terrad_client_world_name(const terrad_client *c)
@@ -848,8 +887,10 @@ void terrad_client_close(terrad_client *c)
     for (size_t i = 0; i < c->nsubs; i++) {
         free(c->subs[i].heights);
         free(c->subs[i].versions);
+        free(c->subs[i].base);
     }
     free(c->subs);
+    cJSON_Delete(c->base);
     free(c->contacts);
     free(c->forces);
     free(c->rects);
@@ -1141,6 +1182,7 @@ int terrad_client_unsubscribe(terrad_client *c, uint32_t sid)
         if (s) {
             free(s->heights);
             free(s->versions);
+            free(s->base);
             *s = c->subs[--c->nsubs];
         }
     }

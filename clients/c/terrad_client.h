@@ -367,6 +367,21 @@ int terrad_client_step_many(terrad_client *const *clients, const terrad_step *st
  * "client"), 0 on the server's wall clock. */
 int terrad_client_world_client_clock(const terrad_client *c);
 
+/* ---- added in 0.5: base snapshots (PROTOCOL.md "Base snapshots"), new calls only ----
+ *
+ * terrad_client_connect_world, with a hello asking for base snapshots: a late
+ * joiner's snapshots come as its heights less the scene's base terrain, which
+ * this library rebuilds over each subscription with the twin library (from
+ * the world message's "base"), coded so that a window dug for an hour costs a
+ * fraction of its raw heights (docs/performance.md "Late join"). The mirrors
+ * hold exactly the same heights either way. A server that cannot make the
+ * base (a file base, per-cell materials) or predates them sends absolute
+ * snapshots: terrad_client_base_snapshots says 0. */
+terrad_client *terrad_client_connect_base(terrad_client_desc d, const char *world, char *err,
+                                          size_t err_cap);
+/* 1 when the server agreed to base snapshots for this connection. */
+int terrad_client_base_snapshots(const terrad_client *c);
+
 #ifdef __cplusplus
 }
 #endif

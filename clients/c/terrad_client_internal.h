@@ -26,6 +26,12 @@ TERRAD_CLIENT_HIDDEN terrad_prediction **client_predictions(terrad_client *c);
 TERRAD_CLIENT_HIDDEN void client_set_error(terrad_client *c, const char *fmt, ...)
     __attribute__((format(printf, 2, 3)));
 
+/* terrad_client_base.c: the base terrain over (x, y, w, h) into out, from the
+ * world message's "base" (the scene's twin config); -1 with err. */
+struct cJSON;
+TERRAD_CLIENT_HIDDEN int client_base_fill(const struct cJSON *base, int x, int y, int w, int h,
+                                          int32_t *out, char *err, size_t cap);
+
 /* terrad_client_predict.c's side: called by the client at each event. */
 /* Batch seq was queued and has not left yet: every prediction ticks it. */
 TERRAD_CLIENT_HIDDEN void predict_sent(terrad_client *c, uint32_t seq, const terrad_pose *poses,

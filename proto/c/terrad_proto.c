@@ -347,7 +347,7 @@ int terrad_rect_check(const terrad_rect *r)
     if (r->encoding == TERRAD_ENC_DELTA) {
         if (r->base_version == 0 || r->base_version == r->new_version)
             return TERRAD_E_BAD_VALUE;
-    } else if (r->encoding == TERRAD_ENC_SNAPSHOT) {
+    } else if (r->encoding == TERRAD_ENC_SNAPSHOT || r->encoding == TERRAD_ENC_BASE) {
         if (r->base_version != 0)
             return TERRAD_E_BAD_VALUE;
     } else {
@@ -1298,7 +1298,7 @@ static int mirror_classify(const terrad_mirror *m, const terrad_rect *r, size_t 
         return RECT_SKIP;
     size_t t = (size_t)(tx - m->tx0) + (size_t)(ty - m->ty0) * m->tiles_x;
     *tile_out = t;
-    if (r->encoding == TERRAD_ENC_SNAPSHOT) {
+    if (r->encoding != TERRAD_ENC_DELTA) { /* a snapshot, absolute or against the base */
         box region = {m->x, m->y, (int64_t)m->x + m->w, (int64_t)m->y + m->h};
         box tile = {tx * T, ty * T, tx * T + T, ty * T + T}, part, tpart;
         box_meet(tile, region, &tpart);
@@ -1348,6 +1348,16 @@ int terrad_mirror_apply(terrad_mirror *m, terrad_codec *c, const terrad_rect *re
                 break;
             }
         } else if (mirror_classify(m, r, &t) != RECT_APPLY) {
+            continue;
+        }
+        if (r->encoding == TERRAD_ENC_BASE) { /* the client asked for them: it has the base */
+            rc = m->base ? terrad_rect_decompress_base(r->data, r->data_len, r->w, r->h, scratch,
+                                                       scratch_cells)
+                         : TERRAD_E_BAD_VALUE;
+            if (rc)
+                break;
+            terrad_rect_apply_base(r, scratch, m->base, m->heights, m->x, m->y, m->w, m->h);
+            m->versions[t] = r->new_version;
             continue;
         }
         rc = terrad_rect_decompress(c, r->data, r->data_len, (size_t)r->w * r->h, scratch,

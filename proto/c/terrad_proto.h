@@ -143,6 +143,9 @@ int terrad_pose_batch_decode(const uint8_t *buf, size_t len, uint32_t *seq_out, 
 typedef enum terrad_encoding {
     TERRAD_ENC_DELTA = 0,    /* new - old, zigzag, packed, zstd */
     TERRAD_ENC_SNAPSHOT = 1, /* absolute heights, zigzag, packed, zstd */
+    /* heights less the scene's base terrain, predicted, zigzag, varints, zstd
+     * (PROTOCOL.md "Base snapshots"): only to a client whose hello asked */
+    TERRAD_ENC_BASE = 2,
 } terrad_encoding;
 
 typedef struct terrad_rect {
@@ -353,6 +356,29 @@ int terrad_rect_compress(terrad_codec *c, const int32_t *values, size_t cells, u
 int terrad_rect_decompress(terrad_codec *c, const uint8_t *data, size_t len, size_t cells,
                            int32_t *out, size_t out_cap);
 
+/* ---- base snapshots (terrad_proto_base.c; PROTOCOL.md "Base snapshots") ----
+ * A rectangle's heights less the scene's base terrain, d = h - base (wrapping),
+ * each cell predicted from its decoded neighbours (left + up - up-left; the
+ * first row from the left, the first column from above, the first cell 0),
+ * and the residual d - p (wrapping, zigzagged) coded with an adaptive binary
+ * range coder whose context is the size of the neighbours' residuals. Exact
+ * for any int32 heights; no zstd. */
+size_t terrad_rect_compress_base_bound(size_t cells);
+/* diff: w * h values h - base; too_large for an empty or huge rectangle,
+ * buffer_too_small when cap is less than the bound. */
+int terrad_rect_compress_base(const int32_t *diff, uint32_t w, uint32_t h, uint8_t *out, size_t cap,
+                              size_t *len_out);
+/* Back to w * h values h - base in out (out_cap values: too_large past it);
+ * bad_compression for a payload that ends before the last cell or a value
+ * past 2^32. */
+int terrad_rect_decompress_base(const uint8_t *data, size_t len, uint32_t w, uint32_t h,
+                                int32_t *out, size_t out_cap);
+/* A base rectangle's decoded differences onto heights covering the region
+ * (hx, hy, hw, hh), clipped: heights = base + diff, base over the region.
+ * Returns the number of cells set. */
+size_t terrad_rect_apply_base(const terrad_rect *r, const int32_t *diff, const int32_t *base,
+                              int32_t *heights, int32_t hx, int32_t hy, uint32_t hw, uint32_t hh);
+
 /* Apply decoded rectangle values to a heights array covering the region
  * (hx, hy, hw, hh), clipped to it: snapshot values replace heights, delta
  * values are added (wrapping). Returns the number of cells touched. */
@@ -372,6 +398,10 @@ typedef struct terrad_mirror {
     uint32_t *versions; /* terrad_mirror_tile_count(), caller's memory */
     int64_t tx0, ty0;   /* first tile column and row (computed) */
     uint32_t tiles_x, tiles_y;
+    /* The scene's base terrain over the region (w * h, caller's memory), for
+     * base snapshot rectangles (TERRAD_ENC_BASE); NULL (terrad_mirror_init):
+     * such a rectangle is refused with bad_value. */
+    const int32_t *base;
 } terrad_mirror;
 
 /* Tiles touching the region, or 0 for an empty region or tile_size 0. */

@@ -95,6 +95,9 @@ typedef struct host_sim {
     service *svc;
     hub *h; /* made by the caller (the HTTP server may need it first) */
     char models[64];
+    /* the scene's twin config (JSON), the world message's "base" for clients
+     * that ask for base snapshots; NULL where the twin cannot make this base */
+    char *twin_json;
     char backend_reason[HOST_BACKEND_REASON_MAX]; /* why this backend (host_backend_create) */
     uint64_t overruns;
     int metrics_slot; /* a named world's labelled series */

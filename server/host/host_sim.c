@@ -49,6 +49,9 @@ int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
     m->demo_actors = c->demo_actors;
     demo_actors_init(m->actors, m->demo_actors, w);
     snprintf(m->models, sizeof m->models, "[\"%s\"]", sim_model_name(m->params.model));
+    error_text no_twin = {{0}}; /* a file base or per-cell materials: absolute snapshots only */
+    free(m->twin_json);
+    m->twin_json = scene_twin_config_json(&m->sc, &no_twin);
 
     http_status *s = &m->status;
     pthread_mutex_lock(&s->lock);
@@ -108,6 +111,7 @@ net_world_info host_sim_world_info(const host_sim *m)
                             .height_min = WORLD_HEIGHT_MIN,
                             .height_max = WORLD_HEIGHT_MAX,
                             .models_json = m->models,
+                            .base_json = m->twin_json,
                             .loads = m->params.model == SIM_MODEL_BEKKER,
                             .client_clock = m->sc.client_clock,
                             .name = m->name[0] ? m->name : NULL,
@@ -264,5 +268,7 @@ void host_sim_free(host_sim *m)
     hub_destroy(m->h);
     world_free(&m->w);
     scene_free(&m->sc);
+    free(m->twin_json);
+    m->twin_json = NULL;
     m->h = NULL;
 }

@@ -84,6 +84,7 @@ typedef struct hub_command {
     double load_n;              /* create: > 0 load-driven (bekker), the load in newtons */
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
+    int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */
     char ref[64];               /* the client's request reference, echoed in replies */
     world_edit *edit;           /* edit: owned by the command, then by the sim */
     hub_edit_waiter *waiter;    /* edit from HTTP: hub_edit_finish tells it the outcome */

@@ -136,6 +136,8 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     s->st.fd_ceiling = c->limits.fd_reserve > 0 ? net_fd_ceiling(c->limits.fd_reserve) : 0;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
+    s->st.base = net_parse_base(c->world.base_json);
+    s->st.cfg.world.base_json = NULL; /* not kept: s->st.base is the copy */
     s->st.models = net_parse_names(s->st.models_json, "[]", "world.models_json", err);
     s->st.materials = s->st.models ? net_parse_names(s->st.materials_json, "[\"default\"]",
                                                      "world.materials_json", err)

@@ -107,6 +107,11 @@ typedef struct net_world_info {
      * neither it nor an added world is refused. Not copied: it must outlive
      * the server. */
     const char *scene_name;
+    /* The scene's twin config as a JSON object (scene_twin_config_json), sent
+     * as the world message's "base" to a client whose hello asked for base
+     * snapshots (PROTOCOL.md "Base snapshots"); NULL: the twin cannot make
+     * this world's base, and such a client gets absolute snapshots. Copied. */
+    const char *base_json;
 } net_world_info;
 
 typedef struct net_config {

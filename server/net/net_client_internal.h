@@ -76,8 +76,9 @@ typedef struct net_client {
     uint32_t id;
     struct lws *wsi;
     net_state *srv;
-    int ready;       /* hello accepted */
-    unsigned events; /* subscribe_events: one bit per NET_EVENT_NAMES entry */
+    int ready;         /* hello accepted */
+    int snapshot_base; /* its snapshots are coded against the base (PROTOCOL.md) */
+    unsigned events;   /* subscribe_events: one bit per NET_EVENT_NAMES entry */
     /* what its hello's token allows (net_auth.c), the token's entry name for
      * log lines and its hash, looked up again after each reload */
     auth_role role;
@@ -174,6 +175,7 @@ struct net_state {
     unsigned auth_generation; /* the table's, when the clients' roles were last checked */
     char *models_json, *materials_json, *server_name, *world_name;
     cJSON *models, *materials;
+    cJSON *base; /* cfg.world.base_json parsed (net_parse_base); NULL: no base snapshots */
     hub *hub;
     struct terrad_pose *poses; /* max_poses_per_batch, for decoding */
 

@@ -72,6 +72,8 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON_AddItemToObject(m, "materials", cJSON_Duplicate(s->materials, 1));
     static const char *const shapes[] = {"sphere", "box", "capsule", "cylinder", "wheel", "mesh"};
     cJSON_AddItemToObject(m, "shapes", cJSON_CreateStringArray(shapes, 6));
+    if (c->snapshot_base) /* asked for and possible: the twin config to rebuild the base */
+        cJSON_AddItemToObject(m, "base", cJSON_Duplicate(s->base, 1));
     cJSON *lim = cJSON_AddObjectToObject(m, "limits");
     for (const net_limit_spec *t = net_limit_table; t->name; t++) /* net_limits.c */
         if (t->flags & NET_LIMIT_TOLD)
@@ -165,10 +167,15 @@ static void handle_hello(net_client *c, const net_control *m)
     for (char *p = c->name; *p; p++) /* for log lines */
         if ((unsigned char)*p < 0x20 || *p == 0x7f)
             *p = '?';
+    /* base snapshots (PROTOCOL.md): only where the twin can rebuild the base */
+    c->snapshot_base = m->snapshot_base && s->base != NULL;
     cJSON *w = world_message(s, c);
+    if (m->snapshot_base)
+        cJSON_AddBoolToObject(w, "snapshot_base", c->snapshot_base);
     cJSON_AddItemToObject(w, "ref", net_ref_copy(m->ref));
     net_send_json(c, w);
-    hub_command cmd = {.kind = HUB_CLIENT_JOINED, .client = c->id};
+    hub_command cmd = {
+        .kind = HUB_CLIENT_JOINED, .client = c->id, .snapshot_base = c->snapshot_base};
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     net_push_must(s, &cmd);
     if (auth_enabled(s->auth))

@@ -82,6 +82,8 @@ void net_heartbeat_start(net_server *s);
 extern const struct lws_protocols net_protocols[];
 /* A JSON array of strings, or the fallback when text is NULL; NULL with err. */
 cJSON *net_parse_names(const char *text, const char *fallback, const char *what, error_text *err);
+/* A world's base_json as an object, or NULL (none, not an object, no memory). */
+cJSON *net_parse_base(const char *json);
 /* The i-th state: 0 the server's own, then the worlds; NULL past the last. */
 net_state *net_state_at(net_server *s, int i);
 /* Net thread: adopt the worlds added (to the table, or relayed) and detach the

@@ -45,9 +45,20 @@ void net_state_release(net_state *w)
     terrad_codec_free(w->budget_codec);
     cJSON_Delete(w->models);
     cJSON_Delete(w->materials);
+    cJSON_Delete(w->base);
     free(w->models_json);
     free(w->materials_json);
     free(w->world_name);
+}
+
+cJSON *net_parse_base(const char *json)
+{
+    cJSON *o = json ? cJSON_Parse(json) : NULL;
+    if (o && !cJSON_IsObject(o)) {
+        cJSON_Delete(o);
+        o = NULL;
+    }
+    return o; /* NULL (none, or out of memory): clients get absolute snapshots */
 }
 
 cJSON *net_parse_names(const char *text, const char *fallback, const char *what, error_text *err)
@@ -109,6 +120,8 @@ net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h
     w->remote_ctx = s->st.remote_ctx;
     snprintf(w->node, sizeof w->node, "%s", s->st.node);
     w->poses = calloc((size_t)w->cfg.limits.max_poses_per_batch, sizeof *w->poses);
+    w->base = net_parse_base(info->base_json);
+    w->cfg.world.base_json = NULL; /* not kept: w->base is the copy */
     w->models = net_parse_names(w->models_json, "[]", "world.models_json", err);
     w->materials =
         w->models ? net_parse_names(w->materials_json, "[\"default\"]", "world.materials_json", err)

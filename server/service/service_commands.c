@@ -109,7 +109,7 @@ static void queue_snapshots(service *s, uint32_t client, const svc_subscription 
     queue_snapshot_jobs(s, client, subs, n);
 }
 
-static void client_join(service *s, svc_client *cl, uint32_t id)
+static void client_join(service *s, svc_client *cl, uint32_t id, int snapshot_base)
 {
     if (cl)
         return;
@@ -118,7 +118,7 @@ static void client_join(service *s, svc_client *cl, uint32_t id)
         service_note_drop(s, "command", "no memory for client %u", id);
         return;
     }
-    s->clients[s->client_count++] = (svc_client){.id = id};
+    s->clients[s->client_count++] = (svc_client){.id = id, .snapshot_base = snapshot_base};
 }
 
 static void client_leave(service *s, svc_client *cl, uint32_t id)
@@ -209,7 +209,7 @@ static void apply_command(service *s, hub_command *c)
     svc_client *cl = service_find_client(s, c->client);
     switch (c->kind) {
     case HUB_CLIENT_JOINED:
-        client_join(s, cl, c->client);
+        client_join(s, cl, c->client, c->snapshot_base);
         break;
     case HUB_CLIENT_LEFT:
         service_drop_snapshots(s, c->client); /* never built for a client that is gone */

@@ -24,6 +24,11 @@
  * may hold hundreds of worlds (issue 22), and one nobody has subscribed to
  * costs no thread. Should the thread not start, the sim thread frames the
  * requests itself (the same frames, inside the tick).
+ *
+ * A client whose hello asked for base snapshots (PROTOCOL.md "Base
+ * snapshots", issue 32 item 2) gets each piece as its heights less the
+ * scene's base (subtracted here, on the sim thread, which owns the world's
+ * base cache) and the worker codes it with terrad_rect_compress_base.
  */
 #include "service/service_internal.h"
 
@@ -117,10 +122,13 @@ static void frame_request(snap_worker *w, snap_request *r)
         snap_piece *p = &r->pieces[k];
         size_t len = 0;
         uint8_t *data = NULL;
-        if (!p->values ||
-            terrad_rect_compress(w->codec, p->values, (size_t)p->rect.w * p->rect.h, w->packed,
-                                 w->packed_cap, &len) != 0 ||
-            !(data = malloc(len ? len : 1))) {
+        int coded = !p->values ? -1
+                    : p->rect.encoding == TERRAD_ENC_BASE
+                        ? terrad_rect_compress_base(p->values, p->rect.w, p->rect.h, w->packed,
+                                                    w->packed_cap, &len)
+                        : terrad_rect_compress(w->codec, p->values, (size_t)p->rect.w * p->rect.h,
+                                               w->packed, w->packed_cap, &len);
+        if (coded != 0 || !(data = malloc(len ? len : 1))) {
             r->failed++;
         } else {
             memcpy(data, w->packed, len);
@@ -196,7 +204,10 @@ int service_snapshots_start(service *s)
 static int start_worker(snap_worker *w)
 {
     if (!w->codec) {
-        w->packed_cap = terrad_rect_compress_bound(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
+        size_t cells = SERVICE_TILE_SIZE * SERVICE_TILE_SIZE; /* the larger of the two codings */
+        w->packed_cap = terrad_rect_compress_base_bound(cells);
+        if (w->packed_cap < terrad_rect_compress_bound(cells))
+            w->packed_cap = terrad_rect_compress_bound(cells);
         w->packed = malloc(w->packed_cap);
         w->codec = terrad_codec_new(3); /* the level the deltas and snapshots always used */
         if (!w->packed || !w->codec) {
@@ -233,6 +244,21 @@ void service_snapshots_stop(service *s)
     s->snapper = NULL;
 }
 
+/* The piece's heights less the scene's base terrain, wrapping (a base
+ * snapshot's d = h - base): -1 without memory for the base. */
+static int less_base(service *s, world_rect piece, int32_t *values)
+{
+    size_t n = (size_t)piece.w * piece.h;
+    int32_t *base = malloc(n * sizeof *base);
+    if (!base)
+        return -1;
+    world_base_fill_rect(s->world, piece, base);
+    for (size_t i = 0; i < n; i++)
+        values[i] = (int32_t)((uint32_t)values[i] - (uint32_t)base[i]);
+    free(base);
+    return 0;
+}
+
 /* Copy one job's tile pieces (the cells and their tile versions) for the worker. */
 void service_snapshot_stage(service *s, const snapshot_job *job)
 {
@@ -251,6 +277,8 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
     r->job = *job;
     r->tick = s->tick;
     world_rect q = job->rect;
+    svc_client *cl = service_find_client(s, job->client);
+    int against_base = cl && cl->snapshot_base; /* PROTOCOL.md "Base snapshots" */
     int tiles = 0;
     if (q.w > 0 && q.h > 0)
         tiles = ((q.x + q.w - 1) / SERVICE_TILE_SIZE - q.x / SERVICE_TILE_SIZE + 1) *
@@ -269,16 +297,21 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
                 world_rect_meet(q, (world_rect){tx * SERVICE_TILE_SIZE, ty * SERVICE_TILE_SIZE,
                                                 SERVICE_TILE_SIZE, SERVICE_TILE_SIZE});
             snap_piece *p = &r->pieces[r->npieces++];
-            p->rect = (terrad_rect){.x = piece.x,
-                                    .y = piece.y,
-                                    .w = (uint16_t)piece.w,
-                                    .h = (uint16_t)piece.h,
-                                    .base_version = 0,
-                                    .new_version = s->tile_versions[ty * s->tiles_x + tx],
-                                    .encoding = TERRAD_ENC_SNAPSHOT};
+            p->rect =
+                (terrad_rect){.x = piece.x,
+                              .y = piece.y,
+                              .w = (uint16_t)piece.w,
+                              .h = (uint16_t)piece.h,
+                              .base_version = 0,
+                              .new_version = s->tile_versions[ty * s->tiles_x + tx],
+                              .encoding = against_base ? TERRAD_ENC_BASE : TERRAD_ENC_SNAPSHOT};
             p->values = malloc((size_t)piece.w * piece.h * sizeof *p->values);
             if (p->values) /* NULL: the worker counts the piece as failed */
                 world_gather_window(s->world, piece, p->values);
+            if (p->values && against_base && less_base(s, piece, p->values) != 0) {
+                free(p->values); /* no memory for the base: counted as failed */
+                p->values = NULL;
+            }
         }
     }
 }

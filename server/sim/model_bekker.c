@@ -122,10 +122,11 @@ static void bekker_depth(const sim_window_job *job, int j, int slices, int32_t *
             for (int64_t i = 0; i < n; i++)
                 tmp[i] = COLLIDER_BOTTOM_NONE;
             const sim_collider *c = &job->colliders[k];
+            collider_pose at = sim_slice_pose(c, job->cell_size_m, j, slices);
+            at.position.z -= c->lift_units / job->units_per_m; /* at its whole unit */
             /* a lugged wheel presses with its lugs' envelope (model_lugs.c) */
             collider_geometry g = sim_lug_envelope(c->geometry);
-            collider_depth_cpu(&g, sim_slice_pose(c, job->cell_size_m, j, slices), job->rect,
-                               job->cell_size_m, job->units_per_m, tmp);
+            collider_depth_cpu(&g, at, job->rect, job->cell_size_m, job->units_per_m, tmp);
             for (int64_t i = 0; i < n; i++)
                 if (tmp[i] < bottom[i]) {
                     bottom[i] = tmp[i];
@@ -214,28 +215,33 @@ typedef struct bekker_cell {
     double sinkage_m;
 } bekker_cell;
 
-/* 3: SCM's node rule for one cell (state updated in place). */
+/* 3: SCM's node rule for one cell (state updated in place). lift: the
+ * collider's height above the whole unit its depth was cast at (the
+ * sub-unit elastic state: the cell's penetration is e - lift, 0 <= lift < 1,
+ * so the pressure is continuous in the collider's height). */
 static bekker_cell bekker_cell_step(const sim_params *p, const sim_soil *s, int32_t height,
-                                    int32_t bottom, double width_m, double sink_speed,
+                                    int32_t bottom, double lift, double width_m, double sink_speed,
                                     double slip_step_m, double slip_ratio, double shear_share,
                                     int32_t *state)
 {
     sim_soil slipping = *s;
     slipping.n += s->slip_n * slip_ratio;
     double upm = (double)p->units_per_m;
-    int64_t e = (int64_t)height - bottom; /* > 0: in contact */
-    int64_t total = (int64_t)state[SIM_SOIL_SINK] + e;
-    bekker_cell out = {0.0, 0.0, 0, (double)total / upm};
-    double bekker = sim_soil_bekker_pa(&slipping, width_m, (double)total / upm);
-    double trial = s->elastic_pa_m * ((double)e / upm);
+    int64_t e = (int64_t)height - bottom; /* >= 1: in contact */
+    double pen = (double)e - lift;        /* > 0 */
+    double total = (double)state[SIM_SOIL_SINK] + pen;
+    bekker_cell out = {0.0, 0.0, 0, total / upm};
+    double bekker = sim_soil_bekker_pa(&slipping, width_m, total / upm);
+    double trial = s->elastic_pa_m * (pen / upm);
     if (trial > bekker) {
-        /* yield: only the elastic share sigma / K_e stays above the collider,
-         * rounded up to a whole unit: reloaded at the same depth the cell
+        /* yield: only the elastic share sigma / K_e stays above the collider;
+         * the plastic lowering is whole units, so the share kept is rounded
+         * up to the next unit boundary: reloaded at the same height the cell
          * then yields again at the same sigma and stays. Rounded down (as
          * before), a share under one unit left nothing to carry a load at the
          * same height next tick, so a static load crept one unit per tick. */
-        double el = ceil(bekker / s->elastic_pa_m * upm);
-        int64_t raw = e - (el < (double)e ? (int64_t)el : e);
+        double el = bekker / s->elastic_pa_m * upm;
+        int64_t raw = pen > el ? (int64_t)floor(pen - el) : 0;
         if (raw > (int64_t)height - p->floor)
             raw = (int64_t)height - p->floor > 0 ? (int64_t)height - p->floor : 0;
         out.raw = (int32_t)raw;
@@ -291,8 +297,8 @@ static void bekker_contact_add(sim_contact *c, vec3d at, vec3d centre, vec3d nor
 /* CONTACT's measures of one contact cell (PROTOCOL.md) into its collider's
  * contact, and the sinkage at the collider's lowest point. Cells come in
  * row-major order: the deepest point's ties keep the first. */
-static void bekker_contact_measure(const sim_window_job *job, sim_contact *c, int x, int y,
-                                   int32_t bottom, double sinkage_m)
+static void bekker_contact_measure(const sim_window_job *job, sim_contact *c, int owner_k, int x,
+                                   int y, int32_t bottom, double sinkage_m)
 {
     int w = job->rect.w, h = job->rect.h, i = y * w + x;
     const int32_t *hs = job->heights;
@@ -303,7 +309,7 @@ static void bekker_contact_measure(const sim_window_job *job, sim_contact *c, in
         c->deepest_units = pen;
         c->deepest[0] = (job->rect.x + x + 0.5) * cell;
         c->deepest[1] = (job->rect.y + y + 0.5) * cell;
-        c->deepest[2] = bottom / upm;
+        c->deepest[2] = (bottom + job->colliders[owner_k].lift_units) / upm;
     }
     /* among the cells where the bottom is lowest (a cylinder's whole line),
      * the least: a cell at the rut's side edge was also pressed under soil
@@ -323,26 +329,34 @@ static void bekker_contact_measure(const sim_window_job *job, sim_contact *c, in
     c->normal_sum[2] += 1.0 / len;
 }
 
-/* The surface point's velocity of collider k at `at`, split into its
- * sinking speed (along -normal) and tangential slip. */
+/* The surface point's velocity of collider k at `at`: its sinking speed
+ * (along -normal), and its tangential slip from the collider's horizontal
+ * travel and turning — sinking is not slip (Wong-Reece's shear displacement
+ * is the rim's against the ground's travel). With the vertical speed in it, a
+ * sinking wheel's sloped cells slipped: a standing wheel's soil then sheared
+ * (against the search's trial motion) at every height but exactly its last
+ * one and was softer there (slip ratio 0.5), so the load search met a jump of
+ * up to 115 N at the height it had stood at. */
 static void bekker_point_motion(const sim_contact *c, vec3d centre, vec3d at, vec3d normal,
                                 double *sink_speed, vec3d *slip)
 {
     vec3d r = v3(at.x - centre.x, at.y - centre.y, at.z - centre.z);
     vec3d wr = v3_cross(v3(c->angular[0], c->angular[1], c->angular[2]), r);
     vec3d v = v3(c->velocity[0] + wr.x, c->velocity[1] + wr.y, c->velocity[2] + wr.z);
+    *sink_speed = -v3_dot(v, normal);
+    v.z -= c->velocity[2];
     double vn = v3_dot(v, normal);
-    *sink_speed = -vn;
     *slip = v3(v.x - vn * normal.x, v.y - vn * normal.y, v.z - vn * normal.z);
 }
 
-/* The cell's slip ratio: its tangential slip speed u against u plus the
- * collider's own tangential speed. At a wheel's lowest point this is the
- * wheel's slip 1 - v/(wR); a plate pressed straight down, or a wheel at
- * rest, has 0; a block sliding without turning 0.5. */
+/* The cell's slip ratio: its tangential slip speed u (bekker_point_motion)
+ * against u plus the collider's own tangential travel speed. At a wheel's
+ * lowest point this is the wheel's slip 1 - v/(wR); a plate pressed
+ * straight down, or a wheel at rest, has 0; a block sliding without turning
+ * 0.5. */
 static double bekker_slip_ratio(const sim_contact *c, vec3d normal, double u)
 {
-    vec3d v = v3(c->velocity[0], c->velocity[1], c->velocity[2]);
+    vec3d v = v3(c->velocity[0], c->velocity[1], 0.0);
     double vn = v3_dot(v, normal);
     vec3d vt = v3(v.x - vn * normal.x, v.y - vn * normal.y, v.z - vn * normal.z);
     double sum = u + sqrt(v3_dot(vt, vt));
@@ -468,10 +482,11 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int j, int sl
                 job->materials ? job->materials->rows[id].compression_q16 : p->compression_q16;
             double share =
                 bekker_shear_share(soil, c, normal, entry[label[i]], rear[label[i]], ratio);
-            bekker_cell r = bekker_cell_step(p, soil, heights[i], bottom[i], width[label[i]],
+            bekker_cell r = bekker_cell_step(p, soil, heights[i], bottom[i],
+                                             job->colliders[owner[i]].lift_units, width[label[i]],
                                              sink_speed, slip_step, ratio, share, state);
             bekker_contact_add(c, at, centre, normal, slip, &r, area);
-            bekker_contact_measure(job, c, x, y, bottom[i], r.sinkage_m);
+            bekker_contact_measure(job, c, owner[i], x, y, bottom[i], r.sinkage_m);
             if (tmp[label[i]] > c->patch_cells) { /* tmp: the patches' cell counts */
                 c->patch_cells = tmp[label[i]];
                 c->patch_width_m = width[label[i]];
@@ -570,20 +585,121 @@ sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, in
     return sim_sumner_settle(p, job, cls, settle);
 }
 
-/* The vertical force on job collider c at pose height z (units), the job's
- * heights and state restored from the copies first. */
-static double carry_force(const sim_params *p, sim_window_job *job, int32_t z, const int32_t *h0,
-                          const int32_t *s0, int32_t *scratch, sim_collider *c)
+/* The vertical force on job collider c at pose height z + q / 2^CARRY_BITS
+ * units, the job's heights and state restored from the copies first. */
+#define CARRY_BITS 10
+typedef struct carry_search {
+    const sim_params *p;
+    sim_window_job *job;
+    sim_collider *c;
+    const int32_t *h0, *s0;
+    int32_t *scratch;
+} carry_search;
+
+static double carry_force(const carry_search *k, int32_t z, int32_t q)
 {
-    int64_t n = (int64_t)job->rect.w * job->rect.h;
-    memcpy(job->heights, h0, (size_t)n * sizeof *h0);
-    memcpy(job->soil_state, s0, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *s0);
-    c->pose.position.z = (double)z / p->units_per_m;
+    int64_t n = (int64_t)k->job->rect.w * k->job->rect.h;
+    memcpy(k->job->heights, k->h0, (size_t)n * sizeof *k->h0);
+    memcpy(k->job->soil_state, k->s0, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *k->s0);
+    k->c->lift_units = ldexp((double)q, -CARRY_BITS);
+    k->c->pose.position.z = ((double)z + k->c->lift_units) / k->p->units_per_m;
     int32_t *cls, *settle;
-    bekker_press(p, job, 1, 1, scratch, &cls, &settle);
-    return job->contacts[c - job->colliders].force_n[2];
+    bekker_press(k->p, k->job, 1, 1, k->scratch, &cls, &settle);
+    return k->job->contacts[k->c - k->job->colliders].force_n[2];
 }
 
+/*
+ * Whole units: the highest z in [lo, hi) whose force reaches the load (lo
+ * when none does), galloping out from the unit the collider stood at (its
+ * pose: last tick's height, so a few trials a tick, not a bisection of the
+ * whole range), then bisecting. *flo and *fhi: the forces at the z found and
+ * one unit above (NAN at lo when lo was never tried; 0 at the range's top,
+ * which is above every cell).
+ */
+static int32_t carry_units(const carry_search *k, double load_n, int32_t lo, int32_t hi,
+                           double *flo, double *fhi)
+{
+    *flo = NAN;
+    *fhi = 0.0;
+    double zu = floor(k->c->pose.position.z * k->p->units_per_m);
+    int32_t g = !(zu < (double)hi - 1) ? hi - 1
+                : !(zu > (double)lo)   ? lo
+                                       : (int32_t)zu; /* NaN: hi - 1 */
+    double f = carry_force(k, g, 0);
+    if (f >= load_n) {
+        lo = g, *flo = f;
+        for (int64_t step = 1; lo + step < hi; step *= 2) {
+            f = carry_force(k, (int32_t)(lo + step), 0);
+            if (f < load_n) {
+                hi = (int32_t)(lo + step), *fhi = f;
+                break;
+            }
+            lo = (int32_t)(lo + step), *flo = f;
+        }
+    } else {
+        hi = g, *fhi = f;
+        for (int64_t step = 1; hi - step > lo; step *= 2) {
+            f = carry_force(k, (int32_t)(hi - step), 0);
+            if (f >= load_n) {
+                lo = (int32_t)(hi - step), *flo = f;
+                break;
+            }
+            hi = (int32_t)(hi - step), *fhi = f;
+        }
+    }
+    while (hi - lo > 1) {
+        int32_t mid = lo + (hi - lo) / 2;
+        f = carry_force(k, mid, 0);
+        if (f >= load_n)
+            lo = mid, *flo = f;
+        else
+            hi = mid, *fhi = f;
+    }
+    return lo;
+}
+
+/*
+ * Within the unit above z (F(z) = flo >= load > F(z + 1) = fhi): the
+ * highest lift q / 2^CARRY_BITS found whose force reaches the load, by
+ * regula falsi (the force is continuous in the lift, bekker_cell_step, and
+ * nearly straight over one unit; Illinois' halving keeps a stuck end
+ * moving), until the force is within CARRY_TOL of the load or the bracket is
+ * one step. Returns q.
+ */
+#define CARRY_TOL 1e-3
+static int32_t carry_lift(const carry_search *k, double load_n, int32_t z, double flo, double fhi)
+{
+    int32_t qlo = 0, qhi = 1 << CARRY_BITS;
+    double wlo = flo - load_n, whi = fhi - load_n; /* >= 0, < 0 */
+    int side = 0;
+    while (qhi - qlo > 1 && !(flo - load_n <= CARRY_TOL * load_n)) {
+        double t = wlo / (wlo - whi);
+        int32_t q = qlo + (int32_t)nearbyint(t * (qhi - qlo));
+        q = q <= qlo ? qlo + 1 : q >= qhi ? qhi - 1 : q;
+        double f = carry_force(k, z, q);
+        if (f >= load_n) {
+            qlo = q, flo = f, wlo = f - load_n;
+            if (side == 1)
+                whi /= 2;
+            side = 1;
+        } else {
+            qhi = q, whi = f - load_n;
+            if (side == -1)
+                wlo /= 2;
+            side = -1;
+        }
+    }
+    return qlo;
+}
+
+/*
+ * Whole units, then the unit above the one found, so the force carried at
+ * the height found is the load within CARRY_TOL (0.1 %) or within what 1/1024
+ * of a unit changes it: under a standing wheel, whose cells all reload
+ * elastically (K_e A: 165 N a unit under Ding's wheel), 0.16 N. Whole units
+ * alone left it up to one unit's step above the load (4-14 % rolling, 178 N
+ * for 80 standing).
+ */
 int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider *c, double load_n,
                          int32_t lo, int32_t hi, int32_t *scratch, int32_t *heights_copy,
                          int32_t *state_copy)
@@ -591,19 +707,16 @@ int32_t sim_bekker_carry(const sim_params *p, sim_window_job *job, sim_collider 
     int64_t n = (int64_t)job->rect.w * job->rect.h;
     memcpy(heights_copy, job->heights, (size_t)n * sizeof *heights_copy);
     memcpy(state_copy, job->soil_state, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *state_copy);
-    /* invariant: the soil carries the load at lo (or lo is as low as it may
-     * go), not at hi */
-    while (hi - lo > 1) {
-        int32_t mid = lo + (hi - lo) / 2;
-        if (carry_force(p, job, mid, heights_copy, state_copy, scratch, c) >= load_n)
-            lo = mid;
-        else
-            hi = mid;
-    }
+    carry_search k = {p, job, c, heights_copy, state_copy, scratch};
+    double flo, fhi;
+    int32_t z = carry_units(&k, load_n, lo, hi, &flo, &fhi);
+    /* even lo does not carry the load: it stays there */
+    int32_t q = flo >= load_n ? carry_lift(&k, load_n, z, flo, fhi) : 0;
     memcpy(job->heights, heights_copy, (size_t)n * sizeof *heights_copy);
     memcpy(job->soil_state, state_copy, (size_t)n * SIM_SOIL_STATE_FIELDS * sizeof *state_copy);
-    c->pose.position.z = (double)lo / p->units_per_m;
-    return lo;
+    c->lift_units = ldexp((double)q, -CARRY_BITS);
+    c->pose.position.z = ((double)z + c->lift_units) / p->units_per_m;
+    return z;
 }
 
 void sim_bekker_contact_merge(sim_contact *to, const sim_contact *from)

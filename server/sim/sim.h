@@ -290,6 +290,12 @@ typedef struct sim_collider {
      * engine sets the pose height each tick (sim_bekker_carry, before the
      * window deforms) and reports it in the contact's pose_z_m. 0: as posed. */
     double load_n;
+    /* bekker, set by sim_bekker_carry: the found height's part above a whole
+     * height unit, in units (0 <= lift < 1; 0 for any other collider). The
+     * depth is cast at the whole unit below the pose and every contact
+     * cell's penetration is lift less, so the carried force is continuous in
+     * the height and the search can meet the load finer than one unit. */
+    double lift_units;
 } sim_collider;
 
 /* The bekker model's state per cell, int32 each, in this order: plastic

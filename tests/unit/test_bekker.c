@@ -534,6 +534,79 @@ static void test_loaded_wheel_measures(void)
     soil_rig_free(&r);
 }
 
+/*
+ * A wheel that stops keeps its support (issue 31 item 4): Ding's wheel at 80
+ * N, slip 0.2, rolls 40 ticks, stands still 60 (the same pose: no velocity,
+ * no slip), then rolls 40 more; beside it the same wheel that never stopped,
+ * 80 ticks. Standing, the soil carries the load within 5 % every tick (whole
+ * height units alone: 178 N for 80, every cell reloading at once); rolled
+ * on, its mean Fx, Fz and torque over the last 30 ticks are the unstopped
+ * wheel's over the same ground within 5 % (of the load for Fx, a small
+ * difference of two large forces). Both carry the load within the search's
+ * resolution every tick (sim_bekker_carry: 0.1 % or 1/1024 unit).
+ */
+static void standing_run(int stand, double out[3], double *worst_stand, double *worst_roll)
+{
+    sim_soil soil;
+    sim_soil_preset("ding2011", &soil);
+    soil_rig r;
+    double R = SIM_WHEEL_DING2011_RADIUS_M, ground = 0.5, v = 0.05, slip = 0.2;
+    double load = SIM_WHEEL_DING2011_LOAD_N, y = 53 * 0.005 / 2;
+    soil_rig_init(&r, &soil, 0.5, 0.005, 200, 53, ground);
+    r.p.tick_s = 0.05;
+    r.geometry.shape = COLLIDER_CYLINDER;
+    r.geometry.radius = R;
+    r.geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+    double x = 1.5 * R, angle = 0.0, omega = v / (R * (1.0 - slip));
+    soil_rig_place(&r, x, y, ground + R, IDENTITY, 0);
+    out[0] = out[1] = out[2] = 0.0;
+    *worst_stand = *worst_roll = 0.0;
+    for (int t = 0; t < 80 + stand; t++) {
+        int standing = t >= 40 && t < 40 + stand;
+        if (!standing) {
+            x += v * r.p.tick_s;
+            angle += omega * r.p.tick_s;
+        }
+        soil_rig_place(&r, x, y, r.collider.pose.position.z,
+                       quat_from_axis_angle((vec3d){0, 1, 0}, angle), t > 0);
+        soil_rig_carry(&r, load);
+        soil_rig_step(&r);
+        double off = fabs(r.contact.force_n[2] - load) / load;
+        if (standing && off > *worst_stand)
+            *worst_stand = off;
+        if (!standing && t > 0 && off > *worst_roll)
+            *worst_roll = off;
+        if (t >= 50 + stand) {
+            out[0] += r.contact.force_n[0] / 30;
+            out[1] += r.contact.force_n[2] / 30;
+            out[2] += -r.contact.torque_nm[1] / 30;
+        }
+    }
+    soil_rig_free(&r);
+}
+
+static void test_standing_wheel(void)
+{
+    double a[3], b[3], stand_off, roll_a, roll_b, unused;
+    standing_run(60, a, &stand_off, &roll_a);
+    standing_run(0, b, &unused, &roll_b);
+    double load = SIM_WHEEL_DING2011_LOAD_N;
+    printf("standing wheel: worst |Fz - W| / W standing %.4f, rolling %.4f / %.4f; rolled on: Fx "
+           "%.3f / %.3f N, Fz %.3f / %.3f N, torque %.4f / %.4f N m\n",
+           stand_off, roll_a, roll_b, a[0], b[0], a[1], b[1], a[2], b[2]);
+    CHECK(stand_off <= 0.05,
+          "standing 60 ticks, the soil carries the load within 5 %% (worst %.2f %%)",
+          100 * stand_off);
+    CHECK(fabs(a[0] - b[0]) <= 0.05 * load && fabs(a[1] - b[1]) <= 0.05 * b[1] &&
+              fabs(a[2] - b[2]) <= 0.05 * b[2],
+          "rolled on, its forces are the unstopped wheel's within 5 %% (Fx %.3f / %.3f N, Fz "
+          "%.3f / %.3f N, torque %.4f / %.4f N m)",
+          a[0], b[0], a[1], b[1], a[2], b[2]);
+    CHECK(roll_a <= 0.01 && roll_b <= 0.01,
+          "rolling, the carried force is the load within 1 %% every tick (worst %.3f %%, %.3f %%)",
+          100 * roll_a, 100 * roll_b);
+}
+
 int main(void)
 {
     test_scratch_size();
@@ -543,6 +616,7 @@ int main(void)
     test_lug_thrust();
     test_lugged_traction();
     test_loaded_wheel_measures();
+    test_standing_wheel();
     test_floor_and_lift();
     test_rut_passes();
     test_engine();

@@ -5,7 +5,7 @@
  * 1. Plate sinkage, every soil of the note's table (the presets of
  *    sim_soil_preset), three pressures each: a rigid plate 10 x 50 cells of
  *    5 mm is given a load W (load-driven: sim_bekker_carry finds the highest
- *    whole-unit height at which the soil carries it) and its sinkage must
+ *    height, the load met within 0.1 %, at which the soil carries it) and its sinkage must
  *    meet z = (p / (kc/b + kphi))^(1/n), p = W / A, within 1 % or one height
  *    unit (0.1 mm), b the patch width the model uses, 2 A / L (Chrono SCM's
  *    rule), computed here from the plate's size. The pressures are chosen
@@ -21,7 +21,7 @@
  *    0.22). Rc is the normal stress's share of the resistance, so it is
  *    measured with c = phi = 0 (at zero slip the rolling wheel's shear
  *    thrust, Wong-Reece's j(θ) > 0, otherwise cancels most of it on the
- *    deeper lunar case: 1.4 N net against 12.5). Tolerance 25 % on sinkage
+ *    deeper lunar case: 1.4 N net against 12.5). Tolerance 30 % on sinkage
  *    and 35 % on resistance, because the
  *    closed form and the model differ in ways the formula itself ignores:
  *    it puts the wheel's width in kc/b where the model uses its contact
@@ -39,7 +39,9 @@
  *    wheel sank 8.00 mm (-12 %); rounded up (a static load now holds, see
  *    test_load_driven) it sinks 6.95 mm (-24 %), hence 25 % on sinkage
  *    (was 20 %); with Wong-Reece's rear region in the shear (model_bekker.c,
- *    bekker_shear_share) 7.04 mm (-23 %). Grid and height quanta (5 mm cells,
+ *    bekker_shear_share) 7.04 mm (-23 %); with the load met within 0.1 %,
+ *    not at the highest whole unit carrying it (which carried 4-14 %
+ *    more than the load) 6.66 mm (-27 %), hence 30 %. Grid and height quanta (5 mm cells,
  *    0.1 mm units) are ~1 % of z0. A model change that breaks pressure,
  *    patch width, yielding or the normal's direction moves these figures by
  *    far more than the margins.
@@ -150,7 +152,7 @@ static void test_wheels(void)
                "resistance %.2f N (Bekker %.2f, %+.1f%%)\n",
                cases[i].radius, cases[i].width, cases[i].load, cases[i].soil, z * 1e3, z0 * 1e3,
                100.0 * (z - z0) / z0, res, rc, 100.0 * (res - rc) / rc);
-        CHECK(fabs(z - z0) <= 0.25 * z0, "%s wheel: sinkage %.2f mm within 25 %% of %.2f mm",
+        CHECK(fabs(z - z0) <= 0.30 * z0, "%s wheel: sinkage %.2f mm within 30 %% of %.2f mm",
               cases[i].soil, z * 1e3, z0 * 1e3);
         CHECK(fabs(res - rc) <= 0.35 * rc, "%s wheel: resistance %.2f N within 35 %% of %.2f N",
               cases[i].soil, res, rc);

@@ -15,11 +15,14 @@
  * relative errors (docs/validation.md). Chrono SCM on the same wheel
  * (the note, measured here): median error 125 % on pull, 24 % on sinkage.
  *
- * Asserted, so a regression fails: the median errors on drawbar pull and on
- * sinkage stay within DP_BOUND and SINKAGE_BOUND — today's 30 % and 21 %
- * (integer and deterministic: the same on every run and machine) plus about
- * ten points, room for a deliberate change of the model that does not make
- * it worse; Bekker-Wong's own model-form error is quoted at 15-30 % — and
+ * Asserted, so a regression fails: the median errors on drawbar pull, on
+ * sinkage and on torque stay within DP_BOUND, SINKAGE_BOUND and
+ * TORQUE_BOUND — today's 25 %, 20 % and 35 % (deterministic: the same on
+ * every run and machine) plus five points, room for a deliberate change of
+ * the model that does not make it worse; Bekker-Wong's own model-form error
+ * is quoted at 15-30 % (before the load search met the load within 0.1 % or 1/1024 of
+ * a height unit, sim_bekker_carry, the wheel carried 4-14 % more than its
+ * load and the medians were 30 / 21 / 34 %) — and
  * the physics that must hold whatever the calibration: a resisted wheel at
  * slip 0; pull and torque rising with slip up to 0.3 and then levelling off
  * as the real wheel's do (measured: 15 N from slip 0.3 to 0.6; the rise past
@@ -48,8 +51,9 @@
 #define WIDTH SIM_WHEEL_DING2011_WIDTH_M
 #define LOAD SIM_WHEEL_DING2011_LOAD_N
 /* today's medians plus a margin (see the top comment) */
-#define DP_BOUND 0.40
-#define SINKAGE_BOUND 0.30
+#define DP_BOUND 0.30
+#define SINKAGE_BOUND 0.25
+#define TORQUE_BOUND 0.40
 /* the lugged wheel's (lugged_wheel): today's medians plus about five points */
 #define LUG_DP_BOUND 0.50
 #define LUG_SINKAGE_BOUND 0.43
@@ -307,6 +311,8 @@ int main(void)
           100 * DP_BOUND);
     CHECK(m_z <= SINKAGE_BOUND, "median sinkage error %.0f %% within %.0f %%", 100 * m_z,
           100 * SINKAGE_BOUND);
+    CHECK(m_t <= TORQUE_BOUND, "median torque error %.0f %% within %.0f %%", 100 * m_t,
+          100 * TORQUE_BOUND);
     lugged_wheel(dp, tq);
     second_pass();
     return check_report();

@@ -101,7 +101,8 @@ class Client:
 
     def __init__(self, uri: str, token: str = "", name: str = "terrad-python",
                  max_size: int = 1 << 24, world: str = "", say_seen: bool = True,
-                 budget: int | None = None, **connect_kwargs: Any):
+                 budget: int | None = None, base_snapshots: bool = False,
+                 **connect_kwargs: Any):
         """connect_kwargs go to websockets.connect (for example sock=, max_queue=,
         ping_interval=None for a client that may stop reading for a while). world: the
         world a cluster node should serve this client (docs/cluster.md); "" for a single
@@ -109,7 +110,11 @@ class Client:
         so that it bounds this client's lag end to end; False: only its own queue is judged.
         budget: bytes per second the server may send this client (PROTOCOL.md "Budgets":
         near tiles first, far ones later, exact once the terrain settles); None: the
-        server's default; world["budget"] says the one in force."""
+        server's default; world["budget"] says the one in force.
+        base_snapshots: ask for snapshots against the scene's base terrain (PROTOCOL.md "Base
+        snapshots"; a late joiner's window in a fraction of the bytes), which this client
+        rebuilds with the twin library (terrad.twin); the mirrors hold the same heights."""
+        self.base_snapshots = base_snapshots
         self.uri, self.token, self.name, self.max_size = uri, token, name, max_size
         self.world_name = world
         self.budget = budget
@@ -180,7 +185,8 @@ class Client:
         websockets = _websockets()
         self.ws = await websockets.connect(self.uri, subprotocols=[SUBPROTOCOL],
                                            max_size=self.max_size, **self.connect_kwargs)
-        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name, self.budget)))
+        await self.ws.send(json.dumps(hello(self.token, self.name, self.world_name, self.budget,
+                                            self.base_snapshots)))
         msg = parse_control(await self.ws.recv())
         if msg["type"] == "error":
             raise ServerError(msg)
@@ -389,7 +395,13 @@ class Client:
         msg = parse_control(text)
         t = msg["type"]
         if t == "subscribed":
-            self.mirrors[msg["id"]] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
+            mirror = Mirror(msg["x"], msg["y"], msg["w"], msg["h"], self.world["tile_size"])
+            if self.world.get("snapshot_base") and isinstance(self.world.get("base"), dict):
+                # its snapshots come less the base: rebuilt here before any of them is read
+                from .twin import Twin
+                with Twin(self.world["base"], msg["x"], msg["y"], msg["w"], msg["h"]) as base:
+                    mirror.base = list(base.read())
+            self.mirrors[msg["id"]] = mirror
         ref = msg.get("ref")
         fut = self._pending.get(ref) if isinstance(ref, str) else None
         step = self._steps.pop(int(ref[5:]), None) if isinstance(ref, str) and ref.startswith("step:") else None

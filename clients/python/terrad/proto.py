@@ -94,6 +94,7 @@ class MsgType(IntEnum):
 class Encoding(IntEnum):
     DELTA = 0
     SNAPSHOT = 1
+    BASE = 2  # a snapshot less the scene's base (PROTOCOL.md "Base snapshots"): asked for in hello
 
 
 ERRORS = {
@@ -430,7 +431,7 @@ def check_rect(r: Rect) -> None:
     if r.encoding == Encoding.DELTA:
         if r.base_version == 0 or r.base_version == r.new_version:
             raise ProtoError("bad_value", "a delta needs base_version >= 1 and != new_version")
-    elif r.encoding == Encoding.SNAPSHOT:
+    elif r.encoding in (Encoding.SNAPSHOT, Encoding.BASE):
         if r.base_version != 0:
             raise ProtoError("bad_value", "a snapshot has base_version 0")
     else:
@@ -753,6 +754,92 @@ def rect_decompress(data: bytes, cells: int, max_cells: int | None = None) -> li
     return rect_unpack(out)
 
 
+def rect_decompress_base(data: bytes, w: int, h: int, max_cells: int | None = None) -> list[int]:
+    """A base snapshot rectangle's w * h values h - base (PROTOCOL.md "Base snapshots";
+    the same coder as proto/c/terrad_proto_base.c): bad_compression for a payload that ends
+    before the last cell or a value past 2^32; more than max_cells cells is too_large."""
+    cells = w * h
+    if cells <= 0 or (max_cells is not None and cells > max_cells):
+        raise ProtoError("too_large", f"{cells} cells")
+    if len(data) < 5:
+        raise ProtoError("bad_compression", "a base payload of fewer than 5 bytes")
+    unary = [[1024] * 33 for _ in range(12)]
+    mant = [[[1024, 1024] for _ in range(33)] for _ in range(12)]
+    n_in = len(data)
+    state = [0xFFFFFFFF, 0, 0, False]  # range, code, position, ran short
+
+    def byte() -> int:
+        at = state[2]
+        if at < n_in:
+            state[2] = at + 1
+            return data[at]
+        state[3] = True
+        return 0
+
+    for _ in range(5):
+        state[1] = ((state[1] << 8) | byte()) & _U32
+
+    def bit(probs: list[int], i: int) -> int:
+        rng, code, p = state[0], state[1], probs[i]
+        bound = (rng >> 11) * p
+        if code < bound:
+            rng = bound
+            probs[i] = p + ((2048 - p) >> 4)
+            b = 0
+        else:
+            code -= bound
+            rng -= bound
+            probs[i] = p - (p >> 4)
+            b = 1
+        while rng < (1 << 24):
+            rng = (rng << 8) & _U32
+            code = ((code << 8) | byte()) & _U32
+        state[0], state[1] = rng, code
+        return b
+
+    def direct() -> int:
+        rng = state[0] >> 1
+        code = state[1]
+        b = 1 if code >= rng else 0
+        if b:
+            code -= rng
+        while rng < (1 << 24):
+            rng = (rng << 8) & _U32
+            code = ((code << 8) | byte()) & _U32
+        state[0], state[1] = rng, code
+        return b
+
+    z = [0] * cells  # zigzagged residuals
+    d = [0] * cells  # h - base, as u32
+    for y in range(h):
+        row = y * w
+        for x in range(w):
+            i = row + x
+            a = (z[i - 1] + 1) >> 1 if x else ((z[i - w] + 1) >> 1 if y else 0)
+            b2 = (z[i - w] + 1) >> 1 if y else a
+            c = min(11, (a + b2).bit_length())
+            n = 0
+            uc = unary[c]
+            while n < 32 and bit(uc, n):
+                n += 1
+            v = 1
+            mc = mant[c][n]
+            for k in range(n - 1, -1, -1):
+                v = (v << 1) | (bit(mc, n - 1 - k) if k >= n - 2 else direct())
+            if v - 1 > _U32 or state[3]:
+                raise ProtoError("bad_compression", "a base payload that ends early or holds a value past 2^32")
+            u = v - 1
+            z[i] = u
+            if y == 0:
+                p = d[i - 1] if x else 0
+            elif x == 0:
+                p = d[i - w]
+            else:
+                p = d[i - 1] + d[i - w] - d[i - w - 1]
+            d[i] = (((u >> 1) ^ -(u & 1)) + p) & _U32
+    return [v - (1 << 32) if v >= (1 << 31) else v for v in d]
+
+
 def apply_values(r: Rect, values: list[int], heights: list[int], hx: int, hy: int, hw: int, hh: int) -> int:
     """Apply decoded values to a heights array covering (hx, hy, hw, hh),
     clipped: snapshots replace, deltas add (wrapping). Cells touched."""
@@ -784,6 +871,9 @@ class Mirror:
         self.tiles_y = (y + h - 1) // tile_size - self.ty0 + 1
         self.heights = [0] * (w * h)
         self.versions = [0] * (self.tiles_x * self.tiles_y)
+        # the scene's base over the region (w * h), for base snapshot rectangles
+        # (PROTOCOL.md "Base snapshots"); None: such a rectangle is bad_value
+        self.base: list[int] | None = None
 
     @property
     def complete(self) -> bool:
@@ -798,7 +888,7 @@ class Mirror:
         if not (self.tx0 <= tx < self.tx0 + self.tiles_x and self.ty0 <= ty < self.ty0 + self.tiles_y):
             return None, False
         t = (tx - self.tx0) + (ty - self.ty0) * self.tiles_x
-        if r.encoding == Encoding.SNAPSHOT:
+        if r.encoding != Encoding.DELTA:  # a snapshot, absolute or against the base
             part = (max(r.x, self.x), max(r.y, self.y), min(r.x + r.w, self.x + self.w), min(r.y + r.h, self.y + self.h))
             tpart = (max(tx * T, self.x), max(ty * T, self.y), min(tx * T + T, self.x + self.w), min(ty * T + T, self.y + self.h))
             return t, part == tpart
@@ -808,6 +898,17 @@ class Mirror:
         if held != r.base_version:
             raise ProtoError("stale_base", f"tile held at {held}, delta from {r.base_version}")
         return t, True
+
+    def _apply_base(self, r: Rect, diff: list[int]) -> None:
+        """heights = base + diff (wrapping) where the rectangle meets the region."""
+        assert self.base is not None
+        x0, y0 = max(r.x, self.x), max(r.y, self.y)
+        x1, y1 = min(r.x + r.w, self.x + self.w), min(r.y + r.h, self.y + self.h)
+        for y in range(y0, y1):
+            s = (y - r.y) * r.w + (x0 - r.x)
+            o = (y - self.y) * self.w + (x0 - self.x)
+            n = x1 - x0
+            self.heights[o:o + n] = [_wrap(b + v) for b, v in zip(self.base[o:o + n], diff[s:s + n])]
 
     def apply(self, rects: list[Rect], max_cells: int = 1 << 22) -> None:
         """Apply one DELTA frame's rectangles; all or nothing for stale_base."""
@@ -829,6 +930,12 @@ class Mirror:
                         raise
                     ok = True
                 if not ok:
+                    continue
+                if r.encoding == Encoding.BASE:
+                    if self.base is None:
+                        raise ProtoError("bad_value", "a base snapshot for a mirror without the base")
+                    self._apply_base(r, rect_decompress_base(r.data, r.w, r.h, max_cells))
+                    self.versions[t] = r.new_version
                     continue
                 values = rect_decompress(r.data, r.w * r.h, max_cells)
                 apply_values(r, values, self.heights, self.x, self.y, self.w, self.h)
@@ -908,15 +1015,18 @@ class Mirror:
 
 
 def hello(token: str = "", client: str = "terrad-python", world: str = "",
-          budget: int | None = None) -> dict:
+          budget: int | None = None, snapshot_base: bool = False) -> dict:
     """world: the world a cluster node should serve (sent only when given). budget: the
     most bytes per second this client wants to be sent (PROTOCOL.md "Budgets"; None: the
-    server's default, 0: none)."""
+    server's default, 0: none). snapshot_base: ask for snapshots against the scene's base
+    (PROTOCOL.md "Base snapshots")."""
     msg = {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
     if world:
         msg["world"] = world
     if budget is not None:
         msg["budget"] = budget
+    if snapshot_base:
+        msg["snapshot_base"] = True
     return msg
 
 
