@@ -359,6 +359,27 @@ export function decodeChecksum(buf) {
   return { tick, subscription, tiles };
 }
 
+/**
+ * One CHECKSUM frame against a client's mirrors (a Map of subscription id → Mirror), every frame
+ * before it applied (PROTOCOL.md "CHECKSUM"): counts into stats ({ checksumFrames, checksumTick,
+ * tilesDiffering, tilesResynced }), forgets each held tile that differs (its deltas skipped until
+ * its snapshot) and returns the `resync` with `tiles` to send (null: nothing differs), at most
+ * maxTiles of them (limits.max_resync_tiles; the rest at the next CHECKSUM). The JS client and
+ * the viewer both repair with it.
+ */
+export function checkMirrors(mirrors, buf, stats, maxTiles = 64) {
+  const { tick, subscription, tiles } = decodeChecksum(buf);
+  stats.checksumFrames++;
+  stats.checksumTick = tick;
+  const m = mirrors.get(subscription);
+  const differing = m ? tiles.filter((s) => m.tileDiffers(s) === 1).map((s) => [s.tile_x, s.tile_y]) : [];
+  stats.tilesDiffering += differing.length;
+  const asked = differing.slice(0, maxTiles);
+  for (const [x, y] of asked) m.forgetTile(x, y);
+  stats.tilesResynced += asked.length;
+  return { tick, subscription, asked, resync: asked.length ? resync(subscription, undefined, asked) : null };
+}
+
 export function decodePing(buf) {
   const b = bytes(buf);
   const t = decodeHeader(b);

@@ -46,6 +46,7 @@ const app = {
   chunks: [], skirts: true, background: [0.114, 0.129, 0.161], dragTarget: null,
   ackedSeq: 0, shown: null, // the last ACK's batch; the heights the last frame drew (see shownHeights)
   drawn: { frame: 0, seq: 0, ackedSeq: 0, lower: 0 }, // what the last frame drew (test hook)
+  desync: { checksumFrames: 0, checksumTick: 0n, tilesDiffering: 0, tilesResynced: 0 }, // CHECKSUM frames
 };
 // The page's own rut at once while it drives (viewer_predict.mjs): the predict toggle.
 const prediction = new ViewerPrediction(apiInit);
@@ -197,12 +198,26 @@ function onBinary(b) {
         app.collidersKey = key;
         app.colliders = c.colliders;
       }
+    } else if (t === P.MsgType.CHECKSUM) {
+      // desync detection: a tile that differs is asked for again and redrawn from its snapshot
+      const r = P.checkMirrors(app.subs, b, app.desync, app.world?.limits?.max_resync_tiles ?? 64);
+      if (r.resync) {
+        console.warn(`subscription ${r.subscription}: ${r.asked.length} tile(s) differ from the server's at tick ${r.tick}: asked for again`);
+        send(r.resync);
+      }
+      showDesync();
     } else if (t === P.MsgType.PING) {
       send(P.encodePing(P.decodePing(b).nonce, true));
     }
   } catch (e) {
     console.warn('frame refused', e.message);
   }
+}
+
+// The status table's desync row: CHECKSUM frames compared, tiles repaired.
+function showDesync() {
+  const d = app.desync;
+  $('o-desync').textContent = `${d.checksumFrames} checked · ${d.tilesResynced} tile${d.tilesResynced === 1 ? '' : 's'} repaired`;
 }
 
 // The part of the rendered window the rectangles touched: only it is uploaded again.
@@ -1029,6 +1044,8 @@ window.terrad = {
   // the prediction: {enabled, available, reason, active, window, pending, predicted,
   // reconciled, replayed, exact, skipped, onTime, lastDiffering} (predict.mjs's counters)
   get prediction() { return prediction.stats(); },
+  // desync detection (PROTOCOL.md "CHECKSUM"): {checksumFrames, checksumTick, tilesDiffering, tilesResynced}
+  get desync() { return { ...app.desync, checksumTick: Number(app.desync.checksumTick) }; },
   get seq() { return app.seq; },
   get ackedSeq() { return app.ackedSeq; },
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },

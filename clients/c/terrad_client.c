@@ -90,6 +90,8 @@ struct terrad_client {
     uint64_t contact_tick;
     terrad_force *forces; /* the latest FORCES frame (bekker worlds) */
     size_t nforces, forces_cap;
+    double *force_heights; /* its heights (nforce_heights 0: it had none) */
+    size_t nforce_heights, force_heights_cap;
     uint64_t forces_tick;
     terrad_rect *rects;
     size_t rects_cap;
@@ -532,15 +534,20 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
     case TERRAD_MSG_FORCES: {
         size_t cap =
             len >= TERRAD_FORCES_FIXED ? (len - TERRAD_FORCES_FIXED) / TERRAD_FORCE_SIZE : 0;
-        if (grow((void **)&c->forces, &c->forces_cap, cap + 1, sizeof *c->forces))
+        if (grow((void **)&c->forces, &c->forces_cap, cap + 1, sizeof *c->forces) ||
+            grow((void **)&c->force_heights, &c->force_heights_cap, cap + 1,
+                 sizeof *c->force_heights))
             return bad_frame(c, "FORCES (no memory)", TERRAD_E_NO_MEMORY);
-        size_t n = 0;
-        rc = terrad_forces_decode(buf, len, &tick, c->forces, c->forces_cap, &n);
+        size_t n = 0, nh = 0;
+        rc = terrad_forces_decode(buf, len, &tick, c->forces, cap + 1, &n);
+        if (rc == 0)
+            rc = terrad_forces_heights(buf, len, c->force_heights, cap + 1, &nh);
         if (rc) {
-            c->nforces = 0;
+            c->nforces = c->nforce_heights = 0;
             return bad_frame(c, "FORCES", rc);
         }
         c->nforces = n;
+        c->nforce_heights = nh;
         c->forces_tick = tick;
         c->stats.forces_frames++;
         break;
@@ -893,6 +900,7 @@ void terrad_client_close(terrad_client *c)
     cJSON_Delete(c->base);
     free(c->contacts);
     free(c->forces);
+    free(c->force_heights);
     free(c->rects);
     free(c->scratch);
     free(c->rx);
@@ -1041,8 +1049,11 @@ static int create_collider(terrad_client *c, terrad_collider_desc d, double load
     }
     cJSON_AddStringToObject(m, "material", d.material ? d.material : "default");
     cJSON_AddBoolToObject(m, "feedback", !d.no_feedback);
-    if (load_n != 0.0) /* the server judges it (and names load_n when it refuses) */
+    if (load_n != 0.0) { /* the server judges it (and names load_n when it refuses) */
         cJSON_AddNumberToObject(m, "load_n", load_n);
+        /* its height is the server's: FORCES tells it (terrad_client_force_height) */
+        cJSON_AddBoolToObject(m, "forces_height", 1);
+    }
     if (lugs) { /* the server judges the sizes against the rim and names the field */
         cJSON *g = cJSON_AddObjectToObject(m, "grousers");
         cJSON_AddNumberToObject(g, "count", lugs->count);
@@ -1252,6 +1263,17 @@ int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_cont
                 *out = c->contacts[i];
             if (tick_out)
                 *tick_out = c->contact_tick;
+            return 1;
+        }
+    return 0;
+}
+
+int terrad_client_force_height(const terrad_client *c, uint32_t collider, double *z_m)
+{
+    for (size_t i = 0; i < c->nforce_heights; i++)
+        if (c->forces[i].id == collider) {
+            if (z_m)
+                *z_m = c->force_heights[i];
             return 1;
         }
     return 0;

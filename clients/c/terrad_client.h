@@ -240,6 +240,11 @@ int terrad_client_contact(const terrad_client *c, uint32_t collider, terrad_cont
  * 1, or 0 when none came yet. */
 int terrad_client_force(const terrad_client *c, uint32_t collider, terrad_force *out,
                         uint64_t *tick_out);
+/* A load-driven collider's height (m) the server found, from the same latest
+ * FORCES frame (terrad_client_create_loaded_collider asks for the heights:
+ * PROTOCOL.md "FORCES", the height extension): 1, or 0 when that frame had
+ * none for it. */
+int terrad_client_force_height(const terrad_client *c, uint32_t collider, double *z_m);
 
 /* Services the connection for up to timeout_ms (0: only what is ready),
  * returning as soon as at least one message was handled: the number of

@@ -150,6 +150,14 @@ static float rd_f32(rd *r)
     return f;
 }
 
+static double rd_f64(rd *r)
+{
+    uint64_t u = rd_u64(r);
+    double d;
+    memcpy(&d, &u, sizeof d);
+    return d;
+}
+
 static uint8_t *wr_u8(uint8_t *p, uint8_t v)
 {
     *p = v;
@@ -185,6 +193,13 @@ static uint8_t *wr_f32(uint8_t *p, float f)
     return wr_u32(p, u);
 }
 
+static uint8_t *wr_f64(uint8_t *p, double d)
+{
+    uint64_t u;
+    memcpy(&u, &d, sizeof u);
+    return wr_u64(p, u);
+}
+
 static uint8_t *wr_header(uint8_t *p, uint8_t type)
 {
     p = wr_u8(p, TERRAD_PROTO_MAGIC);
@@ -213,7 +228,8 @@ int terrad_header_decode(const uint8_t *buf, size_t len, terrad_header *out)
         return TERRAD_E_BAD_VERSION;
     if (!terrad_msg_type_name(buf[2]))
         return TERRAD_E_UNKNOWN_TYPE;
-    if (buf[3] != 0)
+    /* the one flag defined: FORCES' heights (an extension a client asks for) */
+    if (buf[3] & ~(buf[2] == TERRAD_MSG_FORCES ? TERRAD_FORCES_FLAG_HEIGHT : 0))
         return TERRAD_E_BAD_FRAME;
     if (out) {
         out->magic = buf[0];
@@ -464,40 +480,53 @@ typedef union tick_entry {
     terrad_force force;
 } tick_entry;
 
+/* extra: NULL, or (FORCES) one f64 per entry written after it, with the
+ * frame's TERRAD_FORCES_FLAG_HEIGHT set */
 static int tick_list_encode(const tick_list *t, uint8_t *buf, size_t cap, size_t *len_out,
-                            uint64_t tick, const void *entries, size_t count)
+                            uint64_t tick, const void *entries, const double *extra, size_t count)
 {
     const uint8_t *e = entries;
     if (count > TERRAD_MAX_COUNT)
         return TERRAD_E_TOO_LARGE;
     for (size_t i = 0; i < count; i++)
-        if (t->check(e + i * t->elem_size))
+        if (t->check(e + i * t->elem_size) || (extra && !isfinite(extra[i])))
             return TERRAD_E_BAD_VALUE;
-    size_t need = t->fixed + count * t->entry_size;
+    size_t need = t->fixed + count * (t->entry_size + (extra ? sizeof(double) : 0));
     if (!buf || cap < need)
         return TERRAD_E_BUFFER_TOO_SMALL;
     uint8_t *p = wr_header(buf, t->type);
+    if (extra)
+        buf[3] = TERRAD_FORCES_FLAG_HEIGHT;
     p = wr_u64(p, tick);
     p = wr_u16(p, (uint16_t)count);
-    for (size_t i = 0; i < count; i++)
+    for (size_t i = 0; i < count; i++) {
         p = t->write(p, e + i * t->elem_size);
+        if (extra)
+            p = wr_f64(p, extra[i]);
+    }
     if (len_out)
         *len_out = need;
     return TERRAD_OK;
 }
 
+/* extra: NULL, or where the f64 after each entry goes when the frame's
+ * TERRAD_FORCES_FLAG_HEIGHT is set (entries' memory may then be NULL);
+ * *has_extra, when given, says whether it was set */
 static int tick_list_decode(const tick_list *t, const uint8_t *buf, size_t len, uint64_t *tick_out,
-                            void *entries, size_t cap, size_t *count_out)
+                            void *entries, double *extra, int *has_extra, size_t cap,
+                            size_t *count_out)
 {
     rd r;
     int rc = expect_header(buf, len, t->type, &r);
     if (rc)
         return rc;
+    int flagged = (buf[3] & TERRAD_FORCES_FLAG_HEIGHT) != 0;
+    size_t size = t->entry_size + (flagged ? sizeof(double) : 0);
     if (rd_left(&r) < 10)
         return TERRAD_E_BAD_FRAME;
     uint64_t tick = rd_u64(&r);
     size_t count = rd_u16(&r);
-    if (rd_left(&r) != count * t->entry_size)
+    if (rd_left(&r) != count * size)
         return TERRAD_E_BAD_FRAME;
     if (count > cap)
         return TERRAD_E_TOO_LARGE;
@@ -506,8 +535,18 @@ static int tick_list_decode(const tick_list *t, const uint8_t *buf, size_t len, 
         rc = t->read(&r, &one);
         if (rc || t->check(&one))
             return rc ? rc : TERRAD_E_BAD_VALUE;
-        memcpy((uint8_t *)entries + i * t->elem_size, &one, t->elem_size);
+        if (entries)
+            memcpy((uint8_t *)entries + i * t->elem_size, &one, t->elem_size);
+        if (flagged) {
+            double h = rd_f64(&r);
+            if (!isfinite(h))
+                return TERRAD_E_BAD_VALUE;
+            if (extra)
+                extra[i] = h;
+        }
     }
+    if (has_extra)
+        *has_extra = flagged;
     if (tick_out)
         *tick_out = tick;
     if (count_out)
@@ -580,13 +619,14 @@ size_t terrad_contact_size(size_t count)
 int terrad_contact_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                           const terrad_contact *contacts, size_t count)
 {
-    return tick_list_encode(&contact_list, buf, cap, len_out, tick, contacts, count);
+    return tick_list_encode(&contact_list, buf, cap, len_out, tick, contacts, NULL, count);
 }
 
 int terrad_contact_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                           terrad_contact *contacts, size_t cap, size_t *count_out)
 {
-    return tick_list_decode(&contact_list, buf, len, tick_out, contacts, cap, count_out);
+    return tick_list_decode(&contact_list, buf, len, tick_out, contacts, NULL, NULL, cap,
+                            count_out);
 }
 
 /* COLLIDERS */
@@ -649,13 +689,14 @@ size_t terrad_colliders_size(size_t count)
 int terrad_colliders_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                             const terrad_collider_state *states, size_t count)
 {
-    return tick_list_encode(&colliders_list, buf, cap, len_out, tick, states, count);
+    return tick_list_encode(&colliders_list, buf, cap, len_out, tick, states, NULL, count);
 }
 
 int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                             terrad_collider_state *states, size_t cap, size_t *count_out)
 {
-    return tick_list_decode(&colliders_list, buf, len, tick_out, states, cap, count_out);
+    return tick_list_decode(&colliders_list, buf, len, tick_out, states, NULL, NULL, cap,
+                            count_out);
 }
 
 /* FOOTPRINTS */
@@ -709,13 +750,14 @@ size_t terrad_footprints_size(size_t count)
 int terrad_footprints_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                              const terrad_footprint *events, size_t count)
 {
-    return tick_list_encode(&footprints_list, buf, cap, len_out, tick, events, count);
+    return tick_list_encode(&footprints_list, buf, cap, len_out, tick, events, NULL, count);
 }
 
 int terrad_footprints_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                              terrad_footprint *events, size_t cap, size_t *count_out)
 {
-    return tick_list_decode(&footprints_list, buf, len, tick_out, events, cap, count_out);
+    return tick_list_decode(&footprints_list, buf, len, tick_out, events, NULL, NULL, cap,
+                            count_out);
 }
 
 /* FORCES */
@@ -771,13 +813,41 @@ size_t terrad_forces_size(size_t count)
 int terrad_forces_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
                          const terrad_force *forces, size_t count)
 {
-    return tick_list_encode(&forces_list, buf, cap, len_out, tick, forces, count);
+    return tick_list_encode(&forces_list, buf, cap, len_out, tick, forces, NULL, count);
+}
+
+size_t terrad_forces_heights_size(size_t count)
+{
+    return TERRAD_FORCES_FIXED + count * (TERRAD_FORCE_SIZE + TERRAD_FORCE_HEIGHT_SIZE);
+}
+
+int terrad_forces_encode_heights(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                                 const terrad_force *forces, const double *heights_m, size_t count)
+{
+    if (!heights_m && count > 0)
+        return TERRAD_E_BAD_VALUE;
+    static const double none = 0.0; /* a frame of no entries still carries the flag */
+    return tick_list_encode(&forces_list, buf, cap, len_out, tick, forces,
+                            heights_m ? heights_m : &none, count);
+}
+
+int terrad_forces_heights(const uint8_t *buf, size_t len, double *heights_m, size_t cap,
+                          size_t *count_out)
+{
+    int flagged = 0;
+    size_t count = 0;
+    int rc = tick_list_decode(&forces_list, buf, len, NULL, NULL, heights_m, &flagged, cap, &count);
+    if (rc)
+        return rc;
+    if (count_out)
+        *count_out = flagged ? count : 0;
+    return TERRAD_OK;
 }
 
 int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_force *forces,
                          size_t cap, size_t *count_out)
 {
-    return tick_list_decode(&forces_list, buf, len, tick_out, forces, cap, count_out);
+    return tick_list_decode(&forces_list, buf, len, tick_out, forces, NULL, NULL, cap, count_out);
 }
 
 /* ---- STEP and STEPPED ----------------------------------------------------- */

@@ -37,25 +37,27 @@ extern "C" {
 
 /* Fixed sizes in bytes (PROTOCOL.md, "Binary frames"). */
 #define TERRAD_HEADER_SIZE 4
-#define TERRAD_POSE_BATCH_FIXED 10    /* header, u32 seq, u16 count */
-#define TERRAD_POSE_SIZE 32           /* u32 id, 7 x f32 */
-#define TERRAD_DELTA_FIXED 14         /* header, u64 tick, u16 count */
-#define TERRAD_RECT_FIXED 25          /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
-#define TERRAD_CONTACT_FIXED 14       /* header, u64 tick, u16 count */
-#define TERRAD_CONTACT_SIZE 48        /* u32 id, i64 volume, u32 cells, 8 x f32 */
-#define TERRAD_ACK_SIZE 16            /* header, u64 tick, u32 seq */
-#define TERRAD_PING_SIZE 12           /* header, u64 nonce */
-#define TERRAD_COLLIDERS_FIXED 14     /* header, u64 tick, u16 count */
-#define TERRAD_COLLIDER_STATE_SIZE 48 /* u32 id, u8 owner, u8 shape, u16 0, 10 x f32 */
-#define TERRAD_FOOTPRINTS_FIXED 14    /* header, u64 tick, u16 count */
-#define TERRAD_FOOTPRINT_SIZE 24      /* u32 collider id, 5 x f32 */
-#define TERRAD_FORCES_FIXED 14        /* header, u64 tick, u16 count */
-#define TERRAD_FORCE_SIZE 48          /* u32 id, 10 x f32, u32 cells */
-#define TERRAD_STEP_FIXED 16          /* header, u32 seq, u32 ticks, u16 count, u16 sets */
-#define TERRAD_STEPPED_SIZE 20        /* header, u64 tick, u32 seq, u32 ticks */
-#define TERRAD_CHECKSUM_FIXED 18      /* header, u64 tick, u32 subscription, u16 count */
-#define TERRAD_TILE_SUM_SIZE 20       /* i32 tile x, i32 tile y, u32 version, u64 hash */
-#define TERRAD_MAX_COUNT 65535        /* every count on the wire is a u16 */
+#define TERRAD_POSE_BATCH_FIXED 10     /* header, u32 seq, u16 count */
+#define TERRAD_POSE_SIZE 32            /* u32 id, 7 x f32 */
+#define TERRAD_DELTA_FIXED 14          /* header, u64 tick, u16 count */
+#define TERRAD_RECT_FIXED 25           /* i32 x, y, u16 w, h, u32 base, new, u8 enc, u32 len */
+#define TERRAD_CONTACT_FIXED 14        /* header, u64 tick, u16 count */
+#define TERRAD_CONTACT_SIZE 48         /* u32 id, i64 volume, u32 cells, 8 x f32 */
+#define TERRAD_ACK_SIZE 16             /* header, u64 tick, u32 seq */
+#define TERRAD_PING_SIZE 12            /* header, u64 nonce */
+#define TERRAD_COLLIDERS_FIXED 14      /* header, u64 tick, u16 count */
+#define TERRAD_COLLIDER_STATE_SIZE 48  /* u32 id, u8 owner, u8 shape, u16 0, 10 x f32 */
+#define TERRAD_FOOTPRINTS_FIXED 14     /* header, u64 tick, u16 count */
+#define TERRAD_FOOTPRINT_SIZE 24       /* u32 collider id, 5 x f32 */
+#define TERRAD_FORCES_FIXED 14         /* header, u64 tick, u16 count */
+#define TERRAD_FORCE_SIZE 48           /* u32 id, 10 x f32, u32 cells */
+#define TERRAD_FORCE_HEIGHT_SIZE 8     /* f64 after each entry with TERRAD_FORCES_FLAG_HEIGHT */
+#define TERRAD_FORCES_FLAG_HEIGHT 0x01 /* FORCES header flag: entries carry their height */
+#define TERRAD_STEP_FIXED 16           /* header, u32 seq, u32 ticks, u16 count, u16 sets */
+#define TERRAD_STEPPED_SIZE 20         /* header, u64 tick, u32 seq, u32 ticks */
+#define TERRAD_CHECKSUM_FIXED 18       /* header, u64 tick, u32 subscription, u16 count */
+#define TERRAD_TILE_SUM_SIZE 20        /* i32 tile x, i32 tile y, u32 version, u64 hash */
+#define TERRAD_MAX_COUNT 65535         /* every count on the wire is a u16 */
 
 typedef enum terrad_msg_type {
     TERRAD_MSG_POSE_BATCH = 0x01, /* client -> server */
@@ -119,7 +121,8 @@ typedef struct terrad_header {
 } terrad_header;
 
 /* Checks, in this order: length >= 4 (bad_frame), magic (bad_frame), version
- * (bad_version), type known (unknown_type), flags zero (bad_frame). */
+ * (bad_version), type known (unknown_type), flags zero (bad_frame) but for
+ * the one flag defined, FORCES' TERRAD_FORCES_FLAG_HEIGHT. */
 int terrad_header_decode(const uint8_t *buf, size_t len, terrad_header *out);
 
 /* ---- POSE_BATCH ---------------------------------------------------------- */
@@ -261,6 +264,20 @@ int terrad_forces_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tic
                          const terrad_force *forces, size_t count);
 int terrad_forces_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terrad_force *forces,
                          size_t cap, size_t *count_out);
+/*
+ * The height extension (PROTOCOL.md "FORCES"): a frame with the header flag
+ * TERRAD_FORCES_FLAG_HEIGHT carries after each 48-byte entry an f64, the
+ * collider's pose height (m) the tick deformed at — a load-driven collider's
+ * height found by the server. Sent only for colliders created with
+ * "forces_height": true, so a client that never asks never sees the flag.
+ * terrad_forces_decode reads both forms (the heights skipped);
+ * terrad_forces_heights reads the heights of one (count 0 without the flag).
+ */
+size_t terrad_forces_heights_size(size_t count);
+int terrad_forces_encode_heights(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                                 const terrad_force *forces, const double *heights_m, size_t count);
+int terrad_forces_heights(const uint8_t *buf, size_t len, double *heights_m, size_t cap,
+                          size_t *count_out);
 
 /* ---- STEP and STEPPED (client-clocked worlds) ------------------------------ */
 

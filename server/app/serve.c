@@ -3,11 +3,11 @@
  * ordinary world of host/ (host/host_world.c): opened, started, ticked on
  * the process's shared pool of sim workers at the scene's rate (poses →
  * windows → deformation → scatter; docs/design.md) beside the worlds
- * created by API, and ended there. Where it differs is its registry backend
- * (default_world_ops): its scene is --scene's, its store --data itself, and
- * the ports are made with it (the HTTP server gets its status and hub at its
- * start, the websocket server its hub and info) rather than joined later,
- * so they keep its hub and world until they stopped. A tick that overruns
+ * created by API, and ended there: an entry of the one table of worlds both
+ * ports read like the others (hub.h, hub_worlds), the one its scene's name
+ * names and the one a request or hello naming no world finds. Where it
+ * differs is its registry backend (default_world_ops): its scene is
+ * --scene's, its store --data itself. A tick that overruns
  * its period is counted, and the world does not try to catch up by running
  * ticks back to back (host/host_clock.c). The main thread waits: SIGINT and
  * SIGTERM (or POST /v1/drain, admin) start a drain (docs/fleet.md) — /readyz
@@ -19,8 +19,8 @@
  * /healthz fails when the ticks or the net thread stop moving.
  *
  * app_serve reads as the daemon's life: open the world (scene, base terrain,
- * recovered store) → the HTTP port → its simulation and the websocket port
- * (default_join) → ticking → stop. Options: serve_options.c; demo actors,
+ * recovered store) → the HTTP and websocket ports (serve_open_net) → its
+ * simulation, on the ports → ticking → stop. Options: serve_options.c; demo actors,
  * which keep the terrain deforming without clients: host/host_demo.c. With
  * --cluster the daemon is a node of a cluster instead (serve_node.c).
  */
@@ -81,7 +81,6 @@ typedef struct serve_daemon {
     host_world def;      /* the default world: scene, world, store, engine, service, hub */
     host_ticker *ticker; /* the sim workers every world of the daemon ticks on */
     int running;         /* def is on the ticker */
-    int ran;             /* it was: its end closed its reads on its sim thread */
     atomic_int ended;    /* def's end ran (default_ended) */
     int end_rc;
     net_server *net;
@@ -183,28 +182,24 @@ static unsigned drain_call(void *ctx, char **json)
     return serve_drain_json(again || drain_signal, d->o.drain_grace_ms, json);
 }
 
-/* Its simulation started: the websocket port (with its hub and info), the
- * created worlds and the watchdogs. Before it is ready and ticks. */
-static int default_join(host_world *hw, error_text *err)
+/* The websocket port (a lobby until the default world joins the table), the
+ * created worlds and the watchdogs; before the default world runs. */
+static int serve_open_net(serve_daemon *d, error_text *err)
 {
-    serve_daemon *d = hw->owner;
-    host_sim *m = &hw->m;
+    host_sim *m = &d->def.m;
     net_config nc = {.port = d->o.ws_port,
                      .bind_any = d->o.bind_any,
                      .auth = d->auth,
                      .tls_cert = d->o.tls_cert,
                      .tls_key = d->o.tls_key,
                      .limits = d->o.limits,
-                     .world = host_sim_world_info(m),
                      .worlds = d->table};
-    nc.world.scene_name = m->sc.name;
     nc.limits.fd_reserve = d->fd_reserve;
-    if (!(d->net = net_server_start(&nc, m->h, err)) ||
+    if (!(d->net = net_server_start(&nc, err)) ||
         !(d->worlds = serve_worlds_start(&d->o, m, d->http, d->table, d->net, d->ticker, err)))
         return -1;
     http_server_set_drain(d->http, drain_call, d); /* POST /v1/drain */
     signal_drains = 1;
-    hw->net = d->net; /* its clients counted in its status */
     int tls = d->o.tls_cert && d->o.tls_cert[0];
     /* GET /v1/websocket: the viewer asks where the websocket is, never guesses */
     http_server_set_websocket(d->http, net_server_port(d->net), tls, d->o.public_ws_url);
@@ -244,15 +239,18 @@ static void default_ended(host_world *hw, int rc)
     atomic_store(&d->ended, 1);
 }
 
-/* Its registry backend: no check after a tick, and with join its clients are
- * not told it stopped (the daemon stops: net_server_stop closes them). */
+/* Its registry backend: no check after a tick; at its end it leaves the
+ * ports as every world does (its clients are told the daemon stops). */
 static const host_world_ops default_world_ops = {.open = default_open,
-                                                 .join = default_join,
                                                  .registered = default_registered,
-                                                 .ended = default_ended};
+                                                 .ended = default_ended,
+                                                 .deleted_why = "was deleted",
+                                                 .stopped_why = "stopped (the daemon stops)"};
 
-/* The HTTP port on the opened world, then its simulation, the websocket
- * port and its ticks (host_world_run → default_join). */
+/* The ports on the opened world (HTTP and its probes, the websocket server,
+ * the created worlds), then its simulation and ticks: it joins the table of
+ * worlds both ports read (host_world_run), an entry like the others, found
+ * by its scene's name or by naming no world. */
 static int serve_start(serve_daemon *d, error_text *err)
 {
     host_sim *m = &d->def.m;
@@ -260,22 +258,23 @@ static int serve_start(serve_daemon *d, error_text *err)
         error_set(err, "out of memory");
         return -1;
     }
+    hub_worlds_set_default(d->table, m->sc.name);
     if (!(d->ticker = host_ticker_start(host_ticker_default_workers(), err)) ||
-        !(d->http = serve_http_open(&d->o, d->auth, &m->status, m->h, &d->fd_reserve, err)) ||
+        !(d->http = serve_http_open(&d->o, d->auth, &m->status, d->table, &d->fd_reserve, err)) ||
         (d->o.probe_port >= 0 && !(d->probe = http_probe_start(d->http, d->o.probe_port, err))))
         return -1;
-    http_server_set_worlds(d->http, d->table);
-    http_server_set_base(d->http, &m->w); /* the base never changes once the world is made */
     error_text why = {{0}};
     char *twin = scene_twin_config_json(&m->sc, &why); /* GET /v1/twin, for predicting clients */
     http_server_set_twin(d->http, twin, why.message);
     free(twin);
-    host_world_place(&d->def, &default_world_ops, d, d->table, NULL, d->ticker);
+    if (serve_open_net(d, err) != 0)
+        return -1;
+    host_world_place(&d->def, &default_world_ops, d, d->table, d->net, d->ticker);
     d->def.config = serve_host_config(&d->o);
     d->def.max_ticks = d->o.max_ticks;
     if (host_world_run(&d->def, err->message, sizeof err->message) != 0)
         return -1;
-    d->running = d->ran = 1;
+    d->running = 1;
     return 0;
 }
 
@@ -334,15 +333,13 @@ static void serve_stop(serve_daemon *d)
             host_sleep_ms(1);
     }
     serve_worlds_stop(d->worlds); /* its worlds leave the ports first */
-    if (d->def.m.h && !d->ran)    /* this thread made it and is its sim thread still */
-        hub_close_reads(d->def.m.h);
     http_server_stop(d->probe);
     http_server_stop(d->http); /* first: its watchdog reads the net server */
     net_server_stop(d->net);
     host_ticker_stop(d->ticker);  /* every world has ended: the workers are joined */
     auth_free(d->auth);           /* after both servers: they check tokens against it */
     hub_worlds_destroy(d->table); /* and read this */
-    host_world_free(&d->def);     /* its hub, world and scene, which the ports read */
+    host_world_free(&d->def);     /* opened, never run: nothing else freed it */
 }
 
 int app_serve(int argc, char **argv)

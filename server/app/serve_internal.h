@@ -86,10 +86,11 @@ int serve_security_open(const serve_options *o, auth_table **auth, error_text *e
  * tokens kept); the net thread then closes connections of revoked tokens. */
 void serve_security_reload(const serve_options *o, auth_table *auth);
 /* The HTTP listener on o's port: its connections a quarter of RLIMIT_NOFILE,
- * the /v1/heights byte budgets, the token gate and TLS. *fd_reserve: the
- * descriptors the websocket server must leave free (net_limits.fd_reserve). */
+ * the /v1/heights byte budgets, the token gate and TLS; status its readiness,
+ * worlds the table of worlds it serves. *fd_reserve: the descriptors the
+ * websocket server must leave free (net_limits.fd_reserve). */
 http_server *serve_http_open(const serve_options *o, auth_table *auth, http_status *status,
-                             hub *heights, int *fd_reserve, error_text *err);
+                             hub_worlds *worlds, int *fd_reserve, error_text *err);
 /* Reads a config's "auth_file", "tls_cert" and "tls_key" into o. */
 int serve_security_config(const cJSON *doc, serve_options *o, error_text *err);
 

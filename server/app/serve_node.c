@@ -418,10 +418,9 @@ static int node_open_ports(serve_node *n, error_text *err)
         error_set(err, "out of memory");
         return -1;
     }
-    if (!(n->http = serve_http_open(o, n->auth, &n->status, NULL, &fd_reserve, err)) ||
+    if (!(n->http = serve_http_open(o, n->auth, &n->status, n->table, &fd_reserve, err)) ||
         (o->probe_port >= 0 && !(n->probe = http_probe_start(n->http, o->probe_port, err))))
         return -1;
-    http_server_set_worlds(n->http, n->table);
     http_server_host_worlds(n->http);
     net_config nc = {.port = o->ws_port,
                      .bind_any = o->bind_any,
@@ -431,7 +430,7 @@ static int node_open_ports(serve_node *n, error_text *err)
                      .limits = o->limits,
                      .worlds = n->table};
     nc.limits.fd_reserve = fd_reserve;
-    if (!(n->net = net_server_start(&nc, NULL, err)))
+    if (!(n->net = net_server_start(&nc, err)))
         return -1;
     int tls = o->tls_cert && o->tls_cert[0];
     http_server_set_websocket(n->http, net_server_port(n->net), tls, o->public_ws_url);

@@ -84,7 +84,7 @@ static unsigned serve_http_connections(void)
 }
 
 http_server *serve_http_open(const serve_options *o, auth_table *auth, http_status *status,
-                             hub *heights, int *fd_reserve, error_text *err)
+                             hub_worlds *worlds, int *fd_reserve, error_text *err)
 {
     http_limits hl = {.connections = serve_http_connections(),
                       .heights_bytes_per_address = o->limits.max_heights_bytes_per_address,
@@ -95,5 +95,8 @@ http_server *serve_http_open(const serve_options *o, auth_table *auth, http_stat
                                 : HTTP_DEFAULT_CONNECTIONS_PER_IP;
     *fd_reserve = SERVE_FD_STORE + (int)hl.connections;
     http_security sec = {.auth = auth, .tls_cert = o->tls_cert, .tls_key = o->tls_key};
-    return http_server_start_secure(o->http_port, o->bind_any, status, heights, &hl, &sec, err);
+    http_server *s = http_server_start_secure(o->http_port, o->bind_any, status, &hl, &sec, err);
+    if (s)
+        http_server_set_worlds(s, worlds);
+    return s;
 }

@@ -231,17 +231,11 @@ typedef struct host_world_ops {
     void (*ended)(host_world *hw, int rc);
     /* Why its clients are closed: deleted (hw->deleted) or stopped. */
     const char *deleted_why, *stopped_why;
-    /* The default world's ports were made with it (its status and hub given
-     * to the HTTP server at its start, its hub and info to the websocket
-     * server's): join starts what must follow its simulation (hw->net set
-     * here) in place of hub_worlds_add and a labelled metrics slot; at its end its reads are closed
-     * and the ports keep its hub, world, scene and status until host_world_free, after they
-     * stopped. NULL for every other world. */
-    int (*join)(host_world *hw, error_text *err);
 } host_world_ops;
 
 struct host_world {
-    host_sim m; /* m.name and m.status.lock: the owner's */
+    host_sim m; /* m.name ("": the default world, on the ports by its scene's name) and
+                 * m.status.lock: the owner's */
     const host_world_ops *ops;
     void *owner;         /* the ops' */
     hub_worlds *worlds;  /* the table of worlds both ports read, which it joins */
@@ -270,13 +264,13 @@ int host_world_start(host_world *hw, char *why, size_t cap);
  * made: 0, or -1 with why and everything made undone. */
 int host_world_open(host_world *hw, char *why, size_t cap);
 /* Starts its simulation, joins the ports (hub_worlds_add: the table both
- * read; a labelled metrics slot; or ops->join), then
+ * read; a labelled metrics slot for a named world), then
  * ops->registered, and hands it to the ticker: 0, or -1 with why and
  * everything made undone (ops->ended is not called). */
 int host_world_run(host_world *hw, char *why, size_t cap);
 /* Asks hw to end: its end runs soon on a worker (ops->ended last). */
 void host_world_end(host_world *hw);
-/* What a world with ops->join kept for its ports, freed once they stopped. */
+/* What an opened world that never ran still holds, freed (nothing once it ran). */
 void host_world_free(host_world *hw);
 
 #endif

@@ -9,7 +9,8 @@
  * and closed), freed (its GL context is current on that worker), and the
  * registry told last (ops->ended). Before issue 29 a created world
  * (app/serve_worlds.c) and a cluster world (app/serve_node.c) each had their
- * own copy of this; what still differs between them is in their ops.
+ * own copy of this, and the default world (app/serve.c) was made with the
+ * ports; what still differs between them is in their ops.
  */
 #include <stdio.h>
 #include <string.h>
@@ -17,21 +18,23 @@
 #include "host/host.h"
 #include "metrics/metrics.h"
 
+/* Its name on the ports: a named world's, or the default world's scene's. */
+static const char *port_name(const host_world *hw)
+{
+    return hw->m.name[0] ? hw->m.name : hw->m.sc.name;
+}
+
 /* The world joins the ports, then the registry hears it serves. */
 static int world_register(host_world *hw, error_text *err)
 {
     host_sim *m = &hw->m;
-    if (hw->ops->join) {
-        if (hw->ops->join(hw, err) != 0)
-            return -1;
-    } else {
-        hw->info = host_sim_world_info(m); /* read by the net thread when it adopts it */
-        hub_world e = {.h = m->h, .base = &m->w, .status = &m->status, .info = &hw->info};
-        snprintf(e.name, sizeof e.name, "%s", m->name);
-        if (!(hw->entry = hub_worlds_add(hw->worlds, &e, err)))
-            return -1;
+    hw->info = host_sim_world_info(m); /* read by the net thread when it adopts it */
+    hub_world e = {.h = m->h, .base = &m->w, .status = &m->status, .info = &hw->info};
+    snprintf(e.name, sizeof e.name, "%.64s", port_name(hw)); /* as http_status.scene_name */
+    if (!(hw->entry = hub_worlds_add(hw->worlds, &e, err)))
+        return -1;
+    if (m->name[0]) /* the default world's series are the unlabelled ones */
         m->metrics_slot = metrics_world_slot(m->name);
-    }
     host_sim_ready(m);
     atomic_store(&hw->registered, 1);
     return hw->ops->registered ? hw->ops->registered(hw, err) : 0;
@@ -42,16 +45,9 @@ static int world_register(host_world *hw, error_text *err)
 static void world_unregister(host_world *hw)
 {
     host_sim *m = &hw->m;
-    if (hw->ops->join) {
-        /* the default world: the ports stop after it (host_world_free) */
-        if (m->h)
-            hub_close_reads(m->h);
-        atomic_store(&hw->registered, 0);
-        return;
-    }
     if (m->h) {
         char why[160];
-        snprintf(why, sizeof why, "world %s %s", m->name,
+        snprintf(why, sizeof why, "world %s %s", port_name(hw),
                  hw->deleted ? hw->ops->deleted_why : hw->ops->stopped_why);
         hub_close_reads(m->h);
         hub_close_edits(m->h, why);
@@ -90,10 +86,7 @@ static void world_end(host_job *j, int rc)
     world_unregister(hw);
     hw->last_tick = (unsigned long long)service_current_tick(m->svc);
     hw->overruns = (unsigned long long)m->overruns;
-    if (hw->ops->join)
-        host_sim_stop(m); /* what the sim thread owns; the ports' part waits for them */
-    else
-        host_sim_free(m);
+    host_sim_free(m); /* off the ports: nobody reads it any more */
     if (hw->ops->ended)
         hw->ops->ended(hw, rc);
 }
@@ -131,7 +124,6 @@ int host_world_run(host_world *hw, char *why, size_t cap)
     /* a client-clocked world hears its steps from the moment it joins the ports */
     if (host_sim_start(m, &hw->config, &err) == 0 &&
         host_clock_client_attach(m, hw->ticker, &hw->job) == 0 && world_register(hw, &err) == 0) {
-        /* after the join: the default world's websocket server is made there */
         hw->job = (host_job){.m = m,
                              .net = hw->net,
                              .max_ticks = hw->max_ticks,
@@ -144,10 +136,7 @@ int host_world_run(host_world *hw, char *why, size_t cap)
     }
     snprintf(why, cap, "%s", err.message);
     world_unregister(hw);
-    if (hw->ops->join)
-        host_sim_stop(m);
-    else
-        host_sim_free(m);
+    host_sim_free(m);
     return -1;
 }
 

@@ -319,9 +319,9 @@ double http_status_stalled_ms(const void *status)
     return at > 0 ? time_now_ms() - at : 0;
 }
 
-/* A cluster node's /v1/world, /v1/stats or /v1/heights for the world ?world=
- * names (the node's first when none is named); a world another node ticks
- * is asked of its owner. */
+/* /v1/world, /v1/stats or /v1/heights for the world ?world= names (the
+ * default world when none is named: the table's); on a cluster node a world
+ * another node ticks is asked of its owner. */
 static enum MHD_Result serve_hosted(http_server *s, struct MHD_Connection *c, http_view view)
 {
     unsigned code = 0;
@@ -510,20 +510,12 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         return serve_websocket(s, c);
     int stats = strcmp(url, "/v1/stats") == 0, about = strcmp(url, "/v1/world") == 0,
         heights = strcmp(url, "/v1/heights") == 0;
-    http_view view = stats ? HTTP_VIEW_STATS : about ? HTTP_VIEW_WORLD : HTTP_VIEW_HEIGHTS;
-    if ((s->hosts_worlds || http_world_named(s, c, &snap)) && (stats || about || heights))
-        return serve_hosted(s, c, view);
     if (!(stats || about || heights))
         return serve_static(c, url);
-    http_answer a = {0};
-    http_args args = {.c = c};
-    if (stats)
-        http_view_stats(&snap, &a);
-    else if (about)
-        http_view_world(&snap, &a);
-    else
-        http_view_heights(s, s->heights, atomic_load(&s->base), &args, &snap, &a);
-    return http_answer_queue(c, &a);
+    return serve_hosted(s, c,
+                        stats   ? HTTP_VIEW_STATS
+                        : about ? HTTP_VIEW_WORLD
+                                : HTTP_VIEW_HEIGHTS);
 }
 
 static void *request_begin(void *cls, const char *uri, struct MHD_Connection *c)
@@ -562,7 +554,7 @@ static unsigned or_default(unsigned v, unsigned d)
     return v ? v : d;
 }
 
-http_server *http_server_start_secure(int port, int bind_any, http_status *status, hub *heights,
+http_server *http_server_start_secure(int port, int bind_any, http_status *status,
                                       const http_limits *limits, const http_security *sec,
                                       error_text *err)
 {
@@ -576,7 +568,6 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
         return NULL;
     }
     s->status = status;
-    s->heights = heights;
     s->auth = sec ? sec->auth : NULL;
     if (http_tls_load(&s->tls, sec, err) != 0) {
         free(s);
@@ -644,21 +635,15 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
     return s;
 }
 
-http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
+http_server *http_server_start_limited(int port, int bind_any, http_status *status,
                                        const http_limits *limits, error_text *err)
 {
-    return http_server_start_secure(port, bind_any, status, heights, limits, NULL, err);
+    return http_server_start_secure(port, bind_any, status, limits, NULL, err);
 }
 
-http_server *http_server_start(int port, int bind_any, http_status *status, hub *heights,
-                               error_text *err)
+http_server *http_server_start(int port, int bind_any, http_status *status, error_text *err)
 {
-    return http_server_start_limited(port, bind_any, status, heights, NULL, err);
-}
-
-void http_server_set_base(http_server *s, const world *w)
-{
-    atomic_store(&s->base, w);
+    return http_server_start_limited(port, bind_any, status, NULL, err);
 }
 
 void http_server_set_twin(http_server *s, const char *json, const char *why)
@@ -678,7 +663,7 @@ http_server *http_probe_start(http_server *main, int port, error_text *err)
      * orchestrator on this host, never reachable by the strangers who may
      * fill the main port */
     http_limits l = {.connections = 16, .connections_per_ip = 16, .timeout_s = 3};
-    http_server *p = http_server_start_limited(port, 0, main->status, NULL, &l, err);
+    http_server *p = http_server_start_limited(port, 0, main->status, &l, err);
     if (p)
         p->main = main;
     return p;

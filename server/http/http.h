@@ -85,7 +85,7 @@ typedef struct http_status {
     int waiting;      /* a client-clocked world waiting for its driver's next step: not stalled */
     int client_clock; /* its scene's "clock": "client" (GET /v1/worlds says "clock") */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
-    char scene_name[65]; /* the scene's name: a single daemon's world in /v1/worlds/{name}/edits */
+    char scene_name[65]; /* the scene's name (GET /v1/worlds); the default world is named so */
     /* the data directory /v1/heights?tick=N rebuilds past ticks from
      * (store_replay_rect); NULL: none (memory only, or a cluster node's
      * JetStream store). Set before the world is on the ports; outlives it. */
@@ -119,13 +119,14 @@ typedef struct http_limits {
 
 typedef struct http_server http_server;
 
-/* Listen on 127.0.0.1 unless bind_any; port 0 picks a free one. status and
- * heights must outlive the server; heights may be NULL (then /v1/heights is
- * 503). Uses the default limits. */
-http_server *http_server_start(int port, int bind_any, http_status *status, hub *heights,
-                               error_text *err);
+/* Listen on 127.0.0.1 unless bind_any; port 0 picks a free one. status is
+ * the server's readiness (/readyz; a single daemon's default world's) and
+ * must outlive the server; the worlds it serves are in the table of worlds
+ * (http_server_set_worlds; none: /v1/world, /v1/stats, /v1/heights are 503).
+ * Uses the default limits. */
+http_server *http_server_start(int port, int bind_any, http_status *status, error_text *err);
 /* The same with explicit limits (NULL = defaults). */
-http_server *http_server_start_limited(int port, int bind_any, http_status *status, hub *heights,
+http_server *http_server_start_limited(int port, int bind_any, http_status *status,
                                        const http_limits *limits, error_text *err);
 /* Who may read and how the bytes travel; all fields optional. */
 typedef struct http_security {
@@ -133,12 +134,9 @@ typedef struct http_security {
     const char *tls_cert, *tls_key; /* both: HTTPS only (checked with tls_check_pair first) */
 } http_security;
 /* The same with a token gate and TLS (sec NULL: neither). */
-http_server *http_server_start_secure(int port, int bind_any, http_status *status, hub *heights,
+http_server *http_server_start_secure(int port, int bind_any, http_status *status,
                                       const http_limits *limits, const http_security *sec,
                                       error_text *err);
-/* The world whose base terrain (world_base_fill_rect: immutable once the
- * world is made, so read from the HTTP thread) /v1/heights?base=1 serves. */
-void http_server_set_base(http_server *s, const world *w);
 /* GET /v1/twin answers json (the world's parameters as the twin library's
  * config keys: scene_twin_config_json), or 404 with why when json is NULL.
  * Copied; call once. */
@@ -156,13 +154,15 @@ void http_server_set_websocket(http_server *s, int port, int tls, const char *pu
 http_server *http_probe_start(http_server *main, int port, error_text *err);
 
 /* ---- the worlds served here (http_worlds.c; docs/cluster.md) ----
- * /v1/world, /v1/stats, /v1/heights with ?world=NAME and /v1/worlds/NAME/edits
- * read the daemon's one table of worlds (hub.h, hub_worlds: each world's host
- * adds it there once, for the HTTP and the websocket port alike; set before
- * the port serves). After http_server_host_worlds (a cluster node) every such
- * request does (404 naming the worlds served when this node does not serve
- * it; without ?world=, the first world added; 503 while none is); /readyz and
- * /healthz stay the node's (status and the watches). */
+ * /v1/world, /v1/stats, /v1/heights (?world=NAME; without it the default
+ * world: a single daemon's scene, a cluster node's first) and
+ * /v1/worlds/NAME/edits read the daemon's one table of worlds (hub.h,
+ * hub_worlds: each world's host adds it there once, for the HTTP and the
+ * websocket port alike, with its status, hub and base terrain, which
+ * /v1/heights?base=1 serves; set before the port serves). 404 names the
+ * worlds served when NAME is not one of them; 503 while the default is
+ * none. http_server_host_worlds: a cluster node (its 404s and 503s say so);
+ * /readyz and /healthz stay the server's (status and the watches). */
 void http_server_set_worlds(http_server *s, hub_worlds *t);
 void http_server_host_worlds(http_server *s);
 /* Any node serves any world (http_views.c): a request for a world this node

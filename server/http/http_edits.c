@@ -136,45 +136,22 @@ void http_edit_post(http_server *s, struct MHD_Connection *c, const char *name, 
                        why);
         return;
     }
-    char scene_name[65];
-    pthread_mutex_lock(&s->status->lock);
-    snprintf(scene_name, sizeof scene_name, "%s", s->status->scene_name);
-    pthread_mutex_unlock(&s->status->lock);
-    if (s->hosts_worlds ||
-        (strcmp(name, scene_name) != 0 && http_world_api_path(s, "/v1/worlds"))) {
-        unsigned code = 0;
-        hub_world *w = http_world_acquire(s, name, &code, why, sizeof why);
-        if (!w || strcmp(w->name, name) != 0) {
-            if (w)
-                http_world_release(s, w);
-            if (!s->hosts_worlds) /* a single daemon: its default world, or one created */
-                snprintf(why, sizeof why,
-                         "name: no world \"%.64s\" on this daemon (its default world is "
-                         "\"%.64s\"; GET /v1/worlds lists them)",
-                         name, scene_name);
-            answer_refusal(a, MHD_HTTP_NOT_FOUND, TERRAD_E_BAD_VALUE,
-                           w ? "name: no such world ticks on this node: send its edits to the "
-                               "node that ticks it"
-                             : why);
-            return;
-        }
-        http_status st, *from = w->status;
-        pthread_mutex_lock(&from->lock);
-        st = *from;
-        pthread_mutex_unlock(&from->lock);
-        edit_world(s, w->h, &st, body, len, a);
-        http_world_release(s, w);
-        return;
-    }
-    http_status st;
-    pthread_mutex_lock(&s->status->lock);
-    st = *s->status;
-    pthread_mutex_unlock(&s->status->lock);
-    if (strcmp(name, st.scene_name) != 0) {
-        snprintf(why, sizeof why, "name: this daemon's world is \"%.64s\" (its scene's name)",
-                 st.scene_name);
+    unsigned code = 0;
+    hub_world *w = http_world_acquire(s, name, &code, why, sizeof why);
+    if (!w) {
+        char def[HUB_WORLD_NAME_MAX + 1] = "";
+        if (s->worlds && hub_worlds_default(s->worlds, def, sizeof def))
+            snprintf(why, sizeof why,
+                     "name: no world \"%.64s\" on this daemon (its default world is \"%.64s\"; "
+                     "GET /v1/worlds lists them)",
+                     name, def);
         answer_refusal(a, MHD_HTTP_NOT_FOUND, TERRAD_E_BAD_VALUE, why);
         return;
     }
-    edit_world(s, s->heights, &st, body, len, a);
+    http_status st, *from = w->status;
+    pthread_mutex_lock(&from->lock);
+    st = *from;
+    pthread_mutex_unlock(&from->lock);
+    edit_world(s, w->h, &st, body, len, a);
+    http_world_release(s, w);
 }

@@ -109,9 +109,7 @@ typedef struct http_watch {
 
 struct http_server {
     struct MHD_Daemon *daemon;
-    http_status *status;
-    hub *heights;
-    _Atomic(const world *) base; /* /v1/heights?base=1 (NULL: 503); see http_server_set_base */
+    http_status *status; /* readiness (/readyz): a node's, or a single daemon's default world's */
     /* GET /v1/twin: the world's twin config as JSON, or "!" and why there is
      * none (NULL: not set); set once (http_server_set_twin), freed at stop */
     _Atomic(char *) twin;
@@ -146,8 +144,8 @@ struct http_server {
     atomic_int ws_ready;
 };
 
-/* The world a request names (?world=NAME; without it, the node's first
- * world), counted as in use: NULL with the status to answer and why. */
+/* The world a request names (?world=NAME; without it, the default world),
+ * counted as in use: NULL with the status to answer and why. */
 hub_world *http_world_acquire(http_server *s, const char *name, unsigned *code, char *why,
                               size_t cap);
 void http_world_release(http_server *s, hub_world *w);
@@ -185,10 +183,6 @@ void http_view_stats(const http_status *st, http_answer *a);
 /* http_world_api.c: the world lifecycle API. 1 when url is /v1/worlds or
  * /v1/worlds/{name} and the API is on, or /v1/drain and a drain is set. */
 int http_world_api_path(http_server *s, const char *url);
-/* 1 when the request's ?world= names a world other than the default one
- * (snap: the default world's status) and the API is on: it is served from
- * the table of worlds. */
-int http_world_named(http_server *s, struct MHD_Connection *c, const http_status *snap);
 /* "" or why the daemon drains (http_server_set_draining), copied into why. */
 void http_draining(http_server *s, char *why, size_t cap);
 /* The answer to method on url (body: a POST's). */

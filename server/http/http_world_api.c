@@ -75,12 +75,6 @@ int http_world_api_path(http_server *s, const char *url)
     return url[p] == 0 || (url[p] == '/' && url[p + 1] && !strchr(url + p + 1, '/'));
 }
 
-int http_world_named(http_server *s, struct MHD_Connection *c, const http_status *snap)
-{
-    const char *name = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "world");
-    return name && strcmp(name, snap->scene_name) != 0 && api_on(s);
-}
-
 static void answer_json(http_answer *a, unsigned code, char *json)
 {
     if (!json)

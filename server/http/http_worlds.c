@@ -32,7 +32,10 @@ hub_world *http_world_acquire(http_server *s, const char *name, unsigned *code, 
         return found;
     if (!name) {
         *code = MHD_HTTP_SERVICE_UNAVAILABLE;
-        snprintf(why, cap, "this node serves no world now (a standby)");
+        snprintf(why, cap, "%s",
+                 s->hosts_worlds ? "this node serves no world now (a standby)"
+                                 : "the default world is not served (it is "
+                                   "starting, or the daemon stops)");
         return NULL;
     }
     char names[400];

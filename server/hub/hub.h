@@ -82,6 +82,7 @@ typedef struct hub_command {
     char material[32];          /* create */
     int feedback;               /* create: send CONTACT entries for this collider */
     double load_n;              /* create: > 0 load-driven (bekker), the load in newtons */
+    int forces_height;          /* create: its FORCES entries carry its pose height */
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */
@@ -299,14 +300,22 @@ void hub_worlds_destroy(hub_worlds *t);
  * holder: the net thread's waker. One watcher; NULL stops it, and once this
  * returns the old one is not called again. */
 void hub_worlds_watch(hub_worlds *t, void (*changed)(void *ctx), void *ctx);
-/* w copied into the table: the entry, or NULL with err (the table is full). */
+/* w copied into the table: the entry, or NULL with err (the table is full).
+ * With a watcher set, returns once the holder holds it (10 s at most), so a
+ * client told the world serves finds it on the websocket port too. */
 hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err);
+/* A single daemon's default world is the entry named name (copied; NULL or
+ * "": none, as on a cluster node, whose first entry is the default). */
+void hub_worlds_set_default(hub_worlds *t, const char *name);
+/* 1 with the default name in name when one is set, else 0 (name ""). */
+int hub_worlds_default(hub_worlds *t, char *name, size_t cap);
 /* w leaves the table (deleted: its clients are told so), then this waits for
  * the requests using it to end (close its hub's reads first) and for its
  * holder to let go: 0, or -1 when the holder did not within 10 s (w is then
  * left to it, and so must its hub be: the holder may still use it). */
 int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted);
-/* The world named name (NULL: the first), counted as in use until
+/* The world named name (NULL: the default world — the entry of the default
+ * name when one is set, else the first), counted as in use until
  * hub_worlds_release; NULL when there is none. */
 hub_world *hub_worlds_acquire(hub_worlds *t, const char *name);
 void hub_worlds_release(hub_worlds *t, hub_world *w);

@@ -6,13 +6,17 @@
  * talks to its hub. Before issue 29 http/ and net/ each kept a table of their
  * own and removal waited for one, then the other.
  *
- * An entry lives in a slot the table allocates. Removal takes it out of the
- * array at once (nobody new finds it) and waits for its readers (HTTP
- * requests: unbounded, their reads fail fast once the hub's reads are closed;
- * what they point to is freed after) and for its holder (the net thread, which detaches the world's
- * clients between two callbacks: 10 s, after which the slot is left to whoever lets go of it last).
- * One mutex, held for a copy or a scan, and while the watcher (the net thread's waker: a short lock
- * of its own) is told.
+ * An entry lives in a slot the table allocates. Adding it waits until the
+ * net thread holds it (so a hello right after finds it). Removal takes it out
+ * of the array at once (nobody new finds it) and waits for its readers (HTTP
+ * requests: unbounded, their reads fail fast once the hub's reads are
+ * closed; what they point to is freed after) and for its holder (the net
+ * thread, which detaches the world's clients between two callbacks: 10 s,
+ * after which the slot is left to whoever lets go of it last). The default
+ * world is no entry apart: it is the one the default name names (a single
+ * daemon's scene), or the first (a cluster node). One mutex, held for a copy
+ * or a scan, and while the watcher (the net thread's waker: a short lock of
+ * its own) is told.
  */
 #include "hub/hub.h"
 
@@ -42,6 +46,7 @@ struct hub_worlds {
     slot *leaving[HUB_WORLDS_MAX]; /* removed, still held */
     int nleaving;
     atomic_uint generation;
+    char default_name[HUB_WORLD_NAME_MAX + 1]; /* "": the first entry is the default */
     void (*changed)(void *ctx);
     void *changed_ctx;
 };
@@ -86,6 +91,18 @@ static void changed_locked(hub_worlds *t)
         t->changed(t->changed_ctx);
 }
 
+static void wait_until(pthread_cond_t *cond, pthread_mutex_t *lock, int ms)
+{
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    until.tv_nsec += (long)ms * 1000 * 1000;
+    if (until.tv_nsec >= 1000000000L) {
+        until.tv_sec++;
+        until.tv_nsec -= 1000000000L;
+    }
+    pthread_cond_timedwait(cond, lock, &until);
+}
+
 hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err)
 {
     slot *s = calloc(1, sizeof *s);
@@ -101,6 +118,12 @@ hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err)
         t->in[t->n++] = s;
         changed_locked(t);
     }
+    double start = time_now_ms();
+    while (!full && t->changed && !s->held && time_now_ms() - start < HOLDER_DEADLINE_MS) {
+        wait_until(&t->cond, &t->lock, REWAKE_MS);
+        if (t->changed && !s->held)
+            t->changed(t->changed_ctx);
+    }
     pthread_mutex_unlock(&t->lock);
     if (full) {
         error_set(err, "worlds: this node already serves %d worlds", HUB_WORLDS_MAX);
@@ -108,18 +131,6 @@ hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err)
         return NULL;
     }
     return &s->w;
-}
-
-static void wait_until(pthread_cond_t *cond, pthread_mutex_t *lock, int ms)
-{
-    struct timespec until;
-    clock_gettime(CLOCK_REALTIME, &until);
-    until.tv_nsec += (long)ms * 1000 * 1000;
-    if (until.tv_nsec >= 1000000000L) {
-        until.tv_sec++;
-        until.tv_nsec -= 1000000000L;
-    }
-    pthread_cond_timedwait(cond, lock, &until);
 }
 
 static void drop_leaving(hub_worlds *t, slot *s)
@@ -167,9 +178,27 @@ int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted)
     return 0;
 }
 
+void hub_worlds_set_default(hub_worlds *t, const char *name)
+{
+    pthread_mutex_lock(&t->lock);
+    snprintf(t->default_name, sizeof t->default_name, "%s", name ? name : "");
+    pthread_mutex_unlock(&t->lock);
+}
+
+int hub_worlds_default(hub_worlds *t, char *name, size_t cap)
+{
+    pthread_mutex_lock(&t->lock);
+    snprintf(name, cap, "%s", t->default_name);
+    int set = t->default_name[0] != 0;
+    pthread_mutex_unlock(&t->lock);
+    return set;
+}
+
 hub_world *hub_worlds_acquire(hub_worlds *t, const char *name)
 {
     pthread_mutex_lock(&t->lock);
+    if (!name && t->default_name[0])
+        name = t->default_name;
     slot *found = NULL;
     for (int i = 0; i < t->n && !found; i++)
         if (!name || strcmp(t->in[i]->w.name, name) == 0)
@@ -214,8 +243,10 @@ hub_world *hub_worlds_hold_next(hub_worlds *t)
     for (int i = 0; i < t->n && !found; i++)
         if (!t->in[i]->held)
             found = t->in[i];
-    if (found)
+    if (found) {
         found->held = 1;
+        pthread_cond_broadcast(&t->cond); /* its add may be waiting for this */
+    }
     pthread_mutex_unlock(&t->lock);
     return found ? &found->w : NULL;
 }

@@ -36,8 +36,6 @@ static void *service_main(void *arg)
     net_server *s = arg;
     thread_owner_claim(&s->st.owner, "net");
     atomic_store(&s->last_beat_ms, time_now_ms());
-    if (s->st.hub)
-        hub_claim_net_end(s->st.hub);
     net_heartbeat_start(s);
     for (;;) {
         if (lws_service(s->ctx, 0) < 0)
@@ -54,11 +52,6 @@ static void *service_main(void *arg)
             hub_release_net_end(net_state_at(s, i)->hub);
     atomic_store(&s->thread_done, 1);
     return NULL;
-}
-
-static char *dup_or_null(const char *text)
-{
-    return text ? strdup(text) : NULL;
 }
 
 static void server_free(net_server *s)
@@ -101,15 +94,10 @@ static int limits_check(const net_limits *l, error_text *err)
     return 0;
 }
 
-net_server *net_server_start(const net_config *c, hub *h, error_text *err)
+net_server *net_server_start(const net_config *c, error_text *err)
 {
     if (limits_check(&c->limits, err))
         return NULL;
-    if (h && (c->world.width < 1 || c->world.height < 1 || c->world.tile_size < 1 ||
-              !(c->world.cell_size_m > 0))) {
-        error_set(err, "net: the world info is incomplete (extent, cell size, tile size)");
-        return NULL;
-    }
     net_server *s = calloc(1, sizeof *s);
     if (!s) {
         error_set(err, "net: out of memory");
@@ -118,33 +106,23 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     pthread_mutex_init(&s->wake_lock, NULL);
     pthread_mutex_init(&s->worlds_lock, NULL);
     pthread_cond_init(&s->worlds_cond, NULL);
-    s->st.cfg = *c;
-    s->st.hub = h;
-    s->st.lobby = h == NULL;
-    s->st.models_json = dup_or_null(c->world.models_json);
-    s->st.materials_json = dup_or_null(c->world.materials_json);
+    s->st.cfg = *c; /* the lobby: every client's state until its hello names a world */
+    s->st.cfg.world = (net_world_info){0};
+    s->st.lobby = 1;
     s->st.server_name = strdup(c->server_name ? c->server_name : "terrad/0.1.0");
     s->st.cfg.tls_cert = s->st.cfg.tls_key = NULL; /* lws reads the files before start returns */
-    s->st.cfg.world.models_json = s->st.models_json;
-    s->st.cfg.world.materials_json = s->st.materials_json;
     s->st.cfg.server_name = s->st.server_name;
-    s->st.world_name = dup_or_null(c->world.name);
-    s->st.cfg.world.name = s->st.world_name;
     s->st.next_client_id = 1;
-    if (!s->st.lobby) /* a node's worlds each take theirs (net_world_state_new) */
-        net_default_lag(&s->st);
     s->st.fd_ceiling = c->limits.fd_reserve > 0 ? net_fd_ceiling(c->limits.fd_reserve) : 0;
     s->st.next_collider_id = 1;
     s->st.poses = calloc((size_t)c->limits.max_poses_per_batch, sizeof *s->st.poses);
-    s->st.base = net_parse_base(c->world.base_json);
-    s->st.cfg.world.base_json = NULL; /* not kept: s->st.base is the copy */
     s->st.models = net_parse_names(s->st.models_json, "[]", "world.models_json", err);
     s->st.materials = s->st.models ? net_parse_names(s->st.materials_json, "[\"default\"]",
                                                      "world.materials_json", err)
                                    : NULL;
     if (!s->st.models || !s->st.materials || !s->st.poses || !s->st.server_name ||
-        (c->world.name && !s->st.world_name) || net_auth_start(&s->st, err) != 0) {
-        if (!s->st.poses || !s->st.server_name || (c->world.name && !s->st.world_name))
+        net_auth_start(&s->st, err) != 0) {
+        if (!s->st.poses || !s->st.server_name)
             error_set(err, "net: out of memory");
         server_free(s);
         return NULL;
@@ -180,12 +158,8 @@ net_server *net_server_start(const net_config *c, hub *h, error_text *err)
     struct lws_vhost *vh = lws_get_vhost_by_name(s->ctx, "default");
     s->port = vh ? lws_get_vhost_listen_port(vh) : c->port;
     s->ctx_live = 1;
-    if (h)
-        hub_set_waker(h, net_server_wake, s);
     if (pthread_create(&s->thread, NULL, service_main, s) != 0) {
         error_set(err, "net: cannot start the service thread");
-        if (h)
-            hub_set_waker(h, NULL, NULL);
         lws_context_destroy(s->ctx);
         server_free(s);
         return NULL;
@@ -237,8 +211,6 @@ void net_server_stop(net_server *s)
         nanosleep(&ts, NULL);
     }
     pthread_join(s->thread, NULL);
-    if (s->st.hub)
-        hub_set_waker(s->st.hub, NULL, NULL);
     pthread_mutex_lock(&s->wake_lock);
     s->ctx_live = 0;
     pthread_mutex_unlock(&s->wake_lock);

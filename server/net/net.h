@@ -97,16 +97,10 @@ typedef struct net_world_info {
     /* "clock": "client" — the world ticks only on its driver's STEP messages
      * (PROTOCOL.md "STEP"); 0: the server's wall clock */
     int client_clock;
-    /* cluster mode (docs/cluster.md): the world's registered name, sent in the
-     * world message; a hello naming another world is refused. NULL: one
-     * unnamed world, hello's "world" is ignored. */
+    /* a named world's name (a created world, a cluster node's), sent in the
+     * world message; NULL for a single daemon's default world, whose world
+     * message is unchanged (its state is named by its entry of the table). */
     const char *name;
-    /* a single daemon (name NULL): its scene's name, which hello's "world"
-     * may name for this world; once worlds are added beside it
-     * (net_config.worlds: the world lifecycle API), a hello naming
-     * neither it nor an added world is refused. Not copied: it must outlive
-     * the server. */
-    const char *scene_name;
     /* The scene's twin config as a JSON object (scene_twin_config_json), sent
      * as the world message's "base" to a client whose hello asked for base
      * snapshots (PROTOCOL.md "Base snapshots"); NULL: the twin cannot make
@@ -125,7 +119,7 @@ typedef struct net_config {
      * with tls_check_pair; a plain ws:// upgrade on the port fails its handshake */
     const char *tls_cert, *tls_key;
     net_limits limits;
-    net_world_info world;
+    net_world_info world;    /* unused here: each world state's copy holds its world's */
     const char *server_name; /* world.server; NULL = "terrad/0.1.0" */
     /* the daemon's one table of worlds (hub.h, hub_worlds), which each
      * world's host adds it to: the net thread makes a state for every entry
@@ -138,13 +132,13 @@ typedef struct net_config {
 
 typedef struct net_server net_server;
 
-/* Binds and starts the service thread. The strings of c are copied.
- * h == NULL: a cluster node's server, for several worlds (c->world unused):
- * clients wait until their hello names one of the worlds of c->worlds.
- * A single daemon's server (h its default world) may have worlds in
- * c->worlds too (the world lifecycle API): a hello naming one joins it, any
- * other hello the default world. */
-net_server *net_server_start(const net_config *c, hub *h, error_text *err);
+/* Binds and starts the service thread. The strings of c are copied. Every
+ * client waits in the lobby until its hello names a world of c->worlds (no
+ * name: the table's default world — a single daemon's default scene, or a
+ * cluster node's first world). On a single daemon where no world was ever
+ * added beside the default one, any name is the default world (as before
+ * worlds could be created). */
+net_server *net_server_start(const net_config *c, error_text *err);
 /* An event ("world_created", "world_deleted") about world, for every admin
  * connection that subscribed to it (subscribe_events). Any thread; sent by
  * the net thread soon after. */

@@ -27,8 +27,8 @@
  * the client has, that replaces any number of ticks' deltas. A tile in the
  * ledger is not current for the client (net_client_tile_current); a tile out
  * of it is: every delta of it since its snapshot was queued. A delta of a
- * tile near the client's focus (its `focus` point, else its colliders' latest
- * poses, else its first subscription's centre: within one tile of it) goes at
+ * tile near the client's focus (its `focus` point and its colliders' latest
+ * poses, else its first subscription's centre: within one tile of one) goes at
  * once while the window has room, a far one while the second stays under
  * half the budget; any other is folded into the ledger, and
  * far tiles are flushed at lower rates (a tile d tiles away waits (d − 1) ×
@@ -253,7 +253,9 @@ static void tile_remove(net_budget *b, budget_tile *t)
     *t = b->tiles[--b->ntiles];
 }
 
-/* Distance in tiles (Chebyshev) from the client's focus to tile (tx, ty). */
+/* Distance in tiles (Chebyshev) from the nearest of the client's focus and
+ * its colliders' latest poses (else its first subscription's centre) to tile
+ * (tx, ty). */
 static int tile_distance(const net_client *c, int tx, int ty)
 {
     int ts = c->srv->cfg.world.tile_size;
@@ -263,13 +265,13 @@ static int tile_distance(const net_client *c, int tx, int ty)
         fx[0] = c->focus_x;
         fy[0] = c->focus_y;
         n = 1;
-    } else if (c->budget && c->budget->npos) {
-        for (int i = 0; i < c->budget->npos; i++) {
-            fx[i] = c->budget->px[i];
-            fy[i] = c->budget->py[i];
-        }
-        n = c->budget->npos;
-    } else if (c->sub_count) {
+    }
+    /* its own colliders are near whatever its focus: their ruts come every tick */
+    for (int i = 0; c->budget && i < c->budget->npos; i++, n++) {
+        fx[n] = c->budget->px[i];
+        fy[n] = c->budget->py[i];
+    }
+    if (n == 0 && c->sub_count) {
         fx[0] = c->subs[0].rect.x + c->subs[0].rect.w / 2.0;
         fy[0] = c->subs[0].rect.y + c->subs[0].rect.h / 2.0;
         n = 1;

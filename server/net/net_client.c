@@ -85,14 +85,38 @@ void net_client_remove(net_state *s, net_client *c)
         }
 }
 
-int net_client_join_world(net_client *c, const char *world, char *why, size_t cap)
+/* The state of the world hello's world names in the lobby, or NULL. "" (a
+ * cluster node's hello naming none): the first world ticked here, else (a
+ * node that ticks none) the first relayed. */
+static net_state *find_world(net_state *lobby, const char *world)
 {
-    net_state *lobby = c->srv, *to = NULL;
-    for (int i = 0; i < lobby->nworlds && !to; i++) /* no name: the first world ticked here */
+    net_state *to = NULL;
+    for (int i = 0; i < lobby->nworlds && !to; i++)
         if (world[0] ? strcmp(lobby->worlds[i]->world_name, world) == 0 : !lobby->worlds[i]->relay)
             to = lobby->worlds[i];
-    if (!to && !world[0] && lobby->nworlds) /* ... or, on a node that ticks none, relayed */
+    if (!to && !world[0] && lobby->nworlds)
         to = lobby->worlds[0];
+    return to;
+}
+
+int net_client_join_world(net_client *c, const char *world, char *why, size_t cap)
+{
+    net_state *lobby = c->srv;
+    /* a single daemon's default world: the one its table's default name names */
+    char def[HUB_WORLD_NAME_MAX + 1] = "";
+    int daemon = lobby->cfg.worlds && hub_worlds_default(lobby->cfg.worlds, def, sizeof def);
+    net_state *to = find_world(lobby, daemon && !world[0] ? def : world);
+    if (!to && daemon && !lobby->hosted_worlds) /* any name: its one world, as it always was */
+        to = find_world(lobby, def);
+    if (!to && daemon) {
+        char names[300];
+        hub_worlds_names(lobby->cfg.worlds, names, sizeof names);
+        snprintf(why, cap,
+                 "world: no world \"%s\" on this daemon (its worlds: %s; GET /v1/worlds "
+                 "lists them)",
+                 world, names);
+        return -1;
+    }
     if (!to) {
         size_t n =
             (size_t)snprintf(why, cap, "world: this node does not serve world \"%s\"", world);

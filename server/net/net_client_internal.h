@@ -205,12 +205,12 @@ struct net_state {
     double last_conn_refusal_log_ms;
 
     /* The worlds of the table (cfg.worlds) and the relayed ones, each with its
-     * own state (net_worlds.c). On a cluster node the server's own state
-     * is then the lobby: every client starts there and moves, at its hello,
-     * to the state of the world it names (its own hub, world info, collider
-     * table and backlog). A single daemon has no lobby: its state is its
-     * default world's, and worlds created beside it (the world lifecycle API)
-     * are in worlds[] as on a node; hosted_worlds: one ever was. */
+     * own state (net_worlds.c). The server's own state is the lobby: every
+     * client starts there and moves, at its hello, to the state of the world
+     * it names (its own hub, world info, collider table and backlog).
+     * hosted_worlds: a world other than a single daemon's default one was
+     * ever served here. lobby: this is the server's own state (a remote
+     * client, one another node relays, starts in its world's state). */
     int lobby;
     int hosted_worlds;
     /* the server's own state only: the daemon drains (net_server_drain) —
@@ -225,7 +225,7 @@ struct net_state {
     char node[65];              /* this node's name */
     hub_world *entry;           /* a world of the table (cfg.worlds) this state was made for */
     terrad_codec *budget_codec; /* budgeted clients' deltas, summed and encoded (net_budget.c) */
-    net_state **worlds;         /* the lobby's (or a single daemon's) table of world states */
+    net_state **worlds;         /* the lobby's: every world's state */
     int nworlds;
     int64_t worlds_cap;
 };
@@ -238,8 +238,9 @@ const char *net_draining(const net_state *st);
 net_client *net_find_client(net_state *s, uint32_t id);
 int net_client_add(net_state *s, net_client *c); /* ids only grow: appended */
 void net_client_remove(net_state *s, net_client *c);
-/* A lobby's client whose hello names world (or "" for the first one): moved
- * to that world's state (c->srv). 0, or -1 with why (no such world here). */
+/* A lobby's client whose hello names world (or "" for the default one: the
+ * one the table's default name names, else the first) moved to that world's
+ * state (c->srv). 0, or -1 with why (no such world here). */
 int net_client_join_world(net_client *c, const char *world, char *why, size_t cap);
 
 /* ---- a client's outgoing queue ---- */

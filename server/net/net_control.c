@@ -373,6 +373,7 @@ static int parse_collider_create(parser *r, net_control *out)
                     "material: \"%.64s\" is not one of world.materials", mat);
     snprintf(out->material, sizeof out->material, "%s", mat);
     if (get_bool(r, "feedback", 1, &out->feedback) || parse_load(r, &out->load_n) ||
+        get_bool(r, "forces_height", 0, &out->forces_height) ||
         parse_shape(r, shape->valuestring, out))
         return -1;
     if (cJSON_GetObjectItemCaseSensitive(r->msg, "grousers") && out->geometry.grousers.count == 0)

@@ -75,7 +75,8 @@ typedef struct net_control {
     int axis_z;          /* capsule / cylinder: the client's axis is z */
     char material[32];
     int feedback;
-    double load_n; /* > 0: load-driven (bekker worlds); 0: absent */
+    double load_n;     /* > 0: load-driven (bekker worlds); 0: absent */
+    int forces_height; /* its FORCES entries carry its height (PROTOCOL.md "FORCES") */
     /* collider_delete, unsubscribe, resync (id 0 and has_id 0: all) */
     uint32_t id;
     int has_id;

@@ -50,7 +50,7 @@ int net_server_add_relay(net_server *s, const net_world_info *info, error_text *
         error_set(err, "net: a relay needs net_server_set_remote first");
         return -1;
     }
-    net_state *w = net_world_state_new(s, info, NULL, err);
+    net_state *w = net_world_state_new(s, info->name, info, NULL, err);
     if (!w)
         return -1;
     w->relay = 1;

@@ -49,8 +49,8 @@ static cJSON *world_message(net_state *s, const net_client *c)
     cJSON *m = cJSON_CreateObject();
     cJSON_AddStringToObject(m, "type", "world");
     cJSON_AddNumberToObject(m, "protocol", TERRAD_PROTO_VERSION);
-    cJSON_AddStringToObject(m, "server", s->server_name);
-    if (w->name) /* cluster mode only: a single daemon's world message is unchanged */
+    cJSON_AddStringToObject(m, "server", s->cfg.server_name); /* the lobby's, shared */
+    if (w->name) /* a named world: none for a single daemon's default world, as always */
         cJSON_AddStringToObject(m, "world", w->name);
     cJSON_AddNumberToObject(m, "client_id", c->id);
     cJSON_AddStringToObject(m, "role", auth_role_name(c->role));
@@ -81,31 +81,6 @@ static cJSON *world_message(net_state *s, const net_client *c)
     return m;
 }
 
-/* A single daemon's hello naming a world: one created beside the default
- * (the world lifecycle API) is joined; the default world's scene name, or
- * any name while no world was ever created, stays in the default world (as
- * before worlds could be created). -1 with why: a name no world has. */
-static int net_hello_created_world(net_client *c, const net_control *m, char *why, size_t cap)
-{
-    net_state *s = c->srv;
-    const char *scene = s->cfg.world.scene_name;
-    if (scene && strcmp(m->world, scene) == 0)
-        return 0;
-    for (int i = 0; i < s->nworlds; i++)
-        if (strcmp(s->worlds[i]->world_name, m->world) == 0)
-            return net_client_join_world(c, m->world, why, cap);
-    if (!s->hosted_worlds)
-        return 0;
-    size_t n =
-        (size_t)snprintf(why, cap, "world: no world \"%s\" on this daemon (its worlds: \"%s\"",
-                         m->world, scene ? scene : "");
-    for (int i = 0; i < s->nworlds && n < cap; i++)
-        n += (size_t)snprintf(why + n, cap - n, ", \"%s\"", s->worlds[i]->world_name);
-    if (n < cap)
-        snprintf(why + n, cap - n, "; GET /v1/worlds lists them)");
-    return -1;
-}
-
 static void handle_hello(net_client *c, const net_control *m)
 {
     net_state *s = c->srv;
@@ -127,11 +102,6 @@ static void handle_hello(net_client *c, const net_control *m)
         net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
         return;
     }
-    if (!s->lobby && m->world[0] && net_hello_created_world(c, m, why, sizeof why) != 0) {
-        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1, "%s", why);
-        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
-        return;
-    }
     s = c->srv; /* the world's own state from here on */
     /* its budget: stated, else the daemon's default (else the limit, if any);
      * the relay, which holds its socket, keeps it for a relayed world */
@@ -148,16 +118,6 @@ static void handle_hello(net_client *c, const net_control *m)
         snprintf(c->name, sizeof c->name, "%s", m->client);
         log_info("net: client %u (%s) said hello for world %s, served through its owner", c->id,
                  c->peer, s->world_name);
-        return;
-    }
-    const char *serves = s->cfg.world.name;
-    if (serves && m->world[0] && strcmp(m->world, serves) != 0) {
-        /* a cluster node ticks one world: the client is sent to look for another node */
-        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 1,
-                  "world: this node serves world \"%s\", not \"%s\" (terrad world list "
-                  "names each world's node)",
-                  serves, m->world);
-        net_close_after_flush(c, 4000 + TERRAD_E_BAD_VALUE, "another world");
         return;
     }
     c->ready = 1;
@@ -242,6 +202,7 @@ static void handle_collider_create(net_client *c, net_control *m)
     snprintf(cmd.material, sizeof cmd.material, "%s", m->material);
     cmd.feedback = m->feedback;
     cmd.load_n = m->load_n;
+    cmd.forces_height = m->forces_height;
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     int grown = array_grow((void **)&c->colliders, &c->collider_capacity,
                            (int64_t)c->collider_count + 1, sizeof *c->colliders) == 0;

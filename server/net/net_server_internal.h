@@ -25,7 +25,7 @@ struct net_event {
 
 /* The net thread's state and libwebsockets' context. */
 struct net_server {
-    net_state st; /* a single daemon's one world, or a node's lobby */
+    net_state st; /* the lobby: where a client waits until its hello names a world */
     struct lws_context *ctx;
     lws_sorted_usec_list_t heartbeat;
     atomic_int thread_done;
@@ -99,8 +99,10 @@ void net_client_free(net_server *s, net_client *c);
 void net_remote_apply(net_server *s);
 /* Frees the inbox's messages unread (the server stops). */
 void net_remote_drop_inbox(net_server *s);
-/* A state for a world (world info copied, strings duplicated); NULL with err. */
-net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err);
+/* A state for the world named name (world info copied, strings duplicated);
+ * NULL with err. */
+net_state *net_world_state_new(net_server *s, const char *name, const net_world_info *info, hub *h,
+                               error_text *err);
 /* Queues w for the net thread to adopt; -1 with err when the table is full. */
 int net_world_queue_add(net_server *s, net_state *w, error_text *err);
 /* Asks the net thread to detach the relayed world named name and waits. */

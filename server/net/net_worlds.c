@@ -2,9 +2,9 @@
  * net_worlds.c: the several worlds on one websocket port (docs/cluster.md).
  * Each world served here has its own state — its hub (the world's sim thread
  * on the other end), world info, collider table and commands waiting for the
- * hub — and the server's own state is a node's lobby, where a client waits
- * until its hello names a world (net_client_join_world), or a single
- * daemon's default world. The worlds ticked here are the entries of the
+ * hub — and the server's own state is the lobby, where a client waits until
+ * its hello names a world (net_client_join_world; no name: the default world,
+ * an entry like any other). The worlds ticked here are the entries of the
  * daemon's one table of worlds (hub.h, hub_worlds), which each world's host
  * adds it to and removes it from (host/host_world.c; the HTTP threads read
  * the same table); the worlds another node ticks are relayed
@@ -90,9 +90,10 @@ void net_world_state_free(net_state *w)
     }
 }
 
-net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h, error_text *err)
+net_state *net_world_state_new(net_server *s, const char *name, const net_world_info *info, hub *h,
+                               error_text *err)
 {
-    if (!info->name || info->width < 1 || info->height < 1 || info->tile_size < 1 ||
+    if (!name || !name[0] || info->width < 1 || info->height < 1 || info->tile_size < 1 ||
         !(info->cell_size_m > 0)) {
         error_set(err, "net: a world needs a name, an extent, a cell size and a tile size");
         return NULL;
@@ -106,10 +107,10 @@ net_state *net_world_state_new(net_server *s, const net_world_info *info, hub *h
     w->cfg.world = *info;
     w->models_json = info->models_json ? strdup(info->models_json) : NULL;
     w->materials_json = info->materials_json ? strdup(info->materials_json) : NULL;
-    w->world_name = strdup(info->name);
+    w->world_name = strdup(name);
     w->cfg.world.models_json = w->models_json;
     w->cfg.world.materials_json = w->materials_json;
-    w->cfg.world.name = w->world_name;
+    w->cfg.world.name = info->name ? w->world_name : NULL; /* NULL: the world message has none */
     net_default_lag(w);
     w->auth = s->st.auth; /* the node's table (net_auth_start), not owned */
     w->auth_generation = s->st.auth_generation;
@@ -201,9 +202,8 @@ int net_world_queue_remove(net_server *s, const char *name)
     return 0;
 }
 
-/* The world's clients are told and closed, and wait in the lobby (a single
- * daemon: its default world's state, not ready) for their close (their
- * colliders and subscriptions went with the world). */
+/* The world's clients are told and closed, and wait in the lobby for their
+ * close (their colliders and subscriptions went with the world). */
 static void detach(net_server *s, net_state *w, int deleted)
 {
     for (int i = 0; i < w->nclients; i++) {
@@ -224,8 +224,8 @@ static void detach(net_server *s, net_state *w, int deleted)
             net_close_after_flush(c, 4000 + TERRAD_E_SHUTTING_DOWN, "world deleted");
         } else if (!c->closing && !c->killed) {
             net_error(c, TERRAD_E_SHUTTING_DOWN, NULL, -1, 1,
-                      "world %s: this node no longer serves it (another node owns it now, or "
-                      "this node is stopping): connect again",
+                      "world %s is no longer served here (this server is stopping, or another "
+                      "node owns it now): connect again",
                       w->world_name);
             net_close_after_flush(c, LWS_CLOSE_STATUS_GOINGAWAY, "world moved");
         }
@@ -249,7 +249,7 @@ static void detach(net_server *s, net_state *w, int deleted)
 /* Net thread: w served here from now on (a relay, or an entry of the table). */
 static void adopt(net_server *s, net_state *w)
 {
-    net_state *lobby = &s->st; /* a node's lobby, or a single daemon's default world */
+    net_state *lobby = &s->st;
     if (array_grow((void **)&lobby->worlds, &lobby->worlds_cap, (int64_t)lobby->nworlds + 1,
                    sizeof *lobby->worlds) != 0) {
         log_error("net: out of memory adopting world %s", w->world_name);
@@ -262,7 +262,6 @@ static void adopt(net_server *s, net_state *w)
         hub_set_waker(w->hub, net_server_wake, s);
     }
     lobby->worlds[lobby->nworlds++] = w;
-    lobby->hosted_worlds = 1;
     log_info("net: world %s is served here%s", w->world_name,
              w->relay ? " through its owner (a relay)" : "");
 }
@@ -289,6 +288,8 @@ static void apply_table(net_server *s)
         return;
     s->table_seen = generation;
     net_state *lobby = &s->st;
+    char def[HUB_WORLD_NAME_MAX + 1];
+    hub_worlds_default(t, def, sizeof def);
     hub_world *e;
     while ((e = hub_worlds_gone_next(t))) {
         for (int i = 0; i < lobby->nworlds; i++)
@@ -300,13 +301,15 @@ static void apply_table(net_server *s)
     }
     while ((e = hub_worlds_hold_next(t))) {
         error_text err = {{0}};
-        net_state *w = net_world_state_new(s, e->info, e->h, &err);
+        net_state *w = net_world_state_new(s, e->name, e->info, e->h, &err);
         if (!w) {
             log_error("net: world %s cannot be served here: %s", e->name, err.message);
             continue;
         }
         w->entry = e;
         adopt(s, w);
+        if (strcmp(e->name, def) != 0) /* a world beside a single daemon's default one */
+            lobby->hosted_worlds = 1;
     }
 }
 
@@ -317,6 +320,7 @@ void net_worlds_apply(net_server *s)
     pthread_mutex_lock(&s->worlds_lock);
     for (int i = 0; i < s->nadding; i++)
         adopt(s, s->adding[i]);
+    lobby->hosted_worlds |= s->nadding > 0;
     s->nadding = 0;
     for (int r = 0; r < s->nremoving; r++)
         for (int i = 0; i < lobby->nworlds; i++)

@@ -165,6 +165,7 @@ static void collider_create(service *s, hub_command *c)
                        .has_pose = has_pose,
                        .feedback = c->feedback,
                        .load_n = c->load_n,
+                       .forces_height = c->forces_height,
                        .cost = collider_cost_of(g, s->world->cell_size_m)};
     c->mesh = NULL;
 }

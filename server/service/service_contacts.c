@@ -194,21 +194,28 @@ static void send_contacts(service *s, const svc_client *cl)
 }
 
 /* One client's FORCES frame (bekker worlds): the soil's push on each of its
- * colliders with feedback, in the tick's collider order. */
+ * colliders with feedback, in the tick's collider order. When one of them was
+ * created with "forces_height", every entry carries its pose height the tick
+ * deformed at (a load-driven one's: found by the server), an extension
+ * flagged in the header (PROTOCOL.md "FORCES"), so a client that never asks
+ * gets the frames it always did. */
 static void send_forces(service *s, const svc_client *cl, const sim_tick_report *report)
 {
-    int n = 0;
+    int n = 0, heights = 0;
     for (int i = 0; i < report->contact_count; i++) {
         int k = service_find_collider(s, (uint32_t)report->contacts[i].collider_id);
-        n += k >= 0 && s->colliders[k].client == cl->id && s->colliders[k].feedback;
+        int mine = k >= 0 && s->colliders[k].client == cl->id && s->colliders[k].feedback;
+        n += mine;
+        heights |= mine && s->colliders[k].forces_height;
     }
     if (n == 0)
         return;
-    terrad_force *mine = malloc((size_t)n * sizeof *mine);
+    terrad_force *mine = malloc((size_t)n * (sizeof *mine + sizeof(double)));
     if (!mine) {
         service_note_drop(s, "frame", "no memory for the FORCES frame of client %u", cl->id);
         return;
     }
+    double *height = (double *)(void *)(mine + n); /* 48-byte entries: aligned */
     int m = 0;
     for (int i = 0; i < report->contact_count; i++) {
         const sim_contact *c = &report->contacts[i];
@@ -226,10 +233,14 @@ static void send_forces(service *s, const svc_client *cl, const sim_tick_report 
         f->patch_width_m = (float)c->patch_width_m;
         f->slip = (float)c->slip;
         f->cells = c->cells > UINT32_MAX ? UINT32_MAX : (uint32_t)c->cells;
+        height[m - 1] = c->pose_z_m;
     }
-    size_t size = terrad_forces_size((size_t)n);
+    size_t size = heights ? terrad_forces_heights_size((size_t)n) : terrad_forces_size((size_t)n);
     hub_frame *f = hub_frame_new(1, size);
-    if (f && terrad_forces_encode(f->data, size, &f->len, s->tick, mine, (size_t)n) != 0) {
+    if (f &&
+        (heights ? terrad_forces_encode_heights(f->data, size, &f->len, s->tick, mine, height,
+                                                (size_t)n)
+                 : terrad_forces_encode(f->data, size, &f->len, s->tick, mine, (size_t)n)) != 0) {
         hub_frame_unref(f);
         f = NULL;
     }

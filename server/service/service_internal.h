@@ -61,8 +61,9 @@ typedef struct svc_collider {
     collider_pose pose, previous_pose;
     int has_pose; /* created without a pose: inert until its first POSE_BATCH */
     int has_previous, feedback;
-    double load_n; /* > 0: load-driven, its height the engine's (sim_collider.load_n) */
-    int held;      /* waits this tick (service_shed.c): no deformation, previous pose kept */
+    double load_n;     /* > 0: load-driven, its height the engine's (sim_collider.load_n) */
+    int forces_height; /* collider_create "forces_height": FORCES carries its height */
+    int held;          /* waits this tick (service_shed.c): no deformation, previous pose kept */
     /* a pose taken this tick (service_bound_sweeps may refuse it): where the
      * collider stood before it, and the POSE_BATCH it came in */
     int pose_new, had_pose;

@@ -57,13 +57,17 @@ export async function stopDaemon(proc) {
   rmSync(proc.dataDir, { recursive: true, force: true });
 }
 
-// Headless Chromium with a fresh profile: {context, page, close()}.
+// Headless Chromium with a fresh profile: {context, page, close()}. Its actions (click, mouse,
+// keyboard, screenshot) wait up to 3 minutes, not playwright's 30 s: under software GL on a busy
+// 2-core machine a page that keeps drawing can hold an input event that long (a click in
+// make test-stress once waited past 30 s), and a deadline here is a condition, not a speed.
 export async function launchPage(viewport = { width: 720, height: 480 }) {
   const { chromium } = await import('playwright-core');
   const profile = mkdtempSync(path.join(tmpdir(), 'terrad-viewer-profile-'));
   const context = await chromium.launchPersistentContext(profile, {
     executablePath: CHROMIUM, headless: true, args: FLAGS, viewport, deviceScaleFactor: 1,
   });
+  context.setDefaultTimeout(180000);
   const page = context.pages()[0] || (await context.newPage());
   page.on('pageerror', (e) => console.error('page error:', e.message));
   return {

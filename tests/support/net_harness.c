@@ -135,18 +135,23 @@ int main(int argc, char **argv)
     }
     if (getenv("HELLO_TIMEOUT"))
         c.limits.hello_timeout_s = atof(getenv("HELLO_TIMEOUT"));
-    c.world = (net_world_info){.width = 300,
-                               .height = 200,
-                               .cell_size_m = 0.05,
-                               .units_per_m = 10000,
-                               .tick_hz = 60,
-                               .tile_size = 64,
-                               .height_min = -(1 << 29),
-                               .height_max = 1 << 29,
-                               .models_json = "[\"persson-ssbo\"]",
-                               .materials_json = "[\"default\",\"sand\"]"};
-    net_server *s = net_server_start(&c, H, &err);
-    if (!s) {
+    /* its one world, the default of its table of worlds (a single daemon's shape) */
+    net_world_info info = {.width = 300,
+                           .height = 200,
+                           .cell_size_m = 0.05,
+                           .units_per_m = 10000,
+                           .tick_hz = 60,
+                           .tile_size = 64,
+                           .height_min = -(1 << 29),
+                           .height_max = 1 << 29,
+                           .models_json = "[\"persson-ssbo\"]",
+                           .materials_json = "[\"default\",\"sand\"]"};
+    hub_worlds *worlds = hub_worlds_create();
+    hub_worlds_set_default(worlds, "harness");
+    c.worlds = worlds;
+    net_server *s = net_server_start(&c, &err);
+    hub_world e = {.name = "harness", .h = H, .info = &info};
+    if (!s || !hub_worlds_add(worlds, &e, &err)) { /* added: the net thread holds it */
         fprintf(stderr, "start: %s\n", err.message);
         return 1;
     }
@@ -215,6 +220,7 @@ int main(int argc, char **argv)
     double t0 = time_now_ms();
     net_server_stop(s);
     printf("STOPPED in %.0f ms\n", time_now_ms() - t0);
+    hub_worlds_destroy(worlds);
     quit = 1;
     pthread_join(t, NULL);
     hub_destroy(H);

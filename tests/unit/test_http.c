@@ -555,18 +555,41 @@ static void *slow_read_thread(void *arg)
     return NULL;
 }
 
+/* A table of worlds holding one, the default (test_hub may be NULL: no
+ * heights); the HTTP server serves what is in it (hub_worlds). */
+static hub_worlds *one_world(http_status *status, hub *h)
+{
+    hub_worlds *t = hub_worlds_create();
+    hub_world e = {.name = "test", .h = h, .status = status};
+    error_text err = {{0}};
+    CHECK(t && hub_worlds_add(t, &e, &err), "a table of one world: %s", err.message);
+    return t;
+}
+
+/* Empties and frees what one_world made. */
+static void drop_worlds(hub_worlds *t)
+{
+    hub_world *w = hub_worlds_acquire(t, NULL);
+    if (w) {
+        hub_worlds_release(t, w);
+        hub_worlds_remove(t, w, 0);
+    }
+    hub_worlds_destroy(t);
+}
+
 /* A server with small limits: its own cell limit, and a short read timeout
  * while the "sim thread" is paused — probes must still answer meanwhile. */
-static void check_limited_server(http_status *status)
+static void check_limited_server(http_status *status, hub_worlds *worlds)
 {
     error_text err = {{0}};
     /* a read timeout far longer than a probe takes even on a loaded machine: the probe must
      * answer while the read still waits (not after it), whatever the machine's speed */
     http_limits limits = {.heights_timeout_ms = 5000, .heights_max_cells = 100};
-    http_server *s = http_server_start_limited(0, 0, status, test_hub, &limits, &err);
+    http_server *s = http_server_start_limited(0, 0, status, &limits, &err);
     CHECK(s != NULL, "limited server: %s", err.message);
     if (!s)
         return;
+    http_server_set_worlds(s, worlds);
     int port = http_server_port(s);
     expect_error(port, "/v1/heights?x=0&y=0&w=11&h=10", 413, "limit of 100 cells");
     check_heights_int32(port, 0, 0, 10, 10);
@@ -590,12 +613,31 @@ static void check_limited_server(http_status *status)
     http_server_stop(s);
 
     /* No hub: /v1/heights is unavailable, the rest serves. */
-    s = http_server_start(0, 0, status, NULL, &err);
+    hub_worlds *no_hub = one_world(status, NULL);
+    s = http_server_start(0, 0, status, &err);
     CHECK(s != NULL, "server without a hub");
     if (s) {
+        http_server_set_worlds(s, no_hub);
         expect_error(http_server_port(s), "/v1/heights?x=0&y=0&w=1&h=1", 503, "not available");
         http_server_stop(s);
     }
+    drop_worlds(no_hub);
+
+    /* No world in its table: the world's views are unavailable, the probes serve. */
+    hub_worlds *none = hub_worlds_create();
+    s = http_server_start(0, 0, status, &err);
+    CHECK(s != NULL, "server without a world");
+    if (s) {
+        http_server_set_worlds(s, none);
+        expect_error(http_server_port(s), "/v1/world", 503, "not served");
+        expect_error(http_server_port(s), "/v1/world?world=test", 404, "does not serve");
+        response r;
+        CHECK(get(http_server_port(s), "/healthz", &r) == 0 && r.status == 200,
+              "/healthz without a world: %d", r.status);
+        response_free(&r);
+        http_server_stop(s);
+    }
+    hub_worlds_destroy(none);
 }
 
 static void fill_world(void)
@@ -643,10 +685,12 @@ int main(void)
     snprintf(status.method, sizeof status.method, "persson-single");
     snprintf(status.metric, sizeof status.metric, "chebyshev");
 
-    http_server *s = http_server_start(0, 0, &status, test_hub, &err);
+    hub_worlds *worlds = one_world(&status, test_hub);
+    http_server *s = http_server_start(0, 0, &status, &err);
     CHECK(s != NULL, "http_server_start: %s", err.message);
     if (!s)
         return 1;
+    http_server_set_worlds(s, worlds);
     int port = http_server_port(s);
     CHECK(port > 0, "bound port %d", port);
 
@@ -663,9 +707,10 @@ int main(void)
     check_static(port);
     check_limits(port);
     check_keep_alive(port);
-    check_limited_server(&status);
+    check_limited_server(&status, worlds);
 
     http_server_stop(s);
+    drop_worlds(worlds);
     atomic_store(&sim_stop, 1);
     pthread_join(sim, NULL);
     hub_close_reads(test_hub);

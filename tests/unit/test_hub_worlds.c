@@ -5,8 +5,9 @@
  * an entry leaves the table at once (no new lookup finds it) but removal
  * returns only once the readers using it released it and its holder (the
  * net thread's part, played here by the test) let go after seeing it gone,
- * with the deleted flag it was removed with. The watcher (the net thread's
- * waker) is told of every add and remove.
+ * with the deleted flag it was removed with; with a holder, an add returns
+ * only once it holds the entry (so a hello right after finds the world). The
+ * watcher (the net thread's waker) is told of every add and remove.
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -24,10 +25,13 @@ static void watcher(void *ctx)
     atomic_fetch_add(&told, 1);
 }
 
-/* A removal on a thread of its own (it waits): rc once done. */
+static hub_world *add(hub_worlds *t, const char *name);
+
+/* An add or a removal on a thread of its own (each may wait): w, rc once done. */
 typedef struct removal {
     hub_worlds *t;
-    hub_world *w;
+    hub_world *w; /* removed, or added (name) */
+    const char *name;
     int deleted, rc;
     atomic_int done;
 } removal;
@@ -36,6 +40,14 @@ static void *remove_main(void *arg)
 {
     removal *r = arg;
     r->rc = hub_worlds_remove(r->t, r->w, r->deleted);
+    atomic_store(&r->done, 1);
+    return NULL;
+}
+
+static void *add_main(void *arg)
+{
+    removal *r = arg;
+    r->w = add(r->t, r->name);
     atomic_store(&r->done, 1);
     return NULL;
 }
@@ -74,6 +86,16 @@ static void test_lookups(void)
     CHECK(got == a, "no name: the first added");
     hub_worlds_release(t, got);
     CHECK(hub_worlds_acquire(t, "gamma") == NULL, "an unknown name finds nothing");
+    char def[HUB_WORLD_NAME_MAX + 1];
+    CHECK(!hub_worlds_default(t, def, sizeof def) && !def[0], "no default name yet");
+    hub_worlds_set_default(t, "beta"); /* a single daemon's default scene */
+    got = hub_worlds_acquire(t, NULL);
+    CHECK(got == b && hub_worlds_default(t, def, sizeof def) && strcmp(def, "beta") == 0,
+          "no name: the entry the default name names");
+    hub_worlds_release(t, got);
+    hub_worlds_set_default(t, "gamma");
+    CHECK(hub_worlds_acquire(t, NULL) == NULL, "a default name no entry has: no default world");
+    hub_worlds_set_default(t, NULL);
     char names[64];
     int n = hub_worlds_names(t, names, sizeof names);
     CHECK(n == 2 && strcmp(names, "\"alpha\", \"beta\"") == 0, "names: %d %s", n, names);
@@ -117,17 +139,29 @@ static void test_remove_waits_for_readers(void)
     hub_worlds_destroy(t);
 }
 
+/* With a holder (a watcher set), an add returns once the holder holds it. */
+static hub_world *add_held(hub_worlds *t, const char *name)
+{
+    removal r = {.t = t, .name = name};
+    pthread_t th;
+    int before = atomic_load(&told);
+    pthread_create(&th, NULL, add_main, &r);
+    CHECK(still_waiting(&r, 200), "adding %s waits for the holder", name);
+    CHECK(atomic_load(&told) > before, "the watcher is told of adding %s", name);
+    hub_world *held = hub_worlds_hold_next(t);
+    pthread_join(th, NULL);
+    CHECK(held && held == r.w, "the holder takes %s, and its add returns", name);
+    return r.w;
+}
+
 static void test_holder(void)
 {
     hub_worlds *t = hub_worlds_create();
     hub_worlds_watch(t, watcher, NULL);
     unsigned g0 = hub_worlds_generation(t);
-    hub_world *a = add(t, "alpha"), *b = add(t, "beta");
-    CHECK(atomic_load(&told) == 2, "the watcher is told of each add: %d", atomic_load(&told));
+    hub_world *a = add_held(t, "alpha"), *b = add_held(t, "beta");
     CHECK(hub_worlds_generation(t) != g0, "the generation moved");
-    CHECK(hub_worlds_hold_next(t) == a && hub_worlds_hold_next(t) == b &&
-              hub_worlds_hold_next(t) == NULL,
-          "the holder takes each entry once");
+    CHECK(hub_worlds_hold_next(t) == NULL, "the holder takes each entry once");
     CHECK(hub_worlds_gone_next(t) == NULL, "nothing gone yet");
     removal r = {.t = t, .w = a, .deleted = 1};
     pthread_t th;

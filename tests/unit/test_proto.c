@@ -967,6 +967,63 @@ static void test_random_mirror(void)
     terrad_codec_free(c);
 }
 
+/* FORCES' height extension (PROTOCOL.md "FORCES"): encoded with heights, the
+ * header carries TERRAD_FORCES_FLAG_HEIGHT and each entry an f64 after it;
+ * terrad_forces_decode reads the entries of both forms alike and
+ * terrad_forces_heights the heights (none from a plain frame); the flag on
+ * another type, another flag, a length that does not match the flag and a
+ * height that is not finite are refused. */
+static void test_forces_heights(void)
+{
+    terrad_force f[2] = {
+        {7, {1.5f, -2.0f, 80.0f}, {0.1f, 3.0f, 0.0f}, 0.012f, 0.01f, 0.1f, 0.2f, 400},
+        {9, {0.0f, 0.0f, 40.0f}, {0.0f, 0.0f, 0.0f}, 0.0f, 0.0f, 0.0f, 0.0f, 0}};
+    double h[2] = {0.6478531234567, -12.25}, got_h[2] = {0, 0};
+    uint8_t buf[256], plain[256];
+    size_t len = 0, plen = 0, count = 9, nh = 9;
+    CHECK(terrad_forces_encode_heights(buf, sizeof buf, &len, 42, f, h, 2) == 0 &&
+              len == terrad_forces_heights_size(2) && len == 14 + 2 * 56 &&
+              buf[3] == TERRAD_FORCES_FLAG_HEIGHT,
+          "FORCES with heights: flagged, 56-byte entries (%zu bytes)", len);
+    CHECK(terrad_forces_encode(plain, sizeof plain, &plen, 42, f, 2) == 0 && plain[3] == 0 &&
+              plen == 14 + 2 * 48,
+          "FORCES without: the frame it always was");
+    terrad_force back[2];
+    uint64_t tick = 0;
+    CHECK(terrad_forces_decode(buf, len, &tick, back, 2, &count) == 0 && tick == 42 && count == 2 &&
+              memcmp(back, f, sizeof f) == 0,
+          "the entries of a flagged frame decode as a plain one's");
+    CHECK(terrad_forces_heights(buf, len, got_h, 2, &nh) == 0 && nh == 2 && got_h[0] == h[0] &&
+              got_h[1] == h[1],
+          "its heights, bit for bit (%.13f, %g)", got_h[0], got_h[1]);
+    CHECK(terrad_forces_heights(plain, plen, got_h, 2, &nh) == 0 && nh == 0,
+          "a plain frame has no heights");
+    terrad_header hd;
+    CHECK(terrad_header_decode(buf, len, &hd) == 0 && hd.flags == TERRAD_FORCES_FLAG_HEIGHT,
+          "the header check takes FORCES' flag");
+    uint8_t other[256];
+    size_t olen = 0;
+    terrad_contact none[1];
+    CHECK(terrad_contact_encode(other, sizeof other, &olen, 1, none, 0) == 0, "an empty CONTACT");
+    other[3] = TERRAD_FORCES_FLAG_HEIGHT;
+    CHECK(terrad_header_decode(other, olen, NULL) == TERRAD_E_BAD_FRAME,
+          "the flag on another type is bad_frame");
+    buf[3] = 0x02;
+    CHECK(terrad_forces_decode(buf, len, &tick, back, 2, &count) == TERRAD_E_BAD_FRAME,
+          "another FORCES flag is bad_frame");
+    plain[3] = TERRAD_FORCES_FLAG_HEIGHT;
+    CHECK(terrad_forces_decode(plain, plen, &tick, back, 2, &count) == TERRAD_E_BAD_FRAME,
+          "the flag on 48-byte entries is bad_frame (the length does not match)");
+    buf[3] = TERRAD_FORCES_FLAG_HEIGHT;
+    double nan = NAN;
+    memcpy(buf + 14 + 48, &nan, sizeof nan);
+    CHECK(terrad_forces_decode(buf, len, &tick, back, 2, &count) == TERRAD_E_BAD_VALUE,
+          "a height that is not finite is bad_value");
+    h[1] = INFINITY;
+    CHECK(terrad_forces_encode_heights(buf, sizeof buf, &len, 42, f, h, 2) == TERRAD_E_BAD_VALUE,
+          "and the encoder refuses it");
+}
+
 int main(void)
 {
     const char *src = getenv("TERRAD_SOURCE_DIR");
@@ -983,6 +1040,7 @@ int main(void)
         check_hashes(root);
     }
     test_encoder_refusals();
+    test_forces_heights();
     test_random_round_trip();
     test_random_mirror();
     cJSON_Delete(root);

@@ -1,7 +1,7 @@
 // terrad-client: terrad's websocket client for Node (20+) and browsers, with TypeScript types
 // (issue 23; docs/engines.md, "TypeScript"). An async client over the viewer's own codec
 // (web/terrad_codec.mjs: hello, subscriptions and their mirrors, colliders, pose batches,
-// DELTA, ACK, CONTACT, FORCES), the worlds API (HTTP) and prediction on the daemon's twin as
+// DELTA, ACK, CONTACT, FORCES, CHECKSUM: a desync repaired by itself), the worlds API (HTTP) and prediction on the daemon's twin as
 // WebAssembly (web/twin.mjs, web/predict.mjs). Those three files are compiled into this
 // package from web/, never copied by hand: one codec for the viewer and every JS client.
 import * as P from '../../../web/terrad_codec.mjs';
@@ -86,8 +86,20 @@ type Events = {
   ack: (tick: bigint, seq: number) => void;
   contact: (contact: ReturnType<typeof P.decodeContact>) => void;
   forces: (forces: ReturnType<typeof P.decodeForces>) => void;
+  /** a CHECKSUM frame compared: the tiles [x, y] found differing and asked for again */
+  checksum: (tick: bigint, subscription: number, asked: number[][]) => void;
   error: (error: TerradError) => void;
 };
+
+/** Desync detection (PROTOCOL.md "CHECKSUM"): CHECKSUM frames compared, the last one's tick,
+ *  tiles found differing from the server's and tiles asked for again (each is repaired by
+ *  its snapshot, the other tiles' deltas going on). */
+export interface DesyncStats {
+  checksumFrames: number;
+  checksumTick: bigint;
+  tilesDiffering: number;
+  tilesResynced: number;
+}
 
 /** One connection to a daemon. */
 export class TerradClient {
@@ -97,12 +109,13 @@ export class TerradClient {
   /** the latest ACK's batch sequence */
   ackedSeq = -1;
   readonly mirrors = new Map<number, Mirror>();
+  readonly desync: DesyncStats = { checksumFrames: 0, checksumTick: 0n, tilesDiffering: 0, tilesResynced: 0 };
   private ws: WebSocket;
   private seq = 0;
   private refN = 0;
   private timeoutMs: number;
   private waiting: { test: (m: any) => boolean; ok: (m: any) => void; fail: (e: Error) => void }[] = [];
-  private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], error: [] };
+  private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], checksum: [], error: [] };
   private predictions = new Map<number, Prediction>();
   private closed: Error | null = null;
   /** PROTOCOL.md "seen": the server bounds this client's lag by the tick it says it handled */
@@ -295,10 +308,22 @@ export class TerradClient {
     } else if (t === P.MsgType.FORCES) {
       const c = P.decodeForces(b);
       for (const f of this.listeners.forces) f(c);
+    } else if (t === P.MsgType.CHECKSUM) {
+      this.onChecksum(b);
     } else if (t === P.MsgType.PING) {
       this.ws.send(P.encodePing(P.decodePing(b).nonce, true));
     }
     this.seen.handled(b); // after its listeners: handled
+  }
+
+  /** PROTOCOL.md "CHECKSUM": every frame before it is applied, so the mirror holds its tick; each
+   *  held tile that differs is forgotten (its deltas skipped) and asked for again, at most
+   *  max_resync_tiles per request (the rest at the next CHECKSUM). */
+  private onChecksum(b: Uint8Array): void {
+    const limits = (this.world.limits ?? {}) as Record<string, number>;
+    const r = P.checkMirrors(this.mirrors, b, this.desync, limits.max_resync_tiles ?? 64);
+    if (r.resync) this.sendJson(r.resync);
+    for (const f of this.listeners.checksum) f(r.tick, r.subscription, r.asked);
   }
 }
 

@@ -4,7 +4,8 @@
 // hello, a subscription's mirror, a collider driven with poses (ACKs, CONTACT feedback), the
 // prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
 // the worlds API (create, join, list, remove); bad input refused with errors naming the field; a
-// budget in hello.
+// budget in hello; a mirror corrupted on purpose repaired by the client itself (PROTOCOL.md
+// "CHECKSUM").
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { mkdtempSync, rmSync, writeFileSync } from 'node:fs';
@@ -93,6 +94,39 @@ test('bad input is refused with an error naming the field; the client goes on', 
     await assert.rejects(new T.Worlds(http).create('bad name!', { scene: SCENE }), (e) => e.status === 400 && e.field === 'name');
     const id = await c.createCollider('box', { half_extents: [0.1, 0.1, 0.1] });
     assert.ok(id > 0, 'the connection goes on');
+  } finally {
+    c.close();
+  }
+});
+
+test('a corrupted mirror is found by a CHECKSUM and repaired tile by tile', { skip, timeout: 180000 }, async () => {
+  // Without CHECKSUM frames (or without the client comparing them) the wait for the differing
+  // tile times out and the mirror keeps the changed height.
+  const c = await T.TerradClient.connect(ws, { name: 'ts-desync' });
+  try {
+    const sid = await c.subscribe(10, 20, 100, 90); // 64-cell tiles clipped on every side
+    const mirror = await c.waitComplete(sid);
+    const until = async (what, cond) => {
+      const end = Date.now() + 120000;
+      while (!cond()) {
+        assert.ok(Date.now() < end, `timed out waiting for ${what}`);
+        await sleep(10);
+      }
+    };
+    let frames = c.desync.checksumFrames;
+    await until('two CHECKSUM frames', () => c.desync.checksumFrames >= frames + 2);
+    assert.equal(c.desync.tilesDiffering, 0, 'a fresh mirror agrees with the server');
+    mirror.heights[45 * 100 + 70] += 9; // behind the client's back
+    const t0 = Date.now();
+    await until('the tile found, asked for and held again', () => c.desync.tilesResynced >= 1 && mirror.complete);
+    console.log(`repaired in ${Date.now() - t0} ms`);
+    assert.deepEqual([c.desync.tilesDiffering, c.desync.tilesResynced], [1, 1], 'one tile differed and was asked for alone');
+    frames = c.desync.checksumFrames;
+    await until('two more CHECKSUM frames', () => c.desync.checksumFrames >= frames + 2);
+    assert.equal(c.desync.tilesDiffering, 1, 'nothing differs after the repair');
+    assert.deepEqual(Array.from(mirror.heights), await serverHeights(10, 20, 100, 90), 'the mirror equals GET /v1/heights');
+    const metrics = await (await fetch(`${http}/metrics`)).text();
+    assert.match(metrics, /^terrad_tile_resyncs_total [1-9]/m, 'the daemon counted the tile snapshot');
   } finally {
     c.close();
   }

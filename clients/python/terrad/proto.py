@@ -45,7 +45,7 @@ except ImportError as _e:  # pragma: no cover - the package is a declared depend
 __all__ = [
     "PROTOCOL_VERSION", "MAGIC", "SUBPROTOCOL", "HEADER_SIZE", "POSE_SIZE", "RECT_FIXED",
     "CONTACT_SIZE", "ACK_SIZE", "PING_SIZE", "COLLIDER_STATE_SIZE", "FOOTPRINT_SIZE", "FORCE_SIZE",
-    "FOOTPRINT_YAW_MAX", "MAX_COUNT", "ZSTD_LEVEL", "ERRORS", "ERROR_CODES", "MsgType", "Encoding",
+    "FORCES_FLAG_HEIGHT", "FOOTPRINT_YAW_MAX", "MAX_COUNT", "ZSTD_LEVEL", "ERRORS", "ERROR_CODES", "MsgType", "Encoding",
     "ProtoError", "ServerError", "Pose", "Rect", "Contact", "ColliderState", "Footprint",
     "decode_header", "encode_pose_batch", "decode_pose_batch", "check_rect", "encode_delta",
     "decode_delta", "encode_contact", "decode_contact", "encode_colliders", "decode_colliders",
@@ -71,6 +71,7 @@ PING_SIZE = 12
 COLLIDER_STATE_SIZE = 48
 FOOTPRINT_SIZE = 24
 FORCE_SIZE = 48
+FORCES_FLAG_HEIGHT = 0x01  # FORCES header flag: an f64 height after each entry (opt-in)
 FOOTPRINT_YAW_MAX = 3.1415998935699463  # pi rounded up to float32
 MAX_COUNT = 65535
 ZSTD_LEVEL = 3
@@ -209,7 +210,9 @@ class Force:
     """One FORCES entry (worlds of the bekker model): the soil's push on a collider in one
     tick. force (N) and torque (N m, about the collider's pose position) as (x, y, z) in the
     world frame; sinkage_m, area_m2, patch_width_m (>= 0); slip (wheels; 0 otherwise);
-    cells in contact."""
+    cells in contact. height_m: the collider's pose height (m) the tick deformed at — a
+    load-driven collider's, the height the server found — when the frame carries heights
+    (the collider was created with forces_height=True: PROTOCOL.md "FORCES"); None otherwise."""
     id: int
     force: tuple
     torque: tuple
@@ -218,6 +221,7 @@ class Force:
     patch_width_m: float
     slip: float
     cells: int
+    height_m: float | None = None
 
 
 # ---- helpers -----------------------------------------------------------------
@@ -252,7 +256,7 @@ def decode_header(buf: bytes) -> MsgType:
         t = MsgType(buf[2])
     except ValueError:
         raise ProtoError("unknown_type", f"type 0x{buf[2]:02x}") from None
-    if buf[3] != 0:
+    if buf[3] & ~(FORCES_FLAG_HEIGHT if t == MsgType.FORCES else 0):
         raise ProtoError("bad_frame", "reserved flags set")
     return t
 
@@ -640,11 +644,38 @@ def _unpack_force(buf: bytes, pos: int) -> Force:
     return Force(cid, tuple(f[0:3]), tuple(f[3:6]), *f[6:10], cells)
 
 
-def encode_forces(tick: int, forces: list[Force]) -> bytes:
-    return _encode_tick_list(MsgType.FORCES, tick, forces, "forces", _pack_force)
+_HEIGHT = struct.Struct("<d")
+
+
+def _pack_force_height(e: Force) -> bytes:
+    if e.height_m is None or not math.isfinite(e.height_m):
+        raise ProtoError("bad_value", f"forces of collider {e.id}: height_m must be a finite "
+                         "number in a frame with heights")
+    return _pack_force(e) + _HEIGHT.pack(e.height_m)
+
+
+def _unpack_force_height(buf: bytes, pos: int) -> Force:
+    f = _unpack_force(buf, pos)
+    (f.height_m,) = _HEIGHT.unpack_from(buf, pos + FORCE_SIZE)
+    if not math.isfinite(f.height_m):
+        raise ProtoError("bad_value", f"forces of collider {f.id}: height is not finite")
+    return f
+
+
+def encode_forces(tick: int, forces: list[Force], heights: bool = False) -> bytes:
+    """heights: the extension (header flag FORCES_FLAG_HEIGHT, an f64 height after each
+    entry); every entry's height_m must then be set."""
+    if not heights:
+        return _encode_tick_list(MsgType.FORCES, tick, forces, "forces", _pack_force)
+    out = _encode_tick_list(MsgType.FORCES, tick, forces, "forces", _pack_force_height)
+    return out[:3] + bytes([FORCES_FLAG_HEIGHT]) + out[4:]
 
 
 def decode_forces(buf: bytes, max_forces: int = MAX_COUNT) -> tuple[int, list[Force]]:
+    """Both forms: with the header flag FORCES_FLAG_HEIGHT each Force has its height_m."""
+    if len(buf) >= HEADER_SIZE and buf[3] & FORCES_FLAG_HEIGHT:
+        return _decode_tick_list(buf, MsgType.FORCES, FORCE_SIZE + 8, max_forces, "forces",
+                                 _unpack_force_height)
     return _decode_tick_list(buf, MsgType.FORCES, FORCE_SIZE, max_forces, "forces",
                              _unpack_force)
 
@@ -1031,19 +1062,23 @@ def hello(token: str = "", client: str = "terrad-python", world: str = "",
 
 
 def collider_create(shape: str, material: str = "default", ref=None, feedback: bool = True,
-                    load_n=None, grousers=None, **dims) -> dict:
+                    load_n=None, grousers=None, forces_height: bool = False, **dims) -> dict:
     """shape: sphere (radius), box (half_extents), capsule (radius,
     half_length), cylinder (radius, half_length), wheel (radius, width), mesh
     (vertices, indices). Optional pose=Pose-like dict {"p":[x,y,z],"q":[w,x,y,z]}.
     load_n: a vertical load in newtons (bekker worlds): the server sets the height
     that carries it each tick (PROTOCOL.md "Load-driven colliders").
-    grousers: a wheel's lugs, {"count": N, "height": m, "thickness": m}."""
+    grousers: a wheel's lugs, {"count": N, "height": m, "thickness": m}.
+    forces_height: this client's FORCES frames carry each entry's height (Force.height_m: a
+    load-driven collider's found height; PROTOCOL.md "FORCES")."""
     msg = {"type": "collider_create", "shape": shape, "material": material, "feedback": feedback}
     if load_n is not None:
         msg["load_n"] = load_n
     if grousers is not None:
         msg["grousers"] = {"count": int(grousers["count"]), "height": float(grousers["height"]),
                            "thickness": float(grousers["thickness"])}
+    if forces_height:
+        msg["forces_height"] = True
     msg.update(dims)
     if ref is not None:
         msg["ref"] = ref

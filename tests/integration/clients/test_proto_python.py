@@ -15,8 +15,10 @@ Run with /usr/bin/python3 (needs python3-zstandard, python3-websockets).
 """
 import asyncio
 import json
+import math
 import os
 import random
+import struct
 import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
@@ -425,6 +427,32 @@ async def check_client():
             await c.ws.close()
 
 
+def check_forces_heights():
+    """FORCES' height extension (PROTOCOL.md "FORCES"): flagged, 56-byte entries, the height
+    back bit for bit; a plain frame has none; the flag on another type, another flag bit, a
+    length that does not match the flag and a height that is not finite are refused."""
+    f = tp.Force(7, (1.5, -2.0, 80.0), (0.1, 3.0, 0.0), 0.0120000001, 0.01, 0.1, 0.2, 400,
+                 0.6478531234567)
+    b = tp.encode_forces(42, [f], heights=True)
+    check(b[3] == tp.FORCES_FLAG_HEIGHT and len(b) == 14 + 56, "heights: flagged, 56 bytes")
+    tick, fs = tp.decode_forces(b)
+    check(tick == 42 and fs[0].height_m == 0.6478531234567, f"the height back: {fs}")
+    plain = tp.encode_forces(42, [tp.Force(*[getattr(f, k) for k in ("id", "force", "torque",
+                                  "sinkage_m", "area_m2", "patch_width_m", "slip", "cells")])])
+    check(plain[3] == 0 and len(plain) == 14 + 48 and tp.decode_forces(plain)[1][0].height_m is
+          None, "a plain frame: no flag, no height")
+    contact = bytearray(tp.encode_contact(1, []))
+    contact[3] = tp.FORCES_FLAG_HEIGHT
+    check(raises(lambda: tp.decode_header(bytes(contact)), "bad_frame") is True,
+          "the flag on another type is bad_frame")
+    check(raises(lambda: tp.decode_forces(b[:3] + bytes([2]) + b[4:]), "bad_frame") is True,
+          "another FORCES flag is bad_frame")
+    check(raises(lambda: tp.decode_forces(plain[:3] + bytes([1]) + plain[4:]), "bad_frame") is True,
+          "the flag on 48-byte entries is bad_frame")
+    check(raises(lambda: tp.decode_forces(b[:62] + struct.pack("<d", math.nan)), "bad_value") is True,
+          "a height that is not finite is bad_value")
+
+
 def main():
     with open(os.path.join(SOURCE, "proto", "vectors", "vectors.json")) as f:
         doc = json.load(f)
@@ -432,6 +460,7 @@ def main():
     check_scenarios(doc)
     check_hashes(doc)
     check_refusals()
+    check_forces_heights()
     check_random(random.Random(1234))
     try:
         asyncio.run(asyncio.wait_for(check_client(), 30))

@@ -166,6 +166,12 @@ async def main(d):
     check(same, "the budgeted watcher's mirror equals GET /v1/heights once the edits stop")
     await free.wait_for(lambda: list(free.mirrors[sid_f].heights) == server, 60)
     check(list(free.mirrors[sid_f].heights) == server, "the wider watcher's mirror is exact too")
+    # desync detection (PROTOCOL.md "CHECKSUM") compares only the tiles current for a client: a
+    # budgeted watcher's held-back far tiles are left out, so no tile ever differed (were they
+    # compared, their older versions would)
+    await budgeted.wait_for(lambda: budgeted.desync["checksum_frames"] >= 2, 60)
+    check(budgeted.desync["checksum_frames"] >= 2 and budgeted.desync["tiles_differing"] == 0,
+          f"the budgeted watcher's CHECKSUM frames found no tile differing ({budgeted.desync})")
     for c in (budgeted, free, driver):
         await c.close()
     # the daemon's own line for the budgeted client: its fullest second

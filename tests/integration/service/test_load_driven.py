@@ -15,6 +15,12 @@
   CONTACT describes each plate where the server put it (its cells, volume and deepest point
   at the found height; before issue 31 it was measured at the pose 0.2 m up: 0 cells), and
   a COLLIDERS subscription's entry for it has the found height (ground less FORCES' sinkage);
+- the found height in FORCES every tick (PROTOCOL.md "FORCES", the height extension): the
+  plates are created with forces_height, so every FORCES frame to their client has the header
+  flag 0x01 and 56-byte entries whose height is the plate's (its bottom is the ground less the
+  sinkage, within 1e-6 m) and COLLIDERS' found height; a second client whose plate did not ask
+  gets the frames it always did (flag 0, 48-byte entries, no height) — without the server's
+  extension the first check fails, with it sent to everyone the second;
 - bad values are refused naming `load_n` (`bad_value`: 0, negative, a string "NaN", above
   1e9; `unsupported_collider` on a world of another model), each counted in
   terrad_refused_messages_total, and the daemon goes on.
@@ -34,7 +40,7 @@ check = Checks()
 
 CELL, GROUND, UPM = 0.005, 0.5, 10000
 PW, PL = 10, 50  # plate, cells
-W, H = 3 * (PW + 20), PL + 20
+W, H = 4 * (PW + 20), PL + 20  # three plates, and a fourth of a client that asks no heights
 SOIL = {"n": 1.1, "kc": 0.99e3, "kphi": 1528.43e3, "elastic": 2e8}  # dry-sand (sim_soil.c)
 DEPTHS = (0.010, 0.025, 0.050)
 WAIT = 120
@@ -46,10 +52,13 @@ class Watcher(RecordingClient):
         self.log = {}  # id -> [(tick, Force)]
         self.found_contacts = {}  # id -> [(tick, Contact)]
         self.found_states = {}  # id -> {tick: ColliderState}
+        self.forces_forms = set()  # (header flags, bytes per entry) of every FORCES frame
 
     async def _on_binary(self, data):
         if tp.decode_header(data) == tp.MsgType.FORCES:
             tick, fs = tp.decode_forces(data)
+            if fs:
+                self.forces_forms.add((data[3], (len(data) - 14) // len(fs)))
             for f in fs:
                 self.log.setdefault(f.id, []).append((tick, f))
         elif tp.decode_header(data) == tp.MsgType.COLLIDERS:
@@ -99,7 +108,8 @@ async def plates(d):
     for i, z in enumerate(DEPTHS):
         load = k * z ** SOIL["n"] * area
         msg = tp.collider_create("box", half_extents=[PW * CELL / 2, PL * CELL / 2, 0.05],
-                                 load_n=load) | {"pose": plate_pose(i, GROUND + 0.2)}
+                                 load_n=load, forces_height=True)
+        msg["pose"] = plate_pose(i, GROUND + 0.2)
         ids.append((await c.request(msg, "collider_created"))["id"])
         loads.append(load)
     await c.wait_for(lambda: all(c.settled(cid) for cid in ids), WAIT)
@@ -128,6 +138,23 @@ async def plates(d):
         check(st is not None and abs(st.p[2] - 0.05 - (GROUND - f.sinkage_m)) <= 1 / UPM + 1e-6,
               f"COLLIDERS carries the found height: plate bottom {st.p[2] - 0.05 if st else None} "
               f"m = ground less the sinkage {GROUND - f.sinkage_m:.5f} m")
+        check(f.height_m is not None and abs(f.height_m - 0.05 - (GROUND - f.sinkage_m)) <= 1e-6
+              and st is not None and abs(f.height_m - st.p[2]) <= 1e-6,
+              f"FORCES carries the found height {f.height_m} m: its bottom is the ground less the "
+              f"sinkage {GROUND - f.sinkage_m:.7f} m, COLLIDERS' {st.p[2] if st else None}")
+    check(c.forces_forms == {(tp.FORCES_FLAG_HEIGHT, tp.FORCE_SIZE + 8)},
+          f"every FORCES frame to the client that asked has the flag and heights: "
+          f"{c.forces_forms}")
+    # a client that never asks (an old one) gets the frames it always did
+    old = Watcher(d.ws, name="old-client")
+    await old.connect()
+    msg = tp.collider_create("box", half_extents=[PW * CELL / 2, PL * CELL / 2, 0.05],
+                             load_n=loads[0]) | {"pose": plate_pose(3, GROUND + 0.2)}
+    oid = (await old.request(msg, "collider_created"))["id"]
+    await old.wait_for(lambda: old.settled(oid), WAIT)
+    check(old.forces_forms == {(0, tp.FORCE_SIZE)} and old.log[oid][-1][1].height_m is None,
+          f"a client that did not ask gets plain FORCES frames: {old.forces_forms}")
+    await old.close()
     # a pose far above the soil: the height stays the server's
     seq = await c.send_poses([tp.Pose(ids[0], *plate_pose(0, GROUND + 1.0)["p"], 1, 0, 0, 0)])
     await c.wait_ack(seq, WAIT)
