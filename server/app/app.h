@@ -68,6 +68,9 @@ int app_offline_world(const char *scene_path, app_world_run run, void *ctx);
  * bekker model, as `terrad calibrate --out` writes it (its soil and its
  * compression), read as a scene of cell_m cells reads its "material": the
  * same checks, errors naming the file and the field. wheel_cmd.c. */
+/* "COUNT,HEIGHT,THICKNESS" (terrad wheel and calibrate --grousers) into g; the sizes
+ * against the rim are collider_geometry_validate's (the testbed's). */
+int app_parse_grousers(const char *v, collider_grousers *g, error_text *err);
 int app_soil_load(const char *arg, const char *option, double cell_m, sim_soil *soil,
                   double *compression, error_text *err);
 

@@ -78,6 +78,7 @@ enum {
     OPT_COMPRESSION,
     OPT_OUT,
     OPT_RESIDUALS,
+    OPT_GROUSERS,
 };
 
 static const cli_option cal_table[] = {
@@ -111,6 +112,9 @@ static const cli_option cal_table[] = {
                          "the --base file's, or 0.5)"},
     [OPT_OUT] = {"out", "FILE", "write the material JSON here (it is also printed)"},
     [OPT_RESIDUALS] = {"residuals", "FILE", "write every row's residuals here as CSV"},
+    [OPT_GROUSERS] = {"grousers", "N,H,T",
+                      "the wheel's lugs (count, height m, thickness m) for rows whose file\n"
+                      "has no grouser_count, grouser_height_m or grouser_thickness_m"},
     {0},
 };
 
@@ -203,6 +207,8 @@ static int cal_on_option(void *ctx, int index, const char *v, error_text *err)
     case OPT_RESIDUALS:
         o->residuals = v;
         return 0;
+    case OPT_GROUSERS:
+        return app_parse_grousers(v, &d->grousers, err);
     }
     return 0;
 }
@@ -257,6 +263,7 @@ static int evaluate(wheel_fit *f, const sim_soil *soil, wheel_eval *e, error_tex
         const cal_wheel_row *r = &f->rows[i];
         sim_wheel_run run = f->o->testbed;
         run.radius_m = r->radius_m;
+        run.grousers = r->grousers;
         run.width_m = r->width_m;
         run.load_n = r->load_n;
         run.slip = r->slip;
@@ -519,7 +526,9 @@ static int report_separable(const cal_options *o, const cal_wheel_row *rows, int
         for (int j = 0; j < i; j++) {
             new_width &= rows[j].width_m != rows[i].width_m;
             new_wheel &= rows[j].width_m != rows[i].width_m ||
-                         rows[j].radius_m != rows[i].radius_m || rows[j].load_n != rows[i].load_n;
+                         rows[j].radius_m != rows[i].radius_m || rows[j].load_n != rows[i].load_n ||
+                         rows[j].grousers.count != rows[i].grousers.count ||
+                         rows[j].grousers.height != rows[i].grousers.height;
         }
         widths += new_width;
         wheels += new_wheel;

@@ -219,6 +219,40 @@ int cal_read_plates(const char *path, cal_plate_row **rows, error_text *err)
     return count;
 }
 
+/* A row's lugs: grouser_count, grouser_height_m and grouser_thickness_m where the file
+ * has them (col[0..2]), else --grousers's; a count of 0 is a smooth rim whatever the
+ * rest says. The sizes against the rim are the testbed's (collider_geometry_validate). */
+static int wheel_grousers(const csv_reader *r, const int *col, const cal_wheel_defaults *d,
+                          cal_wheel_row *row, error_text *err)
+{
+    double v[3] = {d->grousers.count, d->grousers.height, d->grousers.thickness};
+    const char *names[3] = {"grouser_count", "grouser_height_m", "grouser_thickness_m"};
+    const double hi[3] = {COLLIDER_GROUSERS_MAX, 1, 1};
+    for (int k = 0; k < 3; k++)
+        if (col[k] >= 0 && (csv_number(r, col[k], 0, &v[k], NULL, err) ||
+                            in_range(r, names[k], v[k], 0, 0, hi[k], err)))
+            return -1;
+    if (v[0] != floor(v[0])) {
+        error_set(err, "%s:%d: grouser_count: must be a whole number (got %g)", r->path, r->line,
+                  v[0]);
+        return -1;
+    }
+    row->grousers = (collider_grousers){(int)v[0], v[1], v[2]};
+    if (row->grousers.count == 0) {
+        row->grousers = (collider_grousers){0};
+        return 0;
+    }
+    for (int k = 1; k < 3; k++)
+        if (!(v[k] > 0)) {
+            error_set(err,
+                      "%s:%d: %s: a lugged row (grouser_count %d) needs it > 0 (a column, or "
+                      "--grousers)",
+                      r->path, r->line, names[k], row->grousers.count);
+            return -1;
+        }
+    return 0;
+}
+
 /* Rows must be numbered; the where filter compares text. */
 static int wheel_row(const csv_reader *r, const int *col, const cal_wheel_defaults *d,
                      cal_wheel_row *row, error_text *err)
@@ -244,6 +278,8 @@ static int wheel_row(const csv_reader *r, const int *col, const cal_wheel_defaul
         if (col[4 + k] >= 0 && csv_number(r, col[4 + k], 1, &m[k]->value, &m[k]->has, err) != 0)
             return -1;
     if (row->sinkage_m.has && in_range(r, "sinkage_m", row->sinkage_m.value, 0, 1, 10, err))
+        return -1;
+    if (wheel_grousers(r, col + 8, d, row, err) != 0)
         return -1;
     if (!row->pull_n.has && !row->sinkage_m.has && !row->torque_nm.has) {
         error_set(err, "%s:%d: drawbar_pull_n, sinkage_m, torque_nm: all empty (nothing to fit)",
@@ -279,6 +315,9 @@ static int wheel_columns(const csv_reader *r, const cal_wheel_defaults *d, int *
                   r->path);
         return -1;
     }
+    const char *lugs[3] = {"grouser_count", "grouser_height_m", "grouser_thickness_m"};
+    for (int k = 0; k < 3; k++)
+        col[8 + k] = csv_column(r, lugs[k], 0, err);
     col[7] = -1;
     if (d->where_column) {
         col[7] = csv_column(r, d->where_column, 0, err);
@@ -297,7 +336,7 @@ int cal_read_wheel(const char *path, const cal_wheel_defaults *d, cal_wheel_row 
     csv_reader r;
     if (csv_open(&r, path, err) != 0)
         return -1;
-    int col[8];
+    int col[11];
     int ok = wheel_columns(&r, d, col, err) == 0;
     int count = 0, cap = 0, got = 0;
     cal_wheel_row *out = NULL;

@@ -27,12 +27,14 @@ typedef struct cal_measure {
 typedef struct cal_wheel_row {
     int line;
     double radius_m, width_m, load_n, slip;
+    collider_grousers grousers; /* zero: a smooth rim */
     cal_measure pull_n, sinkage_m, torque_nm;
 } cal_wheel_row;
 
 /* What the command line gives for the wheel columns a file may lack (0: none). */
 typedef struct cal_wheel_defaults {
     double radius_m, width_m, load_n;
+    collider_grousers grousers;             /* --grousers: for files without the columns */
     const char *where_column, *where_value; /* --where COL=VALUE, or NULL */
 } cal_wheel_defaults;
 

@@ -46,6 +46,7 @@ enum {
     OPT_DISTANCE,
     OPT_SPEED,
     OPT_TICK,
+    OPT_GROUSERS,
 };
 
 static const cli_option wheel_table[] = {
@@ -70,6 +71,9 @@ static const cli_option wheel_table[] = {
                       "each run's travel (default 0.5; means over its second half)"},
     [OPT_SPEED] = {"speed", "M/S", "the wheel's forward speed (default 0.05)"},
     [OPT_TICK] = {"tick", "S", "the testbed's time step (default 0.05)"},
+    [OPT_GROUSERS] = {"grousers", "N,H,T",
+                      "lugs on the rim: count (1 to 360), height and thickness (m,\n"
+                      "each <= the radius); default none. The sinkage is then the tips'"},
     {0},
 };
 
@@ -102,6 +106,31 @@ static int parse_slips(wheel_options *o, const char *list, error_text *err)
             return 0;
         p = end + 1;
     }
+}
+
+int app_parse_grousers(const char *v, collider_grousers *g, error_text *err)
+{
+    double f[3];
+    const char *p = v;
+    for (int k = 0; k < 3; k++) {
+        char *end;
+        f[k] = strtod(p, &end);
+        if (end == p || !isfinite(f[k]) || (k < 2 ? *end != ',' : *end != '\0')) {
+            error_set(err, "\"%s\": must be COUNT,HEIGHT,THICKNESS (e.g. 30,0.01,0.004)", v);
+            return -1;
+        }
+        p = end + 1;
+    }
+    if (!(f[0] >= 1 && f[0] <= COLLIDER_GROUSERS_MAX && f[0] == floor(f[0])) || !(f[1] > 0) ||
+        !(f[2] > 0)) {
+        error_set(err,
+                  "\"%s\": the count must be a whole number 1..%d, the height and the thickness "
+                  "> 0 m",
+                  v, COLLIDER_GROUSERS_MAX);
+        return -1;
+    }
+    *g = (collider_grousers){(int)f[0], f[1], f[2]};
+    return 0;
 }
 
 static int wheel_on_option(void *ctx, int index, const char *v, error_text *err)
@@ -140,6 +169,8 @@ static int wheel_on_option(void *ctx, int index, const char *v, error_text *err)
         return cli_parse_double(v, 1e-3, 10, &o->run.speed_m_s, err);
     case OPT_TICK:
         return cli_parse_double(v, 1e-4, 1, &o->run.tick_s, err);
+    case OPT_GROUSERS:
+        return app_parse_grousers(v, &o->run.grousers, err);
     }
     return 0;
 }
@@ -195,11 +226,16 @@ static void exact(FILE *f, double v)
 
 static void print_csv(const wheel_options *o, const sim_wheel_result *r)
 {
-    printf("slip,drawbar_pull_n,sinkage_m,torque_nm,radius_m,width_m,load_n\n");
+    /* a lugged wheel's three columns, as terrad calibrate --wheel reads them */
+    const collider_grousers *g = &o->run.grousers;
+    int cols = g->count > 0 ? 10 : 7;
+    printf("slip,drawbar_pull_n,sinkage_m,torque_nm,radius_m,width_m,load_n%s\n",
+           cols > 7 ? ",grouser_count,grouser_height_m,grouser_thickness_m" : "");
     for (int i = 0; i < o->slip_count; i++) {
-        double row[7] = {o->slips[i],     r[i].drawbar_pull_n, r[i].sinkage_m, r[i].torque_nm,
-                         o->run.radius_m, o->run.width_m,      o->run.load_n};
-        for (int k = 0; k < 7; k++) {
+        double row[10] = {o->slips[i],     r[i].drawbar_pull_n, r[i].sinkage_m, r[i].torque_nm,
+                          o->run.radius_m, o->run.width_m,      o->run.load_n,  g->count,
+                          g->height,       g->thickness};
+        for (int k = 0; k < cols; k++) {
             if (k)
                 putchar(',');
             exact(stdout, row[k]);
@@ -239,6 +275,12 @@ static void print_json(const wheel_options *o, const sim_wheel_result *r)
     put(",\n \"wheel\": {\"radius_m\": ", o->run.radius_m);
     put(", \"width_m\": ", o->run.width_m);
     put(", \"load_n\": ", o->run.load_n);
+    if (o->run.grousers.count > 0) {
+        printf(", \"grousers\": {\"count\": %d", o->run.grousers.count);
+        put(", \"height\": ", o->run.grousers.height);
+        put(", \"thickness\": ", o->run.grousers.thickness);
+        printf("}");
+    }
     put("},\n \"testbed\": {\"cell_m\": ", o->run.cell_m);
     put(", \"distance_m\": ", o->run.distance_m);
     put(", \"speed_m_s\": ", o->run.speed_m_s);

@@ -124,7 +124,9 @@ static void bekker_depth(const sim_window_job *job, int j, int slices, int32_t *
             const sim_collider *c = &job->colliders[k];
             collider_pose at = sim_slice_pose(c, job->cell_size_m, j, slices);
             at.position.z -= c->lift_units / job->units_per_m; /* at its whole unit */
-            collider_depth_cpu(c->geometry, at, job->rect, job->cell_size_m, job->units_per_m, tmp);
+            /* a lugged wheel presses with its lugs' envelope (model_lugs.c) */
+            collider_geometry g = sim_lug_envelope(c->geometry);
+            collider_depth_cpu(&g, at, job->rect, job->cell_size_m, job->units_per_m, tmp);
             for (int64_t i = 0; i < n; i++)
                 if (tmp[i] < bottom[i]) {
                     bottom[i] = tmp[i];
@@ -496,6 +498,11 @@ static void bekker_press(const sim_params *p, sim_window_job *job, int j, int sl
             raw[i] = r.raw;
             moved[i] = r.raw - (int32_t)compacted;
         }
+    for (int k = 0; k < job->collider_count; k++) /* a lugged wheel's bulldozing */
+        if (sim_lugged(job->colliders[k].geometry))
+            sim_lug_thrust(&p->soil, &job->colliders[k],
+                           sim_slice_pose(&job->colliders[k], cell, j, slices),
+                           job->contacts[k].lowest_bottom / upm, &job->contacts[k]);
     *cls_out = cls;
     *settle_out = settle;
 }

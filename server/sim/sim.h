@@ -103,16 +103,17 @@ double sim_soil_bekker_pa(const sim_soil *s, double b_m, double z_m);
  */
 typedef struct sim_wheel_run {
     double radius_m, width_m, load_n;
-    double slip;        /* [0, 1): the wheel turns at v / (R (1 - slip)) */
-    double cell_m;      /* the bin's cells (default 0.005) */
-    double distance_m;  /* default 0.5 */
-    double speed_m_s;   /* default 0.05 */
-    double tick_s;      /* default 0.05 (2.5 mm of travel a tick, as the tests) */
-    double compression; /* the material's share compacted, default 0.5 */
+    double slip;                /* [0, 1): the wheel turns at v / (R (1 - slip)) */
+    double cell_m;              /* the bin's cells (default 0.005) */
+    double distance_m;          /* default 0.5 */
+    double speed_m_s;           /* default 0.05 */
+    double tick_s;              /* default 0.05 (2.5 mm of travel a tick, as the tests) */
+    double compression;         /* the material's share compacted, default 0.5 */
+    collider_grousers grousers; /* the rim's lugs (zero: smooth); sinkage is then the tips' */
 } sim_wheel_run;
 typedef struct sim_wheel_result {
     double drawbar_pull_n; /* Fx on the wheel: > 0 pulls forward */
-    double sinkage_m;      /* below the undisturbed surface */
+    double sinkage_m;      /* below the undisturbed surface, at the wheel's lowest point */
     double torque_nm;      /* the driving torque (minus the soil's about the axle) */
     long ticks;
 } sim_wheel_result;
@@ -133,6 +134,14 @@ typedef struct sim_wheel_measured {
 #define SIM_WHEEL_DING2011_WIDTH_M 0.165
 #define SIM_WHEEL_DING2011_LOAD_N 80.0
 extern const sim_wheel_measured sim_wheel_ding2011[SIM_WHEEL_DING2011_ROWS];
+/* Ding et al. 2011's lugged wheel (the same rim, soil and load; the CSV's
+ * wheel=lugged rows): 30 lugs 10 mm tall. The lug thickness is not in the
+ * data; 4 mm (a sheet-metal lug) stands in, and the bekker model's forces do
+ * not depend on it (model_lugs.c: the lugs' envelope and their faces). */
+#define SIM_WHEEL_DING2011_LUG_COUNT 30
+#define SIM_WHEEL_DING2011_LUG_HEIGHT_M 0.010
+#define SIM_WHEEL_DING2011_LUG_THICKNESS_M 0.004
+extern const sim_wheel_measured sim_wheel_ding2011_lugged[SIM_WHEEL_DING2011_ROWS];
 
 /* The material as a person writes it (scene files, the wire). */
 typedef struct sim_material {

@@ -198,6 +198,15 @@ sim_window_status sim_sumner_settle(const sim_params *p, sim_window_job *job, co
  * scratch of sim_bekker_scratch_cells(w, h) int32. */
 int64_t sim_bekker_scratch_cells(int w, int h);
 sim_window_status sim_bekker_window(const sim_params *p, sim_window_job *job, int32_t *scratch);
+/* A lugged wheel in the bekker model (model_lugs.c): sim_lugged says whether g has
+ * grousers; sim_lug_envelope is the smooth cylinder of its lugs' tips the press uses (g
+ * itself for any other shape); sim_lug_thrust adds the lugs' bulldozing (passive earth
+ * pressure, Irani et al. 2011) to the contact c the press measured at pose (lowest_m: the
+ * height of its sinkage cell's bottom). */
+int sim_lugged(const collider_geometry *g);
+collider_geometry sim_lug_envelope(const collider_geometry *g);
+void sim_lug_thrust(const sim_soil *s, const sim_collider *col, collider_pose pose, double lowest_m,
+                    sim_contact *c);
 /* One window's contact of a collider into the collider's (the engine adds
  * windows in plan order): sums, and the sinkage and deepest point kept by the
  * press's own rules. */

@@ -30,6 +30,12 @@ const sim_wheel_measured sim_wheel_ding2011[SIM_WHEEL_DING2011_ROWS] = {
     {0.3, 15.0, 0.010, 4.8}, {0.4, 15.0, 0.0125, 5.0}, {0.6, 15.0, 0.0175, 5.3},
 };
 
+/* Ding et al. 2011, lugged wheel (30 lugs, 10 mm), 80 N: the same columns. */
+const sim_wheel_measured sim_wheel_ding2011_lugged[SIM_WHEEL_DING2011_ROWS] = {
+    {0.0, -6.5, 0.0045, 0.0}, {0.1, 14.0, 0.005, 3.5}, {0.2, 20.0, 0.0075, 5.0},
+    {0.3, 22.0, 0.0105, 5.8}, {0.4, 23.0, 0.014, 6.3}, {0.6, 24.5, 0.027, 7.2},
+};
+
 void sim_wheel_run_defaults(sim_wheel_run *r)
 {
     memset(r, 0, sizeof *r);
@@ -147,6 +153,17 @@ int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_
     memset(out, 0, sizeof *out);
     if (run_checked(run, err) != 0 || sim_soil_validate(soil, "soil", err) != 0)
         return -1;
+    collider_geometry rim = {.shape = COLLIDER_CYLINDER,
+                             .radius = run->radius_m,
+                             .half_length = run->width_m / 2,
+                             .grousers = run->grousers};
+    if (collider_geometry_validate(&rim, err) != 0) {
+        error_prefix(err, "wheel testbed", ": ");
+        return -1;
+    }
+    /* the wheel's lowest point: the lugs' tips (Ding 2011 measures the sinkage from the
+     * wheel's first touch of the surface, the tips of a lugged wheel) */
+    const double tip = run->grousers.count > 0 ? run->grousers.height : 0.0;
     const double R = run->radius_m, cell = run->cell_m, v = run->speed_m_s, dt = run->tick_s;
     const double ground = TESTBED_GROUND_M;
     int w = (int)((run->distance_m + 4 * R) / cell), h = (int)(run->width_m / cell) + 20;
@@ -154,9 +171,7 @@ int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_
     if (sim_soil_bin_init(&t, soil, run->compression, cell, w, h, ground, err) != 0)
         return -1;
     t.p.tick_s = dt;
-    t.geometry.shape = COLLIDER_CYLINDER;
-    t.geometry.radius = R;
-    t.geometry.half_length = run->width_m / 2;
+    t.geometry = rim;
     double x = 1.5 * R, angle = 0.0, y = h * cell / 2;
     double omega = v / (R * (1.0 - run->slip));
     sim_soil_bin_place(&t, x, y, ground + R, (quatd){1, 0, 0, 0}, 0);
@@ -179,7 +194,7 @@ int sim_wheel_testbed(const sim_soil *soil, const sim_wheel_run *run, sim_wheel_
         }
         if (k >= ticks / 2) {
             sum_dp += t.contact.force_n[0];
-            sum_z += ground - (t.collider.pose.position.z - R);
+            sum_z += ground - (t.collider.pose.position.z - R - tip);
             sum_t += -t.contact.torque_nm[1];
             n++;
         }

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 300
+# ctest-timeout: 900
 """`terrad calibrate` (docs/calibrate.md): a soil's parameters fitted to measured data.
 
 - plates: curves made from a known soil's p = (kc/b + kphi) z^n at three widths give its n, kc
@@ -33,6 +33,9 @@
   other's rows (never fitted) are reported beside the fit's own, and the fitted soil predicts
   them better than the base soil on every measure the fit improved; a `predict` residual per
   held-out cell; --predict without --wheel, and a bad predict file, are refused by name;
+- Ding's lugged wheel: `--where wheel=lugged` with `--grousers`, refused without a
+  thickness; fitted on the smooth wheel and predicting the lugged one, and the reverse; a
+  lugged wheel over the wire (grousers in collider_create) is carried, bad lugs refused;
 - bad input is refused with exit 2 and a message naming the file, the line and the field:
   a missing column, NaN, a negative width, too few widths or rows, an empty measurement row.
 """
@@ -300,6 +303,37 @@ def test_cross_wheel(tmp):
             "cross-bad.csv:3", "sinkage_m")
 
 
+LUGS = ["--grousers", "30,0.01,0.004"]  # Ding's 30 lugs 10 mm tall; the thickness assumed
+
+
+def test_lugged(tmp):
+    """Ding 2011's lugged wheel (issue 31, item 1): --where wheel=lugged reads its rows with
+    their grouser_count and grouser_height_m (a lugged row without a thickness is refused,
+    naming it), and the cross-check between the two wheels on one soil: fit on the smooth
+    rows, predict the lugged ones, and the reverse (the figures: docs/calibrate.md)."""
+    wheel = ["--radius", "0.15735", "--width", "0.165"]
+    refused("lugged rows without a thickness",
+            ["--wheel", DING, "--where", "wheel=lugged", *wheel, *SMALL],
+            "single-wheel-ding2011.csv:13", "grouser_thickness_m", "--grousers")
+    rc, stdout, stderr = calibrate("--wheel", DING, "--where", "wheel=lugged", *wheel, *LUGS,
+                                   *SMALL)
+    check(rc == 0 and medians(stdout, "median relative"),
+          f"--where wheel=lugged fits the lugged wheel ({rc}: {stderr[-300:]})")
+    with open(DING) as f:
+        lines = f.read().splitlines()
+    header = next(line for line in lines if line.startswith("wheel,"))
+    parts = {name: write(os.path.join(tmp, f"ding-{name}.csv"), "\n".join(
+        [header] + [line for line in lines if line.startswith(name + ",")]) + "\n")
+        for name in ("smooth", "lugged")}
+    for fit, held in (("smooth", "lugged"), ("lugged", "smooth")):
+        rc, stdout, stderr = calibrate("--wheel", parts[fit], "--predict", parts[held], *wheel,
+                                       *LUGS, *SMALL)
+        own, out = medians(stdout, "median relative"), medians(stdout, "held out (not fitted)")
+        check(rc == 0 and own and out, f"fit on {fit}, predict {held}: both wheels' errors "
+              f"({rc}: {stderr[-300:]} {stdout[-400:]})")
+        print(f"fit on {fit} (own: {own}), predict {held} (held out: {out})", flush=True)
+
+
 async def pressed_wheel(d):
     """A wheel pressed 2 cm into the soil: the soil carries it (FORCES, Fz > 0)."""
     c = RecordingClient(d.ws, name="calibrated", record=False)
@@ -320,6 +354,20 @@ async def pressed_wheel(d):
     loaded = [f for f in forces if f.cells > 0]
     check(loaded and loaded[-1].force[2] > 0,
           f"the calibrated soil carries a pressed wheel ({loaded[-1:] or 'no FORCES'})")
+    # a lugged wheel over the wire (collider_create "grousers"), and lugs it refuses by name
+    lugged = await c.create_collider("wheel", radius=0.15, width=0.1,
+                                     grousers={"count": 12, "height": 0.01, "thickness": 0.005})
+    seq = await c.send_poses([tp.Pose(lugged, 1.6, 0.4, 0.5 + 0.15 - 0.02, 1.0, 0.0, 0.0, 0.0)])
+    await c.wait_ack(seq, 60)
+    await c.wait_for(lambda: any(f.id == lugged and f.cells > 0 for f in forces), 60)
+    lug = [f for f in forces if f.id == lugged and f.cells > 0]
+    check(lug and lug[-1].force[2] > 0, f"the soil carries a lugged wheel ({lug[-1:]})")
+    try:
+        await c.create_collider("wheel", radius=0.15, width=0.1,
+                                grousers={"count": 12, "height": 0.5, "thickness": 0.005})
+        check(False, "lugs taller than the rim are refused")
+    except tp.ServerError as e:
+        check("grousers.height" in str(e), f"lugs taller than the rim: refused naming them ({e})")
     await c.close()
 
 
@@ -384,6 +432,7 @@ def main():
         test_base_file(tmp)
         test_pressure_sinkage(tmp)
         test_cross_wheel(tmp)
+        test_lugged(tmp)
         fitted = test_ding(tmp)
         if fitted:
             test_serve(tmp, fitted)

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 300
+# ctest-timeout: 900
 """`terrad wheel` (docs/calibrate.md, "Running the testbed"): the single-wheel testbed from the
 command line, the very run `terrad calibrate` and the Ding 2011 validation test make.
 
@@ -15,7 +15,9 @@ command line, the very run `terrad calibrate` and the Ding 2011 validation test 
 - bad arguments exit 2, print nothing on stdout and name the option or the material's field:
   a missing --soil/--load/--slips, an unknown preset and missing file, a material file with a
   field out of range (material.soil.kc), a material of another model (material.model), not
-  JSON, slips out of range or not numbers, a radius of 0 or NaN, an unknown format.
+  JSON, slips out of range or not numbers, a radius of 0 or NaN, an unknown format, malformed
+  --grousers;
+- Ding's lugged wheel (--grousers 30,0.01,0.004) gives the validation test's lugged table.
 """
 import csv
 import io
@@ -58,7 +60,7 @@ def test_ding():
     got = rows(out)
     check([float(r["slip"]) for r in got] == [0, 0.1, 0.2, 0.3, 0.4, 0.6], f"one row a slip: {out}")
     validation = os.path.join(os.path.dirname(BIN), "test_single_wheel_ding2011")
-    v = subprocess.run([validation], capture_output=True, text=True, timeout=240)
+    v = subprocess.run([validation], capture_output=True, text=True, timeout=800)
     # its first table (the smooth wheel's six slips); tables of later passes follow it
     first = v.stdout.split("median relative error")[0]
     table = [line.split("|")[1:-1] for line in first.splitlines() if line.startswith("| 0.")]
@@ -70,6 +72,21 @@ def test_ding():
         theirs = [cells[1], cells[4], cells[7]]
         check(mine == theirs, f"slip {r['slip']}: pull, sinkage mm, torque {mine} are the "
                               f"validation test's {theirs}")
+    # Ding's lugged wheel (--grousers): the validation test's lugged table
+    rc, out, err = terrad("wheel", "--soil", "ding2011", *DING_WHEEL, "--slips", DING_SLIPS,
+                          "--grousers", "30,0.01,0.004")
+    got = rows(out) if rc == 0 else []
+    check(rc == 0 and all(r["grouser_count"] == "30" for r in got),
+          f"the lugged Ding run exits 0 with its lugs in the CSV ({rc}: {err} {out[:200]})")
+    part = v.stdout.split("lugged wheel")[-1].split("lugged median")[0]
+    table = [line.split("|")[1:-1] for line in part.splitlines() if line.startswith("| 0.")]
+    check(len(table) == 6 and len(got) == 6, f"the lugged table has six rows ({part})")
+    for r, cells in zip(got, table):
+        cells = [c.strip() for c in cells]
+        mine = [f"{float(r['drawbar_pull_n']):.2f}", f"{1e3 * float(r['sinkage_m']):.2f}",
+                f"{float(r['torque_nm']):.2f}"]
+        check(mine == [cells[1], cells[3], cells[5]],
+              f"lugged, slip {r['slip']}: {mine} are the validation test's {cells}")
 
 
 def test_calibrate_round_trip(tmp):
@@ -130,6 +147,8 @@ def test_refusals(tmp):
         (["--soil", "snow-us", "--radius", "nan", *wheel[2:]], "--radius"),
         (["--soil", "snow-us", *wheel, "--format", "xml"], "--format"),
         (["--soil", "snow-us", *wheel, "--cell", "1"], "--cell"),
+        (["--soil", "snow-us", *wheel, "--grousers", "30,0.01"], "--grousers"),
+        (["--soil", "snow-us", *wheel, "--grousers", "2.5,0.01,0.004"], "--grousers"),
     ]
     for args, names in cases:
         rc, out, err = terrad("wheel", *args)
