@@ -24,7 +24,11 @@
  * frame so that each can go when there is room) and the tile deltas it did
  * not get, summed (differences add modulo 2^32) into one delta from the
  * version it holds to the newest — the coalesced delta, against the version
- * the client has, that replaces any number of ticks' deltas. A tile in the
+ * the client has, that replaces any number of ticks' deltas. A newer piece
+ * replaces a waiting one it covers and an unsubscribe drops the pieces no
+ * subscription takes (net_budget_prune), so the pieces stay within one
+ * snapshot of the client's subscriptions; summed deltas held between pieces
+ * (they must not overtake them) count against max_pending_bytes. A tile in the
  * ledger is not current for the client (net_client_tile_current); a tile out
  * of it is: every delta of it since its snapshot was queued. A delta of a
  * tile near the client's focus (its `focus` point and its colliders' latest
@@ -52,11 +56,20 @@
 #define STATUS_SLACK 256.0 /* bytes kept free beyond the last second's status frames */
 #define MAX_FOCUS_POSES 16
 
+/* One frame waiting in a tile's ledger entry: a snapshot piece (one
+ * rectangle, piece 1, rect what it covers) or a summed delta that must go
+ * between the pieces it came between (piece 0). */
+typedef struct budget_item {
+    hub_frame *f;
+    world_rect rect;
+    int piece;
+} budget_item;
+
 typedef struct budget_tile {
     int tx, ty;
-    hub_frame **snaps; /* one-rectangle snapshot frames, in arrival order */
-    int nsnaps;
-    int64_t snaps_cap;
+    budget_item *items; /* in arrival order */
+    int nitems;
+    int64_t items_cap;
     int32_t *acc;       /* tile_size² summed differences, tile-local, NULL: none */
     int x0, y0, x1, y1; /* what acc covers that changed, world cells, [x0, x1) */
     uint32_t base, latest;
@@ -166,9 +179,9 @@ int net_budget_start(net_client *c, double rate)
 
 static void tile_clear(budget_tile *t)
 {
-    for (int i = 0; i < t->nsnaps; i++)
-        hub_frame_unref(t->snaps[i]);
-    free(t->snaps);
+    for (int i = 0; i < t->nitems; i++)
+        hub_frame_unref(t->items[i].f);
+    free(t->items);
     free(t->acc);
     if (t->encoded)
         hub_frame_unref(t->encoded);
@@ -286,12 +299,20 @@ static int tile_distance(const net_client *c, int tx, int ty)
     return best;
 }
 
+/* How many rectangles a DELTA frame can hold: each takes at least its fixed
+ * part (a base-coded piece of an untouched tile is little more than that). */
+static size_t rects_room(const hub_frame *f)
+{
+    return (f->len > TERRAD_DELTA_FIXED ? (f->len - TERRAD_DELTA_FIXED) / TERRAD_RECT_FIXED : 0) +
+           1;
+}
+
 /* Adds one delta frame's differences to tile t's sum. 0, or -1 (memory, a
  * frame that does not decode): the caller resyncs the client. */
 static int fold(net_state *w, budget_tile *t, const hub_frame *f)
 {
     int ts = w->cfg.world.tile_size;
-    size_t max = f->len / (TERRAD_DELTA_FIXED + 25) + 1, count = 0;
+    size_t max = rects_room(f), count = 0;
     uint64_t tick = 0;
     terrad_rect *rects = malloc(max * sizeof *rects);
     if (!rects || terrad_delta_decode(f->data, f->len, &tick, rects, max, &count) != 0) {
@@ -400,7 +421,7 @@ static hub_frame *encode_acc(net_state *w, budget_tile *t)
 
 static void resync_for(net_client *c, const char *why)
 {
-    log_warn("net: client %u (%s): budget ledger %s: fresh snapshots", c->id, c->peer, why);
+    log_warn("net: client %u (%s): budget ledger: %s: fresh snapshots", c->id, c->peer, why);
     net_request_resync(c, 0);
 }
 
@@ -419,62 +440,12 @@ int net_budget_delta(net_client *c, const hub_out *o)
     if (!t)
         t = tile_get(b, o->tile_x, o->tile_y);
     if (!t || fold(c->srv, t, o->frame) != 0) {
-        resync_for(c, "out of memory or an undecodable delta");
+        resync_for(c, "out of memory, or a delta that does not decode");
         return 1;
     }
     b->coalesced++;
     metrics_count_budget(0, 1, 0);
     return 1;
-}
-
-/* A subscribe's or resync's snapshot frame: one frame per rectangle into the
- * ledger (each tile's piece goes when there is room). Takes f. */
-void net_budget_snapshot(net_client *c, hub_frame *f)
-{
-    net_budget *b = c->budget;
-    net_state *w = c->srv;
-    int ts = w->cfg.world.tile_size;
-    size_t max = f->len / (TERRAD_DELTA_FIXED + 25) + 1;
-    terrad_rect *rects = malloc(max * sizeof *rects);
-    size_t count = 0;
-    uint64_t tick = 0;
-    int bad = !rects || terrad_delta_decode(f->data, f->len, &tick, rects, max, &count) != 0;
-    for (size_t i = 0; !bad && i < count; i++) {
-        budget_tile *t = tile_get(b, rects[i].x / ts, rects[i].y / ts);
-        size_t size = terrad_delta_size(&rects[i], 1);
-        hub_frame *one = t ? hub_frame_new(1, size) : NULL;
-        if (!one || terrad_delta_encode(one->data, size, &one->len, tick, &rects[i], 1) != 0 ||
-            array_grow((void **)&t->snaps, &t->snaps_cap, (int64_t)t->nsnaps + 1,
-                       sizeof *t->snaps) != 0) {
-            if (one)
-                hub_frame_unref(one);
-            bad = 1;
-            break;
-        }
-        if (t->acc && t->latest == rects[i].new_version) {
-            /* the tile's deltas up to the snapshot, for the client's other
-             * subscriptions that hold it, go first (the snapshot is of their
-             * version) whatever the window says: rare (a second subscription
-             * over a pending tile) */
-            hub_frame *d = encode_acc(w, t);
-            if (d) {
-                hub_frame_ref(d);
-                net_enqueue(c, d, NET_ITEM_TILE);
-            }
-            free(t->acc);
-            t->acc = NULL;
-            t->base = 0;
-            if (t->encoded) {
-                hub_frame_unref(t->encoded);
-                t->encoded = NULL;
-            }
-        }
-        t->snaps[t->nsnaps++] = one;
-    }
-    free(rects);
-    hub_frame_unref(f);
-    if (bad)
-        resync_for(c, "out of memory for a snapshot");
 }
 
 static int sub_meets_tile(const net_client *c, int tx, int ty)
@@ -485,6 +456,150 @@ static int sub_meets_tile(const net_client *c, int tx, int ty)
         if (world_rects_overlap(c->subs[i].rect, tile))
             return 1;
     return 0;
+}
+
+static int item_append(budget_tile *t, hub_frame *f, world_rect rect, int piece)
+{
+    if (array_grow((void **)&t->items, &t->items_cap, (int64_t)t->nitems + 1, sizeof *t->items))
+        return -1;
+    t->items[t->nitems++] = (budget_item){f, rect, piece};
+    return 0;
+}
+
+static void item_remove(budget_tile *t, int i)
+{
+    hub_frame_unref(t->items[i].f);
+    memmove(&t->items[i], &t->items[i + 1], (size_t)(t->nitems - i - 1) * sizeof *t->items);
+    t->nitems--;
+}
+
+static int rect_within(world_rect in, world_rect out)
+{
+    return in.x >= out.x && in.y >= out.y && (int64_t)in.x + in.w <= (int64_t)out.x + out.w &&
+           (int64_t)in.y + in.h <= (int64_t)out.y + out.h;
+}
+
+/* Bytes of the summed deltas waiting between pieces in the whole ledger:
+ * what max_pending_bytes bounds (the pieces themselves are at most one per
+ * rectangle of the client's subscriptions, a snapshot's worth, as for any
+ * client; hard_pending_bytes allows for one). */
+static size_t held_delta_bytes(const net_budget *b)
+{
+    size_t n = 0;
+    for (int i = 0; i < b->ntiles; i++)
+        for (int k = 0; k < b->tiles[i].nitems; k++)
+            if (!b->tiles[i].items[k].piece)
+                n += wire_bytes(b->tiles[i].items[k].f->len);
+    return n;
+}
+
+/* A subscribe's or resync's snapshot frame: one frame per rectangle into the
+ * ledger (each tile's piece goes when there is room). A newer piece replaces
+ * a waiting one it covers (everything the older would have set, the newer
+ * sets to a later version), so that repeated subscribes and resyncs of the
+ * same tiles do not pile up. The tile's summed deltas up to the piece's
+ * version (for the client's other subscriptions holding the tile) go ahead
+ * at once when nothing waits for the tile, else into its list, behind what
+ * already waits: a client never sees a delta on a version it has not been
+ * sent. Takes f. 0, or 1 when the deltas waiting in the ledger pass
+ * max_pending_bytes: the caller treats the client as slow (net_fanout.c). */
+int net_budget_snapshot(net_client *c, hub_frame *f)
+{
+    net_budget *b = c->budget;
+    net_state *w = c->srv;
+    int ts = w->cfg.world.tile_size;
+    size_t max = rects_room(f);
+    terrad_rect *rects = malloc(max * sizeof *rects);
+    size_t count = 0;
+    uint64_t tick = 0;
+    int drc = rects ? terrad_delta_decode(f->data, f->len, &tick, rects, max, &count)
+                    : TERRAD_E_NO_MEMORY;
+    int bad = drc != 0, deltas_held = 0;
+    for (size_t i = 0; !bad && i < count; i++) {
+        budget_tile *t = tile_get(b, rects[i].x / ts, rects[i].y / ts);
+        world_rect rect = {rects[i].x, rects[i].y, rects[i].w, rects[i].h};
+        size_t size = terrad_delta_size(&rects[i], 1);
+        hub_frame *one = t ? hub_frame_new(1, size) : NULL;
+        if (!one || terrad_delta_encode(one->data, size, &one->len, tick, &rects[i], 1) != 0) {
+            if (one)
+                hub_frame_unref(one);
+            bad = 1;
+            break;
+        }
+        for (int k = t->nitems - 1; k >= 0; k--)
+            if (t->items[k].piece && rect_within(t->items[k].rect, rect))
+                item_remove(t, k);
+        if (t->acc && t->latest == rects[i].new_version) {
+            hub_frame *d = encode_acc(w, t);
+            if (d && t->nitems == 0) { /* nothing waits: the deltas go ahead */
+                hub_frame_ref(d);
+                net_enqueue(c, d, NET_ITEM_TILE);
+            } else if (d) {
+                hub_frame_ref(d);
+                if (item_append(t, d, (world_rect){0, 0, 0, 0}, 0) != 0) {
+                    hub_frame_unref(d);
+                    bad = 1;
+                }
+                deltas_held = 1;
+            }
+            free(t->acc);
+            t->acc = NULL;
+            t->base = 0;
+            if (t->encoded) {
+                hub_frame_unref(t->encoded);
+                t->encoded = NULL;
+            }
+        }
+        if (bad || item_append(t, one, rect, 1) != 0) {
+            hub_frame_unref(one);
+            bad = 1;
+        }
+    }
+    free(rects);
+    hub_frame_unref(f);
+    if (bad) {
+        char why[96];
+        snprintf(why, sizeof why, "could not take a snapshot frame (%s)",
+                 drc ? terrad_err_name(drc) : "out of memory");
+        resync_for(c, why);
+        return 0;
+    }
+    size_t held = deltas_held ? held_delta_bytes(b) : 0;
+    if (held && c->droppable_bytes + held > w->cfg.limits.max_pending_bytes) {
+        log_info("net: client %u (%s): %zu bytes of deltas wait between snapshot pieces in its "
+                 "budget ledger (limit %zu)",
+                 c->id, c->peer, held, w->cfg.limits.max_pending_bytes);
+        return 1;
+    }
+    return 0;
+}
+
+/* After an unsubscribe: the pieces no remaining subscription would take
+ * (a piece sets a mirror whose part of the tile it covers), and the tiles
+ * none meets, leave the ledger. */
+void net_budget_prune(net_client *c)
+{
+    net_budget *b = c->budget;
+    if (!b)
+        return;
+    int ts = c->srv->cfg.world.tile_size;
+    for (int i = 0; i < b->ntiles; i++) {
+        budget_tile *t = &b->tiles[i];
+        world_rect tile = {t->tx * ts, t->ty * ts, ts, ts};
+        for (int k = t->nitems - 1; k >= 0; k--) {
+            int wanted = !t->items[k].piece;
+            for (int s = 0; !wanted && s < c->sub_count; s++) {
+                world_rect part = world_rect_meet(tile, c->subs[s].rect);
+                wanted = part.w > 0 && part.h > 0 && rect_within(part, t->items[k].rect);
+            }
+            if (!wanted)
+                item_remove(t, k);
+        }
+        if (!sub_meets_tile(c, t->tx, t->ty) || (t->nitems == 0 && !t->acc)) {
+            tile_remove(b, t);
+            i--;
+        }
+    }
 }
 
 typedef struct flush_order {
@@ -501,7 +616,8 @@ static int by_distance(const void *a, const void *b)
 
 /* Sends tile t's ledger entry if the window has room for all of it; 1 when
  * sent. An entry larger than the budget itself could never fit: it goes once
- * the window is empty (an overrun, counted). */
+ * the window is empty (an overrun, counted); an entry holds at most one piece
+ * per rectangle, so that is at most a snapshot of the tile. */
 static int flush_tile(net_client *c, budget_tile *t, double *left)
 {
     const net_budget *b = c->budget;
@@ -509,16 +625,16 @@ static int flush_tile(net_client *c, budget_tile *t, double *left)
     if (t->acc && !d)
         return 0;
     double need = d ? (double)wire_bytes(d->len) : 0;
-    for (int i = 0; i < t->nsnaps; i++)
-        need += (double)wire_bytes(t->snaps[i]->len);
+    for (int i = 0; i < t->nitems; i++)
+        need += (double)wire_bytes(t->items[i].f->len);
     if (need > *left && (b->sum > 0 || need <= b->rate - STATUS_SLACK))
         return 0;
     *left -= need;
-    for (int i = 0; i < t->nsnaps; i++) {
-        net_enqueue(c, t->snaps[i], NET_ITEM_TILE); /* the ledger's reference */
-        t->snaps[i] = NULL;
+    for (int i = 0; i < t->nitems; i++) {
+        net_enqueue(c, t->items[i].f, NET_ITEM_TILE); /* the ledger's reference */
+        t->items[i].f = NULL;
     }
-    t->nsnaps = 0;
+    t->nitems = 0;
     if (d) {
         t->encoded = NULL;
         net_enqueue(c, d, NET_ITEM_TILE);
@@ -547,7 +663,7 @@ void net_budget_flush(net_client *c)
         double wait = d > NEAR_TILES ? (d - NEAR_TILES) * FAR_STEP_MS : 0;
         if (wait > FAR_MAX_MS)
             wait = FAR_MAX_MS;
-        if (t->nsnaps || now - t->since_ms >= wait)
+        if (t->nitems || now - t->since_ms >= wait)
             order[n++] = (flush_order){i, d};
     }
     qsort(order, (size_t)n, sizeof *order, by_distance);

@@ -281,14 +281,17 @@ int net_budget_fits(net_client *c, size_t len);
 /* A tile delta (o: HUB_OUT_TILE_DELTA) for a budgeted client: 0 when the
  * caller queues it as for any client, 1 when the ledger took it. */
 int net_budget_delta(net_client *c, const hub_out *o);
-/* A snapshot frame for a budgeted client: into the ledger (takes f). */
-void net_budget_snapshot(net_client *c, hub_frame *f);
+/* A snapshot frame for a budgeted client: into the ledger (takes f); 1 when
+ * the deltas held between its pieces pass max_pending_bytes (go slow). */
+int net_budget_snapshot(net_client *c, hub_frame *f);
+/* After an unsubscribe: drops the pieces and tiles no subscription takes. */
+void net_budget_prune(net_client *c);
 /* The ledger forgets everything (a resync sends fresh snapshots). */
 void net_budget_reset(net_client *c);
 /* Send what the window has room for, nearest the client's focus first. */
 void net_budget_flush(net_client *c);
 void net_budget_flush_state(net_state *w);
-/* The latest poses of c's colliders: its focus when it set none. */
+/* The latest poses of c's colliders: near them counts as near, whatever its focus. */
 void net_budget_note_poses(net_client *c, const terrad_pose *poses, size_t count);
 /* 1 if tile (tx, ty) of a subscription of c is current for it: every change
  * of it has been queued to it (not in its budget's ledger, no resync or

@@ -195,7 +195,10 @@ void net_dispatch(net_state *w, hub_out *o)
             send_checksum(c, o->frame);
             o->frame = NULL;
         } else if (c && o->frame && c->budget && o->msg == TERRAD_MSG_DELTA) {
-            net_budget_snapshot(c, o->frame); /* pieces go as its window allows */
+            /* pieces go as its window allows; deltas held between them count
+             * against max_pending_bytes like queued ones */
+            if (net_budget_snapshot(c, o->frame))
+                go_slow(c, 0);
             o->frame = NULL;
         } else if (c && o->frame && c->budget && o->msg == TERRAD_MSG_COLLIDERS &&
                    !net_budget_fits(c, o->frame->len)) {

@@ -352,6 +352,7 @@ static void handle_unsubscribe(net_client *c, const net_control *m)
     }
     c->sub_cells -= (int64_t)c->subs[i].rect.w * c->subs[i].rect.h;
     c->subs[i] = c->subs[--c->sub_count];
+    net_budget_prune(c); /* its snapshot pieces not sent yet go with it */
     cJSON *rep = reply("unsubscribed", m->ref);
     cJSON_AddNumberToObject(rep, "id", (double)m->id);
     net_send_json(c, rep);
@@ -623,7 +624,7 @@ static void handle_pose_batch(net_client *c, const unsigned char *data, size_t l
         /* every accepted batch, empty ones too, is acknowledged by the next tick;
          * its poses and its sequence reach the tick together (hub_set_batch) */
         int stored = hub_set_batch(s->hub, c->id, seq, hp, (int)count);
-        net_budget_note_poses(c, s->poses, count); /* its focus, unless it set one */
+        net_budget_note_poses(c, s->poses, count); /* near its focus too (tile_distance) */
         if (stored < (int)count)
             net_error(c, TERRAD_E_INTERNAL, ref, hp[stored].collider, 0,
                       "the pose table is full: pose of collider %u dropped", hp[stored].collider);

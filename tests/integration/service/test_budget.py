@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 420
+# ctest-timeout: 600
 """A bandwidth budget per player (issue 32 item 1; PROTOCOL.md "Budgets"), on
 the real daemon over loopback with a driver client cratering a 512 × 256
 window of its default world (edits: deterministic, and the terrain is settled
@@ -19,10 +19,26 @@ the moment they stop):
   coalesced;
 - far regions arrive later, but once the edits stop the budgeted mirror
   becomes equal to GET /v1/heights (generous deadline);
-- a `focus` outside the world is refused naming `x`; a valid one is taken.
+- a `focus` outside the world is refused naming `x`; a valid one is taken;
+- a budgeted client asking for base snapshots (PROTOCOL.md "Base snapshots")
+  of the whole untouched world gets a complete mirror equal to
+  GET /v1/heights: its pieces of untouched tiles are a few dozen bytes each,
+  and a snapshot frame of many of them must still be taken into the ledger;
+- (a second daemon, max_pending_bytes 65,536) a client with the smallest
+  budget, 1024 bytes/s, holding a 128 × 128 subscription, subscribes to the
+  same window again and unsubscribes 150 times, 40 ms apart: a newer snapshot
+  piece replaces the waiting one and an unsubscribe drops its pieces, so
+  what the daemon holds for it stays bounded: its fullest second (the
+  daemon's line when it leaves) is within max_pending_bytes, and its mirror
+  ends equal to GET /v1/heights.
 
 Without the budget (the change undone) the over-limit hello is accepted and
 the budgeted watcher receives what the unbudgeted one does, past its bound.
+Sizing the ledger's decode by 39 bytes a rectangle (the old guess) fails the
+base-snapshot client's frames (TOO_LARGE): it is resynced again and again and
+its mirror never completes. Without replacing waiting pieces every subscribe
+adds a snapshot's worth to the ledger, sent a tile's pile at a time: the
+fullest second held megabytes.
 """
 import asyncio
 import json
@@ -102,8 +118,68 @@ async def dig(driver, stop_at, rng):
     return sent
 
 
+async def wait_exact(c, sid, want, seconds):
+    """Whether c's mirror sid becomes complete and equal to want within seconds."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        m = c.mirrors.get(sid)
+        if m is not None and m.complete and list(m.heights) == want:
+            return True
+        await asyncio.sleep(0.25)
+    return False
+
+
+async def base_join(d):
+    c = tp.TerradClient(d.ws, name="base-budgeted", budget=BUDGET, base_snapshots=True)
+    world = await c.connect()
+    check(world.get("snapshot_base") is True, f"base snapshots agreed ({world.get('snapshot_base')})")
+    rect = (0, 0, world["width"], world["height"])
+    sid = await c.subscribe(*rect)
+    ok = await wait_exact(c, sid, d.heights(*rect)[1], 90)
+    check(ok, f"a budgeted base-snapshot client's mirror of the whole untouched world "
+          f"{rect[2]} x {rect[3]} is complete and equals GET /v1/heights")
+    await c.close()
+
+
+async def fullest_second(d, budget):
+    """The daemon's line for a budgeted client that left: its fullest second, bytes."""
+    end = time.monotonic() + 30
+    while time.monotonic() < end:
+        for line in d.lines:
+            m = re.search(rf"budget {budget} bytes/s, \d+ bytes sent, the fullest second held "
+                          rf"(\d+)", line)
+            if m:
+                return int(m.group(1))
+        await asyncio.sleep(0.2)
+    return None
+
+
+PENDING = 65536
+
+
+async def pile_up(d):
+    c = tp.TerradClient(d.ws, name="pile", budget=1024)
+    world = await c.connect()
+    rect = (0, 0, min(128, world["width"]), min(128, world["height"]))
+    keep = await c.subscribe(*rect)
+    for _ in range(150):
+        sid = await c.subscribe(*rect)
+        await asyncio.sleep(0.04)
+        await c.unsubscribe(sid)
+    ok = await wait_exact(c, keep, d.heights(*rect)[1], 120)
+    check(ok, "after 150 subscribe/unsubscribe rounds under a 1024 bytes/s budget the kept "
+          "subscription's mirror equals GET /v1/heights")
+    await c.close()
+    peak = await fullest_second(d, 1024)
+    print(f"pile-up: the fullest second held {peak} bytes", flush=True)
+    check(peak is not None and peak <= PENDING,
+          f"the daemon held what it owed the client within max_pending_bytes: its fullest "
+          f"second {peak} bytes (max_pending_bytes {PENDING})")
+
+
 async def main(d):
     await refusals(d)
+    await base_join(d)
     rng = random.Random(32)
     driver = tp.TerradClient(d.ws, name="driver")
     await driver.connect()
@@ -153,14 +229,7 @@ async def main(d):
     # settled: the budgeted mirror converges to the server's heights
     _, server = d.heights(*REGION)
     check(d.heights(*REGION)[1] == server, "the terrain is settled after the last edit")
-    deadline = time.monotonic() + 180
-    same = False
-    while time.monotonic() < deadline:
-        m = budgeted.mirrors.get(sid_b)
-        if m is not None and m.complete and list(m.heights) == server:
-            same = True
-            break
-        await asyncio.sleep(0.25)
+    same = await wait_exact(budgeted, sid_b, server, 180)
     print(f"budgeted mirror exact {time.monotonic() - dig_end:.1f} s after the last edit "
           f"(tick {last['tick']})", flush=True)
     check(same, "the budgeted watcher's mirror equals GET /v1/heights once the edits stop")
@@ -175,15 +244,7 @@ async def main(d):
     for c in (budgeted, free, driver):
         await c.close()
     # the daemon's own line for the budgeted client: its fullest second
-    end = time.monotonic() + 30
-    peak = None
-    while peak is None and time.monotonic() < end:
-        for line in d.lines:
-            m = re.search(r"budget 20000 bytes/s, \d+ bytes sent, the fullest second held (\d+)",
-                          line)
-            if m:
-                peak = int(m.group(1))
-        await asyncio.sleep(0.2)
+    peak = await fullest_second(d, BUDGET)
     check(peak is not None and 0 < peak <= BUDGET,
           f"the daemon's accounting: the budgeted client's fullest second held {peak} bytes "
           f"(budget {BUDGET})")
@@ -198,6 +259,9 @@ def run():
         return
     with check.running(d):
         asyncio.run(asyncio.wait_for(main(d), 360))
+    config["limits"]["max_pending_bytes"] = PENDING
+    with check.running(Daemon(config=config)) as d2:
+        asyncio.run(asyncio.wait_for(pile_up(d2), 300))
     check.finish()
 
 
