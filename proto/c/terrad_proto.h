@@ -146,8 +146,8 @@ int terrad_pose_batch_decode(const uint8_t *buf, size_t len, uint32_t *seq_out, 
 typedef enum terrad_encoding {
     TERRAD_ENC_DELTA = 0,    /* new - old, zigzag, packed, zstd */
     TERRAD_ENC_SNAPSHOT = 1, /* absolute heights, zigzag, packed, zstd */
-    /* heights less the scene's base terrain, predicted, zigzag, varints, zstd
-     * (PROTOCOL.md "Base snapshots"): only to a client whose hello asked */
+    /* heights less the scene's base terrain, predicted, zigzag, range-coded,
+     * no zstd (PROTOCOL.md "Base snapshots"): only to a client whose hello asked */
     TERRAD_ENC_BASE = 2,
 } terrad_encoding;
 

@@ -47,6 +47,22 @@ void app_wheel_usage(FILE *out);
  * failure nothing is held. */
 int app_open_scene_world(const char *scene_path, scene *sc, world *w, error_text *err);
 
+/* The frame of the commands that read a data directory offline (export,
+ * fsck): the scene at scene_path and its world (app_open_scene_world), run
+ * on that world, then both freed. Returns run's exit status, or 1 when the
+ * scene or its world cannot be made (logged). */
+typedef int (*app_world_run)(void *ctx, world *w);
+int app_offline_world(const char *scene_path, app_world_run run, void *ctx);
+
+/* The --scene row of every command that reads a data directory offline
+ * (export, fsck): a directory holds the world as changes over its scene's
+ * base terrain, so it must be opened with the scene the daemon ran (the
+ * path goes to app_open_scene_world). One row, so the commands say it alike. */
+#define APP_OPTION_SCENE_RAN                                                                       \
+    {                                                                                              \
+        "scene", "FILE", "the scene the daemon ran (default: the embedded scene)"                  \
+    }
+
 /* A soil given on the command line (option names it in messages): a preset
  * of docs/models.md (compression 0.5), else a material JSON file of the
  * bekker model, as `terrad calibrate --out` writes it (its soil and its

@@ -49,7 +49,7 @@ enum { OPT_DATA, OPT_SCENE, OPT_OUT, OPT_FORMAT, OPT_REGION, OPT_TICK };
 
 static const cli_option export_table[] = {
     [OPT_DATA] = {"data", "DIR", "data directory (default ./data); read only, never repaired"},
-    [OPT_SCENE] = {"scene", "FILE", "the scene the daemon ran (default: the embedded scene)"},
+    [OPT_SCENE] = APP_OPTION_SCENE_RAN,
     [OPT_OUT] = {"out", "FILE", "output file (required)"},
     [OPT_FORMAT] = {"format", "F",
                     "int32 (little-endian, row-major, as GET /v1/heights; default;\n"
@@ -183,6 +183,19 @@ static int export_region(const export_options *o, const world *w, const store_re
     return rc;
 }
 
+/* The world as the directory holds it up to the tick asked for, then the region out. */
+static int export_run(void *ctx, world *w)
+{
+    const export_options *o = ctx;
+    error_text err = {{0}};
+    store_recovery rec;
+    if (store_load_readonly(o->data, w, (uint64_t)o->upto_tick, &rec, &err) != 0) {
+        log_error("%s", err.message);
+        return 1;
+    }
+    return export_region(o, w, &rec) == 0 ? 0 : 1;
+}
+
 int app_export(int argc, char **argv)
 {
     export_options o = {.data = "./data", .format = "int32"};
@@ -200,20 +213,5 @@ int app_export(int argc, char **argv)
         fprintf(stderr, "terrad export: --format must be int32 or png16 (got %s)\n", o.format);
         return 2;
     }
-    error_text err = {{0}};
-    scene sc;
-    world w;
-    if (app_open_scene_world(o.scene_path, &sc, &w, &err) != 0) {
-        log_error("%s", err.message);
-        return 1;
-    }
-    int rc = 1;
-    store_recovery rec;
-    if (store_load_readonly(o.data, &w, (uint64_t)o.upto_tick, &rec, &err) != 0)
-        log_error("%s", err.message);
-    else if (export_region(&o, &w, &rec) == 0)
-        rc = 0;
-    world_free(&w);
-    scene_free(&sc);
-    return rc;
+    return app_offline_world(o.scene_path, export_run, &o);
 }

@@ -22,7 +22,7 @@ enum { OPT_DATA, OPT_SCENE };
 
 static const cli_option fsck_table[] = {
     [OPT_DATA] = {"data", "DIR", "data directory to check (default ./data); never changed"},
-    [OPT_SCENE] = {"scene", "FILE", "the scene the daemon ran (default: the embedded scene)"},
+    [OPT_SCENE] = APP_OPTION_SCENE_RAN,
     {0},
 };
 
@@ -46,6 +46,24 @@ static int fsck_on_option(void *ctx, int index, const char *v, error_text *err)
     return 0;
 }
 
+/* Every damage the directory has, logged; 0 clean, 1 damaged. */
+static int fsck_run(void *ctx, world *w)
+{
+    const fsck_options *o = ctx;
+    error_text err = {{0}};
+    store_recovery rec;
+    int rc = store_fsck(o->data, w, &rec, &err);
+    if (rc == 0)
+        log_info("fsck: %s is clean: tick %llu from %d tile snapshots and %lld log records%s",
+                 o->data, (unsigned long long)rec.tick, rec.tiles_loaded,
+                 (long long)rec.records_replayed,
+                 rec.bytes_cut ? " (a torn tail, which a start cuts)" : "");
+    else
+        log_error("fsck: %s is damaged (%d problems); first: %s", o->data,
+                  rec.damage > 0 ? rec.damage : 1, err.message);
+    return rc == 0 ? 0 : 1;
+}
+
 int app_fsck(int argc, char **argv)
 {
     fsck_options o = {.data = "./data"};
@@ -53,24 +71,5 @@ int app_fsck(int argc, char **argv)
         cli_parse("fsck", fsck_usage, fsck_table, argc, argv, fsck_on_option, &o, NULL);
     if (parsed != CLI_OK)
         return parsed == CLI_HELP ? 0 : 2;
-    error_text err = {{0}};
-    scene sc;
-    world w;
-    if (app_open_scene_world(o.scene_path, &sc, &w, &err) != 0) {
-        log_error("%s", err.message);
-        return 1;
-    }
-    store_recovery rec;
-    int rc = store_fsck(o.data, &w, &rec, &err);
-    if (rc == 0)
-        log_info("fsck: %s is clean: tick %llu from %d tile snapshots and %lld log records%s",
-                 o.data, (unsigned long long)rec.tick, rec.tiles_loaded,
-                 (long long)rec.records_replayed,
-                 rec.bytes_cut ? " (a torn tail, which a start cuts)" : "");
-    else
-        log_error("fsck: %s is damaged (%d problems); first: %s", o.data,
-                  rec.damage > 0 ? rec.damage : 1, err.message);
-    world_free(&w);
-    scene_free(&sc);
-    return rc == 0 ? 0 : 1;
+    return app_offline_world(o.scene_path, fsck_run, &o);
 }

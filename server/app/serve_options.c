@@ -195,8 +195,8 @@ static int config_public_ws_url(const cJSON *doc, serve_options *o, error_text *
     return r < 0 ? -1 : 0;
 }
 
-/* "limits": PROTOCOL.md's names, each a positive number (net_limit_table,
- * net/net_limits.c, says which and where each goes). */
+/* "limits": PROTOCOL.md's names, each a positive number, at least its row's
+ * min (net_limit_table, net/net_limits.c, says which and where each goes). */
 static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
 {
     const char *keys[64];
@@ -218,6 +218,10 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                     : 0;
         if (r < 0)
             return -1;
+        if (r > 0 && v < t->min) { /* a budget under hello's smallest (net_limits.c) */
+            error_set(err, "limits.%s: must be at least %g (got %g)", t->name, t->min, v);
+            return -1;
+        }
         if (r > 0)
             net_limit_set(&o->limits, t, v);
     }

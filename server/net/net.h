@@ -64,7 +64,7 @@ typedef struct net_limits {
 /* Every limit once (net_limits.c): name, field, default, where it may be set
  * or is told, and what it bounds. The table ends with a row whose name is NULL. */
 typedef enum { NET_LIMIT_INT, NET_LIMIT_INT64, NET_LIMIT_SIZE, NET_LIMIT_DOUBLE } net_limit_kind;
-#define NET_LIMIT_CONFIG 1 /* --config's "limits" may set it (a number in (0, 1e12]) */
+#define NET_LIMIT_CONFIG 1 /* --config's "limits" may set it (a number in (0, 1e12], >= min) */
 #define NET_LIMIT_TOLD 2   /* the world message's "limits" tells clients its value */
 typedef struct net_limit_spec {
     const char *name; /* PROTOCOL.md's, the config's and the world message's */
@@ -73,7 +73,9 @@ typedef struct net_limit_spec {
     double def; /* net_limits_default's */
     int flags;
     const char *help;
+    double min; /* the config's smallest value (0: any > 0) */
 } net_limit_spec;
+#define NET_BUDGET_MIN 1024 /* bytes/s: the smallest budget a hello or a config may state */
 extern const net_limit_spec net_limit_table[];
 double net_limit_get(const net_limits *l, const net_limit_spec *s);
 /* v as the field's type (an int field at most INT_MAX). */

@@ -23,8 +23,7 @@
 #define NET_REF_MAX_BYTES 64
 #define NET_TOKEN_MAX_BYTES 256
 #define NET_CLIENT_NAME_MAX_BYTES 64
-#define NET_LOAD_MAX_N 1e9  /* a load-driven collider's load_n */
-#define NET_BUDGET_MIN 1024 /* bytes/s: the smallest budget a hello may state */
+#define NET_LOAD_MAX_N 1e9 /* a load-driven collider's load_n */
 
 typedef enum net_control_kind {
     NET_CONTROL_NONE, /* no request type could be read, or an unknown one */
@@ -50,7 +49,8 @@ typedef struct net_control_context {
     const net_limits *limits;
     const cJSON *materials; /* world.materials: a JSON array of strings */
     int world_width, world_height;
-    int loads; /* net_world_info.loads */
+    int tile_size; /* cells per tile side: bounds resync's tiles (0: by cells alone) */
+    int loads;     /* net_world_info.loads */
 } net_control_context;
 
 typedef struct net_control {

@@ -4,10 +4,10 @@
  * message's), its field of net_limits, its default, whether a config may set
  * it and whether clients are told it, and what it bounds. net_limits_default,
  * the world message's "limits" (net_requests.c), the config's "limits"
- * (serve_options.c: a number in (0, 1e12]) and serve --help's limits section
- * are all made from this table, so a new limit is one row here. The limits
- * themselves are enforced where each is used (net/, service/, http/); none of
- * this runs in a tick.
+ * (serve_options.c: a number in (0, 1e12], at least the row's min) and serve
+ * --help's limits section are all made from this table, so a new limit is
+ * one row here. The limits themselves are enforced where each is used (net/,
+ * service/, http/); none of this runs in a tick.
  */
 #include <limits.h>
 #include <stddef.h>
@@ -17,7 +17,12 @@
 
 #define ROW(name, kind, def, flags, help)                                                          \
     {                                                                                              \
-#name, offsetof(net_limits, name), kind, def, flags, help                                  \
+#name, offsetof(net_limits, name), kind, def, flags, help, 0                               \
+    }
+/* A row whose config value may not be under min (the budgets: hello's NET_BUDGET_MIN). */
+#define ROW_MIN(name, kind, def, min, flags, help)                                                 \
+    {                                                                                              \
+#name, offsetof(net_limits, name), kind, def, flags, help, min                             \
     }
 
 const net_limit_spec net_limit_table[] = {
@@ -61,10 +66,12 @@ const net_limit_spec net_limit_table[] = {
         "ticks between a subscription's CHECKSUM frames (0.5 s at 60 Hz)"),
     ROW(max_resync_tiles, NET_LIMIT_INT, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "tiles one resync request may name (a 512 x 512 window's)"),
-    ROW(default_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "a client's bandwidth budget when its hello states none (0: none)"),
-    ROW(max_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "the largest budget a hello may state (0: any, and none)"),
+    ROW_MIN(default_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_BUDGET_MIN,
+            NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+            "a client's bandwidth budget when its hello states none (0: none; else >= 1024)"),
+    ROW_MIN(max_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_BUDGET_MIN,
+            NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+            "the largest budget a hello may state (0: any, and none; else >= 1024)"),
     /* the server's own */
     ROW(max_connections, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG,
         "websocket connections in all (0: from RLIMIT_NOFILE)"),
@@ -122,7 +129,10 @@ net_limits net_limits_default(void)
 
 void net_limits_usage(FILE *out)
 {
-    fprintf(out, "limits (--config's \"limits\": each a number > 0; PROTOCOL.md \"Limits\"):\n");
+    fprintf(out,
+            "limits (--config's \"limits\": each a number > 0, a budget >= %d; PROTOCOL.md "
+            "\"Limits\"):\n",
+            NET_BUDGET_MIN);
     for (const net_limit_spec *s = net_limit_table; s->name; s++)
         if (s->flags & NET_LIMIT_CONFIG)
             fprintf(out, "  %-30s %-10.15g %s\n", s->name, s->def, s->help);

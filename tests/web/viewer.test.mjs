@@ -163,7 +163,7 @@ test('a collider driven through the page leaves a trail, and the heights match b
   await until('the lift on the server', () => page.evaluate((z) => {
     const o = window.terrad.collider, c = window.terrad.colliders.find((k) => k.id === o.id);
     return c && c.p[2] > z + 0.5; // lifted 1 m above the ground, not sunk into it
-  }, zDriven), 30000);
+  }, zDriven), 120000);
   await assertMirrorsServer(daemon.ports.http);
   const drawn = await page.evaluate(() => window.terrad.framesDrawn);
   await until('the trail drawn', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, drawn), 120000);
@@ -224,7 +224,7 @@ test('a trail dug before the page loaded is coloured: the page compares with the
   try {
     await late.goto(`http://127.0.0.1:${daemon.ports.http}/?budget=0&ws=${daemon.ports.ws}`);
     await until('the late page live, with the base terrain', () => late.evaluate(() => window.terrad &&
-      window.terrad.state === 'live' && window.terrad.baseFromServer && window.terrad.framesDrawn > 3), 30000);
+      window.terrad.state === 'live' && window.terrad.baseFromServer && window.terrad.framesDrawn > 3), 120000);
     const frames = await late.evaluate(() => window.terrad.framesDrawn);
     await late.evaluate(([x, y]) => window.terrad.setCamera({ target: [x, y], yaw: -Math.PI / 2, pitch: 1.1, dist: 4.5 }),
       [trail.x + trail.len / 2 - 0.9, trail.y + 0.5]); // the trail right of and below the overlay
@@ -277,7 +277,7 @@ test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the ow
   try {
     const id = await other.id;
     const got = await until('the other sphere in a COLLIDERS frame',
-      () => page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), id), 30000);
+      () => page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), id), 120000);
     assert.equal(got.owner, 1, 'owner: other');
     assert.equal(got.kind, 0, 'kind: sphere');
     assert.ok(Math.abs(got.dims[0] - radius) < 1e-6 && Math.abs(got.p[0] - x) < 1e-3 && Math.abs(got.p[1] - y) < 1e-3 &&
@@ -293,7 +293,7 @@ test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the ow
     assert.ok(b > r + 40 && b > 60, `the sphere is drawn in blue at ${px.toFixed(0)},${py.toFixed(0)}: rgb ${r},${g},${b}`);
     other.kill();
     await until('the other sphere gone after its client left',
-      async () => !(await page.evaluate((id) => window.terrad.colliders.some((c) => c.id === id), id)), 30000);
+      async () => !(await page.evaluate((id) => window.terrad.colliders.some((c) => c.id === id), id)), 120000);
   } finally {
     other.kill();
   }
@@ -319,7 +319,7 @@ test('drive mode: dragging steers the collider to the terrain point under the po
   await until('the collider at the goal', async () => {
     const c = await page.evaluate(() => window.terrad.collider);
     return Math.hypot(c.x - goal[0], c.y - goal[1]) < 0.1;
-  }, 40000);
+  }, 120000);
   const cam = await page.evaluate(() => window.terrad.camera);
   assert.ok(cam.yaw === yaw0 && cam.pitch === pitch0, 'a steering drag does not orbit the camera');
   await page.mouse.up();
@@ -353,7 +353,7 @@ test('the keys drive the page\'s collider at real-time speed whatever the frame 
     const k1 = await page.evaluate(() => window.terrad.keyClock.s);
     await sleep(300);
     return k1 === await page.evaluate(() => window.terrad.keyClock.s);
-  }, 30000);
+  }, 120000);
   const b = await page.evaluate(before);
   await page.evaluate(() => window.terrad.lift());
   const driven = b.k.s - a.k.s, dx = b.c.x - a.c.x, dy = b.c.y - a.c.y, moved = Math.hypot(dx, dy), want = 1.5 * driven;
@@ -453,7 +453,7 @@ test('a daemon restarted under the page: outage shown, reconnect, resync', { ski
   await until('the outage shown', async () => {
     const s = await page.evaluate(() => ({ c: window.terrad.connected, t: document.getElementById('o-state').textContent }));
     return !s.c && /reconnecting/.test(s.t);
-  }, 10000);
+  }, 120000);
   await sleep(500);
   daemon = await until('the daemon on the same ports', async () => {
     try {
@@ -461,7 +461,7 @@ test('a daemon restarted under the page: outage shown, reconnect, resync', { ski
     } catch (e) {
       return null;
     }
-  }, 20000, 500);
+  }, 120000, 500);
   await until('reconnected', () => page.evaluate(() => window.terrad.connected && window.terrad.state === 'live'), 120000);
   await assertMirrorsServer(daemon.ports.http);
   // The page's collider is a server collider again (this daemon has no demo actors).
@@ -469,5 +469,5 @@ test('a daemon restarted under the page: outage shown, reconnect, resync', { ski
     const c = await page.evaluate(() => window.terrad.collider);
     const stats = await (await fetch(`http://127.0.0.1:${daemon.ports.http}/v1/stats`)).json();
     return c && c.id > 0 && stats.colliders >= 1;
-  }, 15000);
+  }, 120000);
 });

@@ -10,8 +10,8 @@ config's "limits" keys, the world message's "limits" and `terrad serve
 - a config that sets every limit --help lists (each to a value unlike its
   default) starts, the world message reports each value it tells, and HTTP
   holds to its own (max_heights_bytes_per_address);
-- an unknown limit and a value that is not a positive number are refused at
-  start, naming the key.
+- an unknown limit, a value that is not a positive number and a budget under
+  hello's smallest (1024 bytes/s) are refused at start, naming the key.
 """
 # ctest-timeout: 180
 import asyncio
@@ -92,7 +92,9 @@ def main():
                   f"{name}: --help's default {default:g} is PROTOCOL.md's {spec[name]:g}")
 
     # every settable limit, set to a value unlike its default (and harmless)
-    wanted = {name: (default * 2 if default else 1000) for name, default in settable.items()}
+    # (a budget is at least 1024 bytes/s, as hello's: 2048)
+    wanted = {name: (default * 2 if default else 2048 if "budget" in name else 1000)
+              for name, default in settable.items()}
     d = Daemon(config={"limits": wanted}, extra=("--no-data",), name="terrad-limits")
     with check.running(d):
         told = asyncio.run(told_limits(d))
@@ -113,6 +115,10 @@ def main():
     refused(check, {"max_bogus_cells": 5}, "max_bogus_cells", "an unknown limit")
     refused(check, {"max_colliders": -3}, "max_colliders", "a negative limit")
     refused(check, {"max_tick_cells": "lots"}, "max_tick_cells", "a limit that is not a number")
+    refused(check, {"max_budget_bytes_per_s": 1000}, "max_budget_bytes_per_s",
+            "a budget under 1024 bytes/s")
+    refused(check, {"default_budget_bytes_per_s": 1023.5}, "default_budget_bytes_per_s",
+            "a default budget under 1024 bytes/s")
     check.finish()
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# ctest-timeout: 2400 (generous: 7 min on a loaded 2-core machine, a deadline, not a speed)
+# ctest-timeout: 1500 (generous: 7-12 min on a loaded 2-core machine; a deadline, not a speed)
 # The browser viewer (web/) in real headless Chromium, driven by npm's playwright-core,
 # against the real daemon: tests/web/*.test.mjs under node's test runner.
 # Skips (77) without /usr/bin/chromium, node or node_modules/playwright-core (make web-deps), or
