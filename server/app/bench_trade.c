@@ -15,9 +15,10 @@
  * Out: DIR/trade.csv (one row per run configuration) and DIR/trade.txt (the
  * table and the summary also printed). With the bekker model in the sweep,
  * its physical axis too (trade_physical.c): DIR/trade-physical.csv, each
- * configuration's cost and error against Ding 2011's measured single wheel. The plot (cost against
- * error with each scene's Pareto front) is drawn from the CSV by scripts/trade-plot (matplotlib);
- * `make bench` runs it.
+ * configuration's cost and error against Ding 2011's measured single wheel,
+ * smooth and lugged. The plot (cost against error with each scene's Pareto
+ * front) is drawn from the CSV by scripts/trade-plot (matplotlib); `make
+ * bench` runs it.
  */
 #include <errno.h>
 #include <math.h>

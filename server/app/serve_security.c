@@ -94,9 +94,7 @@ http_server *serve_http_open(const serve_options *o, auth_table *auth, http_stat
                                 ? hl.connections
                                 : HTTP_DEFAULT_CONNECTIONS_PER_IP;
     *fd_reserve = SERVE_FD_STORE + (int)hl.connections;
-    http_security sec = {.auth = auth, .tls_cert = o->tls_cert, .tls_key = o->tls_key};
-    http_server *s = http_server_start_secure(o->http_port, o->bind_any, status, &hl, &sec, err);
-    if (s)
-        http_server_set_worlds(s, worlds);
-    return s;
+    http_security sec = {
+        .auth = auth, .tls_cert = o->tls_cert, .tls_key = o->tls_key, .worlds = worlds};
+    return http_server_start_secure(o->http_port, o->bind_any, status, &hl, &sec, err);
 }

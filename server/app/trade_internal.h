@@ -103,8 +103,9 @@ typedef struct trade_row {
 
 /* ---- The physical axis (trade_physical.c) ---- */
 
-/* One configuration of the bekker model on Ding 2011's smooth wheel. */
+/* One configuration of the bekker model on one of Ding 2011's wheels. */
 typedef struct trade_physical_row {
+    int lugged; /* 0: the smooth wheel, 1: the lugged (30 lugs, 10 mm) */
     double cell_m, tick_mm;
     long ticks;
     double tick_ms_mean; /* wall, mean over the slips */
@@ -113,8 +114,9 @@ typedef struct trade_physical_row {
     double pull_error, sinkage_error, torque_error; /* median relative, against Ding */
     double pull_rms_vs_finest_n, sinkage_rms_vs_finest_m;
 } trade_physical_row;
-#define TRADE_PHYSICAL_MAX 9
-/* Every configuration (quick: two), the finest last; 0 or -1 with err. */
+#define TRADE_PHYSICAL_MAX 18
+/* Every configuration (quick: two) of the smooth wheel, then the same of the
+ * lugged, each wheel's finest last; 0 or -1 with err. */
 int trade_physical_run(int quick, trade_physical_row *rows, int *count, error_text *err);
 /* DIR/trade-physical.csv: 0, or -1 (errno) */
 int trade_physical_write_csv(const char *path, const trade_physical_row *rows, int count);

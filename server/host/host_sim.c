@@ -221,17 +221,21 @@ int host_sim_step(host_sim *m, long tick, int clients, error_text *err)
     }
     if (m->sc.client_clock) {
         atomic_fetch_add(&m->clock_ran, 1);
+    } else if (stats.tick_ms > 1000.0 / m->sc.tick_hz) {
+        m->overruns++; /* a client-clocked tick has no period to overrun */
+        metrics_count_tick_overrun();
+    }
+    /* published before a step's STEPPED can go out (the wait below): a driver
+     * that reads /v1/stats or /v1/worlds once it has STEPPED sees that tick */
+    publish_status(m, stats.tick_ms, clients, stats.colliders);
+    publish_metrics(m, &stats);
+    if (m->sc.client_clock) {
         /* the step's last tick: its frames (STEPPED last) go out once durable,
          * and no later tick may come to publish them (a group commit's wait) */
         for (int i = 0; i < 30000 && service_step_remaining(m->svc) == 0 && !service_settle(m->svc);
              i++)
             host_sleep_ms(1);
-    } else if (stats.tick_ms > 1000.0 / m->sc.tick_hz) {
-        m->overruns++; /* a client-clocked tick has no period to overrun */
-        metrics_count_tick_overrun();
     }
-    publish_status(m, stats.tick_ms, clients, stats.colliders);
-    publish_metrics(m, &stats);
     return 0;
 }
 

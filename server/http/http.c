@@ -569,6 +569,7 @@ http_server *http_server_start_secure(int port, int bind_any, http_status *statu
     }
     s->status = status;
     s->auth = sec ? sec->auth : NULL;
+    s->worlds = sec ? sec->worlds : NULL; /* read by the HTTP threads from their start */
     if (http_tls_load(&s->tls, sec, err) != 0) {
         free(s);
         return NULL;

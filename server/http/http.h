@@ -122,18 +122,22 @@ typedef struct http_server http_server;
 /* Listen on 127.0.0.1 unless bind_any; port 0 picks a free one. status is
  * the server's readiness (/readyz; a single daemon's default world's) and
  * must outlive the server; the worlds it serves are in the table of worlds
- * (http_server_set_worlds; none: /v1/world, /v1/stats, /v1/heights are 503).
+ * (http_security.worlds; none: /v1/world, /v1/stats, /v1/heights are 503).
  * Uses the default limits. */
 http_server *http_server_start(int port, int bind_any, http_status *status, error_text *err);
 /* The same with explicit limits (NULL = defaults). */
 http_server *http_server_start_limited(int port, int bind_any, http_status *status,
                                        const http_limits *limits, error_text *err);
-/* Who may read and how the bytes travel; all fields optional. */
+/* Who may read, how the bytes travel and what is served; all fields optional. */
 typedef struct http_security {
     auth_table *auth;               /* NULL or not enabled: no token needed; outlives the server */
     const char *tls_cert, *tls_key; /* both: HTTPS only (checked with tls_check_pair first) */
+    /* the daemon's one table of worlds (below), outlives the server: given
+     * here, before the first request, because the HTTP threads read it
+     * unlocked from their start */
+    hub_worlds *worlds;
 } http_security;
-/* The same with a token gate and TLS (sec NULL: neither). */
+/* The same with a token gate, TLS and the table of worlds (sec NULL: none). */
 http_server *http_server_start_secure(int port, int bind_any, http_status *status,
                                       const http_limits *limits, const http_security *sec,
                                       error_text *err);
@@ -159,11 +163,11 @@ http_server *http_probe_start(http_server *main, int port, error_text *err);
  * /v1/worlds/NAME/edits read the daemon's one table of worlds (hub.h,
  * hub_worlds: each world's host adds it there once, for the HTTP and the
  * websocket port alike, with its status, hub and base terrain, which
- * /v1/heights?base=1 serves; set before the port serves). 404 names the
+ * /v1/heights?base=1 serves; http_security.worlds, so set before the port
+ * serves). 404 names the
  * worlds served when NAME is not one of them; 503 while the default is
  * none. http_server_host_worlds: a cluster node (its 404s and 503s say so);
  * /readyz and /healthz stay the server's (status and the watches). */
-void http_server_set_worlds(http_server *s, hub_worlds *t);
 void http_server_host_worlds(http_server *s);
 /* Any node serves any world (http_views.c): a request for a world this node
  * does not serve goes, as bytes, to forward, which carries it to the world's
@@ -187,7 +191,7 @@ int http_server_answer(http_server *s, const char *world, const void *request, s
  * DELETE /v1/worlds/{name}[?keep=1] (admin) call these on an HTTP thread;
  * each returns the HTTP status and sets *json to the answer's body
  * (malloc'd JSON; NULL: out of memory). The daemon adds each created world
- * to the table of worlds (http_server_set_worlds, without
+ * to the table of worlds (http_security.worlds, without
  * http_server_host_worlds): /v1/world, /v1/stats and /v1/heights with
  * ?world=NAME and /v1/worlds/NAME/edits then reach it, while requests
  * naming no world (or the default scene's name) stay the default world's. */

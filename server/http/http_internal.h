@@ -123,7 +123,7 @@ struct http_server {
     int hosts_worlds;
     pthread_mutex_t worlds_lock;
     pthread_cond_t worlds_cond; /* forward_calls ended */
-    hub_worlds *worlds;         /* the daemon's one table of worlds (http_server_set_worlds) */
+    hub_worlds *worlds;         /* the daemon's one table of worlds (http_security.worlds) */
     auth_table *auth;           /* the data endpoints' gate (http_auth.c) */
     http_tls tls;
     http_server *main; /* a probe listener: the server whose status and watches it reports */

@@ -19,11 +19,6 @@ void http_server_host_worlds(http_server *s)
     pthread_mutex_unlock(&s->worlds_lock);
 }
 
-void http_server_set_worlds(http_server *s, hub_worlds *t)
-{
-    s->worlds = t;
-}
-
 hub_world *http_world_acquire(http_server *s, const char *name, unsigned *code, char *why,
                               size_t cap)
 {

@@ -44,7 +44,7 @@ struct hub_worlds {
     slot *in[HUB_WORLDS_MAX]; /* in the order added */
     int n;
     slot *leaving[HUB_WORLDS_MAX]; /* removed, still held */
-    int nleaving;
+    int nleaving;                  /* n + nleaving <= HUB_WORLDS_MAX (hub_worlds_add) */
     atomic_uint generation;
     char default_name[HUB_WORLD_NAME_MAX + 1]; /* "": the first entry is the default */
     void (*changed)(void *ctx);
@@ -113,7 +113,10 @@ hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err)
     s->w = *w;
     s->w.deleted = 0;
     pthread_mutex_lock(&t->lock);
-    int full = t->n >= HUB_WORLDS_MAX;
+    /* an entry still leaving counts: removal moves an entry from in[] to
+     * leaving[], so leaving[] never overflows (an entry left out of it would
+     * never be detached by the net thread, and would leak) */
+    int full = t->n + t->nleaving >= HUB_WORLDS_MAX, leaving = t->nleaving;
     if (!full) {
         t->in[t->n++] = s;
         changed_locked(t);
@@ -126,7 +129,8 @@ hub_world *hub_worlds_add(hub_worlds *t, const hub_world *w, error_text *err)
     }
     pthread_mutex_unlock(&t->lock);
     if (full) {
-        error_set(err, "worlds: this node already serves %d worlds", HUB_WORLDS_MAX);
+        error_set(err, "worlds: this node already serves %d worlds (%d of them still leaving)",
+                  HUB_WORLDS_MAX, leaving);
         free(s);
         return NULL;
     }
@@ -154,7 +158,7 @@ int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted)
         }
     s->w.deleted = deleted;
     s->gone = 1;
-    if (s->held && t->nleaving < HUB_WORLDS_MAX)
+    if (s->held) /* room: it was counted in n (hub_worlds_add) */
         t->leaving[t->nleaving++] = s;
     changed_locked(t);
     double start = time_now_ms();

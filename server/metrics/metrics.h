@@ -141,9 +141,10 @@ void metrics_steps_reset(void);
 int metrics_steps_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 
 /* Desync detection and repair (metrics_desync.c; PROTOCOL.md "CHECKSUM"):
- * CHECKSUM frames and bytes sent, frames skipped for a client being
- * resynced, tiles asked for again and their snapshots, and
- * terrad_resync_refused_total{field}: the field a refused resync named. */
+ * CHECKSUM frames and bytes sent, frames skipped (a client being
+ * resynced, past max_pending_bytes or past its budget's window), tiles asked
+ * for again and their snapshots, and terrad_resync_refused_total{field}: the
+ * field a refused resync named. */
 #define METRICS_RESYNC_FIELDS "id", "tiles"
 void metrics_count_checksums(uint64_t frames, uint64_t bytes);
 void metrics_count_checksums_skipped(uint64_t n);

@@ -3,8 +3,10 @@
  * "resync" with "tiles"), counted by the net thread as it sends CHECKSUM
  * frames and takes or refuses a client's tile resync, and by the sim thread
  * as it queues a tile's snapshot: terrad_checksum_frames_total,
- * terrad_checksum_bytes_total, terrad_checksum_frames_skipped_total (a client
- * whose deltas were being dropped), terrad_resync_tiles_requested_total,
+ * terrad_checksum_bytes_total, terrad_checksum_frames_skipped_total (not sent:
+ * the client's deltas were being dropped, its queue would have passed
+ * max_pending_bytes or its budget's window was full: net_fanout.c
+ * send_checksum), terrad_resync_tiles_requested_total,
  * terrad_tile_resyncs_total and terrad_resync_refused_total{field}, the
  * field the refusal named. Rendered by metrics_render.
  */
@@ -66,7 +68,8 @@ int metrics_desync_text(char *out, size_t cap)
         {"terrad_checksum_frames_total", "CHECKSUM frames queued for clients.", &frames},
         {"terrad_checksum_bytes_total", "Bytes of CHECKSUM frames queued for clients.", &bytes},
         {"terrad_checksum_frames_skipped_total",
-         "CHECKSUM frames not sent: the client's deltas were being dropped (a resync under way).",
+         "CHECKSUM frames not sent: the client's deltas were being dropped (a resync under way), "
+         "the frame would have passed max_pending_bytes, or the budget's window was full.",
          &skipped},
         {"terrad_resync_tiles_requested_total",
          "Tiles clients asked for again (resync with tiles).", &requested},

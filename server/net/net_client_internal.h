@@ -1,6 +1,7 @@
 /*
  * net_client_internal.h: the bottom layer of the net thread — its state. Not part of
- * the face of net/ (that is net.h); included only by the files of net/.
+ * the face of net/ (that is net.h); included only by the files of net/ (and
+ * tests/unit/test_net_desync.c, which builds a client record alone).
  *
  *   net.c           the server's life: limits, lws context, thread, stop
  *     ↓

@@ -420,9 +420,10 @@ static int parse_id(parser *r, int required, net_control *out)
 }
 
 /* resync: "id" (required with "tiles"), and "tiles", an array of 1 to
- * max_resync_tiles [tile x, tile y] pairs of integers >= 0 (PROTOCOL.md
- * "resync"). Whether each tile meets the subscription is the client's state
- * (net_requests.c). */
+ * max_resync_tiles [tile x, tile y] pairs of integers >= 0 inside the world
+ * (PROTOCOL.md "resync"). Bounding them here keeps tile x * tile_size an int
+ * for net_desync.c; whether each tile meets the subscription is the client's
+ * state (net_requests.c). */
 static int parse_resync(parser *r, net_control *out)
 {
     const cJSON *tiles = cJSON_GetObjectItemCaseSensitive(r->msg, "tiles");
@@ -439,14 +440,22 @@ static int parse_resync(parser *r, net_control *out)
     out->tiles = malloc((size_t)n * 2 * sizeof *out->tiles);
     if (!out->tiles)
         return fail(r, TERRAD_E_INTERNAL, "out of memory");
+    int ts = r->ctx->tile_size > 0 ? r->ctx->tile_size : 1;
+    int64_t tiles_x = ((int64_t)r->ctx->world_width + ts - 1) / ts,
+            tiles_y = ((int64_t)r->ctx->world_height + ts - 1) / ts;
     int i = 0;
     for (const cJSON *t = tiles->child; t; t = t->next, i++) {
         const cJSON *x = cJSON_GetArrayItem(t, 0), *y = cJSON_GetArrayItem(t, 1);
         if (!cJSON_IsArray(t) || cJSON_GetArraySize(t) != 2 || !is_integer(x) || !is_integer(y) ||
-            x->valuedouble < 0 || y->valuedouble < 0 || x->valuedouble > INT32_MAX ||
-            y->valuedouble > INT32_MAX)
+            x->valuedouble < 0 || y->valuedouble < 0)
             return fail(r, TERRAD_E_BAD_VALUE,
                         "tiles[%d]: must be [x, y], two integers >= 0 (tile coordinates)", i);
+        if (x->valuedouble >= tiles_x || y->valuedouble >= tiles_y)
+            return fail(r, TERRAD_E_OUTSIDE_WORLD,
+                        "tiles[%d]: tile (%.0f, %.0f) is outside the world (%lld x %lld tiles of "
+                        "%d cells)",
+                        i, x->valuedouble, y->valuedouble, (long long)tiles_x, (long long)tiles_y,
+                        ts);
         out->tiles[2 * i] = (int32_t)x->valuedouble;
         out->tiles[2 * i + 1] = (int32_t)y->valuedouble;
     }

@@ -49,7 +49,8 @@ typedef struct net_control_context {
     const net_limits *limits;
     const cJSON *materials; /* world.materials: a JSON array of strings */
     int world_width, world_height;
-    int loads; /* net_world_info.loads */
+    int tile_size; /* cells per tile side: bounds resync's tiles (0: by cells alone) */
+    int loads;     /* net_world_info.loads */
 } net_control_context;
 
 typedef struct net_control {

@@ -23,12 +23,16 @@
 
 hub_frame *net_checksum_for(net_client *c, hub_frame *f)
 {
-    enum { CAP = 4096 };
+    /* as many entries as the frame can hold (up to TERRAD_MAX_COUNT): every
+     * one is filtered, none sent through unfiltered */
+    size_t cap = f->len > TERRAD_CHECKSUM_FIXED
+                     ? (f->len - TERRAD_CHECKSUM_FIXED) / TERRAD_TILE_SUM_SIZE
+                     : 0;
     uint64_t tick;
     uint32_t sub;
     size_t n = 0, kept = 0;
-    terrad_tile_sum *sums = malloc(CAP * sizeof *sums);
-    if (!sums || terrad_checksum_decode(f->data, f->len, &tick, &sub, sums, CAP, &n) != 0) {
+    terrad_tile_sum *sums = malloc((cap ? cap : 1) * sizeof *sums);
+    if (!sums || terrad_checksum_decode(f->data, f->len, &tick, &sub, sums, cap, &n) != 0) {
         free(sums); /* the sim's own frame: sent as it is */
         return f;
     }
@@ -50,15 +54,25 @@ hub_frame *net_checksum_for(net_client *c, hub_frame *f)
     return g;
 }
 
+/* Tile i's cells. net_control.c keeps tiles inside the world, so the
+ * products fit an int; they are taken in int64 and checked all the same, a
+ * tile past INT32_MAX standing for one that meets no subscription. */
+static int tile_rect(const int32_t *tiles, int i, int ts, world_rect *out)
+{
+    int64_t x = (int64_t)tiles[2 * i] * ts, y = (int64_t)tiles[2 * i + 1] * ts;
+    if (x < 0 || y < 0 || x > INT32_MAX - ts || y > INT32_MAX - ts)
+        return -1;
+    *out = (world_rect){(int)x, (int)y, ts, ts};
+    return 0;
+}
+
 void net_request_resync_tiles(net_client *c, const net_sub *sub, const int32_t *tiles, int n,
                               const cJSON *ref)
 {
     int ts = c->srv->cfg.world.tile_size;
+    world_rect tile;
     for (int i = 0; i < n; i++) {
-        world_rect tile = {tiles[2 * i] * ts, tiles[2 * i + 1] * ts, ts, ts};
-        if ((int64_t)tiles[2 * i] * ts > INT32_MAX - ts ||
-            (int64_t)tiles[2 * i + 1] * ts > INT32_MAX - ts ||
-            !world_rects_overlap(tile, sub->rect)) {
+        if (tile_rect(tiles, i, ts, &tile) != 0 || !world_rects_overlap(tile, sub->rect)) {
             metrics_count_resync_refused("tiles");
             net_error(c, TERRAD_E_OUTSIDE_WORLD, ref, -1, 0,
                       "tiles[%d]: tile (%d, %d) does not meet subscription %u (x=%d y=%d w=%d "
@@ -68,8 +82,7 @@ void net_request_resync_tiles(net_client *c, const net_sub *sub, const int32_t *
             return;
         }
     }
-    for (int i = 0; i < n; i++) {
-        world_rect tile = {tiles[2 * i] * ts, tiles[2 * i + 1] * ts, ts, ts};
+    for (int i = 0; i < n && tile_rect(tiles, i, ts, &tile) == 0; i++) {
         hub_command cmd = {.kind = HUB_RESYNC_TILE,
                            .client = c->id,
                            .subscription = sub->id,

@@ -464,6 +464,19 @@ static void relay_text(net_client *c, const net_control *m, int rc)
     c->resync_until = c->snapshots_requested;
 }
 
+/* A resync the parser refused, counted under the field its message names
+ * first ("tiles[3]: ..." under tiles); a message naming none is not counted. */
+static void count_resync_refused(const char *message)
+{
+    char field[16];
+    size_t n = strcspn(message, "[:");
+    if (message[n] && n < sizeof field) {
+        memcpy(field, message, n);
+        field[n] = 0;
+        metrics_count_resync_refused(field);
+    }
+}
+
 void net_handle_text(net_client *c, const char *text, size_t len)
 {
     THREAD_OWNED(&c->srv->owner);
@@ -472,6 +485,7 @@ void net_handle_text(net_client *c, const char *text, size_t len)
                                .materials = s->materials,
                                .world_width = s->cfg.world.width,
                                .world_height = s->cfg.world.height,
+                               .tile_size = s->cfg.world.tile_size,
                                .loads = s->cfg.world.loads};
     net_control m;
     net_control_error err;
@@ -493,8 +507,8 @@ void net_handle_text(net_client *c, const char *text, size_t len)
     } else if (refused_by_state(c, &m)) {
         /* answered */
     } else if (rc != 0) {
-        if (m.kind == NET_CONTROL_RESYNC) /* the field first in the message */
-            metrics_count_resync_refused(strncmp(err.message, "tiles", 5) ? "id" : "tiles");
+        if (m.kind == NET_CONTROL_RESYNC)
+            count_resync_refused(err.message);
         net_error(c, err.code, m.ref, -1, err.fatal, "%s", err.message);
         if (err.code == TERRAD_E_BAD_VERSION)
             net_close_after_flush(c, 4000 + TERRAD_E_BAD_VERSION, "bad protocol version");

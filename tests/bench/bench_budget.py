@@ -34,9 +34,7 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
-from service_harness import BIN, SOURCE, Daemon, machine, metric_value  # noqa: E402
-
-import terrad as tp  # noqa: E402
+from service_harness import BIN, SOURCE, CountingClient, Daemon, machine, metric_value  # noqa: E402
 
 DRIVE_S = float(os.environ.get("TERRAD_BENCH_BUDGET_S", "60"))
 SCENE = os.path.join(SOURCE, "tests/scenes/thesis-car.json")
@@ -44,26 +42,18 @@ WINDOW = (0, 0, 512, 128)
 BUDGETS = [10000, 32000, 64000, None]
 
 
-class Watcher(tp.TerradClient):
-    """Counts the bytes of every frame into one-second bins."""
+class Watcher(CountingClient):
+    """Counts the bytes of every frame (as the server does: wire_bytes) into one-second bins."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.bins = {}
         self.t0 = None
 
-    def _count(self, n):
+    def counted(self, n):
         if self.t0 is not None:
             k = int(time.monotonic() - self.t0)
-            self.bins[k] = self.bins.get(k, 0) + n + (2 if n < 126 else 4 if n < 65536 else 10)
-
-    async def _on_binary(self, data):
-        self._count(len(data))
-        await super()._on_binary(data)
-
-    async def _on_json(self, text):
-        self._count(len(text.encode()))
-        await super()._on_json(text)
+            self.bins[k] = self.bins.get(k, 0) + n
 
 
 def error_of(mirror, server, units_per_m):

@@ -33,7 +33,6 @@ import math
 import os
 import random
 import struct
-import subprocess
 import sys
 import tempfile
 import time
@@ -41,12 +40,12 @@ import urllib.request
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
-from service_harness import BIN, SOURCE, Daemon, json_call, machine, tp  # noqa: E402
+from service_harness import (JOIN_PROBE, SOURCE, Daemon, join_probe, json_call,  # noqa: E402
+                             machine, tp)
 
 TICKS = int(os.environ.get("BENCH_JOIN_TICKS", "36000"))
 SIDE, WIN, TILE = 1024, 256, 64
 WINDOW = (384, 384, WIN, WIN)
-PROBE = os.path.join(os.path.dirname(BIN), "c_join_probe")
 STEP = 600
 
 
@@ -152,15 +151,6 @@ class Ticking:
         self.thread.join(120)
 
 
-def probe(d, world, rect, mode):
-    with tempfile.NamedTemporaryFile(prefix="bench-join-", suffix=".bin") as out:
-        p = subprocess.run([PROBE, str(d.ws_port), *map(str, rect), mode, out.name, world],
-                           capture_output=True, text=True, timeout=600)
-        if p.returncode != 0:
-            return {"error": (p.stdout + p.stderr).strip()[-300:]}, None
-        return json.loads(p.stdout), out.read()
-
-
 def region(d, world, rect, base=False):
     x, y, w, h = rect
     q = f"/v1/heights?world={world}&x={x}&y={y}&w={w}&h={h}" + ("&base=1" if base else "")
@@ -222,18 +212,20 @@ def codings(heights, base, rect):
 def joins(d, world):
     for label, rect in (("window 256²", WINDOW), ("whole world", (0, 0, SIDE, SIDE))):
         want = region(d, world, rect)
+        want_heights = list(struct.unpack(f"<{len(want) // 4}i", want))
         alt = codings(want, region(d, world, rect, base=True), rect)
         for mode in ("plain", "base"):
-            line, got = probe(d, world, rect, mode)
+            line, got = join_probe(d, rect, mode, world)
+            line = line or {"error": "c_join_probe failed (its output above)"}
             line.update({"world": world, "join": label, "snapshots": mode,
-                         "KiB": round(line.get("bytes", 0) / 1024, 1), "exact": got == want})
+                         "KiB": round(line.get("bytes", 0) / 1024, 1), "exact": got == want_heights})
             print(json.dumps(line), flush=True)
         print(json.dumps({"world": world, "join": label, "codings_bytes": alt}), flush=True)
 
 
 def main():
-    if not os.access(PROBE, os.X_OK):
-        print(f"bench_join: no {PROBE} (make build)")
+    if not os.access(JOIN_PROBE, os.X_OK):
+        print(f"bench_join: no {JOIN_PROBE} (make build)")
         return 0
     print(json.dumps({"machine": machine(), "ticks": TICKS}), flush=True)
     tiny = {"name": "tiny", "world": {"width": 64, "height": 64, "cell_size_m": 0.05},

@@ -51,6 +51,13 @@ static void check_accepted(const net_control *m, const net_control_context *ctx)
             abort();
         break;
     }
+    case NET_CONTROL_RESYNC: /* tiles inside the world: tile * tile_size is an int */
+        for (int i = 0; i < m->tile_count; i++)
+            if (m->tiles[2 * i] < 0 || m->tiles[2 * i + 1] < 0 ||
+                (int64_t)m->tiles[2 * i] * ctx->tile_size >= ctx->world_width ||
+                (int64_t)m->tiles[2 * i + 1] * ctx->tile_size >= ctx->world_height)
+                abort();
+        break;
     case NET_CONTROL_HELLO:
         if (m->protocol != TERRAD_PROTO_VERSION || strlen(m->client) > NET_CLIENT_NAME_MAX_BYTES)
             abort();
@@ -68,8 +75,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         materials = cJSON_Parse("[\"default\", \"sand\"]");
         limits = net_limits_default();
     }
-    net_control_context ctx = {
-        .limits = &limits, .materials = materials, .world_width = 512, .world_height = 384};
+    net_control_context ctx = {.limits = &limits,
+                               .materials = materials,
+                               .world_width = 512,
+                               .world_height = 384,
+                               .tile_size = 64};
     net_control a, b;
     net_control_error ea, eb;
     int ra = net_control_parse((const char *)data, size, &ctx, &a, &ea);

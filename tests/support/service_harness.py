@@ -3,8 +3,9 @@ tests/bench/bench_*.py): pass/fail bookkeeping (Checks), start and stop the
 real daemon on loopback ports (serve_scene: on a scene given as a dict),
 `terrad simulate` runs, HTTP helpers
 (/v1/stats, /v1/heights, /metrics), the c_cosim_drive client's world and
-output (cosim_*), a TerradClient that keeps a copy of its
-mirrors at every ACK (to compare with GET /v1/heights at the same tick), and
+output (cosim_*), the c_join_probe run (join_probe), a TerradClient that keeps a copy of its
+mirrors at every ACK (to compare with GET /v1/heights at the same tick), one that counts the
+bytes it reads as the server's budget does (CountingClient, wire_bytes), and
 wheel poses. A test puts tests/support on sys.path and imports what it needs.
 
 Not a test itself (ctest registers only tests/integration/**/test_*.py). Debian's /usr/bin/python3
@@ -41,6 +42,7 @@ os.environ["PYTHONPATH"] = os.pathsep.join(
 
 import terrad as tp  # noqa: E402
 
+JOIN_PROBE = os.path.join(os.path.dirname(BIN), "c_join_probe")
 PORTS_RE = re.compile(r"(https?)://127\.0\.0\.1:(\d+)/.*wss?://127\.0\.0\.1:(\d+)/")
 
 
@@ -188,6 +190,67 @@ def need_twin_wasm(check=None):
     return need_built(path, "its toolchain: clang, wasm-ld, wasi-libc and "
                       "libclang-rt-14-dev-wasm32, from scripts/deps --build",
                       "TERRAD_REQUIRE_WASM", check)
+
+
+def built(path, what="make build"):
+    """path when it is built; else the test fails here (exit 1, saying so): for a helper
+    program the build always makes (no optional dependency, unlike need_built's), whose
+    absence is a broken build, never a reason to skip."""
+    if os.access(path, os.X_OK):
+        return path
+    print(f"FAIL: {path} is not built (it always is: {what})", flush=True)
+    print("0 passed, 1 failed", flush=True)
+    sys.exit(1)
+
+
+def join_probe(d, rect, mode, world=None, timeout=600):
+    """tests/support/c_join_probe (the C client library's late join, a fresh connection):
+    joins rect (x, y, w, h) of world (None: the default) on d (anything with ws_port), with
+    base snapshots (mode "base") or absolute ones ("plain"). (Its JSON line, the mirror's
+    w * h heights), or (None, None) when it failed (its output printed)."""
+    with tempfile.NamedTemporaryFile(prefix="terrad-join-", suffix=".bin") as out:
+        p = subprocess.run([JOIN_PROBE, str(d.ws_port), *map(str, rect), mode, out.name,
+                            *([world] if world else [])],
+                           capture_output=True, text=True, timeout=timeout)
+        if p.returncode != 0:
+            print(f"c_join_probe failed ({p.returncode}): {(p.stdout + p.stderr).strip()[-600:]}",
+                  flush=True)
+            return None, None
+        data = out.read()
+    return json.loads(p.stdout), list(struct.unpack(f"<{rect[2] * rect[3]}i", data))
+
+
+def wire_bytes(payload_len):
+    """What a websocket frame of payload_len bytes takes, as the server's budget counts it
+    (server/net/net_budget.c wire_bytes): the payload plus its header, 2, 4 or 10 bytes (the
+    server's frames are unmasked)."""
+    return payload_len + (2 if payload_len < 126 else 4 if payload_len < 65536 else 10)
+
+
+class CountingClient(tp.TerradClient):
+    """A client that counts the bytes of every frame it reads, binary and text (its UTF-8
+    bytes), as wire_bytes does: .bytes in all, and counted(n) per frame for a subclass (a
+    bench's bins per second)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.bytes = 0
+
+    def counted(self, n):
+        pass
+
+    def _count(self, payload_len):
+        n = wire_bytes(payload_len)
+        self.bytes += n
+        self.counted(n)
+
+    async def _on_binary(self, data):
+        self._count(len(data))
+        await super()._on_binary(data)
+
+    async def _on_json(self, text):
+        self._count(len(text.encode()))
+        await super()._on_json(text)
 
 
 def json_call(base, method, path, body=None, token=None, raw=None, timeout=120):

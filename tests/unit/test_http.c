@@ -577,6 +577,15 @@ static void drop_worlds(hub_worlds *t)
     hub_worlds_destroy(t);
 }
 
+/* A server on a free port serving worlds from its first request (the table
+ * goes in before the HTTP threads start: they read it unlocked). */
+static http_server *start_serving(http_status *status, const http_limits *limits,
+                                  hub_worlds *worlds, error_text *err)
+{
+    http_security sec = {.worlds = worlds};
+    return http_server_start_secure(0, 0, status, limits, &sec, err);
+}
+
 /* A server with small limits: its own cell limit, and a short read timeout
  * while the "sim thread" is paused — probes must still answer meanwhile. */
 static void check_limited_server(http_status *status, hub_worlds *worlds)
@@ -585,11 +594,10 @@ static void check_limited_server(http_status *status, hub_worlds *worlds)
     /* a read timeout far longer than a probe takes even on a loaded machine: the probe must
      * answer while the read still waits (not after it), whatever the machine's speed */
     http_limits limits = {.heights_timeout_ms = 5000, .heights_max_cells = 100};
-    http_server *s = http_server_start_limited(0, 0, status, &limits, &err);
+    http_server *s = start_serving(status, &limits, worlds, &err);
     CHECK(s != NULL, "limited server: %s", err.message);
     if (!s)
         return;
-    http_server_set_worlds(s, worlds);
     int port = http_server_port(s);
     expect_error(port, "/v1/heights?x=0&y=0&w=11&h=10", 413, "limit of 100 cells");
     check_heights_int32(port, 0, 0, 10, 10);
@@ -614,10 +622,9 @@ static void check_limited_server(http_status *status, hub_worlds *worlds)
 
     /* No hub: /v1/heights is unavailable, the rest serves. */
     hub_worlds *no_hub = one_world(status, NULL);
-    s = http_server_start(0, 0, status, &err);
+    s = start_serving(status, NULL, no_hub, &err);
     CHECK(s != NULL, "server without a hub");
     if (s) {
-        http_server_set_worlds(s, no_hub);
         expect_error(http_server_port(s), "/v1/heights?x=0&y=0&w=1&h=1", 503, "not available");
         http_server_stop(s);
     }
@@ -625,10 +632,9 @@ static void check_limited_server(http_status *status, hub_worlds *worlds)
 
     /* No world in its table: the world's views are unavailable, the probes serve. */
     hub_worlds *none = hub_worlds_create();
-    s = http_server_start(0, 0, status, &err);
+    s = start_serving(status, NULL, none, &err);
     CHECK(s != NULL, "server without a world");
     if (s) {
-        http_server_set_worlds(s, none);
         expect_error(http_server_port(s), "/v1/world", 503, "not served");
         expect_error(http_server_port(s), "/v1/world?world=test", 404, "does not serve");
         response r;
@@ -686,13 +692,18 @@ int main(void)
     snprintf(status.metric, sizeof status.metric, "chebyshev");
 
     hub_worlds *worlds = one_world(&status, test_hub);
-    http_server *s = http_server_start(0, 0, &status, &err);
-    CHECK(s != NULL, "http_server_start: %s", err.message);
+    http_server *s = start_serving(&status, NULL, worlds, &err);
+    CHECK(s != NULL, "http_server_start_secure: %s", err.message);
     if (!s)
         return 1;
-    http_server_set_worlds(s, worlds);
     int port = http_server_port(s);
     CHECK(port > 0, "bound port %d", port);
+    /* the very first request finds the world: the table is the server's from
+     * its start (set after the start, early requests were 503, a data race) */
+    response first;
+    CHECK(get(port, "/v1/world", &first) == 0 && first.status == 200,
+          "the first request after the start serves the world: %d", first.status);
+    response_free(&first);
 
     check_probes(port, &status);
     check_views(port);

@@ -19,8 +19,11 @@ static cJSON *materials;
 
 static int parse(const char *text, net_control *m, net_control_error *e)
 {
-    net_control_context ctx = {
-        .limits = &limits, .materials = materials, .world_width = 512, .world_height = 256};
+    net_control_context ctx = {.limits = &limits,
+                               .materials = materials,
+                               .world_width = 512,
+                               .world_height = 256,
+                               .tile_size = 64};
     return net_control_parse(text, strlen(text), &ctx, m, e);
 }
 
@@ -214,6 +217,24 @@ static void test_subscriptions(void)
     CHECK(parse("{\"type\":\"resync\",\"id\":4}", &m, &e) == 0 && m.has_id && m.id == 4,
           "resync one");
     net_control_free(&m);
+    /* resync's tiles lie inside the world (8 x 4 tiles of 64 cells here): a
+     * hostile coordinate is refused at parse time, before net_desync.c
+     * multiplies it by the tile size (INT32_MAX * 64 overflowed an int) */
+    CHECK(parse("{\"type\":\"resync\",\"id\":4,\"tiles\":[[7,3],[0,0]]}", &m, &e) == 0 &&
+              m.tile_count == 2 && m.tiles[0] == 7 && m.tiles[1] == 3,
+          "resync tiles at the world's far corner: %s", e.message);
+    net_control_free(&m);
+    expect_error("{\"type\":\"resync\",\"id\":1,\"tiles\":[[2147483647,0]]}",
+                 TERRAD_E_OUTSIDE_WORLD, 1,
+                 "tiles[0]: tile (2147483647, 0) is outside the world (8 x 4 tiles of 64 cells)");
+    expect_error("{\"type\":\"resync\",\"id\":1,\"tiles\":[[0,0],[0,4]]}", TERRAD_E_OUTSIDE_WORLD,
+                 1, "tiles[1]: tile (0, 4) is outside the world (8 x 4 tiles of 64 cells)");
+    expect_error("{\"type\":\"resync\",\"id\":1,\"tiles\":[[8,0]]}", TERRAD_E_OUTSIDE_WORLD, 1,
+                 "tiles[0]: tile (8, 0) is outside the world (8 x 4 tiles of 64 cells)");
+    expect_error("{\"type\":\"resync\",\"id\":1,\"tiles\":[[0,9007199254740992]]}",
+                 TERRAD_E_OUTSIDE_WORLD, 1,
+                 "tiles[0]: tile (0, 9007199254740992) is outside the world (8 x 4 tiles of 64 "
+                 "cells)");
     /* seen (issue 28, item 5): the latest tick the client has handled */
     CHECK(parse("{\"type\":\"seen\",\"tick\":9007199254740992}", &m, &e) == 0 &&
               m.kind == NET_CONTROL_SEEN && m.seen_tick == 9007199254740992ull,

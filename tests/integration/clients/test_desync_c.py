@@ -20,11 +20,10 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import BIN, Checks, Daemon, metric_value, skip  # noqa: E402
+from service_harness import BIN, Checks, Daemon, built, metric_value  # noqa: E402
 
-PROBE = os.environ.get("TERRAD_C_CLIENT_PROBE", os.path.join(os.path.dirname(BIN), "c_client_probe"))
-if not os.access(PROBE, os.X_OK):
-    skip("c_client_probe not built")
+# the build always makes it (no optional dependency): missing, it is a failure, not a skip
+PROBE = built(os.environ.get("TERRAD_C_CLIENT_PROBE", os.path.join(os.path.dirname(BIN), "c_client_probe")))
 check = Checks()
 WINDOW = (40, 30, 200, 150)  # x, y, w, h cells: 64-cell tiles clipped on three sides
 

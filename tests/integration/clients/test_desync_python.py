@@ -4,7 +4,8 @@
 "tiles"; issue 32 item 4), against a real daemon on loopback (--backend cpu, no demo actors):
 
 - bad input first, on the connection that is then repaired: a resync whose tiles lie outside
-  the subscription (outside_world), more than max_resync_tiles of them (too_large), tiles that
+  the subscription or the world (outside_world; one at x 2147483647, whose cells overflowed an
+  int before it was bounded at parse time), more than max_resync_tiles of them (too_large), tiles that
   are not an array, not [x, y] pairs of integers >= 0, tiles without an id, and an unknown id:
   each refused with an error naming the field (tiles, tiles[i], id), counted in
   terrad_resync_refused_total{field}; the connection and the daemon go on (the same client
@@ -43,6 +44,8 @@ async def refused(c, msg):
 async def bad_input(c, d, sid):
     cases = [
         ({"type": "resync", "id": sid, "tiles": [[0, 0], [7, 7]]}, "outside_world", "tiles[1]"),
+        # x * tile_size past INT32_MAX: refused at parse time (it overflowed an int, UB)
+        ({"type": "resync", "id": sid, "tiles": [[2147483647, 0]]}, "outside_world", "tiles[0]"),
         ({"type": "resync", "id": sid, "tiles": [[0, 0]] * 65}, "too_large", "tiles"),
         ({"type": "resync", "id": sid, "tiles": "0,0"}, "bad_value", "tiles"),
         ({"type": "resync", "id": sid, "tiles": []}, "bad_value", "tiles"),
@@ -57,8 +60,8 @@ async def bad_input(c, d, sid):
         check(e is not None and e.get("name") == name and e.get("message", "").startswith(field + ":"),
               f"{json.dumps(msg)[:80]}: refused with {name} naming {field} (got {e})")
     _, m = d.metrics()
-    check(metric_value(m, "terrad_resync_refused_total", {"field": "tiles"}) == 7,
-          "terrad_resync_refused_total{field=tiles} counted the seven")
+    check(metric_value(m, "terrad_resync_refused_total", {"field": "tiles"}) == 8,
+          "terrad_resync_refused_total{field=tiles} counted the eight")
     check(metric_value(m, "terrad_resync_refused_total", {"field": "id"}) == 2,
           "terrad_resync_refused_total{field=id} counted the two")
     check(metric_value(m, "terrad_resync_tiles_requested_total") == 0, "nothing was asked for")

@@ -16,8 +16,10 @@ ran seed 65 (node faults only) because a NATS server paused while the nodes'
 leases ran out could provoke nats-server 2.9's fencing race (two appends
 expecting the same last sequence both accepted; docs/cluster.md "The fencing
 race of nats-server 2.9"); a take is now confirmed before the new owner
-serves, so NATS faults are back. The race itself is made on purpose, every
-time, by test_cluster_take_race. Without the fix of issue 28's lost tick (an
+serves, so NATS faults are back. The race itself is made on purpose by
+test_cluster_take_race (its followers stopped until both publishes reached the
+leader; nats-server still serializes them now and then, so each order is tried
+until they cross, up to 10 times). Without the fix of issue 28's lost tick (an
 ACK of a tick whose commit failed) seed 22 failed: "c0: node t1 recovered it
 at tick 1438, but the client had ACKs of ticks up to 1439 before (1
 acknowledged ticks lost)". Every wait of the run is cut to --budget-s 360,

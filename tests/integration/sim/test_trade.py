@@ -13,10 +13,12 @@
   no anisotropy; coarse runs have a non-zero error and anisotropy (the measure
   is not blind);
 - the physical axis: with bekker in the sweep, trade-physical.csv holds a row per bekker
-  configuration on Ding 2011's single wheel (quick: 0.02 and 0.01 m cells), each with its cost
+  configuration and wheel on Ding 2011's single-wheel testbed (quick: 0.02 and 0.01 m cells; the
+  smooth wheel and the lugged one, the same configurations for both), each with its cost
   and its median errors against the measurements (finite, and the same on every run: the
   testbed is deterministic, so the rows equal test_single_wheel_ding2011's kind of figures at
-  their own cell size), the finest at 0 against itself; trade.txt says the geometric models
+  their own cell size), each wheel's finest at 0 against itself, the lugged wheel's figures its
+  own (not the smooth wheel's); trade.txt has both wheels and says the geometric models
   have no forces; a sweep without bekker writes no such file;
 - no trade.svg (scripts/trade-plot draws the plot from the CSV: test_trade_plot);
   trade.txt carries the summary;
@@ -125,18 +127,31 @@ def check_physical(out, txt):
         return
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
-    check([float(r["cell_m"]) for r in rows] == [0.02, 0.01],
-          f"physical: one row per quick cell size ({[r['cell_m'] for r in rows]})")
+    wheels = {w: [r for r in rows if r.get("wheel") == w] for w in ("smooth", "lugged")}
+    check(len(wheels["smooth"]) + len(wheels["lugged"]) == len(rows),
+          f"physical: every row names its wheel, smooth or lugged ({[r.get('wheel') for r in rows]})")
+    for w, mine in wheels.items():
+        check([float(r["cell_m"]) for r in mine] == [0.02, 0.01],
+              f"physical: {w} wheel: one row per quick cell size ({[r['cell_m'] for r in mine]})")
+        check(mine and float(mine[-1]["pull_rms_vs_finest_n"]) == 0.0,
+              f"physical: {w} wheel: its finest configuration is 0 against itself")
+    config = ("cell_m", "tick_mm", "ticks")
+    check([[r[k] for k in config] for r in wheels["smooth"]] ==
+          [[r[k] for k in config] for r in wheels["lugged"]],
+          "physical: the same configurations for both wheels")
+    figures = ("pull_median_error", "sinkage_median_error", "torque_median_error")
+    check(all([s[k] for k in figures] != [g[k] for k in figures]
+              for s, g in zip(wheels["smooth"], wheels["lugged"])),
+          "physical: the lugged rows are the lugged wheel's own run, not the smooth one's")
     for r in rows:
-        errs = [float(r[k]) for k in ("pull_median_error", "sinkage_median_error",
-                                      "torque_median_error")]
+        errs = [float(r[k]) for k in figures]
         check(r["model"] == "bekker" and all(math.isfinite(e) and 0 <= e < 10 for e in errs)
               and float(r["tick_ms_mean"]) > 0,
-              f"physical: {r['cell_m']} m: errors against Ding finite ({errs}), cost > 0")
-    check(rows and float(rows[-1]["pull_rms_vs_finest_n"]) == 0.0,
-          "physical: the finest configuration is 0 against itself")
-    check("against measured data" in txt and "compute no forces" in txt,
-          "trade.txt has the physical table and says the geometric models have no forces")
+              f"physical: {r.get('wheel')} {r['cell_m']} m: errors against Ding finite ({errs}), "
+              f"cost > 0")
+    check("against measured data" in txt and "compute no forces" in txt and "lugged" in txt,
+          "trade.txt has the physical table, both wheels, and says the geometric models have no "
+          "forces")
 
 
 def check_no_svg(out, p, label):

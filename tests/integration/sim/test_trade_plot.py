@@ -7,7 +7,8 @@
 - the SVG it writes names every scene and labels every point of every front with its model,
   cell size and iterations (text kept as text);
 - the physical axis: docs/trade/trade-physical.csv beside it adds a panel of bekker's cost
-  against its error against measured data (Ding 2011), each configuration labelled; a CSV
+  against its error against measured data (Ding 2011, the smooth and the lugged wheel), each
+  configuration labelled with its wheel; a CSV
   with no such file beside it (a copy in a temporary directory) gets no such panel;
 - a CSV without sweep rows is refused with a message.
 Skips (77) without Debian's python3-matplotlib.
@@ -63,6 +64,9 @@ with tempfile.TemporaryDirectory() as tmp:
             check(tp.label(p) in svg, f"{scene}: the front point {tp.label(p)} is labelled")
     physical = tp.read_physical(os.path.join(os.path.dirname(CSV), "trade-physical.csv"))
     check(len(physical) >= 3, f"docs/trade has the physical axis ({len(physical)} rows)")
+    check({p["wheel"] for p in physical} == {"smooth", "lugged"},
+          f"docs/trade's physical axis has Ding's smooth and lugged wheels "
+          f"({sorted({p['wheel'] for p in physical})})")
     check("against measured data" in svg and
           all(tp.physical_label(p) in svg for p in physical),
           "the SVG has the physical panel, every bekker configuration labelled")

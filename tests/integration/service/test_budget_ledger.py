@@ -1,0 +1,102 @@
+#!/usr/bin/python3
+# ctest-timeout: 420
+"""A budgeted client's ledger of snapshot pieces (net_budget.c; PROTOCOL.md
+"Budgets"), on the real daemon over loopback serving its default world (dunes,
+512 × 512):
+
+- a client with a 20,000 bytes/s budget asking for base snapshots
+  (PROTOCOL.md "Base snapshots") of the whole untouched world gets a complete
+  mirror equal to GET /v1/heights: its pieces of untouched tiles are 37 bytes
+  each, and a snapshot frame of dozens of them must still be taken into the
+  ledger;
+- (a second daemon, max_pending_bytes 65,536) a client with the smallest
+  budget, 1024 bytes/s, holding a 128 × 128 subscription, subscribes to the
+  same window again and unsubscribes 150 times, 40 ms apart: a newer snapshot
+  piece replaces the waiting one it covers and an unsubscribe drops the
+  pieces no subscription takes, so what the daemon owes the client stays
+  bounded: its fullest second (the daemon's line when it leaves) is within
+  max_pending_bytes, and its mirror ends equal to GET /v1/heights.
+
+Without the change: sizing the ledger's decode by 39 bytes a rectangle (the
+old guess) fails the base-snapshot frames (TOO_LARGE), the client is resynced
+again and again and its mirror never completes; without replacing waiting
+pieces every subscribe adds a snapshot's worth to the ledger, sent a tile's
+pile at a time: the fullest second held 1,118,670 bytes.
+"""
+import asyncio
+import os
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "..", "support"))
+sys.path.insert(0, HERE)
+from service_harness import Checks, Daemon, skip  # noqa: E402
+from test_budget import fullest_second  # noqa: E402
+
+import terrad as tp  # noqa: E402
+
+check = Checks()
+BUDGET = 20000
+PENDING = 65536
+
+
+async def wait_exact(c, sid, want, seconds):
+    """Whether c's mirror sid becomes complete and equal to want within seconds."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        m = c.mirrors.get(sid)
+        if m is not None and m.complete and list(m.heights) == want:
+            return True
+        await asyncio.sleep(0.25)
+    return False
+
+
+async def base_join(d):
+    c = tp.TerradClient(d.ws, name="base-budgeted", budget=BUDGET, base_snapshots=True)
+    world = await c.connect()
+    check(world.get("snapshot_base") is True,
+          f"base snapshots agreed ({world.get('snapshot_base')})")
+    rect = (0, 0, world["width"], world["height"])
+    sid = await c.subscribe(*rect)
+    ok = await wait_exact(c, sid, d.heights(*rect)[1], 90)
+    check(ok, f"a budgeted base-snapshot client's mirror of the whole untouched world "
+          f"{rect[2]} x {rect[3]} is complete and equals GET /v1/heights")
+    await c.close()
+
+
+async def pile_up(d):
+    c = tp.TerradClient(d.ws, name="pile", budget=1024)
+    world = await c.connect()
+    rect = (0, 0, min(128, world["width"]), min(128, world["height"]))
+    keep = await c.subscribe(*rect)
+    for _ in range(150):
+        sid = await c.subscribe(*rect)
+        await asyncio.sleep(0.04)
+        await c.unsubscribe(sid)
+    ok = await wait_exact(c, keep, d.heights(*rect)[1], 120)
+    check(ok, "after 150 subscribe/unsubscribe rounds under a 1024 bytes/s budget the kept "
+          "subscription's mirror equals GET /v1/heights")
+    await c.close()
+    peak, _ = await fullest_second(d, "pile", 1024, 30)
+    print(f"pile-up: the fullest second held {peak} bytes", flush=True)
+    check(peak is not None and peak <= PENDING,
+          f"what the daemon owed the client stayed bounded: its fullest second held {peak} "
+          f"bytes (max_pending_bytes {PENDING})")
+
+
+def run():
+    try:
+        d = Daemon()
+    except FileNotFoundError as e:
+        skip(f"no daemon binary: {e}")
+        return
+    with check.running(d):
+        asyncio.run(asyncio.wait_for(base_join(d), 150))
+    with check.running(Daemon(config={"limits": {"max_pending_bytes": PENDING}})) as d2:
+        asyncio.run(asyncio.wait_for(pile_up(d2), 240))
+    check.finish()
+
+
+if __name__ == "__main__":
+    run()
