@@ -4,16 +4,8 @@
 # against the real daemon: tests/web/*.test.mjs under node's test runner.
 # Skips (77) without /usr/bin/chromium, node or node_modules/playwright-core (make web-deps), or
 # without the WebAssembly twin the page predicts with (build/terrad_twin.wasm; under make test,
-# TERRAD_REQUIRE_WASM=1, that fails instead: tests/support/need_twin_wasm.py).
-set -uo pipefail
-src="${TERRAD_SOURCE_DIR:-$(cd "$(dirname "$0")/../../.." && pwd)}"
-export TERRAD_BIN="${TERRAD_BIN:-$src/build/terrad}"
-cd "$src"
-for need in /usr/bin/chromium node_modules/playwright-core; do
-    if [ ! -e "$need" ]; then echo "SKIP: $need missing (apt-get install chromium; make web-deps)"; exit 77; fi
-done
-command -v node >/dev/null || { echo "SKIP: node missing"; exit 77; }
-/usr/bin/python3 tests/support/need_twin_wasm.py || exit $?
+# TERRAD_REQUIRE_WASM=1, that fails instead): tests/support/viewer_test.sh's frame.
+source "$(dirname "$0")/../../support/viewer_test.sh" --twin
 out=$(mktemp); trap 'rm -f "$out"' EXIT
 node --test --test-reporter=tap tests/web/ 2>&1 | tee "$out"
 rc=${PIPESTATUS[0]}

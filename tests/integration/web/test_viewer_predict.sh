@@ -4,14 +4,5 @@
 # a TCP relay that can hold the server's bytes: tests/web/viewer_predict.mjs under node's test
 # runner. Skips (77) without /usr/bin/chromium, node, node_modules/playwright-core (make web-deps)
 # or the daemon's WebAssembly twin (build/terrad_twin.wasm: scripts/deps --build); without the
-# twin it fails instead under make test (TERRAD_REQUIRE_WASM=1: tests/support/need_twin_wasm.py).
-set -uo pipefail
-src="${TERRAD_SOURCE_DIR:-$(cd "$(dirname "$0")/../../.." && pwd)}"
-export TERRAD_BIN="${TERRAD_BIN:-$src/build/terrad}"
-cd "$src"
-for need in /usr/bin/chromium node_modules/playwright-core; do
-    if [ ! -e "$need" ]; then echo "SKIP: $need missing (apt-get install chromium; make web-deps)"; exit 77; fi
-done
-command -v node >/dev/null || { echo "SKIP: node missing"; exit 77; }
-/usr/bin/python3 tests/support/need_twin_wasm.py || exit $?
-node --test --test-reporter=spec tests/web/viewer_predict.mjs
+# twin it fails instead under make test (TERRAD_REQUIRE_WASM=1): tests/support/viewer_test.sh.
+exec "$(dirname "$0")/../../support/viewer_test.sh" --twin tests/web/viewer_predict.mjs
