@@ -39,6 +39,15 @@
  * 100 ms, at most 500 ms, so more ticks fold into one delta), nearest first.
  * Once activity stops every ledger entry goes as the window allows: the
  * client's mirror becomes exact.
+ *
+ * An entry larger than the window will ever have room for (a snapshot piece
+ * of a few kB under a 1 kB/s budget) goes once the window holds no tile data,
+ * whatever status frames it holds (an overrun, counted): the client's own
+ * replies and ACKs cannot be held back, and waiting for a window empty of
+ * them could be forever. While an entry waits for room (owed), the droppable
+ * frames that need room (CHECKSUM, COLLIDERS, FOOTPRINTS: net_budget_fits)
+ * yield to it: a CHECKSUM each tick had kept tile data in the window for
+ * good, and the pieces of a 1 kB/s client's snapshot never went.
  */
 #include "net/net_server_internal.h"
 
@@ -87,6 +96,7 @@ struct net_budget {
     int head, count, cap;
     uint64_t sum, status_sum;
     uint64_t peak, total, coalesced;
+    int owed; /* the last flush left an entry waiting for room */
     /* the ledger */
     budget_tile *tiles;
     int ntiles;
@@ -124,10 +134,16 @@ void net_budget_charge(net_client *c, size_t len, int tile_data)
     uint32_t n = (uint32_t)wire_bytes(len);
     if (b->count == b->cap) { /* full: the newest entry takes them, counted until later */
         int last = (b->head + b->count - 1) % b->cap;
+        /* status_sum sums the bytes of every status entry: one merged into
+         * becomes one */
+        if (!tile_data && b->held[last]) {
+            b->held[last] = 0;
+            b->status_sum += b->bytes[last];
+        }
+        if (!b->held[last])
+            b->status_sum += n;
         b->bytes[last] += n;
         b->ms[last] = now;
-        if (!tile_data)
-            b->held[last] = 0; /* the status sum below stays a lower bound */
     } else {
         int at = (b->head + b->count) % b->cap;
         b->ms[at] = now;
@@ -615,9 +631,9 @@ static int by_distance(const void *a, const void *b)
 }
 
 /* Sends tile t's ledger entry if the window has room for all of it; 1 when
- * sent. An entry larger than the budget itself could never fit: it goes once
- * the window is empty (an overrun, counted); an entry holds at most one piece
- * per rectangle, so that is at most a snapshot of the tile. */
+ * sent. An entry the window has no room for while it holds no tile data
+ * could never fit: it goes then (an overrun, counted); an entry holds at most
+ * one piece per rectangle, so that is at most a snapshot of the tile. */
 static int flush_tile(net_client *c, budget_tile *t, double *left)
 {
     const net_budget *b = c->budget;
@@ -627,7 +643,7 @@ static int flush_tile(net_client *c, budget_tile *t, double *left)
     double need = d ? (double)wire_bytes(d->len) : 0;
     for (int i = 0; i < t->nitems; i++)
         need += (double)wire_bytes(t->items[i].f->len);
-    if (need > *left && (b->sum > 0 || need <= b->rate - STATUS_SLACK))
+    if (need > *left && b->sum > b->status_sum) /* tile data in the window: it will expire */
         return 0;
     *left -= need;
     for (int i = 0; i < t->nitems; i++) {
@@ -667,8 +683,8 @@ void net_budget_flush(net_client *c)
             order[n++] = (flush_order){i, d};
     }
     qsort(order, (size_t)n, sizeof *order, by_distance);
-    int sent = 0;
-    for (int k = 0; k < n && left > 0; k++) {
+    int sent = 0, k = 0;
+    for (; k < n; k++) {
         budget_tile *t = &b->tiles[order[k].tile];
         if (flush_tile(c, t, &left)) {
             tile_clear(t);
@@ -678,6 +694,7 @@ void net_budget_flush(net_client *c)
             break; /* nearest first: a far tile does not pass a near one */
         }
     }
+    b->owed = k < n;
     free(order);
     for (int i = 0; sent && i < b->ntiles; i++)
         if (b->tiles[i].tx == INT32_MIN) {
@@ -697,7 +714,10 @@ void net_budget_flush_state(net_state *w)
 
 int net_budget_fits(net_client *c, size_t len)
 {
-    return !c->budget || room(c->budget) >= (double)wire_bytes(len);
+    net_budget *b = c->budget;
+    if (b && b->owed && !b->ntiles)
+        b->owed = 0; /* pruned or reset since the flush */
+    return !b || (!b->owed && room(b) >= (double)wire_bytes(len));
 }
 
 int net_client_tile_current(const net_client *c, int tx, int ty)

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 420
+# ctest-timeout: 600
 """A budgeted client's ledger of snapshot pieces (net_budget.c; PROTOCOL.md
 "Budgets"), on the real daemon over loopback serving its default world (dunes,
 512 × 512):
@@ -15,13 +15,24 @@
   piece replaces the waiting one it covers and an unsubscribe drops the
   pieces no subscription takes, so what the daemon owes the client stays
   bounded: its fullest second (the daemon's line when it leaves) is within
-  max_pending_bytes, and its mirror ends equal to GET /v1/heights.
+  max_pending_bytes, and its mirror ends equal to GET /v1/heights;
+- (a third daemon, checksum_interval_ticks 1) a client with a 1024 bytes/s
+  budget subscribes to a 128 × 128 window whose snapshot pieces (one 64 × 64
+  tile each, a few kB) are larger than a second's budget: a CHECKSUM frame
+  every tick must not keep the window from ever emptying of tile data, so
+  the pieces go (one a second, overruns) and the mirror ends equal to
+  GET /v1/heights.
 
 Without the change: sizing the ledger's decode by 39 bytes a rectangle (the
 old guess) fails the base-snapshot frames (TOO_LARGE), the client is resynced
 again and again and its mirror never completes; without replacing waiting
 pieces every subscribe adds a snapshot's worth to the ledger, sent a tile's
-pile at a time: the fullest second held 1,118,670 bytes.
+pile at a time: the fullest second held 1,118,670 bytes. Without droppable
+frames (CHECKSUM, COLLIDERS, FOOTPRINTS) yielding to an owed ledger entry and
+an entry larger than the budget going once the window holds no tile data,
+the checksums kept the window busy and no piece ever went: the mirror stayed
+empty (versions 0) for 120 s, while the daemon sent the client a CHECKSUM
+for the tiles it thought current.
 """
 import asyncio
 import os
@@ -85,6 +96,17 @@ async def pile_up(d):
           f"bytes (max_pending_bytes {PENDING})")
 
 
+async def checksum_storm(d):
+    c = tp.TerradClient(d.ws, name="storm", budget=1024)
+    world = await c.connect()
+    rect = (0, 0, min(128, world["width"]), min(128, world["height"]))
+    sid = await c.subscribe(*rect)
+    ok = await wait_exact(c, sid, d.heights(*rect)[1], 120)
+    check(ok, "with a CHECKSUM every tick, a 1024 bytes/s client's mirror of 128 x 128 is "
+          f"complete and equals GET /v1/heights (versions {c.mirrors[sid].versions})")
+    await c.close()
+
+
 def run():
     try:
         d = Daemon()
@@ -95,6 +117,8 @@ def run():
         asyncio.run(asyncio.wait_for(base_join(d), 150))
     with check.running(Daemon(config={"limits": {"max_pending_bytes": PENDING}})) as d2:
         asyncio.run(asyncio.wait_for(pile_up(d2), 240))
+    with check.running(Daemon(config={"limits": {"checksum_interval_ticks": 1}})) as d3:
+        asyncio.run(asyncio.wait_for(checksum_storm(d3), 150))
     check.finish()
 
 
