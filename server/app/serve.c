@@ -169,8 +169,7 @@ unsigned serve_drain_json(int already, int grace_ms, char **json)
     cJSON_AddBoolToObject(o, "draining", 1);
     cJSON_AddBoolToObject(o, "already", already);
     cJSON_AddNumberToObject(o, "grace_ms", grace_ms);
-    *json = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
+    *json = json_print_delete(o);
     return 202;
 }
 

@@ -50,8 +50,7 @@ static cJSON *node_entry(const char *name, const char *holder)
 
 static unsigned answer(cJSON *o, unsigned code, char **json)
 {
-    *json = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
+    *json = json_print_delete(o);
     return code;
 }
 

@@ -367,8 +367,7 @@ static unsigned create_world(serve_worlds *ws, const char *body, size_t len, cha
     net_server_event(ws->net, "world_created", name);
     log_info("worlds: world %s created (POST /v1/worlds)", name);
     cJSON *o = world_entry(name, &lw->hw.m.status, "running", 0, 0);
-    *json = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
+    *json = json_print_delete(o);
     return 201;
 }
 
@@ -393,8 +392,7 @@ static unsigned worlds_list(void *ctx, char **json)
     }
     cJSON_AddNumberToObject(doc, "max_worlds", ws->max);
     pthread_mutex_unlock(&ws->lock);
-    *json = cJSON_PrintUnformatted(doc);
-    cJSON_Delete(doc);
+    *json = json_print_delete(doc);
     return 200;
 }
 
@@ -465,8 +463,7 @@ static unsigned delete_world(serve_worlds *ws, const char *name, int keep, char 
         cJSON_AddStringToObject(o, "kept", kept);
     else
         cJSON_AddNullToObject(o, "kept");
-    *json = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
+    *json = json_print_delete(o);
     return 200;
 }
 

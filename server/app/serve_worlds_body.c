@@ -23,9 +23,7 @@ char *worlds_error_json(const char *field, const char *why)
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "error", why);
     cJSON_AddStringToObject(o, "field", field);
-    char *text = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
-    return text;
+    return json_print_delete(o);
 }
 
 unsigned worlds_refuse(const char *op, unsigned code, const char *field, const char *why,

@@ -163,9 +163,7 @@ static char *create_body(const char *name, const char *scene_path)
     cJSON *body = cJSON_CreateObject();
     cJSON_AddStringToObject(body, "name", name);
     cJSON_AddItemToObject(body, "scene", scene_doc);
-    char *out = cJSON_PrintUnformatted(body);
-    cJSON_Delete(body);
-    return out;
+    return json_print_delete(body);
 }
 
 /* One line per world, as over NATS: its name and its node ("-": none). */

@@ -143,6 +143,9 @@ int json_get_bool(const cJSON *obj, const char *path, const char *key, int *out,
 /* An array of exactly n finite numbers, each with |x| <= limit. */
 int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
                     double *out, error_text *err);
+/* o's unformatted text (the caller frees it), and o deleted: a reply or body
+ * built as an object and sent as text. NULL when out of memory. */
+char *json_print_delete(cJSON *o);
 
 /* ---- Command lines (cli.c): one parser, on getopt_long, for every command ----
  * A command describes its options in a table (ended by {0}); cli_parse

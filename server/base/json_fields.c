@@ -241,3 +241,10 @@ int json_get_bool(const cJSON *obj, const char *path, const char *key, int *out,
     *out = cJSON_IsTrue(v) ? 1 : 0;
     return 1;
 }
+
+char *json_print_delete(cJSON *o)
+{
+    char *text = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return text;
+}

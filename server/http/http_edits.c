@@ -60,8 +60,7 @@ static void answer_refusal(http_answer *a, unsigned status, int code, const char
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "error", message);
     cJSON_AddStringToObject(o, "name", terrad_err_name(code));
-    char *text = cJSON_PrintUnformatted(o);
-    cJSON_Delete(o);
+    char *text = json_print_delete(o);
     if (!text)
         return;
     a->code = status;

@@ -18,6 +18,7 @@
 #define TERRAD_HTTP_INTERNAL_H
 
 #include "http/http.h"
+#include "world/world.h" /* png16_memory */
 
 #include <microhttpd.h>
 #include <pthread.h>
@@ -26,18 +27,12 @@
 #include <stdint.h>
 
 /* ---- http_png.c ---- */
-typedef struct http_png_memory {
-    unsigned char *data;
-    size_t len;
-    int64_t cap;
-} http_png_memory;
-
 /* Heights → 16-bit greyscale PNG, value = clamp(h - offset, 0, 65535) with
  * offset = the rectangle's minimum, so the image inverts exactly whenever the
  * rectangle's range fits 16 bits (*clipped says whether it did). Returns 0,
  * or -1 with out->data freed. */
 int http_png16_encode(const int32_t *heights, int w, int h, int32_t *offset, int *clipped,
-                      http_png_memory *out);
+                      png16_memory *out);
 
 /* ---- http_guard.c ---- */
 typedef struct http_guard http_guard;

@@ -419,7 +419,7 @@ void http_view_heights(http_server *s, hub *from, const world *base, const http_
     if (png) {
         int32_t offset;
         int clipped;
-        http_png_memory m;
+        png16_memory m;
         int rc = http_png16_encode(heights, r.w, r.h, &offset, &clipped, &m);
         free(heights);
         if (rc != 0)

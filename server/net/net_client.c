@@ -268,8 +268,7 @@ void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
 
 void net_send_json(net_client *c, cJSON *msg)
 {
-    char *text = cJSON_PrintUnformatted(msg);
-    cJSON_Delete(msg);
+    char *text = json_print_delete(msg);
     hub_frame *f = text ? hub_frame_from_text(text) : NULL;
     free(text);
     if (!f) {

@@ -101,8 +101,7 @@ void service_reply_json(service *s, uint32_t client, const char *ref, cJSON *obj
 {
     cJSON *r = ref[0] ? cJSON_Parse(ref) : NULL;
     cJSON_AddItemToObject(obj, "ref", r ? r : cJSON_CreateNull());
-    char *text = cJSON_PrintUnformatted(obj);
-    cJSON_Delete(obj);
+    char *text = json_print_delete(obj);
     service_queue_client(s, client, text ? hub_frame_from_text(text) : NULL, 0, 0); /* JSON */
     free(text);
 }

@@ -58,15 +58,25 @@ void sim_cpu_avx2_allow(int allow)
     atomic_store_explicit(&avx2_allowed, allow != 0, memory_order_relaxed);
 }
 
+/* The machine's cores, read once: sysconf(_SC_NPROCESSORS_ONLN) opens and
+ * reads /sys/devices/system/cpu/online each time, and sim_threads() is asked
+ * in every stage of every window of every tick — 6 % of a daemon's CPU with
+ * 16 driven worlds (docs/performance.md, issue 32). */
 int sim_default_threads(void)
 {
 #ifdef TERRAD_TWIN_LIB
     return 1;
 #else
+    static atomic_int default_threads;
+    int n = atomic_load_explicit(&default_threads, memory_order_relaxed);
+    if (n > 0)
+        return n;
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     if (cores < 1)
         cores = 1;
-    return cores > SIM_THREADS_MAX ? SIM_THREADS_MAX : (int)cores;
+    n = cores > SIM_THREADS_MAX ? SIM_THREADS_MAX : (int)cores;
+    atomic_store_explicit(&default_threads, n, memory_order_relaxed);
+    return n;
 #endif
 }
 

@@ -233,5 +233,17 @@ int png16_read(const char *path, int *width, int *height, uint16_t **pixels, err
 int png16_decode(const uint8_t *data, size_t len, const char *name, int *width, int *height,
                  uint16_t **pixels, error_text *err);
 int png16_write(const char *path, int width, int height, const uint16_t *pixels, error_text *err);
+/* The one PNG writer: a width x height 16-bit greyscale PNG into out (its
+ * data malloc'd), row y's samples from row_of(arg, y, samples), at zlib level
+ * (0-9; -1: libpng's default). 0, or -1 with err set (name names the image)
+ * and out->data NULL. */
+typedef struct png16_memory {
+    unsigned char *data;
+    size_t len;
+    int64_t cap;
+} png16_memory;
+typedef void png16_row_fn(void *arg, int y, uint16_t *samples);
+int png16_encode(int width, int height, int level, png16_row_fn *row_of, void *arg,
+                 const char *name, png16_memory *out, error_text *err);
 
 #endif

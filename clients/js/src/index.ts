@@ -203,12 +203,11 @@ export class TerradClient {
 
   /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
   async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers } = {}): Promise<number> {
-    if (opts.grousers && this.predictions.size > 0)
-      throw new Error('grousers: a lugged wheel cannot be predicted (the twin library has no grousers yet)');
     const ref = `col-${++this.refN}`;
     const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
-    for (const p of this.predictions.values()) p.own.set(m.id, { shape, dims });
-    for (const p of this.predictions.values()) p.addCollider(m.id, shape, dims);
+    const own = opts.grousers ? { ...dims, grousers: opts.grousers } : dims; // the twin presses the lugs too
+    for (const p of this.predictions.values()) p.own.set(m.id, { shape, dims: own });
+    for (const p of this.predictions.values()) p.addCollider(m.id, shape, own);
     return m.id;
   }
 

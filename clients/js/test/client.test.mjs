@@ -1,7 +1,7 @@
 // terrad-client (clients/js) against the real daemon on loopback, as an application uses it:
 // imported from the tarball `npm pack` made and `npm install` put in a fresh directory
 // ($TERRAD_CLIENT_DIR; tests/integration/clients/test_ts_client.sh makes it). Checked: connect and
-// hello, a subscription's mirror, a collider driven with poses (ACKs, CONTACT feedback), the
+// hello, a subscription's mirror, a sphere and a lugged wheel driven with poses (ACKs, CONTACT feedback), the
 // prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
 // the worlds API (create, join, list, remove); bad input refused with errors naming the field; a
 // budget in hello; a mirror corrupted on purpose repaired by the client itself (PROTOCOL.md
@@ -58,18 +58,23 @@ test('drive a collider with prediction: ACKs, contacts, every compared ACK exact
     const worlds = new T.Worlds(http);
     const pred = await c.predict(sid, await worlds.twinConfig(), await worlds.twinWasm());
     const ball = await c.createCollider('sphere', { radius: 0.3 });
+    // a rolling wheel with grousers: the prediction presses its lugs as the server does
+    const lugged = await c.createCollider('wheel', { radius: 0.3, width: 0.2 }, { grousers: { count: 12, height: 0.05, thickness: 0.04 } });
     const start = Int32Array.from(mirror.heights);
     const n = 240, y = 64 * 0.05, z = 0.4 + 0.3 - 0.06;
     let seq = 0, early = 0;
     for (let i = 0; i < n; i++) {
-      seq = c.sendPoses([{ id: ball, x: (36 + (56 * i) / n) * 0.05, y, z, qw: 1, qx: 0, qy: 0, qz: 0 }]);
+      const x = (36 + (56 * i) / n) * 0.05;
+      seq = c.sendPoses([{ id: ball, x, y, z, qw: 1, qx: 0, qy: 0, qz: 0 },
+        { id: lugged, x, y: 40 * 0.05, z, qw: Math.cos(x / 0.6), qx: 0, qy: Math.sin(x / 0.6), qz: 0 }]);
       if (!early) { // the batch has just left: the server cannot have its rut yet
         const mine = pred.heights();
         for (let k = 0; k < mine.length; k++) if (mine[k] < mirror.heights[k]) early++;
       }
       await sleep(1000 / c.world.tick_hz);
     }
-    seq = c.sendPoses([{ id: ball, x: 92 * 0.05, y, z: z + 5, qw: 1, qx: 0, qy: 0, qz: 0 }]); // lifted
+    seq = c.sendPoses([{ id: ball, x: 92 * 0.05, y, z: z + 5, qw: 1, qx: 0, qy: 0, qz: 0 },
+      { id: lugged, x: 92 * 0.05, y: 40 * 0.05, z: z + 5, qw: 1, qx: 0, qy: 0, qz: 0 }]); // lifted
     await c.waitAck(seq);
     assert.ok(early > 0, 'the prediction shows the rut before the server has it');
     assert.ok(pred.replayed >= 10 && pred.exact === pred.replayed,
@@ -89,6 +94,8 @@ test('bad input is refused with an error naming the field; the client goes on', 
   const c = await T.TerradClient.connect(ws, { name: 'ts-bad' });
   try {
     await assert.rejects(c.createCollider('sphere', { radius: -1 }), (e) => e instanceof T.TerradError && /radius/.test(e.field + e.message));
+    for (const [grousers, field] of [[{ count: -1, height: 0.05, thickness: 0.04 }, 'grousers.count'], [{ count: 12, height: 0.5, thickness: 0.04 }, 'grousers.height']])
+      await assert.rejects(c.createCollider('wheel', { radius: 0.3, width: 0.2 }, { grousers }), (e) => e instanceof T.TerradError && (e.field + e.message).includes(field));
     await assert.rejects(c.subscribe(0, 0, 100000, 4), (e) => e instanceof T.TerradError && e.message.length > 0);
     await assert.rejects(c.predict(999, {}, new Uint8Array()), /sid/);
     const sid = await c.subscribe(0, 0, 16, 16);

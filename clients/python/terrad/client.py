@@ -233,9 +233,6 @@ class Client:
         if self.predictions and (material != "default" or "pose" in dims):
             raise ValueError("material / pose: while predicting, a collider has the default "
                              "material and gets its poses from send_poses")
-        if self.predictions and "grousers" in dims:
-            raise ValueError("grousers: a lugged wheel cannot be predicted (the twin library "
-                             "has no grousers yet)")
         cid = (await self.request(collider_create(shape, material, **dims), "collider_created"))["id"]
         self.own_colliders[cid] = (shape, fields)
         for pred in self.predictions.values():
