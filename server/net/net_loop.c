@@ -81,6 +81,7 @@ void net_heartbeat_start(net_server *s)
 
 void net_catch_up(net_server *s)
 {
+    atomic_store(&s->wake_pending, 0); /* before taking: a later wake cancels again */
     net_drain_apply(s); /* a drain's notice before a world's removal closes its clients */
     net_worlds_apply(s);
     net_events_apply(s);
