@@ -328,7 +328,7 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
     world w;
     status = rebuild_past(base_world, st, *tick, r, &w, NULL, why, cap);
     if (!status) {
-        world_compaction_gather(&w, r, dst);
+        world_layer_gather(&w, WORLD_LAYER_COMPACTION, r, dst);
         world_free(&w);
     }
     return status;
@@ -354,7 +354,7 @@ static void stats_past(const world *base_world, const http_status *st, const cha
              "{\"tick\":%llu,\"volume\":%lld,\"compacted\":%lld,\"soil_compacted\":%lld,"
              "\"past\":true}\n",
              (unsigned long long)n, (long long)world_volume(&w), (long long)sim_world_compacted(&w),
-             (long long)world_soil_sum(&w, SIM_SOIL_COMPACTED));
+             (long long)world_layer_sum(&w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED));
     world_free(&w);
     answer_text(a, MHD_HTTP_OK, "application/json", body);
 }
