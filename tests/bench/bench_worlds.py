@@ -144,9 +144,9 @@ def main():
     print(f"# goal: 128 worlds >= 59 ticks/s each, <= 2 MB RSS per world (this 2-core machine)")
     print(f"# anchors: 64 separate daemons hold 60 Hz at ~10 MB each; a cluster node with 64 "
           f"worlds (a sim thread each) 58.5 Hz")
-    print(f"# CPU ms per world-tick (the daemon's CPU / the ticks its worlds ran): goal <= 0.25 "
-          f"driven (issue 32); anchors 0.38 driven, 0.045 idle (issue 22), "
-          f"0.33 driven, 0.05 idle (2026-11-29, before issue 32's fixes; docs/performance.md)")
+    print("# CPU ms per world-tick (the daemon's CPU / the ticks its worlds ran): goal <= 0.25 "
+          "driven (issue 32); anchors 0.38 driven, 0.045 idle (issue 22), "
+          "0.33 driven, 0.05 idle (2026-11-29, before issue 32's fixes; docs/performance.md)")
     print(f"{'N':>4} {'ticks/s med':>11} {'min':>6} {'CPU/world':>9} {'RSS/world':>9} "
           f"{'idle: ticks/s':>13} {'CPU/world':>9} {'RSS/world':>9} {'loadgen CPU':>11} "
           f"{'mirrors':>8} {'p99 ms':>7} {'load':>5} {'create s':>8} {'ms/tick':>7} "
