@@ -53,13 +53,14 @@ export class Prediction {
     get pending() { return this.twin.pending(); }
 
     // dims as in collider_create: sphere radius; box half_extents; capsule / cylinder radius,
-    // half_length; wheel radius, width; mesh vertices, indices (flat).
+    // half_length; wheel radius, width and its grousers {count, height, thickness}, if any;
+    // mesh vertices, indices (flat).
     addCollider(id, shape, dims) {
         if ((dims.material ?? 'default') !== 'default' || dims.pose)
             throw new Error(`collider ${id}: a predicted collider has the default material and gets its poses from POSE_BATCH`);
         if (shape === 'mesh') this.twin.addMesh(id, Float32Array.from(dims.vertices), Uint32Array.from(dims.indices));
-        else this.twin.addCollider(id, shape, { radius: dims.radius, halfExtents: dims.half_extents,
-            halfLength: shape === 'wheel' ? dims.width / 2 : dims.half_length });
+        else if (shape === 'wheel') this.twin.addWheel(id, { radius: dims.radius, halfLength: dims.width / 2, grousers: dims.grousers });
+        else this.twin.addCollider(id, shape, { radius: dims.radius, halfExtents: dims.half_extents, halfLength: dims.half_length });
     }
 
     removeCollider(id) {

@@ -156,6 +156,12 @@ class Handle {
     withShape(shape, { radius = 0, halfLength = 0, halfExtents = [0, 0, 0] }, fn) {
         this.m.withStrings([shape], (s) => this.m.check(fn(s, radius, halfLength, halfExtents[0], halfExtents[1], halfExtents[2])));
     }
+    // fn(radius, halfLength, count, height, thickness): a wheel and its grousers (none: smooth).
+    // The numbers go as they are (f64): the library refuses a bad one naming its field.
+    withWheel({ radius = 0, halfLength = 0, grousers = null }, fn) {
+        const g = grousers ?? { count: 0, height: 0, thickness: 0 };
+        this.m.check(fn(radius, halfLength, g.count, g.height, g.thickness));
+    }
 }
 
 const STATS = ['predicted', 'reconciled', 'replayed', 'exact', 'skipped', 'onTime', 'lastDiffering', 'pending'];
@@ -167,6 +173,11 @@ export class TwinPrediction extends Handle {
     // wire's axis z), wheel {radius, halfLength: half its width}
     addCollider(id, shape, dims = {}) {
         this.withShape(shape, dims, (s, ...sizes) => this.m.x.terrad_twin_prediction_add_collider(this.ptr, id, s, ...sizes, this.m.err));
+    }
+    // The wire's wheel {radius, halfLength: half its width, grousers: {count, height, thickness}
+    // (PROTOCOL.md collider_create) or none}
+    addWheel(id, dims) {
+        this.withWheel(dims, (...sizes) => this.m.x.terrad_twin_prediction_add_wheel(this.ptr, id, ...sizes, this.m.err));
     }
     // vertices: Float32Array (xyz), indices: Uint32Array (3 per triangle)
     addMesh(id, vertices, indices) {
@@ -238,6 +249,10 @@ export class TwinPrediction extends Handle {
 export class Twin extends Handle {
     addCollider(id, shape, dims = {}) {
         this.withShape(shape, dims, (s, ...sizes) => this.m.x.terrad_twin_add_collider(this.ptr, id, s, ...sizes, this.m.err));
+    }
+    // A cylinder (axle local y) {radius, halfLength, grousers: {count, height, thickness} or none}
+    addWheel(id, dims) {
+        this.withWheel(dims, (...sizes) => this.m.x.terrad_twin_add_wheel(this.ptr, id, ...sizes, this.m.err));
     }
     // vertices: Float32Array (xyz), indices: Uint32Array (3 per triangle)
     addMesh(id, vertices, indices) {

@@ -190,8 +190,8 @@ int terrad_client_create_loaded_collider(terrad_client *c, terrad_collider_desc 
  * lugs across the rim, `height` out from it, `thickness` along it (metres).
  * d.shape must be TERRAD_SHAPE_WHEEL (the server refuses another shape,
  * naming grousers); load_n 0: pose-driven, else load-driven as above. A call
- * of its own for the same ABI reason. Not predicted (terrad_client_predict):
- * the twin library has no grousers yet. */
+ * of its own for the same ABI reason. Predicted like a smooth wheel
+ * (terrad_client_predict): the twin library presses the lugs as the server. */
 typedef struct terrad_grousers {
     int count;
     double height, thickness;

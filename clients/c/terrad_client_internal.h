@@ -17,7 +17,7 @@ typedef struct client_own {
     terrad_shape shape;
     double radius, half_length, width, half_extents[3];
     int default_material; /* only these are predicted (the twin holds the default material) */
-    int lugged;           /* a wheel with grousers: not predicted (the twin has no grousers) */
+    terrad_grousers lugs; /* a wheel's grousers (count 0: smooth), pressed by the twin too */
 } client_own;
 
 /* terrad_client.c's side. */

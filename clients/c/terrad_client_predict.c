@@ -37,8 +37,7 @@ static void sync_stats(terrad_prediction *p)
 }
 
 /* The twin's copy of an own collider (only default-material ones: the twin
- * presses with the world's material; no lugged wheel: the twin library has
- * no grousers yet). */
+ * presses with the world's material); a wheel with its grousers, if any. */
 static int add_own(terrad_prediction *p, const client_own *o, char *err)
 {
     static const char *const shapes[] = {[TERRAD_SHAPE_SPHERE] = "sphere",
@@ -46,16 +45,19 @@ static int add_own(terrad_prediction *p, const client_own *o, char *err)
                                          [TERRAD_SHAPE_CAPSULE] = "capsule",
                                          [TERRAD_SHAPE_CYLINDER] = "cylinder",
                                          [TERRAD_SHAPE_WHEEL] = "wheel"};
-    if (!o->default_material || o->lugged)
+    if (!o->default_material)
         return 0;
     if ((unsigned)o->shape >= sizeof shapes / sizeof shapes[0] || !shapes[o->shape]) {
         snprintf(err, TERRAD_TWIN_ERROR_MAX, "shape: %d cannot be predicted", (int)o->shape);
         return -1;
     }
-    double half_length = o->shape == TERRAD_SHAPE_WHEEL ? o->width / 2 : o->half_length;
+    if (o->shape == TERRAD_SHAPE_WHEEL)
+        return terrad_twin_prediction_add_wheel(p->twin, o->id, o->radius, o->width / 2,
+                                                o->lugs.count, o->lugs.height, o->lugs.thickness,
+                                                err);
     return terrad_twin_prediction_add_collider(p->twin, o->id, shapes[o->shape], o->radius,
-                                               half_length, o->half_extents[0], o->half_extents[1],
-                                               o->half_extents[2], err);
+                                               o->half_length, o->half_extents[0],
+                                               o->half_extents[1], o->half_extents[2], err);
 }
 
 /* "key=value" pairs into the twin's config; -1 with err naming the key. */

@@ -78,6 +78,21 @@ TERRAD_TWIN_API void terrad_twin_destroy(terrad_twin *t);
 TERRAD_TWIN_API int terrad_twin_add_collider(terrad_twin *t, int id, const char *shape,
                                              double radius, double half_length, double hx,
                                              double hy, double hz, char *err);
+/* A wheel: a cylinder (radius, half_length; axle = local Y) whose rim may
+ * carry grousers (lugs) as the server's does (PROTOCOL.md collider_create
+ * "grousers", docs/scene-format.md "Grousers"): `grouser_count` flat plates
+ * across the whole width, each `grouser_height` m out of the rim and
+ * `grouser_thickness` m thick along it, spaced 360°/count about the axle, lug
+ * 0 along local -z; on a bekker world they also add their thrust to the
+ * soil's forces, as on the server. Count 0 with height and thickness 0: the
+ * smooth "cylinder" of terrad_twin_add_collider. The count is a double so
+ * that a binding passes what its caller gave (JavaScript's numbers, Python's
+ * floats): one that is not a whole number 0..360 is refused naming
+ * grousers.count; a height or thickness that is not > 0 and <= the radius
+ * is refused naming grousers.height or grousers.thickness. */
+TERRAD_TWIN_API int terrad_twin_add_wheel(terrad_twin *t, int id, double radius, double half_length,
+                                          double grouser_count, double grouser_height,
+                                          double grouser_thickness, char *err);
 /* A triangle mesh: vertices xyz (local frame, metres), 3 indices per
  * triangle. The arrays are copied. */
 TERRAD_TWIN_API int terrad_twin_add_mesh(terrad_twin *t, int id, const float *vertices,
@@ -155,6 +170,13 @@ TERRAD_TWIN_API int terrad_twin_prediction_add_collider(terrad_twin_prediction *
                                                         const char *shape, double radius,
                                                         double half_length, double hx, double hy,
                                                         double hz, char *err);
+/* An own wheel with grousers (the wire's "wheel" with its "grousers" object:
+ * radius, half_length = half its width, count, height, thickness; axle y), as
+ * terrad_twin_add_wheel takes and refuses them. */
+TERRAD_TWIN_API int terrad_twin_prediction_add_wheel(terrad_twin_prediction *p, uint32_t id,
+                                                     double radius, double half_length,
+                                                     double grouser_count, double grouser_height,
+                                                     double grouser_thickness, char *err);
 TERRAD_TWIN_API int terrad_twin_prediction_add_mesh(terrad_twin_prediction *p, uint32_t id,
                                                     const float *vertices, int vertex_count,
                                                     const uint32_t *indices, int triangle_count,

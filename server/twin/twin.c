@@ -354,6 +354,29 @@ int terrad_twin_add_collider(terrad_twin *t, int id, const char *shape, double r
     return add_collider(t, id, &g, NULL, err);
 }
 
+int terrad_twin_add_wheel(terrad_twin *t, int id, double radius, double half_length,
+                          double grouser_count, double grouser_height, double grouser_thickness,
+                          char *err)
+{
+    if (!t)
+        return twin_fail(err, "collider: no twin");
+    /* the count's own check (the geometry's takes it as an int): a binding's double, whole */
+    if (!(grouser_count >= 0 && grouser_count <= COLLIDER_GROUSERS_MAX) ||
+        grouser_count != floor(grouser_count))
+        return twin_fail(err, "grousers.count: must be an integer 0..%d (got %g)",
+                         COLLIDER_GROUSERS_MAX, grouser_count);
+    if (grouser_count == 0 && (grouser_height != 0 || grouser_thickness != 0))
+        return twin_fail(err,
+                         "grousers.count: 0 is a smooth rim, which has no grousers.height or "
+                         "grousers.thickness (got %g, %g)",
+                         grouser_height, grouser_thickness);
+    collider_geometry g = {.shape = COLLIDER_CYLINDER,
+                           .radius = radius,
+                           .half_length = half_length,
+                           .grousers = {(int)grouser_count, grouser_height, grouser_thickness}};
+    return add_collider(t, id, &g, NULL, err); /* the sizes: collider_geometry_validate's */
+}
+
 int terrad_twin_add_mesh(terrad_twin *t, int id, const float *vertices, int vertex_count,
                          const uint32_t *indices, int triangle_count, char *err)
 {

@@ -185,6 +185,16 @@ void terrad_twin_prediction_destroy(terrad_twin_prediction *p)
     free(p);
 }
 
+/* id may become an own collider: a twin's id, not one already. */
+static int own_id_free(terrad_twin_prediction *p, uint32_t id, char *err)
+{
+    if (id > INT32_MAX)
+        return twin_fail(err, "id: %u is not a collider id", (unsigned)id);
+    if (find_own(p, id))
+        return twin_fail(err, "id: collider %u is predicted already", (unsigned)id);
+    return 0;
+}
+
 /* The own collider's entry, once the twin holds its copy (added is the twin's
  * call's result). */
 static int own_added(terrad_twin_prediction *p, uint32_t id, int axis_z, int added, char *err)
@@ -205,10 +215,8 @@ int terrad_twin_prediction_add_collider(terrad_twin_prediction *p, uint32_t id, 
 {
     if (!p || !shape)
         return twin_fail(err, "collider: no prediction or shape");
-    if (id > INT32_MAX)
-        return twin_fail(err, "id: %u is not a collider id", (unsigned)id);
-    if (find_own(p, id))
-        return twin_fail(err, "id: collider %u is predicted already", (unsigned)id);
+    if (own_id_free(p, id, err) != 0)
+        return -1;
     int axis_z = strcmp(shape, "capsule") == 0 || strcmp(shape, "cylinder") == 0;
     const char *twin_shape = strcmp(shape, "wheel") == 0 ? "cylinder" : shape; /* axle along y */
     if (!axis_z && strcmp(shape, "sphere") != 0 && strcmp(shape, "box") != 0 &&
@@ -223,16 +231,28 @@ int terrad_twin_prediction_add_collider(terrad_twin_prediction *p, uint32_t id, 
                      err);
 }
 
+int terrad_twin_prediction_add_wheel(terrad_twin_prediction *p, uint32_t id, double radius,
+                                     double half_length, double grouser_count,
+                                     double grouser_height, double grouser_thickness, char *err)
+{
+    if (!p)
+        return twin_fail(err, "collider: no prediction");
+    if (own_id_free(p, id, err) != 0)
+        return -1;
+    return own_added(p, id, 0, /* a wheel's axle is y on the wire as in the engine */
+                     terrad_twin_add_wheel(p->twin, (int)id, radius, half_length, grouser_count,
+                                           grouser_height, grouser_thickness, err),
+                     err);
+}
+
 int terrad_twin_prediction_add_mesh(terrad_twin_prediction *p, uint32_t id, const float *vertices,
                                     int vertex_count, const uint32_t *indices, int triangle_count,
                                     char *err)
 {
     if (!p)
         return twin_fail(err, "collider: no prediction");
-    if (id > INT32_MAX)
-        return twin_fail(err, "id: %u is not a collider id", (unsigned)id);
-    if (find_own(p, id))
-        return twin_fail(err, "id: collider %u is predicted already", (unsigned)id);
+    if (own_id_free(p, id, err) != 0)
+        return -1;
     return own_added(p, id, 0,
                      terrad_twin_add_mesh(p->twin, (int)id, vertices, vertex_count, indices,
                                           triangle_count, err),

@@ -8,10 +8,12 @@
  *   c_predict_drive world PORT NAME W H OUT            hello into world NAME
  *
  * predict: client A subscribes the window, predicts it with CONFIG (the
- * scene's twin keys) and drives a sphere, a rolling wheel and a capsule (a
- * quaternion of norm 1.04) through it for 600 ticks; client B then ploughs it
+ * scene's twin keys) and drives a sphere, a rolling wheel, a capsule (a
+ * quaternion of norm 1.04) and a rolling wheel with grousers (its lugs
+ * deeper than its rim) through it for 600 ticks; client B then ploughs it
  * with its own sphere. Checks, each a CHECK line: bad input to the new calls
- * is refused naming the field; the rut is in the prediction before the
+ * is refused naming the field (grousers out of range among it, by the
+ * server); the rut is in the prediction before the
  * server's ACK of its batch; every compared ACK's replay has 0 cells
  * differing; B's rut makes replays differ and every reconciliation with
  * nothing pending equals the mirror. At the end both clients delete their
@@ -160,6 +162,30 @@ static void bad_input(terrad_client *a, uint32_t sid, const char *cfg)
           "a NULL out is refused naming it (%s)", terrad_client_last_error(a));
 }
 
+/* 12 lugs a cell tall: each its own dent */
+static const terrad_grousers LUGS = {12, 0.05, 0.04};
+
+/* Lugs out of range while predicting: the server refuses them naming the
+ * field, and the prediction has nothing new to tick. */
+static void bad_lugs(terrad_client *a, const drive *d, terrad_collider_desc wheel)
+{
+    const struct {
+        terrad_grousers g;
+        const char *field;
+    } bad[] = {{{-2, 0.05, 0.04}, "grousers.count"},
+               {{400, 0.05, 0.04}, "grousers.count"},
+               {{12, 0.5, 0.04}, "grousers.height"},
+               {{12, 0.05, -0.01}, "grousers.thickness"}};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        uint32_t id = 0;
+        int rc = terrad_client_create_lugged_collider(a, wheel, bad[i].g, 0.0, &id);
+        CHECK(rc != 0 && strstr(terrad_client_last_error(a), bad[i].field),
+              "grousers {%d, %g, %g} refused naming %s (%d: %s)", bad[i].g.count, bad[i].g.height,
+              bad[i].g.thickness, bad[i].field, rc, terrad_client_last_error(a));
+    }
+    CHECK(terrad_prediction_get_stats(d->pred)->predicted == 0, "the refusals ticked nothing");
+}
+
 static uint32_t make(terrad_client *c, terrad_collider_desc d)
 {
     uint32_t id = 0;
@@ -168,8 +194,10 @@ static uint32_t make(terrad_client *c, terrad_collider_desc d)
     return id;
 }
 
-/* A's 600 ticks: three own colliders, one pose batch a tick. */
-static void drive_own(terrad_client *a, drive *d, const uint32_t ids[3], const int rows[3],
+enum { OWN = 4 }; /* A's colliders: sphere, wheel, capsule, lugged wheel */
+
+/* A's 600 ticks: its own colliders, one pose batch a tick. */
+static void drive_own(terrad_client *a, drive *d, const uint32_t ids[OWN], const int rows[OWN],
                       double z)
 {
     const int n = 600;
@@ -179,14 +207,17 @@ static void drive_own(terrad_client *a, drive *d, const uint32_t ids[3], const i
     for (int i = 0; i <= n; i++) {
         int k = i < n ? i : n - 1;
         double lift = i < n ? 0 : 5.0;
-        terrad_pose p[3] = {pose_at(d, ids[0], k, n, rows[0], z + lift),
-                            pose_at(d, ids[1], k, n, rows[1], z + lift),
-                            pose_at(d, ids[2], k, n, rows[2], 0.4 + 0.12 - 0.04 + lift)};
-        double angle = p[1].x / 0.3; /* the wheel rolls */
-        p[1].qw = (float)cos(angle / 2), p[1].qy = (float)sin(angle / 2);
+        terrad_pose p[OWN] = {pose_at(d, ids[0], k, n, rows[0], z + lift),
+                              pose_at(d, ids[1], k, n, rows[1], z + lift),
+                              pose_at(d, ids[2], k, n, rows[2], 0.4 + 0.12 - 0.04 + lift),
+                              pose_at(d, ids[3], k, n, rows[3], z + lift)};
+        for (int w = 1; w < OWN; w += 2) { /* the wheels roll */
+            double angle = p[w].x / 0.3;
+            p[w].qw = (float)cos(angle / 2), p[w].qy = (float)sin(angle / 2);
+        }
         p[2].qw = p[2].qy = (float)(1.04 * sqrt(0.5)); /* norm 1.04, turned from axis z */
         uint32_t seq = 0;
-        CHECK(terrad_client_send_poses(a, p, 3, &seq) == 0, "poses sent");
+        CHECK(terrad_client_send_poses(a, p, OWN, &seq) == 0, "poses sent");
         if (early_seq < 0) { /* the rut in the prediction, not yet in the mirror */
             const int32_t *mine = terrad_prediction_heights(d->pred);
             for (size_t c = 0; c < cells; c++)
@@ -218,14 +249,18 @@ static void drive_own(terrad_client *a, drive *d, const uint32_t ids[3], const i
               memcmp(terrad_prediction_heights(d->pred), d->mirror->heights, cells * 4) == 0,
           "with nothing pending, the prediction is the server's state");
     int units = terrad_client_world(a)->units_per_m;
-    for (int r = 0; r < 3; r++) {
+    int32_t deepest[OWN];
+    for (int r = 0; r < OWN; r++) {
         const int32_t *row = terrad_prediction_heights(d->pred) + (size_t)(rows[r] - d->y) * d->w;
         int32_t lo = row[0];
         for (uint32_t c = 1; c < d->w; c++)
             lo = row[c] < lo ? row[c] : lo;
+        deepest[r] = lo;
         CHECK(lo < (int32_t)(0.38 * units), "collider %d left a rut (%d units at the deepest)", r,
               lo);
     }
+    CHECK(deepest[3] < deepest[1] - (int32_t)(0.02 * units),
+          "the lugs dent deeper than the smooth wheel's rim (%d < %d)", deepest[3], deepest[1]);
 }
 
 /* B ploughs A's window: only the server knows its rut. */
@@ -280,16 +315,23 @@ static int run_predict(int port, drive *d, const char *cfg, const char *out)
     rc = terrad_client_predict(a, sid, cfg, &(terrad_prediction *){NULL});
     CHECK(rc == TERRAD_E_BAD_VALUE, "a second prediction of one subscription is refused (%s)",
           terrad_client_last_error(a));
-    uint32_t ids[3] = {
+    const terrad_collider_desc wheel = {.shape = TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2};
+    bad_lugs(a, d, wheel);
+    uint32_t ids[OWN] = {
         make(a, (terrad_collider_desc){.shape = TERRAD_SHAPE_SPHERE, .radius = 0.3}),
-        make(a, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2}),
-        make(a, (terrad_collider_desc){
-                    .shape = TERRAD_SHAPE_CAPSULE, .radius = 0.12, .half_length = 0.25})};
-    int rows[3] = {d->y + 20, d->y + 40, d->y + 60};
+        make(a, wheel),
+        make(a, (terrad_collider_desc){.shape = TERRAD_SHAPE_CAPSULE,
+                                       .radius = 0.12,
+                                       .half_length = 0.25}),
+        0};
+    int rc_lugged = terrad_client_create_lugged_collider(a, wheel, LUGS, 0.0, &ids[3]);
+    CHECK(rc_lugged == 0, "a lugged wheel created (%d: %s)", rc_lugged,
+          terrad_client_last_error(a));
+    int rows[OWN] = {d->y + 20, d->y + 40, d->y + 60, d->y + 50};
     double z = 0.4 + 0.3 - 0.06;
     drive_own(a, d, ids, rows, z);
     drive_other(a, b, d, ids[0], rows[0], z);
-    for (int i = 0; i < 3; i++)
+    for (int i = 0; i < OWN; i++)
         CHECK(terrad_client_delete_collider(a, ids[i]) == 0, "A's collider %d deleted", i);
     uint32_t seq = 0;
     terrad_client_send_poses(a, NULL, 0, &seq); /* an ACK after the deletions */

@@ -76,8 +76,8 @@ class Conn {
         return got;
     }
 
-    async collider(shape, dims) {
-        this.ws.send(JSON.stringify(colliderCreate(shape, dims)));
+    async collider(shape, dims, opts = {}) {
+        this.ws.send(JSON.stringify(colliderCreate(shape, dims, opts)));
         return (await this.reply('collider_created')).id;
     }
 
@@ -128,14 +128,30 @@ const wheel = await a.collider('wheel', wheelDims);
 own.set(wheel, { shape: 'wheel', dims: wheelDims });
 const capsule = await a.collider('capsule', capsuleDims);
 own.set(capsule, { shape: 'capsule', dims: capsuleDims });
+// A rolling wheel with grousers a cell tall: each lug stamps its own dent, on the server and
+// in the prediction alike (the wire's grousers go into the twin's wheel).
+const grousers = { count: 12, height: 0.05, thickness: 0.04 };
+const lugged = await a.collider('wheel', wheelDims, { grousers });
+own.set(lugged, { shape: 'wheel', dims: { ...wheelDims, grousers } });
 const pred = (a.prediction = new Prediction(twinModule, a.world, mirror, config, own));
+// Bad lugs: refused naming the field, and the prediction goes on.
+out.refusedLugs = [[{ ...grousers, count: -1 }, 'grousers.count'], [{ ...grousers, count: 2.5 }, 'grousers.count'],
+    [{ ...grousers, count: 1e12 }, 'grousers.count'], [{ ...grousers, height: 1 }, 'grousers.height'],
+    [{ count: 12, height: 0.05 }, 'grousers.thickness']].map(([g, field]) => {
+    try {
+        pred.addCollider(999, 'wheel', { ...wheelDims, grousers: g });
+        return `${field}: not refused`;
+    } catch (e) {
+        return String(e.message).includes(field) ? 'ok' : `${field}: ${e.message}`;
+    }
+});
 const x0 = (RX + 24) * cell, x1 = (RX + RW - 24) * cell;
 const pose = (id, i, n, row, dz = 0) => ({ id, x: x0 + ((x1 - x0) * i) / (n - 1), y: (row + 0.5) * cell, z: z + dz, qw: 1, qx: 0, qy: 0, qz: 0 });
-const rowA = RY + 20, rowW = RY + 40, rowC = RY + 60, rowB = RY + 80, n = 600;
+const rowA = RY + 20, rowW = RY + 40, rowL = RY + 50, rowC = RY + 60, rowB = RY + 80, n = 600;
+const rolling = (p) => ({ ...p, qw: Math.cos(p.x / radius / 2), qy: Math.sin(p.x / radius / 2) });
 const ownPoses = (i, dz = 0) => {
-    const wp = pose(wheel, i, n, rowW, dz), angle = wp.x / radius;
     const cp = { ...pose(capsule, i, n, rowC, dz), z: 0.4 + 0.12 - 0.04 + dz, qw: 1.04 * Math.SQRT1_2, qy: 1.04 * Math.SQRT1_2 };
-    return [pose(ball, i, n, rowA, dz), { ...wp, qw: Math.cos(angle / 2), qy: Math.sin(angle / 2) }, cp];
+    return [pose(ball, i, n, rowA, dz), rolling(pose(wheel, i, n, rowW, dz)), cp, rolling(pose(lugged, i, n, rowL, dz))];
 };
 const t0 = Date.now();
 for (let i = 0; i < n; i++) {
@@ -152,7 +168,7 @@ let last = a.send(ownPoses(n - 1, 5));
 await until('the last ACK', () => a.ackedSeq >= last);
 out.drive = { predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime };
 out.settled = sameArrays(pred.heights(), mirror.heights);
-out.ruts = [rowA, rowW, rowC].map((r) => lowered(r - RY));
+out.ruts = [rowA, rowW, rowC, rowL].map((r) => lowered(r - RY));
 
 // B ploughs A's window: only the server knows B's rut until A's next reconciliation.
 const other = await b.collider('sphere', { radius });

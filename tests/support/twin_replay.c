@@ -88,6 +88,11 @@ int main(int argc, char **argv)
             double r = num(), hl = num(), hx = num(), hy = num(), hz = num();
             if (terrad_twin_add_collider(t, id, shape, r, hl, hx, hy, hz, err) != 0)
                 return die("collider");
+        } else if (strcmp(word, "wheel") == 0) {
+            int id = (int)num();
+            double r = num(), hl = num(), count = num(), height = num(), thickness = num();
+            if (terrad_twin_add_wheel(t, id, r, hl, count, height, thickness, err) != 0)
+                return die("wheel");
         } else if (strcmp(word, "mesh") == 0) {
             if (read_mesh(t) != 0)
                 return die("mesh");

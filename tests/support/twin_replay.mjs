@@ -25,6 +25,12 @@ for (const line of readFileSync(tracePath, 'utf8').split('\n')) {
             radius: Number(f[3]), halfLength: Number(f[4]), halfExtents: f.slice(5, 8).map(Number),
         });
         break;
+    case 'wheel':
+        twin.addWheel(Number(f[1]), {
+            radius: Number(f[2]), halfLength: Number(f[3]),
+            grousers: { count: Number(f[4]), height: Number(f[5]), thickness: Number(f[6]) },
+        });
+        break;
     case 'mesh': {
         const nv = Number(f[2]);
         const nt = Number(f[3]);

@@ -8,6 +8,7 @@
  *
  *   set KEY VALUE | name KEY VALUE | window X Y W H | heights H0 H1 ... | base
  *   collider ID SHAPE RADIUS HALF_LENGTH HX HY HZ
+ *   wheel ID RADIUS HALF_LENGTH COUNT HEIGHT THICKNESS   (a cylinder with grousers)
  *   mesh ID NV NT X0 Y0 Z0 ... I0 I1 I2 ...
  *   pose ID X Y Z QW QX QY QZ | tick
  *
@@ -36,6 +37,11 @@ static void print_key(void *ctx, const char *key, double number, const char *nam
 static void print_collider(int id, const collider_geometry *g)
 {
     static const char *const shapes[] = {"sphere", "box", "capsule", "cylinder"};
+    if (g->shape == COLLIDER_CYLINDER && g->grousers.count > 0) {
+        printf("wheel %d %.17g %.17g %d %.17g %.17g\n", id, g->radius, g->half_length,
+               g->grousers.count, g->grousers.height, g->grousers.thickness);
+        return;
+    }
     if (g->shape != COLLIDER_MESH) {
         printf("collider %d %s %.17g %.17g %.17g %.17g %.17g\n", id, shapes[g->shape], g->radius,
                g->half_length, g->half_extents.x, g->half_extents.y, g->half_extents.z);

@@ -5,7 +5,8 @@
  * time and every ACK's replay is exact; batches acknowledged together after a
  * gap are not compared; a resyncing mirror skips the comparison and the next
  * ACK resets; a pose goes through the server's arithmetic (float32,
- * collider_wire_orientation). Bad input is refused with the field named and
+ * collider_wire_orientation); a wheel with grousers is predicted as exactly
+ * as the smooth shapes. Bad input is refused with the field named and
  * the prediction goes on. The clients' own tests (test_predict_c,
  * test_predict_python, test_predict_js, ...) drive it against a real daemon.
  */
@@ -58,10 +59,16 @@ static void test_drive(const char *shape, int axis_z)
     terrad_twin_prediction *p = terrad_twin_prediction_create(c, X, Y, W, H, heights, 0, err);
     terrad_twin_config_free(c);
     CHECK(p != NULL, "%s: created (%s)", shape, err);
-    terrad_twin_add_collider(server, ID, strcmp(shape, "wheel") == 0 ? "cylinder" : shape, 0.3, 0.1,
-                             0, 0, 0, NULL);
-    CHECK(terrad_twin_prediction_add_collider(p, ID, shape, 0.3, 0.1, 0, 0, 0, err) == 0,
-          "%s: an own collider (%s)", shape, err);
+    if (strcmp(shape, "lugged") == 0) { /* the server's lugged rim (net_control's grousers) */
+        terrad_twin_add_wheel(server, ID, 0.3, 0.1, 12, 0.05, 0.03, NULL);
+        CHECK(terrad_twin_prediction_add_wheel(p, ID, 0.3, 0.1, 12, 0.05, 0.03, err) == 0,
+              "%s: an own wheel with grousers (%s)", shape, err);
+    } else {
+        terrad_twin_add_collider(server, ID, strcmp(shape, "wheel") == 0 ? "cylinder" : shape, 0.3,
+                                 0.1, 0, 0, 0, NULL);
+        CHECK(terrad_twin_prediction_add_collider(p, ID, shape, 0.3, 0.1, 0, 0, 0, err) == 0,
+              "%s: an own collider (%s)", shape, err);
+    }
     const uint32_t id = ID;
     double pose[7];
     uint64_t tick = 100;
@@ -143,6 +150,24 @@ static void test_refusals(void)
     CHECK(terrad_twin_prediction_add_collider(p, 1, "box", 0, 0, 1, 1, 1, err) == -1 &&
               strstr(err, "id"),
           "the same id twice names the id (%s)", err);
+    CHECK(terrad_twin_prediction_add_wheel(p, 2, 0.3, 0.1, -3, 0.05, 0.03, err) == -1 &&
+              strstr(err, "grousers.count"),
+          "a negative grouser count names the field (%s)", err);
+    CHECK(terrad_twin_prediction_add_wheel(p, 2, 0.3, 0.1, 12.5, 0.05, 0.03, err) == -1 &&
+              strstr(err, "grousers.count"),
+          "a fractional grouser count names the field (%s)", err);
+    CHECK(terrad_twin_prediction_add_wheel(p, 2, 0.3, 0.1, 12, 0.5, 0.03, err) == -1 &&
+              strstr(err, "grousers.height"),
+          "grousers taller than the radius name the field (%s)", err);
+    CHECK(terrad_twin_prediction_add_wheel(p, 2, 0.3, 0.1, 12, 0.05, -0.03, err) == -1 &&
+              strstr(err, "grousers.thickness"),
+          "a negative grouser thickness names the field (%s)", err);
+    CHECK(terrad_twin_prediction_add_wheel(p, 1, 0.3, 0.1, 12, 0.05, 0.03, err) == -1 &&
+              strstr(err, "id"),
+          "a wheel on an own collider's id names the id (%s)", err);
+    CHECK(terrad_twin_prediction_add_wheel(p, 2, 0.3, 0.1, 12, 0.05, 0.03, err) == 0 &&
+              terrad_twin_prediction_remove_collider(p, 2, err) == 0,
+          "then a good lugged wheel (%s)", err);
     CHECK(terrad_twin_prediction_sent(p, 1, NULL, NULL, 2, err) == -1 && strstr(err, "poses"),
           "poses without their numbers are refused (%s)", err);
     CHECK(terrad_twin_prediction_get_stats(p)->predicted == 0, "a refused batch is not ticked");
@@ -162,6 +187,7 @@ int main(void)
     test_drive("sphere", 0);
     test_drive("capsule", 1);
     test_drive("wheel", 0);
+    test_drive("lugged", 0);
     test_refusals();
     return check_report();
 }

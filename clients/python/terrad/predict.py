@@ -39,7 +39,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from .proto import Pose
-from .twin import _ERR_MAX, PredictionStats, Twin, TwinError, int32s, load_library, make_config
+from .twin import (_ERR_MAX, PredictionStats, Twin, TwinError, grouser_numbers, int32s,
+                   load_library, make_config)
 
 if TYPE_CHECKING:
     from .client import Client
@@ -151,7 +152,7 @@ class Prediction:
 
     def add_collider(self, cid: int, shape: str, dims: dict[str, Any]) -> None:
         """The twin's copy of a collider this client created (Client.create_collider calls
-        this): sphere, box, capsule, cylinder, wheel, mesh."""
+        this): sphere, box, capsule, cylinder, wheel (with its grousers, if any), mesh."""
         if dims.get("material", "default") != "default" or "pose" in dims:
             raise TwinError(f"collider {cid}: a predicted collider has the default material "
                             "and gets its poses from send_poses (no pose at creation)")
@@ -162,8 +163,13 @@ class Prediction:
                 p, cid, (ctypes.c_float * len(v))(*v), len(v) // 3,
                 (ctypes.c_uint32 * len(i))(*i), len(i) // 3, self._err))
             return
+        if shape == "wheel":
+            self._check(self._lib.terrad_twin_prediction_add_wheel(
+                p, cid, dims.get("radius", 0.0), dims["width"] / 2,
+                *grouser_numbers(dims.get("grousers")), self._err))
+            return
         hx, hy, hz = dims.get("half_extents", (0.0, 0.0, 0.0))
-        half_length = dims["width"] / 2 if shape == "wheel" else dims.get("half_length", 0.0)
+        half_length = dims.get("half_length", 0.0)
         self._check(self._lib.terrad_twin_prediction_add_collider(
             p, cid, shape.encode(), dims.get("radius", 0.0), half_length, hx, hy, hz,
             self._err))

@@ -65,6 +65,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "create": (P, [P, I, I, I, I, i32p, S]),
         "destroy": (None, [P]),
         "add_collider": (I, [P, I, S, D, D, D, D, D, S]),
+        "add_wheel": (I, [P, I, D, D, D, D, D, S]),
         "add_mesh": (I, [P, I, ctypes.POINTER(ctypes.c_float), I,
                          ctypes.POINTER(ctypes.c_uint32), I, S]),
         "remove_collider": (I, [P, I, S]),
@@ -76,6 +77,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "prediction_create": (P, [P, I, I, I, I, i32p, I, S]),
         "prediction_destroy": (None, [P]),
         "prediction_add_collider": (I, [P, U32, S, D, D, D, D, D, S]),
+        "prediction_add_wheel": (I, [P, U32, D, D, D, D, D, S]),
         "prediction_add_mesh": (I, [P, U32, f32p, I, u32p, I, S]),
         "prediction_remove_collider": (I, [P, U32, S]),
         "prediction_sent": (I, [P, U32, u32p, dp, I, S]),
@@ -120,6 +122,24 @@ def int32s(values: Sequence[int] | Any, n: int, what: str) -> Any:
     if len(buf) != n:
         raise TwinError(f"{what}: {len(buf)} values for {n} cells")
     return (ctypes.c_int32 * n).from_buffer(buf)
+
+
+def grouser_numbers(grousers: dict[str, Any] | None) -> tuple[float, float, float]:
+    """A wheel's {"count", "height", "thickness"} (PROTOCOL.md collider_create "grousers") as
+    the library's three numbers; None: a smooth rim (0, 0, 0). The library judges the values
+    and names the field (grousers.count, .height, .thickness); here only their form."""
+    if grousers is None:
+        return 0.0, 0.0, 0.0
+    keys = ("count", "height", "thickness")
+    if not isinstance(grousers, dict) or set(grousers) != set(keys):
+        raise TwinError(f"grousers: must be {{count, height, thickness}}, not {grousers!r}")
+    out = []
+    for k in keys:
+        v = grousers[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise TwinError(f"grousers.{k}: must be a number, not {type(v).__name__}")
+        out.append(float(v))
+    return out[0], out[1], out[2]
 
 
 def make_config(lib: ctypes.CDLL, config: dict[str, Any], err: Any) -> int:
@@ -209,6 +229,13 @@ class Twin:
         self._check(self._lib.terrad_twin_add_collider(self._handle(), cid, shape.encode(),
                                                        radius, half_length, hx, hy, hz,
                                                        self._err))
+
+    def add_wheel(self, cid: int, radius: float, half_length: float,
+                  grousers: dict[str, Any] | None = None) -> None:
+        """A cylinder (axle: local y) with grousers {"count": N, "height": m, "thickness": m}
+        on its rim, as the server presses them; None: smooth."""
+        self._check(self._lib.terrad_twin_add_wheel(self._handle(), cid, radius, half_length,
+                                                    *grouser_numbers(grousers), self._err))
 
     def add_mesh(self, cid: int, vertices: Sequence[float], indices: Sequence[int]) -> None:
         """vertices: x, y, z flat (metres, the collider's frame); indices: 3 per triangle."""

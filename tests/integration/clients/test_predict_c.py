@@ -5,8 +5,11 @@ terrad_client_predict, terrad_client_connect_world; docs/engines.md) against a r
 (--backend cpu, no demo actors, a flat scene of default material), through
 tests/support/c_predict_drive.c linked to the shared libterrad-client:
 
-- prediction (the Python client's test, in C): a sphere, a rolling wheel and a capsule (a
-  quaternion of norm 1.04) driven for 600 ticks, one pose batch per tick; the rut is in the
+- prediction (the Python client's test, in C): a sphere, a rolling wheel, a capsule (a
+  quaternion of norm 1.04) and a rolling wheel with grousers (terrad_client_create_lugged_collider:
+  before the twin library took grousers the client left it out of the prediction, and the
+  replays differed from the server) driven for 600 ticks, one pose batch per tick; bad grousers
+  are refused by the server naming the field; its lugs dent deeper than the smooth rim; the rut is in the
   prediction before the server's ACK of its batch; every compared ACK's replay of the
   server's ticks has 0 cells differing; a second client's rut makes replays differ and every
   reconciliation with nothing pending equals the mirror; bad input to terrad_client_predict

@@ -7,14 +7,16 @@ WebSocket, drives through two connections with the viewer's codec and reports; h
 
 - the prediction shows the rut before the server could have it (at the first pressing
   batch, before its bytes are sent, predicted heights below the mirror's);
-- 600 ticks, one batch per tick (a sphere, a rolling wheel and a capsule whose quaternion is
-  not of norm 1): at every compared ACK the JavaScript client's replay of the
+- 600 ticks, one batch per tick (a sphere, a rolling wheel, a capsule whose quaternion is
+  not of norm 1 and a rolling wheel with grousers, which the twin presses lug by lug as the
+  server does: TwinPrediction.addWheel): at every compared ACK the JavaScript client's replay of the
   server's ticks equals the server's heights in every cell, and with nothing pending the
   prediction is the mirror;
 - a second connection ploughs the same window: the replay then differs from the server, and
   after every reconciliation with nothing pending the prediction equals the mirror; at the
   end the mirror equals GET /v1/heights and holds the other's rut;
-- bad input: a Prediction on a mirror without its snapshot, an unknown model: refused with
+- bad input: a Prediction on a mirror without its snapshot, an unknown model, grousers with
+  a negative, fractional or huge count, a height over the radius, no thickness: refused with
   an error naming the field.
 Skips (77) without node, twin_trace or build/terrad_twin.wasm (the last fails instead under
 make test: service_harness.need_twin_wasm).
@@ -69,8 +71,10 @@ def main():
                   f"every compared ACK: the JavaScript replay equals the server in every cell "
                   f"({drive['exact']} of {drive['replayed']}; {drive['skipped']} not compared)")
             check(out["settled"], "with nothing pending, the prediction is the server's state")
-            check(min(out["ruts"]) > 20, f"sphere, wheel and capsule left ruts ({out['ruts']} cells "
-                  "of their rows lower)")
+            check(min(out["ruts"]) > 20, f"sphere, wheel, capsule and lugged wheel left ruts "
+                  f"({out['ruts']} cells of their rows lower)")
+            check(out.get("refusedLugs") and all(r == "ok" for r in out["refusedLugs"]),
+                  f"bad grousers are refused naming the field ({out.get('refusedLugs')})")
             check(other["replayed"] > other["exact"],
                   f"another client's rut makes the replay differ ({other})")
             check(other["resets"] > 0 and other["resetsEqual"] == other["resets"] and final["settled"],

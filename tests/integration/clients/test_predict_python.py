@@ -3,8 +3,10 @@
 """Client-side prediction in the Python client (terrad.predict, docs/engines.md "Prediction")
 against a real daemon (--backend cpu, no demo actors, a flat scene of default material):
 
-- one client predicts a subscription and drives a sphere, a rolling wheel and a capsule
-  (its quaternion not of norm 1) through it for 600 ticks, one pose batch per tick. The prediction shows the rut before the server could have it: at the first
+- one client predicts a subscription and drives a sphere, a rolling wheel, a capsule
+  (its quaternion not of norm 1) and a rolling wheel with grousers (lugs deeper than its rim:
+  the twin library's terrad_twin_prediction_add_wheel; before it the client refused to
+  predict one) through it for 600 ticks, one pose batch per tick. The prediction shows the rut before the server could have it: at the first
   pressing batch, before its bytes are sent, the predicted heights are below the mirror's
   under the sphere. At every ACK the replay of the server's ticks on the client's twin
   (from the previous ACK's heights, with the poses the ACKs say the server used) equals the
@@ -44,6 +46,7 @@ WAIT = 120  # generous: the machine may be loaded
 SCENE = {"name": "predict", "world": {"width": 256, "height": 256, "cell_size_m": 0.05},
          "terrain": {"kind": "flat", "height_m": 0.4}, "colliders": []}
 REGION = (64, 80, 128, 96)  # x, y, w, h cells: the predicted window
+LUGS = {"count": 12, "height": 0.05, "thickness": 0.04}  # a cell tall: each lug its own dent
 
 
 def pose_at(cid, i, n, y_cell, z, cell):
@@ -95,6 +98,17 @@ async def drive(d, cfg):
 
         pred.on_predict(seen)
         radius = 0.3
+        # Bad lugs while predicting: the server refuses them naming the field, and the
+        # prediction is as it was (nothing added, nothing ticked).
+        for bad, field in (({**LUGS, "count": -2}, "grousers.count"),
+                           ({**LUGS, "height": 0.5}, "grousers.height"),
+                           ({**LUGS, "thickness": -0.01}, "grousers.thickness")):
+            try:
+                await a.create_collider("wheel", radius=radius, width=0.2, grousers=bad)
+                check(False, f"a lugged wheel with {bad} is refused")
+            except terrad.ServerError as e:
+                check(field in str(e), f"a bad {field} is refused naming it ({e})")
+        check(pred.predicted == 0 and not a.own_colliders, "the refused wheels left no trace")
         z = 0.4 + radius - 0.06
         ball = await a.create_collider("sphere", radius=radius)
         # A rolling wheel (the axle's quaternion turning) and a capsule lying along x (a
@@ -102,16 +116,18 @@ async def drive(d, cfg):
         # arithmetic, float32 and normalisation, is the prediction's too.
         wheel = await a.create_collider("wheel", radius=radius, width=0.2)
         capsule = await a.create_collider("capsule", radius=0.12, half_length=0.25)
-        y_a, y_w, y_c = REGION[1] + 20, REGION[1] + 40, REGION[1] + 60
+        lugged = await a.create_collider("wheel", radius=radius, width=0.2, grousers=LUGS)
+        y_a, y_w, y_c, y_l = REGION[1] + 20, REGION[1] + 40, REGION[1] + 60, REGION[1] + 50
         n = 600
 
         def own_poses(i):
-            wp = pose_at(wheel, i, n, y_w, z, cell)
-            angle = wp.x / radius
-            wp.qw, wp.qy = math.cos(angle / 2), math.sin(angle / 2)
+            wp, lp = pose_at(wheel, i, n, y_w, z, cell), pose_at(lugged, i, n, y_l, z, cell)
+            for p in (wp, lp):  # both roll
+                angle = p.x / radius
+                p.qw, p.qy = math.cos(angle / 2), math.sin(angle / 2)
             cp = pose_at(capsule, i, n, y_c, 0.4 + 0.12 - 0.04, cell)
             cp.qw = cp.qy = 1.04 * math.sqrt(0.5)
-            return [pose_at(ball, i, n, y_a, z, cell), wp, cp]
+            return [pose_at(ball, i, n, y_a, z, cell), wp, cp, lp]
 
         for i in range(n):
             await a.send_poses(own_poses(i))
@@ -134,9 +150,12 @@ async def drive(d, cfg):
               f"{pred.reconciled} reconciliations, last differing {pred.last_differing})")
         check(list(pred.twin.read()) == list(a.mirrors[sid].heights),
               "with nothing pending, the prediction is the server's state")
-        rows = [list(pred.twin.read(REGION[0], y, REGION[2], 1)) for y in (y_a, y_w, y_c)]
+        rows = [list(pred.twin.read(REGION[0], y, REGION[2], 1)) for y in (y_a, y_w, y_c, y_l)]
         check(all(min(r) < int(0.4 * units) - int(0.02 * units) for r in rows),
-              f"sphere, wheel and capsule left ruts ({[min(r) for r in rows]} units at the deepest)")
+              f"sphere, wheel, capsule and lugged wheel left ruts ({[min(r) for r in rows]} "
+              "units at the deepest)")
+        check(min(rows[3]) < min(rows[1]) - int(0.02 * units),
+              f"the lugs dent deeper than the smooth wheel's rim ({min(rows[3])} < {min(rows[1])})")
 
         # A second client ploughs the same window: only the server knows its rut.
         ball_b = await b.create_collider("sphere", radius=radius)
@@ -184,6 +203,33 @@ async def drive(d, cfg):
         check(terrad.Prediction is type(pred), "the package exports Prediction")
 
 
+def twin_lugs(cfg):
+    """terrad.Twin.add_wheel: grousers of a bad form or value are refused naming the field (the
+    twin goes on), and good ones press below the smooth rim."""
+    with terrad.Twin(cfg, *REGION) as t:
+        for bad, field in (({**LUGS, "count": 400}, "grousers.count"),
+                           ({**LUGS, "count": 2.5}, "grousers.count"),
+                           ({**LUGS, "height": -0.05}, "grousers.height"),
+                           ({**LUGS, "thickness": 1.0}, "grousers.thickness"),
+                           ({**LUGS, "height": "tall"}, "grousers.height"),
+                           ({"count": 12, "height": 0.05}, "grousers"), ([12, 0.05, 0.04], "grousers")):
+            try:
+                t.add_wheel(3, 0.3, 0.1, bad)
+                check(False, f"add_wheel refuses {bad}")
+            except TwinError as e:
+                check(field in str(e), f"add_wheel refuses {bad} naming {field} ({e})")
+        lowest = []
+        for cid, lugs in ((3, None), (4, LUGS)):
+            t.write([int(0.4 * 10000)] * (REGION[2] * REGION[3]))
+            t.add_wheel(cid, 0.3, 0.1, lugs)
+            t.set_pose(cid, (5.0 + 0.025, 6.0, 0.71))  # the axle over cell centres
+            t.tick()
+            lowest.append(min(t.read()))
+            t.remove_collider(cid)
+        check(lowest[0] == 4000 and lowest[1] < 4000,
+              f"the smooth rim 1 cm above the soil leaves it, its lugs press ({lowest})")
+
+
 def place_resumes(cfg):
     """terrad_twin_place: a twin restarted from another's heights after tick 1, its sphere
     placed where tick 1 left it, gives tick 2 the same heights as the twin that ran both (the
@@ -223,6 +269,7 @@ def main():
         cfg = twin_config(path)
         check(cfg.get("model") and cfg.get("width") == 256, f"the scene's twin config ({cfg})")
         place_resumes(cfg)
+        twin_lugs(cfg)
         with check.running(Daemon(extra=["--scene", path, "--no-data"])) as d:
             asyncio.run(asyncio.wait_for(drive(d, cfg), 240))
     check.finish()

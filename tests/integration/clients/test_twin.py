@@ -2,7 +2,9 @@
 # ctest-timeout: 600
 """The twin library (server/twin/terrad_twin.h, docs/engines.md) against the daemon's twin.
 
-- Every scene under tests/scenes/ (and one small scene per deformation model) is
+- Every scene under tests/scenes/ and the lugged wheel's (tests/scenes/lugged/: grousers,
+  terrad_twin_add_wheel), and one small scene per deformation model (a sphere, a smooth
+  and a lugged wheel rolling: on bekker its lug thrust too) is
   run by `terrad simulate --backend cpu` and replayed through the twin library
   twice: natively (tests/support/twin_replay.c, linked to libterrad-twin.so
   alone) and as WebAssembly under Node (tests/support/twin_replay.mjs over
@@ -11,8 +13,10 @@
   library does not take (per-cell materials) is named and counted as skipped.
 - Bad input to the C API (ctypes over libterrad-twin.so): an unknown key, a
   non-finite value, an unknown model or shape, a window outside the world, a
-  pose with NaN, an unknown collider, a read outside the window: each refused
-  with a sentence naming the field, and the twin goes on working.
+  pose with NaN, an unknown collider, a read outside the window, grousers with a
+  negative, fractional or oversized count, a negative, NaN or oversized (> the
+  radius) height or thickness: each refused with a sentence naming the field, and
+  the twin goes on working (a lugged wheel it then takes presses its lugs).
 """
 import ctypes
 import glob
@@ -98,7 +102,8 @@ def compare(scene, ticks, label):
         check(n == 0, f"{label}: WebAssembly twin library vs simulate: {n} cells differ")
 
 
-for scene in sorted(glob.glob(os.path.join(SOURCE, "tests", "scenes", "*.json"))):
+for scene in sorted(glob.glob(os.path.join(SOURCE, "tests", "scenes", "*.json"))) + [
+        os.path.join(SOURCE, "tests", "scenes", "lugged", "lugged-wheel.json")]:
     name = os.path.splitext(os.path.basename(scene))[0]
     big = name in ("large-dunes", "thesis-car")
     compare(scene, 60 if big else 150, name)
@@ -114,7 +119,13 @@ for model in MODELS:
             {"name": "ball", "shape": "sphere", "radius": 0.3, "position": [1.0, 2.4, 0.7],
              "motion": {"velocity": [1.2, 0.3, 0]}},
             {"name": "wheel", "shape": "cylinder", "radius": 0.3, "half_length": 0.1,
-             "position": [6.0, 1.5, 0.65], "motion": {"velocity": [-1.0, 0, 0]}}],
+             "position": [6.0, 1.5, 0.65], "motion": {"velocity": [-1.0, 0, 0]}},
+            # lugs of a cell and more, rolling: each stamps its own dent
+            {"name": "lugged", "shape": "wheel", "radius": 0.25, "half_length": 0.1,
+             "grousers": {"count": 10, "height": 0.06, "thickness": 0.04},
+             "position": [1.5, 3.6, 0.7],
+             "motion": {"velocity": [1.0, 0, 0], "spin_axis": [0, 1, 0],
+                        "spin_deg_per_s": 229.18}}],
     }
     path = os.path.join(tmp, f"model-{model}.json")
     with open(path, "w") as f:
@@ -133,8 +144,13 @@ lib.terrad_twin_create.argtypes = [ctypes.c_void_p] + [ctypes.c_int] * 4 + [
     ctypes.c_void_p, ctypes.c_char_p]
 lib.terrad_twin_add_collider.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p] + [
     ctypes.c_double] * 5 + [ctypes.c_char_p]
+lib.terrad_twin_add_wheel.argtypes = [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_double] * 5 + [
+    ctypes.c_char_p]
 lib.terrad_twin_set_pose.argtypes = [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_double] * 7 + [
     ctypes.c_char_p]
+lib.terrad_twin_remove_collider.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p]
+lib.terrad_twin_write.argtypes = [ctypes.c_void_p] + [ctypes.c_int] * 4 + [ctypes.c_void_p,
+                                                                           ctypes.c_char_p]
 lib.terrad_twin_tick.argtypes = [ctypes.c_void_p, ctypes.c_char_p]
 lib.terrad_twin_read.argtypes = [ctypes.c_void_p] + [ctypes.c_int] * 4 + [ctypes.c_void_p,
                                                                           ctypes.c_char_p]
@@ -167,6 +183,15 @@ refused(lib.terrad_twin_add_collider(twin, 1, b"cone", 0.3, 0, 0, 0, 0, err), "s
 refused(lib.terrad_twin_add_collider(twin, 1, b"sphere", -1, 0, 0, 0, 0, err), "radius")
 check(lib.terrad_twin_add_collider(twin, 1, b"sphere", 0.3, 0, 0, 0, 0, err) == 0, "a sphere")
 refused(lib.terrad_twin_add_collider(twin, 1, b"sphere", 0.3, 0, 0, 0, 0, err), "id")
+nan, inf = float("nan"), float("inf")
+for lugs, field in (((-1, 0.02, 0.01), "grousers.count"), ((2.5, 0.02, 0.01), "grousers.count"),
+                    ((361, 0.02, 0.01), "grousers.count"), ((1e12, 0.02, 0.01), "grousers.count"),
+                    ((nan, 0.02, 0.01), "grousers.count"), ((0, 0.02, 0.01), "grousers.count"),
+                    ((12, -0.02, 0.01), "grousers.height"), ((12, nan, 0.01), "grousers.height"),
+                    ((12, 0.31, 0.01), "grousers.height"), ((12, 0.02, 0), "grousers.thickness"),
+                    ((12, 0.02, inf), "grousers.thickness"), ((12, 0.02, 0.5), "grousers.thickness")):
+    refused(lib.terrad_twin_add_wheel(twin, 2, 0.3, 0.1, *lugs, err), field)
+refused(lib.terrad_twin_add_wheel(twin, 2, -0.3, 0.1, 12, 0.02, 0.01, err), "radius")
 refused(lib.terrad_twin_set_pose(twin, 1, float("nan"), 1, 0.5, 1, 0, 0, 0, err), "position")
 refused(lib.terrad_twin_set_pose(twin, 2, 1, 1, 0.5, 1, 0, 0, 0, err), "id")
 cells = (ctypes.c_int32 * (48 * 48))()
@@ -175,6 +200,23 @@ check(lib.terrad_twin_set_pose(twin, 1, 1.6, 1.6, 0.6, 1, 0, 0, 0, err) == 0, "a
 check(lib.terrad_twin_tick(twin, err) == 0, f"it ticks after the refusals: {err.value!r}")
 check(lib.terrad_twin_read(twin, 8, 8, 48, 48, cells, err) == 0
       and min(cells) < 4000 and max(cells) > 4000, "the sphere pressed into the 0.4 m base")
+# After the refusals it takes a lugged wheel: its lug 0 (local -z) reaches below the rim.
+flat = (ctypes.c_int32 * (48 * 48))(*[4000] * (48 * 48))
+check(lib.terrad_twin_remove_collider(twin, 1, err) == 0, "the sphere removed")
+lowest = {}
+for lugs in ((0, 0, 0), (12, 0.05, 0.03)):
+    check(lib.terrad_twin_write(twin, 8, 8, 48, 48, flat, err) == 0, "the window flat again")
+    check(lib.terrad_twin_add_wheel(twin, 2, 0.3, 0.1, *lugs, err) == 0,
+          f"a wheel with grousers {lugs}: {err.value!r}")
+    check(lib.terrad_twin_set_pose(twin, 2, 1.625, 0.8, 0.71, 1, 0, 0, 0, err) == 0,
+          "its pose: the axle over cell centres, so that the 3 cm lug meets them")
+    check(lib.terrad_twin_tick(twin, err) == 0, f"it ticks: {err.value!r}")
+    lib.terrad_twin_read(twin, 8, 8, 48, 48, cells, err)
+    lowest[lugs[0]] = min(cells)
+    check(lib.terrad_twin_remove_collider(twin, 2, err) == 0, "the wheel removed")
+check(lowest[0] == 4000 and 3600 <= lowest[12] < 4000,
+      f"the smooth rim 1 cm above the 0.4 m base leaves it, its lug 0 presses up to 4 cm into it "
+      f"({lowest})")
 lib.terrad_twin_destroy(twin)
 lib.terrad_twin_config_free(cfg)
 check.finish()
