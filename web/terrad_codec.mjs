@@ -1,6 +1,7 @@
 // The terrad wire protocol, version 1, in JavaScript (proto/PROTOCOL.md).
-// Binary frames, the rectangle codec (zigzag + one zstd frame, decoded with fzstd),
-// the client mirror with its tile-version rules, and the JSON control builders.
+// Binary frames, the rectangle codec (zigzag + one zstd frame, decoded with fzstd; base
+// snapshots: range-coded residuals against the scene's base), the client mirror with its
+// tile-version rules, and the JSON control builders.
 // Checked against proto/vectors/vectors.json by tests/web/codec.test.mjs.
 // 64-bit fields (tick, nonce, volume) decode as BigInt.
 import { Decompress } from './vendor/fzstd.js';
@@ -12,7 +13,9 @@ export const MsgType = { POSE_BATCH: 0x01, PING: 0x02, PONG: 0x03, STEP: 0x04, D
 const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 4: 'STEP', 16: 'DELTA', 17: 'CONTACT', 18: 'ACK', 19: 'COLLIDERS', 20: 'FOOTPRINTS', 21: 'FORCES', 22: 'STEPPED', 23: 'CHECKSUM' };
 export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
 export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
-export const Encoding = { DELTA: 0, SNAPSHOT: 1 };
+// BASE: a snapshot less the scene's base terrain (PROTOCOL.md "Base snapshots"), only to a
+// client whose hello asked for snapshot_base
+export const Encoding = { DELTA: 0, SNAPSHOT: 1, BASE: 2 };
 export const ERRORS = {
   bad_frame: 1, unknown_type: 2, bad_version: 3, too_large: 4, bad_value: 5, unknown_collider: 6,
   not_owner: 7, limit_colliders: 8, limit_subscriptions: 9, rate_limited: 10, outside_world: 11,
@@ -114,7 +117,7 @@ export function checkRect(r) {
   if (r.encoding === Encoding.DELTA) {
     if (r.base_version === 0 || r.base_version === r.new_version)
       throw new ProtoError('bad_value', 'a delta needs base_version >= 1 and != new_version');
-  } else if (r.encoding === Encoding.SNAPSHOT) {
+  } else if (r.encoding === Encoding.SNAPSHOT || r.encoding === Encoding.BASE) {
     if (r.base_version !== 0) throw new ProtoError('bad_value', 'a snapshot has base_version 0');
   } else throw new ProtoError('bad_value', `encoding ${r.encoding}`);
   if (r.data.length === 0) throw new ProtoError('bad_value', 'empty payload');
@@ -480,8 +483,87 @@ export function rectDecompress(data, cells, maxCells = Infinity) {
   return rectUnpack(out);
 }
 
-/** Applies decoded values to heights covering (hx, hy, hw, hh), clipped. Cells touched. */
-export function applyValues(r, values, heights, hx, hy, hw, hh) {
+// ---- base snapshot rectangles (PROTOCOL.md "Base snapshots"; proto/c/terrad_proto_base.c) ----
+// d = h - base per cell, predicted from the decoded neighbours (left + up - up-left), the
+// residual zigzagged and coded bit by bit with LZMA's binary range coder: its bit length in
+// unary, then its two top mantissa bits with adaptive probabilities per context (how large the
+// left and upper residuals were), the rest direct. All arithmetic modulo 2^32: exact.
+
+const B_CTX = 12, B_TOP = 0x1000000;
+
+/** A base snapshot rectangle's payload -> Int32Array of w * h values h - base; bad_compression
+ *  for a payload shorter than 5 bytes, ending before the last cell or holding a value past
+ *  2^32; more than maxCells cells is too_large. */
+export function rectDecompressBase(data, w, h, maxCells = Infinity) {
+  const d = bytes(data), cells = w * h;
+  if (!(cells > 0) || cells > maxCells) throw new ProtoError('too_large', `${cells} cells`);
+  if (d.length < 5) throw new ProtoError('bad_compression', 'a base payload of fewer than 5 bytes');
+  const unary = new Uint16Array(B_CTX * 33).fill(1024), mant = new Uint16Array(B_CTX * 33 * 2).fill(1024);
+  const n = d.length;
+  let at = 0, short = false, range = 0xffffffff, code = 0;
+  const byte = () => {
+    if (at < n) return d[at++];
+    short = true;
+    return 0;
+  };
+  for (let k = 0; k < 5; k++) code = ((code << 8) | byte()) >>> 0;
+  const norm = () => {
+    while (range < B_TOP) {
+      range = (range << 8) >>> 0;
+      code = ((code << 8) | byte()) >>> 0;
+    }
+  };
+  const bit = (probs, i) => {
+    const p = probs[i], bound = (range >>> 11) * p; // < 2^32: p < 2048
+    let b;
+    if (code < bound) {
+      range = bound;
+      probs[i] = p + ((2048 - p) >> 4);
+      b = 0;
+    } else {
+      code -= bound;
+      range -= bound;
+      probs[i] = p - (p >> 4);
+      b = 1;
+    }
+    norm();
+    return b;
+  };
+  const direct = () => {
+    range >>>= 1;
+    const b = code >= range ? 1 : 0;
+    if (b) code -= range;
+    norm();
+    return b;
+  };
+  const z = new Uint32Array(cells); // the zigzagged residuals
+  const out = new Int32Array(cells); // h - base
+  const mag = (u) => Math.floor((u + 1) / 2); // |r| of a zigzagged residual, up to 2^31
+  for (let y = 0; y < h; y++) {
+    for (let x = 0; x < w; x++) {
+      const i = y * w + x;
+      const a = x ? mag(z[i - 1]) : y ? mag(z[i - w]) : 0;
+      const s = a + (y ? mag(z[i - w]) : a); // up to 2^32
+      const c = s === 0 ? 0 : s >= 1024 ? B_CTX - 1 : 32 - Math.clz32(s);
+      let nb = 0;
+      while (nb < 32 && bit(unary, c * 33 + nb)) nb++;
+      let v = 1; // up to 2^33 - 1: a double, not 32-bit bitwise
+      const m = (c * 33 + nb) * 2;
+      for (let k = nb - 1; k >= 0; k--) v = v * 2 + (k >= nb - 2 ? bit(mant, m + nb - 1 - k) : direct());
+      if (v - 1 > 0xffffffff || short) throw new ProtoError('bad_compression', 'a base payload that ends early or holds a value past 2^32');
+      const u = v - 1;
+      z[i] = u;
+      const p = y === 0 ? (x ? out[i - 1] : 0) : x === 0 ? out[i - w] : out[i - 1] + out[i - w] - out[i - w - 1];
+      out[i] = (unzigzag32(u) + p) | 0; // |sum| < 2^34: exact in a double, then wrapped
+    }
+  }
+  return out;
+}
+
+/** Applies decoded values to heights covering (hx, hy, hw, hh), clipped: a snapshot's replace,
+ *  a delta's add, a base snapshot's (h - base) add to base, the scene's base over the same
+ *  region (wrapping). Cells touched. */
+export function applyValues(r, values, heights, hx, hy, hw, hh, base = null) {
   const x0 = Math.max(r.x, hx), y0 = Math.max(r.y, hy);
   const x1 = Math.min(r.x + r.w, hx + hw), y1 = Math.min(r.y + r.h, hy + hh);
   if (x0 >= x1 || y0 >= y1) return 0;
@@ -489,6 +571,7 @@ export function applyValues(r, values, heights, hx, hy, hw, hh) {
   for (let y = y0; y < y1; y++) {
     const s = (y - r.y) * r.w + (x0 - r.x), d = (y - hy) * hw + (x0 - hx);
     if (r.encoding === Encoding.SNAPSHOT) heights.set(values.subarray(s, s + n), d);
+    else if (r.encoding === Encoding.BASE) for (let i = 0; i < n; i++) heights[d + i] = (base[d + i] + values[s + i]) | 0;
     else for (let i = 0; i < n; i++) heights[d + i] = (heights[d + i] + values[s + i]) | 0;
   }
   return n * (y1 - y0);
@@ -507,6 +590,9 @@ export class Mirror {
     this.tilesY = fdiv(y + h - 1, tileSize) - this.ty0 + 1;
     this.heights = new Int32Array(w * h);
     this.versions = new Uint32Array(this.tilesX * this.tilesY);
+    // the scene's base over the region (Int32Array of w * h, the twin's: PROTOCOL.md "Base
+    // snapshots"), for base snapshot rectangles; null: such a rectangle is bad_value
+    this.base = null;
   }
 
   get complete() {
@@ -519,7 +605,7 @@ export class Mirror {
     if (fdiv(r.x + r.w - 1, T) !== tx || fdiv(r.y + r.h - 1, T) !== ty) throw new ProtoError('bad_value', 'rectangle spans tiles');
     if (!(tx >= this.tx0 && tx < this.tx0 + this.tilesX && ty >= this.ty0 && ty < this.ty0 + this.tilesY)) return [-1, false];
     const t = tx - this.tx0 + (ty - this.ty0) * this.tilesX;
-    if (r.encoding === Encoding.SNAPSHOT) {
+    if (r.encoding !== Encoding.DELTA) { // a snapshot, absolute or against the base
       const part = [Math.max(r.x, this.x), Math.max(r.y, this.y), Math.min(r.x + r.w, this.x + this.w), Math.min(r.y + r.h, this.y + this.h)];
       const tpart = [Math.max(tx * T, this.x), Math.max(ty * T, this.y), Math.min(tx * T + T, this.x + this.w), Math.min(ty * T + T, this.y + this.h)];
       return [t, part.every((a, i) => a === tpart[i])];
@@ -551,6 +637,12 @@ export class Mirror {
           ok = true;
         }
         if (!ok) continue;
+        if (r.encoding === Encoding.BASE) {
+          if (!this.base) throw new ProtoError('bad_value', 'a base snapshot for a mirror without the base');
+          touched += applyValues(r, rectDecompressBase(r.data, r.w, r.h, maxCells), this.heights, this.x, this.y, this.w, this.h, this.base);
+          this.versions[t] = r.new_version;
+          continue;
+        }
         const values = rectDecompress(r.data, r.w * r.h, maxCells);
         touched += applyValues(r, values, this.heights, this.x, this.y, this.w, this.h);
         this.versions[t] = r.new_version;
@@ -587,9 +679,11 @@ export class Mirror {
 
 // world: a world created by POST /v1/worlds (or a cluster's world); '' for the default one.
 // budget: bytes/s the server may send (PROTOCOL.md "Budgets"), 0 none; -1: the server's default
-export const hello = (token = '', client = 'terrad-web', world = '', budget = -1) =>
+// snapshotBase: snapshots against the scene's base terrain, which the client rebuilds with the
+// twin (PROTOCOL.md "Base snapshots"): the world message says whether the server agreed
+export const hello = (token = '', client = 'terrad-web', world = '', budget = -1, snapshotBase = false) =>
   ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}),
-     ...(budget >= 0 ? { budget } : {}) });
+     ...(budget >= 0 ? { budget } : {}), ...(snapshotBase ? { snapshot_base: true } : {}) });
 // a budgeted client's focus in cells (its nearest tiles first); no x, y: cleared
 export const focus = (x = -1, y = -1) => (x < 0 || y < 0 ? { type: 'focus' } : { type: 'focus', x, y });
 export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>

@@ -4,6 +4,9 @@
 // Where the websocket is: the daemon says (GET v1/websocket, asked relative to the page's own
 // URL before each connection: its ws port, at the host the browser used, or the --public-ws-url
 // a proxy needs), never guessed from the page's port. ?ws=PORT or ?ws=URL overrides it.
+// With the twin (WebAssembly, GET /terrad_twin.wasm) the page asks for base snapshots
+// (PROTOCOL.md "Base snapshots") and rebuilds the scene's base under each window itself: a
+// page joining a world dug for an hour is sent only the digging. Without it: plain snapshots.
 import * as P from './terrad_codec.mjs';
 import { ViewerPrediction, union } from './viewer_predict.mjs';
 
@@ -19,6 +22,7 @@ let wsUrl = ''; // the last one connected to (or tried)
 // a viewer watches a whole world; the tiles near the camera target (its focus) come first.
 const BUDGET = params.has('budget') ? Math.max(0, Math.floor(Number(params.get('budget')) || 0)) : 131072;
 let budgetRefused = false; // the daemon's max_budget_bytes_per_s is lower: take its default instead
+let baseRefused = false; // the twin could not make this world's base: plain snapshots from then on
 // The websocket's URL: the page's ?ws= override, else the daemon's answer.
 async function websocketUrl() {
   const given = params.get('ws');
@@ -47,6 +51,8 @@ const app = {
   ackedSeq: 0, shown: null, // the last ACK's batch; the heights the last frame drew (see shownHeights)
   drawn: { frame: 0, seq: 0, ackedSeq: 0, lower: 0 }, // what the last frame drew (test hook)
   desync: { checksumFrames: 0, checksumTick: 0n, tilesDiffering: 0, tilesResynced: 0 }, // CHECKSUM frames
+  twins: null, // the twin module when this connection asked for base snapshots (hello), else null
+  snapshots: { absolute: 0, base: 0 }, // snapshot rectangles received: encoding 1 and 2
 };
 // The page's own rut at once while it drives (viewer_predict.mjs): the predict toggle.
 const prediction = new ViewerPrediction(apiInit);
@@ -73,6 +79,7 @@ async function connect() {
   let sock;
   try {
     wsUrl = await websocketUrl(); // asked again each time: a restarted daemon may have moved it
+    app.twins = baseRefused ? null : await prediction.loadModule(); // null: plain snapshots
     sock = new WebSocket(wsUrl, P.SUBPROTOCOL);
   } catch (e) {
     app.lastError = String(e.message || e);
@@ -84,7 +91,7 @@ async function connect() {
   ws = sock;
   sock.onopen = () => {
     if (ws !== sock) return;
-    send(P.hello(token, 'terrad-web', '', budgetRefused ? -1 : BUDGET));
+    send(P.hello(token, 'terrad-web', '', budgetRefused ? -1 : BUDGET, !!app.twins));
   };
   sock.onmessage = (ev) => {
     if (ws !== sock) return;
@@ -141,6 +148,22 @@ function onJson(text) {
       break;
     case 'subscribed': {
       const mir = new P.Mirror(m.x, m.y, m.w, m.h, app.world.tile_size);
+      if (app.twins && app.world.snapshot_base && app.world.base && typeof app.world.base === 'object') {
+        // its snapshots come less the scene's base: rebuilt here before any of them is read
+        try {
+          const twin = app.twins.create(app.world.base, m.x, m.y, m.w, m.h, null);
+          try {
+            mir.base = twin.read();
+          } finally {
+            twin.destroy();
+          }
+        } catch (e) {
+          console.warn('base snapshots refused:', e.message, '-> plain snapshots');
+          baseRefused = true;
+          ws?.close(); // reconnects with a hello that does not ask
+          break;
+        }
+      }
       app.subs.set(m.id, mir);
       app.activeSub = m.id;
       break;
@@ -151,7 +174,7 @@ function onJson(text) {
     case 'error':
       if (!app.connected && /^budget:/.test(m.message || '') && !budgetRefused) {
         budgetRefused = true; // over the daemon's limit: hello again with the daemon's own budget
-        send(P.hello(token, 'terrad-web'));
+        send(P.hello(token, 'terrad-web', '', -1, !!app.twins));
         break;
       }
       seenReporter.refused(m);
@@ -169,6 +192,10 @@ function onBinary(b) {
     t = P.decodeHeader(b);
     if (t === P.MsgType.DELTA) {
       const { tick, rects } = P.decodeDelta(b);
+      for (const r of rects) {
+        if (r.encoding === P.Encoding.SNAPSHOT) app.snapshots.absolute++;
+        else if (r.encoding === P.Encoding.BASE) app.snapshots.base++;
+      }
       for (const [id, mir] of app.subs) {
         try {
           if (mir.apply(rects) > 0 && mir === app.mirror) markDirty(mir, rects);
@@ -277,10 +304,15 @@ function promoteSubscription() {
       ['x', 'y', 'w', 'h'].every((k) => app.baselineRegion[k] === mir[k]);
     app.mirror = mir;
     if (!same) {
-      app.baseline = mir.heights.slice(); // until the base terrain arrives
       app.baselineRegion = { x: mir.x, y: mir.y, w: mir.w, h: mir.h };
-      app.baseFromServer = false;
-      fetchBase(app.baselineRegion);
+      if (mir.base) { // base snapshots: the twin made the scene's base already
+        app.baseline = mir.base;
+        app.baseFromServer = true;
+      } else {
+        app.baseline = mir.heights.slice(); // until the base terrain arrives
+        app.baseFromServer = false;
+        fetchBase(app.baselineRegion);
+      }
     }
     app.dirty = true;
     app.meshDirty = true;
@@ -1046,6 +1078,9 @@ window.terrad = {
   get prediction() { return prediction.stats(); },
   // desync detection (PROTOCOL.md "CHECKSUM"): {checksumFrames, checksumTick, tilesDiffering, tilesResynced}
   get desync() { return { ...app.desync, checksumTick: Number(app.desync.checksumTick) }; },
+  // base snapshots (PROTOCOL.md "Base snapshots"): asked for (the twin loaded), agreed by the
+  // world message, and the snapshot rectangles received: {asked, agreed, absolute, base}
+  get snapshots() { return { asked: !!app.twins, agreed: !!app.world?.snapshot_base, ...app.snapshots }; },
   get seq() { return app.seq; },
   get ackedSeq() { return app.ackedSeq; },
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },

@@ -5,6 +5,9 @@
 // twin at once, so the page's own rut is drawn in the frame it moves, not a round trip later;
 // every ACK reconciles the sub-window exactly with the server's heights. The frame draws the
 // mirror with the predicted sub-window pasted in (heights()). Nothing extra goes on the wire.
+// The same module rebuilds the scene's base terrain under each window for base snapshots
+// (PROTOCOL.md "Base snapshots": the page asks for them when the module loaded, see
+// viewer.mjs), so a page joining a dug world is sent only the digging.
 import { loadTwinModule } from './twin.mjs';
 import { Prediction } from './predict.mjs';
 
@@ -45,12 +48,32 @@ export class ViewerPrediction {
         this.reason = 'loading';
         this.pred = null;
         this.loading = null;
+        this.moduleLoading = null; // loadModule()'s promise, kept once it loaded
         this.want = null; // a Prediction to make at the next ACK: {world, mirror, id, radius, cx, cy}
         this.sent = []; // the page's batches after the last ACK: [{seq, poses}]
         this.last = new Map(); // id -> the pose of its latest acknowledged batch
         // What the prediction costs the page's main thread (make bench: ms per frame):
         // milliseconds spent in each step since the page loaded, and how many times.
         this.cost = { sendMs: 0, sends: 0, ackMs: 0, acks: 0, pasteMs: 0, pastes: 0 };
+    }
+
+    // The twin module (GET /terrad_twin.wasm), loaded once; null when the daemon has none
+    // (built without the WebAssembly toolchain) or it cannot load: asked again next time.
+    loadModule() {
+        if (this.module) return Promise.resolve(this.module);
+        this.moduleLoading ??= (async () => {
+            try {
+                const wasm = await fetch('/terrad_twin.wasm', { cache: 'no-store' });
+                if (!wasm.ok) throw new Error(`GET /terrad_twin.wasm: ${wasm.status} (built without the WebAssembly toolchain)`);
+                this.module = await loadTwinModule(await wasm.arrayBuffer());
+            } catch (e) {
+                this.moduleError = String(e.message || e);
+                console.warn('twin not available:', this.moduleError);
+            }
+            this.moduleLoading = null;
+            return this.module;
+        })();
+        return this.moduleLoading;
     }
 
     // The twin module and the world's parameters, once per world message (a restarted
@@ -64,11 +87,7 @@ export class ViewerPrediction {
                 const cfg = await fetch('/v1/twin', this.apiInit);
                 const body = await cfg.json();
                 if (!cfg.ok) throw new Error(body.error || `GET /v1/twin: ${cfg.status}`);
-                if (!this.module) {
-                    const wasm = await fetch('/terrad_twin.wasm', { cache: 'no-store' });
-                    if (!wasm.ok) throw new Error(`GET /terrad_twin.wasm: ${wasm.status} (built without the WebAssembly toolchain)`);
-                    this.module = await loadTwinModule(await wasm.arrayBuffer());
-                }
+                if (!(await this.loadModule())) throw new Error(this.moduleError);
                 this.config = body;
                 this.reason = '';
             } catch (e) {

@@ -1004,6 +1004,72 @@ static void mirror_scenarios(void)
     scenario_frame(&n, "a delta with wrapping differences", 2, &ndelta, 1);
 }
 
+/* ---- base snapshot payloads (PROTOCOL.md "Base snapshots") ---- */
+
+/* "base_rects": one encoding 2 payload of w x h values (h - base), coded by the C coder */
+static void base_rect(cJSON *a, const char *about, const int32_t *v, uint32_t w, uint32_t h)
+{
+    size_t cells = (size_t)w * h, cap = terrad_rect_compress_base_bound(cells), n;
+    uint8_t *p = malloc(cap);
+    if (!p)
+        die("out of memory");
+    ok(terrad_rect_compress_base(v, w, h, p, cap, &n), about);
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "about", about);
+    cJSON_AddNumberToObject(o, "w", w);
+    cJSON_AddNumberToObject(o, "h", h);
+    cJSON_AddItemToObject(o, "values", int_array(v, cells));
+    add_hex(o, "data_hex", p, n);
+    cJSON_AddStringToObject(o, "error", "");
+    cJSON_AddItemToArray(a, o);
+    if (n > 5) { /* the same payload cut to half: refused */
+        cJSON *q = cJSON_CreateObject();
+        char what[160];
+        snprintf(what, sizeof what, "%s, cut to %zu of its %zu bytes", about, n / 2, n);
+        cJSON_AddStringToObject(q, "about", what);
+        cJSON_AddNumberToObject(q, "w", w);
+        cJSON_AddNumberToObject(q, "h", h);
+        add_hex(q, "data_hex", p, n / 2);
+        cJSON_AddStringToObject(q, "error", terrad_err_name(TERRAD_E_BAD_COMPRESSION));
+        cJSON_AddItemToArray(a, q);
+    }
+    free(p);
+}
+
+static void base_vectors(cJSON *a)
+{
+    enum { W = 24, H = 20 };
+    int32_t v[W * H];
+    for (int y = 0; y < H; y++) /* a crater's bowl and rim: small residuals */
+        for (int x = 0; x < W; x++) {
+            int d2 = (x - 11) * (x - 11) + (y - 9) * (y - 9), r2 = 7 * 7;
+            v[y * W + x] = d2 < r2 ? -(900 * (r2 - d2) / r2) : d2 < 4 * r2 ? (4 * r2 - d2) / 3 : 0;
+        }
+    base_rect(a, "a crater, 24 x 20", v, W, H);
+    uint32_t r = 2024;
+    for (int i = 0; i < W * H; i++) { /* noise over the whole int32 range */
+        r = r * 1664525u + 1013904223u;
+        v[i] = (int32_t)r;
+    }
+    base_rect(a, "noise over the int32 range, 24 x 20", v, W, H);
+    for (int i = 0; i < W * H; i++) /* every difference wraps; residuals up to 2^32 - 1 */
+        v[i] = (i * 7 + i / W) % 3 == 0 ? INT32_MIN : (i % 5 == 0 ? INT32_MAX : -1);
+    base_rect(a, "INT32_MIN, INT32_MAX and -1, 24 x 20", v, W, H);
+    base_rect(a, "one row of 40", v, 40, 1);
+    base_rect(a, "one column of 40", v, 1, 40);
+    int32_t zero[64] = {0};
+    base_rect(a, "an undug 8 x 8 tile: all 0", zero, 8, 8);
+    int32_t one = INT32_MIN;
+    base_rect(a, "one cell, INT32_MIN", &one, 1, 1);
+    cJSON *q = cJSON_CreateObject();
+    cJSON_AddStringToObject(q, "about", "four bytes: fewer than the coder's five");
+    cJSON_AddNumberToObject(q, "w", 2);
+    cJSON_AddNumberToObject(q, "h", 2);
+    cJSON_AddStringToObject(q, "data_hex", "00010203");
+    cJSON_AddStringToObject(q, "error", terrad_err_name(TERRAD_E_BAD_COMPRESSION));
+    cJSON_AddItemToArray(a, q);
+}
+
 int main(void)
 {
     cJSON *root = cJSON_CreateObject();
@@ -1038,6 +1104,7 @@ int main(void)
     step_vectors();
     checksum_vectors(cJSON_AddArrayToObject(root, "hashes"));
     mirror_scenarios();
+    base_vectors(cJSON_AddArrayToObject(root, "base_rects"));
     char *text = cJSON_Print(root);
     if (!text)
         die("print");

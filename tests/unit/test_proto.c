@@ -495,6 +495,42 @@ static void check_hashes(const cJSON *root)
     free(heights);
 }
 
+/* Each "base_rects" payload (encoding 2, PROTOCOL.md "Base snapshots") decodes
+ * to its values, or is refused with its error. */
+static void check_base_rects(const cJSON *root)
+{
+    const cJSON *e;
+    int k = 0;
+    cJSON_ArrayForEach(e, get(root, "base_rects"))
+    {
+        uint32_t w = (uint32_t)num(e, "w"), h = (uint32_t)num(e, "h");
+        size_t cells = (size_t)w * h;
+        uint8_t *data;
+        size_t len = unhex(str(e, "data_hex"), &data);
+        int32_t *out = calloc(cells, sizeof *out);
+        int rc = terrad_rect_decompress_base(data, len, w, h, out, cells);
+        const char *want = str(e, "error");
+        if (*want) {
+            CHECK(rc != TERRAD_OK && strcmp(terrad_err_name(rc), want) == 0, "base: %s: got %s",
+                  str(e, "about"), rc ? terrad_err_name(rc) : "ok");
+        } else {
+            size_t i = 0;
+            int same = rc == TERRAD_OK;
+            const cJSON *x;
+            cJSON_ArrayForEach(x, get(e, "values"))
+            {
+                same &= i < cells && out[i] == (int32_t)x->valuedouble;
+                i++;
+            }
+            CHECK(same && i == cells, "base: %s decodes to its values (%d)", str(e, "about"), rc);
+        }
+        free(out);
+        free(data);
+        k++;
+    }
+    CHECK(k >= 8, "%d base rectangle vectors", k);
+}
+
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
                         size_t n)
 {
@@ -1038,6 +1074,7 @@ int main(void)
         check_vectors(root);
         check_scenarios(root);
         check_hashes(root);
+        check_base_rects(root);
     }
     test_encoder_refusals();
     test_forces_heights();

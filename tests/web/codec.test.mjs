@@ -144,6 +144,32 @@ test('tile hashes match the vectors; a mirror compares its tiles', () => {
   assert.equal(m.tileDiffers({ ...s, tile_x: 3 }), -1, 'a tile outside the region');
 });
 
+for (const e of V.base_rects) {
+  test(`base rectangle: ${e.about} (${e.error || 'valid'})`, () => {
+    const got = () => C.rectDecompressBase(unhex(e.data_hex), e.w, e.h, e.w * e.h);
+    if (e.error) assert.equal(errorName(got), e.error);
+    else assert.deepEqual(Array.from(got()), e.values);
+  });
+}
+
+test('a mirror adds the base back under a base snapshot; without a base it is bad_value', () => {
+  const e = V.base_rects.find((x) => !x.error && x.w === 24 && x.h === 20); // the crater
+  // a 24 x 20 rectangle of tile (1, 0) of 32-cell tiles; the region cuts it on the left and below
+  const r = { x: 32, y: 0, w: 24, h: 20, base_version: 0, new_version: 7, encoding: C.Encoding.BASE, data: unhex(e.data_hex) };
+  C.checkRect(r);
+  assert.equal(errorName(() => C.checkRect({ ...r, base_version: 3 })), 'bad_value', 'a base snapshot with a base_version');
+  const m = new C.Mirror(40, 0, 16, 20, 32); // columns 40..55: the tile's part in the region
+  assert.equal(errorName(() => m.apply([r])), 'bad_value', 'no base: refused');
+  assert.deepEqual(Array.from(m.versions), [0]);
+  m.base = Int32Array.from({ length: 16 * 20 }, (_, i) => 4000 + 3 * i - (i % 7) * 1000);
+  assert.equal(m.apply([r]), 16 * 20);
+  assert.deepEqual(Array.from(m.versions), [7]);
+  for (let y = 0; y < 20; y++)
+    for (let x = 0; x < 16; x++)
+      assert.equal(m.heights[y * 16 + x], (m.base[y * 16 + x] + e.values[y * 24 + x + 8]) | 0, `cell ${x}, ${y}`);
+  assert.deepEqual(C.hello('', 'x', '', -1, true), { type: 'hello', protocol: 1, token: '', client: 'x', snapshot_base: true });
+});
+
 test('zigzag edge values', () => {
   const cases = [[0, 0], [-1, 1], [1, 2], [2147483647, 0xfffffffe], [-2147483648, 0xffffffff]];
   for (const [d, u] of cases) {

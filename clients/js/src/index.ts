@@ -1,7 +1,8 @@
 // terrad-client: terrad's websocket client for Node (20+) and browsers, with TypeScript types
 // (issue 23; docs/engines.md, "TypeScript"). An async client over the viewer's own codec
 // (web/terrad_codec.mjs: hello, subscriptions and their mirrors, colliders, pose batches,
-// DELTA, ACK, CONTACT, FORCES, CHECKSUM: a desync repaired by itself), the worlds API (HTTP) and prediction on the daemon's twin as
+// DELTA, ACK, CONTACT, FORCES, CHECKSUM: a desync repaired by itself; base snapshots, the base
+// rebuilt on the twin), the worlds API (HTTP) and prediction on the daemon's twin as
 // WebAssembly (web/twin.mjs, web/predict.mjs). Those three files are compiled into this
 // package from web/, never copied by hand: one codec for the viewer and every JS client.
 import * as P from '../../../web/terrad_codec.mjs';
@@ -32,6 +33,12 @@ export interface World {
   tick_hz: number;
   tile_size: number;
   tick: number;
+  /** with ConnectOptions.baseSnapshots: true when this client's snapshots come against the
+   * scene's base (PROTOCOL.md "Base snapshots"), false when the twin cannot make this world's
+   * base (they stay absolute) */
+  snapshot_base?: boolean;
+  /** with snapshot_base true: the scene's twin config, from which the client rebuilds the base */
+  base?: Record<string, number | string>;
   [key: string]: unknown;
 }
 
@@ -42,6 +49,8 @@ export interface Mirror {
   w: number;
   h: number;
   heights: Int32Array;
+  /** the scene's base terrain over the region (base snapshots: rebuilt on the twin), else null */
+  readonly base: Int32Array | null;
   readonly complete: boolean;
 }
 
@@ -74,6 +83,13 @@ export interface ConnectOptions {
    * every tick, far ones later, exact once the terrain settles); absent: the server's default.
    * `world.budget` says the one in force. */
   budget?: number;
+  /** snapshots against the scene's base terrain (PROTOCOL.md "Base snapshots"): a client joining
+   * a world dug for an hour is sent only the digging, and rebuilds the base of each subscription
+   * on the twin (twinWasm) before its snapshot is read. `world.snapshot_base` says whether the
+   * server agreed (false: a base the twin cannot make; snapshots stay absolute). Needs twinWasm. */
+  baseSnapshots?: boolean;
+  /** the bytes of terrad_twin.wasm (Worlds.twinWasm(), GET /terrad_twin.wasm): for baseSnapshots */
+  twinWasm?: BufferSource;
   /** how long a reply may take (ms, default 60,000) */
   timeoutMs?: number;
   /** the WebSocket class (default globalThis.WebSocket: browsers, Node 22, Node 20 with --experimental-websocket;
@@ -117,6 +133,10 @@ export class TerradClient {
   private waiting: { test: (m: any) => boolean; ok: (m: any) => void; fail: (e: Error) => void }[] = [];
   private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], checksum: [], error: [] };
   private predictions = new Map<number, Prediction>();
+  /** the twin module that rebuilds the base of each subscription (base snapshots), else null */
+  private twins: Awaited<ReturnType<typeof loadTwinModule>> | null = null;
+  /** subscriptions whose base could not be rebuilt: subscribe() rejects with the error */
+  private baseFailed = new Map<number, Error>();
   private closed: Error | null = null;
   /** PROTOCOL.md "seen": the server bounds this client's lag by the tick it says it handled */
   private seen = new P.SeenReporter((m: object) => { if (!this.closed) this.sendJson(m); });
@@ -128,11 +148,14 @@ export class TerradClient {
 
   /** Connects, says hello and resolves once the server's `world` message arrived. */
   static async connect(url: string, opts: ConnectOptions = {}): Promise<TerradClient> {
+    if (opts.baseSnapshots && !opts.twinWasm) throw new Error('baseSnapshots: needs twinWasm, the bytes of terrad_twin.wasm (Worlds.twinWasm())');
+    const twins = opts.baseSnapshots ? await loadTwinModule(opts.twinWasm!) : null;
     const WS = opts.WebSocket ?? (globalThis as any).WebSocket;
     if (!WS) throw new Error('WebSocket: none in this runtime (Node 20: run with --experimental-websocket; Node 18: pass opts.WebSocket, e.g. the ws package\'s)');
     const ws: WebSocket = new WS(url, P.SUBPROTOCOL);
     ws.binaryType = 'arraybuffer';
     const c = new TerradClient(ws, opts.timeoutMs ?? 60000);
+    c.twins = twins;
     ws.onmessage = (e: MessageEvent) => (typeof e.data === 'string' ? c.onText(e.data) : c.onBinary(new Uint8Array(e.data)));
     ws.onclose = (e: CloseEvent) => c.fail(new Error(`connection closed (${e.code}${e.reason ? ` ${e.reason}` : ''})`));
     await new Promise<void>((ok, fail) => {
@@ -141,7 +164,7 @@ export class TerradClient {
     });
     ws.onerror = () => {};
     const world = c.reply((m) => m.type === 'world');
-    c.sendJson(P.hello(opts.token ?? '', opts.name ?? 'terrad-client-js', opts.world ?? '', opts.budget ?? -1));
+    c.sendJson(P.hello(opts.token ?? '', opts.name ?? 'terrad-client-js', opts.world ?? '', opts.budget ?? -1, !!twins));
     c.world = (await world) as World;
     c.tick = BigInt(c.world.tick ?? 0);
     return c;
@@ -162,6 +185,13 @@ export class TerradClient {
   async subscribe(x: number, y: number, w: number, h: number, opts: { colliders?: boolean } = {}): Promise<number> {
     const ref = `sub-${++this.refN}`;
     const m = await this.request(P.subscribe(x, y, w, h, ref, !!opts.colliders), ref, 'subscribed');
+    const e = this.baseFailed.get(m.id);
+    if (e) { // its base snapshots could not be applied: not kept
+      this.baseFailed.delete(m.id);
+      this.mirrors.delete(m.id);
+      this.sendJson(P.unsubscribe(m.id));
+      throw e;
+    }
     return m.id;
   }
 
@@ -272,7 +302,7 @@ export class TerradClient {
 
   private onText(text: string): void {
     const m: any = P.parseControl(text);
-    if (m.type === 'subscribed') this.mirrors.set(m.id, new P.Mirror(m.x, m.y, m.w, m.h, this.world.tile_size) as unknown as Mirror);
+    if (m.type === 'subscribed') this.mirrors.set(m.id, this.mirrorOf(m));
     if (m.type === 'error') this.seen.refused(m);
     if (m.type === 'error') for (const f of this.listeners.error) f(new TerradError(m));
     const w = this.waiting.find((x) => x.test(m));
@@ -280,6 +310,27 @@ export class TerradClient {
       this.waiting = this.waiting.filter((x) => x !== w);
       w.ok(m);
     }
+  }
+
+  /** A subscription's mirror; with base snapshots agreed, the scene's base over its region is
+   * rebuilt on the twin here, before any of its snapshot's frames is read (PROTOCOL.md "Base
+   * snapshots"). */
+  private mirrorOf(m: { id: number; x: number; y: number; w: number; h: number }): Mirror {
+    const mirror = new P.Mirror(m.x, m.y, m.w, m.h, this.world.tile_size);
+    const base = this.world.base;
+    if (this.twins && this.world.snapshot_base && base && typeof base === 'object') {
+      try {
+        const twin = this.twins.create(base, m.x, m.y, m.w, m.h, null);
+        try {
+          mirror.base = twin.read();
+        } finally {
+          twin.destroy();
+        }
+      } catch (e) {
+        this.baseFailed.set(m.id, new Error(`base snapshots: the twin cannot make this world's base (${(e as Error).message})`));
+      }
+    }
+    return mirror as unknown as Mirror;
   }
 
   private onBinary(b: Uint8Array): void {

@@ -18,3 +18,14 @@ export async function drive(url: string, http: string): Promise<bigint> {
   await c.createCollider('cone', { radius: 1 });
   return c.waitAck(c.sendPoses([pose]));
 }
+
+// A late joiner with base snapshots: the world says whether the server agreed; the mirror's base.
+export async function join(url: string, http: string): Promise<number> {
+  const c = await TerradClient.connect(url, { baseSnapshots: true, twinWasm: await new Worlds(http).twinWasm() });
+  const agreed: boolean | undefined = c.world.snapshot_base;
+  const mirror = await c.waitComplete(await c.subscribe(0, 0, 32, 32));
+  const base: Int32Array | null = mirror.base;
+  // @ts-expect-error baseSnapshots is a boolean; the twin's bytes go in twinWasm
+  await TerradClient.connect(url, { baseSnapshots: new Uint8Array() });
+  return agreed && base ? mirror.heights[0] - base[0] : 0;
+}
