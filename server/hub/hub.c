@@ -687,7 +687,7 @@ void hub_serve_reads(hub *h, const world *w, uint64_t tick)
         if (world_clip_rect(w, &clipped) && clipped.x == r->rect.x && clipped.y == r->rect.y &&
             clipped.w == r->rect.w && clipped.h == r->rect.h) {
             if (r->layer == HUB_LAYER_COMPACTION)
-                world_compaction_gather(w, r->rect, r->out);
+                world_layer_gather(w, WORLD_LAYER_COMPACTION, r->rect, r->out);
             else
                 world_gather_window(w, r->rect, r->out);
         } else

@@ -245,7 +245,7 @@ int hub_store_unavailable(hub *h, char *reason, size_t cap);
 /* ---- http → sim: height reads ---- */
 
 /* What a read copies: the heights, or the per-cell compaction memory
- * (world_compaction_gather: zeros where none). */
+ * (world_layer_gather of WORLD_LAYER_COMPACTION: zeros where none). */
 typedef enum hub_layer { HUB_LAYER_HEIGHTS, HUB_LAYER_COMPACTION } hub_layer;
 
 /* Any thread but the sim thread (the HTTP threads): copy a rectangle (inside the world) of

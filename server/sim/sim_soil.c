@@ -116,5 +116,6 @@ _Static_assert(SIM_SOIL_STATE_FIELDS == WORLD_SOIL_FIELDS, "the world holds the 
 
 int64_t sim_world_compacted(const world *w)
 {
-    return world_soil_sum(w, SIM_SOIL_COMPACTED) + world_compaction_sum(w);
+    return world_layer_sum(w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED) +
+           world_layer_sum(w, WORLD_LAYER_COMPACTION, 0);
 }

@@ -228,6 +228,9 @@ int store_layers_ints(unsigned layers);
 /* One rectangle's heights, then its layers, into dst (store_layers_ints per
  * cell): a record of that one rectangle's values, a tile copy's. */
 void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst);
+/* The inverse: src (a tile copy's values) into w's heights and layers over r.
+ * 0, or -1 out of memory. */
+int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src);
 /* rects' heights, then their layers, into c->values. 0, or -1 out of memory. */
 int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
                         unsigned layers);
