@@ -155,6 +155,13 @@ int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_rec
 int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
                       error_text *why);
 
+/* The same rebuild of r kept as a world (its heights and per-cell layers in
+ * r as of the tick; elsewhere not meaningful), for the reads of a past tick
+ * that need more than heights (?tick=N with layer=compaction, /v1/stats):
+ * 0 with *out to world_free, 1 (no longer held: why), -1. */
+int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
+                       error_text *why);
+
 /*
  * A spectator's replay (PROTOCOL.md "spectate"): a cursor holds rectangle r
  * (and whatever the log writes beside it) as of tick `tick`, rebuilt as

@@ -247,6 +247,28 @@ int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_r
     return rc;
 }
 
+int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
+                       error_text *why)
+{
+    int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
+    if (!scratch) {
+        error_set(why, "store: out of memory for a rebuild of %d x %d cells", r.w, r.h);
+        return -1;
+    }
+    int rc = -1;
+    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
+        memset(why, 0, sizeof *why);
+        memset(out, 0, sizeof *out);
+        rc = rebuild(dir, base, tick, r, out, scratch, why);
+        if (tick == 0 && rc == 1)
+            rc = 0; /* the base needs no log */
+        if (rc != 0)
+            world_free(out);
+    }
+    free(scratch);
+    return rc;
+}
+
 /* ---- a cursor: the world as of a tick, then forward record by record ----
  * (a spectator, PROTOCOL.md "spectate"). It keeps the segment it reads open:
  * a compaction that deletes it meanwhile leaves the open file readable. */
@@ -347,8 +369,10 @@ int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_r
     int rc = -1;
     for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
-        if (attempt)
+        if (attempt) {
             world_free(&c->w);
+            memset(&c->w, 0, sizeof c->w);
+        }
         rc = rebuild(dir, base, tick, r, &c->w, scratch, why);
         if (rc == 0 && cursor_seek(c, why) != 0)
             rc = -1;
