@@ -182,13 +182,7 @@ int net_world_queue_remove(net_server *s, const char *name)
         pthread_mutex_unlock(&s->worlds_lock);
         net_server_wake(s);
         pthread_mutex_lock(&s->worlds_lock);
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
-        until.tv_nsec += 50 * 1000 * 1000;
-        if (until.tv_nsec >= 1000000000L) {
-            until.tv_sec++;
-            until.tv_nsec -= 1000000000L;
-        }
+        struct timespec until = time_after_ms(CLOCK_REALTIME, 50);
         if (removing_index(s, name) >= 0)
             pthread_cond_timedwait(&s->worlds_cond, &s->worlds_lock, &until);
     }

@@ -498,17 +498,25 @@ static void test_scratch_size(void)
  * but 2 of 40 ticks (1 here: a cell of the lowest line pressed under the pile
  * the rim pushed ahead counts that pile; the per-cell state cannot tell it).
  */
+/* Ding's wheel (ding2011's soil, radius and width) over a rig nx cells long
+ * and 53 wide of 5 mm, its surface at ground, ticking at 20 Hz: the rig of
+ * the rolling-wheel tests below. soil must outlive the rig. */
+static void ding_wheel_rig(soil_rig *r, sim_soil *soil, int nx, double ground)
+{
+    sim_soil_preset("ding2011", soil);
+    soil_rig_init(r, soil, 0.5, 0.005, nx, 53, ground);
+    r->p.tick_s = 0.05;
+    r->geometry.shape = COLLIDER_CYLINDER;
+    r->geometry.radius = SIM_WHEEL_DING2011_RADIUS_M;
+    r->geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+}
+
 static void test_loaded_wheel_measures(void)
 {
     sim_soil soil;
-    sim_soil_preset("ding2011", &soil);
     soil_rig r;
     double R = SIM_WHEEL_DING2011_RADIUS_M, ground = 0.5, v = 0.05, slip = 0.2;
-    soil_rig_init(&r, &soil, 0.5, 0.005, 160, 53, ground);
-    r.p.tick_s = 0.05;
-    r.geometry.shape = COLLIDER_CYLINDER;
-    r.geometry.radius = R;
-    r.geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+    ding_wheel_rig(&r, &soil, 160, ground);
     double x = 1.5 * R, angle = 0.0, omega = v / (R * (1.0 - slip));
     soil_rig_place(&r, x, 53 * 0.005 / 2, ground + R, IDENTITY, 0);
     int ok = 1, off = 0;
@@ -548,15 +556,10 @@ static void test_loaded_wheel_measures(void)
 static void standing_run(int stand, double out[3], double *worst_stand, double *worst_roll)
 {
     sim_soil soil;
-    sim_soil_preset("ding2011", &soil);
     soil_rig r;
     double R = SIM_WHEEL_DING2011_RADIUS_M, ground = 0.5, v = 0.05, slip = 0.2;
     double load = SIM_WHEEL_DING2011_LOAD_N, y = 53 * 0.005 / 2;
-    soil_rig_init(&r, &soil, 0.5, 0.005, 200, 53, ground);
-    r.p.tick_s = 0.05;
-    r.geometry.shape = COLLIDER_CYLINDER;
-    r.geometry.radius = R;
-    r.geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+    ding_wheel_rig(&r, &soil, 200, ground);
     double x = 1.5 * R, angle = 0.0, omega = v / (R * (1.0 - slip));
     soil_rig_place(&r, x, y, ground + R, IDENTITY, 0);
     out[0] = out[1] = out[2] = 0.0;
