@@ -307,6 +307,10 @@ double net_budget_rate(const net_client *c); /* 0: none */
 void net_budget_charge(net_client *c, size_t len, int tile_data);
 /* 1 if a frame of len bytes fits the window now (always without a budget). */
 int net_budget_fits(net_client *c, size_t len);
+/* As net_budget_fits, but a frame larger than the window will ever have
+ * room for fits once the window is empty (an overrun, counted): a
+ * spectator's frames (net_spectate.c), which would otherwise wait forever. */
+int net_budget_fits_alone(net_client *c, size_t len);
 /* A tile delta (o: HUB_OUT_TILE_DELTA) for a budgeted client: 0 when the
  * caller queues it as for any client, 1 when the ledger took it. */
 int net_budget_delta(net_client *c, const hub_out *o);

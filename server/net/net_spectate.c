@@ -587,7 +587,7 @@ static void pump_client(net_client *c)
     int taken = 0;
     while (taken < j->nout && !c->killed) {
         hub_frame *f = j->out[taken];
-        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits(c, f->len))
+        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_alone(c, f->len))
             break;
         net_enqueue(c, f, NET_ITEM_REPLY);
         j->out_bytes -= f->len;

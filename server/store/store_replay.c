@@ -399,8 +399,9 @@ uint64_t store_cursor_tick(const store_cursor *c)
     return c->tick;
 }
 
-/* At the end of segment seq: the next one, if there is one. 1 moved, 0 not
- * yet, -1 a gap (compacted away: why says so). */
+/* At the end of segment seq: the next one, if there is one. 1 moved (or a
+ * record came at the end of seq meanwhile), 0 not yet, -1 a gap (compacted
+ * away: why says so). */
 static int cursor_next_segment(store_cursor *c, error_text *why)
 {
     uint64_t *seqs = NULL;
@@ -408,6 +409,15 @@ static int cursor_next_segment(store_cursor *c, error_text *why)
     if (store_list_segments(c->dir, &seqs, &count) != 0) {
         error_set(why, "store: cannot list the segments of %s", c->dir);
         return -1;
+    }
+    /* the sim thread finishes a segment's last record before it starts the
+     * next one: a record written between the caller's look at the header and
+     * this listing is read before moving on, never skipped */
+    uint64_t t;
+    uint32_t plen;
+    if (cursor_header(c, &t, &plen)) {
+        free(seqs);
+        return 1;
     }
     for (int i = 0; i < count && rc == 0; i++)
         if (seqs[i] > c->seq) {
