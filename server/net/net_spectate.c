@@ -593,8 +593,10 @@ static void pump_client(net_client *c)
         j->out_bytes -= f->len;
         taken++;
     }
-    memmove(j->out, j->out + taken, (size_t)(j->nout - taken) * sizeof *j->out);
-    j->nout -= taken;
+    if (taken) { /* j->out is NULL until the thread posts its first frame */
+        memmove(j->out, j->out + taken, (size_t)(j->nout - taken) * sizeof *j->out);
+        j->nout -= taken;
+    }
     j->client_bytes = c->pending_bytes;
     int done = j->ended && j->nout == 0;
     pthread_cond_signal(&j->cond);
