@@ -418,10 +418,10 @@ static double printed(double v)
 
 static void round_soil(sim_soil *s)
 {
-    double *f[9] = {
+    double *f[10] = {
         &s->n,         &s->kc,           &s->kphi,           &s->cohesion_pa, &s->friction_deg,
-        &s->shear_k_m, &s->elastic_pa_m, &s->damping_pa_s_m, &s->slip_n};
-    for (int i = 0; i < 9; i++)
+        &s->shear_k_m, &s->elastic_pa_m, &s->damping_pa_s_m, &s->slip_n,      &s->density_kg_m3};
+    for (int i = 0; i < 10; i++)
         *f[i] = printed(*f[i]);
 }
 
@@ -432,9 +432,10 @@ static void write_material(FILE *out, const sim_soil *s, double compression)
     fprintf(out,
             "{\"model\": \"bekker\", \"compression\": %.6g, \"soil\": {\"n\": %.6g, \"kc\": %.6g, "
             "\"kphi\": %.6g, \"cohesion_pa\": %.6g, \"friction_deg\": %.6g, \"shear_k_m\": %.6g, "
-            "\"elastic_pa_m\": %.6g, \"damping_pa_s_m\": %.6g, \"slip_n\": %.6g}}\n",
+            "\"elastic_pa_m\": %.6g, \"damping_pa_s_m\": %.6g, \"slip_n\": %.6g, "
+            "\"density_kg_m3\": %.6g}}\n",
             compression, s->n, s->kc, s->kphi, s->cohesion_pa, s->friction_deg, s->shear_k_m,
-            s->elastic_pa_m, s->damping_pa_s_m, s->slip_n);
+            s->elastic_pa_m, s->damping_pa_s_m, s->slip_n, s->density_kg_m3);
 }
 
 static double relative(double model, double measured)

@@ -256,18 +256,18 @@ static void put(const char *text, double v)
 static void print_json(const wheel_options *o, const sim_wheel_result *r)
 {
     const sim_soil *s = &o->soil;
-    const char *names[9] = {
+    const char *names[10] = {
         "n",         "kc",           "kphi",           "cohesion_pa", "friction_deg",
-        "shear_k_m", "elastic_pa_m", "damping_pa_s_m", "slip_n"};
-    double values[9] = {
+        "shear_k_m", "elastic_pa_m", "damping_pa_s_m", "slip_n",      "density_kg_m3"};
+    double values[10] = {
         s->n,         s->kc,           s->kphi,           s->cohesion_pa, s->friction_deg,
-        s->shear_k_m, s->elastic_pa_m, s->damping_pa_s_m, s->slip_n};
+        s->shear_k_m, s->elastic_pa_m, s->damping_pa_s_m, s->slip_n,      s->density_kg_m3};
     cJSON *source = cJSON_CreateString(o->soil_arg); /* the one string: escaped by cJSON */
     char *quoted = source ? cJSON_PrintUnformatted(source) : NULL;
     printf("{\"soil_source\": %s, \"soil\": {", quoted ? quoted : "null");
     cJSON_free(quoted);
     cJSON_Delete(source);
-    for (int k = 0; k < 9; k++) {
+    for (int k = 0; k < 10; k++) {
         printf("%s\"%s\": ", k ? ", " : "", names[k]);
         exact(stdout, values[k]);
     }

@@ -65,6 +65,21 @@ double time_now_ms(void)
     return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
+struct timespec time_after_ms(clockid_t clock, double ms)
+{
+    struct timespec t;
+    clock_gettime(clock, &t);
+    long long ns = (long long)t.tv_nsec + llround(ms * 1e6);
+    long long sec = ns / 1000000000LL, rest = ns % 1000000000LL;
+    if (rest < 0) { /* a moment in the past: tv_nsec stays in [0, 1e9) */
+        sec--;
+        rest += 1000000000LL;
+    }
+    t.tv_sec += (time_t)sec;
+    t.tv_nsec = (long)rest;
+    return t;
+}
+
 void stat_series_add(stat_series *s, double value)
 {
     if (s->count == s->capacity) {

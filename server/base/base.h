@@ -13,6 +13,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <time.h>
 
 /* Log lines go to stderr, one line each, prefixed with the level. */
 void log_info(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -23,6 +24,10 @@ void log_set_quiet(int quiet);
 
 /* Milliseconds from a monotonic clock. */
 double time_now_ms(void);
+/* The moment ms milliseconds from now (in the past when ms < 0) on clock, as
+ * pthread_cond_timedwait wants it: the condition's own clock (CLOCK_REALTIME,
+ * or CLOCK_MONOTONIC for one made with that attribute). */
+struct timespec time_after_ms(clockid_t clock, double ms);
 
 /* Test hook (base/fault.c): with TERRAD_FAULT_STALL=FILE set, the calling
  * thread waits while FILE exists and names it ("tick", "net"). */

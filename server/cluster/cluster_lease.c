@@ -255,12 +255,8 @@ static void *renewer_main(void *arg)
         pthread_mutex_lock(&cl->lock);
         if (cl->renewer_quit)
             break;
-        struct timespec ts;
-        clock_gettime(CLOCK_REALTIME, &ts);
-        long step_ns = (long)(cl->renew_ms > 400 ? 100 : cl->renew_ms / 4 + 1) * 1000000L;
-        ts.tv_nsec += step_ns;
-        ts.tv_sec += ts.tv_nsec / 1000000000L;
-        ts.tv_nsec %= 1000000000L;
+        struct timespec ts =
+            time_after_ms(CLOCK_REALTIME, cl->renew_ms > 400 ? 100 : cl->renew_ms / 4 + 1);
         pthread_cond_timedwait(&cl->renewer_wake, &cl->lock, &ts);
     }
     pthread_mutex_unlock(&cl->lock);

@@ -57,6 +57,7 @@ typedef struct ground_soil {
     double elastic_pa_m;   /* unloading/reloading stiffness, > 0 */
     double damping_pa_s_m; /* pressure per m/s of sinking, >= 0 */
     double slip_n;         /* slip-sinkage: n grows by slip_n x the cell's slip ratio, [0, 2] */
+    double density_kg_m3;  /* bulk density: the unit weight in a lug's bulldozing, (0, 3000] */
 } ground_soil;
 
 typedef struct ground_material {

@@ -56,7 +56,8 @@ int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
     http_status *s = &m->status;
     pthread_mutex_lock(&s->lock);
     s->volume = service_volume(m->svc);
-    s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED); /* recovered, before a tick */
+    s->soil_compacted =
+        world_layer_sum(&m->w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED); /* recovered, before a tick */
     s->compacted = sim_world_compacted(&m->w);
     s->tick = service_current_tick(m->svc);
     pthread_mutex_unlock(&s->lock);
@@ -95,7 +96,7 @@ void host_sim_status_init(host_sim *m)
     snprintf(s->world_name, sizeof s->world_name, "%s", m->name);
     snprintf(s->scene_name, sizeof s->scene_name, "%.64s", m->sc.name);
     s->volume = world_volume(&m->w);
-    s->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
+    s->soil_compacted = world_layer_sum(&m->w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED);
     s->compacted = sim_world_compacted(&m->w);
 }
 
@@ -130,7 +131,7 @@ static void publish_status(host_sim *m, double tick_ms, int clients, int collide
     }
     status->tick = service_current_tick(m->svc);
     status->volume = service_volume(m->svc);
-    status->soil_compacted = world_soil_sum(&m->w, SIM_SOIL_COMPACTED);
+    status->soil_compacted = world_layer_sum(&m->w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED);
     status->compacted = sim_world_compacted(&m->w);
     status->last_tick_ms = tick_ms;
     status->overruns = m->overruns;

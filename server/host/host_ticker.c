@@ -99,14 +99,8 @@ static void drop(host_ticker *t, host_job *j)
 
 static void wait_until(host_ticker *t, double due_ms)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
     double ms = due_ms - time_now_ms();
-    if (ms > 1000)
-        ms = 1000;
-    long long ns = (long long)ts.tv_nsec + (long long)(ms * 1e6);
-    ts.tv_sec += (time_t)(ns / 1000000000LL);
-    ts.tv_nsec = (long)(ns % 1000000000LL);
+    struct timespec ts = time_after_ms(CLOCK_MONOTONIC, ms > 1000 ? 1000 : ms);
     pthread_cond_timedwait(&t->wake, &t->lock, &ts);
 }
 

@@ -29,7 +29,11 @@ static int world_register(host_world *hw, error_text *err)
 {
     host_sim *m = &hw->m;
     hw->info = host_sim_world_info(m); /* read by the net thread when it adopts it */
-    hub_world e = {.h = m->h, .base = &m->w, .status = &m->status, .info = &hw->info};
+    hub_world e = {.h = m->h,
+                   .base = &m->w,
+                   .replay_dir = m->status.replay_dir,
+                   .status = &m->status,
+                   .info = &hw->info};
     snprintf(e.name, sizeof e.name, "%.64s", port_name(hw)); /* as http_status.scene_name */
     if (!(hw->entry = hub_worlds_add(hw->worlds, &e, err)))
         return -1;

@@ -53,7 +53,7 @@
 #include "metrics/metrics.h"
 
 #define GUARD_ADDRESSES 1024 /* distinct addresses holding bytes at once */
-#define GUARD_SWEEP_NS (250 * 1000 * 1000)
+#define GUARD_SWEEP_MS 250
 
 typedef struct guard_address {
     int family; /* 0: free */
@@ -205,13 +205,7 @@ static void *sweeper(void *arg)
     http_guard *g = arg;
     pthread_mutex_lock(&g->lock);
     while (!g->stop) {
-        struct timespec t;
-        clock_gettime(CLOCK_REALTIME, &t);
-        t.tv_nsec += GUARD_SWEEP_NS;
-        if (t.tv_nsec >= 1000000000L) {
-            t.tv_sec++;
-            t.tv_nsec -= 1000000000L;
-        }
+        struct timespec t = time_after_ms(CLOCK_REALTIME, GUARD_SWEEP_MS);
         pthread_cond_timedwait(&g->wake, &g->lock, &t);
         if (!g->stop)
             sweep(g);

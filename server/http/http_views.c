@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "metrics/metrics.h"
+#include "sim/sim.h"
 #include "store/store.h"
 #include "terrad_version.h"
 #include "world/world.h"
@@ -233,12 +234,9 @@ void http_view_world(const http_status *st, http_answer *a)
  * that (docs/storage.md "Replay"). */
 static pthread_mutex_t replay_lock = PTHREAD_MUTEX_INITIALIZER;
 
-/* ?tick=N: the rectangle as of the end of tick N, rebuilt from the world's
- * data directory on this worker (store_replay_rect), never from the sim
- * thread's world. 0, or the status and why naming the parameter. */
-static unsigned read_past(const world *base_world, const http_status *st, const http_args *args,
-                          const char *text, world_rect r, int32_t *dst, uint64_t *tick, char *why,
-                          size_t cap)
+/* ?tick=N's N: 0, or the status and why naming the parameter. */
+static unsigned past_tick(const world *base_world, const http_status *st, const char *text,
+                          uint64_t *tick, char *why, size_t cap)
 {
     char *end = NULL;
     unsigned long long n = 0;
@@ -246,10 +244,6 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
         n = strtoull(text, &end, 10);
     if (!end || *end || end - text > 19) {
         snprintf(why, cap, "parameter tick must be a decimal integer (a past tick)");
-        return MHD_HTTP_BAD_REQUEST;
-    }
-    if (arg(args, "base") || arg(args, "layer")) {
-        snprintf(why, cap, "parameter tick: a past tick serves heights only (no base=, layer=)");
         return MHD_HTTP_BAD_REQUEST;
     }
     if (!st->replay_dir) {
@@ -268,10 +262,14 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
         return MHD_HTTP_SERVICE_UNAVAILABLE;
     }
     *tick = n;
-    if (n == 0) { /* before the first tick: the base */
-        world_base_fill_rect(base_world, r, dst);
-        return 0;
-    }
+    return 0;
+}
+
+/* One rebuild of r as of tick on this worker, kept as a world (layer or
+ * stats) or only its heights into dst (w NULL): 0, or the status and why. */
+static unsigned rebuild_past(const world *base_world, const http_status *st, uint64_t n,
+                             world_rect r, world *w, int32_t *dst, char *why, size_t cap)
+{
     error_text err = {{0}};
     /* refused, not queued: a queue of slow rebuilds would hold every HTTP
      * worker (four) and starve the live reads and the probes */
@@ -281,20 +279,84 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
                  "per daemon); retry");
         return MHD_HTTP_SERVICE_UNAVAILABLE;
     }
-    int rc = store_replay_rect(st->replay_dir, base_world, n, r, dst, &err);
+    int rc = w ? store_replay_world(st->replay_dir, base_world, n, r, w, &err)
+               : store_replay_rect(st->replay_dir, base_world, n, r, dst, &err);
     pthread_mutex_unlock(&replay_lock);
     if (rc == 1) {
         snprintf(why, cap,
                  "parameter tick: tick %llu is no longer held (the log before a newer tile "
                  "snapshot was compacted away; keep more with --replay-retain-bytes): %.300s",
-                 n, err.message);
+                 (unsigned long long)n, err.message);
         return MHD_HTTP_GONE;
     }
     if (rc != 0) {
-        snprintf(why, cap, "parameter tick: rebuilding tick %llu failed: %.400s", n, err.message);
+        snprintf(why, cap, "parameter tick: rebuilding tick %llu failed: %.400s",
+                 (unsigned long long)n, err.message);
         return MHD_HTTP_SERVICE_UNAVAILABLE;
     }
     return 0;
+}
+
+/* ?tick=N: the rectangle (its heights, or with layer=compaction its
+ * compaction memory) as of the end of tick N, rebuilt from the world's data
+ * directory on this worker (store_replay_rect, store_replay_world), never
+ * from the sim thread's world. 0, or the status and why naming the parameter. */
+static unsigned read_past(const world *base_world, const http_status *st, const http_args *args,
+                          const char *text, world_rect r, int32_t *dst, uint64_t *tick, char *why,
+                          size_t cap)
+{
+    const char *layer = arg(args, "layer");
+    int compaction = layer && strcmp(layer, "compaction") == 0;
+    if (arg(args, "base") || (layer && !compaction && strcmp(layer, "heights") != 0)) {
+        snprintf(why, cap,
+                 "parameter tick: a past tick serves heights or layer=compaction (no base=, "
+                 "layer=heights|compaction)");
+        return MHD_HTTP_BAD_REQUEST;
+    }
+    unsigned status = past_tick(base_world, st, text, tick, why, cap);
+    if (status)
+        return status;
+    if (*tick == 0) { /* before the first tick: the base, remembering nothing */
+        if (compaction)
+            memset(dst, 0, (size_t)r.w * r.h * sizeof *dst);
+        else
+            world_base_fill_rect(base_world, r, dst);
+        return 0;
+    }
+    if (!compaction)
+        return rebuild_past(base_world, st, *tick, r, NULL, dst, why, cap);
+    world w;
+    status = rebuild_past(base_world, st, *tick, r, &w, NULL, why, cap);
+    if (!status) {
+        world_layer_gather(&w, WORLD_LAYER_COMPACTION, r, dst);
+        world_free(&w);
+    }
+    return status;
+}
+
+/* GET /v1/stats?tick=N: what the store can rebuild of a past tick — the
+ * world whole as of N (its Σh, its compaction memory and the bekker soil's
+ * compaction summed as the live answer sums them); the live-only fields
+ * (clients, colliders, tick time, overruns, ready) are left out. */
+static void stats_past(const world *base_world, const http_status *st, const char *text,
+                       http_answer *a)
+{
+    char why[512], body[256];
+    uint64_t n = 0;
+    unsigned status = past_tick(base_world, st, text, &n, why, sizeof why);
+    world w;
+    world_rect all = {0, 0, st->world_width, st->world_height};
+    if (!status)
+        status = rebuild_past(base_world, st, n, all, &w, NULL, why, sizeof why);
+    if (status)
+        return http_answer_error(a, status, "%s", why);
+    snprintf(body, sizeof body,
+             "{\"tick\":%llu,\"volume\":%lld,\"compacted\":%lld,\"soil_compacted\":%lld,"
+             "\"past\":true}\n",
+             (unsigned long long)n, (long long)world_volume(&w), (long long)sim_world_compacted(&w),
+             (long long)world_layer_sum(&w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED));
+    world_free(&w);
+    answer_text(a, MHD_HTTP_OK, "application/json", body);
 }
 
 /* The rectangle's heights into dst: the live world through the hub (at the
@@ -464,7 +526,10 @@ void http_view_hosted(http_server *s, hub_world *w, http_view view, const http_a
     pthread_mutex_lock(&st->lock);
     snap = *st; /* the copied lock is never used */
     pthread_mutex_unlock(&st->lock);
-    if (view == HTTP_VIEW_STATS)
+    const char *past = view == HTTP_VIEW_STATS ? arg(args, "tick") : NULL;
+    if (past)
+        stats_past(w->base, &snap, past, a);
+    else if (view == HTTP_VIEW_STATS)
         http_view_stats(&snap, a);
     else if (view == HTTP_VIEW_WORLD)
         http_view_world(&snap, a);

@@ -294,14 +294,7 @@ int hub_edit_submit(hub *h, world_edit *e, hub_edit_result *res, int timeout_ms)
                  "server busy: the simulation's command queue is full, try again");
         return -1;
     }
-    struct timespec until;
-    clock_gettime(CLOCK_MONOTONIC, &until);
-    until.tv_sec += timeout_ms / 1000;
-    until.tv_nsec += (long)(timeout_ms % 1000) * 1000000L;
-    if (until.tv_nsec >= 1000000000L) {
-        until.tv_sec++;
-        until.tv_nsec -= 1000000000L;
-    }
+    struct timespec until = time_after_ms(CLOCK_MONOTONIC, timeout_ms);
     pthread_mutex_lock(&w->lock);
     while (!w->done && pthread_cond_timedwait(&w->done_cond, &w->lock, &until) == 0)
         ;
@@ -621,14 +614,7 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
         abort();
     }
 #endif
-    struct timespec deadline;
-    clock_gettime(CLOCK_MONOTONIC, &deadline);
-    deadline.tv_sec += timeout_ms / 1000;
-    deadline.tv_nsec += (long)(timeout_ms % 1000) * 1000000L;
-    if (deadline.tv_nsec >= 1000000000L) {
-        deadline.tv_sec++;
-        deadline.tv_nsec -= 1000000000L;
-    }
+    struct timespec deadline = time_after_ms(CLOCK_MONOTONIC, timeout_ms);
     pthread_mutex_lock(&h->read_lock);
     hub_read *slot = NULL;
     for (int i = 0; i < HUB_MAX_READS && !slot; i++)
@@ -687,7 +673,7 @@ void hub_serve_reads(hub *h, const world *w, uint64_t tick)
         if (world_clip_rect(w, &clipped) && clipped.x == r->rect.x && clipped.y == r->rect.y &&
             clipped.w == r->rect.w && clipped.h == r->rect.h) {
             if (r->layer == HUB_LAYER_COMPACTION)
-                world_compaction_gather(w, r->rect, r->out);
+                world_layer_gather(w, WORLD_LAYER_COMPACTION, r->rect, r->out);
             else
                 world_gather_window(w, r->rect, r->out);
         } else

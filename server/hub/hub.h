@@ -245,7 +245,7 @@ int hub_store_unavailable(hub *h, char *reason, size_t cap);
 /* ---- http → sim: height reads ---- */
 
 /* What a read copies: the heights, or the per-cell compaction memory
- * (world_compaction_gather: zeros where none). */
+ * (world_layer_gather of WORLD_LAYER_COMPACTION: zeros where none). */
 typedef enum hub_layer { HUB_LAYER_HEIGHTS, HUB_LAYER_COMPACTION } hub_layer;
 
 /* Any thread but the sim thread (the HTTP threads): copy a rectangle (inside the world) of
@@ -287,6 +287,9 @@ typedef struct hub_world {
     char name[HUB_WORLD_NAME_MAX + 1];
     hub *h;
     const world *base; /* its base terrain (/v1/heights?base=1) */
+    /* its data directory, for replays beside it (?tick=N, spectators); NULL:
+     * none (memory only, or a cluster node's store) */
+    const char *replay_dir;
     void *status;
     const void *info;
     int deleted; /* set by hub_worlds_remove: its clients are told it was deleted */

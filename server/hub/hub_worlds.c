@@ -93,13 +93,7 @@ static void changed_locked(hub_worlds *t)
 
 static void wait_until(pthread_cond_t *cond, pthread_mutex_t *lock, int ms)
 {
-    struct timespec until;
-    clock_gettime(CLOCK_REALTIME, &until);
-    until.tv_nsec += (long)ms * 1000 * 1000;
-    if (until.tv_nsec >= 1000000000L) {
-        until.tv_sec++;
-        until.tv_nsec -= 1000000000L;
-    }
+    struct timespec until = time_after_ms(CLOCK_REALTIME, ms);
     pthread_cond_timedwait(cond, lock, &until);
 }
 

@@ -377,6 +377,7 @@ void metrics_reset(void)
     metrics_room_reset();
     metrics_steps_reset();
     metrics_desync_reset();
+    metrics_spectate_reset();
     metrics_cluster_reset();
     for (int i = 0; i < S_COUNT; i++)
         SET(i, 0);
@@ -765,8 +766,8 @@ char *metrics_render(size_t *len)
     char process[4096];
     /* the families rendered by the other files of metrics/, in this order */
     int (*const parts[])(char *, size_t) = {
-        metrics_auth_text,    metrics_edits_text,  metrics_room_text,   metrics_steps_text,
-        metrics_cluster_text, metrics_desync_text, metrics_process_text};
+        metrics_auth_text,    metrics_edits_text,  metrics_room_text,     metrics_steps_text,
+        metrics_cluster_text, metrics_desync_text, metrics_spectate_text, metrics_process_text};
     for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
         if (parts[i](process, sizeof process) > 0)
             text_printf(&t, "%s", process);

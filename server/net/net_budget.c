@@ -724,6 +724,15 @@ int net_budget_fits(net_client *c, size_t len)
     return !b || (!b->owed && room(b) >= (double)wire_bytes(len));
 }
 
+int net_budget_fits_alone(net_client *c, size_t len)
+{
+    if (net_budget_fits(c, len))
+        return 1;
+    net_budget *b = c->budget;
+    expire(b, time_now_ms());
+    return b->count == 0 && !b->owed;
+}
+
 int net_client_tile_current(const net_client *c, int tx, int ty)
 {
     if (c->slow || c->snapshots_done < c->snapshots_requested)

@@ -23,6 +23,10 @@
  *   net_auth.c      who may do what
  *   net_peer.c      a client's end: dead peers, the disconnect line, freeing it
  *     ↓
+ *   net_spectate.c  spectators: a window replayed from a past tick by a
+ *                   thread of its own, its frames moved to the client's
+ *                   queue as its bound and budget allow
+ *     ↓
  *   net_budget.c    a client's bandwidth budget: its byte window and its
  *                   ledger of tiles not sent yet (net_fanout.c hands it
  *                   a budgeted client's deltas and snapshots)
@@ -71,7 +75,8 @@ typedef struct net_sub {
 } net_sub;
 
 typedef struct net_state net_state;
-typedef struct net_budget net_budget; /* net_budget.c */
+typedef struct net_budget net_budget;       /* net_budget.c */
+typedef struct net_spectator net_spectator; /* net_spectate.c */
 
 typedef struct net_client {
     uint32_t id;
@@ -157,6 +162,7 @@ typedef struct net_client {
     net_budget *budget;
     int has_focus;
     double focus_x, focus_y;
+    net_spectator *spectate; /* PROTOCOL.md "Spectate" (net_spectate.c); NULL: not spectating */
 } net_client;
 
 typedef struct net_collider_slot {
@@ -227,6 +233,9 @@ struct net_state {
     hub_world *entry;           /* a world of the table (cfg.worlds) this state was made for */
     terrad_codec *budget_codec; /* budgeted clients' deltas, summed and encoded (net_budget.c) */
     net_state **worlds;         /* the lobby's: every world's state */
+    net_server *server;         /* a world's: the server whose thread serves it (its waker) */
+    uint32_t spectate_ids;      /* the last spectator's id */
+    net_spectator *spectators_gone; /* their clients left; joined once their threads end */
     int nworlds;
     int64_t worlds_cap;
 };
@@ -269,6 +278,25 @@ void net_client_kill(net_client *c, const char *why);
  * however late the server read it) closes the connection. */
 int net_rate_allow(net_client *c);
 
+/* ---- spectators (net_spectate.c; PROTOCOL.md "Spectate") ---- */
+struct net_control;
+/* A spectate request whose fields the parser checked: refused (an error
+ * naming the field, counted), or a replay thread started; "spectating"
+ * follows once it has rebuilt the start tick. */
+void net_spectate_request(net_client *c, const struct net_control *m);
+void net_spectate_step(net_client *c, const struct net_control *m); /* spectate_step */
+void net_spectate_stop(net_client *c, const struct net_control *m); /* spectate_stop */
+int net_spectating(const net_client *c);
+/* The client leaves: its replay thread is stopped (joined later). */
+void net_spectate_drop(net_client *c);
+/* Every spectator's frames into its client's queue as it has room; threads
+ * that ended are joined. Each wake and heartbeat. */
+void net_spectate_pump(net_state *w);
+/* The world leaves: every replay thread of it stopped and joined. */
+void net_spectate_join_all(net_state *w);
+/* The hubs' waker (net_fanout.c): any thread. */
+void net_server_wake(void *arg);
+
 /* ---- bandwidth budgets (net_budget.c; PROTOCOL.md "Budgets") ---- */
 /* Give c a budget of rate bytes/s: 0, or -1 (no memory). */
 int net_budget_start(net_client *c, double rate);
@@ -279,6 +307,10 @@ double net_budget_rate(const net_client *c); /* 0: none */
 void net_budget_charge(net_client *c, size_t len, int tile_data);
 /* 1 if a frame of len bytes fits the window now (always without a budget). */
 int net_budget_fits(net_client *c, size_t len);
+/* As net_budget_fits, but a frame larger than the window will ever have
+ * room for fits once the window is empty (an overrun, counted): a
+ * spectator's frames (net_spectate.c), which would otherwise wait forever. */
+int net_budget_fits_alone(net_client *c, size_t len);
 /* A tile delta (o: HUB_OUT_TILE_DELTA) for a budgeted client: 0 when the
  * caller queues it as for any client, 1 when the ledger took it. */
 int net_budget_delta(net_client *c, const hub_out *o);

@@ -489,7 +489,24 @@ static const struct {
     {"subscribe_events", NET_CONTROL_SUBSCRIBE_EVENTS},
     {"seen", NET_CONTROL_SEEN},
     {"focus", NET_CONTROL_FOCUS},
+    {"spectate", NET_CONTROL_SPECTATE},
+    {"spectate_step", NET_CONTROL_SPECTATE_STEP},
+    {"spectate_stop", NET_CONTROL_SPECTATE_STOP},
 };
+
+/* spectate: a window (as subscribe's), "from_tick", and "speed" (1..8,
+ * default 1) or "step": true (PROTOCOL.md "Spectate"). */
+static int parse_spectate(parser *r, net_control *out)
+{
+    int64_t from = 0, speed = 1;
+    if (parse_subscribe(r, out) < 0 ||
+        get_int(r, "from_tick", 1, 0, INT64_C(9007199254740992), &from) < 0 ||
+        get_int(r, "speed", 0, 1, 8, &speed) < 0 || get_bool(r, "step", 0, &out->stepping))
+        return -1;
+    out->from_tick = (uint64_t)from;
+    out->speed = (int)speed;
+    return 0;
+}
 
 /* focus: "x" and "y", cells inside the world, both or neither (neither: cleared). */
 static int parse_focus(parser *r, net_control *out)
@@ -622,6 +639,16 @@ int net_control_parse(const char *text, size_t len, const net_control_context *c
             break;
         case NET_CONTROL_FOCUS:
             rc = parse_focus(&r, out);
+            break;
+        case NET_CONTROL_SPECTATE:
+            rc = parse_spectate(&r, out);
+            break;
+        case NET_CONTROL_SPECTATE_STEP:
+            rc = get_int(&r, "ticks", 1, 1, r.ctx->limits->max_step_ticks, &out->step_ticks) < 0
+                     ? -1
+                     : 0;
+            break;
+        case NET_CONTROL_SPECTATE_STOP:
             break;
         case NET_CONTROL_SEEN: { /* "tick": an integer a double holds exactly */
             int64_t tick = 0;

@@ -37,6 +37,9 @@ typedef enum net_control_kind {
     NET_CONTROL_SUBSCRIBE_EVENTS,
     NET_CONTROL_SEEN,
     NET_CONTROL_FOCUS,
+    NET_CONTROL_SPECTATE,
+    NET_CONTROL_SPECTATE_STEP,
+    NET_CONTROL_SPECTATE_STOP,
 } net_control_kind;
 
 /* subscribe_events: the events an admin connection may ask for, one bit each
@@ -85,8 +88,13 @@ typedef struct net_control {
     int32_t *tiles;
     int tile_count;
     int any_owner; /* collider_delete: an admin's delete of any client's collider */
-    /* subscribe: inside the world */
+    /* subscribe, spectate: inside the world */
     world_rect rect;
+    /* spectate (PROTOCOL.md "Spectate"): the past tick it starts at, its
+     * speed (1..8 times the tick rate) or stepping (spectate_step's ticks) */
+    uint64_t from_tick;
+    int speed, stepping;
+    int64_t step_ticks;
     int colliders, footprints;
     /* seen: the latest tick whose frames the client has handled */
     uint64_t seen_tick;

@@ -15,73 +15,74 @@
 #include "net/net.h"
 #include "world/world.h"
 
-#define ROW(name, kind, def, flags, help)                                                          \
+/* A row's kind is its field's type in net_limits (net.h), so the table
+ * cannot read or write a field as what it is not; a field of another type
+ * does not compile. */
+/* clang-format off */
+#define KIND_OF(name)                                                                              \
+    _Generic(((net_limits *)0)->name,                                                              \
+             int: NET_LIMIT_INT,                                                                   \
+             int64_t: NET_LIMIT_INT64,                                                             \
+             size_t: NET_LIMIT_SIZE,                                                               \
+             double: NET_LIMIT_DOUBLE)
+/* clang-format on */
+/* A row whose config value may not be under min (the budgets: hello's
+ * NET_BUDGET_MIN); ROW: any value > 0. */
+#define ROW_MIN(name, def, min, flags, help)                                                       \
     {                                                                                              \
-#name, offsetof(net_limits, name), kind, def, flags, help, 0                               \
+#name, offsetof(net_limits, name), KIND_OF(name), def, flags, help, min                    \
     }
-/* A row whose config value may not be under min (the budgets: hello's NET_BUDGET_MIN). */
-#define ROW_MIN(name, kind, def, min, flags, help)                                                 \
-    {                                                                                              \
-#name, offsetof(net_limits, name), kind, def, flags, help, min                             \
-    }
+#define ROW(name, def, flags, help) ROW_MIN(name, def, 0, flags, help)
 
 const net_limit_spec net_limit_table[] = {
     /* told to clients, in the world message's order */
-    ROW(max_message_bytes, NET_LIMIT_SIZE, 1048576, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_message_bytes, 1048576, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "largest websocket frame, text or binary"),
-    ROW(max_colliders, NET_LIMIT_INT, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "colliders per client"),
-    ROW(max_poses_per_batch, NET_LIMIT_INT, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "poses in one POSE_BATCH"),
-    ROW(max_subscriptions, NET_LIMIT_INT, 16, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "subscriptions per client"),
-    ROW(max_subscribed_cells, NET_LIMIT_INT64, 4194304, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_colliders, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "colliders per client"),
+    ROW(max_poses_per_batch, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "poses in one POSE_BATCH"),
+    ROW(max_subscriptions, 16, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "subscriptions per client"),
+    ROW(max_subscribed_cells, 4194304, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "cells over a client's subscriptions"),
-    ROW(max_messages_per_s, NET_LIMIT_DOUBLE, 240, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_messages_per_s, 240, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "a client's sustained messages per second (token bucket)"),
-    ROW(messages_burst, NET_LIMIT_DOUBLE, 480, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "the token bucket's depth"),
-    ROW(max_mesh_vertices, NET_LIMIT_INT, 16384, NET_LIMIT_TOLD, "vertices per mesh collider"),
-    ROW(max_mesh_triangles, NET_LIMIT_INT, 32768, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(messages_burst, 480, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "the token bucket's depth"),
+    ROW(max_mesh_vertices, 16384, NET_LIMIT_TOLD, "vertices per mesh collider"),
+    ROW(max_mesh_triangles, 32768, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "triangles over a client's mesh colliders"),
-    ROW(max_active_cells, NET_LIMIT_INT64, 8192, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_active_cells, 8192, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "a client's colliders' cost in cells (docs/service.md: a quarter of a 60 Hz tick)"),
-    ROW(max_collider_extent_m, NET_LIMIT_DOUBLE, 50, NET_LIMIT_TOLD,
-        "largest length of any collider dimension"),
-    ROW(max_pending_bytes, NET_LIMIT_SIZE, 8388608, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_collider_extent_m, 50, NET_LIMIT_TOLD, "largest length of any collider dimension"),
+    ROW(max_pending_bytes, 8388608, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "bytes queued for a client before it is treated as slow"),
-    ROW(hello_timeout_s, NET_LIMIT_DOUBLE, 5, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
-        "seconds allowed for hello"),
-    ROW(max_client_lag_ticks, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(hello_timeout_s, 5, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "seconds allowed for hello"),
+    ROW(max_client_lag_ticks, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "ticks a client's oldest queued frame may lag before it is slow (0: 2 s of ticks)"),
-    ROW(max_tick_cells, NET_LIMIT_INT64, 32768, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_tick_cells, 32768, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "the tick's cost budget over every client (four clients' max_active_cells)"),
-    ROW(max_sweep_cells, NET_LIMIT_INT64, 32768, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_sweep_cells, 32768, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "one client's cost this tick, its sweeps included (a whole tick's budget)"),
-    ROW(max_edit_cells, NET_LIMIT_INT64, WORLD_EDIT_MAX_CELLS_DEFAULT,
-        NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "cells one terrain edit may change"),
-    ROW(max_step_ticks, NET_LIMIT_INT, 600, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_edit_cells, WORLD_EDIT_MAX_CELLS_DEFAULT, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+        "cells one terrain edit may change"),
+    ROW(max_step_ticks, 600, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "ticks one STEP of a client-clocked world may ask for (10 s of 60 Hz ticks)"),
-    ROW(checksum_interval_ticks, NET_LIMIT_INT, 30, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(checksum_interval_ticks, 30, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "ticks between a subscription's CHECKSUM frames (0.5 s at 60 Hz)"),
-    ROW(max_resync_tiles, NET_LIMIT_INT, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW(max_resync_tiles, 64, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
         "tiles one resync request may name (a 512 x 512 window's)"),
-    ROW_MIN(default_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_BUDGET_MIN,
-            NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW_MIN(default_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
             "a client's bandwidth budget when its hello states none (0: none; else >= 1024)"),
-    ROW_MIN(max_budget_bytes_per_s, NET_LIMIT_DOUBLE, 0, NET_BUDGET_MIN,
-            NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
+    ROW_MIN(max_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,
             "the largest budget a hello may state (0: any, and none; else >= 1024)"),
     /* the server's own */
-    ROW(max_connections, NET_LIMIT_INT, 0, NET_LIMIT_CONFIG,
+    ROW(max_connections, 0, NET_LIMIT_CONFIG,
         "websocket connections in all (0: from RLIMIT_NOFILE)"),
-    ROW(max_connections_per_address, NET_LIMIT_INT, 256, NET_LIMIT_CONFIG,
+    ROW(max_connections_per_address, 256, NET_LIMIT_CONFIG,
         "websocket connections from one address"),
-    ROW(max_heights_bytes_per_address, NET_LIMIT_SIZE, 0, NET_LIMIT_CONFIG,
+    ROW(max_heights_bytes_per_address, 0, NET_LIMIT_CONFIG,
         "HTTP: /v1/heights bytes one address may hold at once (0: 64 MiB)"),
-    ROW(max_heights_bytes_in_flight, NET_LIMIT_SIZE, 0, NET_LIMIT_CONFIG,
+    ROW(max_heights_bytes_in_flight, 0, NET_LIMIT_CONFIG,
         "HTTP: the same over every address (0: 256 MiB)"),
-    ROW(fd_reserve, NET_LIMIT_INT, 64, 0, "descriptors left free under RLIMIT_NOFILE"),
+    ROW(fd_reserve, 64, 0, "descriptors left free under RLIMIT_NOFILE"),
     {0},
 };
 

@@ -64,6 +64,7 @@ static void heartbeat(lws_sorted_usec_list_t *sul)
         net_reap_dead_peers(net_state_at(s, i));
         net_auth_recheck(net_state_at(s, i));
         net_budget_flush_state(net_state_at(s, i)); /* a window emptied between ticks */
+        net_spectate_pump(net_state_at(s, i));
     }
     net_flush_backlogs(s);
     if (atomic_load(&s->stop_requested) && !s->stopping) {
@@ -80,12 +81,15 @@ void net_heartbeat_start(net_server *s)
 
 void net_catch_up(net_server *s)
 {
+    atomic_store(&s->wake_pending, 0); /* before taking: a later wake cancels again */
     net_drain_apply(s); /* a drain's notice before a world's removal closes its clients */
     net_worlds_apply(s);
     net_events_apply(s);
     net_remote_apply(s);
     net_flush_backlogs(s);
     net_drain_hubs(s); /* the last tick's frames go out before the goodbye */
+    for (int i = 0; net_state_at(s, i); i++)
+        net_spectate_pump(net_state_at(s, i)); /* the replay threads' frames, the live tick */
     if (atomic_load(&s->stop_requested) && !s->stopping)
         begin_shutdown(s);
 }

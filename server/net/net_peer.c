@@ -116,6 +116,7 @@ void net_client_free(net_server *s, net_client *c)
         hub_command cmd = {.kind = HUB_CLIENT_LEFT, .client = c->id};
         net_push_must(w, &cmd); /* the sim deletes its colliders */
     }
+    net_spectate_drop(c);
     net_release_queue(c);
     net_budget_free(c);
     net_client_remove(w, c);

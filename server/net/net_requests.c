@@ -292,6 +292,13 @@ static void handle_subscribe(net_client *c, const net_control *m)
     const net_limits *l = &s->cfg.limits;
     world_rect rect = m->rect;
     int64_t cells = (int64_t)rect.w * rect.h;
+    if (net_spectating(c)) { /* its mirror is at a past tick (PROTOCOL.md "Spectate") */
+        metrics_count_spectate_refused("state");
+        net_error(c, TERRAD_E_BAD_VALUE, m->ref, -1, 0,
+                  "type: this connection is spectating; spectate_stop (or its spectate_end) "
+                  "first, or subscribe on another connection");
+        return;
+    }
     if (c->sub_count >= l->max_subscriptions) {
         net_error(c, TERRAD_E_LIMIT_SUBSCRIPTIONS, m->ref, -1, 0,
                   "this client already has max_subscriptions (%d) subscriptions",
@@ -464,16 +471,17 @@ static void relay_text(net_client *c, const net_control *m, int rc)
     c->resync_until = c->snapshots_requested;
 }
 
-/* A resync the parser refused, counted under the field its message names
- * first ("tiles[3]: ..." under tiles); a message naming none is not counted. */
-static void count_resync_refused(const char *message)
+/* A resync or spectate the parser refused, counted under the field its
+ * message names first ("tiles[3]: ..." under tiles); a message naming none is
+ * not counted. */
+static void count_refused(const char *message, void (*count)(const char *field))
 {
     char field[16];
     size_t n = strcspn(message, "[:");
     if (message[n] && n < sizeof field) {
         memcpy(field, message, n);
         field[n] = 0;
-        metrics_count_resync_refused(field);
+        count(field);
     }
 }
 
@@ -508,7 +516,9 @@ void net_handle_text(net_client *c, const char *text, size_t len)
         /* answered */
     } else if (rc != 0) {
         if (m.kind == NET_CONTROL_RESYNC)
-            count_resync_refused(err.message);
+            count_refused(err.message, metrics_count_resync_refused);
+        else if (m.kind == NET_CONTROL_SPECTATE || m.kind == NET_CONTROL_SPECTATE_STEP)
+            count_refused(err.message, metrics_count_spectate_refused);
         net_error(c, err.code, m.ref, -1, err.fatal, "%s", err.message);
         if (err.code == TERRAD_E_BAD_VERSION)
             net_close_after_flush(c, 4000 + TERRAD_E_BAD_VERSION, "bad protocol version");
@@ -542,6 +552,15 @@ void net_handle_text(net_client *c, const char *text, size_t len)
             break;
         case NET_CONTROL_SEEN:
             handle_seen(c, &m);
+            break;
+        case NET_CONTROL_SPECTATE:
+            net_spectate_request(c, &m);
+            break;
+        case NET_CONTROL_SPECTATE_STEP:
+            net_spectate_step(c, &m);
+            break;
+        case NET_CONTROL_SPECTATE_STOP:
+            net_spectate_stop(c, &m);
             break;
         case NET_CONTROL_FOCUS: /* no reply: the budget's nearest tiles move (net_budget.c) */
             c->has_focus = m.has_focus;

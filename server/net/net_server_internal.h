@@ -38,6 +38,10 @@ struct net_server {
     _Atomic double last_beat_ms; /* the heartbeat's last run: the watchdog's clue */
     pthread_mutex_t wake_lock;
     int ctx_live;
+    /* a wake is on its way: set by net_server_wake before it cancels the
+     * poll, cleared by the net thread before it catches up (net_catch_up), so
+     * the sims' wakes while it is behind cost one cancel, not one each */
+    atomic_int wake_pending;
     int stopping;
     /* relayed worlds coming and going (any thread → the net thread), under
      * worlds_lock; the worlds ticked here come and go in st.cfg.worlds */

@@ -33,6 +33,7 @@ net_state *net_state_at(net_server *s, int i)
 
 void net_state_release(net_state *w)
 {
+    net_spectate_join_all(w);
     for (int i = 0; i < w->backlog_count; i++)
         if (w->backlog[i].mesh) {
             collider_mesh_free(w->backlog[i].mesh);
@@ -115,6 +116,7 @@ net_state *net_world_state_new(net_server *s, const char *name, const net_world_
     w->auth = s->st.auth; /* the node's table (net_auth_start), not owned */
     w->auth_generation = s->st.auth_generation;
     w->hub = h;
+    w->server = s;
     w->next_collider_id = 1;
     w->hard_pending_bytes = s->st.hard_pending_bytes;
     w->remote_send = s->st.remote_send;
@@ -180,13 +182,7 @@ int net_world_queue_remove(net_server *s, const char *name)
         pthread_mutex_unlock(&s->worlds_lock);
         net_server_wake(s);
         pthread_mutex_lock(&s->worlds_lock);
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
-        until.tv_nsec += 50 * 1000 * 1000;
-        if (until.tv_nsec >= 1000000000L) {
-            until.tv_sec++;
-            until.tv_nsec -= 1000000000L;
-        }
+        struct timespec until = time_after_ms(CLOCK_REALTIME, 50);
         if (removing_index(s, name) >= 0)
             pthread_cond_timedwait(&s->worlds_cond, &s->worlds_lock, &until);
     }
@@ -206,6 +202,7 @@ int net_world_queue_remove(net_server *s, const char *name)
  * close (their colliders and subscriptions went with the world). */
 static void detach(net_server *s, net_state *w, int deleted)
 {
+    net_spectate_join_all(w); /* they read its base terrain, which goes with it */
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
         if (c->remote) { /* its relay is told; nothing of it stays here */

@@ -39,17 +39,10 @@ static const char *const material_keys[] = {"compression",
                                             "soil",
                                             NULL};
 
-static const char *const soil_keys[] = {"preset",
-                                        "n",
-                                        "kc",
-                                        "kphi",
-                                        "cohesion_pa",
-                                        "friction_deg",
-                                        "shear_k_m",
-                                        "elastic_pa_m",
-                                        "damping_pa_s_m",
-                                        "slip_n",
-                                        NULL};
+static const char *const soil_keys[] = {
+    "preset",        "n",         "kc",           "kphi",           "cohesion_pa",
+    "friction_deg",  "shear_k_m", "elastic_pa_m", "damping_pa_s_m", "slip_n",
+    "density_kg_m3", NULL};
 
 int scene_parse_soil(const cJSON *s, const char *path, const char *parent, sim_soil *soil,
                      error_text *err)
@@ -74,7 +67,8 @@ int scene_parse_soil(const cJSON *s, const char *path, const char *parent, sim_s
         json_get_number(s, path, "shear_k_m", -1e308, 1e308, &soil->shear_k_m, err) < 0 ||
         json_get_number(s, path, "elastic_pa_m", -1e308, 1e308, &soil->elastic_pa_m, err) < 0 ||
         json_get_number(s, path, "damping_pa_s_m", -1e308, 1e308, &soil->damping_pa_s_m, err) < 0 ||
-        json_get_number(s, path, "slip_n", -1e308, 1e308, &soil->slip_n, err) < 0)
+        json_get_number(s, path, "slip_n", -1e308, 1e308, &soil->slip_n, err) < 0 ||
+        json_get_number(s, path, "density_kg_m3", -1e308, 1e308, &soil->density_kg_m3, err) < 0)
         return -1;
     return sim_soil_validate(soil, path, err);
 }

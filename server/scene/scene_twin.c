@@ -65,6 +65,7 @@ int scene_twin_config(const scene *sc, scene_twin_key_fn fn, void *ctx, error_te
         {"soil.elastic_pa_m", m->soil.elastic_pa_m},
         {"soil.damping_pa_s_m", m->soil.damping_pa_s_m},
         {"soil.slip_n", m->soil.slip_n},
+        {"soil.density_kg_m3", m->soil.density_kg_m3},
     };
     fn(ctx, "terrain.kind", 0, sc->base.kind == WORLD_BASE_FLAT ? "flat" : "dunes");
     fn(ctx, "model", 0, sim_model_name(m->model));

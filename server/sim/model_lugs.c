@@ -31,8 +31,8 @@
  *    lug's motion through the soil (forward for a driven wheel), at the
  *    middle of the face below the surface: it adds to the pull, to the
  *    driving torque and (ahead, upward) to the carried load. γ is the soil's
- *    unit weight: the model has no bulk density, so dry sand's 1600 kg/m³
- *    (Ding 2011's bin: 1605) stands in (SIM_LUG_DENSITY_KG_M3).
+ *    unit weight ρ g, ρ its density_kg_m3 (every preset's 1600 kg/m³, dry
+ *    sand's; Ding 2011's bin: 1605; sim_soil.c).
  *
  * Everything is a function of the tick's poses, the contact the press
  * measured and the soil: deterministic, no heights changed (only forces).
@@ -41,7 +41,6 @@
 
 #include <math.h>
 
-#define SIM_LUG_DENSITY_KG_M3 1600.0
 #define SIM_LUG_G 9.81
 
 static const double lug_pi = 3.14159265358979323846;
@@ -65,7 +64,7 @@ collider_geometry sim_lug_envelope(const collider_geometry *g)
 static double lug_passive(const sim_soil *s, double b, double zr, double zt)
 {
     double kp = tan(lug_pi / 4 + s->friction_deg * lug_pi / 360.0);
-    double nphi = kp * kp, gamma = SIM_LUG_DENSITY_KG_M3 * SIM_LUG_G;
+    double nphi = kp * kp, gamma = s->density_kg_m3 * SIM_LUG_G;
     return b * (0.5 * gamma * nphi * (zt * zt - zr * zr) + 2.0 * s->cohesion_pa * kp * (zt - zr));
 }
 

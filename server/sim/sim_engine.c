@@ -116,7 +116,7 @@ sim_engine *sim_engine_create(world *w, const sim_params *p, sim_backend *backen
     e->params = *p;
     e->backend = backend;
     e->margin_cells = margin_cells;
-    if (p->model == SIM_MODEL_BEKKER && world_soil_enable(w) != 0) {
+    if (p->model == SIM_MODEL_BEKKER && world_layer_enable(w, WORLD_LAYER_SOIL) != 0) {
         free(e);
         error_set(err, "sim: out of memory for the soil state");
         return NULL;
@@ -177,17 +177,17 @@ void sim_engine_set_ground(sim_engine *e, ground *g)
     /* the world keeps the memory; a failure here is retried by the first
      * scatter that has something to keep */
     if (e->ground && e->ground->uses_compaction)
-        (void)world_compaction_enable(e->world);
+        (void)world_layer_enable(e->world, WORLD_LAYER_COMPACTION);
 }
 
 int64_t sim_engine_soil_compacted(const sim_engine *e)
 {
-    return world_soil_sum(e->world, SIM_SOIL_COMPACTED);
+    return world_layer_sum(e->world, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED);
 }
 
 void sim_engine_soil_cell(const sim_engine *e, int x, int y, int32_t *out)
 {
-    world_soil_cell(e->world, x, y, out);
+    world_layer_cell(e->world, WORLD_LAYER_SOIL, x, y, out);
 }
 
 world *sim_engine_world(const sim_engine *e)
@@ -223,11 +223,11 @@ void sim_engine_undo_state(sim_engine *e)
         if (b->status[i] != SIM_WINDOW_OK)
             continue;
         if (b->jobs[i].soil_state)
-            (void)world_soil_scatter(e->world, b->windows[i],
-                                     e->soil_before + b->offsets[i] * SIM_SOIL_STATE_FIELDS);
+            (void)world_layer_scatter(e->world, WORLD_LAYER_SOIL, b->windows[i],
+                                      e->soil_before + b->offsets[i] * SIM_SOIL_STATE_FIELDS);
         if (b->jobs[i].compaction)
-            (void)world_compaction_scatter(e->world, b->windows[i],
-                                           e->compaction_before + b->offsets[i]);
+            (void)world_layer_scatter(e->world, WORLD_LAYER_COMPACTION, b->windows[i],
+                                      e->compaction_before + b->offsets[i]);
     }
 }
 
@@ -358,7 +358,7 @@ static void gather_ground(sim_engine *e, sim_window_job *job, int64_t offset)
         int32_t *before = e->compaction_before + offset;
         int64_t n = (int64_t)job->rect.w * job->rect.h;
         job->compaction = e->compaction + offset;
-        world_compaction_gather(e->world, job->rect, before);
+        world_layer_gather(e->world, WORLD_LAYER_COMPACTION, job->rect, before);
         for (int64_t k = 0; k < n; k++) /* recovered memory is checked: [0, 65535] */
             job->compaction[k] = (uint16_t)before[k];
     }
@@ -404,7 +404,7 @@ static void tick_gather(sim_engine *e, const sim_collider *colliders, int collid
         gather_ground(e, job, offset);
         if (e->params.model == SIM_MODEL_BEKKER) {
             job->soil_state = e->soil_state + offset * SIM_SOIL_STATE_FIELDS;
-            world_soil_gather(w, r, job->soil_state);
+            world_layer_gather(w, WORLD_LAYER_SOIL, r, job->soil_state);
             memcpy(e->soil_before + offset * SIM_SOIL_STATE_FIELDS, job->soil_state,
                    (size_t)r.w * r.h * SIM_SOIL_STATE_FIELDS * sizeof(int32_t));
         }
@@ -567,7 +567,7 @@ static int scatter_compaction(sim_engine *e, int i, world_rect *c, error_text *e
     for (int64_t k = 0; k < n; k++)
         after[k] = b->jobs[i].compaction[k];
     *c = diff_rect(r, e->compaction_before + offset, after, 1);
-    if (c->w > 0 && world_compaction_scatter(e->world, r, after) != 0) {
+    if (c->w > 0 && world_layer_scatter(e->world, WORLD_LAYER_COMPACTION, r, after) != 0) {
         error_set(err, "sim: out of memory for the compaction memory");
         return -1;
     }
@@ -595,7 +595,8 @@ static int tick_scatter(sim_engine *e, sim_tick_report *report, error_text *err)
         if (b->jobs[i].soil_state) {
             s = diff_rect(r, e->soil_before + offset * SIM_SOIL_STATE_FIELDS, b->jobs[i].soil_state,
                           SIM_SOIL_STATE_FIELDS);
-            if (s.w > 0 && world_soil_scatter(e->world, r, b->jobs[i].soil_state) != 0) {
+            if (s.w > 0 &&
+                world_layer_scatter(e->world, WORLD_LAYER_SOIL, r, b->jobs[i].soil_state) != 0) {
                 error_set(err, "sim: out of memory for the soil state");
                 return -1;
             }

@@ -30,6 +30,10 @@
  * 3-7 times the static one). The tables have none (0); ding2011's 0.4 is
  * fitted here, one parameter, to their 2011 smooth wheel's sinkage against
  * slip (docs/validation.md), as Ding et al. fit theirs to their runs.
+ * Bulk density (density_kg_m3, only the lugs' bulldozing reads it,
+ * model_lugs.c): the tables give none; every preset keeps the 1600 kg/m^3 of
+ * dry sand the model used before it was a field (Ding et al. 2011's bin:
+ * 1605), so no preset's forces moved. A scene sets its soil's own.
  */
 typedef struct soil_preset {
     const char *name;
@@ -37,15 +41,15 @@ typedef struct soil_preset {
 } soil_preset;
 
 static const soil_preset soil_presets[] = {
-    {"dry-sand", {1.1, 0.99e3, 1528.43e3, 1.04e3, 28.0, 0.01, 2e8, 3e4, 0.0}},
-    {"sandy-loam", {0.7, 5.27e3, 1515.04e3, 1.72e3, 29.0, 0.01, 2e8, 3e4, 0.0}},
-    {"clayey-soil", {0.5, 13.19e3, 692.15e3, 4.14e3, 13.0, 0.01, 2e8, 3e4, 0.0}},
-    {"heavy-clay", {0.13, 12.7e3, 1555.95e3, 68.95e3, 34.0, 0.01, 2e8, 3e4, 0.0}},
-    {"lete-sand", {0.79, 102e3, 5301e3, 1.3e3, 31.1, 0.01, 2e8, 3e4, 0.0}},
-    {"snow-us", {1.6, 4.37e3, 196.72e3, 1.03e3, 19.7, 0.01, 2e8, 3e4, 0.0}},
-    {"snow-sweden", {1.44, 10.55e3, 66.08e3, 6e3, 20.7, 0.01, 2e8, 3e4, 0.0}},
-    {"lunar", {1.0, 1.4e3, 820e3, 0.17e3, 35.0, 0.01, 2e8, 3e4, 0.0}},
-    {"ding2011", {1.10, 15.6e3, 2407.4e3, 0.25e3, 31.9, 0.011, 2e8, 3e4, 0.4}},
+    {"dry-sand", {1.1, 0.99e3, 1528.43e3, 1.04e3, 28.0, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"sandy-loam", {0.7, 5.27e3, 1515.04e3, 1.72e3, 29.0, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"clayey-soil", {0.5, 13.19e3, 692.15e3, 4.14e3, 13.0, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"heavy-clay", {0.13, 12.7e3, 1555.95e3, 68.95e3, 34.0, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"lete-sand", {0.79, 102e3, 5301e3, 1.3e3, 31.1, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"snow-us", {1.6, 4.37e3, 196.72e3, 1.03e3, 19.7, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"snow-sweden", {1.44, 10.55e3, 66.08e3, 6e3, 20.7, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"lunar", {1.0, 1.4e3, 820e3, 0.17e3, 35.0, 0.01, 2e8, 3e4, 0.0, 1600}},
+    {"ding2011", {1.10, 15.6e3, 2407.4e3, 0.25e3, 31.9, 0.011, 2e8, 3e4, 0.4, 1600}},
 };
 
 int sim_soil_preset(const char *name, sim_soil *out)
@@ -74,7 +78,9 @@ static int soil_field(double v, double lo, int lo_open, double hi, const char *p
  * for 0.1-2 to stay bounded); kc and kphi non-negative, not both zero, up to
  * 1e9 and 1e11 (LETE sand's kphi is 5.3e6); friction below 60 deg (real soils
  * stay under 45); K positive up to 1 m; the elastic stiffness positive;
- * slip_n in [0, 2] (n + slip_n stays within 5 at full slip).
+ * slip_n in [0, 2] (n + slip_n stays within 5 at full slip); a bulk density
+ * above 0 and up to 3000 kg/m^3 (a bound of plausibility, not a measurement:
+ * dry soils and snow lie far inside it).
  */
 int sim_soil_validate(const sim_soil *s, const char *path, error_text *err)
 {
@@ -86,7 +92,8 @@ int sim_soil_validate(const sim_soil *s, const char *path, error_text *err)
         soil_field(s->shear_k_m, 0.0, 1, 1.0, path, "shear_k_m", err) ||
         soil_field(s->elastic_pa_m, 0.0, 1, 1e13, path, "elastic_pa_m", err) ||
         soil_field(s->damping_pa_s_m, 0.0, 0, 1e9, path, "damping_pa_s_m", err) ||
-        soil_field(s->slip_n, 0.0, 0, 2.0, path, "slip_n", err))
+        soil_field(s->slip_n, 0.0, 0, 2.0, path, "slip_n", err) ||
+        soil_field(s->density_kg_m3, 0.0, 1, 3000.0, path, "density_kg_m3", err))
         return -1;
     if (s->kc == 0.0 && s->kphi == 0.0) {
         error_set(err, "%s.kphi: kc and kphi cannot both be 0 (the soil would carry nothing)",
@@ -109,5 +116,6 @@ _Static_assert(SIM_SOIL_STATE_FIELDS == WORLD_SOIL_FIELDS, "the world holds the 
 
 int64_t sim_world_compacted(const world *w)
 {
-    return world_soil_sum(w, SIM_SOIL_COMPACTED) + world_compaction_sum(w);
+    return world_layer_sum(w, WORLD_LAYER_SOIL, SIM_SOIL_COMPACTED) +
+           world_layer_sum(w, WORLD_LAYER_COMPACTION, 0);
 }

@@ -155,6 +155,36 @@ int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_rec
 int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
                       error_text *why);
 
+/* The same rebuild of r kept as a world (its heights and per-cell layers in
+ * r as of the tick; elsewhere not meaningful), for the reads of a past tick
+ * that need more than heights (?tick=N with layer=compaction, /v1/stats):
+ * 0 with *out to world_free, 1 (no longer held: why), -1. */
+int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
+                       error_text *why);
+
+/*
+ * A spectator's replay (PROTOCOL.md "spectate"): a cursor holds rectangle r
+ * (and whatever the log writes beside it) as of tick `tick`, rebuilt as
+ * store_replay_rect rebuilds it, then walks the log forward one record (one
+ * tick's changed rectangles) at a time, beside the live daemon, off the tick.
+ * open: 0, 1 when the store no longer holds the tick (why), -1 on another
+ * error. next: 1 with the next record's tick (at most upto) and rectangles
+ * (valid until the next call), read but not applied (read r's heights before
+ * it, then store_cursor_apply); 0 when the log holds none up to upto yet;
+ * -1 (why) when it cannot go on (the log after the cursor was compacted
+ * away, or damage). One thread per cursor.
+ */
+typedef struct store_cursor store_cursor;
+int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
+                      store_cursor **out, error_text *why);
+int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const world_rect **rects,
+                      int *n, error_text *why);
+int store_cursor_apply(store_cursor *c, error_text *why);
+/* Heights of rectangle q (inside the cursor's rectangle's tiles) as of its tick. */
+void store_cursor_read(const store_cursor *c, world_rect q, int32_t *dst);
+uint64_t store_cursor_tick(const store_cursor *c);
+void store_cursor_close(store_cursor *c);
+
 /* Start data directory `dir` over (terrad serve --fresh): deletes the files
  * a data directory holds and nothing else. A directory holding any other
  * file is refused with an error naming it, and nothing is deleted; so is one
@@ -205,6 +235,9 @@ int store_layers_ints(unsigned layers);
 /* One rectangle's heights, then its layers, into dst (store_layers_ints per
  * cell): a record of that one rectangle's values, a tile copy's. */
 void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst);
+/* The inverse: src (a tile copy's values) into w's heights and layers over r.
+ * 0, or -1 out of memory. */
+int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src);
 /* rects' heights, then their layers, into c->values. 0, or -1 out of memory. */
 int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
                         unsigned layers);

@@ -27,24 +27,39 @@ void store_record_free(store_record *c)
     memset(c, 0, sizeof *c);
 }
 
+/* Each world layer's STORE_LAYER_* bit. Their values follow the heights in
+ * WORLD_LAYER_* order (soil, then compaction): the order on disk, so a new
+ * layer goes last. */
+static const unsigned layer_bit[WORLD_LAYERS] = {
+    [WORLD_LAYER_SOIL] = STORE_LAYER_SOIL,
+    [WORLD_LAYER_COMPACTION] = STORE_LAYER_COMPACTION,
+};
+
 unsigned store_world_layers(const world *w)
 {
-    return (w && world_soil_enabled(w) ? STORE_LAYER_SOIL : 0) |
-           (w && world_compaction_enabled(w) ? STORE_LAYER_COMPACTION : 0);
+    unsigned layers = 0;
+    for (world_layer_id i = 0; w && i < WORLD_LAYERS; i++)
+        if (world_layer_enabled(w, i))
+            layers |= layer_bit[i];
+    return layers;
 }
 
 unsigned store_rect_layers(const world *w, world_rect r)
 {
-    return (world_soil_enabled(w) && !world_soil_rect_empty(w, r) ? STORE_LAYER_SOIL : 0) |
-           (world_compaction_enabled(w) && !world_compaction_rect_empty(w, r)
-                ? STORE_LAYER_COMPACTION
-                : 0);
+    unsigned layers = 0;
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++)
+        if (world_layer_enabled(w, i) && !world_layer_rect_empty(w, i, r))
+            layers |= layer_bit[i];
+    return layers;
 }
 
 int store_layers_ints(unsigned layers)
 {
-    return 1 + (layers & STORE_LAYER_SOIL ? WORLD_SOIL_FIELDS : 0) +
-           (layers & STORE_LAYER_COMPACTION ? 1 : 0);
+    int ints = 1;
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++)
+        if (layers & layer_bit[i])
+            ints += world_layer_fields(i);
+    return ints;
 }
 
 static uint32_t layer_bits(unsigned layers)
@@ -61,19 +76,20 @@ static size_t rects_cells(const world_rect *rects, int n)
     return cells;
 }
 
-/* Where each part of `cells` cells' values starts (ints from the start). */
+/* Where each part of `cells` cells' values starts (ints from the start):
+ * the heights at 0, each layer carried at at[layer], ints in all. */
 typedef struct layout {
-    size_t soil, compaction, ints;
+    size_t at[WORLD_LAYERS], ints;
 } layout;
 
 static layout layout_of(size_t cells, unsigned layers)
 {
-    layout l = {cells, cells, cells};
-    if (layers & STORE_LAYER_SOIL)
-        l.ints += cells * WORLD_SOIL_FIELDS;
-    l.compaction = l.ints;
-    if (layers & STORE_LAYER_COMPACTION)
-        l.ints += cells;
+    layout l = {.ints = cells};
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++) {
+        l.at[i] = l.ints;
+        if (layers & layer_bit[i])
+            l.ints += cells * (size_t)world_layer_fields(i);
+    }
     return l;
 }
 
@@ -82,15 +98,34 @@ static void gather_at(const world *w, world_rect r, unsigned layers, layout l, s
                       int32_t *values)
 {
     world_gather_window(w, r, values + off);
-    if (layers & STORE_LAYER_SOIL)
-        world_soil_gather(w, r, values + l.soil + off * WORLD_SOIL_FIELDS);
-    if (layers & STORE_LAYER_COMPACTION)
-        world_compaction_gather(w, r, values + l.compaction + off);
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++)
+        if (layers & layer_bit[i])
+            world_layer_gather(w, i, r, values + l.at[i] + off * (size_t)world_layer_fields(i));
+}
+
+/* The inverse of gather_at. 0, or -1 out of memory. */
+static int scatter_at(world *w, world_rect r, unsigned layers, layout l, size_t off,
+                      const int32_t *values)
+{
+    world_scatter_window(w, r, values + off);
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++) {
+        if (!(layers & layer_bit[i]))
+            continue;
+        size_t at = l.at[i] + off * (size_t)world_layer_fields(i);
+        if (world_layer_scatter(w, i, r, values + at) != 0)
+            return -1;
+    }
+    return 0;
 }
 
 void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst)
 {
     gather_at(w, r, layers, layout_of((size_t)r.w * r.h, layers), 0, dst);
+}
+
+int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src)
+{
+    return scatter_at(w, r, layers, layout_of((size_t)r.w * r.h, layers), 0, src);
 }
 
 int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
@@ -181,17 +216,13 @@ int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
     if (ZSTD_decompress(c->values, raw, p + table, len - table) != raw)
         return 1;
     for (size_t k = 0; (layers & STORE_LAYER_COMPACTION) && k < cells; k++)
-        if (c->values[l.compaction + k] < 0 || c->values[l.compaction + k] > WORLD_COMPACTION_MAX)
+        if (c->values[l.at[WORLD_LAYER_COMPACTION] + k] < 0 ||
+            c->values[l.at[WORLD_LAYER_COMPACTION] + k] > WORLD_COMPACTION_MAX)
             return 1;
     size_t off = 0;
     for (uint32_t i = 0; i < nrect; i++) {
         world_rect r = rect_at(p, i);
-        world_scatter_window(w, r, c->values + off);
-        if ((layers & STORE_LAYER_SOIL) &&
-            world_soil_scatter(w, r, c->values + l.soil + off * WORLD_SOIL_FIELDS) != 0)
-            return -1;
-        if ((layers & STORE_LAYER_COMPACTION) &&
-            world_compaction_scatter(w, r, c->values + l.compaction + off) != 0)
+        if (scatter_at(w, r, layers, l, off, c->values) != 0)
             return -1;
         off += (size_t)r.w * r.h;
     }

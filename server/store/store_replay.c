@@ -188,32 +188,46 @@ out:
     return rc;
 }
 
-/* One rebuild; 0, 1 (gone) or -1. */
-static int replay_once(const char *dir, const world *base, uint64_t tick, world_rect r,
-                       int32_t *dst, error_text *why)
+/* One rebuild of r as of tick into w (initialised here; the caller frees
+ * it, whatever the result); 0, 1 (gone) or -1. */
+static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect r, world *w,
+                   int32_t *scratch, error_text *why)
 {
-    world w;
-    if (world_init_tiled(&w, base->width, base->height, base->cell_size_m, base->units_per_m,
+    if (world_init_tiled(w, base->width, base->height, base->cell_size_m, base->units_per_m,
                          base->floor, base->tile_cells, why) != 0)
         return -1;
     /* the base under the rectangle (the replay world's own base is flat):
      * cells no record or snapshot names keep it */
-    world_base_fill_rect(base, r, dst);
-    world_scatter_window(&w, r, dst);
+    world_base_fill_rect(base, r, scratch);
+    world_scatter_window(w, r, scratch);
     /* keyframes and the whole log both need every record since the first */
     char first[1100];
     store_segment_path(dir, 1, first, sizeof first);
     int whole = access(first, F_OK) == 0;
-    int rc = whole ? replay_from_keyframes(dir, &w, tick, r, why) : 1;
+    if (tick == 0) { /* before the first tick: the base (a cursor reads on from segment 1) */
+        if (!whole)
+            error_set(why, "store: tick 0: the log's first segment was compacted away");
+        return whole ? 0 : 1;
+    }
+    int rc = whole ? replay_from_keyframes(dir, w, tick, r, why) : 1;
     if (rc == 1) {
         recover_args a = {
-            .dir = dir, .w = &w, .upto_tick = tick, .flags = whole ? STORE_RECOVER_NO_TILES : 0};
+            .dir = dir, .w = w, .upto_tick = tick, .flags = whole ? STORE_RECOVER_NO_TILES : 0};
         uint64_t last_seq;
         store_recovery rec;
         rc = 0;
         if (store_recover(&a, &last_seq, &rec, why) != 0)         /* store_tile_load's refusal */
             rc = strstr(why->message, "compacted away") ? 1 : -1; /* of a newer snapshot */
     }
+    return rc;
+}
+
+/* One rebuild; 0, 1 (gone) or -1. */
+static int replay_once(const char *dir, const world *base, uint64_t tick, world_rect r,
+                       int32_t *dst, error_text *why)
+{
+    world w;
+    int rc = rebuild(dir, base, tick, r, &w, dst, why);
     if (rc == 0)
         world_gather_window(&w, r, dst);
     world_free(&w);
@@ -231,4 +245,261 @@ int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_r
         rc = replay_once(dir, base, tick, r, dst, why);
     }
     return rc;
+}
+
+int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
+                       error_text *why)
+{
+    int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
+    if (!scratch) {
+        error_set(why, "store: out of memory for a rebuild of %d x %d cells", r.w, r.h);
+        return -1;
+    }
+    int rc = -1;
+    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
+        memset(why, 0, sizeof *why);
+        memset(out, 0, sizeof *out);
+        rc = rebuild(dir, base, tick, r, out, scratch, why);
+        if (tick == 0 && rc == 1)
+            rc = 0; /* the base needs no log */
+        if (rc != 0)
+            world_free(out);
+    }
+    free(scratch);
+    return rc;
+}
+
+/* ---- a cursor: the world as of a tick, then forward record by record ----
+ * (a spectator, PROTOCOL.md "spectate"). It keeps the segment it reads open:
+ * a compaction that deletes it meanwhile leaves the open file readable. */
+
+struct store_cursor {
+    char dir[1024];
+    world w;
+    world_rect r;
+    uint64_t tick; /* the world holds r as of the end of this tick */
+    uint64_t seq;  /* the segment being read (0: none yet) */
+    int fd;
+    uint64_t at;      /* the next record's offset in it */
+    uint8_t *payload; /* the record next returned, not applied yet (pending) */
+    int64_t payload_cap;
+    uint32_t payload_len;
+    uint64_t pending_tick;
+    int pending;
+    world_rect *rects;
+    int64_t rects_cap;
+    store_record rec;
+};
+
+/* Opens segment seq (0, or -1 when it is not there). */
+static int cursor_open_segment(store_cursor *c, uint64_t seq)
+{
+    char path[1200];
+    store_segment_path(c->dir, seq, path, sizeof path);
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0)
+        return -1;
+    if (c->fd >= 0)
+        close(c->fd);
+    c->fd = fd, c->seq = seq, c->at = WAL_HEADER;
+    return 0;
+}
+
+/* The record header at the cursor: 1 with its tick and payload length, 0
+ * when none is there (yet: the end, or a record being written). */
+static int cursor_header(store_cursor *c, uint64_t *tick, uint32_t *plen)
+{
+    uint8_t h[REC_HEADER];
+    if (c->fd < 0 || pread(c->fd, h, sizeof h, (off_t)c->at) != (ssize_t)sizeof h)
+        return 0;
+    if (get32(h) != REC_MAGIC || get32(h + 20) != store_crc32c(0, h, 20) ||
+        get32(h + 4) > REC_MAX_PAYLOAD)
+        return 0;
+    *plen = get32(h + 4);
+    *tick = get64(h + 8);
+    return 1;
+}
+
+/* After the rebuild: the first record after c->tick (segments whose records
+ * are all at or before it skipped, then headers only). 0 or -1. */
+static int cursor_seek(store_cursor *c, error_text *why)
+{
+    uint64_t *seqs = NULL;
+    int count = 0;
+    if (store_list_segments(c->dir, &seqs, &count) != 0) {
+        error_set(why, "store: cannot list the segments of %s", c->dir);
+        return -1;
+    }
+    int i = 0;
+    char path[1200];
+    while (i + 1 < count) {
+        store_segment_path(c->dir, seqs[i + 1], path, sizeof path);
+        uint64_t next_first = segment_first_tick(path);
+        if (next_first == UINT64_MAX || next_first > c->tick + 1)
+            break;
+        i++; /* every record of segment i is at or before the tick */
+    }
+    int rc = count && cursor_open_segment(c, seqs[i]) != 0 ? -1 : 0;
+    free(seqs);
+    if (rc != 0) {
+        error_set(why, "store: a log segment of %s went during the rebuild", c->dir);
+        return -1;
+    }
+    uint64_t t;
+    uint32_t plen;
+    while (cursor_header(c, &t, &plen) && t <= c->tick)
+        c->at += REC_HEADER + plen;
+    return 0;
+}
+
+int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
+                      store_cursor **out, error_text *why)
+{
+    *out = NULL;
+    store_cursor *c = calloc(1, sizeof *c);
+    int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
+    if (!c || !scratch) {
+        free(c);
+        free(scratch);
+        error_set(why, "store: out of memory for a replay cursor");
+        return -1;
+    }
+    snprintf(c->dir, sizeof c->dir, "%s", dir);
+    c->fd = -1, c->r = r, c->tick = tick;
+    int rc = -1;
+    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
+        memset(why, 0, sizeof *why);
+        if (attempt) {
+            world_free(&c->w);
+            memset(&c->w, 0, sizeof c->w);
+        }
+        rc = rebuild(dir, base, tick, r, &c->w, scratch, why);
+        if (rc == 0 && cursor_seek(c, why) != 0)
+            rc = -1;
+    }
+    free(scratch);
+    if (rc != 0) {
+        world_free(&c->w);
+        if (c->fd >= 0)
+            close(c->fd);
+        free(c);
+        return rc;
+    }
+    *out = c;
+    return 0;
+}
+
+void store_cursor_read(const store_cursor *c, world_rect r, int32_t *dst)
+{
+    world_gather_window(&c->w, r, dst);
+}
+
+uint64_t store_cursor_tick(const store_cursor *c)
+{
+    return c->tick;
+}
+
+/* At the end of segment seq: the next one, if there is one. 1 moved (or a
+ * record came at the end of seq meanwhile), 0 not yet, -1 a gap (compacted
+ * away: why says so). */
+static int cursor_next_segment(store_cursor *c, error_text *why)
+{
+    uint64_t *seqs = NULL;
+    int count = 0, rc = 0;
+    if (store_list_segments(c->dir, &seqs, &count) != 0) {
+        error_set(why, "store: cannot list the segments of %s", c->dir);
+        return -1;
+    }
+    /* the sim thread finishes a segment's last record before it starts the
+     * next one: a record written between the caller's look at the header and
+     * this listing is read before moving on, never skipped */
+    uint64_t t;
+    uint32_t plen;
+    if (cursor_header(c, &t, &plen)) {
+        free(seqs);
+        return 1;
+    }
+    for (int i = 0; i < count && rc == 0; i++)
+        if (seqs[i] > c->seq) {
+            rc = seqs[i] == c->seq + 1 && cursor_open_segment(c, seqs[i]) == 0 ? 1 : -1;
+            if (rc < 0)
+                error_set(why, "store: the log after tick %llu was compacted away",
+                          (unsigned long long)c->tick);
+        }
+    free(seqs);
+    return rc;
+}
+
+int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const world_rect **rects,
+                      int *n, error_text *why)
+{
+    uint64_t t;
+    uint32_t plen;
+    if (c->pending) {
+        error_set(why, "store: the cursor's record was not applied");
+        return -1;
+    }
+    while (!cursor_header(c, &t, &plen)) {
+        int moved = cursor_next_segment(c, why);
+        if (moved <= 0) /* a header at the end of the newest segment: not yet written */
+            return moved;
+    }
+    if (t > upto)
+        return 0;
+    if (array_grow((void **)&c->payload, &c->payload_cap, (int64_t)plen + 1, 1) != 0) {
+        error_set(why, "store: out of memory for a log record");
+        return -1;
+    }
+    uint8_t h[REC_HEADER];
+    if (pread(c->fd, h, sizeof h, (off_t)c->at) != (ssize_t)sizeof h ||
+        pread(c->fd, c->payload, plen, (off_t)(c->at + REC_HEADER)) != (ssize_t)plen ||
+        store_crc32c(0, c->payload, plen) != get32(h + 16))
+        return 0; /* still being written */
+    uint32_t nrect = plen >= 4 ? get32(c->payload) & ~STORE_RECORD_LAYER_BITS : 0;
+    if ((uint64_t)nrect * 16 + 8 > plen ||
+        array_grow((void **)&c->rects, &c->rects_cap, (int64_t)nrect + 1, sizeof *c->rects) != 0) {
+        error_set(why, "store: a malformed record of tick %llu", (unsigned long long)t);
+        return -1;
+    }
+    for (uint32_t i = 0; i < nrect; i++) {
+        const uint8_t *q = c->payload + 4 + 16 * i;
+        c->rects[i] = (world_rect){(int32_t)get32(q), (int32_t)get32(q + 4), (int32_t)get32(q + 8),
+                                   (int32_t)get32(q + 12)};
+    }
+    c->payload_len = plen;
+    c->pending_tick = t;
+    c->pending = 1;
+    *tick = t;
+    *rects = c->rects;
+    *n = (int)nrect;
+    return 1;
+}
+
+int store_cursor_apply(store_cursor *c, error_text *why)
+{
+    if (!c->pending)
+        return 0;
+    int rc = store_record_apply(&c->rec, &c->w, c->payload, c->payload_len, NULL, NULL);
+    if (rc != 0) {
+        error_set(why, "store: the record of tick %llu %s", (unsigned long long)c->pending_tick,
+                  rc > 0 ? "is malformed" : "needs more memory than there is");
+        return -1;
+    }
+    c->at += REC_HEADER + c->payload_len;
+    c->tick = c->pending_tick;
+    c->pending = 0;
+    return 0;
+}
+
+void store_cursor_close(store_cursor *c)
+{
+    if (!c)
+        return;
+    if (c->fd >= 0)
+        close(c->fd);
+    world_free(&c->w);
+    store_record_free(&c->rec);
+    free(c->payload);
+    free(c->rects);
+    free(c);
 }

@@ -183,9 +183,7 @@ int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *ti
             goto out;
         }
     }
-    world_scatter_window(w, r, values);
-    if (((layers & STORE_LAYER_SOIL) && world_soil_scatter(w, r, values + cells) != 0) ||
-        ((layers & STORE_LAYER_COMPACTION) && world_compaction_scatter(w, r, memory) != 0)) {
+    if (store_layers_scatter(w, r, layers, values) != 0) {
         error_set(err, "store: out of memory for the per-cell state of tile snapshot %s", path);
         goto out;
     }

@@ -54,7 +54,8 @@ TERRAD_TWIN_API void terrad_twin_config_free(terrad_twin_config *c);
  * diffusion_zeta_inv, diffusion_force_scale, diffusion_dt, diffusion_substeps,
  * diffusion_conservative, decal_min_strength_m; the bekker model's soil.n,
  * soil.kc, soil.kphi, soil.cohesion_pa, soil.friction_deg, soil.shear_k_m,
- * soil.elastic_pa_m, soil.damping_pa_s_m, soil.slip_n. An unknown key or a
+ * soil.elastic_pa_m, soil.damping_pa_s_m, soil.slip_n, soil.density_kg_m3
+ * (the lugs' bulldozing, terrad_twin_add_wheel). An unknown key or a
  * non-finite value is refused; ranges are checked at terrad_twin_create.
  */
 TERRAD_TWIN_API int terrad_twin_config_set(terrad_twin_config *c, const char *key, double value,

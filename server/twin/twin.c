@@ -150,6 +150,7 @@ static const config_key config_keys[] = {
     KEY_D("soil.elastic_pa_m", material.soil.elastic_pa_m),
     KEY_D("soil.damping_pa_s_m", material.soil.damping_pa_s_m),
     KEY_D("soil.slip_n", material.soil.slip_n),
+    KEY_D("soil.density_kg_m3", material.soil.density_kg_m3),
 };
 
 int terrad_twin_config_set(terrad_twin_config *c, const char *key, double value, char *err)

@@ -181,8 +181,7 @@ void world_free(world *w)
         free(st->flat_row);
         free(st);
     }
-    world_soil_free(w);
-    world_compaction_free(w);
+    world_layers_free(w);
     memset(w, 0, sizeof *w);
 }
 

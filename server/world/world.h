@@ -36,16 +36,24 @@ typedef struct world_rect {
     int x, y, w, h; /* cells; w and h > 0 for a non-empty rectangle */
 } world_rect;
 
+/* The per-cell layers a world carries beside its heights (world_soil.c, and
+ * the world_layer_* family below). */
+typedef enum world_layer_id {
+    WORLD_LAYER_SOIL,       /* WORLD_SOIL_FIELDS int32 per cell */
+    WORLD_LAYER_COMPACTION, /* one int32 per cell in [0, WORLD_COMPACTION_MAX] */
+    WORLD_LAYERS
+} world_layer_id;
+
 typedef struct world {
-    int width, height;              /* cells */
-    double cell_size_m;             /* metres per cell, both axes */
-    int32_t units_per_m;            /* height units per metre */
-    int32_t floor;                  /* material is never pushed below this height (units) */
-    int tile_cells;                 /* side of a tile in cells, a power of two */
-    int tiles_x, tiles_y;           /* tiles per row / column (the last ones may be partial) */
-    struct world_store *store;      /* tiles, base terrain, caches: world.c only */
-    struct world_layer *soil;       /* per-cell soil state, NULL while none: world_soil.c only */
-    struct world_layer *compaction; /* per-cell compaction memory, likewise */
+    int width, height;         /* cells */
+    double cell_size_m;        /* metres per cell, both axes */
+    int32_t units_per_m;       /* height units per metre */
+    int32_t floor;             /* material is never pushed below this height (units) */
+    int tile_cells;            /* side of a tile in cells, a power of two */
+    int tiles_x, tiles_y;      /* tiles per row / column (the last ones may be partial) */
+    struct world_store *store; /* tiles, base terrain, caches: world.c only */
+    /* per-cell state beside the heights, NULL while none: world_soil.c only */
+    struct world_layer *layers[WORLD_LAYERS];
 } world;
 
 /* How the base terrain is made. */
@@ -183,49 +191,39 @@ int world_edit_apply(world *w, const world_edit *e, world_rect *rect, int32_t **
 /* Take an applied edit back (the store could not log its tick). */
 void world_edit_undo(world *w, world_rect r, const int32_t *diff);
 
-/* ---- per-cell soil state (world_soil.c) ----
- * WORLD_SOIL_FIELDS int32 per cell beside the heights, zeros until written;
- * what they mean is the model's (sim.h: SIM_SOIL_*). The store logs and
- * snapshots them with the heights of the same rectangles. */
+/* ---- per-cell layers (world_soil.c) ----
+ * State a world carries beside its heights, int32 per cell, zeros until
+ * written; what the values mean is the model's that writes them. The store
+ * logs and snapshots each layer with the heights of the same rectangles.
+ * WORLD_LAYER_SOIL holds bekker's soil state (sim.h: SIM_SOIL_*);
+ * WORLD_LAYER_COMPACTION the height units each column has been compacted by
+ * so far (the persson models' and sumner's memory, docs/materials.md),
+ * enabled by the engine when some material remembers compaction
+ * (sim_engine_set_ground) or by a record that carries it. */
 
 #define WORLD_SOIL_FIELDS 3
-
-/* Allocate the (empty) layer; idempotent. 0, or -1 out of memory. */
-int world_soil_enable(world *w);
-int world_soil_enabled(const world *w);
-void world_soil_free(world *w);
-/* r (clipped) into dst, WORLD_SOIL_FIELDS per cell, row-major; zeros where
- * nothing was written. */
-void world_soil_gather(const world *w, world_rect r, int32_t *dst);
-/* src over r (enabling the layer). 0, or -1 out of memory. */
-int world_soil_scatter(world *w, world_rect r, const int32_t *src);
-/* 1 when no cell of r (clipped) was ever written with anything but zeros. */
-int world_soil_rect_empty(const world *w, world_rect r);
-/* Σ of one field over the world, exactly (kept as cells are written). */
-int64_t world_soil_sum(const world *w, int field);
-void world_soil_cell(const world *w, int x, int y, int32_t *out);
-
-/* ---- per-cell compaction memory (world_soil.c) ----
- * One int32 per cell beside the heights, in [0, WORLD_COMPACTION_MAX]:
- * height units the column has been compacted by so far (the persson models'
- * and sumner's memory, docs/materials.md), zeros until written. Kept like the
- * soil state: the store logs and snapshots it with the heights of the same
- * rectangles. Enabled by the engine when some material remembers compaction
- * (sim_engine_set_ground), or by a record that carries it. */
-
 #define WORLD_COMPACTION_MAX 65535
 
-int world_compaction_enable(world *w);
-int world_compaction_enabled(const world *w);
-void world_compaction_free(world *w);
-void world_compaction_gather(const world *w, world_rect r, int32_t *dst);
+/* int32 per cell of the layer: WORLD_SOIL_FIELDS or 1. */
+int world_layer_fields(world_layer_id layer);
+/* Allocate the (empty) layer; idempotent. 0, or -1 out of memory. */
+int world_layer_enable(world *w, world_layer_id layer);
+int world_layer_enabled(const world *w, world_layer_id layer);
+/* r (clipped) into dst, world_layer_fields per cell, row-major; zeros where
+ * nothing was written. */
+void world_layer_gather(const world *w, world_layer_id layer, world_rect r, int32_t *dst);
 /* src over r (enabling the layer). 0, or -1 out of memory. */
-int world_compaction_scatter(world *w, world_rect r, const int32_t *src);
-int world_compaction_rect_empty(const world *w, world_rect r);
-/* Σ memory over the world, exactly: what compression has taken from Σh. */
-int64_t world_compaction_sum(const world *w);
-int32_t world_compaction_cell(const world *w, int x, int y);
-uint64_t world_compaction_bytes(const world *w);
+int world_layer_scatter(world *w, world_layer_id layer, world_rect r, const int32_t *src);
+/* 1 when no cell of r (clipped) was ever written with anything but zeros. */
+int world_layer_rect_empty(const world *w, world_layer_id layer, world_rect r);
+/* Σ of one field over the world, exactly (kept as cells are written); for
+ * the compaction memory (field 0) what compression has taken from Σh. */
+int64_t world_layer_sum(const world *w, world_layer_id layer, int field);
+/* Cell (x, y)'s world_layer_fields values into out; zeros outside the world
+ * or where nothing was written. */
+void world_layer_cell(const world *w, world_layer_id layer, int x, int y, int32_t *out);
+/* Bytes the layer holds: its tile table and the tiles written. */
+uint64_t world_layer_bytes(const world *w, world_layer_id layer);
 
 /* Write / read a 16-bit greyscale PNG (used by base terrain and exports). */
 int png16_read(const char *path, int *width, int *height, uint16_t **pixels, error_text *err);

@@ -1,7 +1,8 @@
 /*
- * world_internal.h: what world.c (tiles, caches, volumes) and terrain_base.c
- * (base terrain) share and nobody else sees. A tile that has never been
- * written is not stored; its cells come from the base, described here.
+ * world_internal.h: what world.c (tiles, caches, volumes), terrain_base.c
+ * (base terrain) and world_soil.c (per-cell layers) share and nobody else
+ * sees. A tile that has never been written is not stored; its cells come from
+ * the base, described here.
  */
 #ifndef TERRAD_WORLD_INTERNAL_H
 #define TERRAD_WORLD_INTERNAL_H
@@ -28,5 +29,8 @@ void world_base_fill(const world *w, const world_base *b, world_rect r, int32_t 
  * left empty and err names the file or the field. */
 int world_base_build(const world *w, const world_base_spec *spec, world_base *b, error_text *err);
 void world_base_free(world_base *b);
+
+/* Free every per-cell layer (world_soil.c), for world_free. */
+void world_layers_free(world *w);
 
 #endif

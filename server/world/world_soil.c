@@ -12,12 +12,14 @@
  * logs and snapshots them with the heights of the same rectangles and
  * recovery puts them back before the first tick (docs/storage.md).
  *
+ * One family of functions serves both (world_layer_*, world.h), indexed by
+ * WORLD_LAYER_*: a layer differs from another only in its int32 per cell.
  * Each layer is sparse 64x64 tiles, allocated the first time a cell in them
  * holds anything but zeros: a world nobody pressed costs a table of NULLs.
  * The engine gathers a window's state with its heights (row 4b of the tick)
  * and scatters it back for accepted windows only (row 4e).
  */
-#include "world/world.h"
+#include "world/world_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -153,97 +155,63 @@ static uint64_t layer_bytes(const struct world_layer *l)
            (uint64_t)l->tiles_x * (uint64_t)l->tiles_y * sizeof(int32_t *);
 }
 
-/* ---- soil ---- */
+/* ---- the world_layer_* family ---- */
 
-int world_soil_enable(world *w)
+static const int layer_fields[WORLD_LAYERS] = {
+    [WORLD_LAYER_SOIL] = WORLD_SOIL_FIELDS,
+    [WORLD_LAYER_COMPACTION] = 1,
+};
+
+int world_layer_fields(world_layer_id layer)
 {
-    return layer_enable(w, &w->soil, WORLD_SOIL_FIELDS);
+    return layer_fields[layer];
 }
 
-int world_soil_enabled(const world *w)
+int world_layer_enable(world *w, world_layer_id layer)
 {
-    return w->soil != NULL;
+    return layer_enable(w, &w->layers[layer], layer_fields[layer]);
 }
 
-void world_soil_free(world *w)
+int world_layer_enabled(const world *w, world_layer_id layer)
 {
-    layer_free(&w->soil);
+    return w->layers[layer] != NULL;
 }
 
-void world_soil_gather(const world *w, world_rect r, int32_t *dst)
+void world_layers_free(world *w)
 {
-    layer_gather(w->soil, WORLD_SOIL_FIELDS, r, dst);
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++)
+        layer_free(&w->layers[i]);
 }
 
-int world_soil_scatter(world *w, world_rect r, const int32_t *src)
+void world_layer_gather(const world *w, world_layer_id layer, world_rect r, int32_t *dst)
 {
-    if (world_soil_enable(w) != 0)
+    layer_gather(w->layers[layer], layer_fields[layer], r, dst);
+}
+
+int world_layer_scatter(world *w, world_layer_id layer, world_rect r, const int32_t *src)
+{
+    if (world_layer_enable(w, layer) != 0)
         return -1;
-    return layer_scatter(w->soil, r, src);
+    return layer_scatter(w->layers[layer], r, src);
 }
 
-int world_soil_rect_empty(const world *w, world_rect r)
+int world_layer_rect_empty(const world *w, world_layer_id layer, world_rect r)
 {
-    return layer_rect_empty(w->soil, r);
+    return layer_rect_empty(w->layers[layer], r);
 }
 
-int64_t world_soil_sum(const world *w, int field)
+int64_t world_layer_sum(const world *w, world_layer_id layer, int field)
 {
-    return w->soil && field >= 0 && field < WORLD_SOIL_FIELDS ? w->soil->sums[field] : 0;
+    const struct world_layer *l = w->layers[layer];
+    return l && field >= 0 && field < l->fields ? l->sums[field] : 0;
 }
 
-void world_soil_cell(const world *w, int x, int y, int32_t *out)
+void world_layer_cell(const world *w, world_layer_id layer, int x, int y, int32_t *out)
 {
-    layer_cell_copy(w, w->soil, WORLD_SOIL_FIELDS, x, y, out);
+    layer_cell_copy(w, w->layers[layer], layer_fields[layer], x, y, out);
 }
 
-/* ---- compaction memory ---- */
-
-int world_compaction_enable(world *w)
+uint64_t world_layer_bytes(const world *w, world_layer_id layer)
 {
-    return layer_enable(w, &w->compaction, 1);
-}
-
-int world_compaction_enabled(const world *w)
-{
-    return w->compaction != NULL;
-}
-
-void world_compaction_free(world *w)
-{
-    layer_free(&w->compaction);
-}
-
-void world_compaction_gather(const world *w, world_rect r, int32_t *dst)
-{
-    layer_gather(w->compaction, 1, r, dst);
-}
-
-int world_compaction_scatter(world *w, world_rect r, const int32_t *src)
-{
-    if (world_compaction_enable(w) != 0)
-        return -1;
-    return layer_scatter(w->compaction, r, src);
-}
-
-int world_compaction_rect_empty(const world *w, world_rect r)
-{
-    return layer_rect_empty(w->compaction, r);
-}
-
-int64_t world_compaction_sum(const world *w)
-{
-    return w->compaction ? w->compaction->sums[0] : 0;
-}
-
-int32_t world_compaction_cell(const world *w, int x, int y)
-{
-    int32_t v;
-    layer_cell_copy(w, w->compaction, 1, x, y, &v);
-    return v;
-}
-
-uint64_t world_compaction_bytes(const world *w)
-{
-    return layer_bytes(w->compaction);
+    return layer_bytes(w->layers[layer]);
 }

@@ -266,6 +266,8 @@ test('every documented error answers as the document says', async () => {
   await fetchChecked('dot-dot', '/a/../v1/stats', 400);
   // the daemon here keeps no data directory: no log to replay a past tick from
   await fetchChecked('replay without a log', '/v1/heights?x=0&y=0&w=4&h=4&tick=1', 404);
+  await fetchChecked('past stats without a log', '/v1/stats?tick=1', 404);
+  await fetchChecked('past stats, not a tick', '/v1/stats?tick=abc', 400);
 });
 
 test('POST /v1/drain: a body is 400; the drain is 202, and with no client to wait for the daemon exits 0', async () => {
@@ -289,7 +291,7 @@ test('every path was fetched and every explicit status was seen', () => {
         // a cluster node's answer for a world another node ticks: test_cluster_any_node
         if (p === '/v1/heights' && status === '504') continue;
         // a past tick whose log was compacted away needs a data directory: test_replay_heights
-        if (p === '/v1/heights' && status === '410') continue;
+        if ((p === '/v1/heights' || p === '/v1/stats') && status === '410') continue;
         const want = `${method.toUpperCase()} ${status}`;
         assert.ok(seen.get(p).has(want), `${p}: ${want} was seen (${[...seen.get(p)]})`);
       }

@@ -13,6 +13,9 @@ While every world is driven, over MEASURE_S seconds:
   - per-world ticks/s: each world's tick from GET /v1/worlds, before and
     after (median and min over the worlds);
   - CPU per world: the daemon's utime + stime (/proc) over the window, / N;
+  - CPU ms per world-tick: the daemon's CPU over the window / the ticks all
+    its worlds ran (driven and idle) — what a tick costs, whatever share of
+    the cores the machine's other jobs leave the daemon (issue 32);
   - RSS per world: the daemon's VmRSS while driving less its RSS before the
     worlds were created, / N (idle: the same once they were created, before
     any client came).
@@ -88,6 +91,9 @@ def one(n, scene):
         c1, w1, t1 = cpu_s(d.pid), worlds(d), time.monotonic()
         idle_rates = [(w1[k]["tick"] - w0[k]["tick"]) / (t1 - t0) for k in w0]
         idle_cpu = (c1 - c0) / (t1 - t0) / n
+        # the daemon's CPU per world-tick: what a tick costs, whatever share
+        # of the cores this machine's other jobs left the daemon
+        idle_ms = (c1 - c0) * 1000 / max(1, sum(w1[k]["tick"] - w0[k]["tick"] for k in w0))
         loadgen = subprocess.Popen(
             [BIN, "loadgen", "--url", d.ws, "--http", d.http, "--clients", str(n),
              "--worlds", str(n), "--wheels-per-client", "4", "--seconds", str(MEASURE_S + 8),
@@ -110,7 +116,9 @@ def one(n, scene):
             lg = {}
             print(f"  loadgen: {err.strip()[-400:]}", flush=True)
         rates = sorted((w1[k]["tick"] - w0[k]["tick"]) / (t1 - t0) for k in w0)
+        driven_ms = (c1 - c0) * 1000 / max(1, sum(w1[k]["tick"] - w0[k]["tick"] for k in w0))
         return {
+            "ms_tick": driven_ms, "idle_ms_tick": idle_ms,
             "n": n, "create_s": create_s,
             "median": statistics.median(rates), "min": rates[0],
             "cpu": (c1 - c0) / (t1 - t0) / n * 100, "loadgen_cpu": (lg1 - lg0) / (t1 - t0) * 100,
@@ -136,9 +144,13 @@ def main():
     print(f"# goal: 128 worlds >= 59 ticks/s each, <= 2 MB RSS per world (this 2-core machine)")
     print(f"# anchors: 64 separate daemons hold 60 Hz at ~10 MB each; a cluster node with 64 "
           f"worlds (a sim thread each) 58.5 Hz")
+    print("# CPU ms per world-tick (the daemon's CPU / the ticks its worlds ran): goal <= 0.25 "
+          "driven (issue 32); anchors 0.38 driven, 0.045 idle (issue 22), "
+          "0.33 driven, 0.05 idle (2026-11-29, before issue 32's fixes; docs/performance.md)")
     print(f"{'N':>4} {'ticks/s med':>11} {'min':>6} {'CPU/world':>9} {'RSS/world':>9} "
           f"{'idle: ticks/s':>13} {'CPU/world':>9} {'RSS/world':>9} {'loadgen CPU':>11} "
-          f"{'mirrors':>8} {'p99 ms':>7} {'load':>5} {'create s':>8}")
+          f"{'mirrors':>8} {'p99 ms':>7} {'load':>5} {'create s':>8} {'ms/tick':>7} "
+          f"{'idle ms/tick':>12}")
     for n in COUNTS:
         try:
             r = one(n, scene)
@@ -149,7 +161,8 @@ def main():
         print(f"{n:>4} {r['median']:>11.1f} {r['min']:>6.1f} {r['cpu']:>8.2f}% "
               f"{r['rss_mb']:>7.2f}MB {r['idle_median']:>13.1f} {r['idle_cpu']:>8.2f}% "
               f"{r['rss_idle_mb']:>7.2f}MB {r['loadgen_cpu']:>10.0f}% {r['mirrors']:>8} "
-              f"{p99:>7} {r['load']:>5.1f} {r['create_s']:>8.1f}", flush=True)
+              f"{p99:>7} {r['load']:>5.1f} {r['create_s']:>8.1f} {r['ms_tick']:>7.3f} "
+              f"{r['idle_ms_tick']:>12.3f}", flush=True)
         if n == 128:
             ok = r["min"] >= 59 and r["rss_mb"] <= 2
             print(f"     goal at 128 worlds: {'met' if ok else 'not met'} "

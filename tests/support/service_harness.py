@@ -585,6 +585,17 @@ class Daemon:
         return status, body.decode("utf-8", "replace")
 
 
+def wait_until(cond, seconds=120, poll=0.2):
+    """Whether cond() becomes true within seconds (polled): a condition, never a moment, for
+    what a daemon's threads do beside its ticks (compaction, retention) on a busy machine."""
+    end = time.time() + seconds
+    while not cond():
+        if time.time() >= end:
+            return False
+        time.sleep(poll)
+    return True
+
+
 def metric_value(text, name, labels=None):
     """Sum of the samples of a metric (optionally those whose labels include
     the given ones); None when there is none."""

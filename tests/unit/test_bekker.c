@@ -68,6 +68,10 @@ static void test_params(void)
         {"{\"elastic_pa_m\":0}", "material.soil.elastic_pa_m"},
         {"{\"damping_pa_s_m\":-1}", "material.soil.damping_pa_s_m"},
         {"{\"slip_n\":2.5}", "material.soil.slip_n"},
+        {"{\"density_kg_m3\":0}", "material.soil.density_kg_m3"},
+        {"{\"density_kg_m3\":-1600}", "material.soil.density_kg_m3"},
+        {"{\"density_kg_m3\":3500}", "material.soil.density_kg_m3"},
+        {"{\"density_kg_m3\":\"dense\"}", "material.soil.density_kg_m3"},
         {"{\"preset\":\"mars\"}", "material.soil.preset"},
         {"{\"kx\":1}", "kx"},
         {"{\"n\":\"one\"}", "material.soil.n"},
@@ -212,11 +216,12 @@ static double roll_wheel(const sim_soil *soil, double slip, int ticks, double lo
  * Rankine's passive pressure over the face from root depth zr to tip depth zt,
  * b [½ γ N_φ (zt² - zr²) + 2 c √N_φ (zt - zr)], mobilised by 1 - exp(-j/K) with
  * Wong-Reece's j at θ = 0, pushing a driven wheel forward (Fx), about the middle
- * of the face (torque about y = -r F); nothing for a wheel above the soil. */
-static void test_lug_thrust(void)
+ * of the face (torque about y = -r F); nothing for a wheel above the soil.
+ * γ = ρ g with the soil's density_kg_m3: the preset's 1600 (the constant it
+ * was) and a denser soil's 2400. */
+static void lug_thrust_closed_form(const sim_soil *soil)
 {
-    sim_soil s;
-    sim_soil_preset("ding2011", &s);
+    sim_soil s = *soil;
     const double R = 0.15, h = 0.01, b = 0.16, v = 0.05, slip = 0.3;
     collider_geometry g = {
         .shape = COLLIDER_CYLINDER, .radius = R, .half_length = b / 2, .grousers = {1, h, 0.004}};
@@ -227,19 +232,31 @@ static void test_lug_thrust(void)
     sim_lug_thrust(&s, &col, pose, lowest, &c);
     double Rt = R + h, zt = sink, zr = sink - h, t1 = acos(1 - zt / Rt);
     double st = 1 - v / (w * Rt), j = Rt * (t1 - (1 - st) * sin(t1));
-    double kp = tan(M_PI / 4 + s.friction_deg * M_PI / 360), gamma = 1600 * 9.81;
+    double kp = tan(M_PI / 4 + s.friction_deg * M_PI / 360), gamma = s.density_kg_m3 * 9.81;
     double f = b *
                (0.5 * gamma * kp * kp * (zt * zt - zr * zr) + 2 * s.cohesion_pa * kp * (zt - zr)) *
                (1 - exp(-j / s.shear_k_m));
     CHECK(f > 0.5 && fabs(c.force_n[0] - f) < 1e-9 * f && fabs(c.force_n[2]) < 1e-9 * f,
-          "a lug straight down pushes a driven wheel forward by its passive pressure (%.6f N, "
-          "closed form %.6f N)",
-          c.force_n[0], f);
+          "a lug straight down pushes a driven wheel forward by its passive pressure (%g kg/m^3: "
+          "%.6f N, closed form %.6f N)",
+          s.density_kg_m3, c.force_n[0], f);
     CHECK(fabs(c.torque_nm[1] + (Rt - 0.5 * (zt - zr)) * f) < 1e-9,
           "about the middle of its face (torque %.6f N m)", c.torque_nm[1]);
     sim_contact above = {.cells = 1, .sinkage_m = 0, .velocity = {v, 0, 0}, .angular = {0, w, 0}};
     sim_lug_thrust(&s, &col, pose, lowest, &above);
     CHECK(above.force_n[0] == 0 && above.torque_nm[1] == 0, "a lug above the soil pushes nothing");
+}
+
+static void test_lug_thrust(void)
+{
+    sim_soil s;
+    sim_soil_preset("ding2011", &s);
+    CHECK(s.density_kg_m3 == 1600.0, "ding2011's density is the 1600 kg/m^3 the lugs used (%g)",
+          s.density_kg_m3);
+    for (int dense = 0; dense < 2; dense++) {
+        s.density_kg_m3 = dense ? 2400.0 : s.density_kg_m3;
+        lug_thrust_closed_form(&s);
+    }
 }
 
 /* A lugged wheel (model_lugs.c: the press on the lugs' envelope, the lugs'
@@ -498,17 +515,25 @@ static void test_scratch_size(void)
  * but 2 of 40 ticks (1 here: a cell of the lowest line pressed under the pile
  * the rim pushed ahead counts that pile; the per-cell state cannot tell it).
  */
+/* Ding's wheel (ding2011's soil, radius and width) over a rig nx cells long
+ * and 53 wide of 5 mm, its surface at ground, ticking at 20 Hz: the rig of
+ * the rolling-wheel tests below. soil must outlive the rig. */
+static void ding_wheel_rig(soil_rig *r, sim_soil *soil, int nx, double ground)
+{
+    sim_soil_preset("ding2011", soil);
+    soil_rig_init(r, soil, 0.5, 0.005, nx, 53, ground);
+    r->p.tick_s = 0.05;
+    r->geometry.shape = COLLIDER_CYLINDER;
+    r->geometry.radius = SIM_WHEEL_DING2011_RADIUS_M;
+    r->geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+}
+
 static void test_loaded_wheel_measures(void)
 {
     sim_soil soil;
-    sim_soil_preset("ding2011", &soil);
     soil_rig r;
     double R = SIM_WHEEL_DING2011_RADIUS_M, ground = 0.5, v = 0.05, slip = 0.2;
-    soil_rig_init(&r, &soil, 0.5, 0.005, 160, 53, ground);
-    r.p.tick_s = 0.05;
-    r.geometry.shape = COLLIDER_CYLINDER;
-    r.geometry.radius = R;
-    r.geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+    ding_wheel_rig(&r, &soil, 160, ground);
     double x = 1.5 * R, angle = 0.0, omega = v / (R * (1.0 - slip));
     soil_rig_place(&r, x, 53 * 0.005 / 2, ground + R, IDENTITY, 0);
     int ok = 1, off = 0;
@@ -548,15 +573,10 @@ static void test_loaded_wheel_measures(void)
 static void standing_run(int stand, double out[3], double *worst_stand, double *worst_roll)
 {
     sim_soil soil;
-    sim_soil_preset("ding2011", &soil);
     soil_rig r;
     double R = SIM_WHEEL_DING2011_RADIUS_M, ground = 0.5, v = 0.05, slip = 0.2;
     double load = SIM_WHEEL_DING2011_LOAD_N, y = 53 * 0.005 / 2;
-    soil_rig_init(&r, &soil, 0.5, 0.005, 200, 53, ground);
-    r.p.tick_s = 0.05;
-    r.geometry.shape = COLLIDER_CYLINDER;
-    r.geometry.radius = R;
-    r.geometry.half_length = SIM_WHEEL_DING2011_WIDTH_M / 2;
+    ding_wheel_rig(&r, &soil, 200, ground);
     double x = 1.5 * R, angle = 0.0, omega = v / (R * (1.0 - slip));
     soil_rig_place(&r, x, y, ground + R, IDENTITY, 0);
     out[0] = out[1] = out[2] = 0.0;

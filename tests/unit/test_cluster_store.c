@@ -334,21 +334,23 @@ static void press_soil(world *w, const world_rect *rects, int n)
         int32_t *v = malloc(4 * k);
         for (size_t j = 0; j < k; j++)
             v[j] = (int32_t)(test_next_random(&rng) % 1000);
-        world_soil_scatter(w, rects[i], v);
+        world_layer_scatter(w, WORLD_LAYER_SOIL, rects[i], v);
         free(v);
     }
 }
 
-static int same_soil(const world *a, const world *b)
+/* 1 when a's layer equals b's, cell for cell and in every field's kept sum. */
+static int same_layer(const world *a, const world *b, world_layer_id layer)
 {
     world_rect all = {0, 0, W, H};
-    size_t k = (size_t)W * H * WORLD_SOIL_FIELDS;
+    int fields = world_layer_fields(layer);
+    size_t k = (size_t)W * H * (size_t)fields;
     int32_t *va = malloc(4 * k), *vb = malloc(4 * k);
-    world_soil_gather(a, all, va);
-    world_soil_gather(b, all, vb);
+    world_layer_gather(a, layer, all, va);
+    world_layer_gather(b, layer, all, vb);
     int same = memcmp(va, vb, 4 * k) == 0;
-    for (int f = 0; f < WORLD_SOIL_FIELDS; f++)
-        same &= world_soil_sum(a, f) == world_soil_sum(b, f);
+    for (int f = 0; f < fields; f++)
+        same &= world_layer_sum(a, layer, f) == world_layer_sum(b, layer, f);
     free(va);
     free(vb);
     return same;
@@ -361,7 +363,7 @@ static void test_soil(cluster *a, cluster *b)
     error_text err = {{0}};
     world wa, wb;
     test_dunes_world(&wa, W, H, 3);
-    world_soil_enable(&wa);
+    world_layer_enable(&wa, WORLD_LAYER_SOIL);
     store_recovery rec;
     cluster_store_config cfg = {.compact_records = 15};
     cluster_store *sa = cluster_store_open(a, "soil", &wa, &cfg, &rec, &err);
@@ -378,14 +380,14 @@ static void test_soil(cluster *a, cluster *b)
         ok &= cluster_store_commit_tick(sa, &wa, t, rects, n, &err) == CLUSTER_OK;
         cluster_store_wait_compaction(sa);
     }
-    CHECK(ok && world_soil_sum(&wa, 0) > 0, "a commits 40 ticks of heights and soil: %s",
-          err.message);
+    CHECK(ok && world_layer_sum(&wa, WORLD_LAYER_SOIL, 0) > 0,
+          "a commits 40 ticks of heights and soil: %s", err.message);
     test_dunes_world(&wb, W, H, 3); /* fresh soil: recovery alone must bring it */
     cluster_store *sb = cluster_store_open(b, "soil", &wb, &cfg, &rec, &err);
     CHECK(sb && rec.tick == 40 && rec.tiles_loaded > 0 && rec.records_replayed > 0,
           "b takes it over from %d snapshots and %lld records: %s", rec.tiles_loaded,
           (long long)rec.records_replayed, err.message);
-    CHECK(sb && same_heights(&wa, &wb) && same_soil(&wa, &wb),
+    CHECK(sb && same_heights(&wa, &wb) && same_layer(&wa, &wb, WORLD_LAYER_SOIL),
           "b's heights and soil state (every cell, every field) equal a's");
     cluster_store_close(sa);
     cluster_store_close(sb);
@@ -400,25 +402,12 @@ static void press_memory(world *w, const world_rect *rects, int n)
     for (int i = 0; i < n; i++) {
         size_t k = (size_t)rects[i].w * rects[i].h;
         int32_t *v = malloc(4 * k);
-        world_compaction_gather(w, rects[i], v);
+        world_layer_gather(w, WORLD_LAYER_COMPACTION, rects[i], v);
         for (size_t j = 0; j < k; j++)
             v[j] = (v[j] + (int32_t)(test_next_random(&rng) % 900)) % (WORLD_COMPACTION_MAX + 1);
-        world_compaction_scatter(w, rects[i], v);
+        world_layer_scatter(w, WORLD_LAYER_COMPACTION, rects[i], v);
         free(v);
     }
-}
-
-static int same_memory(const world *a, const world *b)
-{
-    world_rect all = {0, 0, W, H};
-    int32_t *va = malloc(4 * (size_t)W * H), *vb = malloc(4 * (size_t)W * H);
-    world_compaction_gather(a, all, va);
-    world_compaction_gather(b, all, vb);
-    int same = memcmp(va, vb, 4 * (size_t)W * H) == 0 &&
-               world_compaction_sum(a) == world_compaction_sum(b);
-    free(va);
-    free(vb);
-    return same;
 }
 
 /* Counts the log's records by magic: [0] TRC2, [1] TRC3. */
@@ -452,7 +441,7 @@ static void test_compaction_memory(cluster *a, cluster *b)
     int ok = 1;
     for (uint64_t t = 1; t <= 50; t++) {
         if (t == 21) /* the old records first: a world without the layer */
-            ok &= world_compaction_enable(&wa) == 0;
+            ok &= world_layer_enable(&wa, WORLD_LAYER_COMPACTION) == 0;
         int n = deform(&wa, rects);
         if (t > 20)
             press_memory(&wa, rects, n);
@@ -463,7 +452,7 @@ static void test_compaction_memory(cluster *a, cluster *b)
     cluster_wal *wal = cluster_wal_open(a, "memory", &err);
     cluster_wal_read(wal, 1, count_magic, magic, &err);
     cluster_wal_close(wal);
-    CHECK(ok && world_compaction_sum(&wa) > 0 && magic[1] > 0,
+    CHECK(ok && world_layer_sum(&wa, WORLD_LAYER_COMPACTION, 0) > 0 && magic[1] > 0,
           "a commits 20 ticks without and 30 with memory (the log holds %d TRC2, %d TRC3): %s",
           magic[0], magic[1], err.message);
     test_dunes_world(&wb, W, H, 4); /* no memory: recovery alone must bring it */
@@ -471,9 +460,9 @@ static void test_compaction_memory(cluster *a, cluster *b)
     CHECK(sb && rec.tick == 50 && rec.tiles_loaded > 0 && rec.records_replayed > 0,
           "b takes it over from %d snapshots and %lld records: %s", rec.tiles_loaded,
           (long long)rec.records_replayed, err.message);
-    CHECK(sb && same_heights(&wa, &wb) && same_memory(&wa, &wb),
+    CHECK(sb && same_heights(&wa, &wb) && same_layer(&wa, &wb, WORLD_LAYER_COMPACTION),
           "b's heights and compaction memory (every cell, Σ %lld) equal a's",
-          (long long)world_compaction_sum(&wb));
+          (long long)world_layer_sum(&wb, WORLD_LAYER_COMPACTION, 0));
     cluster_store_close(sa);
     cluster_store_close(sb);
     world_free(&wa);

@@ -11,7 +11,6 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <netinet/in.h>
-#include <png.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdatomic.h>
@@ -231,48 +230,6 @@ static void expect_error(int port, const char *target, int status, const char *w
     response_free(&r);
 }
 
-/* ---- PNG decoding for the png16 check ---- */
-
-typedef struct png_source {
-    const unsigned char *data;
-    size_t len, pos;
-} png_source;
-
-static void png_source_read(png_structp png, png_bytep out, png_size_t n)
-{
-    png_source *s = png_get_io_ptr(png);
-    if (s->pos + n > s->len)
-        png_error(png, "truncated");
-    memcpy(out, s->data + s->pos, n);
-    s->pos += n;
-}
-
-/* Decode a 16-bit grey PNG into values (w*h); 0 on success. */
-static int decode_png16(const unsigned char *data, size_t len, int w, int h, uint16_t *values)
-{
-    png_source src = {data, len, 0};
-    png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
-    png_infop info = png_create_info_struct(png);
-    if (setjmp(png_jmpbuf(png))) {
-        png_destroy_read_struct(&png, &info, NULL);
-        return -1;
-    }
-    png_set_read_fn(png, &src, png_source_read);
-    png_read_info(png, info);
-    if ((int)png_get_image_width(png, info) != w || (int)png_get_image_height(png, info) != h ||
-        png_get_bit_depth(png, info) != 16 || png_get_color_type(png, info) != PNG_COLOR_TYPE_GRAY)
-        png_error(png, "unexpected header");
-    unsigned char *row = malloc((size_t)w * 2);
-    for (int y = 0; y < h; y++) {
-        png_read_row(png, row, NULL);
-        for (int x = 0; x < w; x++)
-            values[(size_t)y * w + x] = (uint16_t)(row[2 * x] << 8 | row[2 * x + 1]);
-    }
-    free(row);
-    png_destroy_read_struct(&png, &info, NULL);
-    return 0;
-}
-
 static uint32_t be32(const unsigned char *p)
 {
     return (uint32_t)p[0] << 24 | (uint32_t)p[1] << 16 | (uint32_t)p[2] << 8 | p[3];
@@ -413,9 +370,13 @@ static void check_heights_png(int port, int x, int y, int w, int h, int expect_c
           "%s units per metre", target);
     CHECK(header_value(&r, "X-Terrad-Clipped", v, sizeof v) && atoi(v) == expect_clipped,
           "%s clipped %s", target, v);
-    uint16_t *values = malloc((size_t)w * h * sizeof *values);
-    int ok = decode_png16(r.body, r.body_len, w, h, values) == 0;
-    CHECK(ok, "%s: decodes", target);
+    /* the daemon's own reader (png16_decode): 16-bit greyscale only */
+    uint16_t *values = NULL;
+    int gw = 0, gh = 0;
+    error_text err = {{0}};
+    int ok = png16_decode(r.body, r.body_len, target, &gw, &gh, &values, &err) == 0 && gw == w &&
+             gh == h;
+    CHECK(ok, "%s: decodes as %d x %d (%d x %d) %s", target, w, h, gw, gh, err.message);
     int exact = ok;
     for (int j = 0; exact && j < h; j++)
         for (int i = 0; exact && i < w; i++) {

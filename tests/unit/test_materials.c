@@ -99,7 +99,8 @@ static void test_table_and_map(void)
         CHECK(g.material_count == 3 && !g.uniform, "three materials, not uniform");
         CHECK(g.materials[1].roughness == 0.4, "override wins over the preset");
         CHECK(g.uses_compaction, "snow compacts: the layer exists");
-        CHECK(world_compaction_bytes(&w) == 0, "no compaction memory before anything is compacted");
+        CHECK(world_layer_bytes(&w, WORLD_LAYER_COMPACTION) == 0,
+              "no compaction memory before anything is compacted");
         uint8_t ids[100 * 60];
         ground_gather_ids(&g, (world_rect){0, 0, 100, 60}, ids);
         CHECK(ids[0] == 1, "default snow at (0,0) (%d)", ids[0]);
@@ -157,10 +158,11 @@ static void test_no_layer_without_compaction(void)
                          "\"max_compaction_m\": 1}}, \"material_map\": {\"default\": \"sand\"}}",
                          &err);
     CHECK(r == 0, "parses (%s)", r ? err.message : "");
-    CHECK(!g.uses_compaction && !world_compaction_enabled(&w) && world_compaction_bytes(&w) == 0,
+    CHECK(!g.uses_compaction && !world_layer_enabled(&w, WORLD_LAYER_COMPACTION) &&
+              world_layer_bytes(&w, WORLD_LAYER_COMPACTION) == 0,
           "compression 0 everywhere: no compaction layer");
     int32_t mem[4] = {1, 2, 3, 4};
-    world_compaction_gather(&w, (world_rect){0, 0, 2, 2}, mem);
+    world_layer_gather(&w, WORLD_LAYER_COMPACTION, (world_rect){0, 0, 2, 2}, mem);
     CHECK(mem[0] == 0 && mem[3] == 0, "no layer reads as zero");
     ground_free(&g);
     sim_material base;
@@ -217,7 +219,8 @@ static void run_window(const sim_params *p, ground *g, world *w, world_rect r,
     uint16_t *memory = malloc((size_t)n * 2);
     world_gather_window(w, r, heights);
     ground_gather_ids(g, r, ids);
-    world_compaction_gather(w, r, seed); /* the world's int32 memory, as the engine reads it */
+    world_layer_gather(w, WORLD_LAYER_COMPACTION, r,
+                       seed); /* the world's int32 memory, as the engine reads it */
     for (int i = 0; i < n; i++)
         memory[i] = (uint16_t)seed[i];
     sim_classify_materials(p, &g->table, g->uniform ? NULL : ids, memory, n, heights, bottom, raw,
@@ -230,7 +233,7 @@ static void run_window(const sim_params *p, ground *g, world *w, world_rect r,
         world_scatter_window(w, r, heights);
         for (int i = 0; i < n; i++)
             seed[i] = memory[i];
-        if (world_compaction_scatter(w, r, seed) != 0)
+        if (world_layer_scatter(w, WORLD_LAYER_COMPACTION, r, seed) != 0)
             abort();
     }
     if (raw_out)
@@ -256,7 +259,7 @@ static int64_t compaction_sum_of(const int32_t *m, int n)
 static int64_t compaction_sum(const world *w, world_rect r)
 {
     int32_t *m = malloc((size_t)r.w * r.h * 4);
-    world_compaction_gather(w, r, m);
+    world_layer_gather(w, WORLD_LAYER_COMPACTION, r, m);
     int64_t s = compaction_sum_of(m, r.w * r.h);
     free(m);
     return s;
@@ -316,10 +319,11 @@ static void test_repeated_passes_sink_less(void)
     CHECK(last_sink < 250, "after 12 passes the snow carries the collider (sinks %d of 500)",
           last_sink);
     CHECK(accounted, "Σh falls by exactly the compacted units");
-    CHECK(world_compaction_bytes(&w) == ONE_MEMORY_TILE_128,
+    CHECK(world_layer_bytes(&w, WORLD_LAYER_COMPACTION) == ONE_MEMORY_TILE_128,
           "one compaction tile allocated (%llu bytes)",
-          (unsigned long long)world_compaction_bytes(&w));
-    CHECK(world_compaction_sum(&w) == compaction_sum(&w, (world_rect){0, 0, 128, 128}),
+          (unsigned long long)world_layer_bytes(&w, WORLD_LAYER_COMPACTION));
+    CHECK(world_layer_sum(&w, WORLD_LAYER_COMPACTION, 0) ==
+              compaction_sum(&w, (world_rect){0, 0, 128, 128}),
           "the world's Σ memory is kept exactly as cells are written");
     /* the same passes on sand (compression 0): the volume is exact, no memory */
     int64_t before = world_rect_volume(&w, (world_rect){0, 0, 128, 128});
@@ -338,7 +342,8 @@ static void test_repeated_passes_sink_less(void)
     CHECK(world_rect_volume(&w, (world_rect){0, 0, 128, 128}) == before, "sand keeps Σh exactly");
     CHECK(sand_sink[0] == 500 && sand_sink[2] == 500, "sand does not harden (%d, %d)", sand_sink[0],
           sand_sink[2]);
-    CHECK(compaction_sum(&w, sand) == 0 && world_compaction_bytes(&w) == ONE_MEMORY_TILE_128,
+    CHECK(compaction_sum(&w, sand) == 0 &&
+              world_layer_bytes(&w, WORLD_LAYER_COMPACTION) == ONE_MEMORY_TILE_128,
           "no memory written for sand");
     free(bottom);
     free(raw);
@@ -449,11 +454,11 @@ static void test_engine_compaction(void)
         col.has_previous = pass > 1;
         int32_t before = height_at(&w, 32, 32);
         static int32_t mem_before[64 * 64], mem_after[64 * 64];
-        world_compaction_gather(&w, all, mem_before);
+        world_layer_gather(&w, WORLD_LAYER_COMPACTION, all, mem_before);
         sim_tick_report rep;
         CHECK(sim_engine_tick(e, &col, 1, &rep, &err) == 0, "tick %d", pass);
         /* every cell whose memory changed is in a rectangle the store logs */
-        world_compaction_gather(&w, all, mem_after);
+        world_layer_gather(&w, WORLD_LAYER_COMPACTION, all, mem_after);
         int logged = 1, changed = 0;
         for (int c = 0; c < 64 * 64; c++) {
             if (mem_before[c] == mem_after[c])
@@ -490,13 +495,13 @@ static void test_engine_compaction(void)
           "the world's compacted total is Σ memory (%lld)", (long long)sim_world_compacted(&w));
     /* a tick the store refuses is undone: memory back as it was gathered */
     static int32_t kept[64 * 64], undone[64 * 64];
-    world_compaction_gather(&w, all, kept);
+    world_layer_gather(&w, WORLD_LAYER_COMPACTION, all, kept);
     col.pose.position.z -= 0.05;
     sim_tick_report rep;
     CHECK(sim_engine_tick(e, &col, 1, &rep, &err) == 0, "one more tick");
     CHECK(compaction_sum(&w, all) != compaction_sum_of(kept, 64 * 64), "it compacted more");
     sim_engine_undo_state(e);
-    world_compaction_gather(&w, all, undone);
+    world_layer_gather(&w, WORLD_LAYER_COMPACTION, all, undone);
     CHECK(memcmp(kept, undone, sizeof kept) == 0, "sim_engine_undo_state puts the memory back");
     sim_engine_destroy(e);
     cpu->destroy(cpu);

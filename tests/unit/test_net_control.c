@@ -251,6 +251,53 @@ static void test_subscriptions(void)
     }
 }
 
+/* spectate, spectate_step, spectate_stop (PROTOCOL.md "Spectate"): each field by name */
+static void test_spectate(void)
+{
+    expect_error("{\"type\":\"spectate\",\"x\":0,\"y\":0,\"w\":64,\"h\":64}", TERRAD_E_BAD_VALUE, 1,
+                 "from_tick: missing, an integer in [0, 9007199254740992]");
+    expect_error("{\"type\":\"spectate\",\"x\":0,\"y\":0,\"w\":64,\"h\":64,\"from_tick\":-1}",
+                 TERRAD_E_BAD_VALUE, 1, "from_tick: must be an integer in [0, 9007199254740992]");
+    expect_error("{\"type\":\"spectate\",\"x\":0,\"y\":0,\"w\":64,\"h\":64,\"from_tick\":5,"
+                 "\"speed\":9}",
+                 TERRAD_E_BAD_VALUE, 1, "speed: must be an integer in [1, 8]");
+    expect_error("{\"type\":\"spectate\",\"x\":0,\"y\":0,\"w\":64,\"h\":64,\"from_tick\":5,"
+                 "\"speed\":1.5}",
+                 TERRAD_E_BAD_VALUE, 1, "speed: must be an integer in [1, 8]");
+    expect_error("{\"type\":\"spectate\",\"x\":500,\"y\":0,\"w\":64,\"h\":64,\"from_tick\":5}",
+                 TERRAD_E_OUTSIDE_WORLD, 1,
+                 "rectangle x=500 y=0 w=64 h=64 is not inside the world (512 x 256 cells)");
+    expect_error("{\"type\":\"spectate\",\"x\":0,\"y\":0,\"w\":64,\"h\":64,\"from_tick\":5,"
+                 "\"step\":1}",
+                 TERRAD_E_BAD_VALUE, 1, "step: must be true or false");
+    expect_error("{\"type\":\"spectate_step\",\"ticks\":0}", TERRAD_E_BAD_VALUE, 1,
+                 "ticks: must be an integer in [1, 600]");
+    net_control m;
+    net_control_error e;
+    CHECK(parse("{\"type\":\"spectate\",\"x\":64,\"y\":0,\"w\":128,\"h\":64,\"from_tick\":"
+                "1200,\"speed\":8}",
+                &m, &e) == 0,
+          "spectate accepted: %s", e.message);
+    CHECK(m.kind == NET_CONTROL_SPECTATE && m.rect.x == 64 && m.rect.w == 128 &&
+              m.from_tick == 1200 && m.speed == 8 && !m.stepping,
+          "spectate fields");
+    net_control_free(&m);
+    CHECK(parse("{\"type\":\"spectate\",\"x\":0,\"y\":0,\"w\":1,\"h\":1,\"from_tick\":0,"
+                "\"step\":true}",
+                &m, &e) == 0 &&
+              m.speed == 1 && m.stepping && m.from_tick == 0,
+          "a stepping spectate from tick 0, speed 1 by default: %s", e.message);
+    net_control_free(&m);
+    CHECK(parse("{\"type\":\"spectate_step\",\"ticks\":600}", &m, &e) == 0 &&
+              m.kind == NET_CONTROL_SPECTATE_STEP && m.step_ticks == 600,
+          "spectate_step: %s", e.message);
+    net_control_free(&m);
+    CHECK(parse("{\"type\":\"spectate_stop\",\"ref\":7}", &m, &e) == 0 &&
+              m.kind == NET_CONTROL_SPECTATE_STOP,
+          "spectate_stop: %s", e.message);
+    net_control_free(&m);
+}
+
 int main(void)
 {
     limits = net_limits_default();
@@ -260,6 +307,7 @@ int main(void)
     test_budget();
     test_collider_create();
     test_subscriptions();
+    test_spectate();
     cJSON_Delete(materials);
     return check_report();
 }

@@ -497,31 +497,28 @@ static void test_group_commit(void)
 }
 
 /* A per-cell layer of the world, as these tests drive it: the soil state or
- * the compaction memory, its fields per cell, how far right its ticks reach
+ * the compaction memory, how far right its ticks reach
  * (so the right-hand tiles never hold any) and how a tick changes a value. */
 typedef struct test_layer {
-    int fields;
+    world_layer_id id;
     int x_max;
-    void (*gather)(const world *w, world_rect r, int32_t *dst);
-    int (*scatter)(world *w, world_rect r, const int32_t *src);
-    int64_t (*sum)(const world *w, int field);
     int32_t (*next)(int32_t old, int64_t i, int k);
 } test_layer;
 
 /* 1 when a's layer equals b's, cell for cell and in every field's kept sum. */
 static int same_layer(const world *a, const world *b, const test_layer *l)
 {
-    size_t ints = (size_t)W * H * (size_t)l->fields;
+    size_t ints = (size_t)W * H * (size_t)world_layer_fields(l->id);
     int32_t *da = malloc(ints * 4), *db = malloc(ints * 4);
     if (!da || !db)
         exit(2);
-    l->gather(a, (world_rect){0, 0, W, H}, da);
-    l->gather(b, (world_rect){0, 0, W, H}, db);
+    world_layer_gather(a, l->id, (world_rect){0, 0, W, H}, da);
+    world_layer_gather(b, l->id, (world_rect){0, 0, W, H}, db);
     int same = memcmp(da, db, ints * 4) == 0;
     free(da);
     free(db);
-    for (int f = 0; f < l->fields; f++)
-        same &= l->sum(a, f) == l->sum(b, f);
+    for (int f = 0; f < world_layer_fields(l->id); f++)
+        same &= world_layer_sum(a, l->id, f) == world_layer_sum(b, l->id, f);
     return same;
 }
 
@@ -538,7 +535,7 @@ static int layer_tick(store *st, world *w, uint64_t tick, const test_layer *l)
         r[k].x = (int)(test_next_random(&rng) % (uint32_t)(l->x_max - r[k].w));
         r[k].y = (int)(test_next_random(&rng) % (uint32_t)(H - r[k].h));
         int64_t n = (int64_t)r[k].w * r[k].h;
-        int32_t *cells = malloc((size_t)n * (size_t)l->fields * sizeof *cells);
+        int32_t *cells = malloc((size_t)n * (size_t)world_layer_fields(l->id) * sizeof *cells);
         if (!cells)
             exit(2);
         if (k == 0) {
@@ -547,10 +544,10 @@ static int layer_tick(store *st, world *w, uint64_t tick, const test_layer *l)
                 cells[i] -= (int32_t)(test_next_random(&rng) % 50);
             world_scatter_window(w, r[k], cells);
         }
-        l->gather(w, r[k], cells);
-        for (int64_t i = 0; i < n * l->fields; i++)
+        world_layer_gather(w, l->id, r[k], cells);
+        for (int64_t i = 0; i < n * world_layer_fields(l->id); i++)
             cells[i] = l->next(cells[i], i, k);
-        if (l->scatter(w, r[k], cells) != 0)
+        if (world_layer_scatter(w, l->id, r[k], cells) != 0)
             exit(2);
         free(cells);
     }
@@ -564,8 +561,7 @@ static int32_t soil_next(int32_t old, int64_t i, int k)
                                                 : old + (int32_t)(test_next_random(&rng) % 1000);
 }
 
-static const test_layer soil_layer = {
-    WORLD_SOIL_FIELDS, 400, world_soil_gather, world_soil_scatter, world_soil_sum, soil_next};
+static const test_layer soil_layer = {WORLD_LAYER_SOIL, 400, soil_next};
 
 /* The per-cell soil state (issue 21) through the log and through snapshots
  * (format 2 where a tile holds soil, format 1 elsewhere), recovered exactly
@@ -580,7 +576,7 @@ static void test_soil_state(void)
     error_text err = {{0}};
     store_recovery rec;
     store *st = open_dir(&live, &rec, 0, &err);
-    CHECK(st && world_soil_enable(&live) == 0, "open: %s", err.message);
+    CHECK(st && world_layer_enable(&live, WORLD_LAYER_SOIL) == 0, "open: %s", err.message);
     if (!st)
         return;
     for (uint64_t t = 1; t <= 30; t++)
@@ -599,7 +595,7 @@ static void test_soil_state(void)
           (unsigned long long)rec.tick, err.message);
     CHECK(same_heights(&live, &back) && same_layer(&live, &back, &soil_layer),
           "log replay: heights and every cell's soil state as they were");
-    CHECK(world_soil_sum(&back, 2) > 0, "the soil state is not all zeros");
+    CHECK(world_layer_sum(&back, WORLD_LAYER_SOIL, 2) > 0, "the soil state is not all zeros");
     store_close(st);
 
     /* compaction into snapshots, then recovery from them */
@@ -634,15 +630,8 @@ static int32_t memory_next(int32_t old, int64_t i, int k)
     return m > WORLD_COMPACTION_MAX ? WORLD_COMPACTION_MAX : m;
 }
 
-static int64_t memory_sum(const world *w, int field)
-{
-    (void)field;
-    return world_compaction_sum(w);
-}
-
 /* left of x = 256: the right-hand tiles never hold any */
-static const test_layer memory_layer = {
-    1, 256, world_compaction_gather, world_compaction_scatter, memory_sum, memory_next};
+static const test_layer memory_layer = {WORLD_LAYER_COMPACTION, 256, memory_next};
 
 static unsigned snapshot_format(int tx, int ty)
 {
@@ -677,17 +666,17 @@ static void test_compaction_memory(void)
     for (uint64_t t = 1; t <= 60 && st; t++)
         CHECK(random_tick(st, &old, t) == 0, "old-format tick %llu", (unsigned long long)t);
     store_close(st);
-    CHECK(!world_compaction_enabled(&old) && snapshot_format(0, 0) == 1,
+    CHECK(!world_layer_enabled(&old, WORLD_LAYER_COMPACTION) && snapshot_format(0, 0) == 1,
           "the old store: heights-only records and format 1 snapshots (%u)", snapshot_format(0, 0));
 
     st = open_dir(&live, &rec, 0, &err);
     CHECK(st && rec.tick == 60 && rec.tiles_loaded > 0 && same_heights(&old, &live) &&
-              world_compaction_sum(&live) == 0,
+              world_layer_sum(&live, WORLD_LAYER_COMPACTION, 0) == 0,
           "the old store loads: tick %llu, %d snapshots, heights as they were, no memory: %s",
           (unsigned long long)rec.tick, rec.tiles_loaded, err.message);
     if (!st)
         return;
-    CHECK(world_compaction_enable(&live) == 0, "the engine enables the layer");
+    CHECK(world_layer_enable(&live, WORLD_LAYER_COMPACTION) == 0, "the engine enables the layer");
     for (uint64_t t = 61; t <= 90; t++)
         CHECK(layer_tick(st, &live, t, &memory_layer) == 0, "memory tick %llu logged",
               (unsigned long long)t);
@@ -696,9 +685,9 @@ static void test_compaction_memory(void)
     CHECK(st && rec.tick == 90, "log replay: tick %llu: %s", (unsigned long long)rec.tick,
           err.message);
     CHECK(same_heights(&live, &back) && same_layer(&live, &back, &memory_layer) &&
-              world_compaction_sum(&back) > 0,
+              world_layer_sum(&back, WORLD_LAYER_COMPACTION, 0) > 0,
           "log replay: heights and every cell's memory as they were (Σ memory %lld)",
-          (long long)world_compaction_sum(&back));
+          (long long)world_layer_sum(&back, WORLD_LAYER_COMPACTION, 0));
     store_close(st);
 
     /* compaction into snapshots, then recovery from them */
@@ -734,15 +723,74 @@ static void test_compaction_memory(void)
     values[3] = WORLD_COMPACTION_MAX;
     len = store_record_encode(&c, cctx, 1, &r, 1, STORE_LAYER_COMPACTION, values, 0, &err);
     applied = store_record_apply(&c, &again, c.buf, len, NULL, NULL);
-    CHECK(applied == 0 && world_compaction_cell(&again, 4, 4) == WORLD_COMPACTION_MAX &&
-              world_compaction_cell(&again, 3, 4) == 7,
-          "65535 is kept");
+    int32_t m44 = -1, m34 = -1;
+    world_layer_cell(&again, WORLD_LAYER_COMPACTION, 4, 4, &m44);
+    world_layer_cell(&again, WORLD_LAYER_COMPACTION, 3, 4, &m34);
+    CHECK(applied == 0 && m44 == WORLD_COMPACTION_MAX && m34 == 7, "65535 is kept");
     ZSTD_freeCCtx(cctx);
     store_record_free(&c);
     world_free(&old);
     world_free(&live);
     world_free(&back);
     world_free(&again);
+}
+
+/* The order a record's values lie in, pinned (the data directories and
+ * JetStream logs written so far hold it): every rectangle's heights, then
+ * with bit 31 their soil state (WORLD_SOIL_FIELDS per cell), then with bit 30
+ * their compaction memory, each part rectangle after rectangle. A record
+ * applied to a fresh world puts every value back where it was. */
+static void test_record_layout(void)
+{
+    world w, back;
+    make_base(&w);
+    make_base(&back);
+    world_rect r[2] = {{3, 4, 2, 1}, {10, 20, 1, 1}};
+    int32_t h[3] = {111, 112, 113};
+    int32_t soil[9] = {1, 2, 3, 4, 5, 6, 7, 8, 9};
+    int32_t memory[3] = {65535, 0, 42};
+    world_scatter_window(&w, r[0], h);
+    world_scatter_window(&w, r[1], h + 2);
+    world_layer_scatter(&w, WORLD_LAYER_SOIL, r[0], soil);
+    world_layer_scatter(&w, WORLD_LAYER_SOIL, r[1], soil + 6);
+    world_layer_scatter(&w, WORLD_LAYER_COMPACTION, r[0], memory);
+    world_layer_scatter(&w, WORLD_LAYER_COMPACTION, r[1], memory + 2);
+    const int32_t expect[15] = {111, 112, 113, 1, 2, 3, 4, 5, 6, 7, 8, 9, 65535, 0, 42};
+    CHECK(store_layers_ints(0) == 1 && store_layers_ints(STORE_LAYER_SOIL) == 4 &&
+              store_layers_ints(STORE_LAYER_COMPACTION) == 2 &&
+              store_layers_ints(STORE_LAYER_SOIL | STORE_LAYER_COMPACTION) == 5,
+          "int32 per cell: 1 + 3 with the soil state + 1 with the compaction memory");
+    CHECK(store_world_layers(&w) == (STORE_LAYER_SOIL | STORE_LAYER_COMPACTION) &&
+              store_world_layers(&back) == 0 &&
+              store_rect_layers(&w, (world_rect){300, 200, 10, 10}) == 0,
+          "the layers a world keeps, and none in a tile nobody wrote");
+    store_record c = {0};
+    unsigned both = STORE_LAYER_SOIL | STORE_LAYER_COMPACTION;
+    CHECK(store_record_gather(&c, &w, r, 2, both) == 0 &&
+              memcmp(c.values, expect, sizeof expect) == 0,
+          "heights, then soil state, then compaction memory, rectangle after rectangle");
+    int32_t values[15];
+    memcpy(values, c.values, sizeof values);
+    error_text err = {{0}};
+    ZSTD_CCtx *cctx = ZSTD_createCCtx();
+    size_t len = store_record_encode(&c, cctx, 1, r, 2, both, values, 0, &err);
+    uint32_t word = len > 4 ? (uint32_t)c.buf[0] | (uint32_t)c.buf[1] << 8 |
+                                  (uint32_t)c.buf[2] << 16 | (uint32_t)c.buf[3] << 24
+                            : 0;
+    CHECK(word == (0xC0000000u | 2u) && store_record_layers(c.buf, len) == both,
+          "the count word: 2 rectangles with bits 31 (soil) and 30 (compaction): %s", err.message);
+    int applied = len ? store_record_apply(&c, &back, c.buf, len, NULL, NULL) : -2;
+    int32_t got_h = 0, got_soil[3] = {0}, got_memory = -1;
+    world_gather_window(&back, (world_rect){4, 4, 1, 1}, &got_h);
+    world_layer_cell(&back, WORLD_LAYER_SOIL, 4, 4, got_soil);
+    world_layer_cell(&back, WORLD_LAYER_COMPACTION, 10, 20, &got_memory);
+    CHECK(applied == 0 && got_h == 112 && got_soil[0] == 4 && got_soil[2] == 6 && got_memory == 42,
+          "applied to a fresh world: height %d, soil %d..%d, memory %d", got_h, got_soil[0],
+          got_soil[2], got_memory);
+    ZSTD_freeCCtx(cctx);
+    store_record_free(&c);
+    world_free(&w);
+    world_free(&back);
 }
 
 int main(void)
@@ -759,6 +807,7 @@ int main(void)
     test_group_commit();
     test_soil_state();
     test_compaction_memory();
+    test_record_layout();
     fresh_dir();
     return check_report();
 }

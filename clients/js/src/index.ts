@@ -117,6 +117,15 @@ export interface DesyncStats {
   tilesResynced: number;
 }
 
+/** A spectator's start (PROTOCOL.md "Spectate"): the window, the past tick and the pace. */
+export interface SpectateOptions {
+  fromTick: number | bigint;
+  /** 1..8 times the world's tick rate (default 1) */
+  speed?: number;
+  /** play only the ticks spectateStep() asks for */
+  step?: boolean;
+}
+
 /** One connection to a daemon. */
 export class TerradClient {
   world!: World;
@@ -125,6 +134,10 @@ export class TerradClient {
   /** the latest ACK's batch sequence */
   ackedSeq = -1;
   readonly mirrors = new Map<number, Mirror>();
+  /** a spectator's tick: its mirror holds the window as of it (the last replayed tick's ACK) */
+  spectateTick = -1n;
+  /** the server's spectate_end (reason "live" once it caught up, or "stopped"), else null */
+  spectateEnded: { reason: string; tick: number; id: number; message?: string } | null = null;
   readonly desync: DesyncStats = { checksumFrames: 0, checksumTick: 0n, tilesDiffering: 0, tilesResynced: 0 };
   private ws: WebSocket;
   private seq = 0;
@@ -138,6 +151,8 @@ export class TerradClient {
   /** subscriptions whose base could not be rebuilt: subscribe() rejects with the error */
   private baseFailed = new Map<number, Error>();
   private closed: Error | null = null;
+  /** between spectating and spectate_end: ACKs are the replay's tick marks */
+  private watching = false;
   /** PROTOCOL.md "seen": the server bounds this client's lag by the tick it says it handled */
   private seen = new P.SeenReporter((m: object) => { if (!this.closed) this.sendJson(m); });
 
@@ -193,6 +208,36 @@ export class TerradClient {
       throw e;
     }
     return m.id;
+  }
+
+  /**
+   * Watches a window from a past tick (PROTOCOL.md "Spectate"): the frames a live subscriber got,
+   * replayed from the world's log at opts.speed (1..8) times its tick rate, or with opts.step one
+   * spectateStep() at a time, until the live tick (then spectateEnded says so; subscribe to go
+   * on live). Resolves to the key of its mirror in mirrors (negative: never a subscription's);
+   * spectateTick is the tick it holds. Rejects with the server's error naming the field (a tick
+   * the log no longer holds, a speed out of range).
+   */
+  async spectate(x: number, y: number, w: number, h: number, opts: SpectateOptions): Promise<number> {
+    const ref = `spec-${++this.refN}`;
+    const m: any = { type: 'spectate', ref, x, y, w, h, from_tick: Number(opts.fromTick) };
+    if (opts.step) m.step = true;
+    else if (opts.speed !== undefined) m.speed = opts.speed;
+    this.spectateEnded = null;
+    this.spectateTick = -1n;
+    const got = await this.request(m, ref, 'spectating');
+    return -got.id;
+  }
+
+  /** A stepping spectator plays `ticks` more ticks. */
+  spectateStep(ticks = 1): void {
+    this.sendJson({ type: 'spectate_step', ticks });
+  }
+
+  /** Stops watching; resolves to the server's spectate_end (reason "stopped"). */
+  async spectateStop(): Promise<{ reason: string; tick: number; id: number }> {
+    const ref = `spec-${++this.refN}`;
+    return this.request({ type: 'spectate_stop', ref }, ref, 'spectate_end');
   }
 
   /** Resolves to the subscription's mirror once it holds the server's snapshot. */
@@ -303,6 +348,14 @@ export class TerradClient {
   private onText(text: string): void {
     const m: any = P.parseControl(text);
     if (m.type === 'subscribed') this.mirrors.set(m.id, this.mirrorOf(m));
+    if (m.type === 'spectating') { // absolute snapshots, its own versions: a plain mirror
+      this.mirrors.set(-m.id, new P.Mirror(m.x, m.y, m.w, m.h, this.world.tile_size) as unknown as Mirror);
+      this.watching = true;
+    }
+    if (m.type === 'spectate_end') {
+      this.spectateEnded = m;
+      this.watching = false;
+    }
     if (m.type === 'error') this.seen.refused(m);
     if (m.type === 'error') for (const f of this.listeners.error) f(new TerradError(m));
     const w = this.waiting.find((x) => x.test(m));
@@ -348,7 +401,8 @@ export class TerradClient {
       for (const f of this.listeners.delta) f(tick, rects);
     } else if (t === P.MsgType.ACK) {
       const { tick, seq } = P.decodeAck(b);
-      this.ackedSeq = seq;
+      if (this.watching) this.spectateTick = tick; // a replayed tick's mark, not a batch's ACK
+      else this.ackedSeq = seq;
       this.tick = tick > this.tick ? tick : this.tick;
       for (const p of this.predictions.values()) p.onAck(tick, seq);
       for (const f of this.listeners.ack) f(tick, seq);

@@ -7,7 +7,8 @@
 // budget in hello; a mirror corrupted on purpose repaired by the client itself (PROTOCOL.md
 // "CHECKSUM"); base snapshots (PROTOCOL.md "Base snapshots"): a late joiner of a dug world
 // rebuilds the base on the twin and its mirrors of a cut window and of the whole world equal
-// GET /v1/heights, before and after more digging.
+// GET /v1/heights, before and after more digging; a spectator from tick 0 (PROTOCOL.md
+// "Spectate") equal to the live mirror at every tick.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { mkdtempSync, rmSync, writeFileSync } from 'node:fs';
@@ -211,6 +212,61 @@ test('base snapshots: a late joiner rebuilds the base on the twin; a cut window 
     await assert.rejects(T.TerradClient.connect(ws, { baseSnapshots: true }), /twinWasm/, 'baseSnapshots without the twin is refused');
   } finally {
     c.close();
+  }
+});
+
+test('spectate (PROTOCOL.md "Spectate"): a window replayed from tick 0 at 8x equals the live mirror at every tick; bad input refused naming the field', { skip, timeout: 240000 }, async () => {
+  // Without the spectator the server answers spectate with unknown_type: spectate() rejects.
+  const live = await T.TerradClient.connect(ws, { name: 'ts-live' });
+  const spec = await T.TerradClient.connect(ws, { name: 'ts-spectator' });
+  try {
+    const sid = await live.subscribe(0, 0, 64, 64);
+    const mirror = await live.waitComplete(sid);
+    const byTick = new Map();
+    live.on('delta', (tick) => { if (mirror.complete) byTick.set(tick, Int32Array.from(mirror.heights)); });
+    const ball = await live.createCollider('sphere', { radius: 0.3 });
+    let seq = 0;
+    for (let i = 0; i < 60; i++) {
+      seq = live.sendPoses([{ id: ball, x: (8 + i * 0.8) * 0.05, y: 32 * 0.05, z: 0.4 + 0.3 - 0.08, qw: 1, qx: 0, qy: 0, qz: 0 }]);
+      await live.waitAck(seq);
+    }
+    assert.ok(byTick.size >= 20, `the live mirror changed in ${byTick.size} ticks`);
+    const at = new Map();
+    spec.on('ack', () => {
+      const m = [...spec.mirrors].find(([k]) => k < 0); // the spectator's mirror
+      if (m && spec.spectateTick >= 0n) at.set(spec.spectateTick, Int32Array.from(m[1].heights));
+    });
+    await spec.spectate(0, 0, 64, 64, { fromTick: 0, speed: 8 });
+    const end = Date.now() + 120000;
+    while (!spec.spectateEnded && Date.now() < end) await sleep(20);
+    assert.equal(spec.spectateEnded?.reason, 'live', 'it caught up with the live tick');
+    let compared = 0;
+    for (const [tick, hs] of at) {
+      const held = [...byTick.keys()].filter((t) => t <= tick);
+      if (!held.length) continue; // before the live client's first delta
+      const want = byTick.get(held.reduce((a, b) => (a > b ? a : b)));
+      assert.deepEqual(hs, want, `the spectator's mirror at tick ${tick} is the live one`);
+      compared++;
+    }
+    assert.ok(compared >= byTick.size, `compared at ${compared} ticks`);
+    const bad = await T.TerradClient.connect(ws, { name: 'ts-bad-spectator' });
+    try {
+      await assert.rejects(bad.spectate(0, 0, 64, 64, { fromTick: 0, speed: 9 }), (e) => e instanceof T.TerradError && /\bspeed:/.test(e.message));
+      await assert.rejects(bad.spectate(0, 0, 64, 64, { fromTick: 10 ** 12 }), (e) => e instanceof T.TerradError && /\bfrom_tick:/.test(e.message));
+      const stepper = await bad.spectate(0, 0, 64, 64, { fromTick: 1, step: true });
+      bad.spectateStep(3);
+      const until = Date.now() + 60000;
+      while (bad.spectateTick < 4n && Date.now() < until) await sleep(20);
+      assert.equal(bad.spectateTick, 4n, 'a stepping spectator played the 3 ticks asked for');
+      assert.ok(bad.mirrors.get(stepper).complete);
+      const stop = await bad.spectateStop();
+      assert.equal(stop.reason, 'stopped');
+    } finally {
+      bad.close();
+    }
+  } finally {
+    live.close();
+    spec.close();
   }
 });
 

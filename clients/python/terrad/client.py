@@ -28,7 +28,8 @@ from .proto import (_U32, SUBPROTOCOL, ColliderState, Contact, Footprint, Force,
                     decode_footprints, decode_forces, decode_header, decode_ping, decode_stepped,
                     encode_ping, encode_step,
                     edit, encode_pose_batch, error, focus, frame_tick, hello, parse_control,
-                    resync, seen, subscribe, unsubscribe)
+                    resync, seen, spectate, spectate_step, spectate_stop, subscribe,
+                    unsubscribe)
 
 try:
     import numpy as _np
@@ -132,6 +133,7 @@ class Client:
         self.contact_tick = 0
         self.acked_tick = 0
         self.acked_seq = 0
+        self.spectate_ended: dict[str, Any] | None = None  # the last spectate_end
         self.tick = 0
         self.errors: list[dict[str, Any]] = []
         self.desync = {"checksum_frames": 0, "checksum_tick": 0, "tiles_differing": 0, "tiles_resynced": 0}
@@ -310,6 +312,28 @@ class Client:
                                            footprints=footprints), "subscribed")
         return got["id"]
 
+    async def spectate(self, x: int, y: int, w: int, h: int, from_tick: int, speed: int = 1,
+                       step: bool = False, timeout: float = 60.0) -> int:
+        """Watch a window from a past tick (PROTOCOL.md "Spectate"): the frames a live
+        subscriber got, played at speed (1..8) times the tick rate, or with step=True one
+        spectate_step at a time, until the live tick (then spectate_ended holds the server's
+        spectate_end; subscribe to go on live). Returns the key of its mirror in mirrors
+        (negative: never a subscription's); its acked_tick is the tick the mirror holds. A
+        refusal (a tick the log no longer holds, a speed out of range) raises ServerError
+        naming the field."""
+        self.spectate_ended = None
+        got = await self.request(spectate(x, y, w, h, from_tick, speed=speed, step=step),
+                                 "spectating", timeout)
+        return -int(got["id"])
+
+    async def spectate_step(self, ticks: int = 1) -> None:
+        """A stepping spectator: play `ticks` more ticks."""
+        await self.ws.send(json.dumps(spectate_step(ticks)))
+
+    async def spectate_stop(self) -> dict[str, Any]:
+        """Stop watching: the server's spectate_end (reason "stopped")."""
+        return await self.request(spectate_stop(), "spectate_end")
+
     async def unsubscribe(self, sid: int) -> None:
         await self.request(unsubscribe(sid), "unsubscribed")
         self.mirrors.pop(sid, None)
@@ -399,6 +423,11 @@ class Client:
                 with Twin(self.world["base"], msg["x"], msg["y"], msg["w"], msg["h"]) as base:
                     mirror.base = list(base.read())
             self.mirrors[msg["id"]] = mirror
+        elif t == "spectating":  # its mirror: the key spectate returns
+            self.mirrors[-int(msg["id"])] = Mirror(msg["x"], msg["y"], msg["w"], msg["h"],
+                                                   self.world["tile_size"])
+        elif t == "spectate_end":
+            self.spectate_ended = msg
         ref = msg.get("ref")
         fut = self._pending.get(ref) if isinstance(ref, str) else None
         step = self._steps.pop(int(ref[5:]), None) if isinstance(ref, str) and ref.startswith("step:") else None

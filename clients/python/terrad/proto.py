@@ -56,7 +56,7 @@ __all__ = [
     "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
     "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
     "CHECKSUM_FIXED", "TILE_SUM_SIZE", "HASH_SEED", "HASH_PRIME", "TileSum", "heights_hash",
-    "encode_checksum", "decode_checksum",
+    "encode_checksum", "decode_checksum", "spectate", "spectate_step", "spectate_stop",
 ]
 
 PROTOCOL_VERSION = 1
@@ -1106,6 +1106,27 @@ def unsubscribe(sid: int, ref=None) -> dict:
 def subscribe_events(events=("world_created", "world_deleted"), ref=None) -> dict:
     """Admin: {"type": "event", "event": ..., "world": ...} for each world made or ended."""
     return _with_ref({"type": "subscribe_events", "events": list(events)}, ref)
+
+
+def spectate(x: int, y: int, w: int, h: int, from_tick: int, speed: int | None = None,
+             step: bool = False, ref=None) -> dict:
+    """Watch a window from a past tick (PROTOCOL.md "Spectate"): its snapshot as of
+    from_tick, then each tick's deltas and an ACK of the tick, at speed (1..8) times the
+    world's tick rate, or (step=True) as many ticks as spectate_step messages ask for."""
+    m: dict = {"type": "spectate", "x": x, "y": y, "w": w, "h": h, "from_tick": from_tick}
+    if step:
+        m["step"] = True
+    elif speed is not None:
+        m["speed"] = speed
+    return _with_ref(m, ref)
+
+
+def spectate_step(ticks: int = 1, ref=None) -> dict:
+    return _with_ref({"type": "spectate_step", "ticks": ticks}, ref)
+
+
+def spectate_stop(ref=None) -> dict:
+    return _with_ref({"type": "spectate_stop"}, ref)
 
 
 def focus(x: float | None = None, y: float | None = None) -> dict:

@@ -4,7 +4,7 @@
 
 - Every scene under tests/scenes/ and the lugged wheel's (tests/scenes/lugged/: grousers,
   terrad_twin_add_wheel), and one small scene per deformation model (a sphere, a smooth
-  and a lugged wheel rolling: on bekker its lug thrust too) is
+  and a lugged wheel rolling: on bekker its lug thrust too, on a soil with its own density) is
   run by `terrad simulate --backend cpu` and replayed through the twin library
   twice: natively (tests/support/twin_replay.c, linked to libterrad-twin.so
   alone) and as WebAssembly under Node (tests/support/twin_replay.mjs over
@@ -15,7 +15,8 @@
   non-finite value, an unknown model or shape, a window outside the world, a
   pose with NaN, an unknown collider, a read outside the window, grousers with a
   negative, fractional or oversized count, a negative, NaN or oversized (> the
-  radius) height or thickness: each refused with a sentence naming the field, and
+  radius) height or thickness, a bekker soil of negative density: each refused with a
+  sentence naming the field, and
   the twin goes on working (a lugged wheel it then takes presses its lugs).
 """
 import ctypes
@@ -114,7 +115,10 @@ for model in MODELS:
         "world": {"width": 160, "height": 96, "cell_size_m": 0.05},
         "terrain": {"kind": "dunes", "min_height_m": 0.3, "max_height_m": 0.5,
                     "wavelength_m": 2.0, "seed": 7},
-        "material": {"model": model, "refill_m_per_s": 0.05},
+        # bekker: a soil of its own density (the lugs' bulldozing), a key the twin must take
+        "material": {"model": model, "refill_m_per_s": 0.05,
+                     **({"soil": {"preset": "ding2011", "density_kg_m3": 1850}}
+                        if model == "bekker" else {})},
         "colliders": [
             {"name": "ball", "shape": "sphere", "radius": 0.3, "position": [1.0, 2.4, 0.7],
              "motion": {"velocity": [1.2, 0.3, 0]}},
@@ -177,6 +181,12 @@ lib.terrad_twin_config_set(cfg, b"roughness", 2.0, err)
 check(lib.terrad_twin_create(cfg, 0, 0, 64, 64, None, err) is None
       and "roughness" in err.value.decode(), f"roughness out of range at create: {err.value!r}")
 lib.terrad_twin_config_set(cfg, b"roughness", 0.3, err)
+lib.terrad_twin_config_set_name(cfg, b"model", b"bekker", err)
+lib.terrad_twin_config_set(cfg, b"soil.density_kg_m3", -5, err)
+check(lib.terrad_twin_create(cfg, 0, 0, 64, 64, None, err) is None
+      and "density_kg_m3" in err.value.decode(), f"a negative soil density at create: {err.value!r}")
+lib.terrad_twin_config_set(cfg, b"soil.density_kg_m3", 1600, err)
+lib.terrad_twin_config_set_name(cfg, b"model", b"persson-ssbo", err)
 twin = lib.terrad_twin_create(cfg, 8, 8, 48, 48, None, err)
 check(twin is not None, f"a 48 x 48 window of the base: {err.value!r}")
 refused(lib.terrad_twin_add_collider(twin, 1, b"cone", 0.3, 0, 0, 0, 0, err), "shape")

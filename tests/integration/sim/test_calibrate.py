@@ -99,6 +99,17 @@ def material_of(path):
         return json.load(f)
 
 
+def residual_rows(path):
+    """A --residuals CSV's rows (the header left out), each a list of its fields."""
+    with open(path) as f:
+        return [r.split(",") for r in f.read().splitlines()[1:]]
+
+
+def sinkage_residuals(path):
+    """|residual| of each sinkage_m row of a --residuals CSV (column 6; column 3 says what)."""
+    return [abs(float(r[6])) for r in residual_rows(path) if r[3] == "sinkage_m"]
+
+
 def test_plates(tmp):
     for name, n, kc, kphi in KNOWN:
         for digits, bounds in ((None, {"n": 1e-6, "kc": 1e-6, "kphi": 1e-6}),
@@ -115,8 +126,7 @@ def test_plates(tmp):
                 err = abs(soil[key] - want) / want
                 check(err <= bounds[key], f"{name} ({digits or 'exact'}): {key} {soil[key]} "
                       f"against {want} ({100 * err:.4f} % <= {100 * bounds[key]:g} %)")
-            with open(res) as f:
-                rows = [r.split(",") for r in f.read().splitlines()[1:]]
+            rows = residual_rows(res)
             worst = max(abs(float(r[6])) for r in rows) if rows else 1
             check(len(rows) == len(WIDTHS) * len(SINKAGES) and
                   worst <= (1e-6 if digits is None else 0.01),
@@ -212,9 +222,7 @@ def test_pressure_sinkage(tmp):
         err = abs(got - KNOWN_SOIL[name]) / KNOWN_SOIL[name]
         check(err <= 0.01, f"--fit {name} from {wrong:g}: {got:g} against {KNOWN_SOIL[name]:g} "
               f"({100 * err:.2f} % <= 1 %)")
-        with open(res) as f:
-            sink = [abs(float(r.split(",")[6])) for r in f.read().splitlines()[1:]
-                    if r.split(",")[3] == "sinkage_m"]
+        sink = sinkage_residuals(res)
         check(len(sink) == 4 and max(sink) <= 0.01,
               f"--fit {name}: every sinkage residual under 1 % ({sink})")
         check("separable" not in stdout, f"--fit {name} alone is not reported as degenerate")
@@ -240,9 +248,7 @@ def test_pressure_sinkage(tmp):
             err = abs(soil[name] - THREE_SOIL[name]) / THREE_SOIL[name]
             check(err <= bound, f"three wheels: {name} {soil[name]:g} against "
                   f"{THREE_SOIL[name]:g} ({100 * err:.2f} % <= {100 * bound:g} %)")
-        with open(res) as f:
-            sink = [abs(float(r.split(",")[6])) for r in f.read().splitlines()[1:]
-                    if r.split(",")[3] == "sinkage_m"]
+        sink = sinkage_residuals(res)
         check(len(sink) == 10 and max(sink) <= 0.03,
               f"three wheels: every sinkage residual under 3 % ({sink})")
     for fit, needle in (("kc,kphi", "not separable: kc and kphi from wheels of one width"),
@@ -289,8 +295,7 @@ def test_cross_wheel(tmp):
             if own[k][1] < own[k][0]:
                 check(held[k][1] < held[k][0], f"{label}: the fit improves the held-out wheel "
                       f"as it does its own (own {own[k]}, held out {held[k]})")
-    with open(res) as f:
-        kinds = [r.split(",")[0] for r in f.read().splitlines()[1:]]
+    kinds = [r[0] for r in residual_rows(res)]
     check(kinds.count("wheel") == 12 and kinds.count("predict") == 12,
           f"a residual per fitted and per held-out cell ({kinds.count('wheel')}, "
           f"{kinds.count('predict')})")

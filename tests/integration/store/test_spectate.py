@@ -1,0 +1,307 @@
+#!/usr/bin/python3
+# ctest-timeout: 600
+"""Spectators (issue 32 item 3; PROTOCOL.md "Spectate"): a client watches a window from a past
+tick, played forward from the data directory's log, and its mirror at every tick it saw is the
+mirror a live subscriber held at that tick, bit for bit.
+
+- A live viewer subscribes to the whole world (96 x 40 cells, two tiles) and keeps a copy of its
+  mirror after every DELTA frame (by tick), while a driver presses a sphere along a track and
+  makes two craters by `edit`, on a daemon with 4 KiB log segments (compacted into tile snapshots
+  and keyframe generations many times) and --replay-retain-bytes keeping the whole log.
+- Then a spectator from tick 0 at 8x, and one from a middle tick at 8x: at every ACK (its tick
+  mark) the spectator's mirror equals the viewer's mirror at that tick (before the viewer's
+  snapshot: GET /v1/heights?tick=N), and at sampled ticks GET /v1/heights?tick=N; each ends with spectate_end "live" at or after the tick
+  the world was at when it started, and none of them ever got a CHECKSUM frame (the viewer did).
+- A stepping spectator: two spectate_step messages play exactly those ticks; spectate_stop ends
+  it with spectate_end "stopped".
+- Refusals, each an error naming the field, counted in terrad_spectate_refused_total{field},
+  while the viewer keeps getting its deltas and the daemon goes on: speed 9 and 0, a from_tick
+  in the future, a subscribe while spectating and a spectate while subscribed, spectate_step
+  without a stepping spectate, a daemon without retention whose early log was compacted away
+  (from_tick no longer held), and a memory-only daemon (no log at all).
+
+Without the spectator (net_spectate.c, store_cursor_*) every spectate is refused as an unknown
+type, and no mirror is compared: the first check fails.
+"""
+import asyncio
+import os
+import shutil
+import struct
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
+from service_harness import Checks, Daemon, RecordingClient, metric_value, wait_until  # noqa: E402
+import compaction_drive as cd  # noqa: E402
+import terrad as tp  # noqa: E402
+
+check = Checks()
+SEGMENT = ["--wal-segment-bytes", "4096"]
+RETAIN = ["--replay-retain-bytes", str(64 << 20)]
+WAIT = 120  # seconds: generous, a loaded 2-core machine
+REGION = (0, 0, cd.W, cd.H)
+
+
+class Viewer(tp.TerradClient):
+    """A live subscriber that keeps its mirror after every DELTA frame, by tick (the last
+    frame of tick t leaves the mirror at t; a tick without frames left it as it was)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.by_tick = {}
+
+    async def _on_binary(self, data):
+        await super()._on_binary(data)
+        if tp.decode_header(data) == tp.MsgType.DELTA:
+            m = next(iter(self.mirrors.values()), None)
+            if m is not None and m.complete:
+                self.by_tick[self.tick] = list(m.heights)
+
+    def at(self, tick):
+        """The viewer's mirror at tick (None before its snapshot)."""
+        held = [t for t in self.by_tick if t <= tick]
+        return self.by_tick[max(held)] if held else None
+
+
+def read_past(d, tick):
+    status, body, headers = d.get_busy(f"/v1/heights?x=0&y=0&w={cd.W}&h={cd.H}&tick={tick}",
+                                       timeout=60)
+    if status != 200:
+        return None
+    return list(struct.unpack(f"<{cd.W * cd.H}i", body))
+
+
+def refused(d, field):
+    return metric_value(d.metrics()[1], "terrad_spectate_refused_total", {"field": field}) or 0
+
+
+async def drive(d, viewer):
+    c = RecordingClient(d.ws, name="driver", record=False)
+    await c.connect()
+    sphere = await c.create_collider("sphere", radius=cd.RADIUS)
+    z = cd.GROUND + cd.RADIUS - 0.03
+    for i, x in enumerate(cd.FIRST[:36]):
+        seq = await c.send_poses([tp.Pose(sphere, x, cd.Y, z, 1.0, 0.0, 0.0, 0.0)])
+        await c.wait_ack(seq, WAIT)
+        if i in (10, 25):  # edits are logged and spectated like the collider's ruts
+            await c.edit("crater", x=20 + i, y=20, radius=6, depth=500)
+    await c.close()
+
+
+async def spectate(d, what, from_tick, speed=8):
+    """A spectator of REGION from from_tick: (its mirrors by ACK tick, the client, the world's
+    tick when it started)."""
+    s = RecordingClient(d.ws, name=f"spectator-{what}", keep=10 ** 6)
+    await s.connect()
+    started_at = d.stats()["tick"]
+    sid = await s.spectate(*REGION, from_tick, speed=speed, timeout=WAIT)
+    await s.wait_for(lambda: s.spectate_ended is not None, WAIT * 2)
+    return sid, s, started_at
+
+
+def compare(d, viewer, s, sid, what, from_tick, started_at):
+    seen = sorted(t for t in s.history if t >= from_tick)
+    same, first_bad = 0, None
+    for t in seen:
+        mine = s.history[t].get(sid)
+        live = viewer.at(t)
+        if live is None:  # before the viewer's snapshot: what the log holds for that tick
+            live = read_past(d, t)
+        ok = mine is not None and mine[1] and live is not None and mine[0] == live
+        same += ok
+        if not ok and first_bad is None:
+            first_bad = (t, "incomplete" if mine is None or not mine[1] else
+                         sum(a != b for a, b in zip(mine[0], live or [])))
+    changed = [t for t in viewer.by_tick if t > from_tick]
+    if from_tick == 0:
+        check(s.history[0][sid][0] == read_past(d, 0),
+              f"{what}: its first mirror is the world's base (GET /v1/heights?tick=0)")
+    check(len(seen) >= len(changed) and seen and seen[0] == from_tick,
+          f"{what}: the spectator saw every tick from {from_tick} ({len(seen)} ticks, "
+          f"{len(changed)} of them changed the window)")
+    check(same == len(seen), f"{what}: its mirror equals the live viewer's at all {len(seen)} ticks "
+                             f"({same} equal; first differing: {first_bad})")
+    check(viewer.at(seen[0]) != viewer.at(seen[-1]),
+          f"{what}: the window changed while it watched (so the comparison can fail)")
+    samples = [seen[0], seen[len(seen) // 3], seen[2 * len(seen) // 3], seen[-1]]
+    past = [read_past(d, t) == s.history[t][sid][0] for t in samples]
+    check(all(past), f"{what}: and GET /v1/heights?tick=N at ticks {samples} ({past})")
+    end = s.spectate_ended
+    check(end and end["reason"] == "live" and end["tick"] >= started_at,
+          f"{what}: spectate_end \"live\" once it caught up with the live tick ({end}, "
+          f"started at {started_at})")
+    check(s.desync["checksum_frames"] == 0,
+          f"{what}: no CHECKSUM frame reached the spectator ({s.desync['checksum_frames']})")
+
+
+async def stepping(d, viewer, from_tick):
+    s = RecordingClient(d.ws, name="spectator-step", keep=10 ** 6)
+    await s.connect()
+    sid = await s.spectate(*REGION, from_tick, step=True, timeout=WAIT)
+    await s.wait_for(lambda: s.acked_tick == from_tick, WAIT)
+    await asyncio.sleep(0.5)
+    check(s.acked_tick == from_tick, f"stepping: it waits at tick {from_tick} ({s.acked_tick})")
+    await s.spectate_step(7)
+    await s.spectate_step(5)
+    await s.wait_for(lambda: s.acked_tick >= from_tick + 12, WAIT)
+    await asyncio.sleep(0.5)
+    ticks = sorted(s.history)
+    check(ticks == list(range(from_tick, from_tick + 13)),
+          f"stepping: two steps of 7 and 5 played exactly 12 ticks ({ticks[0]}..{ticks[-1]}, "
+          f"{len(ticks)})")
+    check(all(s.history[t][sid][0] == viewer.at(t) for t in ticks),
+          "stepping: its mirror equals the viewer's at each of them")
+    end = await s.spectate_stop()
+    check(end["reason"] == "stopped" and end["tick"] == from_tick + 12,
+          f"spectate_stop: spectate_end \"stopped\" at its tick ({end})")
+    await s.close()
+
+
+class Budgeted(RecordingClient):
+    """A spectator with the smallest budget a hello may state, that notes its largest frame."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, budget=1024, keep=10 ** 6, **kwargs)
+        self.largest = 0
+
+    async def _on_binary(self, data):
+        self.largest = max(self.largest, len(data))
+        await super()._on_binary(data)
+
+
+async def budgeted(d, viewer, from_tick):
+    """A 1024 B/s spectator: a snapshot frame larger than its window will ever have room for
+    goes once the window is empty (without that it waited forever and none of this came)."""
+    s = Budgeted(d.ws, name="spectator-budget")
+    await s.connect()
+    sid = await s.spectate(*REGION, from_tick, step=True, timeout=WAIT)
+    await s.spectate_step(3)
+    await s.wait_for(lambda: s.acked_tick >= from_tick + 3, WAIT)
+    ticks = sorted(s.history)
+    check(ticks == list(range(from_tick, from_tick + 4))
+          and all(s.history[t][sid][1] and s.history[t][sid][0] == viewer.at(t) for t in ticks),
+          f"budget 1024 B/s: its mirror equals the viewer's at ticks {ticks}")
+    check(s.largest > 1024 - 256, f"(a frame of {s.largest} bytes: more than the window has room for)")
+    await s.spectate_stop()
+    await s.close()
+
+
+async def expect_error(c, msg, field, what):
+    try:
+        await c.request(msg, "spectating")
+        check(False, f"{what}: refused")
+    except tp.ServerError as e:
+        check(e.msg.get("message", "").startswith(f"{field}:"),
+              f"{what}: an error naming {field} ({e.msg})")
+
+
+async def refusals(d, viewer):
+    before = {f: refused(d, f) for f in ("speed", "from_tick", "state")}
+    c = RecordingClient(d.ws, name="bad-spectator")
+    await c.connect()
+    now = d.stats()["tick"]
+    await expect_error(c, tp.spectate(*REGION, 1, speed=9), "speed", "speed 9")
+    await expect_error(c, tp.spectate(*REGION, 1, speed=0), "speed", "speed 0")
+    await expect_error(c, tp.spectate(*REGION, now + 100000), "from_tick", "a future from_tick")
+    await expect_error(c, tp.spectate_step(3), "type", "spectate_step without a stepping spectate")
+    sid = await c.subscribe(*REGION)
+    await expect_error(c, tp.spectate(*REGION, 1), "type", "a spectate while subscribed")
+    await c.unsubscribe(sid)
+    await c.spectate(*REGION, now - 20, step=True)  # it waits there: no step asked for
+    try:
+        await c.subscribe(*REGION)
+        check(False, "a subscribe while spectating: refused")
+    except tp.ServerError as e:
+        check("spectating" in e.msg.get("message", ""), f"a subscribe while spectating: refused ({e.msg})")
+    await c.close()
+    after = {f: refused(d, f) for f in before}
+    check(after["speed"] == before["speed"] + 2 and after["from_tick"] == before["from_tick"] + 1
+          and after["state"] >= before["state"] + 3,
+          f"each counted in terrad_spectate_refused_total{{field}} ({before} -> {after})")
+    check(d.stats()["ready"], "and the daemon goes on")
+
+
+async def watched_drive(d):
+    """A live viewer of REGION, then the drive: (the viewer, its first tick)."""
+    viewer = Viewer(d.ws, name="viewer")
+    await viewer.connect()
+    await viewer.subscribe(*REGION)
+    await viewer.wait_for(lambda: viewer.by_tick, WAIT)
+    first = min(viewer.by_tick)
+    await drive(d, viewer)
+    return viewer, first
+
+
+async def retained_run(d):
+    viewer, first = await watched_drive(d)
+    ticks = sorted(viewer.by_tick)
+    check(len(ticks) >= 30, f"the viewer saw the window change in {len(ticks)} ticks")
+    check(viewer.desync["checksum_frames"] > 0,
+          f"the live viewer got CHECKSUM frames ({viewer.desync['checksum_frames']})")
+    sid, s, started = await spectate(d, "from tick 0", 0)
+    compare(d, viewer, s, sid, "from tick 0", 0, started)
+    check(first in s.history, f"from tick 0: it passed the viewer's first tick {first}")
+    await s.close()
+    middle = ticks[len(ticks) // 2]
+    sid, s, started = await spectate(d, "from a middle tick", middle)
+    compare(d, viewer, s, sid, f"from tick {middle}", middle, started)
+    await s.close()
+    await stepping(d, viewer, ticks[len(ticks) // 3])
+    await budgeted(d, viewer, ticks[len(ticks) // 2])
+    await refusals(d, viewer)
+    await viewer.close()
+
+
+async def gone_run(d):
+    viewer, first = await watched_drive(d)
+    c = RecordingClient(d.ws, name="late-spectator")
+    await c.connect()
+    before = refused(d, "from_tick")
+    # the compaction thread drops the early log beside the ticks: on a busy machine it may still
+    # be behind the drive's end, so wait (a condition) until tick `first` is no longer held
+    gone = f"/v1/heights?x=0&y=0&w={cd.W}&h={cd.H}&tick={first}"
+    check(await asyncio.to_thread(wait_until, lambda: d.get_busy(gone, timeout=60)[0] == 410),
+          f"without retention, tick {first} is compacted away (GET ?tick= is 410)")
+    try:
+        await c.spectate(*REGION, first, timeout=WAIT)
+        check(False, "without retention, an early from_tick: refused")
+    except tp.ServerError as e:
+        why = e.msg.get("message", "")
+        check(why.startswith("from_tick:") and "no longer held" in why,
+              f"without retention, tick {first} (compacted away): an error naming from_tick ({e.msg})")
+    check(refused(d, "from_tick") == before + 1, "counted")
+    now = d.stats()["tick"]
+    sid = await c.spectate(*REGION, now, timeout=WAIT)
+    await c.wait_for(lambda: c.spectate_ended is not None, WAIT)
+    check(c.spectate_ended["reason"] == "live" and c.mirrors[sid].complete,
+          f"a recent tick is still spectated ({c.spectate_ended})")
+    await c.close()
+    await viewer.close()
+
+
+async def memory_only(d):
+    c = RecordingClient(d.ws, name="spectator")
+    await c.connect()
+    await expect_error(c, tp.spectate(*REGION, 0), "from_tick", "a memory-only daemon")
+    await c.close()
+
+
+def main():
+    scene = cd.scene_file()
+    data = tempfile.mkdtemp(prefix="terrad-spectate-")
+    try:
+        with check.running(Daemon(data_dir=data, extra=["--scene", scene] + SEGMENT + RETAIN,
+                                  durability="every-tick")) as d:
+            asyncio.run(retained_run(d))
+        with check.running(Daemon(extra=["--scene", scene] + SEGMENT)) as d:
+            asyncio.run(gone_run(d))
+        with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
+            asyncio.run(memory_only(d))
+    finally:
+        os.unlink(scene)
+        shutil.rmtree(data, ignore_errors=True)
+    check.finish()
+
+
+if __name__ == "__main__":
+    main()
