@@ -12,9 +12,10 @@
  * (store_commit_tick). Then store_replay_rect — what GET /v1/heights?tick=N
  * runs — rebuilds a 256² window at ticks through the match, and the answer
  * is checked against the heights the world held at that tick (kept while
- * writing). Prints one JSON line per seek (the best of two); never fails on
- * speed (a rebuild that is not exact says so on stderr: the test is
- * tests/integration/store/test_replay_heights.py).
+ * writing). Then the same ticks as a spectator starts at them
+ * (store_cursor_open, spectate_seek) and plays the next second. Prints one
+ * JSON line per seek (the best of two); never fails on speed (a rebuild that is not exact says so
+ * on stderr: the test is tests/integration/store/test_replay_heights.py).
  */
 #include <stdint.h>
 #include <stdio.h>
@@ -48,6 +49,48 @@ static world_rect wheel(int v, int k, uint64_t t)
     int x = side == 0 ? cx - r + along : side == 1 ? cx + r : side == 2 ? cx + r - along : cx - r;
     int y = side == 0 ? cy - r : side == 1 ? cy - r + along : side == 2 ? cy + r : cy + r - along;
     return (world_rect){x + (k & 1) * 14, y + (k >> 1) * 20, 6, 10};
+}
+
+/* A spectator's start at tick (PROTOCOL.md "Spectate"): store_cursor_open
+ * (the window's rebuild and the log position after it) and the window's
+ * heights read (its snapshot), then the next second of the match (60
+ * records read and applied, as the spectator thread plays them). The best of
+ * two; 1 when the start was exact. */
+static int spectate_seek(const char *dir, const world *w, uint64_t tick, uint64_t of,
+                         world_rect win, const int32_t *want, int32_t *got)
+{
+    double best = 1e30, second = 1e30;
+    int exact = 0;
+    for (int rep = 0; rep < 2; rep++) {
+        error_text err = {{0}};
+        store_cursor *cur = NULL;
+        double t1 = now_ms();
+        int rc = store_cursor_open(dir, w, tick, win, &cur, &err);
+        if (rc == 0)
+            store_cursor_read(cur, win, got);
+        double ms = now_ms() - t1;
+        exact = rc == 0 && memcmp(got, want, sizeof(int32_t) * WIN * WIN) == 0;
+        if (rc != 0)
+            fprintf(stderr, "bench_replay: spectate at %llu: %s\n", (unsigned long long)tick,
+                    err.message);
+        uint64_t t;
+        const world_rect *rects;
+        int n, played = 0;
+        while (rc == 0 && played < 60 &&
+               store_cursor_next(cur, tick + 60, &t, &rects, &n, &err) == 1 &&
+               store_cursor_apply(cur, &err) == 0)
+            played++;
+        double run = now_ms() - t1 - ms;
+        store_cursor_close(cur);
+        best = ms < best ? ms : best;
+        second = run < second ? run : second;
+    }
+    printf("{\"bench\":\"spectate_seek\",\"tick\":%llu,\"of\":%llu,\"window\":%d,"
+           "\"ms\":%.1f,\"next_60_ticks_ms\":%.1f,\"exact\":%s,\"goal_ms\":100}\n",
+           (unsigned long long)tick, (unsigned long long)of, WIN, best, second,
+           exact ? "true" : "false");
+    fflush(stdout);
+    return exact;
 }
 
 int main(void)
@@ -146,6 +189,8 @@ int main(void)
         fflush(stdout);
         all_exact &= exact;
     }
+    for (int s = 0; s < SEEKS; s++)
+        all_exact &= spectate_seek(dir, &w, at[s], ticks, win, want[s], got);
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     if (system(cmd) != 0)
         fprintf(stderr, "bench_replay: could not remove %s\n", dir);
