@@ -28,7 +28,11 @@
  * replaces a waiting one it covers and an unsubscribe drops the pieces no
  * subscription takes (net_budget_prune), so the pieces stay within one
  * snapshot of the client's subscriptions; summed deltas held between pieces
- * (they must not overtake them) count against max_pending_bytes. A tile in the
+ * (they must not overtake them) count against max_pending_bytes. So a tile's
+ * pending state needs no cap of its own: at most one piece per subscription
+ * rectangle, one tile of summed int32s, and held deltas bounded by
+ * max_pending_bytes (past it the client goes slow and its ledger is reset
+ * with its resync; test_budget_held checks both the order and the bound). A tile in the
  * ledger is not current for the client (net_client_tile_current); a tile out
  * of it is: every delta of it since its snapshot was queued. A delta of a
  * tile near the client's focus (its `focus` point and its colliders' latest
