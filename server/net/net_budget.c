@@ -733,6 +733,16 @@ int net_budget_fits_alone(net_client *c, size_t len)
     return b->count == 0 && !b->owed;
 }
 
+size_t net_budget_checksum_entries(net_client *c)
+{
+    if (!c->budget)
+        return SIZE_MAX;
+    /* the frame: its fixed part and 20 bytes an entry, and a websocket header
+     * of at most 4 bytes (frames under 64 KiB) */
+    double fit = (room(c->budget) - 4.0 - TERRAD_CHECKSUM_FIXED) / TERRAD_TILE_SUM_SIZE;
+    return fit >= 1.0 ? (size_t)fit : 1; /* 1: it will not fit, net_budget_fits says so */
+}
+
 int net_client_tile_current(const net_client *c, int tx, int ty)
 {
     if (c->slow || c->snapshots_done < c->snapshots_requested)

@@ -156,8 +156,10 @@ static int client_writeable(net_server *s, struct lws *wsi, net_client *c)
             uint64_t tick = 0; /* every server frame from DELTA on has its u64 tick at 4 */
             for (int b = 7; b >= 0; b--)
                 tick = tick << 8 | it.frame->data[4 + b];
-            if (tick > c->written_tick)
+            if (tick > c->written_tick) {
                 c->written_tick = tick;
+                net_seen_written(c, tick);
+            }
         }
         int n = lws_write(wsi, it.frame->data, it.frame->len,
                           it.frame->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);

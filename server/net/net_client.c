@@ -195,6 +195,32 @@ uint64_t net_oldest_queued_tick(const net_client *c)
     return 0;
 }
 
+void net_seen_written(net_client *c, uint64_t tick)
+{
+    if (c->unseen_count == NET_UNSEEN_MAX) { /* the newest entry takes it: judged by the older */
+        c->unseen_tick[(c->unseen_head + c->unseen_count - 1) % NET_UNSEEN_MAX] = tick;
+        return;
+    }
+    int at = (c->unseen_head + c->unseen_count) % NET_UNSEEN_MAX;
+    c->unseen_tick[at] = tick;
+    c->unseen_at[at] = c->srv->tick;
+    c->unseen_count++;
+}
+
+void net_seen_handled(net_client *c)
+{
+    while (c->unseen_count && c->unseen_tick[c->unseen_head] <= c->seen_tick) {
+        c->unseen_head = (c->unseen_head + 1) % NET_UNSEEN_MAX;
+        c->unseen_count--;
+    }
+}
+
+uint64_t net_seen_lag(const net_client *c)
+{
+    uint64_t at = c->unseen_count ? c->unseen_at[c->unseen_head] : 0;
+    return c->unseen_count && c->srv->tick > at ? c->srv->tick - at : 0;
+}
+
 int net_drop_tile_deltas(net_client *c)
 {
     return queue_filter(c, is_tile_or_status, 0);

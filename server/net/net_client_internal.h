@@ -78,6 +78,8 @@ typedef struct net_state net_state;
 typedef struct net_budget net_budget;       /* net_budget.c */
 typedef struct net_spectator net_spectator; /* net_spectate.c */
 
+#define NET_UNSEEN_MAX 64 /* written ticks remembered for "seen"; full: the newest merge */
+
 typedef struct net_client {
     uint32_t id;
     struct lws *wsi;
@@ -138,6 +140,14 @@ typedef struct net_client {
      * it has handled this tick (its snapshots: of this tick or later) */
     uint64_t written_tick, seen_tick, seen_wait, seen_from;
     int seen_said;
+    /* the ticked frames written and not yet said handled, as (frame tick,
+     * the server's tick when written), oldest first: the client is behind by
+     * how long ago the oldest was written, not by the frames' ticks (a frame
+     * after two idle seconds carries a tick 120 past the last one the client
+     * said, and was judged behind the moment it was written) */
+    uint64_t unseen_tick[NET_UNSEEN_MAX], unseen_at[NET_UNSEEN_MAX];
+    int unseen_head, unseen_count;
+    size_t checksum_next; /* the first CHECKSUM entry of the next trimmed frame */
 
     int closing; /* close after the queue drains */
     int close_code;
@@ -263,6 +273,13 @@ cJSON *net_ref_copy(const cJSON *ref);
  * unless code is shutting_down or internal. */
 void net_error(net_client *c, int code, const cJSON *ref, int64_t collider, int fatal,
                const char *fmt, ...) __attribute__((format(printf, 6, 7)));
+/* "seen" (PROTOCOL.md): a ticked frame of tick `tick` was written to c now,
+ * and c said it has handled every tick up to seen_tick. */
+void net_seen_written(net_client *c, uint64_t tick);
+void net_seen_handled(net_client *c);
+/* How many server ticks ago the oldest frame c has not said it handled was
+ * written (0: none). */
+uint64_t net_seen_lag(const net_client *c);
 /* Close the client once its queue drains (at most a few seconds). */
 void net_close_after_flush(net_client *c, int code, const char *reason);
 /* Drop the queued tile deltas and the ACK/CONTACT frames that would vouch for them. */
@@ -307,6 +324,9 @@ double net_budget_rate(const net_client *c); /* 0: none */
 void net_budget_charge(net_client *c, size_t len, int tile_data);
 /* 1 if a frame of len bytes fits the window now (always without a budget). */
 int net_budget_fits(net_client *c, size_t len);
+/* How many CHECKSUM entries a frame may carry for c: as many as its window
+ * has room for now (at least 1), SIZE_MAX without a budget. */
+size_t net_budget_checksum_entries(net_client *c);
 /* As net_budget_fits, but a frame larger than the window will ever have
  * room for fits once the window is empty (an overrun, counted): a
  * spectator's frames (net_spectate.c), which would otherwise wait forever. */
@@ -373,8 +393,12 @@ void net_warn_refusal(net_state *s, const net_client *c, int code, const char *m
 
 /* ---- desync detection and repair (net_desync.c) ---- */
 /* The sim's CHECKSUM frame f (the caller's reference, taken over) as c gets
- * it: f itself, or a copy of only c's current tiles (NULL: no memory). */
-hub_frame *net_checksum_for(net_client *c, hub_frame *f);
+ * it: f itself, or a copy of only c's current tiles (NULL: no memory), at
+ * most max_entries of them: a budget's window may not have room for a whole
+ * window's (PROTOCOL.md "Budgets"), so each frame then carries the next
+ * max_entries in turn (c->checksum_next) and every tile is checked within a
+ * few frames. */
+hub_frame *net_checksum_for(net_client *c, hub_frame *f, size_t max_entries);
 /* resync with "tiles" (n [x, y] pairs) of subscription sub: each tile must meet
  * it (else outside_world naming tiles[i], nothing asked); each becomes one
  * HUB_RESYNC_TILE, a quiet snapshot of tile ∩ subscription. */

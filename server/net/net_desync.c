@@ -17,11 +17,12 @@
 
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "metrics/metrics.h"
 #include "terrad_proto.h"
 
-hub_frame *net_checksum_for(net_client *c, hub_frame *f)
+hub_frame *net_checksum_for(net_client *c, hub_frame *f, size_t max_entries)
 {
     /* as many entries as the frame can hold (up to TERRAD_MAX_COUNT): every
      * one is filtered, none sent through unfiltered */
@@ -39,6 +40,21 @@ hub_frame *net_checksum_for(net_client *c, hub_frame *f)
     for (size_t i = 0; i < n; i++)
         if (net_client_tile_current(c, sums[i].tile_x, sums[i].tile_y))
             sums[kept++] = sums[i];
+    if (kept > max_entries) { /* the next max_entries of them, in turn */
+        size_t start = c->checksum_next % kept;
+        terrad_tile_sum *turn = malloc(max_entries * sizeof *turn);
+        if (!turn) {
+            free(sums);
+            hub_frame_unref(f);
+            return NULL;
+        }
+        for (size_t i = 0; i < max_entries; i++)
+            turn[i] = sums[(start + i) % kept];
+        memcpy(sums, turn, max_entries * sizeof *turn);
+        free(turn);
+        c->checksum_next = start + max_entries;
+        kept = max_entries;
+    }
     if (kept == n) {
         free(sums);
         return f;

@@ -123,13 +123,12 @@ static void drop_stale(net_state *w)
         uint64_t oldest = net_oldest_queued_tick(c);
         if (oldest && w->tick > oldest + limit) {
             go_slow(c, w->tick - oldest);
-        } else if (c->seen_said && c->seen_tick >= c->seen_from &&
-                   c->written_tick - c->seen_tick > said_limit && c->written_tick > c->seen_tick) {
+        } else if (c->seen_said && c->seen_tick >= c->seen_from && net_seen_lag(c) > said_limit) {
             log_info("net: client %u (%s) has handled tick %llu, %llu behind what was sent to it "
                      "(limit %d): deltas replaced by a snapshot once it has read what is on its "
                      "way",
                      c->id, c->peer, (unsigned long long)c->seen_tick,
-                     (unsigned long long)(c->written_tick - c->seen_tick), (int)said_limit);
+                     (unsigned long long)net_seen_lag(c), (int)said_limit);
             metrics_count_client_behind();
             c->seen_wait = c->written_tick;
             go_slow(c, 0);
@@ -166,7 +165,7 @@ static void send_checksum(net_client *c, hub_frame *f)
         hub_frame_unref(f);
         return;
     }
-    f = net_checksum_for(c, f);
+    f = net_checksum_for(c, f, net_budget_checksum_entries(c));
     if (!f)
         return;
     if (!net_budget_fits(c, f->len)) { /* a budget's window has no room: the next one checks */

@@ -410,6 +410,7 @@ static void handle_seen(net_client *c, const net_control *m)
     c->seen_said = 1;
     if (m->seen_tick > c->seen_tick)
         c->seen_tick = m->seen_tick;
+    net_seen_handled(c);
     if (c->slow && c->seen_wait && c->seen_tick >= c->seen_wait && c->wsi)
         lws_callback_on_writable(c->wsi);
 }

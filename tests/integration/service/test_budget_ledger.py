@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 600
+# ctest-timeout: 900
 """A budgeted client's ledger of snapshot pieces (net_budget.c; PROTOCOL.md
 "Budgets"), on the real daemon over loopback serving its default world (dunes,
 512 × 512):
@@ -21,7 +21,13 @@
   tile each, a few kB) are larger than a second's budget: a CHECKSUM frame
   every tick must not keep the window from ever emptying of tile data, so
   the pieces go (one a second, overruns) and the mirror ends equal to
-  GET /v1/heights.
+  GET /v1/heights;
+- (a fourth daemon) a client with a 1024 bytes/s budget and base snapshots
+  holding the whole 512 × 512 world (64 tiles: a CHECKSUM of all of them,
+  1,298 bytes, never fits its window) gets CHECKSUM frames of as many tiles
+  as fit, in turn, and a height corrupted behind its back is found and
+  repaired: its mirror ends equal to GET /v1/heights. Without the turns no
+  CHECKSUM ever reached it and desync repair never ran.
 
 Without the change: sizing the ledger's decode by 39 bytes a rectangle (the
 old guess) fails the base-snapshot frames (TOO_LARGE), the client is resynced
@@ -107,6 +113,25 @@ async def checksum_storm(d):
     await c.close()
 
 
+async def checksum_turns(d):
+    c = tp.TerradClient(d.ws, name="turns", budget=1024, base_snapshots=True)
+    world = await c.connect()
+    rect = (0, 0, world["width"], world["height"])
+    sid = await c.subscribe(*rect)
+    want = d.heights(*rect)[1]
+    check(await wait_exact(c, sid, want, 120), "the 1024 bytes/s client's base-snapshot mirror of "
+          "the whole world is complete")
+    await c.wait_for(lambda: c.desync["checksum_frames"] >= 3, 120)
+    check(c.desync["checksum_frames"] >= 3 and c.desync["tiles_differing"] == 0,
+          f"it gets CHECKSUM frames though a whole window's does not fit its budget ({c.desync})")
+    m = c.mirrors[sid]
+    m.heights[300 * rect[2] + 400] -= 3  # behind the client's back: tile (6, 4)
+    ok = await wait_exact(c, sid, want, 120)
+    check(ok and c.desync["tiles_differing"] >= 1 and c.desync["tiles_resynced"] >= 1,
+          f"a corrupted height is found and repaired within its turns ({c.desync})")
+    await c.close()
+
+
 def run():
     try:
         d = Daemon()
@@ -119,6 +144,8 @@ def run():
         asyncio.run(asyncio.wait_for(pile_up(d2), 240))
     with check.running(Daemon(config={"limits": {"checksum_interval_ticks": 1}})) as d3:
         asyncio.run(asyncio.wait_for(checksum_storm(d3), 150))
+    with check.running(Daemon()) as d4:
+        asyncio.run(asyncio.wait_for(checksum_turns(d4), 330))
     check.finish()
 
 
