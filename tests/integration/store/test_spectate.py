@@ -13,7 +13,8 @@ mirror a live subscriber held at that tick, bit for bit.
   snapshot: GET /v1/heights?tick=N), and at sampled ticks GET /v1/heights?tick=N; each ends with spectate_end "live" at or after the tick
   the world was at when it started, and none of them ever got a CHECKSUM frame (the viewer did).
 - A stepping spectator: two spectate_step messages play exactly those ticks; spectate_stop ends
-  it with spectate_end "stopped".
+  it with spectate_end "stopped". One whose connection goes while its thread waits for a step:
+  the thread ends (terrad_spectators back to 0) and the daemon goes on.
 - Refusals, each an error naming the field, counted in terrad_spectate_refused_total{field},
   while the viewer keeps getting its deltas and the daemon goes on: speed 9 and 0, a from_tick
   in the future, a subscribe while spectating and a spectate while subscribed, spectate_step
@@ -155,6 +156,21 @@ async def stepping(d, viewer, from_tick):
     check(end["reason"] == "stopped" and end["tick"] == from_tick + 12,
           f"spectate_stop: spectate_end \"stopped\" at its tick ({end})")
     await s.close()
+    # a spectator whose connection goes while its thread waits for a step: the thread is
+    # stopped and joined (terrad_spectators back to 0), the daemon goes on
+    gone = RecordingClient(d.ws, name="spectator-gone")
+    await gone.connect()
+    await gone.spectate(*REGION, from_tick, step=True, timeout=WAIT)
+    alive = metric_value(d.metrics()[1], "terrad_spectators")
+    await gone.close()
+    loop = asyncio.get_running_loop()
+    end_at = loop.time() + WAIT
+    while metric_value(d.metrics()[1], "terrad_spectators") and loop.time() < end_at:
+        await asyncio.sleep(0.1)
+    left = metric_value(d.metrics()[1], "terrad_spectators")
+    check(alive == 1 and left == 0 and d.stats()["ready"],
+          f"a spectator that disconnects mid-replay: its thread ends ({alive} -> {left} alive), "
+          f"the daemon goes on")
 
 
 class Budgeted(RecordingClient):
