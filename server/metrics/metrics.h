@@ -157,7 +157,8 @@ int metrics_desync_text(char *out, size_t cap); /* its length, or -1 when it doe
  * alive, start-tick rebuilds and their milliseconds, ticks, frames and bytes
  * played, and terrad_spectate_refused_total{field}: the field a refused
  * spectate named ("state": the connection's state, "busy": no room). */
-#define METRICS_SPECTATE_FIELDS "from_tick", "speed", "ticks", "x", "y", "w", "h", "state", "busy"
+#define METRICS_SPECTATE_FIELDS                                                                    \
+    "from_tick", "speed", "step", "ticks", "x", "y", "w", "h", "state", "busy"
 void metrics_set_spectators(int n);
 void metrics_observe_spectate_seek_ms(double ms);
 void metrics_count_spectate_ticks(uint64_t n);

@@ -272,11 +272,7 @@ static int wait_turn(net_spectator *j, uint64_t t, double *t0)
         double wait = turn || j->stepping ? SPECTATE_WAIT_MS : due - now;
         if (wait > SPECTATE_WAIT_MS)
             wait = SPECTATE_WAIT_MS;
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
-        long ns = until.tv_nsec + (long)(wait * 1e6) + 1;
-        until.tv_sec += ns / 1000000000L;
-        until.tv_nsec = ns % 1000000000L;
+        struct timespec until = time_after_ms(CLOCK_REALTIME, wait + 1e-6);
         pthread_cond_timedwait(&j->cond, &j->lock, &until);
     }
     pthread_mutex_unlock(&j->lock);

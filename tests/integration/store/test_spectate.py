@@ -212,13 +212,14 @@ async def expect_error(c, msg, field, what):
 
 
 async def refusals(d, viewer):
-    before = {f: refused(d, f) for f in ("speed", "from_tick", "state")}
+    before = {f: refused(d, f) for f in ("speed", "from_tick", "state", "step")}
     c = RecordingClient(d.ws, name="bad-spectator")
     await c.connect()
     now = d.stats()["tick"]
     await expect_error(c, tp.spectate(*REGION, 1, speed=9), "speed", "speed 9")
     await expect_error(c, tp.spectate(*REGION, 1, speed=0), "speed", "speed 0")
     await expect_error(c, tp.spectate(*REGION, now + 100000), "from_tick", "a future from_tick")
+    await expect_error(c, {**tp.spectate(*REGION, 1), "step": "yes"}, "step", "a step that is not a boolean")
     await expect_error(c, tp.spectate_step(3), "type", "spectate_step without a stepping spectate")
     sid = await c.subscribe(*REGION)
     await expect_error(c, tp.spectate(*REGION, 1), "type", "a spectate while subscribed")
@@ -232,7 +233,7 @@ async def refusals(d, viewer):
     await c.close()
     after = {f: refused(d, f) for f in before}
     check(after["speed"] == before["speed"] + 2 and after["from_tick"] == before["from_tick"] + 1
-          and after["state"] >= before["state"] + 3,
+          and after["step"] == before["step"] + 1 and after["state"] >= before["state"] + 3,
           f"each counted in terrad_spectate_refused_total{{field}} ({before} -> {after})")
     check(d.stats()["ready"], "and the daemon goes on")
 
