@@ -53,6 +53,22 @@ async function daemon(http, ws, extra = []) {
   return d;
 }
 
+// Such a daemon on two free ports that are not neighbours; setup(ports) returns its extra
+// arguments. A port found free may be taken by another process before the daemon binds it
+// (a fresh clone's suite beside another once lost one so: "cannot listen ... (in use"); the
+// daemon then exits, and new ports are tried.
+async function daemonApart(setup = async () => []) {
+  for (let attempt = 1; ; attempt++) {
+    const ports = await apartPorts();
+    const extra = await setup(ports);
+    try {
+      return { ports, d: await daemon(ports.http, ports.ws, extra) };
+    } catch (e) {
+      if (attempt >= 5 || !/in use/.test(String(e.message))) throw e;
+    }
+  }
+}
+
 // Open url in a fresh page and wait until it is drawn live: the snapshot drawn, frames
 // arriving and the tick advancing. Returns the page's websocket URL.
 async function assertLive(url) {
@@ -77,8 +93,7 @@ async function websocketAnswer(port) {
 }
 
 test('ports that are not neighbours, and through a relay on another port: live', { skip, timeout: 400000 }, async () => {
-  const ports = await apartPorts();
-  const d = await daemon(ports.http, ports.ws);
+  const { ports, d } = await daemonApart();
   assert.deepEqual(d.ports, ports, 'the daemon took the ports it was given');
   const said = await websocketAnswer(ports.http);
   assert.deepEqual(said, { url: `ws://127.0.0.1:${ports.ws}/`, port: ports.ws, subprotocol: 'terrad.v1', from: 'host' });
@@ -92,11 +107,14 @@ test('ports that are not neighbours, and through a relay on another port: live',
 });
 
 test('behind relays for both ports, told the public websocket URL: live through them', { skip, timeout: 400000 }, async () => {
-  const ports = await apartPorts();
-  const wsRelay = await startRelay(ports.ws); // what a proxy would be, on ports of its own
-  cleanup.push(() => wsRelay.close());
+  let wsRelay;
+  const { ports, d } = await daemonApart(async (p) => {
+    const relay = await startRelay(p.ws); // what a proxy would be, on ports of its own
+    cleanup.push(() => relay.close());
+    wsRelay = relay;
+    return ['--public-ws-url', `ws://127.0.0.1:${relay.port}/`];
+  });
   const publicUrl = `ws://127.0.0.1:${wsRelay.port}/`;
-  const d = await daemon(ports.http, ports.ws, ['--public-ws-url', publicUrl]);
   const httpRelay = await startRelay(d.ports.http);
   cleanup.push(() => httpRelay.close());
   const said = await websocketAnswer(httpRelay.port);
