@@ -61,10 +61,7 @@ void metrics_desync_reset(void)
 
 int metrics_desync_text(char *out, size_t cap)
 {
-    static const struct {
-        const char *name, *help;
-        atomic_uint_fast64_t *value;
-    } counters[] = {
+    static const metrics_counter counters[] = {
         {"terrad_checksum_frames_total", "CHECKSUM frames queued for clients.", &frames},
         {"terrad_checksum_bytes_total", "Bytes of CHECKSUM frames queued for clients.", &bytes},
         {"terrad_checksum_frames_skipped_total",
@@ -76,10 +73,7 @@ int metrics_desync_text(char *out, size_t cap)
         {"terrad_tile_resyncs_total", "Tile snapshots queued for a resync with tiles.", &resyncs},
     };
     size_t n = 0;
-    int rc = 0;
-    for (size_t i = 0; i < sizeof counters / sizeof counters[0] && rc == 0; i++)
-        rc = metrics_put_counter(out, cap, &n, counters[i].name, counters[i].help,
-                                 counters[i].value);
+    int rc = metrics_put_counters(out, cap, &n, counters, sizeof counters / sizeof counters[0]);
     if (rc == 0)
         rc = metrics_put_labelled(out, cap, &n, "terrad_resync_refused_total",
                                   "resync requests refused, by the field the error named.", "field",

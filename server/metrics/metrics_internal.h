@@ -23,6 +23,14 @@ int metrics_put(char *out, size_t cap, size_t *n, const char *fmt, ...)
 int metrics_put_counter(char *out, size_t cap, size_t *n, const char *name, const char *help,
                         atomic_uint_fast64_t *value);
 
+/* Counter families without labels, one per row, in order. 0 or -1. */
+typedef struct metrics_counter {
+    const char *name, *help;
+    atomic_uint_fast64_t *value;
+} metrics_counter;
+int metrics_put_counters(char *out, size_t cap, size_t *n, const metrics_counter *rows,
+                         size_t count);
+
 /* A counter family with one label: HELP, TYPE, then name{label="names[i]"}
  * values[i] for each of the count values, in order. 0 or -1. */
 int metrics_put_labelled(char *out, size_t cap, size_t *n, const char *name, const char *help,

@@ -59,10 +59,7 @@ void metrics_spectate_reset(void)
 
 int metrics_spectate_text(char *out, size_t cap)
 {
-    static const struct {
-        const char *name, *help;
-        atomic_uint_fast64_t *value;
-    } counters[] = {
+    static const metrics_counter counters[] = {
         {"terrad_spectate_seeks_total", "Start ticks rebuilt for spectators.", &seeks},
         {"terrad_spectate_ticks_total", "Ticks played forward to spectators.", &ticks},
         {"terrad_spectate_frames_total", "Frames made for spectators.", &frames},
@@ -77,9 +74,8 @@ int metrics_spectate_text(char *out, size_t cap)
                          "# TYPE terrad_spectate_seek_seconds_total counter\n"
                          "terrad_spectate_seek_seconds_total %.6f\n",
                          metrics_load(&spectators), (double)metrics_load(&seek_us) / 1e6);
-    for (size_t i = 0; i < sizeof counters / sizeof counters[0] && rc == 0; i++)
-        rc = metrics_put_counter(out, cap, &n, counters[i].name, counters[i].help,
-                                 counters[i].value);
+    if (rc == 0)
+        rc = metrics_put_counters(out, cap, &n, counters, sizeof counters / sizeof counters[0]);
     if (rc == 0)
         rc = metrics_put_labelled(out, cap, &n, "terrad_spectate_refused_total",
                                   "spectate requests refused, by the field the error named.",

@@ -45,6 +45,15 @@ int metrics_put_counter(char *out, size_t cap, size_t *n, const char *name, cons
                        name, metrics_load(value));
 }
 
+int metrics_put_counters(char *out, size_t cap, size_t *n, const metrics_counter *rows,
+                         size_t count)
+{
+    int rc = 0;
+    for (size_t i = 0; i < count && rc == 0; i++)
+        rc = metrics_put_counter(out, cap, n, rows[i].name, rows[i].help, rows[i].value);
+    return rc;
+}
+
 int metrics_put_labelled(char *out, size_t cap, size_t *n, const char *name, const char *help,
                          const char *label, const char *const *names, int count,
                          atomic_uint_fast64_t *values)
