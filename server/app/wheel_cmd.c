@@ -232,11 +232,10 @@ static void print_json(const wheel_options *o, const sim_wheel_result *r)
     double values[10] = {
         s->n,         s->kc,           s->kphi,           s->cohesion_pa, s->friction_deg,
         s->shear_k_m, s->elastic_pa_m, s->damping_pa_s_m, s->slip_n,      s->density_kg_m3};
-    cJSON *source = cJSON_CreateString(o->soil_arg); /* the one string: escaped by cJSON */
-    char *quoted = source ? cJSON_PrintUnformatted(source) : NULL;
+    /* the one string: escaped by cJSON */
+    char *quoted = json_print_delete(cJSON_CreateString(o->soil_arg));
     printf("{\"soil_source\": %s, \"soil\": {", quoted ? quoted : "null");
-    cJSON_free(quoted);
-    cJSON_Delete(source);
+    free(quoted);
     for (int k = 0; k < 10; k++) {
         printf("%s\"%s\": ", k ? ", " : "", names[k]);
         exact(stdout, values[k]);

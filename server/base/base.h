@@ -149,7 +149,8 @@ int json_get_bool(const cJSON *obj, const char *path, const char *key, int *out,
 int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
                     double *out, error_text *err);
 /* o's unformatted text (the caller frees it), and o deleted: a reply or body
- * built as an object and sent as text. NULL when out of memory. */
+ * built as an object and sent as text. NULL when out of memory (o NULL too:
+ * a create that failed, so a caller need not test it first). */
 char *json_print_delete(cJSON *o);
 
 /* ---- Command lines (cli.c): one parser, on getopt_long, for every command ----
