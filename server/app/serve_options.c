@@ -196,7 +196,7 @@ static int config_public_ws_url(const cJSON *doc, serve_options *o, error_text *
 }
 
 /* "limits": PROTOCOL.md's names, each a positive number, at least its row's
- * min (net_limit_table, net/net_limits.c, says which and where each goes). */
+ * min (NET_LIMITS, net/net.h, says which and where each goes). */
 static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
 {
     const char *keys[64];
@@ -218,7 +218,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                     : 0;
         if (r < 0)
             return -1;
-        if (r > 0 && v < t->min) { /* a budget under hello's smallest (net_limits.c) */
+        if (r > 0 && v < t->min) { /* a budget under hello's smallest (NET_LIMITS) */
             error_set(err, "limits.%s: must be at least %g (got %g)", t->name, t->min, v);
             return -1;
         }
