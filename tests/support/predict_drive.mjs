@@ -11,7 +11,7 @@
 //
 // Usage: node --import tests/support/node_websocket.mjs predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H [loaded]
 import { readFileSync } from 'node:fs';
-import { Mirror, MsgType, colliderCreate, decodeAck, decodeDelta, decodeHeader, encodePoseBatch, hello, parseControl, subscribe } from '../../web/terrad_codec.mjs';
+import { Mirror, MsgType, colliderCreate, decodeAck, decodeDelta, decodeForces, decodeHeader, encodePoseBatch, hello, parseControl, subscribe } from '../../web/terrad_codec.mjs';
 import { loadTwinModule } from '../../web/twin.mjs';
 import { Prediction } from '../../web/predict.mjs';
 
@@ -39,6 +39,7 @@ class Conn {
         this.seq = 0;
         this.prediction = null;
         this.onAck = null;
+        this.heights = []; // FORCES' height extension: [id, height_m] of each entry that has one
     }
 
     async open() {
@@ -71,6 +72,8 @@ class Conn {
             this.ackedTick = tick;
             if (this.prediction) this.prediction.onAck(tick, seq);
             if (this.onAck) this.onAck();
+        } else if (t === MsgType.FORCES) {
+            for (const f of decodeForces(b).forces) if (f.height_m !== undefined) this.heights.push([f.id, f.height_m]);
         }
     }
 
@@ -206,8 +209,9 @@ b.ws.close();
 pred.destroy();
 process.exit(0);
 
-// A load-driven wheel, predicted: the counters, the rut's depth (units below the start) and
-// whether a bad load is refused naming load_n.
+// A load-driven wheel, predicted: the counters, the rut's depth (units below the start), the
+// heights the server found (FORCES' height extension) and whether a bad load is refused naming
+// load_n.
 async function loaded() {
     const c = new Conn('loaded');
     await c.open();
@@ -218,7 +222,7 @@ async function loaded() {
     const start = Int32Array.from(mirror.heights);
     const config = JSON.parse(readFileSync(configPath, 'utf8'));
     const radius = 0.1, load = 40, z = 0.4 + radius; // the server's search starts there, once
-    const wheel = await c.collider('wheel', { radius, width: 0.08 }, { loadN: load });
+    const wheel = await c.collider('wheel', { radius, width: 0.08 }, { loadN: load, forcesHeight: true });
     const own = new Map([[wheel, { shape: 'wheel', dims: { radius, width: 0.08, load_n: load } }]]);
     const pred = (c.prediction = new Prediction(await loadTwinModule(readFileSync(wasm)), c.world, mirror, config, own));
     const refused = [NaN, -3, Infinity].map((bad) => {
@@ -243,6 +247,7 @@ async function loaded() {
     console.log(JSON.stringify({
         drive: { predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime, lastDiffering: pred.lastDiffering },
         settled: sameArrays(pred.heights(), mirror.heights), rut, refused, errors: c.errors,
+        found: c.heights.filter(([id]) => id === wheel).map(([, h]) => h),
     }));
     c.ws.close();
     pred.destroy();

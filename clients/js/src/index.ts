@@ -247,7 +247,9 @@ export class TerradClient {
   }
 
   /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
-  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers; loadN?: number } = {}): Promise<number> {
+  /** opts.loadN: load-driven (bekker worlds), its height the server's (and the predictions'); opts.forcesHeight:
+   *  its FORCES entries carry height_m, the height the server found (PROTOCOL.md "FORCES"). */
+  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers; loadN?: number; forcesHeight?: boolean } = {}): Promise<number> {
     const ref = `col-${++this.refN}`;
     const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
     // the twin presses the lugs too, and finds a load-driven collider's height as the server does

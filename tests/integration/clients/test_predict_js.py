@@ -18,8 +18,10 @@ WebSocket, drives through two connections with the viewer's codec and reports; h
 - a load-driven wheel (colliderCreate's loadN, the Prediction's dims load_n) rolled with slip on a
   second daemon's bekker world for 300 ticks: every compared ACK exact (the WebAssembly twin
   runs the server's search for its height from the state its replay reached; without load_n
-  in the twin 0 of 300 were), its rut deeper than the posed rim could press; a NaN, negative or
-  infinite load is refused naming load_n;
+  in the twin 0 of 300 were), its rut deeper than the posed rim could press, and the heights the
+  server found arrive in FORCES (colliderCreate's forcesHeight: the header flag and each
+  entry's f64 height_m, decoded by web/terrad_codec.mjs) below the posed one; a NaN, negative
+  or infinite load is refused naming load_n;
 - bad input: a Prediction on a mirror without its snapshot, an unknown model, grousers with
   a negative, fractional or huge count, a height over the radius, no thickness: refused with
   an error naming the field.
@@ -111,6 +113,11 @@ def main():
                   f"at the end ({drive['exact']} of {drive['replayed']}; {drive['skipped']} not "
                   f"compared; settled {out['settled']})")
             check(out["rut"] > 50, f"the server sank the wheel below its posed rim ({out['rut']} units)")
+            found = out["found"]
+            check(len(found) > 10 and max(found) < 0.5 - 0.005,
+                  f"FORCES' height extension, decoded by the JS codec: the heights the server "
+                  f"found, below the posed 0.5 m ({len(found)}, {min(found, default=None)}.."
+                  f"{max(found, default=None)} m)")
             check(all(r == "ok" for r in out["refused"]),
                   f"a NaN, negative or infinite load is refused naming load_n ({out['refused']})")
             check(not out["errors"], f"no server errors ({out['errors'][:3]})")
