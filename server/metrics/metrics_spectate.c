@@ -5,8 +5,10 @@
  * alive), terrad_spectate_seeks_total and terrad_spectate_seek_seconds_total (the
  * rebuilds of a start tick and the seconds they took: their quotient is
  * the mean seek), terrad_spectate_ticks_total, terrad_spectate_frames_total,
- * terrad_spectate_bytes_total and terrad_spectate_refused_total{field}, the
- * field the refusal named. Rendered by metrics_render.
+ * terrad_spectate_bytes_total, terrad_spectate_frames_dropped_total (frames a
+ * replay thread could not make or keep: out of memory; each ends its
+ * spectate "failed") and terrad_spectate_refused_total{field}, the field the
+ * refusal named. Rendered by metrics_render.
  */
 #include <stdatomic.h>
 #include <stdint.h>
@@ -16,7 +18,8 @@
 
 static const char *const fields[] = {METRICS_SPECTATE_FIELDS};
 #define FIELDS (int)(sizeof fields / sizeof fields[0])
-static atomic_uint_fast64_t spectators, seeks, seek_us, ticks, frames, bytes, refused[FIELDS];
+static atomic_uint_fast64_t spectators, seeks, seek_us, ticks, frames, bytes, dropped,
+    refused[FIELDS];
 
 void metrics_set_spectators(int n)
 {
@@ -41,6 +44,11 @@ void metrics_count_spectate_frames(uint64_t n, uint64_t frame_bytes)
     atomic_fetch_add_explicit(&bytes, frame_bytes, memory_order_relaxed);
 }
 
+void metrics_count_spectate_dropped(uint64_t n)
+{
+    atomic_fetch_add_explicit(&dropped, n, memory_order_relaxed);
+}
+
 void metrics_count_spectate_refused(const char *field)
 {
     int i = metrics_label_index(fields, FIELDS, field);
@@ -50,7 +58,7 @@ void metrics_count_spectate_refused(const char *field)
 
 void metrics_spectate_reset(void)
 {
-    atomic_uint_fast64_t *all[] = {&seeks, &seek_us, &ticks, &frames, &bytes};
+    atomic_uint_fast64_t *all[] = {&seeks, &seek_us, &ticks, &frames, &bytes, &dropped};
     for (size_t i = 0; i < sizeof all / sizeof all[0]; i++)
         atomic_store_explicit(all[i], 0, memory_order_relaxed);
     for (int i = 0; i < FIELDS; i++)
@@ -64,6 +72,9 @@ int metrics_spectate_text(char *out, size_t cap)
         {"terrad_spectate_ticks_total", "Ticks played forward to spectators.", &ticks},
         {"terrad_spectate_frames_total", "Frames made for spectators.", &frames},
         {"terrad_spectate_bytes_total", "Bytes of the frames made for spectators.", &bytes},
+        {"terrad_spectate_frames_dropped_total",
+         "Spectators' frames not made or not kept (out of memory); each ends its spectate.",
+         &dropped},
     };
     size_t n = 0;
     int rc = metrics_put(out, cap, &n,
