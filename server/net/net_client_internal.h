@@ -306,6 +306,19 @@ void net_spectate_stop(net_client *c, const struct net_control *m); /* spectate_
 int net_spectating(const net_client *c);
 /* The client leaves: its replay thread is stopped (joined later). */
 void net_spectate_drop(net_client *c);
+/* A spectator's outbox: the frames its replay thread made, in order, that
+ * the net thread moves into the client's queue (under the spectator's lock). */
+typedef struct net_outbox {
+    hub_frame **frames; /* NULL until the first frame */
+    int n;
+    int64_t cap;
+    size_t bytes; /* the frames' lengths summed */
+} net_outbox;
+/* f appended (taken) and counted as made: 0. Or -1: f is NULL (a frame that
+ * could not be made) or the outbox could not grow (no memory); f dropped and
+ * counted in terrad_spectate_frames_dropped_total. A spectator has no resync,
+ * so its thread ends it "failed" after a drop. */
+int net_outbox_put(net_outbox *o, hub_frame *f);
 /* Every spectator's frames into its client's queue as it has room; threads
  * that ended are joined. Each wake and heartbeat. */
 void net_spectate_pump(net_state *w);

@@ -70,10 +70,7 @@ struct net_spectator {
     int cancelled, started, ended, finished;
     uint64_t live_tick, steps, at_tick;
     size_t client_bytes; /* the client's pending bytes, as the net thread last saw them */
-    hub_frame **out;
-    int nout;
-    int64_t out_cap;
-    size_t out_bytes;
+    net_outbox box;
     int end_code; /* 0: spectate_end; else an error code (the start failed) */
     char end_reason[16];
     char end_why[480];
@@ -90,21 +87,31 @@ static double now_ms(void)
 
 /* ---- the spectator's thread ---- */
 
-static void post(net_spectator *j, hub_frame *f)
+int net_outbox_put(net_outbox *o, hub_frame *f)
 {
-    if (!f)
-        return;
-    pthread_mutex_lock(&j->lock);
-    if (array_grow((void **)&j->out, &j->out_cap, (int64_t)j->nout + 1, sizeof *j->out) != 0) {
-        pthread_mutex_unlock(&j->lock);
-        hub_frame_unref(f);
-        return; /* counted below: the client sees the gap as a stale_base */
+    if (!f || array_grow((void **)&o->frames, &o->cap, (int64_t)o->n + 1, sizeof *o->frames) != 0) {
+        if (f)
+            hub_frame_unref(f);
+        metrics_count_spectate_dropped(1);
+        return -1;
     }
-    j->out[j->nout++] = f;
-    j->out_bytes += f->len;
+    o->frames[o->n++] = f;
+    o->bytes += f->len;
+    metrics_count_spectate_frames(1, f->len); /* here: once posted, the net thread may free f */
+    return 0;
+}
+
+/* f (NULL: it could not be made) to the net thread: 0, or -1 when it was
+ * dropped (counted). The spectator's mirror would then miss it for good (a
+ * spectator has no resync), so the caller ends the replay "failed". */
+static int post(net_spectator *j, hub_frame *f)
+{
+    pthread_mutex_lock(&j->lock);
+    int rc = net_outbox_put(&j->box, f);
     pthread_mutex_unlock(&j->lock);
-    metrics_count_spectate_frames(1, f->len);
-    net_server_wake(j->server);
+    if (rc == 0)
+        net_server_wake(j->server);
+    return rc;
 }
 
 static void post_end(net_spectator *j, int code, const char *reason, const char *why)
@@ -183,11 +190,12 @@ static int send_snapshot(replay *p)
                          .base_version = 0,
                          .new_version = 1,
                          .encoding = TERRAD_ENC_SNAPSHOT};
-        post(j, rect_frame(p->codec, &r, v, j->from));
+        int rc = post(j, rect_frame(p->codec, &r, v, j->from));
         free(v);
+        if (rc != 0)
+            return -1;
     }
-    post(j, ack_frame(j->from));
-    return 0;
+    return post(j, ack_frame(j->from));
 }
 
 /* One record: per tile of the window, the box its rectangles' pieces in the
@@ -240,7 +248,12 @@ static int send_record(replay *p, uint64_t tick, const world_rect *rects, int n,
                              .new_version = p->versions[i] + 1,
                              .encoding = TERRAD_ENC_DELTA};
             p->versions[i]++;
-            post(p->j, rect_frame(p->codec, &r, after, tick));
+            if (post(p->j, rect_frame(p->codec, &r, after, tick)) != 0) {
+                free(after);
+                error_set(why, "out of memory: a frame of tick %llu was dropped",
+                          (unsigned long long)tick);
+                return -1;
+            }
         }
         free(after);
         free(p->before[i]);
@@ -269,7 +282,7 @@ static int wait_turn(net_spectator *j, uint64_t t, double *t0)
         if (!j->stepping && now > due + 1000.0) /* held back (room): no burst to catch up */
             *t0 += now - due, due = now;
         int turn = j->stepping ? j->steps > 0 : now >= due;
-        int room = j->out_bytes + j->client_bytes <= j->room;
+        int room = j->box.bytes + j->client_bytes <= j->room;
         if (turn && room) {
             j->steps -= j->stepping;
             rc = 1;
@@ -312,7 +325,10 @@ static void play(replay *p)
             return;
         }
         t++;
-        post(j, ack_frame(t));
+        if (post(j, ack_frame(t)) != 0) {
+            post_end(j, 0, "failed", "out of memory: a tick's ACK was dropped");
+            return;
+        }
         metrics_count_spectate_ticks(1);
         pthread_mutex_lock(&j->lock);
         j->at_tick = t;
@@ -385,9 +401,9 @@ static void *spectate_main(void *arg)
 static void spectator_free(net_spectator *j)
 {
     pthread_join(j->thread, NULL);
-    for (int i = 0; i < j->nout; i++)
-        hub_frame_unref(j->out[i]);
-    free(j->out);
+    for (int i = 0; i < j->box.n; i++)
+        hub_frame_unref(j->box.frames[i]);
+    free(j->box.frames);
     cJSON_Delete(j->ref);
     pthread_mutex_destroy(&j->lock);
     pthread_cond_destroy(&j->cond);
@@ -606,20 +622,21 @@ static void pump_client(net_client *c)
     if (j->started && !j->told)
         tell_started(c, j);
     int taken = 0;
-    while (taken < j->nout && !c->killed) {
-        hub_frame *f = j->out[taken];
+    while (taken < j->box.n && !c->killed) {
+        hub_frame *f = j->box.frames[taken];
         if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_alone(c, f->len))
             break;
         net_enqueue(c, f, NET_ITEM_REPLY);
-        j->out_bytes -= f->len;
+        j->box.bytes -= f->len;
         taken++;
     }
-    if (taken) { /* j->out is NULL until the thread posts its first frame */
-        memmove(j->out, j->out + taken, (size_t)(j->nout - taken) * sizeof *j->out);
-        j->nout -= taken;
+    if (taken) { /* box.frames is NULL until the thread posts its first frame */
+        memmove(j->box.frames, j->box.frames + taken,
+                (size_t)(j->box.n - taken) * sizeof *j->box.frames);
+        j->box.n -= taken;
     }
     j->client_bytes = c->pending_bytes;
-    int done = j->ended && j->nout == 0;
+    int done = j->ended && j->box.n == 0;
     pthread_cond_signal(&j->cond);
     pthread_mutex_unlock(&j->lock);
     if (!done)
