@@ -33,10 +33,11 @@ mirror a live subscriber held at that tick, bit for bit.
   a side): craters inside the window (one crossing the edge of the window's 64-cell tile, so
   the cursor keeps only part of its rectangle) and in three other world tiles; a spectator of
   the window from before the first crater equals a live viewer's mirror of the window and GET
-  /v1/heights?tick=N at every tick it saw,
-  and its store cursor held at most the one world tile under the window
-  (terrad_spectate_cursor_cells_max <= 256 * 256; it held the four tiles the craters touched,
-  262,144 cells, while store_record_apply applied whole records).
+  /v1/heights?tick=N at every tick it saw; a second spectator from the tick of the last crater
+  (its rebuild replays them all) starts from the same heights; and neither store cursor held
+  more than the one world tile under the window (terrad_spectate_cursor_cells_max <= 256 * 256;
+  each held the four tiles the craters touched, 262,144 cells, while records were applied
+  whole: the first through store_cursor_apply, the second through its rebuild).
 - The world is deleted (DELETE /v1/worlds/NAME) under a live spectator: the spectator gets an
   error saying the world was deleted, its replay thread ends (terrad_spectators 0), and the
   daemon and a client of another world go on.
@@ -424,11 +425,19 @@ async def larger_world(d):
           f"(differing: {bad[:5]})")
     check(s.history[seen[0]][sid][0] != s.history[seen[-1]][sid][0],
           "(the window changed while it watched)")
+    await s.close()
+    # and one that starts after the craters: its rebuild replays them (the log from the base)
+    late = RecordingClient(d.ws, name="big-late-spectator", world=BIG_WORLD, keep=10 ** 6)
+    await late.connect()
+    lid = await late.spectate(*WINDOW, ticks[-1], speed=8, timeout=WAIT)
+    await late.wait_for(lambda: late.spectate_ended is not None, WAIT)
+    check(late.history[ticks[-1]][lid][0] == big_heights(d, ticks[-1]) == viewer.at(ticks[-1]),
+          f"a spectator from tick {ticks[-1]}, after the craters: its snapshot is the window then")
+    await late.close()
     held = metric_value(d.metrics()[1], "terrad_spectate_cursor_cells_max")
     check(held and held <= 256 * 256,
-          f"its store cursor held only the window's world tile ({held} cells; <= {256 * 256}, "
+          f"their store cursors held only the window's world tile ({held} cells; <= {256 * 256}, "
           f"while craters touched {len(CRATERS) - 3} other tiles)")
-    await s.close()
     await viewer.close()
 
 
