@@ -166,6 +166,9 @@ void metrics_count_spectate_ticks(uint64_t n);
 void metrics_count_spectate_frames(uint64_t n, uint64_t bytes);
 void metrics_count_spectate_dropped(uint64_t n);
 void metrics_count_spectate_refused(const char *field);
+/* The cells a spectator's store cursor holds (store_cursor_cells): the most
+ * any held, terrad_spectate_cursor_cells_max. */
+void metrics_observe_spectate_cursor_cells(int64_t cells);
 void metrics_spectate_reset(void);
 int metrics_spectate_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 /* metrics_cluster.c: terrad_cluster_takes_redone_total, takes of a world's log

@@ -326,7 +326,13 @@ int net_outbox_put(net_outbox *o, hub_frame *f);
 /* Every spectator's frames into its client's queue as it has room; threads
  * that ended are joined. Each wake and heartbeat. */
 void net_spectate_pump(net_state *w);
-/* The world leaves: every replay thread of it stopped and joined. */
+/* The world leaves (its state is freed next): every replay thread of it is
+ * cancelled and handed to the lobby's list, reaped there once it ended; the
+ * net thread never waits for one (each holds the world's table entry, so
+ * the world's removal waits for it instead). */
+void net_spectate_leave(net_state *w, net_state *lobby);
+/* The state is freed: every replay thread of it stopped and joined (the
+ * lobby's, when the server stops; a world's were handed over before). */
 void net_spectate_join_all(net_state *w);
 /* The hubs' waker (net_fanout.c): any thread. */
 void net_server_wake(void *arg);

@@ -16,8 +16,12 @@
  * outbox. The net thread moves them to the client's queue (net_spectate_pump,
  * on every wake and heartbeat) as the client's queue and budget have room,
  * and tells the thread the live tick; the thread never touches a client and
- * the net thread never waits for a rebuild, except when a world leaves
- * (net_spectate_join_all). A spectator holds no subscription while it
+ * the net thread never waits for a rebuild. The thread reads the world's
+ * base terrain, which goes with the world: it holds the world's table entry
+ * as a reader (hub_worlds_acquire) until it ends, so a leaving world's
+ * removal (hub_worlds_remove, on the host's thread) waits for it, while the
+ * net thread only cancels it and reaps it later from the lobby's list
+ * (net_spectate_leave). A spectator holds no subscription while it
  * watches: the live deltas, CHECKSUMs and resyncs are not its business, so
  * its frames are replies to the net thread (never dropped, never making it
  * slow) and its own queue bound and budget pace its thread instead.
@@ -52,6 +56,8 @@ struct net_spectator {
     int tile, width, height;
     size_t room; /* the bytes its outbox and the client's queue may hold together */
     net_server *server;
+    hub_worlds *table; /* entry held as a reader until the thread ends: base and dir stay */
+    hub_world *entry;
     pthread_t thread;
     /* the net thread's */
     uint32_t id;
@@ -361,6 +367,7 @@ static void *spectate_main(void *arg)
         post_end(j, TERRAD_E_INTERNAL, "failed", why.message[0] ? why.message : "out of memory");
     } else {
         metrics_observe_spectate_seek_ms(now_ms() - start);
+        metrics_observe_spectate_cursor_cells(store_cursor_cells(p.cur, NULL));
         pthread_mutex_lock(&j->lock);
         j->started = 1;
         j->at_tick = j->from;
@@ -369,6 +376,8 @@ static void *spectate_main(void *arg)
             post_end(j, 0, "failed", "out of memory for the snapshot");
         else
             play(&p);
+        /* a cursor's tiles are never freed: its most is its last */
+        metrics_observe_spectate_cursor_cells(store_cursor_cells(p.cur, NULL));
     }
     store_cursor_close(p.cur);
     terrad_codec_free(p.codec);
@@ -377,6 +386,7 @@ static void *spectate_main(void *arg)
     free(p.before);
     free(p.boxes);
     free(p.versions);
+    hub_worlds_release(j->table, j->entry); /* its base and directory are no longer read */
     pthread_mutex_lock(&j->lock);
     j->finished = 1;
     pthread_mutex_unlock(&j->lock);
@@ -459,7 +469,8 @@ static int refused(net_client *c, const net_control *m)
                "type: this connection has %d live subscription(s); a spectator holds none "
                "(unsubscribe first, or spectate on another connection)",
                c->sub_count);
-    } else if (!w->entry || !w->entry->replay_dir || !w->entry->base || w->relay || c->remote) {
+    } else if (!w->entry || !w->entry->replay_dir || !w->entry->base || w->relay || c->remote ||
+               !w->cfg.worlds) {
         refuse(c, m->ref, TERRAD_E_BAD_VALUE, "from_tick",
                "from_tick: this world keeps no log to replay (a memory-only world, or a cluster "
                "node's store)");
@@ -487,12 +498,25 @@ void net_spectate_request(net_client *c, const net_control *m)
     net_state *w = c->srv;
     if (refused(c, m) != 0)
         return;
+    /* the thread's hold on the world: a world leaving meanwhile is out of the table */
+    hub_world *e = hub_worlds_acquire(w->cfg.worlds, w->entry->name);
+    if (e != w->entry) {
+        if (e)
+            hub_worlds_release(w->cfg.worlds, e);
+        atomic_fetch_sub(&running, 1);
+        refuse(c, m->ref, TERRAD_E_SHUTTING_DOWN, "state",
+               "type: world %s is leaving this server (deleted, or stopping)", w->entry->name);
+        return;
+    }
     net_spectator *j = calloc(1, sizeof *j);
     if (!j) {
+        hub_worlds_release(w->cfg.worlds, e);
         atomic_fetch_sub(&running, 1);
         refuse(c, m->ref, TERRAD_E_INTERNAL, "busy", "type: out of memory");
         return;
     }
+    j->table = w->cfg.worlds;
+    j->entry = e;
     snprintf(j->dir, sizeof j->dir, "%s", w->entry->replay_dir);
     j->base = w->entry->base;
     j->rect = m->rect;
@@ -511,6 +535,7 @@ void net_spectate_request(net_client *c, const net_control *m)
     pthread_mutex_init(&j->lock, NULL);
     pthread_cond_init(&j->cond, NULL);
     if (pthread_create(&j->thread, NULL, spectate_main, j) != 0) {
+        hub_worlds_release(j->table, j->entry);
         atomic_fetch_sub(&running, 1);
         cJSON_Delete(j->ref);
         pthread_mutex_destroy(&j->lock);
@@ -648,6 +673,17 @@ void net_spectate_pump(net_state *w)
             at = &j->next;
         }
     }
+}
+
+void net_spectate_leave(net_state *w, net_state *lobby)
+{
+    for (int i = 0; i < w->nclients; i++)
+        let_go(w->clients[i]);
+    net_spectator **tail = &lobby->spectators_gone;
+    while (*tail)
+        tail = &(*tail)->next;
+    *tail = w->spectators_gone; /* reaped by the lobby's net_spectate_pump */
+    w->spectators_gone = NULL;
 }
 
 void net_spectate_join_all(net_state *w)

@@ -25,6 +25,18 @@ mirror a live subscriber held at that tick, bit for bit.
 - No spectator's frame was dropped: terrad_spectate_frames_dropped_total is there, at 0 (a drop
   happens only out of memory; test_net_spectate covers its branch).
 
+- A small window on a larger world (a created 1024 x 1024 world, whose world tiles are 256 cells
+  a side): craters inside the window (one crossing the edge of the window's 64-cell tile, so
+  the cursor keeps only part of its rectangle) and in three other world tiles; a spectator of
+  the window from before the first crater equals a live viewer's mirror of the window and GET
+  /v1/heights?tick=N at every tick it saw,
+  and its store cursor held at most the one world tile under the window
+  (terrad_spectate_cursor_cells_max <= 256 * 256; it held the four tiles the craters touched,
+  262,144 cells, while store_record_apply applied whole records).
+- The world is deleted (DELETE /v1/worlds/NAME) under a live spectator: the spectator gets an
+  error saying the world was deleted, its replay thread ends (terrad_spectators 0), and the
+  daemon and a client of another world go on.
+
 Without the spectator (net_spectate.c, store_cursor_*) every spectate is refused as an unknown
 type, and no mirror is compared: the first check fails.
 """
@@ -36,7 +48,8 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import Checks, Daemon, RecordingClient, metric_value, wait_until  # noqa: E402
+from service_harness import (Checks, Daemon, RecordingClient, json_call, metric_value,  # noqa: E402
+                             wait_until)
 import compaction_drive as cd  # noqa: E402
 import terrad as tp  # noqa: E402
 
@@ -327,20 +340,115 @@ async def memory_only(d):
     await c.close()
 
 
+BIG, BIG_WORLD = 1024, "spectate-big"
+# inside world tile (0, 0), 256 x 256 cells, and reaching the right edge of its 64-cell tile:
+# the crater at (62, 20) crosses that edge, so the cursor applies only part of its rectangle
+WINDOW = (8, 8, 56, 24)
+CRATERS = [(20, 20), (600, 100), (62, 20), (300, 800), (900, 900), (30, 14)]
+
+
+def big_heights(d, tick):
+    x, y, w, h = WINDOW
+    status, body, _ = d.get_busy(f"/v1/heights?x={x}&y={y}&w={w}&h={h}&tick={tick}"
+                                 f"&world={BIG_WORLD}", timeout=60)
+    return list(struct.unpack(f"<{w * h}i", body)) if status == 200 else None
+
+
+async def larger_world(d):
+    big = cd.scene()
+    big["world"] = {**big["world"], "width": BIG, "height": BIG}
+    status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": BIG_WORLD, "scene": big})
+    check(status in (200, 201), f"POST /v1/worlds {BIG_WORLD} ({status} {doc})")
+    viewer = Viewer(d.ws, name="big-viewer", world=BIG_WORLD)  # the live mirror to compare
+    await viewer.connect()
+    await viewer.subscribe(*WINDOW)
+    await viewer.wait_for(lambda: next(iter(viewer.mirrors.values())).complete, WAIT)
+    c = RecordingClient(d.ws, name="big-editor", world=BIG_WORLD, record=False)
+    await c.connect()
+    ticks = []
+    for x, y in CRATERS:  # three inside the window, three in other world tiles
+        ticks.append((await c.edit("crater", x=x, y=y, radius=6, depth=500))["tick"])
+    await c.close()
+    await viewer.wait_for(lambda: viewer.by_tick and max(viewer.by_tick) >= ticks[-1], WAIT)
+    from_tick = ticks[0] - 1
+    s = RecordingClient(d.ws, name="big-spectator", world=BIG_WORLD, keep=10 ** 6)
+    await s.connect()
+    sid = await s.spectate(*WINDOW, from_tick, speed=8, timeout=WAIT)
+    await s.wait_for(lambda: s.spectate_ended is not None, WAIT * 2)
+    seen = sorted(t for t in s.history if t >= from_tick)
+    # the live viewer's mirror (what was served live; before its first DELTA, its snapshot's
+    # tick: GET ?tick=N), and GET ?tick=N itself (the same rebuild code as the cursor's)
+    live = [viewer.at(t) or big_heights(d, t) for t in seen]
+    bad = [t for t, v in zip(seen, live) if not s.history[t][sid][1]
+           or s.history[t][sid][0] != v or v != big_heights(d, t)]
+    check(seen and seen[0] == from_tick and seen[-1] >= ticks[-1] and not bad,
+          f"a {WINDOW[2]} x {WINDOW[3]} window of a {BIG}^2 world: the spectator's mirror equals "
+          f"the live viewer's and GET /v1/heights?tick=N at all {len(seen)} ticks it saw "
+          f"(differing: {bad[:5]})")
+    check(s.history[seen[0]][sid][0] != s.history[seen[-1]][sid][0],
+          "(the window changed while it watched)")
+    held = metric_value(d.metrics()[1], "terrad_spectate_cursor_cells_max")
+    check(held and held <= 256 * 256,
+          f"its store cursor held only the window's world tile ({held} cells; <= {256 * 256}, "
+          f"while craters touched {len(CRATERS) - 3} other tiles)")
+    await s.close()
+    await viewer.close()
+
+
+async def deleted_under_spectator(d):
+    other = RecordingClient(d.ws, name="other-world")
+    await other.connect()
+    await other.subscribe(*REGION)
+    s = RecordingClient(d.ws, name="deleted-spectator", world=BIG_WORLD)
+    await s.connect()
+    await s.spectate(*WINDOW, 1, step=True, timeout=WAIT)  # waits for a step: alive
+    # its snapshot and ACK first: no frame of it is then in flight when the close comes (the
+    # client's reply to a frame that arrives after the close would end its reader early)
+    await s.wait_for(lambda: s.acked_tick == 1, WAIT)
+    alive = metric_value(d.metrics()[1], "terrad_spectators")
+    status, doc = await asyncio.to_thread(json_call, d.http, "DELETE",
+                                          f"/v1/worlds/{BIG_WORLD}")
+    check(status in (200, 204), f"DELETE /v1/worlds/{BIG_WORLD} under a live spectator ({status} {doc})")
+    await s.wait_for(lambda: s.errors, WAIT)
+    why = s.errors[0].get("message", "") if s.errors else ""
+    check(s.errors and s.errors[0].get("name") == "shutting_down" and "deleted" in why,
+          f"the spectator is told its world was deleted ({s.errors[:1]})")
+    check(await asyncio.to_thread(wait_until, lambda: not metric_value(
+        d.metrics()[1], "terrad_spectators")),
+        f"its replay thread ended ({alive} alive before)")
+    await other.unsubscribe(next(iter(other.mirrors)))
+    again = await other.subscribe(*REGION)
+    check(again and d.stats()["ready"], "a client of another world and the daemon go on")
+    await other.close()
+    try:
+        await s.close()
+    except Exception:  # noqa: BLE001 - closed by the server after the error
+        pass
+
+
+async def worlds_run(d):
+    await larger_world(d)
+    await deleted_under_spectator(d)
+
+
 def main():
     scene = cd.scene_file()
     data = tempfile.mkdtemp(prefix="terrad-spectate-")
+    big_data = tempfile.mkdtemp(prefix="terrad-spectate-big-")
     try:
         with check.running(Daemon(data_dir=data, extra=["--scene", scene] + SEGMENT + RETAIN,
                                   durability="every-tick")) as d:
             asyncio.run(retained_run(d))
         with check.running(Daemon(extra=["--scene", scene] + SEGMENT)) as d:
             asyncio.run(gone_run(d))
+        with check.running(Daemon(data_dir=big_data, extra=["--scene", scene] + RETAIN)) as d:
+            asyncio.run(worlds_run(d))
         with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
             asyncio.run(memory_only(d))
     finally:
         os.unlink(scene)
         shutil.rmtree(data, ignore_errors=True)
+        shutil.rmtree(big_data, ignore_errors=True)
     check.finish()
 
 
