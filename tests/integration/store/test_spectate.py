@@ -22,6 +22,12 @@ mirror a live subscriber held at that tick, bit for bit.
   in the future, a subscribe while spectating and a spectate while subscribed, spectate_step
   without a stepping spectate, a daemon without retention whose early log was compacted away
   (from_tick no longer held), and a memory-only daemon (no log at all).
+- max_spectators (a limit of the table, told in the world message): on a daemon configured
+  with `max_spectators: 1`, while a stepping spectator waits a second spectate is refused
+  (too_large naming type, the message naming max_spectators, counted under
+  terrad_spectate_refused_total{field="busy"}); the first goes on (a step of 3 plays 3 ticks)
+  and, once it stopped and its thread ended, a spectate is accepted again. Without the limit
+  (the fixed 16) the second spectator is accepted and that check fails.
 - No spectator's frame was dropped: terrad_spectate_frames_dropped_total is there, at 0 (a drop
   happens only out of memory; test_net_spectate covers its branch).
 
@@ -29,10 +35,11 @@ mirror a live subscriber held at that tick, bit for bit.
   a side): craters inside the window (one crossing the edge of the window's 64-cell tile, so
   the cursor keeps only part of its rectangle) and in three other world tiles; a spectator of
   the window from before the first crater equals a live viewer's mirror of the window and GET
-  /v1/heights?tick=N at every tick it saw,
-  and its store cursor held at most the one world tile under the window
-  (terrad_spectate_cursor_cells_max <= 256 * 256; it held the four tiles the craters touched,
-  262,144 cells, while store_record_apply applied whole records).
+  /v1/heights?tick=N at every tick it saw; a second spectator from the tick of the last crater
+  (its rebuild replays them all) starts from the same heights; and neither store cursor held
+  more than the one world tile under the window (terrad_spectate_cursor_cells_max <= 256 * 256;
+  each held the four tiles the craters touched, 262,144 cells, while records were applied
+  whole: the first through store_cursor_apply, the second through its rebuild).
 - The world is deleted (DELETE /v1/worlds/NAME) under a live spectator: the spectator gets an
   error saying the world was deleted, its replay thread ends (terrad_spectators 0), and the
   daemon and a client of another world go on.
@@ -333,6 +340,55 @@ async def gone_run(d):
     await viewer.close()
 
 
+def spectators(d):
+    return metric_value(d.metrics()[1], "terrad_spectators") or 0
+
+
+async def one_spectator(d):
+    """max_spectators 1 (an idle world whose whole log is kept): a second spectator is refused
+    while a stepping one waits at tick 0, which goes on."""
+    check(await asyncio.to_thread(wait_until, lambda: d.stats()["tick"] >= 10),
+          "max_spectators 1: the world ticks")
+    first = RecordingClient(d.ws, name="spectator-first", keep=10 ** 6)
+    await first.connect()
+    told = first.world.get("limits", {}).get("max_spectators")
+    check(told == 1, f"max_spectators 1: the world message tells it ({told})")
+    start = 0
+    await first.spectate(*REGION, start, step=True, timeout=WAIT)  # it waits there for steps
+    busy = refused(d, "busy")
+    second = RecordingClient(d.ws, name="spectator-second")
+    await second.connect()
+    try:
+        await second.spectate(*REGION, start, step=True, timeout=WAIT)
+        check(False, "max_spectators 1: a second spectator is refused")
+    except tp.ServerError as e:
+        why = e.msg.get("message", "")
+        check(e.name == "too_large" and why.startswith("type:")
+              and "max_spectators (1)" in why,
+              f"max_spectators 1: a second spectator is refused, too_large naming max_spectators "
+              f"({e.msg})")
+    check(refused(d, "busy") == busy + 1,
+          f"and counted in terrad_spectate_refused_total{{field=\"busy\"}} ({busy} -> "
+          f"{refused(d, 'busy')})")
+    await first.spectate_step(3)
+    await first.wait_for(lambda: first.acked_tick >= start + 3, WAIT)
+    ticks = sorted(first.history)
+    check(ticks == list(range(start, start + 4)),
+          f"max_spectators 1: the first spectator goes on (a step of 3 played ticks {ticks})")
+    end = await first.spectate_stop()
+    check(end["reason"] == "stopped", f"the first spectator stops ({end})")
+    check(await asyncio.to_thread(wait_until, lambda: spectators(d) == 0),
+          "its thread ends (terrad_spectators 0)")
+    sid = await second.spectate(*REGION, d.stats()["tick"], timeout=WAIT)
+    await second.wait_for(lambda: second.spectate_ended is not None, WAIT)
+    check(second.spectate_ended["reason"] == "live" and second.mirrors[sid].complete,
+          f"max_spectators 1: once the first stopped, a spectate is accepted again "
+          f"({second.spectate_ended})")
+    await second.close()
+    await first.close()
+    check(d.stats()["ready"], "and the daemon goes on")
+
+
 async def memory_only(d):
     c = RecordingClient(d.ws, name="spectator")
     await c.connect()
@@ -387,11 +443,19 @@ async def larger_world(d):
           f"(differing: {bad[:5]})")
     check(s.history[seen[0]][sid][0] != s.history[seen[-1]][sid][0],
           "(the window changed while it watched)")
+    await s.close()
+    # and one that starts after the craters: its rebuild replays them (the log from the base)
+    late = RecordingClient(d.ws, name="big-late-spectator", world=BIG_WORLD, keep=10 ** 6)
+    await late.connect()
+    lid = await late.spectate(*WINDOW, ticks[-1], speed=8, timeout=WAIT)
+    await late.wait_for(lambda: late.spectate_ended is not None, WAIT)
+    check(late.history[ticks[-1]][lid][0] == big_heights(d, ticks[-1]) == viewer.at(ticks[-1]),
+          f"a spectator from tick {ticks[-1]}, after the craters: its snapshot is the window then")
+    await late.close()
     held = metric_value(d.metrics()[1], "terrad_spectate_cursor_cells_max")
     check(held and held <= 256 * 256,
-          f"its store cursor held only the window's world tile ({held} cells; <= {256 * 256}, "
+          f"their store cursors held only the window's world tile ({held} cells; <= {256 * 256}, "
           f"while craters touched {len(CRATERS) - 3} other tiles)")
-    await s.close()
     await viewer.close()
 
 
@@ -441,6 +505,9 @@ def main():
             asyncio.run(retained_run(d))
         with check.running(Daemon(extra=["--scene", scene] + SEGMENT)) as d:
             asyncio.run(gone_run(d))
+        with check.running(Daemon(extra=["--scene", scene] + RETAIN,
+                                  config={"limits": {"max_spectators": 1}})) as d:
+            asyncio.run(one_spectator(d))
         with check.running(Daemon(data_dir=big_data, extra=["--scene", scene] + RETAIN)) as d:
             asyncio.run(worlds_run(d))
         with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
