@@ -83,6 +83,10 @@
       "a client's bandwidth budget when its hello states none (0: none; else >= 1024)")            \
     X(double, max_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,        \
       "the largest budget a hello may state (0: any, and none; else >= 1024)")                     \
+    /* spectators' replay threads in the daemon, each holding a rebuild's memory                   \
+     * (net_spectate.c); past it a spectate is refused (too_large) */                              \
+    X(int, max_spectators, 16, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                               \
+      "spectators replaying at once in the daemon (a thread and a window's tiles each)")           \
     /* the server's own; admission (0: no cap), and whatever these say an                          \
      * accepted socket is refused while fewer than fd_reserve descriptors are                      \
      * left under RLIMIT_NOFILE */                                                                 \

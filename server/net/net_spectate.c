@@ -42,7 +42,6 @@
 #include "store/store.h"
 #include "terrad_proto.h"
 
-#define SPECTATORS_MAX 16 /* replay threads per process: each holds a rebuild's memory */
 #define SPECTATE_WAIT_MS 50
 
 struct net_spectator {
@@ -482,11 +481,11 @@ static int refused(net_client *c, const net_control *m)
         refuse(c, m->ref, TERRAD_E_LIMIT_SUBSCRIPTIONS, "w",
                "w: %lld cells pass max_subscribed_cells (%lld)", (long long)m->rect.w * m->rect.h,
                (long long)l->max_subscribed_cells);
-    } else if (atomic_fetch_add(&running, 1) >= SPECTATORS_MAX) {
-        atomic_fetch_sub(&running, 1);
+    } else if (atomic_fetch_add(&running, 1) >= l->max_spectators) {
+        atomic_fetch_sub(&running, 1); /* each thread holds a rebuild's memory: a limit */
         refuse(c, m->ref, TERRAD_E_TOO_LARGE, "busy",
-               "type: %d spectators already replay in this daemon (at most); retry later",
-               SPECTATORS_MAX);
+               "type: max_spectators (%d) spectators already replay in this daemon; retry later",
+               l->max_spectators);
     } else {
         return 0;
     }
@@ -624,9 +623,9 @@ static void pump_client(net_client *c)
     int taken = 0;
     while (taken < j->box.n && !c->killed) {
         hub_frame *f = j->box.frames[taken];
-        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_alone(c, f->len))
+        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_held(c, f->len))
             break;
-        net_enqueue(c, f, NET_ITEM_REPLY);
+        net_enqueue_held(c, f);
         j->box.bytes -= f->len;
         taken++;
     }

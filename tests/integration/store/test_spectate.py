@@ -15,11 +15,19 @@ mirror a live subscriber held at that tick, bit for bit.
 - A stepping spectator: two spectate_step messages play exactly those ticks; spectate_stop ends
   it with spectate_end "stopped". One whose connection goes while its thread waits for a step:
   the thread ends (terrad_spectators back to 0) and the daemon goes on.
+- A 1024 B/s spectator that sends a PING every 50 ms (its window always holds a PONG) gets frames
+  larger than its window has room for (the snapshot's), and its mirror equals the viewer's.
 - Refusals, each an error naming the field, counted in terrad_spectate_refused_total{field},
   while the viewer keeps getting its deltas and the daemon goes on: speed 9 and 0, a from_tick
   in the future, a subscribe while spectating and a spectate while subscribed, spectate_step
   without a stepping spectate, a daemon without retention whose early log was compacted away
   (from_tick no longer held), and a memory-only daemon (no log at all).
+- max_spectators (a limit of the table, told in the world message): on a daemon configured
+  with `max_spectators: 1`, while a stepping spectator waits a second spectate is refused
+  (too_large naming type, the message naming max_spectators, counted under
+  terrad_spectate_refused_total{field="busy"}); the first goes on (a step of 3 plays 3 ticks)
+  and, once it stopped and its thread ended, a spectate is accepted again. Without the limit
+  (the fixed 16) the second spectator is accepted and that check fails.
 - No spectator's frame was dropped: terrad_spectate_frames_dropped_total is there, at 0 (a drop
   happens only out of memory; test_net_spectate covers its branch).
 
@@ -201,14 +209,30 @@ class Budgeted(RecordingClient):
         await super()._on_binary(data)
 
 
+async def chatter(c):
+    """A PING every 50 ms: the PONGs keep the client's budget window from ever being empty."""
+    nonce = 0
+    while True:
+        nonce += 1
+        await c.ws.send(tp.encode_ping(nonce))
+        await asyncio.sleep(0.05)
+
+
 async def budgeted(d, viewer, from_tick):
-    """A 1024 B/s spectator: a snapshot frame larger than its window will ever have room for
-    goes once the window is empty (without that it waited forever and none of this came)."""
+    """A 1024 B/s spectator that sends a PING every 50 ms: a snapshot frame larger than its window
+    will ever have room for goes once the window holds no replay frames, whatever PONGs it holds
+    (the ledger's rule; without it the frame waited forever: for the window to be empty before
+    80fb550, and for the window to hold no PONG while the client keeps pinging after it)."""
     s = Budgeted(d.ws, name="spectator-budget")
     await s.connect()
+    pinging = asyncio.ensure_future(chatter(s))
     sid = await s.spectate(*REGION, from_tick, step=True, timeout=WAIT)
     await s.spectate_step(3)
-    await s.wait_for(lambda: s.acked_tick >= from_tick + 3, WAIT)
+    try:
+        await s.wait_for(lambda: s.acked_tick >= from_tick + 3, WAIT)
+    except asyncio.TimeoutError:
+        pass  # the checks below say what did not come
+    pinging.cancel()
     ticks = sorted(s.history)
     check(ticks == list(range(from_tick, from_tick + 4))
           and all(s.history[t][sid][1] and s.history[t][sid][0] == viewer.at(t) for t in ticks),
@@ -314,6 +338,55 @@ async def gone_run(d):
           f"a recent tick is still spectated ({c.spectate_ended})")
     await c.close()
     await viewer.close()
+
+
+def spectators(d):
+    return metric_value(d.metrics()[1], "terrad_spectators") or 0
+
+
+async def one_spectator(d):
+    """max_spectators 1 (an idle world whose whole log is kept): a second spectator is refused
+    while a stepping one waits at tick 0, which goes on."""
+    check(await asyncio.to_thread(wait_until, lambda: d.stats()["tick"] >= 10),
+          "max_spectators 1: the world ticks")
+    first = RecordingClient(d.ws, name="spectator-first", keep=10 ** 6)
+    await first.connect()
+    told = first.world.get("limits", {}).get("max_spectators")
+    check(told == 1, f"max_spectators 1: the world message tells it ({told})")
+    start = 0
+    await first.spectate(*REGION, start, step=True, timeout=WAIT)  # it waits there for steps
+    busy = refused(d, "busy")
+    second = RecordingClient(d.ws, name="spectator-second")
+    await second.connect()
+    try:
+        await second.spectate(*REGION, start, step=True, timeout=WAIT)
+        check(False, "max_spectators 1: a second spectator is refused")
+    except tp.ServerError as e:
+        why = e.msg.get("message", "")
+        check(e.name == "too_large" and why.startswith("type:")
+              and "max_spectators (1)" in why,
+              f"max_spectators 1: a second spectator is refused, too_large naming max_spectators "
+              f"({e.msg})")
+    check(refused(d, "busy") == busy + 1,
+          f"and counted in terrad_spectate_refused_total{{field=\"busy\"}} ({busy} -> "
+          f"{refused(d, 'busy')})")
+    await first.spectate_step(3)
+    await first.wait_for(lambda: first.acked_tick >= start + 3, WAIT)
+    ticks = sorted(first.history)
+    check(ticks == list(range(start, start + 4)),
+          f"max_spectators 1: the first spectator goes on (a step of 3 played ticks {ticks})")
+    end = await first.spectate_stop()
+    check(end["reason"] == "stopped", f"the first spectator stops ({end})")
+    check(await asyncio.to_thread(wait_until, lambda: spectators(d) == 0),
+          "its thread ends (terrad_spectators 0)")
+    sid = await second.spectate(*REGION, d.stats()["tick"], timeout=WAIT)
+    await second.wait_for(lambda: second.spectate_ended is not None, WAIT)
+    check(second.spectate_ended["reason"] == "live" and second.mirrors[sid].complete,
+          f"max_spectators 1: once the first stopped, a spectate is accepted again "
+          f"({second.spectate_ended})")
+    await second.close()
+    await first.close()
+    check(d.stats()["ready"], "and the daemon goes on")
 
 
 async def memory_only(d):
@@ -432,6 +505,9 @@ def main():
             asyncio.run(retained_run(d))
         with check.running(Daemon(extra=["--scene", scene] + SEGMENT)) as d:
             asyncio.run(gone_run(d))
+        with check.running(Daemon(extra=["--scene", scene] + RETAIN,
+                                  config={"limits": {"max_spectators": 1}})) as d:
+            asyncio.run(one_spectator(d))
         with check.running(Daemon(data_dir=big_data, extra=["--scene", scene] + RETAIN)) as d:
             asyncio.run(worlds_run(d))
         with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
