@@ -623,9 +623,9 @@ static void pump_client(net_client *c)
     int taken = 0;
     while (taken < j->box.n && !c->killed) {
         hub_frame *f = j->box.frames[taken];
-        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_alone(c, f->len))
+        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_held(c, f->len))
             break;
-        net_enqueue(c, f, NET_ITEM_REPLY);
+        net_enqueue_held(c, f);
         j->box.bytes -= f->len;
         taken++;
     }
