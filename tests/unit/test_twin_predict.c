@@ -6,7 +6,11 @@
  * gap are not compared; a resyncing mirror skips the comparison and the next
  * ACK resets; a pose goes through the server's arithmetic (float32,
  * collider_wire_orientation); a wheel with grousers is predicted as exactly
- * as the smooth shapes. Bad input is refused with the field named and
+ * as the smooth shapes; on bekker a load-driven wheel (its height the one
+ * the twin's search finds) stays exact, also after two batches acknowledged
+ * together after a gap (the prediction finds the order the server took them
+ * in: its soil state and found height stay the server's). Bad input is refused
+ * with the field named and
  * the prediction goes on. The clients' own tests (test_predict_c,
  * test_predict_python, test_predict_js, ...) drive it against a real daemon.
  */
@@ -128,6 +132,65 @@ static void test_drive(const char *shape, int axis_z)
     terrad_twin_destroy(server);
 }
 
+/* bekker: a load-driven wheel predicted against a twin playing the server */
+static void test_loaded(void)
+{
+    terrad_twin_config *c = config();
+    terrad_twin_config_set_name(c, "model", "bekker", NULL);
+    terrad_twin *server = terrad_twin_create(c, X, Y, W, H, NULL, NULL);
+    static int32_t heights[W * H];
+    terrad_twin_read(server, X, Y, W, H, heights, NULL);
+    char err[TERRAD_TWIN_ERROR_MAX] = "";
+    terrad_twin_prediction *p = terrad_twin_prediction_create(c, X, Y, W, H, heights, 0, err);
+    terrad_twin_config_free(c);
+    terrad_twin_add_collider(server, ID, "cylinder", 0.3, 0.1, 0, 0, 0, NULL);
+    terrad_twin_set_load(server, ID, 150.0, NULL);
+    CHECK(terrad_twin_prediction_add_collider(p, ID, "wheel", 0.3, 0.1, 0, 0, 0, err) == 0 &&
+              terrad_twin_prediction_set_load(p, ID, 150.0, err) == 0,
+          "loaded: an own load-driven wheel (%s)", err);
+    CHECK(terrad_twin_prediction_set_load(p, ID, NAN, err) == -1 && strstr(err, "load_n"),
+          "loaded: a NaN load names load_n (%s)", err);
+    CHECK(terrad_twin_prediction_set_load(p, ID, -1, err) == -1 && strstr(err, "load_n"),
+          "loaded: a negative load names load_n (%s)", err);
+    CHECK(terrad_twin_prediction_set_load(p, ID + 1, 10, err) == -1 && strstr(err, "id"),
+          "loaded: a collider it does not predict names the id (%s)", err);
+    const uint32_t id = ID;
+    double pose[7];
+    uint64_t tick = 100;
+    for (int k = 1; k <= 24; k++) {
+        pose_at(pose, k);
+        pose[2] = 0.9; /* high above: only the load decides the height */
+        terrad_twin_prediction_sent(p, (uint32_t)k, &id, pose, 1, err);
+        server_tick(server, pose, 0, heights);
+        tick++;
+        if (k != 13) /* 13's ACK replaced by 14's (a slow client's): acknowledged together */
+            terrad_twin_prediction_acked(p, tick, (uint32_t)k, heights, err);
+    }
+    const terrad_twin_prediction_stats *s = terrad_twin_prediction_get_stats(p);
+    CHECK(s->replayed == 22 && s->exact == 22 && s->skipped == 1,
+          "loaded: every ACK compared is exact, before and after the coalesced one (%llu of %llu, "
+          "%llu not compared, last differing %llu)",
+          (unsigned long long)s->exact, (unsigned long long)s->replayed,
+          (unsigned long long)s->skipped, (unsigned long long)s->last_differing);
+    int32_t lowest = heights[0];
+    for (int i = 0; i < W * H; i++)
+        lowest = heights[i] < lowest ? heights[i] : lowest;
+    CHECK(lowest < 4000 - 50, "loaded: the load sank the wheel from 0.9 m into a rut (%d units)",
+          lowest);
+    terrad_twin_prediction_destroy(p);
+    terrad_twin_destroy(server);
+
+    c = config(); /* not bekker: no soil to carry a load */
+    terrad_twin *t = terrad_twin_create(c, X, Y, W, H, NULL, NULL);
+    terrad_twin_config_free(c);
+    terrad_twin_add_collider(t, 1, "sphere", 0.3, 0, 0, 0, 0, NULL);
+    CHECK(terrad_twin_set_load(t, 1, 10, err) == -1 && strstr(err, "load_n") &&
+              strstr(err, "bekker"),
+          "a load on a world without soil forces names load_n (%s)", err);
+    CHECK(terrad_twin_set_load(t, 1, 0, err) == 0, "load 0: pose-driven, accepted (%s)", err);
+    terrad_twin_destroy(t);
+}
+
 static void test_refusals(void)
 {
     terrad_twin_config *c = config();
@@ -188,6 +251,7 @@ int main(void)
     test_drive("capsule", 1);
     test_drive("wheel", 0);
     test_drive("lugged", 0);
+    test_loaded();
     test_refusals();
     return check_report();
 }
