@@ -54,13 +54,15 @@ export class Prediction {
 
     // dims as in collider_create: sphere radius; box half_extents; capsule / cylinder radius,
     // half_length; wheel radius, width and its grousers {count, height, thickness}, if any;
-    // mesh vertices, indices (flat).
+    // mesh vertices, indices (flat); load_n: load-driven (its height the soil's, found as the
+    // server finds it).
     addCollider(id, shape, dims) {
         if ((dims.material ?? 'default') !== 'default' || dims.pose)
             throw new Error(`collider ${id}: a predicted collider has the default material and gets its poses from POSE_BATCH`);
         if (shape === 'mesh') this.twin.addMesh(id, Float32Array.from(dims.vertices), Uint32Array.from(dims.indices));
         else if (shape === 'wheel') this.twin.addWheel(id, { radius: dims.radius, halfLength: dims.width / 2, grousers: dims.grousers });
         else this.twin.addCollider(id, shape, { radius: dims.radius, halfExtents: dims.half_extents, halfLength: dims.half_length });
+        if (dims.load_n != null) this.twin.setLoad(id, dims.load_n);
     }
 
     removeCollider(id) {

@@ -26,6 +26,7 @@ export const ERRORS = {
 const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SIZE = 12, COLLIDER_STATE_SIZE = 48;
 const FOOTPRINT_SIZE = 24;
 const FORCE_SIZE = 48;
+export const FORCES_FLAG_HEIGHT = 0x01; // FORCES header flag: an f64 height after each entry (opt-in)
 const FOOTPRINT_YAW_MAX = Math.fround(3.1416); // pi rounded up to float32
 const MAX_COUNT = 0xffff;
 
@@ -49,7 +50,8 @@ export function decodeHeader(buf) {
   if (b[0] !== MAGIC) throw new ProtoError('bad_frame', `magic 0x${b[0].toString(16)}`);
   if (b[1] !== PROTOCOL_VERSION) throw new ProtoError('bad_version', `protocol version ${b[1]}`);
   if (!(b[2] in TYPE_NAMES)) throw new ProtoError('unknown_type', `type 0x${b[2].toString(16)}`);
-  if (b[3] !== 0) throw new ProtoError('bad_frame', 'reserved flags set');
+  // the one flag defined: FORCES' height extension (PROTOCOL.md "FORCES")
+  if (b[3] & ~(b[2] === MsgType.FORCES ? FORCES_FLAG_HEIGHT : 0)) throw new ProtoError('bad_frame', 'reserved flags set');
   return b[2];
 }
 
@@ -223,24 +225,32 @@ export function decodeFootprints(buf) {
 
 // FORCES (worlds of the bekker model): the soil's push on each of the client's colliders with
 // feedback, [{id, force: [x, y, z] N, torque: [x, y, z] N m about the pose position,
-// sinkage_m, area_m2, patch_width_m, slip, cells}].
+// sinkage_m, area_m2, patch_width_m, slip, cells}], and with the header flag FORCES_FLAG_HEIGHT
+// (the height extension: a collider created with forcesHeight) each entry's height_m, the pose
+// height the tick deformed at: a load-driven collider's is the one the server found.
 export function decodeForces(buf) {
   const b = bytes(buf);
   expect(b, MsgType.FORCES);
   if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
   const v = view(b);
   const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
-  if (b.length - 14 !== count * FORCE_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const withHeight = (b[3] & FORCES_FLAG_HEIGHT) !== 0, size = FORCE_SIZE + (withHeight ? 8 : 0);
+  if (b.length - 14 !== count * size) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
   const forces = [];
   for (let i = 0; i < count; i++) {
-    const o = 14 + i * FORCE_SIZE;
+    const o = 14 + i * size;
     const id = v.getUint32(o, true);
     const f = [];
     for (let k = 0; k < 10; k++) f.push(v.getFloat32(o + 4 + 4 * k, true));
     if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `forces of collider ${id} are not finite`);
     if (f[6] < 0 || f[7] < 0 || f[8] < 0) throw new ProtoError('bad_value', `forces of collider ${id}: sinkage, area and patch width must be >= 0`);
-    forces.push({ id, force: f.slice(0, 3), torque: f.slice(3, 6), sinkage_m: f[6], area_m2: f[7],
-      patch_width_m: f[8], slip: f[9], cells: v.getUint32(o + 44, true) });
+    const entry = { id, force: f.slice(0, 3), torque: f.slice(3, 6), sinkage_m: f[6], area_m2: f[7],
+      patch_width_m: f[8], slip: f[9], cells: v.getUint32(o + 44, true) };
+    if (withHeight) {
+      entry.height_m = v.getFloat64(o + FORCE_SIZE, true);
+      if (!Number.isFinite(entry.height_m)) throw new ProtoError('bad_value', `forces of collider ${id}: height_m must be finite`);
+    }
+    forces.push(entry);
   }
   return { tick, forces };
 }
@@ -739,12 +749,14 @@ export class SeenReporter {
 export const colliderDelete = (id, ref) => withRef({ type: 'collider_delete', id }, ref);
 // loadN: a vertical load in newtons (bekker worlds; PROTOCOL.md "Load-driven colliders"): the
 // server sets the height that carries it each tick and reports it in FORCES.
+// forcesHeight: this client's FORCES frames carry each entry's height_m (the height extension).
 // grousers: a wheel's lugs {count, height, thickness} (metres; PROTOCOL.md collider_create).
-/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string, loadN?: number, grousers?: {count: number, height: number, thickness: number}}} [opts] */
-export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref, loadN, grousers } = {}) {
+/** @param {string} shape @param {object} [dims] @param {{material?: string, feedback?: boolean, pose?: object, ref?: string, loadN?: number, forcesHeight?: boolean, grousers?: {count: number, height: number, thickness: number}}} [opts] */
+export function colliderCreate(shape, dims = {}, { material = 'default', feedback = true, pose, ref, loadN, forcesHeight, grousers } = {}) {
   const m = { type: 'collider_create', shape, material, feedback, ...dims };
   if (pose) m.pose = pose;
   if (loadN !== undefined) m.load_n = loadN;
+  if (forcesHeight) m.forces_height = true;
   if (grousers !== undefined) m.grousers = grousers;
   return withRef(m, ref);
 }

@@ -186,6 +186,11 @@ export class TwinPrediction extends Handle {
     removeCollider(id) {
         this.m.check(this.m.x.terrad_twin_prediction_remove_collider(this.ptr, id, this.m.err));
     }
+    // Load-driven (the wire's load_n, bekker worlds): the twin finds its height each tick as the
+    // server does (terrad_twin_prediction_set_load); 0: pose-driven.
+    setLoad(id, loadN) {
+        this.m.check(this.m.x.terrad_twin_prediction_set_load(this.ptr, id, loadN, this.m.err));
+    }
     // fn(ids, values, count) with the poses in the module's heap
     withPoses(poses, fn) {
         const m = this.m;
@@ -260,6 +265,11 @@ export class Twin extends Handle {
     }
     removeCollider(id) {
         this.m.check(this.m.x.terrad_twin_remove_collider(this.ptr, id, this.m.err));
+    }
+    // Load-driven (bekker): each tick the height where the soil carries loadN newtons
+    // (terrad_twin_set_load); 0: pose-driven.
+    setLoad(id, loadN) {
+        this.m.check(this.m.x.terrad_twin_set_load(this.ptr, id, loadN, this.m.err));
     }
     // position [x, y, z] metres, orientation [w, x, y, z]
     setPose(id, [x, y, z], [qw, qx, qy, qz]) {

@@ -967,7 +967,7 @@ static int finite_positive(double v)
 
 /* The colliders this client made, for its predictions (terrad_client_predict.c). */
 static void remember_own(terrad_client *c, uint32_t id, const terrad_collider_desc *d,
-                         const terrad_grousers *lugs)
+                         const terrad_grousers *lugs, double load_n)
 {
     if (grow((void **)&c->own, &c->own_cap, c->nown + 1, sizeof *c->own))
         return; /* out of memory: a prediction will not know this collider */
@@ -978,7 +978,8 @@ static void remember_own(terrad_client *c, uint32_t id, const terrad_collider_de
                       .half_length = d->half_length,
                       .width = d->width,
                       .default_material = !d->material || strcmp(d->material, "default") == 0,
-                      .lugs = lugs ? *lugs : (terrad_grousers){0}};
+                      .lugs = lugs ? *lugs : (terrad_grousers){0},
+                      .load_n = load_n};
     memcpy(o->half_extents, d->half_extents, sizeof o->half_extents);
     predict_collider(c, o, 1);
 }
@@ -1068,7 +1069,7 @@ static int create_collider(terrad_client *c, terrad_collider_desc d, double load
             return TERRAD_CLIENT_E_PROTOCOL;
         if (id_out)
             *id_out = (uint32_t)id;
-        remember_own(c, (uint32_t)id, &d, lugs);
+        remember_own(c, (uint32_t)id, &d, lugs, load_n);
     }
     return rc;
 }

@@ -288,7 +288,9 @@ const char *terrad_client_world_name(const terrad_client *c);
  * terrad_client_last_error naming the field ("sid", "config", or the key).
  *
  * Each terrad_client_send_poses is one tick of the twin with this client's own
- * colliders (created by this client, default material) at their new poses;
+ * colliders (created by this client, default material; a load-driven one,
+ * terrad_client_create_loaded_collider, at the height the server's search
+ * finds in the twin) at their new poses;
  * each ACK of tick t (batch seq) replays the server's ticks since the previous
  * ACK from that ACK's heights with the poses the ACKs say were used, counts
  * the cells differing from the mirror (0 when nothing else touched the

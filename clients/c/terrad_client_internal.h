@@ -18,6 +18,7 @@ typedef struct client_own {
     double radius, half_length, width, half_extents[3];
     int default_material; /* only these are predicted (the twin holds the default material) */
     terrad_grousers lugs; /* a wheel's grousers (count 0: smooth), pressed by the twin too */
+    double load_n;        /* > 0: load-driven, its height the soil's in the twin too */
 } client_own;
 
 /* terrad_client.c's side. */

@@ -38,7 +38,7 @@ static void sync_stats(terrad_prediction *p)
 
 /* The twin's copy of an own collider (only default-material ones: the twin
  * presses with the world's material); a wheel with its grousers, if any. */
-static int add_own(terrad_prediction *p, const client_own *o, char *err)
+static int add_shape(terrad_prediction *p, const client_own *o, char *err)
 {
     static const char *const shapes[] = {[TERRAD_SHAPE_SPHERE] = "sphere",
                                          [TERRAD_SHAPE_BOX] = "box",
@@ -58,6 +58,16 @@ static int add_own(terrad_prediction *p, const client_own *o, char *err)
     return terrad_twin_prediction_add_collider(p->twin, o->id, shapes[o->shape], o->radius,
                                                o->half_length, o->half_extents[0],
                                                o->half_extents[1], o->half_extents[2], err);
+}
+
+/* ... and a load-driven one's load: the twin finds its height as the server does. */
+static int add_own(terrad_prediction *p, const client_own *o, char *err)
+{
+    if (add_shape(p, o, err) != 0)
+        return -1;
+    if (o->default_material && o->load_n > 0.0)
+        return terrad_twin_prediction_set_load(p->twin, o->id, o->load_n, err);
+    return 0;
 }
 
 /* "key=value" pairs into the twin's config; -1 with err naming the key. */

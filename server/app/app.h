@@ -58,9 +58,10 @@ int app_offline_world(const char *scene_path, app_world_run run, void *ctx);
  * (export, fsck): a directory holds the world as changes over its scene's
  * base terrain, so it must be opened with the scene the daemon ran (the
  * path goes to app_open_scene_world). One row, so the commands say it alike. */
-#define APP_OPTION_SCENE_RAN                                                                       \
+#define APP_OPTION_SCENE_RAN(type, field)                                                          \
     {                                                                                              \
-        "scene", "FILE", "the scene the daemon ran (default: the embedded scene)"                  \
+        "scene", "FILE", "the scene the daemon ran (default: the embedded scene)",                 \
+            CLI_AT_STRING(type, field)                                                             \
     }
 
 /* A soil given on the command line (option names it in messages): a preset

@@ -54,20 +54,43 @@ typedef struct trade_options {
     int scene_count;
 } trade_options;
 
-enum { OPT_TRADE, OPT_QUICK, OPT_OUT, OPT_BACKEND, OPT_MODELS, OPT_SCENES };
+typedef struct bench_args {
+    trade_options o;
+    int trade;
+    const char *models, *scenes;
+} bench_args;
+
+static int backend_option(void *ctx, const char *v, error_text *err)
+{
+    trade_options *o = &((bench_args *)ctx)->o;
+    o->cpu_all = strcmp(v, "cpu") == 0 || strcmp(v, "both") == 0;
+    o->gl_all = strcmp(v, "gl") == 0 || strcmp(v, "both") == 0;
+    o->gl_one = 0;
+    if (!o->cpu_all && !o->gl_all) {
+        error_set(err, "must be cpu, gl or both (got \"%s\")", v);
+        return -1;
+    }
+    return 0;
+}
 
 static const cli_option bench_table[] = {
-    [OPT_TRADE] = {"trade", NULL, "the speed/accuracy sweep (the one bench so far; required)"},
-    [OPT_QUICK] = {"quick", NULL,
-                   "a reduced sweep in seconds: cells 0.2 and 0.1 m, 1 and 10\n"
-                   "iterations, reference 20/20 (full: 0.1, 0.05, 0.025 m; 1, 5,\n"
-                   "10, 20; reference 50/50 checked against 100/100)"},
-    [OPT_OUT] = {"out", "DIR", "where trade.csv and trade.txt go (default docs/trade)"},
-    [OPT_BACKEND] = {"backend", "cpu|gl|both",
-                     "cpu: every run on the CPU twin; gl: every run on GL; both: both;\n"
-                     "default: the CPU twin for the sweep plus GL at one cell size"},
-    [OPT_MODELS] = {"models", "LIST", "comma-separated; default: all the models below"},
-    [OPT_SCENES] = {"scenes", "LIST", "comma-separated; default: all the scenes below"},
+    {"trade", NULL, "the speed/accuracy sweep (the one bench so far; required)",
+     CLI_AT_FLAG(bench_args, trade)},
+    {"quick", NULL,
+     "a reduced sweep in seconds: cells 0.2 and 0.1 m, 1 and 10\n"
+     "iterations, reference 20/20 (full: 0.1, 0.05, 0.025 m; 1, 5,\n"
+     "10, 20; reference 50/50 checked against 100/100)",
+     CLI_AT_FLAG(bench_args, o.quick)},
+    {"out", "DIR", "where trade.csv and trade.txt go (default docs/trade)",
+     CLI_AT_STRING(bench_args, o.out_dir)},
+    {"backend", "cpu|gl|both",
+     "cpu: every run on the CPU twin; gl: every run on GL; both: both;\n"
+     "default: the CPU twin for the sweep plus GL at one cell size",
+     CLI_CALLS(backend_option)},
+    {"models", "LIST", "comma-separated; default: all the models below",
+     CLI_AT_STRING(bench_args, models)},
+    {"scenes", "LIST", "comma-separated; default: all the scenes below",
+     CLI_AT_STRING(bench_args, scenes)},
     {0},
 };
 
@@ -120,53 +143,11 @@ static int parse_list(const char *option, const char *list, int (*lookup)(const 
     return 0;
 }
 
-typedef struct bench_args {
-    trade_options *o;
-    int trade;
-    const char *models, *scenes;
-} bench_args;
-
-static int bench_on_option(void *ctx, int index, const char *v, error_text *err)
-{
-    bench_args *a = ctx;
-    trade_options *o = a->o;
-    switch (index) {
-    case OPT_TRADE:
-        a->trade = 1;
-        return 0;
-    case OPT_QUICK:
-        o->quick = 1;
-        return 0;
-    case OPT_OUT:
-        o->out_dir = v;
-        return 0;
-    case OPT_BACKEND:
-        o->cpu_all = strcmp(v, "cpu") == 0 || strcmp(v, "both") == 0;
-        o->gl_all = strcmp(v, "gl") == 0 || strcmp(v, "both") == 0;
-        o->gl_one = 0;
-        if (!o->cpu_all && !o->gl_all) {
-            error_set(err, "must be cpu, gl or both (got \"%s\")", v);
-            return -1;
-        }
-        return 0;
-    case OPT_MODELS:
-        a->models = v;
-        return 0;
-    case OPT_SCENES:
-        a->scenes = v;
-        return 0;
-    }
-    return -1;
-}
-
 static cli_result parse_options(int argc, char **argv, trade_options *o)
 {
-    memset(o, 0, sizeof *o);
-    o->out_dir = "docs/trade";
-    o->cpu_all = o->gl_one = 1;
-    bench_args a = {o, 0, NULL, NULL};
-    cli_result r =
-        cli_parse("bench", bench_usage, bench_table, argc, argv, bench_on_option, &a, NULL);
+    bench_args a = {.o = {.out_dir = "docs/trade", .cpu_all = 1, .gl_one = 1}};
+    cli_result r = cli_parse("bench", bench_usage, bench_table, argc, argv, &a, NULL);
+    *o = a.o;
     if (r == CLI_HELP) /* the lists --models and --scenes take */
         bench_print_lists(stdout);
     if (r != CLI_OK)

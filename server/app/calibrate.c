@@ -57,76 +57,13 @@ typedef struct cal_options {
     cal_wheel_defaults wheel_defaults;
     int fit[FIT_COUNT], fit_count;
     long rounds;
-    double compression;
-    int has_compression;   /* else the base file's, or 0.5 */
+    double compression;    /* NAN: not given (then the --base file's, or 0.5) */
     sim_wheel_run testbed; /* cell, distance, speed and tick of every run */
 } cal_options;
 
-enum {
-    OPT_PLATES,
-    OPT_WHEEL,
-    OPT_PREDICT,
-    OPT_WHERE,
-    OPT_RADIUS,
-    OPT_WIDTH,
-    OPT_LOAD,
-    OPT_BASE,
-    OPT_FIT,
-    OPT_ROUNDS,
-    OPT_CELL,
-    OPT_DISTANCE,
-    OPT_COMPRESSION,
-    OPT_OUT,
-    OPT_RESIDUALS,
-    OPT_GROUSERS,
-};
-
-static const cli_option cal_table[] = {
-    [OPT_PLATES] = {"plates", "FILE",
-                    "plate-sinkage CSV: width_m, pressure_pa, sinkage_m (>= 2 widths of\n"
-                    ">= 2 rows): n, kc and kphi by least squares"},
-    [OPT_WHEEL] = {"wheel", "FILE",
-                   "single-wheel CSV: slip and drawbar_pull_n, sinkage_m and/or torque_nm\n"
-                   "(an empty cell is not measured); radius_m, width_m, load_n\n"
-                   "as columns or the options below"},
-    [OPT_PREDICT] = {"predict", "FILE",
-                     "wheel rows held out of the fit (the --wheel format, the same\n"
-                     "defaults and --where): the base and fitted soils' errors on them"},
-    [OPT_WHERE] = {"where", "COL=VALUE", "use only the wheel rows whose COL is VALUE"},
-    [OPT_RADIUS] = {"radius", "M", "the wheel's radius when the file has no radius_m"},
-    [OPT_WIDTH] = {"width", "M", "the wheel's width when the file has no width_m"},
-    [OPT_LOAD] = {"load", "N", "the vertical load when the file has no load_n"},
-    [OPT_BASE] = {"base", "PRESET|FILE",
-                  "the soil the fit starts from and keeps what it does not fit:\n"
-                  "a preset of docs/models.md (default ding2011) or a material\n"
-                  "JSON file of the bekker model (as --out writes it)"},
-    [OPT_FIT] = {"fit", "LIST",
-                 "the wheel parameters fitted, in order (default\n"
-                 "cohesion_pa,friction_deg,shear_k_m,slip_n; n, kc and kphi may join\n"
-                 "them); the grid is over the first two"},
-    [OPT_ROUNDS] = {"rounds", "N", "rounds of coordinate descent after the grid (default 3)"},
-    [OPT_CELL] = {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)"},
-    [OPT_DISTANCE] = {"distance", "M", "each testbed run's travel (default 0.5)"},
-    [OPT_COMPRESSION] = {"compression", "X",
-                         "the material's compression in the runs and the JSON (default:\n"
-                         "the --base file's, or 0.5)"},
-    [OPT_OUT] = {"out", "FILE", "write the material JSON here (it is also printed)"},
-    [OPT_RESIDUALS] = {"residuals", "FILE", "write every row's residuals here as CSV"},
-    [OPT_GROUSERS] = {"grousers", "N,H,T",
-                      "the wheel's lugs (count, height m, thickness m) for rows whose file\n"
-                      "has no grouser_count, grouser_height_m or grouser_thickness_m"},
-    {0},
-};
-
-static const char cal_usage[] = "--plates FILE | --wheel FILE [options]";
-
-void app_calibrate_usage(FILE *f)
+static int parse_fit(void *ctx, const char *list, error_text *err)
 {
-    cli_print_help(f, "calibrate", cal_usage, cal_table);
-}
-
-static int parse_fit(cal_options *o, const char *list, error_text *err)
-{
+    cal_options *o = ctx;
     char buf[256];
     o->fit_count = 0;
     if (strlen(list) >= sizeof buf || !*list) {
@@ -154,63 +91,85 @@ static int parse_fit(cal_options *o, const char *list, error_text *err)
     return 0;
 }
 
-static int cal_on_option(void *ctx, int index, const char *v, error_text *err)
+/* --where COL=VALUE: the column's name copied out, the value left in argv */
+static int where_option(void *ctx, const char *v, error_text *err)
 {
-    cal_options *o = ctx;
-    cal_wheel_defaults *d = &o->wheel_defaults;
-    switch (index) {
-    case OPT_PLATES:
-        o->plates = v;
-        return 0;
-    case OPT_WHEEL:
-        o->wheel = v;
-        return 0;
-    case OPT_PREDICT:
-        o->predict = v;
-        return 0;
-    case OPT_WHERE: {
-        const char *eq = strchr(v, '=');
-        static char column[128];
-        if (!eq || eq == v || (size_t)(eq - v) >= sizeof column) {
-            error_set(err, "--where: expected COL=VALUE (got \"%s\")", v);
-            return -1;
-        }
-        memcpy(column, v, (size_t)(eq - v));
-        column[eq - v] = '\0';
-        d->where_column = column;
-        d->where_value = eq + 1;
-        return 0;
+    cal_wheel_defaults *d = &((cal_options *)ctx)->wheel_defaults;
+    const char *eq = strchr(v, '=');
+    static char column[128];
+    if (!eq || eq == v || (size_t)(eq - v) >= sizeof column) {
+        error_set(err, "--where: expected COL=VALUE (got \"%s\")", v);
+        return -1;
     }
-    case OPT_RADIUS:
-        return cli_parse_double(v, 1e-3, 10, &d->radius_m, err);
-    case OPT_WIDTH:
-        return cli_parse_double(v, 1e-3, 10, &d->width_m, err);
-    case OPT_LOAD:
-        return cli_parse_double(v, 1e-3, 1e7, &d->load_n, err);
-    case OPT_BASE:
-        o->base = v;
-        return 0;
-    case OPT_FIT:
-        return parse_fit(o, v, err);
-    case OPT_ROUNDS:
-        return cli_parse_long(v, 0, 50, &o->rounds, err);
-    case OPT_CELL:
-        return cli_parse_double(v, 1e-3, 0.1, &o->testbed.cell_m, err);
-    case OPT_DISTANCE:
-        return cli_parse_double(v, 0.05, 10, &o->testbed.distance_m, err);
-    case OPT_COMPRESSION:
-        o->has_compression = 1;
-        return cli_parse_double(v, 0, 1, &o->compression, err);
-    case OPT_OUT:
-        o->out = v;
-        return 0;
-    case OPT_RESIDUALS:
-        o->residuals = v;
-        return 0;
-    case OPT_GROUSERS:
-        return app_parse_grousers(v, &d->grousers, err);
-    }
+    memcpy(column, v, (size_t)(eq - v));
+    column[eq - v] = '\0';
+    d->where_column = column;
+    d->where_value = eq + 1;
     return 0;
+}
+
+static int grousers_option(void *ctx, const char *v, error_text *err)
+{
+    return app_parse_grousers(v, &((cal_options *)ctx)->wheel_defaults.grousers, err);
+}
+
+static const cli_option cal_table[] = {
+    {"plates", "FILE",
+     "plate-sinkage CSV: width_m, pressure_pa, sinkage_m (>= 2 widths of\n"
+     ">= 2 rows): n, kc and kphi by least squares",
+     CLI_AT_STRING(cal_options, plates)},
+    {"wheel", "FILE",
+     "single-wheel CSV: slip and drawbar_pull_n, sinkage_m and/or torque_nm\n"
+     "(an empty cell is not measured); radius_m, width_m, load_n\n"
+     "as columns or the options below",
+     CLI_AT_STRING(cal_options, wheel)},
+    {"predict", "FILE",
+     "wheel rows held out of the fit (the --wheel format, the same\n"
+     "defaults and --where): the base and fitted soils' errors on them",
+     CLI_AT_STRING(cal_options, predict)},
+    {"where", "COL=VALUE", "use only the wheel rows whose COL is VALUE", CLI_CALLS(where_option)},
+    {"radius", "M", "the wheel's radius when the file has no radius_m",
+     CLI_AT_DOUBLE(cal_options, wheel_defaults.radius_m, 1e-3, 10)},
+    {"width", "M", "the wheel's width when the file has no width_m",
+     CLI_AT_DOUBLE(cal_options, wheel_defaults.width_m, 1e-3, 10)},
+    {"load", "N", "the vertical load when the file has no load_n",
+     CLI_AT_DOUBLE(cal_options, wheel_defaults.load_n, 1e-3, 1e7)},
+    {"base", "PRESET|FILE",
+     "the soil the fit starts from and keeps what it does not fit:\n"
+     "a preset of docs/models.md (default ding2011) or a material\n"
+     "JSON file of the bekker model (as --out writes it)",
+     CLI_AT_STRING(cal_options, base)},
+    {"fit", "LIST",
+     "the wheel parameters fitted, in order (default\n"
+     "cohesion_pa,friction_deg,shear_k_m,slip_n; n, kc and kphi may join\n"
+     "them); the grid is over the first two",
+     CLI_CALLS(parse_fit)},
+    {"rounds", "N", "rounds of coordinate descent after the grid (default 3)",
+     CLI_AT_LONG(cal_options, rounds, 0, 50)},
+    {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)",
+     CLI_AT_DOUBLE(cal_options, testbed.cell_m, 1e-3, 0.1)},
+    {"distance", "M", "each testbed run's travel (default 0.5)",
+     CLI_AT_DOUBLE(cal_options, testbed.distance_m, 0.05, 10)},
+    {"compression", "X",
+     "the material's compression in the runs and the JSON (default:\n"
+     "the --base file's, or 0.5)",
+     CLI_AT_DOUBLE(cal_options, compression, 0, 1)},
+    {"out", "FILE", "write the material JSON here (it is also printed)",
+     CLI_AT_STRING(cal_options, out)},
+    {"residuals", "FILE", "write every row's residuals here as CSV",
+     CLI_AT_STRING(cal_options, residuals)},
+    {"grousers", "N,H,T",
+     "the wheel's lugs (count, height m, thickness m) for rows whose file\n"
+     "has no grouser_count, grouser_height_m or grouser_thickness_m",
+     CLI_CALLS(grousers_option)},
+    {0},
+};
+
+static const char cal_usage[] = "--plates FILE | --wheel FILE [options]";
+
+void app_calibrate_usage(FILE *f)
+{
+    cli_print_help(f, "calibrate", cal_usage, cal_table);
 }
 
 /* ---- The wheel fit ---- */
@@ -725,14 +684,13 @@ static int calibrate(cal_options *o, sim_soil *soil, FILE *csv, error_text *err)
 
 int app_calibrate(int argc, char **argv)
 {
-    cal_options o = {.base = "ding2011", .rounds = 3, .compression = 0.5};
+    cal_options o = {.base = "ding2011", .rounds = 3, .compression = NAN};
     sim_wheel_run_defaults(&o.testbed);
     for (int p = 0; p < FIT_DEFAULT_COUNT; p++)
         o.fit[o.fit_count++] = p;
     error_text err;
     int first = 0;
-    cli_result r =
-        cli_parse("calibrate", cal_usage, cal_table, argc, argv, cal_on_option, &o, &first);
+    cli_result r = cli_parse("calibrate", cal_usage, cal_table, argc, argv, &o, &first);
     if (r != CLI_OK)
         return r == CLI_HELP ? 0 : 2;
     if (first < argc || (!o.plates && !o.wheel) || (o.predict && !o.wheel)) {
@@ -748,7 +706,7 @@ int app_calibrate(int argc, char **argv)
         fprintf(stderr, "terrad calibrate: %s\n", err.message);
         return 2;
     }
-    if (!o.has_compression)
+    if (isnan(o.compression))
         o.compression = compression;
     FILE *csv = NULL;
     if (o.residuals) {

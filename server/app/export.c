@@ -45,18 +45,44 @@ typedef struct export_options {
     int have_region;
 } export_options;
 
-enum { OPT_DATA, OPT_SCENE, OPT_OUT, OPT_FORMAT, OPT_REGION, OPT_TICK };
+static int tick_option(void *ctx, const char *v, error_text *err)
+{
+    export_options *o = ctx;
+    char *end;
+    o->upto_tick = strtoll(v, &end, 10);
+    if (!*v || *end || o->upto_tick < 1) {
+        error_set(err, "must be a tick number >= 1 (got %s)", v);
+        return -1;
+    }
+    return 0;
+}
+
+static int region_option(void *ctx, const char *v, error_text *err)
+{
+    export_options *o = ctx;
+    world_rect *r = &o->region;
+    char tail;
+    if (sscanf(v, "%d,%d,%d,%d%c", &r->x, &r->y, &r->w, &r->h, &tail) != 4 || r->w <= 0 ||
+        r->h <= 0) {
+        error_set(err, "must be x,y,w,h with w, h > 0 (got %s)", v);
+        return -1;
+    }
+    o->have_region = 1;
+    return 0;
+}
 
 static const cli_option export_table[] = {
-    [OPT_DATA] = {"data", "DIR", "data directory (default ./data); read only, never repaired"},
-    [OPT_SCENE] = APP_OPTION_SCENE_RAN,
-    [OPT_OUT] = {"out", "FILE", "output file (required)"},
-    [OPT_FORMAT] = {"format", "F",
-                    "int32 (little-endian, row-major, as GET /v1/heights; default;\n"
-                    "raw32 is an alias) or png16 (the region's range stretched over\n"
-                    "0..65535: height = value * scale + offset, written to FILE.json)"},
-    [OPT_REGION] = {"region", "x,y,w,h", "a region in cells (default: the whole world)"},
-    [OPT_TICK] = {"tick", "T", "the world as of tick T (default: the last logged tick)"},
+    {"data", "DIR", "data directory (default ./data); read only, never repaired",
+     CLI_AT_STRING(export_options, data)},
+    APP_OPTION_SCENE_RAN(export_options, scene_path),
+    {"out", "FILE", "output file (required)", CLI_AT_STRING(export_options, out)},
+    {"format", "F",
+     "int32 (little-endian, row-major, as GET /v1/heights; default;\n"
+     "raw32 is an alias) or png16 (the region's range stretched over\n"
+     "0..65535: height = value * scale + offset, written to FILE.json)",
+     CLI_AT_STRING(export_options, format)},
+    {"region", "x,y,w,h", "a region in cells (default: the whole world)", CLI_CALLS(region_option)},
+    {"tick", "T", "the world as of tick T (default: the last logged tick)", CLI_CALLS(tick_option)},
     {0},
 };
 
@@ -65,43 +91,6 @@ static const char export_usage[] = "--out FILE [options]";
 void app_export_usage(FILE *out)
 {
     cli_print_help(out, "export", export_usage, export_table);
-}
-
-static int export_on_option(void *ctx, int index, const char *v, error_text *err)
-{
-    export_options *o = ctx;
-    char *end, tail;
-    world_rect *r = &o->region;
-    switch (index) {
-    case OPT_DATA:
-        o->data = v;
-        return 0;
-    case OPT_SCENE:
-        o->scene_path = v;
-        return 0;
-    case OPT_OUT:
-        o->out = v;
-        return 0;
-    case OPT_FORMAT:
-        o->format = v;
-        return 0;
-    case OPT_TICK:
-        o->upto_tick = strtoll(v, &end, 10);
-        if (!*v || *end || o->upto_tick < 1) {
-            error_set(err, "must be a tick number >= 1 (got %s)", v);
-            return -1;
-        }
-        return 0;
-    case OPT_REGION:
-        if (sscanf(v, "%d,%d,%d,%d%c", &r->x, &r->y, &r->w, &r->h, &tail) != 4 || r->w <= 0 ||
-            r->h <= 0) {
-            error_set(err, "must be x,y,w,h with w, h > 0 (got %s)", v);
-            return -1;
-        }
-        o->have_region = 1;
-        return 0;
-    }
-    return -1;
 }
 
 /* The region as a 16-bit PNG, and its scale and offset in FILE.json. */
@@ -199,8 +188,7 @@ static int export_run(void *ctx, world *w)
 int app_export(int argc, char **argv)
 {
     export_options o = {.data = "./data", .format = "int32"};
-    cli_result parsed =
-        cli_parse("export", export_usage, export_table, argc, argv, export_on_option, &o, NULL);
+    cli_result parsed = cli_parse("export", export_usage, export_table, argc, argv, &o, NULL);
     if (parsed != CLI_OK)
         return parsed == CLI_HELP ? 0 : 2;
     if (!o.out) {

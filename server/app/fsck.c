@@ -18,11 +18,10 @@ typedef struct fsck_options {
     const char *data, *scene_path;
 } fsck_options;
 
-enum { OPT_DATA, OPT_SCENE };
-
 static const cli_option fsck_table[] = {
-    [OPT_DATA] = {"data", "DIR", "data directory to check (default ./data); never changed"},
-    [OPT_SCENE] = APP_OPTION_SCENE_RAN,
+    {"data", "DIR", "data directory to check (default ./data); never changed",
+     CLI_AT_STRING(fsck_options, data)},
+    APP_OPTION_SCENE_RAN(fsck_options, scene_path),
     {0},
 };
 
@@ -31,19 +30,6 @@ static const char fsck_usage[] = "[--data DIR] [--scene FILE]";
 void app_fsck_usage(FILE *out)
 {
     cli_print_help(out, "fsck", fsck_usage, fsck_table);
-}
-
-static int fsck_on_option(void *ctx, int index, const char *v, error_text *err)
-{
-    (void)err;
-    fsck_options *o = ctx;
-    if (index == OPT_DATA)
-        o->data = v;
-    else if (index == OPT_SCENE)
-        o->scene_path = v;
-    else
-        return -1;
-    return 0;
 }
 
 /* Every damage the directory has, logged; 0 clean, 1 damaged. */
@@ -67,8 +53,7 @@ static int fsck_run(void *ctx, world *w)
 int app_fsck(int argc, char **argv)
 {
     fsck_options o = {.data = "./data"};
-    cli_result parsed =
-        cli_parse("fsck", fsck_usage, fsck_table, argc, argv, fsck_on_option, &o, NULL);
+    cli_result parsed = cli_parse("fsck", fsck_usage, fsck_table, argc, argv, &o, NULL);
     if (parsed != CLI_OK)
         return parsed == CLI_HELP ? 0 : 2;
     return app_offline_world(o.scene_path, fsck_run, &o);

@@ -56,21 +56,23 @@ typedef struct lg_options {
     int json;
 } lg_options;
 
-enum { OPT_URL, OPT_HTTP, OPT_CLIENTS, OPT_SECONDS, OPT_WHEELS, OPT_WORLDS, OPT_PREFIX, OPT_JSON };
-
 static const cli_option loadgen_table[] = {
-    [OPT_URL] = {"url", "URL",
-                 "the daemon's websocket, ws://HOST:PORT/ (default ws://127.0.0.1:8081/)"},
-    [OPT_HTTP] = {"http", "URL",
-                  "its HTTP API, http://HOST:PORT (default: the --url host, port 8080)"},
-    [OPT_CLIENTS] = {"clients", "N", "websocket clients (default 8)"},
-    [OPT_SECONDS] = {"seconds", "S", "seconds of driving (default 5)"},
-    [OPT_WHEELS] = {"wheels-per-client", "K", "wheels each client drives (default 1)"},
-    [OPT_WORLDS] = {"worlds", "W",
-                    "spread the clients over W created worlds, PREFIX0..PREFIX<W-1>\n"
-                    "(client i joins world i mod W; default: the default world)"},
-    [OPT_PREFIX] = {"world-prefix", "PREFIX", "the created worlds' names (default \"w\")"},
-    [OPT_JSON] = {"json", NULL, "print one JSON object instead of the table"},
+    {"url", "URL", "the daemon's websocket, ws://HOST:PORT/ (default ws://127.0.0.1:8081/)",
+     CLI_AT_STRING(lg_options, url)},
+    {"http", "URL", "its HTTP API, http://HOST:PORT (default: the --url host, port 8080)",
+     CLI_AT_STRING(lg_options, http)},
+    {"clients", "N", "websocket clients (default 8)", CLI_AT_LONG(lg_options, clients, 1, 4096)},
+    {"seconds", "S", "seconds of driving (default 5)",
+     CLI_AT_DOUBLE(lg_options, seconds, 0.1, 3600)},
+    {"wheels-per-client", "K", "wheels each client drives (default 1)",
+     CLI_AT_LONG(lg_options, wheels, 1, 64)},
+    {"worlds", "W",
+     "spread the clients over W created worlds, PREFIX0..PREFIX<W-1>\n"
+     "(client i joins world i mod W; default: the default world)",
+     CLI_AT_LONG(lg_options, worlds, 1, 4096)},
+    {"world-prefix", "PREFIX", "the created worlds' names (default \"w\")",
+     CLI_AT_STRING(lg_options, world_prefix)},
+    {"json", NULL, "print one JSON object instead of the table", CLI_AT_FLAG(lg_options, json)},
     {0},
 };
 
@@ -79,34 +81,6 @@ static const char loadgen_usage[] = "[--url ws://HOST:PORT/] [--clients N] [--se
 void app_loadgen_usage(FILE *out)
 {
     cli_print_help(out, "loadgen", loadgen_usage, loadgen_table);
-}
-
-static int loadgen_on_option(void *ctx, int index, const char *v, error_text *err)
-{
-    lg_options *o = ctx;
-    switch (index) {
-    case OPT_URL:
-        o->url = v;
-        return 0;
-    case OPT_HTTP:
-        o->http = v;
-        return 0;
-    case OPT_CLIENTS:
-        return cli_parse_long(v, 1, 4096, &o->clients, err);
-    case OPT_SECONDS:
-        return cli_parse_double(v, 0.1, 3600, &o->seconds, err);
-    case OPT_WHEELS:
-        return cli_parse_long(v, 1, 64, &o->wheels, err);
-    case OPT_WORLDS:
-        return cli_parse_long(v, 1, 4096, &o->worlds, err);
-    case OPT_PREFIX:
-        o->world_prefix = v;
-        return 0;
-    case OPT_JSON:
-        o->json = 1;
-        return 0;
-    }
-    return -1;
 }
 
 /* ---- Frames: latency at each ACK, changed cells at each DELTA ---- */
@@ -443,8 +417,7 @@ int app_loadgen(int argc, char **argv)
                     .seconds = 5,
                     .wheels = 1,
                     .world_prefix = "w"};
-    cli_result parsed =
-        cli_parse("loadgen", loadgen_usage, loadgen_table, argc, argv, loadgen_on_option, &o, NULL);
+    cli_result parsed = cli_parse("loadgen", loadgen_usage, loadgen_table, argc, argv, &o, NULL);
     if (parsed != CLI_OK)
         return parsed == CLI_HELP ? 0 : 2;
     char host[256];

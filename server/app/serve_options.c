@@ -12,144 +12,6 @@
 #include "app/app.h"
 #include "app/serve_internal.h"
 
-enum {
-    OPT_CONFIG,
-    OPT_SCENE,
-    OPT_BACKEND,
-    OPT_HTTP_PORT,
-    OPT_WS_PORT,
-    OPT_BIND_ANY,
-    OPT_TOKEN,
-    OPT_TICK_HZ,
-    OPT_DEMO_ACTORS,
-    OPT_NO_DEMO,
-    OPT_TICKS,
-    OPT_DATA,
-    OPT_NO_DATA,
-    OPT_DURABILITY,
-    OPT_WAL_SEGMENT_BYTES,
-    OPT_REPLAY_RETAIN_BYTES,
-    OPT_STORE_FAULT,
-    OPT_FRESH,
-    OPT_THREADS,
-    OPT_INSECURE_OPEN,
-    OPT_RECOVER_TRUNCATE,
-    OPT_CLUSTER,
-    OPT_NODE,
-    OPT_WORLD,
-    OPT_WORLDS,
-    OPT_MAX_WORLDS,
-    OPT_AUTH_FILE,
-    OPT_TLS_CERT,
-    OPT_TLS_KEY,
-    OPT_PROBE_PORT,
-    OPT_DRAIN_GRACE_MS,
-    OPT_SCENE_DIR,
-    OPT_PUBLIC_WS_URL,
-};
-
-static const cli_option serve_table[] = {
-    [OPT_CONFIG] = {"config", "FILE",
-                    "JSON file with any of the options below (keys without the\n"
-                    "dashes, '_' for '-') and \"limits\": {...} with the names of\n"
-                    "proto/PROTOCOL.md's limits; later flags override it"},
-    [OPT_SCENE] = {"scene", "FILE", "scene JSON (default: the embedded default scene)"},
-    [OPT_BACKEND] = {"backend", "auto|gl|cpu",
-                     "deformation backend (default auto: gl, EGL with no window, where\n"
-                     "the renderer is a hardware GPU; cpu, the integer twin, where GL\n"
-                     "is software (llvmpipe, softpipe, SwiftShader) or missing)"},
-    [OPT_HTTP_PORT] = {"http-port", "N",
-                       "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
-                       "/v1/heights /v1/twin, POST /v1/worlds/NAME/edits (terrain edits) and the\n"
-                       "viewer at / (default 8080; 0: any free)"},
-    [OPT_WS_PORT] = {"ws-port", "N",
-                     "websocket port, subprotocol terrad.v1 (default 8081; 0: any)"},
-    [OPT_BIND_ANY] = {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)"},
-    [OPT_TOKEN] = {"token", "T",
-                   "removed (every local user can read the command line): refused\n"
-                   "with a pointer to --auth-file"},
-    [OPT_TICK_HZ] = {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)"},
-    [OPT_DEMO_ACTORS] = {"demo-actors", "N",
-                         "built-in spheres running laps over the terrain, 0..256 (default 6)"},
-    [OPT_NO_DEMO] = {"no-demo", NULL, "no demo actors"},
-    [OPT_TICKS] = {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)"},
-    [OPT_DATA] = {"data", "DIR",
-                  "data directory: tile snapshots + write-ahead log, recovered\n"
-                  "at start (default ./data; with demo actors and no --data the\n"
-                  "world is in memory only, so the demo never wears out a world)"},
-    [OPT_NO_DATA] = {"no-data", NULL, "keep the terrain in memory only"},
-    [OPT_DURABILITY] = {"durability", "P",
-                        "every-tick (default: fdatasync before a tick is published),\n"
-                        "group:MS (one fdatasync per MS ms; ticks held until it) or\n"
-                        "none (written before publish, never synced)"},
-    [OPT_WAL_SEGMENT_BYTES] = {"wal-segment-bytes", "N",
-                               "compact the log into tile snapshots past N bytes (16 MiB)"},
-    [OPT_REPLAY_RETAIN_BYTES] = {"replay-retain-bytes", "N",
-                                 "keep the whole log (compacted segments too) while it is\n"
-                                 "under N bytes, so /v1/heights?tick= can rebuild every tick\n"
-                                 "since the first (default 0: compacted segments are deleted)"},
-    [OPT_STORE_FAULT] = {"store-fault", "FILE",
-                         "test hook: storage writes fail ENOSPC while FILE exists\n"
-                         "(also TERRAD_STORE_FAULT)"},
-    [OPT_FRESH] = {"fresh", NULL,
-                   "start the data directory over: delete its terrain files (and\n"
-                   "refuse a directory holding anything else) before starting"},
-    [OPT_THREADS] = {"threads", "N",
-                     "threads of the CPU twin, 1..64 (default: the machine's cores)"},
-    [OPT_INSECURE_OPEN] = {"insecure-open", NULL,
-                           "allow --bind-any without a token: anyone who can reach the\n"
-                           "ports may deform the world"},
-    [OPT_RECOVER_TRUNCATE] = {"recover-truncate", NULL,
-                              "start on a damaged data directory anyway: cut the damage\n"
-                              "and log exactly which ticks are lost (default: refuse)"},
-    [OPT_CLUSTER] = {"cluster", "URLS",
-                     "join a NATS JetStream cluster (comma-separated nats:// URLs):\n"
-                     "the world, its log and snapshots live there instead of\n"
-                     "--data (docs/cluster.md)"},
-    [OPT_NODE] = {"node", "NAME", "--cluster: this node's name (default: the host name)"},
-    [OPT_WORLD] = {"world", "NAME", "--cluster: the same as --worlds NAME"},
-    [OPT_WORLDS] = {"worlds", "A,B,...",
-                    "--cluster: the worlds this node may tick (registered with\n"
-                    "terrad world add; default: any registered world, in name order).\n"
-                    "A node waits (a standby) until it can take one"},
-    [OPT_MAX_WORLDS] = {"max-worlds", "K",
-                        "--cluster: worlds this node ticks at once, 1..256, all on one\n"
-                        "pool of sim workers (default 1; with --worlds, as many as named).\n"
-                        "A single daemon: worlds POST /v1/worlds may create beside the\n"
-                        "default one, 1..256 (default 16)"},
-    [OPT_AUTH_FILE] = {"auth-file", "FILE",
-                       "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
-                       "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"
-                       "and closes connections of revoked tokens"},
-    [OPT_TLS_CERT] = {"tls-cert", "FILE", "PEM certificate (chain): both ports TLS only"},
-    [OPT_TLS_KEY] = {"tls-key", "FILE", "PEM private key of --tls-cert"},
-    [OPT_PROBE_PORT] = {"probe-port", "N",
-                        "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
-                        "connection budget (0: any free port; default: none)"},
-    [OPT_DRAIN_GRACE_MS] = {"drain-grace-ms", "MS",
-                            "SIGTERM (or POST /v1/drain) drains: /readyz fails, new clients\n"
-                            "and worlds are refused, connected clients are told; the daemon\n"
-                            "stops once they have all left, or MS after (default 0: at once;\n"
-                            "set it below the orchestrator's grace, docs/fleet.md)"},
-    [OPT_SCENE_DIR] = {"scene-dir", "DIR",
-                       "scenes POST /v1/worlds may name (\"scene_name\": NAME reads\n"
-                       "DIR/NAME.json; default: none, only scenes in the body)"},
-    [OPT_PUBLIC_WS_URL] = {"public-ws-url", "URL",
-                           "the websocket's address as clients reach it (ws://HOST:PORT/PATH\n"
-                           "or wss://…), for a proxy that maps ports or paths: what GET\n"
-                           "/v1/websocket tells the viewer (default: the Host the browser\n"
-                           "used, with the websocket port)"},
-    {0},
-};
-
-static const char serve_usage[] = "[options]";
-
-void app_serve_usage(FILE *out)
-{
-    cli_print_help(out, "serve", serve_usage, serve_table);
-    net_limits_usage(out);
-}
-
 /* --public-ws-url: ws:// or wss://, a host, printable without spaces or
  * quotes (it goes into JSON and a browser's WebSocket constructor as is). */
 static int public_ws_url_check(const char *v, error_text *err)
@@ -196,7 +58,7 @@ static int config_public_ws_url(const cJSON *doc, serve_options *o, error_text *
 }
 
 /* "limits": PROTOCOL.md's names, each a positive number, at least its row's
- * min (net_limit_table, net/net_limits.c, says which and where each goes). */
+ * min (NET_LIMITS, net/net.h, says which and where each goes). */
 static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
 {
     const char *keys[64];
@@ -218,7 +80,7 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
                     : 0;
         if (r < 0)
             return -1;
-        if (r > 0 && v < t->min) { /* a budget under hello's smallest (net_limits.c) */
+        if (r > 0 && v < t->min) { /* a budget under hello's smallest (NET_LIMITS) */
             error_set(err, "limits.%s: must be at least %g (got %g)", t->name, t->min, v);
             return -1;
         }
@@ -349,134 +211,202 @@ done:
     return rc;
 }
 
-/* --wal-segment-bytes (at least 4 KiB) and --replay-retain-bytes (0: none). */
-static int store_bytes_option(serve_options *o, int index, const char *value, error_text *err)
+/* The options that need code; the rest are stored by cli_parse (serve_table). */
+static int config_option(void *ctx, const char *value, error_text *err)
 {
-    long x;
-    int segment = index == OPT_WAL_SEGMENT_BYTES;
-    if (cli_parse_long(value, segment ? 4096 : 0, 1L << 40, &x, err) != 0)
+    serve_options *o = ctx;
+    if (o->config_loaded) {
+        error_set(err, "given twice");
         return -1;
-    *(segment ? &o->wal_segment_bytes : &o->replay_retain_bytes) = x;
+    }
+    o->config_loaded = 1;
+    return config_load(value, o, err);
+}
+
+static int public_ws_url_option(void *ctx, const char *value, error_text *err)
+{
+    ((serve_options *)ctx)->public_ws_url = value;
+    return public_ws_url_check(value, err);
+}
+
+static int token_option(void *ctx, const char *value, error_text *err)
+{
+    (void)ctx;
+    (void)value;
+    error_set(err, TOKEN_REMOVED);
+    return -1;
+}
+
+static int data_option(void *ctx, const char *value, error_text *err)
+{
+    serve_options *o = ctx;
+    (void)err;
+    o->data_dir = value;
+    o->data_given = 1;
     return 0;
 }
 
-static int serve_on_option(void *ctx, int index, const char *value, error_text *err)
+static int no_data_option(void *ctx, const char *value, error_text *err)
 {
-    serve_options *o = ctx;
+    (void)value;
+    (void)err;
+    ((serve_options *)ctx)->data_dir = NULL;
+    return 0;
+}
+
+static int no_demo_option(void *ctx, const char *value, error_text *err)
+{
+    (void)value;
+    (void)err;
+    ((serve_options *)ctx)->demo_actors = 0;
+    return 0;
+}
+
+/* a whole number of ticks a second, kept as the double the ticker takes */
+static int tick_hz_option(void *ctx, const char *value, error_text *err)
+{
     long x;
-    switch (index) {
-    case OPT_CONFIG:
-        if (o->config_loaded) {
-            error_set(err, "given twice");
-            return -1;
-        }
-        o->config_loaded = 1;
-        return config_load(value, o, err);
-    case OPT_SCENE:
-        o->scene_path = value;
-        return 0;
-    case OPT_SCENE_DIR:
-        o->scene_dir = value;
-        return 0;
-    case OPT_PUBLIC_WS_URL:
-        o->public_ws_url = value;
-        return public_ws_url_check(value, err);
-    case OPT_BACKEND:
-        o->backend = value;
-        return 0;
-    case OPT_TOKEN:
-        (void)value;
-        error_set(err, TOKEN_REMOVED);
+    if (cli_parse_long(value, 1, 1000, &x, err) != 0)
         return -1;
-    case OPT_AUTH_FILE:
-        o->auth_file = value;
-        return 0;
-    case OPT_TLS_CERT:
-        o->tls_cert = value;
-        return 0;
-    case OPT_TLS_KEY:
-        o->tls_key = value;
-        return 0;
-    case OPT_DATA:
-        o->data_dir = value;
-        o->data_given = 1;
-        return 0;
-    case OPT_FRESH:
-        o->fresh = 1;
-        return 0;
-    case OPT_NO_DATA:
-        o->data_dir = NULL;
-        return 0;
-    case OPT_DURABILITY:
-        o->durability = value;
-        return 0;
-    case OPT_STORE_FAULT:
-        o->store_fault = value;
-        return 0;
-    case OPT_RECOVER_TRUNCATE:
-        o->recover_truncate = 1;
-        return 0;
-    case OPT_CLUSTER:
-        o->cluster_urls = value;
-        return 0;
-    case OPT_NODE:
-        o->node = value;
-        return 0;
-    case OPT_WORLD:
-    case OPT_WORLDS:
-        o->worlds = value;
-        return 0;
-    case OPT_MAX_WORLDS:
-        if (cli_parse_long(value, 1, SERVE_WORLDS_MAX, &x, err) != 0)
-            return -1;
-        o->max_worlds = (int)x;
-        return 0;
-    case OPT_BIND_ANY:
-        o->bind_any = 1;
-        return 0;
-    case OPT_INSECURE_OPEN:
-        o->insecure_open = 1;
-        return 0;
-    case OPT_NO_DEMO:
-        o->demo_actors = 0;
-        return 0;
-    case OPT_WAL_SEGMENT_BYTES:
-    case OPT_REPLAY_RETAIN_BYTES:
-        return store_bytes_option(o, index, value, err);
-    case OPT_PROBE_PORT:
-    case OPT_DRAIN_GRACE_MS: /* a port, or at most a day */
-        if (cli_parse_long(value, 0, index == OPT_PROBE_PORT ? 65535 : 86400000L, &x, err) != 0)
-            return -1;
-        *(index == OPT_PROBE_PORT ? &o->probe_port : &o->drain_grace_ms) = (int)x;
-        return 0;
-    case OPT_HTTP_PORT:
-    case OPT_WS_PORT:
-        if (cli_parse_long(value, 0, 65535, &x, err) != 0)
-            return -1;
-        *(index == OPT_HTTP_PORT ? &o->http_port : &o->ws_port) = (int)x;
-        return 0;
-    case OPT_TICK_HZ:
-        if (cli_parse_long(value, 1, 1000, &x, err) != 0)
-            return -1;
-        o->tick_hz = (double)x;
-        return 0;
-    case OPT_DEMO_ACTORS:
-        if (cli_parse_long(value, 0, 256, &x, err) != 0)
-            return -1;
-        o->demo_actors = (int)x;
-        return 0;
-    case OPT_TICKS:
-        if (cli_parse_long(value, 0, 1000000000, &x, err) != 0)
-            return -1;
-        o->max_ticks = x;
-        return 0;
-    case OPT_THREADS:
-        if (cli_parse_long(value, 1, SIM_THREADS_MAX, &x, err) != 0)
-            return -1;
-        sim_set_threads((int)x); /* process-wide: the sim reads it each tick */
-        return 0;
-    }
-    return -1;
+    ((serve_options *)ctx)->tick_hz = (double)x;
+    return 0;
+}
+
+static int threads_option(void *ctx, const char *value, error_text *err)
+{
+    long x;
+    (void)ctx;
+    if (cli_parse_long(value, 1, SIM_THREADS_MAX, &x, err) != 0)
+        return -1;
+    sim_set_threads((int)x); /* process-wide: the sim reads it each tick */
+    return 0;
+}
+
+static const cli_option serve_table[] = {
+    {"config", "FILE",
+     "JSON file with any of the options below (keys without the\n"
+     "dashes, '_' for '-') and \"limits\": {...} with the names of\n"
+     "proto/PROTOCOL.md's limits; later flags override it",
+     CLI_CALLS(config_option)},
+    {"scene", "FILE", "scene JSON (default: the embedded default scene)",
+     CLI_AT_STRING(serve_options, scene_path)},
+    {"backend", "auto|gl|cpu",
+     "deformation backend (default auto: gl, EGL with no window, where\n"
+     "the renderer is a hardware GPU; cpu, the integer twin, where GL\n"
+     "is software (llvmpipe, softpipe, SwiftShader) or missing)",
+     CLI_AT_STRING(serve_options, backend)},
+    {"http-port", "N",
+     "HTTP port: /healthz /readyz /metrics /v1/world /v1/stats\n"
+     "/v1/heights /v1/twin, POST /v1/worlds/NAME/edits (terrain edits) and the\n"
+     "viewer at / (default 8080; 0: any free)",
+     CLI_AT_INT(serve_options, http_port, 0, 65535)},
+    {"ws-port", "N", "websocket port, subprotocol terrad.v1 (default 8081; 0: any)",
+     CLI_AT_INT(serve_options, ws_port, 0, 65535)},
+    {"bind-any", NULL, "listen on all interfaces (default: 127.0.0.1 only)",
+     CLI_AT_FLAG(serve_options, bind_any)},
+    {"token", "T",
+     "removed (every local user can read the command line): refused\n"
+     "with a pointer to --auth-file",
+     CLI_CALLS(token_option)},
+    {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)",
+     CLI_CALLS(tick_hz_option)},
+    {"demo-actors", "N", "built-in spheres running laps over the terrain, 0..256 (default 6)",
+     CLI_AT_INT(serve_options, demo_actors, 0, 256)},
+    {"no-demo", NULL, "no demo actors", CLI_CALLS(no_demo_option)},
+    {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)",
+     CLI_AT_LONG(serve_options, max_ticks, 0, 1000000000)},
+    {"data", "DIR",
+     "data directory: tile snapshots + write-ahead log, recovered\n"
+     "at start (default ./data; with demo actors and no --data the\n"
+     "world is in memory only, so the demo never wears out a world)",
+     CLI_CALLS(data_option)},
+    {"no-data", NULL, "keep the terrain in memory only", CLI_CALLS(no_data_option)},
+    {"durability", "P",
+     "every-tick (default: fdatasync before a tick is published),\n"
+     "group:MS (one fdatasync per MS ms; ticks held until it) or\n"
+     "none (written before publish, never synced)",
+     CLI_AT_STRING(serve_options, durability)},
+    {"wal-segment-bytes", "N", "compact the log into tile snapshots past N bytes (16 MiB)",
+     CLI_AT_LONG(serve_options, wal_segment_bytes, 4096, 1L << 40)},
+    {"replay-retain-bytes", "N",
+     "keep the whole log (compacted segments too) while it is\n"
+     "under N bytes, so /v1/heights?tick= can rebuild every tick\n"
+     "since the first (default 0: compacted segments are deleted)",
+     CLI_AT_LONG(serve_options, replay_retain_bytes, 0, 1L << 40)},
+    {"store-fault", "FILE",
+     "test hook: storage writes fail ENOSPC while FILE exists\n"
+     "(also TERRAD_STORE_FAULT)",
+     CLI_AT_STRING(serve_options, store_fault)},
+    {"fresh", NULL,
+     "start the data directory over: delete its terrain files (and\n"
+     "refuse a directory holding anything else) before starting",
+     CLI_AT_FLAG(serve_options, fresh)},
+    {"threads", "N", "threads of the CPU twin, 1..64 (default: the machine's cores)",
+     CLI_CALLS(threads_option)},
+    {"insecure-open", NULL,
+     "allow --bind-any without a token: anyone who can reach the\n"
+     "ports may deform the world",
+     CLI_AT_FLAG(serve_options, insecure_open)},
+    {"recover-truncate", NULL,
+     "start on a damaged data directory anyway: cut the damage\n"
+     "and log exactly which ticks are lost (default: refuse)",
+     CLI_AT_FLAG(serve_options, recover_truncate)},
+    {"cluster", "URLS",
+     "join a NATS JetStream cluster (comma-separated nats:// URLs):\n"
+     "the world, its log and snapshots live there instead of\n"
+     "--data (docs/cluster.md)",
+     CLI_AT_STRING(serve_options, cluster_urls)},
+    {"node", "NAME", "--cluster: this node's name (default: the host name)",
+     CLI_AT_STRING(serve_options, node)},
+    {"world", "NAME", "--cluster: the same as --worlds NAME", CLI_AT_STRING(serve_options, worlds)},
+    {"worlds", "A,B,...",
+     "--cluster: the worlds this node may tick (registered with\n"
+     "terrad world add; default: any registered world, in name order).\n"
+     "A node waits (a standby) until it can take one",
+     CLI_AT_STRING(serve_options, worlds)},
+    {"max-worlds", "K",
+     "--cluster: worlds this node ticks at once, 1..256, all on one\n"
+     "pool of sim workers (default 1; with --worlds, as many as named).\n"
+     "A single daemon: worlds POST /v1/worlds may create beside the\n"
+     "default one, 1..256 (default 16)",
+     CLI_AT_INT(serve_options, max_worlds, 1, SERVE_WORLDS_MAX)},
+    {"auth-file", "FILE",
+     "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
+     "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"
+     "and closes connections of revoked tokens",
+     CLI_AT_STRING(serve_options, auth_file)},
+    {"tls-cert", "FILE", "PEM certificate (chain): both ports TLS only",
+     CLI_AT_STRING(serve_options, tls_cert)},
+    {"tls-key", "FILE", "PEM private key of --tls-cert", CLI_AT_STRING(serve_options, tls_key)},
+    {"probe-port", "N",
+     "also serve /healthz /readyz /metrics on 127.0.0.1:N with its own\n"
+     "connection budget (0: any free port; default: none)",
+     CLI_AT_INT(serve_options, probe_port, 0, 65535)},
+    {"drain-grace-ms", "MS",
+     "SIGTERM (or POST /v1/drain) drains: /readyz fails, new clients\n"
+     "and worlds are refused, connected clients are told; the daemon\n"
+     "stops once they have all left, or MS after (default 0: at once;\n"
+     "set it below the orchestrator's grace, docs/fleet.md)",
+     CLI_AT_INT(serve_options, drain_grace_ms, 0, 86400000L)},
+    {"scene-dir", "DIR",
+     "scenes POST /v1/worlds may name (\"scene_name\": NAME reads\n"
+     "DIR/NAME.json; default: none, only scenes in the body)",
+     CLI_AT_STRING(serve_options, scene_dir)},
+    {"public-ws-url", "URL",
+     "the websocket's address as clients reach it (ws://HOST:PORT/PATH\n"
+     "or wss://…), for a proxy that maps ports or paths: what GET\n"
+     "/v1/websocket tells the viewer (default: the Host the browser\n"
+     "used, with the websocket port)",
+     CLI_CALLS(public_ws_url_option)},
+    {0},
+};
+
+static const char serve_usage[] = "[options]";
+
+void app_serve_usage(FILE *out)
+{
+    cli_print_help(out, "serve", serve_usage, serve_table);
+    net_limits_usage(out);
 }
 
 cli_result serve_options_parse(int argc, char **argv, serve_options *o)
@@ -492,8 +422,7 @@ cli_result serve_options_parse(int argc, char **argv, serve_options *o)
     o->data_dir = "./data";
     o->durability = "every-tick";
     o->store_fault = getenv("TERRAD_STORE_FAULT");
-    cli_result r =
-        cli_parse("serve", serve_usage, serve_table, argc, argv, serve_on_option, o, NULL);
+    cli_result r = cli_parse("serve", serve_usage, serve_table, argc, argv, o, NULL);
     if (r == CLI_HELP)
         net_limits_usage(stdout); /* after the options cli_parse printed */
     if (o->data_dir && o->data_dir == o->config_data)

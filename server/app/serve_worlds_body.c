@@ -132,9 +132,10 @@ static int body_clock(const cJSON *doc, char **scene_text, char *field, size_t f
     if (cJSON_IsObject(scene)) {
         cJSON_DeleteItemFromObjectCaseSensitive(scene, "clock");
         cJSON_AddStringToObject(scene, "clock", c->valuestring);
-        text = cJSON_PrintUnformatted(scene);
+        text = json_print_delete(scene);
+    } else {
+        cJSON_Delete(scene);
     }
-    cJSON_Delete(scene);
     if (!text) { /* not an object: scene_load_json names it */
         snprintf(field, fcap, "scene");
         return 0;

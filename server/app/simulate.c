@@ -30,32 +30,29 @@ typedef struct simulate_options {
     long threads;
 } simulate_options;
 
-enum {
-    OPT_SCENE,
-    OPT_TICKS,
-    OPT_BACKEND,
-    OPT_METHOD,
-    OPT_MODEL,
-    OPT_METRIC,
-    OPT_OUT,
-    OPT_THREADS,
-};
-
 static const cli_option simulate_table[] = {
-    [OPT_SCENE] = {"scene", "FILE", "scene JSON with scripted colliders (default: embedded scene)"},
-    [OPT_TICKS] = {"ticks", "N", "number of ticks to run, 0..1e8 (required)"},
-    [OPT_BACKEND] = {"backend", "auto|gl|cpu",
-                     "default auto: gl on a hardware GPU, cpu where GL is software\n"
-                     "(llvmpipe) or missing"},
-    [OPT_METHOD] = {"method", "M", "iterative | ssbo | multi (overrides the scene's material)"},
-    [OPT_MODEL] = {"model", "M",
-                   "persson-iterative | persson-ssbo | persson-multi | subtract |\n"
-                   "deferred | diffusion | sumner | decals | bekker (overrides the scene's model)"},
-    [OPT_METRIC] = {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)"},
-    [OPT_OUT] = {"out", "FILE", "write the final heights: little-endian int32, row-major"},
-    [OPT_THREADS] = {"threads", "N",
-                     "threads of the CPU twin, 1..64 (default: the machine's cores);\n"
-                     "heights do not depend on it"},
+    {"scene", "FILE", "scene JSON with scripted colliders (default: embedded scene)",
+     CLI_AT_STRING(simulate_options, scene_path)},
+    {"ticks", "N", "number of ticks to run, 0..1e8 (required)",
+     CLI_AT_LONG(simulate_options, ticks, 0, 100000000)},
+    {"backend", "auto|gl|cpu",
+     "default auto: gl on a hardware GPU, cpu where GL is software\n"
+     "(llvmpipe) or missing",
+     CLI_AT_STRING(simulate_options, backend)},
+    {"method", "M", "iterative | ssbo | multi (overrides the scene's material)",
+     CLI_AT_STRING(simulate_options, method)},
+    {"model", "M",
+     "persson-iterative | persson-ssbo | persson-multi | subtract |\n"
+     "deferred | diffusion | sumner | decals | bekker (overrides the scene's model)",
+     CLI_AT_STRING(simulate_options, model)},
+    {"metric", "K", "euclidean | manhattan | chebyshev (overrides the scene's)",
+     CLI_AT_STRING(simulate_options, metric)},
+    {"out", "FILE", "write the final heights: little-endian int32, row-major",
+     CLI_AT_STRING(simulate_options, out_path)},
+    {"threads", "N",
+     "threads of the CPU twin, 1..64 (default: the machine's cores);\n"
+     "heights do not depend on it",
+     CLI_AT_LONG(simulate_options, threads, 1, SIM_THREADS_MAX)},
     {0},
 };
 
@@ -66,43 +63,12 @@ void app_simulate_usage(FILE *out)
     cli_print_help(out, "simulate", simulate_usage, simulate_table);
 }
 
-static int simulate_on_option(void *ctx, int index, const char *value, error_text *err)
-{
-    simulate_options *o = ctx;
-    switch (index) {
-    case OPT_SCENE:
-        o->scene_path = value;
-        return 0;
-    case OPT_TICKS:
-        return cli_parse_long(value, 0, 100000000, &o->ticks, err);
-    case OPT_BACKEND:
-        o->backend = value;
-        return 0;
-    case OPT_METHOD:
-        o->method = value;
-        return 0;
-    case OPT_MODEL:
-        o->model = value;
-        return 0;
-    case OPT_METRIC:
-        o->metric = value;
-        return 0;
-    case OPT_OUT:
-        o->out_path = value;
-        return 0;
-    case OPT_THREADS:
-        return cli_parse_long(value, 1, SIM_THREADS_MAX, &o->threads, err);
-    }
-    return -1;
-}
-
 static cli_result parse_options(int argc, char **argv, simulate_options *o)
 {
     memset(o, 0, sizeof *o);
     o->ticks = -1;
     o->backend = "auto";
-    cli_result r = cli_parse("simulate", simulate_usage, simulate_table, argc, argv,
-                             simulate_on_option, o, NULL);
+    cli_result r = cli_parse("simulate", simulate_usage, simulate_table, argc, argv, o, NULL);
     if (r == CLI_OK && o->ticks < 0) {
         fprintf(stderr, "terrad simulate: --ticks N is required\n");
         return CLI_ERROR;

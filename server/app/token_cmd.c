@@ -22,20 +22,14 @@ typedef struct token_cmd {
 } token_cmd;
 
 static const cli_option token_options[] = {
-    {"auth-file", "FILE", "add: the daemon's --auth-file (made, mode 0600, if missing)"},
-    {"role", "ROLE", "add: viewer (subscribe, read), driver (its own colliders) or admin"},
-    {"name", "NAME", "add: the token's name in logs (unique in the file; A-Z a-z 0-9 . _ @ -)"},
+    {"auth-file", "FILE", "add: the daemon's --auth-file (made, mode 0600, if missing)",
+     CLI_AT_STRING(token_cmd, auth_file)},
+    {"role", "ROLE", "add: viewer (subscribe, read), driver (its own colliders) or admin",
+     CLI_AT_STRING(token_cmd, role)},
+    {"name", "NAME", "add: the token's name in logs (unique in the file; A-Z a-z 0-9 . _ @ -)",
+     CLI_AT_STRING(token_cmd, name)},
     {0},
 };
-
-static int token_on_option(void *ctx, int index, const char *value, error_text *err)
-{
-    token_cmd *c = ctx;
-    (void)err;
-    const char **slot[] = {&c->auth_file, &c->role, &c->name};
-    *slot[index] = value;
-    return 0;
-}
 
 void app_token_usage(FILE *out)
 {
@@ -144,8 +138,7 @@ int app_token(int argc, char **argv)
         return 2;
     }
     token_cmd c = {0};
-    cli_result parsed =
-        cli_parse("token", TOKEN_USAGE, token_options, argc, argv, token_on_option, &c, NULL);
+    cli_result parsed = cli_parse("token", TOKEN_USAGE, token_options, argc, argv, &c, NULL);
     if (parsed != CLI_OK)
         return parsed == CLI_HELP ? 0 : 2;
     return strcmp(verb, "add") == 0 ? token_add(&c) : token_hash();

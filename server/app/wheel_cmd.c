@@ -26,67 +26,17 @@
 typedef struct wheel_options {
     const char *soil_arg;
     sim_soil soil;
-    double compression;
-    int has_compression, json;
-    int has_radius, has_width, has_load;
-    sim_wheel_run run; /* radius, width, load and the testbed's cell, distance, speed, tick */
+    double compression; /* NAN: not given (then the file's, or 0.5) */
+    int json;
+    sim_wheel_run run; /* radius, width, load (NAN: not given; required) and the testbed's cell,
+                          distance, speed, tick */
     double slips[WHEEL_SLIPS_MAX];
     int slip_count;
 } wheel_options;
 
-enum {
-    OPT_SOIL,
-    OPT_RADIUS,
-    OPT_WIDTH,
-    OPT_LOAD,
-    OPT_SLIPS,
-    OPT_FORMAT,
-    OPT_COMPRESSION,
-    OPT_CELL,
-    OPT_DISTANCE,
-    OPT_SPEED,
-    OPT_TICK,
-    OPT_GROUSERS,
-};
-
-static const cli_option wheel_table[] = {
-    [OPT_SOIL] = {"soil", "PRESET|FILE",
-                  "the soil: a preset of docs/models.md (an unknown name lists them)\n"
-                  "or a material JSON file (a scene's \"material\" of the bekker model,\n"
-                  "as terrad calibrate --out writes it)"},
-    [OPT_RADIUS] = {"radius", "M", "the wheel's radius (0.001 to 10)"},
-    [OPT_WIDTH] = {"width", "M", "the wheel's width (0.001 to 10)"},
-    [OPT_LOAD] = {"load", "N", "the vertical load on the wheel (0.001 to 1e7)"},
-    [OPT_SLIPS] = {"slips", "LIST",
-                   "the slips to run, comma-separated, each in [0, 0.95]\n"
-                   "(s = 1 - v / (omega R); at most 100)"},
-    [OPT_FORMAT] = {"format", "csv|json",
-                    "csv (default: slip,drawbar_pull_n,sinkage_m,torque_nm,radius_m,\n"
-                    "width_m,load_n - what terrad calibrate --wheel reads) or json"},
-    [OPT_COMPRESSION] = {"compression", "X",
-                         "the material's compression (default: the file's, or 0.5\n"
-                         "for a preset, as terrad calibrate)"},
-    [OPT_CELL] = {"cell", "M", "the soil bin's cell size (default 0.005; coarser is faster)"},
-    [OPT_DISTANCE] = {"distance", "M",
-                      "each run's travel (default 0.5; means over its second half)"},
-    [OPT_SPEED] = {"speed", "M/S", "the wheel's forward speed (default 0.05)"},
-    [OPT_TICK] = {"tick", "S", "the testbed's time step (default 0.05)"},
-    [OPT_GROUSERS] = {"grousers", "N,H,T",
-                      "lugs on the rim: count (1 to 360), height and thickness (m,\n"
-                      "each <= the radius); default none. The sinkage is then the tips'"},
-    {0},
-};
-
-static const char wheel_usage[] =
-    "--soil PRESET|FILE --radius M --width M --load N --slips LIST [options]";
-
-void app_wheel_usage(FILE *f)
+static int parse_slips(void *ctx, const char *list, error_text *err)
 {
-    cli_print_help(f, "wheel", wheel_usage, wheel_table);
-}
-
-static int parse_slips(wheel_options *o, const char *list, error_text *err)
-{
+    wheel_options *o = ctx;
     o->slip_count = 0;
     const char *p = list;
     for (;;) {
@@ -133,46 +83,66 @@ int app_parse_grousers(const char *v, collider_grousers *g, error_text *err)
     return 0;
 }
 
-static int wheel_on_option(void *ctx, int index, const char *v, error_text *err)
+static int format_option(void *ctx, const char *v, error_text *err)
 {
-    wheel_options *o = ctx;
-    switch (index) {
-    case OPT_SOIL:
-        o->soil_arg = v;
-        return 0;
-    case OPT_RADIUS:
-        o->has_radius = 1;
-        return cli_parse_double(v, 1e-3, 10, &o->run.radius_m, err);
-    case OPT_WIDTH:
-        o->has_width = 1;
-        return cli_parse_double(v, 1e-3, 10, &o->run.width_m, err);
-    case OPT_LOAD:
-        o->has_load = 1;
-        return cli_parse_double(v, 1e-3, 1e7, &o->run.load_n, err);
-    case OPT_SLIPS:
-        return parse_slips(o, v, err);
-    case OPT_FORMAT:
-        if (strcmp(v, "csv") != 0 && strcmp(v, "json") != 0) {
-            error_set(err, "must be csv or json (got \"%s\")", v);
-            return -1;
-        }
-        o->json = strcmp(v, "json") == 0;
-        return 0;
-    case OPT_COMPRESSION:
-        o->has_compression = 1;
-        return cli_parse_double(v, 0, 1, &o->compression, err);
-    case OPT_CELL:
-        return cli_parse_double(v, 1e-3, 0.1, &o->run.cell_m, err);
-    case OPT_DISTANCE:
-        return cli_parse_double(v, 0.05, 10, &o->run.distance_m, err);
-    case OPT_SPEED:
-        return cli_parse_double(v, 1e-3, 10, &o->run.speed_m_s, err);
-    case OPT_TICK:
-        return cli_parse_double(v, 1e-4, 1, &o->run.tick_s, err);
-    case OPT_GROUSERS:
-        return app_parse_grousers(v, &o->run.grousers, err);
+    if (strcmp(v, "csv") != 0 && strcmp(v, "json") != 0) {
+        error_set(err, "must be csv or json (got \"%s\")", v);
+        return -1;
     }
+    ((wheel_options *)ctx)->json = strcmp(v, "json") == 0;
     return 0;
+}
+
+static int grousers_option(void *ctx, const char *v, error_text *err)
+{
+    return app_parse_grousers(v, &((wheel_options *)ctx)->run.grousers, err);
+}
+
+static const cli_option wheel_table[] = {
+    {"soil", "PRESET|FILE",
+     "the soil: a preset of docs/models.md (an unknown name lists them)\n"
+     "or a material JSON file (a scene's \"material\" of the bekker model,\n"
+     "as terrad calibrate --out writes it)",
+     CLI_AT_STRING(wheel_options, soil_arg)},
+    {"radius", "M", "the wheel's radius (0.001 to 10)",
+     CLI_AT_DOUBLE(wheel_options, run.radius_m, 1e-3, 10)},
+    {"width", "M", "the wheel's width (0.001 to 10)",
+     CLI_AT_DOUBLE(wheel_options, run.width_m, 1e-3, 10)},
+    {"load", "N", "the vertical load on the wheel (0.001 to 1e7)",
+     CLI_AT_DOUBLE(wheel_options, run.load_n, 1e-3, 1e7)},
+    {"slips", "LIST",
+     "the slips to run, comma-separated, each in [0, 0.95]\n"
+     "(s = 1 - v / (omega R); at most 100)",
+     CLI_CALLS(parse_slips)},
+    {"format", "csv|json",
+     "csv (default: slip,drawbar_pull_n,sinkage_m,torque_nm,radius_m,\n"
+     "width_m,load_n - what terrad calibrate --wheel reads) or json",
+     CLI_CALLS(format_option)},
+    {"compression", "X",
+     "the material's compression (default: the file's, or 0.5\n"
+     "for a preset, as terrad calibrate)",
+     CLI_AT_DOUBLE(wheel_options, compression, 0, 1)},
+    {"cell", "M", "the soil bin's cell size (default 0.005; coarser is faster)",
+     CLI_AT_DOUBLE(wheel_options, run.cell_m, 1e-3, 0.1)},
+    {"distance", "M", "each run's travel (default 0.5; means over its second half)",
+     CLI_AT_DOUBLE(wheel_options, run.distance_m, 0.05, 10)},
+    {"speed", "M/S", "the wheel's forward speed (default 0.05)",
+     CLI_AT_DOUBLE(wheel_options, run.speed_m_s, 1e-3, 10)},
+    {"tick", "S", "the testbed's time step (default 0.05)",
+     CLI_AT_DOUBLE(wheel_options, run.tick_s, 1e-4, 1)},
+    {"grousers", "N,H,T",
+     "lugs on the rim: count (1 to 360), height and thickness (m,\n"
+     "each <= the radius); default none. The sinkage is then the tips'",
+     CLI_CALLS(grousers_option)},
+    {0},
+};
+
+static const char wheel_usage[] =
+    "--soil PRESET|FILE --radius M --width M --load N --slips LIST [options]";
+
+void app_wheel_usage(FILE *f)
+{
+    cli_print_help(f, "wheel", wheel_usage, wheel_table);
 }
 
 int app_soil_load(const char *arg, const char *option, double cell_m, sim_soil *soil,
@@ -208,7 +178,7 @@ static int wheel_soil(wheel_options *o, error_text *err)
     double compression;
     if (app_soil_load(o->soil_arg, "--soil", o->run.cell_m, &o->soil, &compression, err) != 0)
         return -1;
-    if (!o->has_compression)
+    if (isnan(o->compression))
         o->compression = compression;
     o->run.compression = o->compression;
     return 0;
@@ -262,11 +232,10 @@ static void print_json(const wheel_options *o, const sim_wheel_result *r)
     double values[10] = {
         s->n,         s->kc,           s->kphi,           s->cohesion_pa, s->friction_deg,
         s->shear_k_m, s->elastic_pa_m, s->damping_pa_s_m, s->slip_n,      s->density_kg_m3};
-    cJSON *source = cJSON_CreateString(o->soil_arg); /* the one string: escaped by cJSON */
-    char *quoted = source ? cJSON_PrintUnformatted(source) : NULL;
+    /* the one string: escaped by cJSON */
+    char *quoted = json_print_delete(cJSON_CreateString(o->soil_arg));
     printf("{\"soil_source\": %s, \"soil\": {", quoted ? quoted : "null");
-    cJSON_free(quoted);
-    cJSON_Delete(source);
+    free(quoted);
     for (int k = 0; k < 10; k++) {
         printf("%s\"%s\": ", k ? ", " : "", names[k]);
         exact(stdout, values[k]);
@@ -301,16 +270,16 @@ int app_wheel(int argc, char **argv)
     wheel_options o;
     memset(&o, 0, sizeof o);
     sim_wheel_run_defaults(&o.run);
-    cli_result r =
-        cli_parse("wheel", wheel_usage, wheel_table, argc, argv, wheel_on_option, &o, NULL);
+    o.run.radius_m = o.run.width_m = o.run.load_n = o.compression = NAN;
+    cli_result r = cli_parse("wheel", wheel_usage, wheel_table, argc, argv, &o, NULL);
     if (r != CLI_OK)
         return r == CLI_HELP ? 0 : 2;
-    const char *missing = !o.soil_arg     ? "--soil"
-                          : !o.has_radius ? "--radius"
-                          : !o.has_width  ? "--width"
-                          : !o.has_load   ? "--load"
-                          : !o.slip_count ? "--slips"
-                                          : NULL;
+    const char *missing = !o.soil_arg             ? "--soil"
+                          : isnan(o.run.radius_m) ? "--radius"
+                          : isnan(o.run.width_m)  ? "--width"
+                          : isnan(o.run.load_n)   ? "--load"
+                          : !o.slip_count         ? "--slips"
+                                                  : NULL;
     error_text err;
     if (missing) {
         fprintf(stderr, "terrad wheel: %s is required (see terrad wheel --help)\n", missing);

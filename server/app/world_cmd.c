@@ -30,29 +30,18 @@ typedef struct world_cmd {
 
 static const cli_option world_options[] = {
     {"cluster", "URLS",
-     "comma-separated NATS URLs (default: $TERRAD_CLUSTER, else\nnats://127.0.0.1:4222)"},
-    {"scene", "FILE", "add: the world's scene JSON (checked before it is registered)"},
+     "comma-separated NATS URLs (default: $TERRAD_CLUSTER, else\nnats://127.0.0.1:4222)",
+     CLI_AT_STRING(world_cmd, cluster_urls)},
+    {"scene", "FILE", "add: the world's scene JSON (checked before it is registered)",
+     CLI_AT_STRING(world_cmd, scene_path)},
     {"http", "URL",
      "http://HOST:PORT of a node (or daemon): go through its world API\n(POST/GET/DELETE "
-     "/v1/worlds) instead of NATS (default: $TERRAD_HTTP)"},
-    {"token", "TOKEN", "--http: an admin token where it has tokens (default: $TERRAD_TOKEN)"},
+     "/v1/worlds) instead of NATS (default: $TERRAD_HTTP)",
+     CLI_AT_STRING(world_cmd, http_url)},
+    {"token", "TOKEN", "--http: an admin token where it has tokens (default: $TERRAD_TOKEN)",
+     CLI_AT_STRING(world_cmd, token)},
     {0},
 };
-
-static int world_on_option(void *ctx, int index, const char *value, error_text *err)
-{
-    world_cmd *c = ctx;
-    (void)err;
-    if (index == 0)
-        c->cluster_urls = value;
-    else if (index == 1)
-        c->scene_path = value;
-    else if (index == 2)
-        c->http_url = value;
-    else
-        c->token = value;
-    return 0;
-}
 
 /* The scene file's text, refused unless the daemon's parser accepts it. */
 static char *scene_text_checked(const char *path, error_text *err)
@@ -248,8 +237,8 @@ int app_world(int argc, char **argv)
     /* options follow the verb (list) or the name (add, remove): that word is
      * cli_parse's argv[0] */
     int skip = named ? 1 : 0;
-    cli_result parsed = cli_parse("world", WORLD_USAGE, world_options, argc - skip, argv + skip,
-                                  world_on_option, &c, NULL);
+    cli_result parsed =
+        cli_parse("world", WORLD_USAGE, world_options, argc - skip, argv + skip, &c, NULL);
     if (parsed != CLI_OK)
         return parsed == CLI_HELP ? 0 : 2;
     const char *name = named ? argv[1] : NULL;

@@ -149,7 +149,8 @@ int json_get_bool(const cJSON *obj, const char *path, const char *key, int *out,
 int json_get_vector(const cJSON *obj, const char *path, const char *key, int n, double limit,
                     double *out, error_text *err);
 /* o's unformatted text (the caller frees it), and o deleted: a reply or body
- * built as an object and sent as text. NULL when out of memory. */
+ * built as an object and sent as text. NULL when out of memory (o NULL too:
+ * a create that failed, so a caller need not test it first). */
 char *json_print_delete(cJSON *o);
 
 /* ---- Command lines (cli.c): one parser, on getopt_long, for every command ----
@@ -157,12 +158,46 @@ char *json_print_delete(cJSON *o);
  * accepts "--opt value" and "--opt=value", answers "--help" by printing the
  * command's options to stdout, and refuses an unknown option ("unknown option
  * '--x'"), a missing value ("'--x' needs a value") and a value given to a
- * flag, each on stderr prefixed with "terrad CMD: ". */
+ * flag, each on stderr prefixed with "terrad CMD: ".
+ *
+ * A row also says where its value goes, as nginx's command tables do
+ * (ngx_conf_set_str_slot and an offsetof): cli_parse stores a string, an
+ * integer or a number in [lo, hi], or a flag's 1, at an offset into the
+ * command's options struct (ctx), so a plain option is written once, in its
+ * row; an option that needs code names a function (CLI_CALLS). The CLI_AT_*
+ * macros give a row's tail and check the field's type. */
+typedef enum cli_store {
+    CLI_CALL = 0, /* call(ctx, value, err): an option that needs code */
+    CLI_STRING,   /* const char *: the value itself (argv outlives the options) */
+    CLI_LONG,     /* long: an integer in [lo, hi] (cli_parse_long's refusal) */
+    CLI_INT,      /* int: an integer in [lo, hi] (cli_parse_long's refusal) */
+    CLI_DOUBLE,   /* double: a number in [lo, hi] (cli_parse_double's refusal) */
+    CLI_FLAG,     /* int: set to 1 (a flag: value_name NULL) */
+} cli_store;
+
 typedef struct cli_option {
     const char *name;       /* without the dashes */
     const char *value_name; /* NULL: a flag; else the value's name in --help ("N", "FILE") */
     const char *help;       /* one or more lines; '\n' starts a new indented line */
+    cli_store store;
+    size_t offset; /* of the field in ctx, for every store but CLI_CALL */
+    double lo, hi; /* CLI_LONG, CLI_INT, CLI_DOUBLE: the range (whole numbers for integers) */
+    int (*call)(void *ctx, const char *value, error_text *err); /* CLI_CALL: 0, or -1 and err */
 } cli_option;
+
+/* offsetof(type, field), refused at compile time unless the field is a ctype */
+#define CLI_FIELD_(type, field, ctype)                                                             \
+    (offsetof(type, field) + 0 * sizeof((ctype *){&((type *)0)->field}))
+#define CLI_AT_STRING(type, field)                                                                 \
+    .store = CLI_STRING, .offset = CLI_FIELD_(type, field, const char *)
+#define CLI_AT_LONG(type, field, min, max)                                                         \
+    .store = CLI_LONG, .offset = CLI_FIELD_(type, field, long), .lo = (min), .hi = (max)
+#define CLI_AT_INT(type, field, min, max)                                                          \
+    .store = CLI_INT, .offset = CLI_FIELD_(type, field, int), .lo = (min), .hi = (max)
+#define CLI_AT_DOUBLE(type, field, min, max)                                                       \
+    .store = CLI_DOUBLE, .offset = CLI_FIELD_(type, field, double), .lo = (min), .hi = (max)
+#define CLI_AT_FLAG(type, field) .store = CLI_FLAG, .offset = CLI_FIELD_(type, field, int)
+#define CLI_CALLS(function) .store = CLI_CALL, .call = (function)
 
 typedef enum cli_result {
     CLI_OK = 0,    /* every option was handled; *first_operand indexes the rest */
@@ -170,16 +205,14 @@ typedef enum cli_result {
     CLI_ERROR = 2, /* a message was printed: exit 2 */
 } cli_result;
 
-/* on_option is called once per option, in order, with its index in options
- * and its value (NULL for a flag); it returns 0, or -1 after filling err (the
- * message is printed as "terrad CMD: --name: <err>"). argv[0] is skipped, as
- * getopt does: pass the command's own argv (argv[0] = the command's name).
- * Operands (arguments that are not options) are left in place after
- * *first_operand when first_operand is not NULL, and refused otherwise. */
+/* Each option is stored or its row's call made once, in order (a refusal
+ * fills err and is printed as "terrad CMD: --name: <err>"). argv[0] is
+ * skipped, as getopt does: pass the command's own argv (argv[0] = the
+ * command's name). Operands (arguments that are not options) are left in
+ * place after *first_operand when first_operand is not NULL, and refused
+ * otherwise. */
 cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
-                     char **argv,
-                     int (*on_option)(void *ctx, int index, const char *value, error_text *err),
-                     void *ctx, int *first_operand);
+                     char **argv, void *ctx, int *first_operand);
 /* The help text cli_parse prints for --help: usage, then one line per option. */
 void cli_print_help(FILE *out, const char *command, const char *usage, const cli_option *options);
 /* An integer in [lo, hi] from an option's value; err says why not. */

@@ -2,7 +2,9 @@
  * cli.c: the one command-line parser (base.h), on getopt_long. Every command
  * (serve, simulate, export, bench, ...) describes its options in a table, so
  * "--opt value" and "--opt=value" both work, "terrad CMD --help" prints that
- * command's options, and a mistake is named the same way everywhere.
+ * command's options, and a mistake is named the same way everywhere. A row
+ * says where its value goes (store_option): most are stored here, at an
+ * offset into the command's options, the rest call their row's function.
  */
 #include "base/base.h"
 
@@ -34,10 +36,35 @@ void cli_print_help(FILE *out, const char *command, const char *usage, const cli
     fprintf(out, "  %-22s%s\n", "--help", "this text");
 }
 
+/* One option's value where its row says: a field of ctx, or its row's call. */
+static int store_option(const cli_option *o, void *ctx, const char *value, error_text *err)
+{
+    char *field = (char *)ctx + o->offset;
+    long x;
+    switch (o->store) {
+    case CLI_STRING:
+        *(const char **)(void *)field = value;
+        return 0;
+    case CLI_LONG:
+        return cli_parse_long(value, (long)o->lo, (long)o->hi, (long *)(void *)field, err);
+    case CLI_INT:
+        if (cli_parse_long(value, (long)o->lo, (long)o->hi, &x, err) != 0)
+            return -1;
+        *(int *)(void *)field = (int)x;
+        return 0;
+    case CLI_DOUBLE:
+        return cli_parse_double(value, o->lo, o->hi, (double *)(void *)field, err);
+    case CLI_FLAG:
+        *(int *)(void *)field = 1;
+        return 0;
+    case CLI_CALL:
+        break;
+    }
+    return o->call ? o->call(ctx, value, err) : -1;
+}
+
 cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
-                     char **argv,
-                     int (*on_option)(void *ctx, int index, const char *value, error_text *err),
-                     void *ctx, int *first_operand)
+                     char **argv, void *ctx, int *first_operand)
 {
     struct option longs[CLI_OPTIONS_MAX + 2];
     int n = 0;
@@ -92,7 +119,7 @@ cli_result cli_parse(const char *command, const char *usage, const cli_option *o
             return CLI_HELP;
         }
         error_text err = {{0}};
-        if (on_option(ctx, c, optarg, &err) != 0) {
+        if (store_option(&options[c], ctx, optarg, &err) != 0) {
             fprintf(stderr, "terrad %s: --%s: %s\n", command, options[c].name,
                     err.message[0] ? err.message : "invalid");
             return CLI_ERROR;

@@ -9,9 +9,10 @@
  * the tick nothing. Histograms hold several words that must agree (buckets,
  * sum, count), so each has a small mutex, held only for an increment.
  *
- * Every family is one row of one table (`families`: name, type, help,
- * label, slots): metrics_reset zeroes the slots, the update functions write
- * them, metrics_render walks the rows in order. Families with files of their
+ * Every family is one row of one list (METRIC_FAMILIES: name, type, help,
+ * label), from which both the slot enum and the table `families` are made:
+ * metrics_reset zeroes the slots, the update functions write them,
+ * metrics_render walks the rows in order. Families with files of their
  * own: metrics_worlds.c, _auth, _process, _room, _edits, _steps, _cluster.
  *
  * Durations arrive in milliseconds (what the tick measures) and leave in
@@ -138,59 +139,136 @@ static void histogram_reset(histogram *hg)
 /* ---- the table: every family /metrics shows ---- */
 
 /* A family's values live in one array of relaxed atomics, indexed by slot: a
- * scalar has one slot, a labelled family one per label value. The family
- * table below says, once for each family, its name, type, help, label and
- * slots; the update functions write a slot, and metrics_reset and
- * metrics_render walk the table (so a new metric is one slot and one row). */
-enum slot {
-    S_TICK,
-    S_VOLUME,
-    S_ACTIVE_CELLS,
-    S_COLLIDERS,
-    S_CLIENTS,
-    S_BYTES_IN,
-    S_BYTES_OUT,
-    S_MESSAGES_IN,
-    S_FRAMES_OUT,
-    S_DELTA_RAW,
-    S_DELTA_COMPRESSED,
-    S_BUDGET_REFUSALS,
-    S_SNAPSHOTS_COALESCED,
-    S_SNAPSHOTS_DEFERRED,
-    S_SNAPSHOTS_DROPPED,
-    S_FRAMES_COALESCED,
-    S_FRAMES_DROPPED,
-    S_CLIENTS_STALE,
-    S_BUDGET_BYTES,
-    S_BUDGET_COALESCED,
-    S_BUDGET_OVERRUNS,
-    S_HEIGHTS_REFUSED,
-    S_HTTP_CUT,
-    S_TICK_SHED,
-    S_FOOTPRINT_FRAMES,
-    S_FOOTPRINT_EVENTS,
-    S_FOOTPRINT_FRAMES_DROPPED,
-    S_SIM_THREADS,
-    S_TICK_OVERRUNS,
-    S_REFUSED_WINDOWS,
-    S_GPU_TILE_UPLOADS,
-    S_GPU_TILE_UPLOAD_BYTES,
-    S_GPU_TILE_EVICTIONS,
-    S_GPU_TILES_RESIDENT,
-    S_STORE_WAL_BYTES,
-    S_STORE_DURABLE_TICK,
-    S_STORE_AVAILABLE,
-    S_STORE_COMPACTIONS,
-    S_STORE_COMPACTION_US,
-    S_STORE_RECOVERY_US,
-    S_STORE_RECORDS_REPLAYED,
-    S_STORE_BYTES_CUT,
-    S_REFUSED, /* by wire error code, TERRAD_ERR_FIRST first */
-    S_STORE_ERRORS = S_REFUSED + TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,
-    S_SERVICE_DROPPED = S_STORE_ERRORS + STORE_ERROR_KINDS,
-    S_SCRATCH = S_SERVICE_DROPPED + SERVICE_DROP_REASONS,
-    S_COUNT = S_SCRATCH + MEMORY_STAGE_COUNT
-};
+ * scalar has one slot, a labelled family one per label value. METRIC_FAMILIES
+ * is every family, once, in the order /metrics shows them; the slot enum and
+ * the family table are both made from it, so a new metric is one row here
+ * (and the update function that writes its slot). metrics_reset and
+ * metrics_render walk the table. A row is one of:
+ *   SCALAR(ID, name, kind, help): one series, in slot S_ID;
+ *   LABELLED(ID, name, kind, label, values, count, help): count series, one
+ *     per label value, in the slots from S_ID on;
+ *   FAMILY(.field = value, ...): a family with no slots of its own, written
+ *     out as its table row (the histograms, the ratio, the memory parts). */
+#define METRIC_FAMILIES(SCALAR, LABELLED, FAMILY)                                                  \
+    FAMILY(.name = "terrad_tick_duration_seconds", .kind = F_HISTOGRAM,                            \
+           .help = "Wall time of one simulation tick, all stages included.", .hist = &tick_hist)   \
+    FAMILY(.name = "terrad_stage_duration_seconds", .kind = F_HISTOGRAM,                           \
+           .help = "Wall time of one stage of a tick, by stage.", .label = "stage",                \
+           .label_values = stage_names, .series = STAGE_COUNT, .hist = stage_hist)                 \
+    FAMILY(.name = "terrad_pose_to_delta_latency_seconds", .kind = F_HISTOGRAM,                    \
+           .help =                                                                                 \
+               "Time from a pose batch's arrival to the delta frames of the tick that used it.",   \
+           .hist = &latency_hist)                                                                  \
+    /* the world, the clients and what went over the websocket */                                  \
+    SCALAR(TICK, "terrad_tick", F_GAUGE, "The last completed tick.")                               \
+    /* %lld of an int64: exact, unlike any double formatting above 2^53. */                        \
+    SCALAR(VOLUME, "terrad_volume_units", F_GAUGE,                                                 \
+           "Sum of all heights in height units (exact integer).")                                  \
+    SCALAR(ACTIVE_CELLS, "terrad_active_cells", F_GAUGE,                                           \
+           "Cells inside the last tick's active windows.")                                         \
+    SCALAR(COLLIDERS, "terrad_colliders", F_GAUGE, "Live colliders.")                              \
+    SCALAR(CLIENTS, "terrad_clients", F_GAUGE, "Connected websocket clients.")                     \
+    SCALAR(BYTES_IN, "terrad_bytes_in_total", F_COUNTER, "Websocket payload bytes received.")      \
+    SCALAR(BYTES_OUT, "terrad_bytes_out_total", F_COUNTER, "Websocket payload bytes sent.")        \
+    SCALAR(MESSAGES_IN, "terrad_messages_in_total", F_COUNTER, "Websocket messages received.")     \
+    SCALAR(FRAMES_OUT, "terrad_frames_out_total", F_COUNTER, "Websocket frames sent.")             \
+    SCALAR(DELTA_RAW, "terrad_delta_raw_bytes_total", F_COUNTER,                                   \
+           "Delta payload bytes before compression.")                                              \
+    SCALAR(DELTA_COMPRESSED, "terrad_delta_compressed_bytes_total", F_COUNTER,                     \
+           "Delta payload bytes after compression.")                                               \
+    FAMILY(.name = "terrad_delta_compression_ratio", .kind = F_RATIO,                              \
+           .help =                                                                                 \
+               "Raw over compressed delta bytes over the process's life (0 before any delta).",    \
+           .slot = S_DELTA_RAW, .slot2 = S_DELTA_COMPRESSED)                                       \
+    SCALAR(BUDGET_REFUSALS, "terrad_colliders_refused_budget_total", F_COUNTER,                    \
+           "collider_create refused by a client's max_active_cells or max_mesh_triangles.")        \
+    SCALAR(SNAPSHOTS_COALESCED, "terrad_snapshot_requests_coalesced_total", F_COUNTER,             \
+           "Snapshot requests (subscribe, resync) answered by an identical pending one.")          \
+    SCALAR(SNAPSHOTS_DEFERRED, "terrad_snapshot_requests_deferred_total", F_COUNTER,               \
+           "Snapshot requests left for a later tick by the per-tick snapshot budget.")             \
+    SCALAR(SNAPSHOTS_DROPPED, "terrad_snapshot_requests_dropped_total", F_COUNTER,                 \
+           "Snapshot requests never built because their client left.")                             \
+    SCALAR(FRAMES_COALESCED, "terrad_frames_coalesced_total", F_COUNTER,                           \
+           "Delta frames replaced by a fresh snapshot for a slow client.")                         \
+    SCALAR(FRAMES_DROPPED, "terrad_frames_dropped_total", F_COUNTER,                               \
+           "Frames never sent (slow client or overflow).")                                         \
+    SCALAR(CLIENTS_STALE, "terrad_clients_stale_total", F_COUNTER,                                 \
+           "Clients switched to snapshots for being more than max_client_lag_ticks behind.")       \
+    SCALAR(BUDGET_BYTES, "terrad_budget_bytes_total", F_COUNTER,                                   \
+           "Bytes queued to clients with a bandwidth budget (websocket headers included).")        \
+    SCALAR(BUDGET_COALESCED, "terrad_budget_deltas_coalesced_total", F_COUNTER,                    \
+           "Tile deltas folded into a budgeted client's pending tiles, sent later as one.")        \
+    SCALAR(BUDGET_OVERRUNS, "terrad_budget_overruns_total", F_COUNTER,                             \
+           "Frames that took a budgeted client's last second past its budget (replies and "        \
+           "status frames, which are never held, or a piece larger than the budget).")             \
+    SCALAR(HEIGHTS_REFUSED, "terrad_http_heights_refused_total", F_COUNTER,                        \
+           "/v1/heights requests refused (429): their address had too many bytes in flight.")      \
+    SCALAR(HTTP_CUT, "terrad_http_connections_cut_total", F_COUNTER,                               \
+           "HTTP connections closed while sending their headers: past the header deadline, "       \
+           "or to make room for a newer one past a connection limit.")                             \
+    LABELLED(TICK_SHED, "terrad_tick_shed_total", F_COUNTER, "reason", shed_reasons, 1,            \
+             "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells.") \
+    SCALAR(FOOTPRINT_FRAMES, "terrad_footprint_frames_total", F_COUNTER,                           \
+           "FOOTPRINTS frames queued to clients (decals model).")                                  \
+    SCALAR(FOOTPRINT_EVENTS, "terrad_footprint_events_total", F_COUNTER,                           \
+           "Footprint events in those frames.")                                                    \
+    SCALAR(FOOTPRINT_FRAMES_DROPPED, "terrad_footprint_frames_dropped_total", F_COUNTER,           \
+           "FOOTPRINTS frames not sent to a slow client.")                                         \
+    LABELLED(REFUSED, "terrad_refused_messages_total", F_COUNTER, "reason", refused_names,         \
+             TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,                                               \
+             "Client messages refused, by wire error name (proto/PROTOCOL.md).")                   \
+    /* the backend: threads, overruns, refused windows and the GL tile cache */                    \
+    SCALAR(SIM_THREADS, "terrad_sim_threads", F_GAUGE,                                             \
+           "Threads the CPU twin's stages run on (serve --threads; heights do not depend on it).") \
+    SCALAR(TICK_OVERRUNS, "terrad_tick_overruns_total", F_COUNTER,                                 \
+           "Ticks that took longer than the tick period.")                                         \
+    SCALAR(REFUSED_WINDOWS, "terrad_refused_windows_total", F_COUNTER,                             \
+           "Active windows refused because their heights would leave the height limits.")          \
+    SCALAR(GPU_TILE_UPLOADS, "terrad_gpu_tile_uploads_total", F_COUNTER,                           \
+           "World tiles uploaded into the GL backend's tile cache.")                               \
+    SCALAR(GPU_TILE_UPLOAD_BYTES, "terrad_gpu_tile_upload_bytes_total", F_COUNTER,                 \
+           "Bytes of those uploads.")                                                              \
+    SCALAR(GPU_TILE_EVICTIONS, "terrad_gpu_tile_evictions_total", F_COUNTER,                       \
+           "Resident tiles the GL tile cache replaced by others (LRU).")                           \
+    SCALAR(GPU_TILES_RESIDENT, "terrad_gpu_tiles_resident", F_GAUGE,                               \
+           "World tiles resident in the GL tile cache.")                                           \
+    /* the store (server/store) */                                                                 \
+    SCALAR(STORE_WAL_BYTES, "terrad_store_wal_bytes_total", F_COUNTER,                             \
+           "Bytes appended to the write-ahead log.")                                               \
+    FAMILY(.name = "terrad_store_fsync_duration_seconds", .kind = F_HISTOGRAM,                     \
+           .help = "Wall time of one fdatasync of the write-ahead log.", .hist = &fsync_hist)      \
+    SCALAR(STORE_DURABLE_TICK, "terrad_store_durable_tick", F_GAUGE,                               \
+           "The last tick as durable as the durability policy promises.")                          \
+    SCALAR(STORE_AVAILABLE, "terrad_store_available", F_GAUGE,                                     \
+           "1 while ticks can be made durable; 0 while deformation is refused.")                   \
+    SCALAR(STORE_COMPACTIONS, "terrad_store_compactions_total", F_COUNTER,                         \
+           "Log compactions into tile snapshots.")                                                 \
+    SCALAR(STORE_COMPACTION_US, "terrad_store_last_compaction_seconds", F_SECONDS,                 \
+           "Wall time of the last compaction (its own thread).")                                   \
+    LABELLED(STORE_ERRORS, "terrad_store_errors_total", F_COUNTER, "kind", store_error_kinds,      \
+             STORE_ERROR_KINDS, "Storage errors, by kind.")                                        \
+    SCALAR(STORE_RECOVERY_US, "terrad_store_recovery_seconds", F_SECONDS,                          \
+           "Wall time of the recovery at start (snapshots and log replay).")                       \
+    SCALAR(STORE_RECORDS_REPLAYED, "terrad_store_recovery_records", F_GAUGE,                       \
+           "Log records replayed at start.")                                                       \
+    SCALAR(STORE_BYTES_CUT, "terrad_store_cut_tail_bytes", F_GAUGE,                                \
+           "Bytes of a torn or corrupt log tail cut at start (0: none).")                          \
+    /* work the service dropped (server/service) */                                                \
+    LABELLED(SERVICE_DROPPED, "terrad_service_dropped_total", F_COUNTER, "reason",                 \
+             service_drop_reasons, SERVICE_DROP_REASONS,                                           \
+             "Work a tick could not do (a frame, snapshot, poses or command dropped), by reason.") \
+    /* memory by part and the models' scratch by stage */                                          \
+    FAMILY(.name = "terrad_memory_bytes", .kind = F_PARTS,                                         \
+           .help = "Memory held by a part of the daemon, by part.", .label = "part", .series = 1)  \
+    LABELLED(SCRATCH, "terrad_sim_scratch_bytes", F_GAUGE, "stage", memory_stage_names,            \
+             MEMORY_STAGE_COUNT, "Scratch memory the deformation models hold, by stage.")
+
+/* The slots: S_ID for a scalar; S_ID to S_ID_LAST for a labelled family. */
+#define SLOT_SCALAR(id, ...) S_##id,
+#define SLOT_LABELLED(id, name, kind, label, values, count, help)                                  \
+    S_##id, S_##id##_LAST = S_##id - 1 + (count),
+#define SLOT_NONE(...)
+enum slot { METRIC_FAMILIES(SLOT_SCALAR, SLOT_LABELLED, SLOT_NONE) S_COUNT };
 
 /* Gauges are stored as the bits of an int64, counters as a uint64. */
 static atomic_uint_fast64_t value[S_COUNT];
@@ -219,143 +297,14 @@ typedef struct family {
     histogram *hist;                 /* F_HISTOGRAM */
 } family;
 
-#define SCALAR(n, k, s, h)                                                                         \
-    {                                                                                              \
-        .name = n, .kind = k, .help = h, .slot = s                                                 \
-    }
-#define LABELLED(n, k, s, l, v, count, h)                                                          \
-    {                                                                                              \
-        .name = n, .kind = k, .help = h, .slot = s, .label = l, .label_values = v, .series = count \
-    }
-
 static const char *const shed_reasons[] = {"max_tick_cells"};
 
-static const family families[] = {
-    {.name = "terrad_tick_duration_seconds",
-     .kind = F_HISTOGRAM,
-     .help = "Wall time of one simulation tick, all stages included.",
-     .hist = &tick_hist},
-    {.name = "terrad_stage_duration_seconds",
-     .kind = F_HISTOGRAM,
-     .help = "Wall time of one stage of a tick, by stage.",
-     .label = "stage",
-     .label_values = stage_names,
-     .series = STAGE_COUNT,
-     .hist = stage_hist},
-    {.name = "terrad_pose_to_delta_latency_seconds",
-     .kind = F_HISTOGRAM,
-     .help = "Time from a pose batch's arrival to the delta frames of the tick that used it.",
-     .hist = &latency_hist},
-    /* the world, the clients and what went over the websocket */
-    SCALAR("terrad_tick", F_GAUGE, S_TICK, "The last completed tick."),
-    /* %lld of an int64: exact, unlike any double formatting above 2^53. */
-    SCALAR("terrad_volume_units", F_GAUGE, S_VOLUME,
-           "Sum of all heights in height units (exact integer)."),
-    SCALAR("terrad_active_cells", F_GAUGE, S_ACTIVE_CELLS,
-           "Cells inside the last tick's active windows."),
-    SCALAR("terrad_colliders", F_GAUGE, S_COLLIDERS, "Live colliders."),
-    SCALAR("terrad_clients", F_GAUGE, S_CLIENTS, "Connected websocket clients."),
-    SCALAR("terrad_bytes_in_total", F_COUNTER, S_BYTES_IN, "Websocket payload bytes received."),
-    SCALAR("terrad_bytes_out_total", F_COUNTER, S_BYTES_OUT, "Websocket payload bytes sent."),
-    SCALAR("terrad_messages_in_total", F_COUNTER, S_MESSAGES_IN, "Websocket messages received."),
-    SCALAR("terrad_frames_out_total", F_COUNTER, S_FRAMES_OUT, "Websocket frames sent."),
-    SCALAR("terrad_delta_raw_bytes_total", F_COUNTER, S_DELTA_RAW,
-           "Delta payload bytes before compression."),
-    SCALAR("terrad_delta_compressed_bytes_total", F_COUNTER, S_DELTA_COMPRESSED,
-           "Delta payload bytes after compression."),
-    {.name = "terrad_delta_compression_ratio",
-     .kind = F_RATIO,
-     .help = "Raw over compressed delta bytes over the process's life (0 before any delta).",
-     .slot = S_DELTA_RAW,
-     .slot2 = S_DELTA_COMPRESSED},
-    SCALAR("terrad_colliders_refused_budget_total", F_COUNTER, S_BUDGET_REFUSALS,
-           "collider_create refused by a client's max_active_cells or max_mesh_triangles."),
-    SCALAR("terrad_snapshot_requests_coalesced_total", F_COUNTER, S_SNAPSHOTS_COALESCED,
-           "Snapshot requests (subscribe, resync) answered by an identical pending one."),
-    SCALAR("terrad_snapshot_requests_deferred_total", F_COUNTER, S_SNAPSHOTS_DEFERRED,
-           "Snapshot requests left for a later tick by the per-tick snapshot budget."),
-    SCALAR("terrad_snapshot_requests_dropped_total", F_COUNTER, S_SNAPSHOTS_DROPPED,
-           "Snapshot requests never built because their client left."),
-    SCALAR("terrad_frames_coalesced_total", F_COUNTER, S_FRAMES_COALESCED,
-           "Delta frames replaced by a fresh snapshot for a slow client."),
-    SCALAR("terrad_frames_dropped_total", F_COUNTER, S_FRAMES_DROPPED,
-           "Frames never sent (slow client or overflow)."),
-    SCALAR("terrad_clients_stale_total", F_COUNTER, S_CLIENTS_STALE,
-           "Clients switched to snapshots for being more than max_client_lag_ticks behind."),
-    SCALAR("terrad_budget_bytes_total", F_COUNTER, S_BUDGET_BYTES,
-           "Bytes queued to clients with a bandwidth budget (websocket headers included)."),
-    SCALAR("terrad_budget_deltas_coalesced_total", F_COUNTER, S_BUDGET_COALESCED,
-           "Tile deltas folded into a budgeted client's pending tiles, sent later as one."),
-    SCALAR("terrad_budget_overruns_total", F_COUNTER, S_BUDGET_OVERRUNS,
-           "Frames that took a budgeted client's last second past its budget (replies and "
-           "status frames, which are never held, or a piece larger than the budget)."),
-    SCALAR("terrad_http_heights_refused_total", F_COUNTER, S_HEIGHTS_REFUSED,
-           "/v1/heights requests refused (429): their address had too many bytes in flight."),
-    SCALAR("terrad_http_connections_cut_total", F_COUNTER, S_HTTP_CUT,
-           "HTTP connections closed while sending their headers: past the header deadline, "
-           "or to make room for a newer one past a connection limit."),
-    LABELLED("terrad_tick_shed_total", F_COUNTER, S_TICK_SHED, "reason", shed_reasons, 1,
-             "Colliders that waited a tick: the tick's footprint cells were over max_tick_cells."),
-    SCALAR("terrad_footprint_frames_total", F_COUNTER, S_FOOTPRINT_FRAMES,
-           "FOOTPRINTS frames queued to clients (decals model)."),
-    SCALAR("terrad_footprint_events_total", F_COUNTER, S_FOOTPRINT_EVENTS,
-           "Footprint events in those frames."),
-    SCALAR("terrad_footprint_frames_dropped_total", F_COUNTER, S_FOOTPRINT_FRAMES_DROPPED,
-           "FOOTPRINTS frames not sent to a slow client."),
-    LABELLED("terrad_refused_messages_total", F_COUNTER, S_REFUSED, "reason", refused_names,
-             TERRAD_ERR_LAST - TERRAD_ERR_FIRST + 1,
-             "Client messages refused, by wire error name (proto/PROTOCOL.md)."),
-    /* the backend: threads, overruns, refused windows and the GL tile cache */
-    SCALAR("terrad_sim_threads", F_GAUGE, S_SIM_THREADS,
-           "Threads the CPU twin's stages run on (serve --threads; heights do not depend on it)."),
-    SCALAR("terrad_tick_overruns_total", F_COUNTER, S_TICK_OVERRUNS,
-           "Ticks that took longer than the tick period."),
-    SCALAR("terrad_refused_windows_total", F_COUNTER, S_REFUSED_WINDOWS,
-           "Active windows refused because their heights would leave the height limits."),
-    SCALAR("terrad_gpu_tile_uploads_total", F_COUNTER, S_GPU_TILE_UPLOADS,
-           "World tiles uploaded into the GL backend's tile cache."),
-    SCALAR("terrad_gpu_tile_upload_bytes_total", F_COUNTER, S_GPU_TILE_UPLOAD_BYTES,
-           "Bytes of those uploads."),
-    SCALAR("terrad_gpu_tile_evictions_total", F_COUNTER, S_GPU_TILE_EVICTIONS,
-           "Resident tiles the GL tile cache replaced by others (LRU)."),
-    SCALAR("terrad_gpu_tiles_resident", F_GAUGE, S_GPU_TILES_RESIDENT,
-           "World tiles resident in the GL tile cache."),
-    /* the store (server/store) */
-    SCALAR("terrad_store_wal_bytes_total", F_COUNTER, S_STORE_WAL_BYTES,
-           "Bytes appended to the write-ahead log."),
-    {.name = "terrad_store_fsync_duration_seconds",
-     .kind = F_HISTOGRAM,
-     .help = "Wall time of one fdatasync of the write-ahead log.",
-     .hist = &fsync_hist},
-    SCALAR("terrad_store_durable_tick", F_GAUGE, S_STORE_DURABLE_TICK,
-           "The last tick as durable as the durability policy promises."),
-    SCALAR("terrad_store_available", F_GAUGE, S_STORE_AVAILABLE,
-           "1 while ticks can be made durable; 0 while deformation is refused."),
-    SCALAR("terrad_store_compactions_total", F_COUNTER, S_STORE_COMPACTIONS,
-           "Log compactions into tile snapshots."),
-    SCALAR("terrad_store_last_compaction_seconds", F_SECONDS, S_STORE_COMPACTION_US,
-           "Wall time of the last compaction (its own thread)."),
-    LABELLED("terrad_store_errors_total", F_COUNTER, S_STORE_ERRORS, "kind", store_error_kinds,
-             STORE_ERROR_KINDS, "Storage errors, by kind."),
-    SCALAR("terrad_store_recovery_seconds", F_SECONDS, S_STORE_RECOVERY_US,
-           "Wall time of the recovery at start (snapshots and log replay)."),
-    SCALAR("terrad_store_recovery_records", F_GAUGE, S_STORE_RECORDS_REPLAYED,
-           "Log records replayed at start."),
-    SCALAR("terrad_store_cut_tail_bytes", F_GAUGE, S_STORE_BYTES_CUT,
-           "Bytes of a torn or corrupt log tail cut at start (0: none)."),
-    /* work the service dropped (server/service) */
-    LABELLED("terrad_service_dropped_total", F_COUNTER, S_SERVICE_DROPPED, "reason",
-             service_drop_reasons, SERVICE_DROP_REASONS,
-             "Work a tick could not do (a frame, snapshot, poses or command dropped), by reason."),
-    /* memory by part and the models' scratch by stage */
-    {.name = "terrad_memory_bytes",
-     .kind = F_PARTS,
-     .help = "Memory held by a part of the daemon, by part.",
-     .label = "part",
-     .series = 1},
-    LABELLED("terrad_sim_scratch_bytes", F_GAUGE, S_SCRATCH, "stage", memory_stage_names,
-             MEMORY_STAGE_COUNT, "Scratch memory the deformation models hold, by stage."),
-};
+#define ROW_FAMILY(...) {__VA_ARGS__},
+#define ROW_SCALAR(id, n, k, h) ROW_FAMILY(.name = n, .kind = k, .help = h, .slot = S_##id)
+#define ROW_LABELLED(id, n, k, l, v, count, h)                                                     \
+    ROW_FAMILY(.name = n, .kind = k, .help = h, .slot = S_##id, .label = l, .label_values = v,     \
+               .series = count)
+static const family families[] = {METRIC_FAMILIES(ROW_SCALAR, ROW_LABELLED, ROW_FAMILY)};
 
 /* Memory parts: a short table of names, written rarely (once per tick with
  * the same names), so one mutex is simpler than anything lock-free. */

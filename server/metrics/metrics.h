@@ -155,15 +155,20 @@ void metrics_desync_reset(void);
 int metrics_desync_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 /* Spectators (metrics_spectate.c; PROTOCOL.md "Spectate"): replay threads
  * alive, start-tick rebuilds and their milliseconds, ticks, frames and bytes
- * played, and terrad_spectate_refused_total{field}: the field a refused
- * spectate named ("state": the connection's state, "busy": no room). */
+ * played, frames dropped (not made, or no memory to keep them: the spectate
+ * ends "failed"), and terrad_spectate_refused_total{field}: the field a
+ * refused spectate named ("state": the connection's state, "busy": no room). */
 #define METRICS_SPECTATE_FIELDS                                                                    \
     "from_tick", "speed", "step", "ticks", "x", "y", "w", "h", "state", "busy"
 void metrics_set_spectators(int n);
 void metrics_observe_spectate_seek_ms(double ms);
 void metrics_count_spectate_ticks(uint64_t n);
 void metrics_count_spectate_frames(uint64_t n, uint64_t bytes);
+void metrics_count_spectate_dropped(uint64_t n);
 void metrics_count_spectate_refused(const char *field);
+/* The cells a spectator's store cursor holds (store_cursor_cells): the most
+ * any held, terrad_spectate_cursor_cells_max. */
+void metrics_observe_spectate_cursor_cells(int64_t cells);
 void metrics_spectate_reset(void);
 int metrics_spectate_text(char *out, size_t cap); /* its length, or -1 when it does not fit */
 /* metrics_cluster.c: terrad_cluster_takes_redone_total, takes of a world's log

@@ -83,10 +83,10 @@ static int limits_check(const net_limits *l, error_text *err)
         l->max_poses_per_batch > TERRAD_MAX_COUNT || l->max_subscriptions < 1 ||
         l->max_subscribed_cells < 1 || l->max_edit_cells < 1 || !(l->max_messages_per_s > 0) ||
         !(l->messages_burst >= 1) || l->max_mesh_vertices < 3 || l->max_mesh_triangles < 1 ||
-        l->max_active_cells < 1 || !(l->max_collider_extent_m > 0) || l->max_pending_bytes < 1024 ||
-        !(l->hello_timeout_s > 0) || !isfinite(l->max_messages_per_s) ||
-        !isfinite(l->messages_burst) || !isfinite(l->max_collider_extent_m) ||
-        !isfinite(l->hello_timeout_s)) {
+        l->max_active_cells < 1 || l->max_spectators < 1 || !(l->max_collider_extent_m > 0) ||
+        l->max_pending_bytes < 1024 || !(l->hello_timeout_s > 0) ||
+        !isfinite(l->max_messages_per_s) || !isfinite(l->messages_burst) ||
+        !isfinite(l->max_collider_extent_m) || !isfinite(l->hello_timeout_s)) {
         error_set(err, "net: a limit is out of range (each must be positive; "
                        "max_message_bytes and max_pending_bytes >= 1024)");
         return -1;

@@ -20,62 +20,105 @@
 #include "base/base.h"
 #include "hub/hub.h"
 
-/* Per-client limits; names and defaults are PROTOCOL.md's Limits table. */
-typedef struct net_limits {
-    size_t max_message_bytes;
-    int max_colliders, max_poses_per_batch, max_subscriptions;
-    int64_t max_subscribed_cells;
-    double max_messages_per_s, messages_burst;
-    int max_mesh_vertices;
-    int max_mesh_triangles;   /* Σ over a client's mesh colliders (a per-client budget) */
-    int64_t max_active_cells; /* Σ footprint cells over a client's colliders (budget) */
-    double max_collider_extent_m;
-    size_t max_pending_bytes;
-    double hello_timeout_s;
-    /* A client whose oldest queued delta or status frame is more than this
-     * many ticks old is treated as slow (snapshots when it drains), as if it
-     * were over max_pending_bytes. 0: two seconds of ticks (world.tick_hz). */
-    int max_client_lag_ticks;
-    /* Not per client: the tick's cost budget in footprint cells over every
-     * client's colliders (service_set_tick_budget); 0: none. */
-    int64_t max_tick_cells;
-    /* Per client: its colliders' cost this tick, their sweeps included; the
-     * poses that would pass it are refused (service_set_tick_budget); 0: none. */
-    int64_t max_sweep_cells;
-    /* Admission (0 = no cap): websocket clients in all and from one address.
-     * Whatever these say, an accepted socket is refused while fewer than
-     * fd_reserve descriptors are left under RLIMIT_NOFILE. */
-    int max_connections, max_connections_per_address;
-    int fd_reserve;
-    int64_t max_edit_cells; /* cells one terrain edit may change (its rectangle) */
-    int max_step_ticks;     /* ticks one STEP may ask for (client-clocked worlds) */
-    /* desync detection (PROTOCOL.md "CHECKSUM"): every subscription's tile
-     * hashes every this many ticks (service_set_checksum_interval), and the
-     * tiles one resync request may name */
-    int checksum_interval_ticks, max_resync_tiles;
-    /* bandwidth budgets, bytes/s (net_budget.c): a client's when its hello
-     * states none, and the most a hello may state (0: none) */
-    double default_budget_bytes_per_s, max_budget_bytes_per_s;
-    /* HTTP's, not the websocket's: /v1/heights answers held at once by one
-     * address and by all (0: http.c's defaults, 64 MiB and 256 MiB) */
-    size_t max_heights_bytes_per_address, max_heights_bytes_in_flight;
-} net_limits;
+/* Every limit once (issue 29 item 4): X(type, name, default, min, flags,
+ * help), in the world message's order. net_limits' fields (type name) and
+ * net_limit_table (net_limits.c) are made from this list, so a new limit is
+ * one row. name: PROTOCOL.md's Limits table's, the config's and the world
+ * message's; min: the config's smallest value (0: any > 0); flags: where it
+ * may be set (NET_LIMIT_CONFIG: --config's "limits", a number in (0, 1e12],
+ * >= min) and whether the world message's "limits" tells clients its value
+ * (NET_LIMIT_TOLD); help: serve --help's line. Each limit is enforced where
+ * it is used (net/, service/, http/). */
+#define NET_LIMIT_CONFIG 1
+#define NET_LIMIT_TOLD 2
+#define NET_BUDGET_MIN 1024 /* bytes/s: the smallest budget a hello or a config may state */
+#define NET_LIMITS(X)                                                                              \
+    /* told to clients */                                                                          \
+    X(size_t, max_message_bytes, 1048576, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                    \
+      "largest websocket frame, text or binary")                                                   \
+    X(int, max_colliders, 64, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, "colliders per client")        \
+    X(int, max_poses_per_batch, 64, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                          \
+      "poses in one POSE_BATCH")                                                                   \
+    X(int, max_subscriptions, 16, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                            \
+      "subscriptions per client")                                                                  \
+    X(int64_t, max_subscribed_cells, 4194304, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                \
+      "cells over a client's subscriptions")                                                       \
+    X(double, max_messages_per_s, 240, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                       \
+      "a client's sustained messages per second (token bucket)")                                   \
+    X(double, messages_burst, 480, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                           \
+      "the token bucket's depth")                                                                  \
+    X(int, max_mesh_vertices, 16384, 0, NET_LIMIT_TOLD, "vertices per mesh collider")              \
+    /* a per-client budget, as max_active_cells */                                                 \
+    X(int, max_mesh_triangles, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                        \
+      "triangles over a client's mesh colliders")                                                  \
+    X(int64_t, max_active_cells, 8192, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                       \
+      "a client's colliders' cost in cells (docs/service.md: a quarter of a 60 Hz tick)")          \
+    X(double, max_collider_extent_m, 50, 0, NET_LIMIT_TOLD,                                        \
+      "largest length of any collider dimension")                                                  \
+    X(size_t, max_pending_bytes, 8388608, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                    \
+      "bytes queued for a client before it is treated as slow")                                    \
+    X(double, hello_timeout_s, 5, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                            \
+      "seconds allowed for hello")                                                                 \
+    /* a client whose oldest queued delta or status frame is older is treated                      \
+     * as slow (snapshots when it drains), as if over max_pending_bytes */                         \
+    X(int, max_client_lag_ticks, 0, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                          \
+      "ticks a client's oldest queued frame may lag before it is slow (0: 2 s of ticks)")          \
+    /* not per client (service_set_tick_budget); 0: none */                                        \
+    X(int64_t, max_tick_cells, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                        \
+      "the tick's cost budget over every client (four clients' max_active_cells)")                 \
+    /* per client: the poses that would pass it are refused */                                     \
+    X(int64_t, max_sweep_cells, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                       \
+      "one client's cost this tick, its sweeps included (a whole tick's budget)")                  \
+    X(int64_t, max_edit_cells, WORLD_EDIT_MAX_CELLS_DEFAULT, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, \
+      "cells one terrain edit may change")                                                         \
+    X(int, max_step_ticks, 600, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                              \
+      "ticks one STEP of a client-clocked world may ask for (10 s of 60 Hz ticks)")                \
+    /* desync detection (PROTOCOL.md "CHECKSUM", service_set_checksum_interval) */                 \
+    X(int, checksum_interval_ticks, 30, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                      \
+      "ticks between a subscription's CHECKSUM frames (0.5 s at 60 Hz)")                           \
+    X(int, max_resync_tiles, 64, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                             \
+      "tiles one resync request may name (a 512 x 512 window's)")                                  \
+    /* bandwidth budgets, bytes/s (net_budget.c) */                                                \
+    X(double, default_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,    \
+      "a client's bandwidth budget when its hello states none (0: none; else >= 1024)")            \
+    X(double, max_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,        \
+      "the largest budget a hello may state (0: any, and none; else >= 1024)")                     \
+    /* spectators' replay threads in the daemon, each holding a rebuild's memory                   \
+     * (net_spectate.c); past it a spectate is refused (too_large) */                              \
+    X(int, max_spectators, 16, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                               \
+      "spectators replaying at once in the daemon (a thread and a window's tiles each)")           \
+    /* the server's own; admission (0: no cap), and whatever these say an                          \
+     * accepted socket is refused while fewer than fd_reserve descriptors are                      \
+     * left under RLIMIT_NOFILE */                                                                 \
+    X(int, max_connections, 0, 0, NET_LIMIT_CONFIG,                                                \
+      "websocket connections in all (0: from RLIMIT_NOFILE)")                                      \
+    X(int, max_connections_per_address, 256, 0, NET_LIMIT_CONFIG,                                  \
+      "websocket connections from one address")                                                    \
+    /* HTTP's, not the websocket's (0: http.c's defaults) */                                       \
+    X(size_t, max_heights_bytes_per_address, 0, 0, NET_LIMIT_CONFIG,                               \
+      "HTTP: /v1/heights bytes one address may hold at once (0: 64 MiB)")                          \
+    X(size_t, max_heights_bytes_in_flight, 0, 0, NET_LIMIT_CONFIG,                                 \
+      "HTTP: the same over every address (0: 256 MiB)")                                            \
+    X(int, fd_reserve, 64, 0, 0, "descriptors left free under RLIMIT_NOFILE")
 
-/* Every limit once (net_limits.c): name, field, default, where it may be set
- * or is told, and what it bounds. The table ends with a row whose name is NULL. */
+/* Per-client limits (and a few of the server's): one field a row of NET_LIMITS. */
+#define NET_LIMIT_FIELD(type, name, def, min, flags, help) type name;
+typedef struct net_limits {
+    NET_LIMITS(NET_LIMIT_FIELD)
+} net_limits;
+#undef NET_LIMIT_FIELD
+
+/* A row of NET_LIMITS as data; net_limit_table ends with a row whose name is NULL. */
 typedef enum { NET_LIMIT_INT, NET_LIMIT_INT64, NET_LIMIT_SIZE, NET_LIMIT_DOUBLE } net_limit_kind;
-#define NET_LIMIT_CONFIG 1 /* --config's "limits" may set it (a number in (0, 1e12], >= min) */
-#define NET_LIMIT_TOLD 2   /* the world message's "limits" tells clients its value */
 typedef struct net_limit_spec {
-    const char *name; /* PROTOCOL.md's, the config's and the world message's */
-    size_t offset;    /* of its field in net_limits */
+    const char *name;
+    size_t offset; /* of its field in net_limits */
     net_limit_kind kind;
     double def; /* net_limits_default's */
     int flags;
     const char *help;
-    double min; /* the config's smallest value (0: any > 0) */
+    double min;
 } net_limit_spec;
-#define NET_BUDGET_MIN 1024 /* bytes/s: the smallest budget a hello or a config may state */
 extern const net_limit_spec net_limit_table[];
 double net_limit_get(const net_limits *l, const net_limit_spec *s);
 /* v as the field's type (an int field at most INT_MAX). */

@@ -48,10 +48,12 @@
  * of a few kB under a 1 kB/s budget) goes once the window holds no tile data,
  * whatever status frames it holds (an overrun, counted): the client's own
  * replies and ACKs cannot be held back, and waiting for a window empty of
- * them could be forever. While an entry waits for room (owed), the droppable
- * frames that need room (CHECKSUM, COLLIDERS, FOOTPRINTS: net_budget_fits)
- * yield to it: a CHECKSUM each tick had kept tile data in the window for
- * good, and the pieces of a 1 kB/s client's snapshot never went.
+ * them could be forever. A spectator's replay frames wait by the same rule
+ * (held_may_go, through net_budget_fits_held) and count in the window as
+ * tile data. While an entry waits for room (owed), the droppable frames that
+ * need room (CHECKSUM, COLLIDERS, FOOTPRINTS: net_budget_fits) yield to it:
+ * a CHECKSUM each tick had kept tile data in the window for good, and the
+ * pieces of a 1 kB/s client's snapshot never went.
  */
 #include "net/net_server_internal.h"
 
@@ -169,6 +171,19 @@ static double room(net_budget *b)
 {
     expire(b, time_now_ms());
     return b->rate - (double)b->sum - (double)b->status_sum - STATUS_SLACK;
+}
+
+/* The one rule for data that waits for room (a ledger entry: flush_tile; a
+ * spectator's frame: net_budget_fits_held), need bytes of it with left bytes
+ * of room: it goes when it fits, or when the window holds no tile data (its
+ * held entries). One the window has no room for while it holds none could
+ * never fit (a snapshot piece of a few kB under a 1 kB/s budget): it goes
+ * then (an overrun, counted), whatever replies and status frames the window
+ * holds; those cannot be held back, and waiting for a window empty of them
+ * could be forever. */
+static int held_may_go(const net_budget *b, double need, double left)
+{
+    return need <= left || b->sum <= b->status_sum;
 }
 
 /* ---- the client's budget ---- */
@@ -634,10 +649,9 @@ static int by_distance(const void *a, const void *b)
                                       : (x->tile > y->tile) - (x->tile < y->tile);
 }
 
-/* Sends tile t's ledger entry if the window has room for all of it; 1 when
- * sent. An entry the window has no room for while it holds no tile data
- * could never fit: it goes then (an overrun, counted); an entry holds at most
- * one piece per rectangle, so that is at most a snapshot of the tile. */
+/* Sends tile t's ledger entry if it may go whole (held_may_go); 1 when sent.
+ * An entry holds at most one piece per rectangle, so one that goes past the
+ * budget is at most a snapshot of the tile. */
 static int flush_tile(net_client *c, budget_tile *t, double *left)
 {
     const net_budget *b = c->budget;
@@ -647,7 +661,7 @@ static int flush_tile(net_client *c, budget_tile *t, double *left)
     double need = d ? (double)wire_bytes(d->len) : 0;
     for (int i = 0; i < t->nitems; i++)
         need += (double)wire_bytes(t->items[i].f->len);
-    if (need > *left && b->sum > b->status_sum) /* tile data in the window: it will expire */
+    if (!held_may_go(b, need, *left))
         return 0;
     *left -= need;
     for (int i = 0; i < t->nitems; i++) {
@@ -724,13 +738,13 @@ int net_budget_fits(net_client *c, size_t len)
     return !b || (!b->owed && room(b) >= (double)wire_bytes(len));
 }
 
-int net_budget_fits_alone(net_client *c, size_t len)
+int net_budget_fits_held(net_client *c, size_t len)
 {
-    if (net_budget_fits(c, len))
-        return 1;
     net_budget *b = c->budget;
-    expire(b, time_now_ms());
-    return b->count == 0 && !b->owed;
+    if (!b)
+        return 1;
+    double left = room(b); /* expires the window first */
+    return held_may_go(b, (double)wire_bytes(len), left);
 }
 
 size_t net_budget_checksum_entries(net_client *c)

@@ -241,7 +241,9 @@ void net_client_kill(net_client *c, const char *why)
         lws_set_timeout(c->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
 }
 
-void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
+/* net_enqueue and net_enqueue_held; held: the budget counts the frame as
+ * data that waited for room (tile data), not as a reply or status frame. */
+static void enqueue(net_client *c, hub_frame *f, net_item_kind kind, int held)
 {
     net_state *s = c->srv;
     THREAD_OWNED(&s->owner);
@@ -288,8 +290,18 @@ void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
     c->pending_bytes += f->len;
     if (kind != NET_ITEM_REPLY)
         c->droppable_bytes += f->len;
-    net_budget_charge(c, f->len, kind == NET_ITEM_TILE);
+    net_budget_charge(c, f->len, held);
     lws_callback_on_writable(c->wsi);
+}
+
+void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind)
+{
+    enqueue(c, f, kind, kind == NET_ITEM_TILE);
+}
+
+void net_enqueue_held(net_client *c, hub_frame *f)
+{
+    enqueue(c, f, NET_ITEM_REPLY, 1);
 }
 
 void net_send_json(net_client *c, cJSON *msg)

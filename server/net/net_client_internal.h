@@ -266,6 +266,10 @@ int net_client_join_world(net_client *c, const char *world, char *why, size_t ca
 /* ---- a client's outgoing queue ---- */
 /* Queue a frame for a client (takes over the caller's reference). */
 void net_enqueue(net_client *c, hub_frame *f, net_item_kind kind);
+/* A spectator's replay frame: queued as a reply (never dropped), but charged
+ * to a budget as tile data: it waited for room (net_budget_fits_held), so
+ * the window's rule for tile data applies to it. */
+void net_enqueue_held(net_client *c, hub_frame *f);
 void net_send_json(net_client *c, cJSON *msg); /* frees msg */
 /* A copy of a request's "ref" for a reply (JSON null when there is none). */
 cJSON *net_ref_copy(const cJSON *ref);
@@ -306,10 +310,29 @@ void net_spectate_stop(net_client *c, const struct net_control *m); /* spectate_
 int net_spectating(const net_client *c);
 /* The client leaves: its replay thread is stopped (joined later). */
 void net_spectate_drop(net_client *c);
+/* A spectator's outbox: the frames its replay thread made, in order, that
+ * the net thread moves into the client's queue (under the spectator's lock). */
+typedef struct net_outbox {
+    hub_frame **frames; /* NULL until the first frame */
+    int n;
+    int64_t cap;
+    size_t bytes; /* the frames' lengths summed */
+} net_outbox;
+/* f appended (taken) and counted as made: 0. Or -1: f is NULL (a frame that
+ * could not be made) or the outbox could not grow (no memory); f dropped and
+ * counted in terrad_spectate_frames_dropped_total. A spectator has no resync,
+ * so its thread ends it "failed" after a drop. */
+int net_outbox_put(net_outbox *o, hub_frame *f);
 /* Every spectator's frames into its client's queue as it has room; threads
  * that ended are joined. Each wake and heartbeat. */
 void net_spectate_pump(net_state *w);
-/* The world leaves: every replay thread of it stopped and joined. */
+/* The world leaves (its state is freed next): every replay thread of it is
+ * cancelled and handed to the lobby's list, reaped there once it ended; the
+ * net thread never waits for one (each holds the world's table entry, so
+ * the world's removal waits for it instead). */
+void net_spectate_leave(net_state *w, net_state *lobby);
+/* The state is freed: every replay thread of it stopped and joined (the
+ * lobby's, when the server stops; a world's were handed over before). */
 void net_spectate_join_all(net_state *w);
 /* The hubs' waker (net_fanout.c): any thread. */
 void net_server_wake(void *arg);
@@ -320,17 +343,20 @@ int net_budget_start(net_client *c, double rate);
 void net_budget_free(net_client *c);         /* logs what it sent */
 double net_budget_rate(const net_client *c); /* 0: none */
 /* Every frame queued for a budgeted client (tile_data: a delta, a snapshot
- * piece or FOOTPRINTS, which wait for room; else it was never held). */
+ * piece, FOOTPRINTS or a spectator's replay frame, which wait for room; else
+ * it was never held). */
 void net_budget_charge(net_client *c, size_t len, int tile_data);
 /* 1 if a frame of len bytes fits the window now (always without a budget). */
 int net_budget_fits(net_client *c, size_t len);
 /* How many CHECKSUM entries a frame may carry for c: as many as its window
  * has room for now (at least 1), SIZE_MAX without a budget. */
 size_t net_budget_checksum_entries(net_client *c);
-/* As net_budget_fits, but a frame larger than the window will ever have
- * room for fits once the window is empty (an overrun, counted): a
- * spectator's frames (net_spectate.c), which would otherwise wait forever. */
-int net_budget_fits_alone(net_client *c, size_t len);
+/* 1 if a frame of len bytes that waits for room may go now, by the ledger's
+ * rule (flush_tile's): the window has room for it, or holds no tile data (a
+ * frame larger than its room goes then, whatever replies and status frames
+ * it holds: an overrun, counted). A spectator's frames (net_spectate.c),
+ * queued by net_enqueue_held; always 1 without a budget. */
+int net_budget_fits_held(net_client *c, size_t len);
 /* A tile delta (o: HUB_OUT_TILE_DELTA) for a budgeted client: 0 when the
  * caller queues it as for any client, 1 when the ledger took it. */
 int net_budget_delta(net_client *c, const hub_out *o);

@@ -16,8 +16,12 @@
  * outbox. The net thread moves them to the client's queue (net_spectate_pump,
  * on every wake and heartbeat) as the client's queue and budget have room,
  * and tells the thread the live tick; the thread never touches a client and
- * the net thread never waits for a rebuild, except when a world leaves
- * (net_spectate_join_all). A spectator holds no subscription while it
+ * the net thread never waits for a rebuild. The thread reads the world's
+ * base terrain, which goes with the world: it holds the world's table entry
+ * as a reader (hub_worlds_acquire) until it ends, so a leaving world's
+ * removal (hub_worlds_remove, on the host's thread) waits for it, while the
+ * net thread only cancels it and reaps it later from the lobby's list
+ * (net_spectate_leave). A spectator holds no subscription while it
  * watches: the live deltas, CHECKSUMs and resyncs are not its business, so
  * its frames are replies to the net thread (never dropped, never making it
  * slow) and its own queue bound and budget pace its thread instead.
@@ -38,7 +42,6 @@
 #include "store/store.h"
 #include "terrad_proto.h"
 
-#define SPECTATORS_MAX 16 /* replay threads per process: each holds a rebuild's memory */
 #define SPECTATE_WAIT_MS 50
 
 struct net_spectator {
@@ -52,6 +55,8 @@ struct net_spectator {
     int tile, width, height;
     size_t room; /* the bytes its outbox and the client's queue may hold together */
     net_server *server;
+    hub_worlds *table; /* entry held as a reader until the thread ends: base and dir stay */
+    hub_world *entry;
     pthread_t thread;
     /* the net thread's */
     uint32_t id;
@@ -64,10 +69,7 @@ struct net_spectator {
     int cancelled, started, ended, finished;
     uint64_t live_tick, steps, at_tick;
     size_t client_bytes; /* the client's pending bytes, as the net thread last saw them */
-    hub_frame **out;
-    int nout;
-    int64_t out_cap;
-    size_t out_bytes;
+    net_outbox box;
     int end_code; /* 0: spectate_end; else an error code (the start failed) */
     char end_reason[16];
     char end_why[480];
@@ -84,21 +86,31 @@ static double now_ms(void)
 
 /* ---- the spectator's thread ---- */
 
-static void post(net_spectator *j, hub_frame *f)
+int net_outbox_put(net_outbox *o, hub_frame *f)
 {
-    if (!f)
-        return;
-    pthread_mutex_lock(&j->lock);
-    if (array_grow((void **)&j->out, &j->out_cap, (int64_t)j->nout + 1, sizeof *j->out) != 0) {
-        pthread_mutex_unlock(&j->lock);
-        hub_frame_unref(f);
-        return; /* counted below: the client sees the gap as a stale_base */
+    if (!f || array_grow((void **)&o->frames, &o->cap, (int64_t)o->n + 1, sizeof *o->frames) != 0) {
+        if (f)
+            hub_frame_unref(f);
+        metrics_count_spectate_dropped(1);
+        return -1;
     }
-    j->out[j->nout++] = f;
-    j->out_bytes += f->len;
+    o->frames[o->n++] = f;
+    o->bytes += f->len;
+    metrics_count_spectate_frames(1, f->len); /* here: once posted, the net thread may free f */
+    return 0;
+}
+
+/* f (NULL: it could not be made) to the net thread: 0, or -1 when it was
+ * dropped (counted). The spectator's mirror would then miss it for good (a
+ * spectator has no resync), so the caller ends the replay "failed". */
+static int post(net_spectator *j, hub_frame *f)
+{
+    pthread_mutex_lock(&j->lock);
+    int rc = net_outbox_put(&j->box, f);
     pthread_mutex_unlock(&j->lock);
-    metrics_count_spectate_frames(1, f->len);
-    net_server_wake(j->server);
+    if (rc == 0)
+        net_server_wake(j->server);
+    return rc;
 }
 
 static void post_end(net_spectator *j, int code, const char *reason, const char *why)
@@ -177,11 +189,12 @@ static int send_snapshot(replay *p)
                          .base_version = 0,
                          .new_version = 1,
                          .encoding = TERRAD_ENC_SNAPSHOT};
-        post(j, rect_frame(p->codec, &r, v, j->from));
+        int rc = post(j, rect_frame(p->codec, &r, v, j->from));
         free(v);
+        if (rc != 0)
+            return -1;
     }
-    post(j, ack_frame(j->from));
-    return 0;
+    return post(j, ack_frame(j->from));
 }
 
 /* One record: per tile of the window, the box its rectangles' pieces in the
@@ -234,7 +247,12 @@ static int send_record(replay *p, uint64_t tick, const world_rect *rects, int n,
                              .new_version = p->versions[i] + 1,
                              .encoding = TERRAD_ENC_DELTA};
             p->versions[i]++;
-            post(p->j, rect_frame(p->codec, &r, after, tick));
+            if (post(p->j, rect_frame(p->codec, &r, after, tick)) != 0) {
+                free(after);
+                error_set(why, "out of memory: a frame of tick %llu was dropped",
+                          (unsigned long long)tick);
+                return -1;
+            }
         }
         free(after);
         free(p->before[i]);
@@ -263,7 +281,7 @@ static int wait_turn(net_spectator *j, uint64_t t, double *t0)
         if (!j->stepping && now > due + 1000.0) /* held back (room): no burst to catch up */
             *t0 += now - due, due = now;
         int turn = j->stepping ? j->steps > 0 : now >= due;
-        int room = j->out_bytes + j->client_bytes <= j->room;
+        int room = j->box.bytes + j->client_bytes <= j->room;
         if (turn && room) {
             j->steps -= j->stepping;
             rc = 1;
@@ -306,7 +324,10 @@ static void play(replay *p)
             return;
         }
         t++;
-        post(j, ack_frame(t));
+        if (post(j, ack_frame(t)) != 0) {
+            post_end(j, 0, "failed", "out of memory: a tick's ACK was dropped");
+            return;
+        }
         metrics_count_spectate_ticks(1);
         pthread_mutex_lock(&j->lock);
         j->at_tick = t;
@@ -345,6 +366,7 @@ static void *spectate_main(void *arg)
         post_end(j, TERRAD_E_INTERNAL, "failed", why.message[0] ? why.message : "out of memory");
     } else {
         metrics_observe_spectate_seek_ms(now_ms() - start);
+        metrics_observe_spectate_cursor_cells(store_cursor_cells(p.cur, NULL));
         pthread_mutex_lock(&j->lock);
         j->started = 1;
         j->at_tick = j->from;
@@ -353,6 +375,8 @@ static void *spectate_main(void *arg)
             post_end(j, 0, "failed", "out of memory for the snapshot");
         else
             play(&p);
+        /* a cursor's tiles are never freed: its most is its last */
+        metrics_observe_spectate_cursor_cells(store_cursor_cells(p.cur, NULL));
     }
     store_cursor_close(p.cur);
     terrad_codec_free(p.codec);
@@ -361,6 +385,7 @@ static void *spectate_main(void *arg)
     free(p.before);
     free(p.boxes);
     free(p.versions);
+    hub_worlds_release(j->table, j->entry); /* its base and directory are no longer read */
     pthread_mutex_lock(&j->lock);
     j->finished = 1;
     pthread_mutex_unlock(&j->lock);
@@ -375,9 +400,9 @@ static void *spectate_main(void *arg)
 static void spectator_free(net_spectator *j)
 {
     pthread_join(j->thread, NULL);
-    for (int i = 0; i < j->nout; i++)
-        hub_frame_unref(j->out[i]);
-    free(j->out);
+    for (int i = 0; i < j->box.n; i++)
+        hub_frame_unref(j->box.frames[i]);
+    free(j->box.frames);
     cJSON_Delete(j->ref);
     pthread_mutex_destroy(&j->lock);
     pthread_cond_destroy(&j->cond);
@@ -443,7 +468,8 @@ static int refused(net_client *c, const net_control *m)
                "type: this connection has %d live subscription(s); a spectator holds none "
                "(unsubscribe first, or spectate on another connection)",
                c->sub_count);
-    } else if (!w->entry || !w->entry->replay_dir || !w->entry->base || w->relay || c->remote) {
+    } else if (!w->entry || !w->entry->replay_dir || !w->entry->base || w->relay || c->remote ||
+               !w->cfg.worlds) {
         refuse(c, m->ref, TERRAD_E_BAD_VALUE, "from_tick",
                "from_tick: this world keeps no log to replay (a memory-only world, or a cluster "
                "node's store)");
@@ -455,11 +481,11 @@ static int refused(net_client *c, const net_control *m)
         refuse(c, m->ref, TERRAD_E_LIMIT_SUBSCRIPTIONS, "w",
                "w: %lld cells pass max_subscribed_cells (%lld)", (long long)m->rect.w * m->rect.h,
                (long long)l->max_subscribed_cells);
-    } else if (atomic_fetch_add(&running, 1) >= SPECTATORS_MAX) {
-        atomic_fetch_sub(&running, 1);
+    } else if (atomic_fetch_add(&running, 1) >= l->max_spectators) {
+        atomic_fetch_sub(&running, 1); /* each thread holds a rebuild's memory: a limit */
         refuse(c, m->ref, TERRAD_E_TOO_LARGE, "busy",
-               "type: %d spectators already replay in this daemon (at most); retry later",
-               SPECTATORS_MAX);
+               "type: max_spectators (%d) spectators already replay in this daemon; retry later",
+               l->max_spectators);
     } else {
         return 0;
     }
@@ -471,12 +497,25 @@ void net_spectate_request(net_client *c, const net_control *m)
     net_state *w = c->srv;
     if (refused(c, m) != 0)
         return;
+    /* the thread's hold on the world: a world leaving meanwhile is out of the table */
+    hub_world *e = hub_worlds_acquire(w->cfg.worlds, w->entry->name);
+    if (e != w->entry) {
+        if (e)
+            hub_worlds_release(w->cfg.worlds, e);
+        atomic_fetch_sub(&running, 1);
+        refuse(c, m->ref, TERRAD_E_SHUTTING_DOWN, "state",
+               "type: world %s is leaving this server (deleted, or stopping)", w->entry->name);
+        return;
+    }
     net_spectator *j = calloc(1, sizeof *j);
     if (!j) {
+        hub_worlds_release(w->cfg.worlds, e);
         atomic_fetch_sub(&running, 1);
         refuse(c, m->ref, TERRAD_E_INTERNAL, "busy", "type: out of memory");
         return;
     }
+    j->table = w->cfg.worlds;
+    j->entry = e;
     snprintf(j->dir, sizeof j->dir, "%s", w->entry->replay_dir);
     j->base = w->entry->base;
     j->rect = m->rect;
@@ -495,6 +534,7 @@ void net_spectate_request(net_client *c, const net_control *m)
     pthread_mutex_init(&j->lock, NULL);
     pthread_cond_init(&j->cond, NULL);
     if (pthread_create(&j->thread, NULL, spectate_main, j) != 0) {
+        hub_worlds_release(j->table, j->entry);
         atomic_fetch_sub(&running, 1);
         cJSON_Delete(j->ref);
         pthread_mutex_destroy(&j->lock);
@@ -581,20 +621,21 @@ static void pump_client(net_client *c)
     if (j->started && !j->told)
         tell_started(c, j);
     int taken = 0;
-    while (taken < j->nout && !c->killed) {
-        hub_frame *f = j->out[taken];
-        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_alone(c, f->len))
+    while (taken < j->box.n && !c->killed) {
+        hub_frame *f = j->box.frames[taken];
+        if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_held(c, f->len))
             break;
-        net_enqueue(c, f, NET_ITEM_REPLY);
-        j->out_bytes -= f->len;
+        net_enqueue_held(c, f);
+        j->box.bytes -= f->len;
         taken++;
     }
-    if (taken) { /* j->out is NULL until the thread posts its first frame */
-        memmove(j->out, j->out + taken, (size_t)(j->nout - taken) * sizeof *j->out);
-        j->nout -= taken;
+    if (taken) { /* box.frames is NULL until the thread posts its first frame */
+        memmove(j->box.frames, j->box.frames + taken,
+                (size_t)(j->box.n - taken) * sizeof *j->box.frames);
+        j->box.n -= taken;
     }
     j->client_bytes = c->pending_bytes;
-    int done = j->ended && j->nout == 0;
+    int done = j->ended && j->box.n == 0;
     pthread_cond_signal(&j->cond);
     pthread_mutex_unlock(&j->lock);
     if (!done)
@@ -631,6 +672,17 @@ void net_spectate_pump(net_state *w)
             at = &j->next;
         }
     }
+}
+
+void net_spectate_leave(net_state *w, net_state *lobby)
+{
+    for (int i = 0; i < w->nclients; i++)
+        let_go(w->clients[i]);
+    net_spectator **tail = &lobby->spectators_gone;
+    while (*tail)
+        tail = &(*tail)->next;
+    *tail = w->spectators_gone; /* reaped by the lobby's net_spectate_pump */
+    w->spectators_gone = NULL;
 }
 
 void net_spectate_join_all(net_state *w)

@@ -202,7 +202,7 @@ int net_world_queue_remove(net_server *s, const char *name)
  * close (their colliders and subscriptions went with the world). */
 static void detach(net_server *s, net_state *w, int deleted)
 {
-    net_spectate_join_all(w); /* they read its base terrain, which goes with it */
+    net_spectate_leave(w, &s->st); /* never waits: their threads hold the table's entry */
     for (int i = 0; i < w->nclients; i++) {
         net_client *c = w->clients[i];
         if (c->remote) { /* its relay is told; nothing of it stays here */

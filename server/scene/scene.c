@@ -314,15 +314,15 @@ static int parse_ground(const cJSON *root, scene *s, error_text *err)
     if (!materials && !map)
         return 0;
     cJSON *both = cJSON_CreateObject();
-    if (!both ||
-        (materials && !cJSON_AddItemToObject(both, "materials", cJSON_Duplicate(materials, 1))) ||
-        (map && !cJSON_AddItemToObject(both, "material_map", cJSON_Duplicate(map, 1))) ||
-        !(s->ground_json = cJSON_PrintUnformatted(both))) {
+    if ((materials && !cJSON_AddItemToObject(both, "materials", cJSON_Duplicate(materials, 1))) ||
+        (map && !cJSON_AddItemToObject(both, "material_map", cJSON_Duplicate(map, 1)))) {
         cJSON_Delete(both);
+        both = NULL;
+    }
+    if (!(s->ground_json = json_print_delete(both))) {
         error_set(err, "materials: out of memory");
         return -1;
     }
-    cJSON_Delete(both);
     ground g;
     if (ground_from_json_text(s, s->ground_json, &g, err) != 0)
         return -1;

@@ -87,11 +87,12 @@ static void add_key(void *ctx, const char *key, double number, const char *name)
 char *scene_twin_config_json(const scene *sc, error_text *err)
 {
     cJSON *o = cJSON_CreateObject();
-    char *text = NULL;
-    if (!o)
+    if (o && scene_twin_config(sc, add_key, o, err) != 0) {
+        cJSON_Delete(o);
+        return NULL;
+    }
+    char *text = json_print_delete(o);
+    if (!text)
         error_set(err, "scene: out of memory");
-    else if (scene_twin_config(sc, add_key, o, err) == 0 && !(text = cJSON_PrintUnformatted(o)))
-        error_set(err, "scene: out of memory");
-    cJSON_Delete(o);
     return text;
 }

@@ -164,7 +164,7 @@ int store_replay_world(const char *dir, const world *base, uint64_t tick, world_
 
 /*
  * A spectator's replay (PROTOCOL.md "spectate"): a cursor holds rectangle r
- * (and whatever the log writes beside it) as of tick `tick`, rebuilt as
+ * (nothing beside it: snapshots and records are clipped to r) as of tick `tick`, rebuilt as
  * store_replay_rect rebuilds it, then walks the log forward one record (one
  * tick's changed rectangles) at a time, beside the live daemon, off the tick.
  * open: 0, 1 when the store no longer holds the tick (why), -1 on another
@@ -180,8 +180,12 @@ int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_r
 int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const world_rect **rects,
                       int *n, error_text *why);
 int store_cursor_apply(store_cursor *c, error_text *why);
-/* Heights of rectangle q (inside the cursor's rectangle's tiles) as of its tick. */
+/* Heights of rectangle q (inside the cursor's rectangle r) as of its tick. */
 void store_cursor_read(const store_cursor *c, world_rect q, int32_t *dst);
+/* Cells the cursor's world holds (its stored tiles'): only r's tiles, since
+ * every snapshot and record is clipped to r (terrad_spectate_cursor_cells_max);
+ * *bytes (when not NULL): the bytes it holds, tiles, layers and tables. */
+int64_t store_cursor_cells(const store_cursor *c, uint64_t *bytes);
 uint64_t store_cursor_tick(const store_cursor *c);
 void store_cursor_close(store_cursor *c);
 
@@ -220,6 +224,12 @@ typedef struct store_record { /* scratch, reused from record to record */
     int64_t values_cap;
     uint8_t *buf; /* the encoded record, after the caller's header room */
     int64_t buf_cap;
+    /* store_record_apply writes only the cells inside clip (w 0: every cell):
+     * a rebuild of one rectangle (a replay, a spectator's cursor) holds its
+     * tiles, not the whole world's */
+    world_rect clip;
+    int32_t *part; /* a clipped rectangle's values */
+    int64_t part_cap;
 } store_record;
 
 struct ZSTD_CCtx_s;
@@ -235,9 +245,10 @@ int store_layers_ints(unsigned layers);
 /* One rectangle's heights, then its layers, into dst (store_layers_ints per
  * cell): a record of that one rectangle's values, a tile copy's. */
 void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst);
-/* The inverse: src (a tile copy's values) into w's heights and layers over r.
- * 0, or -1 out of memory. */
-int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src);
+/* The inverse: src (a tile copy's values) into w's heights and layers over
+ * r, only where r meets *clip when clip is not NULL. 0, or -1 out of memory. */
+int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src,
+                         const world_rect *clip);
 /* rects' heights, then their layers, into c->values. 0, or -1 out of memory. */
 int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
                         unsigned layers);
@@ -251,7 +262,8 @@ size_t store_record_encode(store_record *c, struct ZSTD_CCtx_s *cctx, int level,
 unsigned store_record_layers(const uint8_t *p, size_t len);
 /* Checks a payload whole (every rectangle inside w and accepted by check,
  * when given; the sizes right; every memory in range) and only then applies
- * it to w. 0; 1 when it is malformed (nothing applied); -1 out of memory. */
+ * it to w (the cells inside c->clip, when set). 0; 1 when it is malformed
+ * (nothing applied); -1 out of memory. */
 int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
                        int (*check)(void *ctx, world_rect r), void *ctx);
 

@@ -156,8 +156,11 @@ uint32_t store_base_identity(const world *w);
 char *store_manifest_text(const world *w, uint32_t base_crc);
 int store_manifest_check(const char *path, const world *w, uint32_t base_crc, error_text *err);
 world_rect store_tile_rect(int width, int height, int tx, int ty);
-int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *tick_out,
-                    error_text *err);
+/* One tile snapshot into w (only the cells inside *clip, when clip is not
+ * NULL; a tile outside it is checked but not loaded); upto_tick (0: any): a
+ * snapshot of a later tick is refused, "compacted away". 0 or -1. */
+int store_tile_load(const char *path, world *w, uint64_t upto_tick, const world_rect *clip,
+                    uint64_t *tick_out, error_text *err);
 int store_tile_write(const store_dir *st, const char *dir, const tile_copy *t, uint64_t tick,
                      ZSTD_CCtx *cctx, int level, error_text *err);
 
@@ -178,8 +181,10 @@ typedef struct replay_result {
     int64_t later_records;
     uint64_t later_max_tick;
 } replay_result;
-int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
-                         uint64_t upto_tick, replay_result *res, error_text *err);
+/* clip (NULL: none): only the cells inside it are applied (store_record.clip). */
+int store_segment_replay(const char *path, world *w, const world_rect *clip, uint8_t *changed,
+                         uint64_t after_tick, uint64_t upto_tick, replay_result *res,
+                         error_text *err);
 
 /* ---- replay keyframes (store_replay.c; docs/storage.md "Replay") ---- */
 /* 1 when name is a keyframe (k-TICK-X-Y.snap: *done 0) or a generation's
@@ -207,6 +212,7 @@ typedef struct recover_args {
     uint64_t upto_tick;       /* 0: all */
     const store_control *ctl; /* NULL: none (no checks against it) */
     store_control *found;     /* filled when not NULL: snapshots loaded, segments */
+    const world_rect *clip;   /* NULL, or a replay's rectangle: only its cells are loaded */
 } recover_args;
 int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec, error_text *err);
 /* 1 when DIR holds a log record, a snapshot or CONTROL (a MANIFEST must then be there). */

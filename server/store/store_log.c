@@ -74,8 +74,9 @@ static int mark_tiles(void *ctx, world_rect r)
 /* Apply every good record of one segment to w (and mark changed tiles); with
  * w NULL only count them. Stops at the first record that is torn or fails its
  * checksum, then looks for good records after it (res->later_records). */
-int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t after_tick,
-                         uint64_t upto_tick, replay_result *res, error_text *err)
+int store_segment_replay(const char *path, world *w, const world_rect *clip, uint8_t *changed,
+                         uint64_t after_tick, uint64_t upto_tick, replay_result *res,
+                         error_text *err)
 {
     memset(res, 0, sizeof *res);
     res->last_tick = after_tick;
@@ -93,7 +94,7 @@ int store_segment_replay(const char *path, world *w, uint8_t *changed, uint64_t 
     res->header_ok = 1;
     size_t at = WAL_HEADER;
     res->good_len = WAL_HEADER;
-    store_record rec = {0};
+    store_record rec = {.clip = clip ? *clip : (world_rect){0, 0, 0, 0}};
     mark_ctx mark = {changed, (w ? w->width + STORE_TILE_SIZE - 1 : 0) / STORE_TILE_SIZE};
     while (at < len) {
         if (!w) { /* count only */

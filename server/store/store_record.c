@@ -24,6 +24,7 @@ void store_record_free(store_record *c)
 {
     free(c->values);
     free(c->buf);
+    free(c->part);
     memset(c, 0, sizeof *c);
 }
 
@@ -118,14 +119,51 @@ static int scatter_at(world *w, world_rect r, unsigned layers, layout l, size_t 
     return 0;
 }
 
+/* Rectangle q (inside r) of one part of r's values, f ints per cell, into dst. */
+static void copy_part(int32_t *dst, const int32_t *src, world_rect r, world_rect q, int f)
+{
+    for (int y = 0; y < q.h; y++)
+        memcpy(dst + (size_t)y * q.w * f, src + ((size_t)(q.y - r.y + y) * r.w + (q.x - r.x)) * f,
+               (size_t)q.w * f * sizeof *dst);
+}
+
+/* scatter_at, only where r meets clip (clip.w 0: all of r): a rebuild of one
+ * rectangle never stores the tiles beside it. *part is scratch for the met
+ * cells' values. 0, or -1 out of memory. */
+static int scatter_clipped(world *w, world_rect r, world_rect clip, unsigned layers, layout l,
+                           size_t off, const int32_t *values, int32_t **part, int64_t *part_cap)
+{
+    world_rect q = clip.w ? world_rect_meet(r, clip) : r;
+    if (q.w <= 0 || q.h <= 0)
+        return 0;
+    if (q.w == r.w && q.h == r.h)
+        return scatter_at(w, r, layers, l, off, values);
+    layout ql = layout_of((size_t)q.w * q.h, layers);
+    if (array_grow((void **)part, part_cap, (int64_t)ql.ints + 1, sizeof **part) != 0)
+        return -1;
+    copy_part(*part, values + off, r, q, 1);
+    for (world_layer_id i = 0; i < WORLD_LAYERS; i++)
+        if (layers & layer_bit[i]) {
+            int f = world_layer_fields(i);
+            copy_part(*part + ql.at[i], values + l.at[i] + off * (size_t)f, r, q, f);
+        }
+    return scatter_at(w, q, layers, ql, 0, *part);
+}
+
 void store_layers_gather(const world *w, world_rect r, unsigned layers, int32_t *dst)
 {
     gather_at(w, r, layers, layout_of((size_t)r.w * r.h, layers), 0, dst);
 }
 
-int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src)
+int store_layers_scatter(world *w, world_rect r, unsigned layers, const int32_t *src,
+                         const world_rect *clip)
 {
-    return scatter_at(w, r, layers, layout_of((size_t)r.w * r.h, layers), 0, src);
+    int32_t *part = NULL;
+    int64_t part_cap = 0;
+    int rc = scatter_clipped(w, r, clip ? *clip : (world_rect){0, 0, 0, 0}, layers,
+                             layout_of((size_t)r.w * r.h, layers), 0, src, &part, &part_cap);
+    free(part);
+    return rc;
 }
 
 int store_record_gather(store_record *c, const world *w, const world_rect *rects, int n,
@@ -222,7 +260,7 @@ int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
     size_t off = 0;
     for (uint32_t i = 0; i < nrect; i++) {
         world_rect r = rect_at(p, i);
-        if (scatter_at(w, r, layers, l, off, c->values) != 0)
+        if (scatter_clipped(w, r, c->clip, layers, l, off, c->values, &c->part, &c->part_cap) != 0)
             return -1;
         off += (size_t)r.w * r.h;
     }

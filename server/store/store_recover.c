@@ -102,7 +102,7 @@ static int load_tiles(recover_state *s)
         snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
         uint64_t tile_tick = 0;
         error_text terr = {{0}};
-        if (store_tile_load(path, a->w, a->upto_tick, &tile_tick, &terr) != 0) {
+        if (store_tile_load(path, a->w, a->upto_tick, a->clip, &tile_tick, &terr) != 0) {
             if (!(a->flags & STORE_RECOVER_CHECK)) {
                 *s->err = terr;
                 closedir(d);
@@ -157,7 +157,7 @@ static uint64_t max_tick_after(const recover_state *s, const uint64_t *seqs, int
         store_segment_path(s->a->dir, seqs[i], path, sizeof path);
         replay_result r;
         error_text e = {{0}};
-        if (store_segment_replay(path, NULL, NULL, 0, 0, &r, &e) != 0)
+        if (store_segment_replay(path, NULL, NULL, NULL, 0, 0, &r, &e) != 0)
             continue;
         if (r.last_tick > max)
             max = r.last_tick;
@@ -215,7 +215,8 @@ static int replay_segments(recover_state *s, const uint64_t *seqs, int count, ui
             return i;
         }
         replay_result res;
-        if (store_segment_replay(path, a->w, a->changed, *tick, a->upto_tick, &res, s->err) != 0)
+        if (store_segment_replay(path, a->w, a->clip, a->changed, *tick, a->upto_tick, &res,
+                                 s->err) != 0)
             return -1;
         s->rec->records_replayed += res.records;
         *tick = res.last_tick;

@@ -150,7 +150,7 @@ static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world
             continue;
         snprintf(path, sizeof path, "%s/k-%016llu-%05d-%05d.snap", tiles_dir,
                  (unsigned long long)tile_tick[i], i % tiles_x, i / tiles_x);
-        if (store_tile_load(path, w, 0, &t, why) != 0)
+        if (store_tile_load(path, w, 0, &r, &t, why) != 0)
             goto out;
     }
     if (store_list_segments(dir, &seqs, &count) != 0 ||
@@ -173,7 +173,7 @@ static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world
             break; /* every record from here on is after the tick */
         replay_result res;
         store_segment_path(dir, seqs[i], path, sizeof path);
-        if (store_segment_replay(path, w, NULL, 0, tick, &res, why) != 0)
+        if (store_segment_replay(path, w, &r, NULL, 0, tick, &res, why) != 0)
             goto out;
         if (res.problem[0] && i != count - 1) {
             error_set(why, "store: %s: %s", path, res.problem);
@@ -189,7 +189,10 @@ out:
 }
 
 /* One rebuild of r as of tick into w (initialised here; the caller frees
- * it, whatever the result); 0, 1 (gone) or -1. */
+ * it, whatever the result); 0, 1 (gone) or -1. Only r's cells are loaded and
+ * replayed (store_record.clip): a small rectangle of a large world holds its
+ * own tiles, never the whole world's (every snapshot is still checked, so a
+ * tick compacted away is refused as before). */
 static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect r, world *w,
                    int32_t *scratch, error_text *why)
 {
@@ -212,7 +215,12 @@ static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect
     int rc = whole ? replay_from_keyframes(dir, w, tick, r, why) : 1;
     if (rc == 1) {
         recover_args a = {
-            .dir = dir, .w = w, .upto_tick = tick, .flags = whole ? STORE_RECOVER_NO_TILES : 0};
+            .dir = dir,
+            .w = w,
+            .upto_tick = tick,
+            .flags = whole ? STORE_RECOVER_NO_TILES : 0,
+            .clip = &r,
+        };
         uint64_t last_seq;
         store_recovery rec;
         rc = 0;
@@ -366,6 +374,7 @@ int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_r
     }
     snprintf(c->dir, sizeof c->dir, "%s", dir);
     c->fd = -1, c->r = r, c->tick = tick;
+    c->rec.clip = r; /* every record from here on: only r's cells */
     int rc = -1;
     for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
@@ -392,6 +401,24 @@ int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_r
 void store_cursor_read(const store_cursor *c, world_rect r, int32_t *dst)
 {
     world_gather_window(&c->w, r, dst);
+}
+
+static void add_cells(void *ctx, int tx, int ty, world_rect cells, uint64_t generation)
+{
+    (void)tx, (void)ty, (void)generation;
+    *(int64_t *)ctx += (int64_t)cells.w * cells.h;
+}
+
+int64_t store_cursor_cells(const store_cursor *c, uint64_t *bytes)
+{
+    int64_t cells = 0;
+    world_for_each_stored_tile(&c->w, add_cells, &cells);
+    if (bytes) {
+        *bytes = world_resident_bytes(&c->w);
+        for (world_layer_id i = 0; i < WORLD_LAYERS; i++)
+            *bytes += world_layer_bytes(&c->w, i);
+    }
+    return cells;
 }
 
 uint64_t store_cursor_tick(const store_cursor *c)

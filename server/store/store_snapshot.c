@@ -111,8 +111,8 @@ world_rect store_tile_rect(int width, int height, int tx, int ty)
 }
 
 /* Read one tile snapshot into w; errors name the file. */
-int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *tick_out,
-                    error_text *err)
+int store_tile_load(const char *path, world *w, uint64_t upto_tick, const world_rect *clip,
+                    uint64_t *tick_out, error_text *err)
 {
     uint8_t *data;
     size_t len;
@@ -158,6 +158,10 @@ int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *ti
     }
     *tick_out = get64(data + 36);
     world_rect r = store_tile_rect(w->width, w->height, (int)tx, (int)ty);
+    if (clip && !world_rects_overlap(r, *clip)) {
+        rc = 0; /* checked as any other (a newer tick refuses), but none of its cells is wanted */
+        goto out;
+    }
     size_t cells = (size_t)r.w * r.h;
     size_t raw = cells * 4 * (size_t)store_layers_ints(layers);
     values = malloc(raw);
@@ -183,7 +187,7 @@ int store_tile_load(const char *path, world *w, uint64_t upto_tick, uint64_t *ti
             goto out;
         }
     }
-    if (store_layers_scatter(w, r, layers, values) != 0) {
+    if (store_layers_scatter(w, r, layers, values, clip) != 0) {
         error_set(err, "store: out of memory for the per-cell state of tile snapshot %s", path);
         goto out;
     }

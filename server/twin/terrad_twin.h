@@ -112,6 +112,15 @@ TERRAD_TWIN_API int terrad_twin_set_pose(terrad_twin *t, int id, double x, doubl
  * "Prediction") after writing that tick's heights into the window. */
 TERRAD_TWIN_API int terrad_twin_place(terrad_twin *t, int id, double x, double y, double z,
                                       double qw, double qx, double qy, double qz, char *err);
+/* A load-driven collider (PROTOCOL.md "Load-driven colliders", the wire's
+ * collider_create "load_n"; bekker worlds only): from the next tick on the
+ * engine finds its height, as the server's does, where the soil carries
+ * load_n newtons (sim_bekker_carry, the daemon's own search), starting from
+ * the height it found last tick (the first tick: from its pose's); its
+ * poses give x, y and the orientation only. 0: pose-driven again. A load
+ * that is not a finite number >= 0, or > 0 on a world whose model is not
+ * bekker, is refused naming load_n. */
+TERRAD_TWIN_API int terrad_twin_set_load(terrad_twin *t, int id, double load_n, char *err);
 /* One tick: the daemon's sim_engine_tick over the window with every posed
  * collider, in the order they were added. */
 TERRAD_TWIN_API int terrad_twin_tick(terrad_twin *t, char *err);
@@ -140,7 +149,12 @@ TERRAD_TWIN_API int terrad_twin_write(terrad_twin *t, int x, int y, int w, int h
  * differ from the mirror (0 whenever nothing else touched the window), then
  * restarts the twin from the mirror, puts each own collider where tick t left
  * it and applies the batches sent after seq again. Colliders: the client's
- * own, added and removed as it creates and deletes them.
+ * own, added and removed as it creates and deletes them. State beyond the
+ * heights (bekker's soil, the compaction memory) is not on the wire: the
+ * restart takes the window's state, and each load-driven collider's height,
+ * from the replay of tick t (the server's while the replays are exact; where
+ * batches were acknowledged together after a gap, the orders they could have
+ * been taken in are replayed until one gives the server's heights).
  */
 typedef struct terrad_twin_prediction terrad_twin_prediction;
 
@@ -182,6 +196,12 @@ TERRAD_TWIN_API int terrad_twin_prediction_add_mesh(terrad_twin_prediction *p, u
                                                     const float *vertices, int vertex_count,
                                                     const uint32_t *indices, int triangle_count,
                                                     char *err);
+/* An own collider is load-driven (the wire's "load_n", given when it was
+ * created), as terrad_twin_set_load takes and refuses it: each tick of the
+ * prediction and of its replays finds its height as the server does; the
+ * height the replay of an ACK's tick found is where the tick left it. */
+TERRAD_TWIN_API int terrad_twin_prediction_set_load(terrad_twin_prediction *p, uint32_t id,
+                                                    double load_n, char *err);
 /* Deleted: it leaves the prediction at once (0 also when it was not in it). */
 TERRAD_TWIN_API int terrad_twin_prediction_remove_collider(terrad_twin_prediction *p, uint32_t id,
                                                            char *err);

@@ -36,10 +36,12 @@ typedef struct twin_collider {
     collider_mesh mesh; /* owned copy when geometry.shape is COLLIDER_MESH */
     collider_pose pose, previous_pose;
     int has_pose, has_previous;
+    double load_n; /* > 0: load-driven (bekker), the height is the engine's to find */
 } twin_collider;
 
 struct terrad_twin {
     world_rect window;
+    int bekker; /* the model computes soil forces: load-driven colliders may be */
     world w;
     ground g;
     sim_params params;
@@ -264,6 +266,7 @@ static int twin_open(terrad_twin *t, const terrad_twin_config *c, error_text *e)
         !(t->engine = sim_engine_create(&t->w, &t->params, t->backend, (int)c->margin_cells, e)))
         return -1;
     sim_engine_set_ground(t->engine, &t->g);
+    t->bekker = m.model == SIM_MODEL_BEKKER;
     return 0;
 }
 
@@ -477,6 +480,20 @@ int twin_unpose(terrad_twin *t, int id, char *err)
     return 0;
 }
 
+int terrad_twin_set_load(terrad_twin *t, int id, double load_n, char *err)
+{
+    int k = t ? find_collider(t, id) : -1;
+    if (k < 0)
+        return twin_fail(err, "id: no collider %d", id);
+    if (!isfinite(load_n) || load_n < 0)
+        return twin_fail(err, "load_n: must be a number of newtons >= 0 (got %g)", load_n);
+    if (load_n > 0 && !t->bekker)
+        return twin_fail(err, "load_n: this world's model computes no soil forces (load-driven "
+                              "colliders need the bekker model)");
+    t->colliders[k].load_n = load_n;
+    return 0;
+}
+
 int terrad_twin_tick(terrad_twin *t, char *err)
 {
     if (!t)
@@ -484,18 +501,33 @@ int terrad_twin_tick(terrad_twin *t, char *err)
     int n = 0;
     for (int i = 0; i < t->collider_count; i++) {
         const twin_collider *c = &t->colliders[i];
-        if (c->has_pose)
-            t->batch[n++] = (sim_collider){.id = c->id,
-                                           .geometry = &c->geometry,
-                                           .pose = c->pose,
-                                           .previous_pose = c->previous_pose,
-                                           .has_previous = c->has_previous};
+        if (!c->has_pose)
+            continue;
+        t->batch[n] = (sim_collider){.id = c->id,
+                                     .geometry = &c->geometry,
+                                     .pose = c->pose,
+                                     .previous_pose = c->previous_pose,
+                                     .has_previous = c->has_previous,
+                                     .load_n = c->load_n};
+        /* load-driven, as the service's gather_colliders: the engine searches from the
+         * height it found last tick, not the pose's */
+        if (c->load_n > 0.0 && c->has_previous)
+            t->batch[n].pose.position.z = c->previous_pose.position.z;
+        n++;
     }
     sim_tick_report report;
     error_text e = {{0}};
     if (sim_engine_tick(t->engine, t->batch, n, &report, &e) != 0) {
         copy_error(err, &e);
         return -1;
+    }
+    for (int i = 0, k = 0; i < t->collider_count; i++) {
+        twin_collider *c = &t->colliders[i];
+        if (!c->has_pose)
+            continue; /* the contacts are the tick's colliders, in its order */
+        if (c->load_n > 0.0 && k < report.contact_count)
+            c->pose.position.z = report.contacts[k].pose_z_m; /* where the soil carried it */
+        k++;
     }
     for (int i = 0; i < t->collider_count; i++) {
         t->colliders[i].previous_pose = t->colliders[i].pose;
@@ -520,5 +552,48 @@ int terrad_twin_write(terrad_twin *t, int x, int y, int w, int h, const int32_t 
         if (heights[i] < WORLD_HEIGHT_MIN || heights[i] > WORLD_HEIGHT_MAX)
             return twin_fail(err, "heights: cell %lld is outside the height range", (long long)i);
     world_scatter_window(&t->w, (world_rect){x, y, w, h}, heights);
+    return 0;
+}
+
+/* ---- what the window holds beside its heights (twin_internal.h) ---------- */
+
+int64_t twin_state_values(const terrad_twin *t)
+{
+    int64_t n = 0;
+    for (int l = 0; l < WORLD_LAYERS; l++)
+        n += (int64_t)world_layer_fields((world_layer_id)l) * t->window.w * t->window.h;
+    return n;
+}
+
+void twin_state_read(const terrad_twin *t, int32_t *out)
+{
+    for (int l = 0; l < WORLD_LAYERS; l++) {
+        world_layer_gather(&t->w, (world_layer_id)l, t->window, out);
+        out += (int64_t)world_layer_fields((world_layer_id)l) * t->window.w * t->window.h;
+    }
+}
+
+int twin_state_write(terrad_twin *t, const int32_t *in)
+{
+    for (int l = 0; l < WORLD_LAYERS; l++) {
+        int64_t n = (int64_t)world_layer_fields((world_layer_id)l) * t->window.w * t->window.h;
+        int64_t any = 0;
+        for (int64_t i = 0; i < n && !any; i++)
+            any = in[i];
+        /* a layer the world never enabled stays off while its values are all 0 */
+        if ((any || world_layer_enabled(&t->w, (world_layer_id)l)) &&
+            world_layer_scatter(&t->w, (world_layer_id)l, t->window, in) != 0)
+            return -1;
+        in += n;
+    }
+    return 0;
+}
+
+int twin_pose_z(const terrad_twin *t, int id, double *z)
+{
+    int k = t ? find_collider(t, id) : -1;
+    if (k < 0 || !t->colliders[k].has_pose)
+        return -1;
+    *z = t->colliders[k].pose.position.z;
     return 0;
 }

@@ -41,6 +41,7 @@ typedef struct predict_batch {
 typedef struct predict_own {
     uint32_t id;
     int axis_z; /* capsule and cylinder: the wire's z axis is the engine's y */
+    int loaded; /* load-driven: acked's height is the one the replay found */
     int has_acked;
     collider_pose acked;
 } predict_own;
@@ -48,8 +49,9 @@ typedef struct predict_own {
 struct terrad_twin_prediction {
     terrad_twin *twin;
     int x, y, w, h;
-    int32_t *heights; /* the twin's window after the last change */
-    int32_t *base;    /* the server's heights at the last ACK */
+    int32_t *heights;    /* the twin's window after the last change */
+    int32_t *base;       /* the server's heights at the last ACK */
+    int32_t *base_state; /* the window's soil state there, as the replay reached it */
     int has_base_tick;
     uint64_t base_tick;
     uint64_t max_replay_ticks;
@@ -99,11 +101,13 @@ static uint64_t apply(terrad_twin_prediction *p, const predict_pose *poses, int6
     return digest(p->heights, cells(p));
 }
 
-/* The twin at these heights, each own collider where the acknowledged tick
- * left it (one without an acknowledged pose has none). */
+/* The twin at these heights and the base's soil state, each own collider
+ * where the acknowledged tick left it (one without an acknowledged pose has
+ * none). */
 static void restart(terrad_twin_prediction *p, const int32_t *heights)
 {
     terrad_twin_write(p->twin, p->x, p->y, p->w, p->h, heights, NULL);
+    twin_state_write(p->twin, p->base_state);
     for (int64_t i = 0; i < p->nown; i++) {
         const predict_own *s = &p->own[i];
         const collider_pose *a = &s->acked;
@@ -163,6 +167,13 @@ terrad_twin_prediction *terrad_twin_prediction_create(const terrad_twin_config *
         terrad_twin_prediction_destroy(p);
         return NULL;
     }
+    /* the soil's state is not on the wire: it starts untouched, as the twin's */
+    if (!(p->base_state = malloc((size_t)twin_state_values(p->twin) * sizeof *p->base_state))) {
+        twin_fail(err, "prediction: out of memory");
+        terrad_twin_prediction_destroy(p);
+        return NULL;
+    }
+    twin_state_read(p->twin, p->base_state);
     memcpy(p->base, heights, n * sizeof *p->base);
     memcpy(p->heights, heights, n * sizeof *p->heights);
     double hz = twin_config_tick_hz(c);
@@ -181,6 +192,7 @@ void terrad_twin_prediction_destroy(terrad_twin_prediction *p)
     free(p->own);
     free(p->heights);
     free(p->base);
+    free(p->base_state);
     terrad_twin_destroy(p->twin);
     free(p);
 }
@@ -259,6 +271,20 @@ int terrad_twin_prediction_add_mesh(terrad_twin_prediction *p, uint32_t id, cons
                      err);
 }
 
+int terrad_twin_prediction_set_load(terrad_twin_prediction *p, uint32_t id, double load_n,
+                                    char *err)
+{
+    if (!p)
+        return twin_fail(err, "collider: no prediction");
+    predict_own *s = find_own(p, id);
+    if (!s)
+        return twin_fail(err, "id: collider %u is not predicted", (unsigned)id);
+    if (terrad_twin_set_load(p->twin, (int)id, load_n, err) != 0)
+        return -1;
+    s->loaded = load_n > 0;
+    return 0;
+}
+
 int terrad_twin_prediction_remove_collider(terrad_twin_prediction *p, uint32_t id, char *err)
 {
     if (!p)
@@ -310,53 +336,121 @@ static int acknowledged(uint32_t batch, uint32_t seq)
     return (uint32_t)(seq - batch) < 0x80000000u;
 }
 
-/* The poses each acknowledged batch used become where tick t left the colliders. */
+/* The poses each acknowledged batch used become where tick t left the
+ * colliders (a load-driven one keeps the height found last: found sets it). */
 static void remember(terrad_twin_prediction *p, int64_t ndone)
 {
     for (int64_t i = 0; i < ndone; i++)
         for (int64_t j = 0; j < p->pending[i].n; j++) {
             predict_own *s = find_own(p, p->pending[i].poses[j].id);
-            if (s) {
-                s->acked = p->pending[i].poses[j].pose;
-                s->has_acked = 1;
-            }
+            if (!s)
+                continue;
+            double z = s->acked.position.z;
+            s->acked = p->pending[i].poses[j].pose;
+            if (s->loaded && s->has_acked)
+                s->acked.position.z = z;
+            s->has_acked = 1;
         }
 }
 
-/* The server's ticks since the previous ACK, replayed from its heights: the
- * idle ticks keep the poses, tick t takes the latest pose of each collider
- * of the acknowledged batches. Cells differing from the server's are counted. */
-static void replay(terrad_twin_prediction *p, int64_t ndone, uint64_t gap, const int32_t *server)
+/* After the replay of tick t: the soil state it reached is the base's, and
+ * each load-driven collider stands at the height it found (the server's,
+ * when the replay is exact: the same search on the same heights and state). */
+static void found(terrad_twin_prediction *p)
+{
+    twin_state_read(p->twin, p->base_state);
+    for (int64_t i = 0; i < p->nown; i++) {
+        predict_own *s = &p->own[i];
+        double z;
+        if (s->loaded && s->has_acked && twin_pose_z(p->twin, (int)s->id, &z) == 0)
+            s->acked.position.z = z;
+    }
+}
+
+/* The poses of the acknowledged batches tick j of a replay took (at[i]: batch
+ * i's tick, 1..gap; NULL: all at the last), the latest of each collider. */
+static int64_t merge(const terrad_twin_prediction *p, int64_t ndone, const uint64_t *at, uint64_t j,
+                     uint64_t gap, predict_pose *merged)
+{
+    int64_t nm = 0;
+    for (int64_t i = 0; i < ndone; i++) {
+        if ((at ? at[i] : gap) != j)
+            continue;
+        for (int64_t k = 0; k < p->pending[i].n; k++) {
+            const predict_pose *sp = &p->pending[i].poses[k];
+            int64_t m = 0;
+            while (m < nm && merged[m].id != sp->id)
+                m++;
+            merged[m] = *sp;
+            nm += m == nm;
+        }
+    }
+    return nm;
+}
+
+/* The server's ticks since the previous ACK, replayed from its heights and
+ * soil state: the idle ticks keep the poses, tick j takes the latest pose of
+ * each collider of the batches it took (at, as in merge). Returns the cells
+ * differing from the server's (server NULL: 0, not compared). */
+static uint64_t replay(terrad_twin_prediction *p, int64_t ndone, uint64_t gap, const uint64_t *at,
+                       const int32_t *server)
 {
     restart(p, p->base);
-    for (uint64_t i = 1; i < gap; i++)
-        terrad_twin_tick(p->twin, NULL);
     int64_t total = 0;
     for (int64_t i = 0; i < ndone; i++)
         total += p->pending[i].n;
     predict_pose *merged = malloc((size_t)(total ? total : 1) * sizeof *merged);
-    int64_t nm = 0;
-    for (int64_t i = 0; merged && i < ndone; i++)
-        for (int64_t j = 0; j < p->pending[i].n; j++) {
-            const predict_pose *sp = &p->pending[i].poses[j];
-            int64_t k = 0;
-            while (k < nm && merged[k].id != sp->id)
-                k++;
-            merged[k] = *sp;
-            nm += k == nm;
-        }
-    apply(p, merged, nm);
+    for (uint64_t j = 1; j <= gap; j++) {
+        int64_t nm = merged ? merge(p, ndone, at, j, gap, merged) : 0;
+        if (nm == 0 && j < gap)
+            terrad_twin_tick(p->twin, NULL);
+        else
+            apply(p, merged, nm); /* the last tick reads the heights */
+    }
     free(merged);
     uint64_t differ = 0;
-    for (size_t i = 0; i < cells(p); i++)
+    for (size_t i = 0; server && i < cells(p); i++)
         differ += p->heights[i] != server[i];
-    p->stats.last_differing = differ;
-    p->stats.replayed++;
-    p->stats.exact += differ == 0;
+    return differ;
+}
+
+enum { SPREAD_TRIES = 64 }; /* the most assignments of batches to ticks tried */
+
+/* Batches acknowledged together after a gap may have been taken at different
+ * ticks of it (a slow client's older ACK is replaced by the newer one,
+ * PROTOCOL.md "Slow clients"): which tick took which is not known, so the ACK
+ * is not compared; but the soil state and the heights load-driven colliders
+ * found must be the server's, so the orders the server could have taken them
+ * in (each batch at or after the one before, the last at tick t) are
+ * replayed until one gives the server's heights. None: the last batch's
+ * tick alone, the best guess. */
+static void replay_spread(terrad_twin_prediction *p, int64_t ndone, uint64_t gap,
+                          const int32_t *server)
+{
+    uint64_t *at = malloc((size_t)ndone * sizeof *at);
+    for (int64_t i = 0; at && i < ndone; i++)
+        at[i] = i == ndone - 1 ? gap : 1;
+    for (int tries = 0; at && tries < SPREAD_TRIES; tries++) {
+        if (replay(p, ndone, gap, at, server) == 0) {
+            free(at);
+            return;
+        }
+        int64_t i = ndone - 2; /* the next nondecreasing assignment */
+        while (i >= 0 && at[i] == gap)
+            i--;
+        if (i < 0)
+            break;
+        at[i]++;
+        for (int64_t k = i + 1; k < ndone - 1; k++)
+            at[k] = at[i];
+    }
+    free(at);
+    replay(p, ndone, gap, NULL, NULL);
 }
 
 /* Compare (when the ACKs say which ticks used which batches) and take the
- * server's heights at tick as the new base. */
+ * server's heights at tick as the new base, with the soil state and found
+ * heights the replay reached. */
 static void reconcile(terrad_twin_prediction *p, uint64_t tick, uint32_t seq, int64_t ndone,
                       const int32_t *server)
 {
@@ -367,15 +461,21 @@ static void reconcile(terrad_twin_prediction *p, uint64_t tick, uint32_t seq, in
         any_acked |= p->own[i].has_acked;
     /* nothing of ours pressed before t: the idle ticks changed nothing */
     uint64_t gap = !any_acked ? 1 : p->has_base_tick ? tick - p->base_tick : 0;
-    /* batches acknowledged together after a gap may have been taken at different ticks of it
-     * (a slow client's older ACK is replaced by the newer one, PROTOCOL.md "Slow clients"):
-     * which tick took which is not known, so that ACK is not compared */
     int spread = gap > 1 && ndone > 1;
-    if (gap >= 1 && gap <= p->max_replay_ticks && !spread)
-        replay(p, ndone, gap, server);
-    else
+    if (gap >= 1 && gap <= p->max_replay_ticks && !spread) {
+        uint64_t differ = replay(p, ndone, gap, NULL, server);
+        p->stats.last_differing = differ;
+        p->stats.replayed++;
+        p->stats.exact += differ == 0;
+    } else {
         p->stats.skipped++;
+        if (spread && gap <= p->max_replay_ticks)
+            replay_spread(p, ndone, gap, server);
+        else /* one tick with the batches' poses: the best guess at the state */
+            replay(p, ndone, 1, NULL, NULL);
+    }
     remember(p, ndone);
+    found(p);
     memcpy(p->base, server, cells(p) * sizeof *p->base);
     p->base_tick = tick;
     p->has_base_tick = 1;

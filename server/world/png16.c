@@ -185,9 +185,7 @@ static void png_memory_flush(png_structp png)
 int png16_encode(int width, int height, int level, png16_row_fn *row_of, void *arg,
                  const char *name, png16_memory *out, error_text *err)
 {
-    out->data = NULL;
-    out->len = 0;
-    out->cap = 0;
+    *out = (png16_memory){0};
     if (width < 1 || height < 1 || width > WORLD_SIDE_MAX || height > WORLD_SIDE_MAX) {
         error_set(err, "%s: cannot write a %d x %d image", name, width, height);
         return -1;
@@ -204,14 +202,15 @@ int png16_encode(int width, int height, int level, png16_row_fn *row_of, void *a
         png_end(1, &png, &info);
         return -1;
     }
-    /* out is the caller's, so what the writes grew is not lost to a longjmp */
+    /* out is the caller's, so what the writes grew is not lost to a longjmp;
+     * freed, out is as on entry (a cap left behind would tell a reuse of out
+     * that it holds memory it does not) */
     if (setjmp(png_jmpbuf(png))) {
         error_set(err, "%s: cannot write PNG: %s", name, ctx.message);
         free(samples);
         png_end(1, &png, &info);
         free(out->data);
-        out->data = NULL;
-        out->len = 0;
+        *out = (png16_memory){0};
         return -1;
     }
     png_set_write_fn(png, out, png_memory_write, png_memory_flush);

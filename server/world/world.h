@@ -234,7 +234,7 @@ int png16_write(const char *path, int width, int height, const uint16_t *pixels,
 /* The one PNG writer: a width x height 16-bit greyscale PNG into out (its
  * data malloc'd), row y's samples from row_of(arg, y, samples), at zlib level
  * (0-9; -1: libpng's default). 0, or -1 with err set (name names the image)
- * and out->data NULL. */
+ * and out zeroed (data NULL, len and cap 0: nothing held). */
 typedef struct png16_memory {
     unsigned char *data;
     size_t len;

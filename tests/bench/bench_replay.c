@@ -13,7 +13,11 @@
  * runs — rebuilds a 256² window at ticks through the match, and the answer
  * is checked against the heights the world held at that tick (kept while
  * writing). Then the same ticks as a spectator starts at them
- * (store_cursor_open, spectate_seek) and plays the next second. Prints one
+ * (store_cursor_open, spectate_seek) and plays the next second, with the
+ * cells and bytes its cursor then holds (only the window's tiles: the log's
+ * records are clipped to the window; BENCH_REPLAY_SIDE=4096 spreads the laps
+ * over a 4096² world to show it), and a spectator that plays the whole match
+ * from tick 0 (spectate_play: what its cursor holds at the end). Prints one
  * JSON line per seek (the best of two); never fails on speed (a rebuild that is not exact says so
  * on stderr: the test is tests/integration/store/test_replay_heights.py).
  */
@@ -27,7 +31,9 @@
 #include "store/store.h"
 #include "world/world.h"
 
-#define SIDE 1024
+/* BENCH_REPLAY_SIDE: the world's side (1024; a multiple of it spreads the
+ * same laps, scaled, over the larger world, and the window with them) */
+static int side = 1024, scale = 1;
 #define VEHICLES 8
 #define WHEELS 4
 #define WIN 256
@@ -43,7 +49,8 @@ static double now_ms(void)
 /* Vehicle v's wheel k at tick t: a lap around its own ring, a cell every 4 ticks. */
 static world_rect wheel(int v, int k, uint64_t t)
 {
-    int cx = 150 + (v % 4) * 240, cy = 256 + (v / 4) * 512, r = 60 + 8 * v;
+    int cx = (150 + (v % 4) * 240) * scale, cy = (256 + (v / 4) * 512) * scale,
+        r = (60 + 8 * v) * scale;
     int step = (int)(t / 4 % (uint64_t)(8 * r));
     int side = step / (2 * r), along = step % (2 * r);
     int x = side == 0 ? cx - r + along : side == 1 ? cx + r : side == 2 ? cx + r - along : cx - r;
@@ -61,6 +68,8 @@ static int spectate_seek(const char *dir, const world *w, uint64_t tick, uint64_
 {
     double best = 1e30, second = 1e30;
     int exact = 0;
+    int64_t cells = 0;
+    uint64_t bytes = 0;
     for (int rep = 0; rep < 2; rep++) {
         error_text err = {{0}};
         store_cursor *cur = NULL;
@@ -81,14 +90,48 @@ static int spectate_seek(const char *dir, const world *w, uint64_t tick, uint64_
                store_cursor_apply(cur, &err) == 0)
             played++;
         double run = now_ms() - t1 - ms;
+        if (rc == 0)
+            cells = store_cursor_cells(cur, &bytes);
         store_cursor_close(cur);
         best = ms < best ? ms : best;
         second = run < second ? run : second;
     }
-    printf("{\"bench\":\"spectate_seek\",\"tick\":%llu,\"of\":%llu,\"window\":%d,"
-           "\"ms\":%.1f,\"next_60_ticks_ms\":%.1f,\"exact\":%s,\"goal_ms\":100}\n",
-           (unsigned long long)tick, (unsigned long long)of, WIN, best, second,
-           exact ? "true" : "false");
+    printf("{\"bench\":\"spectate_seek\",\"tick\":%llu,\"of\":%llu,\"side\":%d,\"window\":%d,"
+           "\"ms\":%.1f,\"next_60_ticks_ms\":%.1f,\"cursor_cells\":%lld,\"cursor_mib\":%.2f,"
+           "\"exact\":%s,\"goal_ms\":100}\n",
+           (unsigned long long)tick, (unsigned long long)of, side, WIN, best, second,
+           (long long)cells, bytes / 1048576.0, exact ? "true" : "false");
+    fflush(stdout);
+    return exact;
+}
+
+/* A spectator that watches the whole match from tick 0 (every record read
+ * and applied): the cells and bytes its cursor holds at the end. Without the
+ * clip to the window, every tile the laps ever touched. */
+static int spectate_play(const char *dir, const world *w, uint64_t of, world_rect win,
+                         const int32_t *want, int32_t *got)
+{
+    error_text err = {{0}};
+    store_cursor *cur = NULL;
+    double t1 = now_ms();
+    uint64_t t, played = 0, bytes = 0;
+    const world_rect *rects;
+    int n;
+    if (store_cursor_open(dir, w, 0, win, &cur, &err) != 0) {
+        fprintf(stderr, "bench_replay: spectate from 0: %s\n", err.message);
+        return 0;
+    }
+    while (store_cursor_next(cur, of, &t, &rects, &n, &err) == 1 &&
+           store_cursor_apply(cur, &err) == 0)
+        played++;
+    int64_t cells = store_cursor_cells(cur, &bytes);
+    store_cursor_read(cur, win, got);
+    int exact = store_cursor_tick(cur) == of && memcmp(got, want, sizeof(int32_t) * WIN * WIN) == 0;
+    store_cursor_close(cur);
+    printf("{\"bench\":\"spectate_play\",\"from\":0,\"ticks\":%llu,\"side\":%d,\"window\":%d,"
+           "\"s\":%.1f,\"cursor_cells\":%lld,\"cursor_mib\":%.2f,\"exact\":%s}\n",
+           (unsigned long long)played, side, WIN, (now_ms() - t1) / 1e3, (long long)cells,
+           bytes / 1048576.0, exact ? "true" : "false");
     fflush(stdout);
     return exact;
 }
@@ -110,7 +153,10 @@ int main(void)
                             .wavelength_m = 20,
                             .octaves = 4,
                             .seed = 7};
-    if (world_init(&w, SIDE, SIDE, 0.05, 10000, 0, &err) != 0 ||
+    const char *sides = getenv("BENCH_REPLAY_SIDE");
+    side = sides && atoi(sides) >= 1024 ? atoi(sides) / 1024 * 1024 : 1024;
+    scale = side / 1024;
+    if (world_init(&w, side, side, 0.05, 10000, 0, &err) != 0 ||
         world_generate_base(&w, &spec, &err) != 0) {
         fprintf(stderr, "bench_replay: %s\n", err.message);
         return 1;
@@ -126,7 +172,7 @@ int main(void)
         fprintf(stderr, "bench_replay: %s\n", err.message);
         return 1;
     }
-    world_rect win = {384, 128, WIN, WIN}; /* crossed by vehicles 0, 1 and 2 */
+    world_rect win = {384 * scale, 128 * scale, WIN, WIN}; /* crossed by vehicles 0, 1 and 2 */
     uint64_t at[SEEKS];
     int32_t *want[SEEKS];
     for (int s = 0; s < SEEKS; s++) {
@@ -191,6 +237,7 @@ int main(void)
     }
     for (int s = 0; s < SEEKS; s++)
         all_exact &= spectate_seek(dir, &w, at[s], ticks, win, want[s], got);
+    all_exact &= spectate_play(dir, &w, ticks, win, want[SEEKS - 1], got);
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     if (system(cmd) != 0)
         fprintf(stderr, "bench_replay: could not remove %s\n", dir);

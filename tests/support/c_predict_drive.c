@@ -6,6 +6,7 @@
  *
  *   c_predict_drive predict PORT X Y W H CONFIG OUT   the Python test's drive, in C
  *   c_predict_drive world PORT NAME W H OUT            hello into world NAME
+ *   c_predict_drive loaded PORT X Y W H CONFIG         a load-driven wheel (bekker)
  *
  * predict: client A subscribes the window, predicts it with CONFIG (the
  * scene's twin keys) and drives a sphere, a rolling wheel, a capsule (a
@@ -23,6 +24,13 @@
  * world: connects into NAME (checks the world message's name and size),
  * refuses an unknown and an over-long name naming "world", presses a sphere
  * into the world and writes the mirror of (0, 0, W, H) to OUT.
+ *
+ * loaded: on a bekker world, predicts the window with CONFIG and rolls a
+ * load-driven wheel (terrad_client_create_loaded_collider: its height is
+ * the server's, found where the soil carries the load) through it with slip
+ * for 300 ticks. Checks: every compared ACK's replay has 0 cells differing
+ * (the twin runs the server's search from the state its replay reached);
+ * the server found heights below the posed one (terrad_client_force_height).
  *
  * Prints "N passed, N failed"; exit 1 on a failure.
  */
@@ -350,6 +358,74 @@ static int run_predict(int port, drive *d, const char *cfg, const char *out)
     return check_report();
 }
 
+/* ---- loaded ---------------------------------------------------------------- */
+
+static int run_loaded(int port, drive *d, const char *cfg)
+{
+    terrad_client *a = open_client(port, NULL, "predict-loaded", NULL, NULL);
+    CHECK(a != NULL, "connected");
+    if (!a)
+        return check_report();
+    d->cell = terrad_client_world(a)->cell_size_m;
+    d->hz = terrad_client_world(a)->tick_hz;
+    uint32_t sid = 0, wheel = 0;
+    CHECK(terrad_client_subscribe(a, d->x, d->y, d->w, d->h, &sid) == 0, "subscribed");
+    CHECK(wait_complete(a, sid), "the snapshot came");
+    d->mirror = terrad_client_mirror(a, sid);
+    int rc = terrad_client_predict(a, sid, cfg, &d->pred);
+    CHECK(rc == 0 && d->pred, "predict (%d: %s)", rc, terrad_client_last_error(a));
+    if (!d->pred)
+        return check_report();
+    const double radius = 0.1, z = 0.4 + radius; /* the search starts there, once */
+    rc = terrad_client_create_loaded_collider(
+        a, (terrad_collider_desc){.shape = TERRAD_SHAPE_WHEEL, .radius = radius, .width = 0.08},
+        40.0, &wheel);
+    CHECK(rc == 0, "a load-driven wheel created (%d: %s)", rc, terrad_client_last_error(a));
+    const int n = 300;
+    double x0 = (d->x + 16) * d->cell, x1 = (d->x + (int)d->w - 16) * d->cell, lowest = z;
+    double next = now_s();
+    uint32_t seq = 0;
+    for (int i = 0; i < n; i++) {
+        double x = x0 + (x1 - x0) * i / (n - 1), angle = (x - x0) / (radius * (1 - 0.2));
+        terrad_pose p = {wheel,
+                         (float)x,
+                         (float)((d->y + d->h / 2.0) * d->cell),
+                         (float)z,
+                         (float)cos(angle / 2),
+                         0,
+                         (float)sin(angle / 2),
+                         0}; /* turning faster than it travels: slip 0.2 */
+        CHECK(terrad_client_send_poses(a, &p, 1, &seq) == 0, "poses sent");
+        double found = 0;
+        if (terrad_client_force_height(a, wheel, &found) == 1 && found < lowest)
+            lowest = found;
+        next += 1.0 / d->hz;
+        pump_until(a, NULL, next);
+    }
+    CHECK(wait_ack(a, NULL, seq), "the last batch is acknowledged");
+    const terrad_prediction_stats *s = terrad_prediction_get_stats(d->pred);
+    printf("load-driven: %llu predicted, %llu compared (%llu exact), %llu on time, %llu not "
+           "compared; lowest found height %.6f m\n",
+           (unsigned long long)s->predicted, (unsigned long long)s->replayed,
+           (unsigned long long)s->exact, (unsigned long long)s->on_time,
+           (unsigned long long)s->skipped, lowest);
+    CHECK(lowest < z - 0.005, "the server found the wheel's height below the posed %.3f m (%.6f)",
+          z, lowest);
+    CHECK(s->replayed >= 10 && s->exact == s->replayed,
+          "load-driven wheel: every compared ACK's replay equals the server's heights (%llu of "
+          "%llu exact, last differing %llu)",
+          (unsigned long long)s->exact, (unsigned long long)s->replayed,
+          (unsigned long long)s->last_differing);
+    CHECK(s->pending == 0 && memcmp(terrad_prediction_heights(d->pred), d->mirror->heights,
+                                    (size_t)d->w * d->h * 4) == 0,
+          "with nothing pending, the prediction is the server's state");
+    CHECK(terrad_client_get_stats(a)->errors == 0, "no errors reached the client (%s)",
+          terrad_client_last_error(a));
+    terrad_prediction_stop(d->pred);
+    terrad_client_close(a);
+    return check_report();
+}
+
 /* ---- world ----------------------------------------------------------------- */
 
 static int run_world(int port, const char *name, uint32_t w, uint32_t h, const char *out)
@@ -408,10 +484,18 @@ int main(int argc, char **argv)
                    .h = (uint32_t)atoi(argv[6])};
         return run_predict(atoi(argv[2]), &d, argv[7], argv[8]);
     }
+    if (argc == 8 && strcmp(argv[1], "loaded") == 0) {
+        drive d = {.x = atoi(argv[3]),
+                   .y = atoi(argv[4]),
+                   .w = (uint32_t)atoi(argv[5]),
+                   .h = (uint32_t)atoi(argv[6])};
+        return run_loaded(atoi(argv[2]), &d, argv[7]);
+    }
     if (argc == 7 && strcmp(argv[1], "world") == 0)
         return run_world(atoi(argv[2]), argv[3], (uint32_t)atoi(argv[4]), (uint32_t)atoi(argv[5]),
                          argv[6]);
     fprintf(stderr, "usage: c_predict_drive predict PORT X Y W H CONFIG OUT\n"
-                    "       c_predict_drive world PORT NAME W H OUT\n");
+                    "       c_predict_drive world PORT NAME W H OUT\n"
+                    "       c_predict_drive loaded PORT X Y W H CONFIG\n");
     return 2;
 }

@@ -5,14 +5,19 @@
 // same window while A keeps sending a lifted pose. Prints one JSON line of what it saw; the
 // Python test asserts on it (and on GET /v1/heights).
 //
-// Usage: node --import tests/support/node_websocket.mjs predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H
+// With a last argument `loaded` (a bekker world): one connection predicts the window and rolls a
+// load-driven wheel (load_n: its height the server's, found where the soil carries the load)
+// through it with slip 0.2 for 300 ticks instead.
+//
+// Usage: node --import tests/support/node_websocket.mjs predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H [loaded]
 import { readFileSync } from 'node:fs';
-import { Mirror, MsgType, colliderCreate, decodeAck, decodeDelta, decodeHeader, encodePoseBatch, hello, parseControl, subscribe } from '../../web/terrad_codec.mjs';
+import { Mirror, MsgType, colliderCreate, decodeAck, decodeDelta, decodeForces, decodeHeader, encodePoseBatch, hello, parseControl, subscribe } from '../../web/terrad_codec.mjs';
 import { loadTwinModule } from '../../web/twin.mjs';
 import { Prediction } from '../../web/predict.mjs';
 
 const [url, wasm, configPath, ...rect] = process.argv.slice(2);
 const [RX, RY, RW, RH] = rect.map(Number);
+const mode = rect[4] ?? 'predict';
 const WAIT_MS = 120000; // generous: the machine may be loaded
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
@@ -34,6 +39,7 @@ class Conn {
         this.seq = 0;
         this.prediction = null;
         this.onAck = null;
+        this.heights = []; // FORCES' height extension: [id, height_m] of each entry that has one
     }
 
     async open() {
@@ -66,6 +72,8 @@ class Conn {
             this.ackedTick = tick;
             if (this.prediction) this.prediction.onAck(tick, seq);
             if (this.onAck) this.onAck();
+        } else if (t === MsgType.FORCES) {
+            for (const f of decodeForces(b).forces) if (f.height_m !== undefined) this.heights.push([f.id, f.height_m]);
         }
     }
 
@@ -90,6 +98,10 @@ class Conn {
     }
 }
 
+if (mode === 'loaded') {
+    await loaded();
+    process.exit(0);
+}
 const a = new Conn('a'), b = new Conn('b');
 await a.open();
 await b.open();
@@ -196,6 +208,50 @@ a.ws.close();
 b.ws.close();
 pred.destroy();
 process.exit(0);
+
+// A load-driven wheel, predicted: the counters, the rut's depth (units below the start), the
+// heights the server found (FORCES' height extension) and whether a bad load is refused naming
+// load_n.
+async function loaded() {
+    const c = new Conn('loaded');
+    await c.open();
+    const { cell_size_m: cell, tick_hz: hz } = c.world;
+    c.ws.send(JSON.stringify(subscribe(RX, RY, RW, RH)));
+    const mirror = c.mirrors.get((await c.reply('subscribed')).id);
+    await until('the snapshot', () => mirror.complete);
+    const start = Int32Array.from(mirror.heights);
+    const config = JSON.parse(readFileSync(configPath, 'utf8'));
+    const radius = 0.1, load = 40, z = 0.4 + radius; // the server's search starts there, once
+    const wheel = await c.collider('wheel', { radius, width: 0.08 }, { loadN: load, forcesHeight: true });
+    const own = new Map([[wheel, { shape: 'wheel', dims: { radius, width: 0.08, load_n: load } }]]);
+    const pred = (c.prediction = new Prediction(await loadTwinModule(readFileSync(wasm)), c.world, mirror, config, own));
+    const refused = [NaN, -3, Infinity].map((bad) => {
+        try {
+            pred.twin.setLoad(wheel, bad);
+            return `${bad}: not refused`;
+        } catch (e) {
+            return String(e.message).includes('load_n') ? 'ok' : `${bad}: ${e.message}`;
+        }
+    });
+    const x0 = (RX + 16) * cell, x1 = (RX + RW - 16) * cell, y = (RY + RH / 2) * cell, n = 300;
+    const t0 = Date.now();
+    let last = 0;
+    for (let i = 0; i < n; i++) {
+        const x = x0 + ((x1 - x0) * i) / (n - 1), angle = (x - x0) / (radius * (1 - 0.2)); // slip 0.2
+        last = c.send([{ id: wheel, x, y, z, qw: Math.cos(angle / 2), qx: 0, qy: Math.sin(angle / 2), qz: 0 }]);
+        await sleep(Math.max(0, t0 + ((i + 1) * 1000) / hz - Date.now()));
+    }
+    await until('the last ACK', () => c.ackedSeq >= last);
+    let rut = 0;
+    for (let k = 0; k < start.length; k++) rut = Math.max(rut, start[k] - mirror.heights[k]);
+    console.log(JSON.stringify({
+        drive: { predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime, lastDiffering: pred.lastDiffering },
+        settled: sameArrays(pred.heights(), mirror.heights), rut, refused, errors: c.errors,
+        found: c.heights.filter(([id]) => id === wheel).map(([, h]) => h),
+    }));
+    c.ws.close();
+    pred.destroy();
+}
 
 function sameArrays(x, y) {
     return x.length === y.length && x.every((v, i) => v === y[i]);

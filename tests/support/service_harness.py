@@ -272,6 +272,25 @@ def json_call(base, method, path, body=None, token=None, raw=None, timeout=120):
             return e.code, {"raw": text.decode(errors="replace")}
 
 
+# A bekker world for the load-driven wheel of test_predict_c / _python / _js: 2 cm cells, the
+# ding2011 soil preset; the predicted window leaves a 16-cell halo about the wheel's path.
+SOIL_PREDICT_SCENE = {"name": "predict-load",
+                      "world": {"width": 160, "height": 96, "cell_size_m": 0.02},
+                      "terrain": {"kind": "flat", "height_m": 0.4},
+                      "material": {"model": "bekker", "compression": 0.5,
+                                   "soil": {"preset": "ding2011"}},
+                      "colliders": []}
+SOIL_PREDICT_REGION = (16, 16, 128, 64)
+
+
+def soil_predict_config(tmp):
+    """SOIL_PREDICT_SCENE written into the folder tmp: its path and its twin config."""
+    path = os.path.join(tmp, "soil.json")
+    with open(path, "w") as f:
+        json.dump(SOIL_PREDICT_SCENE, f)
+    return path, twin_config(path)
+
+
 def twin_config_text(cfg):
     """The twin keys as terrad_client_predict's "key=value" pairs (what the C library's
     prediction takes, so also the C#, Go and Rust examples built on it)."""

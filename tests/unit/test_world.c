@@ -295,6 +295,43 @@ static void write_png_raw(const char *path, int depth, int colour, int w, int h)
     fclose(f);
 }
 
+/* png16_encode's rows: a ramp. */
+static void ramp_row(void *arg, int y, uint16_t *samples)
+{
+    for (int x = 0; x < *(const int *)arg; x++)
+        samples[x] = (uint16_t)(y * 100 + x);
+}
+
+/* png16_encode's errors leave its output as on entry, nothing held: one
+ * refused before libpng starts (a side out of range), one from inside libpng
+ * after its first bytes were written (zlib refuses level 10 when the first
+ * row is compressed, after the signature and IHDR grew the buffer). */
+static void test_png16_encode_errors(void)
+{
+    int width = 8;
+    error_text e = {{0}};
+    png16_memory m = {(unsigned char *)&width, 99, 99}; /* the caller's garbage */
+    CHECK(png16_encode(0, 4, 1, ramp_row, &width, "img", &m, &e) != 0 && has(&e, "img") &&
+              m.data == NULL && m.len == 0 && m.cap == 0,
+          "a 0 x 4 image refused, out zeroed (len %zu cap %lld): %s", m.len, (long long)m.cap,
+          e.message);
+    CHECK(png16_encode(width, 4, 10, ramp_row, &width, "img", &m, &e) != 0 && has(&e, "img") &&
+              has(&e, "cannot write PNG") && m.data == NULL && m.len == 0 && m.cap == 0,
+          "a libpng error (level 10) leaves out zeroed (len %zu cap %lld): %s", m.len,
+          (long long)m.cap, e.message);
+    /* and the same struct serves the next image */
+    CHECK(png16_encode(width, 4, 1, ramp_row, &width, "img", &m, &e) == 0 && m.data && m.len > 8 &&
+              (int64_t)m.len <= m.cap,
+          "then an image encodes into it (%zu bytes)", m.len);
+    int back_w = 0, back_h = 0;
+    uint16_t *back = NULL;
+    CHECK(m.data && png16_decode(m.data, m.len, "img", &back_w, &back_h, &back, &e) == 0 &&
+              back_w == width && back_h == 4 && back[3 * width + 5] == 305,
+          "and decodes to its rows");
+    free(back);
+    free(m.data);
+}
+
 static void test_png16(void)
 {
     char path[256];
@@ -598,6 +635,7 @@ int main(void)
     test_dunes();
     test_rects();
     test_png16();
+    test_png16_encode_errors();
     test_raw();
     test_tiled_equals_dense(WORLD_BASE_FLAT);
     test_tiled_equals_dense(WORLD_BASE_DUNES);

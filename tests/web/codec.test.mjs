@@ -190,6 +190,35 @@ for (const s of V.mirror_scenarios) {
   });
 }
 
+test('FORCES height extension (PROTOCOL.md "FORCES"): header flag 0x01, each entry 56 bytes ending in its f64 height', () => {
+  const plain = unhex(V.vectors.find((v) => v.name === 'forces_two').hex);
+  const count = C.decodeForces(plain).forces.length, heights = [0.4903, -1.25];
+  const withHeights = (hs) => { // the vector's entries, each followed by its height
+    const b = new Uint8Array(14 + 56 * count);
+    b.set(plain.subarray(0, 14));
+    b[3] = C.FORCES_FLAG_HEIGHT;
+    for (let i = 0; i < count; i++) {
+      b.set(plain.subarray(14 + 48 * i, 14 + 48 * (i + 1)), 14 + 56 * i);
+      new DataView(b.buffer).setFloat64(14 + 56 * i + 48, hs[i], true);
+    }
+    return b;
+  };
+  const d = C.decodeForces(withHeights(heights));
+  assert.deepEqual(d.forces.map((f) => f.height_m), heights);
+  assert.deepEqual(d.forces.map(({ height_m, ...f }) => f), C.decodeForces(plain).forces);
+  assert.ok(C.decodeForces(plain).forces.every((f) => !('height_m' in f)), 'no flag: no height_m');
+  assert.equal(errorName(() => C.decodeForces(withHeights([NaN, 0]))), 'bad_value');
+  assert.equal(errorName(() => C.decodeForces(withHeights(heights).subarray(0, 14 + 56 * count - 8))), 'bad_frame');
+  const other = withHeights(heights);
+  other[3] = 0x02;
+  assert.equal(errorName(() => C.decodeForces(other)), 'bad_frame', 'a flag FORCES does not define');
+  const ack = unhex(V.vectors.find((v) => v.type === 'ACK' && v.valid).hex);
+  ack[3] = C.FORCES_FLAG_HEIGHT;
+  assert.equal(errorName(() => C.decodeAck(ack)), 'bad_frame', 'the flag belongs to FORCES only');
+  assert.deepEqual(C.colliderCreate('wheel', { radius: 0.1, width: 0.08 }, { loadN: 40, forcesHeight: true }),
+    { type: 'collider_create', shape: 'wheel', material: 'default', feedback: true, radius: 0.1, width: 0.08, load_n: 40, forces_height: true });
+});
+
 test('control messages', () => {
   assert.deepEqual(C.hello('', 'x'), { type: 'hello', protocol: 1, token: '', client: 'x' });
   assert.deepEqual(C.hello('t', 'x', 'match-1'), { type: 'hello', protocol: 1, token: 't', client: 'x', world: 'match-1' });

@@ -247,10 +247,13 @@ export class TerradClient {
   }
 
   /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
-  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers } = {}): Promise<number> {
+  /** opts.loadN: load-driven (bekker worlds), its height the server's (and the predictions'); opts.forcesHeight:
+   *  its FORCES entries carry height_m, the height the server found (PROTOCOL.md "FORCES"). */
+  async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers; loadN?: number; forcesHeight?: boolean } = {}): Promise<number> {
     const ref = `col-${++this.refN}`;
     const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
-    const own = opts.grousers ? { ...dims, grousers: opts.grousers } : dims; // the twin presses the lugs too
+    // the twin presses the lugs too, and finds a load-driven collider's height as the server does
+    const own = { ...dims, ...(opts.grousers ? { grousers: opts.grousers } : {}), ...(opts.loadN !== undefined ? { load_n: opts.loadN } : {}) };
     for (const p of this.predictions.values()) p.own.set(m.id, { shape, dims: own });
     for (const p of this.predictions.values()) p.addCollider(m.id, shape, own);
     return m.id;

@@ -91,6 +91,42 @@ test('drive a collider with prediction: ACKs, contacts, every compared ACK exact
   }
 });
 
+// A load-driven wheel on a bekker world (its own daemon): the server finds its height where the
+// soil carries the load each tick, the prediction's WebAssembly twin runs the same search, and
+// FORCES carries the heights found (forcesHeight); without the load in the twin no ACK was exact
+// (test_predict_js, the same web/predict.mjs: 0 of 300).
+test('a load-driven wheel (loadN): every compared ACK exact, FORCES carries the heights the server found', { skip, timeout: 240000 }, async () => {
+  const scene = { name: 'ts-soil', world: { width: 160, height: 96, cell_size_m: 0.02 }, terrain: { kind: 'flat', height_m: 0.4 },
+    material: { model: 'bekker', compression: 0.5, soil: { preset: 'ding2011' } }, colliders: [] };
+  writeFileSync(path.join(dir, 'soil.json'), JSON.stringify(scene));
+  const soil = await startDaemon(0, 0, ['--scene', path.join(dir, 'soil.json')]);
+  const c = await T.TerradClient.connect(`ws://127.0.0.1:${soil.ports.ws}/`, { name: 'ts-soil' });
+  try {
+    const found = [];
+    c.on('forces', (m) => { for (const f of m.forces) if (f.height_m !== undefined) found.push(f.height_m); });
+    const sid = await c.subscribe(16, 16, 128, 64);
+    const mirror = await c.waitComplete(sid);
+    const worlds = new T.Worlds(`http://127.0.0.1:${soil.ports.http}`);
+    const pred = await c.predict(sid, await worlds.twinConfig(), await worlds.twinWasm());
+    const radius = 0.1, z = 0.4 + radius, n = 300, y = 48 * 0.02;
+    const wheel = await c.createCollider('wheel', { radius, width: 0.08 }, { loadN: 40, forcesHeight: true });
+    let seq = 0;
+    for (let i = 0; i < n; i++) {
+      const x = (32 + (96 * i) / n) * 0.02, angle = (x - 32 * 0.02) / (radius * 0.8); // slip 0.2
+      seq = c.sendPoses([{ id: wheel, x, y, z, qw: Math.cos(angle / 2), qx: 0, qy: Math.sin(angle / 2), qz: 0 }]);
+      await sleep(1000 / c.world.tick_hz);
+    }
+    await c.waitAck(seq);
+    assert.ok(pred.replayed >= 10 && pred.exact === pred.replayed,
+      `every compared ACK's replay equals the server (${pred.exact} of ${pred.replayed}, ${pred.skipped} not compared)`);
+    assert.deepEqual(Array.from(pred.heights()), Array.from(mirror.heights), 'with nothing pending, the prediction is the mirror');
+    assert.ok(found.length > 10 && Math.max(...found) < z - 0.005, `the server found heights below the posed ${z} m (${found.length}, highest ${Math.max(...found)})`);
+  } finally {
+    c.close();
+    await stopDaemon(soil);
+  }
+});
+
 test('bad input is refused with an error naming the field; the client goes on', { skip, timeout: 120000 }, async () => {
   const c = await T.TerradClient.connect(ws, { name: 'ts-bad' });
   try {

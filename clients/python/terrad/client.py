@@ -400,7 +400,12 @@ class Client:
         wait = self._said_at + SEEN_INTERVAL_S - loop.time()
         if wait <= 0:
             self._said, self._said_at = self._handled, loop.time()
-            await self.ws.send(json.dumps(seen(self._handled)))
+            try:
+                await self.ws.send(json.dumps(seen(self._handled)))
+            except _websockets().ConnectionClosed:
+                # The server closed after this frame; its closing error may still be queued
+                # behind it: the reader goes on to read it (and then ends on the close).
+                pass
         elif self._seen_later is None:  # the last frames before a pause are said too
             self._seen_later = loop.create_task(self._say_seen_later(wait))
 

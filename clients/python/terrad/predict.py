@@ -152,7 +152,8 @@ class Prediction:
 
     def add_collider(self, cid: int, shape: str, dims: dict[str, Any]) -> None:
         """The twin's copy of a collider this client created (Client.create_collider calls
-        this): sphere, box, capsule, cylinder, wheel (with its grousers, if any), mesh."""
+        this): sphere, box, capsule, cylinder, wheel (with its grousers, if any), mesh; with
+        load_n, load-driven as on the server (its height the soil's, found each tick)."""
         if dims.get("material", "default") != "default" or "pose" in dims:
             raise TwinError(f"collider {cid}: a predicted collider has the default material "
                             "and gets its poses from send_poses (no pose at creation)")
@@ -162,17 +163,19 @@ class Prediction:
             self._check(self._lib.terrad_twin_prediction_add_mesh(
                 p, cid, (ctypes.c_float * len(v))(*v), len(v) // 3,
                 (ctypes.c_uint32 * len(i))(*i), len(i) // 3, self._err))
-            return
-        if shape == "wheel":
+        elif shape == "wheel":
             self._check(self._lib.terrad_twin_prediction_add_wheel(
                 p, cid, dims.get("radius", 0.0), dims["width"] / 2,
                 *grouser_numbers(dims.get("grousers")), self._err))
-            return
-        hx, hy, hz = dims.get("half_extents", (0.0, 0.0, 0.0))
-        half_length = dims.get("half_length", 0.0)
-        self._check(self._lib.terrad_twin_prediction_add_collider(
-            p, cid, shape.encode(), dims.get("radius", 0.0), half_length, hx, hy, hz,
-            self._err))
+        else:
+            hx, hy, hz = dims.get("half_extents", (0.0, 0.0, 0.0))
+            half_length = dims.get("half_length", 0.0)
+            self._check(self._lib.terrad_twin_prediction_add_collider(
+                p, cid, shape.encode(), dims.get("radius", 0.0), half_length, hx, hy, hz,
+                self._err))
+        if dims.get("load_n") is not None:
+            self._check(self._lib.terrad_twin_prediction_set_load(p, cid, float(dims["load_n"]),
+                                                                  self._err))
 
     def remove_collider(self, cid: int) -> None:
         self._check(self._lib.terrad_twin_prediction_remove_collider(self._handle(), cid,

@@ -71,6 +71,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "remove_collider": (I, [P, I, S]),
         "set_pose": (I, [P, I, D, D, D, D, D, D, D, S]),
         "place": (I, [P, I, D, D, D, D, D, D, D, S]),
+        "set_load": (I, [P, I, D, S]),
         "tick": (I, [P, S]),
         "read": (I, [P, I, I, I, I, i32p, S]),
         "write": (I, [P, I, I, I, I, i32p, S]),
@@ -79,6 +80,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "prediction_add_collider": (I, [P, U32, S, D, D, D, D, D, S]),
         "prediction_add_wheel": (I, [P, U32, D, D, D, D, D, S]),
         "prediction_add_mesh": (I, [P, U32, f32p, I, u32p, I, S]),
+        "prediction_set_load": (I, [P, U32, D, S]),
         "prediction_remove_collider": (I, [P, U32, S]),
         "prediction_sent": (I, [P, U32, u32p, dp, I, S]),
         "prediction_acked": (I, [P, U64, U32, i32p, S]),
@@ -236,6 +238,12 @@ class Twin:
         on its rim, as the server presses them; None: smooth."""
         self._check(self._lib.terrad_twin_add_wheel(self._handle(), cid, radius, half_length,
                                                     *grouser_numbers(grousers), self._err))
+
+    def set_load(self, cid: int, load_n: float) -> None:
+        """Load-driven (bekker worlds): each tick the height where the soil carries load_n
+        newtons, found as the server finds it (terrad_twin_set_load); 0: pose-driven."""
+        self._check(self._lib.terrad_twin_set_load(self._handle(), cid, float(load_n),
+                                                   self._err))
 
     def add_mesh(self, cid: int, vertices: Sequence[float], indices: Sequence[int]) -> None:
         """vertices: x, y, z flat (metres, the collider's frame); indices: 3 per triangle."""

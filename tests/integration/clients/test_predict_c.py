@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 300
+# ctest-timeout: 420
 """The C client's prediction and its hello into a created world (terrad_client.h:
 terrad_client_predict, terrad_client_connect_world; docs/engines.md) against a real daemon
 (--backend cpu, no demo actors, a flat scene of default material), through
@@ -16,6 +16,10 @@ tests/support/c_predict_drive.c linked to the shared libterrad-client:
   (an unknown subscription, an unknown model, NaN, an unknown key, a pair without '=', a NULL
   out, a second prediction of one subscription) is refused naming the field and the client
   goes on; at the end the mirror equals GET /v1/heights;
+- a load-driven wheel (terrad_client_create_loaded_collider, on a second daemon's bekker world)
+  rolled with slip through a predicted window for 300 ticks: every compared ACK exact, its
+  height the server's (FORCES heights below the posed one). Without its load in the twin (the
+  client's height, as before terrad_twin_prediction_set_load) 0 of 301 compared ACKs were exact;
 - a world: POST /v1/worlds creates one; the C client says hello into it (the world message
   names it), an unknown and an over-long name are refused naming "world"; its sphere presses
   that world (the mirror equals GET /v1/heights?world=NAME) and not the default one.
@@ -30,7 +34,8 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import Checks, Daemon, read_mirror, skip, twin_config, twin_config_text  # noqa: E402
+from service_harness import (Checks, Daemon, SOIL_PREDICT_REGION, read_mirror, skip,  # noqa: E402
+                             soil_predict_config, twin_config, twin_config_text)
 
 DRIVE = os.environ.get("TERRAD_C_PREDICT_DRIVE", "")
 TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
@@ -89,6 +94,11 @@ def main():
             check(mirror is not None and mirror == http,
                   f"the mirror of world {WORLD['name']} equals GET /v1/heights?world= ({status})")
             check(d.heights(0, 0, w, h)[1] == default_before, "the default world was not pressed")
+        soil, soil_cfg = soil_predict_config(tmp)
+        check(soil_cfg.get("model") == "bekker", f"the bekker scene's twin config ({soil_cfg})")
+        with check.running(Daemon(extra=["--scene", soil, "--no-data"])) as d:
+            check(drive(["loaded", d.ws_port, *SOIL_PREDICT_REGION, twin_config_text(soil_cfg)]),
+                  "c_predict_drive loaded: every check passed")
     check.finish()
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 300
+# ctest-timeout: 420
 """Client-side prediction in JavaScript (web/predict.mjs over the WebAssembly twin,
 docs/engines.md "Prediction") against a real daemon (--backend cpu, no demo actors, a scene
 of dunes with its own material): tests/support/predict_drive.mjs, under Node 20 with its
@@ -15,6 +15,13 @@ WebSocket, drives through two connections with the viewer's codec and reports; h
 - a second connection ploughs the same window: the replay then differs from the server, and
   after every reconciliation with nothing pending the prediction equals the mirror; at the
   end the mirror equals GET /v1/heights and holds the other's rut;
+- a load-driven wheel (colliderCreate's loadN, the Prediction's dims load_n) rolled with slip on a
+  second daemon's bekker world for 300 ticks: every compared ACK exact (the WebAssembly twin
+  runs the server's search for its height from the state its replay reached; without load_n
+  in the twin 0 of 300 were), its rut deeper than the posed rim could press, and the heights the
+  server found arrive in FORCES (colliderCreate's forcesHeight: the header flag and each
+  entry's f64 height_m, decoded by web/terrad_codec.mjs) below the posed one; a NaN, negative
+  or infinite load is refused naming load_n;
 - bad input: a Prediction on a mirror without its snapshot, an unknown model, grousers with
   a negative, fractional or huge count, a height over the radius, no thickness: refused with
   an error naming the field.
@@ -29,7 +36,8 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import SOURCE, Checks, Daemon, need_twin_wasm, skip, twin_config  # noqa: E402
+from service_harness import (SOIL_PREDICT_REGION, SOURCE, Checks, Daemon,  # noqa: E402
+                             need_twin_wasm, skip, soil_predict_config, twin_config)
 
 TRACE = os.environ.get("TERRAD_TWIN_TRACE", "")
 DRIVE = os.path.join(SOURCE, "tests", "support", "predict_drive.mjs")
@@ -87,6 +95,31 @@ def main():
                   f"a mirror without its snapshot is refused ({out.get('refusedIncomplete')})")
             check("model" in out.get("refusedModel", ""),
                   f"an unknown model is refused naming it ({out.get('refusedModel')})")
+            check(not out["errors"], f"no server errors ({out['errors'][:3]})")
+        soil, soil_cfg = soil_predict_config(tmp)
+        with open(config, "w") as f:
+            json.dump(soil_cfg, f)
+        with check.running(Daemon(extra=["--scene", soil, "--no-data"])) as d:
+            p = subprocess.run(["node", "--import", NODE_WEBSOCKET, "--no-warnings", DRIVE, d.ws,
+                                WASM, config, *map(str, SOIL_PREDICT_REGION), "loaded"],
+                               capture_output=True, text=True, timeout=240)
+            if not check(p.returncode == 0, f"the Node driver ran loaded ({p.returncode}):\n{p.stderr[-3000:]}"):
+                return
+            out = json.loads(p.stdout.strip().splitlines()[-1])
+            drive = out["drive"]
+            print(f"JS load-driven wheel, 300 ticks: {drive}; rut {out['rut']} units", flush=True)
+            check(drive["replayed"] >= 10 and drive["exact"] == drive["replayed"] and out["settled"],
+                  f"load-driven wheel: every compared ACK exact, and the prediction the mirror "
+                  f"at the end ({drive['exact']} of {drive['replayed']}; {drive['skipped']} not "
+                  f"compared; settled {out['settled']})")
+            check(out["rut"] > 50, f"the server sank the wheel below its posed rim ({out['rut']} units)")
+            found = out["found"]
+            check(len(found) > 10 and max(found) < 0.5 - 0.005,
+                  f"FORCES' height extension, decoded by the JS codec: the heights the server "
+                  f"found, below the posed 0.5 m ({len(found)}, {min(found, default=None)}.."
+                  f"{max(found, default=None)} m)")
+            check(all(r == "ok" for r in out["refused"]),
+                  f"a NaN, negative or infinite load is refused naming load_n ({out['refused']})")
             check(not out["errors"], f"no server errors ({out['errors'][:3]})")
     check.finish()
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-# ctest-timeout: 300
+# ctest-timeout: 480
 """Client-side prediction in the Python client (terrad.predict, docs/engines.md "Prediction")
 against a real daemon (--backend cpu, no demo actors, a flat scene of default material):
 
@@ -19,6 +19,15 @@ against a real daemon (--backend cpu, no demo actors, a flat scene of default ma
   subscription without its snapshot, an unknown model, a non-finite number, an unknown key;
   terrad_twin_place with an unknown id or a NaN position), and the client goes on driving and
   predicting;
+- a load-driven wheel (load_n, on a second daemon's bekker world: the server finds its height
+  where the soil carries the load each tick, PROTOCOL.md "Load-driven colliders") rolls with
+  slip through a predicted window for 300 ticks: the prediction runs the server's own search
+  (terrad_twin_prediction_set_load) from the soil state and height its replay of the previous
+  ACK reached, so every compared ACK is exact; the server did move it (its FORCES heights are
+  below the posed one). Without load_n in the twin (pose-driven at the client's height) 0 of
+  301 compared ACKs were exact; with it but the soil state not kept across restarts, 0 of 301
+  too. A NaN, negative or infinite load_n, and any load on a non-bekker twin, are refused
+  naming load_n;
 - terrad_twin_place, offline: a twin restarted from another's heights after one tick, its
   sphere placed where that tick left it, gives the next tick the same heights as the twin
   that ran both ticks.
@@ -31,7 +40,8 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import BIN, Checks, Daemon, skip, twin_config  # noqa: E402
+from service_harness import (BIN, SOIL_PREDICT_REGION as SOIL_REGION, Checks,  # noqa: E402
+                             Daemon, skip, soil_predict_config, twin_config)
 
 import terrad  # noqa: E402
 from terrad import Client, MsgType, Pose, TwinError  # noqa: E402
@@ -53,6 +63,16 @@ def pose_at(cid, i, n, y_cell, z, cell):
     """Along x through the window, leaving a 24-cell halo at both ends."""
     x0, x1 = (REGION[0] + 24) * cell, (REGION[0] + REGION[2] - 24) * cell
     return Pose(cid, x0 + (x1 - x0) * i / (n - 1), (y_cell + 0.5) * cell, z)
+
+
+def check_exact(pred, mirror, what):
+    """Every compared ACK's replay had 0 cells differing; nothing pending: the mirror's state."""
+    check(pred.replayed >= 10 and pred.exact == pred.replayed,
+          f"{what}every compared ACK: the client's replay equals the server's heights in every "
+          f"cell ({pred.exact} of {pred.replayed} exact; {pred.skipped} not compared, "
+          f"{pred.reconciled} reconciliations, last differing {pred.last_differing})")
+    check(list(pred.twin.read()) == list(mirror.heights),
+          f"{what}with nothing pending, the prediction is the server's state")
 
 
 async def bad_input(client, sid, cfg):
@@ -144,12 +164,7 @@ async def drive(d, cfg):
               f"{pred.skipped} not compared; first rut seen early: {early}", flush=True)
         check(early.get("cells", 0) > 0 and early["acked"] < early["seq"],
               f"the prediction shows the rut before the server's ACK of its batch ({early})")
-        check(pred.replayed >= 10 and pred.exact == pred.replayed,
-              f"every compared ACK: the client's replay equals the server's heights in every "
-              f"cell ({pred.exact} of {pred.replayed} exact; {pred.skipped} not compared, "
-              f"{pred.reconciled} reconciliations, last differing {pred.last_differing})")
-        check(list(pred.twin.read()) == list(a.mirrors[sid].heights),
-              "with nothing pending, the prediction is the server's state")
+        check_exact(pred, a.mirrors[sid], "")
         rows = [list(pred.twin.read(REGION[0], y, REGION[2], 1)) for y in (y_a, y_w, y_c, y_l)]
         check(all(min(r) < int(0.4 * units) - int(0.02 * units) for r in rows),
               f"sphere, wheel, capsule and lugged wheel left ruts ({[min(r) for r in rows]} "
@@ -228,6 +243,13 @@ def twin_lugs(cfg):
             t.remove_collider(cid)
         check(lowest[0] == 4000 and lowest[1] < 4000,
               f"the smooth rim 1 cm above the soil leaves it, its lugs press ({lowest})")
+        t.add_wheel(5, 0.3, 0.1)
+        try:  # this world's model is not bekker: no soil to carry a load
+            t.set_load(5, 20.0)
+            check(False, "set_load on a non-bekker twin is refused")
+        except TwinError as e:
+            check("load_n" in str(e) and "bekker" in str(e),
+                  f"a load on a non-bekker twin is refused naming load_n ({e})")
 
 
 def place_resumes(cfg):
@@ -261,6 +283,48 @@ def place_resumes(cfg):
         b.tick()  # and goes on
 
 
+async def drive_loaded(d, cfg):
+    """A load-driven wheel rolling with slip 0.2 on bekker, predicted: every ACK exact."""
+    async with Client(d.ws) as a:
+        world = a.world
+        cell, hz = world["cell_size_m"], world["tick_hz"]
+        sid = await a.subscribe(*SOIL_REGION)
+        await a.wait_complete(sid, WAIT)
+        pred = a.predict(sid, cfg)
+        radius, load = 0.1, 40.0
+        wheel = await a.create_collider("wheel", radius=radius, width=0.08, load_n=load,
+                                        forces_height=True)
+        for bad in (math.nan, -3.0, math.inf):  # the twin library's own check
+            try:
+                pred.twin.set_load(wheel, bad)
+                check(False, f"set_load refuses {bad}")
+            except TwinError as e:
+                check("load_n" in str(e), f"set_load refuses {bad} naming load_n ({e})")
+        n, z = 300, 0.4 + radius  # the posed height: the server's search starts there once
+        x0, x1 = (SOIL_REGION[0] + 16) * cell, (SOIL_REGION[0] + SOIL_REGION[2] - 16) * cell
+        y = (SOIL_REGION[1] + SOIL_REGION[3] / 2) * cell
+        heights = set()
+        for i in range(n):
+            x = x0 + (x1 - x0) * i / (n - 1)
+            angle = (x - x0) / (radius * (1 - 0.2))  # turning faster than it travels: slip 0.2
+            await a.send_poses([Pose(wheel, x, y, z, math.cos(angle / 2), 0.0,
+                                     math.sin(angle / 2), 0.0)])
+            f = a.forces.get(wheel)
+            if f is not None and f.height_m is not None:
+                heights.add(round(f.height_m, 6))
+            await asyncio.sleep(1 / hz)
+        seq = await a.send_poses([Pose(wheel, x1, y, z, 1.0, 0.0, 0.0, 0.0)])
+        await a.wait_ack(seq, WAIT)
+        print(f"load-driven: {pred.predicted} batches predicted, {pred.replayed} replays "
+              f"compared ({pred.exact} exact), {pred.on_time} on time, {pred.skipped} not "
+              f"compared; {len(heights)} found heights, {min(heights, default=0)}.."
+              f"{max(heights, default=0)} m", flush=True)
+        check(len(heights) > 10 and max(heights) < z - 0.005,
+              f"the server found the wheel's heights, below the posed {z} m ({len(heights)} of "
+              f"them, highest {max(heights, default=None)})")
+        check_exact(pred, a.mirrors[sid], "load-driven wheel: ")
+
+
 def main():
     with tempfile.TemporaryDirectory(prefix="terrad-predict-") as tmp:
         path = os.path.join(tmp, "scene.json")
@@ -272,6 +336,10 @@ def main():
         twin_lugs(cfg)
         with check.running(Daemon(extra=["--scene", path, "--no-data"])) as d:
             asyncio.run(asyncio.wait_for(drive(d, cfg), 240))
+        soil, soil_cfg = soil_predict_config(tmp)
+        check(soil_cfg.get("model") == "bekker", f"the bekker scene's twin config ({soil_cfg})")
+        with check.running(Daemon(extra=["--scene", soil, "--no-data"])) as d:
+            asyncio.run(asyncio.wait_for(drive_loaded(d, soil_cfg), 240))
     check.finish()
 
 

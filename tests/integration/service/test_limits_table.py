@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""One limits table (issue 29 item 4): every limit is one row of
-net_limit_table (server/net/net_limits.c), from which the defaults, the
+"""One limits table (issue 29 item 4): every limit is one row of NET_LIMITS
+(server/net/net.h; net_limit_table in net_limits.c), from which the defaults, the
 config's "limits" keys, the world message's "limits" and `terrad serve
 --help`'s limits section are made. Checked here from the outside:
 

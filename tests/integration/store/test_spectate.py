@@ -15,11 +15,34 @@ mirror a live subscriber held at that tick, bit for bit.
 - A stepping spectator: two spectate_step messages play exactly those ticks; spectate_stop ends
   it with spectate_end "stopped". One whose connection goes while its thread waits for a step:
   the thread ends (terrad_spectators back to 0) and the daemon goes on.
+- A 1024 B/s spectator that sends a PING every 50 ms (its window always holds a PONG) gets frames
+  larger than its window has room for (the snapshot's), and its mirror equals the viewer's.
 - Refusals, each an error naming the field, counted in terrad_spectate_refused_total{field},
   while the viewer keeps getting its deltas and the daemon goes on: speed 9 and 0, a from_tick
   in the future, a subscribe while spectating and a spectate while subscribed, spectate_step
   without a stepping spectate, a daemon without retention whose early log was compacted away
   (from_tick no longer held), and a memory-only daemon (no log at all).
+- max_spectators (a limit of the table, told in the world message): on a daemon configured
+  with `max_spectators: 1`, while a stepping spectator waits a second spectate is refused
+  (too_large naming type, the message naming max_spectators, counted under
+  terrad_spectate_refused_total{field="busy"}); the first goes on (a step of 3 plays 3 ticks)
+  and, once it stopped and its thread ended, a spectate is accepted again. Without the limit
+  (the fixed 16) the second spectator is accepted and that check fails.
+- No spectator's frame was dropped: terrad_spectate_frames_dropped_total is there, at 0 (a drop
+  happens only out of memory; test_net_spectate covers its branch).
+
+- A small window on a larger world (a created 1024 x 1024 world, whose world tiles are 256 cells
+  a side): craters inside the window (one crossing the edge of the window's 64-cell tile, so
+  the cursor keeps only part of its rectangle) and in three other world tiles; a spectator of
+  the window from before the first crater equals a live viewer's mirror of the window and GET
+  /v1/heights?tick=N at every tick it saw; a second spectator from the tick of the last crater
+  (its rebuild replays them all) starts from the same heights; and neither store cursor held
+  more than the one world tile under the window (terrad_spectate_cursor_cells_max <= 256 * 256;
+  each held the four tiles the craters touched, 262,144 cells, while records were applied
+  whole: the first through store_cursor_apply, the second through its rebuild).
+- The world is deleted (DELETE /v1/worlds/NAME) under a live spectator: the spectator gets an
+  error saying the world was deleted, its replay thread ends (terrad_spectators 0), and the
+  daemon and a client of another world go on.
 
 Without the spectator (net_spectate.c, store_cursor_*) every spectate is refused as an unknown
 type, and no mirror is compared: the first check fails.
@@ -32,7 +55,8 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import Checks, Daemon, RecordingClient, metric_value, wait_until  # noqa: E402
+from service_harness import (Checks, Daemon, RecordingClient, json_call, metric_value,  # noqa: E402
+                             wait_until)
 import compaction_drive as cd  # noqa: E402
 import terrad as tp  # noqa: E402
 
@@ -185,14 +209,30 @@ class Budgeted(RecordingClient):
         await super()._on_binary(data)
 
 
+async def chatter(c):
+    """A PING every 50 ms: the PONGs keep the client's budget window from ever being empty."""
+    nonce = 0
+    while True:
+        nonce += 1
+        await c.ws.send(tp.encode_ping(nonce))
+        await asyncio.sleep(0.05)
+
+
 async def budgeted(d, viewer, from_tick):
-    """A 1024 B/s spectator: a snapshot frame larger than its window will ever have room for
-    goes once the window is empty (without that it waited forever and none of this came)."""
+    """A 1024 B/s spectator that sends a PING every 50 ms: a snapshot frame larger than its window
+    will ever have room for goes once the window holds no replay frames, whatever PONGs it holds
+    (the ledger's rule; without it the frame waited forever: for the window to be empty before
+    80fb550, and for the window to hold no PONG while the client keeps pinging after it)."""
     s = Budgeted(d.ws, name="spectator-budget")
     await s.connect()
+    pinging = asyncio.ensure_future(chatter(s))
     sid = await s.spectate(*REGION, from_tick, step=True, timeout=WAIT)
     await s.spectate_step(3)
-    await s.wait_for(lambda: s.acked_tick >= from_tick + 3, WAIT)
+    try:
+        await s.wait_for(lambda: s.acked_tick >= from_tick + 3, WAIT)
+    except asyncio.TimeoutError:
+        pass  # the checks below say what did not come
+    pinging.cancel()
     ticks = sorted(s.history)
     check(ticks == list(range(from_tick, from_tick + 4))
           and all(s.history[t][sid][1] and s.history[t][sid][0] == viewer.at(t) for t in ticks),
@@ -267,6 +307,10 @@ async def retained_run(d):
     await budgeted(d, viewer, ticks[len(ticks) // 2])
     await refusals(d, viewer)
     await viewer.close()
+    # a frame dropped would end its spectate "failed" (only when out of memory: test_net_spectate
+    # covers that branch); here every frame was made and kept, and the series is there to say so
+    dropped = metric_value(d.metrics()[1], "terrad_spectate_frames_dropped_total")
+    check(dropped == 0, f"no spectator's frame dropped (terrad_spectate_frames_dropped_total {dropped})")
 
 
 async def gone_run(d):
@@ -296,6 +340,55 @@ async def gone_run(d):
     await viewer.close()
 
 
+def spectators(d):
+    return metric_value(d.metrics()[1], "terrad_spectators") or 0
+
+
+async def one_spectator(d):
+    """max_spectators 1 (an idle world whose whole log is kept): a second spectator is refused
+    while a stepping one waits at tick 0, which goes on."""
+    check(await asyncio.to_thread(wait_until, lambda: d.stats()["tick"] >= 10),
+          "max_spectators 1: the world ticks")
+    first = RecordingClient(d.ws, name="spectator-first", keep=10 ** 6)
+    await first.connect()
+    told = first.world.get("limits", {}).get("max_spectators")
+    check(told == 1, f"max_spectators 1: the world message tells it ({told})")
+    start = 0
+    await first.spectate(*REGION, start, step=True, timeout=WAIT)  # it waits there for steps
+    busy = refused(d, "busy")
+    second = RecordingClient(d.ws, name="spectator-second")
+    await second.connect()
+    try:
+        await second.spectate(*REGION, start, step=True, timeout=WAIT)
+        check(False, "max_spectators 1: a second spectator is refused")
+    except tp.ServerError as e:
+        why = e.msg.get("message", "")
+        check(e.name == "too_large" and why.startswith("type:")
+              and "max_spectators (1)" in why,
+              f"max_spectators 1: a second spectator is refused, too_large naming max_spectators "
+              f"({e.msg})")
+    check(refused(d, "busy") == busy + 1,
+          f"and counted in terrad_spectate_refused_total{{field=\"busy\"}} ({busy} -> "
+          f"{refused(d, 'busy')})")
+    await first.spectate_step(3)
+    await first.wait_for(lambda: first.acked_tick >= start + 3, WAIT)
+    ticks = sorted(first.history)
+    check(ticks == list(range(start, start + 4)),
+          f"max_spectators 1: the first spectator goes on (a step of 3 played ticks {ticks})")
+    end = await first.spectate_stop()
+    check(end["reason"] == "stopped", f"the first spectator stops ({end})")
+    check(await asyncio.to_thread(wait_until, lambda: spectators(d) == 0),
+          "its thread ends (terrad_spectators 0)")
+    sid = await second.spectate(*REGION, d.stats()["tick"], timeout=WAIT)
+    await second.wait_for(lambda: second.spectate_ended is not None, WAIT)
+    check(second.spectate_ended["reason"] == "live" and second.mirrors[sid].complete,
+          f"max_spectators 1: once the first stopped, a spectate is accepted again "
+          f"({second.spectate_ended})")
+    await second.close()
+    await first.close()
+    check(d.stats()["ready"], "and the daemon goes on")
+
+
 async def memory_only(d):
     c = RecordingClient(d.ws, name="spectator")
     await c.connect()
@@ -303,20 +396,126 @@ async def memory_only(d):
     await c.close()
 
 
+BIG, BIG_WORLD = 1024, "spectate-big"
+# inside world tile (0, 0), 256 x 256 cells, and reaching the right edge of its 64-cell tile:
+# the crater at (62, 20) crosses that edge, so the cursor applies only part of its rectangle
+WINDOW = (8, 8, 56, 24)
+CRATERS = [(20, 20), (600, 100), (62, 20), (300, 800), (900, 900), (30, 14)]
+
+
+def big_heights(d, tick):
+    x, y, w, h = WINDOW
+    status, body, _ = d.get_busy(f"/v1/heights?x={x}&y={y}&w={w}&h={h}&tick={tick}"
+                                 f"&world={BIG_WORLD}", timeout=60)
+    return list(struct.unpack(f"<{w * h}i", body)) if status == 200 else None
+
+
+async def larger_world(d):
+    big = cd.scene()
+    big["world"] = {**big["world"], "width": BIG, "height": BIG}
+    status, doc = json_call(d.http, "POST", "/v1/worlds", {"name": BIG_WORLD, "scene": big})
+    check(status in (200, 201), f"POST /v1/worlds {BIG_WORLD} ({status} {doc})")
+    viewer = Viewer(d.ws, name="big-viewer", world=BIG_WORLD)  # the live mirror to compare
+    await viewer.connect()
+    await viewer.subscribe(*WINDOW)
+    await viewer.wait_for(lambda: next(iter(viewer.mirrors.values())).complete, WAIT)
+    c = RecordingClient(d.ws, name="big-editor", world=BIG_WORLD, record=False)
+    await c.connect()
+    ticks = []
+    for x, y in CRATERS:  # three inside the window, three in other world tiles
+        ticks.append((await c.edit("crater", x=x, y=y, radius=6, depth=500))["tick"])
+    await c.close()
+    await viewer.wait_for(lambda: viewer.by_tick and max(viewer.by_tick) >= ticks[-1], WAIT)
+    from_tick = ticks[0] - 1
+    s = RecordingClient(d.ws, name="big-spectator", world=BIG_WORLD, keep=10 ** 6)
+    await s.connect()
+    sid = await s.spectate(*WINDOW, from_tick, speed=8, timeout=WAIT)
+    await s.wait_for(lambda: s.spectate_ended is not None, WAIT * 2)
+    seen = sorted(t for t in s.history if t >= from_tick)
+    # the live viewer's mirror (what was served live; before its first DELTA, its snapshot's
+    # tick: GET ?tick=N), and GET ?tick=N itself (the same rebuild code as the cursor's)
+    live = [viewer.at(t) or big_heights(d, t) for t in seen]
+    bad = [t for t, v in zip(seen, live) if not s.history[t][sid][1]
+           or s.history[t][sid][0] != v or v != big_heights(d, t)]
+    check(seen and seen[0] == from_tick and seen[-1] >= ticks[-1] and not bad,
+          f"a {WINDOW[2]} x {WINDOW[3]} window of a {BIG}^2 world: the spectator's mirror equals "
+          f"the live viewer's and GET /v1/heights?tick=N at all {len(seen)} ticks it saw "
+          f"(differing: {bad[:5]})")
+    check(s.history[seen[0]][sid][0] != s.history[seen[-1]][sid][0],
+          "(the window changed while it watched)")
+    await s.close()
+    # and one that starts after the craters: its rebuild replays them (the log from the base)
+    late = RecordingClient(d.ws, name="big-late-spectator", world=BIG_WORLD, keep=10 ** 6)
+    await late.connect()
+    lid = await late.spectate(*WINDOW, ticks[-1], speed=8, timeout=WAIT)
+    await late.wait_for(lambda: late.spectate_ended is not None, WAIT)
+    check(late.history[ticks[-1]][lid][0] == big_heights(d, ticks[-1]) == viewer.at(ticks[-1]),
+          f"a spectator from tick {ticks[-1]}, after the craters: its snapshot is the window then")
+    await late.close()
+    held = metric_value(d.metrics()[1], "terrad_spectate_cursor_cells_max")
+    check(held and held <= 256 * 256,
+          f"their store cursors held only the window's world tile ({held} cells; <= {256 * 256}, "
+          f"while craters touched {len(CRATERS) - 3} other tiles)")
+    await viewer.close()
+
+
+async def deleted_under_spectator(d):
+    other = RecordingClient(d.ws, name="other-world")
+    await other.connect()
+    await other.subscribe(*REGION)
+    s = RecordingClient(d.ws, name="deleted-spectator", world=BIG_WORLD)
+    await s.connect()
+    await s.spectate(*WINDOW, 1, step=True, timeout=WAIT)  # waits for a step: alive
+    # its snapshot and ACK first: no frame of it is then in flight when the close comes (the
+    # client's reply to a frame that arrives after the close would end its reader early)
+    await s.wait_for(lambda: s.acked_tick == 1, WAIT)
+    alive = metric_value(d.metrics()[1], "terrad_spectators")
+    status, doc = await asyncio.to_thread(json_call, d.http, "DELETE",
+                                          f"/v1/worlds/{BIG_WORLD}")
+    check(status in (200, 204), f"DELETE /v1/worlds/{BIG_WORLD} under a live spectator ({status} {doc})")
+    await s.wait_for(lambda: s.errors, WAIT)
+    why = s.errors[0].get("message", "") if s.errors else ""
+    check(s.errors and s.errors[0].get("name") == "shutting_down" and "deleted" in why,
+          f"the spectator is told its world was deleted ({s.errors[:1]})")
+    check(await asyncio.to_thread(wait_until, lambda: not metric_value(
+        d.metrics()[1], "terrad_spectators")),
+        f"its replay thread ended ({alive} alive before)")
+    await other.unsubscribe(next(iter(other.mirrors)))
+    again = await other.subscribe(*REGION)
+    check(again and d.stats()["ready"], "a client of another world and the daemon go on")
+    await other.close()
+    try:
+        await s.close()
+    except Exception:  # noqa: BLE001 - closed by the server after the error
+        pass
+
+
+async def worlds_run(d):
+    await larger_world(d)
+    await deleted_under_spectator(d)
+
+
 def main():
     scene = cd.scene_file()
     data = tempfile.mkdtemp(prefix="terrad-spectate-")
+    big_data = tempfile.mkdtemp(prefix="terrad-spectate-big-")
     try:
         with check.running(Daemon(data_dir=data, extra=["--scene", scene] + SEGMENT + RETAIN,
                                   durability="every-tick")) as d:
             asyncio.run(retained_run(d))
         with check.running(Daemon(extra=["--scene", scene] + SEGMENT)) as d:
             asyncio.run(gone_run(d))
+        with check.running(Daemon(extra=["--scene", scene] + RETAIN,
+                                  config={"limits": {"max_spectators": 1}})) as d:
+            asyncio.run(one_spectator(d))
+        with check.running(Daemon(data_dir=big_data, extra=["--scene", scene] + RETAIN)) as d:
+            asyncio.run(worlds_run(d))
         with check.running(Daemon(extra=["--scene", scene, "--no-data"])) as d:
             asyncio.run(memory_only(d))
     finally:
         os.unlink(scene)
         shutil.rmtree(data, ignore_errors=True)
+        shutil.rmtree(big_data, ignore_errors=True)
     check.finish()
 
 
