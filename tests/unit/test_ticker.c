@@ -8,7 +8,12 @@
  * worker), a stopped ticker ends every job it still holds, and the clock seam
  * (host.h, host_clock): a world whose clock says HOST_CLOCK_NEVER is taken by
  * no worker while others tick, and after host_ticker_wake runs exactly the
- * ticks its clock then allows (a client-driven clock's steps).
+ * ticks its clock then allows (a client-driven clock's steps). And a tick
+ * that stalls (an fsync, a commit: here a check that blocks) holds no other
+ * world back: another worker wakes for the next due world while one ticks
+ * (host_ticker.c: "Why more workers than cores"). A ticker that lets one
+ * worker tick alone while the others sleep untimed fails it: the witness
+ * never ticks while the stalled world waits for it.
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -21,6 +26,7 @@
 
 #define POOL_WORLDS 5
 #define TICKS 24
+#define STALL_TICK 5 /* the stalling world's tick that waits for the witness */
 
 typedef struct pooled {
     host_sim m;
@@ -100,6 +106,21 @@ static int wait_ticked(pooled *p, long n)
     return atomic_load(&p->ticked) >= n;
 }
 
+static pooled *stall_witness;
+static atomic_int stall_ok; /* 1: the witness ticked while the world stalled; -1: it did not */
+
+/* A job's check that stalls once, at STALL_TICK, until the witness ticked 20
+ * more times (the deadline: wait_ticked's). */
+static int stall_tick(void *ctx, host_sim *m, long tick, char *why, size_t cap)
+{
+    count_tick(ctx, m, tick, why, cap);
+    if (tick == STALL_TICK) {
+        long seen = atomic_load(&stall_witness->ticked);
+        atomic_store(&stall_ok, wait_ticked(stall_witness, seen + 20) ? 1 : -1);
+    }
+    return 0;
+}
+
 static void wait_ended(pooled *p, int n)
 {
     pthread_mutex_lock(&lock);
@@ -138,7 +159,7 @@ int main(void)
     /* the same world POOL_WORLDS times on a pool of 3 workers, side by side */
     host_ticker *t = host_ticker_start(3, &err);
     CHECK(t != NULL, "ticker: %s", err.message);
-    pooled *p = calloc(POOL_WORLDS + 4, sizeof *p);
+    pooled *p = calloc(POOL_WORLDS + 6, sizeof *p);
     for (int i = 0; i < POOL_WORLDS; i++) { /* all made first: they tick side by side */
         CHECK(open_world(&p[i].m, &o, &err) == 0, "world %d: %s", i, err.message);
         p[i].job = (host_job){.m = &p[i].m, .max_ticks = TICKS, .end = pooled_end, .ctx = &p[i]};
@@ -202,7 +223,41 @@ int main(void)
     CHECK(b->ended == 1 && b->rc == 0, "the ticker's stop ended the last (%d, rc %d)", b->ended,
           b->rc);
 
-    for (int i = 0; i < POOL_WORLDS + 4; i++) {
+    /* a stalled tick beside a witness, both at 60 Hz on a pool of their own
+     * (so its workers sleep between ticks): the witness goes on meanwhile */
+    pooled *stalled = &p[POOL_WORLDS + 4], *witness2 = &p[POOL_WORLDS + 5];
+    host_ticker *t2 = host_ticker_start(3, &err);
+    CHECK(t2 != NULL, "ticker: %s", err.message);
+    pooled *pair[] = {stalled, witness2};
+    /* no demo actors: a tick far shorter than the gap to the other world's,
+     * so nothing but the stall keeps the witness waiting */
+    char *argv0[] = {"serve", "--backend", "cpu", "--demo-actors", "0", "--no-data", NULL};
+    serve_options o0;
+    CHECK(serve_options_parse(6, argv0, &o0) == CLI_OK, "options");
+    for (int i = 0; t2 && i < 2; i++) {
+        CHECK(open_world(&pair[i]->m, &o0, &err) == 0, "stall pair %d: %s", i, err.message);
+        pair[i]->m.sc.tick_hz = 60;
+        pair[i]->job = (host_job){.m = &pair[i]->m,
+                                  .max_ticks = -1,
+                                  .check = i == 0 ? stall_tick : count_tick,
+                                  .end = pooled_end,
+                                  .ctx = pair[i]};
+    }
+    stall_witness = witness2;
+    /* the witness first, the stalling world a few ticks later: out of phase,
+     * so the witness is not due when the stall begins */
+    CHECK(t2 && host_ticker_add(t2, &witness2->job, &err) == 0, "add witness: %s", err.message);
+    CHECK(wait_ticked(witness2, 3), "the witness ticks");
+    host_sleep_ms(5);
+    CHECK(t2 && host_ticker_add(t2, &stalled->job, &err) == 0, "add stalled: %s", err.message);
+    CHECK(wait_ticked(stalled, STALL_TICK + 2), "the stalled world ticks on after its stall");
+    CHECK(atomic_load(&stall_ok) == 1,
+          "the witness ticked 20 times while a world's tick stalled (%d)", atomic_load(&stall_ok));
+    host_ticker_stop(t2);
+    CHECK(stalled->ended == 1 && witness2->ended == 1, "the stall pair ended (%d, %d)",
+          stalled->ended, witness2->ended);
+
+    for (int i = 0; i < POOL_WORLDS + 6; i++) {
         free(p[i].heights);
         pthread_mutex_destroy(&p[i].m.status.lock);
     }
