@@ -53,16 +53,26 @@ static void pose_at(double pose[7], int k)
     memcpy(pose, p, sizeof p);
 }
 
-static void test_drive(const char *shape, int axis_z)
+/* A twin playing the server and a prediction of its window (heights: its
+ * heights, W * H), both of config c, which is freed. */
+static terrad_twin_prediction *open_pair(terrad_twin_config *c, terrad_twin **server,
+                                         int32_t *heights, const char *what)
 {
-    terrad_twin_config *c = config();
-    terrad_twin *server = terrad_twin_create(c, X, Y, W, H, NULL, NULL);
-    static int32_t heights[W * H];
-    terrad_twin_read(server, X, Y, W, H, heights, NULL);
+    *server = terrad_twin_create(c, X, Y, W, H, NULL, NULL);
+    terrad_twin_read(*server, X, Y, W, H, heights, NULL);
     char err[TERRAD_TWIN_ERROR_MAX] = "";
     terrad_twin_prediction *p = terrad_twin_prediction_create(c, X, Y, W, H, heights, 0, err);
     terrad_twin_config_free(c);
-    CHECK(p != NULL, "%s: created (%s)", shape, err);
+    CHECK(p != NULL, "%s: created (%s)", what, err);
+    return p;
+}
+
+static void test_drive(const char *shape, int axis_z)
+{
+    terrad_twin *server;
+    static int32_t heights[W * H];
+    char err[TERRAD_TWIN_ERROR_MAX] = "";
+    terrad_twin_prediction *p = open_pair(config(), &server, heights, shape);
     if (strcmp(shape, "lugged") == 0) { /* the server's lugged rim (net_control's grousers) */
         terrad_twin_add_wheel(server, ID, 0.3, 0.1, 12, 0.05, 0.03, NULL);
         CHECK(terrad_twin_prediction_add_wheel(p, ID, 0.3, 0.1, 12, 0.05, 0.03, err) == 0,
@@ -137,12 +147,10 @@ static void test_loaded(void)
 {
     terrad_twin_config *c = config();
     terrad_twin_config_set_name(c, "model", "bekker", NULL);
-    terrad_twin *server = terrad_twin_create(c, X, Y, W, H, NULL, NULL);
+    terrad_twin *server;
     static int32_t heights[W * H];
-    terrad_twin_read(server, X, Y, W, H, heights, NULL);
     char err[TERRAD_TWIN_ERROR_MAX] = "";
-    terrad_twin_prediction *p = terrad_twin_prediction_create(c, X, Y, W, H, heights, 0, err);
-    terrad_twin_config_free(c);
+    terrad_twin_prediction *p = open_pair(c, &server, heights, "loaded");
     terrad_twin_add_collider(server, ID, "cylinder", 0.3, 0.1, 0, 0, 0, NULL);
     terrad_twin_set_load(server, ID, 150.0, NULL);
     CHECK(terrad_twin_prediction_add_collider(p, ID, "wheel", 0.3, 0.1, 0, 0, 0, err) == 0 &&
