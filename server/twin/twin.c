@@ -589,6 +589,14 @@ int twin_state_write(terrad_twin *t, const int32_t *in)
     return 0;
 }
 
+int twin_keeps_state(const terrad_twin *t)
+{
+    for (int l = 0; l < WORLD_LAYERS; l++)
+        if (world_layer_enabled(&t->w, (world_layer_id)l))
+            return 1;
+    return t->bekker; /* its soil layer comes with the first press */
+}
+
 int twin_pose_z(const terrad_twin *t, int id, double *z)
 {
     int k = t ? find_collider(t, id) : -1;

@@ -23,6 +23,9 @@ int twin_unpose(terrad_twin *t, int id, char *err);
 int64_t twin_state_values(const terrad_twin *t);
 void twin_state_read(const terrad_twin *t, int32_t *out);
 int twin_state_write(terrad_twin *t, const int32_t *in);
+/* The window may hold such state: a bekker world, or a layer enabled (the
+ * compaction memory, at creation). 0: heights are all there is to restart. */
+int twin_keeps_state(const terrad_twin *t);
 /* The collider's pose height (m): a load-driven one's is where the last tick
  * found the soil carries it. -1 when it has no pose. */
 int twin_pose_z(const terrad_twin *t, int id, double *z);

@@ -52,6 +52,7 @@ struct terrad_twin_prediction {
     int32_t *heights;    /* the twin's window after the last change */
     int32_t *base;       /* the server's heights at the last ACK */
     int32_t *base_state; /* the window's soil state there, as the replay reached it */
+    int stateful;        /* twin_keeps_state: base_state is kept and restored */
     int has_base_tick;
     uint64_t base_tick;
     uint64_t max_replay_ticks;
@@ -107,7 +108,8 @@ static uint64_t apply(terrad_twin_prediction *p, const predict_pose *poses, int6
 static void restart(terrad_twin_prediction *p, const int32_t *heights)
 {
     terrad_twin_write(p->twin, p->x, p->y, p->w, p->h, heights, NULL);
-    twin_state_write(p->twin, p->base_state);
+    if (p->stateful)
+        twin_state_write(p->twin, p->base_state);
     for (int64_t i = 0; i < p->nown; i++) {
         const predict_own *s = &p->own[i];
         const collider_pose *a = &s->acked;
@@ -174,6 +176,7 @@ terrad_twin_prediction *terrad_twin_prediction_create(const terrad_twin_config *
         return NULL;
     }
     twin_state_read(p->twin, p->base_state);
+    p->stateful = twin_keeps_state(p->twin);
     memcpy(p->base, heights, n * sizeof *p->base);
     memcpy(p->heights, heights, n * sizeof *p->heights);
     double hz = twin_config_tick_hz(c);
@@ -358,7 +361,8 @@ static void remember(terrad_twin_prediction *p, int64_t ndone)
  * when the replay is exact: the same search on the same heights and state). */
 static void found(terrad_twin_prediction *p)
 {
-    twin_state_read(p->twin, p->base_state);
+    if (p->stateful)
+        twin_state_read(p->twin, p->base_state);
     for (int64_t i = 0; i < p->nown; i++) {
         predict_own *s = &p->own[i];
         double z;
@@ -414,7 +418,7 @@ static uint64_t replay(terrad_twin_prediction *p, int64_t ndone, uint64_t gap, c
     return differ;
 }
 
-enum { SPREAD_TRIES = 64 }; /* the most assignments of batches to ticks tried */
+enum { SPREAD_TRIES = 64, SPREAD_TICKS = 512 }; /* the most assignments tried, ticks replayed */
 
 /* Batches acknowledged together after a gap may have been taken at different
  * ticks of it (a slow client's older ACK is replaced by the newer one,
@@ -422,15 +426,17 @@ enum { SPREAD_TRIES = 64 }; /* the most assignments of batches to ticks tried */
  * is not compared; but the soil state and the heights load-driven colliders
  * found must be the server's, so the orders the server could have taken them
  * in (each batch at or after the one before, the last at tick t) are
- * replayed until one gives the server's heights. None: the last batch's
- * tick alone, the best guess. */
+ * replayed until one gives the server's heights (SPREAD_TRIES orders, at
+ * most SPREAD_TICKS ticks in all). None: the last batch's tick alone, the
+ * best guess. */
 static void replay_spread(terrad_twin_prediction *p, int64_t ndone, uint64_t gap,
                           const int32_t *server)
 {
     uint64_t *at = malloc((size_t)ndone * sizeof *at);
     for (int64_t i = 0; at && i < ndone; i++)
         at[i] = i == ndone - 1 ? gap : 1;
-    for (int tries = 0; at && tries < SPREAD_TRIES; tries++) {
+    for (int tries = 0; at && tries < SPREAD_TRIES && (uint64_t)(tries + 1) * gap <= SPREAD_TICKS;
+         tries++) {
         if (replay(p, ndone, gap, at, server) == 0) {
             free(at);
             return;
@@ -469,9 +475,13 @@ static void reconcile(terrad_twin_prediction *p, uint64_t tick, uint32_t seq, in
         p->stats.exact += differ == 0;
     } else {
         p->stats.skipped++;
-        if (spread && gap <= p->max_replay_ticks)
+        int loaded = 0;
+        for (int64_t i = 0; i < p->nown; i++)
+            loaded |= p->own[i].loaded;
+        /* without state or loads the mirror's heights are all the restart needs */
+        if ((p->stateful || loaded) && spread && gap <= p->max_replay_ticks)
             replay_spread(p, ndone, gap, server);
-        else /* one tick with the batches' poses: the best guess at the state */
+        else if (p->stateful || loaded) /* one tick with the batches' poses: the best guess */
             replay(p, ndone, 1, NULL, NULL);
     }
     remember(p, ndone);
