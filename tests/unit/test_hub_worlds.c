@@ -62,6 +62,30 @@ static hub_world *add(hub_worlds *t, const char *name)
     return w;
 }
 
+/* 1 once changed() holds (60 s at most: a loaded machine may start a thread
+ * late, so a step of another thread is waited for, never given a fixed window). */
+static int eventually(int (*changed)(hub_worlds *t, unsigned since), hub_worlds *t, unsigned since)
+{
+    for (int i = 0; i < 30000 && !changed(t, since); i++) {
+        struct timespec ts = {0, 2 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+    }
+    return changed(t, since);
+}
+
+/* The watcher was told since it was told `since` times. */
+static int told_since(hub_worlds *t, unsigned since)
+{
+    (void)t;
+    return (unsigned)atomic_load(&told) > since;
+}
+
+/* The table changed (an add or a removal took its lock) since generation `since`. */
+static int moved_since(hub_worlds *t, unsigned since)
+{
+    return hub_worlds_generation(t) != since;
+}
+
 /* 1 when r is still waiting after ms (it should be). */
 static int still_waiting(removal *r, int ms)
 {
@@ -162,7 +186,10 @@ static void test_remove_waits_for_readers(void)
     hub_world *reader = hub_worlds_acquire(t, "alpha");
     removal r = {.t = t, .w = a};
     pthread_t th;
+    unsigned g = hub_worlds_generation(t);
     pthread_create(&th, NULL, remove_main, &r);
+    /* the removal took alpha out of the table (before that, a lookup still finds it) */
+    CHECK(eventually(moved_since, t, g), "the removal starts");
     CHECK(still_waiting(&r, 200), "removal waits while a request uses the world");
     CHECK(hub_worlds_acquire(t, "alpha") == NULL, "but nothing new finds it meanwhile");
     hub_worlds_release(t, reader);
@@ -178,8 +205,9 @@ static hub_world *add_held(hub_worlds *t, const char *name)
     pthread_t th;
     int before = atomic_load(&told);
     pthread_create(&th, NULL, add_main, &r);
+    /* told under the table's lock once the entry is in: the holder finds it from then on */
+    CHECK(eventually(told_since, t, (unsigned)before), "the watcher is told of adding %s", name);
     CHECK(still_waiting(&r, 200), "adding %s waits for the holder", name);
-    CHECK(atomic_load(&told) > before, "the watcher is told of adding %s", name);
     hub_world *held = hub_worlds_hold_next(t);
     pthread_join(th, NULL);
     CHECK(held && held == r.w, "the holder takes %s, and its add returns", name);
