@@ -271,8 +271,9 @@ void hub_close_edits(hub *h, const char *why);
  * Every world a daemon or a cluster node ticks is one entry, added once by
  * its host (host/host_world.c) when it serves and removed once when it stops;
  * the HTTP threads (?world=NAME, GET /v1/worlds' 404s) and the net thread
- * (hello's world) read this one table. HTTP requests take an entry for as
- * long as they run (hub_worlds_acquire); the net thread holds each entry it
+ * (hello's world) read this one table. HTTP requests and spectators' replay
+ * threads (net_spectate.c) take an entry for as long as they run
+ * (hub_worlds_acquire); the net thread holds each entry it
  * made a world state for (hub_worlds_hold_next) until it detached it
  * (hub_worlds_let_go). Removal takes the entry out of the table at once, so
  * nobody new finds it, then waits for both to let go. Any thread. */

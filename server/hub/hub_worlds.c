@@ -9,8 +9,9 @@
  * An entry lives in a slot the table allocates. Adding it waits until the
  * net thread holds it (so a hello right after finds it). Removal takes it out
  * of the array at once (nobody new finds it) and waits for its readers (HTTP
- * requests: unbounded, their reads fail fast once the hub's reads are
- * closed; what they point to is freed after) and for its holder (the net
+ * requests, and spectators' replay threads, which the net thread cancels as
+ * it detaches the world: unbounded, their reads fail fast once the hub's
+ * reads are closed; what they point to is freed after) and for its holder (the net
  * thread, which detaches the world's clients between two callbacks: 10 s,
  * after which the slot is left to whoever lets go of it last). The default
  * world is no entry apart: it is the one the default name names (a single

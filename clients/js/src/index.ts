@@ -246,8 +246,8 @@ export class TerradClient {
     return this.mirrors.get(sid)!;
   }
 
-  /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field). */
-  /** opts.loadN: load-driven (bekker worlds), its height the server's (and the predictions'); opts.forcesHeight:
+  /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field).
+   *  opts.loadN: load-driven (bekker worlds), its height the server's (and the predictions'); opts.forcesHeight:
    *  its FORCES entries carry height_m, the height the server found (PROTOCOL.md "FORCES"). */
   async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers; loadN?: number; forcesHeight?: boolean } = {}): Promise<number> {
     const ref = `col-${++this.refN}`;
