@@ -58,7 +58,8 @@ static int config_public_ws_url(const cJSON *doc, serve_options *o, error_text *
 }
 
 /* "limits": PROTOCOL.md's names, each a positive number, at least its row's
- * min (NET_LIMITS, net/net.h, says which and where each goes). */
+ * min, or 0 where the row says 0 means none or its default (NET_LIMITS,
+ * net/net.h, says which and where each goes). */
 static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
 {
     const char *keys[64];
@@ -74,14 +75,16 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
         json_check_keys(l, "limits", keys, NULL, err))
         return -1;
     for (const net_limit_spec *t = net_limit_table; t->name; t++) {
-        double v;
-        int r = (t->flags & NET_LIMIT_CONFIG)
-                    ? json_get_positive(l, "limits", t->name, 1e12, 0, &v, err)
-                    : 0;
+        double v = 0;
+        int r = 0;
+        if (t->flags & NET_LIMIT_ZERO) /* 0 means none or the default its help names */
+            r = json_get_number(l, "limits", t->name, 0, 1e12, &v, err);
+        else if (t->flags & NET_LIMIT_CONFIG)
+            r = json_get_positive(l, "limits", t->name, 1e12, 0, &v, err);
         if (r < 0)
             return -1;
-        if (r > 0 && v < t->min) { /* a budget under hello's smallest (NET_LIMITS) */
-            error_set(err, "limits.%s: must be at least %g (got %g)", t->name, t->min, v);
+        if (r > 0 && v != 0 && v < t->min) { /* a budget under hello's smallest (NET_LIMITS) */
+            error_set(err, "limits.%s: must be 0 or at least %g (got %g)", t->name, t->min, v);
             return -1;
         }
         if (r > 0)

@@ -26,11 +26,14 @@
  * one row. name: PROTOCOL.md's Limits table's, the config's and the world
  * message's; min: the config's smallest value (0: any > 0); flags: where it
  * may be set (NET_LIMIT_CONFIG: --config's "limits", a number in (0, 1e12],
- * >= min) and whether the world message's "limits" tells clients its value
- * (NET_LIMIT_TOLD); help: serve --help's line. Each limit is enforced where
+ * >= min; NET_LIMIT_ZERO: 0 too, for a limit whose 0 means none or the
+ * default its help names, so a config can say it) and whether the world
+ * message's "limits" tells clients its value (NET_LIMIT_TOLD); help: serve
+ * --help's line. Each limit is enforced where
  * it is used (net/, service/, http/). */
 #define NET_LIMIT_CONFIG 1
 #define NET_LIMIT_TOLD 2
+#define NET_LIMIT_ZERO 4
 #define NET_BUDGET_MIN 1024 /* bytes/s: the smallest budget a hello or a config may state */
 #define NET_LIMITS(X)                                                                              \
     /* told to clients */                                                                          \
@@ -61,14 +64,14 @@
       "seconds allowed for hello")                                                                 \
     /* a client whose oldest queued delta or status frame is older is treated                      \
      * as slow (snapshots when it drains), as if over max_pending_bytes */                         \
-    X(int, max_client_lag_ticks, 0, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                          \
+    X(int, max_client_lag_ticks, 0, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD | NET_LIMIT_ZERO,         \
       "ticks a client's oldest queued frame may lag before it is slow (0: 2 s of ticks)")          \
     /* not per client (service_set_tick_budget); 0: none */                                        \
-    X(int64_t, max_tick_cells, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                        \
-      "the tick's cost budget over every client (four clients' max_active_cells)")                 \
+    X(int64_t, max_tick_cells, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD | NET_LIMIT_ZERO,       \
+      "the tick's cost budget over every client (four clients' max_active_cells; 0: none)")        \
     /* per client: the poses that would pass it are refused */                                     \
-    X(int64_t, max_sweep_cells, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                       \
-      "one client's cost this tick, its sweeps included (a whole tick's budget)")                  \
+    X(int64_t, max_sweep_cells, 32768, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD | NET_LIMIT_ZERO,      \
+      "one client's cost this tick, its sweeps included (a whole tick's budget; 0: none)")         \
     X(int64_t, max_edit_cells, WORLD_EDIT_MAX_CELLS_DEFAULT, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD, \
       "cells one terrain edit may change")                                                         \
     X(int, max_step_ticks, 600, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                              \
@@ -79,9 +82,11 @@
     X(int, max_resync_tiles, 64, 0, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,                             \
       "tiles one resync request may name (a 512 x 512 window's)")                                  \
     /* bandwidth budgets, bytes/s (net_budget.c) */                                                \
-    X(double, default_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,    \
+    X(double, default_budget_bytes_per_s, 0, NET_BUDGET_MIN,                                       \
+      NET_LIMIT_CONFIG | NET_LIMIT_TOLD | NET_LIMIT_ZERO,                                          \
       "a client's bandwidth budget when its hello states none (0: none; else >= 1024)")            \
-    X(double, max_budget_bytes_per_s, 0, NET_BUDGET_MIN, NET_LIMIT_CONFIG | NET_LIMIT_TOLD,        \
+    X(double, max_budget_bytes_per_s, 0, NET_BUDGET_MIN,                                           \
+      NET_LIMIT_CONFIG | NET_LIMIT_TOLD | NET_LIMIT_ZERO,                                          \
       "the largest budget a hello may state (0: any, and none; else >= 1024)")                     \
     /* spectators' replay threads in the daemon, each holding a rebuild's memory                   \
      * (net_spectate.c); past it a spectate is refused (too_large) */                              \
@@ -90,14 +95,14 @@
     /* the server's own; admission (0: no cap), and whatever these say an                          \
      * accepted socket is refused while fewer than fd_reserve descriptors are                      \
      * left under RLIMIT_NOFILE */                                                                 \
-    X(int, max_connections, 0, 0, NET_LIMIT_CONFIG,                                                \
+    X(int, max_connections, 0, 0, NET_LIMIT_CONFIG | NET_LIMIT_ZERO,                               \
       "websocket connections in all (0: from RLIMIT_NOFILE)")                                      \
     X(int, max_connections_per_address, 256, 0, NET_LIMIT_CONFIG,                                  \
       "websocket connections from one address")                                                    \
     /* HTTP's, not the websocket's (0: http.c's defaults) */                                       \
-    X(size_t, max_heights_bytes_per_address, 0, 0, NET_LIMIT_CONFIG,                               \
+    X(size_t, max_heights_bytes_per_address, 0, 0, NET_LIMIT_CONFIG | NET_LIMIT_ZERO,              \
       "HTTP: /v1/heights bytes one address may hold at once (0: 64 MiB)")                          \
-    X(size_t, max_heights_bytes_in_flight, 0, 0, NET_LIMIT_CONFIG,                                 \
+    X(size_t, max_heights_bytes_in_flight, 0, 0, NET_LIMIT_CONFIG | NET_LIMIT_ZERO,                \
       "HTTP: the same over every address (0: 256 MiB)")                                            \
     X(int, fd_reserve, 64, 0, 0, "descriptors left free under RLIMIT_NOFILE")
 

@@ -10,6 +10,9 @@ config's "limits" keys, the world message's "limits" and `terrad serve
 - a config that sets every limit --help lists (each to a value unlike its
   default) starts, the world message reports each value it tells, and HTTP
   holds to its own (max_heights_bytes_per_address);
+- a limit whose 0 means none or its default (NET_LIMIT_ZERO: the tick and sweep
+  budgets, the lag, the bandwidth budgets, the server's connection and HTTP caps)
+  may be set to 0, and the world message tells the 0; any other limit may not;
 - an unknown limit, a value that is not a positive number and a budget under
   hello's smallest (1024 bytes/s) are refused at start, naming the key.
 """
@@ -111,6 +114,25 @@ def main():
         status, body, _ = d.get("/v1/heights?x=0&y=0&w=64&h=64")
         check(status == 429 and b"at most 1000 per address" in body,
               f"the config's max_heights_bytes_per_address reaches HTTP: {status} {body[:200]}")
+
+    # 0 where it means none or the default (before NET_LIMIT_ZERO every one was refused)
+    zeros = {"max_tick_cells": 0, "max_sweep_cells": 0, "max_client_lag_ticks": 0,
+             "default_budget_bytes_per_s": 0, "max_budget_bytes_per_s": 0,
+             "max_connections": 0, "max_heights_bytes_per_address": 0,
+             "max_heights_bytes_in_flight": 0}
+    d = Daemon(config={"limits": zeros}, extra=("--no-data",), name="terrad-limits-zero")
+    with check.running(d):
+        told = asyncio.run(told_limits(d))
+        for name in zeros:
+            if name in told and name != "max_client_lag_ticks":
+                check(told[name] == 0, f"world.limits.{name} is the config's 0: {told[name]}")
+        # its 0 means the default, 2 s of ticks, and the world message tells what is in force
+        check(told.get("max_client_lag_ticks") == 120,
+              f"max_client_lag_ticks 0 is 2 s of 60 Hz ticks: {told.get('max_client_lag_ticks')}")
+        check(told.get("max_tick_cells") == 0 and told.get("max_sweep_cells") == 0,
+              f"the tick and sweep budgets can be switched off by a config: {told}")
+    refused(check, {"max_colliders": 0}, "max_colliders", "0 for a limit whose 0 means nothing")
+    refused(check, {"max_tick_cells": -1}, "max_tick_cells", "a negative limit that may be 0")
 
     refused(check, {"max_bogus_cells": 5}, "max_bogus_cells", "an unknown limit")
     refused(check, {"max_colliders": -3}, "max_colliders", "a negative limit")
