@@ -323,6 +323,9 @@ int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted);
  * hub_worlds_release; NULL when there is none. */
 hub_world *hub_worlds_acquire(hub_worlds *t, const char *name);
 void hub_worlds_release(hub_worlds *t, hub_world *w);
+/* 1 once w's removal began (a reader that runs long, a spectator's replay
+ * thread, asks between records and lets go: the removal waits for it). */
+int hub_worlds_leaving(const hub_world *w);
 /* The names in the table, each quoted, ", " between, into out (cut at cap): how many. */
 int hub_worlds_names(hub_worlds *t, char *out, size_t cap);
 /* Changes on every add and remove: a holder compares it to skip the rest. */

@@ -9,9 +9,10 @@
  * An entry lives in a slot the table allocates. Adding it waits until the
  * net thread holds it (so a hello right after finds it). Removal takes it out
  * of the array at once (nobody new finds it) and waits for its readers (HTTP
- * requests, and spectators' replay threads, which the net thread cancels as
- * it detaches the world: unbounded, their reads fail fast once the hub's
- * reads are closed; what they point to is freed after) and for its holder (the net
+ * requests, whose reads fail fast once the hub's reads are closed, and
+ * spectators' replay threads, which see the entry leaving themselves,
+ * hub_worlds_leaving, between two records of their rebuild or replay, and
+ * end: no deadline, since what they point to is freed after) and for its holder (the net
  * thread, which detaches the world's clients between two callbacks: 10 s,
  * after which the slot is left to whoever lets go of it last). The default
  * world is no entry apart: it is the one the default name names (a single
@@ -23,6 +24,7 @@
 
 #include <pthread.h>
 #include <stdatomic.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -32,11 +34,11 @@
 #define REWAKE_MS 50               /* the watcher is nudged again while a removal waits */
 
 typedef struct slot {
-    hub_world w; /* first: a hub_world * is its slot */
-    int readers; /* HTTP requests using it */
-    int held;    /* the net thread made a world state for it */
-    int gone;    /* out of the table; its holder lets go */
-    int left;    /* its remover gave up waiting: the last to let go frees it */
+    hub_world w;     /* first: a hub_world * is its slot */
+    int readers;     /* HTTP requests using it */
+    int held;        /* the net thread made a world state for it */
+    atomic_int gone; /* out of the table; its holder lets go (hub_worlds_leaving reads it) */
+    int left;        /* its remover gave up waiting: the last to let go frees it */
 } slot;
 
 struct hub_worlds {
@@ -206,6 +208,11 @@ hub_world *hub_worlds_acquire(hub_worlds *t, const char *name)
         found->readers++;
     pthread_mutex_unlock(&t->lock);
     return found ? &found->w : NULL;
+}
+
+int hub_worlds_leaving(const hub_world *w)
+{
+    return atomic_load(&((slot *)(uintptr_t)w)->gone);
 }
 
 void hub_worlds_release(hub_worlds *t, hub_world *w)

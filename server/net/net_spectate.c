@@ -21,7 +21,13 @@
  * as a reader (hub_worlds_acquire) until it ends, so a leaving world's
  * removal (hub_worlds_remove, on the host's thread) waits for it, while the
  * net thread only cancels it and reaps it later from the lobby's list
- * (net_spectate_leave). A spectator holds no subscription while it
+ * (net_spectate_leave). So that the removal waits no longer than one
+ * record's work, the thread stops itself (stopped: asked by its store cursor
+ * between the records and snapshots of its rebuild, and between its ticks)
+ * once it is cancelled or its world's entry is leaving (hub_worlds_leaving),
+ * whether or not the net thread got to it yet; a cancelled thread tells its
+ * client nothing (the net thread does: spectate_end "stopped", or the
+ * world's shutting_down error). A spectator holds no subscription while it
  * watches: the live deltas, CHECKSUMs and resyncs are not its business, so
  * its frames are replies to the net thread (never dropped, never making it
  * slow) and its own queue bound and budget pace its thread instead.
@@ -261,14 +267,31 @@ static int send_record(replay *p, uint64_t tick, const world_rect *rects, int n,
     return 0;
 }
 
+/* The thread's stop, under j->lock: cancelled by the net thread, or its
+ * world leaves. */
+static int stop_locked(const net_spectator *j)
+{
+    return j->cancelled || hub_worlds_leaving(j->entry);
+}
+
+/* The store cursor's cancel (store_cancel), asked between records. */
+static int stopped(void *ctx)
+{
+    net_spectator *j = ctx;
+    pthread_mutex_lock(&j->lock);
+    int stop = stop_locked(j);
+    pthread_mutex_unlock(&j->lock);
+    return stop;
+}
+
 /* Waits until tick t + 1 may go: 1 go, 0 caught up with the live tick, -1
- * cancelled. */
+ * stopped. */
 static int wait_turn(net_spectator *j, uint64_t t, double *t0)
 {
     pthread_mutex_lock(&j->lock);
     int rc;
     for (;;) {
-        if (j->cancelled) {
+        if (stop_locked(j)) {
             rc = -1;
             break;
         }
@@ -319,6 +342,8 @@ static void play(replay *p)
                 rc = -1;
                 break;
             }
+        if (rc == STORE_CANCELLED)
+            return;
         if (rc < 0) {
             post_end(j, 0, "failed", why.message);
             return;
@@ -357,10 +382,13 @@ static void *spectate_main(void *arg)
     p.before = calloc((size_t)tiles, sizeof *p.before);
     error_text why = {{0}};
     double start = now_ms();
+    store_cancel cancel = {.cancelled = stopped, .ctx = j};
     int rc = !p.codec || !p.versions || !p.boxes || !p.before
                  ? -1
-                 : store_cursor_open(j->dir, j->base, j->from, span, &p.cur, &why);
-    if (rc == 1) {
+                 : store_cursor_open(j->dir, j->base, j->from, span, &cancel, &p.cur, &why);
+    if (rc == STORE_CANCELLED) {
+        /* its client is told by the net thread */
+    } else if (rc == 1) {
         post_end(j, TERRAD_E_BAD_VALUE, "gone", why.message);
     } else if (rc != 0) {
         post_end(j, TERRAD_E_INTERNAL, "failed", why.message[0] ? why.message : "out of memory");

@@ -167,16 +167,29 @@ int store_replay_world(const char *dir, const world *base, uint64_t tick, world_
  * (nothing beside it: snapshots and records are clipped to r) as of tick `tick`, rebuilt as
  * store_replay_rect rebuilds it, then walks the log forward one record (one
  * tick's changed rectangles) at a time, beside the live daemon, off the tick.
- * open: 0, 1 when the store no longer holds the tick (why), -1 on another
- * error. next: 1 with the next record's tick (at most upto) and rectangles
+ * open: 0, 1 when the store no longer holds the tick (why), STORE_CANCELLED,
+ * -1 on another error. next: 1 with the next record's tick (at most upto) and rectangles
  * (valid until the next call), read but not applied (read r's heights before
  * it, then store_cursor_apply); 0 when the log holds none up to upto yet;
  * -1 (why) when it cannot go on (the log after the cursor was compacted
- * away, or damage). One thread per cursor.
+ * away, or damage), STORE_CANCELLED. One thread per cursor.
  */
 typedef struct store_cursor store_cursor;
+/* A cursor's reader may stop it (a spectator whose client left, or whose
+ * world leaves): cancelled(ctx) is asked before each record the rebuild
+ * applies and each snapshot it loads, and at each store_cursor_next,
+ * from the cursor's thread; once it says nonzero
+ * (it must keep saying so) open and next return STORE_CANCELLED with why
+ * "store: cancelled", so the reader waits on no more than one record's work. */
+typedef struct store_cancel {
+    int (*cancelled)(void *ctx); /* NULL: never */
+    void *ctx;
+    int seen; /* the store's: set once cancelled said so */
+} store_cancel;
+#define STORE_CANCELLED (-2)
+/* cancel: NULL (never), else copied into the cursor. */
 int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
-                      store_cursor **out, error_text *why);
+                      const store_cancel *cancel, store_cursor **out, error_text *why);
 int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const world_rect **rects,
                       int *n, error_text *why);
 int store_cursor_apply(store_cursor *c, error_text *why);

@@ -182,9 +182,13 @@ typedef struct replay_result {
     uint64_t later_max_tick;
 } replay_result;
 /* clip (NULL: none): only the cells inside it are applied (store_record.clip). */
+/* cancel (NULL: none) is asked before each record applied: once it says so
+ * this returns -1, err "store: cancelled". */
 int store_segment_replay(const char *path, world *w, const world_rect *clip, uint8_t *changed,
-                         uint64_t after_tick, uint64_t upto_tick, replay_result *res,
-                         error_text *err);
+                         uint64_t after_tick, uint64_t upto_tick, store_cancel *cancel,
+                         replay_result *res, error_text *err);
+/* 1 when the cancel (NULL: never) said so, now or before (then c->seen). */
+int store_cancel_now(store_cancel *c);
 
 /* ---- replay keyframes (store_replay.c; docs/storage.md "Replay") ---- */
 /* 1 when name is a keyframe (k-TICK-X-Y.snap: *done 0) or a generation's
@@ -213,6 +217,7 @@ typedef struct recover_args {
     const store_control *ctl; /* NULL: none (no checks against it) */
     store_control *found;     /* filled when not NULL: snapshots loaded, segments */
     const world_rect *clip;   /* NULL, or a replay's rectangle: only its cells are loaded */
+    store_cancel *cancel;     /* NULL, or a cursor's: asked per record and snapshot */
 } recover_args;
 int store_recover(const recover_args *a, uint64_t *last_seq, store_recovery *rec, error_text *err);
 /* 1 when DIR holds a log record, a snapshot or CONTROL (a MANIFEST must then be there). */

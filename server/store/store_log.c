@@ -75,8 +75,8 @@ static int mark_tiles(void *ctx, world_rect r)
  * w NULL only count them. Stops at the first record that is torn or fails its
  * checksum, then looks for good records after it (res->later_records). */
 int store_segment_replay(const char *path, world *w, const world_rect *clip, uint8_t *changed,
-                         uint64_t after_tick, uint64_t upto_tick, replay_result *res,
-                         error_text *err)
+                         uint64_t after_tick, uint64_t upto_tick, store_cancel *cancel,
+                         replay_result *res, error_text *err)
 {
     memset(res, 0, sizeof *res);
     res->last_tick = after_tick;
@@ -110,6 +110,12 @@ int store_segment_replay(const char *path, world *w, const world_rect *clip, uin
             at += n;
             res->good_len = (int64_t)at;
             continue;
+        }
+        if (store_cancel_now(cancel)) { /* a record's work at most after its reader stops */
+            error_set(err, "store: cancelled");
+            store_record_free(&rec);
+            free(data);
+            return -1;
         }
         if (len - at < REC_HEADER) {
             snprintf(res->problem, sizeof res->problem, "torn record header at offset %zu", at);
@@ -164,6 +170,13 @@ int store_segment_replay(const char *path, world *w, const world_rect *clip, uin
     store_record_free(&rec);
     free(data);
     return 0;
+}
+
+int store_cancel_now(store_cancel *c)
+{
+    if (c && !c->seen && c->cancelled && c->cancelled(c->ctx))
+        c->seen = 1;
+    return c && c->seen;
 }
 
 static int compare_u64(const void *a, const void *b)

@@ -98,6 +98,11 @@ static int load_tiles(recover_state *s)
         char tail[8];
         if (sscanf(e->d_name, "t-%d-%d.%7s", &tx, &ty, tail) != 3 || strcmp(tail, "snap") != 0)
             continue;
+        if (store_cancel_now(a->cancel)) {
+            error_set(s->err, "store: cancelled");
+            closedir(d);
+            return -1;
+        }
         char path[1400];
         snprintf(path, sizeof path, "%s/%s", tiles_dir, e->d_name);
         uint64_t tile_tick = 0;
@@ -157,7 +162,7 @@ static uint64_t max_tick_after(const recover_state *s, const uint64_t *seqs, int
         store_segment_path(s->a->dir, seqs[i], path, sizeof path);
         replay_result r;
         error_text e = {{0}};
-        if (store_segment_replay(path, NULL, NULL, NULL, 0, 0, &r, &e) != 0)
+        if (store_segment_replay(path, NULL, NULL, NULL, 0, 0, NULL, &r, &e) != 0)
             continue;
         if (r.last_tick > max)
             max = r.last_tick;
@@ -215,8 +220,8 @@ static int replay_segments(recover_state *s, const uint64_t *seqs, int count, ui
             return i;
         }
         replay_result res;
-        if (store_segment_replay(path, a->w, a->clip, a->changed, *tick, a->upto_tick, &res,
-                                 s->err) != 0)
+        if (store_segment_replay(path, a->w, a->clip, a->changed, *tick, a->upto_tick, a->cancel,
+                                 &res, s->err) != 0)
             return -1;
         s->rec->records_replayed += res.records;
         *tick = res.last_tick;

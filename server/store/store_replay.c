@@ -126,7 +126,7 @@ static uint64_t segment_first_tick(const char *path)
 /* From generation g: the rectangle's tiles' keyframes, then the segments
  * that can hold records after g, up to tick. 0 or -1. */
 static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world_rect r,
-                                 error_text *why)
+                                 store_cancel *cancel, error_text *why)
 {
     char tiles_dir[1100], path[1400];
     snprintf(tiles_dir, sizeof tiles_dir, "%s/tiles", dir);
@@ -148,6 +148,10 @@ static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world
         uint64_t t;
         if (!tile_tick[i])
             continue;
+        if (store_cancel_now(cancel)) {
+            error_set(why, "store: cancelled");
+            goto out;
+        }
         snprintf(path, sizeof path, "%s/k-%016llu-%05d-%05d.snap", tiles_dir,
                  (unsigned long long)tile_tick[i], i % tiles_x, i / tiles_x);
         if (store_tile_load(path, w, 0, &r, &t, why) != 0)
@@ -173,7 +177,7 @@ static int replay_from_keyframes(const char *dir, world *w, uint64_t tick, world
             break; /* every record from here on is after the tick */
         replay_result res;
         store_segment_path(dir, seqs[i], path, sizeof path);
-        if (store_segment_replay(path, w, &r, NULL, 0, tick, &res, why) != 0)
+        if (store_segment_replay(path, w, &r, NULL, 0, tick, cancel, &res, why) != 0)
             goto out;
         if (res.problem[0] && i != count - 1) {
             error_set(why, "store: %s: %s", path, res.problem);
@@ -189,12 +193,13 @@ out:
 }
 
 /* One rebuild of r as of tick into w (initialised here; the caller frees
- * it, whatever the result); 0, 1 (gone) or -1. Only r's cells are loaded and
+ * it, whatever the result); 0, 1 (gone), -1 or STORE_CANCELLED (cancel:
+ * NULL, or a cursor's, asked between records and snapshots). Only r's cells are loaded and
  * replayed (store_record.clip): a small rectangle of a large world holds its
  * own tiles, never the whole world's (every snapshot is still checked, so a
  * tick compacted away is refused as before). */
 static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect r, world *w,
-                   int32_t *scratch, error_text *why)
+                   int32_t *scratch, store_cancel *cancel, error_text *why)
 {
     if (world_init_tiled(w, base->width, base->height, base->cell_size_m, base->units_per_m,
                          base->floor, base->tile_cells, why) != 0)
@@ -212,7 +217,7 @@ static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect
             error_set(why, "store: tick 0: the log's first segment was compacted away");
         return whole ? 0 : 1;
     }
-    int rc = whole ? replay_from_keyframes(dir, w, tick, r, why) : 1;
+    int rc = whole ? replay_from_keyframes(dir, w, tick, r, cancel, why) : 1;
     if (rc == 1) {
         recover_args a = {
             .dir = dir,
@@ -220,12 +225,17 @@ static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect
             .upto_tick = tick,
             .flags = whole ? STORE_RECOVER_NO_TILES : 0,
             .clip = &r,
+            .cancel = cancel,
         };
         uint64_t last_seq;
         store_recovery rec;
         rc = 0;
         if (store_recover(&a, &last_seq, &rec, why) != 0)         /* store_tile_load's refusal */
             rc = strstr(why->message, "compacted away") ? 1 : -1; /* of a newer snapshot */
+    }
+    if (rc != 0 && store_cancel_now(cancel)) {
+        error_set(why, "store: cancelled");
+        rc = STORE_CANCELLED;
     }
     return rc;
 }
@@ -235,7 +245,7 @@ static int replay_once(const char *dir, const world *base, uint64_t tick, world_
                        int32_t *dst, error_text *why)
 {
     world w;
-    int rc = rebuild(dir, base, tick, r, &w, dst, why);
+    int rc = rebuild(dir, base, tick, r, &w, dst, NULL, why);
     if (rc == 0)
         world_gather_window(&w, r, dst);
     world_free(&w);
@@ -267,7 +277,7 @@ int store_replay_world(const char *dir, const world *base, uint64_t tick, world_
     for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
         memset(out, 0, sizeof *out);
-        rc = rebuild(dir, base, tick, r, out, scratch, why);
+        rc = rebuild(dir, base, tick, r, out, scratch, NULL, why);
         if (tick == 0 && rc == 1)
             rc = 0; /* the base needs no log */
         if (rc != 0)
@@ -297,6 +307,7 @@ struct store_cursor {
     world_rect *rects;
     int64_t rects_cap;
     store_record rec;
+    store_cancel cancel; /* its reader's (cancelled NULL: never) */
 };
 
 /* Opens segment seq (0, or -1 when it is not there). */
@@ -355,13 +366,13 @@ static int cursor_seek(store_cursor *c, error_text *why)
     }
     uint64_t t;
     uint32_t plen;
-    while (cursor_header(c, &t, &plen) && t <= c->tick)
+    while (cursor_header(c, &t, &plen) && t <= c->tick) /* headers of one segment: quick */
         c->at += REC_HEADER + plen;
     return 0;
 }
 
 int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
-                      store_cursor **out, error_text *why)
+                      const store_cancel *cancel, store_cursor **out, error_text *why)
 {
     *out = NULL;
     store_cursor *c = calloc(1, sizeof *c);
@@ -375,14 +386,16 @@ int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_r
     snprintf(c->dir, sizeof c->dir, "%s", dir);
     c->fd = -1, c->r = r, c->tick = tick;
     c->rec.clip = r; /* every record from here on: only r's cells */
+    if (cancel)
+        c->cancel = (store_cancel){.cancelled = cancel->cancelled, .ctx = cancel->ctx};
     int rc = -1;
-    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
+    for (int attempt = 0; attempt < 3 && rc == -1; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
         if (attempt) {
             world_free(&c->w);
             memset(&c->w, 0, sizeof c->w);
         }
-        rc = rebuild(dir, base, tick, r, &c->w, scratch, why);
+        rc = rebuild(dir, base, tick, r, &c->w, scratch, &c->cancel, why);
         if (rc == 0 && cursor_seek(c, why) != 0)
             rc = -1;
     }
@@ -465,6 +478,10 @@ int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const worl
     if (c->pending) {
         error_set(why, "store: the cursor's record was not applied");
         return -1;
+    }
+    if (store_cancel_now(&c->cancel)) {
+        error_set(why, "store: cancelled");
+        return STORE_CANCELLED;
     }
     while (!cursor_header(c, &t, &plen)) {
         int moved = cursor_next_segment(c, why);

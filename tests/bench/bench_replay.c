@@ -74,7 +74,7 @@ static int spectate_seek(const char *dir, const world *w, uint64_t tick, uint64_
         error_text err = {{0}};
         store_cursor *cur = NULL;
         double t1 = now_ms();
-        int rc = store_cursor_open(dir, w, tick, win, &cur, &err);
+        int rc = store_cursor_open(dir, w, tick, win, NULL, &cur, &err);
         if (rc == 0)
             store_cursor_read(cur, win, got);
         double ms = now_ms() - t1;
@@ -117,7 +117,7 @@ static int spectate_play(const char *dir, const world *w, uint64_t of, world_rec
     uint64_t t, played = 0, bytes = 0;
     const world_rect *rects;
     int n;
-    if (store_cursor_open(dir, w, 0, win, &cur, &err) != 0) {
+    if (store_cursor_open(dir, w, 0, win, NULL, &cur, &err) != 0) {
         fprintf(stderr, "bench_replay: spectate from 0: %s\n", err.message);
         return 0;
     }

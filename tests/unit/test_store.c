@@ -7,7 +7,8 @@
  * directory lock, the ENOSPC fault hook (nothing appended, recovery when it
  * goes), group commit's promise, no temporary files left behind, the
  * bekker model's per-cell soil state and the compaction memory through the
- * log and snapshots (old formats still read).
+ * log and snapshots (old formats still read), a replay cursor cancelled
+ * before and during its rebuild and between its steps.
  */
 #include "test_params.h"
 #include <dirent.h>
@@ -793,6 +794,96 @@ static void test_record_layout(void)
     world_free(&back);
 }
 
+/* A cursor's cancel (store_cancel): counts the questions, says yes from
+ * question after + 1 on. Asked before each record a rebuild applies, so the
+ * questions before the yes are the records applied. */
+typedef struct asker {
+    int asked, after;
+} asker;
+
+static int ask(void *ctx)
+{
+    asker *a = ctx;
+    return ++a->asked > a->after;
+}
+
+/* A spectator's cursor is cancellable in its rebuild and its steps
+ * (net_spectate.c: a world's removal waits for the spectator's thread):
+ * cancelled before the open, the open returns STORE_CANCELLED having
+ * applied no record; cancelled after 10 records of the rebuild's 40, after
+ * exactly 10 (no retry); a step after a cancel returns it too. Never
+ * cancelled, the cursor's heights are store_replay_rect's. */
+static void test_cursor_cancel(void)
+{
+    fresh_dir();
+    world live, base;
+    make_base(&live);
+    make_base(&base);
+    error_text err = {{0}};
+    store_recovery rec;
+    store *st = open_dir(&live, &rec, 0, &err);
+    CHECK(st != NULL, "new directory: %s", err.message);
+    if (!st)
+        return;
+    for (uint64_t t = 1; t <= 60; t++) /* one segment: a rebuild replays it from the base */
+        CHECK(random_tick(st, &live, t) == 0, "tick %llu logged", (unsigned long long)t);
+    store_close(st);
+    world_rect r = {0, 0, W, H};
+    store_cursor *cur = NULL;
+
+    asker before = {0, 0};
+    store_cancel c = {.cancelled = ask, .ctx = &before};
+    int rc = store_cursor_open(dir, &base, 40, r, &c, &cur, &err);
+    CHECK(rc == STORE_CANCELLED && !cur && strstr(err.message, "cancelled") && before.asked == 1,
+          "cancelled before the open: STORE_CANCELLED (%d, %s) at the first record, none applied "
+          "(asked %d)",
+          rc, err.message, before.asked);
+
+    asker during = {0, 10};
+    c.ctx = &during;
+    rc = store_cursor_open(dir, &base, 40, r, &c, &cur, &err);
+    CHECK(rc == STORE_CANCELLED && !cur && during.asked == 11,
+          "cancelled after 10 of the rebuild's 40 records: STORE_CANCELLED (%d, %s) with 10 "
+          "applied, not retried (asked %d)",
+          rc, err.message, during.asked);
+
+    asker never = {0, 1 << 30};
+    c.ctx = &never;
+    rc = store_cursor_open(dir, &base, 40, r, &c, &cur, &err);
+    CHECK(rc == 0 && cur && never.asked >= 40,
+          "not cancelled: the cursor opens (%d, %s), asked at each of the 40 records (%d)", rc,
+          err.message, never.asked);
+    if (!cur) {
+        world_free(&live);
+        world_free(&base);
+        return;
+    }
+    int32_t *want = malloc((size_t)W * H * sizeof *want),
+            *got = malloc((size_t)W * H * sizeof *got);
+    if (!want || !got)
+        exit(2);
+    store_cursor_read(cur, r, got);
+    CHECK(store_replay_rect(dir, &base, 40, r, want, &err) == 0 &&
+              memcmp(want, got, (size_t)W * H * sizeof *got) == 0,
+          "the cursor holds the heights of a replay of tick 40: %s", err.message);
+    uint64_t t = 0;
+    const world_rect *rects;
+    int n;
+    rc = store_cursor_next(cur, 41, &t, &rects, &n, &err);
+    CHECK(rc == 1 && t == 41 && store_cursor_apply(cur, &err) == 0, "a step to tick 41: %d, %s", rc,
+          err.message);
+    never.after = 0;
+    rc = store_cursor_next(cur, 42, &t, &rects, &n, &err);
+    CHECK(rc == STORE_CANCELLED && strstr(err.message, "cancelled") && store_cursor_tick(cur) == 41,
+          "cancelled between steps: the next step returns STORE_CANCELLED (%d, %s), still at 41",
+          rc, err.message);
+    store_cursor_close(cur);
+    free(want);
+    free(got);
+    world_free(&live);
+    world_free(&base);
+}
+
 int main(void)
 {
     snprintf(dir, sizeof dir, "/tmp/terrad_test_store_%d", (int)getpid());
@@ -808,6 +899,7 @@ int main(void)
     test_soil_state();
     test_compaction_memory();
     test_record_layout();
+    test_cursor_cancel();
     fresh_dir();
     return check_report();
 }

@@ -40,14 +40,17 @@ mirror a live subscriber held at that tick, bit for bit.
   more than the one world tile under the window (terrad_spectate_cursor_cells_max <= 256 * 256;
   each held the four tiles the craters touched, 262,144 cells, while records were applied
   whole: the first through store_cursor_apply, the second through its rebuild).
-- The world is deleted (DELETE /v1/worlds/NAME) under a live spectator: the spectator gets an
-  error saying the world was deleted, its replay thread ends (terrad_spectators 0), and the
-  daemon and a client of another world go on.
+- The world is deleted (DELETE /v1/worlds/NAME) under a live spectator and one whose spectate
+  was just sent (its rebuild replays the world's log from the base as the DELETE comes): the
+  DELETE answers, each spectator gets an error saying the world was deleted, their replay
+  threads end (terrad_spectators 0), and the daemon and a client of another world go on
+  (test_store's test_cursor_cancel shows the rebuild stops at its next record once cancelled).
 
 Without the spectator (net_spectate.c, store_cursor_*) every spectate is refused as an unknown
 type, and no mirror is compared: the first check fails.
 """
 import asyncio
+import json
 import os
 import shutil
 import struct
@@ -469,14 +472,25 @@ async def deleted_under_spectator(d):
     # its snapshot and ACK first: no frame of it is then in flight when the close comes (the
     # client's reply to a frame that arrives after the close would end its reader early)
     await s.wait_for(lambda: s.acked_tick == 1, WAIT)
+    # and one whose rebuild (the world's whole log, from the base) runs as the DELETE comes: its
+    # spectate goes without waiting for "spectating", so the DELETE finds it rebuilding or
+    # (should the rebuild win) playing; either way its thread stops (store_cancel between the
+    # rebuild's records, or wait_turn) and its client gets the world's error
+    status, stats = await asyncio.to_thread(json_call, d.http, "GET",
+                                            f"/v1/stats?world={BIG_WORLD}")
+    rebuilding = RecordingClient(d.ws, name="rebuilding-spectator", world=BIG_WORLD)
+    await rebuilding.connect()
+    await rebuilding.ws.send(json.dumps(tp.spectate(*WINDOW, stats["tick"], speed=1)))
     alive = metric_value(d.metrics()[1], "terrad_spectators")
     status, doc = await asyncio.to_thread(json_call, d.http, "DELETE",
                                           f"/v1/worlds/{BIG_WORLD}")
-    check(status in (200, 204), f"DELETE /v1/worlds/{BIG_WORLD} under a live spectator ({status} {doc})")
-    await s.wait_for(lambda: s.errors, WAIT)
-    why = s.errors[0].get("message", "") if s.errors else ""
-    check(s.errors and s.errors[0].get("name") == "shutting_down" and "deleted" in why,
-          f"the spectator is told its world was deleted ({s.errors[:1]})")
+    check(status in (200, 204), f"DELETE /v1/worlds/{BIG_WORLD} under a live spectator and one "
+                                f"rebuilding ({status} {doc})")
+    for c, what in ((s, "the stepping spectator"), (rebuilding, "the rebuilding spectator")):
+        await c.wait_for(lambda: c.errors, WAIT)
+        why = c.errors[0].get("message", "") if c.errors else ""
+        check(c.errors and c.errors[0].get("name") == "shutting_down" and "deleted" in why,
+              f"{what} is told its world was deleted ({c.errors[:1]})")
     check(await asyncio.to_thread(wait_until, lambda: not metric_value(
         d.metrics()[1], "terrad_spectators")),
         f"its replay thread ended ({alive} alive before)")
@@ -484,10 +498,11 @@ async def deleted_under_spectator(d):
     again = await other.subscribe(*REGION)
     check(again and d.stats()["ready"], "a client of another world and the daemon go on")
     await other.close()
-    try:
-        await s.close()
-    except Exception:  # noqa: BLE001 - closed by the server after the error
-        pass
+    for c in (s, rebuilding):
+        try:
+            await c.close()
+        except Exception:  # noqa: BLE001 - closed by the server after the error
+            pass
 
 
 async def worlds_run(d):
