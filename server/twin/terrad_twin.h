@@ -212,7 +212,9 @@ TERRAD_TWIN_API int terrad_twin_prediction_sent(terrad_twin_prediction *p, uint3
                                                 char *err);
 /* The ACK of tick (batch seq); server: the mirror's w * h heights at tick, or
  * NULL while the mirror is resyncing (the batches are forgotten, the twin goes
- * on predicting until an ACK with heights). */
+ * on predicting until an ACK with heights). -1 (here and in _resume) also when
+ * the soil state could not be restored (out of memory): the ACK is taken all
+ * the same, but the prediction is inexact from then on. */
 TERRAD_TWIN_API int terrad_twin_prediction_acked(terrad_twin_prediction *p, uint64_t tick,
                                                  uint32_t seq, const int32_t *server, char *err);
 /* For own colliders the server had posed before this prediction was made (a

@@ -104,12 +104,13 @@ static uint64_t apply(terrad_twin_prediction *p, const predict_pose *poses, int6
 
 /* The twin at these heights and the base's soil state, each own collider
  * where the acknowledged tick left it (one without an acknowledged pose has
- * none). */
-static void restart(terrad_twin_prediction *p, const int32_t *heights)
+ * none). -1 when the state could not be restored (out of memory for its
+ * layer): the twin then presses on the wrong soil, so the caller says so
+ * (restored); the colliders are placed all the same. */
+static int restart(terrad_twin_prediction *p, const int32_t *heights)
 {
     terrad_twin_write(p->twin, p->x, p->y, p->w, p->h, heights, NULL);
-    if (p->stateful)
-        twin_state_write(p->twin, p->base_state);
+    int rc = p->stateful ? twin_state_write(p->twin, p->base_state) : 0;
     for (int64_t i = 0; i < p->nown; i++) {
         const predict_own *s = &p->own[i];
         const collider_pose *a = &s->acked;
@@ -120,6 +121,18 @@ static void restart(terrad_twin_prediction *p, const int32_t *heights)
         else
             twin_unpose(p->twin, (int)s->id, NULL);
     }
+    return rc;
+}
+
+/* The caller's error when a restart's state could not be restored (lost: -1). */
+static int restored(int lost, const char *call, char *err)
+{
+    if (lost)
+        return twin_fail(err,
+                         "%s: out of memory restoring the soil state; the prediction is inexact "
+                         "until the window is predicted anew",
+                         call);
+    return 0;
 }
 
 /* The wire's poses of own colliders as the server uses them: each number
@@ -395,11 +408,12 @@ static int64_t merge(const terrad_twin_prediction *p, int64_t ndone, const uint6
 /* The server's ticks since the previous ACK, replayed from its heights and
  * soil state: the idle ticks keep the poses, tick j takes the latest pose of
  * each collider of the batches it took (at, as in merge). Returns the cells
- * differing from the server's (server NULL: 0, not compared). */
+ * differing from the server's (server NULL: 0, not compared); *lost is set
+ * when the soil state could not be restored (restart). */
 static uint64_t replay(terrad_twin_prediction *p, int64_t ndone, uint64_t gap, const uint64_t *at,
-                       const int32_t *server)
+                       const int32_t *server, int *lost)
 {
-    restart(p, p->base);
+    *lost |= restart(p, p->base) != 0;
     int64_t total = 0;
     for (int64_t i = 0; i < ndone; i++)
         total += p->pending[i].n;
@@ -430,14 +444,14 @@ enum { SPREAD_TRIES = 64, SPREAD_TICKS = 512 }; /* the most assignments tried, t
  * most SPREAD_TICKS ticks in all). None: the last batch's tick alone, the
  * best guess. */
 static void replay_spread(terrad_twin_prediction *p, int64_t ndone, uint64_t gap,
-                          const int32_t *server)
+                          const int32_t *server, int *lost)
 {
     uint64_t *at = malloc((size_t)ndone * sizeof *at);
     for (int64_t i = 0; at && i < ndone; i++)
         at[i] = i == ndone - 1 ? gap : 1;
     for (int tries = 0; at && tries < SPREAD_TRIES && (uint64_t)(tries + 1) * gap <= SPREAD_TICKS;
          tries++) {
-        if (replay(p, ndone, gap, at, server) == 0) {
+        if (replay(p, ndone, gap, at, server, lost) == 0) {
             free(at);
             return;
         }
@@ -451,25 +465,35 @@ static void replay_spread(terrad_twin_prediction *p, int64_t ndone, uint64_t gap
             at[k] = at[i];
     }
     free(at);
-    replay(p, ndone, gap, NULL, NULL);
+    replay(p, ndone, gap, NULL, NULL, lost);
 }
 
 /* Compare (when the ACKs say which ticks used which batches) and take the
  * server's heights at tick as the new base, with the soil state and found
  * heights the replay reached. */
 static void reconcile(terrad_twin_prediction *p, uint64_t tick, uint32_t seq, int64_t ndone,
-                      const int32_t *server)
+                      const int32_t *server, int *lost)
 {
     if (ndone && p->pending[ndone - 1].seq == seq) /* was batch seq's prediction tick t? */
         p->stats.on_time += p->pending[ndone - 1].digest == digest(server, cells(p));
     int any_acked = 0;
     for (int64_t i = 0; i < p->nown; i++)
         any_acked |= p->own[i].has_acked;
-    /* nothing of ours pressed before t: the idle ticks changed nothing */
+    /* nothing of ours pressed before t: the idle ticks changed nothing. Gap 0:
+     * ours pressed, but no ACK with heights came since the prediction was made
+     * (the mirror resynced at the ACKs before this one), so how many ticks the
+     * server ran since the base, and the batches those ACKs acknowledged
+     * (forgotten there), are unknown. No replay can then be exact: the soil
+     * state those ticks left is not on the wire. The one tick below is the
+     * same best guess as after a gap too long to replay (it may save a state
+     * of a tick the server never ran, as that one may); not replaying would
+     * be no better: it keeps the state from before those presses and leaves a
+     * load-driven collider at its posed height rather than on the soil. The
+     * next compared ACKs count what the guess got wrong (exact < replayed). */
     uint64_t gap = !any_acked ? 1 : p->has_base_tick ? tick - p->base_tick : 0;
     int spread = gap > 1 && ndone > 1;
     if (gap >= 1 && gap <= p->max_replay_ticks && !spread) {
-        uint64_t differ = replay(p, ndone, gap, NULL, server);
+        uint64_t differ = replay(p, ndone, gap, NULL, server, lost);
         p->stats.last_differing = differ;
         p->stats.replayed++;
         p->stats.exact += differ == 0;
@@ -480,9 +504,9 @@ static void reconcile(terrad_twin_prediction *p, uint64_t tick, uint32_t seq, in
             loaded |= p->own[i].loaded;
         /* without state or loads the mirror's heights are all the restart needs */
         if ((p->stateful || loaded) && spread && gap <= p->max_replay_ticks)
-            replay_spread(p, ndone, gap, server);
+            replay_spread(p, ndone, gap, server, lost);
         else if (p->stateful || loaded) /* one tick with the batches' poses: the best guess */
-            replay(p, ndone, 1, NULL, NULL);
+            replay(p, ndone, 1, NULL, NULL, lost);
     }
     remember(p, ndone);
     found(p);
@@ -499,8 +523,9 @@ int terrad_twin_prediction_acked(terrad_twin_prediction *p, uint64_t tick, uint3
     int64_t ndone = 0;
     while (ndone < p->npending && acknowledged(p->pending[ndone].seq, seq))
         ndone++;
+    int lost = 0; /* the bookkeeping goes on: the next ACK finds it consistent */
     if (server) {
-        reconcile(p, tick, seq, ndone, server);
+        reconcile(p, tick, seq, ndone, server, &lost);
     } else {
         p->stats.skipped++; /* resyncing: reconcile at the next ACK that has the heights */
         remember(p, ndone);
@@ -512,12 +537,12 @@ int terrad_twin_prediction_acked(terrad_twin_prediction *p, uint64_t tick, uint3
     p->stats.pending = (uint64_t)p->npending;
     if (!server)
         return 0; /* the twin goes on predicting until heights come */
-    restart(p, p->base);
+    lost |= restart(p, p->base) != 0;
     terrad_twin_read(p->twin, p->x, p->y, p->w, p->h, p->heights, NULL);
     for (int64_t i = 0; i < p->npending; i++)
         p->pending[i].digest = apply(p, p->pending[i].poses, p->pending[i].n);
     p->stats.reconciled++;
-    return 0;
+    return restored(lost, "acked", err);
 }
 
 int terrad_twin_prediction_resume(terrad_twin_prediction *p, uint64_t tick, const uint32_t *ids,
@@ -539,9 +564,9 @@ int terrad_twin_prediction_resume(terrad_twin_prediction *p, uint64_t tick, cons
     free(sp);
     p->base_tick = tick;
     p->has_base_tick = 1;
-    restart(p, p->base);
+    int lost = restart(p, p->base) != 0;
     terrad_twin_read(p->twin, p->x, p->y, p->w, p->h, p->heights, NULL);
-    return 0;
+    return restored(lost, "resume", err);
 }
 
 const int32_t *terrad_twin_prediction_heights(const terrad_twin_prediction *p)

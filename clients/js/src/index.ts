@@ -248,8 +248,13 @@ export class TerradClient {
 
   /** Creates a collider of this client; resolves to its id (rejects with the server's error naming the field).
    *  opts.loadN: load-driven (bekker worlds), its height the server's (and the predictions'); opts.forcesHeight:
-   *  its FORCES entries carry height_m, the height the server found (PROTOCOL.md "FORCES"). */
+   *  its FORCES entries carry height_m, the height the server found (PROTOCOL.md "FORCES"). While predicting,
+   *  opts.material other than "default" is refused before anything is sent (an Error naming material), as the
+   *  Python client does: the twin presses with the world's one material, so such a collider's prediction
+   *  would be wrong (docs/engines.md "Prediction", Limits). */
   async createCollider(shape: Shape, dims: Dims, opts: { material?: string; feedback?: boolean; grousers?: Grousers; loadN?: number; forcesHeight?: boolean } = {}): Promise<number> {
+    if (this.predictions.size > 0 && (opts.material ?? 'default') !== 'default')
+      throw new Error(`material: while predicting, a collider has the default material ("${opts.material}" cannot be predicted)`);
     const ref = `col-${++this.refN}`;
     const m = await this.request(P.colliderCreate(shape, dims, { ...opts, ref }), ref, 'collider_created');
     // the twin presses the lugs too, and finds a load-driven collider's height as the server does

@@ -138,8 +138,18 @@ test('bad input is refused with an error naming the field; the client goes on', 
     const sid = await c.subscribe(0, 0, 16, 16);
     await c.waitComplete(sid);
     await assert.rejects(new T.Worlds(http).create('bad name!', { scene: SCENE }), (e) => e.status === 400 && e.field === 'name');
-    const id = await c.createCollider('box', { half_extents: [0.1, 0.1, 0.1] });
-    assert.ok(id > 0, 'the connection goes on');
+    // While predicting, a material other than the default is refused by the client before anything
+    // is sent (the twin presses with the world's material; docs/engines.md "Prediction"). Without the
+    // check the collider_create left and the server's own refusal (a TerradError) came back instead.
+    const worlds = new T.Worlds(http);
+    await c.predict(sid, await worlds.twinConfig(), await worlds.twinWasm());
+    const sent = [], send = c.ws.send.bind(c.ws);
+    c.ws.send = (d) => { sent.push(d); send(d); };
+    await assert.rejects(c.createCollider('sphere', { radius: 0.1 }, { material: 'gravel' }),
+      (e) => !(e instanceof T.TerradError) && /^material: /.test(e.message));
+    assert.ok(!sent.some((d) => typeof d === 'string' && d.includes('collider_create')), 'nothing was sent for the refused collider');
+    const id = await c.createCollider('box', { half_extents: [0.1, 0.1, 0.1] }, { material: 'default' });
+    assert.ok(id > 0, 'the connection goes on; the default material is predicted');
   } finally {
     c.close();
   }
