@@ -64,6 +64,34 @@ int app_offline_world(const char *scene_path, app_world_run run, void *ctx);
             CLI_AT_STRING(type, field)                                                             \
     }
 
+/* The wheel and testbed rows of `terrad wheel` and `terrad calibrate`: the
+ * same options, ranges and defaults (both start from sim_wheel_run_defaults
+ * and run sim_wheel_testbed), so one copy; calibrate's apply to the rows
+ * whose file lacks the column (its --wheel says so). type is the command's
+ * options; wheel the path of its radius_m, width_m, load_n (and grousers,
+ * which the call grousers parses); bed the path of its cell_m and
+ * distance_m; soil the option naming the soil whose file's compression is
+ * the default (--soil, --base). */
+/* clang-format off */
+#define APP_OPTIONS_WHEEL(type, wheel, grousers)                                                   \
+    {"radius", "M", "the wheel's radius", CLI_AT_DOUBLE(type, wheel.radius_m, 1e-3, 10)},          \
+    {"width", "M", "the wheel's width", CLI_AT_DOUBLE(type, wheel.width_m, 1e-3, 10)},             \
+    {"load", "N", "the vertical load on the wheel", CLI_AT_DOUBLE(type, wheel.load_n, 1e-3, 1e7)}, \
+    {"grousers", "N,H,T",                                                                          \
+     "lugs on the rim: count in [1, 360], height and thickness (m,\n"                              \
+     "each <= the radius); default none. The sinkage is then the tips'",                           \
+     CLI_CALLS(grousers)}
+#define APP_OPTIONS_TESTBED(type, bed, soil)                                                       \
+    {"compression", "X",                                                                           \
+     "the material's compression (default: the " soil " file's,\n"                                 \
+     "or 0.5 for a preset)",                                                                       \
+     CLI_AT_DOUBLE(type, compression, 0, 1)},                                                      \
+    {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)",                    \
+     CLI_AT_DOUBLE(type, bed.cell_m, 1e-3, 0.1)},                                                  \
+    {"distance", "M", "each testbed run's travel (default 0.5; means over its second half)",       \
+     CLI_AT_DOUBLE(type, bed.distance_m, 0.05, 10)}
+/* clang-format on */
+
 /* A soil given on the command line (option names it in messages): a preset
  * of docs/models.md (compression 0.5), else a material JSON file of the
  * bekker model, as `terrad calibrate --out` writes it (its soil and its

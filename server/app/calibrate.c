@@ -120,20 +120,16 @@ static const cli_option cal_table[] = {
      CLI_AT_STRING(cal_options, plates)},
     {"wheel", "FILE",
      "single-wheel CSV: slip and drawbar_pull_n, sinkage_m and/or torque_nm\n"
-     "(an empty cell is not measured); radius_m, width_m, load_n\n"
-     "as columns or the options below",
+     "(an empty cell is not measured); radius_m, width_m, load_n and\n"
+     "grouser_count, grouser_height_m, grouser_thickness_m as columns,\n"
+     "or for rows whose file lacks one, the options below",
      CLI_AT_STRING(cal_options, wheel)},
     {"predict", "FILE",
      "wheel rows held out of the fit (the --wheel format, the same\n"
      "defaults and --where): the base and fitted soils' errors on them",
      CLI_AT_STRING(cal_options, predict)},
     {"where", "COL=VALUE", "use only the wheel rows whose COL is VALUE", CLI_CALLS(where_option)},
-    {"radius", "M", "the wheel's radius when the file has no radius_m",
-     CLI_AT_DOUBLE(cal_options, wheel_defaults.radius_m, 1e-3, 10)},
-    {"width", "M", "the wheel's width when the file has no width_m",
-     CLI_AT_DOUBLE(cal_options, wheel_defaults.width_m, 1e-3, 10)},
-    {"load", "N", "the vertical load when the file has no load_n",
-     CLI_AT_DOUBLE(cal_options, wheel_defaults.load_n, 1e-3, 1e7)},
+    APP_OPTIONS_WHEEL(cal_options, wheel_defaults, grousers_option),
     {"base", "PRESET|FILE",
      "the soil the fit starts from and keeps what it does not fit:\n"
      "a preset of docs/models.md (default ding2011) or a material\n"
@@ -146,22 +142,11 @@ static const cli_option cal_table[] = {
      CLI_CALLS(parse_fit)},
     {"rounds", "N", "rounds of coordinate descent after the grid (default 3)",
      CLI_AT_LONG(cal_options, rounds, 0, 50)},
-    {"cell", "M", "the testbed's cell size (default 0.005; coarser is faster)",
-     CLI_AT_DOUBLE(cal_options, testbed.cell_m, 1e-3, 0.1)},
-    {"distance", "M", "each testbed run's travel (default 0.5)",
-     CLI_AT_DOUBLE(cal_options, testbed.distance_m, 0.05, 10)},
-    {"compression", "X",
-     "the material's compression in the runs and the JSON (default:\n"
-     "the --base file's, or 0.5)",
-     CLI_AT_DOUBLE(cal_options, compression, 0, 1)},
+    APP_OPTIONS_TESTBED(cal_options, testbed, "--base"),
     {"out", "FILE", "write the material JSON here (it is also printed)",
      CLI_AT_STRING(cal_options, out)},
     {"residuals", "FILE", "write every row's residuals here as CSV",
      CLI_AT_STRING(cal_options, residuals)},
-    {"grousers", "N,H,T",
-     "the wheel's lugs (count, height m, thickness m) for rows whose file\n"
-     "has no grouser_count, grouser_height_m or grouser_thickness_m",
-     CLI_CALLS(grousers_option)},
     {0},
 };
 

@@ -265,23 +265,21 @@ static int no_demo_option(void *ctx, const char *value, error_text *err)
     return 0;
 }
 
-/* a whole number of ticks a second, kept as the double the ticker takes */
+/* a whole number of ticks a second (its row's range checked), kept as the
+ * double the ticker takes */
 static int tick_hz_option(void *ctx, const char *value, error_text *err)
 {
-    long x;
-    if (cli_parse_long(value, 1, 1000, &x, err) != 0)
-        return -1;
-    ((serve_options *)ctx)->tick_hz = (double)x;
+    (void)err;
+    ((serve_options *)ctx)->tick_hz = (double)strtol(value, NULL, 10);
     return 0;
 }
 
 static int threads_option(void *ctx, const char *value, error_text *err)
 {
-    long x;
     (void)ctx;
-    if (cli_parse_long(value, 1, SIM_THREADS_MAX, &x, err) != 0)
-        return -1;
-    sim_set_threads((int)x); /* process-wide: the sim reads it each tick */
+    (void)err;
+    /* in its row's range; process-wide: the sim reads it each tick */
+    sim_set_threads((int)strtol(value, NULL, 10));
     return 0;
 }
 
@@ -311,9 +309,9 @@ static const cli_option serve_table[] = {
      "removed (every local user can read the command line): refused\n"
      "with a pointer to --auth-file",
      CLI_CALLS(token_option)},
-    {"tick-hz", "N", "tick rate, 1..1000 (default: the scene's, normally 60)",
-     CLI_CALLS(tick_hz_option)},
-    {"demo-actors", "N", "built-in spheres running laps over the terrain, 0..256 (default 6)",
+    {"tick-hz", "N", "tick rate (default: the scene's, normally 60)",
+     CLI_CALLS_LONG(tick_hz_option, 1, 1000)},
+    {"demo-actors", "N", "built-in spheres running laps over the terrain (default 6)",
      CLI_AT_INT(serve_options, demo_actors, 0, 256)},
     {"no-demo", NULL, "no demo actors", CLI_CALLS(no_demo_option)},
     {"ticks", "N", "stop after N ticks (default: run until SIGINT/SIGTERM)",
@@ -329,7 +327,7 @@ static const cli_option serve_table[] = {
      "group:MS (one fdatasync per MS ms; ticks held until it) or\n"
      "none (written before publish, never synced)",
      CLI_AT_STRING(serve_options, durability)},
-    {"wal-segment-bytes", "N", "compact the log into tile snapshots past N bytes (16 MiB)",
+    {"wal-segment-bytes", "N", "compact the log into tile snapshots past N bytes (default 16 MiB)",
      CLI_AT_LONG(serve_options, wal_segment_bytes, 4096, 1L << 40)},
     {"replay-retain-bytes", "N",
      "keep the whole log (compacted segments too) while it is\n"
@@ -344,8 +342,8 @@ static const cli_option serve_table[] = {
      "start the data directory over: delete its terrain files (and\n"
      "refuse a directory holding anything else) before starting",
      CLI_AT_FLAG(serve_options, fresh)},
-    {"threads", "N", "threads of the CPU twin, 1..64 (default: the machine's cores)",
-     CLI_CALLS(threads_option)},
+    {"threads", "N", "threads of the CPU twin (default: the machine's cores)",
+     CLI_CALLS_LONG(threads_option, 1, SIM_THREADS_MAX)},
     {"insecure-open", NULL,
      "allow --bind-any without a token: anyone who can reach the\n"
      "ports may deform the world",
@@ -368,10 +366,10 @@ static const cli_option serve_table[] = {
      "A node waits (a standby) until it can take one",
      CLI_AT_STRING(serve_options, worlds)},
     {"max-worlds", "K",
-     "--cluster: worlds this node ticks at once, 1..256, all on one\n"
-     "pool of sim workers (default 1; with --worlds, as many as named).\n"
+     "--cluster: worlds this node ticks at once, all on one pool of\n"
+     "sim workers (default 1; with --worlds, as many as named).\n"
      "A single daemon: worlds POST /v1/worlds may create beside the\n"
-     "default one, 1..256 (default 16)",
+     "default one (default 16)",
      CLI_AT_INT(serve_options, max_worlds, 1, SERVE_WORLDS_MAX)},
     {"auth-file", "FILE",
      "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"

@@ -33,7 +33,7 @@ typedef struct simulate_options {
 static const cli_option simulate_table[] = {
     {"scene", "FILE", "scene JSON with scripted colliders (default: embedded scene)",
      CLI_AT_STRING(simulate_options, scene_path)},
-    {"ticks", "N", "number of ticks to run, 0..1e8 (required)",
+    {"ticks", "N", "number of ticks to run (required)",
      CLI_AT_LONG(simulate_options, ticks, 0, 100000000)},
     {"backend", "auto|gl|cpu",
      "default auto: gl on a hardware GPU, cpu where GL is software\n"
@@ -50,7 +50,7 @@ static const cli_option simulate_table[] = {
     {"out", "FILE", "write the final heights: little-endian int32, row-major",
      CLI_AT_STRING(simulate_options, out_path)},
     {"threads", "N",
-     "threads of the CPU twin, 1..64 (default: the machine's cores);\n"
+     "threads of the CPU twin (default: the machine's cores);\n"
      "heights do not depend on it",
      CLI_AT_LONG(simulate_options, threads, 1, SIM_THREADS_MAX)},
     {0},

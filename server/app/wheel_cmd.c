@@ -104,12 +104,7 @@ static const cli_option wheel_table[] = {
      "or a material JSON file (a scene's \"material\" of the bekker model,\n"
      "as terrad calibrate --out writes it)",
      CLI_AT_STRING(wheel_options, soil_arg)},
-    {"radius", "M", "the wheel's radius (0.001 to 10)",
-     CLI_AT_DOUBLE(wheel_options, run.radius_m, 1e-3, 10)},
-    {"width", "M", "the wheel's width (0.001 to 10)",
-     CLI_AT_DOUBLE(wheel_options, run.width_m, 1e-3, 10)},
-    {"load", "N", "the vertical load on the wheel (0.001 to 1e7)",
-     CLI_AT_DOUBLE(wheel_options, run.load_n, 1e-3, 1e7)},
+    APP_OPTIONS_WHEEL(wheel_options, run, grousers_option),
     {"slips", "LIST",
      "the slips to run, comma-separated, each in [0, 0.95]\n"
      "(s = 1 - v / (omega R); at most 100)",
@@ -118,22 +113,11 @@ static const cli_option wheel_table[] = {
      "csv (default: slip,drawbar_pull_n,sinkage_m,torque_nm,radius_m,\n"
      "width_m,load_n - what terrad calibrate --wheel reads) or json",
      CLI_CALLS(format_option)},
-    {"compression", "X",
-     "the material's compression (default: the file's, or 0.5\n"
-     "for a preset, as terrad calibrate)",
-     CLI_AT_DOUBLE(wheel_options, compression, 0, 1)},
-    {"cell", "M", "the soil bin's cell size (default 0.005; coarser is faster)",
-     CLI_AT_DOUBLE(wheel_options, run.cell_m, 1e-3, 0.1)},
-    {"distance", "M", "each run's travel (default 0.5; means over its second half)",
-     CLI_AT_DOUBLE(wheel_options, run.distance_m, 0.05, 10)},
+    APP_OPTIONS_TESTBED(wheel_options, run, "--soil"),
     {"speed", "M/S", "the wheel's forward speed (default 0.05)",
      CLI_AT_DOUBLE(wheel_options, run.speed_m_s, 1e-3, 10)},
     {"tick", "S", "the testbed's time step (default 0.05)",
      CLI_AT_DOUBLE(wheel_options, run.tick_s, 1e-4, 1)},
-    {"grousers", "N,H,T",
-     "lugs on the rim: count (1 to 360), height and thickness (m,\n"
-     "each <= the radius); default none. The sinkage is then the tips'",
-     CLI_CALLS(grousers_option)},
     {0},
 };
 

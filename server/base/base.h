@@ -164,15 +164,19 @@ char *json_print_delete(cJSON *o);
  * (ngx_conf_set_str_slot and an offsetof): cli_parse stores a string, an
  * integer or a number in [lo, hi], or a flag's 1, at an offset into the
  * command's options struct (ctx), so a plain option is written once, in its
- * row; an option that needs code names a function (CLI_CALLS). The CLI_AT_*
- * macros give a row's tail and check the field's type. */
+ * row; an option that needs code names a function (CLI_CALLS, or
+ * CLI_CALLS_LONG for an integer in [lo, hi] checked before the call). The
+ * CLI_AT_* macros give a row's tail and check the field's type. A row's range
+ * is written once, in the row: cli_parse refuses a value outside it and --help
+ * prints it ("N in [0, 65535]", from lo and hi), so no help text repeats it. */
 typedef enum cli_store {
-    CLI_CALL = 0, /* call(ctx, value, err): an option that needs code */
-    CLI_STRING,   /* const char *: the value itself (argv outlives the options) */
-    CLI_LONG,     /* long: an integer in [lo, hi] (cli_parse_long's refusal) */
-    CLI_INT,      /* int: an integer in [lo, hi] (cli_parse_long's refusal) */
-    CLI_DOUBLE,   /* double: a number in [lo, hi] (cli_parse_double's refusal) */
-    CLI_FLAG,     /* int: set to 1 (a flag: value_name NULL) */
+    CLI_CALL = 0,  /* call(ctx, value, err): an option that needs code */
+    CLI_STRING,    /* const char *: the value itself (argv outlives the options) */
+    CLI_LONG,      /* long: an integer in [lo, hi] (cli_parse_long's refusal) */
+    CLI_INT,       /* int: an integer in [lo, hi] (cli_parse_long's refusal) */
+    CLI_DOUBLE,    /* double: a number in [lo, hi] (cli_parse_double's refusal) */
+    CLI_FLAG,      /* int: set to 1 (a flag: value_name NULL) */
+    CLI_CALL_LONG, /* call(ctx, value, err) once value is an integer in [lo, hi] */
 } cli_store;
 
 typedef struct cli_option {
@@ -181,7 +185,8 @@ typedef struct cli_option {
     const char *help;       /* one or more lines; '\n' starts a new indented line */
     cli_store store;
     size_t offset; /* of the field in ctx, for every store but CLI_CALL */
-    double lo, hi; /* CLI_LONG, CLI_INT, CLI_DOUBLE: the range (whole numbers for integers) */
+    double lo,
+        hi; /* CLI_LONG, CLI_INT, CLI_DOUBLE, CLI_CALL_LONG: the range (whole for integers) */
     int (*call)(void *ctx, const char *value, error_text *err); /* CLI_CALL: 0, or -1 and err */
 } cli_option;
 
@@ -198,6 +203,8 @@ typedef struct cli_option {
     .store = CLI_DOUBLE, .offset = CLI_FIELD_(type, field, double), .lo = (min), .hi = (max)
 #define CLI_AT_FLAG(type, field) .store = CLI_FLAG, .offset = CLI_FIELD_(type, field, int)
 #define CLI_CALLS(function) .store = CLI_CALL, .call = (function)
+#define CLI_CALLS_LONG(function, min, max)                                                         \
+    .store = CLI_CALL_LONG, .call = (function), .lo = (min), .hi = (max)
 
 typedef enum cli_result {
     CLI_OK = 0,    /* every option was handled; *first_operand indexes the rest */
@@ -213,8 +220,12 @@ typedef enum cli_result {
  * otherwise. */
 cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
                      char **argv, void *ctx, int *first_operand);
-/* The help text cli_parse prints for --help: usage, then one line per option. */
+/* The help text cli_parse prints for --help: usage, then each option's help,
+ * a numeric row's ending "; N in [lo, hi]" (its value's name and its range). */
 void cli_print_help(FILE *out, const char *command, const char *usage, const cli_option *options);
+/* x as --help and the refusals show a bound: plainly (65535, 0.001,
+ * 86400000), or a large power of ten or two as 1e8 or 2^40. */
+void cli_format_number(char *buf, size_t size, double x);
 /* An integer in [lo, hi] from an option's value; err says why not. */
 int cli_parse_long(const char *value, long lo, long hi, long *out, error_text *err);
 int cli_parse_double(const char *value, double lo, double hi, double *out, error_text *err);

@@ -15,6 +15,46 @@
 #include <string.h>
 
 #define CLI_OPTIONS_MAX 64
+/* The help column starts at 24; a range that would take its last line past
+ * 24 + 70 goes on a line of its own. */
+#define CLI_HELP_COLUMNS 70
+
+/* x as --help and the refusals show a bound: as written in C where that is
+ * plain (65535, 0.001, 86400000), a large power of ten or two as 1e8 or 2^40
+ * rather than 100000000 or 1099511627776. */
+void cli_format_number(char *buf, size_t size, double x)
+{
+    double a = fabs(x);
+    if (a >= 1e6 && a < 1e300 && x == floor(x)) {
+        int e10 = (int)lround(log10(a)), e2 = (int)lround(log2(a));
+        if (pow(10, e10) == a) {
+            snprintf(buf, size, "%se%d", x < 0 ? "-1" : "1", e10);
+            return;
+        }
+        if (ldexp(1, e2) == a) {
+            snprintf(buf, size, "%s2^%d", x < 0 ? "-" : "", e2);
+            return;
+        }
+        snprintf(buf, size, "%.0f", x);
+        return;
+    }
+    snprintf(buf, size, "%.15g", x);
+}
+
+/* A numeric row's range, from its lo and hi: "N in [0, 65535]" (the value's
+ * name, as the refusal says "must be an integer in [0, 65535]"). Empty for a
+ * row without one. */
+static void range_text(const cli_option *o, char *buf, size_t size)
+{
+    buf[0] = '\0';
+    if (o->store != CLI_LONG && o->store != CLI_INT && o->store != CLI_DOUBLE &&
+        o->store != CLI_CALL_LONG)
+        return;
+    char lo[32], hi[32];
+    cli_format_number(lo, sizeof lo, o->lo);
+    cli_format_number(hi, sizeof hi, o->hi);
+    snprintf(buf, size, "%s in [%s, %s]", o->value_name ? o->value_name : "value", lo, hi);
+}
 
 void cli_print_help(FILE *out, const char *command, const char *usage, const cli_option *options)
 {
@@ -26,10 +66,23 @@ void cli_print_help(FILE *out, const char *command, const char *usage, const cli
         fprintf(out, "  %-22s", left);
         if (strlen(left) > 22)
             fprintf(out, "\n  %-22s", "");
-        for (const char *h = o->help ? o->help : ""; *h; h++) {
+        const char *help = o->help ? o->help : "";
+        for (const char *h = help; *h; h++) {
             fputc(*h, out);
             if (*h == '\n')
                 fprintf(out, "  %-22s", "");
+        }
+        char range[96];
+        range_text(o, range, sizeof range);
+        if (range[0]) {
+            const char *last = strrchr(help, '\n');
+            size_t used = strlen(last ? last + 1 : help);
+            if (!help[0])
+                fputs(range, out);
+            else if (used + 2 + strlen(range) <= CLI_HELP_COLUMNS)
+                fprintf(out, "; %s", range);
+            else
+                fprintf(out, ";\n  %-22s%s", "", range);
         }
         fputc('\n', out);
     }
@@ -57,6 +110,10 @@ static int store_option(const cli_option *o, void *ctx, const char *value, error
     case CLI_FLAG:
         *(int *)(void *)field = 1;
         return 0;
+    case CLI_CALL_LONG:
+        if (cli_parse_long(value, (long)o->lo, (long)o->hi, &x, err) != 0)
+            return -1;
+        break;
     case CLI_CALL:
         break;
     }
@@ -141,7 +198,10 @@ int cli_parse_long(const char *value, long lo, long hi, long *out, error_text *e
     errno = 0;
     long x = strtol(value, &end, 10);
     if (errno || end == value || *end || x < lo || x > hi) {
-        error_set(err, "must be an integer in [%ld, %ld] (got '%s')", lo, hi, value);
+        char l[32], h[32];
+        cli_format_number(l, sizeof l, (double)lo);
+        cli_format_number(h, sizeof h, (double)hi);
+        error_set(err, "must be an integer in [%s, %s] (got '%s')", l, h, value);
         return -1;
     }
     *out = x;
@@ -154,7 +214,10 @@ int cli_parse_double(const char *value, double lo, double hi, double *out, error
     errno = 0;
     double x = strtod(value, &end);
     if (errno || end == value || *end || !isfinite(x) || x < lo || x > hi) {
-        error_set(err, "must be a number in [%g, %g] (got '%s')", lo, hi, value);
+        char l[32], h[32];
+        cli_format_number(l, sizeof l, lo);
+        cli_format_number(h, sizeof h, hi);
+        error_set(err, "must be a number in [%s, %s] (got '%s')", l, h, value);
         return -1;
     }
     *out = x;

@@ -12,6 +12,9 @@
 - the installed terrad.json is accepted by `terrad serve --config` (a short run on free ports);
 - the man page renders without groff warnings; the unit passes `systemd-analyze verify` where
   systemd-analyze exists (skipped otherwise);
+- every range `--help` prints from an option's row ("N in [0, 65535]") is in the man page as
+  --help prints it: serve's and simulate's in the option's own paragraph, wheel's, calibrate's
+  and loadgen's in the command's (calibrate's wheel options in wheel's);
 - the installed share/doc/terrad/examples/drive_wheel.c builds with `pkg-config --cflags --libs
   terrad-client` against the installed library, shared and then static (`--static`), and both
   binaries start and pass against a real daemon with the demo actors on (the mirror equals
@@ -41,6 +44,35 @@ for tool in ("pkg-config", "cc", "cmake", "readelf"):
 def run(args, env=None, **kw):
     return subprocess.run(args, capture_output=True, text=True, timeout=240,
                           env=None if env is None else {**os.environ, **env}, **kw)
+
+
+def help_ranges(terrad, command):
+    """{option: "V in [lo, hi]"} from `terrad COMMAND --help`: the range cli_print_help ends a
+    numeric option's help with."""
+    out = run([terrad, command, "--help"]).stdout
+    ranges, opt = {}, None
+    for line in out.splitlines():
+        if line.startswith("  --"):
+            opt = line.split()[0]
+        m = re.search(r"(\S+ in \[[^]]+\])$", line)
+        if opt and m:
+            ranges[opt] = m.group(1)
+    return ranges
+
+
+def man_paragraphs(man_source):
+    """{(section, first line): text} of the man page source, escapes and .I undone, so
+    "\\-\\-ticks" reads --ticks and ".I N\\nin [0,\\ 1e8]" reads "N in [0, 1e8]"."""
+    paragraphs, section = {}, ""
+    for chunk in re.split(r"^\.(?=SH |TP$)", man_source, flags=re.M):
+        lines = chunk.replace("\\-", "-").replace("\\ ", " ").splitlines()
+        if chunk.startswith("SH "):
+            section = lines[0][3:].strip('"')
+            continue
+        body = [re.sub(r"^\.(I|B|BI|BR|RB) ", "", ln) for ln in lines[1:]]
+        if body:
+            paragraphs[(section, body[0].split()[0])] = " ".join(" ".join(body).split())
+    return paragraphs
 
 
 def one(pattern):
@@ -93,6 +125,22 @@ try:
         text = run(["groff", "-man", "-Tascii", "-P", "-cbou", man]).stdout
         check(f"terrad {version}" in text and "--config FILE" in text,
               "the man page names the version and the options")
+
+    # The ranges: --help prints them from the rows, the man page is written by hand.
+    with open(man) as f:
+        paragraphs = man_paragraphs(f.read())
+    serve_ranges = help_ranges(terrad, "serve")
+    check(len(serve_ranges) >= 10, f"serve --help prints its options' ranges: {serve_ranges}")
+    for command, section in (("serve", "SERVE OPTIONS"), ("simulate", "SIMULATE OPTIONS")):
+        for opt, want in help_ranges(terrad, command).items():
+            said = paragraphs.get((section, opt), "")
+            check(want in said, f"man {section} {opt}: {want!r} as --help says (man: {said!r})")
+    for command, where in (("wheel", ["wheel"]), ("loadgen", ["loadgen"]),
+                           ("calibrate", ["calibrate", "wheel"])):
+        said = " ".join(paragraphs.get(("COMMANDS", w), "") for w in where)
+        for opt, want in help_ranges(terrad, command).items():
+            check(want.split(" in ", 1)[1] in said,
+                  f"man COMMANDS {command}: {opt}'s {want!r} as --help says (man: {said!r})")
 
     unit = one("lib/systemd/system/terrad.service")
     with open(unit) as f:
