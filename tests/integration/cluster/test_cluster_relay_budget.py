@@ -58,8 +58,21 @@ def crater(rng, big=True):
                    radius=rng.randrange(4, 10), depth=rng.randrange(100, 800))
 
 
+def patiently(read, deadline_s=60):
+    """read() retried while the node is too busy to answer (a 503 of a sim thread past
+    heights_timeout_ms, or a read timed out on a loaded machine), until deadline_s."""
+    end = time.monotonic() + deadline_s
+    while True:
+        try:
+            return read()
+        except (urllib.error.URLError, OSError) as e:  # HTTPError is a URLError
+            if (getattr(e, "code", 503) != 503) or time.monotonic() >= end:
+                raise
+            time.sleep(0.25)
+
+
 def metrics(node):
-    return node.get("/metrics")[1].decode()
+    return patiently(lambda: node.get("/metrics")[1].decode())
 
 
 def relay_ids(b, start):
@@ -94,13 +107,8 @@ async def wait_mirror(a, client, sid, deadline_s):
     end = time.monotonic() + deadline_s
     loop = asyncio.get_running_loop()
     while time.monotonic() < end:
-        try:
-            _, server = await loop.run_in_executor(None, a.heights, "dunes", *REGION)
-        except urllib.error.HTTPError as e:  # 503: the sim thread busy past heights_timeout_ms
-            if e.code != 503:
-                raise
-            await asyncio.sleep(0.25)
-            continue
+        _, server = await loop.run_in_executor(
+            None, lambda: patiently(lambda: a.heights("dunes", *REGION)))
         m = client.mirrors.get(sid)
         if m is not None and m.complete and list(m.heights) == server:
             return True
