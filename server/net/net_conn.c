@@ -91,7 +91,7 @@ int net_admit_connection(net_state *s, int fd)
             return 0;
         }
     }
-    /* Staleness is measured on the daemon's own queue (net_fanout.c drop_stale):
+    /* Staleness is measured on the daemon's own queue (net_fanout.c net_drop_stale):
      * what the kernel has taken is out of reach. On loopback its send buffer
      * starts near 1.3 MB and may grow to 4 MB, seconds of frames for a slow
      * reader, so it is fixed at NET_SNDBUF (the kernel doubles it). */

@@ -107,8 +107,10 @@ static void fan_out(net_state *w, const hub_out *o)
  * is more than max_client_lag_ticks old goes slow like one over
  * max_pending_bytes (its deltas dropped, snapshots once it drains), so that
  * a client reading steadily but too slowly is bounded in ticks, not only in
- * bytes (issue 15: one frame per 20 ms was 54 s behind after 60 s). */
-static void drop_stale(net_state *w)
+ * bytes (issue 15: one frame per 20 ms was 54 s behind after 60 s). A
+ * world's own tick calls it at HUB_OUT_TICK_DONE; a relay, which gets no
+ * TICK_DONE from its owner, when the owner's next tick begins (relay_in). */
+void net_drop_stale(net_state *w)
 {
     uint64_t limit = (uint64_t)w->cfg.limits.max_client_lag_ticks;
     /* "seen" comes at most every 0.1 s, plus a round trip: a limit shorter than
@@ -232,7 +234,7 @@ void net_dispatch(net_state *w, hub_out *o)
         }
         break;
     case HUB_OUT_TICK_DONE:
-        drop_stale(w);
+        net_drop_stale(w);
         net_budget_flush_state(w);
         break;
     }

@@ -9,7 +9,8 @@
  *   (NET_REMOTE_FRAME: replies, snapshots, ACK, CONTACT...) and every tile
  *   delta of the world (NET_REMOTE_DELTA, sent once per tick for all relays)
  *   go through net_dispatch exactly as a local world's hub items do: the same
- *   frames, the same fan-out by subscription, the same slow-client rules. The
+ *   frames, the same fan-out by subscription, the same slow-client rules
+ *   (the lag rule, net_drop_stale, once per tick of the owner's: relay_in). The
  *   relay learns the client's subscriptions from the owner's "subscribed" and
  *   "unsubscribed" replies, and asks the owner for a resync when the client
  *   falls behind.
@@ -130,6 +131,11 @@ static void relay_in(net_state *w, const struct net_remote_item *it)
 {
     const net_remote_msg *m = &it->m;
     hub_out o = {.tick = m->tick};
+    /* The owner's next tick begins: its last one is all here (one publisher's
+     * order), and the owner sends relays no TICK_DONE; the relay holds the
+     * client's socket, so it judges its lag, once a tick, as the owner would. */
+    if (m->tick > w->tick && w->tick > 0)
+        net_drop_stale(w);
     if (m->kind == NET_REMOTE_DELTA && m->tile_x == 0xffff) { /* deltas were lost on the way */
         for (int i = 0; i < w->nclients; i++)
             if (w->clients[i]->ready && !w->clients[i]->closing)

@@ -395,7 +395,7 @@ static void handle_resync(net_client *c, const net_control *m)
 }
 
 /* seen: the latest tick the client has handled (PROTOCOL.md "seen"); judged
- * against what was written to it once a tick (net_fanout.c drop_stale). A
+ * against what was written to it once a tick (net_fanout.c net_drop_stale). A
  * client waiting to catch up before its snapshots is woken when it has. */
 static void handle_seen(net_client *c, const net_control *m)
 {

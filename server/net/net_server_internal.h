@@ -97,6 +97,9 @@ void net_worlds_apply(net_server *s);
 void net_drain_world(net_server *s, net_state *w);
 /* Net thread: one item from the sim (or from the owner, on a relay) to w's clients. */
 void net_dispatch(net_state *w, hub_out *o);
+/* Net thread, once a tick: w's clients too far behind (max_client_lag_ticks,
+ * by their queue or by what they said handled) go slow (net_fanout.c). */
+void net_drop_stale(net_state *w);
 /* Net thread: frees a client record (its socket is gone, or it was a remote client; net_peer.c). */
 void net_client_free(net_server *s, net_client *c);
 /* Net thread: the messages from other nodes, and the remote clients closed since. */
