@@ -1,9 +1,11 @@
 /*
  * serve_options.c: `terrad serve`'s options — one table (what --help
  * prints), read from the command line by base.h's cli_parse and from
- * --config FILE by base.h's JSON field readers. Read once, before the daemon
+ * --config FILE (its numbers through the same rows, cli_store_value; its
+ * strings and "limits" by base.h's JSON field readers). Read once, before the daemon
  * starts its threads and its first tick.
  */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -93,39 +95,40 @@ static int config_limits(const cJSON *doc, serve_options *o, error_text *err)
     return 0;
 }
 
-/* The config's numbers and flags, with the ranges of the matching options. */
+static const cli_option *serve_rows(void);
+
+/* The config's numbers go through their options' rows (serve_rows): the same
+ * kind, range, store and refusal as on the command line ("tick_hz": 59.5 is
+ * refused as --tick-hz 59.5 is), so a range is written once, in its row. */
 static int config_numbers(const cJSON *doc, serve_options *o, error_text *err)
 {
-    double v;
+    static const char *const keys[] = {
+        "http_port",  "ws_port",           "demo_actors",         "tick_hz",
+        "max_worlds", "wal_segment_bytes", "replay_retain_bytes", NULL};
+    for (const char *const *k = keys; *k; k++) {
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(doc, *k);
+        if (!v)
+            continue;
+        char name[64], text[40];
+        snprintf(name, sizeof name, "%s", *k);
+        for (char *c = name; *c; c++)
+            *c = *c == '_' ? '-' : *c;
+        const cli_option *row = cli_find(serve_rows(), name);
+        if (!row) { /* a key of this list with no option of that name: a bug here */
+            error_set(err, "%s: no option --%s", *k, name);
+            return -1;
+        }
+        if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble)) {
+            error_set(err, "%s: expected a number", *k);
+            return -1;
+        }
+        snprintf(text, sizeof text, "%.17g", v->valuedouble);
+        if (cli_store_value(row, o, text, err) != 0) {
+            error_prefix(err, *k, ": ");
+            return -1;
+        }
+    }
     int r, flag;
-    if ((r = json_get_integer(doc, "", "http_port", 0, 65535, 0, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->http_port = (int)v;
-    if ((r = json_get_integer(doc, "", "ws_port", 0, 65535, 0, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->ws_port = (int)v;
-    if ((r = json_get_number(doc, "", "demo_actors", 0, 256, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->demo_actors = (int)v;
-    if ((r = json_get_number(doc, "", "tick_hz", 1, 1000, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->tick_hz = v;
-    if ((r = json_get_integer(doc, "", "max_worlds", 1, SERVE_WORLDS_MAX, 0, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->max_worlds = (int)v;
-    if ((r = json_get_number(doc, "", "wal_segment_bytes", 4096, 1e12, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->wal_segment_bytes = (long)v;
-    if ((r = json_get_number(doc, "", "replay_retain_bytes", 0, 1e12, &v, err)) < 0)
-        return -1;
-    if (r)
-        o->replay_retain_bytes = (long)v;
     if ((r = json_get_bool(doc, "", "bind_any", &flag, err)) < 0)
         return -1;
     if (r)
@@ -401,6 +404,11 @@ static const cli_option serve_table[] = {
      CLI_CALLS(public_ws_url_option)},
     {0},
 };
+
+static const cli_option *serve_rows(void)
+{
+    return serve_table;
+}
 
 static const char serve_usage[] = "[options]";
 

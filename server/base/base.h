@@ -220,6 +220,14 @@ typedef enum cli_result {
  * otherwise. */
 cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
                      char **argv, void *ctx, int *first_operand);
+/* One option's value where its row says (what cli_parse does with each):
+ * stored in a field of ctx within the row's range, or the row's call made;
+ * 0, or -1 with err saying why ("must be an integer in [0, 65535] (got
+ * '70000')"). A CLI_STRING row keeps the pointer: value must outlive ctx's
+ * use. Lets a config file's keys go through the same rows (serve --config). */
+int cli_store_value(const cli_option *row, void *ctx, const char *value, error_text *err);
+/* The row of options named name (without the dashes), or NULL. */
+const cli_option *cli_find(const cli_option *options, const char *name);
 /* The help text cli_parse prints for --help: usage, then each option's help,
  * a numeric row's ending "; N in [lo, hi]" (its value's name and its range). */
 void cli_print_help(FILE *out, const char *command, const char *usage, const cli_option *options);

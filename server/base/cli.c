@@ -3,7 +3,7 @@
  * (serve, simulate, export, bench, ...) describes its options in a table, so
  * "--opt value" and "--opt=value" both work, "terrad CMD --help" prints that
  * command's options, and a mistake is named the same way everywhere. A row
- * says where its value goes (store_option): most are stored here, at an
+ * says where its value goes (cli_store_value): most are stored here, at an
  * offset into the command's options, the rest call their row's function.
  */
 #include "base/base.h"
@@ -89,8 +89,7 @@ void cli_print_help(FILE *out, const char *command, const char *usage, const cli
     fprintf(out, "  %-22s%s\n", "--help", "this text");
 }
 
-/* One option's value where its row says: a field of ctx, or its row's call. */
-static int store_option(const cli_option *o, void *ctx, const char *value, error_text *err)
+int cli_store_value(const cli_option *o, void *ctx, const char *value, error_text *err)
 {
     char *field = (char *)ctx + o->offset;
     long x;
@@ -118,6 +117,14 @@ static int store_option(const cli_option *o, void *ctx, const char *value, error
         break;
     }
     return o->call ? o->call(ctx, value, err) : -1;
+}
+
+const cli_option *cli_find(const cli_option *options, const char *name)
+{
+    for (const cli_option *o = options; o->name; o++)
+        if (strcmp(o->name, name) == 0)
+            return o;
+    return NULL;
 }
 
 cli_result cli_parse(const char *command, const char *usage, const cli_option *options, int argc,
@@ -176,7 +183,7 @@ cli_result cli_parse(const char *command, const char *usage, const cli_option *o
             return CLI_HELP;
         }
         error_text err = {{0}};
-        if (store_option(&options[c], ctx, optarg, &err) != 0) {
+        if (cli_store_value(&options[c], ctx, optarg, &err) != 0) {
             fprintf(stderr, "terrad %s: --%s: %s\n", command, options[c].name,
                     err.message[0] ? err.message : "invalid");
             return CLI_ERROR;

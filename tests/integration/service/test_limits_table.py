@@ -18,6 +18,7 @@ config's "limits" keys, the world message's "limits" and `terrad serve
 """
 # ctest-timeout: 180
 import asyncio
+import json
 import os
 import re
 import subprocess
@@ -69,16 +70,17 @@ async def told_limits(d):
     return limits
 
 
-def refused(check, limits, key, what):
-    path = json_file({"limits": limits}, "terrad-limits")
+def refused(check, limits, key, what, config=None):
+    path = json_file(config if config is not None else {"limits": limits}, "terrad-limits")
     try:
         p = subprocess.run([BIN, "serve", "--config", path, "--no-data", "--http-port", "0",
                             "--ws-port", "0", "--backend", "cpu", "--no-demo", "--ticks", "1"],
                            capture_output=True, text=True, timeout=60)
     finally:
         os.unlink(path)
-    check(p.returncode == 2 and f"limits.{key}" in p.stderr,
-          f"{what} is refused at start, naming limits.{key} ({p.returncode}): {p.stderr[-300:]}")
+    named = key if config is not None else f"limits.{key}"
+    check(p.returncode == 2 and named in p.stderr,
+          f"{what} is refused at start, naming {named} ({p.returncode}): {p.stderr[-300:]}")
 
 
 def main():
@@ -133,6 +135,21 @@ def main():
               f"the tick and sweep budgets can be switched off by a config: {told}")
     refused(check, {"max_colliders": 0}, "max_colliders", "0 for a limit whose 0 means nothing")
     refused(check, {"max_tick_cells": -1}, "max_tick_cells", "a negative limit that may be 0")
+
+    # the config's other numbers go through their options' rows: the same ranges and kinds
+    # as the command line (before, "tick_hz": 59.5 and "wal_segment_bytes": 2e12 started)
+    for key, value, what in (("tick_hz", 59.5, "a fractional tick_hz (--tick-hz takes whole hertz)"),
+                             ("demo_actors", 2.5, "a fractional demo_actors"),
+                             ("wal_segment_bytes", 2e12, "a wal_segment_bytes past --wal-segment-bytes' 2^40"),
+                             ("http_port", 70000, "an http_port past 65535"),
+                             ("max_worlds", 0, "max_worlds 0")):
+        refused(check, None, f"{key}: must be", what, config={key: value})
+    d = Daemon(config={"tick_hz": 30, "demo_actors": 0, "wal_segment_bytes": 65536},
+               extra=("--no-data",), name="terrad-config-numbers")
+    with check.running(d):
+        status, body, _ = d.get("/v1/world")
+        check(status == 200 and json.loads(body).get("tick_hz") == 30,
+              f"the config's tick_hz 30 is in force: {status} {body[:200]}")
 
     refused(check, {"max_bogus_cells": 5}, "max_bogus_cells", "an unknown limit")
     refused(check, {"max_colliders": -3}, "max_colliders", "a negative limit")
