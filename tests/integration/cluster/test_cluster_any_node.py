@@ -31,7 +31,6 @@ import asyncio
 import json
 import os
 import sys
-import signal
 import time
 import urllib.error
 import urllib.request
@@ -202,11 +201,14 @@ def http_through_relay(a, b):
               for r in ("answered", "no_owner", "not_relayed")}
     check(counts["answered"] >= 10 and counts["no_owner"] >= 1 and counts["not_relayed"] >= 1,
           f"terrad_http_forwarded_total on b counts each result ({counts})")
-    a.proc.send_signal(signal.SIGSTOP)  # an owner that does not answer
+    # an owner that does not answer: asked once all its threads have stopped (a
+    # process stops a while after kill() returns, and meanwhile it still answers)
     try:
+        paused = a.pause()
         status, _, body = get(b, "/v1/stats?world=dunes")
     finally:
-        a.proc.send_signal(signal.SIGCONT)
+        a.resume()
+    check(paused, "every thread of a stops on SIGSTOP")
     check(status == 504 and b"did not answer" in body,
           f"an owner that does not answer in time: 504 saying so ({status}, {body!r})")
     tick = (a.stats("dunes") or {}).get("tick", 0)

@@ -32,7 +32,6 @@ import asyncio
 import json
 import os
 import random
-import signal
 import subprocess
 import sys
 import time
@@ -84,12 +83,12 @@ def fencing(nodes):
     owner = owner_of(nodes, "spheres", 15)
     if not check(owner is not None, "spheres has an owner"):
         return
-    owner.proc.send_signal(signal.SIGSTOP)
+    owner.pause()  # every thread stopped: it neither renews nor answers from here on
     new = owner_of([n for n in nodes if n is not owner], "spheres", timeout=30)
     check(new is not None, f"another node takes spheres while {owner.name} is stopped")
     new_before = len(new.lines) if new else 0
     before = len(owner.lines)
-    owner.proc.send_signal(signal.SIGCONT)
+    owner.resume()
     deadline = time.monotonic() + 15
     said = False
     while time.monotonic() < deadline and not said:
