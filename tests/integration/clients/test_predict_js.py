@@ -114,7 +114,10 @@ def main():
                   f"compared; settled {out['settled']})")
             check(out["rut"] > 50, f"the server sank the wheel below its posed rim ({out['rut']} units)")
             found = out["found"]
-            check(len(found) > 10 and max(found) < 0.5 - 0.005,
+            # every found height below the posed rim, and the wheel sank 5 mm or more: the first
+            # ticks' found heights are within a few mm of 0.5, and which ticks' FORCES a client
+            # sees first depends on when it joined, so the bound is on the deepest, not the least
+            check(len(found) > 10 and max(found) < 0.5 and min(found) < 0.5 - 0.005,
                   f"FORCES' height extension, decoded by the JS codec: the heights the server "
                   f"found, below the posed 0.5 m ({len(found)}, {min(found, default=None)}.."
                   f"{max(found, default=None)} m)")
