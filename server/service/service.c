@@ -167,16 +167,8 @@ static int gather_colliders(service *s, const sim_collider *extra, int extra_cou
         svc_collider *c = &s->colliders[i];
         if (!c->has_pose || c->held)
             continue;
-        b->colliders[n] = (sim_collider){.id = (int)c->id,
-                                         .geometry = c->geometry,
-                                         .pose = c->pose,
-                                         .previous_pose = c->previous_pose,
-                                         .has_previous = c->has_previous,
-                                         .load_n = c->load_n};
-        /* load-driven: the height is the engine's; it starts from the last one found */
-        if (c->load_n > 0.0 && c->has_previous)
-            b->colliders[n].pose.position.z = c->previous_pose.position.z;
-        n++;
+        b->colliders[n++] = sim_collider_for_tick((int)c->id, c->geometry, c->pose,
+                                                  c->previous_pose, c->has_previous, c->load_n);
     }
     if (extra_count > 0)
         memcpy(b->colliders + n, extra, (size_t)extra_count * sizeof *extra);

@@ -362,6 +362,14 @@ typedef struct sim_window_job {
     sim_contact *contacts;
 } sim_window_job;
 
+/* A posed collider as one tick's engine takes it: a load-driven one (load_n
+ * > 0) starts from the height it was found at last tick (previous_pose's,
+ * which the caller kept from the contact's pose_z_m), not the posed one —
+ * the engine's search goes on from there. The service and the twin both make
+ * their tick's colliders with it, so a prediction starts where the server does. */
+sim_collider sim_collider_for_tick(int id, const collider_geometry *geometry, collider_pose pose,
+                                   collider_pose previous_pose, int has_previous, double load_n);
+
 /* The swept collider of a tick (collider_sweep_*): 1 pose (this one) on the
  * tick a collider appears; else sub-steps k = 1..steps from previous_pose to
  * pose. Both backends' depth stages and the plan use these. */

@@ -55,6 +55,20 @@ static world_rect collider_footprint(const world *w, const sim_params *p, const 
     return r;
 }
 
+sim_collider sim_collider_for_tick(int id, const collider_geometry *geometry, collider_pose pose,
+                                   collider_pose previous_pose, int has_previous, double load_n)
+{
+    sim_collider c = {.id = id,
+                      .geometry = geometry,
+                      .pose = pose,
+                      .previous_pose = previous_pose,
+                      .has_previous = has_previous,
+                      .load_n = load_n};
+    if (load_n > 0.0 && has_previous)
+        c.pose.position.z = previous_pose.position.z;
+    return c;
+}
+
 int sim_collider_sweep_steps(const sim_collider *c, double cell_size_m)
 {
     if (!c->has_previous)

@@ -503,17 +503,9 @@ int terrad_twin_tick(terrad_twin *t, char *err)
         const twin_collider *c = &t->colliders[i];
         if (!c->has_pose)
             continue;
-        t->batch[n] = (sim_collider){.id = c->id,
-                                     .geometry = &c->geometry,
-                                     .pose = c->pose,
-                                     .previous_pose = c->previous_pose,
-                                     .has_previous = c->has_previous,
-                                     .load_n = c->load_n};
-        /* load-driven, as the service's gather_colliders: the engine searches from the
-         * height it found last tick, not the pose's */
-        if (c->load_n > 0.0 && c->has_previous)
-            t->batch[n].pose.position.z = c->previous_pose.position.z;
-        n++;
+        /* as the service's gather_colliders: one rule for a load-driven height */
+        t->batch[n++] = sim_collider_for_tick(c->id, &c->geometry, c->pose, c->previous_pose,
+                                              c->has_previous, c->load_n);
     }
     sim_tick_report report;
     error_text e = {{0}};
