@@ -105,9 +105,10 @@ struct terrad_client {
     /* lockstep (client-clocked worlds): step numbers sent, and each answer
      * (STEPPED or an error whose ref is "step:SEQ") in a ring by seq */
     int client_clock;
-    /* base snapshots (terrad_client_connect_base): asked for in hello, and the
-     * world message's answer with the base's twin config */
-    int base_asked, base_on;
+    /* base snapshots (terrad_client_connect_base): asked for in hello (1; 2:
+     * slope snapshots offered too, terrad_client_connect_slope), and the world
+     * message's answers with the base's twin config */
+    int base_asked, base_on, slope_on;
     cJSON *base;
     uint32_t step_seq, step_waiting;
     struct {
@@ -277,6 +278,8 @@ static void on_world(terrad_client *c, const cJSON *m)
     c->base_on = c->base_asked &&
                  cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(m, "snapshot_base")) &&
                  cJSON_IsObject(base) && (c->base = cJSON_Duplicate(base, 1)) != NULL;
+    c->slope_on = c->base_on && c->base_asked == 2 &&
+                  cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(m, "snapshot_slope"));
     c->got_world = 1;
 }
 
@@ -813,6 +816,8 @@ static terrad_client *connect_to(terrad_client_desc d, const char *world, int ba
         cJSON_AddStringToObject(h, "world", world);
     if (c->base_asked)
         cJSON_AddBoolToObject(h, "snapshot_base", 1);
+    if (c->base_asked == 2) /* the mirror decodes encoding 3 (terrad_rect_decompress_slope) */
+        cJSON_AddBoolToObject(h, "snapshot_slope", 1);
     if (d.budget) /* -1: none (0 on the wire); 0: the server's default (not sent) */
         cJSON_AddNumberToObject(h, "budget", d.budget < 0 ? 0 : (double)d.budget);
     char *text = cJSON_PrintUnformatted(h);
@@ -869,6 +874,17 @@ terrad_client *terrad_client_connect_base(terrad_client_desc d, const char *worl
 int terrad_client_base_snapshots(const terrad_client *c)
 {
     return c->base_on;
+}
+
+terrad_client *terrad_client_connect_slope(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap)
+{
+    return connect_to(d, world, 2, err, err_cap);
+}
+
+int terrad_client_slope_snapshots(const terrad_client *c)
+{
+    return c->slope_on;
 }
 
 const char *terrad_client_world_name(const terrad_client *c)
