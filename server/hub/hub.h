@@ -260,10 +260,6 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
 int hub_reads_pending(hub *h);
 /* sim thread, between ticks: serve the pending reads. */
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
-/* Any thread: the tick the last reads were served as of (0 before any). The
- * sim thread serves reads before its host publishes the tick's status, so a
- * read can name a tick the status does not show yet. */
-uint64_t hub_reads_tick(hub *h);
 /* sim thread, at exit: fail every pending and future read. */
 void hub_close_reads(hub *h);
 /* The world stops (deleted, lost, or the daemon stops): every HTTP edit

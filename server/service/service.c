@@ -271,14 +271,24 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     service_publish_checksums(s); /* every checksum_interval ticks: tile hashes, last */
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */
     service_step_finish(s);       /* a client-clocked world: STEPPED after the step's last tick */
-    publish(s);
-    service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
-    hub_serve_reads(s->hub, s->world, s->tick);
 
+    /* The tick is published, its status first: nothing names it outside the
+     * sim thread (a frame, a read's tick) before the status does. */
     stats->clients = s->client_count;
     stats->colliders = s->collider_count + extra_count;
     stats->tick_ms = time_now_ms() - t0;
     if (stats->delta_raw_bytes)
         metrics_count_delta_bytes(stats->delta_raw_bytes, stats->delta_compressed_bytes);
+    if (s->publisher)
+        s->publisher(s->publisher_arg, stats);
+    publish(s);
+    service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
+    hub_serve_reads(s->hub, s->world, s->tick);
     return 0;
+}
+
+void service_set_publisher(service *s, service_publish_fn fn, void *arg)
+{
+    s->publisher = fn;
+    s->publisher_arg = arg;
 }

@@ -149,6 +149,8 @@ struct service {
     thread_owner owner; /* the sim thread: claimed by service_create */
     uint64_t tick;
     int64_t volume;
+    service_publish_fn publisher; /* the host's: the tick's status (service_set_publisher) */
+    void *publisher_arg;
     int tiles_x, tiles_y;
     uint32_t *tile_versions;
     terrad_codec *codec;
