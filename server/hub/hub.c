@@ -53,6 +53,7 @@ struct hub {
     void (*wake)(void *);
     void *wake_arg;
 
+    _Atomic uint64_t published_tick; /* hub_publish_tick */
     pthread_mutex_t read_lock;
     pthread_cond_t read_done;
     hub_read reads[HUB_MAX_READS];
@@ -658,6 +659,17 @@ int hub_reads_pending(hub *h)
         n += h->reads[i].active && !h->reads[i].done;
     pthread_mutex_unlock(&h->read_lock);
     return n;
+}
+
+void hub_publish_tick(hub *h, uint64_t tick)
+{
+    THREAD_OWNED(&h->sim_end);
+    atomic_store(&h->published_tick, tick);
+}
+
+uint64_t hub_published_tick(hub *h)
+{
+    return atomic_load(&h->published_tick);
 }
 
 void hub_serve_reads(hub *h, const world *w, uint64_t tick)

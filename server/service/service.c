@@ -107,6 +107,7 @@ void service_attach_store(service *s, store *st, uint64_t recovered_tick)
 {
     s->store = st;
     s->tick = recovered_tick;
+    hub_publish_tick(s->hub, recovered_tick);
     s->volume = world_volume(s->world);
 }
 
@@ -271,13 +272,14 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */
     service_step_finish(s);       /* a client-clocked world: STEPPED after the step's last tick */
 
-    /* The tick is published, its status first: nothing names it outside the
-     * sim thread (a frame, a read's tick) before the status does. */
+    /* The tick is published, in the hub and in its status first: nothing
+     * names it outside the sim thread (a frame, a read's tick) before they do. */
     stats->clients = s->client_count;
     stats->colliders = s->collider_count + extra_count;
     stats->tick_ms = time_now_ms() - t0;
     if (stats->delta_raw_bytes)
         metrics_count_delta_bytes(stats->delta_raw_bytes, stats->delta_compressed_bytes);
+    hub_publish_tick(s->hub, s->tick); /* the net thread's "is it in the future" */
     if (s->publisher)
         s->publisher(s->publisher_arg, stats);
     publish(s);

@@ -19,7 +19,8 @@
  * publish_tick): when the tick's frames reach the network (the hub's waker,
  * called on the sim thread as they are handed over) and when a height read
  * is answered as of tick T, the status block (/v1/stats, and the ?tick=
- * check, http_views.c past_tick) and the metrics already say T, and the read
+ * check, http_views.c past_tick), the metrics and the hub's published tick
+ * (spectate's from_tick check, net_spectate.c) already say T, and the read
  * is still waiting then. The window between "named" and "published" cannot
  * be forced from outside; the waker sees it from inside, every tick.
  */
@@ -135,7 +136,7 @@ static int stall_tick(void *ctx, host_sim *m, long tick, char *why, size_t cap)
 
 typedef struct published_view {
     host_sim *m;
-    int wakes, late_status, late_metrics, answered_first;
+    int wakes, late_status, late_metrics, late_hub, answered_first;
 } published_view;
 
 static uint64_t status_tick(host_sim *m)
@@ -169,6 +170,7 @@ static void frames_out(void *arg)
     v->wakes++;
     v->late_status += status_tick(v->m) != tick;
     v->late_metrics += metrics_tick() != tick;
+    v->late_hub += hub_published_tick(v->m->h) != tick;
     v->answered_first += hub_reads_pending(v->m->h) == 0;
 }
 
@@ -217,6 +219,8 @@ static void test_published_before_named(const serve_options *o)
           "the status named each tick before its frames went out (%d of %d ticks late)",
           v.late_status, v.wakes);
     CHECK(v.late_metrics == 0, "so did the metrics (%d of %d ticks late)", v.late_metrics, v.wakes);
+    CHECK(v.late_hub == 0, "so did the hub's published tick, spectate's (%d of %d ticks late)",
+          v.late_hub, v.wakes);
     CHECK(v.answered_first == 0, "no read was answered before its tick's status (%d)",
           v.answered_first);
     hub_set_waker(m.h, NULL, NULL);
