@@ -84,6 +84,7 @@ typedef struct hub_command {
     double load_n;              /* create: > 0 load-driven (bekker), the load in newtons */
     int forces_height;          /* create: its FORCES entries carry its pose height */
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
+    int grousers;               /* subscribe: ... with the grousers extension (PROTOCOL.md) */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */
     char ref[64];               /* the client's request reference, echoed in replies */

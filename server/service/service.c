@@ -87,6 +87,7 @@ void service_destroy(service *s)
     free(s->packed);
     free(s->bottom);
     free(s->states);
+    free(s->lugs);
     free(s->events);
     free(s->sums);
     service_edits_free(s);

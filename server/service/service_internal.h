@@ -35,6 +35,7 @@ typedef struct svc_subscription {
     uint32_t id;
     world_rect rect;
     int colliders;  /* asked for COLLIDERS frames */
+    int grousers;   /* ... with the grousers extension */
     int footprints; /* asked for FOOTPRINTS frames */
 } svc_subscription;
 
@@ -177,6 +178,8 @@ struct service {
     int64_t bottom_cap;
     terrad_collider_state *states; /* COLLIDERS scratch */
     int64_t state_capacity;
+    terrad_collider_grousers *lugs; /* COLLIDERS scratch: each state's grousers */
+    int64_t lug_capacity;
     terrad_footprint *events; /* FOOTPRINTS scratch: one client's events */
     int64_t event_capacity;
 
