@@ -327,7 +327,11 @@ int hub_worlds_default(hub_worlds *t, char *name, size_t cap);
 /* w leaves the table (deleted: its clients are told so), then this waits for
  * the requests using it to end (close its hub's reads first) and for its
  * holder to let go: 0, or -1 when the holder did not within 10 s (w is then
- * left to it, and so must its hub be: the holder may still use it). */
+ * left to it, and so must its hub be: the holder may still use it). Readers
+ * are waited for however long they take, since they read w's fields; those
+ * still using it after HUB_WORLDS_READER_DEADLINE_MS are logged and counted
+ * (terrad_world_readers_overdue_total). */
+#define HUB_WORLDS_READER_DEADLINE_MS 10000.0
 int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted);
 /* The world named name (NULL: the default world — the entry of the default
  * name when one is set, else the first), counted as in use until

@@ -264,7 +264,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
 
     if (service_cut_into_tiles(s, &stats->report) == 0) /* deltas: versions, Σh, frames */
         service_publish_deltas(s, stats);
-    service_edits_finish(s); /* each edit's sender: its tick and volume change */
+    service_edits_finish(s); /* each websocket edit's sender: its tick and volume change */
     service_contacts_after_tick(s, &stats->report);
     service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
@@ -285,6 +285,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
         s->publisher(s->publisher_arg, stats);
     publish(s);
     service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
+    service_edits_answer(s);        /* HTTP edits: their tick, published */
     hub_serve_reads(s->hub, s->world, s->tick);
     return 0;
 }

@@ -270,8 +270,12 @@ int service_edits_commit_rects(service *s, const sim_tick_report *report, const 
 /* The store refused the tick: take the edits back (after the engine's
  * windows), tell their senders code and why. */
 void service_edits_undo(service *s, int code, const char *why);
-/* The tick is committed: tell each sender its tick and volume change. */
+/* The tick is committed: tell each websocket sender its tick and volume
+ * change (an `edited` reply, a frame of the tick, in order with its others). */
 void service_edits_finish(service *s);
+/* The tick is published (its status names it): tell each HTTP sender its
+ * tick and volume change, which it answers at once. */
+void service_edits_answer(service *s);
 void service_edits_free(service *s);
 
 /* service_colliders.c */

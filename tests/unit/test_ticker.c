@@ -22,8 +22,13 @@
  * check, http_views.c past_tick), the metrics and the hub's published tick
  * (spectate's from_tick check, net_spectate.c) already say T, and the read
  * is still waiting then. The window between "named" and "published" cannot
- * be forced from outside; the waker sees it from inside, every tick.
+ * be forced from outside; the waker sees it from inside, every tick. An HTTP
+ * edit's sender (POST /v1/worlds/{name}/edits answers with the edit's tick)
+ * is told only once the status names the tick: each tick runs while the test
+ * holds the status lock, and where the tick stops for it, the edit is not
+ * answered yet.
  */
+#include <cjson/cJSON.h>
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -228,6 +233,107 @@ static void test_published_before_named(const serve_options *o)
     pthread_mutex_destroy(&m.status.lock);
 }
 
+/* An HTTP edit (POST /v1/worlds/{name}/edits' wait, http_edits.c), then
+ * what /v1/stats and ?tick= would read at once. */
+typedef struct edit_sender {
+    host_sim *m;
+    hub_edit_result res;
+    uint64_t status_after;
+    atomic_int rc; /* 2 until hub_edit_submit returned */
+} edit_sender;
+
+static void *send_edit(void *arg)
+{
+    edit_sender *e = arg;
+    cJSON *msg = cJSON_Parse("{\"op\":\"crater\",\"x\":40,\"y\":40,\"radius\":4,\"depth\":300}");
+    world_edit *we = malloc(sizeof *we);
+    hub_edit_error why = {0};
+    int rc = we && hub_edit_parse(msg, e->m->w.width, e->m->w.height, 1 << 20, we, &why) == 0
+                 ? hub_edit_submit(e->m->h, we, &e->res, 30000)
+                 : -1;
+    cJSON_Delete(msg);
+    e->status_after = status_tick(e->m);
+    atomic_store(&e->rc, rc);
+    return NULL;
+}
+
+/* terrad_edits_total{op="crater",result="applied"}: counted on the sim
+ * thread as the edit's sender is told (service_edits.c tell). */
+static long long craters_applied(void)
+{
+    size_t len = 0;
+    char *text = metrics_render(&len);
+    const char *key = "terrad_edits_total{op=\"crater\",result=\"applied\"} ";
+    const char *at = text ? strstr(text, key) : NULL;
+    long long n = at ? strtoll(at + strlen(key), NULL, 10) : -1;
+    free(text);
+    return n;
+}
+
+typedef struct stepper {
+    host_sim *m;
+    long tick;
+    int rc;
+    error_text err;
+} stepper;
+
+static void *step_once(void *arg)
+{
+    stepper *st = arg;
+    service_claim(st->m->svc); /* this thread is the world's sim thread for the tick */
+    st->rc = host_sim_step(st->m, st->tick, 0, &st->err);
+    return NULL;
+}
+
+/* An HTTP edit's sender hears of its tick only once the status names it.
+ * Each tick runs on a thread of its own while this one holds the status
+ * lock, so the tick stops where its host publishes the status; once the
+ * hub's published tick (set just before) says the tick got there, the
+ * edit must not have been answered yet. */
+static void test_edit_answered_once_published(const serve_options *o)
+{
+    error_text err = {{0}};
+    host_sim m;
+    CHECK(open_world(&m, o, &err) == 0, "edited: %s", err.message);
+    edit_sender e = {.m = &m, .rc = 2};
+    long long before = craters_applied();
+    pthread_t sender;
+    CHECK(pthread_create(&sender, NULL, send_edit, &e) == 0, "sender thread");
+    int early = 0, answered_at = -1;
+    for (long t = 0; t < 3000 && answered_at < 0; t++) {
+        stepper st = {.m = &m, .tick = t};
+        uint64_t tick = service_current_tick(m.svc) + 1;
+        pthread_mutex_lock(&m.status.lock);
+        pthread_t th;
+        CHECK(pthread_create(&th, NULL, step_once, &st) == 0, "tick thread");
+        for (int i = 0; i < 30000 && hub_published_tick(m.h) < tick; i++)
+            host_sleep_ms(1);
+        int at_status = hub_published_tick(m.h) == tick;
+        early += at_status && craters_applied() != before;
+        pthread_mutex_unlock(&m.status.lock);
+        pthread_join(th, NULL);
+        CHECK(at_status && st.rc == 0, "tick %ld reached its status and ran (%s)", t,
+              st.err.message);
+        if (craters_applied() != before)
+            answered_at = (int)tick;
+        if (!at_status || st.rc != 0)
+            break;
+        host_sleep_ms(1); /* the edit is queued by another thread: a tick later takes it */
+    }
+    pthread_join(sender, NULL);
+    CHECK(answered_at > 0 && atomic_load(&e.rc) == 0 && e.res.code == 0 &&
+              e.res.tick == (uint64_t)answered_at,
+          "the edit was applied at tick %d (rc %d, code %d, tick %llu)", answered_at,
+          atomic_load(&e.rc), e.res.code, (unsigned long long)e.res.tick);
+    CHECK(early == 0, "its sender was not told before the status named the tick");
+    CHECK(e.status_after >= e.res.tick,
+          "told tick %llu, the status then says %llu (?tick= takes it)",
+          (unsigned long long)e.res.tick, (unsigned long long)e.status_after);
+    service_claim(m.svc); /* back to this thread, which frees it */
+    host_sim_free(&m);
+    pthread_mutex_destroy(&m.status.lock);
+}
+
 static void wait_ended(pooled *p, int n)
 {
     pthread_mutex_lock(&lock);
@@ -244,6 +350,7 @@ int main(void)
     CHECK(serve_options_parse(6, argv, &o) == CLI_OK, "options");
     error_text err = {{0}};
     test_published_before_named(&o);
+    test_edit_answered_once_published(&o);
 
     /* the world alone, ticked on this thread */
     host_sim alone;
