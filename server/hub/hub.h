@@ -258,7 +258,9 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
                    int timeout_ms);
 /* Reads waiting to be served (any thread). */
 int hub_reads_pending(hub *h);
-/* sim thread, between ticks: serve the pending reads. */
+/* sim thread, between ticks: serve the pending reads, answered as of tick,
+ * which hub_publish_tick has published (debug and sanitizer builds abort
+ * otherwise: nothing names a tick before its status). */
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
 /* sim thread: tick is published — first of all who tell of it (service_tick
  * row 9: then its host's status, its frames, the reads it answers); at
