@@ -234,16 +234,14 @@ void http_view_world(const http_status *st, http_answer *a)
  * that (docs/storage.md "Replay"). */
 static pthread_mutex_t replay_lock = PTHREAD_MUTEX_INITIALIZER;
 
-/* ?tick=N's N: 0, or the status and why naming the parameter. The world's
- * tick is the later of its status and of the last heights read served (h),
- * which can be one tick ahead (hub_reads_tick): a tick a read has named
- * (X-Terrad-Tick) is never "in the future". */
-static unsigned past_tick(const world *base_world, const http_status *st, hub *h, const char *text,
+/* ?tick=N's N: 0, or the status and why naming the parameter. The status's
+ * tick is the world's: its host publishes it inside the tick before the
+ * tick's frames go out and its height reads are served (publish_tick,
+ * host/host_sim.c), so a tick a client was told of (X-Terrad-Tick, an ACK)
+ * is never "in the future" here. */
+static unsigned past_tick(const world *base_world, const http_status *st, const char *text,
                           uint64_t *tick, char *why, size_t cap)
 {
-    uint64_t now = st->tick, served = h ? hub_reads_tick(h) : 0;
-    if (served > now)
-        now = served;
     char *end = NULL;
     unsigned long long n = 0;
     if (text[0] >= '0' && text[0] <= '9')
@@ -258,9 +256,9 @@ static unsigned past_tick(const world *base_world, const http_status *st, hub *h
                  "cluster node's store)");
         return MHD_HTTP_NOT_FOUND;
     }
-    if (n > now) {
+    if (n > st->tick) {
         snprintf(why, cap, "parameter tick: %llu is in the future (the world is at tick %llu)", n,
-                 (unsigned long long)now);
+                 (unsigned long long)st->tick);
         return MHD_HTTP_BAD_REQUEST;
     }
     if (!base_world) {
@@ -271,11 +269,20 @@ static unsigned past_tick(const world *base_world, const http_status *st, hub *h
     return 0;
 }
 
+/* A rebuild's cancel (store_cancel): the world's reads were closed, it is
+ * leaving, and its removal waits for this request (hub_worlds_remove). */
+static int world_leaving(void *h)
+{
+    return h && hub_reads_closed(h);
+}
+
 /* One rebuild of r as of tick on this worker, kept as a world (layer or
- * stats) or only its heights into dst (w NULL): 0, or the status and why. */
-static unsigned rebuild_past(const world *base_world, const http_status *st, uint64_t n,
+ * stats) or only its heights into dst (w NULL): 0, or the status and why.
+ * It stops between two records once the world's reads are closed. */
+static unsigned rebuild_past(const world *base_world, const http_status *st, hub *h, uint64_t n,
                              world_rect r, world *w, int32_t *dst, char *why, size_t cap)
 {
+    store_cancel leaving = {.cancelled = world_leaving, .ctx = h};
     error_text err = {{0}};
     /* refused, not queued: a queue of slow rebuilds would hold every HTTP
      * worker (four) and starve the live reads and the probes */
@@ -285,9 +292,16 @@ static unsigned rebuild_past(const world *base_world, const http_status *st, uin
                  "per daemon); retry");
         return MHD_HTTP_SERVICE_UNAVAILABLE;
     }
-    int rc = w ? store_replay_world(st->replay_dir, base_world, n, r, w, &err)
-               : store_replay_rect(st->replay_dir, base_world, n, r, dst, &err);
+    int rc = w ? store_replay_world(st->replay_dir, base_world, n, r, w, &leaving, &err)
+               : store_replay_rect(st->replay_dir, base_world, n, r, dst, &leaving, &err);
     pthread_mutex_unlock(&replay_lock);
+    if (rc == STORE_CANCELLED) {
+        snprintf(why, cap,
+                 "parameter tick: the rebuild of tick %llu stopped: the world is leaving this "
+                 "server (deleted, or stopping)",
+                 (unsigned long long)n);
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
     if (rc == 1) {
         snprintf(why, cap,
                  "parameter tick: tick %llu is no longer held (the log before a newer tile "
@@ -319,7 +333,7 @@ static unsigned read_past(const world *base_world, const http_status *st, hub *h
                  "layer=heights|compaction)");
         return MHD_HTTP_BAD_REQUEST;
     }
-    unsigned status = past_tick(base_world, st, h, text, tick, why, cap);
+    unsigned status = past_tick(base_world, st, text, tick, why, cap);
     if (status)
         return status;
     if (*tick == 0) { /* before the first tick: the base, remembering nothing */
@@ -330,9 +344,9 @@ static unsigned read_past(const world *base_world, const http_status *st, hub *h
         return 0;
     }
     if (!compaction)
-        return rebuild_past(base_world, st, *tick, r, NULL, dst, why, cap);
+        return rebuild_past(base_world, st, h, *tick, r, NULL, dst, why, cap);
     world w;
-    status = rebuild_past(base_world, st, *tick, r, &w, NULL, why, cap);
+    status = rebuild_past(base_world, st, h, *tick, r, &w, NULL, why, cap);
     if (!status) {
         world_layer_gather(&w, WORLD_LAYER_COMPACTION, r, dst);
         world_free(&w);
@@ -349,11 +363,11 @@ static void stats_past(const world *base_world, const http_status *st, hub *h, c
 {
     char why[512], body[256];
     uint64_t n = 0;
-    unsigned status = past_tick(base_world, st, h, text, &n, why, sizeof why);
+    unsigned status = past_tick(base_world, st, text, &n, why, sizeof why);
     world w;
     world_rect all = {0, 0, st->world_width, st->world_height};
     if (!status)
-        status = rebuild_past(base_world, st, n, all, &w, NULL, why, sizeof why);
+        status = rebuild_past(base_world, st, h, n, all, &w, NULL, why, sizeof why);
     if (status)
         return http_answer_error(a, status, "%s", why);
     snprintf(body, sizeof body,
