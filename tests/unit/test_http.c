@@ -41,8 +41,11 @@ static void *sim_thread(void *arg)
 {
     (void)arg;
     while (!atomic_load(&sim_stop)) {
-        if (!atomic_load(&sim_paused))
-            hub_serve_reads(test_hub, &test_world, atomic_fetch_add(&sim_tick, 1) + 1);
+        if (!atomic_load(&sim_paused)) { /* a tick: published, then its reads */
+            uint64_t tick = atomic_fetch_add(&sim_tick, 1) + 1;
+            hub_publish_tick(test_hub, tick);
+            hub_serve_reads(test_hub, &test_world, tick);
+        }
         struct timespec ts = {0, 1000000};
         nanosleep(&ts, NULL);
     }
