@@ -716,6 +716,14 @@ void hub_close_reads(hub *h)
     pthread_mutex_unlock(&h->read_lock);
 }
 
+int hub_reads_closed(hub *h)
+{
+    pthread_mutex_lock(&h->read_lock);
+    int closed = h->reads_closed;
+    pthread_mutex_unlock(&h->read_lock);
+    return closed;
+}
+
 void hub_set_store_unavailable(hub *h, const char *reason)
 {
     THREAD_OWNED(&h->sim_end);

@@ -274,6 +274,9 @@ void hub_publish_tick(hub *h, uint64_t tick);
 uint64_t hub_published_tick(hub *h);
 /* sim thread, at exit: fail every pending and future read. */
 void hub_close_reads(hub *h);
+/* Any thread: 1 once the reads are closed (the world is leaving), so a long
+ * read beside the hub (a past-tick rebuild from the files) stops too. */
+int hub_reads_closed(hub *h);
 /* The world stops (deleted, lost, or the daemon stops): every HTTP edit
  * waiting for a tick, and every later one, is answered at once with
  * TERRAD_E_SHUTTING_DOWN and why, instead of waiting out its timeout. Any

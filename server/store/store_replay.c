@@ -240,44 +240,54 @@ static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect
     return rc;
 }
 
-/* One rebuild; 0, 1 (gone) or -1. */
+/* One rebuild; 0, 1 (gone), -1 or STORE_CANCELLED. */
 static int replay_once(const char *dir, const world *base, uint64_t tick, world_rect r,
-                       int32_t *dst, error_text *why)
+                       int32_t *dst, store_cancel *cancel, error_text *why)
 {
     world w;
-    int rc = rebuild(dir, base, tick, r, &w, dst, NULL, why);
+    int rc = rebuild(dir, base, tick, r, &w, dst, cancel, why);
     if (rc == 0)
         world_gather_window(&w, r, dst);
     world_free(&w);
     return rc;
 }
 
-int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
-                      error_text *why)
+/* The caller's cancel, or one that never says stop: the store's own copy (its seen). */
+static store_cancel cancel_copy(const store_cancel *cancel)
 {
+    return cancel ? (store_cancel){.cancelled = cancel->cancelled, .ctx = cancel->ctx}
+                  : (store_cancel){0};
+}
+
+int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
+                      const store_cancel *cancel, error_text *why)
+{
+    store_cancel c = cancel_copy(cancel);
     /* a compaction may delete a segment or replace a snapshot between the
-     * listing and the read: the next try sees the directory after it */
+     * listing and the read: the next try sees the directory after it (a
+     * cancelled rebuild is not tried again) */
     int rc = -1;
-    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) {
+    for (int attempt = 0; attempt < 3 && rc == -1; attempt++) {
         memset(why, 0, sizeof *why);
-        rc = replay_once(dir, base, tick, r, dst, why);
+        rc = replay_once(dir, base, tick, r, dst, &c, why);
     }
     return rc;
 }
 
 int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
-                       error_text *why)
+                       const store_cancel *cancel, error_text *why)
 {
+    store_cancel c = cancel_copy(cancel);
     int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
     if (!scratch) {
         error_set(why, "store: out of memory for a rebuild of %d x %d cells", r.w, r.h);
         return -1;
     }
     int rc = -1;
-    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
+    for (int attempt = 0; attempt < 3 && rc == -1; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
         memset(out, 0, sizeof *out);
-        rc = rebuild(dir, base, tick, r, out, scratch, NULL, why);
+        rc = rebuild(dir, base, tick, r, out, scratch, &c, why);
         if (tick == 0 && rc == 1)
             rc = 0; /* the base needs no log */
         if (rc != 0)
@@ -386,8 +396,7 @@ int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_r
     snprintf(c->dir, sizeof c->dir, "%s", dir);
     c->fd = -1, c->r = r, c->tick = tick;
     c->rec.clip = r; /* every record from here on: only r's cells */
-    if (cancel)
-        c->cancel = (store_cancel){.cancelled = cancel->cancelled, .ctx = cancel->ctx};
+    c->cancel = cancel_copy(cancel);
     int rc = -1;
     for (int attempt = 0; attempt < 3 && rc == -1; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
