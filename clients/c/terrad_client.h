@@ -208,6 +208,16 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
  * later polls (terrad_client_mirror_complete says when). */
 int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
                             uint32_t *sid_out);
+/* The same, with COLLIDERS frames for the region (PROTOCOL.md "COLLIDERS": every collider in
+ * view, other clients' and the daemon's too); grousers 1 asks for the wheels' grousers with
+ * them (the extension). terrad_client_colliders reads the latest frame. */
+int terrad_client_subscribe_colliders(terrad_client *c, int32_t x, int32_t y, uint32_t w,
+                                      uint32_t h, int grousers, uint32_t *sid_out);
+/* The latest COLLIDERS frame: copies up to cap entries (and, when grousers is not NULL, each
+ * one's grousers: all zero for none or from a frame without the extension) and returns how
+ * many the frame had (0 before the first). */
+size_t terrad_client_colliders(const terrad_client *c, terrad_collider_state *states,
+                               terrad_collider_grousers *grousers, size_t cap, uint64_t *tick_out);
 int terrad_client_unsubscribe(terrad_client *c, uint32_t sid);
 /* A terrain edit (PROTOCOL.md "edit"): edit_json is the message's fields as a
  * JSON object, e.g. {"op":"stamp","x":0,"y":0,"w":2,"h":2,"data":"..."}
