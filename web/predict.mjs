@@ -9,6 +9,9 @@
 // to the mirror, places the own colliders where tick t left them and applies the batches sent
 // after seq again. Nothing extra goes on the wire. The caller wires it to its connection: onSend
 // before a POSE_BATCH's bytes leave, onAck after an ACK (whose DELTAs the mirror has applied).
+// Neither throws: an event the twin fails on (at an ACK, a soil state it could not restore, out
+// of memory: the ACK is taken all the same) is counted in `errors` with the twin's sentence in
+// `lastError`, so the caller's message handler goes on and the next ACK compares and resets.
 
 export class Prediction {
     // twinModule: loadTwinModule(...)'s module; world: the server's world message; mirror:
@@ -24,6 +27,8 @@ export class Prediction {
         Object.assign(cfg, config);
         this.mirror = mirror;
         this.own = own;
+        this.errors = 0; // the client's events the twin failed on (onSend, onAck, resume)
+        this.lastError = ''; // the twin's sentence for the last of them
         this.twin = twinModule.createPrediction(cfg, mirror.x, mirror.y, mirror.w, mirror.h, mirror.heights, maxReplayTicks);
         try {
             for (const [id, { shape, dims }] of own) this.addCollider(id, shape, dims);
@@ -75,17 +80,28 @@ export class Prediction {
     // the latest acknowledged batch that moved it; later: [{seq, poses}] sent after the ACK's
     // seq, applied again as predictions. The next ACK then compares as with any other.
     resume(tick, last, later) {
-        this.twin.resume(tick, [...last].map(([id, p]) => ({ ...p, id })));
-        for (const { seq, poses } of later) this.twin.sent(seq, poses);
+        this.took(() => this.twin.resume(tick, [...last].map(([id, p]) => ({ ...p, id }))));
+        for (const { seq, poses } of later) this.onSend(seq, poses);
     }
 
     // Batch seq (poses as encodePoseBatch takes them) is about to be sent.
     onSend(seq, poses) {
-        this.twin.sent(seq, poses);
+        this.took(() => this.twin.sent(seq, poses));
     }
 
     // The server's ACK of tick (a BigInt or number), batch seq; the mirror is at that tick.
     onAck(tick, seq) {
-        this.twin.acked(tick, seq, this.mirror.complete ? this.mirror.heights : null);
+        this.took(() => this.twin.acked(tick, seq, this.mirror.complete ? this.mirror.heights : null));
+    }
+
+    // One of the client's events into the twin: a failure is counted with its sentence, not
+    // thrown (the ACK or batch was taken as far as the twin could; the client goes on).
+    took(call) {
+        try {
+            call();
+        } catch (e) {
+            this.errors++;
+            this.lastError = String(e.message || e);
+        }
     }
 }

@@ -27,6 +27,8 @@ const POSE_SIZE = 32, RECT_FIXED = 25, CONTACT_SIZE = 48, ACK_SIZE = 16, PING_SI
 const FOOTPRINT_SIZE = 24;
 const FORCE_SIZE = 48;
 export const FORCES_FLAG_HEIGHT = 0x01; // FORCES header flag: an f64 height after each entry (opt-in)
+export const COLLIDERS_FLAG_GROUSERS = 0x01; // COLLIDERS header flag: each entry's grousers after it (opt-in)
+const COLLIDER_GROUSERS_SIZE = 12, GROUSERS_MAX = 360;
 const FOOTPRINT_YAW_MAX = Math.fround(3.1416); // pi rounded up to float32
 const MAX_COUNT = 0xffff;
 
@@ -50,8 +52,9 @@ export function decodeHeader(buf) {
   if (b[0] !== MAGIC) throw new ProtoError('bad_frame', `magic 0x${b[0].toString(16)}`);
   if (b[1] !== PROTOCOL_VERSION) throw new ProtoError('bad_version', `protocol version ${b[1]}`);
   if (!(b[2] in TYPE_NAMES)) throw new ProtoError('unknown_type', `type 0x${b[2].toString(16)}`);
-  // the one flag defined: FORCES' height extension (PROTOCOL.md "FORCES")
-  if (b[3] & ~(b[2] === MsgType.FORCES ? FORCES_FLAG_HEIGHT : 0)) throw new ProtoError('bad_frame', 'reserved flags set');
+  // the flags defined, each an extension a client asks for: FORCES' heights, COLLIDERS' grousers
+  const defined = b[2] === MsgType.FORCES ? FORCES_FLAG_HEIGHT : b[2] === MsgType.COLLIDERS ? COLLIDERS_FLAG_GROUSERS : 0;
+  if (b[3] & ~defined) throw new ProtoError('bad_frame', 'reserved flags set');
   return b[2];
 }
 
@@ -175,17 +178,21 @@ export function decodeContact(buf) {
   return { tick, contacts };
 }
 
-// COLLIDERS: every collider meeting the subscriber's regions, [{id, owner, kind, dims, p, q}]
+// COLLIDERS: every collider meeting the subscriber's regions, [{id, owner, kind, dims, p, q}], and with
+// the header flag COLLIDERS_FLAG_GROUSERS (the grousers extension: a subscription made with grousers)
+// each entry's grousers: {count, height, thickness} (m) on a lugged wheel, lug 0 along the entry's -z
+// turned with q, else null.
 export function decodeColliders(buf) {
   const b = bytes(buf);
   expect(b, MsgType.COLLIDERS);
   if (b.length < 14) throw new ProtoError('bad_frame', 'truncated');
   const v = view(b);
   const tick = v.getBigUint64(4, true), count = v.getUint16(12, true);
-  if (b.length - 14 !== count * COLLIDER_STATE_SIZE) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
+  const lugged = (b[3] & COLLIDERS_FLAG_GROUSERS) !== 0, size = COLLIDER_STATE_SIZE + (lugged ? COLLIDER_GROUSERS_SIZE : 0);
+  if (b.length - 14 !== count * size) throw new ProtoError('bad_frame', `count ${count} does not match the frame`);
   const colliders = [];
   for (let i = 0; i < count; i++) {
-    const o = 14 + i * COLLIDER_STATE_SIZE;
+    const o = 14 + i * size;
     const id = v.getUint32(o, true), owner = b[o + 4], kind = b[o + 5];
     if (v.getUint16(o + 6, true) !== 0) throw new ProtoError('bad_value', `collider ${id}: reserved bytes set`);
     if (owner > Owner.DEMO) throw new ProtoError('bad_value', `collider ${id}: owner ${owner}`);
@@ -195,9 +202,26 @@ export function decodeColliders(buf) {
     if (!f.every(Number.isFinite)) throw new ProtoError('bad_value', `collider ${id} is not finite`);
     if (f[0] < 0 || f[1] < 0 || f[2] < 0) throw new ProtoError('bad_value', `collider ${id}: negative dimension`);
     checkQuaternion(f[6], f[7], f[8], f[9]);
-    colliders.push({ id, owner, kind, dims: f.slice(0, 3), p: f.slice(3, 6), q: f.slice(6, 10) });
+    const entry = { id, owner, kind, dims: f.slice(0, 3), p: f.slice(3, 6), q: f.slice(6, 10) };
+    if (lugged) entry.grousers = decodeGrousers(v, o + COLLIDER_STATE_SIZE, entry);
+    colliders.push(entry);
   }
   return { tick, colliders };
+}
+
+// One entry's grousers (the extension): null for none, else lugs on a cylinder's rim, each height and
+// thickness > 0 and at most its radius.
+function decodeGrousers(v, o, c) {
+  const count = v.getUint16(o, true), height = v.getFloat32(o + 4, true), thickness = v.getFloat32(o + 8, true);
+  if (v.getUint16(o + 2, true) !== 0) throw new ProtoError('bad_value', `collider ${c.id}: the grousers' reserved bytes set`);
+  if (count === 0) {
+    if (height !== 0 || thickness !== 0) throw new ProtoError('bad_value', `collider ${c.id}: no grousers but a height or thickness`);
+    return null;
+  }
+  if (count > GROUSERS_MAX || c.kind !== ColliderKind.CYLINDER) throw new ProtoError('bad_value', `collider ${c.id}: ${count} grousers on kind ${c.kind}`);
+  if (!(height > 0 && height <= c.dims[0] && thickness > 0 && thickness <= c.dims[0]))
+    throw new ProtoError('bad_value', `collider ${c.id}: grousers ${height} m tall, ${thickness} m thick (each > 0 and <= the radius)`);
+  return { count, height, thickness };
 }
 
 // FOOTPRINTS: the decals model's events inside the subscriber's regions,
@@ -696,8 +720,10 @@ export const hello = (token = '', client = 'terrad-web', world = '', budget = -1
      ...(budget >= 0 ? { budget } : {}), ...(snapshotBase ? { snapshot_base: true } : {}) });
 // a budgeted client's focus in cells (its nearest tiles first); no x, y: cleared
 export const focus = (x = -1, y = -1) => (x < 0 || y < 0 ? { type: 'focus' } : { type: 'focus', x, y });
-export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false) =>
-  withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}) }, ref);
+// grousers (with colliders): COLLIDERS entries carry the wheels' grousers (PROTOCOL.md "COLLIDERS")
+export const subscribe = (x, y, w, h, ref, colliders = false, footprints = false, grousers = false) =>
+  withRef({ type: 'subscribe', x, y, w, h, ...(colliders ? { colliders: true } : {}), ...(footprints ? { footprints: true } : {}),
+    ...(grousers ? { grousers: true } : {}) }, ref);
 export const unsubscribe = (id, ref) => withRef({ type: 'unsubscribe', id }, ref);
 // admin: {type: 'event', event, world} for each world made or ended (PROTOCOL.md subscribe_events)
 export const subscribeEvents = (events = ['world_created', 'world_deleted'], ref) =>

@@ -1074,7 +1074,7 @@ window.terrad = {
     return (app.uploaded || m.heights)[j * m.w + i];
   },
   // the prediction: {enabled, available, reason, active, window, pending, predicted,
-  // reconciled, replayed, exact, skipped, onTime, lastDiffering} (predict.mjs's counters)
+  // reconciled, replayed, exact, skipped, onTime, lastDiffering, errors, lastError} (predict.mjs's counters)
   get prediction() { return prediction.stats(); },
   // desync detection (PROTOCOL.md "CHECKSUM"): {checksumFrames, checksumTick, tilesDiffering, tilesResynced}
   get desync() { return { ...app.desync, checksumTick: Number(app.desync.checksumTick) }; },

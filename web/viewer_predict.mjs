@@ -235,7 +235,8 @@ export class ViewerPrediction {
         if (!p) return s;
         const { x, y, w, h } = p.mirror;
         return { ...s, window: { x, y, w, h }, pending: p.pending.length, predicted: p.predicted, reconciled: p.reconciled,
-            replayed: p.replayed, exact: p.exact, skipped: p.skipped, onTime: p.onTime, lastDiffering: p.lastDiffering };
+            replayed: p.replayed, exact: p.exact, skipped: p.skipped, onTime: p.onTime, lastDiffering: p.lastDiffering,
+            errors: p.errors, lastError: p.lastError };
     }
 }
 

@@ -310,6 +310,12 @@ typedef struct terrad_prediction_stats {
     uint64_t on_time;    /* ACKs whose batch's prediction already was the server's heights */
     uint64_t last_differing; /* cells of the last comparison */
     uint64_t pending;        /* batches sent and not acknowledged yet */
+    /* added in 0.5 (appended: the fields above are where they were): the client's events the
+     * twin failed on — an ACK or batch taken but with the soil state not restored (out of
+     * memory: inexact until the state is pressed anew), a batch not predicted, an own
+     * collider not added or removed; terrad_prediction_last_error says why. The client goes
+     * on: every later ACK is taken, compared and reset to the mirror as before. */
+    uint64_t errors;
 } terrad_prediction_stats;
 
 int terrad_client_predict(terrad_client *c, uint32_t sid, const char *config,
@@ -318,6 +324,8 @@ int terrad_client_predict(terrad_client *c, uint32_t sid, const char *config,
  * the mirror's), valid until the next call on the client. */
 const int32_t *terrad_prediction_heights(const terrad_prediction *p);
 const terrad_prediction_stats *terrad_prediction_get_stats(const terrad_prediction *p);
+/* The twin's sentence for the last of stats.errors ("" while there is none). */
+const char *terrad_prediction_last_error(const terrad_prediction *p);
 /* Ends a prediction (terrad_client_close ends those left). */
 void terrad_prediction_stop(terrad_prediction *p);
 

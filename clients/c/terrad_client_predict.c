@@ -6,7 +6,10 @@
  * mirror and the world, and hands it the client's events: each pose batch
  * sent (one tick of the twin at once, before the bytes leave), each ACK (the
  * mirror then holds the server's heights at its tick: reconcile), each own
- * collider created or deleted.
+ * collider created or deleted. An event the twin fails on (a soil state it
+ * could not restore at an ACK, out of memory) is counted in the prediction's
+ * stats with its sentence, and the client goes on: the frame is processed and
+ * the next ACK reconciles again.
  */
 #ifndef _POSIX_C_SOURCE
 #define _POSIX_C_SOURCE 200809L
@@ -25,15 +28,26 @@ struct terrad_prediction {
     terrad_client *client;
     uint32_t sid;
     terrad_twin_prediction *twin;
-    terrad_prediction_stats stats; /* the twin's, as of the last event */
+    terrad_prediction_stats stats; /* the twin's, as of the last event, and errors */
+    char last_error[TERRAD_TWIN_ERROR_MAX];
 };
 
 static void sync_stats(terrad_prediction *p)
 {
     const terrad_twin_prediction_stats *t = terrad_twin_prediction_get_stats(p->twin);
-    p->stats =
-        (terrad_prediction_stats){t->predicted, t->reconciled, t->replayed,       t->exact,
-                                  t->skipped,   t->on_time,    t->last_differing, t->pending};
+    p->stats = (terrad_prediction_stats){t->predicted,      t->reconciled, t->replayed,
+                                         t->exact,          t->skipped,    t->on_time,
+                                         t->last_differing, t->pending,    p->stats.errors};
+}
+
+/* The twin's call for one of the client's events returned rc: a failure is
+ * counted with its sentence (err), and the client goes on. */
+static void took(terrad_prediction *p, int rc, const char *err)
+{
+    if (rc == 0)
+        return;
+    p->stats.errors++;
+    snprintf(p->last_error, sizeof p->last_error, "%s", err);
 }
 
 /* The twin's copy of an own collider (only default-material ones: the twin
@@ -206,6 +220,11 @@ const terrad_prediction_stats *terrad_prediction_get_stats(const terrad_predicti
     return p ? &p->stats : NULL;
 }
 
+const char *terrad_prediction_last_error(const terrad_prediction *p)
+{
+    return p ? p->last_error : "";
+}
+
 void terrad_prediction_stop(terrad_prediction *p)
 {
     if (!p)
@@ -232,11 +251,11 @@ void predict_sent(terrad_client *c, uint32_t seq, const terrad_pose *poses, size
         const double pose[7] = {q->x, q->y, q->z, q->qw, q->qx, q->qy, q->qz};
         memcpy(v + 7 * i, pose, sizeof pose);
     }
-    char err[TERRAD_TWIN_ERROR_MAX];
+    char err[TERRAD_TWIN_ERROR_MAX] = "sent: out of memory";
     for (terrad_prediction *p = *client_predictions(c); p; p = p->next) {
         /* out of memory: this batch is not predicted; the next ACK resets */
-        if (ids && v)
-            terrad_twin_prediction_sent(p->twin, seq, ids, v, (int)count, err);
+        took(p, ids && v ? terrad_twin_prediction_sent(p->twin, seq, ids, v, (int)count, err) : -1,
+             err);
         sync_stats(p);
     }
     free(ids);
@@ -249,7 +268,8 @@ void predict_acked(terrad_client *c, uint64_t tick, uint32_t seq)
     for (terrad_prediction *p = *client_predictions(c); p; p = p->next) {
         const terrad_mirror *m = terrad_client_mirror(c, p->sid);
         const int32_t *server = m && terrad_client_mirror_complete(c, p->sid) ? m->heights : NULL;
-        terrad_twin_prediction_acked(p->twin, tick, seq, server, err);
+        /* -1 also when the ACK was taken but the soil state not restored: counted */
+        took(p, terrad_twin_prediction_acked(p->twin, tick, seq, server, err), err);
         sync_stats(p);
     }
 }
@@ -258,9 +278,10 @@ void predict_collider(terrad_client *c, const client_own *o, int added)
 {
     char err[TERRAD_TWIN_ERROR_MAX];
     for (terrad_prediction *p = *client_predictions(c); p; p = p->next) {
-        if (!added)
-            terrad_twin_prediction_remove_collider(p->twin, o->id, err);
-        else if (add_own(p, o, err))
+        int rc = added ? add_own(p, o, err)
+                       : terrad_twin_prediction_remove_collider(p->twin, o->id, err);
+        took(p, rc, err);
+        if (rc && added)
             client_set_error(c, "predict: collider %u: %s", (unsigned)o->id, err);
     }
 }

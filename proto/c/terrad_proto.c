@@ -228,8 +228,12 @@ int terrad_header_decode(const uint8_t *buf, size_t len, terrad_header *out)
         return TERRAD_E_BAD_VERSION;
     if (!terrad_msg_type_name(buf[2]))
         return TERRAD_E_UNKNOWN_TYPE;
-    /* the one flag defined: FORCES' heights (an extension a client asks for) */
-    if (buf[3] & ~(buf[2] == TERRAD_MSG_FORCES ? TERRAD_FORCES_FLAG_HEIGHT : 0))
+    /* the flags defined, each an extension a client asks for: FORCES' heights,
+     * COLLIDERS' grousers; any other bit, or a bit on another type, is refused */
+    uint8_t defined = buf[2] == TERRAD_MSG_FORCES      ? TERRAD_FORCES_FLAG_HEIGHT
+                      : buf[2] == TERRAD_MSG_COLLIDERS ? TERRAD_COLLIDERS_FLAG_GROUSERS
+                                                       : 0;
+    if (buf[3] & ~defined)
         return TERRAD_E_BAD_FRAME;
     if (out) {
         out->magic = buf[0];
@@ -462,7 +466,20 @@ int terrad_delta_decode(const uint8_t *buf, size_t len, uint64_t *tick_out, terr
  * One outline: the header, the tick (u64), a count (u16), then count entries
  * of one fixed size. Each frame gives its entry's check (the values a codec
  * refuses as bad_value), its writer and its reader; encode checks every entry
- * before writing any byte, decode stores an entry only once it is checked. */
+ * before writing any byte, decode stores an entry only once it is checked.
+ *
+ * An extension a client asks for (FORCES' heights, COLLIDERS' grousers) is a
+ * header flag and a fixed number of bytes after every entry of the flagged
+ * frame: the frame's tick_ext says which flag, its size and how it is
+ * checked (with its entry), written and read. */
+
+typedef struct tick_ext {
+    uint8_t flag;
+    size_t size, elem_size; /* wire; memory */
+    int (*check)(const void *entry, const void *ext);
+    uint8_t *(*write)(uint8_t *p, const void *ext);
+    int (*read)(rd *r, void *ext); /* TERRAD_OK, or the extension's error (a reserved field) */
+} tick_ext;
 
 typedef struct tick_list {
     uint8_t type;
@@ -470,6 +487,7 @@ typedef struct tick_list {
     int (*check)(const void *e);
     uint8_t *(*write)(uint8_t *p, const void *e);
     int (*read)(rd *r, void *e); /* TERRAD_OK, or the entry's error (a reserved field) */
+    const tick_ext *ext;         /* NULL: the frame has no extension */
 } tick_list;
 
 /* Any entry of a tick list, for decoding one before it is checked. */
@@ -480,48 +498,57 @@ typedef union tick_entry {
     terrad_force force;
 } tick_entry;
 
-/* extra: NULL, or (FORCES) one f64 per entry written after it, with the
- * frame's TERRAD_FORCES_FLAG_HEIGHT set */
+/* Any extension of an entry, likewise. */
+typedef union tick_entry_ext {
+    double height;
+    terrad_collider_grousers grousers;
+} tick_entry_ext;
+
+/* exts: NULL, or (t->ext) one extension per entry written after it, with the
+ * frame's extension flag set */
 static int tick_list_encode(const tick_list *t, uint8_t *buf, size_t cap, size_t *len_out,
-                            uint64_t tick, const void *entries, const double *extra, size_t count)
+                            uint64_t tick, const void *entries, const void *exts, size_t count)
 {
-    const uint8_t *e = entries;
+    const uint8_t *e = entries, *x = exts;
+    const tick_ext *xt = exts ? t->ext : NULL;
+    if (exts && !xt)
+        return TERRAD_E_BAD_VALUE;
     if (count > TERRAD_MAX_COUNT)
         return TERRAD_E_TOO_LARGE;
     for (size_t i = 0; i < count; i++)
-        if (t->check(e + i * t->elem_size) || (extra && !isfinite(extra[i])))
+        if (t->check(e + i * t->elem_size) ||
+            (xt && xt->check(e + i * t->elem_size, x + i * xt->elem_size)))
             return TERRAD_E_BAD_VALUE;
-    size_t need = t->fixed + count * (t->entry_size + (extra ? sizeof(double) : 0));
+    size_t need = t->fixed + count * (t->entry_size + (xt ? xt->size : 0));
     if (!buf || cap < need)
         return TERRAD_E_BUFFER_TOO_SMALL;
     uint8_t *p = wr_header(buf, t->type);
-    if (extra)
-        buf[3] = TERRAD_FORCES_FLAG_HEIGHT;
+    if (xt)
+        buf[3] = xt->flag;
     p = wr_u64(p, tick);
     p = wr_u16(p, (uint16_t)count);
     for (size_t i = 0; i < count; i++) {
         p = t->write(p, e + i * t->elem_size);
-        if (extra)
-            p = wr_f64(p, extra[i]);
+        if (xt)
+            p = xt->write(p, x + i * xt->elem_size);
     }
     if (len_out)
         *len_out = need;
     return TERRAD_OK;
 }
 
-/* extra: NULL, or where the f64 after each entry goes when the frame's
- * TERRAD_FORCES_FLAG_HEIGHT is set (entries' memory may then be NULL);
- * *has_extra, when given, says whether it was set */
+/* exts: NULL, or where the extension after each entry goes when the frame's
+ * flag is set (entries' memory may then be NULL); *has_ext, when given, says
+ * whether it was set */
 static int tick_list_decode(const tick_list *t, const uint8_t *buf, size_t len, uint64_t *tick_out,
-                            void *entries, double *extra, int *has_extra, size_t cap,
-                            size_t *count_out)
+                            void *entries, void *exts, int *has_ext, size_t cap, size_t *count_out)
 {
     rd r;
     int rc = expect_header(buf, len, t->type, &r);
     if (rc)
         return rc;
-    int flagged = (buf[3] & TERRAD_FORCES_FLAG_HEIGHT) != 0;
-    size_t size = t->entry_size + (flagged ? sizeof(double) : 0);
+    const tick_ext *xt = t->ext && (buf[3] & t->ext->flag) ? t->ext : NULL;
+    size_t size = t->entry_size + (xt ? xt->size : 0);
     if (rd_left(&r) < 10)
         return TERRAD_E_BAD_FRAME;
     uint64_t tick = rd_u64(&r);
@@ -537,16 +564,17 @@ static int tick_list_decode(const tick_list *t, const uint8_t *buf, size_t len, 
             return rc ? rc : TERRAD_E_BAD_VALUE;
         if (entries)
             memcpy((uint8_t *)entries + i * t->elem_size, &one, t->elem_size);
-        if (flagged) {
-            double h = rd_f64(&r);
-            if (!isfinite(h))
-                return TERRAD_E_BAD_VALUE;
-            if (extra)
-                extra[i] = h;
+        if (xt) {
+            tick_entry_ext more;
+            rc = xt->read(&r, &more);
+            if (rc || xt->check(&one, &more))
+                return rc ? rc : TERRAD_E_BAD_VALUE;
+            if (exts)
+                memcpy((uint8_t *)exts + i * xt->elem_size, &more, xt->elem_size);
         }
     }
-    if (has_extra)
-        *has_extra = flagged;
+    if (has_ext)
+        *has_ext = xt != NULL;
     if (tick_out)
         *tick_out = tick;
     if (count_out)
@@ -609,7 +637,7 @@ static int contact_read(rd *r, void *e)
 
 static const tick_list contact_list = {
     TERRAD_MSG_CONTACT, TERRAD_CONTACT_FIXED, TERRAD_CONTACT_SIZE, sizeof(terrad_contact),
-    contact_check,      contact_write,        contact_read};
+    contact_check,      contact_write,        contact_read,        NULL};
 
 size_t terrad_contact_size(size_t count)
 {
@@ -676,10 +704,51 @@ static int collider_state_read(rd *r, void *e)
     return TERRAD_OK;
 }
 
+/* The grousers extension of an entry: none (count 0, all zero), or lugs on a
+ * cylinder's rim, each height and thickness > 0 and at most its radius (as
+ * collider_create refuses otherwise; f32 rounding keeps the order). */
+static int collider_grousers_check(const void *entry, const void *ext)
+{
+    const terrad_collider_state *c = entry;
+    const terrad_collider_grousers *g = ext;
+    if (g->count == 0)
+        return g->height_m == 0.0f && g->thickness_m == 0.0f ? TERRAD_OK : TERRAD_E_BAD_VALUE;
+    if (g->count > TERRAD_GROUSERS_MAX || c->kind != TERRAD_KIND_CYLINDER)
+        return TERRAD_E_BAD_VALUE;
+    if (!(g->height_m > 0.0f && g->height_m <= c->dims[0]) ||
+        !(g->thickness_m > 0.0f && g->thickness_m <= c->dims[0]))
+        return TERRAD_E_BAD_VALUE; /* NaN fails both */
+    return TERRAD_OK;
+}
+
+static uint8_t *collider_grousers_write(uint8_t *p, const void *ext)
+{
+    const terrad_collider_grousers *g = ext;
+    p = wr_u16(p, g->count);
+    p = wr_u16(p, 0);
+    p = wr_f32(p, g->height_m);
+    return wr_f32(p, g->thickness_m);
+}
+
+static int collider_grousers_read(rd *r, void *ext)
+{
+    terrad_collider_grousers *g = ext;
+    g->count = rd_u16(r);
+    if (rd_u16(r) != 0) /* reserved */
+        return TERRAD_E_BAD_VALUE;
+    g->height_m = rd_f32(r);
+    g->thickness_m = rd_f32(r);
+    return TERRAD_OK;
+}
+
+static const tick_ext colliders_grousers_ext = {
+    TERRAD_COLLIDERS_FLAG_GROUSERS, TERRAD_COLLIDER_GROUSERS_SIZE, sizeof(terrad_collider_grousers),
+    collider_grousers_check,        collider_grousers_write,       collider_grousers_read};
+
 static const tick_list colliders_list = {TERRAD_MSG_COLLIDERS,       TERRAD_COLLIDERS_FIXED,
                                          TERRAD_COLLIDER_STATE_SIZE, sizeof(terrad_collider_state),
                                          collider_state_check,       collider_state_write,
-                                         collider_state_read};
+                                         collider_state_read,        &colliders_grousers_ext};
 
 size_t terrad_colliders_size(size_t count)
 {
@@ -697,6 +766,37 @@ int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
 {
     return tick_list_decode(&colliders_list, buf, len, tick_out, states, NULL, NULL, cap,
                             count_out);
+}
+
+size_t terrad_colliders_grousers_size(size_t count)
+{
+    return TERRAD_COLLIDERS_FIXED +
+           count * (TERRAD_COLLIDER_STATE_SIZE + TERRAD_COLLIDER_GROUSERS_SIZE);
+}
+
+int terrad_colliders_encode_grousers(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                                     const terrad_collider_state *states,
+                                     const terrad_collider_grousers *grousers, size_t count)
+{
+    if (!grousers && count > 0)
+        return TERRAD_E_BAD_VALUE;
+    static const terrad_collider_grousers none; /* a frame of no entries still carries the flag */
+    return tick_list_encode(&colliders_list, buf, cap, len_out, tick, states,
+                            grousers ? grousers : &none, count);
+}
+
+int terrad_colliders_grousers(const uint8_t *buf, size_t len, terrad_collider_grousers *grousers,
+                              size_t cap, size_t *count_out)
+{
+    int flagged = 0;
+    size_t count = 0;
+    int rc =
+        tick_list_decode(&colliders_list, buf, len, NULL, NULL, grousers, &flagged, cap, &count);
+    if (rc)
+        return rc;
+    if (count_out)
+        *count_out = flagged ? count : 0;
+    return TERRAD_OK;
 }
 
 /* FOOTPRINTS */
@@ -740,7 +840,7 @@ static int footprint_read(rd *r, void *e)
 
 static const tick_list footprints_list = {
     TERRAD_MSG_FOOTPRINTS, TERRAD_FOOTPRINTS_FIXED, TERRAD_FOOTPRINT_SIZE, sizeof(terrad_footprint),
-    footprint_check,       footprint_write,         footprint_read};
+    footprint_check,       footprint_write,         footprint_read,        NULL};
 
 size_t terrad_footprints_size(size_t count)
 {
@@ -801,9 +901,31 @@ static int force_read(rd *r, void *e)
     return TERRAD_OK;
 }
 
-static const tick_list forces_list = {
-    TERRAD_MSG_FORCES, TERRAD_FORCES_FIXED, TERRAD_FORCE_SIZE, sizeof(terrad_force),
-    force_check,       force_write,         force_read};
+/* The height extension: one f64 (m), finite. */
+static int force_height_check(const void *entry, const void *ext)
+{
+    (void)entry;
+    return isfinite(*(const double *)ext) ? TERRAD_OK : TERRAD_E_BAD_VALUE;
+}
+
+static uint8_t *force_height_write(uint8_t *p, const void *ext)
+{
+    return wr_f64(p, *(const double *)ext);
+}
+
+static int force_height_read(rd *r, void *ext)
+{
+    *(double *)ext = rd_f64(r);
+    return TERRAD_OK;
+}
+
+static const tick_ext forces_height_ext = {
+    TERRAD_FORCES_FLAG_HEIGHT, TERRAD_FORCE_HEIGHT_SIZE, sizeof(double),
+    force_height_check,        force_height_write,       force_height_read};
+
+static const tick_list forces_list = {TERRAD_MSG_FORCES,    TERRAD_FORCES_FIXED, TERRAD_FORCE_SIZE,
+                                      sizeof(terrad_force), force_check,         force_write,
+                                      force_read,           &forces_height_ext};
 
 size_t terrad_forces_size(size_t count)
 {

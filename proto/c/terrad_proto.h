@@ -59,6 +59,10 @@ extern "C" {
 #define TERRAD_TILE_SUM_SIZE 20        /* i32 tile x, i32 tile y, u32 version, u64 hash */
 #define TERRAD_MAX_COUNT 65535         /* every count on the wire is a u16 */
 
+/* COLLIDERS' grousers extension: the header flag, and its bytes after each entry */
+#define TERRAD_COLLIDERS_FLAG_GROUSERS 0x01
+#define TERRAD_COLLIDER_GROUSERS_SIZE 12 /* u16 count, u16 0, f32 height, thickness */
+
 typedef enum terrad_msg_type {
     TERRAD_MSG_POSE_BATCH = 0x01, /* client -> server */
     TERRAD_MSG_PING = 0x02,       /* either way */
@@ -122,7 +126,8 @@ typedef struct terrad_header {
 
 /* Checks, in this order: length >= 4 (bad_frame), magic (bad_frame), version
  * (bad_version), type known (unknown_type), flags zero (bad_frame) but for
- * the one flag defined, FORCES' TERRAD_FORCES_FLAG_HEIGHT. */
+ * the flags defined: FORCES' TERRAD_FORCES_FLAG_HEIGHT, COLLIDERS'
+ * TERRAD_COLLIDERS_FLAG_GROUSERS. */
 int terrad_header_decode(const uint8_t *buf, size_t len, terrad_header *out);
 
 /* ---- POSE_BATCH ---------------------------------------------------------- */
@@ -223,6 +228,31 @@ int terrad_colliders_encode(uint8_t *buf, size_t cap, size_t *len_out, uint64_t 
                             const terrad_collider_state *states, size_t count);
 int terrad_colliders_decode(const uint8_t *buf, size_t len, uint64_t *tick_out,
                             terrad_collider_state *states, size_t cap, size_t *count_out);
+/*
+ * The grousers extension (PROTOCOL.md "COLLIDERS"): a frame with the header
+ * flag TERRAD_COLLIDERS_FLAG_GROUSERS carries after each 48-byte entry 12
+ * bytes, the entry's grousers: u16 count (0: none), u16 reserved 0, f32
+ * height and thickness (m). Lug 0 points along the entry's -z, lug k turned
+ * 360 k / count degrees about its y (the axle), so the entry's q is the
+ * lugs' phase. Sent only to a client whose subscription asked ("grousers":
+ * true) and only when an entry has lugs, so a client that never asks never
+ * sees the flag. terrad_colliders_decode reads both forms (the grousers
+ * skipped); terrad_colliders_grousers reads the grousers of one (count 0
+ * without the flag).
+ */
+#define TERRAD_GROUSERS_MAX 360
+typedef struct terrad_collider_grousers {
+    uint16_t count;    /* 0: none (all zero); 1..TERRAD_GROUSERS_MAX, on a cylinder only */
+    float height_m;    /* count > 0: > 0 and <= the entry's radius */
+    float thickness_m; /* count > 0: > 0 and <= the entry's radius */
+} terrad_collider_grousers;
+
+size_t terrad_colliders_grousers_size(size_t count);
+int terrad_colliders_encode_grousers(uint8_t *buf, size_t cap, size_t *len_out, uint64_t tick,
+                                     const terrad_collider_state *states,
+                                     const terrad_collider_grousers *grousers, size_t count);
+int terrad_colliders_grousers(const uint8_t *buf, size_t len, terrad_collider_grousers *grousers,
+                              size_t cap, size_t *count_out);
 
 /* ---- FOOTPRINTS ---------------------------------------------------------- */
 

@@ -685,6 +685,84 @@ static void colliders_vectors(void)
             TERRAD_E_BAD_FRAME);
 }
 
+/* The grousers extension (PROTOCOL.md "COLLIDERS"): the fields say "grousers": true and each
+ * entry's "grousers", {count, height, thickness} or null for none. */
+static cJSON *colliders_grousers_fields(uint64_t tick, const terrad_collider_state *c,
+                                        const terrad_collider_grousers *g, size_t n)
+{
+    cJSON *f = colliders_fields(tick, c, n);
+    cJSON_AddBoolToObject(f, "grousers", 1);
+    cJSON *a = cJSON_GetObjectItemCaseSensitive(f, "colliders");
+    for (size_t i = 0; i < n; i++) {
+        cJSON *e = cJSON_GetArrayItem(a, (int)i);
+        if (g[i].count == 0) {
+            cJSON_AddNullToObject(e, "grousers");
+            continue;
+        }
+        cJSON *o = cJSON_AddObjectToObject(e, "grousers");
+        cJSON_AddNumberToObject(o, "count", g[i].count);
+        cJSON_AddNumberToObject(o, "height", g[i].height_m);
+        cJSON_AddNumberToObject(o, "thickness", g[i].thickness_m);
+    }
+    return f;
+}
+
+static void colliders_grousers_vectors(void)
+{
+    size_t len;
+    ok(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 8, NULL, NULL, 0), "grousers");
+    valid(vector("colliders_grousers_empty", "COLLIDERS",
+                 "the grousers extension (header flag 0x01) with no collider in view"),
+          colliders_grousers_fields(8, NULL, NULL, 0), buf, len);
+    terrad_collider_state c[3] = {
+        {9,
+         TERRAD_OWNER_OTHER,
+         TERRAD_KIND_CYLINDER,
+         {0.35f, 0.125f, 0},
+         {-3.0f, 40.5f, 0.25f},
+         {0.96592583f, 0.0f, 0.25881905f, 0.0f}}, /* turned 30 degrees about its axle */
+        {5, TERRAD_OWNER_OWN, TERRAD_KIND_SPHERE, {0.3f, 0, 0}, {1.5f, 2.25f, 0.25f}, {1, 0, 0, 0}},
+        {10, TERRAD_OWNER_OWN, TERRAD_KIND_CYLINDER, {0.5f, 0.2f, 0}, {4, 5, 0.5f}, {1, 0, 0, 0}},
+    };
+    terrad_collider_grousers g[3] = {{30, 0.01f, 0.004f}, {0, 0, 0}, {360, 0.5f, 0.5f}};
+    ok(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 123456789013ull, c, g, 3),
+       "grousers");
+    valid(vector("colliders_grousers", "COLLIDERS",
+                 "the grousers extension: another client's lugged wheel turned 30 degrees, a "
+                 "sphere (none), a wheel of 360 lugs as tall and thick as its radius"),
+          colliders_grousers_fields(123456789013ull, c, g, 3), buf, len);
+    const size_t e0 = TERRAD_COLLIDERS_FIXED + TERRAD_COLLIDER_STATE_SIZE; /* first grousers */
+    const size_t e1 = e0 + TERRAD_COLLIDER_GROUSERS_SIZE + TERRAD_COLLIDER_STATE_SIZE;
+    uint8_t q[256];
+    memcpy(q, buf, len);
+    set_u16(q + e1, 4);
+    invalid("colliders_grousers_on_sphere", "COLLIDERS", "4 grousers on a sphere", q, len,
+            TERRAD_E_BAD_VALUE);
+    memcpy(q, buf, len);
+    set_u16(q + e0, 361);
+    invalid("colliders_grousers_count", "COLLIDERS", "361 grousers", q, len, TERRAD_E_BAD_VALUE);
+    bad_byte("colliders_grousers_reserved", "COLLIDERS", "the grousers' reserved bytes set", len,
+             e0 + 2, 1, TERRAD_E_BAD_VALUE);
+    bad_f32("colliders_grousers_nan", "COLLIDERS", "grouser height NaN", len, e0 + 4, NAN);
+    bad_f32("colliders_grousers_zero", "COLLIDERS", "grouser thickness 0 with 30 grousers", len,
+            e0 + 8, 0.0f);
+    bad_f32("colliders_grousers_tall", "COLLIDERS", "grousers taller than the wheel's radius", len,
+            e0 + 4, 0.375f);
+    bad_f32("colliders_grousers_none_sized", "COLLIDERS", "no grousers but a height", len, e1 + 4,
+            0.01f);
+    invalid("colliders_grousers_truncated", "COLLIDERS", "the last grousers cut short", buf,
+            len - 4, TERRAD_E_BAD_FRAME);
+    bad_byte("colliders_grousers_unflagged", "COLLIDERS",
+             "60-byte entries without the flag: the lengths do not add up", len, 3, 0,
+             TERRAD_E_BAD_FRAME);
+    bad_byte("colliders_grousers_flag_2", "COLLIDERS", "header flag 0x02, undefined", len, 3, 2,
+             TERRAD_E_BAD_FRAME);
+    ok(terrad_colliders_encode(buf, sizeof buf, &len, 123456789013ull, c, 3), "colliders");
+    bad_byte("colliders_flagged_48", "COLLIDERS",
+             "the flag on 48-byte entries: the lengths do not add up", len, 3, 1,
+             TERRAD_E_BAD_FRAME);
+}
+
 /* ---- FOOTPRINTS ---- */
 
 static cJSON *footprint_json(const void *entry)
@@ -1099,6 +1177,7 @@ int main(void)
     delta_vectors();
     small_vectors();
     colliders_vectors();
+    colliders_grousers_vectors();
     footprints_vectors();
     forces_vectors();
     step_vectors();

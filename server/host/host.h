@@ -100,6 +100,7 @@ typedef struct host_sim {
     char *twin_json;
     char backend_reason[HOST_BACKEND_REASON_MAX]; /* why this backend (host_backend_create) */
     uint64_t overruns;
+    int clients;      /* the net's count for this tick's status (host_sim_step) */
     int metrics_slot; /* a named world's labelled series */
     /* a client-clocked world (scene "clock": "client", host_clock_client):
      * the ticks its driver's steps asked for (added by the net thread) and

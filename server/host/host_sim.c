@@ -3,7 +3,8 @@
  * its world, the engine on its backend, the ground, the service over the hub,
  * the demo actors and the status block HTTP reads — and one step of the
  * fixed-rate tick loop on it (demo poses → service_tick → status and
- * metrics). Every world of the process has one — a single daemon's default
+ * metrics, published inside the tick before anything else names it:
+ * publish_tick). Every world of the process has one — a single daemon's default
  * world (app/serve.c), its created worlds (app/serve_worlds.c) and a cluster
  * node's worlds (app/serve_node.c) — ticked by the shared pool of sim workers
  * (host_ticker.c). Everything here runs on whichever thread is the world's
@@ -19,6 +20,9 @@
 #include "metrics/metrics.h"
 #include "service/service.h"
 
+/* The tick's status and metrics, published inside the tick (below). */
+static void publish_tick(void *arg, const service_tick_stats *stats);
+
 int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
 {
     world *w = &m->w;
@@ -31,6 +35,7 @@ int host_sim_start(host_sim *m, const host_sim_config *c, error_text *err)
         host_ground_attach(&m->sc, w, m->engine, &m->grd, err) != 0 ||
         !(m->svc = service_create(m->engine, m->h, err)))
         return -1;
+    service_set_publisher(m->svc, publish_tick, m);
     service_set_tick_budget(m->svc, c->max_tick_cells, c->max_sweep_cells);
     service_set_checksum_interval(m->svc, c->checksum_interval_ticks);
     service_set_client_clock(m->svc, m->sc.client_clock);
@@ -188,6 +193,26 @@ static void publish_metrics(const host_sim *m, const service_tick_stats *st)
                                cache.resident_tiles);
 }
 
+/* The service's publisher (service_set_publisher): inside service_tick, once
+ * the tick is computed and logged and before its frames go to the network and
+ * the height reads it answers are served, the tick's status and metrics. So
+ * the status names a tick before any client can learn of it otherwise: a
+ * GET /v1/heights answered as of tick T (X-Terrad-Tick), an ACK or a
+ * STEPPED of T, is never followed by a /v1/stats of an earlier tick or a
+ * ?tick=T refused as in the future (http_views.c past_tick reads the status). */
+static void publish_tick(void *arg, const service_tick_stats *stats)
+{
+    host_sim *m = arg;
+    if (m->sc.client_clock) {
+        atomic_fetch_add(&m->clock_ran, 1); /* before the status says whether it waits */
+    } else if (stats->tick_ms > 1000.0 / m->sc.tick_hz) {
+        m->overruns++; /* a client-clocked tick has no period to overrun */
+        metrics_count_tick_overrun();
+    }
+    publish_status(m, stats->tick_ms, m->clients, stats->colliders);
+    publish_metrics(m, stats);
+}
+
 /* The demo actors' poses for this tick, as colliders beside the clients'. */
 static void step_demo(host_sim *m, long tick)
 {
@@ -216,20 +241,11 @@ int host_sim_step(host_sim *m, long tick, int clients, error_text *err)
     step_demo(m, m->sc.client_clock ? (long)service_current_tick(m->svc) + 1 : tick);
     service_tick_stats stats;
     error_text tick_err = {{0}};
+    m->clients = clients; /* for the tick's status (publish_tick) */
     if (service_tick(m->svc, m->extra, m->demo_actors, &stats, &tick_err) != 0) {
         error_set(err, "tick %ld: %s", tick, tick_err.message);
         return -1;
     }
-    if (m->sc.client_clock) {
-        atomic_fetch_add(&m->clock_ran, 1);
-    } else if (stats.tick_ms > 1000.0 / m->sc.tick_hz) {
-        m->overruns++; /* a client-clocked tick has no period to overrun */
-        metrics_count_tick_overrun();
-    }
-    /* published before a step's STEPPED can go out (the wait below): a driver
-     * that reads /v1/stats or /v1/worlds once it has STEPPED sees that tick */
-    publish_status(m, stats.tick_ms, clients, stats.colliders);
-    publish_metrics(m, &stats);
     if (m->sc.client_clock) {
         /* the step's last tick: its frames (STEPPED last) go out once durable,
          * and no later tick may come to publish them (a group commit's wait) */

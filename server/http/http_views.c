@@ -234,16 +234,14 @@ void http_view_world(const http_status *st, http_answer *a)
  * that (docs/storage.md "Replay"). */
 static pthread_mutex_t replay_lock = PTHREAD_MUTEX_INITIALIZER;
 
-/* ?tick=N's N: 0, or the status and why naming the parameter. The world's
- * tick is the later of its status and of the last heights read served (h),
- * which can be one tick ahead (hub_reads_tick): a tick a read has named
- * (X-Terrad-Tick) is never "in the future". */
-static unsigned past_tick(const world *base_world, const http_status *st, hub *h, const char *text,
+/* ?tick=N's N: 0, or the status and why naming the parameter. The status's
+ * tick is the world's: its host publishes it inside the tick before the
+ * tick's frames go out and its height reads are served (publish_tick,
+ * host/host_sim.c), so a tick a client was told of (X-Terrad-Tick, an ACK)
+ * is never "in the future" here. */
+static unsigned past_tick(const world *base_world, const http_status *st, const char *text,
                           uint64_t *tick, char *why, size_t cap)
 {
-    uint64_t now = st->tick, served = h ? hub_reads_tick(h) : 0;
-    if (served > now)
-        now = served;
     char *end = NULL;
     unsigned long long n = 0;
     if (text[0] >= '0' && text[0] <= '9')
@@ -256,9 +254,9 @@ static unsigned past_tick(const world *base_world, const http_status *st, hub *h
         snprintf(why, cap, "parameter tick: this world keeps no log to replay (memory only)");
         return MHD_HTTP_NOT_FOUND;
     }
-    if (n > now) {
+    if (n > st->tick) {
         snprintf(why, cap, "parameter tick: %llu is in the future (the world is at tick %llu)", n,
-                 (unsigned long long)now);
+                 (unsigned long long)st->tick);
         return MHD_HTTP_BAD_REQUEST;
     }
     if (!base_world) {
@@ -306,9 +304,9 @@ static unsigned rebuild_past(const world *base_world, const http_status *st, uin
  * compaction memory) as of the end of tick N, rebuilt from the world's data
  * directory on this worker (store_replay_rect, store_replay_world), never
  * from the sim thread's world. 0, or the status and why naming the parameter. */
-static unsigned read_past(const world *base_world, const http_status *st, hub *h,
-                          const http_args *args, const char *text, world_rect r, int32_t *dst,
-                          uint64_t *tick, char *why, size_t cap)
+static unsigned read_past(const world *base_world, const http_status *st, const http_args *args,
+                          const char *text, world_rect r, int32_t *dst, uint64_t *tick, char *why,
+                          size_t cap)
 {
     const char *layer = arg(args, "layer");
     int compaction = layer && strcmp(layer, "compaction") == 0;
@@ -318,7 +316,7 @@ static unsigned read_past(const world *base_world, const http_status *st, hub *h
                  "layer=heights|compaction)");
         return MHD_HTTP_BAD_REQUEST;
     }
-    unsigned status = past_tick(base_world, st, h, text, tick, why, cap);
+    unsigned status = past_tick(base_world, st, text, tick, why, cap);
     if (status)
         return status;
     if (*tick == 0) { /* before the first tick: the base, remembering nothing */
@@ -343,12 +341,12 @@ static unsigned read_past(const world *base_world, const http_status *st, hub *h
  * world whole as of N (its Σh, its compaction memory and the bekker soil's
  * compaction summed as the live answer sums them); the live-only fields
  * (clients, colliders, tick time, overruns, ready) are left out. */
-static void stats_past(const world *base_world, const http_status *st, hub *h, const char *text,
+static void stats_past(const world *base_world, const http_status *st, const char *text,
                        http_answer *a)
 {
     char why[512], body[256];
     uint64_t n = 0;
-    unsigned status = past_tick(base_world, st, h, text, &n, why, sizeof why);
+    unsigned status = past_tick(base_world, st, text, &n, why, sizeof why);
     world w;
     world_rect all = {0, 0, st->world_width, st->world_height};
     if (!status)
@@ -373,7 +371,7 @@ static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
 {
     const char *past = arg(args, "tick");
     if (past)
-        return read_past(base_world, st, heights, args, past, r, dst, tick, why, cap);
+        return read_past(base_world, st, args, past, r, dst, tick, why, cap);
     int base = arg_is_one(args, "base");
     if (base < 0) {
         snprintf(why, cap, "parameter base must be 0 or 1");
@@ -533,7 +531,7 @@ void http_view_hosted(http_server *s, hub_world *w, http_view view, const http_a
     pthread_mutex_unlock(&st->lock);
     const char *past = view == HTTP_VIEW_STATS ? arg(args, "tick") : NULL;
     if (past)
-        stats_past(w->base, &snap, w->h, past, a);
+        stats_past(w->base, &snap, past, a);
     else if (view == HTTP_VIEW_STATS)
         http_view_stats(&snap, a);
     else if (view == HTTP_VIEW_WORLD)

@@ -53,8 +53,8 @@ struct hub {
     void (*wake)(void *);
     void *wake_arg;
 
+    _Atomic uint64_t published_tick; /* hub_publish_tick */
     pthread_mutex_t read_lock;
-    _Atomic uint64_t reads_tick; /* the tick of the last reads served (hub_reads_tick) */
     pthread_cond_t read_done;
     hub_read reads[HUB_MAX_READS];
     int reads_closed;
@@ -661,15 +661,20 @@ int hub_reads_pending(hub *h)
     return n;
 }
 
-uint64_t hub_reads_tick(hub *h)
+void hub_publish_tick(hub *h, uint64_t tick)
 {
-    return atomic_load(&h->reads_tick);
+    THREAD_OWNED(&h->sim_end);
+    atomic_store(&h->published_tick, tick);
+}
+
+uint64_t hub_published_tick(hub *h)
+{
+    return atomic_load(&h->published_tick);
 }
 
 void hub_serve_reads(hub *h, const world *w, uint64_t tick)
 {
     THREAD_OWNED(&h->sim_end);
-    atomic_store(&h->reads_tick, tick);
     pthread_mutex_lock(&h->read_lock);
     int served = 0;
     for (int i = 0; i < HUB_MAX_READS; i++) {

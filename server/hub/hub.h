@@ -84,6 +84,7 @@ typedef struct hub_command {
     double load_n;              /* create: > 0 load-driven (bekker), the load in newtons */
     int forces_height;          /* create: its FORCES entries carry its pose height */
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
+    int grousers;               /* subscribe: ... with the grousers extension (PROTOCOL.md) */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
     int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */
     char ref[64];               /* the client's request reference, echoed in replies */
@@ -259,10 +260,16 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
 int hub_reads_pending(hub *h);
 /* sim thread, between ticks: serve the pending reads. */
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
-/* Any thread: the tick the last reads were served as of (0 before any). The
- * sim thread serves reads before its host publishes the tick's status, so a
- * read can name a tick the status does not show yet. */
-uint64_t hub_reads_tick(hub *h);
+/* sim thread: tick is published — first of all who tell of it (service_tick
+ * row 9: then its host's status, its frames, the reads it answers); at
+ * service_attach_store, the recovered tick. */
+void hub_publish_tick(hub *h, uint64_t tick);
+/* Any thread: the world's published tick (0 before any). Nothing names a
+ * later tick — no frame, read or status — so a check of "is tick N in the
+ * future" that reads it never refuses a tick a client was told of; the net
+ * thread's own tick (the frames it has dispatched) may lag behind it, under
+ * group:MS by up to MS. */
+uint64_t hub_published_tick(hub *h);
 /* sim thread, at exit: fail every pending and future read. */
 void hub_close_reads(hub *h);
 /* The world stops (deleted, lost, or the daemon stops): every HTTP edit
@@ -321,7 +328,11 @@ int hub_worlds_default(hub_worlds *t, char *name, size_t cap);
 /* w leaves the table (deleted: its clients are told so), then this waits for
  * the requests using it to end (close its hub's reads first) and for its
  * holder to let go: 0, or -1 when the holder did not within 10 s (w is then
- * left to it, and so must its hub be: the holder may still use it). */
+ * left to it, and so must its hub be: the holder may still use it). Readers
+ * are waited for however long they take, since they read w's fields; those
+ * still using it after HUB_WORLDS_READER_DEADLINE_MS are logged and counted
+ * (terrad_world_readers_overdue_total). */
+#define HUB_WORLDS_READER_DEADLINE_MS 10000.0
 int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted);
 /* The world named name (NULL: the default world — the entry of the default
  * name when one is set, else the first), counted as in use until

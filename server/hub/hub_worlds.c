@@ -12,9 +12,26 @@
  * requests, whose reads fail fast once the hub's reads are closed, and
  * spectators' replay threads, which see the entry leaving themselves,
  * hub_worlds_leaving, between two records of their rebuild or replay, and
- * end: no deadline, since what they point to is freed after) and for its holder (the net
- * thread, which detaches the world's clients between two callbacks: 10 s,
- * after which the slot is left to whoever lets go of it last). The default
+ * end) and for its holder (the net thread, which detaches the world's
+ * clients between two callbacks: 10 s, after which the slot is left to
+ * whoever lets go of it last).
+ *
+ * The readers' wait has a bound, HUB_WORLDS_READER_DEADLINE_MS, but only for
+ * saying so: a reader still using the entry then is logged (the world, how
+ * many) and counted (terrad_world_readers_overdue_total), and the removal
+ * waits on, logging again once they let go. It cannot return instead: the
+ * readers point into the world itself (its hub, base terrain, status and
+ * data directory: hub_world's fields), which its host frees as soon as this
+ * returns (host_world.c, world_unregister then host_sim_free), so returning
+ * would hand them freed memory. Leaving the world to its last reader, as the
+ * slot is left to the holder, would take the host's whole world (its GL
+ * context is current on one worker only) and the registry's record of it
+ * out of the host's hands: not done. What can be cancelled is: spectators
+ * ask hub_worlds_leaving, HTTP height reads and edits fail on the closed
+ * hub; a past-tick rebuild (?tick=, one at a time per daemon) runs to its
+ * end. So one past the bound is a long rebuild, a bug or a stalled disk,
+ * and the count is how an operator finds it (a delete that does not answer,
+ * one sim worker busy with the world's end). The default
  * world is no entry apart: it is the one the default name names (a single
  * daemon's scene), or the first (a cluster node). One mutex, held for a copy
  * or a scan, and while the watcher (the net thread's waker: a short lock of
@@ -29,6 +46,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+
+#include "metrics/metrics.h"
 
 #define HOLDER_DEADLINE_MS 10000.0 /* then the net thread is left behind */
 #define REWAKE_MS 50               /* the watcher is nudged again while a removal waits */
@@ -159,9 +178,23 @@ int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted)
         t->leaving[t->nleaving++] = s;
     changed_locked(t);
     double start = time_now_ms();
+    int overdue = 0; /* readers still using it at the readers' deadline */
     while (s->readers > 0 || s->held) {
-        if (s->held && s->readers == 0 && time_now_ms() - start >= HOLDER_DEADLINE_MS)
+        double waited = time_now_ms() - start;
+        if (s->held && s->readers == 0 && waited >= HOLDER_DEADLINE_MS)
             break;
+        if (s->readers > 0 && !overdue && waited >= HUB_WORLDS_READER_DEADLINE_MS) {
+            overdue = s->readers; /* said once; the wait goes on (the top of this file) */
+            metrics_count_world_readers_overdue((uint64_t)overdue);
+            pthread_mutex_unlock(&t->lock); /* a log that blocks must not block the table */
+            log_error("worlds: %d reader%s (HTTP requests, spectators' replays) of world %s "
+                      "still use it %.0f s after its removal began; waiting on, since what "
+                      "they read is freed after",
+                      overdue, overdue == 1 ? "" : "s", s->w.name,
+                      HUB_WORLDS_READER_DEADLINE_MS / 1000.0);
+            pthread_mutex_lock(&t->lock);
+            continue;
+        }
         wait_until(&t->cond, &t->lock, REWAKE_MS);
         if (s->held && t->changed)
             t->changed(t->changed_ctx); /* the holder may be asleep between callbacks */
@@ -170,6 +203,9 @@ int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted)
     if (stuck)
         s->left = 1; /* hub_worlds_let_go frees it */
     pthread_mutex_unlock(&t->lock);
+    if (overdue)
+        log_info("worlds: the readers of world %s let go %.1f s after its removal began", s->w.name,
+                 (time_now_ms() - start) / 1000);
     if (stuck) {
         log_error("worlds: the websocket thread did not let go of world %s within %.0f s",
                   s->w.name, HOLDER_DEADLINE_MS / 1000);

@@ -213,6 +213,11 @@ void metrics_count_http_forwarded(const char *result);
  * /v1/worlds/NAME), result "ok" or "refused" (ok 0). Unknown ops ignored. */
 void metrics_count_world_request(const char *op, int ok);
 
+/* terrad_world_readers_overdue_total: readers (HTTP requests, spectators'
+ * replay threads) still using a removed world's table entry at the readers'
+ * deadline of its removal (hub_worlds_remove: it waits on for them). */
+void metrics_count_world_readers_overdue(uint64_t n);
+
 /* The text exposition (text/plain; version=0.0.4); caller frees. */
 char *metrics_render(size_t *len);
 

@@ -9,7 +9,9 @@
  * daemon's 63 created worlds), so a create/delete loop never grows it.
  * Values are relaxed atomics like the rest of metrics/; the slot table's
  * names are under a short mutex (taken only when a world comes or goes, and
- * by the renderer).
+ * by the renderer). Beside them, two unlabelled-by-world counters of the
+ * worlds' comings and goings: terrad_world_requests_total (the lifecycle
+ * API) and terrad_world_readers_overdue_total (hub_worlds_remove).
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -52,7 +54,15 @@ void metrics_count_world_request(const char *op, int ok)
         atomic_fetch_add_explicit(&requests[i][ok != 0], 1, memory_order_relaxed);
 }
 
-/* terrad_world_requests_total: every op and result, zeros too. */
+static atomic_uint_fast64_t readers_overdue;
+
+void metrics_count_world_readers_overdue(uint64_t n)
+{
+    atomic_fetch_add_explicit(&readers_overdue, n, memory_order_relaxed);
+}
+
+/* terrad_world_requests_total: every op and result, zeros too; then
+ * terrad_world_readers_overdue_total. */
 static int requests_text(char *out, size_t cap, size_t *n);
 
 int metrics_world_slot(const char *name)
@@ -220,5 +230,13 @@ static int requests_text(char *out, size_t cap, size_t *n)
                 out, cap, n, "terrad_world_requests_total{op=\"%s\",result=\"%s\"} %llu\n",
                 request_ops[i], ok ? "ok" : "refused",
                 (unsigned long long)atomic_load_explicit(&requests[i][ok], memory_order_relaxed));
+    if (rc == 0)
+        rc = metrics_put(
+            out, cap, n,
+            "# HELP terrad_world_readers_overdue_total Readers (HTTP requests, spectators' "
+            "replays) still using a removed world 10 s after its removal began (it waits on).\n"
+            "# TYPE terrad_world_readers_overdue_total counter\n"
+            "terrad_world_readers_overdue_total %llu\n",
+            (unsigned long long)atomic_load_explicit(&readers_overdue, memory_order_relaxed));
     return rc;
 }

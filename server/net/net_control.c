@@ -396,8 +396,13 @@ static int parse_subscribe(parser *r, net_control *out)
         get_int(r, "y", 1, INT32_MIN, INT32_MAX, &y) < 0 ||
         get_int(r, "w", 1, 1, INT32_MAX, &w) < 0 || get_int(r, "h", 1, 1, INT32_MAX, &h) < 0 ||
         get_bool(r, "colliders", 0, &out->colliders) ||
+        get_bool(r, "grousers", 0, &out->grousers) ||
         get_bool(r, "footprints", 0, &out->footprints))
         return -1;
+    if (out->grousers && !out->colliders)
+        return fail(r, TERRAD_E_BAD_VALUE,
+                    "grousers: asks for the wheels' grousers in COLLIDERS frames, so it needs "
+                    "\"colliders\": true");
     int ww = r->ctx->world_width, wh = r->ctx->world_height;
     if (x < 0 || y < 0 || x + w > ww || y + h > wh)
         return fail(r, TERRAD_E_OUTSIDE_WORLD,

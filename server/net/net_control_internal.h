@@ -96,6 +96,7 @@ typedef struct net_control {
     int speed, stepping;
     int64_t step_ticks;
     int colliders, footprints;
+    int grousers; /* subscribe: COLLIDERS entries carry their grousers (the extension) */
     /* seen: the latest tick whose frames the client has handled */
     uint64_t seen_tick;
     /* subscribe_events: one bit per NET_EVENT_NAMES entry (0: none) */

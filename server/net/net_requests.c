@@ -321,6 +321,7 @@ static void handle_subscribe(net_client *c, const net_control *m)
                        .subscription = c->next_sub_id,
                        .rect = rect,
                        .colliders = m->colliders,
+                       .grousers = m->grousers,
                        .footprints = m->footprints};
     ref_text(m->ref, cmd.ref, sizeof cmd.ref);
     if (net_push_refusable(s, &cmd) != 0) {

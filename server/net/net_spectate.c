@@ -501,10 +501,14 @@ static int refused(net_client *c, const net_control *m)
          * frames go back through the relay as any reply does */
         refuse(c, m->ref, TERRAD_E_BAD_VALUE, "from_tick",
                "from_tick: this world keeps no log to replay (a memory-only world)");
-    } else if (m->from_tick > w->tick) {
+    } else if (m->from_tick > hub_published_tick(w->entry->h)) {
+        /* the published tick, not w->tick (the frames this thread has
+         * dispatched, held back under group:MS): a tick /v1/stats or a read
+         * named is never in the future here */
         refuse(c, m->ref, TERRAD_E_BAD_VALUE, "from_tick",
                "from_tick: %llu is in the future (the world is at tick %llu)",
-               (unsigned long long)m->from_tick, (unsigned long long)w->tick);
+               (unsigned long long)m->from_tick,
+               (unsigned long long)hub_published_tick(w->entry->h));
     } else if ((int64_t)m->rect.w * m->rect.h > l->max_subscribed_cells) {
         refuse(c, m->ref, TERRAD_E_LIMIT_SUBSCRIPTIONS, "w",
                "w: %lld cells pass max_subscribed_cells (%lld)", (long long)m->rect.w * m->rect.h,

@@ -87,6 +87,7 @@ void service_destroy(service *s)
     free(s->packed);
     free(s->bottom);
     free(s->states);
+    free(s->lugs);
     free(s->events);
     free(s->sums);
     service_edits_free(s);
@@ -107,6 +108,7 @@ void service_attach_store(service *s, store *st, uint64_t recovered_tick)
 {
     s->store = st;
     s->tick = recovered_tick;
+    hub_publish_tick(s->hub, recovered_tick);
     s->volume = world_volume(s->world);
 }
 
@@ -262,7 +264,7 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
 
     if (service_cut_into_tiles(s, &stats->report) == 0) /* deltas: versions, Σh, frames */
         service_publish_deltas(s, stats);
-    service_edits_finish(s); /* each edit's sender: its tick and volume change */
+    service_edits_finish(s); /* each websocket edit's sender: its tick and volume change */
     service_contacts_after_tick(s, &stats->report);
     service_publish_feedback(s, &stats->report); /* CONTACT, FORCES, ACK */
     service_publish_colliders(s, extra, extra_count);
@@ -270,14 +272,26 @@ int service_tick(service *s, const sim_collider *extra, int extra_count, service
     service_publish_checksums(s); /* every checksum_interval ticks: tile hashes, last */
     service_publish_snapshots(s); /* new subscriptions and resyncs: cells copied */
     service_step_finish(s);       /* a client-clocked world: STEPPED after the step's last tick */
-    publish(s);
-    service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
-    hub_serve_reads(s->hub, s->world, s->tick);
 
+    /* The tick is published, in the hub and in its status first: nothing
+     * names it outside the sim thread (a frame, a read's tick) before they do. */
     stats->clients = s->client_count;
     stats->colliders = s->collider_count + extra_count;
     stats->tick_ms = time_now_ms() - t0;
     if (stats->delta_raw_bytes)
         metrics_count_delta_bytes(stats->delta_raw_bytes, stats->delta_compressed_bytes);
+    hub_publish_tick(s->hub, s->tick); /* the net thread's "is it in the future" */
+    if (s->publisher)
+        s->publisher(s->publisher_arg, stats);
+    publish(s);
+    service_snapshots_hand_over(s); /* framed while the sim thread waits for the next tick */
+    service_edits_answer(s);        /* HTTP edits: their tick, published */
+    hub_serve_reads(s->hub, s->world, s->tick);
     return 0;
+}
+
+void service_set_publisher(service *s, service_publish_fn fn, void *arg)
+{
+    s->publisher = fn;
+    s->publisher_arg = arg;
 }

@@ -10,8 +10,9 @@
  *   store (undone if it cannot be logged) → split the dirty rectangles by
  *   tile, advance tile versions, encode each (rectangle, version) once →
  *   contacts after the tick, CONTACT and ACK frames, COLLIDERS, FOOTPRINTS,
- *   snapshots for new subscriptions and resyncs → publish to the hub once
- *   the store has made the tick durable → serve height reads.
+ *   snapshots for new subscriptions and resyncs → the tick is published:
+ *   first its status (the host's publisher), then its frames to the hub once
+ *   the store has made the tick durable, then the height reads it answers.
  *
  * Only the sim thread calls into it (asserted in debug and sanitizer
  * builds: the thread that creates the service owns it).
@@ -55,6 +56,20 @@ typedef struct service_tick_stats {
  */
 int service_tick(service *s, const sim_collider *extra, int extra_count, service_tick_stats *stats,
                  error_text *err);
+
+/*
+ * Who says a tick happened (the host: its status block and metrics, which
+ * /v1/stats, ?tick=, /healthz and the scrapes read). Called once per tick on
+ * the sim thread (service_current_tick is the tick) with the tick's stats
+ * (tick_ms: the tick up to here), after
+ * the tick is computed and logged and before anything names the tick outside
+ * the sim thread: its frames are handed to the network and the height reads
+ * it answers are served after fn returns. So no client can learn of tick T
+ * from a frame or an X-Terrad-Tick before every reader of the status takes T
+ * as the world's tick (docs/design.md "One tick", row 9). NULL: none.
+ */
+typedef void (*service_publish_fn)(void *arg, const service_tick_stats *stats);
+void service_set_publisher(service *s, service_publish_fn fn, void *arg);
 
 /*
  * Make every tick durable in st before it is published (store.h): a tick's

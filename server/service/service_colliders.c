@@ -3,7 +3,11 @@
  * every collider is, for viewers that subscribed with "colliders": true.
  * Built after the tick's deltas, per client, only when the list changed (at
  * most every COLLIDERS_EVERY_TICKS ticks) or has not been sent for
- * COLLIDERS_REFRESH_TICKS. Sim thread only.
+ * COLLIDERS_REFRESH_TICKS. A client whose subscription asked for "grousers"
+ * gets the grousers extension (each entry's lugs after it, the header flag)
+ * whenever an entry of its list has lugs; otherwise the frame is the plain
+ * one, byte for byte what a client that predates the extension decodes.
+ * Sim thread only.
  */
 #include "service/service_internal.h"
 
@@ -59,6 +63,18 @@ static terrad_collider_state collider_state(const collider_geometry *g, collider
     return st;
 }
 
+/* The wire's grousers of a collider: none but on a lugged cylinder (wheel). */
+static terrad_collider_grousers collider_lugs(const collider_geometry *g)
+{
+    terrad_collider_grousers l = {0};
+    if (g->shape == COLLIDER_CYLINDER && g->grousers.count > 0) {
+        l.count = (uint16_t)g->grousers.count;
+        l.height_m = (float)g->grousers.height;
+        l.thickness_m = (float)g->grousers.thickness;
+    }
+    return l;
+}
+
 /* Does the collider's footprint meet one of the client's collider-subscriptions? */
 static int collider_in_view(const service *s, const svc_client *cl, const collider_geometry *g,
                             collider_pose pose)
@@ -79,17 +95,39 @@ static int collider_in_view(const service *s, const svc_client *cl, const collid
 
 /* A frame holds at most TERRAD_MAX_COUNT colliders (the protocol's bound):
  * the rest of a crowded view is left out. */
-static int push_state(service *s, int *n, terrad_collider_state st)
+static int push_state(service *s, int *n, const collider_geometry *g, terrad_collider_state st)
 {
     if (*n >= TERRAD_MAX_COUNT)
         return -1;
     if (array_grow((void **)&s->states, &s->state_capacity, (int64_t)*n + 1, sizeof *s->states) !=
-        0) {
+            0 ||
+        array_grow((void **)&s->lugs, &s->lug_capacity, (int64_t)*n + 1, sizeof *s->lugs) != 0) {
         service_note_drop(s, "frame", "no memory for a COLLIDERS entry: the list is cut short");
         return -1;
     }
+    s->lugs[*n] = collider_lugs(g);
     s->states[(*n)++] = st;
     return 0;
+}
+
+/* The client's frame of n entries: with the grousers extension when it asked
+ * and an entry has lugs. NULL: no memory or an entry the codec refuses. */
+static hub_frame *colliders_frame(service *s, int n, int lugged)
+{
+    size_t size =
+        lugged ? terrad_colliders_grousers_size((size_t)n) : terrad_colliders_size((size_t)n);
+    hub_frame *f = hub_frame_new(1, size);
+    if (!f)
+        return NULL;
+    int rc = lugged
+                 ? terrad_colliders_encode_grousers(f->data, size, &f->len, s->tick, s->states,
+                                                    s->lugs, (size_t)n)
+                 : terrad_colliders_encode(f->data, size, &f->len, s->tick, s->states, (size_t)n);
+    if (rc != 0) {
+        hub_frame_unref(f);
+        return NULL;
+    }
+    return f;
 }
 
 /* FNV-1a over the encoded entries: "did anything change since the last frame". */
@@ -109,9 +147,11 @@ void service_publish_colliders(service *s, const sim_collider *extra, int extra_
     THREAD_OWNED(&s->owner);
     for (int c = 0; c < s->client_count; c++) {
         svc_client *cl = &s->clients[c];
-        int wants = 0;
-        for (int i = 0; i < cl->sub_count; i++)
+        int wants = 0, wants_lugs = 0;
+        for (int i = 0; i < cl->sub_count; i++) {
             wants |= cl->subs[i].colliders;
+            wants_lugs |= cl->subs[i].colliders && cl->subs[i].grousers;
+        }
         if (!wants)
             continue;
         uint64_t since = s->tick - cl->colliders_sent_tick;
@@ -122,20 +162,20 @@ void service_publish_colliders(service *s, const sim_collider *extra, int extra_
             const svc_collider *k = &s->colliders[i];
             if (k->has_pose && collider_in_view(s, cl, k->geometry, k->pose))
                 push_state(
-                    s, &n,
+                    s, &n, k->geometry,
                     collider_state(k->geometry, k->pose, k->id,
                                    k->client == cl->id ? TERRAD_OWNER_OWN : TERRAD_OWNER_OTHER));
         }
         for (int i = 0; i < extra_count; i++)
             if (collider_in_view(s, cl, extra[i].geometry, extra[i].pose))
-                push_state(s, &n,
+                push_state(s, &n, extra[i].geometry,
                            collider_state(extra[i].geometry, extra[i].pose, (uint32_t)extra[i].id,
                                           TERRAD_OWNER_DEMO));
-        size_t size = terrad_colliders_size((size_t)n);
-        hub_frame *f = hub_frame_new(1, size);
-        if (!f ||
-            terrad_colliders_encode(f->data, size, &f->len, s->tick, s->states, (size_t)n) != 0) {
-            hub_frame_unref(f);
+        int lugged = 0;
+        for (int i = 0; wants_lugs && i < n; i++)
+            lugged |= s->lugs[i].count > 0;
+        hub_frame *f = colliders_frame(s, n, lugged);
+        if (!f) {
             service_queue_client(s, cl->id, NULL, TERRAD_MSG_COLLIDERS, 0); /* counted as dropped */
             continue;
         }

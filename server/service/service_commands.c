@@ -174,7 +174,11 @@ static void subscribe(service *s, svc_client *cl, const hub_command *c)
 {
     /* the net thread pauses nothing for a subscribe, but it counts one
      * snapshot mark per request: send it even when there is nothing */
-    svc_subscription sub = {c->subscription, c->rect, c->colliders, c->footprints};
+    svc_subscription sub = {.id = c->subscription,
+                            .rect = c->rect,
+                            .colliders = c->colliders,
+                            .grousers = c->grousers,
+                            .footprints = c->footprints};
     if (cl && c->colliders)
         cl->colliders_hash = 0; /* a new region: send the list at the next chance */
     if (cl && array_grow((void **)&cl->subs, &cl->sub_capacity, (int64_t)cl->sub_count + 1,
@@ -195,9 +199,9 @@ static void resync(service *s, svc_client *cl, const hub_command *c)
     if (c->subscription == 0) {
         queue_snapshots(s, cl->id, cl->subs, cl->sub_count);
         if (cl->sub_count == 0) /* nothing to send, but the client waits for the mark */
-            queue_snapshots(s, cl->id, &(svc_subscription){0, {0, 0, 0, 0}, 0, 0}, 1);
+            queue_snapshots(s, cl->id, &(svc_subscription){.id = 0}, 1);
     } else {
-        svc_subscription sub = {c->subscription, {0, 0, 0, 0}, 0, 0};
+        svc_subscription sub = {.id = c->subscription};
         for (int i = 0; i < cl->sub_count; i++)
             if (cl->subs[i].id == c->subscription)
                 sub = cl->subs[i];

@@ -8,8 +8,10 @@
  * tick's one WAL record and their differences join the tick's tile deltas
  * (service_deltas.c), so subscribers see an edit as an ordinary delta and Σh
  * follows it exactly. Each sender hears, once the tick is committed, the
- * tick the edit took effect and its exact volume change; a tick the store
- * cannot log takes its edits back and tells their senders so.
+ * tick the edit took effect and its exact volume change — an HTTP sender
+ * only once the tick is published (service_edits_answer), since its thread
+ * answers at once and nothing may name a tick before the status does; a
+ * tick the store cannot log takes its edits back and tells their senders so.
  * Sim thread only.
  */
 #include "service/service_internal.h"
@@ -114,12 +116,34 @@ void service_edits_undo(service *s, int code, const char *why)
     s->edit_count = 0;
 }
 
+/* What an applied edit did, for its sender. */
+static hub_edit_result applied(const service *s, const svc_edit *e)
+{
+    return (hub_edit_result){.tick = s->tick, .volume = e->volume, .rect = e->rect};
+}
+
 void service_edits_finish(service *s)
 {
+    int kept = 0;
     for (int i = 0; i < s->edit_count; i++) {
         svc_edit *e = &s->edits[i];
-        tell(s, e, &(hub_edit_result){.tick = s->tick, .volume = e->volume, .rect = e->rect});
         free(e->diff);
+        e->diff = NULL;
+        if (e->waiter) { /* its HTTP thread answers at once: not before the tick is published */
+            s->edits[kept++] = *e;
+            continue;
+        }
+        hub_edit_result res = applied(s, e); /* a frame: out with the tick's, after the status */
+        tell(s, e, &res);
+    }
+    s->edit_count = kept;
+}
+
+void service_edits_answer(service *s)
+{
+    for (int i = 0; i < s->edit_count; i++) {
+        hub_edit_result res = applied(s, &s->edits[i]);
+        tell(s, &s->edits[i], &res);
     }
     s->edit_count = 0;
 }

@@ -35,6 +35,7 @@ typedef struct svc_subscription {
     uint32_t id;
     world_rect rect;
     int colliders;  /* asked for COLLIDERS frames */
+    int grousers;   /* ... with the grousers extension */
     int footprints; /* asked for FOOTPRINTS frames */
 } svc_subscription;
 
@@ -148,6 +149,8 @@ struct service {
     thread_owner owner; /* the sim thread: claimed by service_create */
     uint64_t tick;
     int64_t volume;
+    service_publish_fn publisher; /* the host's: the tick's status (service_set_publisher) */
+    void *publisher_arg;
     int tiles_x, tiles_y;
     uint32_t *tile_versions;
     terrad_codec *codec;
@@ -175,6 +178,8 @@ struct service {
     int64_t bottom_cap;
     terrad_collider_state *states; /* COLLIDERS scratch */
     int64_t state_capacity;
+    terrad_collider_grousers *lugs; /* COLLIDERS scratch: each state's grousers */
+    int64_t lug_capacity;
     terrad_footprint *events; /* FOOTPRINTS scratch: one client's events */
     int64_t event_capacity;
 
@@ -265,8 +270,12 @@ int service_edits_commit_rects(service *s, const sim_tick_report *report, const 
 /* The store refused the tick: take the edits back (after the engine's
  * windows), tell their senders code and why. */
 void service_edits_undo(service *s, int code, const char *why);
-/* The tick is committed: tell each sender its tick and volume change. */
+/* The tick is committed: tell each websocket sender its tick and volume
+ * change (an `edited` reply, a frame of the tick, in order with its others). */
 void service_edits_finish(service *s);
+/* The tick is published (its status names it): tell each HTTP sender its
+ * tick and volume change, which it answers at once. */
+void service_edits_answer(service *s);
 void service_edits_free(service *s);
 
 /* service_colliders.c */

@@ -234,6 +234,15 @@ TERRAD_TWIN_API int terrad_twin_prediction_pending(const terrad_twin_prediction 
                                                    int max);
 /* The prediction's twin, for reading (terrad_twin_read); it belongs to p. */
 TERRAD_TWIN_API terrad_twin *terrad_twin_prediction_twin(terrad_twin_prediction *p);
+/* Test hook: the next `count` restores of a prediction's soil state in this
+ * process (or WebAssembly instance), of any prediction, fail as they do out of
+ * memory (the state is left as it was; _acked and _resume return -1 with
+ * their sentence); 0 disarms. Only a stateful window restores (a bekker
+ * world, the compaction memory). That failure cannot be provoked otherwise
+ * (the restore writes into tiles its twin already holds), so this is how the
+ * clients' handling of it is tested (test_twin_predict, test_predict_c /
+ * _python / _js); nothing else should call it. */
+TERRAD_TWIN_API void terrad_twin_fault_restores(int count);
 
 #ifdef __cplusplus
 }

@@ -16,6 +16,7 @@
 #include "twin/terrad_twin.h"
 #include "twin/twin_internal.h"
 
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -102,6 +103,23 @@ static uint64_t apply(terrad_twin_prediction *p, const predict_pose *poses, int6
     return digest(p->heights, cells(p));
 }
 
+/* The restores left to fail (terrad_twin_fault_restores, a test hook). */
+static atomic_int fault_restores;
+
+void terrad_twin_fault_restores(int count)
+{
+    atomic_store(&fault_restores, count > 0 ? count : 0);
+}
+
+/* 1 when the hook takes this restore (one of those left), else 0. */
+static int restore_faulted(void)
+{
+    int n = atomic_load(&fault_restores);
+    while (n > 0 && !atomic_compare_exchange_weak(&fault_restores, &n, n - 1))
+        ;
+    return n > 0;
+}
+
 /* The twin at these heights and the base's soil state, each own collider
  * where the acknowledged tick left it (one without an acknowledged pose has
  * none). -1 when the state could not be restored (out of memory for its
@@ -110,7 +128,9 @@ static uint64_t apply(terrad_twin_prediction *p, const predict_pose *poses, int6
 static int restart(terrad_twin_prediction *p, const int32_t *heights)
 {
     terrad_twin_write(p->twin, p->x, p->y, p->w, p->h, heights, NULL);
-    int rc = p->stateful ? twin_state_write(p->twin, p->base_state) : 0;
+    int rc = !p->stateful        ? 0
+             : restore_faulted() ? -1 /* as out of memory: the state left as it was */
+                                 : twin_state_write(p->twin, p->base_state);
     for (int64_t i = 0; i < p->nown; i++) {
         const predict_own *s = &p->own[i];
         const collider_pose *a = &s->acked;

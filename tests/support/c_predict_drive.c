@@ -31,6 +31,11 @@
  * for 300 ticks. Checks: every compared ACK's replay has 0 cells differing
  * (the twin runs the server's search from the state its replay reached);
  * the server found heights below the posed one (terrad_client_force_height).
+ * Then it rolls the wheel back with the next soil-state restore failing
+ * (terrad_twin_fault_restores, the twin library's test hook: out of memory
+ * for it cannot be provoked): the prediction's stats count one error with
+ * the twin's sentence, and the client goes on: the later ACKs are taken and
+ * compared, and with nothing pending the prediction is the mirror at each.
  *
  * Prints "N passed, N failed"; exit 1 on a failure.
  */
@@ -45,6 +50,7 @@
 
 #include "check.h"
 #include "terrad_client.h"
+#include "terrad_twin.h"
 
 #define WAIT_S 120.0 /* generous: the machine may be loaded */
 
@@ -360,6 +366,63 @@ static int run_predict(int port, drive *d, const char *cfg, const char *out)
 
 /* ---- loaded ---------------------------------------------------------------- */
 
+/* The load-driven wheel from x0 to x1 in n batches, one a tick, turning faster
+ * than it travels (slip 0.2), until the last is acknowledged; *lowest: the
+ * lowest height the server found (FORCES). */
+static void roll(terrad_client *a, drive *d, uint32_t wheel, double x0, double x1, int n, double z,
+                 double radius, double *lowest)
+{
+    double next = now_s();
+    uint32_t seq = 0;
+    for (int i = 0; i < n; i++) {
+        double x = x0 + (x1 - x0) * i / (n - 1), angle = (x - x0) / (radius * (1 - 0.2));
+        terrad_pose p = {wheel,
+                         (float)x,
+                         (float)((d->y + d->h / 2.0) * d->cell),
+                         (float)z,
+                         (float)cos(angle / 2),
+                         0,
+                         (float)sin(angle / 2),
+                         0};
+        CHECK(terrad_client_send_poses(a, &p, 1, &seq) == 0, "poses sent");
+        double found = 0;
+        if (terrad_client_force_height(a, wheel, &found) == 1 && found < *lowest)
+            *lowest = found;
+        next += 1.0 / d->hz;
+        pump_until(a, NULL, next);
+    }
+    CHECK(wait_ack(a, NULL, seq), "the last batch is acknowledged");
+}
+
+/* Back over the last third with the next restore of the soil state failing:
+ * counted with the twin's sentence, and the client goes on. */
+static void restore_fails(terrad_client *a, drive *d, uint32_t wheel, double x0, double x1,
+                          double z, double radius)
+{
+    const terrad_prediction_stats *s = terrad_prediction_get_stats(d->pred);
+    uint64_t reconciled0 = s->reconciled, replayed0 = s->replayed, exact0 = s->exact;
+    int resets0 = d->resets;
+    double lowest = z;
+    terrad_twin_fault_restores(1); /* this process's next restore: the next ACK's */
+    roll(a, d, wheel, x1, x1 - (x1 - x0) / 3, 100, z, radius, &lowest);
+    terrad_twin_fault_restores(0);
+    printf("restore failed: %llu errors (%s); then %llu reconciled, %llu compared (%llu exact)\n",
+           (unsigned long long)s->errors, terrad_prediction_last_error(d->pred),
+           (unsigned long long)(s->reconciled - reconciled0),
+           (unsigned long long)(s->replayed - replayed0), (unsigned long long)(s->exact - exact0));
+    CHECK(s->errors == 1 && strstr(terrad_prediction_last_error(d->pred), "soil state"),
+          "the failed restore is counted with the twin's sentence (%llu: %s)",
+          (unsigned long long)s->errors, terrad_prediction_last_error(d->pred));
+    CHECK(s->reconciled - reconciled0 >= 10 && s->replayed - replayed0 >= 10,
+          "the ACKs after it are taken and compared (%llu, %llu)",
+          (unsigned long long)(s->reconciled - reconciled0),
+          (unsigned long long)(s->replayed - replayed0));
+    CHECK(s->pending == 0 && d->resets > resets0 + 10 && d->resets_bad == 0,
+          "with nothing pending, the prediction is the server's state at every ACK after it (%d "
+          "of %d not)",
+          d->resets_bad, d->resets - resets0);
+}
+
 static int run_loaded(int port, drive *d, const char *cfg)
 {
     terrad_client *a = open_client(port, NULL, "predict-loaded", on_frame, d);
@@ -383,26 +446,7 @@ static int run_loaded(int port, drive *d, const char *cfg)
     CHECK(rc == 0, "a load-driven wheel created (%d: %s)", rc, terrad_client_last_error(a));
     const int n = 300;
     double x0 = (d->x + 16) * d->cell, x1 = (d->x + (int)d->w - 16) * d->cell, lowest = z;
-    double next = now_s();
-    uint32_t seq = 0;
-    for (int i = 0; i < n; i++) {
-        double x = x0 + (x1 - x0) * i / (n - 1), angle = (x - x0) / (radius * (1 - 0.2));
-        terrad_pose p = {wheel,
-                         (float)x,
-                         (float)((d->y + d->h / 2.0) * d->cell),
-                         (float)z,
-                         (float)cos(angle / 2),
-                         0,
-                         (float)sin(angle / 2),
-                         0}; /* turning faster than it travels: slip 0.2 */
-        CHECK(terrad_client_send_poses(a, &p, 1, &seq) == 0, "poses sent");
-        double found = 0;
-        if (terrad_client_force_height(a, wheel, &found) == 1 && found < lowest)
-            lowest = found;
-        next += 1.0 / d->hz;
-        pump_until(a, NULL, next);
-    }
-    CHECK(wait_ack(a, NULL, seq), "the last batch is acknowledged");
+    roll(a, d, wheel, x0, x1, n, z, radius, &lowest);
     const terrad_prediction_stats *s = terrad_prediction_get_stats(d->pred);
     printf("load-driven: %llu predicted, %llu compared (%llu exact), %llu on time, %llu not "
            "compared; lowest found height %.6f m\n",
@@ -423,6 +467,9 @@ static int run_loaded(int port, drive *d, const char *cfg)
           "with nothing pending, the prediction is the server's state at every ACK (%d of %d "
           "not)",
           d->resets_bad, d->resets);
+    CHECK(s->errors == 0 && !*terrad_prediction_last_error(d->pred), "no prediction errors (%s)",
+          terrad_prediction_last_error(d->pred));
+    restore_fails(a, d, wheel, x0, x1, z, radius);
     CHECK(terrad_client_get_stats(a)->errors == 0, "no errors reached the client (%s)",
           terrad_client_last_error(a));
     terrad_prediction_stop(d->pred);

@@ -2,7 +2,8 @@
  * nats_test.h: real nats-server processes for the cluster unit tests and
  * bench_cluster (test_cluster*.c, bench_cluster.c): each on free loopback ports with
  * JetStream and its own store directory under one temporary root; n > 1
- * servers form the cluster "terrad" with routes to each other. The command
+ * servers form the cluster "terrad" with routes to each other; nats_pause
+ * stops one (SIGSTOP) and returns once every thread of it has. The command
  * line itself is tests/support/nats-start, which cluster_harness.py (the
  * Python tests, scripts/cluster) runs too.
  */
@@ -10,6 +11,7 @@
 #define TERRAD_TEST_NATS_H
 
 #include <arpa/inet.h>
+#include <dirent.h>
 #include <netinet/in.h>
 #include <signal.h>
 #include <stdio.h>
@@ -109,6 +111,55 @@ static inline void nats_stop(nats_proc *p, int sig)
     kill(p->pid, sig);
     waitpid(p->pid, NULL, 0);
     p->pid = 0;
+}
+
+/* 1 when every thread of process pid is stopped: state T (or Z, X: one that
+ * has exited meanwhile counts) in each /proc/PID/task/TID/stat; 0 otherwise. */
+static inline int process_stopped(pid_t pid)
+{
+    char path[64];
+    snprintf(path, sizeof path, "/proc/%d/task", (int)pid);
+    DIR *d = opendir(path);
+    if (!d)
+        return 0;
+    int threads = 0, stopped = 0;
+    for (struct dirent *e; (e = readdir(d));) {
+        if (e->d_name[0] == '.')
+            continue;
+        char stat_path[96], stat[512]; /* a thread's id: at most 10 digits */
+        snprintf(stat_path, sizeof stat_path, "/proc/%d/task/%.16s/stat", (int)pid, e->d_name);
+        FILE *f = fopen(stat_path, "r");
+        if (!f)
+            continue; /* gone since the listing */
+        size_t n = fread(stat, 1, sizeof stat - 1, f);
+        fclose(f);
+        stat[n] = '\0';
+        const char *end = strrchr(stat, ')'); /* the name may hold spaces and parentheses */
+        threads++;
+        stopped += end && end[1] == ' ' && end[2] && strchr("TZX", end[2]);
+    }
+    closedir(d);
+    return threads > 0 && stopped == threads;
+}
+
+/* SIGSTOP server p, then 1 once every thread of it has stopped, 0 when
+ * timeout_ms passed first. kill() returns once the signal is queued: the
+ * kernel wakes one thread to take it, and only when that thread runs does it
+ * stop the others, so on a busy machine the server goes on meanwhile (it
+ * answers, routes and commits). Measured with terrad beside stress-ng --cpu 2
+ * (Intel Xeon, 2 cores, load 7.7-11): its threads took up to 2.5 s to stop
+ * (tests/support/cluster_harness.py, Node.pause, waits the same way). */
+static inline int nats_pause(const nats_proc *p, int timeout_ms)
+{
+    kill(p->pid, SIGSTOP);
+    for (int waited = 0; !process_stopped(p->pid) && waited < timeout_ms; waited += 5)
+        usleep(5000);
+    return process_stopped(p->pid);
+}
+
+static inline void nats_resume(const nats_proc *p)
+{
+    kill(p->pid, SIGCONT);
 }
 
 static inline void nats_init(nats_proc *all, int n)

@@ -7,7 +7,10 @@
 //
 // With a last argument `loaded` (a bekker world): one connection predicts the window and rolls a
 // load-driven wheel (load_n: its height the server's, found where the soil carries the load)
-// through it with slip 0.2 for 300 ticks instead.
+// through it with slip 0.2 for 300 ticks instead, then back over the last third with the next
+// soil-state restore failing (the twin library's test hook, terrad_twin_fault_restores, in
+// this prediction's WebAssembly instance): what the Prediction counted and whether the
+// connection's frames went on being handled.
 //
 // Usage: node --import tests/support/node_websocket.mjs predict_drive.mjs WS_URL MODULE.wasm CONFIG.json X Y W H [loaded]
 import { readFileSync } from 'node:fs';
@@ -234,20 +237,36 @@ async function loaded() {
         }
     });
     const x0 = (RX + 16) * cell, x1 = (RX + RW - 16) * cell, y = (RY + RH / 2) * cell, n = 300;
-    const t0 = Date.now();
-    let last = 0;
-    for (let i = 0; i < n; i++) {
-        const x = x0 + ((x1 - x0) * i) / (n - 1), angle = (x - x0) / (radius * (1 - 0.2)); // slip 0.2
-        last = c.send([{ id: wheel, x, y, z, qw: Math.cos(angle / 2), qx: 0, qy: Math.sin(angle / 2), qz: 0 }]);
-        await sleep(Math.max(0, t0 + ((i + 1) * 1000) / hz - Date.now()));
-    }
-    await until('the last ACK', () => c.ackedSeq >= last);
+    const roll = async (from, to, n) => { // one batch a tick, until the last is acknowledged
+        const t0 = Date.now();
+        let last = 0;
+        for (let i = 0; i < n; i++) {
+            const x = from + ((to - from) * i) / (n - 1), angle = (x - from) / (radius * (1 - 0.2)); // slip 0.2
+            last = c.send([{ id: wheel, x, y, z, qw: Math.cos(angle / 2), qx: 0, qy: Math.sin(angle / 2), qz: 0 }]);
+            await sleep(Math.max(0, t0 + ((i + 1) * 1000) / hz - Date.now()));
+        }
+        await until('the last ACK', () => c.ackedSeq >= last);
+    };
+    await roll(x0, x1, n);
     let rut = 0;
     for (let k = 0; k < start.length; k++) rut = Math.max(rut, start[k] - mirror.heights[k]);
+    const counters = () => ({ predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime, lastDiffering: pred.lastDiffering, errors: pred.errors, lastError: pred.lastError });
+    const drive = counters(), settled = sameArrays(pred.heights(), mirror.heights);
+    // Back over the last third with the next restore of the soil state failing: counted, and
+    // the ACK handler (prediction first, then this drive's) goes on at every ACK after it.
+    const resets = [];
+    c.onAck = () => {
+        if (pred.pending.length === 0) resets.push(sameArrays(pred.heights(), mirror.heights));
+    };
+    pred.twin.m.x.terrad_twin_fault_restores(1); // this instance's next restore: the next ACK's
+    await roll(x1, x1 - (x1 - x0) / 3, 100);
+    pred.twin.m.x.terrad_twin_fault_restores(0);
+    const after = counters();
     console.log(JSON.stringify({
-        drive: { predicted: pred.predicted, reconciled: pred.reconciled, replayed: pred.replayed, exact: pred.exact, skipped: pred.skipped, onTime: pred.onTime, lastDiffering: pred.lastDiffering },
-        settled: sameArrays(pred.heights(), mirror.heights), rut, refused, errors: c.errors,
+        drive, settled, rut, refused, errors: c.errors,
         found: c.heights.filter(([id]) => id === wheel).map(([, h]) => h),
+        restore: { ...after, reconciled: after.reconciled - drive.reconciled, replayed: after.replayed - drive.replayed,
+            exact: after.exact - drive.exact, resets: resets.length, resetsEqual: resets.filter(Boolean).length },
     }));
     c.ws.close();
     pred.destroy();

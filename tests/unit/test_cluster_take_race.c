@@ -7,7 +7,8 @@
  * has applied: two publishes proposed before either is applied, both
  * expecting the same last sequence, are both stored and both acknowledged.
  * Here the two servers that are not the stream's leader are stopped
- * (SIGSTOP), so the leader can propose but not commit; meanwhile node a (the
+ * (SIGSTOP, waited for until every thread of each has stopped: nats_pause),
+ * so the leader can propose but not commit; meanwhile node a (the
  * owner) appends a record and node b takes the world, in both orders, and the
  * followers stay stopped until a plain subscriber on the leader has seen both
  * publishes arrive there (not a fixed pause: on a loaded machine a thread may
@@ -228,9 +229,13 @@ static int race(nats_proc *n, cluster *setup, const char *name, int take_first)
     seen replayed = {0};
     call append = {.w = wa, .data = "late"}, take = {.w = wb, .replayed = &replayed};
     call *first = take_first ? &take : &append, *second = take_first ? &append : &take;
+    /* stopped, not only signalled: a follower that still runs (a loaded machine stops
+     * its threads late) may commit the first publish before the second is proposed */
+    int paused = 1;
     for (int i = 0; i < 3; i++)
         if (i != leader)
-            kill(n[i].pid, SIGSTOP);
+            paused &= nats_pause(&n[i], 30000);
+    CHECK(paused, "%s: every thread of both followers stops on SIGSTOP", name);
     /* The first publish reaches the leader (proposed, not committed: no quorum) before
      * the second is sent; the followers go on only once both have arrived. Each wait
      * stays under nats-server's 10 s without quorum, after which the leader steps down
@@ -245,7 +250,7 @@ static int race(nats_proc *n, cluster *setup, const char *name, int take_first)
                atomic_load(&arrived));
     for (int i = 0; i < 3; i++)
         if (i != leader)
-            kill(n[i].pid, SIGCONT);
+            nats_resume(&n[i]);
     pthread_join(first->thread, NULL);
     pthread_join(second->thread, NULL);
     int raced = crossed(setup, name);

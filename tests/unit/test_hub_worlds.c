@@ -7,15 +7,21 @@
  * net thread's part, played here by the test) let go after seeing it gone,
  * with the deleted flag it was removed with; with a holder, an add returns
  * only once it holds the entry (so a hello right after finds the world). The
- * watcher (the net thread's waker) is told of every add and remove.
+ * watcher (the net thread's waker) is told of every add and remove. A reader
+ * that outlives the readers' deadline is counted
+ * (terrad_world_readers_overdue_total) while the removal waits on, its entry
+ * still whole (in an ASan build a freed one would be caught), and the
+ * removal returns once it lets go; one that lets go in time counts nothing.
  */
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "check.h"
 #include "hub/hub.h"
+#include "metrics/metrics.h"
 
 static atomic_int told;
 
@@ -179,8 +185,20 @@ static void test_full(void)
     hub_worlds_destroy(t);
 }
 
+/* terrad_world_readers_overdue_total as /metrics shows it (-1: not shown). */
+static long long readers_overdue(void)
+{
+    size_t len = 0;
+    char *text = metrics_render(&len);
+    const char *at = text ? strstr(text, "\nterrad_world_readers_overdue_total ") : NULL;
+    long long n = at ? strtoll(at + strlen("\nterrad_world_readers_overdue_total "), NULL, 10) : -1;
+    free(text);
+    return n;
+}
+
 static void test_remove_waits_for_readers(void)
 {
+    long long overdue = readers_overdue();
     hub_worlds *t = hub_worlds_create();
     hub_world *a = add(t, "alpha");
     hub_world *reader = hub_worlds_acquire(t, "alpha");
@@ -195,6 +213,45 @@ static void test_remove_waits_for_readers(void)
     hub_worlds_release(t, reader);
     pthread_join(th, NULL);
     CHECK(r.rc == 0, "removal returns once the request released it");
+    CHECK(readers_overdue() == overdue && overdue >= 0,
+          "a reader that let go in time is not counted overdue (%lld)", overdue);
+    hub_worlds_destroy(t);
+}
+
+/* The counter moved past `since` (hub_worlds_remove counts at the readers' deadline). */
+static int overdue_since(hub_worlds *t, unsigned since)
+{
+    (void)t;
+    return readers_overdue() > (long long)since;
+}
+
+/* A reader that outlives the readers' deadline (a spectator's replay that does not
+ * stop, an HTTP rebuild on a stalled disk): counted, and waited for all the same,
+ * since what it reads goes with the world once the removal returns. */
+static void test_overdue_reader(void)
+{
+    hub_worlds *t = hub_worlds_create();
+    hub_world *a = add(t, "alpha");
+    hub_world *reader = hub_worlds_acquire(t, "alpha");
+    hub_world *other = hub_worlds_acquire(t, "alpha");
+    long long before = readers_overdue();
+    removal r = {.t = t, .w = a};
+    pthread_t th;
+    pthread_create(&th, NULL, remove_main, &r);
+    /* 60 s at most (the deadline is 10 s; a loaded machine may run the removal late) */
+    int counted = eventually(overdue_since, t, (unsigned)before);
+    CHECK(counted && readers_overdue() == before + 2,
+          "both readers still using it at the deadline are counted (%lld -> %lld)", before,
+          readers_overdue());
+    CHECK(still_waiting(&r, 200), "the removal waits on for them");
+    CHECK(hub_worlds_leaving(reader) && strcmp(reader->name, "alpha") == 0,
+          "the entry they hold is still whole, and says it is leaving");
+    hub_worlds_release(t, reader);
+    CHECK(still_waiting(&r, 200), "and for the last of them");
+    hub_worlds_release(t, other);
+    pthread_join(th, NULL);
+    CHECK(r.rc == 0 && readers_overdue() == before + 2,
+          "once both let go the removal returns, counted once (%lld)", readers_overdue());
     hub_worlds_destroy(t);
 }
 
@@ -250,6 +307,7 @@ int main(void)
     test_lookups();
     test_full();
     test_remove_waits_for_readers();
+    test_overdue_reader();
     test_holder();
     return check_report();
 }

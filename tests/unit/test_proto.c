@@ -306,9 +306,35 @@ static void check_colliders(const char *name, const cJSON *f, const uint8_t *b, 
         }
         i++;
     }
+    /* the grousers extension: each entry's grousers (null: none), the flag said by the fields */
+    terrad_collider_grousers lugs[16], want_lugs[16];
+    size_t nl = 99;
+    const cJSON *flagged = cJSON_GetObjectItemCaseSensitive(f, "grousers");
+    rc = terrad_colliders_grousers(b, n, lugs, 16, &nl);
+    CHECK(rc == 0 && nl == (cJSON_IsTrue(flagged) ? count : 0), "%s: grousers: %s, %zu", name,
+          terrad_err_name(rc), nl);
+    i = 0;
+    cJSON_ArrayForEach(c, a)
+    {
+        if (i >= 16)
+            break;
+        const cJSON *g = cJSON_GetObjectItemCaseSensitive(c, "grousers");
+        terrad_collider_grousers w = {0};
+        if (cJSON_IsObject(g))
+            w = (terrad_collider_grousers){(uint16_t)num(g, "count"), (float)num(g, "height"),
+                                           (float)num(g, "thickness")};
+        want_lugs[i] = w;
+        if (i < nl)
+            CHECK(lugs[i].count == w.count && lugs[i].height_m == w.height_m &&
+                      lugs[i].thickness_m == w.thickness_m,
+                  "%s: grousers of collider %zu", name, i);
+        i++;
+    }
     uint8_t out[1024];
     size_t len;
-    rc = terrad_colliders_encode(out, sizeof out, &len, tick, want, i);
+    rc = cJSON_IsTrue(flagged)
+             ? terrad_colliders_encode_grousers(out, sizeof out, &len, tick, want, want_lugs, i)
+             : terrad_colliders_encode(out, sizeof out, &len, tick, want, i);
     CHECK(rc == 0 && len == n && memcmp(out, b, n) == 0, "%s: encode", name);
 }
 
@@ -605,7 +631,12 @@ static int decode_any(const char *type, const uint8_t *b, size_t n)
         terrad_collider_state cs[16];
         uint64_t tick;
         size_t count;
-        return terrad_colliders_decode(b, n, &tick, cs, 16, &count);
+        int rc = terrad_colliders_decode(b, n, &tick, cs, 16, &count);
+        if (rc == 0) { /* the extension's reader refuses exactly what the decoder does */
+            terrad_collider_grousers lugs[16];
+            CHECK(terrad_colliders_grousers(b, n, lugs, 16, &count) == 0, "grousers reader");
+        }
+        return rc;
     }
     if (strcmp(type, "FOOTPRINTS") == 0) {
         terrad_footprint es[16];
@@ -1060,6 +1091,49 @@ static void test_forces_heights(void)
           "and the encoder refuses it");
 }
 
+/* COLLIDERS' grousers extension (PROTOCOL.md "COLLIDERS"; its frames and refusals are in the
+ * vectors): the entries of a flagged frame decode as a plain one's, and the encoder refuses
+ * what a decoder would (grousers on a sphere, taller than the radius, none with a size). */
+static void test_colliders_grousers(void)
+{
+    terrad_collider_state c[2] = {
+        {3, TERRAD_OWNER_OTHER, TERRAD_KIND_CYLINDER, {0.3f, 0.1f, 0}, {1, 2, 0.3f}, {1, 0, 0, 0}},
+        {4, TERRAD_OWNER_OWN, TERRAD_KIND_SPHERE, {0.2f, 0, 0}, {5, 6, 0.2f}, {1, 0, 0, 0}}};
+    terrad_collider_grousers g[2] = {{12, 0.02f, 0.01f}, {0, 0, 0}};
+    uint8_t buf[256];
+    size_t len = 0, count = 0;
+    CHECK(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 5, c, g, 2) == 0 &&
+              len == terrad_colliders_grousers_size(2) && len == 14 + 2 * 60 &&
+              buf[3] == TERRAD_COLLIDERS_FLAG_GROUSERS,
+          "COLLIDERS with grousers: flagged, 60-byte entries (%zu bytes)", len);
+    terrad_collider_state back[2];
+    uint64_t tick = 0;
+    int same =
+        terrad_colliders_decode(buf, len, &tick, back, 2, &count) == 0 && tick == 5 && count == 2;
+    for (size_t i = 0; same && i < 2; i++) /* field by field: the structs have padding */
+        same = back[i].id == c[i].id && back[i].owner == c[i].owner && back[i].kind == c[i].kind &&
+               memcmp(back[i].dims, c[i].dims, sizeof c[i].dims) == 0 &&
+               memcmp(back[i].p, c[i].p, sizeof c[i].p) == 0 &&
+               memcmp(back[i].q, c[i].q, sizeof c[i].q) == 0;
+    CHECK(same, "the entries of a flagged frame decode as a plain one's");
+    terrad_collider_grousers bad[2] = {{0, 0, 0}, {1, 0.01f, 0.01f}};
+    CHECK(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 5, c, bad, 2) ==
+              TERRAD_E_BAD_VALUE,
+          "the encoder refuses grousers on a sphere");
+    bad[0] = (terrad_collider_grousers){12, 0.31f, 0.01f};
+    bad[1] = g[1];
+    CHECK(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 5, c, bad, 2) ==
+              TERRAD_E_BAD_VALUE,
+          "and grousers taller than the wheel's radius");
+    bad[0] = (terrad_collider_grousers){0, 0.01f, 0};
+    CHECK(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 5, c, bad, 2) ==
+              TERRAD_E_BAD_VALUE,
+          "and no grousers with a height");
+    CHECK(terrad_colliders_encode_grousers(buf, sizeof buf, &len, 5, c, NULL, 2) ==
+              TERRAD_E_BAD_VALUE,
+          "and entries without their grousers");
+}
+
 int main(void)
 {
     const char *src = getenv("TERRAD_SOURCE_DIR");
@@ -1078,6 +1152,7 @@ int main(void)
     }
     test_encoder_refusals();
     test_forces_heights();
+    test_colliders_grousers();
     test_random_round_trip();
     test_random_mirror();
     cJSON_Delete(root);

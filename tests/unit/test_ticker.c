@@ -14,15 +14,31 @@
  * (host_ticker.c: "Why more workers than cores"). A ticker that lets one
  * worker tick alone while the others sleep untimed fails it: the witness
  * never ticks while the stalled world waits for it.
+ *
+ * And a world's tick is published before anything names it (host_sim.c
+ * publish_tick): when the tick's frames reach the network (the hub's waker,
+ * called on the sim thread as they are handed over) and when a height read
+ * is answered as of tick T, the status block (/v1/stats, and the ?tick=
+ * check, http_views.c past_tick), the metrics and the hub's published tick
+ * (spectate's from_tick check, net_spectate.c) already say T, and the read
+ * is still waiting then. The window between "named" and "published" cannot
+ * be forced from outside; the waker sees it from inside, every tick. An HTTP
+ * edit's sender (POST /v1/worlds/{name}/edits answers with the edit's tick)
+ * is told only once the status names the tick: each tick runs while the test
+ * holds the status lock, and where the tick stops for it, the edit is not
+ * answered yet.
  */
+#include <cjson/cJSON.h>
 #include <pthread.h>
 #include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "app/app.h"
 #include "app/serve_internal.h"
 #include "check.h"
+#include "metrics/metrics.h"
 
 #define POOL_WORLDS 5
 #define TICKS 24
@@ -121,6 +137,201 @@ static int stall_tick(void *ctx, host_sim *m, long tick, char *why, size_t cap)
     return 0;
 }
 
+/* ---- a tick is published before anything names it ---- */
+
+typedef struct published_view {
+    host_sim *m;
+    int wakes, late_status, late_metrics, late_hub, answered_first;
+} published_view;
+
+static uint64_t status_tick(host_sim *m)
+{
+    pthread_mutex_lock(&m->status.lock);
+    uint64_t t = m->status.tick;
+    pthread_mutex_unlock(&m->status.lock);
+    return t;
+}
+
+/* terrad_tick as a scrape reads it (the default world's gauge). */
+static uint64_t metrics_tick(void)
+{
+    size_t len = 0;
+    char *text = metrics_render(&len);
+    const char *line = text ? strstr(text, "\nterrad_tick ") : NULL;
+    unsigned long long t = 0;
+    if (line)
+        sscanf(line, "\nterrad_tick %llu", &t);
+    free(text);
+    return t;
+}
+
+/* The hub's waker: on the sim thread, as the tick's frames are handed to the
+ * network. The status and the metrics must name the tick already, and the
+ * read waiting for this tick must not be answered yet. */
+static void frames_out(void *arg)
+{
+    published_view *v = arg;
+    uint64_t tick = service_current_tick(v->m->svc);
+    v->wakes++;
+    v->late_status += status_tick(v->m) != tick;
+    v->late_metrics += metrics_tick() != tick;
+    v->late_hub += hub_published_tick(v->m->h) != tick;
+    v->answered_first += hub_reads_pending(v->m->h) == 0;
+}
+
+typedef struct tick_reader {
+    host_sim *m;
+    int32_t cells[16 * 16];
+    uint64_t tick, status_after;
+    int rc;
+} tick_reader;
+
+/* GET /v1/heights's wait (http_views.c read_rect), then what /v1/stats and
+ * ?tick= would read at once. */
+static void *read_then_status(void *arg)
+{
+    tick_reader *r = arg;
+    r->rc = hub_read_heights(r->m->h, (world_rect){32, 32, 16, 16}, r->cells, &r->tick, 30000);
+    r->status_after = status_tick(r->m);
+    return NULL;
+}
+
+static void test_published_before_named(const serve_options *o)
+{
+    error_text err = {{0}};
+    host_sim m;
+    CHECK(open_world(&m, o, &err) == 0, "published: %s", err.message);
+    published_view v = {.m = &m};
+    hub_set_waker(m.h, frames_out, &v);
+    for (long t = 0; t < 6; t++) {
+        tick_reader r = {.m = &m};
+        pthread_t th;
+        CHECK(pthread_create(&th, NULL, read_then_status, &r) == 0, "reader thread");
+        for (int i = 0; i < 30000 && hub_reads_pending(m.h) == 0; i++)
+            host_sleep_ms(1); /* queued before the tick runs: this tick answers it */
+        CHECK(hub_reads_pending(m.h) == 1, "tick %ld: the read waits for the tick", t);
+        CHECK(host_sim_step(&m, t, 0, &err) == 0, "tick %ld: %s", t, err.message);
+        pthread_join(th, NULL);
+        CHECK(r.rc == 0 && r.tick == (uint64_t)t + 1,
+              "tick %ld: the read is answered as of it (%d, %llu)", t, r.rc,
+              (unsigned long long)r.tick);
+        CHECK(r.status_after >= r.tick,
+              "tick %ld: answered as of tick %llu, the status then says %llu (?tick= takes it)", t,
+              (unsigned long long)r.tick, (unsigned long long)r.status_after);
+    }
+    CHECK(v.wakes == 6, "the frames of each tick went out once (%d)", v.wakes);
+    CHECK(v.late_status == 0,
+          "the status named each tick before its frames went out (%d of %d ticks late)",
+          v.late_status, v.wakes);
+    CHECK(v.late_metrics == 0, "so did the metrics (%d of %d ticks late)", v.late_metrics, v.wakes);
+    CHECK(v.late_hub == 0, "so did the hub's published tick, spectate's (%d of %d ticks late)",
+          v.late_hub, v.wakes);
+    CHECK(v.answered_first == 0, "no read was answered before its tick's status (%d)",
+          v.answered_first);
+    hub_set_waker(m.h, NULL, NULL);
+    host_sim_free(&m);
+    pthread_mutex_destroy(&m.status.lock);
+}
+
+/* An HTTP edit (POST /v1/worlds/{name}/edits' wait, http_edits.c), then
+ * what /v1/stats and ?tick= would read at once. */
+typedef struct edit_sender {
+    host_sim *m;
+    hub_edit_result res;
+    uint64_t status_after;
+    atomic_int rc; /* 2 until hub_edit_submit returned */
+} edit_sender;
+
+static void *send_edit(void *arg)
+{
+    edit_sender *e = arg;
+    cJSON *msg = cJSON_Parse("{\"op\":\"crater\",\"x\":40,\"y\":40,\"radius\":4,\"depth\":300}");
+    world_edit *we = malloc(sizeof *we);
+    hub_edit_error why = {0};
+    int rc = we && hub_edit_parse(msg, e->m->w.width, e->m->w.height, 1 << 20, we, &why) == 0
+                 ? hub_edit_submit(e->m->h, we, &e->res, 30000)
+                 : -1;
+    cJSON_Delete(msg);
+    e->status_after = status_tick(e->m);
+    atomic_store(&e->rc, rc);
+    return NULL;
+}
+
+/* terrad_edits_total{op="crater",result="applied"}: counted on the sim
+ * thread as the edit's sender is told (service_edits.c tell). */
+static long long craters_applied(void)
+{
+    size_t len = 0;
+    char *text = metrics_render(&len);
+    const char *key = "terrad_edits_total{op=\"crater\",result=\"applied\"} ";
+    const char *at = text ? strstr(text, key) : NULL;
+    long long n = at ? strtoll(at + strlen(key), NULL, 10) : -1;
+    free(text);
+    return n;
+}
+
+typedef struct stepper {
+    host_sim *m;
+    long tick;
+    int rc;
+    error_text err;
+} stepper;
+
+static void *step_once(void *arg)
+{
+    stepper *st = arg;
+    st->rc = host_sim_step(st->m, st->tick, 0, &st->err);
+    return NULL;
+}
+
+/* An HTTP edit's sender hears of its tick only once the status names it.
+ * Each tick runs on a thread of its own while this one holds the status
+ * lock, so the tick stops where its host publishes the status; once the
+ * hub's published tick (set just before) says the tick got there, the
+ * edit must not have been answered yet. */
+static void test_edit_answered_once_published(const serve_options *o)
+{
+    error_text err = {{0}};
+    host_sim m;
+    CHECK(open_world(&m, o, &err) == 0, "edited: %s", err.message);
+    edit_sender e = {.m = &m, .rc = 2};
+    long long before = craters_applied();
+    pthread_t sender;
+    CHECK(pthread_create(&sender, NULL, send_edit, &e) == 0, "sender thread");
+    int early = 0, answered_at = -1;
+    for (long t = 0; t < 3000 && answered_at < 0; t++) {
+        stepper st = {.m = &m, .tick = t};
+        uint64_t tick = service_current_tick(m.svc) + 1;
+        pthread_mutex_lock(&m.status.lock);
+        pthread_t th;
+        CHECK(pthread_create(&th, NULL, step_once, &st) == 0, "tick thread");
+        for (int i = 0; i < 30000 && hub_published_tick(m.h) < tick; i++)
+            host_sleep_ms(1);
+        int at_status = hub_published_tick(m.h) == tick;
+        early += at_status && craters_applied() != before;
+        pthread_mutex_unlock(&m.status.lock);
+        pthread_join(th, NULL);
+        CHECK(at_status && st.rc == 0, "tick %ld reached its status and ran (%s)", t,
+              st.err.message);
+        if (craters_applied() != before)
+            answered_at = (int)tick;
+        if (!at_status || st.rc != 0)
+            break;
+        host_sleep_ms(1); /* the edit is queued by another thread: a tick later takes it */
+    }
+    pthread_join(sender, NULL);
+    CHECK(answered_at > 0 && atomic_load(&e.rc) == 0 && e.res.code == 0 &&
+              e.res.tick == (uint64_t)answered_at,
+          "the edit was applied at tick %d (rc %d, code %d, tick %llu)", answered_at,
+          atomic_load(&e.rc), e.res.code, (unsigned long long)e.res.tick);
+    CHECK(early == 0, "its sender was not told before the status named the tick");
+    CHECK(e.status_after >= e.res.tick,
+          "told tick %llu, the status then says %llu (?tick= takes it)",
+          (unsigned long long)e.res.tick, (unsigned long long)e.status_after);
+    host_sim_free(&m);
+    pthread_mutex_destroy(&m.status.lock);
+}
+
 static void wait_ended(pooled *p, int n)
 {
     pthread_mutex_lock(&lock);
@@ -136,6 +347,8 @@ int main(void)
     serve_options o;
     CHECK(serve_options_parse(6, argv, &o) == CLI_OK, "options");
     error_text err = {{0}};
+    test_published_before_named(&o);
+    test_edit_answered_once_published(&o);
 
     /* the world alone, ticked on this thread */
     host_sim alone;

@@ -9,7 +9,9 @@
  * as the smooth shapes; on bekker a load-driven wheel (its height the one
  * the twin's search finds) stays exact, also after two batches acknowledged
  * together after a gap (the prediction finds the order the server took them
- * in: its soil state and found height stay the server's). Bad input is refused
+ * in: its soil state and found height stay the server's); a soil state that
+ * cannot be restored (terrad_twin_fault_restores) is the ACK's -1 with its
+ * sentence, and the ACKs after it are taken as before. Bad input is refused
  * with the field named and
  * the prediction goes on. The clients' own tests (test_predict_c,
  * test_predict_python, test_predict_js, ...) drive it against a real daemon.
@@ -142,19 +144,29 @@ static void test_drive(const char *shape, int axis_z)
     terrad_twin_destroy(server);
 }
 
-/* bekker: a load-driven wheel predicted against a twin playing the server */
-static void test_loaded(void)
+/* open_pair on a bekker world, each with wheel ID (the server's cylinder,
+ * the prediction's own wheel). */
+static terrad_twin_prediction *open_bekker(terrad_twin **server, int32_t *heights, const char *what)
 {
     terrad_twin_config *c = config();
     terrad_twin_config_set_name(c, "model", "bekker", NULL);
+    terrad_twin_prediction *p = open_pair(c, server, heights, what);
+    char err[TERRAD_TWIN_ERROR_MAX] = "";
+    terrad_twin_add_collider(*server, ID, "cylinder", 0.3, 0.1, 0, 0, 0, NULL);
+    CHECK(terrad_twin_prediction_add_collider(p, ID, "wheel", 0.3, 0.1, 0, 0, 0, err) == 0,
+          "%s: an own wheel (%s)", what, err);
+    return p;
+}
+
+/* bekker: a load-driven wheel predicted against a twin playing the server */
+static void test_loaded(void)
+{
     terrad_twin *server;
     static int32_t heights[W * H];
     char err[TERRAD_TWIN_ERROR_MAX] = "";
-    terrad_twin_prediction *p = open_pair(c, &server, heights, "loaded");
-    terrad_twin_add_collider(server, ID, "cylinder", 0.3, 0.1, 0, 0, 0, NULL);
+    terrad_twin_prediction *p = open_bekker(&server, heights, "loaded");
     terrad_twin_set_load(server, ID, 150.0, NULL);
-    CHECK(terrad_twin_prediction_add_collider(p, ID, "wheel", 0.3, 0.1, 0, 0, 0, err) == 0 &&
-              terrad_twin_prediction_set_load(p, ID, 150.0, err) == 0,
+    CHECK(terrad_twin_prediction_set_load(p, ID, 150.0, err) == 0,
           "loaded: an own load-driven wheel (%s)", err);
     CHECK(terrad_twin_prediction_set_load(p, ID, NAN, err) == -1 && strstr(err, "load_n"),
           "loaded: a NaN load names load_n (%s)", err);
@@ -188,7 +200,7 @@ static void test_loaded(void)
     terrad_twin_prediction_destroy(p);
     terrad_twin_destroy(server);
 
-    c = config(); /* not bekker: no soil to carry a load */
+    terrad_twin_config *c = config(); /* not bekker: no soil to carry a load */
     terrad_twin *t = terrad_twin_create(c, X, Y, W, H, NULL, NULL);
     terrad_twin_config_free(c);
     terrad_twin_add_collider(t, 1, "sphere", 0.3, 0, 0, 0, 0, NULL);
@@ -197,6 +209,51 @@ static void test_loaded(void)
           "a load on a world without soil forces names load_n (%s)", err);
     CHECK(terrad_twin_set_load(t, 1, 0, err) == 0, "load 0: pose-driven, accepted (%s)", err);
     terrad_twin_destroy(t);
+}
+
+/* bekker: a soil state that cannot be restored (the test hook makes the
+ * restore fail as out of memory does) is -1 with the sentence, after the ACK
+ * was taken; the next ACK is taken, compared and reset as any other. */
+static void test_restore_fails(void)
+{
+    terrad_twin *server;
+    static int32_t heights[W * H];
+    char err[TERRAD_TWIN_ERROR_MAX] = "";
+    terrad_twin_prediction *p = open_bekker(&server, heights, "restore");
+    const terrad_twin_prediction_stats *s = terrad_twin_prediction_get_stats(p);
+    const uint32_t id = ID;
+    double pose[7];
+    uint64_t tick = 100;
+    int rc[8];
+    for (int k = 1; k <= 8; k++) {
+        pose_at(pose, k);
+        terrad_twin_prediction_sent(p, (uint32_t)k, &id, pose, 1, err);
+        server_tick(server, pose, 0, heights);
+        terrad_twin_fault_restores(k == 4); /* the next restore fails: the replay's at ACK 4 */
+        err[0] = 0;
+        rc[k - 1] = terrad_twin_prediction_acked(p, ++tick, (uint32_t)k, heights, err);
+        if (k == 4) {
+            CHECK(rc[3] == -1 && strstr(err, "acked") && strstr(err, "soil state"),
+                  "restore: the ACK whose restore failed is -1 naming the soil state (%d: %s)",
+                  rc[3], err);
+            CHECK(s->reconciled == 4 && s->replayed == 4 && s->pending == 0,
+                  "restore: that ACK was taken all the same (%llu reconciled, %llu pending)",
+                  (unsigned long long)s->reconciled, (unsigned long long)s->pending);
+        }
+    }
+    terrad_twin_fault_restores(0);
+    CHECK(rc[0] == 0 && rc[1] == 0 && rc[2] == 0 && rc[4] == 0 && rc[5] == 0 && rc[6] == 0 &&
+              rc[7] == 0,
+          "restore: every other ACK is 0");
+    CHECK(s->reconciled == 8 && s->replayed == 8 && s->pending == 0,
+          "restore: the ACKs after it are taken and compared (%llu reconciled, %llu compared, %llu "
+          "exact)",
+          (unsigned long long)s->reconciled, (unsigned long long)s->replayed,
+          (unsigned long long)s->exact);
+    CHECK(memcmp(terrad_twin_prediction_heights(p), heights, sizeof heights) == 0,
+          "restore: with nothing pending, the prediction is the server's heights");
+    terrad_twin_prediction_destroy(p);
+    terrad_twin_destroy(server);
 }
 
 static void test_refusals(void)
@@ -260,6 +317,7 @@ int main(void)
     test_drive("wheel", 0);
     test_drive("lugged", 0);
     test_loaded();
+    test_restore_fails();
     test_refusals();
     return check_report();
 }

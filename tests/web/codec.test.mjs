@@ -84,8 +84,11 @@ for (const v of V.vectors) {
         break;
       case 'COLLIDERS':
         assert.equal(String(d.tick), f.tick);
+        // the grousers extension (fields.grousers): each entry's grousers, null for none
         assert.deepEqual(d.colliders, f.colliders.map((c) => ({
-          id: c.id, owner: c.owner, kind: c.kind, dims: c.dims.map(Math.fround), p: c.p.map(Math.fround), q: c.q.map(Math.fround) })));
+          id: c.id, owner: c.owner, kind: c.kind, dims: c.dims.map(Math.fround), p: c.p.map(Math.fround), q: c.q.map(Math.fround),
+          ...(f.grousers ? { grousers: c.grousers && { count: c.grousers.count, height: Math.fround(c.grousers.height),
+            thickness: Math.fround(c.grousers.thickness) } } : {}) })));
         break;
       case 'FOOTPRINTS':
         assert.equal(String(d.tick), f.tick);

@@ -290,7 +290,9 @@ export class TerradClient {
    * Prediction on subscription sid (complete): this client's colliders' poses are applied at once
    * on the twin (wasm: the bytes of terrad_twin.wasm, e.g. from GET /terrad_twin.wasm; config: the
    * world's parameters, e.g. GET /v1/twin); every ACK reconciles exactly. Make it before creating
-   * the colliders it predicts (docs/engines.md, "Prediction").
+   * the colliders it predicts (docs/engines.md, "Prediction"). An event the twin fails on (a soil
+   * state it could not restore at an ACK) is counted in its `errors`, the reason in `lastError`,
+   * never thrown from this client's message handler.
    */
   async predict(sid: number, config: Record<string, number | string>, wasm: BufferSource): Promise<Prediction> {
     const mirror = this.mirrors.get(sid);

@@ -305,11 +305,13 @@ class Client:
         return await self.request(edit(op, **fields), "edited")
 
     async def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
-                        footprints: bool = False) -> int:
+                        footprints: bool = False, grousers: bool = False) -> int:
         """Subscribe to a region (cells); its snapshot and then its deltas keep mirrors[id]
-        exact. colliders / footprints: also COLLIDERS / FOOTPRINTS frames for it."""
+        exact. colliders / footprints: also COLLIDERS / FOOTPRINTS frames for it; grousers
+        (with colliders): their entries carry the wheels' grousers (ColliderState.grousers)."""
         got = await self.request(subscribe(x, y, w, h, colliders=colliders,
-                                           footprints=footprints), "subscribed")
+                                           footprints=footprints, grousers=grousers),
+                                 "subscribed")
         return got["id"]
 
     async def spectate(self, x: int, y: int, w: int, h: int, from_tick: int, speed: int = 1,

@@ -26,6 +26,11 @@ the client's mirror holds the server's heights at t. The twin then
 So any difference another client's collider, an edit or a late batch made is gone at every
 ACK. Prediction sends nothing: the wire is the same with it on or off.
 
+If the twin fails on one of these events (at an ACK, a soil state it could not restore: out
+of memory), the ACK is taken all the same: `errors` counts it and `last_error` keeps the twin's
+sentence, nothing is raised, and the client goes on (its other frames are handled, the next
+ACK compares and resets as before).
+
 Exact when: the world's parameters given to predict() are the server's (the scene's model,
 material and margin), the window has a halo wide enough for the own colliders' reach
 (docs/engines.md, "Halo"), and ACKs are not coalesced (a slow client's ACKs may be; the step-1
@@ -61,8 +66,11 @@ class Prediction:
     the mirror was resyncing, the gap was longer than max_replay_ticks, or several batches
     were acknowledged after a gap of ticks, so which tick took each is unknown), on_time (ACKs
     of tick t, batch seq, where the heights predicted for seq before the ACK were the
-    server's at t: the batches landed one per tick, as the prediction assumes). pending: the
-    seqs sent and not acknowledged yet; twin: the prediction's twin (terrad.twin.Twin), to read.
+    server's at t: the batches landed one per tick, as the prediction assumes), errors (the
+    client's events the twin failed on: an ACK taken with the soil state not restored, out of
+    memory, or a batch not predicted; nothing is raised) and last_error (the twin's sentence
+    for the last of them, "" while none). pending: the seqs sent and not acknowledged yet;
+    twin: the prediction's twin (terrad.twin.Twin), to read.
     """
 
     predicted = _stat("predicted")
@@ -89,6 +97,8 @@ class Prediction:
         self._err = ctypes.create_string_buffer(_ERR_MAX)
         self._p: int | None = None
         self._cells = m.w * m.h
+        self.errors = 0
+        self.last_error = ""
         c = make_config(self._lib, cfg, self._err)
         try:
             p = self._lib.terrad_twin_prediction_create(
@@ -127,6 +137,13 @@ class Prediction:
     def _check(self, rc: int) -> None:
         if rc != 0:
             raise TwinError(self._err.value.decode(errors="replace"))
+
+    def _took(self, rc: int) -> None:
+        """The twin's call for one of the client's events returned rc: a failure is counted
+        with its sentence, not raised (the client goes on)."""
+        if rc != 0:
+            self.errors += 1
+            self.last_error = self._err.value.decode(errors="replace")
 
     def _stats(self) -> PredictionStats:
         return self._lib.terrad_twin_prediction_get_stats(self._handle()).contents
@@ -188,16 +205,17 @@ class Prediction:
         ids = (ctypes.c_uint32 * max(len(poses), 1))(*(p.id for p in poses))
         values = (ctypes.c_double * max(7 * len(poses), 1))(
             *(v for p in poses for v in (p.x, p.y, p.z, p.qw, p.qx, p.qy, p.qz)))
-        self._check(self._lib.terrad_twin_prediction_sent(self._handle(), seq, ids, values,
-                                                          len(poses), self._err))
+        self._took(self._lib.terrad_twin_prediction_sent(self._handle(), seq, ids, values,
+                                                         len(poses), self._err))
         for cb in list(self._on_predict):
             cb(seq)
 
     def on_ack(self, tick: int, seq: int) -> None:
         """The server's ACK of tick t (batch seq); the mirror holds the server's heights at t
-        (or is resyncing: then the batches are forgotten and the next ACK reconciles)."""
+        (or is resyncing: then the batches are forgotten and the next ACK reconciles). A
+        soil state the twin could not restore is counted (errors, last_error), not raised."""
         m = self.client.mirrors.get(self.sid)
         server = int32s(m.heights, self._cells, "heights") if m is not None and m.complete \
             else None
-        self._check(self._lib.terrad_twin_prediction_acked(self._handle(), tick, seq, server,
-                                                           self._err))
+        self._took(self._lib.terrad_twin_prediction_acked(self._handle(), tick, seq, server,
+                                                          self._err))

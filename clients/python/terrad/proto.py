@@ -45,7 +45,8 @@ except ImportError as _e:  # pragma: no cover - the package is a declared depend
 __all__ = [
     "PROTOCOL_VERSION", "MAGIC", "SUBPROTOCOL", "HEADER_SIZE", "POSE_SIZE", "RECT_FIXED",
     "CONTACT_SIZE", "ACK_SIZE", "PING_SIZE", "COLLIDER_STATE_SIZE", "FOOTPRINT_SIZE", "FORCE_SIZE",
-    "FORCES_FLAG_HEIGHT", "FOOTPRINT_YAW_MAX", "MAX_COUNT", "ZSTD_LEVEL", "ERRORS", "ERROR_CODES", "MsgType", "Encoding",
+    "FORCES_FLAG_HEIGHT", "COLLIDERS_FLAG_GROUSERS", "COLLIDER_GROUSERS_SIZE", "GROUSERS_MAX",
+    "FOOTPRINT_YAW_MAX", "MAX_COUNT", "ZSTD_LEVEL", "ERRORS", "ERROR_CODES", "MsgType", "Encoding",
     "ProtoError", "ServerError", "Pose", "Rect", "Contact", "ColliderState", "Footprint",
     "decode_header", "encode_pose_batch", "decode_pose_batch", "check_rect", "encode_delta",
     "decode_delta", "encode_contact", "decode_contact", "encode_colliders", "decode_colliders",
@@ -72,6 +73,9 @@ COLLIDER_STATE_SIZE = 48
 FOOTPRINT_SIZE = 24
 FORCE_SIZE = 48
 FORCES_FLAG_HEIGHT = 0x01  # FORCES header flag: an f64 height after each entry (opt-in)
+COLLIDERS_FLAG_GROUSERS = 0x01  # COLLIDERS header flag: each entry's grousers after it (opt-in)
+COLLIDER_GROUSERS_SIZE = 12  # u16 count, u16 reserved, f32 height, f32 thickness
+GROUSERS_MAX = 360
 FOOTPRINT_YAW_MAX = 3.1415998935699463  # pi rounded up to float32
 MAX_COUNT = 65535
 ZSTD_LEVEL = 3
@@ -184,13 +188,17 @@ class Contact:
 @dataclass
 class ColliderState:
     """One COLLIDERS entry: owner 0 own / 1 other / 2 demo; kind 0 sphere, 1 box,
-    2 capsule, 3 cylinder, 4 mesh bounds; dims, p (x, y, z), q (qw, qx, qy, qz)."""
+    2 capsule, 3 cylinder, 4 mesh bounds; dims, p (x, y, z), q (qw, qx, qy, qz).
+    grousers: a wheel's lugs from the grousers extension (a subscription with
+    grousers=True), {"count": N, "height": m, "thickness": m} as float32 values, lug 0
+    along the entry's -z turned with q; None for none, or in a frame without it."""
     id: int
     owner: int
     kind: int
     dims: tuple
     p: tuple
     q: tuple
+    grousers: dict | None = None
 
 
 @dataclass
@@ -256,7 +264,9 @@ def decode_header(buf: bytes) -> MsgType:
         t = MsgType(buf[2])
     except ValueError:
         raise ProtoError("unknown_type", f"type 0x{buf[2]:02x}") from None
-    if buf[3] & ~(FORCES_FLAG_HEIGHT if t == MsgType.FORCES else 0):
+    # the flags defined, each an extension a client asks for: FORCES' heights, COLLIDERS' grousers
+    defined = {MsgType.FORCES: FORCES_FLAG_HEIGHT, MsgType.COLLIDERS: COLLIDERS_FLAG_GROUSERS}
+    if buf[3] & ~defined.get(t, 0):
         raise ProtoError("bad_frame", "reserved flags set")
     return t
 
@@ -575,11 +585,56 @@ def _unpack_collider_state(buf: bytes, pos: int) -> ColliderState:
     return ColliderState(cid, owner, kind, tuple(f[0:3]), tuple(f[3:6]), tuple(f[6:10]))
 
 
-def encode_colliders(tick: int, states: list[ColliderState]) -> bytes:
-    return _encode_tick_list(MsgType.COLLIDERS, tick, states, "colliders", _pack_collider_state)
+_GROUSERS = struct.Struct("<HHff")
+
+
+def _check_grousers(c: ColliderState, count: int, height: float, thickness: float) -> None:
+    if count == 0:
+        if height != 0 or thickness != 0:
+            raise ProtoError("bad_value", f"collider {c.id}: no grousers but a height or thickness")
+        return
+    if count > GROUSERS_MAX or c.kind != 3:
+        raise ProtoError("bad_value", f"collider {c.id}: {count} grousers on kind {c.kind} "
+                         f"(1..{GROUSERS_MAX}, on a cylinder only)")
+    if not (0 < height <= c.dims[0] and 0 < thickness <= c.dims[0]):
+        raise ProtoError("bad_value", f"collider {c.id}: grousers {height} m tall, {thickness} m "
+                         f"thick (each > 0 and <= the radius {c.dims[0]})")
+
+
+def _pack_collider_grousers(c: ColliderState) -> bytes:
+    g = c.grousers or {"count": 0, "height": 0.0, "thickness": 0.0}
+    count, height, thickness = int(g["count"]), _f32(g["height"]), _f32(g["thickness"])
+    _check_grousers(c, count, height, thickness)
+    return _pack_collider_state(c) + _GROUSERS.pack(count, 0, height, thickness)
+
+
+def _unpack_collider_grousers(buf: bytes, pos: int) -> ColliderState:
+    c = _unpack_collider_state(buf, pos)
+    count, reserved, height, thickness = _GROUSERS.unpack_from(buf, pos + COLLIDER_STATE_SIZE)
+    if reserved != 0:
+        raise ProtoError("bad_value", f"collider {c.id}: the grousers' reserved bytes set")
+    _check_grousers(c, count, height, thickness)
+    if count:
+        c.grousers = {"count": count, "height": height, "thickness": thickness}
+    return c
+
+
+def encode_colliders(tick: int, states: list[ColliderState], grousers: bool = False) -> bytes:
+    """grousers: the extension (header flag COLLIDERS_FLAG_GROUSERS, each entry's grousers
+    after it, none where an entry's grousers is None)."""
+    if not grousers:
+        return _encode_tick_list(MsgType.COLLIDERS, tick, states, "colliders",
+                                 _pack_collider_state)
+    out = _encode_tick_list(MsgType.COLLIDERS, tick, states, "colliders", _pack_collider_grousers)
+    return out[:3] + bytes([COLLIDERS_FLAG_GROUSERS]) + out[4:]
 
 
 def decode_colliders(buf: bytes, max_colliders: int = MAX_COUNT) -> tuple[int, list[ColliderState]]:
+    """Both forms: with the header flag COLLIDERS_FLAG_GROUSERS a lugged wheel's entry has its
+    grousers."""
+    if len(buf) >= HEADER_SIZE and buf[3] & COLLIDERS_FLAG_GROUSERS:
+        return _decode_tick_list(buf, MsgType.COLLIDERS, COLLIDER_STATE_SIZE + COLLIDER_GROUSERS_SIZE,
+                                 max_colliders, "colliders", _unpack_collider_grousers)
     return _decode_tick_list(buf, MsgType.COLLIDERS, COLLIDER_STATE_SIZE, max_colliders,
                              "colliders", _unpack_collider_state)
 
@@ -1090,10 +1145,14 @@ def collider_delete(cid: int, ref=None) -> dict:
 
 
 def subscribe(x: int, y: int, w: int, h: int, ref=None, colliders: bool = False,
-              footprints: bool = False) -> dict:
+              footprints: bool = False, grousers: bool = False) -> dict:
+    """grousers (with colliders): COLLIDERS entries carry the wheels' grousers (the
+    extension, PROTOCOL.md "COLLIDERS")."""
     m = {"type": "subscribe", "x": x, "y": y, "w": w, "h": h}
     if colliders:
         m["colliders"] = True
+    if grousers:
+        m["grousers"] = True
     if footprints:
         m["footprints"] = True
     return _with_ref(m, ref)

@@ -106,8 +106,8 @@ class SyncClient(BackgroundLoop):
         return self._call(self.client.edit(op, **fields))
 
     def subscribe(self, x: int, y: int, w: int, h: int, colliders: bool = False,
-                  footprints: bool = False) -> int:
-        return self._call(self.client.subscribe(x, y, w, h, colliders, footprints))
+                  footprints: bool = False, grousers: bool = False) -> int:
+        return self._call(self.client.subscribe(x, y, w, h, colliders, footprints, grousers))
 
     def unsubscribe(self, sid: int) -> None:
         self._call(self.client.unsubscribe(sid))

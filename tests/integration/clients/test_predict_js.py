@@ -21,7 +21,11 @@ WebSocket, drives through two connections with the viewer's codec and reports; h
   in the twin 0 of 300 were), its rut deeper than the posed rim could press, and the heights the
   server found arrive in FORCES (colliderCreate's forcesHeight: the header flag and each
   entry's f64 height_m, decoded by web/terrad_codec.mjs) below the posed one; a NaN, negative
-  or infinite load is refused naming load_n;
+  or infinite load is refused naming load_n; then rolled back with the next soil-state restore
+  failing (the twin library's test hook, terrad_twin_fault_restores): Prediction.errors counts
+  it with the twin's sentence in lastError, nothing is thrown from the ACK handler (before, the
+  Error escaped the websocket's message handler and ended the driver), and the later ACKs are
+  taken, compared and reset to the mirror;
 - bad input: a Prediction on a mirror without its snapshot, an unknown model, grousers with
   a negative, fractional or huge count, a height over the radius, no thickness: refused with
   an error naming the field.
@@ -123,8 +127,20 @@ def main():
                   f"{max(found, default=None)} m)")
             check(all(r == "ok" for r in out["refused"]),
                   f"a NaN, negative or infinite load is refused naming load_n ({out['refused']})")
+            check(drive["errors"] == 0 and drive["lastError"] == "",
+                  f"no prediction errors while rolling ({drive['errors']}: {drive['lastError']!r})")
+            r = out["restore"]
+            print(f"JS restore failed: {r}", flush=True)
+            check(r["errors"] == 1 and "soil state" in r["lastError"],
+                  f"the failed restore is counted with the twin's sentence ({r['errors']}: "
+                  f"{r['lastError']!r})")
+            check(r["reconciled"] >= 10 and r["replayed"] >= 10,
+                  f"the ACKs after it are taken and compared ({r['reconciled']}, {r['replayed']})")
+            check(r["resets"] > 10 and r["resetsEqual"] == r["resets"],
+                  f"with nothing pending, the prediction is the server's state at every ACK after "
+                  f"it ({r['resets'] - r['resetsEqual']} of {r['resets']} not)")
             check(not out["errors"], f"no server errors ({out['errors'][:3]})")
-    check.finish()
 
 
 main()
+check.finish()  # also after a driver that did not run (main returns early)

@@ -27,7 +27,10 @@ against a real daemon (--backend cpu, no demo actors, a flat scene of default ma
   below the posed one). Without load_n in the twin (pose-driven at the client's height) 0 of
   301 compared ACKs were exact; with it but the soil state not kept across restarts, 0 of 301
   too. A NaN, negative or infinite load_n, and any load on a non-bekker twin, are refused
-  naming load_n;
+  naming load_n. Then it rolls back with the next soil-state restore failing (the twin
+  library's test hook, terrad_twin_fault_restores): Prediction.errors counts it and last_error
+  keeps the twin's sentence, nothing is raised, and the later ACKs are taken, compared and
+  reset to the mirror (before, the TwinError went to client.errors and nothing counted it);
 - terrad_twin_place, offline: a twin restarted from another's heights after one tick, its
   sphere placed where that tick left it, gives the next tick the same heights as the twin
   that ran both ticks.
@@ -304,17 +307,22 @@ async def drive_loaded(d, cfg):
         x0, x1 = (SOIL_REGION[0] + 16) * cell, (SOIL_REGION[0] + SOIL_REGION[2] - 16) * cell
         y = (SOIL_REGION[1] + SOIL_REGION[3] / 2) * cell
         heights = set()
-        for i in range(n):
-            x = x0 + (x1 - x0) * i / (n - 1)
-            angle = (x - x0) / (radius * (1 - 0.2))  # turning faster than it travels: slip 0.2
-            await a.send_poses([Pose(wheel, x, y, z, math.cos(angle / 2), 0.0,
-                                     math.sin(angle / 2), 0.0)])
-            f = a.forces.get(wheel)
-            if f is not None and f.height_m is not None:
-                heights.add(round(f.height_m, 6))
-            await asyncio.sleep(1 / hz)
-        seq = await a.send_poses([Pose(wheel, x1, y, z, 1.0, 0.0, 0.0, 0.0)])
-        await a.wait_ack(seq, WAIT)
+
+        async def roll(start, end, n):
+            """The wheel from x start to end in n batches, one a tick, until all are acked."""
+            for i in range(n):
+                x = start + (end - start) * i / (n - 1)
+                angle = (x - start) / (radius * (1 - 0.2))  # turning faster than it travels: slip 0.2
+                await a.send_poses([Pose(wheel, x, y, z, math.cos(angle / 2), 0.0,
+                                         math.sin(angle / 2), 0.0)])
+                f = a.forces.get(wheel)
+                if f is not None and f.height_m is not None:
+                    heights.add(round(f.height_m, 6))
+                await asyncio.sleep(1 / hz)
+            seq = await a.send_poses([Pose(wheel, end, y, z, 1.0, 0.0, 0.0, 0.0)])
+            await a.wait_ack(seq, WAIT)
+
+        await roll(x0, x1, n)
         print(f"load-driven: {pred.predicted} batches predicted, {pred.replayed} replays "
               f"compared ({pred.exact} exact), {pred.on_time} on time, {pred.skipped} not "
               f"compared; {len(heights)} found heights, {min(heights, default=0)}.."
@@ -323,6 +331,36 @@ async def drive_loaded(d, cfg):
               f"the server found the wheel's heights, below the posed {z} m ({len(heights)} of "
               f"them, highest {max(heights, default=None)})")
         check_exact(pred, a.mirrors[sid], "load-driven wheel: ")
+        check(pred.errors == 0 and pred.last_error == "",
+              f"no prediction errors ({pred.errors}: {pred.last_error!r})")
+
+        # Back over the last third with the next soil-state restore failing (the twin
+        # library's test hook: out of memory for it cannot be provoked): the ACK is taken, the
+        # error counted with the twin's sentence, and the client goes on.
+        resets = []
+
+        def after_ack(tick, seq):  # runs after the prediction reconciled this ACK
+            if not pred.pending:
+                resets.append(list(pred.twin.read()) == list(a.mirrors[sid].heights))
+
+        a.on(MsgType.ACK, after_ack)
+        reconciled0, replayed0, exact0 = pred.reconciled, pred.replayed, pred.exact
+        terrad.twin.load_library().terrad_twin_fault_restores(1)  # the process's next restore
+        await roll(x1, x1 - (x1 - x0) / 3, 100)
+        terrad.twin.load_library().terrad_twin_fault_restores(0)
+        print(f"restore failed: {pred.errors} errors ({pred.last_error}); then "
+              f"{pred.reconciled - reconciled0} reconciled, {pred.replayed - replayed0} compared "
+              f"({pred.exact - exact0} exact)", flush=True)
+        check(pred.errors == 1 and "soil state" in pred.last_error,
+              f"the failed restore is counted with the twin's sentence ({pred.errors}: "
+              f"{pred.last_error!r})")
+        check(pred.reconciled - reconciled0 >= 10 and pred.replayed - replayed0 >= 10,
+              f"the ACKs after it are taken and compared ({pred.reconciled - reconciled0}, "
+              f"{pred.replayed - replayed0})")
+        check(len(resets) > 10 and all(resets),
+              f"with nothing pending, the prediction is the server's state at every ACK after it "
+              f"({resets.count(False)} of {len(resets)} not)")
+        check(not a.errors, f"no errors reached the client ({a.errors[:3]})")
 
 
 def main():

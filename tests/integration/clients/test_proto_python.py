@@ -123,11 +123,15 @@ def check_valid(v):
         check(tp.encode_contact(int(f["tick"]), want) == b, f"{name}: encode")
     elif t == "COLLIDERS":
         tick, cs = tp.decode_colliders(b)
+        # the grousers extension: each entry's grousers (null: none) as float32 values
+        lugs = [c.get("grousers") and {"count": c["grousers"]["count"], "height": f32(c["grousers"]["height"]),
+                                       "thickness": f32(c["grousers"]["thickness"])} for c in f["colliders"]]
         want = [tp.ColliderState(c["id"], c["owner"], c["kind"], tuple(map(f32, c["dims"])), tuple(map(f32, c["p"])),
-                                 tuple(map(f32, c["q"]))) for c in f["colliders"]]
+                                 tuple(map(f32, c["q"])), g) for c, g in zip(f["colliders"], lugs)]
         check(tick == int(f["tick"]), f"{name}: tick")
         check(cs == want, f"{name}: colliders")
-        check(tp.encode_colliders(int(f["tick"]), want) == b, f"{name}: encode")
+        check(tp.encode_colliders(int(f["tick"]), want, grousers=bool(f.get("grousers"))) == b,
+              f"{name}: encode")
     elif t == "FOOTPRINTS":
         tick, es = tp.decode_footprints(b)
         want = [tp.Footprint(e["collider"], f32(e["x"]), f32(e["y"]), f32(e["yaw"]), f32(e["size_m"]),
