@@ -351,7 +351,8 @@ function followCamera(force) {
   if (!force && cur && Math.abs(cur.x - r.x) < WINDOW / 4 && Math.abs(cur.y - r.y) < WINDOW / 4) return;
   if (!force && cur && cur.x === r.x && cur.y === r.y) return;
   app.wantRegion = r;
-  send(P.subscribe(r.x, r.y, r.w, r.h, `sub-${++refN}`, true)); // with COLLIDERS frames
+  // with COLLIDERS frames, and their wheels' grousers (PROTOCOL.md "COLLIDERS": the extension)
+  send(P.subscribe(r.x, r.y, r.w, r.h, `sub-${++refN}`, true, false, true));
 }
 
 // ---- driving ----
@@ -899,6 +900,27 @@ function drawShape(mesh, pos, scale, q, colour) {
   gl.drawElements(gl.TRIANGLES, mesh.count, gl.UNSIGNED_SHORT, 0);
 }
 
+const qmul = ([aw, ax, ay, az], [bw, bx, by, bz]) => [aw * bw - ax * bx - ay * by - az * bz,
+  aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw];
+const qrot = (q, v) => { const r = qmul(qmul(q, [0, ...v]), [q[0], -q[1], -q[2], -q[3]]); return r.slice(1); };
+
+// A lugged wheel's grousers (the COLLIDERS extension) as boxes, as server/collider/lugs.c presses
+// them: lug k along the entry's -z turned 2πk/count about its y, a plate across the whole width,
+// thickness along the rim, from r - max(height, thickness) (inside the rim) out to r + height.
+// [{p, half, q}]: centre, half extents, orientation.
+function lugBoxes(c) {
+  const g = c.grousers;
+  if (!g || c.kind !== P.ColliderKind.CYLINDER) return [];
+  const [r, hl] = c.dims, inner = Math.max(r - Math.max(g.height, g.thickness), 0), outer = r + g.height;
+  const qn = Math.hypot(...c.q) || 1, q = c.q.map((v) => v / qn), out = [];
+  for (let k = 0; k < g.count; k++) {
+    const a = (Math.PI * k) / g.count, ql = qmul(q, [Math.cos(a), 0, Math.sin(a), 0]);
+    const o = qrot(ql, [0, 0, -(inner + outer) / 2]);
+    out.push({ p: [c.p[0] + o[0], c.p[1] + o[1], c.p[2] + o[2]], half: [g.thickness / 2, hl, (outer - inner) / 2], q: ql });
+  }
+  return out;
+}
+
 function drawCollider(c) {
   const K = P.ColliderKind, S = gpu.shapes, [a, b, d] = c.dims;
   const qn = Math.hypot(...c.q) || 1, q = c.q.map((v) => v / qn);
@@ -906,6 +928,7 @@ function drawCollider(c) {
   else if (c.kind === K.BOX || c.kind === K.MESH) drawShape(S.box, c.p, [a, b, d], q, c.colour);
   else {
     drawShape(S.cylinder, c.p, [a, b, a], q, c.colour);
+    for (const l of lugBoxes(c)) drawShape(S.box, l.p, l.half, l.q, c.colour);
     if (c.kind === K.CAPSULE) // hemispheres at both ends of the axis (the entry's y)
       for (const s of [-1, 1]) {
         const [qw, qx, qy, qz] = q, y = s * b; // rotate (0, y, 0) by q
@@ -1094,8 +1117,11 @@ window.terrad = {
   get collider() { return app.own ? { ...app.own } : null; },
   get world() { return app.world; },
   get wsUrl() { return wsUrl; },
-  // the latest COLLIDERS frame: [{id, owner (0 own, 1 other, 2 demo), kind, dims, p, q}]
+  // the latest COLLIDERS frame: [{id, owner (0 own, 1 other, 2 demo), kind, dims, p, q, and a
+  // lugged wheel's grousers}]
   get colliders() { return app.colliders.map((c) => ({ ...c })); },
+  // the boxes drawn for a collider's grousers: [{p, half, q}] (none for a smooth one)
+  lugs(id) { const c = app.colliders.find((k) => k.id === id); return c ? lugBoxes(c) : []; },
   // the chunks drawn last frame: [{x, y (window cells), level (LoD, step 2^level)}]
   get chunks() { return app.chunks.map((c) => ({ ...c })); },
   get camera() { return { ...cam, target: app.target ? [...app.target] : null, eye: app.eye ? [...app.eye] : null }; },

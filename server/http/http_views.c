@@ -267,11 +267,20 @@ static unsigned past_tick(const world *base_world, const http_status *st, const 
     return 0;
 }
 
+/* A rebuild's cancel (store_cancel): the world's reads were closed, it is
+ * leaving, and its removal waits for this request (hub_worlds_remove). */
+static int world_leaving(void *h)
+{
+    return h && hub_reads_closed(h);
+}
+
 /* One rebuild of r as of tick on this worker, kept as a world (layer or
- * stats) or only its heights into dst (w NULL): 0, or the status and why. */
-static unsigned rebuild_past(const world *base_world, const http_status *st, uint64_t n,
+ * stats) or only its heights into dst (w NULL): 0, or the status and why.
+ * It stops between two records once the world's reads are closed. */
+static unsigned rebuild_past(const world *base_world, const http_status *st, hub *h, uint64_t n,
                              world_rect r, world *w, int32_t *dst, char *why, size_t cap)
 {
+    store_cancel leaving = {.cancelled = world_leaving, .ctx = h};
     error_text err = {{0}};
     /* refused, not queued: a queue of slow rebuilds would hold every HTTP
      * worker (four) and starve the live reads and the probes */
@@ -281,9 +290,16 @@ static unsigned rebuild_past(const world *base_world, const http_status *st, uin
                  "per daemon); retry");
         return MHD_HTTP_SERVICE_UNAVAILABLE;
     }
-    int rc = w ? store_history_world(&st->history, base_world, n, r, w, &err)
-               : store_history_rect(&st->history, base_world, n, r, dst, &err);
+    int rc = w ? store_history_world(&st->history, base_world, n, r, w, &leaving, &err)
+               : store_history_rect(&st->history, base_world, n, r, dst, &leaving, &err);
     pthread_mutex_unlock(&replay_lock);
+    if (rc == STORE_CANCELLED) {
+        snprintf(why, cap,
+                 "parameter tick: the rebuild of tick %llu stopped: the world is leaving this "
+                 "server (deleted, or stopping)",
+                 (unsigned long long)n);
+        return MHD_HTTP_SERVICE_UNAVAILABLE;
+    }
     if (rc == 1) {
         snprintf(why, cap,
                  "parameter tick: tick %llu is no longer held (the log before a newer tile "
@@ -304,9 +320,9 @@ static unsigned rebuild_past(const world *base_world, const http_status *st, uin
  * compaction memory) as of the end of tick N, rebuilt from the world's data
  * directory on this worker (store_replay_rect, store_replay_world), never
  * from the sim thread's world. 0, or the status and why naming the parameter. */
-static unsigned read_past(const world *base_world, const http_status *st, const http_args *args,
-                          const char *text, world_rect r, int32_t *dst, uint64_t *tick, char *why,
-                          size_t cap)
+static unsigned read_past(const world *base_world, const http_status *st, hub *h,
+                          const http_args *args, const char *text, world_rect r, int32_t *dst,
+                          uint64_t *tick, char *why, size_t cap)
 {
     const char *layer = arg(args, "layer");
     int compaction = layer && strcmp(layer, "compaction") == 0;
@@ -327,9 +343,9 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
         return 0;
     }
     if (!compaction)
-        return rebuild_past(base_world, st, *tick, r, NULL, dst, why, cap);
+        return rebuild_past(base_world, st, h, *tick, r, NULL, dst, why, cap);
     world w;
-    status = rebuild_past(base_world, st, *tick, r, &w, NULL, why, cap);
+    status = rebuild_past(base_world, st, h, *tick, r, &w, NULL, why, cap);
     if (!status) {
         world_layer_gather(&w, WORLD_LAYER_COMPACTION, r, dst);
         world_free(&w);
@@ -341,7 +357,7 @@ static unsigned read_past(const world *base_world, const http_status *st, const 
  * world whole as of N (its Σh, its compaction memory and the bekker soil's
  * compaction summed as the live answer sums them); the live-only fields
  * (clients, colliders, tick time, overruns, ready) are left out. */
-static void stats_past(const world *base_world, const http_status *st, const char *text,
+static void stats_past(const world *base_world, const http_status *st, hub *h, const char *text,
                        http_answer *a)
 {
     char why[512], body[256];
@@ -350,7 +366,7 @@ static void stats_past(const world *base_world, const http_status *st, const cha
     world w;
     world_rect all = {0, 0, st->world_width, st->world_height};
     if (!status)
-        status = rebuild_past(base_world, st, n, all, &w, NULL, why, sizeof why);
+        status = rebuild_past(base_world, st, h, n, all, &w, NULL, why, sizeof why);
     if (status)
         return http_answer_error(a, status, "%s", why);
     snprintf(body, sizeof body,
@@ -371,7 +387,7 @@ static unsigned read_rect(http_server *s, hub *heights, const world *base_world,
 {
     const char *past = arg(args, "tick");
     if (past)
-        return read_past(base_world, st, args, past, r, dst, tick, why, cap);
+        return read_past(base_world, st, heights, args, past, r, dst, tick, why, cap);
     int base = arg_is_one(args, "base");
     if (base < 0) {
         snprintf(why, cap, "parameter base must be 0 or 1");
@@ -531,7 +547,7 @@ void http_view_hosted(http_server *s, hub_world *w, http_view view, const http_a
     pthread_mutex_unlock(&st->lock);
     const char *past = view == HTTP_VIEW_STATS ? arg(args, "tick") : NULL;
     if (past)
-        stats_past(w->base, &snap, past, a);
+        stats_past(w->base, &snap, w->h, past, a);
     else if (view == HTTP_VIEW_STATS)
         http_view_stats(&snap, a);
     else if (view == HTTP_VIEW_WORLD)

@@ -675,6 +675,14 @@ uint64_t hub_published_tick(hub *h)
 void hub_serve_reads(hub *h, const world *w, uint64_t tick)
 {
     THREAD_OWNED(&h->sim_end);
+#ifdef TERRAD_THREAD_CHECKS
+    /* a read never names a tick before it is published (service_tick, row 9) */
+    if (tick > atomic_load(&h->published_tick)) {
+        log_error("hub_serve_reads: tick %llu is not published (the hub's tick is %llu)",
+                  (unsigned long long)tick, (unsigned long long)atomic_load(&h->published_tick));
+        abort();
+    }
+#endif
     pthread_mutex_lock(&h->read_lock);
     int served = 0;
     for (int i = 0; i < HUB_MAX_READS; i++) {
@@ -706,6 +714,14 @@ void hub_close_reads(hub *h)
     h->reads_closed = 1;
     pthread_cond_broadcast(&h->read_done);
     pthread_mutex_unlock(&h->read_lock);
+}
+
+int hub_reads_closed(hub *h)
+{
+    pthread_mutex_lock(&h->read_lock);
+    int closed = h->reads_closed;
+    pthread_mutex_unlock(&h->read_lock);
+    return closed;
 }
 
 void hub_set_store_unavailable(hub *h, const char *reason)

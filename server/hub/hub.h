@@ -258,7 +258,9 @@ int hub_read_layer(hub *h, hub_layer layer, world_rect r, int32_t *out, uint64_t
                    int timeout_ms);
 /* Reads waiting to be served (any thread). */
 int hub_reads_pending(hub *h);
-/* sim thread, between ticks: serve the pending reads. */
+/* sim thread, between ticks: serve the pending reads, answered as of tick,
+ * which hub_publish_tick has published (debug and sanitizer builds abort
+ * otherwise: nothing names a tick before its status). */
 void hub_serve_reads(hub *h, const world *w, uint64_t tick);
 /* sim thread: tick is published — first of all who tell of it (service_tick
  * row 9: then its host's status, its frames, the reads it answers); at
@@ -272,6 +274,9 @@ void hub_publish_tick(hub *h, uint64_t tick);
 uint64_t hub_published_tick(hub *h);
 /* sim thread, at exit: fail every pending and future read. */
 void hub_close_reads(hub *h);
+/* Any thread: 1 once the reads are closed (the world is leaving), so a long
+ * read beside the hub (a past-tick rebuild from the files) stops too. */
+int hub_reads_closed(hub *h);
 /* The world stops (deleted, lost, or the daemon stops): every HTTP edit
  * waiting for a tick, and every later one, is answered at once with
  * TERRAD_E_SHUTTING_DOWN and why, instead of waiting out its timeout. Any

@@ -27,11 +27,11 @@
  * slot is left to the holder, would take the host's whole world (its GL
  * context is current on one worker only) and the registry's record of it
  * out of the host's hands: not done. What can be cancelled is: spectators
- * ask hub_worlds_leaving, HTTP height reads and edits fail on the closed
- * hub; a past-tick rebuild (?tick=, one at a time per daemon) runs to its
- * end. So one past the bound is a long rebuild, a bug or a stalled disk,
- * and the count is how an operator finds it (a delete that does not answer,
- * one sim worker busy with the world's end). The default
+ * ask hub_worlds_leaving and HTTP past-tick rebuilds hub_reads_closed
+ * between two records, HTTP height reads and edits fail on the closed hub.
+ * So one past the bound is a bug or a stalled disk, and the count is how an
+ * operator finds it (a delete that does not answer, one sim worker busy
+ * with the world's end). The default
  * world is no entry apart: it is the one the default name names (a single
  * daemon's scene), or the first (a cluster node). One mutex, held for a copy
  * or a scan, and while the watcher (the net thread's waker: a short lock of

@@ -141,6 +141,20 @@ uint64_t store_durable_tick(const store *st);
 int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_recovery *rec,
                         error_text *err);
 
+/* A rebuild's reader may stop it (a spectator whose client left, or whose
+ * world leaves; an HTTP past-tick read whose world leaves): cancelled(ctx)
+ * is asked before each record the rebuild applies and each snapshot it
+ * loads, and at each store_cursor_next, from the reader's thread; once it
+ * says nonzero (it must keep saying so) the call returns STORE_CANCELLED
+ * with why "store: cancelled", never retried, so the reader waits on no more
+ * than one record's work. */
+typedef struct store_cancel {
+    int (*cancelled)(void *ctx); /* NULL: never */
+    void *ctx;
+    int seen; /* the store's: set once cancelled said so */
+} store_cancel;
+#define STORE_CANCELLED (-2)
+
 /*
  * GET /v1/heights?tick=N: rectangle r of the world as of tick `tick`, rebuilt
  * from data directory `dir` into dst (r.w * r.h heights) beside a live daemon
@@ -149,18 +163,18 @@ int store_load_readonly(const char *dir, world *w, uint64_t upto_tick, store_rec
  * world_base_fill_rect only, immutable). While the log is whole (segment 1
  * still present: retention kept it) the rebuild is the base and every record
  * up to the tick, else the tile snapshots and the records after them. Memory:
- * one world of base's size and one log segment at a time. Returns 0; 1 when
- * the store no longer holds the tick (compacted away: why says so); -1 on
- * another error (why). */
+ * one world of base's size and one log segment at a time. cancel: NULL
+ * (never), else copied. Returns 0; 1 when the store no longer holds the tick
+ * (compacted away: why says so); STORE_CANCELLED; -1 on another error (why). */
 int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
-                      error_text *why);
+                      const store_cancel *cancel, error_text *why);
 
 /* The same rebuild of r kept as a world (its heights and per-cell layers in
  * r as of the tick; elsewhere not meaningful), for the reads of a past tick
  * that need more than heights (?tick=N with layer=compaction, /v1/stats):
- * 0 with *out to world_free, 1 (no longer held: why), -1. */
+ * 0 with *out to world_free, 1 (no longer held: why), STORE_CANCELLED, -1. */
 int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
-                       error_text *why);
+                       const store_cancel *cancel, error_text *why);
 
 /*
  * A spectator's replay (PROTOCOL.md "spectate"): a cursor holds rectangle r
@@ -175,18 +189,6 @@ int store_replay_world(const char *dir, const world *base, uint64_t tick, world_
  * away, or damage), STORE_CANCELLED. One thread per cursor.
  */
 typedef struct store_cursor store_cursor;
-/* A cursor's reader may stop it (a spectator whose client left, or whose
- * world leaves): cancelled(ctx) is asked before each record the rebuild
- * applies and each snapshot it loads, and at each store_cursor_next,
- * from the cursor's thread; once it says nonzero
- * (it must keep saying so) open and next return STORE_CANCELLED with why
- * "store: cancelled", so the reader waits on no more than one record's work. */
-typedef struct store_cancel {
-    int (*cancelled)(void *ctx); /* NULL: never */
-    void *ctx;
-    int seen; /* the store's: set once cancelled said so */
-} store_cancel;
-#define STORE_CANCELLED (-2)
 /* cancel: NULL (never), else copied into the cursor. */
 int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
                       const store_cancel *cancel, store_cursor **out, error_text *why);
@@ -320,9 +322,9 @@ void store_history_release(store_history *h);
 int store_history_cursor(const store_history *h, const world *base, uint64_t tick, world_rect r,
                          const store_cancel *cancel, store_cursor **out, error_text *why);
 int store_history_rect(const store_history *h, const world *base, uint64_t tick, world_rect r,
-                       int32_t *dst, error_text *why);
+                       int32_t *dst, const store_cancel *cancel, error_text *why);
 int store_history_world(const store_history *h, const world *base, uint64_t tick, world_rect r,
-                        world *out, error_text *why);
+                        world *out, const store_cancel *cancel, error_text *why);
 
 /* CRC32C (Castagnoli), as every record, snapshot and the manifest use it. */
 uint32_t store_crc32c(uint32_t crc, const void *data, size_t len);

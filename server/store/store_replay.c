@@ -248,44 +248,54 @@ static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect
     return rc;
 }
 
-/* One rebuild; 0, 1 (gone) or -1. */
+/* One rebuild; 0, 1 (gone), -1 or STORE_CANCELLED. */
 static int replay_once(const char *dir, const world *base, uint64_t tick, world_rect r,
-                       int32_t *dst, error_text *why)
+                       int32_t *dst, store_cancel *cancel, error_text *why)
 {
     world w;
-    int rc = rebuild(dir, base, tick, r, &w, dst, NULL, why);
+    int rc = rebuild(dir, base, tick, r, &w, dst, cancel, why);
     if (rc == 0)
         world_gather_window(&w, r, dst);
     world_free(&w);
     return rc;
 }
 
-int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
-                      error_text *why)
+/* The caller's cancel, or one that never says stop: the store's own copy (its seen). */
+static store_cancel cancel_copy(const store_cancel *cancel)
 {
+    return cancel ? (store_cancel){.cancelled = cancel->cancelled, .ctx = cancel->ctx}
+                  : (store_cancel){0};
+}
+
+int store_replay_rect(const char *dir, const world *base, uint64_t tick, world_rect r, int32_t *dst,
+                      const store_cancel *cancel, error_text *why)
+{
+    store_cancel c = cancel_copy(cancel);
     /* a compaction may delete a segment or replace a snapshot between the
-     * listing and the read: the next try sees the directory after it */
+     * listing and the read: the next try sees the directory after it (a
+     * cancelled rebuild is not tried again) */
     int rc = -1;
-    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) {
+    for (int attempt = 0; attempt < 3 && rc == -1; attempt++) {
         memset(why, 0, sizeof *why);
-        rc = replay_once(dir, base, tick, r, dst, why);
+        rc = replay_once(dir, base, tick, r, dst, &c, why);
     }
     return rc;
 }
 
 int store_replay_world(const char *dir, const world *base, uint64_t tick, world_rect r, world *out,
-                       error_text *why)
+                       const store_cancel *cancel, error_text *why)
 {
+    store_cancel c = cancel_copy(cancel);
     int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
     if (!scratch) {
         error_set(why, "store: out of memory for a rebuild of %d x %d cells", r.w, r.h);
         return -1;
     }
     int rc = -1;
-    for (int attempt = 0; attempt < 3 && rc < 0; attempt++) { /* as store_replay_rect */
+    for (int attempt = 0; attempt < 3 && rc == -1; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
         memset(out, 0, sizeof *out);
-        rc = rebuild(dir, base, tick, r, out, scratch, NULL, why);
+        rc = rebuild(dir, base, tick, r, out, scratch, &c, why);
         if (tick == 0 && rc == 1)
             rc = 0; /* the base needs no log */
         if (rc != 0)
@@ -399,8 +409,7 @@ static store_cursor *cursor_new(world_rect r, uint64_t tick, const store_cancel 
     }
     c->fd = -1, c->r = r, c->tick = tick;
     c->rec.clip = r; /* every record from here on: only r's cells */
-    if (cancel)
-        c->cancel = (store_cancel){.cancelled = cancel->cancelled, .ctx = cancel->ctx};
+    c->cancel = cancel_copy(cancel);
     return c;
 }
 
@@ -701,16 +710,16 @@ int store_history_cursor(const store_history *h, const world *base, uint64_t tic
 }
 
 int store_history_rect(const store_history *h, const world *base, uint64_t tick, world_rect r,
-                       int32_t *dst, error_text *why)
+                       int32_t *dst, const store_cancel *cancel, error_text *why)
 {
     if (h->dir)
-        return store_replay_rect(h->dir, base, tick, r, dst, why);
+        return store_replay_rect(h->dir, base, tick, r, dst, cancel, why);
     if (tick == 0) {
         world_base_fill_rect(base, r, dst);
         return 0;
     }
     store_cursor *c = NULL;
-    int rc = store_history_cursor(h, base, tick, r, NULL, &c, why);
+    int rc = store_history_cursor(h, base, tick, r, cancel, &c, why);
     if (rc == 0)
         store_cursor_read(c, r, dst);
     store_cursor_close(c);
@@ -718,13 +727,13 @@ int store_history_rect(const store_history *h, const world *base, uint64_t tick,
 }
 
 int store_history_world(const store_history *h, const world *base, uint64_t tick, world_rect r,
-                        world *out, error_text *why)
+                        world *out, const store_cancel *cancel, error_text *why)
 {
     if (h->dir)
-        return store_replay_world(h->dir, base, tick, r, out, why);
+        return store_replay_world(h->dir, base, tick, r, out, cancel, why);
     memset(out, 0, sizeof *out);
     store_cursor *c = NULL;
-    int rc = store_history_cursor(h, base, tick, r, NULL, &c, why);
+    int rc = store_history_cursor(h, base, tick, r, cancel, &c, why);
     if (rc == 1 && tick == 0) { /* the base needs no log */
         int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
         rc = scratch ? rebuild_base(base, r, out, scratch, why) : -1;

@@ -78,7 +78,7 @@ static int rebuilds_exact(const store_history *h, const world *base, uint64_t fr
     int32_t *got = malloc(4 * (size_t)r.w * r.h);
     int ok = got != NULL;
     for (uint64_t t = from; ok && t <= to; t++)
-        ok = store_history_rect(h, base, t, r, got, err) == 0 && same_as_kept(t, r, got);
+        ok = store_history_rect(h, base, t, r, got, NULL, err) == 0 && same_as_kept(t, r, got);
     free(got);
     return ok;
 }
@@ -148,10 +148,10 @@ static void test_history(cluster *a, cluster *b)
     cluster_store_compactions(s, &compactions, &tiles);
     CHECK(compactions == 1, "one compaction ran (%lld)", (long long)compactions);
     int32_t *got = malloc(4 * (size_t)W * H);
-    int rc = store_history_rect(&h, &base, 10, all, got, &err);
+    int rc = store_history_rect(&h, &base, 10, all, got, NULL, &err);
     CHECK(rc == 1 && strstr(err.message, "compacted"),
           "a tick before the snapshots is no longer held (%d: %s)", rc, err.message);
-    CHECK(store_history_rect(&h, &base, 0, all, got, &err) == 0 && same_as_kept(0, all, got),
+    CHECK(store_history_rect(&h, &base, 0, all, got, NULL, &err) == 0 && same_as_kept(0, all, got),
           "tick 0 is the base, still: %s", err.message);
     CHECK(rebuilds_exact(&h, &base, COMPACT, COMPACT + 10, all, &err),
           "every tick from the snapshots' on is exact (snapshots, then the log): %s", err.message);

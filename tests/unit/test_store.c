@@ -812,7 +812,10 @@ static int ask(void *ctx)
  * cancelled before the open, the open returns STORE_CANCELLED having
  * applied no record; cancelled after 10 records of the rebuild's 40, after
  * exactly 10 (no retry); a step after a cancel returns it too. Never
- * cancelled, the cursor's heights are store_replay_rect's. */
+ * cancelled, the cursor's heights are store_replay_rect's. So are an HTTP
+ * past-tick read's rebuilds (http_views.c: the removal waits for the
+ * request too): store_replay_rect and store_replay_world cancelled after 10
+ * records stop at the 11th question, not retried. */
 static void test_cursor_cancel(void)
 {
     fresh_dir();
@@ -863,9 +866,24 @@ static void test_cursor_cancel(void)
     if (!want || !got)
         exit(2);
     store_cursor_read(cur, r, got);
-    CHECK(store_replay_rect(dir, &base, 40, r, want, &err) == 0 &&
+    asker rect_during = {0, 10}, world_during = {0, 10}, rect_never = {0, 1 << 30};
+    c.ctx = &rect_during;
+    rc = store_replay_rect(dir, &base, 40, r, want, &c, &err);
+    CHECK(rc == STORE_CANCELLED && strstr(err.message, "cancelled") && rect_during.asked == 11,
+          "a past-tick rebuild cancelled after 10 of its 40 records: STORE_CANCELLED (%d, %s), "
+          "not retried (asked %d)",
+          rc, err.message, rect_during.asked);
+    world past;
+    c.ctx = &world_during;
+    rc = store_replay_world(dir, &base, 40, r, &past, &c, &err);
+    CHECK(rc == STORE_CANCELLED && world_during.asked == 11,
+          "the same kept as a world: STORE_CANCELLED (%d, %s), asked %d", rc, err.message,
+          world_during.asked);
+    c.ctx = &rect_never;
+    CHECK(store_replay_rect(dir, &base, 40, r, want, &c, &err) == 0 && rect_never.asked >= 40 &&
               memcmp(want, got, (size_t)W * H * sizeof *got) == 0,
-          "the cursor holds the heights of a replay of tick 40: %s", err.message);
+          "the cursor holds the heights of a replay of tick 40, asked at each record (%d): %s",
+          rect_never.asked, err.message);
     uint64_t t = 0;
     const world_rect *rects;
     int n;

@@ -280,6 +280,7 @@ typedef struct stepper {
 static void *step_once(void *arg)
 {
     stepper *st = arg;
+    service_claim(st->m->svc); /* this thread is the world's sim thread for the tick */
     st->rc = host_sim_step(st->m, st->tick, 0, &st->err);
     return NULL;
 }
@@ -328,6 +329,7 @@ static void test_edit_answered_once_published(const serve_options *o)
     CHECK(e.status_after >= e.res.tick,
           "told tick %llu, the status then says %llu (?tick= takes it)",
           (unsigned long long)e.res.tick, (unsigned long long)e.status_after);
+    service_claim(m.svc); /* back to this thread, which frees it */
     host_sim_free(&m);
     pthread_mutex_destroy(&m.status.lock);
 }

@@ -247,16 +247,17 @@ test('a trail dug before the page loaded is coloured: the page compares with the
   }
 });
 
-// Another client (Python, clients/python) holds a sphere in the air over the terrain.
-function otherClient(wsPort, x, y, z, radius) {
+// Another client (Python, clients/python) holds a collider in the air over the terrain: a sphere of
+// `radius`, or the shape and fields `create` names (Python keyword arguments), turned by q.
+function otherClient(wsPort, x, y, z, radius, create = `"sphere", radius=${radius}`, q = [1, 0, 0, 0]) {
   const code = `
 import asyncio, sys
 sys.path.insert(0, ${JSON.stringify(path.join(root, 'clients/python'))})
 import terrad as tp
 async def main():
     async with tp.TerradClient("ws://127.0.0.1:${wsPort}/", name="viewer-test-other") as c:
-        cid = await c.create_collider("sphere", radius=${radius})
-        await c.send_poses([tp.Pose(cid, ${x}, ${y}, ${z}, 1, 0, 0, 0)])
+        cid = await c.create_collider(${create})
+        await c.send_poses([tp.Pose(cid, ${x}, ${y}, ${z}, ${q.join(', ')})])
         print(cid, flush=True)
         await asyncio.sleep(60)
 asyncio.run(main())
@@ -294,6 +295,44 @@ test('other clients\' colliders arrive in COLLIDERS frames and are drawn; the ow
     other.kill();
     await until('the other sphere gone after its client left',
       async () => !(await page.evaluate((id) => window.terrad.colliders.some((c) => c.id === id), id)), 120000);
+  } finally {
+    other.kill();
+  }
+});
+
+test('another client\'s lugged wheel arrives with its grousers (the COLLIDERS extension) and its lugs are drawn', { skip, timeout: 360000 }, async () => {
+  const world = await page.evaluate(() => window.terrad.world);
+  const x = world.width * world.cell_size_m * 0.4, y = world.height * world.cell_size_m * 0.45, z = 3, r = 1.0;
+  // turned a quarter about its axle (y): lug 0, along the wheel's -z, points along world -x
+  const q = [Math.SQRT1_2, 0, Math.SQRT1_2, 0], lugs = { count: 4, height: 0.8, thickness: 0.4 };
+  const other = otherClient(daemon.ports.ws, x, y, z, r,
+    `"wheel", radius=${r}, width=0.6, grousers={"count": 4, "height": 0.8, "thickness": 0.4}`, q);
+  try {
+    const id = await other.id;
+    const got = await until('the lugged wheel in a COLLIDERS frame',
+      () => page.evaluate((id) => window.terrad.colliders.find((c) => c.id === id), id), 120000);
+    assert.deepEqual(got.grousers, { count: 4, height: Math.fround(0.8), thickness: Math.fround(0.4) },
+      `its grousers: ${JSON.stringify(got.grousers)}`);
+    assert.ok(got.q.every((v, k) => Math.abs(v - q[k]) < 1e-6), `its phase (orientation): ${got.q}`);
+    const boxes = await page.evaluate((id) => window.terrad.lugs(id), id);
+    assert.equal(boxes.length, 4, 'a box per lug');
+    // lug 0 from r - 0.8 to r + 0.8 along -x: its centre at x - r
+    assert.ok(Math.abs(boxes[0].p[0] - (x - r)) < 1e-3 && Math.abs(boxes[0].p[2] - z) < 1e-3, `lug 0 at ${boxes[0].p}`);
+    // drawn: seen from the side (along the axle), half way out along lug 0, 0.4 m past the rim where a
+    // smooth wheel shows nothing of its own, the pixel is the "other" blue
+    const cam0 = await page.evaluate(() => window.terrad.camera);
+    try {
+      const frames0 = await page.evaluate(() => window.terrad.framesDrawn);
+      await page.evaluate(([x, y]) => window.terrad.setCamera({ target: [x, y], yaw: -Math.PI / 2, pitch: 0.35, dist: 9 }), [x, y]);
+      await until('drawn from the side', () => page.evaluate((f) => window.terrad.framesDrawn > f + 1, frames0), 120000);
+      const [px, py] = await page.evaluate(([x, y, z]) => window.terrad.project(x, y, z), [x - r - lugs.height / 2, y, z]);
+      const img = await grab();
+      const i = 4 * (Math.round(py) * img.w + Math.round(px));
+      const [cr, cg, cb] = [img.px[i], img.px[i + 1], img.px[i + 2]];
+      assert.ok(cb > cr + 40 && cb > 60, `lug 0 is drawn in blue at ${px.toFixed(0)},${py.toFixed(0)}: rgb ${cr},${cg},${cb}`);
+    } finally {
+      await page.evaluate((c) => window.terrad.setCamera(c), cam0);
+    }
   } finally {
     other.kill();
   }
