@@ -57,12 +57,14 @@ uint64_t proc_peak_rss_bytes(void);
  * finaliser, the one copy. Heights depend on its exact bits: the jump
  * flooding's tie order (sim_cell_hash, and its GLSL twin in
  * shaders/common.glsl) and the dunes' lattice noise (world/terrain_base.c). */
+#define HASH_LOWBIAS32_M1 0x7feb352du /* its multipliers, for vector forms of it */
+#define HASH_LOWBIAS32_M2 0x846ca68bu
 static inline uint32_t hash_lowbias32(uint32_t x)
 {
     x ^= x >> 16;
-    x *= 0x7feb352du;
+    x *= HASH_LOWBIAS32_M1;
     x ^= x >> 15;
-    x *= 0x846ca68bu;
+    x *= HASH_LOWBIAS32_M2;
     x ^= x >> 16;
     return x;
 }

@@ -61,6 +61,9 @@ typedef enum sim_cell_class {
 
 /* Hash of a world cell, used to break jump-flooding ties (same in GLSL). */
 uint32_t sim_cell_hash(int32_t world_x, int32_t world_y);
+/* its multipliers of x and y (the AVX2 jump flooding computes it 8 at a time) */
+#define SIM_CELL_HASH_X 0x8da6b343u
+#define SIM_CELL_HASH_Y 0xd8163841u
 /* Distance under a metric; Euclidean is squared (order is all that matters).
  * Inline: jump flooding calls it for every candidate of every step. */
 static inline int32_t sim_metric_distance(sim_metric m, int32_t dx, int32_t dy)

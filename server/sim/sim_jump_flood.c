@@ -95,7 +95,11 @@ void sim_jump_flood_dense(const sim_params *p, int w, int h, int origin_x, int o
  * answer does not depend on the order the candidates are looked at
  * (jfa_pick looks at them one at a time). That lets runs of listed cells
  * along a row go 8 at a time (jfa_block), and each loop is compiled once
- * per metric (jfa_range), so the distance is inline and branch-free.
+ * per metric (jfa_range), so the distance is inline and branch-free. In
+ * AVX2 a run shorter than 8 is one block too, with the hash in the vector
+ * for ties (jfa_blocks_avx2): a wheel's footprint is a few cells across,
+ * and its cells went one by one through jfa_pick, 11 % of a driven world's
+ * tick in the daemon (issue 32).
  */
 #define JFA_PACK_MAX 32768
 #define JFA_LANES 8
@@ -241,17 +245,18 @@ static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE __m256i jfa_distance8(sim_metric metric
     return _mm256_blendv_epi8(d, none, missing);
 }
 
-/* jfa_block with the 8 lanes in one AVX2 register: the same rule, the same
- * tie bits. Cells x .. x + 7 of row y; returns the lanes jfa_pick must redo. */
-static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE int jfa_block8(sim_metric metric,
-                                                        const jfa_block_at *restrict at, int x,
-                                                        int y, int row, const int32_t *restrict in,
-                                                        int32_t *restrict out)
+/* jfa_block with the 8 lanes in one AVX2 register: the nearest seed of
+ * cells x .. x + 7 of row y, and in *tie the lanes where a second, different
+ * seed is as near (the hash must break the tie: jfa_exact8). */
+static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE __m256i jfa_near8(sim_metric metric,
+                                                           const jfa_block_at *restrict at, int x,
+                                                           int y, int row,
+                                                           const int32_t *restrict in, int *tie)
 {
     const __m256i cell =
         _mm256_add_epi32(_mm256_set1_epi32(y << 16 | x), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
     __m256i best = _mm256_loadu_si256((const __m256i *)(in + row + x));
-    __m256i best_d = jfa_distance8(metric, best, cell), tie = _mm256_setzero_si256();
+    __m256i best_d = jfa_distance8(metric, best, cell), ties = _mm256_setzero_si256();
     for (int j = 0; j < 8; j++) {
         __m256i s = _mm256_or_si256(_mm256_loadu_si256((const __m256i *)(in + at->off[j] + x)),
                                     _mm256_set1_epi32(at->mask[j]));
@@ -259,28 +264,101 @@ static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE int jfa_block8(sim_metric metric,
         __m256i nearer = _mm256_cmpgt_epi32(best_d, d);
         __m256i same =
             _mm256_andnot_si256(_mm256_cmpeq_epi32(s, best), _mm256_cmpeq_epi32(d, best_d));
-        tie = _mm256_andnot_si256(nearer, _mm256_or_si256(tie, same));
+        ties = _mm256_andnot_si256(nearer, _mm256_or_si256(ties, same));
         best = _mm256_blendv_epi8(best, s, nearer);
         best_d = _mm256_blendv_epi8(best_d, d, nearer);
     }
-    _mm256_storeu_si256((__m256i *)(out + row + x), best);
-    return _mm256_movemask_ps(_mm256_castsi256_ps(tie));
+    *tie = _mm256_movemask_ps(_mm256_castsi256_ps(ties));
+    return best;
 }
 
-/* The blocks of cells x .. b - 1 of row y (b - x >= JFA_LANES) in AVX2,
- * ties redone by jfa_pick; returns where the blocks stopped. */
-static SIM_TARGET_AVX2 int jfa_blocks_avx2(const jfa_loop *l, sim_metric metric,
-                                           const jfa_block_at *at, int x, int b, int y)
+/* sim_cell_hash of 8 packed seeds, plus INT32_MIN so that a signed compare
+ * orders them as the unsigned hashes (AVX2): the same integers. */
+static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE __m256i jfa_hash8(__m256i s, __m256i origin_x,
+                                                           __m256i origin_y)
 {
-    const int w = l->w, h = l->h, k = l->k, row = y * w;
-    for (; x + JFA_LANES <= b; x += JFA_LANES) {
-        int tie = jfa_block8(metric, at, x, y, row, l->in, l->out);
-        for (int t = 0; tie; t++, tie >>= 1)
-            if (tie & 1)
-                l->out[row + x + t] =
-                    jfa_pick(metric, l->origin_x, l->origin_y, x + t, y, k, w, h, l->in);
+    __m256i x = _mm256_add_epi32(_mm256_and_si256(s, _mm256_set1_epi32(0xffff)), origin_x);
+    __m256i y = _mm256_add_epi32(_mm256_srli_epi32(s, 16), origin_y);
+    __m256i v =
+        _mm256_xor_si256(_mm256_mullo_epi32(x, _mm256_set1_epi32((int32_t)SIM_CELL_HASH_X)),
+                         _mm256_mullo_epi32(y, _mm256_set1_epi32((int32_t)SIM_CELL_HASH_Y)));
+    /* hash_lowbias32 */
+    v = _mm256_xor_si256(v, _mm256_srli_epi32(v, 16));
+    v = _mm256_mullo_epi32(v, _mm256_set1_epi32((int32_t)HASH_LOWBIAS32_M1));
+    v = _mm256_xor_si256(v, _mm256_srli_epi32(v, 15));
+    v = _mm256_mullo_epi32(v, _mm256_set1_epi32((int32_t)HASH_LOWBIAS32_M2));
+    v = _mm256_xor_si256(v, _mm256_srli_epi32(v, 16));
+    return _mm256_xor_si256(v, _mm256_set1_epi32(INT32_MIN));
+}
+
+/* jfa_pick for 8 lanes: the least of {the cell's seed, its 8 candidates} in
+ * the order (distance, sim_cell_hash, index), every lane at once. For the
+ * blocks with a tie (on a wheel's footprint, a few cells wide, most blocks
+ * have one: the cells along its middle are as near to either side), where
+ * jfa_pick would redo each tied lane. No seed (-1) is at INT32_MAX, above
+ * every seed; two of them are the same -1, whichever is kept. */
+static SIM_TARGET_AVX2 JFA_ALWAYS_INLINE __m256i jfa_exact8(sim_metric metric,
+                                                            const jfa_block_at *restrict at, int x,
+                                                            int y, int row,
+                                                            const int32_t *restrict in,
+                                                            __m256i origin_x, __m256i origin_y)
+{
+    const __m256i cell =
+        _mm256_add_epi32(_mm256_set1_epi32(y << 16 | x), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+    __m256i best = _mm256_loadu_si256((const __m256i *)(in + row + x));
+    __m256i best_d = jfa_distance8(metric, best, cell),
+            best_h = jfa_hash8(best, origin_x, origin_y);
+    for (int j = 0; j < 8; j++) {
+        __m256i s = _mm256_or_si256(_mm256_loadu_si256((const __m256i *)(in + at->off[j] + x)),
+                                    _mm256_set1_epi32(at->mask[j]));
+        __m256i d = jfa_distance8(metric, s, cell), hs = jfa_hash8(s, origin_x, origin_y);
+        /* (d, hs, s) < (best_d, best_h, best) */
+        __m256i lower = _mm256_or_si256(
+            _mm256_cmpgt_epi32(best_h, hs),
+            _mm256_and_si256(_mm256_cmpeq_epi32(hs, best_h), _mm256_cmpgt_epi32(best, s)));
+        __m256i better = _mm256_or_si256(_mm256_cmpgt_epi32(best_d, d),
+                                         _mm256_and_si256(_mm256_cmpeq_epi32(d, best_d), lower));
+        best = _mm256_blendv_epi8(best, s, better);
+        best_d = _mm256_blendv_epi8(best_d, d, better);
+        best_h = _mm256_blendv_epi8(best_h, hs, better);
     }
-    return x;
+    return best;
+}
+
+/* Cells x .. b - 1 of row y in AVX2 blocks; the cells [e0, e1) of the row
+ * around them all have the same candidates inside the window (at), e1 - e0
+ * >= JFA_LANES. What is left after the whole blocks (and a run shorter than
+ * a block: a wheel's footprint is a few cells across) is one more block
+ * placed over it within [e0, e1), keeping only its lanes: the lanes beside
+ * it are other cells of the row, free ones or listed ones, read but not
+ * written. A block with a tie among its kept lanes is computed again with
+ * the hash (jfa_exact8). */
+static SIM_TARGET_AVX2 void jfa_blocks_avx2(const jfa_loop *l, sim_metric metric,
+                                            const jfa_block_at *at, int x, int b, int y, int e1)
+{
+    const int row = y * l->w;
+    const __m256i origin_x = _mm256_set1_epi32(l->origin_x),
+                  origin_y = _mm256_set1_epi32(l->origin_y);
+    const __m256i bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    while (x < b) {
+        int at_x = x, n = b - x < JFA_LANES ? b - x : JFA_LANES;
+        if (at_x + JFA_LANES > e1)
+            at_x = e1 - JFA_LANES;
+        unsigned keep = ((1u << n) - 1u) << (x - at_x);
+        int tie;
+        __m256i best = jfa_near8(metric, at, at_x, y, row, l->in, &tie);
+        if (tie & (int)keep)
+            best = jfa_exact8(metric, at, at_x, y, row, l->in, origin_x, origin_y);
+        if (keep == 0xffu) {
+            _mm256_storeu_si256((__m256i *)(l->out + row + at_x), best);
+        } else {
+            /* only the kept lanes are written: the others may be another
+             * band's cells, which that band writes */
+            __m256i kept = _mm256_and_si256(_mm256_set1_epi32((int32_t)keep), bit);
+            _mm256_maskstore_epi32(l->out + row + at_x, _mm256_cmpeq_epi32(kept, bit), best);
+        }
+        x += n;
+    }
 }
 #endif
 #else
@@ -297,10 +375,16 @@ static JFA_ALWAYS_INLINE void jfa_run(const jfa_loop *l, sim_metric metric, int 
     int e0 = k < w - k ? k : w - k, e1 = k < w - k ? w - k : k;
     int lo = e0 < x0 ? x0 : e0 > x1 ? x1 : e0, hi = e1 < lo ? lo : e1 > x1 ? x1 : e1;
     const int cut[4] = {x0, lo, hi, x1};
+#if JFA_BLOCKS
+    /* e0 < 0 and e1 > w where k > w (a window taller than wide) */
+    const int edge[4] = {0, e0 > 0 ? e0 : 0, e1 < w ? e1 : w, w};
+#endif
     for (int part = 0; part < 3; part++) {
         int x = cut[part], b = cut[part + 1];
 #if JFA_BLOCKS
-        if (b - x >= JFA_LANES) {
+        /* cells [edge[part], edge[part + 1]) share which candidates are inside */
+        int wide = edge[part + 1] - edge[part] >= JFA_LANES;
+        if (x < b && (b - x >= JFA_LANES || (l->avx2 && wide))) {
             jfa_block_at at;
             for (int j = 0; j < 8; j++) {
                 int dx = sim_neighbour_dx[j] * k, qy = y + sim_neighbour_dy[j] * k;
@@ -309,8 +393,10 @@ static JFA_ALWAYS_INLINE void jfa_run(const jfa_loop *l, sim_metric metric, int 
                 at.mask[j] = inside ? 0 : -1;
             }
 #if SIM_AVX2_CLONE
-            if (l->avx2)
-                x = jfa_blocks_avx2(l, metric, &at, x, b, y);
+            if (l->avx2 && wide) {
+                jfa_blocks_avx2(l, metric, &at, x, b, y, edge[part + 1]);
+                continue;
+            }
 #endif
             for (; x + JFA_LANES <= b; x += JFA_LANES) {
                 int tie = jfa_block(metric, &at, x, y, row, l->in, l->out);

@@ -46,12 +46,13 @@ static world_rect collider_footprint(const world *w, const sim_params *p, const 
     world_rect r = {x0, y0, x1 - x0 + 1, y1 - y0 + 1};
     if (!world_clip_rect(w, &r))
         return (world_rect){0, 0, 0, 0};
-    int32_t hmin, hmax;
-    world_rect_height_range(w, r, &hmin, &hmax);
-    /* a load-driven collider's height is the engine's to find: never skipped */
+    /* a load-driven collider's height is the engine's to find: never skipped;
+     * any other is skipped when it flies above everything it could touch,
+     * lowest point > highest cell + obstacle gap */
     if (!(c->load_n > 0.0) &&
-        (int64_t)sim_units_clamped(lo.z, w->units_per_m) > (int64_t)hmax + p->obstacle_gap)
-        return (world_rect){0, 0, 0, 0}; /* flying above everything it could touch */
+        !world_rect_reaches(w, r,
+                            (int64_t)sim_units_clamped(lo.z, w->units_per_m) - p->obstacle_gap))
+        return (world_rect){0, 0, 0, 0};
     return r;
 }
 

@@ -45,7 +45,8 @@ const int sim_neighbour_dy[8] = {0, 0, 1, -1, 1, 1, -1, -1};
 
 uint32_t sim_cell_hash(int32_t world_x, int32_t world_y)
 {
-    return hash_lowbias32((uint32_t)world_x * 0x8da6b343u ^ (uint32_t)world_y * 0xd8163841u);
+    return hash_lowbias32((uint32_t)world_x * SIM_CELL_HASH_X ^
+                          (uint32_t)world_y * SIM_CELL_HASH_Y);
 }
 
 /* (a * q16) >> shift for a >= 0, q16 in [0, 65536]: exact in 64 bits. */

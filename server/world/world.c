@@ -497,6 +497,31 @@ void world_scatter_window(world *w, world_rect r, const int32_t *src)
     }
 }
 
+int world_rect_reaches(const world *w, world_rect r, int64_t level)
+{
+    if (r.w <= 0 || r.h <= 0)
+        return 0;
+    tile_walk k = tile_walk_begin(w, r);
+    tile_part p;
+    while (tile_walk_next(w, &k, &p)) {
+        size_t stride;
+        const int32_t *src = tile_source(w, p.tx, p.ty, p.tile, &stride);
+        for (int y = p.part.y; y < p.part.y + p.part.h; y++) {
+            if (src) {
+                const int32_t *row = src + (size_t)(y - p.tile.y) * stride + (p.part.x - p.tile.x);
+                for (int x = 0; x < p.part.w; x++)
+                    if (row[x] >= level)
+                        return 1;
+                continue;
+            }
+            for (int x = p.part.x; x < p.part.x + p.part.w; x++)
+                if (part_height(w, &p, src, stride, x, y) >= level)
+                    return 1;
+        }
+    }
+    return 0;
+}
+
 void world_rect_height_range(const world *w, world_rect r, int32_t *lo, int32_t *hi)
 {
     int64_t sum;

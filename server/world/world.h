@@ -119,6 +119,11 @@ void world_gather_window(const world *w, world_rect r, int32_t *dst);
 void world_scatter_window(world *w, world_rect r, const int32_t *src);
 /* Highest and lowest height inside a clipped rectangle. */
 void world_rect_height_range(const world *w, world_rect r, int32_t *lo, int32_t *hi);
+/* Does some cell of a clipped rectangle stand at level or higher? Stops at
+ * the first that does: the plan's test whether a collider can touch the
+ * ground under it (sim_plan.c) usually ends at the rectangle's first cell,
+ * where the greatest height would read all of them. 0 for an empty r. */
+int world_rect_reaches(const world *w, world_rect r, int64_t level);
 
 /* One cell's height; (x, y) must lie inside the world. */
 int32_t world_height_at(const world *w, int x, int y);

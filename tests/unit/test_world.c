@@ -505,7 +505,9 @@ static void test_tiled_equals_dense(world_base_kind kind)
 
     uint32_t rng = 12345;
     int32_t *buf = malloc((size_t)W * H * sizeof *buf), *buf2 = malloc((size_t)W * H * 4);
-    int same = 1, same_volume = 1, same_range = 1, same_rect_volume = 1;
+    int same = 1, same_volume = 1, same_range = 1, same_rect_volume = 1, same_reach = 1;
+    CHECK(!world_rect_reaches(&tiled, (world_rect){3, 3, 0, 5}, INT32_MIN),
+          "an empty rectangle reaches no level");
     for (int round = 0; round < 200; round++) {
         world_rect r = {(int)(test_next_random(&rng) % W), (int)(test_next_random(&rng) % H),
                         1 + (int)(test_next_random(&rng) % 40),
@@ -527,6 +529,16 @@ static void test_tiled_equals_dense(world_base_kind kind)
         world_rect_height_range(&tiled, qc, &lo1, &hi1);
         world_rect_height_range(&whole, qc, &lo2, &hi2);
         same_range &= lo1 == lo2 && hi1 == hi2;
+        /* reaches a level iff the greatest height does: at, just above and
+         * below it, and a level every cell passes */
+        for (int k = 0; k < 2; k++) {
+            const world *v = k ? &whole : &tiled;
+            same_reach &= world_rect_reaches(v, qc, (int64_t)hi1) &&
+                          !world_rect_reaches(v, qc, (int64_t)hi1 + 1) &&
+                          world_rect_reaches(v, qc, (int64_t)hi1 - 1) &&
+                          world_rect_reaches(v, qc, (int64_t)lo1) &&
+                          world_rect_reaches(v, qc, (int64_t)INT32_MIN - 1);
+        }
         same_rect_volume &= world_rect_volume(&tiled, q) == world_rect_volume(&whole, q);
     }
     a = dense(&tiled);
@@ -536,6 +548,7 @@ static void test_tiled_equals_dense(world_base_kind kind)
           (int)kind);
     CHECK(same_volume && same_range && same_rect_volume,
           "volume, rect volume and height range agree after every scatter");
+    CHECK(same_reach, "world_rect_reaches a level iff the height range's greatest does");
     int64_t sum = 0;
     for (int i = 0; i < W * H; i++)
         sum += a[i];

@@ -102,6 +102,9 @@ type Events = {
   ack: (tick: bigint, seq: number) => void;
   contact: (contact: ReturnType<typeof P.decodeContact>) => void;
   forces: (forces: ReturnType<typeof P.decodeForces>) => void;
+  /** a COLLIDERS frame (a subscription made with colliders): every collider in view; with the
+   *  grousers option each entry has `grousers`, a lugged wheel's {count, height, thickness} or null */
+  colliders: (colliders: ReturnType<typeof P.decodeColliders>) => void;
   /** a CHECKSUM frame compared: the tiles [x, y] found differing and asked for again */
   checksum: (tick: bigint, subscription: number, asked: number[][]) => void;
   error: (error: TerradError) => void;
@@ -144,7 +147,7 @@ export class TerradClient {
   private refN = 0;
   private timeoutMs: number;
   private waiting: { test: (m: any) => boolean; ok: (m: any) => void; fail: (e: Error) => void }[] = [];
-  private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], checksum: [], error: [] };
+  private listeners: { [K in keyof Events]: Events[K][] } = { delta: [], ack: [], contact: [], forces: [], colliders: [], checksum: [], error: [] };
   private predictions = new Map<number, Prediction>();
   /** the twin module that rebuilds the base of each subscription (base snapshots), else null */
   private twins: Awaited<ReturnType<typeof loadTwinModule>> | null = null;
@@ -196,10 +199,12 @@ export class TerradClient {
     this.sendJson(P.focus(x, y));
   }
 
-  /** Subscribes to a rectangle of cells; resolves to the subscription's id. */
-  async subscribe(x: number, y: number, w: number, h: number, opts: { colliders?: boolean } = {}): Promise<number> {
+  /** Subscribes to a rectangle of cells; resolves to the subscription's id. colliders: COLLIDERS
+   *  frames too (the 'colliders' event); grousers (with colliders): their entries carry the wheels'
+   *  grousers (PROTOCOL.md "COLLIDERS", the extension). */
+  async subscribe(x: number, y: number, w: number, h: number, opts: { colliders?: boolean; grousers?: boolean } = {}): Promise<number> {
     const ref = `sub-${++this.refN}`;
-    const m = await this.request(P.subscribe(x, y, w, h, ref, !!opts.colliders), ref, 'subscribed');
+    const m = await this.request(P.subscribe(x, y, w, h, ref, !!opts.colliders, false, !!opts.grousers), ref, 'subscribed');
     const e = this.baseFailed.get(m.id);
     if (e) { // its base snapshots could not be applied: not kept
       this.baseFailed.delete(m.id);
@@ -422,6 +427,9 @@ export class TerradClient {
     } else if (t === P.MsgType.FORCES) {
       const c = P.decodeForces(b);
       for (const f of this.listeners.forces) f(c);
+    } else if (t === P.MsgType.COLLIDERS) {
+      const c = P.decodeColliders(b);
+      for (const f of this.listeners.colliders) f(c);
     } else if (t === P.MsgType.CHECKSUM) {
       this.onChecksum(b);
     } else if (t === P.MsgType.PING) {

@@ -1,7 +1,8 @@
 // terrad-client (clients/js) against the real daemon on loopback, as an application uses it:
 // imported from the tarball `npm pack` made and `npm install` put in a fresh directory
 // ($TERRAD_CLIENT_DIR; tests/integration/clients/test_ts_client.sh makes it). Checked: connect and
-// hello, a subscription's mirror, a sphere and a lugged wheel driven with poses (ACKs, CONTACT feedback), the
+// hello, a subscription's mirror, a sphere and a lugged wheel driven with poses (ACKs, CONTACT feedback), another
+// client's lugged wheel in the colliders event (its grousers only when asked for), the
 // prediction exact at every compared ACK and the mirror equal to GET /v1/heights at the end;
 // the worlds API (create, join, list, remove); bad input refused with errors naming the field; a
 // budget in hello; a mirror corrupted on purpose repaired by the client itself (PROTOCOL.md
@@ -88,6 +89,31 @@ test('drive a collider with prediction: ACKs, contacts, every compared ACK exact
     assert.deepEqual(Array.from(mirror.heights), server, 'the mirror equals GET /v1/heights');
   } finally {
     c.close();
+  }
+});
+
+// Another client's lugged wheel as a viewer sees it (PROTOCOL.md "COLLIDERS", the grousers
+// extension): a subscription with grousers gets its grousers (f32) and its phase in the 'colliders'
+// event; one with colliders only gets the rim, entries without grousers.
+test('another client\'s lugged wheel in the colliders event: its grousers with the option, the rim without', { skip, timeout: 120000 }, async () => {
+  const [driver, viewer, plain] = await Promise.all(['ts-driver', 'ts-viewer', 'ts-plain'].map((name) => T.TerradClient.connect(ws, { name })));
+  try {
+    const seen = { viewer: new Map(), plain: new Map() };
+    viewer.on('colliders', (m) => { for (const c of m.colliders) seen.viewer.set(c.id, c); });
+    plain.on('colliders', (m) => { for (const c of m.colliders) seen.plain.set(c.id, c); });
+    await viewer.subscribe(0, 0, 64, 64, { colliders: true, grousers: true });
+    await plain.subscribe(0, 0, 64, 64, { colliders: true });
+    const id = await driver.createCollider('wheel', { radius: 0.3, width: 0.2 }, { grousers: { count: 30, height: 0.01, thickness: 0.004 } });
+    const q = [Math.cos(0.25), 0, Math.sin(0.25), 0]; // half a radian about the axle: the lugs' phase
+    driver.sendPoses([{ id, x: 1.5, y: 1.5, z: 2, qw: q[0], qx: q[1], qy: q[2], qz: q[3] }]);
+    for (let t = Date.now(); !(seen.viewer.has(id) && seen.plain.has(id)) && Date.now() - t < 60000;) await sleep(20);
+    const v = seen.viewer.get(id), p = seen.plain.get(id);
+    assert.ok(v && p, 'both subscribers see the wheel');
+    assert.deepEqual(v.grousers, { count: 30, height: Math.fround(0.01), thickness: Math.fround(0.004) }, 'its grousers, exactly');
+    assert.ok(v.q.every((a, k) => Math.abs(a - q[k]) < 1e-6), `its phase: ${v.q}`);
+    assert.ok(!('grousers' in p) && p.kind === 3 && Math.abs(p.dims[0] - 0.3) < 1e-6, `without the option, the rim: ${JSON.stringify(p)}`);
+  } finally {
+    for (const c of [driver, viewer, plain]) c.close();
   }
 });
 
