@@ -86,7 +86,8 @@ typedef struct hub_command {
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int grousers;               /* subscribe: ... with the grousers extension (PROTOCOL.md) */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
-    int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */
+    int snapshot_base;          /* joined: 0, or its snapshots against the base: 1 encoding 2,
+                                   2 encoding 2 or 3 (PROTOCOL.md "Slope snapshots") */
     char ref[64];               /* the client's request reference, echoed in replies */
     world_edit *edit;           /* edit: owned by the command, then by the sim */
     hub_edit_waiter *waiter;    /* edit from HTTP: hub_edit_finish tells it the outcome */

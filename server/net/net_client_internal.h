@@ -84,9 +84,11 @@ typedef struct net_client {
     uint32_t id;
     struct lws *wsi;
     net_state *srv;
-    int ready;         /* hello accepted */
-    int snapshot_base; /* its snapshots are coded against the base (PROTOCOL.md) */
-    unsigned events;   /* subscribe_events: one bit per NET_EVENT_NAMES entry */
+    int ready; /* hello accepted */
+    /* its snapshots are coded against the base (PROTOCOL.md): 0 no, 1 as
+     * encoding 2, 2 as encoding 2 or 3 (slope snapshots), the shorter */
+    int snapshot_base;
+    unsigned events; /* subscribe_events: one bit per NET_EVENT_NAMES entry */
     /* what its hello's token allows (net_auth.c), the token's entry name for
      * log lines and its hash, looked up again after each reload */
     auth_role role;
