@@ -14,8 +14,9 @@ const TYPE_NAMES = { 1: 'POSE_BATCH', 2: 'PING', 3: 'PONG', 4: 'STEP', 16: 'DELT
 export const Owner = { OWN: 0, OTHER: 1, DEMO: 2 };
 export const ColliderKind = { SPHERE: 0, BOX: 1, CAPSULE: 2, CYLINDER: 3, MESH: 4 };
 // BASE: a snapshot less the scene's base terrain (PROTOCOL.md "Base snapshots"), only to a
-// client whose hello asked for snapshot_base
-export const Encoding = { DELTA: 0, SNAPSHOT: 1, BASE: 2 };
+// client whose hello asked for snapshot_base; BASE_SLOPE: the same in the slope-bounded coding
+// (PROTOCOL.md "Slope snapshots"), only to a client whose hello also offered snapshot_slope
+export const Encoding = { DELTA: 0, SNAPSHOT: 1, BASE: 2, BASE_SLOPE: 3 };
 export const ERRORS = {
   bad_frame: 1, unknown_type: 2, bad_version: 3, too_large: 4, bad_value: 5, unknown_collider: 6,
   not_owner: 7, limit_colliders: 8, limit_subscriptions: 9, rate_limited: 10, outside_world: 11,
@@ -122,7 +123,7 @@ export function checkRect(r) {
   if (r.encoding === Encoding.DELTA) {
     if (r.base_version === 0 || r.base_version === r.new_version)
       throw new ProtoError('bad_value', 'a delta needs base_version >= 1 and != new_version');
-  } else if (r.encoding === Encoding.SNAPSHOT || r.encoding === Encoding.BASE) {
+  } else if (r.encoding === Encoding.SNAPSHOT || r.encoding === Encoding.BASE || r.encoding === Encoding.BASE_SLOPE) {
     if (r.base_version !== 0) throw new ProtoError('bad_value', 'a snapshot has base_version 0');
   } else throw new ProtoError('bad_value', `encoding ${r.encoding}`);
   if (r.data.length === 0) throw new ProtoError('bad_value', 'empty payload');
@@ -525,16 +526,12 @@ export function rectDecompress(data, cells, maxCells = Infinity) {
 
 const B_CTX = 12, B_TOP = 0x1000000;
 
-/** A base snapshot rectangle's payload -> Int32Array of w * h values h - base; bad_compression
- *  for a payload shorter than 5 bytes, ending before the last cell or holding a value past
- *  2^32; more than maxCells cells is too_large. */
-export function rectDecompressBase(data, w, h, maxCells = Infinity) {
-  const d = bytes(data), cells = w * h;
-  if (!(cells > 0) || cells > maxCells) throw new ProtoError('too_large', `${cells} cells`);
-  if (d.length < 5) throw new ProtoError('bad_compression', 'a base payload of fewer than 5 bytes');
-  const unary = new Uint16Array(B_CTX * 33).fill(1024), mant = new Uint16Array(B_CTX * 33 * 2).fill(1024);
+// LZMA's binary range decoder over d from byte start (PROTOCOL.md "Base snapshots", step 5):
+// bit(probs, i), direct(), residual(unary, mant, c) (a zigzagged residual in Elias-gamma form,
+// step 4; -1 past 2^32 - 1 or past the payload's end) and short() (it ran past the end).
+function rangeDecoder(d, start) {
   const n = d.length;
-  let at = 0, short = false, range = 0xffffffff, code = 0;
+  let at = start, short = false, range = 0xffffffff, code = 0;
   const byte = () => {
     if (at < n) return d[at++];
     short = true;
@@ -570,25 +567,112 @@ export function rectDecompressBase(data, w, h, maxCells = Infinity) {
     norm();
     return b;
   };
+  const residual = (unary, mant, c) => {
+    let nb = 0;
+    while (nb < 32 && bit(unary, c * 33 + nb)) nb++;
+    let v = 1; // up to 2^33 - 1: a double, not 32-bit bitwise
+    const m = (c * 33 + nb) * 2;
+    for (let k = nb - 1; k >= 0; k--) v = v * 2 + (k >= nb - 2 ? bit(mant, m + nb - 1 - k) : direct());
+    return v - 1 > 0xffffffff || short ? -1 : v - 1;
+  };
+  return { bit, direct, residual, short: () => short };
+}
+
+const residualModels = () => [new Uint16Array(B_CTX * 33).fill(1024), new Uint16Array(B_CTX * 33 * 2).fill(1024)];
+const mag = (u) => Math.floor((u + 1) / 2); // |r| of a zigzagged residual, up to 2^31
+// encoding 2's context of cell (x, y): the bit length of its neighbours' |residuals|, at most 11
+function baseContext(z, w, x, y, i) {
+  const a = x ? mag(z[i - 1]) : y ? mag(z[i - w]) : 0;
+  const s = a + (y ? mag(z[i - w]) : a); // up to 2^32
+  return s === 0 ? 0 : s >= 1024 ? B_CTX - 1 : 32 - Math.clz32(s);
+}
+// encoding 2's prediction of cell (x, y) from the decoded values, wrapped to int32
+const basePredict = (out, w, x, y, i) =>
+  (y === 0 ? (x ? out[i - 1] : 0) : x === 0 ? out[i - w] : out[i - 1] + out[i - w] - out[i - w - 1]) | 0;
+
+/** A base snapshot rectangle's payload -> Int32Array of w * h values h - base; bad_compression
+ *  for a payload shorter than 5 bytes, ending before the last cell or holding a value past
+ *  2^32; more than maxCells cells is too_large. */
+export function rectDecompressBase(data, w, h, maxCells = Infinity) {
+  const d = bytes(data), cells = w * h;
+  if (!(cells > 0) || cells > maxCells) throw new ProtoError('too_large', `${cells} cells`);
+  if (d.length < 5) throw new ProtoError('bad_compression', 'a base payload of fewer than 5 bytes');
+  const [unary, mant] = residualModels();
+  const rc = rangeDecoder(d, 0);
   const z = new Uint32Array(cells); // the zigzagged residuals
   const out = new Int32Array(cells); // h - base
-  const mag = (u) => Math.floor((u + 1) / 2); // |r| of a zigzagged residual, up to 2^31
   for (let y = 0; y < h; y++) {
     for (let x = 0; x < w; x++) {
       const i = y * w + x;
-      const a = x ? mag(z[i - 1]) : y ? mag(z[i - w]) : 0;
-      const s = a + (y ? mag(z[i - w]) : a); // up to 2^32
-      const c = s === 0 ? 0 : s >= 1024 ? B_CTX - 1 : 32 - Math.clz32(s);
-      let nb = 0;
-      while (nb < 32 && bit(unary, c * 33 + nb)) nb++;
-      let v = 1; // up to 2^33 - 1: a double, not 32-bit bitwise
-      const m = (c * 33 + nb) * 2;
-      for (let k = nb - 1; k >= 0; k--) v = v * 2 + (k >= nb - 2 ? bit(mant, m + nb - 1 - k) : direct());
-      if (v - 1 > 0xffffffff || short) throw new ProtoError('bad_compression', 'a base payload that ends early or holds a value past 2^32');
-      const u = v - 1;
+      const u = rc.residual(unary, mant, baseContext(z, w, x, y, i));
+      if (u < 0) throw new ProtoError('bad_compression', 'a base payload that ends early or holds a value past 2^32');
       z[i] = u;
-      const p = y === 0 ? (x ? out[i - 1] : 0) : x === 0 ? out[i - w] : out[i - 1] + out[i - w] - out[i - w - 1];
-      out[i] = (unzigzag32(u) + p) | 0; // |sum| < 2^34: exact in a double, then wrapped
+      out[i] = (unzigzag32(u) + basePredict(out, w, x, y, i)) | 0; // |sum| < 2^34: exact, then wrapped
+    }
+  }
+  return out;
+}
+
+// ---- slope snapshot rectangles (encoding 3, PROTOCOL.md "Slope snapshots") ----
+// The same d = h - base, each cell bounded by its decoded left, upper, upper-left and
+// upper-right neighbours and the payload's two limits (a axial, b diagonal): lo = min(n + limit),
+// hi = max(n - limit). A cell first says whether it sits at lo (or lo - 1) or at hi (or hi + 1),
+// with probabilities per context (its neighbours' classes); the others code a residual as
+// encoding 2 does, against encoding 2's prediction clamped into [hi, lo], in a context of the
+// bit length of lo - hi. Bounds reach past int32 (up to ~2^33): doubles, exact.
+
+/** A slope snapshot rectangle's payload -> Int32Array of w * h values h - base;
+ *  bad_compression for a payload shorter than 13 bytes, ending before the last cell, holding a
+ *  value past 2^32 or placing a cell at a bound outside int32; more than maxCells cells is
+ *  too_large. */
+export function rectDecompressSlope(data, w, h, maxCells = Infinity) {
+  const d = bytes(data), cells = w * h;
+  if (!(cells > 0) || cells > maxCells) throw new ProtoError('too_large', `${cells} cells`);
+  if (d.length < 13) throw new ProtoError('bad_compression', 'a slope payload of fewer than 13 bytes');
+  const dv = new DataView(d.buffer, d.byteOffset, d.byteLength);
+  const la = dv.getUint32(0, true), lb = dv.getUint32(4, true);
+  const [unary, mant] = residualModels(), cls = new Uint16Array(64 * 4).fill(1024);
+  const rc = rangeDecoder(d, 8);
+  const z = new Uint32Array(cells); // the zigzagged residuals
+  const k = new Uint8Array(cells); // 0: neither bound, 1: at the upper one, 2: at the lower one
+  const out = new Int32Array(cells); // h - base
+  for (let y = 0; y < h; y++) {
+    for (let x = 0; x < w; x++) {
+      const i = y * w + x;
+      let lo = Infinity, hi = -Infinity;
+      const bound = (n, lim) => {
+        lo = Math.min(lo, n + lim);
+        hi = Math.max(hi, n - lim);
+      };
+      if (x) bound(out[i - 1], la);
+      if (y) bound(out[i - w], la);
+      if (x && y) bound(out[i - w - 1], lb);
+      if (y && x + 1 < w) bound(out[i - w + 1], lb);
+      const any = x > 0 || y > 0;
+      let p = basePredict(out, w, x, y, i);
+      if (any && hi <= lo) p = Math.min(Math.max(p, hi), lo);
+      let v = null;
+      if (any) {
+        const cc = ((x ? k[i - 1] : 3) * 16 + (y ? k[i - w] : 3) * 4 + (y && x + 1 < w ? k[i - w + 1] : 3)) * 4;
+        if (rc.bit(cls, cc)) {
+          k[i] = 1;
+          v = lo - rc.bit(cls, cc + 2);
+        } else if (rc.bit(cls, cc + 1)) {
+          k[i] = 2;
+          v = hi + rc.bit(cls, cc + 3);
+        }
+      }
+      if (v === null) {
+        const c = any && lo >= hi ? (lo - hi >= 1024 ? B_CTX - 1 : lo === hi ? 0 : 32 - Math.clz32(lo - hi)) : baseContext(z, w, x, y, i);
+        const u = rc.residual(unary, mant, c);
+        if (u < 0) throw new ProtoError('bad_compression', 'a slope payload that ends early or holds a value past 2^32');
+        out[i] = (p + unzigzag32(u)) | 0; // |sum| < 2^35: exact, then wrapped
+        z[i] = u;
+      } else {
+        if (v < -0x80000000 || v > 0x7fffffff || rc.short()) throw new ProtoError('bad_compression', 'a slope payload that ends early or puts a cell outside int32');
+        out[i] = v;
+        z[i] = zigzag32((v - p) | 0);
+      }
     }
   }
   return out;
@@ -605,7 +689,7 @@ export function applyValues(r, values, heights, hx, hy, hw, hh, base = null) {
   for (let y = y0; y < y1; y++) {
     const s = (y - r.y) * r.w + (x0 - r.x), d = (y - hy) * hw + (x0 - hx);
     if (r.encoding === Encoding.SNAPSHOT) heights.set(values.subarray(s, s + n), d);
-    else if (r.encoding === Encoding.BASE) for (let i = 0; i < n; i++) heights[d + i] = (base[d + i] + values[s + i]) | 0;
+    else if (r.encoding === Encoding.BASE || r.encoding === Encoding.BASE_SLOPE) for (let i = 0; i < n; i++) heights[d + i] = (base[d + i] + values[s + i]) | 0;
     else for (let i = 0; i < n; i++) heights[d + i] = (heights[d + i] + values[s + i]) | 0;
   }
   return n * (y1 - y0);
@@ -671,9 +755,10 @@ export class Mirror {
           ok = true;
         }
         if (!ok) continue;
-        if (r.encoding === Encoding.BASE) {
+        if (r.encoding === Encoding.BASE || r.encoding === Encoding.BASE_SLOPE) {
           if (!this.base) throw new ProtoError('bad_value', 'a base snapshot for a mirror without the base');
-          touched += applyValues(r, rectDecompressBase(r.data, r.w, r.h, maxCells), this.heights, this.x, this.y, this.w, this.h, this.base);
+          const decompress = r.encoding === Encoding.BASE ? rectDecompressBase : rectDecompressSlope;
+          touched += applyValues(r, decompress(r.data, r.w, r.h, maxCells), this.heights, this.x, this.y, this.w, this.h, this.base);
           this.versions[t] = r.new_version;
           continue;
         }
@@ -714,10 +799,13 @@ export class Mirror {
 // world: a world created by POST /v1/worlds (or a cluster's world); '' for the default one.
 // budget: bytes/s the server may send (PROTOCOL.md "Budgets"), 0 none; -1: the server's default
 // snapshotBase: snapshots against the scene's base terrain, which the client rebuilds with the
-// twin (PROTOCOL.md "Base snapshots"): the world message says whether the server agreed
-export const hello = (token = '', client = 'terrad-web', world = '', budget = -1, snapshotBase = false) =>
+// twin (PROTOCOL.md "Base snapshots"): the world message says whether the server agreed.
+// snapshotSlope: with snapshotBase, offer slope snapshots too (encoding 3, PROTOCOL.md "Slope
+// snapshots"; the server sends each piece in the shorter coding): the world message says
+export const hello = (token = '', client = 'terrad-web', world = '', budget = -1, snapshotBase = false, snapshotSlope = false) =>
   ({ type: 'hello', protocol: PROTOCOL_VERSION, token, client, ...(world ? { world } : {}),
-     ...(budget >= 0 ? { budget } : {}), ...(snapshotBase ? { snapshot_base: true } : {}) });
+     ...(budget >= 0 ? { budget } : {}), ...(snapshotBase ? { snapshot_base: true } : {}),
+     ...(snapshotBase && snapshotSlope ? { snapshot_slope: true } : {}) });
 // a budgeted client's focus in cells (its nearest tiles first); no x, y: cleared
 export const focus = (x = -1, y = -1) => (x < 0 || y < 0 ? { type: 'focus' } : { type: 'focus', x, y });
 // grousers (with colliders): COLLIDERS entries carry the wheels' grousers (PROTOCOL.md "COLLIDERS")

@@ -93,6 +93,10 @@ struct terrad_client {
     double *force_heights; /* its heights (nforce_heights 0: it had none) */
     size_t nforce_heights, force_heights_cap;
     uint64_t forces_tick;
+    terrad_collider_state *colliders;        /* the latest COLLIDERS frame (colliders in view) */
+    terrad_collider_grousers *collider_lugs; /* their grousers (all zero without the flag) */
+    size_t ncolliders, colliders_cap, lugs_cap;
+    uint64_t colliders_tick;
     terrad_rect *rects;
     size_t rects_cap;
     int32_t *scratch;
@@ -105,9 +109,10 @@ struct terrad_client {
     /* lockstep (client-clocked worlds): step numbers sent, and each answer
      * (STEPPED or an error whose ref is "step:SEQ") in a ring by seq */
     int client_clock;
-    /* base snapshots (terrad_client_connect_base): asked for in hello, and the
-     * world message's answer with the base's twin config */
-    int base_asked, base_on;
+    /* base snapshots (terrad_client_connect_base): asked for in hello (1; 2:
+     * slope snapshots offered too, terrad_client_connect_slope), and the world
+     * message's answers with the base's twin config */
+    int base_asked, base_on, slope_on;
     cJSON *base;
     uint32_t step_seq, step_waiting;
     struct {
@@ -277,6 +282,8 @@ static void on_world(terrad_client *c, const cJSON *m)
     c->base_on = c->base_asked &&
                  cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(m, "snapshot_base")) &&
                  cJSON_IsObject(base) && (c->base = cJSON_Duplicate(base, 1)) != NULL;
+    c->slope_on = c->base_on && c->base_asked == 2 &&
+                  cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(m, "snapshot_slope"));
     c->got_world = 1;
 }
 
@@ -529,6 +536,27 @@ static void on_binary(terrad_client *c, const uint8_t *buf, size_t len)
         c->contact_tick = tick;
         c->stats.contact_frames++;
         c->stats.contact_tick = tick;
+        break;
+    }
+    case TERRAD_MSG_COLLIDERS: { /* a subscription made by terrad_client_subscribe_colliders */
+        size_t cap = len >= TERRAD_COLLIDERS_FIXED
+                         ? (len - TERRAD_COLLIDERS_FIXED) / TERRAD_COLLIDER_STATE_SIZE
+                         : 0;
+        if (grow((void **)&c->colliders, &c->colliders_cap, cap + 1, sizeof *c->colliders) ||
+            grow((void **)&c->collider_lugs, &c->lugs_cap, cap + 1, sizeof *c->collider_lugs))
+            return bad_frame(c, "COLLIDERS (no memory)", TERRAD_E_NO_MEMORY);
+        size_t n = 0, nl = 0;
+        rc = terrad_colliders_decode(buf, len, &tick, c->colliders, c->colliders_cap, &n);
+        if (rc == 0)
+            rc = terrad_colliders_grousers(buf, len, c->collider_lugs, c->lugs_cap, &nl);
+        if (rc) {
+            c->ncolliders = 0;
+            return bad_frame(c, "COLLIDERS", rc);
+        }
+        if (nl == 0) /* a frame without the grousers extension: no entry has any */
+            memset(c->collider_lugs, 0, n * sizeof *c->collider_lugs);
+        c->ncolliders = n;
+        c->colliders_tick = tick;
         break;
     }
     case TERRAD_MSG_FORCES: {
@@ -813,6 +841,8 @@ static terrad_client *connect_to(terrad_client_desc d, const char *world, int ba
         cJSON_AddStringToObject(h, "world", world);
     if (c->base_asked)
         cJSON_AddBoolToObject(h, "snapshot_base", 1);
+    if (c->base_asked == 2) /* the mirror decodes encoding 3 (terrad_rect_decompress_slope) */
+        cJSON_AddBoolToObject(h, "snapshot_slope", 1);
     if (d.budget) /* -1: none (0 on the wire); 0: the server's default (not sent) */
         cJSON_AddNumberToObject(h, "budget", d.budget < 0 ? 0 : (double)d.budget);
     char *text = cJSON_PrintUnformatted(h);
@@ -871,6 +901,17 @@ int terrad_client_base_snapshots(const terrad_client *c)
     return c->base_on;
 }
 
+terrad_client *terrad_client_connect_slope(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap)
+{
+    return connect_to(d, world, 2, err, err_cap);
+}
+
+int terrad_client_slope_snapshots(const terrad_client *c)
+{
+    return c->slope_on;
+}
+
 const char *terrad_client_world_name(const terrad_client *c)
 {
     return c->world_name;
@@ -901,6 +942,8 @@ void terrad_client_close(terrad_client *c)
     free(c->contacts);
     free(c->forces);
     free(c->force_heights);
+    free(c->colliders);
+    free(c->collider_lugs);
     free(c->rects);
     free(c->scratch);
     free(c->rx);
@@ -1134,8 +1177,9 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
     return 0;
 }
 
-int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
-                            uint32_t *sid_out)
+/* colliders: 0 none, 1 COLLIDERS frames, 2 with their grousers (the extension) */
+static int subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h, int colliders,
+                     uint32_t *sid_out)
 {
     cJSON *m = cJSON_CreateObject();
     if (!m)
@@ -1145,11 +1189,40 @@ int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, 
     cJSON_AddNumberToObject(m, "y", y);
     cJSON_AddNumberToObject(m, "w", w);
     cJSON_AddNumberToObject(m, "h", h);
+    if (colliders)
+        cJSON_AddTrueToObject(m, "colliders");
+    if (colliders > 1)
+        cJSON_AddTrueToObject(m, "grousers");
     int64_t id = 0;
     int rc = request(c, m, &id);
     if (rc == 0 && sid_out)
         *sid_out = (uint32_t)id;
     return rc;
+}
+
+int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
+                            uint32_t *sid_out)
+{
+    return subscribe(c, x, y, w, h, 0, sid_out);
+}
+
+int terrad_client_subscribe_colliders(terrad_client *c, int32_t x, int32_t y, uint32_t w,
+                                      uint32_t h, int grousers, uint32_t *sid_out)
+{
+    return subscribe(c, x, y, w, h, grousers ? 2 : 1, sid_out);
+}
+
+size_t terrad_client_colliders(const terrad_client *c, terrad_collider_state *states,
+                               terrad_collider_grousers *grousers, size_t cap, uint64_t *tick_out)
+{
+    size_t n = c->ncolliders < cap ? c->ncolliders : cap;
+    if (states && n)
+        memcpy(states, c->colliders, n * sizeof *states);
+    if (grousers && n)
+        memcpy(grousers, c->collider_lugs, n * sizeof *grousers);
+    if (tick_out)
+        *tick_out = c->colliders_tick;
+    return c->ncolliders;
 }
 
 int terrad_client_edit(terrad_client *c, const char *edit_json, uint64_t *tick_out,

@@ -208,6 +208,16 @@ int terrad_client_send_poses(terrad_client *c, const terrad_pose *poses, size_t 
  * later polls (terrad_client_mirror_complete says when). */
 int terrad_client_subscribe(terrad_client *c, int32_t x, int32_t y, uint32_t w, uint32_t h,
                             uint32_t *sid_out);
+/* The same, with COLLIDERS frames for the region (PROTOCOL.md "COLLIDERS": every collider in
+ * view, other clients' and the daemon's too); grousers 1 asks for the wheels' grousers with
+ * them (the extension). terrad_client_colliders reads the latest frame. */
+int terrad_client_subscribe_colliders(terrad_client *c, int32_t x, int32_t y, uint32_t w,
+                                      uint32_t h, int grousers, uint32_t *sid_out);
+/* The latest COLLIDERS frame: copies up to cap entries (and, when grousers is not NULL, each
+ * one's grousers: all zero for none or from a frame without the extension) and returns how
+ * many the frame had (0 before the first). */
+size_t terrad_client_colliders(const terrad_client *c, terrad_collider_state *states,
+                               terrad_collider_grousers *grousers, size_t cap, uint64_t *tick_out);
 int terrad_client_unsubscribe(terrad_client *c, uint32_t sid);
 /* A terrain edit (PROTOCOL.md "edit"): edit_json is the message's fields as a
  * JSON object, e.g. {"op":"stamp","x":0,"y":0,"w":2,"h":2,"data":"..."}
@@ -396,6 +406,17 @@ terrad_client *terrad_client_connect_base(terrad_client_desc d, const char *worl
                                           size_t err_cap);
 /* 1 when the server agreed to base snapshots for this connection. */
 int terrad_client_base_snapshots(const terrad_client *c);
+
+/* ---- added in 0.6: slope snapshots (PROTOCOL.md "Slope snapshots"), new calls only ----
+ *
+ * terrad_client_connect_base, also offering slope snapshots (encoding 3): the
+ * server then codes each snapshot piece both ways and sends the shorter; on
+ * ground driven over for an hour (a sand pile at its angle of repose) that is
+ * about a fifth less than encoding 2. terrad_client_slope_snapshots says 1
+ * when the server agreed (an older server ignores the offer: encoding 2). */
+terrad_client *terrad_client_connect_slope(terrad_client_desc d, const char *world, char *err,
+                                           size_t err_cap);
+int terrad_client_slope_snapshots(const terrad_client *c);
 
 #ifdef __cplusplus
 }

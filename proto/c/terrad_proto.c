@@ -367,7 +367,8 @@ int terrad_rect_check(const terrad_rect *r)
     if (r->encoding == TERRAD_ENC_DELTA) {
         if (r->base_version == 0 || r->base_version == r->new_version)
             return TERRAD_E_BAD_VALUE;
-    } else if (r->encoding == TERRAD_ENC_SNAPSHOT || r->encoding == TERRAD_ENC_BASE) {
+    } else if (r->encoding == TERRAD_ENC_SNAPSHOT || r->encoding == TERRAD_ENC_BASE ||
+               r->encoding == TERRAD_ENC_BASE_SLOPE) {
         if (r->base_version != 0)
             return TERRAD_E_BAD_VALUE;
     } else {
@@ -1542,10 +1543,14 @@ int terrad_mirror_apply(terrad_mirror *m, terrad_codec *c, const terrad_rect *re
         } else if (mirror_classify(m, r, &t) != RECT_APPLY) {
             continue;
         }
-        if (r->encoding == TERRAD_ENC_BASE) { /* the client asked for them: it has the base */
-            rc = m->base ? terrad_rect_decompress_base(r->data, r->data_len, r->w, r->h, scratch,
-                                                       scratch_cells)
-                         : TERRAD_E_BAD_VALUE;
+        if (r->encoding == TERRAD_ENC_BASE || r->encoding == TERRAD_ENC_BASE_SLOPE) {
+            /* the client asked for them: it has the base */
+            rc = !m->base ? TERRAD_E_BAD_VALUE
+                 : r->encoding == TERRAD_ENC_BASE
+                     ? terrad_rect_decompress_base(r->data, r->data_len, r->w, r->h, scratch,
+                                                   scratch_cells)
+                     : terrad_rect_decompress_slope(r->data, r->data_len, r->w, r->h, scratch,
+                                                    scratch_cells);
             if (rc)
                 break;
             terrad_rect_apply_base(r, scratch, m->base, m->heights, m->x, m->y, m->w, m->h);

@@ -154,6 +154,10 @@ typedef enum terrad_encoding {
     /* heights less the scene's base terrain, predicted, zigzag, range-coded,
      * no zstd (PROTOCOL.md "Base snapshots"): only to a client whose hello asked */
     TERRAD_ENC_BASE = 2,
+    /* heights less the base, each cell first placed against the bounds its
+     * decoded neighbours and two slope limits set, range-coded (PROTOCOL.md
+     * "Slope snapshots"): only to a client whose hello offered it */
+    TERRAD_ENC_BASE_SLOPE = 3,
 } terrad_encoding;
 
 typedef struct terrad_rect {
@@ -420,6 +424,25 @@ int terrad_rect_compress_base(const int32_t *diff, uint32_t w, uint32_t h, uint8
  * past 2^32. */
 int terrad_rect_decompress_base(const uint8_t *data, size_t len, uint32_t w, uint32_t h,
                                 int32_t *out, size_t out_cap);
+/* Slope snapshots (encoding 3, PROTOCOL.md "Slope snapshots"): the same
+ * differences h - base, each cell coded as at its upper or lower bound (the
+ * decoded left, upper, upper-left and upper-right neighbours plus the axial
+ * limit a or the diagonal limit b), or else as encoding 2's residual against
+ * its prediction clamped into the bounds. Exact for any int32 values and any
+ * a, b. _ab codes with the given limits; terrad_rect_compress_slope picks them
+ * (the most common neighbour differences); _smaller codes both encodings 2
+ * and 3 and keeps the shorter, saying which in *encoding_out. Errors as for
+ * encoding 2; a slope payload shorter than 13 bytes, or decoding a value out
+ * of int32, is bad_compression. */
+size_t terrad_rect_compress_slope_bound(size_t cells);
+int terrad_rect_compress_slope_ab(const int32_t *diff, uint32_t w, uint32_t h, uint32_t a,
+                                  uint32_t b, uint8_t *out, size_t cap, size_t *len_out);
+int terrad_rect_compress_slope(const int32_t *diff, uint32_t w, uint32_t h, uint8_t *out,
+                               size_t cap, size_t *len_out);
+int terrad_rect_compress_base_smaller(const int32_t *diff, uint32_t w, uint32_t h, uint8_t *out,
+                                      size_t cap, size_t *len_out, uint8_t *encoding_out);
+int terrad_rect_decompress_slope(const uint8_t *data, size_t len, uint32_t w, uint32_t h,
+                                 int32_t *out, size_t out_cap);
 /* A base rectangle's decoded differences onto heights covering the region
  * (hx, hy, hw, hh), clipped: heights = base + diff, base over the region.
  * Returns the number of cells set. */
@@ -446,7 +469,7 @@ typedef struct terrad_mirror {
     int64_t tx0, ty0;   /* first tile column and row (computed) */
     uint32_t tiles_x, tiles_y;
     /* The scene's base terrain over the region (w * h, caller's memory), for
-     * base snapshot rectangles (TERRAD_ENC_BASE); NULL (terrad_mirror_init):
+     * base and slope snapshot rectangles (TERRAD_ENC_BASE, _BASE_SLOPE); NULL (terrad_mirror_init):
      * such a rectangle is refused with bad_value. */
     const int32_t *base;
 } terrad_mirror;

@@ -1084,14 +1084,25 @@ static void mirror_scenarios(void)
 
 /* ---- base snapshot payloads (PROTOCOL.md "Base snapshots") ---- */
 
-/* "base_rects": one encoding 2 payload of w x h values (h - base), coded by the C coder */
-static void base_rect(cJSON *a, const char *about, const int32_t *v, uint32_t w, uint32_t h)
+/* A payload p (n bytes) every decoder must refuse with bad_compression. */
+static void refused_rect(cJSON *arr, const char *about, const uint8_t *p, size_t n, uint32_t w,
+                         uint32_t h)
 {
-    size_t cells = (size_t)w * h, cap = terrad_rect_compress_base_bound(cells), n;
-    uint8_t *p = malloc(cap);
-    if (!p)
-        die("out of memory");
-    ok(terrad_rect_compress_base(v, w, h, p, cap, &n), about);
+    cJSON *q = cJSON_CreateObject();
+    cJSON_AddStringToObject(q, "about", about);
+    cJSON_AddNumberToObject(q, "w", w);
+    cJSON_AddNumberToObject(q, "h", h);
+    add_hex(q, "data_hex", p, n);
+    cJSON_AddStringToObject(q, "error", terrad_err_name(TERRAD_E_BAD_COMPRESSION));
+    cJSON_AddItemToArray(arr, q);
+}
+
+/* One coded payload p (n bytes) of w x h values v as a valid vector, and the
+ * same cut in half (bad_compression) when it is longer than min_len bytes. */
+static void coded_rect(cJSON *a, const char *about, const int32_t *v, uint32_t w, uint32_t h,
+                       const uint8_t *p, size_t n, size_t min_len)
+{
+    size_t cells = (size_t)w * h;
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "about", about);
     cJSON_AddNumberToObject(o, "w", w);
@@ -1100,17 +1111,22 @@ static void base_rect(cJSON *a, const char *about, const int32_t *v, uint32_t w,
     add_hex(o, "data_hex", p, n);
     cJSON_AddStringToObject(o, "error", "");
     cJSON_AddItemToArray(a, o);
-    if (n > 5) { /* the same payload cut to half: refused */
-        cJSON *q = cJSON_CreateObject();
-        char what[160];
+    if (n > min_len) { /* the same payload cut to half: refused */
+        char what[200];
         snprintf(what, sizeof what, "%s, cut to %zu of its %zu bytes", about, n / 2, n);
-        cJSON_AddStringToObject(q, "about", what);
-        cJSON_AddNumberToObject(q, "w", w);
-        cJSON_AddNumberToObject(q, "h", h);
-        add_hex(q, "data_hex", p, n / 2);
-        cJSON_AddStringToObject(q, "error", terrad_err_name(TERRAD_E_BAD_COMPRESSION));
-        cJSON_AddItemToArray(a, q);
+        refused_rect(a, what, p, n / 2, w, h);
     }
+}
+
+/* "base_rects": one encoding 2 payload of w x h values (h - base), coded by the C coder */
+static void base_rect(cJSON *a, const char *about, const int32_t *v, uint32_t w, uint32_t h)
+{
+    size_t cells = (size_t)w * h, cap = terrad_rect_compress_base_bound(cells), n;
+    uint8_t *p = malloc(cap);
+    if (!p)
+        die("out of memory");
+    ok(terrad_rect_compress_base(v, w, h, p, cap, &n), about);
+    coded_rect(a, about, v, w, h, p, n, 5);
     free(p);
 }
 
@@ -1139,13 +1155,86 @@ static void base_vectors(cJSON *a)
     base_rect(a, "an undug 8 x 8 tile: all 0", zero, 8, 8);
     int32_t one = INT32_MIN;
     base_rect(a, "one cell, INT32_MIN", &one, 1, 1);
-    cJSON *q = cJSON_CreateObject();
-    cJSON_AddStringToObject(q, "about", "four bytes: fewer than the coder's five");
-    cJSON_AddNumberToObject(q, "w", 2);
-    cJSON_AddNumberToObject(q, "h", 2);
-    cJSON_AddStringToObject(q, "data_hex", "00010203");
-    cJSON_AddStringToObject(q, "error", terrad_err_name(TERRAD_E_BAD_COMPRESSION));
-    cJSON_AddItemToArray(a, q);
+    static const uint8_t four[4] = {0, 1, 2, 3};
+    refused_rect(a, "four bytes: fewer than the coder's five", four, 4, 2, 2);
+}
+
+/* ---- slope snapshot payloads (PROTOCOL.md "Slope snapshots") ---- */
+
+/* "slope_rects": one encoding 3 payload of w x h values coded by the C coder
+ * with limits a and b (auto: the coder's own choice), and the same cut in
+ * half (bad_compression). */
+static void slope_rect(cJSON *arr, const char *about, const int32_t *v, uint32_t w, uint32_t h,
+                       int autolimits, uint32_t a, uint32_t b)
+{
+    size_t cells = (size_t)w * h, cap = terrad_rect_compress_slope_bound(cells), n;
+    uint8_t *p = malloc(cap);
+    if (!p)
+        die("out of memory");
+    ok(autolimits ? terrad_rect_compress_slope(v, w, h, p, cap, &n)
+                  : terrad_rect_compress_slope_ab(v, w, h, a, b, p, cap, &n),
+       about);
+    coded_rect(arr, about, v, w, h, p, n, 13);
+    free(p);
+}
+
+static void slope_vectors(cJSON *arr)
+{
+    enum { W = 24, H = 20 };
+    int32_t v[W * H];
+    /* a sand pile: the lowest of cones of slope 367 a cell axially, 509
+     * diagonally (chamfer distance), from a few seeded apexes: most cells sit
+     * exactly at a bound of their neighbours, a few one under */
+    static const int cx[4] = {3, 17, 9, 21}, cy[4] = {4, 2, 15, 17}, c0[4] = {-800, -500, -650, 0};
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            int64_t best = INT64_MAX;
+            for (int k = 0; k < 4; k++) {
+                int dx = abs(x - cx[k]), dy = abs(y - cy[k]);
+                int dg = dx < dy ? dx : dy, ax = (dx > dy ? dx : dy) - dg;
+                int64_t z = c0[k] + 367 * ax + 509 * dg - ((x + 2 * y) % 5 == 0);
+                best = z < best ? z : best;
+            }
+            v[y * W + x] = (int32_t)best;
+        }
+    slope_rect(arr, "a sand pile at its slope limits (a = 367, b = 509), 24 x 20", v, W, H, 0, 367,
+               509);
+    slope_rect(arr, "the same sand pile, limits of the coder's choice", v, W, H, 1, 0, 0);
+    for (int y = 0; y < H; y++) /* a crater's bowl and rim */
+        for (int x = 0; x < W; x++) {
+            int d2 = (x - 11) * (x - 11) + (y - 9) * (y - 9), r2 = 7 * 7;
+            v[y * W + x] = d2 < r2 ? -(900 * (r2 - d2) / r2) : d2 < 4 * r2 ? (4 * r2 - d2) / 3 : 0;
+        }
+    slope_rect(arr, "a crater, limits of the coder's choice, 24 x 20", v, W, H, 1, 0, 0);
+    uint32_t r = 2024;
+    for (int i = 0; i < W * H; i++) { /* noise over the whole int32 range */
+        r = r * 1664525u + 1013904223u;
+        v[i] = (int32_t)r;
+    }
+    slope_rect(arr, "noise over the int32 range, a = 2^32 - 1, b = 2^31, 24 x 20", v, W, H, 0,
+               UINT32_MAX, 1u << 31);
+    for (int i = 0; i < W * H; i++) /* bounds past int32 both ways; residuals wrap */
+        v[i] = (i * 7 + i / W) % 3 == 0 ? INT32_MIN : (i % 5 == 0 ? INT32_MAX : -1);
+    slope_rect(arr, "INT32_MIN, INT32_MAX and -1, a = b = 2^32 - 1, 24 x 20", v, W, H, 0,
+               UINT32_MAX, UINT32_MAX);
+    slope_rect(arr, "INT32_MIN, INT32_MAX and -1, a = 1, b = 0, 24 x 20", v, W, H, 0, 1, 0);
+    slope_rect(arr, "one row of 40, a = 1, b = 0", v, 40, 1, 0, 1, 0);
+    slope_rect(arr, "one column of 40, a = 1, b = 0", v, 1, 40, 0, 1, 0);
+    int32_t zero[64] = {0};
+    slope_rect(arr, "an undug 8 x 8 tile: all 0", zero, 8, 8, 1, 0, 0);
+    int32_t one = INT32_MIN;
+    slope_rect(arr, "one cell, INT32_MIN", &one, 1, 1, 1, 0, 0);
+    /* a cell at its upper bound 0 + 5, then a patched to 2^32 - 16: the bound
+     * 2^32 - 16 lies outside int32 */
+    int32_t two[2] = {0, 5};
+    uint8_t p[64];
+    size_t n;
+    ok(terrad_rect_compress_slope_ab(two, 2, 1, 5, 0, p, sizeof p, &n), "a = 5");
+    p[0] = 0xF0;
+    p[1] = p[2] = p[3] = 0xFF;
+    refused_rect(arr, "a cell at its upper bound, which lies past INT32_MAX", p, n, 2, 1);
+    memset(p, 0, 12);
+    refused_rect(arr, "twelve bytes: fewer than the limits and the coder's five", p, 12, 2, 2);
 }
 
 int main(void)
@@ -1184,6 +1273,7 @@ int main(void)
     checksum_vectors(cJSON_AddArrayToObject(root, "hashes"));
     mirror_scenarios();
     base_vectors(cJSON_AddArrayToObject(root, "base_rects"));
+    slope_vectors(cJSON_AddArrayToObject(root, "slope_rects"));
     char *text = cJSON_Print(root);
     if (!text)
         die("print");

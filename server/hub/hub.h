@@ -86,7 +86,8 @@ typedef struct hub_command {
     int colliders;              /* subscribe: send COLLIDERS frames for this region */
     int grousers;               /* subscribe: ... with the grousers extension (PROTOCOL.md) */
     int footprints;             /* subscribe: send FOOTPRINTS frames for this region */
-    int snapshot_base;          /* joined: its snapshots against the base (PROTOCOL.md) */
+    int snapshot_base;          /* joined: 0, or its snapshots against the base: 1 encoding 2,
+                                   2 encoding 2 or 3 (PROTOCOL.md "Slope snapshots") */
     char ref[64];               /* the client's request reference, echoed in replies */
     world_edit *edit;           /* edit: owned by the command, then by the sim */
     hub_edit_waiter *waiter;    /* edit from HTTP: hub_edit_finish tells it the outcome */
@@ -304,9 +305,10 @@ typedef struct hub_world {
     char name[HUB_WORLD_NAME_MAX + 1];
     hub *h;
     const world *base; /* its base terrain (/v1/heights?base=1) */
-    /* its data directory, for replays beside it (?tick=N, spectators); NULL:
-     * none (memory only, or a cluster node's store) */
-    const char *replay_dir;
+    /* where replays beside it read its past (?tick=N, spectators): store/'s
+     * store_history (opaque here, hub/ beside store/) — a data directory, or
+     * a cluster node's JetStream reader; NULL: none (memory only) */
+    const void *history;
     void *status;
     const void *info;
     int deleted; /* set by hub_worlds_remove: its clients are told it was deleted */

@@ -84,9 +84,11 @@ typedef struct net_client {
     uint32_t id;
     struct lws *wsi;
     net_state *srv;
-    int ready;         /* hello accepted */
-    int snapshot_base; /* its snapshots are coded against the base (PROTOCOL.md) */
-    unsigned events;   /* subscribe_events: one bit per NET_EVENT_NAMES entry */
+    int ready; /* hello accepted */
+    /* its snapshots are coded against the base (PROTOCOL.md): 0 no, 1 as
+     * encoding 2, 2 as encoding 2 or 3 (slope snapshots), the shorter */
+    int snapshot_base;
+    unsigned events; /* subscribe_events: one bit per NET_EVENT_NAMES entry */
     /* what its hello's token allows (net_auth.c), the token's entry name for
      * log lines and its hash, looked up again after each reload */
     auth_role role;
@@ -173,6 +175,10 @@ typedef struct net_client {
     int has_focus;
     double focus_x, focus_y;
     net_spectator *spectate; /* PROTOCOL.md "Spectate" (net_spectate.c); NULL: not spectating */
+    /* a relay's client whose owner said "spectating" (until its spectate_end):
+     * the owner's frames of past ticks go to it as replies (net_dispatch),
+     * never judged against the live tick's lag or dropped for a resync */
+    int relay_spectating;
 } net_client;
 
 typedef struct net_collider_slot {

@@ -136,6 +136,8 @@ static int parse_hello(parser *r, net_control *out)
                     NET_CLIENT_NAME_MAX_BYTES);
     if (get_bool(r, "snapshot_base", 0, &out->snapshot_base) < 0)
         return -1;
+    if (get_bool(r, "snapshot_slope", 0, &out->snapshot_slope) < 0)
+        return -1;
     /* budget: bytes/s, 0 for none; the daemon's max_budget_bytes_per_s bounds it */
     double max = r->ctx->limits->max_budget_bytes_per_s;
     out->budget = -1;

@@ -65,8 +65,9 @@ typedef struct net_control {
     char token[NET_TOKEN_MAX_BYTES + 1];
     char client[NET_CLIENT_NAME_MAX_BYTES + 1]; /* "" when absent */
     char world[NET_CLIENT_NAME_MAX_BYTES + 1];  /* hello's world: "" when absent */
-    int snapshot_base; /* hello's snapshot_base: base snapshots asked for */
-    int64_t budget;    /* hello's bandwidth budget, bytes/s: -1 absent, 0 none */
+    int snapshot_base;  /* hello's snapshot_base: base snapshots asked for */
+    int snapshot_slope; /* hello's snapshot_slope: it decodes slope snapshots (encoding 3) */
+    int64_t budget;     /* hello's bandwidth budget, bytes/s: -1 absent, 0 none */
     /* focus: the point in cells its budget's nearest tiles are measured from
      * (has_focus 0: cleared) */
     int has_focus;

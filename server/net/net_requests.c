@@ -128,10 +128,12 @@ static void handle_hello(net_client *c, const net_control *m)
         if ((unsigned char)*p < 0x20 || *p == 0x7f)
             *p = '?';
     /* base snapshots (PROTOCOL.md): only where the twin can rebuild the base */
-    c->snapshot_base = m->snapshot_base && s->base != NULL;
+    c->snapshot_base = m->snapshot_base && s->base != NULL ? 1 + (m->snapshot_slope != 0) : 0;
     cJSON *w = world_message(s, c);
     if (m->snapshot_base)
-        cJSON_AddBoolToObject(w, "snapshot_base", c->snapshot_base);
+        cJSON_AddBoolToObject(w, "snapshot_base", c->snapshot_base != 0);
+    if (m->snapshot_slope) /* slope snapshots: only with base snapshots (PROTOCOL.md) */
+        cJSON_AddBoolToObject(w, "snapshot_slope", c->snapshot_base == 2);
     cJSON_AddItemToObject(w, "ref", net_ref_copy(m->ref));
     net_send_json(c, w);
     hub_command cmd = {

@@ -52,7 +52,8 @@ typedef struct svc_client {
     int64_t tick_cells; /* footprint cells of its posed colliders this tick */
     int held;           /* its colliders wait this tick (and its ACK with them) */
     int held_last;      /* they waited last tick: not held again this one */
-    int snapshot_base;  /* its snapshots against the base (hello; PROTOCOL.md) */
+    int snapshot_base;  /* its snapshots against the base (hello; PROTOCOL.md): 1 encoding 2,
+                           2 encoding 2 or 3, whichever codes a piece shorter */
 } svc_client;
 
 typedef struct svc_collider {

@@ -28,7 +28,9 @@
  * A client whose hello asked for base snapshots (PROTOCOL.md "Base
  * snapshots", issue 32 item 2) gets each piece as its heights less the
  * scene's base (subtracted here, on the sim thread, which owns the world's
- * base cache) and the worker codes it with terrad_rect_compress_base.
+ * base cache) and the worker codes it with terrad_rect_compress_base, or,
+ * for a client that also decodes slope snapshots (encoding 3), with
+ * terrad_rect_compress_base_smaller: both codings, the shorter kept.
  */
 #include "service/service_internal.h"
 
@@ -122,12 +124,16 @@ static void frame_request(snap_worker *w, snap_request *r)
         snap_piece *p = &r->pieces[k];
         size_t len = 0;
         uint8_t *data = NULL;
-        int coded = !p->values ? -1
-                    : p->rect.encoding == TERRAD_ENC_BASE
-                        ? terrad_rect_compress_base(p->values, p->rect.w, p->rect.h, w->packed,
-                                                    w->packed_cap, &len)
-                        : terrad_rect_compress(w->codec, p->values, (size_t)p->rect.w * p->rect.h,
-                                               w->packed, w->packed_cap, &len);
+        int coded =
+            !p->values ? -1
+            : p->rect.encoding == TERRAD_ENC_BASE
+                ? terrad_rect_compress_base(p->values, p->rect.w, p->rect.h, w->packed,
+                                            w->packed_cap, &len)
+            : p->rect.encoding == TERRAD_ENC_BASE_SLOPE /* 2 or 3: the shorter */
+                ? terrad_rect_compress_base_smaller(p->values, p->rect.w, p->rect.h, w->packed,
+                                                    w->packed_cap, &len, &p->rect.encoding)
+                : terrad_rect_compress(w->codec, p->values, (size_t)p->rect.w * p->rect.h,
+                                       w->packed, w->packed_cap, &len);
         if (coded != 0 || !(data = malloc(len ? len : 1))) {
             r->failed++;
         } else {
@@ -204,8 +210,8 @@ int service_snapshots_start(service *s)
 static int start_worker(snap_worker *w)
 {
     if (!w->codec) {
-        size_t cells = SERVICE_TILE_SIZE * SERVICE_TILE_SIZE; /* the larger of the two codings */
-        w->packed_cap = terrad_rect_compress_base_bound(cells);
+        size_t cells = SERVICE_TILE_SIZE * SERVICE_TILE_SIZE;    /* the larger of the two codings */
+        w->packed_cap = terrad_rect_compress_slope_bound(cells); /* > encoding 2's */
         if (w->packed_cap < terrad_rect_compress_bound(cells))
             w->packed_cap = terrad_rect_compress_bound(cells);
         w->packed = malloc(w->packed_cap);
@@ -278,7 +284,7 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
     r->tick = s->tick;
     world_rect q = job->rect;
     svc_client *cl = service_find_client(s, job->client);
-    int against_base = cl && cl->snapshot_base; /* PROTOCOL.md "Base snapshots" */
+    int against_base = cl ? cl->snapshot_base : 0; /* PROTOCOL.md "Base snapshots": 0, 1, 2 */
     int tiles = 0;
     if (q.w > 0 && q.h > 0)
         tiles = ((q.x + q.w - 1) / SERVICE_TILE_SIZE - q.x / SERVICE_TILE_SIZE + 1) *
@@ -297,14 +303,15 @@ void service_snapshot_stage(service *s, const snapshot_job *job)
                 world_rect_meet(q, (world_rect){tx * SERVICE_TILE_SIZE, ty * SERVICE_TILE_SIZE,
                                                 SERVICE_TILE_SIZE, SERVICE_TILE_SIZE});
             snap_piece *p = &r->pieces[r->npieces++];
-            p->rect =
-                (terrad_rect){.x = piece.x,
-                              .y = piece.y,
-                              .w = (uint16_t)piece.w,
-                              .h = (uint16_t)piece.h,
-                              .base_version = 0,
-                              .new_version = s->tile_versions[ty * s->tiles_x + tx],
-                              .encoding = against_base ? TERRAD_ENC_BASE : TERRAD_ENC_SNAPSHOT};
+            p->rect = (terrad_rect){.x = piece.x,
+                                    .y = piece.y,
+                                    .w = (uint16_t)piece.w,
+                                    .h = (uint16_t)piece.h,
+                                    .base_version = 0,
+                                    .new_version = s->tile_versions[ty * s->tiles_x + tx],
+                                    .encoding = against_base == 2 ? TERRAD_ENC_BASE_SLOPE
+                                                : against_base    ? TERRAD_ENC_BASE
+                                                                  : TERRAD_ENC_SNAPSHOT};
             p->values = malloc((size_t)piece.w * piece.h * sizeof *p->values);
             if (p->values) /* NULL: the worker counts the piece as failed */
                 world_gather_window(s->world, piece, p->values);

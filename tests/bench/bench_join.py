@@ -16,16 +16,18 @@ thesis-car's terrain (tests/scenes/thesis-car.json without its car: 1024 x 1024 
 
 Then, for each world, late joiners (tests/support/c_join_probe: the C client library, a
 fresh connection each) subscribe to a 256² window and to the whole world, with absolute
-snapshots (hello without snapshot_base: what every client got before) and with base
-snapshots (PROTOCOL.md "Base snapshots"): DELTA bytes and milliseconds from the subscribe
-request until the mirror is complete (the base rebuilt by the twin library included), and
-whether the mirror equals GET /v1/heights. Beside them, the codings measured on the same
-heights, per 64² tile as the protocol sends them (25 bytes of rectangle header each):
-absolute heights + zstd 3 (encoding 1), h - base + zstd 3 and 19, h - base predicted +
-varints + zstd 3 and 19 (these need numpy and zstandard; skipped without), and the range
-coder of encoding 2 (the probe's bytes). Goal: <= 48 KiB and <= 100 ms for the window,
-<= 1 MiB for the whole world, exact. Prints the machine and its load; never fails on a
-figure (an inexact mirror is printed as such: the test is test_join_base.py).
+snapshots (hello without snapshot_base: what every client got before), with base
+snapshots (PROTOCOL.md "Base snapshots": encoding 2) and with slope snapshots offered too
+(PROTOCOL.md "Slope snapshots": each piece in the shorter of encodings 2 and 3): DELTA
+bytes and milliseconds from the subscribe request until the mirror is complete (the base
+rebuilt by the twin library included), and whether the mirror equals GET /v1/heights.
+Beside them, the codings measured on the same heights, per 64² tile as the protocol sends
+them (25 bytes of rectangle header each): absolute heights + zstd 3 (encoding 1), h - base
++ zstd 3 and 19, h - base predicted + varints + zstd 3 and 19 (these need numpy and
+zstandard; skipped without), and the range coders of encodings 2 and 2-or-3 (the probe's
+bytes). Goal (goal_KiB beside each figure): <= 48 KiB and <= 100 ms for the window, <= 1 MiB
+for the whole world, exact. Prints the machine and its load; never fails on a figure (an
+inexact mirror is printed as such: the test is test_join_base.py).
 """
 import concurrent.futures as cf
 import json
@@ -44,6 +46,9 @@ from service_harness import (JOIN_PROBE, SOURCE, Daemon, join_probe, json_call, 
                              machine, tp)
 
 TICKS = int(os.environ.get("BENCH_JOIN_TICKS", "36000"))
+# BENCH_JOIN_DUMP=dir: write the heights and base heights each join measured (and, for the
+# vehicles, the window every 36,000 ticks on the way) to dir, to try codings on offline
+DUMP = os.environ.get("BENCH_JOIN_DUMP")
 SIDE, WIN, TILE = 1024, 256, 64
 WINDOW = (384, 384, WIN, WIN)
 STEP = 600
@@ -105,9 +110,15 @@ def drive(d, world):
             ids = [await c.create_collider("wheel", radius=0.33, width=0.2, feedback=False)
                    for _ in range(32)]
             t0, tick, last = time.monotonic(), 0, time.monotonic()
+            loop = asyncio.get_running_loop()
             while tick < TICKS:
                 n = min(STEP, TICKS - tick)
+                dump = None
+                if DUMP and tick and tick % 36000 == 0:  # read while the step ticks the world
+                    dump = loop.run_in_executor(None, dump_region, d, world, WINDOW, f"{tick}-")
                 await c.step(n, [wheel_poses(ids, tick + i) for i in range(n)], timeout=600)
+                if dump:
+                    await dump
                 tick += n
                 if time.monotonic() - last > 30:
                     last = time.monotonic()
@@ -160,6 +171,14 @@ def region(d, world, rect, base=False):
     return body
 
 
+def dump_region(d, world, rect, tag="", heights=None, base=None):
+    """Write rect's heights (and base heights) of world to DUMP as little-endian int32s."""
+    name = os.path.join(DUMP, f"{world}-{tag}{'_'.join(map(str, rect))}")
+    for suffix, body in (("heights", heights), ("base", base)):
+        with open(f"{name}.{suffix}", "wb") as f:
+            f.write(body if body is not None else region(d, world, rect, base=suffix == "base"))
+
+
 def codings(heights, base, rect):
     """Bytes of each alternative coding of rect's tiles (payload + 25 per rectangle)."""
     try:
@@ -210,15 +229,19 @@ def codings(heights, base, rect):
 
 
 def joins(d, world):
-    for label, rect in (("window 256²", WINDOW), ("whole world", (0, 0, SIDE, SIDE))):
+    for label, rect, goal in (("window 256²", WINDOW, 48), ("whole world", (0, 0, SIDE, SIDE), 1024)):
         want = region(d, world, rect)
         want_heights = list(struct.unpack(f"<{len(want) // 4}i", want))
-        alt = codings(want, region(d, world, rect, base=True), rect)
-        for mode in ("plain", "base"):
+        base = region(d, world, rect, base=True)
+        if DUMP:
+            dump_region(d, world, rect, heights=want, base=base)
+        alt = codings(want, base, rect)
+        for mode in ("plain", "base", "slope"):
             line, got = join_probe(d, rect, mode, world)
             line = line or {"error": "c_join_probe failed (its output above)"}
             line.update({"world": world, "join": label, "snapshots": mode,
-                         "KiB": round(line.get("bytes", 0) / 1024, 1), "exact": got == want_heights})
+                         "KiB": round(line.get("bytes", 0) / 1024, 1), "goal_KiB": goal,
+                         "exact": got == want_heights})
             print(json.dumps(line), flush=True)
         print(json.dumps({"world": world, "join": label, "codings_bytes": alt}), flush=True)
 
@@ -227,7 +250,7 @@ def main():
     if not os.access(JOIN_PROBE, os.X_OK):
         print(f"bench_join: no {JOIN_PROBE} (make build)")
         return 0
-    print(json.dumps({"machine": machine(), "ticks": TICKS}), flush=True)
+    print(json.dumps({"machine": machine(), "ticks": TICKS, "load": os.getloadavg()[0]}), flush=True)
     tiny = {"name": "tiny", "world": {"width": 64, "height": 64, "cell_size_m": 0.05},
             "terrain": {"kind": "flat", "height_m": 0.4}, "colliders": []}
     fd, tiny_path = tempfile.mkstemp(prefix="bench-join-", suffix=".json")

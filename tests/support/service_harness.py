@@ -206,7 +206,8 @@ def built(path, what="make build"):
 def join_probe(d, rect, mode, world=None, timeout=600):
     """tests/support/c_join_probe (the C client library's late join, a fresh connection):
     joins rect (x, y, w, h) of world (None: the default) on d (anything with ws_port), with
-    base snapshots (mode "base") or absolute ones ("plain"). (Its JSON line, the mirror's
+    base snapshots (mode "base"), base snapshots with slope snapshots offered too ("slope") or
+    absolute ones ("plain"). (Its JSON line, the mirror's
     w * h heights), or (None, None) when it failed (its output printed)."""
     with tempfile.NamedTemporaryFile(prefix="terrad-join-", suffix=".bin") as out:
         p = subprocess.run([JOIN_PROBE, str(d.ws_port), *map(str, rect), mode, out.name,

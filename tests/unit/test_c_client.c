@@ -14,6 +14,9 @@
  *   - Σh (GET /v1/stats volume) is unchanged;
  *   - ACKs and CONTACT frames came, with penetrating volume > 0 in the snow;
  *   - refusals come back as protocol errors (outside_world, unknown_collider);
+ *   - another client's lugged wheel in COLLIDERS frames (PROTOCOL.md, the
+ *     grousers extension): a subscription with grousers reads its grousers
+ *     exactly and its phase, one without reads the rim, grousers all zero;
  *   - SIGTERM stops the daemon with exit status 0.
  * Prints "N passed, N failed"; exits 77 only when the daemon binary is missing.
  */
@@ -498,6 +501,81 @@ static void budgeted(int ws_port)
     }
 }
 
+/* Waits (polling every client) until `watch` holds the collider id in its latest COLLIDERS
+ * frame; fills *st and *lugs. 0 when it never came. */
+static int wait_collider(terrad_client *watch, terrad_client *const *others, int nothers,
+                         uint32_t id, terrad_collider_state *st, terrad_collider_grousers *lugs)
+{
+    static terrad_collider_state states[64];
+    static terrad_collider_grousers grousers[64];
+    for (double end = now_s() + 60; now_s() < end && terrad_client_is_open(watch);) {
+        terrad_client_poll(watch, 20);
+        for (int k = 0; k < nothers; k++)
+            terrad_client_poll(others[k], 0);
+        size_t n = terrad_client_colliders(watch, states, grousers, 64, NULL);
+        for (size_t i = 0; i < n && i < 64; i++)
+            if (states[i].id == id) {
+                *st = states[i];
+                *lugs = grousers[i];
+                return 1;
+            }
+    }
+    return 0;
+}
+
+/* Another client's lugged wheel as two viewers see it: with and without the grousers. */
+static void lugged_seen(int ws_port)
+{
+    char err[512];
+    terrad_client *cl[3];
+    const char *names[3] = {"test_c_driver", "test_c_viewer", "test_c_plain"};
+    for (int k = 0; k < 3; k++) {
+        cl[k] = terrad_client_connect((terrad_client_desc){.port = ws_port, .name = names[k]}, err,
+                                      sizeof err);
+        CHECK(cl[k] != NULL, "connect %s: %s", names[k], err);
+        if (!cl[k]) {
+            for (int j = 0; j < k; j++)
+                terrad_client_close(cl[j]);
+            return;
+        }
+    }
+    uint32_t sid = 0, id = 0;
+    CHECK(terrad_client_subscribe_colliders(cl[1], 0, 0, 64, 64, 1, &sid) == 0 &&
+              terrad_client_subscribe_colliders(cl[2], 0, 0, 64, 64, 0, &sid) == 0,
+          "subscribed with COLLIDERS frames (%s)", terrad_client_last_error(cl[1]));
+    terrad_collider_desc wheel = {.shape = TERRAD_SHAPE_WHEEL, .radius = 0.3, .width = 0.2};
+    int rc = terrad_client_create_lugged_collider(cl[0], wheel, (terrad_grousers){30, 0.01, 0.004},
+                                                  0.0, &id);
+    CHECK(rc == 0, "a lugged wheel: %d (%s)", rc, terrad_client_last_error(cl[0]));
+    double cs = terrad_client_world(cl[0])->cell_size_m;
+    float qw = (float)cos(0.25), qy = (float)sin(0.25); /* half a radian about the axle */
+    terrad_pose p = {id, (float)(20 * cs), (float)(20 * cs), 5.0f, qw, 0, qy, 0};
+    terrad_client_send_poses(cl[0], &p, 1, NULL);
+    terrad_collider_state st;
+    terrad_collider_grousers g;
+    terrad_client *const drivers[2] = {cl[0], cl[2]};
+    int seen = wait_collider(cl[1], drivers, 2, id, &st, &g);
+    CHECK(seen, "the viewer sees the wheel in a COLLIDERS frame");
+    if (seen) {
+        CHECK(g.count == 30 && g.height_m == 0.01f && g.thickness_m == 0.004f,
+              "with the option, its grousers exactly: %u, %.9g, %.9g", g.count, g.height_m,
+              g.thickness_m);
+        CHECK(st.kind == TERRAD_KIND_CYLINDER && st.owner == TERRAD_OWNER_OTHER && st.q[0] == qw &&
+                  st.q[2] == qy,
+              "another client's wheel, its phase (q %g %g %g %g)", st.q[0], st.q[1], st.q[2],
+              st.q[3]);
+    }
+    terrad_client *const viewers[2] = {cl[0], cl[1]};
+    seen = wait_collider(cl[2], viewers, 2, id, &st, &g);
+    CHECK(seen && g.count == 0 && g.height_m == 0 && g.thickness_m == 0 && st.dims[0] == 0.3f,
+          "without the option, the rim only (grousers %u)", g.count);
+    for (int k = 0; k < 3; k++)
+        CHECK(terrad_client_get_stats(cl[k])->errors == 0, "%s: no errors (%s)", names[k],
+              terrad_client_last_error(cl[k]));
+    for (int k = 0; k < 3; k++)
+        terrad_client_close(cl[k]);
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -519,6 +597,7 @@ int main(void)
     }
     drive(http_port, ws_port);
     budgeted(ws_port);
+    lugged_seen(ws_port);
     if (daemon_pid) {
         int st = stop_daemon();
         CHECK(st == 0, "SIGTERM stops the daemon with status 0 (got %d)", st);

@@ -521,23 +521,26 @@ static void check_hashes(const cJSON *root)
     free(heights);
 }
 
-/* Each "base_rects" payload (encoding 2, PROTOCOL.md "Base snapshots") decodes
- * to its values, or is refused with its error. */
-static void check_base_rects(const cJSON *root)
+/* Each "base_rects" payload (encoding 2, PROTOCOL.md "Base snapshots") or
+ * "slope_rects" payload (encoding 3, "Slope snapshots") decodes to its
+ * values, or is refused with its error. */
+static void check_coded_rects(const cJSON *root, const char *key,
+                              int (*decode)(const uint8_t *, size_t, uint32_t, uint32_t, int32_t *,
+                                            size_t))
 {
     const cJSON *e;
     int k = 0;
-    cJSON_ArrayForEach(e, get(root, "base_rects"))
+    cJSON_ArrayForEach(e, get(root, key))
     {
         uint32_t w = (uint32_t)num(e, "w"), h = (uint32_t)num(e, "h");
         size_t cells = (size_t)w * h;
         uint8_t *data;
         size_t len = unhex(str(e, "data_hex"), &data);
         int32_t *out = calloc(cells, sizeof *out);
-        int rc = terrad_rect_decompress_base(data, len, w, h, out, cells);
+        int rc = decode(data, len, w, h, out, cells);
         const char *want = str(e, "error");
         if (*want) {
-            CHECK(rc != TERRAD_OK && strcmp(terrad_err_name(rc), want) == 0, "base: %s: got %s",
+            CHECK(rc != TERRAD_OK && strcmp(terrad_err_name(rc), want) == 0, "%s: %s: got %s", key,
                   str(e, "about"), rc ? terrad_err_name(rc) : "ok");
         } else {
             size_t i = 0;
@@ -548,13 +551,14 @@ static void check_base_rects(const cJSON *root)
                 same &= i < cells && out[i] == (int32_t)x->valuedouble;
                 i++;
             }
-            CHECK(same && i == cells, "base: %s decodes to its values (%d)", str(e, "about"), rc);
+            CHECK(same && i == cells, "%s: %s decodes to its values (%d)", key, str(e, "about"),
+                  rc);
         }
         free(out);
         free(data);
         k++;
     }
-    CHECK(k >= 8, "%d base rectangle vectors", k);
+    CHECK(k >= 8, "%d %s vectors", k, key);
 }
 
 static void check_small(const char *name, const char *type, const cJSON *f, const uint8_t *b,
@@ -1148,7 +1152,8 @@ int main(void)
         check_vectors(root);
         check_scenarios(root);
         check_hashes(root);
-        check_base_rects(root);
+        check_coded_rects(root, "base_rects", terrad_rect_decompress_base);
+        check_coded_rects(root, "slope_rects", terrad_rect_decompress_slope);
     }
     test_encoder_refusals();
     test_forces_heights();

@@ -1,10 +1,13 @@
 /*
- * test_proto_base.c: base snapshot rectangles (proto/c/terrad_proto_base.c,
- * PROTOCOL.md "Base snapshots"): every coded rectangle decodes to exactly its
- * values — smooth craters, noise, the int32 extremes and their wrap-around,
- * one row, one column, one cell — a payload cut short is bad_compression,
- * a buffer under the bound is refused, and the mirror adds the base back
- * (and refuses a base rectangle when it holds no base).
+ * test_proto_base.c: base and slope snapshot rectangles
+ * (proto/c/terrad_proto_base.c, PROTOCOL.md "Base snapshots", "Slope
+ * snapshots"): every coded rectangle, in encoding 2 and in encoding 3, decodes
+ * to exactly its values — smooth craters, a sand pile at its slope limits,
+ * noise, the int32 extremes and their wrap-around, one row, one column, one
+ * cell, any limits — a payload cut short is bad_compression, a buffer under
+ * the bound is refused, the sand pile codes shorter in encoding 3 and the
+ * crater in encoding 2 (the server's choice keeps the shorter), and the mirror
+ * adds the base back (and refuses a base rectangle when it holds no base).
  */
 #include <stdlib.h>
 #include <string.h>
@@ -19,28 +22,88 @@ static uint32_t next(void)
     return rng;
 }
 
-/* Codes w x h values and decodes them back; returns the coded length (0 on a failure). */
-static size_t round_trip(const int32_t *v, uint32_t w, uint32_t h, const char *what)
+typedef struct coding {
+    const char *name;
+    size_t (*bound)(size_t cells);
+    int (*compress)(const int32_t *, uint32_t, uint32_t, uint8_t *, size_t, size_t *);
+    int (*decompress)(const uint8_t *, size_t, uint32_t, uint32_t, int32_t *, size_t);
+    size_t min_len; /* shorter payloads are refused unread */
+} coding;
+
+static const coding codings[2] = {
+    {"encoding 2", terrad_rect_compress_base_bound, terrad_rect_compress_base,
+     terrad_rect_decompress_base, 5},
+    {"encoding 3", terrad_rect_compress_slope_bound, terrad_rect_compress_slope,
+     terrad_rect_decompress_slope, 13},
+};
+
+/* Codes w x h values in coding k and decodes them back; returns the coded length (0 on a failure).
+ */
+static size_t round_trip_k(int k, const int32_t *v, uint32_t w, uint32_t h, const char *what)
 {
-    size_t cells = (size_t)w * h, cap = terrad_rect_compress_base_bound(cells), len = 0;
+    const coding *c = &codings[k];
+    size_t cells = (size_t)w * h, cap = c->bound(cells), len = 0;
     uint8_t *buf = malloc(cap);
     int32_t *back = malloc(cells * sizeof *back);
-    int rc = terrad_rect_compress_base(v, w, h, buf, cap, &len);
-    CHECK(rc == 0, "%s: compress %d", what, rc);
-    int drc = terrad_rect_decompress_base(buf, len, w, h, back, cells);
-    CHECK(drc == 0 && memcmp(back, v, cells * sizeof *v) == 0, "%s: decoded values differ (%d)",
-          what, drc);
-    if (len > 5) { /* cut short: refused, never a guess */
-        CHECK(terrad_rect_decompress_base(buf, len / 2, w, h, back, cells) ==
-                  TERRAD_E_BAD_COMPRESSION,
-              "%s: half a payload decoded", what);
+    int rc = c->compress(v, w, h, buf, cap, &len);
+    CHECK(rc == 0, "%s, %s: compress %d", what, c->name, rc);
+    int drc = c->decompress(buf, len, w, h, back, cells);
+    CHECK(drc == 0 && memcmp(back, v, cells * sizeof *v) == 0, "%s, %s: decoded values differ (%d)",
+          what, c->name, drc);
+    if (len > c->min_len) { /* cut short: refused, never a guess */
+        CHECK(c->decompress(buf, len / 2, w, h, back, cells) == TERRAD_E_BAD_COMPRESSION,
+              "%s, %s: half a payload decoded", what, c->name);
     }
-    CHECK(terrad_rect_decompress_base(buf, len, w, h, back, cells - 1) == TERRAD_E_TOO_LARGE ||
-              cells == 1,
-          "%s: out_cap under w * h accepted", what);
+    CHECK(c->decompress(buf, len, w, h, back, cells - 1) == TERRAD_E_TOO_LARGE || cells == 1,
+          "%s, %s: out_cap under w * h accepted", what, c->name);
     free(buf);
     free(back);
     return rc == 0 && drc == 0 ? len : 0;
+}
+
+/* Both codings; returns encoding 2's length. */
+static size_t round_trip(const int32_t *v, uint32_t w, uint32_t h, const char *what)
+{
+    round_trip_k(1, v, w, h, what);
+    return round_trip_k(0, v, w, h, what);
+}
+
+/* Encoding 3 with the given limits decodes exactly whatever they are. */
+static void slope_limits(const int32_t *v, uint32_t w, uint32_t h, uint32_t a, uint32_t b)
+{
+    size_t cells = (size_t)w * h, cap = terrad_rect_compress_slope_bound(cells), len = 0;
+    uint8_t *buf = malloc(cap);
+    int32_t *back = malloc(cells * sizeof *back);
+    int rc = terrad_rect_compress_slope_ab(v, w, h, a, b, buf, cap, &len);
+    CHECK(rc == 0 && terrad_rect_decompress_slope(buf, len, w, h, back, cells) == 0 &&
+              memcmp(back, v, cells * sizeof *v) == 0,
+          "slope limits %u, %u: not exact (%d)", a, b, rc);
+    free(buf);
+    free(back);
+}
+
+/* A sand pile: the lowest of cones of slope 367 a cell axially, 509
+ * diagonally, with a rut at -800: most cells at a bound of their neighbours. */
+static void sand_pile(int32_t *v, int w, int h)
+{
+    int cx[12], cy[12];
+    int64_t c0[12];
+    for (int k = 0; k < 12; k++) {
+        cx[k] = (int)(next() % (uint32_t)w);
+        cy[k] = (int)(next() % (uint32_t)h);
+        c0[k] = -800 + (int64_t)(next() % 600);
+    }
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            int64_t best = INT64_MAX;
+            for (int k = 0; k < 12; k++) {
+                int dx = abs(x - cx[k]), dy = abs(y - cy[k]);
+                int dg = dx < dy ? dx : dy, ax = (dx > dy ? dx : dy) - dg;
+                int64_t z = c0[k] + 367 * ax + 509 * dg;
+                best = z < best ? z : best;
+            }
+            v[y * w + x] = (int32_t)(best - ((x * 3 + y) % 4 == 0));
+        }
 }
 
 int main(void)
@@ -59,15 +122,43 @@ int main(void)
     size_t smooth = round_trip(v, W, H, "crater");
     CHECK(smooth > 0 && smooth < W * H, "a crater took %zu bytes for %d cells", smooth, W * H);
 
+    size_t crater3 = round_trip_k(1, v, W, H, "crater");
+    CHECK(crater3 > smooth, "a crater: encoding 3 %zu bytes, encoding 2 %zu", crater3, smooth);
+
+    sand_pile(v, W, H);
+    size_t pile2 = round_trip(v, W, H, "sand pile"), pile3 = round_trip_k(1, v, W, H, "sand pile");
+    CHECK(pile3 > 0 && pile3 < pile2, "a sand pile: encoding 3 %zu bytes, encoding 2 %zu", pile3,
+          pile2);
+    uint8_t chosen = 0, *best = malloc(terrad_rect_compress_slope_bound(W * H));
+    size_t best_len = 0;
+    CHECK(terrad_rect_compress_base_smaller(v, W, H, best, terrad_rect_compress_slope_bound(W * H),
+                                            &best_len, &chosen) == 0 &&
+              chosen == TERRAD_ENC_BASE_SLOPE && best_len == pile3,
+          "the shorter of a sand pile: encoding %u, %zu bytes", chosen, best_len);
+    static const uint32_t limits[][2] = {
+        {0, 0}, {1, 0}, {367, 509}, {UINT32_MAX, UINT32_MAX}, {1u << 31, 7}, {5, UINT32_MAX}};
+    for (size_t k = 0; k < sizeof limits / sizeof limits[0]; k++)
+        slope_limits(v, W, H, limits[k][0], limits[k][1]);
+
     for (int i = 0; i < W * H; i++) /* noise over the whole int32 range */
         v[i] = (int32_t)next();
     round_trip(v, W, H, "noise");
+    for (size_t k = 0; k < sizeof limits / sizeof limits[0]; k++)
+        slope_limits(v, W, H, limits[k][0], limits[k][1]);
     for (int i = 0; i < W * H; i++) /* the extremes, where every difference wraps */
         v[i] = (i * 7 + i / W) % 3 == 0 ? INT32_MIN : (i % 5 == 0 ? INT32_MAX : -1);
     round_trip(v, W, H, "extremes");
     round_trip(v, W * H, 1, "one row");
     round_trip(v, 1, W * H, "one column");
     round_trip(v, 1, 1, "one cell");
+    for (size_t k = 0; k < sizeof limits / sizeof limits[0]; k++) {
+        slope_limits(v, W, H, limits[k][0], limits[k][1]);
+        slope_limits(v, 1, 1, limits[k][0], limits[k][1]);
+    }
+    CHECK(terrad_rect_compress_base_smaller(v, 8, 8, best, terrad_rect_compress_slope_bound(64),
+                                            &best_len, &chosen) == 0,
+          "the shorter of 8 x 8 extremes");
+    free(best);
 
     /* a buffer smaller than the payload is refused, not overrun */
     uint8_t small[8];
@@ -79,6 +170,13 @@ int main(void)
     int32_t out[4];
     CHECK(terrad_rect_decompress_base(junk, sizeof junk, 2, 2, out, 4) == TERRAD_E_BAD_COMPRESSION,
           "a 4-byte payload decoded");
+    CHECK(terrad_rect_compress_slope(v, W, H, small, sizeof small, &len) ==
+              TERRAD_E_BUFFER_TOO_SMALL,
+          "an 8-byte buffer took %d x %d noisy cells in encoding 3", W, H);
+    uint8_t junk12[12] = {0};
+    CHECK(terrad_rect_decompress_slope(junk12, sizeof junk12, 2, 2, out, 4) ==
+              TERRAD_E_BAD_COMPRESSION,
+          "a 12-byte slope payload decoded");
 
     /* the mirror: base + difference over the region's part of the tile */
     int32_t base[16 * 16], heights[16 * 16], diff[8 * 8];

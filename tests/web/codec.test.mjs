@@ -147,12 +147,15 @@ test('tile hashes match the vectors; a mirror compares its tiles', () => {
   assert.equal(m.tileDiffers({ ...s, tile_x: 3 }), -1, 'a tile outside the region');
 });
 
-for (const e of V.base_rects) {
-  test(`base rectangle: ${e.about} (${e.error || 'valid'})`, () => {
-    const got = () => C.rectDecompressBase(unhex(e.data_hex), e.w, e.h, e.w * e.h);
-    if (e.error) assert.equal(errorName(got), e.error);
-    else assert.deepEqual(Array.from(got()), e.values);
-  });
+for (const [key, decompress] of [['base_rects', C.rectDecompressBase], ['slope_rects', C.rectDecompressSlope]]) {
+  test(`${key}: at least 8 vectors`, () => assert.ok(V[key].length >= 8));
+  for (const e of V[key]) {
+    test(`${key}: ${e.about} (${e.error || 'valid'})`, () => {
+      const got = () => decompress(unhex(e.data_hex), e.w, e.h, e.w * e.h);
+      if (e.error) assert.equal(errorName(got), e.error);
+      else assert.deepEqual(Array.from(got()), e.values);
+    });
+  }
 }
 
 test('a mirror adds the base back under a base snapshot; without a base it is bad_value', () => {
@@ -171,6 +174,22 @@ test('a mirror adds the base back under a base snapshot; without a base it is ba
     for (let x = 0; x < 16; x++)
       assert.equal(m.heights[y * 16 + x], (m.base[y * 16 + x] + e.values[y * 24 + x + 8]) | 0, `cell ${x}, ${y}`);
   assert.deepEqual(C.hello('', 'x', '', -1, true), { type: 'hello', protocol: 1, token: '', client: 'x', snapshot_base: true });
+  assert.deepEqual(C.hello('', 'x', '', -1, true, true), { type: 'hello', protocol: 1, token: '', client: 'x', snapshot_base: true, snapshot_slope: true });
+  assert.deepEqual(C.hello('', 'x', '', -1, false, true), { type: 'hello', protocol: 1, token: '', client: 'x' }, 'slope only with base');
+});
+
+test('a mirror applies a slope snapshot (encoding 3) onto the base', () => {
+  const e = V.slope_rects.find((x) => !x.error && x.w === 24 && x.h === 20); // the sand pile
+  const r = { x: 32, y: 0, w: 24, h: 20, base_version: 0, new_version: 9, encoding: C.Encoding.BASE_SLOPE, data: unhex(e.data_hex) };
+  C.checkRect(r);
+  const m = new C.Mirror(40, 0, 16, 20, 32);
+  assert.equal(errorName(() => m.apply([r])), 'bad_value', 'no base: refused');
+  m.base = Int32Array.from({ length: 16 * 20 }, (_, i) => 4000 + 3 * i);
+  assert.equal(m.apply([r]), 16 * 20);
+  assert.deepEqual(Array.from(m.versions), [9]);
+  for (let y = 0; y < 20; y++)
+    for (let x = 0; x < 16; x++)
+      assert.equal(m.heights[y * 16 + x], (m.base[y * 16 + x] + e.values[y * 24 + x + 8]) | 0, `cell ${x}, ${y}`);
 });
 
 test('zigzag edge values', () => {

@@ -52,7 +52,8 @@ __all__ = [
     "decode_delta", "encode_contact", "decode_contact", "encode_colliders", "decode_colliders",
     "encode_footprints", "decode_footprints", "Force", "encode_forces", "decode_forces", "encode_ack", "decode_ack", "encode_ping",
     "decode_ping", "decode", "wrap32", "zigzag32", "unzigzag32", "rect_diff", "rect_pack",
-    "rect_unpack", "rect_compress", "rect_decompress", "apply_values", "Mirror", "hello",
+    "rect_unpack", "rect_compress", "rect_decompress", "rect_decompress_base",
+    "rect_decompress_slope", "apply_values", "Mirror", "hello",
     "collider_create", "collider_delete", "subscribe", "unsubscribe", "resync", "focus", "error",
     "edit", "stamp_data", "parse_control", "subscribe_events", "STEP_FIXED", "STEPPED_SIZE",
     "encode_step", "decode_step", "encode_stepped", "decode_stepped", "seen", "frame_tick",
@@ -100,6 +101,7 @@ class Encoding(IntEnum):
     DELTA = 0
     SNAPSHOT = 1
     BASE = 2  # a snapshot less the scene's base (PROTOCOL.md "Base snapshots"): asked for in hello
+    BASE_SLOPE = 3  # the same, slope-bounded coding (PROTOCOL.md "Slope snapshots"): offered in hello
 
 
 ERRORS = {
@@ -445,7 +447,7 @@ def check_rect(r: Rect) -> None:
     if r.encoding == Encoding.DELTA:
         if r.base_version == 0 or r.base_version == r.new_version:
             raise ProtoError("bad_value", "a delta needs base_version >= 1 and != new_version")
-    elif r.encoding in (Encoding.SNAPSHOT, Encoding.BASE):
+    elif r.encoding in (Encoding.SNAPSHOT, Encoding.BASE, Encoding.BASE_SLOPE):
         if r.base_version != 0:
             raise ProtoError("bad_value", "a snapshot has base_version 0")
     else:
@@ -840,19 +842,11 @@ def rect_decompress(data: bytes, cells: int, max_cells: int | None = None) -> li
     return rect_unpack(out)
 
 
-def rect_decompress_base(data: bytes, w: int, h: int, max_cells: int | None = None) -> list[int]:
-    """A base snapshot rectangle's w * h values h - base (PROTOCOL.md "Base snapshots";
-    the same coder as proto/c/terrad_proto_base.c): bad_compression for a payload that ends
-    before the last cell or a value past 2^32; more than max_cells cells is too_large."""
-    cells = w * h
-    if cells <= 0 or (max_cells is not None and cells > max_cells):
-        raise ProtoError("too_large", f"{cells} cells")
-    if len(data) < 5:
-        raise ProtoError("bad_compression", "a base payload of fewer than 5 bytes")
-    unary = [[1024] * 33 for _ in range(12)]
-    mant = [[[1024, 1024] for _ in range(33)] for _ in range(12)]
+def _range_decoder(data: bytes, start: int):
+    """LZMA's binary range decoder over data[start:] (PROTOCOL.md "Base snapshots", step 5):
+    (bit(probs, i), direct(), residual(unary, mant, c) -> u or None, short() -> ran past the end)."""
     n_in = len(data)
-    state = [0xFFFFFFFF, 0, 0, False]  # range, code, position, ran short
+    state = [0xFFFFFFFF, 0, start, False]  # range, code, position, ran short
 
     def byte() -> int:
         at = state[2]
@@ -895,35 +889,137 @@ def rect_decompress_base(data: bytes, w: int, h: int, max_cells: int | None = No
         state[0], state[1] = rng, code
         return b
 
+    def residual(unary: list[list[int]], mant: list[list[list[int]]], c: int) -> int | None:
+        """A zigzagged residual in context c (Elias-gamma form, step 4); None past 2^32 - 1
+        or past the payload's end."""
+        n = 0
+        uc = unary[c]
+        while n < 32 and bit(uc, n):
+            n += 1
+        v = 1
+        mc = mant[c][n]
+        for k in range(n - 1, -1, -1):
+            v = (v << 1) | (bit(mc, n - 1 - k) if k >= n - 2 else direct())
+        if v - 1 > _U32 or state[3]:
+            return None
+        return v - 1
+
+    return bit, direct, residual, lambda: state[3]
+
+
+def _residual_models():
+    """Encoding 2's models at the start of a rectangle: unary[12][33], mant[12][33][2]."""
+    return [[1024] * 33 for _ in range(12)], [[[1024, 1024] for _ in range(33)] for _ in range(12)]
+
+
+def _base_context(z: list[int], w: int, x: int, y: int, i: int) -> int:
+    """Encoding 2's context of cell (x, y): the bit length of the neighbours' |residuals|."""
+    a = (z[i - 1] + 1) >> 1 if x else ((z[i - w] + 1) >> 1 if y else 0)
+    b2 = (z[i - w] + 1) >> 1 if y else a
+    return min(11, (a + b2).bit_length())
+
+
+def _base_predict(d: list[int], w: int, x: int, y: int, i: int) -> int:
+    """Encoding 2's prediction (d as u32), not yet wrapped."""
+    if y == 0:
+        return d[i - 1] if x else 0
+    if x == 0:
+        return d[i - w]
+    return d[i - 1] + d[i - w] - d[i - w - 1]
+
+
+def _check_cells(w: int, h: int, max_cells: int | None) -> int:
+    cells = w * h
+    if cells <= 0 or (max_cells is not None and cells > max_cells):
+        raise ProtoError("too_large", f"{cells} cells")
+    return cells
+
+
+def rect_decompress_base(data: bytes, w: int, h: int, max_cells: int | None = None) -> list[int]:
+    """A base snapshot rectangle's w * h values h - base (PROTOCOL.md "Base snapshots";
+    the same coder as proto/c/terrad_proto_base.c): bad_compression for a payload that ends
+    before the last cell or a value past 2^32; more than max_cells cells is too_large."""
+    cells = _check_cells(w, h, max_cells)
+    if len(data) < 5:
+        raise ProtoError("bad_compression", "a base payload of fewer than 5 bytes")
+    unary, mant = _residual_models()
+    _, _, residual, _ = _range_decoder(data, 0)
     z = [0] * cells  # zigzagged residuals
     d = [0] * cells  # h - base, as u32
     for y in range(h):
         row = y * w
         for x in range(w):
             i = row + x
-            a = (z[i - 1] + 1) >> 1 if x else ((z[i - w] + 1) >> 1 if y else 0)
-            b2 = (z[i - w] + 1) >> 1 if y else a
-            c = min(11, (a + b2).bit_length())
-            n = 0
-            uc = unary[c]
-            while n < 32 and bit(uc, n):
-                n += 1
-            v = 1
-            mc = mant[c][n]
-            for k in range(n - 1, -1, -1):
-                v = (v << 1) | (bit(mc, n - 1 - k) if k >= n - 2 else direct())
-            if v - 1 > _U32 or state[3]:
+            u = residual(unary, mant, _base_context(z, w, x, y, i))
+            if u is None:
                 raise ProtoError("bad_compression", "a base payload that ends early or holds a value past 2^32")
-            u = v - 1
             z[i] = u
-            if y == 0:
-                p = d[i - 1] if x else 0
-            elif x == 0:
-                p = d[i - w]
-            else:
-                p = d[i - 1] + d[i - w] - d[i - w - 1]
-            d[i] = (((u >> 1) ^ -(u & 1)) + p) & _U32
+            d[i] = (((u >> 1) ^ -(u & 1)) + _base_predict(d, w, x, y, i)) & _U32
     return [v - (1 << 32) if v >= (1 << 31) else v for v in d]
+
+
+def rect_decompress_slope(data: bytes, w: int, h: int, max_cells: int | None = None) -> list[int]:
+    """A slope snapshot rectangle's w * h values h - base (encoding 3, PROTOCOL.md "Slope
+    snapshots"; the coder of proto/c/terrad_proto_base.c): bad_compression for a payload of
+    fewer than 13 bytes, one that ends before the last cell, or a value past 2^32 or a bound
+    outside int32; more than max_cells cells is too_large."""
+    cells = _check_cells(w, h, max_cells)
+    if len(data) < 13:
+        raise ProtoError("bad_compression", "a slope payload of fewer than 13 bytes")
+    lim_a, lim_b = struct.unpack_from("<II", data, 0)
+    unary, mant = _residual_models()
+    cls = [[1024] * 4 for _ in range(64)]
+    bit, _, residual, short = _range_decoder(data, 8)
+    z = [0] * cells  # zigzagged residuals
+    d = [0] * cells  # h - base, as u32
+    s = [0] * cells  # h - base, as int32
+    k = [0] * cells  # class: 0 none, 1 at the upper bound, 2 at the lower one
+    for y in range(h):
+        row = y * w
+        for x in range(w):
+            i = row + x
+            nbs = []
+            if x:
+                nbs.append((s[i - 1], lim_a))
+            if y:
+                nbs.append((s[i - w], lim_a))
+                if x:
+                    nbs.append((s[i - w - 1], lim_b))
+                if x + 1 < w:
+                    nbs.append((s[i - w + 1], lim_b))
+            p = _base_predict(d, w, x, y, i) & _U32
+            p = p - (1 << 32) if p >= (1 << 31) else p
+            v = None
+            kk = 0
+            if nbs:
+                lo = min(n + lim for n, lim in nbs)
+                hi = max(n - lim for n, lim in nbs)
+                if hi <= lo:
+                    p = min(max(p, hi), lo)
+                cc = ((k[i - 1] if x else 3) * 16 + (k[i - w] if y else 3) * 4
+                      + (k[i - w + 1] if y and x + 1 < w else 3))
+                pc = cls[cc]
+                if bit(pc, 0):
+                    kk = 1
+                    v = lo - bit(pc, 2)
+                elif bit(pc, 1):
+                    kk = 2
+                    v = hi + bit(pc, 3)
+                c = min(11, (lo - hi).bit_length()) if lo >= hi else _base_context(z, w, x, y, i)
+            else:
+                c = _base_context(z, w, x, y, i)
+            k[i] = kk
+            if v is None:
+                u = residual(unary, mant, c)
+                if u is None:
+                    raise ProtoError("bad_compression", "a slope payload that ends early or holds a value past 2^32")
+                v = _wrap(p + ((u >> 1) ^ -(u & 1)))
+            elif not (-(2**31) <= v < 2**31) or short():
+                raise ProtoError("bad_compression", "a slope payload that ends early or puts a cell outside int32")
+            s[i] = v
+            d[i] = v & _U32
+            z[i] = zigzag32(_wrap(v - p))
+    return s
 
 
 def apply_values(r: Rect, values: list[int], heights: list[int], hx: int, hy: int, hw: int, hh: int) -> int:
@@ -1017,10 +1113,11 @@ class Mirror:
                     ok = True
                 if not ok:
                     continue
-                if r.encoding == Encoding.BASE:
+                if r.encoding in (Encoding.BASE, Encoding.BASE_SLOPE):
                     if self.base is None:
                         raise ProtoError("bad_value", "a base snapshot for a mirror without the base")
-                    self._apply_base(r, rect_decompress_base(r.data, r.w, r.h, max_cells))
+                    decompress = rect_decompress_base if r.encoding == Encoding.BASE else rect_decompress_slope
+                    self._apply_base(r, decompress(r.data, r.w, r.h, max_cells))
                     self.versions[t] = r.new_version
                     continue
                 values = rect_decompress(r.data, r.w * r.h, max_cells)
@@ -1101,11 +1198,13 @@ class Mirror:
 
 
 def hello(token: str = "", client: str = "terrad-python", world: str = "",
-          budget: int | None = None, snapshot_base: bool = False) -> dict:
+          budget: int | None = None, snapshot_base: bool = False,
+          snapshot_slope: bool = False) -> dict:
     """world: the world a cluster node should serve (sent only when given). budget: the
     most bytes per second this client wants to be sent (PROTOCOL.md "Budgets"; None: the
     server's default, 0: none). snapshot_base: ask for snapshots against the scene's base
-    (PROTOCOL.md "Base snapshots")."""
+    (PROTOCOL.md "Base snapshots"); snapshot_slope: with it, offer slope snapshots too
+    (encoding 3, PROTOCOL.md "Slope snapshots": the server sends the shorter coding)."""
     msg = {"type": "hello", "protocol": PROTOCOL_VERSION, "token": token, "client": client}
     if world:
         msg["world"] = world
@@ -1113,6 +1212,8 @@ def hello(token: str = "", client: str = "terrad-python", world: str = "",
         msg["budget"] = budget
     if snapshot_base:
         msg["snapshot_base"] = True
+    if snapshot_slope:
+        msg["snapshot_slope"] = True
     return msg
 
 

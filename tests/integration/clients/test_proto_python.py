@@ -223,16 +223,20 @@ def check_hashes(doc):
     check(m.tiles_differing(sums) == want, f"a whole frame: {m.tiles_differing(sums)}")
 
 
-def check_base_rects(doc):
-    """Each "base_rects" payload (encoding 2, PROTOCOL.md "Base snapshots") decodes to its
-    values, or is refused with its error."""
-    for e in doc["base_rects"]:
-        data, w, h = bytes.fromhex(e["data_hex"]), e["w"], e["h"]
-        if e["error"]:
-            got = raises(lambda: tp.rect_decompress_base(data, w, h, w * h), e["error"])
-            check(got is True, f"base: {e['about']}: got {got}")
-        else:
-            check(tp.rect_decompress_base(data, w, h, w * h) == e["values"], f"base: {e['about']}")
+def check_coded_rects(doc):
+    """Each "base_rects" payload (encoding 2, PROTOCOL.md "Base snapshots") and "slope_rects"
+    payload (encoding 3, "Slope snapshots") decodes to its values, or is refused with its
+    error."""
+    for key, decompress in (("base_rects", tp.rect_decompress_base),
+                            ("slope_rects", tp.rect_decompress_slope)):
+        check(len(doc[key]) >= 8, f"{key}: {len(doc[key])} vectors")
+        for e in doc[key]:
+            data, w, h = bytes.fromhex(e["data_hex"]), e["w"], e["h"]
+            if e["error"]:
+                got = raises(lambda: decompress(data, w, h, w * h), e["error"])
+                check(got is True, f"{key}: {e['about']}: got {got}")
+            else:
+                check(decompress(data, w, h, w * h) == e["values"], f"{key}: {e['about']}")
 
 
 def check_scenarios(doc):
@@ -475,7 +479,7 @@ def main():
     check_vectors(doc)
     check_scenarios(doc)
     check_hashes(doc)
-    check_base_rects(doc)
+    check_coded_rects(doc)
     check_refusals()
     check_forces_heights()
     check_random(random.Random(1234))
