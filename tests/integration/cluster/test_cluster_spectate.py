@@ -24,6 +24,10 @@ spectators use on its data directory, on one real nats-server and three terrad n
   nothing hangs. Node c takes match from JetStream, and a spectator through b (now relaying
   c) from a tick before the kill equals what the viewer on a was served live; c's
   terrad_spectators is back to 0 afterwards, and b and c go on.
+- The world is deleted (DELETE /v1/worlds/match on b) under two stepping spectators replaying
+  on c (one on c, one through b): the one on c is told the world was deleted (close 4020), the
+  relayed one is closed by b (which stops relaying a world gone from the registry), c's replay
+  threads are cancelled with it (terrad_spectators 0), and b and c go on.
 
 Without the JetStream reader every spectate on a cluster node is refused ("keeps no log to
 replay") and no mirror is compared: the first check fails. Skipped (77) when nats-server is
@@ -38,7 +42,7 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
 import cluster_harness as ch  # noqa: E402
 from cluster_harness import Node, wait_for  # noqa: E402
-from service_harness import Checks, RecordingClient, metric_value, skip, tp  # noqa: E402
+from service_harness import Checks, RecordingClient, json_call, metric_value, skip, tp  # noqa: E402
 import compaction_drive as cd  # noqa: E402
 import spectate_check as sc  # noqa: E402
 
@@ -180,6 +184,42 @@ async def killed_owner(a, b, c, viewer, from_tick):
           "b and c go on")
 
 
+async def deleted(b, c, from_tick):
+    """The world is deleted (DELETE on b) under two stepping spectators replaying on its owner c,
+    one on c and one through b: the DELETE answers, the one on c is told the world was deleted,
+    the relayed one is closed by b, c's replay threads are cancelled (terrad_spectators 0) and
+    the nodes go on."""
+    watchers = [RecordingClient(n.ws, name=f"doomed-{n.name}", world=WORLD) for n in (c, b)]
+    for s in watchers:
+        await s.connect()
+        await s.spectate(*sc.REGION, from_tick, step=True, timeout=WAIT)
+    check(metric(c, "terrad_spectators") == 2,
+          f"two spectators replay on c ({metric(c, 'terrad_spectators')})")
+    loop = asyncio.get_running_loop()
+    status, answer = await loop.run_in_executor(None, json_call, b.http, "DELETE",
+                                                f"/v1/worlds/{WORLD}")
+    check(status == 200 and answer.get("deleted") is True, f"DELETE {WORLD} on b: {status} {answer}")
+    on_c, via_b = watchers
+    told = await until(lambda: on_c.ws.closed, WAIT)
+    said = [e.get("message", "") for e in on_c.errors]
+    check(told and any("deleted" in m for m in said) and on_c.ws.close_code == 4020,
+          f"the spectator on c is told the world was deleted and closed 4020 ({said[-2:]}, "
+          f"{on_c.ws.close_code} {on_c.ws.close_reason!r})")
+    # b stops relaying a world gone from the registry and closes its clients ("world moved"),
+    # whether or not the owner's error came first: a clear end either way
+    check(await until(lambda: via_b.ws.closed, WAIT),
+          f"the spectator through b is closed ({via_b.ws.close_code} {via_b.ws.close_reason!r}, "
+          f"{[e.get('message', '') for e in via_b.errors][-2:]})")
+    for s in watchers:
+        try:
+            await s.close()
+        except Exception:  # noqa: BLE001
+            pass
+    check(await until(lambda: metric(c, "terrad_spectators") == 0, WAIT),
+          "c's replay threads are cancelled with the world (terrad_spectators 0)")
+    check(b.stats("spare") is not None and metric(c, "terrad_spectators") == 0, "b and c go on")
+
+
 async def run(a, b, c):
     viewer = sc.Viewer(a.ws, name="viewer", world=WORLD)
     await viewer.connect()
@@ -194,6 +234,7 @@ async def run(a, b, c):
     start = await after_compaction(a, b, viewer)
     await killed_owner(a, b, c, viewer, start)
     await viewer.close()
+    await deleted(b, c, start)
 
 
 def main():
