@@ -45,7 +45,11 @@ service *service_create(sim_engine *engine, hub *h, error_text *err)
     s->values = malloc(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE * sizeof *s->values);
     s->packed_cap = terrad_rect_compress_bound(SERVICE_TILE_SIZE * SERVICE_TILE_SIZE);
     s->packed = malloc(s->packed_cap);
-    s->codec = terrad_codec_new(3);
+    /* zstd level 1 for the tick's deltas: on the deltas of loadgen's
+     * wheels, thesis-car's and the spheres' (docs/performance.md, issue 32)
+     * it takes 10-20 % less CPU than level 3 and its frames are 1.5-3.4 %
+     * smaller; any zstd decoder reads either. Snapshots keep level 3. */
+    s->codec = terrad_codec_new(1);
     if (!s->tile_versions || !s->batch.commands || !s->batch.batches || !s->values || !s->packed ||
         !s->codec || service_snapshots_start(s) != 0) {
         service_destroy(s);

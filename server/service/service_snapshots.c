@@ -215,7 +215,7 @@ static int start_worker(snap_worker *w)
         if (w->packed_cap < terrad_rect_compress_bound(cells))
             w->packed_cap = terrad_rect_compress_bound(cells);
         w->packed = malloc(w->packed_cap);
-        w->codec = terrad_codec_new(3); /* the level the deltas and snapshots always used */
+        w->codec = terrad_codec_new(3); /* the level snapshots always used (deltas: 1) */
         if (!w->packed || !w->codec) {
             terrad_codec_free(w->codec);
             free(w->packed);
