@@ -142,7 +142,7 @@ static int default_open(host_world *hw, error_text *err)
     if (store_parse_durability(o->durability, &stc, err) != 0 ||
         !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
         return -1;
-    m->status.replay_dir = o->data_dir; /* /v1/heights?tick=N rebuilds from it */
+    m->status.history.dir = o->data_dir; /* /v1/heights?tick=N rebuilds from it */
     char dname[32];
     const store_recovery *r = &m->recovery;
     log_info("store: %s (durability %s): recovered tick %llu from %d tile snapshots and %lld "

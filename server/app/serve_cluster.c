@@ -104,7 +104,8 @@ int serve_cluster_open_world(cluster *cl, host_sim *m, const serve_options *o, e
     m->sc.material.tick_s = 1.0 / m->sc.tick_hz;
     if (scene_create_world(&m->sc, &m->w, err) != 0)
         return -1;
-    m->cs = cluster_store_open(cl, m->name, &m->w, NULL, &m->recovery, err);
+    cluster_store_config sc = {.compact_records = o->compact_records};
+    m->cs = cluster_store_open(cl, m->name, &m->w, &sc, &m->recovery, err);
     if (!m->cs)
         return -1;
     m->st = cluster_store_as_store(m->cs);
@@ -114,6 +115,9 @@ int serve_cluster_open_world(cluster *cl, host_sim *m, const serve_options *o, e
         error_set(err, "out of memory");
         return -1;
     }
+    /* spectators and ?tick=N read its past back from JetStream (cluster_history.c) */
+    if (cluster_history_make(cl, m->name, &m->status.history, err) != 0)
+        return -1;
     const store_recovery *rec = &m->recovery;
     log_info("cluster: world %s recovered at tick %llu from %d tile snapshots and %lld log "
              "records in %.1f ms",

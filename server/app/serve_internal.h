@@ -61,6 +61,7 @@ typedef struct serve_options {
     int max_worlds;            /* --max-worlds: worlds one node ticks at once (0: see below),
                                 * or a single daemon creates beside its default one */
     const char *scene_dir;     /* --scene-dir: scenes POST /v1/worlds may name (NULL: none) */
+    int compact_records;       /* --compact-records: a cluster world's records per compaction */
     const char *public_ws_url; /* --public-ws-url: GET /v1/websocket's answer (NULL: built) */
     /* the --config file's strings, which the pointers above may point into */
     char config_scene[SERVE_CONFIG_STRING_MAX], config_backend[64],

@@ -374,6 +374,12 @@ static const cli_option serve_table[] = {
      "A single daemon: worlds POST /v1/worlds may create beside the\n"
      "default one (default 16)",
      CLI_AT_INT(serve_options, max_worlds, 1, SERVE_WORLDS_MAX)},
+    {"compact-records", "N",
+     "--cluster: log records (one a tick) between compactions of a\n"
+     "world's log into tile snapshots (default 600). The log before the\n"
+     "last compaction is purged: spectators and /v1/heights?tick=\n"
+     "reach back to it, recovery replays up to N records",
+     CLI_AT_INT(serve_options, compact_records, 1, 1 << 24)},
     {"auth-file", "FILE",
      "tokens with roles (viewer, driver, admin), one \"ROLE NAME\n"
      "SHA256HEX\" a line (terrad token add); SIGHUP reads it again\n"

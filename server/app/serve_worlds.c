@@ -191,7 +191,7 @@ static int world_open(host_world *hw, error_text *err)
         !(m->st = store_open(&stc, &m->w, &m->recovery, err)))
         return -1;
     snprintf(lw->data_dir, sizeof lw->data_dir, "%s", dir);
-    m->status.replay_dir = lw->data_dir;
+    m->status.history.dir = lw->data_dir;
     log_info("worlds: world %s: recovered tick %llu from %d tile snapshots and %lld log records",
              m->name, (unsigned long long)m->recovery.tick, m->recovery.tiles_loaded,
              (long long)m->recovery.records_replayed);

@@ -276,4 +276,11 @@ void cluster_store_wait_compaction(cluster_store *cs);
  * store_close closes cs. Call on the sim thread. NULL: out of memory. */
 store *cluster_store_as_store(cluster_store *cs);
 
+/* ---- A world's past for replays (cluster_history.c) ----
+ * The reader spectators and GET /v1/heights?tick=N use on a cluster node
+ * (store.h "a world's past"): any tick from the one the tile snapshots are
+ * as of, read from JetStream on the replay's own thread. out->ctx is the
+ * caller's until store_history_release. 0, or -1 (err). */
+int cluster_history_make(cluster *cl, const char *world, store_history *out, error_text *err);
+
 #endif

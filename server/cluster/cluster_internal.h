@@ -67,4 +67,23 @@ void cluster_wal_subject(const char *world, char *out, size_t cap);
 /* Deletes every snapshot of world (cluster_kv.c); -1 on an error. */
 int cluster_snapshot_delete_all(cluster *cl, const char *world, error_text *err);
 
+/* ---- what the store (cluster_store.c) and the replay reader
+ * (cluster_history.c) share ---- */
+/* A log record's tick and its payload (the store's record codec, store.h):
+ * 1; 0 when it is corrupt; -1 for a version 1 record (heights in a format
+ * of their own: only recovery reads those). */
+int cluster_record_payload(const uint8_t *data, size_t len, uint64_t *tick, const uint8_t **payload,
+                           size_t *payload_len);
+/* A tile snapshot's bytes into w (through rec: only rec->clip's cells when
+ * set): 1 applied, 0 corrupt or another tile's, -1 out of memory. */
+int cluster_snapshot_apply(store_record *rec, world *w, int tx, int ty, const uint8_t *data,
+                           size_t len);
+/* Reading a log without writing it (a replay): the next whole record at or
+ * after *from (markers skipped, parts put together in w), copied into *buf
+ * (*cap grows): 1 with its length and *seq (its last part's); 0 when none
+ * is there yet; -1 (err). *from moves past every message read; *first: the
+ * sequence of the first message read (0: none). */
+int cluster_wal_next(cluster_wal *w, uint64_t *from, uint64_t *first, uint8_t **buf, int64_t *cap,
+                     size_t *len, uint64_t *seq, error_text *err);
+
 #endif

@@ -156,25 +156,36 @@ static int record1_apply(cluster_store *cs, world *w, const uint8_t *data, size_
     return ok;
 }
 
+int cluster_record_payload(const uint8_t *data, size_t len, uint64_t *tick, const uint8_t **payload,
+                           size_t *payload_len)
+{
+    if (len < RECORD_HEADER)
+        return 0;
+    memcpy(tick, data + 4, 8);
+    if (memcmp(data, RECORD1_MAGIC, 4) == 0)
+        return -1;
+    if ((memcmp(data, RECORD_MAGIC, 4) != 0 && memcmp(data, RECORD3_MAGIC, 4) != 0) ||
+        store_crc32c(0, data + RECORD_HEADER, len - RECORD_HEADER) != get_u32(data + 12))
+        return 0;
+    *payload = data + RECORD_HEADER;
+    *payload_len = len - RECORD_HEADER;
+    return 1;
+}
+
 /* Applies one record to the world; a record that does not decode stops recovery. */
 static int record_apply(void *ctx, uint64_t seq, const uint8_t *data, size_t len)
 {
     replay_ctx *r = ctx;
     cluster_store *cs = r->cs;
     uint64_t tick = 0;
-    int ok = len >= RECORD_HEADER, applied = 1;
-    if (ok)
-        memcpy(&tick, data + 4, 8);
-    if (ok && (memcmp(data, RECORD_MAGIC, 4) == 0 || memcmp(data, RECORD3_MAGIC, 4) == 0)) {
-        ok = store_crc32c(0, data + RECORD_HEADER, len - RECORD_HEADER) == get_u32(data + 12);
-        applied = ok ? store_record_apply(&cs->rec, r->w, data + RECORD_HEADER, len - RECORD_HEADER,
-                                          NULL, NULL)
-                     : 1;
+    const uint8_t *payload = NULL;
+    size_t payload_len = 0;
+    int ok = cluster_record_payload(data, len, &tick, &payload, &payload_len), applied = 1;
+    if (ok > 0) {
+        applied = store_record_apply(&cs->rec, r->w, payload, payload_len, NULL, NULL);
         ok = applied == 0;
-    } else if (ok && memcmp(data, RECORD1_MAGIC, 4) == 0) {
+    } else if (ok < 0) {
         ok = record1_apply(cs, r->w, data, len);
-    } else {
-        ok = 0;
     }
     if (applied < 0) {
         error_set(r->err, "world %s: out of memory replaying log sequence %" PRIu64, cs->world,
@@ -216,10 +227,8 @@ static int snapshot_rect_check(void *ctx, world_rect r)
     return memcmp(&r, want, sizeof r) != 0;
 }
 
-/* A tile snapshot's bytes into w: 1 applied, 0 corrupt or another tile's,
- * -1 out of memory. */
-static int snapshot_apply(cluster_store *cs, world *w, int tx, int ty, const uint8_t *data,
-                          size_t len)
+int cluster_snapshot_apply(store_record *rec, world *w, int tx, int ty, const uint8_t *data,
+                           size_t len)
 {
     world_rect rect = world_tile_rect(w, tx, ty);
     int32_t hdr[4] = {0};
@@ -230,7 +239,7 @@ static int snapshot_apply(cluster_store *cs, world *w, int tx, int ty, const uin
             store_crc32c(0, data + SNAP_HEADER, len - SNAP_HEADER) != get_u32(data + 12) ||
             len - SNAP_HEADER < 4 || (get_u32(data + SNAP_HEADER) & ~STORE_RECORD_LAYER_BITS) != 1)
             return 0;
-        int r = store_record_apply(&cs->rec, w, data + SNAP_HEADER, len - SNAP_HEADER,
+        int r = store_record_apply(rec, w, data + SNAP_HEADER, len - SNAP_HEADER,
                                    snapshot_rect_check, &rect);
         return r < 0 ? -1 : r == 0;
     }
@@ -261,7 +270,7 @@ static int snapshot_load(cluster_store *cs, world *w, int tx, int ty, error_text
     int found = cluster_snapshot_get(cs->cl, cs->world, tx, ty, &data, &len, &covers, err);
     if (found <= 0)
         return found;
-    int ok = snapshot_apply(cs, w, tx, ty, data, len);
+    int ok = cluster_snapshot_apply(&cs->rec, w, tx, ty, data, len);
     if (ok < 0)
         error_set(err, "world %s: out of memory loading the snapshot of tile %d,%d", cs->world, tx,
                   ty);

@@ -283,6 +283,63 @@ static natsStatus wal_read_pass(cluster_wal *w, uint64_t *from, cluster_record_f
     return s;
 }
 
+/* What cluster_wal_next hands over: the record wal_deliver put together. */
+typedef struct wal_grab {
+    uint8_t **buf;
+    int64_t *cap;
+    size_t len;
+    int got;
+} wal_grab;
+
+static int wal_grab_record(void *ctx, uint64_t seq, const uint8_t *data, size_t len)
+{
+    (void)seq;
+    wal_grab *g = ctx;
+    if (array_grow((void **)g->buf, g->cap, (int64_t)len + 1, 1) != 0)
+        return -1;
+    memcpy(*g->buf, data, len);
+    g->len = len;
+    g->got = 1;
+    return 0;
+}
+
+int cluster_wal_next(cluster_wal *w, uint64_t *from, uint64_t *first, uint8_t **buf, int64_t *cap,
+                     size_t *len, uint64_t *seq, error_text *err)
+{
+    *first = 0;
+    for (int tries = 0;;) {
+        natsMsg *msg = NULL;
+        uint64_t at = 0;
+        natsStatus s = log_get_next(w->cl, w->subject, *from, &msg, &at);
+        if (s == NATS_NOT_FOUND)
+            return 0;
+        if (s != NATS_OK) { /* a leader being elected: a few tries, as wal_read's passes */
+            if (++tries < 4) {
+                nats_Sleep(100);
+                continue;
+            }
+            cluster_error(err, s, "reading the log of world %s from sequence %" PRIu64, w->world,
+                          *from);
+            return -1;
+        }
+        if (!*first)
+            *first = at;
+        wal_grab g = {.buf = buf, .cap = cap};
+        int rc = wal_deliver(w, msg, at, wal_grab_record, &g);
+        natsMsg_Destroy(msg);
+        *from = at + 1;
+        if (rc != 0) {
+            error_set(err, "log of world %s: out of memory for a record", w->world);
+            return -1;
+        }
+        if (g.got) {
+            *len = g.len;
+            *seq = at;
+            return 1;
+        }
+    }
+}
+
 /* The log is read to where the leader has no next message, not only to the
  * end its last_by_subj answer named: the two answers come from different
  * lookups of the leader's store, and the chaos runs (docs/cluster.md,

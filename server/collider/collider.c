@@ -9,6 +9,7 @@
  */
 #include "collider/collider.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -47,6 +48,15 @@ static int grousers_validate(const collider_geometry *g, error_text *err)
         error_set(err,
                   "grousers.thickness: must be a finite number > 0 and <= the radius %g m (got %g)",
                   g->radius, l->thickness);
+        return -1;
+    }
+    /* COLLIDERS' grousers extension reports both as f32 > 0 (PROTOCOL.md): a
+     * size that rounds to f32 0 could not be reported, and the frame holding
+     * it would be refused whole, for every viewer that asked for grousers */
+    if ((float)l->height == 0.0f || (float)l->thickness == 0.0f) {
+        int h = (float)l->height == 0.0f;
+        error_set(err, "grousers.%s: %g m is below the least size COLLIDERS frames carry (%g m)",
+                  h ? "height" : "thickness", h ? l->height : l->thickness, (double)FLT_TRUE_MIN);
         return -1;
     }
     return 0;

@@ -288,6 +288,7 @@ void host_sim_free(host_sim *m)
     host_sim_stop(m);
     hub_destroy(m->h);
     world_free(&m->w);
+    store_history_release(&m->status.history); /* no replay reads it now: the world left */
     scene_free(&m->sc);
     free(m->twin_json);
     m->twin_json = NULL;

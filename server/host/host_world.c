@@ -31,7 +31,7 @@ static int world_register(host_world *hw, error_text *err)
     hw->info = host_sim_world_info(m); /* read by the net thread when it adopts it */
     hub_world e = {.h = m->h,
                    .base = &m->w,
-                   .replay_dir = m->status.replay_dir,
+                   .history = store_history_kept(&m->status.history) ? &m->status.history : NULL,
                    .status = &m->status,
                    .info = &hw->info};
     snprintf(e.name, sizeof e.name, "%.64s", port_name(hw)); /* as http_status.scene_name */

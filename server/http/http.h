@@ -55,6 +55,7 @@
 
 #include "base/base.h"
 #include "hub/hub.h"
+#include "store/store.h"
 
 /* What the sim thread publishes each tick. Fill the world fields before
  * http_server_start; the rest under `lock` as they change. */
@@ -86,10 +87,11 @@ typedef struct http_status {
     int client_clock; /* its scene's "clock": "client" (GET /v1/worlds says "clock") */
     char world_name[65]; /* cluster mode: the world's registered name; "" for a single daemon */
     char scene_name[65]; /* the scene's name (GET /v1/worlds); the default world is named so */
-    /* the data directory /v1/heights?tick=N rebuilds past ticks from
-     * (store_replay_rect); NULL: none (memory only, or a cluster node's
-     * JetStream store). Set before the world is on the ports; outlives it. */
-    const char *replay_dir;
+    /* where /v1/heights?tick=N rebuilds past ticks from (store_history_rect):
+     * the data directory, or a cluster node's JetStream reader
+     * (cluster_history_make); empty: none (memory only). Set before the
+     * world is on the ports; outlives it (host_sim_free releases it). */
+    store_history history;
 } http_status;
 
 /* Limits against slow or hostile clients; a zero field takes the default. */

@@ -250,10 +250,8 @@ static unsigned past_tick(const world *base_world, const http_status *st, const 
         snprintf(why, cap, "parameter tick must be a decimal integer (a past tick)");
         return MHD_HTTP_BAD_REQUEST;
     }
-    if (!st->replay_dir) {
-        snprintf(why, cap,
-                 "parameter tick: this world keeps no log to replay (memory only, or a "
-                 "cluster node's store)");
+    if (!store_history_kept(&st->history)) {
+        snprintf(why, cap, "parameter tick: this world keeps no log to replay (memory only)");
         return MHD_HTTP_NOT_FOUND;
     }
     if (n > st->tick) {
@@ -292,8 +290,8 @@ static unsigned rebuild_past(const world *base_world, const http_status *st, hub
                  "per daemon); retry");
         return MHD_HTTP_SERVICE_UNAVAILABLE;
     }
-    int rc = w ? store_replay_world(st->replay_dir, base_world, n, r, w, &leaving, &err)
-               : store_replay_rect(st->replay_dir, base_world, n, r, dst, &leaving, &err);
+    int rc = w ? store_history_world(&st->history, base_world, n, r, w, &leaving, &err)
+               : store_history_rect(&st->history, base_world, n, r, dst, &leaving, &err);
     pthread_mutex_unlock(&replay_lock);
     if (rc == STORE_CANCELLED) {
         snprintf(why, cap,
@@ -305,8 +303,9 @@ static unsigned rebuild_past(const world *base_world, const http_status *st, hub
     if (rc == 1) {
         snprintf(why, cap,
                  "parameter tick: tick %llu is no longer held (the log before a newer tile "
-                 "snapshot was compacted away; keep more with --replay-retain-bytes): %.300s",
-                 (unsigned long long)n, err.message);
+                 "snapshot was compacted away%s): %.300s",
+                 (unsigned long long)n,
+                 st->history.dir ? "; keep more with --replay-retain-bytes" : "", err.message);
         return MHD_HTTP_GONE;
     }
     if (rc != 0) {

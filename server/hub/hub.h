@@ -305,9 +305,10 @@ typedef struct hub_world {
     char name[HUB_WORLD_NAME_MAX + 1];
     hub *h;
     const world *base; /* its base terrain (/v1/heights?base=1) */
-    /* its data directory, for replays beside it (?tick=N, spectators); NULL:
-     * none (memory only, or a cluster node's store) */
-    const char *replay_dir;
+    /* where replays beside it read its past (?tick=N, spectators): store/'s
+     * store_history (opaque here, hub/ beside store/) — a data directory, or
+     * a cluster node's JetStream reader; NULL: none (memory only) */
+    const void *history;
     void *status;
     const void *info;
     int deleted; /* set by hub_worlds_remove: its clients are told it was deleted */

@@ -175,6 +175,10 @@ typedef struct net_client {
     int has_focus;
     double focus_x, focus_y;
     net_spectator *spectate; /* PROTOCOL.md "Spectate" (net_spectate.c); NULL: not spectating */
+    /* a relay's client whose owner said "spectating" (until its spectate_end):
+     * the owner's frames of past ticks go to it as replies (net_dispatch),
+     * never judged against the live tick's lag or dropped for a resync */
+    int relay_spectating;
 } net_client;
 
 typedef struct net_collider_slot {

@@ -189,6 +189,11 @@ void net_dispatch(net_state *w, hub_out *o)
         if (c && c->remote) { /* its relay decides what to drop, as for its own clients */
             if (!c->remote_gone && (o->frame || o->snapshot_done))
                 net_remote_frame(c, o->frame, o->snapshot_done);
+        } else if (c && o->frame && c->relay_spectating) {
+            /* a relayed spectator's replay: queued as its owner's pump queues
+             * them (net_spectate.c), so its ACKs of past ticks are no lag */
+            net_enqueue_held(c, o->frame);
+            o->frame = NULL;
         } else if (c && o->frame && o->msg == TERRAD_MSG_FOOTPRINTS) {
             send_footprints(c, o->frame);
             o->frame = NULL;

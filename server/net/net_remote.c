@@ -117,6 +117,10 @@ static void relay_track(net_client *c, const unsigned char *text, size_t len)
         }
         c->subs[c->sub_count++] = (net_sub){sid, {v[0], v[1], v[2], v[3]}};
         c->snapshots_requested++; /* the owner ends the subscription's snapshot with a mark */
+    } else if (strcmp(type->valuestring, "spectating") == 0) {
+        c->relay_spectating = 1;
+    } else if (strcmp(type->valuestring, "spectate_end") == 0) {
+        c->relay_spectating = 0;
     } else if (strcmp(type->valuestring, "unsubscribed") == 0) {
         for (int i = 0; i < c->sub_count; i++)
             if (c->subs[i].id == sid) {

@@ -52,7 +52,7 @@
 
 struct net_spectator {
     /* set before the thread starts, read-only after */
-    char dir[1024];
+    store_history history; /* where the past is read: a directory, or a cluster's reader */
     const world *base;
     world_rect rect; /* the window */
     uint64_t from;
@@ -61,7 +61,7 @@ struct net_spectator {
     int tile, width, height;
     size_t room; /* the bytes its outbox and the client's queue may hold together */
     net_server *server;
-    hub_worlds *table; /* entry held as a reader until the thread ends: base and dir stay */
+    hub_worlds *table; /* entry held as a reader until the thread ends: base and history stay */
     hub_world *entry;
     pthread_t thread;
     /* the net thread's */
@@ -385,7 +385,7 @@ static void *spectate_main(void *arg)
     store_cancel cancel = {.cancelled = stopped, .ctx = j};
     int rc = !p.codec || !p.versions || !p.boxes || !p.before
                  ? -1
-                 : store_cursor_open(j->dir, j->base, j->from, span, &cancel, &p.cur, &why);
+                 : store_history_cursor(&j->history, j->base, j->from, span, &cancel, &p.cur, &why);
     if (rc == STORE_CANCELLED) {
         /* its client is told by the net thread */
     } else if (rc == 1) {
@@ -413,7 +413,7 @@ static void *spectate_main(void *arg)
     free(p.before);
     free(p.boxes);
     free(p.versions);
-    hub_worlds_release(j->table, j->entry); /* its base and directory are no longer read */
+    hub_worlds_release(j->table, j->entry); /* its base and history are no longer read */
     pthread_mutex_lock(&j->lock);
     j->finished = 1;
     pthread_mutex_unlock(&j->lock);
@@ -496,11 +496,11 @@ static int refused(net_client *c, const net_control *m)
                "type: this connection has %d live subscription(s); a spectator holds none "
                "(unsubscribe first, or spectate on another connection)",
                c->sub_count);
-    } else if (!w->entry || !w->entry->replay_dir || !w->entry->base || w->relay || c->remote ||
-               !w->cfg.worlds) {
+    } else if (!w->entry || !w->entry->history || !w->entry->base || w->relay || !w->cfg.worlds) {
+        /* a relayed client's spectate is its owner's (c->remote here): its
+         * frames go back through the relay as any reply does */
         refuse(c, m->ref, TERRAD_E_BAD_VALUE, "from_tick",
-               "from_tick: this world keeps no log to replay (a memory-only world, or a cluster "
-               "node's store)");
+               "from_tick: this world keeps no log to replay (a memory-only world)");
     } else if (m->from_tick > hub_published_tick(w->entry->h)) {
         /* the published tick, not w->tick (the frames this thread has
          * dispatched, held back under group:MS): a tick /v1/stats or a read
@@ -548,7 +548,7 @@ void net_spectate_request(net_client *c, const net_control *m)
     }
     j->table = w->cfg.worlds;
     j->entry = e;
-    snprintf(j->dir, sizeof j->dir, "%s", w->entry->replay_dir);
+    j->history = *(const store_history *)w->entry->history;
     j->base = w->entry->base;
     j->rect = m->rect;
     j->from = m->from_tick;
@@ -657,8 +657,9 @@ static void pump_client(net_client *c)
         hub_frame *f = j->box.frames[taken];
         if ((c->pending_bytes + f->len > room && c->q_count) || !net_budget_fits_held(c, f->len))
             break;
+        size_t len = f->len; /* a remote client's frame is sent and let go at once */
         net_enqueue_held(c, f);
-        j->box.bytes -= f->len;
+        j->box.bytes -= len;
         taken++;
     }
     if (taken) { /* box.frames is NULL until the thread posts its first frame */
@@ -674,12 +675,15 @@ static void pump_client(net_client *c)
         return;
     if (j->end_code) {
         metrics_count_spectate_refused("from_tick");
-        net_error(c, j->end_code, j->ref, -1, 0, "from_tick: tick %llu %s: %.400s",
+        int gone = strcmp(j->end_reason, "gone") == 0;
+        net_error(c, j->end_code, j->ref, -1, 0, "from_tick: tick %llu %s%s: %.400s",
                   (unsigned long long)j->from,
-                  strcmp(j->end_reason, "gone") == 0
-                      ? "is no longer held (the log before a newer tile snapshot was compacted "
-                        "away; keep more with --replay-retain-bytes)"
-                      : "cannot be rebuilt",
+                  gone ? "is no longer held (the log before a newer tile snapshot was compacted "
+                         "away"
+                       : "cannot be rebuilt",
+                  !gone            ? ""
+                  : j->history.dir ? "; keep more with --replay-retain-bytes)"
+                                   : ")",
                   j->end_why);
     } else {
         send_end(c, j, j->end_reason, j->at_tick, j->end_why, j->ref);

@@ -147,16 +147,23 @@ static void slope_blocks_range_base(const slope_blocks_loop *l, int64_t begin, i
  * (one vpmulld for 8 lanes), exact while the product fits: peak keeps the
  * largest factor for the caller to check. Otherwise the 64-bit products of
  * the baseline, vpmuludq on the even and the odd lanes. */
-static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_dir8(__m256i hm, const int32_t *hq,
-                                                         const int32_t *cq, int32_t th,
-                                                         __m256i rough, int narrow, __m256i *out,
-                                                         __m256i *in, __m256i *peak)
+static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void
+slope_dir8(__m256i hm, const int32_t *hq, const int32_t *cq, int32_t th, __m256i rough, int narrow,
+           int masked, __m256i lanes, __m256i *out, __m256i *in, __m256i *peak)
 {
     const __m256i seed = _mm256_set1_epi32(SIM_CELL_SEED);
-    __m256i d = _mm256_sub_epi32(hm, _mm256_loadu_si256((const __m256i *)hq));
+    /* masked: the lanes off `lanes` have this neighbour outside the window
+     * (slope_next skips it: no flux); they read nothing and add 0 */
+    __m256i hqv =
+        masked ? _mm256_maskload_epi32(hq, lanes) : _mm256_loadu_si256((const __m256i *)hq);
+    __m256i cqv =
+        masked ? _mm256_maskload_epi32(cq, lanes) : _mm256_loadu_si256((const __m256i *)cq);
+    __m256i d = _mm256_sub_epi32(hm, hqv);
     __m256i sign = _mm256_srai_epi32(d, 31);
     __m256i pe = _mm256_max_epi32(_mm256_sub_epi32(_mm256_abs_epi32(d), _mm256_set1_epi32(th)),
                                   _mm256_setzero_si256());
+    if (masked)
+        pe = _mm256_and_si256(pe, lanes);
     __m256i f;
     if (narrow) {
         *peak = _mm256_max_epu32(*peak, pe);
@@ -167,13 +174,15 @@ static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_dir8(__m256i hm, const int32
         __m256i odd = _mm256_srli_epi64(_mm256_mul_epu32(_mm256_srli_epi64(pe, 32), rough), 19);
         f = _mm256_blend_epi32(even, _mm256_slli_epi64(odd, 32), 0xaa);
     }
-    __m256i to_seed = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)cq), seed);
+    __m256i to_seed = _mm256_cmpeq_epi32(cqv, seed);
     *out = _mm256_add_epi32(*out, _mm256_andnot_si256(sign, _mm256_and_si256(f, to_seed)));
     *in = _mm256_add_epi32(*in, _mm256_and_si256(f, sign));
 }
 
-/* Next heights of the 8 cells i0 .. i0 + 7 (inside the window's sides; dirs
- * as for slope_block_body), thresholds >= 0. narrow: with 32-bit products;
+/* Next heights of the 8 cells i0 .. i0 + 7 (dirs as for slope_block_body),
+ * thresholds >= 0. sides: bit 0, lane 0 is the window's west side (x = 0:
+ * no W, SW, NW neighbours); bit 1, lane 7 its east side (no E, SE, NE); the
+ * lanes are otherwise inside the window's sides. narrow: with 32-bit products;
  * returns 0 and writes nothing when some factor exceeds lim = UINT32_MAX /
  * roughness, where the 32-bit product would differ from the 64-bit one (at
  * roughness 0.3 a step of 21.8 m at 10^4 units per m: the deep box's bow
@@ -182,28 +191,30 @@ static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE int slope_unit8(const ground_material_r
                                                          const int32_t *restrict cls,
                                                          const int32_t *restrict heights, int i0,
                                                          int32_t *restrict dst, unsigned dirs,
-                                                         int narrow, uint32_t lim)
+                                                         unsigned sides, int narrow, uint32_t lim)
 {
     const int32_t ax = r->slope_threshold_axial, dg = r->slope_threshold_diagonal;
     const __m256i rough = _mm256_set1_epi32(r->roughness_q16);
     const __m256i hm = _mm256_loadu_si256((const __m256i *)(heights + i0));
+    const __m256i west = _mm256_setr_epi32(0, -1, -1, -1, -1, -1, -1, -1);
+    const __m256i east = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, -1, 0);
     __m256i out = _mm256_setzero_si256(), in = out, peak = out;
     /* slope_next's order, E, W, S, N, SE, SW, NE, NW, written out: gcc does
-     * not unroll the loop over the directions itself */
-#define SLOPE_DIR8(j, o, th)                                                                       \
+     * not unroll the loop over the directions itself; side: 1 west, 2 east */
+#define SLOPE_DIR8(j, o, th, side)                                                                 \
     do {                                                                                           \
         if (dirs & 1u << (j))                                                                      \
-            slope_dir8(hm, heights + i0 + (o), cls + i0 + (o), th, rough, narrow, &out, &in,       \
-                       &peak);                                                                     \
+            slope_dir8(hm, heights + i0 + (o), cls + i0 + (o), th, rough, narrow,                  \
+                       (sides & (side)) != 0, (side) == 1 ? west : east, &out, &in, &peak);        \
     } while (0)
-    SLOPE_DIR8(0, 1, ax);
-    SLOPE_DIR8(1, -1, ax);
-    SLOPE_DIR8(2, w, ax);
-    SLOPE_DIR8(3, -w, ax);
-    SLOPE_DIR8(4, w + 1, dg);
-    SLOPE_DIR8(5, w - 1, dg);
-    SLOPE_DIR8(6, -w + 1, dg);
-    SLOPE_DIR8(7, -w - 1, dg);
+    SLOPE_DIR8(0, 1, ax, 2);
+    SLOPE_DIR8(1, -1, ax, 1);
+    SLOPE_DIR8(2, w, ax, 0);
+    SLOPE_DIR8(3, -w, ax, 0);
+    SLOPE_DIR8(4, w + 1, dg, 2);
+    SLOPE_DIR8(5, w - 1, dg, 1);
+    SLOPE_DIR8(6, -w + 1, dg, 2);
+    SLOPE_DIR8(7, -w - 1, dg, 1);
 #undef SLOPE_DIR8
     const __m256i limv = _mm256_set1_epi32((int32_t)lim);
     if (narrow &&
@@ -220,10 +231,10 @@ static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE int slope_unit8(const ground_material_r
  * first with 32-bit products, again with 64-bit ones if they overflow */
 static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void
 slope_unit8_dirs(const ground_material_row *r, int w, const int32_t *cls, const int32_t *heights,
-                 int i0, int32_t *dst, unsigned dirs, uint32_t lim)
+                 int i0, int32_t *dst, unsigned dirs, unsigned sides, uint32_t lim)
 {
-    if (!slope_unit8(r, w, cls, heights, i0, dst, dirs, 1, lim))
-        slope_unit8(r, w, cls, heights, i0, dst, dirs, 0, 0);
+    if (!slope_unit8(r, w, cls, heights, i0, dst, dirs, sides, 1, lim))
+        slope_unit8(r, w, cls, heights, i0, dst, dirs, sides, 0, 0);
 }
 
 static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_unit8_row(const ground_material_row *r, int w,
@@ -232,20 +243,44 @@ static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_unit8_row(const ground_mater
                                                               int32_t *dst, uint32_t lim)
 {
     if (y > 0 && y < h - 1)
-        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, lim);
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, 0, lim);
     else if (h == 1)
-        slope_unit8_dirs(r, w, cls, heights, i0, dst, 3u, lim);
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, 3u, 0, lim);
     else if (y == 0)
-        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_NORTH, lim);
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_NORTH, 0,
+                         lim);
     else
-        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_SOUTH, lim);
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL & ~SLOPE_DIRS_NO_SOUTH, 0,
+                         lim);
 }
 
-/* The AVX2 form: a block's cells off the window's sides in units of 8
- * lanes, each placed over as many of them as it can (the last one of a row
- * ends at the side, starting early; only the block's own cells are kept),
- * so a window 10 or more cells wide takes vectors and a narrow block's
- * remainder costs one unit, not a whole block. */
+/* A unit of an inner row (0 < y < h - 1) over cells b .. b + 7 of a window
+ * 8 or more wide, the window's sides included (sides as for slope_unit8). */
+static SIM_TARGET_AVX2 SIM_ALWAYS_INLINE void slope_unit8_inner(const ground_material_row *r, int w,
+                                                                const int32_t *cls,
+                                                                const int32_t *heights, int b,
+                                                                int i0, int32_t *dst, uint32_t lim)
+{
+    unsigned sides = (b == 0 ? 1u : 0u) | (b + 8 == w ? 2u : 0u);
+    if (sides == 0)
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, 0, lim);
+    else if (sides == 1)
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, 1, lim);
+    else if (sides == 2)
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, 2, lim);
+    else
+        slope_unit8_dirs(r, w, cls, heights, i0, dst, SLOPE_DIRS_ALL, 3, lim);
+}
+
+/* The AVX2 form: a block's cells in units of 8 lanes, each placed over as
+ * many of them as it can (the last one of a row ends at the side, starting
+ * early; only the block's own cells are kept), so a window 10 or more cells
+ * wide takes vectors and a narrow block's remainder costs one unit, not a
+ * whole block. In an inner row the units take the window's two side cells
+ * too, with the neighbours off the window masked (slope_unit8's sides): a
+ * wheel's window is ~25 cells wide, so nearly every block it visits holds a
+ * side cell, and those went one by one through sim_slope_next, a sixth of
+ * the engine's tick (issue 32); the top and bottom rows keep them so. */
 static SIM_TARGET_AVX2 void slope_blocks_range_avx2(const slope_blocks_loop *l, int64_t begin,
                                                     int64_t end)
 {
@@ -259,6 +294,21 @@ static SIM_TARGET_AVX2 void slope_blocks_range_avx2(const slope_blocks_loop *l, 
         int lo = x0 > 0 ? x0 : 1, hi = x1 < w ? x1 : w - 1;
         if (w - 2 < 8 || lo >= hi) {
             slope_rest(l, y, x0, x1, x0, x0);
+            continue;
+        }
+        if (y > 0 && y < h - 1) {
+            for (int u = x0; u < x1; u += 8) {
+                int b = u < w - 8 ? u : w - 8, e = u + 8 < x1 ? u + 8 : x1;
+                if (b == u && e == u + 8) { /* all 8 lanes are the block's: in place */
+                    slope_unit8_inner(r, w, l->cls, l->heights, b, row + b, l->value + row + b,
+                                      lim);
+                    continue;
+                }
+                int32_t next[8];
+                slope_unit8_inner(r, w, l->cls, l->heights, b, row + b, next, lim);
+                for (int x = u; x < e; x++)
+                    l->value[row + x] = next[x - b];
+            }
             continue;
         }
         for (int u = lo; u < hi; u += 8) {

@@ -282,6 +282,50 @@ unsigned store_record_layers(const uint8_t *p, size_t len);
 int store_record_apply(store_record *c, world *w, const uint8_t *p, size_t len,
                        int (*check)(void *ctx, world_rect r), void *ctx);
 
+/* ---- a world's past, wherever it is stored (PROTOCOL.md "Spectate") ----
+ * Replays (a spectator's cursor, GET /v1/heights?tick=N) read a world's log
+ * and snapshots beside the live daemon: from a data directory (dir), or
+ * through a backend's reader (ops and ctx: the JetStream store's,
+ * server/cluster/cluster_history.c, a layer above). A reader hands over the
+ * same record payloads the data directory's log holds (the codec above), so
+ * one cursor applies both. */
+typedef struct store_history_ops {
+    /* Loads into w (base terrain under rec->clip already there; only
+     * rec->clip's cells are written) the newest stored state at or before
+     * tick and starts a reader after it: 0 with *reader; 1 when the store
+     * no longer holds the tick (why: compacted away); -1 (why). The cursor
+     * then applies the records up to the tick (next). */
+    int (*open)(void *ctx, world *w, uint64_t tick, store_record *rec, store_cancel *cancel,
+                void **reader, error_text *why);
+    /* The next record: 1 with its tick and payload (valid until the next
+     * call); 0 when the log holds none after it yet; -1 (why) when it
+     * cannot go on (the log after it was compacted away, or damage). */
+    int (*next)(void *reader, uint64_t *tick, const uint8_t **payload, size_t *len,
+                error_text *why);
+    void (*close)(void *reader);
+    /* The history's ctx is freed (the world is gone, no reader left). */
+    void (*release)(void *ctx);
+} store_history_ops;
+
+typedef struct store_history {
+    const char *dir; /* a data directory, or NULL */
+    const store_history_ops *ops;
+    void *ctx;
+} store_history;
+
+/* 1 when h names a past to replay (a directory or a reader). */
+int store_history_kept(const store_history *h);
+/* ctx released (ops->release) and h emptied. NULL is fine. */
+void store_history_release(store_history *h);
+/* store_cursor_open, store_replay_rect and store_replay_world over either
+ * kind of history (a directory's go to those). */
+int store_history_cursor(const store_history *h, const world *base, uint64_t tick, world_rect r,
+                         const store_cancel *cancel, store_cursor **out, error_text *why);
+int store_history_rect(const store_history *h, const world *base, uint64_t tick, world_rect r,
+                       int32_t *dst, const store_cancel *cancel, error_text *why);
+int store_history_world(const store_history *h, const world *base, uint64_t tick, world_rect r,
+                        world *out, const store_cancel *cancel, error_text *why);
+
 /* CRC32C (Castagnoli), as every record, snapshot and the manifest use it. */
 uint32_t store_crc32c(uint32_t crc, const void *data, size_t len);
 

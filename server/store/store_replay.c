@@ -192,6 +192,19 @@ out:
     return rc;
 }
 
+/* w made as base's geometry, holding base's heights in r (the replay
+ * world's own base is flat): cells no record or snapshot names keep them. */
+static int rebuild_base(const world *base, world_rect r, world *w, int32_t *scratch,
+                        error_text *why)
+{
+    if (world_init_tiled(w, base->width, base->height, base->cell_size_m, base->units_per_m,
+                         base->floor, base->tile_cells, why) != 0)
+        return -1;
+    world_base_fill_rect(base, r, scratch);
+    world_scatter_window(w, r, scratch);
+    return 0;
+}
+
 /* One rebuild of r as of tick into w (initialised here; the caller frees
  * it, whatever the result); 0, 1 (gone), -1 or STORE_CANCELLED (cancel:
  * NULL, or a cursor's, asked between records and snapshots). Only r's cells are loaded and
@@ -201,13 +214,8 @@ out:
 static int rebuild(const char *dir, const world *base, uint64_t tick, world_rect r, world *w,
                    int32_t *scratch, store_cancel *cancel, error_text *why)
 {
-    if (world_init_tiled(w, base->width, base->height, base->cell_size_m, base->units_per_m,
-                         base->floor, base->tile_cells, why) != 0)
+    if (rebuild_base(base, r, w, scratch, why) != 0)
         return -1;
-    /* the base under the rectangle (the replay world's own base is flat):
-     * cells no record or snapshot names keep it */
-    world_base_fill_rect(base, r, scratch);
-    world_scatter_window(w, r, scratch);
     /* keyframes and the whole log both need every record since the first */
     char first[1100];
     store_segment_path(dir, 1, first, sizeof first);
@@ -318,6 +326,11 @@ struct store_cursor {
     int64_t rects_cap;
     store_record rec;
     store_cancel cancel; /* its reader's (cancelled NULL: never) */
+    /* a backend's history (store_history_cursor) instead of a directory */
+    const store_history_ops *ops;
+    void *reader;
+    const uint8_t *data; /* the record next returned (payload, or the reader's) */
+    int peeked;          /* the reader returned data (its tick pending_tick), not handed out yet */
 };
 
 /* Opens segment seq (0, or -1 when it is not there). */
@@ -381,22 +394,34 @@ static int cursor_seek(store_cursor *c, error_text *why)
     return 0;
 }
 
-int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
-                      const store_cancel *cancel, store_cursor **out, error_text *why)
+/* A cursor of r at tick, before its rebuild, and the rebuild's scratch
+ * (r's cells, the caller's to free); NULL (why) out of memory. */
+static store_cursor *cursor_new(world_rect r, uint64_t tick, const store_cancel *cancel,
+                                int32_t **scratch, error_text *why)
 {
-    *out = NULL;
     store_cursor *c = calloc(1, sizeof *c);
-    int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
-    if (!c || !scratch) {
+    *scratch = malloc((size_t)r.w * r.h * sizeof **scratch + 1);
+    if (!c || !*scratch) {
         free(c);
-        free(scratch);
+        free(*scratch);
         error_set(why, "store: out of memory for a replay cursor");
-        return -1;
+        return NULL;
     }
-    snprintf(c->dir, sizeof c->dir, "%s", dir);
     c->fd = -1, c->r = r, c->tick = tick;
     c->rec.clip = r; /* every record from here on: only r's cells */
     c->cancel = cancel_copy(cancel);
+    return c;
+}
+
+int store_cursor_open(const char *dir, const world *base, uint64_t tick, world_rect r,
+                      const store_cancel *cancel, store_cursor **out, error_text *why)
+{
+    int32_t *scratch = NULL;
+    store_cursor *c = cursor_new(r, tick, cancel, &scratch, why);
+    *out = NULL;
+    if (!c)
+        return -1;
+    snprintf(c->dir, sizeof c->dir, "%s", dir);
     int rc = -1;
     for (int attempt = 0; attempt < 3 && rc == -1; attempt++) { /* as store_replay_rect */
         memset(why, 0, sizeof *why);
@@ -479,6 +504,55 @@ static int cursor_next_segment(store_cursor *c, error_text *why)
     return rc;
 }
 
+/* The record in c->data (plen bytes, of tick t) becomes the pending one:
+ * its rectangles parsed for the caller. 1, or -1 (why). */
+static int cursor_take(store_cursor *c, uint64_t t, uint32_t plen, uint64_t *tick,
+                       const world_rect **rects, int *n, error_text *why)
+{
+    uint32_t nrect = plen >= 4 ? get32(c->data) & ~STORE_RECORD_LAYER_BITS : 0;
+    if ((uint64_t)nrect * 16 + 8 > plen ||
+        array_grow((void **)&c->rects, &c->rects_cap, (int64_t)nrect + 1, sizeof *c->rects) != 0) {
+        error_set(why, "store: a malformed record of tick %llu", (unsigned long long)t);
+        return -1;
+    }
+    for (uint32_t i = 0; i < nrect; i++) {
+        const uint8_t *q = c->data + 4 + 16 * i;
+        c->rects[i] = (world_rect){(int32_t)get32(q), (int32_t)get32(q + 4), (int32_t)get32(q + 8),
+                                   (int32_t)get32(q + 12)};
+    }
+    c->payload_len = plen;
+    c->pending_tick = t;
+    c->pending = 1;
+    c->peeked = 0;
+    *tick = t;
+    *rects = c->rects;
+    *n = (int)nrect;
+    return 1;
+}
+
+/* store_cursor_next over a backend's reader: the record it returned last
+ * (peeked: past the rebuild's tick, or past upto) first. */
+static int history_next(store_cursor *c, uint64_t upto, uint64_t *tick, const world_rect **rects,
+                        int *n, error_text *why)
+{
+    if (!c->peeked) {
+        size_t len = 0;
+        int rc = c->ops->next(c->reader, &c->pending_tick, &c->data, &len, why);
+        if (rc <= 0)
+            return rc;
+        if (len > REC_MAX_PAYLOAD) {
+            error_set(why, "store: a record of tick %llu is too large",
+                      (unsigned long long)c->pending_tick);
+            return -1;
+        }
+        c->payload_len = (uint32_t)len;
+        c->peeked = 1;
+    }
+    if (c->pending_tick > upto)
+        return 0;
+    return cursor_take(c, c->pending_tick, c->payload_len, tick, rects, n, why);
+}
+
 int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const world_rect **rects,
                       int *n, error_text *why)
 {
@@ -492,6 +566,8 @@ int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const worl
         error_set(why, "store: cancelled");
         return STORE_CANCELLED;
     }
+    if (c->ops)
+        return history_next(c, upto, tick, rects, n, why);
     while (!cursor_header(c, &t, &plen)) {
         int moved = cursor_next_segment(c, why);
         if (moved <= 0) /* a header at the end of the newest segment: not yet written */
@@ -508,37 +584,22 @@ int store_cursor_next(store_cursor *c, uint64_t upto, uint64_t *tick, const worl
         pread(c->fd, c->payload, plen, (off_t)(c->at + REC_HEADER)) != (ssize_t)plen ||
         store_crc32c(0, c->payload, plen) != get32(h + 16))
         return 0; /* still being written */
-    uint32_t nrect = plen >= 4 ? get32(c->payload) & ~STORE_RECORD_LAYER_BITS : 0;
-    if ((uint64_t)nrect * 16 + 8 > plen ||
-        array_grow((void **)&c->rects, &c->rects_cap, (int64_t)nrect + 1, sizeof *c->rects) != 0) {
-        error_set(why, "store: a malformed record of tick %llu", (unsigned long long)t);
-        return -1;
-    }
-    for (uint32_t i = 0; i < nrect; i++) {
-        const uint8_t *q = c->payload + 4 + 16 * i;
-        c->rects[i] = (world_rect){(int32_t)get32(q), (int32_t)get32(q + 4), (int32_t)get32(q + 8),
-                                   (int32_t)get32(q + 12)};
-    }
-    c->payload_len = plen;
-    c->pending_tick = t;
-    c->pending = 1;
-    *tick = t;
-    *rects = c->rects;
-    *n = (int)nrect;
-    return 1;
+    c->data = c->payload;
+    return cursor_take(c, t, plen, tick, rects, n, why);
 }
 
 int store_cursor_apply(store_cursor *c, error_text *why)
 {
     if (!c->pending)
         return 0;
-    int rc = store_record_apply(&c->rec, &c->w, c->payload, c->payload_len, NULL, NULL);
+    int rc = store_record_apply(&c->rec, &c->w, c->data, c->payload_len, NULL, NULL);
     if (rc != 0) {
         error_set(why, "store: the record of tick %llu %s", (unsigned long long)c->pending_tick,
                   rc > 0 ? "is malformed" : "needs more memory than there is");
         return -1;
     }
-    c->at += REC_HEADER + c->payload_len;
+    if (!c->ops)
+        c->at += REC_HEADER + c->payload_len;
     c->tick = c->pending_tick;
     c->pending = 0;
     return 0;
@@ -550,9 +611,141 @@ void store_cursor_close(store_cursor *c)
         return;
     if (c->fd >= 0)
         close(c->fd);
+    if (c->reader)
+        c->ops->close(c->reader);
     world_free(&c->w);
     store_record_free(&c->rec);
     free(c->payload);
     free(c->rects);
     free(c);
+}
+
+/* ---- a backend's history (store.h "a world's past"): the same cursor ---- */
+
+int store_history_kept(const store_history *h)
+{
+    return h && (h->dir || h->ops);
+}
+
+void store_history_release(store_history *h)
+{
+    if (h && h->ops && h->ops->release)
+        h->ops->release(h->ctx);
+    if (h)
+        memset(h, 0, sizeof *h);
+}
+
+/* The reader's state at or before tick, then its records up to the tick;
+ * a record past it stays peeked for the first store_cursor_next. 0, 1
+ * (gone), -1, STORE_CANCELLED. */
+static int history_rebuild(store_cursor *c, const store_history *h, const world *base,
+                           uint64_t tick, int32_t *scratch, error_text *why)
+{
+    if (rebuild_base(base, c->r, &c->w, scratch, why) != 0)
+        return -1;
+    int rc = h->ops->open(h->ctx, &c->w, tick, &c->rec, &c->cancel, &c->reader, why);
+    while (rc == 0) {
+        size_t len = 0;
+        if (store_cancel_now(&c->cancel)) {
+            rc = -1;
+            break;
+        }
+        int got = h->ops->next(c->reader, &c->pending_tick, &c->data, &len, why);
+        if (got <= 0) {
+            rc = got; /* 0: every record up to the tick is applied (it is not in the future) */
+            break;
+        }
+        if (len > REC_MAX_PAYLOAD) {
+            error_set(why, "store: a record of tick %llu is too large",
+                      (unsigned long long)c->pending_tick);
+            rc = -1;
+        } else if (c->pending_tick > tick) {
+            c->payload_len = (uint32_t)len;
+            c->peeked = 1;
+            break;
+        } else if ((got = store_record_apply(&c->rec, &c->w, c->data, len, NULL, NULL)) != 0) {
+            error_set(why, "store: the record of tick %llu %s", (unsigned long long)c->pending_tick,
+                      got > 0 ? "is malformed" : "needs more memory than there is");
+            rc = -1;
+        }
+    }
+    if (rc != 0 && store_cancel_now(&c->cancel)) {
+        error_set(why, "store: cancelled");
+        rc = STORE_CANCELLED;
+    }
+    return rc;
+}
+
+int store_history_cursor(const store_history *h, const world *base, uint64_t tick, world_rect r,
+                         const store_cancel *cancel, store_cursor **out, error_text *why)
+{
+    if (h->dir)
+        return store_cursor_open(h->dir, base, tick, r, cancel, out, why);
+    int32_t *scratch = NULL;
+    store_cursor *c = cursor_new(r, tick, cancel, &scratch, why);
+    *out = NULL;
+    if (!c)
+        return -1;
+    c->ops = h->ops;
+    int rc = -1;
+    /* a compaction may purge what the reader was about to read: try again */
+    for (int attempt = 0; attempt < 3 && rc == -1; attempt++) {
+        memset(why, 0, sizeof *why);
+        if (attempt) {
+            if (c->reader)
+                c->ops->close(c->reader);
+            c->reader = NULL, c->peeked = 0;
+            world_free(&c->w);
+            memset(&c->w, 0, sizeof c->w);
+        }
+        rc = history_rebuild(c, h, base, tick, scratch, why);
+    }
+    free(scratch);
+    if (rc != 0) {
+        store_cursor_close(c);
+        return rc;
+    }
+    *out = c;
+    return 0;
+}
+
+int store_history_rect(const store_history *h, const world *base, uint64_t tick, world_rect r,
+                       int32_t *dst, const store_cancel *cancel, error_text *why)
+{
+    if (h->dir)
+        return store_replay_rect(h->dir, base, tick, r, dst, cancel, why);
+    if (tick == 0) {
+        world_base_fill_rect(base, r, dst);
+        return 0;
+    }
+    store_cursor *c = NULL;
+    int rc = store_history_cursor(h, base, tick, r, cancel, &c, why);
+    if (rc == 0)
+        store_cursor_read(c, r, dst);
+    store_cursor_close(c);
+    return rc;
+}
+
+int store_history_world(const store_history *h, const world *base, uint64_t tick, world_rect r,
+                        world *out, const store_cancel *cancel, error_text *why)
+{
+    if (h->dir)
+        return store_replay_world(h->dir, base, tick, r, out, cancel, why);
+    memset(out, 0, sizeof *out);
+    store_cursor *c = NULL;
+    int rc = store_history_cursor(h, base, tick, r, cancel, &c, why);
+    if (rc == 1 && tick == 0) { /* the base needs no log */
+        int32_t *scratch = malloc((size_t)r.w * r.h * sizeof *scratch + 1);
+        rc = scratch ? rebuild_base(base, r, out, scratch, why) : -1;
+        if (!scratch)
+            error_set(why, "store: out of memory for a rebuild of %d x %d cells", r.w, r.h);
+        free(scratch);
+        return rc;
+    }
+    if (rc == 0) { /* the cursor's world is the answer */
+        *out = c->w;
+        memset(&c->w, 0, sizeof c->w);
+    }
+    store_cursor_close(c);
+    return rc;
 }

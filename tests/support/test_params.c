@@ -47,3 +47,25 @@ uint32_t test_next_random(uint32_t *state)
     *state = *state * 1664525u + 1013904223u;
     return *state >> 8;
 }
+
+int test_deform_random(world *w, uint32_t *rng, world_rect *rects)
+{
+    int n = 1 + (int)(test_next_random(rng) % 3);
+    for (int i = 0; i < n; i++) {
+        world_rect r;
+        r.x = (int)(test_next_random(rng) % (uint32_t)(w->width - 40));
+        r.y = (int)(test_next_random(rng) % (uint32_t)(w->height - 40));
+        r.w = 1 + (int)(test_next_random(rng) % 40);
+        r.h = 1 + (int)(test_next_random(rng) % 40);
+        int32_t *v = malloc(4 * (size_t)r.w * r.h);
+        if (!v)
+            exit(2);
+        world_gather_window(w, r, v);
+        for (int k = 0; k < r.w * r.h; k++)
+            v[k] -= 1 + (int32_t)(test_next_random(rng) % 50);
+        world_scatter_window(w, r, v);
+        free(v);
+        rects[i] = r;
+    }
+    return n;
+}

@@ -32,4 +32,9 @@ void test_dunes_world(world *w, int width, int height, uint32_t seed);
 /* The tests' small deterministic generator (an LCG): the next 24 bits. */
 uint32_t test_next_random(uint32_t *state);
 
+/* A tick of the cluster tests: 1..3 rectangles of 1..40 cells a side at
+ * random in w (drawn from *rng), each pushed down by 1..50 units a cell;
+ * their count, rects filled (3 at most). */
+int test_deform_random(world *w, uint32_t *rng, world_rect *rects);
+
 #endif

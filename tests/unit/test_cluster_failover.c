@@ -40,22 +40,7 @@
 static int deform_tick(world *w, uint64_t t, world_rect *rects)
 {
     uint32_t rng = (uint32_t)(t * 2654435761u) ^ 0x9e3779b9u;
-    int n = 1 + (int)(test_next_random(&rng) % 3);
-    for (int i = 0; i < n; i++) {
-        world_rect r;
-        r.x = (int)(test_next_random(&rng) % (W - 40));
-        r.y = (int)(test_next_random(&rng) % (H - 40));
-        r.w = 1 + (int)(test_next_random(&rng) % 40);
-        r.h = 1 + (int)(test_next_random(&rng) % 40);
-        int32_t *v = malloc(4 * (size_t)r.w * r.h);
-        world_gather_window(w, r, v);
-        for (int k = 0; k < r.w * r.h; k++)
-            v[k] -= 1 + (int32_t)(test_next_random(&rng) % 50);
-        world_scatter_window(w, r, v);
-        free(v);
-        rects[i] = r;
-    }
-    return n;
+    return test_deform_random(w, &rng, rects);
 }
 
 static int same_heights(const world *a, const world *b)

@@ -37,20 +37,7 @@ static uint32_t rng = 4242u;
 /* A tick: 1..3 random rectangles pushed down by a few units; returns n. */
 static int deform(world *w, world_rect *rects)
 {
-    int n = 1 + (int)(test_next_random(&rng) % 3);
-    for (int i = 0; i < n; i++) {
-        world_rect r = {
-            (int)(test_next_random(&rng) % (W - 40)), (int)(test_next_random(&rng) % (H - 40)),
-            1 + (int)(test_next_random(&rng) % 40), 1 + (int)(test_next_random(&rng) % 40)};
-        int32_t *v = malloc(4 * (size_t)r.w * r.h);
-        world_gather_window(w, r, v);
-        for (int k = 0; k < r.w * r.h; k++)
-            v[k] -= 1 + (int32_t)(test_next_random(&rng) % 50);
-        world_scatter_window(w, r, v);
-        free(v);
-        rects[i] = r;
-    }
-    return n;
+    return test_deform_random(w, &rng, rects);
 }
 
 static int same_heights(const world *a, const world *b)

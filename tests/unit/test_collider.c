@@ -91,6 +91,15 @@ static void test_validate(void)
     g.grousers = (collider_grousers){30, 0.01, NAN};
     CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.thickness"),
           "NaN lug thickness refused: %s", e.message);
+    /* COLLIDERS carries them as f32 > 0: one that rounds to 0 there is refused */
+    g.grousers = (collider_grousers){30, 1e-46, 0.004};
+    CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.height: 1e-46 m"),
+          "a lug height f32 cannot carry refused: %s", e.message);
+    g.grousers = (collider_grousers){30, 0.01, 1e-300};
+    CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.thickness: 1e-300 m"),
+          "a lug thickness f32 cannot carry refused: %s", e.message);
+    g.grousers = (collider_grousers){30, 1e-44, 1e-44};
+    CHECK(collider_geometry_validate(&g, &e) == 0, "the least f32 sizes accepted: %s", e.message);
     g.grousers = (collider_grousers){COLLIDER_GROUSERS_MAX + 1, 0.01, 0.004};
     CHECK(collider_geometry_validate(&g, &e) != 0 && has(&e, "grousers.count"),
           "too many lugs refused: %s", e.message);

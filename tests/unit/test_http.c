@@ -662,7 +662,7 @@ static void check_past_tick_leaving(void)
     status.cell_size_m = base.cell_size_m;
     status.units_per_m = base.units_per_m;
     status.tile_size = 32;
-    status.replay_dir = dir;
+    status.history.dir = dir;
     hub *h = hub_create();
     hub_worlds *t = hub_worlds_create();
     hub_world e = {.name = "past", .h = h, .base = &base, .status = &status};

@@ -16,8 +16,9 @@ newcomer's path must not break unseen, as `make run` then `make test` once did.
   module, SIGTERM, make exits 0), `scripts/deps` and its sets, `terrad --help`, the game
   backend's curl calls (an edit's exact volume change, a world created, listed and deleted), an
   export of a data directory, an offline simulate, and token add / token hash.
-- The docs' links: every relative link of README.md and docs/**/*.md leads to a file (and a
-  heading, for a #fragment into a page), and docs/README.md names every page of docs/.
+- The docs' links: every relative link of README.md, docs/**/*.md, proto/PROTOCOL.md and the
+  clients' READMEs leads to a file (and a heading, for a #fragment into a page), and
+  docs/README.md names every page of docs/.
 """
 import glob
 import hashlib
@@ -326,7 +327,8 @@ COMMANDS = {
 
 
 def check_links():
-    """Every relative link of README.md and docs/ resolves; docs/README.md names every page."""
+    """Every relative link of README.md, docs/, proto/PROTOCOL.md and the clients' READMEs resolves
+    (and its #fragment names a heading); docs/README.md names every page."""
     def headings(path):
         out = set()
         for line in open(path, encoding="utf-8"):
@@ -334,8 +336,9 @@ def check_links():
             if m:
                 out.add(re.sub(r"[^\w\- ]", "", m.group(1).strip().lower()).replace(" ", "-"))
         return out
-    pages = ["README.md"] + sorted(os.path.relpath(p, SOURCE) for p in
-                                   glob.glob(os.path.join(SOURCE, "docs", "**", "*.md"), recursive=True))
+    pages = ["README.md", "proto/PROTOCOL.md", "clients/js/README.md", "clients/python/README.md"] + \
+        sorted(os.path.relpath(p, SOURCE) for p in
+               glob.glob(os.path.join(SOURCE, "docs", "**", "*.md"), recursive=True))
     bad = []
     for page in pages:
         text = re.sub(r"```.*?```", "", open(os.path.join(SOURCE, page), encoding="utf-8").read(),
@@ -350,7 +353,7 @@ def check_links():
                 bad.append(f"{page}: {target}")
             elif frag and full.endswith(".md") and frag not in headings(full):
                 bad.append(f"{page}: {target} (no such heading)")
-    check(not bad, f"every link in README.md and docs/ leads somewhere: {bad}")
+    check(not bad, f"every link in README.md, docs/, PROTOCOL.md and the clients' READMEs leads somewhere: {bad}")
     index = open(os.path.join(SOURCE, "docs", "README.md"), encoding="utf-8").read()
     missing = [p for p in pages if p.startswith("docs/") and p != "docs/README.md"
                and f"]({os.path.relpath(p, 'docs')})" not in index]

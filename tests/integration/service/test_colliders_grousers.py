@@ -13,7 +13,9 @@
   gets the plain frames: flag 0, 48-byte entries, which the rule of the decoders before
   the extension (flags 0, 14 + 48·count bytes) reads, the wheel there without grousers;
 - "grousers" without "colliders", and "grousers": 1, are refused with bad_value naming
-  the field, counted in /metrics, and the connection goes on.
+  the field, counted in /metrics, and the connection goes on;
+- a wheel whose lug height or thickness rounds to f32 0 (which no frame could carry) is
+  refused at collider_create naming the field, counted, and the viewers' frames go on.
 """
 import asyncio
 import math
@@ -118,6 +120,27 @@ async def scenario(d):
     await plain.wait_for(lambda: plain.colliders.get(lugged) is not None and
                          plain.colliders[lugged].grousers == want, 60)
     check(plain.colliders[lugged].grousers == want, "asked later, it gets the grousers too")
+
+    # a lug size whose f32 is 0 (the frames carry f32 > 0; one reported as 0 would have the
+    # whole frame refused, for every viewer that asked): refused naming the field, counted,
+    # and the asking viewer's frames go on
+    m0 = metric_value(d.metrics()[1], "terrad_refused_messages_total", {"reason": "bad_value"}) or 0
+    for field, lugs in (("grousers.height", {"count": 30, "height": 1e-46, "thickness": 0.004}),
+                        ("grousers.thickness", {"count": 30, "height": 0.01, "thickness": 1e-300})):
+        try:
+            tiny = await driver.create_collider("wheel", radius=0.3, width=0.2, grousers=lugs)
+            await driver.send_poses([tp.Pose(tiny, x - 2, y, 5.0, 1, 0, 0, 0)])
+            check(False, f"a {field} f32 cannot carry is refused (collider {tiny} created)")
+        except tp.ServerError as e:
+            check(e.msg["name"] == "bad_value" and e.msg["message"].startswith(field),
+                  f"{field} {lugs} -> {e.msg['name']}: {e.msg['message']}")
+    m1 = metric_value(d.metrics()[1], "terrad_refused_messages_total", {"reason": "bad_value"}) or 0
+    check(m1 == m0 + 2, f"the refusals are counted ({m0} -> {m1})")
+    n0 = len(viewer.raw)
+    await driver.send_poses([tp.Pose(lugged, x + 1, y, 5.0, *q)])
+    await viewer.wait_for(lambda: len(viewer.raw) > n0 and viewer.colliders[lugged].p[0] > x + 0.5,
+                          60)
+    check(viewer.colliders[lugged].grousers == want, "the asking viewer's frames go on")
     for c in (viewer, plain, driver):
         await c.close()
 

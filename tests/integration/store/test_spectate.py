@@ -61,34 +61,15 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from service_harness import (Checks, Daemon, RecordingClient, json_call, metric_value,  # noqa: E402
                              wait_until)
 import compaction_drive as cd  # noqa: E402
+import spectate_check as sc  # noqa: E402
 import terrad as tp  # noqa: E402
 
 check = Checks()
 SEGMENT = ["--wal-segment-bytes", "4096"]
 RETAIN = ["--replay-retain-bytes", str(64 << 20)]
-WAIT = 120  # seconds: generous, a loaded 2-core machine
-REGION = (0, 0, cd.W, cd.H)
-
-
-class Viewer(tp.TerradClient):
-    """A live subscriber that keeps its mirror after every DELTA frame, by tick (the last
-    frame of tick t leaves the mirror at t; a tick without frames left it as it was)."""
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.by_tick = {}
-
-    async def _on_binary(self, data):
-        await super()._on_binary(data)
-        if tp.decode_header(data) == tp.MsgType.DELTA:
-            m = next(iter(self.mirrors.values()), None)
-            if m is not None and m.complete:
-                self.by_tick[self.tick] = list(m.heights)
-
-    def at(self, tick):
-        """The viewer's mirror at tick (None before its snapshot)."""
-        held = [t for t in self.by_tick if t <= tick]
-        return self.by_tick[max(held)] if held else None
+WAIT = sc.WAIT
+REGION = sc.REGION
+Viewer = sc.Viewer
 
 
 def read_past(d, tick):
@@ -103,63 +84,12 @@ def refused(d, field):
     return metric_value(d.metrics()[1], "terrad_spectate_refused_total", {"field": field}) or 0
 
 
-async def drive(d, viewer):
-    c = RecordingClient(d.ws, name="driver", record=False)
-    await c.connect()
-    sphere = await c.create_collider("sphere", radius=cd.RADIUS)
-    z = cd.GROUND + cd.RADIUS - 0.03
-    for i, x in enumerate(cd.FIRST[:36]):
-        seq = await c.send_poses([tp.Pose(sphere, x, cd.Y, z, 1.0, 0.0, 0.0, 0.0)])
-        await c.wait_ack(seq, WAIT)
-        if i in (10, 25):  # edits are logged and spectated like the collider's ruts
-            await c.edit("crater", x=20 + i, y=20, radius=6, depth=500)
-    await c.close()
-
-
-async def spectate(d, what, from_tick, speed=8):
-    """A spectator of REGION from from_tick: (its mirrors by ACK tick, the client, the world's
-    tick when it started)."""
-    s = RecordingClient(d.ws, name=f"spectator-{what}", keep=10 ** 6)
-    await s.connect()
-    started_at = d.stats()["tick"]
-    sid = await s.spectate(*REGION, from_tick, speed=speed, timeout=WAIT)
-    await s.wait_for(lambda: s.spectate_ended is not None, WAIT * 2)
-    return sid, s, started_at
+async def spectate(d, what, from_tick):
+    return await sc.spectate(d.ws, what, from_tick, lambda: d.stats()["tick"])
 
 
 def compare(d, viewer, s, sid, what, from_tick, started_at):
-    seen = sorted(t for t in s.history if t >= from_tick)
-    same, first_bad = 0, None
-    for t in seen:
-        mine = s.history[t].get(sid)
-        live = viewer.at(t)
-        if live is None:  # before the viewer's snapshot: what the log holds for that tick
-            live = read_past(d, t)
-        ok = mine is not None and mine[1] and live is not None and mine[0] == live
-        same += ok
-        if not ok and first_bad is None:
-            first_bad = (t, "incomplete" if mine is None or not mine[1] else
-                         sum(a != b for a, b in zip(mine[0], live or [])))
-    changed = [t for t in viewer.by_tick if t > from_tick]
-    if from_tick == 0:
-        check(s.history[0][sid][0] == read_past(d, 0),
-              f"{what}: its first mirror is the world's base (GET /v1/heights?tick=0)")
-    check(len(seen) >= len(changed) and seen and seen[0] == from_tick,
-          f"{what}: the spectator saw every tick from {from_tick} ({len(seen)} ticks, "
-          f"{len(changed)} of them changed the window)")
-    check(same == len(seen), f"{what}: its mirror equals the live viewer's at all {len(seen)} ticks "
-                             f"({same} equal; first differing: {first_bad})")
-    check(viewer.at(seen[0]) != viewer.at(seen[-1]),
-          f"{what}: the window changed while it watched (so the comparison can fail)")
-    samples = [seen[0], seen[len(seen) // 3], seen[2 * len(seen) // 3], seen[-1]]
-    past = [read_past(d, t) == s.history[t][sid][0] for t in samples]
-    check(all(past), f"{what}: and GET /v1/heights?tick=N at ticks {samples} ({past})")
-    end = s.spectate_ended
-    check(end and end["reason"] == "live" and end["tick"] >= started_at,
-          f"{what}: spectate_end \"live\" once it caught up with the live tick ({end}, "
-          f"started at {started_at})")
-    check(s.desync["checksum_frames"] == 0,
-          f"{what}: no CHECKSUM frame reached the spectator ({s.desync['checksum_frames']})")
+    sc.compare(check, viewer, s, sid, what, from_tick, started_at, lambda t: read_past(d, t))
 
 
 async def stepping(d, viewer, from_tick):
@@ -288,7 +218,7 @@ async def watched_drive(d):
     await viewer.subscribe(*REGION)
     await viewer.wait_for(lambda: viewer.by_tick, WAIT)
     first = min(viewer.by_tick)
-    await drive(d, viewer)
+    await sc.drive(d.ws, cd.FIRST[:36], craters=(10, 25))
     return viewer, first
 
 
