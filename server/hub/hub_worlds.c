@@ -202,13 +202,17 @@ int hub_worlds_remove(hub_worlds *t, hub_world *w, int deleted)
     int stuck = s->held;
     if (stuck)
         s->left = 1; /* hub_worlds_let_go frees it */
+    /* the name for the lines below, copied while s is surely ours: once the
+     * lock is let go a stuck holder's hub_worlds_let_go may free s at once */
+    char name[sizeof s->w.name];
+    memcpy(name, s->w.name, sizeof name);
     pthread_mutex_unlock(&t->lock);
     if (overdue)
-        log_info("worlds: the readers of world %s let go %.1f s after its removal began", s->w.name,
+        log_info("worlds: the readers of world %s let go %.1f s after its removal began", name,
                  (time_now_ms() - start) / 1000);
     if (stuck) {
-        log_error("worlds: the websocket thread did not let go of world %s within %.0f s",
-                  s->w.name, HOLDER_DEADLINE_MS / 1000);
+        log_error("worlds: the websocket thread did not let go of world %s within %.0f s", name,
+                  HOLDER_DEADLINE_MS / 1000);
         return -1;
     }
     free(s);

@@ -49,9 +49,10 @@ import spectate_check as sc  # noqa: E402
 check = Checks()
 WORLD = "match"
 WAIT = sc.WAIT
-# records (one a tick) between compactions: 40 s at 60 Hz, so that the spectators from tick 0
-# replay before the first compaction purges the log below its snapshots, even on a busy machine
-COMPACT = ["--compact-records", "2400"]
+# records (one a tick) between compactions: 60 s at 60 Hz, so that the spectators from tick 0
+# (a few seconds here at load 20) replay before the first compaction purges the log below its
+# snapshots, even on a busy machine
+COMPACT = ["--compact-records", "3600"]
 
 
 async def until(predicate, timeout):
