@@ -545,38 +545,32 @@ int terrad_rect_compress_slope_ab(const int32_t *diff, uint32_t w, uint32_t h, u
     return rc;
 }
 
-static int cmp_u32(const void *p, const void *q)
-{
-    uint32_t a = *(const uint32_t *)p, b = *(const uint32_t *)q;
-    return a < b ? -1 : a > b;
-}
+/* Limits the coder considers: neighbour differences under 2^16 units (6.5 m
+ * in 0.1 mm units), counted in a histogram rather than sorted. */
+#define LIMIT_CANDIDATES 65536u
 
-/* The limit v > 0 that most differences equal or sit one under (sorts diffs). */
-static uint32_t most_common_limit(uint32_t *diffs, size_t n)
+/* The limit v > 0, a difference that occurs, that most differences equal or
+ * sit one under (count: a histogram of differences); 0 when there is none. */
+static uint32_t most_common_limit(const uint32_t *count)
 {
-    qsort(diffs, n, sizeof *diffs, cmp_u32);
-    uint32_t best = 0, prev = 0;
-    size_t best_count = 0, prev_count = 0;
-    for (size_t i = 0; i < n;) {
-        size_t j = i;
-        while (j < n && diffs[j] == diffs[i])
-            j++;
-        size_t count = (j - i) + (prev_count && prev + 1 == diffs[i] ? prev_count : 0);
-        if (diffs[i] > 0 && count > best_count) {
-            best_count = count;
-            best = diffs[i];
+    uint32_t best = 0;
+    uint64_t best_count = 0;
+    for (uint32_t v = 1; v < LIMIT_CANDIDATES; v++) {
+        uint64_t c = (uint64_t)count[v] + count[v - 1];
+        if (count[v] > 0 && c > best_count) { /* a difference that occurs */
+            best_count = c;
+            best = v;
         }
-        prev = diffs[i];
-        prev_count = j - i;
-        i = j;
     }
     return best;
 }
 
-static uint32_t abs_diff(int32_t p, int32_t q)
+static void count_diff(uint32_t *count, int32_t p, int32_t q)
 {
     int64_t v = (int64_t)p - q;
-    return (uint32_t)(v < 0 ? -v : v);
+    v = v < 0 ? -v : v;
+    if (v < (int64_t)LIMIT_CANDIDATES)
+        count[v]++;
 }
 
 int terrad_rect_compress_slope(const int32_t *diff, uint32_t w, uint32_t h, uint8_t *out,
@@ -585,27 +579,27 @@ int terrad_rect_compress_slope(const int32_t *diff, uint32_t w, uint32_t h, uint
     size_t cells = (size_t)w * h;
     if (cells == 0 || cells > SIZE_MAX / 16)
         return TERRAD_E_TOO_LARGE;
-    uint32_t *ax = malloc(2 * cells * sizeof *ax), *dg = malloc(2 * cells * sizeof *dg);
+    /* counts of at most 2 * cells < 2^32 differences each (w, h < 2^16) */
+    uint32_t *ax = calloc(LIMIT_CANDIDATES, sizeof *ax), *dg = calloc(LIMIT_CANDIDATES, sizeof *dg);
     if (!ax || !dg) {
         free(ax);
         free(dg);
         return TERRAD_E_NO_MEMORY;
     }
-    size_t na = 0, nd = 0;
     for (size_t y = 0; y < h; y++) {
         for (size_t x = 0; x < w; x++) {
             int32_t v = diff[y * w + x];
             if (x > 0)
-                ax[na++] = abs_diff(v, diff[y * w + x - 1]);
+                count_diff(ax, v, diff[y * w + x - 1]);
             if (y > 0)
-                ax[na++] = abs_diff(v, diff[(y - 1) * w + x]);
+                count_diff(ax, v, diff[(y - 1) * w + x]);
             if (x > 0 && y > 0)
-                dg[nd++] = abs_diff(v, diff[(y - 1) * w + x - 1]);
+                count_diff(dg, v, diff[(y - 1) * w + x - 1]);
             if (y > 0 && x + 1 < w)
-                dg[nd++] = abs_diff(v, diff[(y - 1) * w + x + 1]);
+                count_diff(dg, v, diff[(y - 1) * w + x + 1]);
         }
     }
-    uint32_t a = most_common_limit(ax, na), b = most_common_limit(dg, nd);
+    uint32_t a = most_common_limit(ax), b = most_common_limit(dg);
     free(ax);
     free(dg);
     return terrad_rect_compress_slope_ab(diff, w, h, a, b, out, cap, len_out);

@@ -151,7 +151,9 @@ static void histogram_reset(histogram *hg)
  *     out as its table row (the histograms, the ratio, the memory parts). */
 #define METRIC_FAMILIES(SCALAR, LABELLED, FAMILY)                                                  \
     FAMILY(.name = "terrad_tick_duration_seconds", .kind = F_HISTOGRAM,                            \
-           .help = "Wall time of one simulation tick, all stages included.", .hist = &tick_hist)   \
+           .help = "Wall time of one simulation tick up to its publication: every stage, not "     \
+                   "the frames' hand-over or the height reads served after it.",                   \
+           .hist = &tick_hist)                                                                     \
     FAMILY(.name = "terrad_stage_duration_seconds", .kind = F_HISTOGRAM,                           \
            .help = "Wall time of one stage of a tick, by stage.", .label = "stage",                \
            .label_values = stage_names, .series = STAGE_COUNT, .hist = stage_hist)                 \

@@ -7,8 +7,9 @@
  *
  *   - one rover, n ticks per STEP (n = 1, 4, 16): steps/s and rover-ticks/s, the p50/p99 of one
  *     step's round trip, and its split: the daemon's tick (terrad_tick_duration_seconds: the
- *     engine, deltas and the log), the client's CPU (this process: encoding, libwebsockets,
- *     decoding) and the rest (the protocol: the daemon's net thread, wake-ups, the kernel);
+ *     engine, deltas and the log, up to the tick's publication), the client's CPU (this process:
+ *     encoding, libwebsockets, decoding) and the rest (the protocol: the hand-over of the tick's
+ *     frames, the daemon's net thread, wake-ups, the kernel);
  *   - K = 1, 8, 64 worlds stepped as one: aggregate rover-ticks/s;
  *   - the in-process cost of the same tick: `terrad simulate` on the same scene with the same
  *     four wheels scripted (no service, net or store);
@@ -172,7 +173,7 @@ static int create_world(const daemon_proc *d, const char *name)
 
 /* From /metrics: terrad_tick_duration_seconds' sum and count, and the engine's part of the
  * ticks (terrad_stage_duration_seconds of the model and of gather/scatter: the rest of a tick is
- * the service's — input, contacts, deltas, the log, publishing). */
+ * the service's — input, contacts, deltas, the log, up to the tick's publication). */
 static void tick_seconds(const daemon_proc *d, double *sum, double *count, double *engine)
 {
     static char out[1 << 20];

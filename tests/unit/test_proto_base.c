@@ -135,6 +135,15 @@ int main(void)
                                             &best_len, &chosen) == 0 &&
               chosen == TERRAD_ENC_BASE_SLOPE && best_len == pile3,
           "the shorter of a sand pile: encoding %u, %zu bytes", chosen, best_len);
+    /* the coder's limits: the pile's own slopes, each perturbed by one here and
+     * there (a limit covers a difference and the one under it) */
+    CHECK(terrad_rect_compress_slope(v, W, H, best, terrad_rect_compress_slope_bound(W * H),
+                                     &best_len) == 0,
+          "a sand pile in encoding 3");
+    uint32_t got_a = best[0] | best[1] << 8 | best[2] << 16 | (uint32_t)best[3] << 24;
+    uint32_t got_b = best[4] | best[5] << 8 | best[6] << 16 | (uint32_t)best[7] << 24;
+    CHECK((got_a == 367 || got_a == 368) && (got_b == 509 || got_b == 510),
+          "the coder chose the pile's limits 367 and 509 (or one over: %u, %u)", got_a, got_b);
     static const uint32_t limits[][2] = {
         {0, 0}, {1, 0}, {367, 509}, {UINT32_MAX, UINT32_MAX}, {1u << 31, 7}, {5, UINT32_MAX}};
     for (size_t k = 0; k < sizeof limits / sizeof limits[0]; k++)

@@ -16,7 +16,8 @@ spectators use on its data directory, on one real nats-server and three terrad n
 - Refusals through the relay and on a, each an error naming the field, counted in
   terrad_spectate_refused_total{field}: a from_tick in the future; then, once the owner has
   compacted the log into tile snapshots (it purges the log below them), a from_tick before
-  them ("no longer held", on a and through b) and GET /v1/heights?tick=1 (410).
+  them ("no longer held", on a and through b) and GET /v1/heights?tick=1 (410, on a and
+  through b: a relay asks the owner).
 - After that compaction a spectator from a tick the snapshots cover (its rebuild loads the
   tile snapshots, then the log after them) equals the viewer while the world changes again.
 - kill -9 of the owner during two stepping spectates (one on a, one through b): the one on a
@@ -132,6 +133,9 @@ async def after_compaction(a, b, viewer):
     status, body = a.get(f"/v1/heights?world={WORLD}&x=0&y=0&w=8&h=8&tick=1")
     check(status == 410 and b"no longer held" in body,
           f"GET /v1/heights?tick=1 once compacted: 410 ({status}, {body[:200]!r})")
+    status, body = b.get(f"/v1/heights?world={WORLD}&x=0&y=0&w=8&h=8&tick=1")
+    check(status == 410 and b"no longer held" in body,
+          f"and through the relay b, which asks the owner: 410 ({status}, {body[:200]!r})")
     start = tick_of(a)
     await sc.drive(a.ws, cd.SECOND[:12], craters=(4,), world=WORLD)
     await watch(a, "from a tick the snapshots cover", start, viewer)
