@@ -146,7 +146,8 @@ def main():
           f"worlds (a sim thread each) 58.5 Hz")
     print("# CPU ms per world-tick (the daemon's CPU / the ticks its worlds ran): goal <= 0.25 "
           "driven (issue 32); anchors 0.38 driven, 0.045 idle (issue 22), "
-          "0.33 driven, 0.05 idle (2026-11-29, before issue 32's fixes; docs/performance.md)")
+          "0.33 driven, 0.05 idle (2026-11-29, before issue 32's fixes), 0.21-0.25 driven at 16 "
+          "and 0.18 at 128 (2026-11-29, after its engine and zstd steps; docs/performance.md)")
     print(f"{'N':>4} {'ticks/s med':>11} {'min':>6} {'CPU/world':>9} {'RSS/world':>9} "
           f"{'idle: ticks/s':>13} {'CPU/world':>9} {'RSS/world':>9} {'loadgen CPU':>11} "
           f"{'mirrors':>8} {'p99 ms':>7} {'load':>5} {'create s':>8} {'ms/tick':>7} "
