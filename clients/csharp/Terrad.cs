@@ -78,6 +78,7 @@ public struct Contact
 public struct PredictionStats
 {
     public ulong Predicted, Reconciled, Replayed, Exact, Skipped, OnTime, LastDiffering, Pending;
+    public ulong Errors; // events the twin failed on (appended in 0.5; terrad_prediction_last_error)
 }
 
 public sealed class TerradException : Exception

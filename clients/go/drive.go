@@ -149,6 +149,9 @@ func main() {
 	if ps.replayed < 10 || ps.exact != ps.replayed {
 		fail("the prediction was not exact at every compared ACK (%d of %d)", ps.exact, ps.replayed)
 	}
+	if ps.errors != 0 {
+		fail("the twin failed on %d of the prediction's events", ps.errors)
+	}
 	if !same || top-deepest < int32(world.units_per_m)/50 {
 		fail("the mirror holds no rut, or the prediction differs from it")
 	}

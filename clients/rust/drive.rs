@@ -127,6 +127,7 @@ struct PredictionStats {
     on_time: u64,
     last_differing: u64,
     pending: u64,
+    errors: u64, // events the twin failed on (appended in 0.5)
 }
 
 #[link(name = "terrad-client")]
@@ -294,6 +295,9 @@ fn main() {
     );
     if ps.replayed < 10 || ps.exact != ps.replayed {
         fail(format!("the prediction was not exact at every compared ACK ({} of {})", ps.exact, ps.replayed));
+    }
+    if ps.errors != 0 {
+        fail(format!("the twin failed on {} of the prediction's events", ps.errors));
     }
     if mirror != predicted || top - deepest < world.units_per_m / 50 {
         fail("the mirror holds no rut, or the prediction differs from it".to_string());

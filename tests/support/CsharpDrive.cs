@@ -120,6 +120,7 @@ static class CsharpDrive
             Check(s.Replayed >= 10 && s.Exact == s.Replayed,
                   "every compared ACK: the replay equals the server's heights (" + s.Exact + " of " +
                   s.Replayed + ", last differing " + s.LastDiffering + ")");
+            Check(s.Errors == 0, "the twin failed on none of the prediction's events (" + s.Errors + ")");
 
             c.DeleteCollider(ball);
             seq = c.SendPoses(null); // an ACK after the deletion: nothing moves any more
