@@ -52,7 +52,7 @@ const app = {
   drawn: { frame: 0, seq: 0, ackedSeq: 0, lower: 0 }, // what the last frame drew (test hook)
   desync: { checksumFrames: 0, checksumTick: 0n, tilesDiffering: 0, tilesResynced: 0 }, // CHECKSUM frames
   twins: null, // the twin module when this connection asked for base snapshots (hello), else null
-  snapshots: { absolute: 0, base: 0 }, // snapshot rectangles received: encoding 1 and 2
+  snapshots: { absolute: 0, base: 0, slope: 0 }, // snapshot rectangles received: encodings 1, 2 and 3
 };
 // The page's own rut at once while it drives (viewer_predict.mjs): the predict toggle.
 const prediction = new ViewerPrediction(apiInit);
@@ -91,7 +91,7 @@ async function connect() {
   ws = sock;
   sock.onopen = () => {
     if (ws !== sock) return;
-    send(P.hello(token, 'terrad-web', '', budgetRefused ? -1 : BUDGET, !!app.twins));
+    send(P.hello(token, 'terrad-web', '', budgetRefused ? -1 : BUDGET, !!app.twins, !!app.twins));
   };
   sock.onmessage = (ev) => {
     if (ws !== sock) return;
@@ -174,7 +174,7 @@ function onJson(text) {
     case 'error':
       if (!app.connected && /^budget:/.test(m.message || '') && !budgetRefused) {
         budgetRefused = true; // over the daemon's limit: hello again with the daemon's own budget
-        send(P.hello(token, 'terrad-web', '', -1, !!app.twins));
+        send(P.hello(token, 'terrad-web', '', -1, !!app.twins, !!app.twins));
         break;
       }
       seenReporter.refused(m);
@@ -195,6 +195,7 @@ function onBinary(b) {
       for (const r of rects) {
         if (r.encoding === P.Encoding.SNAPSHOT) app.snapshots.absolute++;
         else if (r.encoding === P.Encoding.BASE) app.snapshots.base++;
+        else if (r.encoding === P.Encoding.BASE_SLOPE) app.snapshots.slope++;
       }
       for (const [id, mir] of app.subs) {
         try {
@@ -1101,9 +1102,12 @@ window.terrad = {
   get prediction() { return prediction.stats(); },
   // desync detection (PROTOCOL.md "CHECKSUM"): {checksumFrames, checksumTick, tilesDiffering, tilesResynced}
   get desync() { return { ...app.desync, checksumTick: Number(app.desync.checksumTick) }; },
-  // base snapshots (PROTOCOL.md "Base snapshots"): asked for (the twin loaded), agreed by the
-  // world message, and the snapshot rectangles received: {asked, agreed, absolute, base}
-  get snapshots() { return { asked: !!app.twins, agreed: !!app.world?.snapshot_base, ...app.snapshots }; },
+  // base snapshots (PROTOCOL.md "Base snapshots", "Slope snapshots"): asked for (the twin
+  // loaded; slope snapshots are offered with them), agreed by the world message, and the
+  // snapshot rectangles received: {asked, agreed, agreedSlope, absolute, base, slope}
+  get snapshots() {
+    return { asked: !!app.twins, agreed: !!app.world?.snapshot_base, agreedSlope: !!app.world?.snapshot_slope, ...app.snapshots };
+  },
   get seq() { return app.seq; },
   get ackedSeq() { return app.ackedSeq; },
   get region() { const m = app.mirror; return m ? { x: m.x, y: m.y, w: m.w, h: m.h } : null; },

@@ -5,7 +5,9 @@
 // sent only the digging (encoding 2); checked, each against GET /v1/heights cell for cell:
 // - a world wider than the viewer's whole-world limit: its 1024-cell window around the camera
 //   target cuts tiles on the left and right; then more craters, and the window again;
-// - a world small enough to be shown whole: the whole world, then more craters, again;
+// - a world small enough to be shown whole, one of its tiles stamped to a sand pile at its slope
+//   limits (PROTOCOL.md "Slope snapshots"; the page offers them with base snapshots): the whole
+//   world, that tile in encoding 3, then more craters, again;
 // - the same page when the twin cannot be loaded (its fetch answered 404, as from a daemon built
 //   without the WebAssembly toolchain): plain snapshots (encoding 1), and the heights are exact.
 // Without the decoding the page cannot read the encoding 2 rectangles its hello asked for (the
@@ -53,6 +55,30 @@ async function craters(d, s, seed, n) {
   }
 }
 
+// Tile (1, 1) stamped to its base plus a sand pile: the lowest of cones 300 units a cell steep
+// axially, 420 diagonally (under the slope stage's thresholds, so it stays), from seeded apexes,
+// so almost every cell sits at a bound of its neighbours — encoding 3's case (as
+// test_join_base.py's stamp_pile).
+async function stampPile(d, s) {
+  const [x0, y0, w, h] = [64, 64, 64, 64];
+  const b = Buffer.from(await (await fetch(`${d.http}/v1/heights?x=${x0}&y=${y0}&w=${w}&h=${h}&base=1`)).arrayBuffer());
+  assert.equal(b.length, 4 * w * h, "the pile's base");
+  const apexes = Array.from({ length: 9 }, (_, k) => [(k * 29) % w, (k * 47) % h, -600 + ((k * 173) % 500)]);
+  const data = Buffer.alloc(4 * w * h);
+  for (let y = 0; y < h; y++) {
+    for (let x = 0; x < w; x++) {
+      const z = Math.min(...apexes.map(([ax, ay, c]) => {
+        const [dx, dy] = [Math.abs(x - ax), Math.abs(y - ay)];
+        return c + 300 * (Math.max(dx, dy) - Math.min(dx, dy)) + 420 * Math.min(dx, dy);
+      }));
+      data.writeInt32LE(b.readInt32LE(4 * (y * w + x)) + z, 4 * (y * w + x));
+    }
+  }
+  const body = { op: 'stamp', x: x0, y: y0, w, h, data: data.toString('base64') };
+  const res = await fetch(`${d.http}/v1/worlds/${s.name}/edits`, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) });
+  assert.equal(res.status, 200, `the pile's stamp: ${await res.text()}`);
+}
+
 async function serverHeights(d, r) {
   const b = Buffer.from(await (await fetch(`${d.http}/v1/heights?x=${r.x}&y=${r.y}&w=${r.w}&h=${r.h}`)).arrayBuffer());
   return Array.from({ length: r.w * r.h }, (_, i) => b.readInt32LE(4 * i));
@@ -95,11 +121,13 @@ test('the viewer joins dug worlds with base snapshots: a cut window and the whol
   const whole = scene('viewer-base-whole', 320, 200, 12);
   const dh = await daemonWith(whole);
   await craters(dh, whole, 3, 40);
+  await stampPile(dh, whole);
   await page.goto(dh.page);
   r = await exact(page, dh, 'whole world');
   assert.deepEqual(r, { x: 0, y: 0, w: 320, h: 200 }, 'the whole world');
   s = await page.evaluate(() => window.terrad.snapshots);
   assert.ok(s.asked && s.agreed && s.base > 0 && s.absolute === 0, `base snapshots only (${JSON.stringify(s)})`);
+  assert.ok(s.agreedSlope && s.slope > 0, `the sand pile's tile in slope snapshots (${JSON.stringify(s)})`);
   await craters(dh, whole, 4, 30);
   await exact(page, dh, 'whole world after more craters');
 
