@@ -24,7 +24,9 @@
 #include "metrics/metrics.h"
 #include "terrad_proto.h"
 
-#define EDIT_WAIT_MS 10000 /* a tick is at most a few hundred ms even on a loaded machine */
+/* A tick is at most a few hundred ms even on a loaded machine; under --durability group:MS
+ * (MS <= 10 s) the answer also waits for the sync that makes its tick durable. */
+#define EDIT_WAIT_MS 30000
 
 int http_edit_path(const char *url, char *name, size_t cap)
 {
@@ -98,11 +100,13 @@ static void edit_world(http_server *s, hub *h, const http_status *st, const char
     hub_edit_result res = {0};
     int waited = hub_edit_submit(h, e, &res, EDIT_WAIT_MS);
     if (waited != 0) {
-        answer_refusal(a, waited < 0 ? MHD_HTTP_SERVICE_UNAVAILABLE : MHD_HTTP_GATEWAY_TIMEOUT,
-                       TERRAD_E_INTERNAL,
-                       waited < 0 ? res.message
-                                  : "edit: no tick took it within 10 s; it is still queued and "
-                                    "will be applied or refused (watch /v1/stats)");
+        answer_refusal(
+            a, waited < 0 ? MHD_HTTP_SERVICE_UNAVAILABLE : MHD_HTTP_GATEWAY_TIMEOUT,
+            TERRAD_E_INTERNAL,
+            waited < 0
+                ? res.message
+                : "edit: no tick took it (and made it durable) within 30 s; it is still queued and "
+                  "will be applied or refused (watch /v1/stats)");
         return;
     }
     if (res.code != 0) {

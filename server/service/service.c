@@ -226,14 +226,17 @@ int service_settle(service *s)
 {
     THREAD_OWNED(&s->owner);
     service_batch *b = &s->batch;
-    if (b->out_count == 0)
+    if (b->out_count == 0) {
+        service_edits_answer_held(s);
         return 1;
+    }
     if (s->store && !store_settle(s->store))
         return 0;
     int dropped = hub_publish(s->hub, b->out, b->out_count);
     if (dropped)
         metrics_count_frames_dropped((uint64_t)dropped);
     b->out_count = 0;
+    service_edits_answer_held(s); /* HTTP edits of the ticks now durable */
     return 1;
 }
 

@@ -10,13 +10,15 @@
  * follows it exactly. Each sender hears, once the tick is committed, the
  * tick the edit took effect and its exact volume change — an HTTP sender
  * only once the tick is published (service_edits_answer), since its thread
- * answers at once and nothing may name a tick before the status does; a
+ * answers at once and nothing may name a tick before the status does, and
+ * durable (under a group commit its answer waits with the tick's frames); a
  * tick the store cannot log takes its edits back and tells their senders so.
  * Sim thread only.
  */
 #include "service/service_internal.h"
 
 #include <cjson/cJSON.h>
+#include <inttypes.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -139,13 +141,45 @@ void service_edits_finish(service *s)
     s->edit_count = kept;
 }
 
+/* The HTTP sender's answer (its op counted with it, as tell does). */
+static void answer(const svc_edit_answer *a)
+{
+    metrics_count_edit(world_edit_op_name(a->op), a->res.code == 0, a->res.volume);
+    hub_edit_finish(a->waiter, &a->res);
+}
+
 void service_edits_answer(service *s)
 {
+    /* The batch still holds frames once publish() has run only while the
+     * store has not made the tick durable (a group commit): an HTTP edit's
+     * answer is an acknowledgement, so it waits with them — a crash before the
+     * sync would otherwise lose an edit its sender was told took effect. */
+    int held = s->batch.out_count > 0 || s->held_answer_count > 0;
     for (int i = 0; i < s->edit_count; i++) {
-        hub_edit_result res = applied(s, &s->edits[i]);
-        tell(s, &s->edits[i], &res);
+        svc_edit_answer a = {s->edits[i].waiter, s->edits[i].op, applied(s, &s->edits[i])};
+        if (held && array_grow((void **)&s->held_answers, &s->held_answer_capacity,
+                               (int64_t)s->held_answer_count + 1, sizeof *s->held_answers) == 0) {
+            s->held_answers[s->held_answer_count++] = a;
+            continue;
+        }
+        if (held) { /* no memory to hold it: refuse rather than acknowledge early */
+            a.res = (hub_edit_result){.code = TERRAD_E_INTERNAL, .tick = a.res.tick};
+            snprintf(a.res.message, sizeof a.res.message,
+                     "edit: applied at tick %" PRIu64
+                     ", but no memory to hold this answer until that tick is durable "
+                     "(watch /v1/stats)",
+                     a.res.tick);
+        }
+        answer(&a);
     }
     s->edit_count = 0;
+}
+
+void service_edits_answer_held(service *s)
+{
+    for (int i = 0; i < s->held_answer_count; i++)
+        answer(&s->held_answers[i]);
+    s->held_answer_count = 0;
 }
 
 void service_edits_free(service *s)
@@ -154,6 +188,10 @@ void service_edits_free(service *s)
         hub_edit_finish(s->edits[i].waiter, &(hub_edit_result){.code = TERRAD_E_SHUTTING_DOWN});
         free(s->edits[i].diff);
     }
+    for (int i = 0; i < s->held_answer_count; i++) /* their ticks never made durable */
+        hub_edit_finish(s->held_answers[i].waiter,
+                        &(hub_edit_result){.code = TERRAD_E_SHUTTING_DOWN});
+    free(s->held_answers);
     free(s->edits);
     free(s->commit_rects);
 }

@@ -103,6 +103,13 @@ typedef struct svc_edit {
     hub_edit_waiter *waiter; /* HTTP sender */
 } svc_edit;
 
+/* An HTTP edit's answer held until its tick is durable (a group commit). */
+typedef struct svc_edit_answer {
+    hub_edit_waiter *waiter;
+    world_edit_op op;
+    hub_edit_result res;
+} svc_edit_answer;
+
 /* One piece of a dirty rectangle inside one tile. */
 typedef struct tile_piece {
     int tile;   /* tile index */
@@ -168,6 +175,9 @@ struct service {
     svc_edit *edits; /* this tick's, in the order applied */
     int edit_count;
     int64_t edit_capacity;
+    svc_edit_answer *held_answers; /* HTTP edits of ticks not durable yet, oldest first */
+    int held_answer_count;
+    int64_t held_answer_capacity;
     world_rect *commit_rects; /* edits' and the engine's, for the store */
     int64_t commit_capacity;
 
@@ -275,8 +285,12 @@ void service_edits_undo(service *s, int code, const char *why);
  * change (an `edited` reply, a frame of the tick, in order with its others). */
 void service_edits_finish(service *s);
 /* The tick is published (its status names it): tell each HTTP sender its
- * tick and volume change, which it answers at once. */
+ * tick and volume change, which it answers at once — once the tick is also
+ * durable: under a group commit (its frames still held in the batch) the
+ * answers wait with the frames, and service_edits_answer_held tells them when
+ * service_settle hands those frames over. */
 void service_edits_answer(service *s);
+void service_edits_answer_held(service *s);
 void service_edits_free(service *s);
 
 /* service_colliders.c */

@@ -605,6 +605,20 @@ class Daemon:
         return status, body.decode("utf-8", "replace")
 
 
+def post_edit(d, name, body, token=None):
+    """(status, JSON answer) of POST /v1/worlds/{name}/edits."""
+    data = body if isinstance(body, bytes) else json.dumps(body).encode()
+    req = urllib.request.Request(f"{d.http}/v1/worlds/{name}/edits", data=data, method="POST",
+                                 headers={"Content-Type": "application/json"})
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    try:
+        with urllib.request.urlopen(req, timeout=60) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read() or b"{}")
+
+
 def wait_until(cond, seconds=120, poll=0.2):
     """Whether cond() becomes true within seconds (polled): a condition, never a moment, for
     what a daemon's threads do beside its ticks (compaction, retention) on a busy machine."""

@@ -26,29 +26,13 @@ import shutil
 import struct
 import sys
 import tempfile
-import urllib.error
-import urllib.request
 import zlib
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import Checks, Daemon, metric_value, tp  # noqa: E402
+from service_harness import Checks, Daemon, metric_value, post_edit, tp  # noqa: E402
 
 check = Checks()
 REGION = (0, 0, 256, 256)
-
-
-def post_edit(d, name, body, token=None):
-    """(status, JSON answer) of POST /v1/worlds/{name}/edits."""
-    data = body if isinstance(body, bytes) else json.dumps(body).encode()
-    req = urllib.request.Request(f"{d.http}/v1/worlds/{name}/edits", data=data, method="POST",
-                                 headers={"Content-Type": "application/json"})
-    if token:
-        req.add_header("Authorization", f"Bearer {token}")
-    try:
-        with urllib.request.urlopen(req, timeout=60) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as e:
-        return e.code, json.loads(e.read() or b"{}")
 
 
 def png16(w, h, values):

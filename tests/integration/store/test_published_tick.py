@@ -9,6 +9,9 @@ of the frames the websocket thread has dispatched.
   first one about 10 s after the store opened, so meanwhile the websocket thread has
   dispatched no tick while /v1/stats and GET /v1/heights (X-Terrad-Tick) go on naming them.
 - The world message a client gets at hello names a tick no later than /v1/stats right after.
+- POST /v1/worlds/NAME/edits is answered with its tick only once the store has made that tick
+  durable (terrad_store_durable_tick right after the answer is at least it): without the
+  holding (service_edits_answer answered at once) the answer came up to 10 s before the sync.
 - GET /v1/heights answers as of tick T; `spectate` from T on a fresh connection is accepted
   (`spectating`, then spectate_end "live": its replay is at the live tick); so is a spectate
   from the tick /v1/stats names; GET /v1/heights?tick=T rebuilds exactly what the live read
@@ -26,7 +29,8 @@ import struct
 import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "support"))
-from service_harness import Checks, Daemon, RecordingClient, wait_until  # noqa: E402
+from service_harness import (Checks, Daemon, RecordingClient, metric_value, post_edit,  # noqa: E402
+                             wait_until)
 import terrad as tp  # noqa: E402
 
 check = Checks()
@@ -78,6 +82,17 @@ async def run(d):
     ok, why = await spectate_from(d, stats_tick + 100000, "future")
     check(not ok and why.get("message", "").startswith("from_tick:"),
           f"a from_tick 100,000 ticks ahead is refused, naming from_tick ({why})")
+
+    # An HTTP edit's answer is an acknowledgement: it waits for the sync that makes its tick
+    # durable (service_edits_answer holds it with the tick's frames), so a crash after it
+    # cannot lose the edit.
+    name = d.world().get("world") or "default-dunes"
+    st, a = post_edit(d, name, {"op": "add", "x": 1, "y": 1, "w": 2, "h": 2, "amount": 5})
+    _, text = d.metrics()
+    durable = metric_value(text, "terrad_store_durable_tick")
+    check(st == 200 and durable is not None and durable >= a.get("tick", float("inf")),
+          f"an HTTP edit is answered once its tick is durable ({st} {a}; the durable tick "
+          f"right after: {durable})")
     check(d.stats()["ready"], "and the daemon goes on")
 
 
