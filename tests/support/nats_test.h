@@ -21,6 +21,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "cluster/cluster.h"
+
 static inline int nats_installed(void)
 {
     return system("command -v nats-server >/dev/null 2>&1") == 0;
@@ -208,6 +210,27 @@ static inline void urls_of(const nats_proc *all, int n, char *out, size_t cap)
         size_t at = strlen(out);
         snprintf(out + at, cap - at, "%snats://127.0.0.1:%d", i ? "," : "", all[i].port);
     }
+}
+
+/* One nats-server under the test's temporary root and two nodes, "a" and "b",
+ * connected to it (the single-server cluster tests' start); 0 when both are
+ * (else err says why, and whichever did connect is closed). */
+static inline int nats_one_two_nodes(const char *test, nats_proc *one, cluster **a, cluster **b,
+                                     error_text *err)
+{
+    nats_tmp_root(test);
+    nats_init(one, 1);
+    nats_start_all(one, 1);
+    char urls[64];
+    urls_of(one, 1, urls, sizeof urls);
+    cluster_config ca = {.urls = urls, .node = "a"}, cb = {.urls = urls, .node = "b"};
+    *a = cluster_connect(&ca, err);
+    *b = *a ? cluster_connect(&cb, err) : NULL;
+    if (*a && *b)
+        return 0;
+    cluster_close(*a);
+    *a = NULL;
+    return -1;
 }
 
 #endif

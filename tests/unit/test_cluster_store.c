@@ -559,17 +559,12 @@ int main(void)
         printf("nats-server is not installed: skipped\n");
         return 77;
     }
-    nats_tmp_root("test_cluster_store");
     nats_proc one[1];
-    nats_init(one, 1);
-    nats_start_all(one, 1);
-    char urls[64];
-    urls_of(one, 1, urls, sizeof urls);
+    cluster *a, *b;
     error_text err = {{0}};
-    cluster_config ca = {.urls = urls, .node = "a"}, cb = {.urls = urls, .node = "b"};
-    cluster *a = cluster_connect(&ca, &err), *b = a ? cluster_connect(&cb, &err) : NULL;
-    CHECK(a && b, "two nodes connect: %s", err.message);
-    if (a && b) {
+    int up = nats_one_two_nodes("test_cluster_store", one, &a, &b, &err) == 0;
+    CHECK(up, "two nodes connect: %s", err.message);
+    if (up) {
         test_failover(a, b);
         test_two_worlds(a);
         test_soil(a, b);
